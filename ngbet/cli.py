@@ -1,0 +1,98 @@
+"""Command line: ``ngbet run [scene.toml] [--out DIR]``, ``ngbet scene``.
+
+Exit status: 0 done, 1 the solver could not reach the final load (converged steps are on disk),
+2 a bad scene or command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import logging
+import sys
+from pathlib import Path
+
+from .scene import Scene, SceneError, default_scene
+
+
+def _parse_value(text: str) -> object:
+    low = text.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def load_scene(path: str | None, overrides: list[str]) -> Scene:
+    """The scene file (or the default scene) with ``section.key=value`` overrides applied."""
+    scene = Scene.from_toml(path) if path else default_scene()
+    changes = {}
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep or "." not in key:
+            raise SceneError(f"--set expects section.key=value, got {item!r}")
+        changes[key.strip()] = _parse_value(value.strip())
+    return scene.with_changes(**changes) if changes else scene
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="ngbet", description="Bias extension tests of woven fabrics (NGSolve).")
+    sub = parser.add_subparsers(dest="command", required=True)
+    pr = sub.add_parser("run", help="run a scene (default: the paper's BET to 56 mm)")
+    pr.add_argument("scene", nargs="?", help="scene TOML file (default: the embedded scene)")
+    pr.add_argument("--out", default="out/run", help="output folder (default: out/run)")
+    pr.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
+    pr.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
+    pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
+    ps = sub.add_parser("scene", help="print a scene as TOML (default: the embedded one)")
+    ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
+    ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    args = parser.parse_args(argv)
+
+    level = logging.WARNING if getattr(args, "quiet", False) else (
+        logging.INFO if getattr(args, "verbose", False) else logging.WARNING)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        scene = load_scene(args.scene, args.overrides)
+    except SceneError as exc:
+        print(f"ngbet: bad scene: {exc}", file=sys.stderr)
+        return 2
+    if args.command == "scene":
+        sys.stdout.write(scene.to_toml())
+        return 0
+
+    from .run import run
+    from .solver import ConvergenceError
+
+    out = Path(args.out)
+    try:
+        summary = run(scene, out, progress=not args.quiet)
+    except ConvergenceError as exc:
+        print(f"ngbet: the load could not be carried to the end; converged steps are in {out}\n{exc}",
+              file=sys.stderr)
+        return 1
+    except SceneError as exc:
+        print(f"ngbet: bad scene: {exc}", file=sys.stderr)
+        return 2
+    print(_report(summary, out))
+    return 0
+
+
+def _report(summary: dict, out: Path) -> str:
+    from .output import read_rows
+
+    rows = read_rows(out / "results.csv")
+    lines = [f"ngbet: {summary['status']}: u0 = {summary['u0_reached_mm']:g} mm in {summary.get('load_steps', len(rows))} "
+             f"load steps, {summary.get('newton_iterations', '?')} Newton iterations, {summary['wall_s']:.2f} s; "
+             f"results in {out}/"]
+    for r in rows:
+        if "force_N" in r and (abs(r["u0_mm"] - 37) < 1e-9 or r is rows[-1]):
+            lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,309 @@
+"""The yarn network of the discrete model: two families of straight yarns clipped to the specimen.
+
+Geometry (reference configuration, SI units)::
+
+    family 1 (thick):  m1 = ( cos a, sin a),  n1 = (-sin a, cos a)
+    family 2 (thin):   m2 = (-cos a, sin a),  n2 = (-sin a, -cos a)
+    yarn j of family k:  { X : n_k . X = n_k . C + s j },   C = (L/2, W/2),  j integer
+
+so that neighbouring parallel yarns are a distance s apart and the set of yarns is mapped onto
+itself by the half-turn about the centre C (j -> -j). Each line is clipped to B = [0, L] x [0, W].
+A yarn ends either on a clamp (X = 0 or X = L: all its end dofs are prescribed) or on a free
+edge (Y = 0 or Y = W). Crossings are the intersections of a family-1 and a family-2 yarn strictly
+inside B.
+
+Each crossing carries two nodes, one per yarn, at the same reference point, so that the yarns can
+slip relative to each other (the slip spring ties them elastically). Every yarn is a chain of
+nodes: its two end nodes, its crossing nodes in order along m_k, and ``elements_per_segment - 1``
+equally spaced interior nodes between consecutive stations.
+
+BET zones per crossing (MODEL.md section 4): A when neither yarn ends on a clamp, B when exactly
+one does, C when both end on the same clamp ("other" when they end on different clamps, which
+only happens for L < 2 W / tan a and is not one of the three ideal zones).
+
+Inter-yarn trusses (``inter_layout = "neighbours"``): for two adjacent yarns j, j+1 of one family
+and each yarn of the other family that crosses both, a truss joins the two crossing nodes of j
+and j+1 on that yarn (the "close interaction points of two close yarns of the same family",
+paper section 3): it lies along the crossing yarn, has rest length s / sin(2a) and resists the
+spreading and the closing of parallel yarns, which the slip springs alone resist only weakly.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+ZONE_NAMES = ("A", "B", "C", "other")
+# end kinds of a yarn
+FREE, CLAMP_FIXED, CLAMP_MOVING = 0, 1, 2
+
+
+class NetworkError(ValueError):
+    """The yarn network cannot be built from the given geometry."""
+
+
+@dataclass(frozen=True)
+class Network:
+    """A yarn network in the reference configuration (SI units; arrays are not to be mutated).
+
+    Attributes
+    ----------
+    X : (n_nodes, 2) reference node positions [m]
+    node_yarn : (n_nodes,) yarn index of each node
+    node_family : (n_nodes,) 1 or 2
+    node_end : (n_nodes,) FREE for non-end nodes and free ends, CLAMP_FIXED / CLAMP_MOVING for clamped ends
+    yarn_family : (n_yarns,) 1 or 2
+    yarn_index : (n_yarns,) the integer j of the yarn line
+    yarn_nodes : list of (n,) node chains, ordered along m_k
+    yarn_ends : (n_yarns, 2) end kinds (start, end)
+    beams : (n_beams, 2) node pairs of the beam elements
+    beam_family : (n_beams,) 1 or 2
+    crossings : (n_cross, 2) nodes (on the family-1 yarn, on the family-2 yarn) of each crossing
+    crossing_yarns : (n_cross, 2) yarns (family 1, family 2) of each crossing
+    crossing_zone : (n_cross,) 0 = A, 1 = B, 2 = C, 3 = other
+    trusses : (n_trusses, 2) node pairs of the inter-yarn trusses
+    spacing : s [m]
+    L, W : specimen size [m]
+    angle : yarn angle a [rad]
+    """
+
+    X: np.ndarray
+    node_yarn: np.ndarray
+    node_family: np.ndarray
+    node_end: np.ndarray
+    yarn_family: np.ndarray
+    yarn_index: np.ndarray
+    yarn_nodes: tuple[np.ndarray, ...]
+    yarn_ends: np.ndarray
+    beams: np.ndarray
+    beam_family: np.ndarray
+    crossings: np.ndarray
+    crossing_yarns: np.ndarray
+    crossing_zone: np.ndarray
+    trusses: np.ndarray
+    spacing: float
+    L: float
+    W: float
+    angle: float
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.X.shape[0])
+
+    @property
+    def n_dofs(self) -> int:
+        """Three dofs per node: ux, uy, theta."""
+        return 3 * self.n_nodes
+
+    def clamped_nodes(self, which: int) -> np.ndarray:
+        """Nodes on the fixed (``CLAMP_FIXED``) or moving (``CLAMP_MOVING``) clamp."""
+        return np.flatnonzero(self.node_end == which)
+
+    def counts(self) -> dict[str, int]:
+        """Sizes of the network, for logs and summaries."""
+        return {"yarns_1": int(np.sum(self.yarn_family == 1)), "yarns_2": int(np.sum(self.yarn_family == 2)),
+                "crossings": int(len(self.crossings)), "nodes": self.n_nodes, "dofs": self.n_dofs,
+                "beams": int(len(self.beams)), "trusses": int(len(self.trusses)),
+                **{f"crossings_{z}": int(np.sum(self.crossing_zone == i)) for i, z in enumerate(ZONE_NAMES)}}
+
+
+def family_frames(angle: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Unit directions and normals: m1 = (cos a, sin a), m2 = (-cos a, sin a), n_k = R(90°) m_k."""
+    c, s = math.cos(angle), math.sin(angle)
+    m1, m2 = np.array([c, s]), np.array([-c, s])
+    return m1, np.array([-s, c]), m2, np.array([-s, -c])
+
+
+def clip_line(p0: np.ndarray, m: np.ndarray, L: float, W: float, tol: float) -> tuple[float, float] | None:
+    """Parameter interval [t0, t1] of the line p0 + t m inside [0, L] x [0, W] (slab method)."""
+    t0, t1 = -math.inf, math.inf
+    for k, hi in ((0, L), (1, W)):
+        if abs(m[k]) < 1e-14:
+            if not (-tol <= p0[k] <= hi + tol):
+                return None
+            continue
+        a, b = (0.0 - p0[k]) / m[k], (hi - p0[k]) / m[k]
+        t0, t1 = max(t0, min(a, b)), min(t1, max(a, b))
+    return (t0, t1) if t1 - t0 > tol else None
+
+
+def end_kind(P: np.ndarray, L: float, tol: float) -> int:
+    """Which boundary a yarn end lies on: a clamp wins over a free edge at a corner."""
+    if abs(P[0]) <= tol:
+        return CLAMP_FIXED
+    if abs(P[0] - L) <= tol:
+        return CLAMP_MOVING
+    return FREE
+
+
+def build_network(L: float, W: float, angle_deg: float, spacing: float, elements_per_segment: int = 1,
+                  inter_layout: str = "neighbours") -> Network:
+    """Build the yarn network of a BET specimen.
+
+    Parameters
+    ----------
+    L, W : specimen length (along the load) and width [m]
+    angle_deg : angle a of the thick yarns to e1 [deg]
+    spacing : distance s between neighbouring parallel yarns [m]
+    elements_per_segment : beam elements between two consecutive stations (ends, crossings) of a yarn
+    inter_layout : "neighbours" (trusses between adjacent yarns, see module docstring) or "none"
+
+    Returns
+    -------
+    Network
+    """
+    if spacing <= 0 or L <= 0 or W <= 0:
+        raise NetworkError(f"network needs L, W, spacing > 0, got L={L}, W={W}, spacing={spacing}")
+    if elements_per_segment < 1:
+        raise NetworkError(f"elements_per_segment = {elements_per_segment}: must be >= 1")
+    a = math.radians(angle_deg)
+    tol = 1e-9 * max(L, W)
+    m1, n1, m2, n2 = family_frames(a)
+    C = np.array([L / 2, W / 2])
+    corners = np.array([[0, 0], [L, 0], [0, W], [L, W]], float)
+
+    # candidate yarn lines of each family, kept if their clipped length is positive
+    lines: list[tuple[int, int, np.ndarray, np.ndarray, float, float]] = []  # family, j, p0, m, t0, t1
+    for fam, m, n in ((1, m1, n1), (2, m2, n2)):
+        c0 = float(n @ C)
+        cs = corners @ n
+        jmin, jmax = math.ceil((cs.min() - c0) / spacing), math.floor((cs.max() - c0) / spacing)
+        for j in range(jmin, jmax + 1):
+            c = c0 + spacing * j
+            p0 = c * n
+            seg = clip_line(p0, m, L, W, tol)
+            if seg is not None:
+                lines.append((fam, j, p0, m, seg[0], seg[1]))
+    fam_of = np.array([ln[0] for ln in lines])
+    i1, i2 = np.flatnonzero(fam_of == 1), np.flatnonzero(fam_of == 2)
+    if len(i1) == 0 or len(i2) == 0:
+        raise NetworkError(f"spacing {spacing * 1e3:g} mm leaves no yarn of one family in a "
+                           f"{L * 1e3:g} x {W * 1e3:g} mm specimen")
+
+    # crossings: p1 + t m1 = p2 + r m2, solved for all pairs at once
+    P1 = np.array([lines[i][2] for i in i1])
+    P2 = np.array([lines[i][2] for i in i2])
+    M = np.column_stack([m1, -m2])
+    rhs = P2[None, :, :] - P1[:, None, :]  # (n1, n2, 2)
+    tr = np.linalg.solve(M, rhs.reshape(-1, 2).T).T.reshape(len(i1), len(i2), 2)
+    T1 = np.array([[lines[i][4], lines[i][5]] for i in i1])
+    T2 = np.array([[lines[i][4], lines[i][5]] for i in i2])
+    inside = ((tr[..., 0] > T1[:, None, 0] + tol) & (tr[..., 0] < T1[:, None, 1] - tol)
+              & (tr[..., 1] > T2[None, :, 0] + tol) & (tr[..., 1] < T2[None, :, 1] - tol))
+    cross_a, cross_b = np.nonzero(inside)  # indices into i1, i2
+
+    # drop yarns without crossings: nothing would hold them but their clamp, or nothing at all
+    has1 = np.zeros(len(i1), bool)
+    has1[cross_a] = True
+    has2 = np.zeros(len(i2), bool)
+    has2[cross_b] = True
+    for lst, has in ((i1, has1), (i2, has2)):
+        for k in np.flatnonzero(~has):
+            fam, j = lines[lst[k]][0], lines[lst[k]][1]
+            log.info("yarn %d of family %d crosses no other yarn: dropped", j, fam)
+
+    X: list[np.ndarray] = []
+    node_yarn: list[int] = []
+    node_family: list[int] = []
+    node_end: list[int] = []
+    yarn_family, yarn_index, yarn_nodes, yarn_ends = [], [], [], []
+    beams: list[tuple[int, int]] = []
+    beam_family: list[int] = []
+    # crossing node of (family-1 yarn a, family-2 yarn b) on each yarn
+    node_on_1: dict[tuple[int, int], int] = {}
+    node_on_2: dict[tuple[int, int], int] = {}
+    yarn_of_1: dict[int, int] = {}
+    yarn_of_2: dict[int, int] = {}
+
+    def add_node(P: np.ndarray, y: int, fam: int, end: int) -> int:
+        X.append(P)
+        node_yarn.append(y)
+        node_family.append(fam)
+        node_end.append(end)
+        return len(X) - 1
+
+    for fam, lst, has in ((1, i1, has1), (2, i2, has2)):
+        for k in np.flatnonzero(has):
+            _, j, p0, m, t0, t1 = lines[lst[k]]
+            y = len(yarn_family)
+            if fam == 1:
+                partners = cross_b[cross_a == k]
+                ts = tr[k, partners, 0]
+                yarn_of_1[k] = y
+            else:
+                partners = cross_a[cross_b == k]
+                ts = tr[partners, k, 1]
+                yarn_of_2[k] = y
+            order = np.argsort(ts)
+            partners, ts = partners[order], ts[order]
+            ends = (end_kind(p0 + t0 * m, L, tol), end_kind(p0 + t1 * m, L, tol))
+            stations = np.concatenate([[t0], ts, [t1]])
+            chain = [add_node(p0 + t0 * m, y, fam, ends[0])]
+            for s_idx in range(1, len(stations)):
+                ta, tb = stations[s_idx - 1], stations[s_idx]
+                for q in range(1, elements_per_segment):
+                    chain.append(add_node(p0 + (ta + (tb - ta) * q / elements_per_segment) * m, y, fam, FREE))
+                last = s_idx == len(stations) - 1
+                chain.append(add_node(p0 + tb * m, y, fam, ends[1] if last else FREE))
+                if not last:
+                    key = (k, int(partners[s_idx - 1])) if fam == 1 else (int(partners[s_idx - 1]), k)
+                    (node_on_1 if fam == 1 else node_on_2)[key] = chain[-1]
+            chain_arr = np.array(chain)
+            beams.extend(zip(chain_arr[:-1].tolist(), chain_arr[1:].tolist()))
+            beam_family.extend([fam] * (len(chain) - 1))
+            yarn_family.append(fam)
+            yarn_index.append(j)
+            yarn_nodes.append(chain_arr)
+            yarn_ends.append(ends)
+
+    keys = sorted(node_on_1)
+    crossings = np.array([[node_on_1[kk], node_on_2[kk]] for kk in keys], int).reshape(-1, 2)
+    crossing_yarns = np.array([[yarn_of_1[kk[0]], yarn_of_2[kk[1]]] for kk in keys], int).reshape(-1, 2)
+    yarn_ends_arr = np.array(yarn_ends, int).reshape(-1, 2)
+    zone = np.array([crossing_zone(yarn_ends_arr[ya], yarn_ends_arr[yb]) for ya, yb in crossing_yarns], int)
+
+    trusses: list[tuple[int, int]] = []
+    if inter_layout == "neighbours":
+        j1 = {k: lines[i1[k]][1] for k in yarn_of_1}
+        j2 = {k: lines[i2[k]][1] for k in yarn_of_2}
+        by1 = {(j1[ka], kb): n for (ka, kb), n in node_on_1.items()}  # (j of fam-1 yarn, fam-2 yarn) -> node
+        by2 = {(ka, j2[kb]): n for (ka, kb), n in node_on_2.items()}
+        trusses += [(n, by1[(jj + 1, kb)]) for (jj, kb), n in sorted(by1.items()) if (jj + 1, kb) in by1]
+        trusses += [(n, by2[(ka, jj + 1)]) for (ka, jj), n in sorted(by2.items()) if (ka, jj + 1) in by2]
+    elif inter_layout != "none":
+        raise NetworkError(f"inter_layout = {inter_layout!r}: must be 'neighbours' or 'none'")
+
+    Xa = np.array(X)
+    seg = np.linalg.norm(Xa[np.array(beams)[:, 1]] - Xa[np.array(beams)[:, 0]], axis=1)
+    if seg.min() < 1e-3 * spacing / elements_per_segment:
+        log.warning("shortest beam element is %.3g mm (spacing %.3g mm): the tangent will be ill-conditioned",
+                    seg.min() * 1e3, spacing * 1e3)
+    return Network(X=Xa, node_yarn=np.array(node_yarn), node_family=np.array(node_family),
+                   node_end=np.array(node_end), yarn_family=np.array(yarn_family),
+                   yarn_index=np.array(yarn_index), yarn_nodes=tuple(yarn_nodes), yarn_ends=yarn_ends_arr,
+                   beams=np.array(beams, int).reshape(-1, 2), beam_family=np.array(beam_family),
+                   crossings=crossings, crossing_yarns=crossing_yarns, crossing_zone=zone,
+                   trusses=np.array(trusses, int).reshape(-1, 2), spacing=spacing, L=L, W=W, angle=a)
+
+
+def crossing_zone(ends_1: np.ndarray, ends_2: np.ndarray) -> int:
+    """BET zone of a crossing from the end kinds of its two yarns: 0 = A, 1 = B, 2 = C, 3 = other."""
+    c1 = {e for e in ends_1 if e != FREE}
+    c2 = {e for e in ends_2 if e != FREE}
+    if not c1 and not c2:
+        return 0
+    if not c1 or not c2:
+        return 1
+    return 2 if c1 & c2 else 3
+
+
+def network_from_scene(scene) -> Network:  # type: ignore[no-untyped-def]
+    """The network of ``scene.specimen`` with the spacing and layout of ``scene.discrete``."""
+    sp, d = scene.specimen, scene.discrete
+    return build_network(sp.L, sp.W, sp.yarn_angle_deg, d.spacing_mm * 1e-3, d.elements_per_segment,
+                         d.inter_layout)

@@ -1,0 +1,134 @@
+"""Observables of a yarn-network state u (SI in, the units in the names out).
+
+- slip at a crossing: s = |u_a - u_b|, the relative displacement of the two yarns' nodes that
+  coincided at rest;
+- shear angle at a crossing: gamma = theta_2 - theta_1, the change of the angle between the
+  tangent of the family-2 yarn and that of the family-1 yarn (nodal rotations of Euler-Bernoulli
+  beams are tangent rotations). With m1 = (cos a, sin a), m2 = (-cos a, sin a) the angle between
+  the direction vectors opens from pi - 2a to pi - 2a + gamma, as in MODEL.md section 4 (gamma > 0
+  in the BET);
+- zone means of gamma over the crossings of zones A, B, C;
+- mid-axis profile: u_y where the yarns cross Y = W/2 in the reference configuration (linear
+  interpolation along the element), interpolated along X for each family and averaged over the two
+  families, with u_y = 0 at both clamps.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .network import Network
+
+
+def crossing_slip(net: Network, u: np.ndarray) -> np.ndarray:
+    """|u_a - u_b| [m] at each crossing."""
+    a, b = net.crossings[:, 0], net.crossings[:, 1]
+    return np.hypot(u[3 * a] - u[3 * b], u[3 * a + 1] - u[3 * b + 1])
+
+
+def crossing_gamma(net: Network, u: np.ndarray) -> np.ndarray:
+    """gamma = theta_2 - theta_1 [rad] at each crossing."""
+    return u[3 * net.crossings[:, 1] + 2] - u[3 * net.crossings[:, 0] + 2]
+
+
+def zone_means(net: Network, values: np.ndarray) -> dict[str, float]:
+    """Mean of a per-crossing value over the zones A, B, C (nan for an empty zone)."""
+    out = {}
+    for i, z in enumerate("ABC"):
+        sel = net.crossing_zone == i
+        out[z] = float(values[sel].mean()) if np.any(sel) else math.nan
+    return out
+
+
+def midline_points(net: Network, u: np.ndarray, family: int) -> tuple[np.ndarray, np.ndarray]:
+    """(X, u_y) [m] where the beams of one family cross Y = W/2 in the reference configuration."""
+    b = net.beams[net.beam_family == family]
+    Ya, Yb = net.X[b[:, 0], 1], net.X[b[:, 1], 1]
+    y = 0.5 * net.W
+    hit = ((Ya - y) * (Yb - y) <= 0) & (Ya != Yb)
+    b = b[hit]
+    s = (y - net.X[b[:, 0], 1]) / (net.X[b[:, 1], 1] - net.X[b[:, 0], 1])
+    X = net.X[b[:, 0], 0] + s * (net.X[b[:, 1], 0] - net.X[b[:, 0], 0])
+    uy = u[3 * b[:, 0] + 1] + s * (u[3 * b[:, 1] + 1] - u[3 * b[:, 0] + 1])
+    X, keep = np.unique(X, return_index=True)  # a yarn node exactly on the line is hit twice
+    return X, uy[keep]
+
+
+def midline_profile(net: Network, u: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """u_y on Y = W/2 at n_points equally spaced X in [0, L], averaged over the two families [m]."""
+    Xg = np.linspace(0.0, net.L, n_points)
+    curves = []
+    for fam in (1, 2):
+        X, uy = midline_points(net, u, fam)
+        if len(X):
+            curves.append(np.interp(Xg, np.concatenate([[0.0], X, [net.L]]), np.concatenate([[0.0], uy, [0.0]])))
+    return Xg, np.mean(curves, axis=0) if curves else np.zeros_like(Xg)
+
+
+def yarn_polylines(net: Network, u: np.ndarray) -> list[np.ndarray]:
+    """Deformed polyline (n, 2) [m] of each yarn."""
+    x = net.X + u.reshape(-1, 3)[:, :2]
+    return [x[c] for c in net.yarn_nodes]
+
+
+def node_gamma(net: Network, u: np.ndarray) -> np.ndarray:
+    """gamma interpolated along each yarn from its crossings to all its nodes [rad] (for plots)."""
+    g = np.full(net.n_nodes, np.nan)
+    gc = crossing_gamma(net, u)
+    g[net.crossings[:, 0]] = gc
+    g[net.crossings[:, 1]] = gc
+    for chain in net.yarn_nodes:
+        known = np.isfinite(g[chain])
+        if known.any():
+            idx = np.arange(len(chain))
+            g[chain] = np.interp(idx, idx[known], g[chain][known])
+    return np.nan_to_num(g)
+
+
+def save_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: ignore[no-untyped-def]
+    """Write a state as npz: reference nodes, displacements, yarn chains, crossings with slip and angle."""
+    chains = list(net.yarn_nodes)
+    ptr = np.concatenate([[0], np.cumsum([len(c) for c in chains])])
+    gamma = crossing_gamma(net, u)
+    np.savez_compressed(
+        path, u0_mm=u0 * 1e3, X_mm=net.X * 1e3, u_mm=u.reshape(-1, 3)[:, :2] * 1e3,
+        theta_rad=u.reshape(-1, 3)[:, 2], yarn_nodes=np.concatenate(chains), yarn_ptr=ptr,
+        yarn_family=net.yarn_family, crossing_nodes=net.crossings, crossing_zone=net.crossing_zone,
+        crossing_X_mm=net.X[net.crossings[:, 0]] * 1e3, crossing_slip_mm=crossing_slip(net, u) * 1e3,
+        crossing_gamma_deg=np.degrees(gamma),
+        crossing_angle_deg=180.0 - 2 * math.degrees(net.angle) + np.degrees(gamma))
+
+
+def plot_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: ignore[no-untyped-def]
+    """PNG of the deformed yarns coloured by the angle between the yarns; thick yarns drawn thick."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3
+    ang = 180.0 - 2 * math.degrees(net.angle) + np.degrees(node_gamma(net, u))
+    seg_ang = 0.5 * (ang[net.beams[:, 0]] + ang[net.beams[:, 1]])
+    norm = plt.Normalize(float(seg_ang.min()), max(float(seg_ang.max()), float(seg_ang.min()) + 1e-6))
+    fig, ax = plt.subplots(figsize=(11, 4.8))
+    lc = None
+    for fam, lw, ls in ((2, 0.6, (0, (3, 1))), (1, 1.8, "solid")):
+        sel = net.beam_family == fam
+        lc = LineCollection(x[net.beams[sel]], linewidths=lw, linestyles=ls, cmap="viridis", norm=norm,
+                            label="thick yarns (family 1)" if fam == 1 else "thin yarns (family 2, dashed)")
+        lc.set_array(seg_ang[sel])
+        ax.add_collection(lc)
+    ax.plot(*(net.X[net.node_end > 0] * 1e3).T, "k|", ms=4)
+    ax.set_aspect("equal")
+    ax.autoscale()
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_title(f"discrete model, u0 = {u0 * 1e3:.1f} mm")
+    fig.colorbar(lc, ax=ax, label="angle between the yarns [deg]", shrink=0.8)
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=140)
+    plt.close(fig)

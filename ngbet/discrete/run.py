@@ -1,0 +1,135 @@
+"""Entry point of the discrete model: scene -> network -> load path -> run folder.
+
+Per converged step a row of results.csv (force on the moving clamp, energies per term, zone shear
+angles, largest slip, Newton iterations, wall time, lowest tangent eigenvalue) and the mid-axis
+profile; at u0 = 37 mm (when passed; the paper's intermediate shape) and at the last converged
+step the state (``state_XXmm.npz``: deformed yarns, slip and angle per crossing) and its picture
+(``yarns_XXmm.png``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..output import RunWriter
+from ..scene import Scene
+from . import observables as ob
+from .model import ENERGY_PARTS, NetworkModel
+from .network import network_from_scene
+from .solver import ConvergenceError, StepControl, StepInfo, solve_path
+
+log = logging.getLogger(__name__)
+
+SHAPE_STATIONS_MM = (37.0,)  # MODEL.md section 2: shapes are shown at 37 mm and at the end (56 mm)
+
+
+def step_control(scene: Scene) -> StepControl:
+    """The solver numerics of a scene in SI units."""
+    ld, so = scene.loading, scene.solver
+    return StepControl(u0_final=ld.u0_mm * 1e-3, first_step=ld.first_step_mm * 1e-3,
+                       max_step=ld.max_step_mm * 1e-3, min_step=ld.min_step_mm * 1e-3, rtol=so.rtol,
+                       atol=so.atol_energy, max_iterations=so.max_iterations, grow_after=so.grow_after,
+                       growth=so.growth, cut=so.cut, predictor=so.predictor, backend=so.linear_solver,
+                       stations=tuple(s * 1e-3 for s in SHAPE_STATIONS_MM if s < ld.u0_mm))
+
+
+def step_row(model: NetworkModel, info: StepInfo, u: np.ndarray) -> dict[str, Any]:
+    """One results.csv row from a converged state."""
+    net = model.net
+    Fx, Fy = model.reaction(info.gradient)
+    parts = model.energy_parts(u)
+    gz = ob.zone_means(net, ob.crossing_gamma(net, u))
+    slip = ob.crossing_slip(net, u)
+    row: dict[str, Any] = {"step": info.step, "u0_mm": round(info.u0 * 1e3, 9), "force_N": Fx, "force_y_N": Fy,
+                           "energy_J": info.energy}
+    row.update({f"energy_{k}_J": parts[k] for k in ENERGY_PARTS})
+    row.update({"newton_iterations": info.iterations, "step_wall_s": round(info.wall_s, 4),
+                "max_slip_mm": float(slip.max(initial=0.0)) * 1e3,
+                "gamma_A_deg": np.degrees(gz["A"]), "gamma_B_deg": np.degrees(gz["B"]),
+                "gamma_C_deg": np.degrees(gz["C"]), "lambda_min": info.lambda_min, "snap": int(info.snap),
+                "released_J": info.released})
+    return row
+
+
+def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
+    """Run the discrete BET model of ``scene`` and write its run folder.
+
+    Parameters
+    ----------
+    scene : the scene (``scene.discrete``, ``scene.specimen``, ``scene.loading``, ``scene.solver``)
+    out : run folder (created)
+    progress : show a tqdm bar over the clamp displacement
+
+    Returns
+    -------
+    The summary dict (also in ``out/summary.json``); ``status`` is "ok" or "failed".
+    """
+    out = Path(out)
+    writer = RunWriter(out, scene)
+    t0 = time.perf_counter()
+    net = network_from_scene(scene)
+    model = NetworkModel.from_scene(scene, net)
+    t_build = time.perf_counter() - t0
+    counts = net.counts()
+    log.info("discrete network: %s", counts)
+    ctl = step_control(scene)
+    n_prof = scene.outputs.profile_points
+    last: dict[str, Any] = {"u": np.zeros(model.n_dofs), "u0": 0.0}
+
+    def snapshot(u: np.ndarray, u0: float) -> None:
+        tag = f"{u0 * 1e3:.0f}mm"
+        ob.save_state(out / f"state_{tag}.npz", net, u, u0)
+        if scene.outputs.plot:
+            ob.plot_state(out / f"yarns_{tag}.png", net, u, u0)
+
+    def on_step(info: StepInfo, u: np.ndarray) -> None:
+        row = step_row(model, info, u)
+        X, uy = ob.midline_profile(net, u, n_prof)
+        writer.add_step(row, profile=list(zip((X * 1e3).tolist(), (uy * 1e3).tolist())))
+        last["u"], last["u0"] = u, info.u0
+        if any(abs(info.u0 - s) < 1e-12 for s in ctl.stations):
+            snapshot(u, info.u0)
+        log.debug("step %d u0 = %.4g mm F = %.5g N its %d", info.step, info.u0 * 1e3, row["force_N"], info.iterations)
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=round(ctl.u0_final * 1e3, 6), unit="mm", desc="discrete BET",
+                   bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} mm [{elapsed}<{remaining}]")
+
+        class _MM:
+            def update(self, h: float) -> None:
+                bar.update(h * 1e3)
+
+    info: dict[str, Any] = {"model": "discrete", "network": counts, "dofs": model.n_dofs,
+                            "free_dofs": int((~model.fixed).sum()), "t_build_s": t_build}
+    status, error = "ok", None
+    try:
+        stats = solve_path(model, ctl, on_step=on_step, progress=_MM() if bar is not None else None)
+    except ConvergenceError as exc:
+        status, error = "failed", str(exc)
+        stats = {"last_converged_u0_mm": exc.last_converged_u0 * 1e3, "attempted_u0_mm": exc.attempted_u0 * 1e3,
+                 "residual_history": exc.residual_history}
+        log.error("%s", exc)
+    finally:
+        if bar is not None:
+            bar.close()
+    stats.pop("u", None)
+    if last["u0"] > 0:
+        snapshot(last["u"], last["u0"])
+    rows = writer.rows
+    info.update({k: v for k, v in stats.items()})
+    info["snap_event_count"] = len(stats.get("snap_events", []))
+    info["newton_iterations_total"] = int(sum(r["newton_iterations"] for r in rows))
+    info["max_slip_mm"] = max((r["max_slip_mm"] for r in rows), default=0.0)
+    info["t_solve_s"] = time.perf_counter() - t0 - t_build
+    summary = writer.summary(info, status, error)
+    if status != "ok":
+        log.error("discrete run stopped at u0 = %.4g mm: %s", last["u0"] * 1e3, error)
+    return summary

@@ -1,0 +1,342 @@
+"""Newton's method with displacement load stepping for energy minimization problems.
+
+The solver knows nothing of yarns. A problem provides ``n_dofs``, ``fixed`` (bool mask of
+prescribed dofs), ``load`` (prescribed values per unit load parameter u0), ``ramp`` (a field for
+the "clamp" predictor) and ``evaluate(u, hessian) -> (E, dE/du, d2E/du2)``.
+
+Step from u0 to u0 + h:
+  predictor  "tangent": u_f += -K_ff^{-1} K_fc h load_c  (K at the last converged state)
+             "clamp":   u   += h ramp
+  corrector  Newton on the free dofs, du = -K_ff^{-1} r, with an Armijo backtracking on the
+             energy while far from the solution; where du is not a descent direction (K_ff
+             indefinite) the tangent is shifted by mu diag(K_ff), mu = 1e-6, 1e-4, ... until it is.
+  converged  when the Newton decrement |r . du| (an energy, twice the predicted energy change)
+             is below rtol |E| + atol: unit-free.
+  step size  grows by ``growth`` (up to max_step) after a step with at most ``grow_after``
+             iterations, is cut by ``cut`` after a failed step, and a step below ``min_step``
+             raises :class:`ConvergenceError` (residual history, last converged u0).
+  stability  at each converged state the eigenvalues of K_ff v = lambda D v nearest to 0
+             (D = diag K_ff, so lambda is unit-free) are computed by shift-invert Lanczos with the
+             factorization already made for the next predictor. lambda_min < 0 means an unstable
+             equilibrium: it is logged, perturbed along the unstable mode (both signs) and
+             relaxed to the lower stable neighbour, and counted as a snap event. A step that
+             only converges with shifted (indefinite) tangents is also a snap event: the state
+             jumped to a non-adjacent branch.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .linsolve import FreeBlockSolver, LinearSolverError
+
+log = logging.getLogger(__name__)
+
+
+class Problem(Protocol):
+    n_dofs: int
+    fixed: np.ndarray
+    load: np.ndarray
+    ramp: np.ndarray
+
+    def evaluate(self, u: np.ndarray, hessian: bool = True) -> tuple[float, np.ndarray, sp.csr_matrix | None]: ...
+
+
+class ConvergenceError(RuntimeError):
+    """A load step could not be completed even with the smallest step size.
+
+    Attributes
+    ----------
+    last_converged_u0 : load parameter of the last converged state (SI)
+    attempted_u0 : the load the failed step aimed at
+    residual_history : per Newton iteration of the last attempt: (energy, |r|_inf, decrement)
+    """
+
+    def __init__(self, msg: str, last_converged_u0: float, attempted_u0: float,
+                 residual_history: list[tuple[float, float, float]]) -> None:
+        super().__init__(msg)
+        self.last_converged_u0 = last_converged_u0
+        self.attempted_u0 = attempted_u0
+        self.residual_history = residual_history
+
+
+@dataclass(frozen=True)
+class StepControl:
+    """Numerics of the load path (SI load units); built from the scene by the entry point."""
+
+    u0_final: float
+    first_step: float
+    max_step: float
+    min_step: float
+    rtol: float = 1e-10
+    atol: float = 1e-14
+    max_iterations: int = 12
+    grow_after: int = 4
+    growth: float = 1.5
+    cut: float = 0.5
+    predictor: str = "tangent"
+    backend: str = "auto"
+    stability: bool = True
+    n_eigs: int = 4
+    stations: tuple[float, ...] = ()  # loads the path must hit exactly (shapes are wanted there)
+    snap_release: float = 0.05  # released fraction of the step's work that marks a snap-through
+    snap_bracket: float = 1e-3  # a step that snaps is cut until it is at most this long
+
+
+@dataclass
+class StepInfo:
+    """What the solver reports for one converged step."""
+
+    step: int
+    u0: float
+    iterations: int
+    wall_s: float
+    energy: float
+    gradient: np.ndarray
+    lambda_min: float = float("nan")
+    snap: bool = False
+    released: float = 0.0  # energy released beyond the clamp work in this step [J] (snap-through)
+    history: list[tuple[float, float, float]] = field(default_factory=list)
+
+
+class _StepFailed(Exception):
+    def __init__(self, why: str, history: list[tuple[float, float, float]]) -> None:
+        super().__init__(why)
+        self.history = history
+
+
+def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
+           max_iterations: int | None = None) -> tuple[np.ndarray, int, list[tuple[float, float, float]], int]:
+    """Minimize the energy over the free dofs from u (prescribed dofs as given).
+
+    Returns
+    -------
+    u, iterations, history [(E, |r|_inf, decrement)], number of iterations with a shifted tangent
+    """
+    free = lin.free
+    u = u.copy()
+    hist: list[tuple[float, float, float]] = []
+    shifted = 0
+    for it in range(1, (max_iterations or ctl.max_iterations) + 1):
+        E, g, K = problem.evaluate(u, True)
+        r = g[free]
+        if not (np.isfinite(E) and np.all(np.isfinite(r))):
+            raise _StepFailed("energy or residual not finite", hist)
+        try:
+            lin.factor(K)
+            du = -lin.solve(r)
+            dec = -float(r @ du)
+            mu = 1e-6
+            while dec <= 0 and mu < 1e3:  # not a descent direction: K_ff indefinite here
+                diag = lin.Kff.diagonal()
+                lin.factor(K, shift=mu * np.abs(diag))
+                du = -lin.solve(r)
+                dec = -float(r @ du)
+                mu *= 100
+                shifted += 1
+        except LinearSolverError as exc:
+            raise _StepFailed(str(exc), hist) from None
+        hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
+        tol = ctl.rtol * abs(E) + ctl.atol
+        if abs(dec) <= tol:
+            u[free] += du
+            return u, it, hist, shifted
+        if dec <= 0:
+            raise _StepFailed("no descent direction even with a shifted tangent", hist)
+        alpha = 1.0
+        if dec > 1e-6 * abs(E) + ctl.atol:  # far from the solution: guard against overshoot
+            v = u.copy()
+            for _ in range(12):
+                v[free] = u[free] + alpha * du
+                Ev = problem.evaluate(v, False)[0]
+                if np.isfinite(Ev) and Ev <= E - 1e-4 * alpha * dec:
+                    break
+                alpha *= 0.5
+            else:
+                raise _StepFailed("line search found no energy decrease", hist)
+        u[free] += alpha * du
+    raise _StepFailed(f"no convergence in {max_iterations or ctl.max_iterations} iterations", hist)
+
+
+def lowest_eigenvalues(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenpairs of K_ff v = lambda D v nearest to 0, D = diag(K_ff), using the current factorization."""
+    Kff = lin.Kff
+    assert Kff is not None
+    n = Kff.shape[0]
+    D = sp.diags(np.abs(Kff.diagonal()))
+    op = spla.LinearOperator((n, n), matvec=lambda b: lin.solve(np.ravel(b)), dtype=float)
+    k = min(k, n - 2)
+    lam, V = spla.eigsh(Kff, k=k, M=D, sigma=0.0, which="LM", OPinv=op, tol=1e-8,
+                        v0=np.ones(n), maxiter=2000)
+    order = np.argsort(lam)
+    return lam[order], V[:, order]
+
+
+def _check_stability(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl
+                     ) -> tuple[float, np.ndarray | None]:
+    try:
+        lam, V = lowest_eigenvalues(lin, ctl.n_eigs)
+    except (spla.ArpackNoConvergence, spla.ArpackError, LinearSolverError) as exc:
+        log.warning("stability check failed (%s): state not classified", exc)
+        return float("nan"), None
+    return float(lam[0]), V[:, 0]
+
+
+def solve_path(problem: Problem, ctl: StepControl,
+               on_step: Callable[[StepInfo, np.ndarray], None] | None = None,
+               progress: Any = None) -> dict[str, Any]:
+    """Follow the load path u0 = 0 -> ctl.u0_final; call ``on_step(info, u)`` after each converged step.
+
+    Returns
+    -------
+    dict with iteration and time statistics, snap events and the final state ``u``.
+
+    Raises
+    ------
+    ConvergenceError
+        when a step fails at the minimum step size (the states before it were passed to on_step).
+    """
+    n = problem.n_dofs
+    u = np.zeros(n)
+    free_mask = ~problem.fixed
+    E, g, K = problem.evaluate(u, True)
+    lin = FreeBlockSolver(K, free_mask, ctl.backend)
+    free = lin.free
+    lin.factor(K)
+    u0, h, step = 0.0, min(ctl.first_step, ctl.u0_final), 0
+    stats: dict[str, Any] = {"newton_iterations": 0, "failed_steps": 0, "snap_events": [],
+                             "unstable_states": 0, "shifted_iterations": 0, "t_stability_s": 0.0,
+                             "lambda_min": []}
+    last_hist: list[tuple[float, float, float]] = []
+    while u0 < ctl.u0_final * (1 - 1e-12):
+        h_free = h
+        h = min(h, ctl.u0_final - u0)
+        for st in sorted(ctl.stations):
+            if u0 < st * (1 - 1e-12) and u0 + h > st:
+                h = st - u0
+                break
+        t0 = time.perf_counter()
+        trial = u.copy()
+        dc = h * problem.load
+        if ctl.predictor == "tangent":
+            trial[problem.fixed] += dc[problem.fixed]
+            rhs = (K @ dc)[free]  # K and lin hold the tangent at the converged state u
+            trial[free] -= lin.solve(rhs)
+        else:
+            trial += h * problem.ramp
+            trial[problem.fixed] = u[problem.fixed] + dc[problem.fixed]
+        try:
+            unew, its, hist, shifted = newton(problem, trial, lin, ctl)
+        except _StepFailed as exc:
+            stats["failed_steps"] += 1
+            last_hist = exc.history
+            log.info("step u0 %.4g -> %.4g failed (%s); cutting", u0, u0 + h, exc)
+            # restore the tangent at the converged state for the next predictor
+            E, g, K = problem.evaluate(u, True)
+            lin.factor(K)
+            if h * ctl.cut < ctl.min_step * (1 - 1e-9):
+                # last resort before giving up: a long relaxation from the converged state with the
+                # new clamp position (what a snap-through to a distant branch needs)
+                try:
+                    trial = u.copy()
+                    trial[problem.fixed] += dc[problem.fixed]
+                    unew, its, hist, shifted = newton(problem, trial, lin, ctl, max_iterations=20 * ctl.max_iterations)
+                    shifted = max(shifted, 1)
+                except _StepFailed as exc2:
+                    E, g, K = problem.evaluate(u, True)
+                    lin.factor(K)
+                    stats["u"] = u
+                    raise ConvergenceError(
+                        f"load step u0 = {u0:.6g} -> {u0 + h:.6g} failed at the minimum step ({exc2}); "
+                        f"last converged u0 = {u0:.6g}", u0, u0 + h, exc2.history) from None
+            else:
+                h *= ctl.cut
+                continue
+        E_new, g_new, K_new = problem.evaluate(unew, True)
+        # envelope theorem: on a continuous branch dE/du0 = load . g, so the trapezoidal work of the
+        # clamp equals the energy change up to O(h^3); energy released beyond that is a snap-through
+        work = 0.5 * h * float(problem.load @ g + problem.load @ g_new)
+        released = work - (E_new - E)
+        jumped = released > ctl.snap_release * abs(work) or shifted > 0
+        if jumped and h > ctl.snap_bracket * (1 + 1e-9):
+            stats["snap_bracketing"] = stats.get("snap_bracketing", 0) + 1
+            log.info("step u0 %.5g -> %.5g released %.3g J of %.3g J work (indefinite iterations: %d): "
+                     "cutting to bracket the snap", u0, u0 + h, released, work, shifted)
+            lin.factor(K)
+            h = max(h * ctl.cut, ctl.snap_bracket)
+            continue
+        stats["newton_iterations"] += its
+        stats["shifted_iterations"] += shifted
+        u, E, g, K = unew, E_new, g_new, K_new
+        u0 += h
+        step += 1
+        lin.factor(K)
+        lam = float("nan")
+        snap = bool(jumped)
+        if snap:
+            log.warning("step %d, u0 %.5g -> %.5g mm: snap-through, %.3g J released (%.0f %% of the clamp "
+                        "work), indefinite iterations %d", step, (u0 - h) * 1e3, u0 * 1e3, released,
+                        100 * released / work if work else float("nan"), shifted)
+            stats["snap_events"].append({"u0": u0, "u0_before": u0 - h, "kind": "snap_through", "step": step,
+                                         "released_J": released, "work_J": work, "indefinite_iterations": shifted})
+        if ctl.stability:
+            ts = time.perf_counter()
+            lam, v = _check_stability(problem, u, lin, ctl)
+            if lam < -1e-9 and v is not None:
+                stats["unstable_states"] += 1
+                u, E, g, K, lam2 = _escape(problem, u, E, v, lin, ctl)
+                stats["snap_events"].append({"u0": u0, "kind": "unstable_equilibrium", "step": step,
+                                             "lambda_min": lam, "lambda_min_after": lam2})
+                log.warning("step %d, u0 = %.5g: unstable equilibrium (lambda_min = %.3g); relaxed to "
+                            "lambda_min = %.3g", step, u0, lam, lam2)
+                lam, snap = lam2, True
+            stats["t_stability_s"] += time.perf_counter() - ts
+        stats["lambda_min"].append(lam)
+        info = StepInfo(step=step, u0=u0, iterations=its, wall_s=time.perf_counter() - t0, energy=E,
+                        gradient=g, lambda_min=lam, snap=snap, history=hist, released=released)
+        if on_step is not None:
+            on_step(info, u)
+        if progress is not None:
+            progress.update(h)
+        h = max(h, h_free) if h < h_free else h  # a station shortened the step, not the difficulty
+        if its <= ctl.grow_after:
+            h = min(h * ctl.growth, ctl.max_step)
+    stats["u"] = u
+    stats["steps"] = step
+    stats["backend"] = lin.backend
+    stats["n_free"] = len(free)
+    del last_hist
+    return stats
+
+
+def _escape(problem: Problem, u: np.ndarray, E: float, v: np.ndarray, lin: FreeBlockSolver, ctl: StepControl
+            ) -> tuple[np.ndarray, float, np.ndarray, sp.csr_matrix, float]:
+    """Leave an unstable equilibrium along its unstable mode v (both signs); keep the lower stable state."""
+    free = lin.free
+    diag = np.abs(lin.Kff.diagonal())
+    # a kick whose quadratic energy is 1e-3 |E|: large enough to leave the saddle, small on the whole
+    amp = np.sqrt(2e-3 * max(abs(E), 1e-30) / max(float(v @ (diag * v)), 1e-300))
+    best = None
+    for sgn in (1.0, -1.0):
+        w = u.copy()
+        w[free] += sgn * amp * v
+        try:
+            w, _, _, _ = newton(problem, w, lin, ctl, max_iterations=20 * ctl.max_iterations)
+        except _StepFailed:
+            continue
+        Ew = problem.evaluate(w, False)[0]
+        if best is None or Ew < best[1]:
+            best = (w, Ew)
+    if best is not None and best[1] < E:
+        u = best[0]
+    E, g, K = problem.evaluate(u, True)
+    lin.factor(K)
+    lam2, _ = _check_stability(problem, u, lin, ctl)
+    return u, E, g, K, lam2

@@ -1,0 +1,37 @@
+"""Meshing the rectangular BET specimen with named boundaries.
+
+Boundary names (used for Dirichlet conditions and reactions):
+``left`` = Σ1 (X = 0, fixed clamp), ``right`` = Σ2 (X = L, moving clamp),
+``bottom`` = Σ3 (Y = 0) and ``top`` = Σ4 (Y = W), both free. Coordinates in metres.
+"""
+
+from __future__ import annotations
+
+import ngsolve as ngs
+
+from .scene import Discretization, Specimen
+
+FIXED, MOVING, FREE = "left", "right", "bottom|top"
+
+
+def make_mesh(specimen: Specimen, disc: Discretization) -> ngs.Mesh:
+    """Netgen (OCC) triangulation of [0, L] x [0, W], or a structured diagonal one.
+
+    The structured mesh cuts every square along the same diagonal: it is invariant under the
+    half-turn about the specimen centre, the symmetry of every BET solution (MODEL.md §4).
+    """
+    L, W, h = specimen.L, specimen.W, disc.mesh_size_mm * 1e-3
+    if disc.structured:
+        from ngsolve.meshes import MakeStructured2DMesh
+
+        nx = max(1, round(L / h))
+        ny = max(1, round(W / h))
+        return MakeStructured2DMesh(quads=False, nx=nx, ny=ny, mapping=lambda x, y: (L * x, W * y))
+    from netgen.occ import OCCGeometry, WorkPlane, X, Y
+
+    face = WorkPlane().Rectangle(L, W).Face()
+    face.edges.Min(X).name = "left"
+    face.edges.Max(X).name = "right"
+    face.edges.Min(Y).name = "bottom"
+    face.edges.Max(Y).name = "top"
+    return ngs.Mesh(OCCGeometry(face, dim=2).GenerateMesh(maxh=h))

@@ -1,0 +1,74 @@
+"""Observables of a converged state: reactions, energy, mid-axis profile, fields.
+
+Reactions by the paper's volume-integral method (MODEL.md §3): the residual of the full
+Lagrangian tested with ψ_u = (X/L, 0) gives the force R per unit thickness [N/m] on the moving
+clamp; with ψ_φ = X/L it gives the double force T per unit thickness [N m/m = N]. At equilibrium
+only the Dirichlet rows of the residual are non-zero, and ψ is 1 on Σ2 and 0 on Σ1, so
+R = Σ_{d ∈ Σ2} r_d ψ_d: the same number as any other test field with those traces.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import ngsolve as ngs
+import numpy as np
+
+from . import physics
+from .problem import ContinuumProblem
+
+
+def reaction_force(problem: ContinuumProblem, r: np.ndarray) -> float:
+    """R = r·ψ_u [N/m]: reaction force per unit thickness on Σ2 along e1."""
+    return float(r @ problem.psi_u.vec.FV().NumPy())
+
+
+def reaction_double_force(problem: ContinuumProblem, r: np.ndarray) -> float:
+    """T = r·ψ_φ [N m/m]: reaction double force per unit thickness on Σ2."""
+    assert problem.psi_phi is not None
+    return float(r @ problem.psi_phi.vec.FV().NumPy())
+
+
+def midaxis_profile(problem: ContinuumProblem, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vertical displacement u_y on the mid-axis Y = W/2 at n equispaced X [m]."""
+    sp = problem.scene.specimen
+    X = np.linspace(0.0, sp.L, n)
+    pts = problem.mesh(X, np.full(n, 0.5 * sp.W))
+    uy = problem.u(pts)[:, 1]
+    return X, np.asarray(uy)
+
+
+def centre_shear_angle_deg(problem: ContinuumProblem) -> float:
+    """γ at the specimen centre [deg] (zone A of ideal BET kinematics)."""
+    sp = problem.scene.specimen
+    inv = problem.invariants()
+    g = physics.shear_angle(inv.i4, inv.i6, inv.i8)
+    return math.degrees(float(g(problem.mesh(0.5 * sp.L, 0.5 * sp.W))))
+
+
+def constraint_l2(problem: ContinuumProblem) -> float:
+    """‖φ − i8‖_L2 / √|B|: the RMS violation of the constraint (dimensionless)."""
+    inv = problem.invariants()
+    sp = problem.scene.specimen
+    v = ngs.Integrate((problem.phi - inv.i8) ** 2, problem.mesh, order=2 * problem.scene.discretization.p_u)
+    return math.sqrt(max(v, 0.0) / (sp.L * sp.W))
+
+
+def field_functions(problem: ContinuumProblem, wanted: tuple[str, ...]) -> dict[str, Any]:
+    """CoefficientFunctions of the requested fields, for VTK output and maps."""
+    inv = problem.invariants()
+    out: dict[str, Any] = {"displacement": problem.u}
+    if "shear_angle" in wanted:
+        gamma = physics.shear_angle(inv.i4, inv.i6, inv.i8)
+        out["shear_angle_deg"] = gamma * (180.0 / math.pi)
+        out["yarn_angle_deg"] = 90.0 - gamma * (180.0 / math.pi)  # acute angle between the yarns as lines
+    if "elongation" in wanted:
+        out["elongation_1"] = ngs.sqrt(inv.i4) - 1
+        out["elongation_2"] = ngs.sqrt(inv.i6) - 1
+    if "constraint" in wanted and problem.phi is not None:
+        out["phi"] = problem.phi
+        out["phi_minus_i8"] = problem.phi - inv.i8
+        if problem.lam_field is not None:
+            out["Lambda"] = problem.lam_field
+    return out

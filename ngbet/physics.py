@@ -1,0 +1,78 @@
+r"""Energy terms of the constrained micromorphic continuum (Madeo et al. 2016, MODEL.md §2).
+
+Pure functions from NGSolve CoefficientFunctions to CoefficientFunctions. Per unit reference
+volume [Pa], with F = I + ∇u, C = FᵀF and the yarn directions m1 (thick), m2 (thin):
+
+.. math::
+
+    i_4 = m_1\cdot C m_1,\quad i_6 = m_2\cdot C m_2,\quad i_8 = m_1\cdot C m_2 \\
+    W_{sh} = \tfrac12 K_{sh} i_8^2,\qquad
+    W_{el} = \tfrac12 K_{el}\,[(\sqrt{i_4}-1)^2 + (\sqrt{i_6}-1)^2] \\
+    W_{b} = \tfrac12 \alpha_1 (\nabla\varphi\cdot m_1)^2 + \tfrac12 \alpha_2 (\nabla\varphi\cdot m_2)^2
+
+and the constraint φ = i8 by a multiplier Λ (Λ(φ − i8)), a penalty ½K(φ − i8)², or the mixed
+penalty Λ(φ − i8) − Λ²/(2K) whose Λ is eliminated element by element.
+
+The paper prints W_b = ½⟨α, ∇φ⟩², which drops the squares; MODEL.md fixes the form above.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import ngsolve as ngs
+from ngsolve import CoefficientFunction as CF
+
+
+class Invariants(NamedTuple):
+    F: CF
+    i4: CF
+    i6: CF
+    i8: CF
+
+
+def invariants(grad_u: CF, m1: CF, m2: CF) -> Invariants:
+    """F = I + ∇u and the yarn invariants i4, i6 (squared stretches) and i8 (angle variation)."""
+    F = ngs.Id(2) + grad_u
+    Fm1 = F * m1
+    Fm2 = F * m2
+    return Invariants(F, ngs.InnerProduct(Fm1, Fm1), ngs.InnerProduct(Fm2, Fm2), ngs.InnerProduct(Fm1, Fm2))
+
+
+def shear_energy(i8: CF, K_sh: float) -> CF:
+    """W_sh = ½ K_sh i8²."""
+    return 0.5 * K_sh * i8 * i8
+
+
+def elongation_energy(i4: CF, i6: CF, K_el: float) -> CF:
+    """W_el = ½ K_el [(√i4 − 1)² + (√i6 − 1)²]: equivalent elongation (decrimping, slip)."""
+    return 0.5 * K_el * ((ngs.sqrt(i4) - 1) ** 2 + (ngs.sqrt(i6) - 1) ** 2)
+
+
+def bending_energy(grad_phi: CF, m1: CF, m2: CF, alpha1: float, alpha2: float) -> CF:
+    """W_b = ½ α1 φ,1² + ½ α2 φ,2² with φ,i = ∇φ·m_i (corrected form, MODEL.md §2)."""
+    p1 = ngs.InnerProduct(grad_phi, m1)
+    p2 = ngs.InnerProduct(grad_phi, m2)
+    return 0.5 * alpha1 * p1 * p1 + 0.5 * alpha2 * p2 * p2
+
+
+def lagrange_constraint(phi: CF, i8: CF, lam: CF) -> CF:
+    """Λ (φ − i8): the Lagrangian's constraint term (saddle point in Λ)."""
+    return lam * (phi - i8)
+
+
+def penalty_constraint(phi: CF, i8: CF, K: float) -> CF:
+    """½ K (φ − i8)²: the paper's penalty (appendix A), imposed pointwise."""
+    return 0.5 * K * (phi - i8) ** 2
+
+
+def mixed_penalty_constraint(phi: CF, i8: CF, lam: CF, K: float) -> CF:
+    """Λ (φ − i8) − Λ²/(2K): stationary in Λ at Λ = K Π(φ − i8), i.e. the penalty ½K‖Π(φ − i8)‖²
+    with Π the L2 projection onto Λ's space. K → ∞ gives the Lagrange multiplier method."""
+    return lam * (phi - i8) - lam * lam / (2.0 * K)
+
+
+def shear_angle(i4: CF, i6: CF, i8: CF) -> CF:
+    """γ [rad]: the angle between the deformed yarn directions is 90° + γ (MODEL.md §4),
+    sin γ = −i8 / √(i4 i6)."""
+    return ngs.asin(-i8 / ngs.sqrt(i4 * i6))

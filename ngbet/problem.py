@@ -1,0 +1,224 @@
+"""The constrained micromorphic BET problem on NGSolve: spaces, forms, boundary conditions, load.
+
+Only the effects the scene asks for are built (:class:`ngbet.scene.Effects`):
+
+=========================  ==================================  ===============================
+effects                    unknowns                            energy
+=========================  ==================================  ===============================
+shear (+ elongation)       u ∈ VectorH1(p)                      W_sh + W_el (first gradient)
++ bending, lagrange        u, φ ∈ H1(p_φ), Λ ∈ L2(p − 1)         + W_b + Λ(φ − i8)
++ bending, penalty mixed   u, φ, Λ (condensed out)              + W_b + Λ(φ − i8) − Λ²/2K
++ bending, penalty full    u, φ                                 + W_b + ½K(φ − i8)²
+=========================  ==================================  ===============================
+
+The energy is written once, handed to ``Variation`` and compiled; NGSolve differentiates it for
+the residual and the linearization. The multiplier lives in L2 of order p − 1 (discontinuous,
+element-local), one order below φ: the pair is stable (a test shows no oscillating multiplier)
+and it can be eliminated element by element. For the exact Lagrange method with ``condense`` the
+Newton matrix is that of the mixed penalty with a very large K_aug (so that Λ can be condensed),
+while the residual stays the exact Lagrangian's: Newton then converges to the exact saddle point,
+the O(1/K_aug) Jacobian error only slows the last digits.
+
+Dirichlet data (MODEL.md §2): u = 0, φ = 0 on Σ1 (``left``); u = (u0, 0), φ = 0 on Σ2
+(``right``). The load parameter λ of the solver is u0 in metres.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import ngsolve as ngs
+import numpy as np
+from ngsolve import CoefficientFunction as CF
+
+from . import physics
+from .mesh import make_mesh
+from .scene import Scene
+
+log = logging.getLogger(__name__)
+
+DIRICHLET = "left|right"
+
+#: K_aug / K_sh for the condensed Newton matrix of the exact Lagrange method: large enough that
+#: the Jacobian error (relative size ~ K_sh / K_aug) leaves Newton quadratic to the tolerance,
+#: small enough that the condensed matrix keeps ~8 correct digits.
+LAGRANGE_AUGMENTATION = 1e6
+
+
+class ContinuumProblem:
+    """Spaces, forms and load of one scene; implements :class:`ngbet.solver.NonlinearProblem`."""
+
+    def __init__(self, scene: Scene, mesh: ngs.Mesh | None = None, dirichlet: str = DIRICHLET) -> None:
+        self.scene = scene
+        sp, mat, eff, disc = scene.specimen, scene.material, scene.effects, scene.discretization
+        self.mesh = mesh if mesh is not None else make_mesh(sp, disc)
+        self.field_names = eff.fields
+        spaces = [ngs.VectorH1(self.mesh, order=disc.p_u, dirichlet=dirichlet)]
+        if "phi" in self.field_names:
+            spaces.append(ngs.H1(self.mesh, order=disc.p_phi, dirichlet=dirichlet))
+        if "lam" in self.field_names:
+            spaces.append(ngs.L2(self.mesh, order=disc.p_lam))
+        self.X = ngs.FESpace(spaces)
+        self.m1, self.m2 = CF(sp.m1), CF(sp.m2)
+        trial = self.X.TrialFunction()
+        u = trial[0]
+        inv = physics.invariants(ngs.Grad(u), self.m1, self.m2)
+        base = physics.elongation_energy(inv.i4, inv.i6, mat.K_el)
+        if eff.shear:
+            base = base + physics.shear_energy(inv.i8, mat.K_sh)
+        self.K_ref = mat.K_sh if mat.K_sh > 0 else mat.K_el
+        constraint = jac_constraint = None
+        if eff.bending:
+            phi = trial[1]
+            base = base + physics.bending_energy(ngs.Grad(phi), self.m1, self.m2, mat.alpha1, mat.alpha2)
+            if eff.constraint == "lagrange":
+                constraint = physics.lagrange_constraint(phi, inv.i8, trial[2])
+                self.K_aug = LAGRANGE_AUGMENTATION * self.K_ref
+                jac_constraint = physics.mixed_penalty_constraint(phi, inv.i8, trial[2], self.K_aug)
+            elif eff.penalty_form == "mixed":
+                constraint = physics.mixed_penalty_constraint(phi, inv.i8, trial[2], eff.penalty_K)
+            else:
+                constraint = physics.penalty_constraint(phi, inv.i8, eff.penalty_K)
+        energy = base if constraint is None else base + constraint
+        self.dx = ngs.dx(bonus_intorder=disc.quad_bonus)
+        # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
+        self.condense = scene.solver.condense
+        exact_saddle = eff.bending and eff.constraint == "lagrange"
+        self.a = ngs.BilinearForm(self.X, symmetric=True, condense=self.condense and not exact_saddle)
+        self.a += ngs.Variation(energy.Compile() * self.dx)
+        if exact_saddle and self.condense:
+            self.a_jac = ngs.BilinearForm(self.X, symmetric=True, condense=True)
+            self.a_jac += ngs.Variation((base + jac_constraint).Compile() * self.dx)
+        else:
+            self.a_jac = self.a
+        self.gf = ngs.GridFunction(self.X)
+        self.x = self.gf.vec.FV().NumPy()
+        self._r = self.gf.vec.CreateVector()
+        self._w = self.gf.vec.CreateVector()
+        self._w2 = self.gf.vec.CreateVector()
+        self.free_all = np.array(list(self.X.FreeDofs()), dtype=bool)
+        self.freedofs = self.X.FreeDofs(self.a_jac.condense)
+        self.dirichlet = ~self.free_all
+        # reaction test fields (MODEL.md §3): ψ_u = (X/L, 0), ψ_φ = X/L; exact in the spaces
+        self.psi_u = ngs.GridFunction(self.X)
+        self.psi_u.components[0].Set(CF((ngs.x / sp.L, 0)))
+        self.psi_phi = None
+        if "phi" in self.field_names:
+            self.psi_phi = ngs.GridFunction(self.X)
+            self.psi_phi.components[1].Set(ngs.x / sp.L)
+        self._load_dir = np.where(self.dirichlet, self.psi_u.vec.FV().NumPy(), 0.0)
+        self._clamp_dir = self.psi_u.vec.FV().NumPy().copy()
+        self._weights = self._norm_weights()
+        self.inverse_type = self._pick_solver(scene.solver.linear_solver, exact_saddle and not self.condense)
+        self._inv = None
+        self.lam = 0.0
+        self.timers = {"assembly_s": 0.0, "factorization_s": 0.0, "solve_s": 0.0, "residual_s": 0.0}
+        self.counts = {"factorizations": 0, "solves": 0, "residuals": 0}
+
+    # --------------------------------------------------------------------------- bookkeeping
+    def ndofs(self) -> dict[str, int]:
+        """Degrees of freedom per field, and those left after condensation."""
+        out = {name: int(self.X.components[i].ndof) for i, name in enumerate(self.field_names)}
+        out["total"] = int(self.X.ndof)
+        out["factorized"] = int(sum(self.freedofs))
+        return out
+
+    def _norm_weights(self) -> np.ndarray:
+        """Scale each field to be unit-free: u by 1/L, φ by 1, Λ by 1/K_ref."""
+        w = np.zeros(self.X.ndof)
+        scale = {"u": 1.0 / self.scene.specimen.L, "phi": 1.0, "lam": 1.0 / self.K_ref}
+        for i, name in enumerate(self.field_names):
+            rng = self.X.Range(i)
+            w[rng.start:rng.stop] = scale[name]
+        return w * self.free_all
+
+    @staticmethod
+    def _pick_solver(choice: str, indefinite: bool) -> str:
+        if choice != "auto":
+            return choice
+        # sparse LDLᵀ needs no zero pivots: fine for the condensed or minimization matrices,
+        # not for the uncondensed saddle point (zero Λ-Λ block)
+        return "umfpack" if indefinite else "sparsecholesky"
+
+    # --------------------------------------------------------------------------- solver interface
+    def set_load(self, lam: float) -> None:
+        self.lam = lam
+        self.x[self.dirichlet] = lam * self._load_dir[self.dirichlet]
+
+    def residual(self) -> np.ndarray:
+        t0 = time.perf_counter()
+        self.a.Apply(self.gf.vec, self._r)
+        self.timers["residual_s"] += time.perf_counter() - t0
+        self.counts["residuals"] += 1
+        return self._r.FV().NumPy().copy()
+
+    def energy(self) -> float:
+        return float(self.a.Energy(self.gf.vec))
+
+    def factorize(self) -> None:
+        t0 = time.perf_counter()
+        self.a_jac.AssembleLinearization(self.gf.vec)
+        t1 = time.perf_counter()
+        if self._inv is None:
+            self._inv = self.a_jac.mat.Inverse(self.freedofs, inverse=self.inverse_type)
+        else:
+            self._inv.Update()
+        self.timers["assembly_s"] += t1 - t0
+        self.timers["factorization_s"] += time.perf_counter() - t1
+        self.counts["factorizations"] += 1
+
+    def _solve_into(self, r: ngs.BaseVector, out: ngs.BaseVector) -> None:
+        """out = J⁻¹ r (free dofs), condensation handled; r is overwritten."""
+        t0 = time.perf_counter()
+        a = self.a_jac
+        if a.condense:
+            r.data += a.harmonic_extension_trans * r
+            out.data = self._inv * r
+            out.data += a.harmonic_extension * out
+            out.data += a.inner_solve * r
+        else:
+            out.data = self._inv * r
+        self.timers["solve_s"] += time.perf_counter() - t0
+        self.counts["solves"] += 1
+
+    def solve(self, r: np.ndarray) -> np.ndarray:
+        self._w.FV().NumPy()[:] = r
+        self._solve_into(self._w, self._w2)
+        dx = -self._w2.FV().NumPy()
+        dx[self.dirichlet] = 0.0
+        return dx
+
+    def load_tangent(self, dlam: float) -> np.ndarray:
+        d = dlam * self._load_dir
+        self._w2.FV().NumPy()[:] = d
+        self._w.data = self.a_jac.mat * self._w2
+        dx = self.solve(self._w.FV().NumPy())
+        dx[self.dirichlet] = d[self.dirichlet]
+        if self.a_jac.condense:  # local dofs follow the Dirichlet move through the extension
+            self._w2.FV().NumPy()[:] = np.where(self.dirichlet, d, 0.0)
+            self._w.data = self.a_jac.harmonic_extension * self._w2
+            dx += self._w.FV().NumPy() * ~self.dirichlet
+        return dx
+
+    def clamp_predictor(self, dlam: float) -> np.ndarray:
+        return dlam * self._clamp_dir
+
+    def norm(self, dx: np.ndarray) -> float:
+        return float(np.linalg.norm(self._weights * dx))
+
+    # --------------------------------------------------------------------------- fields
+    @property
+    def u(self) -> ngs.GridFunction:
+        return self.gf.components[0]
+
+    @property
+    def phi(self) -> ngs.GridFunction | None:
+        return self.gf.components[1] if "phi" in self.field_names else None
+
+    @property
+    def lam_field(self) -> ngs.GridFunction | None:
+        return self.gf.components[2] if "lam" in self.field_names else None
+
+    def invariants(self) -> physics.Invariants:
+        return physics.invariants(ngs.Grad(self.u), self.m1, self.m2)

@@ -1,0 +1,463 @@
+"""The scene: the one description of a simulation.
+
+A scene is a frozen dataclass made of small frozen sections::
+
+    Scene
+    ├── model            "continuum" (constrained micromorphic) or "discrete" (yarn network)
+    ├── specimen         geometry of the rectangular BET specimen, yarn angle   [mm, deg]
+    ├── material         K_el, K_sh [Pa], alpha1, alpha2 [Pa m^2]  (paper, Table 1)
+    ├── effects          which energy terms and fields are built, constraint method
+    ├── discretization   mesh size [mm], polynomial order of each field
+    ├── loading          final clamp displacement u0 [mm], first step [mm]
+    ├── solver           numerics only: tolerances, step control, linear solver
+    ├── outputs          which observables and files are produced
+    └── discrete         parameters of the discrete model (paper, Table 2)
+
+Every section validates itself on construction and raises :class:`SceneError` naming the key,
+the value and the reason, so that a bad scene is refused before anything is meshed. Scenes are
+read from and written to TOML; the embedded default is the paper's specimen and Table 1, loaded
+to u0 = 56 mm. Variants come from :func:`dataclasses.replace` or :meth:`Scene.with_changes`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+
+class SceneError(ValueError):
+    """A scene value is missing, unknown or out of range; the message names the key."""
+
+
+def _check(cond: bool, key: str, value: Any, why: str) -> None:
+    if not cond:
+        raise SceneError(f"scene key '{key}' = {value!r}: {why}")
+
+
+def _positive(section: str, obj: Any, *names: str) -> None:
+    for n in names:
+        v = getattr(obj, n)
+        _check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0,
+               f"{section}.{n}", v, "must be a finite number > 0")
+
+
+def _nonnegative(section: str, obj: Any, *names: str) -> None:
+    for n in names:
+        v = getattr(obj, n)
+        _check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
+               f"{section}.{n}", v, "must be a finite number >= 0")
+
+
+def _boolean(section: str, obj: Any, *names: str) -> None:
+    for n in names:
+        v = getattr(obj, n)
+        _check(isinstance(v, bool), f"{section}.{n}", v, "must be true or false")
+
+
+def _integer(section: str, obj: Any, name: str, lo: int, hi: int) -> None:
+    v = getattr(obj, name)
+    _check(isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi,
+           f"{section}.{name}", v, f"must be an integer from {lo} to {hi}")
+
+
+def _choice(section: str, obj: Any, name: str, choices: tuple[str, ...]) -> None:
+    v = getattr(obj, name)
+    _check(v in choices, f"{section}.{name}", v, f"must be one of {', '.join(map(repr, choices))}")
+
+
+@dataclass(frozen=True)
+class Specimen:
+    """Rectangular BET specimen B = [0, L] x [0, W]; clamps on X = 0 (fixed) and X = L (moving).
+
+    The thick yarns (bending stiffness alpha1) run along m1 = (cos a, sin a), the thin yarns
+    (alpha2) along m2 = (-cos a, sin a), with a = ``yarn_angle_deg`` (45 in the paper).
+    """
+
+    length_mm: float = 220.0  # L, loading direction e1
+    width_mm: float = 70.0  # W
+    thickness_mm: float = 15.0  # t: converts forces per unit thickness [N/m] to machine forces [N]
+    yarn_angle_deg: float = 45.0  # angle of the thick yarns m1 to e1
+    name: str = "madeo2016-70x220"
+
+    def __post_init__(self) -> None:
+        _positive("specimen", self, "length_mm", "width_mm", "thickness_mm")
+        a = self.yarn_angle_deg
+        _check(isinstance(a, (int, float)) and 5.0 <= a <= 85.0, "specimen.yarn_angle_deg", a,
+               "must lie between 5 and 85 degrees")
+        _check(self.zone_a_length_mm > 0, "specimen.width_mm", self.width_mm,
+               f"the central zone A vanishes: a BET specimen needs L > W/tan(a) "
+               f"(L = {self.length_mm} mm, W/tan(a) = {self.width_mm / math.tan(math.radians(a)):.1f} mm)")
+
+    # SI views ---------------------------------------------------------------------------------
+    @property
+    def L(self) -> float:
+        """Length [m]."""
+        return self.length_mm * 1e-3
+
+    @property
+    def W(self) -> float:
+        """Width [m]."""
+        return self.width_mm * 1e-3
+
+    @property
+    def t(self) -> float:
+        """Thickness [m]."""
+        return self.thickness_mm * 1e-3
+
+    @property
+    def m1(self) -> tuple[float, float]:
+        a = math.radians(self.yarn_angle_deg)
+        return (math.cos(a), math.sin(a))
+
+    @property
+    def m2(self) -> tuple[float, float]:
+        a = math.radians(self.yarn_angle_deg)
+        return (-math.cos(a), math.sin(a))
+
+    # ideal BET kinematics -----------------------------------------------------------------------
+    @property
+    def zone_a_length_mm(self) -> float:
+        """D = L - W/tan(a): length of the central zone A along the axis (150 mm in the paper)."""
+        return self.length_mm - self.width_mm / math.tan(math.radians(self.yarn_angle_deg))
+
+    @property
+    def locking_u0_mm(self) -> float:
+        """Clamp displacement at which inextensible yarns lock: D (1/cos a - 1) (62.1 mm in the paper)."""
+        return self.zone_a_length_mm * (1.0 / math.cos(math.radians(self.yarn_angle_deg)) - 1.0)
+
+
+@dataclass(frozen=True)
+class Material:
+    """Constitutive parameters of the constrained micromorphic continuum (paper, Table 1)."""
+
+    K_el: float = 0.7e6  # Pa: equivalent elongation (decrimping and slip) of both yarn families
+    K_sh: float = 21e3  # Pa: in-plane shear (angle variation i8)
+    alpha1: float = 2e3  # Pa m^2: bending of the thick yarns (along m1)
+    alpha2: float = 20.0  # Pa m^2: bending of the thin yarns (along m2)
+
+    def __post_init__(self) -> None:
+        _nonnegative("material", self, "K_el", "K_sh", "alpha1", "alpha2")
+
+    def internal_lengths_mm(self) -> tuple[float, float]:
+        """l_i = sqrt(alpha_i / K_sh) [mm]: 309 mm and 31 mm for Table 1."""
+        if self.K_sh == 0:
+            return (math.inf, math.inf)
+        return tuple(1e3 * math.sqrt(a / self.K_sh) for a in (self.alpha1, self.alpha2))  # type: ignore[return-value]
+
+
+CONSTRAINTS = ("lagrange", "penalty")
+PENALTY_FORMS = ("mixed", "full")
+
+
+@dataclass(frozen=True)
+class Effects:
+    """The physical effects a scene calls for; only their energy terms and fields are built.
+
+    ``bending`` brings the micro-variable phi (H1) and the constraint phi = i8, imposed either by
+    a Lagrange multiplier Lambda in L2 (``constraint = "lagrange"``) or by the penalty
+    1/2 K (phi - i8)^2 (``"penalty"``, paper appendix A). ``penalty_form = "mixed"`` writes the
+    penalty with Lambda as an element-local unknown (Lambda (phi - i8) - Lambda^2 / 2K) that is
+    condensed out: it converges to the Lagrange solution like 1/K on the same mesh; ``"full"`` is
+    the paper's pointwise penalty, a pure minimization in (u, phi).
+    """
+
+    shear: bool = True  # 1/2 K_sh i8^2
+    elongation: bool = True  # 1/2 K_el [(sqrt(i4) - 1)^2 + (sqrt(i6) - 1)^2]
+    bending: bool = True  # 1/2 alpha1 phi_1^2 + 1/2 alpha2 phi_2^2 with phi = i8
+    constraint: str = "lagrange"
+    penalty_K: float = 1e8  # Pa, used only with constraint = "penalty"
+    penalty_form: str = "mixed"
+
+    def __post_init__(self) -> None:
+        _boolean("effects", self, "shear", "elongation", "bending")
+        _choice("effects", self, "constraint", CONSTRAINTS)
+        _choice("effects", self, "penalty_form", PENALTY_FORMS)
+        _positive("effects", self, "penalty_K")
+        _check(self.elongation, "effects.elongation", self.elongation,
+               "the yarn elongation term is what makes the yarns resist stretching; without it the "
+               "tangent is singular (inextensible yarns would need a constraint ngbet does not model)")
+        _check(self.shear or self.bending, "effects.shear", self.shear,
+               "with neither shear nor bending nothing resists the shear of the yarn network")
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """Names of the unknown fields this scene needs, in the order of the compound space."""
+        if not self.bending:
+            return ("u",)
+        if self.constraint == "lagrange" or self.penalty_form == "mixed":
+            return ("u", "phi", "lam")
+        return ("u", "phi")
+
+
+@dataclass(frozen=True)
+class Discretization:
+    """Mesh and polynomial orders. ``order_lam = 0`` means order_u - 1 (the stable default)."""
+
+    mesh_size_mm: float = 5.0
+    order_u: int = 2
+    order_phi: int = 0  # 0: same as order_u
+    order_lam: int = -1  # -1: order_u - 1
+    quad_bonus: int = 0  # extra quadrature order for the non-polynomial sqrt(i4), sqrt(i6) terms
+    structured: bool = False  # crossed structured mesh instead of Netgen's unstructured one
+
+    def __post_init__(self) -> None:
+        _positive("discretization", self, "mesh_size_mm")
+        _integer("discretization", self, "order_u", 1, 10)
+        _integer("discretization", self, "order_phi", 0, 10)
+        _integer("discretization", self, "order_lam", -1, 9)
+        _integer("discretization", self, "quad_bonus", 0, 10)
+        _boolean("discretization", self, "structured")
+
+    @property
+    def p_u(self) -> int:
+        return self.order_u
+
+    @property
+    def p_phi(self) -> int:
+        return self.order_phi or self.order_u
+
+    @property
+    def p_lam(self) -> int:
+        return self.order_lam if self.order_lam >= 0 else self.order_u - 1
+
+
+@dataclass(frozen=True)
+class Loading:
+    """Clamp displacement u0 of X = L along e1, applied in steps."""
+
+    u0_mm: float = 56.0
+    stops_mm: tuple[float, ...] = (37.0,)  # loads a step must land on (shapes at 37 mm in the paper)
+    first_step_mm: float = 8.0
+    max_step_mm: float = 14.0
+    min_step_mm: float = 0.05
+
+    def __post_init__(self) -> None:
+        _positive("loading", self, "u0_mm", "first_step_mm", "max_step_mm", "min_step_mm")
+        object.__setattr__(self, "stops_mm", tuple(self.stops_mm))
+        for s in self.stops_mm:
+            _check(isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0, "loading.stops_mm", s,
+                   "each stop must be a number > 0")
+        _check(self.min_step_mm <= self.first_step_mm, "loading.min_step_mm", self.min_step_mm,
+               "must not exceed loading.first_step_mm")
+        _check(self.min_step_mm <= self.max_step_mm, "loading.min_step_mm", self.min_step_mm,
+               "must not exceed loading.max_step_mm")
+
+
+LINEAR_SOLVERS = ("auto", "sparsecholesky", "umfpack", "pardiso")
+
+
+@dataclass(frozen=True)
+class Solver:
+    """Numerics only (kept apart from the problem, as in Firedrake/dolfinx).
+
+    Newton stops when the Newton decrement |<du, r>|, an energy, is below ``rtol`` times the
+    current total energy (unit-free), or below ``atol_energy`` J/m.
+    """
+
+    rtol: float = 1e-10
+    atol_energy: float = 1e-14  # J/m: floor for states with vanishing energy
+    max_iterations: int = 12
+    grow_after: int = 4  # grow the step when Newton needed at most this many iterations
+    growth: float = 1.5
+    cut: float = 0.5
+    linear_solver: str = "auto"
+    condense: bool = True  # eliminate element-local dofs (Lambda) before factorizing
+    threads: int = 0  # 0: all cores
+    predictor: str = "tangent"  # "tangent" (Euler) or "clamp" (u += du0 X/L)
+
+    def __post_init__(self) -> None:
+        _positive("solver", self, "rtol", "atol_energy", "growth")
+        _integer("solver", self, "max_iterations", 1, 1000)
+        _integer("solver", self, "grow_after", 0, 1000)
+        _integer("solver", self, "threads", 0, 1024)
+        _check(0 < self.cut < 1, "solver.cut", self.cut, "must lie strictly between 0 and 1")
+        _check(self.growth >= 1, "solver.growth", self.growth, "must be >= 1")
+        _choice("solver", self, "linear_solver", LINEAR_SOLVERS)
+        _choice("solver", self, "predictor", ("tangent", "clamp"))
+        _boolean("solver", self, "condense")
+
+
+FIELD_OUTPUTS = ("shear_angle", "constraint", "elongation")
+
+
+@dataclass(frozen=True)
+class Outputs:
+    """What is computed and written; what is not asked for is not computed."""
+
+    reaction: bool = True  # force [N/m] and [N] by the volume-integral method
+    double_force: bool = True  # needs bending
+    energy: bool = True
+    profile: bool = True  # mid-axis (Y = W/2) vertical displacement
+    profile_points: int = 111
+    fields: tuple[str, ...] = FIELD_OUTPUTS
+    vtk: bool = True  # final fields for ParaView
+    vtk_every_step: bool = False
+    plot: bool = True
+
+    def __post_init__(self) -> None:
+        _boolean("outputs", self, "reaction", "double_force", "energy", "profile", "vtk",
+                 "vtk_every_step", "plot")
+        _integer("outputs", self, "profile_points", 3, 100000)
+        object.__setattr__(self, "fields", tuple(self.fields))
+        for f in self.fields:
+            _check(f in FIELD_OUTPUTS, "outputs.fields", f, f"unknown field, known: {', '.join(FIELD_OUTPUTS)}")
+
+
+@dataclass(frozen=True)
+class Discrete:
+    """Parameters of the discrete model (paper section 3, Table 2); the spacing is ours."""
+
+    EA1: float = 50000.0  # N: axial stiffness of the thick yarns
+    EA2: float = 50000.0  # N: thin yarns
+    EI1: float = 0.4  # N m^2: bending stiffness of the thick yarns
+    EI2: float = 1e-3  # N m^2: thin yarns
+    K_phi: float = 2.5e-4  # N m: rotational spring at each crossing
+    K_slip: float = 11.0  # N/m: translational slip spring at each crossing
+    K_inter: float = 11.0  # N: trusses between adjacent yarns of the same family
+    spacing_mm: float = 5.0  # distance between neighbouring yarns of one family (not in the paper)
+    elements_per_segment: int = 1  # beam elements between two crossings
+    inter_layout: str = "neighbours"  # "neighbours" or "none"
+
+    def __post_init__(self) -> None:
+        _positive("discrete", self, "EA1", "EA2", "spacing_mm")
+        _nonnegative("discrete", self, "EI1", "EI2", "K_phi", "K_slip", "K_inter")
+        _integer("discrete", self, "elements_per_segment", 1, 64)
+        _choice("discrete", self, "inter_layout", ("neighbours", "none"))
+
+
+MODELS = ("continuum", "discrete")
+
+_SECTIONS: dict[str, type] = {
+    "specimen": Specimen,
+    "material": Material,
+    "effects": Effects,
+    "discretization": Discretization,
+    "loading": Loading,
+    "solver": Solver,
+    "outputs": Outputs,
+    "discrete": Discrete,
+}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A complete, validated simulation description."""
+
+    model: str = "continuum"
+    specimen: Specimen = field(default_factory=Specimen)
+    material: Material = field(default_factory=Material)
+    effects: Effects = field(default_factory=Effects)
+    discretization: Discretization = field(default_factory=Discretization)
+    loading: Loading = field(default_factory=Loading)
+    solver: Solver = field(default_factory=Solver)
+    outputs: Outputs = field(default_factory=Outputs)
+    discrete: Discrete = field(default_factory=Discrete)
+
+    def __post_init__(self) -> None:
+        _choice("", self, "model", MODELS)
+        for name, cls in _SECTIONS.items():
+            _check(isinstance(getattr(self, name), cls), name, getattr(self, name), f"must be a {cls.__name__}")
+        lock = self.specimen.locking_u0_mm
+        _check(self.loading.u0_mm < lock, "loading.u0_mm", self.loading.u0_mm,
+               f"beyond the geometry's limit: the yarns of this specimen lock at u0 = {lock:.1f} mm "
+               "(ideal BET kinematics, MODEL.md section 4)")
+        if self.model == "continuum":
+            m, e = self.material, self.effects
+            if e.shear:
+                _check(m.K_sh > 0, "material.K_sh", m.K_sh, "must be > 0 when effects.shear is on")
+            _check(m.K_el > 0, "material.K_el", m.K_el, "must be > 0 (effects.elongation is on)")
+            if e.bending:
+                _check(m.alpha1 + m.alpha2 > 0, "material.alpha1", m.alpha1,
+                       "alpha1 + alpha2 must be > 0 when effects.bending is on (else turn bending off)")
+                _check(self.discretization.p_lam < self.discretization.p_phi or e.fields == ("u", "phi"),
+                       "discretization.order_lam", self.discretization.order_lam,
+                       "the multiplier order must be below the order of phi, else the constraint locks")
+
+    # construction ------------------------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Scene:
+        """Build a scene from nested dicts (TOML tables); unknown keys are refused by name."""
+        if not isinstance(data, dict):
+            raise SceneError(f"a scene must be a table of sections, got {type(data).__name__}")
+        known = {"model", *_SECTIONS}
+        for key in data:
+            if key not in known:
+                raise SceneError(f"unknown scene section '{key}'; known: {', '.join(sorted(known))}")
+        kwargs: dict[str, Any] = {}
+        if "model" in data:
+            kwargs["model"] = data["model"]
+        for name, scls in _SECTIONS.items():
+            if name not in data:
+                continue
+            table = data[name]
+            if not isinstance(table, dict):
+                raise SceneError(f"scene section '{name}' must be a table, got {table!r}")
+            names = {f.name for f in fields(scls)}
+            for key in table:
+                if key not in names:
+                    raise SceneError(f"unknown scene key '{name}.{key}'; known in [{name}]: {', '.join(sorted(names))}")
+            try:
+                kwargs[name] = scls(**table)
+            except TypeError as exc:  # pragma: no cover - names are checked above
+                raise SceneError(f"scene section '{name}': {exc}") from None
+        return cls(**kwargs)
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> Scene:
+        """Read a scene file; missing sections and keys take the default values."""
+        path = Path(path)
+        try:
+            with path.open("rb") as fh:
+                data = tomllib.load(fh)
+        except FileNotFoundError:
+            raise SceneError(f"scene file not found: {path}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise SceneError(f"scene file {path} is not valid TOML: {exc}") from None
+        return cls.from_dict(data)
+
+    @classmethod
+    def from_toml_string(cls, text: str) -> Scene:
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise SceneError(f"scene is not valid TOML: {exc}") from None
+        return cls.from_dict(data)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["outputs"]["fields"] = list(d["outputs"]["fields"])
+        d["loading"]["stops_mm"] = list(d["loading"]["stops_mm"])
+        return d
+
+    def to_toml(self) -> str:
+        return tomli_w.dumps(self.to_dict())
+
+    def with_changes(self, **dotted: Any) -> Scene:
+        """A variant: ``scene.with_changes(**{"material.alpha1": 20.0, "loading.u0_mm": 37})``."""
+        d = self.to_dict()
+        for key, value in dotted.items():
+            section, _, name = key.partition(".")
+            if not name:
+                d[section] = value
+                continue
+            if section not in d or not isinstance(d[section], dict):
+                raise SceneError(f"unknown scene section '{section}' in '{key}'")
+            d[section][name] = value
+        return Scene.from_dict(d)
+
+    def digest(self) -> str:
+        """A stable hash of the complete scene (for caches)."""
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def default_scene() -> Scene:
+    """The paper's bias extension test: 70 x 220 mm, Table 1, Lagrange multiplier, u0 to 56 mm."""
+    return Scene()

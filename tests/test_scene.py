@@ -1,0 +1,67 @@
+"""The scene: defaults are the paper's, TOML round-trips, bad values are refused by name."""
+
+import subprocess
+import sys
+
+import pytest
+
+from ngbet.scene import Scene, SceneError, default_scene
+
+
+def test_default_is_paper_table1():
+    s = default_scene()
+    m = s.material
+    assert (m.K_el, m.K_sh, m.alpha1, m.alpha2) == (0.7e6, 21e3, 2e3, 20.0)
+    assert (s.specimen.length_mm, s.specimen.width_mm, s.specimen.thickness_mm) == (220.0, 70.0, 15.0)
+    assert s.loading.u0_mm == 56.0
+
+
+def test_internal_lengths_and_locking_match_model_md():
+    s = default_scene()
+    l1, l2 = s.material.internal_lengths_mm()
+    assert abs(l1 - 308.6) < 0.1 and abs(l2 - 30.86) < 0.01
+    assert abs(s.specimen.locking_u0_mm - 62.132) < 1e-3
+
+
+def test_toml_round_trip_is_identity():
+    s = default_scene().with_changes(**{"material.alpha1": 3.5, "effects.constraint": "penalty",
+                                        "loading.stops_mm": [10.0, 37.0]})
+    assert Scene.from_toml_string(s.to_toml()) == s
+
+
+@pytest.mark.parametrize("key,value,fragment", [
+    ("material.K_sh", -1.0, "material.K_sh"),
+    ("discretization.order_u", 0, "discretization.order_u"),
+    ("effects.constraint", "magic", "effects.constraint"),
+    ("loading.u0_mm", 70.0, "lock"),
+    ("effects.elongation", False, "effects.elongation"),
+    ("discretization.order_lam", 2, "discretization.order_lam"),
+    ("specimen.width_mm", 300.0, "zone A"),
+])
+def test_bad_values_are_refused_with_their_key(key, value, fragment):
+    with pytest.raises(SceneError) as err:
+        default_scene().with_changes(**{key: value})
+    assert fragment in str(err.value)
+
+
+def test_unknown_keys_are_refused_by_name():
+    with pytest.raises(SceneError, match="material.K_shear"):
+        Scene.from_toml_string("[material]\nK_shear = 1.0\n")
+    with pytest.raises(SceneError, match="'meterial'"):
+        Scene.from_toml_string("[meterial]\nK_sh = 1.0\n")
+
+
+def test_cli_bad_scene_gives_a_message_not_a_traceback(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[material]\nK_el = -5\n")
+    p = subprocess.run([sys.executable, "-m", "ngbet", "run", str(bad), "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True)
+    assert p.returncode == 2
+    assert "material.K_el" in p.stderr and "Traceback" not in p.stderr
+    assert not (tmp_path / "o").exists()  # refused before anything was meshed or written
+
+
+def test_cli_scene_prints_valid_toml():
+    p = subprocess.run([sys.executable, "-m", "ngbet", "scene"], capture_output=True, text=True)
+    assert p.returncode == 0
+    assert Scene.from_toml_string(p.stdout) == default_scene()
