@@ -2,9 +2,10 @@
 
 - slip at a crossing: s = |u_a - u_b|, the relative displacement of the two yarns' nodes that
   coincided at rest;
-- shear angle at a crossing: gamma = theta_2 - theta_1, the change of the angle between the
-  tangent of the family-2 yarn and that of the family-1 yarn (nodal rotations of Euler-Bernoulli
-  beams are tangent rotations). With m1 = (cos a, sin a), m2 = (-cos a, sin a) the angle between
+- shear angle at a crossing: gamma = r_2 - r_1, the change of the angle between the family-2
+  and the family-1 yarn, each yarn's rotation r_k taken as the mean rotation of its two chords
+  adjacent to the crossing (the springs K_phi act on the nodal rotations theta instead, which
+  equal r_k only when the bending stiffness dominates K_phi). With m1 = (cos a, sin a), m2 = (-cos a, sin a) the angle between
   the direction vectors opens from pi - 2a to pi - 2a + gamma, as in MODEL.md section 4 (gamma > 0
   in the BET);
 - zone means of gamma over the crossings of zones A, B, C;
@@ -28,8 +29,41 @@ def crossing_slip(net: Network, u: np.ndarray) -> np.ndarray:
     return np.hypot(u[3 * a] - u[3 * b], u[3 * a + 1] - u[3 * b + 1])
 
 
+def chain_neighbours(net: Network) -> tuple[np.ndarray, np.ndarray]:
+    """Previous and next node of every node along its yarn (-1 at the yarn ends)."""
+    prev = -np.ones(net.n_nodes, int)
+    nxt = -np.ones(net.n_nodes, int)
+    for c in net.yarn_nodes:
+        prev[c[1:]] = c[:-1]
+        nxt[c[:-1]] = c[1:]
+    return prev, nxt
+
+
+def yarn_rotation(net: Network, u: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """Rotation of the yarn at interior nodes [rad]: mean rigid rotation of the two adjacent chords.
+
+    beta_e = atan2(d0 x d, d0 . d) for the chord d (reference d0) of each adjacent element.
+    """
+    prev, nxt = chain_neighbours(net)
+    x = net.X + u.reshape(-1, 3)[:, :2]
+    rot = np.zeros(len(nodes))
+    for a, b in ((prev[nodes], nodes), (nodes, nxt[nodes])):
+        d0, d = net.X[b] - net.X[a], x[b] - x[a]
+        rot += 0.5 * np.arctan2(d0[:, 0] * d[:, 1] - d0[:, 1] * d[:, 0], np.sum(d0 * d, axis=1))
+    return rot
+
+
 def crossing_gamma(net: Network, u: np.ndarray) -> np.ndarray:
-    """gamma = theta_2 - theta_1 [rad] at each crossing."""
+    """gamma = r_2 - r_1 [rad] at each crossing, r_k the rotation of yarn k there (:func:`yarn_rotation`).
+
+    The chords, not the nodal rotations, measure the yarn directions: with a bending stiffness
+    small against K_phi the nodal rotations follow the crossing spring, not the yarn.
+    """
+    return (yarn_rotation(net, u, net.crossings[:, 1]) - yarn_rotation(net, u, net.crossings[:, 0]))
+
+
+def crossing_spring_angle(net: Network, u: np.ndarray) -> np.ndarray:
+    """theta_2 - theta_1 [rad]: the angle change seen by the rotational springs K_phi (nodal rotations)."""
     return u[3 * net.crossings[:, 1] + 2] - u[3 * net.crossings[:, 0] + 2]
 
 
@@ -98,6 +132,7 @@ def save_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: i
         yarn_family=net.yarn_family, crossing_nodes=net.crossings, crossing_zone=net.crossing_zone,
         crossing_X_mm=net.X[net.crossings[:, 0]] * 1e3, crossing_slip_mm=crossing_slip(net, u) * 1e3,
         crossing_gamma_deg=np.degrees(gamma),
+        crossing_spring_angle_deg=np.degrees(crossing_spring_angle(net, u)),
         crossing_angle_deg=180.0 - 2 * math.degrees(net.angle) + np.degrees(gamma))
 
 
@@ -121,7 +156,7 @@ def plot_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: i
                             label="thick yarns (family 1)" if fam == 1 else "thin yarns (family 2, dashed)")
         lc.set_array(seg_ang[sel])
         ax.add_collection(lc)
-    ax.plot(*(net.X[net.node_end > 0] * 1e3).T, "k|", ms=4)
+    ax.plot(*x[net.node_end > 0].T, "k|", ms=4)  # clamped yarn ends, deformed
     ax.set_aspect("equal")
     ax.autoscale()
     ax.set_xlabel("x [mm]")

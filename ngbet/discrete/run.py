@@ -35,7 +35,8 @@ def step_control(scene: Scene) -> StepControl:
                        max_step=ld.max_step_mm * 1e-3, min_step=ld.min_step_mm * 1e-3, rtol=so.rtol,
                        atol=so.atol_energy, max_iterations=so.max_iterations, grow_after=so.grow_after,
                        growth=so.growth, cut=so.cut, predictor=so.predictor, backend=so.linear_solver,
-                       stations=tuple(s * 1e-3 for s in SHAPE_STATIONS_MM if s < ld.u0_mm))
+                       stations=tuple(s * 1e-3 for s in SHAPE_STATIONS_MM if s < ld.u0_mm),
+                       snap_bracket=min(max(4 * ld.min_step_mm, 1.0), ld.max_step_mm) * 1e-3)
 
 
 def step_row(model: NetworkModel, info: StepInfo, u: np.ndarray) -> dict[str, Any]:

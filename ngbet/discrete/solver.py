@@ -113,8 +113,14 @@ class _StepFailed(Exception):
 
 
 def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
-           max_iterations: int | None = None) -> tuple[np.ndarray, int, list[tuple[float, float, float]], int]:
+           max_iterations: int | None = None, line_search: bool = False
+           ) -> tuple[np.ndarray, int, list[tuple[float, float, float]], int]:
     """Minimize the energy over the free dofs from u (prescribed dofs as given).
+
+    Plain Newton by default: with stiff axial terms the full step of a rotating beam stretches it
+    and raises the energy, yet the next iteration restores the length and converges
+    quadratically, whereas an energy line search would crawl. ``line_search=True`` (Armijo
+    backtracking on the energy) is the globally convergent fallback, used to relax past a snap.
 
     Returns
     -------
@@ -151,7 +157,7 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
         if dec <= 0:
             raise _StepFailed("no descent direction even with a shifted tangent", hist)
         alpha = 1.0
-        if dec > 1e-6 * abs(E) + ctl.atol:  # far from the solution: guard against overshoot
+        if line_search and dec > 1e-6 * abs(E) + ctl.atol:  # far from the solution
             v = u.copy()
             for _ in range(12):
                 v[free] = u[free] + alpha * du
@@ -233,7 +239,14 @@ def solve_path(problem: Problem, ctl: StepControl,
             trial += h * problem.ramp
             trial[problem.fixed] = u[problem.fixed] + dc[problem.fixed]
         try:
-            unew, its, hist, shifted = newton(problem, trial, lin, ctl)
+            try:
+                unew, its, hist, shifted = newton(problem, trial, lin, ctl)
+            except _StepFailed:
+                # the same step once more, damped: slower but globally convergent
+                if ctl.predictor == "tangent":
+                    E, g, K = problem.evaluate(u, True)
+                    lin.factor(K)
+                unew, its, hist, shifted = newton(problem, trial, lin, ctl, line_search=True)
         except _StepFailed as exc:
             stats["failed_steps"] += 1
             last_hist = exc.history
@@ -247,7 +260,8 @@ def solve_path(problem: Problem, ctl: StepControl,
                 try:
                     trial = u.copy()
                     trial[problem.fixed] += dc[problem.fixed]
-                    unew, its, hist, shifted = newton(problem, trial, lin, ctl, max_iterations=20 * ctl.max_iterations)
+                    unew, its, hist, shifted = newton(problem, trial, lin, ctl, max_iterations=20 * ctl.max_iterations,
+                                                      line_search=True)
                     shifted = max(shifted, 1)
                 except _StepFailed as exc2:
                     E, g, K = problem.evaluate(u, True)
@@ -328,7 +342,7 @@ def _escape(problem: Problem, u: np.ndarray, E: float, v: np.ndarray, lin: FreeB
         w = u.copy()
         w[free] += sgn * amp * v
         try:
-            w, _, _, _ = newton(problem, w, lin, ctl, max_iterations=20 * ctl.max_iterations)
+            w, _, _, _ = newton(problem, w, lin, ctl, max_iterations=20 * ctl.max_iterations, line_search=True)
         except _StepFailed:
             continue
         Ew = problem.evaluate(w, False)[0]

@@ -1,0 +1,167 @@
+"""Physics of the continuum: exact solutions, identities, symmetries, limits (MODEL.md §3-4)."""
+
+import math
+
+import ngsolve as ngs
+import numpy as np
+import pytest
+from conftest import coarse
+
+from ngbet import observables as obs
+from ngbet.output import read_profiles, read_rows
+from ngbet.problem import ContinuumProblem
+from ngbet.run import newton_settings, run
+from ngbet.solver import newton
+
+
+def _run(tmp_path, tag, **changes):
+    out = tmp_path / tag
+    summary = run(coarse(**changes), out)
+    return summary, read_rows(out / "results.csv"), read_profiles(out / "profile.csv")
+
+
+def _affine_state(problem, G, phi_value):
+    """The affine map u = H X (Dirichlet data on the whole boundary) with φ = phi_value, and the
+    interior perturbed by 1 % of the displacement so that Newton has something to find."""
+    gf = problem.gf
+    with ngs.TaskManager():
+        gf.components[0].Set(ngs.CF((G[0][0] * ngs.x + G[0][1] * ngs.y, G[1][0] * ngs.x + G[1][1] * ngs.y)))
+        if problem.phi is not None:
+            gf.components[1].Set(ngs.CF(phi_value))
+    rng = np.random.default_rng(0)
+    scale = 0.01 * max(abs(v) for row in G for v in row) * problem.scene.specimen.W
+    problem.x[problem.free_all] += scale * rng.standard_normal(int(problem.free_all.sum()))
+    return gf
+
+
+@pytest.mark.parametrize("bending", [False, True])
+def test_homogeneous_deformation_is_reproduced_exactly(bending):
+    """All-boundary Dirichlet data of an affine map: the FE solution is that map to round-off,
+    with φ = i8 (constant) and Λ = 0 (nothing bends)."""
+    scene = coarse(**{"effects.bending": bending, "discretization.mesh_size_mm": 20.0})
+    problem = ContinuumProblem(scene, dirichlet="left|right|bottom|top")
+    H = np.array([[0.08, 0.03], [-0.02, -0.04]])  # displacement gradient: stretch + shear
+    F = np.eye(2) + H
+    C = F.T @ F
+    m1, m2 = np.array(scene.specimen.m1), np.array(scene.specimen.m2)
+    i8 = m1 @ C @ m2
+    _affine_state(problem, H, i8)
+    with ngs.TaskManager():
+        rep = newton(problem, newton_settings(scene), e_ref=1.0)
+    assert rep.converged
+    exact = ngs.CF((H[0, 0] * ngs.x + H[0, 1] * ngs.y, H[1, 0] * ngs.x + H[1, 1] * ngs.y))
+    err = ngs.Integrate(ngs.InnerProduct(problem.u - exact, problem.u - exact), problem.mesh)
+    # Newton stops at a relative energy decrement of 1e-10: displacements to ~1e-10 relative
+    assert math.sqrt(err / (scene.specimen.L * scene.specimen.W)) < 1e-8 * 0.08 * scene.specimen.L
+    if bending:
+        assert abs(problem.phi(problem.mesh(0.1, 0.03)) - i8) < 1e-8 * abs(i8)
+        assert ngs.Integrate(problem.lam_field ** 2, problem.mesh) ** 0.5 < 1e-6 * scene.material.K_sh
+
+
+def test_small_stretch_reaction_matches_the_linearized_value():
+    """u = (εX, 0) on the whole boundary, first-gradient scene: R = W (K_el/2 + K_sh) ε + O(ε²),
+    and the exact nonlinear value W λ [K_el (1 − 1/√i4) − K_sh i8] for λ = 1 + ε."""
+    scene = coarse(**{"effects.bending": False, "discretization.mesh_size_mm": 20.0})
+    m = scene.material
+    W = scene.specimen.W
+    for eps in (1e-6, 0.05):
+        problem = ContinuumProblem(scene, dirichlet="left|right|bottom|top")
+        _affine_state(problem, [[eps, 0.0], [0.0, 0.0]], 0.0)
+        with ngs.TaskManager():
+            rep = newton(problem, newton_settings(scene), e_ref=1.0)
+            R = obs.reaction_force(problem, problem.residual())
+        assert rep.converged
+        lam = 1 + eps
+        i4, i8 = (lam ** 2 + 1) / 2, (1 - lam ** 2) / 2
+        exact = W * lam * (m.K_el * (1 - 1 / math.sqrt(i4)) - m.K_sh * i8)
+        assert abs(R - exact) < 1e-10 * abs(exact)
+        if eps < 1e-3:
+            linear = W * (m.K_el / 2 + m.K_sh) * eps
+            assert abs(R - linear) < 1e-5 * linear
+
+
+def test_reaction_equals_energy_derivative(tmp_path):
+    """Envelope theorem: R(u0) = dE/du0, E the energy at equilibrium (central difference)."""
+    d = 0.05
+    _, rows, _ = _run(tmp_path, "fd", **{"loading.u0_mm": 30.0 + d, "loading.stops_mm": [30.0 - d, 30.0]})
+    by = {round(r["u0_mm"], 6): r for r in rows}
+    dE = (by[30.0 + d]["energy_J_per_m"] - by[30.0 - d]["energy_J_per_m"]) / (2 * d * 1e-3)
+    R = by[30.0]["force_N_per_m"]
+    assert abs(dE - R) < 1e-4 * R
+
+
+def test_reaction_does_not_depend_on_the_test_field(tmp_path):
+    """At equilibrium ψ = ((X/L)², 0) (also 1 on Σ2, 0 on Σ1) gives the same force as X/L."""
+    scene = coarse(**{"loading.u0_mm": 20.0})
+    problem = ContinuumProblem(scene)
+    from ngbet.solver import continuation
+
+    with ngs.TaskManager():
+        continuation(problem, 0.02, 0.008, newton_settings(scene))
+        r = problem.residual()
+        psi2 = ngs.GridFunction(problem.X)
+        psi2.components[0].Set(ngs.CF(((ngs.x / scene.specimen.L) ** 2, 0)))
+    R1 = obs.reaction_force(problem, r)
+    R2 = float(r @ psi2.vec.FV().NumPy())
+    assert abs(R1 - R2) < 1e-8 * abs(R1)
+
+
+def test_unbalanced_profile_is_odd_about_the_centre(tmp_path):
+    """Half-turn symmetry: on the half-turn-invariant structured mesh u_y(X) = −u_y(L − X)."""
+    _, _, prof = _run(tmp_path, "odd", **{"loading.u0_mm": 37.0, "discretization.structured": True})
+    X, uy = map(np.array, prof[37.0])
+    assert np.max(np.abs(uy)) > 1.0  # mm: there is an S-shape to speak of
+    assert np.max(np.abs(uy + uy[::-1])) < 1e-8 * np.max(np.abs(uy))
+
+
+def test_balanced_fabric_has_no_s_shape(tmp_path):
+    """α1 = α2: mirror symmetry about Y = W/2, u_y = 0 on the mid-axis up to the mesh's asymmetry
+    (the Netgen mesh is not mirror symmetric): below 1 % of the unbalanced S-shape."""
+    _, _, unb = _run(tmp_path, "unb", **{"loading.u0_mm": 37.0})
+    _, _, bal = _run(tmp_path, "bal", **{"loading.u0_mm": 37.0, "material.alpha1": 20.0})
+    s_unb = np.max(np.abs(unb[37.0][1]))
+    s_bal = np.max(np.abs(bal[37.0][1]))
+    assert s_bal < 0.01 * s_unb
+
+
+def test_shear_only_scene_builds_no_micro_fields_and_is_the_first_gradient_limit(tmp_path):
+    """bending off: only u is discretized; the micromorphic model with α → 0 tends to it."""
+    s1, r1, _ = _run(tmp_path, "sh", **{"effects.bending": False, "loading.u0_mm": 20.0})
+    assert set(s1["dofs"]) == {"u", "total", "factorized"}
+    assert s1["dofs"]["total"] == s1["dofs"]["u"]
+    s2, r2, _ = _run(tmp_path, "b", **{"material.alpha1": 1e-6, "material.alpha2": 1e-6, "loading.u0_mm": 20.0})
+    assert s2["dofs"]["phi"] > 0 and s2["dofs"]["lam"] > 0
+    F1, F2 = r1[-1]["force_N"], r2[-1]["force_N"]
+    assert abs(F1 - F2) < 0.01 * F1
+
+
+def test_ideal_kinematics_energy_is_approached_from_below(tmp_path):
+    """Nearly inextensible yarns (K_el = 1e8 Pa = 5000 K_sh), no bending: the equilibrium energy
+    lies just below the ideal-kinematics energy E_id = ½ K_sh t (A_A sin²γ_A + A_B sin²γ_B)
+    (MODEL.md §4), at 10 and 20 mm; p = 3 avoids the locking of P2 with two stiff fibre families."""
+    from ngbet.kinematics import ideal_energy
+
+    ch = {"material.K_el": 1e8, "effects.bending": False, "loading.u0_mm": 20.0, "loading.stops_mm": [10.0],
+          "discretization.mesh_size_mm": 5.0, "discretization.order_u": 3}
+    _, rows, _ = _run(tmp_path, "ideal", **ch)
+    scene = coarse(**ch)
+    for r in rows:
+        if r["u0_mm"] in (10.0, 20.0):
+            E_id = ideal_energy(scene, r["u0_mm"])
+            assert 0.97 * E_id < r["energy_J"] < E_id
+
+
+def test_penalty_converges_to_lagrange_like_one_over_K(tmp_path):
+    """Mixed penalty K → ∞: |F_K − F_Lagrange| ∝ 1/K on the same mesh (slope −1 in log-log).
+
+    The asymptotic regime starts once K exceeds the bending stiffness at the mesh scale,
+    α1/h² = 2e7 Pa here (slopes −0.79, −0.86 below it, measured)."""
+    u0 = {"loading.u0_mm": 20.0, "solver.rtol": 1e-14}
+    _, ref, _ = _run(tmp_path, "lag", **u0)
+    Ks = [1e9, 1e10, 1e11]
+    errs = []
+    for K in Ks:
+        _, rows, _ = _run(tmp_path, f"pen{K:g}", **u0, **{"effects.constraint": "penalty", "effects.penalty_K": K})
+        errs.append(abs(rows[-1]["force_N"] - ref[-1]["force_N"]))
+    slope = np.polyfit(np.log(Ks), np.log(errs), 1)[0]
+    assert -1.05 < slope < -0.95, f"observed penalty slope {slope:.3f}, errors {errs}"
