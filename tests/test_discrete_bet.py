@@ -1,0 +1,123 @@
+"""The discrete model on the bias extension test: symmetry, ideal kinematics, identities, outputs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ngbet.discrete import run
+from ngbet.output import read_profiles, read_rows
+from ngbet.scene import Scene
+
+BASE = {"model": "discrete", "loading.u0_mm": 30.0, "loading.first_step_mm": 2.0, "loading.max_step_mm": 4.0}
+
+
+@pytest.fixture(scope="module")
+def unbalanced(tmp_path_factory):
+    """Table 2 network (EI1 = 400 EI2), spacing 5 mm, to u0 = 30 mm (before the first snap near 42 mm)."""
+    out = tmp_path_factory.mktemp("unbalanced")
+    scene = Scene().with_changes(**BASE)
+    return scene, out, run(scene, out, progress=False)
+
+
+def test_run_completes_with_quadratic_newton(unbalanced):
+    _, out, summary = unbalanced
+    rows = read_rows(out / "results.csv")
+    assert summary["status"] == "ok" and rows[-1]["u0_mm"] == pytest.approx(30.0), f"{summary['status']}"
+    # from the tangent predictor, converged to rtol = 1e-10 in a few quadratic iterations
+    worst = max(r["newton_iterations"] for r in rows)
+    assert worst <= 6, f"a step needed {worst} Newton iterations"
+
+
+def test_half_turn_symmetry_unbalanced(unbalanced):
+    # the half-turn about the centre maps each yarn family onto itself (also for EI1 != EI2) and
+    # the network onto itself, so u_y on the mid-axis is odd about X = L/2: u_y(X) = -u_y(L - X)
+    _, out, _ = unbalanced
+    X, uy = map(np.asarray, read_profiles(out / "profile.csv")[30.0])
+    assert np.allclose(X, X[-1] - X[::-1]), "profile abscissae are not symmetric"
+    odd = np.abs(uy + uy[::-1]).max()
+    # the S-shape exists (the thick yarns hardly bend) and is odd up to the Newton tolerance
+    assert np.abs(uy).max() > 0.5, f"no S-shape: max |u_y| = {np.abs(uy).max():.3g} mm"
+    assert odd < 1e-5 * np.abs(uy).max(), f"|u_y(X) + u_y(L - X)| up to {odd:.3g} mm"
+
+
+def test_s_shape_sign_matches_thick_family(unbalanced):
+    # thick yarns along m1 = (1, 1)/sqrt2 resist bending, so the centre line follows their
+    # rotation towards e1: the left half rises (u_y > 0 for X < L/2), the right half sinks
+    _, out, _ = unbalanced
+    X, uy = map(np.asarray, read_profiles(out / "profile.csv")[30.0])
+    left, right = uy[(X > 10) & (X < 100)], uy[(X > 120) & (X < 210)]
+    assert left.min() > 0 and right.max() < 0, f"left {left.min():.3g}..{left.max():.3g}, right {right.min():.3g}..{right.max():.3g}"
+
+
+def test_reaction_is_energy_derivative(unbalanced):
+    # envelope theorem: E(u0) = int_0^u0 F du0 along a continuous (snap-free) branch; the
+    # trapezoidal rule over steps of at most 4 mm is accurate to ~1e-3 here
+    _, out, summary = unbalanced
+    rows = read_rows(out / "results.csv")
+    u0 = np.array([0.0] + [r["u0_mm"] for r in rows]) * 1e-3
+    F = np.array([0.0] + [r["force_N"] for r in rows])
+    work = float(np.sum(0.5 * (F[1:] + F[:-1]) * np.diff(u0)))
+    E = rows[-1]["energy_J"]
+    assert summary["snap_event_count"] == 0 and abs(work - E) < 2e-3 * E, f"work {work:.6g} J, energy {E:.6g} J"
+
+
+def test_energy_parts_sum_to_total(unbalanced):
+    _, out, _ = unbalanced
+    r = read_rows(out / "results.csv")[-1]
+    parts = sum(r[f"energy_{k}_J"] for k in ("axial", "bending1", "bending2", "slip", "shear_springs", "inter"))
+    assert abs(parts - r["energy_J"]) < 1e-9 * r["energy_J"], f"parts {parts:.12g} vs total {r['energy_J']:.12g}"
+
+
+def test_outputs_written(unbalanced):
+    _, out, summary = unbalanced
+    cols = set(read_rows(out / "results.csv")[0])
+    need = {"step", "u0_mm", "force_N", "energy_J", "energy_bending1_J", "energy_bending2_J", "energy_slip_J",
+            "energy_shear_springs_J", "energy_inter_J", "energy_axial_J", "newton_iterations", "step_wall_s",
+            "max_slip_mm", "gamma_A_deg", "gamma_B_deg", "gamma_C_deg"}
+    files = [out / n for n in ("summary.json", "profile.csv", "state_30mm.npz", "yarns_30mm.png")]
+    missing = need - cols
+    assert not missing and all(f.exists() for f in files), f"missing columns {missing}, files {[f.name for f in files if not f.exists()]}"
+    with np.load(out / "state_30mm.npz") as d:
+        assert d["crossing_slip_mm"].shape == (summary["network"]["crossings"],)
+
+
+def test_balanced_network_has_straight_mid_axis(tmp_path):
+    # EI1 = EI2, EA1 = EA2: the mirror Y -> W - Y maps m1 onto m2 and the network onto itself,
+    # so the mid-axis stays straight (no S-shape)
+    scene = Scene().with_changes(**{**BASE, "discrete.EI2": 0.4, "discrete.EA2": 5e4, "loading.u0_mm": 20.0,
+                                            "outputs.plot": False})
+    run(scene, tmp_path, progress=False)
+    uy = np.asarray(read_profiles(tmp_path / "profile.csv")[20.0][1])
+    assert np.abs(uy).max() < 1e-6, f"max |u_y| on the mid-axis: {np.abs(uy).max():.3g} mm"
+
+
+def test_ideal_kinematics_limit(tmp_path):
+    # stiff slip springs (no slip), soft bending: the network trellises as in MODEL.md section 4,
+    # gamma_A = pi/2 - 2 arccos((D + u0) / (sqrt2 D)), gamma_B = gamma_A / 2, gamma_C = 0.
+    # Zone means include crossings next to the zone borders (transition layers one or two yarn
+    # spacings wide), which bias A down and B, C up by a few percent at spacing 5 mm.
+    u0 = 20.0
+    scene = Scene().with_changes(**{**BASE, "loading.u0_mm": u0, "discrete.K_slip": 1e6, "discrete.EI1": 1e-6,
+                                            "discrete.EI2": 1e-6, "outputs.plot": False})
+    run(scene, tmp_path, progress=False)
+    r = read_rows(tmp_path / "results.csv")[-1]
+    D = scene.specimen.zone_a_length_mm
+    gA = math.degrees(math.pi / 2 - 2 * math.acos((D + u0) / (math.sqrt(2) * D)))  # 16.53 deg
+    assert abs(r["gamma_A_deg"] - gA) < 0.08 * gA, f"gamma_A {r['gamma_A_deg']:.3f} vs ideal {gA:.3f} deg"
+    assert abs(r["gamma_B_deg"] - gA / 2) < 0.08 * gA / 2, f"gamma_B {r['gamma_B_deg']:.3f} vs ideal {gA / 2:.3f} deg"
+    assert abs(r["gamma_C_deg"]) < 0.1 * gA, f"gamma_C {r['gamma_C_deg']:.3f} deg, ideal 0"
+    assert r["max_slip_mm"] < 1e-3, f"slip {r['max_slip_mm']:.3g} mm with K_slip = 1e6 N/m"
+
+
+def test_failed_step_reports_history(tmp_path):
+    # a tolerance below round-off cannot be met: the run stops with status "failed", the last
+    # converged load and the residual history in the summary
+    scene = Scene().with_changes(**{**BASE, "solver.rtol": 1e-300, "solver.atol_energy": 1e-300,
+                                            "solver.max_iterations": 2, "loading.min_step_mm": 1.0,
+                                            "outputs.plot": False})
+    s = run(scene, tmp_path, progress=False)
+    assert s["status"] == "failed" and s["last_converged_u0_mm"] == 0.0 and len(s["residual_history"]) > 0, \
+        f"status {s['status']}, error {s['error']}"
