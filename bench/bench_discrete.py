@@ -1,0 +1,118 @@
+"""Benchmark of the discrete model: time per Newton iteration, split into assembly and factorization.
+
+For a BET network (default spacing 2.4 mm: about 17,000 unknowns) at a deformed state (a converged
+u0 = 20 mm solution), time over ``--repeats`` repeats (medians reported):
+
+- assembly: energy, gradient and Hessian (element kernels + bincount into the fixed CSR pattern);
+- factorization + one solve of the free block with each linear solver backend: NGSolve
+  sparsecholesky with the pattern analysed once and values updated in place (``Update()``),
+  NGSolve umfpack / pardiso when available, scipy SuperLU (``splu``) from scratch;
+- the stability check (shift-invert Lanczos with the factorization already made);
+- optionally (``--run``) a complete BET run to u0 = 56 mm.
+
+All backends must give the same solution (relative difference reported). A JSON record goes to
+bench/out/ (ignored by git).
+
+    python bench/bench_discrete.py [--spacing 2.4] [--repeats 5] [--run]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError
+from ngbet.discrete.model import NetworkModel
+from ngbet.discrete.run import step_control
+from ngbet.discrete.solver import lowest_eigenvalues, solve_path
+from ngbet.output import machine, versions
+from ngbet.scene import Scene
+
+
+def median_time(fn, repeats: int) -> float:
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return statistics.median(ts)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--spacing", type=float, default=2.4, help="yarn spacing [mm]")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--run", action="store_true", help="also time a full BET run to 56 mm")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+
+    scene = Scene().with_changes(**{"model": "discrete", "discrete.spacing_mm": args.spacing, "loading.u0_mm": 20.0,
+                                    "outputs.plot": False})
+    t = time.perf_counter()
+    model = NetworkModel.from_scene(scene)
+    t_build = time.perf_counter() - t
+    res = solve_path(model, step_control(scene))
+    u = res["u"]
+    rec: dict = {"spacing_mm": args.spacing, "dofs": model.n_dofs, "free_dofs": int((~model.fixed).sum()),
+                 "nnz": model.pattern.nnz, "t_build_s": t_build, "repeats": args.repeats}
+    rec["t_assembly_s"] = median_time(lambda: model.evaluate(u, True), args.repeats)
+    rec["t_gradient_only_s"] = median_time(lambda: model.evaluate(u, False), args.repeats)
+    _, g, K = model.evaluate(u, True)
+    b = g[~model.fixed]
+    ref = None
+    rec["backends"] = {}
+    for backend in ("sparsecholesky", "umfpack", "pardiso", "splu"):
+        try:
+            lin = FreeBlockSolver(K, ~model.fixed, backend)
+            t = time.perf_counter()
+            lin.factor(K)  # first factorization: includes the symbolic analysis
+            t_first = time.perf_counter() - t
+            t_fac = median_time(lambda: lin.factor(K), args.repeats)
+            t_sol = median_time(lambda: lin.solve(b), args.repeats)
+            x = lin.solve(b)
+        except (LinearSolverError, Exception) as exc:  # noqa: BLE001 - a backend NGSolve lacks
+            rec["backends"][backend] = {"error": str(exc)[:200]}
+            continue
+        ref = x if ref is None else ref
+        rec["backends"][backend] = {"t_first_factor_s": t_first, "t_factor_s": t_fac, "t_solve_s": t_sol,
+                                    "rel_diff_to_first": float(np.linalg.norm(x - ref) / np.linalg.norm(ref))}
+        if backend == "sparsecholesky":
+            rec["t_stability_s"] = median_time(lambda: lowest_eigenvalues(lin, 4), max(1, args.repeats // 2))
+    if args.run:
+        from ngbet.discrete import run
+
+        full = scene.with_changes(**{"loading.u0_mm": 56.0})
+        t = time.perf_counter()
+        s = run(full, Path(__file__).parent / "out" / f"run_{args.spacing}mm", progress=False)
+        rec["full_run"] = {"wall_s": time.perf_counter() - t, "status": s["status"], "steps": s["steps"],
+                           "newton_iterations": s["newton_iterations_total"], "snap_events": s["snap_event_count"],
+                           "t_stability_s": s.get("t_stability_s")}
+    rec["versions"] = versions()
+    rec["machine"] = machine()
+    out = Path(__file__).parent / "out"
+    out.mkdir(exist_ok=True)
+    path = out / f"bench_discrete_{time.strftime('%Y%m%d-%H%M%S')}.json"
+    path.write_text(json.dumps(rec, indent=2))
+    print(f"{rec['dofs']} dofs ({rec['free_dofs']} free), nnz {rec['nnz']}")
+    print(f"assembly (E, g, K): {rec['t_assembly_s'] * 1e3:.1f} ms   (E, g only: {rec['t_gradient_only_s'] * 1e3:.1f} ms)")
+    for name, r in rec["backends"].items():
+        if "error" in r:
+            print(f"{name:15s} unavailable: {r['error'][:80]}")
+        else:
+            print(f"{name:15s} factor {r['t_factor_s'] * 1e3:7.1f} ms (first {r['t_first_factor_s'] * 1e3:7.1f}) "
+                  f"solve {r['t_solve_s'] * 1e3:6.2f} ms  rel.diff {r['rel_diff_to_first']:.1e}")
+    if "t_stability_s" in rec:
+        print(f"stability check: {rec['t_stability_s'] * 1e3:.1f} ms")
+    if "full_run" in rec:
+        print(f"full run to 56 mm: {rec['full_run']}")
+    print(f"record: {path}")
+
+
+if __name__ == "__main__":
+    main()
