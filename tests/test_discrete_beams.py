@@ -52,7 +52,7 @@ def solve_chain(chain: Chain, forces: list[np.ndarray], u: np.ndarray | None = N
     worst = 0
     for f in forces:
         chain.force = np.asarray(f, float)
-        u, its, _, _ = newton(chain, u, lin, ctl)
+        u, its, _, _ = newton(chain, u, lin, ctl, fail_fast=False)
         worst = max(worst, its)
     return u, worst
 

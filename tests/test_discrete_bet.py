@@ -121,3 +121,17 @@ def test_failed_step_reports_history(tmp_path):
     s = run(scene, tmp_path, progress=False)
     assert s["status"] == "failed" and s["last_converged_u0_mm"] == 0.0 and len(s["residual_history"]) > 0, \
         f"status {s['status']}, error {s['error']}"
+
+
+def test_snap_through_is_detected_and_reported(tmp_path):
+    # Table 2 at spacing 5 mm snaps between u0 = 41 and 43 mm (the clamp work of that step is
+    # exceeded by the energy drop): the event is bracketed to <= 1 mm, logged, counted, and the
+    # force drops across it; the run goes on
+    scene = Scene().with_changes(**{"model": "discrete", "loading.u0_mm": 44.0, "outputs.plot": False})
+    s = run(scene, tmp_path, progress=False)
+    rows = read_rows(tmp_path / "results.csv")
+    ev = s["snap_events"]
+    assert s["status"] == "ok" and s["snap_event_count"] >= 1, f"status {s['status']}, events {ev}"
+    k = next(i for i, r in enumerate(rows) if r["snap"] == 1)
+    assert ev[0]["u0"] - ev[0]["u0_before"] <= 1e-3 * (1 + 1e-9) and ev[0]["released_J"] > 0, f"event {ev[0]}"
+    assert rows[k]["force_N"] < rows[k - 1]["force_N"], f"force {rows[k - 1]['force_N']:.4g} -> {rows[k]['force_N']:.4g} N"

@@ -84,7 +84,7 @@ class StepControl:
     predictor: str = "tangent"
     backend: str = "auto"
     stability: bool = True
-    n_eigs: int = 4
+    n_eigs: int = 2
     stations: tuple[float, ...] = ()  # loads the path must hit exactly (shapes are wanted there)
     snap_release: float = 0.05  # released fraction of the step's work that marks a snap-through
     snap_bracket: float = 1e-3  # a step that snaps is cut until it is at most this long
@@ -113,14 +113,16 @@ class _StepFailed(Exception):
 
 
 def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
-           max_iterations: int | None = None, line_search: bool = False
+           max_iterations: int | None = None, line_search: bool = False, fail_fast: bool = True
            ) -> tuple[np.ndarray, int, list[tuple[float, float, float]], int]:
     """Minimize the energy over the free dofs from u (prescribed dofs as given).
 
     Plain Newton by default: with stiff axial terms the full step of a rotating beam stretches it
     and raises the energy, yet the next iteration restores the length and converges
     quadratically, whereas an energy line search would crawl. ``line_search=True`` (Armijo
-    backtracking on the energy) is the globally convergent fallback, used to relax past a snap.
+    backtracking on the energy) is used to relax past a snap-through. ``fail_fast`` gives up
+    when the decrement stops contracting after 6 iterations (the step will be cut); without it
+    Newton may wander through indefinite states to a distant branch (a snap-through).
 
     Returns
     -------
@@ -156,6 +158,9 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
             return u, it, hist, shifted
         if dec <= 0:
             raise _StepFailed("no descent direction even with a shifted tangent", hist)
+        if fail_fast and not line_search and it >= 6 and dec > 0.5 * hist[-2][2]:
+            # Newton converges quadratically near a solution or not at all: stop wasting factorizations
+            raise _StepFailed(f"Newton decrement not contracting ({hist[-2][2]:.3g} -> {dec:.3g})", hist)
         alpha = 1.0
         if line_search and dec > 1e-6 * abs(E) + ctl.atol:  # far from the solution
             v = u.copy()
@@ -179,7 +184,7 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray, np.nda
     D = sp.diags(np.abs(Kff.diagonal()))
     op = spla.LinearOperator((n, n), matvec=lambda b: lin.solve(np.ravel(b)), dtype=float)
     k = min(k, n - 2)
-    lam, V = spla.eigsh(Kff, k=k, M=D, sigma=0.0, which="LM", OPinv=op, tol=1e-8,
+    lam, V = spla.eigsh(Kff, k=k, M=D, sigma=0.0, which="LM", OPinv=op, tol=1e-6,
                         v0=np.ones(n), maxiter=2000)
     order = np.argsort(lam)
     return lam[order], V[:, order]
@@ -239,40 +244,35 @@ def solve_path(problem: Problem, ctl: StepControl,
             trial += h * problem.ramp
             trial[problem.fixed] = u[problem.fixed] + dc[problem.fixed]
         try:
-            try:
-                unew, its, hist, shifted = newton(problem, trial, lin, ctl)
-            except _StepFailed:
-                # the same step once more, damped: slower but globally convergent
-                if ctl.predictor == "tangent":
-                    E, g, K = problem.evaluate(u, True)
-                    lin.factor(K)
-                unew, its, hist, shifted = newton(problem, trial, lin, ctl, line_search=True)
+            unew, its, hist, shifted = newton(problem, trial, lin, ctl)
         except _StepFailed as exc:
             stats["failed_steps"] += 1
-            last_hist = exc.history
-            log.info("step u0 %.4g -> %.4g failed (%s); cutting", u0, u0 + h, exc)
-            # restore the tangent at the converged state for the next predictor
-            E, g, K = problem.evaluate(u, True)
-            lin.factor(K)
-            if h * ctl.cut < ctl.min_step * (1 - 1e-9):
-                # last resort before giving up: a long relaxation from the converged state with the
-                # new clamp position (what a snap-through to a distant branch needs)
+            log.info("step u0 %.5g -> %.5g failed (%s)", u0, u0 + h, exc)
+            relaxed = None
+            if h <= ctl.snap_bracket * (1 + 1e-9) or h * ctl.cut < ctl.min_step * (1 - 1e-9):
+                # a short step and still no equilibrium near the predictor: the branch ends (limit
+                # point); let a damped Newton (shifted where indefinite) run long enough to reach
+                # the branch it snaps to
                 try:
-                    trial = u.copy()
-                    trial[problem.fixed] += dc[problem.fixed]
-                    unew, its, hist, shifted = newton(problem, trial, lin, ctl, max_iterations=20 * ctl.max_iterations,
-                                                      line_search=True)
-                    shifted = max(shifted, 1)
+                    relaxed = newton(problem, trial, lin, ctl, max_iterations=4 * ctl.max_iterations,
+                                     line_search=True, fail_fast=False)
                 except _StepFailed as exc2:
-                    E, g, K = problem.evaluate(u, True)
-                    lin.factor(K)
+                    last_hist = exc2.history
+                    log.info("relaxation u0 %.5g -> %.5g failed (%s)", u0, u0 + h, exc2)
+            if relaxed is None:
+                # restore the tangent at the converged state for the next predictor
+                E, g, K = problem.evaluate(u, True)
+                lin.factor(K)
+                if h * ctl.cut < ctl.min_step * (1 - 1e-9):
                     stats["u"] = u
                     raise ConvergenceError(
-                        f"load step u0 = {u0:.6g} -> {u0 + h:.6g} failed at the minimum step ({exc2}); "
-                        f"last converged u0 = {u0:.6g}", u0, u0 + h, exc2.history) from None
-            else:
+                        f"load step u0 = {u0:.6g} -> {u0 + h:.6g} failed at the minimum step ({exc}); "
+                        f"last converged u0 = {u0:.6g}", u0, u0 + h, last_hist or exc.history) from None
                 h *= ctl.cut
                 continue
+            unew, its, hist, shifted = relaxed
+            its += len(exc.history)
+            shifted = max(shifted, 1)  # the state left its branch
         E_new, g_new, K_new = problem.evaluate(unew, True)
         # envelope theorem: on a continuous branch dE/du0 = load . g, so the trapezoidal work of the
         # clamp equals the energy change up to O(h^3); energy released beyond that is a snap-through
@@ -326,7 +326,6 @@ def solve_path(problem: Problem, ctl: StepControl,
     stats["steps"] = step
     stats["backend"] = lin.backend
     stats["n_free"] = len(free)
-    del last_hist
     return stats
 
 
