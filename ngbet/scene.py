@@ -325,12 +325,17 @@ class Discrete:
     spacing_mm: float = 5.0  # distance between neighbouring yarns of one family (not in the paper)
     elements_per_segment: int = 1  # beam elements between two crossings
     inter_layout: str = "neighbours"  # "neighbours" or "none"
+    # yarn ends on a clamp: "free" = pinned (position prescribed, rotation free: the discrete
+    # counterpart of the continuum's clamp, which prescribes u, not the yarn rotation); "held" =
+    # built in (rotation held too). The choice decides the sense of the S-shape: see the README.
+    end_rotation: str = "free"
 
     def __post_init__(self) -> None:
         _positive("discrete", self, "EA1", "EA2", "spacing_mm")
         _nonnegative("discrete", self, "EI1", "EI2", "K_phi", "K_slip", "K_inter")
         _integer("discrete", self, "elements_per_segment", 1, 64)
         _choice("discrete", self, "inter_layout", ("neighbours", "none"))
+        _choice("discrete", self, "end_rotation", ("free", "held"))
 
 
 MODELS = ("continuum", "discrete")

@@ -16,7 +16,7 @@ BASE = {"model": "discrete", "loading.u0_mm": 30.0, "loading.first_step_mm": 2.0
 
 @pytest.fixture(scope="module")
 def unbalanced(tmp_path_factory):
-    """Table 2 network (EI1 = 400 EI2), spacing 5 mm, to u0 = 30 mm (before the first snap near 42 mm)."""
+    """Table 2 network (EI1 = 400 EI2), spacing 5 mm, pinned yarn ends, to u0 = 30 mm (before the snap near 45 mm)."""
     out = tmp_path_factory.mktemp("unbalanced")
     scene = Scene().with_changes(**BASE)
     return scene, out, run(scene, out, progress=False)
@@ -26,9 +26,11 @@ def test_run_completes_with_quadratic_newton(unbalanced):
     _, out, summary = unbalanced
     rows = read_rows(out / "results.csv")
     assert summary["status"] == "ok" and rows[-1]["u0_mm"] == pytest.approx(30.0), f"{summary['status']}"
-    # from the tangent predictor, converged to rtol = 1e-10 in a few quadratic iterations
-    worst = max(r["newton_iterations"] for r in rows)
-    assert worst <= 6, f"a step needed {worst} Newton iterations"
+    # from the tangent predictor, converged to rtol = 1e-10 in a few quadratic iterations, except
+    # on a step flagged as a snap (a short pinned corner yarn turns over near 12 mm: the Newton
+    # path crosses an indefinite tangent and needs more iterations)
+    worst = max(r["newton_iterations"] for r in rows if not r["snap"])
+    assert worst <= 8, f"a regular step needed {worst} Newton iterations"
 
 
 def test_half_turn_symmetry_unbalanced(unbalanced):
@@ -43,25 +45,43 @@ def test_half_turn_symmetry_unbalanced(unbalanced):
     assert odd < 1e-5 * np.abs(uy).max(), f"|u_y(X) + u_y(L - X)| up to {odd:.3g} mm"
 
 
-def test_s_shape_sign_matches_thick_family(unbalanced):
-    # thick yarns along m1 = (1, 1)/sqrt2 resist bending, so the centre line follows their
-    # rotation towards e1: the left half rises (u_y > 0 for X < L/2), the right half sinks
+def _halves(out, u0):
+    X, uy = map(np.asarray, read_profiles(out / "profile.csv")[u0])
+    return uy[(X > 10) & (X < 100)], uy[(X > 120) & (X < 210)]
+
+
+def test_s_shape_sign_matches_continuum(unbalanced):
+    # with pinned yarn ends (the counterpart of the continuum's clamp, which prescribes u only)
+    # the network bends as the continuum does for the same thick family m1 = (1, 1)/sqrt2: the
+    # left half of the mid-axis sinks (u_y < 0 for X < L/2), the right half rises
+    # (continuum, Table 1, h = 5 mm, 56 mm: u_y = -2.9 mm at X = 40 mm)
     _, out, _ = unbalanced
-    X, uy = map(np.asarray, read_profiles(out / "profile.csv")[30.0])
-    left, right = uy[(X > 10) & (X < 100)], uy[(X > 120) & (X < 210)]
-    assert left.min() > 0 and right.max() < 0, f"left {left.min():.3g}..{left.max():.3g}, right {right.min():.3g}..{right.max():.3g}"
+    left, right = _halves(out, 30.0)
+    assert left.max() < 0 < right.min(), f"left {left.min():.3g}..{left.max():.3g}, right {right.min():.3g}..{right.max():.3g}"
+
+
+def test_built_in_yarn_ends_turn_the_s_over(tmp_path):
+    # the sense of the S is decided at the clamps: built-in ends hold the rotation of the stiff
+    # thick yarns there, and the same network bends the other way (left half rises)
+    scene = Scene().with_changes(**{**BASE, "loading.u0_mm": 20.0, "discrete.end_rotation": "held",
+                                            "outputs.plot": False})
+    run(scene, tmp_path, progress=False)
+    left, right = _halves(tmp_path, 20.0)
+    assert left.min() > 0 > right.max(), f"left {left.min():.3g}..{left.max():.3g}, right {right.min():.3g}..{right.max():.3g}"
 
 
 def test_reaction_is_energy_derivative(unbalanced):
-    # envelope theorem: E(u0) = int_0^u0 F du0 along a continuous (snap-free) branch; the
-    # trapezoidal rule over steps of at most 4 mm is accurate to ~1e-3 here
+    # envelope theorem: E(u0) = int_0^u0 F du0 - (energy released in snaps); the trapezoidal
+    # rule over steps of at most 4 mm is accurate to ~1e-3 here
     _, out, summary = unbalanced
     rows = read_rows(out / "results.csv")
     u0 = np.array([0.0] + [r["u0_mm"] for r in rows]) * 1e-3
     F = np.array([0.0] + [r["force_N"] for r in rows])
     work = float(np.sum(0.5 * (F[1:] + F[:-1]) * np.diff(u0)))
+    released = sum(ev.get("released_J", 0.0) for ev in summary["snap_events"])
     E = rows[-1]["energy_J"]
-    assert summary["snap_event_count"] == 0 and abs(work - E) < 2e-3 * E, f"work {work:.6g} J, energy {E:.6g} J"
+    assert released < 1e-3 * E and abs(work - released - E) < 2e-3 * E, \
+        f"work {work:.6g} J, released {released:.3g} J, energy {E:.6g} J"
 
 
 def test_energy_parts_sum_to_total(unbalanced):
@@ -124,14 +144,37 @@ def test_failed_step_reports_history(tmp_path):
 
 
 def test_snap_through_is_detected_and_reported(tmp_path):
-    # Table 2 at spacing 5 mm snaps between u0 = 41 and 43 mm (the clamp work of that step is
-    # exceeded by the energy drop): the event is bracketed to <= 1 mm, logged, counted, and the
-    # force drops across it; the run goes on
-    scene = Scene().with_changes(**{"model": "discrete", "loading.u0_mm": 44.0, "outputs.plot": False})
+    # Table 2 at spacing 5 mm (pinned ends) snaps between u0 = 44.6 and 45.5 mm (the energy drop
+    # exceeds the clamp work of that step): the event is bracketed to <= 1 mm, logged, counted,
+    # and the force drops across it; the run goes on
+    scene = Scene().with_changes(**{"model": "discrete", "loading.u0_mm": 47.0, "outputs.plot": False})
     s = run(scene, tmp_path, progress=False)
     rows = read_rows(tmp_path / "results.csv")
-    ev = s["snap_events"]
-    assert s["status"] == "ok" and s["snap_event_count"] >= 1, f"status {s['status']}, events {ev}"
-    k = next(i for i, r in enumerate(rows) if r["snap"] == 1)
+    ev = [e for e in s["snap_events"] if e.get("released_J", 0.0) > 0.5 * e.get("work_J", 0.0)]
+    assert s["status"] == "ok" and len(ev) >= 1, f"status {s['status']}, events {s['snap_events']}"
+    k = next(i for i, r in enumerate(rows) if r["snap"] == 1 and r["released_J"] > 1e-4)
     assert ev[0]["u0"] - ev[0]["u0_before"] <= 1e-3 * (1 + 1e-9) and ev[0]["released_J"] > 0, f"event {ev[0]}"
     assert rows[k]["force_N"] < rows[k - 1]["force_N"], f"force {rows[k - 1]['force_N']:.4g} -> {rows[k]['force_N']:.4g} N"
+
+
+def test_equivalent_network_bends_like_the_continuum(tmp_path):
+    # the network with the continuum's energy per unit area (ngbet.discrete.equivalent: EA = t K_el s,
+    # EI_k = t alpha_k s, K_phi = t K_sh s^2, no slip) and pinned ends reproduces the continuum's
+    # mid-axis profile at 56 mm: measured correlation 0.965, amplitude ratio 0.87 (h = 10 mm);
+    # the rest is discreteness (s = 5 mm against l2 = 31 mm) and large shear
+    from ngbet.discrete.equivalent import continuum_equivalent
+    from ngbet.run import run as run_any
+
+    base = {"loading.u0_mm": 56.0, "loading.stops_mm": (), "outputs.plot": False, "outputs.vtk": False,
+            "discretization.mesh_size_mm": 10.0}
+    cont = Scene().with_changes(**base)
+    disc = Scene().with_changes(model="discrete", **base)
+    disc = disc.with_changes(**continuum_equivalent(disc))
+    run_any(cont, tmp_path / "c")
+    assert run_any(disc, tmp_path / "d")["status"] == "ok"
+    Xc, uc = map(np.asarray, read_profiles(tmp_path / "c" / "profile.csv")[56.0])
+    Xd, ud = map(np.asarray, read_profiles(tmp_path / "d" / "profile.csv")[56.0])
+    ud = np.interp(Xc, Xd, ud)
+    corr = np.corrcoef(uc, ud)[0, 1]
+    ratio = np.abs(ud).max() / np.abs(uc).max()
+    assert corr > 0.9 and 0.7 < ratio < 1.3, f"correlation {corr:.3f}, amplitude ratio {ratio:.3f}"

@@ -63,6 +63,8 @@ class NetworkModel:
     ----------
     net : the network
     EA1, EA2 [N], EI1, EI2 [N m^2], K_phi [N m], K_slip [N/m], K_inter [N] : stiffnesses (paper, Table 2)
+    end_rotation : "free" (yarn ends on a clamp are pinned: position prescribed, as the continuum
+        prescribes u on the clamp) or "held" (built in: the end rotation is prescribed too)
 
     Attributes used by the solver: ``n_dofs``, ``fixed`` (bool mask of prescribed dofs), ``load``
     (prescribed dof values per unit clamp displacement: 1 on ux of the moving clamp), ``ramp``
@@ -70,7 +72,9 @@ class NetworkModel:
     """
 
     def __init__(self, net: Network, EA1: float, EA2: float, EI1: float, EI2: float, K_phi: float,
-                 K_slip: float, K_inter: float) -> None:
+                 K_slip: float, K_inter: float, end_rotation: str = "free") -> None:
+        if end_rotation not in ("free", "held"):
+            raise ValueError(f"end_rotation = {end_rotation!r}: must be 'free' or 'held'")
         self.net = net
         self.n_dofs = net.n_dofs
         X = net.X
@@ -99,10 +103,12 @@ class NetworkModel:
             self.groups.append(Group("inter", d, lambda ue, h, Xt=Xt, kt=kt: el.truss(ue, Xt, kt, h)))
         self.pattern = Pattern([g.dofs for g in self.groups], self.n_dofs)
         self.stiffness = dict(EA1=EA1, EA2=EA2, EI1=EI1, EI2=EI2, K_phi=K_phi, K_slip=K_slip, K_inter=K_inter)
+        self.end_rotation = end_rotation
 
         fixed_nodes = np.flatnonzero(net.node_end != 0)
+        held = np.arange(3 if end_rotation == "held" else 2)
         self.fixed = np.zeros(self.n_dofs, bool)
-        self.fixed[(3 * fixed_nodes[:, None] + np.arange(3)).ravel()] = True
+        self.fixed[(3 * fixed_nodes[:, None] + held).ravel()] = True
         self.moving_nodes = net.clamped_nodes(CLAMP_MOVING)
         self.fixed_nodes = net.clamped_nodes(CLAMP_FIXED)
         self.load = np.zeros(self.n_dofs)
@@ -117,7 +123,7 @@ class NetworkModel:
 
         d = scene.discrete
         return cls(net if net is not None else network_from_scene(scene), d.EA1, d.EA2, d.EI1, d.EI2,
-                   d.K_phi, d.K_slip, d.K_inter)
+                   d.K_phi, d.K_slip, d.K_inter, d.end_rotation)
 
     def evaluate(self, u: np.ndarray, hessian: bool = True) -> tuple[float, np.ndarray, sp.csr_matrix | None]:
         """Total energy E [J], gradient dE/du and (optionally) the Hessian (full, all dofs) at u."""
