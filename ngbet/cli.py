@@ -1,4 +1,4 @@
-"""Command line: ``ngbet run [scene.toml] [--out DIR]``, ``ngbet scene``.
+"""Command line: ``ngbet run [scene.toml] [--out DIR]``, ``ngbet scene``, ``ngbet study NAME``.
 
 Exit status: 0 done, 1 the solver could not reach the final load (converged steps are on disk),
 2 a bad scene or command line.
@@ -50,7 +50,14 @@ def main(argv: list[str] | None = None) -> int:
     ps = sub.add_parser("scene", help="print a scene as TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    pst = sub.add_parser("study", help="run a parameter study (see studies/README.md); 'ngbet study list' lists them")
+    pst.add_argument("name", help="study name (penalty_p, work_precision, alpha1, kel, curves, maps, compare) or 'list'")
+    from .study import add_arguments
+
+    add_arguments(pst)
     args = parser.parse_args(argv)
+    if args.command == "study":
+        return _study(args)
 
     level = logging.WARNING if getattr(args, "quiet", False) else (
         logging.INFO if getattr(args, "verbose", False) else logging.WARNING)
@@ -79,6 +86,33 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(_report(summary, out))
     return 0
+
+
+def _study(args: argparse.Namespace) -> int:
+    """``ngbet study NAME``: the study module studies.NAME (from the source tree next to ngbet/)."""
+    import importlib
+
+    try:
+        studies = importlib.import_module("studies")
+    except ImportError:
+        sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+        try:
+            studies = importlib.import_module("studies")
+        except ImportError:
+            print("ngbet study: the studies/ folder of the source tree is not importable "
+                  "(run from a clone: pip install -e .)", file=sys.stderr)
+            return 2
+    if args.name == "list":
+        for name, what in studies.STUDIES.items():
+            print(f"{name:16s} {what}")
+        return 0
+    if args.name not in studies.STUDIES:
+        print(f"ngbet study: unknown study {args.name!r}; known: {', '.join(studies.STUDIES)}", file=sys.stderr)
+        return 2
+    from .study import run_from_args
+
+    module = importlib.import_module(f"studies.{args.name}")
+    return run_from_args(module.build, args)
 
 
 def _report(summary: dict, out: Path) -> str:

@@ -1,0 +1,671 @@
+"""Parameter studies: a list (or grid) of scene variants, each run once into a cache.
+
+A :class:`Study` is a base scene, a list of cases (each a dict of :meth:`Scene.with_changes`
+keys: ``{"discretization.order_u": 3, "effects.penalty_K": 1e9}``) and the functions that turn
+the cases' results into tables, figures and a short report. :func:`run_study` runs it::
+
+    cache/<key>/            one run folder per case (ngbet.run.run's layout) + case.json
+    <out>/results.csv       one row per case and converged load step; the varied keys are columns
+    <out>/profiles.csv      mid-axis u_y per case and load step (at the study's profile stations)
+    <out>/<table>.csv       extra tables of the study (outlines, ...), extracted from the cache
+    <out>/meta.json         scenes, versions, git revision, machine, threads, wall times, errors
+    <out>/report.md         the study's numbers (slopes, orders, tables)
+    <out>/*.png, *.pdf      figures
+
+Cache key
+---------
+``key = sha256(complete scene without solver.threads, code version)``. The code version is a
+hash of the ngbet sources a run executes (every ``ngbet/**/*.py`` except this runner and the
+CLI; for the continuum model without ``ngbet/discrete/``, which it never imports) together with
+the versions of ngsolve, netgen, numpy and scipy. A source hash rather than the git revision:
+the revision changes with every commit, also of README or tests (needless recomputation), does
+not change with uncommitted edits (stale results silently reused) and does not exist outside a
+checkout; the source hash has none of these faults. The thread count is left out of the key: it
+changes the wall time, not the result (beyond round-off of parallel assembly), and the runner
+sets it (1 per case when cases run in parallel).
+
+A case whose solver fails (ngbet.solver.ConvergenceError, or a discrete run ending "failed")
+is a result: it is cached with its error and its converged steps and is not retried unless
+``retry_failed``. A case that crashes otherwise (a bug, a killed worker) is recorded with its
+error in the study but not cached, so that the next run retries it. A scene refused by
+validation is recorded as failed without running.
+
+Execution: in this process (``workers = 1``), in local processes (default: one per core,
+``concurrent.futures`` with the spawn start method) or on a dask.distributed cluster given its
+scheduler address (``distributed.Client.submit``; the workers need ngbet installed, they return
+the run folder's files to the client, so no shared file system is needed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import itertools
+import json
+import logging
+import math
+import os
+import shutil
+import sys
+import tempfile
+import threading
+import time
+import traceback
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from .output import git_revision, machine, read_profiles, read_rows, versions
+from .scene import Scene, SceneError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ROOT = Path("out/studies")
+_CODE_VERSION: dict[str, dict[str, str]] = {}
+_NOT_IN_KEY = ("study.py", "cli.py")
+
+
+# ---------------------------------------------------------------------------------------------
+# cache keys
+# ---------------------------------------------------------------------------------------------
+def code_version(model: str = "continuum") -> dict[str, str]:
+    """The code a run of ``model`` executes: a hash of its ngbet sources and the library versions.
+
+    Computed once per process, so that a study sees one consistent version even when the
+    sources are edited while it runs.
+    """
+    if model not in _CODE_VERSION:
+        pkg = Path(__file__).resolve().parent
+        h = hashlib.sha256()
+        for path in sorted(pkg.rglob("*.py")):
+            rel = path.relative_to(pkg).as_posix()
+            if rel in _NOT_IN_KEY or (model != "discrete" and rel.startswith("discrete/")):
+                continue
+            h.update(rel.encode() + b"\0" + path.read_bytes() + b"\0")
+        v = versions()
+        _CODE_VERSION[model] = {"sources_sha256": h.hexdigest()[:16], "ngbet": v.get("ngbet", "?"),
+                                **{k: v.get(k, "?") for k in ("ngsolve", "netgen", "numpy", "scipy")}}
+    return _CODE_VERSION[model]
+
+
+def case_key(scene: Scene) -> str:
+    """Cache key of a case: the complete scene (threads aside) and the code version."""
+    d = scene.to_dict()
+    d["solver"]["threads"] = 0
+    blob = json.dumps({"scene": _floats(d), "code": code_version(scene.model)}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:20]
+
+
+def _floats(v: Any) -> Any:
+    """10 and 10.0 are the same scene value: hash every number as a float."""
+    if isinstance(v, dict):
+        return {k: _floats(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_floats(x) for x in v]
+    if isinstance(v, int) and not isinstance(v, bool):
+        return float(v)
+    return v
+
+
+def grid(**axes: Iterable[Any]) -> list[dict[str, Any]]:
+    """The cartesian product of value lists: ``grid(**{"a.b": [1, 2], "c.d": [3]})``."""
+    names = list(axes)
+    return [dict(zip(names, values)) for values in itertools.product(*(list(axes[n]) for n in names))]
+
+
+# ---------------------------------------------------------------------------------------------
+# the study
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class StudyData:
+    """Everything a study wrote, read back from its folder (what figures and reports use)."""
+
+    out: Path
+    rows: list[dict[str, Any]]
+    profiles: list[dict[str, Any]]
+    tables: dict[str, list[dict[str, Any]]]
+    meta: dict[str, Any]
+
+    def case_rows(self, case: int) -> list[dict[str, Any]]:
+        return [r for r in self.rows if int(r["case"]) == case and r.get("u0_mm") not in ("", None)]
+
+    def cases(self) -> list[dict[str, Any]]:
+        return self.meta["cases"]
+
+    def at(self, case: int, u0_mm: float, col: str) -> float:
+        """Value of ``col`` of a case at the load step u0 (nan when not reached)."""
+        for r in self.case_rows(case):
+            if isinstance(r["u0_mm"], float) and abs(r["u0_mm"] - u0_mm) < 1e-6:
+                v = r.get(col)
+                return float(v) if isinstance(v, (int, float)) else math.nan
+        return math.nan
+
+    def profile(self, case: int, u0_mm: float) -> tuple[list[float], list[float]]:
+        X, uy = [], []
+        for r in self.profiles:
+            if int(r["case"]) == case and abs(float(r["u0_mm"]) - u0_mm) < 1e-6:
+                X.append(float(r["X_mm"]))
+                uy.append(float(r["uy_mm"]))
+        return X, uy
+
+    def find(self, **params: Any) -> list[int]:
+        """Indices of the cases whose parameters contain ``params`` (dotted keys with '.' or '__')."""
+        want = {k.replace("__", "."): v for k, v in params.items()}
+        out = []
+        for c in self.cases():
+            p = c["params"]
+            if all(k in p and _same(p[k], v) for k, v in want.items()):
+                out.append(c["case"])
+        return out
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return math.isclose(float(a), float(b), rel_tol=1e-12, abs_tol=0.0) or a == b
+    return a == b
+
+
+Extract = Callable[[dict[str, Any], Path, Path], dict[str, list[dict[str, Any]]]]
+
+
+@dataclass
+class Study:
+    """A named list of scene variants over a base scene, with its figures and report.
+
+    cases : dicts of :meth:`Scene.with_changes` keys; every key used by any case becomes a
+        column of results.csv.
+    extract(case_record, run_dir, out) : extra rows (by table name) read from a case's run folder
+        (e.g. outlines from its VTK file); it may also copy files into ``out``.
+    plot(data) : draws the figures from a :class:`StudyData`; returns their paths.
+    report(data) : the study's numbers as Markdown text (written to report.md and printed).
+    profile_stations : loads [mm] whose mid-axis profiles go into profiles.csv (None: all steps).
+    """
+
+    name: str
+    base: Scene
+    cases: list[dict[str, Any]]
+    description: str = ""
+    extract: Extract | None = None
+    plot: Callable[[StudyData], list[Path]] | None = None
+    report: Callable[[StudyData], str] | None = None
+    profile_stations: tuple[float, ...] | None = None
+
+    def params_columns(self) -> list[str]:
+        cols: list[str] = []
+        for c in self.cases:
+            for k in c:
+                if k not in cols:
+                    cols.append(k)
+        return cols
+
+
+@dataclass
+class _Case:
+    index: int
+    params: dict[str, Any]
+    scene: Scene | None
+    key: str | None
+    record: dict[str, Any] = field(default_factory=dict)
+
+
+# ---------------------------------------------------------------------------------------------
+# running one case (in a worker)
+# ---------------------------------------------------------------------------------------------
+def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None = None) -> dict[str, Any]:
+    """Run one scene into ``workdir`` (or a temporary folder whose files are returned).
+
+    Returns the case record: status ("ok", "failed": the solver gave up, "error": anything
+    else), error text, wall time, threads, and with no ``workdir`` the run folder's files as
+    ``{"files": {name: bytes}}`` (for dask workers on other machines).
+    """
+    if threads > 0:
+        try:
+            import ngsolve as ngs
+
+            ngs.SetNumThreads(threads)
+        except Exception:  # pragma: no cover
+            pass
+    from .run import run
+    from .solver import ConvergenceError
+
+    scene = Scene.from_dict(scene_dict)
+    tmp = workdir is None
+    wd = Path(tempfile.mkdtemp(prefix="ngbet-case-")) if tmp else Path(workdir)  # type: ignore[arg-type]
+    wd.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    rec: dict[str, Any] = {"status": "ok", "error": None, "threads": threads, "host": machine()["node"],
+                           "pid": os.getpid()}
+    try:
+        summary = run(scene, wd, progress=False)
+        if summary.get("status") != "ok":
+            rec.update(status="failed", error=str(summary.get("error")), error_type="solver")
+    except ConvergenceError as exc:
+        rec.update(status="failed", error=str(exc), error_type="ConvergenceError")
+    except Exception as exc:  # recorded, never fatal for the study
+        rec.update(status="error", error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}",
+                   error_type=type(exc).__name__)
+    rec["wall_s"] = time.perf_counter() - t0
+    if tmp:
+        rec["files"] = {p.relative_to(wd).as_posix(): p.read_bytes() for p in wd.rglob("*") if p.is_file()}
+        shutil.rmtree(wd, ignore_errors=True)
+    return rec
+
+
+def _store(cache: Path, key: str, rec: dict[str, Any], workdir: Path | None) -> None:
+    """Move a finished case into cache/<key> atomically (a rename), with its case.json."""
+    files = rec.pop("files", None)
+    tmp = cache / f".tmp-{key}-{uuid.uuid4().hex[:8]}"
+    if workdir is not None and workdir.exists():
+        workdir.rename(tmp)
+    else:
+        tmp.mkdir(parents=True)
+    for name, data in (files or {}).items():
+        (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp / name).write_bytes(data)
+    (tmp / "case.json").write_text(json.dumps(rec, indent=2, default=str))
+    final = cache / key
+    if final.exists():
+        shutil.rmtree(final)
+    tmp.rename(final)
+
+
+def _reached(workdir: Path) -> float:
+    """Last converged u0 [mm] of a running case (read from its results.csv)."""
+    p = workdir / "results.csv"
+    try:
+        lines = p.read_text().strip().splitlines()
+        if len(lines) < 2:
+            return 0.0
+        head = lines[0].split(",")
+        return float(lines[-1].split(",")[head.index("u0_mm")])
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# running a study
+# ---------------------------------------------------------------------------------------------
+def default_out(name: str, quick: bool) -> Path:
+    return DEFAULT_ROOT / (f"{name}-quick" if quick else name)
+
+
+def run_study(study: Study, out: str | Path | None = None, cache: str | Path | None = None,
+              workers: int | None = None, scheduler: str | None = None, progress: bool = True,
+              retry_failed: bool = False, threads: int | None = None) -> StudyData:
+    """Run the missing cases of ``study``, then write its tables, meta.json, figures and report.
+
+    workers : local worker processes (default: one per core, at most one per missing case);
+        1 runs the cases in this process.
+    scheduler : address of a dask.distributed scheduler ("tcp://host:8786"); overrides workers.
+    threads : NGSolve threads per case (default: all cores in this process, 1 in parallel).
+    """
+    t_start = time.perf_counter()
+    out = Path(out) if out is not None else default_out(study.name, False)
+    cache = Path(cache) if cache is not None else DEFAULT_ROOT / "cache"
+    out.mkdir(parents=True, exist_ok=True)
+    cache.mkdir(parents=True, exist_ok=True)
+
+    cases: list[_Case] = []
+    for i, params in enumerate(study.cases):
+        try:
+            sc = study.base.with_changes(**params)
+            cases.append(_Case(i, params, sc, case_key(sc)))
+        except SceneError as exc:
+            cases.append(_Case(i, params, None, None, {"status": "failed", "error": f"bad scene: {exc}",
+                                                       "error_type": "SceneError", "wall_s": 0.0}))
+    todo: list[_Case] = []
+    seen: dict[str, _Case] = {}
+    for c in cases:
+        if c.key is None:
+            continue
+        f = cache / c.key / "case.json"
+        if f.exists():
+            rec = json.loads(f.read_text())
+            if rec.get("status") == "ok" or not retry_failed:
+                c.record = {**rec, "cached": True}
+                continue
+        if c.key in seen:  # the same scene twice in one study: run once
+            continue
+        seen[c.key] = c
+        todo.append(c)
+
+    ncpu = os.cpu_count() or 1
+    if scheduler:
+        mode = "dask"
+        nworkers = None
+    else:
+        nworkers = max(1, min(workers or ncpu, len(todo) or 1))
+        mode = "process" if nworkers > 1 else "inprocess"
+        if not todo:
+            mode, nworkers = "cache", 0
+    if threads is None:
+        threads = ncpu if mode == "inprocess" else 1
+    executor_info = {"mode": mode, "workers": nworkers, "scheduler": scheduler, "threads_per_case": threads,
+                     "cases_run": len(todo), "cases_cached": sum(1 for c in cases if c.record.get("cached"))}
+    log.info("study %s: %d cases, %d to run (%s)", study.name, len(cases), len(todo), mode)
+
+    if todo:
+        _execute(todo, cache, mode, nworkers, scheduler, threads, progress, study.name)
+    for c in cases:  # duplicates of a scene share its record
+        if c.key in seen and c is not seen[c.key]:
+            c.record = dict(seen[c.key].record)
+
+    data = _collect(study, cases, cache, out, executor_info, time.perf_counter() - t_start)
+    finish(study, data)
+    return data
+
+
+def _execute(todo: list[_Case], cache: Path, mode: str, nworkers: int | None, scheduler: str | None,
+             threads: int, progress: bool, name: str) -> None:
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo), desc=f"study {name}", unit="case",
+                   bar_format="{l_bar}{bar}| {n:.2f}/{total} cases [{elapsed}<{remaining}]{postfix}")
+    running: dict[str, tuple[Path, float]] = {}
+    done = [0]
+    lock = threading.Lock()
+
+    def finished(c: _Case, rec: dict[str, Any], wd: Path | None) -> None:
+        if rec.get("status") in ("ok", "failed"):
+            _store(cache, c.key, rec, wd)  # type: ignore[arg-type]
+        elif wd is not None:
+            shutil.rmtree(wd, ignore_errors=True)
+        rec.pop("files", None)
+        c.record = {**rec, "cached": False}
+        with lock:
+            running.pop(c.key or "", None)
+            done[0] += 1
+        if bar is not None:
+            bar.set_postfix_str(f"case {c.index} {rec['status']} {rec.get('wall_s', 0):.1f} s", refresh=False)
+            _tick()
+
+    def _tick() -> None:
+        if bar is None:
+            return
+        with lock:
+            part = sum(min(_reached(wd) / u0, 0.999) for wd, u0 in running.values())
+            bar.n = round(done[0] + part, 2)
+        bar.refresh()
+
+    stop = threading.Event()
+    poller = None
+    if bar is not None and mode != "dask":
+        def poll() -> None:
+            while not stop.wait(0.5):
+                _tick()
+        poller = threading.Thread(target=poll, daemon=True)
+        poller.start()
+
+    try:
+        if mode == "inprocess":
+            for c in todo:
+                wd = cache / f".run-{c.key}-{uuid.uuid4().hex[:8]}"
+                with lock:
+                    running[c.key] = (wd, c.scene.loading.u0_mm)  # type: ignore[index,union-attr]
+                finished(c, execute_case(c.scene.to_dict(), threads, str(wd)), wd)  # type: ignore[union-attr]
+        elif mode == "process":
+            import concurrent.futures as cf
+            import multiprocessing as mp
+
+            env_before = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+            for k in env_before:  # one BLAS thread per worker too (inherited at spawn)
+                os.environ[k] = str(threads)
+            try:
+                with cf.ProcessPoolExecutor(max_workers=nworkers, mp_context=mp.get_context("spawn")) as ex:
+                    futs = {}
+                    for c in todo:
+                        wd = cache / f".run-{c.key}-{uuid.uuid4().hex[:8]}"
+                        fut = ex.submit(execute_case, c.scene.to_dict(), threads, str(wd))  # type: ignore[union-attr]
+                        futs[fut] = (c, wd)
+                        with lock:
+                            running[c.key] = (wd, c.scene.loading.u0_mm)  # type: ignore[index,union-attr]
+                    for fut in cf.as_completed(futs):
+                        c, wd = futs[fut]
+                        try:
+                            rec = fut.result()
+                        except Exception as exc:  # a worker died: record, do not cache
+                            rec = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
+                                   "error_type": type(exc).__name__, "wall_s": math.nan}
+                        finished(c, rec, wd)
+            finally:
+                for k, v in env_before.items():
+                    if v is None:
+                        os.environ.pop(k, None)
+                    else:
+                        os.environ[k] = v
+        else:
+            from distributed import Client, as_completed
+
+            with Client(scheduler, timeout="30s") as client:
+                futs = {client.submit(execute_case, c.scene.to_dict(), threads, None,  # type: ignore[union-attr]
+                                      key=f"ngbet-case-{c.key}-{uuid.uuid4().hex[:6]}", pure=False): c for c in todo}
+                for fut in as_completed(list(futs)):
+                    c = futs[fut]
+                    try:
+                        rec = fut.result()
+                    except Exception as exc:
+                        rec = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
+                               "error_type": type(exc).__name__, "wall_s": math.nan}
+                    finished(c, rec, None)
+    finally:
+        stop.set()
+        if poller is not None:
+            poller.join(timeout=2)
+        if bar is not None:
+            bar.n = done[0]
+            bar.refresh()
+            bar.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# collecting, writing, reading back
+# ---------------------------------------------------------------------------------------------
+CASE_COLUMNS = ("case", "key", "status")
+TAIL_COLUMNS = ("dofs", "case_wall_s", "threads", "error")
+
+
+def _collect(study: Study, cases: list[_Case], cache: Path, out: Path, executor_info: dict[str, Any],
+             wall_s: float) -> StudyData:
+    pcols = study.params_columns()
+    rows: list[dict[str, Any]] = []
+    profiles: list[dict[str, Any]] = []
+    tables: dict[str, list[dict[str, Any]]] = {}
+    metas = []
+    run_cols: list[str] = []
+    for c in cases:
+        rec = c.record
+        run_dir = cache / c.key if c.key else None
+        summary: dict[str, Any] = {}
+        steps: list[dict[str, Any]] = []
+        if run_dir is not None and (run_dir / "summary.json").exists():
+            summary = json.loads((run_dir / "summary.json").read_text())
+        if run_dir is not None and (run_dir / "results.csv").exists():
+            steps = read_rows(run_dir / "results.csv")
+        dofs = summary.get("dofs")
+        dofs = dofs.get("total") if isinstance(dofs, dict) else dofs
+        base = {"case": c.index, "key": c.key or "", "status": rec.get("status", "error"),
+                **{k: _cell(c.params.get(k, "")) for k in pcols}}
+        tail = {"dofs": dofs if dofs is not None else "", "case_wall_s": summary.get("wall_s", rec.get("wall_s", "")),
+                "threads": rec.get("threads", ""), "error": _short(rec.get("error"))}
+        for s in steps or [{}]:
+            for k in s:
+                if k not in run_cols:
+                    run_cols.append(k)
+            rows.append({**base, **s, **tail})
+        if run_dir is not None and (run_dir / "profile.csv").exists():
+            for u0, (X, uy) in read_profiles(run_dir / "profile.csv").items():
+                if study.profile_stations is None or any(abs(u0 - s) < 1e-6 for s in study.profile_stations):
+                    profiles.extend({"case": c.index, "u0_mm": u0, "X_mm": x, "uy_mm": y} for x, y in zip(X, uy))
+        record = {"case": c.index, "params": c.params, "key": c.key, "status": rec.get("status", "error"),
+                  "error": rec.get("error"), "error_type": rec.get("error_type"), "cached": rec.get("cached", False),
+                  "wall_s": summary.get("wall_s", rec.get("wall_s")), "threads": rec.get("threads"),
+                  "host": rec.get("host"), "dofs": dofs, "u0_reached_mm": summary.get("u0_reached_mm"),
+                  "run_dir": str(run_dir) if run_dir else None,
+                  "scene": c.scene.to_dict() if c.scene is not None else None}
+        metas.append(record)
+        if study.extract is not None and run_dir is not None and record["status"] in ("ok", "failed"):
+            try:
+                for name, trs in study.extract(record, run_dir, out).items():
+                    tables.setdefault(name, []).extend({"case": c.index, **r} for r in trs)
+            except Exception as exc:
+                record["extract_error"] = f"{type(exc).__name__}: {exc}"
+                log.warning("study %s case %d: extraction failed: %s", study.name, c.index, exc)
+
+    columns = [*CASE_COLUMNS, *pcols, *run_cols, *TAIL_COLUMNS]
+    _write_csv(out / "results.csv", rows, columns)
+    _write_csv(out / "profiles.csv", profiles, ["case", "u0_mm", "X_mm", "uy_mm"])
+    for name, trs in tables.items():
+        _write_csv(out / f"{name}.csv", trs, _columns(trs))
+    meta = {"study": study.name, "description": study.description, "params": pcols,
+            "tables": sorted(tables), "base_scene": study.base.to_dict(), "cases": metas,
+            "executor": executor_info, "versions": versions(), "git_revision": git_revision(),
+            "code_version": {m: code_version(m) for m in sorted({c.scene.model for c in cases if c.scene})},
+            "machine": machine(), "wall_s": wall_s,
+            "cpu_s_of_cases": sum(float(m["wall_s"] or 0) for m in metas if m["wall_s"] == m["wall_s"]),
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    (out / "meta.json").write_text(json.dumps(meta, indent=2, default=str))
+    return load(out)
+
+
+def _cell(v: Any) -> Any:
+    return json.dumps(v) if isinstance(v, (list, tuple, dict)) else v
+
+
+def _short(err: Any, n: int = 400) -> str:
+    if not err:
+        return ""
+    s = " ".join(str(err).split())
+    return s if len(s) <= n else s[: n - 3] + "..."
+
+
+def _columns(rows: list[dict[str, Any]]) -> list[str]:
+    cols: list[str] = []
+    for r in rows:
+        for k in r:
+            if k not in cols:
+                cols.append(k)
+    return cols
+
+
+def _write_csv(path: Path, rows: list[dict[str, Any]], columns: list[str]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: _fmt(v) for k, v in r.items()})
+
+
+def _fmt(v: Any) -> Any:
+    if isinstance(v, bool):
+        return v
+    if isinstance(v, float) or type(v).__module__ == "numpy":
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            return v
+        return repr(int(f)) if type(v).__name__.startswith(("int", "uint")) else repr(f)
+    return v
+
+
+def _read_csv(path: Path) -> list[dict[str, Any]]:
+    if not path.exists():
+        return []
+    with path.open() as fh:
+        return [{k: _num(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+
+
+def _num(v: str) -> Any:
+    if v == "":
+        return ""
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return v
+
+
+def load(out: str | Path) -> StudyData:
+    """Read a study folder back (no solving): results.csv, profiles.csv, tables, meta.json."""
+    out = Path(out)
+    meta = json.loads((out / "meta.json").read_text())
+    tables = {name: _read_csv(out / f"{name}.csv") for name in meta.get("tables", [])}
+    return StudyData(out, _read_csv(out / "results.csv"), _read_csv(out / "profiles.csv"), tables, meta)
+
+
+def finish(study: Study, data: StudyData) -> list[Path]:
+    """Figures (PNG + PDF) and report.md from the study folder's CSV files."""
+    figs: list[Path] = []
+    if study.plot is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        figs = list(study.plot(data) or [])
+    if study.report is not None:
+        text = study.report(data)
+        (data.out / "report.md").write_text(text)
+    return figs
+
+
+def plot_only(study: Study, out: str | Path) -> StudyData:
+    """Redraw figures and report from the CSV files of a finished study, without solving."""
+    data = load(out)
+    finish(study, data)
+    return data
+
+
+def savefig(fig: Any, out: Path, name: str) -> Path:
+    """Save a matplotlib figure as PNG and PDF; returns the PNG path."""
+    png = out / f"{name}.png"
+    fig.savefig(png, dpi=140)
+    fig.savefig(out / f"{name}.pdf")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return png
+
+
+# ---------------------------------------------------------------------------------------------
+# command line (python -m studies.NAME, ngbet study NAME)
+# ---------------------------------------------------------------------------------------------
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--quick", action="store_true", help="a small version of the study (seconds; what the tests run)")
+    p.add_argument("--out", help="study folder (default: out/studies/NAME, or NAME-quick)")
+    p.add_argument("--cache", help="case cache folder (default: out/studies/cache)")
+    p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1 = in this process)")
+    p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
+    p.add_argument("--threads", type=int, help="NGSolve threads per case (default: 1 in parallel, all cores otherwise)")
+    p.add_argument("--plot-only", action="store_true", help="redraw figures and report from the CSV files")
+    p.add_argument("--retry-failed", action="store_true", help="rerun cases whose solver failed before")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog: str | None = None) -> int:
+    """Command line of one study module: ``python -m studies.NAME [--quick] [...]``."""
+    p = argparse.ArgumentParser(prog=prog, description=(build(False).description or "").split("\n")[0])
+    add_arguments(p)
+    return run_from_args(build, p.parse_args(argv))
+
+
+def run_from_args(build: Callable[[bool], Study], args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    study = build(args.quick)
+    out = Path(args.out) if args.out else default_out(study.name, args.quick)
+    if args.plot_only:
+        if not (out / "meta.json").exists():
+            print(f"ngbet study: no finished study in {out} (meta.json missing)", file=sys.stderr)
+            return 2
+        data = plot_only(study, out)
+    else:
+        data = run_study(study, out, cache=args.cache, workers=args.workers, scheduler=args.scheduler,
+                         progress=not args.quiet, retry_failed=args.retry_failed, threads=args.threads)
+    st = [c["status"] for c in data.cases()]
+    ex = data.meta["executor"]
+    print(f"study {study.name}: {len(st)} cases ({st.count('ok')} ok, {st.count('failed')} failed, "
+          f"{st.count('error')} errors; {ex['cases_run']} run, {ex['cases_cached']} from the cache) "
+          f"in {data.meta['wall_s']:.1f} s -> {out}/")
+    if (out / "report.md").exists():
+        print((out / "report.md").read_text())
+    return 0 if st.count("error") == 0 else 1

@@ -1,0 +1,15 @@
+"""Parameter studies of ngbet: one module per study, each runnable as ``python -m studies.NAME``.
+
+Each module defines ``build(quick: bool) -> ngbet.study.Study`` and ``main``. ``ngbet study NAME``
+runs the same thing. See studies/README.md.
+"""
+
+STUDIES = {
+    "penalty_p": "penalty K x p (and h) convergence against the Lagrange solution and a reference",
+    "work_precision": "error of the force and of the mid-axis profile at 56 mm versus wall time",
+    "alpha1": "alpha1 sweep at 56 mm, including the balanced fabric alpha1 = alpha2",
+    "kel": "K_el sweep at 37 mm: deformed outlines",
+    "curves": "load-displacement and double-force-displacement curves with the ideal-kinematics estimate",
+    "maps": "deformed specimen coloured by the angle between the yarns, yarns drawn on it (37 and 56 mm)",
+    "compare": "continuum and discrete model side by side",
+}

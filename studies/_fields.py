@@ -1,0 +1,173 @@
+"""Fields of continuum runs (fields*.vtu) for the studies: outlines, yarn lines, pyvista maps.
+
+Everything here reads VTK files, so figures can be redrawn from the study folder without solving.
+Coordinates and displacements in the VTK files are in metres; the figures are in millimetres.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
+
+
+def _pv() -> Any:
+    import pyvista as pv
+
+    pv.OFF_SCREEN = True
+    return pv
+
+
+def sample_displacement(mesh: Any, pts_m: np.ndarray) -> np.ndarray:
+    """Displacement [m] (n, 2) of the run's field at reference points (n, 2) [m]."""
+    pv = _pv()
+    p3 = np.c_[pts_m, np.zeros(len(pts_m))]
+    s = pv.PolyData(p3).sample(mesh, tolerance=1e-9)
+    u = np.asarray(s["displacement"])[:, :2]
+    bad = np.asarray(s["vtkValidPointMask"]) == 0
+    if bad.any():  # points a hair outside the mesh: nearest mesh point
+        idx = [mesh.find_closest_point(q) for q in p3[bad]]
+        u[bad] = np.asarray(mesh["displacement"])[idx, :2]
+    return u
+
+
+def outline(vtu: str | Path, L_mm: float, W_mm: float, n: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    """Deformed boundary of the specimen, closed polyline: (reference XY [mm], deformed xy [mm])."""
+    pv = _pv()
+    mesh = pv.read(str(vtu))
+    t = np.linspace(0, 1, n, endpoint=False)
+    nw = max(n * W_mm // L_mm, 8)
+    s = np.linspace(0, 1, int(nw), endpoint=False)
+    ref = np.r_[np.c_[t * L_mm, 0 * t], np.c_[L_mm + 0 * s, s * W_mm], np.c_[L_mm - t * L_mm, W_mm + 0 * t],
+                np.c_[0 * s, W_mm - s * W_mm], [[0.0, 0.0]]]
+    u = sample_displacement(mesh, ref * 1e-3) * 1e3
+    return ref, ref + u
+
+
+def midline_field(vtu: str | Path, L_mm: float, W_mm: float, name: str, n: int = 111) -> tuple[np.ndarray, np.ndarray]:
+    """A scalar field of the run on the mid-axis Y = W/2 (reference positions X [mm])."""
+    pv = _pv()
+    mesh = pv.read(str(vtu))
+    X = np.linspace(0, L_mm, n)
+    s = pv.PolyData(np.c_[X * 1e-3, np.full(n, 0.5 * W_mm * 1e-3), np.zeros(n)]).sample(mesh, tolerance=1e-9)
+    return X, np.asarray(s[name])
+
+
+def yarn_lines_reference(L: float, W: float, angle_deg: float, spacing: float) -> dict[int, list[np.ndarray]]:
+    """Straight yarns of both families clipped to [0, L] x [0, W] (any unit), family -> polylines.
+
+    Family 1 along m1 = (cos a, sin a) (thick), family 2 along m2 = (-cos a, sin a) (thin); lines
+    through the points where they cross Y = 0 spaced ``spacing`` along the yarn normal.
+    """
+    a = math.radians(angle_deg)
+    out: dict[int, list[np.ndarray]] = {1: [], 2: []}
+    for fam, d in ((1, np.array([math.cos(a), math.sin(a)])), (2, np.array([-math.cos(a), math.sin(a)]))):
+        nrm = np.array([-d[1], d[0]])
+        corners = np.array([[0, 0], [L, 0], [L, W], [0, W]])
+        c = corners @ nrm
+        for off in np.arange(math.ceil(c.min() / spacing) * spacing, c.max(), spacing):
+            # points x = off * nrm + s d inside the rectangle
+            p0 = off * nrm
+            lo, hi = -math.inf, math.inf
+            for k, (mn, mx) in enumerate(((0, L), (0, W))):
+                if abs(d[k]) < 1e-14:
+                    if not (mn <= p0[k] <= mx):
+                        lo, hi = 1, 0
+                    continue
+                s1, s2 = (mn - p0[k]) / d[k], (mx - p0[k]) / d[k]
+                lo, hi = max(lo, min(s1, s2)), min(hi, max(s1, s2))
+            if hi - lo > 1e-9 * max(L, W):
+                s = np.linspace(lo, hi, max(int((hi - lo) / (spacing / 4)), 2) + 1)
+                out[fam].append(p0 + np.outer(s, d))
+    return out
+
+
+def deformed_yarns(vtu: str | Path, L_mm: float, W_mm: float, angle_deg: float, spacing_mm: float) -> dict[int, list[np.ndarray]]:
+    """Yarn polylines of both families in the deformed configuration [mm]."""
+    pv = _pv()
+    mesh = pv.read(str(vtu))
+    ref = yarn_lines_reference(L_mm, W_mm, angle_deg, spacing_mm)
+    out: dict[int, list[np.ndarray]] = {}
+    for fam, lines in ref.items():
+        out[fam] = [pl + sample_displacement(mesh, pl * 1e-3) * 1e3 for pl in lines]
+    return out
+
+
+def lines_polydata(lines: list[np.ndarray], scale: float = 1.0) -> Any:
+    pv = _pv()
+    pts, cells = [], []
+    n = 0
+    for pl in lines:
+        pts.append(np.c_[pl * scale, np.zeros(len(pl))])
+        cells.append(np.r_[len(pl), np.arange(n, n + len(pl))])
+        n += len(pl)
+    poly = pv.PolyData(np.vstack(pts))
+    poly.lines = np.concatenate(cells)
+    return poly
+
+
+def warped_mm(vtu: str | Path) -> Any:
+    """The run's mesh in the deformed configuration, in mm, with all its fields."""
+    pv = _pv()
+    mesh = pv.read(str(vtu))
+    u = np.asarray(mesh["displacement"])
+    mesh.points = (np.asarray(mesh.points) + np.c_[u[:, :2], np.zeros(len(u))]) * 1e3
+    return mesh
+
+
+def write_yarns_vtp(path: str | Path, yarns_mm: dict[int, list[np.ndarray]]) -> None:
+    """Deformed yarns for ParaView [m, as the fields], a cell array 'family' (1 thick, 2 thin)."""
+    polys = []
+    for fam, lines in yarns_mm.items():
+        if lines:
+            p = lines_polydata(lines, 1e-3)
+            p.cell_data["family"] = np.full(p.n_cells, fam, dtype=np.int32)
+            polys.append(p)
+    merged = polys[0].merge(polys[1:]) if len(polys) > 1 else polys[0]
+    merged.save(str(path))
+
+
+def render_map(vtu: str | Path, yarns_mm: dict[int, list[np.ndarray]], png: str | Path, title: str,
+               clim: tuple[float, float] | None = None) -> Path:
+    """Off-screen pyvista picture: the deformed specimen coloured by the angle between the yarns,
+    thick yarns (family 1) as thick black lines, thin yarns (family 2) as thin white lines."""
+    pv = _pv()
+    mesh = warped_mm(vtu)
+    pl = pv.Plotter(off_screen=True, window_size=(1800, 800))
+    pl.set_background("white")
+    pl.add_mesh(mesh, scalars="yarn_angle_deg", cmap="viridis", clim=clim, show_scalar_bar=True,
+                scalar_bar_args={"title": "angle between the yarns [deg]", "color": "black", "vertical": True,
+                                 "position_x": 0.88, "position_y": 0.15, "height": 0.7, "width": 0.05})
+    if yarns_mm.get(1):
+        pl.add_mesh(lines_polydata(yarns_mm[1]).translate((0, 0, 0.5)), color="black", line_width=5, label="thick yarns")
+    if yarns_mm.get(2):
+        pl.add_mesh(lines_polydata(yarns_mm[2]).translate((0, 0, 0.6)), color="white", line_width=1.5, label="thin yarns")
+    pl.add_text(title, font_size=12, color="black")
+    pl.add_legend(bcolor="lightgrey", face="line", size=(0.16, 0.12), loc="lower left")
+    pl.view_xy()
+    pl.camera.zoom(1.6)
+    pl.screenshot(str(png))
+    pl.close()
+    return Path(png)
+
+
+def png_to_pdf(png: str | Path, pdf: str | Path) -> None:
+    """The rendered picture as a PDF page (the pixels; the vector form is the VTK file)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    img = plt.imread(str(png))
+    h, w = img.shape[:2]
+    fig = plt.figure(figsize=(w / 200, h / 200))
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.imshow(img)
+    ax.axis("off")
+    fig.savefig(str(pdf), dpi=200)
+    plt.close(fig)

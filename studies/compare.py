@@ -1,0 +1,212 @@
+"""Continuum and discrete model side by side on the same specimen (issue 4).
+
+The same scene runs once with model = "continuum" (Lagrange, h = 5 mm, p = 2) and once with
+model = "discrete" (paper Table 2, yarn spacing from the scene). Figures: the two
+force-displacement curves (with the ideal-kinematics estimate), the two mid-axis profiles at 37
+and 56 mm, and the two maps of the angle between the yarns at 37 and 56 mm (acute angle between
+the yarns as lines: 90 deg at rest, 90 - gamma in both models). The study shows whatever the
+models give; the report states whether they bend the specimen the same way (sign of u_y at
+X = L/4 on the mid-axis).
+
+    python -m studies.compare [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ngbet.kinematics import ideal_force
+from ngbet.scene import Scene
+from ngbet.study import Study, StudyData, main_for, savefig
+
+from . import _common as C
+
+CASES = [{"model": "continuum", "outputs.vtk": True, "outputs.vtk_every_step": True}, {"model": "discrete"}]
+
+
+def build(quick: bool = False) -> Study:
+    base = C.base_scene(quick, **({C.H: 20.0, "discrete.spacing_mm": 10.0} if quick else {}))
+    return Study("compare", base, CASES, description=__doc__ or "", extract=extract, plot=lambda d: plot(d, quick),
+                 report=lambda d: report(d, quick), profile_stations=C.stations(quick))
+
+
+def extract(rec: dict, run_dir: Path, out: Path) -> dict:
+    sc = rec["scene"]
+    rows = []
+    for u0 in (*sc["loading"]["stops_mm"], sc["loading"]["u0_mm"]):
+        if sc["model"] == "continuum":
+            from .maps import step_vtu
+
+            src = step_vtu(run_dir, u0)
+            name = f"continuum_{u0:g}mm.vtu"
+        else:
+            src = run_dir / f"state_{u0:.0f}mm.npz"
+            name = f"discrete_{u0:g}mm.npz"
+        if src is not None and src.exists():
+            shutil.copyfile(src, out / name)
+            rows.append({"model": sc["model"], "u0_mm": u0, "file": name})
+    return {"fields": rows}
+
+
+def _case(data: StudyData, model: str) -> int | None:
+    for c in data.meta["cases"]:
+        if c["params"].get("model") == model:
+            return c["case"]
+    return None
+
+
+def analyse(data: StudyData, quick: bool) -> dict:
+    s1, s2 = C.stations(quick)
+    L = data.meta["base_scene"]["specimen"]["length_mm"]
+    res = {}
+    for m in ("continuum", "discrete"):
+        i = _case(data, m)
+        if i is None:
+            continue
+        r = {"case": i, "status": data.meta["cases"][i]["status"], "wall_s": C.wall(data, i),
+             "u0_reached": data.meta["cases"][i].get("u0_reached_mm")}
+        for s in (s1, s2):
+            X, uy = data.profile(i, s)
+            r[f"F{s:g}"] = data.at(i, s, "force_N")
+            r[f"uyq{s:g}"] = float(np.interp(L / 4, X, uy)) if X else math.nan
+            r[f"maxuy{s:g}"] = float(np.max(np.abs(uy))) if X else math.nan
+        rows = data.case_rows(i)
+        slips = [q["max_slip_mm"] for q in rows if isinstance(q.get("max_slip_mm"), float)]
+        if slips:
+            r["max_slip_mm"] = max(slips)
+        res[m] = r
+    return res
+
+
+def report(data: StudyData, quick: bool) -> str:
+    s1, s2 = C.stations(quick)
+    a = analyse(data, quick)
+    L = ["# Continuum and discrete model side by side", "",
+         f"| model | status | F({s1:g}) [N] | F({s2:g}) [N] | u_y(L/4) at {s1:g} mm [mm] | u_y(L/4) at {s2:g} mm [mm] | "
+         f"max abs(u_y) at {s2:g} mm [mm] | largest slip [mm] | wall time [s] |", "|---|---|---|---|---|---|---|---|---|"]
+    for m, r in a.items():
+        L.append(f"| {m} | {r['status']} (to {C.fmt(r['u0_reached'], 'g')} mm) | {C.fmt(r[f'F{s1:g}'], '.3f')} | {C.fmt(r[f'F{s2:g}'], '.3f')} | "
+                 f"{C.fmt(r[f'uyq{s1:g}'], '.3f')} | {C.fmt(r[f'uyq{s2:g}'], '.3f')} | {C.fmt(r[f'maxuy{s2:g}'], '.3f')} | "
+                 f"{C.fmt(r.get('max_slip_mm', math.nan), '.3f')} | {r['wall_s']:.1f} |")
+    if len(a) == 2:
+        qs = [a[m][f"uyq{s2:g}"] for m in ("continuum", "discrete")]
+        same = np.sign(qs[0]) == np.sign(qs[1])
+        L += ["", f"Bending direction at {s2:g} mm (sign of u_y at X = L/4 on the mid-axis): "
+              + ("the same in both models." if same else "OPPOSITE: the two models bend the specimen in opposite directions.")]
+    return "\n".join(L) + "\n"
+
+
+def _discrete_segments(npz: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """Deformed yarn segments [mm], their family, and the acute angle between the yarns there [deg]."""
+    d = np.load(npz)
+    x = d["X_mm"] + d["u_mm"]
+    g = np.full(len(x), np.nan)
+    cn = d["crossing_nodes"]
+    g[cn[:, 0]] = d["crossing_gamma_deg"]
+    g[cn[:, 1]] = d["crossing_gamma_deg"]
+    ptr, nodes = d["yarn_ptr"], d["yarn_nodes"]
+    segs, fam, ang = [], [], []
+    for k in range(len(ptr) - 1):
+        ch = nodes[ptr[k]:ptr[k + 1]]
+        gk = g[ch]
+        ok = np.isfinite(gk)
+        if ok.any():
+            idx = np.arange(len(ch))
+            gk = np.interp(idx, idx[ok], gk[ok])
+        else:
+            gk = np.zeros(len(ch))
+        for j in range(len(ch) - 1):
+            segs.append(x[[ch[j], ch[j + 1]]])
+            fam.append(int(d["yarn_family"][k]))
+            ang.append(90.0 - 0.5 * (gk[j] + gk[j + 1]))
+    return segs, np.array(fam), np.array(ang)
+
+
+def plot(data: StudyData, quick: bool) -> list[Path]:
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    s1, s2 = C.stations(quick)
+    out = []
+    scene = Scene.from_dict(data.meta["base_scene"])
+    fig, axs = plt.subplots(1, 3, figsize=(16, 4.3))
+    for m, col in (("continuum", "C0"), ("discrete", "C1")):
+        i = _case(data, m)
+        if i is None:
+            continue
+        rows = data.case_rows(i)
+        axs[0].plot([0] + [r["u0_mm"] for r in rows], [0] + [r["force_N"] for r in rows], "o-", ms=3, color=col, label=m)
+        for ax, s in ((axs[1], s1), (axs[2], s2)):
+            X, uy = data.profile(i, s)
+            if X:
+                ax.plot(X, uy, color=col, label=m)
+    u = np.linspace(0.5, scene.loading.u0_mm, 60)
+    axs[0].plot(u, [ideal_force(scene, x) for x in u], "k--", lw=1, label="ideal kinematics (shear only)")
+    axs[0].set_xlabel("u0 [mm]")
+    axs[0].set_ylabel("force [N]")
+    for ax, s in ((axs[1], s1), (axs[2], s2)):
+        ax.set_title(f"mid-axis u_y at u0 = {s:g} mm")
+        ax.set_xlabel("X [mm]")
+        ax.set_ylabel("u_y [mm]")
+        ax.axhline(0, color="k", lw=0.5)
+    for ax in axs:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    out.append(savefig(fig, data.out, "compare_curves"))
+
+    files = {(r["model"], float(r["u0_mm"])): data.out / r["file"] for r in data.tables.get("fields", [])}
+    loads = sorted({u for _, u in files})
+    if loads:
+        fig, axs = plt.subplots(len(loads), 2, figsize=(14, 3.6 * len(loads)), squeeze=False)
+        norm = plt.Normalize(35, 95)
+        for row, u0 in enumerate(loads):
+            ax = axs[row, 0]
+            f = files.get(("continuum", u0))
+            if f is not None:
+                from . import _fields as F
+
+                surf = F.warped_mm(f).extract_surface().triangulate()
+                tri = np.asarray(surf.faces).reshape(-1, 4)[:, 1:]
+                ax.tripcolor(surf.points[:, 0], surf.points[:, 1], tri, np.asarray(surf["yarn_angle_deg"]),
+                             shading="gouraud", cmap="viridis", norm=norm)
+                sp = data.meta["base_scene"]["specimen"]
+                y = F.deformed_yarns(f, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"], 10.0)
+                for fam, lw, c in ((1, 1.8, "k"), (2, 0.6, "w")):
+                    for pl in y[fam]:
+                        ax.plot(pl[:, 0], pl[:, 1], color=c, lw=lw)
+            ax.set_title(f"continuum, u0 = {u0:g} mm (thick yarns black, thin white)", fontsize=9)
+            ax = axs[row, 1]
+            f = files.get(("discrete", u0))
+            if f is not None:
+                segs, fam, ang = _discrete_segments(f)
+                for fm, lw, ls in ((2, 0.6, (0, (3, 1))), (1, 1.8, "solid")):
+                    sel = fam == fm
+                    lc = LineCollection([segs[k] for k in np.flatnonzero(sel)], linewidths=lw, linestyles=ls, cmap="viridis", norm=norm)
+                    lc.set_array(ang[sel])
+                    ax.add_collection(lc)
+                ax.autoscale()
+            else:
+                ax.text(0.5, 0.5, "no discrete state saved at this load\n(states: 37 mm and the last load)",
+                        ha="center", va="center", transform=ax.transAxes, fontsize=8)
+            ax.set_title(f"discrete, u0 = {u0:g} mm (thick yarns solid, thin dashed)", fontsize=9)
+            for ax in axs[row]:
+                ax.set_aspect("equal")
+                ax.set_xlabel("x [mm]")
+        sm = plt.cm.ScalarMappable(norm=norm, cmap="viridis")
+        fig.colorbar(sm, ax=axs, label="angle between the yarns [deg]", shrink=0.7)
+        out.append(savefig(fig, data.out, "compare_maps"))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_for(build, argv, prog="python -m studies.compare")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

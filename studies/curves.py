@@ -1,0 +1,87 @@
+"""Load-displacement and double-force-displacement curves (forces in N with the thickness t = 15 mm).
+
+Small load steps (2 mm) so that the curves are smooth. Beside the force: the ideal-kinematics
+estimate dE_id/du0 (inextensible yarns, no slip, no bending: shear energy of zones A and B,
+MODEL.md section 4) and the envelope-theorem check dE/du0 of the computed energy (central
+differences between steps), an independent second value of the reaction.
+
+    python -m studies.curves [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ngbet.kinematics import ideal_force
+from ngbet.scene import Scene
+from ngbet.study import Study, StudyData, main_for, savefig
+
+from . import _common as C
+
+
+def build(quick: bool = False) -> Study:
+    step = 2.5 if quick else 2.0
+    base = C.base_scene(quick, **{"loading.first_step_mm": step, "loading.max_step_mm": step,
+                                  **({C.H: 20.0} if quick else {})})
+    return Study("curves", base, [{}], description=__doc__ or "", plot=plot, report=report)
+
+
+def analyse(data: StudyData) -> dict:
+    rows = data.case_rows(0)
+    u0 = np.array([r["u0_mm"] for r in rows])
+    F = np.array([r["force_N"] for r in rows])
+    T = np.array([r.get("double_force_Nm", np.nan) for r in rows])
+    E = np.array([r["energy_J"] for r in rows])
+    scene = Scene.from_dict(data.meta["base_scene"])
+    Fid = np.array([ideal_force(scene, u) for u in u0])
+    # envelope theorem: dE/du0 by central differences on the (possibly uneven) steps
+    uu, EE = np.r_[0.0, u0], np.r_[0.0, E]
+    dE = np.gradient(EE, uu * 1e-3)[1:]
+    inner = slice(1, len(u0) - 1)
+    env = float(np.max(np.abs(dE[inner] - F[inner]) / np.abs(F[inner]))) if len(u0) > 2 else np.nan
+    return {"u0": u0, "F": F, "T": T, "Fid": Fid, "dE": dE, "envelope_max_rel": env}
+
+
+def report(data: StudyData) -> str:
+    a = analyse(data)
+    L = ["# Load-displacement and double-force-displacement curves", "",
+         f"Envelope check: max |dE/du0 - F| / F over the interior steps (central differences, "
+         f"O(step^2)) = {a['envelope_max_rel']:.2g}", "",
+         "| u0 [mm] | force [N] | ideal kinematics [N] | dE/du0 [N] | double force [N m] |", "|---|---|---|---|---|"]
+    for u, f, fi, de, t in zip(a["u0"], a["F"], a["Fid"], a["dE"], a["T"]):
+        L.append(f"| {u:g} | {f:.4f} | {fi:.4f} | {de:.4f} | {t:.5g} |")
+    return "\n".join(L) + "\n"
+
+
+def plot(data: StudyData) -> list[Path]:
+    import matplotlib.pyplot as plt
+
+    a = analyse(data)
+    fig, axs = plt.subplots(1, 2, figsize=(12, 4.3))
+    ax = axs[0]
+    ax.plot(np.r_[0, a["u0"]], np.r_[0, a["F"]], "o-", ms=3, label="reaction (volume integral)")
+    ax.plot(a["u0"], a["dE"], "x", ms=5, label="dE/du0 (envelope theorem)")
+    ax.plot(np.r_[0, a["u0"]], np.r_[0, a["Fid"]], "k--", label="ideal BET kinematics (shear only)")
+    ax.set_xlabel("clamp displacement u0 [mm]")
+    ax.set_ylabel("force [N]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax = axs[1]
+    ax.plot(np.r_[0, a["u0"]], np.r_[0, a["T"]], "s-", ms=3, color="C3")
+    ax.set_xlabel("clamp displacement u0 [mm]")
+    ax.set_ylabel("double force [N m]")
+    ax.set_title("(no ideal-kinematics estimate: it has no bending)", fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return [savefig(fig, data.out, "curves")]
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_for(build, argv, prog="python -m studies.curves")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

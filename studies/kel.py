@@ -1,0 +1,107 @@
+"""K_el sweep at 37 mm: deformed outlines of the specimen for each yarn elongation stiffness.
+
+Stiffer yarns (larger K_el) let the specimen contract less: the central part stays wider. The
+outline is the deformed boundary, sampled from each run's fields.vtu; the report gives the
+width at X = L/2, the shear angle at the centre and the length along the mid-axis of the central
+zone (shear angle at least 90 % of the centre's), from the same file.
+
+    python -m studies.kel [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ngbet.study import Study, StudyData, main_for, savefig
+
+from . import _common as C
+
+KEL = "material.K_el"
+FULL = (0.1e6, 0.3e6, 0.7e6, 2e6, 7e6)
+QUICK = (0.2e6, 2e6)
+
+
+def build(quick: bool = False) -> Study:
+    u0 = 20.0 if quick else 37.0
+    base = C.base_scene(quick, **{"loading.u0_mm": u0, "loading.stops_mm": [], "outputs.vtk": True,
+                                  **({C.H: 20.0} if quick else {})})
+    return Study("kel", base, [{KEL: k} for k in (QUICK if quick else FULL)], description=__doc__ or "",
+                 extract=extract, plot=plot, report=report, profile_stations=(u0,))
+
+
+def extract(rec: dict, run_dir: Path, out: Path) -> dict:
+    sp = rec["scene"]["specimen"]
+    F = _fields()
+    ref, xy = F.outline(run_dir / "fields.vtu", sp["length_mm"], sp["width_mm"])
+    X, g = F.midline_field(run_dir / "fields.vtu", sp["length_mm"], sp["width_mm"], "shear_angle_deg")
+    return {"outlines": [{"X_mm": a[0], "Y_mm": a[1], "x_mm": b[0], "y_mm": b[1]} for a, b in zip(ref, xy)],
+            "midline_shear": [{"X_mm": x, "gamma_deg": v} for x, v in zip(X, g)]}
+
+
+def _fields():  # imported lazily: pyvista is only needed to extract
+    from . import _fields as F
+
+    return F
+
+
+def widths(data: StudyData) -> list[dict]:
+    L = data.meta["base_scene"]["specimen"]["length_mm"]
+    W = data.meta["base_scene"]["specimen"]["width_mm"]
+    u0 = data.meta["base_scene"]["loading"]["u0_mm"]
+    out = []
+    for c in data.meta["cases"]:
+        pts = [r for r in data.tables.get("outlines", []) if int(r["case"]) == c["case"]]
+        top = [r for r in pts if abs(r["Y_mm"] - W) < 1e-9 and abs(r["X_mm"] - L / 2) < 1e-6]
+        bot = [r for r in pts if abs(r["Y_mm"]) < 1e-9 and abs(r["X_mm"] - L / 2) < 1e-6]
+        w = top[0]["y_mm"] - bot[0]["y_mm"] if top and bot else float("nan")
+        mid = [r for r in data.tables.get("midline_shear", []) if int(r["case"]) == c["case"]]
+        Xs = np.array([r["X_mm"] for r in mid])
+        gs = np.array([r["gamma_deg"] for r in mid])
+        g_c = float(np.interp(L / 2, Xs, gs)) if len(mid) else float("nan")
+        zone = Xs[gs >= 0.9 * g_c] if len(mid) else np.array([])
+        out.append({"case": c["case"], "K_el": c["params"][KEL], "width_mm": w, "gamma_c": g_c,
+                    "zone_mm": float(zone.max() - zone.min()) if len(zone) else float("nan"), "F": data.at(c["case"], u0, "force_N"),
+                    "status": c["status"]})
+    return out
+
+
+def report(data: StudyData) -> str:
+    u0 = data.meta["base_scene"]["loading"]["u0_mm"]
+    L = [f"# K_el sweep at u0 = {u0:g} mm", "", "| K_el [MPa] | width at X = L/2 [mm] | shear angle at the centre [deg] | "
+         "length of the central zone, shear >= 90 % of the centre's [mm] | F [N] |", "|---|---|---|---|---|"]
+    for r in widths(data):
+        L.append(f"| {r['K_el'] / 1e6:g} | {r['width_mm']:.3f} | {r['gamma_c']:.2f} | {r['zone_mm']:.1f} | {C.fmt(r['F'], '.4f')} |")
+    return "\n".join(L) + "\n"
+
+
+def plot(data: StudyData) -> list[Path]:
+    import matplotlib.pyplot as plt
+
+    u0 = data.meta["base_scene"]["loading"]["u0_mm"]
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for j, r in enumerate(widths(data)):
+        pts = [q for q in data.tables.get("outlines", []) if int(q["case"]) == r["case"]]
+        if pts:
+            ax.plot([q["x_mm"] for q in pts], [q["y_mm"] for q in pts], color=f"C{j}",
+                    label=f"K_el = {r['K_el'] / 1e6:g} MPa (width at centre {r['width_mm']:.1f} mm)")
+    L = data.meta["base_scene"]["specimen"]["length_mm"]
+    W = data.meta["base_scene"]["specimen"]["width_mm"]
+    ax.plot([0, L, L, 0, 0], [0, 0, W, W, 0], "k:", lw=0.8, label="reference")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_title(f"deformed outlines at u0 = {u0:g} mm")
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=2)
+    fig.tight_layout()
+    return [savefig(fig, data.out, "kel_outlines")]
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_for(build, argv, prog="python -m studies.kel")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,223 @@
+"""Penalty K together with p- and h-refinement (paper, appendix A, and beyond).
+
+For each mesh size h and order p: the Lagrange-multiplier solution and the (mixed) penalty
+solution for K from about 10 K_sh to 1e12 Pa, all against a reference (Richardson extrapolation
+of the Lagrange force over h, h/2, h/4 at the highest order, see ``_common.reference``).
+
+Two error sources, measured apart:
+- penalty error: |F_K(h, p) - F_Lagrange(h, p)| on the same mesh and order (expected ∝ 1/K);
+- discretization error: |F_Lagrange(h, p) - F_ref| (observed order in h, rate in dofs for p).
+The total error |F_K(h, p) - F_ref| follows the penalty error until it meets the
+discretization error and stays there: beyond that K, raising K buys nothing.
+
+    python -m studies.penalty_p [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ngbet.study import Study, StudyData, main_for, savefig
+
+from . import _common as C
+
+FULL = {"h": (10.0, 5.0), "p": (1, 2, 3, 4, 5), "K": (2e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12),
+        "ref_p": 4, "ref_h": (10.0, 5.0, 2.5), "profile_case": (5.0, 2)}
+QUICK = {"h": (20.0,), "p": (1, 2), "K": (1e6, 1e8, 1e9, 1e10), "ref_p": 3, "ref_h": (20.0, 10.0, 5.0),
+         "profile_case": (20.0, 2)}
+# penalty slopes are fitted where the penalty error is asymptotic and above round-off
+FIT_K = (1e8, 1e11)
+
+
+def build(quick: bool = False) -> Study:
+    g = QUICK if quick else FULL
+    cases = []
+    for h in g["h"]:
+        for p in g["p"]:
+            cases.append(C.lagrange(h, p))
+            cases += [C.penalty(h, p, k) for k in g["K"]]
+    cases += [C.lagrange(h, g["ref_p"]) for h in g["ref_h"]]
+    s1, s2 = C.stations(quick)
+    return Study("penalty_p" + ("" if not quick else ""), C.base_scene(quick), C.unique(cases),
+                 description=__doc__ or "", plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
+                 profile_stations=(s1, s2))
+
+
+def analyse(data: StudyData, g: dict, quick: bool) -> dict:
+    s1, s2 = C.stations(quick)
+    ref = C.reference(data, s2, g["ref_p"], g["ref_h"])
+    ref1 = C.reference(data, s1, g["ref_p"], g["ref_h"])
+    rows = []
+    for c in data.meta["cases"]:
+        i, prm = c["case"], c["params"]
+        if prm.get(C.CON) is None or prm.get(C.H) not in g["h"] or prm.get(C.P) not in g["p"]:
+            continue
+        h, p = prm[C.H], int(prm[C.P])
+        lag = C.lagrange_case(data, h, p)
+        F1, F2 = data.at(i, s1, "force_N"), data.at(i, s2, "force_N")
+        r = {"case": i, "h": h, "p": p, "method": prm[C.CON], "K": prm.get(C.K, math.inf) if prm[C.CON] == "penalty" else math.inf,
+             "status": c["status"], "F1": F1, "F2": F2, "dofs": C.dofs(data, i), "its": C.total_iterations(data, i),
+             "time": C.wall(data, i), "constraint": data.at(i, s2, "constraint_rms"),
+             "err_ref": abs(F2 - ref["force_N"]) / ref["force_N"]}
+        if lag is not None:
+            FL = data.at(lag, s2, "force_N")
+            r["err_pen"] = abs(F2 - FL) / FL
+            X, uy = data.profile(i, s2)
+            r["prof_pen"] = C.profile_error(X, uy, data.profile(lag, s2)[1])
+        r["prof_ref"] = C.profile_error(*data.profile(i, s2), ref["uy_mm"])
+        rows.append(r)
+    slopes, orders_h, rates_p, kstar = {}, {}, {}, {}
+    for h in g["h"]:
+        for p in g["p"]:
+            pen = [r for r in rows if r["h"] == h and r["p"] == p and r["method"] == "penalty" and r["status"] == "ok"]
+            fit = [r for r in pen if FIT_K[0] <= r["K"] <= FIT_K[1] and r.get("err_pen", 0) > 1e-10]
+            slopes[(h, p)] = C.loglog_slope([r["K"] for r in fit], [r["err_pen"] for r in fit])
+            lag = [r for r in rows if r["h"] == h and r["p"] == p and r["method"] == "lagrange"]
+            if lag:
+                disc = lag[0]["err_ref"]
+                hidden = [r["K"] for r in sorted(pen, key=lambda r: r["K"]) if r.get("err_pen", math.inf) <= 0.1 * disc]
+                kstar[(h, p)] = hidden[0] if hidden else math.nan
+    lag = {(r["h"], r["p"]): r for r in rows if r["method"] == "lagrange"}
+    for p in g["p"]:
+        hs = [h for h in g["h"] if (h, p) in lag]
+        if len(hs) >= 2:
+            orders_h[p] = C.loglog_slope(hs, [lag[(h, p)]["err_ref"] for h in hs])
+    for h in g["h"]:
+        ps = [p for p in g["p"] if (h, p) in lag]
+        rates_p[h] = {"dofs_slope": C.loglog_slope([lag[(h, p)]["dofs"] for p in ps], [lag[(h, p)]["err_ref"] for p in ps]),
+                      "successive": [math.log(lag[(h, a)]["err_ref"] / lag[(h, b)]["err_ref"]) / math.log(b / a)
+                                     if lag[(h, b)]["err_ref"] > 0 else math.nan for a, b in zip(ps, ps[1:])]}
+    return {"ref": ref, "ref1": ref1, "rows": rows, "slopes": slopes, "orders_h": orders_h, "rates_p": rates_p,
+            "kstar": kstar, "stations": (s1, s2)}
+
+
+def report(data: StudyData, g: dict, quick: bool) -> str:
+    a = analyse(data, g, quick)
+    s1, s2 = a["stations"]
+    ref = a["ref"]
+    L = [f"# Penalty K x p (x h) at u0 = {s1:g} and {s2:g} mm", "",
+         f"Reference: Richardson extrapolation of the Lagrange force, p = {ref['p']}, h = {ref['hs']} mm: "
+         f"F({s2:g}) = {ref['force_N']:.4f} N (meshes: {', '.join(f'{f:.4f}' for f in ref['forces_N'])} N; "
+         f"observed order in h {C.fmt(ref['order'], '.2f')}; extrapolation step, taken as its uncertainty, "
+         f"{ref['uncertainty_N']:.3g} N = {100 * ref['uncertainty_N'] / ref['force_N']:.2g} %); "
+         f"F({s1:g}) = {a['ref1']['force_N']:.4f} N.", "",
+         "## Lagrange solutions (discretization error)", "",
+         f"| h [mm] | p | dofs | F({s1:g}) [N] | F({s2:g}) [N] | error vs ref | profile error vs ref | Newton its | time [s] |",
+         "|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted((r for r in a["rows"] if r["method"] == "lagrange"), key=lambda r: (-r["h"], r["p"])):
+        L.append(f"| {r['h']:g} | {r['p']} | {r['dofs']:.0f} | {C.fmt(r['F1'], '.4f')} | {C.fmt(r['F2'], '.4f')} | "
+                 f"{100 * r['err_ref']:.3g} % | {100 * r['prof_ref']:.3g} % | {r['its']} | {r['time']:.2f} |")
+    L += ["", "Observed order of the force error in h (slope of log error vs log h, per p): "
+          + ", ".join(f"p={p}: {C.fmt(q, '.2f')}" for p, q in a["orders_h"].items()),
+          "", "Rate in p (slope of log error vs log dofs at fixed h; successive p-orders log(e_p/e_p+1)/log((p+1)/p)): "
+          + "; ".join(f"h={h:g}: {C.fmt(v['dofs_slope'], '.2f')} ({', '.join(C.fmt(x, '.2f') for x in v['successive'])})"
+                      for h, v in a["rates_p"].items()),
+          "", f"## Penalty error |F_K - F_Lagrange| / F_Lagrange at {s2:g} mm (same mesh and order)", ""]
+    keys = [(h, p) for h in g["h"] for p in g["p"]]
+    L.append("| K [Pa] | " + " | ".join(f"h={h:g} p={p}" for h, p in keys) + " |")
+    L.append("|---|" + "---|" * len(keys))
+    for k in g["K"]:
+        cells = []
+        for h, p in keys:
+            r = next((r for r in a["rows"] if r["h"] == h and r["p"] == p and r["K"] == k), None)
+            cells.append("failed" if r is None or r["status"] != "ok" else f"{r.get('err_pen', math.nan):.2e}")
+        L.append(f"| {k:.0e} | " + " | ".join(cells) + " |")
+    L.append("| slope (K in [1e8, 1e11]) | " + " | ".join(C.fmt(a["slopes"][hp], ".3f") for hp in keys) + " |")
+    L.append("| K beyond which the penalty error < 1/10 of the discretization error | "
+             + " | ".join(C.fmt(a["kstar"].get(hp, math.nan), ".0e") for hp in keys) + " |")
+    L += ["", f"## Constraint violation ||phi - i8|| (RMS) at {s2:g} mm, Newton iterations, time", "",
+          "| h | p | K | ||phi-i8|| | profile err vs Lagrange | Newton its | time [s] |", "|---|---|---|---|---|---|---|"]
+    for r in sorted(a["rows"], key=lambda r: (-r["h"], r["p"], r["K"])):
+        L.append(f"| {r['h']:g} | {r['p']} | {'Lagrange' if r['method'] == 'lagrange' else format(r['K'], '.0e')} | "
+                 f"{C.fmt(r['constraint'], '.2e')} | {C.fmt(r.get('prof_pen', math.nan), '.2e')} | {r['its']} | {r['time']:.2f} |")
+    return "\n".join(L) + "\n"
+
+
+def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
+    import matplotlib.pyplot as plt
+
+    a = analyse(data, g, quick)
+    s1, s2 = a["stations"]
+    out = []
+    # 1. mid-axis u_y at s2 for several K (the paper's figure)
+    h0, p0 = g["profile_case"]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    cmap = plt.get_cmap("viridis")
+    pen = sorted((r for r in a["rows"] if r["h"] == h0 and r["p"] == p0 and r["method"] == "penalty" and r["status"] == "ok"),
+                 key=lambda r: r["K"])
+    for j, r in enumerate(pen):
+        X, uy = data.profile(r["case"], s2)
+        ax.plot(X, uy, color=cmap(j / max(len(pen) - 1, 1)), label=f"penalty K = {r['K']:.0e} Pa")
+    lag = C.lagrange_case(data, h0, p0)
+    if lag is not None:
+        ax.plot(*data.profile(lag, s2), "k--", lw=2, label="Lagrange multiplier")
+    ax.set_xlabel("X [mm]")
+    ax.set_ylabel(f"u_y on the mid-axis Y = W/2 [mm] at u0 = {s2:g} mm")
+    ax.set_title(f"penalty -> Lagrange (h = {h0:g} mm, p = {p0})")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    out.append(savefig(fig, data.out, "penalty_profiles"))
+    # 2. error plots
+    fig, axs = plt.subplots(1, 3, figsize=(15, 4.3))
+    styles = {h: ls for h, ls in zip(g["h"], ("-", "--", ":"))}
+    for h in g["h"]:
+        for p in g["p"]:
+            rs = sorted((r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "penalty" and r["status"] == "ok"),
+                        key=lambda r: r["K"])
+            if not rs:
+                continue
+            col = f"C{p - 1}"
+            lab = f"h={h:g}, p={p}"
+            axs[0].loglog([r["K"] for r in rs], [max(r.get("err_pen", math.nan), 1e-16) for r in rs], styles[h], color=col, marker="o", ms=3, label=lab)
+            axs[1].loglog([r["K"] for r in rs], [max(r["err_ref"], 1e-16) for r in rs], styles[h], color=col, marker="o", ms=3, label=lab)
+            lr = [r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "lagrange"]
+            if lr:
+                axs[1].axhline(lr[0]["err_ref"], color=col, ls=styles[h], lw=0.8, alpha=0.6)
+            axs[2].loglog([r["K"] for r in rs], [r["constraint"] for r in rs], styles[h], color=col, marker="o", ms=3, label=lab)
+    k = np.array([1e8, 1e11])
+    axs[0].loglog(k, 1e-3 * (k / 1e8) ** -1.0, "k:", lw=1, label="slope -1")
+    axs[0].set_title("penalty error |F_K - F_Lagrange| / F_Lagrange")
+    axs[1].set_title("total error |F_K - F_ref| / F_ref\n(lines: Lagrange on the same mesh = discretization error)")
+    axs[2].set_title("constraint violation ||phi - i8|| (RMS)")
+    for ax in axs:
+        ax.set_xlabel("penalty K [Pa]")
+        ax.grid(alpha=0.3, which="both")
+    axs[0].legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    out.append(savefig(fig, data.out, "penalty_error"))
+    # 3. discretization error of the Lagrange solutions
+    fig, axs = plt.subplots(1, 2, figsize=(11, 4.2))
+    lag = [r for r in a["rows"] if r["method"] == "lagrange" and r["status"] == "ok"]
+    for h in g["h"]:
+        rs = sorted((r for r in lag if r["h"] == h), key=lambda r: r["p"])
+        axs[0].loglog([r["dofs"] for r in rs], [r["err_ref"] for r in rs], "o" + styles[h], label=f"h = {h:g} mm, p = {rs[0]['p'] if rs else ''}..")
+        for r in rs:
+            axs[0].annotate(f"p{r['p']}", (r["dofs"], r["err_ref"]), fontsize=7)
+    for p in g["p"]:
+        rs = sorted((r for r in lag if r["p"] == p), key=lambda r: r["h"])
+        if len(rs) > 1:
+            axs[1].loglog([r["h"] for r in rs], [r["err_ref"] for r in rs], "o-", color=f"C{p - 1}",
+                          label=f"p = {p}: order {C.fmt(a['orders_h'].get(p, math.nan), '.2f')}")
+    axs[0].set_xlabel("dofs")
+    axs[1].set_xlabel("h [mm]")
+    for ax in axs:
+        ax.set_ylabel(f"|F_Lagrange - F_ref| / F_ref at {s2:g} mm")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.suptitle(f"discretization error (reference: Richardson, p = {a['ref']['p']}, h = {a['ref']['hs']} mm)", fontsize=9)
+    fig.tight_layout()
+    out.append(savefig(fig, data.out, "discretization_error"))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_for(build, argv, prog="python -m studies.penalty_p")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,161 @@
+"""What accuracy costs in time: error of the force and of the mid-axis profile at 56 mm vs wall time.
+
+Settings varied: mesh size h, order p, formulation (Lagrange multiplier; mixed penalty with K =
+1e8 and 1e10 Pa; the paper's pointwise ("full") penalty; the uncondensed saddle-point solve) .
+Reference: the Richardson extrapolation of the Lagrange force over h = 10, 5, 2.5 mm at p = 4
+with the observed order (``_common.reference``), whose extrapolation step is reported as its
+uncertainty; the profile reference is the finest of those meshes. Errors below the reference's
+uncertainty are not resolved and are flagged in the table.
+
+Wall time is the case's whole run (mesh, assembly, Newton over all load steps, outputs without
+VTK), measured with one NGSolve thread per case while the cases run two at a time on the
+2-core machine (other jobs share it; expect ±20 %).
+
+    python -m studies.work_precision [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+from ngbet.study import Study, StudyData, main_for, savefig
+
+from . import _common as C
+
+FULL = {"lagrange": [(h, p) for h in (20.0, 10.0, 5.0) for p in (1, 2, 3, 4, 5)] + [(2.5, p) for p in (1, 2, 3, 4)],
+        "penalty": [(h, p, k) for h in (10.0, 5.0) for p in (2, 3, 4) for k in (1e8, 1e10)],
+        "full": [(h, p, k) for h in (10.0, 5.0) for p in (2, 3) for k in (1e8, 1e10)],
+        "uncondensed": [(10.0, 2), (5.0, 2)],
+        "ref_p": 4, "ref_h": (10.0, 5.0, 2.5)}
+QUICK = {"lagrange": [(20.0, 1), (20.0, 2)], "penalty": [(20.0, 2, 1e8)], "full": [(20.0, 2, 1e10)],
+         "uncondensed": [(20.0, 2)], "ref_p": 3, "ref_h": (20.0, 10.0, 5.0)}
+TARGETS = (0.10, 0.01, 0.001)
+
+
+def build(quick: bool = False) -> Study:
+    g = QUICK if quick else FULL
+    cases = [C.lagrange(h, p) for h, p in g["lagrange"]]
+    cases += [C.penalty(h, p, k) for h, p, k in g["penalty"]]
+    cases += [C.penalty(h, p, k, "full") for h, p, k in g["full"]]
+    cases += [{**C.lagrange(h, p), "solver.condense": False} for h, p in g["uncondensed"]]
+    cases += [C.lagrange(h, g["ref_p"]) for h in g["ref_h"]]
+    return Study("work_precision", C.base_scene(quick), C.unique(cases), description=__doc__ or "",
+                 plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
+                 profile_stations=C.stations(quick))
+
+
+def label(prm: dict) -> str:
+    s = f"h={prm[C.H]:g} p={int(prm[C.P])} "
+    if prm.get(C.CON) == "penalty":
+        s += f"penalty-{prm.get(C.FORM, 'mixed')} K={prm[C.K]:.0e}"
+    else:
+        s += "Lagrange" + (" uncondensed" if prm.get("solver.condense") is False else "")
+    return s
+
+
+def analyse(data: StudyData, g: dict, quick: bool) -> dict:
+    s2 = C.stations(quick)[1]
+    ref = C.reference(data, s2, g["ref_p"], g["ref_h"])
+    pts = []
+    for c in data.meta["cases"]:
+        if c["status"] != "ok":
+            pts.append({"case": c["case"], "label": label(c["params"]), "status": c["status"]})
+            continue
+        i = c["case"]
+        F = data.at(i, s2, "force_N")
+        X, uy = data.profile(i, s2)
+        kind = c["params"].get(C.FORM, "mixed") if c["params"].get(C.CON) == "penalty" else (
+            "uncondensed" if c["params"].get("solver.condense") is False else "lagrange")
+        pts.append({"case": i, "label": label(c["params"]), "status": "ok", "kind": kind, "time": C.wall(data, i),
+                    "dofs": C.dofs(data, i), "F": F, "err_F": abs(F - ref["force_N"]) / ref["force_N"],
+                    "err_prof": C.profile_error(X, uy, ref["uy_mm"]), "ref_case": i in ref["cases"]})
+    good = [p for p in pts if p["status"] == "ok"]
+    for key in ("err_F", "err_prof"):
+        best = math.inf
+        for p in sorted(good, key=lambda p: p["time"]):
+            p[f"pareto_{key}"] = p[key] < best
+            best = min(best, p[key])
+    return {"ref": ref, "pts": pts, "s2": s2,
+            "unc_F": ref["uncertainty_N"] / ref["force_N"], "unc_prof": ref["profile_uncertainty"]}
+
+
+def cheapest(a: dict, key: str, target: float) -> dict | None:
+    ok = [p for p in a["pts"] if p["status"] == "ok" and p[key] <= target and not p["ref_case"]]
+    return min(ok, key=lambda p: p["time"]) if ok else None
+
+
+def report(data: StudyData, g: dict, quick: bool) -> str:
+    a = analyse(data, g, quick)
+    ref, s2 = a["ref"], a["s2"]
+    L = [f"# Work-precision at u0 = {s2:g} mm", "",
+         f"Reference force: Richardson extrapolation of the Lagrange solutions p = {ref['p']}, h = {ref['hs']} mm "
+         f"(observed order {C.fmt(ref['order'], '.2f')}): F = {ref['force_N']:.4f} N, uncertainty (extrapolation step) "
+         f"{100 * a['unc_F']:.2g} %. Reference profile: the finest of these meshes, estimated error {100 * a['unc_prof']:.2g} %.",
+         "", "## Cheapest settings reaching a target error (reference runs themselves excluded)", "",
+         "| quantity | target | cheapest setting | error | wall time [s] | dofs |", "|---|---|---|---|---|---|"]
+    for key, name, unc in (("err_F", f"force at {s2:g} mm", a["unc_F"]), ("err_prof", f"mid-axis profile at {s2:g} mm", a["unc_prof"])):
+        for t in TARGETS:
+            p = cheapest(a, key, t)
+            flag = " (below the reference's uncertainty: not resolved)" if t < 2 * unc else ""
+            if p is None:
+                best = min((q for q in a["pts"] if q["status"] == "ok" and not q["ref_case"]), key=lambda q: q[key], default=None)
+                L.append(f"| {name} | {100 * t:g} %{flag} | not reached | best {100 * best[key]:.3g} % ({best['label']}, {best['time']:.1f} s) | | |"
+                         if best else f"| {name} | {100 * t:g} % | not reached | | | |")
+            else:
+                L.append(f"| {name} | {100 * t:g} %{flag} | {p['label']} | {100 * p[key]:.3g} % | {p['time']:.2f} | {p['dofs']:.0f} |")
+    L += ["", "## All cases", "", "| setting | dofs | F [N] | force error | profile error | wall time [s] | Pareto (force) |",
+          "|---|---|---|---|---|---|---|"]
+    for p in sorted(a["pts"], key=lambda p: p.get("time", math.inf)):
+        if p["status"] != "ok":
+            L.append(f"| {p['label']} | | {p['status']} | | | | |")
+            continue
+        L.append(f"| {p['label']} | {p['dofs']:.0f} | {p['F']:.4f} | {100 * p['err_F']:.3g} % | {100 * p['err_prof']:.3g} % | "
+                 f"{p['time']:.2f} | {'*' if p['pareto_err_F'] else ''} |")
+    return "\n".join(L) + "\n"
+
+
+def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
+    import matplotlib.pyplot as plt
+
+    a = analyse(data, g, quick)
+    fig, axs = plt.subplots(1, 2, figsize=(13, 5))
+    marks = {"lagrange": "o", "mixed": "s", "full": "^", "uncondensed": "D"}
+    names = {"lagrange": "Lagrange", "mixed": "mixed penalty", "full": "pointwise penalty", "uncondensed": "Lagrange, uncondensed"}
+    good = [p for p in a["pts"] if p["status"] == "ok"]
+    for ax, key, unc, title in ((axs[0], "err_F", a["unc_F"], f"force at {a['s2']:g} mm"),
+                                (axs[1], "err_prof", a["unc_prof"], f"mid-axis profile at {a['s2']:g} mm")):
+        for kind, m in marks.items():
+            ps = [p for p in good if p["kind"] == kind]
+            if not ps:
+                continue
+            sc = ax.scatter([p["time"] for p in ps], [max(p[key], 1e-8) for p in ps], marker=m,
+                            c=[math.log2(p["dofs"]) for p in ps], cmap="viridis", s=30, label=names[kind], edgecolors="k", linewidths=0.3)
+            for p in ps:
+                if kind in ("lagrange", "uncondensed"):
+                    prm = data.meta["cases"][p["case"]]["params"]
+                    ax.annotate(f"{prm[C.H]:g}/{int(prm[C.P])}", (p["time"], max(p[key], 1e-8)), fontsize=6, xytext=(3, 2), textcoords="offset points")
+        front = sorted((p for p in good if p[f"pareto_{key}"]), key=lambda p: p["time"])
+        ax.step([p["time"] for p in front], [max(p[key], 1e-8) for p in front], "r-", where="post", lw=1.2, label="Pareto front")
+        for t in TARGETS:
+            ax.axhline(t, color="grey", lw=0.6, ls=":")
+        ax.axhspan(1e-8, max(unc, 1e-8), color="orange", alpha=0.15, label="below the reference's uncertainty")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("wall time of the run [s]")
+        ax.set_ylabel("relative error")
+        ax.set_title(title + "  (labels: h [mm]/p)", fontsize=9)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.colorbar(sc, ax=axs, label="log2(dofs)", shrink=0.8)
+    out = [savefig(fig, data.out, "work_precision")]
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_for(build, argv, prog="python -m studies.work_precision")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
