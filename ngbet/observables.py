@@ -55,6 +55,31 @@ def constraint_l2(problem: ContinuumProblem) -> float:
     return math.sqrt(max(v, 0.0) / (sp.L * sp.W))
 
 
+def multiplier_oscillation(problem: ContinuumProblem, margin: float = 0.18) -> float | None:
+    """‖Λ − Π Λ‖ / ‖Λ‖ on margin·L < X < (1 − margin)·L, Π the L2 projection onto continuous
+    fields of Λ's order (at least 1); None without a multiplier.
+
+    A multiplier that converges is smooth away from the clamp corners, and this ratio falls with
+    h; an unstable pair leaves O(1) element-to-element oscillations (ratio ~0.85, not falling).
+    """
+    lam = problem.lam_field
+    if lam is None:
+        return None
+    mesh, L = problem.mesh, problem.scene.specimen.L
+    V = ngs.H1(mesh, order=max(1, problem.scene.discretization.p_lam))
+    w, v = V.TnT()
+    mass = ngs.BilinearForm(w * v * ngs.dx).Assemble()
+    rhs = ngs.LinearForm(lam * v * ngs.dx).Assemble()
+    proj = ngs.GridFunction(V)
+    proj.vec.data = mass.mat.Inverse(inverse="sparsecholesky") * rhs.vec
+    inner = ngs.IfPos((ngs.x - margin * L) * ((1 - margin) * L - ngs.x), 1.0, 0.0)
+    order = 2 * max(1, problem.scene.discretization.p_lam)
+    norm = ngs.Integrate(inner * lam * lam, mesh, order=order)
+    if norm <= 0:
+        return 0.0
+    return math.sqrt(max(ngs.Integrate(inner * (lam - proj) ** 2, mesh, order=order), 0.0) / norm)
+
+
 def field_functions(problem: ContinuumProblem, wanted: tuple[str, ...]) -> dict[str, Any]:
     """CoefficientFunctions of the requested fields, for VTK output and maps."""
     inv = problem.invariants()

@@ -117,6 +117,13 @@ def _run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
     if o.vtk:
         write_vtk(problem, out / "fields")
     info.update(_solver_info(problem, res))
+    osc = obs.multiplier_oscillation(problem)
+    if osc is not None:
+        info["multiplier_oscillation"] = osc
+        if osc > 0.5:
+            log.warning("the multiplier oscillates (%.2f of its L2 norm is not continuous): the pair "
+                        "order_phi = %d, order_lam = %d is not stable; the default pair is", osc,
+                        scene.discretization.p_phi, scene.discretization.p_lam)
     summary = writer.summary(info, "ok")
     if o.plot:
         plot_force(out)

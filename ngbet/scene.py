@@ -199,12 +199,12 @@ class Effects:
 
 @dataclass(frozen=True)
 class Discretization:
-    """Mesh and polynomial orders. ``order_lam = 0`` means order_u - 1 (the stable default)."""
+    """Mesh and polynomial orders (``order_phi = 0``: order_u; ``order_lam = -1``: the default pair)."""
 
     mesh_size_mm: float = 5.0
     order_u: int = 2
     order_phi: int = 0  # 0: same as order_u
-    order_lam: int = -1  # -1: order_u - 1
+    order_lam: int = -1  # -1: max(order_u - 2, 0), the stable pair (see ngbet.problem)
     quad_bonus: int = 0  # extra quadrature order for the non-polynomial sqrt(i4), sqrt(i6) terms
     structured: bool = False  # crossed structured mesh instead of Netgen's unstructured one
 
@@ -226,7 +226,7 @@ class Discretization:
 
     @property
     def p_lam(self) -> int:
-        return self.order_lam if self.order_lam >= 0 else self.order_u - 1
+        return self.order_lam if self.order_lam >= 0 else max(self.order_u - 2, 0)
 
 
 @dataclass(frozen=True)
