@@ -10,14 +10,16 @@ step the state (``state_XXmm.npz``: deformed yarns, slip and angle per crossing)
 from __future__ import annotations
 
 import logging
+import math
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..kinematics import gamma_a
 from ..output import RunWriter
-from ..scene import Scene
+from ..scene import Scene, Specimen
 from . import observables as ob
 from .model import ENERGY_PARTS, NetworkModel
 from .network import network_from_scene
@@ -39,12 +41,13 @@ def step_control(scene: Scene) -> StepControl:
                        snap_bracket=min(max(4 * ld.min_step_mm, 1.0), ld.max_step_mm) * 1e-3)
 
 
-def step_row(model: NetworkModel, info: StepInfo, u: np.ndarray) -> dict[str, Any]:
-    """One results.csv row from a converged state."""
+def step_row(model: NetworkModel, info: StepInfo, u: np.ndarray, specimen: Specimen) -> dict[str, Any]:
+    """One results.csv row from a converged state (zone shears beside those of ideal BET kinematics)."""
     net = model.net
     Fx, Fy = model.reaction(info.gradient)
     parts = model.energy_parts(u)
     gz = ob.zone_means(net, ob.crossing_gamma(net, u))
+    g_ideal = gamma_a(specimen, info.u0 * 1e3) if info.u0 * 1e3 < specimen.locking_u0_mm else math.nan
     slip = ob.crossing_slip(net, u)
     row: dict[str, Any] = {"step": info.step, "u0_mm": round(info.u0 * 1e3, 9), "force_N": Fx, "force_y_N": Fy,
                            "energy_J": info.energy}
@@ -52,7 +55,8 @@ def step_row(model: NetworkModel, info: StepInfo, u: np.ndarray) -> dict[str, An
     row.update({"newton_iterations": info.iterations, "step_wall_s": round(info.wall_s, 4),
                 "max_slip_mm": float(slip.max(initial=0.0)) * 1e3,
                 "gamma_A_deg": np.degrees(gz["A"]), "gamma_B_deg": np.degrees(gz["B"]),
-                "gamma_C_deg": np.degrees(gz["C"]), "lambda_min": info.lambda_min, "snap": int(info.snap),
+                "gamma_C_deg": np.degrees(gz["C"]), "gamma_A_ideal_deg": np.degrees(g_ideal),
+                "gamma_B_ideal_deg": np.degrees(g_ideal) / 2, "lambda_min": info.lambda_min, "snap": int(info.snap),
                 "released_J": info.released})
     return row
 
@@ -89,7 +93,7 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
             ob.plot_state(out / f"yarns_{tag}.png", net, u, u0)
 
     def on_step(info: StepInfo, u: np.ndarray) -> None:
-        row = step_row(model, info, u)
+        row = step_row(model, info, u, scene.specimen)
         X, uy = ob.midline_profile(net, u, n_prof)
         writer.add_step(row, profile=list(zip((X * 1e3).tolist(), (uy * 1e3).tolist())))
         last["u"], last["u0"] = u, info.u0
