@@ -1,7 +1,7 @@
 """What accuracy costs in time: error of the force and of the mid-axis profile at 56 mm vs wall time.
 
 Settings varied: mesh size h, order p, formulation (Lagrange multiplier; mixed penalty with K =
-1e8 and 1e10 Pa; the paper's pointwise ("full") penalty; the uncondensed saddle-point solve) .
+1e8 and 1e10 Pa; the paper's pointwise ("full") penalty with K = 1e8 Pa; the uncondensed saddle-point solve) .
 Reference: the Richardson extrapolation of the Lagrange force over h = 10, 5, 2.5 mm at p = 4
 with the observed order (``_common.reference``), whose extrapolation step is reported as its
 uncertainty; the profile reference is the finest of those meshes. Errors below the reference's
@@ -26,7 +26,9 @@ from . import _common as C
 
 FULL = {"lagrange": [(h, p) for h in (20.0, 10.0, 5.0) for p in (1, 2, 3, 4, 5)] + [(2.5, p) for p in (1, 2, 3, 4)],
         "penalty": [(h, p, k) for h in (10.0, 5.0) for p in (2, 3, 4) for k in (1e8, 1e10)],
-        "full": [(h, p, k) for h in (10.0, 5.0) for p in (2, 3) for k in (1e8, 1e10)],
+        # the pointwise penalty only at K = 1e8: at 1e10 its Newton iteration needs > 50 load steps
+        # (measured: h = 10 mm, p = 3 had cut its steps 52 times by u0 = 50 mm), minutes per case
+        "full": [(h, p, 1e8) for h in (10.0, 5.0) for p in (2, 3)],
         "uncondensed": [(10.0, 2), (5.0, 2)],
         "ref_p": 4, "ref_h": (10.0, 5.0, 2.5)}
 QUICK = {"lagrange": [(20.0, 1), (20.0, 2)], "penalty": [(20.0, 2, 1e8)], "full": [(20.0, 2, 1e10)],
