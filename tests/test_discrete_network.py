@@ -72,13 +72,18 @@ def _random_state(model, scale, seed):
     return u
 
 
+def _central_difference(f, u, scale, seed):
+    """(f(u + h v) − f(u − h v)) / 2h along a random direction v, h = 1e-6 scale; returns (fd, v)."""
+    v = np.random.default_rng(seed).standard_normal(len(u))
+    h = 1e-6 * scale
+    return (f(u + h * v) - f(u - h * v)) / (2 * h), v
+
+
 @pytest.mark.parametrize("scale", [1e-4, 1e-3])
 def test_gradient_matches_finite_differences(model, scale):
     u = _random_state(model, scale, 1)
     E, g, _ = model.evaluate(u)
-    v = np.random.default_rng(2).standard_normal(model.n_dofs)
-    h = 1e-6 * scale
-    fd = (model.energy(u + h * v) - model.energy(u - h * v)) / (2 * h)
+    fd, v = _central_difference(model.energy, u, scale, seed=2)
     # central differences: truncation O(h^2) and round-off ~ 1e-16 E / h, both far below 1e-6
     assert abs(fd - g @ v) < 1e-6 * abs(g @ v), f"directional derivative {g @ v:.10g} vs FD {fd:.10g}"
 
@@ -87,9 +92,7 @@ def test_gradient_matches_finite_differences(model, scale):
 def test_hessian_matches_finite_differences(model, scale):
     u = _random_state(model, scale, 3)
     _, _, K = model.evaluate(u)
-    v = np.random.default_rng(4).standard_normal(model.n_dofs)
-    h = 1e-6 * scale
-    fd = (model.evaluate(u + h * v, False)[1] - model.evaluate(u - h * v, False)[1]) / (2 * h)
+    fd, v = _central_difference(lambda w: model.evaluate(w, False)[1], u, scale, seed=4)
     err = np.linalg.norm(fd - K @ v) / np.linalg.norm(K @ v)
     assert err < 1e-6, f"relative Hessian-vector error {err:.3g}"
 
