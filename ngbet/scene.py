@@ -207,6 +207,9 @@ class Discretization:
     order_lam: int = -1  # -1: max(order_u - 2, 0), the stable pair (see ngbet.problem)
     quad_bonus: int = 0  # extra quadrature order for the non-polynomial sqrt(i4), sqrt(i6) terms
     structured: bool = False  # crossed structured mesh instead of Netgen's unstructured one
+    # mesh size at the four corners where a clamp meets a free edge (singular points of the
+    # solution); 0: no local refinement. Netgen grades the mesh from there to mesh_size_mm.
+    corner_mesh_size_mm: float = 0.0
 
     def __post_init__(self) -> None:
         _positive("discretization", self, "mesh_size_mm")
@@ -215,6 +218,11 @@ class Discretization:
         _integer("discretization", self, "order_lam", -1, 9)
         _integer("discretization", self, "quad_bonus", 0, 10)
         _boolean("discretization", self, "structured")
+        _nonnegative("discretization", self, "corner_mesh_size_mm")
+        _check(self.corner_mesh_size_mm <= self.mesh_size_mm, "discretization.corner_mesh_size_mm",
+               self.corner_mesh_size_mm, "must not exceed discretization.mesh_size_mm")
+        _check(not (self.structured and self.corner_mesh_size_mm > 0), "discretization.corner_mesh_size_mm",
+               self.corner_mesh_size_mm, "a structured mesh cannot be graded (set structured = false)")
 
     @property
     def p_u(self) -> int:

@@ -211,3 +211,17 @@ def test_default_multiplier_is_smooth_and_converges(tmp_path):
         osc[tag] = s["multiplier_oscillation"]
     assert osc["h10"] < 0.15 and osc["h5"] < 0.65 * osc["h10"], f"default pair: {osc}"
     assert osc["p1"] > 0.5, f"the unstable pair no longer oscillates: {osc} (is the indicator broken?)"
+
+
+def test_corner_grading_removes_most_of_the_discretization_error(tmp_path):
+    # the four clamp corners are singular points: on uniform meshes the force converges like
+    # h^1.1 for every p. A local mesh size of 0.5 mm there (h = 10 mm elsewhere, p = 2) gives
+    # F(20 mm) = 28.745 N against 29.703 N uniform and 28.719 N (h = 5, p = 3, graded),
+    # 28.707 N (h = 2.5, p = 3, 0.25 mm): measured errors 0.13 % against 3.5 %
+    ch = {"loading.u0_mm": 20.0, "loading.stops_mm": ()}
+    uniform = _run(tmp_path, "uniform", **ch)[1][-1]["force_N"]
+    graded = _run(tmp_path, "graded", **ch, **{"discretization.corner_mesh_size_mm": 0.5})[1][-1]["force_N"]
+    ref = _run(tmp_path, "ref", **ch, **{"discretization.corner_mesh_size_mm": 0.5, "discretization.mesh_size_mm": 5.0,
+                                           "discretization.order_u": 3})[1][-1]["force_N"]
+    assert abs(graded - ref) < abs(uniform - ref) / 5 and abs(uniform - ref) > 0.02 * ref, \
+        f"uniform {uniform:.4f} N, graded {graded:.4f} N, reference {ref:.4f} N"

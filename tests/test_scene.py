@@ -37,11 +37,19 @@ def test_toml_round_trip_is_identity():
     ("effects.elongation", False, "effects.elongation"),
     ("discretization.order_lam", 2, "discretization.order_lam"),
     ("specimen.width_mm", 300.0, "zone A"),
+    ("discretization.corner_mesh_size_mm", 6.0, "must not exceed discretization.mesh_size_mm"),
+    ("discretization.discrete_typo", 1.0, "discretization.discrete_typo"),
+    ("discrete.end_rotation", "clamped", "discrete.end_rotation"),
 ])
 def test_bad_values_are_refused_with_their_key(key, value, fragment):
     with pytest.raises(SceneError) as err:
         default_scene().with_changes(**{key: value})
     assert fragment in str(err.value)
+
+
+def test_graded_structured_mesh_is_refused():
+    with pytest.raises(SceneError, match="structured"):
+        default_scene().with_changes(**{"discretization.structured": True, "discretization.corner_mesh_size_mm": 1.0})
 
 
 def test_unknown_keys_are_refused_by_name():
