@@ -26,13 +26,13 @@ def _parse_value(text: str) -> object:
 
 
 def load_scene(path: str | None, overrides: list[str]) -> Scene:
-    """The scene file (or the default scene) with ``section.key=value`` overrides applied."""
+    """The scene file (or the default scene) with ``section.key=value`` (or ``model=...``) overrides applied."""
     scene = Scene.from_toml(path) if path else default_scene()
     changes = {}
     for item in overrides:
         key, sep, value = item.partition("=")
-        if not sep or "." not in key:
-            raise SceneError(f"--set expects section.key=value, got {item!r}")
+        if not sep or ("." not in key and key.strip() != "model"):
+            raise SceneError(f"--set expects section.key=value or model=continuum|discrete, got {item!r}")
         changes[key.strip()] = _parse_value(value.strip())
     return scene.with_changes(**changes) if changes else scene
 

@@ -70,7 +70,7 @@ def _integer(section: str, obj: Any, name: str, lo: int, hi: int) -> None:
 
 def _choice(section: str, obj: Any, name: str, choices: tuple[str, ...]) -> None:
     v = getattr(obj, name)
-    _check(v in choices, f"{section}.{name}", v, f"must be one of {', '.join(map(repr, choices))}")
+    _check(v in choices, f"{section}.{name}" if section else name, v, f"must be one of {', '.join(map(repr, choices))}")
 
 
 @dataclass(frozen=True)
