@@ -92,16 +92,20 @@ def _study(args: argparse.Namespace) -> int:
     """``ngbet study NAME``: the study module studies.NAME (from the source tree next to ngbet/)."""
     import importlib
 
-    try:
-        studies = importlib.import_module("studies")
-    except ImportError:
-        sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+    studies = None
+    # the studies live in the source tree: next to an editable install's ngbet/, or in the
+    # working directory of a clone (pip install . copies only the library)
+    for root in (None, Path(__file__).resolve().parent.parent, Path.cwd()):
+        if root is not None and (root / "studies" / "__init__.py").is_file():
+            sys.path.insert(0, str(root))
         try:
             studies = importlib.import_module("studies")
+            break
         except ImportError:
-            print("ngbet study: the studies/ folder of the source tree is not importable "
-                  "(run from a clone: pip install -e .)", file=sys.stderr)
-            return 2
+            continue
+    if studies is None:
+        print("ngbet study: no studies/ folder found; run from the root of a clone of ngbet", file=sys.stderr)
+        return 2
     if args.name == "list":
         for name, what in studies.STUDIES.items():
             print(f"{name:16s} {what}")
