@@ -1,9 +1,10 @@
 """Continuum and discrete model side by side on the same specimen (issue 4).
 
 The same scene runs once with model = "continuum" (Lagrange, h = 5 mm, p = 2) and once with
-model = "discrete" (paper Table 2, yarn spacing from the scene). Figures: the two
-force-displacement curves (with the ideal-kinematics estimate), the two mid-axis profiles at 37
-and 56 mm, and the two maps of the angle between the yarns at 37 and 56 mm (acute angle between
+model = "discrete" (paper Table 2, yarn spacing from the scene), and a third time as the network
+equivalent to the continuum (its energy per unit area; ngbet.discrete.equivalent). Figures: the
+force-displacement curves (with the ideal-kinematics estimate), the mid-axis profiles at 37
+and 56 mm, and the maps (continuum, Table 2 network) of the angle between the yarns at 37 and 56 mm (acute angle between
 the yarns as lines: 90 deg at rest, 90 - gamma in both models). The study shows whatever the
 models give; the report states whether they bend the specimen the same way (sign of u_y at
 X = L/4 on the mid-axis).
@@ -27,11 +28,25 @@ from ngbet.study import Study, StudyData, main_for, savefig
 from . import _common as C
 
 CASES = [{"model": "continuum", "outputs.vtk": True, "outputs.vtk_every_step": True}, {"model": "discrete"}]
+# the network with the continuum's energy per unit area (ngbet.discrete.equivalent): the check
+# that the two models agree where their physics is the same
+EQUIVALENT = "discrete, continuum-equivalent"
+LABELS = ("continuum", "discrete", EQUIVALENT)
+
+
+def label(params: dict) -> str:
+    """Which of the three models a case is (its changes over the base scene)."""
+    if params.get("model") == "continuum":
+        return "continuum"
+    return EQUIVALENT if "discrete.K_phi" in params else "discrete"
 
 
 def build(quick: bool = False) -> Study:
+    from ngbet.discrete.equivalent import continuum_equivalent
+
     base = C.base_scene(quick, **({C.H: 20.0, "discrete.spacing_mm": 10.0} if quick else {}))
-    return Study("compare", base, CASES, description=__doc__ or "", extract=extract, plot=lambda d: plot(d, quick),
+    equivalent = {"model": "discrete", **continuum_equivalent(base)}
+    return Study("compare", base, [*CASES, equivalent], description=__doc__ or "", extract=extract, plot=lambda d: plot(d, quick),
                  report=lambda d: report(d, quick), profile_stations=C.stations(quick))
 
 
@@ -46,16 +61,17 @@ def extract(rec: dict, run_dir: Path, out: Path) -> dict:
             name = f"continuum_{u0:g}mm.vtu"
         else:
             src = run_dir / f"state_{u0:.0f}mm.npz"
-            name = f"discrete_{u0:g}mm.npz"
+            tag = "equivalent" if sc["discrete"]["K_inter"] == 0 else "discrete"
+            name = f"{tag}_{u0:g}mm.npz"
         if src is not None and src.exists():
             shutil.copyfile(src, out / name)
-            rows.append({"model": sc["model"], "u0_mm": u0, "file": name})
+            rows.append({"model": name.split("_")[0], "u0_mm": u0, "file": name})
     return {"fields": rows}
 
 
 def _case(data: StudyData, model: str) -> int | None:
     for c in data.meta["cases"]:
-        if c["params"].get("model") == model:
+        if label(c["params"]) == model:
             return c["case"]
     return None
 
@@ -64,7 +80,7 @@ def analyse(data: StudyData, quick: bool) -> dict:
     s1, s2 = C.stations(quick)
     L = data.meta["base_scene"]["specimen"]["length_mm"]
     res = {}
-    for m in ("continuum", "discrete"):
+    for m in LABELS:
         i = _case(data, m)
         if i is None:
             continue
@@ -93,11 +109,15 @@ def report(data: StudyData, quick: bool) -> str:
         L.append(f"| {m} | {r['status']} (to {C.fmt(r['u0_reached'], 'g')} mm) | {C.fmt(r[f'F{s1:g}'], '.3f')} | {C.fmt(r[f'F{s2:g}'], '.3f')} | "
                  f"{C.fmt(r[f'uyq{s1:g}'], '.3f')} | {C.fmt(r[f'uyq{s2:g}'], '.3f')} | {C.fmt(r[f'maxuy{s2:g}'], '.3f')} | "
                  f"{C.fmt(r.get('max_slip_mm', math.nan), '.3f')} | {r['wall_s']:.1f} |")
-    if len(a) == 2:
-        qs = [a[m][f"uyq{s2:g}"] for m in ("continuum", "discrete")]
-        same = np.sign(qs[0]) == np.sign(qs[1])
-        L += ["", f"Bending direction at {s2:g} mm (sign of u_y at X = L/4 on the mid-axis): "
-              + ("the same in both models." if same else "OPPOSITE: the two models bend the specimen in opposite directions.")]
+    if "continuum" in a:
+        q0 = a["continuum"][f"uyq{s2:g}"]
+        for m in ("discrete", EQUIVALENT):
+            if m in a:
+                same = np.sign(q0) == np.sign(a[m][f"uyq{s2:g}"])
+                L += ["", f"Bending direction at {s2:g} mm (sign of u_y at X = L/4 on the mid-axis), continuum and {m}: "
+                      + ("the same." if same else "OPPOSITE: the two models bend the specimen in opposite directions.")]
+    L += ["", f"'{EQUIVALENT}': the network whose stiffnesses give the continuum's energy per unit area "
+          "(EA = t K_el s, EI_k = t alpha_k s, K_phi = t K_sh s^2, no slip, no trusses; ngbet.discrete.equivalent)."]
     return "\n".join(L) + "\n"
 
 
@@ -135,7 +155,7 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     out = []
     scene = Scene.from_dict(data.meta["base_scene"])
     fig, axs = plt.subplots(1, 3, figsize=(16, 4.3))
-    for m, col in (("continuum", "C0"), ("discrete", "C1")):
+    for m, col in zip(LABELS, ("C0", "C1", "C2")):
         i = _case(data, m)
         if i is None:
             continue

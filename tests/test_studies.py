@@ -190,10 +190,12 @@ def test_quick_maps(tmp_path, quick_cache):
 
 def test_quick_compare(tmp_path, quick_cache):
     mod, d = run_quick("compare", tmp_path, quick_cache)
-    assert [c["params"].get("model") for c in d.cases()] == ["continuum", "discrete"]
+    assert [mod.label(c["params"]) for c in d.cases()] == ["continuum", "discrete", mod.EQUIVALENT]
     assert all(c["status"] == "ok" for c in d.cases())
     a = mod.analyse(d, True)
     assert a["continuum"]["F20"] > 0 and a["discrete"]["F20"] > 0
+    # the network equivalent to the continuum bends the specimen the same way (u_y(L/4) < 0)
+    assert a["continuum"]["uyq20"] < 0 and a[mod.EQUIVALENT]["uyq20"] < 0, a
     assert "Bending direction" in (d.out / "report.md").read_text()
     assert (d.out / "compare_curves.png").exists() and (d.out / "compare_maps.png").exists()
 
