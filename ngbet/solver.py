@@ -71,6 +71,9 @@ class NewtonSettings:
     growth: float = 1.5
     cut: float = 0.5
     predictor: str = "tangent"
+    #: contraction θ = ‖dx̄‖/‖dx‖ below which a small simplified correction ends Newton without a
+    #: new linearization (0 disables the shortcut)
+    simplified_theta: float = 0.5
 
 
 @dataclass
@@ -136,13 +139,16 @@ def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) ->
         x0 = problem.x.copy()
         ndx = problem.norm(dx)
         lam = 1.0
+        dx_bar = None
+        theta = 0.0
         while True:
             problem.x[:] = x0 + lam * dx
             r_trial = problem.residual()
             if np.all(np.isfinite(r_trial)):
                 if delta <= tol:  # quadratic convergence: the last step needs no test
                     break
-                theta = problem.norm(problem.solve(r_trial)) / ndx if ndx > 0 else 0.0
+                dx_bar = problem.solve(r_trial)
+                theta = problem.norm(dx_bar) / ndx if ndx > 0 else 0.0
                 if theta <= 1.0 - lam / 4.0:
                     break
             lam *= 0.5
@@ -153,6 +159,21 @@ def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) ->
         r = r_trial
         if delta <= tol and lam == 1.0:
             return NewtonReport(True, it, history, damping, "converged", residual=r)
+        if dx_bar is not None and lam == 1.0 and theta <= settings.simplified_theta:
+            # Simplified-Newton exit (Deuflhard's NLEQ-ERR): the correction dx̄ = −J(x_k)⁻¹ r(x_k+1),
+            # already computed for the monotonicity test, is the next Newton correction up to
+            # O(θ) relative; when its decrement is below the tolerance, x_k+1 + dx̄ is the solution
+            # and the linearization that would only confirm it is saved (one per load step).
+            delta_bar = abs(float(dx_bar @ r_trial))
+            if delta_bar <= tol:
+                problem.x[:] += dx_bar
+                r = problem.residual()
+                if np.all(np.isfinite(r)):
+                    history.append(delta_bar)
+                    return NewtonReport(True, it, history, damping, "converged (simplified correction)",
+                                        residual=r)
+                problem.x[:] -= dx_bar
+                r = r_trial
     return NewtonReport(False, settings.max_iterations, history, damping, "iteration limit")
 
 
@@ -185,13 +206,16 @@ def continuation(
     stops: Sequence[float] = (),
     on_step: Callable[[StepInfo], None] | None = None,
     diagnose: Callable[[], str] | None = None,
+    max_attempts: int = 500,
 ) -> ContinuationResult:
     """Carry the load from 0 to ``target``; ``on_step`` is called after every converged increment.
 
     Raises
     ------
     ConvergenceError
-        when the increment has been cut below ``min_step`` (``diagnose`` may add what it finds).
+        when the increment has been cut below ``min_step``, or after ``max_attempts`` increments
+        (converged or not: a bound on the time), with the pattern of the last failures and what
+        ``diagnose`` finds.
     """
     lam = 0.0
     step = min(first_step, max_step)
@@ -239,9 +263,36 @@ def continuation(
         # the factorization now belongs to a rejected state: rebuild it at the restored one
         if settings.predictor == "tangent":
             problem.factorize()
-        if step < min_step:
-            diag = diagnose() if diagnose is not None else ""
-            raise ConvergenceError(
-                f"load step cut below the minimum {min_step:.3g} on the way from {lam:.6g} to {target:.6g}",
-                lam, out.attempts, diag)
+        if step < min_step or len(out.attempts) >= max_attempts:
+            diag = "; ".join(d for d in (failure_pattern(out.attempts), diagnose() if diagnose else "") if d)
+            why = (f"load step cut below the minimum {min_step:.3g}" if step < min_step
+                   else f"{len(out.attempts)} increments tried (limit {max_attempts})")
+            raise ConvergenceError(f"{why} on the way from {lam:.6g} to {target:.6g}", lam, out.attempts, diag)
     return out
+
+
+def failure_pattern(attempts: Sequence[Attempt]) -> str:
+    """What the last failed increments say (near the last converged load).
+
+    With a tangent predictor the residual after the predictor is O(Δλ²) on a smooth solution path,
+    so the first Newton decrement (an energy) falls like Δλ⁴ when the increment is cut. If it falls
+    much slower, or Newton fails however small the increment, the path is not smooth there: it turns
+    back in the load (limit point), branches (bifurcation) or the discrete problem locks.
+    """
+    if not attempts or attempts[-1].report.converged:
+        return ""
+    lam0 = attempts[-1].lam_from
+    tail = [a for a in attempts[-12:] if not a.report.converged]
+    inc = np.array([a.lam_to - a.lam_from for a in tail if a.report.history])
+    first = np.array([a.report.history[0] for a in tail if a.report.history])
+    text = (f"{len(tail)} of the last {min(12, len(attempts))} increments failed (last from load {lam0:.6g}), the smallest {inc.min() if inc.size else 0:.3g} "
+            f"({tail[-1].report.reason})")
+    ok = (inc > 0) & (first > 0) & np.isfinite(first)
+    if ok.sum() >= 3 and np.ptp(np.log(inc[ok])) > 0.5:
+        k = float(np.polyfit(np.log(inc[ok]), np.log(first[ok]), 1)[0])
+        text += (f"; the first Newton decrement falls like (increment)^{k:.1f} when the increment is cut "
+                 f"(a smooth path gives ~4 with the tangent predictor)")
+        if k < 2.5:
+            text += (": the solution path is not smooth here (limit point or bifurcation in the load, or a "
+                     "locking discretization)")
+    return text
