@@ -56,6 +56,8 @@ class FreeBlockSolver:
         self.rows, self.cols = newid[rows[keep]], newid[K.indices[keep]]
         self.nf = len(self.free)
         self.Kff: sp.csr_matrix | None = None
+        self.shifted = False  # the last factorization was of K_ff + diag(shift)
+        self.n_factor = 0  # factorizations made (statistics)
         self._lu = None
         if backend != "splu":
             from ngsolve.la import SparseMatrixd
@@ -79,6 +81,8 @@ class FreeBlockSolver:
     def factor(self, K: sp.csr_matrix, shift: np.ndarray | None = None) -> None:
         """Factorize K_ff (+ diag(shift) when given)."""
         vals = K.data[self.sel]
+        self.n_factor += 1
+        self.shifted = shift is not None
         if shift is not None:
             vals = vals.copy()
             vals[self.rows == self.cols] += shift

@@ -40,6 +40,9 @@ from .linsolve import FreeBlockSolver, LinearSolverError
 log = logging.getLogger(__name__)
 
 
+_QUADRATIC = True
+
+
 class Problem(Protocol):
     n_dofs: int
     fixed: np.ndarray
@@ -113,7 +116,8 @@ class _StepFailed(Exception):
 
 
 def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
-           max_iterations: int | None = None, line_search: bool = False, fail_fast: bool = True
+           max_iterations: int | None = None, line_search: bool = False, fail_fast: bool = True,
+           out: dict[str, Any] | None = None
            ) -> tuple[np.ndarray, int, list[tuple[float, float, float]], int]:
     """Minimize the energy over the free dofs from u (prescribed dofs as given).
 
@@ -126,7 +130,10 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
 
     Returns
     -------
-    u, iterations, history [(E, |r|_inf, decrement)], number of iterations with a shifted tangent
+    u, iterations, history [(E, |r|_inf, decrement)], number of iterations with a shifted tangent;
+    ``out["K"]`` (when ``out`` is given): the tangent of the last iteration, factorized in ``lin``
+    (``lin.shifted`` says whether with a shift). At convergence the last update is below the
+    tolerance (|r . du| <= rtol |E|), so that factorization serves as the converged tangent.
     """
     free = lin.free
     u = u.copy()
@@ -134,6 +141,8 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
     shifted = 0
     for it in range(1, (max_iterations or ctl.max_iterations) + 1):
         E, g, K = problem.evaluate(u, True)
+        if out is not None:
+            out["K"] = K
         r = g[free]
         if not (np.isfinite(E) and np.all(np.isfinite(r))):
             raise _StepFailed("energy or residual not finite", hist)
@@ -176,8 +185,84 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
     raise _StepFailed(f"no convergence in {max_iterations or ctl.max_iterations} iterations", hist)
 
 
-def lowest_eigenvalues(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenpairs of K_ff v = lambda D v nearest to 0, D = diag(K_ff), using the current factorization."""
+def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = None, tol: float = 1e-3,
+                       max_expansions: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenpairs of K_ff v = lambda D v nearest to 0, D = diag(K_ff), using the current factorization.
+
+    Block shift-invert Lanczos (sigma = 0) with full reorthogonalization, started from ``X0``
+    (the modes of the previous load step: they change little from step to step, so that one or
+    two expansions usually suffice) or from (1, ..., 1) and a fixed random vector. In the
+    scaled variables y = D^(1/2) v the problem is A y = lambda y with A = D^(-1/2) K_ff D^(-1/2);
+    each expansion applies A^(-1) (one solve with the factorization) to the current Ritz
+    vectors. Converged when the pair nearest to 0 has a residual |A y - theta y| <= tol |theta|
+    (|y| = 1): an eigenvalue then lies within tol |theta| of theta, so that its sign is certain,
+    and the Ritz value itself is accurate to ~tol^2 |theta| relative (the other k - 1 pairs are
+    Ritz approximations: they serve as the start block of the next check; eigenvalues 2 and 3
+    of the BET networks can lie within 2 % of each other, where resolving them would cost
+    dozens of solves).
+    Falls back to ARPACK (``eigsh`` in shift-invert mode) if that does not happen within
+    ``max_expansions``.
+
+    Returns
+    -------
+    lam (k,) ascending, V (n_free, k): D-normalized modes
+    """
+    Kff = lin.Kff
+    assert Kff is not None
+    n = Kff.shape[0]
+    k = min(k, n - 2)
+    s = np.sqrt(np.abs(Kff.diagonal()))
+    s[s == 0] = 1.0
+
+    def A(Y: np.ndarray) -> np.ndarray:
+        return (Kff @ (Y / s[:, None])) / s[:, None]
+
+    def Ainv(Y: np.ndarray) -> np.ndarray:
+        return np.column_stack([s * lin.solve(s * Y[:, j]) for j in range(Y.shape[1])])
+
+    def orth(W: np.ndarray, Q: np.ndarray) -> np.ndarray:
+        for _ in range(2):  # classical Gram-Schmidt, twice
+            if Q.shape[1]:
+                W = W - Q @ (Q.T @ W)
+            nrm = np.linalg.norm(W, axis=0)
+            W = W[:, nrm > 1e-10 * max(nrm.max(initial=0.0), 1e-300)]
+            if W.shape[1] == 0:
+                return W
+            W, Rw = np.linalg.qr(W)
+            W = W[:, np.abs(np.diag(Rw)) > 1e-12 * np.abs(Rw).max()]
+        return W
+
+    if X0 is not None and X0.ndim == 2 and X0.shape[0] == n and X0.shape[1] >= 1:
+        Y = X0[:, :k] * s[:, None]
+        if Y.shape[1] < k:
+            Y = np.column_stack([Y, np.random.default_rng(0).standard_normal((n, k - Y.shape[1]))])
+    else:
+        Y = np.column_stack([np.ones(n)] + [np.random.default_rng(j).standard_normal(n) for j in range(k - 1)])
+    Q = orth(Y, np.zeros((n, 0)))
+    AQ = A(Q)
+    for _ in range(max_expansions):
+        H = Q.T @ AQ
+        th, C = np.linalg.eigh(0.5 * (H + H.T))
+        idx = np.argsort(np.abs(th))[:k]
+        th, C = th[idx], C[:, idx]
+        Yr, AYr = Q @ C, AQ @ C
+        res = np.linalg.norm(AYr - Yr * th, axis=0)
+        if Yr.shape[1] == k and res[0] <= tol * abs(th[0]) + 1e-14:
+            order = np.argsort(th)
+            return th[order], (Yr / s[:, None])[:, order]
+        W = orth(Ainv(Yr), Q)
+        if W.shape[1] == 0:
+            break
+        if Q.shape[1] + W.shape[1] > 60:  # restart with the Ritz vectors
+            Q, AQ = Yr, AYr
+            W = orth(W, Q)
+        Q, AQ = np.column_stack([Q, W]), np.column_stack([AQ, A(W)])
+    log.info("block Lanczos did not converge; falling back to ARPACK")
+    return _lowest_eigenvalues_arpack(lin, k)
+
+
+def _lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The same eigenpairs by ARPACK in shift-invert mode (20+ solves: the slow reference)."""
     Kff = lin.Kff
     assert Kff is not None
     n = Kff.shape[0]
@@ -190,14 +275,15 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray, np.nda
     return lam[order], V[:, order]
 
 
-def _check_stability(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl
-                     ) -> tuple[float, np.ndarray | None]:
+def _check_stability(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
+                     X0: np.ndarray | None = None) -> tuple[float, np.ndarray | None, np.ndarray | None]:
+    """lambda_min, its mode and all computed modes (the start block of the next check)."""
     try:
-        lam, V = lowest_eigenvalues(lin, ctl.n_eigs)
-    except (spla.ArpackNoConvergence, spla.ArpackError, LinearSolverError) as exc:
+        lam, V = lowest_eigenvalues(lin, ctl.n_eigs, X0)
+    except (spla.ArpackNoConvergence, spla.ArpackError, LinearSolverError, np.linalg.LinAlgError) as exc:
         log.warning("stability check failed (%s): state not classified", exc)
-        return float("nan"), None
-    return float(lam[0]), V[:, 0]
+        return float("nan"), None, None
+    return float(lam[0]), V[:, 0], V
 
 
 def solve_path(problem: Problem, ctl: StepControl,
@@ -218,13 +304,20 @@ def solve_path(problem: Problem, ctl: StepControl,
     u = np.zeros(n)
     free_mask = ~problem.fixed
     E, g, K = problem.evaluate(u, True)
+    # two factorizations of the same pattern: ``lin`` holds the tangent at the converged state
+    # (predictor, stability check, restart after a failed or cut step: no refactorization),
+    # ``work`` the Newton iterations; they swap roles when a step is accepted
     lin = FreeBlockSolver(K, free_mask, ctl.backend)
+    work = FreeBlockSolver(K, free_mask, ctl.backend)
     free = lin.free
     lin.factor(K)
+    modes: np.ndarray | None = None  # modes of the last stability check: start block of the next
+    tangent: np.ndarray | None = None  # du/du0 at the converged state
+    tangent_prev: tuple[np.ndarray, float] | None = None  # du/du0 at the state before, and the step between
     u0, h, step = 0.0, min(ctl.first_step, ctl.u0_final), 0
     stats: dict[str, Any] = {"newton_iterations": 0, "failed_steps": 0, "snap_events": [],
                              "unstable_states": 0, "shifted_iterations": 0, "t_stability_s": 0.0,
-                             "lambda_min": []}
+                             "lambda_min": [], "factorizations": 0}
     last_hist: list[tuple[float, float, float]] = []
     while u0 < ctl.u0_final * (1 - 1e-12):
         h_free = h
@@ -237,14 +330,19 @@ def solve_path(problem: Problem, ctl: StepControl,
         trial = u.copy()
         dc = h * problem.load
         if ctl.predictor == "tangent":
-            trial[problem.fixed] += dc[problem.fixed]
-            rhs = (K @ dc)[free]  # K and lin hold the tangent at the converged state u
-            trial[free] -= lin.solve(rhs)
+            if tangent is None:  # du/du0 at the converged state u (K and lin hold its tangent)
+                tangent = problem.load.copy()
+                tangent[free] = -lin.solve((K @ problem.load)[free])
+            trial += h * tangent
+            if tangent_prev is not None and _QUADRATIC:
+                # second-order term from the change of du/du0 over the last step (Hermite)
+                trial[free] += 0.5 * h * h * (tangent[free] - tangent_prev[0][free]) / tangent_prev[1]
         else:
             trial += h * problem.ramp
             trial[problem.fixed] = u[problem.fixed] + dc[problem.fixed]
+        nout: dict[str, Any] = {}
         try:
-            unew, its, hist, shifted = newton(problem, trial, lin, ctl)
+            unew, its, hist, shifted = newton(problem, trial, work, ctl, out=nout)
         except _StepFailed as exc:
             stats["failed_steps"] += 1
             log.info("step u0 %.5g -> %.5g failed (%s)", u0, u0 + h, exc)
@@ -254,15 +352,13 @@ def solve_path(problem: Problem, ctl: StepControl,
                 # point); let a damped Newton (shifted where indefinite) run long enough to reach
                 # the branch it snaps to
                 try:
-                    relaxed = newton(problem, trial, lin, ctl, max_iterations=4 * ctl.max_iterations,
-                                     line_search=True, fail_fast=False)
+                    relaxed = newton(problem, trial, work, ctl, max_iterations=4 * ctl.max_iterations,
+                                     line_search=True, fail_fast=False, out=nout)
                 except _StepFailed as exc2:
                     last_hist = exc2.history
                     log.info("relaxation u0 %.5g -> %.5g failed (%s)", u0, u0 + h, exc2)
             if relaxed is None:
-                # restore the tangent at the converged state for the next predictor
-                E, g, K = problem.evaluate(u, True)
-                lin.factor(K)
+                # ``lin`` still holds the tangent at the converged state for the next predictor
                 if h * ctl.cut < ctl.min_step * (1 - 1e-9):
                     stats["u"] = u
                     raise ConvergenceError(
@@ -273,39 +369,49 @@ def solve_path(problem: Problem, ctl: StepControl,
             unew, its, hist, shifted = relaxed
             its += len(exc.history)
             shifted = max(shifted, 1)  # the state left its branch
-        E_new, g_new, K_new = problem.evaluate(unew, True)
+        E_new, g_new, _ = problem.evaluate(unew, False)
         # envelope theorem: on a continuous branch dE/du0 = load . g, so the trapezoidal work of the
         # clamp equals the energy change up to O(h^3); energy released beyond that is a snap-through
-        work = 0.5 * h * float(problem.load @ g + problem.load @ g_new)
-        released = work - (E_new - E)
-        jumped = released > ctl.snap_release * abs(work) or shifted > 0
+        work_ = 0.5 * h * float(problem.load @ g + problem.load @ g_new)
+        released = work_ - (E_new - E)
+        jumped = released > ctl.snap_release * abs(work_) or shifted > 0
         if jumped and h > ctl.snap_bracket * (1 + 1e-9):
             stats["snap_bracketing"] = stats.get("snap_bracketing", 0) + 1
             log.info("step u0 %.5g -> %.5g released %.3g J of %.3g J work (indefinite iterations: %d): "
-                     "cutting to bracket the snap", u0, u0 + h, released, work, shifted)
-            lin.factor(K)
+                     "cutting to bracket the snap", u0, u0 + h, released, work_, shifted)
             h = max(h * ctl.cut, ctl.snap_bracket)
             continue
+        # the tangent of the last Newton iteration is the converged one up to the last update
+        # (below the tolerance); refactorize only if that iteration needed a shift
+        K_new = nout["K"]
+        if work.shifted:
+            K_new = problem.evaluate(unew, True)[2]
+            work.factor(K_new)
+        lin, work = work, lin
+        tangent_prev = (tangent, h) if (tangent is not None and not jumped) else None
+        tangent = None
         stats["newton_iterations"] += its
         stats["shifted_iterations"] += shifted
         u, E, g, K = unew, E_new, g_new, K_new
         u0 += h
         step += 1
-        lin.factor(K)
         lam = float("nan")
         snap = bool(jumped)
         if snap:
             log.warning("step %d, u0 %.5g -> %.5g mm: snap-through, %.3g J released (%.0f %% of the clamp "
                         "work), indefinite iterations %d", step, (u0 - h) * 1e3, u0 * 1e3, released,
-                        100 * released / work if work else float("nan"), shifted)
+                        100 * released / work_ if work_ else float("nan"), shifted)
             stats["snap_events"].append({"u0": u0, "u0_before": u0 - h, "kind": "snap_through", "step": step,
-                                         "released_J": released, "work_J": work, "indefinite_iterations": shifted})
+                                         "released_J": released, "work_J": work_, "indefinite_iterations": shifted})
         if ctl.stability:
             ts = time.perf_counter()
-            lam, v = _check_stability(problem, u, lin, ctl)
+            lam, v, V = _check_stability(problem, u, lin, ctl, modes)
+            modes = V if V is not None else None
             if lam < -1e-9 and v is not None:
                 stats["unstable_states"] += 1
-                u, E, g, K, lam2 = _escape(problem, u, E, v, lin, ctl)
+                u, E, g, K, lam2, modes = _escape(problem, u, E, v, work, ctl, np.abs(lin.Kff.diagonal()))
+                lin, work = work, lin  # _escape left the tangent of the final state in ``work``
+                tangent_prev = None
                 stats["snap_events"].append({"u0": u0, "kind": "unstable_equilibrium", "step": step,
                                              "lambda_min": lam, "lambda_min_after": lam2})
                 log.warning("step %d, u0 = %.5g: unstable equilibrium (lambda_min = %.3g); relaxed to "
@@ -326,14 +432,18 @@ def solve_path(problem: Problem, ctl: StepControl,
     stats["steps"] = step
     stats["backend"] = lin.backend
     stats["n_free"] = len(free)
+    stats["factorizations"] = lin.n_factor + work.n_factor
     return stats
 
 
-def _escape(problem: Problem, u: np.ndarray, E: float, v: np.ndarray, lin: FreeBlockSolver, ctl: StepControl
-            ) -> tuple[np.ndarray, float, np.ndarray, sp.csr_matrix, float]:
-    """Leave an unstable equilibrium along its unstable mode v (both signs); keep the lower stable state."""
+def _escape(problem: Problem, u: np.ndarray, E: float, v: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
+            diag: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, sp.csr_matrix, float, np.ndarray | None]:
+    """Leave an unstable equilibrium along its unstable mode v (both signs); keep the lower stable state.
+
+    ``lin`` is a solver whose factorization may be overwritten; it holds the tangent at the
+    returned state on return. ``diag``: |diag K_ff| at u (the metric of v).
+    """
     free = lin.free
-    diag = np.abs(lin.Kff.diagonal())
     # a kick whose quadratic energy is 1e-3 |E|: large enough to leave the saddle, small on the whole
     amp = np.sqrt(2e-3 * max(abs(E), 1e-30) / max(float(v @ (diag * v)), 1e-300))
     best = None
@@ -351,5 +461,5 @@ def _escape(problem: Problem, u: np.ndarray, E: float, v: np.ndarray, lin: FreeB
         u = best[0]
     E, g, K = problem.evaluate(u, True)
     lin.factor(K)
-    lam2, _ = _check_stability(problem, u, lin, ctl)
-    return u, E, g, K, lam2
+    lam2, _, V = _check_stability(problem, u, lin, ctl)
+    return u, E, g, K, lam2, V
