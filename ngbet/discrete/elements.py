@@ -100,14 +100,14 @@ def beam(ue: np.ndarray, Xe: np.ndarray, EA: np.ndarray, EI: np.ndarray, hessian
     B[:, 0, 0:2], B[:, 0, 3:5] = -e, e
     B[:, 1, 0:2], B[:, 1, 3:5], B[:, 1, 2] = g, -g, 1.0  # theta_1 = theta_a - beta
     B[:, 2, 0:2], B[:, 2, 3:5], B[:, 2, 5] = g, -g, 1.0
-    grad = np.einsum("nqi,nq->ni", B, np.column_stack([N, M1, M2]))
+    grad = N[:, None] * B[:, 0] + M1[:, None] * B[:, 1] + M2[:, None] * B[:, 2]
     if not hessian:
         return psi, grad, None
-    Dq = np.zeros((n, 3, 3))
-    Dq[:, 0, 0] = EA / L0
-    Dq[:, 1, 1] = Dq[:, 2, 2] = 2 * kb
-    Dq[:, 1, 2] = Dq[:, 2, 1] = kb
-    H = np.einsum("nqi,nqr,nrj->nij", B, Dq, B)
+    # B^T Dq B with Dq = [[EA/L0, 0, 0], [0, 2kb, kb], [0, kb, 2kb]], written out (batched 3x6 products)
+    b0, b1, b2 = B[:, 0], B[:, 1], B[:, 2]
+    H = ((EA / L0)[:, None, None] * b0[:, :, None] * b0[:, None, :]
+         + kb[:, None, None] * (2 * b1[:, :, None] * b1[:, None, :] + 2 * b2[:, :, None] * b2[:, None, :]
+                                + b1[:, :, None] * b2[:, None, :] + b2[:, :, None] * b1[:, None, :]))
     Hl, Hb = _d2l_d2beta(e, l)
     Hd = N[:, None, None] * Hl - (M1 + M2)[:, None, None] * Hb
     H[:, 0:2, 0:2] += Hd
