@@ -42,6 +42,9 @@ class Pattern:
         cols = np.concatenate([np.tile(d, (1, d.shape[1])).ravel() for d in dof_tables])
         key = rows.astype(np.int64) * n + cols
         uniq, self.map = np.unique(key, return_inverse=True)
+        sizes = [d.shape[0] * d.shape[1] ** 2 for d in dof_tables]
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        self._index: dict[tuple[bool, ...], np.ndarray] = {}  # entries of the non-constant tables
         self.n = n
         self.nnz = len(uniq)
         r, c = uniq // n, uniq % n
@@ -49,11 +52,27 @@ class Pattern:
         self.indices = c.astype(np.int64)
         self.rows = r
 
-    def matrix(self, element_matrices: list[np.ndarray]) -> sp.csr_matrix:
-        """Sum the element matrices (same order as the dof tables) into a CSR matrix."""
-        vals = np.concatenate([H.reshape(-1) for H in element_matrices])
-        data = np.bincount(self.map, weights=vals, minlength=self.nnz)
+    def matrix(self, element_matrices: list[np.ndarray | None], const: np.ndarray | None = None) -> sp.csr_matrix:
+        """Sum the element matrices (same order as the dof tables; None: a table whose sum is in
+        ``const``, the CSR values of the constant part) into a CSR matrix."""
+        key = tuple(H is not None for H in element_matrices)
+        if key not in self._index:
+            self._index[key] = np.concatenate([self.map[self.offsets[i]:self.offsets[i + 1]]
+                                               for i, k in enumerate(key) if k])
+        vals = np.concatenate([H.reshape(-1) for H in element_matrices if H is not None])
+        data = np.bincount(self._index[key], weights=vals, minlength=self.nnz)
+        if const is not None:
+            data += const
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+
+    def constant_part(self, element_matrices: list[np.ndarray | None]) -> np.ndarray:
+        """CSR values of the sum of the given element matrices (None: left out)."""
+        data = np.zeros(self.nnz)
+        for i, H in enumerate(element_matrices):
+            if H is not None:
+                data += np.bincount(self.map[self.offsets[i]:self.offsets[i + 1]], weights=np.ravel(H),
+                                    minlength=self.nnz)
+        return data
 
 
 class NetworkModel:
@@ -102,6 +121,11 @@ class NetworkModel:
             kt = np.full(len(t), float(K_inter))
             self.groups.append(Group("inter", d, lambda ue, h, Xt=Xt, kt=kt: el.truss(ue, Xt, kt, h)))
         self.pattern = Pattern([g.dofs for g in self.groups], self.n_dofs)
+        # the springs' Hessians do not depend on u: summed once (speed only; same matrix)
+        self._const_groups = {"slip", "shear_springs"}
+        zero = np.zeros(self.n_dofs)
+        self._const_data = self.pattern.constant_part(
+            [grp.kernel(zero[grp.dofs], True)[2] if grp.name in self._const_groups else None for grp in self.groups])
         self.stiffness = dict(EA1=EA1, EA2=EA2, EI1=EI1, EI2=EI2, K_phi=K_phi, K_slip=K_slip, K_inter=K_inter)
         self.end_rotation = end_rotation
 
@@ -135,8 +159,8 @@ class NetworkModel:
             E += float(psi.sum())
             _scatter_add(g, grp.dofs, ge)
             if hessian:
-                Hs.append(He)
-        return E, g, (self.pattern.matrix(Hs) if hessian else None)
+                Hs.append(None if grp.name in self._const_groups else He)
+        return E, g, (self.pattern.matrix(Hs, self._const_data) if hessian else None)
 
     def energy(self, u: np.ndarray) -> float:
         """Total energy E(u) [J]."""
