@@ -8,7 +8,8 @@ Sanity of a converged run (``_assert_sane``):
   (|i8| ≈ 0.8 at the centre at 56 mm), unless the penalty is deliberately soft. With the default
   multiplier Λ ∈ L2(P0) (p = 2) φ = i8 holds in the element mean only, the rest is a
   discretization error O(h): RMS 0.027 at h = 10 mm, 0.049 at h = 20 mm (measured);
-- Newton needs few iterations per step on average (the issue's target is ≤ 5).
+- Newton needs few iterations per step on average (the issue's target is ≤ 5);
+- the multiplier does not oscillate from element to element (indicator of ngbet.observables).
 
 Fast cases run on a 10-20 mm mesh in seconds; the expensive ones are marked ``slow``
 (``python -m pytest -m slow tests/test_hard_cases.py``).
@@ -29,14 +30,20 @@ F56_LAGRANGE_H10 = 111.849
 
 
 def _run(tmp_path, tag, **changes):
+    """Run a coarse variant on one thread (on a shared 2-core machine TaskManager threads wait
+    for a core: one thread is 2-4x faster in wall time there, see bench/README.md)."""
     out = tmp_path / tag
-    summary = run(coarse(**changes), out)
+    summary = run(coarse(**{"solver.threads": 1, **changes}), out)
     prof = read_profiles(out / "profile.csv") if (out / "profile.csv").exists() else {}
     return summary, read_rows(out / "results.csv"), prof
 
 
-def _assert_sane(summary, rows, u0_mm, constraint_rms=0.05, its_per_step=5.0):
+def _assert_sane(summary, rows, u0_mm, constraint_rms=0.05, its_per_step=5.0, oscillation=0.5):
     assert summary["status"] == "ok"
+    if oscillation is not None and summary.get("multiplier_oscillation") is not None:
+        # no oscillating multiplier: the default pair measures ~0.1 at h = 10 mm, an unstable pair
+        # ~0.85 (ngbet.observables.multiplier_oscillation)
+        assert summary["multiplier_oscillation"] < oscillation
     assert math.isclose(rows[-1]["u0_mm"], u0_mm, rel_tol=1e-12)
     F = np.array([r["force_N"] for r in rows])
     assert np.all(np.isfinite(F)) and F[0] > 0
@@ -99,7 +106,9 @@ def test_full_penalty_moderate_K(tmp_path, K):
     """Full (pointwise) penalty up to K = 1e8 Pa: converges (a few cuts at 1e8), sane."""
     s, rows, _ = _run(tmp_path, "full", **{"effects.constraint": "penalty", "effects.penalty_form": "full",
                                             "effects.penalty_K": K})
-    _assert_sane(s, rows, 56.0, constraint_rms=0.5 if K < 1e6 else 0.05, its_per_step=6.0)
+    # its multiplier K(φ − i8) is that of the pointwise constraint, an unstable pair: it oscillates
+    # (indicator 0.95 at K = 1e8, measured), the force does not; prefer the mixed form
+    _assert_sane(s, rows, 56.0, constraint_rms=0.5 if K < 1e6 else 0.05, its_per_step=6.0, oscillation=None)
 
 
 def test_full_penalty_huge_K_converges_without_cuts(tmp_path):
@@ -110,7 +119,7 @@ def test_full_penalty_huge_K_converges_without_cuts(tmp_path):
     above the Lagrange one (measured 123.0 N, +10 %: locking that grows with K)."""
     s, rows, _ = _run(tmp_path, "full", **{"effects.constraint": "penalty", "effects.penalty_form": "full",
                                             "effects.penalty_K": 1e10})
-    F = _assert_sane(s, rows, 56.0)
+    F = _assert_sane(s, rows, 56.0, oscillation=None)  # pointwise multiplier oscillates (1.0 measured)
     assert s["step_cuts"] == 0
     assert F56_LAGRANGE_H10 < F[-1] < 1.2 * F56_LAGRANGE_H10
 
@@ -148,7 +157,6 @@ def _assert_stops_with_lost_stability(err, from_mm):
     assert f"{err.last_converged:.6g}" in str(err)
 
 
-@pytest.mark.slow
 def test_thin_yarns_without_bending_stiffness_lose_stability(tmp_path):
     """α2 = 0 (thin yarns without bending stiffness), default multiplier Λ ∈ L2(P0): the path
     loses stability before 56 mm (negative eigenvalue of the tangent at 54.8 mm on this mesh,
@@ -166,7 +174,7 @@ def test_thin_yarns_without_bending_stiffness_with_p1_multiplier(tmp_path):
     """α2 = 0 with Λ ∈ L2(P1) (the constraint φ = i8 enforced more strongly, the thick yarns'
     bending regularizes): converges to 56 mm, softer than Table 1."""
     s, rows, _ = _run(tmp_path, "a2", **{"material.alpha2": 0.0, "discretization.order_lam": 1})
-    F = _assert_sane(s, rows, 56.0)
+    F = _assert_sane(s, rows, 56.0, oscillation=None)  # the P1 multiplier oscillates (test_continuum)
     assert F[-1] < F56_LAGRANGE_H10
 
 
@@ -194,7 +202,6 @@ def test_vanishing_thick_yarn_bending(tmp_path, alpha1):
 
 
 # ------------------------------------------------------------------------------ yarn stiffness
-@pytest.mark.slow
 def test_stiff_yarns_K_el_1e7_lose_stability(tmp_path):
     """K_el = 1e7 Pa (14 x Table 1), default multiplier: stability lost at 53.9 mm on this mesh
     (51.0 mm at h = 5 mm), refused clearly; with Λ ∈ L2(P1) it converges (next test)."""
@@ -206,11 +213,10 @@ def test_stiff_yarns_K_el_1e7_lose_stability(tmp_path):
 def test_stiff_yarns_K_el_1e7_with_p1_multiplier(tmp_path):
     """K_el = 1e7 Pa, Λ ∈ L2(P1): converges to 56 mm, much stiffer than Table 1 (316 N measured)."""
     s, rows, _ = _run(tmp_path, "kel7", **{"material.K_el": 1e7, "discretization.order_lam": 1})
-    F = _assert_sane(s, rows, 56.0)
+    F = _assert_sane(s, rows, 56.0, oscillation=None)  # the P1 multiplier oscillates (test_continuum)
     assert F[-1] > 2 * F56_LAGRANGE_H10
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("K_el,reach_mm", [(1e8, 52.0), (1e9, 50.0)])
 def test_nearly_inextensible_yarns_stop_with_a_diagnosis(tmp_path, K_el, reach_mm):
     """K_el = 1e8, 1e9 Pa: the run goes past 50 mm, then no increment converges however small
@@ -235,7 +241,8 @@ def test_polynomial_orders_on_a_coarse_mesh(tmp_path, p):
     s, rows, _ = _run(tmp_path, f"p{p}", **{"discretization.order_u": p, "discretization.mesh_size_mm": 20.0})
     # φ − i8 is orthogonal to Λ's space L2(max(p − 2, 0)) only: its RMS is a discretization error,
     # ~0.04-0.05 for p ≤ 3 on 20 mm elements
-    F = _assert_sane(s, rows, 56.0, constraint_rms=0.1)
+    # p = 1 locks and its P0 multiplier oscillates (0.85 measured): use p ≥ 2
+    F = _assert_sane(s, rows, 56.0, constraint_rms=0.1, oscillation=None if p == 1 else 0.5)
     if p >= 2:
         assert abs(F[-1] - F56_LAGRANGE_H10) < 0.15 * F56_LAGRANGE_H10
 
@@ -254,7 +261,7 @@ def test_fine_meshes(tmp_path, h):
     """h = 2.5 and 1.5 mm (p = 2): converge with the same stepping; the force converges."""
     s, rows, _ = _run(tmp_path, f"h{h}", **{"discretization.mesh_size_mm": h, "outputs.profile": False})
     F = _assert_sane(s, rows, 56.0)
-    assert abs(F[-1] - 109.82) < 0.02 * 109.82  # N: the 5 mm mesh's force
+    assert abs(F[-1] - 109.451) < 0.02 * 109.451  # N: the 5 mm mesh's force (bench, default case)
 
 
 # ------------------------------------------------------------------------------ other yarn angles
