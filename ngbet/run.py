@@ -35,14 +35,14 @@ def run(scene: Scene, out: str | Path, progress: bool = False) -> dict[str, Any]
         when the load cannot be carried to the end; every converged step is on disk by then,
         and summary.json says ``"status": "failed"`` with the error.
     """
-    if scene.model == "discrete":
-        from . import discrete
-
-        return discrete.run(scene, out, progress=progress)
     threads = scene.solver.threads or None
     if threads:
         ngs.SetNumThreads(threads)
-    with ngs.TaskManager():
+    with ngs.TaskManager():  # NGSolve's assembly and sparse factorizations run in its threads
+        if scene.model == "discrete":
+            from . import discrete
+
+            return discrete.run(scene, out, progress=progress)
         return _run_continuum(scene, Path(out), progress)
 
 
