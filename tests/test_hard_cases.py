@@ -191,7 +191,7 @@ def test_balanced_bending_has_no_s_shape_and_is_softer(tmp_path):
     assert _odd_defect(prof[37.0]) < 1e-6
 
 
-@pytest.mark.parametrize("alpha1", [0.0, pytest.param(1e-3, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("alpha1", [0.0, 1e-3])
 def test_vanishing_thick_yarn_bending(tmp_path, alpha1):
     """α1 → 0 (α2 = 20 Pa m² keeps the problem well posed): converges, and α1 = 0 and 1e-3 give
     the same force to 1e-2 N (continuity of the limit)."""
@@ -234,7 +234,7 @@ def test_nearly_inextensible_yarns_stop_with_a_diagnosis(tmp_path, K_el, reach_m
 
 
 # ------------------------------------------------------------------------------ discretization
-@pytest.mark.parametrize("p", [1, pytest.param(2, marks=pytest.mark.slow), 3, pytest.param(4, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("p", [1, 2, 3, 4])
 def test_polynomial_orders_on_a_coarse_mesh(tmp_path, p):
     """p = 1..4 on a 20 mm mesh: converge and agree with the 10 mm reference within the
     discretization error (p = 1 locks: ~50 % stiffer; p ≥ 2 within 15 %)."""
@@ -247,7 +247,6 @@ def test_polynomial_orders_on_a_coarse_mesh(tmp_path, p):
         assert abs(F[-1] - F56_LAGRANGE_H10) < 0.15 * F56_LAGRANGE_H10
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("p", [5, 6])
 def test_high_polynomial_orders_on_a_coarse_mesh(tmp_path, p):
     s, rows, _ = _run(tmp_path, f"p{p}", **{"discretization.order_u": p, "discretization.mesh_size_mm": 20.0})
