@@ -43,7 +43,7 @@ def centre_shear_angle_deg(problem: ContinuumProblem) -> float:
     """γ at the specimen centre [deg] (zone A of ideal BET kinematics)."""
     sp = problem.scene.specimen
     inv = problem.invariants()
-    g = physics.shear_angle(inv.i4, inv.i6, inv.i8)
+    g = physics.shear_angle(inv.i4, inv.i6, inv.i8, problem.scene.specimen.cos0)
     return math.degrees(float(g(problem.mesh(0.5 * sp.L, 0.5 * sp.W))))
 
 
@@ -85,9 +85,10 @@ def field_functions(problem: ContinuumProblem, wanted: tuple[str, ...]) -> dict[
     inv = problem.invariants()
     out: dict[str, Any] = {"displacement": problem.u}
     if "shear_angle" in wanted:
-        gamma = physics.shear_angle(inv.i4, inv.i6, inv.i8)
+        gamma = physics.shear_angle(inv.i4, inv.i6, inv.i8, problem.scene.specimen.cos0)
         out["shear_angle_deg"] = gamma * (180.0 / math.pi)
-        out["yarn_angle_deg"] = 90.0 - gamma * (180.0 / math.pi)  # acute angle between the yarns as lines
+        theta = math.degrees(math.acos(problem.scene.specimen.cos0)) + gamma * (180.0 / math.pi)
+        out["yarn_angle_deg"] = ngs.IfPos(theta - 90.0, 180.0 - theta, theta)  # acute angle between the yarns as lines
     if "elongation" in wanted:
         out["elongation_1"] = ngs.sqrt(inv.i4) - 1
         out["elongation_2"] = ngs.sqrt(inv.i6) - 1

@@ -18,6 +18,8 @@ The paper prints W_b = ½⟨α, ∇φ⟩², which drops the squares; MODEL.md fi
 
 from __future__ import annotations
 
+import math
+
 from typing import NamedTuple
 
 import ngsolve as ngs
@@ -32,11 +34,16 @@ class Invariants(NamedTuple):
 
 
 def invariants(grad_u: CF, m1: CF, m2: CF) -> Invariants:
-    """F = I + ∇u and the yarn invariants i4, i6 (squared stretches) and i8 (angle variation)."""
+    """F = I + ∇u and the yarn invariants i4, i6 (squared stretches) and i8 (angle variation).
+
+    i8 = m1·C·m2 − m1·m2 is measured from the rest state, so that it is 0 at rest for any yarn
+    angle (MODEL.md §2); for the orthogonal yarns of the paper (±45°) m1·m2 = 0 and nothing changes.
+    """
     F = ngs.Id(2) + grad_u
     Fm1 = F * m1
     Fm2 = F * m2
-    return Invariants(F, ngs.InnerProduct(Fm1, Fm1), ngs.InnerProduct(Fm2, Fm2), ngs.InnerProduct(Fm1, Fm2))
+    i8 = ngs.InnerProduct(Fm1, Fm2) - ngs.InnerProduct(m1, m2)
+    return Invariants(F, ngs.InnerProduct(Fm1, Fm1), ngs.InnerProduct(Fm2, Fm2), i8)
 
 
 def shear_energy(i8: CF, K_sh: float) -> CF:
@@ -72,7 +79,15 @@ def mixed_penalty_constraint(phi: CF, i8: CF, lam: CF, K: float) -> CF:
     return lam * (phi - i8) - lam * lam / (2.0 * K)
 
 
-def shear_angle(i4: CF, i6: CF, i8: CF) -> CF:
-    """γ [rad]: the angle between the deformed yarn directions is 90° + γ (MODEL.md §4),
-    sin γ = −i8 / √(i4 i6)."""
-    return ngs.asin(-i8 / ngs.sqrt(i4 * i6))
+def shear_angle(i4: CF, i6: CF, i8: CF, cos0: float = 0.0) -> CF:
+    """γ [rad]: the angle between the deformed yarn directions is θ0 + γ, θ0 = acos(m1·m2) the
+    rest angle (MODEL.md §4: 90° + γ at ±45°, where sin γ = −i8 / √(i4 i6)).
+
+    ``cos0`` = m1·m2; i8 is measured from rest (:func:`invariants`), so cos θ = (i8 + cos0)/√(i4 i6).
+    """
+    if cos0 == 0.0:
+        return ngs.asin(-i8 / ngs.sqrt(i4 * i6))
+    c = (i8 + cos0) / ngs.sqrt(i4 * i6)
+    # θ − θ0 = asin(sin θ0 c0' − ...) is ill-conditioned near 0 and π; acos is fine for the open
+    # angles between yarns (θ between ~10° and ~170°)
+    return ngs.acos(ngs.IfPos(c - 1, 1, ngs.IfPos(-1 - c, -1, c))) - math.acos(cos0)

@@ -8,7 +8,7 @@ effects                    unknowns                            energy
 shear (+ elongation)       u ∈ VectorH1(p)                      W_sh + W_el (first gradient)
 + bending, lagrange        u, φ ∈ H1(p_φ), Λ ∈ L2(p − 2)         + W_b + Λ(φ − i8)
 + bending, penalty mixed   u, φ, Λ (condensed out)              + W_b + Λ(φ − i8) − Λ²/2K
-+ bending, penalty full    u, φ                                 + W_b + ½K(φ − i8)²
++ bending, penalty full    u, φ (+ Λ condensed, see below)      + W_b + ½K(φ − i8)²
 =========================  ==================================  ===============================
 
 The energy is written once, handed to ``Variation`` and compiled; NGSolve differentiates it for
@@ -24,6 +24,11 @@ the same force (Richardson limit 61.2 N for both pairs at p = 2). p = 1 locks (8
 Newton matrix is that of the mixed penalty with a very large K_aug (so that Λ can be condensed),
 while the residual stays the exact Lagrangian's: Newton then converges to the exact saddle point,
 the O(1/K_aug) Jacobian error only slows the last digits.
+
+The paper's pointwise penalty ("full") is solved, with ``condense``, in its mixed form
+Λ(φ − i8) − Λ²/2K with Λ ∈ L2 of the degree of φ − i8 itself (max(p_φ, 2p − 2) on affine
+triangles), condensed: the same discrete solution, since the L2 projection onto that space is
+the identity on φ − i8, but Newton linearizes around the iterate's Λ instead of K(φ − i8).
 
 Dirichlet data (MODEL.md §2): u = 0, φ = 0 on Σ1 (``left``); u = (u0, 0), φ = 0 on Σ2
 (``right``). The load parameter λ of the solver is u0 in metres.
@@ -60,11 +65,22 @@ class ContinuumProblem:
         sp, mat, eff, disc = scene.specimen, scene.material, scene.effects, scene.discretization
         self.mesh = mesh if mesh is not None else make_mesh(sp, disc)
         self.field_names = eff.fields
+        # The full penalty ½K(φ − i8)² is solved in its mixed form Λ(φ − i8) − Λ²/2K with Λ ∈ L2 of
+        # the order of φ − i8 itself (a polynomial of degree max(p_φ, 2p − 2) on affine triangles),
+        # Λ condensed: the same discrete solution (Π = identity on φ − i8), but Newton linearizes
+        # around the iterate's Λ instead of K(φ − i8), which the predictor makes huge for large K
+        # (issue 5: K = 1e10 took 24 step cuts pointwise, none in this form). condense = false
+        # keeps the pointwise form.
+        self.full_as_mixed = (eff.bending and eff.constraint == "penalty" and eff.penalty_form == "full"
+                              and scene.solver.condense)
+        p_lam = max(disc.p_phi, 2 * disc.p_u - 2) if self.full_as_mixed else disc.p_lam
+        if self.full_as_mixed:
+            self.field_names = ("u", "phi", "lam")
         spaces = [ngs.VectorH1(self.mesh, order=disc.p_u, dirichlet=dirichlet)]
         if "phi" in self.field_names:
             spaces.append(ngs.H1(self.mesh, order=disc.p_phi, dirichlet=dirichlet))
         if "lam" in self.field_names:
-            spaces.append(ngs.L2(self.mesh, order=disc.p_lam))
+            spaces.append(ngs.L2(self.mesh, order=p_lam))
         self.X = ngs.FESpace(spaces)
         self.m1, self.m2 = CF(sp.m1), CF(sp.m2)
         trial = self.X.TrialFunction()
@@ -82,7 +98,7 @@ class ContinuumProblem:
                 constraint = physics.lagrange_constraint(phi, inv.i8, trial[2])
                 self.K_aug = LAGRANGE_AUGMENTATION * self.K_ref
                 jac_constraint = physics.mixed_penalty_constraint(phi, inv.i8, trial[2], self.K_aug)
-            elif eff.penalty_form == "mixed":
+            elif eff.penalty_form == "mixed" or self.full_as_mixed:
                 constraint = physics.mixed_penalty_constraint(phi, inv.i8, trial[2], eff.penalty_K)
             else:
                 constraint = physics.penalty_constraint(phi, inv.i8, eff.penalty_K)

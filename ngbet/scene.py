@@ -122,6 +122,11 @@ class Specimen:
         a = math.radians(self.yarn_angle_deg)
         return (-math.cos(a), math.sin(a))
 
+    @property
+    def cos0(self) -> float:
+        """m1·m2 = −cos 2a: the cosine of the rest angle between the yarn directions (0 at ±45°)."""
+        return -math.cos(2 * math.radians(self.yarn_angle_deg))
+
     # ideal BET kinematics -----------------------------------------------------------------------
     @property
     def zone_a_length_mm(self) -> float:
@@ -166,7 +171,8 @@ class Effects:
     1/2 K (phi - i8)^2 (``"penalty"``, paper appendix A). ``penalty_form = "mixed"`` writes the
     penalty with Lambda as an element-local unknown (Lambda (phi - i8) - Lambda^2 / 2K) that is
     condensed out: it converges to the Lagrange solution like 1/K on the same mesh; ``"full"`` is
-    the paper's pointwise penalty, a pure minimization in (u, phi).
+    the paper's pointwise penalty (the same discrete solution as a minimization in (u, phi), solved
+    with a condensed Lambda of the degree of phi - i8 when ``solver.condense``; see ngbet.problem).
     """
 
     shear: bool = True  # 1/2 K_sh i8^2

@@ -225,3 +225,21 @@ def test_corner_grading_removes_most_of_the_discretization_error(tmp_path):
                                            "discretization.order_u": 3})[1][-1]["force_N"]
     assert abs(graded - ref) < abs(uniform - ref) / 5 and abs(uniform - ref) > 0.02 * ref, \
         f"uniform {uniform:.4f} N, graded {graded:.4f} N, reference {ref:.4f} N"
+
+
+@pytest.mark.parametrize("angle", [45.0, 30.0, 60.0])
+def test_shear_angle_is_zero_for_rigid_motion_and_exact_for_a_trellis(angle):
+    # rest state, rigid rotation: no shear; the homogeneous trellis that turns m1 by −5° and m2 by
+    # +5° shears by exactly 10° for any yarn angle (i8 is measured from the rest state)
+    scene = coarse(**{"specimen.yarn_angle_deg": angle, "discretization.mesh_size_mm": 20.0, "loading.u0_mm": 10.0,
+                      "loading.stops_mm": ()})
+    p = ContinuumProblem(scene)
+    c, s = math.cos(math.radians(10)), math.sin(math.radians(10))
+    p.u.Set(ngs.CF(((c - 1) * ngs.x - s * ngs.y, s * ngs.x + (c - 1) * ngs.y)))
+    assert abs(obs.centre_shear_angle_deg(p)) < 1e-9
+    m1, m2 = np.array(scene.specimen.m1), np.array(scene.specimen.m2)
+    rot = lambda t: np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]])  # noqa: E731
+    d = math.radians(5)
+    G = np.column_stack([rot(-d) @ m1, rot(d) @ m2]) @ np.linalg.inv(np.column_stack([m1, m2])) - np.eye(2)
+    p.u.Set(ngs.CF((G[0, 0] * ngs.x + G[0, 1] * ngs.y, G[1, 0] * ngs.x + G[1, 1] * ngs.y)))
+    assert abs(obs.centre_shear_angle_deg(p) - 10.0) < 1e-9
