@@ -31,10 +31,10 @@ SHAPE_STATIONS_MM = (37.0,)  # MODEL.md section 2: shapes are shown at 37 mm and
 
 
 def step_control(scene: Scene) -> StepControl:
-    """The solver numerics of a scene in SI units."""
-    ld, so = scene.loading, scene.solver
-    return StepControl(u0_final=ld.u0_mm * 1e-3, first_step=ld.first_step_mm * 1e-3,
-                       max_step=ld.max_step_mm * 1e-3, min_step=ld.min_step_mm * 1e-3, rtol=so.rtol,
+    """The solver numerics of a scene in SI units; the steps are the smaller of [loading] and [discrete]."""
+    ld, so, d = scene.loading, scene.solver, scene.discrete
+    return StepControl(u0_final=ld.u0_mm * 1e-3, first_step=min(ld.first_step_mm, d.first_step_mm) * 1e-3,
+                       max_step=min(ld.max_step_mm, d.max_step_mm) * 1e-3, min_step=ld.min_step_mm * 1e-3, rtol=so.rtol,
                        atol=so.atol_energy, max_iterations=so.max_iterations, grow_after=so.grow_after,
                        growth=so.growth, cut=so.cut, predictor=so.predictor, backend=so.linear_solver,
                        stations=tuple(s * 1e-3 for s in SHAPE_STATIONS_MM if s < ld.u0_mm),
