@@ -30,10 +30,13 @@ FULL = {"lagrange": [(h, p) for h in (20.0, 10.0, 5.0) for p in (1, 2, 3, 4, 5)]
         # (measured: h = 10 mm, p = 3 had cut its steps 52 times by u0 = 50 mm), minutes per case
         "full": [(h, p, 1e8) for h in (10.0, 5.0) for p in (2, 3)],
         "uncondensed": [(10.0, 2), (5.0, 2)],
+        # Lagrange on meshes graded towards the clamp corners (discretization.corner_mesh_size_mm)
+        "graded": [(h, p, 0.5) for h in (20.0, 10.0, 5.0) for p in (2, 3)],
         "ref_p": 4, "ref_h": (10.0, 5.0, 2.5)}
 QUICK = {"lagrange": [(20.0, 1), (20.0, 2)], "penalty": [(20.0, 2, 1e8)], "full": [(20.0, 2, 1e10)],
-         "uncondensed": [(20.0, 2)], "ref_p": 3, "ref_h": (20.0, 10.0, 5.0)}
+         "uncondensed": [(20.0, 2)], "graded": [(20.0, 2, 1.0)], "ref_p": 3, "ref_h": (20.0, 10.0, 5.0)}
 TARGETS = (0.10, 0.01, 0.001)
+GRADE = "discretization.corner_mesh_size_mm"
 
 
 def build(quick: bool = False) -> Study:
@@ -42,6 +45,7 @@ def build(quick: bool = False) -> Study:
     cases += [C.penalty(h, p, k) for h, p, k in g["penalty"]]
     cases += [C.penalty(h, p, k, "full") for h, p, k in g["full"]]
     cases += [{**C.lagrange(h, p), "solver.condense": False} for h, p in g["uncondensed"]]
+    cases += [{**C.lagrange(h, p), GRADE: hc} for h, p, hc in g.get("graded", [])]
     cases += [C.lagrange(h, g["ref_p"]) for h in g["ref_h"]]
     return Study("work_precision", C.base_scene(quick), C.unique(cases), description=__doc__ or "",
                  plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
@@ -54,6 +58,8 @@ def label(prm: dict) -> str:
         s += f"penalty-{prm.get(C.FORM, 'mixed')} K={prm[C.K]:.0e}"
     else:
         s += "Lagrange" + (" uncondensed" if prm.get("solver.condense") is False else "")
+    if prm.get(GRADE):
+        s += f" graded {prm[GRADE]:g} mm"
     return s
 
 
@@ -69,7 +75,8 @@ def analyse(data: StudyData, g: dict, quick: bool) -> dict:
         F = data.at(i, s2, "force_N")
         X, uy = data.profile(i, s2)
         kind = c["params"].get(C.FORM, "mixed") if c["params"].get(C.CON) == "penalty" else (
-            "uncondensed" if c["params"].get("solver.condense") is False else "lagrange")
+            "uncondensed" if c["params"].get("solver.condense") is False else
+            "graded" if c["params"].get(GRADE) else "lagrange")
         pts.append({"case": i, "label": label(c["params"]), "status": "ok", "kind": kind, "time": C.wall(data, i),
                     "dofs": C.dofs(data, i), "F": F, "err_F": abs(F - ref["force_N"]) / ref["force_N"],
                     "err_prof": C.profile_error(X, uy, ref["uy_mm"]), "ref_case": i in ref["cases"]})
@@ -123,8 +130,8 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
 
     a = analyse(data, g, quick)
     fig, axs = plt.subplots(1, 2, figsize=(13, 5))
-    marks = {"lagrange": "o", "mixed": "s", "full": "^", "uncondensed": "D"}
-    names = {"lagrange": "Lagrange", "mixed": "mixed penalty", "full": "pointwise penalty", "uncondensed": "Lagrange, uncondensed"}
+    marks = {"lagrange": "o", "mixed": "s", "full": "^", "uncondensed": "D", "graded": "*"}
+    names = {"lagrange": "Lagrange", "mixed": "mixed penalty", "full": "pointwise penalty", "uncondensed": "Lagrange, uncondensed", "graded": "Lagrange, corner-graded mesh"}
     good = [p for p in a["pts"] if p["status"] == "ok"]
     for ax, key, unc, title in ((axs[0], "err_F", a["unc_F"], f"force at {a['s2']:g} mm"),
                                 (axs[1], "err_prof", a["unc_prof"], f"mid-axis profile at {a['s2']:g} mm")):
@@ -135,7 +142,7 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
             sc = ax.scatter([p["time"] for p in ps], [max(p[key], 1e-8) for p in ps], marker=m,
                             c=[math.log2(p["dofs"]) for p in ps], cmap="viridis", s=30, label=names[kind], edgecolors="k", linewidths=0.3)
             for p in ps:
-                if kind in ("lagrange", "uncondensed"):
+                if kind in ("lagrange", "uncondensed", "graded"):
                     prm = data.meta["cases"][p["case"]]["params"]
                     ax.annotate(f"{prm[C.H]:g}/{int(prm[C.P])}", (p["time"], max(p[key], 1e-8)), fontsize=6, xytext=(3, 2), textcoords="offset points")
         front = sorted((p for p in good if p[f"pareto_{key}"]), key=lambda p: p["time"])
