@@ -102,6 +102,11 @@ class ContinuumProblem:
                 constraint = physics.mixed_penalty_constraint(phi, inv.i8, trial[2], eff.penalty_K)
             else:
                 constraint = physics.penalty_constraint(phi, inv.i8, eff.penalty_K)
+            if eff.stabilization_K > 0 and (eff.constraint == "lagrange" or eff.penalty_form == "mixed"):
+                stab = physics.penalty_constraint(phi, inv.i8, eff.stabilization_K)
+                constraint = constraint + stab
+                if jac_constraint is not None:
+                    jac_constraint = jac_constraint + stab
         energy = base if constraint is None else base + constraint
         self.dx = ngs.dx(bonus_intorder=disc.quad_bonus)
         # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
