@@ -43,7 +43,7 @@ def centre_shear_angle_deg(problem: ContinuumProblem) -> float:
     """γ at the specimen centre [deg] (zone A of ideal BET kinematics)."""
     sp = problem.scene.specimen
     inv = problem.invariants()
-    g = physics.shear_angle(inv.i4, inv.i6, inv.i8, problem.scene.specimen.cos0)
+    g = physics.shear_angle(inv.i4, inv.i6, inv.i8, sp.cos0)
     return math.degrees(float(g(problem.mesh(0.5 * sp.L, 0.5 * sp.W))))
 
 
@@ -57,7 +57,7 @@ def constraint_l2(problem: ContinuumProblem) -> float:
 
 def multiplier_oscillation(problem: ContinuumProblem, margin: float = 0.18) -> float | None:
     """‖Λ − Π Λ‖ / ‖Λ‖ on margin·L < X < (1 − margin)·L, Π the L2 projection onto continuous
-    fields of Λ's order (at least 1); None without a multiplier.
+    fields of Λ's order (``problem.p_lam``, at least 1); None without a multiplier.
 
     A multiplier that converges is smooth away from the clamp corners, and this ratio falls with
     h; an unstable pair leaves O(1) element-to-element oscillations (ratio ~0.85, not falling).
@@ -66,14 +66,14 @@ def multiplier_oscillation(problem: ContinuumProblem, margin: float = 0.18) -> f
     if lam is None:
         return None
     mesh, L = problem.mesh, problem.scene.specimen.L
-    V = ngs.H1(mesh, order=max(1, problem.scene.discretization.p_lam))
+    V = ngs.H1(mesh, order=max(1, problem.p_lam))
     w, v = V.TnT()
     mass = ngs.BilinearForm(w * v * ngs.dx).Assemble()
     rhs = ngs.LinearForm(lam * v * ngs.dx).Assemble()
     proj = ngs.GridFunction(V)
     proj.vec.data = mass.mat.Inverse(inverse="sparsecholesky") * rhs.vec
     inner = ngs.IfPos((ngs.x - margin * L) * ((1 - margin) * L - ngs.x), 1.0, 0.0)
-    order = 2 * max(1, problem.scene.discretization.p_lam)
+    order = 2 * max(1, problem.p_lam)
     norm = ngs.Integrate(inner * lam * lam, mesh, order=order)
     if norm <= 0:
         return 0.0

@@ -19,7 +19,6 @@ The paper prints W_b = ½⟨α, ∇φ⟩², which drops the squares; MODEL.md fi
 from __future__ import annotations
 
 import math
-
 from typing import NamedTuple
 
 import ngsolve as ngs
@@ -88,6 +87,6 @@ def shear_angle(i4: CF, i6: CF, i8: CF, cos0: float = 0.0) -> CF:
     if cos0 == 0.0:
         return ngs.asin(-i8 / ngs.sqrt(i4 * i6))
     c = (i8 + cos0) / ngs.sqrt(i4 * i6)
-    # θ − θ0 = asin(sin θ0 c0' − ...) is ill-conditioned near 0 and π; acos is fine for the open
-    # angles between yarns (θ between ~10° and ~170°)
+    # acos loses accuracy only near 0° and 180°, far from the angles between yarns; c is clipped
+    # to [−1, 1] against round-off
     return ngs.acos(ngs.IfPos(c - 1, 1, ngs.IfPos(-1 - c, -1, c))) - math.acos(cos0)

@@ -20,7 +20,7 @@ represent, away from the clamps) on the default scene at 37 mm: with Λ ∈ L2(p
 from element to element and does not converge, though u, φ and the force do; with Λ ∈ L2(p − 2)
 it falls as O(h) for p = 2 (0.093, 0.048, 0.025) and as O(h²) for p = 3 (0.0061, 0.0015), with
 the same force (Richardson limit 61.2 N for both pairs at p = 2). p = 1 locks (84 N against
-62 N at h = 10 mm) whatever the multiplier; use p ≥ 2. For the exact Lagrange method with ``condense`` the
+62 N at h = 10 mm with Λ ∈ L2(0)); use p ≥ 2. For the exact Lagrange method with ``condense`` the
 Newton matrix is that of the mixed penalty with a very large K_aug (so that Λ can be condensed),
 while the residual stays the exact Lagrangian's: Newton then converges to the exact saddle point,
 the O(1/K_aug) Jacobian error only slows the last digits.
@@ -28,7 +28,8 @@ the O(1/K_aug) Jacobian error only slows the last digits.
 The paper's pointwise penalty ("full") is solved, with ``condense``, in its mixed form
 Λ(φ − i8) − Λ²/2K with Λ ∈ L2 of the degree of φ − i8 itself (max(p_φ, 2p − 2) on affine
 triangles), condensed: the same discrete solution, since the L2 projection onto that space is
-the identity on φ − i8, but Newton linearizes around the iterate's Λ instead of K(φ − i8).
+the identity on φ − i8, but Newton linearizes around the iterate's Λ instead of K(φ − i8), which
+the predictor makes huge for large K (K = 1e10: 56 load steps pointwise, 6 in this form).
 
 Dirichlet data (MODEL.md §2): u = 0, φ = 0 on Σ1 (``left``); u = (u0, 0), φ = 0 on Σ2
 (``right``). The load parameter λ of the solver is u0 in metres.
@@ -65,22 +66,17 @@ class ContinuumProblem:
         sp, mat, eff, disc = scene.specimen, scene.material, scene.effects, scene.discretization
         self.mesh = mesh if mesh is not None else make_mesh(sp, disc)
         self.field_names = eff.fields
-        # The full penalty ½K(φ − i8)² is solved in its mixed form Λ(φ − i8) − Λ²/2K with Λ ∈ L2 of
-        # the order of φ − i8 itself (a polynomial of degree max(p_φ, 2p − 2) on affine triangles),
-        # Λ condensed: the same discrete solution (Π = identity on φ − i8), but Newton linearizes
-        # around the iterate's Λ instead of K(φ − i8), which the predictor makes huge for large K
-        # (issue 5: K = 1e10 took 24 step cuts pointwise, none in this form). condense = false
-        # keeps the pointwise form.
+        # the full penalty in its mixed form (module docstring); condense = false keeps it pointwise
         self.full_as_mixed = (eff.bending and eff.constraint == "penalty" and eff.penalty_form == "full"
                               and scene.solver.condense)
-        p_lam = max(disc.p_phi, 2 * disc.p_u - 2) if self.full_as_mixed else disc.p_lam
+        self.p_lam = max(disc.p_phi, 2 * disc.p_u - 2) if self.full_as_mixed else disc.p_lam
         if self.full_as_mixed:
             self.field_names = ("u", "phi", "lam")
         spaces = [ngs.VectorH1(self.mesh, order=disc.p_u, dirichlet=dirichlet)]
         if "phi" in self.field_names:
             spaces.append(ngs.H1(self.mesh, order=disc.p_phi, dirichlet=dirichlet))
         if "lam" in self.field_names:
-            spaces.append(ngs.L2(self.mesh, order=p_lam))
+            spaces.append(ngs.L2(self.mesh, order=self.p_lam))
         self.X = ngs.FESpace(spaces)
         self.m1, self.m2 = CF(sp.m1), CF(sp.m2)
         trial = self.X.TrialFunction()

@@ -129,9 +129,11 @@ def _run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
     if osc is not None:
         info["multiplier_oscillation"] = osc
         if osc > 0.5:
-            warnings.append(f"the multiplier oscillates ({osc:.2f} of its L2 norm is not continuous): the "
-                            f"orders (u, phi, lam) = ({scene.discretization.p_u}, {scene.discretization.p_phi}, "
-                            f"{scene.discretization.p_lam}) are not a stable pair (the default orders are, for order_u >= 2)")
+            why = ("the pointwise penalty locks (use effects.constraint = 'lagrange' or penalty_form = 'mixed')"
+                   if problem.full_as_mixed else
+                   f"the orders (u, phi, lam) = ({scene.discretization.p_u}, {scene.discretization.p_phi}, "
+                   f"{problem.p_lam}) are not a stable pair (the default orders are, for order_u >= 2)")
+            warnings.append(f"the multiplier oscillates ({osc:.2f} of its L2 norm is not continuous): {why}")
             log.warning("%s", warnings[-1])
     summary = writer.summary(info, "ok")
     if o.plot:

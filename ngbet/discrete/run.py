@@ -33,12 +33,13 @@ SHAPE_STATIONS_MM = (37.0,)  # MODEL.md section 2: shapes are shown at 37 mm and
 def step_control(scene: Scene) -> StepControl:
     """The solver numerics of a scene in SI units; the steps are the smaller of [loading] and [discrete]."""
     ld, so, d = scene.loading, scene.solver, scene.discrete
+    max_step = min(ld.max_step_mm, d.max_step_mm)
     return StepControl(u0_final=ld.u0_mm * 1e-3, first_step=min(ld.first_step_mm, d.first_step_mm) * 1e-3,
-                       max_step=min(ld.max_step_mm, d.max_step_mm) * 1e-3, min_step=ld.min_step_mm * 1e-3, rtol=so.rtol,
+                       max_step=max_step * 1e-3, min_step=ld.min_step_mm * 1e-3, rtol=so.rtol,
                        atol=so.atol_energy, max_iterations=so.max_iterations, grow_after=so.grow_after,
                        growth=so.growth, cut=so.cut, predictor=so.predictor, backend=so.linear_solver,
                        stations=tuple(s * 1e-3 for s in SHAPE_STATIONS_MM if s < ld.u0_mm),
-                       snap_bracket=min(max(4 * ld.min_step_mm, 1.0), ld.max_step_mm) * 1e-3)
+                       snap_bracket=min(max(4 * ld.min_step_mm, 1.0), max_step) * 1e-3)
 
 
 def step_row(model: NetworkModel, info: StepInfo, u: np.ndarray, specimen: Specimen) -> dict[str, Any]:
