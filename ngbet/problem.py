@@ -6,8 +6,8 @@ Only the effects the scene asks for are built (:class:`ngbet.scene.Effects`):
 effects                    unknowns                            energy
 =========================  ==================================  ===============================
 shear (+ elongation)       u ∈ VectorH1(p)                      W_sh + W_el (first gradient)
-+ bending, lagrange        u, φ ∈ H1(p_φ), Λ ∈ L2(p − 2)         + W_b + Λ(φ − i8)
-+ bending, penalty mixed   u, φ, Λ (condensed out)              + W_b + Λ(φ − i8) − Λ²/2K
++ bending, lagrange        u, φ ∈ H1(p_φ), Λ ∈ L2(p − 2)         + W_b + Λ(φ − i8) + ½K_s(φ − i8)²
++ bending, penalty mixed   u, φ, Λ (condensed out)              + W_b + Λ(φ − i8) − Λ²/2K + ½K_s(φ − i8)²
 + bending, penalty full    u, φ (+ Λ condensed, see below)      + W_b + ½K(φ − i8)²
 =========================  ==================================  ===============================
 
@@ -24,6 +24,16 @@ the same force (Richardson limit 61.2 N for both pairs at p = 2). p = 1 locks (8
 Newton matrix is that of the mixed penalty with a very large K_aug (so that Λ can be condensed),
 while the residual stays the exact Lagrangian's: Newton then converges to the exact saddle point,
 the O(1/K_aug) Jacobian error only slows the last digits.
+
+Stabilization. Λ ∈ L2(p − 2) ties φ to i8 only in the element moments of degree p − 2; the rest
+of i8 inside an element is held by the first-gradient energy alone, and where the yarns are
+compressed (√i6 − 1 down to −0.33 at the clamp corners at 56 mm) that energy is not convex:
+small corner elements (0.25 mm) then lose stability at 51–53 mm (p = 2) and 34 mm (p = 3) in a
+mode with ‖δφ − δi8‖ = ‖δi8‖ at the corner (:func:`ngbet.run.diagnose_stability` names it). The
+exact constraint would charge such a variation of i8 about α/h_T² of bending energy. The
+Lagrangian therefore carries ½K_s(φ − i8)² with K_s = c min(α1, α2)/h_T² element by element
+(c = 0.1, :data:`STABILIZATION_C`): it vanishes with its variation where φ = i8, so the exact
+solution is unchanged; it is large only on small elements, where the unstable modes live.
 
 The paper's pointwise penalty ("full") is solved, with ``condense``, in its mixed form
 Λ(φ − i8) − Λ²/2K with Λ ∈ L2 of the degree of φ − i8 itself (max(p_φ, 2p − 2) on affine
@@ -58,6 +68,31 @@ DIRICHLET = "left|right"
 LAGRANGE_AUGMENTATION = 1e6
 
 
+#: c in the default K_s = c min(α1, α2) / h_T². Measured (Table 1, 56 mm): the corner meshes that
+#: stop without stabilization (0.25 mm corners, p = 2 and 3) pass with c = 0.01 already, i.e.
+#: K_s ≈ 2e6 Pa on the corner elements (a constant 7e5 Pa also passes); c = 0.1 keeps a factor 10
+#: on that while shifting the force on uniform meshes by 0.065 N at h = 10 mm (c = 1: 0.34 N).
+STABILIZATION_C = 0.1
+
+
+def stabilization_modulus(scene: Scene, mesh: ngs.Mesh) -> CF | float:
+    """K_s of ``effects.stabilization_K``: the constant, or (default, -1) c min(α1, α2)/h_T²."""
+    k = scene.effects.stabilization_K
+    if k >= 0:
+        return k
+    m = scene.material
+    return STABILIZATION_C * min(m.alpha1, m.alpha2) / (ngs.specialcf.mesh_size ** 2)
+
+
+def _range_over_elements(k: CF | float, mesh: ngs.Mesh) -> tuple[float, float]:
+    if not isinstance(k, CF):
+        return (float(k), float(k))
+    g = ngs.GridFunction(ngs.L2(mesh, order=0))
+    g.Set(k)
+    v = g.vec.FV().NumPy()
+    return (float(v.min()), float(v.max()))
+
+
 class ContinuumProblem:
     """Spaces, forms and load of one scene; implements :class:`ngbet.solver.NonlinearProblem`."""
 
@@ -87,6 +122,8 @@ class ContinuumProblem:
             base = base + physics.shear_energy(inv.i8, mat.K_sh)
         self.K_ref = mat.K_sh if mat.K_sh > 0 else mat.K_el
         constraint = jac_constraint = None
+        self.K_s: CF | float = 0.0  # the stabilization modulus (a CF when element-wise)
+        self.K_s_range = (0.0, 0.0)  # its smallest and largest value over the elements [Pa]
         if eff.bending:
             phi = trial[1]
             base = base + physics.bending_energy(ngs.Grad(phi), self.m1, self.m2, mat.alpha1, mat.alpha2)
@@ -98,8 +135,11 @@ class ContinuumProblem:
                 constraint = physics.mixed_penalty_constraint(phi, inv.i8, trial[2], eff.penalty_K)
             else:
                 constraint = physics.penalty_constraint(phi, inv.i8, eff.penalty_K)
-            if eff.stabilization_K > 0 and (eff.constraint == "lagrange" or eff.penalty_form == "mixed"):
-                stab = physics.penalty_constraint(phi, inv.i8, eff.stabilization_K)
+            if eff.constraint == "lagrange" or eff.penalty_form == "mixed":
+                self.K_s = stabilization_modulus(scene, self.mesh)
+            self.K_s_range = _range_over_elements(self.K_s, self.mesh)
+            if self.K_s_range[1] > 0:
+                stab = physics.penalty_constraint(phi, inv.i8, self.K_s)
                 constraint = constraint + stab
                 if jac_constraint is not None:
                     jac_constraint = jac_constraint + stab

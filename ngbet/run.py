@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import ngsolve as ngs
+import numpy as np
 
 from . import observables as obs
 from .output import RunWriter, plot_force
@@ -103,6 +104,7 @@ def _run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             bar.update(row["u0_mm"] - bar.n)
 
     info: dict[str, Any] = {"model": "continuum", "dofs": problem.ndofs(), "linear_solver": problem.inverse_type,
+                            "stabilization_K_Pa": list(problem.K_s_range),
                             "condensed": bool(problem.a_jac.condense), "setup_s": t_setup,
                             "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None}
     L = scene.loading
@@ -159,11 +161,16 @@ def write_vtk(problem: Any, path: Path) -> None:
 
 
 def diagnose_stability(problem: Any, k: int = 3) -> str:
-    """Lowest eigenvalues of the (condensed) tangent at the last converged state.
+    """Lowest eigenvalues of the (condensed) tangent at the last converged state, and what the
+    lowest mode is.
 
     For minimization (and condensed mixed) formulations the tangent is the Hessian of the
     reduced energy: a non-positive eigenvalue means the equilibrium path has lost stability
-    (a limit point or a bifurcation). Only computed after a failure: it costs seconds.
+    (a limit point or a bifurcation). With φ in the model the lowest mode (δu, δφ) is classified
+    by r = ‖δφ − δi8‖ / ‖δi8‖, δi8 the linearized i8 of δu: r ≪ 1 is a mode of the constrained
+    continuum (the model's own instability), r ≈ 1 a mode in which i8 varies inside elements and φ
+    does not follow, which the constraint Λ ∈ L2(p − 2) cannot see (a mode of the discretization,
+    suppressed by ``effects.stabilization_K``). Only computed after a failure: it costs seconds.
     """
     try:
         import numpy as np
@@ -176,17 +183,50 @@ def diagnose_stability(problem: Any, k: int = 3) -> str:
         A = sps.csr_matrix((np.array(vals), np.array(cols), np.array(ptr)), shape=(n, n))
         if sps.triu(A, 1).nnz == 0:  # symmetric storage keeps the lower triangle only
             A = A + sps.tril(A, -1).T
-        fd = np.array(list(problem.freedofs), dtype=bool)
+        fd = np.flatnonzero(np.array(list(problem.freedofs), dtype=bool))
         Af = A[fd][:, fd]
         if not problem.a_jac.condense and "lam" in problem.field_names:
             return "the uncondensed saddle-point tangent is indefinite by construction: no stability test"
         # scale by the diagonal so that the eigenvalues are unit-free
         d = np.sqrt(np.abs(Af.diagonal()) + 1e-300)
         As = sps.diags(1 / d) @ Af @ sps.diags(1 / d)
-        ev = eigsh(As, k=k, sigma=-1e-3, which="LM", return_eigenvectors=False)
+        ev, V = eigsh(As, k=k, sigma=-1e-3, which="LM")
         lo = float(np.min(ev))
         state = "lost (the tangent is not positive definite)" if lo <= 0 else "kept"
-        return (f"stability at the last converged load u0 = {problem.lam * 1e3:.4g} mm: lowest scaled "
-                f"eigenvalues of the tangent {sorted(map(float, ev))}; stability {state}")
+        msg = (f"stability at the last converged load u0 = {problem.lam * 1e3:.4g} mm: lowest scaled "
+               f"eigenvalues of the tangent {sorted(map(float, ev))}; stability {state}")
+        if problem.phi is not None:
+            x = np.zeros(n)
+            x[fd] = V[:, int(np.argmin(ev))] / d
+            r, where = mode_constraint_ratio(problem, x)
+            kind = ("a mode of the discretization: i8 varies inside the elements and phi does not follow; "
+                    f"raise effects.stabilization_K (now "
+                    f"{problem.K_s_range[0]:.3g} to {problem.K_s_range[1]:.3g} Pa)" if r > 0.5 else
+                    "a mode of the constrained continuum (phi follows i8): the model's own limit point "
+                    "or bifurcation")
+            msg += (f"; lowest mode near (X, Y) = ({where[0]:.0f}, {where[1]:.0f}) mm with "
+                    f"|dphi - di8| / |di8| = {r:.2f}: {kind}")
+        return msg
     except Exception as exc:  # diagnosis must never hide the original error
         return f"stability check failed: {exc}"
+
+
+def mode_constraint_ratio(problem: Any, x: Any) -> tuple[float, tuple[float, float]]:
+    """r = ‖δφ − δi8‖ / ‖δi8‖ of a mode x (free dofs of the condensed tangent; the condensed local
+    dofs are recovered by the harmonic extension), and the centroid [mm] of |∇δu|²."""
+    mode = ngs.GridFunction(problem.X)
+    mode.vec.FV().NumPy()[:] = x
+    if problem.a_jac.condense:
+        mode.vec.data += problem.a_jac.harmonic_extension * mode.vec
+    du, dphi = mode.components[0], mode.components[1]
+    F = ngs.Id(2) + ngs.Grad(problem.u)
+    G = ngs.Grad(du)
+    m1, m2 = problem.m1, problem.m2
+    di8 = ngs.InnerProduct(F * m1, G * m2) + ngs.InnerProduct(G * m1, F * m2)
+    mesh = problem.mesh
+    num = ngs.Integrate((dphi - di8) ** 2, mesh)
+    den = ngs.Integrate(di8 * di8, mesh)
+    dens = ngs.InnerProduct(G, G)
+    tot = ngs.Integrate(dens, mesh)
+    where = (1e3 * ngs.Integrate(dens * ngs.x, mesh) / tot, 1e3 * ngs.Integrate(dens * ngs.y, mesh) / tot)
+    return float(np.sqrt(num / max(den, 1e-300))), where

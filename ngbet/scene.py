@@ -181,16 +181,20 @@ class Effects:
     constraint: str = "lagrange"
     penalty_K: float = 1e8  # Pa, used only with constraint = "penalty"
     penalty_form: str = "mixed"
-    # Pa; > 0 adds ½ K_s (φ − i8)² to the Lagrange and mixed-penalty forms (an augmented
-    # Lagrangian: zero with its variation wherever φ = i8, so the exact solution is unchanged). It
-    # acts on the within-element part of φ − i8 that Λ ∈ L2(p − 2) leaves free; see the README
-    stabilization_K: float = 0.0
+    # Pa; adds ½ K_s (φ − i8)² to the Lagrange and mixed-penalty forms (an augmented Lagrangian:
+    # zero with its variation wherever φ = i8, so the exact solution is unchanged). It acts on the
+    # within-element part of φ − i8 that Λ ∈ L2(p − 2) leaves free. -1 (default): element by
+    # element K_s = 0.1 min(alpha1, alpha2) / h_T^2, a tenth of the bending energy the exact
+    # constraint would charge for a variation of i8 on the element's scale; 0: off; > 0: that
+    # constant (ngbet.problem)
+    stabilization_K: float = -1.0
 
     def __post_init__(self) -> None:
         _boolean("effects", self, "shear", "elongation", "bending")
         _choice("effects", self, "constraint", CONSTRAINTS)
         _choice("effects", self, "penalty_form", PENALTY_FORMS)
-        _nonnegative("effects", self, "stabilization_K")
+        _check(self.stabilization_K >= 0 or self.stabilization_K == -1, "effects.stabilization_K",
+               self.stabilization_K, "must be >= 0 [Pa] (0: off), or -1 for the default K_s = 0.1 min(alpha1, alpha2) / h_T^2")
         _positive("effects", self, "penalty_K")
         _check(self.elongation, "effects.elongation", self.elongation,
                "the yarn elongation term is what makes the yarns resist stretching; without it the "

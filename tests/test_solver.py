@@ -95,7 +95,9 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
     inv = physics.invariants(ngs.Grad(u), problem.m1, problem.m2)
     m = scene.material
     base = (physics.elongation_energy(inv.i4, inv.i6, m.K_el) + physics.shear_energy(inv.i8, m.K_sh)
-            + physics.bending_energy(ngs.Grad(phi), problem.m1, problem.m2, m.alpha1, m.alpha2))
+            + physics.bending_energy(ngs.Grad(phi), problem.m1, problem.m2, m.alpha1, m.alpha2)
+            + physics.penalty_constraint(phi, inv.i8, problem.K_s))  # the default stabilization
+    assert problem.K_s_range[0] > 0
     aug = ngs.BilinearForm(X, symmetric=True)
     aug += ngs.Variation((base + physics.mixed_penalty_constraint(phi, inv.i8, lam, problem.K_aug)) * problem.dx)
     with ngs.TaskManager():
