@@ -80,6 +80,37 @@ def multiplier_oscillation(problem: ContinuumProblem, margin: float = 0.18) -> f
     return math.sqrt(max(ngs.Integrate(inner * (lam - proj) ** 2, mesh, order=order), 0.0) / norm)
 
 
+def ellipticity_loss_area(problem: ContinuumProblem, family: int) -> tuple[float, float]:
+    """Where the model has no second-gradient regularization across yarn family ``family``.
+
+    With α_k = 0 (k = ``family``, 1 or 2) the bending energy does not see variations of φ = i8
+    along m_k; a band mode δu = a f(X·n) with n ⊥ m_j (j the other family) changes F m_k only, and
+    costs (n·m_k)² a·H a f'² with H = ∂²W/∂(F m_k)² of the first-gradient energy:
+
+        H = K_el [v̂ v̂ + (1 − 1/|v|)(I − v̂ v̂)] + K_sh w w,   v = F m_k, w = F m_j.
+
+    Where H is not positive definite (yarns of family k compressed, |v| < 1, by more than about
+    K_sh/K_el) the continuum loses ellipticity: nothing bounds how fine such bands get, and the
+    discrete answer depends on the mesh. Returns (area [mm²] where λ_min(H) < 0, min λ(H)/K_sh).
+    """
+    m = problem.scene.material
+    F = ngs.Id(2) + ngs.Grad(problem.u)
+    mk, mj = (problem.m1, problem.m2) if family == 1 else (problem.m2, problem.m1)
+    v, w = F * mk, F * mj
+    nv = ngs.sqrt(ngs.InnerProduct(v, v))
+    vh = v / nv
+    t = ngs.CF((-vh[1], vh[0]))
+    wv, wt = ngs.InnerProduct(w, vh), ngs.InnerProduct(w, t)
+    a = m.K_el + m.K_sh * wv * wv
+    b = m.K_sh * wv * wt
+    c = m.K_el * (1 - 1 / nv) + m.K_sh * wt * wt
+    lmin = 0.5 * (a + c) - ngs.sqrt(0.25 * (a - c) ** 2 + b * b)
+    area = ngs.Integrate(ngs.IfPos(-lmin, 1.0, 0.0), problem.mesh)
+    g = ngs.GridFunction(ngs.L2(problem.mesh, order=2))
+    g.Set(lmin / max(m.K_sh, 1e-300))
+    return float(area * 1e6), float(g.vec.FV().NumPy().min())
+
+
 def field_functions(problem: ContinuumProblem, wanted: tuple[str, ...]) -> dict[str, Any]:
     """CoefficientFunctions of the requested fields, for VTK output and maps."""
     inv = problem.invariants()

@@ -199,13 +199,25 @@ def diagnose_stability(problem: Any, k: int = 3) -> str:
             x = np.zeros(n)
             x[fd] = V[:, int(np.argmin(ev))] / d
             r, where = mode_constraint_ratio(problem, x)
-            kind = ("a mode of the discretization: i8 varies inside the elements and phi does not follow; "
-                    f"raise effects.stabilization_K (now "
-                    f"{problem.K_s_range[0]:.3g} to {problem.K_s_range[1]:.3g} Pa)" if r > 0.5 else
-                    "a mode of the constrained continuum (phi follows i8): the model's own limit point "
-                    "or bifurcation")
+            m = problem.scene.material
+            ill = ""
+            for k, alpha in ((1, m.alpha1), (2, m.alpha2)):
+                area, lo_H = obs.ellipticity_loss_area(problem, k) if alpha == 0 else (0.0, 0.0)
+                if area > 0:
+                    ill = (f"; alpha{k} = 0 leaves i8 unregularized along the yarns of family {k}, and the "
+                           f"first-gradient energy has lost ellipticity for them on {area:.0f} mm² (compressed "
+                           f"yarns; min eigenvalue {lo_H:.2f} K_sh): the model is ill-posed there and has no "
+                           f"mesh-independent solution; give alpha{k} > 0")
+            if r > 0.5:
+                kind = "a mode of the discretization: i8 varies inside the elements and phi does not follow"
+                if not ill:
+                    kind += (f"; raise effects.stabilization_K (now {problem.K_s_range[0]:.3g} to "
+                             f"{problem.K_s_range[1]:.3g} Pa), e.g. to material.K_el = {m.K_el:.3g} Pa")
+            else:
+                kind = ("a mode of the constrained continuum (phi follows i8): the model's own limit point "
+                        "or bifurcation")
             msg += (f"; lowest mode near (X, Y) = ({where[0]:.0f}, {where[1]:.0f}) mm with "
-                    f"|dphi - di8| / |di8| = {r:.2f}: {kind}")
+                    f"|dphi - di8| / |di8| = {r:.2f}: {kind}{ill}")
         return msg
     except Exception as exc:  # diagnosis must never hide the original error
         return f"stability check failed: {exc}"
