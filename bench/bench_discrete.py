@@ -99,11 +99,17 @@ def main() -> None:
 
         full = scene.with_changes(**{"loading.u0_mm": 56.0})
         t = time.perf_counter()
-        s = run(full, Path(__file__).parent / "out" / f"run_{args.spacing}mm", progress=False)
+        folder = Path(__file__).parent / "out" / f"run_{args.spacing}mm"
+        s = run(full, folder, progress=False)
+        from ngbet.output import read_rows
+
+        F = {round(r["u0_mm"], 6): r["force_N"] for r in read_rows(folder / "results.csv")}
         rec["full_run"] = {"wall_s": time.perf_counter() - t, "status": s["status"], "steps": s["steps"],
                            "newton_iterations": s["newton_iterations_total"], "snap_events": s["snap_event_count"],
                            "t_stability_s": s.get("t_stability_s"), "factorizations": s.get("factorizations"),
-                           "failed_steps": s.get("failed_steps")}
+                           "failed_steps": s.get("failed_steps"), "work_by_cause": s.get("work_by_cause"),
+                           "timers": s.get("timers"), "snap_events_list": s.get("snap_events"),
+                           "max_slip_mm": s.get("max_slip_mm"), "F37_N": F.get(37.0), "F56_N": F.get(56.0)}
     rec["versions"] = versions()
     rec["machine"] = machine()
     out = Path(__file__).parent / "out"
@@ -127,7 +133,23 @@ def main() -> None:
               f"ARPACK {rec['t_stability_arpack_s'] * 1e3:.1f} ms; lambda_min {rec['lambda_min']:.6g} "
               f"(ARPACK {rec['lambda_min_arpack']:.6g})")
     if "full_run" in rec:
-        print(f"full run to 56 mm: {rec['full_run']}")
+        fr = rec["full_run"]
+        print(f"full run to 56 mm: wall {fr['wall_s']:.1f} s, {fr['status']}, steps {fr['steps']}, "
+              f"Newton iterations {fr['newton_iterations']}, factorizations {fr['factorizations']}, "
+              f"failed steps {fr['failed_steps']}, snap events {fr['snap_events']}, largest slip {fr['max_slip_mm']:.3f} mm, "
+              f"F(37) {fr['F37_N']:.5f} N, F(56) {fr['F56_N']:.5f} N")
+        for ev in fr.get("snap_events_list") or []:
+            print(f"  snap: {ev}")
+        print(f"  {'cause':50s} {'calls':>5s} {'fact':>5s} {'shift':>5s} {'its':>5s} {'time [s]':>8s}")
+        for cause, r in (fr.get("work_by_cause") or {}).items():
+            print(f"  {cause:50s} {r['calls']:5d} {r['factorizations']:5d} {r['shift_factorizations']:5d} "
+                  f"{r['iterations']:5d} {r['time_s']:8.2f}")
+        t = fr.get("timers") or {}
+        if t:
+            print(f"  timers: assembly {t['assembly_s']:.2f} s / {t['assemblies']} "
+                  f"({1e3 * t['assembly_s'] / max(t['assemblies'], 1):.1f} ms), gradient only {t['gradient_only_s']:.2f} s, "
+                  f"factorization {t['factor_s']:.2f} s ({1e3 * t['factor_s'] / max(fr['factorizations'], 1):.1f} ms), "
+                  f"solve {t['solve_s']:.2f} s / {t['solves']} ({1e3 * t['solve_s'] / max(t['solves'], 1):.1f} ms)")
     print(f"record: {path}")
 
 

@@ -17,6 +17,7 @@ tangents met past a bifurcation (as long as no pivot vanishes).
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 import scipy.sparse as sp
@@ -58,6 +59,8 @@ class FreeBlockSolver:
         self.Kff: sp.csr_matrix | None = None
         self.shifted = False  # the last factorization was of K_ff + diag(shift)
         self.n_factor = 0  # factorizations made (statistics)
+        self.n_solve = 0
+        self.t_factor = self.t_solve = 0.0  # wall time in factor() and solve() [s]
         self._lu = None
         if backend != "splu":
             from ngsolve.la import SparseMatrixd
@@ -80,6 +83,13 @@ class FreeBlockSolver:
 
     def factor(self, K: sp.csr_matrix, shift: np.ndarray | None = None) -> None:
         """Factorize K_ff (+ diag(shift) when given)."""
+        t0 = time.perf_counter()
+        try:
+            self._factor(K, shift)
+        finally:
+            self.t_factor += time.perf_counter() - t0
+
+    def _factor(self, K: sp.csr_matrix, shift: np.ndarray | None) -> None:
         vals = K.data[self.sel]
         self.n_factor += 1
         self.shifted = shift is not None
@@ -108,6 +118,14 @@ class FreeBlockSolver:
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """x = K_ff^{-1} b for b of length n_free."""
+        t0 = time.perf_counter()
+        self.n_solve += 1
+        try:
+            return self._solve(b)
+        finally:
+            self.t_solve += time.perf_counter() - t0
+
+    def _solve(self, b: np.ndarray) -> np.ndarray:
         if self.backend == "splu":
             x = self._lu.solve(b)
         else:

@@ -109,6 +109,48 @@ class StepInfo:
     history: list[tuple[float, float, float]] = field(default_factory=list)
 
 
+class _TimedProblem:
+    """The problem with its evaluations timed (assembly with and without the Hessian)."""
+
+    def __init__(self, problem: Problem) -> None:
+        self._p = problem
+        self.n_dofs, self.fixed, self.load, self.ramp = problem.n_dofs, problem.fixed, problem.load, problem.ramp
+        self.t_hessian = self.t_gradient = 0.0
+        self.n_hessian = self.n_gradient = 0
+
+    def evaluate(self, u: np.ndarray, hessian: bool = True) -> tuple[float, np.ndarray, sp.csr_matrix | None]:
+        t = time.perf_counter()
+        res = self._p.evaluate(u, hessian)
+        if hessian:
+            self.t_hessian += time.perf_counter() - t
+            self.n_hessian += 1
+        else:
+            self.t_gradient += time.perf_counter() - t
+            self.n_gradient += 1
+        return res
+
+
+class _Tally:
+    """Factorizations, Newton iterations and wall time of the load path by cause (bench_discrete)."""
+
+    def __init__(self, solvers: tuple[FreeBlockSolver, ...]) -> None:
+        self.solvers = solvers
+        self.rows: dict[str, dict[str, float]] = {}
+
+    def start(self, t: float | None = None) -> tuple[int, float]:
+        return sum(s.n_factor for s in self.solvers), time.perf_counter() if t is None else t
+
+    def add(self, cause: str, mark: tuple[int, float], nout: dict[str, Any] | None = None) -> None:
+        row = self.rows.setdefault(cause, {"calls": 0, "factorizations": 0, "shift_factorizations": 0,
+                                           "iterations": 0, "time_s": 0.0})
+        row["calls"] += 1
+        row["factorizations"] += sum(s.n_factor for s in self.solvers) - mark[0]
+        row["time_s"] += time.perf_counter() - mark[1]
+        if nout:
+            row["iterations"] += nout.get("iterations", 0)
+            row["shift_factorizations"] += nout.get("shift_factorizations", 0)
+
+
 class _StepFailed(Exception):
     def __init__(self, why: str, history: list[tuple[float, float, float]]) -> None:
         super().__init__(why)
@@ -143,6 +185,7 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
         E, g, K = problem.evaluate(u, True)
         if out is not None:
             out["K"] = K
+            out["iterations"] = it
         r = g[free]
         if not (np.isfinite(E) and np.all(np.isfinite(r))):
             raise _StepFailed("energy or residual not finite", hist)
@@ -158,6 +201,8 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
                 dec = -float(r @ du)
                 mu *= 100
                 shifted += 1
+                if out is not None:
+                    out["shift_factorizations"] = out.get("shift_factorizations", 0) + 1
         except LinearSolverError as exc:
             raise _StepFailed(str(exc), hist) from None
         hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
@@ -300,6 +345,7 @@ def solve_path(problem: Problem, ctl: StepControl,
     ConvergenceError
         when a step fails at the minimum step size (the states before it were passed to on_step).
     """
+    problem = problem_t = _TimedProblem(problem)
     n = problem.n_dofs
     u = np.zeros(n)
     free_mask = ~problem.fixed
@@ -310,7 +356,10 @@ def solve_path(problem: Problem, ctl: StepControl,
     lin = FreeBlockSolver(K, free_mask, ctl.backend)
     work = FreeBlockSolver(K, free_mask, ctl.backend)
     free = lin.free
+    tally = _Tally((lin, work))
+    mark = tally.start()
     lin.factor(K)
+    tally.add("initial tangent", mark)
     modes: np.ndarray | None = None  # modes of the last stability check: start block of the next
     tangent: np.ndarray | None = None  # du/du0 at the converged state
     tangent_prev: tuple[np.ndarray, float] | None = None  # du/du0 at the state before, and the step between
@@ -341,22 +390,27 @@ def solve_path(problem: Problem, ctl: StepControl,
             trial += h * problem.ramp
             trial[problem.fixed] = u[problem.fixed] + dc[problem.fixed]
         nout: dict[str, Any] = {}
+        relaxed = None
+        mark = tally.start()
         try:
             unew, its, hist, shifted = newton(problem, trial, work, ctl, out=nout)
         except _StepFailed as exc:
+            tally.add("failed attempt", mark, nout)
             stats["failed_steps"] += 1
             log.info("step u0 %.5g -> %.5g failed (%s)", u0, u0 + h, exc)
-            relaxed = None
             if h <= ctl.snap_bracket * (1 + 1e-9) or h * ctl.cut < ctl.min_step * (1 - 1e-9):
                 # a short step and still no equilibrium near the predictor: the branch ends (limit
                 # point); let a damped Newton (shifted where indefinite) run long enough to reach
                 # the branch it snaps to
+                nout = {}
+                mark = tally.start()
                 try:
                     relaxed = newton(problem, trial, work, ctl, max_iterations=4 * ctl.max_iterations,
                                      line_search=True, fail_fast=False, out=nout)
                 except _StepFailed as exc2:
                     last_hist = exc2.history
                     log.info("relaxation u0 %.5g -> %.5g failed (%s)", u0, u0 + h, exc2)
+                tally.add("relaxation", mark, nout)
             if relaxed is None:
                 # ``lin`` still holds the tangent at the converged state for the next predictor
                 if h * ctl.cut < ctl.min_step * (1 - 1e-9):
@@ -376,6 +430,8 @@ def solve_path(problem: Problem, ctl: StepControl,
         released = work_ - (E_new - E)
         jumped = released > ctl.snap_release * abs(work_) or shifted > 0
         if jumped and h > ctl.snap_bracket * (1 + 1e-9):
+            if relaxed is None:
+                tally.add("snap bracketing (converged, rejected)", mark, nout)
             stats["snap_bracketing"] = stats.get("snap_bracketing", 0) + 1
             log.info("step u0 %.5g -> %.5g released %.3g J of %.3g J work (indefinite iterations: %d): "
                      "cutting to bracket the snap", u0, u0 + h, released, work_, shifted)
@@ -384,9 +440,13 @@ def solve_path(problem: Problem, ctl: StepControl,
         # the tangent of the last Newton iteration is the converged one up to the last update
         # (below the tolerance); refactorize only if that iteration needed a shift
         K_new = nout["K"]
+        if relaxed is None:
+            tally.add("converged step", mark, nout)
         if work.shifted:
+            mark = tally.start()
             K_new = problem.evaluate(unew, True)[2]
             work.factor(K_new)
+            tally.add("converged tangent after a shifted last iteration", mark)
         lin, work = work, lin
         tangent_prev = (tangent, h) if (tangent is not None and not jumped) else None
         tangent = None
@@ -407,9 +467,12 @@ def solve_path(problem: Problem, ctl: StepControl,
             ts = time.perf_counter()
             lam, v, V = _check_stability(problem, u, lin, ctl, modes)
             modes = V if V is not None else None
+            tally.add("stability check", tally.start(ts))
             if lam < -1e-9 and v is not None:
                 stats["unstable_states"] += 1
+                mark = tally.start()
                 u, E, g, K, lam2, modes = _escape(problem, u, E, v, work, ctl, np.abs(lin.Kff.diagonal()))
+                tally.add("escape from an unstable state", mark)
                 lin, work = work, lin  # _escape left the tangent of the final state in ``work``
                 tangent_prev = None
                 stats["snap_events"].append({"u0": u0, "kind": "unstable_equilibrium", "step": step,
@@ -433,6 +496,11 @@ def solve_path(problem: Problem, ctl: StepControl,
     stats["backend"] = lin.backend
     stats["n_free"] = len(free)
     stats["factorizations"] = lin.n_factor + work.n_factor
+    stats["work_by_cause"] = tally.rows
+    stats["timers"] = {"assembly_s": problem_t.t_hessian, "assemblies": problem_t.n_hessian,
+                       "gradient_only_s": problem_t.t_gradient, "gradients_only": problem_t.n_gradient,
+                       "factor_s": lin.t_factor + work.t_factor, "solve_s": lin.t_solve + work.t_solve,
+                       "solves": lin.n_solve + work.n_solve}
     return stats
 
 
