@@ -27,7 +27,8 @@ the O(1/K_aug) Jacobian error only slows the last digits.
 
 Stabilization. Λ ∈ L2(p − 2) ties φ to i8 only in the element moments of degree p − 2; the rest
 of i8 inside an element is held by the first-gradient energy alone, and where the yarns are
-compressed (√i6 − 1 down to −0.33 at the clamp corners at 56 mm) that energy is not convex:
+compressed (√i6 − 1 down to −0.5 at the singular clamp corners of a 0.25 mm corner mesh at
+52.6 mm, −0.18 on the default mesh at 56 mm) that energy is not convex:
 small corner elements (0.25 mm) then lose stability at 51–53 mm (p = 2) and 34 mm (p = 3) in a
 mode with ‖δφ − δi8‖ = ‖δi8‖ at the corner (:func:`ngbet.run.diagnose_stability` names it). The
 exact constraint would charge such a variation of i8 about α/h_T² of bending energy. The

@@ -272,3 +272,21 @@ def test_stabilization_carries_fine_corner_meshes_and_is_small(tmp_path):
         F = [_run(tmp_path, f"p{p}_{k}", **{"discretization.order_u": p, "effects.stabilization_K": k}
                   )[1][-1]["force_N"] for k in (0.0, -1.0)]
         assert 0 < F[1] - F[0] < limit * 4.6, (p, F)
+
+
+@pytest.mark.parametrize("s", [0.95, 0.99])
+def test_ellipticity_loss_of_a_homogeneous_compression_of_the_thin_yarns(s):
+    # F = m1⊗m1 + s m2⊗m2 (thin yarns compressed to the stretch s, thick yarns at rest): the
+    # Hessian of W with respect to F m2 is diag(K_el, K_el (1 − 1/s) + K_sh) in the frame (m2, m1),
+    # so ellipticity across the thin yarns is lost everywhere iff 1/s − 1 > K_sh/K_el (s < 0.9709
+    # for Table 1) and nowhere otherwise
+    p = ContinuumProblem(coarse())
+    m1, m2 = np.array(p.scene.specimen.m1), np.array(p.scene.specimen.m2)
+    G = np.outer(m1, m1) + s * np.outer(m2, m2) - np.eye(2)
+    p.u.Set(ngs.CF((G[0, 0] * ngs.x + G[0, 1] * ngs.y, G[1, 0] * ngs.x + G[1, 1] * ngs.y)))
+    area, lo = obs.ellipticity_loss_area(p, 2)
+    m = p.scene.material
+    exact = min(m.K_el, m.K_el * (1 - 1 / s) + m.K_sh) / m.K_sh
+    assert math.isclose(lo, exact, rel_tol=1e-9, abs_tol=1e-9), (lo, exact)
+    total = p.scene.specimen.L * p.scene.specimen.W * 1e6
+    assert math.isclose(area, total if exact < 0 else 0.0, rel_tol=1e-9, abs_tol=1e-9), area
