@@ -33,6 +33,15 @@ def test_run_completes_with_quadratic_newton(unbalanced):
     assert worst <= 8, f"a regular step needed {worst} Newton iterations"
 
 
+def test_work_by_cause_accounts_for_every_factorization(unbalanced):
+    # the breakdown in the summary (bench_discrete's table) covers the whole run: its rows add up
+    # to the factorizations the two solver objects counted
+    _, _, s = unbalanced
+    rows = s["work_by_cause"]
+    total = sum(r["factorizations"] for r in rows.values())
+    assert total == s["factorizations"], f"rows {total} vs {s['factorizations']} factorizations"
+
+
 def test_half_turn_symmetry_unbalanced(unbalanced):
     # the half-turn about the centre maps each yarn family onto itself (also for EI1 != EI2) and
     # the network onto itself, so u_y on the mid-axis is odd about X = L/2: u_y(X) = -u_y(L - X)

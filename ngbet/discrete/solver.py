@@ -7,14 +7,20 @@ the "clamp" predictor) and ``evaluate(u, hessian) -> (E, dE/du, d2E/du2)``.
 Step from u0 to u0 + h:
   predictor  "tangent": u_f += -K_ff^{-1} K_fc h load_c  (K at the last converged state)
              "clamp":   u   += h ramp
-  corrector  Newton on the free dofs, du = -K_ff^{-1} r, with an Armijo backtracking on the
-             energy while far from the solution; where du is not a descent direction (K_ff
-             indefinite) the tangent is shifted by mu diag(K_ff), mu = 1e-6, 1e-4, ... until it is.
+  corrector  Newton on the free dofs, du = -K_ff^{-1} r; where du is not a descent direction
+             (K_ff indefinite) the tangent is shifted by mu diag(K_ff) until it is (mu from a
+             tenth of the last shift of the same Newton run, 1e-6 at first, raised tenfold).
+             While relaxing past a snap-through: Armijo backtracking on the energy, and shifted
+             steps extended while the energy keeps falling along them.
   converged  when the Newton decrement |r . du| (an energy, twice the predicted energy change)
-             is below rtol |E| + atol: unit-free.
+             is below rtol |E| + atol: unit-free; or, once the decrement is within
+             ``simplified_exit`` tolerances, when the simplified correction at u + du (the same
+             factorization, no new linearization) passes that test.
   step size  grows by ``growth`` (up to max_step) after a step with at most ``grow_after``
              iterations, is cut by ``cut`` after a failed step, and a step below ``min_step``
-             raises :class:`ConvergenceError` (residual history, last converged u0).
+             raises :class:`ConvergenceError` (residual history, last converged u0). A step
+             longer than ``snap_bracket`` stops at its first indefinite tangent and is cut (it
+             would be cut as a possible snap anyway, see below).
   stability  at each converged state the eigenvalues of K_ff v = lambda D v nearest to 0
              (D = diag K_ff, so lambda is unit-free) are computed by shift-invert Lanczos with the
              factorization already made for the next predictor. lambda_min < 0 means an unstable
@@ -26,6 +32,7 @@ Step from u0 to u0 + h:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from dataclasses import dataclass, field
@@ -91,6 +98,9 @@ class StepControl:
     stations: tuple[float, ...] = ()  # loads the path must hit exactly (shapes are wanted there)
     snap_release: float = 0.05  # released fraction of the step's work that marks a snap-through
     snap_bracket: float = 1e-3  # a step that snaps is cut until it is at most this long
+    # try the simplified-Newton exit (no new linearization) once the decrement is below this many
+    # tolerances; 0: off
+    simplified_exit: float = 1e3
 
 
 @dataclass
@@ -152,23 +162,33 @@ class _Tally:
 
 
 class _StepFailed(Exception):
-    def __init__(self, why: str, history: list[tuple[float, float, float]]) -> None:
+    """Newton gave up; ``u`` is its last iterate (None where it is of no use), ``indefinite``
+    says that it gave up at the first tangent that needed a shift (``allow_shift=False``)."""
+
+    def __init__(self, why: str, history: list[tuple[float, float, float]], u: np.ndarray | None = None,
+                 indefinite: bool = False) -> None:
         super().__init__(why)
         self.history = history
+        self.u = u
+        self.indefinite = indefinite
 
 
 def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
            max_iterations: int | None = None, line_search: bool = False, fail_fast: bool = True,
-           out: dict[str, Any] | None = None
+           out: dict[str, Any] | None = None, allow_shift: bool = True
            ) -> tuple[np.ndarray, int, list[tuple[float, float, float]], int]:
     """Minimize the energy over the free dofs from u (prescribed dofs as given).
 
     Plain Newton by default: with stiff axial terms the full step of a rotating beam stretches it
     and raises the energy, yet the next iteration restores the length and converges
     quadratically, whereas an energy line search would crawl. ``line_search=True`` (Armijo
-    backtracking on the energy) is used to relax past a snap-through. ``fail_fast`` gives up
-    when the decrement stops contracting after 6 iterations (the step will be cut); without it
-    Newton may wander through indefinite states to a distant branch (a snap-through).
+    backtracking on the energy) is used to relax past a snap-through; there a step with a shifted
+    tangent is also extended (x2, x4, ...) while the energy keeps falling along it: past a limit
+    point the shift, not the energy, sets the length of that step, and unextended it creeps along
+    the unstable mode by a few per cent per factorization. ``fail_fast`` gives up when the decrement
+    stops contracting after 6 iterations (the step will be cut); without it Newton may wander
+    through indefinite states to a distant branch (a snap-through). ``allow_shift=False`` gives up
+    at the first tangent that is not a descent direction (the caller would reject the step anyway).
 
     Returns
     -------
@@ -181,6 +201,7 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
     u = u.copy()
     hist: list[tuple[float, float, float]] = []
     shifted = 0
+    mu_prev = 0.0
     for it in range(1, (max_iterations or ctl.max_iterations) + 1):
         E, g, K = problem.evaluate(u, True)
         if out is not None:
@@ -193,13 +214,26 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
             lin.factor(K)
             du = -lin.solve(r)
             dec = -float(r @ du)
-            mu = 1e-6
+            # shift mu diag(K_ff): from a tenth of the last one that gave descent in this call (1e-6 at
+            # first), raised tenfold until the step descends. Past a limit point the smallest such shift
+            # matters: along an unstable mode of eigenvalue -lambda the shifted step grows the mode by
+            # about lambda / mu per iteration, and a fixed mu = 1e-6 >> lambda crept for dozens of
+            # factorizations
+            mu = max(mu_prev / 10, 1e-10) if mu_prev else 1e-6
+            shifted_now = dec <= 0
+            if shifted_now and not allow_shift:
+                hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
+                raise _StepFailed("tangent not a descent direction (indefinite)", hist, indefinite=True)
+            diag = np.abs(lin.Kff.diagonal())  # of the unshifted K_ff (lin.Kff holds the last shifted one)
             while dec <= 0 and mu < 1e3:  # not a descent direction: K_ff indefinite here
-                diag = lin.Kff.diagonal()
-                lin.factor(K, shift=mu * np.abs(diag))
-                du = -lin.solve(r)
-                dec = -float(r @ du)
-                mu *= 100
+                try:
+                    lin.factor(K, shift=mu * diag)
+                    du = -lin.solve(r)
+                    dec = -float(r @ du)
+                except LinearSolverError:  # the shift met an eigenvalue: singular, try the next
+                    dec = -1.0
+                mu_prev = mu
+                mu *= 10
                 shifted += 1
                 if out is not None:
                     out["shift_factorizations"] = out.get("shift_factorizations", 0) + 1
@@ -212,11 +246,27 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
             return u, it, hist, shifted
         if dec <= 0:
             raise _StepFailed("no descent direction even with a shifted tangent", hist)
+        if ctl.simplified_exit > 0 and not shifted_now and dec <= ctl.simplified_exit * tol:
+            # simplified-Newton exit: the correction at u + du with the tangent already factorized,
+            # d = -K(u)^-1 r(u + du), is the next Newton correction up to O(|du|); when its decrement
+            # is below the tolerance, u + du + d passes the same test without a new linearization
+            v = u.copy()
+            v[free] += du
+            E1, g1, _ = problem.evaluate(v, False)
+            r1 = g1[free]
+            d = -lin.solve(r1)
+            dec1 = -float(r1 @ d)
+            if np.isfinite(E1) and abs(dec1) <= ctl.rtol * abs(E1) + ctl.atol:
+                hist.append((E1, float(np.abs(r1).max(initial=0.0)), dec1))
+                v[free] += d
+                if out is not None:
+                    out["simplified_exits"] = out.get("simplified_exits", 0) + 1
+                return v, it, hist, shifted
         if fail_fast and not line_search and it >= 6 and dec > 0.5 * hist[-2][2]:
             # Newton converges quadratically near a solution or not at all: stop wasting factorizations
-            raise _StepFailed(f"Newton decrement not contracting ({hist[-2][2]:.3g} -> {dec:.3g})", hist)
+            raise _StepFailed(f"Newton decrement not contracting ({hist[-2][2]:.3g} -> {dec:.3g})", hist, u)
         alpha = 1.0
-        if line_search and dec > 1e-6 * abs(E) + ctl.atol:  # far from the solution
+        if line_search and (dec > 1e-6 * abs(E) + ctl.atol or shifted_now):  # far from the solution
             v = u.copy()
             for _ in range(12):
                 v[free] = u[free] + alpha * du
@@ -226,8 +276,19 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
                 alpha *= 0.5
             else:
                 raise _StepFailed("line search found no energy decrease", hist)
+            if alpha == 1.0 and shifted_now:
+                # extend a shifted step while the energy falls along it (doubling, at most 2^12)
+                for _ in range(12):
+                    v[free] = u[free] + 2 * alpha * du
+                    E2 = problem.evaluate(v, False)[0]
+                    if not (np.isfinite(E2) and E2 < Ev):
+                        break
+                    alpha, Ev = 2 * alpha, E2
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("newton it %d: E %.10g, |r| %.3g, decrement %.3g, shift mu %.0e, step x%g", it, E,
+                      hist[-1][1], dec, mu_prev if shifted_now else 0.0, alpha)
         u[free] += alpha * du
-    raise _StepFailed(f"no convergence in {max_iterations or ctl.max_iterations} iterations", hist)
+    raise _StepFailed(f"no convergence in {max_iterations or ctl.max_iterations} iterations", hist, u)
 
 
 def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = None, tol: float = 1e-3,
@@ -336,6 +397,11 @@ def solve_path(problem: Problem, ctl: StepControl,
                progress: Any = None) -> dict[str, Any]:
     """Follow the load path u0 = 0 -> ctl.u0_final; call ``on_step(info, u)`` after each converged step.
 
+    The BLAS libraries in the process (numpy's and scipy's OpenBLAS, NGSolve's OpenBLAS and MKL)
+    are held to one thread meanwhile: the solver's dense operations are vector-sized (dot products,
+    the Lanczos block of a few columns), where a second BLAS thread saves nothing and, spinning
+    between calls, kept a second core busy for the whole run (CPU time = 2x wall time).
+
     Returns
     -------
     dict with iteration and time statistics, snap events and the final state ``u``.
@@ -345,6 +411,25 @@ def solve_path(problem: Problem, ctl: StepControl,
     ConvergenceError
         when a step fails at the minimum step size (the states before it were passed to on_step).
     """
+    with single_threaded_blas():
+        return _solve_path(problem, ctl, on_step, progress)
+
+
+def single_threaded_blas() -> Any:
+    """Context holding every BLAS/OpenMP pool of the process to one thread (threadpoolctl)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - a dependency; without it the pools keep their threads
+        return contextlib.nullcontext()
+    try:  # NGSolve's BLAS and MKL are loaded with it: load them first, so that the limit reaches them
+        import ngsolve.la  # noqa: F401
+    except ImportError:  # pragma: no cover
+        pass
+    return threadpool_limits(limits=1)
+
+
+def _solve_path(problem: Problem, ctl: StepControl, on_step: Callable[[StepInfo, np.ndarray], None] | None,
+                progress: Any) -> dict[str, Any]:
     problem = problem_t = _TimedProblem(problem)
     n = problem.n_dofs
     u = np.zeros(n)
@@ -392,20 +477,34 @@ def solve_path(problem: Problem, ctl: StepControl,
         nout: dict[str, Any] = {}
         relaxed = None
         mark = tally.start()
+        bracketing = h > ctl.snap_bracket * (1 + 1e-9)
         try:
-            unew, its, hist, shifted = newton(problem, trial, work, ctl, out=nout)
+            # a step longer than the snap bracket that meets an indefinite tangent is cut whether or
+            # not Newton converges (see ``jumped`` below): give up at once
+            unew, its, hist, shifted = newton(problem, trial, work, ctl, out=nout, allow_shift=not bracketing)
         except _StepFailed as exc:
+            if exc.indefinite:
+                tally.add("indefinite tangent (step cut to bracket a snap)", mark, nout)
+                stats["snap_bracketing"] = stats.get("snap_bracketing", 0) + 1
+                log.info("step u0 %.5g -> %.5g met an indefinite tangent: cutting to bracket a snap", u0, u0 + h)
+                h = max(h * ctl.cut, ctl.snap_bracket)
+                continue
             tally.add("failed attempt", mark, nout)
             stats["failed_steps"] += 1
             log.info("step u0 %.5g -> %.5g failed (%s)", u0, u0 + h, exc)
-            if h <= ctl.snap_bracket * (1 + 1e-9) or h * ctl.cut < ctl.min_step * (1 - 1e-9):
+            if not bracketing or h * ctl.cut < ctl.min_step * (1 - 1e-9):
                 # a short step and still no equilibrium near the predictor: the branch ends (limit
                 # point); let a damped Newton (shifted where indefinite) run long enough to reach
-                # the branch it snaps to
+                # the branch it snaps to, from where the failed attempt got if that is lower
+                start = trial
+                if exc.u is not None:
+                    E_fail = problem.evaluate(exc.u, False)[0]
+                    if np.isfinite(E_fail) and E_fail < problem.evaluate(trial, False)[0]:
+                        start = exc.u
                 nout = {}
                 mark = tally.start()
                 try:
-                    relaxed = newton(problem, trial, work, ctl, max_iterations=4 * ctl.max_iterations,
+                    relaxed = newton(problem, start, work, ctl, max_iterations=4 * ctl.max_iterations,
                                      line_search=True, fail_fast=False, out=nout)
                 except _StepFailed as exc2:
                     last_hist = exc2.history
