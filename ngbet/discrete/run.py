@@ -9,9 +9,11 @@ step the state (``state_XXmm.npz``: deformed yarns, slip and angle per crossing)
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +62,25 @@ def step_row(model: NetworkModel, info: StepInfo, u: np.ndarray, specimen: Speci
                 "gamma_B_ideal_deg": np.degrees(g_ideal) / 2, "lambda_min": info.lambda_min, "snap": int(info.snap),
                 "released_J": info.released})
     return row
+
+
+@contextlib.contextmanager
+def _threads(n: int) -> Iterator[None]:
+    """NGSolve's threads for the sparse factorization: ``solver.threads`` (0: all cores), as in
+    ``ngbet run``, also when the discrete model is run directly. Outside a TaskManager NGSolve's
+    sparse Cholesky runs on all cores of its own accord; one thread is the default because the
+    2-core machines are shared (bench/README.md, discrete section)."""
+    import ngsolve as ngs
+
+    before = ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None
+    if n:
+        ngs.SetNumThreads(n)
+    try:
+        with ngs.TaskManager():
+            yield
+    finally:
+        if n and before:
+            ngs.SetNumThreads(before)
 
 
 def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
@@ -114,10 +135,12 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
                 bar.update(h * 1e3)
 
     info: dict[str, Any] = {"model": "discrete", "network": counts, "dofs": model.n_dofs,
-                            "free_dofs": int((~model.fixed).sum()), "t_build_s": t_build}
+                            "free_dofs": int((~model.fixed).sum()), "t_build_s": t_build,
+                            "threads": scene.solver.threads}
     status, error = "ok", None
     try:
-        stats = solve_path(model, ctl, on_step=on_step, progress=_MM() if bar is not None else None)
+        with _threads(scene.solver.threads):
+            stats = solve_path(model, ctl, on_step=on_step, progress=_MM() if bar is not None else None)
     except ConvergenceError as exc:
         status, error = "failed", str(exc)
         stats = {"last_converged_u0_mm": exc.last_converged_u0 * 1e3, "attempted_u0_mm": exc.attempted_u0 * 1e3,

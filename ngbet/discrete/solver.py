@@ -262,6 +262,15 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
                 if out is not None:
                     out["simplified_exits"] = out.get("simplified_exits", 0) + 1
                 return v, it, hist, shifted
+        if fail_fast and not line_search and it >= 2 and dec > 2 * abs(E):
+            # the quadratic model predicts an energy drop (dec / 2) larger than the energy itself
+            # (E >= 0 for the network): the iterate has left the region where Newton can converge
+            raise _StepFailed(f"Newton diverging (decrement {dec:.3g} > 2 |E| = {2 * abs(E):.3g})", hist, u)
+        if fail_fast and not line_search and it >= 3 and dec > hist[0][2]:
+            # from a predictor the decrement falls, at first perhaps slowly: one above the
+            # predictor's own, two iterations on, is Newton bouncing in a soft mode or leaving (the
+            # steps where this happened and Newton still converged were cut as snaps anyway)
+            raise _StepFailed(f"Newton decrement rose above the predictor's ({hist[0][2]:.3g} -> {dec:.3g})", hist, u)
         if fail_fast and not line_search and it >= 6 and dec > 0.5 * hist[-2][2]:
             # Newton converges quadratically near a solution or not at all: stop wasting factorizations
             raise _StepFailed(f"Newton decrement not contracting ({hist[-2][2]:.3g} -> {dec:.3g})", hist, u)
