@@ -103,3 +103,17 @@ def test_blas_pools_single_threaded_during_the_solve():
     with single_threaded_blas():
         blas = [i for i in threadpool_info() if i["user_api"] == "blas"]
         assert blas and all(i["num_threads"] == 1 for i in blas), f"{[(i['filepath'], i['num_threads']) for i in blas]}"
+
+
+def test_solve_many_equals_column_solves():
+    # one pass over the factor for several right-hand sides (the stability check's block) gives
+    # the columns' own solutions, and they solve the system
+    p = Convex(40)
+    K = p.evaluate(np.linspace(-1, 1, p.n_dofs))[2]
+    lin = solver(p)
+    lin.factor(K)
+    B = np.random.default_rng(0).standard_normal((p.n_dofs, 3))
+    X = lin.solve_many(B)
+    cols = np.column_stack([lin.solve(B[:, j]) for j in range(3)])
+    assert np.abs(X - cols).max() <= 1e-12 * np.abs(cols).max(), f"{np.abs(X - cols).max():.2e}"
+    assert np.abs(K @ X - B).max() <= 1e-10 * np.abs(B).max(), f"residual {np.abs(K @ X - B).max():.2e}"

@@ -125,6 +125,29 @@ class FreeBlockSolver:
         finally:
             self.t_solve += time.perf_counter() - t0
 
+    def solve_many(self, B: np.ndarray) -> np.ndarray:
+        """X = K_ff^{-1} B for the columns of B (n_free, m): one pass over the factor for all columns
+        with NGSolve (a MultiVector; 2 columns: 20 % less than two solves at 17k dofs)."""
+        if self.backend == "splu" or B.shape[1] == 1:
+            return np.column_stack([self.solve(B[:, j]) for j in range(B.shape[1])])
+        from ngsolve.la import MultiVector
+
+        t0 = time.perf_counter()
+        self.n_solve += B.shape[1]
+        try:
+            m = B.shape[1]
+            if getattr(self, "_mv_size", 0) != m:
+                self._mv_b, self._mv_x, self._mv_size = MultiVector(self._b, m), MultiVector(self._x, m), m
+            for j in range(m):
+                self._mv_b[j].FV().NumPy()[:] = B[:, j]
+            self._mv_x[:] = self._inv * self._mv_b
+            X = np.column_stack([np.array(self._mv_x[j].FV().NumPy()) for j in range(m)])
+        finally:
+            self.t_solve += time.perf_counter() - t0
+        if not np.all(np.isfinite(X)):
+            raise LinearSolverError("solution of the tangent system is not finite (singular tangent?)")
+        return X
+
     def _solve(self, b: np.ndarray) -> np.ndarray:
         if self.backend == "splu":
             x = self._lu.solve(b)
