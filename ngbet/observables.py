@@ -94,7 +94,7 @@ def ellipticity_loss_area(problem: ContinuumProblem, family: int) -> tuple[float
     discrete answer depends on the mesh. Returns (area [mm²] where λ_min(H) < 0, min λ(H)/K_sh).
     """
     m = problem.scene.material
-    F = ngs.Id(2) + ngs.Grad(problem.u)
+    F = problem.invariants().F
     mk, mj = (problem.m1, problem.m2) if family == 1 else (problem.m2, problem.m1)
     v, w = F * mk, F * mj
     nv = ngs.sqrt(ngs.InnerProduct(v, v))

@@ -173,7 +173,6 @@ def diagnose_stability(problem: Any, k: int = 3) -> str:
     suppressed by ``effects.stabilization_K``). Only computed after a failure: it costs seconds.
     """
     try:
-        import numpy as np
         import scipy.sparse as sps
         from scipy.sparse.linalg import eigsh
 
@@ -201,13 +200,13 @@ def diagnose_stability(problem: Any, k: int = 3) -> str:
             r, where = mode_constraint_ratio(problem, x)
             m = problem.scene.material
             ill = ""
-            for k, alpha in ((1, m.alpha1), (2, m.alpha2)):
-                area, lo_H = obs.ellipticity_loss_area(problem, k) if alpha == 0 else (0.0, 0.0)
+            for fam, alpha in ((1, m.alpha1), (2, m.alpha2)):
+                area, lo_H = obs.ellipticity_loss_area(problem, fam) if alpha == 0 else (0.0, 0.0)
                 if area > 0:
-                    ill = (f"; alpha{k} = 0 leaves i8 unregularized along the yarns of family {k}, and the "
+                    ill = (f"; alpha{fam} = 0 leaves i8 unregularized along the yarns of family {fam}, and the "
                            f"first-gradient energy has lost ellipticity for them on {area:.0f} mm² (compressed "
                            f"yarns; min eigenvalue {lo_H:.2f} K_sh): the model is ill-posed there and has no "
-                           f"mesh-independent solution; give alpha{k} > 0")
+                           f"mesh-independent solution; give alpha{fam} > 0")
             if r > 0.5:
                 kind = "a mode of the discretization: i8 varies inside the elements and phi does not follow"
                 if not ill:
@@ -231,7 +230,7 @@ def mode_constraint_ratio(problem: Any, x: Any) -> tuple[float, tuple[float, flo
     if problem.a_jac.condense:
         mode.vec.data += problem.a_jac.harmonic_extension * mode.vec
     du, dphi = mode.components[0], mode.components[1]
-    F = ngs.Id(2) + ngs.Grad(problem.u)
+    F = problem.invariants().F
     G = ngs.Grad(du)
     m1, m2 = problem.m1, problem.m2
     di8 = ngs.InnerProduct(F * m1, G * m2) + ngs.InnerProduct(G * m1, F * m2)

@@ -33,6 +33,7 @@ def test_toml_round_trip_is_identity():
     ("material.K_sh", -1.0, "material.K_sh"),
     ("discretization.order_u", 0, "discretization.order_u"),
     ("effects.constraint", "magic", "effects.constraint"),
+    ("effects.stabilization_K", -2.0, "effects.stabilization_K"),  # only -1 (the default) is negative
     ("loading.u0_mm", 70.0, "lock"),
     ("effects.elongation", False, "effects.elongation"),
     ("discretization.order_lam", 2, "discretization.order_lam"),

@@ -494,7 +494,8 @@ def _solve_path(problem: Problem, ctl: StepControl, on_step: Callable[[StepInfo,
                 start = trial
                 if exc.u is not None:
                     E_fail = problem.evaluate(exc.u, False)[0]
-                    if np.isfinite(E_fail) and E_fail < problem.evaluate(trial, False)[0]:
+                    E_trial = exc.history[0][0] if exc.history else problem.evaluate(trial, False)[0]
+                    if np.isfinite(E_fail) and E_fail < E_trial:
                         start = exc.u
                 nout = {}
                 mark = tally.start()
