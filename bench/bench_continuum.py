@@ -85,7 +85,7 @@ def _child(case: str, extra: dict) -> dict:
     t_import = time.perf_counter()
     from ngbet.run import run
     from ngbet.scene import Scene
-    from ngbet.solver import ConvergenceError
+    from ngbet.continuum.solver import ConvergenceError
 
     t_import = time.perf_counter() - t_import
     changes = {"outputs.vtk": False, "outputs.plot": False}
@@ -96,7 +96,7 @@ def _child(case: str, extra: dict) -> dict:
     if newton:
         import dataclasses
 
-        import ngbet.run as ngbet_run
+        import ngbet.continuum.run as ngbet_run
 
         plain = ngbet_run.newton_settings
         ngbet_run.newton_settings = lambda sc: dataclasses.replace(plain(sc), **newton)

@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     from .run import run
-    from .solver import ConvergenceError
+    from .continuum.solver import ConvergenceError
 
     out = Path(args.out)
     try:
@@ -89,23 +89,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _study(args: argparse.Namespace) -> int:
-    """``ngbet study NAME``: the study module studies.NAME (from the source tree next to ngbet/)."""
+    """``ngbet study NAME``: the study module ngbet.studies.NAME (installed with the package)."""
     import importlib
 
-    studies = None
-    # the studies live in the source tree: next to an editable install's ngbet/, or in the
-    # working directory of a clone (pip install . copies only the library)
-    for root in (None, Path(__file__).resolve().parent.parent, Path.cwd()):
-        if root is not None and (root / "studies" / "__init__.py").is_file():
-            sys.path.insert(0, str(root))
-        try:
-            studies = importlib.import_module("studies")
-            break
-        except ImportError:
-            continue
-    if studies is None:
-        print("ngbet study: no studies/ folder found; run from the root of a clone of ngbet", file=sys.stderr)
-        return 2
+    from . import studies
+
     if args.name == "list":
         for name, what in studies.STUDIES.items():
             print(f"{name:16s} {what}")
@@ -115,7 +103,7 @@ def _study(args: argparse.Namespace) -> int:
         return 2
     from .study import run_from_args
 
-    module = importlib.import_module(f"studies.{args.name}")
+    module = importlib.import_module(f"ngbet.studies.{args.name}")
     return run_from_args(module.build, args)
 
 

@@ -172,7 +172,7 @@ class Effects:
     penalty with Lambda as an element-local unknown (Lambda (phi - i8) - Lambda^2 / 2K) that is
     condensed out: it converges to the Lagrange solution like 1/K on the same mesh; ``"full"`` is
     the paper's pointwise penalty (the same discrete solution as a minimization in (u, phi), solved
-    with a condensed Lambda of the degree of phi - i8 when ``solver.condense``; see ngbet.problem).
+    with a condensed Lambda of the degree of phi - i8 when ``solver.condense``; see ngbet.continuum.problem).
     """
 
     shear: bool = True  # 1/2 K_sh i8^2
@@ -186,7 +186,7 @@ class Effects:
     # within-element part of φ − i8 that Λ ∈ L2(p − 2) leaves free. -1 (default): element by
     # element K_s = 0.1 min(alpha1, alpha2) / h_T^2, a tenth of the bending energy the exact
     # constraint would charge for a variation of i8 on the element's scale; 0: off; > 0: that
-    # constant (ngbet.problem)
+    # constant (ngbet.continuum.problem)
     stabilization_K: float = -1.0
 
     def __post_init__(self) -> None:
@@ -219,7 +219,7 @@ class Discretization:
     mesh_size_mm: float = 5.0
     order_u: int = 2
     order_phi: int = 0  # 0: same as order_u
-    order_lam: int = -1  # -1: max(order_u - 2, 0), the stable pair (see ngbet.problem)
+    order_lam: int = -1  # -1: max(order_u - 2, 0), the stable pair (see ngbet.continuum.problem)
     quad_bonus: int = 0  # extra quadrature order for the non-polynomial sqrt(i4), sqrt(i6) terms
     structured: bool = False  # crossed structured mesh instead of Netgen's unstructured one
     # mesh size at the four corners where a clamp meets a free edge (singular points of the

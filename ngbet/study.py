@@ -24,7 +24,7 @@ checkout; the source hash has none of these faults. The thread count is left out
 changes the wall time, not the result (beyond round-off of parallel assembly), and the runner
 sets it (1 per case when cases run in parallel).
 
-A case whose solver fails (ngbet.solver.ConvergenceError, or a discrete run ending "failed")
+A case whose solver fails (ngbet.continuum.solver.ConvergenceError, or a discrete run ending "failed")
 is a result: it is cached with its error and its converged steps and is not retried unless
 ``retry_failed``. A case that crashes otherwise (a bug, a killed worker) is recorded with its
 error in the study but not cached, so that the next run retries it. A scene refused by
@@ -81,7 +81,7 @@ def code_version(model: str = "continuum") -> dict[str, str]:
         h = hashlib.sha256()
         for path in sorted(pkg.rglob("*.py")):
             rel = path.relative_to(pkg).as_posix()
-            if rel in _NOT_IN_KEY or (model != "discrete" and rel.startswith("discrete/")):
+            if rel in _NOT_IN_KEY or rel.startswith("studies/") or (model != "discrete" and rel.startswith("discrete/")):
                 continue
             h.update(rel.encode() + b"\0" + path.read_bytes() + b"\0")
         v = versions()
@@ -228,7 +228,7 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
         except Exception:  # pragma: no cover
             pass
     from .run import run
-    from .solver import ConvergenceError
+    from .continuum.solver import ConvergenceError
 
     scene = Scene.from_dict(scene_dict)
     tmp = workdir is None
@@ -628,7 +628,7 @@ def savefig(fig: Any, out: Path, name: str) -> Path:
 
 
 # ---------------------------------------------------------------------------------------------
-# command line (python -m studies.NAME, ngbet study NAME)
+# command line (python -m ngbet.studies.NAME, ngbet study NAME)
 # ---------------------------------------------------------------------------------------------
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true", help="a small version of the study (seconds; what the tests run)")
@@ -643,7 +643,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog: str | None = None) -> int:
-    """Command line of one study module: ``python -m studies.NAME [--quick] [...]``."""
+    """Command line of one study module: ``python -m ngbet.studies.NAME [--quick] [...]``."""
     p = argparse.ArgumentParser(prog=prog, description=(build(False).description or "").split("\n")[0])
     add_arguments(p)
     return run_from_args(build, p.parse_args(argv))

@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 from conftest import coarse
 
-from ngbet import observables as obs
+from ngbet.continuum import observables as obs
 from ngbet.output import read_profiles, read_rows
-from ngbet.problem import ContinuumProblem
-from ngbet.run import newton_settings, run
-from ngbet.solver import newton
+from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.run import newton_settings
+from ngbet.run import run
+from ngbet.continuum.solver import newton
 
 
 def _run(tmp_path, tag, **changes):
@@ -96,7 +97,7 @@ def test_reaction_does_not_depend_on_the_test_field(tmp_path):
     """At equilibrium ψ = ((X/L)², 0) (also 1 on Σ2, 0 on Σ1) gives the same force as X/L."""
     scene = coarse(**{"loading.u0_mm": 20.0})
     problem = ContinuumProblem(scene)
-    from ngbet.solver import continuation
+    from ngbet.continuum.solver import continuation
 
     with ngs.TaskManager():
         continuation(problem, 0.02, 0.008, newton_settings(scene))
@@ -163,9 +164,9 @@ def test_ideal_kinematics_shear_angle_follows_the_table(u0):
     dips towards the centre (measured 6.42° at 10 mm, 13.86° at 20 mm, 30.2° against 33.65° at
     37 mm), which is how the energy gets below E_id (test above). The centre value is therefore
     asserted between 0.75 γ_A and γ_A, not equal to it."""
-    from ngbet import physics
+    from ngbet.continuum import physics
     from ngbet.kinematics import gamma_a
-    from ngbet.solver import continuation
+    from ngbet.continuum.solver import continuation
 
     scene = coarse(**{"material.K_el": 1e8, "effects.bending": False, "loading.u0_mm": u0, "loading.stops_mm": (),
                       "loading.first_step_mm": 4.0, "discretization.mesh_size_mm": 2.5,
@@ -254,7 +255,7 @@ def test_stabilization_carries_fine_corner_meshes_and_is_small(tmp_path):
     # 56 mm with a smooth Λ (measured 107.41 N, oscillation 0.10; reference 107.24 N ± 0.4 %), and
     # costs little accuracy on uniform meshes: +0.065 N at h = 10 mm (discretization error 4.6 N)
     # and +0.002 N at p = 3 (measured)
-    from ngbet.solver import ConvergenceError
+    from ngbet.continuum.solver import ConvergenceError
 
     graded = {"discretization.corner_mesh_size_mm": 0.25}
     with pytest.raises(ConvergenceError) as info:

@@ -9,7 +9,7 @@ Sanity of a converged run (``_assert_sane``):
   multiplier Λ ∈ L2(P0) (p = 2) φ = i8 holds in the element mean only, the rest is a
   discretization error O(h): RMS 0.027 at h = 10 mm, 0.049 at h = 20 mm (measured);
 - Newton needs few iterations per step on average (the issue's target is ≤ 5);
-- the multiplier does not oscillate from element to element (indicator of ngbet.observables).
+- the multiplier does not oscillate from element to element (indicator of ngbet.continuum.observables).
 
 Fast cases run on a 10-20 mm mesh in seconds; the expensive ones are marked ``slow``
 (``python -m pytest -m slow tests/test_hard_cases.py``).
@@ -23,7 +23,7 @@ from conftest import coarse
 
 from ngbet.output import read_profiles, read_rows
 from ngbet.run import run
-from ngbet.solver import ConvergenceError
+from ngbet.continuum.solver import ConvergenceError
 
 # reference: default scene (Lagrange, Λ ∈ L2(P0)) on the 10 mm mesh, force at 56 mm [N] (measured)
 F56_LAGRANGE_H10 = 111.914  # N, h = 10 mm, p = 2, Lagrange with the default stabilization
@@ -42,7 +42,7 @@ def _assert_sane(summary, rows, u0_mm, constraint_rms=0.05, its_per_step=5.0, os
     assert summary["status"] == "ok"
     if oscillation is not None and summary.get("multiplier_oscillation") is not None:
         # no oscillating multiplier: the default pair measures ~0.1 at h = 10 mm, an unstable pair
-        # ~0.85 (ngbet.observables.multiplier_oscillation)
+        # ~0.85 (ngbet.continuum.observables.multiplier_oscillation)
         assert summary["multiplier_oscillation"] < oscillation
     assert math.isclose(rows[-1]["u0_mm"], u0_mm, rel_tol=1e-12)
     F = np.array([r["force_N"] for r in rows])

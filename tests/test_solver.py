@@ -10,9 +10,10 @@ import pytest
 from conftest import coarse
 
 from ngbet.output import read_rows
-from ngbet.problem import ContinuumProblem
-from ngbet.run import newton_settings, run
-from ngbet.solver import ConvergenceError, NewtonSettings, continuation
+from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.run import newton_settings
+from ngbet.run import run
+from ngbet.continuum.solver import ConvergenceError, NewtonSettings, continuation
 
 
 def _deformed_problem(**changes):
@@ -87,7 +88,7 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
     (M the L2 mass matrix of Λ): the quasi-Newton is close to Newton and its limit is exact."""
     problem = _deformed_problem(**{"effects.constraint": "lagrange", "solver.condense": True})
     # condense=True with Λ: a_jac is condensed, rebuild the uncondensed augmented form to compare
-    from ngbet import physics
+    from ngbet.continuum import physics
 
     scene = problem.scene
     X = problem.X

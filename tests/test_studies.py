@@ -9,7 +9,7 @@ import pytest
 
 from ngbet.scene import Scene
 from ngbet.study import Study, load, plot_only, run_study
-from studies import _common as C
+from ngbet.studies import _common as C
 
 TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
         "loading.u0_mm": 10.0, "loading.stops_mm": [5.0]}
@@ -113,7 +113,7 @@ def quick_cache(tmp_path_factory):
 def run_quick(name, tmp_path, quick_cache):
     import importlib
 
-    mod = importlib.import_module(f"studies.{name}")
+    mod = importlib.import_module(f"ngbet.studies.{name}")
     return mod, run_study(mod.build(True), tmp_path / name, cache=quick_cache, progress=False)
 
 

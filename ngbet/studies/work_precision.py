@@ -11,7 +11,7 @@ Wall time is the case's whole run (mesh, assembly, Newton over all load steps, o
 VTK), measured with one NGSolve thread per case while the cases run two at a time on the
 2-core machine (other jobs share it; expect ±20 %).
 
-    python -m studies.work_precision [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+    python -m ngbet.studies.work_precision [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
 """
 
 from __future__ import annotations
@@ -163,7 +163,7 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_for(build, argv, prog="python -m studies.work_precision")
+    return main_for(build, argv, prog="python -m ngbet.studies.work_precision")
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ estimate dE_id/du0 (inextensible yarns, no slip, no bending: shear energy of zon
 MODEL.md section 4) and the envelope-theorem check dE/du0 of the computed energy (central
 differences between steps), an independent second value of the reaction.
 
-    python -m studies.curves [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+    python -m ngbet.studies.curves [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def plot(data: StudyData) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_for(build, argv, prog="python -m studies.curves")
+    return main_for(build, argv, prog="python -m ngbet.studies.curves")
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ Two error sources, measured apart:
 The total error |F_K(h, p) - F_ref| follows the penalty error until it meets the
 discretization error and stays there: beyond that K, raising K buys nothing.
 
-    python -m studies.penalty_p [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+    python -m ngbet.studies.penalty_p [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
 """
 
 from __future__ import annotations
@@ -216,7 +216,7 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_for(build, argv, prog="python -m studies.penalty_p")
+    return main_for(build, argv, prog="python -m ngbet.studies.penalty_p")
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ outline is the deformed boundary, sampled from each run's fields.vtu; the report
 width at X = L/2, the shear angle at the centre and the length along the mid-axis of the central
 zone (shear angle at least 90 % of the centre's), from the same file.
 
-    python -m studies.kel [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+    python -m ngbet.studies.kel [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def plot(data: StudyData) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_for(build, argv, prog="python -m studies.kel")
+    return main_for(build, argv, prog="python -m ngbet.studies.kel")
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import ngsolve as ngs
 
-from .scene import Discretization, Specimen
+from ..scene import Discretization, Specimen
 
 FIXED, MOVING, FREE = "left", "right", "bottom|top"
 

@@ -4,7 +4,7 @@ between the yarns as lines, 90 deg at rest), with both yarn families drawn on it
 rendered off-screen with pyvista. The same for ParaView: map_XXmm.vtu (all fields, warp by
 'displacement') and yarns_XXmm.vtp (deformed yarns, cell array 'family').
 
-    python -m studies.maps [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+    python -m ngbet.studies.maps [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def report(data: StudyData) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_for(build, argv, prog="python -m studies.maps")
+    return main_for(build, argv, prog="python -m ngbet.studies.maps")
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@ alpha1 = alpha2 = 20 Pa m^2 is the balanced fabric: mirror symmetry about Y = W/
 (u_y = 0 on the mid-axis). The paper's value is alpha1 = 2000 Pa m^2 (l1 = 309 mm). Every profile
 is odd about X = L/2 (half-turn symmetry); the report gives that residual as a check.
 
-    python -m studies.alpha1 [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+    python -m ngbet.studies.alpha1 [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_for(build, argv, prog="python -m studies.alpha1")
+    return main_for(build, argv, prog="python -m ngbet.studies.alpha1")
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ shear (+ elongation)       u ∈ VectorH1(p)                      W_sh + W_el (f
 The energy is written once, handed to ``Variation`` and compiled; NGSolve differentiates it for
 the residual and the linearization. The multiplier lives in L2 of order max(p − 2, 0)
 (discontinuous, element-local, so it can be eliminated element by element). Measured with
-:func:`ngbet.observables.multiplier_oscillation` (the part of Λ that a continuous field cannot
+:func:`ngbet.continuum.observables.multiplier_oscillation` (the part of Λ that a continuous field cannot
 represent, away from the clamps) on the default scene at 37 mm: with Λ ∈ L2(p − 1) it stays at
 0.84–0.86 on h = 10, 5, 2.5 mm for p = 2 (also with φ of order 3): the multiplier oscillates
 from element to element and does not converge, though u, φ and the force do; with Λ ∈ L2(p − 2)
@@ -30,7 +30,7 @@ of i8 inside an element is held by the first-gradient energy alone, and where th
 compressed (√i6 − 1 down to −0.5 at the singular clamp corners of a 0.25 mm corner mesh at
 52.6 mm, −0.18 on the default mesh at 56 mm) that energy is not convex:
 small corner elements (0.25 mm) then lose stability at 51–53 mm (p = 2) and 34 mm (p = 3) in a
-mode with ‖δφ − δi8‖ = ‖δi8‖ at the corner (:func:`ngbet.run.diagnose_stability` names it). The
+mode with ‖δφ − δi8‖ = ‖δi8‖ at the corner (:func:`ngbet.continuum.run.diagnose_stability` names it). The
 exact constraint would charge such a variation of i8 about α/h_T² of bending energy. The
 Lagrangian therefore carries ½K_s(φ − i8)² with K_s = c min(α1, α2)/h_T² element by element
 (c = 0.1, :data:`STABILIZATION_C`): it vanishes with its variation where φ = i8, so the exact
@@ -57,7 +57,7 @@ from ngsolve import CoefficientFunction as CF
 
 from . import physics
 from .mesh import make_mesh
-from .scene import Scene
+from ..scene import Scene
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +95,7 @@ def _range_over_elements(k: CF | float, mesh: ngs.Mesh) -> tuple[float, float]:
 
 
 class ContinuumProblem:
-    """Spaces, forms and load of one scene; implements :class:`ngbet.solver.NonlinearProblem`."""
+    """Spaces, forms and load of one scene; implements :class:`ngbet.continuum.solver.NonlinearProblem`."""
 
     def __init__(self, scene: Scene, mesh: ngs.Mesh | None = None, dirichlet: str = DIRICHLET) -> None:
         self.scene = scene

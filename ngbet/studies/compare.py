@@ -9,7 +9,7 @@ the yarns as lines: 90 deg at rest, 90 - gamma in both models). The study shows 
 models give; the report states whether they bend the specimen the same way (sign of u_y at
 X = L/4 on the mid-axis).
 
-    python -m studies.compare [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
+    python -m ngbet.studies.compare [--quick] [--workers N] [--scheduler ADDR] [--plot-only]
 """
 
 from __future__ import annotations
@@ -225,7 +225,7 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_for(build, argv, prog="python -m studies.compare")
+    return main_for(build, argv, prog="python -m ngbet.studies.compare")
 
 
 if __name__ == "__main__":
