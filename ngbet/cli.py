@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     from .run import run
-    from .continuum.solver import ConvergenceError
+    from .errors import ConvergenceError
 
     out = Path(args.out)
     try:

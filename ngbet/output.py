@@ -79,6 +79,14 @@ class RunWriter:
         self.rows: list[dict[str, Any]] = []
         self.t_start = time.perf_counter()
 
+    def __enter__(self) -> RunWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        """An interrupt (Ctrl-C) leaves a summary that says so, with the last converged load."""
+        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
+            self.summary({}, "interrupted", "interrupted by the user")
+
     def add_step(self, row: dict[str, Any], profile: Sequence[tuple[float, float]] | None = None) -> None:
         """Write one converged step (and its mid-axis profile) and flush it to disk."""
         self.rows.append(row)

@@ -24,7 +24,7 @@ checkout; the source hash has none of these faults. The thread count is left out
 changes the wall time, not the result (beyond round-off of parallel assembly), and the runner
 sets it (1 per case when cases run in parallel).
 
-A case whose solver fails (ngbet.continuum.solver.ConvergenceError, or a discrete run ending "failed")
+A case whose solver fails (ngbet.errors.ConvergenceError, both models)
 is a result: it is cached with its error and its converged steps and is not retried unless
 ``retry_failed``. A case that crashes otherwise (a bug, a killed worker) is recorded with its
 error in the study but not cached, so that the next run retries it. A scene refused by
@@ -228,7 +228,7 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
         except Exception:  # pragma: no cover
             pass
     from .run import run
-    from .continuum.solver import ConvergenceError
+    from .errors import ConvergenceError
 
     scene = Scene.from_dict(scene_dict)
     tmp = workdir is None

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import pytest
 
 from ngbet.discrete import run
+from ngbet.errors import ConvergenceError
 from ngbet.output import read_profiles, read_rows
 from ngbet.scene import Scene
 
@@ -147,7 +149,10 @@ def test_failed_step_reports_history(tmp_path):
     scene = Scene().with_changes(**{**BASE, "solver.rtol": 1e-300, "solver.atol_energy": 1e-300,
                                             "solver.max_iterations": 2, "loading.min_step_mm": 1.0,
                                             "outputs.plot": False})
-    s = run(scene, tmp_path, progress=False)
+    with pytest.raises(ConvergenceError) as err:
+        run(scene, tmp_path, progress=False)
+    assert err.value.last_converged_mm == 0.0
+    s = json.loads((tmp_path / "summary.json").read_text())
     assert s["status"] == "failed" and s["last_converged_u0_mm"] == 0.0 and len(s["residual_history"]) > 0, \
         f"status {s['status']}, error {s['error']}"
 

@@ -29,96 +29,96 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
     from .problem import ContinuumProblem
 
     t0 = time.perf_counter()
-    writer = RunWriter(out, scene)
-    problem = ContinuumProblem(scene)
-    t_setup = time.perf_counter() - t0
-    sp, o = scene.specimen, scene.outputs
-    warnings = []
-    if scene.effects.bending and scene.discretization.p_u == 1:
-        # measured, default scene at 37 mm: 84.4, 80.3, 76.3 N on h = 10, 5, 2.5 mm against 61.2 N
-        # (p = 2, 3 extrapolated), with ‖Λ‖ doubling at each refinement: P1 locks
-        warnings.append("order_u = 1 locks under the constraint phi = i8 (the force converges very slowly "
-                        "from above and the multiplier grows like 1/h); use order_u >= 2")
-        log.warning("%s", warnings[-1])
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    with RunWriter(out, scene) as writer:
+        problem = ContinuumProblem(scene)
+        t_setup = time.perf_counter() - t0
+        sp, o = scene.specimen, scene.outputs
+        warnings = []
+        if scene.effects.bending and scene.discretization.p_u == 1:
+            # measured, default scene at 37 mm: 84.4, 80.3, 76.3 N on h = 10, 5, 2.5 mm against 61.2 N
+            # (p = 2, 3 extrapolated), with ‖Λ‖ doubling at each refinement: P1 locks
+            warnings.append("order_u = 1 locks under the constraint phi = i8 (the force converges very slowly "
+                            "from above and the multiplier grows like 1/h); use order_u >= 2")
+            log.warning("%s", warnings[-1])
+        bar = None
+        if progress:
+            from tqdm import tqdm
 
-        bar = tqdm(total=scene.loading.u0_mm, unit="mm", desc="u0", bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} mm [{elapsed}<{remaining}]")
-    state = {"t_prev": time.perf_counter(), "timers": dict(problem.timers)}
+            bar = tqdm(total=scene.loading.u0_mm, unit="mm", desc="u0", bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} mm [{elapsed}<{remaining}]")
+        state = {"t_prev": time.perf_counter(), "timers": dict(problem.timers)}
 
-    def on_step(info: StepInfo) -> None:
-        r = info.report.residual if info.report.residual is not None else problem.residual()
-        row: dict[str, Any] = {"step": len(writer.rows) + 1, "u0_mm": round(info.lam * 1e3, 9)}
-        if o.reaction:
-            R = obs.reaction_force(problem, r)
-            row["force_N_per_m"] = R
-            row["force_N"] = R * sp.t
-        if o.double_force and problem.psi_phi is not None:
-            T = obs.reaction_double_force(problem, r)
-            row["double_force_N"] = T
-            row["double_force_Nm"] = T * sp.t
-        if o.energy:
-            E = problem.energy()
-            row["energy_J_per_m"] = E
-            row["energy_J"] = E * sp.t
-        row["gamma_centre_deg"] = obs.centre_shear_angle_deg(problem)
-        if "constraint" in o.fields and problem.phi is not None:
-            row["constraint_rms"] = obs.constraint_l2(problem)
-        now = time.perf_counter()
-        row["newton_iterations"] = info.iterations
-        row["step_wall_s"] = now - state["t_prev"]
-        for k, v in problem.timers.items():
-            row[k] = v - state["timers"][k]
-        state["t_prev"], state["timers"] = now, dict(problem.timers)
-        profile = None
-        if o.profile:
-            X, uy = obs.midaxis_profile(problem, o.profile_points)
-            profile = list(zip(X * 1e3, uy * 1e3))
-        writer.add_step(row, profile)
-        if o.vtk and o.vtk_every_step:
-            write_vtk(problem, out / f"fields_{row['step']:03d}")
-        if bar is not None:
-            bar.update(row["u0_mm"] - bar.n)
+        def on_step(info: StepInfo) -> None:
+            r = info.report.residual if info.report.residual is not None else problem.residual()
+            row: dict[str, Any] = {"step": len(writer.rows) + 1, "u0_mm": round(info.lam * 1e3, 9)}
+            if o.reaction:
+                R = obs.reaction_force(problem, r)
+                row["force_N_per_m"] = R
+                row["force_N"] = R * sp.t
+            if o.double_force and problem.psi_phi is not None:
+                T = obs.reaction_double_force(problem, r)
+                row["double_force_N"] = T
+                row["double_force_Nm"] = T * sp.t
+            if o.energy:
+                E = problem.energy()
+                row["energy_J_per_m"] = E
+                row["energy_J"] = E * sp.t
+            row["gamma_centre_deg"] = obs.centre_shear_angle_deg(problem)
+            if "constraint" in o.fields and problem.phi is not None:
+                row["constraint_rms"] = obs.constraint_l2(problem)
+            now = time.perf_counter()
+            row["newton_iterations"] = info.iterations
+            row["step_wall_s"] = now - state["t_prev"]
+            for k, v in problem.timers.items():
+                row[k] = v - state["timers"][k]
+            state["t_prev"], state["timers"] = now, dict(problem.timers)
+            profile = None
+            if o.profile:
+                X, uy = obs.midaxis_profile(problem, o.profile_points)
+                profile = list(zip(X * 1e3, uy * 1e3))
+            writer.add_step(row, profile)
+            if o.vtk and o.vtk_every_step:
+                write_vtk(problem, out / f"fields_{row['step']:03d}")
+            if bar is not None:
+                bar.update(row["u0_mm"] - bar.n)
 
-    info: dict[str, Any] = {"model": "continuum", "dofs": problem.ndofs(), "linear_solver": problem.inverse_type,
-                            "stabilization_K_Pa": list(problem.K_s_range),
-                            "condensed": bool(problem.a_jac.condense), "setup_s": t_setup,
-                            "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None}
-    L = scene.loading
-    try:
-        res = continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
-                           max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
-                           stops=[s * 1e-3 for s in L.stops_mm], on_step=on_step,
-                           diagnose=lambda: diagnose_stability(problem))
-    except ConvergenceError as err:
+        info: dict[str, Any] = {"model": "continuum", "dofs": problem.ndofs(), "linear_solver": problem.inverse_type,
+                                "stabilization_K_Pa": list(problem.K_s_range),
+                                "condensed": bool(problem.a_jac.condense), "setup_s": t_setup,
+                                "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None}
+        L = scene.loading
+        try:
+            res = continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
+                               max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
+                               stops=[s * 1e-3 for s in L.stops_mm], on_step=on_step,
+                               diagnose=lambda: diagnose_stability(problem))
+        except ConvergenceError as err:
+            if bar is not None:
+                bar.close()
+            info.update(_solver_info(problem, None))
+            writer.summary(info, "failed", str(err))
+            if writer.rows and o.plot:
+                plot_force(out)
+            raise
         if bar is not None:
             bar.close()
-        info.update(_solver_info(problem, None))
-        writer.summary(info, "failed", str(err))
-        if writer.rows and o.plot:
+        if o.vtk:
+            write_vtk(problem, out / "fields")
+        info.update(_solver_info(problem, res))
+        info["warnings"] = warnings
+        osc = obs.multiplier_oscillation(problem)
+        if osc is not None:
+            info["multiplier_oscillation"] = osc
+            if osc > 0.5:
+                why = ("the pointwise penalty locks (use effects.constraint = 'lagrange' or penalty_form = 'mixed')"
+                       if problem.full_as_mixed else
+                       f"the orders (u, phi, lam) = ({scene.discretization.p_u}, {scene.discretization.p_phi}, "
+                       f"{problem.p_lam}) are not a stable pair (the default orders are, for order_u >= 2)")
+                warnings.append(f"the multiplier oscillates ({osc:.2f} of its L2 norm is not continuous): {why}")
+                log.warning("%s", warnings[-1])
+        summary = writer.summary(info, "ok")
+        if o.plot:
             plot_force(out)
-        raise
-    if bar is not None:
-        bar.close()
-    if o.vtk:
-        write_vtk(problem, out / "fields")
-    info.update(_solver_info(problem, res))
-    info["warnings"] = warnings
-    osc = obs.multiplier_oscillation(problem)
-    if osc is not None:
-        info["multiplier_oscillation"] = osc
-        if osc > 0.5:
-            why = ("the pointwise penalty locks (use effects.constraint = 'lagrange' or penalty_form = 'mixed')"
-                   if problem.full_as_mixed else
-                   f"the orders (u, phi, lam) = ({scene.discretization.p_u}, {scene.discretization.p_phi}, "
-                   f"{problem.p_lam}) are not a stable pair (the default orders are, for order_u >= 2)")
-            warnings.append(f"the multiplier oscillates ({osc:.2f} of its L2 norm is not continuous): {why}")
-            log.warning("%s", warnings[-1])
-    summary = writer.summary(info, "ok")
-    if o.plot:
-        plot_force(out)
-    return summary
+        return summary
 
 
 def _solver_info(problem: Any, res: Any) -> dict[str, Any]:

@@ -28,6 +28,8 @@ from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
+from ..errors import ConvergenceError as _ConvergenceError
+
 log = logging.getLogger(__name__)
 
 
@@ -93,8 +95,8 @@ class Attempt:
     report: NewtonReport
 
 
-class ConvergenceError(RuntimeError):
-    """The load could not be carried further.
+class ConvergenceError(_ConvergenceError):
+    """The load could not be carried further (the continuum's attempts and diagnosis).
 
     Attributes
     ----------
@@ -108,6 +110,7 @@ class ConvergenceError(RuntimeError):
 
     def __init__(self, message: str, last_converged: float, attempts: Sequence[Attempt], diagnosis: str = ""):
         self.last_converged = last_converged
+        self.last_converged_mm = last_converged * 1e3
         self.attempts = list(attempts)
         self.diagnosis = diagnosis
         tail = "\n".join(

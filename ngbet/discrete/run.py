@@ -94,71 +94,76 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
 
     Returns
     -------
-    The summary dict (also in ``out/summary.json``); ``status`` is "ok" or "failed".
+    The summary dict (also in ``out/summary.json``).
+
+    Raises
+    ------
+    ngbet.errors.ConvergenceError
+        when a step cannot be completed; the converged steps and ``summary.json`` (``"status":
+        "failed"``) are on disk by then.
     """
     out = Path(out)
-    writer = RunWriter(out, scene)
-    t0 = time.perf_counter()
-    net = network_from_scene(scene)
-    model = NetworkModel.from_scene(scene, net)
-    t_build = time.perf_counter() - t0
-    counts = net.counts()
-    log.info("discrete network: %s", counts)
-    ctl = step_control(scene)
-    n_prof = scene.outputs.profile_points
-    last: dict[str, Any] = {"u": np.zeros(model.n_dofs), "u0": 0.0}
+    with RunWriter(out, scene) as writer:
+        t0 = time.perf_counter()
+        net = network_from_scene(scene)
+        model = NetworkModel.from_scene(scene, net)
+        t_build = time.perf_counter() - t0
+        counts = net.counts()
+        log.info("discrete network: %s", counts)
+        ctl = step_control(scene)
+        n_prof = scene.outputs.profile_points
+        last: dict[str, Any] = {"u": np.zeros(model.n_dofs), "u0": 0.0}
 
-    def snapshot(u: np.ndarray, u0: float) -> None:
-        tag = f"{u0 * 1e3:.0f}mm"
-        ob.save_state(out / f"state_{tag}.npz", net, u, u0)
-        if scene.outputs.plot:
-            ob.plot_state(out / f"yarns_{tag}.png", net, u, u0)
+        def snapshot(u: np.ndarray, u0: float) -> None:
+            tag = f"{u0 * 1e3:.0f}mm"
+            ob.save_state(out / f"state_{tag}.npz", net, u, u0)
+            if scene.outputs.plot:
+                ob.plot_state(out / f"yarns_{tag}.png", net, u, u0)
 
-    def on_step(info: StepInfo, u: np.ndarray) -> None:
-        row = step_row(model, info, u, scene.specimen)
-        X, uy = ob.midline_profile(net, u, n_prof)
-        writer.add_step(row, profile=list(zip((X * 1e3).tolist(), (uy * 1e3).tolist())))
-        last["u"], last["u0"] = u, info.u0
-        if any(abs(info.u0 - s) < 1e-12 for s in ctl.stations):
-            snapshot(u, info.u0)
-        log.debug("step %d u0 = %.4g mm F = %.5g N its %d", info.step, info.u0 * 1e3, row["force_N"], info.iterations)
+        def on_step(info: StepInfo, u: np.ndarray) -> None:
+            row = step_row(model, info, u, scene.specimen)
+            X, uy = ob.midline_profile(net, u, n_prof)
+            writer.add_step(row, profile=list(zip((X * 1e3).tolist(), (uy * 1e3).tolist())))
+            last["u"], last["u0"] = u, info.u0
+            if any(abs(info.u0 - s) < 1e-12 for s in ctl.stations):
+                snapshot(u, info.u0)
+            log.debug("step %d u0 = %.4g mm F = %.5g N its %d", info.step, info.u0 * 1e3, row["force_N"], info.iterations)
 
-    bar = None
-    if progress:
-        from tqdm import tqdm
+        bar = None
+        if progress:
+            from tqdm import tqdm
 
-        bar = tqdm(total=round(ctl.u0_final * 1e3, 6), unit="mm", desc="discrete BET",
-                   bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} mm [{elapsed}<{remaining}]")
+            bar = tqdm(total=round(ctl.u0_final * 1e3, 6), unit="mm", desc="discrete BET",
+                       bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} mm [{elapsed}<{remaining}]")
 
-        class _MM:
-            def update(self, h: float) -> None:
-                bar.update(h * 1e3)
+            class _MM:
+                def update(self, h: float) -> None:
+                    bar.update(h * 1e3)
 
-    info: dict[str, Any] = {"model": "discrete", "network": counts, "dofs": model.n_dofs,
-                            "free_dofs": int((~model.fixed).sum()), "t_build_s": t_build,
-                            "threads": scene.solver.threads}
-    status, error = "ok", None
-    try:
-        with _threads(scene.solver.threads):
-            stats = solve_path(model, ctl, on_step=on_step, progress=_MM() if bar is not None else None)
-    except ConvergenceError as exc:
-        status, error = "failed", str(exc)
-        stats = {"last_converged_u0_mm": exc.last_converged_u0 * 1e3, "attempted_u0_mm": exc.attempted_u0 * 1e3,
-                 "residual_history": exc.residual_history}
-        log.error("%s", exc)
-    finally:
-        if bar is not None:
-            bar.close()
-    stats.pop("u", None)
-    if last["u0"] > 0:
-        snapshot(last["u"], last["u0"])
-    rows = writer.rows
-    info.update({k: v for k, v in stats.items()})
-    info["snap_event_count"] = len(stats.get("snap_events", []))
-    info["newton_iterations_total"] = int(sum(r["newton_iterations"] for r in rows))
-    info["max_slip_mm"] = max((r["max_slip_mm"] for r in rows), default=0.0)
-    info["t_solve_s"] = time.perf_counter() - t0 - t_build
-    summary = writer.summary(info, status, error)
-    if status != "ok":
-        log.error("discrete run stopped at u0 = %.4g mm: %s", last["u0"] * 1e3, error)
-    return summary
+        info: dict[str, Any] = {"model": "discrete", "network": counts, "dofs": model.n_dofs,
+                                "free_dofs": int((~model.fixed).sum()), "t_build_s": t_build,
+                                "threads": scene.solver.threads}
+        status, error, failure = "ok", None, None
+        try:
+            with _threads(scene.solver.threads):
+                stats = solve_path(model, ctl, on_step=on_step, progress=_MM() if bar is not None else None)
+        except ConvergenceError as exc:
+            status, error, failure = "failed", str(exc), exc
+            stats = {"last_converged_u0_mm": exc.last_converged_u0 * 1e3, "attempted_u0_mm": exc.attempted_u0 * 1e3,
+                     "residual_history": exc.residual_history}
+        finally:
+            if bar is not None:
+                bar.close()
+        stats.pop("u", None)
+        if last["u0"] > 0:
+            snapshot(last["u"], last["u0"])
+        rows = writer.rows
+        info.update({k: v for k, v in stats.items()})
+        info["snap_event_count"] = len(stats.get("snap_events", []))
+        info["newton_iterations_total"] = int(sum(r["newton_iterations"] for r in rows))
+        info["max_slip_mm"] = max((r["max_slip_mm"] for r in rows), default=0.0)
+        info["t_solve_s"] = time.perf_counter() - t0 - t_build
+        summary = writer.summary(info, status, error)
+        if failure is not None:
+            raise failure
+        return summary

@@ -45,6 +45,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..errors import ConvergenceError as _ConvergenceError
 from .linsolve import FreeBlockSolver, LinearSolverError
 
 log = logging.getLogger(__name__)
@@ -62,7 +63,7 @@ class Problem(Protocol):
     def evaluate(self, u: np.ndarray, hessian: bool = True) -> tuple[float, np.ndarray, sp.csr_matrix | None]: ...
 
 
-class ConvergenceError(RuntimeError):
+class ConvergenceError(_ConvergenceError):
     """A load step could not be completed even with the smallest step size.
 
     Attributes
@@ -76,6 +77,7 @@ class ConvergenceError(RuntimeError):
                  residual_history: list[tuple[float, float, float]]) -> None:
         super().__init__(msg)
         self.last_converged_u0 = last_converged_u0
+        self.last_converged_mm = last_converged_u0 * 1e3
         self.attempted_u0 = attempted_u0
         self.residual_history = residual_history
 
