@@ -39,4 +39,12 @@ def make_mesh(specimen: Specimen, disc: Discretization) -> ngs.Mesh:
         # uniform meshes); a local size there restores most of the accuracy of p
         for v in face.vertices:
             v.maxh = disc.corner_mesh_size_mm * 1e-3
-    return ngs.Mesh(OCCGeometry(face, dim=2).GenerateMesh(maxh=h))
+    if disc.corner_levels > 0:
+        for v in face.vertices:
+            v.hpref = 1
+    mesh = ngs.Mesh(OCCGeometry(face, dim=2).GenerateMesh(maxh=h))
+    if disc.corner_levels > 0:
+        # geometric grading: each level splits the elements at the four corners, the new ones
+        # ``corner_grading_factor`` times smaller (triangles and quadrilaterals)
+        mesh.RefineHP(disc.corner_levels, factor=disc.corner_grading_factor)
+    return mesh
