@@ -121,7 +121,8 @@ def _report(summary: dict, out: Path) -> str:
     for r in rows:
         if "force_N" in r and (abs(r["u0_mm"] - 37) < 1e-9 or r is rows[-1]):
             err = r.get("force_error_N")
-            bar = f" ± {err:.2g} N (estimated discretization error)" if isinstance(err, float) else ""
+            bar = (f" ± {err:.2g} N (estimated discretization error)" if isinstance(err, float) and err == err
+                   else " (error estimate failed)" if isinstance(err, float) else "")
             lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N{bar}")
     if "accuracy" in summary:
         a, d = summary["accuracy"], summary["accuracy"]["chosen"]
