@@ -38,7 +38,7 @@ def test_toml_round_trip_is_identity():
     ("effects.elongation", False, "effects.elongation"),
     ("discretization.order_lam", 2, "discretization.order_lam"),
     ("specimen.width_mm", 300.0, "zone A"),
-    ("discretization.corner_mesh_size_mm", 6.0, "must not exceed discretization.mesh_size_mm"),
+    ("discretization.corner_mesh_size_mm", 12.0, "must not exceed discretization.mesh_size_mm"),
     ("discretization.discrete_typo", 1.0, "discretization.discrete_typo"),
     ("discrete.end_rotation", "clamped", "discrete.end_rotation"),
 ])

@@ -4,15 +4,16 @@ Method (:data:`METHOD`): at a converged load λ the state is carried over to the
 one order more (p + 1 for u and φ, Λ one up too), and Newton is run there at the same λ from
 that state (a warm start: 2–4 iterations, no load stepping). The error of the force is estimated by
 
-.. math::  \eta_F = \theta\,|F_p - F_{p+1}|,\qquad \theta = 3
+.. math::  \eta_F = \theta\,|F_p - F_{p+1}|,\qquad \theta = 2.5
 
 and that of the mid-axis profile by θ max|u_y,p − u_y,p+1|. Why (measured against
 reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accuracy.py):
 
 * the error lives at the four singular clamp corners, where raising p on a fixed mesh gains
   slowly: the enriched error is 30–75 % of the original's (uniform h = 10 mm, p = 3 → 4: 57 %,
-  4 → 5: 76 %; graded, p = 2 → 3: 55–80 %), so |F_p − F_p+1| is 0.25–0.7 of the error and θ = 3
-  puts the effectivity at 0.6–1.3 on the scenes tested (at most 3 where p converges fast);
+  4 → 5: 76 %; graded, p = 2 → 3: 55–80 %), so |F_p − F_p+1| is 0.25–0.7 of the error and
+  θ = 2.5 puts the effectivity at 0.57–2.24 on the 12 scenes of the table (higher where p
+  converges fast);
 * an enriched solve on a mesh refined at the corners sees the corner error better, but Newton
   from the carried-over state does not converge there (the corner solution of the finer mesh is
   too far from the coarse one at 37–56 mm); only a full load continuation would do, at 2–4
@@ -23,10 +24,11 @@ reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accu
   estimated load (``cost_s``; about 1–3 times the run's own solve for each load); it is paid at
   the load stops and the final load only.
 
-Limitation: where the error does not fall with p at all on a fixed mesh, the estimate misses it.
-Measured: α1 = 200 Pa m² on the uniform h = 10 mm mesh (F = 66.76 N at p = 2 and 66.78 N at
-p = 3 against 66.58 N): effectivity 0.2. Corner-graded meshes (the default) do not show it; a run
-without corner grading says so in its warnings.
+Limitation: where the error does not fall with p at all on a fixed mesh, the estimate misses it,
+and where the p-sequence crosses the limit it overshoots. Measured with α1 = 200 Pa m² (errors
+of 0.15–0.3 %): on the uniform h = 10 mm mesh F = 66.76 N at p = 2 and 66.78 N at p = 3 against
+66.577 N (effectivity 0.17); graded to 0.5 mm, 66.480 N and 66.585 N (effectivity 4.0). A run
+without corner grading says in its summary that the estimate may miss the corner error.
 
 Failure of the enriched Newton gives an estimate of ``nan`` with a warning; the run's result is kept.
 """
@@ -46,9 +48,9 @@ from ..scene import Discretization, Scene
 
 log = logging.getLogger(__name__)
 
-METHOD = "p+1 enriched Newton on the same mesh, theta = 3"
+METHOD = "p+1 enriched Newton on the same mesh, theta = 2.5"
 #: safety factor θ: the enriched solution's own error is 30–75 % of the original's (measured)
-THETA = 3.0
+THETA = 2.5
 #: Newton tolerance of the enriched solve (relative energy): the force to ~1e-7 relative
 ENRICHED_RTOL = 1e-8
 
