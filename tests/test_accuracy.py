@@ -5,27 +5,30 @@ Reference values (computed once with this code, stored here): for each base scen
 family of ``ngbet study reference``); the reference is their Aitken extrapolation
 (:func:`ngbet.studies.reference.aitken`), the bound twice the extrapolation step.
 
-Effectivity table (estimate / true error at 56 mm, θ = 2.5, measured on a loaded 2-core machine;
-the last two rows are the measured exceptions documented in ngbet.continuum.estimate):
+Effectivity table (estimate / true error of the force at 56 mm, θ = 2.5, estimate at the final
+load only; solve and estimate times on the 2-core machine, loaded, so read the ratio):
 
-==========================  =========  =========  ===========
-scene                       F [N]      error [N]  effectivity
-==========================  =========  =========  ===========
-uniform h = 5, p = 2         109.538     2.298      0.91
-uniform h = 10, p = 2        111.914     4.674      0.83
-uniform h = 10, p = 3        110.356     3.116      1.07
-uniform h = 10, p = 4        109.016     1.776      0.61
-graded 0.5 mm, p = 2         107.787     0.547      0.99
-graded 0.25 mm, p = 2        107.413     0.172      0.57
-mixed penalty, h = 10, p = 2 111.772     4.672      0.84
-mixed penalty, 0.25 mm, p=3  107.232     0.133      2.24
-α1 = 20000, h = 10, p = 2    150.184    19.864      1.90
-100 x 300, h = 10, p = 2      88.368     2.014      0.80
-yarns at 50°, h = 10, p = 2   62.702     2.134      0.73
-yarns at 50°, 0.5 mm, p = 3   60.716     0.149      1.83
-α1 = 200, h = 10, p = 2       66.764     0.186      0.17 (missed)
-α1 = 200, 0.5 mm, p = 2       66.480    -0.097      4.0  (overshoot)
-==========================  =========  =========  ===========
+=====================================  ========  ===========  =========  ===========  ===============
+scene (h [mm], corner [mm], p)         F [N]     ref. [N]     error [N]  effectivity  estimate/solve
+=====================================  ========  ===========  =========  ===========  ===============
+paper, 10, –, 2                        111.914   107.240      +4.674     0.83         0.41
+paper, 5, –, 2 (the former default)    109.538   107.240      +2.298     0.91         0.41
+paper, 10, –, 3                        110.356   107.240      +3.116     1.07         0.90
+paper, 10, –, 4                        109.016   107.240      +1.776     0.61         0.39
+paper, 10, 0.5, 2                      107.787   107.240      +0.547     0.99         0.50
+paper, 10, 0.25, 2                     107.413   107.240      +0.172     0.56         1.28
+mixed penalty K = 1e8, 10, –, 2        111.772   107.099      +4.672     0.84         0.31
+mixed penalty K = 1e8, 10, 0.25, 3     107.232   107.099      +0.133     1.49         1.39
+α1 = 20000, 10, –, 2                   150.184   130.320      +19.864    1.27         0.69
+α1 = 200, 10, 0.5, 2                    66.480    66.577      −0.097     2.68         0.37
+100 x 300 specimen, 10, –, 2            88.368    86.354      +2.014     0.80         0.89
+yarns at 50°, 10, –, 2                  62.702    60.567      +2.134     0.73         0.40
+yarns at 50°, 10, 0.5, 3                60.716    60.567      +0.149     1.22         1.30
+α1 = 200, 10, –, 2 (missed)             66.764    66.577      +0.186     0.17         0.36
+=====================================  ========  ===========  =========  ===========  ===============
+
+The last row is the documented exception (ngbet.continuum.estimate): on a mesh without corner
+grading the error of the α1 = 200 scene does not fall with p, and the p + 1 estimate misses it.
 """
 
 from __future__ import annotations
@@ -83,7 +86,7 @@ def _effectivity(tmp_path, base: str, **disc) -> tuple[float, dict]:
     s = run(_scene(base, **disc), tmp_path / f"{base}_{'_'.join(map(str, disc.values()))}")
     F_ref, bound = ref(base)
     err = abs(s["force_N"] - F_ref)
-    assert err > 5 * bound, "the scene's error must stand above the reference's bound"
+    assert err > 3 * bound, "the scene's error must stand above the reference's bound"
     return s["force_error_N"] / err, s
 
 
@@ -95,6 +98,7 @@ SLOW = [("default", {"mesh_size_mm": 5.0}), ("default", {"mesh_size_mm": 10.0, "
         ("default", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25}),
         ("penalty", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}),
         ("alpha1_20000", {"mesh_size_mm": 10.0}), ("bet_100x300", {"mesh_size_mm": 10.0}),
+        ("alpha1_200", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5}),
         ("yarn_50", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5, "order_u": 3})]
 
 
@@ -111,6 +115,12 @@ def test_effectivity_fast_subset(tmp_path, base, disc):
 def test_effectivity_all_scenes(tmp_path, base, disc):
     eff, _ = _effectivity(tmp_path, base, **disc)
     assert 0.5 <= eff <= 3.0, eff
+
+
+def test_estimate_misses_the_ungraded_alpha1_200_error(tmp_path):
+    """The documented limitation, kept measured: if the estimate learns to see it, update the docs."""
+    eff, s = _effectivity(tmp_path, "alpha1_200", mesh_size_mm=10.0)
+    assert eff < 0.5 and "not graded" in s["error_estimate_note"]
 
 
 def test_results_csv_has_the_error_at_the_stops(tmp_path):
@@ -139,7 +149,6 @@ def test_accuracy_on_demand_reaches_the_target(tmp_path, target, capsys):
     assert f"accuracy {target:g} met" in capsys.readouterr().out
 
 
-@pytest.mark.slow
 def test_hp_grading_converges_exponentially(tmp_path):
     """(corner, p) = (2.5 mm, 2), (1 mm, 3), (0.5 mm, 4): log e is linear in N^(1/3), not in log N."""
     F_ref, _ = ref("default")

@@ -12,8 +12,8 @@ reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accu
 * the error lives at the four singular clamp corners, where raising p on a fixed mesh gains
   slowly: the enriched error is 30–75 % of the original's (uniform h = 10 mm, p = 3 → 4: 57 %,
   4 → 5: 76 %; graded, p = 2 → 3: 55–80 %), so |F_p − F_p+1| is 0.25–0.7 of the error and
-  θ = 2.5 puts the effectivity at 0.57–2.24 on the 12 scenes of the table (higher where p
-  converges fast);
+  θ = 2.5 puts the effectivity at 0.56–2.68 on the 13 scenes of the table in
+  tests/test_accuracy.py (higher where p converges fast);
 * an enriched solve on a mesh refined at the corners sees the corner error better, but Newton
   from the carried-over state does not converge there (the corner solution of the finer mesh is
   too far from the coarse one at 37–56 mm); only a full load continuation would do, at 2–4
@@ -21,13 +21,14 @@ reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accu
 * a dual-weighted residual needs the same enriched space (the dual solution in the run's own
   space is orthogonal to the residual), so it costs the same factorizations;
 * cost: one assembly of the enriched forms and 2–4 factorizations of the enriched matrix per
-  estimated load (``cost_s``; about 1–3 times the run's own solve for each load); it is paid at
-  the load stops and the final load only.
+  estimated load (``cost_s``): 0.3–1.4 times the run's whole solve for the final load alone
+  (measured on the 13 scenes); it is paid at the load stops and the final load only
+  (``outputs.error_estimate``), not at the intermediate steps.
 
 Limitation: where the error does not fall with p at all on a fixed mesh, the estimate misses it,
-and where the p-sequence crosses the limit it overshoots. Measured with α1 = 200 Pa m² (errors
-of 0.15–0.3 %): on the uniform h = 10 mm mesh F = 66.76 N at p = 2 and 66.78 N at p = 3 against
-66.577 N (effectivity 0.17); graded to 0.5 mm, 66.480 N and 66.585 N (effectivity 4.0). A run
+and where the p-sequence crosses the limit it overshoots. Measured with α1 = 200 Pa m² (an error
+of 0.28 %): on the uniform h = 10 mm mesh F = 66.76 N at p = 2 and 66.78 N at p = 3 against
+66.577 N (effectivity 0.17); graded to 0.5 mm the same scene gives 2.68. A run
 without corner grading says in its summary that the estimate may miss the corner error.
 
 Failure of the enriched Newton gives an estimate of ``nan`` with a warning; the run's result is kept.
