@@ -126,9 +126,9 @@ def _report(summary: dict, out: Path) -> str:
             lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N{bar}")
     if "accuracy" in summary:
         a, d = summary["accuracy"], summary["accuracy"]["chosen"]
-        lines.append(f"  accuracy {a['target_error']:g} {'met' if a['met'] else 'NOT met'}: h = {d['mesh_size_mm']:g} mm, "
-                     f"corners {d['corner_mesh_size_mm']:g} mm, p = {d['order_u']} after {len(a['attempts'])} attempt(s), "
-                     f"solve {a['solve_s']:.2f} s, {a['wall_s']:.2f} s in all")
+        lines.append(f"  accuracy {a['target_error']:g} {'met' if a['met'] else 'NOT met'}: h = {d['mesh_size_mm']:g} mm,"
+                     f" corners {d['corner_mesh_size_mm']:g} mm, p = {d['order_u']} after {len(a['attempts'])} "
+                     f"attempt(s), solve {a['solve_s']:.2f} s, {a['wall_s']:.2f} s in all")
     return "\n".join(lines)
 
 

@@ -171,7 +171,8 @@ def _final_force(out) -> float:
 
 
 def test_default_scene_is_within_0p3_percent(tmp_path):
-    sc = default_scene().with_changes(**{"outputs.vtk": False, "outputs.plot": False, "outputs.error_estimate": "final"})
+    sc = default_scene().with_changes(**{"outputs.vtk": False, "outputs.plot": False,
+                                         "outputs.error_estimate": "final"})
     s = run(sc, tmp_path / "d")
     F_ref, bound = ref("default")
     assert abs(s["force_N"] - F_ref) + bound < 0.003 * F_ref
@@ -182,3 +183,19 @@ def test_default_scene_is_within_0p3_percent(tmp_path):
     assert np.allclose(X[::11], np.linspace(0, 220, 11))
     assert np.max(np.abs(np.subtract(uy[::11], PROFILE_56))) < 0.01 * PROFILE_56_MAX
     assert 0 < s["profile_error_mm"]["56"] < 0.03 * PROFILE_56_MAX
+
+
+def test_reference_study_quick(tmp_path):
+    """The study's quick mode (20 mm load, 20 mm mesh, corners 0.5 mm, p = 2, 3, 4): a reference
+    within its bound of the highest order (that short sequence is not yet geometric: the bound is
+    then its last difference), the report and the convergence figure."""
+    from ngbet.studies import STUDIES, reference
+    from ngbet.study import run_study
+
+    assert "reference" in STUDIES
+    d = run_study(reference.build(True), tmp_path / "ref", cache=tmp_path / "cache", progress=False)
+    r = reference.reference(d, quick=True)[20.0]
+    F4 = r["forces_N"][-1]
+    assert abs(r["force_N"] - F4) <= r["bound_N"] and 0 < r["bound_N"] < 0.01 * F4
+    assert "Reference-grade" in (d.out / "report.md").read_text()
+    assert (d.out / "reference_convergence.png").exists()

@@ -119,7 +119,7 @@ class ForceErrorEstimator:
         enr.set_load(lam)
         settings = dataclasses.replace(newton_settings(pb.scene), rtol=max(ENRICHED_RTOL, pb.scene.solver.rtol))
         report = newton(enr, settings, enr.energy())
-        if not report.converged:
+        if not report.converged or report.residual is None:
             log.warning("error estimate at u0 = %.4g mm: the enriched Newton did not converge (%s)",
                         lam * 1e3, report.reason)
             dt = time.perf_counter() - t0

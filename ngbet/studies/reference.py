@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -82,15 +83,16 @@ def _case(data: StudyData, prm: dict[str, Any]) -> int | None:
     return None
 
 
-def reference(data: StudyData, quick: bool = False) -> dict[str, Any]:
+def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
     """The reference force at both stations with its bound, and the reference profile at the second."""
     cs = [_case(data, p) for p in families(quick)["reference"]]
     if any(c is None for c in cs):
         raise ValueError("reference cases missing or failed")
-    out: dict[str, Any] = {"cases": cs}
+    out: dict[Any, Any] = {"cases": cs}
     for s in C.stations(quick):
         F, bound = aitken([data.at(c, s, "force_N") for c in cs])  # type: ignore[arg-type]
-        out[s] = {"force_N": F, "bound_N": bound, "forces_N": [data.at(c, s, "force_N") for c in cs]}  # type: ignore[arg-type]
+        forces = [data.at(c, s, "force_N") for c in cs]  # type: ignore[arg-type]
+        out[s] = {"force_N": F, "bound_N": bound, "forces_N": forces}
     s2 = C.stations(quick)[1]
     X, uy = data.profile(cs[-1], s2)  # type: ignore[arg-type]
     _, uy5 = data.profile(cs[-2], s2)  # type: ignore[arg-type]
@@ -153,7 +155,8 @@ def report(data: StudyData, quick: bool) -> str:
                  + f" | {r['force_N']:.5f} | {r['bound_N']:.2g} | {100 * r['bound_N'] / r['force_N']:.2g} |")
     L += ["", f"Reference profile (p = 6) at {a['s2']:g} mm: max |u_y| = {np.max(np.abs(ref['uy_mm'])):.4f} mm, "
           f"bound {ref['profile_bound_mm']:.2g} mm.", "",
-          "## Convergence at the second station", "", "| family | h [mm] | corner [mm] | p | dofs | F [N] | force error | profile error (max) | wall [s] |",
+          "## Convergence at the second station", "",
+          "| family | h [mm] | corner [mm] | p | dofs | F [N] | force error | profile error (max) | wall [s] |",
           "|---|---|---|---|---|---|---|---|---|"]
     for name, pts in a["fam"].items():
         for p in pts:
@@ -162,7 +165,8 @@ def report(data: StudyData, quick: bool) -> str:
     f = a["hp_fit"]
     if f:
         better = "N^(1/3) (exponential)" if f["root_rms"] < f["log_rms"] else "log N (algebraic)"
-        L += ["", f"hp family (reference cases excluded): log e against N^(1/3): rate {f['root_rate']:.3f}, RMS residual "
+        L += ["", f"hp family (reference cases excluded): log e against N^(1/3): rate {f['root_rate']:.3f}, "
+              f"RMS residual "
               f"{f['root_rms']:.3f}; against log N: rate {f['log_rate']:.2f}, RMS residual {f['log_rms']:.3f}. "
               f"Better fit: {better}."]
     return "\n".join(L) + "\n"
@@ -177,7 +181,8 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
         pts = a["fam"][name]
         if pts:
             ax.loglog([p["dofs"] for p in pts], [max(p["err"], 1e-9) for p in pts], m, label=name)
-    ax.axhline(a["ref"][a["s2"]]["bound_N"] / a["ref"][a["s2"]]["force_N"], color="grey", ls=":", label="reference bound")
+    r2 = a["ref"][a["s2"]]
+    ax.axhline(r2["bound_N"] / r2["force_N"], color="grey", ls=":", label="reference bound")
     ax.set_xlabel("dofs")
     ax.set_ylabel(f"relative error of the force at {a['s2']:g} mm")
     ax.grid(alpha=0.3, which="both")

@@ -101,10 +101,11 @@ def cheapest(a: dict, key: str, target: float) -> dict | None:
 
 def report(data: StudyData, g: dict, quick: bool) -> str:
     a = analyse(data, g, quick)
-    ref, s2 = a["ref"], a["s2"]
+    s2 = a["s2"]
     L = [f"# Work-precision at u0 = {s2:g} mm", "",
-         f"Reference force (ngbet study reference: Aitken over its p-family on the corner-graded mesh): F = {a['F_ref']:.4f} N, "
-         f"bound {100 * a['unc_F']:.2g} %. Reference profile: the family's highest order, bound {100 * a['unc_prof']:.2g} % of max |u_y|.",
+         "Reference force (ngbet study reference: Aitken over its p-family on the corner-graded mesh): "
+         f"F = {a['F_ref']:.4f} N, bound {100 * a['unc_F']:.2g} %. Reference profile: the family's highest order, "
+         f"bound {100 * a['unc_prof']:.2g} % of max |u_y|.",
          "", "## Cheapest settings reaching a target error (reference runs themselves excluded)", "",
          "| quantity | target | cheapest setting | error | wall time [s] | dofs |", "|---|---|---|---|---|---|"]
     for key, name, unc in (("err_F", f"force at {s2:g} mm", a["unc_F"]), ("err_prof", f"mid-axis profile at {s2:g} mm", a["unc_prof"])):
@@ -177,7 +178,7 @@ def _plot_dofs(data: StudyData, a: dict, quick: bool) -> Path:
         cs = [R._case(data, prm) for prm in R.families(quick)[name]]
         pts = [(C.dofs(data, c), abs(data.at(c, a["s2"], "force_N") - F_ref) / F_ref) for c in cs if c is not None]
         if pts:
-            ax.loglog(*zip(*pts), m, label=name)
+            ax.loglog(*zip(*pts, strict=True), m, label=name)
     ax.axhline(a["unc_F"], color="grey", ls=":", label="reference bound")
     ax.set_xlabel("dofs")
     ax.set_ylabel(f"relative error of the force at {a['s2']:g} mm")
