@@ -225,12 +225,6 @@ class Discretization:
     # mesh size at the four corners where a clamp meets a free edge (singular points of the
     # solution); 0: no local refinement. Netgen grades the mesh from there to mesh_size_mm.
     corner_mesh_size_mm: float = 0.0
-    # geometric (hp) grading towards the same four corners after meshing: ``corner_levels``
-    # refinements of the corner elements, each by ``corner_grading_factor`` (Netgen's RefineHP);
-    # with p about the number of levels the force converges exponentially in a root of the dofs
-    # (ngbet.continuum.mesh). 0: none.
-    corner_levels: int = 0
-    corner_grading_factor: float = 0.2
     # relative error of the force at the final load that the run must reach; 0: take the
     # discretization as given. > 0: ngbet chooses mesh, grading and order (ngbet.continuum.estimate)
     target_error: float = 0.0
@@ -243,9 +237,6 @@ class Discretization:
         _integer("discretization", self, "quad_bonus", 0, 10)
         _boolean("discretization", self, "structured")
         _nonnegative("discretization", self, "corner_mesh_size_mm")
-        _integer("discretization", self, "corner_levels", 0, 12)
-        _check(isinstance(self.corner_grading_factor, (int, float)) and 0 < self.corner_grading_factor < 1,
-               "discretization.corner_grading_factor", self.corner_grading_factor, "must lie strictly between 0 and 1")
         _check(isinstance(self.target_error, (int, float)) and not isinstance(self.target_error, bool)
                and (self.target_error == 0 or 1e-6 <= self.target_error < 1), "discretization.target_error",
                self.target_error, "must be 0 (off) or a relative error from 1e-6 to below 1")
@@ -253,8 +244,6 @@ class Discretization:
                self.corner_mesh_size_mm, "must not exceed discretization.mesh_size_mm")
         _check(not (self.structured and self.corner_mesh_size_mm > 0), "discretization.corner_mesh_size_mm",
                self.corner_mesh_size_mm, "a structured mesh cannot be graded (set structured = false)")
-        _check(not (self.structured and self.corner_levels > 0), "discretization.corner_levels",
-               self.corner_levels, "a structured mesh cannot be graded (set structured = false)")
 
     @property
     def p_u(self) -> int:

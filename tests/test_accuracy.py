@@ -199,3 +199,12 @@ def test_reference_study_quick(tmp_path):
     assert abs(r["force_N"] - F4) <= r["bound_N"] and 0 < r["bound_N"] < 0.01 * F4
     assert "Reference-grade" in (d.out / "report.md").read_text()
     assert (d.out / "reference_convergence.png").exists()
+
+
+@pytest.mark.parametrize("key,value", [("discretization.target_error", -1e-3), ("discretization.target_error", 2.0),
+                                       ("outputs.error_estimate", "always")])
+def test_bad_accuracy_keys_are_refused_by_name(key, value):
+    from ngbet.scene import SceneError
+
+    with pytest.raises(SceneError, match=key):
+        Scene().with_changes(**{key: value})

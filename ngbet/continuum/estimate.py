@@ -157,7 +157,7 @@ class Rung:
     def apply(self, scene: Scene) -> Scene:
         d = dataclasses.replace(scene.discretization, mesh_size_mm=self.mesh_size_mm, order_u=self.order_u,
                                 order_phi=0, order_lam=-1, corner_mesh_size_mm=self.corner_mesh_size_mm,
-                                corner_levels=0, structured=False, target_error=0.0)
+                                structured=False, target_error=0.0)
         return dataclasses.replace(scene, discretization=d,
                                    outputs=dataclasses.replace(scene.outputs, error_estimate="final"))
 
@@ -234,7 +234,7 @@ class RunEstimates:
         self.last: Estimate | None = None
         self.profile_errors: dict[str, float] = {}
         d = sc.discretization
-        self.note = ("" if d.corner_mesh_size_mm > 0 or d.corner_levels > 0 else
+        self.note = ("" if d.corner_mesh_size_mm > 0 else
                      "the mesh is not graded towards the clamp corners: the p+1 error estimate may miss "
                      "the corner error there (set discretization.corner_mesh_size_mm, e.g. 0.25)")
 
