@@ -123,9 +123,7 @@ def field_functions(problem: ContinuumProblem, wanted: tuple[str, ...]) -> dict[
     out: dict[str, Any] = {"displacement": problem.u}
     if "shear_angle" in wanted:
         gamma = physics.shear_angle(inv.i4, inv.i6, inv.i8, problem.scene.specimen.cos0)
-        out["shear_angle_deg"] = gamma * (180.0 / math.pi)
-        theta = math.degrees(math.acos(problem.scene.specimen.cos0)) + gamma * (180.0 / math.pi)
-        out["yarn_angle_deg"] = ngs.IfPos(theta - 90.0, 180.0 - theta, theta)  # acute angle between the yarns as lines
+        out["shear_angle_deg"] = gamma * (180.0 / math.pi)  # the change of the angle between the yarns
     if "elongation" in wanted:
         out["elongation_1"] = ngs.sqrt(inv.i4) - 1
         out["elongation_2"] = ngs.sqrt(inv.i6) - 1
