@@ -18,7 +18,6 @@ import csv
 import json
 import logging
 import platform
-import subprocess
 import time
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -41,18 +40,10 @@ def versions() -> dict[str, str]:
 
 
 def git_revision(path: Path | None = None) -> str:
-    """The git revision of the source tree, or 'unknown' outside a checkout."""
-    here = path or Path(__file__).resolve().parent
-    try:
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True,
-                             text=True, timeout=5)
-        if rev.returncode == 0:
-            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
-                                   capture_output=True, text=True, timeout=5).stdout.strip()
-            return rev.stdout.strip() + ("-dirty" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return "unknown"
+    """The git revision of ngbet (the checkout's, or the one recorded at install), or 'unknown'."""
+    from .revision import revision
+
+    return revision()
 
 
 def machine() -> dict[str, Any]:

@@ -5,7 +5,8 @@ matplotlib is imported by the callers (it is an optional dependency: ``pip insta
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

@@ -1,6 +1,6 @@
 """Observables of a converged state: reactions, energy, mid-axis profile, fields.
 
-Reactions by the paper's volume-integral method (MODEL.md §3): the residual of the full
+Reactions by the paper's volume-integral method (docs/model.md, *Reactions*): the residual of the full
 Lagrangian tested with ψ_u = (X/L, 0) gives the force R per unit thickness [N/m] on the moving
 clamp; with ψ_φ = X/L it gives the double force T per unit thickness [N m/m = N]. At equilibrium
 only the Dirichlet rows of the residual are non-zero, and ψ is 1 on Σ2 and 0 on Σ1, so

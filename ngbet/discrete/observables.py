@@ -6,7 +6,7 @@
   and the family-1 yarn, each yarn's rotation r_k taken as the mean rotation of its two chords
   adjacent to the crossing (the springs K_phi act on the nodal rotations theta instead, which
   equal r_k only when the bending stiffness dominates K_phi). With m1 = (cos a, sin a), m2 = (-cos a, sin a) the angle between
-  the direction vectors opens from pi - 2a to pi - 2a + gamma, as in MODEL.md section 4 (gamma > 0
+  the direction vectors opens from pi - 2a to pi - 2a + gamma, as in docs/model.md, *Ideal kinematics* (gamma > 0
   in the BET);
 - zone means of gamma over the crossings of zones A, B, C;
 - mid-axis profile: u_y where the yarns cross Y = W/2 in the reference configuration (linear

@@ -29,7 +29,7 @@ from .solver import ConvergenceError, StepControl, StepInfo, solve_path
 
 log = logging.getLogger(__name__)
 
-SHAPE_STATIONS_MM = (37.0,)  # MODEL.md section 2: shapes are shown at 37 mm and at the end (56 mm)
+SHAPE_STATIONS_MM = (37.0,)  # the paper shows shapes at 37 mm and at the end (56 mm)
 
 
 def step_control(scene: Scene) -> StepControl:
