@@ -144,7 +144,7 @@ def render_map(vtu: str | Path, yarns_mm: dict[int, list[np.ndarray]], png: str 
         pl.add_mesh(lines_polydata(yarns_mm[1]).translate((0, 0, 0.5)), color="black", line_width=5, label="thick yarns")
     if yarns_mm.get(2):
         pl.add_mesh(lines_polydata(yarns_mm[2]).translate((0, 0, 0.6)), color="white", line_width=1.5, label="thin yarns")
-    pl.show_bounds(xtitle="x [mm]", ytitle="y [mm]", n_zlabels=0, ztitle="", color="black", font_size=10,
+    pl.show_bounds(xtitle="x [mm]", ytitle="y [mm]", n_zlabels=0, ztitle="", color="black", font_size=18,
                    location="outer", ticks="outside", use_2d=True)
     pl.add_text(title, font_size=12, color="black")
     pl.add_legend(bcolor="lightgrey", face="line", size=(0.16, 0.12), loc="lower left")
