@@ -85,14 +85,14 @@ class RunWriter:
         if new:
             self._columns = list(row)
         with self._rows_path.open("a", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=self._columns, extrasaction="ignore")
+            w = csv.DictWriter(fh, fieldnames=self._columns, extrasaction="ignore", lineterminator="\n")
             if new:
                 w.writeheader()
             w.writerow(row)
         if profile is not None:
             write_header = not self._profile_path.exists()
             with self._profile_path.open("a", newline="") as fh:
-                w2 = csv.writer(fh)
+                w2 = csv.writer(fh, lineterminator="\n")
                 if write_header:
                     w2.writerow(["step", "u0_mm", "X_mm", "uy_mm"])
                 for X_mm, uy_mm in profile:

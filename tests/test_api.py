@@ -46,6 +46,28 @@ def test_result_holds_the_run_folder(small_run):
     assert r.scene == ngbet.default_scene().with_changes(**SMALL)
 
 
+def test_run_csv_files_have_lf_line_endings(small_run):
+    _, out = small_run
+    for name in ("results.csv", "profile.csv"):
+        text = (out / name).read_bytes()
+        assert b"\r" not in text and text.count(b"\n") > 2
+
+
+def test_run_without_matplotlib_writes_everything_but_the_plot(tmp_path):
+    """The core needs neither matplotlib nor pyvista: without them the run says so in one line."""
+    code = ("import sys\n"
+            "for m in ('matplotlib', 'pyvista'): sys.modules[m] = None\n"
+            "from ngbet.cli import main\n"
+            f"sys.exit(main(['run', '--quiet', '--out', {str(tmp_path / 'run')!r}, '--set', 'loading.u0_mm=10', "
+            "'--set', 'loading.stops_mm=[]', '--set', 'discretization.mesh_size_mm=20']))")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == 0
+    assert "no force plot: matplotlib is not installed" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+    files = {f.name for f in (tmp_path / "run").iterdir()}
+    assert {"results.csv", "profile.csv", "summary.json", "fields.vtu", "scene.toml"} <= files
+    assert "force.png" not in files
+
+
 def test_result_to_csv_round_trip_with_lf(small_run, tmp_path):
     r, _ = small_run
     p = r.to_csv(tmp_path / "t.csv")
