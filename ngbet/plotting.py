@@ -5,17 +5,16 @@ matplotlib is imported by the callers (it is an optional dependency: ``pip insta
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 #: the curve between converged steps is sampled every this many mm
 DENSE_STEP_MM = 0.25
 
 
-def dense_force(u0: Sequence[float], force: Sequence[float],
-                dforce: Sequence[float] | None) -> tuple[np.ndarray, np.ndarray, str]:
+def dense_force(u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None) -> tuple[np.ndarray, np.ndarray, str]:
     """The force curve through the converged steps and (0, 0), sampled every ``DENSE_STEP_MM``.
 
     With the derivative dF/du0 at each step (``dforce``, N/mm) the curve is the piecewise cubic
@@ -24,7 +23,7 @@ def dense_force(u0: Sequence[float], force: Sequence[float],
     """
     u = np.r_[0.0, np.asarray(u0, dtype=float)]
     F = np.r_[0.0, np.asarray(force, dtype=float)]
-    if dforce is None or len(u) < 2 or not np.all(np.isfinite(dforce)):
+    if dforce is None or len(u) < 2 or not np.all(np.isfinite(np.asarray(dforce, dtype=float))):
         return u, F, "lines between converged steps"
     from scipy.interpolate import CubicHermiteSpline
 
@@ -36,7 +35,7 @@ def dense_force(u0: Sequence[float], force: Sequence[float],
     return ud, spline(ud), "cubic Hermite interpolation of F and dF/du0 between converged steps"
 
 
-def force_curve(ax: Any, u0: Sequence[float], force: Sequence[float], dforce: Sequence[float] | None = None,
+def force_curve(ax: Any, u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None = None,
                 label: str | None = None, color: str | None = None, **kwargs: Any) -> Any:
     """Draw a force–displacement curve on ``ax``: the curve (see :func:`dense_force`) and the
     converged steps as markers; the legend says how the curve between steps was drawn."""

@@ -44,7 +44,7 @@ def revision() -> str:
     if rev:
         return rev
     try:
-        from ._revision import REVISION  # type: ignore[import-not-found]
+        from ._revision import REVISION
 
         return str(REVISION)
     except ImportError:
