@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
     pr.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
-    ps = sub.add_parser("scene", help="print a scene as TOML (default: the embedded one)")
+    ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them")
