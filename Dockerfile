@@ -7,8 +7,9 @@ ARG BASE=python:3.11-slim-bookworm
 FROM ${BASE} AS base
 ENV DEBIAN_FRONTEND=noninteractive PYVISTA_OFF_SCREEN=true MPLBACKEND=Agg \
     PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PYTHONDONTWRITEBYTECODE=1
-# libgfortran5: the OpenBLAS of the ngsolve wheel; libgl1, libxrender1, libxext6: VTK (pyvista), off-screen too
-RUN apt-get update && apt-get install -y --no-install-recommends libgfortran5 libgl1 libxrender1 libxext6 \
+# libgfortran5: the OpenBLAS of the ngsolve wheel; libgl1, libxrender1, libxext6, libosmesa6: VTK (pyvista)
+# rendering off-screen (without OSMesa the maps study crashes in VTK)
+RUN apt-get update && apt-get install -y --no-install-recommends libgfortran5 libgl1 libxrender1 libxext6 libosmesa6 \
     && rm -rf /var/lib/apt/lists/*
 RUN python3 -m venv /opt/ngbet && useradd --create-home --shell /bin/bash ngbet \
     && mkdir -p /work && chown ngbet:ngbet /work
