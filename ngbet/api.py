@@ -1,9 +1,8 @@
 """The Python API: run a scene and get its results as numpy arrays.
 
     >>> import ngbet
-    >>> r = ngbet.simulate(ngbet.default_scene().with_changes(**{"loading.u0_mm": 20}))
-    >>> r.u0_mm[-1], r.force_N[-1]            # doctest: +SKIP
-    (20.0, 29.4...)
+    >>> r = ngbet.simulate(ngbet.default_scene().with_changes(**{"loading.u0_mm": 20}))  # doctest: +SKIP
+    >>> r.u0_mm, r.force_N, r.profiles[20.0], r.fields()                                # doctest: +SKIP
 
 :func:`simulate` runs a scene exactly as ``ngbet run`` does (the same run folder, the same
 ``summary.json``) and reads the folder back into a :class:`Result`. With ``out=None`` the run
