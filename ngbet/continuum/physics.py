@@ -1,4 +1,4 @@
-r"""Energy terms of the constrained micromorphic continuum (Madeo et al. 2016, MODEL.md §2).
+r"""Energy terms of the constrained micromorphic continuum (Madeo et al. 2016; docs/model.md, *Energy*).
 
 Pure functions from NGSolve CoefficientFunctions to CoefficientFunctions. Per unit reference
 volume [Pa], with F = I + ∇u, C = FᵀF and the yarn directions m1 (thick), m2 (thin):
@@ -13,7 +13,7 @@ volume [Pa], with F = I + ∇u, C = FᵀF and the yarn directions m1 (thick), m2
 and the constraint φ = i8 by a multiplier Λ (Λ(φ − i8)), a penalty ½K(φ − i8)², or the mixed
 penalty Λ(φ − i8) − Λ²/(2K) whose Λ is eliminated element by element.
 
-The paper prints W_b = ½⟨α, ∇φ⟩², which drops the squares; MODEL.md fixes the form above.
+The paper prints W_b = ½⟨α, ∇φ⟩², which drops the squares; docs/model.md (*Energy*) explains why the form above is used.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def invariants(grad_u: CF, m1: CF, m2: CF) -> Invariants:
     """F = I + ∇u and the yarn invariants i4, i6 (squared stretches) and i8 (angle variation).
 
     i8 = m1·C·m2 − m1·m2 is measured from the rest state, so that it is 0 at rest for any yarn
-    angle (MODEL.md §2); for the orthogonal yarns of the paper (±45°) m1·m2 = 0 and nothing changes.
+    angle (docs/model.md, *Energy*); for the orthogonal yarns of the paper (±45°) m1·m2 = 0 and nothing changes.
     """
     F = ngs.Id(2) + grad_u
     Fm1 = F * m1
@@ -56,7 +56,7 @@ def elongation_energy(i4: CF, i6: CF, K_el: float) -> CF:
 
 
 def bending_energy(grad_phi: CF, m1: CF, m2: CF, alpha1: float, alpha2: float) -> CF:
-    """W_b = ½ α1 φ,1² + ½ α2 φ,2² with φ,i = ∇φ·m_i (corrected form, MODEL.md §2)."""
+    """W_b = ½ α1 φ,1² + ½ α2 φ,2² with φ,i = ∇φ·m_i (corrected form, docs/model.md, *Energy*)."""
     p1 = ngs.InnerProduct(grad_phi, m1)
     p2 = ngs.InnerProduct(grad_phi, m2)
     return 0.5 * alpha1 * p1 * p1 + 0.5 * alpha2 * p2 * p2
@@ -80,7 +80,7 @@ def mixed_penalty_constraint(phi: CF, i8: CF, lam: CF, K: float) -> CF:
 
 def shear_angle(i4: CF, i6: CF, i8: CF, cos0: float = 0.0) -> CF:
     """γ [rad]: the angle between the deformed yarn directions is θ0 + γ, θ0 = acos(m1·m2) the
-    rest angle (MODEL.md §4: 90° + γ at ±45°, where sin γ = −i8 / √(i4 i6)).
+    rest angle (docs/model.md, *Ideal kinematics*: 90° + γ at ±45°, where sin γ = −i8 / √(i4 i6)).
 
     ``cos0`` = m1·m2; i8 is measured from rest (:func:`invariants`), so cos θ = (i8 + cos0)/√(i4 i6).
     """
