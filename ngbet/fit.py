@@ -28,9 +28,10 @@ import logging
 import math
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -161,7 +162,7 @@ class _Model:
         self._cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
     def scene_at(self, theta: np.ndarray) -> Scene:
-        return self.scene.with_changes(**{p: float(math.exp(t)) for p, t in zip(self.params, theta)})
+        return self.scene.with_changes(**{p: float(math.exp(t)) for p, t in zip(self.params, theta, strict=True)})
 
     def __call__(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         key = np.asarray(theta, float).tobytes()
@@ -175,7 +176,7 @@ class _Model:
                 assert res.dlogp is not None
                 self._cache[key] = (res.force_N, res.dlogp)
             except (ConvergenceError, SceneError) as exc:
-                log.warning("model run failed at %s: %s", dict(zip(self.params, np.exp(theta))), exc)
+                log.warning("model run failed at %s: %s", dict(zip(self.params, np.exp(theta), strict=True)), exc)
                 self._cache[key] = (np.full(len(self.u), np.nan), np.zeros((len(self.u), len(self.params))))
         return self._cache[key]
 
@@ -313,7 +314,7 @@ def predict(result: FitResult, data: Curve | str | Path, scene: Scene | None = N
 
     curve = data if isinstance(data, Curve) else read_curve(data)
     base = scene if scene is not None else result.scene
-    sc = base.with_changes(**{p: float(v) for p, v in zip(result.params, result.values)})
+    sc = base.with_changes(**{p: float(v) for p, v in zip(result.params, result.values, strict=True)})
     used = _select(curve, u_range)
     res = force_path(sc, curve.u_mm[used], result.params)
     assert res.dlogp is not None
@@ -355,8 +356,8 @@ def plot_fit(result: FitResult, path: Path) -> Path:
     ax.plot(u, result.model_N, "-", color="tab:blue", label="model, fitted (±2 sd of the parameters)")
     ax.set_ylabel("clamp force [N]")
     ax.legend(loc="upper left", fontsize=8)
-    ax.set_title(", ".join(f"{p.partition('.')[2]} = {v:.3g}" for p, v in zip(result.params, result.values)),
-                 fontsize=9)
+    pairs = zip(result.params, result.values, strict=True)
+    ax.set_title(", ".join(f"{p.partition('.')[2]} = {v:.3g}" for p, v in pairs), fontsize=9)
     ar.axhline(0, color="0.5", lw=0.8)
     ar.plot(u, 100 * (result.model_N - F) / F, "o-", color="tab:blue", ms=3)
     ar.set_ylabel("model − data [%]")
@@ -403,7 +404,8 @@ def add_parser(sub: Any) -> None:
                    help="error model of the data (default: relative)")
     p.add_argument("--max-runs", type=int, default=60, help="at most this many model runs (default 60)")
     p.add_argument("--predict", metavar="OTHER.csv", help="a second data set to predict with the fitted values")
-    p.add_argument("--predict-scene", metavar="OTHER.toml", help="the scene of the second test (default: the fitted one)")
+    p.add_argument("--predict-scene", metavar="OTHER.toml",
+                   help="the scene of the second test (default: the fitted one)")
 
 
 def _range(text: str | None) -> tuple[float, float] | None:

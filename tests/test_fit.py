@@ -119,7 +119,7 @@ def test_implicit_sensitivities_match_finite_differences():
         impl = force_path(sc, u, P).dlogp
         fd = finite_difference(sc, u, P, rel_step=1e-3)
         err = np.abs(impl - fd).max(axis=0) / np.abs(fd).max(axis=0)
-        assert np.all(err < 1e-3), dict(zip(P, err))
+        assert np.all(err < 1e-3), dict(zip(P, err, strict=True))
 
 
 # ------------------------------------------------------------------------------------------ the fit
@@ -177,7 +177,7 @@ def test_standard_errors_agree_with_the_scatter(truth_curve):
 def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
     data = tmp_path / "synthetic.csv"
     c = noisy(truth_curve, seed=4)
-    data.write_text("displacement_mm,force_N\n" + "".join(f"{u},{f}\n" for u, f in zip(c.u_mm, c.force_N)))
+    data.write_text("displacement_mm,force_N\n" + "".join(f"{u},{f}\n" for u, f in zip(c.u_mm, c.force_N, strict=True)))
     scene = tmp_path / "start.toml"
     scene.write_text(start_scene().to_toml())
     out = tmp_path / "fit"

@@ -27,14 +27,15 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import ngsolve as ngs
 import numpy as np
 
-from . import physics
 from ..scene import Scene, SceneError
+from . import physics
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +98,7 @@ def _check_params(scene: Scene, params: Sequence[str]) -> list[str]:
     return names
 
 
-def force_path(scene: Scene, u_mm: Sequence[float], params: Sequence[str] = ()) -> ForcePath:
+def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str] = ()) -> ForcePath:
     """Run ``scene`` (continuum) with a load step landing on each of ``u_mm`` and return the
     force there, with dF/d ln p for each material key in ``params`` (``"material.K_sh"``, ...).
 
@@ -132,7 +133,7 @@ def force_path(scene: Scene, u_mm: Sequence[float], params: Sequence[str] = ()) 
             d = []
             if forms:
                 psi = problem.load_tangent(1.0)  # ψ*: ψ on the clamps, H-orthogonal to the free dofs
-                for n, f in zip(names, forms):
+                for n, f in zip(names, forms, strict=True):
                     f.Apply(problem.gf.vec, g)
                     d.append(getattr(scene.material, n) * float(psi @ g.FV().NumPy()) * t)
             rows[key] = (F, d)
@@ -147,7 +148,7 @@ def force_path(scene: Scene, u_mm: Sequence[float], params: Sequence[str] = ()) 
     return ForcePath(u, F, D, float(keys[-1]) if len(keys) else 0.0)
 
 
-def finite_difference(scene: Scene, u_mm: Sequence[float], params: Sequence[str],
+def finite_difference(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str],
                       rel_step: float = 1e-4) -> np.ndarray:
     """dF/d ln p by central differences of :func:`force_path` (2 runs per parameter): the check
     of the implicit derivative, and its cost to compare with."""
