@@ -142,6 +142,9 @@ class FitResult:
             "model_runs": self.model_runs,
             "wall_s": self.wall_s,
             "data": self.data.source,
+            "curve": {"u_mm": self.data.u_mm[self.used].tolist(), "measured_N": self.data.force_N[self.used].tolist(),
+                      "model_N": self.model_N.tolist(), "start_N": self.start_N.tolist(),
+                      "sd_N": band(self.model_dlogp, self.cov_log).tolist()},
             **self.extra,
         }
 
@@ -216,6 +219,8 @@ def fit(data: Curve | str | Path, scene: Scene, params: Sequence[str],
 
     t0 = time.perf_counter()
     curve = data if isinstance(data, Curve) else read_curve(data)
+    if scene.model != "continuum":
+        raise SceneError(f"model = {scene.model!r}: ngbet fit calibrates the continuum model (model = 'continuum')")
     if noise not in ("relative", "absolute"):
         raise SceneError(f"noise = {noise!r}: must be 'relative' or 'absolute'")
     used = _select(curve, u_range)

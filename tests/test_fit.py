@@ -200,6 +200,11 @@ def test_cli_fit_refuses_bad_input(tmp_path, capsys):
     assert "positive start value" in capsys.readouterr().err
     assert main(["fit", str(tmp_path / "none.csv"), "--params", "material.K_sh"]) == 2
     assert "data file not found" in capsys.readouterr().err
+    # the embedded 70 x 220 mm specimen locks at 62 mm: not the specimen of a 105 mm curve
+    assert main(["fit", str(CAO_DATA), "--params", "material.K_sh"]) == 2
+    assert "beyond the specimen's locking load" in capsys.readouterr().err
+    assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--set", "model='discrete'"]) == 2
+    assert "calibrates the continuum model" in capsys.readouterr().err
 
 
 def test_measured_data_file_is_the_cao_curve():
