@@ -79,6 +79,47 @@ def read_curve(path: str | Path) -> Curve:
     return Curve(data[:, 0], data[:, 1], str(path))
 
 
+@dataclass(frozen=True)
+class Profile:
+    """A measured mid-axis profile: u_y [mm] at X [mm] on Y = W/2, at clamp displacement(s) u0 [mm]."""
+
+    u0_mm: np.ndarray
+    X_mm: np.ndarray
+    uy_mm: np.ndarray
+    source: str = ""
+
+    def points(self) -> dict[float, np.ndarray]:
+        """{u0: X} in the order of :meth:`measured`."""
+        return {float(u0): self.X_mm[self.u0_mm == u0] for u0 in np.unique(self.u0_mm)}
+
+    def measured(self) -> np.ndarray:
+        return np.concatenate([self.uy_mm[self.u0_mm == u0] for u0 in np.unique(self.u0_mm)])
+
+    def inside(self, length_mm: float) -> Profile:
+        """The points strictly between the clamps (on them u_y = 0 holds by construction)."""
+        m = (self.X_mm > 1e-9 * length_mm) & (self.X_mm < length_mm * (1 - 1e-9))
+        return Profile(self.u0_mm[m], self.X_mm[m], self.uy_mm[m], self.source)
+
+
+def read_profile(path: str | Path) -> Profile:
+    """Read a CSV with the columns ``u0_mm``, ``X_mm``, ``uy_mm`` (others, such as the ``step``
+    of ngbet's own profile.csv, are ignored)."""
+    path = Path(path)
+    try:
+        with path.open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except FileNotFoundError:
+        raise SceneError(f"profile file not found: {path}") from None
+    need = ("u0_mm", "X_mm", "uy_mm")
+    if not rows or any(k not in rows[0] for k in need):
+        raise SceneError(f"profile file {path}: needs the columns {', '.join(need)}")
+    try:
+        a = np.array([[float(r[k]) for k in need] for r in rows])
+    except (ValueError, TypeError) as exc:
+        raise SceneError(f"profile file {path}: not a table of numbers: {exc}") from None
+    return Profile(a[:, 0], a[:, 1], a[:, 2], str(path))
+
+
 @dataclass
 class FitResult:
     """What :func:`fit` found; ``to_json`` gives the content of fit.json."""
@@ -157,30 +198,36 @@ def _correlation(cov: np.ndarray) -> np.ndarray:
 
 
 class _Model:
-    """The model curve and its Jacobian in θ = ln p, cached by θ; counts the runs."""
+    """The model's force (and profile) and their Jacobian in θ = ln p, cached by θ; counts the runs."""
 
-    def __init__(self, scene: Scene, params: Sequence[str], u_mm: np.ndarray) -> None:
-        self.scene, self.params, self.u = scene, list(params), u_mm
+    def __init__(self, scene: Scene, params: Sequence[str], u_mm: np.ndarray, profile: Profile | None) -> None:
+        self.scene, self.params, self.u, self.profile = scene, list(params), u_mm, profile
         self.runs = 0
-        self._cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+        self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def scene_at(self, theta: np.ndarray) -> Scene:
         return self.scene.with_changes(**{p: float(math.exp(t)) for p, t in zip(self.params, theta, strict=True)})
 
-    def __call__(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Force [N], dF/dθ, profile [mm] (empty without one), du_y/dθ."""
         key = np.asarray(theta, float).tobytes()
         if key not in self._cache:
             from .continuum.sensitivity import force_path
             from .errors import ConvergenceError
 
             self.runs += 1
+            n, m = len(self.params), len(self.u)
+            pts = self.profile.points() if self.profile is not None else {}
+            k = sum(len(x) for x in pts.values())
             try:
-                res = force_path(self.scene_at(theta), self.u, self.params)
+                res = force_path(self.scene_at(theta), self.u, self.params, pts)
                 assert res.dlogp is not None
-                self._cache[key] = (res.force_N, res.dlogp)
+                P = np.concatenate([res.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
+                GP = np.vstack([res.profile_dlogp[u0] for u0 in pts]) if pts else np.zeros((0, n))
+                self._cache[key] = (res.force_N, res.dlogp, P, GP)
             except (ConvergenceError, SceneError) as exc:
                 log.warning("model run failed at %s: %s", dict(zip(self.params, np.exp(theta), strict=True)), exc)
-                self._cache[key] = (np.full(len(self.u), np.nan), np.zeros((len(self.u), len(self.params))))
+                self._cache[key] = (np.full(m, np.nan), np.zeros((m, n)), np.full(k, np.nan), np.zeros((k, n)))
         return self._cache[key]
 
 
@@ -207,22 +254,23 @@ def _start(scene: Scene, params: Sequence[str]) -> np.ndarray:
 
 
 def fit(data: Curve | str | Path, scene: Scene, params: Sequence[str],
-        u_range: tuple[float, float] | None = None, noise: str = "relative", max_runs: int = 60) -> FitResult:
+        u_range: tuple[float, float] | None = None, noise: str = "relative", max_runs: int = 60,
+        profile: Profile | str | Path | None = None, force_sd: float = 0.01, profile_sd_mm: float = 1.0) -> FitResult:
     """Fit ``params`` (material keys, e.g. ``["material.K_sh", "material.K_lock"]``) of ``scene``
     to the measured curve ``data`` by nonlinear least squares in ln p.
 
     ``u_range`` (mm): the data points used (default: from a tenth of the largest displacement
     to the end; the first tenth holds the initial slack and friction that no elastic law has).
     ``noise``: ``"relative"`` (errors proportional to the force) or ``"absolute"``.
+    ``profile``: a measured mid-axis profile fitted together with the force; its residuals [mm]
+    are weighted by ``force_sd / profile_sd_mm``, the ratio of the two error scales
+    (``force_sd`` a fraction for relative noise, N for absolute).
     """
     from scipy.optimize import least_squares
 
     t0 = time.perf_counter()
     curve = data if isinstance(data, Curve) else read_curve(data)
-    if scene.model != "continuum":
-        raise SceneError(f"model = {scene.model!r}: ngbet fit calibrates the continuum model (model = 'continuum')")
-    if noise not in ("relative", "absolute"):
-        raise SceneError(f"noise = {noise!r}: must be 'relative' or 'absolute'")
+    prof = _check_inputs(scene, noise, profile, force_sd, profile_sd_mm)
     used = _select(curve, u_range)
     u, F = curve.u_mm[used], curve.force_N[used]
     if u.max() >= scene.specimen.locking_u0_mm:
@@ -232,26 +280,52 @@ def fit(data: Curve | str | Path, scene: Scene, params: Sequence[str],
     if np.any(w == 0):
         raise SceneError("noise = 'relative' needs non-zero measured forces in the fitted range")
     start = _start(scene, params)
-    model = _Model(scene, params, u)
+    model = _Model(scene, params, u, prof)
+    Pd = prof.measured() if prof is not None else np.zeros(0)
+    rho = force_sd / profile_sd_mm
 
     def resid(theta: np.ndarray) -> np.ndarray:
-        Fm = model(theta)[0]
-        return np.where(np.isfinite(Fm), (Fm - F) / w, 1e3)
+        Fm, _, Pm, _ = model(theta)
+        e = np.concatenate([(Fm - F) / w, (Pm - Pd) * rho])
+        return np.where(np.isfinite(e), e, 1e3)
 
     def jac(theta: np.ndarray) -> np.ndarray:
-        return model(theta)[1] / w[:, None]
+        _, G, _, GP = model(theta)
+        return np.vstack([G / w[:, None], GP * rho])
 
     th0 = np.log(start)
     span = math.log(BOUND_FACTOR)
     sol = least_squares(resid, th0, jac=jac, bounds=(th0 - span, th0 + span), method="trf",
                         x_scale=1.0, max_nfev=max_runs, xtol=1e-8, ftol=1e-10, gtol=1e-10)
     res = _statistics(sol.x, resid(sol.x), jac(sol.x), list(params))
-    Fm, G = model(sol.x)
+    Fm, G, Pm, _ = model(sol.x)
+    extra = {}
+    if prof is not None:
+        extra["profile"] = {"data": prof.source, "points": len(Pd), "weight": rho,
+                            "rms_mm": float(np.sqrt(np.mean((Pm - Pd) ** 2))),
+                            "u0_mm": np.concatenate([[u0] * len(x) for u0, x in prof.points().items()]).tolist(),
+                            "X_mm": np.concatenate(list(prof.points().values())).tolist(),
+                            "measured_mm": Pd.tolist(), "model_mm": Pm.tolist()}
     return FitResult(params=list(params), values=np.exp(sol.x), start=start, scene=model.scene_at(sol.x),
                      data=curve, used=used, model_N=Fm, model_dlogp=G, start_N=model(th0)[0],
-                     model_runs=model.runs,
-                     wall_s=time.perf_counter() - t0,
+                     model_runs=model.runs, wall_s=time.perf_counter() - t0, extra=extra,
                      rms_relative_error=float(np.sqrt(np.mean(((Fm - F) / F) ** 2))), **res)
+
+
+def _check_inputs(scene: Scene, noise: str, profile: Profile | str | Path | None, force_sd: float,
+                  profile_sd_mm: float) -> Profile | None:
+    if scene.model != "continuum":
+        raise SceneError(f"model = {scene.model!r}: ngbet fit calibrates the continuum model (model = 'continuum')")
+    if noise not in ("relative", "absolute"):
+        raise SceneError(f"noise = {noise!r}: must be 'relative' or 'absolute'")
+    if not (force_sd > 0 and profile_sd_mm > 0):
+        raise SceneError(f"--force-sd = {force_sd}, --profile-sd = {profile_sd_mm}: both must be > 0")
+    if profile is None:
+        return None
+    prof = (profile if isinstance(profile, Profile) else read_profile(profile)).inside(scene.specimen.length_mm)
+    if len(prof.X_mm) == 0:
+        raise SceneError(f"profile {prof.source}: no point strictly between the clamps (0 < X < L)")
+    return prof
 
 
 def _statistics(theta: np.ndarray, e: np.ndarray, J: np.ndarray, params: list[str]) -> dict[str, Any]:
@@ -341,6 +415,8 @@ def write_outputs(result: FitResult, out: str | Path, prediction: Prediction | N
               f"{doc['range_mm'][1]:g} mm; see fit.json for the uncertainties\n")
     (out / "fitted_scene.toml").write_text(header + result.scene.to_toml())
     paths = [out / "fit.json", out / "fitted_scene.toml", plot_fit(result, out / "fit.png")]
+    if "profile" in result.extra:
+        paths.append(plot_profile(result.extra["profile"], out / "fit_profile.png"))
     if prediction is not None:
         paths += [out / "predict.json", plot_prediction(prediction, out / "predict.png")]
     return paths
@@ -367,6 +443,26 @@ def plot_fit(result: FitResult, path: Path) -> Path:
     ar.plot(u, 100 * (result.model_N - F) / F, "o-", color="tab:blue", ms=3)
     ar.set_ylabel("model − data [%]")
     ar.set_xlabel("clamp displacement [mm]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_profile(prof: dict[str, Any], path: Path) -> Path:
+    """Measured and fitted mid-axis profiles (the ``profile`` entry of fit.json)."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    u0, X = np.array(prof["u0_mm"]), np.array(prof["X_mm"])
+    for k, v in enumerate(np.unique(u0)):
+        m = u0 == v
+        c = f"C{k}"
+        ax.plot(X[m], np.array(prof["measured_mm"])[m], "o", color=c, ms=4, label=f"data, u0 = {v:g} mm")
+        ax.plot(X[m], np.array(prof["model_mm"])[m], "-", color=c, label="model, fitted")
+    ax.set_xlabel("X [mm]")
+    ax.set_ylabel("u_y on the mid-axis [mm]")
+    ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -408,6 +504,11 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--noise", choices=("relative", "absolute"), default="relative",
                    help="error model of the data (default: relative)")
     p.add_argument("--max-runs", type=int, default=60, help="at most this many model runs (default 60)")
+    p.add_argument("--profile", metavar="PROFILE.csv", help="a measured mid-axis profile (u0_mm,X_mm,uy_mm) "
+                   "fitted together with the force")
+    p.add_argument("--force-sd", type=float, default=0.01, help="error scale of the force: a fraction for "
+                   "--noise relative (default 0.01), N for absolute; weighs the profile against the force")
+    p.add_argument("--profile-sd", type=float, default=1.0, help="error scale of the profile [mm] (default 1)")
     p.add_argument("--predict", metavar="OTHER.csv", help="a second data set to predict with the fitted values")
     p.add_argument("--predict-scene", metavar="OTHER.toml",
                    help="the scene of the second test (default: the fitted one)")
@@ -431,7 +532,8 @@ def run_from_args(args: argparse.Namespace) -> int:
     try:
         scene = load_scene(args.scene, args.overrides)
         params = [p.strip() for p in args.params.split(",") if p.strip()]
-        result = fit(args.data, scene, params, _range(args.u_range), args.noise, args.max_runs)
+        result = fit(args.data, scene, params, _range(args.u_range), args.noise, args.max_runs,
+                     args.profile, args.force_sd, args.profile_sd)
         pred = None
         if args.predict:
             other = Scene.from_toml(args.predict_scene) if args.predict_scene else None

@@ -28,7 +28,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import ngsolve as ngs
@@ -45,12 +45,18 @@ DIFFERENTIABLE = ("K_el", "K_sh", "K_sh4", "K_sh6", "K_lock", "gamma_lock_deg", 
 
 @dataclass
 class ForcePath:
-    """Force at the requested clamp displacements; ``dlogp[i, k]`` = dF_i / d ln p_k [N]."""
+    """Force at the requested clamp displacements; ``dlogp[i, k]`` = dF_i / d ln p_k [N].
+
+    ``profiles[u0]`` (mm): the mid-axis displacement u_y at the requested X when a profile was
+    asked for at load u0, and ``profile_dlogp[u0][j, k]`` = d u_y(X_j) / d ln p_k [mm].
+    """
 
     u_mm: np.ndarray
     force_N: np.ndarray
     dlogp: np.ndarray | None
     reached_mm: float
+    profiles: dict[float, np.ndarray] = field(default_factory=dict)
+    profile_dlogp: dict[float, np.ndarray] = field(default_factory=dict)
 
 
 def _energy_derivative(problem: Any, name: str, value: float) -> ngs.CoefficientFunction:
@@ -67,6 +73,12 @@ def _energy_derivative(problem: Any, name: str, value: float) -> ngs.Coefficient
         if not eff.bending:
             return ngs.CoefficientFunction(0.0)
         W = physics.bending_energy(ngs.Grad(trial[1]), problem.m1, problem.m2, mat["alpha1"], mat["alpha2"])
+        if eff.stabilization_K == -1 and problem.K_s_range[1] > 0:  # K_s = c min(α1, α2)/h_T² follows α
+            from .problem import STABILIZATION_C
+
+            a1, a2 = mat["alpha1"], mat["alpha2"]
+            K_s = STABILIZATION_C * ngs.IfPos(a1 - a2, a2, a1) / ngs.specialcf.mesh_size ** 2
+            W = W + physics.penalty_constraint(trial[1], inv.i8, K_s)
     else:
         if not eff.shear or name not in physics.SHEAR_LAWS[eff.shear_law]:
             return ngs.CoefficientFunction(0.0)
@@ -98,54 +110,80 @@ def _check_params(scene: Scene, params: Sequence[str]) -> list[str]:
     return names
 
 
-def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str] = ()) -> ForcePath:
+class _Recorder:
+    """What :func:`force_path` records at each converged step (an ``on_step`` callback)."""
+
+    def __init__(self, problem: Any, names: list[str], profile: dict[float, np.ndarray]) -> None:
+        self.problem, self.names, self.profile = problem, names, profile
+        scene = problem.scene
+        self.forms = []
+        for n in names:
+            f = ngs.BilinearForm(problem.X, symmetric=True)
+            f += ngs.Variation(_energy_derivative(problem, n, getattr(scene.material, n)).Compile() * problem.dx)
+            self.forms.append(f)
+        self.values = [getattr(scene.material, n) for n in names]
+        self.g = problem.gf.vec.CreateVector()
+        self.dgf = ngs.GridFunction(problem.X)
+        self.rows: dict[float, tuple[float, list[float]]] = {}
+        self.profiles: dict[float, np.ndarray] = {}
+        self.profile_dlogp: dict[float, np.ndarray] = {}
+
+    def __call__(self, info: Any) -> None:
+        pb, t = self.problem, self.problem.scene.specimen.t
+        key = round(info.lam * 1e3, 9)
+        r = info.report.residual if info.report.residual is not None else pb.residual()
+        F = float(r @ pb.psi_u.vec.FV().NumPy()) * t
+        want = next((u0 for u0 in self.profile if abs(u0 - key) < 1e-6), None)
+        pts = None
+        if want is not None:
+            sp = pb.scene.specimen
+            X = self.profile[want] * 1e-3
+            pts = pb.mesh(X, np.full(len(X), 0.5 * sp.W))
+            self.profiles[want] = 1e3 * np.asarray(pb.u(pts))[:, 1]
+        d, dprof = [], []
+        psi = pb.load_tangent(1.0) if self.forms else None  # ψ*: ψ on the clamps, H-orthogonal to free dofs
+        for f, p in zip(self.forms, self.values, strict=True):
+            f.Apply(pb.gf.vec, self.g)
+            gv = self.g.FV().NumPy()
+            d.append(p * float(psi @ gv) * t)
+            if pts is not None:  # dx/dp = −J⁻¹ ∂r/∂p (solve returns −J⁻¹ r)
+                self.dgf.vec.FV().NumPy()[:] = pb.solve(gv.copy())
+                dprof.append(1e3 * p * np.asarray(self.dgf.components[0](pts))[:, 1])
+        if pts is not None and dprof:
+            self.profile_dlogp[want] = np.column_stack(dprof)
+        self.rows[key] = (F, d)
+
+
+def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str] = (),
+               profile: dict[float, np.ndarray] | None = None) -> ForcePath:
     """Run ``scene`` (continuum) with a load step landing on each of ``u_mm`` and return the
     force there, with dF/d ln p for each material key in ``params`` (``"material.K_sh"``, ...).
 
-    Nothing is written to disk. Raises :class:`ngbet.errors.ConvergenceError` when the path
-    cannot be followed to max(u_mm).
+    ``profile``: {u0 [mm]: X [mm]}: also the mid-axis u_y at those X at load u0 (and its
+    derivatives, one more back-substitution per parameter). Nothing is written to disk. Raises
+    :class:`ngbet.errors.ConvergenceError` when the path cannot be followed to the last load.
     """
     from .problem import ContinuumProblem
     from .run import newton_settings
     from .solver import continuation
 
     names = _check_params(scene, params)
-    u = np.asarray(sorted(set(float(v) for v in u_mm if v > 0)))
+    profile = {float(k): np.asarray(v, float) for k, v in (profile or {}).items()}
+    u = np.asarray(sorted(set(float(v) for v in u_mm if v > 0) | set(profile)))
     L = scene.loading
     scene = scene.with_changes(**{"loading.u0_mm": float(u[-1]), "loading.stops_mm": list(u[:-1])})
     if scene.solver.threads:
         ngs.SetNumThreads(scene.solver.threads)
     with ngs.TaskManager():
-        problem = ContinuumProblem(scene)
-        forms = []
-        for n in names:
-            f = ngs.BilinearForm(problem.X, symmetric=True)
-            f += ngs.Variation(_energy_derivative(problem, n, getattr(scene.material, n)).Compile() * problem.dx)
-            forms.append(f)
-        g = problem.gf.vec.CreateVector()
-        rows: dict[float, tuple[float, list[float]]] = {}
-        t = scene.specimen.t
-
-        def on_step(info: Any) -> None:
-            key = round(info.lam * 1e3, 9)
-            r = info.report.residual if info.report.residual is not None else problem.residual()
-            F = float(r @ problem.psi_u.vec.FV().NumPy()) * t
-            d = []
-            if forms:
-                psi = problem.load_tangent(1.0)  # ψ*: ψ on the clamps, H-orthogonal to the free dofs
-                for n, f in zip(names, forms, strict=True):
-                    f.Apply(problem.gf.vec, g)
-                    d.append(getattr(scene.material, n) * float(psi @ g.FV().NumPy()) * t)
-            rows[key] = (F, d)
-
-        continuation(problem, u[-1] * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
+        rec = _Recorder(ContinuumProblem(scene), names, profile)
+        continuation(rec.problem, u[-1] * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                      max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
-                     stops=[s * 1e-3 for s in u], on_step=on_step)
-    keys = np.array(sorted(rows))
+                     stops=[s * 1e-3 for s in u], on_step=rec)
+    keys = np.array(sorted(rec.rows))
     idx = [int(np.argmin(np.abs(keys - v))) for v in u]
-    F = np.array([rows[keys[i]][0] for i in idx])
-    D = np.array([rows[keys[i]][1] for i in idx]) if names else None
-    return ForcePath(u, F, D, float(keys[-1]) if len(keys) else 0.0)
+    F = np.array([rec.rows[keys[i]][0] for i in idx])
+    D = np.array([rec.rows[keys[i]][1] for i in idx]) if names else None
+    return ForcePath(u, F, D, float(keys[-1]) if len(keys) else 0.0, rec.profiles, rec.profile_dlogp)
 
 
 def finite_difference(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str],
