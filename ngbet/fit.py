@@ -58,15 +58,19 @@ class Curve:
     source: str = ""
 
 
+def _csv_rows(path: Path, what: str) -> list[list[str]]:
+    try:
+        with path.open(newline="") as fh:
+            return list(csv.reader(fh))
+    except FileNotFoundError:
+        raise SceneError(f"{what} file not found: {path}") from None
+
+
 def read_curve(path: str | Path) -> Curve:
     """Read a CSV with a header: the first column the clamp displacement [mm], and a column
     ``force_N`` (or the second column) the force [N]. Rows are sorted by displacement."""
     path = Path(path)
-    try:
-        with path.open(newline="") as fh:
-            rows = list(csv.reader(fh))
-    except FileNotFoundError:
-        raise SceneError(f"data file not found: {path}") from None
+    rows = _csv_rows(path, "data")
     if len(rows) < 3 or len(rows[0]) < 2:
         raise SceneError(f"data file {path}: expected a header and at least two rows of displacement_mm,force_N")
     head = [h.strip() for h in rows[0]]
@@ -105,17 +109,15 @@ def read_profile(path: str | Path) -> Profile:
     """Read a CSV with the columns ``u0_mm``, ``X_mm``, ``uy_mm`` (others, such as the ``step``
     of ngbet's own profile.csv, are ignored)."""
     path = Path(path)
-    try:
-        with path.open(newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except FileNotFoundError:
-        raise SceneError(f"profile file not found: {path}") from None
+    rows = _csv_rows(path, "profile")
     need = ("u0_mm", "X_mm", "uy_mm")
-    if not rows or any(k not in rows[0] for k in need):
+    head = [h.strip() for h in rows[0]] if rows else []
+    if len(rows) < 2 or any(k not in head for k in need):
         raise SceneError(f"profile file {path}: needs the columns {', '.join(need)}")
+    cols = [head.index(k) for k in need]
     try:
-        a = np.array([[float(r[k]) for k in need] for r in rows])
-    except (ValueError, TypeError) as exc:
+        a = np.array([[float(r[j]) for j in cols] for r in rows[1:] if r])
+    except (ValueError, IndexError) as exc:
         raise SceneError(f"profile file {path}: not a table of numbers: {exc}") from None
     return Profile(a[:, 0], a[:, 1], a[:, 2], str(path))
 
