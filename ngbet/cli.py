@@ -56,9 +56,14 @@ def main(argv: list[str] | None = None) -> int:
     from .study import add_arguments
 
     add_arguments(pst)
+    from . import fit
+
+    fit.add_parser(sub)
     args = parser.parse_args(argv)
     if args.command == "study":
         return _study(args)
+    if args.command == "fit":
+        return fit.run_from_args(args)
 
     level = logging.WARNING if getattr(args, "quiet", False) else (
         logging.INFO if getattr(args, "verbose", False) else logging.WARNING)

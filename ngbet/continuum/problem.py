@@ -120,7 +120,7 @@ class ContinuumProblem:
         inv = physics.invariants(ngs.Grad(u), self.m1, self.m2)
         base = physics.elongation_energy(inv.i4, inv.i6, mat.K_el)
         if eff.shear:
-            base = base + physics.shear_energy(inv.i8, mat.K_sh)
+            base = base + physics.shear_law_energy(inv.i8, eff.shear_law, vars(mat))
         self.K_ref = mat.K_sh if mat.K_sh > 0 else mat.K_el
         constraint = jac_constraint = None
         self.K_s: CF | float = 0.0  # the stabilization modulus (a CF when element-wise)
