@@ -39,6 +39,7 @@ def load_scene(path: str | None, overrides: list[str]) -> Scene:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="ngbet", description="Bias extension tests of woven fabrics (NGSolve).")
+    parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", required=True)
     pr = sub.add_parser("run", help="run a scene (default: the paper's BET to 56 mm)")
     pr.add_argument("scene", nargs="?", help="scene TOML file (default: the embedded scene)")
@@ -49,17 +50,22 @@ def main(argv: list[str] | None = None) -> int:
                     help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
     pr.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
-    ps = sub.add_parser("scene", help="print a scene as TOML (default: the embedded one)")
+    ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
-    pst = sub.add_parser("study", help="run a parameter study (see studies/README.md); 'ngbet study list' lists them")
+    pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them")
     pst.add_argument("name", help="study name (penalty_p, work_precision, alpha1, kel, curves, maps, compare) or 'list'")
     from .study import add_arguments
 
     add_arguments(pst)
+    from . import fit
+
+    fit.add_parser(sub)
     args = parser.parse_args(argv)
     if args.command == "study":
         return _study(args)
+    if args.command == "fit":
+        return fit.run_from_args(args)
 
     level = logging.WARNING if getattr(args, "quiet", False) else (
         logging.INFO if getattr(args, "verbose", False) else logging.WARNING)
@@ -72,7 +78,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ngbet: bad scene: {exc}", file=sys.stderr)
         return 2
     if args.command == "scene":
-        sys.stdout.write(scene.to_toml())
+        from .scene_doc import commented_toml
+
+        sys.stdout.write(commented_toml(scene))
         return 0
 
     from .run import run
@@ -109,6 +117,12 @@ def _study(args: argparse.Namespace) -> int:
 
     module = importlib.import_module(f"ngbet.studies.{args.name}")
     return run_from_args(module.build, args)
+
+
+def _version() -> str:
+    from . import __revision__, __version__
+
+    return f"ngbet {__version__} (git revision {__revision__})"
 
 
 def _report(summary: dict, out: Path) -> str:

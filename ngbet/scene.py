@@ -147,9 +147,17 @@ class Material:
     K_sh: float = 21e3  # Pa: in-plane shear (angle variation i8)
     alpha1: float = 2e3  # Pa m^2: bending of the thick yarns (along m1)
     alpha2: float = 20.0  # Pa m^2: bending of the thin yarns (along m2)
+    # coefficients of the stiffening shear laws (effects.shear_law; ngbet.continuum.physics)
+    K_sh4: float = 0.0  # Pa: "polynomial", 1/4 K_sh4 i8^4
+    K_sh6: float = 0.0  # Pa: "polynomial", 1/6 K_sh6 i8^6
+    K_lock: float = 0.0  # Pa: "locking", modulus of the term that diverges at the locking angle
+    gamma_lock_deg: float = 60.0  # deg: "locking", shear angle at which the yarns lock
 
     def __post_init__(self) -> None:
-        _nonnegative("material", self, "K_el", "K_sh", "alpha1", "alpha2")
+        _nonnegative("material", self, "K_el", "K_sh", "alpha1", "alpha2", "K_sh4", "K_sh6", "K_lock")
+        g = self.gamma_lock_deg
+        _check(isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g < 90, "material.gamma_lock_deg",
+               g, "must lie strictly between 0 and 90 degrees")
 
     def internal_lengths_mm(self) -> tuple[float, float]:
         """l_i = sqrt(alpha_i / K_sh) [mm]: 309 mm and 31 mm for Table 1."""
@@ -160,6 +168,7 @@ class Material:
 
 CONSTRAINTS = ("lagrange", "penalty")
 PENALTY_FORMS = ("mixed", "full")
+SHEAR_LAWS = ("quadratic", "polynomial", "locking")  # ngbet.continuum.physics.SHEAR_LAWS
 
 
 @dataclass(frozen=True)
@@ -176,6 +185,9 @@ class Effects:
     """
 
     shear: bool = True  # 1/2 K_sh i8^2
+    # the shear energy: "quadratic" 1/2 K_sh i8^2 (the paper's); "polynomial" adds 1/4 K_sh4 i8^4
+    # + 1/6 K_sh6 i8^6; "locking" adds a term that diverges at material.gamma_lock_deg (K_lock)
+    shear_law: str = "quadratic"
     elongation: bool = True  # 1/2 K_el [(sqrt(i4) - 1)^2 + (sqrt(i6) - 1)^2]
     bending: bool = True  # 1/2 alpha1 phi_1^2 + 1/2 alpha2 phi_2^2 with phi = i8
     constraint: str = "lagrange"
@@ -193,6 +205,9 @@ class Effects:
         _boolean("effects", self, "shear", "elongation", "bending")
         _choice("effects", self, "constraint", CONSTRAINTS)
         _choice("effects", self, "penalty_form", PENALTY_FORMS)
+        _choice("effects", self, "shear_law", SHEAR_LAWS)
+        _check(self.shear or self.shear_law == "quadratic", "effects.shear_law", self.shear_law,
+               "a shear law needs effects.shear = true")
         _check(self.stabilization_K >= 0 or self.stabilization_K == -1, "effects.stabilization_K",
                self.stabilization_K, "must be >= 0 [Pa] (0: off), or -1 for the default K_s = 0.1 min(alpha1, alpha2) / h_T^2")
         _positive("effects", self, "penalty_K")
@@ -414,7 +429,7 @@ class Scene:
         lock = self.specimen.locking_u0_mm
         _check(self.loading.u0_mm < lock, "loading.u0_mm", self.loading.u0_mm,
                f"beyond the geometry's limit: the yarns of this specimen lock at u0 = {lock:.1f} mm "
-               "(ideal BET kinematics, MODEL.md section 4)")
+               "(ideal BET kinematics, docs/model.md)")
         if self.model == "continuum":
             m, e = self.material, self.effects
             if e.shear:

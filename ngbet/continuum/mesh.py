@@ -18,7 +18,7 @@ def make_mesh(specimen: Specimen, disc: Discretization) -> ngs.Mesh:
     """Netgen (OCC) triangulation of [0, L] x [0, W], or a structured diagonal one.
 
     The structured mesh cuts every square along the same diagonal: it is invariant under the
-    half-turn about the specimen centre, the symmetry of every BET solution (MODEL.md §4).
+    half-turn about the specimen centre, the symmetry of every BET solution (docs/model.md, *Symmetries*).
     """
     L, W, h = specimen.L, specimen.W, disc.mesh_size_mm * 1e-3
     if disc.structured:

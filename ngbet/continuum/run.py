@@ -13,6 +13,7 @@ import numpy as np
 from . import observables as obs
 from ..output import RunWriter, plot_force
 from ..scene import Scene
+from .output import write_vtk
 from .solver import ConvergenceError, NewtonSettings, StepInfo, continuation
 
 log = logging.getLogger(__name__)
@@ -137,13 +138,6 @@ def _solver_info(problem: Any, res: Any) -> dict[str, Any]:
         d["newton_iterations"] = sum(s.iterations for s in res.steps) + sum(
             a.report.iterations for a in res.attempts if not a.report.converged)
     return d
-
-
-def write_vtk(problem: Any, path: Path) -> None:
-    """Final fields for ParaView (``path``.vtu); warp by 'displacement' to see the shape."""
-    funcs = obs.field_functions(problem, problem.scene.outputs.fields)
-    ngs.VTKOutput(problem.mesh, coefs=list(funcs.values()), names=list(funcs), filename=str(path),
-                  subdivision=max(0, problem.scene.discretization.p_u - 1), legacy=False).Do()
 
 
 def diagnose_stability(problem: Any, k: int = 3) -> str:

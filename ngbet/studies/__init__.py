@@ -1,7 +1,7 @@
 """Parameter studies of ngbet: one module per study, each runnable as ``python -m ngbet.studies.NAME``.
 
 Each module defines ``build(quick: bool) -> ngbet.study.Study`` and ``main``. ``ngbet study NAME``
-runs the same thing. See studies/README.md.
+runs the same thing. See docs/studies.md.
 """
 
 STUDIES = {
