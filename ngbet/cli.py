@@ -46,6 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     pr.add_argument("--out", default="out/run", help="output folder (default: out/run)")
     pr.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
+    pr.add_argument("--accuracy", type=float, metavar="REL",
+                    help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
     pr.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
     ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
@@ -70,6 +72,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
         scene = load_scene(args.scene, args.overrides)
+        if getattr(args, "accuracy", None) is not None:
+            scene = scene.with_changes(**{"discretization.target_error": args.accuracy})
     except SceneError as exc:
         print(f"ngbet: bad scene: {exc}", file=sys.stderr)
         return 2
@@ -130,7 +134,15 @@ def _report(summary: dict, out: Path) -> str:
              f"results in {out}/"]
     for r in rows:
         if "force_N" in r and (abs(r["u0_mm"] - 37) < 1e-9 or r is rows[-1]):
-            lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N")
+            err = r.get("force_error_N")
+            bar = (f" ± {err:.2g} N (estimated discretization error)" if isinstance(err, float) and err == err
+                   else " (error estimate failed)" if isinstance(err, float) else "")
+            lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N{bar}")
+    if "accuracy" in summary:
+        a, d = summary["accuracy"], summary["accuracy"]["chosen"]
+        lines.append(f"  accuracy {a['target_error']:g} {'met' if a['met'] else 'NOT met'}: h = {d['mesh_size_mm']:g} mm,"
+                     f" corners {d['corner_mesh_size_mm']:g} mm, p = {d['order_u']} after {len(a['attempts'])} "
+                     f"attempt(s), solve {a['solve_s']:.2f} s, {a['wall_s']:.2f} s in all")
     return "\n".join(lines)
 
 
