@@ -255,7 +255,7 @@ def test_stabilization_carries_fine_corner_meshes_and_is_small(tmp_path):
     # 56 mm with a smooth Λ (measured 107.41 N, oscillation 0.10; reference 107.24 N ± 0.4 %), and
     # costs little accuracy on uniform meshes: +0.065 N at h = 10 mm (discretization error 4.6 N)
     # and +0.002 N at p = 3 (measured)
-    from ngbet.continuum.solver import ConvergenceError
+    from ngbet.errors import ConvergenceError
 
     graded = {"discretization.corner_mesh_size_mm": 0.25}
     with pytest.raises(ConvergenceError) as info:

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from ngbet.discrete import run
+from ngbet.run import run
 from ngbet.errors import ConvergenceError
 from ngbet.output import read_profiles, read_rows
 from ngbet.scene import Scene

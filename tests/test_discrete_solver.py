@@ -127,7 +127,7 @@ def test_energy_balance_by_the_hermite_rule_on_a_smooth_branch():
     p = Pulled()
     rows = []
     res = solve_path(p, StepControl(u0_final=2.0, first_step=0.25, max_step=0.25, min_step=1e-3, stability=False),
-                     on_step=lambda info, u: rows.append((info.u0, float(p.load @ info.gradient), info.energy,
+                     on_step=lambda info, u: rows.append((info.u0, float(p.load @ info.residual), info.energy,
                                                           info.released)))
     assert not res["snap_events"] and res["failed_steps"] == 0, f"snaps {res['snap_events']}, failed {res['failed_steps']}"
     prev = (0.0, 0.0, 0.0)

@@ -23,7 +23,7 @@ from conftest import coarse
 
 from ngbet.output import read_profiles, read_rows
 from ngbet.run import run
-from ngbet.continuum.solver import ConvergenceError
+from ngbet.errors import ConvergenceError
 
 # reference: default scene (Lagrange, Λ ∈ L2(P0)) on the 10 mm mesh, force at 56 mm [N] (measured)
 F56_LAGRANGE_H10 = 111.914  # N, h = 10 mm, p = 2, Lagrange with the default stabilization
@@ -144,7 +144,7 @@ def test_full_penalty_K_1e12_locks_and_says_so(tmp_path):
         _run(tmp_path, "full", **{"effects.constraint": "penalty", "effects.penalty_form": "full",
                                   "effects.penalty_K": 1e12})
     err = info.value
-    assert 0.035 <= err.last_converged < 0.056
+    assert 35.0 <= err.last_converged_mm < 56.0
     assert "failed" in err.diagnosis and "not smooth" in err.diagnosis
 
 
@@ -152,9 +152,9 @@ def test_full_penalty_K_1e12_locks_and_says_so(tmp_path):
 def _assert_stops_with_lost_stability(err, from_mm):
     """The clear refusal: past ``from_mm`` no increment converges, the error names the load reached,
     the failure pattern and the lowest eigenvalues of the tangent (negative: stability lost)."""
-    assert from_mm * 1e-3 <= err.last_converged < 0.056
+    assert from_mm <= err.last_converged_mm < 56.0
     assert "failed" in err.diagnosis and "stability lost" in err.diagnosis
-    assert f"{err.last_converged:.6g}" in str(err)
+    assert f"last converged load: {err.last_converged_mm:.6g} mm" in str(err)
 
 
 def test_thin_yarns_without_bending_stiffness_lose_stability(tmp_path):
@@ -174,7 +174,7 @@ def test_thin_yarns_without_bending_stiffness_lose_stability(tmp_path):
     assert "raise effects.stabilization_K" not in d  # no false remedy
     rows = read_rows(tmp_path / "a2" / "results.csv")
     assert np.all(np.diff([r["force_N"] for r in rows]) > 0)
-    assert math.isclose(rows[-1]["u0_mm"], info.value.last_converged * 1e3, rel_tol=1e-9)
+    assert math.isclose(rows[-1]["u0_mm"], info.value.last_converged_mm, rel_tol=1e-9)
 
 
 def test_thin_yarns_without_bending_stiffness_with_p1_multiplier(tmp_path):
@@ -241,10 +241,10 @@ def test_nearly_inextensible_yarns_stop_with_a_diagnosis(tmp_path, K_el, reach_m
     with pytest.raises(ConvergenceError) as info:
         _run(tmp_path, "kel", **{"material.K_el": K_el})
     err = info.value
-    assert reach_mm * 1e-3 <= err.last_converged < 0.056
+    assert reach_mm <= err.last_converged_mm < 56.0
     assert "failed" in err.diagnosis and "stability" in err.diagnosis
     rows = read_rows(tmp_path / "kel" / "results.csv")
-    assert math.isclose(rows[-1]["u0_mm"], err.last_converged * 1e3, rel_tol=1e-9)
+    assert math.isclose(rows[-1]["u0_mm"], err.last_converged_mm, rel_tol=1e-9)
 
 
 # ------------------------------------------------------------------------------ discretization

@@ -13,7 +13,8 @@ from ngbet.output import read_rows
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.continuum.run import newton_settings
 from ngbet.run import run
-from ngbet.continuum.solver import ConvergenceError, NewtonSettings, continuation
+from ngbet.continuum.solver import NewtonSettings, continuation
+from ngbet.errors import ConvergenceError
 
 
 def _deformed_problem(**changes):
@@ -134,7 +135,7 @@ def test_newton_converges_quadratically_on_a_load_step():
     settings = NewtonSettings(rtol=1e-14, atol=1e-20, max_iterations=12, simplified_theta=0.0)
     with ngs.TaskManager():
         res = continuation(problem, 0.02, 0.02, settings)
-    h = res.steps[0].report.history
+    h = res.steps[0].history
     assert len(h) >= 3
     # the decrement is an energy ~ |dx|², so quadratic convergence of dx means δ_k+1 ~ δ_k²/δ_0
     assert h[2] < 1e-3 * h[1] and h[1] < 1e-2 * h[0], h
@@ -170,11 +171,11 @@ def test_running_out_of_newton_iterations_fails_in_bounded_time(tmp_path):
     wall = time.perf_counter() - t0
     err = info.value
     assert wall < 60.0
-    assert math.isclose(err.last_converged, 0.004, rel_tol=1e-12)
-    failed = [a for a in err.attempts if not a.report.converged]
-    assert failed and all(a.report.iterations <= 2 for a in err.attempts)
-    assert all(a.report.history for a in failed)  # each attempt says what its decrement was
-    assert f"{err.last_converged:.6g}" in str(err)
+    assert math.isclose(err.last_converged_mm, 4.0, rel_tol=1e-12)
+    failed = [a for a in err.attempts if not a.converged]
+    assert failed and all(a.iterations <= 2 for a in err.attempts)
+    assert all(a.history for a in failed)  # each attempt says what its decrement was
+    assert f"last converged load: {err.last_converged_mm:.6g} mm" in str(err)
     rows = read_rows(tmp_path / "run" / "results.csv")
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["status"] == "failed" and "last converged load" in summary["error"]

@@ -265,6 +265,12 @@ class ContinuumProblem:
             dx += self._w.FV().NumPy() * ~self.dirichlet
         return dx
 
+    def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
+        """psi·(J tangent) with the Jacobian at hand: dR/dλ of the reaction R = psi·r along ∂x/∂λ."""
+        self._w2.FV().NumPy()[:] = tangent
+        self._w.data = self.a_jac.mat * self._w2
+        return float(psi @ self._w.FV().NumPy())
+
     def clamp_predictor(self, dlam: float) -> np.ndarray:
         return dlam * self._clamp_dir
 

@@ -13,7 +13,9 @@ import numpy as np
 from . import observables as obs
 from ..output import RunWriter, plot_force
 from ..scene import Scene
-from .solver import ConvergenceError, NewtonSettings, StepInfo, continuation
+from ..engine import StepRecord
+from ..errors import ConvergenceError
+from .solver import NewtonSettings, continuation
 
 log = logging.getLogger(__name__)
 
@@ -47,13 +49,14 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             bar = tqdm(total=scene.loading.u0_mm, unit="mm", desc="u0", bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} mm [{elapsed}<{remaining}]")
         state = {"t_prev": time.perf_counter(), "timers": dict(problem.timers)}
 
-        def on_step(info: StepInfo) -> None:
-            r = info.report.residual if info.report.residual is not None else problem.residual()
-            row: dict[str, Any] = {"step": len(writer.rows) + 1, "u0_mm": round(info.lam * 1e3, 9)}
+        def on_step(info: StepRecord) -> None:
+            r = info.residual if info.residual is not None else problem.residual()
+            row: dict[str, Any] = {"step": len(writer.rows) + 1, "u0_mm": round(info.u0 * 1e3, 9)}
             if o.reaction:
                 R = obs.reaction_force(problem, r)
                 row["force_N_per_m"] = R
                 row["force_N"] = R * sp.t
+                row["dforce_du0_N_per_mm"] = info.dforce_du0 * sp.t * 1e-3
             if o.double_force and problem.psi_phi is not None:
                 T = obs.reaction_double_force(problem, r)
                 row["double_force_N"] = T
@@ -90,7 +93,8 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             res = continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                                max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
                                stops=[s * 1e-3 for s in L.stops_mm], on_step=on_step,
-                               diagnose=lambda: diagnose_stability(problem))
+                               diagnose=lambda: diagnose_stability(problem),
+                               psi=problem.psi_u.vec.FV().NumPy().copy())
         except ConvergenceError as err:
             if bar is not None:
                 bar.close()
@@ -127,7 +131,7 @@ def _solver_info(problem: Any, res: Any) -> dict[str, Any]:
         d["load_steps"] = len(res.steps)
         d["step_cuts"] = res.cuts
         d["newton_iterations"] = sum(s.iterations for s in res.steps) + sum(
-            a.report.iterations for a in res.attempts if not a.report.converged)
+            a.iterations for a in res.attempts if not a.converged)
     return d
 
 

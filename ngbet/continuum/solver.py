@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import logging
 import math
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
-from ..errors import ConvergenceError as _ConvergenceError
+from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
+from ..errors import Attempt
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +62,9 @@ class NonlinearProblem(Protocol):
     def norm(self, dx: np.ndarray) -> float:
         """A unit-free norm of a correction."""
 
+    def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
+        """psi·(J tangent): the load derivative of the reaction psi·r along the tangent."""
+
 
 @dataclass(frozen=True)
 class NewtonSettings:
@@ -86,42 +89,6 @@ class NewtonReport:
     damping: list[float]  # accepted damping factor per iteration
     reason: str = ""
     residual: np.ndarray | None = None  # r at the returned state (reactions come from it)
-
-
-@dataclass
-class Attempt:
-    lam_from: float
-    lam_to: float
-    report: NewtonReport
-
-
-class ConvergenceError(_ConvergenceError):
-    """The load could not be carried further (the continuum's attempts and diagnosis).
-
-    Attributes
-    ----------
-    last_converged : float
-        The last load reached (its step is already saved by the caller).
-    attempts : list of Attempt
-        Every tried increment with its residual history, oldest first.
-    diagnosis : str
-        What the solver concluded (e.g. a lost stability with the lowest eigenvalue).
-    """
-
-    def __init__(self, message: str, last_converged: float, attempts: Sequence[Attempt], diagnosis: str = ""):
-        self.last_converged = last_converged
-        self.last_converged_mm = last_converged * 1e3
-        self.attempts = list(attempts)
-        self.diagnosis = diagnosis
-        tail = "\n".join(
-            f"  {a.lam_from:.6g} -> {a.lam_to:.6g}: {'ok' if a.report.converged else 'FAILED'} after "
-            f"{a.report.iterations} it ({a.report.reason}); decrements "
-            + ", ".join(f"{h:.2e}" for h in a.report.history[:12])
-            for a in self.attempts[-8:]
-        )
-        super().__init__(f"{message}\nlast converged load: {last_converged:.6g}"
-                         + (f"\ndiagnosis: {diagnosis}" if diagnosis else "")
-                         + f"\nlast attempts:\n{tail}")
 
 
 def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
@@ -180,22 +147,76 @@ def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) ->
     return NewtonReport(False, settings.max_iterations, history, damping, "iteration limit")
 
 
-@dataclass
-class StepInfo:
-    """What the caller gets for each converged increment."""
+class SaddlePointNewton:
+    """The continuum's corrector for :func:`ngbet.engine.follow_path`: a tangent (or clamp)
+    predictor and the damped Newton :func:`newton` on a :class:`NonlinearProblem`.
 
-    lam: float
-    iterations: int
-    wall_s: float
-    report: NewtonReport
+    The load tangent ∂x/∂λ comes from the factorization at hand (that of the last Newton
+    iteration of the accepted step, or a fresh one after a rejected trial); it is computed when a
+    step is accepted, so that the step record carries dR/du0 = ψ·(J ∂x/∂λ) at no extra solve
+    when ``psi`` (the reaction's test vector) is given, and the next predictor reuses it.
+    """
 
+    def __init__(self, problem: NonlinearProblem, settings: NewtonSettings,
+                 diagnose: Callable[[], str] | None = None, psi: np.ndarray | None = None) -> None:
+        self.problem = problem
+        self.settings = settings
+        self._diagnose = diagnose
+        self._psi = psi
+        self._tangent: np.ndarray | None = None  # ∂x/∂λ at the converged state
+        self._factorized = False
+        self._saved = problem.x.copy()
+        self.report: NewtonReport | None = None  # of the last correction
 
-@dataclass
-class ContinuationResult:
-    lam: float
-    steps: list[StepInfo] = field(default_factory=list)
-    attempts: list[Attempt] = field(default_factory=list)
-    cuts: int = 0
+    def predict(self, u0: float, h: float) -> None:
+        """x += ∂x/∂λ h (tangent) or the clamp's linear field."""
+        p = self.problem
+        self._saved = p.x.copy()
+        if self.settings.predictor == "tangent":
+            p.x[:] += h * self._load_tangent()
+        else:
+            p.x[:] += p.clamp_predictor(h)
+
+    def _load_tangent(self) -> np.ndarray:
+        if self._tangent is None:
+            if not self._factorized:
+                self.problem.factorize()
+                self._factorized = True
+            self._tangent = self.problem.load_tangent(1.0)
+        return self._tangent
+
+    def correct(self, u0: float, h: float) -> Outcome:
+        """Newton at the load u0 + h from the predicted state."""
+        p = self.problem
+        p.set_load(u0 + h)
+        e_ref = p.energy()
+        self.report = rep = newton(p, self.settings, e_ref if math.isfinite(e_ref) else 0.0)
+        return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
+
+    def accept(self, u0: float, h: float, outcome: Outcome) -> StepRecord:
+        """The state is converged: its residual, and the load tangent for dR/du0 and the next predictor."""
+        assert self.report is not None
+        self._factorized = True  # Newton factorized at its iterates
+        self._tangent = None
+        rec = StepRecord(0, u0 + h, outcome.iterations, residual=self.report.residual,
+                         history=list(outcome.history), reason=outcome.reason)
+        if self.settings.predictor == "tangent" and self._psi is not None:
+            rec.dforce_du0 = self.problem.load_derivative(self._psi, self._load_tangent())
+        return rec
+
+    def reject(self, u0: float, outcome: Outcome) -> None:
+        """Back to the converged state; the factorization now belongs to a rejected state: rebuild it."""
+        p = self.problem
+        p.x[:] = self._saved
+        p.set_load(u0)
+        self._tangent = None
+        if self.settings.predictor == "tangent":
+            p.factorize()
+            self._factorized = True
+
+    def diagnose(self, attempts: Sequence[Attempt]) -> str:
+        """The failure pattern of the last attempts and the problem's own diagnosis."""
+        return "; ".join(d for d in (failure_pattern(attempts), self._diagnose() if self._diagnose else "") if d)
 
 
 def continuation(
@@ -207,71 +228,28 @@ def continuation(
     max_step: float = math.inf,
     min_step: float = 0.0,
     stops: Sequence[float] = (),
-    on_step: Callable[[StepInfo], None] | None = None,
+    on_step: Callable[[StepRecord], None] | None = None,
     diagnose: Callable[[], str] | None = None,
     max_attempts: int = 500,
-) -> ContinuationResult:
-    """Carry the load from 0 to ``target``; ``on_step`` is called after every converged increment.
+    psi: np.ndarray | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> PathResult:
+    """Carry the load from 0 to ``target`` with :class:`SaddlePointNewton` on the engine.
+
+    A stop within a fifth of a step beyond a trial load is landed on. ``on_step`` is called after
+    every converged increment.
 
     Raises
     ------
-    ConvergenceError
+    ngbet.errors.ConvergenceError
         when the increment has been cut below ``min_step``, or after ``max_attempts`` increments
         (converged or not: a bound on the time), with the pattern of the last failures and what
         ``diagnose`` finds.
     """
-    lam = 0.0
-    step = min(first_step, max_step)
-    marks = sorted({s for s in stops if 0 < s < target} | {target})
-    out = ContinuationResult(lam)
-    have_tangent = False
-    eps = 1e-12 * max(1.0, abs(target))
-    while lam < target - eps:
-        nxt = min(lam + step, next(m for m in marks if m > lam + eps))
-        if nxt > lam + step + eps:  # pragma: no cover - defensive
-            nxt = lam + step
-        # land on a mark instead of stopping just short of it
-        upcoming = next(m for m in marks if m > lam + eps)
-        if upcoming - nxt < 0.2 * step:
-            nxt = upcoming
-        t0 = time.perf_counter()
-        saved = problem.x.copy()
-        if settings.predictor == "tangent":
-            if not have_tangent:
-                problem.factorize()
-                have_tangent = True
-            problem.x[:] += problem.load_tangent(nxt - lam)
-        else:
-            problem.x[:] += problem.clamp_predictor(nxt - lam)
-        problem.set_load(nxt)
-        e_ref = problem.energy()
-        report = newton(problem, settings, e_ref if math.isfinite(e_ref) else 0.0)
-        out.attempts.append(Attempt(lam, nxt, report))
-        if report.converged:
-            lam = nxt
-            info = StepInfo(lam, report.iterations, time.perf_counter() - t0, report)
-            out.steps.append(info)
-            out.lam = lam
-            log.info("load %.6g reached in %d Newton iterations", lam, report.iterations)
-            if on_step is not None:
-                on_step(info)
-            if report.iterations <= settings.grow_after:
-                step = min(step * settings.growth, max_step)
-            continue
-        problem.x[:] = saved
-        problem.set_load(lam)
-        out.cuts += 1
-        log.warning("increment %.6g -> %.6g failed (%s); cutting the step", lam, nxt, report.reason)
-        step = (nxt - lam) * settings.cut
-        # the factorization now belongs to a rejected state: rebuild it at the restored one
-        if settings.predictor == "tangent":
-            problem.factorize()
-        if step < min_step or len(out.attempts) >= max_attempts:
-            diag = "; ".join(d for d in (failure_pattern(out.attempts), diagnose() if diagnose else "") if d)
-            why = (f"load step cut below the minimum {min_step:.3g}" if step < min_step
-                   else f"{len(out.attempts)} increments tried (limit {max_attempts})")
-            raise ConvergenceError(f"{why} on the way from {lam:.6g} to {target:.6g}", lam, out.attempts, diag)
-    return out
+    ctl = PathControl(target=target, first_step=first_step, max_step=max_step, min_step=min_step,
+                      growth=settings.growth, cut=settings.cut, grow_after=settings.grow_after,
+                      stops=tuple(stops), land_within=0.2, max_attempts=max_attempts)
+    return follow_path(SaddlePointNewton(problem, settings, diagnose, psi), ctl, on_step=on_step, progress=progress)
 
 
 def failure_pattern(attempts: Sequence[Attempt]) -> str:
@@ -282,14 +260,14 @@ def failure_pattern(attempts: Sequence[Attempt]) -> str:
     much slower, or Newton fails however small the increment, the path is not smooth there: it turns
     back in the load (limit point), branches (bifurcation) or the discrete problem locks.
     """
-    if not attempts or attempts[-1].report.converged:
+    if not attempts or attempts[-1].converged:
         return ""
-    lam0 = attempts[-1].lam_from
-    tail = [a for a in attempts[-12:] if not a.report.converged]
-    inc = np.array([a.lam_to - a.lam_from for a in tail if a.report.history])
-    first = np.array([a.report.history[0] for a in tail if a.report.history])
-    text = (f"{len(tail)} of the last {min(12, len(attempts))} increments failed (last from load {lam0:.6g}), the smallest {inc.min() if inc.size else 0:.3g} "
-            f"({tail[-1].report.reason})")
+    tail = [a for a in attempts[-12:] if not a.converged]
+    inc = np.array([a.u0_to - a.u0_from for a in tail if a.history])
+    first = np.array([a.history[0] for a in tail if a.history])
+    text = (f"{len(tail)} of the last {min(12, len(attempts))} increments failed (last from "
+            f"{attempts[-1].u0_from * 1e3:.6g} mm), the smallest {inc.min() * 1e3 if inc.size else 0:.3g} mm "
+            f"({tail[-1].reason})")
     ok = (inc > 0) & (first > 0) & np.isfinite(first)
     if ok.sum() >= 3 and np.ptp(np.log(inc[ok])) > 0.5:
         k = float(np.polyfit(np.log(inc[ok]), np.log(first[ok]), 1)[0])

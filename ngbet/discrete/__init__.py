@@ -18,7 +18,8 @@ Modules: :mod:`.network` (geometry), :mod:`.elements` (element energies), :mod:`
 from .model import NetworkModel
 from .network import Network, build_network, network_from_scene
 from .run import run
-from .solver import ConvergenceError, StepControl, solve_path
+from ..errors import ConvergenceError
+from .solver import StepControl, solve_path
 
 __all__ = ["run", "Network", "build_network", "network_from_scene", "NetworkModel", "StepControl",
            "solve_path", "ConvergenceError"]
