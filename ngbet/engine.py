@@ -23,10 +23,11 @@ Outcomes
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
 
@@ -37,7 +38,7 @@ from .errors import Attempt, ConvergenceError
 log = logging.getLogger(__name__)
 
 __all__ = ["Attempt", "ConvergenceError", "Corrector", "Outcome", "PathControl", "PathResult", "StepRecord",
-           "follow_path"]
+           "follow_path", "progress_bar"]
 
 
 @dataclass(frozen=True)
@@ -102,8 +103,9 @@ class Corrector(Protocol):
     def reject(self, u0: float, outcome: Outcome) -> None:
         """Return to the converged state at u0 after a trial that is not accepted."""
 
-    def diagnose(self, attempts: Sequence[Attempt]) -> str:
-        """What the corrector concludes after the last failure (for the error message)."""
+    def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
+        """What the corrector concludes after the last failure: the text for the error message, and
+        the structured diagnosis it was written from (or None)."""
 
 
 @dataclass
@@ -189,6 +191,26 @@ def _after_rejection(corrector: Corrector, ctl: PathControl, out: PathResult, la
     if too_short or too_many:
         why = (f"load step cut below the minimum {ctl.min_step * 1e3:.3g} mm" if too_short
                else f"{len(out.attempts)} increments tried (limit {ctl.max_attempts})")
+        text, detail = corrector.diagnose(out.attempts)
         raise ConvergenceError(f"{why} on the way from {lam * 1e3:.6g} mm to {ctl.target * 1e3:.6g} mm",
-                               lam * 1e3, out.attempts, corrector.diagnose(out.attempts))
+                               lam * 1e3, out.attempts, text, detail)
     return step
+
+
+@contextlib.contextmanager
+def progress_bar(show: bool, target_mm: float, desc: str = "u0") -> Iterator[Callable[[float], None] | None]:
+    """A tqdm bar over the clamp displacement [mm] for ``follow_path(progress=...)`` (fed with u0 [m]).
+
+    Yields None when not shown.
+    """
+    if not show:
+        yield None
+        return
+    from tqdm import tqdm
+
+    bar = tqdm(total=round(target_mm, 6), unit="mm", desc=desc,
+               bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} mm [{elapsed}<{remaining}]")
+    try:
+        yield lambda u0: bar.update(u0 * 1e3 - bar.n)
+    finally:
+        bar.close()

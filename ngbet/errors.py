@@ -8,8 +8,8 @@ and ``summary.json`` says ``"status": "failed"``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 
 class NgbetError(Exception):
@@ -47,18 +47,22 @@ class ConvergenceError(NgbetError, RuntimeError):
         Every tried increment, oldest first.
     diagnosis : str
         What the corrector concluded (e.g. a lost stability with its lowest eigenvalue).
+    detail : object, optional
+        The structured diagnosis the text was written from, e.g. the continuum's
+        :class:`ngbet.continuum.stability.StabilityDiagnosis`.
 
     Attributes
     ----------
-    last_converged_mm, attempts, diagnosis
+    last_converged_mm, attempts, diagnosis, detail
         As given.
     """
 
     def __init__(self, message: str, last_converged_mm: float, attempts: Sequence[Attempt] = (),
-                 diagnosis: str = "") -> None:
+                 diagnosis: str = "", detail: object | None = None) -> None:
         self.last_converged_mm = float(last_converged_mm)
         self.attempts = list(attempts)
         self.diagnosis = diagnosis
+        self.detail = detail
         tail = "\n".join("  " + a.describe() for a in self.attempts[-8:])
         super().__init__(f"{message}\nlast converged load: {self.last_converged_mm:.6g} mm"
                          + (f"\ndiagnosis: {diagnosis}" if diagnosis else "")

@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 
@@ -31,6 +32,13 @@ from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
 from ..errors import Attempt
 
 log = logging.getLogger(__name__)
+
+
+class Diagnosis(Protocol):
+    """A structured diagnosis of a failure that can put itself in words."""
+
+    def message(self) -> str:
+        """The diagnosis for the error message."""
 
 
 class NonlinearProblem(Protocol):
@@ -158,7 +166,7 @@ class SaddlePointNewton:
     """
 
     def __init__(self, problem: NonlinearProblem, settings: NewtonSettings,
-                 diagnose: Callable[[], str] | None = None, psi: np.ndarray | None = None) -> None:
+                 diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None) -> None:
         self.problem = problem
         self.settings = settings
         self._diagnose = diagnose
@@ -214,9 +222,11 @@ class SaddlePointNewton:
             p.factorize()
             self._factorized = True
 
-    def diagnose(self, attempts: Sequence[Attempt]) -> str:
-        """The failure pattern of the last attempts and the problem's own diagnosis."""
-        return "; ".join(d for d in (failure_pattern(attempts), self._diagnose() if self._diagnose else "") if d)
+    def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
+        """The failure pattern of the last attempts and the problem's own diagnosis (text and object)."""
+        detail = self._diagnose() if self._diagnose is not None else None
+        texts = (failure_pattern(attempts), detail.message() if detail is not None else "")
+        return "; ".join(t for t in texts if t), detail
 
 
 def continuation(
@@ -229,7 +239,7 @@ def continuation(
     min_step: float = 0.0,
     stops: Sequence[float] = (),
     on_step: Callable[[StepRecord], None] | None = None,
-    diagnose: Callable[[], str] | None = None,
+    diagnose: Callable[[], Diagnosis] | None = None,
     max_attempts: int = 500,
     psi: np.ndarray | None = None,
     progress: Callable[[float], None] | None = None,

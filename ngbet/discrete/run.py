@@ -1,25 +1,24 @@
 """Entry point of the discrete model: scene -> network -> load path -> run folder.
 
-Per converged step a row of results.csv (force on the moving clamp, energies per term, zone shear
-angles, largest slip, Newton iterations, wall time, lowest tangent eigenvalue) and the mid-axis
-profile (as ``[outputs]`` asks); at each of ``loading.stops_mm`` (37 mm by default: the paper's
-intermediate shape) and at the last converged step the state (``state_XXmm.npz``: deformed yarns, slip and angle per crossing) and its picture
-(``yarns_XXmm.png``).
+Per converged step a row of results.csv (force on the moving clamp and its slope dF/du0, energies
+per term, zone shear angles, largest slip, Newton iterations, wall time, lowest tangent eigenvalue)
+and the mid-axis profile (as ``[outputs]`` asks); at each of ``loading.stops_mm`` (37 mm by
+default: the paper's intermediate shape) and at the last converged step the state
+(``state_XXmm.npz``: deformed yarns, slip and angle per crossing) and its picture
+(``yarns_XXmm.png``, with ``outputs.plot``).
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import time
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..engine import StepRecord
+from ..engine import StepRecord, progress_bar
 from ..errors import ConvergenceError
 from ..kinematics import gamma_a
 from ..output import RunWriter
@@ -107,7 +106,7 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
                                 "free_dofs": int((~model.fixed).sum()), "t_build_s": t_build,
                                 "threads": scene.solver.threads}
         failure = None
-        with _progress_bar(progress, ctl.u0_final) as bar:
+        with progress_bar(progress, ctl.u0_final * 1e3, "discrete BET") as bar:
             try:
                 stats = solve_path(model, ctl, on_step=rec.on_step, progress=bar)
             except ConvergenceError as exc:
@@ -134,22 +133,6 @@ def _run_info(stats: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, An
     return info
 
 
-@contextlib.contextmanager
-def _progress_bar(show: bool, u0_final: float) -> Iterator[Callable[[float], None] | None]:
-    """A tqdm bar over the clamp displacement [mm], fed with u0 [m]; None when not shown."""
-    if not show:
-        yield None
-        return
-    from tqdm import tqdm
-
-    bar = tqdm(total=round(u0_final * 1e3, 6), unit="mm", desc="discrete BET",
-               bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} mm [{elapsed}<{remaining}]")
-    try:
-        yield lambda u0: bar.update(u0 * 1e3 - bar.n)
-    finally:
-        bar.close()
-
-
 class _Recorder:
     """Writes each converged step (row, profile) and the states at the stops and at the end."""
 
@@ -166,7 +149,7 @@ class _Recorder:
         profile = None
         if o.profile:
             X, uy = ob.midline_profile(net, u, o.profile_points)
-            profile = list(zip((X * 1e3).tolist(), (uy * 1e3).tolist()))
+            profile = list(zip((X * 1e3).tolist(), (uy * 1e3).tolist(), strict=True))
         self.writer.add_step(row, profile=profile)
         self.last_u, self.last_u0 = u, info.u0
         if any(abs(info.u0 - s) < 1e-12 for s in self.stops):

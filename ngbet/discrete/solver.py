@@ -39,8 +39,9 @@ import contextlib
 import logging
 import math
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -657,10 +658,10 @@ class ShiftedNewton:
         self.stats["t_stability_s"] += time.perf_counter() - ts
         return lam, escaped
 
-    def diagnose(self, attempts: Sequence[Attempt]) -> str:
+    def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
         """The snap events met before the failure (the network fails where it keeps snapping)."""
         n = len(self.stats["snap_events"])
-        return f"{n} snap events before the failure" if n else ""
+        return (f"{n} snap events before the failure" if n else ""), None
 
     def statistics(self) -> dict[str, Any]:
         """Iteration, factorization and time statistics of the path, and the final state ``u``."""
