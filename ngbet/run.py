@@ -13,15 +13,14 @@ def run(scene: Scene, out: str | Path, progress: bool = False) -> dict[str, Any]
 
     Raises
     ------
-    ngbet.continuum.solver.ConvergenceError
+    ngbet.errors.ConvergenceError
         when the load cannot be carried to the end; every converged step is on disk by then,
         and summary.json says ``"status": "failed"`` with the error.
     """
     import ngsolve as ngs
 
-    threads = scene.solver.threads or None
-    if threads:
-        ngs.SetNumThreads(threads)
+    if scene.solver.threads != "auto":  # the one place where ngbet sets NGSolve's threads
+        ngs.SetNumThreads(int(scene.solver.threads))
     with ngs.TaskManager():  # NGSolve's assembly and sparse factorizations run in its threads
         if scene.model == "discrete":
             from . import discrete

@@ -55,7 +55,7 @@ import ngsolve as ngs
 import numpy as np
 from ngsolve import CoefficientFunction as CF
 
-from ..scene import Scene, Specimen
+from ..scene import AUTO, Scene, Specimen
 from . import physics
 from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver
 from .mesh import make_mesh
@@ -75,10 +75,10 @@ STABILIZATION_C = 0.1
 
 
 def stabilization_modulus(scene: Scene, mesh: ngs.Mesh) -> CF | float:
-    """K_s of ``effects.stabilization_K``: the constant, or (default, -1) c min(α1, α2)/h_T²."""
+    """K_s of ``effects.stabilization_K``: the constant, or ("auto", the default) c min(α1, α2)/h_T²."""
     k = scene.effects.stabilization_K
-    if k >= 0:
-        return k
+    if k != AUTO:
+        return float(k)
     m = scene.material
     return STABILIZATION_C * min(m.alpha1, m.alpha2) / (ngs.specialcf.mesh_size ** 2)
 
