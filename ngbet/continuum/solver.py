@@ -114,45 +114,67 @@ def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) ->
         history.append(delta)
         if not math.isfinite(delta):
             return NewtonReport(False, it, history, damping, "linear solve gave a non-finite correction")
-        x0 = problem.x.copy()
-        ndx = problem.norm(dx)
-        lam = 1.0
-        dx_bar = None
-        theta = 0.0
-        while True:
-            problem.x[:] = x0 + lam * dx
-            r_trial = problem.residual()
-            if np.all(np.isfinite(r_trial)):
-                if delta <= tol:  # quadratic convergence: the last step needs no test
-                    break
-                dx_bar = problem.solve(r_trial)
-                theta = problem.norm(dx_bar) / ndx if ndx > 0 else 0.0
-                if theta <= 1.0 - lam / 4.0:
-                    break
-            lam *= 0.5
-            if lam < settings.min_damping:
-                problem.x[:] = x0
-                return NewtonReport(False, it, history, damping, "no damping factor reduced the residual")
+        step = _damped_step(problem, dx, delta <= tol, settings.min_damping)
+        if step is None:
+            return NewtonReport(False, it, history, damping, "no damping factor reduced the residual")
+        lam, r, dx_bar, theta = step
         damping.append(lam)
-        r = r_trial
         if delta <= tol and lam == 1.0:
             return NewtonReport(True, it, history, damping, "converged", residual=r)
         if dx_bar is not None and lam == 1.0 and theta <= settings.simplified_theta:
-            # Simplified-Newton exit (Deuflhard's NLEQ-ERR): the correction dx̄ = −J(x_k)⁻¹ r(x_k+1),
-            # already computed for the monotonicity test, is the next Newton correction up to
-            # O(θ) relative; when its decrement is below the tolerance, x_k+1 + dx̄ is the solution
-            # and the linearization that would only confirm it is saved (one per load step).
-            delta_bar = abs(float(dx_bar @ r_trial))
-            if delta_bar <= tol:
-                problem.x[:] += dx_bar
-                r = problem.residual()
-                if np.all(np.isfinite(r)):
-                    history.append(delta_bar)
-                    return NewtonReport(True, it, history, damping, "converged (simplified correction)",
-                                        residual=r)
-                problem.x[:] -= dx_bar
-                r = r_trial
+            done = _simplified_exit(problem, dx_bar, r, tol)
+            if done is not None:
+                history.append(done[0])
+                return NewtonReport(True, it, history, damping, "converged (simplified correction)",
+                                    residual=done[1])
     return NewtonReport(False, settings.max_iterations, history, damping, "iteration limit")
+
+
+def _damped_step(problem: NonlinearProblem, dx: np.ndarray, last: bool, min_damping: float
+                 ) -> tuple[float, np.ndarray, np.ndarray | None, float] | None:
+    """x += λ dx with the largest λ = 1, 1/2, ... that passes the natural monotonicity test.
+
+    ``last``: the decrement is below the tolerance, the step needs no test. Returns λ, the
+    residual there, the simplified correction dx̄ and θ = ‖dx̄‖/‖dx‖ (None, 0 when not computed);
+    None (x restored) when λ fell below ``min_damping``.
+    """
+    x0 = problem.x.copy()
+    ndx = problem.norm(dx)
+    lam = 1.0
+    while True:
+        problem.x[:] = x0 + lam * dx
+        r_trial = problem.residual()
+        if np.all(np.isfinite(r_trial)):
+            if last:  # quadratic convergence: the last step needs no test
+                return lam, r_trial, None, 0.0
+            dx_bar = problem.solve(r_trial)
+            theta = problem.norm(dx_bar) / ndx if ndx > 0 else 0.0
+            if theta <= 1.0 - lam / 4.0:
+                return lam, r_trial, dx_bar, theta
+        lam *= 0.5
+        if lam < min_damping:
+            problem.x[:] = x0
+            return None
+
+
+def _simplified_exit(problem: NonlinearProblem, dx_bar: np.ndarray, r: np.ndarray, tol: float
+                     ) -> tuple[float, np.ndarray] | None:
+    """End Newton with the simplified correction when its decrement is below the tolerance.
+
+    Deuflhard's NLEQ-ERR: the correction dx̄ = −J(x_k)⁻¹ r(x_k+1), already computed for the
+    monotonicity test, is the next Newton correction up to O(θ) relative; when its decrement is
+    below the tolerance, x_k+1 + dx̄ is the solution and the linearization that would only confirm
+    it is saved (one per load step). Returns the decrement and the residual, or None (x unchanged).
+    """
+    delta_bar = abs(float(dx_bar @ r))
+    if delta_bar > tol:
+        return None
+    problem.x[:] += dx_bar
+    r_new = problem.residual()
+    if np.all(np.isfinite(r_new)):
+        return delta_bar, r_new
+    problem.x[:] -= dx_bar
+    return None
 
 
 class SaddlePointNewton:

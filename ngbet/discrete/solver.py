@@ -174,7 +174,8 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
     hist: list[tuple[float, float, float]] = []
     shifted = 0
     mu_prev = 0.0
-    for it in range(1, (max_iterations or ctl.max_iterations) + 1):
+    n_max = max_iterations or ctl.max_iterations
+    for it in range(1, n_max + 1):
         E, g, K = problem.evaluate(u, True)
         if out is not None:
             out["K"] = K
@@ -182,78 +183,141 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
         r = g[free]
         if not (np.isfinite(E) and np.all(np.isfinite(r))):
             raise _StepFailed("energy or residual not finite", hist)
-        try:
-            lin.factor(K)
-            du = -lin.solve(r)
-            dec = -float(r @ du)
-            # shift mu diag(K_ff): from a tenth of the last one that gave descent in this call (1e-6 at
-            # first), raised tenfold until the step descends. Past a limit point the smallest such shift
-            # matters: along an unstable mode of eigenvalue -lambda the shifted step grows the mode by
-            # about lambda / mu per iteration, and a fixed mu = 1e-6 >> lambda crept for dozens of
-            # factorizations
-            mu = max(mu_prev / 10, 1e-10) if mu_prev else 1e-6
-            shifted_now = dec <= 0
-            if shifted_now and not allow_shift:
-                hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
-                raise _StepFailed("tangent not a descent direction (indefinite)", hist, indefinite=True)
-            diag = np.abs(lin.Kff.diagonal())  # of the unshifted K_ff (lin.Kff holds the last shifted one)
-            while dec <= 0 and mu < 1e3:  # not a descent direction: K_ff indefinite here
-                try:
-                    lin.factor(K, shift=mu * diag)
-                    du = -lin.solve(r)
-                    dec = -float(r @ du)
-                except LinearSolverError:  # the shift met an eigenvalue: singular, try the next
-                    dec = -1.0
-                mu_prev = mu
-                mu *= 10
-                shifted += 1
-                if out is not None:
-                    out["shift_factorizations"] = out.get("shift_factorizations", 0) + 1
-        except LinearSolverError as exc:
-            raise _StepFailed(str(exc), hist) from None
+        assert K is not None
+        du, dec, mu_prev, n_shift = _descent_direction(lin, K, r, mu_prev, allow_shift, hist, E, out)
+        shifted += n_shift
         hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
-        tol = ctl.rtol * abs(E) + ctl.atol
-        if abs(dec) <= tol:
+        if abs(dec) <= ctl.rtol * abs(E) + ctl.atol:
             u[free] += du
             return u, it, hist, shifted
         if dec <= 0:
             raise _StepFailed("no descent direction even with a shifted tangent", hist)
-        if fail_fast and not line_search and it >= 2 and dec > 2 * abs(E):
-            # the quadratic model predicts an energy drop (dec / 2) larger than the energy itself
-            # (E >= 0 for the network): the iterate has left the region where Newton can converge
-            raise _StepFailed(f"Newton diverging (decrement {dec:.3g} > 2 |E| = {2 * abs(E):.3g})", hist, u)
-        if fail_fast and not line_search and it >= 3 and dec > hist[0][2]:
-            # from a predictor the decrement falls, at first perhaps slowly: one above the
-            # predictor's own, two iterations on, is Newton bouncing in a soft mode or leaving (in
-            # the runs measured the one such step that still converged had snapped: cut anyway)
-            raise _StepFailed(f"Newton decrement rose above the predictor's ({hist[0][2]:.3g} -> {dec:.3g})", hist, u)
-        if fail_fast and not line_search and it >= 6 and dec > 0.5 * hist[-2][2]:
-            # Newton converges quadratically near a solution or not at all: stop wasting factorizations
-            raise _StepFailed(f"Newton decrement not contracting ({hist[-2][2]:.3g} -> {dec:.3g})", hist, u)
+        if fail_fast and not line_search:
+            _check_contraction(hist, it, E, u)
         alpha = 1.0
-        if line_search and (dec > 1e-6 * abs(E) + ctl.atol or shifted_now):  # far from the solution
-            v = u.copy()
-            for _ in range(12):
-                v[free] = u[free] + alpha * du
-                Ev = problem.evaluate(v, False)[0]
-                if np.isfinite(Ev) and Ev <= E - 1e-4 * alpha * dec:
-                    break
-                alpha *= 0.5
-            else:
-                raise _StepFailed("line search found no energy decrease", hist)
-            if alpha == 1.0 and shifted_now:
-                # extend a shifted step while the energy falls along it (doubling, at most 2^12)
-                for _ in range(12):
-                    v[free] = u[free] + 2 * alpha * du
-                    E2 = problem.evaluate(v, False)[0]
-                    if not (np.isfinite(E2) and E2 < Ev):
-                        break
-                    alpha, Ev = 2 * alpha, E2
+        if line_search and (dec > 1e-6 * abs(E) + ctl.atol or n_shift > 0):  # far from the solution
+            alpha = _line_search(problem, u, free, du, E, dec, extend=n_shift > 0, hist=hist)
         if log.isEnabledFor(logging.DEBUG):
             log.debug("newton it %d: E %.10g, |r| %.3g, decrement %.3g, shift mu %.0e, step x%g", it, E,
-                      hist[-1][1], dec, mu_prev if shifted_now else 0.0, alpha)
+                      hist[-1][1], dec, mu_prev if n_shift else 0.0, alpha)
         u[free] += alpha * du
-    raise _StepFailed(f"no convergence in {max_iterations or ctl.max_iterations} iterations", hist, u)
+    raise _StepFailed(f"no convergence in {n_max} iterations", hist, u)
+
+
+def _descent_direction(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, mu_prev: float, allow_shift: bool,
+                       hist: list[tuple[float, float, float]], E: float, out: dict[str, Any] | None
+                       ) -> tuple[np.ndarray, float, float, int]:
+    """The Newton step du = -K_ff^-1 r, with K_ff shifted by mu diag(K_ff) until it descends.
+
+    The shift starts from a tenth of the last one that gave descent in this Newton run (1e-6 at
+    first) and is raised tenfold until the step descends. Past a limit point the smallest such
+    shift matters: along an unstable mode of eigenvalue -lambda the shifted step grows the mode by
+    about lambda / mu per iteration, and a fixed mu = 1e-6 >> lambda crept for dozens of
+    factorizations.
+
+    Returns du, its decrement -r . du, the last shift tried and the number of shifted factorizations.
+    """
+    try:
+        lin.factor(K)
+        du = -lin.solve(r)
+        dec = -float(r @ du)
+        mu = max(mu_prev / 10, 1e-10) if mu_prev else 1e-6
+        if dec <= 0 and not allow_shift:
+            hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
+            raise _StepFailed("tangent not a descent direction (indefinite)", hist, indefinite=True)
+        assert lin.Kff is not None
+        diag = np.abs(lin.Kff.diagonal())  # of the unshifted K_ff (lin.Kff holds the last shifted one)
+        n_shift = 0
+        while dec <= 0 and mu < 1e3:  # not a descent direction: K_ff indefinite here
+            try:
+                lin.factor(K, shift=mu * diag)
+                du = -lin.solve(r)
+                dec = -float(r @ du)
+            except LinearSolverError:  # the shift met an eigenvalue: singular, try the next
+                dec = -1.0
+            mu_prev = mu
+            mu *= 10
+            n_shift += 1
+            if out is not None:
+                out["shift_factorizations"] = out.get("shift_factorizations", 0) + 1
+    except LinearSolverError as exc:
+        raise _StepFailed(str(exc), hist) from None
+    return du, dec, mu_prev, n_shift
+
+
+def _check_contraction(hist: list[tuple[float, float, float]], it: int, E: float, u: np.ndarray) -> None:
+    """Give up (the step will be cut) when Newton is not converging from the predictor."""
+    dec = hist[-1][2]
+    if it >= 2 and dec > 2 * abs(E):
+        # the quadratic model predicts an energy drop (dec / 2) larger than the energy itself
+        # (E >= 0 for the network): the iterate has left the region where Newton can converge
+        raise _StepFailed(f"Newton diverging (decrement {dec:.3g} > 2 |E| = {2 * abs(E):.3g})", hist, u)
+    if it >= 3 and dec > hist[0][2]:
+        # from a predictor the decrement falls, at first perhaps slowly: one above the
+        # predictor's own, two iterations on, is Newton bouncing in a soft mode or leaving (in
+        # the runs measured the one such step that still converged had snapped: cut anyway)
+        raise _StepFailed(f"Newton decrement rose above the predictor's ({hist[0][2]:.3g} -> {dec:.3g})", hist, u)
+    if it >= 6 and dec > 0.5 * hist[-2][2]:
+        # Newton converges quadratically near a solution or not at all: stop wasting factorizations
+        raise _StepFailed(f"Newton decrement not contracting ({hist[-2][2]:.3g} -> {dec:.3g})", hist, u)
+
+
+def _line_search(problem: Problem, u: np.ndarray, free: np.ndarray, du: np.ndarray, E: float, dec: float,
+                 extend: bool, hist: list[tuple[float, float, float]]) -> float:
+    """Armijo backtracking on the energy; a shifted step (``extend``) is doubled while the energy falls."""
+    alpha = 1.0
+    v = u.copy()
+    for _ in range(12):
+        v[free] = u[free] + alpha * du
+        Ev = problem.evaluate(v, False)[0]
+        if np.isfinite(Ev) and Ev <= E - 1e-4 * alpha * dec:
+            break
+        alpha *= 0.5
+    else:
+        raise _StepFailed("line search found no energy decrease", hist)
+    if alpha == 1.0 and extend:
+        # extend a shifted step while the energy falls along it (doubling, at most 2^12)
+        for _ in range(12):
+            v[free] = u[free] + 2 * alpha * du
+            E2 = problem.evaluate(v, False)[0]
+            if not (np.isfinite(E2) and E2 < Ev):
+                break
+            alpha, Ev = 2 * alpha, E2
+    return alpha
+
+
+def _orthonormalize(W: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of the part of W orthogonal to Q (classical Gram-Schmidt, twice)."""
+    for _ in range(2):
+        if Q.shape[1]:
+            W = W - Q @ (Q.T @ W)
+        nrm = np.linalg.norm(W, axis=0)
+        W = W[:, nrm > 1e-10 * max(nrm.max(initial=0.0), 1e-300)]
+        if W.shape[1] == 0:
+            return W
+        W, Rw = np.linalg.qr(W)
+        W = W[:, np.abs(np.diag(Rw)) > 1e-12 * np.abs(Rw).max()]
+    return W
+
+
+def _start_block(X0: np.ndarray | None, s: np.ndarray, k: int) -> np.ndarray:
+    """The scaled modes of the previous check (filled up with fixed random vectors), or (1, ..., 1) and those."""
+    n = s.shape[0]
+    if X0 is not None and X0.ndim == 2 and X0.shape[0] == n and X0.shape[1] >= 1:
+        Y = X0[:, :k] * s[:, None]
+        if Y.shape[1] < k:
+            Y = np.column_stack([Y, np.random.default_rng(0).standard_normal((n, k - Y.shape[1]))])
+        return Y
+    return np.column_stack([np.ones(n)] + [np.random.default_rng(j).standard_normal(n) for j in range(k - 1)])
+
+
+def _ritz_pairs(Q: np.ndarray, AQ: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The k Ritz values nearest to 0 in span(Q), their vectors Y and A Y."""
+    H = Q.T @ AQ
+    th, C = np.linalg.eigh(0.5 * (H + H.T))
+    idx = np.argsort(np.abs(th))[:k]
+    th, C = th[idx], C[:, idx]
+    return th, Q @ C, AQ @ C
 
 
 def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = None, tol: float = 1e-3,
@@ -291,42 +355,20 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
     def Ainv(Y: np.ndarray) -> np.ndarray:
         return s[:, None] * lin.solve_many(s[:, None] * Y)
 
-    def orth(W: np.ndarray, Q: np.ndarray) -> np.ndarray:
-        for _ in range(2):  # classical Gram-Schmidt, twice
-            if Q.shape[1]:
-                W = W - Q @ (Q.T @ W)
-            nrm = np.linalg.norm(W, axis=0)
-            W = W[:, nrm > 1e-10 * max(nrm.max(initial=0.0), 1e-300)]
-            if W.shape[1] == 0:
-                return W
-            W, Rw = np.linalg.qr(W)
-            W = W[:, np.abs(np.diag(Rw)) > 1e-12 * np.abs(Rw).max()]
-        return W
-
-    if X0 is not None and X0.ndim == 2 and X0.shape[0] == n and X0.shape[1] >= 1:
-        Y = X0[:, :k] * s[:, None]
-        if Y.shape[1] < k:
-            Y = np.column_stack([Y, np.random.default_rng(0).standard_normal((n, k - Y.shape[1]))])
-    else:
-        Y = np.column_stack([np.ones(n)] + [np.random.default_rng(j).standard_normal(n) for j in range(k - 1)])
-    Q = orth(Y, np.zeros((n, 0)))
+    Q = _orthonormalize(_start_block(X0, s, k), np.zeros((n, 0)))
     AQ = A(Q)
     for _ in range(max_expansions):
-        H = Q.T @ AQ
-        th, C = np.linalg.eigh(0.5 * (H + H.T))
-        idx = np.argsort(np.abs(th))[:k]
-        th, C = th[idx], C[:, idx]
-        Yr, AYr = Q @ C, AQ @ C
+        th, Yr, AYr = _ritz_pairs(Q, AQ, k)
         res = np.linalg.norm(AYr - Yr * th, axis=0)
         if Yr.shape[1] == k and res[0] <= tol * abs(th[0]) + 1e-14:
             order = np.argsort(th)
             return th[order], (Yr / s[:, None])[:, order]
-        W = orth(Ainv(Yr), Q)
+        W = _orthonormalize(Ainv(Yr), Q)
         if W.shape[1] == 0:
             break
         if Q.shape[1] + W.shape[1] > 60:  # restart with the Ritz vectors
             Q, AQ = Yr, AYr
-            W = orth(W, Q)
+            W = _orthonormalize(W, Q)
         Q, AQ = np.column_stack([Q, W]), np.column_stack([AQ, A(W)])
     log.info("block Lanczos did not converge; falling back to ARPACK")
     return _lowest_eigenvalues_arpack(lin, k)
