@@ -104,8 +104,10 @@ class Corrector(Protocol):
         """Return to the converged state at u0 after a trial that is not accepted."""
 
     def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
-        """What the corrector concludes after the last failure: the text for the error message, and
-        the structured diagnosis it was written from (or None)."""
+        """What the corrector concludes after the last failure.
+
+        The text for the error message, and the structured diagnosis it was written from (or None).
+        """
 
 
 @dataclass

@@ -129,11 +129,13 @@ class Specimen:
 
     @property
     def m1(self) -> tuple[float, float]:
+        """Direction of the thick yarns (cos a, sin a)."""
         a = math.radians(self.yarn_angle_deg)
         return (math.cos(a), math.sin(a))
 
     @property
     def m2(self) -> tuple[float, float]:
+        """Direction of the thin yarns (−cos a, sin a)."""
         a = math.radians(self.yarn_angle_deg)
         return (-math.cos(a), math.sin(a))
 
@@ -208,7 +210,8 @@ class Effects:
         _boolean("effects", self, "shear", "elongation", "bending")
         _choice("effects", self, "constraint", CONSTRAINTS)
         _choice("effects", self, "penalty_form", PENALTY_FORMS)
-        _auto_or("effects", self, "stabilization_K", lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v >= 0,
+        _auto_or("effects", self, "stabilization_K",
+                 lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v >= 0,
                  "a number >= 0 [Pa] (0: off); \"auto\" is K_s = 0.1 min(alpha1, alpha2) / h_T^2", old=(-1,))
         _positive("effects", self, "penalty_K")
         _check(self.elongation, "effects.elongation", self.elongation,
@@ -258,6 +261,7 @@ class Discretization:
 
     @property
     def p_u(self) -> int:
+        """The order of u."""
         return self.order_u
 
     @property
@@ -507,6 +511,7 @@ class Scene:
 
     @classmethod
     def from_toml_string(cls, text: str) -> Scene:
+        """Read a scene from TOML text."""
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
@@ -514,12 +519,14 @@ class Scene:
         return cls.from_dict(data)
 
     def to_dict(self) -> dict[str, Any]:
+        """Nested dicts of plain values (the TOML tables)."""
         d = dataclasses.asdict(self)
         d["outputs"]["fields"] = list(d["outputs"]["fields"])
         d["loading"]["stops_mm"] = list(d["loading"]["stops_mm"])
         return d
 
     def to_toml(self) -> str:
+        """The complete scene as TOML text."""
         return tomli_w.dumps(self.to_dict())
 
     def with_changes(self, **dotted: Any) -> Scene:

@@ -8,11 +8,11 @@ import pytest
 from conftest import coarse
 
 from ngbet.continuum import observables as obs
-from ngbet.output import read_profiles, read_rows
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.continuum.run import newton_settings
-from ngbet.run import run
 from ngbet.continuum.solver import newton
+from ngbet.output import read_profiles, read_rows
+from ngbet.run import run
 
 
 def _run(tmp_path, tag, **changes):
@@ -165,8 +165,8 @@ def test_ideal_kinematics_shear_angle_follows_the_table(u0):
     37 mm), which is how the energy gets below E_id (test above). The centre value is therefore
     asserted between 0.75 γ_A and γ_A, not equal to it."""
     from ngbet.continuum import physics
-    from ngbet.kinematics import gamma_a
     from ngbet.continuum.solver import continuation
+    from ngbet.kinematics import gamma_a
 
     scene = coarse(**{"material.K_el": 1e8, "effects.bending": False, "loading.u0_mm": u0, "loading.stops_mm": (),
                       "loading.first_step_mm": 4.0, "discretization.mesh_size_mm": 2.5,

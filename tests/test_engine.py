@@ -62,8 +62,11 @@ def test_discrete_default_forces_and_snap_are_pinned(tmp_path):
 
 
 def _assert_tangent_slopes_match_the_force(rows: list[dict], tol: float, typical: float | None = None) -> None:
-    """Over a smooth step, (F1 - F0)/h is the trapezoid rule of the integral of F' over the step:
-    the mean of the recorded slopes at both ends, up to O(h^2 F3), F3 the third derivative."""
+    """(F1 - F0)/h over a smooth step is the mean of the recorded slopes at both ends.
+
+    It is the trapezoid rule of the integral of F' over the step, up to O(h^2 F3), F3 the third
+    derivative.
+    """
     errors = []
     for a, b in zip(rows[:-1], rows[1:], strict=True):
         if b.get("snap"):
@@ -77,8 +80,11 @@ def _assert_tangent_slopes_match_the_force(rows: list[dict], tol: float, typical
 
 # ------------------------------------------------------------------------------ toy corrector
 class Toy:
-    """x(u0) = u0 exactly; fails at trial lengths above ``max_h`` or beyond ``wall``; asks for a
-    retry at ``retry_at`` (lengths above 0.5 mm there)."""
+    """A corrector with x(u0) = u0 exactly.
+
+    It fails at trial lengths above ``max_h`` or beyond ``wall``, and asks for a retry at
+    ``retry_at`` (lengths above 0.5 mm there).
+    """
 
     def __init__(self, max_h: float = math.inf, wall: float = math.inf, retry_at: float = math.inf) -> None:
         self.x, self.max_h, self.wall, self.retry_at = 0.0, max_h, wall, retry_at

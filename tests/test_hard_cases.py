@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 from conftest import coarse
 
+from ngbet.errors import ConvergenceError
 from ngbet.output import read_profiles, read_rows
 from ngbet.run import run
-from ngbet.errors import ConvergenceError
 
 # reference: default scene (Lagrange, Λ ∈ L2(P0)) on the 10 mm mesh, force at 56 mm [N] (measured)
 F56_LAGRANGE_H10 = 111.914  # N, h = 10 mm, p = 2, Lagrange with the default stabilization

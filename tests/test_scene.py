@@ -80,7 +80,8 @@ def test_cli_scene_prints_valid_toml():
                                       ("discretization.order_lam", -1), ("solver.threads", 0)])
 def test_automatic_values_are_written_auto_and_old_sentinels_say_so(key, old):
     assert Scene().with_changes(**{key: "auto"}) == Scene() or key == "solver.threads"
-    with pytest.raises(SceneError, match=f"'{key}' = {old}: for the automatic value write {key.split('.')[1]} = \"auto\""):
+    name = key.split(".")[1]
+    with pytest.raises(SceneError, match=f"'{key}' = {old}: for the automatic value write {name} = \"auto\""):
         Scene().with_changes(**{key: old})
 
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from conftest import coarse
 
-from ngbet.output import read_rows
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.continuum.run import newton_settings
-from ngbet.run import run
 from ngbet.continuum.solver import NewtonSettings, continuation
 from ngbet.errors import ConvergenceError
+from ngbet.output import read_rows
+from ngbet.run import run
 
 
 def _deformed_problem(**changes):

@@ -27,8 +27,11 @@ LAGRANGE_AUGMENTATION = 1e6
 
 
 def pick_inverse(choice: str, indefinite: bool) -> str:
-    """The sparse inverse of ``solver.linear_solver``: sparse LDLᵀ needs no zero pivots, fine for the
-    condensed or minimization matrices, not for the uncondensed saddle point (zero Λ-Λ block)."""
+    """The sparse inverse of ``solver.linear_solver``.
+
+    "auto": sparse LDLᵀ needs no zero pivots, fine for the condensed or minimization matrices,
+    not for the uncondensed saddle point (zero Λ-Λ block), which gets UMFPACK.
+    """
     if choice != "auto":
         return choice
     return "umfpack" if indefinite else "sparsecholesky"
@@ -91,7 +94,7 @@ class NewtonLinearSolver:
         self.counts["factorizations"] += 1
 
     def solve_into(self, r: ngs.BaseVector, out: ngs.BaseVector) -> None:
-        """out = J⁻¹ r (free dofs), condensation handled; r is overwritten."""
+        """Out = J⁻¹ r (free dofs), condensation handled; r is overwritten."""
         assert self._inv is not None, "factorize first"
         t0 = time.perf_counter()
         a = self.form

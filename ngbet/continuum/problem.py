@@ -228,10 +228,12 @@ class ContinuumProblem:
 
     # --------------------------------------------------------------------------- solver interface
     def set_load(self, lam: float) -> None:
+        """Set the load λ = u0 [m]: the Dirichlet entries of x follow it."""
         self.lam = lam
         self.x[self.dirichlet] = lam * self._load_dir[self.dirichlet]
 
     def residual(self) -> np.ndarray:
+        """r(x), full length (Dirichlet rows hold the reactions)."""
         t0 = time.perf_counter()
         self.a.Apply(self.gf.vec, self._r)
         self._t_residual += time.perf_counter() - t0
@@ -239,6 +241,7 @@ class ContinuumProblem:
         return self._r.FV().NumPy().copy()
 
     def energy(self) -> float:
+        """The total energy (Lagrangian) per unit thickness at x [J/m]."""
         return float(self.a.Energy(self.gf.vec))
 
     def factorize(self) -> None:
@@ -246,6 +249,7 @@ class ContinuumProblem:
         self.linear.factorize(self.gf.vec)
 
     def solve(self, r: np.ndarray) -> np.ndarray:
+        """The correction −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
         self._w.FV().NumPy()[:] = r
         self.linear.solve_into(self._w, self._w2)
         dx = -self._w2.FV().NumPy()
@@ -253,6 +257,7 @@ class ContinuumProblem:
         return dx
 
     def load_tangent(self, dlam: float) -> np.ndarray:
+        """The load tangent times dlam: Dirichlet entries moved by dlam, the others −J⁻¹ J_fd dlam."""
         d = dlam * self._load_dir
         self._w2.FV().NumPy()[:] = d
         self._w.data = self.linear.mat * self._w2
@@ -271,23 +276,29 @@ class ContinuumProblem:
         return float(psi @ self._w.FV().NumPy())
 
     def clamp_predictor(self, dlam: float) -> np.ndarray:
+        """The clamp's linear field (X/L, 0) dlam."""
         return dlam * self._clamp_dir
 
     def norm(self, dx: np.ndarray) -> float:
+        """A unit-free norm of a correction (u by 1/L, φ by 1, Λ by 1/K_ref)."""
         return float(np.linalg.norm(self._weights * dx))
 
     # --------------------------------------------------------------------------- fields
     @property
     def u(self) -> ngs.GridFunction:
+        """The displacement."""
         return self.gf.components[0]
 
     @property
     def phi(self) -> ngs.GridFunction | None:
+        """The micro-variable φ (None without bending)."""
         return self.gf.components[1] if "phi" in self.field_names else None
 
     @property
     def lam_field(self) -> ngs.GridFunction | None:
+        """The multiplier Λ (None without it)."""
         return self.gf.components[2] if "lam" in self.field_names else None
 
     def invariants(self) -> physics.Invariants:
+        """F and the yarn invariants of the current displacement."""
         return physics.invariants(ngs.Grad(self.u), self.m1, self.m2)

@@ -59,10 +59,10 @@ class NonlinearProblem(Protocol):
         """Linearize at x and factorize the free block (reusing the symbolic factorization)."""
 
     def solve(self, r: np.ndarray) -> np.ndarray:
-        """dx = −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
+        """Dx = −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
 
     def load_tangent(self, dlam: float) -> np.ndarray:
-        """dx with Dirichlet entries moved by dlam and free entries from −J⁻¹ J_fd dlam."""
+        """Dx with Dirichlet entries moved by dlam and free entries from −J⁻¹ J_fd dlam."""
 
     def clamp_predictor(self, dlam: float) -> np.ndarray:
         """A cheap load-following guess (for the problem to define)."""
@@ -76,6 +76,8 @@ class NonlinearProblem(Protocol):
 
 @dataclass(frozen=True)
 class NewtonSettings:
+    """Tolerances, damping and step control of the continuum's Newton (from ``scene.solver``)."""
+
     rtol: float = 1e-10
     atol: float = 1e-14
     max_iterations: int = 12
@@ -91,6 +93,8 @@ class NewtonSettings:
 
 @dataclass
 class NewtonReport:
+    """How a Newton run at fixed load ended."""
+
     converged: bool
     iterations: int
     history: list[float]  # Newton decrement |dx·r| per iteration
@@ -132,7 +136,7 @@ def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) ->
 
 def _damped_step(problem: NonlinearProblem, dx: np.ndarray, last: bool, min_damping: float
                  ) -> tuple[float, np.ndarray, np.ndarray | None, float] | None:
-    """x += λ dx with the largest λ = 1, 1/2, ... that passes the natural monotonicity test.
+    """X += λ dx with the largest λ = 1, 1/2, ... that passes the natural monotonicity test.
 
     ``last``: the decrement is below the tolerance, the step needs no test. Returns λ, the
     residual there, the simplified correction dx̄ and θ = ‖dx̄‖/‖dx‖ (None, 0 when not computed);
@@ -178,8 +182,10 @@ def _simplified_exit(problem: NonlinearProblem, dx_bar: np.ndarray, r: np.ndarra
 
 
 class SaddlePointNewton:
-    """The continuum's corrector for :func:`ngbet.engine.follow_path`: a tangent (or clamp)
-    predictor and the damped Newton :func:`newton` on a :class:`NonlinearProblem`.
+    """The continuum's corrector for :func:`ngbet.engine.follow_path`.
+
+    A tangent (or clamp) predictor and the damped Newton :func:`newton` on a
+    :class:`NonlinearProblem`.
 
     The load tangent ∂x/∂λ comes from the factorization at hand (that of the last Newton
     iteration of the accepted step, or a fresh one after a rejected trial); it is computed when a
@@ -199,7 +205,7 @@ class SaddlePointNewton:
         self.report: NewtonReport | None = None  # of the last correction
 
     def predict(self, u0: float, h: float) -> None:
-        """x += ∂x/∂λ h (tangent) or the clamp's linear field."""
+        """X += ∂x/∂λ h (tangent) or the clamp's linear field."""
         p = self.problem
         self._saved = p.x.copy()
         if self.settings.predictor == "tangent":

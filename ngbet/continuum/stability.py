@@ -157,7 +157,7 @@ def _ellipticity_losses(problem: ContinuumProblem) -> tuple[EllipticityLoss, ...
 
 
 def mode_constraint_ratio(problem: ContinuumProblem, x: np.ndarray) -> tuple[float, tuple[float, float]]:
-    """r = ‖δφ − δi8‖ / ‖δi8‖ of a mode x, and the centroid [mm] of |∇δu|².
+    """R = ‖δφ − δi8‖ / ‖δi8‖ of a mode x, and the centroid [mm] of |∇δu|².
 
     ``x`` holds the free dofs of the (condensed) tangent; the condensed local dofs are recovered by
     the harmonic extension. δi8 is NGSolve's derivative of i8(∇u) in the direction ∇δu.

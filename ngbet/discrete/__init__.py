@@ -15,10 +15,10 @@ Modules: :mod:`.network` (geometry), :mod:`.elements` (element energies), :mod:`
 :mod:`.observables` (slip, angles, profile, pictures), :mod:`.run` (entry point).
 """
 
+from ..errors import ConvergenceError
 from .model import NetworkModel
 from .network import Network, build_network, network_from_scene
 from .run import run
-from ..errors import ConvergenceError
 from .solver import StepControl, solve_path
 
 __all__ = ["run", "Network", "build_network", "network_from_scene", "NetworkModel", "StepControl",

@@ -33,8 +33,12 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..scene import Scene
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +97,7 @@ class Network:
 
     @property
     def n_nodes(self) -> int:
+        """The number of nodes."""
         return int(self.X.shape[0])
 
     @property
@@ -327,7 +332,7 @@ def crossing_zone(ends_1: np.ndarray, ends_2: np.ndarray) -> int:
     return 2 if c1 & c2 else 3
 
 
-def network_from_scene(scene) -> Network:  # type: ignore[no-untyped-def]
+def network_from_scene(scene: Scene) -> Network:
     """The network of ``scene.specimen`` with the spacing and layout of ``scene.discrete``."""
     sp, d = scene.specimen, scene.discrete
     return build_network(sp.L, sp.W, sp.yarn_angle_deg, d.spacing_mm * 1e-3, d.elements_per_segment,

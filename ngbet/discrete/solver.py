@@ -58,12 +58,15 @@ _QUADRATIC = True
 
 
 class Problem(Protocol):
+    """What the solver needs from an energy minimization problem (see the module docstring)."""
+
     n_dofs: int
     fixed: np.ndarray
     load: np.ndarray
     ramp: np.ndarray
 
-    def evaluate(self, u: np.ndarray, hessian: bool = True) -> tuple[float, np.ndarray, sp.csr_matrix | None]: ...
+    def evaluate(self, u: np.ndarray, hessian: bool = True) -> tuple[float, np.ndarray, sp.csr_matrix | None]:
+        """E(u), dE/du and (with ``hessian``) d2E/du2."""
 
 
 @dataclass(frozen=True)
@@ -133,8 +136,11 @@ class _Tally:
 
 
 class _StepFailed(Exception):
-    """Newton gave up; ``u`` is its last iterate (None where it is of no use), ``indefinite``
-    says that it gave up at the first tangent that needed a shift (``allow_shift=False``)."""
+    """Newton gave up.
+
+    ``u`` is its last iterate (None where it is of no use), ``indefinite`` says that it gave up at
+    the first tangent that needed a shift (``allow_shift=False``).
+    """
 
     def __init__(self, why: str, history: list[tuple[float, float, float]], u: np.ndarray | None = None,
                  indefinite: bool = False) -> None:
@@ -684,7 +690,7 @@ class ShiftedNewton:
         self.tally.add("stability check", self.tally.start(ts))
         escaped = lam < -1e-9 and v is not None
         if escaped:
-            assert v is not None
+            assert v is not None and self.lin.Kff is not None
             self.stats["unstable_states"] += 1
             mark = self.tally.start()
             self.u, self.E, self.g, self.K, lam2, self.modes = _escape(
