@@ -10,7 +10,10 @@ quadratically to rtol = 1e-10 of the energy; 1e-6 for the network, whose path cr
 
 from __future__ import annotations
 
+import json
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -148,3 +151,27 @@ def test_convergence_error_names_the_last_load_in_mm_and_keeps_the_attempts():
     failed = [a for a in err.attempts if not a.converged]
     assert failed and all(a.history == [1.0, 0.5, 0.4] for a in failed)
     assert np.all(np.diff([a.u0_from for a in err.attempts]) >= 0)
+
+
+@pytest.mark.parametrize("model", ["continuum", "discrete"])
+def test_a_failed_run_exits_1_with_the_same_error_shape_for_both_models(tmp_path, model):
+    # one Newton iteration to a tolerance no single iteration meets: the first increment and its
+    # one cut fail, the next cut would be below min_step; both models stop the same way
+    sets = {"model": model, "loading.u0_mm": 4, "loading.first_step_mm": 4, "loading.min_step_mm": 2,
+            "discrete.first_step_mm": 4, "solver.max_iterations": 1, "solver.rtol": 1e-30,
+            "solver.atol_energy": 1e-40, "discretization.mesh_size_mm": 20, "outputs.vtk": "false",
+            "outputs.plot": "false"}
+    if model == "continuum":
+        del sets["discrete.first_step_mm"]
+    else:
+        del sets["discretization.mesh_size_mm"]
+    args = [sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(tmp_path / "run")]
+    for k, v in sets.items():
+        args += ["--set", f"{k}={v}"]
+    p = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 1, p.stderr
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["status"] == "failed"
+    for text in (p.stderr, summary["error"]):
+        assert "load step cut below the minimum 2 mm" in text and "last converged load: 0 mm" in text, text
+        assert "0 -> 4 mm: FAILED after 1 it" in text and "0 -> 2 mm: FAILED after 1 it" in text, text
