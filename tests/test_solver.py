@@ -50,7 +50,7 @@ def _field_scales(problem):
 def test_jacobian_matches_finite_differences_of_the_residual(changes):
     """J v = (r(x + εv) − r(x − εv)) / 2ε + O(ε²) for random directions v, on every row
     (Dirichlet rows included). ``problem.a`` is the exact energy's form (for the Lagrange method
-    the Newton matrix ``a_jac`` is deliberately the augmented one; the exact Hessian is checked
+    the Newton matrix ``problem.linear.form`` is deliberately the augmented one; the exact Hessian is checked
     here). A wrong sign or a missing term (e.g. the Λ·D²i8 curvature) gives errors of O(1)."""
     problem = _deformed_problem(**changes)
     rng = np.random.default_rng(2)
@@ -88,7 +88,7 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
     component the two agree to round-off, and on a Λ direction they differ by exactly M/K_aug
     (M the L2 mass matrix of Λ): the quasi-Newton is close to Newton and its limit is exact."""
     problem = _deformed_problem(**{"effects.constraint": "lagrange", "solver.condense": True})
-    # condense=True with Λ: a_jac is condensed, rebuild the uncondensed augmented form to compare
+    # condense=True with Λ: the Newton matrix is condensed, rebuild the uncondensed augmented form to compare
     from ngbet.continuum import physics
 
     scene = problem.scene

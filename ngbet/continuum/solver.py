@@ -1,4 +1,4 @@
-r"""Damped Newton with adaptive load stepping, for any problem with the small interface below.
+r"""The continuum's corrector: damped Newton for a saddle point, on the engine's load stepping.
 
 The solver knows nothing of fabrics (as NGSolve's ``nonlinearsolvers.py``): it talks to a
 :class:`NonlinearProblem` through numpy views of the state and residual, a factorization of the
@@ -12,10 +12,12 @@ Damping:          natural monotonicity test (Deuflhard): with the simplified cor
                   It is affine invariant and needs only one extra back-substitution, so it works
                   for saddle points (Lagrange multiplier) as for minimization.
 Predictor:        tangent (Euler): x += ∂x/∂λ Δλ from the last factorization, or the clamp one.
-Stepping:         cut by ``cut`` on failure, grow by ``growth`` after easy increments, land on stops.
+Stepping:         :func:`ngbet.engine.follow_path`: cut by ``cut`` on failure, grow by ``growth``
+                  after easy increments, land on stops (:func:`continuation` puts it together).
 
-A load that cannot be reached raises :class:`ConvergenceError` carrying every attempt's residual
-history and the last converged load; the caller has already saved each converged step.
+A load that cannot be reached raises :class:`ngbet.errors.ConvergenceError` carrying every
+attempt's decrements, the last converged load [mm] and the diagnosis; the caller has already
+saved each converged step.
 """
 
 from __future__ import annotations

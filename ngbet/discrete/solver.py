@@ -1,4 +1,7 @@
-"""Newton's method with displacement load stepping for energy minimization problems.
+"""The network's corrector: shifted minimizing Newton with stability check and snap handling.
+
+:class:`ShiftedNewton` runs on the engine's load stepping (:func:`ngbet.engine.follow_path`);
+:func:`solve_path` puts the two together.
 
 The solver knows nothing of yarns. A problem provides ``n_dofs``, ``fixed`` (bool mask of
 prescribed dofs), ``load`` (prescribed values per unit load parameter u0), ``ramp`` (a field for
@@ -14,9 +17,10 @@ Step from u0 to u0 + h:
              steps extended while the energy keeps falling along them.
   converged  when the Newton decrement |r . du| (an energy, twice the predicted energy change)
              is below rtol |E| + atol: unit-free.
-  step size  grows by ``growth`` (up to max_step) after a step with at most ``grow_after``
-             iterations, is cut by ``cut`` after a failed step, and a step below ``min_step``
-             raises :class:`ConvergenceError` (residual history, last converged u0). A step
+  step size  (the engine) grows by ``growth`` (up to max_step) after a step with at most
+             ``grow_after`` iterations, is cut by ``cut`` after a failed step, and a step below
+             ``min_step`` raises :class:`ngbet.errors.ConvergenceError` (every attempt's
+             decrements, the last converged u0 in mm). A step
              longer than ``snap_bracket`` stops at its first indefinite tangent and is cut (it
              would be cut as a possible snap anyway, see below).
   snap       a step that releases energy (energy change below the work of the clamp, by the
