@@ -182,3 +182,16 @@ def test_a_failed_run_exits_1_with_the_same_error_shape_for_both_models(tmp_path
     for text in (stderr, summary["error"]):
         assert "load step cut below the minimum 2 mm" in text and "last converged load: 0 mm" in text, text
         assert "0 -> 4 mm: FAILED after 1 it" in text and "0 -> 2 mm: FAILED after 1 it" in text, text
+
+
+def test_the_discrete_model_honours_stops_and_output_flags(tmp_path):
+    scene = Scene().with_changes(**{"model": "discrete", "loading.u0_mm": 2.0, "loading.stops_mm": [0.5],
+                                    "discrete.first_step_mm": 1.0, "outputs.reaction": False,
+                                    "outputs.energy": False, "outputs.profile": False, "outputs.plot": False})
+    run(scene, tmp_path)
+    rows = read_rows(tmp_path / "results.csv")
+    # the stop shortens one step, not the next: 1 mm grown by 1.5 after an easy step
+    assert [r["u0_mm"] for r in rows] == [0.5, 2.0]
+    assert not any(k.startswith(("force", "energy", "dforce")) for k in rows[0]), list(rows[0])
+    assert (tmp_path / "state_0.5mm.npz").exists() and (tmp_path / "state_2mm.npz").exists()
+    assert not (tmp_path / "profile.csv").exists() and not list(tmp_path.glob("*.png"))

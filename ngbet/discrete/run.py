@@ -158,7 +158,7 @@ class _Recorder:
 
     def snapshot(self, u: np.ndarray, u0: float) -> None:
         """The state (``state_XXmm.npz``) and, with ``outputs.plot``, its picture."""
-        tag = f"{u0 * 1e3:.0f}mm"
+        tag = f"{u0 * 1e3:g}mm"  # 37mm, 0.5mm
         ob.save_state(self.out / f"state_{tag}.npz", self.model.net, u, u0)
         if self.scene.outputs.plot:
             ob.plot_state(self.out / f"yarns_{tag}.png", self.model.net, u, u0)
