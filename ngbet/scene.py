@@ -439,7 +439,7 @@ class Scene:
         lock = self.specimen.locking_u0_mm
         _check(self.loading.u0_mm < lock, "loading.u0_mm", self.loading.u0_mm,
                f"beyond the geometry's limit: the yarns of this specimen lock at u0 = {lock:.1f} mm "
-               "(ideal BET kinematics, MODEL.md section 4)")
+               "(ideal BET kinematics)")
         if self.model == "continuum":
             m, e = self.material, self.effects
             if e.shear:

@@ -41,7 +41,7 @@ triangles), condensed: the same discrete solution, since the L2 projection onto 
 the identity on φ − i8, but Newton linearizes around the iterate's Λ instead of K(φ − i8), which
 the predictor makes huge for large K (K = 1e10: 56 load steps pointwise, 6 in this form).
 
-Dirichlet data (MODEL.md §2): u = 0, φ = 0 on Σ1 (``left``); u = (u0, 0), φ = 0 on Σ2
+Dirichlet data: u = 0, φ = 0 on Σ1 (``left``); u = (u0, 0), φ = 0 on Σ2
 (``right``). The load parameter λ of the solver is u0 in metres.
 """
 

@@ -5,8 +5,9 @@
 - shear angle at a crossing: gamma = r_2 - r_1, the change of the angle between the family-2
   and the family-1 yarn, each yarn's rotation r_k taken as the mean rotation of its two chords
   adjacent to the crossing (the springs K_phi act on the nodal rotations theta instead, which
-  equal r_k only when the bending stiffness dominates K_phi). With m1 = (cos a, sin a), m2 = (-cos a, sin a) the angle between
-  the direction vectors opens from pi - 2a to pi - 2a + gamma, as in MODEL.md section 4 (gamma > 0
+  equal r_k only when the bending stiffness dominates K_phi). With m1 = (cos a, sin a),
+  m2 = (-cos a, sin a) the angle between the direction vectors opens from pi - 2a to
+  pi - 2a + gamma, as in the ideal BET kinematics (gamma > 0
   in the BET);
 - zone means of gamma over the crossings of zones A, B, C;
 - mid-axis profile: u_y where the yarns cross Y = W/2 in the reference configuration (linear
@@ -17,6 +18,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -54,7 +56,7 @@ def yarn_rotation(net: Network, u: np.ndarray, nodes: np.ndarray) -> np.ndarray:
 
 
 def crossing_gamma(net: Network, u: np.ndarray) -> np.ndarray:
-    """gamma = r_2 - r_1 [rad] at each crossing, r_k the rotation of yarn k there (:func:`yarn_rotation`).
+    """Gamma = r_2 - r_1 [rad] at each crossing, r_k the rotation of yarn k there (:func:`yarn_rotation`).
 
     The chords, not the nodal rotations, measure the yarn directions: with a bending stiffness
     small against K_phi the nodal rotations follow the crossing spring, not the yarn.
@@ -108,7 +110,7 @@ def yarn_polylines(net: Network, u: np.ndarray) -> list[np.ndarray]:
 
 
 def node_gamma(net: Network, u: np.ndarray) -> np.ndarray:
-    """gamma interpolated along each yarn from its crossings to all its nodes [rad] (for plots)."""
+    """Gamma interpolated along each yarn from its crossings to all its nodes [rad] (for plots)."""
     g = np.full(net.n_nodes, np.nan)
     gc = crossing_gamma(net, u)
     g[net.crossings[:, 0]] = gc
@@ -121,7 +123,7 @@ def node_gamma(net: Network, u: np.ndarray) -> np.ndarray:
     return np.nan_to_num(g)
 
 
-def save_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: ignore[no-untyped-def]
+def save_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None:
     """Write a state as npz: reference nodes, displacements, yarn chains, crossings with slip and angle."""
     chains = list(net.yarn_nodes)
     ptr = np.concatenate([[0], np.cumsum([len(c) for c in chains])])
@@ -136,7 +138,7 @@ def save_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: i
         crossing_angle_deg=180.0 - 2 * math.degrees(net.angle) + np.degrees(gamma))
 
 
-def plot_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: ignore[no-untyped-def]
+def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None:
     """PNG of the deformed yarns coloured by the angle between the yarns; thick yarns drawn thick."""
     import matplotlib
 
@@ -162,6 +164,7 @@ def plot_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: i
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
     ax.set_title(f"discrete model, u0 = {u0 * 1e3:.1f} mm")
+    assert lc is not None
     fig.colorbar(lc, ax=ax, label="angle between the yarns [deg]", shrink=0.8)
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
