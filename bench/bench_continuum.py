@@ -85,7 +85,7 @@ def _child(case: str, extra: dict) -> dict:
     t_import = time.perf_counter()
     from ngbet.run import run
     from ngbet.scene import Scene
-    from ngbet.continuum.solver import ConvergenceError
+    from ngbet.errors import ConvergenceError
 
     t_import = time.perf_counter() - t_import
     changes = {"outputs.vtk": False, "outputs.plot": False}

@@ -2,10 +2,27 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from .scene import Scene
+
+
+@contextlib.contextmanager
+def ngsolve_threads(scene: Scene) -> Iterator[None]:
+    """NGSolve's threads as ``scene.solver.threads`` asks, inside its TaskManager.
+
+    The one place where ngbet sets NGSolve's thread count; every entry point (a run, a fit) goes
+    through it.
+    """
+    import ngsolve as ngs
+
+    if scene.solver.threads != "auto":
+        ngs.SetNumThreads(int(scene.solver.threads))
+    with ngs.TaskManager():  # NGSolve's assembly and sparse factorizations run in its threads
+        yield
 
 
 def run(scene: Scene, out: str | Path, progress: bool = False) -> dict[str, Any]:
@@ -13,16 +30,11 @@ def run(scene: Scene, out: str | Path, progress: bool = False) -> dict[str, Any]
 
     Raises
     ------
-    ngbet.continuum.solver.ConvergenceError
+    ngbet.errors.ConvergenceError
         when the load cannot be carried to the end; every converged step is on disk by then,
         and summary.json says ``"status": "failed"`` with the error.
     """
-    import ngsolve as ngs
-
-    threads = scene.solver.threads or None
-    if threads:
-        ngs.SetNumThreads(threads)
-    with ngs.TaskManager():  # NGSolve's assembly and sparse factorizations run in its threads
+    with ngsolve_threads(scene):
         if scene.model == "discrete":
             from . import discrete
 

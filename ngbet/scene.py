@@ -26,6 +26,7 @@ import hashlib
 import json
 import math
 import tomllib
+import warnings
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -66,6 +67,20 @@ def _integer(section: str, obj: Any, name: str, lo: int, hi: int) -> None:
     v = getattr(obj, name)
     _check(isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi,
            f"{section}.{name}", v, f"must be an integer from {lo} to {hi}")
+
+
+AUTO = "auto"
+
+
+def _auto_or(section: str, obj: Any, name: str, check: Any, what: str, old: tuple[Any, ...]) -> None:
+    """``"auto"`` or a value passing ``check``; the former numeric sentinels ``old`` get a clear error."""
+    v = getattr(obj, name)
+    if v == AUTO:
+        return
+    if not isinstance(v, bool) and v in old:
+        raise SceneError(f"scene key '{section}.{name}' = {v!r}: for the automatic value write "
+                         f"{name} = \"auto\"; otherwise give {what}")
+    _check(not isinstance(v, (bool, str)) and check(v), f"{section}.{name}", v, f"must be \"auto\" or {what}")
 
 
 def _choice(section: str, obj: Any, name: str, choices: tuple[str, ...]) -> None:
@@ -114,11 +129,13 @@ class Specimen:
 
     @property
     def m1(self) -> tuple[float, float]:
+        """Direction of the thick yarns (cos a, sin a)."""
         a = math.radians(self.yarn_angle_deg)
         return (math.cos(a), math.sin(a))
 
     @property
     def m2(self) -> tuple[float, float]:
+        """Direction of the thin yarns (−cos a, sin a)."""
         a = math.radians(self.yarn_angle_deg)
         return (-math.cos(a), math.sin(a))
 
@@ -195,11 +212,11 @@ class Effects:
     penalty_form: str = "mixed"
     # Pa; adds ½ K_s (φ − i8)² to the Lagrange and mixed-penalty forms (an augmented Lagrangian:
     # zero with its variation wherever φ = i8, so the exact solution is unchanged). It acts on the
-    # within-element part of φ − i8 that Λ ∈ L2(p − 2) leaves free. -1 (default): element by
+    # within-element part of φ − i8 that Λ ∈ L2(p − 2) leaves free. "auto" (default): element by
     # element K_s = 0.1 min(alpha1, alpha2) / h_T^2, a tenth of the bending energy the exact
     # constraint would charge for a variation of i8 on the element's scale; 0: off; > 0: that
     # constant (ngbet.continuum.problem)
-    stabilization_K: float = -1.0
+    stabilization_K: float | str = AUTO
 
     def __post_init__(self) -> None:
         _boolean("effects", self, "shear", "elongation", "bending")
@@ -208,8 +225,9 @@ class Effects:
         _choice("effects", self, "shear_law", SHEAR_LAWS)
         _check(self.shear or self.shear_law == "quadratic", "effects.shear_law", self.shear_law,
                "a shear law needs effects.shear = true")
-        _check(self.stabilization_K >= 0 or self.stabilization_K == -1, "effects.stabilization_K",
-               self.stabilization_K, "must be >= 0 [Pa] (0: off), or -1 for the default K_s = 0.1 min(alpha1, alpha2) / h_T^2")
+        _auto_or("effects", self, "stabilization_K",
+                 lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v >= 0,
+                 "a number >= 0 [Pa] (0: off); \"auto\" is K_s = 0.1 min(alpha1, alpha2) / h_T^2", old=(-1,))
         _positive("effects", self, "penalty_K")
         _check(self.elongation, "effects.elongation", self.elongation,
                "the yarn elongation term is what makes the yarns resist stretching; without it the "
@@ -229,12 +247,12 @@ class Effects:
 
 @dataclass(frozen=True)
 class Discretization:
-    """Mesh and polynomial orders (``order_phi = 0``: order_u; ``order_lam = -1``: the default pair)."""
+    """Mesh and polynomial orders (``order_phi = "auto"``: order_u; ``order_lam = "auto"``: the stable pair)."""
 
     mesh_size_mm: float = 5.0
     order_u: int = 2
-    order_phi: int = 0  # 0: same as order_u
-    order_lam: int = -1  # -1: max(order_u - 2, 0), the stable pair (see ngbet.continuum.problem)
+    order_phi: int | str = AUTO  # "auto": same as order_u
+    order_lam: int | str = AUTO  # "auto": max(order_u - 2, 0), the stable pair (see ngbet.continuum.problem)
     quad_bonus: int = 0  # extra quadrature order for the non-polynomial sqrt(i4), sqrt(i6) terms
     structured: bool = False  # crossed structured mesh instead of Netgen's unstructured one
     # mesh size at the four corners where a clamp meets a free edge (singular points of the
@@ -247,8 +265,10 @@ class Discretization:
     def __post_init__(self) -> None:
         _positive("discretization", self, "mesh_size_mm")
         _integer("discretization", self, "order_u", 1, 10)
-        _integer("discretization", self, "order_phi", 0, 10)
-        _integer("discretization", self, "order_lam", -1, 9)
+        _auto_or("discretization", self, "order_phi", lambda v: isinstance(v, int) and 1 <= v <= 10,
+                 "an integer from 1 to 10", old=(0,))
+        _auto_or("discretization", self, "order_lam", lambda v: isinstance(v, int) and 0 <= v <= 9,
+                 "an integer from 0 to 9", old=(-1,))
         _integer("discretization", self, "quad_bonus", 0, 10)
         _boolean("discretization", self, "structured")
         _nonnegative("discretization", self, "corner_mesh_size_mm")
@@ -262,15 +282,18 @@ class Discretization:
 
     @property
     def p_u(self) -> int:
+        """The order of u."""
         return self.order_u
 
     @property
     def p_phi(self) -> int:
-        return self.order_phi or self.order_u
+        """The order of phi."""
+        return self.order_u if self.order_phi == AUTO else int(self.order_phi)
 
     @property
     def p_lam(self) -> int:
-        return self.order_lam if self.order_lam >= 0 else max(self.order_u - 2, 0)
+        """The order of the multiplier."""
+        return max(self.order_u - 2, 0) if self.order_lam == AUTO else int(self.order_lam)
 
 
 @dataclass(frozen=True)
@@ -316,16 +339,17 @@ class Solver:
     cut: float = 0.5
     linear_solver: str = "auto"
     condense: bool = True  # eliminate element-local dofs (Lambda) before factorizing
-    # NGSolve threads; 0: all cores. One by default: on the 2-core machines measured, two threads
-    # were slower in wall time (solves and residuals wait for a core; bench/README.md)
-    threads: int = 1
+    # NGSolve threads; "auto": all cores. One by default: on the 2-core machines measured, two threads
+    # were slower in wall time (solves and residuals wait for a core)
+    threads: int | str = 1
     predictor: str = "tangent"  # "tangent" (Euler) or "clamp" (u += du0 X/L)
 
     def __post_init__(self) -> None:
         _positive("solver", self, "rtol", "atol_energy", "growth")
         _integer("solver", self, "max_iterations", 1, 1000)
         _integer("solver", self, "grow_after", 0, 1000)
-        _integer("solver", self, "threads", 0, 1024)
+        _auto_or("solver", self, "threads", lambda v: isinstance(v, int) and 1 <= v <= 1024,
+                 "an integer from 1 to 1024", old=(0,))
         _check(0 < self.cut < 1, "solver.cut", self.cut, "must lie strictly between 0 and 1")
         _check(self.growth >= 1, "solver.growth", self.growth, "must be >= 1")
         _choice("solver", self, "linear_solver", LINEAR_SOLVERS)
@@ -396,6 +420,17 @@ class Discrete:
 
 MODELS = ("continuum", "discrete")
 
+#: what each model does not read: whole sections (None) or some of their keys. A non-default value
+#: there is reported by name (:meth:`Scene.unused_keys`, a :class:`SceneWarning` on construction).
+NOT_READ_BY: dict[str, dict[str, tuple[str, ...] | None]] = {
+    "continuum": {"discrete": None},
+    "discrete": {"material": None, "effects": None, "discretization": None, "solver": ("condense",)},
+}
+
+
+class SceneWarning(UserWarning):
+    """A scene value that has no effect on the chosen model."""
+
 _SECTIONS: dict[str, type] = {
     "specimen": Specimen,
     "material": Material,
@@ -442,6 +477,21 @@ class Scene:
                        "discretization.order_lam", self.discretization.order_lam,
                        "the multiplier order must be below the order of phi, else the constraint locks")
 
+        unused = self.unused_keys()
+        if unused:
+            warnings.warn(SceneWarning(f"model = {self.model!r} does not read {', '.join(unused)}: "
+                                       "these values have no effect"), stacklevel=3)
+
+    def unused_keys(self) -> list[str]:
+        """The keys with a non-default value that the scene's model does not read ("section.key")."""
+        out = []
+        for name, keys in NOT_READ_BY[self.model].items():
+            section, default = getattr(self, name), _SECTIONS[name]()
+            for f in fields(section):
+                if (keys is None or f.name in keys) and getattr(section, f.name) != getattr(default, f.name):
+                    out.append(f"{name}.{f.name}")
+        return out
+
     # construction ------------------------------------------------------------------------------
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Scene:
@@ -486,6 +536,7 @@ class Scene:
 
     @classmethod
     def from_toml_string(cls, text: str) -> Scene:
+        """Read a scene from TOML text."""
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
@@ -493,12 +544,14 @@ class Scene:
         return cls.from_dict(data)
 
     def to_dict(self) -> dict[str, Any]:
+        """Nested dicts of plain values (the TOML tables)."""
         d = dataclasses.asdict(self)
         d["outputs"]["fields"] = list(d["outputs"]["fields"])
         d["loading"]["stops_mm"] = list(d["loading"]["stops_mm"])
         return d
 
     def to_toml(self) -> str:
+        """The complete scene as TOML text."""
         return tomli_w.dumps(self.to_dict())
 
     def with_changes(self, **dotted: Any) -> Scene:

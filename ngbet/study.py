@@ -220,17 +220,12 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
     else), error text, wall time, threads, and with no ``workdir`` the run folder's files as
     ``{"files": {name: bytes}}`` (for dask workers on other machines).
     """
-    if threads > 0:
-        try:
-            import ngsolve as ngs
-
-            ngs.SetNumThreads(threads)
-        except Exception:  # pragma: no cover
-            pass
     from .run import run
     from .errors import ConvergenceError
 
     scene = Scene.from_dict(scene_dict)
+    if threads > 0:  # ngbet.run.run sets NGSolve's threads from the scene
+        scene = scene.with_changes(**{"solver.threads": threads})
     tmp = workdir is None
     wd = Path(tempfile.mkdtemp(prefix="ngbet-case-")) if tmp else Path(workdir)  # type: ignore[arg-type]
     wd.mkdir(parents=True, exist_ok=True)

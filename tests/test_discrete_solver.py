@@ -59,7 +59,8 @@ class Pulled:
         x, c = u
         E = 0.5 * self.k * (c - x) ** 2 + 0.5 * self.m * x**2 + 0.25 * self.b * x**4
         g = np.array([-self.k * (c - x) + self.m * x + self.b * x**3, self.k * (c - x)])
-        K = sp.csr_matrix(np.array([[self.k + self.m + 3 * self.b * x**2, -self.k], [-self.k, self.k]])) if hessian else None
+        K = (sp.csr_matrix(np.array([[self.k + self.m + 3 * self.b * x**2, -self.k], [-self.k, self.k]]))
+             if hessian else None)
         return E, g, K
 
 
@@ -93,7 +94,8 @@ def test_no_shift_allowed_stops_at_the_first_indefinite_tangent():
     lin = solver(p)
     with pytest.raises(_StepFailed) as exc:
         newton(p, np.array([1e-3, 0.0]), lin, ctl(), allow_shift=False)
-    assert exc.value.indefinite and lin.n_factor == 1, f"indefinite {exc.value.indefinite}, {lin.n_factor} factorizations"
+    assert exc.value.indefinite and lin.n_factor == 1, \
+        f"indefinite {exc.value.indefinite}, {lin.n_factor} factorizations"
 
 
 def test_blas_pools_single_threaded_during_the_solve():
@@ -127,13 +129,15 @@ def test_energy_balance_by_the_hermite_rule_on_a_smooth_branch():
     p = Pulled()
     rows = []
     res = solve_path(p, StepControl(u0_final=2.0, first_step=0.25, max_step=0.25, min_step=1e-3, stability=False),
-                     on_step=lambda info, u: rows.append((info.u0, float(p.load @ info.gradient), info.energy,
+                     on_step=lambda info, u: rows.append((info.u0, float(p.load @ info.residual), info.energy,
                                                           info.released)))
-    assert not res["snap_events"] and res["failed_steps"] == 0, f"snaps {res['snap_events']}, failed {res['failed_steps']}"
+    assert not res["snap_events"] and res["failed_steps"] == 0, \
+        f"snaps {res['snap_events']}, failed {res['failed_steps']}"
     prev = (0.0, 0.0, 0.0)
     for u0, F, E, released in rows:
         h = u0 - prev[0]
         work = 0.5 * h * (F + prev[1])
         trap = work - (E - prev[2])
-        assert abs(released) <= 1e-4 * work and abs(released) <= 1e-2 * abs(trap), f"u0 {u0}: Hermite {released:.2e}, trapezoid {trap:.2e}, work {work:.3e}"
+        assert abs(released) <= 1e-4 * work and abs(released) <= 1e-2 * abs(trap), \
+            f"u0 {u0}: Hermite {released:.2e}, trapezoid {trap:.2e}, work {work:.3e}"
         prev = (u0, F, E)

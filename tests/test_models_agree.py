@@ -23,7 +23,8 @@ from ngbet.run import run
 def _forces(tmp_path, K_el):
     base = coarse(**{"material.K_el": K_el, "loading.u0_mm": 37.0, "loading.stops_mm": []})
     F = {}
-    for name, scene in (("continuum", base), ("network", base.with_changes(model="discrete", **continuum_equivalent(base)))):
+    network = base.with_changes(model="discrete", **continuum_equivalent(base))
+    for name, scene in (("continuum", base), ("network", network)):
         run(scene, tmp_path / f"{name}_{K_el:g}")
         F[name] = read_rows(tmp_path / f"{name}_{K_el:g}" / "results.csv")[-1]["force_N"]
     return F["network"] / F["continuum"]

@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from ngbet.scene import Scene, SceneError, default_scene
+from ngbet.scene import Scene, SceneError, SceneWarning, default_scene
 
 
 def test_default_is_paper_table1():
@@ -33,7 +33,7 @@ def test_toml_round_trip_is_identity():
     ("material.K_sh", -1.0, "material.K_sh"),
     ("discretization.order_u", 0, "discretization.order_u"),
     ("effects.constraint", "magic", "effects.constraint"),
-    ("effects.stabilization_K", -2.0, "effects.stabilization_K"),  # only -1 (the default) is negative
+    ("effects.stabilization_K", -2.0, "effects.stabilization_K"),
     ("loading.u0_mm", 70.0, "lock"),
     ("effects.elongation", False, "effects.elongation"),
     ("discretization.order_lam", 3, "discretization.order_lam"),  # not below order_phi = order_u = 3
@@ -74,3 +74,31 @@ def test_cli_scene_prints_valid_toml():
     p = subprocess.run([sys.executable, "-m", "ngbet", "scene"], capture_output=True, text=True)
     assert p.returncode == 0
     assert Scene.from_toml_string(p.stdout) == default_scene()
+
+
+@pytest.mark.parametrize("key, old", [("effects.stabilization_K", -1), ("discretization.order_phi", 0),
+                                      ("discretization.order_lam", -1), ("solver.threads", 0)])
+def test_automatic_values_are_written_auto_and_old_sentinels_say_so(key, old):
+    assert Scene().with_changes(**{key: "auto"}) == Scene() or key == "solver.threads"
+    name = key.split(".")[1]
+    with pytest.raises(SceneError, match=f"'{key}' = {old}: for the automatic value write {name} = \"auto\""):
+        Scene().with_changes(**{key: old})
+
+
+def test_auto_orders_follow_order_u():
+    d = Scene().with_changes(**{"discretization.order_u": 3}).discretization
+    assert (d.p_phi, d.p_lam) == (3, 1)
+    d = Scene().with_changes(**{"discretization.order_u": 3, "discretization.order_lam": 0,
+                                "discretization.order_phi": 4}).discretization
+    assert (d.p_phi, d.p_lam) == (4, 0)
+
+
+def test_keys_the_model_does_not_read_are_named_in_a_warning():
+    with pytest.warns(SceneWarning, match="does not read material.alpha1"):
+        s = Scene().with_changes(**{"material.alpha1": 20.0, "model": "discrete"})
+    assert s.unused_keys() == ["material.alpha1"]
+    with pytest.warns(SceneWarning, match="discrete.spacing_mm"):
+        Scene().with_changes(**{"discrete.spacing_mm": 3.0})
+    # the sections a model reads, and defaults elsewhere, are quiet
+    assert Scene().with_changes(**{"model": "discrete", "loading.u0_mm": 30.0}).unused_keys() == []
+    assert Scene().with_changes(**{"material.alpha1": 20.0}).unused_keys() == []

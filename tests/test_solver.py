@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 from conftest import coarse
 
-from ngbet.output import read_rows
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.continuum.run import newton_settings
+from ngbet.continuum.solver import NewtonSettings, continuation
+from ngbet.errors import ConvergenceError
+from ngbet.output import read_rows
 from ngbet.run import run
-from ngbet.continuum.solver import ConvergenceError, NewtonSettings, continuation
 
 
 def _deformed_problem(**changes):
@@ -49,7 +50,7 @@ def _field_scales(problem):
 def test_jacobian_matches_finite_differences_of_the_residual(changes):
     """J v = (r(x + εv) − r(x − εv)) / 2ε + O(ε²) for random directions v, on every row
     (Dirichlet rows included). ``problem.a`` is the exact energy's form (for the Lagrange method
-    the Newton matrix ``a_jac`` is deliberately the augmented one; the exact Hessian is checked
+    the Newton matrix ``problem.linear.form`` is deliberately the augmented one; the exact Hessian is checked
     here). A wrong sign or a missing term (e.g. the Λ·D²i8 curvature) gives errors of O(1)."""
     problem = _deformed_problem(**changes)
     rng = np.random.default_rng(2)
@@ -87,7 +88,7 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
     component the two agree to round-off, and on a Λ direction they differ by exactly M/K_aug
     (M the L2 mass matrix of Λ): the quasi-Newton is close to Newton and its limit is exact."""
     problem = _deformed_problem(**{"effects.constraint": "lagrange", "solver.condense": True})
-    # condense=True with Λ: a_jac is condensed, rebuild the uncondensed augmented form to compare
+    # condense=True with Λ: the Newton matrix is condensed, rebuild the uncondensed augmented form to compare
     from ngbet.continuum import physics
 
     scene = problem.scene
@@ -134,7 +135,7 @@ def test_newton_converges_quadratically_on_a_load_step():
     settings = NewtonSettings(rtol=1e-14, atol=1e-20, max_iterations=12, simplified_theta=0.0)
     with ngs.TaskManager():
         res = continuation(problem, 0.02, 0.02, settings)
-    h = res.steps[0].report.history
+    h = res.steps[0].history
     assert len(h) >= 3
     # the decrement is an energy ~ |dx|², so quadratic convergence of dx means δ_k+1 ~ δ_k²/δ_0
     assert h[2] < 1e-3 * h[1] and h[1] < 1e-2 * h[0], h
@@ -170,11 +171,11 @@ def test_running_out_of_newton_iterations_fails_in_bounded_time(tmp_path):
     wall = time.perf_counter() - t0
     err = info.value
     assert wall < 60.0
-    assert math.isclose(err.last_converged, 0.004, rel_tol=1e-12)
-    failed = [a for a in err.attempts if not a.report.converged]
-    assert failed and all(a.report.iterations <= 2 for a in err.attempts)
-    assert all(a.report.history for a in failed)  # each attempt says what its decrement was
-    assert f"{err.last_converged:.6g}" in str(err)
+    assert math.isclose(err.last_converged_mm, 4.0, rel_tol=1e-12)
+    failed = [a for a in err.attempts if not a.converged]
+    assert failed and all(a.iterations <= 2 for a in err.attempts)
+    assert all(a.history for a in failed)  # each attempt says what its decrement was
+    assert f"last converged load: {err.last_converged_mm:.6g} mm" in str(err)
     rows = read_rows(tmp_path / "run" / "results.csv")
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["status"] == "failed" and "last converged load" in summary["error"]

@@ -8,8 +8,8 @@ import shutil
 import pytest
 
 from ngbet.scene import Scene
-from ngbet.study import Study, load, plot_only, run_study
 from ngbet.studies import _common as C
+from ngbet.study import Study, load, plot_only, run_study
 
 TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
         "loading.u0_mm": 10.0, "loading.stops_mm": [5.0]}
@@ -124,7 +124,7 @@ def test_quick_penalty_p(tmp_path, quick_cache):
     for p in (1, 2):
         pen = sorted((r for r in a["rows"] if r["p"] == p and r["method"] == "penalty"), key=lambda r: r["K"])
         errs = [r["err_pen"] for r in pen]
-        assert all(e2 < e1 for e1, e2 in zip(errs, errs[1:])), errs  # monotone in K
+        assert all(e2 < e1 for e1, e2 in zip(errs[:-1], errs[1:], strict=True)), errs  # monotone in K
         # the mixed penalty converges like 1/K once K >> alpha1/h^2 = 5e6 Pa (h = 20 mm)
         e9, e10 = (r["err_pen"] for r in pen if r["K"] in (1e9, 1e10))
         assert -1.05 < math.log10(e10 / e9) < -0.95
@@ -172,7 +172,7 @@ def test_quick_kel(tmp_path, quick_cache):
 def test_quick_curves(tmp_path, quick_cache):
     mod, d = run_quick("curves", tmp_path, quick_cache)
     a = mod.analyse(d)
-    assert len(a["u0"]) == 8 and all(f2 > f1 for f1, f2 in zip(a["F"], a["F"][1:]))
+    assert len(a["u0"]) == 8 and all(f2 > f1 for f1, f2 in zip(a["F"][:-1], a["F"][1:], strict=True))
     # reaction = dE/du0 (envelope theorem) to the O(step^2) error of the central difference
     assert a["envelope_max_rel"] < 0.02
     assert (d.out / "curves.png").exists()

@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from ..scene import Discretization, Scene
+from ..scene import AUTO, Discretization, Scene
 
 log = logging.getLogger(__name__)
 
@@ -75,9 +75,9 @@ class Estimate:
 
 def enriched_discretization(disc: Discretization) -> Discretization:
     """p + 1 for u and φ (Λ one order up too, keeping the pair); the mesh is the run's."""
-    lam = disc.order_lam + 1 if disc.order_lam >= 0 else -1
-    return dataclasses.replace(disc, order_u=disc.order_u + 1, order_phi=disc.order_phi + 1 if disc.order_phi else 0,
-                               order_lam=lam, target_error=0.0)
+    lam = AUTO if disc.order_lam == AUTO else int(disc.order_lam) + 1
+    phi = AUTO if disc.order_phi == AUTO else int(disc.order_phi) + 1
+    return dataclasses.replace(disc, order_u=disc.order_u + 1, order_phi=phi, order_lam=lam, target_error=0.0)
 
 
 class ForceErrorEstimator:
@@ -156,7 +156,7 @@ class Rung:
 
     def apply(self, scene: Scene) -> Scene:
         d = dataclasses.replace(scene.discretization, mesh_size_mm=self.mesh_size_mm, order_u=self.order_u,
-                                order_phi=0, order_lam=-1, corner_mesh_size_mm=self.corner_mesh_size_mm,
+                                order_phi=AUTO, order_lam=AUTO, corner_mesh_size_mm=self.corner_mesh_size_mm,
                                 structured=False, target_error=0.0)
         return dataclasses.replace(scene, discretization=d,
                                    outputs=dataclasses.replace(scene.outputs, error_estimate="final"))

@@ -56,8 +56,9 @@ def constraint_l2(problem: ContinuumProblem) -> float:
 
 
 def multiplier_oscillation(problem: ContinuumProblem, margin: float = 0.18) -> float | None:
-    """‖Λ − Π Λ‖ / ‖Λ‖ on margin·L < X < (1 − margin)·L, Π the L2 projection onto continuous
-    fields of Λ's order (``problem.p_lam``, at least 1); None without a multiplier.
+    """‖Λ − Π Λ‖ / ‖Λ‖ on margin·L < X < (1 − margin)·L; None without a multiplier.
+
+    Π is the L2 projection onto continuous fields of Λ's order (``problem.p_lam``, at least 1).
 
     A multiplier that converges is smooth away from the clamp corners, and this ratio falls with
     h; an unstable pair leaves O(1) element-to-element oscillations (ratio ~0.85, not falling).

@@ -21,16 +21,15 @@ from element to element and does not converge, though u, φ and the force do; wi
 it falls as O(h) for p = 2 (0.093, 0.048, 0.025) and as O(h²) for p = 3 (0.0061, 0.0015), with
 the same force (Richardson limit 61.2 N for both pairs at p = 2). p = 1 locks (84 N against
 62 N at h = 10 mm with Λ ∈ L2(0)); use p ≥ 2. For the exact Lagrange method with ``condense`` the
-Newton matrix is that of the mixed penalty with a very large K_aug (so that Λ can be condensed),
-while the residual stays the exact Lagrangian's: Newton then converges to the exact saddle point,
-the O(1/K_aug) Jacobian error only slows the last digits.
+Newton matrix is augmented (:mod:`ngbet.continuum.linear`, which owns condensation, the sparse
+inverse and the solver timers).
 
 Stabilization. Λ ∈ L2(p − 2) ties φ to i8 only in the element moments of degree p − 2; the rest
 of i8 inside an element is held by the first-gradient energy alone, and where the yarns are
 compressed (√i6 − 1 down to −0.5 at the singular clamp corners of a 0.25 mm corner mesh at
 52.6 mm, −0.18 on the default mesh at 56 mm) that energy is not convex:
 small corner elements (0.25 mm) then lose stability at 51–53 mm (p = 2) and 34 mm (p = 3) in a
-mode with ‖δφ − δi8‖ = ‖δi8‖ at the corner (:func:`ngbet.continuum.run.diagnose_stability` names it). The
+mode with ‖δφ − δi8‖ = ‖δi8‖ at the corner (:func:`ngbet.continuum.stability.diagnose_stability` names it). The
 exact constraint would charge such a variation of i8 about α/h_T² of bending energy. The
 Lagrangian therefore carries ½K_s(φ − i8)² with K_s = c min(α1, α2)/h_T² element by element
 (c = 0.1, :data:`STABILIZATION_C`): it vanishes with its variation where φ = i8, so the exact
@@ -50,23 +49,22 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 
 import ngsolve as ngs
 import numpy as np
 from ngsolve import CoefficientFunction as CF
 
+from ..scene import AUTO, Scene, Specimen
 from . import physics
+from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver
 from .mesh import make_mesh
-from ..scene import Scene
 
 log = logging.getLogger(__name__)
 
 DIRICHLET = "left|right"
 
-#: K_aug / K_sh for the condensed Newton matrix of the exact Lagrange method: large enough that
-#: the Jacobian error (relative size ~ K_sh / K_aug) leaves Newton quadratic to the tolerance,
-#: small enough that the condensed matrix keeps ~8 correct digits.
-LAGRANGE_AUGMENTATION = 1e6
+__all__ = ["ContinuumProblem", "LAGRANGE_AUGMENTATION", "STABILIZATION_C", "stabilization_modulus"]
 
 
 #: c in the default K_s = c min(α1, α2) / h_T². Measured (Table 1, 56 mm): the corner meshes that
@@ -77,10 +75,10 @@ STABILIZATION_C = 0.1
 
 
 def stabilization_modulus(scene: Scene, mesh: ngs.Mesh) -> CF | float:
-    """K_s of ``effects.stabilization_K``: the constant, or (default, -1) c min(α1, α2)/h_T²."""
+    """K_s of ``effects.stabilization_K``: the constant, or ("auto", the default) c min(α1, α2)/h_T²."""
     k = scene.effects.stabilization_K
-    if k >= 0:
-        return k
+    if k != AUTO:
+        return float(k)
     m = scene.material
     return STABILIZATION_C * min(m.alpha1, m.alpha2) / (ngs.specialcf.mesh_size ** 2)
 
@@ -95,12 +93,44 @@ def _range_over_elements(k: CF | float, mesh: ngs.Mesh) -> tuple[float, float]:
 
 
 class ContinuumProblem:
-    """Spaces, forms and load of one scene; implements :class:`ngbet.continuum.solver.NonlinearProblem`."""
+    """Spaces, forms, boundary conditions and load of one scene.
+
+    Implements :class:`ngbet.continuum.solver.NonlinearProblem`; its linear algebra is the
+    :class:`~ngbet.continuum.linear.NewtonLinearSolver` ``self.linear``.
+    """
 
     def __init__(self, scene: Scene, mesh: ngs.Mesh | None = None, dirichlet: str = DIRICHLET) -> None:
         self.scene = scene
-        sp, mat, eff, disc = scene.specimen, scene.material, scene.effects, scene.discretization
+        sp, disc = scene.specimen, scene.discretization
         self.mesh = mesh if mesh is not None else make_mesh(sp, disc)
+        self._spaces(scene, dirichlet)
+        self.m1, self.m2 = CF(sp.m1), CF(sp.m2)
+        mat = scene.material
+        self.K_ref = mat.K_sh if mat.K_sh > 0 else mat.K_el
+        self.dx = ngs.dx(bonus_intorder=disc.quad_bonus)
+        energy, saddle_energy = self._energy(scene)
+        # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
+        self.condense = scene.solver.condense
+        self.a = ngs.BilinearForm(self.X, symmetric=True, condense=self.condense and saddle_energy is None)
+        self.a += ngs.Variation(energy.Compile() * self.dx)
+        self.linear = NewtonLinearSolver(self.a, self.condense, scene.solver.linear_solver, saddle_energy,
+                                         self.K_ref, self.dx)
+        self.gf = ngs.GridFunction(self.X)
+        self.x = self.gf.vec.FV().NumPy()
+        self._r = self.gf.vec.CreateVector()
+        self._w = self.gf.vec.CreateVector()
+        self._w2 = self.gf.vec.CreateVector()
+        self.free_all = np.array(list(self.X.FreeDofs()), dtype=bool)
+        self.dirichlet = ~self.free_all
+        self._load_fields(sp)
+        self._weights = self._norm_weights()
+        self.lam = 0.0
+        self._t_residual = 0.0
+        self._n_residual = 0
+
+    def _spaces(self, scene: Scene, dirichlet: str) -> None:
+        """The compound space of the fields the effects call for."""
+        eff, disc = scene.effects, scene.discretization
         self.field_names = eff.fields
         # the full penalty in its mixed form (module docstring); condense = false keeps it pointwise
         self.full_as_mixed = (eff.bending and eff.constraint == "penalty" and eff.penalty_form == "full"
@@ -114,57 +144,36 @@ class ContinuumProblem:
         if "lam" in self.field_names:
             spaces.append(ngs.L2(self.mesh, order=self.p_lam))
         self.X = ngs.FESpace(spaces)
-        self.m1, self.m2 = CF(sp.m1), CF(sp.m2)
+
+    def _energy(self, scene: Scene) -> tuple[CF, Callable[[float], CF] | None]:
+        """The energy integrand, and for the exact Lagrangian the augmented one (K_aug -> integrand)."""
+        mat, eff = scene.material, scene.effects
         trial = self.X.TrialFunction()
-        u = trial[0]
-        inv = physics.invariants(ngs.Grad(u), self.m1, self.m2)
+        inv = physics.invariants(ngs.Grad(trial[0]), self.m1, self.m2)
         base = physics.elongation_energy(inv.i4, inv.i6, mat.K_el)
         if eff.shear:
             base = base + physics.shear_law_energy(inv.i8, eff.shear_law, vars(mat))
-        self.K_ref = mat.K_sh if mat.K_sh > 0 else mat.K_el
-        constraint = jac_constraint = None
         self.K_s: CF | float = 0.0  # the stabilization modulus (a CF when element-wise)
         self.K_s_range = (0.0, 0.0)  # its smallest and largest value over the elements [Pa]
-        if eff.bending:
-            phi = trial[1]
-            base = base + physics.bending_energy(ngs.Grad(phi), self.m1, self.m2, mat.alpha1, mat.alpha2)
-            if eff.constraint == "lagrange":
-                constraint = physics.lagrange_constraint(phi, inv.i8, trial[2])
-                self.K_aug = LAGRANGE_AUGMENTATION * self.K_ref
-                jac_constraint = physics.mixed_penalty_constraint(phi, inv.i8, trial[2], self.K_aug)
-            elif eff.penalty_form == "mixed" or self.full_as_mixed:
-                constraint = physics.mixed_penalty_constraint(phi, inv.i8, trial[2], eff.penalty_K)
-            else:
-                constraint = physics.penalty_constraint(phi, inv.i8, eff.penalty_K)
-            if eff.constraint == "lagrange" or eff.penalty_form == "mixed":
-                self.K_s = stabilization_modulus(scene, self.mesh)
-            self.K_s_range = _range_over_elements(self.K_s, self.mesh)
-            if self.K_s_range[1] > 0:
-                stab = physics.penalty_constraint(phi, inv.i8, self.K_s)
-                constraint = constraint + stab
-                if jac_constraint is not None:
-                    jac_constraint = jac_constraint + stab
-        energy = base if constraint is None else base + constraint
-        self.dx = ngs.dx(bonus_intorder=disc.quad_bonus)
-        # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
-        self.condense = scene.solver.condense
-        exact_saddle = eff.bending and eff.constraint == "lagrange"
-        self.a = ngs.BilinearForm(self.X, symmetric=True, condense=self.condense and not exact_saddle)
-        self.a += ngs.Variation(energy.Compile() * self.dx)
-        if exact_saddle and self.condense:
-            self.a_jac = ngs.BilinearForm(self.X, symmetric=True, condense=True)
-            self.a_jac += ngs.Variation((base + jac_constraint).Compile() * self.dx)
-        else:
-            self.a_jac = self.a
-        self.gf = ngs.GridFunction(self.X)
-        self.x = self.gf.vec.FV().NumPy()
-        self._r = self.gf.vec.CreateVector()
-        self._w = self.gf.vec.CreateVector()
-        self._w2 = self.gf.vec.CreateVector()
-        self.free_all = np.array(list(self.X.FreeDofs()), dtype=bool)
-        self.freedofs = self.X.FreeDofs(self.a_jac.condense)
-        self.dirichlet = ~self.free_all
-        # reaction test fields (docs/model.md, *Reactions*): ψ_u = (X/L, 0), ψ_φ = X/L; exact in the spaces
+        if not eff.bending:
+            return base, None
+        phi = trial[1]
+        base = base + physics.bending_energy(ngs.Grad(phi), self.m1, self.m2, mat.alpha1, mat.alpha2)
+        if eff.constraint == "lagrange" or eff.penalty_form == "mixed":
+            self.K_s = stabilization_modulus(scene, self.mesh)
+        self.K_s_range = _range_over_elements(self.K_s, self.mesh)
+        if self.K_s_range[1] > 0:
+            base = base + physics.penalty_constraint(phi, inv.i8, self.K_s)
+        if eff.constraint == "lagrange":
+            lam = trial[2]
+            return (base + physics.lagrange_constraint(phi, inv.i8, lam),
+                    lambda K_aug: base + physics.mixed_penalty_constraint(phi, inv.i8, lam, K_aug))
+        if eff.penalty_form == "mixed" or self.full_as_mixed:
+            return base + physics.mixed_penalty_constraint(phi, inv.i8, trial[2], eff.penalty_K), None
+        return base + physics.penalty_constraint(phi, inv.i8, eff.penalty_K), None
+
+    def _load_fields(self, sp: Specimen) -> None:
+        """Reaction test fields (ψ_u = (X/L, 0), ψ_φ = X/L; exact in the spaces) and the load direction."""
         self.psi_u = ngs.GridFunction(self.X)
         self.psi_u.components[0].Set(CF((ngs.x / sp.L, 0)))
         self.psi_phi = None
@@ -173,19 +182,39 @@ class ContinuumProblem:
             self.psi_phi.components[1].Set(ngs.x / sp.L)
         self._load_dir = np.where(self.dirichlet, self.psi_u.vec.FV().NumPy(), 0.0)
         self._clamp_dir = self.psi_u.vec.FV().NumPy().copy()
-        self._weights = self._norm_weights()
-        self.inverse_type = self._pick_solver(scene.solver.linear_solver, exact_saddle and not self.condense)
-        self._inv = None
-        self.lam = 0.0
-        self.timers = {"assembly_s": 0.0, "factorization_s": 0.0, "solve_s": 0.0, "residual_s": 0.0}
-        self.counts = {"factorizations": 0, "solves": 0, "residuals": 0}
+
+    # --------------------------------------------------------------------------- linear algebra
+    @property
+    def K_aug(self) -> float:
+        """K_aug of the augmented Newton matrix (0 when not augmented) [Pa]."""
+        return self.linear.K_aug
+
+    @property
+    def inverse_type(self) -> str:
+        """The sparse inverse in use."""
+        return self.linear.inverse_type
+
+    @property
+    def freedofs(self) -> ngs.BitArray:
+        """The dofs the Newton matrix is factorized on (after condensation)."""
+        return self.linear.freedofs
+
+    @property
+    def timers(self) -> dict[str, float]:
+        """Wall time [s] by kind: assembly, factorization, solve, residual."""
+        return {**self.linear.timers, "residual_s": self._t_residual}
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Factorizations, solves, residual evaluations."""
+        return {**self.linear.counts, "residuals": self._n_residual}
 
     # --------------------------------------------------------------------------- bookkeeping
     def ndofs(self) -> dict[str, int]:
         """Degrees of freedom per field, and those left after condensation."""
         out = {name: int(self.X.components[i].ndof) for i, name in enumerate(self.field_names)}
         out["total"] = int(self.X.ndof)
-        out["factorized"] = int(sum(self.freedofs))
+        out["factorized"] = int(sum(self.linear.freedofs))
         return out
 
     def _norm_weights(self) -> np.ndarray:
@@ -197,92 +226,79 @@ class ContinuumProblem:
             w[rng.start:rng.stop] = scale[name]
         return w * self.free_all
 
-    @staticmethod
-    def _pick_solver(choice: str, indefinite: bool) -> str:
-        if choice != "auto":
-            return choice
-        # sparse LDLᵀ needs no zero pivots: fine for the condensed or minimization matrices,
-        # not for the uncondensed saddle point (zero Λ-Λ block)
-        return "umfpack" if indefinite else "sparsecholesky"
-
     # --------------------------------------------------------------------------- solver interface
     def set_load(self, lam: float) -> None:
+        """Set the load λ = u0 [m]: the Dirichlet entries of x follow it."""
         self.lam = lam
         self.x[self.dirichlet] = lam * self._load_dir[self.dirichlet]
 
     def residual(self) -> np.ndarray:
+        """r(x), full length (Dirichlet rows hold the reactions)."""
         t0 = time.perf_counter()
         self.a.Apply(self.gf.vec, self._r)
-        self.timers["residual_s"] += time.perf_counter() - t0
-        self.counts["residuals"] += 1
+        self._t_residual += time.perf_counter() - t0
+        self._n_residual += 1
         return self._r.FV().NumPy().copy()
 
     def energy(self) -> float:
+        """The total energy (Lagrangian) per unit thickness at x [J/m]."""
         return float(self.a.Energy(self.gf.vec))
 
     def factorize(self) -> None:
-        t0 = time.perf_counter()
-        self.a_jac.AssembleLinearization(self.gf.vec)
-        t1 = time.perf_counter()
-        if self._inv is None:
-            self._inv = self.a_jac.mat.Inverse(self.freedofs, inverse=self.inverse_type)
-        else:
-            self._inv.Update()
-        self.timers["assembly_s"] += t1 - t0
-        self.timers["factorization_s"] += time.perf_counter() - t1
-        self.counts["factorizations"] += 1
-
-    def _solve_into(self, r: ngs.BaseVector, out: ngs.BaseVector) -> None:
-        """out = J⁻¹ r (free dofs), condensation handled; r is overwritten."""
-        t0 = time.perf_counter()
-        a = self.a_jac
-        if a.condense:
-            r.data += a.harmonic_extension_trans * r
-            out.data = self._inv * r
-            out.data += a.harmonic_extension * out
-            out.data += a.inner_solve * r
-        else:
-            out.data = self._inv * r
-        self.timers["solve_s"] += time.perf_counter() - t0
-        self.counts["solves"] += 1
+        """Linearize at the current state and factorize."""
+        self.linear.factorize(self.gf.vec)
 
     def solve(self, r: np.ndarray) -> np.ndarray:
+        """The correction −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
         self._w.FV().NumPy()[:] = r
-        self._solve_into(self._w, self._w2)
+        self.linear.solve_into(self._w, self._w2)
         dx = -self._w2.FV().NumPy()
         dx[self.dirichlet] = 0.0
         return dx
 
     def load_tangent(self, dlam: float) -> np.ndarray:
+        """The load tangent times dlam: Dirichlet entries moved by dlam, the others −J⁻¹ J_fd dlam."""
         d = dlam * self._load_dir
         self._w2.FV().NumPy()[:] = d
-        self._w.data = self.a_jac.mat * self._w2
+        self._w.data = self.linear.mat * self._w2
         dx = self.solve(self._w.FV().NumPy())
         dx[self.dirichlet] = d[self.dirichlet]
-        if self.a_jac.condense:  # local dofs follow the Dirichlet move through the extension
+        if self.linear.condensed:  # local dofs follow the Dirichlet move through the extension
             self._w2.FV().NumPy()[:] = np.where(self.dirichlet, d, 0.0)
-            self._w.data = self.a_jac.harmonic_extension * self._w2
+            self._w.data = self.linear.form.harmonic_extension * self._w2
             dx += self._w.FV().NumPy() * ~self.dirichlet
         return dx
 
+    def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
+        """psi·(J tangent) with the Jacobian at hand: dR/dλ of the reaction R = psi·r along ∂x/∂λ."""
+        self._w2.FV().NumPy()[:] = tangent
+        self._w.data = self.linear.mat * self._w2
+        return float(psi @ self._w.FV().NumPy())
+
     def clamp_predictor(self, dlam: float) -> np.ndarray:
+        """The clamp's linear field (X/L, 0) dlam."""
         return dlam * self._clamp_dir
 
     def norm(self, dx: np.ndarray) -> float:
+        """A unit-free norm of a correction (u by 1/L, φ by 1, Λ by 1/K_ref)."""
         return float(np.linalg.norm(self._weights * dx))
 
     # --------------------------------------------------------------------------- fields
     @property
     def u(self) -> ngs.GridFunction:
+        """The displacement."""
         return self.gf.components[0]
 
     @property
     def phi(self) -> ngs.GridFunction | None:
+        """The micro-variable φ (None without bending)."""
         return self.gf.components[1] if "phi" in self.field_names else None
 
     @property
     def lam_field(self) -> ngs.GridFunction | None:
+        """The multiplier Λ (None without it)."""
         return self.gf.components[2] if "lam" in self.field_names else None
 
     def invariants(self) -> physics.Invariants:
+        """F and the yarn invariants of the current displacement."""
         return physics.invariants(ngs.Grad(self.u), self.m1, self.m2)

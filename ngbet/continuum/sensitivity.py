@@ -34,7 +34,7 @@ from typing import Any
 import ngsolve as ngs
 import numpy as np
 
-from ..scene import Scene, SceneError
+from ..scene import AUTO, Scene, SceneError
 from . import physics
 
 log = logging.getLogger(__name__)
@@ -73,7 +73,7 @@ def _energy_derivative(problem: Any, name: str, value: float) -> ngs.Coefficient
         if not eff.bending:
             return ngs.CoefficientFunction(0.0)
         W = physics.bending_energy(ngs.Grad(trial[1]), problem.m1, problem.m2, mat["alpha1"], mat["alpha2"])
-        if eff.stabilization_K == -1 and problem.K_s_range[1] > 0:  # K_s = c min(α1, α2)/h_T² follows α
+        if eff.stabilization_K == AUTO and problem.K_s_range[1] > 0:  # K_s = c min(α1, α2)/h_T² follows α
             from .problem import STABILIZATION_C
 
             a1, a2 = mat["alpha1"], mat["alpha2"]
@@ -130,8 +130,8 @@ class _Recorder:
 
     def __call__(self, info: Any) -> None:
         pb, t = self.problem, self.problem.scene.specimen.t
-        key = round(info.lam * 1e3, 9)
-        r = info.report.residual if info.report.residual is not None else pb.residual()
+        key = round(info.u0 * 1e3, 9)
+        r = info.residual if info.residual is not None else pb.residual()
         F = float(r @ pb.psi_u.vec.FV().NumPy()) * t
         want = next((u0 for u0 in self.profile if abs(u0 - key) < 1e-6), None)
         pts = None
@@ -172,9 +172,9 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     u = np.asarray(sorted(set(float(v) for v in u_mm if v > 0) | set(profile)))
     L = scene.loading
     scene = scene.with_changes(**{"loading.u0_mm": float(u[-1]), "loading.stops_mm": list(u[:-1])})
-    if scene.solver.threads:
-        ngs.SetNumThreads(scene.solver.threads)
-    with ngs.TaskManager():
+    from ..run import ngsolve_threads
+
+    with ngsolve_threads(scene):
         rec = _Recorder(ContinuumProblem(scene), names, profile)
         continuation(rec.problem, u[-1] * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                      max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,

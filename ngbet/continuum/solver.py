@@ -1,4 +1,4 @@
-r"""Damped Newton with adaptive load stepping, for any problem with the small interface below.
+r"""The continuum's corrector: damped Newton for a saddle point, on the engine's load stepping.
 
 The solver knows nothing of fabrics (as NGSolve's ``nonlinearsolvers.py``): it talks to a
 :class:`NonlinearProblem` through numpy views of the state and residual, a factorization of the
@@ -12,25 +12,35 @@ Damping:          natural monotonicity test (Deuflhard): with the simplified cor
                   It is affine invariant and needs only one extra back-substitution, so it works
                   for saddle points (Lagrange multiplier) as for minimization.
 Predictor:        tangent (Euler): x += ∂x/∂λ Δλ from the last factorization, or the clamp one.
-Stepping:         cut by ``cut`` on failure, grow by ``growth`` after easy increments, land on stops.
+Stepping:         :func:`ngbet.engine.follow_path`: cut by ``cut`` on failure, grow by ``growth``
+                  after easy increments, land on stops (:func:`continuation` puts it together).
 
-A load that cannot be reached raises :class:`ConvergenceError` carrying every attempt's residual
-history and the last converged load; the caller has already saved each converged step.
+A load that cannot be reached raises :class:`ngbet.errors.ConvergenceError` carrying every
+attempt's decrements, the last converged load [mm] and the diagnosis; the caller has already
+saved each converged step.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import time
-from dataclasses import dataclass, field
-from typing import Callable, Protocol, Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from ..errors import ConvergenceError as _ConvergenceError
+from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
+from ..errors import Attempt
 
 log = logging.getLogger(__name__)
+
+
+class Diagnosis(Protocol):
+    """A structured diagnosis of a failure that can put itself in words."""
+
+    def message(self) -> str:
+        """The diagnosis for the error message."""
 
 
 class NonlinearProblem(Protocol):
@@ -51,10 +61,10 @@ class NonlinearProblem(Protocol):
         """Linearize at x and factorize the free block (reusing the symbolic factorization)."""
 
     def solve(self, r: np.ndarray) -> np.ndarray:
-        """dx = −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
+        """Dx = −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
 
     def load_tangent(self, dlam: float) -> np.ndarray:
-        """dx with Dirichlet entries moved by dlam and free entries from −J⁻¹ J_fd dlam."""
+        """Dx with Dirichlet entries moved by dlam and free entries from −J⁻¹ J_fd dlam."""
 
     def clamp_predictor(self, dlam: float) -> np.ndarray:
         """A cheap load-following guess (for the problem to define)."""
@@ -62,9 +72,14 @@ class NonlinearProblem(Protocol):
     def norm(self, dx: np.ndarray) -> float:
         """A unit-free norm of a correction."""
 
+    def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
+        """psi·(J tangent): the load derivative of the reaction psi·r along the tangent."""
+
 
 @dataclass(frozen=True)
 class NewtonSettings:
+    """Tolerances, damping and step control of the continuum's Newton (from ``scene.solver``)."""
+
     rtol: float = 1e-10
     atol: float = 1e-14
     max_iterations: int = 12
@@ -80,48 +95,14 @@ class NewtonSettings:
 
 @dataclass
 class NewtonReport:
+    """How a Newton run at fixed load ended."""
+
     converged: bool
     iterations: int
     history: list[float]  # Newton decrement |dx·r| per iteration
     damping: list[float]  # accepted damping factor per iteration
     reason: str = ""
     residual: np.ndarray | None = None  # r at the returned state (reactions come from it)
-
-
-@dataclass
-class Attempt:
-    lam_from: float
-    lam_to: float
-    report: NewtonReport
-
-
-class ConvergenceError(_ConvergenceError):
-    """The load could not be carried further (the continuum's attempts and diagnosis).
-
-    Attributes
-    ----------
-    last_converged : float
-        The last load reached (its step is already saved by the caller).
-    attempts : list of Attempt
-        Every tried increment with its residual history, oldest first.
-    diagnosis : str
-        What the solver concluded (e.g. a lost stability with the lowest eigenvalue).
-    """
-
-    def __init__(self, message: str, last_converged: float, attempts: Sequence[Attempt], diagnosis: str = ""):
-        self.last_converged = last_converged
-        self.last_converged_mm = last_converged * 1e3
-        self.attempts = list(attempts)
-        self.diagnosis = diagnosis
-        tail = "\n".join(
-            f"  {a.lam_from:.6g} -> {a.lam_to:.6g}: {'ok' if a.report.converged else 'FAILED'} after "
-            f"{a.report.iterations} it ({a.report.reason}); decrements "
-            + ", ".join(f"{h:.2e}" for h in a.report.history[:12])
-            for a in self.attempts[-8:]
-        )
-        super().__init__(f"{message}\nlast converged load: {last_converged:.6g}"
-                         + (f"\ndiagnosis: {diagnosis}" if diagnosis else "")
-                         + f"\nlast attempts:\n{tail}")
 
 
 def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
@@ -139,63 +120,143 @@ def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) ->
         history.append(delta)
         if not math.isfinite(delta):
             return NewtonReport(False, it, history, damping, "linear solve gave a non-finite correction")
-        x0 = problem.x.copy()
-        ndx = problem.norm(dx)
-        lam = 1.0
-        dx_bar = None
-        theta = 0.0
-        while True:
-            problem.x[:] = x0 + lam * dx
-            r_trial = problem.residual()
-            if np.all(np.isfinite(r_trial)):
-                if delta <= tol:  # quadratic convergence: the last step needs no test
-                    break
-                dx_bar = problem.solve(r_trial)
-                theta = problem.norm(dx_bar) / ndx if ndx > 0 else 0.0
-                if theta <= 1.0 - lam / 4.0:
-                    break
-            lam *= 0.5
-            if lam < settings.min_damping:
-                problem.x[:] = x0
-                return NewtonReport(False, it, history, damping, "no damping factor reduced the residual")
+        step = _damped_step(problem, dx, delta <= tol, settings.min_damping)
+        if step is None:
+            return NewtonReport(False, it, history, damping, "no damping factor reduced the residual")
+        lam, r, dx_bar, theta = step
         damping.append(lam)
-        r = r_trial
         if delta <= tol and lam == 1.0:
             return NewtonReport(True, it, history, damping, "converged", residual=r)
         if dx_bar is not None and lam == 1.0 and theta <= settings.simplified_theta:
-            # Simplified-Newton exit (Deuflhard's NLEQ-ERR): the correction dx̄ = −J(x_k)⁻¹ r(x_k+1),
-            # already computed for the monotonicity test, is the next Newton correction up to
-            # O(θ) relative; when its decrement is below the tolerance, x_k+1 + dx̄ is the solution
-            # and the linearization that would only confirm it is saved (one per load step).
-            delta_bar = abs(float(dx_bar @ r_trial))
-            if delta_bar <= tol:
-                problem.x[:] += dx_bar
-                r = problem.residual()
-                if np.all(np.isfinite(r)):
-                    history.append(delta_bar)
-                    return NewtonReport(True, it, history, damping, "converged (simplified correction)",
-                                        residual=r)
-                problem.x[:] -= dx_bar
-                r = r_trial
+            done = _simplified_exit(problem, dx_bar, r, tol)
+            if done is not None:
+                history.append(done[0])
+                return NewtonReport(True, it, history, damping, "converged (simplified correction)",
+                                    residual=done[1])
     return NewtonReport(False, settings.max_iterations, history, damping, "iteration limit")
 
 
-@dataclass
-class StepInfo:
-    """What the caller gets for each converged increment."""
+def _damped_step(problem: NonlinearProblem, dx: np.ndarray, last: bool, min_damping: float
+                 ) -> tuple[float, np.ndarray, np.ndarray | None, float] | None:
+    """X += λ dx with the largest λ = 1, 1/2, ... that passes the natural monotonicity test.
 
-    lam: float
-    iterations: int
-    wall_s: float
-    report: NewtonReport
+    ``last``: the decrement is below the tolerance, the step needs no test. Returns λ, the
+    residual there, the simplified correction dx̄ and θ = ‖dx̄‖/‖dx‖ (None, 0 when not computed);
+    None (x restored) when λ fell below ``min_damping``.
+    """
+    x0 = problem.x.copy()
+    ndx = problem.norm(dx)
+    lam = 1.0
+    while True:
+        problem.x[:] = x0 + lam * dx
+        r_trial = problem.residual()
+        if np.all(np.isfinite(r_trial)):
+            if last:  # quadratic convergence: the last step needs no test
+                return lam, r_trial, None, 0.0
+            dx_bar = problem.solve(r_trial)
+            theta = problem.norm(dx_bar) / ndx if ndx > 0 else 0.0
+            if theta <= 1.0 - lam / 4.0:
+                return lam, r_trial, dx_bar, theta
+        lam *= 0.5
+        if lam < min_damping:
+            problem.x[:] = x0
+            return None
 
 
-@dataclass
-class ContinuationResult:
-    lam: float
-    steps: list[StepInfo] = field(default_factory=list)
-    attempts: list[Attempt] = field(default_factory=list)
-    cuts: int = 0
+def _simplified_exit(problem: NonlinearProblem, dx_bar: np.ndarray, r: np.ndarray, tol: float
+                     ) -> tuple[float, np.ndarray] | None:
+    """End Newton with the simplified correction when its decrement is below the tolerance.
+
+    Deuflhard's NLEQ-ERR: the correction dx̄ = −J(x_k)⁻¹ r(x_k+1), already computed for the
+    monotonicity test, is the next Newton correction up to O(θ) relative; when its decrement is
+    below the tolerance, x_k+1 + dx̄ is the solution and the linearization that would only confirm
+    it is saved (one per load step). Returns the decrement and the residual, or None (x unchanged).
+    """
+    delta_bar = abs(float(dx_bar @ r))
+    if delta_bar > tol:
+        return None
+    problem.x[:] += dx_bar
+    r_new = problem.residual()
+    if np.all(np.isfinite(r_new)):
+        return delta_bar, r_new
+    problem.x[:] -= dx_bar
+    return None
+
+
+class SaddlePointNewton:
+    """The continuum's corrector for :func:`ngbet.engine.follow_path`.
+
+    A tangent (or clamp) predictor and the damped Newton :func:`newton` on a
+    :class:`NonlinearProblem`.
+
+    The load tangent ∂x/∂λ comes from the factorization at hand (that of the last Newton
+    iteration of the accepted step, or a fresh one after a rejected trial); it is computed when a
+    step is accepted, so that the step record carries dR/du0 = ψ·(J ∂x/∂λ) at no extra solve
+    when ``psi`` (the reaction's test vector) is given, and the next predictor reuses it.
+    """
+
+    def __init__(self, problem: NonlinearProblem, settings: NewtonSettings,
+                 diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None) -> None:
+        self.problem = problem
+        self.settings = settings
+        self._diagnose = diagnose
+        self._psi = psi
+        self._tangent: np.ndarray | None = None  # ∂x/∂λ at the converged state
+        self._factorized = False
+        self._saved = problem.x.copy()
+        self.report: NewtonReport | None = None  # of the last correction
+
+    def predict(self, u0: float, h: float) -> None:
+        """X += ∂x/∂λ h (tangent) or the clamp's linear field."""
+        p = self.problem
+        self._saved = p.x.copy()
+        if self.settings.predictor == "tangent":
+            p.x[:] += h * self._load_tangent()
+        else:
+            p.x[:] += p.clamp_predictor(h)
+
+    def _load_tangent(self) -> np.ndarray:
+        if self._tangent is None:
+            if not self._factorized:
+                self.problem.factorize()
+                self._factorized = True
+            self._tangent = self.problem.load_tangent(1.0)
+        return self._tangent
+
+    def correct(self, u0: float, h: float) -> Outcome:
+        """Newton at the load u0 + h from the predicted state."""
+        p = self.problem
+        p.set_load(u0 + h)
+        e_ref = p.energy()
+        self.report = rep = newton(p, self.settings, e_ref if math.isfinite(e_ref) else 0.0)
+        return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
+
+    def accept(self, u0: float, h: float, outcome: Outcome) -> StepRecord:
+        """The state is converged: its residual, and the load tangent for dR/du0 and the next predictor."""
+        assert self.report is not None
+        self._factorized = True  # Newton factorized at its iterates
+        self._tangent = None
+        rec = StepRecord(0, u0 + h, outcome.iterations, residual=self.report.residual,
+                         history=list(outcome.history), reason=outcome.reason)
+        if self.settings.predictor == "tangent" and self._psi is not None:
+            rec.dforce_du0 = self.problem.load_derivative(self._psi, self._load_tangent())
+        return rec
+
+    def reject(self, u0: float, outcome: Outcome) -> None:
+        """Back to the converged state; the factorization now belongs to a rejected state: rebuild it."""
+        p = self.problem
+        p.x[:] = self._saved
+        p.set_load(u0)
+        self._tangent = None
+        if self.settings.predictor == "tangent":
+            p.factorize()
+            self._factorized = True
+
+    def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
+        """The failure pattern of the last attempts and the problem's own diagnosis (text and object)."""
+        detail = self._diagnose() if self._diagnose is not None else None
+        texts = (failure_pattern(attempts), detail.message() if detail is not None else "")
+        return "; ".join(t for t in texts if t), detail
 
 
 def continuation(
@@ -207,71 +268,28 @@ def continuation(
     max_step: float = math.inf,
     min_step: float = 0.0,
     stops: Sequence[float] = (),
-    on_step: Callable[[StepInfo], None] | None = None,
-    diagnose: Callable[[], str] | None = None,
+    on_step: Callable[[StepRecord], None] | None = None,
+    diagnose: Callable[[], Diagnosis] | None = None,
     max_attempts: int = 500,
-) -> ContinuationResult:
-    """Carry the load from 0 to ``target``; ``on_step`` is called after every converged increment.
+    psi: np.ndarray | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> PathResult:
+    """Carry the load from 0 to ``target`` with :class:`SaddlePointNewton` on the engine.
+
+    A stop within a fifth of a step beyond a trial load is landed on. ``on_step`` is called after
+    every converged increment.
 
     Raises
     ------
-    ConvergenceError
+    ngbet.errors.ConvergenceError
         when the increment has been cut below ``min_step``, or after ``max_attempts`` increments
         (converged or not: a bound on the time), with the pattern of the last failures and what
         ``diagnose`` finds.
     """
-    lam = 0.0
-    step = min(first_step, max_step)
-    marks = sorted({s for s in stops if 0 < s < target} | {target})
-    out = ContinuationResult(lam)
-    have_tangent = False
-    eps = 1e-12 * max(1.0, abs(target))
-    while lam < target - eps:
-        nxt = min(lam + step, next(m for m in marks if m > lam + eps))
-        if nxt > lam + step + eps:  # pragma: no cover - defensive
-            nxt = lam + step
-        # land on a mark instead of stopping just short of it
-        upcoming = next(m for m in marks if m > lam + eps)
-        if upcoming - nxt < 0.2 * step:
-            nxt = upcoming
-        t0 = time.perf_counter()
-        saved = problem.x.copy()
-        if settings.predictor == "tangent":
-            if not have_tangent:
-                problem.factorize()
-                have_tangent = True
-            problem.x[:] += problem.load_tangent(nxt - lam)
-        else:
-            problem.x[:] += problem.clamp_predictor(nxt - lam)
-        problem.set_load(nxt)
-        e_ref = problem.energy()
-        report = newton(problem, settings, e_ref if math.isfinite(e_ref) else 0.0)
-        out.attempts.append(Attempt(lam, nxt, report))
-        if report.converged:
-            lam = nxt
-            info = StepInfo(lam, report.iterations, time.perf_counter() - t0, report)
-            out.steps.append(info)
-            out.lam = lam
-            log.info("load %.6g reached in %d Newton iterations", lam, report.iterations)
-            if on_step is not None:
-                on_step(info)
-            if report.iterations <= settings.grow_after:
-                step = min(step * settings.growth, max_step)
-            continue
-        problem.x[:] = saved
-        problem.set_load(lam)
-        out.cuts += 1
-        log.warning("increment %.6g -> %.6g failed (%s); cutting the step", lam, nxt, report.reason)
-        step = (nxt - lam) * settings.cut
-        # the factorization now belongs to a rejected state: rebuild it at the restored one
-        if settings.predictor == "tangent":
-            problem.factorize()
-        if step < min_step or len(out.attempts) >= max_attempts:
-            diag = "; ".join(d for d in (failure_pattern(out.attempts), diagnose() if diagnose else "") if d)
-            why = (f"load step cut below the minimum {min_step:.3g}" if step < min_step
-                   else f"{len(out.attempts)} increments tried (limit {max_attempts})")
-            raise ConvergenceError(f"{why} on the way from {lam:.6g} to {target:.6g}", lam, out.attempts, diag)
-    return out
+    ctl = PathControl(target=target, first_step=first_step, max_step=max_step, min_step=min_step,
+                      growth=settings.growth, cut=settings.cut, grow_after=settings.grow_after,
+                      stops=tuple(stops), land_within=0.2, max_attempts=max_attempts)
+    return follow_path(SaddlePointNewton(problem, settings, diagnose, psi), ctl, on_step=on_step, progress=progress)
 
 
 def failure_pattern(attempts: Sequence[Attempt]) -> str:
@@ -282,14 +300,14 @@ def failure_pattern(attempts: Sequence[Attempt]) -> str:
     much slower, or Newton fails however small the increment, the path is not smooth there: it turns
     back in the load (limit point), branches (bifurcation) or the discrete problem locks.
     """
-    if not attempts or attempts[-1].report.converged:
+    if not attempts or attempts[-1].converged:
         return ""
-    lam0 = attempts[-1].lam_from
-    tail = [a for a in attempts[-12:] if not a.report.converged]
-    inc = np.array([a.lam_to - a.lam_from for a in tail if a.report.history])
-    first = np.array([a.report.history[0] for a in tail if a.report.history])
-    text = (f"{len(tail)} of the last {min(12, len(attempts))} increments failed (last from load {lam0:.6g}), the smallest {inc.min() if inc.size else 0:.3g} "
-            f"({tail[-1].report.reason})")
+    tail = [a for a in attempts[-12:] if not a.converged]
+    inc = np.array([a.u0_to - a.u0_from for a in tail if a.history])
+    first = np.array([a.history[0] for a in tail if a.history])
+    text = (f"{len(tail)} of the last {min(12, len(attempts))} increments failed (last from "
+            f"{attempts[-1].u0_from * 1e3:.6g} mm), the smallest {inc.min() * 1e3 if inc.size else 0:.3g} mm "
+            f"({tail[-1].reason})")
     ok = (inc > 0) & (first > 0) & np.isfinite(first)
     if ok.sum() >= 3 and np.ptp(np.log(inc[ok])) > 0.5:
         k = float(np.polyfit(np.log(inc[ok]), np.log(first[ok]), 1)[0])

@@ -15,10 +15,11 @@ Modules: :mod:`.network` (geometry), :mod:`.elements` (element energies), :mod:`
 :mod:`.observables` (slip, angles, profile, pictures), :mod:`.run` (entry point).
 """
 
+from ..errors import ConvergenceError
 from .model import NetworkModel
 from .network import Network, build_network, network_from_scene
 from .run import run
-from .solver import ConvergenceError, StepControl, solve_path
+from .solver import StepControl, solve_path
 
 __all__ = ["run", "Network", "build_network", "network_from_scene", "NetworkModel", "StepControl",
            "solve_path", "ConvergenceError"]

@@ -134,7 +134,7 @@ def truss(ue: np.ndarray, Xe: np.ndarray, K: np.ndarray, hessian: bool = True
 
 
 def slip_spring(ue: np.ndarray, K: float, hessian: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """psi = 1/2 K_slip |u_a - u_b|^2; dofs (ux_a, uy_a, ux_b, uy_b)."""
+    """Psi = 1/2 K_slip |u_a - u_b|^2; dofs (ux_a, uy_a, ux_b, uy_b)."""
     s = ue[:, 0:2] - ue[:, 2:4]
     psi = 0.5 * K * np.sum(s * s, axis=1)
     grad = K * np.concatenate([s, -s], axis=1)
@@ -146,7 +146,7 @@ def slip_spring(ue: np.ndarray, K: float, hessian: bool = True) -> tuple[np.ndar
 
 def rotational_spring(ue: np.ndarray, K: float, hessian: bool = True
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """psi = 1/2 K_phi (theta_b - theta_a)^2; dofs (theta_a, theta_b)."""
+    """Psi = 1/2 K_phi (theta_b - theta_a)^2; dofs (theta_a, theta_b)."""
     dphi = ue[:, 1] - ue[:, 0]
     psi = 0.5 * K * dphi * dphi
     grad = K * np.column_stack([-dphi, dphi])

@@ -11,14 +11,19 @@ that was analysed once.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
 
 from . import elements as el
 from .network import CLAMP_FIXED, CLAMP_MOVING, Network
+
+if TYPE_CHECKING:
+    from ..scene import Scene
 
 ENERGY_PARTS = ("axial", "bending1", "bending2", "slip", "shear_springs", "inter")
 
@@ -32,6 +37,14 @@ class Group:
     name: str  # the energy part it contributes to
     dofs: np.ndarray
     kernel: Kernel
+
+
+def _beam_kernel(Xe: np.ndarray, ea: np.ndarray, ei: np.ndarray, ue: np.ndarray, h: bool) -> Any:
+    return el.beam(ue, Xe, ea, ei, h)
+
+
+def _truss_kernel(Xt: np.ndarray, kt: np.ndarray, ue: np.ndarray, h: bool) -> Any:
+    return el.truss(ue, Xt, kt, h)
 
 
 class Pattern:
@@ -53,8 +66,11 @@ class Pattern:
         self.rows = r
 
     def matrix(self, element_matrices: list[np.ndarray | None], const: np.ndarray | None = None) -> sp.csr_matrix:
-        """Sum the element matrices (same order as the dof tables; None: a table whose sum is in
-        ``const``, the CSR values of the constant part) into a CSR matrix."""
+        """Sum the element matrices into a CSR matrix.
+
+        The matrices come in the order of the dof tables; None marks a table whose sum is in
+        ``const``, the CSR values of the constant part.
+        """
         key = tuple(H is not None for H in element_matrices)
         if key not in self._index:
             self._index[key] = np.concatenate([self.map[self.offsets[i]:self.offsets[i + 1]]
@@ -105,8 +121,7 @@ class NetworkModel:
                 continue
             Xe = X[b]
             ea, ei = np.full(len(b), float(EA)), np.full(len(b), float(EI))
-            self.groups.append(Group(f"beam{fam}", dof3(b),
-                                     lambda ue, h, Xe=Xe, ea=ea, ei=ei: el.beam(ue, Xe, ea, ei, h)))
+            self.groups.append(Group(f"beam{fam}", dof3(b), functools.partial(_beam_kernel, Xe, ea, ei)))
         c = net.crossings
         if len(c) and K_slip > 0:
             d = np.column_stack([3 * c[:, 0], 3 * c[:, 0] + 1, 3 * c[:, 1], 3 * c[:, 1] + 1])
@@ -119,7 +134,7 @@ class NetworkModel:
             d = np.column_stack([3 * t[:, 0], 3 * t[:, 0] + 1, 3 * t[:, 1], 3 * t[:, 1] + 1])
             Xt = X[t]
             kt = np.full(len(t), float(K_inter))
-            self.groups.append(Group("inter", d, lambda ue, h, Xt=Xt, kt=kt: el.truss(ue, Xt, kt, h)))
+            self.groups.append(Group("inter", d, functools.partial(_truss_kernel, Xt, kt)))
         self.pattern = Pattern([g.dofs for g in self.groups], self.n_dofs)
         # the springs' Hessians do not depend on u: summed once (speed only; same matrix)
         self._const_groups = {"slip", "shear_springs"}
@@ -141,7 +156,7 @@ class NetworkModel:
         self.ramp[0::3] = X[:, 0] / net.L
 
     @classmethod
-    def from_scene(cls, scene, net: Network | None = None) -> "NetworkModel":  # type: ignore[no-untyped-def]
+    def from_scene(cls, scene: Scene, net: Network | None = None) -> NetworkModel:
         """Model of ``scene.discrete`` on the network of the scene (built unless given)."""
         from .network import network_from_scene
 

@@ -33,8 +33,12 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..scene import Scene
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +97,7 @@ class Network:
 
     @property
     def n_nodes(self) -> int:
+        """The number of nodes."""
         return int(self.X.shape[0])
 
     @property
@@ -141,17 +146,25 @@ def end_kind(P: np.ndarray, L: float, tol: float) -> int:
     return FREE
 
 
+_Line = tuple[int, int, np.ndarray, np.ndarray, float, float]  # family, j, p0, m, t0, t1
+
+
 def build_network(L: float, W: float, angle_deg: float, spacing: float, elements_per_segment: int = 1,
                   inter_layout: str = "neighbours") -> Network:
     """Build the yarn network of a BET specimen.
 
     Parameters
     ----------
-    L, W : specimen length (along the load) and width [m]
-    angle_deg : angle a of the thick yarns to e1 [deg]
-    spacing : distance s between neighbouring parallel yarns [m]
-    elements_per_segment : beam elements between two consecutive stations (ends, crossings) of a yarn
-    inter_layout : "neighbours" (trusses between adjacent yarns, see module docstring) or "none"
+    L, W : float
+        Specimen length (along the load) and width [m].
+    angle_deg : float
+        Angle a of the thick yarns to e1 [deg].
+    spacing : float
+        Distance s between neighbouring parallel yarns [m].
+    elements_per_segment : int
+        Beam elements between two consecutive stations (ends, crossings) of a yarn.
+    inter_layout : str
+        "neighbours" (trusses between adjacent yarns, see module docstring) or "none".
 
     Returns
     -------
@@ -161,31 +174,51 @@ def build_network(L: float, W: float, angle_deg: float, spacing: float, elements
         raise NetworkError(f"network needs L, W, spacing > 0, got L={L}, W={W}, spacing={spacing}")
     if elements_per_segment < 1:
         raise NetworkError(f"elements_per_segment = {elements_per_segment}: must be >= 1")
+    if inter_layout not in ("neighbours", "none"):
+        raise NetworkError(f"inter_layout = {inter_layout!r}: must be 'neighbours' or 'none'")
     a = math.radians(angle_deg)
     tol = 1e-9 * max(L, W)
     m1, n1, m2, n2 = family_frames(a)
-    C = np.array([L / 2, W / 2])
-    corners = np.array([[0, 0], [L, 0], [0, W], [L, W]], float)
-
-    # candidate yarn lines of each family, kept if their clipped length is positive
-    lines: list[tuple[int, int, np.ndarray, np.ndarray, float, float]] = []  # family, j, p0, m, t0, t1
-    for fam, m, n in ((1, m1, n1), (2, m2, n2)):
-        c0 = float(n @ C)
-        cs = corners @ n
-        jmin, jmax = math.ceil((cs.min() - c0) / spacing), math.floor((cs.max() - c0) / spacing)
-        for j in range(jmin, jmax + 1):
-            c = c0 + spacing * j
-            p0 = c * n
-            seg = clip_line(p0, m, L, W, tol)
-            if seg is not None:
-                lines.append((fam, j, p0, m, seg[0], seg[1]))
+    lines = _yarn_lines(L, W, spacing, tol, ((1, m1, n1), (2, m2, n2)))
     fam_of = np.array([ln[0] for ln in lines])
     i1, i2 = np.flatnonzero(fam_of == 1), np.flatnonzero(fam_of == 2)
     if len(i1) == 0 or len(i2) == 0:
         raise NetworkError(f"spacing {spacing * 1e3:g} mm leaves no yarn of one family in a "
                            f"{L * 1e3:g} x {W * 1e3:g} mm specimen")
+    tr, cross_a, cross_b = _crossing_parameters(lines, i1, i2, m1, m2, tol)
+    b = _Builder(L, tol, elements_per_segment)
+    for fam, lst, cross_self, cross_other in ((1, i1, cross_a, cross_b), (2, i2, cross_b, cross_a)):
+        for k in range(len(lst)):
+            partners = cross_other[cross_self == k]
+            if len(partners) == 0:  # nothing would hold it but its clamp, or nothing at all
+                log.info("yarn %d of family %d crosses no other yarn: dropped", lines[lst[k]][1], fam)
+                continue
+            ts = tr[k, partners, 0] if fam == 1 else tr[partners, k, 1]
+            b.add_yarn(lines[lst[k]], k, partners, ts)
+    return b.network(lines, i1, i2, inter_layout, spacing, W, a)
 
-    # crossings: p1 + t m1 = p2 + r m2, solved for all pairs at once
+
+def _yarn_lines(L: float, W: float, spacing: float, tol: float,
+                families: tuple[tuple[int, np.ndarray, np.ndarray], ...]) -> list[_Line]:
+    """Candidate yarn lines of each family, kept if their clipped length is positive."""
+    C = np.array([L / 2, W / 2])
+    corners = np.array([[0, 0], [L, 0], [0, W], [L, W]], float)
+    lines: list[_Line] = []
+    for fam, m, n in families:
+        c0 = float(n @ C)
+        cs = corners @ n
+        jmin, jmax = math.ceil((cs.min() - c0) / spacing), math.floor((cs.max() - c0) / spacing)
+        for j in range(jmin, jmax + 1):
+            p0 = (c0 + spacing * j) * n
+            seg = clip_line(p0, m, L, W, tol)
+            if seg is not None:
+                lines.append((fam, j, p0, m, seg[0], seg[1]))
+    return lines
+
+
+def _crossing_parameters(lines: list[_Line], i1: np.ndarray, i2: np.ndarray, m1: np.ndarray, m2: np.ndarray,
+                         tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """p1 + t m1 = p2 + r m2 for all pairs at once: (t, r) per pair, and the pairs that cross inside both yarns."""
     P1 = np.array([lines[i][2] for i in i1])
     P2 = np.array([lines[i][2] for i in i2])
     M = np.column_stack([m1, -m2])
@@ -196,99 +229,96 @@ def build_network(L: float, W: float, angle_deg: float, spacing: float, elements
     inside = ((tr[..., 0] > T1[:, None, 0] + tol) & (tr[..., 0] < T1[:, None, 1] - tol)
               & (tr[..., 1] > T2[None, :, 0] + tol) & (tr[..., 1] < T2[None, :, 1] - tol))
     cross_a, cross_b = np.nonzero(inside)  # indices into i1, i2
+    return tr, cross_a, cross_b
 
-    # drop yarns without crossings: nothing would hold them but their clamp, or nothing at all
-    has1 = np.zeros(len(i1), bool)
-    has1[cross_a] = True
-    has2 = np.zeros(len(i2), bool)
-    has2[cross_b] = True
-    for lst, has in ((i1, has1), (i2, has2)):
-        for k in np.flatnonzero(~has):
-            fam, j = lines[lst[k]][0], lines[lst[k]][1]
-            log.info("yarn %d of family %d crosses no other yarn: dropped", j, fam)
 
-    X: list[np.ndarray] = []
-    node_yarn: list[int] = []
-    node_family: list[int] = []
-    node_end: list[int] = []
-    yarn_family, yarn_index, yarn_nodes, yarn_ends = [], [], [], []
-    beams: list[tuple[int, int]] = []
-    beam_family: list[int] = []
-    # crossing node of (family-1 yarn a, family-2 yarn b) on each yarn
-    node_on_1: dict[tuple[int, int], int] = {}
-    node_on_2: dict[tuple[int, int], int] = {}
-    yarn_of_1: dict[int, int] = {}
-    yarn_of_2: dict[int, int] = {}
+class _Builder:
+    """Nodes, beams and crossing nodes of the yarns, added yarn by yarn."""
 
-    def add_node(P: np.ndarray, y: int, fam: int, end: int) -> int:
-        X.append(P)
-        node_yarn.append(y)
-        node_family.append(fam)
-        node_end.append(end)
-        return len(X) - 1
+    def __init__(self, L: float, tol: float, elements_per_segment: int) -> None:
+        self.L, self.tol, self.eps = L, tol, elements_per_segment
+        self.X: list[np.ndarray] = []
+        self.node_yarn: list[int] = []
+        self.node_family: list[int] = []
+        self.node_end: list[int] = []
+        self.yarn_family: list[int] = []
+        self.yarn_index: list[int] = []
+        self.yarn_nodes: list[np.ndarray] = []
+        self.yarn_ends: list[tuple[int, int]] = []
+        self.beams: list[tuple[int, int]] = []
+        self.beam_family: list[int] = []
+        # crossing node of (family-1 yarn a, family-2 yarn b) on each yarn, and the yarn of each line
+        self.node_on: dict[int, dict[tuple[int, int], int]] = {1: {}, 2: {}}
+        self.yarn_of: dict[int, dict[int, int]] = {1: {}, 2: {}}
 
-    for fam, lst, has in ((1, i1, has1), (2, i2, has2)):
-        for k in np.flatnonzero(has):
-            _, j, p0, m, t0, t1 = lines[lst[k]]
-            y = len(yarn_family)
-            if fam == 1:
-                partners = cross_b[cross_a == k]
-                ts = tr[k, partners, 0]
-                yarn_of_1[k] = y
-            else:
-                partners = cross_a[cross_b == k]
-                ts = tr[partners, k, 1]
-                yarn_of_2[k] = y
-            order = np.argsort(ts)
-            partners, ts = partners[order], ts[order]
-            ends = (end_kind(p0 + t0 * m, L, tol), end_kind(p0 + t1 * m, L, tol))
-            stations = np.concatenate([[t0], ts, [t1]])
-            chain = [add_node(p0 + t0 * m, y, fam, ends[0])]
-            for s_idx in range(1, len(stations)):
-                ta, tb = stations[s_idx - 1], stations[s_idx]
-                for q in range(1, elements_per_segment):
-                    chain.append(add_node(p0 + (ta + (tb - ta) * q / elements_per_segment) * m, y, fam, FREE))
-                last = s_idx == len(stations) - 1
-                chain.append(add_node(p0 + tb * m, y, fam, ends[1] if last else FREE))
-                if not last:
-                    key = (k, int(partners[s_idx - 1])) if fam == 1 else (int(partners[s_idx - 1]), k)
-                    (node_on_1 if fam == 1 else node_on_2)[key] = chain[-1]
-            chain_arr = np.array(chain)
-            beams.extend(zip(chain_arr[:-1].tolist(), chain_arr[1:].tolist()))
-            beam_family.extend([fam] * (len(chain) - 1))
-            yarn_family.append(fam)
-            yarn_index.append(j)
-            yarn_nodes.append(chain_arr)
-            yarn_ends.append(ends)
+    def _node(self, P: np.ndarray, y: int, fam: int, end: int) -> int:
+        self.X.append(P)
+        self.node_yarn.append(y)
+        self.node_family.append(fam)
+        self.node_end.append(end)
+        return len(self.X) - 1
 
-    keys = sorted(node_on_1)
-    crossings = np.array([[node_on_1[kk], node_on_2[kk]] for kk in keys], int).reshape(-1, 2)
-    crossing_yarns = np.array([[yarn_of_1[kk[0]], yarn_of_2[kk[1]]] for kk in keys], int).reshape(-1, 2)
-    yarn_ends_arr = np.array(yarn_ends, int).reshape(-1, 2)
-    zone = np.array([crossing_zone(yarn_ends_arr[ya], yarn_ends_arr[yb]) for ya, yb in crossing_yarns], int)
+    def add_yarn(self, line: _Line, k: int, partners: np.ndarray, ts: np.ndarray) -> None:
+        """The chain of beams of one yarn (line ``k`` of its family) through its crossings at ``ts``."""
+        fam, j, p0, m, t0, t1 = line
+        y = len(self.yarn_family)
+        self.yarn_of[fam][k] = y
+        order = np.argsort(ts)
+        partners, ts = partners[order], ts[order]
+        ends = (end_kind(p0 + t0 * m, self.L, self.tol), end_kind(p0 + t1 * m, self.L, self.tol))
+        stations = np.concatenate([[t0], ts, [t1]])
+        chain = [self._node(p0 + t0 * m, y, fam, ends[0])]
+        for s_idx in range(1, len(stations)):
+            ta, tb = stations[s_idx - 1], stations[s_idx]
+            for q in range(1, self.eps):
+                chain.append(self._node(p0 + (ta + (tb - ta) * q / self.eps) * m, y, fam, FREE))
+            last = s_idx == len(stations) - 1
+            chain.append(self._node(p0 + tb * m, y, fam, ends[1] if last else FREE))
+            if not last:
+                other = int(partners[s_idx - 1])
+                self.node_on[fam][(k, other) if fam == 1 else (other, k)] = chain[-1]
+        chain_arr = np.array(chain)
+        self.beams.extend(zip(chain_arr[:-1].tolist(), chain_arr[1:].tolist(), strict=True))
+        self.beam_family.extend([fam] * (len(chain) - 1))
+        self.yarn_family.append(fam)
+        self.yarn_index.append(j)
+        self.yarn_nodes.append(chain_arr)
+        self.yarn_ends.append(ends)
 
-    trusses: list[tuple[int, int]] = []
-    if inter_layout == "neighbours":
-        j1 = {k: lines[i1[k]][1] for k in yarn_of_1}
-        j2 = {k: lines[i2[k]][1] for k in yarn_of_2}
-        by1 = {(j1[ka], kb): n for (ka, kb), n in node_on_1.items()}  # (j of fam-1 yarn, fam-2 yarn) -> node
-        by2 = {(ka, j2[kb]): n for (ka, kb), n in node_on_2.items()}
-        trusses += [(n, by1[(jj + 1, kb)]) for (jj, kb), n in sorted(by1.items()) if (jj + 1, kb) in by1]
+    def _trusses(self, lines: list[_Line], i1: np.ndarray, i2: np.ndarray) -> list[tuple[int, int]]:
+        """Trusses between the crossing nodes of adjacent parallel yarns."""
+        on1, on2 = self.node_on[1], self.node_on[2]
+        j1 = {k: lines[i1[k]][1] for k in self.yarn_of[1]}
+        j2 = {k: lines[i2[k]][1] for k in self.yarn_of[2]}
+        by1 = {(j1[ka], kb): n for (ka, kb), n in on1.items()}  # (j of fam-1 yarn, fam-2 yarn) -> node
+        by2 = {(ka, j2[kb]): n for (ka, kb), n in on2.items()}
+        trusses = [(n, by1[(jj + 1, kb)]) for (jj, kb), n in sorted(by1.items()) if (jj + 1, kb) in by1]
         trusses += [(n, by2[(ka, jj + 1)]) for (ka, jj), n in sorted(by2.items()) if (ka, jj + 1) in by2]
-    elif inter_layout != "none":
-        raise NetworkError(f"inter_layout = {inter_layout!r}: must be 'neighbours' or 'none'")
+        return trusses
 
-    Xa = np.array(X)
-    seg = np.linalg.norm(Xa[np.array(beams)[:, 1]] - Xa[np.array(beams)[:, 0]], axis=1)
-    if seg.min() < 1e-3 * spacing / elements_per_segment:
-        log.warning("shortest beam element is %.3g mm (spacing %.3g mm): the tangent will be ill-conditioned",
-                    seg.min() * 1e3, spacing * 1e3)
-    return Network(X=Xa, node_yarn=np.array(node_yarn), node_family=np.array(node_family),
-                   node_end=np.array(node_end), yarn_family=np.array(yarn_family),
-                   yarn_index=np.array(yarn_index), yarn_nodes=tuple(yarn_nodes), yarn_ends=yarn_ends_arr,
-                   beams=np.array(beams, int).reshape(-1, 2), beam_family=np.array(beam_family),
-                   crossings=crossings, crossing_yarns=crossing_yarns, crossing_zone=zone,
-                   trusses=np.array(trusses, int).reshape(-1, 2), spacing=spacing, L=L, W=W, angle=a)
+    def network(self, lines: list[_Line], i1: np.ndarray, i2: np.ndarray, inter_layout: str, spacing: float,
+                W: float, a: float) -> Network:
+        """The assembled network (crossings, their zones, trusses)."""
+        on1, on2 = self.node_on[1], self.node_on[2]
+        keys = sorted(on1)
+        crossings = np.array([[on1[kk], on2[kk]] for kk in keys], int).reshape(-1, 2)
+        crossing_yarns = np.array([[self.yarn_of[1][kk[0]], self.yarn_of[2][kk[1]]] for kk in keys],
+                                  int).reshape(-1, 2)
+        yarn_ends = np.array(self.yarn_ends, int).reshape(-1, 2)
+        zone = np.array([crossing_zone(yarn_ends[ya], yarn_ends[yb]) for ya, yb in crossing_yarns], int)
+        trusses = self._trusses(lines, i1, i2) if inter_layout == "neighbours" else []
+        Xa = np.array(self.X)
+        beams = np.array(self.beams, int).reshape(-1, 2)
+        seg = np.linalg.norm(Xa[beams[:, 1]] - Xa[beams[:, 0]], axis=1)
+        if seg.min() < 1e-3 * spacing / self.eps:
+            log.warning("shortest beam element is %.3g mm (spacing %.3g mm): the tangent will be ill-conditioned",
+                        seg.min() * 1e3, spacing * 1e3)
+        return Network(X=Xa, node_yarn=np.array(self.node_yarn), node_family=np.array(self.node_family),
+                       node_end=np.array(self.node_end), yarn_family=np.array(self.yarn_family),
+                       yarn_index=np.array(self.yarn_index), yarn_nodes=tuple(self.yarn_nodes), yarn_ends=yarn_ends,
+                       beams=beams, beam_family=np.array(self.beam_family),
+                       crossings=crossings, crossing_yarns=crossing_yarns, crossing_zone=zone,
+                       trusses=np.array(trusses, int).reshape(-1, 2), spacing=spacing, L=self.L, W=W, angle=a)
 
 
 def crossing_zone(ends_1: np.ndarray, ends_2: np.ndarray) -> int:
@@ -302,7 +332,7 @@ def crossing_zone(ends_1: np.ndarray, ends_2: np.ndarray) -> int:
     return 2 if c1 & c2 else 3
 
 
-def network_from_scene(scene) -> Network:  # type: ignore[no-untyped-def]
+def network_from_scene(scene: Scene) -> Network:
     """The network of ``scene.specimen`` with the spacing and layout of ``scene.discrete``."""
     sp, d = scene.specimen, scene.discrete
     return build_network(sp.L, sp.W, sp.yarn_angle_deg, d.spacing_mm * 1e-3, d.elements_per_segment,

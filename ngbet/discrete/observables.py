@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -57,7 +58,7 @@ def yarn_rotation(net: Network, u: np.ndarray, nodes: np.ndarray) -> np.ndarray:
 
 
 def crossing_gamma(net: Network, u: np.ndarray) -> np.ndarray:
-    """gamma = r_2 - r_1 [rad] at each crossing, r_k the rotation of yarn k there (:func:`yarn_rotation`).
+    """Gamma = r_2 - r_1 [rad] at each crossing, r_k the rotation of yarn k there (:func:`yarn_rotation`).
 
     The chords, not the nodal rotations, measure the yarn directions: with a bending stiffness
     small against K_phi the nodal rotations follow the crossing spring, not the yarn.
@@ -111,7 +112,7 @@ def yarn_polylines(net: Network, u: np.ndarray) -> list[np.ndarray]:
 
 
 def node_gamma(net: Network, u: np.ndarray) -> np.ndarray:
-    """gamma interpolated along each yarn from its crossings to all its nodes [rad] (for plots)."""
+    """Gamma interpolated along each yarn from its crossings to all its nodes [rad] (for plots)."""
     g = np.full(net.n_nodes, np.nan)
     gc = crossing_gamma(net, u)
     g[net.crossings[:, 0]] = gc
@@ -124,7 +125,7 @@ def node_gamma(net: Network, u: np.ndarray) -> np.ndarray:
     return np.nan_to_num(g)
 
 
-def save_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: ignore[no-untyped-def]
+def save_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None:
     """Write a state as npz: reference nodes, displacements, yarn chains, crossings with slip and angle."""
     chains = list(net.yarn_nodes)
     ptr = np.concatenate([[0], np.cumsum([len(c) for c in chains])])
@@ -139,7 +140,7 @@ def save_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: i
         crossing_angle_deg=180.0 - 2 * math.degrees(net.angle) + np.degrees(gamma))
 
 
-def plot_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: ignore[no-untyped-def]
+def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None:
     """PNG of the deformed yarns coloured by the shear angle γ (0 at rest, the convention of the
     continuum's maps); thick yarns drawn thick, axes in mm."""
     try:

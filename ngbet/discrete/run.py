@@ -1,36 +1,34 @@
 """Entry point of the discrete model: scene -> network -> load path -> run folder.
 
-Per converged step a row of results.csv (force on the moving clamp, energies per term, zone shear
-angles, largest slip, Newton iterations, wall time, lowest tangent eigenvalue) and the mid-axis
-profile; at u0 = 37 mm (when passed; the paper's intermediate shape) and at the last converged
-step the state (``state_XXmm.npz``: deformed yarns, slip and angle per crossing) and its picture
-(``yarns_XXmm.png``).
+Per converged step a row of results.csv (force on the moving clamp and its slope dF/du0, energies
+per term, zone shear angles, largest slip, Newton iterations, wall time, lowest tangent eigenvalue)
+and the mid-axis profile (as ``[outputs]`` asks); at each of ``loading.stops_mm`` (37 mm by
+default: the paper's intermediate shape) and at the last converged step the state
+(``state_XXmm.npz``: deformed yarns, slip and angle per crossing) and its picture
+(``yarns_XXmm.png``, with ``outputs.plot``).
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..engine import StepRecord, progress_bar
+from ..errors import ConvergenceError
 from ..kinematics import gamma_a
 from ..output import RunWriter, plot_force
-from ..scene import Scene, Specimen
+from ..scene import Scene
 from . import observables as ob
 from .model import ENERGY_PARTS, NetworkModel
 from .network import network_from_scene
-from .solver import ConvergenceError, StepControl, StepInfo, solve_path
+from .solver import StepControl, solve_path
 
 log = logging.getLogger(__name__)
-
-SHAPE_STATIONS_MM = (37.0,)  # the paper shows shapes at 37 mm and at the end (56 mm)
-
 
 def step_control(scene: Scene) -> StepControl:
     """The solver numerics of a scene in SI units; the steps are the smaller of [loading] and [discrete]."""
@@ -40,21 +38,28 @@ def step_control(scene: Scene) -> StepControl:
                        max_step=max_step * 1e-3, min_step=ld.min_step_mm * 1e-3, rtol=so.rtol,
                        atol=so.atol_energy, max_iterations=so.max_iterations, grow_after=so.grow_after,
                        growth=so.growth, cut=so.cut, predictor=so.predictor, backend=so.linear_solver,
-                       stations=tuple(s * 1e-3 for s in SHAPE_STATIONS_MM if s < ld.u0_mm),
+                       stations=tuple(s * 1e-3 for s in ld.stops_mm if s < ld.u0_mm),
                        snap_bracket=min(max(4 * ld.min_step_mm, 1.0), max_step) * 1e-3)
 
 
-def step_row(model: NetworkModel, info: StepInfo, u: np.ndarray, specimen: Specimen) -> dict[str, Any]:
-    """One results.csv row from a converged state (zone shears beside those of ideal BET kinematics)."""
-    net = model.net
-    Fx, Fy = model.reaction(info.gradient)
-    parts = model.energy_parts(u)
+def step_row(model: NetworkModel, info: StepRecord, u: np.ndarray, scene: Scene) -> dict[str, Any]:
+    """One results.csv row from a converged state (zone shears beside those of ideal BET kinematics).
+
+    The force and energy columns follow ``outputs.reaction`` and ``outputs.energy``.
+    """
+    net, specimen, o = model.net, scene.specimen, scene.outputs
     gz = ob.zone_means(net, ob.crossing_gamma(net, u))
     g_ideal = gamma_a(specimen, info.u0 * 1e3) if info.u0 * 1e3 < specimen.locking_u0_mm else math.nan
     slip = ob.crossing_slip(net, u)
-    row: dict[str, Any] = {"step": info.step, "u0_mm": round(info.u0 * 1e3, 9), "force_N": Fx, "force_y_N": Fy,
-                           "energy_J": info.energy}
-    row.update({f"energy_{k}_J": parts[k] for k in ENERGY_PARTS})
+    row: dict[str, Any] = {"step": info.step, "u0_mm": round(info.u0 * 1e3, 9)}
+    if o.reaction:
+        assert info.residual is not None
+        row["force_N"], row["force_y_N"] = model.reaction(info.residual)
+        row["dforce_du0_N_per_mm"] = info.dforce_du0 * 1e-3
+    if o.energy:
+        parts = model.energy_parts(u)
+        row["energy_J"] = info.energy
+        row.update({f"energy_{k}_J": parts[k] for k in ENERGY_PARTS})
     row.update({"newton_iterations": info.iterations, "step_wall_s": round(info.wall_s, 4),
                 "max_slip_mm": float(slip.max(initial=0.0)) * 1e3,
                 "gamma_A_deg": np.degrees(gz["A"]), "gamma_B_deg": np.degrees(gz["B"]),
@@ -64,37 +69,23 @@ def step_row(model: NetworkModel, info: StepInfo, u: np.ndarray, specimen: Speci
     return row
 
 
-@contextlib.contextmanager
-def _threads(n: int) -> Iterator[None]:
-    """NGSolve's threads for the sparse factorization: ``solver.threads`` (0: all cores), as in
-    ``ngbet run``, also when the discrete model is run directly. Outside a TaskManager NGSolve's
-    sparse Cholesky runs on all cores of its own accord; one thread is the default because the
-    2-core machines are shared (bench/README.md, discrete section)."""
-    import ngsolve as ngs
-
-    before = ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None
-    if n:
-        ngs.SetNumThreads(n)
-    try:
-        with ngs.TaskManager():
-            yield
-    finally:
-        if n and before:
-            ngs.SetNumThreads(before)
-
-
 def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
     """Run the discrete BET model of ``scene`` and write its run folder.
 
     Parameters
     ----------
-    scene : the scene (``scene.discrete``, ``scene.specimen``, ``scene.loading``, ``scene.solver``)
-    out : run folder (created)
-    progress : show a tqdm bar over the clamp displacement
+    scene : Scene
+        The scene (``scene.discrete``, ``scene.specimen``, ``scene.loading``, ``scene.solver``,
+        ``scene.outputs``).
+    out : str or Path
+        Run folder (created).
+    progress : bool
+        Show a tqdm bar over the clamp displacement.
 
     Returns
     -------
-    The summary dict (also in ``out/summary.json``).
+    dict
+        The summary (also in ``out/summary.json``).
 
     Raises
     ------
@@ -108,64 +99,73 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
         net = network_from_scene(scene)
         model = NetworkModel.from_scene(scene, net)
         t_build = time.perf_counter() - t0
-        counts = net.counts()
-        log.info("discrete network: %s", counts)
+        log.info("discrete network: %s", net.counts())
         ctl = step_control(scene)
-        n_prof = scene.outputs.profile_points
-        last: dict[str, Any] = {"u": np.zeros(model.n_dofs), "u0": 0.0}
-
-        def snapshot(u: np.ndarray, u0: float) -> None:
-            tag = f"{u0 * 1e3:.0f}mm"
-            ob.save_state(out / f"state_{tag}.npz", net, u, u0)
-            if scene.outputs.plot:
-                ob.plot_state(out / f"yarns_{tag}.png", net, u, u0)
-
-        def on_step(info: StepInfo, u: np.ndarray) -> None:
-            row = step_row(model, info, u, scene.specimen)
-            X, uy = ob.midline_profile(net, u, n_prof)
-            writer.add_step(row, profile=list(zip((X * 1e3).tolist(), (uy * 1e3).tolist())))
-            last["u"], last["u0"] = u, info.u0
-            if any(abs(info.u0 - s) < 1e-12 for s in ctl.stations):
-                snapshot(u, info.u0)
-            log.debug("step %d u0 = %.4g mm F = %.5g N its %d", info.step, info.u0 * 1e3, row["force_N"], info.iterations)
-
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=round(ctl.u0_final * 1e3, 6), unit="mm", desc="discrete BET",
-                       bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} mm [{elapsed}<{remaining}]")
-
-            class _MM:
-                def update(self, h: float) -> None:
-                    bar.update(h * 1e3)
-
-        info: dict[str, Any] = {"model": "discrete", "network": counts, "dofs": model.n_dofs,
+        rec = _Recorder(scene, model, writer, out, ctl.stations)
+        info: dict[str, Any] = {"model": "discrete", "network": net.counts(), "dofs": model.n_dofs,
                                 "free_dofs": int((~model.fixed).sum()), "t_build_s": t_build,
                                 "threads": scene.solver.threads}
-        status, error, failure = "ok", None, None
-        try:
-            with _threads(scene.solver.threads):
-                stats = solve_path(model, ctl, on_step=on_step, progress=_MM() if bar is not None else None)
-        except ConvergenceError as exc:
-            status, error, failure = "failed", str(exc), exc
-            stats = {"last_converged_u0_mm": exc.last_converged_u0 * 1e3, "attempted_u0_mm": exc.attempted_u0 * 1e3,
-                     "residual_history": exc.residual_history}
-        finally:
-            if bar is not None:
-                bar.close()
-        stats.pop("u", None)
-        if last["u0"] > 0:
-            snapshot(last["u"], last["u0"])
-        rows = writer.rows
-        info.update({k: v for k, v in stats.items()})
-        info["snap_event_count"] = len(stats.get("snap_events", []))
-        info["newton_iterations_total"] = int(sum(r["newton_iterations"] for r in rows))
-        info["max_slip_mm"] = max((r["max_slip_mm"] for r in rows), default=0.0)
+        failure = None
+        with progress_bar(progress, ctl.u0_final * 1e3, "discrete BET") as bar:
+            try:
+                stats = solve_path(model, ctl, on_step=rec.on_step, progress=bar)
+            except ConvergenceError as exc:
+                failure = exc
+                stats = {"last_converged_u0_mm": exc.last_converged_mm,
+                         "attempted_u0_mm": exc.attempts[-1].u0_to * 1e3 if exc.attempts else math.nan,
+                         "residual_history": exc.attempts[-1].history if exc.attempts else []}
+        rec.final_snapshot()
+        info.update(_run_info(stats, writer.rows))
         info["t_solve_s"] = time.perf_counter() - t0 - t_build
-        summary = writer.summary(info, status, error)
-        if scene.outputs.plot and rows:
+        summary = writer.summary(info, "ok" if failure is None else "failed",
+                                 None if failure is None else str(failure))
+        if scene.outputs.plot and writer.rows:
             plot_force(out)
         if failure is not None:
             raise failure
         return summary
+
+
+def _run_info(stats: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The summary's solver statistics and totals over the written rows."""
+    info = {k: v for k, v in stats.items() if k != "u"}
+    info["snap_event_count"] = len(stats.get("snap_events", []))
+    info["newton_iterations_total"] = int(sum(r["newton_iterations"] for r in rows))
+    info["max_slip_mm"] = max((r["max_slip_mm"] for r in rows), default=0.0)
+    return info
+
+
+class _Recorder:
+    """Writes each converged step (row, profile) and the states at the stops and at the end."""
+
+    def __init__(self, scene: Scene, model: NetworkModel, writer: RunWriter, out: Path,
+                 stops: tuple[float, ...]) -> None:
+        self.scene, self.model, self.writer, self.out, self.stops = scene, model, writer, out, stops
+        self.last_u: np.ndarray = np.zeros(model.n_dofs)
+        self.last_u0 = 0.0
+
+    def on_step(self, info: StepRecord, u: np.ndarray) -> None:
+        """One converged step: its row, its profile, its state at a stop."""
+        o, net = self.scene.outputs, self.model.net
+        row = step_row(self.model, info, u, self.scene)
+        profile = None
+        if o.profile:
+            X, uy = ob.midline_profile(net, u, o.profile_points)
+            profile = list(zip((X * 1e3).tolist(), (uy * 1e3).tolist(), strict=True))
+        self.writer.add_step(row, profile=profile)
+        self.last_u, self.last_u0 = u, info.u0
+        if any(abs(info.u0 - s) < 1e-12 for s in self.stops):
+            self.snapshot(u, info.u0)
+        log.debug("step %d u0 = %.4g mm, %d iterations", info.step, info.u0 * 1e3, info.iterations)
+
+    def snapshot(self, u: np.ndarray, u0: float) -> None:
+        """The state (``state_XXmm.npz``) and, with ``outputs.plot``, its picture."""
+        tag = f"{u0 * 1e3:g}mm"  # 37mm, 0.5mm
+        ob.save_state(self.out / f"state_{tag}.npz", self.model.net, u, u0)
+        if self.scene.outputs.plot:
+            ob.plot_state(self.out / f"yarns_{tag}.png", self.model.net, u, u0)
+
+    def final_snapshot(self) -> None:
+        """The last converged state (if any step converged)."""
+        if self.last_u0 > 0:
+            self.snapshot(self.last_u, self.last_u0)

@@ -1,0 +1,218 @@
+"""One continuation engine for both models: load stepping with stops, growth and cut.
+
+The engine carries the clamp displacement u0 [m] from 0 to a target in increments and knows
+nothing of the model: a :class:`Corrector` moves the state along the load (``predict``), brings
+it back to equilibrium (``correct``), and commits or discards the result (``accept``,
+``reject``). Two correctors exist: the continuum's damped Newton for the saddle point
+(:class:`ngbet.continuum.solver.SaddlePointNewton`) and the network's shifted minimizing Newton
+with its stability check and snap handling (:class:`ngbet.discrete.solver.ShiftedNewton`).
+
+Step length
+    A nominal length starts at ``first_step`` (at most ``max_step``); a trial ends at the nearer
+    of u0 + step and the next stop (``stops`` and the target); a stop that the trial would miss by
+    less than ``land_within`` steps is landed on. After a converged increment with at most
+    ``grow_after`` corrector iterations the nominal length grows by ``growth`` (up to
+    ``max_step``); a stop that shortened a step does not shorten the next one.
+Outcomes
+    ``converged``: the step is accepted and recorded. ``retry``: the corrector asks for another
+    length (e.g. to bracket a snap-through), not a failure. ``failed``: the length is cut by
+    ``cut``; below ``min_step`` (or after ``max_attempts`` trials) :class:`ConvergenceError`
+    is raised with every attempt and the corrector's diagnosis; each converged step has been
+    handed to ``on_step`` by then.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import numpy as np
+
+from .errors import Attempt, ConvergenceError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Attempt", "ConvergenceError", "Corrector", "Outcome", "PathControl", "PathResult", "StepRecord",
+           "follow_path", "progress_bar"]
+
+
+@dataclass(frozen=True)
+class PathControl:
+    """Step-length control of a load path; loads in metres of clamp displacement."""
+
+    target: float
+    first_step: float
+    max_step: float = math.inf
+    min_step: float = 0.0
+    growth: float = 1.5
+    cut: float = 0.5
+    grow_after: int = 4
+    stops: tuple[float, ...] = ()
+    #: a stop closer than this many nominal steps beyond a trial load is landed on instead
+    land_within: float = 0.0
+    #: bound on the number of trials, converged or not (None: none)
+    max_attempts: int | None = None
+
+
+@dataclass
+class Outcome:
+    """What a corrector made of one trial increment."""
+
+    kind: Literal["converged", "retry", "failed"]
+    iterations: int
+    history: list[float] = field(default_factory=list)  # corrector decrements per iteration
+    reason: str = ""
+    retry_step: float = 0.0  # the next trial length for ``kind == "retry"``
+
+
+@dataclass
+class StepRecord:
+    """What the engine reports for each converged increment (fields a model does not have stay NaN)."""
+
+    step: int
+    u0: float  # clamp displacement reached [m]
+    iterations: int
+    wall_s: float = 0.0
+    residual: np.ndarray | None = None  # r (dE/dx) at the state; its prescribed rows hold the reactions
+    energy: float = math.nan
+    dforce_du0: float = math.nan  # dR/du0 from the load tangent at the state (R in the model's force unit)
+    lambda_min: float = math.nan  # lowest scaled tangent eigenvalue, when checked
+    snap: bool = False
+    released: float = 0.0  # energy released beyond the clamp work in the step [J] (a snap-through)
+    history: list[float] = field(default_factory=list)
+    reason: str = ""
+
+
+class Corrector(Protocol):
+    """The model side of the engine; it owns the state."""
+
+    def predict(self, u0: float, h: float) -> None:
+        """Move the state from the converged load u0 towards u0 + h."""
+
+    def correct(self, u0: float, h: float) -> Outcome:
+        """Restore equilibrium at the load u0 + h from the predicted state."""
+
+    def accept(self, u0: float, h: float, outcome: Outcome) -> StepRecord:
+        """Commit the corrected state as the new converged one; ``step`` and ``wall_s`` are set by the engine."""
+
+    def reject(self, u0: float, outcome: Outcome) -> None:
+        """Return to the converged state at u0 after a trial that is not accepted."""
+
+    def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
+        """What the corrector concludes after the last failure.
+
+        The text for the error message, and the structured diagnosis it was written from (or None).
+        """
+
+
+@dataclass
+class PathResult:
+    """The load reached, the converged steps and every trial increment."""
+
+    u0: float
+    steps: list[StepRecord] = field(default_factory=list)
+    attempts: list[Attempt] = field(default_factory=list)
+    cuts: int = 0
+    retries: int = 0
+
+
+def follow_path(corrector: Corrector, ctl: PathControl, *,
+                on_step: Callable[[StepRecord], None] | None = None,
+                progress: Callable[[float], None] | None = None) -> PathResult:
+    """Carry the load from 0 to ``ctl.target``; ``on_step`` and ``progress(u0)`` follow each converged step.
+
+    Raises
+    ------
+    ConvergenceError
+        when a failed increment is cut below ``ctl.min_step`` or after ``ctl.max_attempts``
+        trials; every converged step has been passed to ``on_step`` by then.
+    """
+    out = PathResult(0.0)
+    marks = sorted({s for s in ctl.stops if 0 < s < ctl.target} | {ctl.target})
+    eps = 1e-12 * max(1.0, abs(ctl.target))
+    step = min(ctl.first_step, ctl.max_step)
+    while out.u0 < ctl.target - eps:
+        lam = out.u0
+        nxt, h = _trial_load(lam, step, marks, eps, ctl.land_within)
+        t0 = time.perf_counter()
+        corrector.predict(lam, h)
+        outcome = corrector.correct(lam, h)
+        out.attempts.append(Attempt(lam, nxt, outcome.kind == "converged", outcome.iterations, outcome.reason,
+                                    list(outcome.history)))
+        if outcome.kind == "converged":
+            _record(corrector, out, lam, nxt, h, outcome, t0)
+            if on_step is not None:
+                on_step(out.steps[-1])
+            if progress is not None:
+                progress(out.u0)
+            if outcome.iterations <= ctl.grow_after:
+                step = min(step * ctl.growth, ctl.max_step)
+            continue
+        corrector.reject(lam, outcome)
+        step = _after_rejection(corrector, ctl, out, lam, nxt, h, outcome)
+    return out
+
+
+def _trial_load(lam: float, step: float, marks: list[float], eps: float, land_within: float) -> tuple[float, float]:
+    """The end of the next trial and its length: u0 + step, or the next stop if it comes first or just after."""
+    upcoming = next(m for m in marks if m > lam + eps)
+    if upcoming - (lam + step) < land_within * step:
+        return upcoming, upcoming - lam
+    return lam + step, step
+
+
+def _record(corrector: Corrector, out: PathResult, lam: float, nxt: float, h: float, outcome: Outcome,
+            t0: float) -> None:
+    """Accept a converged trial and append its step record."""
+    rec = corrector.accept(lam, h, outcome)
+    rec.step = len(out.steps) + 1
+    rec.u0 = nxt
+    rec.wall_s = time.perf_counter() - t0
+    out.u0 = nxt
+    out.steps.append(rec)
+    log.info("u0 = %.6g mm reached in %d iterations", nxt * 1e3, outcome.iterations)
+
+
+def _after_rejection(corrector: Corrector, ctl: PathControl, out: PathResult, lam: float, nxt: float, h: float,
+                     outcome: Outcome) -> float:
+    """The next nominal step after a rejected trial; raises when the path cannot go on."""
+    if outcome.kind == "retry":
+        out.retries += 1
+        step = outcome.retry_step
+    else:
+        out.cuts += 1
+        log.info("increment %.6g -> %.6g mm failed (%s); cutting the step", lam * 1e3, nxt * 1e3, outcome.reason)
+        step = h * ctl.cut
+    too_short = outcome.kind == "failed" and step < ctl.min_step * (1 - 1e-9)
+    too_many = ctl.max_attempts is not None and len(out.attempts) >= ctl.max_attempts
+    if too_short or too_many:
+        why = (f"load step cut below the minimum {ctl.min_step * 1e3:.3g} mm" if too_short
+               else f"{len(out.attempts)} increments tried (limit {ctl.max_attempts})")
+        text, detail = corrector.diagnose(out.attempts)
+        raise ConvergenceError(f"{why} on the way from {lam * 1e3:.6g} mm to {ctl.target * 1e3:.6g} mm",
+                               lam * 1e3, out.attempts, text, detail)
+    return step
+
+
+@contextlib.contextmanager
+def progress_bar(show: bool, target_mm: float, desc: str = "u0") -> Iterator[Callable[[float], None] | None]:
+    """A tqdm bar over the clamp displacement [mm] for ``follow_path(progress=...)`` (fed with u0 [m]).
+
+    Yields None when not shown.
+    """
+    if not show:
+        yield None
+        return
+    from tqdm import tqdm
+
+    bar = tqdm(total=round(target_mm, 6), unit="mm", desc=desc,
+               bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} mm [{elapsed}<{remaining}]")
+    try:
+        yield lambda u0: bar.update(u0 * 1e3 - bar.n)
+    finally:
+        bar.close()
