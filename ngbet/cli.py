@@ -1,18 +1,42 @@
 """Command line: ``ngbet run [scene.toml] [--out DIR]``, ``ngbet scene``, ``ngbet study NAME``.
 
-Exit status: 0 done, 1 the solver could not reach the final load (converged steps are on disk),
-2 a bad scene or command line.
+Exit status (both models, runs and studies):
+
+====  ==================================================================================
+0     done
+1     the solver could not carry the load to the end (converged steps are on disk,
+      summary.json says "failed"); a study with cases that crashed
+2     a bad scene or command line (the message names the key)
+3     an I/O problem: the output folder is not writable, a file is in its place, it is on
+      a read-only mount, another run holds its lock, or a dask scheduler is unreachable
+      (the message names the path or address)
+130   interrupted by Ctrl-C (SIGINT) or SIGTERM: summary.json says "interrupted" with the
+      last converged load; a study keeps its finished cases in the cache
+====  ==================================================================================
+
+Errors are one line on stderr, loads in mm; the details are in the run folder's summary.json.
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
+import json
 import logging
+import signal
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from .scene import Scene, SceneError, default_scene
+
+EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_IO, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EPILOG = ("exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
+          "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
+          "busy with another run; scheduler unreachable); 130 interrupted (SIGINT/SIGTERM; summary.json "
+          "says interrupted, with the last converged load in mm)")
 
 
 def _parse_value(text: str) -> object:
@@ -37,12 +61,63 @@ def load_scene(path: str | None, overrides: list[str]) -> Scene:
     return scene.with_changes(**changes) if changes else scene
 
 
+def _say(msg: str) -> None:
+    print(f"ngbet: {' '.join(msg.split())}", file=sys.stderr)
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt in the main thread, so that it ends a run like Ctrl-C."""
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread: leave the signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def exit_code(exc: BaseException) -> tuple[int, str]:
+    """The exit status and the one-line message of an error that ends a command."""
+    from .errors import ConvergenceError
+    from .output import OutputError
+
+    if isinstance(exc, SceneError):
+        return EXIT_INPUT, f"bad scene: {exc}"
+    if isinstance(exc, ConvergenceError):
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        return EXIT_SOLVER, (f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}")
+    if isinstance(exc, OutputError):
+        return EXIT_IO, f"cannot use the output folder {exc}"
+    if isinstance(exc, OSError):
+        where = exc.filename if exc.filename is not None else "?"
+        return EXIT_IO, f"I/O error on {where}: {exc.strerror or exc}"
+    raise exc
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="ngbet", description="Bias extension tests of woven fabrics (NGSolve).")
+    """The ``ngbet`` command (see the module docstring for the exit status)."""
+    with _sigterm_as_interrupt():
+        try:
+            return _main(argv)
+        except KeyboardInterrupt:
+            _say("interrupted")
+            return EXIT_INTERRUPTED
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ngbet", description="Bias extension tests of woven fabrics (NGSolve).",
+                                     epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True)
-    pr = sub.add_parser("run", help="run a scene (default: the paper's BET to 56 mm)")
+    pr = sub.add_parser("run", help="run a scene (default: the paper's BET to 56 mm)", epilog=EPILOG)
     pr.add_argument("scene", nargs="?", help="scene TOML file (default: the embedded scene)")
-    pr.add_argument("--out", default="out/run", help="output folder (default: out/run)")
+    pr.add_argument("--out", default="out/run", help="output folder (default: out/run); the files of a previous "
+                    "run in it are removed, a folder that is not an ngbet run folder is refused")
     pr.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
     pr.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
@@ -50,42 +125,58 @@ def main(argv: list[str] | None = None) -> int:
     ps = sub.add_parser("scene", help="print a scene as TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
-    pst = sub.add_parser("study", help="run a parameter study (see studies/README.md); 'ngbet study list' lists them")
+    pst = sub.add_parser("study", help="run a parameter study (see studies/README.md); 'ngbet study list' lists them",
+                         epilog=EPILOG)
     pst.add_argument("name", help="study name (penalty_p, work_precision, alpha1, kel, curves, maps, compare) or 'list'")
     from .study import add_arguments
 
     add_arguments(pst)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _main(argv: list[str] | None) -> int:
+    args = _parser().parse_args(argv)
     if args.command == "study":
         return _study(args)
 
-    level = logging.WARNING if getattr(args, "quiet", False) else (
-        logging.INFO if getattr(args, "verbose", False) else logging.WARNING)
+    level = logging.INFO if getattr(args, "verbose", False) else logging.WARNING
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
         scene = load_scene(args.scene, args.overrides)
     except SceneError as exc:
-        print(f"ngbet: bad scene: {exc}", file=sys.stderr)
-        return 2
+        _say(f"bad scene: {exc}")
+        return EXIT_INPUT
     if args.command == "scene":
         sys.stdout.write(scene.to_toml())
-        return 0
+        return EXIT_OK
+    return _run(scene, Path(args.out), progress=not args.quiet)
 
+
+def _run(scene: Scene, out: Path, progress: bool) -> int:
+    """``ngbet run``: one line on success or failure; the details are in ``out``/summary.json."""
     from .run import run
-    from .errors import ConvergenceError
 
-    out = Path(args.out)
     try:
-        summary = run(scene, out, progress=not args.quiet)
-    except ConvergenceError as exc:
-        print(f"ngbet: the load could not be carried to the end; converged steps are in {out}\n{exc}",
-              file=sys.stderr)
-        return 1
-    except SceneError as exc:
-        print(f"ngbet: bad scene: {exc}", file=sys.stderr)
-        return 2
+        summary = run(scene, out, progress=progress)
+    except KeyboardInterrupt:
+        _say(f"interrupted after u0 = {_last_converged_mm(out):g} mm; converged steps and "
+             f"summary.json (status interrupted) are in {out}/")
+        return EXIT_INTERRUPTED
+    except Exception as exc:
+        code, msg = exit_code(exc)
+        if code == EXIT_SOLVER:
+            msg += f"; converged steps and details are in {out}/ (summary.json)"
+        _say(msg)
+        return code
     print(_report(summary, out))
-    return 0
+    return EXIT_OK
+
+
+def _last_converged_mm(out: Path) -> float:
+    try:
+        return float(json.loads((out / "summary.json").read_text()).get("last_converged_mm", 0.0))
+    except (OSError, ValueError, TypeError, AttributeError):
+        return 0.0
 
 
 def _study(args: argparse.Namespace) -> int:
@@ -97,14 +188,22 @@ def _study(args: argparse.Namespace) -> int:
     if args.name == "list":
         for name, what in studies.STUDIES.items():
             print(f"{name:16s} {what}")
-        return 0
+        return EXIT_OK
     if args.name not in studies.STUDIES:
-        print(f"ngbet study: unknown study {args.name!r}; known: {', '.join(studies.STUDIES)}", file=sys.stderr)
-        return 2
-    from .study import run_from_args
+        _say(f"study: unknown study {args.name!r}; known: {', '.join(studies.STUDIES)}")
+        return EXIT_INPUT
+    from .study import StudyInterrupted, run_from_args
 
     module = importlib.import_module(f"ngbet.studies.{args.name}")
-    return run_from_args(module.build, args)
+    try:
+        return run_from_args(module.build, args)
+    except StudyInterrupted as exc:
+        _say(str(exc))
+        return EXIT_INTERRUPTED
+    except Exception as exc:
+        code, msg = exit_code(exc)
+        _say(f"study {args.name}: {msg}")
+        return code
 
 
 def _report(summary: dict, out: Path) -> str:
