@@ -86,6 +86,7 @@ def exit_code(exc: BaseException) -> tuple[int, str]:
     """The exit status and the one-line message of an error that ends a command."""
     from .errors import ConvergenceError
     from .output import OutputError
+    from .study import SchedulerError
 
     if isinstance(exc, SceneError):
         return EXIT_INPUT, f"bad scene: {exc}"
@@ -94,6 +95,8 @@ def exit_code(exc: BaseException) -> tuple[int, str]:
         return EXIT_SOLVER, (f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}")
     if isinstance(exc, OutputError):
         return EXIT_IO, f"cannot use the output folder {exc}"
+    if isinstance(exc, SchedulerError):
+        return EXIT_IO, str(exc)
     if isinstance(exc, OSError):
         where = exc.filename if exc.filename is not None else "?"
         return EXIT_IO, f"I/O error on {where}: {exc.strerror or exc}"
@@ -127,7 +130,8 @@ def _parser() -> argparse.ArgumentParser:
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     pst = sub.add_parser("study", help="run a parameter study (see studies/README.md); 'ngbet study list' lists them",
                          epilog=EPILOG)
-    pst.add_argument("name", help="study name (penalty_p, work_precision, alpha1, kel, curves, maps, compare) or 'list'")
+    pst.add_argument("name", help="study name (penalty_p, work_precision, alpha1, kel, curves, maps, compare) "
+                     "or 'list'")
     from .study import add_arguments
 
     add_arguments(pst)

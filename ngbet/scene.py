@@ -303,7 +303,7 @@ class Solver:
     cut: float = 0.5
     linear_solver: str = "auto"
     condense: bool = True  # eliminate element-local dofs (Lambda) before factorizing
-    # NGSolve threads; 0: all cores (NGSolve's TaskManager default, recorded in summary.json). One by default: on the 2-core machines measured, two threads
+    # NGSolve threads; 0: all cores (NGSolve's TaskManager default). One by default: on the 2-core machines measured, two threads
     # were slower in wall time (solves and residuals wait for a core; bench/README.md)
     threads: int = 1
     predictor: str = "tangent"  # "tangent" (Euler) or "clamp" (u += du0 X/L)
