@@ -106,9 +106,9 @@ class RunWriter:
         self.status = "new"
         self.warnings: list[str] = []
         self.t_start = time.perf_counter()
+        self.warnings = preflight(scene)  # refuses before the folder is touched
         self._lock = _acquire_run_folder(self.out)
         try:
-            self.warnings = preflight(scene)
             cleared = _clear_previous_run(self.out)
             if cleared:
                 log.info("%s: removed %d files of a previous run", self.out, len(cleared))
