@@ -24,8 +24,11 @@ import ast
 import contextlib
 import json
 import logging
+import os
 import signal
+import socket
 import sys
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -65,21 +68,63 @@ def _say(msg: str) -> None:
     print(f"ngbet: {' '.join(msg.split())}", file=sys.stderr)
 
 
+GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the watchdog does
+
+
 @contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt in the main thread, so that it ends a run like Ctrl-C."""
+def _interrupts() -> Iterator[None]:
+    """Ctrl-C and SIGTERM raise KeyboardInterrupt in the main thread (the run folder records
+    "interrupted"). The main thread can be inside one NGSolve call for a long time (assembly or
+    factorization at high order: tens of seconds) and only acts when it returns; a watchdog thread
+    woken by the signal (``signal.set_wakeup_fd``) then records the interruption in the active run
+    folders itself and exits with 130 after GRACE_S."""
+    acted = threading.Event()
+
     def handler(signum: int, frame: Any) -> None:
+        acted.set()
         raise KeyboardInterrupt(f"signal {signum}")
 
     try:
-        previous = signal.signal(signal.SIGTERM, handler)
+        previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     except ValueError:  # not the main thread: leave the signals alone
         yield
         return
+    r, w = socket.socketpair()
+    w.setblocking(False)
+    old_fd = signal.set_wakeup_fd(w.fileno(), warn_on_full_buffer=False)
+    watchdog = threading.Thread(target=_watch, args=(r, acted), daemon=True, name="ngbet-interrupt-watchdog")
+    watchdog.start()
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        signal.set_wakeup_fd(old_fd)
+        for sig, h in previous.items():
+            signal.signal(sig, h)
+        w.close()  # ends the watchdog
+        watchdog.join(timeout=1)
+        r.close()
+
+
+def _watch(r: socket.socket, acted: threading.Event) -> None:
+    while True:
+        try:
+            data = r.recv(64)
+        except OSError:
+            return
+        if not data:
+            return
+        if not set(data) & {signal.SIGINT, signal.SIGTERM}:  # another library's signal
+            continue
+        if not acted.wait(GRACE_S):
+            from .output import interrupt_active_runs
+
+            folders = interrupt_active_runs(f"interrupted (SIGINT/SIGTERM) inside a computation; "
+                                            f"stopped after {GRACE_S:g} s")
+            _say(f"interrupted; converged steps and summary.json (status interrupted) are in "
+                 f"{', '.join(map(str, folders)) or 'no run folder'}")
+            sys.stderr.flush()
+            os._exit(EXIT_INTERRUPTED)
+        acted.clear()
 
 
 def exit_code(exc: BaseException) -> tuple[int, str]:
@@ -105,7 +150,7 @@ def exit_code(exc: BaseException) -> tuple[int, str]:
 
 def main(argv: list[str] | None = None) -> int:
     """The ``ngbet`` command (see the module docstring for the exit status)."""
-    with _sigterm_as_interrupt():
+    with _interrupts():
         try:
             return _main(argv)
         except KeyboardInterrupt:

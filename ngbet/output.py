@@ -25,8 +25,9 @@ import os
 import platform
 import subprocess
 import time
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import IO, Any, Callable, Iterable, Sequence
+from typing import IO, Any
 
 from .errors import NgbetError
 from .scene import Scene
@@ -108,6 +109,7 @@ class RunWriter:
         self.t_start = time.perf_counter()
         self.warnings = preflight(scene)  # refuses before the folder is touched
         self._lock = _acquire_run_folder(self.out)
+        _ACTIVE.add(self)
         try:
             cleared = _clear_previous_run(self.out)
             if cleared:
@@ -141,6 +143,7 @@ class RunWriter:
 
     def release(self) -> None:
         """Unlock the folder (the lock file stays: removing it would race with a waiting run)."""
+        _ACTIVE.discard(self)
         if self._lock is not None:
             self._lock.close()
             self._lock = None
@@ -192,6 +195,23 @@ class RunWriter:
         write_json_atomic(self.out / "summary.json", s)
         self.status = status
         return s
+
+
+_ACTIVE: set[RunWriter] = set()
+
+
+def interrupt_active_runs(reason: str) -> list[Path]:
+    """Record "interrupted" in every run folder still open in this process (for a watchdog thread
+    when the main thread cannot act); returns the folders."""
+    done = []
+    for w in list(_ACTIVE):
+        if w.status == "running":
+            try:
+                w.summary({}, "interrupted", f"{reason}; last converged u0 = {w.last_converged_mm:g} mm")
+                done.append(w.out)
+            except (OSError, NgbetError) as exc:
+                log.error("could not record the interruption in %s: %s", w.out, exc)
+    return done
 
 
 def write_json_atomic(path: Path, data: Any) -> None:

@@ -55,9 +55,10 @@ import threading
 import time
 import traceback
 import uuid
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 from .errors import NgbetError
 from .output import RUN_LOCK, git_revision, machine, read_profiles, read_rows, versions
@@ -230,8 +231,8 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
             ngs.SetNumThreads(threads)
         except Exception:  # pragma: no cover
             pass
-    from .run import run
     from .errors import ConvergenceError
+    from .run import run
 
     scene = Scene.from_dict(scene_dict)
     tmp = workdir is None

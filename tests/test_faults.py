@@ -25,8 +25,8 @@ from ngbet.cli import main
 from ngbet.output import OutputError, RunWriter, read_rows
 from ngbet.run import run
 from ngbet.scene import Scene
-from ngbet.study import MissingValueError, Study, run_study, verify_case
 from ngbet.studies import _common as C
+from ngbet.study import MissingValueError, Study, run_study, verify_case
 
 TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
         "loading.u0_mm": 10.0, "loading.stops_mm": [5.0]}
@@ -325,3 +325,33 @@ def test_workers_exit_when_the_study_is_killed(tmp_path):
 
     clean_debris(cache)
     assert [d.name for d in cache.iterdir() if d.name.startswith(".")] == []
+
+
+STUCK = """
+import signal, sys, time
+from ngbet.cli import _interrupts
+from ngbet.output import RunWriter
+from ngbet.scene import Scene
+with _interrupts():
+    with RunWriter(sys.argv[1], Scene()) as w:
+        w.add_step({"step": 1, "u0_mm": 3.0, "force_N": 1.0})
+        signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT])  # the main thread cannot act, as
+        print("ready", flush=True)                                  # inside one long NGSolve call
+        time.sleep(60)
+"""
+
+
+def test_ctrl_c_acts_within_seconds_when_the_main_thread_is_stuck(tmp_path):
+    # measured before the watchdog: 80 s from SIGINT to exit at order_u = 10 (first assembly)
+    out = tmp_path / "stuck"
+    p = subprocess.Popen([sys.executable, "-c", STUCK, str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    assert p.stdout.readline().strip() == "ready"
+    t0 = time.monotonic()
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=30)
+    stop_s = time.monotonic() - t0
+    assert p.returncode == 130, err
+    assert 1.5 < stop_s < 10, f"{stop_s:.1f} s"  # the grace of 2 s for the main thread, then the watchdog
+    s = summary(out)
+    assert s["status"] == "interrupted" and s["last_converged_mm"] == 3.0 and str(out) in err
