@@ -108,7 +108,7 @@ class RunWriter:
         self.warnings: list[str] = []
         self.t_start = time.perf_counter()
         self.warnings = preflight(scene)  # refuses before the folder is touched
-        self._lock = _acquire_run_folder(self.out)
+        self._lock: IO[str] | None = _acquire_run_folder(self.out)
         _ACTIVE.add(self)
         try:
             cleared = _clear_previous_run(self.out)
@@ -157,7 +157,7 @@ class RunWriter:
         """Write one converged step (and its mid-axis profile) and flush it to disk."""
         self.rows.append(row)
         new = self._columns is None
-        if new:
+        if self._columns is None:
             self._columns = list(row)
         with self._rows_path.open("a", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=self._columns, extrasaction="ignore", lineterminator="\n")

@@ -303,8 +303,8 @@ class Solver:
     cut: float = 0.5
     linear_solver: str = "auto"
     condense: bool = True  # eliminate element-local dofs (Lambda) before factorizing
-    # NGSolve threads; 0: all cores (NGSolve's TaskManager default). One by default: on the 2-core machines measured, two threads
-    # were slower in wall time (solves and residuals wait for a core; bench/README.md)
+    # NGSolve threads; 0: all cores (NGSolve's TaskManager default). One by default: on the 2-core
+    # machines measured, two threads were slower in wall time (solves and residuals wait for a core; bench/README.md)
     threads: int = 1
     predictor: str = "tangent"  # "tangent" (Euler) or "clamp" (u += du0 X/L)
 
@@ -554,7 +554,7 @@ def estimate_size(scene: Scene) -> tuple[int, float]:
     ntri = sp.length_mm * sp.width_mm / (_TRIANGLE_AREA * d.mesh_size_mm ** 2)
     if d.corner_mesh_size_mm > 0:
         ntri += 4 * 100 * math.log2(d.mesh_size_mm / d.corner_mesh_size_mm)
-    per_tri = d.p_u ** 2
+    per_tri: float = d.p_u ** 2
     if scene.effects.bending:
         per_tri += d.p_phi ** 2 / 2 + (d.p_lam + 1) * (d.p_lam + 2) / 2
     dofs = int(ntri * per_tri)

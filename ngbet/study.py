@@ -30,6 +30,17 @@ is a result: it is cached with its error and its converged steps and is not retr
 error in the study but not cached, so that the next run retries it. A scene refused by
 validation is recorded as failed without running.
 
+Trust: case.json records the sha256 of every file of the case; each cached case is verified
+on every read (checksums, summary.json's status against case.json's, its step count and last
+load against results.csv) and a damaged one is recomputed with a warning naming the file. A
+reference, error or Pareto front is never computed from a missing or nan value
+(:class:`MissingValueError`: the report says what is missing, the command exits 1).
+Ctrl-C (SIGINT, or SIGTERM through the CLI) keeps the finished cases in the cache, cancels the
+others, stops the local workers at once and removes their unfinished ``.run-*`` folders; the
+workers ignore SIGINT (the parent decides) and exit by themselves when the parent dies, even by
+SIGKILL, whose leftover folders the next study removes. An unreachable dask scheduler is a
+:class:`SchedulerError` after at most 5 s.
+
 Execution: in this process (``workers = 1``), in local processes (default: one per core,
 ``concurrent.futures`` with the spawn start method) or on a dask.distributed cluster given its
 scheduler address (``distributed.Client.submit``; the workers need ngbet installed, they return
@@ -562,7 +573,7 @@ def _execute(todo: list[_Case], cache: Path, mode: str, nworkers: int | None, sc
             for c in todo:
                 with bar.lock:
                     running[c.key] = (wds[c.key], c.scene.loading.u0_mm)  # type: ignore[index,union-attr]
-                finished(c, execute_case(c.scene.to_dict(), threads, str(wds[c.key])), wds[c.key])  # type: ignore[union-attr,index]
+                finished(c, execute_case(c.scene.to_dict(), threads, str(wds[c.key])), wds[c.key])  # type: ignore[union-attr]
         elif mode == "process":
             _run_processes(todo, wds, nworkers, threads, running, bar.lock, finished)
         else:
@@ -570,7 +581,7 @@ def _execute(todo: list[_Case], cache: Path, mode: str, nworkers: int | None, sc
     except KeyboardInterrupt:
         for c in todo:
             if c.key not in finished_keys:
-                shutil.rmtree(wds[c.key], ignore_errors=True)  # type: ignore[index]
+                shutil.rmtree(wds[c.key], ignore_errors=True)
         raise StudyInterrupted(f"study {name} interrupted: {len(finished_keys)} finished cases are kept in "
                                f"{cache}, {len(todo) - len(finished_keys)} cancelled; run it again to "
                                "compute those") from None
