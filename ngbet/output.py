@@ -136,10 +136,26 @@ class RunWriter:
                              f"interrupted (SIGINT/SIGTERM) after u0 = {self.last_converged_mm:g} mm")
             elif exc_type is not None and self.status == "running":
                 self.summary({"error_type": exc_type.__name__}, "failed", f"{exc_type.__name__}: {exc}")
-        except OSError as err:  # the folder itself failed: the original error says more
+            elif exc_type is None and self.status != "running":
+                self._record_files()
+        except (OSError, NgbetError) as err:  # the folder itself failed: the original error says more
             log.error("could not record the end of the run in %s: %s", self.out, err)
         finally:
             self.release()
+
+    def _record_files(self) -> None:
+        """List in summary.json also the files written after it (plots, fields), so that the next
+        run into this folder knows them as ngbet's."""
+        path = self.out / "summary.json"
+        s = json.loads(path.read_text())
+        files = self._files()
+        if s.get("files") != files:
+            s["files"] = files
+            write_json_atomic(path, s)
+
+    def _files(self) -> list[str]:
+        return sorted(p.name for p in self.out.iterdir() if p.is_file() and p.name not in self._kept
+                      and not p.name.startswith(".") and not p.name.endswith(".tmp"))
 
     def release(self) -> None:
         """Unlock the folder (the lock file stays: removing it would race with a waiting run)."""
@@ -190,8 +206,7 @@ class RunWriter:
             **info,
         }
         s["warnings"] = [*self.warnings, *info.get("warnings", [])]
-        s["files"] = sorted(p.name for p in self.out.iterdir() if p.is_file() and p.name not in self._kept
-                            and not p.name.startswith("."))
+        s["files"] = self._files()
         write_json_atomic(self.out / "summary.json", s)
         self.status = status
         return s

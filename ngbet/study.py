@@ -273,6 +273,20 @@ def _store(cache: Path, key: str, rec: dict[str, Any], workdir: Path | None) -> 
     sha256 of every file (what :func:`verify_case` checks on every read)."""
     files = rec.pop("files", None)
     tmp = cache / f".tmp-{key}-{uuid.uuid4().hex[:8]}"
+    try:
+        _fill(tmp, rec, files, workdir)
+        final = cache / key
+        if final.exists():
+            shutil.rmtree(final)
+        tmp.rename(final)
+    except BaseException:  # an interrupt or a full disk: no half-stored case is left behind
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _fill(tmp: Path, rec: dict[str, Any], files: dict[str, bytes] | None, workdir: Path | None) -> None:
+    """The case folder ``tmp``: the run folder (moved, or written from the files a dask worker
+    returned) and case.json with the checksums."""
     if workdir is not None and workdir.exists():
         workdir.rename(tmp)
     else:
@@ -284,10 +298,6 @@ def _store(cache: Path, key: str, rec: dict[str, Any], workdir: Path | None) -> 
     rec["files_sha256"] = {p.relative_to(tmp).as_posix(): _sha256(p) for p in sorted(tmp.rglob("*"))
                            if p.is_file() and p.name != "case.json"}
     (tmp / "case.json").write_text(json.dumps(rec, indent=2, default=str))
-    final = cache / key
-    if final.exists():
-        shutil.rmtree(final)
-    tmp.rename(final)
 
 
 def _sha256(path: Path) -> str:
@@ -349,10 +359,11 @@ def _json_file(path: Path) -> dict[str, Any]:
 
 
 def clean_debris(cache: Path) -> int:
-    """Remove the ``.run-*``/``.tmp-*`` folders of studies that were killed (those whose run lock
-    is free; a running study's are locked). Returns how many were removed."""
+    """Remove the ``.run-*`` folders of studies that were killed (those whose run lock is free; a
+    running study's are locked) and ``.tmp-*`` folders older than 10 minutes. Returns how many."""
     n = 0
-    for d in list(cache.glob(".run-*")) + list(cache.glob(".tmp-*")):
+    old = time.time() - 600  # a .tmp-* folder lives for the milliseconds of a store
+    for d in list(cache.glob(".run-*")) + [t for t in cache.glob(".tmp-*") if t.stat().st_mtime < old]:
         if d.is_dir() and not _locked(d / RUN_LOCK):
             shutil.rmtree(d, ignore_errors=True)
             n += 1

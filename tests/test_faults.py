@@ -347,6 +347,7 @@ def test_ctrl_c_acts_within_seconds_when_the_main_thread_is_stuck(tmp_path):
     p = subprocess.Popen([sys.executable, "-c", STUCK, str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True)
     assert p.stdout.readline().strip() == "ready"
+    time.sleep(0.5)  # let the main thread enter its sleep: before it, it would still act on the signal
     t0 = time.monotonic()
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=30)
@@ -355,3 +356,13 @@ def test_ctrl_c_acts_within_seconds_when_the_main_thread_is_stuck(tmp_path):
     assert 1.5 < stop_s < 10, f"{stop_s:.1f} s"  # the grace of 2 s for the main thread, then the watchdog
     s = summary(out)
     assert s["status"] == "interrupted" and s["last_converged_mm"] == 3.0 and str(out) in err
+
+
+def test_files_written_after_the_summary_are_known_to_the_next_run(tmp_path):
+    scene = Scene().with_changes(**TINY)
+    with RunWriter(tmp_path, scene) as w:
+        w.summary({}, "ok")
+        (tmp_path / "mode_1.vtu").write_text("written by the run after its summary")
+    assert "mode_1.vtu" in summary(tmp_path)["files"]
+    run(scene, tmp_path)
+    assert not (tmp_path / "mode_1.vtu").exists()
