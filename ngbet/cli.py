@@ -127,8 +127,9 @@ def _watch(r: socket.socket, acted: threading.Event) -> None:
         acted.clear()
 
 
-def exit_code(exc: BaseException) -> tuple[int, str]:
-    """The exit status and the one-line message of an error that ends a command."""
+def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
+    """The exit status and the one-line message of an error that ends a command (``where``: the
+    output folder, named when the OS error names no file, e.g. a full disk on write)."""
     from .errors import ConvergenceError
     from .output import OutputError
     from .study import SchedulerError
@@ -143,8 +144,8 @@ def exit_code(exc: BaseException) -> tuple[int, str]:
     if isinstance(exc, SchedulerError):
         return EXIT_IO, str(exc)
     if isinstance(exc, OSError):
-        where = exc.filename if exc.filename is not None else "?"
-        return EXIT_IO, f"I/O error on {where}: {exc.strerror or exc}"
+        path = exc.filename if exc.filename is not None else where
+        return EXIT_IO, f"I/O error on {path if path is not None else 'an unnamed file'}: {exc.strerror or exc}"
     raise exc
 
 
@@ -212,7 +213,7 @@ def _run(scene: Scene, out: Path, progress: bool) -> int:
              f"summary.json (status interrupted) are in {out}/")
         return EXIT_INTERRUPTED
     except Exception as exc:
-        code, msg = exit_code(exc)
+        code, msg = exit_code(exc, out)
         if code == EXIT_SOLVER:
             msg += f"; converged steps and details are in {out}/ (summary.json)"
         _say(msg)

@@ -366,3 +366,17 @@ def test_files_written_after_the_summary_are_known_to_the_next_run(tmp_path):
     assert "mode_1.vtu" in summary(tmp_path)["files"]
     run(scene, tmp_path)
     assert not (tmp_path / "mode_1.vtu").exists()
+
+
+def test_full_disk_during_a_run_exits_3_and_says_failed(tmp_path, capsys, monkeypatch):
+    import ngbet.output
+
+    def full(self, row, profile=None):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # a write error names no file
+
+    monkeypatch.setattr(ngbet.output.RunWriter, "add_step", full)
+    out = tmp_path / "full"
+    assert main(["run", "--out", str(out), *TINY_SET, "--quiet"]) == 3
+    err = capsys.readouterr().err
+    assert str(out) in err and "No space left" in err
+    assert summary(out)["status"] == "failed" and "No space left" in summary(out)["error"]
