@@ -1,28 +1,46 @@
-# ngbet in a container. The base is an argument so that the image can be built from a local
-# Debian (../shared/tools/container-check) as from the public python image.
-#   docker build -t ngbet .                       # installs ngbet, runs the default scene
-#   docker build --target test -t ngbet-test .    # also runs the test suite
-#   docker run --rm -v "$PWD/out:/work/out" ngbet ngbet run --out /work/out/run
+# ngbet in a container (see docs/container.md). The base is an argument so that the image can be
+# built from any Debian-based Python image; it must provide python3 with venv and pip.
+#   docker build -t ngbet .                          # installs ngbet, runs the default scene
+#   docker build --target test -t ngbet-test .       # also runs the tests against the installed package
+#   docker run --rm -v "$PWD/out:/work/out" ngbet run --out /work/out/run
 ARG BASE=python:3.11-slim-bookworm
 FROM ${BASE} AS base
-ENV DEBIAN_FRONTEND=noninteractive PYVISTA_OFF_SCREEN=true MPLBACKEND=Agg PIP_NO_CACHE_DIR=1
-# libgfortran5: the ngsolve wheel's OpenBLAS; libgl1 & co: VTK (pyvista) even off-screen
-RUN apt-get update && apt-get install -y --no-install-recommends \
-        python3 python3-venv python3-pip libgfortran5 libgl1 libxrender1 libxext6 libosmesa6 git \
+ENV DEBIAN_FRONTEND=noninteractive PYVISTA_OFF_SCREEN=true MPLBACKEND=Agg \
+    PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PYTHONDONTWRITEBYTECODE=1
+# libgfortran5: the OpenBLAS of the ngsolve wheel; libgl1, libxrender1, libxext6, libosmesa6: VTK (pyvista)
+# rendering off-screen (without OSMesa the maps study crashes in VTK)
+RUN apt-get update && apt-get install -y --no-install-recommends libgfortran5 libgl1 libxrender1 libxext6 libosmesa6 \
     && rm -rf /var/lib/apt/lists/*
-RUN python3 -m venv /opt/ngbet
+RUN python3 -m venv /opt/ngbet && useradd --create-home --shell /bin/bash ngbet \
+    && mkdir -p /work && chown ngbet:ngbet /work
 ENV PATH=/opt/ngbet/bin:$PATH
-WORKDIR /work
-COPY pyproject.toml README.md ./
+WORKDIR /src
+COPY pyproject.toml README.md LICENSE ./
+COPY _build ./_build
 COPY ngbet ./ngbet
-RUN pip install --upgrade pip && pip install ".[test]"
-COPY geometry ./geometry
-COPY studies ./studies
-COPY tests ./tests
-COPY bench ./bench
-# prove the image: the default scene to 56 mm
-RUN ngbet run --quiet --out /tmp/ngbet-default && test -s /tmp/ngbet-default/results.csv
-CMD ["ngbet", "run", "--out", "/work/out/run"]
+# the git revision ngbet reports (--version, summary.json); the build context holds no .git:
+#   docker build --build-arg REVISION=$(git rev-parse --short=12 HEAD) .
+ARG REVISION=unknown
+RUN printf 'REVISION = "%s"\n' "$REVISION" > ngbet/_revision.py \
+    && pip install --upgrade pip && pip install ".[viz]" && rm -rf /src/build
+USER ngbet
+WORKDIR /work
+# prove the image: the default scene to 56 mm, with its VTU file and its plot
+RUN ngbet --version && ngbet run --quiet --out /tmp/ngbet-default \
+    && test -s /tmp/ngbet-default/results.csv && test -s /tmp/ngbet-default/fields.vtu \
+    && test -s /tmp/ngbet-default/force.png && rm -rf /tmp/ngbet-default
+ENTRYPOINT ["ngbet"]
+CMD ["run", "--out", "/work/out/run"]
 
+# the test suite against the installed package: the tests run from a folder without the sources,
+# so `import ngbet` resolves to the venv's site-packages
 FROM base AS test
-RUN python -m pytest -q
+USER root
+RUN pip install "/src[test]"
+COPY --chown=ngbet:ngbet pyproject.toml /home/ngbet/check/
+COPY --chown=ngbet:ngbet tests /home/ngbet/check/tests
+COPY --chown=ngbet:ngbet examples /home/ngbet/check/examples
+USER ngbet
+WORKDIR /home/ngbet/check
+RUN python -c "import ngbet, sys; assert '/opt/ngbet/' in ngbet.__file__, ngbet.__file__; print(ngbet.__file__)" \
+    && python -m pytest -q -p no:cacheprovider

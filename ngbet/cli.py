@@ -162,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ngbet", description="Bias extension tests of woven fabrics (NGSolve).",
                                      epilog=EPILOG)
+    parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", required=True)
     pr = sub.add_parser("run", help="run a scene (default: the paper's BET to 56 mm)", epilog=EPILOG)
     pr.add_argument("scene", nargs="?", help="scene TOML file (default: the embedded scene)")
@@ -169,18 +170,23 @@ def _parser() -> argparse.ArgumentParser:
                     "run in it are removed, a folder that is not an ngbet run folder is refused")
     pr.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
+    pr.add_argument("--accuracy", type=float, metavar="REL",
+                    help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
     pr.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
-    ps = sub.add_parser("scene", help="print a scene as TOML (default: the embedded one)")
+    ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
-    pst = sub.add_parser("study", help="run a parameter study (see studies/README.md); 'ngbet study list' lists them",
+    pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them",
                          epilog=EPILOG)
     pst.add_argument("name", help="study name (penalty_p, work_precision, alpha1, kel, curves, maps, compare) "
                      "or 'list'")
     from .study import add_arguments
 
     add_arguments(pst)
+    from . import fit
+
+    fit.add_parser(sub)
     return parser
 
 
@@ -188,16 +194,24 @@ def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
     if args.command == "study":
         return _study(args)
+    if args.command == "fit":
+        from . import fit
+
+        return fit.run_from_args(args)
 
     level = logging.INFO if getattr(args, "verbose", False) else logging.WARNING
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
         scene = load_scene(args.scene, args.overrides)
+        if getattr(args, "accuracy", None) is not None:
+            scene = scene.with_changes(**{"discretization.target_error": args.accuracy})
     except SceneError as exc:
         _say(f"bad scene: {exc}")
         return EXIT_INPUT
     if args.command == "scene":
-        sys.stdout.write(scene.to_toml())
+        from .scene_doc import commented_toml
+
+        sys.stdout.write(commented_toml(scene))
         return EXIT_OK
     return _run(scene, Path(args.out), progress=not args.quiet)
 
@@ -256,6 +270,12 @@ def _study(args: argparse.Namespace) -> int:
         return code
 
 
+def _version() -> str:
+    from . import __revision__, __version__
+
+    return f"ngbet {__version__} (git revision {__revision__})"
+
+
 def _report(summary: dict, out: Path) -> str:
     from .output import read_rows
 
@@ -265,7 +285,15 @@ def _report(summary: dict, out: Path) -> str:
              f"results in {out}/"]
     for r in rows:
         if "force_N" in r and (abs(r["u0_mm"] - 37) < 1e-9 or r is rows[-1]):
-            lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N")
+            err = r.get("force_error_N")
+            bar = (f" ± {err:.2g} N (estimated discretization error)" if isinstance(err, float) and err == err
+                   else " (error estimate failed)" if isinstance(err, float) else "")
+            lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N{bar}")
+    if "accuracy" in summary:
+        a, d = summary["accuracy"], summary["accuracy"]["chosen"]
+        lines.append(f"  accuracy {a['target_error']:g} {'met' if a['met'] else 'NOT met'}: h = {d['mesh_size_mm']:g} mm,"
+                     f" corners {d['corner_mesh_size_mm']:g} mm, p = {d['order_u']} after {len(a['attempts'])} "
+                     f"attempt(s), solve {a['solve_s']:.2f} s, {a['wall_s']:.2f} s in all")
     return "\n".join(lines)
 
 

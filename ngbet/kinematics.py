@@ -1,4 +1,4 @@
-"""Ideal BET kinematics: inextensible yarns, no slip, no bending (MODEL.md §4).
+"""Ideal BET kinematics: inextensible yarns, no slip, no bending (docs/model.md, *Ideal kinematics*).
 
 For yarns at ±a to the axis and D = L − W/tan a, the central zone A turns the yarns from the
 half-angle a to β with cos β = (D + u0) cos a / D; the angle between the yarns changes by

@@ -23,7 +23,6 @@ import json
 import logging
 import os
 import platform
-import subprocess
 import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -48,18 +47,10 @@ def versions() -> dict[str, str]:
 
 
 def git_revision(path: Path | None = None) -> str:
-    """The git revision of the source tree, or 'unknown' outside a checkout."""
-    here = path or Path(__file__).resolve().parent
-    try:
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True,
-                             text=True, timeout=5)
-        if rev.returncode == 0:
-            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
-                                   capture_output=True, text=True, timeout=5).stdout.strip()
-            return rev.stdout.strip() + ("-dirty" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return "unknown"
+    """The git revision of ngbet (the checkout's, or the one recorded at install), or 'unknown'."""
+    from .revision import revision
+
+    return revision()
 
 
 def machine() -> dict[str, Any]:
@@ -335,32 +326,46 @@ def read_profiles(path: str | Path) -> dict[float, tuple[list[float], list[float
     return out
 
 
-def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> Path:
-    """Force-displacement plot (and the double force when present) from results.csv."""
-    import matplotlib
+def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> Path | None:
+    """Force-displacement plot (and the double force when present) from results.csv: force.png, force.pdf.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    The converged steps are marked; between them the curve is the cubic Hermite interpolant of the
+    force and dF/du0 when results.csv has ``dforce_du0_N_per_mm``, else straight lines (the legend
+    says which). Returns None, with a note in the log, when matplotlib is not installed.
+    """
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        log.warning("no force plot: matplotlib is not installed (pip install 'ngbet[viz]')")
+        return None
+    from .plotting import force_curve
 
     run_dir = Path(run_dir)
     rows = read_rows(run_dir / "results.csv")
-    u0 = [0.0] + [r["u0_mm"] for r in rows]
-    has_T = "double_force_Nm" in rows[0] if rows else False
+    if not rows or "force_N" not in rows[0]:
+        return None
+    u0 = [r["u0_mm"] for r in rows]
+    has_T = "double_force_Nm" in rows[0]
     fig, axes = plt.subplots(1, 2 if has_T else 1, figsize=(10 if has_T else 5.5, 4), squeeze=False)
     ax = axes[0, 0]
-    ax.plot(u0, [0.0] + [r["force_N"] for r in rows], "o-", ms=3, label="ngbet (volume integral)")
+    dF = [r["dforce_du0_N_per_mm"] for r in rows] if "dforce_du0_N_per_mm" in rows[0] else None
+    force_curve(ax, u0, [r["force_N"] for r in rows], dF, label="force")
     for label, x, y in extra:
         ax.plot(x, y, "--", label=label)
     ax.set_xlabel("clamp displacement $u_0$ [mm]")
-    ax.set_ylabel("reaction force [N]")
-    ax.grid(alpha=0.3)
-    ax.legend()
+    ax.set_ylabel("reaction force on the moving clamp [N]")
+    ax.legend(fontsize=8)
     if has_T:
         ax2 = axes[0, 1]
-        ax2.plot(u0, [0.0] + [r["double_force_Nm"] for r in rows], "s-", ms=3, color="C3")
+        ax2.plot([0.0] + u0, [0.0] + [r["double_force_Nm"] for r in rows], "s-", ms=4, color="C3",
+                 label="converged steps, joined by lines")
         ax2.set_xlabel("clamp displacement $u_0$ [mm]")
         ax2.set_ylabel("reaction double force [N m]")
         ax2.grid(alpha=0.3)
+        ax2.legend(fontsize=8)
     fig.tight_layout()
     png = run_dir / "force.png"
     fig.savefig(png, dpi=130)

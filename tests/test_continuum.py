@@ -1,4 +1,4 @@
-"""Physics of the continuum: exact solutions, identities, symmetries, limits (MODEL.md §3-4)."""
+"""Physics of the continuum: exact solutions, identities, symmetries, limits (docs/model.md, *Reactions* and *Ideal kinematics*)."""
 
 import math
 
@@ -141,7 +141,7 @@ def test_shear_only_scene_builds_no_micro_fields_and_is_the_first_gradient_limit
 def test_ideal_kinematics_energy_is_approached_from_below(tmp_path):
     """Nearly inextensible yarns (K_el = 1e8 Pa = 5000 K_sh), no bending: the equilibrium energy
     lies just below the ideal-kinematics energy E_id = ½ K_sh t (A_A sin²γ_A + A_B sin²γ_B)
-    (MODEL.md §4), at 10 and 20 mm; p = 3 avoids the locking of P2 with two stiff fibre families."""
+    (docs/model.md, *Ideal kinematics*), at 10 and 20 mm; p = 3 avoids the locking of P2 with two stiff fibre families."""
     from ngbet.kinematics import ideal_energy
 
     ch = {"material.K_el": 1e8, "effects.bending": False, "loading.u0_mm": 20.0, "loading.stops_mm": [10.0],
@@ -157,7 +157,7 @@ def test_ideal_kinematics_energy_is_approached_from_below(tmp_path):
 @pytest.mark.parametrize("u0", [10.0, 20.0])
 def test_ideal_kinematics_shear_angle_follows_the_table(u0):
     """Nearly inextensible yarns, no bending (the α → 0 limit), crossed mesh h = 2.5 mm: the mean
-    shear over the central part W < X < L − W follows γ_A of MODEL.md §4 (7.92° at 10 mm,
+    shear over the central part W < X < L − W follows γ_A of docs/model.md, *Ideal kinematics* (7.92° at 10 mm,
     16.53° at 20 mm) within 6 % (measured 7.50°, 15.78°; 15.46° at h = 1.25 mm).
 
     The shear is not uniform there: with no bending energy the yarns curve a little and the shear

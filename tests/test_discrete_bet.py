@@ -126,7 +126,7 @@ def test_balanced_network_has_straight_mid_axis(tmp_path):
 
 
 def test_ideal_kinematics_limit(tmp_path):
-    # stiff slip springs (no slip), soft bending: the network trellises as in MODEL.md section 4,
+    # stiff slip springs (no slip), soft bending: the network trellises as in docs/model.md, *Ideal kinematics*,
     # gamma_A = pi/2 - 2 arccos((D + u0) / (sqrt2 D)), gamma_B = gamma_A / 2, gamma_C = 0.
     # Zone means include crossings next to the zone borders (transition layers one or two yarn
     # spacings wide), which bias A down and B, C up by a few percent at spacing 5 mm.

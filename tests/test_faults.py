@@ -186,7 +186,8 @@ def test_failed_discrete_run_exits_1_with_summary_failed(tmp_path):
     (["model=discrete", "discrete.spacing_mm=100"], "discrete.spacing_mm"),  # a 1-yarn network
     (["loading.stops_mm=[100]"], "loading.stops_mm"),
     (["solver.threads=-1"], "solver.threads"),
-    (["discretization.mesh_size_mm=0.05", "discretization.order_u=10"], "discretization.order_u"),  # ~TB
+    (["discretization.mesh_size_mm=0.3", "discretization.corner_mesh_size_mm=0", "discretization.order_u=10"],
+     "discretization.order_u"),  # about 200 GB
 ])
 def test_degenerate_input_exits_2_naming_the_key(tmp_path, capsys, sets, key):
     out = tmp_path / "never"

@@ -1,4 +1,4 @@
-"""Hard cases (issue 5): where users push the model, the answer converges and is sane, or the
+"""Hard cases: where users push the model, the answer converges and is sane, or the
 run refuses with a clear ConvergenceError that says how far it got and why.
 
 Sanity of a converged run (``_assert_sane``):
@@ -113,7 +113,7 @@ def test_full_penalty_moderate_K(tmp_path, K):
 
 def test_full_penalty_huge_K_converges_without_cuts(tmp_path):
     """Full penalty K = 1e10 Pa (K/K_sh ≈ 5e5). Pointwise, Newton linearizes around K(φ − i8),
-    which the predictor makes huge: 57 steps and 24 cuts on this mesh before issue 5. Solved in
+    which the predictor makes huge: solved pointwise it takes 57 steps and 24 cuts on this mesh. Solved in
     its exactly equivalent mixed form (Λ ∈ L2 of the degree of φ − i8, condensed) it needs no cut.
     The pointwise constraint (φ = i8 in P2) is stiffer than the L2(P0) multiplier: the force lies
     above the Lagrange one (measured 123.0 N, +10 %: locking that grows with K)."""

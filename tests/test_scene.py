@@ -36,9 +36,9 @@ def test_toml_round_trip_is_identity():
     ("effects.stabilization_K", -2.0, "effects.stabilization_K"),  # only -1 (the default) is negative
     ("loading.stops_mm", [60.0], "beyond the final load"),
     ("effects.elongation", False, "effects.elongation"),
-    ("discretization.order_lam", 2, "discretization.order_lam"),
+    ("discretization.order_lam", 3, "discretization.order_lam"),  # not below order_phi = order_u = 3
     ("specimen.width_mm", 300.0, "zone A"),
-    ("discretization.corner_mesh_size_mm", 6.0, "must not exceed discretization.mesh_size_mm"),
+    ("discretization.corner_mesh_size_mm", 12.0, "must not exceed discretization.mesh_size_mm"),
     ("discretization.discrete_typo", 1.0, "discretization.discrete_typo"),
     ("discrete.end_rotation", "clamped", "discrete.end_rotation"),
 ])

@@ -182,7 +182,7 @@ def test_quick_maps(tmp_path, quick_cache):
     mod, d = run_quick("maps", tmp_path, quick_cache)
     rows = d.tables["maps"]
     assert [r["u0_mm"] for r in rows] == [10.0, 20.0]
-    assert rows[1]["angle_min_deg"] < rows[0]["angle_min_deg"] < 90.0  # the yarns close with the load
+    assert 0.0 < rows[0]["gamma_max_deg"] < rows[1]["gamma_max_deg"] < 90.0  # the shear grows with the load
     for u in ("10", "20"):
         assert (d.out / f"map_{u}mm.png").stat().st_size > 20000
         assert (d.out / f"map_{u}mm.vtu").exists() and (d.out / f"yarns_{u}mm.vtp").exists()

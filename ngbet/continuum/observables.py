@@ -1,6 +1,6 @@
 """Observables of a converged state: reactions, energy, mid-axis profile, fields.
 
-Reactions by the paper's volume-integral method (MODEL.md §3): the residual of the full
+Reactions by the paper's volume-integral method (docs/model.md, *Reactions*): the residual of the full
 Lagrangian tested with ψ_u = (X/L, 0) gives the force R per unit thickness [N/m] on the moving
 clamp; with ψ_φ = X/L it gives the double force T per unit thickness [N m/m = N]. At equilibrium
 only the Dirichlet rows of the residual are non-zero, and ψ is 1 on Σ2 and 0 on Σ1, so
@@ -123,9 +123,7 @@ def field_functions(problem: ContinuumProblem, wanted: tuple[str, ...]) -> dict[
     out: dict[str, Any] = {"displacement": problem.u}
     if "shear_angle" in wanted:
         gamma = physics.shear_angle(inv.i4, inv.i6, inv.i8, problem.scene.specimen.cos0)
-        out["shear_angle_deg"] = gamma * (180.0 / math.pi)
-        theta = math.degrees(math.acos(problem.scene.specimen.cos0)) + gamma * (180.0 / math.pi)
-        out["yarn_angle_deg"] = ngs.IfPos(theta - 90.0, 180.0 - theta, theta)  # acute angle between the yarns as lines
+        out["shear_angle_deg"] = gamma * (180.0 / math.pi)  # the change of the angle between the yarns
     if "elongation" in wanted:
         out["elongation_1"] = ngs.sqrt(inv.i4) - 1
         out["elongation_2"] = ngs.sqrt(inv.i6) - 1

@@ -1,4 +1,4 @@
-r"""Energy terms of the constrained micromorphic continuum (Madeo et al. 2016, MODEL.md §2).
+r"""Energy terms of the constrained micromorphic continuum (Madeo et al. 2016; docs/model.md, *Energy*).
 
 Pure functions from NGSolve CoefficientFunctions to CoefficientFunctions. Per unit reference
 volume [Pa], with F = I + ∇u, C = FᵀF and the yarn directions m1 (thick), m2 (thin):
@@ -6,20 +6,20 @@ volume [Pa], with F = I + ∇u, C = FᵀF and the yarn directions m1 (thick), m2
 .. math::
 
     i_4 = m_1\cdot C m_1,\quad i_6 = m_2\cdot C m_2,\quad i_8 = m_1\cdot C m_2 \\
-    W_{sh} = \tfrac12 K_{sh} i_8^2,\qquad
+    W_{sh} = \tfrac12 K_{sh} i_8^2\ \text{(or a stiffening law, below)},\qquad
     W_{el} = \tfrac12 K_{el}\,[(\sqrt{i_4}-1)^2 + (\sqrt{i_6}-1)^2] \\
     W_{b} = \tfrac12 \alpha_1 (\nabla\varphi\cdot m_1)^2 + \tfrac12 \alpha_2 (\nabla\varphi\cdot m_2)^2
 
 and the constraint φ = i8 by a multiplier Λ (Λ(φ − i8)), a penalty ½K(φ − i8)², or the mixed
 penalty Λ(φ − i8) − Λ²/(2K) whose Λ is eliminated element by element.
 
-The paper prints W_b = ½⟨α, ∇φ⟩², which drops the squares; MODEL.md fixes the form above.
+The paper prints W_b = ½⟨α, ∇φ⟩², which drops the squares; docs/model.md (*Energy*) explains why the form above is used.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import ngsolve as ngs
 from ngsolve import CoefficientFunction as CF
@@ -36,7 +36,7 @@ def invariants(grad_u: CF, m1: CF, m2: CF) -> Invariants:
     """F = I + ∇u and the yarn invariants i4, i6 (squared stretches) and i8 (angle variation).
 
     i8 = m1·C·m2 − m1·m2 is measured from the rest state, so that it is 0 at rest for any yarn
-    angle (MODEL.md §2); for the orthogonal yarns of the paper (±45°) m1·m2 = 0 and nothing changes.
+    angle (docs/model.md, *Energy*); for the orthogonal yarns of the paper (±45°) m1·m2 = 0 and nothing changes.
     """
     F = ngs.Id(2) + grad_u
     Fm1 = F * m1
@@ -50,13 +50,68 @@ def shear_energy(i8: CF, K_sh: float) -> CF:
     return 0.5 * K_sh * i8 * i8
 
 
+def polynomial_shear_energy(i8: CF, K_sh: float, K_sh4: float, K_sh6: float) -> CF:
+    r"""W_sh = ½ K_sh i8² + ¼ K_sh4 i8⁴ + ⅙ K_sh6 i8⁶ [Pa]: a stiffening shear law.
+
+    The shear stress ∂W/∂i8 = K_sh i8 + K_sh4 i8³ + K_sh6 i8⁵ is the odd polynomial that fabric
+    shear data are usually fitted with (the normalised shear force of the Cao et al. 2008
+    benchmark as a polynomial in the shear angle; hyperelastic fabric models writing the shear
+    energy as a polynomial in the shear invariant). With K_sh4 = K_sh6 = 0 it is the quadratic law.
+    """
+    s = i8 * i8
+    return s * (0.5 * K_sh + s * (0.25 * K_sh4 + s * (K_sh6 / 6.0)))
+
+
+#: x = (i8 / sin γ_lock)² beyond which the locking law continues by its second-order Taylor
+#: polynomial in x, so that Newton iterates past the locking angle see a finite, convex energy
+LOCKING_CUTOFF = 0.95
+
+
+def locking_shear_energy(i8: CF, K_sh: float, K_lock: float, gamma_lock_deg: float) -> CF:
+    r"""W_sh = ½ K_sh i8² − ½ K_lock s² [ln(1 − x) + x], x = i8²/s², s = sin γ_lock [Pa].
+
+    A limiting-angle law in the manner of Gent's limited-extensibility energy: the shear stress
+    ∂W/∂i8 = K_sh i8 + K_lock i8 x/(1 − x) starts as the quadratic law's (slope K_sh: the extra
+    term is O(i8³)) and grows without bound as the yarns close to the locking angle γ_lock
+    (i8 = sin γ for inextensible yarns at ±45°). Beyond x = :data:`LOCKING_CUTOFF` the logarithm is
+    replaced by its second-order Taylor polynomial (C² join), so that the energy stays finite.
+    """
+    s2 = math.sin(math.radians(gamma_lock_deg)) ** 2 if isinstance(gamma_lock_deg, (int, float)) \
+        else ngs.sin(gamma_lock_deg * (math.pi / 180.0)) ** 2
+    x = i8 * i8 / s2
+    xc = LOCKING_CUTOFF
+    dx = x - xc
+    taylor = math.log(1.0 - xc) - dx / (1.0 - xc) - dx * dx / (2.0 * (1.0 - xc) ** 2)
+    log1mx = ngs.IfPos(dx, taylor, ngs.log(1.0 - ngs.IfPos(dx, xc, x)))
+    return 0.5 * K_sh * i8 * i8 - 0.5 * K_lock * s2 * (log1mx + x)
+
+
+#: the shear laws a scene can name (``effects.shear_law``) and the material keys each one reads
+SHEAR_LAWS: dict[str, tuple[str, ...]] = {
+    "quadratic": ("K_sh",),
+    "polynomial": ("K_sh", "K_sh4", "K_sh6"),
+    "locking": ("K_sh", "K_lock", "gamma_lock_deg"),
+}
+
+
+def shear_law_energy(i8: CF, law: str, coefficients: dict[str, Any]) -> CF:
+    """The shear energy of ``law`` (a key of :data:`SHEAR_LAWS`) with its material coefficients
+    (floats, or NGSolve Parameters to differentiate with respect to)."""
+    c = [coefficients[k] for k in SHEAR_LAWS[law]]
+    if law == "polynomial":
+        return polynomial_shear_energy(i8, *c)
+    if law == "locking":
+        return locking_shear_energy(i8, *c)
+    return shear_energy(i8, *c)
+
+
 def elongation_energy(i4: CF, i6: CF, K_el: float) -> CF:
     """W_el = ½ K_el [(√i4 − 1)² + (√i6 − 1)²]: equivalent elongation (decrimping, slip)."""
     return 0.5 * K_el * ((ngs.sqrt(i4) - 1) ** 2 + (ngs.sqrt(i6) - 1) ** 2)
 
 
 def bending_energy(grad_phi: CF, m1: CF, m2: CF, alpha1: float, alpha2: float) -> CF:
-    """W_b = ½ α1 φ,1² + ½ α2 φ,2² with φ,i = ∇φ·m_i (corrected form, MODEL.md §2)."""
+    """W_b = ½ α1 φ,1² + ½ α2 φ,2² with φ,i = ∇φ·m_i (corrected form, docs/model.md, *Energy*)."""
     p1 = ngs.InnerProduct(grad_phi, m1)
     p2 = ngs.InnerProduct(grad_phi, m2)
     return 0.5 * alpha1 * p1 * p1 + 0.5 * alpha2 * p2 * p2
@@ -80,7 +135,7 @@ def mixed_penalty_constraint(phi: CF, i8: CF, lam: CF, K: float) -> CF:
 
 def shear_angle(i4: CF, i6: CF, i8: CF, cos0: float = 0.0) -> CF:
     """γ [rad]: the angle between the deformed yarn directions is θ0 + γ, θ0 = acos(m1·m2) the
-    rest angle (MODEL.md §4: 90° + γ at ±45°, where sin γ = −i8 / √(i4 i6)).
+    rest angle (docs/model.md, *Ideal kinematics*: 90° + γ at ±45°, where sin γ = −i8 / √(i4 i6)).
 
     ``cos0`` = m1·m2; i8 is measured from rest (:func:`invariants`), so cos θ = (i8 + cos0)/√(i4 i6).
     """

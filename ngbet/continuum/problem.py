@@ -42,7 +42,7 @@ triangles), condensed: the same discrete solution, since the L2 projection onto 
 the identity on φ − i8, but Newton linearizes around the iterate's Λ instead of K(φ − i8), which
 the predictor makes huge for large K (K = 1e10: 56 load steps pointwise, 6 in this form).
 
-Dirichlet data (MODEL.md §2): u = 0, φ = 0 on Σ1 (``left``); u = (u0, 0), φ = 0 on Σ2
+Dirichlet data (docs/model.md, *Boundary conditions*): u = 0, φ = 0 on Σ1 (``left``); u = (u0, 0), φ = 0 on Σ2
 (``right``). The load parameter λ of the solver is u0 in metres.
 """
 
@@ -120,7 +120,7 @@ class ContinuumProblem:
         inv = physics.invariants(ngs.Grad(u), self.m1, self.m2)
         base = physics.elongation_energy(inv.i4, inv.i6, mat.K_el)
         if eff.shear:
-            base = base + physics.shear_energy(inv.i8, mat.K_sh)
+            base = base + physics.shear_law_energy(inv.i8, eff.shear_law, vars(mat))
         self.K_ref = mat.K_sh if mat.K_sh > 0 else mat.K_el
         constraint = jac_constraint = None
         self.K_s: CF | float = 0.0  # the stabilization modulus (a CF when element-wise)
@@ -164,7 +164,7 @@ class ContinuumProblem:
         self.free_all = np.array(list(self.X.FreeDofs()), dtype=bool)
         self.freedofs = self.X.FreeDofs(self.a_jac.condense)
         self.dirichlet = ~self.free_all
-        # reaction test fields (MODEL.md §3): ψ_u = (X/L, 0), ψ_φ = X/L; exact in the spaces
+        # reaction test fields (docs/model.md, *Reactions*): ψ_u = (X/L, 0), ψ_φ = X/L; exact in the spaces
         self.psi_u = ngs.GridFunction(self.X)
         self.psi_u.components[0].Set(CF((ngs.x / sp.L, 0)))
         self.psi_phi = None

@@ -13,6 +13,7 @@ import numpy as np
 from . import observables as obs
 from ..output import RunWriter, plot_force
 from ..scene import Scene
+from .output import write_vtk
 from .solver import ConvergenceError, NewtonSettings, StepInfo, continuation
 
 log = logging.getLogger(__name__)
@@ -27,10 +28,14 @@ def newton_settings(scene: Scene) -> NewtonSettings:
 def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
     """Run a continuum scene into ``out`` (called by :func:`ngbet.run.run`)."""
     from .problem import ContinuumProblem
+    from .estimate import RunEstimates, run_to_accuracy
 
+    if scene.discretization.target_error > 0:  # accuracy on demand: the discretization is chosen
+        return run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress))
     t0 = time.perf_counter()
     with RunWriter(out, scene) as writer:
         problem = ContinuumProblem(scene)
+        estimates = RunEstimates(problem)
         t_setup = time.perf_counter() - t0
         sp, o = scene.specimen, scene.outputs
         warnings = []
@@ -71,6 +76,8 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             for k, v in problem.timers.items():
                 row[k] = v - state["timers"][k]
             state["t_prev"], state["timers"] = now, dict(problem.timers)
+            row.update(estimates.row(info.lam, row.get("force_N")))
+            state["t_prev"] = time.perf_counter()  # the estimate's time is not the next step's
             profile = None
             if o.profile:
                 X, uy = obs.midaxis_profile(problem, o.profile_points)
@@ -86,6 +93,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
                                 "condensed": bool(problem.a_jac.condense), "setup_s": t_setup,
                                 "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None}
         L = scene.loading
+        t_cont = time.perf_counter()
         try:
             res = continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                                max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
@@ -101,6 +109,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             raise
         if bar is not None:
             bar.close()
+        info.update(estimates.summary(time.perf_counter() - t_cont))
         if o.vtk:
             write_vtk(problem, out / "fields")
         info.update(_solver_info(problem, res))
@@ -129,13 +138,6 @@ def _solver_info(problem: Any, res: Any) -> dict[str, Any]:
         d["newton_iterations"] = sum(s.iterations for s in res.steps) + sum(
             a.report.iterations for a in res.attempts if not a.report.converged)
     return d
-
-
-def write_vtk(problem: Any, path: Path) -> None:
-    """Final fields for ParaView (``path``.vtu); warp by 'displacement' to see the shape."""
-    funcs = obs.field_functions(problem, problem.scene.outputs.fields)
-    ngs.VTKOutput(problem.mesh, coefs=list(funcs.values()), names=list(funcs), filename=str(path),
-                  subdivision=max(0, problem.scene.discretization.p_u - 1), legacy=False).Do()
 
 
 def diagnose_stability(problem: Any, k: int = 3) -> str:

@@ -1,4 +1,4 @@
-"""Discrete model of the bias extension test (paper section 3; MODEL.md section 5).
+"""Discrete model of the bias extension test (paper section 3; docs/discrete.md).
 
 Two families of co-rotational Euler-Bernoulli beams (thick yarns along m1 with EA1, EI1; thin
 yarns along m2 with EA2, EI2), joined at each crossing by a slip spring K_slip (relative

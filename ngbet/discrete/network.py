@@ -17,7 +17,7 @@ slip relative to each other (the slip spring ties them elastically). Every yarn 
 nodes: its two end nodes, its crossing nodes in order along m_k, and ``elements_per_segment - 1``
 equally spaced interior nodes between consecutive stations.
 
-BET zones per crossing (MODEL.md section 4): A when neither yarn ends on a clamp, B when exactly
+BET zones per crossing (docs/model.md, *Ideal kinematics*): A when neither yarn ends on a clamp, B when exactly
 one does, C when both end on the same clamp ("other" when they end on different clamps, which
 only happens for L < 2 W / tan a and is not one of the three ideal zones).
 

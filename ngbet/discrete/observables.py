@@ -6,7 +6,7 @@
   and the family-1 yarn, each yarn's rotation r_k taken as the mean rotation of its two chords
   adjacent to the crossing (the springs K_phi act on the nodal rotations theta instead, which
   equal r_k only when the bending stiffness dominates K_phi). With m1 = (cos a, sin a), m2 = (-cos a, sin a) the angle between
-  the direction vectors opens from pi - 2a to pi - 2a + gamma, as in MODEL.md section 4 (gamma > 0
+  the direction vectors opens from pi - 2a to pi - 2a + gamma, as in docs/model.md, *Ideal kinematics* (gamma > 0
   in the BET);
 - zone means of gamma over the crossings of zones A, B, C;
 - mid-axis profile: u_y where the yarns cross Y = W/2 in the reference configuration (linear
@@ -16,11 +16,14 @@
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
 
 from .network import Network
+
+log = logging.getLogger(__name__)
 
 
 def crossing_slip(net: Network, u: np.ndarray) -> np.ndarray:
@@ -137,18 +140,23 @@ def save_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: i
 
 
 def plot_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: ignore[no-untyped-def]
-    """PNG of the deformed yarns coloured by the angle between the yarns; thick yarns drawn thick."""
-    import matplotlib
+    """PNG of the deformed yarns coloured by the shear angle γ (0 at rest, the convention of the
+    continuum's maps); thick yarns drawn thick, axes in mm."""
+    try:
+        import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        from matplotlib.collections import LineCollection
+    except ImportError:
+        log.warning("no yarn figure: matplotlib is not installed (pip install 'ngbet[viz]')")
+        return
 
     x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3
-    ang = 180.0 - 2 * math.degrees(net.angle) + np.degrees(node_gamma(net, u))
+    ang = np.degrees(node_gamma(net, u))
     seg_ang = 0.5 * (ang[net.beams[:, 0]] + ang[net.beams[:, 1]])
     norm = plt.Normalize(float(seg_ang.min()), max(float(seg_ang.max()), float(seg_ang.min()) + 1e-6))
-    fig, ax = plt.subplots(figsize=(11, 4.8))
+    fig, ax = plt.subplots(figsize=(11, 3.6))
     lc = None
     for fam, lw, ls in ((2, 0.6, (0, (3, 1))), (1, 1.8, "solid")):
         sel = net.beam_family == fam
@@ -162,7 +170,9 @@ def plot_state(path, net: Network, u: np.ndarray, u0: float) -> None:  # type: i
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
     ax.set_title(f"discrete model, u0 = {u0 * 1e3:.1f} mm")
-    fig.colorbar(lc, ax=ax, label="angle between the yarns [deg]", shrink=0.8)
+    from ..plotting import SHEAR_LABEL
+
+    fig.colorbar(lc, ax=ax, label=SHEAR_LABEL, fraction=0.025, pad=0.02)
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=140)

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..kinematics import gamma_a
-from ..output import RunWriter
+from ..output import RunWriter, plot_force
 from ..scene import Scene, Specimen
 from . import observables as ob
 from .model import ENERGY_PARTS, NetworkModel
@@ -29,7 +29,7 @@ from .solver import ConvergenceError, StepControl, StepInfo, solve_path
 
 log = logging.getLogger(__name__)
 
-SHAPE_STATIONS_MM = (37.0,)  # MODEL.md section 2: shapes are shown at 37 mm and at the end (56 mm)
+SHAPE_STATIONS_MM = (37.0,)  # the paper shows shapes at 37 mm and at the end (56 mm)
 
 
 def step_control(scene: Scene) -> StepControl:
@@ -164,6 +164,8 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
         info["max_slip_mm"] = max((r["max_slip_mm"] for r in rows), default=0.0)
         info["t_solve_s"] = time.perf_counter() - t0 - t_build
         summary = writer.summary(info, status, error)
+        if scene.outputs.plot and rows:
+            plot_force(out)
         if failure is not None:
             raise failure
         return summary

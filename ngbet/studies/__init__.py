@@ -1,7 +1,7 @@
 """Parameter studies of ngbet: one module per study, each runnable as ``python -m ngbet.studies.NAME``.
 
 Each module defines ``build(quick: bool) -> ngbet.study.Study`` and ``main``. ``ngbet study NAME``
-runs the same thing. See studies/README.md.
+runs the same thing. See docs/studies.md.
 """
 
 STUDIES = {
@@ -12,4 +12,5 @@ STUDIES = {
     "curves": "load-displacement and double-force-displacement curves with the ideal-kinematics estimate",
     "maps": "deformed specimen coloured by the angle between the yarns, yarns drawn on it (37 and 56 mm)",
     "compare": "continuum and discrete model side by side",
+    "reference": "reference-grade force (37, 56 mm) and profile by hp extrapolation, with its bound; hp vs uniform convergence",
 }

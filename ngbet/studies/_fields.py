@@ -1,7 +1,7 @@
 """Fields of continuum runs (fields*.vtu) for the studies: outlines, yarn lines, pyvista maps.
 
 Everything here reads VTK files, so figures can be redrawn from the study folder without solving.
-Coordinates and displacements in the VTK files are in metres; the figures are in millimetres.
+Coordinates and displacements in the VTK files are in millimetres, as the figures.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ def _pv() -> Any:
     return pv
 
 
-def sample_displacement(mesh: Any, pts_m: np.ndarray) -> np.ndarray:
-    """Displacement [m] (n, 2) of the run's field at reference points (n, 2) [m]."""
+def sample_displacement(mesh: Any, pts_mm: np.ndarray) -> np.ndarray:
+    """Displacement [mm] (n, 2) of the run's field at reference points (n, 2) [mm]."""
     pv = _pv()
-    p3 = np.c_[pts_m, np.zeros(len(pts_m))]
+    p3 = np.c_[pts_mm, np.zeros(len(pts_mm))]
     s = pv.PolyData(p3).sample(mesh, tolerance=1e-9)
     u = np.asarray(s["displacement"])[:, :2]
     bad = np.asarray(s["vtkValidPointMask"]) == 0
@@ -45,7 +45,7 @@ def outline(vtu: str | Path, L_mm: float, W_mm: float, n: int = 120) -> tuple[np
     s = np.linspace(0, 1, int(nw), endpoint=False)
     ref = np.r_[np.c_[t * L_mm, 0 * t], np.c_[L_mm + 0 * s, s * W_mm], np.c_[L_mm - t * L_mm, W_mm + 0 * t],
                 np.c_[0 * s, W_mm - s * W_mm], [[0.0, 0.0]]]
-    u = sample_displacement(mesh, ref * 1e-3) * 1e3
+    u = sample_displacement(mesh, ref)
     return ref, ref + u
 
 
@@ -54,7 +54,7 @@ def midline_field(vtu: str | Path, L_mm: float, W_mm: float, name: str, n: int =
     pv = _pv()
     mesh = pv.read(str(vtu))
     X = np.linspace(0, L_mm, n)
-    s = pv.PolyData(np.c_[X * 1e-3, np.full(n, 0.5 * W_mm * 1e-3), np.zeros(n)]).sample(mesh, tolerance=1e-9)
+    s = pv.PolyData(np.c_[X, np.full(n, 0.5 * W_mm), np.zeros(n)]).sample(mesh, tolerance=1e-9)
     return X, np.asarray(s[name])
 
 
@@ -94,7 +94,7 @@ def deformed_yarns(vtu: str | Path, L_mm: float, W_mm: float, angle_deg: float, 
     ref = yarn_lines_reference(L_mm, W_mm, angle_deg, spacing_mm)
     out: dict[int, list[np.ndarray]] = {}
     for fam, lines in ref.items():
-        out[fam] = [pl + sample_displacement(mesh, pl * 1e-3) * 1e3 for pl in lines]
+        out[fam] = [pl + sample_displacement(mesh, pl) for pl in lines]
     return out
 
 
@@ -114,18 +114,15 @@ def lines_polydata(lines: list[np.ndarray], scale: float = 1.0) -> Any:
 def warped_mm(vtu: str | Path) -> Any:
     """The run's mesh in the deformed configuration, in mm, with all its fields."""
     pv = _pv()
-    mesh = pv.read(str(vtu))
-    u = np.asarray(mesh["displacement"])
-    mesh.points = (np.asarray(mesh.points) + np.c_[u[:, :2], np.zeros(len(u))]) * 1e3
-    return mesh
+    return pv.read(str(vtu)).warp_by_vector("displacement")
 
 
 def write_yarns_vtp(path: str | Path, yarns_mm: dict[int, list[np.ndarray]]) -> None:
-    """Deformed yarns for ParaView [m, as the fields], a cell array 'family' (1 thick, 2 thin)."""
+    """Deformed yarns for ParaView [mm, as the fields], a cell array 'family' (1 thick, 2 thin)."""
     polys = []
     for fam, lines in yarns_mm.items():
         if lines:
-            p = lines_polydata(lines, 1e-3)
+            p = lines_polydata(lines)
             p.cell_data["family"] = np.full(p.n_cells, fam, dtype=np.int32)
             polys.append(p)
     merged = polys[0].merge(polys[1:]) if len(polys) > 1 else polys[0]
@@ -134,19 +131,21 @@ def write_yarns_vtp(path: str | Path, yarns_mm: dict[int, list[np.ndarray]]) -> 
 
 def render_map(vtu: str | Path, yarns_mm: dict[int, list[np.ndarray]], png: str | Path, title: str,
                clim: tuple[float, float] | None = None) -> Path:
-    """Off-screen pyvista picture: the deformed specimen coloured by the angle between the yarns,
+    """Off-screen pyvista picture: the deformed specimen coloured by the shear angle γ, axes in mm,
     thick yarns (family 1) as thick black lines, thin yarns (family 2) as thin white lines."""
     pv = _pv()
     mesh = warped_mm(vtu)
     pl = pv.Plotter(off_screen=True, window_size=(1800, 800))
     pl.set_background("white")
-    pl.add_mesh(mesh, scalars="yarn_angle_deg", cmap="viridis", clim=clim, show_scalar_bar=True,
-                scalar_bar_args={"title": "angle between the yarns [deg]", "color": "black", "vertical": True,
+    pl.add_mesh(mesh, scalars="shear_angle_deg", cmap="viridis", clim=clim, show_scalar_bar=True,
+                scalar_bar_args={"title": "shear angle [deg]", "color": "black", "vertical": True,
                                  "position_x": 0.88, "position_y": 0.15, "height": 0.7, "width": 0.05})
     if yarns_mm.get(1):
         pl.add_mesh(lines_polydata(yarns_mm[1]).translate((0, 0, 0.5)), color="black", line_width=5, label="thick yarns")
     if yarns_mm.get(2):
         pl.add_mesh(lines_polydata(yarns_mm[2]).translate((0, 0, 0.6)), color="white", line_width=1.5, label="thin yarns")
+    pl.show_bounds(xtitle="x [mm]", ytitle="y [mm]", n_zlabels=0, ztitle="", color="black", font_size=18,
+                   location="outer", ticks="outside", use_2d=True)
     pl.add_text(title, font_size=12, color="black")
     pl.add_legend(bcolor="lightgrey", face="line", size=(0.16, 0.12), loc="lower left")
     pl.view_xy()

@@ -1,11 +1,11 @@
-"""Continuum and discrete model side by side on the same specimen (issue 4).
+"""Continuum and discrete model side by side on the same specimen.
 
 The same scene runs once with model = "continuum" (Lagrange, h = 5 mm, p = 2) and once with
 model = "discrete" (paper Table 2, yarn spacing from the scene), and a third time as the network
 equivalent to the continuum (its energy per unit area; ngbet.discrete.equivalent). Figures: the
 force-displacement curves (with the ideal-kinematics estimate), the mid-axis profiles at 37
-and 56 mm, and the maps (continuum, Table 2 network) of the angle between the yarns at 37 and 56 mm (acute angle between
-the yarns as lines: 90 deg at rest, 90 - gamma in both models). The study shows whatever the
+and 56 mm, and the maps (continuum, Table 2 network) of the shear angle γ at 37 and 56 mm (0 at
+rest, the change of the angle between the yarns; the same convention in both models). The study shows whatever the
 models give; the report states whether they bend the specimen the same way (sign of u_y at
 X = L/4 on the mid-axis).
 
@@ -23,6 +23,7 @@ import numpy as np
 
 from ngbet.kinematics import ideal_force
 from ngbet.scene import Scene
+from ngbet.plotting import SHEAR_LABEL, force_curve
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
@@ -122,7 +123,7 @@ def report(data: StudyData, quick: bool) -> str:
 
 
 def _discrete_segments(npz: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    """Deformed yarn segments [mm], their family, and the acute angle between the yarns there [deg]."""
+    """Deformed yarn segments [mm], their family, and the shear angle γ there [deg]."""
     d = np.load(npz)
     x = d["X_mm"] + d["u_mm"]
     g = np.full(len(x), np.nan)
@@ -143,7 +144,7 @@ def _discrete_segments(npz: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndar
         for j in range(len(ch) - 1):
             segs.append(x[[ch[j], ch[j + 1]]])
             fam.append(int(d["yarn_family"][k]))
-            ang.append(90.0 - 0.5 * (gk[j] + gk[j + 1]))
+            ang.append(0.5 * (gk[j] + gk[j + 1]))
     return segs, np.array(fam), np.array(ang)
 
 
@@ -160,7 +161,8 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
         if i is None:
             continue
         rows = data.case_rows(i)
-        axs[0].plot([0] + [r["u0_mm"] for r in rows], [0] + [r["force_N"] for r in rows], "o-", ms=3, color=col, label=m)
+        dF = [r["dforce_du0_N_per_mm"] for r in rows] if rows and "dforce_du0_N_per_mm" in rows[0] else None
+        force_curve(axs[0], [r["u0_mm"] for r in rows], [r["force_N"] for r in rows], dF, label=m, color=col)
         for ax, s in ((axs[1], s1), (axs[2], s2)):
             X, uy = data.profile(i, s)
             if X:
@@ -184,16 +186,16 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     loads = sorted({u for _, u in files})
     if loads:
         fig, axs = plt.subplots(len(loads), 2, figsize=(14, 3.6 * len(loads)), squeeze=False)
-        norm = plt.Normalize(35, 95)
+        norm = plt.Normalize(0, 55)
         for row, u0 in enumerate(loads):
             ax = axs[row, 0]
             f = files.get(("continuum", u0))
             if f is not None:
                 from . import _fields as F
 
-                surf = F.warped_mm(f).extract_surface().triangulate()
+                surf = F.warped_mm(f).extract_surface(algorithm="dataset_surface").triangulate()
                 tri = np.asarray(surf.faces).reshape(-1, 4)[:, 1:]
-                ax.tripcolor(surf.points[:, 0], surf.points[:, 1], tri, np.asarray(surf["yarn_angle_deg"]),
+                ax.tripcolor(surf.points[:, 0], surf.points[:, 1], tri, np.asarray(surf["shear_angle_deg"]),
                              shading="gouraud", cmap="viridis", norm=norm)
                 sp = data.meta["base_scene"]["specimen"]
                 y = F.deformed_yarns(f, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"], 10.0)
@@ -218,8 +220,9 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
             for ax in axs[row]:
                 ax.set_aspect("equal")
                 ax.set_xlabel("x [mm]")
+                ax.set_ylabel("y [mm]")
         sm = plt.cm.ScalarMappable(norm=norm, cmap="viridis")
-        fig.colorbar(sm, ax=axs, label="angle between the yarns [deg]", shrink=0.7)
+        fig.colorbar(sm, ax=axs, label=SHEAR_LABEL, shrink=0.7)
         out.append(savefig(fig, data.out, "compare_maps"))
     return out
 

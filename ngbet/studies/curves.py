@@ -2,7 +2,7 @@
 
 Small load steps (2 mm) so that the curves are smooth. Beside the force: the ideal-kinematics
 estimate dE_id/du0 (inextensible yarns, no slip, no bending: shear energy of zones A and B,
-MODEL.md section 4) and the envelope-theorem check dE/du0 of the computed energy (central
+docs/model.md, *Ideal kinematics*) and the envelope-theorem check dE/du0 of the computed energy (central
 differences between steps), an independent second value of the reaction.
 
     python -m ngbet.studies.curves [--quick] [--workers N] [--scheduler ADDR] [--plot-only]

@@ -1,5 +1,6 @@
-"""Maps at 37 and 56 mm: the deformed specimen coloured by the angle between the yarns (acute angle
-between the yarns as lines, 90 deg at rest), with both yarn families drawn on it: thick yarns
+"""Maps at 37 and 56 mm: the deformed specimen coloured by the shear angle γ (0 at rest, the change
+of the angle between the yarns, as in the discrete model's figures), axes in mm, with both yarn
+families drawn on it: thick yarns
 (alpha1, family 1) as thick black lines, thin yarns (alpha2, family 2) as thin white lines;
 rendered off-screen with pyvista. The same for ParaView: map_XXmm.vtu (all fields, warp by
 'displacement') and yarns_XXmm.vtp (deformed yarns, cell array 'family').
@@ -52,8 +53,8 @@ def extract(rec: dict, run_dir: Path, out: Path) -> dict:
         import pyvista as pv
 
         m = pv.read(str(dst))
-        a = m["yarn_angle_deg"]
-        rows.append({"u0_mm": u0, "vtu": dst.name, "angle_min_deg": float(a.min()), "angle_max_deg": float(a.max())})
+        a = m["shear_angle_deg"]
+        rows.append({"u0_mm": u0, "vtu": dst.name, "gamma_min_deg": float(a.min()), "gamma_max_deg": float(a.max())})
     return {"maps": rows}
 
 
@@ -66,16 +67,16 @@ def plot(data: StudyData) -> list[Path]:
         vtu = data.out / r["vtu"]
         y = F.deformed_yarns(vtu, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"], YARN_SPACING_MM)
         png = data.out / f"map_{r['u0_mm']:g}mm.png"
-        F.render_map(vtu, y, png, f"continuum, u0 = {r['u0_mm']:g} mm: angle between the yarns; thick yarns black, thin yarns white")
+        F.render_map(vtu, y, png, f"continuum, u0 = {r['u0_mm']:g} mm: shear angle; thick yarns black, thin yarns white; x, y in mm")
         F.png_to_pdf(png, png.with_suffix(".pdf"))
         out.append(png)
     return out
 
 
 def report(data: StudyData) -> str:
-    L = ["# Angle maps", "", "| u0 [mm] | smallest angle between the yarns [deg] | largest [deg] | files |", "|---|---|---|---|"]
+    L = ["# Angle maps", "", "| u0 [mm] | smallest shear angle γ [deg] | largest [deg] | files |", "|---|---|---|---|"]
     for r in data.tables.get("maps", []):
-        L.append(f"| {r['u0_mm']:g} | {r['angle_min_deg']:.2f} | {r['angle_max_deg']:.2f} | map_{r['u0_mm']:g}mm.png/.pdf/.vtu, yarns_{r['u0_mm']:g}mm.vtp |")
+        L.append(f"| {r['u0_mm']:g} | {r['gamma_min_deg']:.2f} | {r['gamma_max_deg']:.2f} | map_{r['u0_mm']:g}mm.png/.pdf/.vtu, yarns_{r['u0_mm']:g}mm.vtp |")
     return "\n".join(L) + "\n"
 
 

@@ -191,20 +191,23 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
     fig.tight_layout()
     out.append(savefig(fig, data.out, "penalty_error"))
     # 3. discretization error of the Lagrange solutions
-    fig, axs = plt.subplots(1, 2, figsize=(11, 4.2))
+    # the convergence in h needs two mesh sizes (the quick grid has one: a single panel then)
+    two = len(g["h"]) > 1
+    fig, axs = plt.subplots(1, 2 if two else 1, figsize=(11 if two else 5.5, 4.2), squeeze=False)
+    axs = axs[0]
     lag = [r for r in a["rows"] if r["method"] == "lagrange" and r["status"] == "ok"]
     for h in g["h"]:
         rs = sorted((r for r in lag if r["h"] == h), key=lambda r: r["p"])
         axs[0].loglog([r["dofs"] for r in rs], [r["err_ref"] for r in rs], "o" + styles[h], label=f"h = {h:g} mm, p = {rs[0]['p'] if rs else ''}..")
         for r in rs:
             axs[0].annotate(f"p{r['p']}", (r["dofs"], r["err_ref"]), fontsize=7)
-    for p in g["p"]:
+    for p in g["p"] if two else ():
         rs = sorted((r for r in lag if r["p"] == p), key=lambda r: r["h"])
         if len(rs) > 1:
             axs[1].loglog([r["h"] for r in rs], [r["err_ref"] for r in rs], "o-", color=f"C{p - 1}",
                           label=f"p = {p}: order {C.fmt(a['orders_h'].get(p, math.nan), '.2f')}")
     axs[0].set_xlabel("dofs")
-    axs[1].set_xlabel("h [mm]")
+    axs[-1].set_xlabel("h [mm]" if two else "dofs")
     for ax in axs:
         ax.set_ylabel(f"|F_Lagrange - F_ref| / F_ref at {s2:g} mm")
         ax.grid(alpha=0.3, which="both")

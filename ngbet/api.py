@@ -1,0 +1,234 @@
+"""The Python API: run a scene and get its results as numpy arrays.
+
+    >>> import ngbet
+    >>> r = ngbet.simulate(ngbet.default_scene().with_changes(**{"loading.u0_mm": 20}))  # doctest: +SKIP
+    >>> r.u0_mm, r.force_N, r.profiles[20.0], r.fields()                                # doctest: +SKIP
+
+:func:`simulate` runs a scene exactly as ``ngbet run`` does (the same run folder, the same
+``summary.json``) and reads the folder back into a :class:`Result`. With ``out=None`` the run
+goes into a temporary folder: the tables (``results.csv``, ``profile.csv``, ``summary.json``) are
+read fully into memory, and the folder itself, which holds the final fields (``fields.vtu``), is
+kept as long as the :class:`Result` lives and deleted with it. Pass ``out`` to keep the files.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import shutil
+import tempfile
+import weakref
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import ConvergenceError
+from .scene import Scene
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Result", "simulate", "load_result"]
+
+
+def simulate(scene: Scene, out: str | Path | None = None, progress: bool = False) -> Result:
+    """Run ``scene`` and return its :class:`Result`.
+
+    Parameters
+    ----------
+    scene : Scene
+        The scene, e.g. ``ngbet.default_scene().with_changes(**{"material.alpha1": 200.0})``.
+    out : str or Path, optional
+        Run folder (created; the layout of ``ngbet run``, see docs/outputs.md). ``None``: a
+        temporary folder that lives as long as the returned :class:`Result`; the force plot file
+        is then not drawn (``outputs.plot`` is switched off; draw it with :meth:`Result.plot`).
+    progress : bool
+        Show a progress bar over the clamp displacement.
+
+    Returns
+    -------
+    Result
+
+    Raises
+    ------
+    ngbet.errors.ConvergenceError
+        When the load cannot be carried to the end. The exception's ``result`` attribute is the
+        :class:`Result` of the converged steps (with ``status == "failed"``).
+    ngbet.SceneError
+        A bad scene.
+    """
+    from .run import run
+
+    tmp = None
+    if out is None:
+        tmp = Path(tempfile.mkdtemp(prefix="ngbet-"))
+        out = tmp
+        if scene.outputs.plot:
+            scene = scene.with_changes(**{"outputs.plot": False})
+    out = Path(out)
+    try:
+        run(scene, out, progress=progress)
+    except ConvergenceError as err:
+        err.result = load_result(out, _owned=tmp)  # type: ignore[attr-defined]
+        raise
+    except BaseException:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return load_result(out, _owned=tmp)
+
+
+def load_result(out: str | Path, _owned: Path | None = None) -> Result:
+    """Read a run folder (written by ``ngbet run`` or :func:`simulate`) into a :class:`Result`."""
+    out = Path(out)
+    summary = json.loads((out / "summary.json").read_text())
+    columns = _read_columns(out / "results.csv")
+    profiles = _read_profiles(out / "profile.csv")
+    res = Result(out, Scene.from_dict(summary["scene"]), summary, columns, profiles)
+    if _owned is not None:
+        res._finalizer = weakref.finalize(res, shutil.rmtree, str(_owned), True)
+    return res
+
+
+class Result:
+    """The outcome of one run, in memory.
+
+    Attributes
+    ----------
+    out : Path
+        The run folder (a temporary one with ``simulate(scene)``; it lives as long as this object).
+    scene : Scene
+        The complete scene that was run.
+    summary : dict
+        ``summary.json``: status, dofs, timings, versions, warnings (docs/outputs.md).
+    columns : dict[str, numpy.ndarray]
+        Every column of ``results.csv``, one entry per converged load step; also reachable as
+        attributes (``r.gamma_centre_deg``).
+    profiles : dict[float, tuple[numpy.ndarray, numpy.ndarray]]
+        Mid-axis profile per converged step: ``{u0_mm: (X_mm, uy_mm)}``.
+    """
+
+    def __init__(self, out: Path, scene: Scene, summary: dict[str, Any], columns: dict[str, np.ndarray],
+                 profiles: dict[float, tuple[np.ndarray, np.ndarray]]) -> None:
+        self.out = out
+        self.scene = scene
+        self.summary = summary
+        self.columns = columns
+        self.profiles = profiles
+        self._finalizer: Any = None
+
+    # per-step arrays ------------------------------------------------------------------------
+    def __getattr__(self, name: str) -> np.ndarray:
+        columns = self.__dict__.get("columns", {})
+        if name in columns:
+            return columns[name]
+        raise AttributeError(f"Result has no attribute or results.csv column {name!r}; columns: {', '.join(columns)}")
+
+    @property
+    def status(self) -> str:
+        """``"ok"``, or ``"failed"`` when the final load was not reached."""
+        return str(self.summary.get("status"))
+
+    @property
+    def u0_mm(self) -> np.ndarray:
+        """Clamp displacement of each converged step [mm]."""
+        return self.columns["u0_mm"]
+
+    @property
+    def force_N(self) -> np.ndarray:
+        """Reaction force on the moving clamp [N] (the whole specimen thickness)."""
+        return self.columns["force_N"]
+
+    @property
+    def double_force(self) -> np.ndarray | None:
+        """Reaction double force on the moving clamp [N m] (column ``double_force_Nm``); None
+        when the run has none (the discrete model, or a scene without bending)."""
+        return self.columns.get("double_force_Nm")
+
+    @property
+    def energy(self) -> np.ndarray | None:
+        """Total stored energy [J] (column ``energy_J``); None when not computed."""
+        return self.columns.get("energy_J")
+
+    @property
+    def force_error_N(self) -> np.ndarray | None:
+        """Estimated discretization error of the force [N], when the run estimates it; else None."""
+        return self.columns.get("force_error_N")
+
+    # files ----------------------------------------------------------------------------------
+    def fields(self, step: int | None = None) -> Any:
+        """The fields on the mesh as a ``pyvista.UnstructuredGrid`` (needs ``pip install ngbet[viz]``).
+
+        ``step=None``: the final fields (``fields.vtu``); ``step=k``: ``fields_00k.vtu``, written
+        when ``outputs.vtk_every_step`` is on. Coordinates and displacements are in mm; warp by
+        ``displacement`` to see the deformed specimen (docs/outputs.md).
+        """
+        path = self.out / ("fields.vtu" if step is None else f"fields_{step:03d}.vtu")
+        if not path.exists():
+            raise FileNotFoundError(f"{path} does not exist: the continuum model writes it when outputs.vtk is true"
+                                    + ("" if step is None else " and outputs.vtk_every_step is true"))
+        try:
+            import pyvista as pv
+        except ImportError as exc:  # pragma: no cover - depends on the environment
+            raise ImportError("Result.fields() reads the VTU file with pyvista: pip install 'ngbet[viz]'") from exc
+        return pv.read(str(path))
+
+    def to_csv(self, path: str | Path) -> Path:
+        """Write the per-step table (every column of results.csv) to ``path``, LF line endings."""
+        path = Path(path)
+        names = list(self.columns)
+        with path.open("w", newline="") as fh:
+            w = csv.writer(fh, lineterminator="\n")
+            w.writerow(names)
+            for i in range(len(self.u0_mm)):
+                w.writerow([repr(float(self.columns[n][i])) for n in names])
+        return path
+
+    def plot(self, ax: Any = None, label: str | None = None, **kwargs: Any) -> Any:
+        """Draw force against clamp displacement on ``ax`` (a new figure when None); returns ax.
+
+        Between converged steps the curve is the cubic Hermite interpolant of the force and its
+        derivative dF/du0 when the run records the derivative (column ``dforce_du0_N_per_mm``),
+        else straight lines; the converged steps are marked.
+        """
+        from .plotting import force_curve
+
+        if ax is None:
+            import matplotlib.pyplot as plt
+
+            _, ax = plt.subplots(figsize=(5.5, 4))
+        force_curve(ax, self.u0_mm, self.force_N, self.columns.get("dforce_du0_N_per_mm"), label=label, **kwargs)
+        ax.set_xlabel("clamp displacement $u_0$ [mm]")
+        ax.set_ylabel("force [N]")
+        return ax
+
+    def __repr__(self) -> str:
+        n = len(self.u0_mm)
+        last = f", u0 = {self.u0_mm[-1]:g} mm, force = {self.force_N[-1]:.4g} N" if n else ""
+        return f"<ngbet.Result {self.scene.model} {self.status}: {n} steps{last}; {self.out}>"
+
+
+def _read_columns(path: Path) -> dict[str, np.ndarray]:
+    if not path.exists():
+        return {"u0_mm": np.zeros(0), "force_N": np.zeros(0)}
+    with path.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    names = list(rows[0]) if rows else []
+    out: dict[str, np.ndarray] = {}
+    for n in names:
+        try:
+            out[n] = np.array([float(r[n]) if r[n] != "" else np.nan for r in rows])
+        except ValueError:
+            out[n] = np.array([r[n] for r in rows])
+    out.setdefault("u0_mm", np.zeros(0))
+    out.setdefault("force_N", np.full(len(rows), np.nan))
+    return out
+
+
+def _read_profiles(path: Path) -> dict[float, tuple[np.ndarray, np.ndarray]]:
+    if not path.exists():
+        return {}
+    from .output import read_profiles
+
+    return {u0: (np.asarray(X), np.asarray(uy)) for u0, (X, uy) in read_profiles(path).items()}

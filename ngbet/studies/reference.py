@@ -1,0 +1,198 @@
+"""Reference-grade force and profile of the paper's scene, and how fast the discretizations converge.
+
+Reference: on the 10 mm mesh graded to 0.25 mm at the four clamp corners, the orders p = 4, 5, 6
+(:data:`REF_FAMILY`). Their forces approach the limit geometrically (the differences halve from
+p to p + 1), so the limit is Aitken's extrapolation F∞ = F6 − (F6 − F5)² / ((F6 − F5) − (F5 − F4)).
+The bound given with it is twice the extrapolation step |F∞ − F6|: it covers the other
+extrapolations measured (the hp diagonal (0.5, 2), (0.25, 3), (0.1, 4) extrapolates to 0.029 N
+below at 56 mm). Finer corners cannot extend the sequence: at p ≥ 3, corners of 0.05 mm and
+below lose stability before 56 mm (a mode of the discretization at the corner). The reference
+profile is p = 6's, with the bound max|u_y,6 − u_y,5|.
+
+Convergence (error against the reference, vs dofs): uniform meshes at p = 2 (h = 20, 10, 5 mm:
+algebraic, the force like h^1.1), corner-graded at p = 2 (corner 2.5 … 0.25 mm: saturates at
+the bulk error), and hp (corner and order together: (2.5 mm, 2), (1, 3), (0.5, 4), (0.25, 5)),
+whose error falls exponentially in the cube root of the dofs: the report fits log e against
+N^(1/3) and against log N and says which fits better.
+
+    python -m ngbet.studies.reference [--quick] [--workers N] [--plot-only]
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ngbet.study import Study, StudyData, main_for, savefig
+
+from . import _common as C
+
+GRADE = "discretization.corner_mesh_size_mm"
+OFF = {"outputs.error_estimate": "off"}
+#: (corner size [mm], p) on the 10 mm mesh
+REF_FAMILY = ((0.25, 4), (0.25, 5), (0.25, 6))
+HP_FAMILY = ((2.5, 2), (1.0, 3), (0.5, 4), (0.25, 5))
+GRADED_P2 = ((2.5, 2), (1.0, 2), (0.5, 2), (0.25, 2))
+UNIFORM_P2 = (20.0, 10.0, 5.0)
+QUICK_REF = ((0.5, 2), (0.5, 3), (0.5, 4))
+
+
+def graded(c: float, p: int, h: float = 10.0) -> dict[str, Any]:
+    return {**C.lagrange(h, p), GRADE: float(c), **OFF}
+
+
+def families(quick: bool) -> dict[str, list[dict[str, Any]]]:
+    if quick:
+        return {"reference": [graded(c, p, 20.0) for c, p in QUICK_REF],
+                "uniform": [{**C.lagrange(20.0, 2), **OFF}], "graded": [], "hp": [graded(2.5, 2, 20.0)]}
+    return {"reference": [graded(c, p) for c, p in REF_FAMILY],
+            "uniform": [{**C.lagrange(h, 2), **OFF} for h in UNIFORM_P2],
+            "graded": [graded(c, p) for c, p in GRADED_P2],
+            "hp": [graded(c, p) for c, p in HP_FAMILY]}
+
+
+def build(quick: bool = False) -> Study:
+    fam = families(quick)
+    cases = C.unique([c for cs in fam.values() for c in cs])
+    return Study("reference", C.base_scene(quick), cases, description=__doc__ or "",
+                 plot=lambda d: plot(d, quick), report=lambda d: report(d, quick),
+                 profile_stations=C.stations(quick))
+
+
+def aitken(F: Sequence[float]) -> tuple[float, float]:
+    """Limit of a geometrically converging sequence from its last three terms, and the bound
+    2 |F∞ − F_last| (the last term itself and |F_last − F_prev| when the differences do not shrink)."""
+    f1, f2, f3 = (float(x) for x in F[-3:])
+    d1, d2 = f2 - f1, f3 - f2
+    if d1 == 0 or d2 / d1 <= 0 or abs(d2 / d1) >= 1:
+        return f3, abs(d2)
+    lim = f3 - d2 * d2 / (d2 - d1)
+    return lim, 2 * abs(lim - f3)
+
+
+def _case(data: StudyData, prm: dict[str, Any]) -> int | None:
+    keys = {k: v for k, v in prm.items() if k != "outputs.error_estimate"}
+    for c in data.find(**keys):
+        if C.ok(data, c):
+            return c
+    return None
+
+
+def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
+    """The reference force at both stations with its bound, and the reference profile at the second."""
+    cs = [_case(data, p) for p in families(quick)["reference"]]
+    if any(c is None for c in cs):
+        raise ValueError("reference cases missing or failed")
+    out: dict[Any, Any] = {"cases": cs}
+    for s in C.stations(quick):
+        F, bound = aitken([data.at(c, s, "force_N") for c in cs])  # type: ignore[arg-type]
+        forces = [data.at(c, s, "force_N") for c in cs]  # type: ignore[arg-type]
+        out[s] = {"force_N": F, "bound_N": bound, "forces_N": forces}
+    s2 = C.stations(quick)[1]
+    X, uy = data.profile(cs[-1], s2)  # type: ignore[arg-type]
+    _, uy5 = data.profile(cs[-2], s2)  # type: ignore[arg-type]
+    out["X_mm"], out["uy_mm"] = list(X), list(uy)
+    out["profile_bound_mm"] = float(np.max(np.abs(np.subtract(uy, uy5))))
+    return out
+
+
+def profile_error_max(uy: Sequence[float], ref: Sequence[float]) -> float:
+    """max|u_y − u_y,ref| / max|u_y,ref| on the mid-axis."""
+    a, b = np.asarray(uy, float), np.asarray(ref, float)
+    return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300)) if len(a) == len(b) else math.nan
+
+
+def fits(dofs: Sequence[float], err: Sequence[float]) -> dict[str, float]:
+    """Least-squares fits of log e: against N^(1/3) (exponential) and against log N (algebraic);
+    returns the rate of each and the RMS residual of each."""
+    N, e = np.asarray(dofs, float), np.log(np.asarray(err, float))
+    out: dict[str, float] = {}
+    for name, x in (("root", N ** (1 / 3)), ("log", np.log(N))):
+        coef, res, *_ = np.polyfit(x, e, 1, full=True)
+        out[f"{name}_rate"] = float(coef[0])
+        out[f"{name}_rms"] = float(math.sqrt(res[0] / len(e))) if len(res) else 0.0
+    return out
+
+
+def analyse(data: StudyData, quick: bool) -> dict[str, Any]:
+    ref = reference(data, quick)
+    s2 = C.stations(quick)[1]
+    F0 = ref[s2]["force_N"]
+    fam: dict[str, list[dict[str, Any]]] = {}
+    for name, cases in families(quick).items():
+        pts = []
+        for prm in cases:
+            c = _case(data, prm)
+            if c is None:
+                continue
+            F = data.at(c, s2, "force_N")
+            _, uy = data.profile(c, s2)
+            pts.append({"case": c, "dofs": C.dofs(data, c), "F": F, "err": abs(F - F0) / F0, "time": C.wall(data, c),
+                        "err_prof": profile_error_max(uy, ref["uy_mm"]), "corner": prm.get(GRADE, 0.0),
+                        "h": prm[C.H], "p": prm[C.P]})
+        fam[name] = pts
+    hp = [p for p in fam["hp"] if p["case"] not in ref["cases"]]
+    return {"ref": ref, "fam": fam, "s2": s2,
+            "hp_fit": fits([p["dofs"] for p in hp], [p["err"] for p in hp]) if len(hp) >= 3 else {}}
+
+
+def report(data: StudyData, quick: bool) -> str:
+    a = analyse(data, quick)
+    ref = a["ref"]
+    L = ["# Reference-grade solution of the paper's scene", "",
+         "Aitken extrapolation of the 10 mm mesh graded to 0.25 mm at the clamp corners, p = 4, 5, 6; "
+         "bound = twice the extrapolation step.", "",
+         "| u0 [mm] | F(p=4) [N] | F(p=5) [N] | F(p=6) [N] | reference [N] | bound [N] | bound [%] |",
+         "|---|---|---|---|---|---|---|"]
+    for s in C.stations(quick):
+        r = ref[s]
+        L.append(f"| {s:g} | " + " | ".join(f"{f:.5f}" for f in r["forces_N"])
+                 + f" | {r['force_N']:.5f} | {r['bound_N']:.2g} | {100 * r['bound_N'] / r['force_N']:.2g} |")
+    L += ["", f"Reference profile (p = 6) at {a['s2']:g} mm: max |u_y| = {np.max(np.abs(ref['uy_mm'])):.4f} mm, "
+          f"bound {ref['profile_bound_mm']:.2g} mm.", "",
+          "## Convergence at the second station", "",
+          "| family | h [mm] | corner [mm] | p | dofs | F [N] | force error | profile error (max) | wall [s] |",
+          "|---|---|---|---|---|---|---|---|---|"]
+    for name, pts in a["fam"].items():
+        for p in pts:
+            L.append(f"| {name} | {p['h']:g} | {p['corner']:g} | {p['p']} | {p['dofs']:.0f} | {p['F']:.4f} | "
+                     f"{100 * p['err']:.3g} % | {100 * p['err_prof']:.3g} % | {p['time']:.2f} |")
+    f = a["hp_fit"]
+    if f:
+        better = "N^(1/3) (exponential)" if f["root_rms"] < f["log_rms"] else "log N (algebraic)"
+        L += ["", f"hp family (reference cases excluded): log e against N^(1/3): rate {f['root_rate']:.3f}, "
+              f"RMS residual "
+              f"{f['root_rms']:.3f}; against log N: rate {f['log_rate']:.2f}, RMS residual {f['log_rms']:.3f}. "
+              f"Better fit: {better}."]
+    return "\n".join(L) + "\n"
+
+
+def plot(data: StudyData, quick: bool) -> list[Path]:
+    import matplotlib.pyplot as plt
+
+    a = analyse(data, quick)
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for name, m in (("uniform", "o-"), ("graded", "s-"), ("hp", "*-")):
+        pts = a["fam"][name]
+        if pts:
+            ax.loglog([p["dofs"] for p in pts], [max(p["err"], 1e-9) for p in pts], m, label=name)
+    r2 = a["ref"][a["s2"]]
+    ax.axhline(r2["bound_N"] / r2["force_N"], color="grey", ls=":", label="reference bound")
+    ax.set_xlabel("dofs")
+    ax.set_ylabel(f"relative error of the force at {a['s2']:g} mm")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend()
+    return [savefig(fig, data.out, "reference_convergence")]
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_for(build, argv, prog="python -m ngbet.studies.reference")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,218 @@
+"""Discretization error: reference-grade values, the estimate's effectivity, accuracy on demand, hp.
+
+Reference values (computed once with this code, stored here): for each base scene the forces at
+37 and 56 mm on the 10 mm mesh graded to 0.25 mm at the four clamp corners at p = 4, 5, 6 (the
+family of ``ngbet study reference``); the reference is their Aitken extrapolation
+(:func:`ngbet.studies.reference.aitken`), the bound twice the extrapolation step.
+
+Effectivity table (estimate / true error of the force at 56 mm, θ = 2.5, estimate at the final
+load only; solve and estimate times on the 2-core machine, loaded, so read the ratio):
+
+=====================================  ========  ===========  =========  ===========  ===============
+scene (h [mm], corner [mm], p)         F [N]     ref. [N]     error [N]  effectivity  estimate/solve
+=====================================  ========  ===========  =========  ===========  ===============
+paper, 10, –, 2                        111.914   107.240      +4.674     0.83         0.41
+paper, 5, –, 2 (the former default)    109.538   107.240      +2.298     0.91         0.41
+paper, 10, –, 3                        110.356   107.240      +3.116     1.07         0.90
+paper, 10, –, 4                        109.016   107.240      +1.776     0.61         0.39
+paper, 10, 0.5, 2                      107.787   107.240      +0.547     0.99         0.50
+paper, 10, 0.25, 2                     107.413   107.240      +0.172     0.56         1.28
+mixed penalty K = 1e8, 10, –, 2        111.772   107.099      +4.672     0.84         0.31
+mixed penalty K = 1e8, 10, 0.25, 3     107.232   107.099      +0.133     1.49         1.39
+α1 = 20000, 10, –, 2                   150.184   130.320      +19.864    1.27         0.69
+α1 = 200, 10, 0.5, 2                    66.480    66.577      −0.097     2.68         0.37
+100 x 300 specimen, 10, –, 2            88.368    86.354      +2.014     0.80         0.89
+yarns at 50°, 10, –, 2                  62.702    60.567      +2.134     0.73         0.40
+yarns at 50°, 10, 0.5, 3                60.716    60.567      +0.149     1.22         1.30
+α1 = 200, 10, –, 2 (missed)             66.764    66.577      +0.186     0.17         0.36
+=====================================  ========  ===========  =========  ===========  ===============
+
+The last row is the documented exception (ngbet.continuum.estimate): on a mesh without corner
+grading the error of the α1 = 200 scene does not fall with p, and the p + 1 estimate misses it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from ngbet.cli import main
+from ngbet.run import run
+from ngbet.scene import Scene, default_scene
+from ngbet.studies.reference import aitken, fits
+
+#: forces [N] at (37, 56) mm for p = 4, 5, 6 on the 10 mm mesh with 0.25 mm corners
+FAMILY = {
+    "default": ((61.24428, 107.29393), (61.23090, 107.26834), (61.22425, 107.25492)),
+    "penalty": ((61.16516, 107.15289), (61.15179, 107.12733), (61.14516, 107.11399)),
+    "alpha1_200": ((38.21391, 66.57898), (38.21359, 66.57839), (38.21340, 66.57801)),
+    "alpha1_20000": ((74.12784, 130.97402), (73.89774, 130.53226), (73.82292, 130.38890)),
+    "bet_100x300": ((50.92764, 86.38635), (50.91921, 86.37067), (50.91490, 86.36257)),
+    "yarn_50": ((35.06640, 60.59525), (35.06008, 60.58349), (35.05640, 60.57668)),
+}
+BASES = {"default": {}, "penalty": {"effects.constraint": "penalty", "effects.penalty_K": 1e8},
+         "alpha1_200": {"material.alpha1": 200.0}, "alpha1_20000": {"material.alpha1": 20000.0},
+         "bet_100x300": {"specimen.length_mm": 300.0, "specimen.width_mm": 100.0},
+         "yarn_50": {"specimen.yarn_angle_deg": 50.0}}
+#: the reference profile u_y [mm] at 56 mm (p = 6 above) at X = 0, 22, 44, ..., 220 mm (every 11th
+#: of the 111 points); max |u_y| = 2.8255 mm (at X = 42 mm), bound max|u_y,6 − u_y,5| = 0.0013 mm
+PROFILE_56 = (0.0, -1.87059, -2.80841, -1.76885, -0.6496, 0.0, 0.64958, 1.76879, 2.80829, 1.87042, 0.0)
+PROFILE_56_MAX = 2.8255
+
+
+def ref(base: str, station: int = 1) -> tuple[float, float]:
+    return aitken([f[station] for f in FAMILY[base]])
+
+
+def _scene(base: str, **disc) -> Scene:
+    ch = {"outputs.vtk": False, "outputs.plot": False, "outputs.error_estimate": "final", **BASES[base]}
+    ch.update({f"discretization.{k}": v for k, v in disc.items()})
+    return Scene().with_changes(**ch)
+
+
+def test_reference_digits_and_bound():
+    F, bound = ref("default")
+    assert round(F, 2) == 107.24 and bound < 0.035  # 107.240 N ± 0.03 N at 56 mm
+    F37, b37 = ref("default", 0)
+    assert round(F37, 2) == 61.22 and b37 < 0.015
+
+
+def _effectivity(tmp_path, base: str, **disc) -> tuple[float, dict]:
+    s = run(_scene(base, **disc), tmp_path / f"{base}_{'_'.join(map(str, disc.values()))}")
+    F_ref, bound = ref(base)
+    err = abs(s["force_N"] - F_ref)
+    assert err > 3 * bound, "the scene's error must stand above the reference's bound"
+    return s["force_error_N"] / err, s
+
+
+FAST = [("default", {"mesh_size_mm": 10.0}), ("penalty", {"mesh_size_mm": 10.0}),
+        ("yarn_50", {"mesh_size_mm": 10.0})]
+SLOW = [("default", {"mesh_size_mm": 5.0}), ("default", {"mesh_size_mm": 10.0, "order_u": 3}),
+        ("default", {"mesh_size_mm": 10.0, "order_u": 4}),
+        ("default", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5}),
+        ("default", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25}),
+        ("penalty", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}),
+        ("alpha1_20000", {"mesh_size_mm": 10.0}), ("bet_100x300", {"mesh_size_mm": 10.0}),
+        ("alpha1_200", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5}),
+        ("yarn_50", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5, "order_u": 3})]
+
+
+@pytest.mark.parametrize("base,disc", FAST)
+def test_effectivity_fast_subset(tmp_path, base, disc):
+    eff, s = _effectivity(tmp_path, base, **disc)
+    assert 0.5 <= eff <= 3.0, eff
+    assert s["error_method"].startswith("p+1") and s["estimate_s"] > 0
+    assert math.isclose(s["force_error_rel"], s["force_error_N"] / s["force_N"])
+
+
+def test_profile_estimate_effectivity(tmp_path):
+    """Max-norm error of the mid-axis profile at 56 mm (measured 0.59–2.5 on six meshes of this scene)."""
+    from ngbet.output import read_profiles
+
+    _, s = _effectivity(tmp_path, "default", mesh_size_mm=10.0)
+    _, uy = read_profiles(next(tmp_path.glob("default_*")) / "profile.csv")[56.0]
+    err = float(np.max(np.abs(np.subtract(uy[::11], PROFILE_56))))
+    assert 0.5 <= s["profile_error_mm"]["56"] / err <= 3.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("base,disc", SLOW)
+def test_effectivity_all_scenes(tmp_path, base, disc):
+    eff, _ = _effectivity(tmp_path, base, **disc)
+    assert 0.5 <= eff <= 3.0, eff
+
+
+def test_estimate_misses_the_ungraded_alpha1_200_error(tmp_path):
+    """The documented limitation, kept measured: if the estimate learns to see it, update the docs."""
+    eff, s = _effectivity(tmp_path, "alpha1_200", mesh_size_mm=10.0)
+    assert eff < 0.5 and "not graded" in s["error_estimate_note"]
+
+
+def test_results_csv_has_the_error_at_the_stops(tmp_path):
+    sc = _scene("default", mesh_size_mm=20.0).with_changes(**{"outputs.error_estimate": "stops"})
+    run(sc, tmp_path / "r")
+    from ngbet.output import read_rows
+
+    rows = read_rows(tmp_path / "r" / "results.csv")
+    have = {r["u0_mm"]: r["force_error_N"] for r in rows}
+    assert isinstance(have[37.0], float) and isinstance(have[56.0], float) and have[56.0] > 0
+    assert all(v == "" for u, v in have.items() if u not in (37.0, 56.0))
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert set(summary["profile_error_mm"]) == {"37", "56"} and "not graded" in summary["error_estimate_note"]
+
+
+@pytest.mark.parametrize("target", [1e-2, 1e-3])
+def test_accuracy_on_demand_reaches_the_target(tmp_path, target, capsys):
+    out = tmp_path / f"acc{target:g}"
+    assert main(["run", "--quiet", "--accuracy", str(target), "--out", str(out),
+                 "--set", "outputs.vtk=false", "--set", "outputs.plot=false"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    a = s["accuracy"]
+    F_ref, bound = ref("default")
+    assert a["met"] and s["force_error_rel"] <= target
+    assert abs(s["force_N"] - F_ref) + bound <= target * F_ref  # verified against the reference
+    assert f"accuracy {target:g} met" in capsys.readouterr().out
+
+
+def test_hp_grading_converges_exponentially(tmp_path):
+    """(corner, p) = (2.5 mm, 2), (1 mm, 3), (0.5 mm, 4): log e is linear in N^(1/3), not in log N."""
+    F_ref, _ = ref("default")
+    dofs, err = [], []
+    for c, p in ((2.5, 2), (1.0, 3), (0.5, 4)):
+        sc = _scene("default", mesh_size_mm=10.0, corner_mesh_size_mm=c, order_u=p).with_changes(
+            **{"outputs.error_estimate": "off"})
+        s = run(sc, tmp_path / f"hp{p}")
+        dofs.append(s["dofs"]["total"])
+        err.append(abs(_final_force(tmp_path / f"hp{p}") - F_ref) / F_ref)
+    f = fits(dofs, err)
+    assert f["root_rms"] < 0.5 * f["log_rms"], f
+    assert err[-1] < 0.002 and err[0] / err[-1] > 8
+
+
+def _final_force(out) -> float:
+    from ngbet.output import read_rows
+
+    return float(read_rows(out / "results.csv")[-1]["force_N"])
+
+
+def test_default_scene_is_within_0p3_percent(tmp_path):
+    sc = default_scene().with_changes(**{"outputs.vtk": False, "outputs.plot": False,
+                                         "outputs.error_estimate": "final"})
+    s = run(sc, tmp_path / "d")
+    F_ref, bound = ref("default")
+    assert abs(s["force_N"] - F_ref) + bound < 0.003 * F_ref
+    assert s["force_error_rel"] < 0.006  # the estimate says so too (effectivity up to ~2)
+    from ngbet.output import read_profiles
+
+    X, uy = read_profiles(tmp_path / "d" / "profile.csv")[56.0]
+    assert np.allclose(X[::11], np.linspace(0, 220, 11))
+    assert np.max(np.abs(np.subtract(uy[::11], PROFILE_56))) < 0.01 * PROFILE_56_MAX
+    assert 0 < s["profile_error_mm"]["56"] < 0.03 * PROFILE_56_MAX
+
+
+def test_reference_study_quick(tmp_path):
+    """The study's quick mode (20 mm load, 20 mm mesh, corners 0.5 mm, p = 2, 3, 4): a reference
+    within its bound of the highest order (that short sequence is not yet geometric: the bound is
+    then its last difference), the report and the convergence figure."""
+    from ngbet.studies import STUDIES, reference
+    from ngbet.study import run_study
+
+    assert "reference" in STUDIES
+    d = run_study(reference.build(True), tmp_path / "ref", cache=tmp_path / "cache", progress=False)
+    r = reference.reference(d, quick=True)[20.0]
+    F4 = r["forces_N"][-1]
+    assert abs(r["force_N"] - F4) <= r["bound_N"] and 0 < r["bound_N"] < 0.01 * F4
+    assert "Reference-grade" in (d.out / "report.md").read_text()
+    assert (d.out / "reference_convergence.png").exists()
+
+
+@pytest.mark.parametrize("key,value", [("discretization.target_error", -1e-3), ("discretization.target_error", 2.0),
+                                       ("outputs.error_estimate", "always")])
+def test_bad_accuracy_keys_are_refused_by_name(key, value):
+    from ngbet.scene import SceneError
+
+    with pytest.raises(SceneError, match=key):
+        Scene().with_changes(**{key: value})

@@ -1,0 +1,177 @@
+"""The Python API (ngbet.simulate, Result), the example script, the commented scene, the version."""
+
+from __future__ import annotations
+
+import gc
+import runpy
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import ngbet
+from ngbet.output import read_profiles, read_rows
+from ngbet.plotting import dense_force
+from ngbet.scene import Scene
+from ngbet.scene_doc import commented_toml
+
+ROOT = Path(__file__).resolve().parent.parent
+SMALL = {"loading.u0_mm": 20.0, "loading.stops_mm": [10.0], "discretization.mesh_size_mm": 20.0}
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("api") / "run"
+    return ngbet.simulate(ngbet.default_scene().with_changes(**SMALL), out), out
+
+
+def test_result_holds_the_run_folder(small_run):
+    r, out = small_run
+    rows = read_rows(out / "results.csv")
+    assert r.status == "ok" and r.out == out
+    # the arrays are the files' numbers, step by step
+    np.testing.assert_array_equal(r.u0_mm, [row["u0_mm"] for row in rows])
+    np.testing.assert_array_equal(r.force_N, [row["force_N"] for row in rows])
+    np.testing.assert_array_equal(r.double_force, [row["double_force_Nm"] for row in rows])
+    np.testing.assert_array_equal(r.energy, [row["energy_J"] for row in rows])
+    assert r.u0_mm[-1] == 20.0 and 10.0 in r.u0_mm
+    assert r.gamma_centre_deg.shape == r.u0_mm.shape  # any column is an attribute
+    with pytest.raises(AttributeError, match="force_N_per_m"):
+        r.no_such_column  # noqa: B018
+    X, uy = read_profiles(out / "profile.csv")[20.0]
+    np.testing.assert_array_equal(r.profiles[20.0][0], X)
+    np.testing.assert_array_equal(r.profiles[20.0][1], uy)
+    assert r.scene == ngbet.default_scene().with_changes(**SMALL)
+
+
+def test_run_csv_files_have_lf_line_endings(small_run):
+    _, out = small_run
+    for name in ("results.csv", "profile.csv"):
+        text = (out / name).read_bytes()
+        assert b"\r" not in text and text.count(b"\n") > 2
+
+
+def test_run_without_matplotlib_writes_everything_but_the_plot(tmp_path):
+    """The core needs neither matplotlib nor pyvista: without them the run says so in one line."""
+    code = ("import sys\n"
+            "for m in ('matplotlib', 'pyvista'): sys.modules[m] = None\n"
+            "from ngbet.cli import main\n"
+            f"sys.exit(main(['run', '--quiet', '--out', {str(tmp_path / 'run')!r}, '--set', 'loading.u0_mm=10', "
+            "'--set', 'loading.stops_mm=[]', '--set', 'discretization.mesh_size_mm=20']))")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == 0
+    assert "no force plot: matplotlib is not installed" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+    files = {f.name for f in (tmp_path / "run").iterdir()}
+    assert {"results.csv", "profile.csv", "summary.json", "fields.vtu", "scene.toml"} <= files
+    assert "force.png" not in files
+
+
+def test_result_to_csv_round_trip_with_lf(small_run, tmp_path):
+    r, _ = small_run
+    p = r.to_csv(tmp_path / "t.csv")
+    assert b"\r\n" not in p.read_bytes()
+    back = read_rows(p)
+    np.testing.assert_array_equal([row["force_N"] for row in back], r.force_N)  # repr: no digits lost
+
+
+def test_fields_in_mm_warp_to_the_clamp_displacement(small_run):
+    """Coordinates and displacement share the unit mm: the warped moving clamp sits at L + u0."""
+    pytest.importorskip("pyvista")
+    r, _ = small_run
+    m = r.fields()
+    x0, x1, y0, y1, _, _ = m.bounds
+    assert (x0, x1) == pytest.approx((0.0, 220.0), abs=1e-9) and (y0, y1) == pytest.approx((0.0, 70.0), abs=1e-9)
+    u = np.asarray(m["displacement"])
+    assert u.shape[1] == 3 and np.all(u[:, 2] == 0.0)
+    clamp = np.isclose(np.asarray(m.points)[:, 0], 220.0)
+    np.testing.assert_allclose(u[clamp, 0], 20.0, atol=1e-9)  # prescribed on the moving clamp
+    assert m.warp_by_vector("displacement").bounds[1] == pytest.approx(240.0, abs=1e-9)
+    assert "shear_angle_deg" in m.array_names
+
+
+def test_simulate_without_out_keeps_its_folder_while_the_result_lives():
+    r = ngbet.simulate(ngbet.default_scene().with_changes(**{**SMALL, "loading.stops_mm": []}))
+    folder = r.out
+    assert (folder / "fields.vtu").exists() and not (folder / "force.png").exists()
+    assert r.force_N[-1] > 0
+    del r
+    gc.collect()
+    assert not folder.exists()
+
+
+def test_plot_draws_the_curve_and_the_steps(small_run):
+    pytest.importorskip("matplotlib")
+    r, _ = small_run
+    ax = r.plot()
+    curve, steps = ax.lines[:2]
+    np.testing.assert_array_equal(steps.get_xdata(), np.r_[0.0, r.u0_mm])
+    assert "converged steps" in steps.get_label()
+
+
+def test_dense_force_is_exact_for_a_quadratic():
+    """Hermite on (F, dF/du0) reproduces cubics between steps; the slope at u0 = 0, extrapolated
+    from the first step, is exact for quadratics: so a quadratic force is reproduced everywhere."""
+    u = np.array([3.0, 7.0, 12.0, 20.0])
+    F, dF = 3 * u**2 + 2 * u, 6 * u + 2
+    ud, Fd, how = dense_force(u, F, dF)
+    assert "Hermite" in how and np.max(np.diff(ud)) <= 0.25 + 1e-12
+    np.testing.assert_allclose(Fd, 3 * ud**2 + 2 * ud, rtol=1e-12, atol=1e-12)
+    ul, Fl, how = dense_force(u, F, None)
+    assert "lines" in how and len(ul) == len(u) + 1
+
+
+def test_example_sweep(capsys):
+    """examples/sweep.py: the S-shape grows with alpha1; the balanced fabric has (almost) none."""
+    ns = runpy.run_path(str(ROOT / "examples" / "sweep.py"), run_name="__main__")
+    rows = ns["rows"]
+    assert [a for a, _, _ in rows] == [20.0, 200.0, 2000.0]
+    amp = [s for _, _, s in rows]
+    assert amp[0] < 0.1 * amp[1] < amp[1] < amp[2]
+    assert len(capsys.readouterr().out.splitlines()) == 3
+
+
+def test_commented_scene_reads_back_and_says_units_and_choices():
+    for scene in (ngbet.default_scene(), ngbet.default_scene().with_changes(**{"model": "discrete", **SMALL})):
+        text = commented_toml(scene)
+        assert Scene.from_toml_string(text) == scene
+    assert "allowed: 'lagrange', 'penalty'" in text and "Units: lengths in mm" in text and '"auto"' in text
+
+
+def test_cli_scene_and_version():
+    scene = subprocess.run([sys.executable, "-m", "ngbet", "scene"], capture_output=True, text=True, check=True)
+    assert scene.stdout.startswith("# ngbet scene") and Scene.from_toml_string(scene.stdout) == ngbet.default_scene()
+    v = subprocess.run([sys.executable, "-m", "ngbet", "--version"], capture_output=True, text=True, check=True)
+    assert v.stdout.startswith(f"ngbet {ngbet.__version__} (git revision ")
+    assert isinstance(ngbet.__revision__, str) and ngbet.__revision__
+
+
+def _backend():
+    import importlib.util
+
+    path = ROOT / "_build" / "backend.py"
+    if not path.exists():
+        pytest.skip("the build backend is not beside the tests (tests run against an installed package)")
+    spec = importlib.util.spec_from_file_location("_ngbet_backend", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_build_records_the_revision(tmp_path, monkeypatch):
+    """The build backend writes ngbet/_revision.py: the checkout's revision, or 'unknown' outside one."""
+    backend = _backend()
+    (tmp_path / "ngbet").mkdir()
+    (tmp_path / "ngbet" / "revision.py").write_text((ROOT / "ngbet" / "revision.py").read_text())
+    monkeypatch.setattr(backend, "ROOT", tmp_path)
+    backend._record_revision()
+    ns: dict = {}
+    exec((tmp_path / "ngbet" / "_revision.py").read_text(), ns)
+    assert ns["REVISION"] == "unknown"  # tmp_path is no git checkout
+    head = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    if head.returncode != 0:
+        pytest.skip("the tests do not run from a git checkout")
+    from ngbet.revision import from_checkout
+
+    assert from_checkout(ROOT).removesuffix("-dirty") == head.stdout.strip()
