@@ -1,18 +1,45 @@
 """Command line: ``ngbet run [scene.toml] [--out DIR]``, ``ngbet scene``, ``ngbet study NAME``.
 
-Exit status: 0 done, 1 the solver could not reach the final load (converged steps are on disk),
-2 a bad scene or command line.
+Exit status (both models, runs and studies):
+
+====  ==================================================================================
+0     done
+1     the solver could not carry the load to the end (converged steps are on disk,
+      summary.json says "failed"); a study with cases that crashed
+2     a bad scene or command line (the message names the key)
+3     an I/O problem: the output folder is not writable, a file is in its place, it is on
+      a read-only mount, another run holds its lock, or a dask scheduler is unreachable
+      (the message names the path or address)
+130   interrupted by Ctrl-C (SIGINT) or SIGTERM: summary.json says "interrupted" with the
+      last converged load; a study keeps its finished cases in the cache
+====  ==================================================================================
+
+Errors are one line on stderr, loads in mm; the details are in the run folder's summary.json.
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
+import json
 import logging
+import os
+import signal
+import socket
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from .scene import Scene, SceneError, default_scene
+
+EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_IO, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EPILOG = ("exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
+          "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
+          "busy with another run; scheduler unreachable); 130 interrupted (SIGINT/SIGTERM; summary.json "
+          "says interrupted, with the last converged load in mm)")
 
 
 def _parse_value(text: str) -> object:
@@ -37,13 +64,110 @@ def load_scene(path: str | None, overrides: list[str]) -> Scene:
     return scene.with_changes(**changes) if changes else scene
 
 
+def _say(msg: str) -> None:
+    print(f"ngbet: {' '.join(msg.split())}", file=sys.stderr)
+
+
+GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the watchdog does
+
+
+@contextlib.contextmanager
+def _interrupts() -> Iterator[None]:
+    """Ctrl-C and SIGTERM raise KeyboardInterrupt in the main thread (the run folder records
+    "interrupted"). The main thread can be inside one NGSolve call for a long time (assembly or
+    factorization at high order: tens of seconds) and only acts when it returns; a watchdog thread
+    woken by the signal (``signal.set_wakeup_fd``) then records the interruption in the active run
+    folders itself and exits with 130 after GRACE_S."""
+    acted = threading.Event()
+
+    def handler(signum: int, frame: Any) -> None:
+        acted.set()
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    try:
+        previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    except ValueError:  # not the main thread: leave the signals alone
+        yield
+        return
+    r, w = socket.socketpair()
+    w.setblocking(False)
+    old_fd = signal.set_wakeup_fd(w.fileno(), warn_on_full_buffer=False)
+    watchdog = threading.Thread(target=_watch, args=(r, acted), daemon=True, name="ngbet-interrupt-watchdog")
+    watchdog.start()
+    try:
+        yield
+    finally:
+        signal.set_wakeup_fd(old_fd)
+        for sig, h in previous.items():
+            signal.signal(sig, h)
+        w.close()  # ends the watchdog
+        watchdog.join(timeout=1)
+        r.close()
+
+
+def _watch(r: socket.socket, acted: threading.Event) -> None:
+    while True:
+        try:
+            data = r.recv(64)
+        except OSError:
+            return
+        if not data:
+            return
+        if not set(data) & {signal.SIGINT, signal.SIGTERM}:  # another library's signal
+            continue
+        if not acted.wait(GRACE_S):
+            from .output import interrupt_active_runs
+
+            folders = interrupt_active_runs(f"interrupted (SIGINT/SIGTERM) inside a computation; "
+                                            f"stopped after {GRACE_S:g} s")
+            _say(f"interrupted; converged steps and summary.json (status interrupted) are in "
+                 f"{', '.join(map(str, folders)) or 'no run folder'}")
+            sys.stderr.flush()
+            os._exit(EXIT_INTERRUPTED)
+        acted.clear()
+
+
+def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
+    """The exit status and the one-line message of an error that ends a command (``where``: the
+    output folder, named when the OS error names no file, e.g. a full disk on write)."""
+    from .errors import ConvergenceError
+    from .output import OutputError
+    from .study import SchedulerError
+
+    if isinstance(exc, SceneError):
+        return EXIT_INPUT, f"bad scene: {exc}"
+    if isinstance(exc, ConvergenceError):
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        return EXIT_SOLVER, (f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}")
+    if isinstance(exc, OutputError):
+        return EXIT_IO, f"cannot use the output folder {exc}"
+    if isinstance(exc, SchedulerError):
+        return EXIT_IO, str(exc)
+    if isinstance(exc, OSError):
+        path = exc.filename if exc.filename is not None else where
+        return EXIT_IO, f"I/O error on {path if path is not None else 'an unnamed file'}: {exc.strerror or exc}"
+    raise exc
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="ngbet", description="Bias extension tests of woven fabrics (NGSolve).")
+    """The ``ngbet`` command (see the module docstring for the exit status)."""
+    with _interrupts():
+        try:
+            return _main(argv)
+        except KeyboardInterrupt:
+            _say("interrupted")
+            return EXIT_INTERRUPTED
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ngbet", description="Bias extension tests of woven fabrics (NGSolve).",
+                                     epilog=EPILOG)
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", required=True)
-    pr = sub.add_parser("run", help="run a scene (default: the paper's BET to 56 mm)")
+    pr = sub.add_parser("run", help="run a scene (default: the paper's BET to 56 mm)", epilog=EPILOG)
     pr.add_argument("scene", nargs="?", help="scene TOML file (default: the embedded scene)")
-    pr.add_argument("--out", default="out/run", help="output folder (default: out/run)")
+    pr.add_argument("--out", default="out/run", help="output folder (default: out/run); the files of a previous "
+                    "run in it are removed, a folder that is not an ngbet run folder is refused")
     pr.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
     pr.add_argument("--accuracy", type=float, metavar="REL",
@@ -53,51 +177,70 @@ def main(argv: list[str] | None = None) -> int:
     ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
-    pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them")
-    pst.add_argument("name", help="study name (penalty_p, work_precision, alpha1, kel, curves, maps, compare) or 'list'")
+    pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them",
+                         epilog=EPILOG)
+    pst.add_argument("name", help="study name (penalty_p, work_precision, alpha1, kel, curves, maps, compare) "
+                     "or 'list'")
     from .study import add_arguments
 
     add_arguments(pst)
     from . import fit
 
     fit.add_parser(sub)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _main(argv: list[str] | None) -> int:
+    args = _parser().parse_args(argv)
     if args.command == "study":
         return _study(args)
     if args.command == "fit":
+        from . import fit
+
         return fit.run_from_args(args)
 
-    level = logging.WARNING if getattr(args, "quiet", False) else (
-        logging.INFO if getattr(args, "verbose", False) else logging.WARNING)
+    level = logging.INFO if getattr(args, "verbose", False) else logging.WARNING
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
         scene = load_scene(args.scene, args.overrides)
         if getattr(args, "accuracy", None) is not None:
             scene = scene.with_changes(**{"discretization.target_error": args.accuracy})
     except SceneError as exc:
-        print(f"ngbet: bad scene: {exc}", file=sys.stderr)
-        return 2
+        _say(f"bad scene: {exc}")
+        return EXIT_INPUT
     if args.command == "scene":
         from .scene_doc import commented_toml
 
         sys.stdout.write(commented_toml(scene))
-        return 0
+        return EXIT_OK
+    return _run(scene, Path(args.out), progress=not args.quiet)
 
+
+def _run(scene: Scene, out: Path, progress: bool) -> int:
+    """``ngbet run``: one line on success or failure; the details are in ``out``/summary.json."""
     from .run import run
-    from .errors import ConvergenceError
 
-    out = Path(args.out)
     try:
-        summary = run(scene, out, progress=not args.quiet)
-    except ConvergenceError as exc:
-        print(f"ngbet: the load could not be carried to the end; converged steps are in {out}\n{exc}",
-              file=sys.stderr)
-        return 1
-    except SceneError as exc:
-        print(f"ngbet: bad scene: {exc}", file=sys.stderr)
-        return 2
+        summary = run(scene, out, progress=progress)
+    except KeyboardInterrupt:
+        _say(f"interrupted after u0 = {_last_converged_mm(out):g} mm; converged steps and "
+             f"summary.json (status interrupted) are in {out}/")
+        return EXIT_INTERRUPTED
+    except Exception as exc:
+        code, msg = exit_code(exc, out)
+        if code == EXIT_SOLVER:
+            msg += f"; converged steps and details are in {out}/ (summary.json)"
+        _say(msg)
+        return code
     print(_report(summary, out))
-    return 0
+    return EXIT_OK
+
+
+def _last_converged_mm(out: Path) -> float:
+    try:
+        return float(json.loads((out / "summary.json").read_text()).get("last_converged_mm", 0.0))
+    except (OSError, ValueError, TypeError, AttributeError):
+        return 0.0
 
 
 def _study(args: argparse.Namespace) -> int:
@@ -109,14 +252,22 @@ def _study(args: argparse.Namespace) -> int:
     if args.name == "list":
         for name, what in studies.STUDIES.items():
             print(f"{name:16s} {what}")
-        return 0
+        return EXIT_OK
     if args.name not in studies.STUDIES:
-        print(f"ngbet study: unknown study {args.name!r}; known: {', '.join(studies.STUDIES)}", file=sys.stderr)
-        return 2
-    from .study import run_from_args
+        _say(f"study: unknown study {args.name!r}; known: {', '.join(studies.STUDIES)}")
+        return EXIT_INPUT
+    from .study import StudyInterrupted, run_from_args
 
     module = importlib.import_module(f"ngbet.studies.{args.name}")
-    return run_from_args(module.build, args)
+    try:
+        return run_from_args(module.build, args)
+    except StudyInterrupted as exc:
+        _say(str(exc))
+        return EXIT_INTERRUPTED
+    except Exception as exc:
+        code, msg = exit_code(exc)
+        _say(f"study {args.name}: {msg}")
+        return code
 
 
 def _version() -> str:

@@ -5,7 +5,9 @@ Layout of a run folder (both models)::
     scene.toml        the complete scene that produced everything beside it
     results.csv       one row per converged load step (written and flushed as each step converges)
     profile.csv       mid-axis (Y = W/2) vertical displacement, one block per step: step,u0_mm,X_mm,uy_mm
-    summary.json      scene, versions, dofs, timings, status (rewritten at the end, also on failure)
+    summary.json      scene, versions, dofs, timings, status: "running" from the start, then "ok",
+                      "failed" or "interrupted" with the last converged load (written atomically)
+    .ngbet.lock       held (fcntl.flock) while a run writes into the folder
     fields_*.vtu      fields for ParaView
     force.png/.pdf    force-displacement plot
 
@@ -15,13 +17,18 @@ Plotting reads these files; nothing in the physics imports this module.
 from __future__ import annotations
 
 import csv
+import fcntl
+import fnmatch
 import json
 import logging
+import os
 import platform
 import time
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import IO, Any
 
+from .errors import NgbetError
 from .scene import Scene
 
 log = logging.getLogger(__name__)
@@ -53,36 +60,111 @@ def machine() -> dict[str, Any]:
             "system": platform.platform()}
 
 
+RUN_LOCK = ".ngbet.lock"
+# what an ngbet run writes into its folder; only these (and the files the previous summary.json
+# lists) are removed when a folder is reused
+RUN_FILE_PATTERNS = ("scene.toml", "summary.json", "summary.json.tmp", "results.csv", "profile.csv",
+                     "fields*.vtu", "fields*.pvd", "force.png", "force.pdf", "state_*.npz", "yarns_*.png",
+                     "yarns_*.pdf")
+_RUN_MARKERS = (RUN_LOCK, "summary.json", "scene.toml")
+
+
+class OutputError(NgbetError):
+    """The output folder cannot be used: not writable, a file in its place, busy with another run,
+    or not an ngbet run folder. ``path`` names it."""
+
+    def __init__(self, path: str | Path, why: str) -> None:
+        super().__init__(f"{path}: {why}")
+        self.path = Path(path)
+
+
 class RunWriter:
-    """Appends converged steps to the run folder as they come."""
+    """The run folder of one run: locked, cleared of a previous run, its status kept in summary.json.
+
+    Lifecycle: the constructor refuses a folder that is a file, not writable, not an ngbet run
+    folder (non-empty without ``summary.json``/``scene.toml``/``.ngbet.lock``) or locked by another
+    run (``fcntl.flock`` on ``.ngbet.lock``; the OS releases it when that process dies), then
+    removes what a previous run wrote (``RUN_FILE_PATTERNS`` and the files its summary.json lists;
+    nothing else) and writes ``scene.toml`` and summary.json with ``"status": "running"``. Each
+    converged step is appended to results.csv and flushed. :meth:`summary` records "ok" or
+    "failed"; leaving the ``with`` block on Ctrl-C/SIGTERM records "interrupted", on any other
+    exception "failed" with the error, both with the last converged load; then the lock is released.
+    """
 
     def __init__(self, out: str | Path, scene: Scene) -> None:
         self.out = Path(out)
-        self.out.mkdir(parents=True, exist_ok=True)
         self.scene = scene
-        (self.out / "scene.toml").write_text(scene.to_toml())
-        self._rows_path = self.out / "results.csv"
-        self._profile_path = self.out / "profile.csv"
-        for p in (self._rows_path, self._profile_path):
-            if p.exists():
-                p.unlink()
-        self._columns: list[str] | None = None
         self.rows: list[dict[str, Any]] = []
+        self.status = "new"
+        self.warnings: list[str] = []
         self.t_start = time.perf_counter()
+        self.warnings = preflight(scene)  # refuses before the folder is touched
+        self._lock: IO[str] | None = _acquire_run_folder(self.out)
+        _ACTIVE.add(self)
+        try:
+            cleared = _clear_previous_run(self.out)
+            if cleared:
+                log.info("%s: removed %d files of a previous run", self.out, len(cleared))
+            self._kept = {p.name for p in self.out.iterdir()}
+            _io(self.out / "scene.toml", lambda p: p.write_text(scene.to_toml()))
+            self._rows_path = self.out / "results.csv"
+            self._profile_path = self.out / "profile.csv"
+            self._columns: list[str] | None = None
+            self.summary({"pid": os.getpid(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}, "running")
+        except BaseException:
+            self.release()
+            raise
 
     def __enter__(self) -> RunWriter:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        """An interrupt (Ctrl-C) leaves a summary that says so, with the last converged load."""
-        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
-            self.summary({}, "interrupted", "interrupted by the user")
+        """Ctrl-C or SIGTERM leaves "interrupted", any other escape "failed" (unless the run said
+        so already), each with the last converged load; then the folder is unlocked."""
+        try:
+            if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
+                self.summary({}, "interrupted",
+                             f"interrupted (SIGINT/SIGTERM) after u0 = {self.last_converged_mm:g} mm")
+            elif exc_type is not None and self.status == "running":
+                self.summary({"error_type": exc_type.__name__}, "failed", f"{exc_type.__name__}: {exc}")
+            elif exc_type is None and self.status != "running":
+                self._record_files()
+        except (OSError, NgbetError) as err:  # the folder itself failed: the original error says more
+            log.error("could not record the end of the run in %s: %s", self.out, err)
+        finally:
+            self.release()
+
+    def _record_files(self) -> None:
+        """List in summary.json also the files written after it (plots, fields), so that the next
+        run into this folder knows them as ngbet's."""
+        path = self.out / "summary.json"
+        s = json.loads(path.read_text())
+        files = self._files()
+        if s.get("files") != files:
+            s["files"] = files
+            write_json_atomic(path, s)
+
+    def _files(self) -> list[str]:
+        return sorted(p.name for p in self.out.iterdir() if p.is_file() and p.name not in self._kept
+                      and not p.name.startswith(".") and not p.name.endswith(".tmp"))
+
+    def release(self) -> None:
+        """Unlock the folder (the lock file stays: removing it would race with a waiting run)."""
+        _ACTIVE.discard(self)
+        if self._lock is not None:
+            self._lock.close()
+            self._lock = None
+
+    @property
+    def last_converged_mm(self) -> float:
+        """The last converged clamp displacement [mm] (0 before the first step)."""
+        return float(self.rows[-1]["u0_mm"]) if self.rows else 0.0
 
     def add_step(self, row: dict[str, Any], profile: Sequence[tuple[float, float]] | None = None) -> None:
         """Write one converged step (and its mid-axis profile) and flush it to disk."""
         self.rows.append(row)
         new = self._columns is None
-        if new:
+        if self._columns is None:
             self._columns = list(row)
         with self._rows_path.open("a", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=self._columns, extrasaction="ignore", lineterminator="\n")
@@ -99,7 +181,7 @@ class RunWriter:
                     w2.writerow([row["step"], row["u0_mm"], f"{X_mm:.6g}", f"{uy_mm:.9g}"])
 
     def summary(self, info: dict[str, Any], status: str, error: str | None = None) -> dict[str, Any]:
-        """Write summary.json (called at the end, and on failure with the error)."""
+        """Write summary.json atomically (at the start, at the end, and on failure with the error)."""
         s = {
             "status": status,
             "error": error,
@@ -109,12 +191,104 @@ class RunWriter:
             "git_revision": git_revision(),
             "machine": machine(),
             "steps": len(self.rows),
-            "u0_reached_mm": self.rows[-1]["u0_mm"] if self.rows else 0.0,
+            "u0_reached_mm": self.last_converged_mm,
+            "last_converged_mm": self.last_converged_mm,
             "wall_s": time.perf_counter() - self.t_start,
             **info,
         }
-        (self.out / "summary.json").write_text(json.dumps(s, indent=2, default=_jsonable))
+        s["warnings"] = [*self.warnings, *info.get("warnings", [])]
+        s["files"] = self._files()
+        write_json_atomic(self.out / "summary.json", s)
+        self.status = status
         return s
+
+
+_ACTIVE: set[RunWriter] = set()
+
+
+def interrupt_active_runs(reason: str) -> list[Path]:
+    """Record "interrupted" in every run folder still open in this process (for a watchdog thread
+    when the main thread cannot act); returns the folders."""
+    done = []
+    for w in list(_ACTIVE):
+        if w.status == "running":
+            try:
+                w.summary({}, "interrupted", f"{reason}; last converged u0 = {w.last_converged_mm:g} mm")
+                done.append(w.out)
+            except (OSError, NgbetError) as exc:
+                log.error("could not record the interruption in %s: %s", w.out, exc)
+    return done
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON to a temporary file and rename it: a reader sees the old or the new file, never half."""
+    tmp = path.with_name(path.name + ".tmp")
+    _io(tmp, lambda p: p.write_text(json.dumps(data, indent=2, default=_jsonable)))
+    os.replace(tmp, path)
+
+
+def _io(path: Path, action: Callable[[Path], Any]) -> Any:
+    """Run a file operation; an OSError becomes an OutputError naming the path."""
+    try:
+        return action(path)
+    except OSError as exc:
+        raise OutputError(path, exc.strerror or str(exc)) from exc
+
+
+def _acquire_run_folder(out: Path) -> IO[str]:
+    """Create ``out`` if needed, refuse it if it cannot be a run folder, and lock it."""
+    if out.exists() and not out.is_dir():
+        raise OutputError(out, "a file is in the place of the output folder")
+    _io(out, lambda p: p.mkdir(parents=True, exist_ok=True))
+    names = {p.name for p in out.iterdir()}
+    if names and not names & set(_RUN_MARKERS):
+        raise OutputError(out, f"not empty and not an ngbet run folder (it holds {', '.join(sorted(names)[:5])}"
+                               f"{', ...' if len(names) > 5 else ''}); choose another --out")
+    fh = _io(out / RUN_LOCK, lambda p: p.open("a+"))
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        fh.seek(0)
+        who = fh.read().strip()
+        fh.close()
+        raise OutputError(out, f"busy: another ngbet run{f' (pid {who})' if who else ''} is writing into "
+                               "it; wait for it or choose another --out") from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(str(os.getpid()))
+    fh.flush()
+    return fh
+
+
+def _clear_previous_run(out: Path) -> list[Path]:
+    """Remove the files a previous ngbet run wrote into ``out``; anything else stays (with a warning)."""
+    listed: set[str] = set()
+    try:
+        prev = json.loads((out / "summary.json").read_text())
+        listed = {n for n in prev.get("files", []) if isinstance(n, str) and "/" not in n and not n.startswith(".")}
+    except (OSError, ValueError, AttributeError):
+        pass
+    gone = []
+    for p in sorted(out.iterdir()):
+        if p.is_file() and (p.name in listed or any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_FILE_PATTERNS)):
+            _io(p, lambda q: q.unlink())
+            gone.append(p)
+    other = sorted(p.name for p in out.iterdir() if p.name != RUN_LOCK)
+    if other:
+        log.warning("%s: keeping %s (not written by ngbet)", out, ", ".join(other))
+    return gone
+
+
+def preflight(scene: Scene) -> list[str]:
+    """Checks of a scene against this machine before anything is built: warnings (loads past ideal
+    yarn locking, a large problem) are logged and returned; a problem that cannot fit in the
+    available memory is refused (:class:`SceneError` naming the keys)."""
+    from .scene import check_size, locking_warning
+
+    found = [w for w in (locking_warning(scene), check_size(scene)) if w]
+    for w in found:
+        log.warning("%s", w)
+    return found
 
 
 def _jsonable(o: Any) -> Any:

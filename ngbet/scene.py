@@ -296,12 +296,17 @@ class Discretization:
         return max(self.order_u - 2, 0) if self.order_lam == AUTO else int(self.order_lam)
 
 
+PAPER_STOPS_MM = (37.0,)
+
+
 @dataclass(frozen=True)
 class Loading:
     """Clamp displacement u0 of X = L along e1, applied in steps."""
 
     u0_mm: float = 56.0
-    stops_mm: tuple[float, ...] = (37.0,)  # loads a step must land on (shapes at 37 mm in the paper)
+    # loads a step must land on (shapes at 37 mm in the paper); a stop beyond u0_mm is refused,
+    # except the default one, which applies only when u0_mm passes it
+    stops_mm: tuple[float, ...] = (37.0,)
     # the continuum's path is smooth: 16 mm, then 37 (stop), then 56 mm in 3 steps and 7 Newton
     # iterations (bench/README.md); the discrete model has its own limits ([discrete])
     first_step_mm: float = 16.0
@@ -314,6 +319,9 @@ class Loading:
         for s in self.stops_mm:
             _check(isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0, "loading.stops_mm", s,
                    "each stop must be a number > 0")
+            # the default stop (the paper's shape station) applies only when u0 passes it
+            _check(s <= self.u0_mm or self.stops_mm == PAPER_STOPS_MM, "loading.stops_mm", s,
+                   f"a stop beyond the final load loading.u0_mm = {self.u0_mm:g} mm would never be reached")
         _check(self.min_step_mm <= self.first_step_mm, "loading.min_step_mm", self.min_step_mm,
                "must not exceed loading.first_step_mm")
         _check(self.min_step_mm <= self.max_step_mm, "loading.min_step_mm", self.min_step_mm,
@@ -461,10 +469,14 @@ class Scene:
         _choice("", self, "model", MODELS)
         for name, cls in _SECTIONS.items():
             _check(isinstance(getattr(self, name), cls), name, getattr(self, name), f"must be a {cls.__name__}")
-        lock = self.specimen.locking_u0_mm
-        _check(self.loading.u0_mm < lock, "loading.u0_mm", self.loading.u0_mm,
-               f"beyond the geometry's limit: the yarns of this specimen lock at u0 = {lock:.1f} mm "
-               "(ideal BET kinematics, docs/model.md)")
+        # loads past ideal yarn locking are valid: the yarns are extensible (K_el), and the run
+        # warns (locking_warning); ideal locking belongs to inextensible yarns
+        if self.model == "discrete":
+            n = yarns_per_family(self.specimen, self.discrete.spacing_mm)
+            _check(n >= MIN_YARNS_PER_FAMILY, "discrete.spacing_mm", self.discrete.spacing_mm,
+                   f"leaves about {n} yarns per family across the {self.specimen.length_mm:g} x "
+                   f"{self.specimen.width_mm:g} mm specimen; a yarn network needs at least "
+                   f"{MIN_YARNS_PER_FAMILY} (spacing <= {_max_spacing(self.specimen):.3g} mm)")
         if self.model == "continuum":
             m, e = self.material, self.effects
             if e.shear:
@@ -570,6 +582,89 @@ class Scene:
     def digest(self) -> str:
         """A stable hash of the complete scene (for caches)."""
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+
+
+MIN_YARNS_PER_FAMILY = 4
+
+
+def yarns_per_family(specimen: Specimen, spacing_mm: float) -> int:
+    """Yarns of one family across the specimen at a spacing [mm]: the width of the rectangle across
+    the yarns, L sin a + W cos a, over the spacing (the larger family count at a != 45 deg is not
+    needed: both families use the smaller of the two widths)."""
+    a = math.radians(specimen.yarn_angle_deg)
+    across = min(specimen.length_mm * math.sin(a) + specimen.width_mm * math.cos(a),
+                 specimen.length_mm * math.cos(a) + specimen.width_mm * math.sin(a))
+    return int(across // spacing_mm)
+
+
+def _max_spacing(specimen: Specimen) -> float:
+    return yarns_per_family(specimen, 1.0) / MIN_YARNS_PER_FAMILY
+
+
+def locking_warning(scene: Scene) -> str | None:
+    """A warning when the load passes ideal yarn locking (inextensible yarns would lock there; the
+    model's yarns stretch, so it runs, with the yarns carrying the load by elongation)."""
+    lock = scene.specimen.locking_u0_mm
+    if scene.loading.u0_mm < lock:
+        return None
+    return (f"loading.u0_mm = {scene.loading.u0_mm:g} mm is past ideal yarn locking (u0 = {lock:.1f} mm for "
+            f"this specimen): beyond it the yarns must stretch (K_el = {scene.material.K_el:.3g} Pa) and the "
+            "force rises steeply")
+
+
+# fitted to the default specimen (70 x 220 mm): Netgen's triangles have about 0.42 h² each, and the
+# peak memory of assembly + sparse Cholesky (condensed) grew like 250 B x dofs x (p + 2) over
+# 150 MB of libraries (h = 10, 5, 2.5 mm; p = 2 to 8: 159 to 313 MB after factorizing)
+_TRIANGLE_AREA = 0.42
+_BYTES_PER_DOF_ORDER = 250.0
+_BASE_BYTES = 1.5e8
+_WARN_BYTES = 5e8
+
+
+def estimate_size(scene: Scene) -> tuple[int, float]:
+    """(dofs, peak memory [bytes]) of a continuum run, estimated before meshing.
+
+    Triangles: the specimen area over 0.42 h² (plus about 12 per halving of the size at each graded
+    corner); an H1 field
+    of order p has about p²/2 dofs per triangle (u two of them, phi one), the multiplier
+    (p_lam + 1)(p_lam + 2)/2.
+    """
+    sp, d = scene.specimen, scene.discretization
+    ntri = sp.length_mm * sp.width_mm / (_TRIANGLE_AREA * d.mesh_size_mm ** 2)
+    if d.corner_mesh_size_mm > 0:
+        ntri += 4 * 12 * math.log2(d.mesh_size_mm / d.corner_mesh_size_mm)  # measured 9-12 per halving
+    per_tri: float = d.p_u ** 2
+    if scene.effects.bending:
+        per_tri += d.p_phi ** 2 / 2 + (d.p_lam + 1) * (d.p_lam + 2) / 2
+    dofs = int(ntri * per_tri)
+    return dofs, _BASE_BYTES + _BYTES_PER_DOF_ORDER * dofs * (max(d.p_u, d.p_phi) + 2)
+
+
+def available_memory() -> float | None:
+    """Available memory [bytes] (Linux /proc/meminfo MemAvailable; None elsewhere)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def check_size(scene: Scene) -> str | None:
+    """Refuse (SceneError) a continuum problem that will not fit in the available memory; a
+    warning with its estimated size above 0.5 GB."""
+    if scene.model != "continuum":
+        return None
+    dofs, mem = estimate_size(scene)
+    d = scene.discretization
+    what = (f"discretization.mesh_size_mm = {d.mesh_size_mm:g}, order_u = {d.order_u}: about {dofs:,} dofs "
+            f"and {mem / 1e9:.1f} GB (estimated before meshing)")
+    avail = available_memory()
+    _check(avail is None or mem < avail, "discretization.order_u", d.order_u,
+           f"{what}; only {(avail or 0) / 1e9:.1f} GB are available: coarsen the mesh or lower the order")
+    return f"a large problem: {what}" if mem > _WARN_BYTES else None
 
 
 #: The embedded default scene's discretization: the cheapest setting measured within 0.3 % of the

@@ -30,6 +30,17 @@ is a result: it is cached with its error and its converged steps and is not retr
 error in the study but not cached, so that the next run retries it. A scene refused by
 validation is recorded as failed without running.
 
+Trust: case.json records the sha256 of every file of the case; each cached case is verified
+on every read (checksums, summary.json's status against case.json's, its step count and last
+load against results.csv) and a damaged one is recomputed with a warning naming the file. A
+reference, error or Pareto front is never computed from a missing or nan value
+(:class:`MissingValueError`: the report says what is missing, the command exits 1).
+Ctrl-C (SIGINT, or SIGTERM through the CLI) keeps the finished cases in the cache, cancels the
+others, stops the local workers at once and removes their unfinished ``.run-*`` folders; the
+workers ignore SIGINT (the parent decides) and exit by themselves when the parent dies, even by
+SIGKILL, whose leftover folders the next study removes. An unreachable dask scheduler is a
+:class:`SchedulerError` after at most 5 s.
+
 Execution: in this process (``workers = 1``), in local processes (default: one per core,
 ``concurrent.futures`` with the spawn start method) or on a dask.distributed cluster given its
 scheduler address (``distributed.Client.submit``; the workers need ngbet installed, they return
@@ -40,6 +51,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import fcntl
 import hashlib
 import itertools
 import json
@@ -47,17 +59,20 @@ import logging
 import math
 import os
 import shutil
+import signal
 import sys
 import tempfile
 import threading
 import time
 import traceback
 import uuid
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
-from .output import git_revision, machine, read_profiles, read_rows, versions
+from .errors import NgbetError
+from .output import RUN_LOCK, git_revision, machine, read_profiles, read_rows, versions
 from .scene import Scene, SceneError
 
 log = logging.getLogger(__name__)
@@ -220,8 +235,8 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
     else), error text, wall time, threads, and with no ``workdir`` the run folder's files as
     ``{"files": {name: bytes}}`` (for dask workers on other machines).
     """
-    from .run import run
     from .errors import ConvergenceError
+    from .run import run
 
     scene = Scene.from_dict(scene_dict)
     if threads > 0:  # ngbet.run.run sets NGSolve's threads from the scene
@@ -249,9 +264,24 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
 
 
 def _store(cache: Path, key: str, rec: dict[str, Any], workdir: Path | None) -> None:
-    """Move a finished case into cache/<key> atomically (a rename), with its case.json."""
+    """Move a finished case into cache/<key> atomically (a rename), with its case.json listing the
+    sha256 of every file (what :func:`verify_case` checks on every read)."""
     files = rec.pop("files", None)
     tmp = cache / f".tmp-{key}-{uuid.uuid4().hex[:8]}"
+    try:
+        _fill(tmp, rec, files, workdir)
+        final = cache / key
+        if final.exists():
+            shutil.rmtree(final)
+        tmp.rename(final)
+    except BaseException:  # an interrupt or a full disk: no half-stored case is left behind
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _fill(tmp: Path, rec: dict[str, Any], files: dict[str, bytes] | None, workdir: Path | None) -> None:
+    """The case folder ``tmp``: the run folder (moved, or written from the files a dask worker
+    returned) and case.json with the checksums."""
     if workdir is not None and workdir.exists():
         workdir.rename(tmp)
     else:
@@ -259,11 +289,103 @@ def _store(cache: Path, key: str, rec: dict[str, Any], workdir: Path | None) -> 
     for name, data in (files or {}).items():
         (tmp / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp / name).write_bytes(data)
+    (tmp / RUN_LOCK).unlink(missing_ok=True)
+    rec["files_sha256"] = {p.relative_to(tmp).as_posix(): _sha256(p) for p in sorted(tmp.rglob("*"))
+                           if p.is_file() and p.name != "case.json"}
     (tmp / "case.json").write_text(json.dumps(rec, indent=2, default=str))
-    final = cache / key
-    if final.exists():
-        shutil.rmtree(final)
-    tmp.rename(final)
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+class MissingValueError(ValueError):
+    """A value a study's reference, error or front needs is missing or nan: nothing is computed
+    from it (the report says which case and value instead)."""
+
+
+class CacheError(ValueError):
+    """A cached case that cannot be trusted; the message names the file and what is wrong."""
+
+
+def verify_case(run_dir: Path) -> dict[str, Any]:
+    """The record of a cached case after checking it; :class:`CacheError` naming the file otherwise.
+
+    Checked: case.json is complete JSON with a status and the sha256 of each file; every file is
+    there with that checksum; summary.json agrees with case.json (status) and with results.csv
+    (number of steps, last load).
+    """
+    case_json = run_dir / "case.json"
+    rec = _json_file(case_json)
+    sums = rec.get("files_sha256")
+    if rec.get("status") not in ("ok", "failed") or not isinstance(sums, dict) or not sums:
+        raise CacheError(f"{case_json}: no status or no checksums (incomplete, or written by an older ngbet)")
+    for name, digest in sums.items():
+        f = run_dir / name
+        if not f.is_file():
+            raise CacheError(f"{f}: missing")
+        if _sha256(f) != digest:
+            raise CacheError(f"{f}: checksum mismatch (changed or truncated since it was cached)")
+    summary = _json_file(run_dir / "summary.json")
+    if summary.get("status") != rec["status"]:
+        raise CacheError(f"{run_dir / 'summary.json'}: status {summary.get('status')!r} but case.json "
+                         f"says {rec['status']!r}")
+    steps = read_rows(run_dir / "results.csv") if (run_dir / "results.csv").exists() else []
+    if len(steps) != summary.get("steps") or (steps and not math.isclose(
+            float(steps[-1].get("u0_mm", math.nan)), float(summary.get("u0_reached_mm", math.nan)), abs_tol=1e-9)):
+        raise CacheError(f"{run_dir / 'results.csv'}: {len(steps)} steps do not match summary.json")
+    return rec
+
+
+def _json_file(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise CacheError(f"{path}: missing") from None
+    except (OSError, ValueError) as exc:
+        raise CacheError(f"{path}: unreadable ({type(exc).__name__}: {exc})") from None
+    if not isinstance(data, dict):
+        raise CacheError(f"{path}: not a JSON object")
+    return data
+
+
+def clean_debris(cache: Path) -> int:
+    """Remove the ``.run-*`` folders of studies that were killed (those whose run lock is free; a
+    running study's are locked) and ``.tmp-*`` folders older than 10 minutes. Returns how many."""
+    n = 0
+    old = time.time() - 600  # a .tmp-* folder lives for the milliseconds of a store
+    for d in list(cache.glob(".run-*")) + [t for t in cache.glob(".tmp-*") if t.stat().st_mtime < old]:
+        if d.is_dir() and not _locked(d / RUN_LOCK):
+            shutil.rmtree(d, ignore_errors=True)
+            n += 1
+    return n
+
+
+def _locked(lock: Path) -> bool:
+    if not lock.exists():
+        return False
+    with lock.open("a") as fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    return False
+
+
+def _cached(run_dir: Path) -> dict[str, Any] | None:
+    """The verified record of a cached case, or None (absent, or damaged: then a warning names the file)."""
+    if not run_dir.exists():
+        return None
+    try:
+        return verify_case(run_dir)
+    except CacheError as exc:
+        log.warning("cached case not trusted, it is recomputed: %s", exc)
+        return None
 
 
 def _reached(workdir: Path) -> float:
@@ -301,6 +423,10 @@ def run_study(study: Study, out: str | Path | None = None, cache: str | Path | N
     cache = Path(cache) if cache is not None else DEFAULT_ROOT / "cache"
     out.mkdir(parents=True, exist_ok=True)
     cache.mkdir(parents=True, exist_ok=True)
+    for stale in ("report.md", "meta.json"):  # written again at the end; never left from an older run
+        (out / stale).unlink(missing_ok=True)
+    if clean_debris(cache):
+        log.info("removed the unfinished case folders of an interrupted study from %s", cache)
 
     cases: list[_Case] = []
     for i, params in enumerate(study.cases):
@@ -315,12 +441,10 @@ def run_study(study: Study, out: str | Path | None = None, cache: str | Path | N
     for c in cases:
         if c.key is None:
             continue
-        f = cache / c.key / "case.json"
-        if f.exists():
-            rec = json.loads(f.read_text())
-            if rec.get("status") == "ok" or not retry_failed:
-                c.record = {**rec, "cached": True}
-                continue
+        rec = _cached(cache / c.key)
+        if rec is not None and (rec.get("status") == "ok" or not retry_failed):
+            c.record = {**rec, "cached": True}
+            continue
         if c.key in seen:  # the same scene twice in one study: run once
             continue
         seen[c.key] = c
@@ -352,17 +476,88 @@ def run_study(study: Study, out: str | Path | None = None, cache: str | Path | N
     return data
 
 
+class StudyInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM stopped a study: its finished cases are in the cache, the others cancelled."""
+
+
+class SchedulerError(NgbetError):
+    """The dask scheduler could not be reached; ``address`` names it."""
+
+    def __init__(self, address: str, why: str) -> None:
+        super().__init__(f"cannot reach the dask scheduler at {address}: {why}")
+        self.address = address
+
+
+SCHEDULER_TIMEOUT_S = 5.0
+PARENT_POLL_S = 0.5
+
+
+def _worker_init(parent: int) -> None:
+    """Start of a local worker process: Ctrl-C is for the parent (it keeps the finished cases and
+    stops the workers), and the worker exits by itself when the parent dies (even by SIGKILL)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True, name="ngbet-parent-watch").start()
+
+
+def _exit_with_parent(parent: int) -> None:
+    while True:
+        time.sleep(PARENT_POLL_S)
+        if os.getppid() != parent:
+            os._exit(1)
+
+
+class _Bar:
+    """Progress over cases: finished ones and the part of the load the running ones reached."""
+
+    def __init__(self, total: int, name: str, running: dict[str, tuple[Path, float]], enabled: bool) -> None:
+        self.running, self.done, self.lock = running, 0, threading.Lock()
+        self.bar = None
+        if enabled:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, desc=f"study {name}", unit="case",
+                            bar_format="{l_bar}{bar}| {n:.2f}/{total} cases [{elapsed}<{remaining}]{postfix}")
+        self.stop = threading.Event()
+        self.poller: threading.Thread | None = None
+
+    def start_polling(self) -> None:
+        if self.bar is None:
+            return
+
+        def poll() -> None:
+            while not self.stop.wait(0.5):
+                self.tick()
+        self.poller = threading.Thread(target=poll, daemon=True)
+        self.poller.start()
+
+    def tick(self, note: str | None = None) -> None:
+        if self.bar is None:
+            return
+        if note:
+            self.bar.set_postfix_str(note, refresh=False)
+        with self.lock:
+            part = sum(min(_reached(wd) / u0, 0.999) for wd, u0 in self.running.values())
+            self.bar.n = min(round(self.done + part, 2), self.bar.total)
+        self.bar.refresh()
+
+    def close(self) -> None:
+        self.stop.set()
+        if self.poller is not None:
+            self.poller.join(timeout=2)
+        if self.bar is not None:
+            self.bar.n = self.done
+            self.bar.refresh()
+            self.bar.close()
+
+
 def _execute(todo: list[_Case], cache: Path, mode: str, nworkers: int | None, scheduler: str | None,
              threads: int, progress: bool, name: str) -> None:
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(todo), desc=f"study {name}", unit="case",
-                   bar_format="{l_bar}{bar}| {n:.2f}/{total} cases [{elapsed}<{remaining}]{postfix}")
+    """Run the cases; each is cached as soon as it finishes. Ctrl-C (or SIGTERM in the CLI) keeps
+    the finished ones, cancels the others, stops the workers and removes their unfinished folders."""
+    wds = {c.key: cache / f".run-{c.key}-{uuid.uuid4().hex[:8]}" for c in todo}
     running: dict[str, tuple[Path, float]] = {}
-    done = [0]
-    lock = threading.Lock()
+    bar = _Bar(len(todo), name, running, progress)
+    finished_keys: set[str] = set()
 
     def finished(c: _Case, rec: dict[str, Any], wd: Path | None) -> None:
         if rec.get("status") in ("ok", "failed"):
@@ -371,89 +566,124 @@ def _execute(todo: list[_Case], cache: Path, mode: str, nworkers: int | None, sc
             shutil.rmtree(wd, ignore_errors=True)
         rec.pop("files", None)
         c.record = {**rec, "cached": False}
-        with lock:
+        with bar.lock:
             running.pop(c.key or "", None)
-            done[0] += 1
-        if bar is not None:
-            bar.set_postfix_str(f"case {c.index} {rec['status']} {rec.get('wall_s', 0):.1f} s", refresh=False)
-            _tick()
+            bar.done += 1
+            finished_keys.add(c.key or "")
+        bar.tick(f"case {c.index} {rec['status']} {rec.get('wall_s', 0):.1f} s")
 
-    def _tick() -> None:
-        if bar is None:
-            return
-        with lock:
-            part = sum(min(_reached(wd) / u0, 0.999) for wd, u0 in running.values())
-            bar.n = round(done[0] + part, 2)
-        bar.refresh()
-
-    stop = threading.Event()
-    poller = None
-    if bar is not None and mode != "dask":
-        def poll() -> None:
-            while not stop.wait(0.5):
-                _tick()
-        poller = threading.Thread(target=poll, daemon=True)
-        poller.start()
-
+    if mode != "dask":
+        bar.start_polling()
     try:
         if mode == "inprocess":
             for c in todo:
-                wd = cache / f".run-{c.key}-{uuid.uuid4().hex[:8]}"
-                with lock:
-                    running[c.key] = (wd, c.scene.loading.u0_mm)  # type: ignore[index,union-attr]
-                finished(c, execute_case(c.scene.to_dict(), threads, str(wd)), wd)  # type: ignore[union-attr]
+                with bar.lock:
+                    running[c.key] = (wds[c.key], c.scene.loading.u0_mm)  # type: ignore[index,union-attr]
+                finished(c, execute_case(c.scene.to_dict(), threads, str(wds[c.key])), wds[c.key])  # type: ignore[union-attr]
         elif mode == "process":
-            import concurrent.futures as cf
-            import multiprocessing as mp
-
-            env_before = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-            for k in env_before:  # one BLAS thread per worker too (inherited at spawn)
-                os.environ[k] = str(threads)
-            try:
-                with cf.ProcessPoolExecutor(max_workers=nworkers, mp_context=mp.get_context("spawn")) as ex:
-                    futs = {}
-                    for c in todo:
-                        wd = cache / f".run-{c.key}-{uuid.uuid4().hex[:8]}"
-                        fut = ex.submit(execute_case, c.scene.to_dict(), threads, str(wd))  # type: ignore[union-attr]
-                        futs[fut] = (c, wd)
-                        with lock:
-                            running[c.key] = (wd, c.scene.loading.u0_mm)  # type: ignore[index,union-attr]
-                    for fut in cf.as_completed(futs):
-                        c, wd = futs[fut]
-                        try:
-                            rec = fut.result()
-                        except Exception as exc:  # a worker died: record, do not cache
-                            rec = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
-                                   "error_type": type(exc).__name__, "wall_s": math.nan}
-                        finished(c, rec, wd)
-            finally:
-                for k, v in env_before.items():
-                    if v is None:
-                        os.environ.pop(k, None)
-                    else:
-                        os.environ[k] = v
+            _run_processes(todo, wds, nworkers, threads, running, bar.lock, finished)
         else:
-            from distributed import Client, as_completed
-
-            with Client(scheduler, timeout="30s") as client:
-                futs = {client.submit(execute_case, c.scene.to_dict(), threads, None,  # type: ignore[union-attr]
-                                      key=f"ngbet-case-{c.key}-{uuid.uuid4().hex[:6]}", pure=False): c for c in todo}
-                for fut in as_completed(list(futs)):
-                    c = futs[fut]
-                    try:
-                        rec = fut.result()
-                    except Exception as exc:
-                        rec = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
-                               "error_type": type(exc).__name__, "wall_s": math.nan}
-                    finished(c, rec, None)
+            _run_dask(todo, scheduler, threads, finished)  # type: ignore[arg-type]
+    except KeyboardInterrupt:
+        for c in todo:
+            if c.key not in finished_keys:
+                shutil.rmtree(wds[c.key], ignore_errors=True)
+        raise StudyInterrupted(f"study {name} interrupted: {len(finished_keys)} finished cases are kept in "
+                               f"{cache}, {len(todo) - len(finished_keys)} cancelled; run it again to "
+                               "compute those") from None
     finally:
-        stop.set()
-        if poller is not None:
-            poller.join(timeout=2)
-        if bar is not None:
-            bar.n = done[0]
-            bar.refresh()
-            bar.close()
+        bar.close()
+
+
+def _run_processes(todo: list[_Case], wds: dict[Any, Path], nworkers: int | None, threads: int,
+                   running: dict[str, tuple[Path, float]], lock: threading.Lock,
+                   finished: Callable[[_Case, dict[str, Any], Path | None], None]) -> None:
+    """Local worker processes (spawned; they exit with this process, see :func:`_worker_init`)."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    env_before = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    for k in env_before:  # one BLAS thread per worker too (inherited at spawn)
+        os.environ[k] = str(threads)
+    ex = cf.ProcessPoolExecutor(max_workers=nworkers, mp_context=mp.get_context("spawn"),
+                                initializer=_worker_init, initargs=(os.getpid(),))
+    futs: dict[Any, tuple[_Case, Path]] = {}
+    consumed: set[Any] = set()
+
+    def take(fut: Any) -> None:
+        c, wd = futs[fut]
+        consumed.add(fut)
+        try:
+            rec = fut.result()
+        except Exception as exc:  # a worker died: record, do not cache
+            rec = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
+                   "error_type": type(exc).__name__, "wall_s": math.nan}
+        finished(c, rec, wd)
+
+    try:
+        for c in todo:
+            futs[ex.submit(execute_case, c.scene.to_dict(), threads, str(wds[c.key]))] = (c, wds[c.key])  # type: ignore[union-attr]
+            with lock:
+                running[c.key] = (wds[c.key], c.scene.loading.u0_mm)  # type: ignore[index,union-attr]
+        for fut in cf.as_completed(futs):
+            take(fut)
+        ex.shutdown(wait=True)
+    except BaseException:
+        for fut in futs:  # cases that finished while the interrupt came in are kept
+            if fut.done() and not fut.cancelled() and fut not in consumed:
+                take(fut)
+        _stop_pool(ex)
+        raise
+    finally:
+        for k, v in env_before.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _stop_pool(ex: Any) -> None:
+    """Cancel the pending cases and end the worker processes now (not after their running case)."""
+    procs = list((getattr(ex, "_processes", None) or {}).values())
+    ex.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join(timeout=5)
+        if p.is_alive():
+            p.kill()
+
+
+def _run_dask(todo: list[_Case], scheduler: str, threads: int,
+              finished: Callable[[_Case, dict[str, Any], Path | None], None]) -> None:
+    """A dask.distributed cluster; an unreachable scheduler is a SchedulerError within seconds."""
+    from distributed import Client, as_completed
+
+    try:
+        client = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S:g}s")
+    except Exception as exc:  # refused, timed out, or something that does not speak dask answered
+        raise SchedulerError(scheduler, f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}") from None
+    with client:
+        futs = {client.submit(execute_case, c.scene.to_dict(), threads, None,  # type: ignore[union-attr]
+                              key=f"ngbet-case-{c.key}-{uuid.uuid4().hex[:6]}", pure=False): c for c in todo}
+        consumed = set()
+        try:
+            for fut in as_completed(list(futs)):
+                consumed.add(fut)
+                c = futs[fut]
+                try:
+                    rec = fut.result()
+                except Exception as exc:
+                    rec = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
+                           "error_type": type(exc).__name__, "wall_s": math.nan}
+                finished(c, rec, None)
+        except KeyboardInterrupt:
+            client.cancel([f for f in futs if f not in consumed and not f.done()])
+            for f in futs:
+                if f not in consumed and f.status == "finished":
+                    finished(futs[f], f.result(), None)
+            raise
 
 
 # ---------------------------------------------------------------------------------------------
@@ -548,7 +778,7 @@ def _columns(rows: list[dict[str, Any]]) -> list[str]:
 
 def _write_csv(path: Path, rows: list[dict[str, Any]], columns: list[str]) -> None:
     with path.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
+        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
         w.writeheader()
         for r in rows:
             w.writerow({k: _fmt(v) for k, v in r.items()})
@@ -597,9 +827,17 @@ def finish(study: Study, data: StudyData) -> list[Path]:
         import matplotlib
 
         matplotlib.use("Agg")
-        figs = list(study.plot(data) or [])
+        try:
+            figs = list(study.plot(data) or [])
+        except MissingValueError as exc:
+            log.error("study %s: no figures: %s", study.name, exc)
     if study.report is not None:
-        text = study.report(data)
+        try:
+            text = study.report(data)
+        except MissingValueError as exc:  # no report from incomplete data, and no figure either
+            text = f"# {study.name}: no report\n\n{exc}\n"
+            data.meta["report_error"] = str(exc)
+            log.error("study %s: no report: %s", study.name, exc)
         (data.out / "report.md").write_text(text)
     return figs
 
@@ -663,4 +901,6 @@ def run_from_args(build: Callable[[bool], Study], args: argparse.Namespace) -> i
           f"in {data.meta['wall_s']:.1f} s -> {out}/")
     if (out / "report.md").exists():
         print((out / "report.md").read_text())
+    if data.meta.get("report_error"):
+        return 1
     return 0 if st.count("error") == 0 else 1

@@ -34,7 +34,7 @@ def test_toml_round_trip_is_identity():
     ("discretization.order_u", 0, "discretization.order_u"),
     ("effects.constraint", "magic", "effects.constraint"),
     ("effects.stabilization_K", -2.0, "effects.stabilization_K"),
-    ("loading.u0_mm", 70.0, "lock"),
+    ("loading.stops_mm", [60.0], "beyond the final load"),
     ("effects.elongation", False, "effects.elongation"),
     ("discretization.order_lam", 3, "discretization.order_lam"),  # not below order_phi = order_u = 3
     ("specimen.width_mm", 300.0, "zone A"),

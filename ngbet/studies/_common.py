@@ -8,7 +8,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from ngbet.scene import Scene
-from ngbet.study import StudyData
+from ngbet.study import MissingValueError, StudyData
 
 H = "discretization.mesh_size_mm"
 P = "discretization.order_u"
@@ -90,8 +90,11 @@ def reference(data: StudyData, u0: float, p: int, hs: Sequence[float]) -> dict[s
     """
     cs = [lagrange_case(data, h, p) for h in hs]
     if any(c is None for c in cs):
-        raise ValueError(f"reference cases missing or failed: p = {p}, h = {list(hs)}")
+        raise MissingValueError(f"reference cases missing or failed: p = {p}, h = {list(hs)}")
     F = [data.at(c, u0, "force_N") for c in cs]  # type: ignore[arg-type]
+    if not all(math.isfinite(f) for f in F):
+        raise MissingValueError(f"no reference: the force at u0 = {u0:g} mm of the reference cases {cs} "
+                                f"(p = {p}, h = {list(hs)} mm) is {F}")
     d1, d2 = F[0] - F[1], F[1] - F[2]
     q = math.log2(d1 / d2) if d1 * d2 > 0 and abs(d2) > 0 else math.nan
     if math.isfinite(q) and q > 0.2:

@@ -78,6 +78,9 @@ def analyse(data: StudyData, g: dict, quick: bool) -> dict:
         i = c["case"]
         F = data.at(i, s2, "force_N")
         X, uy = data.profile(i, s2)
+        if not math.isfinite(F) or not uy:  # never an error or a front point from a missing value
+            pts.append({"case": i, "label": label(c["params"]), "status": f"no value at {s2:g} mm"})
+            continue
         kind = c["params"].get(C.FORM, "mixed") if c["params"].get(C.CON) == "penalty" else (
             "uncondensed" if c["params"].get("solver.condense") is False else
             "graded" if c["params"].get(GRADE) else "lagrange")
