@@ -70,10 +70,10 @@ CASES: dict[str, tuple[dict, str]] = {
     "penalty-full-1e10-h10": ({"effects.constraint": "penalty", "effects.penalty_K": 1e10,
                                "effects.penalty_form": "full", "discretization.mesh_size_mm": 10.0},
                               "full penalty K = 1e10 Pa, h = 10 mm (solved in its mixed form)"),
-    "penalty-full-1e10-h10-pointwise": ({"effects.constraint": "penalty", "effects.penalty_K": 1e10,
-                                         "effects.penalty_form": "full", "solver.condense": False,
-                                         "discretization.mesh_size_mm": 10.0},
-                                        "full penalty K = 1e10 Pa, h = 10 mm, pointwise (condense = false)"),
+    "penalty-full-1e10-h10-uncondensed": ({"effects.constraint": "penalty", "effects.penalty_K": 1e10,
+                                           "effects.penalty_form": "full", "solver.condense": False,
+                                           "discretization.mesh_size_mm": 10.0},
+                                          "full penalty K = 1e10 Pa, h = 10 mm, Λ not condensed (same solution)"),
 }
 DEFAULT_CASES = ["default"]
 

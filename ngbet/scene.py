@@ -197,8 +197,10 @@ class Effects:
     1/2 K (phi - i8)^2 (``"penalty"``, paper appendix A). ``penalty_form = "mixed"`` writes the
     penalty with Lambda as an element-local unknown (Lambda (phi - i8) - Lambda^2 / 2K) that is
     condensed out: it converges to the Lagrange solution like 1/K on the same mesh; ``"full"`` is
-    the paper's pointwise penalty (the same discrete solution as a minimization in (u, phi), solved
-    with a condensed Lambda of the degree of phi - i8 when ``solver.condense``; see ngbet.continuum.problem).
+    the paper's pointwise penalty, solved in its exactly equivalent mixed form (Lambda of the degree
+    of phi - i8, on which the L2 projection is the identity: the same discrete solution, far fewer
+    Newton steps at large K; see ngbet.continuum.problem). The formulation is chosen here alone:
+    ``solver.condense`` only eliminates element-local unknowns before factorizing.
     """
 
     shear: bool = True  # 1/2 K_sh i8^2
@@ -346,7 +348,9 @@ class Solver:
     growth: float = 1.5
     cut: float = 0.5
     linear_solver: str = "auto"
-    condense: bool = True  # eliminate element-local dofs (Lambda) before factorizing
+    # eliminate element-local dofs (Lambda) before factorizing; false keeps them in the factorized
+    # matrix (slower): a numerics choice, the same discrete solution for every formulation
+    condense: bool = True
     # NGSolve threads; "auto": all cores. One by default: on the 2-core machines measured, two threads
     # were slower in wall time (solves and residuals wait for a core)
     threads: int | str = 1
