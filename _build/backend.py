@@ -34,15 +34,18 @@ def _record_revision() -> None:
 
 
 def build_wheel(wheel_directory, config_settings=None, metadata_directory=None):  # type: ignore[no-untyped-def]
+    """Setuptools' wheel, with the revision recorded first."""
     _record_revision()
     return _orig.build_wheel(wheel_directory, config_settings, metadata_directory)
 
 
 def build_editable(wheel_directory, config_settings=None, metadata_directory=None):  # type: ignore[no-untyped-def]
+    """Setuptools' editable wheel, with the revision recorded first."""
     _record_revision()
     return _orig.build_editable(wheel_directory, config_settings, metadata_directory)
 
 
 def build_sdist(sdist_directory, config_settings=None):  # type: ignore[no-untyped-def]
+    """Setuptools' sdist, with the revision recorded first (so that it carries it)."""
     _record_revision()
     return _orig.build_sdist(sdist_directory, config_settings)

@@ -1,5 +1,6 @@
-"""Regenerate docs/calibration_fit.png: the fit of the locking shear law to the Cao et al. (2008)
-glass plain-weave BET curve (the command of docs/calibration.md, run from Python).
+"""Regenerate docs/calibration_fit.png, the fit of the locking shear law to a measured BET curve.
+
+The curve is the Cao et al. (2008) glass plain weave; this is the command of docs/calibration.md, run from Python.
 
     python docs/calibration_figure.py
 """
@@ -17,6 +18,7 @@ PARAMS = ["material.K_sh", "material.K_lock", "material.gamma_lock_deg"]
 
 
 def main() -> None:
+    """Fit, draw the figure and write the fit's record beside it."""
     scene = Scene.from_toml(ROOT / "geometry" / "cao2008_150x450.toml")
     result = fit.fit(ROOT / "data" / "cao2008_glass_plain_150x450.csv", scene, PARAMS, u_range=(10.0, 106.0))
     out = ROOT / "docs"

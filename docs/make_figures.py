@@ -46,6 +46,7 @@ def specimen_map(ax: plt.Axes, r: ngbet.Result) -> None:
 
 
 def main() -> int:
+    """Run the scenes and write the figures into docs/figures."""
     out = HERE / "figures"
     out.mkdir(exist_ok=True)
     r = ngbet.simulate(ngbet.default_scene())

@@ -1,5 +1,7 @@
-"""A parameter sweep with the Python API: how the S-shape grows with the bending stiffness α1
-of the thick yarns (a coarse mesh and 20 mm of clamp displacement, so that it runs in seconds)."""
+"""A parameter sweep with the Python API: the S-shape grows with the thick yarns' bending stiffness α1.
+
+A coarse mesh and 20 mm of clamp displacement, so that it runs in seconds.
+"""
 
 import ngbet
 

@@ -142,8 +142,10 @@ class Result:
 
     @property
     def double_force(self) -> np.ndarray | None:
-        """Reaction double force on the moving clamp [N m] (column ``double_force_Nm``); None
-        when the run has none (the discrete model, or a scene without bending)."""
+        """Reaction double force on the moving clamp [N m] (column ``double_force_Nm``).
+
+        None when the run has none (the discrete model, or a scene without bending).
+        """
         return self.columns.get("double_force_Nm")
 
     @property

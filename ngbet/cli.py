@@ -73,11 +73,13 @@ GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the w
 
 @contextlib.contextmanager
 def _interrupts() -> Iterator[None]:
-    """Ctrl-C and SIGTERM raise KeyboardInterrupt in the main thread (the run folder records
-    "interrupted"). The main thread can be inside one NGSolve call for a long time (assembly or
+    """Ctrl-C and SIGTERM raise KeyboardInterrupt in the main thread (the run folder records "interrupted").
+
+    The main thread can be inside one NGSolve call for a long time (assembly or
     factorization at high order: tens of seconds) and only acts when it returns; a watchdog thread
     woken by the signal (``signal.set_wakeup_fd``) then records the interruption in the active run
-    folders itself and exits with 130 after GRACE_S."""
+    folders itself and exits with 130 after GRACE_S.
+    """
     acted = threading.Event()
 
     def handler(signum: int, frame: Any) -> None:
@@ -128,8 +130,10 @@ def _watch(r: socket.socket, acted: threading.Event) -> None:
 
 
 def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
-    """The exit status and the one-line message of an error that ends a command (``where``: the
-    output folder, named when the OS error names no file, e.g. a full disk on write)."""
+    """The exit status and the one-line message of an error that ends a command.
+
+    ``where``: the output folder, named when the OS error names no file (e.g. a full disk on write).
+    """
     from .errors import ConvergenceError
     from .output import OutputError
     from .study import SchedulerError
@@ -280,8 +284,9 @@ def _report(summary: dict, out: Path) -> str:
     from .output import read_rows
 
     rows = read_rows(out / "results.csv")
-    lines = [f"ngbet: {summary['status']}: u0 = {summary['u0_reached_mm']:g} mm in {summary.get('load_steps', len(rows))} "
-             f"load steps, {summary.get('newton_iterations', '?')} Newton iterations, {summary['wall_s']:.2f} s; "
+    lines = [f"ngbet: {summary['status']}: u0 = {summary['u0_reached_mm']:g} mm in "
+             f"{summary.get('load_steps', len(rows))} load steps, "
+             f"{summary.get('newton_iterations', '?')} Newton iterations, {summary['wall_s']:.2f} s; "
              f"results in {out}/"]
     for r in rows:
         if "force_N" in r and (abs(r["u0_mm"] - 37) < 1e-9 or r is rows[-1]):
@@ -291,8 +296,9 @@ def _report(summary: dict, out: Path) -> str:
             lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N{bar}")
     if "accuracy" in summary:
         a, d = summary["accuracy"], summary["accuracy"]["chosen"]
-        lines.append(f"  accuracy {a['target_error']:g} {'met' if a['met'] else 'NOT met'}: h = {d['mesh_size_mm']:g} mm,"
-                     f" corners {d['corner_mesh_size_mm']:g} mm, p = {d['order_u']} after {len(a['attempts'])} "
+        lines.append(f"  accuracy {a['target_error']:g} {'met' if a['met'] else 'NOT met'}: "
+                     f"h = {d['mesh_size_mm']:g} mm, corners {d['corner_mesh_size_mm']:g} mm, "
+                     f"p = {d['order_u']} after {len(a['attempts'])} "
                      f"attempt(s), solve {a['solve_s']:.2f} s, {a['wall_s']:.2f} s in all")
     return "\n".join(lines)
 

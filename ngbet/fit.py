@@ -67,8 +67,11 @@ def _csv_rows(path: Path, what: str) -> list[list[str]]:
 
 
 def read_curve(path: str | Path) -> Curve:
-    """Read a CSV with a header: the first column the clamp displacement [mm], and a column
-    ``force_N`` (or the second column) the force [N]. Rows are sorted by displacement."""
+    """Read a measured force curve from a CSV with a header.
+
+    The first column is the clamp displacement [mm], the column ``force_N`` (or the second column)
+    the force [N]. Rows are sorted by displacement.
+    """
     path = Path(path)
     rows = _csv_rows(path, "data")
     if len(rows) < 3 or len(rows[0]) < 2:
@@ -97,6 +100,7 @@ class Profile:
         return {float(u0): self.X_mm[self.u0_mm == u0] for u0 in np.unique(self.u0_mm)}
 
     def measured(self) -> np.ndarray:
+        """The measured u_y [mm], grouped by load in the order of :meth:`points`."""
         return np.concatenate([self.uy_mm[self.u0_mm == u0] for u0 in np.unique(self.u0_mm)])
 
     def inside(self, length_mm: float) -> Profile:
@@ -106,8 +110,10 @@ class Profile:
 
 
 def read_profile(path: str | Path) -> Profile:
-    """Read a CSV with the columns ``u0_mm``, ``X_mm``, ``uy_mm`` (others, such as the ``step``
-    of ngbet's own profile.csv, are ignored)."""
+    """Read a CSV with the columns ``u0_mm``, ``X_mm``, ``uy_mm``.
+
+    Other columns, such as the ``step`` of ngbet's own profile.csv, are ignored.
+    """
     path = Path(path)
     rows = _csv_rows(path, "profile")
     need = ("u0_mm", "X_mm", "uy_mm")
@@ -149,6 +155,7 @@ class FitResult:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def interval95(self) -> np.ndarray:
+        """95 % confidence intervals of the parameters (Student t on ln p), one row (low, high) each."""
         dof = max(int(self.used.sum()) - len(self.params), 1)
         from scipy.stats import t as student
 
@@ -157,6 +164,7 @@ class FitResult:
             return np.column_stack([self.values * np.exp(-q * self.se_log), self.values * np.exp(q * self.se_log)])
 
     def to_json(self) -> dict[str, Any]:
+        """The content of fit.json."""
         ci = self.interval95()
         n = len(self.params)
         corr = _correlation(self.cov_log)
@@ -258,8 +266,9 @@ def _start(scene: Scene, params: Sequence[str]) -> np.ndarray:
 def fit(data: Curve | str | Path, scene: Scene, params: Sequence[str],
         u_range: tuple[float, float] | None = None, noise: str = "relative", max_runs: int = 60,
         profile: Profile | str | Path | None = None, force_sd: float = 0.01, profile_sd_mm: float = 1.0) -> FitResult:
-    """Fit ``params`` (material keys, e.g. ``["material.K_sh", "material.K_lock"]``) of ``scene``
-    to the measured curve ``data`` by nonlinear least squares in ln p.
+    """Fit ``params`` of ``scene`` to the measured curve ``data`` by nonlinear least squares in ln p.
+
+    ``params``: material keys, e.g. ``["material.K_sh", "material.K_lock"]``.
 
     ``u_range`` (mm): the data points used (default: from a tenth of the largest displacement
     to the end; the first tenth holds the initial slack and friction that no elastic law has).
@@ -379,6 +388,7 @@ class Prediction:
     measured_N: np.ndarray
 
     def to_json(self) -> dict[str, Any]:
+        """The prediction's record (fit.json keeps it under ``prediction``, without the arrays)."""
         rel = (self.force_N - self.measured_N) / self.measured_N
         return {"data": self.data.source, "points": len(self.u_mm),
                 "range_mm": [float(self.u_mm.min()), float(self.u_mm.max())],
@@ -389,8 +399,10 @@ class Prediction:
 
 def predict(result: FitResult, data: Curve | str | Path, scene: Scene | None = None,
             u_range: tuple[float, float] | None = None) -> Prediction:
-    """Run ``scene`` (default: the fitted one) with the fitted parameter values at the
-    displacements of ``data`` and propagate the parameters' covariance to the force."""
+    """The fitted force at the displacements of ``data``, with the parameters' covariance propagated to it.
+
+    ``scene`` (default: the fitted one) runs with the fitted parameter values.
+    """
     from .continuum.sensitivity import force_path
 
     curve = data if isinstance(data, Curve) else read_curve(data)

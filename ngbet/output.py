@@ -54,6 +54,7 @@ def git_revision(path: Path | None = None) -> str:
 
 
 def machine() -> dict[str, Any]:
+    """The machine a run ran on (node, architecture, CPUs, system), for summary.json."""
     import os
 
     return {"node": platform.node(), "machine": platform.machine(), "cpus": os.cpu_count(),
@@ -70,8 +71,10 @@ _RUN_MARKERS = (RUN_LOCK, "summary.json", "scene.toml")
 
 
 class OutputError(NgbetError):
-    """The output folder cannot be used: not writable, a file in its place, busy with another run,
-    or not an ngbet run folder. ``path`` names it."""
+    """The output folder cannot be used.
+
+    Not writable, a file in its place, busy with another run, or not an ngbet run folder. ``path`` names it.
+    """
 
     def __init__(self, path: str | Path, why: str) -> None:
         super().__init__(f"{path}: {why}")
@@ -119,8 +122,10 @@ class RunWriter:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        """Ctrl-C or SIGTERM leaves "interrupted", any other escape "failed" (unless the run said
-        so already), each with the last converged load; then the folder is unlocked."""
+        """Ctrl-C or SIGTERM leaves "interrupted", any other escape "failed"; then the folder is unlocked.
+
+        Unless the run said so already; each with the last converged load.
+        """
         try:
             if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
                 self.summary({}, "interrupted",
@@ -135,8 +140,10 @@ class RunWriter:
             self.release()
 
     def _record_files(self) -> None:
-        """List in summary.json also the files written after it (plots, fields), so that the next
-        run into this folder knows them as ngbet's."""
+        """List in summary.json also the files written after it (plots, fields).
+
+        So the next run into this folder knows them as ngbet's.
+        """
         path = self.out / "summary.json"
         s = json.loads(path.read_text())
         files = self._files()
@@ -207,8 +214,10 @@ _ACTIVE: set[RunWriter] = set()
 
 
 def interrupt_active_runs(reason: str) -> list[Path]:
-    """Record "interrupted" in every run folder still open in this process (for a watchdog thread
-    when the main thread cannot act); returns the folders."""
+    """Record "interrupted" in every run folder still open in this process; returns the folders.
+
+    For a watchdog thread when the main thread cannot act.
+    """
     done = []
     for w in list(_ACTIVE):
         if w.status == "running":
@@ -280,9 +289,11 @@ def _clear_previous_run(out: Path) -> list[Path]:
 
 
 def preflight(scene: Scene) -> list[str]:
-    """Checks of a scene against this machine before anything is built: warnings (loads past ideal
-    yarn locking, a large problem) are logged and returned; a problem that cannot fit in the
-    available memory is refused (:class:`SceneError` naming the keys)."""
+    """Checks of a scene against this machine before anything is built.
+
+    Warnings (loads past ideal yarn locking, a large problem) are logged and returned; a problem that cannot fit in the
+    available memory is refused (:class:`SceneError` naming the keys).
+    """
     from .scene import check_size, locking_warning
 
     found = [w for w in (locking_warning(scene), check_size(scene)) if w]

@@ -37,8 +37,11 @@ def dense_force(u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None) -> tu
 
 def force_curve(ax: Any, u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None = None,
                 label: str | None = None, color: str | None = None, **kwargs: Any) -> Any:
-    """Draw a force–displacement curve on ``ax``: the curve (see :func:`dense_force`) and the
-    converged steps as markers; the legend says how the curve between steps was drawn."""
+    """Draw a force–displacement curve on ``ax``.
+
+    The curve (see :func:`dense_force`) and the converged steps as markers; the legend says how the
+    curve between steps was drawn.
+    """
     ud, Fd, how = dense_force(u0, force, dforce)
     (line,) = ax.plot(ud, Fd, "-", color=color, label=f"{label + ': ' if label else ''}{how}", **kwargs)
     ax.plot(np.r_[0.0, np.asarray(u0, dtype=float)], np.r_[0.0, np.asarray(force, dtype=float)], "o",

@@ -25,8 +25,10 @@ def _git(*args: str, cwd: Path = PACKAGE) -> str | None:
 
 
 def from_checkout(root: Path | None = None) -> str | None:
-    """The revision of the checkout that holds ngbet's sources (``root``: the repository), or None
-    when the package is not a tracked folder of a checkout (e.g. installed into a venv inside one)."""
+    """The revision of the checkout that holds ngbet's sources (``root``: the repository), or None.
+
+    None when the package is not a tracked folder of a checkout (e.g. installed into a venv inside one).
+    """
     pkg = (root / "ngbet") if root is not None else PACKAGE
     if _git("rev-parse", "--show-prefix", cwd=pkg) != "ngbet/":
         return None

@@ -197,8 +197,10 @@ class Effects:
     1/2 K (phi - i8)^2 (``"penalty"``, paper appendix A). ``penalty_form = "mixed"`` writes the
     penalty with Lambda as an element-local unknown (Lambda (phi - i8) - Lambda^2 / 2K) that is
     condensed out: it converges to the Lagrange solution like 1/K on the same mesh; ``"full"`` is
-    the paper's pointwise penalty (the same discrete solution as a minimization in (u, phi), solved
-    with a condensed Lambda of the degree of phi - i8 when ``solver.condense``; see ngbet.continuum.problem).
+    the paper's pointwise penalty, solved in its exactly equivalent mixed form (Lambda of the degree
+    of phi - i8, on which the L2 projection is the identity: the same discrete solution, far fewer
+    Newton steps at large K; see ngbet.continuum.problem). The formulation is chosen here alone:
+    ``solver.condense`` only eliminates element-local unknowns before factorizing.
     """
 
     shear: bool = True  # 1/2 K_sh i8^2
@@ -346,7 +348,9 @@ class Solver:
     growth: float = 1.5
     cut: float = 0.5
     linear_solver: str = "auto"
-    condense: bool = True  # eliminate element-local dofs (Lambda) before factorizing
+    # eliminate element-local dofs (Lambda) before factorizing; false keeps them in the factorized
+    # matrix (slower): a numerics choice, the same discrete solution for every formulation
+    condense: bool = True
     # NGSolve threads; "auto": all cores. One by default: on the 2-core machines measured, two threads
     # were slower in wall time (solves and residuals wait for a core)
     threads: int | str = 1
@@ -588,9 +592,11 @@ MIN_YARNS_PER_FAMILY = 4
 
 
 def yarns_per_family(specimen: Specimen, spacing_mm: float) -> int:
-    """Yarns of one family across the specimen at a spacing [mm]: the width of the rectangle across
-    the yarns, L sin a + W cos a, over the spacing (the larger family count at a != 45 deg is not
-    needed: both families use the smaller of the two widths)."""
+    """Yarns of one family across the specimen at a spacing [mm].
+
+    The width of the rectangle across the yarns, L sin a + W cos a, over the spacing (the larger family count at
+    a != 45 deg is not needed: both families use the smaller of the two widths).
+    """
     a = math.radians(specimen.yarn_angle_deg)
     across = min(specimen.length_mm * math.sin(a) + specimen.width_mm * math.cos(a),
                  specimen.length_mm * math.cos(a) + specimen.width_mm * math.sin(a))
@@ -602,8 +608,11 @@ def _max_spacing(specimen: Specimen) -> float:
 
 
 def locking_warning(scene: Scene) -> str | None:
-    """A warning when the load passes ideal yarn locking (inextensible yarns would lock there; the
-    model's yarns stretch, so it runs, with the yarns carrying the load by elongation)."""
+    """A warning when the load passes ideal yarn locking.
+
+    Inextensible yarns would lock there; the model's yarns stretch, so it runs, with the yarns
+    carrying the load by elongation.
+    """
     lock = scene.specimen.locking_u0_mm
     if scene.loading.u0_mm < lock:
         return None
@@ -653,8 +662,10 @@ def available_memory() -> float | None:
 
 
 def check_size(scene: Scene) -> str | None:
-    """Refuse (SceneError) a continuum problem that will not fit in the available memory; a
-    warning with its estimated size above 0.5 GB."""
+    """Refuse (SceneError) a continuum problem that will not fit in the available memory.
+
+    A warning with its estimated size above 0.5 GB.
+    """
     if scene.model != "continuum":
         return None
     dofs, mem = estimate_size(scene)
@@ -673,10 +684,12 @@ def check_size(scene: Scene) -> str | None:
 #: solve takes 0.4–0.6 times that of the uniform 5 mm p = 2 mesh, which is 2.1 % and 7.8 % off,
 #: measured interleaved on a loaded 2-core machine). p = 2 on the same mesh is 0.16 % on the force
 #: but 4 % on the profile.
-DEFAULT_DISCRETIZATION = {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}
+DEFAULT_DISCRETIZATION: dict[str, Any] = {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}
 
 
 def default_scene() -> Scene:
-    """The paper's bias extension test: 70 x 220 mm, Table 1, Lagrange multiplier, u0 to 56 mm,
-    on the accurate default discretization (:data:`DEFAULT_DISCRETIZATION`)."""
+    """The paper's bias extension test: 70 x 220 mm, Table 1, Lagrange multiplier, u0 to 56 mm.
+
+    On the accurate default discretization (:data:`DEFAULT_DISCRETIZATION`).
+    """
     return Scene(discretization=Discretization(**DEFAULT_DISCRETIZATION))

@@ -96,7 +96,8 @@ def code_version(model: str = "continuum") -> dict[str, str]:
         h = hashlib.sha256()
         for path in sorted(pkg.rglob("*.py")):
             rel = path.relative_to(pkg).as_posix()
-            if rel in _NOT_IN_KEY or rel.startswith("studies/") or (model != "discrete" and rel.startswith("discrete/")):
+            if (rel in _NOT_IN_KEY or rel.startswith("studies/")
+                    or (model != "discrete" and rel.startswith("discrete/"))):
                 continue
             h.update(rel.encode() + b"\0" + path.read_bytes() + b"\0")
         v = versions()
@@ -127,7 +128,7 @@ def _floats(v: Any) -> Any:
 def grid(**axes: Iterable[Any]) -> list[dict[str, Any]]:
     """The cartesian product of value lists: ``grid(**{"a.b": [1, 2], "c.d": [3]})``."""
     names = list(axes)
-    return [dict(zip(names, values)) for values in itertools.product(*(list(axes[n]) for n in names))]
+    return [dict(zip(names, values, strict=True)) for values in itertools.product(*(list(axes[n]) for n in names))]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -144,9 +145,11 @@ class StudyData:
     meta: dict[str, Any]
 
     def case_rows(self, case: int) -> list[dict[str, Any]]:
+        """The load-step rows of a case (rows without a load left out)."""
         return [r for r in self.rows if int(r["case"]) == case and r.get("u0_mm") not in ("", None)]
 
     def cases(self) -> list[dict[str, Any]]:
+        """The case records of meta.json (index, parameters, key, status)."""
         return self.meta["cases"]
 
     def at(self, case: int, u0_mm: float, col: str) -> float:
@@ -158,6 +161,7 @@ class StudyData:
         return math.nan
 
     def profile(self, case: int, u0_mm: float) -> tuple[list[float], list[float]]:
+        """The mid-axis profile (X [mm], u_y [mm]) of a case at the load u0."""
         X, uy = [], []
         for r in self.profiles:
             if int(r["case"]) == case and abs(float(r["u0_mm"]) - u0_mm) < 1e-6:
@@ -208,6 +212,7 @@ class Study:
     profile_stations: tuple[float, ...] | None = None
 
     def params_columns(self) -> list[str]:
+        """The parameter keys of all cases, in the order they first appear."""
         cols: list[str] = []
         for c in self.cases:
             for k in c:
@@ -264,8 +269,10 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
 
 
 def _store(cache: Path, key: str, rec: dict[str, Any], workdir: Path | None) -> None:
-    """Move a finished case into cache/<key> atomically (a rename), with its case.json listing the
-    sha256 of every file (what :func:`verify_case` checks on every read)."""
+    """Move a finished case into cache/<key> atomically (a rename).
+
+    Its case.json lists the sha256 of every file (what :func:`verify_case` checks on every read).
+    """
     files = rec.pop("files", None)
     tmp = cache / f".tmp-{key}-{uuid.uuid4().hex[:8]}"
     try:
@@ -280,8 +287,10 @@ def _store(cache: Path, key: str, rec: dict[str, Any], workdir: Path | None) -> 
 
 
 def _fill(tmp: Path, rec: dict[str, Any], files: dict[str, bytes] | None, workdir: Path | None) -> None:
-    """The case folder ``tmp``: the run folder (moved, or written from the files a dask worker
-    returned) and case.json with the checksums."""
+    """The case folder ``tmp``: the run folder and case.json with the checksums.
+
+    The run folder is moved, or written from the files a dask worker returned.
+    """
     if workdir is not None and workdir.exists():
         workdir.rename(tmp)
     else:
@@ -304,8 +313,10 @@ def _sha256(path: Path) -> str:
 
 
 class MissingValueError(ValueError):
-    """A value a study's reference, error or front needs is missing or nan: nothing is computed
-    from it (the report says which case and value instead)."""
+    """A value a study's reference, error or front needs is missing or nan.
+
+    Nothing is computed from it; the report says which case and value instead.
+    """
 
 
 class CacheError(ValueError):
@@ -354,8 +365,11 @@ def _json_file(path: Path) -> dict[str, Any]:
 
 
 def clean_debris(cache: Path) -> int:
-    """Remove the ``.run-*`` folders of studies that were killed (those whose run lock is free; a
-    running study's are locked) and ``.tmp-*`` folders older than 10 minutes. Returns how many."""
+    """Remove the folders that killed studies left behind; returns how many.
+
+    The ``.run-*`` folders whose run lock is free (a running study's are locked) and ``.tmp-*``
+    folders older than 10 minutes.
+    """
     n = 0
     old = time.time() - 600  # a .tmp-* folder lives for the milliseconds of a store
     for d in list(cache.glob(".run-*")) + [t for t in cache.glob(".tmp-*") if t.stat().st_mtime < old]:
@@ -405,6 +419,7 @@ def _reached(workdir: Path) -> float:
 # running a study
 # ---------------------------------------------------------------------------------------------
 def default_out(name: str, quick: bool) -> Path:
+    """The default folder of a study: out/studies/NAME, or NAME-quick."""
     return DEFAULT_ROOT / (f"{name}-quick" if quick else name)
 
 
@@ -493,8 +508,11 @@ PARENT_POLL_S = 0.5
 
 
 def _worker_init(parent: int) -> None:
-    """Start of a local worker process: Ctrl-C is for the parent (it keeps the finished cases and
-    stops the workers), and the worker exits by itself when the parent dies (even by SIGKILL)."""
+    """Start of a local worker process: Ctrl-C is for the parent, and the worker exits when the parent dies.
+
+    The parent keeps the finished cases and stops the workers; the worker exits by itself even when the
+    parent dies by SIGKILL.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True, name="ngbet-parent-watch").start()
 
@@ -552,8 +570,11 @@ class _Bar:
 
 def _execute(todo: list[_Case], cache: Path, mode: str, nworkers: int | None, scheduler: str | None,
              threads: int, progress: bool, name: str) -> None:
-    """Run the cases; each is cached as soon as it finishes. Ctrl-C (or SIGTERM in the CLI) keeps
-    the finished ones, cancels the others, stops the workers and removes their unfinished folders."""
+    """Run the cases; each is cached as soon as it finishes.
+
+    Ctrl-C (or SIGTERM in the CLI) keeps the finished ones, cancels the others, stops the workers and
+    removes their unfinished folders.
+    """
     wds = {c.key: cache / f".run-{c.key}-{uuid.uuid4().hex[:8]}" for c in todo}
     running: dict[str, tuple[Path, float]] = {}
     bar = _Bar(len(todo), name, running, progress)
@@ -724,7 +745,8 @@ def _collect(study: Study, cases: list[_Case], cache: Path, out: Path, executor_
         if run_dir is not None and (run_dir / "profile.csv").exists():
             for u0, (X, uy) in read_profiles(run_dir / "profile.csv").items():
                 if study.profile_stations is None or any(abs(u0 - s) < 1e-6 for s in study.profile_stations):
-                    profiles.extend({"case": c.index, "u0_mm": u0, "X_mm": x, "uy_mm": y} for x, y in zip(X, uy))
+                    profiles.extend({"case": c.index, "u0_mm": u0, "X_mm": x, "uy_mm": y}
+                                    for x, y in zip(X, uy, strict=True))
         record = {"case": c.index, "params": c.params, "key": c.key, "status": rec.get("status", "error"),
                   "error": rec.get("error"), "error_type": rec.get("error_type"), "cached": rec.get("cached", False),
                   "wall_s": summary.get("wall_s", rec.get("wall_s")), "threads": rec.get("threads"),
@@ -864,6 +886,7 @@ def savefig(fig: Any, out: Path, name: str) -> Path:
 # command line (python -m ngbet.studies.NAME, ngbet study NAME)
 # ---------------------------------------------------------------------------------------------
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The command-line options every study takes."""
     p.add_argument("--quick", action="store_true", help="a small version of the study (seconds; what the tests run)")
     p.add_argument("--out", help="study folder (default: out/studies/NAME, or NAME-quick)")
     p.add_argument("--cache", help="case cache folder (default: out/studies/cache)")
@@ -883,6 +906,7 @@ def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog
 
 
 def run_from_args(build: Callable[[bool], Study], args: argparse.Namespace) -> int:
+    """Run (or with ``--plot-only`` redraw) the study ``build`` gives for the options; the exit status."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     study = build(args.quick)
     out = Path(args.out) if args.out else default_out(study.name, args.quick)

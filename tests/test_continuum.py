@@ -1,4 +1,7 @@
-"""Physics of the continuum: exact solutions, identities, symmetries, limits (docs/model.md, *Reactions* and *Ideal kinematics*)."""
+"""Physics of the continuum: exact solutions, identities, symmetries, limits.
+
+See docs/model.md, *Reactions* and *Ideal kinematics*.
+"""
 
 import math
 
@@ -141,7 +144,8 @@ def test_shear_only_scene_builds_no_micro_fields_and_is_the_first_gradient_limit
 def test_ideal_kinematics_energy_is_approached_from_below(tmp_path):
     """Nearly inextensible yarns (K_el = 1e8 Pa = 5000 K_sh), no bending: the equilibrium energy
     lies just below the ideal-kinematics energy E_id = ½ K_sh t (A_A sin²γ_A + A_B sin²γ_B)
-    (docs/model.md, *Ideal kinematics*), at 10 and 20 mm; p = 3 avoids the locking of P2 with two stiff fibre families."""
+    (docs/model.md, *Ideal kinematics*), at 10 and 20 mm; p = 3 avoids the locking of P2 with two stiff
+    fibre families."""
     from ngbet.kinematics import ideal_energy
 
     ch = {"material.K_el": 1e8, "effects.bending": False, "loading.u0_mm": 20.0, "loading.stops_mm": [10.0],

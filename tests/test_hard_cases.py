@@ -124,15 +124,60 @@ def test_full_penalty_huge_K_converges_without_cuts(tmp_path):
     assert F56_LAGRANGE_H10 < F[-1] < 1.2 * F56_LAGRANGE_H10
 
 
-def test_full_penalty_is_the_same_in_mixed_and_pointwise_form(tmp_path):
-    """The mixed form used for the full penalty is the pointwise penalty exactly (Π = identity on
-    φ − i8 ∈ P2, exact quadrature): same forces to Newton's tolerance, K = 1e7, 20 mm mesh."""
-    ch = {"effects.constraint": "penalty", "effects.penalty_form": "full", "effects.penalty_K": 1e7,
-          "discretization.mesh_size_mm": 20.0, "outputs.profile": False}
-    _, mixed, _ = _run(tmp_path, "mixed", **ch)
-    _, pointwise, _ = _run(tmp_path, "pointwise", **ch, **{"solver.condense": False})
-    for a, b in zip(mixed, pointwise, strict=True):
-        assert abs(a["force_N"] - b["force_N"]) < 1e-7 * abs(b["force_N"])
+@pytest.mark.parametrize("constraint", [
+    {"effects.constraint": "lagrange"},
+    {"effects.constraint": "penalty", "effects.penalty_form": "mixed", "effects.penalty_K": 1e7},
+    {"effects.constraint": "penalty", "effects.penalty_form": "full", "effects.penalty_K": 1e7},
+], ids=["lagrange", "penalty-mixed", "penalty-full"])
+def test_condense_is_numerics_the_same_forces_with_and_without(tmp_path, constraint):
+    """``solver.condense`` changes no solution: with Λ eliminated before factorizing and with Λ
+    kept in the factorized matrix a run has the same unknowns and the same forces to Newton's
+    tolerance at every load both reach (20 mm mesh; the step sequences may differ, the Lagrange
+    method's condensed Newton matrix being the augmented one)."""
+    ch = {**constraint, "discretization.mesh_size_mm": 20.0, "outputs.profile": False}
+    s_cond, condensed, _ = _run(tmp_path, "condensed", **ch)
+    s_kept, kept, _ = _run(tmp_path, "kept", **ch, **{"solver.condense": False})
+    assert s_cond["condensed"] is True and s_kept["condensed"] is False
+    # the same unknowns (the formulation), Λ factorized only when kept
+    assert s_cond["dofs"]["total"] == s_kept["dofs"]["total"]
+    assert s_cond["dofs"]["factorized"] < s_kept["dofs"]["factorized"]
+    F_kept = {round(r["u0_mm"], 9): r["force_N"] for r in kept}
+    common = [r for r in condensed if round(r["u0_mm"], 9) in F_kept]
+    assert {37.0, 56.0} <= {round(r["u0_mm"], 9) for r in common}
+    for r in common:
+        assert abs(r["force_N"] - F_kept[round(r["u0_mm"], 9)]) < 1e-7 * abs(r["force_N"])
+
+
+@pytest.mark.parametrize("order_u", [2, 3])
+def test_full_penalty_mixed_form_is_the_pointwise_penalty(order_u):
+    """The full penalty is solved as Λ(φ − i8) − Λ²/(2K) with Λ of the degree of φ − i8
+    (max(p_φ, 2p − 2) on straight triangles). The L2 projection Π onto that space is then the
+    identity on φ − i8, so ½K‖Π(φ − i8)‖² = ½K‖φ − i8‖²: the pointwise penalty exactly. Checked
+    at a random state (any u, φ of the spaces): the projection error is round-off, while one
+    order less leaves a relative error of order one."""
+    import ngsolve as ngs
+
+    from ngbet.continuum import physics
+    from ngbet.continuum.problem import ContinuumProblem
+
+    scene = coarse(**{"effects.constraint": "penalty", "effects.penalty_form": "full",
+                      "discretization.mesh_size_mm": 20.0, "discretization.order_u": order_u})
+    pb = ContinuumProblem(scene)
+    assert pb.field_names == ("u", "phi", "lam")
+    assert pb.p_lam == max(scene.discretization.p_phi, 2 * order_u - 2)
+    pb.x[:] = 0.05 * np.random.default_rng(3).standard_normal(len(pb.x))
+    u, phi = pb.gf.components[0], pb.gf.components[1]
+    d = phi - physics.invariants(ngs.Grad(u), pb.m1, pb.m2).i8
+    order = 2 * pb.p_lam + 2
+
+    def projection_error(q):
+        g = ngs.GridFunction(ngs.L2(pb.mesh, order=q))
+        g.Set(d, bonus_intorder=4)
+        err2 = ngs.Integrate((g - d) ** 2, pb.mesh, order=order)
+        return math.sqrt(err2 / ngs.Integrate(d ** 2, pb.mesh, order=order))
+
+    assert projection_error(pb.p_lam) < 1e-10  # measured: 3e-14 (p = 2), 5e-14 (p = 3)
+    assert projection_error(pb.p_lam - 1) > 1e-3  # measured: 0.026 (p = 2), 0.012 (p = 3)
 
 
 @pytest.mark.slow

@@ -26,6 +26,8 @@ from ngsolve import CoefficientFunction as CF
 
 
 class Invariants(NamedTuple):
+    """F = I + ∇u and the yarn invariants i4, i6 (squared stretches) and i8 (angle variation, from rest)."""
+
     F: CF
     i4: CF
     i6: CF
@@ -95,8 +97,10 @@ SHEAR_LAWS: dict[str, tuple[str, ...]] = {
 
 
 def shear_law_energy(i8: CF, law: str, coefficients: dict[str, Any]) -> CF:
-    """The shear energy of ``law`` (a key of :data:`SHEAR_LAWS`) with its material coefficients
-    (floats, or NGSolve Parameters to differentiate with respect to)."""
+    """The shear energy of ``law`` (a key of :data:`SHEAR_LAWS`) with its material coefficients.
+
+    The coefficients are floats, or NGSolve Parameters to differentiate with respect to.
+    """
     c = [coefficients[k] for k in SHEAR_LAWS[law]]
     if law == "polynomial":
         return polynomial_shear_energy(i8, *c)
@@ -128,14 +132,19 @@ def penalty_constraint(phi: CF, i8: CF, K: float) -> CF:
 
 
 def mixed_penalty_constraint(phi: CF, i8: CF, lam: CF, K: float) -> CF:
-    """Λ (φ − i8) − Λ²/(2K): stationary in Λ at Λ = K Π(φ − i8), i.e. the penalty ½K‖Π(φ − i8)‖²
-    with Π the L2 projection onto Λ's space. K → ∞ gives the Lagrange multiplier method."""
+    """The stabilized constraint term Λ (φ − i8) − Λ²/(2K).
+
+    Stationary in Λ at Λ = K Π(φ − i8), i.e. the penalty ½K‖Π(φ − i8)‖² with Π the L2 projection
+    onto Λ's space. K → ∞ gives the Lagrange multiplier method.
+    """
     return lam * (phi - i8) - lam * lam / (2.0 * K)
 
 
 def shear_angle(i4: CF, i6: CF, i8: CF, cos0: float = 0.0) -> CF:
-    """γ [rad]: the angle between the deformed yarn directions is θ0 + γ, θ0 = acos(m1·m2) the
-    rest angle (docs/model.md, *Ideal kinematics*: 90° + γ at ±45°, where sin γ = −i8 / √(i4 i6)).
+    """The shear angle γ [rad]: the angle between the deformed yarn directions is θ0 + γ.
+
+    θ0 = acos(m1·m2) is the rest angle (docs/model.md, *Ideal kinematics*: 90° + γ at ±45°, where
+    sin γ = −i8 / √(i4 i6)).
 
     ``cos0`` = m1·m2; i8 is measured from rest (:func:`invariants`), so cos θ = (i8 + cos0)/√(i4 i6).
     """

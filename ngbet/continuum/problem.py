@@ -8,7 +8,7 @@ effects                    unknowns                            energy
 shear (+ elongation)       u ∈ VectorH1(p)                      W_sh + W_el (first gradient)
 + bending, lagrange        u, φ ∈ H1(p_φ), Λ ∈ L2(p − 2)         + W_b + Λ(φ − i8) + ½K_s(φ − i8)²
 + bending, penalty mixed   u, φ, Λ (condensed out)              + W_b + Λ(φ − i8) − Λ²/2K + ½K_s(φ − i8)²
-+ bending, penalty full    u, φ (+ Λ condensed, see below)      + W_b + ½K(φ − i8)²
++ bending, penalty full    u, φ (+ Λ, see below)                + W_b + ½K(φ − i8)²
 =========================  ==================================  ===============================
 
 The energy is written once, handed to ``Variation`` and compiled; NGSolve differentiates it for
@@ -35,11 +35,13 @@ Lagrangian therefore carries ½K_s(φ − i8)² with K_s = c min(α1, α2)/h_T²
 (c = 0.1, :data:`STABILIZATION_C`): it vanishes with its variation where φ = i8, so the exact
 solution is unchanged; it is large only on small elements, where the unstable modes live.
 
-The paper's pointwise penalty ("full") is solved, with ``condense``, in its mixed form
-Λ(φ − i8) − Λ²/2K with Λ ∈ L2 of the degree of φ − i8 itself (max(p_φ, 2p − 2) on affine
-triangles), condensed: the same discrete solution, since the L2 projection onto that space is
-the identity on φ − i8, but Newton linearizes around the iterate's Λ instead of K(φ − i8), which
-the predictor makes huge for large K (K = 1e10: 56 load steps pointwise, 6 in this form).
+The paper's pointwise penalty ("full") is always solved in its mixed form Λ(φ − i8) − Λ²/2K
+with Λ ∈ L2 of the degree of φ − i8 itself (max(p_φ, 2p − 2) on affine triangles): the same
+discrete solution, since the L2 projection onto that space is the identity on φ − i8, but Newton
+linearizes around the iterate's Λ instead of K(φ − i8), which the predictor makes huge for large
+K (K = 1e10: 56 load steps pointwise, 6 in this form). The formulation follows the effects alone;
+``solver.condense`` eliminates Λ, like every element-local unknown, or keeps it in the factorized
+matrix, to the same solution.
 
 Dirichlet data (docs/model.md, *Boundary conditions*): u = 0, φ = 0 on Σ1 (``left``); u = (u0, 0), φ = 0 on Σ2
 (``right``). The load parameter λ of the solver is u0 in metres.
@@ -132,9 +134,8 @@ class ContinuumProblem:
         """The compound space of the fields the effects call for."""
         eff, disc = scene.effects, scene.discretization
         self.field_names = eff.fields
-        # the full penalty in its mixed form (module docstring); condense = false keeps it pointwise
-        self.full_as_mixed = (eff.bending and eff.constraint == "penalty" and eff.penalty_form == "full"
-                              and scene.solver.condense)
+        # the full penalty in its exactly equivalent mixed form (module docstring), condensed or not
+        self.full_as_mixed = eff.bending and eff.constraint == "penalty" and eff.penalty_form == "full"
         self.p_lam = max(disc.p_phi, 2 * disc.p_u - 2) if self.full_as_mixed else disc.p_lam
         if self.full_as_mixed:
             self.field_names = ("u", "phi", "lam")

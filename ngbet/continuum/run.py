@@ -15,9 +15,9 @@ from ..errors import ConvergenceError
 from ..output import RunWriter, plot_force
 from ..scene import Scene
 from . import observables as obs
+from .output import write_vtk
 from .problem import ContinuumProblem
 from .solver import NewtonSettings, continuation
-from .output import write_vtk
 from .stability import diagnose_stability
 
 log = logging.getLogger(__name__)

@@ -94,7 +94,7 @@ _SAME_RULE = 1e-300
 
 
 def _same_rule(trial: Any) -> ngs.CoefficientFunction:
-    """u enters the energy through ∇u only; φ and Λ (when there) also as themselves."""
+    """The displacement u enters the energy through ∇u only; φ and Λ (when there) also as themselves."""
     g = ngs.Grad(trial[0])
     return _SAME_RULE * sum((ngs.InnerProduct(t, t) for t in list(trial)[1:]), ngs.InnerProduct(g, g))
 
@@ -149,15 +149,17 @@ class _Recorder:
             if pts is not None:  # dx/dp = −J⁻¹ ∂r/∂p (solve returns −J⁻¹ r)
                 self.dgf.vec.FV().NumPy()[:] = pb.solve(gv.copy())
                 dprof.append(1e3 * p * np.asarray(self.dgf.components[0](pts))[:, 1])
-        if pts is not None and dprof:
+        if want is not None and dprof:
             self.profile_dlogp[want] = np.column_stack(dprof)
         self.rows[key] = (F, d)
 
 
 def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str] = (),
                profile: dict[float, np.ndarray] | None = None) -> ForcePath:
-    """Run ``scene`` (continuum) with a load step landing on each of ``u_mm`` and return the
-    force there, with dF/d ln p for each material key in ``params`` (``"material.K_sh"``, ...).
+    """The force at each of ``u_mm`` and its derivatives dF/d ln p for the material keys ``params``.
+
+    ``scene`` (continuum) runs with a load step landing on each of ``u_mm``; ``params`` are keys
+    such as ``"material.K_sh"``.
 
     ``profile``: {u0 [mm]: X [mm]}: also the mid-axis u_y at those X at load u0 (and its
     derivatives, one more back-substitution per parameter). Nothing is written to disk. Raises
@@ -188,8 +190,10 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
 
 def finite_difference(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str],
                       rel_step: float = 1e-4) -> np.ndarray:
-    """dF/d ln p by central differences of :func:`force_path` (2 runs per parameter): the check
-    of the implicit derivative, and its cost to compare with."""
+    """The derivatives dF/d ln p by central differences of :func:`force_path` (2 runs per parameter).
+
+    The check of the implicit derivative, and its cost to compare with.
+    """
     cols = []
     for p in params:
         value = getattr(scene.material, p.partition(".")[2])

@@ -5,9 +5,9 @@
 - shear angle at a crossing: gamma = r_2 - r_1, the change of the angle between the family-2
   and the family-1 yarn, each yarn's rotation r_k taken as the mean rotation of its two chords
   adjacent to the crossing (the springs K_phi act on the nodal rotations theta instead, which
-  equal r_k only when the bending stiffness dominates K_phi). With m1 = (cos a, sin a), m2 = (-cos a, sin a) the angle between
-  the direction vectors opens from pi - 2a to pi - 2a + gamma, as in docs/model.md, *Ideal kinematics* (gamma > 0
-  in the BET);
+  equal r_k only when the bending stiffness dominates K_phi). With m1 = (cos a, sin a), m2 = (-cos a, sin a)
+  the angle between the direction vectors opens from pi - 2a to pi - 2a + gamma, as in docs/model.md,
+  *Ideal kinematics* (gamma > 0 in the BET);
 - zone means of gamma over the crossings of zones A, B, C;
 - mid-axis profile: u_y where the yarns cross Y = W/2 in the reference configuration (linear
   interpolation along the element), interpolated along X for each family and averaged over the two
@@ -141,8 +141,10 @@ def save_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None
 
 
 def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None:
-    """PNG of the deformed yarns coloured by the shear angle γ (0 at rest, the convention of the
-    continuum's maps); thick yarns drawn thick, axes in mm."""
+    """PNG of the deformed yarns coloured by the shear angle γ; thick yarns drawn thick, axes in mm.
+
+    γ is 0 at rest, the convention of the continuum's maps.
+    """
     try:
         import matplotlib
 
@@ -158,7 +160,6 @@ def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None
     seg_ang = 0.5 * (ang[net.beams[:, 0]] + ang[net.beams[:, 1]])
     norm = plt.Normalize(float(seg_ang.min()), max(float(seg_ang.max()), float(seg_ang.min()) + 1e-6))
     fig, ax = plt.subplots(figsize=(11, 3.6))
-    lc = None
     for fam, lw, ls in ((2, 0.6, (0, (3, 1))), (1, 1.8, "solid")):
         sel = net.beam_family == fam
         lc = LineCollection(x[net.beams[sel]], linewidths=lw, linestyles=ls, cmap="viridis", norm=norm,

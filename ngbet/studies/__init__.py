@@ -12,5 +12,6 @@ STUDIES = {
     "curves": "load-displacement and double-force-displacement curves with the ideal-kinematics estimate",
     "maps": "deformed specimen coloured by the angle between the yarns, yarns drawn on it (37 and 56 mm)",
     "compare": "continuum and discrete model side by side",
-    "reference": "reference-grade force (37, 56 mm) and profile by hp extrapolation, with its bound; hp vs uniform convergence",
+    "reference": ("reference-grade force (37, 56 mm) and profile by hp extrapolation, with its bound; "
+                  "hp vs uniform convergence"),
 }

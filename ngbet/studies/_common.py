@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Sequence
+from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -104,7 +105,7 @@ def reference(data: StudyData, u0: float, p: int, hs: Sequence[float]) -> dict[s
     X, uy = data.profile(cs[2], u0)  # type: ignore[arg-type]
     X1, uy1 = data.profile(cs[1], u0)  # type: ignore[arg-type]
     fac = 1 / (2**q - 1) if math.isfinite(q) and q > 0.2 else 1.0
-    prof_unc = fac * float(np.linalg.norm(np.subtract(uy, uy1)) / max(np.linalg.norm(uy), 1e-300))
+    prof_unc = fac * float(np.linalg.norm(np.subtract(uy, uy1)) / max(float(np.linalg.norm(uy)), 1e-300))
     return {"force_N": Fref, "forces_N": F, "hs": list(hs), "p": p, "order": q,
             "uncertainty_N": abs(Fref - F[2]), "X_mm": X, "uy_mm": uy, "profile_uncertainty": prof_unc,
             "cases": cs}
@@ -115,12 +116,12 @@ def profile_error(X: Sequence[float], uy: Sequence[float], ref_uy: Sequence[floa
     a, b = np.asarray(uy, float), np.asarray(ref_uy, float)
     if len(a) != len(b) or len(a) == 0:
         return math.nan
-    return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300))
+    return float(np.linalg.norm(a - b) / max(float(np.linalg.norm(b)), 1e-300))
 
 
 def loglog_slope(x: Sequence[float], y: Sequence[float]) -> float:
     """Least-squares slope of log y against log x (nan with fewer than two positive points)."""
-    pts = [(math.log(a), math.log(b)) for a, b in zip(x, y) if a > 0 and b > 0 and math.isfinite(b)]
+    pts = [(math.log(a), math.log(b)) for a, b in zip(x, y, strict=True) if a > 0 and b > 0 and math.isfinite(b)]
     if len(pts) < 2:
         return math.nan
     xs, ys = np.array(pts).T

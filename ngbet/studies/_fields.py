@@ -87,7 +87,8 @@ def yarn_lines_reference(L: float, W: float, angle_deg: float, spacing: float) -
     return out
 
 
-def deformed_yarns(vtu: str | Path, L_mm: float, W_mm: float, angle_deg: float, spacing_mm: float) -> dict[int, list[np.ndarray]]:
+def deformed_yarns(vtu: str | Path, L_mm: float, W_mm: float, angle_deg: float,
+                   spacing_mm: float) -> dict[int, list[np.ndarray]]:
     """Yarn polylines of both families in the deformed configuration [mm]."""
     pv = _pv()
     mesh = pv.read(str(vtu))
@@ -131,8 +132,10 @@ def write_yarns_vtp(path: str | Path, yarns_mm: dict[int, list[np.ndarray]]) -> 
 
 def render_map(vtu: str | Path, yarns_mm: dict[int, list[np.ndarray]], png: str | Path, title: str,
                clim: tuple[float, float] | None = None) -> Path:
-    """Off-screen pyvista picture: the deformed specimen coloured by the shear angle γ, axes in mm,
-    thick yarns (family 1) as thick black lines, thin yarns (family 2) as thin white lines."""
+    """Off-screen pyvista picture: the deformed specimen coloured by the shear angle γ, axes in mm.
+
+    Thick yarns (family 1) as thick black lines, thin yarns (family 2) as thin white lines.
+    """
     pv = _pv()
     mesh = warped_mm(vtu)
     pl = pv.Plotter(off_screen=True, window_size=(1800, 800))
@@ -141,9 +144,11 @@ def render_map(vtu: str | Path, yarns_mm: dict[int, list[np.ndarray]], png: str 
                 scalar_bar_args={"title": "shear angle [deg]", "color": "black", "vertical": True,
                                  "position_x": 0.88, "position_y": 0.15, "height": 0.7, "width": 0.05})
     if yarns_mm.get(1):
-        pl.add_mesh(lines_polydata(yarns_mm[1]).translate((0, 0, 0.5)), color="black", line_width=5, label="thick yarns")
+        thick = lines_polydata(yarns_mm[1]).translate((0, 0, 0.5))
+        pl.add_mesh(thick, color="black", line_width=5, label="thick yarns")
     if yarns_mm.get(2):
-        pl.add_mesh(lines_polydata(yarns_mm[2]).translate((0, 0, 0.6)), color="white", line_width=1.5, label="thin yarns")
+        thin = lines_polydata(yarns_mm[2]).translate((0, 0, 0.6))
+        pl.add_mesh(thin, color="white", line_width=1.5, label="thin yarns")
     pl.show_bounds(xtitle="x [mm]", ytitle="y [mm]", n_zlabels=0, ztitle="", color="black", font_size=18,
                    location="outer", ticks="outside", use_2d=True)
     pl.add_text(title, font_size=12, color="black")

@@ -37,8 +37,8 @@ def analyse(data: StudyData, quick: bool) -> list[dict]:
     out = []
     for c in data.meta["cases"]:
         i = c["case"]
-        X, uy = data.profile(i, s2)
-        uy = np.asarray(uy)
+        X, prof = data.profile(i, s2)
+        uy = np.asarray(prof)
         amp = float(np.max(np.abs(uy))) if len(uy) else math.nan
         odd = float(np.max(np.abs(uy + uy[::-1]))) if len(uy) else math.nan
         out.append({"case": i, "alpha1": c["params"][A1], "balanced": c["params"][A1] == a2, "status": c["status"],
@@ -51,11 +51,13 @@ def report(data: StudyData, quick: bool) -> str:
     s2 = C.stations(quick)[1]
     rows = analyse(data, quick)
     L = [f"# alpha1 sweep at u0 = {s2:g} mm (alpha2 = {data.meta['base_scene']['material']['alpha2']:g} Pa m^2)", "",
-         "| alpha1 [Pa m^2] | l1 = sqrt(alpha1/K_sh) [mm] | F [N] | max abs(u_y) on the mid-axis [mm] | u_y(L/4) [mm] | odd-symmetry residual [mm] |",
+         "| alpha1 [Pa m^2] | l1 = sqrt(alpha1/K_sh) [mm] | F [N] | max abs(u_y) on the mid-axis [mm] "
+         "| u_y(L/4) [mm] | odd-symmetry residual [mm] |",
          "|---|---|---|---|---|---|"]
     ksh = data.meta["base_scene"]["material"]["K_sh"]
     for r in rows:
-        L.append(f"| {r['alpha1']:g}{' (= alpha2, balanced)' if r['balanced'] else ''} | {1e3 * math.sqrt(r['alpha1'] / ksh):.0f} | "
+        L.append(f"| {r['alpha1']:g}{' (= alpha2, balanced)' if r['balanced'] else ''} "
+                 f"| {1e3 * math.sqrt(r['alpha1'] / ksh):.0f} | "
                  f"{C.fmt(r['F'], '.4f')} | {r['max_uy']:.4g} | {r['uy_quarter']:.4g} | {r['odd_residual']:.2g} |")
     return "\n".join(L) + "\n"
 

@@ -18,17 +18,19 @@ import math
 import shutil
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ngbet.kinematics import ideal_force
-from ngbet.scene import Scene
 from ngbet.plotting import SHEAR_LABEL, force_curve
+from ngbet.scene import Scene
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
 
-CASES = [{"model": "continuum", "outputs.vtk": True, "outputs.vtk_every_step": True}, {"model": "discrete"}]
+CASES: list[dict[str, Any]] = [{"model": "continuum", "outputs.vtk": True, "outputs.vtk_every_step": True},
+                               {"model": "discrete"}]
 # the network with the continuum's energy per unit area (ngbet.discrete.equivalent): the check
 # that the two models agree where their physics is the same
 EQUIVALENT = "discrete, continuum-equivalent"
@@ -47,8 +49,8 @@ def build(quick: bool = False) -> Study:
 
     base = C.base_scene(quick, **({C.H: 20.0, "discrete.spacing_mm": 10.0} if quick else {}))
     equivalent = {"model": "discrete", **continuum_equivalent(base)}
-    return Study("compare", base, [*CASES, equivalent], description=__doc__ or "", extract=extract, plot=lambda d: plot(d, quick),
-                 report=lambda d: report(d, quick), profile_stations=C.stations(quick))
+    return Study("compare", base, [*CASES, equivalent], description=__doc__ or "", extract=extract,
+                 plot=lambda d: plot(d, quick), report=lambda d: report(d, quick), profile_stations=C.stations(quick))
 
 
 def extract(rec: dict, run_dir: Path, out: Path) -> dict:
@@ -104,18 +106,21 @@ def report(data: StudyData, quick: bool) -> str:
     s1, s2 = C.stations(quick)
     a = analyse(data, quick)
     L = ["# Continuum and discrete model side by side", "",
-         f"| model | status | F({s1:g}) [N] | F({s2:g}) [N] | u_y(L/4) at {s1:g} mm [mm] | u_y(L/4) at {s2:g} mm [mm] | "
-         f"max abs(u_y) at {s2:g} mm [mm] | largest slip [mm] | wall time [s] |", "|---|---|---|---|---|---|---|---|---|"]
+         f"| model | status | F({s1:g}) [N] | F({s2:g}) [N] | u_y(L/4) at {s1:g} mm [mm] "
+         f"| u_y(L/4) at {s2:g} mm [mm] | max abs(u_y) at {s2:g} mm [mm] | largest slip [mm] | wall time [s] |",
+         "|---|---|---|---|---|---|---|---|---|"]
     for m, r in a.items():
-        L.append(f"| {m} | {r['status']} (to {C.fmt(r['u0_reached'], 'g')} mm) | {C.fmt(r[f'F{s1:g}'], '.3f')} | {C.fmt(r[f'F{s2:g}'], '.3f')} | "
-                 f"{C.fmt(r[f'uyq{s1:g}'], '.3f')} | {C.fmt(r[f'uyq{s2:g}'], '.3f')} | {C.fmt(r[f'maxuy{s2:g}'], '.3f')} | "
+        L.append(f"| {m} | {r['status']} (to {C.fmt(r['u0_reached'], 'g')} mm) | {C.fmt(r[f'F{s1:g}'], '.3f')} | "
+                 f"{C.fmt(r[f'F{s2:g}'], '.3f')} | {C.fmt(r[f'uyq{s1:g}'], '.3f')} | {C.fmt(r[f'uyq{s2:g}'], '.3f')} | "
+                 f"{C.fmt(r[f'maxuy{s2:g}'], '.3f')} | "
                  f"{C.fmt(r.get('max_slip_mm', math.nan), '.3f')} | {r['wall_s']:.1f} |")
     if "continuum" in a:
         q0 = a["continuum"][f"uyq{s2:g}"]
         for m in ("discrete", EQUIVALENT):
             if m in a:
                 same = np.sign(q0) == np.sign(a[m][f"uyq{s2:g}"])
-                L += ["", f"Bending direction at {s2:g} mm (sign of u_y at X = L/4 on the mid-axis), continuum and {m}: "
+                L += ["", f"Bending direction at {s2:g} mm (sign of u_y at X = L/4 on the mid-axis), "
+                      f"continuum and {m}: "
                       + ("the same." if same else "OPPOSITE: the two models bend the specimen in opposite directions.")]
     L += ["", f"'{EQUIVALENT}': the network whose stiffnesses give the continuum's energy per unit area "
           "(EA = t K_el s, EI_k = t alpha_k s, K_phi = t K_sh s^2, no slip, no trusses; ngbet.discrete.equivalent)."]
@@ -149,14 +154,21 @@ def _discrete_segments(npz: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndar
 
 
 def plot(data: StudyData, quick: bool) -> list[Path]:
+    out = [_plot_curves(data, quick)]
+    files = {(r["model"], float(r["u0_mm"])): data.out / r["file"] for r in data.tables.get("fields", [])}
+    if files:
+        out.append(_plot_maps(data, files))
+    return out
+
+
+def _plot_curves(data: StudyData, quick: bool) -> Path:
+    """Force curves of the three models and their mid-axis profiles at the two stations."""
     import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
 
     s1, s2 = C.stations(quick)
-    out = []
     scene = Scene.from_dict(data.meta["base_scene"])
     fig, axs = plt.subplots(1, 3, figsize=(16, 4.3))
-    for m, col in zip(LABELS, ("C0", "C1", "C2")):
+    for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True):
         i = _case(data, m)
         if i is None:
             continue
@@ -180,51 +192,63 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    out.append(savefig(fig, data.out, "compare_curves"))
+    return savefig(fig, data.out, "compare_curves")
 
-    files = {(r["model"], float(r["u0_mm"])): data.out / r["file"] for r in data.tables.get("fields", [])}
+
+def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
+    """Shear-angle maps of the continuum beside the deformed network, one row per saved load."""
+    import matplotlib.pyplot as plt
+
     loads = sorted({u for _, u in files})
-    if loads:
-        fig, axs = plt.subplots(len(loads), 2, figsize=(14, 3.6 * len(loads)), squeeze=False)
-        norm = plt.Normalize(0, 55)
-        for row, u0 in enumerate(loads):
-            ax = axs[row, 0]
-            f = files.get(("continuum", u0))
-            if f is not None:
-                from . import _fields as F
+    fig, axs = plt.subplots(len(loads), 2, figsize=(14, 3.6 * len(loads)), squeeze=False)
+    norm = plt.Normalize(0, 55)
+    for row, u0 in enumerate(loads):
+        f = files.get(("continuum", u0))
+        if f is not None:
+            _map_continuum(axs[row, 0], f, data.meta["base_scene"]["specimen"], norm)
+        axs[row, 0].set_title(f"continuum, u0 = {u0:g} mm (thick yarns black, thin white)", fontsize=9)
+        f = files.get(("discrete", u0))
+        if f is not None:
+            _map_discrete(axs[row, 1], f, norm)
+        else:
+            axs[row, 1].text(0.5, 0.5, "no discrete state saved at this load\n(states: 37 mm and the last load)",
+                             ha="center", va="center", transform=axs[row, 1].transAxes, fontsize=8)
+        axs[row, 1].set_title(f"discrete, u0 = {u0:g} mm (thick yarns solid, thin dashed)", fontsize=9)
+        for ax in axs[row]:
+            ax.set_aspect("equal")
+            ax.set_xlabel("x [mm]")
+            ax.set_ylabel("y [mm]")
+    sm = plt.cm.ScalarMappable(norm=norm, cmap="viridis")
+    fig.colorbar(sm, ax=axs, label=SHEAR_LABEL, shrink=0.7)
+    return savefig(fig, data.out, "compare_maps")
 
-                surf = F.warped_mm(f).extract_surface(algorithm="dataset_surface").triangulate()
-                tri = np.asarray(surf.faces).reshape(-1, 4)[:, 1:]
-                ax.tripcolor(surf.points[:, 0], surf.points[:, 1], tri, np.asarray(surf["shear_angle_deg"]),
-                             shading="gouraud", cmap="viridis", norm=norm)
-                sp = data.meta["base_scene"]["specimen"]
-                y = F.deformed_yarns(f, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"], 10.0)
-                for fam, lw, c in ((1, 1.8, "k"), (2, 0.6, "w")):
-                    for pl in y[fam]:
-                        ax.plot(pl[:, 0], pl[:, 1], color=c, lw=lw)
-            ax.set_title(f"continuum, u0 = {u0:g} mm (thick yarns black, thin white)", fontsize=9)
-            ax = axs[row, 1]
-            f = files.get(("discrete", u0))
-            if f is not None:
-                segs, fam, ang = _discrete_segments(f)
-                for fm, lw, ls in ((2, 0.6, (0, (3, 1))), (1, 1.8, "solid")):
-                    sel = fam == fm
-                    lc = LineCollection([segs[k] for k in np.flatnonzero(sel)], linewidths=lw, linestyles=ls, cmap="viridis", norm=norm)
-                    lc.set_array(ang[sel])
-                    ax.add_collection(lc)
-                ax.autoscale()
-            else:
-                ax.text(0.5, 0.5, "no discrete state saved at this load\n(states: 37 mm and the last load)",
-                        ha="center", va="center", transform=ax.transAxes, fontsize=8)
-            ax.set_title(f"discrete, u0 = {u0:g} mm (thick yarns solid, thin dashed)", fontsize=9)
-            for ax in axs[row]:
-                ax.set_aspect("equal")
-                ax.set_xlabel("x [mm]")
-                ax.set_ylabel("y [mm]")
-        sm = plt.cm.ScalarMappable(norm=norm, cmap="viridis")
-        fig.colorbar(sm, ax=axs, label=SHEAR_LABEL, shrink=0.7)
-        out.append(savefig(fig, data.out, "compare_maps"))
-    return out
+
+def _map_continuum(ax: Any, vtu: Path, sp: dict[str, Any], norm: Any) -> None:
+    """The continuum's deformed specimen coloured by γ, with both yarn families drawn on it."""
+    from . import _fields as F
+
+    surf = F.warped_mm(vtu).extract_surface(algorithm="dataset_surface").triangulate()
+    tri = np.asarray(surf.faces).reshape(-1, 4)[:, 1:]
+    ax.tripcolor(surf.points[:, 0], surf.points[:, 1], tri, np.asarray(surf["shear_angle_deg"]),
+                 shading="gouraud", cmap="viridis", norm=norm)
+    y = F.deformed_yarns(vtu, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"], 10.0)
+    for fam, lw, c in ((1, 1.8, "k"), (2, 0.6, "w")):
+        for pl in y[fam]:
+            ax.plot(pl[:, 0], pl[:, 1], color=c, lw=lw)
+
+
+def _map_discrete(ax: Any, npz: Path, norm: Any) -> None:
+    """The deformed network coloured by γ; thick yarns solid, thin yarns dashed."""
+    from matplotlib.collections import LineCollection
+
+    segs, fam, ang = _discrete_segments(npz)
+    for fm, lw, ls in ((2, 0.6, (0, (3, 1))), (1, 1.8, "solid")):
+        sel = fam == fm
+        lc = LineCollection([segs[k] for k in np.flatnonzero(sel)], linewidths=lw, linestyles=ls,
+                            cmap="viridis", norm=norm)
+        lc.set_array(ang[sel])
+        ax.add_collection(lc)
+    ax.autoscale()
 
 
 def main(argv: list[str] | None = None) -> int:

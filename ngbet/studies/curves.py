@@ -51,7 +51,7 @@ def report(data: StudyData) -> str:
          f"Envelope check: max |dE/du0 - F| / F over the interior steps (central differences, "
          f"O(step^2)) = {a['envelope_max_rel']:.2g}", "",
          "| u0 [mm] | force [N] | ideal kinematics [N] | dE/du0 [N] | double force [N m] |", "|---|---|---|---|---|"]
-    for u, f, fi, de, t in zip(a["u0"], a["F"], a["Fid"], a["dE"], a["T"]):
+    for u, f, fi, de, t in zip(a["u0"], a["F"], a["Fid"], a["dE"], a["T"], strict=True):
         L.append(f"| {u:g} | {f:.4f} | {fi:.4f} | {de:.4f} | {t:.5g} |")
     return "\n".join(L) + "\n"
 

@@ -37,8 +37,9 @@ def extract(rec: dict, run_dir: Path, out: Path) -> dict:
     F = _fields()
     ref, xy = F.outline(run_dir / "fields.vtu", sp["length_mm"], sp["width_mm"])
     X, g = F.midline_field(run_dir / "fields.vtu", sp["length_mm"], sp["width_mm"], "shear_angle_deg")
-    return {"outlines": [{"X_mm": a[0], "Y_mm": a[1], "x_mm": b[0], "y_mm": b[1]} for a, b in zip(ref, xy)],
-            "midline_shear": [{"X_mm": x, "gamma_deg": v} for x, v in zip(X, g)]}
+    return {"outlines": [{"X_mm": a[0], "Y_mm": a[1], "x_mm": b[0], "y_mm": b[1]}
+                         for a, b in zip(ref, xy, strict=True)],
+            "midline_shear": [{"X_mm": x, "gamma_deg": v} for x, v in zip(X, g, strict=True)]}
 
 
 def _fields():  # imported lazily: pyvista is only needed to extract
@@ -63,17 +64,20 @@ def widths(data: StudyData) -> list[dict]:
         g_c = float(np.interp(L / 2, Xs, gs)) if len(mid) else float("nan")
         zone = Xs[gs >= 0.9 * g_c] if len(mid) else np.array([])
         out.append({"case": c["case"], "K_el": c["params"][KEL], "width_mm": w, "gamma_c": g_c,
-                    "zone_mm": float(zone.max() - zone.min()) if len(zone) else float("nan"), "F": data.at(c["case"], u0, "force_N"),
+                    "zone_mm": float(zone.max() - zone.min()) if len(zone) else float("nan"),
+                    "F": data.at(c["case"], u0, "force_N"),
                     "status": c["status"]})
     return out
 
 
 def report(data: StudyData) -> str:
     u0 = data.meta["base_scene"]["loading"]["u0_mm"]
-    L = [f"# K_el sweep at u0 = {u0:g} mm", "", "| K_el [MPa] | width at X = L/2 [mm] | shear angle at the centre [deg] | "
+    L = [f"# K_el sweep at u0 = {u0:g} mm", "",
+         "| K_el [MPa] | width at X = L/2 [mm] | shear angle at the centre [deg] | "
          "length of the central zone, shear >= 90 % of the centre's [mm] | F [N] |", "|---|---|---|---|---|"]
     for r in widths(data):
-        L.append(f"| {r['K_el'] / 1e6:g} | {r['width_mm']:.3f} | {r['gamma_c']:.2f} | {r['zone_mm']:.1f} | {C.fmt(r['F'], '.4f')} |")
+        L.append(f"| {r['K_el'] / 1e6:g} | {r['width_mm']:.3f} | {r['gamma_c']:.2f} | {r['zone_mm']:.1f} "
+                 f"| {C.fmt(r['F'], '.4f')} |")
     return "\n".join(L) + "\n"
 
 

@@ -15,9 +15,11 @@ discretization error and stays there: beyond that K, raising K buys nothing.
 
 from __future__ import annotations
 
+import itertools
 import math
 import sys
 from pathlib import Path
+from typing import TypedDict
 
 import numpy as np
 
@@ -25,10 +27,22 @@ from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
 
-FULL = {"h": (10.0, 5.0), "p": (1, 2, 3, 4, 5), "K": (2e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12),
-        "ref_p": 4, "ref_h": (10.0, 5.0, 2.5), "profile_case": (5.0, 2)}
-QUICK = {"h": (20.0,), "p": (1, 2), "K": (1e6, 1e8, 1e9, 1e10), "ref_p": 3, "ref_h": (20.0, 10.0, 5.0),
-         "profile_case": (20.0, 2)}
+
+class Grid(TypedDict):
+    """The cases of the study: mesh sizes, orders, penalties, the reference's meshes and the profiled case."""
+
+    h: tuple[float, ...]
+    p: tuple[int, ...]
+    K: tuple[float, ...]
+    ref_p: int
+    ref_h: tuple[float, ...]
+    profile_case: tuple[float, int]
+
+
+FULL: Grid = {"h": (10.0, 5.0), "p": (1, 2, 3, 4, 5), "K": (2e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12),
+              "ref_p": 4, "ref_h": (10.0, 5.0, 2.5), "profile_case": (5.0, 2)}
+QUICK: Grid = {"h": (20.0,), "p": (1, 2), "K": (1e6, 1e8, 1e9, 1e10), "ref_p": 3, "ref_h": (20.0, 10.0, 5.0),
+               "profile_case": (20.0, 2)}
 # penalty slopes are fitted where the penalty error is asymptotic and above round-off
 FIT_K = (1e8, 1e11)
 
@@ -47,7 +61,7 @@ def build(quick: bool = False) -> Study:
                  profile_stations=(s1, s2))
 
 
-def analyse(data: StudyData, g: dict, quick: bool) -> dict:
+def analyse(data: StudyData, g: Grid, quick: bool) -> dict:
     s1, s2 = C.stations(quick)
     ref = C.reference(data, s2, g["ref_p"], g["ref_h"])
     ref1 = C.reference(data, s1, g["ref_p"], g["ref_h"])
@@ -57,29 +71,32 @@ def analyse(data: StudyData, g: dict, quick: bool) -> dict:
         if prm.get(C.CON) is None or prm.get(C.H) not in g["h"] or prm.get(C.P) not in g["p"]:
             continue
         h, p = prm[C.H], int(prm[C.P])
-        lag = C.lagrange_case(data, h, p)
+        lag_i = C.lagrange_case(data, h, p)
         F1, F2 = data.at(i, s1, "force_N"), data.at(i, s2, "force_N")
-        r = {"case": i, "h": h, "p": p, "method": prm[C.CON], "K": prm.get(C.K, math.inf) if prm[C.CON] == "penalty" else math.inf,
+        K = prm.get(C.K, math.inf) if prm[C.CON] == "penalty" else math.inf
+        r = {"case": i, "h": h, "p": p, "method": prm[C.CON], "K": K,
              "status": c["status"], "F1": F1, "F2": F2, "dofs": C.dofs(data, i), "its": C.total_iterations(data, i),
              "time": C.wall(data, i), "constraint": data.at(i, s2, "constraint_rms"),
              "err_ref": abs(F2 - ref["force_N"]) / ref["force_N"]}
-        if lag is not None:
-            FL = data.at(lag, s2, "force_N")
+        if lag_i is not None:
+            FL = data.at(lag_i, s2, "force_N")
             r["err_pen"] = abs(F2 - FL) / FL
             X, uy = data.profile(i, s2)
-            r["prof_pen"] = C.profile_error(X, uy, data.profile(lag, s2)[1])
+            r["prof_pen"] = C.profile_error(X, uy, data.profile(lag_i, s2)[1])
         r["prof_ref"] = C.profile_error(*data.profile(i, s2), ref["uy_mm"])
         rows.append(r)
     slopes, orders_h, rates_p, kstar = {}, {}, {}, {}
     for h in g["h"]:
         for p in g["p"]:
-            pen = [r for r in rows if r["h"] == h and r["p"] == p and r["method"] == "penalty" and r["status"] == "ok"]
+            pen = [r for r in rows if r["h"] == h and r["p"] == p and r["method"] == "penalty"
+                   and r["status"] == "ok"]
             fit = [r for r in pen if FIT_K[0] <= r["K"] <= FIT_K[1] and r.get("err_pen", 0) > 1e-10]
             slopes[(h, p)] = C.loglog_slope([r["K"] for r in fit], [r["err_pen"] for r in fit])
-            lag = [r for r in rows if r["h"] == h and r["p"] == p and r["method"] == "lagrange"]
-            if lag:
-                disc = lag[0]["err_ref"]
-                hidden = [r["K"] for r in sorted(pen, key=lambda r: r["K"]) if r.get("err_pen", math.inf) <= 0.1 * disc]
+            lag_hp = [r for r in rows if r["h"] == h and r["p"] == p and r["method"] == "lagrange"]
+            if lag_hp:
+                disc = lag_hp[0]["err_ref"]
+                hidden = [r["K"] for r in sorted(pen, key=lambda r: r["K"])
+                          if r.get("err_pen", math.inf) <= 0.1 * disc]
                 kstar[(h, p)] = hidden[0] if hidden else math.nan
     lag = {(r["h"], r["p"]): r for r in rows if r["method"] == "lagrange"}
     for p in g["p"]:
@@ -88,14 +105,15 @@ def analyse(data: StudyData, g: dict, quick: bool) -> dict:
             orders_h[p] = C.loglog_slope(hs, [lag[(h, p)]["err_ref"] for h in hs])
     for h in g["h"]:
         ps = [p for p in g["p"] if (h, p) in lag]
-        rates_p[h] = {"dofs_slope": C.loglog_slope([lag[(h, p)]["dofs"] for p in ps], [lag[(h, p)]["err_ref"] for p in ps]),
+        rates_p[h] = {"dofs_slope": C.loglog_slope([lag[(h, p)]["dofs"] for p in ps],
+                                                   [lag[(h, p)]["err_ref"] for p in ps]),
                       "successive": [math.log(lag[(h, a)]["err_ref"] / lag[(h, b)]["err_ref"]) / math.log(b / a)
-                                     if lag[(h, b)]["err_ref"] > 0 else math.nan for a, b in zip(ps, ps[1:])]}
+                                     if lag[(h, b)]["err_ref"] > 0 else math.nan for a, b in itertools.pairwise(ps)]}
     return {"ref": ref, "ref1": ref1, "rows": rows, "slopes": slopes, "orders_h": orders_h, "rates_p": rates_p,
             "kstar": kstar, "stations": (s1, s2)}
 
 
-def report(data: StudyData, g: dict, quick: bool) -> str:
+def report(data: StudyData, g: Grid, quick: bool) -> str:
     a = analyse(data, g, quick)
     s1, s2 = a["stations"]
     ref = a["ref"]
@@ -106,15 +124,19 @@ def report(data: StudyData, g: dict, quick: bool) -> str:
          f"{ref['uncertainty_N']:.3g} N = {100 * ref['uncertainty_N'] / ref['force_N']:.2g} %); "
          f"F({s1:g}) = {a['ref1']['force_N']:.4f} N.", "",
          "## Lagrange solutions (discretization error)", "",
-         f"| h [mm] | p | dofs | F({s1:g}) [N] | F({s2:g}) [N] | error vs ref | profile error vs ref | Newton its | time [s] |",
+         f"| h [mm] | p | dofs | F({s1:g}) [N] | F({s2:g}) [N] | error vs ref | profile error vs ref "
+         "| Newton its | time [s] |",
          "|---|---|---|---|---|---|---|---|---|"]
     for r in sorted((r for r in a["rows"] if r["method"] == "lagrange"), key=lambda r: (-r["h"], r["p"])):
-        L.append(f"| {r['h']:g} | {r['p']} | {r['dofs']:.0f} | {C.fmt(r['F1'], '.4f')} | {C.fmt(r['F2'], '.4f')} | "
+        L.append(f"| {r['h']:g} | {r['p']} | {r['dofs']:.0f} | {C.fmt(r['F1'], '.4f')} | "
+                 f"{C.fmt(r['F2'], '.4f')} | "
                  f"{100 * r['err_ref']:.3g} % | {100 * r['prof_ref']:.3g} % | {r['its']} | {r['time']:.2f} |")
     L += ["", "Observed order of the force error in h (slope of log error vs log h, per p): "
           + ", ".join(f"p={p}: {C.fmt(q, '.2f')}" for p, q in a["orders_h"].items()),
-          "", "Rate in p (slope of log error vs log dofs at fixed h; successive p-orders log(e_p/e_p+1)/log((p+1)/p)): "
-          + "; ".join(f"h={h:g}: {C.fmt(v['dofs_slope'], '.2f')} ({', '.join(C.fmt(x, '.2f') for x in v['successive'])})"
+          "", "Rate in p (slope of log error vs log dofs at fixed h; "
+          "successive p-orders log(e_p/e_p+1)/log((p+1)/p)): "
+          + "; ".join(f"h={h:g}: {C.fmt(v['dofs_slope'], '.2f')} "
+                      f"({', '.join(C.fmt(x, '.2f') for x in v['successive'])})"
                       for h, v in a["rates_p"].items()),
           "", f"## Penalty error |F_K - F_Lagrange| / F_Lagrange at {s2:g} mm (same mesh and order)", ""]
     keys = [(h, p) for h in g["h"] for p in g["p"]]
@@ -130,25 +152,32 @@ def report(data: StudyData, g: dict, quick: bool) -> str:
     L.append("| K beyond which the penalty error < 1/10 of the discretization error | "
              + " | ".join(C.fmt(a["kstar"].get(hp, math.nan), ".0e") for hp in keys) + " |")
     L += ["", f"## Constraint violation ||phi - i8|| (RMS) at {s2:g} mm, Newton iterations, time", "",
-          "| h | p | K | ||phi-i8|| | profile err vs Lagrange | Newton its | time [s] |", "|---|---|---|---|---|---|---|"]
+          "| h | p | K | ||phi-i8|| | profile err vs Lagrange | Newton its | time [s] |",
+          "|---|---|---|---|---|---|---|"]
     for r in sorted(a["rows"], key=lambda r: (-r["h"], r["p"], r["K"])):
         L.append(f"| {r['h']:g} | {r['p']} | {'Lagrange' if r['method'] == 'lagrange' else format(r['K'], '.0e')} | "
-                 f"{C.fmt(r['constraint'], '.2e')} | {C.fmt(r.get('prof_pen', math.nan), '.2e')} | {r['its']} | {r['time']:.2f} |")
+                 f"{C.fmt(r['constraint'], '.2e')} | {C.fmt(r.get('prof_pen', math.nan), '.2e')} | {r['its']} | "
+                 f"{r['time']:.2f} |")
     return "\n".join(L) + "\n"
 
 
-def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
+def plot(data: StudyData, g: Grid, quick: bool) -> list[Path]:
+    a = analyse(data, g, quick)
+    styles = {h: ls for h, ls in zip(g["h"], ("-", "--", ":"), strict=False)}
+    return [_plot_profiles(data, g, a), _plot_penalty_error(data, g, a, styles),
+            _plot_discretization_error(data, g, a, styles)]
+
+
+def _plot_profiles(data: StudyData, g: Grid, a: dict) -> Path:
+    """Mid-axis u_y at the second station for several K (the paper's figure)."""
     import matplotlib.pyplot as plt
 
-    a = analyse(data, g, quick)
-    s1, s2 = a["stations"]
-    out = []
-    # 1. mid-axis u_y at s2 for several K (the paper's figure)
+    s2 = a["stations"][1]
     h0, p0 = g["profile_case"]
     fig, ax = plt.subplots(figsize=(7, 4))
     cmap = plt.get_cmap("viridis")
-    pen = sorted((r for r in a["rows"] if r["h"] == h0 and r["p"] == p0 and r["method"] == "penalty" and r["status"] == "ok"),
-                 key=lambda r: r["K"])
+    pen = sorted((r for r in a["rows"] if r["h"] == h0 and r["p"] == p0 and r["method"] == "penalty"
+                  and r["status"] == "ok"), key=lambda r: r["K"])
     for j, r in enumerate(pen):
         X, uy = data.profile(r["case"], s2)
         ax.plot(X, uy, color=cmap(j / max(len(pen) - 1, 1)), label=f"penalty K = {r['K']:.0e} Pa")
@@ -161,24 +190,28 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    out.append(savefig(fig, data.out, "penalty_profiles"))
-    # 2. error plots
+    return savefig(fig, data.out, "penalty_profiles")
+
+
+def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, str]) -> Path:
+    """Penalty error, total error and constraint violation against K, one line per (h, p)."""
+    import matplotlib.pyplot as plt
+
     fig, axs = plt.subplots(1, 3, figsize=(15, 4.3))
-    styles = {h: ls for h, ls in zip(g["h"], ("-", "--", ":"))}
     for h in g["h"]:
         for p in g["p"]:
-            rs = sorted((r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "penalty" and r["status"] == "ok"),
-                        key=lambda r: r["K"])
+            rs = sorted((r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "penalty"
+                         and r["status"] == "ok"), key=lambda r: r["K"])
             if not rs:
                 continue
-            col = f"C{p - 1}"
-            lab = f"h={h:g}, p={p}"
-            axs[0].loglog([r["K"] for r in rs], [max(r.get("err_pen", math.nan), 1e-16) for r in rs], styles[h], color=col, marker="o", ms=3, label=lab)
-            axs[1].loglog([r["K"] for r in rs], [max(r["err_ref"], 1e-16) for r in rs], styles[h], color=col, marker="o", ms=3, label=lab)
+            K = [r["K"] for r in rs]
+            kw = {"color": f"C{p - 1}", "marker": "o", "ms": 3, "label": f"h={h:g}, p={p}"}
+            axs[0].loglog(K, [max(r.get("err_pen", math.nan), 1e-16) for r in rs], styles[h], **kw)
+            axs[1].loglog(K, [max(r["err_ref"], 1e-16) for r in rs], styles[h], **kw)
             lr = [r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "lagrange"]
             if lr:
-                axs[1].axhline(lr[0]["err_ref"], color=col, ls=styles[h], lw=0.8, alpha=0.6)
-            axs[2].loglog([r["K"] for r in rs], [r["constraint"] for r in rs], styles[h], color=col, marker="o", ms=3, label=lab)
+                axs[1].axhline(lr[0]["err_ref"], color=kw["color"], ls=styles[h], lw=0.8, alpha=0.6)
+            axs[2].loglog(K, [r["constraint"] for r in rs], styles[h], **kw)
     k = np.array([1e8, 1e11])
     axs[0].loglog(k, 1e-3 * (k / 1e8) ** -1.0, "k:", lw=1, label="slope -1")
     axs[0].set_title("penalty error |F_K - F_Lagrange| / F_Lagrange")
@@ -189,8 +222,14 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
         ax.grid(alpha=0.3, which="both")
     axs[0].legend(fontsize=6, ncol=2)
     fig.tight_layout()
-    out.append(savefig(fig, data.out, "penalty_error"))
-    # 3. discretization error of the Lagrange solutions
+    return savefig(fig, data.out, "penalty_error")
+
+
+def _plot_discretization_error(data: StudyData, g: Grid, a: dict, styles: dict[float, str]) -> Path:
+    """Discretization error of the Lagrange solutions against dofs (and against h with two mesh sizes)."""
+    import matplotlib.pyplot as plt
+
+    s2 = a["stations"][1]
     # the convergence in h needs two mesh sizes (the quick grid has one: a single panel then)
     two = len(g["h"]) > 1
     fig, axs = plt.subplots(1, 2 if two else 1, figsize=(11 if two else 5.5, 4.2), squeeze=False)
@@ -198,7 +237,8 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
     lag = [r for r in a["rows"] if r["method"] == "lagrange" and r["status"] == "ok"]
     for h in g["h"]:
         rs = sorted((r for r in lag if r["h"] == h), key=lambda r: r["p"])
-        axs[0].loglog([r["dofs"] for r in rs], [r["err_ref"] for r in rs], "o" + styles[h], label=f"h = {h:g} mm, p = {rs[0]['p'] if rs else ''}..")
+        axs[0].loglog([r["dofs"] for r in rs], [r["err_ref"] for r in rs], "o" + styles[h],
+                      label=f"h = {h:g} mm, p = {rs[0]['p'] if rs else ''}..")
         for r in rs:
             axs[0].annotate(f"p{r['p']}", (r["dofs"], r["err_ref"]), fontsize=7)
     for p in g["p"] if two else ():
@@ -212,10 +252,10 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
         ax.set_ylabel(f"|F_Lagrange - F_ref| / F_ref at {s2:g} mm")
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7)
-    fig.suptitle(f"discretization error (reference: Richardson, p = {a['ref']['p']}, h = {a['ref']['hs']} mm)", fontsize=9)
+    fig.suptitle(f"discretization error (reference: Richardson, p = {a['ref']['p']}, h = {a['ref']['hs']} mm)",
+                 fontsize=9)
     fig.tight_layout()
-    out.append(savefig(fig, data.out, "discretization_error"))
-    return out
+    return savefig(fig, data.out, "discretization_error")
 
 
 def main(argv: list[str] | None = None) -> int:
