@@ -145,6 +145,23 @@ def diagnose_stability(problem: ContinuumProblem, k: int = 3) -> StabilityDiagno
         return StabilityDiagnosis(u0_mm, skipped=f"stability check failed: {exc}")
 
 
+def lowest_eigenpair(problem: ContinuumProblem) -> tuple[float, np.ndarray]:
+    """The lowest eigenvalue of the diagonally scaled tangent at the current state and its mode (full length).
+
+    The mode holds the free dofs of the (condensed) tangent and the condensed local dofs that
+    follow them; it is scaled to unit maximum norm.
+    """
+    problem.factorize()
+    A, fd = problem.linear.free_matrix()
+    d = np.sqrt(np.abs(A.diagonal()) + 1e-300)
+    ev, V = eigsh(sps.diags(1 / d) @ A @ sps.diags(1 / d), k=1, sigma=-1e-3, which="LM")
+    mode = ngs.GridFunction(problem.X)
+    mode.vec.FV().NumPy()[fd] = V[:, 0] / d
+    problem.linear.extend(mode.vec)
+    x = mode.vec.FV().NumPy().copy()
+    return float(ev[0]), x / max(float(np.max(np.abs(x))), 1e-300)
+
+
 def _ellipticity_losses(problem: ContinuumProblem) -> tuple[EllipticityLoss, ...]:
     m = problem.scene.material
     out = []
