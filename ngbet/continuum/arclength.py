@@ -99,11 +99,17 @@ class _Path:
         self.tau_x, self.tau_l = tx, tl
         return n
 
-    def step(self, ds: float) -> tuple[bool, int, list[float], str, np.ndarray | None]:
-        """Predict by ds along τ and correct on the hyperplane; the state is left where it ends."""
+    def step(self, ds: float, land: float | None = None) -> tuple[bool, int, list[float], str, np.ndarray | None]:
+        """Predict by ds along τ and correct on the hyperplane, or at the fixed load ``land`` (landing on
+        the target); the state is left where it ends.
+        """
         p = self.p
         p.x[:] = self.x0 + ds * self.tau_x
-        p.set_load(self.lam0 + ds * self.tau_l)
+        p.set_load(self.lam0 + ds * self.tau_l if land is None else land)
+        if land is not None:
+            e = p.energy()
+            rep = newton(p, self.settings, e if math.isfinite(e) else 0.0)
+            return rep.converged, rep.iterations, rep.history, rep.reason, rep.residual
         tol = self.settings.rtol * abs(p.energy()) + self.settings.atol
         history: list[float] = []
         for it in range(1, self.settings.max_iterations + 1):
@@ -161,8 +167,9 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
             break
         if path.lam0 < ctl.floor * track.lam_start:
             break
-        ds = min(ds, _distance_to(path, ctl.target, ds))
-        ok, its, hist, why, r = path.step(ds)
+        to_target = _distance_to(path, ctl.target, ds)
+        ds = min(ds, to_target)
+        ok, its, hist, why, r = path.step(ds, ctl.target if ds == to_target < math.inf else None)
         lam_to = float(getattr(problem, "lam", 0.0))
         res.attempts.append(Attempt(path.lam0, lam_to, ok, its, why, hist))
         if not ok:
@@ -172,9 +179,6 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
             if ds < ds_min:
                 break
             continue
-        if abs(lam_to - ctl.target) < 1e-9 * ctl.target:
-            problem.set_load(ctl.target)
-            lam_to = ctl.target
         path.commit()
         path.tangent(orient=True)
         rec = StepRecord(len(res.steps) + 1, lam_to, its, residual=r, history=hist, reason="arc-length")
@@ -193,7 +197,7 @@ def _distance_to(path: _Path, target: float, ds: float) -> float:
     """The arc length that lands the predictor on u0 = target when it would pass it (else ds)."""
     if path.tau_l > 0 and path.lam0 + ds * path.tau_l > target:
         return (target - path.lam0) / path.tau_l
-    return ds
+    return math.inf
 
 
 class _Tracker:
@@ -237,11 +241,6 @@ class _Tracker:
         self.tau_l, self.R, self.dR = path.tau_l, R, rec.dforce_du0
         return out
 
-
-def newton_at(problem: NonlinearProblem, settings: NewtonSettings) -> bool:
-    """Correct the state at its fixed load (after a branch switch)."""
-    e = problem.energy()
-    return newton(problem, settings, e if math.isfinite(e) else 0.0).converged
 
 
 def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
