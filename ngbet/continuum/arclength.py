@@ -100,8 +100,9 @@ class _Path:
         return n
 
     def step(self, ds: float, land: float | None = None) -> tuple[bool, int, list[float], str, np.ndarray | None]:
-        """Predict by ds along τ and correct on the hyperplane, or at the fixed load ``land`` (landing on
-        the target); the state is left where it ends.
+        """Predict by ds along τ and correct on the hyperplane (or at the fixed load ``land``).
+
+        ``land`` is the target when the step lands on it; the state is left where it ends.
         """
         p = self.p
         p.x[:] = self.x0 + ds * self.tau_x
