@@ -387,6 +387,10 @@ def test_nearly_inextensible_yarns_snap_back_is_reported(tmp_path):
     s = json.loads((tmp_path / "kel" / "summary.json").read_text())
     snap = s["instabilities"][0]
     assert snap["kind"] == "snap-back" and 54.0 < snap["u0_mm"] < 54.6
+    # past the fold the tangent has a negative eigenvalue; its mode is written and pictured
+    assert snap["lowest_eigenvalue"] < 0 and snap["mode_class"] in ("continuum", "discretization")
+    assert s["instability_mode_files"] == ["instability_mode.vtu", "instability_mode.png"]
+    assert all((tmp_path / "kel" / f).stat().st_size > 0 for f in s["instability_mode_files"])
     assert 53.5 < s["force_maximum"]["u0_mm"] < 54.5
     u0 = np.array([r["u0_mm"] for r in read_rows(tmp_path / "kel" / "results.csv")])
     assert u0.max() > 54.4 and u0[-1] < u0.max() - 1.0  # the path past the maximum, turned back

@@ -21,8 +21,7 @@ turning points in u0. Along the way the kind of instability is told apart:
 - ``snap-back``: the λ-component of the tangent changes sign (the path turns back in u0);
   displacement control cannot pass it;
 - ``bifurcation``: the lowest eigenvalue of the (scaled) tangent changes sign while u0 keeps
-  growing; the path is continued on the branch along the mode (the state is perturbed by ε times
-  the mode and corrected at fixed load);
+  growing (reported; the path followed stays on its branch, no branch switching);
 - ``force maximum``: dF/du0 changes sign with a stable tangent; displacement control passes it.
 """
 
@@ -33,6 +32,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -68,6 +68,7 @@ class Instability:
     reaction: float
     lowest_eigenvalue: float = math.nan
     details: dict[str, Any] = field(default_factory=dict)
+    mode: np.ndarray | None = field(default=None, repr=False)  # the lowest mode of the tangent there
 
     def as_dict(self, thickness: float) -> dict[str, Any]:
         """The summary's record (force in N)."""
@@ -150,7 +151,8 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
 
     ``psi`` is the reaction's test vector (R = ψ·r); ``lowest_eigenpair()`` gives the lowest
     eigenvalue of the tangent at the current state and its mode (full length), used to tell a
-    bifurcation and to switch branch. Steps are appended to ``result`` (a new one if None).
+    bifurcation and to keep the mode of each instability. Steps are appended to ``result`` (a new
+    one if None).
     Returns the result (``u0`` the last load reached) and the instabilities passed or met;
     the caller decides what an unreached target means.
     """
@@ -230,12 +232,12 @@ class _Tracker:
         if self.tau_l > 0 and path.tau_l > 0 and rec.dforce_du0 < 0 <= self.dR:
             out.append(Instability("force maximum", lam_mm, R))
         if self.eig is not None:
-            ev, _ = self.eig()
+            ev, mode = self.eig()
             path.tangent(orient=True)
             if self.ev > 0 >= ev and out == [] and path.tau_l > 0 and self.tau_l > 0:
                 out.append(Instability("bifurcation", lam_mm, R, ev))
             for ins in out:
-                ins.lowest_eigenvalue = ev
+                ins.lowest_eigenvalue, ins.mode = ev, mode
             self.ev = ev
         for ins in out:
             log.warning("%s at u0 = %.4g mm", ins.kind, ins.u0_mm)
@@ -245,12 +247,14 @@ class _Tracker:
 
 
 def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
-                     progress: Callable[[float], None] | None = None) -> Callable[[PathResult], PathResult]:
+                     progress: Callable[[float], None] | None = None, out: Path | None = None
+                     ) -> Callable[[PathResult], PathResult]:
     """The continuation the continuum's run hands to :func:`ngbet.continuum.solver.continuation`.
 
     Follows the path of ``problem`` (a :class:`~ngbet.continuum.problem.ContinuumProblem`) from
     its converged state to ``loading.u0_mm``, appending to the result it is given; fills
-    ``path_info`` (instabilities with kind, load, force and mode) and raises
+    ``path_info`` (instabilities with kind, load, force and mode class; the first one's mode as
+    ``instability_mode.vtu`` and ``.png`` in ``out``) and raises
     :class:`~ngbet.errors.ConvergenceError` with it when the target is not reached.
     """
     from .run import newton_settings
@@ -272,14 +276,14 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
         c = ctl
         if len(res.steps) >= 2:  # after displacement control: start with its last step
             h = res.steps[-1].u0 - res.steps[-2].u0
-            c = dataclasses.replace(ctl, first_step=h, max_step=min(ctl.max_step, 8 * h))
+            c = dataclasses.replace(ctl, first_step=h, max_step=min(ctl.max_step, 8 * h),
+                                    min_step=min(ctl.min_step, h / 64))
         res, found = follow_arclength(problem, c, newton_settings(scene), weights=problem._weights,
                                       length=scene.specimen.L, psi=psi,
                                       lowest_eigenpair=lambda: lowest_eigenpair(problem), on_step=step, result=res)
-        t = scene.specimen.t
-        res.path_info = {"path_following": scene.solver.path_following, "arclength_from_mm": start_mm,
-                         "instabilities": [i.as_dict(t) for i in found]}
+        res.path_info = _path_info(problem, found, start_mm, out)
         if res.steps:
+            t = scene.specimen.t
             F = [float(psi @ s.residual) * t if s.residual is not None else math.nan for s in res.steps]
             k = int(np.nanargmax(F))
             res.path_info["force_maximum"] = {"u0_mm": res.steps[k].u0 * 1e3, "force_N": F[k]}
@@ -296,3 +300,24 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
         return res
 
     return run
+
+
+def _path_info(problem: Any, found: list[Instability], start_mm: float, out: Path | None) -> dict[str, Any]:
+    """The summary's record of the path: each instability with its mode's class and place; the first mode's files."""
+    from .stability import DISCRETIZATION_MODE_RATIO, mode_constraint_ratio, write_mode
+
+    saved = problem.x.copy()
+    for ins in found:
+        if ins.mode is not None and problem.phi is not None:
+            r, where = mode_constraint_ratio(problem, ins.mode)
+            ins.details.update(mode_ratio=r, mode_class="discretization" if r > DISCRETIZATION_MODE_RATIO
+                               else "continuum", mode_location_mm=list(where))
+    info: dict[str, Any] = {"path_following": problem.scene.solver.path_following, "arclength_from_mm": start_mm,
+                            "instabilities": [i.as_dict(problem.scene.specimen.t) for i in found]}
+    first = next((i for i in found if i.mode is not None), None)
+    if out is not None and first is not None and first.mode is not None:
+        files = write_mode(problem, first.mode, out / "instability_mode",
+                           f"{first.kind} at u0 = {first.u0_mm:.4g} mm: lowest mode of the tangent")
+        info["instability_mode_files"] = [f.name for f in files]
+    problem.x[:] = saved
+    return info

@@ -55,7 +55,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             recorder = _StepWriter(problem, writer, out, estimates)
             t_cont = time.perf_counter()
             try:
-                res = _carry_load(problem, scene, recorder.on_step, bar)
+                res = _carry_load(problem, scene, recorder.on_step, bar, out)
             except ConvergenceError as err:
                 info.update(_solver_info(problem, None), **getattr(err, "path_info", {}))
                 writer.summary(info, "failed", str(err))
@@ -67,7 +67,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
 
 
 def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
-                progress: Callable[[float], None] | None) -> PathResult:
+                progress: Callable[[float], None] | None, out: Path | None = None) -> PathResult:
     """The load path of the scene on the engine."""
     L = scene.loading
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
@@ -77,7 +77,7 @@ def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[Step
                         psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
                         path_following=scene.solver.path_following,
                         arclength=None if scene.solver.path_following == "displacement"
-                        else arclength_runner(problem, on_step, progress))
+                        else arclength_runner(problem, on_step, progress, out))
 
 
 def _setup_info(problem: ContinuumProblem, t_setup: float) -> dict[str, Any]:
