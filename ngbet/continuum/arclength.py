@@ -186,7 +186,7 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
         path.tangent(orient=True)
         rec = StepRecord(len(res.steps) + 1, lam_to, its, residual=r, history=hist, reason="arc-length")
         rec.dforce_du0 = problem.load_derivative(psi, problem.load_tangent(1.0))
-        found += track.update(problem, path, rec, r)
+        found += track.update(path, rec, r)
         res.steps.append(rec)
         res.u0 = lam_to
         if on_step is not None:
@@ -204,46 +204,44 @@ def _distance_to(path: _Path, target: float, ds: float) -> float:
 
 
 class _Tracker:
-    """Watches the sign of τ_λ, of dF/du0 and of the lowest eigenvalue along the path."""
+    """Watches the sign of τ_λ, of dF/du0 and of the lowest eigenvalue along the path.
+
+    A snap-back and a force maximum are reported at the last point before the sign change (the
+    largest u0, resp. force, of the two), with the lowest eigenvalue and mode there: at a fold
+    it is the mode whose eigenvalue vanishes.
+    """
 
     def __init__(self, psi: np.ndarray, eig: Callable[[], tuple[float, np.ndarray]] | None) -> None:
         self.psi, self.eig = psi, eig
         self.lam_start = 0.0
         self.tau_l = 1.0
-        self.ev = math.nan
-        self.R = math.nan
         self.dR = math.nan
+        self.prev = Instability("", 0.0, math.nan)  # the last point: load, reaction, eigenvalue, mode
 
     def start(self, problem: NonlinearProblem, path: _Path) -> None:
         self.lam_start = path.lam0
         self.tau_l = path.tau_l
-        self.R = float(self.psi @ problem.residual())
+        self.prev = Instability("", path.lam0 * 1e3, float(self.psi @ problem.residual()))
         if self.eig is not None:
-            self.ev = self.eig()[0]
+            self.prev.lowest_eigenvalue, self.prev.mode = self.eig()
             path.tangent(orient=True)  # the eigen-solve may have refactorized elsewhere: same point
 
-    def update(self, problem: NonlinearProblem, path: _Path, rec: StepRecord, r: np.ndarray | None
-               ) -> list[Instability]:
-        out = []
-        R = float(self.psi @ r) if r is not None else math.nan
-        lam_mm = rec.u0 * 1e3
-        if self.tau_l > 0 >= path.tau_l:
-            out.append(Instability("snap-back", lam_mm, R, details={"note": "the path turns back in u0"}))
-        if self.tau_l > 0 and path.tau_l > 0 and rec.dforce_du0 < 0 <= self.dR:
-            out.append(Instability("force maximum", lam_mm, R))
+    def update(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> list[Instability]:
+        here = Instability("", rec.u0 * 1e3, float(self.psi @ r) if r is not None else math.nan)
         if self.eig is not None:
-            ev, mode = self.eig()
+            here.lowest_eigenvalue, here.mode = self.eig()
             path.tangent(orient=True)
-            if self.ev > 0 >= ev and out == [] and path.tau_l > 0 and self.tau_l > 0:
-                out.append(Instability("bifurcation", lam_mm, R, ev))
-            for ins in out:
-                ins.lowest_eigenvalue, ins.mode = ev, mode
-            self.ev = ev
+        prev, out = self.prev, []
+        if self.tau_l > 0 >= path.tau_l:
+            out.append(dataclasses.replace(prev, kind="snap-back", details={"note": "the path turns back in u0"}))
+        elif path.tau_l > 0 and rec.dforce_du0 < 0 <= self.dR:
+            out.append(dataclasses.replace(prev, kind="force maximum"))
+        elif prev.lowest_eigenvalue > 0 >= here.lowest_eigenvalue and path.tau_l > 0:
+            out.append(dataclasses.replace(here, kind="bifurcation"))
         for ins in out:
             log.warning("%s at u0 = %.4g mm", ins.kind, ins.u0_mm)
-        self.tau_l, self.R, self.dR = path.tau_l, R, rec.dforce_du0
+        self.tau_l, self.dR, self.prev = path.tau_l, rec.dforce_du0, here
         return out
-
 
 
 def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],

@@ -110,7 +110,8 @@ class StabilityDiagnosis:
                 kind += (f"; raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa), e.g. to "
                          f"material.K_el = {self.K_el:.3g} Pa")
         else:
-            kind = "a mode of the constrained continuum (phi follows i8): the model's own limit point or bifurcation"
+            kind = ("a mode of the constrained continuum (phi follows i8): the model's own limit point or "
+                    "bifurcation; solver.path_following = 'auto' follows the path through it and reports its kind")
         x, y = self.location_mm or (math.nan, math.nan)
         return (f"{msg}; lowest mode near (X, Y) = ({x:.0f}, {y:.0f}) mm with |dphi - di8| / |di8| = "
                 f"{self.ratio:.2f}: {kind}{ill}")
