@@ -77,7 +77,8 @@ STABILIZATION_C = 0.1
 #: α1 = α2 = 2000 Pa m² on the 10 mm mesh graded to 0.5 mm corners, p = 3 (K_s up to 5.7e8 Pa):
 #: uncapped 9 steps and 5 cuts; cap 100 K_el: 5 steps, 2 cuts; 30 K_el: 3 steps, no cut, force
 #: 294.771 N against 294.791 N uncapped (0.020 N, below its estimated discretization error 0.030 N);
-#: 10 K_el: 294.761 N (0.030 N, above the estimate 0.018 N)
+#: 10 K_el: 294.761 N (0.030 N, above the estimate 0.018 N). On the default scene (0.25 mm corners,
+#: K_s up to 2.3e7 Pa) the cap moves the force at 56 mm by 6e-8 N (107.3735 N).
 STABILIZATION_CAP = 30.0
 
 
