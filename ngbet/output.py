@@ -66,7 +66,7 @@ RUN_LOCK = ".ngbet.lock"
 # lists) are removed when a folder is reused
 RUN_FILE_PATTERNS = ("scene.toml", "summary.json", "summary.json.tmp", "results.csv", "profile.csv",
                      "fields*.vtu", "fields*.pvd", "force.png", "force.pdf", "state_*.npz", "yarns_*.png",
-                     "yarns_*.pdf")
+                     "yarns_*.pdf", "instability_mode.vtu", "instability_mode.png")
 _RUN_MARKERS = (RUN_LOCK, "summary.json", "scene.toml")
 
 

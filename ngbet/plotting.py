@@ -23,7 +23,8 @@ def dense_force(u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None) -> tu
     """
     u = np.r_[0.0, np.asarray(u0, dtype=float)]
     F = np.r_[0.0, np.asarray(force, dtype=float)]
-    if dforce is None or len(u) < 2 or not np.all(np.isfinite(np.asarray(dforce, dtype=float))):
+    if (dforce is None or len(u) < 2 or not np.all(np.isfinite(np.asarray(dforce, dtype=float)))
+            or np.any(np.diff(u) <= 0)):  # a path followed by arc length may turn back in u0
         return u, F, "lines between converged steps"
     from scipy.interpolate import CubicHermiteSpline
 

@@ -355,6 +355,9 @@ class Solver:
     # were slower in wall time (solves and residuals wait for a core)
     threads: int | str = 1
     predictor: str = "tangent"  # "tangent" (Euler) or "clamp" (u += du0 X/L)
+    # continuum: "displacement" control; "arclength": pseudo-arclength continuation in (state, u0)
+    # from the start; "auto": displacement control, arc length where it fails (through a snap-back)
+    path_following: str = "displacement"
 
     def __post_init__(self) -> None:
         _positive("solver", self, "rtol", "atol_energy", "growth")
@@ -366,6 +369,7 @@ class Solver:
         _check(self.growth >= 1, "solver.growth", self.growth, "must be >= 1")
         _choice("solver", self, "linear_solver", LINEAR_SOLVERS)
         _choice("solver", self, "predictor", ("tangent", "clamp"))
+        _choice("solver", self, "path_following", ("displacement", "arclength", "auto"))
         _boolean("solver", self, "condense")
 
 

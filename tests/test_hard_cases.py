@@ -15,6 +15,7 @@ Fast cases run on a 10-20 mm mesh in seconds; the expensive ones are marked ``sl
 (``python -m pytest -m slow tests/test_hard_cases.py``).
 """
 
+import json
 import math
 
 import numpy as np
@@ -332,3 +333,126 @@ def test_other_yarn_angles(tmp_path, angle, u0):
     F = _assert_sane(s, rows, u0)
     # at 1 mm the force is the small-strain one: positive and small against the final one
     assert rows[0]["u0_mm"] == 1.0 and 0 < F[0] < 0.2 * F[-1]
+
+
+# ------------------------------------------------------------------------------ through the instability
+class _Fold:
+    """A one-dof toy with a snap-back in the control λ: E = G(y) − λ y, r_y = g(y) − λ with
+    g(y) = y³ − 1.5 y² + 0.6 y, which rises to a fold at y₁ = (3 − √1.8)/6 (λ = g(y₁) = 0.0726),
+    falls to y₂ = (3 + √1.8)/6 and rises again. x = (λ, y): λ is the Dirichlet entry."""
+
+    def __init__(self):
+        self.x = np.zeros(2)
+        self.lam = 0.0
+
+    @staticmethod
+    def g(y):
+        return y ** 3 - 1.5 * y ** 2 + 0.6 * y
+
+    def set_load(self, lam):
+        self.lam = lam
+        self.x[0] = lam
+
+    def residual(self):
+        y = self.x[1]
+        return np.array([-y, self.g(y) - self.x[0]])
+
+    def energy(self):
+        y = self.x[1]
+        return y ** 4 / 4 - y ** 3 / 2 + 0.3 * y ** 2 - self.x[0] * y
+
+    def factorize(self):
+        y = self.x[1]
+        self.J = 3 * y ** 2 - 3 * y + 0.6
+
+    def solve(self, r):
+        return np.array([0.0, -r[1] / self.J])
+
+    def load_tangent(self, dlam):
+        return np.array([dlam, dlam / self.J])
+
+    def clamp_predictor(self, dlam):
+        return np.array([dlam, 0.0])
+
+    def norm(self, dx):
+        return abs(dx[1])
+
+    def load_derivative(self, psi, tangent):
+        return float(psi @ np.array([-tangent[1], self.J * tangent[1] - tangent[0]]))
+
+
+def test_arclength_passes_the_snap_back_of_a_toy_that_displacement_control_cannot():
+    """Displacement control of the toy stops at its fold (λ = 0.0726); pseudo-arclength follows
+    the path round both turning points to λ = g(1.2) = 0.288, every point in equilibrium, and
+    reports the snap-back at the fold's load."""
+    from ngbet.continuum.arclength import ArcLengthSettings, follow_arclength
+    from ngbet.continuum.solver import NewtonSettings, continuation
+
+    lam_fold = _Fold.g((3 - math.sqrt(1.8)) / 6)
+    target = _Fold.g(1.2)
+    with pytest.raises(ConvergenceError) as info:
+        continuation(_Fold(), target, 0.01, NewtonSettings(), min_step=1e-6)
+    assert info.value.last_converged_mm * 1e-3 <= lam_fold
+    toy = _Fold()
+    ctl = ArcLengthSettings(target=target, first_step=0.01, max_step=0.05, min_step=1e-6)
+    res, found = follow_arclength(toy, ctl, NewtonSettings(), weights=np.array([0.0, 1.0]), length=1.0,
+                                  psi=np.array([1.0, 0.0]))
+    assert res.u0 == target and toy.x[1] == pytest.approx(1.2, rel=1e-6)  # the unique equilibrium there
+    lam = np.array([s.u0 for s in res.steps])
+    assert np.any(np.diff(lam) < 0)  # the path went back in λ
+    for s in res.steps:  # every recorded point is an equilibrium (the reaction is −y, r_y ≈ 0)
+        assert abs(s.residual[1]) < 1e-6
+    snaps = [i for i in found if i.kind == "snap-back"]
+    assert len(snaps) == 1 and abs(snaps[0].u0_mm * 1e-3 - lam_fold) < 0.01
+
+
+def test_arclength_reproduces_displacement_control_on_a_smooth_path(tmp_path):
+    """On the smooth path of the default material (20 mm mesh, to 37 mm) arc-length continuation lands
+    on the final load with the force of displacement control to Newton's tolerance."""
+    h20 = {"discretization.mesh_size_mm": 20.0, "outputs.profile": False, "loading.u0_mm": 37.0}
+    _, disp, _ = _run(tmp_path, "disp", **h20)
+    s, arc, _ = _run(tmp_path, "arc", **h20, **{"solver.path_following": "arclength"})
+    assert s["status"] == "ok" and s["instabilities"] == []
+    assert arc[-1]["u0_mm"] == pytest.approx(37.0, rel=1e-12)
+    assert arc[-1]["force_N"] == pytest.approx(disp[-1]["force_N"], rel=1e-8)
+
+
+@pytest.mark.slow
+def test_nearly_inextensible_yarns_snap_back_is_reported(tmp_path):
+    """K_el = 1e8 Pa (10 mm mesh, p = 2, 2 mm steps): the force peaks at 54.0 mm (578 N) and
+    falls ever faster (dF/du0 = −47 N/mm at 54.45 mm) while the lowest tangent eigenvalue goes
+    to 0: the path turns back in u0 at 54.45 mm, a snap-back that displacement control cannot pass.
+    With ``path_following = "auto"`` arc length follows the path past the fold and back; the run
+    fails with the snap-back's kind and load in summary.json, the rows past the maximum on disk."""
+    with pytest.raises(ConvergenceError) as info:
+        _run(tmp_path, "kel", **{"material.K_el": 1e8, "solver.path_following": "auto",
+                                 "loading.first_step_mm": 2.0, "loading.max_step_mm": 2.0,
+                                 "outputs.error_estimate": "off", "outputs.profile": False})
+    assert "snap-back" in str(info.value)
+    s = json.loads((tmp_path / "kel" / "summary.json").read_text())
+    snap = s["instabilities"][0]
+    assert snap["kind"] == "snap-back" and 54.0 < snap["u0_mm"] < 54.6
+    # at the fold the lowest scaled eigenvalue of the tangent nearly vanishes (measured: 2.0e-6 at
+    # 54.45 mm where displacement control stops, 4.1e-7 at the last point before the turn, 54.49 mm),
+    # its mode near the specimen's centre (X = 105 mm; mixed: r = 0.78); written and pictured
+    assert 0 < snap["lowest_eigenvalue"] < 1e-6 and abs(snap["mode_location_mm"][0] - 110) < 20, snap
+    assert s["instability_mode_files"] == ["instability_mode.vtu", "instability_mode.png"]
+    assert all((tmp_path / "kel" / f).stat().st_size > 0 for f in s["instability_mode_files"])
+    assert 53.5 < s["force_maximum"]["u0_mm"] < 54.5
+    u0 = np.array([r["u0_mm"] for r in read_rows(tmp_path / "kel" / "results.csv")])
+    assert u0.max() > 54.4 and u0[-1] < u0.max() - 1.0  # the path past the maximum, turned back
+
+
+@pytest.mark.slow
+def test_stiff_bending_on_a_graded_mesh_needs_no_step_cut(tmp_path):
+    """α1 = α2 = 2000 Pa m², 10 mm mesh graded to 0.5 mm corners, p = 3: the element stabilization
+    c min(α)/h_T² would reach 5.7e8 Pa on the corner elements (9 steps, 5 cuts, measured); capped
+    at 30 K_el it takes the default 3 steps without a cut, and the force (294.771 N) is within
+    0.02 N of the uncapped one (294.791 N, measured), below the estimated discretization error."""
+    s, rows, _ = _run(tmp_path, "a2000", **{"material.alpha1": 2000.0, "material.alpha2": 2000.0,
+                                            "discretization.corner_mesh_size_mm": 0.5, "discretization.order_u": 3,
+                                            "outputs.profile": False})
+    _assert_sane(s, rows, 56.0)
+    assert s["step_cuts"] == 0 and s["load_steps"] == 3
+    assert s["stabilization_K_Pa"][1] == pytest.approx(30 * 0.7e6)
+    assert abs(rows[-1]["force_N"] - 294.791) < 0.03

@@ -15,6 +15,7 @@ from ..errors import ConvergenceError
 from ..output import RunWriter, plot_force
 from ..scene import Scene
 from . import observables as obs
+from .arclength import arclength_runner
 from .output import write_vtk
 from .problem import ContinuumProblem
 from .solver import NewtonSettings, continuation
@@ -54,9 +55,9 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             recorder = _StepWriter(problem, writer, out, estimates)
             t_cont = time.perf_counter()
             try:
-                res = _carry_load(problem, scene, recorder.on_step, bar)
+                res = _carry_load(problem, scene, recorder.on_step, bar, out)
             except ConvergenceError as err:
-                info.update(_solver_info(problem, None))
+                info.update(_solver_info(problem, None), **getattr(err, "path_info", {}))
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
                     plot_force(out)
@@ -66,14 +67,17 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
 
 
 def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
-                progress: Callable[[float], None] | None) -> PathResult:
+                progress: Callable[[float], None] | None, out: Path | None = None) -> PathResult:
     """The load path of the scene on the engine."""
     L = scene.loading
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                         max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
                         stops=[s * 1e-3 for s in L.stops_mm], on_step=on_step,
                         diagnose=lambda: diagnose_stability(problem),
-                        psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress)
+                        psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
+                        path_following=scene.solver.path_following,
+                        arclength=None if scene.solver.path_following == "displacement"
+                        else arclength_runner(problem, on_step, progress, out))
 
 
 def _setup_info(problem: ContinuumProblem, t_setup: float) -> dict[str, Any]:
@@ -170,6 +174,7 @@ def _finish(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Pat
 def _solver_info(problem: ContinuumProblem, res: PathResult | None) -> dict[str, Any]:
     d: dict[str, Any] = {"timers": dict(problem.timers), "counts": dict(problem.counts)}
     if res is not None:
+        d.update(res.path_info)
         d["load_steps"] = len(res.steps)
         d["step_cuts"] = res.cuts
         d["newton_iterations"] = sum(s.iterations for s in res.steps) + sum(

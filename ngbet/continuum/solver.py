@@ -31,7 +31,7 @@ from typing import Protocol
 import numpy as np
 
 from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
-from ..errors import Attempt
+from ..errors import Attempt, ConvergenceError
 
 log = logging.getLogger(__name__)
 
@@ -273,6 +273,8 @@ def continuation(
     max_attempts: int = 500,
     psi: np.ndarray | None = None,
     progress: Callable[[float], None] | None = None,
+    path_following: str = "displacement",
+    arclength: Callable[[PathResult], PathResult] | None = None,
 ) -> PathResult:
     """Carry the load from 0 to ``target`` with :class:`SaddlePointNewton` on the engine.
 
@@ -285,11 +287,36 @@ def continuation(
         when the increment has been cut below ``min_step``, or after ``max_attempts`` increments
         (converged or not: a bound on the time), with the pattern of the last failures and what
         ``diagnose`` finds.
+
+    ``path_following`` (``solver.path_following``): "displacement" control alone; "arclength":
+    ``arclength(result)`` follows the path from the start; "auto": displacement control, and
+    where it fails, ``arclength(result)`` goes on from the last converged state (the steps are
+    appended to the same result).
     """
+    if path_following == "arclength" and arclength is not None:
+        return arclength(PathResult(0.0))
     ctl = PathControl(target=target, first_step=first_step, max_step=max_step, min_step=min_step,
                       growth=settings.growth, cut=settings.cut, grow_after=settings.grow_after,
                       stops=tuple(stops), land_within=0.2, max_attempts=max_attempts)
-    return follow_path(SaddlePointNewton(problem, settings, diagnose, psi), ctl, on_step=on_step, progress=progress)
+    corrector = SaddlePointNewton(problem, settings, diagnose, psi)
+    if path_following != "auto" or arclength is None:
+        return follow_path(corrector, ctl, on_step=on_step, progress=progress)
+    partial = PathResult(0.0)
+
+    def keep(rec: StepRecord) -> None:
+        partial.steps.append(rec)
+        if on_step is not None:
+            on_step(rec)
+
+    try:
+        return follow_path(corrector, ctl, on_step=keep, progress=progress)
+    except ConvergenceError as err:
+        log.warning("displacement control stops at %.6g mm; following the path by arc length", err.last_converged_mm)
+        partial.u0 = err.last_converged_mm * 1e-3
+        partial.attempts = list(err.attempts)
+        partial.cuts = sum(not a.converged for a in err.attempts)
+        partial.displacement_error = err
+        return arclength(partial)
 
 
 def failure_pattern(attempts: Sequence[Attempt]) -> str:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 import ngsolve as ngs
@@ -109,7 +110,8 @@ class StabilityDiagnosis:
                 kind += (f"; raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa), e.g. to "
                          f"material.K_el = {self.K_el:.3g} Pa")
         else:
-            kind = "a mode of the constrained continuum (phi follows i8): the model's own limit point or bifurcation"
+            kind = ("a mode of the constrained continuum (phi follows i8): the model's own limit point or "
+                    "bifurcation; solver.path_following = 'auto' follows the path through it and reports its kind")
         x, y = self.location_mm or (math.nan, math.nan)
         return (f"{msg}; lowest mode near (X, Y) = ({x:.0f}, {y:.0f}) mm with |dphi - di8| / |di8| = "
                 f"{self.ratio:.2f}: {kind}{ill}")
@@ -145,6 +147,21 @@ def diagnose_stability(problem: ContinuumProblem, k: int = 3) -> StabilityDiagno
         return StabilityDiagnosis(u0_mm, skipped=f"stability check failed: {exc}")
 
 
+def lowest_eigenpair(problem: ContinuumProblem) -> tuple[float, np.ndarray]:
+    """The lowest eigenvalue of the diagonally scaled tangent at the current state and its mode (full length).
+
+    The mode holds the free dofs of the (condensed) tangent, scaled to unit maximum norm (the
+    condensed local dofs are 0: :func:`mode_constraint_ratio` and :func:`write_mode` extend it).
+    """
+    problem.factorize()
+    A, fd = problem.linear.free_matrix()
+    d = np.sqrt(np.abs(A.diagonal()) + 1e-300)
+    ev, V = eigsh(sps.diags(1 / d) @ A @ sps.diags(1 / d), k=1, sigma=-1e-3, which="LM")
+    x = np.zeros(problem.X.ndof)
+    x[fd] = V[:, 0] / d
+    return float(ev[0]), x / max(float(np.max(np.abs(x))), 1e-300)
+
+
 def _ellipticity_losses(problem: ContinuumProblem) -> tuple[EllipticityLoss, ...]:
     m = problem.scene.material
     out = []
@@ -176,3 +193,48 @@ def mode_constraint_ratio(problem: ContinuumProblem, x: np.ndarray) -> tuple[flo
     tot = ngs.Integrate(dens, mesh)
     where = (1e3 * ngs.Integrate(dens * ngs.x, mesh) / tot, 1e3 * ngs.Integrate(dens * ngs.y, mesh) / tot)
     return float(np.sqrt(num / max(den, 1e-300))), where
+
+
+def write_mode(problem: ContinuumProblem, mode: np.ndarray, path: Path, title: str = "") -> list[Path]:
+    """The mode (δu, δφ) of an instability as ``path``.vtu and ``path``.png, δu scaled to 1 mm at most.
+
+    ``mode`` holds the free dofs of the (condensed) tangent (:func:`lowest_eigenpair`).
+
+    The VTU holds ``mode_displacement`` [mm] (3 components, for "warp by vector") and ``mode_phi``
+    on the reference specimen [mm]; the picture shows |δu| on the specimen with the arrows of δu
+    (drawn 10 times longer).
+    Returns the files written (the picture is left out without matplotlib).
+    """
+    from .output import MM, scale_points
+
+    gf = ngs.GridFunction(problem.X)
+    gf.vec.FV().NumPy()[:] = mode
+    problem.linear.extend(gf.vec)
+    du = gf.components[0]
+    pts = np.array([p.point[:2] for p in problem.mesh.vertices])
+    vals = np.array([du(problem.mesh(*p)) for p in pts])
+    scale = 1e-3 / max(float(np.max(np.hypot(vals[:, 0], vals[:, 1]))), 1e-300)  # 1 mm at most
+    coefs = {"mode_displacement": ngs.CF((MM * scale * du[0], MM * scale * du[1], 0.0))}
+    if problem.phi is not None:
+        coefs["mode_phi"] = scale * gf.components[1]
+    ngs.VTKOutput(problem.mesh, coefs=list(coefs.values()), names=list(coefs), filename=str(path),
+                  subdivision=max(0, problem.scene.discretization.p_u - 1), legacy=False).Do()
+    vtu = Path(str(path) + ".vtu")
+    scale_points(vtu, MM)
+    written = [vtu]
+    try:
+        import matplotlib.pyplot as plt
+        from matplotlib.tri import Triangulation
+    except ImportError:  # pragma: no cover - matplotlib is a dependency of the plots
+        return written
+    tris = np.array([[v.nr for v in el.vertices] for el in problem.mesh.Elements(ngs.VOL)])
+    X, Y, U = pts[:, 0] * MM, pts[:, 1] * MM, vals * scale * MM
+    fig, ax = plt.subplots(figsize=(9, 4))
+    c = ax.tripcolor(Triangulation(X, Y, tris), np.hypot(U[:, 0], U[:, 1]), shading="gouraud", cmap="viridis")
+    ax.quiver(X, Y, U[:, 0], U[:, 1], color="w", width=0.002, angles="xy", scale_units="xy", scale=0.1)
+    fig.colorbar(c, ax=ax, label="|δu| [mm] (mode scaled to 1 mm)")
+    ax.set(aspect="equal", xlabel="X [mm]", ylabel="Y [mm]", title=title)
+    png = Path(str(path) + ".png")
+    fig.savefig(png, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return [*written, png]

@@ -1,0 +1,321 @@
+r"""Following the equilibrium path through an instability: pseudo-arclength continuation.
+
+Displacement control fixes the clamp displacement u0 = λ and solves r(x; λ) = 0 for the free
+state x. Where the tangent J = ∂r/∂x becomes singular it cannot go on: at a turning point in u0
+(a snap-back, the path turns back in u0) no equilibrium exists just beyond, and near it Newton
+fails however small the increment. Pseudo-arclength continuation (Keller; Riks) treats λ as an
+unknown and adds the constraint that the step lies on the hyperplane normal to the unit tangent
+τ of the path at the last converged point, at the distance Δs:
+
+    r(x, λ) = 0,        ⟨τ, (x − x₀, λ − λ₀)⟩ = Δs,
+
+with ⟨a, b⟩ = Σ (w a)(w b) + a_λ b_λ / L², w the problem's unit-free weights (u by 1/L). The
+Newton step of this bordered system is solved with the one factorization of J (two solves per
+iteration): dx_r = −J⁻¹ r and the load tangent T = ∂x/∂λ = −J⁻¹ J_λ, then
+dλ = −(g + ⟨τ, dx_r⟩) / ⟨τ, (T, 1)⟩ and (dx, dλ) = (dx_r + dλ T, dλ); the predictor satisfies
+the constraint, so g = 0 and it stays 0 along the iteration.
+
+The tangent's orientation follows the previous one (⟨τ_new, τ_old⟩ > 0), so the path passes
+turning points in u0. Along the way the kind of instability is told apart:
+
+- ``snap-back``: the λ-component of the tangent changes sign (the path turns back in u0);
+  displacement control cannot pass it;
+- ``bifurcation``: the lowest eigenvalue of the (scaled) tangent changes sign while u0 keeps
+  growing (reported; the path followed stays on its branch, no branch switching);
+- ``force maximum``: dF/du0 changes sign with a stable tangent; displacement control passes it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..engine import PathResult, StepRecord
+from ..errors import Attempt
+from .solver import NewtonSettings, NonlinearProblem, newton
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ArcLengthSettings", "Instability", "follow_arclength"]
+
+
+@dataclass(frozen=True)
+class ArcLengthSettings:
+    """Step control of the arc-length continuation (lengths as clamp displacements [m] at the start)."""
+
+    target: float
+    first_step: float
+    max_step: float
+    min_step: float
+    max_steps: int = 200
+    #: the path is given up when it returns below this fraction of the load it started from
+    floor: float = 0.9
+
+
+@dataclass
+class Instability:
+    """Where and what kind the path's instability is (loads [mm], force [N/m of thickness as in r])."""
+
+    kind: str
+    u0_mm: float
+    reaction: float
+    lowest_eigenvalue: float = math.nan
+    details: dict[str, Any] = field(default_factory=dict)
+    mode: np.ndarray | None = field(default=None, repr=False)  # the lowest mode of the tangent there
+
+    def as_dict(self, thickness: float) -> dict[str, Any]:
+        """The summary's record (force in N)."""
+        return {"kind": self.kind, "u0_mm": self.u0_mm, "force_N": self.reaction * thickness,
+                "lowest_eigenvalue": self.lowest_eigenvalue, **self.details}
+
+
+class _Path:
+    """The state of the continuation: the converged point, its unit tangent, and the bordered Newton."""
+
+    def __init__(self, problem: NonlinearProblem, weights: np.ndarray, L: float, settings: NewtonSettings) -> None:
+        self.p, self.w, self.L, self.settings = problem, weights, L, settings
+        self.x0 = problem.x.copy()
+        self.lam0 = float(getattr(problem, "lam", 0.0))
+        self.tau_x = np.zeros_like(self.x0)
+        self.tau_l = 1.0
+
+    def inner(self, ax: np.ndarray, al: float, bx: np.ndarray, bl: float) -> float:
+        return float((self.w * ax) @ (self.w * bx) + al * bl / self.L ** 2)
+
+    def tangent(self, orient: bool) -> float:
+        """Factorize at the converged point and set the unit tangent; returns the norm of (T, 1)."""
+        self.p.factorize()
+        T = self.p.load_tangent(1.0)
+        n = math.sqrt(self.inner(T, 1.0, T, 1.0))
+        tx, tl = T / n, 1.0 / n
+        if orient and self.inner(tx, tl, self.tau_x, self.tau_l) < 0:
+            tx, tl = -tx, -tl
+        self.tau_x, self.tau_l = tx, tl
+        return n
+
+    def step(self, ds: float, land: float | None = None) -> tuple[bool, int, list[float], str, np.ndarray | None]:
+        """Predict by ds along τ and correct on the hyperplane (or at the fixed load ``land``).
+
+        ``land`` is the target when the step lands on it; the state is left where it ends.
+        """
+        p = self.p
+        p.x[:] = self.x0 + ds * self.tau_x
+        p.set_load(self.lam0 + ds * self.tau_l if land is None else land)
+        if land is not None:
+            e = p.energy()
+            rep = newton(p, self.settings, e if math.isfinite(e) else 0.0)
+            return rep.converged, rep.iterations, rep.history, rep.reason, rep.residual
+        tol = self.settings.rtol * abs(p.energy()) + self.settings.atol
+        history: list[float] = []
+        for it in range(1, self.settings.max_iterations + 1):
+            r = p.residual()
+            if not np.all(np.isfinite(r)):
+                return False, it, history, "residual is not finite", None
+            p.factorize()
+            dx = p.solve(r)
+            delta = abs(float(dx @ r))
+            history.append(delta)
+            if delta <= tol:
+                return True, it, history, "converged", r
+            if not math.isfinite(delta) or (it > 3 and delta > history[0]):
+                return False, it, history, "diverged", None
+            T = p.load_tangent(1.0)
+            dlam = -self.inner(self.tau_x, 0.0, dx, 0.0) / self.inner(self.tau_x, self.tau_l, T, 1.0)
+            lam = float(getattr(p, "lam", 0.0)) + dlam
+            p.x[:] += dx + dlam * np.where(self.w > 0, T, 0.0)
+            p.set_load(lam)
+        return False, self.settings.max_iterations, history, "iteration limit", None
+
+    def commit(self) -> None:
+        self.x0 = self.p.x.copy()
+        self.lam0 = float(getattr(self.p, "lam", 0.0))
+
+    def restore(self) -> None:
+        self.p.x[:] = self.x0
+        self.p.set_load(self.lam0)
+
+
+def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings: NewtonSettings, *,
+                     weights: np.ndarray, length: float, psi: np.ndarray,
+                     lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None = None,
+                     on_step: Callable[[StepRecord], None] | None = None,
+                     result: PathResult | None = None) -> tuple[PathResult, list[Instability]]:
+    """Follow the path from the converged state of ``problem`` until u0 = ``ctl.target``.
+
+    ``psi`` is the reaction's test vector (R = ψ·r); ``lowest_eigenpair()`` gives the lowest
+    eigenvalue of the tangent at the current state and its mode (full length), used to tell a
+    bifurcation and to keep the mode of each instability. Steps are appended to ``result`` (a new
+    one if None).
+    Returns the result (``u0`` the last load reached) and the instabilities passed or met;
+    the caller decides what an unreached target means.
+    """
+    res = result if result is not None else PathResult(float(getattr(problem, "lam", 0.0)))
+    path = _Path(problem, weights, length, settings)
+    found: list[Instability] = []
+    n = path.tangent(orient=False)
+    # the first step moves the state as a load step of first_step would (Δx ≈ T Δu0)
+    ds = min(ctl.first_step, ctl.max_step) * n
+    ds_max, ds_min = max(ctl.max_step / ctl.first_step, 1.0) * ds, ctl.min_step * n
+    track = _Tracker(psi, lowest_eigenpair)
+    track.start(problem, path)
+    for _ in range(ctl.max_steps):
+        if path.lam0 >= ctl.target - 1e-12 * ctl.target:
+            break
+        if path.lam0 < ctl.floor * track.lam_start:
+            break
+        to_target = _distance_to(path, ctl.target, ds)
+        ds = min(ds, to_target)
+        ok, its, hist, why, r = path.step(ds, ctl.target if ds == to_target < math.inf else None)
+        lam_to = float(getattr(problem, "lam", 0.0))
+        res.attempts.append(Attempt(path.lam0, lam_to, ok, its, why, hist))
+        if not ok:
+            path.restore()
+            res.cuts += 1
+            ds *= settings.cut
+            if ds < ds_min:
+                break
+            continue
+        path.commit()
+        path.tangent(orient=True)
+        rec = StepRecord(len(res.steps) + 1, lam_to, its, residual=r, history=hist, reason="arc-length")
+        rec.dforce_du0 = problem.load_derivative(psi, problem.load_tangent(1.0))
+        found += track.update(path, rec, r)
+        res.steps.append(rec)
+        res.u0 = lam_to
+        if on_step is not None:
+            on_step(rec)
+        if its <= settings.grow_after:
+            ds = min(ds * settings.growth, ds_max)
+    return res, found
+
+
+def _distance_to(path: _Path, target: float, ds: float) -> float:
+    """The arc length that lands the predictor on u0 = target when it would pass it (else ds)."""
+    if path.tau_l > 0 and path.lam0 + ds * path.tau_l > target:
+        return (target - path.lam0) / path.tau_l
+    return math.inf
+
+
+class _Tracker:
+    """Watches the sign of τ_λ, of dF/du0 and of the lowest eigenvalue along the path.
+
+    A snap-back and a force maximum are reported at the last point before the sign change (the
+    largest u0, resp. force, of the two), with the lowest eigenvalue and mode there: at a fold
+    it is the mode whose eigenvalue vanishes.
+    """
+
+    def __init__(self, psi: np.ndarray, eig: Callable[[], tuple[float, np.ndarray]] | None) -> None:
+        self.psi, self.eig = psi, eig
+        self.lam_start = 0.0
+        self.tau_l = 1.0
+        self.dR = math.nan
+        self.prev = Instability("", 0.0, math.nan)  # the last point: load, reaction, eigenvalue, mode
+
+    def start(self, problem: NonlinearProblem, path: _Path) -> None:
+        self.lam_start = path.lam0
+        self.tau_l = path.tau_l
+        self.prev = Instability("", path.lam0 * 1e3, float(self.psi @ problem.residual()))
+        if self.eig is not None:
+            self.prev.lowest_eigenvalue, self.prev.mode = self.eig()
+            path.tangent(orient=True)  # the eigen-solve may have refactorized elsewhere: same point
+
+    def update(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> list[Instability]:
+        here = Instability("", rec.u0 * 1e3, float(self.psi @ r) if r is not None else math.nan)
+        if self.eig is not None:
+            here.lowest_eigenvalue, here.mode = self.eig()
+            path.tangent(orient=True)
+        prev, out = self.prev, []
+        if self.tau_l > 0 >= path.tau_l:
+            out.append(dataclasses.replace(prev, kind="snap-back", details={"note": "the path turns back in u0"}))
+        elif path.tau_l > 0 and rec.dforce_du0 < 0 <= self.dR:
+            out.append(dataclasses.replace(prev, kind="force maximum"))
+        elif prev.lowest_eigenvalue > 0 >= here.lowest_eigenvalue and path.tau_l > 0:
+            out.append(dataclasses.replace(here, kind="bifurcation"))
+        for ins in out:
+            log.warning("%s at u0 = %.4g mm", ins.kind, ins.u0_mm)
+        self.tau_l, self.dR, self.prev = path.tau_l, rec.dforce_du0, here
+        return out
+
+
+def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
+                     progress: Callable[[float], None] | None = None, out: Path | None = None
+                     ) -> Callable[[PathResult], PathResult]:
+    """The continuation the continuum's run hands to :func:`ngbet.continuum.solver.continuation`.
+
+    Follows the path of ``problem`` (a :class:`~ngbet.continuum.problem.ContinuumProblem`) from
+    its converged state to ``loading.u0_mm``, appending to the result it is given; fills
+    ``path_info`` (instabilities with kind, load, force and mode class; the first one's mode as
+    ``instability_mode.vtu`` and ``.png`` in ``out``) and raises
+    :class:`~ngbet.errors.ConvergenceError` with it when the target is not reached.
+    """
+    from .run import newton_settings
+    from .stability import diagnose_stability, lowest_eigenpair
+
+    scene = problem.scene
+    L = scene.loading
+    ctl = ArcLengthSettings(target=L.u0_mm * 1e-3, first_step=L.first_step_mm * 1e-3,
+                            max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3)
+    psi = problem.psi_u.vec.FV().NumPy().copy()
+
+    def step(rec: StepRecord) -> None:
+        on_step(rec)
+        if progress is not None:
+            progress(max(rec.u0, 0.0))
+
+    def run(res: PathResult) -> PathResult:
+        start_mm = problem.lam * 1e3
+        c = ctl
+        if len(res.steps) >= 2:  # after displacement control: start with its last step
+            h = res.steps[-1].u0 - res.steps[-2].u0
+            c = dataclasses.replace(ctl, first_step=h, max_step=min(ctl.max_step, 8 * h),
+                                    min_step=min(ctl.min_step, h / 64))
+        res, found = follow_arclength(problem, c, newton_settings(scene), weights=problem._weights,
+                                      length=scene.specimen.L, psi=psi,
+                                      lowest_eigenpair=lambda: lowest_eigenpair(problem), on_step=step, result=res)
+        res.path_info = _path_info(problem, found, start_mm, out)
+        if res.steps:
+            t = scene.specimen.t
+            F = [float(psi @ s.residual) * t if s.residual is not None else math.nan for s in res.steps]
+            k = int(np.nanargmax(F))
+            res.path_info["force_maximum"] = {"u0_mm": res.steps[k].u0 * 1e3, "force_N": F[k]}
+        if res.u0 < ctl.target * (1 - 1e-9):
+            from ..errors import ConvergenceError
+
+            d = diagnose_stability(problem)
+            kinds = ", ".join(f"{i.kind} at {i.u0_mm:.4g} mm" for i in found) or "none detected"
+            err = ConvergenceError(
+                f"arc-length continuation from {start_mm:.6g} mm did not reach {ctl.target * 1e3:.6g} mm "
+                f"(instabilities passed: {kinds})", res.u0 * 1e3, res.attempts, d.message(), d)
+            err.path_info = res.path_info  # type: ignore[attr-defined]
+            raise err
+        return res
+
+    return run
+
+
+def _path_info(problem: Any, found: list[Instability], start_mm: float, out: Path | None) -> dict[str, Any]:
+    """The summary's record of the path: each instability with its mode's class and place; the first mode's files."""
+    from .stability import DISCRETIZATION_MODE_RATIO, mode_constraint_ratio, write_mode
+
+    saved = problem.x.copy()
+    for ins in found:
+        if ins.mode is not None and problem.phi is not None:
+            r, where = mode_constraint_ratio(problem, ins.mode)
+            ins.details.update(mode_ratio=r, mode_class="discretization" if r > DISCRETIZATION_MODE_RATIO
+                               else "continuum", mode_location_mm=list(where))
+    info: dict[str, Any] = {"path_following": problem.scene.solver.path_following, "arclength_from_mm": start_mm,
+                            "instabilities": [i.as_dict(problem.scene.specimen.t) for i in found]}
+    first = next((i for i in found if i.mode is not None), None)
+    if out is not None and first is not None and first.mode is not None:
+        files = write_mode(problem, first.mode, out / "instability_mode",
+                           f"{first.kind} at u0 = {first.u0_mm:.4g} mm: lowest mode of the tangent")
+        info["instability_mode_files"] = [f.name for f in files]
+    problem.x[:] = saved
+    return info
