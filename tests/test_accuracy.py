@@ -2,8 +2,9 @@
 
 Reference values (computed once with this code, stored here): for each base scene the forces at
 37 and 56 mm on the 10 mm mesh graded to 0.25 mm at the four clamp corners at p = 4, 5, 6 (the
-family of ``ngbet study reference``); the reference is their Aitken extrapolation
-(:func:`ngbet.studies.reference.aitken`), the bound twice the extrapolation step.
+family of ``ngbet study reference``, which for the paper's scene goes on to p = 8); the reference
+and its bound come from :func:`ngbet.studies.reference.extrapolate` (for three orders Aitken's
+extrapolation with twice its step as the bound; for more, the range of several extrapolations).
 
 Effectivity table (estimate / true error of the force at 56 mm, θ = 2.5, estimate at the final
 load only; solve and estimate times on the 2-core machine, loaded, so read the ratio):
@@ -42,11 +43,13 @@ import pytest
 from ngbet.cli import main
 from ngbet.run import run
 from ngbet.scene import Scene, default_scene
-from ngbet.studies.reference import aitken, fits
+from ngbet.studies.reference import extrapolate, fits
 
-#: forces [N] at (37, 56) mm for p = 4, 5, 6 on the 10 mm mesh with 0.25 mm corners
+#: forces [N] at (37, 56) mm for p = 4, 5, 6 (the paper's scene: p = 4 … 8) on the 10 mm mesh with
+#: 0.25 mm corners
 FAMILY = {
-    "default": ((61.24428, 107.29393), (61.23090, 107.26834), (61.22425, 107.25492)),
+    "default": ((61.24428, 107.29393), (61.23090, 107.26834), (61.22425, 107.25492), (61.22117, 107.24838),
+                (61.21875, 107.24387)),
     "penalty": ((61.16516, 107.15289), (61.15179, 107.12733), (61.14516, 107.11399)),
     "alpha1_200": ((38.21391, 66.57898), (38.21359, 66.57839), (38.21340, 66.57801)),
     "alpha1_20000": ((74.12784, 130.97402), (73.89774, 130.53226), (73.82292, 130.38890)),
@@ -57,14 +60,15 @@ BASES = {"default": {}, "penalty": {"effects.constraint": "penalty", "effects.pe
          "alpha1_200": {"material.alpha1": 200.0}, "alpha1_20000": {"material.alpha1": 20000.0},
          "bet_100x300": {"specimen.length_mm": 300.0, "specimen.width_mm": 100.0},
          "yarn_50": {"specimen.yarn_angle_deg": 50.0}}
-#: the reference profile u_y [mm] at 56 mm (p = 6 above) at X = 0, 22, 44, ..., 220 mm (every 11th
-#: of the 111 points); max |u_y| = 2.8255 mm (at X = 42 mm), bound max|u_y,6 − u_y,5| = 0.0013 mm
-PROFILE_56 = (0.0, -1.87059, -2.80841, -1.76885, -0.6496, 0.0, 0.64958, 1.76879, 2.80829, 1.87042, 0.0)
-PROFILE_56_MAX = 2.8255
+#: the reference profile u_y [mm] at 56 mm (p = 8 above) at X = 0, 22, 44, ..., 220 mm (every 11th
+#: of the 111 points); max |u_y| = 2.8252 mm, bound max|u_y,8 − u_y,7| = 0.0003 mm
+PROFILE_56 = (0.0, -1.87054, -2.8078, -1.76807, -0.64915, 0.0001, 0.64935, 1.76827, 2.80799, 1.8707, 0.0)
+PROFILE_56_MAX = 2.8252
 
 
 def ref(base: str, station: int = 1) -> tuple[float, float]:
-    return aitken([f[station] for f in FAMILY[base]])
+    F = [f[station] for f in FAMILY[base]]
+    return extrapolate(F, list(range(4, 4 + len(F))))
 
 
 def _scene(base: str, **disc) -> Scene:
@@ -74,10 +78,24 @@ def _scene(base: str, **disc) -> Scene:
 
 
 def test_reference_digits_and_bound():
+    """107.2375 N ± 0.0052 N at 56 mm, 61.2141 N ± 0.0048 N at 37 mm: the range of the
+    extrapolations of p = 4 … 8 (Aitken triples, geometric and algebraic fits)."""
     F, bound = ref("default")
-    assert round(F, 2) == 107.24 and bound < 0.035  # 107.240 N ± 0.03 N at 56 mm
+    assert abs(F - 107.2375) < 1e-3 and bound < 0.0055
     F37, b37 = ref("default", 0)
-    assert round(F37, 2) == 61.22 and b37 < 0.015
+    assert abs(F37 - 61.2141) < 1e-3 and b37 < 0.005
+    Fs = [f[1] for f in FAMILY["default"]]
+    assert all(abs(extrapolate(Fs[i:i + 3])[0] - F) <= bound for i in range(3))  # each triple inside
+    assert 0 < Fs[-1] - F < 2 * bound  # the highest order lies above the limit
+
+
+@pytest.mark.parametrize("tail", [lambda p: 3.0 * 0.5 ** p, lambda p: 3.0 * p ** -2.5])
+def test_extrapolation_bound_covers_geometric_and_algebraic_sequences(tail):
+    """Whichever way the sequence converges, the limit lies within the bound, which is no larger
+    than the highest order's own error."""
+    F = [100.0 + tail(p) for p in range(4, 9)]
+    lim, bound = extrapolate(F, list(range(4, 9)))
+    assert abs(lim - 100.0) <= bound <= tail(8)
 
 
 def _effectivity(tmp_path, base: str, **disc) -> tuple[float, dict]:
