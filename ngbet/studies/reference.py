@@ -7,8 +7,8 @@ geometric convergence into an algebraic one in p. No single model of the sequenc
 trusted: :func:`extrapolate` takes every extrapolation it supports (Aitken over each three
 consecutive orders, and least-squares fits of F∞ + C r^p and F∞ + C p^(−β) to all orders) and
 returns the middle of their range, with half the range plus the largest fit residual as the
-bound. Finer corners cannot extend the family: corners of 0.15 mm at p = 7, 0.1 mm at p = 5
-and 0.05 mm at p = 4 stop before 56 mm (Newton fails near a mode at the corner, with the
+bound. The family cannot be extended: p = 9 stops at 48 mm, and corners of 0.15 mm at p = 7,
+0.1 mm at p = 5 and 0.05 mm at p = 4 stop before 56 mm (Newton fails near a mode at the corner, with the
 condensed and with the full saddle-point matrix alike). The reference profile is the highest
 order's, with the bound max|u_y,p − u_y,p−1| of the two highest.
 
