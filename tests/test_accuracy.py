@@ -195,7 +195,7 @@ def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
     def run_one(sc, out):
         calls.append(sc.discretization.order_u)
         if len(calls) == 1:
-            raise ConvergenceError("load step cut below the minimum")
+            raise ConvergenceError("load step cut below the minimum", last_converged_mm=48.0)
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
 
     s = estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),

@@ -83,11 +83,12 @@ class Estimate:
 
     @property
     def force_error_rel(self) -> float:
+        """The estimated error relative to the force."""
         return self.force_error_N / abs(self.force_N) if self.force_N else math.nan
 
 
 def enriched_discretization(disc: Discretization) -> Discretization:
-    """p + 1 for u and φ (Λ one order up too, keeping the pair); the mesh is the run's."""
+    """The run's discretization one order up: u and φ at p + 1, Λ one up too (the mesh is the run's)."""
     lam = AUTO if disc.order_lam == AUTO else int(disc.order_lam) + 1
     phi = AUTO if disc.order_phi == AUTO else int(disc.order_phi) + 1
     return dataclasses.replace(disc, order_u=disc.order_u + 1, order_phi=phi, order_lam=lam, target_error=0.0)
@@ -160,8 +161,11 @@ class ForceErrorEstimator:
 
 
 def one_newton_step(problem: Any) -> Any:
-    """One full Newton step of ``problem`` from its state; the report carries the new residual
-    (``converged`` means only: the step and the residual are finite)."""
+    """One full Newton step of ``problem`` from its state.
+
+    The report carries the new residual; ``converged`` means only that the step and the residual
+    are finite.
+    """
     from .solver import NewtonReport
 
     r = problem.residual()
@@ -193,6 +197,7 @@ class Rung:
     expected_error: float
 
     def apply(self, scene: Scene) -> Scene:
+        """``scene`` on this rung's discretization, with the estimate at the final load."""
         d = dataclasses.replace(scene.discretization, mesh_size_mm=self.mesh_size_mm, order_u=self.order_u,
                                 order_phi=AUTO, order_lam=AUTO, corner_mesh_size_mm=self.corner_mesh_size_mm,
                                 structured=False, target_error=0.0)
@@ -217,8 +222,10 @@ EXPECTED_MARGIN = 0.6
 
 
 def first_rung(target: float) -> int:
-    """The cheapest rung whose expected error is below :data:`EXPECTED_MARGIN` times the target
-    (the last one else)."""
+    """The cheapest rung whose expected error is below :data:`EXPECTED_MARGIN` times the target.
+
+    The last rung when none is.
+    """
     for i, r in enumerate(LADDER):
         if r.expected_error <= EXPECTED_MARGIN * target:
             return i
@@ -226,8 +233,10 @@ def first_rung(target: float) -> int:
 
 
 def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
-    """Run ``scene`` on the cheapest rung of :data:`LADDER` whose estimated force error at the
-    final load is below ``discretization.target_error``; climb while it is not.
+    """Run ``scene`` on the cheapest rung of :data:`LADDER` that meets ``discretization.target_error``.
+
+    The estimated force error at the final load decides; the run climbs the ladder while it is above
+    the target.
 
     ``run_one(scene, out) -> summary`` runs one discretization into ``out`` (the last attempt's
     files stay there). The returned summary (also written back to summary.json) gains

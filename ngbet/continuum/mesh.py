@@ -49,8 +49,10 @@ def make_mesh(specimen: Specimen, disc: Discretization) -> ngs.Mesh:
 
 
 def corner_refined(mesh: ngs.Mesh, specimen: Specimen, levels: int) -> ngs.Mesh:
-    """A copy of ``mesh`` with the elements at the four clamp corners bisected ``levels`` times
-    (each time those that touch a corner then); boundary names are kept."""
+    """A copy of ``mesh`` with the elements at the four clamp corners bisected ``levels`` times.
+
+    Each time the elements that touch a corner then are bisected; boundary names are kept.
+    """
     m = ngs.Mesh(mesh.ngmesh.Copy())
     corners = ((0.0, 0.0), (specimen.L, 0.0), (0.0, specimen.W), (specimen.L, specimen.W))
     tol = 1e-9 * max(specimen.L, specimen.W)

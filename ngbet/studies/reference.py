@@ -70,8 +70,11 @@ def build(quick: bool = False) -> Study:
 
 
 def aitken(F: Sequence[float]) -> tuple[float, float]:
-    """Limit of a geometrically converging sequence from its last three terms, and the bound
-    2 |F∞ − F_last| (the last term itself and |F_last − F_prev| when the differences do not shrink)."""
+    """Limit of a geometrically converging sequence from its last three terms, and a bound.
+
+    The bound is 2 |F∞ − F_last|; when the differences do not shrink, the last term itself and
+    |F_last − F_prev| are returned.
+    """
     f1, f2, f3 = (float(x) for x in F[-3:])
     d1, d2 = f2 - f1, f3 - f2
     if d1 == 0 or d2 / d1 <= 0 or abs(d2 / d1) >= 1:
@@ -142,8 +145,10 @@ def profile_error_max(uy: Sequence[float], ref: Sequence[float]) -> float:
 
 
 def fits(dofs: Sequence[float], err: Sequence[float]) -> dict[str, float]:
-    """Least-squares fits of log e: against N^(1/3) (exponential) and against log N (algebraic);
-    returns the rate of each and the RMS residual of each."""
+    """Least-squares fits of log e against N^(1/3) (exponential) and against log N (algebraic).
+
+    Returns the rate and the RMS residual of each.
+    """
     N, e = np.asarray(dofs, float), np.log(np.asarray(err, float))
     out: dict[str, float] = {}
     for name, x in (("root", N ** (1 / 3)), ("log", np.log(N))):

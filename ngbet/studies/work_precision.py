@@ -21,22 +21,31 @@ from __future__ import annotations
 import math
 import sys
 from pathlib import Path
+from typing import Any
 
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
 from . import reference as R
 
-FULL = {"lagrange": [(h, p) for h in (20.0, 10.0, 5.0) for p in (1, 2, 3, 4, 5)] + [(2.5, p) for p in (1, 2, 3, 4)],
-        "penalty": [(h, p, k) for h in (10.0, 5.0) for p in (2, 3, 4) for k in (1e8, 1e10)],
-        # the pointwise penalty only at K = 1e8: at 1e10 its Newton iteration needs > 50 load steps
-        # (measured: h = 10 mm, p = 3 had cut its steps 52 times by u0 = 50 mm), minutes per case
-        "full": [(h, p, 1e8) for h in (10.0, 5.0) for p in (2, 3)],
-        "uncondensed": [(10.0, 2), (5.0, 2)],
-        # Lagrange on meshes graded towards the clamp corners (discretization.corner_mesh_size_mm)
-        "graded": [(h, p, c) for h in (20.0, 10.0, 5.0) for p in (2, 3) for c in (0.5, 0.25)]}
-QUICK = {"lagrange": [(20.0, 1), (20.0, 2)], "penalty": [(20.0, 2, 1e8)], "full": [(20.0, 2, 1e10)],
-         "uncondensed": [(20.0, 2)], "graded": [(20.0, 2, 1.0)]}
+#: the case grids: a list of (h [mm], p[, K or corner size]) per kind
+FULL: dict[str, list[tuple[Any, ...]]] = {
+    "lagrange": [(h, p) for h in (20.0, 10.0, 5.0) for p in (1, 2, 3, 4, 5)] + [(2.5, p) for p in (1, 2, 3, 4)],
+    "penalty": [(h, p, k) for h in (10.0, 5.0) for p in (2, 3, 4) for k in (1e8, 1e10)],
+    # the pointwise penalty only at K = 1e8: at 1e10 its Newton iteration needs > 50 load steps
+    # (measured: h = 10 mm, p = 3 had cut its steps 52 times by u0 = 50 mm), minutes per case
+    "full": [(h, p, 1e8) for h in (10.0, 5.0) for p in (2, 3)],
+    "uncondensed": [(10.0, 2), (5.0, 2)],
+    # Lagrange on meshes graded towards the clamp corners (discretization.corner_mesh_size_mm)
+    "graded": [(h, p, c) for h in (20.0, 10.0, 5.0) for p in (2, 3) for c in (0.5, 0.25)],
+}
+QUICK: dict[str, list[tuple[Any, ...]]] = {
+    "lagrange": [(20.0, 1), (20.0, 2)],
+    "penalty": [(20.0, 2, 1e8)],
+    "full": [(20.0, 2, 1e10)],
+    "uncondensed": [(20.0, 2)],
+    "graded": [(20.0, 2, 1.0)],
+}
 TARGETS = (0.10, 0.01, 0.001, 0.0001)
 GRADE = "discretization.corner_mesh_size_mm"
 
@@ -50,9 +59,15 @@ def build(quick: bool = False) -> Study:
     cases += [{**C.lagrange(h, p), GRADE: hc} for h, p, hc in g.get("graded", [])]
     cases = [{**c, **R.OFF} for c in cases]
     cases += [c for cs in R.families(quick).values() for c in cs]
-    return Study("work_precision", C.base_scene(quick), C.unique(cases), description=__doc__ or "",
-                 plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
-                 profile_stations=C.stations(quick))
+    return Study(
+        "work_precision",
+        C.base_scene(quick),
+        C.unique(cases),
+        description=__doc__ or "",
+        plot=lambda d: plot(d, g, quick),
+        report=lambda d: report(d, g, quick),
+        profile_stations=C.stations(quick),
+    )
 
 
 def label(prm: dict) -> str:
@@ -81,20 +96,45 @@ def analyse(data: StudyData, g: dict, quick: bool) -> dict:
         if not math.isfinite(F) or not uy:  # never an error or a front point from a missing value
             pts.append({"case": i, "label": label(c["params"]), "status": f"no value at {s2:g} mm"})
             continue
-        kind = c["params"].get(C.FORM, "mixed") if c["params"].get(C.CON) == "penalty" else (
-            "uncondensed" if c["params"].get("solver.condense") is False else
-            "graded" if c["params"].get(GRADE) else "lagrange")
-        pts.append({"case": i, "label": label(c["params"]), "status": "ok", "kind": kind, "time": C.wall(data, i),
-                    "dofs": C.dofs(data, i), "F": F, "err_F": abs(F - F_ref) / F_ref,
-                    "err_prof": R.profile_error_max(uy, uy_ref), "ref_case": i in ref["cases"]})
+        kind = (
+            c["params"].get(C.FORM, "mixed")
+            if c["params"].get(C.CON) == "penalty"
+            else (
+                "uncondensed"
+                if c["params"].get("solver.condense") is False
+                else "graded"
+                if c["params"].get(GRADE)
+                else "lagrange"
+            )
+        )
+        pts.append(
+            {
+                "case": i,
+                "label": label(c["params"]),
+                "status": "ok",
+                "kind": kind,
+                "time": C.wall(data, i),
+                "dofs": C.dofs(data, i),
+                "F": F,
+                "err_F": abs(F - F_ref) / F_ref,
+                "err_prof": R.profile_error_max(uy, uy_ref),
+                "ref_case": i in ref["cases"],
+            }
+        )
     good = [p for p in pts if p["status"] == "ok"]
     for key in ("err_F", "err_prof"):
         best = math.inf
         for p in sorted(good, key=lambda p: p["time"]):
             p[f"pareto_{key}"] = p[key] < best
             best = min(best, p[key])
-    return {"ref": ref, "pts": pts, "s2": s2, "F_ref": F_ref,
-            "unc_F": ref[s2]["bound_N"] / F_ref, "unc_prof": ref["profile_bound_mm"] / max(abs(u) for u in uy_ref)}
+    return {
+        "ref": ref,
+        "pts": pts,
+        "s2": s2,
+        "F_ref": F_ref,
+        "unc_F": ref[s2]["bound_N"] / F_ref,
+        "unc_prof": ref["profile_bound_mm"] / max(abs(u) for u in uy_ref),
+    }
 
 
 def cheapest(a: dict, key: str, target: float) -> dict | None:
@@ -105,30 +145,57 @@ def cheapest(a: dict, key: str, target: float) -> dict | None:
 def report(data: StudyData, g: dict, quick: bool) -> str:
     a = analyse(data, g, quick)
     s2 = a["s2"]
-    L = [f"# Work-precision at u0 = {s2:g} mm", "",
-         "Reference force (ngbet study reference: Aitken over its p-family on the corner-graded mesh): "
-         f"F = {a['F_ref']:.4f} N, bound {100 * a['unc_F']:.2g} %. Reference profile: the family's highest order, "
-         f"bound {100 * a['unc_prof']:.2g} % of max |u_y|.",
-         "", "## Cheapest settings reaching a target error (reference runs themselves excluded)", "",
-         "| quantity | target | cheapest setting | error | wall time [s] | dofs |", "|---|---|---|---|---|---|"]
-    for key, name, unc in (("err_F", f"force at {s2:g} mm", a["unc_F"]), ("err_prof", f"mid-axis profile at {s2:g} mm", a["unc_prof"])):
+    L = [
+        f"# Work-precision at u0 = {s2:g} mm",
+        "",
+        "Reference force (ngbet study reference: Aitken over its p-family on the corner-graded mesh): "
+        f"F = {a['F_ref']:.4f} N, bound {100 * a['unc_F']:.2g} %. Reference profile: the family's highest order, "
+        f"bound {100 * a['unc_prof']:.2g} % of max |u_y|.",
+        "",
+        "## Cheapest settings reaching a target error (reference runs themselves excluded)",
+        "",
+        "| quantity | target | cheapest setting | error | wall time [s] | dofs |",
+        "|---|---|---|---|---|---|",
+    ]
+    for key, name, unc in (
+        ("err_F", f"force at {s2:g} mm", a["unc_F"]),
+        ("err_prof", f"mid-axis profile at {s2:g} mm", a["unc_prof"]),
+    ):
         for t in TARGETS:
             p = cheapest(a, key, t)
             flag = " (below the reference's uncertainty: not resolved)" if t < 2 * unc else ""
             if p is None:
-                best = min((q for q in a["pts"] if q["status"] == "ok" and not q["ref_case"]), key=lambda q: q[key], default=None)
-                L.append(f"| {name} | {100 * t:g} %{flag} | not reached | best {100 * best[key]:.3g} % ({best['label']}, {best['time']:.1f} s) | | |"
-                         if best else f"| {name} | {100 * t:g} % | not reached | | | |")
+                best = min(
+                    (q for q in a["pts"] if q["status"] == "ok" and not q["ref_case"]),
+                    key=lambda q: q[key],
+                    default=None,
+                )
+                L.append(
+                    f"| {name} | {100 * t:g} %{flag} | not reached | "
+                    f"best {100 * best[key]:.3g} % ({best['label']}, {best['time']:.1f} s) | | |"
+                    if best
+                    else f"| {name} | {100 * t:g} % | not reached | | | |"
+                )
             else:
-                L.append(f"| {name} | {100 * t:g} %{flag} | {p['label']} | {100 * p[key]:.3g} % | {p['time']:.2f} | {p['dofs']:.0f} |")
-    L += ["", "## All cases", "", "| setting | dofs | F [N] | force error | profile error | wall time [s] | Pareto (force) |",
-          "|---|---|---|---|---|---|---|"]
+                L.append(
+                    f"| {name} | {100 * t:g} %{flag} | {p['label']} | {100 * p[key]:.3g} % | "
+                    f"{p['time']:.2f} | {p['dofs']:.0f} |"
+                )
+    L += [
+        "",
+        "## All cases",
+        "",
+        "| setting | dofs | F [N] | force error | profile error | wall time [s] | Pareto (force) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for p in sorted(a["pts"], key=lambda p: p.get("time", math.inf)):
         if p["status"] != "ok":
             L.append(f"| {p['label']} | | {p['status']} | | | | |")
             continue
-        L.append(f"| {p['label']} | {p['dofs']:.0f} | {p['F']:.4f} | {100 * p['err_F']:.3g} % | {100 * p['err_prof']:.3g} % | "
-                 f"{p['time']:.2f} | {'*' if p['pareto_err_F'] else ''} |")
+        L.append(
+            f"| {p['label']} | {p['dofs']:.0f} | {p['F']:.4f} | {100 * p['err_F']:.3g} % | "
+            f"{100 * p['err_prof']:.3g} % | {p['time']:.2f} | {'*' if p['pareto_err_F'] else ''} |"
+        )
     return "\n".join(L) + "\n"
 
 
@@ -138,24 +205,52 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
     a = analyse(data, g, quick)
     fig, axs = plt.subplots(1, 2, figsize=(13, 5))
     marks = {"lagrange": "o", "mixed": "s", "full": "^", "uncondensed": "D", "graded": "*"}
-    names = {"lagrange": "Lagrange", "mixed": "mixed penalty", "full": "pointwise penalty", "uncondensed": "Lagrange, uncondensed", "graded": "Lagrange, corner-graded mesh"}
+    names = {
+        "lagrange": "Lagrange",
+        "mixed": "mixed penalty",
+        "full": "pointwise penalty",
+        "uncondensed": "Lagrange, uncondensed",
+        "graded": "Lagrange, corner-graded mesh",
+    }
     good = [p for p in a["pts"] if p["status"] == "ok" and not p["ref_case"]]  # not the reference against itself
-    for ax, key, unc, title in ((axs[0], "err_F", a["unc_F"], f"force at {a['s2']:g} mm"),
-                                (axs[1], "err_prof", a["unc_prof"], f"mid-axis profile at {a['s2']:g} mm")):
+    for ax, key, unc, title in (
+        (axs[0], "err_F", a["unc_F"], f"force at {a['s2']:g} mm"),
+        (axs[1], "err_prof", a["unc_prof"], f"mid-axis profile at {a['s2']:g} mm"),
+    ):
         for kind, m in marks.items():
             ps = [p for p in good if p["kind"] == kind]
             if not ps:
                 continue
-            sc = ax.scatter([p["time"] for p in ps], [max(p[key], unc) for p in ps], marker=m,
-                            c=[math.log2(p["dofs"]) for p in ps], cmap="viridis", s=30, label=names[kind], edgecolors="k", linewidths=0.3)
+            sc = ax.scatter(
+                [p["time"] for p in ps],
+                [max(p[key], unc) for p in ps],
+                marker=m,
+                c=[math.log2(p["dofs"]) for p in ps],
+                cmap="viridis",
+                s=30,
+                label=names[kind],
+                edgecolors="k",
+                linewidths=0.3,
+            )
             for p in ps:
                 if kind in ("lagrange", "uncondensed", "graded"):
                     prm = data.meta["cases"][p["case"]]["params"]
-                    ax.annotate(f"{prm[C.H]:g}/{int(prm[C.P])}", (p["time"], max(p[key], unc)), fontsize=6, xytext=(3, 2),
-                                textcoords="offset points")
+                    ax.annotate(
+                        f"{prm[C.H]:g}/{int(prm[C.P])}",
+                        (p["time"], max(p[key], unc)),
+                        fontsize=6,
+                        xytext=(3, 2),
+                        textcoords="offset points",
+                    )
         front = sorted((p for p in good if p[f"pareto_{key}"]), key=lambda p: p["time"])
-        ax.step([p["time"] for p in front], [max(p[key], unc) for p in front], "r-", where="post", lw=1.2,
-                label="Pareto front")
+        ax.step(
+            [p["time"] for p in front],
+            [max(p[key], unc) for p in front],
+            "r-",
+            where="post",
+            lw=1.2,
+            label="Pareto front",
+        )
         for t in TARGETS:
             ax.axhline(t, color="grey", lw=0.6, ls=":")
         ax.axhspan(0.3 * unc, unc, color="orange", alpha=0.15, label="below the reference's bound (not resolved)")
