@@ -351,6 +351,9 @@ class Solver:
     # were slower in wall time (solves and residuals wait for a core)
     threads: int | str = 1
     predictor: str = "tangent"  # "tangent" (Euler) or "clamp" (u += du0 X/L)
+    # the energy integrand: "interpret", "native" (C++, object files cached across runs), "auto":
+    # native when the cache has it (ngbet.continuum.compiled)
+    compile: str = "auto"
 
     def __post_init__(self) -> None:
         _positive("solver", self, "rtol", "atol_energy", "growth")
@@ -362,6 +365,7 @@ class Solver:
         _check(self.growth >= 1, "solver.growth", self.growth, "must be >= 1")
         _choice("solver", self, "linear_solver", LINEAR_SOLVERS)
         _choice("solver", self, "predictor", ("tangent", "clamp"))
+        _choice("solver", self, "compile", ("auto", "interpret", "native"))
         _boolean("solver", self, "condense")
 
 

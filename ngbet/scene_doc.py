@@ -35,6 +35,7 @@ _CHOICES: dict[str, tuple[Any, ...]] = {
     "effects.penalty_form": S.PENALTY_FORMS,
     "solver.linear_solver": S.LINEAR_SOLVERS,
     "solver.predictor": ("tangent", "clamp"),
+    "solver.compile": ("auto", "interpret", "native"),
     "outputs.fields": S.FIELD_OUTPUTS,
     "discrete.inter_layout": ("neighbours", "none"),
     "discrete.end_rotation": ("free", "held"),

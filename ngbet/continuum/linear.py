@@ -20,6 +20,8 @@ import ngsolve as ngs
 import numpy as np
 import scipy.sparse as sps
 
+from .compiled import compile_energy
+
 #: K_aug / K_ref for the condensed Newton matrix of the exact Lagrange method: large enough that
 #: the Jacobian error (relative size ~ K_sh / K_aug) leaves Newton quadratic to the tolerance,
 #: small enough that the condensed matrix keeps ~8 correct digits.
@@ -55,17 +57,20 @@ class NewtonLinearSolver:
         The stiffness that scales K_aug [Pa].
     dx : ngsolve measure
         The integration measure of the energy.
+    compile_mode : str
+        How the augmented integrand is compiled (:func:`ngbet.continuum.compiled.compile_energy`):
+        the mode the energy got, so that "auto" does not mix.
     """
 
     def __init__(self, form: ngs.BilinearForm, condense: bool, choice: str,
                  saddle_energy: Callable[[float], ngs.CoefficientFunction] | None = None, K_ref: float = 1.0,
-                 dx: object = None) -> None:
+                 dx: object = None, compile_mode: str = "interpret") -> None:
         X = form.space
         self.K_aug = 0.0
         if saddle_energy is not None and condense:
             self.K_aug = LAGRANGE_AUGMENTATION * K_ref
             self.form = ngs.BilinearForm(X, symmetric=True, condense=True)
-            self.form += ngs.Variation(saddle_energy(self.K_aug).Compile() * dx)
+            self.form += ngs.Variation(compile_energy(saddle_energy(self.K_aug), compile_mode, X.ndof)[0] * dx)
         else:
             self.form = form
         self.condensed = bool(self.form.condense)

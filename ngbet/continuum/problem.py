@@ -57,6 +57,7 @@ from ngsolve import CoefficientFunction as CF
 
 from ..scene import AUTO, Scene, Specimen
 from . import physics
+from .compiled import compile_energy
 from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver
 from .mesh import make_mesh
 
@@ -112,9 +113,11 @@ class ContinuumProblem:
         # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
         self.condense = scene.solver.condense
         self.a = ngs.BilinearForm(self.X, symmetric=True, condense=self.condense and saddle_energy is None)
-        self.a += ngs.Variation(energy.Compile() * self.dx)
+        compiled, self.compile_mode = compile_energy(energy, scene.solver.compile, self.X.ndof)
+        self.a += ngs.Variation(compiled * self.dx)
         self.linear = NewtonLinearSolver(self.a, self.condense, scene.solver.linear_solver, saddle_energy,
-                                         self.K_ref, self.dx)
+                                         self.K_ref, self.dx,
+                                         scene.solver.compile if self.compile_mode == "native" else "interpret")
         self.gf = ngs.GridFunction(self.X)
         self.x = self.gf.vec.FV().NumPy()
         self._r = self.gf.vec.CreateVector()

@@ -79,7 +79,8 @@ def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[Step
 def _setup_info(problem: ContinuumProblem, t_setup: float) -> dict[str, Any]:
     return {"model": "continuum", "dofs": problem.ndofs(), "linear_solver": problem.inverse_type,
             "stabilization_K_Pa": list(problem.K_s_range), "condensed": problem.linear.condensed,
-            "setup_s": t_setup, "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None}
+            "setup_s": t_setup, "compile_mode": problem.compile_mode,
+            "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None}
 
 
 def _order_warnings(scene: Scene) -> list[str]:
