@@ -15,12 +15,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import ngsolve as ngs
 import numpy as np
-import scipy.sparse as sps
 
 from .compiled import compile_energy
+
+if TYPE_CHECKING:
+    import scipy.sparse as sps
 
 #: K_aug / K_ref for the condensed Newton matrix of the exact Lagrange method: large enough that
 #: the Jacobian error (relative size ~ K_sh / K_aug) leaves Newton quadratic to the tolerance,
@@ -120,6 +123,8 @@ class NewtonLinearSolver:
 
     def free_matrix(self) -> tuple[sps.csr_matrix, np.ndarray]:
         """The free block of the Newton matrix as a full symmetric scipy matrix, and the free dofs."""
+        import scipy.sparse as sps  # a run needs it only for a stability diagnosis
+
         vals, cols, ptr = self.form.mat.CSR()
         n = self.form.mat.height
         A = sps.csr_matrix((np.array(vals), np.array(cols), np.array(ptr)), shape=(n, n))

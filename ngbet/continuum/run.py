@@ -18,7 +18,6 @@ from . import observables as obs
 from .problem import ContinuumProblem
 from .solver import NewtonSettings, continuation
 from .output import write_vtk
-from .stability import diagnose_stability
 
 log = logging.getLogger(__name__)
 
@@ -72,8 +71,14 @@ def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[Step
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                         max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
                         stops=[s * 1e-3 for s in L.stops_mm], on_step=on_step,
-                        diagnose=lambda: diagnose_stability(problem),
+                        diagnose=lambda: _diagnose(problem),
                         psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress)
+
+
+def _diagnose(problem: ContinuumProblem) -> Any:
+    from .stability import diagnose_stability  # scipy's eigensolver: imported when a run fails
+
+    return diagnose_stability(problem)
 
 
 def _setup_info(problem: ContinuumProblem, t_setup: float) -> dict[str, Any]:
