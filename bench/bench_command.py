@@ -11,6 +11,8 @@ The differences between variants give the cost of the VTK file, the plot, the es
     python bench/bench_command.py                          # all variants, 3 repeats
     python bench/bench_command.py --variants default,no-estimate --repeats 5
     python bench/bench_command.py --list
+    git archive REV | tar -x -C /tmp/before                 # an older tree, for before/after in one sitting
+    python bench/bench_command.py --variants default,bare --before /tmp/before
 
 Records: ``bench/out/bench_command_<time>.json`` (bench/out is ignored by git). The compiled-code
 cache of ``solver.compile`` is ``$NGBET_CACHE_DIR`` (``--cache`` sets it; the "native" variant fills
@@ -60,8 +62,8 @@ def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int]:
 
 
 def run_variant(name: str, env: dict[str, str]) -> dict:
-    """One ``ngbet run`` of a variant in a fresh process."""
-    sets = VARIANTS[name][0]
+    """One ``ngbet run`` of a variant in a fresh process (``before:NAME``: with the older tree's ngbet)."""
+    sets = VARIANTS[name.removeprefix("before:")][0]
     with tempfile.TemporaryDirectory() as tmp:
         argv = [sys.executable, "-m", "ngbet", "run", "--quiet", "--out", f"{tmp}/run"]
         for s in sets:
@@ -109,6 +111,7 @@ def main() -> None:
     ap.add_argument("--variants", default=",".join(DEFAULT_VARIANTS))
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--cache", help="NGBET_CACHE_DIR for the runs (default: as set, else ngbet's)")
+    ap.add_argument("--before", help="a source tree of ngbet: each variant also runs with it (PYTHONPATH)")
     ap.add_argument("--list", action="store_true")
     args = ap.parse_args()
     if args.list:
@@ -119,13 +122,18 @@ def main() -> None:
     env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
     if args.cache:
         env["NGBET_CACHE_DIR"] = args.cache
+    envs = {name: env for name in names}
+    if args.before:
+        envs.update({f"before:{n}": {**env, "PYTHONPATH": args.before} for n in names if n != "native"})
+        names = [n for pair in zip(names, [f"before:{n}" for n in names], strict=True) for n in pair
+                 if n in envs]
     records: list[dict] = []
     if "native" in names:  # the first native run may compile: reported apart
         records.append({**run_variant("native", env), "variant": "native-first"})
     for _ in range(args.repeats):
         records.append({"variant": "imports", **imports(env)})
         for name in names:
-            records.append(run_variant(name, env))
+            records.append(run_variant(name, envs[name]))
             print(json.dumps(records[-1])[:240], flush=True)
     OUT.mkdir(exist_ok=True)
     stamp = time.strftime("%Y%m%dT%H%M%S")
