@@ -30,6 +30,16 @@ call it makes, with its arguments read once. A warm compile then costs a link pe
 The constants of the energy (material parameters, K_aug) are literals in the generated code, so
 each set of values is its own source. The tangent is the same either way (measured: to 1e-19 of
 its largest entry, residual to 4e-18).
+
+Linearization (:func:`add_energy`). By default NGSolve's energy integrator gets the Hessian by
+evaluating the integrand in second-order automatic differentiation, pair of trial components by
+pair; with ``ngsglobals.symbolic_integrator_uses_diff`` it differentiates the expression once,
+symbolically, when the integrator is built (read then only). For the interpreted integrand that
+is 1.2–1.4x faster assembly (default scene, 7 linearizations: 0.47 → 0.34–0.40 s); the
+uncondensed Hessian matches a central difference of the residual to 4e-11 either way, and the
+forces of a run agree to 1e-16 with the same Newton iterations. The derivatives of native code
+would be compiled apart (three libraries per integrand), so native code keeps automatic
+differentiation.
 """
 
 from __future__ import annotations
@@ -42,6 +52,7 @@ import shutil
 import stat
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import ngsolve as ngs
 
@@ -132,6 +143,20 @@ def _on_path(bins: Path, cached_only: bool) -> Iterator[None]:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+def add_energy(form: ngs.BilinearForm, compiled: ngs.CoefficientFunction, dx: Any, mode: str) -> None:
+    """Add the energy integrator of a compiled integrand to ``form``.
+
+    The interpreted integrand gets symbolic derivatives (the integrator is built, and reads
+    NGSolve's flag, when it is added).
+    """
+    before = ngs.ngsglobals.symbolic_integrator_uses_diff
+    ngs.ngsglobals.symbolic_integrator_uses_diff = mode == "interpret"
+    try:
+        form += ngs.Variation(compiled * dx)
+    finally:
+        ngs.ngsglobals.symbolic_integrator_uses_diff = before
 
 
 def compile_energy(cf: ngs.CoefficientFunction, mode: str, ndof: int = 0) -> tuple[ngs.CoefficientFunction, str]:

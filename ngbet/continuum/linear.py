@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import ngsolve as ngs
 import numpy as np
 
-from .compiled import compile_energy
+from .compiled import add_energy, compile_energy
 
 if TYPE_CHECKING:
     import scipy.sparse as sps
@@ -73,7 +73,8 @@ class NewtonLinearSolver:
         if saddle_energy is not None and condense:
             self.K_aug = LAGRANGE_AUGMENTATION * K_ref
             self.form = ngs.BilinearForm(X, symmetric=True, condense=True)
-            self.form += ngs.Variation(compile_energy(saddle_energy(self.K_aug), compile_mode, X.ndof)[0] * dx)
+            compiled, mode = compile_energy(saddle_energy(self.K_aug), compile_mode, X.ndof)
+            add_energy(self.form, compiled, dx, mode)
         else:
             self.form = form
         self.condensed = bool(self.form.condense)

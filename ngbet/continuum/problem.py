@@ -57,7 +57,7 @@ from ngsolve import CoefficientFunction as CF
 
 from ..scene import AUTO, Scene, Specimen
 from . import physics
-from .compiled import compile_energy
+from .compiled import add_energy, compile_energy
 from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver
 from .mesh import make_mesh
 
@@ -114,7 +114,7 @@ class ContinuumProblem:
         self.condense = scene.solver.condense
         self.a = ngs.BilinearForm(self.X, symmetric=True, condense=self.condense and saddle_energy is None)
         compiled, self.compile_mode = compile_energy(energy, scene.solver.compile, self.X.ndof)
-        self.a += ngs.Variation(compiled * self.dx)
+        add_energy(self.a, compiled, self.dx, self.compile_mode)
         self.linear = NewtonLinearSolver(self.a, self.condense, scene.solver.linear_solver, saddle_energy,
                                          self.K_ref, self.dx,
                                          scene.solver.compile if self.compile_mode == "native" else "interpret")
