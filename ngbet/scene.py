@@ -351,8 +351,8 @@ class Solver:
     # were slower in wall time (solves and residuals wait for a core)
     threads: int | str = 1
     predictor: str = "tangent"  # "tangent" (Euler) or "clamp" (u += du0 X/L)
-    # the energy integrand: "interpret", "native" (C++, object files cached across runs), "auto":
-    # native when the cache has it (ngbet.continuum.compiled)
+    # the energy integrand: "interpret", "native" (C++, object files cached across runs), "auto": by
+    # size (interpreted below 30 000 dofs, cached native code above, compiled from 500 000 dofs)
     compile: str = "auto"
 
     def __post_init__(self) -> None:
