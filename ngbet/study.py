@@ -428,39 +428,9 @@ def run_study(study: Study, out: str | Path | None = None, cache: str | Path | N
     if clean_debris(cache):
         log.info("removed the unfinished case folders of an interrupted study from %s", cache)
 
-    cases: list[_Case] = []
-    for i, params in enumerate(study.cases):
-        try:
-            sc = study.base.with_changes(**params)
-            cases.append(_Case(i, params, sc, case_key(sc)))
-        except SceneError as exc:
-            cases.append(_Case(i, params, None, None, {"status": "failed", "error": f"bad scene: {exc}",
-                                                       "error_type": "SceneError", "wall_s": 0.0}))
-    todo: list[_Case] = []
-    seen: dict[str, _Case] = {}
-    for c in cases:
-        if c.key is None:
-            continue
-        rec = _cached(cache / c.key)
-        if rec is not None and (rec.get("status") == "ok" or not retry_failed):
-            c.record = {**rec, "cached": True}
-            continue
-        if c.key in seen:  # the same scene twice in one study: run once
-            continue
-        seen[c.key] = c
-        todo.append(c)
-
-    ncpu = os.cpu_count() or 1
-    if scheduler:
-        mode = "dask"
-        nworkers = None
-    else:
-        nworkers = max(1, min(workers or ncpu, len(todo) or 1))
-        mode = "process" if nworkers > 1 else "inprocess"
-        if not todo:
-            mode, nworkers = "cache", 0
-    if threads is None:
-        threads = ncpu if mode == "inprocess" else 1
+    cases = _cases(study)
+    todo, seen = _to_run(cases, cache, retry_failed)
+    mode, nworkers, threads = _executor(todo, workers, scheduler, threads)
     executor_info = {"mode": mode, "workers": nworkers, "scheduler": scheduler, "threads_per_case": threads,
                      "cases_run": len(todo), "cases_cached": sum(1 for c in cases if c.record.get("cached"))}
     log.info("study %s: %d cases, %d to run (%s)", study.name, len(cases), len(todo), mode)
@@ -474,6 +444,53 @@ def run_study(study: Study, out: str | Path | None = None, cache: str | Path | N
     data = _collect(study, cases, cache, out, executor_info, time.perf_counter() - t_start)
     finish(study, data)
     return data
+
+
+def _cases(study: Study) -> list[_Case]:
+    """The study's cases with their scenes and cache keys (a bad scene is a failed case)."""
+    cases: list[_Case] = []
+    for i, params in enumerate(study.cases):
+        try:
+            sc = study.base.with_changes(**params)
+            cases.append(_Case(i, params, sc, case_key(sc)))
+        except SceneError as exc:
+            cases.append(_Case(i, params, None, None, {"status": "failed", "error": f"bad scene: {exc}",
+                                                       "error_type": "SceneError", "wall_s": 0.0}))
+    return cases
+
+
+def _to_run(cases: list[_Case], cache: Path, retry_failed: bool) -> tuple[list[_Case], dict[str, _Case]]:
+    """The cases to run (cached ones get their record; a scene twice runs once) and those by key."""
+    todo: list[_Case] = []
+    seen: dict[str, _Case] = {}
+    for c in cases:
+        if c.key is None:
+            continue
+        rec = _cached(cache / c.key)
+        if rec is not None and (rec.get("status") == "ok" or not retry_failed):
+            c.record = {**rec, "cached": True}
+            continue
+        if c.key in seen:  # the same scene twice in one study: run once
+            continue
+        seen[c.key] = c
+        todo.append(c)
+    return todo, seen
+
+
+def _executor(todo: list[_Case], workers: int | None, scheduler: str | None,
+              threads: int | None) -> tuple[str, int | None, int]:
+    """(mode, worker processes, NGSolve threads per case) for the cases to run."""
+    ncpu = os.cpu_count() or 1
+    if scheduler:
+        mode, nworkers = "dask", None
+    else:
+        nworkers = max(1, min(workers or ncpu, len(todo) or 1))
+        mode = "process" if nworkers > 1 else "inprocess"
+        if not todo:
+            mode, nworkers = "cache", 0
+    if threads is None:
+        threads = ncpu if mode == "inprocess" else 1
+    return mode, nworkers, threads
 
 
 class StudyInterrupted(KeyboardInterrupt):
