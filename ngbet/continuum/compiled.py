@@ -50,6 +50,7 @@ import logging
 import os
 import shutil
 import stat
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -98,8 +99,6 @@ def _compiler() -> tuple[str, str] | None:
 
 
 def _beside_python(name: str) -> str | None:
-    import sys
-
     p = Path(sys.executable).parent / name
     return str(p) if p.exists() else None
 
@@ -132,7 +131,8 @@ def _wrappers(real: str, cxx: str) -> Path:
 @contextlib.contextmanager
 def _on_path(bins: Path, cached_only: bool) -> Iterator[None]:
     old = {k: os.environ.get(k) for k in ("PATH", "NGBET_CACHED_ONLY")}
-    os.environ["PATH"] = f"{bins}{os.pathsep}{old['PATH'] or ''}"
+    # NGSolve's ngscxx asks `python3` for its include flags: this interpreter's first
+    os.environ["PATH"] = os.pathsep.join([str(bins), str(Path(sys.executable).parent), old["PATH"] or ""])
     if cached_only:
         os.environ["NGBET_CACHED_ONLY"] = "1"
     try:
