@@ -7,7 +7,7 @@ carries the load to u0 with :func:`ngbet.run.run` (no VTK, no plot) and reports
 - total wall time of the run (mesh, spaces, continuation, observables, files) and its CPU time;
 - load steps, Newton iterations, step cuts, degrees of freedom (total / factorized);
 - time per Newton iteration split into assembly, factorization, solve and residual, and the cost
-  of one iteration against one assembly plus one factorization (issue 5 target: within 2x);
+  of one iteration against one assembly plus one factorization (target: within 2x);
 - peak resident memory, the force at the final load, the machine's load average.
 
 Medians over ``--repeats`` are printed as a table; every single run is appended as one JSON line
@@ -47,7 +47,7 @@ CASES: dict[str, tuple[dict, str]] = {
     "penalty-full": ({"effects.constraint": "penalty", "effects.penalty_K": 1e8, "effects.penalty_form": "full"},
                      "full penalty K = 1e8 Pa (solved in its mixed form, Λ condensed)"),
     "penalty-full-1e7": ({"effects.constraint": "penalty", "effects.penalty_K": 1e7, "effects.penalty_form": "full"},
-                         "the issue's K = 1e7 Pa, full penalty"),
+                         "K = 1e7 Pa, full penalty"),
     "h10": ({"discretization.mesh_size_mm": 10.0}, "coarse mesh 10 mm"),
     "h2.5": ({"discretization.mesh_size_mm": 2.5}, "fine mesh 2.5 mm"),
     "p1": ({"discretization.order_u": 1}, "p = 1 (Λ order 0)"),
@@ -59,7 +59,7 @@ CASES: dict[str, tuple[dict, str]] = {
                     "exact saddle point, Λ not condensed, UMFPACK"),
     "threads1": ({"solver.threads": 1}, "default scene on one thread"),
     "no-simplified-exit": ({"newton.simplified_theta": 0.0},
-                           "default scene with the Newton of before issue 5 (a last linearization per step)"),
+                           "default scene without the simplified-Newton exit (a last linearization per step)"),
     "steps28": ({"loading.first_step_mm": 16.0, "loading.max_step_mm": 28.0},
                 "default scene, first step 16 mm, steps up to 28 mm (3 load steps: 16, 37, 56)"),
     "recommended": ({"loading.first_step_mm": 16.0, "loading.max_step_mm": 28.0, "solver.threads": 1},

@@ -26,14 +26,20 @@ def dense_force(u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None) -> tu
     if (dforce is None or len(u) < 2 or not np.all(np.isfinite(np.asarray(dforce, dtype=float)))
             or np.any(np.diff(u) <= 0)):  # a path followed by arc length may turn back in u0
         return u, F, "lines between converged steps"
-    from scipy.interpolate import CubicHermiteSpline
-
     d = np.asarray(dforce, dtype=float)
     # the unloaded state's slope: extrapolate the first step's secant and slope linearly (dF/du0 at 0)
     d0 = 2 * (F[1] - F[0]) / (u[1] - u[0]) - d[0]
-    spline = CubicHermiteSpline(u, F, np.r_[d0, d])
     ud = np.unique(np.r_[np.arange(0.0, u[-1], DENSE_STEP_MM), u])
-    return ud, spline(ud), "cubic Hermite interpolation of F and dF/du0 between converged steps"
+    return ud, _hermite(u, F, np.r_[d0, d], ud), "cubic Hermite interpolation of F and dF/du0 between converged steps"
+
+
+def _hermite(x: np.ndarray, y: np.ndarray, dy: np.ndarray, xe: np.ndarray) -> np.ndarray:
+    """The piecewise cubic Hermite interpolant of (y, dy) at the increasing nodes x, evaluated at xe."""
+    i = np.clip(np.searchsorted(x, xe, side="right") - 1, 0, len(x) - 2)
+    h = x[i + 1] - x[i]
+    t = (xe - x[i]) / h
+    h00, h10, h01, h11 = (1 + 2 * t) * (1 - t) ** 2, t * (1 - t) ** 2, t * t * (3 - 2 * t), t * t * (t - 1)
+    return h00 * y[i] + h10 * h * dy[i] + h01 * y[i + 1] + h11 * h * dy[i + 1]
 
 
 def force_curve(ax: Any, u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None = None,

@@ -358,6 +358,9 @@ class Solver:
     # continuum: "displacement" control; "arclength": pseudo-arclength continuation in (state, u0)
     # from the start; "auto": displacement control, arc length where it fails (through a snap-back)
     path_following: str = "displacement"
+    # the energy integrand: "interpret", "native" (C++, object files cached across runs), "auto": by
+    # size (interpreted below 30 000 dofs, cached native code above, compiled from 500 000 dofs)
+    compile: str = "auto"
 
     def __post_init__(self) -> None:
         _positive("solver", self, "rtol", "atol_energy", "growth")
@@ -370,6 +373,7 @@ class Solver:
         _choice("solver", self, "linear_solver", LINEAR_SOLVERS)
         _choice("solver", self, "predictor", ("tangent", "clamp"))
         _choice("solver", self, "path_following", ("displacement", "arclength", "auto"))
+        _choice("solver", self, "compile", ("auto", "interpret", "native"))
         _boolean("solver", self, "condense")
 
 

@@ -443,39 +443,9 @@ def run_study(study: Study, out: str | Path | None = None, cache: str | Path | N
     if clean_debris(cache):
         log.info("removed the unfinished case folders of an interrupted study from %s", cache)
 
-    cases: list[_Case] = []
-    for i, params in enumerate(study.cases):
-        try:
-            sc = study.base.with_changes(**params)
-            cases.append(_Case(i, params, sc, case_key(sc)))
-        except SceneError as exc:
-            cases.append(_Case(i, params, None, None, {"status": "failed", "error": f"bad scene: {exc}",
-                                                       "error_type": "SceneError", "wall_s": 0.0}))
-    todo: list[_Case] = []
-    seen: dict[str, _Case] = {}
-    for c in cases:
-        if c.key is None:
-            continue
-        rec = _cached(cache / c.key)
-        if rec is not None and (rec.get("status") == "ok" or not retry_failed):
-            c.record = {**rec, "cached": True}
-            continue
-        if c.key in seen:  # the same scene twice in one study: run once
-            continue
-        seen[c.key] = c
-        todo.append(c)
-
-    ncpu = os.cpu_count() or 1
-    if scheduler:
-        mode = "dask"
-        nworkers = None
-    else:
-        nworkers = max(1, min(workers or ncpu, len(todo) or 1))
-        mode = "process" if nworkers > 1 else "inprocess"
-        if not todo:
-            mode, nworkers = "cache", 0
-    if threads is None:
-        threads = ncpu if mode == "inprocess" else 1
+    cases = _cases(study)
+    todo, seen = _to_run(cases, cache, retry_failed)
+    mode, nworkers, threads = _executor(todo, workers, scheduler, threads)
     executor_info = {"mode": mode, "workers": nworkers, "scheduler": scheduler, "threads_per_case": threads,
                      "cases_run": len(todo), "cases_cached": sum(1 for c in cases if c.record.get("cached"))}
     log.info("study %s: %d cases, %d to run (%s)", study.name, len(cases), len(todo), mode)
@@ -489,6 +459,53 @@ def run_study(study: Study, out: str | Path | None = None, cache: str | Path | N
     data = _collect(study, cases, cache, out, executor_info, time.perf_counter() - t_start)
     finish(study, data)
     return data
+
+
+def _cases(study: Study) -> list[_Case]:
+    """The study's cases with their scenes and cache keys (a bad scene is a failed case)."""
+    cases: list[_Case] = []
+    for i, params in enumerate(study.cases):
+        try:
+            sc = study.base.with_changes(**params)
+            cases.append(_Case(i, params, sc, case_key(sc)))
+        except SceneError as exc:
+            cases.append(_Case(i, params, None, None, {"status": "failed", "error": f"bad scene: {exc}",
+                                                       "error_type": "SceneError", "wall_s": 0.0}))
+    return cases
+
+
+def _to_run(cases: list[_Case], cache: Path, retry_failed: bool) -> tuple[list[_Case], dict[str, _Case]]:
+    """The cases to run (cached ones get their record; a scene twice runs once) and those by key."""
+    todo: list[_Case] = []
+    seen: dict[str, _Case] = {}
+    for c in cases:
+        if c.key is None:
+            continue
+        rec = _cached(cache / c.key)
+        if rec is not None and (rec.get("status") == "ok" or not retry_failed):
+            c.record = {**rec, "cached": True}
+            continue
+        if c.key in seen:  # the same scene twice in one study: run once
+            continue
+        seen[c.key] = c
+        todo.append(c)
+    return todo, seen
+
+
+def _executor(todo: list[_Case], workers: int | None, scheduler: str | None,
+              threads: int | None) -> tuple[str, int | None, int]:
+    """(mode, worker processes, NGSolve threads per case) for the cases to run."""
+    ncpu = os.cpu_count() or 1
+    if scheduler:
+        mode, nworkers = "dask", None
+    else:
+        nworkers = max(1, min(workers or ncpu, len(todo) or 1))
+        mode = "process" if nworkers > 1 else "inprocess"
+        if not todo:
+            mode, nworkers = "cache", 0
+    if threads is None:
+        threads = ncpu if mode == "inprocess" else 1
+    return mode, nworkers, threads
 
 
 class StudyInterrupted(KeyboardInterrupt):
@@ -716,6 +733,7 @@ TAIL_COLUMNS = ("dofs", "case_wall_s", "threads", "error")
 
 def _collect(study: Study, cases: list[_Case], cache: Path, out: Path, executor_info: dict[str, Any],
              wall_s: float) -> StudyData:
+    """Gather every case's rows, profiles, extracted tables and record; write the study folder."""
     pcols = study.params_columns()
     rows: list[dict[str, Any]] = []
     profiles: list[dict[str, Any]] = []
@@ -723,47 +741,16 @@ def _collect(study: Study, cases: list[_Case], cache: Path, out: Path, executor_
     metas = []
     run_cols: list[str] = []
     for c in cases:
-        rec = c.record
         run_dir = cache / c.key if c.key else None
-        summary: dict[str, Any] = {}
-        steps: list[dict[str, Any]] = []
-        if run_dir is not None and (run_dir / "summary.json").exists():
-            summary = json.loads((run_dir / "summary.json").read_text())
-        if run_dir is not None and (run_dir / "results.csv").exists():
-            steps = read_rows(run_dir / "results.csv")
-        dofs = summary.get("dofs")
-        dofs = dofs.get("total") if isinstance(dofs, dict) else dofs
-        base = {"case": c.index, "key": c.key or "", "status": rec.get("status", "error"),
-                **{k: _cell(c.params.get(k, "")) for k in pcols}}
-        tail = {"dofs": dofs if dofs is not None else "", "case_wall_s": summary.get("wall_s", rec.get("wall_s", "")),
-                "threads": rec.get("threads", ""), "error": _short(rec.get("error"))}
-        for s in steps or [{}]:
-            for k in s:
-                if k not in run_cols:
-                    run_cols.append(k)
-            rows.append({**base, **s, **tail})
-        if run_dir is not None and (run_dir / "profile.csv").exists():
-            for u0, (X, uy) in read_profiles(run_dir / "profile.csv").items():
-                if study.profile_stations is None or any(abs(u0 - s) < 1e-6 for s in study.profile_stations):
-                    profiles.extend({"case": c.index, "u0_mm": u0, "X_mm": x, "uy_mm": y}
-                                    for x, y in zip(X, uy, strict=True))
-        record = {"case": c.index, "params": c.params, "key": c.key, "status": rec.get("status", "error"),
-                  "error": rec.get("error"), "error_type": rec.get("error_type"), "cached": rec.get("cached", False),
-                  "wall_s": summary.get("wall_s", rec.get("wall_s")), "threads": rec.get("threads"),
-                  "host": rec.get("host"), "dofs": dofs, "u0_reached_mm": summary.get("u0_reached_mm"),
-                  "run_dir": str(run_dir) if run_dir else None,
-                  "scene": c.scene.to_dict() if c.scene is not None else None}
+        summary, steps = _read_case(run_dir)
+        record = _case_record(c, summary, run_dir)
+        rows.extend(_case_rows(c, pcols, steps, record, run_cols))
+        if run_dir is not None:
+            profiles.extend(_case_profiles(study, c, run_dir))
         metas.append(record)
         if study.extract is not None and run_dir is not None and record["status"] in ("ok", "failed"):
-            try:
-                for name, trs in study.extract(record, run_dir, out).items():
-                    tables.setdefault(name, []).extend({"case": c.index, **r} for r in trs)
-            except Exception as exc:
-                record["extract_error"] = f"{type(exc).__name__}: {exc}"
-                log.warning("study %s case %d: extraction failed: %s", study.name, c.index, exc)
-
-    columns = [*CASE_COLUMNS, *pcols, *run_cols, *TAIL_COLUMNS]
-    _write_csv(out / "results.csv", rows, columns)
+            _extract(study, c, record, run_dir, out, tables)
+    _write_csv(out / "results.csv", rows, [*CASE_COLUMNS, *pcols, *run_cols, *TAIL_COLUMNS])
     _write_csv(out / "profiles.csv", profiles, ["case", "u0_mm", "X_mm", "uy_mm"])
     for name, trs in tables.items():
         _write_csv(out / f"{name}.csv", trs, _columns(trs))
@@ -776,6 +763,66 @@ def _collect(study: Study, cases: list[_Case], cache: Path, out: Path, executor_
             "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
     (out / "meta.json").write_text(json.dumps(meta, indent=2, default=str))
     return load(out)
+
+
+def _read_case(run_dir: Path | None) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The summary and the step rows of a case's run folder (empty when absent)."""
+    summary: dict[str, Any] = {}
+    steps: list[dict[str, Any]] = []
+    if run_dir is not None and (run_dir / "summary.json").exists():
+        summary = json.loads((run_dir / "summary.json").read_text())
+    if run_dir is not None and (run_dir / "results.csv").exists():
+        steps = read_rows(run_dir / "results.csv")
+    return summary, steps
+
+
+def _case_record(c: _Case, summary: dict[str, Any], run_dir: Path | None) -> dict[str, Any]:
+    """The case's entry of meta.json."""
+    rec = c.record
+    dofs = summary.get("dofs")
+    dofs = dofs.get("total") if isinstance(dofs, dict) else dofs
+    return {"case": c.index, "params": c.params, "key": c.key, "status": rec.get("status", "error"),
+            "error": rec.get("error"), "error_type": rec.get("error_type"), "cached": rec.get("cached", False),
+            "wall_s": summary.get("wall_s", rec.get("wall_s")), "threads": rec.get("threads"),
+            "host": rec.get("host"), "dofs": dofs, "u0_reached_mm": summary.get("u0_reached_mm"),
+            "run_dir": str(run_dir) if run_dir else None,
+            "scene": c.scene.to_dict() if c.scene is not None else None}
+
+
+def _case_rows(c: _Case, pcols: list[str], steps: list[dict[str, Any]], record: dict[str, Any],
+               run_cols: list[str]) -> list[dict[str, Any]]:
+    """The case's rows of the study's results.csv (one per step; ``run_cols`` gains new columns)."""
+    base = {"case": c.index, "key": c.key or "", "status": record["status"],
+            **{k: _cell(c.params.get(k, "")) for k in pcols}}
+    tail = {"dofs": record["dofs"] if record["dofs"] is not None else "",
+            "case_wall_s": record["wall_s"] if record["wall_s"] is not None else "",
+            "threads": c.record.get("threads", ""), "error": _short(c.record.get("error"))}
+    for s in steps:
+        run_cols.extend(k for k in s if k not in run_cols)
+    return [{**base, **s, **tail} for s in steps or [{}]]
+
+
+def _case_profiles(study: Study, c: _Case, run_dir: Path) -> list[dict[str, Any]]:
+    """The case's mid-axis profiles at the study's stations."""
+    if not (run_dir / "profile.csv").exists():
+        return []
+    out: list[dict[str, Any]] = []
+    for u0, (X, uy) in read_profiles(run_dir / "profile.csv").items():
+        if study.profile_stations is None or any(abs(u0 - s) < 1e-6 for s in study.profile_stations):
+            out.extend({"case": c.index, "u0_mm": u0, "X_mm": x, "uy_mm": y} for x, y in zip(X, uy, strict=True))
+    return out
+
+
+def _extract(study: Study, c: _Case, record: dict[str, Any], run_dir: Path, out: Path,
+             tables: dict[str, list[dict[str, Any]]]) -> None:
+    """The study's own tables from one case; a failure is recorded, never fatal."""
+    assert study.extract is not None
+    try:
+        for name, trs in study.extract(record, run_dir, out).items():
+            tables.setdefault(name, []).extend({"case": c.index, **r} for r in trs)
+    except Exception as exc:
+        record["extract_error"] = f"{type(exc).__name__}: {exc}"
+        log.warning("study %s case %d: extraction failed: %s", study.name, c.index, exc)
 
 
 def _cell(v: Any) -> Any:

@@ -15,10 +15,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import ngsolve as ngs
 import numpy as np
-import scipy.sparse as sps
+
+from .compiled import add_energy, compile_energy
+
+if TYPE_CHECKING:
+    import scipy.sparse as sps
 
 #: K_aug / K_ref for the condensed Newton matrix of the exact Lagrange method: large enough that
 #: the Jacobian error (relative size ~ K_sh / K_aug) leaves Newton quadratic to the tolerance,
@@ -55,17 +60,21 @@ class NewtonLinearSolver:
         The stiffness that scales K_aug [Pa].
     dx : ngsolve measure
         The integration measure of the energy.
+    compile_mode : str
+        How the augmented integrand is compiled (:func:`ngbet.continuum.compiled.compile_energy`):
+        the mode the energy got, so that "auto" does not mix.
     """
 
     def __init__(self, form: ngs.BilinearForm, condense: bool, choice: str,
                  saddle_energy: Callable[[float], ngs.CoefficientFunction] | None = None, K_ref: float = 1.0,
-                 dx: object = None) -> None:
+                 dx: object = None, compile_mode: str = "interpret") -> None:
         X = form.space
         self.K_aug = 0.0
         if saddle_energy is not None and condense:
             self.K_aug = LAGRANGE_AUGMENTATION * K_ref
             self.form = ngs.BilinearForm(X, symmetric=True, condense=True)
-            self.form += ngs.Variation(saddle_energy(self.K_aug).Compile() * dx)
+            compiled, mode = compile_energy(saddle_energy(self.K_aug), compile_mode, X.ndof)
+            add_energy(self.form, compiled, dx, mode)
         else:
             self.form = form
         self.condensed = bool(self.form.condense)
@@ -115,6 +124,8 @@ class NewtonLinearSolver:
 
     def free_matrix(self) -> tuple[sps.csr_matrix, np.ndarray]:
         """The free block of the Newton matrix as a full symmetric scipy matrix, and the free dofs."""
+        import scipy.sparse as sps  # a run needs it only for a stability diagnosis
+
         vals, cols, ptr = self.form.mat.CSR()
         n = self.form.mat.height
         A = sps.csr_matrix((np.array(vals), np.array(cols), np.array(ptr)), shape=(n, n))

@@ -59,6 +59,7 @@ from ngsolve import CoefficientFunction as CF
 
 from ..scene import AUTO, Scene, Specimen
 from . import physics
+from .compiled import add_energy, compile_energy
 from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver
 from .mesh import make_mesh
 
@@ -129,9 +130,11 @@ class ContinuumProblem:
         # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
         self.condense = scene.solver.condense
         self.a = ngs.BilinearForm(self.X, symmetric=True, condense=self.condense and saddle_energy is None)
-        self.a += ngs.Variation(energy.Compile() * self.dx)
+        compiled, self.compile_mode = compile_energy(energy, scene.solver.compile, self.X.ndof)
+        add_energy(self.a, compiled, self.dx, self.compile_mode)
         self.linear = NewtonLinearSolver(self.a, self.condense, scene.solver.linear_solver, saddle_energy,
-                                         self.K_ref, self.dx)
+                                         self.K_ref, self.dx,
+                                         scene.solver.compile if self.compile_mode == "native" else "interpret")
         self.gf = ngs.GridFunction(self.X)
         self.x = self.gf.vec.FV().NumPy()
         self._r = self.gf.vec.CreateVector()

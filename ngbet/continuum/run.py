@@ -19,7 +19,6 @@ from .arclength import arclength_runner
 from .output import write_vtk
 from .problem import ContinuumProblem
 from .solver import NewtonSettings, continuation
-from .stability import diagnose_stability
 
 log = logging.getLogger(__name__)
 
@@ -73,17 +72,24 @@ def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[Step
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                         max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
                         stops=[s * 1e-3 for s in L.stops_mm], on_step=on_step,
-                        diagnose=lambda: diagnose_stability(problem),
+                        diagnose=lambda: _diagnose(problem),
                         psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
                         path_following=scene.solver.path_following,
                         arclength=None if scene.solver.path_following == "displacement"
                         else arclength_runner(problem, on_step, progress, out))
 
 
+def _diagnose(problem: ContinuumProblem) -> Any:
+    from .stability import diagnose_stability  # scipy's eigensolver: imported when a run fails
+
+    return diagnose_stability(problem)
+
+
 def _setup_info(problem: ContinuumProblem, t_setup: float) -> dict[str, Any]:
     return {"model": "continuum", "dofs": problem.ndofs(), "linear_solver": problem.inverse_type,
             "stabilization_K_Pa": list(problem.K_s_range), "condensed": problem.linear.condensed,
-            "setup_s": t_setup, "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None}
+            "setup_s": t_setup, "compile_mode": problem.compile_mode,
+            "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None}
 
 
 def _order_warnings(scene: Scene) -> list[str]:

@@ -1,0 +1,157 @@
+"""Benchmark of the whole ``ngbet run`` command: where the seconds of one run go.
+
+Each repeat of each variant is one ``python -m ngbet run`` in a fresh process (start-up, imports,
+mesh, setup, continuation, error estimate, VTK, plot, summary), timed from outside; variants are
+interleaved (a, b, c, a, b, c, …) so that load on the shared machine hits them alike. Two more
+processes measure the imports alone (``import ngbet.cli``; ``import ngsolve``). Per run the record
+holds the wall time, peak RSS of the child (``resource.getrusage``), the 1-minute load average
+before it, and from its summary.json: setup, solve and estimate time, the solver timers, the force.
+The differences between variants give the cost of the VTK file, the plot, the estimate.
+
+    python bench/bench_command.py                          # all variants, 3 repeats
+    python bench/bench_command.py --variants default,no-estimate --repeats 5
+    python bench/bench_command.py --list
+    git archive REV | tar -x -C /tmp/before                 # an older tree, for before/after in one sitting
+    python bench/bench_command.py --variants default,bare --before /tmp/before
+
+Records: ``bench/out/bench_command_<time>.json`` (bench/out is ignored by git). The compiled-code
+cache of ``solver.compile`` is ``$NGBET_CACHE_DIR`` (``--cache`` sets it; the "native" variant fills
+it on its first run, which is then reported apart as ``cold``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+OUT = HERE / "out"
+
+#: name -> (``--set`` values, what it shows)
+VARIANTS: dict[str, tuple[list[str], str]] = {
+    "default": ([], "ngbet run, the embedded scene, as shipped"),
+    "no-estimate": (["outputs.error_estimate=off"], "without the error estimate"),
+    "no-estimate-vtk": (["outputs.error_estimate=off", "outputs.vtk=false"], "… and without the VTK file"),
+    "bare": (["outputs.error_estimate=off", "outputs.vtk=false", "outputs.plot=false"],
+             "… and without the plot: start-up, imports, mesh, setup, solve, CSV/JSON"),
+    "interpret": (["solver.compile=interpret"], "default with the interpreted energy"),
+    "native": (["solver.compile=native"], "default with the native energy (cached objects)"),
+}
+DEFAULT_VARIANTS = list(VARIANTS)
+
+
+def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int]:
+    """Wall time [s], peak RSS [MB] of the child (its own rusage) and its exit code."""
+    with tempfile.TemporaryFile() as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        proc.returncode = rc = os.waitstatus_to_exitcode(status)
+        if rc:
+            err.seek(0)
+            sys.stderr.write(err.read()[-2000:].decode(errors="replace"))
+    return wall, usage.ru_maxrss / 1024, rc
+
+
+def run_variant(name: str, env: dict[str, str]) -> dict:
+    """One ``ngbet run`` of a variant in a fresh process (``before:NAME``: with the older tree's ngbet)."""
+    sets = VARIANTS[name.removeprefix("before:")][0]
+    with tempfile.TemporaryDirectory() as tmp:
+        argv = [sys.executable, "-m", "ngbet", "run", "--quiet", "--out", f"{tmp}/run"]
+        for s in sets:
+            argv += ["--set", s]
+        load = os.getloadavg()[0]
+        wall, rss, rc = _child(argv, env)
+        rec: dict = {"variant": name, "wall_s": wall, "peak_rss_mb": rss, "load": load, "rc": rc}
+        summary = Path(tmp) / "run" / "summary.json"
+        if summary.exists():
+            s = json.loads(summary.read_text())
+            rec.update({k: s.get(k) for k in ("setup_s", "solve_s", "estimate_s", "wall_s", "timers", "counts",
+                                              "newton_iterations", "dofs", "force_N", "compile_mode")})
+            rec["run_wall_s"] = rec.pop("wall_s")
+            rec["wall_s"] = wall
+            rec["forces"] = _forces(Path(tmp) / "run" / "results.csv")
+    return rec
+
+
+def _forces(path: Path) -> list[float]:
+    if not path.exists():
+        return []
+    lines = path.read_text().splitlines()
+    head = lines[0].split(",")
+    col = next(i for i, h in enumerate(head) if h.startswith("force_N"))
+    return [float(line.split(",")[col]) for line in lines[1:]]
+
+
+def imports(env: dict[str, str]) -> dict:
+    """Wall time of ``python -c 'import ngbet.cli'`` and ``'import ngsolve'`` (fresh processes)."""
+    out = {}
+    for label, code in (("python", "pass"), ("ngbet.cli", "import ngbet.cli"), ("ngsolve", "import ngsolve"),
+                        ("matplotlib.pyplot", "import matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot")):
+        out[label] = _child([sys.executable, "-c", code], env)[0]
+    return out
+
+
+def _median(recs: list[dict], key: str) -> float:
+    vals = [r[key] for r in recs if isinstance(r.get(key), (int, float))]
+    return statistics.median(vals) if vals else float("nan")
+
+
+def main() -> None:
+    """Run the variants interleaved, print medians, write the records."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--variants", default=",".join(DEFAULT_VARIANTS))
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--cache", help="NGBET_CACHE_DIR for the runs (default: as set, else ngbet's)")
+    ap.add_argument("--before", help="a source tree of ngbet: each variant also runs with it (PYTHONPATH)")
+    ap.add_argument("--list", action="store_true")
+    args = ap.parse_args()
+    if args.list:
+        for k, (sets, what) in VARIANTS.items():
+            print(f"{k:18s} {what}  {sets}")
+        return
+    names = args.variants.split(",")
+    env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
+    if args.cache:
+        env["NGBET_CACHE_DIR"] = args.cache
+    envs = {name: env for name in names}
+    if args.before:
+        envs.update({f"before:{n}": {**env, "PYTHONPATH": args.before} for n in names if n != "native"})
+        names = [n for pair in zip(names, [f"before:{n}" for n in names], strict=True) for n in pair
+                 if n in envs]
+    records: list[dict] = []
+    if "native" in names:  # the first native run may compile: reported apart
+        records.append({**run_variant("native", env), "variant": "native-first"})
+    for _ in range(args.repeats):
+        records.append({"variant": "imports", **imports(env)})
+        for name in names:
+            records.append(run_variant(name, envs[name]))
+            print(json.dumps(records[-1])[:240], flush=True)
+    OUT.mkdir(exist_ok=True)
+    stamp = time.strftime("%Y%m%dT%H%M%S")
+    (OUT / f"bench_command_{stamp}.json").write_text(json.dumps(records, indent=1))
+    print("\n| variant | wall [s] | setup [s] | solve [s] | estimate [s] | assembly [s] | peak RSS [MB] | load "
+          "| F(56) [N] |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name in names + (["native-first"] if "native" in names else []):
+        rs = [r for r in records if r["variant"] == name]
+        asm = statistics.median([r["timers"]["assembly_s"] for r in rs if r.get("timers")] or [float("nan")])
+        f = rs[-1].get("force_N")
+        print(f"| {name} | {_median(rs, 'wall_s'):.2f} | {_median(rs, 'setup_s'):.2f} | {_median(rs, 'solve_s'):.2f} | "
+              f"{_median(rs, 'estimate_s'):.2f} | {asm:.3f} | {_median(rs, 'peak_rss_mb'):.0f} | "
+              f"{_median(rs, 'load'):.1f} | {f} |")
+    imp = [r for r in records if r["variant"] == "imports"]
+    print("imports (median wall of a fresh process):",
+          {k: round(statistics.median(r[k] for r in imp), 3) for k in imp[0] if k != "variant"})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,87 @@
+"""solver.compile: the choice between interpreted and native code, its fallbacks and its cache."""
+
+import logging
+
+import ngsolve as ngs
+import numpy as np
+import pytest
+
+from ngbet.continuum import compiled
+from ngbet.continuum.problem import ContinuumProblem
+from ngbet.scene import default_scene
+
+HAS_COMPILER = compiled._compiler() is not None
+
+
+def _cf() -> ngs.CoefficientFunction:
+    mesh = ngs.Mesh(ngs.unit_square.GenerateMesh(maxh=0.5))
+    u = ngs.H1(mesh, order=1).TrialFunction()
+    return u * u + ngs.sqrt(1 + ngs.Grad(u) * ngs.Grad(u))
+
+
+def test_auto_interprets_below_the_size_where_native_code_pays():
+    _, mode = compiled.compile_energy(_cf(), "auto", compiled.NATIVE_IF_CACHED - 1)
+    assert mode == "interpret"
+
+
+def test_native_without_a_compiler_interprets_and_says_so(monkeypatch, caplog):
+    monkeypatch.setattr(compiled, "_compiler", lambda: None)
+    with caplog.at_level(logging.WARNING, logger="ngbet.continuum.compiled"):
+        _, mode = compiled.compile_energy(_cf(), "native", 10)
+    assert mode == "interpret"
+    assert "no C++ compiler" in caplog.text
+
+
+@pytest.mark.skipif(not HAS_COMPILER, reason="needs a C++ compiler and NGSolve's ngscxx")
+def test_auto_compiles_nothing_when_the_cache_is_empty(monkeypatch, tmp_path):
+    """From NATIVE_IF_CACHED dofs "auto" takes native code from the cache only: an empty cache
+    interprets (the caching ngscxx refuses to compile), and leaves no object file."""
+    monkeypatch.setenv("NGBET_CACHE_DIR", str(tmp_path))
+    _, mode = compiled.compile_energy(_cf(), "auto", compiled.NATIVE_IF_CACHED)
+    assert mode == "interpret"
+    assert list((tmp_path / "native" / "objects").iterdir()) == []
+    assert (tmp_path / "native" / "bin" / "ngscxx").exists()
+
+
+def test_the_interpreted_linearization_is_the_hessian():
+    """Symbolic derivatives (the interpreted default) give the tangent of the residual: a central
+    difference of the residual agrees to the difference's own error (~1e-10)."""
+    pr = ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
+                                                          "discretization.corner_mesh_size_mm": 0.0,
+                                                          "solver.compile": "interpret"}))
+    assert pr.compile_mode == "interpret"
+    pr.set_load(0.02)
+    rng = np.random.default_rng(0)
+    pr.x[pr.free_all] += 1e-4 * rng.standard_normal(int(pr.free_all.sum()))
+    pr.a.AssembleLinearization(pr.gf.vec)
+    v = pr.gf.vec.CreateVector()
+    v.FV().NumPy()[:] = rng.standard_normal(len(v)) * pr.free_all
+    Jv = v.CreateVector()
+    Jv.data = pr.a.mat * v
+    x0, eps = pr.x.copy(), 1e-7
+    pr.x[:] = x0 + eps * v.FV().NumPy()
+    rp = pr.residual()
+    pr.x[:] = x0 - eps * v.FV().NumPy()
+    rm = pr.residual()
+    fd = (rp - rm) / (2 * eps)
+    assert np.linalg.norm(Jv.FV().NumPy() - fd) < 1e-8 * np.linalg.norm(fd)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAS_COMPILER, reason="needs a C++ compiler and NGSolve's ngscxx")
+def test_native_code_gives_the_interpreted_tangent(monkeypatch, tmp_path):
+    """A cold native compile (15-30 s per integrand), then the same tangent and residual to round-off."""
+    monkeypatch.setenv("NGBET_CACHE_DIR", str(tmp_path))
+    mats = {}
+    for mode in ("interpret", "native"):
+        pr = ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
+                                                              "discretization.corner_mesh_size_mm": 0.0,
+                                                              "solver.compile": mode}))
+        assert pr.compile_mode == mode
+        pr.set_load(0.02)
+        pr.x[pr.free_all] += 1e-4 * np.random.default_rng(0).standard_normal(int(pr.free_all.sum()))
+        pr.a.AssembleLinearization(pr.gf.vec)  # the energy's Hessian, uncondensed
+        mats[mode] = (np.array(pr.a.mat.CSR()[0]), pr.residual())
+    (A0, r0), (A1, r1) = mats["interpret"], mats["native"]
+    assert np.abs(A1 - A0).max() < 1e-13 * np.abs(A0).max()
+    assert np.abs(r1 - r0).max() < 1e-14 * np.abs(r0).max()
