@@ -142,13 +142,28 @@ def test_read_only_output_exits_3_naming_the_path(tmp_path, capsys, monkeypatch)
     assert str(target) in err and "Read-only" in err
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into any folder")
-def test_unwritable_folder_exits_3_naming_it(tmp_path, capsys):  # pragma: no cover - not as root
+def _unwritable(folder: Path) -> bool:
+    """Make ``folder`` unwritable for this user: mode 0o500, and for root (who ignores modes) the
+    immutable attribute. False when the platform cannot do that."""
+    folder.chmod(0o500)
+    if os.geteuid() != 0:
+        return True
+    return subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode == 0
+
+
+def test_unwritable_folder_exits_3_naming_it(tmp_path, capsys):
     ro = tmp_path / "ro"
     ro.mkdir()
-    ro.chmod(0o500)
-    assert main(["run", "--out", str(ro / "run"), *TINY_SET, "--quiet"]) == 3
-    assert str(ro / "run") in capsys.readouterr().err
+    if not _unwritable(ro):
+        pytest.skip("this file system cannot make a folder unwritable for root (chattr +i)")
+    try:
+        assert main(["run", "--out", str(ro / "run"), *TINY_SET, "--quiet"]) == 3
+        assert str(ro / "run") in capsys.readouterr().err
+        assert not (ro / "run").exists()
+    finally:
+        if os.geteuid() == 0:
+            subprocess.run(["chattr", "-i", str(ro)], check=True)
+        ro.chmod(0o700)
 
 
 # ----------------------------------------------------------------------------- interrupted runs
