@@ -36,6 +36,7 @@ _CHOICES: dict[str, tuple[Any, ...]] = {
     "solver.linear_solver": S.LINEAR_SOLVERS,
     "solver.predictor": ("tangent", "clamp"),
     "solver.path_following": ("displacement", "arclength", "auto"),
+    "solver.branch": ("stay", "switch"),
     "outputs.fields": S.FIELD_OUTPUTS,
     "discrete.inter_layout": ("neighbours", "none"),
     "discrete.end_rotation": ("free", "held"),
