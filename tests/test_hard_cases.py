@@ -513,16 +513,18 @@ def test_branch_switching_is_refused_where_it_does_not_apply():
         Scene().with_changes(**{"solver.branch": "switch"})
     with pytest.raises(SceneError, match=r"solver\.branch.*continuum model"):
         Scene().with_changes(**{"model": "discrete", "solver.path_following": "auto", "solver.branch": "switch"})
-    assert Scene().with_changes(**{"solver.path_following": "auto", "solver.branch": "switch"}).solver.branch == "switch"
+    ok = Scene().with_changes(**{"solver.path_following": "auto", "solver.branch": "switch"})
+    assert ok.solver.branch == "switch"
 
 
 def test_arclength_reproduces_displacement_control_on_a_smooth_path(tmp_path):
     """On the smooth path of the default material (20 mm mesh, to 37 mm) arc-length continuation lands
-    on the final load with the force of displacement control to Newton's tolerance."""
+    on the final load with the force of displacement control to Newton's tolerance; with no
+    bifurcation on the way, ``branch = "switch"`` changes nothing and is recorded."""
     h20 = {"discretization.mesh_size_mm": 20.0, "outputs.profile": False, "loading.u0_mm": 37.0}
     _, disp, _ = _run(tmp_path, "disp", **h20)
-    s, arc, _ = _run(tmp_path, "arc", **h20, **{"solver.path_following": "arclength"})
-    assert s["status"] == "ok" and s["instabilities"] == []
+    s, arc, _ = _run(tmp_path, "arc", **h20, **{"solver.path_following": "arclength", "solver.branch": "switch"})
+    assert s["status"] == "ok" and s["instabilities"] == [] and s["branch"] == "switch"
     assert arc[-1]["u0_mm"] == pytest.approx(37.0, rel=1e-12)
     assert arc[-1]["force_N"] == pytest.approx(disp[-1]["force_N"], rel=1e-8)
 
