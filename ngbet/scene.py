@@ -361,6 +361,9 @@ class Solver:
     # the energy integrand: "interpret", "native" (C++, object files cached across runs), "auto": by
     # size (interpreted below 30 000 dofs, cached native code above, compiled from 500 000 dofs)
     compile: str = "auto"
+    # continuum, arc length: at a bifurcation "stay" on the branch followed or "switch" to the
+    # bifurcated one along its critical mode (recorded in summary.json)
+    branch: str = "stay"
 
     def __post_init__(self) -> None:
         _positive("solver", self, "rtol", "atol_energy", "growth")
@@ -374,6 +377,9 @@ class Solver:
         _choice("solver", self, "predictor", ("tangent", "clamp"))
         _choice("solver", self, "path_following", ("displacement", "arclength", "auto"))
         _choice("solver", self, "compile", ("auto", "interpret", "native"))
+        _choice("solver", self, "branch", ("stay", "switch"))
+        _check(self.branch == "stay" or self.path_following != "displacement", "solver.branch", self.branch,
+               "needs solver.path_following = 'arclength' or 'auto' (displacement control stays on its branch)")
         _boolean("solver", self, "condense")
 
 
@@ -484,6 +490,8 @@ class Scene:
         # loads past ideal yarn locking are valid: the yarns are extensible (K_el), and the run
         # warns (locking_warning); ideal locking belongs to inextensible yarns
         if self.model == "discrete":
+            _check(self.solver.branch == "stay", "solver.branch", self.solver.branch,
+                   "branch switching is for the continuum model (the discrete model follows the load)")
             n = yarns_per_family(self.specimen, self.discrete.spacing_mm)
             _check(n >= MIN_YARNS_PER_FAMILY, "discrete.spacing_mm", self.discrete.spacing_mm,
                    f"leaves about {n} yarns per family across the {self.specimen.length_mm:g} x "

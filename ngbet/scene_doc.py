@@ -37,6 +37,7 @@ _CHOICES: dict[str, tuple[Any, ...]] = {
     "solver.predictor": ("tangent", "clamp"),
     "solver.path_following": ("displacement", "arclength", "auto"),
     "solver.compile": ("auto", "interpret", "native"),
+    "solver.branch": ("stay", "switch"),
     "outputs.fields": S.FIELD_OUTPUTS,
     "discrete.inter_layout": ("neighbours", "none"),
     "discrete.end_rotation": ("free", "held"),

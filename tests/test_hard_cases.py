@@ -406,13 +406,125 @@ def test_arclength_passes_the_snap_back_of_a_toy_that_displacement_control_canno
     assert len(snaps) == 1 and abs(snaps[0].u0_mm * 1e-3 - lam_fold) < 0.01
 
 
+class _Pitchfork:
+    """A two-dof toy with a symmetric (supercritical) pitchfork: x = (λ, y, z), λ the Dirichlet entry,
+    E = ½(y − λ)² + ½(1 − y)z² + ¼z⁴, so r_y = y − λ − ½z², r_z = (1 − y)z + z³.
+    Trivial branch y = λ, z = 0, with the tangent diag(1, 1 − λ): stable below λc = 1, unstable
+    beyond. Bifurcated branch z² = y − 1, y = 2λ − 1 (z = ±√(2(λ − 1))), stable: det J = z²."""
+
+    def __init__(self):
+        self.x = np.zeros(3)
+        self.lam = 0.0
+
+    def set_load(self, lam):
+        self.lam = lam
+        self.x[0] = lam
+
+    def residual(self):
+        lam, y, z = self.x
+        return np.array([lam - y, y - lam - z ** 2 / 2, (1 - y) * z + z ** 3])
+
+    def energy(self):
+        lam, y, z = self.x
+        return (y - lam) ** 2 / 2 + (1 - y) * z ** 2 / 2 + z ** 4 / 4
+
+    def factorize(self):
+        _, y, z = self.x
+        self.J = np.array([[1.0, -z], [-z, 1 - y + 3 * z ** 2]])
+
+    def solve(self, r):
+        return np.concatenate([[0.0], -np.linalg.solve(self.J, r[1:])])
+
+    def load_tangent(self, dlam):
+        return np.concatenate([[dlam], np.linalg.solve(self.J, [dlam, 0.0])])  # −J⁻¹ ∂r/∂λ, ∂r/∂λ = (−1, 0)
+
+    def clamp_predictor(self, dlam):
+        return np.array([dlam, 0.0, 0.0])
+
+    def norm(self, dx):
+        return float(np.linalg.norm(dx[1:]))
+
+    def load_derivative(self, psi, tangent):
+        return float(psi @ np.array([tangent[0] - tangent[1], tangent[1] - tangent[0] - self.x[2] * tangent[2],
+                                     (1 - self.x[1] + 3 * self.x[2] ** 2) * tangent[2] - self.x[2] * tangent[1]]))
+
+    def lowest_eigenpair(self):
+        self.factorize()
+        ev, V = np.linalg.eigh(self.J)
+        return float(ev[0]), np.concatenate([[0.0], V[:, 0]])
+
+
+def _follow_pitchfork(branch, sign=1.0):
+    from ngbet.continuum.arclength import ArcLengthSettings, follow_arclength
+    from ngbet.continuum.solver import NewtonSettings
+
+    toy = _Pitchfork()
+    ctl = ArcLengthSettings(target=1.5, first_step=0.07, max_step=0.07, min_step=1e-6)
+    res, found = follow_arclength(toy, ctl, NewtonSettings(), weights=np.array([0.0, 1.0, 1.0]), length=1.0,
+                                  psi=np.array([1.0, 0.0, 0.0]), lowest_eigenpair=toy.lowest_eigenpair,
+                                  branch=branch, branch_sign=sign)
+    return toy, res, found
+
+
+def test_arclength_stays_on_the_trivial_branch_past_a_pitchfork_and_reports_it():
+    """``branch = "stay"``: the path stays on the trivial branch (y = λ, z = 0) to λ = 1.5 and
+    reports one bifurcation at λc = 1: located where the lowest eigenvalue (1 − λ here, linear
+    in λ) interpolated between the two points around it vanishes, so exactly up to round-off,
+    inside the bracket of one step; its mode is z (the unit vector (0, 0, ±1))."""
+    toy, res, found = _follow_pitchfork("stay")
+    assert res.u0 == 1.5 and toy.x[1] == pytest.approx(1.5, abs=1e-12) and toy.x[2] == 0.0
+    bif = [i for i in found if i.kind == "bifurcation"]
+    assert len(bif) == 1 and len(found) == 1
+    lo, hi = bif[0].details["bracket_mm"]
+    assert lo < 1000.0 < hi and hi - lo < 0.07 * 1e3 * 1.01  # one step of at most 0.07 around λc
+    assert bif[0].u0_mm == pytest.approx(1000.0, abs=1e-9)  # λ in the toy's unit, reported ×1e3 as mm
+    assert abs(bif[0].mode[2]) == pytest.approx(1.0, abs=1e-12) and bif[0].details["branch"] == "stayed"
+    assert all(s.residual[2] == 0.0 for s in res.steps)  # z stays 0 on the trivial branch
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_arclength_switches_to_the_bifurcated_branch_of_a_pitchfork(sign):
+    """``branch = "switch"``: at λc = 1 the path leaves the trivial branch along the mode z, on the
+    side ``sign``, and lands at λ = 1.5 on the analytic bifurcated branch y = 2λ − 1 = 2,
+    z = ±√(2(λ − 1)) = ±1, to Newton's tolerance; every point after the switch is on that branch."""
+    toy, res, found = _follow_pitchfork("switch", sign)
+    assert res.u0 == 1.5
+    assert toy.x[1] == pytest.approx(2.0, abs=1e-8) and toy.x[2] == pytest.approx(sign * 1.0, abs=1e-8)
+    bif = [i for i in found if i.kind == "bifurcation"]
+    assert len(bif) == 1 and bif[0].details["branch"] == "switched" and bif[0].details["mode_sign"] == sign
+    assert bif[0].u0_mm == pytest.approx(1000.0, abs=1e-9)
+    after = [s for s in res.steps if s.reason == "arc-length, bifurcated branch"]
+    assert len(after) == 1  # the first point on the new branch, the path goes on from there
+    k = res.steps.index(after[0])
+    assert all(s.u0 < 1.0 for s in res.steps[:k])  # no point past λc on the trivial branch is recorded
+    for s in res.steps[k:]:
+        # on the branch the reaction λ − y is 1 − λ; each point is converged to Newton's energy
+        # tolerance (decrement below 1e-10 |E|), which leaves |x − x*| of order 1e-6 (measured ≤ 2e-6)
+        assert s.u0 > 1.0 and abs(s.residual[0] + s.u0 - 1.0) < 1e-5
+    assert np.all(np.diff([s.u0 for s in res.steps]) > 0)  # supercritical: λ grows along the new branch
+
+
+def test_branch_switching_is_refused_where_it_does_not_apply():
+    """``solver.branch = "switch"`` needs arc-length path following of the continuum: with
+    displacement control or the discrete model the scene is refused, naming the key."""
+    from ngbet.scene import Scene, SceneError
+
+    with pytest.raises(SceneError, match=r"solver\.branch.*path_following = 'arclength' or 'auto'"):
+        Scene().with_changes(**{"solver.branch": "switch"})
+    with pytest.raises(SceneError, match=r"solver\.branch.*continuum model"):
+        Scene().with_changes(**{"model": "discrete", "solver.path_following": "auto", "solver.branch": "switch"})
+    ok = Scene().with_changes(**{"solver.path_following": "auto", "solver.branch": "switch"})
+    assert ok.solver.branch == "switch"
+
+
 def test_arclength_reproduces_displacement_control_on_a_smooth_path(tmp_path):
     """On the smooth path of the default material (20 mm mesh, to 37 mm) arc-length continuation lands
-    on the final load with the force of displacement control to Newton's tolerance."""
+    on the final load with the force of displacement control to Newton's tolerance; with no
+    bifurcation on the way, ``branch = "switch"`` changes nothing and is recorded."""
     h20 = {"discretization.mesh_size_mm": 20.0, "outputs.profile": False, "loading.u0_mm": 37.0}
     _, disp, _ = _run(tmp_path, "disp", **h20)
-    s, arc, _ = _run(tmp_path, "arc", **h20, **{"solver.path_following": "arclength"})
-    assert s["status"] == "ok" and s["instabilities"] == []
+    s, arc, _ = _run(tmp_path, "arc", **h20, **{"solver.path_following": "arclength", "solver.branch": "switch"})
+    assert s["status"] == "ok" and s["instabilities"] == [] and s["branch"] == "switch"
     assert arc[-1]["u0_mm"] == pytest.approx(37.0, rel=1e-12)
     assert arc[-1]["force_N"] == pytest.approx(disp[-1]["force_N"], rel=1e-8)
 

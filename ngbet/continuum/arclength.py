@@ -21,8 +21,20 @@ turning points in u0. Along the way the kind of instability is told apart:
 - ``snap-back``: the λ-component of the tangent changes sign (the path turns back in u0);
   displacement control cannot pass it;
 - ``bifurcation``: the lowest eigenvalue of the (scaled) tangent changes sign while u0 keeps
-  growing (reported; the path followed stays on its branch, no branch switching);
+  growing; it is located by linear interpolation of the eigenvalue to zero between the two points;
 - ``force maximum``: dF/du0 changes sign with a stable tangent; displacement control passes it.
+
+At a bifurcation the path stays on its branch (``branch = "stay"``), or switches to the
+bifurcated one (``branch = "switch"``): from the located point x_c, λ_c (interpolated between the
+two points) the next step is predicted along the critical mode φ_c (the eigenvector of the
+vanishing eigenvalue, its largest weighted entry made positive, times ``branch_sign``), made
+orthogonal to the path's tangent τ, and corrected on the hyperplane normal to that direction at
+the current Δs:
+
+    n = (φ_c, 0) − ⟨(φ_c, 0), τ⟩ τ,    r(x, λ) = 0,    ⟨n, (x − x_c, λ − λ_c)⟩ = Δs |n|.
+
+The trivial branch lies in that hyperplane's direction to first order, so the corrector lands on
+the bifurcated branch, at amplitude ≈ Δs along φ_c; the path goes on from there.
 """
 
 from __future__ import annotations
@@ -69,6 +81,8 @@ class Instability:
     lowest_eigenvalue: float = math.nan
     details: dict[str, Any] = field(default_factory=dict)
     mode: np.ndarray | None = field(default=None, repr=False)  # the lowest mode of the tangent there
+    #: where it lies in the last step, as a fraction of it (a bifurcation: where the eigenvalue vanishes)
+    at: float = field(default=1.0, repr=False)
 
     def as_dict(self, thickness: float) -> dict[str, Any]:
         """The summary's record (force in N)."""
@@ -137,6 +151,15 @@ class _Path:
         self.x0 = self.p.x.copy()
         self.lam0 = float(getattr(self.p, "lam", 0.0))
 
+    def snapshot(self) -> tuple[np.ndarray, float, np.ndarray, float]:
+        """The converged point and its tangent."""
+        return self.x0.copy(), self.lam0, self.tau_x.copy(), self.tau_l
+
+    def reset(self, snap: tuple[np.ndarray, float, np.ndarray, float]) -> None:
+        """Back to a point of :meth:`snapshot` (the state too)."""
+        self.x0, self.lam0, self.tau_x, self.tau_l = snap[0].copy(), snap[1], snap[2].copy(), snap[3]
+        self.restore()
+
     def restore(self) -> None:
         self.p.x[:] = self.x0
         self.p.set_load(self.lam0)
@@ -146,16 +169,23 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
                      weights: np.ndarray, length: float, psi: np.ndarray,
                      lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None = None,
                      on_step: Callable[[StepRecord], None] | None = None,
-                     result: PathResult | None = None) -> tuple[PathResult, list[Instability]]:
+                     result: PathResult | None = None, branch: str = "stay",
+                     branch_sign: float = 1.0) -> tuple[PathResult, list[Instability]]:
     """Follow the path from the converged state of ``problem`` until u0 = ``ctl.target``.
 
     ``psi`` is the reaction's test vector (R = ψ·r); ``lowest_eigenpair()`` gives the lowest
     eigenvalue of the tangent at the current state and its mode (full length), used to tell a
     bifurcation and to keep the mode of each instability. Steps are appended to ``result`` (a new
-    one if None).
+    one if None). ``branch``: at a bifurcation "stay" on the branch followed or "switch" to the
+    bifurcated one along ``branch_sign`` times its mode (module docstring; needs
+    ``lowest_eigenpair``). The point past a bifurcation on the branch left is not recorded.
     Returns the result (``u0`` the last load reached) and the instabilities passed or met;
     the caller decides what an unreached target means.
     """
+    if branch not in ("stay", "switch"):
+        raise ValueError(f"branch must be 'stay' or 'switch', not {branch!r}")
+    if branch == "switch" and lowest_eigenpair is None:
+        raise ValueError("branch = 'switch' needs lowest_eigenpair (the critical mode)")
     res = result if result is not None else PathResult(float(getattr(problem, "lam", 0.0)))
     path = _Path(problem, weights, length, settings)
     found: list[Instability] = []
@@ -182,18 +212,86 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
             if ds < ds_min:
                 break
             continue
+        before = path.snapshot() if branch == "switch" else None
         path.commit()
         path.tangent(orient=True)
-        rec = StepRecord(len(res.steps) + 1, lam_to, its, residual=r, history=hist, reason="arc-length")
-        rec.dforce_du0 = problem.load_derivative(psi, problem.load_tangent(1.0))
-        found += track.update(path, rec, r)
+        rec = _step_record(problem, psi, len(res.steps) + 1, its, hist, r, "arc-length")
+        new = track.update(path, rec, r)
+        if before is not None:
+            switch = _Switch(problem, path, psi, settings, res, branch_sign)
+            rec = switch.at_bifurcation(new, before, track, ds, ds_min) or rec
+        found += new
         res.steps.append(rec)
-        res.u0 = lam_to
+        res.u0 = rec.u0
         if on_step is not None:
             on_step(rec)
         if its <= settings.grow_after:
             ds = min(ds * settings.growth, ds_max)
     return res, found
+
+
+def _step_record(problem: NonlinearProblem, psi: np.ndarray, number: int, its: int, hist: list[float],
+                 r: np.ndarray | None, reason: str) -> StepRecord:
+    """The record of the converged point the problem is at (its tangent factorized)."""
+    rec = StepRecord(number, float(getattr(problem, "lam", 0.0)), its, residual=r, history=hist, reason=reason)
+    rec.dforce_du0 = problem.load_derivative(psi, problem.load_tangent(1.0))
+    return rec
+
+
+class _Switch:
+    """Branch switching at a bifurcation (module docstring): from the located point along the critical mode."""
+
+    def __init__(self, problem: NonlinearProblem, path: _Path, psi: np.ndarray, settings: NewtonSettings,
+                 res: PathResult, sign: float) -> None:
+        self.p, self.path, self.psi, self.settings, self.res = problem, path, psi, settings, res
+        self.sign = 1.0 if sign >= 0 else -1.0
+
+    def direction(self, mode: np.ndarray) -> tuple[np.ndarray, float]:
+        """(φ_c, 0), oriented by its largest weighted entry and the sign, orthogonal to τ, unit."""
+        path = self.path
+        phi = np.where(path.w > 0, mode, 0.0)
+        k = int(np.argmax(np.abs(path.w * phi)))
+        phi = phi * (self.sign if phi[k] >= 0 else -self.sign)
+        c = path.inner(phi, 0.0, path.tau_x, path.tau_l)
+        nx, nl = phi - c * path.tau_x, -c * path.tau_l
+        norm = math.sqrt(path.inner(nx, nl, nx, nl))
+        return nx / norm, nl / norm
+
+    def at_bifurcation(self, new: list[Instability], before: tuple[np.ndarray, float, np.ndarray, float],
+                       track: _Tracker, ds: float, ds_min: float) -> StepRecord | None:
+        """Switch at the bifurcation among ``new`` (if any): the record of the first point on the new branch.
+
+        ``before`` is the point before the step; the path stands at the point after it. Without a
+        converged step on the bifurcated branch (down to ``ds_min``) the path stays where it is
+        and None is returned.
+        """
+        bif = next((i for i in new if i.kind == "bifurcation" and i.mode is not None), None)
+        if bif is None or bif.mode is None:
+            return None
+        path, after = self.path, self.path.snapshot()
+        x_c = before[0] + bif.at * (after[0] - before[0])
+        lam_c = before[1] + bif.at * (after[1] - before[1])
+        path.tau_x, path.tau_l = self.direction(bif.mode)
+        path.x0, path.lam0 = x_c, lam_c
+        while ds >= ds_min:
+            ok, its, hist, why, r = path.step(ds)
+            lam_to = float(getattr(self.p, "lam", 0.0))
+            self.res.attempts.append(Attempt(lam_c, lam_to, ok, its, why, hist))
+            if ok:
+                path.commit()
+                path.tangent(orient=True)
+                rec = _step_record(self.p, self.psi, len(self.res.steps) + 1, its, hist, r,
+                                   "arc-length, bifurcated branch")
+                track.restart(path, rec, r)
+                bif.details.update(branch="switched", mode_sign=self.sign)
+                log.warning("switched to the bifurcated branch at u0 = %.4g mm", bif.u0_mm)
+                return rec
+            self.res.cuts += 1
+            ds *= self.settings.cut
+        path.reset(after)
+        bif.details["branch"] = "stayed: no equilibrium found on the bifurcated branch"
+        log.warning("no equilibrium found on the bifurcated branch at u0 = %.4g mm; staying", bif.u0_mm)
+        return None
 
 
 def _distance_to(path: _Path, target: float, ds: float) -> float:
@@ -208,7 +306,8 @@ class _Tracker:
 
     A snap-back and a force maximum are reported at the last point before the sign change (the
     largest u0, resp. force, of the two), with the lowest eigenvalue and mode there: at a fold
-    it is the mode whose eigenvalue vanishes.
+    it is the mode whose eigenvalue vanishes. A bifurcation is reported where the eigenvalue
+    interpolated between the two points vanishes (:func:`_bifurcation`).
     """
 
     def __init__(self, psi: np.ndarray, eig: Callable[[], tuple[float, np.ndarray]] | None) -> None:
@@ -226,22 +325,45 @@ class _Tracker:
             self.prev.lowest_eigenvalue, self.prev.mode = self.eig()
             path.tangent(orient=True)  # the eigen-solve may have refactorized elsewhere: same point
 
-    def update(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> list[Instability]:
+    def point(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> Instability:
+        """The record of the converged point the path stands at (its eigenpair when watched)."""
         here = Instability("", rec.u0 * 1e3, float(self.psi @ r) if r is not None else math.nan)
         if self.eig is not None:
             here.lowest_eigenvalue, here.mode = self.eig()
             path.tangent(orient=True)
+        return here
+
+    def update(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> list[Instability]:
+        here = self.point(path, rec, r)
         prev, out = self.prev, []
         if self.tau_l > 0 >= path.tau_l:
             out.append(dataclasses.replace(prev, kind="snap-back", details={"note": "the path turns back in u0"}))
         elif path.tau_l > 0 and rec.dforce_du0 < 0 <= self.dR:
             out.append(dataclasses.replace(prev, kind="force maximum"))
         elif prev.lowest_eigenvalue > 0 >= here.lowest_eigenvalue and path.tau_l > 0:
-            out.append(dataclasses.replace(here, kind="bifurcation"))
+            out.append(_bifurcation(prev, here))
         for ins in out:
             log.warning("%s at u0 = %.4g mm", ins.kind, ins.u0_mm)
         self.tau_l, self.dR, self.prev = path.tau_l, rec.dforce_du0, here
         return out
+
+    def restart(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> None:
+        """Watch from the point the path stands at, compared with nothing before it (a new branch)."""
+        self.tau_l, self.dR, self.prev = path.tau_l, rec.dforce_du0, self.point(path, rec, r)
+
+
+def _bifurcation(prev: Instability, here: Instability) -> Instability:
+    """The bifurcation between two points: where the linear interpolant of the lowest eigenvalue vanishes.
+
+    Load and force are interpolated there; the mode is that of the point nearer to it.
+    """
+    mu_a, mu_b = prev.lowest_eigenvalue, here.lowest_eigenvalue
+    t = mu_a / (mu_a - mu_b)
+    near = prev if t < 0.5 else here
+    return Instability("bifurcation", prev.u0_mm + t * (here.u0_mm - prev.u0_mm),
+                       prev.reaction + t * (here.reaction - prev.reaction), near.lowest_eigenvalue,
+                       {"bracket_mm": [prev.u0_mm, here.u0_mm], "eigenvalues": [mu_a, mu_b], "branch": "stayed"},
+                       near.mode, t)
 
 
 def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
@@ -278,7 +400,8 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
                                     min_step=min(ctl.min_step, h / 64))
         res, found = follow_arclength(problem, c, newton_settings(scene), weights=problem._weights,
                                       length=scene.specimen.L, psi=psi,
-                                      lowest_eigenpair=lambda: lowest_eigenpair(problem), on_step=step, result=res)
+                                      lowest_eigenpair=lambda: lowest_eigenpair(problem), on_step=step, result=res,
+                                      branch=scene.solver.branch)
         res.path_info = _path_info(problem, found, start_mm, out)
         if res.steps:
             t = scene.specimen.t
@@ -311,11 +434,15 @@ def _path_info(problem: Any, found: list[Instability], start_mm: float, out: Pat
             ins.details.update(mode_ratio=r, mode_class="discretization" if r > DISCRETIZATION_MODE_RATIO
                                else "continuum", mode_location_mm=list(where))
     info: dict[str, Any] = {"path_following": problem.scene.solver.path_following, "arclength_from_mm": start_mm,
+                            "branch": problem.scene.solver.branch,
                             "instabilities": [i.as_dict(problem.scene.specimen.t) for i in found]}
-    first = next((i for i in found if i.mode is not None), None)
+    # the mode pictured: that of the first switch to a bifurcated branch, else of the first instability
+    switched = [i for i in found if i.details.get("branch") == "switched"]
+    first = next((i for i in switched + found if i.mode is not None), None)
     if out is not None and first is not None and first.mode is not None:
         files = write_mode(problem, first.mode, out / "instability_mode",
                            f"{first.kind} at u0 = {first.u0_mm:.4g} mm: lowest mode of the tangent")
         info["instability_mode_files"] = [f.name for f in files]
+        info["instability_mode_of"] = {"kind": first.kind, "u0_mm": first.u0_mm}
     problem.x[:] = saved
     return info
