@@ -36,10 +36,14 @@ CMD ["run", "--out", "/work/out/run"]
 # so `import ngbet` resolves to the venv's site-packages
 FROM base AS test
 USER root
-RUN pip install "/src[test]"
+# procps: the fault tests look for leftover worker processes with pgrep
+RUN apt-get update && apt-get install -y --no-install-recommends procps && rm -rf /var/lib/apt/lists/* \
+    && pip install "/src[test]"
 COPY --chown=ngbet:ngbet pyproject.toml /home/ngbet/check/
 COPY --chown=ngbet:ngbet tests /home/ngbet/check/tests
 COPY --chown=ngbet:ngbet examples /home/ngbet/check/examples
+COPY --chown=ngbet:ngbet geometry /home/ngbet/check/geometry
+COPY --chown=ngbet:ngbet data /home/ngbet/check/data
 USER ngbet
 WORKDIR /home/ngbet/check
 RUN python -c "import ngbet, sys; assert '/opt/ngbet/' in ngbet.__file__, ngbet.__file__; print(ngbet.__file__)" \

@@ -337,6 +337,16 @@ def read_profiles(path: str | Path) -> dict[float, tuple[list[float], list[float
     return out
 
 
+def _error_bars(ax: Any, rows: list[dict[str, Any]]) -> None:
+    """The estimated discretization error of the force (``force_error_N``) as error bars where estimated."""
+    pts = [(r["u0_mm"], r["force_N"], r["force_error_N"]) for r in rows
+           if isinstance(r.get("force_error_N"), float) and r["force_error_N"] == r["force_error_N"]]
+    if pts:
+        u, F, e = zip(*pts, strict=True)
+        ax.errorbar(u, F, yerr=e, fmt="none", ecolor="k", elinewidth=1, capsize=4,
+                    label="estimated discretization error")
+
+
 def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> Path | None:
     """Force-displacement plot (and the double force when present) from results.csv: force.png, force.pdf.
 
@@ -364,11 +374,12 @@ def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], 
     ax = axes[0, 0]
     dF = [r["dforce_du0_N_per_mm"] for r in rows] if "dforce_du0_N_per_mm" in rows[0] else None
     force_curve(ax, u0, [r["force_N"] for r in rows], dF, label="force")
+    _error_bars(ax, rows)
     for label, x, y in extra:
         ax.plot(x, y, "--", label=label)
     ax.set_xlabel("clamp displacement $u_0$ [mm]")
     ax.set_ylabel("reaction force on the moving clamp [N]")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left")
     if has_T:
         ax2 = axes[0, 1]
         ax2.plot([0.0] + u0, [0.0] + [r["double_force_Nm"] for r in rows], "s-", ms=4, color="C3",
@@ -376,7 +387,7 @@ def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], 
         ax2.set_xlabel("clamp displacement $u_0$ [mm]")
         ax2.set_ylabel("reaction double force [N m]")
         ax2.grid(alpha=0.3)
-        ax2.legend(fontsize=8)
+        ax2.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
     png = run_dir / "force.png"
     fig.savefig(png, dpi=130)

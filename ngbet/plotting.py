@@ -25,12 +25,12 @@ def dense_force(u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None) -> tu
     F = np.r_[0.0, np.asarray(force, dtype=float)]
     if (dforce is None or len(u) < 2 or not np.all(np.isfinite(np.asarray(dforce, dtype=float)))
             or np.any(np.diff(u) <= 0)):  # a path followed by arc length may turn back in u0
-        return u, F, "lines between converged steps"
+        return u, F, "straight lines between steps"
     d = np.asarray(dforce, dtype=float)
     # the unloaded state's slope: extrapolate the first step's secant and slope linearly (dF/du0 at 0)
     d0 = 2 * (F[1] - F[0]) / (u[1] - u[0]) - d[0]
     ud = np.unique(np.r_[np.arange(0.0, u[-1], DENSE_STEP_MM), u])
-    return ud, _hermite(u, F, np.r_[d0, d], ud), "cubic Hermite interpolation of F and dF/du0 between converged steps"
+    return ud, _hermite(u, F, np.r_[d0, d], ud), "cubic Hermite in (F, dF/du0) between steps"
 
 
 def _hermite(x: np.ndarray, y: np.ndarray, dy: np.ndarray, xe: np.ndarray) -> np.ndarray:
