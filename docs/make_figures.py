@@ -1,6 +1,6 @@
 """Regenerate the figures of the documentation (docs/figures/*.png) from fresh runs.
 
-    python docs/make_figures.py          # needs ngbet[viz]; about 10 s
+    python docs/make_figures.py          # needs ngbet[viz]; a few seconds
 
 bet_default.png: the default scene (the paper's BET to 56 mm): the deformed specimen coloured
 by the shear angle with the yarns drawn on it, and the force-displacement curve.
@@ -9,6 +9,7 @@ by the shear angle with the yarns drawn on it, and the force-displacement curve.
 from __future__ import annotations
 
 import sys
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -53,7 +54,8 @@ def main() -> int:
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.4), gridspec_kw={"width_ratios": [2.1, 1]})
     specimen_map(a1, r)
     r.plot(ax=a2, label="force")
-    a2.legend(fontsize=7)
+    handles, labels = a2.get_legend_handles_labels()
+    a2.legend(handles, [textwrap.fill(t, 30) for t in labels], fontsize=7, loc="upper left")
     a2.set_title("force on the moving clamp", fontsize=9)
     fig.tight_layout()
     path = out / "bet_default.png"
