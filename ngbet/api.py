@@ -184,7 +184,7 @@ class Result:
             w = csv.writer(fh, lineterminator="\n")
             w.writerow(names)
             for i in range(len(self.u0_mm)):
-                w.writerow([repr(float(self.columns[n][i])) for n in names])
+                w.writerow([_cell(float(self.columns[n][i])) for n in names])
         return path
 
     def plot(self, ax: Any = None, label: str | None = None, **kwargs: Any) -> Any:
@@ -234,3 +234,10 @@ def _read_profiles(path: Path) -> dict[float, tuple[np.ndarray, np.ndarray]]:
     from .output import read_profiles
 
     return {u0: (np.asarray(X), np.asarray(uy)) for u0, (X, uy) in read_profiles(path).items()}
+
+
+def _cell(v: float) -> str:
+    """A value as results.csv writes it: integers without a decimal point, a missing value empty."""
+    if v != v:
+        return ""
+    return str(int(v)) if v.is_integer() and abs(v) < 2**53 else repr(v)

@@ -183,8 +183,8 @@ def _parser() -> argparse.ArgumentParser:
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them",
                          epilog=EPILOG)
-    pst.add_argument("name", help="study name (penalty_p, work_precision, alpha1, kel, curves, maps, compare) "
-                     "or 'list'")
+    pst.add_argument("name", help="study name (reference, work_precision, penalty_p, alpha1, kel, curves, maps, "
+                     "compare) or 'list'")
     from .study import add_arguments
 
     add_arguments(pst)

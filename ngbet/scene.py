@@ -429,7 +429,7 @@ class Discrete:
     inter_layout: str = "neighbours"  # "neighbours" or "none"
     # yarn ends on a clamp: "free" = pinned (position prescribed, rotation free: the discrete
     # counterpart of the continuum's clamp, which prescribes u, not the yarn rotation); "held" =
-    # built in (rotation held too). The choice decides the sense of the S-shape: see the README.
+    # built in (rotation held too). The choice decides the sense of the S-shape: see docs/discrete.md.
     end_rotation: str = "free"
     # load steps of the discrete model (the network snaps; it needs shorter steps than the continuum)
     first_step_mm: float = 2.0

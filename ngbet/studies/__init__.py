@@ -10,7 +10,7 @@ STUDIES = {
     "alpha1": "alpha1 sweep at 56 mm, including the balanced fabric alpha1 = alpha2",
     "kel": "K_el sweep at 37 mm: deformed outlines",
     "curves": "load-displacement and double-force-displacement curves with the ideal-kinematics estimate",
-    "maps": "deformed specimen coloured by the angle between the yarns, yarns drawn on it (37 and 56 mm)",
+    "maps": "deformed specimen coloured by the shear angle, yarns drawn on it (37 and 56 mm)",
     "compare": "continuum and discrete model side by side",
     "reference": ("reference-grade force (37, 56 mm) and profile by hp extrapolation, with its bound; "
                   "hp vs uniform convergence"),
