@@ -299,7 +299,8 @@ def _report(summary: dict, out: Path) -> str:
         lines.append(f"  accuracy {a['target_error']:g} {'met' if a['met'] else 'NOT met'}: "
                      f"h = {d['mesh_size_mm']:g} mm, corners {d['corner_mesh_size_mm']:g} mm, "
                      f"p = {d['order_u']} after {len(a['attempts'])} "
-                     f"attempt(s), solve {a['solve_s']:.2f} s, {a['wall_s']:.2f} s in all")
+                     f"attempt(s), solve {a['solve_s']:.2f} s; {a['wall_s']:.2f} s for all attempts with their "
+                     "estimates and files")
     return "\n".join(lines)
 
 
