@@ -1,4 +1,4 @@
-"""Drawing helpers shared by the run's force plot, :meth:`ngbet.Result.plot` and the studies.
+"""Drawing functions shared by the run's force plot, :meth:`ngbet.Result.plot` and the studies.
 
 matplotlib is imported by the callers (it is an optional dependency: ``pip install ngbet[viz]``).
 """
