@@ -637,12 +637,20 @@ def _run_processes(todo: list[_Case], wds: dict[Any, Path], nworkers: int | None
                    running: dict[str, tuple[Path, float]], lock: threading.Lock,
                    finished: Callable[[_Case, dict[str, Any], Path | None], None]) -> None:
     """Local worker processes (spawned; they exit with this process, see :func:`_worker_init`)."""
+    from ._env import environ
+
+    # one BLAS thread per worker too (inherited at spawn; workers may spawn while the cases run)
+    with environ({k: str(threads) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}):
+        _run_pool(todo, wds, nworkers, threads, running, lock, finished)
+
+
+def _run_pool(todo: list[_Case], wds: dict[Any, Path], nworkers: int | None, threads: int,
+              running: dict[str, tuple[Path, float]], lock: threading.Lock,
+              finished: Callable[[_Case, dict[str, Any], Path | None], None]) -> None:
+    """Run the cases on a pool of spawned worker processes; an interrupt keeps the finished ones."""
     import concurrent.futures as cf
     import multiprocessing as mp
 
-    env_before = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-    for k in env_before:  # one BLAS thread per worker too (inherited at spawn)
-        os.environ[k] = str(threads)
     ex = cf.ProcessPoolExecutor(max_workers=nworkers, mp_context=mp.get_context("spawn"),
                                 initializer=_worker_init, initargs=(os.getpid(),))
     futs: dict[Any, tuple[_Case, Path]] = {}
@@ -672,12 +680,6 @@ def _run_processes(todo: list[_Case], wds: dict[Any, Path], nworkers: int | None
                 take(fut)
         _stop_pool(ex)
         raise
-    finally:
-        for k, v in env_before.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def _stop_pool(ex: Any) -> None:

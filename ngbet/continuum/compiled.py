@@ -44,14 +44,12 @@ differentiation.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import logging
 import os
 import shutil
 import stat
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -128,21 +126,13 @@ def _wrappers(real: str, cxx: str) -> Path:
     return bins
 
 
-@contextlib.contextmanager
-def _on_path(bins: Path, cached_only: bool) -> Iterator[None]:
-    old = {k: os.environ.get(k) for k in ("PATH", "NGBET_CACHED_ONLY")}
+def _on_path(bins: Path, cached_only: bool) -> Any:
+    """The environment in which NGSolve's compile finds the caching wrappers first."""
+    from .._env import environ
+
     # NGSolve's ngscxx asks `python3` for its include flags: this interpreter's first
-    os.environ["PATH"] = os.pathsep.join([str(bins), str(Path(sys.executable).parent), old["PATH"] or ""])
-    if cached_only:
-        os.environ["NGBET_CACHED_ONLY"] = "1"
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    path = os.pathsep.join([str(bins), str(Path(sys.executable).parent), os.environ.get("PATH", "")])
+    return environ({"PATH": path, **({"NGBET_CACHED_ONLY": "1"} if cached_only else {})})
 
 
 def add_energy(form: ngs.BilinearForm, compiled: ngs.CoefficientFunction, dx: Any, mode: str) -> None:
