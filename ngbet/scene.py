@@ -380,6 +380,9 @@ class Solver:
         _choice("solver", self, "branch", ("stay", "switch"))
         _check(self.branch == "stay" or self.path_following != "displacement", "solver.branch", self.branch,
                "needs solver.path_following = 'arclength' or 'auto' (displacement control stays on its branch)")
+        _check(self.branch == "stay" or self.condense, "solver.branch", self.branch,
+               "needs solver.condense = true (the uncondensed saddle-point tangent has no stability test, so no "
+               "critical mode to switch along)")
         _boolean("solver", self, "condense")
 
 

@@ -513,8 +513,25 @@ def test_branch_switching_is_refused_where_it_does_not_apply():
         Scene().with_changes(**{"solver.branch": "switch"})
     with pytest.raises(SceneError, match=r"solver\.branch.*continuum model"):
         Scene().with_changes(**{"model": "discrete", "solver.path_following": "auto", "solver.branch": "switch"})
+    with pytest.raises(SceneError, match=r"solver\.branch.*solver\.condense = true"):
+        Scene().with_changes(**{"solver.path_following": "auto", "solver.branch": "switch", "solver.condense": False})
     ok = Scene().with_changes(**{"solver.path_following": "auto", "solver.branch": "switch"})
     assert ok.solver.branch == "switch"
+
+
+def test_no_eigenvalue_of_an_uncondensed_saddle_point_tangent(tmp_path):
+    """With Λ kept in the matrix the tangent is indefinite by construction: the lowest eigenpair is
+    refused (it would report a negative eigenvalue at the unloaded state) and the diagnosis skips."""
+    from ngbet.continuum.problem import ContinuumProblem
+    from ngbet.continuum.stability import diagnose_stability, lowest_eigenpair
+    from ngbet.scene import Scene
+
+    pb = ContinuumProblem(Scene().with_changes(**{"discretization.mesh_size_mm": 20.0, "solver.condense": False}))
+    with pytest.raises(ValueError, match="indefinite by construction"):
+        lowest_eigenpair(pb)
+    assert "indefinite by construction" in diagnose_stability(pb).skipped
+    condensed = ContinuumProblem(Scene().with_changes(**{"discretization.mesh_size_mm": 20.0}))
+    assert lowest_eigenpair(condensed)[0] > 0  # the unloaded state is stable
 
 
 def test_arclength_reproduces_displacement_control_on_a_smooth_path(tmp_path):

@@ -51,6 +51,7 @@ import numpy as np
 
 from ..engine import PathResult, StepRecord
 from ..errors import Attempt
+from ..scene import SceneError
 from .solver import NewtonSettings, NonlinearProblem, newton
 
 log = logging.getLogger(__name__)
@@ -378,13 +379,18 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
     :class:`~ngbet.errors.ConvergenceError` with it when the target is not reached.
     """
     from .run import newton_settings
-    from .stability import diagnose_stability, lowest_eigenpair
+    from .stability import diagnose_stability, indefinite_by_construction, lowest_eigenpair
 
     scene = problem.scene
     L = scene.loading
     ctl = ArcLengthSettings(target=L.u0_mm * 1e-3, first_step=L.first_step_mm * 1e-3,
                             max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3)
     psi = problem.psi_u.vec.FV().NumPy().copy()
+    # an uncondensed saddle-point tangent has no stability test: no instability by eigenvalue then
+    indefinite = indefinite_by_construction(problem)
+    if indefinite and scene.solver.branch == "switch":
+        raise SceneError("solver.branch = 'switch' needs the critical mode, and the uncondensed saddle-point "
+                         "tangent (solver.condense = false) has no stability test: set solver.condense = true")
 
     def step(rec: StepRecord) -> None:
         on_step(rec)
@@ -400,7 +406,8 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
                                     min_step=min(ctl.min_step, h / 64))
         res, found = follow_arclength(problem, c, newton_settings(scene), weights=problem._weights,
                                       length=scene.specimen.L, psi=psi,
-                                      lowest_eigenpair=lambda: lowest_eigenpair(problem), on_step=step, result=res,
+                                      lowest_eigenpair=None if indefinite else lambda: lowest_eigenpair(problem),
+                                      on_step=step, result=res,
                                       branch=scene.solver.branch)
         res.path_info = _path_info(problem, found, start_mm, out)
         if res.steps:

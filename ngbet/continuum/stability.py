@@ -125,13 +125,10 @@ def diagnose_stability(problem: ContinuumProblem, k: int = 3) -> StabilityDiagno
     """
     u0_mm = problem.lam * 1e3
     try:
-        if not problem.linear.condensed and "lam" in problem.field_names:
+        if indefinite_by_construction(problem):
             return StabilityDiagnosis(u0_mm, skipped="the uncondensed saddle-point tangent is indefinite by "
                                                      "construction: no stability test")
-        problem.factorize()
-        A, fd = problem.linear.free_matrix()
-        d = np.sqrt(np.abs(A.diagonal()) + 1e-300)  # scaled by the diagonal: unit-free eigenvalues
-        ev, V = eigsh(sps.diags(1 / d) @ A @ sps.diags(1 / d), k=k, sigma=-1e-3, which="LM")
+        ev, V, d, fd = _lowest_scaled(problem, k)
         eigenvalues = tuple(sorted(map(float, ev)))
         base = StabilityDiagnosis(u0_mm, eigenvalues, stabilization_K_Pa=tuple(problem.K_s_range),  # type: ignore[arg-type]
                                   K_el=problem.scene.material.K_el)
@@ -153,13 +150,29 @@ def lowest_eigenpair(problem: ContinuumProblem) -> tuple[float, np.ndarray]:
     The mode holds the free dofs of the (condensed) tangent, scaled to unit maximum norm (the
     condensed local dofs are 0: :func:`mode_constraint_ratio` and :func:`write_mode` extend it).
     """
-    problem.factorize()
-    A, fd = problem.linear.free_matrix()
-    d = np.sqrt(np.abs(A.diagonal()) + 1e-300)
-    ev, V = eigsh(sps.diags(1 / d) @ A @ sps.diags(1 / d), k=1, sigma=-1e-3, which="LM")
+    if indefinite_by_construction(problem):
+        raise ValueError("the uncondensed saddle-point tangent is indefinite by construction: no stability test")
+    ev, V, d, fd = _lowest_scaled(problem, 1)
     x = np.zeros(problem.X.ndof)
     x[fd] = V[:, 0] / d
     return float(ev[0]), x / max(float(np.max(np.abs(x))), 1e-300)
+
+
+def indefinite_by_construction(problem: ContinuumProblem) -> bool:
+    """True when the tangent keeps the multiplier Λ (uncondensed): a saddle point, no stability test."""
+    return not problem.linear.condensed and "lam" in problem.field_names
+
+
+def _lowest_scaled(problem: ContinuumProblem, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The k lowest eigenpairs of the diagonally scaled (unit-free) tangent at the current state.
+
+    Returns (eigenvalues, eigenvectors of the scaled matrix, the scaling d, the free dofs).
+    """
+    problem.factorize()
+    A, fd = problem.linear.free_matrix()
+    d = np.sqrt(np.abs(A.diagonal()) + 1e-300)
+    ev, V = eigsh(sps.diags(1 / d) @ A @ sps.diags(1 / d), k=k, sigma=-1e-3, which="LM")
+    return ev, V, d, fd
 
 
 def _ellipticity_losses(problem: ContinuumProblem) -> tuple[EllipticityLoss, ...]:
