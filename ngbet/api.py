@@ -177,15 +177,10 @@ class Result:
         return pv.read(str(path))
 
     def to_csv(self, path: str | Path) -> Path:
-        """Write the per-step table (every column of results.csv) to ``path``, LF line endings."""
-        path = Path(path)
-        names = list(self.columns)
-        with path.open("w", newline="") as fh:
-            w = csv.writer(fh, lineterminator="\n")
-            w.writerow(names)
-            for i in range(len(self.u0_mm)):
-                w.writerow([_cell(float(self.columns[n][i])) for n in names])
-        return path
+        """Copy the per-step table (the run's results.csv, every column as written) to ``path``."""
+        import shutil
+
+        return Path(shutil.copyfile(self.out / "results.csv", path))
 
     def plot(self, ax: Any = None, label: str | None = None, **kwargs: Any) -> Any:
         """Draw force against clamp displacement on ``ax`` (a new figure when None); returns ax.
@@ -235,9 +230,3 @@ def _read_profiles(path: Path) -> dict[float, tuple[np.ndarray, np.ndarray]]:
 
     return {u0: (np.asarray(X), np.asarray(uy)) for u0, (X, uy) in read_profiles(path).items()}
 
-
-def _cell(v: float) -> str:
-    """A value as results.csv writes it: integers without a decimal point, a missing value empty."""
-    if v != v:
-        return ""
-    return str(int(v)) if v.is_integer() and abs(v) < 2**53 else repr(v)

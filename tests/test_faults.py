@@ -320,7 +320,9 @@ def start_study(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
 
 def test_sigint_on_a_study_keeps_finished_cases_and_leaves_no_debris(tmp_path):
     p, cache = start_study(tmp_path)
+    wait_for(lambda: bool(workers_of(p.pid)))
     workers = workers_of(p.pid)
+    assert workers  # the check below must have workers to watch
     os.killpg(p.pid, signal.SIGINT)
     _, err = p.communicate(timeout=60)
     assert p.returncode == 130, err

@@ -214,9 +214,13 @@ def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
                  "--range", "0:200", "--predict", str(data)]) == 0
     doc = json.loads((out / "fit.json").read_text())
     assert set(doc["parameters"]) == set(TRUTH) and doc["model_runs"] >= 2
-    for p in TRUTH:
+    from scipy.stats import t as student
+
+    q = student.ppf(0.975, doc["points"] - len(TRUTH))  # Student t on ln p with n − k degrees of freedom
+    for p in TRUTH:  # the interval is value·exp(∓q·se) on ln p: its width follows the standard error
         lo, hi = doc["parameters"][p]["interval95"]
-        assert lo < doc["parameters"][p]["value"] < hi
+        se = doc["parameters"][p]["standard_error_log"]
+        assert math.log(hi / lo) == pytest.approx(2 * q * se, rel=1e-9)
     assert (out / "fit.png").stat().st_size > 10_000 and (out / "predict.png").exists()
     fitted = Scene.from_toml(out / "fitted_scene.toml")
     assert fitted.material.K_sh == pytest.approx(doc["parameters"]["material.K_sh"]["value"])
@@ -240,3 +244,27 @@ def test_measured_data_file_is_the_cao_curve():
     """The shipped data: 59 points to 105.6 mm, 22.52 N at the end (data/README.md)."""
     c = F.read_curve(CAO_DATA)
     assert len(c.u_mm) == 59 and c.u_mm[-1] == pytest.approx(105.6381) and c.force_N[-1] == pytest.approx(22.5202)
+
+
+def test_force_path_answers_every_requested_load_in_order(truth_curve):
+    """Repeated displacements (as measured data may have) get one force each, in the caller's order:
+    the same loads as a run without the repeat, to round-off."""
+    u = np.array([U_SYN[3], U_SYN[7], U_SYN[7], U_SYN[12]])
+    F_rep = force_path(synthetic_scene(), u).force_N
+    assert F_rep.shape == (4,) and F_rep[1] == F_rep[2]
+    assert F_rep[[0, 1, 3]] == pytest.approx(truth_curve[[3, 7, 12]], rel=1e-9)
+
+
+def test_a_fit_stopped_by_max_runs_says_so(truth_curve, tmp_path):
+    """Two model runs cannot converge from start values off by 1.6 and 0.6: fit.json says
+    ``converged: false``, the terminal line says NOT CONVERGED and the command exits 1."""
+    data = tmp_path / "synthetic.csv"
+    c = noisy(truth_curve, seed=4)
+    data.write_text("displacement_mm,force_N\n" + "".join(f"{u},{f}\n" for u, f in zip(c.u_mm, c.force_N, strict=True)))
+    scene = tmp_path / "start.toml"
+    scene.write_text(start_scene().to_toml())
+    out = tmp_path / "fit"
+    assert main(["fit", str(data), str(scene), "--params", "material.K_sh,material.K_lock", "--out", str(out),
+                 "--range", "0:200", "--max-runs", "2"]) == 1
+    doc = json.loads((out / "fit.json").read_text())
+    assert doc["converged"] is False and doc["model_runs"] <= 3

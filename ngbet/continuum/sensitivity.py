@@ -182,10 +182,14 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
                      max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
                      stops=[s * 1e-3 for s in u], on_step=rec)
     keys = np.array(sorted(rec.rows))
-    idx = [int(np.argmin(np.abs(keys - v))) for v in u]
-    F = np.array([rec.rows[keys[i]][0] for i in idx])
-    D = np.array([rec.rows[keys[i]][1] for i in idx]) if names else None
-    return ForcePath(u, F, D, float(keys[-1]) if len(keys) else 0.0, rec.profiles, rec.profile_dlogp)
+    # the force (and its derivatives) at each requested load, in the caller's order, repeats
+    # included; the unloaded state carries none; loads only asked for by the profile are left out
+    want = np.asarray(u_mm, dtype=float)
+    zero = (0.0, np.zeros(len(names)))
+    at = [rec.rows[keys[int(np.argmin(np.abs(keys - v)))]] if v > 0 else zero for v in want]
+    F = np.array([a[0] for a in at])
+    D = np.array([a[1] for a in at]) if names else None
+    return ForcePath(want, F, D, float(keys[-1]) if len(keys) else 0.0, rec.profiles, rec.profile_dlogp)
 
 
 def finite_difference(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str],

@@ -58,8 +58,6 @@ from .linsolve import FreeBlockSolver, LinearSolverError
 log = logging.getLogger(__name__)
 
 
-_QUADRATIC = True
-
 
 class Problem(Protocol):
     """What the solver needs from an energy minimization problem (see the module docstring)."""
@@ -526,7 +524,7 @@ class ShiftedNewton:
             if self.tangent is None:
                 self.tangent = self._tangent_at(self.lin, self.K)
             trial += h * self.tangent
-            if self.tangent_prev is not None and _QUADRATIC:
+            if self.tangent_prev is not None:
                 t_prev, h_prev = self.tangent_prev
                 trial[free] += 0.5 * h * h * (self.tangent[free] - t_prev[free]) / h_prev
         else:
