@@ -122,7 +122,6 @@ class PathResult:
     #: what path following found beyond displacement control (kind, load, force, mode), for the summary
     path_info: dict[str, object] = field(default_factory=dict)
     #: the error that ended displacement control when arc-length continuation took over
-    displacement_error: ConvergenceError | None = None
 
 
 def follow_path(corrector: Corrector, ctl: PathControl, *,

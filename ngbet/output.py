@@ -99,9 +99,10 @@ class RunWriter:
         self.scene = scene
         self.rows: list[dict[str, Any]] = []
         self.status = "new"
-        self.warnings: list[str] = []
         self.t_start = time.perf_counter()
-        self.warnings = preflight(scene)  # refuses before the folder is touched
+        # what every summary.json of this run carries, from the first ("running") to the last
+        self._base = {"pid": os.getpid(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        self.warnings: list[str] = preflight(scene)  # refuses before the folder is touched
         self._lock: IO[str] | None = _acquire_run_folder(self.out)
         _ACTIVE.add(self)
         try:
@@ -113,7 +114,7 @@ class RunWriter:
             self._rows_path = self.out / "results.csv"
             self._profile_path = self.out / "profile.csv"
             self._columns: list[str] | None = None
-            self.summary({"pid": os.getpid(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}, "running")
+            self.summary({}, "running")
         except BaseException:
             self.release()
             raise
@@ -201,6 +202,7 @@ class RunWriter:
             "u0_reached_mm": self.last_converged_mm,
             "last_converged_mm": self.last_converged_mm,
             "wall_s": time.perf_counter() - self.t_start,
+            **self._base,
             **info,
         }
         s["warnings"] = [*self.warnings, *info.get("warnings", [])]

@@ -870,19 +870,8 @@ def _fmt(v: Any) -> Any:
 
 
 def _read_csv(path: Path) -> list[dict[str, Any]]:
-    if not path.exists():
-        return []
-    with path.open() as fh:
-        return [{k: _num(v) for k, v in r.items()} for r in csv.DictReader(fh)]
-
-
-def _num(v: str) -> Any:
-    if v == "":
-        return ""
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return v
+    """A study CSV as rows of numbers (text kept), or no rows when the file is absent."""
+    return read_rows(path) if path.exists() else []
 
 
 def load(out: str | Path) -> StudyData:
@@ -903,6 +892,7 @@ def finish(study: Study, data: StudyData) -> list[Path]:
         try:
             figs = list(study.plot(data) or [])
         except MissingValueError as exc:
+            data.meta["report_error"] = str(exc)
             log.error("study %s: no figures: %s", study.name, exc)
     if study.report is not None:
         try:
@@ -912,6 +902,8 @@ def finish(study: Study, data: StudyData) -> list[Path]:
             data.meta["report_error"] = str(exc)
             log.error("study %s: no report: %s", study.name, exc)
         (data.out / "report.md").write_text(text)
+    if data.meta.get("report_error"):  # meta.json says so too (the command exits 1)
+        (data.out / "meta.json").write_text(json.dumps(data.meta, indent=2, default=str))
     return figs
 
 

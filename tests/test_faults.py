@@ -287,6 +287,25 @@ def test_no_reference_from_a_missing_value(ref_cache):
         C.reference(d, 10.0, 2, (20.0, 10.0, 5.0))
 
 
+def test_a_figure_from_a_missing_value_is_recorded_and_fails_the_command(ref_cache, tmp_path):
+    """A study whose plot meets a missing value draws nothing, and meta.json says why (the command
+    exits 1 on ``report_error``), as a report from a missing value does."""
+    import shutil
+
+    from ngbet.study import finish, load
+
+    _, _, d = ref_cache
+    shutil.copytree(d.out, tmp_path / "copy")
+    data = load(tmp_path / "copy")
+
+    def plot(_d):
+        raise MissingValueError("the force of case 1 at 10 mm is missing")
+
+    assert finish(Study("ref", Scene().with_changes(**TINY), [], plot=plot), data) == []
+    meta = json.loads((tmp_path / "copy" / "meta.json").read_text())
+    assert "case 1 at 10 mm" in meta["report_error"]
+
+
 def test_unreachable_scheduler_is_one_line_exit_3(tmp_path, capsys):
     t0 = time.monotonic()
     rc = main(["study", "alpha1", "--quick", "--quiet", "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c"),
@@ -400,3 +419,12 @@ def test_full_disk_during_a_run_exits_3_and_says_failed(tmp_path, capsys, monkey
     err = capsys.readouterr().err
     assert str(out) in err and "No space left" in err
     assert summary(out)["status"] == "failed" and "No space left" in summary(out)["error"]
+
+
+def test_the_final_summary_keeps_who_ran_it_and_when(tmp_path):
+    """pid and start time are written with "running" and kept in every later summary.json: the
+    finished folder says which process made it and when (they were lost at the final write)."""
+    s = run(Scene().with_changes(**TINY), tmp_path / "run")
+    on_disk = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert s["status"] == on_disk["status"] == "ok"
+    assert on_disk["pid"] == os.getpid() and on_disk["started"]

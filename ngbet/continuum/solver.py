@@ -315,7 +315,6 @@ def continuation(
         partial.u0 = err.last_converged_mm * 1e-3
         partial.attempts = list(err.attempts)
         partial.cuts = sum(not a.converged for a in err.attempts)
-        partial.displacement_error = err
         return arclength(partial)
 
 
