@@ -322,16 +322,14 @@ class _Tracker:
         self.lam_start = path.lam0
         self.tau_l = path.tau_l
         self.prev = Instability("", path.lam0 * 1e3, float(self.psi @ problem.residual()))
-        if self.eig is not None:
+        if self.eig is not None:  # it refactorizes at this same point: the tangent stands
             self.prev.lowest_eigenvalue, self.prev.mode = self.eig()
-            path.tangent(orient=True)  # the eigen-solve may have refactorized elsewhere: same point
 
     def point(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> Instability:
         """The record of the converged point the path stands at (its eigenpair when watched)."""
         here = Instability("", rec.u0 * 1e3, float(self.psi @ r) if r is not None else math.nan)
-        if self.eig is not None:
+        if self.eig is not None:  # it refactorizes at this same point: the tangent stands
             here.lowest_eigenvalue, here.mode = self.eig()
-            path.tangent(orient=True)
         return here
 
     def update(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> list[Instability]:
