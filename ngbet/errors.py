@@ -50,19 +50,24 @@ class ConvergenceError(NgbetError, RuntimeError):
     detail : object, optional
         The structured diagnosis the text was written from, e.g. the continuum's
         :class:`ngbet.continuum.stability.StabilityDiagnosis`.
+    path_info : dict, optional
+        What the path met before it stopped, for ``summary.json`` (e.g. the instabilities an
+        arc-length continuation passed, :attr:`ngbet.engine.PathResult.path_info`).
 
     Attributes
     ----------
-    last_converged_mm, attempts, diagnosis, detail
+    last_converged_mm, attempts, diagnosis, detail, path_info
         As given.
     """
 
     def __init__(self, message: str, last_converged_mm: float, attempts: Sequence[Attempt] = (),
-                 diagnosis: str = "", detail: object | None = None) -> None:
+                 diagnosis: str = "", detail: object | None = None,
+                 path_info: dict[str, object] | None = None) -> None:
         self.last_converged_mm = float(last_converged_mm)
         self.attempts = list(attempts)
         self.diagnosis = diagnosis
         self.detail = detail
+        self.path_info: dict[str, object] = dict(path_info or {})
         tail = "\n".join("  " + a.describe() for a in self.attempts[-8:])
         super().__init__(f"{message}\nlast converged load: {self.last_converged_mm:.6g} mm"
                          + (f"\ndiagnosis: {diagnosis}" if diagnosis else "")

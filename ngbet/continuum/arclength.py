@@ -70,6 +70,8 @@ class ArcLengthSettings:
     max_steps: int = 200
     #: the path is given up when it returns below this fraction of the load it started from
     floor: float = 0.9
+    #: loads [m] the path lands on the first time it reaches them (output stops), besides the target
+    stops: tuple[float, ...] = ()
 
 
 @dataclass
@@ -196,14 +198,16 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
     ds_max, ds_min = max(ctl.max_step / ctl.first_step, 1.0) * ds, ctl.min_step * n
     track = _Tracker(psi, lowest_eigenpair)
     track.start(problem, path)
+    reached = path.lam0  # the largest load reached: a stop is landed on once, on the way up
     for _ in range(ctl.max_steps):
         if path.lam0 >= ctl.target - 1e-12 * ctl.target:
             break
         if path.lam0 < ctl.floor * track.lam_start:
             break
-        to_target = _distance_to(path, ctl.target, ds)
+        land = _next_mark(ctl, reached)
+        to_target = _distance_to(path, land, ds)
         ds = min(ds, to_target)
-        ok, its, hist, why, r = path.step(ds, ctl.target if ds == to_target < math.inf else None)
+        ok, its, hist, why, r = path.step(ds, land if ds == to_target < math.inf else None)
         lam_to = float(getattr(problem, "lam", 0.0))
         res.attempts.append(Attempt(path.lam0, lam_to, ok, its, why, hist))
         if not ok:
@@ -224,6 +228,7 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
         found += new
         res.steps.append(rec)
         res.u0 = rec.u0
+        reached = max(reached, rec.u0)
         if on_step is not None:
             on_step(rec)
         if its <= settings.grow_after:
@@ -293,6 +298,12 @@ class _Switch:
         bif.details["branch"] = "stayed: no equilibrium found on the bifurcated branch"
         log.warning("no equilibrium found on the bifurcated branch at u0 = %.4g mm; staying", bif.u0_mm)
         return None
+
+
+def _next_mark(ctl: ArcLengthSettings, reached: float) -> float:
+    """The load the next step lands on if it would pass it: the first stop above ``reached``, else the target."""
+    tol = 1e-9 * ctl.target
+    return min([s for s in ctl.stops if reached + tol < s < ctl.target] + [ctl.target])
 
 
 def _distance_to(path: _Path, target: float, ds: float) -> float:
@@ -382,7 +393,8 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
     scene = problem.scene
     L = scene.loading
     ctl = ArcLengthSettings(target=L.u0_mm * 1e-3, first_step=L.first_step_mm * 1e-3,
-                            max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3)
+                            max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
+                            stops=tuple(s * 1e-3 for s in L.stops_mm))
     psi = problem.psi_u.vec.FV().NumPy().copy()
     # an uncondensed saddle-point tangent has no stability test: no instability by eigenvalue then
     indefinite = indefinite_by_construction(problem)
@@ -418,11 +430,10 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
 
             d = diagnose_stability(problem)
             kinds = ", ".join(f"{i.kind} at {i.u0_mm:.4g} mm" for i in found) or "none detected"
-            err = ConvergenceError(
+            raise ConvergenceError(
                 f"arc-length continuation from {start_mm:.6g} mm did not reach {ctl.target * 1e3:.6g} mm "
-                f"(instabilities passed: {kinds})", res.u0 * 1e3, res.attempts, d.message(), d)
-            err.path_info = res.path_info  # type: ignore[attr-defined]
-            raise err
+                f"(instabilities passed: {kinds})", res.u0 * 1e3, res.attempts, d.message(), d,
+                path_info=res.path_info)
         return res
 
     return run

@@ -56,7 +56,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             try:
                 res = _carry_load(problem, scene, recorder.on_step, bar, out)
             except ConvergenceError as err:
-                info.update(_solver_info(problem, None), **getattr(err, "path_info", {}))
+                info.update(_solver_info(problem, None), **err.path_info)
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
                     plot_force(out)

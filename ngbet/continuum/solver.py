@@ -298,9 +298,12 @@ def continuation(
     ctl = PathControl(target=target, first_step=first_step, max_step=max_step, min_step=min_step,
                       growth=settings.growth, cut=settings.cut, grow_after=settings.grow_after,
                       stops=tuple(stops), land_within=0.2, max_attempts=max_attempts)
-    corrector = SaddlePointNewton(problem, settings, diagnose, psi)
     if path_following != "auto" or arclength is None:
+        corrector = SaddlePointNewton(problem, settings, diagnose, psi)
         return follow_path(corrector, ctl, on_step=on_step, progress=progress)
+    # under "auto" a failure hands over to arc length, which reports the path's instabilities
+    # itself: no diagnosis (an eigen-solve) at the hand-over
+    corrector = SaddlePointNewton(problem, settings, None, psi)
     partial = PathResult(0.0)
 
     def keep(rec: StepRecord) -> None:
