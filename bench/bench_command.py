@@ -34,9 +34,11 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "out"
 
-#: name -> (``--set`` values, what it shows)
+#: name -> (``--set`` values, what it shows); the plot process variants set NGBET_PLOT_PROCESS
 VARIANTS: dict[str, tuple[list[str], str]] = {
-    "default": ([], "ngbet run, the embedded scene, as shipped"),
+    "default": ([], "ngbet run, the embedded scene, as shipped (NGBET_PLOT_PROCESS as set, else auto)"),
+    "plot-process": ([], "default, the plot drawn by the plot process (NGBET_PLOT_PROCESS=always)"),
+    "plot-here": ([], "default, the plot drawn in the run's process (NGBET_PLOT_PROCESS=never)"),
     "no-estimate": (["outputs.error_estimate=off"], "without the error estimate"),
     "no-estimate-vtk": (["outputs.error_estimate=off", "outputs.vtk=false"], "… and without the VTK file"),
     "bare": (["outputs.error_estimate=off", "outputs.vtk=false", "outputs.plot=false"],
@@ -45,6 +47,7 @@ VARIANTS: dict[str, tuple[list[str], str]] = {
     "native": (["solver.compile=native"], "default with the native energy (cached objects)"),
 }
 DEFAULT_VARIANTS = list(VARIANTS)
+PLOT_PROCESS = {"plot-process": "always", "plot-here": "never"}
 
 
 def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int]:
@@ -61,11 +64,14 @@ def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int]:
     return wall, usage.ru_maxrss / 1024, rc
 
 
-def run_variant(name: str, env: dict[str, str]) -> dict:
+def run_variant(name: str, env: dict[str, str], python: str = sys.executable) -> dict:
     """One ``ngbet run`` of a variant in a fresh process (``before:NAME``: with the older tree's ngbet)."""
-    sets = VARIANTS[name.removeprefix("before:")][0]
+    base = name.removeprefix("before:")
+    sets = VARIANTS[base][0]
+    if base in PLOT_PROCESS:
+        env = {**env, "NGBET_PLOT_PROCESS": PLOT_PROCESS[base]}
     with tempfile.TemporaryDirectory() as tmp:
-        argv = [sys.executable, "-m", "ngbet", "run", "--quiet", "--out", f"{tmp}/run"]
+        argv = [python, "-m", "ngbet", "run", "--quiet", "--out", f"{tmp}/run"]
         for s in sets:
             argv += ["--set", s]
         load = os.getloadavg()[0]
@@ -111,7 +117,8 @@ def main() -> None:
     ap.add_argument("--variants", default=",".join(DEFAULT_VARIANTS))
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--cache", help="NGBET_CACHE_DIR for the runs (default: as set, else ngbet's)")
-    ap.add_argument("--before", help="a source tree of ngbet: each variant also runs with it (PYTHONPATH)")
+    ap.add_argument("--before", help="a source tree of ngbet: each variant also runs with it (PYTHONPATH; "
+                    "with the tree's own .venv/bin/python when it has one)")
     ap.add_argument("--list", action="store_true")
     args = ap.parse_args()
     if args.list:
@@ -123,8 +130,12 @@ def main() -> None:
     if args.cache:
         env["NGBET_CACHE_DIR"] = args.cache
     envs = {name: env for name in names}
+    pythons = dict.fromkeys(names, sys.executable)
     if args.before:
-        envs.update({f"before:{n}": {**env, "PYTHONPATH": args.before} for n in names if n != "native"})
+        envs.update({f"before:{n}": {**env, "PYTHONPATH": args.before} for n in names
+                     if n != "native" and n not in PLOT_PROCESS})  # the older tree has neither
+        venv = Path(args.before) / ".venv" / "bin" / "python"
+        pythons.update({f"before:{n}": str(venv) if venv.exists() else sys.executable for n in names})
         names = [n for pair in zip(names, [f"before:{n}" for n in names], strict=True) for n in pair
                  if n in envs]
     records: list[dict] = []
@@ -133,7 +144,7 @@ def main() -> None:
     for _ in range(args.repeats):
         records.append({"variant": "imports", **imports(env)})
         for name in names:
-            records.append(run_variant(name, envs[name]))
+            records.append(run_variant(name, envs[name], pythons[name]))
             print(json.dumps(records[-1])[:240], flush=True)
     OUT.mkdir(exist_ok=True)
     stamp = time.strftime("%Y%m%dT%H%M%S")

@@ -222,10 +222,13 @@ def _main(argv: list[str] | None) -> int:
 
 def _run(scene: Scene, out: Path, progress: bool) -> int:
     """``ngbet run``: one line on success or failure; the details are in ``out``/summary.json."""
-    from .run import run
+    from .plot_process import plot_process
 
     try:
-        summary = run(scene, out, progress=progress)
+        with plot_process(scene.outputs.plot):  # started before NGSolve is imported (see its module)
+            from .run import run
+
+            summary = run(scene, out, progress=progress)
     except KeyboardInterrupt:
         _say(f"interrupted after u0 = {_last_converged_mm(out):g} mm; converged steps and "
              f"summary.json (status interrupted) are in {out}/")
