@@ -34,15 +34,30 @@ from .scene import Scene
 log = logging.getLogger(__name__)
 
 
+#: module -> the distribution that installs it
+DISTRIBUTIONS = {"ngbet": "ngbet", "ngsolve": "ngsolve", "netgen": "netgen-mesher", "numpy": "numpy", "scipy": "scipy"}
+
+
 def versions() -> dict[str, str]:
-    """Versions of the libraries a result depends on."""
+    """Versions of the libraries a result depends on.
+
+    The ``__version__`` of a module already imported (ngbet itself, NGSolve in a run), else the
+    installed package's metadata (no import: a study's process need not import NGSolve to name its
+    version); a module installed without metadata is imported; one not installed is left out.
+    """
+    import sys
+    from importlib.metadata import PackageNotFoundError, version
+
     out: dict[str, str] = {"python": platform.python_version()}
-    for mod in ("ngbet", "ngsolve", "netgen", "numpy", "scipy"):
+    for mod, dist in DISTRIBUTIONS.items():
         try:
-            m = __import__(mod)
-            out[mod] = str(getattr(m, "__version__", "unknown"))
-        except Exception:  # pragma: no cover - optional modules
-            pass
+            m = sys.modules.get(mod)
+            out[mod] = str(getattr(m, "__version__", "unknown")) if m is not None else version(dist)
+        except PackageNotFoundError:
+            try:
+                out[mod] = str(getattr(__import__(mod), "__version__", "unknown"))
+            except Exception:  # pragma: no cover - optional modules
+                pass
     return out
 
 
