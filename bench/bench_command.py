@@ -50,8 +50,12 @@ DEFAULT_VARIANTS = list(VARIANTS)
 PLOT_PROCESS = {"plot-process": "always", "plot-here": "never"}
 
 
-def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int]:
-    """Wall time [s], peak RSS [MB] of the child (its own rusage) and its exit code."""
+def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int, float]:
+    """Wall time [s], peak RSS [MB], exit code and CPU time [s] (user + system) of the child.
+
+    From the child's rusage, which holds its own processes too (the plot process): the peak RSS is
+    the largest of them, the CPU time their sum.
+    """
     with tempfile.TemporaryFile() as err:
         t0 = time.perf_counter()
         proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=err)
@@ -61,7 +65,7 @@ def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int]:
         if rc:
             err.seek(0)
             sys.stderr.write(err.read()[-2000:].decode(errors="replace"))
-    return wall, usage.ru_maxrss / 1024, rc
+    return wall, usage.ru_maxrss / 1024, rc, usage.ru_utime + usage.ru_stime
 
 
 def run_variant(name: str, env: dict[str, str], python: str = sys.executable) -> dict:
@@ -75,8 +79,8 @@ def run_variant(name: str, env: dict[str, str], python: str = sys.executable) ->
         for s in sets:
             argv += ["--set", s]
         load = os.getloadavg()[0]
-        wall, rss, rc = _child(argv, env)
-        rec: dict = {"variant": name, "wall_s": wall, "peak_rss_mb": rss, "load": load, "rc": rc}
+        wall, rss, rc, cpu = _child(argv, env)
+        rec: dict = {"variant": name, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss, "load": load, "rc": rc}
         summary = Path(tmp) / "run" / "summary.json"
         if summary.exists():
             s = json.loads(summary.read_text())
@@ -149,16 +153,22 @@ def main() -> None:
     OUT.mkdir(exist_ok=True)
     stamp = time.strftime("%Y%m%dT%H%M%S")
     (OUT / f"bench_command_{stamp}.json").write_text(json.dumps(records, indent=1))
-    print("\n| variant | wall [s] | setup [s] | solve [s] | estimate [s] | assembly [s] | peak RSS [MB] | load "
-          "| F(56) [N] |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("\n| variant | wall [s] | CPU [s] | setup [s] | solve [s] | estimate [s] | assembly [s] | peak RSS [MB] "
+          "| load | F(56) [N] |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for name in names + (["native-first"] if "native" in names else []):
         rs = [r for r in records if r["variant"] == name]
         asm = statistics.median([r["timers"]["assembly_s"] for r in rs if r.get("timers")] or [float("nan")])
         f = rs[-1].get("force_N")
-        print(f"| {name} | {_median(rs, 'wall_s'):.2f} | {_median(rs, 'setup_s'):.2f} | {_median(rs, 'solve_s'):.2f} | "
-              f"{_median(rs, 'estimate_s'):.2f} | {asm:.3f} | {_median(rs, 'peak_rss_mb'):.0f} | "
-              f"{_median(rs, 'load'):.1f} | {f} |")
+        print(f"| {name} | {_median(rs, 'wall_s'):.2f} | {_median(rs, 'cpu_s'):.2f} | {_median(rs, 'setup_s'):.2f} | "
+              f"{_median(rs, 'solve_s'):.2f} | {_median(rs, 'estimate_s'):.2f} | {asm:.3f} | "
+              f"{_median(rs, 'peak_rss_mb'):.0f} | {_median(rs, 'load'):.1f} | {f} |")
+    for name in [n for n in names if f"before:{n}" in names] + [n for n in PLOT_PROCESS if n in names]:
+        ref = f"before:{name}" if f"before:{name}" in names else "before:default"
+        if ref in names:
+            a, b = ([r for r in records if r["variant"] == v] for v in (name, ref))
+            print(f"{name} / {ref}: wall {_median(a, 'wall_s') / _median(b, 'wall_s'):.2f}, "
+                  f"CPU {_median(a, 'cpu_s') / _median(b, 'cpu_s'):.2f}")
     imp = [r for r in records if r["variant"] == "imports"]
     print("imports (median wall of a fresh process):",
           {k: round(statistics.median(r[k] for r in imp), 3) for k in imp[0] if k != "variant"})

@@ -384,8 +384,13 @@ def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], 
     return draw_force(Path(run_dir), extra)
 
 
-def draw_force(run_dir: Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> Path | None:
-    """Draw force.png and force.pdf of ``run_dir`` in this process (see :func:`plot_force`)."""
+def draw_force(run_dir: Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = (),
+               fork_pdf: bool = False) -> Path | None:
+    """Draw force.png and force.pdf of ``run_dir`` in this process (see :func:`plot_force`).
+
+    ``fork_pdf``: a forked child writes the PDF while this process writes the PNG (for a process
+    without threads, such as the plot process; if the child fails, the PDF is written here).
+    """
     try:
         from matplotlib.figure import Figure
     except ImportError:
@@ -395,9 +400,18 @@ def draw_force(run_dir: Path, extra: Iterable[tuple[str, Sequence[float], Sequen
     if not rows or "force_N" not in rows[0]:
         return None
     fig = _force_figure(Figure, rows, extra)
-    png = run_dir / "force.png"
+    png, pdf = run_dir / "force.png", run_dir / "force.pdf"
+    child = os.fork() if fork_pdf else -1
+    if child == 0:  # the child: the PDF, and out without running anything of the parent's
+        code = 1
+        try:
+            fig.savefig(pdf)
+            code = 0
+        finally:
+            os._exit(code)
     fig.savefig(png, dpi=PNG_DPI)
-    fig.savefig(run_dir / "force.pdf")
+    if child < 0 or os.waitstatus_to_exitcode(os.waitpid(child, 0)[1]) != 0:
+        fig.savefig(pdf)
     return png
 
 

@@ -5,7 +5,8 @@ first drawing (fonts, the mathtext parser), all of it independent of the results
 with an idle core the command starts this process before it imports NGSolve: it imports
 matplotlib and draws one throw-away figure while the run solves, then waits on its stdin for the
 run folder, draws ``force.png`` and ``force.pdf`` with the same function as the run itself
-(:func:`ngbet.output.draw_force`, so the figure is the same) and answers on its stdout.
+(:func:`ngbet.output.draw_force`, so the figure is the same; the PDF written by a forked child
+while the PNG is written) and answers on its stdout.
 
 Nothing depends on it: when it is not running, died, or answers with an error, the run draws
 the figure itself (the log says why at INFO level). It is a child of the run in its own session
@@ -144,7 +145,8 @@ def serve(stdin: IO[bytes] | None = None, stdout: IO[bytes] | None = None) -> No
     for line in stdin:
         try:
             req = json.loads(line)
-            png = draw_force(Path(req["run_dir"]), [(lab, x, y) for lab, x, y in req.get("extra", [])])
+            png = draw_force(Path(req["run_dir"]), [(lab, x, y) for lab, x, y in req.get("extra", [])],
+                             fork_pdf=hasattr(os, "fork"))
             answer: dict[str, Any] = {"png": str(png) if png is not None else None}
         except Exception as exc:  # reported to the run, which draws the figure itself
             answer = {"error": f"{type(exc).__name__}: {exc}"}

@@ -32,8 +32,9 @@ def pixels(png: Path) -> np.ndarray:
     return matplotlib.image.imread(png)
 
 
-def test_the_plot_process_draws_the_figure_of_the_run_itself(tmp_path):
-    """Same pixels as drawn in this process (one function draws both), and a PDF beside the PNG."""
+def test_the_plot_process_draws_the_figure_of_the_run_itself(tmp_path, monkeypatch):
+    """Same pixels as drawn in this process (one function draws both), the same PDF (written by its child)."""
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "0")  # matplotlib's PDF then has no time in it
     here = draw_force(run_folder(tmp_path / "here"))
     proc = plot_process.PlotProcess()
     try:
@@ -42,6 +43,7 @@ def test_the_plot_process_draws_the_figure_of_the_run_itself(tmp_path):
         proc.close()
     assert there == (tmp_path / "there" / "force.png").resolve() and (tmp_path / "there" / "force.pdf").exists()
     np.testing.assert_array_equal(pixels(there), pixels(here))
+    assert (tmp_path / "there" / "force.pdf").read_bytes() == (tmp_path / "here" / "force.pdf").read_bytes()
 
 
 def test_a_dead_plot_process_leaves_the_drawing_to_the_run(tmp_path, monkeypatch):
