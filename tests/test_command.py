@@ -70,8 +70,8 @@ def test_a_failed_drawing_is_reported_by_the_plot_process(tmp_path):
 
 
 @pytest.mark.parametrize(("choice", "load", "expected"), [
-    ("never", 0.0, False), ("always", 99.0, True), ("auto", 0.0, True), ("auto", 99.0, False),
-    ("sometimes", 0.0, True)])  # an unknown choice is auto (with a warning)
+    ("never", 0.0, False), ("always", 99.0, True), ("auto", 0.0, True), ("auto", 1.5, True), ("auto", 1.6, False),
+    ("sometimes", 0.0, True)])  # 2 cores: auto while half a core is idle; an unknown choice is auto
 def test_the_plot_process_runs_as_asked_and_in_auto_only_on_an_idle_core(monkeypatch, choice, load, expected):
     monkeypatch.setenv(plot_process.ENV, choice)
     monkeypatch.delitem(sys.modules, "ngsolve", raising=False)
