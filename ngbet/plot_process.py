@@ -50,8 +50,10 @@ class PlotProcess:
     """The running plot process (see the module docstring)."""
 
     def __init__(self) -> None:
-        self.proc = subprocess.Popen([sys.executable, "-c", "from ngbet.plot_process import serve; serve()"],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
+        root = str(Path(__file__).resolve().parent.parent)  # this ngbet, however it was found
+        code = f"import sys; sys.path.insert(0, {root!r}); from ngbet.plot_process import serve; serve()"
+        self.proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     start_new_session=True)
 
     def plot(self, run_dir: str | Path,
              extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> Path | None:
@@ -147,7 +149,10 @@ def serve(stdin: IO[bytes] | None = None, stdout: IO[bytes] | None = None) -> No
     stdout = stdout or sys.stdout.buffer
     from .output import draw_force, warm_up
 
-    warm_up()
+    try:
+        warm_up()
+    except Exception as exc:  # the requests will say what fails
+        log.debug("warm-up failed: %s", exc)
     for line in stdin:
         try:
             req = json.loads(line)
