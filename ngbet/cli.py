@@ -229,7 +229,9 @@ def _run(scene: Scene, out: Path, progress: bool) -> int:
     from .plot_process import plot_process
 
     try:
-        with plot_process(scene.outputs.plot):  # started before NGSolve is imported (see its module)
+        # started before NGSolve is imported (see its module); not for the discrete model, whose
+        # yarn figures import matplotlib into the run's process anyway
+        with plot_process(scene.outputs.plot and scene.model == "continuum"):
             from .run import run
 
             summary = run(scene, out, progress=progress)
