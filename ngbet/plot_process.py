@@ -16,8 +16,8 @@ i.e. when the run ends by any means, SIGKILL included.
 ``NGBET_PLOT_PROCESS`` chooses: ``auto`` (default: only when the machine has the half core the
 process needs to spare, i.e. the 1-minute load average is at most the number of usable cores
 minus 0.5), ``always`` or ``never``. On a saturated machine the process still shortens the run
-(measured on 2 cores at load 5: 0.85× the wall time) but costs about 0.3 s more CPU time in
-all, which the other jobs pay; ``auto`` leaves it out there.
+(measured on 2 cores at load 4 to 5: 0.80–0.94× the median wall time in three sittings) but
+costs about 0.2–0.3 s more CPU time in all, which the other jobs pay; ``auto`` leaves it out there.
 
 Protocol: one JSON line per request, ``{"run_dir": str, "extra": [[label, x, y], ...]}``; one JSON
 line per answer, ``{"png": str | None}`` or ``{"error": str}``.
