@@ -705,9 +705,11 @@ def _submit_and_collect(ex: Any, todo: list[_Case], wds: dict[Any, Path], thread
         raise
 
 
-#: what the fork server imports, once for all its workers, by the model of the cases
+#: what the fork server imports, once for all its workers, by the model of the cases ("plot": cases
+#: that draw their figures)
 PRELOAD = {"continuum": ["ngbet.study", "ngbet.run", "ngbet.continuum.run"],
-           "discrete": ["ngbet.study", "ngbet.run", "ngbet.discrete"]}
+           "discrete": ["ngbet.study", "ngbet.run", "ngbet.discrete"],
+           "plot": ["matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.backends.backend_pdf"]}
 
 
 def _worker_context(todo: list[_Case]) -> Any:
@@ -724,8 +726,9 @@ def _worker_context(todo: list[_Case]) -> Any:
     if "forkserver" not in mp.get_all_start_methods():
         return mp.get_context("spawn")
     ctx = mp.get_context("forkserver")
-    models = {c.scene.model for c in todo if c.scene is not None}
-    ctx.set_forkserver_preload(list(dict.fromkeys(m for model in sorted(models) for m in PRELOAD.get(model, []))))
+    kinds = sorted({c.scene.model for c in todo if c.scene is not None})
+    kinds += ["plot"] if any(c.scene.outputs.plot for c in todo if c.scene is not None) else []
+    ctx.set_forkserver_preload(list(dict.fromkeys(m for kind in kinds for m in PRELOAD[kind])))
     return ctx
 
 
