@@ -6,7 +6,9 @@ interleaved (a, b, c, a, b, c, …) so that load on the shared machine hits them
 processes measure the imports alone (``import ngbet.cli``; ``import ngsolve``). Per run the record
 holds the wall time, peak RSS of the child (``resource.getrusage``), the 1-minute load average
 before it, and from its summary.json: setup, solve and estimate time, the solver timers, the force.
-The differences between variants give the cost of the VTK file, the plot, the estimate.
+The differences between variants give the cost of the VTK file, the plot, the estimate. The table
+gives medians and, for a machine that other jobs load, the shortest wall time of each variant too
+(the repeat that met the least load).
 
     python bench/bench_command.py                          # all variants, 3 repeats
     python bench/bench_command.py --variants default,no-estimate --repeats 5
@@ -34,9 +36,11 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "out"
 
-#: name -> (``--set`` values, what it shows)
+#: name -> (``--set`` values, what it shows); the plot process variants set NGBET_PLOT_PROCESS
 VARIANTS: dict[str, tuple[list[str], str]] = {
-    "default": ([], "ngbet run, the embedded scene, as shipped"),
+    "default": ([], "ngbet run, the embedded scene, as shipped (NGBET_PLOT_PROCESS as set, else auto)"),
+    "plot-process": ([], "default, the plot drawn by the plot process (NGBET_PLOT_PROCESS=always)"),
+    "plot-here": ([], "default, the plot drawn in the run's process (NGBET_PLOT_PROCESS=never)"),
     "no-estimate": (["outputs.error_estimate=off"], "without the error estimate"),
     "no-estimate-vtk": (["outputs.error_estimate=off", "outputs.vtk=false"], "… and without the VTK file"),
     "bare": (["outputs.error_estimate=off", "outputs.vtk=false", "outputs.plot=false"],
@@ -45,10 +49,15 @@ VARIANTS: dict[str, tuple[list[str], str]] = {
     "native": (["solver.compile=native"], "default with the native energy (cached objects)"),
 }
 DEFAULT_VARIANTS = list(VARIANTS)
+PLOT_PROCESS = {"plot-process": "always", "plot-here": "never"}
 
 
-def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int]:
-    """Wall time [s], peak RSS [MB] of the child (its own rusage) and its exit code."""
+def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int, float]:
+    """Wall time [s], peak RSS [MB], exit code and CPU time [s] (user + system) of the child.
+
+    From the child's rusage, which holds its own processes too (the plot process): the peak RSS is
+    the largest of them, the CPU time their sum.
+    """
     with tempfile.TemporaryFile() as err:
         t0 = time.perf_counter()
         proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=err)
@@ -58,19 +67,22 @@ def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int]:
         if rc:
             err.seek(0)
             sys.stderr.write(err.read()[-2000:].decode(errors="replace"))
-    return wall, usage.ru_maxrss / 1024, rc
+    return wall, usage.ru_maxrss / 1024, rc, usage.ru_utime + usage.ru_stime
 
 
-def run_variant(name: str, env: dict[str, str]) -> dict:
+def run_variant(name: str, env: dict[str, str], python: str = sys.executable) -> dict:
     """One ``ngbet run`` of a variant in a fresh process (``before:NAME``: with the older tree's ngbet)."""
-    sets = VARIANTS[name.removeprefix("before:")][0]
+    base = name.removeprefix("before:")
+    sets = VARIANTS[base][0]
+    if base in PLOT_PROCESS:
+        env = {**env, "NGBET_PLOT_PROCESS": PLOT_PROCESS[base]}
     with tempfile.TemporaryDirectory() as tmp:
-        argv = [sys.executable, "-m", "ngbet", "run", "--quiet", "--out", f"{tmp}/run"]
+        argv = [python, "-m", "ngbet", "run", "--quiet", "--out", f"{tmp}/run"]
         for s in sets:
             argv += ["--set", s]
         load = os.getloadavg()[0]
-        wall, rss, rc = _child(argv, env)
-        rec: dict = {"variant": name, "wall_s": wall, "peak_rss_mb": rss, "load": load, "rc": rc}
+        wall, rss, rc, cpu = _child(argv, env)
+        rec: dict = {"variant": name, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss, "load": load, "rc": rc}
         summary = Path(tmp) / "run" / "summary.json"
         if summary.exists():
             s = json.loads(summary.read_text())
@@ -111,7 +123,8 @@ def main() -> None:
     ap.add_argument("--variants", default=",".join(DEFAULT_VARIANTS))
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--cache", help="NGBET_CACHE_DIR for the runs (default: as set, else ngbet's)")
-    ap.add_argument("--before", help="a source tree of ngbet: each variant also runs with it (PYTHONPATH)")
+    ap.add_argument("--before", help="a source tree of ngbet: each variant also runs with it (PYTHONPATH; "
+                    "with the tree's own .venv/bin/python when it has one)")
     ap.add_argument("--list", action="store_true")
     args = ap.parse_args()
     if args.list:
@@ -123,8 +136,12 @@ def main() -> None:
     if args.cache:
         env["NGBET_CACHE_DIR"] = args.cache
     envs = {name: env for name in names}
+    pythons = dict.fromkeys(names, sys.executable)
     if args.before:
-        envs.update({f"before:{n}": {**env, "PYTHONPATH": args.before} for n in names if n != "native"})
+        envs.update({f"before:{n}": {**env, "PYTHONPATH": args.before} for n in names
+                     if n != "native" and n not in PLOT_PROCESS})  # the older tree has neither
+        venv = Path(args.before) / ".venv" / "bin" / "python"
+        pythons.update({f"before:{n}": str(venv) if venv.exists() else sys.executable for n in names})
         names = [n for pair in zip(names, [f"before:{n}" for n in names], strict=True) for n in pair
                  if n in envs]
     records: list[dict] = []
@@ -133,21 +150,28 @@ def main() -> None:
     for _ in range(args.repeats):
         records.append({"variant": "imports", **imports(env)})
         for name in names:
-            records.append(run_variant(name, envs[name]))
+            records.append(run_variant(name, envs[name], pythons[name]))
             print(json.dumps(records[-1])[:240], flush=True)
     OUT.mkdir(exist_ok=True)
     stamp = time.strftime("%Y%m%dT%H%M%S")
     (OUT / f"bench_command_{stamp}.json").write_text(json.dumps(records, indent=1))
-    print("\n| variant | wall [s] | setup [s] | solve [s] | estimate [s] | assembly [s] | peak RSS [MB] | load "
-          "| F(56) [N] |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("\n| variant | wall [s] | min wall [s] | CPU [s] | setup [s] | solve [s] | estimate [s] | assembly [s] "
+          "| peak RSS [MB] | load | F(56) [N] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in names + (["native-first"] if "native" in names else []):
         rs = [r for r in records if r["variant"] == name]
         asm = statistics.median([r["timers"]["assembly_s"] for r in rs if r.get("timers")] or [float("nan")])
         f = rs[-1].get("force_N")
-        print(f"| {name} | {_median(rs, 'wall_s'):.2f} | {_median(rs, 'setup_s'):.2f} | {_median(rs, 'solve_s'):.2f} | "
-              f"{_median(rs, 'estimate_s'):.2f} | {asm:.3f} | {_median(rs, 'peak_rss_mb'):.0f} | "
-              f"{_median(rs, 'load'):.1f} | {f} |")
+        print(f"| {name} | {_median(rs, 'wall_s'):.2f} | {min(r['wall_s'] for r in rs):.2f} | "
+              f"{_median(rs, 'cpu_s'):.2f} | {_median(rs, 'setup_s'):.2f} | "
+              f"{_median(rs, 'solve_s'):.2f} | {_median(rs, 'estimate_s'):.2f} | {asm:.3f} | "
+              f"{_median(rs, 'peak_rss_mb'):.0f} | {_median(rs, 'load'):.1f} | {f} |")
+    for name in [n for n in names if f"before:{n}" in names] + [n for n in PLOT_PROCESS if n in names]:
+        ref = f"before:{name}" if f"before:{name}" in names else "before:default"
+        if ref in names:
+            a, b = ([r for r in records if r["variant"] == v] for v in (name, ref))
+            print(f"{name} / {ref}: wall {_median(a, 'wall_s') / _median(b, 'wall_s'):.2f}, "
+                  f"CPU {_median(a, 'cpu_s') / _median(b, 'cpu_s'):.2f}")
     imp = [r for r in records if r["variant"] == "imports"]
     print("imports (median wall of a fresh process):",
           {k: round(statistics.median(r[k] for r in imp), 3) for k in imp[0] if k != "variant"})

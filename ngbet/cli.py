@@ -163,7 +163,8 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_INTERRUPTED
 
 
-def _parser() -> argparse.ArgumentParser:
+def _parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The command line; for ``command`` "run" or "scene" without the study and fit commands (not imported)."""
     parser = argparse.ArgumentParser(prog="ngbet", description="Bias extension tests of woven fabrics (NGSolve).",
                                      epilog=EPILOG)
     parser.add_argument("--version", action="version", version=_version())
@@ -181,6 +182,8 @@ def _parser() -> argparse.ArgumentParser:
     ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    if command in ("run", "scene"):
+        return parser
     pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them",
                          epilog=EPILOG)
     pst.add_argument("name", help="study name (reference, work_precision, penalty_p, alpha1, kel, curves, maps, "
@@ -195,7 +198,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _main(argv: list[str] | None) -> int:
-    args = _parser().parse_args(argv)
+    words = sys.argv[1:] if argv is None else argv
+    args = _parser(words[0] if words else None).parse_args(argv)
     if args.command == "study":
         return _study(args)
     if args.command == "fit":
@@ -222,10 +226,15 @@ def _main(argv: list[str] | None) -> int:
 
 def _run(scene: Scene, out: Path, progress: bool) -> int:
     """``ngbet run``: one line on success or failure; the details are in ``out``/summary.json."""
-    from .run import run
+    from .plot_process import plot_process
 
     try:
-        summary = run(scene, out, progress=progress)
+        # started before NGSolve is imported (see its module); not for the discrete model, whose
+        # yarn figures import matplotlib into the run's process anyway
+        with plot_process(scene.outputs.plot and scene.model == "continuum"):
+            from .run import run
+
+            summary = run(scene, out, progress=progress)
     except KeyboardInterrupt:
         _say(f"interrupted after u0 = {_last_converged_mm(out):g} mm; converged steps and "
              f"summary.json (status interrupted) are in {out}/")

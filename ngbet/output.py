@@ -34,15 +34,30 @@ from .scene import Scene
 log = logging.getLogger(__name__)
 
 
+#: module -> the distribution that installs it
+DISTRIBUTIONS = {"ngbet": "ngbet", "ngsolve": "ngsolve", "netgen": "netgen-mesher", "numpy": "numpy", "scipy": "scipy"}
+
+
 def versions() -> dict[str, str]:
-    """Versions of the libraries a result depends on."""
+    """Versions of the libraries a result depends on.
+
+    The ``__version__`` of a module already imported (ngbet itself, NGSolve in a run), else the
+    installed package's metadata (no import: a study's process need not import NGSolve to name its
+    version); a module installed without metadata is imported; one not installed is left out.
+    """
+    import sys
+    from importlib.metadata import PackageNotFoundError, version
+
     out: dict[str, str] = {"python": platform.python_version()}
-    for mod in ("ngbet", "ngsolve", "netgen", "numpy", "scipy"):
+    for mod, dist in DISTRIBUTIONS.items():
         try:
-            m = __import__(mod)
-            out[mod] = str(getattr(m, "__version__", "unknown"))
-        except Exception:  # pragma: no cover - optional modules
-            pass
+            m = sys.modules.get(mod)
+            out[mod] = str(getattr(m, "__version__", "unknown")) if m is not None else version(dist)
+        except PackageNotFoundError:
+            try:
+                out[mod] = str(getattr(__import__(mod), "__version__", "unknown"))
+            except Exception:  # pragma: no cover - optional modules
+                pass
     return out
 
 
@@ -354,25 +369,77 @@ def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], 
 
     The converged steps are marked; between them the curve is the cubic Hermite interpolant of the
     force and dF/du0 when results.csv has ``dforce_du0_N_per_mm``, else straight lines (the legend
-    says which). Returns None, with a note in the log, when matplotlib is not installed.
+    says which). ``extra``: more curves (label, u0 [mm], force [N]), dashed. Drawn by the run's plot
+    process when one runs (:mod:`ngbet.plot_process`), else here; the figure is the same. Returns
+    None, with a note in the log, when matplotlib is not installed or results.csv has no force.
+    """
+    from .plot_process import PlotProcessError, active
+
+    proc = active()
+    if proc is not None:
+        try:
+            return proc.plot(run_dir, extra)
+        except PlotProcessError as exc:
+            log.info("the plot process did not draw %s (%s): drawing it here", run_dir, exc)
+    return draw_force(Path(run_dir), extra)
+
+
+def draw_force(run_dir: Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = (),
+               fork_pdf: bool = False) -> Path | None:
+    """Draw force.png and force.pdf of ``run_dir`` in this process (see :func:`plot_force`).
+
+    ``fork_pdf``: a forked child writes the PDF while this process writes the PNG (for a process
+    without threads, such as the plot process; if the child fails, the PDF is written here).
     """
     try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
     except ImportError:
         log.warning("no force plot: matplotlib is not installed (pip install 'ngbet[viz]')")
         return None
-    from .plotting import force_curve
-
-    run_dir = Path(run_dir)
     rows = read_rows(run_dir / "results.csv")
     if not rows or "force_N" not in rows[0]:
         return None
+    fig = _force_figure(Figure, rows, extra)
+    png, pdf = run_dir / "force.png", run_dir / "force.pdf"
+    child = os.fork() if fork_pdf else -1
+    if child == 0:  # the child: the PDF, and out without running anything of the parent's
+        code = 1
+        try:
+            fig.savefig(pdf)
+            code = 0
+        finally:
+            os._exit(code)
+    fig.savefig(png, dpi=PNG_DPI)
+    if child < 0 or os.waitstatus_to_exitcode(os.waitpid(child, 0)[1]) != 0:
+        fig.savefig(pdf)
+    return png
+
+
+PNG_DPI = 130
+
+
+def warm_up() -> None:
+    """Draw a throw-away force figure into memory: loads matplotlib's fonts, mathtext and PDF backend."""
+    import io
+
+    from matplotlib.figure import Figure
+
+    rows = [{"u0_mm": u, "force_N": u * u, "dforce_du0_N_per_mm": 2 * u, "force_error_N": 0.1,
+             "double_force_Nm": 0.1 * u} for u in (1.0, 2.0)]
+    fig = _force_figure(Figure, rows, [("extra", [0.0, 2.0], [0.0, 4.0])])
+    fig.savefig(io.BytesIO(), format="png", dpi=PNG_DPI)
+    fig.savefig(io.BytesIO(), format="pdf")
+
+
+def _force_figure(figure: Any, rows: list[dict[str, Any]],
+                  extra: Iterable[tuple[str, Sequence[float], Sequence[float]]]) -> Any:
+    """The force figure of the rows of a results.csv (``figure``: matplotlib's Figure class)."""
+    from .plotting import force_curve
+
     u0 = [r["u0_mm"] for r in rows]
     has_T = "double_force_Nm" in rows[0]
-    fig, axes = plt.subplots(1, 2 if has_T else 1, figsize=(10 if has_T else 5.5, 4), squeeze=False)
+    fig = figure(figsize=(10 if has_T else 5.5, 4))
+    axes = fig.subplots(1, 2 if has_T else 1, squeeze=False)
     ax = axes[0, 0]
     dF = [r["dforce_du0_N_per_mm"] for r in rows] if "dforce_du0_N_per_mm" in rows[0] else None
     force_curve(ax, u0, [r["force_N"] for r in rows], dF, label="force")
@@ -391,8 +458,4 @@ def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], 
         ax2.grid(alpha=0.3)
         ax2.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
-    png = run_dir / "force.png"
-    fig.savefig(png, dpi=130)
-    fig.savefig(run_dir / "force.pdf")
-    plt.close(fig)
-    return png
+    return fig

@@ -42,14 +42,16 @@ SIGKILL, whose leftover folders the next study removes. An unreachable dask sche
 :class:`SchedulerError` after at most 5 s.
 
 Execution: in this process (``workers = 1``), in local processes (default: one per core,
-``concurrent.futures`` with the spawn start method) or on a dask.distributed cluster given its
-scheduler address (``distributed.Client.submit``; the workers need ngbet installed, they return
-the run folder's files to the client, so no shared file system is needed).
+``concurrent.futures``, forked by a fork server that has imported ngbet and NGSolve once) or on
+a dask.distributed cluster given its scheduler address (``distributed.Client.submit``; the workers
+need ngbet installed, they return the run folder's files to the client, so no shared file system
+is needed).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import fcntl
 import hashlib
@@ -523,24 +525,29 @@ class SchedulerError(NgbetError):
 
 
 SCHEDULER_TIMEOUT_S = 5.0
-PARENT_POLL_S = 0.5
 
 
-def _worker_init(parent: int) -> None:
+def _worker_init(parent_alive: Any, ngbet_env: dict[str, str]) -> None:
     """Start of a local worker process: Ctrl-C is for the parent, and the worker exits when the parent dies.
 
     The parent keeps the finished cases and stops the workers; the worker exits by itself even when the
-    parent dies by SIGKILL.
+    parent dies by SIGKILL: ``parent_alive`` is the read end of a pipe whose only write end the parent
+    holds, so that it reads end-of-file when the parent is gone (whoever the worker's own parent is,
+    and whether or not the dead one is reaped). ``ngbet_env``: the parent's ``NGBET_*`` variables now
+    (the fork server's environment is the one it started with).
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True, name="ngbet-parent-watch").start()
+    for k in [k for k in os.environ if k.startswith("NGBET_") and k not in ngbet_env]:
+        del os.environ[k]
+    os.environ.update(ngbet_env)
+    threading.Thread(target=_exit_with_parent, args=(parent_alive,), daemon=True, name="ngbet-parent-watch").start()
 
 
-def _exit_with_parent(parent: int) -> None:
-    while True:
-        time.sleep(PARENT_POLL_S)
-        if os.getppid() != parent:
-            os._exit(1)
+def _exit_with_parent(parent_alive: Any) -> None:
+    with contextlib.suppress(EOFError, OSError):
+        while True:
+            parent_alive.recv()  # nothing is ever sent: returns by EOFError
+    os._exit(1)
 
 
 class _Bar:
@@ -638,10 +645,10 @@ def _execute(todo: list[_Case], cache: Path, mode: str, nworkers: int | None, sc
 def _run_processes(todo: list[_Case], wds: dict[Any, Path], nworkers: int | None, threads: int,
                    running: dict[str, tuple[Path, float]], lock: threading.Lock,
                    finished: Callable[[_Case, dict[str, Any], Path | None], None]) -> None:
-    """Local worker processes (spawned; they exit with this process, see :func:`_worker_init`)."""
+    """Local worker processes (forked by a fork server; they exit with this process, see :func:`_worker_init`)."""
     from ._env import environ
 
-    # one BLAS thread per worker too (inherited at spawn; workers may spawn while the cases run)
+    # one BLAS thread per worker too (inherited by the fork server when it starts, and by its workers)
     with environ({k: str(threads) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}):
         _run_pool(todo, wds, nworkers, threads, running, lock, finished)
 
@@ -649,12 +656,26 @@ def _run_processes(todo: list[_Case], wds: dict[Any, Path], nworkers: int | None
 def _run_pool(todo: list[_Case], wds: dict[Any, Path], nworkers: int | None, threads: int,
               running: dict[str, tuple[Path, float]], lock: threading.Lock,
               finished: Callable[[_Case, dict[str, Any], Path | None], None]) -> None:
-    """Run the cases on a pool of spawned worker processes; an interrupt keeps the finished ones."""
+    """Run the cases on a pool of local worker processes; an interrupt keeps the finished ones."""
     import concurrent.futures as cf
-    import multiprocessing as mp
 
-    ex = cf.ProcessPoolExecutor(max_workers=nworkers, mp_context=mp.get_context("spawn"),
-                                initializer=_worker_init, initargs=(os.getpid(),))
+    ctx = _worker_context(todo)
+    alive_r, alive_w = ctx.Pipe(duplex=False)  # closed when this process ends: see _worker_init
+    ex = cf.ProcessPoolExecutor(max_workers=nworkers, mp_context=ctx, initializer=_worker_init,
+                                initargs=(alive_r, {k: v for k, v in os.environ.items() if k.startswith("NGBET_")}))
+    try:
+        _submit_and_collect(ex, todo, wds, threads, running, lock, finished)
+    finally:
+        alive_w.close()
+        alive_r.close()
+
+
+def _submit_and_collect(ex: Any, todo: list[_Case], wds: dict[Any, Path], threads: int,
+                        running: dict[str, tuple[Path, float]], lock: threading.Lock,
+                        finished: Callable[[_Case, dict[str, Any], Path | None], None]) -> None:
+    """Submit the cases to the pool ``ex`` and record each as it finishes; an interrupt keeps the finished ones."""
+    import concurrent.futures as cf
+
     futs: dict[Any, tuple[_Case, Path]] = {}
     consumed: set[Any] = set()
 
@@ -682,6 +703,33 @@ def _run_pool(todo: list[_Case], wds: dict[Any, Path], nworkers: int | None, thr
                 take(fut)
         _stop_pool(ex)
         raise
+
+
+#: what the fork server imports, once for all its workers, by the model of the cases ("plot": cases
+#: that draw their figures)
+PRELOAD = {"continuum": ["ngbet.study", "ngbet.run", "ngbet.continuum.run"],
+           "discrete": ["ngbet.study", "ngbet.run", "ngbet.discrete"],
+           "plot": ["matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.backends.backend_pdf"]}
+
+
+def _worker_context(todo: list[_Case]) -> Any:
+    """The start method of the local workers: a fork server that has imported ngbet and NGSolve.
+
+    The server is a fresh process (no threads, NGSolve's task manager not started) that imports
+    :data:`PRELOAD` once and forks each worker from there, so that a worker starts in milliseconds
+    with everything imported. It serves the studies of this process until it exits, with the
+    environment it started with (one BLAS thread per worker). Where there is no fork server, the
+    workers are spawned.
+    """
+    import multiprocessing as mp
+
+    if "forkserver" not in mp.get_all_start_methods():
+        return mp.get_context("spawn")
+    ctx = mp.get_context("forkserver")
+    kinds = sorted({c.scene.model for c in todo if c.scene is not None})
+    kinds += ["plot"] if any(c.scene.outputs.plot for c in todo if c.scene is not None) else []
+    ctx.set_forkserver_preload(list(dict.fromkeys(m for kind in kinds for m in PRELOAD[kind])))
+    return ctx
 
 
 def _stop_pool(ex: Any) -> None:

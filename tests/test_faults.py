@@ -317,8 +317,10 @@ def test_unreachable_scheduler_is_one_line_exit_3(tmp_path, capsys):
 
 # ------------------------------------------------------------------------------ interrupted study
 def workers_of(pid: int) -> list[int]:
+    """The processes a study started: its children (the fork server) and theirs (the workers)."""
     out = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout
-    return [int(x) for x in out.split()]
+    children = [int(x) for x in out.split()]
+    return children + [w for c in children for w in workers_of(c)]
 
 
 def alive(pid: int) -> bool:

@@ -1,0 +1,165 @@
+"""A second process that draws the force plot, so that importing matplotlib overlaps the solve.
+
+``ngbet run`` spends about 0.4 s importing matplotlib and its PDF backend and about 0.1 s on the
+first drawing (fonts, the mathtext parser), all of it independent of the results. On a machine
+with an idle core the command starts this process before it imports NGSolve: it imports
+matplotlib and draws one throw-away figure while the run solves, then waits on its stdin for the
+run folder, draws ``force.png`` and ``force.pdf`` with the same function as the run itself
+(:func:`ngbet.output.draw_force`, so the figure is the same; the PDF written by a forked child
+while the PNG is written) and answers on its stdout.
+
+Nothing depends on it: when it is not running, died, or answers with an error, the run draws
+the figure itself (the log says why at INFO level). It is a child of the run in its own session
+(a Ctrl-C at the terminal reaches the run alone, which decides) and exits when its stdin closes,
+i.e. when the run ends by any means, SIGKILL included.
+
+``NGBET_PLOT_PROCESS`` chooses: ``auto`` (default: only when the machine has the half core the
+process needs to spare, i.e. the 1-minute load average is at most the number of usable cores
+minus 0.5), ``always`` or ``never``. On a saturated machine the process still shortens the run
+(measured on 2 cores at load 4 to 5: 0.80–0.94× the median wall time in three sittings) but
+costs about 0.2–0.3 s more CPU time in all, which the other jobs pay; ``auto`` leaves it out there.
+
+Protocol: one JSON line per request, ``{"run_dir": str, "extra": [[label, x, y], ...]}``; one JSON
+line per answer, ``{"png": str | None}`` or ``{"error": str}``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import subprocess
+import sys
+from collections.abc import Iterable, Iterator, Sequence
+from importlib.util import find_spec
+from pathlib import Path
+from typing import IO, Any
+
+log = logging.getLogger(__name__)
+
+ENV = "NGBET_PLOT_PROCESS"
+CHOICES = ("auto", "always", "never")
+
+
+class PlotProcessError(RuntimeError):
+    """The plot process could not draw (it died, or its drawing failed); the caller draws instead."""
+
+
+class PlotProcess:
+    """The running plot process (see the module docstring)."""
+
+    def __init__(self) -> None:
+        root = str(Path(__file__).resolve().parent.parent)  # this ngbet, however it was found
+        code = f"import sys; sys.path.insert(0, {root!r}); from ngbet.plot_process import serve; serve()"
+        self.proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     start_new_session=True)
+
+    def plot(self, run_dir: str | Path,
+             extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> Path | None:
+        """Draw the force plot of ``run_dir`` in the process; returns force.png (None: nothing to draw).
+
+        Raises
+        ------
+        PlotProcessError
+            when the process is gone or its drawing failed.
+        """
+        stdin, stdout = self.proc.stdin, self.proc.stdout
+        assert stdin is not None and stdout is not None
+        request = {"run_dir": str(Path(run_dir).resolve()), "extra": [[lab, list(x), list(y)] for lab, x, y in extra]}
+        try:
+            stdin.write((json.dumps(request) + "\n").encode())
+            stdin.flush()
+            line = stdout.readline()
+        except OSError as exc:
+            raise PlotProcessError(f"the plot process is gone ({exc})") from exc
+        if not line:
+            raise PlotProcessError(f"the plot process ended (exit status {self.proc.poll()})")
+        answer = json.loads(line)
+        if "error" in answer:
+            raise PlotProcessError(answer["error"])
+        return Path(answer["png"]) if answer["png"] is not None else None
+
+    def close(self) -> None:
+        """End the process (it is idle or importing: nothing of the run is lost)."""
+        if self.proc.stdin is not None:
+            with contextlib.suppress(OSError):
+                self.proc.stdin.close()
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+
+
+_ACTIVE: list[PlotProcess] = []
+
+
+def active() -> PlotProcess | None:
+    """The plot process of this run, if one is running."""
+    return _ACTIVE[-1] if _ACTIVE else None
+
+
+def wanted(plot: bool) -> bool:
+    """Whether a run that draws (``plot``) should start the plot process (``NGBET_PLOT_PROCESS``)."""
+    choice = os.environ.get(ENV, "auto").strip().lower() or "auto"
+    if choice not in CHOICES:
+        log.warning("%s=%r is none of %s; using auto", ENV, choice, ", ".join(CHOICES))
+        choice = "auto"
+    if not plot or choice == "never" or not sys.executable or "ngsolve" in sys.modules:
+        return False  # no figure, refused, or too late to overlap anything
+    if find_spec("matplotlib") is None:
+        return False
+    if choice == "always":
+        return True
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return os.getloadavg()[0] <= cores - SPARE_CORES
+
+
+#: the share of a core the plot process needs during a run (about 0.5 s of CPU time in a run of 1 s)
+SPARE_CORES = 0.5
+
+
+@contextlib.contextmanager
+def plot_process(plot: bool) -> Iterator[PlotProcess | None]:
+    """Run the plot process for the duration of the block, if :func:`wanted`; ends it afterwards."""
+    if not wanted(plot):
+        yield None
+        return
+    try:
+        proc = PlotProcess()
+    except OSError as exc:
+        log.info("no plot process (%s): the run draws its figure itself", exc)
+        yield None
+        return
+    _ACTIVE.append(proc)
+    try:
+        yield proc
+    finally:
+        _ACTIVE.remove(proc)
+        proc.close()
+
+
+def serve(stdin: IO[bytes] | None = None, stdout: IO[bytes] | None = None) -> None:
+    """The plot process: import and warm up matplotlib, then answer requests until stdin closes."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides
+    stdin = stdin or sys.stdin.buffer
+    stdout = stdout or sys.stdout.buffer
+    from .output import draw_force, warm_up
+
+    try:
+        warm_up()
+    except Exception as exc:  # the requests will say what fails
+        log.debug("warm-up failed: %s", exc)
+    for line in stdin:
+        try:
+            req = json.loads(line)
+            png = draw_force(Path(req["run_dir"]), [(lab, x, y) for lab, x, y in req.get("extra", [])],
+                             fork_pdf=hasattr(os, "fork"))
+            answer: dict[str, Any] = {"png": str(png) if png is not None else None}
+        except Exception as exc:  # reported to the run, which draws the figure itself
+            answer = {"error": f"{type(exc).__name__}: {exc}"}
+        stdout.write((json.dumps(answer) + "\n").encode())
+        stdout.flush()

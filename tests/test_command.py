@@ -1,0 +1,102 @@
+"""The whole ``ngbet run`` command: the plot process that draws the force plot beside the solve."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ngbet import plot_process
+from ngbet.output import draw_force, plot_force
+
+pytest.importorskip("matplotlib")
+ROWS = ("step,u0_mm,force_N,dforce_du0_N_per_mm,double_force_Nm,force_error_N\n"
+        "1,16.0,22.15,1.589,0.908,0.05\n2,37.0,61.28,2.110,2.313,0.1\n3,56.0,107.37,2.813,4.016,0.14\n")
+
+
+def run_folder(path: Path) -> Path:
+    """A run folder holding only a results.csv with three steps of the default scene's columns."""
+    path.mkdir(parents=True)
+    (path / "results.csv").write_text(ROWS)
+    return path
+
+
+def pixels(png: Path) -> np.ndarray:
+    import matplotlib.image
+
+    return matplotlib.image.imread(png)
+
+
+def test_the_plot_process_draws_the_figure_of_the_run_itself(tmp_path, monkeypatch):
+    """Same pixels as drawn in this process (one function draws both), the same PDF (written by its child)."""
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "0")  # matplotlib's PDF then has no time in it
+    here = draw_force(run_folder(tmp_path / "here"))
+    proc = plot_process.PlotProcess()
+    try:
+        there = proc.plot(run_folder(tmp_path / "there"))
+    finally:
+        proc.close()
+    assert there == (tmp_path / "there" / "force.png").resolve() and (tmp_path / "there" / "force.pdf").exists()
+    np.testing.assert_array_equal(pixels(there), pixels(here))
+    assert (tmp_path / "there" / "force.pdf").read_bytes() == (tmp_path / "here" / "force.pdf").read_bytes()
+
+
+def test_a_dead_plot_process_leaves_the_drawing_to_the_run(tmp_path, monkeypatch):
+    """Nothing is lost: the process killed, plot_force draws the figure itself."""
+    monkeypatch.setenv(plot_process.ENV, "always")
+    monkeypatch.delitem(sys.modules, "ngsolve", raising=False)  # as in ngbet run before the solve
+    with plot_process.plot_process(True) as proc:
+        assert proc is not None and plot_process.active() is proc
+        proc.proc.kill()
+        proc.proc.wait()
+        png = plot_force(run_folder(tmp_path / "run"))
+    assert png == tmp_path / "run" / "force.png" and png.stat().st_size > 1000
+    assert plot_process.active() is None and proc.proc.returncode is not None
+
+
+def test_a_failed_drawing_is_reported_by_the_plot_process(tmp_path):
+    proc = plot_process.PlotProcess()
+    try:
+        with pytest.raises(plot_process.PlotProcessError, match="results.csv"):
+            proc.plot(tmp_path / "missing")
+        assert proc.plot(run_folder(tmp_path / "run")) is not None  # and it serves the next request
+    finally:
+        proc.close()
+
+
+@pytest.mark.parametrize(("choice", "load", "expected"), [
+    ("never", 0.0, False), ("always", 99.0, True), ("auto", 0.0, True), ("auto", 1.5, True), ("auto", 1.6, False),
+    ("sometimes", 0.0, True)])  # 2 cores: auto while half a core is idle; an unknown choice is auto
+def test_the_plot_process_runs_as_asked_and_in_auto_only_on_an_idle_core(monkeypatch, choice, load, expected):
+    monkeypatch.setenv(plot_process.ENV, choice)
+    monkeypatch.delitem(sys.modules, "ngsolve", raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    assert plot_process.wanted(True) is expected
+    assert plot_process.wanted(False) is False  # no figure, no process
+
+
+def test_no_plot_process_once_ngsolve_is_imported(monkeypatch):
+    """Too late to overlap the imports with the solve: the run draws itself."""
+    import ngsolve  # noqa: F401
+
+    monkeypatch.setenv(plot_process.ENV, "always")
+    assert plot_process.wanted(True) is False
+
+
+@pytest.mark.parametrize("choice", ["always", "never"])
+def test_ngbet_run_writes_the_same_files_with_and_without_the_plot_process(tmp_path, choice):
+    out = tmp_path / "run"
+    env = {**os.environ, plot_process.ENV: choice, "MPLBACKEND": "Agg"}
+    p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(out), "--set",
+                        "loading.u0_mm=10", "--set", "loading.stops_mm=[]", "--set", "discretization.mesh_size_mm=20",
+                        "--set", "outputs.error_estimate='off'"], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    files = set(json.loads((out / "summary.json").read_text())["files"])
+    assert {"force.png", "force.pdf", "fields.vtu", "results.csv"} <= files
+    assert (out / "force.png").stat().st_size > 1000
