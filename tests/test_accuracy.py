@@ -93,6 +93,8 @@ def test_reference_digits_and_bound():
     and algebraic fits of p = 4, 5, 6, 8, 9, 10 on the 20 mm mesh with 0.25 mm corners."""
     F, bound = ref("default")
     assert abs(F - 107.2365) < 2e-4 and bound < 0.0033
+    # the work-precision study resolves a target t when t >= 2 bound / F: its 0.01 % row too
+    assert 2 * bound / F < 1e-4
     F37, b37 = ref("default", 0)
     assert abs(F37 - 61.2138) < 2e-4 and b37 < 0.003
     Fs = [f[1] for f in FAMILY["default"]]

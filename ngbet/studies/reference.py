@@ -219,8 +219,8 @@ def report(data: StudyData, quick: bool) -> str:
     orders = [p for _, p in (QUICK_REF if quick else REF_FAMILY)]
     L = ["# Reference-grade solution of the paper's scene", "",
          f"The mesh graded at the clamp corners, p = {', '.join(map(str, orders))}: the middle of the "
-         "range of the extrapolations (Aitken over consecutive triples, geometric and algebraic fits "
-         "in p); bound = half that range plus the largest fit residual.", "",
+         "range of the extrapolations (geometric and algebraic fits in p to the sequence and its tails); "
+         "bound = half that range plus the largest fit residual.", "",
          "| u0 [mm] | " + " | ".join(f"F(p={p}) [N]" for p in orders) + " | reference [N] | bound [N] | bound [%] |",
          "|---|" + "---|" * len(orders) + "---|---|---|"]
     for s in C.stations(quick):
