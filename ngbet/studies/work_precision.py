@@ -275,16 +275,18 @@ def _plot_dofs(data: StudyData, a: dict, quick: bool) -> Path:
 
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     F_ref = a["F_ref"]
-    for name, m in (("uniform", "o-"), ("graded", "s-"), ("hp", "*-")):
+    names = {"uniform": "uniform, p = 2", "graded": "graded, p = 2", "hp": "hp (corner and p together)",
+             "reference": "p on the 0.25 mm-graded mesh (the reference's own family)"}
+    for name, m in (("uniform", "o-"), ("graded", "s-"), ("hp", "*-"), ("reference", "d:")):
         cs = [R._case(data, prm) for prm in R.families(quick)[name]]
         pts = [(C.dofs(data, c), abs(data.at(c, a["s2"], "force_N") - F_ref) / F_ref) for c in cs if c is not None]
         if pts:
-            ax.loglog(*zip(*pts, strict=True), m, label=name)
+            ax.loglog(*zip(*pts, strict=True), m, label=names[name])
     ax.axhline(a["unc_F"], color="grey", ls=":", label="reference bound")
     ax.set_xlabel("dofs")
     ax.set_ylabel(f"relative error of the force at {a['s2']:g} mm")
     ax.grid(alpha=0.3, which="both")
-    ax.legend()
+    ax.legend(fontsize=7, loc="lower left")
     return savefig(fig, data.out, "work_precision_dofs")
 
 
