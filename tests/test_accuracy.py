@@ -77,6 +77,12 @@ ORDERS = {"default": (4, 5, 6, 8, 9, 10)}
 FAMILY_10MM_56 = (107.29393, 107.26834, 107.25492, 107.24838, 107.24387)
 
 
+#: forces [N] at 37 mm on the 20 mm mesh with 0.125 mm corners at p = 4 … 9, loaded to 37 mm only
+#: (the reference study's fine family; the same runs as the 0.25 mm family with
+#: discretization.corner_mesh_size_mm = 0.125 and loading.u0_mm = 37)
+FINE_37 = (61.252553, 61.231165, 61.221843, 61.217845, 61.216159, 61.214853)
+
+
 def ref(base: str, station: int = 1) -> tuple[float, float]:
     F = [f[station] for f in FAMILY[base]]
     return extrapolate(F, list(ORDERS.get(base, range(4, 4 + len(F)))))
@@ -109,6 +115,17 @@ def test_reference_digits_and_bound():
     F10, bound10 = extrapolate(FAMILY_10MM_56, [4, 5, 6, 7, 8])
     assert abs(F10 - F) <= min(bound, bound10)
     assert 0 < Fs[-1] - F < 2 * bound  # the highest order lies above the limit
+
+
+def test_reference_at_37_mm_from_the_finer_corners():
+    """61.2134 N ± 0.0014 N: half the bound of the 0.25 mm family, whose value it lies within
+    (61.2138 N ± 0.0029 N); leaving p = 9 out moves it by 0.0001 N (bound 0.0016 N)."""
+    F, bound = extrapolate(FINE_37, list(range(4, 10)))
+    assert abs(F - 61.2134) < 1e-4 and bound < 0.0015
+    F25, bound25 = ref("default", 0)
+    assert abs(F - F25) <= min(bound, bound25)
+    F8, bound8 = extrapolate(FINE_37[:-1], list(range(4, 9)))
+    assert abs(F8 - F) <= min(bound, bound8)
 
 
 @pytest.mark.parametrize("tail", [lambda p: 3.0 * 0.5 ** p, lambda p: 3.0 * p ** -2.5])
