@@ -13,7 +13,7 @@ reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accu
 
 * the error lives at the four singular clamp corners, where raising p on a fixed mesh gains
   slowly: the enriched error is 30–75 % of the original's, so |F_p − F_p+1| is 0.25–0.7 of the
-  error and θ = 2.5 puts the effectivity at 0.56–2.9 on the 16 scenes of the table (one step;
+  error and θ = 2.5 puts the effectivity at 0.56–2.9 on the 17 scenes of the table (one step;
   converged enriched Newton: 0.56–2.7);
 * one step instead of the converged enriched Newton: the same estimate within 3 % on uniform
   meshes and 30 % lower on the graded p = 3 meshes (the enriched Newton needs 2–4 iterations
