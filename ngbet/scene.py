@@ -700,8 +700,8 @@ def check_size(scene: Scene) -> str | None:
 
 
 #: The embedded default scene's discretization: the cheapest setting measured within 0.3 % of the
-#: reference force at 56 mm (107.2375 N, ngbet.studies.reference) and within 1 % on the mid-axis
-#: profile: 10 mm mesh graded to 0.25 mm at the four clamp corners, p = 3 (0.12 % and 0.39 %; its
+#: reference force at 56 mm (107.2365 N, ngbet.studies.reference) and within 1 % on the mid-axis
+#: profile: 10 mm mesh graded to 0.25 mm at the four clamp corners, p = 3 (0.13 % and 0.39 %; its
 #: solve takes 0.4–0.6 times that of the uniform 5 mm p = 2 mesh, which is 2.1 % and 7.8 % off,
 #: measured interleaved on a loaded 2-core machine). p = 2 on the same mesh is 0.16 % on the force
 #: but 4 % on the profile.

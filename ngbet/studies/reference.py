@@ -1,18 +1,33 @@
 """Reference-grade force and profile of the paper's scene, and how fast the discretizations converge.
 
-Reference: on the 10 mm mesh graded to 0.25 mm at the four clamp corners, the orders p = 4 … 8
-(:data:`REF_FAMILY`). Their differences first halve from p to p + 1 (ratios 0.52, 0.49 at 56 mm)
-and then shrink more slowly (0.69 from 7 to 8): the singular corner element turns the
-geometric convergence into an algebraic one in p. No single model of the sequence is therefore
-trusted: :func:`extrapolate` takes every extrapolation it supports (Aitken over each three
-consecutive orders, and least-squares fits of F∞ + C r^p and F∞ + C p^(−β) to all orders) and
-returns the middle of their range, with half the range plus the largest fit residual as the
-bound. The family cannot be extended: p = 9 stops at 48 mm, and corners of 0.15 mm at p = 7,
-0.1 mm at p = 5 and 0.05 mm at p = 4 stop before 56 mm (Newton fails near a mode at the corner, with the
-condensed and with the full saddle-point matrix alike). The reference profile is the highest
-order's, with the bound max|u_y,p − u_y,p−1| of the two highest. A check, not part of the
-study: the 0.5 mm corners at p = 4 … 8 converge more slowly (F(56) = 107.3916 … 107.2647 N);
-their last two Aitken extrapolations, 107.2439 and 107.2428 N, lie at the bound's upper end.
+Reference: on the 20 mm mesh graded to 0.25 mm at the four clamp corners, the orders p = 4, 5,
+6, 8, 9, 10 (:data:`REF_FAMILY`; p = 7 stops at 55.7 mm on this mesh, Newton failing near a mode
+at the corner). The coarse bulk costs nothing in accuracy at these orders (the 10 mm mesh at
+p = 8 gives 107.24387 N against 107.24349 N) and a quarter of the time, which is what lets the
+family reach p = 10 (35 s; p = 9 stops at 48 mm on the 10 mm mesh). The differences first halve
+from p to p + 1 (ratios 0.51 at 56 mm from 4 to 6) and then shrink more slowly (0.0022 N from 8
+to 9 and from 9 to 10): the singular corner element turns the geometric convergence into an
+algebraic one in p, and quadrature moves the force at p = 10 by 0.0006 N
+(``discretization.quad_bonus = 2``). No single model of the sequence is therefore trusted:
+:func:`extrapolate` fits F∞ + C r^p (geometric) and F∞ + C p^(−β) (algebraic) to the whole
+sequence and to its tails from the second and third order on, and returns the middle of the
+range of those limits, with half the range plus the largest fit residual as the bound.
+Finer corners do not extend it: 0.1 mm at p = 5 and 0.125 mm at p = 6 stop at 46–56 mm, 0.0625 mm
+at p = 4 at 38 mm, in a snap-back at the corner that arc-length continuation finds too; a larger or
+p²-scaled stabilization (K_s up to 25 times the default, uncapped) does not remove it. The
+reference profile is the highest order's, with the bound max|u_y,p − u_y,p−1| of the two highest.
+
+At 37 mm the reference comes from 0.125 mm corners on the same mesh at p = 4 … 9
+(:data:`FINE_FAMILY`), loaded to 37 mm only (from p = 6 on they stop between 37 and 56 mm; the
+force at 37 mm is the same to 1e-6 N whether the run stops there or goes on): their differences
+shrink by 0.42–0.44 per order up to p = 8 and by 0.77 from 8 to 9, and the same fits give half
+the bound of the 0.25 mm family, which agrees within both bounds.
+
+Checks, not part of the study: the 10 mm mesh with 0.25 mm corners at p = 4 … 8 (the family
+this one replaces) extrapolates to 107.2375 N (its own bound 0.0052 N); at p = 6 halving the
+corner from 1 to 0.5 to 0.25 mm halves the change of the force, but 0.125 mm changes it by a
+seventh only (37 mm: 61.2248, 61.2432, 61.2243, 61.2218 N), so the corner size is no better a
+convergence parameter than p.
 
 Convergence (error against the reference, vs dofs): uniform meshes at p = 2 (h = 20, 10, 5 mm:
 algebraic, the force like h^1.1), corner-graded at p = 2 (corner 2.5 … 0.25 mm: saturates at
@@ -39,8 +54,13 @@ from . import _common as C
 
 GRADE = "discretization.corner_mesh_size_mm"
 OFF = {"outputs.error_estimate": "off"}
-#: (corner size [mm], p) on the 10 mm mesh
-REF_FAMILY = tuple((0.25, p) for p in (4, 5, 6, 7, 8))
+#: (corner size [mm], p) on the :data:`REF_H` mesh (p = 7 stops at 55.7 mm there)
+REF_FAMILY = tuple((0.25, p) for p in (4, 5, 6, 8, 9, 10))
+REF_H = 20.0
+#: (corner size [mm], p) on the :data:`REF_H` mesh loaded to the first station only: the finer
+#: corners stop before 56 mm at p >= 6 but reach 37 mm, where they give the reference
+FINE_FAMILY = tuple((0.125, p) for p in range(4, 10))
+TO_37 = {"loading.u0_mm": 37.0, "loading.stops_mm": []}
 HP_FAMILY = ((2.5, 2), (1.0, 3), (0.5, 4), (0.25, 5))
 GRADED_P2 = ((2.5, 2), (1.0, 2), (0.5, 2), (0.25, 2))
 UNIFORM_P2 = (20.0, 10.0, 5.0)
@@ -55,15 +75,20 @@ def families(quick: bool) -> dict[str, list[dict[str, Any]]]:
     if quick:
         return {"reference": [graded(c, p, 20.0) for c, p in QUICK_REF],
                 "uniform": [{**C.lagrange(20.0, 2), **OFF}], "graded": [], "hp": [graded(2.5, 2, 20.0)]}
-    return {"reference": [graded(c, p) for c, p in REF_FAMILY],
+    return {"reference": [graded(c, p, REF_H) for c, p in REF_FAMILY],
             "uniform": [{**C.lagrange(h, 2), **OFF} for h in UNIFORM_P2],
             "graded": [graded(c, p) for c, p in GRADED_P2],
             "hp": [graded(c, p) for c, p in HP_FAMILY]}
 
 
+def fine_family(quick: bool) -> list[dict[str, Any]]:
+    """The cases of :data:`FINE_FAMILY` (none in quick mode)."""
+    return [] if quick else [{**graded(c, p, REF_H), **TO_37} for c, p in FINE_FAMILY]
+
+
 def build(quick: bool = False) -> Study:
     fam = families(quick)
-    cases = C.unique([c for cs in fam.values() for c in cs])
+    cases = C.unique([c for cs in fam.values() for c in cs] + fine_family(quick))
     return Study("reference", C.base_scene(quick), cases, description=__doc__ or "",
                  plot=lambda d: plot(d, quick), report=lambda d: report(d, quick),
                  profile_stations=C.stations(quick))
@@ -86,30 +111,53 @@ def aitken(F: Sequence[float]) -> tuple[float, float]:
 def extrapolate(F: Sequence[float], orders: Sequence[int] | None = None) -> tuple[float, float]:
     """The limit of a p-sequence of forces and its bound, from every extrapolation it supports.
 
-    Aitken (:func:`aitken`) over each three consecutive terms and, with four terms or more,
-    least-squares fits of F∞ + C r^p (geometric) and F∞ + C p^(−β) (algebraic in p). Returns the
-    middle of the range of their limits and half that range plus the largest fit residual;
-    with three terms, Aitken's limit and bound.
+    With four terms or more: least-squares fits of F∞ + C r^p (geometric) and F∞ + C p^(−β)
+    (algebraic in p) to the whole sequence and to its tails of four terms or more from the second
+    and third term on (the orders need not be consecutive). Returns the middle of the range of
+    their limits and half that range plus the largest fit residual; with three terms, Aitken's
+    limit and bound (:func:`aitken`).
     """
-    from scipy.optimize import curve_fit
-
     F = [float(x) for x in F]
     if len(F) < 4:
         return aitken(F)
     p = np.asarray(orders if orders is not None else range(1, len(F) + 1), float)
-    lims = [aitken(F[i:i + 3])[0] for i in range(len(F) - 2)]
+    lims: list[float] = []
     resid = 0.0
-    models = ((lambda q, a, c, r: a + c * r ** q, (F[-1], F[0] - F[-1], 0.5)),
-              (lambda q, a, c, b: a + c * q ** (-b), (F[-1], F[0] - F[-1], 2.0)))
-    for f, p0 in models:
-        try:
-            coef, _ = curve_fit(f, p, F, p0=p0, maxfev=20000)
-        except RuntimeError:
-            continue
-        lims.append(float(coef[0]))
-        resid = max(resid, float(np.max(np.abs(f(p, *coef) - F))))
+    for start in range(min(3, len(F) - 3)):
+        for lim, res in _fits(p[start:], F[start:]):
+            lims.append(lim)
+            resid = max(resid, res)
+    if not lims:
+        return aitken(F)
     lo, hi = min(lims), max(lims)
     return 0.5 * (lo + hi), 0.5 * (hi - lo) + resid
+
+
+def _fits(p: np.ndarray, F: Sequence[float]) -> list[tuple[float, float]]:
+    """(limit, largest residual) of the geometric and of the algebraic least-squares fit.
+
+    Each model is started from several rates (r = 0.3, 0.5, 0.7; β = 1 … 4) and its best fit kept.
+    """
+    from scipy.optimize import curve_fit
+
+    y = np.asarray(F, float)
+    out = []
+    models = ((lambda q, a, c, r: a + c * r ** q, (0.3, 0.5, 0.7)),
+              (lambda q, a, c, b: a + c * q ** (-b), (1.0, 2.0, 3.0, 4.0)))
+    for f, rates in models:
+        best: tuple[float, float] | None = None
+        for rate in rates:
+            c0 = (y[0] - y[-1]) / max(abs(f(p[0], 0.0, 1.0, rate) - f(p[-1], 0.0, 1.0, rate)), 1e-300)
+            try:
+                coef, _ = curve_fit(f, p, y, p0=(y[-1], c0, rate), maxfev=20000)
+            except RuntimeError:
+                continue
+            res = float(np.max(np.abs(f(p, *coef) - y)))
+            if np.all(np.isfinite(coef)) and (best is None or res < best[1]):
+                best = (float(coef[0]), res)
+        if best is not None:
+            out.append(best)
+    return out
 
 
 def _case(data: StudyData, prm: dict[str, Any]) -> int | None:
@@ -135,6 +183,12 @@ def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
     _, uy5 = data.profile(cs[-2], s2)  # type: ignore[arg-type]
     out["X_mm"], out["uy_mm"] = list(X), list(uy)
     out["profile_bound_mm"] = float(np.max(np.abs(np.subtract(uy, uy5))))
+    fine = [_case(data, p) for p in fine_family(quick)]
+    if fine and all(c is not None for c in fine):  # the reference study runs them, work_precision not
+        s1 = C.stations(quick)[0]
+        forces = [data.at(c, s1, "force_N") for c in fine]  # type: ignore[arg-type]
+        F, bound = extrapolate(forces, [p for _, p in FINE_FAMILY])
+        out["fine"] = {"force_N": F, "bound_N": bound, "forces_N": forces, "station": s1}
     return out
 
 
@@ -186,14 +240,23 @@ def report(data: StudyData, quick: bool) -> str:
     orders = [p for _, p in (QUICK_REF if quick else REF_FAMILY)]
     L = ["# Reference-grade solution of the paper's scene", "",
          f"The mesh graded at the clamp corners, p = {', '.join(map(str, orders))}: the middle of the "
-         "range of the extrapolations (Aitken over consecutive triples, geometric and algebraic fits "
-         "in p); bound = half that range plus the largest fit residual.", "",
+         "range of the extrapolations (geometric and algebraic fits in p to the sequence and its tails); "
+         "bound = half that range plus the largest fit residual.", "",
          "| u0 [mm] | " + " | ".join(f"F(p={p}) [N]" for p in orders) + " | reference [N] | bound [N] | bound [%] |",
          "|---|" + "---|" * len(orders) + "---|---|---|"]
     for s in C.stations(quick):
         r = ref[s]
         L.append(f"| {s:g} | " + " | ".join(f"{f:.5f}" for f in r["forces_N"])
                  + f" | {r['force_N']:.5f} | {r['bound_N']:.2g} | {100 * r['bound_N'] / r['force_N']:.2g} |")
+    fine = ref.get("fine")
+    if fine:
+        L += ["", f"At {fine['station']:g} mm the reference is that of the 0.125 mm corners, loaded to "
+              f"{fine['station']:g} mm only (they stop before 56 mm from p = 6 on), p = "
+              f"{', '.join(str(p) for _, p in FINE_FAMILY)}: "
+              + ", ".join(f"{f:.5f}" for f in fine["forces_N"])
+              + f" N: **{fine['force_N']:.5f} N ± {fine['bound_N']:.2g} N** "
+              f"(the 0.25 mm family above: {ref[fine['station']]['force_N']:.5f} N ± "
+              f"{ref[fine['station']]['bound_N']:.2g} N)."]
     L += ["", f"Reference profile (p = {orders[-1]}) at {a['s2']:g} mm: "
           f"max |u_y| = {np.max(np.abs(ref['uy_mm'])):.4f} mm, bound {ref['profile_bound_mm']:.2g} mm.", "",
           "## Convergence at the second station", "",
