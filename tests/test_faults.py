@@ -430,3 +430,15 @@ def test_the_final_summary_keeps_who_ran_it_and_when(tmp_path):
     on_disk = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert s["status"] == on_disk["status"] == "ok"
     assert on_disk["pid"] == os.getpid() and on_disk["started"]
+
+
+def test_reference_from_an_incomplete_family_names_the_missing_cases(tmp_path):
+    """A reference family with a case missing (a killed worker, a failed run) gives no reference:
+    the study's MissingValueError (report says so, exit 1) names the missing case, never a bare
+    ValueError that the command line would show as a traceback."""
+    from ngbet.studies import reference as R
+    from ngbet.study import MissingValueError, StudyData
+
+    data = StudyData(tmp_path, [], [], {}, {"cases": []})
+    with pytest.raises(MissingValueError, match=r"reference cases missing.*discretization\.order_u=4"):
+        R.reference(data, quick=True)

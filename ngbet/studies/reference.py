@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from ngbet.study import Study, StudyData, main_for, savefig
+from ngbet.study import MissingValueError, Study, StudyData, main_for, savefig
 
 from . import _common as C
 
@@ -170,9 +170,12 @@ def _case(data: StudyData, prm: dict[str, Any]) -> int | None:
 
 def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
     """The reference force at both stations with its bound, and the reference profile at the second."""
-    cs = [_case(data, p) for p in families(quick)["reference"]]
-    if any(c is None for c in cs):
-        raise ValueError("reference cases missing or failed")
+    fam = families(quick)["reference"]
+    cs = [_case(data, p) for p in fam]
+    missing = [p for p, c in zip(fam, cs, strict=True) if c is None]
+    if missing:
+        raise MissingValueError("reference cases missing or failed (no reference from an incomplete family): "
+                                + "; ".join(", ".join(f"{k}={v}" for k, v in p.items()) for p in missing))
     out: dict[Any, Any] = {"cases": cs}
     for s in C.stations(quick):
         forces = [data.at(c, s, "force_N") for c in cs]  # type: ignore[arg-type]
