@@ -143,10 +143,10 @@ def print_run(fr: dict) -> None:
     for ev in fr.get("snap_events_list") or []:
         print(f"  snap: {ev.get('u0_before', float('nan')) * 1e3:.3f} -> {ev['u0'] * 1e3:.3f} mm, {ev['kind']}, "
               f"released {ev.get('released_J', float('nan')):.3g} J")
-    print(f"  {'cause':50s} {'calls':>5s} {'fact':>5s} {'shift':>5s} {'its':>5s} {'time [s]':>8s}")
+    print(f"  {'cause':50s} {'calls':>5s} {'fact':>5s} {'shift':>5s} {'solves':>6s} {'its':>5s} {'time [s]':>8s}")
     for cause, r in (fr.get("work_by_cause") or {}).items():
         print(f"  {cause:50s} {r['calls']:5d} {r['factorizations']:5d} {r['shift_factorizations']:5d} "
-              f"{r['iterations']:5d} {r['time_s']:8.2f}")
+              f"{r.get('solves', -1):6d} {r['iterations']:5d} {r['time_s']:8.2f}")
     t = fr.get("timers") or {}
     if t:
         print(f"  timers: assembly {t['assembly_s']:.2f} s / {t['assemblies']} "

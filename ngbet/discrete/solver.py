@@ -126,21 +126,23 @@ class _TimedProblem:
 
 
 class _Tally:
-    """Factorizations, Newton iterations and wall time of the load path by cause (bench_discrete)."""
+    """Factorizations, solves, Newton iterations and wall time of the load path by cause (bench_discrete)."""
 
     def __init__(self, solvers: tuple[FreeBlockSolver, ...]) -> None:
         self.solvers = solvers
         self.rows: dict[str, dict[str, float]] = {}
 
-    def start(self, t: float | None = None) -> tuple[int, float]:
-        return sum(s.n_factor for s in self.solvers), time.perf_counter() if t is None else t
+    def start(self, t: float | None = None) -> tuple[int, int, float]:
+        return (sum(s.n_factor for s in self.solvers), sum(s.n_solve for s in self.solvers),
+                time.perf_counter() if t is None else t)
 
-    def add(self, cause: str, mark: tuple[int, float], nout: dict[str, Any] | None = None) -> None:
+    def add(self, cause: str, mark: tuple[int, int, float], nout: dict[str, Any] | None = None) -> None:
         row = self.rows.setdefault(cause, {"calls": 0, "factorizations": 0, "shift_factorizations": 0,
-                                           "iterations": 0, "time_s": 0.0})
+                                           "solves": 0, "iterations": 0, "time_s": 0.0})
         row["calls"] += 1
         row["factorizations"] += sum(s.n_factor for s in self.solvers) - mark[0]
-        row["time_s"] += time.perf_counter() - mark[1]
+        row["solves"] += sum(s.n_solve for s in self.solvers) - mark[1]
+        row["time_s"] += time.perf_counter() - mark[2]
         if nout:
             row["iterations"] += nout.get("iterations", 0)
             row["shift_factorizations"] += nout.get("shift_factorizations", 0)
@@ -547,7 +549,7 @@ class _Trial:
     shifted: int
     relaxed: bool
     nout: dict[str, Any]
-    mark: tuple[int, float]
+    mark: tuple[int, int, float]
     energy: float = math.nan
     gradient: np.ndarray | None = None
     tangent: np.ndarray | None = None  # du/du0 at the corrected state (None: none at hand)
@@ -607,8 +609,10 @@ class ShiftedNewton:
         p, free = self.problem, self.free
         trial = self.u.copy()
         if self.ctl.predictor == "tangent":
-            if self.tangent is None:
+            if self.tangent is None:  # at the start and after a jump
+                mark = self.tally.start()
                 self.tangent = self._tangent_at(self.lin, self.K)
+                self.tally.add("predictor tangent", mark)
             trial += h * self.tangent
             if self.tangent_prev is not None:
                 t_prev, h_prev = self.tangent_prev
@@ -695,7 +699,10 @@ class ShiftedNewton:
         tr.energy, tr.gradient, _ = p.evaluate(tr.u, False)
         tr.work = 0.5 * h * float(load @ self.g + load @ tr.gradient)
         if self.tangent is not None and not self.work.shifted:
+            mark = self.tally.start()
             tr.tangent = self._tangent_at(self.work, tr.nout["K"])
+            if tr.relaxed:  # the relaxation's row is closed; a converged step's row is closed later
+                self.tally.add("tangent after a relaxation", mark)
             dF0 = float(load @ (self.K @ self.tangent))
             tr.dforce_du0 = float(load @ (tr.nout["K"] @ tr.tangent))
             tr.work += h * h / 12 * (dF0 - tr.dforce_du0)
@@ -773,9 +780,10 @@ class ShiftedNewton:
         state changed.
         """
         ts = time.perf_counter()
+        mark = self.tally.start(ts)
         lam, v, V = _check_stability(self.problem, self.u, self.lin, self.ctl, self.modes)
         self.modes = V
-        self.tally.add("stability check", self.tally.start(ts))
+        self.tally.add("stability check", mark)
         escaped = lam < -1e-9 and v is not None
         if escaped:
             assert v is not None and self.lin.Kff is not None
