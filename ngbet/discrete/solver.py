@@ -187,8 +187,9 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
     the last decrement is below ``ctl.krylov_below`` times the energy; a tangent that shows
     negative curvature or a solve that misses the tolerance in ``ctl.krylov_max`` iterations is
     factorized instead.
-    Converged on such an iteration, one full Newton iteration at the final state follows: the
-    converged tangent is then factorized, and the last update made with it, as in plain Newton.
+    Converged on such an iteration, a full Newton iteration at the final state follows: the
+    converged tangent is then factorized, and the last update made with it, as in plain Newton
+    (when its decrement is above the tolerance, which CG may underestimate, Newton goes on).
 
     Returns
     -------
@@ -207,11 +208,12 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
     inexact = inexact and ctl.krylov_tol > 0 and lin.nf >= ctl.krylov_min_free
     held = False  # lin holds an unshifted factorization of this run: the preconditioner
     n_factor = it = 0
-    while n_factor < n_max and it < 4 * n_max:
+    confirm = False  # the last iteration met the tolerance on CG: this one factorizes
+    while (n_factor < n_max or confirm) and it < 4 * n_max:
         it += 1
         E, r, K = _residual(problem, u, free, hist, out, it)
         near = bool(hist) and hist[-1][2] <= ctl.krylov_below * abs(E)  # Newton has come close
-        step = _krylov_step(lin, K, r, ctl) if held and near else None
+        step = _krylov_step(lin, K, r, ctl) if held and near and not confirm else None
         if step is None:
             du, dec, mu_prev, n_shift = _factorized_step(lin, K, r, mu_prev, allow_shift, hist, E, out)
             n_factor += 1
@@ -222,13 +224,11 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
         hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
         if abs(dec) <= ctl.rtol * abs(E) + ctl.atol:
             u[free] += du
-            if step is not None:  # converged on a preconditioned solve: one full iteration
-                E, r, K = _residual(problem, u, free, hist, out, it + 1)
-                du, dec, mu_prev, n_shift = _factorized_step(lin, K, r, mu_prev, allow_shift, hist, E, out)
-                shifted += n_shift
-                hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
-                u[free] += du
-            return u, it, hist, shifted
+            if step is None:
+                return u, it - 1 if confirm else it, hist, shifted
+            confirm = True  # one full iteration: the converged tangent factorized, the last update made with it
+            continue
+        confirm = False  # (the full iteration after CG did not meet the tolerance: Newton goes on)
         if dec <= 0:
             raise _StepFailed("no descent direction even with a shifted tangent", hist)
         if fail_fast and not line_search:
