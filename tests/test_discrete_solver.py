@@ -189,3 +189,29 @@ def test_inexact_newton_reaches_the_same_minimum_with_fewer_factorizations():
     assert hist[-1][2] <= c.rtol * abs(hist[-1][0]) + c.atol
     assert np.abs(u_i - u_n).max() <= 1e-6, f"{np.abs(u_i - u_n).max():.2e}"
     assert np.abs(p.evaluate(u_i)[1]).max() <= 1e-6, f"residual {np.abs(p.evaluate(u_i)[1]).max():.2e}"
+
+
+def test_lowest_eigenvalues_match_a_dense_solve_with_a_near_degenerate_pair():
+    # K v = lambda diag(K) v for a chain Laplacian (Convex) plus a softened, nearly degenerate
+    # pair of modes: the block Lanczos (whole block at the first expansion, the pair nearest 0
+    # after it) returns the two lowest eigenvalues of the dense generalized problem, the
+    # lowest to ~tol^2 = 1e-6 relative, from a cold start and from a perturbed warm start
+    import scipy.linalg as sla
+
+    from ngbet.discrete.solver import lowest_eigenvalues
+
+    p = Convex(60)
+    K = p.evaluate(np.linspace(-1, 1, p.n_dofs))[2].toarray()
+    w, V = np.linalg.eigh(K)
+    w[0], w[1] = 1e-4, 1.02e-4  # a soft, nearly degenerate pair (as the half-turn pair of the networks)
+    K = sp.csr_matrix((V * w) @ V.T)
+    K.data[np.abs(K.data) < 1e-14 * np.abs(K.data).max()] = 0.0
+    lin = FreeBlockSolver(K, np.ones(p.n_dofs, bool))
+    lin.factor(K)
+    d = np.abs(K.diagonal())
+    ref = sla.eigh(K.toarray(), np.diag(d), eigvals_only=True)[:2]
+    lam, modes = lowest_eigenvalues(lin, 2)
+    assert lam[0] == pytest.approx(ref[0], rel=1e-5), (lam, ref)
+    X0 = modes + 1e-2 * np.random.default_rng(3).standard_normal(modes.shape) * np.abs(modes).max()
+    lam2, _ = lowest_eigenvalues(lin, 2, X0)
+    assert lam2[0] == pytest.approx(ref[0], rel=1e-5), (lam2, ref)

@@ -424,13 +424,14 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
     (the modes of the previous load step: they change little from step to step, so that one or
     two expansions usually suffice) or from (1, ..., 1) and a fixed random vector. In the
     scaled variables y = D^(1/2) v the problem is A y = lambda y with A = D^(-1/2) K_ff D^(-1/2);
-    each expansion applies A^(-1) (one solve with the factorization) to the current Ritz
-    vectors. Converged when the pair nearest to 0 has a residual |A y - theta y| <= tol |theta|
-    (|y| = 1): an eigenvalue then lies within tol |theta| of theta, so that its sign is certain,
-    and the Ritz value itself is accurate to ~tol^2 |theta| relative (the other k - 1 pairs are
-    Ritz approximations: they serve as the start block of the next check; eigenvalues 2 and 3
-    of the BET networks can lie within 2 % of each other, where resolving them would cost
-    dozens of solves).
+    the first expansion applies A^(-1) (one solve with the factorization) to all current Ritz
+    vectors, each later one to the vector nearest 0 only (4 solves a check at 17k dofs instead
+    of 6, the eigenvalues the same to 2e-7). Converged when the pair nearest to 0 has a residual
+    |A y - theta y| <= tol |theta| (|y| = 1): an eigenvalue then lies within tol |theta| of
+    theta, so that its sign is certain, and the Ritz value itself is accurate to ~tol^2 |theta|
+    relative (the other k - 1 pairs are Ritz approximations: they serve as the start block of
+    the next check; eigenvalues 2 and 3 of the BET networks can lie within 2 % of each other,
+    where resolving them would cost dozens of solves).
     Falls back to ARPACK (``eigsh`` in shift-invert mode) if that does not happen within
     ``max_expansions``.
 
@@ -453,13 +454,15 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
 
     Q = _orthonormalize(_start_block(X0, s, k), np.zeros((n, 0)))
     AQ = A(Q)
-    for _ in range(max_expansions):
+    for n_exp in range(max_expansions):
         th, Yr, AYr = _ritz_pairs(Q, AQ, k)
         res = np.linalg.norm(AYr - Yr * th, axis=0)
         if Yr.shape[1] == k and res[0] <= tol * abs(th[0]) + 1e-14:
             order = np.argsort(th)
             return th[order], (Yr / s[:, None])[:, order]
-        W = _orthonormalize(Ainv(Yr), Q)
+        # the first expansion takes the whole block (the two lowest modes may be a near-degenerate
+        # pair), the later ones the pair nearest 0 only, whose residual decides
+        W = _orthonormalize(Ainv(Yr if n_exp == 0 else Yr[:, :1]), Q)
         if W.shape[1] == 0:
             break
         if Q.shape[1] + W.shape[1] > 60:  # restart with the Ritz vectors
