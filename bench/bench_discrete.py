@@ -14,8 +14,8 @@ u0 = 20 mm solution), time over ``--repeats`` repeats (medians reported):
 - optionally (``--run``) complete BET runs to u0 = 56 mm, one per entry of ``--threads`` and
   repeat, interleaved (1, 2, 1, 2, ...: a burst of load on the shared machine hits both alike):
   wall time, steps, Newton iterations, factorizations, snap events, F(37), F(56), largest slip,
-  and where the factorizations and the time went (converged steps, failed attempts, steps cut at an
-  indefinite tangent, snap bracketing, relaxations, escapes, stability checks);
+  and where the factorizations, the solves and the time went (converged steps, failed attempts,
+  steps cut at an indefinite tangent, snap bracketing, relaxations, escapes, stability checks);
   ``--run-only`` skips the per-iteration part.
 
 All backends must give the same solution (relative difference reported). A JSON record goes to
