@@ -14,8 +14,8 @@ u0 = 20 mm solution), time over ``--repeats`` repeats (medians reported):
 - optionally (``--run``) complete BET runs to u0 = 56 mm, one per entry of ``--threads`` and
   repeat, interleaved (1, 2, 1, 2, ...: a burst of load on the shared machine hits both alike):
   wall time, steps, Newton iterations, factorizations, snap events, F(37), F(56), largest slip,
-  and where the factorizations and the time went (converged steps, failed attempts, steps cut at an
-  indefinite tangent, snap bracketing, relaxations, escapes, stability checks);
+  and where the factorizations, the solves and the time went (converged steps, failed attempts,
+  steps cut at an indefinite tangent, snap bracketing, relaxations, escapes, stability checks);
   ``--run-only`` skips the per-iteration part.
 
 All backends must give the same solution (relative difference reported). A JSON record goes to
@@ -143,10 +143,10 @@ def print_run(fr: dict) -> None:
     for ev in fr.get("snap_events_list") or []:
         print(f"  snap: {ev.get('u0_before', float('nan')) * 1e3:.3f} -> {ev['u0'] * 1e3:.3f} mm, {ev['kind']}, "
               f"released {ev.get('released_J', float('nan')):.3g} J")
-    print(f"  {'cause':50s} {'calls':>5s} {'fact':>5s} {'shift':>5s} {'its':>5s} {'time [s]':>8s}")
+    print(f"  {'cause':50s} {'calls':>5s} {'fact':>5s} {'shift':>5s} {'solves':>6s} {'its':>5s} {'time [s]':>8s}")
     for cause, r in (fr.get("work_by_cause") or {}).items():
         print(f"  {cause:50s} {r['calls']:5d} {r['factorizations']:5d} {r['shift_factorizations']:5d} "
-              f"{r['iterations']:5d} {r['time_s']:8.2f}")
+              f"{r.get('solves', -1):6d} {r['iterations']:5d} {r['time_s']:8.2f}")
     t = fr.get("timers") or {}
     if t:
         print(f"  timers: assembly {t['assembly_s']:.2f} s / {t['assemblies']} "

@@ -37,11 +37,13 @@ def test_run_completes_with_quadratic_newton(unbalanced):
 
 def test_work_by_cause_accounts_for_every_factorization(unbalanced):
     # the breakdown in the summary (bench_discrete's table) covers the whole run: its rows add up
-    # to the factorizations the two solver objects counted
+    # to the factorizations and the solves the two solver objects counted
     _, _, s = unbalanced
     rows = s["work_by_cause"]
     total = sum(r["factorizations"] for r in rows.values())
     assert total == s["factorizations"], f"rows {total} vs {s['factorizations']} factorizations"
+    solves = sum(r["solves"] for r in rows.values())
+    assert solves == s["timers"]["solves"], f"rows {solves} vs {s['timers']['solves']} solves"
 
 
 def test_half_turn_symmetry_unbalanced(unbalanced):

@@ -141,3 +141,77 @@ def test_energy_balance_by_the_hermite_rule_on_a_smooth_branch():
         assert abs(released) <= 1e-4 * work and abs(released) <= 1e-2 * abs(trap), \
             f"u0 {u0}: Hermite {released:.2e}, trapezoid {trap:.2e}, work {work:.3e}"
         prev = (u0, F, E)
+
+
+def test_krylov_step_with_the_tangents_own_factorization_is_the_newton_step():
+    # preconditioned by K itself, conjugate gradients solve K du = -r in one iteration: the step
+    # and its decrement r . K^-1 r are Newton's to round-off
+    from ngbet.discrete.solver import _krylov_step
+
+    p = Convex(40)
+    u = np.linspace(-1, 1, p.n_dofs)
+    _, g, K = p.evaluate(u)
+    lin = solver(p)
+    lin.factor(K)
+    du, dec = _krylov_step(lin, K, g, ctl())
+    exact = -np.linalg.solve(K.toarray(), g)
+    assert np.abs(du - exact).max() <= 1e-12 * np.abs(exact).max(), f"{np.abs(du - exact).max():.2e}"
+    assert dec == pytest.approx(-g @ exact, rel=1e-12)
+
+
+def test_krylov_step_refuses_an_indefinite_tangent():
+    # next to the double well's saddle K_xx = 3x^2 - 1 < 0: the first CG direction (from the
+    # preconditioner, the positive tangent at the minimum) meets negative curvature, and the
+    # caller must factorize and shift instead
+    from ngbet.discrete.solver import _krylov_step
+
+    p = DoubleWell()
+    lin = solver(p)
+    lin.factor(p.evaluate(np.array([1.0, 0.0]))[2])
+    _, g, K = p.evaluate(np.array([1e-3, 0.0]))
+    assert _krylov_step(lin, K, g, ctl()) is None
+
+
+def test_inexact_newton_reaches_the_same_minimum_with_fewer_factorizations():
+    # Newton from 0 needs 5 iterations (decrements 61, 11, 0.36, 7e-5, 8e-14 at energies 83 ... 40).
+    # Inexact: the first two iterations are far (decrement above the energy) and factorize; from
+    # then on each solves its own tangent by CG preconditioned with the last factorization, and
+    # one full iteration at the end factorizes the converged tangent: 3 factorizations against 5;
+    # both stop at the same tolerance, so the minima agree to it
+    p = Convex(40)
+    u0 = np.zeros(p.n_dofs)
+    full, inexact = solver(p), solver(p)
+    u_n, its_n, _, _ = newton(p, u0, full, ctl())
+    c = ctl(krylov_min_free=0)
+    u_i, its_i, hist, _ = newton(p, u0, inexact, c, inexact=True)
+    assert its_n >= 4 and full.n_factor == its_n, f"Newton: {its_n} iterations, {full.n_factor} factorizations"
+    assert inexact.n_factor == 3 and its_i <= its_n + 1, f"{its_i} iterations, {inexact.n_factor} factorizations"
+    assert hist[-1][2] <= c.rtol * abs(hist[-1][0]) + c.atol
+    assert np.abs(u_i - u_n).max() <= 1e-6, f"{np.abs(u_i - u_n).max():.2e}"
+    assert np.abs(p.evaluate(u_i)[1]).max() <= 1e-6, f"residual {np.abs(p.evaluate(u_i)[1]).max():.2e}"
+
+
+def test_lowest_eigenvalues_match_a_dense_solve_with_a_near_degenerate_pair():
+    # K v = lambda diag(K) v for a chain Laplacian (Convex) plus a softened, nearly degenerate
+    # pair of modes: the block Lanczos (whole block at the first expansion, the pair nearest 0
+    # after it) returns the two lowest eigenvalues of the dense generalized problem, the
+    # lowest to ~tol^2 = 1e-6 relative, from a cold start and from a perturbed warm start
+    import scipy.linalg as sla
+
+    from ngbet.discrete.solver import lowest_eigenvalues
+
+    p = Convex(60)
+    K = p.evaluate(np.linspace(-1, 1, p.n_dofs))[2].toarray()
+    w, V = np.linalg.eigh(K)
+    w[0], w[1] = 1e-4, 1.02e-4  # a soft, nearly degenerate pair (as the half-turn pair of the networks)
+    K = sp.csr_matrix((V * w) @ V.T)
+    K.data[np.abs(K.data) < 1e-14 * np.abs(K.data).max()] = 0.0
+    lin = FreeBlockSolver(K, np.ones(p.n_dofs, bool))
+    lin.factor(K)
+    d = np.abs(K.diagonal())
+    ref = sla.eigh(K.toarray(), np.diag(d), eigvals_only=True)[:2]
+    lam, modes = lowest_eigenvalues(lin, 2)
+    assert lam[0] == pytest.approx(ref[0], rel=1e-5), (lam, ref)
+    X0 = modes + 1e-2 * np.random.default_rng(3).standard_normal(modes.shape) * np.abs(modes).max()
+    lam2, _ = lowest_eigenvalues(lin, 2, X0)
+    assert lam2[0] == pytest.approx(ref[0], rel=1e-5), (lam2, ref)

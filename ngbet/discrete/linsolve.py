@@ -79,8 +79,7 @@ class FreeBlockSolver:
 
     def free_block(self, K: sp.csr_matrix) -> sp.csr_matrix:
         """K_ff as a scipy CSR matrix (same pattern object every time)."""
-        return sp.csr_matrix((K.data[self.sel], self.cols, np.concatenate(
-            [[0], np.cumsum(np.bincount(self.rows, minlength=self.nf))])), shape=(self.nf, self.nf))
+        return sp.csr_matrix((K.data[self.sel], self.cols, self._indptr()), shape=(self.nf, self.nf))
 
     def factor(self, K: sp.csr_matrix, shift: np.ndarray | None = None) -> None:
         """Factorize K_ff (+ diag(shift) when given)."""

@@ -15,6 +15,11 @@ Step from u0 to u0 + h:
              tenth of the last shift of the same Newton run, 1e-6 at first, raised tenfold).
              While relaxing past a snap-through: Armijo backtracking on the energy, and shifted
              steps extended while the energy keeps falling along them.
+             Inexact (networks of at least ``krylov_min_free`` free dofs): once the decrement is
+             below the energy, an iteration solves its own tangent by conjugate gradients
+             preconditioned with the last factorization (to ``krylov_tol``; a factorization
+             where CG meets negative curvature or needs more than ``krylov_max`` iterations),
+             and a step converged that way ends with one full Newton iteration.
   converged  when the Newton decrement |r . du| (an energy, twice the predicted energy change)
              is below rtol |E| + atol: unit-free.
   step size  (the engine) grows by ``growth`` (up to max_step) after a step with at most
@@ -93,6 +98,10 @@ class StepControl:
     snap_release: float = 0.05  # released fraction of the step's work that marks a snap-through (trapezoid)
     snap_release_hermite: float = 1e-3  # the same with the work by the Hermite rule (tangents at both ends)
     snap_bracket: float = 1e-3  # a step that snaps is cut until it is at most this long
+    krylov_tol: float = 0.03  # inexact Newton in a step: CG on the tangent, preconditioned (0: factorize each)
+    krylov_max: int = 8  # CG iterations before the tangent is factorized instead
+    krylov_below: float = 1.0  # ... once the last decrement is below this fraction of the energy
+    krylov_min_free: int = 10_000  # ... on networks with at least this many free dofs
 
 
 class _TimedProblem:
@@ -117,21 +126,23 @@ class _TimedProblem:
 
 
 class _Tally:
-    """Factorizations, Newton iterations and wall time of the load path by cause (bench_discrete)."""
+    """Factorizations, solves, Newton iterations and wall time of the load path by cause (bench_discrete)."""
 
     def __init__(self, solvers: tuple[FreeBlockSolver, ...]) -> None:
         self.solvers = solvers
         self.rows: dict[str, dict[str, float]] = {}
 
-    def start(self, t: float | None = None) -> tuple[int, float]:
-        return sum(s.n_factor for s in self.solvers), time.perf_counter() if t is None else t
+    def start(self, t: float | None = None) -> tuple[int, int, float]:
+        return (sum(s.n_factor for s in self.solvers), sum(s.n_solve for s in self.solvers),
+                time.perf_counter() if t is None else t)
 
-    def add(self, cause: str, mark: tuple[int, float], nout: dict[str, Any] | None = None) -> None:
+    def add(self, cause: str, mark: tuple[int, int, float], nout: dict[str, Any] | None = None) -> None:
         row = self.rows.setdefault(cause, {"calls": 0, "factorizations": 0, "shift_factorizations": 0,
-                                           "iterations": 0, "time_s": 0.0})
+                                           "solves": 0, "iterations": 0, "time_s": 0.0})
         row["calls"] += 1
         row["factorizations"] += sum(s.n_factor for s in self.solvers) - mark[0]
-        row["time_s"] += time.perf_counter() - mark[1]
+        row["solves"] += sum(s.n_solve for s in self.solvers) - mark[1]
+        row["time_s"] += time.perf_counter() - mark[2]
         if nout:
             row["iterations"] += nout.get("iterations", 0)
             row["shift_factorizations"] += nout.get("shift_factorizations", 0)
@@ -154,7 +165,7 @@ class _StepFailed(Exception):
 
 def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
            max_iterations: int | None = None, line_search: bool = False, fail_fast: bool = True,
-           out: dict[str, Any] | None = None, allow_shift: bool = True
+           out: dict[str, Any] | None = None, allow_shift: bool = True, inexact: bool = False
            ) -> tuple[np.ndarray, int, list[tuple[float, float, float]], int]:
     """Minimize the energy over the free dofs from u (prescribed dofs as given).
 
@@ -170,11 +181,22 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
     indefinite states to a distant branch (a snap-through). ``allow_shift=False`` gives up at the
     first tangent that is not a descent direction (the caller would reject the step anyway).
 
+    ``inexact=True`` (with ``ctl.krylov_tol > 0`` and at least ``ctl.krylov_min_free`` free
+    dofs): after an unshifted factorization, the next iterations solve the Newton system of
+    their own tangent by conjugate gradients preconditioned with it (:func:`_krylov_step`), once
+    the last decrement is below ``ctl.krylov_below`` times the energy; a tangent that shows
+    negative curvature or a solve that misses the tolerance in ``ctl.krylov_max`` iterations is
+    factorized instead.
+    Converged on such an iteration, a full Newton iteration at the final state follows: the
+    converged tangent is then factorized, and the last update made with it, as in plain Newton
+    (when its decrement is above the tolerance, which CG may underestimate, Newton goes on).
+
     Returns
     -------
-    u, iterations, history [(E, |r|_inf, decrement)], number of iterations with a shifted tangent;
-    ``out["K"]`` (when ``out`` is given): the tangent of the last iteration, factorized in ``lin``
-    (``lin.shifted`` says whether with a shift). At convergence the last update is below the
+    u, iterations (up to the one that met the tolerance), history [(E, |r|_inf, decrement)],
+    number of iterations with a shifted tangent; ``out["K"]`` (when ``out`` is given): the
+    tangent of the last iteration, factorized in ``lin`` (``lin.shifted`` says whether with a
+    shift), ``out["iterations"]``: all iterations. At convergence the last update is below the
     tolerance (|r . du| <= rtol |E|), so that factorization serves as the converged tangent.
     """
     free = lin.free
@@ -183,21 +205,30 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
     shifted = 0
     mu_prev = 0.0
     n_max = max_iterations or ctl.max_iterations
-    for it in range(1, n_max + 1):
-        E, g, K = problem.evaluate(u, True)
-        if out is not None:
-            out["K"] = K
-            out["iterations"] = it
-        r = g[free]
-        if not (np.isfinite(E) and np.all(np.isfinite(r))):
-            raise _StepFailed("energy or residual not finite", hist)
-        assert K is not None
-        du, dec, mu_prev, n_shift = _descent_direction(lin, K, r, mu_prev, allow_shift, hist, E, out)
-        shifted += n_shift
+    inexact = inexact and ctl.krylov_tol > 0 and lin.nf >= ctl.krylov_min_free
+    held = False  # lin holds an unshifted factorization of this run: the preconditioner
+    n_factor = it = 0
+    confirm = False  # the last iteration met the tolerance on CG: this one factorizes
+    while (n_factor < n_max or confirm) and it < 4 * n_max:
+        it += 1
+        E, r, K = _residual(problem, u, free, hist, out, it)
+        near = bool(hist) and hist[-1][2] <= ctl.krylov_below * abs(E)  # Newton has come close
+        step = _krylov_step(lin, K, r, ctl) if held and near and not confirm else None
+        if step is None:
+            du, dec, mu_prev, n_shift = _factorized_step(lin, K, r, mu_prev, allow_shift, hist, E, out)
+            n_factor += 1
+            shifted += n_shift
+            held = inexact and n_shift == 0
+        else:
+            (du, dec), n_shift = step, 0
         hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
         if abs(dec) <= ctl.rtol * abs(E) + ctl.atol:
             u[free] += du
-            return u, it, hist, shifted
+            if step is None:
+                return u, it - 1 if confirm else it, hist, shifted
+            confirm = True  # one full iteration: the converged tangent factorized, the last update made with it
+            continue
+        confirm = False  # (the full iteration after CG did not meet the tolerance: Newton goes on)
         if dec <= 0:
             raise _StepFailed("no descent direction even with a shifted tangent", hist)
         if fail_fast and not line_search:
@@ -206,10 +237,67 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
         if line_search and (dec > 1e-6 * abs(E) + ctl.atol or n_shift > 0):  # far from the solution
             alpha = _line_search(problem, u, free, du, E, dec, extend=n_shift > 0, hist=hist)
         if log.isEnabledFor(logging.DEBUG):
-            log.debug("newton it %d: E %.10g, |r| %.3g, decrement %.3g, shift mu %.0e, step x%g", it, E,
-                      hist[-1][1], dec, mu_prev if n_shift else 0.0, alpha)
+            log.debug("newton it %d: E %.10g, |r| %.3g, decrement %.3g, shift mu %.0e, step x%g%s", it, E,
+                      hist[-1][1], dec, mu_prev if n_shift else 0.0, alpha, " (CG)" if step else "")
         u[free] += alpha * du
     raise _StepFailed(f"no convergence in {n_max} iterations", hist, u)
+
+
+def _residual(problem: Problem, u: np.ndarray, free: np.ndarray, hist: list[tuple[float, float, float]],
+              out: dict[str, Any] | None, it: int) -> tuple[float, np.ndarray, sp.csr_matrix]:
+    """E, the free residual and the tangent at u (iteration ``it``)."""
+    E, g, K = problem.evaluate(u, True)
+    if out is not None:
+        out["iterations"] = it
+    r = g[free]
+    if not (np.isfinite(E) and np.all(np.isfinite(r))):
+        raise _StepFailed("energy or residual not finite", hist)
+    assert K is not None
+    return E, r, K
+
+
+def _factorized_step(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, mu_prev: float, allow_shift: bool,
+                     hist: list[tuple[float, float, float]], E: float, out: dict[str, Any] | None
+                     ) -> tuple[np.ndarray, float, float, int]:
+    """The Newton step with K factorized in ``lin`` (see :func:`_descent_direction`); out["K"] = K."""
+    if out is not None:
+        out["K"] = K
+    return _descent_direction(lin, K, r, mu_prev, allow_shift, hist, E, out)
+
+
+def _krylov_step(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, ctl: StepControl
+                 ) -> tuple[np.ndarray, float] | None:
+    """The Newton step du (K_ff du = -r) and its decrement by conjugate gradients, or None.
+
+    Preconditioned with the factorization in ``lin`` (a tangent of an earlier iterate: the two
+    differ mainly in a few soft modes, which CG resolves in a few iterations); stops when the
+    preconditioned residual has fallen by ``ctl.krylov_tol``. None when K_ff shows negative
+    curvature (indefinite: the caller factorizes and shifts), the preconditioner is not positive
+    on a residual, or ``ctl.krylov_max`` iterations do not suffice.
+    """
+    A = lin.free_block(K)
+    x = np.zeros_like(r)
+    res = -r
+    z = lin.solve(res)
+    rz = rz0 = float(res @ z)
+    p = z
+    for _ in range(ctl.krylov_max):
+        if not rz > 0:
+            return None
+        Ap = A @ p
+        pAp = float(p @ Ap)
+        if not pAp > 0:
+            return None
+        a = rz / pAp
+        x += a * p
+        res -= a * Ap
+        z = lin.solve(res)
+        rz, rz_prev = float(res @ z), rz
+        if rz <= ctl.krylov_tol ** 2 * rz0:
+            dec = -float(r @ x)
+            return (x, dec) if dec > 0 else None
+        p = z + (rz / rz_prev) * p
+    return None
 
 
 def _descent_direction(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, mu_prev: float, allow_shift: bool,
@@ -336,13 +424,14 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
     (the modes of the previous load step: they change little from step to step, so that one or
     two expansions usually suffice) or from (1, ..., 1) and a fixed random vector. In the
     scaled variables y = D^(1/2) v the problem is A y = lambda y with A = D^(-1/2) K_ff D^(-1/2);
-    each expansion applies A^(-1) (one solve with the factorization) to the current Ritz
-    vectors. Converged when the pair nearest to 0 has a residual |A y - theta y| <= tol |theta|
-    (|y| = 1): an eigenvalue then lies within tol |theta| of theta, so that its sign is certain,
-    and the Ritz value itself is accurate to ~tol^2 |theta| relative (the other k - 1 pairs are
-    Ritz approximations: they serve as the start block of the next check; eigenvalues 2 and 3
-    of the BET networks can lie within 2 % of each other, where resolving them would cost
-    dozens of solves).
+    the first expansion applies A^(-1) (one solve with the factorization) to all current Ritz
+    vectors, each later one to the vector nearest 0 only (4 solves a check at 17k dofs instead
+    of 6, the eigenvalues the same to 2e-7). Converged when the pair nearest to 0 has a residual
+    |A y - theta y| <= tol |theta| (|y| = 1): an eigenvalue then lies within tol |theta| of
+    theta, so that its sign is certain, and the Ritz value itself is accurate to ~tol^2 |theta|
+    relative (the other k - 1 pairs are Ritz approximations: they serve as the start block of
+    the next check; eigenvalues 2 and 3 of the BET networks can lie within 2 % of each other,
+    where resolving them would cost dozens of solves).
     Falls back to ARPACK (``eigsh`` in shift-invert mode) if that does not happen within
     ``max_expansions``.
 
@@ -365,13 +454,15 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
 
     Q = _orthonormalize(_start_block(X0, s, k), np.zeros((n, 0)))
     AQ = A(Q)
-    for _ in range(max_expansions):
+    for n_exp in range(max_expansions):
         th, Yr, AYr = _ritz_pairs(Q, AQ, k)
         res = np.linalg.norm(AYr - Yr * th, axis=0)
         if Yr.shape[1] == k and res[0] <= tol * abs(th[0]) + 1e-14:
             order = np.argsort(th)
             return th[order], (Yr / s[:, None])[:, order]
-        W = _orthonormalize(Ainv(Yr), Q)
+        # the first expansion takes the whole block (the two lowest modes may be a near-degenerate
+        # pair), the later ones the pair nearest 0 only, whose residual decides
+        W = _orthonormalize(Ainv(Yr if n_exp == 0 else Yr[:, :1]), Q)
         if W.shape[1] == 0:
             break
         if Q.shape[1] + W.shape[1] > 60:  # restart with the Ritz vectors
@@ -461,7 +552,7 @@ class _Trial:
     shifted: int
     relaxed: bool
     nout: dict[str, Any]
-    mark: tuple[int, float]
+    mark: tuple[int, int, float]
     energy: float = math.nan
     gradient: np.ndarray | None = None
     tangent: np.ndarray | None = None  # du/du0 at the corrected state (None: none at hand)
@@ -521,8 +612,10 @@ class ShiftedNewton:
         p, free = self.problem, self.free
         trial = self.u.copy()
         if self.ctl.predictor == "tangent":
-            if self.tangent is None:
+            if self.tangent is None:  # at the start and after a jump
+                mark = self.tally.start()
                 self.tangent = self._tangent_at(self.lin, self.K)
+                self.tally.add("predictor tangent", mark)
             trial += h * self.tangent
             if self.tangent_prev is not None:
                 t_prev, h_prev = self.tangent_prev
@@ -543,7 +636,7 @@ class ShiftedNewton:
             # a step longer than the snap bracket that meets an indefinite tangent is cut whether or
             # not Newton converges (see ``_classify``): give up at once
             unew, its, hist, shifted = newton(self.problem, self._predicted, self.work, ctl, out=nout,
-                                              allow_shift=not bracketing)
+                                              allow_shift=not bracketing, inexact=True)
             trial = _Trial(unew, its, hist, shifted, False, nout, mark)
         except _StepFailed as exc:
             if exc.indefinite:
@@ -585,7 +678,7 @@ class ShiftedNewton:
         trial = None
         try:
             unew, its, hist, shifted = newton(p, start, self.work, ctl, max_iterations=4 * ctl.max_iterations,
-                                              line_search=True, fail_fast=False, out=nout)
+                                              line_search=True, fail_fast=False, out=nout, inexact=True)
             # the state left its branch
             trial = _Trial(unew, its + len(exc.history), hist, max(shifted, 1), True, nout, mark)
         except _StepFailed as exc2:
@@ -609,7 +702,10 @@ class ShiftedNewton:
         tr.energy, tr.gradient, _ = p.evaluate(tr.u, False)
         tr.work = 0.5 * h * float(load @ self.g + load @ tr.gradient)
         if self.tangent is not None and not self.work.shifted:
+            mark = self.tally.start()
             tr.tangent = self._tangent_at(self.work, tr.nout["K"])
+            if tr.relaxed:  # the relaxation's row is closed; a converged step's row is closed later
+                self.tally.add("tangent after a relaxation", mark)
             dF0 = float(load @ (self.K @ self.tangent))
             tr.dforce_du0 = float(load @ (tr.nout["K"] @ tr.tangent))
             tr.work += h * h / 12 * (dF0 - tr.dforce_du0)
@@ -687,9 +783,10 @@ class ShiftedNewton:
         state changed.
         """
         ts = time.perf_counter()
+        mark = self.tally.start(ts)
         lam, v, V = _check_stability(self.problem, self.u, self.lin, self.ctl, self.modes)
         self.modes = V
-        self.tally.add("stability check", self.tally.start(ts))
+        self.tally.add("stability check", mark)
         escaped = lam < -1e-9 and v is not None
         if escaped:
             assert v is not None and self.lin.Kff is not None
