@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import ngsolve as ngs
 import numpy as np
 
-from .compiled import add_energy, compile_energy
+from .compiled import add_energy
 
 if TYPE_CHECKING:
     import scipy.sparse as sps
@@ -73,8 +73,7 @@ class NewtonLinearSolver:
         if saddle_energy is not None and condense:
             self.K_aug = LAGRANGE_AUGMENTATION * K_ref
             self.form = ngs.BilinearForm(X, symmetric=True, condense=True)
-            compiled, mode = compile_energy(saddle_energy(self.K_aug), compile_mode, X.ndof)
-            add_energy(self.form, compiled, dx, mode)
+            add_energy(self.form, saddle_energy(self.K_aug), dx, compile_mode, X.ndof)
         else:
             self.form = form
         self.condensed = bool(self.form.condense)
