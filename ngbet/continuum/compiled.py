@@ -115,18 +115,24 @@ def _write(path: Path, text: str) -> None:
 
 
 def _wrappers(real: str, cxx: str) -> Path:
-    """The folder with the caching ngscxx and the direct ngsld (created on first use)."""
+    """The folder with the caching ngscxx and the direct ngsld (created on first use).
+
+    One folder per installation (named by a hash of the wrappers' text, which holds its paths):
+    processes of different environments sharing a cache never rewrite each other's wrappers.
+    """
     import ngsolve.config as cfg
 
     root = cache_dir() / "native"
-    bins, objects = root / "bin", root / "objects"
+    objects = root / "objects"
+    wrapper = _NGSCXX.format(cxx=cxx, objects=objects, real=real)
+    ngsld = _NGSLD.format(cxx=cxx, args=cfg.get_link_lib_args())
+    key = hashlib.sha256((ngs.__version__ + Path(real).read_text() + wrapper).encode()).hexdigest()
+    bins = root / "bin" / hashlib.sha256((key + ngsld).encode()).hexdigest()[:16]
     bins.mkdir(parents=True, exist_ok=True)
     objects.mkdir(parents=True, exist_ok=True)
-    wrapper = _NGSCXX.format(cxx=cxx, objects=objects, real=real)
-    key = hashlib.sha256((ngs.__version__ + Path(real).read_text() + wrapper).encode()).hexdigest()
     _write(bins / "ngscxx.key", key + "\n")
     _write(bins / "ngscxx", wrapper)
-    _write(bins / "ngsld", _NGSLD.format(cxx=cxx, args=cfg.get_link_lib_args()))
+    _write(bins / "ngsld", ngsld)
     return bins
 
 

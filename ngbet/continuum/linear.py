@@ -13,8 +13,10 @@ slows the last digits.
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextvars import ContextVar
 from typing import TYPE_CHECKING
 
 import ngsolve as ngs
@@ -29,6 +31,25 @@ if TYPE_CHECKING:
 #: the Jacobian error (relative size ~ K_sh / K_aug) leaves Newton quadratic to the tolerance,
 #: small enough that the condensed matrix keeps ~8 correct digits.
 LAGRANGE_AUGMENTATION = 1e6
+
+
+#: NGSolve threads of an assembly that enters a TaskManager of its own (0: the surrounding one)
+_ASSEMBLY_THREADS: ContextVar[int] = ContextVar("assembly_threads", default=0)
+
+
+@contextlib.contextmanager
+def assembly_threads(n: int) -> Iterator[None]:
+    """Inside: each linearization is assembled in a TaskManager of its own, with ``n`` threads.
+
+    The caller sets NGSolve's thread count (``ngsolve.SetNumThreads(n)``); everything else runs
+    where it is called (serial outside a TaskManager). The threaded tangent equals the serial one
+    to round-off (the order of the sparse adds).
+    """
+    token = _ASSEMBLY_THREADS.set(n)
+    try:
+        yield
+    finally:
+        _ASSEMBLY_THREADS.reset(token)
 
 
 def pick_inverse(choice: str, indefinite: bool) -> str:
@@ -91,7 +112,11 @@ class NewtonLinearSolver:
     def factorize(self, state: ngs.BaseVector) -> None:
         """Linearize at ``state`` and factorize (the symbolic factorization is reused)."""
         t0 = time.perf_counter()
-        self.form.AssembleLinearization(state)
+        if _ASSEMBLY_THREADS.get() > 1:
+            with ngs.TaskManager():
+                self.form.AssembleLinearization(state)
+        else:
+            self.form.AssembleLinearization(state)
         t1 = time.perf_counter()
         if self._inv is None:
             self._inv = self.form.mat.Inverse(self.freedofs, inverse=self.inverse_type)
