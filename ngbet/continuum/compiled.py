@@ -73,6 +73,7 @@ src="$2"; obj="$4"
 if ! grep -q '#include' "$src"; then exec {cxx} -c -fPIC -x c++ "$src" -o "$obj"; fi
 key=$(cat "$0.key" "$src" | sha256sum | cut -c1-40)
 hit="{objects}/$key.o"
+echo "$key" > "$obj.key"
 if [ -f "$hit" ]; then cp "$hit" "$obj"; exit 0; fi
 if [ -n "$NGBET_CACHED_ONLY" ]; then exit 1; fi
 {real} "$@" || exit $?
@@ -80,7 +81,19 @@ cp "$obj" "$hit.$$" && mv "$hit.$$" "$hit"
 """
 
 _NGSLD = """#!/bin/sh
-# ngbet: NGSolve's ngsld with its link arguments read once
+# ngbet: NGSolve's ngsld (called as: ngsld -shared CODE.o TABLE.o -o LIBRARY -l...). The code's
+# shared library is cached by the code object's key and copied beside LIBRARY; LIBRARY is the
+# address table alone, linked without the C++ driver, with the copy as its dependency (the copy's
+# address symbols bind to this table when LIBRARY is loaded). Any other call: the plain link.
+if [ "$1" = -shared ] && [ "$4" = -o ] && [ -f "$2.key" ] && [ -n "{ld}" ]; then
+  code="$2"; table="$3"; lib="$5"; shift 5
+  so="{objects}/$(cat "$code.key").so"
+  if [ ! -f "$so" ]; then
+    {cxx} {args} -shared "$code" -o "$so.$$" "$@" && mv "$so.$$" "$so" || exit 1
+  fi
+  dir=$(cd "$(dirname "$lib")" && pwd) || exit 1
+  cp "$so" "$dir/code.so" && exec {ld} -shared "$table" "$dir/code.so" -o "$lib"
+fi
 exec {cxx} {args} "$@"
 """
 
@@ -125,7 +138,7 @@ def _wrappers(real: str, cxx: str) -> Path:
     root = cache_dir() / "native"
     objects = root / "objects"
     wrapper = _NGSCXX.format(cxx=cxx, objects=objects, real=real)
-    ngsld = _NGSLD.format(cxx=cxx, args=cfg.get_link_lib_args())
+    ngsld = _NGSLD.format(cxx=cxx, args=cfg.get_link_lib_args(), objects=objects, ld=shutil.which("ld") or "")
     key = hashlib.sha256((ngs.__version__ + Path(real).read_text() + wrapper).encode()).hexdigest()
     bins = root / "bin" / hashlib.sha256((key + ngsld).encode()).hexdigest()[:16]
     bins.mkdir(parents=True, exist_ok=True)
