@@ -5,8 +5,9 @@ and each thread count, a fresh process builds the problem, sets a perturbed stat
 and times the assembly of the Newton matrix (``AssembleLinearization`` of the form Newton
 factorizes, in a TaskManager of ``threads`` threads) and the residual (``Apply``, one thread),
 medians of ``--repeats``; the processes are interleaved. It saves the free block of the Newton
-matrix and the residual and compares every record with the first mode's (one thread):
-max |ΔA| / max |A| and max |Δr| / max |r|.
+matrix (condensed, as factorized, and the same integrators not condensed) and the residual, and
+compares every record with the first mode of this tree (one thread): max |ΔA| / max |A| and
+max |Δr| / max |r|. Time ratios are to the first mode (``before`` when given).
 
 Modes: ``ad`` (this tree, interpreted, the Hessian by automatic differentiation of the
 integrand: NGSolve's default), ``interpret`` (symbolic first derivatives), ``native`` (compiled
@@ -61,6 +62,18 @@ def _problem(mode: str, h: float, p: int) -> Any:
     return ContinuumProblem(dataclasses.replace(sc, discretization=disc))
 
 
+def _free_block(form: Any) -> Any:
+    """The free block of an assembled form's matrix (symmetric storage: lower triangle), scipy CSR."""
+    import numpy as np
+    import scipy.sparse as sps
+
+    vals, cols, ptr = form.mat.CSR()
+    n = form.mat.height
+    A = sps.csr_matrix((np.array(vals), np.array(cols), np.array(ptr)), shape=(n, n))
+    fd = np.flatnonzero(np.array(list(form.space.FreeDofs(form.condense)), dtype=bool))
+    return A[fd][:, fd].tocsr()
+
+
 def child(mode: str, h: float, p: int, threads: int, repeats: int, save: str) -> dict:
     """In a fresh process: build, assemble, apply; save the matrix and residual to ``save``."""
     import ngsolve as ngs
@@ -84,34 +97,59 @@ def child(mode: str, h: float, p: int, threads: int, repeats: int, save: str) ->
         t = time.perf_counter()
         r = pr.residual()
         tr.append(time.perf_counter() - t)
-    vals, cols, ptr = form.mat.CSR()
-    n = form.mat.height
-    A = sps.csr_matrix((np.array(vals), np.array(cols), np.array(ptr)), shape=(n, n))
-    fd = np.flatnonzero(np.array(list(form.space.FreeDofs(form.condense)), dtype=bool))
     np.save(save + ".npy", r)
-    sps.save_npz(save + ".npz", A[fd][:, fd].tocsr())
+    sps.save_npz(save + ".npz", _free_block(form))
+    plain = ngs.BilinearForm(form.space, symmetric=True)  # the same integrators, nothing condensed
+    for integrator in form.integrators:
+        plain += integrator
+    plain.AssembleLinearization(pr.gf.vec)
+    sps.save_npz(save + "_plain.npz", _free_block(plain))
     return {"mode": mode, "used": getattr(pr, "compile_mode", "interpret"), "h_mm": h, "p": p, "threads": threads,
             "dofs": int(pr.X.ndof), "setup_s": setup, "assembly_s": statistics.median(ta),
             "residual_s": statistics.median(tr),
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
-def compare(ref: str, other: str) -> tuple[float, float]:
-    """The largest |ΔA| / max |A| and |Δr| / max |r| of two saved runs."""
+def _solve(A: Any, b: Any) -> Any:
+    """A⁻¹ b for a matrix kept as its lower triangle (symmetric storage) or in full."""
+    import scipy.sparse as sps
+    import scipy.sparse.linalg as spla
+
+    if sps.triu(A, 1).nnz == 0:
+        A = A + sps.tril(A, -1).T
+    return spla.spsolve(A.tocsc(), b)
+
+
+def compare(ref: str, other: str) -> tuple[float, float, float, float]:
+    """The differences of two saved runs: matrices, residuals, solutions.
+
+    Max |ΔA| / max |A| (condensed Newton matrix, and not condensed), max |Δr| / max |r|, and
+    ‖Δx‖ / ‖x‖ of x = A⁻¹ b with the condensed matrices (b fixed, random); NaN where the
+    matrices differ in size (another mesh or space).
+    """
     import numpy as np
     import scipy.sparse as sps
 
-    A0, A1 = sps.load_npz(ref + ".npz"), sps.load_npz(other + ".npz")
+    out = []
+    for suffix in (".npz", "_plain.npz"):
+        A0, A1 = sps.load_npz(ref + suffix), sps.load_npz(other + suffix)
+        out.append(float(abs(A1 - A0).max() / abs(A0).max()) if A0.shape == A1.shape else float("nan"))
     r0, r1 = np.load(ref + ".npy"), np.load(other + ".npy")
-    return float(abs(A1 - A0).max() / abs(A0).max()), float(np.abs(r1 - r0).max() / np.abs(r0).max())
+    A0, A1 = sps.load_npz(ref + ".npz"), sps.load_npz(other + ".npz")
+    dx = float("nan")
+    if A0.shape == A1.shape:
+        b = np.random.default_rng(1).standard_normal(A0.shape[0])
+        x0, x1 = _solve(A0, b), _solve(A1, b)
+        dx = float(np.linalg.norm(x1 - x0) / np.linalg.norm(x0))
+    return out[0], out[1], float(np.abs(r1 - r0).max() / np.abs(r0).max()), dx
 
 
 def _table(recs: list[dict], cases: list[tuple[float, int]], variants: list[tuple[str, int]]) -> None:
     """Medians per case and variant, ratios to the first variant, differences to its matrix."""
     ref = variants[0]
     print(f"\n| h [mm] | p | dofs | mode (used) | threads | assembly [s] | ratio to {ref[0]} | residual [s] | ratio | "
-          "max dA/A | max dr/r | peak RSS [MB] |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "max dA/A | (not condensed) | dx/x | max dr/r | peak RSS [MB] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for h, p in cases:
         rs = [r for r in recs if (r["h_mm"], r["p"]) == (h, p)]
         med = {v: {k: statistics.median(r[k] for r in rs if (r["mode"], r["threads"]) == v)
@@ -124,7 +162,9 @@ def _table(recs: list[dict], cases: list[tuple[float, int]], variants: list[tupl
             last = [r for r in rs if (r["mode"], r["threads"]) == v][-1]
             print(f"| {h:g} | {p} | {last['dofs']} | {v[0]} ({last['used']}) | {v[1]} | {m['assembly_s']:.4f} | "
                   f"{r0['assembly_s'] / m['assembly_s']:.2f} | {m['residual_s']:.4f} | "
-                  f"{r0['residual_s'] / m['residual_s']:.2f} | {last['dA_rel']:.1e} | {last['dr_rel']:.1e} | "
+                  f"{r0['residual_s'] / m['residual_s']:.2f} | {last['dA_rel']:.1e} | {last['dA_plain_rel']:.1e} | "
+                  f"{last['dx_rel']:.1e} | "
+                  f"{last['dr_rel']:.1e} | "
                   f"{m['peak_rss_mb']:.0f} |")
 
 
@@ -163,7 +203,9 @@ def main() -> None:
                         sys.stderr.write(proc.stderr[-2000:])
                         continue
                     rec = {**json.loads(line[6:]), "run": run, "load": load}
-                    rec["dA_rel"], rec["dr_rel"] = compare(f"{tmp}/{variants[0][0]}_{variants[0][1]}_{h}_{p}", save)
+                    ref = next(v for v in variants if v[0] != "before")  # the same energy: this tree's
+                    rec["dA_rel"], rec["dA_plain_rel"], rec["dr_rel"], rec["dx_rel"] = compare(
+                        f"{tmp}/{ref[0]}_{ref[1]}_{h}_{p}", save)
                     recs.append(rec)
                     print(json.dumps(rec), flush=True)
     OUT.mkdir(exist_ok=True)
