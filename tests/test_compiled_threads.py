@@ -59,3 +59,23 @@ def test_threaded_assembly_gives_the_serial_tangent():
     assert np.abs(A2 - A1).max() <= 1e-14 * np.abs(A1).max()
     assert np.abs(dx2 - dx1).max() <= 1e-10 * np.abs(dx1).max()
     assert pr.counts["factorizations"] == 2
+
+
+def test_a_run_with_threaded_assembly_gives_the_serial_forces(monkeypatch, tmp_path, coarse_scene):
+    """The whole run with its assemblies on two threads and the rest serial: the same forces as
+    one thread throughout (the tangents agree to round-off, Newton converges to the same
+    tolerance), and summary.json says how the threads were used."""
+    scene = coarse_scene(**{"discretization.mesh_size_mm": 20.0, "outputs.error_estimate": "off"})
+    serial = ngbet_run.run(scene, tmp_path / "serial")
+    monkeypatch.setattr(ngbet_run, "thread_policy", lambda threads, model: (1, 2))
+    split = ngbet_run.run(scene.with_changes(**{"solver.threads": "auto"}), tmp_path / "split")
+    assert (serial["threads"], serial["assembly_threads"]) == (1, 1)
+    assert (split["threads"], split["assembly_threads"]) == (1, 2)
+    f1 = np.loadtxt(tmp_path / "serial" / "results.csv", delimiter=",", skiprows=1, usecols=_force_column(tmp_path))
+    f2 = np.loadtxt(tmp_path / "split" / "results.csv", delimiter=",", skiprows=1, usecols=_force_column(tmp_path))
+    assert len(f1) == len(f2) >= 2
+    assert np.abs(f2 - f1).max() <= 1e-9 * np.abs(f1).max()
+
+
+def _force_column(root) -> int:
+    return (root / "serial" / "results.csv").read_text().splitlines()[0].split(",").index("force_N")

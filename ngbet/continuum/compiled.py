@@ -8,11 +8,15 @@ each process pays the C++ compilation again (15–30 s per integrand with two de
 2-core machine measured). The generated code keeps the addresses of live objects apart, in a
 small second source file, so the large file depends on the expression alone.
 
-This module puts a caching ``ngscxx`` in front of NGSolve's (on ``PATH`` while compiling): the
-object file of a source is kept under :func:`cache_dir`, named by a SHA-256 of the source, the
-NGSolve version and the compiler wrapper, and copied back when the same source comes again. The
-address table is compiled directly (no NGSolve headers); ``ngsld`` is replaced by the linker
-call it makes, with its arguments read once. A warm compile then costs a link per integrand.
+This module puts a caching ``ngscxx`` and ``ngsld`` in front of NGSolve's (on ``PATH`` while
+compiling): the object file of a source is kept under :func:`cache_dir`, named by a SHA-256 of
+the source, the NGSolve version and the compiler wrapper, and copied back when the same source
+comes again; its shared library (linked against NGSolve's libraries, 0.1–0.2 s) is kept beside
+it. The address table is compiled directly (no NGSolve headers) and linked alone, by ``ld``
+without the C++ driver, against a private copy of the cached library, whose address symbols bind
+to that table when NGSolve loads it (two compiles of one source in a process keep apart). A warm
+compile then costs ~50 ms per library (0.3 s for the six of the default scene, measured under
+load 2–4; 1.2 s when each was linked against NGSolve's libraries).
 
 ``solver.compile``:
 
@@ -21,11 +25,12 @@ call it makes, with its arguments read once. A warm compile then costs a link pe
   compilation, once per integrand and NGSolve version); without a C++ compiler, or when it fails,
   the interpreted form with a warning.
 * ``"auto"`` (default): by the size of the problem. Native code saves per linearization and
-  residual about 5.5 µs and 1 µs per dof (p = 2; measured, assembly 0.66 → 0.31 s at 63k dofs,
-  0.037 → 0.025 s at 9.5k dofs with p = 3), and a warm compile costs ~0.25 s per integrand (the
-  link), a cold one 15–30 s. So: interpreted below :data:`NATIVE_IF_CACHED` dofs; native from
-  the cache (nothing compiled) up to :data:`NATIVE_COLD`; native, compiling if needed, above.
-  Run once with ``"native"`` to fill the cache for a family of scenes.
+  residual about 4 µs and 1 µs per dof (measured, one thread, load 3: assembly 0.46 → 0.24 s at
+  63k dofs with p = 2, 0.021 → 0.012–0.020 s at 9.5k dofs with p = 3), and a warm setup costs
+  ~0.3 s, a cold one 15–60 s (the integrand and its derivatives). So: interpreted below
+  :data:`NATIVE_IF_CACHED` dofs (the default scene's 8 linearizations and 13 residuals would
+  save ~0.1 s); native from the cache (nothing compiled) up to :data:`NATIVE_COLD`; native,
+  compiling if needed, above. Run once with ``"native"`` to fill the cache for a family of scenes.
 
 The constants of the energy (material parameters, K_aug) are literals in the generated code, so
 each set of values is its own source. The tangent is the same either way (measured: to 1e-19 of
@@ -42,8 +47,8 @@ agree to 1e-16 with the same Newton iterations. Native, the derivatives of a com
 are compiled too (one more object per trial function: u's gradient, φ, ∇φ, Λ), through the same
 cache while the integrator is built; measured on the default scene (9 495 dofs, one thread) the
 element matrices' second derivatives take 1.4 ms per linearization instead of 4.6 ms, and at
-63k dofs the assembly falls from ~0.23 to ~0.16 s. A warm setup costs a link per object (~1.2 s
-for the five of the default scene); cold, each derivative is a C++ compilation of its own.
+63k dofs the assembly falls from ~0.23 to ~0.16 s. Cold, each derivative is a C++ compilation
+of its own.
 """
 
 from __future__ import annotations

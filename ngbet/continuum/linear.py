@@ -52,6 +52,11 @@ def assembly_threads(n: int) -> Iterator[None]:
         _ASSEMBLY_THREADS.reset(token)
 
 
+def assembly_thread_count() -> int:
+    """NGSolve threads of the assembly of a linearization here (:func:`assembly_threads`, or the surrounding)."""
+    return _ASSEMBLY_THREADS.get() or ngs.GetNumThreads()
+
+
 def pick_inverse(choice: str, indefinite: bool) -> str:
     """The sparse inverse of ``solver.linear_solver``.
 
