@@ -159,7 +159,7 @@ def _table(recs: list[dict], cases: list[tuple[float, int]], variants: list[tupl
             continue
         r0 = med[ref]
         for v, m in med.items():
-            last = [r for r in rs if (r["mode"], r["threads"]) == v][-1]
+            last = [r for r in rs if (r["mode"], r["threads"]) == v and "dA_rel" in r][-1]
             print(f"| {h:g} | {p} | {last['dofs']} | {v[0]} ({last['used']}) | {v[1]} | {m['assembly_s']:.4f} | "
                   f"{r0['assembly_s'] / m['assembly_s']:.2f} | {m['residual_s']:.4f} | "
                   f"{r0['residual_s'] / m['residual_s']:.2f} | {last['dA_rel']:.1e} | {last['dA_plain_rel']:.1e} | "
@@ -194,7 +194,7 @@ def main() -> None:
                     env = dict(os.environ)
                     if mode == "before":
                         env["PYTHONPATH"] = args.before
-                    save = f"{tmp}/{mode}_{nt}_{h}_{p}"
+                    save = f"{tmp}/{mode}_{nt}_{h}_{p}_{run}"
                     load = os.getloadavg()[0]
                     proc = subprocess.run([sys.executable, __file__, "--child", mode, str(h), str(p), str(nt),
                                            str(args.repeats), save], capture_output=True, text=True, env=env)
@@ -202,12 +202,13 @@ def main() -> None:
                     if line is None:
                         sys.stderr.write(proc.stderr[-2000:])
                         continue
-                    rec = {**json.loads(line[6:]), "run": run, "load": load}
-                    ref = next(v for v in variants if v[0] != "before")  # the same energy: this tree's
-                    rec["dA_rel"], rec["dA_plain_rel"], rec["dr_rel"], rec["dx_rel"] = compare(
-                        f"{tmp}/{ref[0]}_{ref[1]}_{h}_{p}", save)
-                    recs.append(rec)
-                    print(json.dumps(rec), flush=True)
+                    recs.append({**json.loads(line[6:]), "run": run, "load": load, "save": save})
+                    print(json.dumps(recs[-1]), flush=True)
+        ref = next(v for v in variants if v[0] != "before")  # the same energy: this tree's
+        for rec in recs:
+            refsave, save = f"{tmp}/{ref[0]}_{ref[1]}_{rec['h_mm']}_{rec['p']}_{rec['run']}", rec.pop("save")
+            if Path(refsave + ".npy").exists():
+                rec["dA_rel"], rec["dA_plain_rel"], rec["dr_rel"], rec["dx_rel"] = compare(refsave, save)
     OUT.mkdir(exist_ok=True)
     (OUT / f"bench_assembly_{time.strftime('%Y%m%dT%H%M%S')}.json").write_text(json.dumps(recs, indent=1))
     _table(recs, cases, variants)
