@@ -6,16 +6,20 @@ and times the assembly of the Newton matrix (``AssembleLinearization`` of the fo
 factorizes, in a TaskManager of ``threads`` threads) and the residual (``Apply``, one thread),
 medians of ``--repeats``; the processes are interleaved. It saves the free block of the Newton
 matrix (condensed, as factorized, and the same integrators not condensed) and the residual, and
-compares every record with the first mode of this tree (one thread): max |ΔA| / max |A| and
-max |Δr| / max |r|. Time ratios are to the first mode (``before`` when given).
+compares every record with the first mode of this tree (one thread): max |ΔA| / max |A| of
+both matrices, ‖Δx‖ / ‖x‖ of x = A⁻¹ b with the condensed ones, and max |Δr| / max |r|. Time
+ratios are to the first mode (``before`` when given).
 
 Modes: ``ad`` (this tree, interpreted, the Hessian by automatic differentiation of the
 integrand: NGSolve's default), ``interpret`` (symbolic first derivatives), ``native`` (compiled
-code, ``solver.compile = "native"``), and ``before`` (``--before DIR``: an older source tree,
-its problem as that tree builds it; both package layouts are read). Records, with dofs, setup
-time, peak RSS of the process and the 1-minute load: ``bench/out/bench_assembly_<time>.json``.
+code, ``solver.compile = "native"``), ``bfi`` (a linear constant-coefficient form over the same
+spaces and proxy pairs, condensed: what NGSolve's element loop alone costs), and ``before``
+(``--before DIR``: an older source tree, its problem as that tree builds it; both package
+layouts are read). Records, with dofs, setup time, peak RSS of the process and the 1-minute
+load: ``bench/out/bench_assembly_<time>.json``.
 
     python bench/bench_assembly.py                                  # h 10 p 3 and h 2 p 2
+    python bench/bench_assembly.py --modes ad,native,bfi --runs 3   # against the element loop alone
     python bench/bench_assembly.py --cases 10:3 --modes ad,native --threads 1,2 --before /work/before
 
 The "native" mode compiles C++ on its first use (``$NGBET_CACHE_DIR``), reported as ``setup_s``.
@@ -74,6 +78,24 @@ def _free_block(form: Any) -> Any:
     return A[fd][:, fd].tocsr()
 
 
+def _plain_form(X: Any) -> Any:
+    """A linear bilinear form as large as the Newton matrix: NGSolve's element loop alone.
+
+    Constant coefficients over the spaces and proxy pairs of the energy's Hessian (∇u–∇u, φ–φ,
+    φ–∇u, ∇φ–∇φ, Λ–∇u, Λ–φ, Λ–Λ), condensed.
+    """
+    import ngsolve as ngs
+
+    (u, phi, lam), (v, psi, mu) = X.TnT()
+    G, Gv = ngs.Grad(u), ngs.Grad(v)
+    m = ngs.CF((1, 0.3, 0.2, 1), dims=(2, 2))
+    bf = ngs.BilinearForm(X, symmetric=True, condense=True)
+    bf += (ngs.InnerProduct(G, Gv) + ngs.InnerProduct(m * G, Gv) + phi * psi
+           + phi * ngs.Trace(Gv) + psi * ngs.Trace(G) + ngs.Grad(phi) * ngs.Grad(psi)
+           + lam * (psi - ngs.Trace(Gv)) + mu * (phi - ngs.Trace(G)) - 1e-3 * lam * mu) * ngs.dx
+    return bf
+
+
 def child(mode: str, h: float, p: int, threads: int, repeats: int, save: str) -> dict:
     """In a fresh process: build, assemble, apply; save the matrix and residual to ``save``."""
     import ngsolve as ngs
@@ -85,6 +107,9 @@ def child(mode: str, h: float, p: int, threads: int, repeats: int, save: str) ->
     pr = _problem(mode, h, p)
     setup = time.perf_counter() - t0
     form = pr.linear.form if hasattr(pr, "linear") else getattr(pr, "a_jac", pr.a)
+    if mode == "bfi":
+        form = _plain_form(pr.X)
+    assemble = form.Assemble if mode == "bfi" else (lambda: form.AssembleLinearization(pr.gf.vec))
     pr.set_load(0.03)
     pr.x[pr.free_all] += 1e-4 * np.random.default_rng(0).standard_normal(int(pr.free_all.sum()))
     ngs.SetNumThreads(threads)
@@ -92,12 +117,16 @@ def child(mode: str, h: float, p: int, threads: int, repeats: int, save: str) ->
     for _ in range(repeats):
         t = time.perf_counter()
         with ngs.TaskManager():
-            form.AssembleLinearization(pr.gf.vec)
+            assemble()
         ta.append(time.perf_counter() - t)
         t = time.perf_counter()
         r = pr.residual()
         tr.append(time.perf_counter() - t)
     np.save(save + ".npy", r)
+    if mode == "bfi":  # another matrix: nothing to compare
+        return {"mode": mode, "used": "interpret", "h_mm": h, "p": p, "threads": threads, "dofs": int(pr.X.ndof),
+                "setup_s": setup, "assembly_s": statistics.median(ta), "residual_s": statistics.median(tr),
+                "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
     sps.save_npz(save + ".npz", _free_block(form))
     plain = ngs.BilinearForm(form.space, symmetric=True)  # the same integrators, nothing condensed
     for integrator in form.integrators:
@@ -144,6 +173,9 @@ def compare(ref: str, other: str) -> tuple[float, float, float, float]:
     return out[0], out[1], float(np.abs(r1 - r0).max() / np.abs(r0).max()), dx
 
 
+nan = float("nan")
+
+
 def _table(recs: list[dict], cases: list[tuple[float, int]], variants: list[tuple[str, int]]) -> None:
     """Medians per case and variant, ratios to the first variant, differences to its matrix."""
     ref = variants[0]
@@ -159,7 +191,8 @@ def _table(recs: list[dict], cases: list[tuple[float, int]], variants: list[tupl
             continue
         r0 = med[ref]
         for v, m in med.items():
-            last = [r for r in rs if (r["mode"], r["threads"]) == v and "dA_rel" in r][-1]
+            last = {"dA_rel": nan, "dA_plain_rel": nan, "dx_rel": nan, "dr_rel": nan,
+                    **[r for r in rs if (r["mode"], r["threads"]) == v][-1]}
             print(f"| {h:g} | {p} | {last['dofs']} | {v[0]} ({last['used']}) | {v[1]} | {m['assembly_s']:.4f} | "
                   f"{r0['assembly_s'] / m['assembly_s']:.2f} | {m['residual_s']:.4f} | "
                   f"{r0['residual_s'] / m['residual_s']:.2f} | {last['dA_rel']:.1e} | {last['dA_plain_rel']:.1e} | "
@@ -207,7 +240,7 @@ def main() -> None:
         ref = next(v for v in variants if v[0] != "before")  # the same energy: this tree's
         for rec in recs:
             refsave, save = f"{tmp}/{ref[0]}_{ref[1]}_{rec['h_mm']}_{rec['p']}_{rec['run']}", rec.pop("save")
-            if Path(refsave + ".npy").exists():
+            if Path(refsave + ".npz").exists() and Path(save + ".npz").exists():
                 rec["dA_rel"], rec["dA_plain_rel"], rec["dr_rel"], rec["dx_rel"] = compare(refsave, save)
     OUT.mkdir(exist_ok=True)
     (OUT / f"bench_assembly_{time.strftime('%Y%m%dT%H%M%S')}.json").write_text(json.dumps(recs, indent=1))
