@@ -25,9 +25,10 @@ load 2–4; 1.2 s when each was linked against NGSolve's libraries).
   compilation, once per integrand and NGSolve version); without a C++ compiler, or when it fails,
   the interpreted form with a warning.
 * ``"auto"`` (default): by the size of the problem. Native code saves per linearization and
-  residual about 4 µs and 1 µs per dof (measured, one thread, load 3: assembly 0.46 → 0.24 s at
-  63k dofs with p = 2, 0.021 → 0.012–0.020 s at 9.5k dofs with p = 3), and a warm setup costs
-  ~0.3 s, a cold one 15–60 s (the integrand and its derivatives). So: interpreted below
+  residual about 4 µs and 1 µs per dof (measured, one thread, load 4–5, fastest of three
+  processes: assembly 0.34 → 0.11 s at 63k dofs with p = 2, 0.041 → 0.018 s at 9.5k dofs with
+  p = 3), and a warm setup costs 0.3–1 s more than interpreting (code generation, loading, a
+  ~50 ms link per library), a cold one 15–60 s (the integrand and its derivatives). So: interpreted below
   :data:`NATIVE_IF_CACHED` dofs (the default scene's 8 linearizations and 13 residuals would
   save ~0.1 s); native from the cache (nothing compiled) up to :data:`NATIVE_COLD`; native,
   compiling if needed, above. Run once with ``"native"`` to fill the cache for a family of scenes.
