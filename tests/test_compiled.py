@@ -102,3 +102,30 @@ def test_native_code_gives_the_interpreted_tangent(monkeypatch, tmp_path):
     objects = tmp_path / "native" / "objects"
     assert len(list(objects.glob("*.o"))) >= 6  # the integrands and their derivatives
     assert len(list(objects.glob("*.so"))) == len(list(objects.glob("*.o")))  # each code object linked once
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAS_COMPILER, reason="needs a C++ compiler and NGSolve's ngscxx")
+def test_without_ld_the_library_is_linked_whole(monkeypatch, tmp_path):
+    """The caching ngsld falls back to NGSolve's plain link when no ``ld`` is found: the energy
+    of the native integrand is the interpreted one's, and no library is cached."""
+    monkeypatch.setenv("NGBET_CACHE_DIR", str(tmp_path))
+    which = compiled.shutil.which
+    monkeypatch.setattr(compiled.shutil, "which", lambda name: None if name == "ld" else which(name))
+    fes = ngs.H1(ngs.Mesh(ngs.unit_square.GenerateMesh(maxh=0.5)), order=1)
+    u = fes.TrialFunction()
+    cf = u * u + ngs.sqrt(1 + ngs.Grad(u) * ngs.Grad(u))
+    native, mode = compiled.compile_energy(cf, "native", 10)
+    assert mode == "native"
+    g = ngs.GridFunction(fes)
+    g.Set(ngs.x * ngs.y)
+    energies = []
+    for c in (cf.Compile(), native):
+        form = ngs.BilinearForm(fes)
+        form += ngs.Variation(c * ngs.dx)
+        energies.append(form.Energy(g.vec))
+    # ∫ (xy)² + sqrt(1 + y² + x²) over the unit square, up to the P1 interpolant of xy
+    assert 1.3 < energies[0] < 1.5  # 1.3919 for the exact xy
+    assert energies[1] == pytest.approx(energies[0], rel=1e-14)
+    objects = tmp_path / "native" / "objects"
+    assert list(objects.glob("*.o")) and not list(objects.glob("*.so"))
