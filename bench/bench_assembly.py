@@ -20,7 +20,7 @@ load: ``bench/out/bench_assembly_<time>.json``.
 
     python bench/bench_assembly.py                                  # h 10 p 3 and h 2 p 2
     python bench/bench_assembly.py --modes ad,native,bfi --runs 3   # against the element loop alone
-    python bench/bench_assembly.py --cases 10:3 --modes ad,native --threads 1,2 --before /work/before
+    python bench/bench_assembly.py --cases 10:3 --modes ad,native --threads 1,2 --before BASELINE
 
 The "native" mode compiles C++ on its first use (``$NGBET_CACHE_DIR``), reported as ``setup_s``.
 """
