@@ -33,17 +33,19 @@ if TYPE_CHECKING:
 LAGRANGE_AUGMENTATION = 1e6
 
 
-#: NGSolve threads of an assembly that enters a TaskManager of its own (0: the surrounding one)
+#: NGSolve threads of a linearization (assembly and factorization) in a TaskManager of its own
+#: (0: the surrounding one)
 _ASSEMBLY_THREADS: ContextVar[int] = ContextVar("assembly_threads", default=0)
 
 
 @contextlib.contextmanager
 def assembly_threads(n: int) -> Iterator[None]:
-    """Inside: each linearization is assembled in a TaskManager of its own, with ``n`` threads.
+    """Inside: each linearization is assembled and factorized in a TaskManager of its own (``n`` threads).
 
-    The caller sets NGSolve's thread count (``ngsolve.SetNumThreads(n)``); everything else runs
-    where it is called (serial outside a TaskManager). The threaded tangent equals the serial one
-    to round-off (the order of the sparse adds).
+    The caller sets NGSolve's thread count (``ngsolve.SetNumThreads(n)``); everything else (solves,
+    residuals) runs where it is called, serial outside a TaskManager. The threaded tangent equals
+    the serial one to round-off (the order of the sparse adds). Measured at load 0.8 on 2 cores:
+    assembly and factorization each 1.8–1.9x faster on two threads (9.5k and 53k dofs).
     """
     token = _ASSEMBLY_THREADS.set(n)
     try:
@@ -116,17 +118,15 @@ class NewtonLinearSolver:
 
     def factorize(self, state: ngs.BaseVector) -> None:
         """Linearize at ``state`` and factorize (the symbolic factorization is reused)."""
-        t0 = time.perf_counter()
-        if _ASSEMBLY_THREADS.get() > 1:
-            with ngs.TaskManager():
-                self.form.AssembleLinearization(state)
-        else:
+        threaded = ngs.TaskManager() if _ASSEMBLY_THREADS.get() > 1 else contextlib.nullcontext()
+        with threaded:  # assembly and factorization: two long parallel regions
+            t0 = time.perf_counter()
             self.form.AssembleLinearization(state)
-        t1 = time.perf_counter()
-        if self._inv is None:
-            self._inv = self.form.mat.Inverse(self.freedofs, inverse=self.inverse_type)
-        else:
-            self._inv.Update()
+            t1 = time.perf_counter()
+            if self._inv is None:
+                self._inv = self.form.mat.Inverse(self.freedofs, inverse=self.inverse_type)
+            else:
+                self._inv.Update()
         self.timers["assembly_s"] += t1 - t0
         self.timers["factorization_s"] += time.perf_counter() - t1
         self.counts["factorizations"] += 1
