@@ -19,6 +19,10 @@ to ``bench/out/bench_continuum.jsonl`` and the invocation's records to
     python bench/bench_continuum.py --cases default,penalty-full,h2.5 --set solver.threads=1
     python bench/bench_continuum.py --list
 
+Bench-only keys: ``newton.<field>`` sets a NewtonSettings field; ``bench.assembly_threads=n`` runs
+serially with each linearization on n threads whatever the load (``solver.threads = "auto"``
+on an idle machine).
+
 The machine is shared: wall times are noisy, compare medians of the same invocation and look at
 ``load`` (1-minute load average before each run) and at the CPU time.
 """
@@ -57,7 +61,11 @@ CASES: dict[str, tuple[dict, str]] = {
                        "fine mesh 2 mm without the error estimate (the solve alone)"),
     "h2-auto-threads": ({"discretization.mesh_size_mm": 2.0, "solver.threads": "auto"},
                         "fine mesh 2 mm, solver.threads = auto (assembly threads on idle cores)"),
-    "h2-threads2": ({"discretization.mesh_size_mm": 2.0, "solver.threads": 2}, "fine mesh 2 mm, two threads"),
+    "h2-threads2": ({"discretization.mesh_size_mm": 2.0, "solver.threads": 2, "outputs.error_estimate": "off"},
+                    "fine mesh 2 mm, two threads throughout, no estimate"),
+    "h2-split": ({"discretization.mesh_size_mm": 2.0, "bench.assembly_threads": 2, "outputs.error_estimate": "off"},
+                 "fine mesh 2 mm, no estimate, the run serial and each linearization on two threads "
+                 "(what solver.threads = auto does on an idle machine)"),
     "p1": ({"discretization.order_u": 1}, "p = 1 (Λ order 0)"),
     "p3": ({"discretization.order_u": 3}, "p = 3"),
     "p4": ({"discretization.order_u": 4}, "p = 4"),
@@ -101,6 +109,11 @@ def _child(case: str, extra: dict) -> dict:
     changes.update(extra)
     # "newton.*" keys are NewtonSettings fields the scene does not expose (bench-only switches)
     newton = {k.partition(".")[2]: changes.pop(k) for k in list(changes) if k.startswith("newton.")}
+    split = changes.pop("bench.assembly_threads", None)
+    if split:  # the run serial, each linearization on `split` threads, whatever the load
+        import ngbet.run as ngbet_run_module
+
+        ngbet_run_module.thread_policy = lambda threads, model: (1, int(split))
     if newton:
         import dataclasses
 
