@@ -55,7 +55,7 @@ def assembly_threads(n: int) -> Iterator[None]:
 
 
 def assembly_thread_count() -> int:
-    """NGSolve threads of a linearization (assembly, factorization): :func:`assembly_threads`' or the surrounding."""
+    """NGSolve threads of a linearization (assembly, factorization): :func:`assembly_threads` or the surrounding."""
     return _ASSEMBLY_THREADS.get() or ngs.GetNumThreads()
 
 
