@@ -19,6 +19,10 @@ to ``bench/out/bench_continuum.jsonl`` and the invocation's records to
     python bench/bench_continuum.py --cases default,penalty-full,h2.5 --set solver.threads=1
     python bench/bench_continuum.py --list
 
+Bench-only keys: ``newton.<field>`` sets a NewtonSettings field; ``bench.assembly_threads=n`` runs
+serially with each linearization on n threads whatever the load (``solver.threads = "auto"``
+on an idle machine).
+
 The machine is shared: wall times are noisy, compare medians of the same invocation and look at
 ``load`` (1-minute load average before each run) and at the CPU time.
 """
@@ -50,6 +54,18 @@ CASES: dict[str, tuple[dict, str]] = {
                          "K = 1e7 Pa, full penalty"),
     "h10": ({"discretization.mesh_size_mm": 10.0}, "coarse mesh 10 mm"),
     "h2.5": ({"discretization.mesh_size_mm": 2.5}, "fine mesh 2.5 mm"),
+    "h2": ({"discretization.mesh_size_mm": 2.0}, "fine mesh 2 mm (62 851 dofs; native code from the cache)"),
+    "h2-interpret": ({"discretization.mesh_size_mm": 2.0, "solver.compile": "interpret"},
+                     "fine mesh 2 mm, interpreted"),
+    "h2-no-estimate": ({"discretization.mesh_size_mm": 2.0, "outputs.error_estimate": "off"},
+                       "fine mesh 2 mm without the error estimate (the solve alone)"),
+    "h2-auto-threads": ({"discretization.mesh_size_mm": 2.0, "solver.threads": "auto"},
+                        "fine mesh 2 mm, solver.threads = auto (assembly threads on idle cores)"),
+    "h2-threads2": ({"discretization.mesh_size_mm": 2.0, "solver.threads": 2, "outputs.error_estimate": "off"},
+                    "fine mesh 2 mm, two threads throughout, no estimate"),
+    "h2-split": ({"discretization.mesh_size_mm": 2.0, "bench.assembly_threads": 2, "outputs.error_estimate": "off"},
+                 "fine mesh 2 mm, no estimate, the run serial and each linearization on two threads "
+                 "(what solver.threads = auto does on an idle machine)"),
     "p1": ({"discretization.order_u": 1}, "p = 1 (Λ order 0)"),
     "p3": ({"discretization.order_u": 3}, "p = 3"),
     "p4": ({"discretization.order_u": 4}, "p = 4"),
@@ -93,6 +109,11 @@ def _child(case: str, extra: dict) -> dict:
     changes.update(extra)
     # "newton.*" keys are NewtonSettings fields the scene does not expose (bench-only switches)
     newton = {k.partition(".")[2]: changes.pop(k) for k in list(changes) if k.startswith("newton.")}
+    split = changes.pop("bench.assembly_threads", None)
+    if split:  # the run serial, each linearization on `split` threads, whatever the load
+        import ngbet.run as ngbet_run_module
+
+        ngbet_run_module.thread_policy = lambda threads, model: (1, int(split))
     if newton:
         import dataclasses
 
@@ -100,6 +121,8 @@ def _child(case: str, extra: dict) -> dict:
 
         plain = ngbet_run.newton_settings
         ngbet_run.newton_settings = lambda sc: dataclasses.replace(plain(sc), **newton)
+    known = Scene().to_dict()  # an older tree (--before) lacks some keys: they are left out
+    changes = {k: v for k, v in changes.items() if k.partition(".")[2] in known.get(k.partition(".")[0], {})}
     scene = Scene().with_changes(**changes)
     out = tempfile.mkdtemp(prefix="bench_continuum_")
     load = os.getloadavg()[0]
@@ -164,6 +187,7 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="extra scene change applied to every case (e.g. solver.threads=1)")
     ap.add_argument("--list", action="store_true", help="list the cases and exit")
+    ap.add_argument("--before", metavar="DIR", help="also run each case in an older source tree (case 'before:NAME')")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     extra = _parse_sets(args.set)
@@ -182,24 +206,28 @@ def main() -> None:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     records: list[dict] = []
     # interleave the repeats (case a, b, c, a, b, c, ...) so that a burst of load hits all cases alike
+    runs = [(name, None) for name in names] + ([(name, args.before) for name in names] if args.before else [])
     for rep in range(args.repeats):
-        for name in names:
+        for name, tree in runs:
             sets = [a for s in args.set for a in ("--set", s)]
             cmd = [sys.executable, str(Path(__file__).resolve()), "--child", name, *sets]
-            proc = subprocess.run(cmd, capture_output=True, text=True)
+            env = {**os.environ, "PYTHONPATH": tree} if tree else None
+            proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
             line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("BENCH ")), None)
             if line is None:
                 print(f"{name}: the run crashed\n{proc.stderr[-2000:]}", file=sys.stderr)
                 continue
             rec = json.loads(line[6:])
             rec["repeat"] = rep
+            if tree:
+                rec["case"], rec["tree"] = f"before:{name}", tree
             records.append(rec)
             with (OUT / "bench_continuum.jsonl").open("a") as fh:
                 fh.write(json.dumps(rec) + "\n")
             print(f"  [{rep + 1}/{args.repeats}] {name}: {rec['status']} wall {rec['wall_s']:.2f} s, "
                   f"newton {rec['newton_s']:.2f} s, load {rec['load_avg_1min']:.1f}", file=sys.stderr, flush=True)
     (OUT / f"bench_continuum_{stamp}.json").write_text(json.dumps(records, indent=1))
-    print(table(records, names))
+    print(table(records, names + [f"before:{n}" for n in names if args.before]))
 
 
 def table(records: list[dict], names: list[str]) -> str:

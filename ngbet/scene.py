@@ -351,8 +351,9 @@ class Solver:
     # eliminate element-local dofs (Lambda) before factorizing; false keeps them in the factorized
     # matrix (slower): a numerics choice, the same discrete solution for every formulation
     condense: bool = True
-    # NGSolve threads; "auto": all cores. One by default: on the 2-core machines measured, two threads
-    # were slower in wall time (solves and residuals wait for a core)
+    # NGSolve threads; "auto": continuum on one thread with each assembly on the idle cores,
+    # discrete on all cores (ngbet.run.thread_policy). One by default: on the 2-core machines
+    # measured, two threads were slower in wall time (solves and residuals wait for a core)
     threads: int | str = 1
     predictor: str = "tangent"  # "tangent" (Euler) or "clamp" (u += du0 X/L)
     # continuum: "displacement" control; "arclength": pseudo-arclength continuation in (state, u0)

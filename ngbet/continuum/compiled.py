@@ -8,11 +8,15 @@ each process pays the C++ compilation again (15–30 s per integrand with two de
 2-core machine measured). The generated code keeps the addresses of live objects apart, in a
 small second source file, so the large file depends on the expression alone.
 
-This module puts a caching ``ngscxx`` in front of NGSolve's (on ``PATH`` while compiling): the
-object file of a source is kept under :func:`cache_dir`, named by a SHA-256 of the source, the
-NGSolve version and the compiler wrapper, and copied back when the same source comes again. The
-address table is compiled directly (no NGSolve headers); ``ngsld`` is replaced by the linker
-call it makes, with its arguments read once. A warm compile then costs a link per integrand.
+This module puts a caching ``ngscxx`` and ``ngsld`` in front of NGSolve's (on ``PATH`` while
+compiling): the object file of a source is kept under :func:`cache_dir`, named by a SHA-256 of
+the source, the NGSolve version and the compiler wrapper, and copied back when the same source
+comes again; its shared library (linked against NGSolve's libraries, 0.1–0.2 s) is kept beside
+it. The address table is compiled directly (no NGSolve headers) and linked alone, by ``ld``
+without the C++ driver, against a private copy of the cached library, whose address symbols bind
+to that table when NGSolve loads it (two compiles of one source in a process keep apart). A warm
+compile then costs ~50 ms per library (0.3 s for the six of the default scene, measured under
+load 2–4; 1.2 s when each was linked against NGSolve's libraries).
 
 ``solver.compile``:
 
@@ -21,25 +25,34 @@ call it makes, with its arguments read once. A warm compile then costs a link pe
   compilation, once per integrand and NGSolve version); without a C++ compiler, or when it fails,
   the interpreted form with a warning.
 * ``"auto"`` (default): by the size of the problem. Native code saves per linearization and
-  residual about 5.5 µs and 1 µs per dof (p = 2; measured, assembly 0.66 → 0.31 s at 63k dofs,
-  0.037 → 0.025 s at 9.5k dofs with p = 3), and a warm compile costs ~0.25 s per integrand (the
-  link), a cold one 15–30 s. So: interpreted below :data:`NATIVE_IF_CACHED` dofs; native from
-  the cache (nothing compiled) up to :data:`NATIVE_COLD`; native, compiling if needed, above.
-  Run once with ``"native"`` to fill the cache for a family of scenes.
+  residual about 4 µs and 1 µs per dof (measured, one thread, load 4–5, fastest of three
+  processes: assembly 0.34 → 0.11 s at 63k dofs with p = 2, 0.041 → 0.018 s at 9.5k dofs with
+  p = 3), and a warm setup costs 0.3–1 s more than interpreting (code generation, loading, a
+  ~50 ms link per library), a cold one 15–60 s (the integrand and its derivatives). So:
+  interpreted below :data:`NATIVE_IF_CACHED` dofs (the default scene's 8 linearizations and 13 residuals would
+  save ~0.1 s); native from the cache (nothing compiled) up to :data:`NATIVE_COLD`; native,
+  compiling if needed, above. Run once with ``"native"`` to fill the cache for a family of scenes.
 
 The constants of the energy (material parameters, K_aug) are literals in the generated code, so
-each set of values is its own source. The tangent is the same either way (measured: to 1e-19 of
-its largest entry, residual to 4e-18).
+each set of values is its own source. The tangent is the same either way: uncondensed to 2e-16
+of its largest entry, the residual to 4e-18 (measured; after the element-wise condensation of
+the exact Lagrangian's Newton matrix, whose local blocks carry K_aug, the corner entries differ by
+the round-off that elimination amplifies, 2.5e-2 at p = 3 with 0.25 mm corners, and the condensed
+systems' solutions agree to 1e-8, as between the interpreted symbolic and automatic derivatives).
 
 Linearization (:func:`add_energy`). By default NGSolve's energy integrator gets the Hessian by
 evaluating the integrand in second-order automatic differentiation, pair of trial components by
-pair; with ``ngsglobals.symbolic_integrator_uses_diff`` it differentiates the expression once,
-symbolically, when the integrator is built (read then only). For the interpreted integrand that
-is 1.2–1.4x faster assembly (default scene, 7 linearizations: 0.47 → 0.34–0.40 s); the
-uncondensed Hessian matches a central difference of the residual to 4e-11 either way, and the
-forces of a run agree to 1e-16 with the same Newton iterations. The derivatives of native code
-would be compiled apart (three libraries per integrand), so native code keeps automatic
-differentiation.
+pair; with ``ngsglobals.symbolic_integrator_uses_diff`` it differentiates the expression once
+per trial function, symbolically, when the integrator is built (read then only), and gets the
+Hessian from first-order automatic differentiation of those derivatives. Interpreted, that is
+1.2–1.4x faster assembly (default scene, 7 linearizations: 0.47 → 0.34–0.40 s); the uncondensed
+Hessian matches a central difference of the residual to 4e-11 either way, and the forces of a run
+agree to 1e-16 with the same Newton iterations. Native, the derivatives of a compiled integrand
+are compiled too (one more object per trial function: u's gradient, φ, ∇φ, Λ), through the same
+cache while the integrator is built; measured on the default scene (9 495 dofs, one thread) the
+element matrices' second derivatives take 1.4 ms per linearization instead of 4.6 ms, and at
+63k dofs the assembly falls from ~0.23 to ~0.16 s. Cold, each derivative is a C++ compilation
+of its own.
 """
 
 from __future__ import annotations
@@ -69,6 +82,7 @@ src="$2"; obj="$4"
 if ! grep -q '#include' "$src"; then exec {cxx} -c -fPIC -x c++ "$src" -o "$obj"; fi
 key=$(cat "$0.key" "$src" | sha256sum | cut -c1-40)
 hit="{objects}/$key.o"
+echo "$key" > "$obj.key"
 if [ -f "$hit" ]; then cp "$hit" "$obj"; exit 0; fi
 if [ -n "$NGBET_CACHED_ONLY" ]; then exit 1; fi
 {real} "$@" || exit $?
@@ -76,7 +90,19 @@ cp "$obj" "$hit.$$" && mv "$hit.$$" "$hit"
 """
 
 _NGSLD = """#!/bin/sh
-# ngbet: NGSolve's ngsld with its link arguments read once
+# ngbet: NGSolve's ngsld (called as: ngsld -shared CODE.o TABLE.o -o LIBRARY -l...). The code's
+# shared library is cached by the code object's key and copied beside LIBRARY; LIBRARY is the
+# address table alone, linked without the C++ driver, with the copy as its dependency (the copy's
+# address symbols bind to this table when LIBRARY is loaded). Any other call: the plain link.
+if [ "$1" = -shared ] && [ "$4" = -o ] && [ -f "$2.key" ] && [ -n "{ld}" ]; then
+  code="$2"; table="$3"; lib="$5"; shift 5
+  so="{objects}/$(cat "$code.key").so"
+  if [ ! -f "$so" ]; then
+    {cxx} {args} -shared "$code" -o "$so.$$" "$@" && mv "$so.$$" "$so" || exit 1
+  fi
+  dir=$(cd "$(dirname "$lib")" && pwd) || exit 1
+  cp "$so" "$dir/code.so" && exec {ld} -shared "$table" "$dir/code.so" -o "$lib"
+fi
 exec {cxx} {args} "$@"
 """
 
@@ -111,18 +137,24 @@ def _write(path: Path, text: str) -> None:
 
 
 def _wrappers(real: str, cxx: str) -> Path:
-    """The folder with the caching ngscxx and the direct ngsld (created on first use)."""
+    """The folder with the caching ngscxx and the direct ngsld (created on first use).
+
+    One folder per installation (named by a hash of the wrappers' text, which holds its paths):
+    processes of different environments sharing a cache never rewrite each other's wrappers.
+    """
     import ngsolve.config as cfg
 
     root = cache_dir() / "native"
-    bins, objects = root / "bin", root / "objects"
+    objects = root / "objects"
+    wrapper = _NGSCXX.format(cxx=cxx, objects=objects, real=real)
+    ngsld = _NGSLD.format(cxx=cxx, args=cfg.get_link_lib_args(), objects=objects, ld=shutil.which("ld") or "")
+    key = hashlib.sha256((ngs.__version__ + Path(real).read_text() + wrapper).encode()).hexdigest()
+    bins = root / "bin" / hashlib.sha256((key + ngsld).encode()).hexdigest()[:16]
     bins.mkdir(parents=True, exist_ok=True)
     objects.mkdir(parents=True, exist_ok=True)
-    wrapper = _NGSCXX.format(cxx=cxx, objects=objects, real=real)
-    key = hashlib.sha256((ngs.__version__ + Path(real).read_text() + wrapper).encode()).hexdigest()
     _write(bins / "ngscxx.key", key + "\n")
     _write(bins / "ngscxx", wrapper)
-    _write(bins / "ngsld", _NGSLD.format(cxx=cxx, args=cfg.get_link_lib_args()))
+    _write(bins / "ngsld", ngsld)
     return bins
 
 
@@ -135,18 +167,37 @@ def _on_path(bins: Path, cached_only: bool) -> Any:
     return environ({"PATH": path, **({"NGBET_CACHED_ONLY": "1"} if cached_only else {})})
 
 
-def add_energy(form: ngs.BilinearForm, compiled: ngs.CoefficientFunction, dx: Any, mode: str) -> None:
-    """Add the energy integrator of a compiled integrand to ``form``.
-
-    The interpreted integrand gets symbolic derivatives (the integrator is built, and reads
-    NGSolve's flag, when it is added).
-    """
+def _add_variation(form: ngs.BilinearForm, compiled: ngs.CoefficientFunction, dx: Any, symbolic: bool) -> None:
+    """``form += Variation(compiled * dx)``; ``symbolic``: the integrator differentiates symbolically."""
     before = ngs.ngsglobals.symbolic_integrator_uses_diff
-    ngs.ngsglobals.symbolic_integrator_uses_diff = mode == "interpret"
+    ngs.ngsglobals.symbolic_integrator_uses_diff = symbolic
     try:
         form += ngs.Variation(compiled * dx)
     finally:
         ngs.ngsglobals.symbolic_integrator_uses_diff = before
+
+
+def add_energy(form: ngs.BilinearForm, cf: ngs.CoefficientFunction, dx: Any, mode: str, ndof: int = 0,
+               linearized: bool = True) -> str:
+    """Compile ``cf`` as ``solver.compile`` asks (:func:`compile_energy`) and add its energy to ``form``.
+
+    Returns the mode used ("interpret" or "native"). A form that is ``linearized`` gets symbolic
+    derivatives: interpreted, the integrator differentiates the expression when it is built;
+    native, it also compiles the first derivatives (one object per trial function, through the
+    cache, while the integrator is built). A form used only for residuals and energies keeps the
+    integrand's own compiled derivatives (``Apply`` does not use the symbolic ones).
+    """
+    compiled, used = compile_energy(cf, mode, ndof)
+    if used == "interpret":
+        _add_variation(form, compiled, dx, symbolic=linearized)
+        return used
+    tools = _compiler()
+    assert tools is not None  # compile_energy found them
+    # a derivative that cannot be compiled (or, for "auto", is not in the cache) leaves the
+    # integrator with automatic differentiation of the compiled integrand: the same tangent
+    with _on_path(_wrappers(*tools), cached_only=mode == "auto"):
+        _add_variation(form, compiled, dx, symbolic=linearized)
+    return used
 
 
 def compile_energy(cf: ngs.CoefficientFunction, mode: str, ndof: int = 0) -> tuple[ngs.CoefficientFunction, str]:

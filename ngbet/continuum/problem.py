@@ -59,7 +59,7 @@ from ngsolve import CoefficientFunction as CF
 
 from ..scene import AUTO, Scene, Specimen
 from . import physics
-from .compiled import add_energy, compile_energy
+from .compiled import add_energy
 from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver
 from .mesh import make_mesh
 
@@ -130,8 +130,9 @@ class ContinuumProblem:
         # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
         self.condense = scene.solver.condense
         self.a = ngs.BilinearForm(self.X, symmetric=True, condense=self.condense and saddle_energy is None)
-        compiled, self.compile_mode = compile_energy(energy, scene.solver.compile, self.X.ndof)
-        add_energy(self.a, compiled, self.dx, self.compile_mode)
+        # the energy form is linearized unless the augmented Newton matrix of linear.py replaces it
+        linearized = not (self.condense and saddle_energy is not None)
+        self.compile_mode = add_energy(self.a, energy, self.dx, scene.solver.compile, self.X.ndof, linearized)
         self.linear = NewtonLinearSolver(self.a, self.condense, scene.solver.linear_solver, saddle_energy,
                                          self.K_ref, self.dx,
                                          scene.solver.compile if self.compile_mode == "native" else "interpret")

@@ -16,6 +16,7 @@ from ..output import RunWriter, plot_force
 from ..scene import Scene
 from . import observables as obs
 from .arclength import arclength_runner
+from .linear import assembly_thread_count
 from .output import write_vtk
 from .problem import ContinuumProblem
 from .solver import NewtonSettings, continuation
@@ -89,7 +90,8 @@ def _setup_info(problem: ContinuumProblem, t_setup: float) -> dict[str, Any]:
     return {"model": "continuum", "dofs": problem.ndofs(), "linear_solver": problem.inverse_type,
             "stabilization_K_Pa": list(problem.K_s_range), "condensed": problem.linear.condensed,
             "setup_s": t_setup, "compile_mode": problem.compile_mode,
-            "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None}
+            "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None,
+            "assembly_threads": assembly_thread_count()}
 
 
 def _order_warnings(scene: Scene) -> list[str]:
