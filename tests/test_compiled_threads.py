@@ -79,3 +79,19 @@ def test_a_run_with_threaded_assembly_gives_the_serial_forces(monkeypatch, tmp_p
 
 def _force_column(root) -> int:
     return (root / "serial" / "results.csv").read_text().splitlines()[0].split(",").index("force_N")
+
+
+def test_a_run_holds_the_blas_pools_to_one_thread():
+    """Inside a run every BLAS pool of the process (numpy's and NGSolve's OpenBLAS, one thread per
+    core by default) has one thread, and gets its own count back afterwards."""
+    import numpy  # noqa: F401  (numpy's BLAS is loaded)
+    from threadpoolctl import threadpool_info
+
+    from ngbet.run import ngsolve_threads
+    from ngbet.scene import Scene
+
+    before = {i["filepath"]: i["num_threads"] for i in threadpool_info()}
+    assert before  # a BLAS library is loaded, so the check below checks something
+    with ngsolve_threads(Scene()):
+        assert {i["filepath"]: i["num_threads"] for i in threadpool_info()} == dict.fromkeys(before, 1)
+    assert {i["filepath"]: i["num_threads"] for i in threadpool_info()} == before
