@@ -52,15 +52,19 @@ DEFAULT_VARIANTS = list(VARIANTS)
 PLOT_PROCESS = {"plot-process": "always", "plot-here": "never"}
 
 
-def _child(argv: list[str], env: dict[str, str]) -> tuple[float, float, int, float]:
+def _child(argv: list[str], env: dict[str, str], cwd: str) -> tuple[float, float, int, float]:
     """Wall time [s], peak RSS [MB], exit code and CPU time [s] (user + system) of the child.
+
+    It runs in ``cwd``, an empty folder: ``python -m`` puts the working folder first on
+    ``sys.path``, so a run started in a source tree would import that tree's ngbet, not the one
+    its PYTHONPATH names.
 
     From the child's rusage, which holds its own processes too (the plot process): the peak RSS is
     the largest of them, the CPU time their sum.
     """
     with tempfile.TemporaryFile() as err:
         t0 = time.perf_counter()
-        proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=err)
+        proc = subprocess.Popen(argv, env=env, cwd=cwd, stdout=subprocess.DEVNULL, stderr=err)
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
         proc.returncode = rc = os.waitstatus_to_exitcode(status)
@@ -81,7 +85,7 @@ def run_variant(name: str, env: dict[str, str], python: str = sys.executable) ->
         for s in sets:
             argv += ["--set", s]
         load = os.getloadavg()[0]
-        wall, rss, rc, cpu = _child(argv, env)
+        wall, rss, rc, cpu = _child(argv, env, tmp)
         rec: dict = {"variant": name, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss, "load": load, "rc": rc}
         summary = Path(tmp) / "run" / "summary.json"
         if summary.exists():
@@ -108,7 +112,8 @@ def imports(env: dict[str, str]) -> dict:
     out = {}
     for label, code in (("python", "pass"), ("ngbet.cli", "import ngbet.cli"), ("ngsolve", "import ngsolve"),
                         ("matplotlib.pyplot", "import matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot")):
-        out[label] = _child([sys.executable, "-c", code], env)[0]
+        with tempfile.TemporaryDirectory() as tmp:
+            out[label] = _child([sys.executable, "-c", code], env, tmp)[0]
     return out
 
 
