@@ -403,7 +403,7 @@ class Outputs:
     vtk: bool = True  # final fields for ParaView
     vtk_every_step: bool = False
     # discretization error of the force and profile (ngbet.continuum.estimate): "stops" (at the
-    # load stops and the final load), "final", or "off"
+    # load stops and the final load), "every" (every converged step), "final", or "off"
     error_estimate: str = "stops"
     plot: bool = True
 
@@ -411,7 +411,7 @@ class Outputs:
         _boolean("outputs", self, "reaction", "double_force", "energy", "profile", "vtk",
                  "vtk_every_step", "plot")
         _integer("outputs", self, "profile_points", 3, 100000)
-        _choice("outputs", self, "error_estimate", ("stops", "final", "off"))
+        _choice("outputs", self, "error_estimate", ("stops", "every", "final", "off"))
         object.__setattr__(self, "fields", tuple(self.fields))
         for f in self.fields:
             _check(f in FIELD_OUTPUTS, "outputs.fields", f, f"unknown field, known: {', '.join(FIELD_OUTPUTS)}")

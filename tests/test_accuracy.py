@@ -213,6 +213,23 @@ def test_results_csv_has_the_error_at_the_stops(tmp_path):
     assert set(summary["profile_error_mm"]) == {"37", "56"} and "not graded" in summary["error_estimate_note"]
 
 
+def test_every_converged_step_gets_an_error_with_every(tmp_path):
+    """``outputs.error_estimate = "every"``: an estimate at each converged step (the 16 mm step
+    included), the same at the stops as ``"stops"`` gives (one enriched step from the same state)."""
+    from ngbet.output import read_rows
+
+    rows = {}
+    for mode in ("stops", "every"):
+        sc = _scene("default", mesh_size_mm=20.0).with_changes(**{"outputs.error_estimate": mode})
+        run(sc, tmp_path / mode)
+        rows[mode] = {r["u0_mm"]: r["force_error_N"] for r in read_rows(tmp_path / mode / "results.csv")}
+    every, stops = rows["every"], rows["stops"]
+    assert len(every) >= 3 and all(isinstance(v, float) and v > 0 for v in every.values()), every
+    assert any(v == "" for v in stops.values())  # a step between the stops, estimated under "every" only
+    for u0 in (37.0, 56.0):
+        assert every[u0] == pytest.approx(stops[u0], rel=1e-9)
+
+
 @pytest.mark.parametrize("target", [1e-2, 1e-3])
 def test_accuracy_on_demand_reaches_the_target(tmp_path, target, capsys):
     out = tmp_path / f"acc{target:g}"

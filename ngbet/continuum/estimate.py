@@ -289,7 +289,8 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
 class RunEstimates:
     """The estimates of one run: which steps get one, the results.csv column, the summary keys.
 
-    ``outputs.error_estimate``: "stops" (the load stops and the final load), "final", "off".
+    ``outputs.error_estimate``: "stops" (the load stops and the final load), "every" (every
+    converged step), "final", "off".
     Steps without an estimate get an empty ``force_error_N``.
     """
 
@@ -312,7 +313,8 @@ class RunEstimates:
     def row(self, lam: float, force_N: float | None) -> dict[str, Any]:
         """``{"force_error_N": ...}`` for the results.csv row of the converged load ``lam`` [m]."""
         u0 = lam * 1e3
-        due = abs(u0 - self.final) < 1e-6 or any(abs(u0 - s) < 1e-6 for s in self.stops)
+        due = (self.mode == "every" or abs(u0 - self.final) < 1e-6
+               or any(abs(u0 - s) < 1e-6 for s in self.stops))
         if self.estimator is None or force_N is None or not due:
             return {"force_error_N": ""}
         e = self.estimator.estimate(lam, force_N)
