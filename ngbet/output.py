@@ -373,15 +373,36 @@ def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], 
     process when one runs (:mod:`ngbet.plot_process`), else here; the figure is the same. Returns
     None, with a note in the log, when matplotlib is not installed or results.csv has no force.
     """
+    return start_plot(run_dir, extra)()
+
+
+def start_plot(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()
+               ) -> Callable[[], Path | None]:
+    """Start :func:`plot_force` of a finished results.csv; the function returned finishes it.
+
+    With a plot process the request goes out now and the process draws while the run writes its
+    other files; the function returned waits for it (and draws here if it failed). Without one,
+    the function returned draws.
+    """
     from .plot_process import PlotProcessError, active
 
     proc = active()
     if proc is not None:
         try:
-            return proc.plot(run_dir, extra)
+            proc.request(run_dir, extra)
         except PlotProcessError as exc:
-            log.info("the plot process did not draw %s (%s): drawing it here", run_dir, exc)
-    return draw_force(Path(run_dir), extra)
+            log.info("the plot process did not take %s (%s): drawing it here", run_dir, exc)
+            proc = None
+
+    def finish() -> Path | None:
+        if proc is not None:
+            try:
+                return proc.answer()
+            except PlotProcessError as exc:
+                log.info("the plot process did not draw %s (%s): drawing it here", run_dir, exc)
+        return draw_force(Path(run_dir), extra)
+
+    return finish
 
 
 def draw_force(run_dir: Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = (),

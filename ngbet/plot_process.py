@@ -64,12 +64,38 @@ class PlotProcess:
         PlotProcessError
             when the process is gone or its drawing failed.
         """
-        stdin, stdout = self.proc.stdin, self.proc.stdout
-        assert stdin is not None and stdout is not None
+        self.request(run_dir, extra)
+        return self.answer()
+
+    def request(self, run_dir: str | Path,
+                extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> None:
+        """Ask for the force plot of ``run_dir`` without waiting (:meth:`answer` waits).
+
+        Raises
+        ------
+        PlotProcessError
+            when the process is gone.
+        """
+        stdin = self.proc.stdin
+        assert stdin is not None
         request = {"run_dir": str(Path(run_dir).resolve()), "extra": [[lab, list(x), list(y)] for lab, x, y in extra]}
         try:
             stdin.write((json.dumps(request) + "\n").encode())
             stdin.flush()
+        except OSError as exc:
+            raise PlotProcessError(f"the plot process is gone ({exc})") from exc
+
+    def answer(self) -> Path | None:
+        """Wait for the answer to the last :meth:`request`: force.png, or None when there was nothing to draw.
+
+        Raises
+        ------
+        PlotProcessError
+            when the process is gone or its drawing failed.
+        """
+        stdout = self.proc.stdout
+        assert stdout is not None
+        try:
             line = stdout.readline()
         except OSError as exc:
             raise PlotProcessError(f"the plot process is gone ({exc})") from exc

@@ -100,3 +100,41 @@ def test_ngbet_run_writes_the_same_files_with_and_without_the_plot_process(tmp_p
     files = set(json.loads((out / "summary.json").read_text())["files"])
     assert {"force.png", "force.pdf", "fields.vtu", "results.csv"} <= files
     assert (out / "force.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("with_process", [True, False])
+def test_the_plot_is_asked_for_first_and_finished_even_when_a_later_file_fails(tmp_path, monkeypatch, with_process):
+    """The run asks for its figure as soon as results.csv is complete and writes the fields while the
+    plot process draws; when the fields' file fails (here: a full disk) the error still reaches the
+    caller, and the figure is waited for: complete, never half-written, and drawn in the plot
+    process when there is one (the run's process never imports matplotlib then)."""
+    from ngbet.continuum import run as crun
+    from ngbet.run import run
+    from ngbet.scene import Scene
+
+    asked: list[str] = []
+
+    def vtk_fails(problem, path):
+        asked.append("vtk")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(crun, "write_vtk", vtk_fails)
+    monkeypatch.setenv(plot_process.ENV, "always")
+    sc = Scene().with_changes(**{"discretization.mesh_size_mm": 20.0, "outputs.error_estimate": "off",
+                                 "loading.u0_mm": 20.0, "loading.stops_mm": []})
+    out = tmp_path / "r"
+    if with_process:  # the run's plot process, as ngbet run starts it (before NGSolve is imported)
+        proc = plot_process.PlotProcess()
+        real_request = proc.request
+        monkeypatch.setattr(proc, "request", lambda *a, **k: (asked.append("plot"), real_request(*a, **k)))
+        monkeypatch.setattr(plot_process, "_ACTIVE", [proc])
+        try:
+            with pytest.raises(OSError, match="No space left"):
+                run(sc, out)
+        finally:
+            proc.close()
+    else:
+        with pytest.raises(OSError, match="No space left"):
+            run(sc, out)
+    assert asked == (["plot", "vtk"] if with_process else ["vtk"])
+    assert pixels(out / "force.png").shape[0] > 100 and (out / "force.pdf").stat().st_size > 1000

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from collections.abc import Callable
@@ -12,7 +13,7 @@ import ngsolve as ngs
 
 from ..engine import PathResult, StepRecord, progress_bar
 from ..errors import ConvergenceError
-from ..output import RunWriter, plot_force
+from ..output import RunWriter, plot_force, start_plot
 from ..scene import Scene
 from . import observables as obs
 from .arclength import arclength_runner
@@ -157,9 +158,29 @@ class _StepWriter:
 
 def _finish(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
             info: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
-    """Final fields, statistics, the multiplier check, summary and plot."""
-    o = scene.outputs
-    if o.vtk:
+    """Final fields, statistics, the multiplier check, summary and plot.
+
+    results.csv is complete here, so the plot is asked for first and drawn (by the plot process)
+    while the rest is written; it is waited for in any case, so that no half-written figure is
+    left behind by an error in between.
+    """
+    plotted = start_plot(out) if scene.outputs.plot else None
+    try:
+        summary = _final_files(problem, scene, writer, out, res, info, warnings)
+    except BaseException:
+        if plotted is not None:
+            with contextlib.suppress(Exception):
+                plotted()
+        raise
+    if plotted is not None:
+        plotted()
+    return summary
+
+
+def _final_files(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
+                 info: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
+    """Final fields, statistics, the multiplier check and the summary."""
+    if scene.outputs.vtk:
         write_vtk(problem, out / "fields")
     info.update(_solver_info(problem, res))
     info["warnings"] = warnings
@@ -173,10 +194,7 @@ def _finish(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Pat
                    f"{problem.p_lam}) are not a stable pair (the default orders are, for order_u >= 2)")
             warnings.append(f"the multiplier oscillates ({osc:.2f} of its L2 norm is not continuous): {why}")
             log.warning("%s", warnings[-1])
-    summary = writer.summary(info, "ok")
-    if o.plot:
-        plot_force(out)
-    return summary
+    return writer.summary(info, "ok")
 
 
 def _solver_info(problem: ContinuumProblem, res: PathResult | None) -> dict[str, Any]:
