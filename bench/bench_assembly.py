@@ -210,6 +210,8 @@ def main() -> None:
     ap.add_argument("--before", help="an older source tree: its problem as a mode 'before' (first)")
     ap.add_argument("--repeats", type=int, default=5, help="linearizations per process")
     ap.add_argument("--runs", type=int, default=2, help="processes per variant and case")
+    ap.add_argument("--blas-free", action="store_true",
+                    help="leave the BLAS pools at their default thread counts (a run holds them to one)")
     ap.add_argument("--child", nargs=6, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -224,7 +226,9 @@ def main() -> None:
         for run in range(args.runs):
             for h, p in cases:
                 for mode, nt in variants:
-                    env = dict(os.environ)
+                    # BLAS pools at one thread, as in a run (ngbet.run.ngsolve_threads); --blas-free leaves them
+                    env = dict(os.environ) if args.blas_free else {**os.environ, "OPENBLAS_NUM_THREADS": "1",
+                                                                   "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
                     if mode == "before":
                         env["PYTHONPATH"] = args.before
                     save = f"{tmp}/{mode}_{nt}_{h}_{p}_{run}"
