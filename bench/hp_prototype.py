@@ -44,6 +44,8 @@ def orders(mesh: ngs.Mesh, L: float, W: float) -> list[int]:
         cx, cy = sum(p[0] for p in pts) / 3, sum(p[1] for p in pts) / 3
         d = min(math.hypot(cx - a, cy - b) for a, b in corners)
         t = math.log2(max(d, c) / c) / math.log2(D / c)
+        if os.environ.get("MU"):  # a fixed rise of the order per halving of the distance
+            t = float(os.environ["MU"]) * math.log2(max(d, c) / c) / (PMAX - PMIN)
         out.append(PMAX if UNIFORM else max(PMIN, min(PMAX, round(PMIN + (PMAX - PMIN) * t))))
     return out
 
