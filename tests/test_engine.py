@@ -185,6 +185,9 @@ def test_a_failed_run_exits_1_with_the_same_error_shape_for_both_models(tmp_path
     text = summary["error"]
     assert "load step cut below the minimum 2 mm" in text and "last converged load: 0 mm" in text, text
     assert "0 -> 4 mm: FAILED after 1 it" in text and "0 -> 2 mm: FAILED after 1 it" in text, text
+    if model == "discrete":  # the solver's statistics until the failure are kept (two attempts: factorized)
+        assert summary["factorizations"] >= 2 and summary["snap_event_count"] == 0, summary
+        assert summary["timers"]["solves"] >= 2 and summary["work_by_cause"], summary
 
 
 def test_the_discrete_model_honours_stops_and_output_flags(tmp_path):

@@ -111,7 +111,7 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
                 stats = solve_path(model, ctl, on_step=rec.on_step, progress=bar)
             except ConvergenceError as exc:
                 failure = exc
-                stats = {"last_converged_u0_mm": exc.last_converged_mm,
+                stats = {**exc.path_info, "last_converged_u0_mm": exc.last_converged_mm,
                          "attempted_u0_mm": exc.attempts[-1].u0_to * 1e3 if exc.attempts else math.nan,
                          "residual_history": exc.attempts[-1].history if exc.attempts else []}
         rec.final_snapshot()

@@ -57,7 +57,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..engine import Outcome, PathControl, StepRecord, follow_path
-from ..errors import Attempt
+from ..errors import Attempt, ConvergenceError
 from .linsolve import FreeBlockSolver, LinearSolverError
 
 log = logging.getLogger(__name__)
@@ -530,7 +530,8 @@ def solve_path(problem: Problem, ctl: StepControl,
     Raises
     ------
     ngbet.errors.ConvergenceError
-        when a step fails at the minimum step size (the states before it were passed to on_step).
+        when a step fails at the minimum step size (the states before it were passed to on_step);
+        its ``path_info`` holds the statistics gathered until then (snap events included, not ``u``).
     """
     with single_threaded_blas():
         corrector = ShiftedNewton(problem, ctl)
@@ -538,7 +539,11 @@ def solve_path(problem: Problem, ctl: StepControl,
                            min_step=ctl.min_step, growth=ctl.growth, cut=ctl.cut, grow_after=ctl.grow_after,
                            stops=ctl.stations)
         hook = None if on_step is None else (lambda rec: on_step(rec, corrector.u))
-        follow_path(corrector, path, on_step=hook, progress=progress)
+        try:
+            follow_path(corrector, path, on_step=hook, progress=progress)
+        except ConvergenceError as exc:
+            exc.path_info.update({k: v for k, v in corrector.statistics().items() if k != "u"})
+            raise
         return corrector.statistics()
 
 
