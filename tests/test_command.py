@@ -106,8 +106,8 @@ def test_ngbet_run_writes_the_same_files_with_and_without_the_plot_process(tmp_p
 def test_the_plot_is_asked_for_first_and_finished_even_when_a_later_file_fails(tmp_path, monkeypatch, with_process):
     """The run asks for its figure as soon as results.csv is complete and writes the fields while the
     plot process draws; when the fields' file fails (here: a full disk) the error still reaches the
-    caller, and the figure is waited for: complete, never half-written, and drawn in the plot
-    process when there is one (the run's process never imports matplotlib then)."""
+    caller, and the figure is waited for: complete, never half-written, asked of the plot process
+    before the fields when there is one."""
     from ngbet.continuum import run as crun
     from ngbet.run import run
     from ngbet.scene import Scene

@@ -159,25 +159,25 @@ def test_convergence_error_names_the_last_load_in_mm_and_keeps_the_attempts():
     assert np.all(np.diff([a.u0_from for a in err.attempts]) >= 0)
 
 
-@pytest.mark.parametrize("model", ["continuum", "discrete"])
-def test_a_failed_run_exits_1_with_the_same_error_shape_for_both_models(tmp_path, capsys, model):
-    # one Newton iteration to a tolerance no single iteration meets: the first increment and its
-    # one cut fail, the next cut would be below min_step; both models stop the same way
+def _failed_run(tmp_path, capsys, model: str) -> tuple[int, str, dict]:
+    """``ngbet run`` with one Newton iteration to a tolerance no single iteration meets: the first
+    increment and its one cut fail, the next cut would be below min_step. Exit code, stderr, summary."""
     sets = {"model": model, "loading.u0_mm": 4, "loading.first_step_mm": 4, "loading.min_step_mm": 2,
             "discrete.first_step_mm": 4, "solver.max_iterations": 1, "solver.rtol": 1e-30,
             "solver.atol_energy": 1e-40, "discretization.mesh_size_mm": 20, "outputs.vtk": "false",
             "outputs.plot": "false"}
-    if model == "continuum":
-        del sets["discrete.first_step_mm"]
-    else:
-        del sets["discretization.mesh_size_mm"]
+    del sets["discrete.first_step_mm" if model == "continuum" else "discretization.mesh_size_mm"]
     args = ["run", "--quiet", "--out", str(tmp_path / "run")]
     for k, v in sets.items():
         args += ["--set", f"{k}={v}"]
     code = main(args)  # the exit status of `ngbet run` (in this process: no second NGSolve import)
-    stderr = capsys.readouterr().err
+    return code, capsys.readouterr().err, json.loads((tmp_path / "run" / "summary.json").read_text())
+
+
+@pytest.mark.parametrize("model", ["continuum", "discrete"])
+def test_a_failed_run_exits_1_with_the_same_error_shape_for_both_models(tmp_path, capsys, model):
+    code, stderr, summary = _failed_run(tmp_path, capsys, model)  # both models stop the same way
     assert code == 1, stderr
-    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["status"] == "failed"
     # one line on stderr (loads in mm), the attempts in summary.json
     assert stderr.count("\n") == 1, stderr
@@ -185,9 +185,15 @@ def test_a_failed_run_exits_1_with_the_same_error_shape_for_both_models(tmp_path
     text = summary["error"]
     assert "load step cut below the minimum 2 mm" in text and "last converged load: 0 mm" in text, text
     assert "0 -> 4 mm: FAILED after 1 it" in text and "0 -> 2 mm: FAILED after 1 it" in text, text
-    if model == "discrete":  # the solver's statistics until the failure are kept (two attempts: factorized)
-        assert summary["factorizations"] >= 2 and summary["snap_event_count"] == 0, summary
-        assert summary["timers"]["solves"] >= 2 and summary["work_by_cause"], summary
+
+
+def test_a_failed_network_run_keeps_its_solver_statistics(tmp_path, capsys):
+    """The network's statistics until the failure reach summary.json: the two failed attempts
+    factorized and solved, and no snap happened."""
+    code, stderr, summary = _failed_run(tmp_path, capsys, "discrete")
+    assert code == 1, stderr
+    assert summary["factorizations"] >= 2 and summary["snap_event_count"] == 0, summary
+    assert summary["timers"]["solves"] >= 2 and summary["work_by_cause"], summary
 
 
 def test_the_discrete_model_honours_stops_and_output_flags(tmp_path):
