@@ -12,17 +12,28 @@ ordering and symbolic factorization. It works without pivoting, hence also for t
 tangents met past a bifurcation (as long as no pivot vanishes).
 ``"umfpack"``, ``"pardiso"``: the same NGSolve matrix with that inverse type (if NGSolve has it).
 ``"splu"``: scipy's SuperLU, refactorized from scratch each time (for comparison; bench_discrete).
+
+Half-turn blocks (:mod:`.symmetry`): given the network's half-turn, a tangent whose coupling block
+vanishes (a state of the symmetric path) is factorized as its two half-size blocks, the
+antisymmetric one only when a right-hand side has an antisymmetric part. Solves are exact for
+any right-hand side; ``solve(r, symmetric_rhs=True)`` drops the antisymmetric part of a residual
+of such a state (round-off) and needs the symmetric block only. Any other tangent is factorized
+whole. The NGSolve backends only.
 """
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+if TYPE_CHECKING:
+    from .symmetry import HalfTurn
 
 log = logging.getLogger(__name__)
 
@@ -41,9 +52,11 @@ class FreeBlockSolver:
     K : a matrix with the pattern (values ignored)
     free : bool mask of the free dofs
     backend : one of ``BACKENDS`` or ``"auto"``
+    half_turn : the problem's half-turn symmetry (None: factorize every tangent whole)
     """
 
-    def __init__(self, K: sp.csr_matrix, free: np.ndarray, backend: str = "auto") -> None:
+    def __init__(self, K: sp.csr_matrix, free: np.ndarray, backend: str = "auto",
+                 half_turn: HalfTurn | None = None) -> None:
         backend = "sparsecholesky" if backend == "auto" else backend
         if backend not in BACKENDS:
             raise LinearSolverError(f"linear solver {backend!r} unknown; known: {', '.join(BACKENDS)}")
@@ -59,23 +72,29 @@ class FreeBlockSolver:
         self.nf = len(self.free)
         self.Kff: sp.csr_matrix | None = None
         self.shifted = False  # the last factorization was of K_ff + diag(shift)
-        self.n_factor = 0  # factorizations made (statistics)
+        self.n_factor = 0  # factorizations made (statistics): tangents factorized, whole or in blocks
+        self.n_factor_antisymmetric = 0  # ... of which also the antisymmetric block (on demand)
         self.n_solve = 0
         self.t_factor = self.t_solve = 0.0  # wall time in factor() and solve() [s]
         self._lu: Any = None  # scipy's SuperLU ("splu")
-        if backend != "splu":
-            from ngsolve.la import SparseMatrixd
+        self._whole: _NgFactor | None = None  # K_ff in NGSolve (created when first needed)
+        self._blocks: _HalfTurnFactor | None = None
+        self.in_blocks = False  # the last tangent was factorized in its half-turn blocks
+        if half_turn is not None and backend != "splu":
+            self._blocks = _HalfTurnFactor(half_turn, self.free, self.rows, self.cols, backend)
+        elif backend != "splu":
+            self._whole = _NgFactor(self.rows, self.cols, self.nf, backend)
 
-            self._mat = SparseMatrixd.CreateFromCOO(self.rows.tolist(), self.cols.tolist(),
-                                                    [1.0] * len(self.rows), self.nf, self.nf)
-            _, ci, rp = self._mat.CSR()
-            if not (np.array_equal(np.asarray(ci), self.cols) and np.asarray(rp)[-1] == len(self.sel)):
-                raise LinearSolverError("NGSolve reordered the free-block pattern; in-place update impossible")
-            self._vec = self._mat.AsVector()
-            self._vals = self._vec.FV().NumPy()
-            self._inv = None
-            self._b = self._mat.CreateColVector()
-            self._x = self._mat.CreateColVector()
+    def twin(self) -> FreeBlockSolver:
+        """A solver of the same pattern (and half-turn maps) with factorizations of its own."""
+        other = copy.copy(self)
+        other.Kff, other.shifted, other.in_blocks = None, False, False
+        other.n_factor = other.n_factor_antisymmetric = other.n_solve = 0
+        other.t_factor = other.t_solve = 0.0
+        other._lu = None
+        other._whole = None if self._whole is None else _NgFactor(self.rows, self.cols, self.nf, self.backend)
+        other._blocks = None if self._blocks is None else self._blocks.twin()
+        return other
 
     def free_block(self, K: sp.csr_matrix) -> sp.csr_matrix:
         """K_ff as a scipy CSR matrix (same pattern object every time)."""
@@ -93,11 +112,13 @@ class FreeBlockSolver:
         vals = K.data[self.sel]
         self.n_factor += 1
         self.shifted = shift is not None
+        if not np.all(np.isfinite(vals)):
+            raise LinearSolverError("tangent has non-finite entries")
+        # the coupling is judged on the tangent itself (a shift by a multiple of its diagonal keeps it)
+        self.in_blocks = self._blocks is not None and self._blocks.decoupled(vals)
         if shift is not None:
             vals = vals.copy()
             vals[self.rows == self.cols] += shift
-        if not np.all(np.isfinite(vals)):
-            raise LinearSolverError("tangent has non-finite entries")
         self.Kff = sp.csr_matrix((vals, self.cols, self._indptr()), shape=(self.nf, self.nf))
         if self.backend == "splu":
             try:
@@ -105,60 +126,149 @@ class FreeBlockSolver:
             except RuntimeError as exc:
                 raise LinearSolverError(f"SuperLU failed: {exc}") from None
             return
-        self._vals[:] = vals
-        if self._inv is None:
-            self._inv = self._mat.Inverse(inverse=self.backend)
-        else:
-            self._inv.Update()
+        if self.in_blocks:
+            assert self._blocks is not None
+            self._blocks.factor(vals, shift is not None)
+            return
+        if self._whole is None:
+            self._whole = _NgFactor(self.rows, self.cols, self.nf, self.backend)
+        self._whole.factor(vals)
 
     def _indptr(self) -> np.ndarray:
         if not hasattr(self, "_ip"):
             self._ip = np.concatenate([[0], np.cumsum(np.bincount(self.rows, minlength=self.nf))])
         return self._ip
 
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        """X = K_ff^{-1} b for b of length n_free."""
-        t0 = time.perf_counter()
-        self.n_solve += 1
-        try:
-            return self._solve(b)
-        finally:
-            self.t_solve += time.perf_counter() - t0
+    def solve(self, b: np.ndarray, symmetric_rhs: bool = False) -> np.ndarray:
+        """X = K_ff^{-1} b for b of length n_free.
 
-    def solve_many(self, B: np.ndarray) -> np.ndarray:
-        """X = K_ff^{-1} B for the columns of B (n_free, m).
+        ``symmetric_rhs``: b is a residual of the state whose tangent this is (or made from such
+        residuals): where that state is on the symmetric path (the tangent is factorized in its
+        half-turn blocks), b's antisymmetric part is round-off and is left out.
+        """
+        return self.solve_many(b[:, None], symmetric_rhs)[:, 0]
+
+    def solve_many(self, B: np.ndarray, symmetric_rhs: bool = False) -> np.ndarray:
+        """X = K_ff^{-1} B for the columns of B (n_free, m); ``symmetric_rhs`` as in :meth:`solve`.
 
         One pass over the factor for all columns with NGSolve (a MultiVector; 2 columns: 20 % less
         than two solves at 17k dofs).
         """
-        if self.backend == "splu" or B.shape[1] == 1:
-            return np.column_stack([self.solve(B[:, j]) for j in range(B.shape[1])])
-        from ngsolve.la import MultiVector
-
         t0 = time.perf_counter()
         self.n_solve += B.shape[1]
         try:
-            m = B.shape[1]
-            if getattr(self, "_mv_size", 0) != m:
-                self._mv_b, self._mv_x, self._mv_size = MultiVector(self._b, m), MultiVector(self._x, m), m
-            for j in range(m):
-                self._mv_b[j].FV().NumPy()[:] = B[:, j]
-            self._mv_x[:] = self._inv * self._mv_b
-            X = np.column_stack([np.array(self._mv_x[j].FV().NumPy()) for j in range(m)])
+            if self.backend == "splu":
+                X = np.column_stack([self._lu.solve(B[:, j]) for j in range(B.shape[1])])
+            elif self.in_blocks:
+                assert self._blocks is not None
+                if not symmetric_rhs and self._blocks.needs_antisymmetric(B):
+                    t1 = time.perf_counter()
+                    self._blocks.factor_antisymmetric()
+                    self.n_factor_antisymmetric += 1
+                    self.t_factor += time.perf_counter() - t1
+                    t0 += time.perf_counter() - t1  # (factorization time, not solve time)
+                X = self._blocks.solve(B, symmetric_rhs)
+            else:
+                assert self._whole is not None
+                X = self._whole.solve(B)
         finally:
             self.t_solve += time.perf_counter() - t0
         if not np.all(np.isfinite(X)):
             raise LinearSolverError("solution of the tangent system is not finite (singular tangent?)")
         return X
 
-    def _solve(self, b: np.ndarray) -> np.ndarray:
-        if self.backend == "splu":
-            assert self._lu is not None
-            x = self._lu.solve(b)
+
+class _NgFactor:
+    """An NGSolve sparse matrix of a fixed pattern (CSR order) and its factorization, refreshed in place."""
+
+    def __init__(self, rows: np.ndarray, cols: np.ndarray, n: int, backend: str) -> None:
+        from ngsolve.la import SparseMatrixd
+
+        self.backend = backend
+        self.mat = SparseMatrixd.CreateFromCOO(rows.tolist(), cols.tolist(), [1.0] * len(rows), n, n)
+        _, ci, rp = self.mat.CSR()
+        if not (np.array_equal(np.asarray(ci), cols) and np.asarray(rp)[-1] == len(rows)):
+            raise LinearSolverError("NGSolve reordered the free-block pattern; in-place update impossible")
+        self._vec = self.mat.AsVector()
+        self.vals = self._vec.FV().NumPy()
+        self.inv: Any = None
+        self._b = self.mat.CreateColVector()
+        self._x = self.mat.CreateColVector()
+        self._mv_size = 0
+
+    def factor(self, vals: np.ndarray) -> None:
+        self.vals[:] = vals
+        if self.inv is None:
+            self.inv = self.mat.Inverse(inverse=self.backend)
         else:
-            self._b.FV().NumPy()[:] = b
-            self._x.data = self._inv * self._b
-            x = np.array(self._x.FV().NumPy())
-        if not np.all(np.isfinite(x)):
-            raise LinearSolverError("solution of the tangent system is not finite (singular tangent?)")
-        return x
+            self.inv.Update()
+
+    def solve(self, B: np.ndarray) -> np.ndarray:
+        """K^-1 B for the columns of B."""
+        m = B.shape[1]
+        if m == 1:
+            self._b.FV().NumPy()[:] = B[:, 0]
+            self._x.data = self.inv * self._b
+            return np.array(self._x.FV().NumPy())[:, None]
+        from ngsolve.la import MultiVector
+
+        if self._mv_size != m:
+            self._mv_b, self._mv_x, self._mv_size = MultiVector(self._b, m), MultiVector(self._x, m), m
+        for j in range(m):
+            self._mv_b[j].FV().NumPy()[:] = B[:, j]
+        self._mv_x[:] = self.inv * self._mv_b
+        return np.column_stack([np.array(self._mv_x[j].FV().NumPy()) for j in range(m)])
+
+
+class _HalfTurnFactor:
+    """A tangent of a symmetric state factorized as its half-turn blocks (the antisymmetric one on demand)."""
+
+    def __init__(self, ht: HalfTurn, free: np.ndarray, rows: np.ndarray, cols: np.ndarray, backend: str) -> None:
+        from .symmetry import Blocks
+
+        self.maps = Blocks(ht, free, rows, cols)
+        self.sym = _NgFactor(self.maps.rows_s, self.maps.cols_s, self.maps.n_s, backend)
+        self.anti = _NgFactor(self.maps.rows_a, self.maps.cols_a, self.maps.n_a, backend)
+        self._vals: np.ndarray | None = None  # K_ff's values, while the antisymmetric block waits
+        self._vals_s = np.zeros(0)  # K_s's values of the tangent last judged
+        self.coupling = 0.0  # of the last tangent judged
+
+    def twin(self) -> _HalfTurnFactor:
+        """The same maps, factorizations of its own."""
+        other = copy.copy(self)
+        other.sym = _NgFactor(self.maps.rows_s, self.maps.cols_s, self.maps.n_s, self.sym.backend)
+        other.anti = _NgFactor(self.maps.rows_a, self.maps.cols_a, self.maps.n_a, self.anti.backend)
+        other._vals, other._vals_s, other.coupling = None, np.zeros(0), 0.0
+        return other
+
+    def decoupled(self, vals: np.ndarray) -> bool:
+        """Whether K_ff (values ``vals``) is block diagonal: its state is on the symmetric path."""
+        from .symmetry import COUPLING_TOL
+
+        self._vals_s = self.maps.M_s @ vals
+        self.coupling = self.maps.coupling(vals, self._vals_s)
+        return self.coupling <= COUPLING_TOL
+
+    def factor(self, vals: np.ndarray, shifted: bool) -> None:
+        """Factorize the symmetric block of K_ff (values ``vals``, judged by :meth:`decoupled` unless ``shifted``)."""
+        self.sym.factor(self.maps.M_s @ vals if shifted else self._vals_s)
+        self._vals = vals
+
+    def needs_antisymmetric(self, B: np.ndarray) -> bool:
+        """Whether solving for B needs the antisymmetric block, not yet factorized."""
+        return self._vals is not None and bool(np.any(self.maps.Bt_a @ B))
+
+    def factor_antisymmetric(self) -> None:
+        assert self._vals is not None
+        self.anti.factor(self.maps.M_a @ self._vals)
+        self._vals = None
+
+    def solve(self, B: np.ndarray, symmetric_rhs: bool) -> np.ndarray:
+        """K_ff^-1 B (``symmetric_rhs``: B's antisymmetric part left out)."""
+        X = self.maps.B_s @ self.sym.solve(self.maps.Bt_s @ B)
+        if symmetric_rhs:
+            return X
+        B_a = self.maps.Bt_a @ B
+        if not np.any(B_a):
+            return X
+        return X + self.maps.B_a @ self.anti.solve(B_a)

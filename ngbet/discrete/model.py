@@ -21,6 +21,7 @@ import scipy.sparse as sp
 
 from . import elements as el
 from .network import CLAMP_FIXED, CLAMP_MOVING, Network
+from .symmetry import HalfTurn, half_turn
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -176,6 +177,10 @@ class NetworkModel:
             if hessian:
                 Hs.append(None if grp.name in self._const_groups else He)
         return E, g, (self.pattern.matrix(Hs, self._const_data) if hessian else None)
+
+    def half_turn(self) -> HalfTurn | None:
+        """The network's half-turn symmetry (:mod:`.symmetry`), or None where it lacks one."""
+        return half_turn(self)
 
     def energy(self, u: np.ndarray) -> float:
         """Total energy E(u) [J]."""

@@ -102,6 +102,7 @@ class StepControl:
     krylov_max: int = 8  # CG iterations before the tangent is factorized instead
     krylov_below: float = 1.0  # ... once the last decrement is below this fraction of the energy
     krylov_min_free: int = 10_000  # ... on networks with at least this many free dofs
+    half_turn: bool = True  # factorize the tangents of symmetric states in their half-turn blocks (.symmetry)
 
 
 class _TimedProblem:
@@ -110,6 +111,9 @@ class _TimedProblem:
     def __init__(self, problem: Problem) -> None:
         self._p = problem
         self.n_dofs, self.fixed, self.load, self.ramp = problem.n_dofs, problem.fixed, problem.load, problem.ramp
+        finder = getattr(problem, "half_turn", None)
+        if finder is not None:
+            self.half_turn = finder
         self.t_hessian = self.t_gradient = 0.0
         self.n_hessian = self.n_gradient = 0
 
@@ -278,7 +282,7 @@ def _krylov_step(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, ctl: Ste
     A = lin.free_block(K)
     x = np.zeros_like(r)
     res = -r
-    z = lin.solve(res)
+    z = lin.solve(res, symmetric_rhs=True)
     rz = rz0 = float(res @ z)
     p = z
     for _ in range(ctl.krylov_max):
@@ -291,7 +295,7 @@ def _krylov_step(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, ctl: Ste
         a = rz / pAp
         x += a * p
         res -= a * Ap
-        z = lin.solve(res)
+        z = lin.solve(res, symmetric_rhs=True)
         rz, rz_prev = float(res @ z), rz
         if rz <= ctl.krylov_tol ** 2 * rz0:
             dec = -float(r @ x)
@@ -315,7 +319,7 @@ def _descent_direction(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, mu
     """
     try:
         lin.factor(K)
-        du = -lin.solve(r)
+        du = -lin.solve(r, symmetric_rhs=True)
         dec = -float(r @ du)
         mu = max(mu_prev / 10, 1e-10) if mu_prev else 1e-6
         if dec <= 0 and not allow_shift:
@@ -327,7 +331,7 @@ def _descent_direction(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, mu
         while dec <= 0 and mu < 1e3:  # not a descent direction: K_ff indefinite here
             try:
                 lin.factor(K, shift=mu * diag)
-                du = -lin.solve(r)
+                du = -lin.solve(r, symmetric_rhs=True)
                 dec = -float(r @ du)
             except LinearSolverError:  # the shift met an eigenvalue: singular, try the next
                 dec = -1.0
@@ -587,8 +591,11 @@ class ShiftedNewton:
         assert K is not None
         self.K: sp.csr_matrix = K
         free_mask = ~problem.fixed
-        self.lin = FreeBlockSolver(K, free_mask, ctl.backend)
-        self.work = FreeBlockSolver(K, free_mask, ctl.backend)
+        finder = getattr(problem, "half_turn", None)
+        ht = finder() if (ctl.half_turn and finder is not None) else None
+        self.half_turn = ht
+        self.lin = FreeBlockSolver(K, free_mask, ctl.backend, ht)
+        self.work = self.lin.twin()
         self.free = self.lin.free
         self.tally = _Tally((self.lin, self.work))
         mark = self.tally.start()
@@ -606,10 +613,22 @@ class ShiftedNewton:
 
     # ------------------------------------------------------------------------------ predict
     def _tangent_at(self, lin: FreeBlockSolver, K: sp.csr_matrix) -> np.ndarray:
-        """du/du0 at the state whose tangent K is factorized in ``lin``."""
-        load = self.problem.load
-        t = load.copy()
-        t[self.free] = -lin.solve((K @ load)[self.free])
+        """du/du0 at the state whose tangent K is factorized in ``lin``.
+
+        On the symmetric path (``lin`` holds the half-turn blocks) du/du0 - S du/du0 = c, so du/du0
+        is c / 2 (a rigid translation, K c = 0) plus a symmetric field w that the symmetric block
+        gives alone; solved whole, that translation would come out of the soft antisymmetric
+        block only to about 1e-5 (cancellation in K c).
+        """
+        load, free = self.problem.load, self.free
+        ht = self.half_turn
+        if ht is None or not lin.in_blocks:
+            t = load.copy()
+            t[free] = -lin.solve((K @ load)[free])
+            return t
+        w = np.where(self.problem.fixed, load - 0.5 * ht.shift, 0.0)
+        t = 0.5 * ht.shift + w
+        t[free] += -lin.solve((K @ w)[free], symmetric_rhs=True)
         return t
 
     def predict(self, u0: float, h: float) -> None:
@@ -628,6 +647,11 @@ class ShiftedNewton:
         else:
             trial += h * p.ramp
             trial[p.fixed] = self.u[p.fixed] + h * p.load[p.fixed]
+        if self.half_turn is not None:
+            # on the symmetric path, the prediction is put back on it (off it by round-off only), so
+            # that Newton's tangents stay block diagonal and its steps symmetric
+            sym = self.half_turn.project(trial, u0 + h)
+            trial = trial if sym is None else sym
         self._predicted = trial
 
     # ------------------------------------------------------------------------------ correct
@@ -820,7 +844,9 @@ class ShiftedNewton:
         lin, work, t = self.lin, self.work, self._timed
         s = dict(self.stats)
         s.update({"u": self.u, "steps": self.step, "backend": lin.backend, "n_free": len(self.free),
-                  "factorizations": lin.n_factor + work.n_factor, "work_by_cause": self.tally.rows})
+                  "factorizations": lin.n_factor + work.n_factor, "work_by_cause": self.tally.rows,
+                  "half_turn_blocks": self.lin._blocks is not None,
+                  "factorizations_antisymmetric": lin.n_factor_antisymmetric + work.n_factor_antisymmetric})
         s["timers"] = {"assembly_s": t.t_hessian, "assemblies": t.n_hessian,
                        "gradient_only_s": t.t_gradient, "gradients_only": t.n_gradient,
                        "factor_s": lin.t_factor + work.t_factor, "solve_s": lin.t_solve + work.t_solve,

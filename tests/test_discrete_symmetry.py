@@ -1,0 +1,147 @@
+"""The half-turn symmetry of the BET network and the block factorization it gives (ngbet.discrete.symmetry).
+
+The half-turn about the specimen's centre maps the network, its clamps and the prescribed motion
+onto themselves. Checked here: the energy is invariant under u -> c u0 + S u (the identity the
+block form rests on); a tangent of a symmetric state is block diagonal and its block solves equal
+the whole factorization's to round-off; a state off the symmetric path is factorized whole; and
+the path with blocks is the path without them (same steps, iterations, snap, forces to the
+pinned tolerance of 1e-6).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from ngbet.discrete.linsolve import FreeBlockSolver
+from ngbet.discrete.model import NetworkModel
+from ngbet.discrete.run import step_control
+from ngbet.discrete.solver import solve_path
+from ngbet.discrete.symmetry import COUPLING_TOL, Blocks
+from ngbet.scene import Scene
+
+SCENE = {"model": "discrete", "discrete.spacing_mm": 5.0, "loading.u0_mm": 56.0, "outputs.plot": False}
+
+
+@pytest.fixture(scope="module")
+def model() -> NetworkModel:
+    return NetworkModel.from_scene(Scene().with_changes(**SCENE))
+
+
+def _ramp_state(model: NetworkModel, u0: float, seed: int = 0) -> np.ndarray:
+    """A state of the symmetric path's kind: the clamp ramp plus a symmetric random field."""
+    ht = model.half_turn()
+    assert ht is not None
+    rng = np.random.default_rng(seed)
+    w = 1e-3 * rng.standard_normal(model.n_dofs)
+    w[model.fixed] = 0.0
+    u = u0 * model.ramp + 0.5 * (w + ht.sign * w[ht.perm])
+    u[model.fixed] = u0 * model.load[model.fixed]
+    return u
+
+
+def test_half_turn_is_an_involution_and_leaves_the_energy_invariant(model):
+    ht = model.half_turn()
+    assert ht is not None
+    assert np.array_equal(ht.perm[ht.perm], np.arange(model.n_dofs))
+    u0 = 0.02
+    u = np.random.default_rng(1).standard_normal(model.n_dofs) * 1e-3
+    u[model.fixed] = u0 * model.load[model.fixed]
+    v = u0 * ht.shift + ht.sign * u[ht.perm]  # c u0 + S u: the half-turned state
+    assert np.array_equal(v[model.fixed], u[model.fixed])  # the prescribed motion is mapped onto itself
+    E, g, _ = model.evaluate(u, False)
+    Ev, gv, _ = model.evaluate(v, False)
+    assert Ev == pytest.approx(E, rel=1e-12)
+    # the gradient is carried along: g(c u0 + S u) = S g(u)
+    np.testing.assert_allclose(gv, ht.sign * g[ht.perm], rtol=0, atol=1e-9 * np.abs(g).max())
+
+
+def test_half_turn_is_refused_where_the_model_lacks_it(model):
+    broken = NetworkModel(model.net, **model.stiffness, end_rotation=model.end_rotation)
+    broken.load = broken.load.copy()
+    broken.load[3 * broken.fixed_nodes[0]] = 0.5  # one fixed-clamp node dragged along: not symmetric
+    assert broken.half_turn() is None
+    grp = broken.groups[0]
+    broken.load = model.load
+    broken.groups[0] = dataclasses.replace(grp, dofs=grp.dofs[1:])  # one beam left out
+    assert broken.half_turn() is None
+
+
+def test_projection_onto_the_symmetric_path(model):
+    ht = model.half_turn()
+    u = _ramp_state(model, 0.03)
+    np.testing.assert_allclose(ht.project(u, 0.03), u, rtol=0, atol=1e-16)
+    kick = np.zeros(model.n_dofs)
+    kick[~model.fixed] = np.random.default_rng(2).standard_normal((~model.fixed).sum())
+    anti = 0.5 * (kick - ht.sign * kick[ht.perm])  # S anti = -anti
+    assert ht.project(u + 1e-12 * anti, 0.03) is not None  # round-off: projected back
+    assert ht.project(u + 1e-3 * np.abs(u).max() * anti, 0.03) is None  # left the path: kept
+
+
+def test_blocks_are_orthonormal_and_reproduce_the_free_block(model):
+    ht = model.half_turn()
+    u = _ramp_state(model, 0.02)
+    K = model.evaluate(u, True)[2]
+    lin = FreeBlockSolver(K, ~model.fixed, "auto", ht)
+    maps = Blocks(ht, lin.free, lin.rows, lin.cols)
+    B = np.hstack([maps.B_s.toarray(), maps.B_a.toarray()])
+    np.testing.assert_allclose(B.T @ B, np.eye(lin.nf), atol=1e-15)
+    Kff = lin.free_block(K).toarray()
+    Ks = maps.B_s.T @ Kff @ maps.B_s
+    Ka = maps.B_a.T @ Kff @ maps.B_a
+    np.testing.assert_allclose(maps.B_s @ Ks @ maps.B_s.T + maps.B_a @ Ka @ maps.B_a.T, Kff,
+                               rtol=0, atol=1e-12 * np.abs(Kff).max())
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_block_solves_equal_the_whole_factorization(model, symmetric):
+    ht = model.half_turn()
+    u = _ramp_state(model, 0.02)
+    if not symmetric:  # a state off the path: an antisymmetric kick of 1e-6 of the state
+        kick = np.random.default_rng(3).standard_normal(model.n_dofs)
+        kick[model.fixed] = 0.0
+        u = u + 1e-6 * np.abs(u).max() * 0.5 * (kick - ht.sign * kick[ht.perm])
+    E, g, K = model.evaluate(u, True)
+    blocks = FreeBlockSolver(K, ~model.fixed, "auto", ht)
+    whole = FreeBlockSolver(K, ~model.fixed, "auto", None)
+    blocks.factor(K)
+    whole.factor(K)
+    assert blocks.in_blocks is symmetric
+    coupling = blocks._blocks.coupling
+    # measured 2e-13 on the path and 1e-5 for the kick; the threshold sits between
+    assert (coupling < 1e-3 * COUPLING_TOL) if symmetric else (coupling > 1e3 * COUPLING_TOL), coupling
+    b = np.random.default_rng(4).standard_normal(blocks.nf)
+    x_whole = whole.solve(b)
+    np.testing.assert_allclose(blocks.solve(b), x_whole, rtol=0, atol=1e-9 * np.abs(x_whole).max())
+    assert blocks.n_factor_antisymmetric == int(symmetric)  # factorized on demand, once
+    r = g[blocks.free]  # a residual: symmetric on the path, its solve needs the symmetric block only
+    x_whole = whole.solve(r)
+    np.testing.assert_allclose(blocks.solve(r, symmetric_rhs=True), x_whole, rtol=0,
+                               atol=1e-9 * np.abs(x_whole).max())
+
+
+def test_path_with_blocks_is_the_path_without(model):
+    sc = Scene().with_changes(**SCENE)
+    forces = {}
+    stats = {}
+    for on in (True, False):
+        F: dict[float, float] = {}
+
+        def record(rec, u, F=F):
+            F[round(rec.u0 * 1e3, 6)] = model.reaction(rec.residual)[0]
+
+        stats[on] = solve_path(model, dataclasses.replace(step_control(sc), half_turn=on), on_step=record)
+        forces[on] = F
+    on, off = stats[True], stats[False]
+    assert on["half_turn_blocks"] and not off["half_turn_blocks"]
+    for key in ("steps", "newton_iterations", "factorizations"):
+        assert on[key] == off[key], key
+    brackets = {k: [(e["u0_before"], e["u0"]) for e in st["snap_events"]] for k, st in stats.items()}
+    assert brackets[True] == brackets[False] and len(brackets[True]) == 1, brackets
+    for u0 in (37.0, 56.0):
+        assert forces[True][u0] == pytest.approx(forces[False][u0], rel=1e-6)
+    # the antisymmetric block is factorized for the stability check only: once per converged state
+    assert on["factorizations_antisymmetric"] == on["steps"]
+    assert off["factorizations_antisymmetric"] == 0
