@@ -145,3 +145,20 @@ def test_path_with_blocks_is_the_path_without(model):
     # the antisymmetric block is factorized for the stability check only: once per converged state
     assert on["factorizations_antisymmetric"] == on["steps"]
     assert off["factorizations_antisymmetric"] == 0
+
+
+def test_mirrored_assembly_equals_the_element_by_element_sum(model):
+    """On the symmetric path half the element kernels and their images give E, g and K to round-off."""
+    u = _ramp_state(model, 0.02)
+    assert model._on_symmetric_path(u)
+    E, g, K = model.evaluate(u, True)
+    whole = NetworkModel(model.net, **model.stiffness, end_rotation=model.end_rotation)
+    whole._on_symmetric_path = lambda u: False  # element by element
+    E1, g1, K1 = whole.evaluate(u, True)
+    assert E == pytest.approx(E1, rel=1e-13)
+    np.testing.assert_allclose(g, g1, rtol=0, atol=1e-12 * np.abs(g1).max())
+    assert abs(K - K1).max() <= 1e-12 * abs(K1).max()
+    # a state 1e-9 off the path is evaluated element by element
+    kick = np.random.default_rng(5).standard_normal(model.n_dofs)
+    kick[model.fixed] = 0.0
+    assert not model._on_symmetric_path(u + 1e-9 * np.abs(u).max() * kick)
