@@ -5,7 +5,9 @@
 
 The solver knows nothing of yarns. A problem provides ``n_dofs``, ``fixed`` (bool mask of
 prescribed dofs), ``load`` (prescribed values per unit load parameter u0), ``ramp`` (a field for
-the "clamp" predictor) and ``evaluate(u, hessian) -> (E, dE/du, d2E/du2)``.
+the "clamp" predictor) and ``evaluate(u, hessian) -> (E, dE/du, d2E/du2)``, and may provide
+``half_turn()`` (:mod:`.symmetry`): then the tangents of states on the symmetric path are
+factorized as their two half-size blocks, and the predictions are projected back onto that path.
 
 Step from u0 to u0 + h:
   predictor  "tangent": u_f += -K_ff^{-1} K_fc h load_c  (K at the last converged state)
