@@ -14,6 +14,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from ngbet.discrete.linsolve import FreeBlockSolver
 from ngbet.discrete.model import NetworkModel
@@ -86,13 +87,18 @@ def test_blocks_are_orthonormal_and_reproduce_the_free_block(model):
     K = model.evaluate(u, True)[2]
     lin = FreeBlockSolver(K, ~model.fixed, "auto", ht)
     maps = Blocks(ht, lin.free, lin.rows, lin.cols)
-    B = np.hstack([maps.B_s.toarray(), maps.B_a.toarray()])
-    np.testing.assert_allclose(B.T @ B, np.eye(lin.nf), atol=1e-15)
-    Kff = lin.free_block(K).toarray()
+    B = sp.hstack([maps.B_s, maps.B_a]).tocsr()
+    assert abs(B.T @ B - sp.eye(lin.nf)).max() <= 1e-15
+    Kff = lin.free_block(K)
     Ks = maps.B_s.T @ Kff @ maps.B_s
     Ka = maps.B_a.T @ Kff @ maps.B_a
-    np.testing.assert_allclose(maps.B_s @ Ks @ maps.B_s.T + maps.B_a @ Ka @ maps.B_a.T, Kff,
-                               rtol=0, atol=1e-12 * np.abs(Kff).max())
+    assert abs(maps.B_s @ Ks @ maps.B_s.T + maps.B_a @ Ka @ maps.B_a.T - Kff).max() <= 1e-12 * abs(Kff).max()
+    # the blocks' values come from K_ff's by the precomputed maps
+    vals = Kff.data
+    assert abs(sp.csr_matrix((maps.M_s @ vals, (maps.rows_s, maps.cols_s)), shape=Ks.shape) - Ks).max() \
+        <= 1e-12 * abs(Kff).max()
+    assert abs(sp.csr_matrix((maps.M_a @ vals, (maps.rows_a, maps.cols_a)), shape=Ka.shape) - Ka).max() \
+        <= 1e-12 * abs(Kff).max()
 
 
 @pytest.mark.parametrize("symmetric", [True, False])
@@ -162,3 +168,25 @@ def test_mirrored_assembly_equals_the_element_by_element_sum(model):
     kick = np.random.default_rng(5).standard_normal(model.n_dofs)
     kick[model.fixed] = 0.0
     assert not model._on_symmetric_path(u + 1e-9 * np.abs(u).max() * kick)
+
+
+def test_the_17k_network_keeps_its_forces_and_snaps():
+    """The 16 890-dof network (spacing 2.4 mm) with the half-turn blocks, against the whole factorization.
+
+    Reference: F(37) = 13.176711539 N, F(56) = 26.688239758 N and the three snap brackets,
+    from the run that factorized every tangent whole (bench/bench_discrete.py --run-only).
+    """
+    sc = Scene().with_changes(**{**SCENE, "discrete.spacing_mm": 2.4})
+    net_model = NetworkModel.from_scene(sc)
+    F: dict[float, float] = {}
+
+    def record(rec, u):
+        F[round(rec.u0 * 1e3, 6)] = net_model.reaction(rec.residual)[0]
+
+    st = solve_path(net_model, step_control(sc), on_step=record)
+    assert st["half_turn_blocks"] and st["n_free"] == 16_730
+    assert F[37.0] == pytest.approx(13.176711539, rel=1e-6)
+    assert F[56.0] == pytest.approx(26.688239758, rel=1e-6)
+    brackets = [(round(e["u0_before"] * 1e3, 3), round(e["u0"] * 1e3, 3)) for e in st["snap_events"]]
+    assert brackets == [(28.5, 29.5), (50.922, 51.922), (51.922, 52.922)], brackets
+    assert st["factorizations_antisymmetric"] == st["steps"]
