@@ -74,6 +74,7 @@ class FreeBlockSolver:
         self.shifted = False  # the last factorization was of K_ff + diag(shift)
         self.n_factor = 0  # factorizations made (statistics): tangents factorized, whole or in blocks
         self.n_factor_antisymmetric = 0  # ... of which also the antisymmetric block (on demand)
+        self.n_factor_whole = 0  # ... of which whole, although the problem has a half-turn (off its symmetric path)
         self.n_solve = 0
         self.t_factor = self.t_solve = 0.0  # wall time in factor() and solve() [s]
         self._lu: Any = None  # scipy's SuperLU ("splu")
@@ -89,7 +90,7 @@ class FreeBlockSolver:
         """A solver of the same pattern (and half-turn maps) with factorizations of its own."""
         other = copy.copy(self)
         other.Kff, other.shifted, other.in_blocks = None, False, False
-        other.n_factor = other.n_factor_antisymmetric = other.n_solve = 0
+        other.n_factor = other.n_factor_antisymmetric = other.n_factor_whole = other.n_solve = 0
         other.t_factor = other.t_solve = 0.0
         other._lu = None
         other._whole = None if self._whole is None else _NgFactor(self.rows, self.cols, self.nf, self.backend)
@@ -132,6 +133,8 @@ class FreeBlockSolver:
             return
         if self._whole is None:
             self._whole = _NgFactor(self.rows, self.cols, self.nf, self.backend)
+        if self._blocks is not None:
+            self.n_factor_whole += 1
         self._whole.factor(vals)
 
     def _indptr(self) -> np.ndarray:

@@ -848,7 +848,8 @@ class ShiftedNewton:
         s.update({"u": self.u, "steps": self.step, "backend": lin.backend, "n_free": len(self.free),
                   "factorizations": lin.n_factor + work.n_factor, "work_by_cause": self.tally.rows,
                   "half_turn_blocks": self.lin._blocks is not None,
-                  "factorizations_antisymmetric": lin.n_factor_antisymmetric + work.n_factor_antisymmetric})
+                  "factorizations_antisymmetric": lin.n_factor_antisymmetric + work.n_factor_antisymmetric,
+                  "factorizations_off_symmetry": lin.n_factor_whole + work.n_factor_whole})
         s["timers"] = {"assembly_s": t.t_hessian, "assemblies": t.n_hessian,
                        "gradient_only_s": t.t_gradient, "gradients_only": t.n_gradient,
                        "factor_s": lin.t_factor + work.t_factor, "solve_s": lin.t_solve + work.t_solve,
