@@ -70,6 +70,18 @@ def pick_inverse(choice: str, indefinite: bool) -> str:
     return "umfpack" if indefinite else "sparsecholesky"
 
 
+def energy_form(X: ngs.FESpace, inverse: str, condense: bool) -> ngs.BilinearForm:
+    """An empty symmetric form on ``X`` whose matrix ``inverse`` can factorize.
+
+    NGSolve stores a symmetric form's matrix in full unless asked; for the sparse LDLᵀ
+    ("sparsecholesky"), which reads the lower triangle only, the form stores just that: half
+    the sparse adds of each assembly and half the memory (measured, native, one thread, idle
+    machine: 9 495 dofs 10.1 → 8.9 ms, 63 267 dofs 111 → 94 ms). UMFPACK gets the full matrix
+    (given the lower triangle of the uncondensed saddle point it reports it singular).
+    """
+    return ngs.BilinearForm(X, symmetric=True, symmetric_storage=inverse == "sparsecholesky", condense=condense)
+
+
 class NewtonLinearSolver:
     """Linearize, factorize and solve with the Newton matrix of an energy form.
 
@@ -98,16 +110,17 @@ class NewtonLinearSolver:
                  dx: object = None, compile_mode: str = "interpret") -> None:
         X = form.space
         self.K_aug = 0.0
+        self.inverse_type = pick_inverse(choice, saddle_energy is not None and not condense)
         if saddle_energy is not None and condense:
             self.K_aug = LAGRANGE_AUGMENTATION * K_ref
-            self.form = ngs.BilinearForm(X, symmetric=True, condense=True)
+            self.form = energy_form(X, self.inverse_type, condense=True)
             add_energy(self.form, saddle_energy(self.K_aug), dx, compile_mode, X.ndof)
         else:
             self.form = form
         self.condensed = bool(self.form.condense)
-        self.inverse_type = pick_inverse(choice, saddle_energy is not None and not condense)
         self.freedofs = X.FreeDofs(self.condensed)
         self._inv: ngs.BaseMatrix | None = None
+        self._factorized: ngs.BaseMatrix | None = None  # the matrix self._inv factorizes
         self.timers = {"assembly_s": 0.0, "factorization_s": 0.0, "solve_s": 0.0}
         self.counts = {"factorizations": 0, "solves": 0}
 
@@ -123,8 +136,11 @@ class NewtonLinearSolver:
             t0 = time.perf_counter()
             self.form.AssembleLinearization(state)
             t1 = time.perf_counter()
-            if self._inv is None:
-                self._inv = self.form.mat.Inverse(self.freedofs, inverse=self.inverse_type)
+            if self._inv is None or self._factorized is not self.form.mat:
+                # a form on a refined mesh with symmetric storage gets a new matrix at each
+                # assembly until it holds one per mesh level: factorize the new one
+                self._factorized = self.form.mat
+                self._inv = self._factorized.Inverse(self.freedofs, inverse=self.inverse_type)
             else:
                 self._inv.Update()
         self.timers["assembly_s"] += t1 - t0

@@ -60,7 +60,7 @@ from ngsolve import CoefficientFunction as CF
 from ..scene import AUTO, Scene, Specimen
 from . import physics
 from .compiled import add_energy
-from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver
+from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver, energy_form, pick_inverse
 from .mesh import make_mesh
 
 log = logging.getLogger(__name__)
@@ -129,7 +129,8 @@ class ContinuumProblem:
         energy, saddle_energy = self._energy(scene)
         # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
         self.condense = scene.solver.condense
-        self.a = ngs.BilinearForm(self.X, symmetric=True, condense=self.condense and saddle_energy is None)
+        inverse = pick_inverse(scene.solver.linear_solver, saddle_energy is not None and not self.condense)
+        self.a = energy_form(self.X, inverse, condense=self.condense and saddle_energy is None)
         # the energy form is linearized unless the augmented Newton matrix of linear.py replaces it
         linearized = not (self.condense and saddle_energy is not None)
         self.compile_mode = add_energy(self.a, energy, self.dx, scene.solver.compile, self.X.ndof, linearized)
