@@ -63,6 +63,7 @@ import os
 import shutil
 import stat
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -177,27 +178,32 @@ def _add_variation(form: ngs.BilinearForm, compiled: ngs.CoefficientFunction, dx
         ngs.ngsglobals.symbolic_integrator_uses_diff = before
 
 
-def add_energy(form: ngs.BilinearForm, cf: ngs.CoefficientFunction, dx: Any, mode: str, ndof: int = 0,
-               linearized: bool = True) -> str:
-    """Compile ``cf`` as ``solver.compile`` asks (:func:`compile_energy`) and add its energy to ``form``.
+def add_energy(form: ngs.BilinearForm, parts: ngs.CoefficientFunction | Sequence[ngs.CoefficientFunction],
+               dx: Any, mode: str, ndof: int = 0, linearized: bool = True) -> str:
+    """Compile the energy as ``solver.compile`` asks (:func:`compile_energy`) and add it to ``form``.
 
-    Returns the mode used ("interpret" or "native"). A form that is ``linearized`` gets symbolic
-    derivatives: interpreted, the integrator differentiates the expression when it is built;
-    native, it also compiles the first derivatives (one object per trial function, through the
-    cache, while the integrator is built). A form used only for residuals and energies keeps the
-    integrand's own compiled derivatives (``Apply`` does not use the symbolic ones).
+    ``parts`` (one integrand, or several that sum to the energy) become one ``Variation`` each.
+    Returns the mode used ("interpret" or "native"; the parts are all native or all interpreted).
+    A form that is ``linearized`` gets symbolic derivatives: interpreted, the integrator
+    differentiates the expression when it is built; native, it also compiles the first
+    derivatives (one object per trial function, through the cache, while the integrator is
+    built). A form used only for residuals and energies keeps the integrands' own compiled
+    derivatives (``Apply`` does not use the symbolic ones).
     """
-    compiled, used = compile_energy(cf, mode, ndof)
-    if used == "interpret":
-        _add_variation(form, compiled, dx, symbolic=linearized)
-        return used
+    parts = [parts] if isinstance(parts, ngs.CoefficientFunction) else list(parts)
+    compiled = [compile_energy(cf, mode, ndof) for cf in parts]
+    if any(used == "interpret" for _, used in compiled):  # not native throughout: none native
+        for (c, used), cf in zip(compiled, parts):
+            _add_variation(form, c if used == "interpret" else cf.Compile(), dx, symbolic=linearized)
+        return "interpret"
     tools = _compiler()
     assert tools is not None  # compile_energy found them
     # a derivative that cannot be compiled (or, for "auto", is not in the cache) leaves the
     # integrator with automatic differentiation of the compiled integrand: the same tangent
     with _on_path(_wrappers(*tools), cached_only=mode == "auto"):
-        _add_variation(form, compiled, dx, symbolic=linearized)
-    return used
+        for cf, _ in compiled:
+            _add_variation(form, cf, dx, symbolic=linearized)
+    return "native"
 
 
 def compile_energy(cf: ngs.CoefficientFunction, mode: str, ndof: int = 0) -> tuple[ngs.CoefficientFunction, str]:

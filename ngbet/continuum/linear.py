@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextvars import ContextVar
 from typing import TYPE_CHECKING
 
@@ -95,7 +95,8 @@ class NewtonLinearSolver:
         ``solver.linear_solver`` ("auto" picks by definiteness).
     saddle_energy : callable, optional
         For an exact saddle point (zero Λ-Λ block): K_aug -> the integrand of the augmented
-        energy whose Hessian serves as the condensed Newton matrix.
+        energy (in parts, as :func:`ngbet.continuum.compiled.add_energy` takes it) whose Hessian
+        serves as the condensed Newton matrix.
     K_ref : float
         The stiffness that scales K_aug [Pa].
     dx : ngsolve measure
@@ -106,7 +107,8 @@ class NewtonLinearSolver:
     """
 
     def __init__(self, form: ngs.BilinearForm, condense: bool, choice: str,
-                 saddle_energy: Callable[[float], ngs.CoefficientFunction] | None = None, K_ref: float = 1.0,
+                 saddle_energy: Callable[[float], Sequence[ngs.CoefficientFunction]] | None = None,
+                 K_ref: float = 1.0,
                  dx: object = None, compile_mode: str = "interpret") -> None:
         X = form.space
         self.K_aug = 0.0
