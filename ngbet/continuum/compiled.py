@@ -53,6 +53,13 @@ cache while the integrator is built; measured on the default scene (9 495 dofs, 
 element matrices' second derivatives take 1.4 ms per linearization instead of 4.6 ms, and at
 63k dofs the assembly falls from ~0.23 to ~0.16 s. Cold, each derivative is a C++ compilation
 of its own.
+
+The energy may come in parts, one integrator each (:func:`add_energy`). NGSolve's integrator
+computes a block of the element matrix for every pair of trial functions its nonzero pattern
+marks as coupled, and that pattern, propagated in a single direction, marks a pair as soon as
+the integrand has a second derivative in either function: with all terms in one integrand
+every pair was computed, zero blocks included. A part in fewer trial functions has fewer
+pairs, at the price of one more pass over the element's integration points.
 """
 
 from __future__ import annotations

@@ -11,7 +11,8 @@ shear (+ elongation)       u ∈ VectorH1(p)                      W_sh + W_el (f
 + bending, penalty full    u, φ (+ Λ, see below)                + W_b + ½K(φ − i8)²
 =========================  ==================================  ===============================
 
-The energy is written once, handed to ``Variation`` and compiled; NGSolve differentiates it for
+The energy is written once, handed to ``Variation`` (with bending in two parts, the bending
+energy and the rest: :meth:`ContinuumProblem._energy` says why) and compiled; NGSolve differentiates it for
 the residual and the linearization. The multiplier lives in L2 of order max(p − 2, 0)
 (discontinuous, element-local, so it can be eliminated element by element). Measured with
 :func:`ngbet.continuum.observables.multiplier_oscillation` (the part of Λ that a continuous field cannot
