@@ -54,3 +54,25 @@ def _full(mat: ngs.BaseMatrix) -> sps.csr_matrix:
     vals, cols, ptr = mat.CSR()
     A = sps.csr_matrix((np.array(vals), np.array(cols), np.array(ptr)), shape=(mat.height, mat.height))
     return (A + sps.tril(A, -1).T).tocsr() if sps.triu(A, 1).nnz == 0 else A
+
+
+def test_parts_are_native_throughout_or_interpreted(monkeypatch):
+    """A part whose native code cannot be had ("auto" and not in the cache) leaves every part
+    interpreted: the form reports one mode, and has an integrator per part."""
+    mesh = ngs.Mesh(ngs.unit_square.GenerateMesh(maxh=0.5))
+    fes = ngs.H1(mesh, order=2)
+    u = fes.TrialFunction()
+    parts = [u * u, ngs.Grad(u) * ngs.Grad(u)]
+    seen = []
+
+    def first_native(cf, mode, ndof=0):
+        seen.append(mode)
+        return cf.Compile(), "native" if len(seen) == 1 else "interpret"
+
+    monkeypatch.setattr(compiled, "compile_energy", first_native)
+    form = ngs.BilinearForm(fes, symmetric=True)
+    assert compiled.add_energy(form, parts, ngs.dx, "auto", 10**6) == "interpret"
+    assert seen == ["auto", "auto"] and len(list(form.integrators)) == 2
+    g = ngs.GridFunction(fes)
+    g.Set(ngs.x)
+    assert form.Energy(g.vec) == pytest.approx(1 / 3 + 1, rel=1e-12)  # ∫ x² + |∇x|² over the unit square

@@ -200,7 +200,7 @@ def add_energy(form: ngs.BilinearForm, parts: ngs.CoefficientFunction | Sequence
     parts = [parts] if isinstance(parts, ngs.CoefficientFunction) else list(parts)
     compiled = [compile_energy(cf, mode, ndof) for cf in parts]
     if any(used == "interpret" for _, used in compiled):  # not native throughout: none native
-        for (c, used), cf in zip(compiled, parts):
+        for (c, used), cf in zip(compiled, parts, strict=True):
             _add_variation(form, c if used == "interpret" else cf.Compile(), dx, symbolic=linearized)
         return "interpret"
     tools = _compiler()
