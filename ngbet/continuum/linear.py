@@ -75,8 +75,8 @@ def energy_form(X: ngs.FESpace, inverse: str, condense: bool) -> ngs.BilinearFor
 
     NGSolve stores a symmetric form's matrix in full unless asked; for the sparse LDLᵀ
     ("sparsecholesky"), which reads the lower triangle only, the form stores just that: half
-    the sparse adds of each assembly and half the memory (measured, native, one thread, idle
-    machine: 9 495 dofs 10.1 → 8.9 ms, 63 267 dofs 111 → 94 ms). UMFPACK gets the full matrix
+    the sparse adds of each assembly and half the memory (measured, native, one thread, load
+    0.5: 9 495 dofs 10.1 → 8.9 ms, 63 267 dofs 111 → 94 ms per linearization). UMFPACK gets the full matrix
     (given the lower triangle of the uncondensed saddle point it reports it singular).
     """
     return ngs.BilinearForm(X, symmetric=True, symmetric_storage=inverse == "sparsecholesky", condense=condense)
