@@ -1,8 +1,10 @@
 """The Newton matrix's storage: the lower triangle for the sparse LDLᵀ, the same matrix as in full."""
 
+import ngsolve as ngs
 import numpy as np
 import scipy.sparse as sps
 
+from ngbet.continuum.linear import NewtonLinearSolver
 from ngbet.continuum.mesh import corner_refined
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.scene import default_scene
@@ -45,20 +47,38 @@ def test_the_lower_triangle_is_the_full_newton_matrix():
     assert np.abs(dx_lower - dx_full).max() <= 1e-8 * np.abs(dx_full).max()
 
 
-def test_a_refined_mesh_factorizes_each_new_matrix():
-    """On a mesh with levels (corner refinement, as the error estimate uses) a form stored as
-    its lower triangle gets a new matrix at each assembly until it has one per level: the
-    second linearization's correction is the one of a fresh factorization of that state."""
+def test_a_refined_mesh_keeps_the_full_matrix():
+    """On a mesh with levels (corner refinement, as the error estimate uses) the Newton matrix is
+    stored in full, one matrix for every linearization (its factorization is updated)."""
     sc = _scene()
     pr = ContinuumProblem(sc, mesh=corner_refined(ContinuumProblem(sc).mesh, sc.specimen, 2))
     _perturb(pr, 0)
     pr.factorize()
+    first = pr.linear.mat
+    pr.factorize()
+    assert pr.linear.mat is first
+    assert sps.triu(_stored(pr), 1).nnz > 0
+
+
+def test_a_new_matrix_is_factorized_anew():
+    """A form stored as its lower triangle on a refined mesh gets a new matrix at each assembly
+    until it holds one per mesh level (NGSolve): the second linearization's correction is the
+    one of a fresh factorization of that state, not an update of the first matrix's."""
+    sc = _scene()
+    pr = ContinuumProblem(sc, mesh=corner_refined(ContinuumProblem(sc).mesh, sc.specimen, 2))
+    form = ngs.BilinearForm(pr.X, symmetric=True, symmetric_storage=True, condense=True)
+    for integrator in pr.linear.form.integrators:
+        form += integrator
+    pr.linear = NewtonLinearSolver(form, condense=True, choice="sparsecholesky")
+    _perturb(pr, 0)
+    pr.factorize()
+    first = pr.linear.mat
     r = pr.residual()
     _perturb(pr, 1)
     pr.factorize()
+    assert pr.linear.mat is not first
     second = pr.solve(r)
-    fresh = ContinuumProblem(sc, mesh=pr.mesh)
-    fresh.x[:] = pr.x
-    fresh.factorize()
-    expected = fresh.solve(r)
+    pr.linear = NewtonLinearSolver(form, condense=True, choice="sparsecholesky")  # fresh, at the same state
+    pr.factorize()
+    expected = pr.solve(r)
     assert np.abs(second - expected).max() <= 1e-8 * np.abs(expected).max()

@@ -77,9 +77,12 @@ def energy_form(X: ngs.FESpace, inverse: str, condense: bool) -> ngs.BilinearFor
     ("sparsecholesky"), which reads the lower triangle only, the form stores just that: half
     the sparse adds of each assembly and half the memory (measured, native, one thread, load
     0.5: 9 495 dofs 10.1 → 8.9 ms, 63 267 dofs 111 → 94 ms per linearization). UMFPACK gets the full matrix
-    (given the lower triangle of the uncondensed saddle point it reports it singular).
+    (given the lower triangle of the uncondensed saddle point it reports it singular), and so
+    does a mesh with levels (refined): there NGSolve's symmetric storage allocates a new matrix
+    at each assembly until it holds one per level, each to be factorized anew.
     """
-    return ngs.BilinearForm(X, symmetric=True, symmetric_storage=inverse == "sparsecholesky", condense=condense)
+    lower = inverse == "sparsecholesky" and X.mesh.levels == 1
+    return ngs.BilinearForm(X, symmetric=True, symmetric_storage=lower, condense=condense)
 
 
 class NewtonLinearSolver:
@@ -139,8 +142,7 @@ class NewtonLinearSolver:
             self.form.AssembleLinearization(state)
             t1 = time.perf_counter()
             if self._inv is None or self._factorized is not self.form.mat:
-                # a form on a refined mesh with symmetric storage gets a new matrix at each
-                # assembly until it holds one per mesh level: factorize the new one
+                # a new matrix (symmetric storage on a refined mesh, energy_form): factorize it
                 self._factorized = self.form.mat
                 self._inv = self._factorized.Inverse(self.freedofs, inverse=self.inverse_type)
             else:
