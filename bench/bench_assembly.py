@@ -67,13 +67,15 @@ def _problem(mode: str, h: float, p: int) -> Any:
 
 
 def _free_block(form: Any) -> Any:
-    """The free block of an assembled form's matrix (symmetric storage: lower triangle), scipy CSR."""
+    """The free block of an assembled form's matrix, in full (a lower triangle stored is mirrored), scipy CSR."""
     import numpy as np
     import scipy.sparse as sps
 
     vals, cols, ptr = form.mat.CSR()
     n = form.mat.height
     A = sps.csr_matrix((np.array(vals), np.array(cols), np.array(ptr)), shape=(n, n))
+    if sps.triu(A, 1).nnz == 0:  # symmetric storage: the lower triangle
+        A = (A + sps.tril(A, -1).T).tocsr()
     fd = np.flatnonzero(np.array(list(form.space.FreeDofs(form.condense)), dtype=bool))
     return A[fd][:, fd].tocsr()
 
@@ -82,14 +84,14 @@ def _plain_form(X: Any) -> Any:
     """A linear bilinear form as large as the Newton matrix: NGSolve's element loop alone.
 
     Constant coefficients over the spaces and proxy pairs of the energy's Hessian (∇u–∇u, φ–φ,
-    φ–∇u, ∇φ–∇φ, Λ–∇u, Λ–φ, Λ–Λ), condensed.
+    φ–∇u, ∇φ–∇φ, Λ–∇u, Λ–φ, Λ–Λ), condensed, stored as the Newton matrix is (its lower triangle).
     """
     import ngsolve as ngs
 
     (u, phi, lam), (v, psi, mu) = X.TnT()
     G, Gv = ngs.Grad(u), ngs.Grad(v)
     m = ngs.CF((1, 0.3, 0.2, 1), dims=(2, 2))
-    bf = ngs.BilinearForm(X, symmetric=True, condense=True)
+    bf = ngs.BilinearForm(X, symmetric=True, symmetric_storage=True, condense=True)
     bf += (ngs.InnerProduct(G, Gv) + ngs.InnerProduct(m * G, Gv) + phi * psi
            + phi * ngs.Trace(Gv) + psi * ngs.Trace(G) + ngs.Grad(phi) * ngs.Grad(psi)
            + lam * (psi - ngs.Trace(Gv)) + mu * (phi - ngs.Trace(G)) - 1e-3 * lam * mu) * ngs.dx
@@ -140,12 +142,9 @@ def child(mode: str, h: float, p: int, threads: int, repeats: int, save: str) ->
 
 
 def _solve(A: Any, b: Any) -> Any:
-    """A⁻¹ b for a matrix kept as its lower triangle (symmetric storage) or in full."""
-    import scipy.sparse as sps
+    """A⁻¹ b (A in full, as :func:`_free_block` gives it)."""
     import scipy.sparse.linalg as spla
 
-    if sps.triu(A, 1).nnz == 0:
-        A = A + sps.tril(A, -1).T
     return spla.spsolve(A.tocsc(), b)
 
 

@@ -53,6 +53,13 @@ cache while the integrator is built; measured on the default scene (9 495 dofs, 
 element matrices' second derivatives take 1.4 ms per linearization instead of 4.6 ms, and at
 63k dofs the assembly falls from ~0.23 to ~0.16 s. Cold, each derivative is a C++ compilation
 of its own.
+
+The energy may come in parts, one integrator each (:func:`add_energy`). NGSolve's integrator
+computes a block of the element matrix for every pair of trial functions its nonzero pattern
+marks as coupled, and that pattern, propagated in a single direction, marks a pair as soon as
+the integrand has a second derivative in either function: with all terms in one integrand
+every pair was computed, zero blocks included. A part in fewer trial functions has fewer
+pairs, at the price of one more pass over the element's integration points.
 """
 
 from __future__ import annotations
@@ -63,6 +70,7 @@ import os
 import shutil
 import stat
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -177,27 +185,32 @@ def _add_variation(form: ngs.BilinearForm, compiled: ngs.CoefficientFunction, dx
         ngs.ngsglobals.symbolic_integrator_uses_diff = before
 
 
-def add_energy(form: ngs.BilinearForm, cf: ngs.CoefficientFunction, dx: Any, mode: str, ndof: int = 0,
-               linearized: bool = True) -> str:
-    """Compile ``cf`` as ``solver.compile`` asks (:func:`compile_energy`) and add its energy to ``form``.
+def add_energy(form: ngs.BilinearForm, parts: ngs.CoefficientFunction | Sequence[ngs.CoefficientFunction],
+               dx: Any, mode: str, ndof: int = 0, linearized: bool = True) -> str:
+    """Compile the energy as ``solver.compile`` asks (:func:`compile_energy`) and add it to ``form``.
 
-    Returns the mode used ("interpret" or "native"). A form that is ``linearized`` gets symbolic
-    derivatives: interpreted, the integrator differentiates the expression when it is built;
-    native, it also compiles the first derivatives (one object per trial function, through the
-    cache, while the integrator is built). A form used only for residuals and energies keeps the
-    integrand's own compiled derivatives (``Apply`` does not use the symbolic ones).
+    ``parts`` (one integrand, or several that sum to the energy) become one ``Variation`` each.
+    Returns the mode used ("interpret" or "native"; the parts are all native or all interpreted).
+    A form that is ``linearized`` gets symbolic derivatives: interpreted, the integrator
+    differentiates the expression when it is built; native, it also compiles the first
+    derivatives (one object per trial function, through the cache, while the integrator is
+    built). A form used only for residuals and energies keeps the integrands' own compiled
+    derivatives (``Apply`` does not use the symbolic ones).
     """
-    compiled, used = compile_energy(cf, mode, ndof)
-    if used == "interpret":
-        _add_variation(form, compiled, dx, symbolic=linearized)
-        return used
+    parts = [parts] if isinstance(parts, ngs.CoefficientFunction) else list(parts)
+    compiled = [compile_energy(cf, mode, ndof) for cf in parts]
+    if any(used == "interpret" for _, used in compiled):  # not native throughout: none native
+        for (c, used), cf in zip(compiled, parts, strict=True):
+            _add_variation(form, c if used == "interpret" else cf.Compile(), dx, symbolic=linearized)
+        return "interpret"
     tools = _compiler()
     assert tools is not None  # compile_energy found them
     # a derivative that cannot be compiled (or, for "auto", is not in the cache) leaves the
     # integrator with automatic differentiation of the compiled integrand: the same tangent
     with _on_path(_wrappers(*tools), cached_only=mode == "auto"):
-        _add_variation(form, compiled, dx, symbolic=linearized)
-    return used
+        for cf, _ in compiled:
+            _add_variation(form, cf, dx, symbolic=linearized)
+    return "native"
 
 
 def compile_energy(cf: ngs.CoefficientFunction, mode: str, ndof: int = 0) -> tuple[ngs.CoefficientFunction, str]:
