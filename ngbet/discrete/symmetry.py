@@ -112,16 +112,22 @@ def _without(why: str) -> HalfTurn | None:
 
 
 def _image_nodes(X: np.ndarray, family: np.ndarray, centre: np.ndarray, tol: float) -> np.ndarray | None:
-    """The node at 2C - X of each node, of the same family; None when one is missing."""
-    from scipy.spatial import cKDTree
+    """The node at 2C - X of each node, of the same family; None when one is missing.
 
+    Nodes and images are sorted alike (by coordinates on a grid of 1000 tol, far coarser than the
+    round-off of 2C - X and far finer than the yarn spacing) and paired in that order; the pairs
+    must then lie within ``tol``.
+    """
     img = np.full(len(X), -1)
     for fam in np.unique(family):
         idx = np.flatnonzero(family == fam)
-        dist, j = cKDTree(X[idx]).query(2 * centre - X[idx])
-        if np.any(dist > tol):
+        Y = 2 * centre - X[idx]
+        grid = 1e3 * tol
+        a = np.lexsort(np.round(X[idx] / grid).T[::-1])
+        b = np.lexsort(np.round(Y / grid).T[::-1])
+        if np.any(np.abs(X[idx][a] - Y[b]) > tol):
             return None
-        img[idx] = idx[j]
+        img[idx[b]] = idx[a]
     if np.any(img[img] != np.arange(len(X))):
         return None
     return img
