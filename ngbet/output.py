@@ -144,7 +144,8 @@ class RunWriter:
         """
         try:
             if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
-                self.summary({}, "interrupted",
+                # the solver's statistics until then, where it attached them (the network's)
+                self.summary(dict(getattr(exc, "path_info", {})), "interrupted",
                              f"interrupted (SIGINT/SIGTERM) after u0 = {self.last_converged_mm:g} mm")
             elif exc_type is not None and self.status == "running":
                 self.summary({"error_type": exc_type.__name__}, "failed", f"{exc_type.__name__}: {exc}")

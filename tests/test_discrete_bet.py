@@ -183,3 +183,27 @@ def test_equivalent_network_bends_like_the_continuum(tmp_path):
     corr = np.corrcoef(uc, ud)[0, 1]
     ratio = np.abs(ud).max() / np.abs(uc).max()
     assert corr > 0.9 and 0.7 < ratio < 1.3, f"correlation {corr:.3f}, amplitude ratio {ratio:.3f}"
+
+
+def test_interrupted_run_keeps_the_solver_statistics(tmp_path, monkeypatch):
+    # Ctrl-C after the third converged step: summary.json says "interrupted" at that load and
+    # keeps what the solver counted until then (factorizations, work by cause, the half-turn blocks)
+    import importlib
+
+    discrete_run = importlib.import_module("ngbet.discrete.run")  # the module (ngbet.discrete.run is the function)
+    on_step = discrete_run._Recorder.on_step
+    calls = []
+
+    def interrupting(self, rec, u):
+        on_step(self, rec, u)
+        calls.append(rec.u0)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(discrete_run._Recorder, "on_step", interrupting)
+    with pytest.raises(KeyboardInterrupt):
+        run(Scene().with_changes(**{**BASE, "outputs.plot": False}), tmp_path, progress=False)
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["status"] == "interrupted" and s["last_converged_mm"] == pytest.approx(calls[-1] * 1e3)
+    assert s["factorizations"] >= 3 and s["half_turn_blocks"] is True
+    assert s["work_by_cause"]["converged step"]["calls"] >= 3

@@ -538,6 +538,8 @@ def solve_path(problem: Problem, ctl: StepControl,
     ngbet.errors.ConvergenceError
         when a step fails at the minimum step size (the states before it were passed to on_step);
         its ``path_info`` holds the statistics gathered until then (snap events included, not ``u``).
+    KeyboardInterrupt
+        passed on with the same ``path_info`` attached (Ctrl-C, SIGTERM).
     """
     with single_threaded_blas():
         corrector = ShiftedNewton(problem, ctl)
@@ -549,6 +551,9 @@ def solve_path(problem: Problem, ctl: StepControl,
             follow_path(corrector, path, on_step=hook, progress=progress)
         except ConvergenceError as exc:
             exc.path_info.update({k: v for k, v in corrector.statistics().items() if k != "u"})
+            raise
+        except KeyboardInterrupt as exc:  # Ctrl-C / SIGTERM: the statistics so far go to the summary
+            exc.path_info = {k: v for k, v in corrector.statistics().items() if k != "u"}  # type: ignore[attr-defined]
             raise
         return corrector.statistics()
 
