@@ -86,6 +86,11 @@ class FreeBlockSolver:
         elif backend != "splu":
             self._whole = _NgFactor(self.rows, self.cols, self.nf, backend)
 
+    @property
+    def has_half_turn(self) -> bool:
+        """Whether tangents of symmetric states are factorized in their half-turn blocks."""
+        return self._blocks is not None
+
     def twin(self) -> FreeBlockSolver:
         """A solver of the same pattern (and half-turn maps) with factorizations of its own."""
         other = copy.copy(self)

@@ -249,8 +249,8 @@ class NetworkModel:
         return E, g, (self.pattern.matrix(Hs, self._const_data) if hessian else None)
 
     def half_turn(self) -> HalfTurn | None:
-        """The network's half-turn symmetry (:mod:`.symmetry`), or None where it lacks one."""
-        return half_turn(self)
+        """The network's half-turn symmetry (:mod:`.symmetry`), found when the model was built, or None."""
+        return self._mirror
 
     def energy(self, u: np.ndarray) -> float:
         """Total energy E(u) [J]."""

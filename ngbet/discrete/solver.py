@@ -852,7 +852,7 @@ class ShiftedNewton:
         s = dict(self.stats)
         s.update({"u": self.u, "steps": self.step, "backend": lin.backend, "n_free": len(self.free),
                   "factorizations": lin.n_factor + work.n_factor, "work_by_cause": self.tally.rows,
-                  "half_turn_blocks": self.lin._blocks is not None,
+                  "half_turn_blocks": lin.has_half_turn,
                   "factorizations_antisymmetric": lin.n_factor_antisymmetric + work.n_factor_antisymmetric,
                   "factorizations_off_symmetry": lin.n_factor_whole + work.n_factor_whole})
         s["timers"] = {"assembly_s": t.t_hessian, "assemblies": t.n_hessian,
