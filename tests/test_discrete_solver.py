@@ -203,7 +203,7 @@ def test_lowest_eigenvalues_match_a_dense_solve_with_a_near_degenerate_pair():
     p = Convex(60)
     K = p.evaluate(np.linspace(-1, 1, p.n_dofs))[2].toarray()
     w, V = np.linalg.eigh(K)
-    w[0], w[1] = 1e-4, 1.02e-4  # a soft, nearly degenerate pair (as the half-turn pair of the networks)
+    w[0], w[1] = 1e-4, 1.02e-4  # a soft, nearly degenerate pair (modes 2 and 3 of the BET network cross)
     K = sp.csr_matrix((V * w) @ V.T)
     K.data[np.abs(K.data) < 1e-14 * np.abs(K.data).max()] = 0.0
     lin = FreeBlockSolver(K, np.ones(p.n_dofs, bool))
