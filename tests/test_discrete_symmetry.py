@@ -19,8 +19,8 @@ import scipy.sparse as sp
 from ngbet.discrete.linsolve import FreeBlockSolver
 from ngbet.discrete.model import NetworkModel
 from ngbet.discrete.run import step_control
-from ngbet.discrete.solver import newton, solve_path
-from ngbet.discrete.symmetry import COUPLING_TOL, Blocks, half_turn
+from ngbet.discrete.solver import OTHER_BLOCK_TOL, lowest_eigenvalues, newton, solve_path
+from ngbet.discrete.symmetry import COUPLING_TOL, Blocks, HalfTurn, half_turn
 from ngbet.scene import Scene
 
 SCENE = {"model": "discrete", "discrete.spacing_mm": 5.0, "loading.u0_mm": 56.0, "outputs.plot": False}
@@ -215,3 +215,75 @@ def test_a_state_off_the_symmetric_path_is_solved_whole(model):
     scale = np.abs(u).max()
     np.testing.assert_allclose(ends["blocks"], ends["whole"], rtol=0, atol=1e-12 * scale)
     np.testing.assert_allclose(ends["blocks"], u, rtol=0, atol=1e-9 * scale)
+
+
+def _block_spectra(lin: FreeBlockSolver, K: sp.csr_matrix, k: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """The k lowest eigenvalues of K_b y = lambda D_b y in each half-turn block, dense (reference)."""
+    import scipy.linalg as sla
+
+    Kff = lin.free_block(K).toarray()
+    d = np.abs(np.diag(Kff))
+    maps = lin._blocks.maps
+    out = []
+    for B in (maps.B_s.toarray(), maps.B_a.toarray()):
+        out.append(sla.eigh(B.T @ Kff @ B, B.T @ (d[:, None] * B), eigvals_only=True)[:k])
+    return out[0], out[1]
+
+
+def test_stability_check_sees_the_symmetric_block_from_antisymmetric_modes():
+    # A chain of 40 dofs on soft ground springs, symmetric under reversal (the half-turn of a
+    # line): its softest mode is symmetric (the near-translation), the softest antisymmetric one
+    # is a tilt. A tangent that commutes with the half-turn keeps a Krylov space grown from
+    # antisymmetric vectors antisymmetric: the check, started from the softest antisymmetric
+    # modes (as the network's checks are after the first step), must still find the symmetric
+    # eigenvalue below them, and report both blocks' lowest.
+    n = 40
+    D = sp.diags([np.ones(n - 1), -np.ones(n - 1)], [0, 1], shape=(n - 1, n))
+    springs = 1.0 + 0.5 * np.sin(np.linspace(0, np.pi, n - 1))  # symmetric under reversal
+    ground = 1e-4 * (1.0 + np.cos(np.linspace(0, 2 * np.pi, n)))
+    K = (D.T @ sp.diags(springs) @ D + sp.diags(ground + 1e-6)).tocsr()
+    ht = HalfTurn(perm=np.arange(n)[::-1].copy(), sign=np.ones(n), shift=np.zeros(n))
+    lin = FreeBlockSolver(K, np.ones(n, bool), "auto", ht)
+    lin.factor(K)
+    assert lin.in_blocks
+    sym, anti = _block_spectra(lin, K)
+    assert sym[0] < anti[0]  # the setting: the softest mode is symmetric
+    Ba = lin._blocks.maps.B_a.toarray()
+    import scipy.linalg as sla
+    d = np.abs(K.diagonal())
+    _, Ya = sla.eigh(Ba.T @ K.toarray() @ Ba, Ba.T @ (d[:, None] * Ba))
+    X0 = Ba @ Ya[:, :2]  # the two softest antisymmetric modes, as from the last check
+    lam, V = lowest_eigenvalues(lin, 2, X0)
+    assert lam[0] == pytest.approx(sym[0], rel=1e-6), (lam, sym, anti)
+    assert np.any(np.isclose(lam, anti[0], rtol=1e-6)), (lam, anti)
+    assert V.shape == (n, len(lam))
+
+
+def test_stability_check_of_the_network_reports_both_blocks(model):
+    # At the converged 4 mm state of the 4 086-dof network: the lowest eigenvalue to the Lanczos
+    # tolerance (its Ritz value to ~1e-6), each block's lowest among those returned, the other
+    # block's within the residual it is resolved to; started cold and from antisymmetric modes.
+    ht = model.half_turn()
+    states = {}
+    ctl = dataclasses.replace(step_control(Scene().with_changes(**SCENE)), u0_final=4e-3, stability=False)
+    solve_path(model, ctl, on_step=lambda info, u: states.update({info.u0: u.copy()}))
+    u = states[max(states)]
+    K = model.evaluate(u, True)[2]
+    lin = FreeBlockSolver(K, ~model.fixed, "auto", ht)
+    lin.factor(K)
+    sym, anti = _block_spectra(lin, K)
+    # measured: antisymmetric 3.14e-8, 4.86e-8, symmetric 5.47e-8
+    ref = np.sort(np.concatenate([sym, anti]))
+    maps = lin._blocks.maps
+
+    def check(lam: np.ndarray, V: np.ndarray) -> None:
+        assert lam[0] == pytest.approx(ref[0], rel=1e-6), (lam, ref)
+        for B, low in ((maps.B_s, sym[0]), (maps.B_a, anti[0])):  # a mode of each block, near its lowest
+            part = np.linalg.norm(B.T @ V, axis=0) / np.linalg.norm(V, axis=0)
+            assert np.any((part > 0.99) & (np.abs(lam / low - 1) <= OTHER_BLOCK_TOL)), (lam, part, sym, anti)
+
+    lam, V = lowest_eigenvalues(lin, 2)
+    check(lam, V)
+    pure_anti = maps.B_a @ (maps.B_a.T @ V)
+    lam2, V2 = lowest_eigenvalues(lin, 2, pure_anti[:, np.linalg.norm(pure_anti, axis=0) > 1e-3])
+    check(lam2, V2)

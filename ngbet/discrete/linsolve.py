@@ -142,6 +142,19 @@ class FreeBlockSolver:
             self.n_factor_whole += 1
         self._whole.factor(vals)
 
+    def half_turn_blocks(self) -> list[EigenBlock] | None:
+        """The factorized tangent as its two half-turn blocks (symmetric, antisymmetric), or None.
+
+        None unless the last tangent was factorized in blocks. Each block carries its matrix (the
+        values factorized), its basis B (columns in the free dofs) and a solve with its own
+        factorization; the antisymmetric block is factorized when first solved with.
+        """
+        if not self.in_blocks or self._blocks is None:
+            return None
+        bl = self._blocks
+        return [EigenBlock(self, "s", bl.block_matrix("s"), bl.maps.B_s),
+                EigenBlock(self, "a", bl.block_matrix("a"), bl.maps.B_a)]
+
     def _indptr(self) -> np.ndarray:
         if not hasattr(self, "_ip"):
             self._ip = np.concatenate([[0], np.cumsum(np.bincount(self.rows, minlength=self.nf))])
@@ -181,6 +194,38 @@ class FreeBlockSolver:
                 X = self._whole.solve(B)
         finally:
             self.t_solve += time.perf_counter() - t0
+        if not np.all(np.isfinite(X)):
+            raise LinearSolverError("solution of the tangent system is not finite (singular tangent?)")
+        return X
+
+
+class EigenBlock:
+    """One half-turn block of a tangent factorized in blocks (:meth:`FreeBlockSolver.half_turn_blocks`).
+
+    ``K`` (n_b, n_b): the block; ``B`` (n_free, n_b): its orthonormal basis; :meth:`solve` uses the
+    block's factorization and counts in the solver's statistics.
+    """
+
+    def __init__(self, lin: FreeBlockSolver, kind: str, K: sp.csr_matrix, B: sp.csr_matrix) -> None:
+        self.lin, self.kind, self.K, self.B = lin, kind, K, B
+
+    def solve(self, Y: np.ndarray) -> np.ndarray:
+        """K_b^-1 Y for the columns of Y (n_b, m)."""
+        lin = self.lin
+        bl = lin._blocks
+        assert bl is not None
+        t0 = time.perf_counter()
+        lin.n_solve += Y.shape[1]
+        try:
+            if self.kind == "a" and bl.pending():
+                t1 = time.perf_counter()
+                bl.factor_antisymmetric()
+                lin.n_factor_antisymmetric += 1
+                lin.t_factor += time.perf_counter() - t1
+                t0 += time.perf_counter() - t1  # (factorization time, not solve time)
+            X = (bl.sym if self.kind == "s" else bl.anti).solve(Y)
+        finally:
+            lin.t_solve += time.perf_counter() - t0
         if not np.all(np.isfinite(X)):
             raise LinearSolverError("solution of the tangent system is not finite (singular tangent?)")
         return X
@@ -240,6 +285,7 @@ class _HalfTurnFactor:
         self._vals: np.ndarray | None = None  # K_ff's values, while the antisymmetric block waits
         self._vals_s = np.zeros(0)  # K_s's values of the tangent last judged
         self.coupling = 0.0  # of the last tangent judged
+        self._row_ptr: dict[str, np.ndarray] = {}  # CSR row pointers of the blocks' patterns
 
     def twin(self) -> _HalfTurnFactor:
         """The same maps, factorizations of its own."""
@@ -265,6 +311,22 @@ class _HalfTurnFactor:
     def needs_antisymmetric(self, B: np.ndarray) -> bool:
         """Whether solving for B needs the antisymmetric block, not yet factorized."""
         return self._vals is not None and bool(np.any(self.maps.Bt_a @ B))
+
+    def pending(self) -> bool:
+        """Whether the antisymmetric block of the last tangent is not yet factorized."""
+        return self._vals is not None
+
+    def block_matrix(self, kind: str) -> sp.csr_matrix:
+        """The symmetric ("s") or antisymmetric ("a") block of the last tangent (the values factorized)."""
+        m = self.maps
+        if kind == "s":
+            vals, rows, cols, n = self.sym.vals, m.rows_s, m.cols_s, m.n_s
+        else:
+            vals = m.M_a @ self._vals if self._vals is not None else self.anti.vals
+            rows, cols, n = m.rows_a, m.cols_a, m.n_a
+        if kind not in self._row_ptr:
+            self._row_ptr[kind] = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))])
+        return sp.csr_matrix((np.array(vals), cols, self._row_ptr[kind]), shape=(n, n))
 
     def factor_antisymmetric(self) -> None:
         assert self._vals is not None

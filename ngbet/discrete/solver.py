@@ -60,7 +60,7 @@ import scipy.sparse.linalg as spla
 
 from ..engine import Outcome, PathControl, StepRecord, follow_path
 from ..errors import Attempt, ConvergenceError
-from .linsolve import FreeBlockSolver, LinearSolverError
+from .linsolve import EigenBlock, FreeBlockSolver, LinearSolverError
 
 log = logging.getLogger(__name__)
 
@@ -441,9 +441,12 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
     Falls back to ARPACK (``eigsh`` in shift-invert mode) if that does not happen within
     ``max_expansions``.
 
+    A tangent factorized in its half-turn blocks is checked block by block
+    (:func:`_lowest_eigenvalues_split`): there the k nearest pairs come with each block's nearest.
+
     Returns
     -------
-    lam (k,) ascending, V (n_free, k): D-normalized modes
+    lam (k,) ascending (k or more with the half-turn blocks), V (n_free, len(lam)): D-normalized modes
     """
     Kff = lin.Kff
     assert Kff is not None
@@ -451,6 +454,9 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
     k = min(k, n - 2)
     s = np.sqrt(np.abs(Kff.diagonal()))
     s[s == 0] = 1.0
+    blocks = lin.half_turn_blocks()
+    if blocks is not None:
+        return _lowest_eigenvalues_split(lin, blocks, s, k, X0, tol, max_expansions)
 
     def A(Y: np.ndarray) -> np.ndarray:
         return (Kff @ (Y / s[:, None])) / s[:, None]
@@ -476,6 +482,96 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
             W = _orthonormalize(W, Q)
         Q, AQ = np.column_stack([Q, W]), np.column_stack([AQ, A(W)])
     log.info("block Lanczos did not converge; falling back to ARPACK")
+    return _lowest_eigenvalues_arpack(lin, k)
+
+
+OTHER_BLOCK_TOL = 0.3
+"""Half-turn blocks: the relative residual to which the block without the Ritz value nearest 0 has
+its own nearest pair resolved, when that pair lies clear of the nearest one (else to ``tol``)."""
+
+
+class _SplitBasis:
+    """The Lanczos basis of one half-turn block, in the block's scaled coordinates."""
+
+    def __init__(self, block: EigenBlock, s: np.ndarray, Y0: np.ndarray, seed: int) -> None:
+        self.block = block
+        B = block.B
+        self.s = np.sqrt(B.multiply(B).T @ (s * s))  # D_b = B^T D B is diagonal (D is half-turn invariant)
+        self.s[self.s == 0] = 1.0
+        Yb = B.T @ Y0
+        # the start vectors' parts in this block (parts at round-off level are left out)
+        Yb = Yb[:, np.linalg.norm(Yb, axis=0) > 1e-6 * np.linalg.norm(Y0, axis=0)]
+        if Yb.shape[1] == 0:
+            Yb = np.random.default_rng(seed).standard_normal((B.shape[1], 1))
+        self.Q = _orthonormalize(Yb, np.zeros((B.shape[1], 0)))
+        self.AQ = self.A(self.Q)
+
+    def A(self, Y: np.ndarray) -> np.ndarray:
+        return (self.block.K @ (Y / self.s[:, None])) / self.s[:, None]
+
+    def ritz(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """The k Ritz pairs nearest 0 (values, vectors, A times them) and the nearest one's residual."""
+        th, Y, AY = _ritz_pairs(self.Q, self.AQ, min(k, self.Q.shape[1]))
+        return th, Y, AY, float(np.linalg.norm(AY[:, 0] - Y[:, 0] * th[0]))
+
+    def expand(self, Y: np.ndarray) -> None:
+        """Add A^-1 Y (a half-size solve per column) to the basis."""
+        W = _orthonormalize(self.s[:, None] * self.block.solve(self.s[:, None] * Y), self.Q)
+        if W.shape[1] == 0:
+            return
+        if self.Q.shape[1] + W.shape[1] > 60:  # restart with the Ritz vectors
+            _, Yr, AYr = _ritz_pairs(self.Q, self.AQ, 4)
+            self.Q, self.AQ = Yr, AYr
+            W = _orthonormalize(W, self.Q)
+        self.Q, self.AQ = np.column_stack([self.Q, W]), np.column_stack([self.AQ, self.A(W)])
+
+
+def _lowest_eigenvalues_split(lin: FreeBlockSolver, blocks: list[EigenBlock], s: np.ndarray, k: int,
+                              X0: np.ndarray | None, tol: float, max_expansions: int
+                              ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`lowest_eigenvalues` of a tangent factorized in its half-turn blocks.
+
+    K_ff = B_s K_s B_s^T + B_a K_a B_a^T, and D = diag(K_ff) commutes with the half-turn, so that
+    K v = lambda D v is the union of the blocks' problems K_b y = lambda D_b y, D_b = B_b^T D B_b
+    (diagonal). A Krylov space grown from vectors of one block stays in that block: started from
+    the last check's modes, all antisymmetric on the BET path, the whole-space method never sees
+    the symmetric block again. Here each block keeps its own basis, started from the block parts
+    of the start vectors (or from a fixed random vector), and each block's pair nearest 0 is
+    resolved: the block holding the Ritz value nearest 0 to ``tol``; the other to ``tol`` as well,
+    or only to :data:`OTHER_BLOCK_TOL` where its eigenvalue then lies clear of the nearest one.
+    Expanding a Ritz vector is one half-size solve with its block's factorization; the first
+    expansion takes, in each block, its Ritz vectors among the k nearest 0 overall (at least one).
+
+    Returns the k pairs nearest 0 and, where not among them, each block's nearest pair, sorted
+    ascending: the next check starts from all of them.
+    """
+    if X0 is not None and X0.ndim == 2 and X0.shape[0] == len(s) and X0.shape[1] >= 1:
+        Y0 = X0 * s[:, None]
+    else:
+        Y0 = _start_block(None, s, k)
+    bases = [_SplitBasis(b, s, Y0, seed) for seed, b in enumerate(blocks)]
+    for n_exp in range(max_expansions):
+        pairs = [bb.ritz(k) for bb in bases]
+        cand = sorted((abs(th[j]), i, j) for i, (th, _, _, _) in enumerate(pairs) for j in range(len(th)))[:k]
+        i0 = cand[0][1]
+        th0, r0 = abs(pairs[i0][0][0]), pairs[i0][3]
+        done = []
+        for i, (th, _, _, res) in enumerate(pairs):
+            t = abs(th[0])
+            clear = i != i0 and res <= OTHER_BLOCK_TOL * t and t - res > th0 + r0
+            done.append(res <= tol * t + 1e-14 or clear)
+        if all(done) and len(cand) == k:
+            keep = sorted({(i, j) for _, i, j in cand} | {(i, 0) for i in range(len(pairs))})
+            lam = np.array([pairs[i][0][j] for i, j in keep])
+            V = np.column_stack([bases[i].block.B @ (pairs[i][1][:, j] / bases[i].s) for i, j in keep])
+            order = np.argsort(lam)
+            return lam[order], V[:, order]
+        for i, bb in enumerate(bases):
+            if n_exp == 0:
+                bb.expand(pairs[i][1][:, sorted({0} | {j for _, ii, j in cand if ii == i})])
+            elif not done[i]:
+                bb.expand(pairs[i][1][:, :1])
+    log.info("block Lanczos did not converge in the half-turn blocks; falling back to ARPACK")
     return _lowest_eigenvalues_arpack(lin, k)
 
 
