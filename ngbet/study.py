@@ -278,7 +278,7 @@ def _store(cache: Path, key: str, rec: dict[str, Any], workdir: Path | None) -> 
     Its case.json lists the sha256 of every file (what :func:`verify_case` checks on every read).
     """
     files = rec.pop("files", None)
-    tmp = cache / f".tmp-{key}-{uuid.uuid4().hex[:8]}"
+    tmp = cache / f".tmp-{key}-{uuid.uuid4().hex[:8]}-{os.getpid()}-{_host_tag()}"
     try:
         _fill(tmp, rec, files, workdir)
         final = cache / key
@@ -371,16 +371,38 @@ def _json_file(path: Path) -> dict[str, Any]:
 def clean_debris(cache: Path) -> int:
     """Remove the folders that killed studies left behind; returns how many.
 
-    The ``.run-*`` folders whose run lock is free (a running study's are locked) and ``.tmp-*``
-    folders older than 10 minutes.
+    The ``.run-*`` folders whose run lock is free (a running study's are locked), and the
+    ``.tmp-*`` folders of a store (a store lasts milliseconds) whose process is gone: those written
+    on this machine by a process that no longer exists, any other older than 10 minutes (another
+    machine's, sharing the cache, or one named before the storing process was part of the name).
     """
     n = 0
-    old = time.time() - 600  # a .tmp-* folder lives for the milliseconds of a store
-    for d in list(cache.glob(".run-*")) + [t for t in cache.glob(".tmp-*") if t.stat().st_mtime < old]:
+    old = time.time() - 600
+    tmps = [t for t in cache.glob(".tmp-*") if _store_orphaned(t.name) or t.stat().st_mtime < old]
+    for d in list(cache.glob(".run-*")) + tmps:
         if d.is_dir() and not _locked(d / RUN_LOCK):
             shutil.rmtree(d, ignore_errors=True)
             n += 1
     return n
+
+
+def _host_tag() -> str:
+    """The machine, as a store's folder name gives it (a hash of the host name: no separators in it)."""
+    return hashlib.sha256(machine()["node"].encode()).hexdigest()[:8]
+
+
+def _store_orphaned(name: str) -> bool:
+    """Whether the ``.tmp-<key>-<random>-<pid>-<host>`` folder's storing process, on this machine, is gone."""
+    parts = name.split("-")
+    if len(parts) < 5 or parts[-1] != _host_tag() or not parts[-2].isdigit():
+        return False
+    try:
+        os.kill(int(parts[-2]), 0)
+    except ProcessLookupError:
+        return True
+    except (PermissionError, OverflowError):
+        return False
+    return False
 
 
 def _locked(lock: Path) -> bool:
