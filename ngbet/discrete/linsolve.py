@@ -312,7 +312,7 @@ class _HalfTurnFactor:
 
     def needs_antisymmetric(self, B: np.ndarray) -> bool:
         """Whether solving for B needs the antisymmetric block, not yet factorized."""
-        return self._vals is not None and bool(np.any(self.maps.Bt_a @ B))
+        return self.pending() and bool(np.any(self.maps.Bt_a @ B))
 
     def pending(self) -> bool:
         """Whether the antisymmetric block of the last tangent is not yet factorized."""
@@ -324,7 +324,7 @@ class _HalfTurnFactor:
         if kind == "s":
             vals, rows, cols, n = self.sym.vals, m.rows_s, m.cols_s, m.n_s
         else:
-            vals = m.M_a @ self._vals if self._vals is not None else self.anti.vals
+            vals = m.M_a @ self._vals if self._vals is not None else self.anti.vals  # (pending)
             rows, cols, n = m.rows_a, m.cols_a, m.n_a
         if kind not in self._row_ptr:
             self._row_ptr[kind] = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))])

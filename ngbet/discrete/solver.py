@@ -645,11 +645,12 @@ def solve_path(problem: Problem, ctl: StepControl,
         hook = None if on_step is None else (lambda rec: on_step(rec, corrector.u))
         try:
             follow_path(corrector, path, on_step=hook, progress=progress)
-        except ConvergenceError as exc:
-            exc.path_info.update({k: v for k, v in corrector.statistics().items() if k != "u"})
-            raise
-        except KeyboardInterrupt as exc:  # Ctrl-C / SIGTERM: the statistics so far go to the summary
-            exc.path_info = {k: v for k, v in corrector.statistics().items() if k != "u"}  # type: ignore[attr-defined]
+        except (ConvergenceError, KeyboardInterrupt) as exc:  # Ctrl-C / SIGTERM too: the statistics so far
+            info = {k: v for k, v in corrector.statistics().items() if k != "u"}
+            if isinstance(exc, ConvergenceError):
+                exc.path_info.update(info)
+            else:
+                exc.path_info = info  # type: ignore[attr-defined]
             raise
         return corrector.statistics()
 
