@@ -22,7 +22,7 @@ COPY ngbet ./ngbet
 #   docker build --build-arg REVISION=$(git rev-parse --short=12 HEAD) .
 ARG REVISION=unknown
 RUN printf 'REVISION = "%s"\n' "$REVISION" > ngbet/_revision.py \
-    && pip install --upgrade pip && pip install ".[viz]" && rm -rf /src/build
+    && pip install --upgrade pip && pip install ".[viz,cholmod]" && rm -rf /src/build
 USER ngbet
 WORKDIR /work
 # prove the image: the default scene to 56 mm, with its VTU file and its plot

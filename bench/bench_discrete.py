@@ -4,7 +4,8 @@ For a BET network (default spacing 2.4 mm: about 17,000 unknowns) at a deformed 
 u0 = 20 mm solution), time over ``--repeats`` repeats (medians reported):
 
 - assembly: energy, gradient and Hessian (element kernels + bincount into the fixed CSR pattern);
-- factorization + one solve of the free block with each linear solver backend: NGSolve
+- factorization + one solve of the free block with each linear solver backend: CHOLMOD's
+  supernodal LL^T through cvxopt (``cholmod``, when installed), NGSolve
   sparsecholesky with the pattern analysed once and values updated in place (``Update()``) on one
   and on two NGSolve threads (TaskManager), NGSolve umfpack / pardiso when available (one thread),
   scipy SuperLU (``splu``) from scratch;
@@ -16,12 +17,14 @@ u0 = 20 mm solution), time over ``--repeats`` repeats (medians reported):
   wall time, steps, Newton iterations, factorizations, snap events, F(37), F(56), largest slip,
   and where the factorizations, the solves and the time went (converged steps, failed attempts,
   steps cut at an indefinite tangent, snap bracketing, relaxations, escapes, stability checks);
-  ``--run-only`` skips the per-iteration part.
+  ``--run-only`` skips the per-iteration part; ``--linear-solver`` sets ``solver.linear_solver``
+  of the full runs (default "auto": CHOLMOD where cvxopt is installed).
 
 All backends must give the same solution (relative difference reported). A JSON record goes to
 bench/out/ (ignored by git).
 
-    python bench/bench_discrete.py [--spacing 2.4] [--repeats 5] [--run [--threads 1,2] [--run-repeats 1]]
+    python bench/bench_discrete.py [--spacing 2.4] [--repeats 5] [--run [--threads 1,2] [--run-repeats 1]
+                                   [--linear-solver auto]]
 """
 
 from __future__ import annotations
@@ -78,7 +81,7 @@ def per_iteration(scene: Scene, args: argparse.Namespace, rec: dict) -> None:
     b = g[~model.fixed]
     ref = None
     rec["backends"] = {}
-    cases = [("sparsecholesky", 1), ("sparsecholesky", 2), ("umfpack", 1), ("pardiso", 1), ("splu", 1)]
+    cases = [("cholmod", 1), ("sparsecholesky", 1), ("sparsecholesky", 2), ("umfpack", 1), ("pardiso", 1), ("splu", 1)]
     for backend, threads in cases:
         name = f"{backend} ({threads} thread{'s' if threads > 1 else ''})"
         ngs.SetNumThreads(threads)
@@ -112,11 +115,12 @@ def per_iteration(scene: Scene, args: argparse.Namespace, rec: dict) -> None:
     ngs.SetNumThreads(1)
 
 
-def full_run(scene: Scene, threads: int, tag: str) -> dict:
+def full_run(scene: Scene, threads: int, tag: str, linear_solver: str = "auto") -> dict:
     from ngbet.discrete import run
 
     folder = Path(__file__).parent / "out" / f"run_{tag}"
-    full = scene.with_changes(**{"loading.u0_mm": 56.0, "solver.threads": threads})
+    full = scene.with_changes(**{"loading.u0_mm": 56.0, "solver.threads": threads,
+                                 "solver.linear_solver": linear_solver})
     load = os.getloadavg()[0]
     t = time.perf_counter()
     c = time.process_time()
@@ -129,6 +133,7 @@ def full_run(scene: Scene, threads: int, tag: str) -> dict:
             "steps": s.get("steps"), "newton_iterations": s["newton_iterations_total"],
             "snap_events": s["snap_event_count"], "t_stability_s": s.get("t_stability_s"),
             "factorizations": s.get("factorizations"), "failed_steps": s.get("failed_steps"),
+            "backend": s.get("backend"), "factorizations_ldlt": s.get("factorizations_ldlt"),
             "work_by_cause": s.get("work_by_cause"), "timers": s.get("timers"),
             "snap_events_list": s.get("snap_events"), "max_slip_mm": s.get("max_slip_mm"),
             "F37_N": F.get(37.0), "F56_N": F.get(56.0)}
@@ -137,7 +142,8 @@ def full_run(scene: Scene, threads: int, tag: str) -> dict:
 def print_run(fr: dict) -> None:
     print(f"full run to 56 mm, {fr['threads']} thread(s), load {fr['load']:.2f}: wall {fr['wall_s']:.1f} s "
           f"(CPU {fr['cpu_s']:.1f} s), {fr['status']}, steps {fr['steps']}, Newton iterations "
-          f"{fr['newton_iterations']}, factorizations {fr['factorizations']}, failed steps {fr['failed_steps']}, "
+          f"{fr['newton_iterations']}, factorizations {fr['factorizations']} ({fr.get('backend')}; "
+          f"{fr.get('factorizations_ldlt')} by the LDL^T), failed steps {fr['failed_steps']}, "
           f"snap events {fr['snap_events']}, largest slip {fr['max_slip_mm']:.3f} mm, "
           f"F(37) {fr['F37_N']:.6f} N, F(56) {fr['F56_N']:.6f} N")
     for ev in fr.get("snap_events_list") or []:
@@ -164,6 +170,7 @@ def main() -> None:
     ap.add_argument("--run-only", action="store_true", help="only the full runs")
     ap.add_argument("--threads", default="1", help="NGSolve threads of the full runs, comma-separated (e.g. 1,2)")
     ap.add_argument("--run-repeats", type=int, default=1, help="repeats of each full run (interleaved)")
+    ap.add_argument("--linear-solver", default="auto", help="solver.linear_solver of the full runs")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
 
@@ -176,7 +183,7 @@ def main() -> None:
         rec["full_runs"] = []
         for rep in range(args.run_repeats):
             for th in (int(x) for x in args.threads.split(",")):
-                rec["full_runs"].append(full_run(scene, th, f"{args.spacing}mm_{th}t_{rep}"))
+                rec["full_runs"].append(full_run(scene, th, f"{args.spacing}mm_{th}t_{rep}", args.linear_solver))
                 print_run(rec["full_runs"][-1])
     rec["versions"] = versions()
     rec["machine"] = machine()

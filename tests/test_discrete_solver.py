@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from ngbet.discrete.linsolve import FreeBlockSolver
+from ngbet.discrete import linsolve
+from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError, resolve_backend
 from ngbet.discrete.solver import StepControl, _StepFailed, newton, single_threaded_blas, solve_path
 
 
@@ -119,6 +120,35 @@ def test_solve_many_equals_column_solves():
     cols = np.column_stack([lin.solve(B[:, j]) for j in range(3)])
     assert np.abs(X - cols).max() <= 1e-12 * np.abs(cols).max(), f"{np.abs(X - cols).max():.2e}"
     assert np.abs(K @ X - B).max() <= 1e-10 * np.abs(B).max(), f"residual {np.abs(K @ X - B).max():.2e}"
+
+
+def test_cholmod_hands_an_indefinite_tangent_to_the_ldlt():
+    # CHOLMOD's LL^T stops at a non-positive pivot; such a tangent is factorized by NGSolve's
+    # LDL^T, and the next positive definite one by the LL^T again. Each solve is checked against
+    # a dense solve.
+    p = Convex(40)
+    K = p.evaluate(np.linspace(-1, 1, p.n_dofs))[2]
+    lin = FreeBlockSolver(K, np.ones(p.n_dofs, bool), "cholmod")
+    b = np.random.default_rng(1).standard_normal(p.n_dofs)
+    shifted = (K - 2.2 * sp.identity(p.n_dofs, format="csr")).tocsr()  # cosh >= 1: K - 2.2 I is indefinite
+    shifted = sp.csr_matrix((shifted[K != 0].A1, K.indices, K.indptr), shape=K.shape)  # K's pattern and order
+    assert np.linalg.eigvalsh(shifted.toarray()).min() < 0 < np.linalg.eigvalsh(K.toarray()).min()
+    for A, ldlt in ((K, 0), (shifted, 1), (K, 1)):
+        lin.factor(A)
+        x = lin.solve(b)
+        ref = np.linalg.solve(A.toarray(), b)
+        assert np.abs(x - ref).max() <= 1e-10 * np.abs(ref).max(), f"{np.abs(x - ref).max():.2e}"
+        assert lin.n_factor_ldlt == ldlt
+
+
+def test_linear_solver_auto_is_cholmod_where_cvxopt_is_installed(monkeypatch):
+    assert resolve_backend("auto") == "cholmod"  # the test extra installs cvxopt
+    monkeypatch.setattr(linsolve, "cholmod_available", lambda: False)
+    assert resolve_backend("auto") == "sparsecholesky"
+    with pytest.raises(LinearSolverError, match=r"needs cvxopt.*ngbet\[cholmod\]"):
+        resolve_backend("cholmod")
+    with pytest.raises(LinearSolverError, match="'lu' unknown"):
+        resolve_backend("lu")
 
 
 def test_energy_balance_by_the_hermite_rule_on_a_smooth_branch():

@@ -60,7 +60,7 @@ import scipy.sparse.linalg as spla
 
 from ..engine import Outcome, PathControl, StepRecord, follow_path
 from ..errors import Attempt, ConvergenceError
-from .linsolve import EigenBlock, FreeBlockSolver, LinearSolverError
+from .linsolve import EigenBlock, FreeBlockSolver, LinearSolverError, cholmod_available
 
 log = logging.getLogger(__name__)
 
@@ -610,6 +610,8 @@ def single_threaded_blas() -> Any:
         import ngsolve.la  # noqa: F401
     except ImportError:  # pragma: no cover
         pass
+    if cholmod_available():  # cvxopt brings its own OpenBLAS (CHOLMOD's supernodes)
+        import cvxopt.cholmod  # noqa: F401
     return threadpool_limits(limits=1)
 
 
@@ -951,6 +953,7 @@ class ShiftedNewton:
                   "factorizations": lin.n_factor + work.n_factor, "work_by_cause": self.tally.rows,
                   "half_turn_blocks": lin.has_half_turn,
                   "factorizations_antisymmetric": lin.n_factor_antisymmetric + work.n_factor_antisymmetric,
+                  "factorizations_ldlt": lin.n_factor_ldlt + work.n_factor_ldlt,
                   "factorizations_off_symmetry": lin.n_factor_whole + work.n_factor_whole})
         s["timers"] = {"assembly_s": t.t_hessian, "assemblies": t.n_hessian,
                        "gradient_only_s": t.t_gradient, "gradients_only": t.n_gradient,
