@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from .scene import Scene
+from .scene import Scene, SceneError
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +92,17 @@ def run(scene: Scene, out: str | Path, progress: bool = False) -> dict[str, Any]
     ngbet.errors.ConvergenceError
         when the load cannot be carried to the end; every converged step is on disk by then,
         and summary.json says ``"status": "failed"`` with the error.
+    ngbet.scene.SceneError
+        when the scene asks for what this installation lacks (``solver.linear_solver = "cholmod"``
+        without cvxopt), before anything is written.
     """
+    if scene.solver.linear_solver == "cholmod":
+        from . import cholmod
+
+        if not cholmod.available():
+            raise SceneError("scene key 'solver.linear_solver' = 'cholmod': needs cvxopt, which is not installed "
+                             "here: pip install \"ngbet[cholmod]\" (or choose 'auto', which falls back to "
+                             "'sparsecholesky')")
     with ngsolve_threads(scene):
         if scene.model == "discrete":
             from . import discrete

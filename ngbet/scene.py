@@ -347,9 +347,9 @@ class Solver:
     grow_after: int = 4  # grow the step when Newton needed at most this many iterations
     growth: float = 1.5
     cut: float = 0.5
-    # "auto": continuum sparse LDL^T (UMFPACK for an uncondensed saddle point); discrete CHOLMOD's
-    # LL^T when cvxopt is installed (ngbet[cholmod]; an indefinite tangent goes to the LDL^T), else
-    # the LDL^T. "cholmod" is for the discrete model only (the continuum's are not positive definite)
+    # "auto": CHOLMOD's LL^T where cvxopt is installed (ngbet[cholmod]; a matrix that is not
+    # positive definite goes to the sparse LDL^T), else the sparse LDL^T ("sparsecholesky");
+    # UMFPACK for the continuum's uncondensed saddle point
     linear_solver: str = "auto"
     # eliminate element-local dofs (Lambda) before factorizing; false keeps them in the factorized
     # matrix (slower): a numerics choice, the same discrete solution for every formulation
@@ -507,10 +507,9 @@ class Scene:
                    f"{self.specimen.width_mm:g} mm specimen; a yarn network needs at least "
                    f"{MIN_YARNS_PER_FAMILY} (spacing <= {_max_spacing(self.specimen):.3g} mm)")
         if self.model == "continuum":
-            _check(self.solver.linear_solver != "cholmod", "solver.linear_solver", self.solver.linear_solver,
-                   "is for the discrete model: the continuum's condensed Newton matrices are not positive definite "
-                   "in general, and a Cholesky LL^T fails on them; use 'auto', 'sparsecholesky', 'umfpack' or "
-                   "'pardiso'")
+            _check(self.solver.linear_solver != "cholmod" or self.solver.condense, "solver.linear_solver",
+                   self.solver.linear_solver, "needs solver.condense = true: the uncondensed Newton matrix holds "
+                   "the multiplier's block and is indefinite, which a Cholesky LL^T cannot factorize")
             m, e = self.material, self.effects
             if e.shear:
                 _check(m.K_sh > 0, "material.K_sh", m.K_sh, "must be > 0 when effects.shear is on")

@@ -130,7 +130,8 @@ class ContinuumProblem:
         energy, saddle_energy = self._energy(scene)
         # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
         self.condense = scene.solver.condense
-        inverse = pick_inverse(scene.solver.linear_solver, saddle_energy is not None and not self.condense)
+        inverse = pick_inverse(scene.solver.linear_solver, saddle_energy is not None and not self.condense,
+                               self.condense, self.X.FreeDofs(self.condense).NumSet())
         self.a = energy_form(self.X, inverse, condense=self.condense and saddle_energy is None)
         # the energy form is linearized unless the augmented Newton matrix of linear.py replaces it
         linearized = not (self.condense and saddle_energy is not None)

@@ -38,6 +38,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..cholmod import free_pattern
+
 if TYPE_CHECKING:
     from .symmetry import HalfTurn
 
@@ -48,9 +50,9 @@ BACKENDS = ("cholmod", "sparsecholesky", "umfpack", "pardiso", "splu")
 
 def cholmod_available() -> bool:
     """Whether the ``"cholmod"`` backend can be used (cvxopt is installed)."""
-    import importlib.util
+    from .. import cholmod
 
-    return importlib.util.find_spec("cvxopt") is not None
+    return cholmod.available()
 
 
 def resolve_backend(backend: str) -> str:
@@ -91,13 +93,7 @@ class FreeBlockSolver:
         backend = resolve_backend(backend)
         self.backend = backend
         self.free = np.flatnonzero(free)
-        n = K.shape[0]
-        rows = np.repeat(np.arange(n), np.diff(K.indptr))
-        keep = free[rows] & free[K.indices]
-        self.sel = np.flatnonzero(keep)
-        newid = -np.ones(n, np.int64)
-        newid[self.free] = np.arange(len(self.free))
-        self.rows, self.cols = newid[rows[keep]], newid[K.indices[keep]]
+        self.sel, self.rows, self.cols = free_pattern(K.indptr, K.indices, free)
         self.nf = len(self.free)
         self.Kff: sp.csr_matrix | None = None
         self.shifted = False  # the last factorization was of K_ff + diag(shift)
@@ -311,42 +307,29 @@ class _NgFactor:
 
 
 class _CholmodFactor:
-    """CHOLMOD's supernodal LL^T (cvxopt) of a fixed symmetric pattern (CSR order), refactorized in place.
+    """CHOLMOD's LL^T (:class:`ngbet.cholmod.CholmodFactor`) of a fixed pattern, refactorized in place.
 
     A matrix that is not positive definite is factorized by NGSolve's LDL^T (:class:`_NgFactor`)
     instead, until the next one; ``n_ldlt`` counts those.
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, n: int) -> None:
-        from cvxopt import cholmod, matrix, spmatrix
+        from ..cholmod import CholmodFactor
 
-        self._cholmod, self._matrix = cholmod, matrix
         self.rows, self.cols, self.n = rows, cols, n
-        # the upper triangle in CSR order is the lower triangle in CCS order (cvxopt's storage)
-        self._lower = np.flatnonzero(cols >= rows)
-        self.mat = spmatrix(np.ones(len(self._lower)).tolist(), cols[self._lower].tolist(),
-                            rows[self._lower].tolist(), (n, n))
-        if not np.array_equal(np.asarray(self.mat.CCS[1]).ravel(), cols[self._lower]):
-            raise LinearSolverError("cvxopt reordered the free-block pattern; in-place update impossible")
-        self.vals = np.zeros(len(rows))  # the values last factorized (the whole pattern)
-        self._F: Any = None
+        self._llt = CholmodFactor(rows, cols, n)
+        self.vals = np.zeros(len(rows))  # the values last factorized
         self._ldlt: _NgFactor | None = None
         self.indefinite = False  # the last matrix was not positive definite: the LDL^T holds it
         self.n_ldlt = 0
 
     def factor(self, vals: np.ndarray) -> None:
         self.vals[:] = vals
-        self.mat.V = self._matrix(vals[self._lower])
-        if self._F is None:
-            self._F = self._cholmod.symbolic(self.mat, uplo="L")
-        try:
-            self._cholmod.numeric(self.mat, self._F)
-            self.indefinite = False
-        except ArithmeticError:  # a non-positive pivot: not positive definite
+        self.indefinite = not self._llt.factor(vals)
+        if self.indefinite:
             if self._ldlt is None:
                 self._ldlt = _NgFactor(self.rows, self.cols, self.n, "sparsecholesky")
             self._ldlt.factor(vals)
-            self.indefinite = True
             self.n_ldlt += 1
 
     def solve(self, B: np.ndarray) -> np.ndarray:
@@ -354,9 +337,7 @@ class _CholmodFactor:
         if self.indefinite:
             assert self._ldlt is not None
             return self._ldlt.solve(B)
-        X = self._matrix(np.asfortranarray(B, dtype=float))
-        self._cholmod.solve(self._F, X)
-        return np.asarray(X).reshape(B.shape)
+        return self._llt.solve(B)
 
 
 _Factor = _NgFactor | _CholmodFactor
