@@ -527,12 +527,19 @@ class Scene:
                                        "these values have no effect"), stacklevel=3)
 
     def unused_keys(self) -> list[str]:
-        """The keys with a non-default value that the scene's model does not read ("section.key")."""
+        """The keys with a non-default value that the scene's model does not read ("section.key").
+
+        The embedded scene's discretization (:data:`DEFAULT_DISCRETIZATION`) counts as a default:
+        ``ngbet run --set model=discrete`` starts from it without asking for it.
+        """
         out = []
         for name, keys in NOT_READ_BY[self.model].items():
             section, default = getattr(self, name), _SECTIONS[name]()
+            embedded = DEFAULT_DISCRETIZATION if name == "discretization" else {}
             for f in fields(section):
-                if (keys is None or f.name in keys) and getattr(section, f.name) != getattr(default, f.name):
+                value = getattr(section, f.name)
+                if (keys is None or f.name in keys) and value != getattr(default, f.name) \
+                        and value != embedded.get(f.name, getattr(default, f.name)):
                     out.append(f"{name}.{f.name}")
         return out
 

@@ -102,3 +102,7 @@ def test_keys_the_model_does_not_read_are_named_in_a_warning():
     # the sections a model reads, and defaults elsewhere, are quiet
     assert Scene().with_changes(**{"model": "discrete", "loading.u0_mm": 30.0}).unused_keys() == []
     assert Scene().with_changes(**{"material.alpha1": 20.0}).unused_keys() == []
+    # the embedded scene's discretization was not asked for: `ngbet run --set model=discrete` is quiet
+    assert default_scene().with_changes(**{"model": "discrete"}).unused_keys() == []
+    with pytest.warns(SceneWarning, match="does not read discretization.order_u"):
+        default_scene().with_changes(**{"model": "discrete", "discretization.order_u": 5})
