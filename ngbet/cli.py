@@ -80,10 +80,13 @@ def _interrupts() -> Iterator[None]:
     woken by the signal (``signal.set_wakeup_fd``) then records the interruption in the active run
     folders itself and exits with 130 after GRACE_S.
     """
+    from .engine import STOP_REQUESTED
+
     acted = threading.Event()
 
     def handler(signum: int, frame: Any) -> None:
         acted.set()
+        STOP_REQUESTED.set()  # in case the exception is lost (engine.STOP_REQUESTED): the next step raises
         raise KeyboardInterrupt(f"signal {signum}")
 
     try:
@@ -96,9 +99,11 @@ def _interrupts() -> Iterator[None]:
     old_fd = signal.set_wakeup_fd(w.fileno(), warn_on_full_buffer=False)
     watchdog = threading.Thread(target=_watch, args=(r, acted), daemon=True, name="ngbet-interrupt-watchdog")
     watchdog.start()
+    STOP_REQUESTED.clear()
     try:
         yield
     finally:
+        STOP_REQUESTED.clear()
         signal.set_wakeup_fd(old_fd)
         for sig, h in previous.items():
             signal.signal(sig, h)

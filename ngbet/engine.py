@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -124,6 +125,20 @@ class PathResult:
     #: the error that ended displacement control when arc-length continuation took over
 
 
+#: Set by the command line's signal handler (Ctrl-C, SIGTERM) when it raises KeyboardInterrupt.
+#: That exception can be lost: raised while pybind11 converts the arguments of an NGSolve call
+#: (measured: in ``ngs.IfPos(...)`` while an observable is evaluated, about 1 run in 80 under
+#: load), it is cleared as a failed conversion and the run went on to the end. The load loops
+#: check this flag between steps, so that such a run stops at its next step.
+STOP_REQUESTED = threading.Event()
+
+
+def check_stop() -> None:
+    """Raise KeyboardInterrupt if a signal asked the run to stop (:data:`STOP_REQUESTED`)."""
+    if STOP_REQUESTED.is_set():
+        raise KeyboardInterrupt("stop requested by a signal")
+
+
 def follow_path(corrector: Corrector, ctl: PathControl, *,
                 on_step: Callable[[StepRecord], None] | None = None,
                 progress: Callable[[float], None] | None = None) -> PathResult:
@@ -140,6 +155,7 @@ def follow_path(corrector: Corrector, ctl: PathControl, *,
     eps = 1e-12 * max(1.0, abs(ctl.target))
     step = min(ctl.first_step, ctl.max_step)
     while out.u0 < ctl.target - eps:
+        check_stop()
         lam = out.u0
         nxt, h = _trial_load(lam, step, marks, eps, ctl.land_within)
         t0 = time.perf_counter()

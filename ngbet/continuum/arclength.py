@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from ..engine import PathResult, StepRecord
+from ..engine import PathResult, StepRecord, check_stop
 from ..errors import Attempt
 from ..scene import SceneError
 from .solver import NewtonSettings, NonlinearProblem, newton
@@ -200,6 +200,7 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
     track.start(problem, path)
     reached = path.lam0  # the largest load reached: a stop is landed on once, on the way up
     for _ in range(ctl.max_steps):
+        check_stop()
         if path.lam0 >= ctl.target - 1e-12 * ctl.target:
             break
         if path.lam0 < ctl.floor * track.lam_start:
