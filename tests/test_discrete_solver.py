@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from ngbet.discrete import linsolve
+from ngbet import cholmod
 from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError, resolve_backend
 from ngbet.discrete.solver import StepControl, _StepFailed, newton, single_threaded_blas, solve_path
 
@@ -143,7 +143,7 @@ def test_cholmod_hands_an_indefinite_tangent_to_the_ldlt():
 
 def test_linear_solver_auto_is_cholmod_where_cvxopt_is_installed(monkeypatch):
     assert resolve_backend("auto") == "cholmod"  # the test extra installs cvxopt
-    monkeypatch.setattr(linsolve, "cholmod_available", lambda: False)
+    monkeypatch.setattr(cholmod, "available", lambda: False)
     assert resolve_backend("auto") == "sparsecholesky"
     with pytest.raises(LinearSolverError, match=r"needs cvxopt.*ngbet\[cholmod\]"):
         resolve_backend("cholmod")

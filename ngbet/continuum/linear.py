@@ -141,7 +141,7 @@ class NewtonLinearSolver:
         self.condensed = bool(self.form.condense)
         self.freedofs = X.FreeDofs(self.condensed)
         self._inv: ngs.BaseMatrix | None = None
-        self._factorized: ngs.BaseMatrix | None = None  # the matrix self._inv (or self._llt) factorizes
+        self._factorized: ngs.BaseMatrix | None = None  # the matrix self._inv factorizes
         self._llt: _FreeCholesky | None = None  # "cholmod": the LLᵀ of the free block
         self._use_llt = False  # the last matrix is factorized by self._llt (else by self._inv)
         self.timers = {"assembly_s": 0.0, "factorization_s": 0.0, "solve_s": 0.0}
@@ -162,24 +162,24 @@ class NewtonLinearSolver:
             self.form.AssembleLinearization(state)
             t1 = time.perf_counter()
             self._use_llt = self.inverse_type == "cholmod" and self._factor_llt()
-            if self._use_llt:
-                pass
-            elif self._inv is None or self._factorized is not self.form.mat:
-                # a new matrix (symmetric storage on a refined mesh, energy_form): factorize it
-                self._factorized = self.form.mat
-                inverse = "sparsecholesky" if self.inverse_type == "cholmod" else self.inverse_type
-                self._inv = self._factorized.Inverse(self.freedofs, inverse=inverse)
-            else:
-                self._inv.Update()
+            if not self._use_llt:
+                self._factor_ngsolve()
         self.timers["assembly_s"] += t1 - t0
         self.timers["factorization_s"] += time.perf_counter() - t1
         self.counts["factorizations"] += 1
 
-    def _factor_llt(self) -> bool:
-        """CHOLMOD's LLᵀ of the free block of the assembled matrix; False: not positive definite.
+    def _factor_ngsolve(self) -> None:
+        """NGSolve's inverse of the assembled matrix ("cholmod": its LDLᵀ), its analysis reused."""
+        if self._inv is None or self._factorized is not self.form.mat:
+            # a new matrix (symmetric storage on a refined mesh, energy_form): factorize it
+            self._factorized = self.form.mat
+            inverse = "sparsecholesky" if self.inverse_type == "cholmod" else self.inverse_type
+            self._inv = self._factorized.Inverse(self.freedofs, inverse=inverse)
+        else:
+            self._inv.Update()
 
-        The matrix that :attr:`_inv` holds is then stale; the caller factorizes with the LDLᵀ.
-        """
+    def _factor_llt(self) -> bool:
+        """CHOLMOD's LLᵀ of the assembled matrix's free block; False: not positive definite (then the LDLᵀ)."""
         mat = self.form.mat
         if self._llt is None or self._llt.mat is not mat:
             self._llt = _FreeCholesky(mat, self.freedofs)

@@ -38,6 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .. import cholmod
 from ..cholmod import free_pattern
 
 if TYPE_CHECKING:
@@ -46,13 +47,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 BACKENDS = ("cholmod", "sparsecholesky", "umfpack", "pardiso", "splu")
-
-
-def cholmod_available() -> bool:
-    """Whether the ``"cholmod"`` backend can be used (cvxopt is installed)."""
-    from .. import cholmod
-
-    return cholmod.available()
 
 
 def resolve_backend(backend: str) -> str:
@@ -64,10 +58,10 @@ def resolve_backend(backend: str) -> str:
         for an unknown backend, or "cholmod" without cvxopt.
     """
     if backend == "auto":
-        return "cholmod" if cholmod_available() else "sparsecholesky"
+        return "cholmod" if cholmod.available() else "sparsecholesky"
     if backend not in BACKENDS:
         raise LinearSolverError(f"linear solver {backend!r} unknown; known: auto, {', '.join(BACKENDS)}")
-    if backend == "cholmod" and not cholmod_available():
+    if backend == "cholmod" and not cholmod.available():
         raise LinearSolverError("linear solver 'cholmod' needs cvxopt, which is not installed: "
                                 "pip install \"ngbet[cholmod]\" (or choose 'auto' or 'sparsecholesky')")
     return backend

@@ -58,9 +58,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .. import cholmod
 from ..engine import Outcome, PathControl, StepRecord, follow_path
 from ..errors import Attempt, ConvergenceError
-from .linsolve import EigenBlock, FreeBlockSolver, LinearSolverError, cholmod_available
+from .linsolve import EigenBlock, FreeBlockSolver, LinearSolverError
 
 log = logging.getLogger(__name__)
 
@@ -610,7 +611,7 @@ def single_threaded_blas() -> Any:
         import ngsolve.la  # noqa: F401
     except ImportError:  # pragma: no cover
         pass
-    if cholmod_available():  # cvxopt brings its own OpenBLAS (CHOLMOD's supernodes)
+    if cholmod.available():  # cvxopt brings its own OpenBLAS (CHOLMOD's supernodes)
         import cvxopt.cholmod  # noqa: F401
     return threadpool_limits(limits=1)
 
