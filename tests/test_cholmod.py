@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from ngbet import cholmod
-from ngbet.continuum import linear
 from ngbet.continuum.linear import CHOLMOD_MIN_DOFS, pick_inverse
 from ngbet.continuum.mesh import corner_refined
 from ngbet.continuum.problem import ContinuumProblem
@@ -78,7 +77,6 @@ def test_auto_picks_cholmod_for_large_condensed_matrices(monkeypatch):
     assert pick_inverse("pardiso", False, True, 10) == "pardiso"
     monkeypatch.setattr(cholmod, "available", lambda: False)
     assert pick_inverse("auto", False, True, 10**6) == "sparsecholesky"
-    assert linear.pick_inverse is pick_inverse
 
 
 def test_cholmod_without_cvxopt_is_a_scene_error(monkeypatch, tmp_path):

@@ -308,10 +308,8 @@ class _CholmodFactor:
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, n: int) -> None:
-        from ..cholmod import CholmodFactor
-
         self.rows, self.cols, self.n = rows, cols, n
-        self._llt = CholmodFactor(rows, cols, n)
+        self._llt = cholmod.CholmodFactor(rows, cols, n)
         self.vals = np.zeros(len(rows))  # the values last factorized
         self._ldlt: _NgFactor | None = None
         self.indefinite = False  # the last matrix was not positive definite: the LDL^T holds it
