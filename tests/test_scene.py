@@ -93,6 +93,21 @@ def test_auto_orders_follow_order_u():
     assert (d.p_phi, d.p_lam) == (4, 0)
 
 
+def test_the_highest_order_is_accepted_and_estimated_one_above():
+    """A scene may ask for p = MAX_ORDER (the reference at 37 mm uses p = 14); its error estimate
+    works one order up, beyond the scene's bound (a run at the old highest order, 10, was refused
+    by its own estimate: "order_u = 11: must be an integer from 1 to 10")."""
+    from ngbet.continuum.estimate import enriched_discretization
+    from ngbet.scene import MAX_ORDER
+
+    d = Scene().with_changes(**{"discretization.order_u": MAX_ORDER, "discretization.order_lam": 3}).discretization
+    up = enriched_discretization(d)
+    assert (up.p_u, up.p_phi, up.p_lam) == (MAX_ORDER + 1, MAX_ORDER + 1, 4)
+    assert (d.p_u, d.p_lam) == (MAX_ORDER, 3)  # the run's own discretization is untouched
+    with pytest.raises(SceneError, match=f"order_u' = {MAX_ORDER + 1}: must be an integer from 1 to {MAX_ORDER}"):
+        Scene().with_changes(**{"discretization.order_u": MAX_ORDER + 1})
+
+
 def test_keys_the_model_does_not_read_are_named_in_a_warning():
     with pytest.warns(SceneWarning, match="does not read material.alpha1"):
         s = Scene().with_changes(**{"material.alpha1": 20.0, "model": "discrete"})

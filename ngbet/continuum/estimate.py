@@ -40,6 +40,7 @@ a warning; the run's result is kept.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 import math
@@ -88,10 +89,17 @@ class Estimate:
 
 
 def enriched_discretization(disc: Discretization) -> Discretization:
-    """The run's discretization one order up: u and φ at p + 1, Λ one up too (the mesh is the run's)."""
+    """The run's discretization one order up: u and φ at p + 1, Λ one up too (the mesh is the run's).
+
+    Not validated as a scene is: at the highest order a scene may ask for (``MAX_ORDER``) the
+    enriched space is one above it.
+    """
     lam = AUTO if disc.order_lam == AUTO else int(disc.order_lam) + 1
     phi = AUTO if disc.order_phi == AUTO else int(disc.order_phi) + 1
-    return dataclasses.replace(disc, order_u=disc.order_u + 1, order_phi=phi, order_lam=lam, target_error=0.0)
+    up = copy.copy(disc)
+    for key, value in (("order_u", disc.order_u + 1), ("order_phi", phi), ("order_lam", lam), ("target_error", 0.0)):
+        object.__setattr__(up, key, value)  # frozen: set on the copy, past the scene's bounds
+    return up
 
 
 class ForceErrorEstimator:
