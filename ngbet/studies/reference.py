@@ -263,7 +263,7 @@ def report(data: StudyData, quick: bool) -> str:
     fine = ref.get("fine")
     if fine:
         L += ["", f"At {fine['station']:g} mm the reference is that of the 0.125 mm corners, loaded to "
-              f"{fine['station']:g} mm only (they stop before 56 mm from p = 6 on), p = "
+              f"{fine['station']:g} mm only (they stop before 56 mm from p = 6 on, and p = 11, 13 before 37 mm), p = "
               f"{', '.join(str(p) for _, p in FINE_FAMILY)}: "
               + ", ".join(f"{f:.5f}" for f in fine["forces_N"])
               + f" N: **{fine['force_N']:.5f} N ± {fine['bound_N']:.2g} N** "
