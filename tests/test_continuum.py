@@ -294,3 +294,19 @@ def test_ellipticity_loss_of_a_homogeneous_compression_of_the_thin_yarns(s):
     assert math.isclose(lo, exact, rel_tol=1e-9, abs_tol=1e-9), (lo, exact)
     total = p.scene.specimen.L * p.scene.specimen.W * 1e6
     assert math.isclose(area, total if exact < 0 else 0.0, rel_tol=1e-9, abs_tol=1e-9), area
+
+
+def test_vtk_output_at_a_high_order_stays_small(tmp_path):
+    """The VTK subdivision grows with log2 p, not with p: at p = 10 a linear rule (s = p − 1)
+    wrote 4^9 sub-triangles per element and the run was killed out of memory (24 GB)."""
+    from ngbet.continuum.output import vtk_subdivision
+    from ngbet.run import run
+    from ngbet.scene import Scene
+
+    assert [vtk_subdivision(p) for p in (1, 2, 3, 4, 5, 8, 9, 16)] == [0, 1, 2, 2, 3, 3, 4, 4]
+    sc = Scene().with_changes(**{"discretization.order_u": 10, "discretization.mesh_size_mm": 40.0,
+                                 "loading.u0_mm": 1.0, "loading.first_step_mm": 1.0, "loading.stops_mm": [],
+                                 "outputs.error_estimate": "off", "outputs.plot": False})
+    run(sc, tmp_path)
+    vtu = tmp_path / "fields.vtu"
+    assert 0 < vtu.stat().st_size < 2_000_000  # 0.39 MB measured

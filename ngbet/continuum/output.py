@@ -9,6 +9,7 @@ specimen at true scale. The arrays are listed in docs/outputs.md.
 from __future__ import annotations
 
 import logging
+import math
 import re
 from pathlib import Path
 from typing import Any
@@ -23,13 +24,23 @@ log = logging.getLogger(__name__)
 MM = 1e3  # metres -> millimetres
 
 
+def vtk_subdivision(p: int) -> int:
+    """NGSolve's VTK ``subdivision`` s for order p: the smallest with 2^s ≥ p segments per edge.
+
+    Each level halves the element edges: p = 2 gives 1, p = 3 and 4 give 2, p = 5 … 8 give 3, up
+    to 16 4. Linear in p (s = p − 1, as before) the sub-triangles grew like 4^(p−1): at p = 10 the
+    output of a 40 mm mesh took 24 GB and the run was killed.
+    """
+    return math.ceil(math.log2(p)) if p > 1 else 0
+
+
 def write_vtk(problem: Any, path: Path) -> Path:
     """Write the fields of ``problem`` to ``path``.vtu (coordinates and displacement in mm)."""
     funcs = obs.field_functions(problem, problem.scene.outputs.fields)
     u = funcs.pop("displacement")
     coefs = {"displacement": ngs.CF((MM * u[0], MM * u[1], 0.0)), **funcs}
     ngs.VTKOutput(problem.mesh, coefs=list(coefs.values()), names=list(coefs), filename=str(path),
-                  subdivision=max(0, problem.scene.discretization.p_u - 1), legacy=False).Do()
+                  subdivision=vtk_subdivision(problem.scene.discretization.p_u), legacy=False).Do()
     vtu = Path(str(path) + ".vtu")
     scale_points(vtu, MM)
     return vtu

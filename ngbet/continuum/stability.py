@@ -218,7 +218,7 @@ def write_mode(problem: ContinuumProblem, mode: np.ndarray, path: Path, title: s
     (drawn 10 times longer).
     Returns the files written (the picture is left out without matplotlib).
     """
-    from .output import MM, scale_points
+    from .output import MM, scale_points, vtk_subdivision
 
     gf = ngs.GridFunction(problem.X)
     gf.vec.FV().NumPy()[:] = mode
@@ -231,7 +231,7 @@ def write_mode(problem: ContinuumProblem, mode: np.ndarray, path: Path, title: s
     if problem.phi is not None:
         coefs["mode_phi"] = scale * gf.components[1]
     ngs.VTKOutput(problem.mesh, coefs=list(coefs.values()), names=list(coefs), filename=str(path),
-                  subdivision=max(0, problem.scene.discretization.p_u - 1), legacy=False).Do()
+                  subdivision=vtk_subdivision(problem.scene.discretization.p_u), legacy=False).Do()
     vtu = Path(str(path) + ".vtu")
     scale_points(vtu, MM)
     written = [vtu]
