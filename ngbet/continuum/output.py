@@ -9,7 +9,6 @@ specimen at true scale. The arrays are listed in docs/outputs.md.
 from __future__ import annotations
 
 import logging
-import math
 import re
 from pathlib import Path
 from typing import Any
@@ -31,7 +30,7 @@ def vtk_subdivision(p: int) -> int:
     to 16 4. Linear in p (s = p − 1, as before) the sub-triangles grew like 4^(p−1): at p = 10 the
     output of a 40 mm mesh took 24 GB and the run was killed.
     """
-    return math.ceil(math.log2(p)) if p > 1 else 0
+    return max(p - 1, 0).bit_length()
 
 
 def write_vtk(problem: Any, path: Path) -> Path:
