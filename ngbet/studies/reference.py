@@ -26,7 +26,11 @@ algebraic tail of the corner element, which is why :func:`extrapolate` also fits
 and five terms. The same fits give 61.2123 N ± 0.0021 N against the 0.25 mm family's
 61.2138 N ± 0.0029 N; the two agree within both bounds. The branches of a corner resolved so
 finely that its path snaps back (0.0625 mm, p = 5, at 33.69 mm) carry the same force to 6e-5 N:
-the limit is the model's, not a branch's (tests/test_accuracy.py).
+the limit is the model's, not a branch's (tests/test_accuracy.py). The model is path-dependent at
+the corner in the sixth digit all the same: raising the order one at a time at 37 mm finds, at
+p = 12 and 14, stable states whose forces lie 1.5e-4 and 1.7e-4 N below the loaded ones (at p = 12
+with 8.1e-7 J less energy; bench/two_equilibria.py); that raised sequence extrapolates to
+61.2120 N ± 0.0022 N.
 
 Checks, not part of the study: the 10 mm mesh with 0.25 mm corners at p = 4 … 8 (the family
 this one replaces) extrapolates to 107.2375 N (its own bound 0.0052 N); at p = 6 halving the
