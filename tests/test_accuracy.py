@@ -79,10 +79,13 @@ ORDERS = {"default": (4, 5, 6, 8, 9, 10)}
 FAMILY_10MM_56 = (107.29393, 107.26834, 107.25492, 107.24838, 107.24387)
 
 
-#: forces [N] at 37 mm on the 20 mm mesh with 0.125 mm corners at p = 4 … 10, 12, 14, loaded to
-#: 37 mm only (the reference study's fine family; the same runs as the 0.25 mm family with
-#: discretization.corner_mesh_size_mm = 0.125 and loading.u0_mm = 37; p = 11 and 13 stop at 35.7
-#: and 35.3 mm)
+#: forces [N] at 37 mm on the 20 mm mesh graded to 1 mm with the corners bisected twice, p = 6 … 14,
+#: loaded to 37 mm only (the reference study's fine family)
+SPLIT_37 = (61.2191394, 61.2160702, 61.2143848, 61.2134368, 61.2129213, 61.2122949, 61.2121255, 61.2120350,
+            61.2121411)
+SPLIT_ORDERS = tuple(range(6, 15))
+#: forces [N] at 37 mm on the same mesh graded to 0.125 mm, not bisected, p = 4 … 10, 12, 14 (the
+#: previous fine family; p = 11 and 13 stop at 35.7 and 35.3 mm)
 FINE_37 = (61.252553, 61.231165, 61.221843, 61.217845, 61.216159, 61.214853, 61.214104, 61.213184,
            61.212608)
 FINE_ORDERS = (4, 5, 6, 7, 8, 9, 10, 12, 14)
@@ -122,24 +125,40 @@ def test_reference_digits_and_bound():
     assert 0 < Fs[-1] - F < 2 * bound  # the highest order lies above the limit
 
 
-def test_reference_at_37_mm_from_the_finer_corners():
-    """61.2123 N ± 0.0021 N from p = 4 … 14. It lies within the 0.25 mm family's bound (61.2138 N ±
-    0.0029 N), and within the bounds the same family gave when it ended at p = 9 (61.2134 N ±
-    0.0014 N) or p = 10 (61.2124 N ± 0.0022 N): the orders added later stay inside what the shorter
-    sequences claimed. The fits of the last four and five terms matter: the whole sequence and its
-    early tails alone extrapolate to 61.2127 N ± 0.0017 N, above the algebraic fit of the last
-    four (61.2111 N)."""
-    from ngbet.studies.reference import FINE_FAMILY, _fits
+def test_reference_at_37_mm_from_the_split_corners():
+    """61.2118 N ± 0.0005 N from p = 6 … 14 on corners bisected twice: five significant digits
+    (61.212 N). The limit lies within the bounds of every shorter sequence (ending at p = 10, 12,
+    13), of the 0.25 mm family (61.2138 N ± 0.0029 N) and of the unsplit 0.125 mm corners at p = 4
+    … 14 (61.2123 N ± 0.0021 N), and the bound holds the 1.5e-4 N between the two stable states
+    that p = 12 has at 37 mm (bench/two_equilibria.py)."""
+    from ngbet.studies.reference import FINE_BISECTIONS, FINE_FAMILY
 
-    assert tuple(p for _, p in FINE_FAMILY) == FINE_ORDERS and {c for c, _ in FINE_FAMILY} == {0.125}
+    assert tuple(p for _, p in FINE_FAMILY) == SPLIT_ORDERS and {c for c, _ in FINE_FAMILY} == {1.0}
+    assert FINE_BISECTIONS == 2
+    F, bound = extrapolate(SPLIT_37, SPLIT_ORDERS)
+    assert abs(F - 61.2118) < 1e-4 and 0.0004 < bound < 0.0005
+    for n in (5, 7, 8):  # ending at p = 10, 12 and 13
+        Fn, bound_n = extrapolate(SPLIT_37[:n], SPLIT_ORDERS[:n])
+        assert abs(Fn - F) <= bound_n
+    for other in (ref("default", 0), extrapolate(FINE_37, FINE_ORDERS)):
+        assert abs(F - other[0]) <= other[1]
+    # at every order from 8 on the split corners beat the unsplit 0.125 mm ones, and their p = 12
+    # (99 759 dofs) the unsplit p = 14 (145 449 dofs)
+    fine, split = dict(zip(FINE_ORDERS, FINE_37, strict=True)), dict(zip(SPLIT_ORDERS, SPLIT_37, strict=True))
+    assert all(split[p] - F < fine[p] - F for p in (8, 9, 10, 12, 14)) and split[12] < fine[14]
+
+
+def test_reference_at_37_mm_of_the_unsplit_corners():
+    """The unsplit 0.125 mm corners (the reference before the split ones): 61.2123 N ± 0.0021 N. The
+    fits of the last four and five terms matter: the whole sequence and its early tails alone
+    extrapolate above the algebraic fit of the last four (61.2111 N)."""
+    from ngbet.studies.reference import _fits
+
     F, bound = extrapolate(FINE_37, FINE_ORDERS)
     assert abs(F - 61.2123) < 1e-4 and 0.0019 < bound < 0.0022
-    F25, bound25 = ref("default", 0)
-    assert abs(F - F25) <= min(bound, bound25)
     for n in (6, 7):  # ending at p = 9 and p = 10
         Fn, bound_n = extrapolate(FINE_37[:n], FINE_ORDERS[:n])
         assert abs(Fn - F) <= bound_n
-    # the last four terms alone, algebraically: the lowest limit the reference has to hold
     lims = [lim for lim, _ in _fits(np.asarray(FINE_ORDERS[-4:], float), FINE_37[-4:])]
     assert min(lims) == pytest.approx(61.2111, abs=1e-4) and F - bound < min(lims)
 

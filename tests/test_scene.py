@@ -39,6 +39,8 @@ def test_toml_round_trip_is_identity():
     ("discretization.order_lam", 3, "discretization.order_lam"),  # not below order_phi = order_u = 3
     ("specimen.width_mm", 300.0, "zone A"),
     ("discretization.corner_mesh_size_mm", 12.0, "must not exceed discretization.mesh_size_mm"),
+    ("discretization.corner_bisections", -1, "discretization.corner_bisections"),
+    ("discretization.corner_bisections", 1.5, "discretization.corner_bisections"),
     ("discretization.discrete_typo", 1.0, "discretization.discrete_typo"),
     ("discrete.end_rotation", "clamped", "discrete.end_rotation"),
 ])

@@ -26,7 +26,8 @@ def make_mesh(specimen: Specimen, disc: Discretization) -> ngs.Mesh:
 
         nx = max(1, round(L / h))
         ny = max(1, round(W / h))
-        return MakeStructured2DMesh(quads=False, nx=nx, ny=ny, mapping=lambda x, y: (L * x, W * y))
+        structured = MakeStructured2DMesh(quads=False, nx=nx, ny=ny, mapping=lambda x, y: (L * x, W * y))
+        return corner_refined(structured, specimen, disc.corner_bisections) if disc.corner_bisections else structured
     from netgen.occ import OCCGeometry, WorkPlane, X, Y
 
     face = WorkPlane().Rectangle(L, W).Face()
@@ -45,7 +46,10 @@ def make_mesh(specimen: Specimen, disc: Discretization) -> ngs.Mesh:
     # (ngbet.studies.reference). Netgen's RefineHP (hpref vertices) was measured and is not used:
     # its quadrilaterals give 109.57 N at p = 2 with 3 levels of factor 0.2 on the 10 mm mesh
     # (107.24 N converged; 107.41 N with a 0.25 mm corner size), and stop before 56 mm at p >= 3.
-    return ngs.Mesh(OCCGeometry(face, dim=2).GenerateMesh(maxh=h))
+    mesh = ngs.Mesh(OCCGeometry(face, dim=2).GenerateMesh(maxh=h))
+    # Netgen puts a single triangle at each 90-degree corner; bisecting it (and its neighbours, for
+    # conformity) lets two elements share the corner (discretization.corner_bisections)
+    return corner_refined(mesh, specimen, disc.corner_bisections) if disc.corner_bisections else mesh
 
 
 def corner_refined(mesh: ngs.Mesh, specimen: Specimen, levels: int) -> ngs.Mesh:

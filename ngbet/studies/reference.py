@@ -17,20 +17,20 @@ at p = 4 at 38 mm, in a snap-back at the corner that arc-length continuation fin
 p²-scaled stabilization (K_s up to 25 times the default, uncapped) does not remove it. The
 reference profile is the highest order's, with the bound max|u_y,p − u_y,p−1| of the two highest.
 
-At 37 mm the reference comes from 0.125 mm corners on the same mesh at p = 4 … 10, 12, 14
-(:data:`FINE_FAMILY`), loaded to 37 mm only (from p = 6 on they stop between 37 and 56 mm; the
-force at 37 mm is the same to 1e-6 N whether the run stops there or goes on; p = 11 and 13 stop
-at 35.7 and 35.3 mm, and p = 14 takes 4–5 minutes). Their differences shrink by 0.42–0.44 per
-order up to p = 8 and then more slowly (0.00075 N from 9 to 10, 0.00058 N from 12 to 14): the
-algebraic tail of the corner element, which is why :func:`extrapolate` also fits the last four
-and five terms. The same fits give 61.2123 N ± 0.0021 N against the 0.25 mm family's
-61.2138 N ± 0.0029 N; the two agree within both bounds. The branches of a corner resolved so
-finely that its path snaps back (0.0625 mm, p = 5, at 33.69 mm) carry the same force to 6e-5 N:
-the limit is the model's, not a branch's (tests/test_accuracy.py). The model is path-dependent at
-the corner in the sixth digit all the same: raising the order one at a time at 37 mm finds, at
-p = 12 and 14, stable states whose forces lie 1.5e-4 and 1.7e-4 N below the loaded ones (at p = 12
-with 8.1e-7 J less energy; bench/two_equilibria.py); that raised sequence extrapolates to
-61.2120 N ± 0.0022 N.
+At 37 mm the reference comes from the same 20 mm mesh graded to 1 mm, with the elements at the
+four clamp corners bisected twice (``discretization.corner_bisections = 2``; :data:`FINE_FAMILY`),
+at p = 6 … 14, loaded to 37 mm only (p = 10 stops at 44.9 mm on its way to 56 mm). Netgen leaves a
+single triangle at each 90-degree corner, two of whose edges lie on the boundary; its size does
+not follow ``corner_mesh_size_mm`` below 0.5 mm (0.41 mm at 0.25, 0.30 mm at 0.125) and the
+p-sequences on such meshes end in a slow algebraic tail (0.125 mm corners: 0.00058 N from p = 12
+to 14, extrapolated to 61.2123 N ± 0.0021 N). Bisected, the corner is shared by two elements of
+0.53 mm, and the force at p = 12 is already below the 0.125 mm corners' at p = 14 (61.21213 N
+against 61.21261 N, with 99 759 dofs against 145 449); from p = 11 on the orders differ by less
+than 0.0002 N. :func:`extrapolate` gives 61.2118 N ± 0.0005 N, inside the bounds of the 0.125 mm
+and 0.25 mm families. Corners split more finely stop before 37 mm at all orders tried but one
+(bisected three times: 27.4 mm at p = 14; the 0.5 mm grading bisected twice: 36.0 and 27.6 mm at
+p = 8 and 12, 61.21181 N at p = 10); the orders one at a time at the load find states 1.5e-4 N apart at p = 12 and 14 on
+the 0.125 mm corners (bench/two_equilibria.py), which the bound holds.
 
 Checks, not part of the study: the 10 mm mesh with 0.25 mm corners at p = 4 … 8 (the family
 this one replaces) extrapolates to 107.2375 N (its own bound 0.0052 N); at p = 6 halving the
@@ -62,14 +62,15 @@ from ngbet.study import MissingValueError, Study, StudyData, main_for, savefig
 from . import _common as C
 
 GRADE = "discretization.corner_mesh_size_mm"
+BISECT = "discretization.corner_bisections"
 OFF = {"outputs.error_estimate": "off"}
 #: (corner size [mm], p) on the :data:`REF_H` mesh (p = 7 stops at 55.7 mm there)
 REF_FAMILY = tuple((0.25, p) for p in (4, 5, 6, 8, 9, 10))
 REF_H = 20.0
-#: (corner size [mm], p) on the :data:`REF_H` mesh loaded to the first station only: the finer
-#: corners stop before 56 mm at p >= 6 but reach 37 mm, where they give the reference (p = 11 and
-#: 13 stop at 35.7 and 35.3 mm)
-FINE_FAMILY = tuple((0.125, p) for p in (4, 5, 6, 7, 8, 9, 10, 12, 14))
+#: (corner size [mm], p) on the :data:`REF_H` mesh with the corners bisected :data:`FINE_BISECTIONS`
+#: times, loaded to the first station only, where it gives the reference (it stops before 56 mm)
+FINE_FAMILY = tuple((1.0, p) for p in range(6, 15))
+FINE_BISECTIONS = 2
 TO_37 = {"loading.u0_mm": 37.0, "loading.stops_mm": []}
 HP_FAMILY = ((2.5, 2), (1.0, 3), (0.5, 4), (0.25, 5))
 GRADED_P2 = ((2.5, 2), (1.0, 2), (0.5, 2), (0.25, 2))
@@ -93,7 +94,7 @@ def families(quick: bool) -> dict[str, list[dict[str, Any]]]:
 
 def fine_family(quick: bool) -> list[dict[str, Any]]:
     """The cases of :data:`FINE_FAMILY` (none in quick mode)."""
-    return [] if quick else [{**graded(c, p, REF_H), **TO_37} for c, p in FINE_FAMILY]
+    return [] if quick else [{**graded(c, p, REF_H), BISECT: FINE_BISECTIONS, **TO_37} for c, p in FINE_FAMILY]
 
 
 def build(quick: bool = False) -> Study:
@@ -151,7 +152,9 @@ def _fits(p: np.ndarray, F: Sequence[float]) -> list[tuple[float, float]]:
 
     Each model is started from several rates (r = 0.3, 0.5, 0.7; β = 1 … 4) and its best fit kept.
     """
-    from scipy.optimize import curve_fit
+    import warnings
+
+    from scipy.optimize import OptimizeWarning, curve_fit
 
     y = np.asarray(F, float)
     out = []
@@ -162,7 +165,9 @@ def _fits(p: np.ndarray, F: Sequence[float]) -> list[tuple[float, float]]:
         for rate in rates:
             c0 = (y[0] - y[-1]) / max(abs(f(p[0], 0.0, 1.0, rate) - f(p[-1], 0.0, 1.0, rate)), 1e-300)
             try:
-                coef, _ = curve_fit(f, p, y, p0=(y[-1], c0, rate), maxfev=20000)
+                with warnings.catch_warnings():  # only the coefficients are used, not their covariance
+                    warnings.simplefilter("ignore", OptimizeWarning)
+                    coef, _ = curve_fit(f, p, y, p0=(y[-1], c0, rate), maxfev=20000)
             except RuntimeError:
                 continue
             res = float(np.max(np.abs(f(p, *coef) - y)))
@@ -266,8 +271,8 @@ def report(data: StudyData, quick: bool) -> str:
                  + f" | {r['force_N']:.5f} | {r['bound_N']:.2g} | {100 * r['bound_N'] / r['force_N']:.2g} |")
     fine = ref.get("fine")
     if fine:
-        L += ["", f"At {fine['station']:g} mm the reference is that of the 0.125 mm corners, loaded to "
-              f"{fine['station']:g} mm only (they stop before 56 mm from p = 6 on, and p = 11, 13 before 37 mm), p = "
+        L += ["", f"At {fine['station']:g} mm the reference is that of 1 mm corners bisected {FINE_BISECTIONS} "
+              f"times (two elements share each corner), loaded to {fine['station']:g} mm only, p = "
               f"{', '.join(str(p) for _, p in FINE_FAMILY)}: "
               + ", ".join(f"{f:.5f}" for f in fine["forces_N"])
               + f" N: **{fine['force_N']:.5f} N ± {fine['bound_N']:.2g} N** "
