@@ -84,6 +84,12 @@ FAMILY_10MM_56 = (107.29393, 107.26834, 107.25492, 107.24838, 107.24387)
 SPLIT_37 = (61.2191394, 61.2160702, 61.2143848, 61.2134368, 61.2129213, 61.2122949, 61.2121255, 61.2120350,
             61.2121411)
 SPLIT_ORDERS = tuple(range(6, 15))
+#: p = 14 of that family loaded in 2 mm steps (another corner state; p = 12, 13 agree to 2e-7 N)
+SPLIT_14_SMALL_STEPS = 61.2119881
+#: checks on other split meshes, loaded to 37 mm by ``ngbet run``: the 0.5 mm grading bisected once
+#: (p = 8 … 13; p = 14 stops at 29.4 mm) and the 2 mm grading bisected twice (p = 8 … 14)
+SPLIT_05_ONCE = (61.2141105, 61.2129378, 61.2125014, 61.2121888, 61.2122300, 61.2118269)
+SPLIT_2_TWICE = (61.2162317, 61.2151166, 61.2142645, 61.2135503, 61.2128877, 61.2125283, 61.2123419)
 #: forces [N] at 37 mm on the same mesh graded to 0.125 mm, not bisected, p = 4 … 10, 12, 14 (the
 #: previous fine family; p = 11 and 13 stop at 35.7 and 35.3 mm)
 FINE_37 = (61.252553, 61.231165, 61.221843, 61.217845, 61.216159, 61.214853, 61.214104, 61.213184,
@@ -128,9 +134,10 @@ def test_reference_digits_and_bound():
 def test_reference_at_37_mm_from_the_split_corners():
     """61.2118 N ± 0.0005 N from p = 6 … 14 on corners bisected twice: five significant digits
     (61.212 N). The limit lies within the bounds of every shorter sequence (ending at p = 10, 12,
-    13), of the 0.25 mm family (61.2138 N ± 0.0029 N) and of the unsplit 0.125 mm corners at p = 4
-    … 14 (61.2123 N ± 0.0021 N), and the bound holds the 1.5e-4 N between the two stable states
-    that p = 12 has at 37 mm (bench/two_equilibria.py)."""
+    13), of the 0.25 mm family (61.2138 N ± 0.0029 N), of the unsplit 0.125 mm corners at p = 4
+    … 14 (61.2123 N ± 0.0021 N) and of a coarser split mesh (61.2109 N ± 0.0014 N); the bound
+    holds the 1.5e-4 N between the two corner states of one discretization (p = 14 loaded in 2 mm
+    steps here, the unsplit p = 12 in bench/two_equilibria.py)."""
     from ngbet.studies.reference import FINE_BISECTIONS, FINE_FAMILY
 
     assert tuple(p for _, p in FINE_FAMILY) == SPLIT_ORDERS and {c for c, _ in FINE_FAMILY} == {1.0}
@@ -140,8 +147,15 @@ def test_reference_at_37_mm_from_the_split_corners():
     for n in (5, 7, 8):  # ending at p = 10, 12 and 13
         Fn, bound_n = extrapolate(SPLIT_37[:n], SPLIT_ORDERS[:n])
         assert abs(Fn - F) <= bound_n
-    for other in (ref("default", 0), extrapolate(FINE_37, FINE_ORDERS)):
+    for other in (ref("default", 0), extrapolate(FINE_37, FINE_ORDERS),
+                  extrapolate(SPLIT_2_TWICE, range(8, 15))):
         assert abs(F - other[0]) <= other[1]
+    # the other corner state at p = 14 moves the limit by 1e-4 N, well inside both bounds
+    F2, bound2 = extrapolate(SPLIT_37[:-1] + (SPLIT_14_SMALL_STEPS,), SPLIT_ORDERS)
+    assert 5e-5 < F - F2 < 1.5e-4 and abs(F - F2) < min(bound, bound2) / 3
+    # the other once-split mesh's orders from p = 11 on lie within the bound; they jump too much to
+    # be extrapolated themselves
+    assert all(abs(f - F) <= bound for f in SPLIT_05_ONCE[3:])
     # at every order from 8 on the split corners beat the unsplit 0.125 mm ones, and their p = 12
     # (99 759 dofs) the unsplit p = 14 (145 449 dofs)
     fine, split = dict(zip(FINE_ORDERS, FINE_37, strict=True)), dict(zip(SPLIT_ORDERS, SPLIT_37, strict=True))
