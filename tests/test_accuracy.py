@@ -309,6 +309,23 @@ def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
     assert a["chosen"]["order_u"] == 10 and a["attempts"][0]["discretization"]["order_u"] == 8
 
 
+def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
+    """The rungs' expected errors were measured on Netgen's meshes: a scene's corner_bisections
+    does not leak into the discretizations the ladder tries."""
+    from ngbet.continuum import estimate
+
+    seen = []
+
+    def run_one(sc, out):
+        seen.append(sc.discretization.corner_bisections)
+        return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
+
+    estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-3,
+                                                              "discretization.corner_bisections": 2}),
+                             tmp_path, run_one)
+    assert seen and set(seen) == {0}
+
+
 @pytest.mark.slow
 def test_accuracy_on_demand_reaches_1e_4(tmp_path):
     """h = 20 mm, p = 8 on the 0.25 mm-corner mesh, verified against the reference with its bound

@@ -208,7 +208,7 @@ class Rung:
         """``scene`` on this rung's discretization, with the estimate at the final load."""
         d = dataclasses.replace(scene.discretization, mesh_size_mm=self.mesh_size_mm, order_u=self.order_u,
                                 order_phi=AUTO, order_lam=AUTO, corner_mesh_size_mm=self.corner_mesh_size_mm,
-                                structured=False, target_error=0.0)
+                                corner_bisections=0, structured=False, target_error=0.0)
         return dataclasses.replace(scene, discretization=d,
                                    outputs=dataclasses.replace(scene.outputs, error_estimate="final"))
 

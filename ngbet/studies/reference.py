@@ -29,8 +29,9 @@ against 61.21261 N, with 99 759 dofs against 145 449); from p = 11 on the orders
 than 0.0002 N. :func:`extrapolate` gives 61.2118 N ± 0.0005 N, inside the bounds of the 0.125 mm
 and 0.25 mm families. Corners split more finely stop before 37 mm at all orders tried but one
 (bisected three times: 27.4 mm at p = 14; the 0.5 mm grading bisected twice: 36.0 and 27.6 mm at
-p = 8 and 12, 61.21181 N at p = 10); the orders one at a time at the load find states 1.5e-4 N apart at p = 12 and 14 on
-the 0.125 mm corners (bench/two_equilibria.py), which the bound holds.
+p = 8 and 12, 61.21181 N at p = 10). The bound holds the 1.5e-4 N between the two corner states
+one discretization can have at 37 mm: the split family's p = 14 loaded in 2 mm steps, the
+unsplit p = 12 and 14 raised one order at a time at the load (bench/two_equilibria.py).
 
 Checks, not part of the study: the 10 mm mesh with 0.25 mm corners at p = 4 … 8 (the family
 this one replaces) extrapolates to 107.2375 N (its own bound 0.0052 N); at p = 6 halving the
