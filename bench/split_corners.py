@@ -16,14 +16,13 @@ split on the mesh graded to 0.5 mm at P = 10. One NGSolve thread; about 5 minute
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 
 import ngsolve as ngs
 
 from ngbet.continuum import observables as obs
-from ngbet.continuum.mesh import make_mesh
+from ngbet.continuum.mesh import corner_elements, make_mesh
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.continuum.run import _carry_load
 from ngbet.studies import _common as C
@@ -38,16 +37,6 @@ def scene(corner_mm: float, p: int, bisections: int = BISECTIONS):  # noqa: ANN2
     return C.base_scene(False).with_changes(**C.lagrange(20.0, p), **{
         "discretization.corner_mesh_size_mm": corner_mm, "discretization.corner_bisections": bisections,
         "outputs.error_estimate": "off", "loading.u0_mm": U0_MM, "loading.stops_mm": []})
-
-
-def corner_element_mm(mesh: ngs.Mesh) -> tuple[int, float]:
-    """Number and largest diameter [mm] of the elements that hold the corner (0, 0)."""
-    diams = []
-    for el in mesh.Elements(ngs.VOL):
-        pts = [mesh.vertices[v.nr].point for v in el.vertices]
-        if any(math.hypot(*q) < 1e-12 for q in pts):
-            diams.append(max(math.dist(a, b) for a in pts for b in pts))
-    return len(diams), 1e3 * max(diams)
 
 
 def force(corner_mm: float, p: int) -> tuple[float | None, int, float]:
@@ -65,8 +54,8 @@ def force(corner_mm: float, p: int) -> tuple[float | None, int, float]:
 def main() -> None:
     ngs.SetNumThreads(1)
     for c in (1.0, 0.5, 0.25, 0.125):
-        n, d = corner_element_mm(make_mesh(scene(c, 2, 0).specimen, scene(c, 2, 0).discretization))
-        n2, d2 = corner_element_mm(make_mesh(scene(c, 2).specimen, scene(c, 2).discretization))
+        n, d = corner_elements(make_mesh(scene(c, 2, 0).specimen, scene(c, 2, 0).discretization))
+        n2, d2 = corner_elements(make_mesh(scene(c, 2).specimen, scene(c, 2).discretization))
         print(f"corner size {c:g} mm: {n} element(s) at the corner, diameter {d:.3f} mm; "
               f"bisected twice: {n2}, {d2:.3f} mm")
     done: list[tuple[int, float]] = []

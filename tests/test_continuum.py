@@ -233,24 +233,16 @@ def test_corner_grading_removes_most_of_the_discretization_error(tmp_path):
         f"uniform {uniform:.4f} N, graded {graded:.4f} N, reference {ref:.4f} N"
 
 
-def _corner_elements(mesh):
-    """Number and largest diameter [mm] of the elements that hold the corner (0, 0)."""
-    d = [max(math.dist(a, b) for a in pts for b in pts)
-         for pts in ([mesh.vertices[v.nr].point for v in el.vertices] for el in mesh.Elements(ngs.VOL))
-         if any(math.hypot(*q) < 1e-12 for q in pts)]
-    return len(d), 1e3 * max(d)
-
-
 def test_corner_bisections_split_the_corner_and_halve_it():
     """Netgen puts one triangle at each 90-degree corner (2.12 mm across for a 1 mm corner size,
     0.41 mm for 0.25 mm); each bisection halves it and the first lets two elements share it."""
-    from ngbet.continuum.mesh import make_mesh
+    from ngbet.continuum.mesh import corner_elements, make_mesh
 
     sizes = []
     for n in range(4):
         sc = Scene().with_changes(**{"discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 1.0,
                                      "discretization.corner_bisections": n})
-        count, diam = _corner_elements(make_mesh(sc.specimen, sc.discretization))
+        count, diam = corner_elements(make_mesh(sc.specimen, sc.discretization))
         assert count == (1 if n == 0 else 2)
         sizes.append(diam)
     assert sizes[0] == pytest.approx(2.116, abs=1e-3)
