@@ -4,11 +4,24 @@ For yarns at ±a to the axis and D = L − W/tan a, the central zone A turns the
 half-angle a to β with cos β = (D + u0) cos a / D; the angle between the yarns changes by
 γ_A = 2a − 2β (for a = 45°: γ_A = π/2 − 2 arccos((D + u0)/(√2 D))). Zones B shear γ_A/2,
 zones C do not shear. The yarns lock at u0 = D (1/cos a − 1).
+
+The normalised shear force of the bias extension test (Launay et al. 2008; Cao et al. 2008,
+Eq. 18), for 45° yarns, a specimen of clamp-to-clamp length H and width W [mm] and the clamp force
+F [N] at the kinematic shear angle γ (Cao's Eq. 13, the γ_A above with D = H − W):
+
+    F_sh(γ) = [(H/W − 1) F (cos γ/2 − sin γ/2) − W F_sh(γ/2) cos γ/2] / [(2H − 3W) cos γ]   [N/mm]
+
+It is the power balance of the ideal zones: zone A (area (2HW − 3W²)/2) shears γ, zones B
+(W²) shear γ/2. Cao et al. letter the central zone C; here it is A, as everywhere in ngbet.
+F_sh(γ/2) comes from the smaller angles reached earlier on the same curve.
 """
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
+from numpy.typing import ArrayLike
 
 from .scene import Scene, Specimen
 
@@ -40,3 +53,87 @@ def ideal_energy(scene: Scene, u0_mm: float) -> float:
 def ideal_force(scene: Scene, u0_mm: float, h_mm: float = 1e-3) -> float:
     """dE_id/du0 [N]: the ideal-kinematics force estimate, by a central difference."""
     return (ideal_energy(scene, u0_mm + h_mm) - ideal_energy(scene, u0_mm - h_mm)) / (2 * h_mm * 1e-3)
+
+
+def shear_angle_rad(d_mm: ArrayLike, H_mm: float, W_mm: float) -> np.ndarray:
+    """Kinematic shear angle γ(d) of the ideal test [rad] (45° yarns; Cao et al. 2008, Eq. 13).
+
+    γ = π/2 − 2 arccos((D + d) / (√2 D)), D = H − W. Displacements at or beyond yarn locking,
+    d ≥ (√2 − 1) D, are refused.
+    """
+    d = np.asarray(d_mm, dtype=float)
+    D = H_mm - W_mm
+    if not D > 0:
+        raise ValueError(f"the clamp-to-clamp length {H_mm:g} mm must exceed the width {W_mm:g} mm")
+    c = (D + d) / (math.sqrt(2.0) * D)
+    if np.any(c >= 1.0) or np.any(d < 0):
+        raise ValueError(f"displacements must lie in [0, {(math.sqrt(2.0) - 1.0) * D:.2f}) mm "
+                         f"(yarn locking of a {W_mm:g} x {H_mm:g} mm specimen); got up to {np.max(d):g} mm")
+    return np.pi / 2 - 2.0 * np.arccos(c)
+
+
+def _eq18(gamma: np.ndarray, H_mm: float, W_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The coefficients of Eq. 18 written as b F_sh(γ) + W c F_sh(γ/2) = a F."""
+    a = (H_mm / W_mm - 1.0) * (np.cos(gamma / 2) - np.sin(gamma / 2))
+    b = (2.0 * H_mm - 3.0 * W_mm) * np.cos(gamma)
+    c = W_mm * np.cos(gamma / 2)
+    return a, b, c
+
+
+def normalised_shear_force(d_mm: ArrayLike, force_N: ArrayLike, H_mm: float, W_mm: float
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """The normalised shear force F_sh [N/mm] along a measured or computed BET curve.
+
+    Solves Eq. 18 (module docstring) along the curve: F_sh is taken piecewise linear in γ through
+    (0, 0) and the curve's points, so F_sh(γ/2) is an interpolation between points of smaller γ,
+    or, where γ/2 lies beyond the previous point, involves the point itself; either way each
+    point's equation is linear in its own F_sh, and the system is lower triangular.
+
+    Parameters
+    ----------
+    d_mm, force_N : array_like
+        Clamp displacement [mm] (strictly increasing, below yarn locking) and clamp force [N].
+    H_mm, W_mm : float
+        Clamp-to-clamp length and width of the specimen [mm].
+
+    Returns
+    -------
+    gamma_rad, fsh_N_per_mm : numpy.ndarray
+        The kinematic shear angle at each point and the normalised shear force there.
+    """
+    d = np.asarray(d_mm, dtype=float)
+    F = np.asarray(force_N, dtype=float)
+    if d.shape != F.shape or d.ndim != 1:
+        raise ValueError("displacement and force must be 1-D arrays of the same length")
+    if np.any(np.diff(d) <= 0):
+        raise ValueError("displacements must increase strictly along the curve")
+    gamma = shear_angle_rad(d, H_mm, W_mm)
+    a, b, c = _eq18(gamma, H_mm, W_mm)
+    g = np.r_[0.0, gamma]          # the grid with the unloaded state
+    f = np.zeros(len(g))           # F_sh on it, filled point by point
+    for i in range(1, len(g)):
+        half = g[i] / 2
+        j = max(int(np.searchsorted(g[:i + 1], half, side="right")), 1)  # g[j-1] <= half < g[j]
+        w = (half - g[j - 1]) / (g[j] - g[j - 1]) if g[j] > g[j - 1] else 0.0
+        known = (1.0 - w) * f[j - 1] + (w * f[j] if j < i else 0.0)
+        own = w if j == i else 0.0                      # the share of F_sh(γ_i) in F_sh(γ_i / 2)
+        f[i] = (a[i - 1] * F[i - 1] - c[i - 1] * known) / (b[i - 1] + c[i - 1] * own)
+    return gamma, f[1:]
+
+
+def force_from_normalised(gamma_rad: ArrayLike, fsh_N_per_mm: ArrayLike, d_mm: ArrayLike,
+                          H_mm: float, W_mm: float) -> np.ndarray:
+    """The clamp force [N] that a normalised shear force curve predicts for a specimen H x W.
+
+    Eq. 18 solved for F: the normalisation method's prediction of another specimen size, with
+    F_sh(γ) interpolated linearly in γ through (0, 0) and the given points (no extrapolation:
+    displacements whose γ lies beyond the table give NaN).
+    """
+    gt = np.r_[0.0, np.asarray(gamma_rad, dtype=float)]
+    ft = np.r_[0.0, np.asarray(fsh_N_per_mm, dtype=float)]
+    gamma = shear_angle_rad(d_mm, H_mm, W_mm)
+    a, b, c = _eq18(gamma, H_mm, W_mm)
+    f = np.interp(gamma, gt, ft, right=np.nan)
+    fh = np.interp(gamma / 2, gt, ft, right=np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(a > 0, (b * f + c * fh) / a, np.nan)
