@@ -30,14 +30,12 @@ crossing, if there is one) is symmetric when sigma_i = +1 (a rotation) and antis
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 import scipy.sparse as sp
-
-if TYPE_CHECKING:
-    from .model import NetworkModel
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +75,26 @@ class HalfTurn:
         return v if float(np.abs(v - u).max(initial=0.0)) <= tol * scale else None
 
 
-def half_turn(model: NetworkModel, rel_tol: float = 1e-9) -> HalfTurn | None:
+class Symmetric(Protocol):
+    """What :func:`half_turn` reads of a model: its network, element groups, and prescribed dofs.
+
+    (:class:`ngbet.discrete.model.NetworkModel` has it; the protocol keeps this module free of the
+    model's import.)
+    """
+
+    @property
+    def net(self) -> Any: ...  # noqa: D102
+    @property
+    def groups(self) -> Sequence[Any]: ...  # noqa: D102
+    @property
+    def fixed(self) -> np.ndarray: ...  # noqa: D102
+    @property
+    def load(self) -> np.ndarray: ...  # noqa: D102
+    @property
+    def n_dofs(self) -> int: ...  # noqa: D102
+
+
+def half_turn(model: Symmetric, rel_tol: float = 1e-9) -> HalfTurn | None:
     """The half-turn of ``model`` about the specimen's centre, or None where the model lacks it.
 
     The nodes must be mapped onto nodes of the same family (to ``rel_tol`` of the yarn spacing),
