@@ -174,14 +174,19 @@ class StudyData:
         return X, uy
 
     def find(self, **params: Any) -> list[int]:
-        """Indices of the cases whose parameters contain ``params`` (dotted keys with '.' or '__')."""
+        """Indices of the cases whose parameters are exactly ``params`` (dotted keys with '.' or '__').
+
+        Exactly: the same keys with the same values (10 and 10.0 are the same value); a case that
+        sets one more key is another case, never a match.
+        """
         want = {k.replace("__", "."): v for k, v in params.items()}
-        out = []
-        for c in self.cases():
-            p = c["params"]
-            if all(k in p and _same(p[k], v) for k, v in want.items()):
-                out.append(c["case"])
-        return out
+        return [c["case"] for c in self.cases()
+                if set(c["params"]) == set(want) and all(_same(c["params"][k], v) for k, v in want.items())]
+
+    def case(self, params: dict[str, Any]) -> int | None:
+        """The index of the case whose parameters are exactly ``params`` (None when the study has none)."""
+        found = self.find(**params)
+        return found[0] if found else None
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -204,6 +209,8 @@ class Study:
     plot(data) : draws the figures from a :class:`StudyData`; returns their paths.
     report(data) : the study's numbers as Markdown text (written to report.md and printed).
     profile_stations : loads [mm] whose mid-axis profiles go into profiles.csv (None: all steps).
+    scene_source : where the base scene came from, as the report names it ("" : ngbet's default scene).
+    left_out : what a ``--quick`` version leaves out of the full study (see :func:`left_out`).
     """
 
     name: str
@@ -214,6 +221,8 @@ class Study:
     plot: Callable[[StudyData], list[Path]] | None = None
     report: Callable[[StudyData], str] | None = None
     profile_stations: tuple[float, ...] | None = None
+    scene_source: str = ""
+    left_out: list[str] = field(default_factory=list)
 
     def params_columns(self) -> list[str]:
         """The parameter keys of all cases, in the order they first appear."""
@@ -829,7 +838,8 @@ def _collect(study: Study, cases: list[_Case], cache: Path, out: Path, executor_
     for name, trs in tables.items():
         _write_csv(out / f"{name}.csv", trs, _columns(trs))
     meta = {"study": study.name, "description": study.description, "params": pcols,
-            "tables": sorted(tables), "base_scene": study.base.to_dict(), "cases": metas,
+            "tables": sorted(tables), "base_scene": study.base.to_dict(), "scene_source": study.scene_source,
+            "quick_left_out": study.left_out, "cache": str(cache.resolve()), "cases": metas,
             "executor": executor_info, "versions": versions(), "git_revision": git_revision(),
             "code_version": {m: code_version(m) for m in sorted({c.scene.model for c in cases if c.scene})},
             "machine": machine(), "wall_s": wall_s,
@@ -1018,10 +1028,62 @@ def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog
     return run_from_args(build, p.parse_args(argv))
 
 
-def run_from_args(build: Callable[[bool], Study], args: argparse.Namespace) -> int:
-    """Run (or with ``--plot-only`` redraw) the study ``build`` gives for the options; the exit status."""
+def _flat(d: dict[str, Any], pre: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{pre}{k}."))
+        else:
+            out[f"{pre}{k}"] = v
+    return out
+
+
+def left_out(full: Study, quick: Study) -> list[str]:
+    """What ``quick`` leaves out of ``full``: changed base-scene values and case values not run.
+
+    A base value the cases set themselves is not named (the cases say what runs).
+    """
+    varied = {k for k in full.params_columns() if all(k in c for c in full.cases)}
+    fb, qb = _flat(_floats(full.base.to_dict())), _flat(_floats(quick.base.to_dict()))
+    notes = [f"{k} = {_words(fb[k])} (runs {_words(qb.get(k))})" for k in fb
+             if fb[k] != qb.get(k) and k not in varied and k != "solver.threads"]
+    for k in full.params_columns():
+        ran = [c[k] for c in quick.cases if k in c]
+        gone = [c[k] for c in full.cases if k in c and not any(_same(c[k], v) for v in ran)]
+        with contextlib.suppress(TypeError):  # numbers in order; other values as they come
+            gone.sort()
+        if gone:
+            notes.append(f"{k} = {', '.join(dict.fromkeys(_words(v) for v in gone))}")
+    if len(quick.cases) < len(full.cases):
+        notes.append(f"{len(full.cases) - len(quick.cases)} of the full study's {len(full.cases)} cases")
+    return notes
+
+
+def _words(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_words(x) for x in v) + "]"
+    return str(v)
+
+
+def build_study(build: Callable[..., Study], quick: bool, scene: Scene | None = None, source: str = "") -> Study:
+    """The study ``build`` gives, on ``scene`` (None: the study's default), with what ``quick`` leaves out."""
+    study = build(quick, scene) if scene is not None else build(quick)
+    study.scene_source = source
+    if quick:
+        study.left_out = left_out(build(False, scene) if scene is not None else build(False), study)
+    return study
+
+
+def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: Scene | None = None,
+                  source: str = "") -> int:
+    """Run (or with ``--plot-only`` redraw) the study ``build`` gives for the options; the exit status.
+
+    scene : the base scene (None: the study's own, on ngbet's default scene); source names it.
+    """
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    study = build(args.quick)
+    study = build_study(build, args.quick, scene, source)
     out = Path(args.out) if args.out else default_out(study.name, args.quick)
     if args.plot_only:
         if not (out / "meta.json").exists():
@@ -1033,6 +1095,8 @@ def run_from_args(build: Callable[[bool], Study], args: argparse.Namespace) -> i
                          progress=not args.quiet, retry_failed=args.retry_failed, threads=args.threads)
     st = [c["status"] for c in data.cases()]
     ex = data.meta["executor"]
+    if args.quick and study.left_out:
+        print(f"study {study.name} --quick leaves out: " + "; ".join(study.left_out))
     print(f"study {study.name}: {len(st)} cases ({st.count('ok')} ok, {st.count('failed')} failed, "
           f"{st.count('error')} errors; {ex['cases_run']} run, {ex['cases_cached']} from the cache) "
           f"in {data.meta['wall_s']:.1f} s -> {out}/")

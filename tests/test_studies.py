@@ -113,8 +113,10 @@ def quick_cache(tmp_path_factory):
 def run_quick(name, tmp_path, quick_cache):
     import importlib
 
+    from ngbet.study import build_study
+
     mod = importlib.import_module(f"ngbet.studies.{name}")
-    return mod, run_study(mod.build(True), tmp_path / name, cache=quick_cache, progress=False)
+    return mod, run_study(build_study(mod.build, True), tmp_path / name, cache=quick_cache, progress=False)
 
 
 def test_quick_penalty_p(tmp_path, quick_cache):
@@ -131,10 +133,14 @@ def test_quick_penalty_p(tmp_path, quick_cache):
     # discretization error: p = 2 is better than p = 1 against the Richardson reference
     lag = {r["p"]: r["err_ref"] for r in a["rows"] if r["method"] == "lagrange"}
     assert lag[2] < 0.3 * lag[1]
-    assert 0.5 < a["ref"]["order"] < 2.0  # singular corners: about first order in h
+    assert {r["case"] for r in a["rows"]}.isdisjoint(a["ref_cases"])  # the reference family is not a (h, p) row
     for f in ("penalty_profiles", "penalty_error", "discretization_error"):
         assert (d.out / f"{f}.png").exists() and (d.out / f"{f}.pdf").exists()
-    assert "slope" in (d.out / "report.md").read_text()
+    text = (d.out / "report.md").read_text()
+    assert "slope" in text
+    # one mesh size in the quick grid: the order in h is said to be unavailable, no sentence left open
+    assert "Observed order in h: none, the grid has one mesh size (h = 20 mm)." in text
+    assert not any(line.rstrip().endswith(":") for line in text.splitlines() if not line.startswith("#"))
 
 
 def test_quick_work_precision(tmp_path, quick_cache):
@@ -142,6 +148,7 @@ def test_quick_work_precision(tmp_path, quick_cache):
     a = mod.analyse(d, mod.QUICK, True)
     pts = [p for p in a["pts"] if p["status"] == "ok"]
     assert len(pts) == len(d.cases())
+    pts = [p for p in pts if not p["ref_case"]]  # the front is of the study's own settings
     front = [p for p in pts if p["pareto_err_F"]]
     # the Pareto front: each point is cheaper than any other point at least as accurate
     for p in front:
@@ -210,3 +217,122 @@ def test_cli_study(tmp_path, quick_cache, capsys):
     assert main(["study", "alpha1", "--quick", "--quiet", "--out", str(out), "--cache", str(quick_cache)]) == 0
     assert main(["study", "alpha1", "--quick", "--plot-only", "--out", str(out)]) == 0
     assert load(out).meta["study"] == "alpha1"
+
+
+# --- study outputs right by construction ---------------------------------------------------------
+def test_find_is_exact_a_case_with_one_more_key_is_another_case(tmp_path):
+    from ngbet.study import StudyData
+
+    uniform = C.lagrange(20.0, 2)
+    graded = C.lagrange(20.0, 2, 0.5)
+    extra = {**uniform, "outputs.error_estimate": "off"}
+    data = StudyData(tmp_path, [], [], {}, {"cases": [{"case": 0, "params": graded}, {"case": 1, "params": extra},
+                                                      {"case": 2, "params": uniform}]})
+    assert data.find(**uniform) == [2] and data.case(uniform) == 2
+    assert data.case(graded) == 0 and data.case(extra) == 1
+    assert data.case({**uniform, C.H: 20}) == 2  # 20 and 20.0 are one value
+    assert data.case(C.lagrange(10.0, 2)) is None
+
+
+@pytest.fixture(scope="module")
+def figures():
+    """The figures a study draws, kept open (savefig closes them) to be measured."""
+    return {}
+
+
+def capture(monkeypatch, mod, figures):
+    from ngbet import study
+
+    def keep(fig, out, name):
+        figures[name] = fig
+        return study.savefig(fig, out, name)
+    monkeypatch.setattr(mod, "savefig", keep)
+
+
+def labels_inside(fig):
+    fig.canvas.draw()
+    w, h = fig.canvas.get_width_height()
+    for ax in fig.axes:
+        for lab in (ax.xaxis.label, ax.yaxis.label):
+            if lab.get_text():
+                bb = lab.get_window_extent()
+                # inside the canvas, to the pixel of the text's own descent (a cut label lost tens of pixels)
+                assert bb.x0 >= -2 and bb.y0 >= -2 and bb.x1 <= w + 2 and bb.y1 <= h + 2, (lab.get_text(), bb)
+
+
+def test_quick_reference_rows_are_their_own_cases(tmp_path, quick_cache, monkeypatch, figures):
+    from ngbet.studies import reference as R
+
+    capture(monkeypatch, R, figures)
+    mod, d = run_quick("reference", tmp_path, quick_cache)
+    a = mod.analyse(d, True)
+    (uniform,) = a["fam"]["uniform"]
+    # the uniform 20 mm mesh at p = 2, not the 0.5 mm-graded case whose parameters contain its own
+    assert d.cases()[uniform["case"]]["params"] == {**C.lagrange(20.0, 2), **R.OFF}
+    assert uniform["dofs"] < min(p["dofs"] for p in a["fam"]["reference"])
+    F0 = a["ref"][20.0]["force_N"]
+    assert uniform["err"] == pytest.approx(abs(d.at(uniform["case"], 20.0, "force_N") - F0) / F0, rel=1e-12)
+    assert uniform["err"] > 0.02  # a coarse uniform mesh is percent-level off, far from the graded 0.35 %
+    labels_inside(figures["reference_convergence"])
+
+
+def test_quick_work_precision_colours_marks_and_report(tmp_path, quick_cache, monkeypatch, figures):
+    from matplotlib.collections import PathCollection
+
+    from ngbet.studies import work_precision as W
+
+    capture(monkeypatch, W, figures)
+    mod, d = run_quick("work_precision", tmp_path, quick_cache)
+    a = mod.analyse(d, mod.QUICK, True)
+    own = [p for p in a["pts"] if p["status"] == "ok" and not p["ref_case"]]
+    refs = [p for p in a["pts"] if p["ref_case"]]
+    assert len(refs) == 3 and all("pareto_err_F" not in p for p in refs)  # never on the front
+    text = (d.out / "report.md").read_text()
+    all_cases = text.split("## All cases")[1].split("## The reference family")[0]
+    assert all_cases.count("\n| h=") == len(own)  # the reference cases are listed apart, not as 0 % errors
+    assert "- Discretization:" in text and "- Reference:" in text and "Quick mode, leaves out:" in text
+    fig = figures["work_precision"]
+    ax = fig.axes[0]
+    norm = fig.axes[-1]._colorbar.mappable.norm  # the colour bar's own scale
+    dofs = [p["dofs"] for p in own]
+    assert norm.vmin == pytest.approx(min(dofs)) and norm.vmax == pytest.approx(max(dofs), rel=1e-6)
+    cmap = W.C.colormap()
+    for coll in (c for c in ax.collections if isinstance(c, PathCollection)):
+        for (t, y), fc, ec in zip(coll.get_offsets(), coll.get_facecolors(), coll.get_edgecolors(), strict=False):
+            p = next(q for q in own if q["time"] == pytest.approx(t) and max(q["err_F"], 0) == pytest.approx(y))
+            colour = fc if fc[3] > 0 else ec  # filled above the bound, open below it
+            assert colour[:3] == pytest.approx(cmap(norm(p["dofs"]))[:3], abs=1e-6)  # one scale for all families
+            assert (fc[3] == 0) == (p["err_F"] < a["unc_F"])
+    below = [p for p in own if p["err_F"] < a["unc_F"]]
+    assert below  # the graded 1 mm case: its error is below the reference's bound, drawn at its value
+    ys = [y for c in ax.collections if isinstance(c, PathCollection) for _, y in c.get_offsets()]
+    assert not any(y == pytest.approx(a["unc_F"], rel=1e-9) for y in ys)
+    labels_inside(fig)
+    labels_inside(figures["work_precision_dofs"])
+
+
+def test_one_reference_per_scene_across_studies(tmp_path, quick_cache):
+    _, ref = run_quick("reference", tmp_path, quick_cache)
+    mod, pen = run_quick("penalty_p", tmp_path, quick_cache)
+    from ngbet.studies import reference as R
+
+    a = mod.analyse(pen, mod.QUICK, True)
+    assert a["ref"]["force_N"] == R.reference(ref, True)[20.0]["force_N"]
+    assert a["ref1"]["force_N"] == R.reference(ref, True)[10.0]["force_N"]
+    # and a study that does not run the family finds the same value in the cache
+    _, al = run_quick("alpha1", tmp_path, quick_cache)
+    text = (al.out / "report.md").read_text()
+    assert f"F(20 mm) = {R.reference(ref, True)[20.0]['force_N']:.4f} N" in text
+
+
+def test_studies_start_from_the_default_scene_and_quick_says_what_it_leaves_out():
+    from ngbet import default_scene
+    from ngbet.studies import alpha1
+    from ngbet.study import build_study
+
+    full = alpha1.build(False)
+    assert full.base.discretization == default_scene().discretization
+    q = build_study(alpha1.build, True)
+    notes = "; ".join(q.left_out)
+    assert "material.alpha1 = 200, 20000" in notes and "loading.u0_mm = 56 (runs 20)" in notes
+    assert "discretization.mesh_size_mm = 10 (runs 20)" in notes

@@ -8,26 +8,43 @@ from typing import Any
 
 import numpy as np
 
-from ngbet.scene import Scene
+from ngbet.scene import Scene, default_scene
 from ngbet.study import MissingValueError, StudyData
 
 H = "discretization.mesh_size_mm"
 P = "discretization.order_u"
+GRADE = "discretization.corner_mesh_size_mm"
+BISECT = "discretization.corner_bisections"
 CON = "effects.constraint"
 K = "effects.penalty_K"
 FORM = "effects.penalty_form"
 
+#: what ``--quick`` changes in every study's base scene: a coarse uniform mesh at p = 2, loaded
+#: to 20 mm with a stop at 10 mm (seconds per case)
+QUICK: dict[str, Any] = {"loading.u0_mm": 20.0, "loading.stops_mm": [10.0], H: 20.0, P: 2, GRADE: 0.0, BISECT: 0}
+#: the discretization keys a study that varies the discretization sets in its base scene, so that
+#: its cases (which set h, p, the corner size and bisections) are the same on any scene
+FREE_ORDERS: dict[str, Any] = {"discretization.order_phi": "auto", "discretization.order_lam": "auto",
+                               "discretization.structured": False, "discretization.target_error": 0.0}
+
 
 def base_scene(quick: bool = False, **changes: Any) -> Scene:
-    """The paper's scene (Table 1, u0 = 56 mm, stop at 37 mm) without per-case VTK and plots.
+    """:func:`study_scene` on ngbet's default scene."""
+    return study_scene(None, quick, changes)
 
-    quick: the same specimen loaded to 20 mm with a stop at 10 mm (seconds per case).
+
+def study_scene(scene: Scene | None, quick: bool = False, changes: dict[str, Any] | None = None) -> Scene:
+    """A study's base scene.
+
+    ``scene`` (None: :func:`ngbet.default_scene`, the paper's BET on the accurate default
+    discretization) without per-case VTK and plots, with :data:`QUICK` when ``quick`` (a coarse
+    mesh, loaded to 20 mm), then ``changes``.
     """
     d: dict[str, Any] = {"outputs.vtk": False, "outputs.plot": False}
     if quick:
-        d.update({"loading.u0_mm": 20.0, "loading.stops_mm": [10.0]})
-    d.update(changes)
-    return Scene().with_changes(**d)
+        d.update(QUICK)
+    d.update(changes or {})
+    return (scene if scene is not None else default_scene()).with_changes(**d)
 
 
 def stations(quick: bool) -> tuple[float, float]:
@@ -35,12 +52,17 @@ def stations(quick: bool) -> tuple[float, float]:
     return (10.0, 20.0) if quick else (37.0, 56.0)
 
 
-def lagrange(h: float, p: int) -> dict[str, Any]:
-    return {CON: "lagrange", H: float(h), P: int(p)}
+def mesh(h: float, p: int, corner: float = 0.0, bisections: int = 0) -> dict[str, Any]:
+    """The whole mesh of a case: size h, order p, corner grading and bisections (0: none)."""
+    return {H: float(h), P: int(p), GRADE: float(corner), BISECT: int(bisections)}
+
+
+def lagrange(h: float, p: int, corner: float = 0.0) -> dict[str, Any]:
+    return {CON: "lagrange", **mesh(h, p, corner)}
 
 
 def penalty(h: float, p: int, k: float, form: str = "mixed") -> dict[str, Any]:
-    return {CON: "penalty", H: float(h), P: int(p), K: float(k), FORM: form}
+    return {CON: "penalty", **mesh(h, p), K: float(k), FORM: form}
 
 
 def unique(cases: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -60,10 +82,9 @@ def ok(data: StudyData, case: int) -> bool:
 
 
 def lagrange_case(data: StudyData, h: float, p: int) -> int | None:
-    for c in data.find(**{CON: "lagrange", H: float(h), P: int(p)}):
-        if ok(data, c):
-            return c
-    return None
+    """The uniform-mesh Lagrange case (h, p) when it finished ok."""
+    c = data.case(lagrange(h, p))
+    return c if c is not None and ok(data, c) else None
 
 
 def total_iterations(data: StudyData, case: int) -> int:
@@ -139,3 +160,60 @@ def sorted_values(data: StudyData, key: str, **where: Any) -> list[Any]:
 
 def fmt(x: float, spec: str = ".4g") -> str:
     return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
+
+
+def describe_mesh(d: dict[str, Any]) -> str:
+    """A scene's discretization in words (``d``: its ``discretization`` table)."""
+    s = f"{'structured' if d.get('structured') else 'Netgen'} mesh of {d['mesh_size_mm']:g} mm"
+    if d.get("corner_mesh_size_mm"):
+        s += f" graded to {d['corner_mesh_size_mm']:g} mm at the four clamp corners"
+    if d.get("corner_bisections"):
+        s += f", corner elements bisected {d['corner_bisections']} times"
+    return s + f", p = {d['order_u']}"
+
+
+def describe_discretization(scene: dict[str, Any], varied: Sequence[str] = ()) -> str:
+    """The discretization of a study's base scene; ``varied``: the keys its cases change."""
+    if scene.get("model") == "discrete":
+        return f"yarn network, spacing {scene['discrete']['spacing_mm']:g} mm"
+    mine = [k for k in varied if k.startswith("discretization.")]
+    if mine:
+        return ("varied by the cases (" + ", ".join(k.split(".", 1)[1] for k in mine)
+                + "; each row of the tables names its own)")
+    return describe_mesh(scene["discretization"])
+
+
+def header(data: StudyData, title: str, reference: str) -> list[str]:
+    """The first lines of every report: title, scene, discretization, reference value."""
+    m = data.meta
+    src = m.get("scene_source") or "ngbet's default scene (the paper's BET)"
+    L = [f"# {title}", "", f"- Scene: {src}; loaded to {m['base_scene']['loading']['u0_mm']:g} mm.",
+         f"- Discretization: {describe_discretization(m['base_scene'], m.get('params', []))}.",
+         f"- Reference: {reference}"]
+    if m.get("quick_left_out"):
+        L.append("- Quick mode, leaves out: " + "; ".join(m["quick_left_out"]) + ".")
+    return [*L, ""]
+
+
+def short_log_axis(ax: Any, axis: str = "x") -> None:
+    """Plain-number tick labels on a log axis that spans less than a decade (else matplotlib's).
+
+    Without it, a short range gets crowded minor labels such as 1.8×10⁻¹ 2×10⁻¹ 2.2×10⁻¹.
+    """
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    lo, hi = ax.get_xlim() if axis == "x" else ax.get_ylim()
+    a = ax.xaxis if axis == "x" else ax.yaxis
+    if lo > 0 and hi / lo < 10:
+        a.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        a.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    else:
+        a.set_minor_formatter(NullFormatter())
+
+
+def colormap(name: str = "viridis") -> Any:
+    """A sequential colour map without its palest end (readable on white and on shaded bands)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+
+    return ListedColormap(plt.get_cmap(name)(np.linspace(0.0, 0.85, 256)), name=f"{name}_dark")

@@ -28,6 +28,7 @@ from ngbet.scene import Scene
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
+from . import reference as R
 
 CASES: list[dict[str, Any]] = [{"model": "continuum", "outputs.vtk": True, "outputs.vtk_every_step": True},
                                {"model": "discrete"}]
@@ -44,10 +45,10 @@ def label(params: dict) -> str:
     return EQUIVALENT if "discrete.K_phi" in params else "discrete"
 
 
-def build(quick: bool = False) -> Study:
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
     from ngbet.discrete.equivalent import continuum_equivalent
 
-    base = C.base_scene(quick, **({C.H: 20.0, "discrete.spacing_mm": 10.0} if quick else {}))
+    base = C.study_scene(scene, quick, {"discrete.spacing_mm": 10.0} if quick else {})
     equivalent = {"model": "discrete", **continuum_equivalent(base)}
     return Study("compare", base, [*CASES, equivalent], description=__doc__ or "", extract=extract,
                  plot=lambda d: plot(d, quick), report=lambda d: report(d, quick), profile_stations=C.stations(quick))
@@ -105,7 +106,7 @@ def analyse(data: StudyData, quick: bool) -> dict:
 def report(data: StudyData, quick: bool) -> str:
     s1, s2 = C.stations(quick)
     a = analyse(data, quick)
-    L = ["# Continuum and discrete model side by side", "",
+    L = [*C.header(data, "Continuum and discrete model side by side", R.reference_text(data, quick)),
          f"| model | status | F({s1:g}) [N] | F({s2:g}) [N] | u_y(L/4) at {s1:g} mm [mm] "
          f"| u_y(L/4) at {s2:g} mm [mm] | max abs(u_y) at {s2:g} mm [mm] | largest slip [mm] | wall time [s] |",
          "|---|---|---|---|---|---|---|---|---|"]
@@ -167,7 +168,7 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
 
     s1, s2 = C.stations(quick)
     scene = Scene.from_dict(data.meta["base_scene"])
-    fig, axs = plt.subplots(1, 3, figsize=(16, 4.3))
+    fig, axs = plt.subplots(1, 3, layout="constrained", figsize=(16, 4.3))
     for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True):
         i = _case(data, m)
         if i is None:
@@ -191,7 +192,6 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
     for ax in axs:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.tight_layout()
     return savefig(fig, data.out, "compare_curves")
 
 
@@ -200,7 +200,7 @@ def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
     import matplotlib.pyplot as plt
 
     loads = sorted({u for _, u in files})
-    fig, axs = plt.subplots(len(loads), 2, figsize=(14, 3.6 * len(loads)), squeeze=False)
+    fig, axs = plt.subplots(len(loads), 2, layout="constrained", figsize=(14, 3.6 * len(loads)), squeeze=False)
     norm = plt.Normalize(0, 55)
     for row, u0 in enumerate(loads):
         f = files.get(("continuum", u0))

@@ -58,12 +58,14 @@ from typing import Any
 
 import numpy as np
 
-from ngbet.study import MissingValueError, Study, StudyData, main_for, savefig
+from ngbet.output import read_rows
+from ngbet.scene import Scene
+from ngbet.study import CacheError, MissingValueError, Study, StudyData, case_key, main_for, savefig, verify_case
 
 from . import _common as C
 
-GRADE = "discretization.corner_mesh_size_mm"
-BISECT = "discretization.corner_bisections"
+GRADE = C.GRADE
+BISECT = C.BISECT
 OFF = {"outputs.error_estimate": "off"}
 #: (corner size [mm], p) on the :data:`REF_H` mesh (p = 7 stops at 55.7 mm there)
 REF_FAMILY = tuple((0.25, p) for p in (4, 5, 6, 8, 9, 10))
@@ -80,7 +82,7 @@ QUICK_REF = ((0.5, 2), (0.5, 3), (0.5, 4))
 
 
 def graded(c: float, p: int, h: float = 10.0) -> dict[str, Any]:
-    return {**C.lagrange(h, p), GRADE: float(c), **OFF}
+    return {**C.lagrange(h, p, c), **OFF}
 
 
 def families(quick: bool) -> dict[str, list[dict[str, Any]]]:
@@ -98,10 +100,20 @@ def fine_family(quick: bool) -> list[dict[str, Any]]:
     return [] if quick else [{**graded(c, p, REF_H), BISECT: FINE_BISECTIONS, **TO_37} for c, p in FINE_FAMILY]
 
 
-def build(quick: bool = False) -> Study:
+def reference_cases(quick: bool) -> list[dict[str, Any]]:
+    """The cases the reference of a scene is extrapolated from (every study that compares with it runs them)."""
+    return families(quick)["reference"] + fine_family(quick)
+
+
+def orders(quick: bool) -> list[int]:
+    """The orders p of the reference family."""
+    return [p for _, p in (QUICK_REF if quick else REF_FAMILY)]
+
+
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
     fam = families(quick)
     cases = C.unique([c for cs in fam.values() for c in cs] + fine_family(quick))
-    return Study("reference", C.base_scene(quick), cases, description=__doc__ or "",
+    return Study("reference", C.study_scene(scene, quick, C.FREE_ORDERS), cases, description=__doc__ or "",
                  plot=lambda d: plot(d, quick), report=lambda d: report(d, quick),
                  profile_stations=C.stations(quick))
 
@@ -180,11 +192,9 @@ def _fits(p: np.ndarray, F: Sequence[float]) -> list[tuple[float, float]]:
 
 
 def _case(data: StudyData, prm: dict[str, Any]) -> int | None:
-    keys = {k: v for k, v in prm.items() if k != "outputs.error_estimate"}
-    for c in data.find(**keys):
-        if C.ok(data, c):
-            return c
-    return None
+    """The case with exactly the parameters ``prm``, when it finished ok."""
+    c = data.case(prm)
+    return c if c is not None and C.ok(data, c) else None
 
 
 def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
@@ -212,6 +222,48 @@ def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
         F, bound = extrapolate(forces, [p for _, p in FINE_FAMILY])
         out["fine"] = {"force_N": F, "bound_N": bound, "forces_N": forces, "station": s1}
     return out
+
+
+def of_scene(data: StudyData, quick: bool) -> dict[float, dict[str, float]] | None:
+    """The reference of a study's base scene from the reference cases in its cache, or None.
+
+    The cases are those :func:`build` runs for the same scene; found by their cache keys and
+    verified like any cached case. None when one is missing, failed or damaged: the reference of a
+    scene is never computed from an incomplete family.
+    """
+    cache = data.meta.get("cache")
+    if not cache:
+        return None
+    base = Scene.from_dict(data.meta["base_scene"]).with_changes(**C.FREE_ORDERS)
+    forces: dict[float, list[float]] = {s: [] for s in C.stations(quick)}
+    for prm in families(quick)["reference"]:
+        run_dir = Path(cache) / case_key(base.with_changes(**prm))
+        try:
+            if verify_case(run_dir)["status"] != "ok":
+                return None
+        except CacheError:
+            return None
+        rows = read_rows(run_dir / "results.csv")
+        for s in forces:
+            forces[s] += [float(r["force_N"]) for r in rows if abs(float(r["u0_mm"]) - s) < 1e-6]
+    n = len(families(quick)["reference"])
+    if any(len(v) != n for v in forces.values()):
+        return None
+    out = {}
+    for s, F in forces.items():
+        f, bound = extrapolate(F, orders(quick))
+        out[s] = {"force_N": f, "bound_N": bound}
+    return out
+
+
+def reference_text(data: StudyData, quick: bool) -> str:
+    """The reference line of a report for a study that does not compute the reference itself."""
+    ref = of_scene(data, quick)
+    if ref is None:
+        return ("not in the cache for this scene (`ngbet study reference` with the same scene, "
+                "`--quick` and `--cache` computes it; this report then names it).")
+    return ("`ngbet study reference` of this scene (from the cache): "
+            + ", ".join(f"F({s:g} mm) = {r['force_N']:.4f} N ± {r['bound_N']:.2g} N" for s, r in ref.items()) + ".")
 
 
 def profile_error_max(uy: Sequence[float], ref: Sequence[float]) -> float:
@@ -260,8 +312,11 @@ def report(data: StudyData, quick: bool) -> str:
     a = analyse(data, quick)
     ref = a["ref"]
     orders = [p for _, p in (QUICK_REF if quick else REF_FAMILY)]
-    L = ["# Reference-grade solution of the paper's scene", "",
-         f"The mesh graded at the clamp corners, p = {', '.join(map(str, orders))}: the middle of the "
+    L = [*C.header(data, "Reference-grade solution of the scene", "computed here (below): "
+                   + ", ".join(f"F({s:g} mm) = {ref[s]['force_N']:.4f} N ± {ref[s]['bound_N']:.2g} N"
+                               for s in C.stations(quick)) + "."),
+         f"The {REF_H if not quick else 20.0:g} mm mesh graded at the clamp corners, "
+         f"p = {', '.join(map(str, orders))}: the middle of the "
          "range of the extrapolations (geometric and algebraic fits in p to the sequence and its tails); "
          "bound = half that range plus the largest fit residual.", "",
          "| u0 [mm] | " + " | ".join(f"F(p={p}) [N]" for p in orders) + " | reference [N] | bound [N] | bound [%] |",
@@ -302,13 +357,23 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     import matplotlib.pyplot as plt
 
     a = analyse(data, quick)
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    for name, m in (("uniform", "o-"), ("graded", "s-"), ("hp", "*-")):
-        pts = a["fam"][name]
-        if pts:
-            ax.loglog([p["dofs"] for p in pts], [max(p["err"], 1e-9) for p in pts], m, label=name)
+    fig, ax = plt.subplots(layout="constrained", figsize=(6.5, 4.5))
     r2 = a["ref"][a["s2"]]
-    ax.axhline(r2["bound_N"] / r2["force_N"], color="grey", ls=":", label="reference bound")
+    bound = r2["bound_N"] / r2["force_N"]
+    names = {"uniform": "uniform mesh, p = 2", "graded": "corner-graded, p = 2", "hp": "hp (corner and p together)"}
+    for j, (name, m) in enumerate((("uniform", "o"), ("graded", "s"), ("hp", "*"))):
+        pts = [p for p in a["fam"][name] if p["err"] > 0]
+        if not pts:
+            continue
+        ax.loglog([p["dofs"] for p in pts], [p["err"] for p in pts], "-", color=f"C{j}", lw=1)
+        for below in (False, True):  # below the bound: open markers, the error is not resolved there
+            sel = [p for p in pts if (p["err"] < bound) == below]
+            ax.plot([p["dofs"] for p in sel], [p["err"] for p in sel], m, color=f"C{j}", ls="",
+                    mfc="none" if below else f"C{j}", label=None if below else names[name])
+    low = min([p["err"] for name in names for p in a["fam"][name] if p["err"] > 0] + [bound]) / 3
+    ax.axhspan(low, bound, color="grey", alpha=0.15, label="below the reference's bound (open markers: not resolved)")
+    ax.set_ylim(low, None)
+    ax.set_title(f"reference F({a['s2']:g} mm) = {r2['force_N']:.4f} N ± {r2['bound_N']:.2g} N", fontsize=9)
     ax.set_xlabel("dofs")
     ax.set_ylabel(f"relative error of the force at {a['s2']:g} mm")
     ax.grid(alpha=0.3, which="both")

@@ -4,8 +4,8 @@ Settings varied: mesh size h, order p, formulation (Lagrange multiplier; mixed p
 1e8 and 1e10 Pa; the paper's pointwise ("full") penalty with K = 1e8 Pa; the uncondensed saddle-point solve) .
 Reference: the reference-grade solution of :mod:`ngbet.studies.reference` (extrapolation over
 p = 4, 5, 6, 8, 9, 10 on the 20 mm mesh graded to 0.25 mm at the clamp corners, with its bound;
-its cases run as part of this study and are excluded from the table and the work-precision plot).
-Errors below the reference's bound are not resolved and are flagged in the table. The profile
+its cases run as part of this study and are listed apart, never compared with themselves).
+Errors below the reference's bound are not resolved: flagged in the tables, drawn as open markers. The profile
 error is the max-norm error of the mid-axis u_y relative to max |u_y|. A second figure plots the
 error against the dofs for the uniform, corner-graded and hp families of the reference study.
 
@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ngbet.scene import Scene
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
@@ -49,27 +50,21 @@ QUICK: dict[str, list[tuple[Any, ...]]] = {
     "graded": [(20.0, 2, 1.0)],
 }
 TARGETS = (0.10, 0.01, 0.001, 0.0001)
-GRADE = "discretization.corner_mesh_size_mm"
+GRADE = C.GRADE
 
 
-def build(quick: bool = False) -> Study:
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
     g = QUICK if quick else FULL
     cases = [C.lagrange(h, p) for h, p in g["lagrange"]]
     cases += [C.penalty(h, p, k) for h, p, k in g["penalty"]]
     cases += [C.penalty(h, p, k, "full") for h, p, k in g["full"]]
     cases += [{**C.lagrange(h, p), "solver.condense": False} for h, p in g["uncondensed"]]
-    cases += [{**C.lagrange(h, p), GRADE: hc} for h, p, hc in g.get("graded", [])]
+    cases += [C.lagrange(h, p, hc) for h, p, hc in g.get("graded", [])]
     cases = [{**c, **R.OFF} for c in cases]
     cases += [c for cs in R.families(quick).values() for c in cs]
-    return Study(
-        "work_precision",
-        C.base_scene(quick),
-        C.unique(cases),
-        description=__doc__ or "",
-        plot=lambda d: plot(d, g, quick),
-        report=lambda d: report(d, g, quick),
-        profile_stations=C.stations(quick),
-    )
+    return Study("work_precision", C.study_scene(scene, quick, C.FREE_ORDERS), C.unique(cases),
+                 description=__doc__ or "", plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
+                 profile_stations=C.stations(quick))
 
 
 def label(prm: dict) -> str:
@@ -83,60 +78,45 @@ def label(prm: dict) -> str:
     return s
 
 
+def kind(prm: dict) -> str:
+    """The marker family of a case: the formulation, or the mesh for Lagrange."""
+    if prm.get(C.CON) == "penalty":
+        return str(prm.get(C.FORM, "mixed"))
+    if prm.get("solver.condense") is False:
+        return "uncondensed"
+    return "graded" if prm.get(GRADE) else "lagrange"
+
+
 def analyse(data: StudyData, g: dict, quick: bool) -> dict:
+    """Error and time of every case; the reference family's cases are marked and kept off the front."""
     s2 = C.stations(quick)[1]
     ref = R.reference(data, quick)
     F_ref, uy_ref = ref[s2]["force_N"], ref["uy_mm"]
     pts = []
     for c in data.meta["cases"]:
-        if c["status"] != "ok":
-            pts.append({"case": c["case"], "label": label(c["params"]), "status": c["status"]})
-            continue
         i = c["case"]
-        F = data.at(i, s2, "force_N")
-        X, uy = data.profile(i, s2)
-        if not math.isfinite(F) or not uy:  # never an error or a front point from a missing value
-            pts.append({"case": i, "label": label(c["params"]), "status": f"no value at {s2:g} mm"})
+        base = {"case": i, "label": label(c["params"]), "ref_case": i in ref["cases"]}
+        if c["status"] != "ok":
+            pts.append({**base, "status": c["status"]})
             continue
-        kind = (
-            c["params"].get(C.FORM, "mixed")
-            if c["params"].get(C.CON) == "penalty"
-            else (
-                "uncondensed"
-                if c["params"].get("solver.condense") is False
-                else "graded"
-                if c["params"].get(GRADE)
-                else "lagrange"
-            )
-        )
-        pts.append(
-            {
-                "case": i,
-                "label": label(c["params"]),
-                "status": "ok",
-                "kind": kind,
-                "time": C.wall(data, i),
-                "dofs": C.dofs(data, i),
-                "F": F,
-                "err_F": abs(F - F_ref) / F_ref,
-                "err_prof": R.profile_error_max(uy, uy_ref),
-                "ref_case": i in ref["cases"],
-            }
-        )
-    good = [p for p in pts if p["status"] == "ok"]
+        F = data.at(i, s2, "force_N")
+        _, uy = data.profile(i, s2)
+        if not math.isfinite(F) or not uy:  # never an error or a front point from a missing value
+            pts.append({**base, "status": f"no value at {s2:g} mm"})
+            continue
+        pts.append({**base, "status": "ok", "kind": kind(c["params"]), "time": C.wall(data, i),
+                    "dofs": C.dofs(data, i), "F": F, "err_F": abs(F - F_ref) / F_ref,
+                    "err_prof": R.profile_error_max(uy, uy_ref)})
+    unc = {"err_F": ref[s2]["bound_N"] / F_ref, "err_prof": ref["profile_bound_mm"] / max(abs(u) for u in uy_ref)}
+    good = [p for p in pts if p["status"] == "ok" and not p["ref_case"]]
     for key in ("err_F", "err_prof"):
         best = math.inf
         for p in sorted(good, key=lambda p: p["time"]):
             p[f"pareto_{key}"] = p[key] < best
             best = min(best, p[key])
-    return {
-        "ref": ref,
-        "pts": pts,
-        "s2": s2,
-        "F_ref": F_ref,
-        "unc_F": ref[s2]["bound_N"] / F_ref,
-        "unc_prof": ref["profile_bound_mm"] / max(abs(u) for u in uy_ref),
-    }
+        for p in good:
+            p[f"below_{key}"] = p[key] < unc[key]
+    return {"ref": ref, "pts": pts, "s2": s2, "F_ref": F_ref, "unc_F": unc["err_F"], "unc_prof": unc["err_prof"]}
 
 
 def cheapest(a: dict, key: str, target: float) -> dict | None:
@@ -144,139 +124,129 @@ def cheapest(a: dict, key: str, target: float) -> dict | None:
     return min(ok, key=lambda p: p["time"]) if ok else None
 
 
-def report(data: StudyData, g: dict, quick: bool) -> str:
-    a = analyse(data, g, quick)
+def _target_rows(a: dict) -> list[str]:
+    L = []
     s2 = a["s2"]
-    L = [
-        f"# Work-precision at u0 = {s2:g} mm",
-        "",
-        "Reference force (ngbet study reference: geometric and algebraic fits of its p-family on the "
-        "corner-graded mesh): "
-        f"F = {a['F_ref']:.4f} N, bound {100 * a['unc_F']:.2g} %. Reference profile: the family's highest order, "
-        f"bound {100 * a['unc_prof']:.2g} % of max |u_y|.",
-        "",
-        "## Cheapest settings reaching a target error (reference runs themselves excluded)",
-        "",
-        "| quantity | target | cheapest setting | error | wall time [s] | dofs |",
-        "|---|---|---|---|---|---|",
-    ]
-    for key, name, unc in (
-        ("err_F", f"force at {s2:g} mm", a["unc_F"]),
-        ("err_prof", f"mid-axis profile at {s2:g} mm", a["unc_prof"]),
-    ):
+    for key, name, unc in (("err_F", f"force at {s2:g} mm", a["unc_F"]),
+                           ("err_prof", f"mid-axis profile at {s2:g} mm", a["unc_prof"])):
         for t in TARGETS:
             p = cheapest(a, key, t)
             flag = " (below the reference's uncertainty: not resolved)" if t < 2 * unc else ""
-            if p is None:
-                best = min(
-                    (q for q in a["pts"] if q["status"] == "ok" and not q["ref_case"]),
-                    key=lambda q: q[key],
-                    default=None,
-                )
-                L.append(
-                    f"| {name} | {100 * t:g} %{flag} | not reached | "
-                    f"best {100 * best[key]:.3g} % ({best['label']}, {best['time']:.1f} s) | | |"
-                    if best
-                    else f"| {name} | {100 * t:g} % | not reached | | | |"
-                )
-            else:
-                L.append(
-                    f"| {name} | {100 * t:g} %{flag} | {p['label']} | {100 * p[key]:.3g} % | "
-                    f"{p['time']:.2f} | {p['dofs']:.0f} |"
-                )
-    L += [
-        "",
-        "## All cases",
-        "",
-        "| setting | dofs | F [N] | force error | profile error | wall time [s] | Pareto (force) |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for p in sorted(a["pts"], key=lambda p: p.get("time", math.inf)):
+            if p is not None:
+                L.append(f"| {name} | {100 * t:g} %{flag} | {p['label']} | {100 * p[key]:.3g} % | "
+                         f"{p['time']:.2f} | {p['dofs']:.0f} |")
+                continue
+            best = min((q for q in a["pts"] if q["status"] == "ok" and not q["ref_case"]),
+                       key=lambda q: q[key], default=None)
+            L.append(f"| {name} | {100 * t:g} %{flag} | not reached | best {100 * best[key]:.3g} % "
+                     f"({best['label']}, {best['time']:.1f} s) | | |" if best
+                     else f"| {name} | {100 * t:g} %{flag} | not reached | | | |")
+    return L
+
+
+def _err(p: dict, key: str) -> str:
+    return f"{100 * p[key]:.3g} %" + (" (below the bound)" if p.get(f"below_{key}") else "")
+
+
+def report(data: StudyData, g: dict, quick: bool) -> str:
+    a = analyse(data, g, quick)
+    s2 = a["s2"]
+    ref_text = (f"`ngbet study reference` of this scene (p = {', '.join(map(str, R.orders(quick)))} on the "
+                f"corner-graded mesh, run as part of this study): F({s2:g}) = {a['F_ref']:.4f} N, bound "
+                f"{100 * a['unc_F']:.2g} %; profile: the family's highest order, bound {100 * a['unc_prof']:.2g} % "
+                "of max |u_y|.")
+    L = [*C.header(data, f"Work-precision at u0 = {s2:g} mm", ref_text),
+         "## Cheapest settings reaching a target error", "",
+         "| quantity | target | cheapest setting | error | wall time [s] | dofs |", "|---|---|---|---|---|---|",
+         *_target_rows(a), "", "## All cases (the reference family apart, below)", "",
+         "| setting | dofs | F [N] | force error | profile error | wall time [s] | Pareto (force) |",
+         "|---|---|---|---|---|---|---|"]
+    mine = [p for p in a["pts"] if not p["ref_case"]]
+    for p in sorted(mine, key=lambda p: p.get("time", math.inf)):
         if p["status"] != "ok":
             L.append(f"| {p['label']} | | {p['status']} | | | | |")
             continue
-        L.append(
-            f"| {p['label']} | {p['dofs']:.0f} | {p['F']:.4f} | {100 * p['err_F']:.3g} % | "
-            f"{100 * p['err_prof']:.3g} % | {p['time']:.2f} | {'*' if p['pareto_err_F'] else ''} |"
-        )
+        L.append(f"| {p['label']} | {p['dofs']:.0f} | {p['F']:.4f} | {_err(p, 'err_F')} | {_err(p, 'err_prof')} | "
+                 f"{p['time']:.2f} | {'*' if p['pareto_err_F'] else ''} |")
+    L += ["", "## The reference family (what the reference is extrapolated from; no error against itself)", "",
+          "| setting | dofs | F [N] | wall time [s] |", "|---|---|---|---|"]
+    for p in (p for p in a["pts"] if p["ref_case"]):
+        L.append(f"| {p['label']} | {p.get('dofs', math.nan):.0f} | {C.fmt(p.get('F', math.nan), '.5f')} | "
+                 f"{C.fmt(p.get('time', math.nan), '.2f')} |")
     return "\n".join(L) + "\n"
 
 
+MARKS = {"lagrange": "o", "mixed": "s", "full": "^", "uncondensed": "D", "graded": "*"}
+NAMES = {"lagrange": "Lagrange", "mixed": "mixed penalty", "full": "pointwise penalty",
+         "uncondensed": "Lagrange, uncondensed", "graded": "Lagrange, corner-graded mesh"}
+
+
 def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
+    """Error against wall time, one colour scale (dofs) for every marker family and the colour bar.
+
+    A point below the reference's bound is drawn at its value as an open marker inside the shaded
+    band: its error is not resolved (it is at most about the bound), never clipped onto the bound.
+    """
     import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+    from matplotlib.lines import Line2D
 
     a = analyse(data, g, quick)
-    fig, axs = plt.subplots(1, 2, figsize=(13, 5))
-    marks = {"lagrange": "o", "mixed": "s", "full": "^", "uncondensed": "D", "graded": "*"}
-    names = {
-        "lagrange": "Lagrange",
-        "mixed": "mixed penalty",
-        "full": "pointwise penalty",
-        "uncondensed": "Lagrange, uncondensed",
-        "graded": "Lagrange, corner-graded mesh",
-    }
     good = [p for p in a["pts"] if p["status"] == "ok" and not p["ref_case"]]  # not the reference against itself
-    for ax, key, unc, title in (
-        (axs[0], "err_F", a["unc_F"], f"force at {a['s2']:g} mm"),
-        (axs[1], "err_prof", a["unc_prof"], f"mid-axis profile at {a['s2']:g} mm"),
-    ):
-        for kind, m in marks.items():
-            ps = [p for p in good if p["kind"] == kind]
+    norm = LogNorm(vmin=min(p["dofs"] for p in good), vmax=max(p["dofs"] for p in good) * (1 + 1e-9))
+    cmap = C.colormap()
+    fig, axs = plt.subplots(1, 2, layout="constrained", figsize=(13, 5.6))
+    for ax, key, unc, title in ((axs[0], "err_F", a["unc_F"], f"force at {a['s2']:g} mm"),
+                                (axs[1], "err_prof", a["unc_prof"], f"mid-axis profile at {a['s2']:g} mm")):
+        floor = min([p[key] for p in good if p[key] > 0] + [unc]) / 3
+        handles = []
+        for kind_, m in MARKS.items():
+            ps = [p for p in good if p["kind"] == kind_]
             if not ps:
                 continue
-            sc = ax.scatter(
-                [p["time"] for p in ps],
-                [max(p[key], unc) for p in ps],
-                marker=m,
-                c=[math.log2(p["dofs"]) for p in ps],
-                cmap="viridis",
-                s=30,
-                label=names[kind],
-                edgecolors="k",
-                linewidths=0.3,
-            )
+            for below in (False, True):
+                sel = [p for p in ps if p[f"below_{key}"] == below]
+                if not sel:
+                    continue
+                y = [max(p[key], floor) for p in sel]
+                colours = cmap(norm([p["dofs"] for p in sel]))
+                ax.scatter([p["time"] for p in sel], y, marker=m, s=40, zorder=3,
+                           facecolors="none" if below else colours, edgecolors=colours if below else "k",
+                           linewidths=1.5 if below else 0.3)
+            handles.append(Line2D([], [], ls="", marker=m, color="grey", markeredgecolor="k", label=NAMES[kind_]))
             for p in ps:
-                if kind in ("lagrange", "uncondensed", "graded"):
+                if kind_ in ("lagrange", "uncondensed", "graded"):
                     prm = data.meta["cases"][p["case"]]["params"]
-                    ax.annotate(
-                        f"{prm[C.H]:g}/{int(prm[C.P])}",
-                        (p["time"], max(p[key], unc)),
-                        fontsize=6,
-                        xytext=(3, 2),
-                        textcoords="offset points",
-                    )
+                    ax.annotate(f"{prm[C.H]:g}/{int(prm[C.P])}", (p["time"], max(p[key], floor)), fontsize=6,
+                                xytext=(3, 2), textcoords="offset points")
         front = sorted((p for p in good if p[f"pareto_{key}"]), key=lambda p: p["time"])
-        ax.step(
-            [p["time"] for p in front],
-            [max(p[key], unc) for p in front],
-            "r-",
-            where="post",
-            lw=1.2,
-            label="Pareto front",
-        )
+        (line,) = ax.step([p["time"] for p in front], [max(p[key], floor) for p in front], "r-", where="post",
+                          lw=1.2, label="Pareto front")
         for t in TARGETS:
             ax.axhline(t, color="grey", lw=0.6, ls=":")
-        ax.axhspan(0.3 * unc, unc, color="orange", alpha=0.15, label="below the reference's bound (not resolved)")
+        band = ax.axhspan(floor / 3, unc, color="grey", alpha=0.15,
+                          label="below the reference's bound: not resolved (open markers)")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.set_ylim(floor / 3, None)
         ax.set_xlabel("wall time of the run [s]")
         ax.set_ylabel("relative error")
         ax.set_title(title + "  (labels: h [mm]/p)", fontsize=9)
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
-    fig.colorbar(sc, ax=axs, label="log2(dofs)", shrink=0.8)
-    out = [savefig(fig, data.out, "work_precision"), _plot_dofs(data, a, quick)]
-    return out
+        C.short_log_axis(ax, "x")
+    fig.legend(handles=[*handles, line, band], loc="outside lower center", ncol=4, fontsize=8)
+    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axs, label="dofs", shrink=0.8)
+    return [savefig(fig, data.out, "work_precision"), _plot_dofs(data, a, quick)]
 
 
 def _plot_dofs(data: StudyData, a: dict, quick: bool) -> Path:
     """Error of the force against the dofs: uniform (algebraic), corner-graded and hp (exponential)."""
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    fig, ax = plt.subplots(layout="constrained", figsize=(6.5, 4.5))
     F_ref = a["F_ref"]
     names = {"uniform": "uniform, p = 2", "graded": "graded, p = 2", "hp": "hp (corner and p together)",
-             "reference": "p on the 0.25 mm-graded mesh (the reference's own family)"}
+             "reference": "p on the graded mesh (the reference's own family)"}
     for name, m in (("uniform", "o-"), ("graded", "s-"), ("hp", "*-"), ("reference", "d:")):
         cs = [R._case(data, prm) for prm in R.families(quick)[name]]
         pts = [(C.dofs(data, c), abs(data.at(c, a["s2"], "force_N") - F_ref) / F_ref) for c in cs if c is not None]
