@@ -336,3 +336,58 @@ def test_studies_start_from_the_default_scene_and_quick_says_what_it_leaves_out(
     notes = "; ".join(q.left_out)
     assert "material.alpha1 = 200, 20000" in notes and "loading.u0_mm = 56 (runs 20)" in notes
     assert "discretization.mesh_size_mm = 10 (runs 20)" in notes
+
+
+# --- studies on any scene, sweeps from the command line ------------------------------------------
+def test_study_on_a_scene_file_with_set(tmp_path, quick_cache, capsys):
+    from ngbet.cli import main
+
+    scene = tmp_path / "my.toml"
+    scene.write_text("[material]\nK_el = 1.0e6\n")
+    out = tmp_path / "a1"
+    rc = main(["study", "alpha1", str(scene), "--set", "material.alpha2=30", "--quick", "--quiet",
+               "--out", str(out), "--cache", str(quick_cache)])
+    assert rc == 0, capsys.readouterr().err
+    meta = load(out).meta
+    assert meta["base_scene"]["material"]["K_el"] == 1.0e6 and meta["base_scene"]["material"]["alpha2"] == 30
+    text = (out / "report.md").read_text()
+    assert f"the scene file {scene} with --set material.alpha2=30" in text
+    assert "study alpha1 --quick leaves out:" in capsys.readouterr().out  # said on the terminal too
+
+
+def test_sweep_is_a_study_with_the_cases_of_the_same_scenes(tmp_path, quick_cache, capsys):
+    from ngbet.cli import main
+
+    run_quick("alpha1", tmp_path, quick_cache)  # alpha1 = 20 and 2000 on the quick default scene
+    out = tmp_path / "sw"
+    assert main(["sweep", "material.alpha1=20,2000", "--quick", "--quiet", "--out", str(out),
+                 "--cache", str(quick_cache)]) == 0
+    d = load(out)
+    # the same scenes as the study's: found in the cache, nothing run
+    assert d.meta["executor"]["cases_run"] == 0 and d.meta["params"] == ["material.alpha1"]
+    assert [c["params"]["material.alpha1"] for c in d.cases()] == [20, 2000]
+    assert (out / "sweep_force.png").exists() and (out / "sweep_values.png").exists()
+    text = (out / "report.md").read_text()
+    assert "| material.alpha1 | status |" in text and "- Discretization: Netgen mesh of 20 mm, p = 2." in text
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["sweep", "material.nonsense=1,2"], "nonsense"),
+    (["sweep", "material.alpha1=-5,20"], "material.alpha1"),
+    (["sweep", "alpha1=20"], "section.key"),
+    (["study", "alpha1", "missing.toml"], "missing.toml"),
+])
+def test_bad_sweep_or_study_scene_is_exit_2_naming_it(tmp_path, capsys, argv, needle):
+    from ngbet.cli import main
+
+    assert main([*argv, "--quick", "--quiet", "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_sweep_values_with_brackets():
+    from ngbet.cli import _parse_value
+    from ngbet.studies.sweep import parse_items
+
+    axes, scene = parse_items(["loading.stops_mm=[10,20],[37]", "s.toml", "material.K_el=1e6,2e6"], _parse_value)
+    assert axes == {"loading.stops_mm": [[10, 20], [37]], "material.K_el": [1e6, 2e6]} and scene == "s.toml"
