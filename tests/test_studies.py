@@ -2,8 +2,17 @@
 
 from __future__ import annotations
 
+import json
+import logging
 import math
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
 
 import pytest
 
@@ -391,3 +400,216 @@ def test_sweep_values_with_brackets():
 
     axes, scene = parse_items(["loading.stops_mm=[10,20],[37]", "s.toml", "material.K_el=1e6,2e6"], _parse_value)
     assert axes == {"loading.stops_mm": [[10, 20], [37]], "material.K_el": [1e6, 2e6]} and scene == "s.toml"
+
+
+# --- cache faults -------------------------------------------------------------------------------
+def test_a_live_studys_finished_unstored_case_survives_another_studys_start(tmp_path):
+    """A study whose case has finished (its run lock released) but is not yet stored, e.g. stopped by
+    SIGSTOP: a second study on the same cache must not take that folder for debris; stored later,
+    it verifies."""
+    from ngbet.study.cache import run_dir, study_lock
+    from ngbet.study.executors import accept, execute_case
+    from ngbet.study.keys import case_key
+    from ngbet.study.model import Case
+
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    scene = Scene().with_changes(**TINY, **{C.P: 3})
+    key = case_key(scene)
+    with study_lock(cache) as token:
+        wd = run_dir(cache, key, token)
+        rec = execute_case(scene.to_dict(), 1, str(wd))  # finished, not stored
+        assert rec["status"] == "ok" and (wd / "results.csv").exists()
+        other = run_study(tiny_study([{C.P: 1}]), tmp_path / "b", cache=cache, progress=False, workers=1)
+        assert other.cases()[0]["status"] == "ok"
+        assert (wd / "results.csv").exists()  # the live study's folder is still there
+        c = Case(0, {C.P: 3}, scene, key)
+        assert accept(cache, token, c, rec, wd)["status"] == "ok"
+    from ngbet.study import verify_case
+
+    assert verify_case(cache / key)["status"] == "ok"
+
+
+def test_a_case_is_never_ok_without_its_data(tmp_path, monkeypatch, caplog):
+    from ngbet.study import executors
+
+    real = executors.store
+
+    def lossy(cache, key, rec, token, workdir=None, files=None):
+        final = real(cache, key, rec, token, workdir=workdir, files=files)
+        (final / "results.csv").unlink()  # the data lost between the store and the count
+        return final
+    monkeypatch.setattr(executors, "store", lossy)
+    d = run_study(tiny_study([{C.P: 1}]), tmp_path / "o", cache=tmp_path / "c", progress=False, workers=1)
+    (case,) = d.cases()
+    assert case["status"] == "error" and "results.csv" in case["error"] and "not stored" in case["error"]
+
+
+def test_swapped_cache_folders_are_caught_by_their_own_keys(tmp_path, caplog):
+    cases = [{"material.alpha1": 20.0}, {"material.alpha1": 2000.0}]
+    d = run_study(tiny_study(cases), tmp_path / "a", cache=tmp_path / "c", progress=False, workers=1)
+    k0, k1 = (c["key"] for c in d.cases())
+    cache = tmp_path / "c"
+    (cache / k0).rename(cache / "swap")
+    (cache / k1).rename(cache / k0)
+    (cache / "swap").rename(cache / k1)
+    with caplog.at_level(logging.WARNING):
+        d2 = run_study(tiny_study(cases), tmp_path / "b", cache=cache, progress=False, workers=1)
+    warned = [r.getMessage() for r in caplog.records if "recomputed" in r.getMessage()]
+    assert len(warned) == 2 and all("swapped" in w for w in warned)
+    assert d2.meta["executor"]["cases_run"] == 2
+    for i in (0, 1):  # the right force under the right alpha1
+        assert d2.at(i, 10.0, "force_N") == pytest.approx(d.at(i, 10.0, "force_N"), rel=1e-10)
+    assert d2.at(0, 10.0, "force_N") < 0.8 * d2.at(1, 10.0, "force_N")
+
+
+def test_plot_only_on_a_truncated_meta_json_is_exit_2_one_line(tmp_path, quick_cache, capsys):
+    from ngbet.cli import main
+
+    out = tmp_path / "a1"
+    assert main(["study", "alpha1", "--quick", "--quiet", "--out", str(out), "--cache", str(quick_cache)]) == 0
+    meta = out / "meta.json"
+    meta.write_text(meta.read_text()[:200])
+    capsys.readouterr()
+    assert main(["study", "alpha1", "--quick", "--plot-only", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(meta) in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+def _immutable(folder):
+    """Make ``folder`` unwritable also for root (chattr +i); False where the file system cannot."""
+    folder.chmod(0o500)
+    return os.geteuid() != 0 or subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode == 0
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_read_only_cache_is_exit_3_naming_it_with_any_workers(tmp_path, capsys, workers):
+    from ngbet.cli import main
+
+    cache = tmp_path / "ro"
+    cache.mkdir()
+    if not _immutable(cache):
+        pytest.skip("this file system cannot make a folder unwritable for root")
+    try:
+        rc = main(["study", "alpha1", "--quick", "--quiet", "--workers", workers, "--out", str(tmp_path / "o"),
+                   "--cache", str(cache)])
+        err = capsys.readouterr().err
+        assert rc == 3 and str(cache) in err and err.count("\n") == 1, err
+    finally:
+        if os.geteuid() == 0:
+            subprocess.run(["chattr", "-i", str(cache)], check=True)
+        cache.chmod(0o700)
+
+
+def test_a_scheduler_without_workers_is_an_error_in_bounded_time(tmp_path, monkeypatch, capsys):
+    from distributed import LocalCluster
+
+    from ngbet.cli import main
+
+    monkeypatch.setenv("NGBET_DASK_WORKER_TIMEOUT_S", "2")
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=None) as cluster:
+        t0 = time.monotonic()
+        rc = main(["study", "alpha1", "--quick", "--quiet", "--out", str(tmp_path / "o"), "--cache",
+                   str(tmp_path / "c"), "--scheduler", cluster.scheduler_address])
+        assert rc == 3 and time.monotonic() - t0 < 30
+    err = capsys.readouterr().err
+    assert "no dask worker" in err and cluster.scheduler_address in err and err.count("\n") == 1
+
+
+def test_a_killed_dask_worker_ends_the_study_in_bounded_time_keeping_finished_cases(tmp_path, monkeypatch):
+    """The scheduler and one worker (no nanny to restart it) as separate processes; the worker is
+    SIGKILLed after the first case is stored, during the second, which is slow."""
+    from ngbet.study import SchedulerError, verify_case
+
+    monkeypatch.setenv("NGBET_DASK_WORKER_TIMEOUT_S", "3")
+    sfile = tmp_path / "scheduler.json"
+    env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
+    sched = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--scheduler-file",
+                              str(sfile), "--port", "0", "--dashboard-address", ":0"], env=env,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = None
+    try:
+        wait_until(sfile.exists)
+        worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file",
+                                   str(sfile), "--no-nanny", "--nthreads", "1", "--dashboard-address", ":0"],
+                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        address = json.loads(sfile.read_text())["address"]
+        cache = tmp_path / "c"
+        slow = {"loading.first_step_mm": 0.1, "loading.max_step_mm": 0.1, "solver.grow_after": 0}
+        study = tiny_study([{C.P: 1}, {C.P: 2, **slow}])
+        killer = threading.Thread(target=_kill_after_first_case, args=(cache, worker), daemon=True)
+        killer.start()
+        t0 = time.monotonic()
+        with pytest.raises(SchedulerError, match="1 finished cases are kept in the cache, 1 not run"):
+            run_study(study, tmp_path / "o", cache=cache, scheduler=address, progress=False)
+        assert time.monotonic() - t0 < 120
+        kept = [d for d in cache.iterdir() if not d.name.startswith(".")]
+        assert len(kept) == 1 and verify_case(kept[0])["status"] == "ok"
+        assert not [d for d in cache.iterdir() if d.name.startswith((".run", ".tmp"))]
+    finally:
+        for p in (worker, sched):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait()
+
+
+def _kill_after_first_case(cache, worker):
+    wait_until(lambda: cache.exists() and any(not d.name.startswith(".") for d in cache.iterdir()), 120)
+    time.sleep(0.5)
+    os.kill(worker.pid, signal.SIGKILL)
+
+
+def wait_until(cond, timeout=60.0):
+    t0 = time.monotonic()
+    while not cond():
+        assert time.monotonic() - t0 < timeout, "timed out"
+        time.sleep(0.05)
+
+
+# --- layout ---------------------------------------------------------------------------------------
+def _imports(path, module):
+    """The ngbet modules a file imports, at any depth (function-local imports included)."""
+    import ast
+
+    pkg = module.split(".")
+    if not path.name == "__init__.py":
+        pkg = pkg[:-1]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names if a.name.startswith("ngbet")}
+        elif isinstance(node, ast.ImportFrom):
+            base = pkg[: len(pkg) - node.level + 1] if node.level else []
+            mod = ".".join([*base, *(node.module.split(".") if node.module else [])])
+            if mod.startswith("ngbet"):
+                out.add(mod)
+                out |= {f"{mod}.{a.name}" for a in node.names}
+    return out
+
+
+def test_no_import_circle_in_the_study_code_and_small_modules():
+    import ngbet
+
+    root = Path(ngbet.__file__).parent
+    files = {}
+    for p in root.rglob("*.py"):
+        rel = p.relative_to(root.parent).with_suffix("")
+        name = ".".join(rel.parts[:-1] if p.name == "__init__.py" else rel.parts)
+        files[name] = p
+    import ngbet.studies
+
+    for p in Path(ngbet.studies.__file__).parent.glob("*.py"):  # wherever the studies are installed from
+        files["ngbet.studies" + ("" if p.name == "__init__.py" else f".{p.stem}")] = p
+    graph = {m: {i for i in _imports(p, m) if i in files and i != m} for m, p in files.items()}
+    ours = [m for m in files if m.startswith(("ngbet.study", "ngbet.studies"))]
+    for start in ours:  # depth-first: no path from a study module back to itself
+        stack, seen = [(start, [start])], set()
+        while stack:
+            m, path = stack.pop()
+            for n in graph[m]:
+                assert n != start, " -> ".join([*path, n])
+                if n not in seen:
+                    seen.add(n)
+                    stack.append((n, [*path, n]))
+    big = {m: n for m in ours if (n := len(files[m].read_text().splitlines())) > 500}
+    assert not big, big
