@@ -189,12 +189,12 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     if command in ("run", "scene"):
         return parser
-    from . import studies
+    from .studies import STUDIES
     from .study import add_arguments
 
     pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them",
                          epilog=EPILOG)
-    pst.add_argument("name", help=f"study name ({', '.join(studies.STUDIES)}) or 'list'")
+    pst.add_argument("name", help=f"study name ({', '.join(STUDIES)}) or 'list'")
     _scene_arguments(pst)
     add_arguments(pst)
     psw = sub.add_parser("sweep", epilog=EPILOG, help="run a scene for every value of one or more keys (a study: "
@@ -293,14 +293,14 @@ def _study(args: argparse.Namespace) -> int:
     """``ngbet study NAME [scene.toml] [--set ...]``: the study module ngbet.studies.NAME (installed with ngbet)."""
     import importlib
 
-    from . import studies
+    from .studies import STUDIES
 
     if args.name == "list":
-        for name, what in studies.STUDIES.items():
+        for name, what in STUDIES.items():
             print(f"{name:16s} {what}")
         return EXIT_OK
-    if args.name not in studies.STUDIES:
-        _say(f"study: unknown study {args.name!r}; known: {', '.join(studies.STUDIES)}")
+    if args.name not in STUDIES:
+        _say(f"study: unknown study {args.name!r}; known: {', '.join(STUDIES)}")
         return EXIT_INPUT
     module = importlib.import_module(f"ngbet.studies.{args.name}")
     return _run_study_command(f"study {args.name}", module.build, args)

@@ -613,3 +613,16 @@ def test_no_import_circle_in_the_study_code_and_small_modules():
                     stack.append((n, [*path, n]))
     big = {m: n for m in ours if (n := len(files[m].read_text().splitlines())) > 500}
     assert not big, big
+
+
+def test_every_package_is_installed_and_the_studies_come_from_the_top_level_folder():
+    """pyproject.toml lists the packages (discovery does not follow package-dir): a new subpackage
+    missing from the list would be left out of a plain ``pip install .`` without a word."""
+    import tomllib
+
+    repo = Path(__file__).resolve().parent.parent
+    conf = tomllib.loads((repo / "pyproject.toml").read_text())["tool"]["setuptools"]
+    found = {".".join(p.parent.relative_to(repo).parts) for p in (repo / "ngbet").rglob("__init__.py")}
+    assert set(conf["packages"]) == found | {"ngbet.studies"}
+    assert conf["package-dir"] == {"ngbet.studies": "studies"} and (repo / "studies" / "__init__.py").exists()
+    assert not (repo / "ngbet" / "studies").exists()

@@ -31,7 +31,7 @@ and 0.25 mm families. Corners split more finely stop before 37 mm at all orders 
 (bisected three times: 27.4 mm at p = 14; the 0.5 mm grading bisected twice: 36.0 and 27.6 mm at
 p = 8 and 12, 61.21181 N at p = 10). The bound holds the 1.5e-4 N between the two corner states
 one discretization can have at 37 mm: the split family's p = 14 loaded in 2 mm steps, the
-unsplit p = 12 and 14 raised one order at a time at the load (bench/two_equilibria.py).
+unsplit p = 12 and 14 raised one order at a time at the load (docs/research/two_equilibria.py).
 
 Checks, not part of the study: the 10 mm mesh with 0.25 mm corners at p = 4 … 8 (the family
 this one replaces) extrapolates to 107.2375 N (its own bound 0.0052 N); at p = 6 halving the
