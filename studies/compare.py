@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import shutil
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,7 @@ import numpy as np
 
 from ngbet.kinematics import ideal_force
 from ngbet.plotting import SHEAR_LABEL, force_curve
-from ngbet.scene import Scene
+from ngbet.scene import Scene, SceneWarning
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
@@ -48,7 +49,9 @@ def label(params: dict) -> str:
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
     from ngbet.discrete.equivalent import continuum_equivalent
 
-    base = C.study_scene(scene, quick, {"discrete.spacing_mm": 10.0} if quick else {})
+    with warnings.catch_warnings():  # a base for both models: each reads its own keys
+        warnings.simplefilter("ignore", SceneWarning)
+        base = C.study_scene(scene, quick, {"discrete.spacing_mm": 10.0} if quick else {})
     equivalent = {"model": "discrete", **continuum_equivalent(base)}
     return Study("compare", base, [*CASES, equivalent], description=__doc__ or "", extract=extract,
                  plot=lambda d: plot(d, quick), report=lambda d: report(d, quick), profile_stations=C.stations(quick))
@@ -165,10 +168,13 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
 def _plot_curves(data: StudyData, quick: bool) -> Path:
     """Force curves of the three models and their mid-axis profiles at the two stations."""
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     s1, s2 = C.stations(quick)
-    scene = Scene.from_dict(data.meta["base_scene"])
-    fig, axs = plt.subplots(1, 3, layout="constrained", figsize=(16, 4.3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SceneWarning)
+        scene = Scene.from_dict(data.meta["base_scene"])
+    fig, axs = plt.subplots(1, 3, layout="constrained", figsize=(16, 4.8))
     for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True):
         i = _case(data, m)
         if i is None:
@@ -189,9 +195,13 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
         ax.set_xlabel("X [mm]")
         ax.set_ylabel("u_y [mm]")
         ax.axhline(0, color="k", lw=0.5)
+    axs[0].set_title("force (dots: converged steps; lines: cubic Hermite in F, dF/du0)", fontsize=9)
     for ax in axs:
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+    handles = [Line2D([], [], color=col, label=m) for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True)
+               if _case(data, m) is not None]
+    handles.append(Line2D([], [], color="k", ls="--", lw=1, label="ideal kinematics (shear only)"))
+    fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=9)
     return savefig(fig, data.out, "compare_curves")
 
 

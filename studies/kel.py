@@ -94,7 +94,7 @@ def plot(data: StudyData) -> list[Path]:
                     label=f"K_el = {r['K_el'] / 1e6:g} MPa (width at centre {r['width_mm']:.1f} mm)")
     L = data.meta["base_scene"]["specimen"]["length_mm"]
     W = data.meta["base_scene"]["specimen"]["width_mm"]
-    ax.plot([0, L, L, 0, 0], [0, 0, W, W, 0], "k:", lw=0.8, label="reference")
+    ax.plot([0, L, L, 0, 0], [0, 0, W, W, 0], "k:", lw=0.8, label="undeformed specimen")
     ax.set_aspect("equal")
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")

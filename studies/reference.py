@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import math
 import sys
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -59,7 +60,7 @@ from typing import Any
 import numpy as np
 
 from ngbet.output import read_rows
-from ngbet.scene import Scene
+from ngbet.scene import Scene, SceneWarning
 from ngbet.study import CacheError, MissingValueError, Study, StudyData, case_key, main_for, savefig, verify_case
 
 from . import _common as C
@@ -234,10 +235,14 @@ def of_scene(data: StudyData, quick: bool) -> dict[float, dict[str, float]] | No
     cache = data.meta.get("cache")
     if not cache:
         return None
-    base = Scene.from_dict(data.meta["base_scene"]).with_changes(**C.FREE_ORDERS)
+    with warnings.catch_warnings():  # the base was warned about where it was read
+        warnings.simplefilter("ignore", SceneWarning)
+        base = Scene.from_dict(data.meta["base_scene"]).with_changes(**C.FREE_ORDERS)
     forces: dict[float, list[float]] = {s: [] for s in C.stations(quick)}
     for prm in families(quick)["reference"]:
-        run_dir = Path(cache) / case_key(base.with_changes(**prm))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SceneWarning)
+            run_dir = Path(cache) / case_key(base.with_changes(**prm))
         try:
             if verify_case(run_dir)["status"] != "ok":
                 return None

@@ -105,6 +105,8 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
 
     st = _stations(data)
     cases = [c for c in data.cases() if data.case_rows(c["case"])]
+    if not cases:  # nothing converged: the report says why, there is nothing to draw
+        return []
     cmap = C.colormap()
     colours = {c["case"]: cmap(j / max(len(cases) - 1, 1)) for j, c in enumerate(cases)}
     fig, axs = plt.subplots(1, 2, layout="constrained", figsize=(12, 4.5))

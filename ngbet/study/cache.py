@@ -28,12 +28,13 @@ import math
 import os
 import shutil
 import uuid
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from ..output import RUN_LOCK, read_rows
-from ..scene import Scene, SceneError
+from ..scene import Scene, SceneError, SceneWarning
 from .keys import key_of_scene_dict
 
 log = logging.getLogger(__name__)
@@ -195,7 +196,9 @@ def _check_key(case_dir: Path, rec: dict[str, Any]) -> None:
         raise CacheError(f"{case_dir / 'case.json'}: stored under the key {rec['key']}, found in {case_dir.name} "
                          "(folders renamed or swapped)")
     try:
-        key = key_of_scene_dict(Scene.from_toml(case_dir / "scene.toml").to_dict())
+        with warnings.catch_warnings():  # a scene's unused keys were warned about when it ran
+            warnings.simplefilter("ignore", SceneWarning)
+            key = key_of_scene_dict(Scene.from_toml(case_dir / "scene.toml").to_dict())
     except (SceneError, OSError, ValueError) as exc:
         raise CacheError(f"{case_dir / 'scene.toml'}: unreadable ({exc})") from None
     if key != case_dir.name:

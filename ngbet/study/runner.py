@@ -17,10 +17,11 @@ import logging
 import os
 import shutil
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
-from ..scene import SceneError
+from ..scene import SceneError, SceneWarning
 from .cache import cached, clean_debris, run_dir, study_lock
 from .cluster import run_dask
 from .collect import collect
@@ -87,11 +88,17 @@ def _run(study: Study, out: Path, cache: Path, token: str, workers: int | None, 
 
 
 def _cases(study: Study) -> list[Case]:
-    """The study's cases with their scenes and cache keys (a bad scene is a failed case)."""
+    """The study's cases with their scenes and cache keys (a bad scene is a failed case).
+
+    A case's scene is not warned about keys its model does not read: the cases of one study share a
+    base scene across models (the base itself was warned about where it was read).
+    """
     cases: list[Case] = []
     for i, params in enumerate(study.cases):
         try:
-            sc = study.base.with_changes(**params)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)
+                sc = study.base.with_changes(**params)
             cases.append(Case(i, params, sc, case_key(sc)))
         except SceneError as exc:
             cases.append(Case(i, params, None, None, {"status": "failed", "error": f"bad scene: {exc}",
