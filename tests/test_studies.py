@@ -626,3 +626,23 @@ def test_every_package_is_installed_and_the_studies_come_from_the_top_level_fold
     assert set(conf["packages"]) == found | {"ngbet.studies"}
     assert conf["package-dir"] == {"ngbet.studies": "studies"} and (repo / "studies" / "__init__.py").exists()
     assert not (repo / "ngbet" / "studies").exists()
+
+
+def test_without_matplotlib_the_tables_and_report_are_written_and_one_line_says_so(tmp_path, quick_cache,
+                                                                                      monkeypatch, capsys):
+    import importlib.util
+
+    from ngbet.cli import main
+
+    out = tmp_path / "a1"
+    assert main(["study", "alpha1", "--quick", "--quiet", "--out", str(out), "--cache", str(quick_cache)]) == 0
+    for f in out.glob("*.p*"):
+        f.unlink()
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "matplotlib" else real(name, *a))
+    capsys.readouterr()
+    assert main(["study", "alpha1", "--quick", "--plot-only", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "figures skipped: matplotlib is not installed" in err and err.count("\n") == 1
+    assert (out / "report.md").exists() and not list(out.glob("*.png"))
+    assert "matplotlib" in load(out).meta["figures_skipped"]

@@ -140,9 +140,17 @@ def store(cache: Path, key: str, rec: dict[str, Any], token: str, workdir: Path 
         (tmp / "case.json").write_text(json.dumps(rec, indent=2, default=str))
         if final.exists():
             old = cache / f".tmp-{key}-{token}-old{uuid.uuid4().hex[:6]}"
-            final.rename(old)
+            with contextlib.suppress(FileNotFoundError):  # another study may have just replaced it
+                final.rename(old)
             shutil.rmtree(old, ignore_errors=True)
-        tmp.rename(final)
+        try:
+            tmp.rename(final)
+        except OSError:
+            if not final.is_dir():
+                raise
+            # the same scene stored meanwhile by another study sharing the cache: the same result
+            # (same scene, same code); keep that one, whole, and drop ours
+            shutil.rmtree(tmp, ignore_errors=True)
     except BaseException:  # an interrupt or a full disk: no half-stored case is left behind
         shutil.rmtree(tmp, ignore_errors=True)
         raise

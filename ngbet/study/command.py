@@ -110,6 +110,9 @@ def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: 
                          progress=not args.quiet, retry_failed=args.retry_failed, threads=args.threads)
     st = [c["status"] for c in data.cases()]
     ex = data.meta["executor"]
+    if data.meta.get("figures_skipped"):
+        print(f"ngbet: study {study.name}: figures skipped: {data.meta['figures_skipped']}; the tables and "
+              "the report are written", file=sys.stderr)
     if args.quick and study.left_out:
         print(f"study {study.name} --quick leaves out: " + "; ".join(study.left_out))
     print(f"study {study.name}: {len(st)} cases ({st.count('ok')} ok, {st.count('failed')} failed, "
