@@ -206,7 +206,9 @@ def short_log_axis(ax: Any, axis: str = "x") -> None:
     a = ax.xaxis if axis == "x" else ax.yaxis
     if lo > 0 and hi / lo < 10:
         a.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        a.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        # over less than a factor 3 every minor tick; else at 2, 3 and 5 times a power of ten only
+        digits = "123456789" if hi / lo < 3 else "235"
+        a.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:e}"[0] in digits else ""))
     else:
         a.set_minor_formatter(NullFormatter())
 

@@ -240,23 +240,45 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
 
 
 def _plot_dofs(data: StudyData, a: dict, quick: bool) -> Path:
-    """Error of the force against the dofs: uniform (algebraic), corner-graded and hp (exponential)."""
+    """Error of the force against the dofs: uniform (algebraic), corner-graded and hp (exponential).
+
+    Below the reference's bound (shaded) a point is drawn at its value as an open marker; a zero
+    error (the reference's own last order, when the extrapolation stops there) cannot be drawn on a
+    log axis and is left out, which the caption says.
+    """
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(layout="constrained", figsize=(6.5, 4.5))
-    F_ref = a["F_ref"]
+    fig, ax = plt.subplots(layout="constrained", figsize=(6.5, 5.0))
+    F_ref, bound = a["F_ref"], a["unc_F"]
     names = {"uniform": "uniform, p = 2", "graded": "graded, p = 2", "hp": "hp (corner and p together)",
              "reference": "p on the graded mesh (the reference's own family)"}
-    for name, m in (("uniform", "o-"), ("graded", "s-"), ("hp", "*-"), ("reference", "d:")):
+    errs, zero = [], 0
+    for j, (name, m, ls) in enumerate((("uniform", "o", "-"), ("graded", "s", "-"), ("hp", "*", "-"),
+                                       ("reference", "d", ":"))):
         cs = [R._case(data, prm) for prm in R.families(quick)[name]]
         pts = [(C.dofs(data, c), abs(data.at(c, a["s2"], "force_N") - F_ref) / F_ref) for c in cs if c is not None]
-        if pts:
-            ax.loglog(*zip(*pts, strict=True), m, label=names[name])
-    ax.axhline(a["unc_F"], color="grey", ls=":", label="reference bound")
+        zero += sum(1 for _, e in pts if e == 0)
+        pts = [(n, e) for n, e in pts if e > 0]
+        if not pts:
+            continue
+        errs += [e for _, e in pts]
+        ax.loglog(*zip(*pts, strict=True), ls=ls, color=f"C{j}", lw=1)
+        for below in (False, True):
+            sel = [(n, e) for n, e in pts if (e < bound) == below]
+            if sel:
+                ax.plot(*zip(*sel, strict=True), m, color=f"C{j}", ls="", mfc="none" if below else f"C{j}",
+                        label=None if below else names[name])
+    low = min([*errs, bound]) / 3
+    ax.axhspan(low, bound, color="grey", alpha=0.15, label="below the reference's bound (open markers)")
+    ax.set_ylim(low, None)
     ax.set_xlabel("dofs")
     ax.set_ylabel(f"relative error of the force at {a['s2']:g} mm")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7, loc="lower left")
+    C.short_log_axis(ax, "x")
+    if zero:
+        ax.set_title(f"{zero} case(s) with zero error against the reference (its own last order) not drawn",
+                     fontsize=8)
+    fig.legend(loc="outside lower center", ncol=2, fontsize=7)
     return savefig(fig, data.out, "work_precision_dofs")
 
 
