@@ -115,8 +115,8 @@ def analyse(data: StudyData, g: Grid, quick: bool) -> dict:
                                                    [lag[(h, p)]["err_ref"] for p in ps]),
                       "successive": [math.log(lag[(h, a)]["err_ref"] / lag[(h, b)]["err_ref"]) / math.log(b / a)
                                      if lag[(h, b)]["err_ref"] > 0 else math.nan for a, b in itertools.pairwise(ps)]}
-    return {"ref": ref, "ref1": ref1, "ref_cases": R_["cases"], "rows": rows, "slopes": slopes,
-            "orders_h": orders_h, "rates_p": rates_p, "kstar": kstar, "stations": (s1, s2)}
+    return {"ref": ref, "ref1": ref1, "ref1_split": "fine" in R_, "ref_cases": R_["cases"], "rows": rows,
+            "slopes": slopes, "orders_h": orders_h, "rates_p": rates_p, "kstar": kstar, "stations": (s1, s2)}
 
 
 def report(data: StudyData, g: Grid, quick: bool) -> str:
@@ -125,7 +125,9 @@ def report(data: StudyData, g: Grid, quick: bool) -> str:
     ref = a["ref"]
     text = (f"`ngbet study reference` of this scene (p = {', '.join(map(str, R.orders(quick)))} on the "
             f"corner-graded mesh, run as part of this study): F({s1:g}) = {a['ref1']['force_N']:.4f} N "
-            f"± {a['ref1']['bound_N']:.2g} N, F({s2:g}) = {ref['force_N']:.4f} N ± {ref['bound_N']:.2g} N.")
+            f"± {a['ref1']['bound_N']:.2g} N"
+            + (" (the split-corner family's, from the cache)" if a["ref1_split"] else "")
+            + f", F({s2:g}) = {ref['force_N']:.4f} N ± {ref['bound_N']:.2g} N.")
     L = [*C.header(data, f"Penalty K x p (x h) at u0 = {s1:g} and {s2:g} mm", text),
          "## Lagrange solutions (discretization error)", "",
          f"| h [mm] | p | dofs | F({s1:g}) [N] | F({s2:g}) [N] | error vs ref | profile error vs ref "

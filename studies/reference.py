@@ -199,65 +199,85 @@ def _case(data: StudyData, prm: dict[str, Any]) -> int | None:
 
 
 def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
-    """The reference force at both stations with its bound, and the reference profile at the second."""
+    """The scene's reference force at both stations with its bound, and the reference profile.
+
+    ``out[s]`` is the reference at the station ``s``: the corner-graded p-family's extrapolation,
+    at the first station that of the split-corner family (:data:`FINE_FAMILY`) when its cases are in
+    the study or in the cache (the same value whichever study asks). ``out["family"][s]``: the
+    corner-graded family's own extrapolation at every station.
+    """
     fam = families(quick)["reference"]
     cs = [_case(data, p) for p in fam]
     missing = [p for p, c in zip(fam, cs, strict=True) if c is None]
     if missing:
         raise MissingValueError("reference cases missing or failed (no reference from an incomplete family): "
                                 + "; ".join(", ".join(f"{k}={v}" for k, v in p.items()) for p in missing))
-    out: dict[Any, Any] = {"cases": cs}
+    out: dict[Any, Any] = {"cases": cs, "family": {}}
     for s in C.stations(quick):
         forces = [data.at(c, s, "force_N") for c in cs]  # type: ignore[arg-type]
-        F, bound = extrapolate(forces, [p for _, p in (QUICK_REF if quick else REF_FAMILY)])
-        out[s] = {"force_N": F, "bound_N": bound, "forces_N": forces}
-    s2 = C.stations(quick)[1]
+        F, bound = extrapolate(forces, orders(quick))
+        out["family"][s] = out[s] = {"force_N": F, "bound_N": bound, "forces_N": forces}
+    s1, s2 = C.stations(quick)
     X, uy = data.profile(cs[-1], s2)  # type: ignore[arg-type]
     _, uy5 = data.profile(cs[-2], s2)  # type: ignore[arg-type]
     out["X_mm"], out["uy_mm"] = list(X), list(uy)
     out["profile_bound_mm"] = float(np.max(np.abs(np.subtract(uy, uy5))))
     fine = [_case(data, p) for p in fine_family(quick)]
-    if fine and all(c is not None for c in fine):  # the reference study runs them, work_precision not
-        s1 = C.stations(quick)[0]
+    if fine and all(c is not None for c in fine):  # the reference study runs them
         forces = [data.at(c, s1, "force_N") for c in fine]  # type: ignore[arg-type]
+    else:  # the other studies find them in the cache when the reference study ran on this scene
+        forces = _cached_forces(data, fine_family(quick), (s1,)).get(s1, [])
+    if forces:
         F, bound = extrapolate(forces, [p for _, p in FINE_FAMILY])
-        out["fine"] = {"force_N": F, "bound_N": bound, "forces_N": forces, "station": s1}
+        out["fine"] = out[s1] = {"force_N": F, "bound_N": bound, "forces_N": forces, "station": s1}
     return out
+
+
+def _cached_forces(data: StudyData, cases: list[dict[str, Any]], stations: Sequence[float]) -> dict[float, list]:
+    """The forces of ``cases`` over the study's base scene at ``stations``, from the cache; {} if one is missing.
+
+    Found by their cache keys and verified like any cached case: a reference is never computed
+    from an incomplete or damaged family.
+    """
+    cache = data.meta.get("cache")
+    if not cache or not cases:
+        return {}
+    with warnings.catch_warnings():  # the base was warned about where it was read
+        warnings.simplefilter("ignore", SceneWarning)
+        base = Scene.from_dict(data.meta["base_scene"]).with_changes(**C.FREE_ORDERS)
+        dirs = [Path(cache) / case_key(base.with_changes(**prm)) for prm in cases]
+    forces: dict[float, list[float]] = {s: [] for s in stations}
+    for run_dir in dirs:
+        try:
+            if verify_case(run_dir)["status"] != "ok":
+                return {}
+        except CacheError:
+            return {}
+        rows = read_rows(run_dir / "results.csv")
+        for s in stations:
+            forces[s] += [float(r["force_N"]) for r in rows if abs(float(r["u0_mm"]) - s) < 1e-6]
+    return forces if all(len(v) == len(cases) for v in forces.values()) else {}
 
 
 def of_scene(data: StudyData, quick: bool) -> dict[float, dict[str, float]] | None:
     """The reference of a study's base scene from the reference cases in its cache, or None.
 
-    The cases are those :func:`build` runs for the same scene; found by their cache keys and
-    verified like any cached case. None when one is missing, failed or damaged: the reference of a
-    scene is never computed from an incomplete family.
+    The cases are those :func:`build` runs for the same scene, the values those of :func:`reference`
+    (at the first station the split-corner family's when it is cached). None when a case of the
+    corner-graded family is missing, failed or damaged.
     """
-    cache = data.meta.get("cache")
-    if not cache:
-        return None
-    with warnings.catch_warnings():  # the base was warned about where it was read
-        warnings.simplefilter("ignore", SceneWarning)
-        base = Scene.from_dict(data.meta["base_scene"]).with_changes(**C.FREE_ORDERS)
-    forces: dict[float, list[float]] = {s: [] for s in C.stations(quick)}
-    for prm in families(quick)["reference"]:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SceneWarning)
-            run_dir = Path(cache) / case_key(base.with_changes(**prm))
-        try:
-            if verify_case(run_dir)["status"] != "ok":
-                return None
-        except CacheError:
-            return None
-        rows = read_rows(run_dir / "results.csv")
-        for s in forces:
-            forces[s] += [float(r["force_N"]) for r in rows if abs(float(r["u0_mm"]) - s) < 1e-6]
-    n = len(families(quick)["reference"])
-    if any(len(v) != n for v in forces.values()):
+    s1, s2 = C.stations(quick)
+    forces = _cached_forces(data, families(quick)["reference"], (s1, s2))
+    if not forces:
         return None
     out = {}
     for s, F in forces.items():
         f, bound = extrapolate(F, orders(quick))
         out[s] = {"force_N": f, "bound_N": bound}
+    fine = _cached_forces(data, fine_family(quick), (s1,))
+    if fine:
+        f, bound = extrapolate(fine[s1], [p for _, p in FINE_FAMILY])
+        out[s1] = {"force_N": f, "bound_N": bound}
     return out
 
 
@@ -327,7 +347,7 @@ def report(data: StudyData, quick: bool) -> str:
          "| u0 [mm] | " + " | ".join(f"F(p={p}) [N]" for p in orders) + " | reference [N] | bound [N] | bound [%] |",
          "|---|" + "---|" * len(orders) + "---|---|---|"]
     for s in C.stations(quick):
-        r = ref[s]
+        r = ref["family"][s]
         L.append(f"| {s:g} | " + " | ".join(f"{f:.5f}" for f in r["forces_N"])
                  + f" | {r['force_N']:.5f} | {r['bound_N']:.2g} | {100 * r['bound_N'] / r['force_N']:.2g} |")
     fine = ref.get("fine")
@@ -337,8 +357,8 @@ def report(data: StudyData, quick: bool) -> str:
               f"{', '.join(str(p) for _, p in FINE_FAMILY)}: "
               + ", ".join(f"{f:.5f}" for f in fine["forces_N"])
               + f" N: **{fine['force_N']:.5f} N ± {fine['bound_N']:.2g} N** "
-              f"(the 0.25 mm family above: {ref[fine['station']]['force_N']:.5f} N ± "
-              f"{ref[fine['station']]['bound_N']:.2g} N)."]
+              f"(the 0.25 mm family above: {ref['family'][fine['station']]['force_N']:.5f} N ± "
+              f"{ref['family'][fine['station']]['bound_N']:.2g} N)."]
     L += ["", f"Reference profile (p = {orders[-1]}) at {a['s2']:g} mm: "
           f"max |u_y| = {np.max(np.abs(ref['uy_mm'])):.4f} mm, bound {ref['profile_bound_mm']:.2g} mm.", "",
           "## Convergence at the second station", "",
