@@ -282,13 +282,42 @@ def of_scene(data: StudyData, quick: bool) -> dict[float, dict[str, float]] | No
 
 
 def reference_text(data: StudyData, quick: bool) -> str:
-    """The reference line of a report for a study that does not compute the reference itself."""
+    """The reference line of a report for a study that does not compute the reference itself.
+
+    With the reference found, the deviation of the study's own case of the base scene (the case
+    whose changes leave the base as it is), when it has one: the error of its discretization.
+    """
     ref = of_scene(data, quick)
     if ref is None:
         return ("not in the cache for this scene (`ngbet study reference` with the same scene, "
                 "`--quick` and `--cache` computes it; this report then names it).")
-    return ("`ngbet study reference` of this scene (from the cache): "
+    text = ("`ngbet study reference` of this scene (from the cache): "
             + ", ".join(f"F({s:g} mm) = {r['force_N']:.4f} N ± {r['bound_N']:.2g} N" for s, r in ref.items()) + ".")
+    base = _base_case(data)
+    if base is not None:
+        devs = [(s, data.at(base, s, "force_N"), r["force_N"]) for s, r in ref.items()]
+        devs = [(s, F, R0) for s, F, R0 in devs if math.isfinite(F)]
+        if devs:
+            text += (f" The base scene's case of this study (case {base}) is off by "
+                     + ", ".join(f"{100 * (F - R0) / R0:+.2g} % at {s:g} mm" for s, F, R0 in devs) + ".")
+    return text
+
+
+def _base_case(data: StudyData) -> int | None:
+    """The ok case whose parameters are the base scene's own values (None when no case is)."""
+    base = data.meta["base_scene"]
+    for c in data.cases():
+        if c["status"] != "ok":
+            continue
+        same = True
+        for key, v in c["params"].items():
+            section, _, name = key.partition(".")
+            have = base.get(section, {}).get(name) if name else base.get(section)
+            same = same and have is not None and (have == v or (isinstance(v, (int, float)) and not isinstance(
+                v, bool) and isinstance(have, (int, float)) and math.isclose(float(have), float(v), rel_tol=1e-12)))
+        if same:
+            return int(c["case"])
+    return None
 
 
 def profile_error_max(uy: Sequence[float], ref: Sequence[float]) -> float:

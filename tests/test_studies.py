@@ -331,7 +331,11 @@ def test_one_reference_per_scene_across_studies(tmp_path, quick_cache):
     # and a study that does not run the family finds the same value in the cache
     _, al = run_quick("alpha1", tmp_path, quick_cache)
     text = (al.out / "report.md").read_text()
-    assert f"F(20 mm) = {R.reference(ref, True)[20.0]['force_N']:.4f} N" in text
+    F_ref = R.reference(ref, True)[20.0]["force_N"]
+    assert f"F(20 mm) = {F_ref:.4f} N" in text
+    # its own case of the base scene (alpha1 = 2000, the default) measured against it
+    dev = 100 * (al.at(1, 20.0, "force_N") - F_ref) / F_ref
+    assert "(case 1) is off by" in text and f"{dev:+.2g} % at 20 mm" in text
 
 
 def test_studies_start_from_the_default_scene_and_quick_says_what_it_leaves_out():
