@@ -199,8 +199,9 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     add_arguments(pst)
     psw = sub.add_parser("sweep", epilog=EPILOG, help="run a scene for every value of one or more keys (a study: "
                          "table, figures, report), e.g. ngbet sweep material.alpha1=20,200,2000")
-    psw.add_argument("items", nargs="+", metavar="SECTION.KEY=V1,V2,... [scene.toml]",
-                     help="the swept keys with their values (the cases are every combination), and a scene file")
+    psw.add_argument("items", nargs="+", metavar="ITEM",
+                     help="SECTION.KEY=V1,V2,... (one or more swept keys; the cases are every combination of "
+                     "their values) and at most one scene TOML file (default: ngbet's default scene)")
     psw.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                      help="override one value of the base scene (repeatable)")
     add_arguments(psw)
