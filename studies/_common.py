@@ -47,9 +47,21 @@ def study_scene(scene: Scene | None, quick: bool = False, changes: dict[str, Any
     return (scene if scene is not None else default_scene()).with_changes(**d)
 
 
-def stations(quick: bool) -> tuple[float, float]:
-    """The two loads a study reports: (37, 56) mm, or (10, 20) mm in quick mode."""
-    return (10.0, 20.0) if quick else (37.0, 56.0)
+def stations(quick: bool, base: Scene | StudyData | None = None) -> tuple[float, float]:
+    """The two loads a study reports: the base scene's first load stop and its final load.
+
+    Without ``base``: the default scene's (37, 56) mm, or (10, 20) mm in quick mode. A scene without
+    a stop below its final load reports the final load twice.
+    """
+    if base is None:
+        return (10.0, 20.0) if quick else (37.0, 56.0)
+    if isinstance(base, StudyData):
+        lo = base.meta["base_scene"]["loading"]
+        u0, stops = float(lo["u0_mm"]), [float(x) for x in lo["stops_mm"]]
+    else:
+        u0, stops = float(base.loading.u0_mm), [float(x) for x in base.loading.stops_mm]
+    below = [x for x in stops if x < u0]
+    return (below[0] if below else u0, u0)
 
 
 def mesh(h: float, p: int, corner: float = 0.0, bisections: int = 0) -> dict[str, Any]:

@@ -30,11 +30,11 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
     base = C.study_scene(scene, quick)
     cases = [{A1: a} for a in (QUICK if quick else FULL)]
     return Study("alpha1", base, cases, description=__doc__ or "", plot=lambda d: plot(d, quick),
-                 report=lambda d: report(d, quick), profile_stations=C.stations(quick))
+                 report=lambda d: report(d, quick), profile_stations=C.stations(quick, base))
 
 
 def analyse(data: StudyData, quick: bool) -> list[dict]:
-    s2 = C.stations(quick)[1]
+    s2 = C.stations(quick, data)[1]
     a2 = data.meta["base_scene"]["material"]["alpha2"]
     out = []
     for c in data.meta["cases"]:
@@ -50,7 +50,7 @@ def analyse(data: StudyData, quick: bool) -> list[dict]:
 
 
 def report(data: StudyData, quick: bool) -> str:
-    s2 = C.stations(quick)[1]
+    s2 = C.stations(quick, data)[1]
     rows = analyse(data, quick)
     L = [*C.header(data, f"alpha1 sweep at u0 = {s2:g} mm (alpha2 = "
                    f"{data.meta['base_scene']['material']['alpha2']:g} Pa m^2)", R.reference_text(data, quick)),
@@ -68,7 +68,7 @@ def report(data: StudyData, quick: bool) -> str:
 def plot(data: StudyData, quick: bool) -> list[Path]:
     import matplotlib.pyplot as plt
 
-    s2 = C.stations(quick)[1]
+    s2 = C.stations(quick, data)[1]
     fig, ax = plt.subplots(layout="constrained", figsize=(7, 4))
     for j, r in enumerate(analyse(data, quick)):
         X, uy = data.profile(r["case"], s2)

@@ -54,7 +54,8 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
         base = C.study_scene(scene, quick, {"discrete.spacing_mm": 10.0} if quick else {})
     equivalent = {"model": "discrete", **continuum_equivalent(base)}
     return Study("compare", base, [*CASES, equivalent], description=__doc__ or "", extract=extract,
-                 plot=lambda d: plot(d, quick), report=lambda d: report(d, quick), profile_stations=C.stations(quick))
+                 plot=lambda d: plot(d, quick), report=lambda d: report(d, quick),
+                 profile_stations=C.stations(quick, base))
 
 
 def extract(rec: dict, run_dir: Path, out: Path) -> dict:
@@ -84,7 +85,7 @@ def _case(data: StudyData, model: str) -> int | None:
 
 
 def analyse(data: StudyData, quick: bool) -> dict:
-    s1, s2 = C.stations(quick)
+    s1, s2 = C.stations(quick, data)
     L = data.meta["base_scene"]["specimen"]["length_mm"]
     res = {}
     for m in LABELS:
@@ -107,7 +108,7 @@ def analyse(data: StudyData, quick: bool) -> dict:
 
 
 def report(data: StudyData, quick: bool) -> str:
-    s1, s2 = C.stations(quick)
+    s1, s2 = C.stations(quick, data)
     a = analyse(data, quick)
     L = [*C.header(data, "Continuum and discrete model side by side", R.reference_text(data, quick)),
          f"| model | status | F({s1:g}) [N] | F({s2:g}) [N] | u_y(L/4) at {s1:g} mm [mm] "
@@ -170,7 +171,7 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
-    s1, s2 = C.stations(quick)
+    s1, s2 = C.stations(quick, data)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
         scene = Scene.from_dict(data.meta["base_scene"])

@@ -60,13 +60,14 @@ def own_cases(g: Grid) -> list[dict]:
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
     g = QUICK if quick else FULL
     cases = own_cases(g) + R.families(quick)["reference"]
-    return Study("penalty_p", C.study_scene(scene, quick, C.FREE_ORDERS), C.unique(cases),
+    base = C.study_scene(scene, quick, C.FREE_ORDERS)
+    return Study("penalty_p", base, C.unique(cases),
                  description=__doc__ or "", plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
-                 profile_stations=C.stations(quick))
+                 profile_stations=C.stations(quick, base))
 
 
 def analyse(data: StudyData, g: Grid, quick: bool) -> dict:
-    s1, s2 = C.stations(quick)
+    s1, s2 = C.stations(quick, data)
     R_ = R.reference(data, quick)
     ref = {**R_[s2], "uy_mm": R_["uy_mm"]}
     ref1 = R_[s1]

@@ -75,7 +75,6 @@ REF_H = 20.0
 #: times, loaded to the first station only, where it gives the reference (it stops before 56 mm)
 FINE_FAMILY = tuple((1.0, p) for p in range(6, 15))
 FINE_BISECTIONS = 2
-TO_37 = {"loading.u0_mm": 37.0, "loading.stops_mm": []}
 HP_FAMILY = ((2.5, 2), (1.0, 3), (0.5, 4), (0.25, 5))
 GRADED_P2 = ((2.5, 2), (1.0, 2), (0.5, 2), (0.25, 2))
 UNIFORM_P2 = (20.0, 10.0, 5.0)
@@ -96,14 +95,11 @@ def families(quick: bool) -> dict[str, list[dict[str, Any]]]:
             "hp": [graded(c, p) for c, p in HP_FAMILY]}
 
 
-def fine_family(quick: bool) -> list[dict[str, Any]]:
-    """The cases of :data:`FINE_FAMILY` (none in quick mode)."""
-    return [] if quick else [{**graded(c, p, REF_H), BISECT: FINE_BISECTIONS, **TO_37} for c, p in FINE_FAMILY]
+def fine_family(quick: bool, s1: float = 37.0) -> list[dict[str, Any]]:
+    """The cases of :data:`FINE_FAMILY`, loaded to the first station ``s1`` only (none in quick mode)."""
+    to_s1 = {"loading.u0_mm": float(s1), "loading.stops_mm": []}
+    return [] if quick else [{**graded(c, p, REF_H), BISECT: FINE_BISECTIONS, **to_s1} for c, p in FINE_FAMILY]
 
-
-def reference_cases(quick: bool) -> list[dict[str, Any]]:
-    """The cases the reference of a scene is extrapolated from (every study that compares with it runs them)."""
-    return families(quick)["reference"] + fine_family(quick)
 
 
 def orders(quick: bool) -> list[int]:
@@ -112,11 +108,12 @@ def orders(quick: bool) -> list[int]:
 
 
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    base = C.study_scene(scene, quick, C.FREE_ORDERS)
     fam = families(quick)
-    cases = C.unique([c for cs in fam.values() for c in cs] + fine_family(quick))
-    return Study("reference", C.study_scene(scene, quick, C.FREE_ORDERS), cases, description=__doc__ or "",
+    cases = C.unique([c for cs in fam.values() for c in cs] + fine_family(quick, C.stations(quick, base)[0]))
+    return Study("reference", base, cases, description=__doc__ or "",
                  plot=lambda d: plot(d, quick), report=lambda d: report(d, quick),
-                 profile_stations=C.stations(quick))
+                 profile_stations=C.stations(quick, base))
 
 
 def aitken(F: Sequence[float]) -> tuple[float, float]:
@@ -213,21 +210,24 @@ def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
         raise MissingValueError("reference cases missing or failed (no reference from an incomplete family): "
                                 + "; ".join(", ".join(f"{k}={v}" for k, v in p.items()) for p in missing))
     out: dict[Any, Any] = {"cases": cs, "family": {}}
-    for s in C.stations(quick):
+    for s in C.stations(quick, data):
         forces = [data.at(c, s, "force_N") for c in cs]  # type: ignore[arg-type]
+        if not all(math.isfinite(f) for f in forces):
+            raise MissingValueError(f"no reference: the force at u0 = {s:g} mm of the reference cases {cs} is "
+                                    f"{forces} (a case stopped before that load)")
         F, bound = extrapolate(forces, orders(quick))
         out["family"][s] = out[s] = {"force_N": F, "bound_N": bound, "forces_N": forces}
-    s1, s2 = C.stations(quick)
+    s1, s2 = C.stations(quick, data)
     X, uy = data.profile(cs[-1], s2)  # type: ignore[arg-type]
     _, uy5 = data.profile(cs[-2], s2)  # type: ignore[arg-type]
     out["X_mm"], out["uy_mm"] = list(X), list(uy)
     out["profile_bound_mm"] = float(np.max(np.abs(np.subtract(uy, uy5))))
-    fine = [_case(data, p) for p in fine_family(quick)]
+    fine = [_case(data, p) for p in fine_family(quick, s1)]
     if fine and all(c is not None for c in fine):  # the reference study runs them
         forces = [data.at(c, s1, "force_N") for c in fine]  # type: ignore[arg-type]
     else:  # the other studies find them in the cache when the reference study ran on this scene
-        forces = _cached_forces(data, fine_family(quick), (s1,)).get(s1, [])
-    if forces:
+        forces = _cached_forces(data, fine_family(quick, s1), (s1,)).get(s1, [])
+    if forces and all(math.isfinite(f) for f in forces):
         F, bound = extrapolate(forces, [p for _, p in FINE_FAMILY])
         out["fine"] = out[s1] = {"force_N": F, "bound_N": bound, "forces_N": forces, "station": s1}
     return out
@@ -266,7 +266,7 @@ def of_scene(data: StudyData, quick: bool) -> dict[float, dict[str, float]] | No
     (at the first station the split-corner family's when it is cached). None when a case of the
     corner-graded family is missing, failed or damaged.
     """
-    s1, s2 = C.stations(quick)
+    s1, s2 = C.stations(quick, data)
     forces = _cached_forces(data, families(quick)["reference"], (s1, s2))
     if not forces:
         return None
@@ -274,7 +274,7 @@ def of_scene(data: StudyData, quick: bool) -> dict[float, dict[str, float]] | No
     for s, F in forces.items():
         f, bound = extrapolate(F, orders(quick))
         out[s] = {"force_N": f, "bound_N": bound}
-    fine = _cached_forces(data, fine_family(quick), (s1,))
+    fine = _cached_forces(data, fine_family(quick, s1), (s1,))
     if fine:
         f, bound = extrapolate(fine[s1], [p for _, p in FINE_FAMILY])
         out[s1] = {"force_N": f, "bound_N": bound}
@@ -289,8 +289,11 @@ def reference_text(data: StudyData, quick: bool) -> str:
     """
     ref = of_scene(data, quick)
     if ref is None:
-        return ("not in the cache for this scene (`ngbet study reference` with the same scene, "
-                "`--quick` and `--cache` computes it; this report then names it).")
+        lo = data.meta["base_scene"]["loading"]
+        stops = ", ".join(f"{x:g}" for x in lo["stops_mm"]) or "none"
+        return (f"none in the cache for this study's base scene as loaded here (to {lo['u0_mm']:g} mm, stops: "
+                f"{stops} mm); `ngbet study reference` on that scene, with the same `--quick` and `--cache`, "
+                "computes it, and this report then names it.")
     text = ("`ngbet study reference` of this scene (from the cache): "
             + ", ".join(f"F({s:g} mm) = {r['force_N']:.4f} N ± {r['bound_N']:.2g} N" for s, r in ref.items()) + ".")
     base = _base_case(data)
@@ -342,7 +345,7 @@ def fits(dofs: Sequence[float], err: Sequence[float]) -> dict[str, float]:
 
 def analyse(data: StudyData, quick: bool) -> dict[str, Any]:
     ref = reference(data, quick)
-    s2 = C.stations(quick)[1]
+    s2 = C.stations(quick, data)[1]
     F0 = ref[s2]["force_N"]
     fam: dict[str, list[dict[str, Any]]] = {}
     for name, cases in families(quick).items():
@@ -368,14 +371,14 @@ def report(data: StudyData, quick: bool) -> str:
     orders = [p for _, p in (QUICK_REF if quick else REF_FAMILY)]
     L = [*C.header(data, "Reference-grade solution of the scene", "computed here (below): "
                    + ", ".join(f"F({s:g} mm) = {ref[s]['force_N']:.4f} N ± {ref[s]['bound_N']:.2g} N"
-                               for s in C.stations(quick)) + "."),
+                               for s in C.stations(quick, data)) + "."),
          f"The {REF_H if not quick else 20.0:g} mm mesh graded at the clamp corners, "
          f"p = {', '.join(map(str, orders))}: the middle of the "
          "range of the extrapolations (geometric and algebraic fits in p to the sequence and its tails); "
          "bound = half that range plus the largest fit residual.", "",
          "| u0 [mm] | " + " | ".join(f"F(p={p}) [N]" for p in orders) + " | reference [N] | bound [N] | bound [%] |",
          "|---|" + "---|" * len(orders) + "---|---|---|"]
-    for s in C.stations(quick):
+    for s in C.stations(quick, data):
         r = ref["family"][s]
         L.append(f"| {s:g} | " + " | ".join(f"{f:.5f}" for f in r["forces_N"])
                  + f" | {r['force_N']:.5f} | {r['bound_N']:.2g} | {100 * r['bound_N'] / r['force_N']:.2g} |")

@@ -62,9 +62,10 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
     cases += [C.lagrange(h, p, hc) for h, p, hc in g.get("graded", [])]
     cases = [{**c, **R.OFF} for c in cases]
     cases += [c for cs in R.families(quick).values() for c in cs]
-    return Study("work_precision", C.study_scene(scene, quick, C.FREE_ORDERS), C.unique(cases),
+    base = C.study_scene(scene, quick, C.FREE_ORDERS)
+    return Study("work_precision", base, C.unique(cases),
                  description=__doc__ or "", plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
-                 profile_stations=C.stations(quick))
+                 profile_stations=C.stations(quick, base))
 
 
 def label(prm: dict) -> str:
@@ -89,7 +90,7 @@ def kind(prm: dict) -> str:
 
 def analyse(data: StudyData, g: dict, quick: bool) -> dict:
     """Error and time of every case; the reference family's cases are marked and kept off the front."""
-    s2 = C.stations(quick)[1]
+    s2 = C.stations(quick, data)[1]
     ref = R.reference(data, quick)
     F_ref, uy_ref = ref[s2]["force_N"], ref["uy_mm"]
     pts = []

@@ -650,3 +650,14 @@ def test_without_matplotlib_the_tables_and_report_are_written_and_one_line_says_
     assert "figures skipped: matplotlib is not installed" in err and err.count("\n") == 1
     assert (out / "report.md").exists() and not list(out.glob("*.png"))
     assert "matplotlib" in load(out).meta["figures_skipped"]
+
+
+def test_stations_and_the_split_corner_family_follow_the_scenes_loading():
+    from ngbet.studies import reference
+
+    scene = Scene().with_changes(**{"loading.u0_mm": 40.0, "loading.stops_mm": [30.0]})
+    assert C.stations(False, scene) == (30.0, 40.0) and C.stations(True) == (10.0, 20.0)
+    study = reference.build(False, scene)
+    split = [c for c in study.cases if c.get(C.BISECT)]
+    assert split and all(c["loading.u0_mm"] == 30.0 and c["loading.stops_mm"] == [] for c in split)
+    assert study.profile_stations == (30.0, 40.0)
