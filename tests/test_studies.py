@@ -143,6 +143,9 @@ def test_quick_penalty_p(tmp_path, quick_cache):
     lag = {r["p"]: r["err_ref"] for r in a["rows"] if r["method"] == "lagrange"}
     assert lag[2] < 0.3 * lag[1]
     assert {r["case"] for r in a["rows"]}.isdisjoint(a["ref_cases"])  # the reference family is not a (h, p) row
+    # p = 1 locks under the constraint: its runs warn, and meta.json keeps the warnings per case
+    p1 = d.case(C.lagrange(20.0, 1))
+    assert any("locks" in w for w in d.cases()[p1]["warnings"])
     for f in ("penalty_profiles", "penalty_error", "discretization_error"):
         assert (d.out / f"{f}.png").exists() and (d.out / f"{f}.pdf").exists()
     text = (d.out / "report.md").read_text()

@@ -95,7 +95,7 @@ def _case_record(c: Case, summary: dict[str, Any], run_dir: Path | None) -> dict
             "error": rec.get("error"), "error_type": rec.get("error_type"), "cached": rec.get("cached", False),
             "wall_s": summary.get("wall_s", rec.get("wall_s")), "threads": rec.get("threads"),
             "host": rec.get("host"), "dofs": dofs, "u0_reached_mm": summary.get("u0_reached_mm"),
-            "run_dir": str(run_dir) if run_dir else None,
+            "run_dir": str(run_dir) if run_dir else None, "warnings": list(summary.get("warnings") or []),
             "scene": c.scene.to_dict() if c.scene is not None else None}
 
 

@@ -110,6 +110,10 @@ def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: 
                          progress=not args.quiet, retry_failed=args.retry_failed, threads=args.threads)
     st = [c["status"] for c in data.cases()]
     ex = data.meta["executor"]
+    warned = [c["case"] for c in data.cases() if c.get("warnings")]
+    if warned and not args.quiet:
+        print(f"ngbet: study {study.name}: {len(warned)} case(s) with warnings ({', '.join(map(str, warned[:8]))}"
+              f"{', ...' if len(warned) > 8 else ''}): meta.json lists them", file=sys.stderr)
     if data.meta.get("figures_skipped"):
         print(f"ngbet: study {study.name}: figures skipped: {data.meta['figures_skipped']}; the tables and "
               "the report are written", file=sys.stderr)

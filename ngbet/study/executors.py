@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import logging
 import math
 import multiprocessing as mp
 import os
@@ -26,7 +27,7 @@ import tempfile
 import threading
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +68,8 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
     rec: dict[str, Any] = {"status": "ok", "error": None, "threads": threads, "host": machine()["node"],
                            "pid": os.getpid()}
     try:
-        summary = run(scene, wd, progress=False)
+        with _quiet_logs():  # a case's warnings go to its summary.json (and the study's meta.json), not the terminal
+            summary = run(scene, wd, progress=False)
         if summary.get("status") != "ok":
             rec.update(status="failed", error=str(summary.get("error")), error_type="solver")
     except ConvergenceError as exc:
@@ -83,6 +85,18 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
         store(Path(cache), key, rec, token, workdir=wd)
         rec["stored"] = True
     return rec
+
+
+@contextlib.contextmanager
+def _quiet_logs() -> Iterator[None]:
+    """Hold back ngbet's warnings below ERROR while a case runs (the run records them itself)."""
+    logger = logging.getLogger("ngbet")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 def accept(cache: Path, token: str, c: Case, rec: dict[str, Any], wd: Path | None) -> dict[str, Any]:
