@@ -414,7 +414,7 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     import matplotlib.pyplot as plt
 
     a = analyse(data, quick)
-    fig, ax = plt.subplots(layout="constrained", figsize=(6.5, 4.5))
+    fig, ax = plt.subplots(layout="constrained", figsize=(6.5, 5.0))
     r2 = a["ref"][a["s2"]]
     bound = r2["bound_N"] / r2["force_N"]
     names = {"uniform": "uniform mesh, p = 2", "graded": "corner-graded, p = 2", "hp": "hp (corner and p together)"}
@@ -434,7 +434,7 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     ax.set_xlabel("dofs")
     ax.set_ylabel(f"relative error of the force at {a['s2']:g} mm")
     ax.grid(alpha=0.3, which="both")
-    ax.legend()
+    fig.legend(loc="outside lower center", ncol=2, fontsize=8)
     return [savefig(fig, data.out, "reference_convergence")]
 
 
