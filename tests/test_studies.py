@@ -664,3 +664,38 @@ def test_stations_and_the_split_corner_family_follow_the_scenes_loading():
     split = [c for c in study.cases if c.get(C.BISECT)]
     assert split and all(c["loading.u0_mm"] == 30.0 and c["loading.stops_mm"] == [] for c in split)
     assert study.profile_stations == (30.0, 40.0)
+
+
+@pytest.mark.slow
+def test_a_stopped_study_keeps_its_cases_when_another_starts_on_the_same_cache(tmp_path):
+    """The fault as an operator meets it: study A (2 workers) is stopped by SIGSTOP while its cases
+    run; study B runs to its end on the same cache; A, continued, ends "ok" with every case's data."""
+    env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
+    cache = tmp_path / "cache"
+    slow = ["--set", "loading.first_step_mm=0.25", "--set", "loading.max_step_mm=0.25", "--set", "solver.grow_after=0"]
+    a = subprocess.Popen([sys.executable, "-m", "ngbet", "study", "alpha1", "--quick", "--quiet", "--workers", "2",
+                          "--out", str(tmp_path / "a"), "--cache", str(cache), *slow], env=env,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_until(lambda: cache.exists() and any((d / "results.csv").exists() for d in cache.glob(".run-*")), 120)
+        os.kill(a.pid, signal.SIGSTOP)
+        running = [d.name for d in cache.glob(".run-*")]
+        # A's workers go on: B starts once they have finished their cases (no run lock held), the
+        # moment a study that stores its cases late would have them lying about unstored
+        from ngbet.output import RUN_LOCK
+        from ngbet.study.cache import held
+
+        wait_until(lambda: not any(held(d / RUN_LOCK) for d in cache.glob(".run-*")), 300)
+        b = subprocess.run([sys.executable, "-m", "ngbet", "study", "alpha1", "--quick", "--quiet", "--workers", "1",
+                            "--out", str(tmp_path / "b"), "--cache", str(cache)], env=env, capture_output=True,
+                           text=True, timeout=300)
+        assert b.returncode == 0, b.stderr
+        for name in running:  # each of A's folders is still there, or its case is stored
+            assert (cache / name).exists() or (cache / name.split("-")[1]).exists(), name
+    finally:
+        os.kill(a.pid, signal.SIGCONT)
+    out, err = a.communicate(timeout=300)
+    assert a.returncode == 0, err
+    d = load(tmp_path / "a")
+    assert [c["status"] for c in d.cases()] == ["ok", "ok"]
+    assert all(math.isfinite(d.at(c["case"], 20.0, "force_N")) for c in d.cases())
