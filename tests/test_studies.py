@@ -226,8 +226,12 @@ def test_cli_study(tmp_path, quick_cache, capsys):
     assert "penalty_p" in capsys.readouterr().out
     assert main(["study", "nonsense"]) == 2
     out = tmp_path / "a1"
+    capsys.readouterr()
     assert main(["study", "alpha1", "--quick", "--quiet", "--out", str(out), "--cache", str(quick_cache)]) == 0
+    quiet = capsys.readouterr()
+    assert quiet.out.count("\n") == 1 and "what it leaves out is in report.md" in quiet.out and not quiet.err
     assert main(["study", "alpha1", "--quick", "--plot-only", "--out", str(out)]) == 0
+    assert "# alpha1 sweep" in capsys.readouterr().out  # without --quiet: the report too
     assert load(out).meta["study"] == "alpha1"
 
 
@@ -361,7 +365,7 @@ def test_study_on_a_scene_file_with_set(tmp_path, quick_cache, capsys):
     scene = tmp_path / "my.toml"
     scene.write_text("[material]\nK_el = 1.0e6\n")
     out = tmp_path / "a1"
-    rc = main(["study", "alpha1", str(scene), "--set", "material.alpha2=30", "--quick", "--quiet",
+    rc = main(["study", "alpha1", str(scene), "--set", "material.alpha2=30", "--quick",
                "--out", str(out), "--cache", str(quick_cache)])
     assert rc == 0, capsys.readouterr().err
     meta = load(out).meta

@@ -32,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, help="NGSolve threads per case (default: 1 in parallel, all cores otherwise)")
     p.add_argument("--plot-only", action="store_true", help="redraw figures and report from the CSV files")
     p.add_argument("--retry-failed", action="store_true", help="rerun cases whose solver failed before")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="one line: no progress bar, no report on the terminal")
 
 
 def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog: str | None = None) -> int:
@@ -117,12 +117,14 @@ def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: 
     if data.meta.get("figures_skipped"):
         print(f"ngbet: study {study.name}: figures skipped: {data.meta['figures_skipped']}; the tables and "
               "the report are written", file=sys.stderr)
-    if args.quick and study.left_out:
-        print(f"study {study.name} --quick leaves out: " + "; ".join(study.left_out))
-    print(f"study {study.name}: {len(st)} cases ({st.count('ok')} ok, {st.count('failed')} failed, "
+    quick = data.meta.get("quick_left_out") or []
+    if quick and not args.quiet:
+        print(f"study {study.name} --quick leaves out: " + "; ".join(quick))
+    print(f"study {study.name}{' (--quick: what it leaves out is in report.md)' if quick and args.quiet else ''}: "
+          f"{len(st)} cases ({st.count('ok')} ok, {st.count('failed')} failed, "
           f"{st.count('error')} errors; {ex['cases_run']} run, {ex['cases_cached']} from the cache) "
           f"in {data.meta['wall_s']:.1f} s -> {out}/")
-    if (out / "report.md").exists():
+    if (out / "report.md").exists() and not args.quiet:  # --quiet: the one line above, the report in its file
         print((out / "report.md").read_text())
     if data.meta.get("report_error"):
         return 1
