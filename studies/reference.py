@@ -296,6 +296,8 @@ def reference_text(data: StudyData, quick: bool) -> str:
                 "computes it, and this report then names it.")
     text = ("`ngbet study reference` of this scene (from the cache): "
             + ", ".join(f"F({s:g} mm) = {r['force_N']:.4f} N ± {r['bound_N']:.2g} N" for s, r in ref.items()) + ".")
+    if data.meta["base_scene"].get("effects", {}).get("constraint") != "lagrange":
+        text += " It is the limit of the exact constraint (Lagrange multiplier), which the reference family uses."
     base = _base_case(data)
     if base is not None:
         devs = [(s, data.at(base, s, "force_N"), r["force_N"]) for s, r in ref.items()]
