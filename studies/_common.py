@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
 
-from ngbet.scene import Scene, default_scene
+from ngbet.scene import Scene, SceneError, SceneWarning, default_scene
 from ngbet.study import MissingValueError, StudyData
 
 H = "discretization.mesh_size_mm"
@@ -44,7 +45,9 @@ def study_scene(scene: Scene | None, quick: bool = False, changes: dict[str, Any
     if quick:
         d.update(QUICK)
     d.update(changes or {})
-    return (scene if scene is not None else default_scene()).with_changes(**d)
+    with warnings.catch_warnings():  # the study's own changes (a quick mesh on a network scene, say)
+        warnings.simplefilter("ignore", SceneWarning)
+        return (scene if scene is not None else default_scene()).with_changes(**d)
 
 
 def stations(quick: bool, base: Scene | StudyData | None = None) -> tuple[float, float]:
@@ -231,3 +234,14 @@ def colormap(name: str = "viridis") -> Any:
     from matplotlib.colors import ListedColormap
 
     return ListedColormap(plt.get_cmap(name)(np.linspace(0.0, 0.85, 256)), name=f"{name}_dark")
+
+
+def require_continuum(base: Scene, study: str) -> Scene:
+    """``base`` when it is a continuum scene; a SceneError naming the key otherwise.
+
+    The studies that vary the mesh and the orders have nothing to vary in the yarn network.
+    """
+    if base.model != "continuum":
+        raise SceneError(f"model = {base.model!r}: study {study} varies the continuum's discretization "
+                         "(mesh size, orders, corner grading); give model = 'continuum'")
+    return base

@@ -60,7 +60,7 @@ def own_cases(g: Grid) -> list[dict]:
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
     g = QUICK if quick else FULL
     cases = own_cases(g) + R.families(quick)["reference"]
-    base = C.study_scene(scene, quick, C.FREE_ORDERS)
+    base = C.require_continuum(C.study_scene(scene, quick, C.FREE_ORDERS), "penalty_p")
     return Study("penalty_p", base, C.unique(cases),
                  description=__doc__ or "", plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
                  profile_stations=C.stations(quick, base))

@@ -108,7 +108,7 @@ def orders(quick: bool) -> list[int]:
 
 
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
-    base = C.study_scene(scene, quick, C.FREE_ORDERS)
+    base = C.require_continuum(C.study_scene(scene, quick, C.FREE_ORDERS), "reference")
     fam = families(quick)
     cases = C.unique([c for cs in fam.values() for c in cs] + fine_family(quick, C.stations(quick, base)[0]))
     return Study("reference", base, cases, description=__doc__ or "",

@@ -62,7 +62,7 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
     cases += [C.lagrange(h, p, hc) for h, p, hc in g.get("graded", [])]
     cases = [{**c, **R.OFF} for c in cases]
     cases += [c for cs in R.families(quick).values() for c in cs]
-    base = C.study_scene(scene, quick, C.FREE_ORDERS)
+    base = C.require_continuum(C.study_scene(scene, quick, C.FREE_ORDERS), "work_precision")
     return Study("work_precision", base, C.unique(cases),
                  description=__doc__ or "", plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
                  profile_stations=C.stations(quick, base))

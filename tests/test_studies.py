@@ -396,6 +396,7 @@ def test_sweep_is_a_study_with_the_cases_of_the_same_scenes(tmp_path, quick_cach
     (["sweep", "material.alpha1=-5,20"], "material.alpha1"),
     (["sweep", "alpha1=20"], "section.key"),
     (["study", "alpha1", "missing.toml"], "missing.toml"),
+    (["study", "reference", "--set", "model=discrete"], "model = 'discrete'"),
 ])
 def test_bad_sweep_or_study_scene_is_exit_2_naming_it(tmp_path, capsys, argv, needle):
     from ngbet.cli import main
