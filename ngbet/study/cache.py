@@ -55,7 +55,11 @@ def study_lock(cache: Path) -> Iterator[str]:
     token = uuid.uuid4().hex[:12]
     fresh = cache / f".lock-new-{token}"
     lock = cache / f".study-{token}.lock"
-    fd = os.open(fresh, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
+    try:
+        fd = os.open(fresh, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
+    except OSError as exc:  # named as the folder the user gave
+        raise OSError(exc.errno, f"{exc.strerror} (a study writes its cases into its cache folder)",
+                      str(cache)) from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
         os.rename(fresh, lock)
