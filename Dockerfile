@@ -18,6 +18,7 @@ WORKDIR /src
 COPY pyproject.toml README.md LICENSE ./
 COPY _build ./_build
 COPY ngbet ./ngbet
+COPY studies ./studies
 # the git revision ngbet reports (--version, summary.json); the build context holds no .git:
 #   docker build --build-arg REVISION=$(git rev-parse --short=12 HEAD) .
 ARG REVISION=unknown

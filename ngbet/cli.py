@@ -1,4 +1,4 @@
-"""Command line: ``ngbet run [scene.toml] [--out DIR]``, ``ngbet scene``, ``ngbet study NAME``.
+"""Command line: ``ngbet run [scene.toml]``, ``ngbet scene``, ``ngbet study NAME [scene.toml]``, ``ngbet sweep``.
 
 Exit status (both models, runs and studies):
 
@@ -189,13 +189,22 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     if command in ("run", "scene"):
         return parser
-    pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them",
-                         epilog=EPILOG)
-    pst.add_argument("name", help="study name (reference, work_precision, penalty_p, alpha1, kel, curves, maps, "
-                     "compare) or 'list'")
+    from .studies import STUDIES
     from .study import add_arguments
 
+    pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them",
+                         epilog=EPILOG)
+    pst.add_argument("name", help=f"study name ({', '.join(STUDIES)}) or 'list'")
+    _scene_arguments(pst)
     add_arguments(pst)
+    psw = sub.add_parser("sweep", epilog=EPILOG, help="run a scene for every value of one or more keys (a study: "
+                         "table, figures, report), e.g. ngbet sweep material.alpha1=20,200,2000")
+    psw.add_argument("items", nargs="+", metavar="ITEM",
+                     help="SECTION.KEY=V1,V2,... (one or more swept keys; the cases are every combination of "
+                     "their values) and at most one scene TOML file (default: ngbet's default scene)")
+    psw.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                     help="override one value of the base scene (repeatable)")
+    add_arguments(psw)
     from . import fit
 
     fit.add_parser(sub)
@@ -207,6 +216,8 @@ def _main(argv: list[str] | None) -> int:
     args = _parser(words[0] if words else None).parse_args(argv)
     if args.command == "study":
         return _study(args)
+    if args.command == "sweep":
+        return _sweep(args)
     if args.command == "fit":
         from . import fit
 
@@ -261,31 +272,80 @@ def _last_converged_mm(out: Path) -> float:
         return 0.0
 
 
+def _scene_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", nargs="?", help="scene TOML file the study starts from (default: ngbet's default scene)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one value of the study's base scene, e.g. --set material.alpha1=20 (repeatable)")
+
+
+def _study_scene(path: str | None, overrides: list[str]) -> tuple[Scene | None, str]:
+    """The base scene of a study from the command line (None: the study's own) and how the report names it."""
+    if not path and not overrides:
+        return None, ""
+    try:
+        scene = load_scene(path, overrides)
+    except (OSError, UnicodeDecodeError) as exc:  # a folder or a binary file given as the scene
+        raise SceneError(f"cannot read the scene file {path}: {type(exc).__name__}: {exc}") from None
+    src = f"the scene file {path}" if path else "ngbet's default scene"
+    return scene, src + (f" with --set {' '.join(overrides)}" if overrides else "")
+
+
 def _study(args: argparse.Namespace) -> int:
-    """``ngbet study NAME``: the study module ngbet.studies.NAME (installed with the package)."""
+    """``ngbet study NAME [scene.toml] [--set ...]``: the study module ngbet.studies.NAME (installed with ngbet)."""
     import importlib
 
-    from . import studies
+    from .studies import STUDIES
 
     if args.name == "list":
-        for name, what in studies.STUDIES.items():
+        for name, what in STUDIES.items():
             print(f"{name:16s} {what}")
         return EXIT_OK
-    if args.name not in studies.STUDIES:
-        _say(f"study: unknown study {args.name!r}; known: {', '.join(studies.STUDIES)}")
+    if args.name not in STUDIES:
+        _say(f"study: unknown study {args.name!r}; known: {', '.join(STUDIES)}")
         return EXIT_INPUT
+    module = importlib.import_module(f"ngbet.studies.{args.name}")
+    return _run_study_command(f"study {args.name}", module.build, args)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    """``ngbet sweep KEY=V1,V2,... [scene.toml] [--set ...]``: a study over every combination of the values."""
+    from .studies import sweep
+
+    try:
+        axes, path = sweep.parse_items(args.items, _parse_value)
+    except SceneError as exc:
+        _say(f"sweep: {exc}")
+        return EXIT_INPUT
+    args.scene = path
+    return _run_study_command("sweep", lambda quick, scene=None: sweep.build(axes, quick, scene), args)
+
+
+def _run_study_command(what: str, build: Any, args: argparse.Namespace) -> int:
+    """Run a study from the command line; every error is one line and its exit status."""
     from .study import StudyInterrupted, run_from_args
 
-    module = importlib.import_module(f"ngbet.studies.{args.name}")
     try:
-        return run_from_args(module.build, args)
+        scene, source = _study_scene(args.scene, args.overrides)
+        if scene is not None and not _takes_scene(build):
+            raise SceneError(f"{what} runs on ngbet's default scene only (it takes no scene file or --set)")
+    except SceneError as exc:
+        _say(f"{what}: bad scene: {exc}")
+        return EXIT_INPUT
+    try:
+        return run_from_args(build, args, scene, source)
     except StudyInterrupted as exc:
         _say(str(exc))
         return EXIT_INTERRUPTED
     except Exception as exc:
         code, msg = exit_code(exc)
-        _say(f"study {args.name}: {msg}")
+        _say(f"{what}: {msg}")
         return code
+
+
+def _takes_scene(build: Any) -> bool:
+    import inspect
+
+    return "scene" in inspect.signature(build).parameters
 
 
 def _version() -> str:

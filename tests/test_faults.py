@@ -381,28 +381,22 @@ def test_sigint_on_a_study_keeps_finished_cases_and_leaves_no_debris(tmp_path):
     wait_for(lambda: not any(alive(w) for w in workers), timeout=10)  # no worker left behind
 
 
-def test_debris_of_a_store_is_removed_when_its_process_is_gone(tmp_path):
-    # A study killed during the milliseconds of a store leaves a .tmp-* folder. It is removed at
-    # once when the storing process (named in the folder, with its machine) no longer exists; a
-    # live process's, another machine's and a folder of the older naming are left for 10 minutes.
-    from ngbet.study import _host_tag, clean_debris
+def test_debris_is_removed_only_when_its_study_has_ended(tmp_path):
+    # A .run-*/.tmp-* folder carries its study's token; it is debris only when that study's lock
+    # (.study-<token>.lock, held by the live study) is free, whatever the folder's age or process.
+    from ngbet.study import clean_debris
+    from ngbet.study.cache import study_lock
 
-    gone = subprocess.Popen([sys.executable, "-c", "pass"])
-    gone.wait()
-    here = _host_tag()
-    names = {"dead": f".tmp-k1-0a1b2c3d-{gone.pid}-{here}", "live": f".tmp-k2-0a1b2c3d-{os.getpid()}-{here}",
-             "other host": f".tmp-k3-0a1b2c3d-{gone.pid}-ffffffff", "old naming": ".tmp-k4-0a1b2c3d"}
-    for n in names.values():
-        (tmp_path / n).mkdir()
-        (tmp_path / n / "case.json").write_text("{}")
-    assert here != "ffffffff"
-    assert clean_debris(tmp_path) == 1
-    assert sorted(d.name for d in tmp_path.iterdir()) == sorted(v for k, v in names.items() if k != "dead")
-    old = time.time() - 601
-    for n in names.values():
-        if (tmp_path / n).exists():
-            os.utime(tmp_path / n, (old, old))
-    assert clean_debris(tmp_path) == 3 and list(tmp_path.iterdir()) == []
+    ended = "0123456789ab"
+    with study_lock(tmp_path) as live:
+        names = [f".run-k1-{live}", f".tmp-k2-{live}-0a1b2c3d", f".run-k3-{ended}", f".tmp-k4-{ended}-0a1b2c3d",
+                 ".tmp-k5"]
+        for n in names:
+            (tmp_path / n).mkdir()
+            (tmp_path / n / "case.json").write_text("{}")
+        assert clean_debris(tmp_path) == 3
+        assert sorted(d.name for d in tmp_path.iterdir() if d.is_dir()) == sorted(names[:2])
+    assert clean_debris(tmp_path) == 2 and list(tmp_path.iterdir()) == []
 
 
 def test_workers_exit_when_the_study_is_killed(tmp_path):

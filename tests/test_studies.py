@@ -2,8 +2,17 @@
 
 from __future__ import annotations
 
+import json
+import logging
 import math
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
 
 import pytest
 
@@ -113,8 +122,10 @@ def quick_cache(tmp_path_factory):
 def run_quick(name, tmp_path, quick_cache):
     import importlib
 
+    from ngbet.study import build_study
+
     mod = importlib.import_module(f"ngbet.studies.{name}")
-    return mod, run_study(mod.build(True), tmp_path / name, cache=quick_cache, progress=False)
+    return mod, run_study(build_study(mod.build, True), tmp_path / name, cache=quick_cache, progress=False)
 
 
 def test_quick_penalty_p(tmp_path, quick_cache):
@@ -131,10 +142,17 @@ def test_quick_penalty_p(tmp_path, quick_cache):
     # discretization error: p = 2 is better than p = 1 against the Richardson reference
     lag = {r["p"]: r["err_ref"] for r in a["rows"] if r["method"] == "lagrange"}
     assert lag[2] < 0.3 * lag[1]
-    assert 0.5 < a["ref"]["order"] < 2.0  # singular corners: about first order in h
+    assert {r["case"] for r in a["rows"]}.isdisjoint(a["ref_cases"])  # the reference family is not a (h, p) row
+    # p = 1 locks under the constraint: its runs warn, and meta.json keeps the warnings per case
+    p1 = d.case(C.lagrange(20.0, 1))
+    assert any("locks" in w for w in d.cases()[p1]["warnings"])
     for f in ("penalty_profiles", "penalty_error", "discretization_error"):
         assert (d.out / f"{f}.png").exists() and (d.out / f"{f}.pdf").exists()
-    assert "slope" in (d.out / "report.md").read_text()
+    text = (d.out / "report.md").read_text()
+    assert "slope" in text
+    # one mesh size in the quick grid: the order in h is said to be unavailable, no sentence left open
+    assert "Observed order in h: none, the grid has one mesh size (h = 20 mm)." in text
+    assert not any(line.rstrip().endswith(":") for line in text.splitlines() if not line.startswith("#"))
 
 
 def test_quick_work_precision(tmp_path, quick_cache):
@@ -142,6 +160,7 @@ def test_quick_work_precision(tmp_path, quick_cache):
     a = mod.analyse(d, mod.QUICK, True)
     pts = [p for p in a["pts"] if p["status"] == "ok"]
     assert len(pts) == len(d.cases())
+    pts = [p for p in pts if not p["ref_case"]]  # the front is of the study's own settings
     front = [p for p in pts if p["pareto_err_F"]]
     # the Pareto front: each point is cheaper than any other point at least as accurate
     for p in front:
@@ -207,6 +226,481 @@ def test_cli_study(tmp_path, quick_cache, capsys):
     assert "penalty_p" in capsys.readouterr().out
     assert main(["study", "nonsense"]) == 2
     out = tmp_path / "a1"
+    capsys.readouterr()
     assert main(["study", "alpha1", "--quick", "--quiet", "--out", str(out), "--cache", str(quick_cache)]) == 0
+    quiet = capsys.readouterr()
+    assert quiet.out.count("\n") == 1 and "what it leaves out is in report.md" in quiet.out and not quiet.err
     assert main(["study", "alpha1", "--quick", "--plot-only", "--out", str(out)]) == 0
+    assert "# alpha1 sweep" in capsys.readouterr().out  # without --quiet: the report too
     assert load(out).meta["study"] == "alpha1"
+
+
+# --- study outputs right by construction ---------------------------------------------------------
+def test_find_is_exact_a_case_with_one_more_key_is_another_case(tmp_path):
+    from ngbet.study import StudyData
+
+    uniform = C.lagrange(20.0, 2)
+    graded = C.lagrange(20.0, 2, 0.5)
+    extra = {**uniform, "outputs.error_estimate": "off"}
+    data = StudyData(tmp_path, [], [], {}, {"cases": [{"case": 0, "params": graded}, {"case": 1, "params": extra},
+                                                      {"case": 2, "params": uniform}]})
+    assert data.find(**uniform) == [2] and data.case(uniform) == 2
+    assert data.case(graded) == 0 and data.case(extra) == 1
+    assert data.case({**uniform, C.H: 20}) == 2  # 20 and 20.0 are one value
+    assert data.case(C.lagrange(10.0, 2)) is None
+
+
+@pytest.fixture(scope="module")
+def figures():
+    """The figures a study draws, kept open (savefig closes them) to be measured."""
+    return {}
+
+
+def capture(monkeypatch, mod, figures):
+    from ngbet import study
+
+    def keep(fig, out, name):
+        figures[name] = fig
+        return study.savefig(fig, out, name)
+    monkeypatch.setattr(mod, "savefig", keep)
+
+
+def labels_inside(fig):
+    fig.canvas.draw()
+    w, h = fig.canvas.get_width_height()
+    for ax in fig.axes:
+        for lab in (ax.xaxis.label, ax.yaxis.label):
+            if lab.get_text():
+                bb = lab.get_window_extent()
+                # inside the canvas, to the pixel of the text's own descent (a cut label lost tens of pixels)
+                assert bb.x0 >= -2 and bb.y0 >= -2 and bb.x1 <= w + 2 and bb.y1 <= h + 2, (lab.get_text(), bb)
+
+
+def test_quick_reference_rows_are_their_own_cases(tmp_path, quick_cache, monkeypatch, figures):
+    from ngbet.studies import reference as R
+
+    capture(monkeypatch, R, figures)
+    mod, d = run_quick("reference", tmp_path, quick_cache)
+    a = mod.analyse(d, True)
+    (uniform,) = a["fam"]["uniform"]
+    # the uniform 20 mm mesh at p = 2, not the 0.5 mm-graded case whose parameters contain its own
+    assert d.cases()[uniform["case"]]["params"] == {**C.lagrange(20.0, 2), **R.OFF}
+    assert uniform["dofs"] < min(p["dofs"] for p in a["fam"]["reference"])
+    F0 = a["ref"][20.0]["force_N"]
+    assert uniform["err"] == pytest.approx(abs(d.at(uniform["case"], 20.0, "force_N") - F0) / F0, rel=1e-12)
+    assert uniform["err"] > 0.02  # a coarse uniform mesh is percent-level off, far from the graded 0.35 %
+    labels_inside(figures["reference_convergence"])
+
+
+def test_quick_work_precision_colours_marks_and_report(tmp_path, quick_cache, monkeypatch, figures):
+    from matplotlib.collections import PathCollection
+
+    from ngbet.studies import work_precision as W
+
+    capture(monkeypatch, W, figures)
+    mod, d = run_quick("work_precision", tmp_path, quick_cache)
+    a = mod.analyse(d, mod.QUICK, True)
+    own = [p for p in a["pts"] if p["status"] == "ok" and not p["ref_case"]]
+    refs = [p for p in a["pts"] if p["ref_case"]]
+    assert len(refs) == 3 and all("pareto_err_F" not in p for p in refs)  # never on the front
+    text = (d.out / "report.md").read_text()
+    all_cases = text.split("## All cases")[1].split("## The reference family")[0]
+    assert all_cases.count("\n| h=") == len(own)  # the reference cases are listed apart, not as 0 % errors
+    assert "- Discretization:" in text and "- Reference:" in text and "Quick mode, leaves out:" in text
+    fig = figures["work_precision"]
+    ax = fig.axes[0]
+    norm = fig.axes[-1]._colorbar.mappable.norm  # the colour bar's own scale
+    dofs = [p["dofs"] for p in own]
+    assert norm.vmin == pytest.approx(min(dofs)) and norm.vmax == pytest.approx(max(dofs), rel=1e-6)
+    cmap = W.C.colormap()
+    for coll in (c for c in ax.collections if isinstance(c, PathCollection)):
+        for (t, y), fc, ec in zip(coll.get_offsets(), coll.get_facecolors(), coll.get_edgecolors(), strict=False):
+            p = next(q for q in own if q["time"] == pytest.approx(t) and max(q["err_F"], 0) == pytest.approx(y))
+            colour = fc if fc[3] > 0 else ec  # filled above the bound, open below it
+            assert colour[:3] == pytest.approx(cmap(norm(p["dofs"]))[:3], abs=1e-6)  # one scale for all families
+            assert (fc[3] == 0) == (p["err_F"] < a["unc_F"])
+    below = [p for p in own if p["err_F"] < a["unc_F"]]
+    assert below  # the graded 1 mm case: its error is below the reference's bound, drawn at its value
+    ys = [y for c in ax.collections if isinstance(c, PathCollection) for _, y in c.get_offsets()]
+    assert not any(y == pytest.approx(a["unc_F"], rel=1e-9) for y in ys)
+    labels_inside(fig)
+    labels_inside(figures["work_precision_dofs"])
+
+
+def test_one_reference_per_scene_across_studies(tmp_path, quick_cache):
+    _, ref = run_quick("reference", tmp_path, quick_cache)
+    mod, pen = run_quick("penalty_p", tmp_path, quick_cache)
+    from ngbet.studies import reference as R
+
+    a = mod.analyse(pen, mod.QUICK, True)
+    assert a["ref"]["force_N"] == R.reference(ref, True)[20.0]["force_N"]
+    assert a["ref1"]["force_N"] == R.reference(ref, True)[10.0]["force_N"]
+    # and a study that does not run the family finds the same value in the cache
+    _, al = run_quick("alpha1", tmp_path, quick_cache)
+    text = (al.out / "report.md").read_text()
+    F_ref = R.reference(ref, True)[20.0]["force_N"]
+    assert f"F(20 mm) = {F_ref:.4f} N" in text
+    # its own case of the base scene (alpha1 = 2000, the default) measured against it
+    dev = 100 * (al.at(1, 20.0, "force_N") - F_ref) / F_ref
+    assert "(case 1) is off by" in text and f"{dev:+.2g} % at 20 mm" in text
+
+
+def test_studies_start_from_the_default_scene_and_quick_says_what_it_leaves_out():
+    from ngbet import default_scene
+    from ngbet.studies import alpha1
+    from ngbet.study import build_study
+
+    full = alpha1.build(False)
+    assert full.base.discretization == default_scene().discretization
+    q = build_study(alpha1.build, True)
+    notes = "; ".join(q.left_out)
+    assert "material.alpha1 = 200, 20000" in notes and "loading.u0_mm = 56 (runs 20)" in notes
+    assert "discretization.mesh_size_mm = 10 (runs 20)" in notes
+
+
+# --- studies on any scene, sweeps from the command line ------------------------------------------
+def test_study_on_a_scene_file_with_set(tmp_path, quick_cache, capsys):
+    from ngbet.cli import main
+
+    scene = tmp_path / "my.toml"
+    scene.write_text("[material]\nK_el = 1.0e6\n")
+    out = tmp_path / "a1"
+    rc = main(["study", "alpha1", str(scene), "--set", "material.alpha2=30", "--quick",
+               "--out", str(out), "--cache", str(quick_cache)])
+    assert rc == 0, capsys.readouterr().err
+    meta = load(out).meta
+    assert meta["base_scene"]["material"]["K_el"] == 1.0e6 and meta["base_scene"]["material"]["alpha2"] == 30
+    text = (out / "report.md").read_text()
+    assert f"the scene file {scene} with --set material.alpha2=30" in text
+    assert "study alpha1 --quick leaves out:" in capsys.readouterr().out  # said on the terminal too
+
+
+def test_sweep_is_a_study_with_the_cases_of_the_same_scenes(tmp_path, quick_cache, capsys):
+    from ngbet.cli import main
+
+    run_quick("alpha1", tmp_path, quick_cache)  # alpha1 = 20 and 2000 on the quick default scene
+    out = tmp_path / "sw"
+    assert main(["sweep", "material.alpha1=20,2000", "--quick", "--quiet", "--out", str(out),
+                 "--cache", str(quick_cache)]) == 0
+    d = load(out)
+    # the same scenes as the study's: found in the cache, nothing run
+    assert d.meta["executor"]["cases_run"] == 0 and d.meta["params"] == ["material.alpha1"]
+    assert [c["params"]["material.alpha1"] for c in d.cases()] == [20, 2000]
+    assert (out / "sweep_force.png").exists() and (out / "sweep_values.png").exists()
+    text = (out / "report.md").read_text()
+    assert "| material.alpha1 | status |" in text and "- Discretization: Netgen mesh of 20 mm, p = 2." in text
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["sweep", "material.nonsense=1,2"], "nonsense"),
+    (["sweep", "material.alpha1=-5,20"], "material.alpha1"),
+    (["sweep", "alpha1=20"], "section.key"),
+    (["study", "alpha1", "missing.toml"], "missing.toml"),
+    (["study", "reference", "--set", "model=discrete"], "model = 'discrete'"),
+])
+def test_bad_sweep_or_study_scene_is_exit_2_naming_it(tmp_path, capsys, argv, needle):
+    from ngbet.cli import main
+
+    assert main([*argv, "--quick", "--quiet", "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_sweep_values_with_brackets():
+    from ngbet.cli import _parse_value
+    from ngbet.studies.sweep import parse_items
+
+    axes, scene = parse_items(["loading.stops_mm=[10,20],[37]", "s.toml", "material.K_el=1e6,2e6"], _parse_value)
+    assert axes == {"loading.stops_mm": [[10, 20], [37]], "material.K_el": [1e6, 2e6]} and scene == "s.toml"
+
+
+# --- cache faults -------------------------------------------------------------------------------
+def test_a_live_studys_finished_unstored_case_survives_another_studys_start(tmp_path):
+    """A study whose case has finished (its run lock released) but is not yet stored, e.g. stopped by
+    SIGSTOP: a second study on the same cache must not take that folder for debris; stored later,
+    it verifies."""
+    from ngbet.study.cache import run_dir, study_lock
+    from ngbet.study.executors import accept, execute_case
+    from ngbet.study.keys import case_key
+    from ngbet.study.model import Case
+
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    scene = Scene().with_changes(**TINY, **{C.P: 3})
+    key = case_key(scene)
+    with study_lock(cache) as token:
+        wd = run_dir(cache, key, token)
+        rec = execute_case(scene.to_dict(), 1, str(wd))  # finished, not stored
+        assert rec["status"] == "ok" and (wd / "results.csv").exists()
+        other = run_study(tiny_study([{C.P: 1}]), tmp_path / "b", cache=cache, progress=False, workers=1)
+        assert other.cases()[0]["status"] == "ok"
+        assert (wd / "results.csv").exists()  # the live study's folder is still there
+        c = Case(0, {C.P: 3}, scene, key)
+        assert accept(cache, token, c, rec, wd)["status"] == "ok"
+    from ngbet.study import verify_case
+
+    assert verify_case(cache / key)["status"] == "ok"
+
+
+def test_a_case_is_never_ok_without_its_data(tmp_path, monkeypatch, caplog):
+    from ngbet.study import executors
+
+    real = executors.store
+
+    def lossy(cache, key, rec, token, workdir=None, files=None):
+        final = real(cache, key, rec, token, workdir=workdir, files=files)
+        (final / "results.csv").unlink()  # the data lost between the store and the count
+        return final
+    monkeypatch.setattr(executors, "store", lossy)
+    d = run_study(tiny_study([{C.P: 1}]), tmp_path / "o", cache=tmp_path / "c", progress=False, workers=1)
+    (case,) = d.cases()
+    assert case["status"] == "error" and "results.csv" in case["error"] and "not stored" in case["error"]
+
+
+def test_swapped_cache_folders_are_caught_by_their_own_keys(tmp_path, caplog):
+    cases = [{"material.alpha1": 20.0}, {"material.alpha1": 2000.0}]
+    d = run_study(tiny_study(cases), tmp_path / "a", cache=tmp_path / "c", progress=False, workers=1)
+    k0, k1 = (c["key"] for c in d.cases())
+    cache = tmp_path / "c"
+    (cache / k0).rename(cache / "swap")
+    (cache / k1).rename(cache / k0)
+    (cache / "swap").rename(cache / k1)
+    with caplog.at_level(logging.WARNING):
+        d2 = run_study(tiny_study(cases), tmp_path / "b", cache=cache, progress=False, workers=1)
+    warned = [r.getMessage() for r in caplog.records if "recomputed" in r.getMessage()]
+    assert len(warned) == 2 and all("swapped" in w for w in warned)
+    assert d2.meta["executor"]["cases_run"] == 2
+    for i in (0, 1):  # the right force under the right alpha1
+        assert d2.at(i, 10.0, "force_N") == pytest.approx(d.at(i, 10.0, "force_N"), rel=1e-10)
+    assert d2.at(0, 10.0, "force_N") < 0.8 * d2.at(1, 10.0, "force_N")
+
+
+def test_plot_only_on_a_truncated_meta_json_is_exit_2_one_line(tmp_path, quick_cache, capsys):
+    from ngbet.cli import main
+
+    out = tmp_path / "a1"
+    assert main(["study", "alpha1", "--quick", "--quiet", "--out", str(out), "--cache", str(quick_cache)]) == 0
+    meta = out / "meta.json"
+    meta.write_text(meta.read_text()[:200])
+    capsys.readouterr()
+    assert main(["study", "alpha1", "--quick", "--plot-only", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(meta) in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+def _immutable(folder):
+    """Make ``folder`` unwritable also for root (chattr +i); False where the file system cannot."""
+    folder.chmod(0o500)
+    return os.geteuid() != 0 or subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode == 0
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_read_only_cache_is_exit_3_naming_it_with_any_workers(tmp_path, capsys, workers):
+    from ngbet.cli import main
+
+    cache = tmp_path / "ro"
+    cache.mkdir()
+    if not _immutable(cache):
+        pytest.skip("this file system cannot make a folder unwritable for root")
+    try:
+        rc = main(["study", "alpha1", "--quick", "--quiet", "--workers", workers, "--out", str(tmp_path / "o"),
+                   "--cache", str(cache)])
+        err = capsys.readouterr().err
+        assert rc == 3 and str(cache) in err and err.count("\n") == 1, err
+    finally:
+        if os.geteuid() == 0:
+            subprocess.run(["chattr", "-i", str(cache)], check=True)
+        cache.chmod(0o700)
+
+
+def test_a_scheduler_without_workers_is_an_error_in_bounded_time(tmp_path, monkeypatch, capsys):
+    from distributed import LocalCluster
+
+    from ngbet.cli import main
+
+    monkeypatch.setenv("NGBET_DASK_WORKER_TIMEOUT_S", "2")
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=None) as cluster:
+        t0 = time.monotonic()
+        rc = main(["study", "alpha1", "--quick", "--quiet", "--out", str(tmp_path / "o"), "--cache",
+                   str(tmp_path / "c"), "--scheduler", cluster.scheduler_address])
+        assert rc == 3 and time.monotonic() - t0 < 30
+    err = capsys.readouterr().err
+    assert "no dask worker" in err and cluster.scheduler_address in err and err.count("\n") == 1
+
+
+def test_a_killed_dask_worker_ends_the_study_in_bounded_time_keeping_finished_cases(tmp_path, monkeypatch):
+    """The scheduler and one worker (no nanny to restart it) as separate processes; the worker is
+    SIGKILLed after the first case is stored, during the second, which is slow."""
+    from ngbet.study import SchedulerError, verify_case
+
+    monkeypatch.setenv("NGBET_DASK_WORKER_TIMEOUT_S", "3")
+    sfile = tmp_path / "scheduler.json"
+    env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
+    sched = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--scheduler-file",
+                              str(sfile), "--port", "0", "--dashboard-address", ":0"], env=env,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = None
+    try:
+        wait_until(sfile.exists)
+        worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file",
+                                   str(sfile), "--no-nanny", "--nthreads", "1", "--dashboard-address", ":0"],
+                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        address = json.loads(sfile.read_text())["address"]
+        cache = tmp_path / "c"
+        slow = {"loading.first_step_mm": 0.1, "loading.max_step_mm": 0.1, "solver.grow_after": 0}
+        study = tiny_study([{C.P: 1}, {C.P: 2, **slow}])
+        killer = threading.Thread(target=_kill_after_first_case, args=(cache, worker), daemon=True)
+        killer.start()
+        t0 = time.monotonic()
+        with pytest.raises(SchedulerError, match="1 finished cases are kept in the cache, 1 not run"):
+            run_study(study, tmp_path / "o", cache=cache, scheduler=address, progress=False)
+        assert time.monotonic() - t0 < 120
+        kept = [d for d in cache.iterdir() if not d.name.startswith(".")]
+        assert len(kept) == 1 and verify_case(kept[0])["status"] == "ok"
+        assert not [d for d in cache.iterdir() if d.name.startswith((".run", ".tmp"))]
+    finally:
+        for p in (worker, sched):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait()
+
+
+def _kill_after_first_case(cache, worker):
+    wait_until(lambda: cache.exists() and any(not d.name.startswith(".") for d in cache.iterdir()), 120)
+    time.sleep(0.5)
+    os.kill(worker.pid, signal.SIGKILL)
+
+
+def wait_until(cond, timeout=60.0):
+    t0 = time.monotonic()
+    while not cond():
+        assert time.monotonic() - t0 < timeout, "timed out"
+        time.sleep(0.05)
+
+
+# --- layout ---------------------------------------------------------------------------------------
+def _imports(path, module):
+    """The ngbet modules a file imports, at any depth (function-local imports included)."""
+    import ast
+
+    pkg = module.split(".")
+    if not path.name == "__init__.py":
+        pkg = pkg[:-1]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names if a.name.startswith("ngbet")}
+        elif isinstance(node, ast.ImportFrom):
+            base = pkg[: len(pkg) - node.level + 1] if node.level else []
+            mod = ".".join([*base, *(node.module.split(".") if node.module else [])])
+            if mod.startswith("ngbet"):
+                out.add(mod)
+                out |= {f"{mod}.{a.name}" for a in node.names}
+    return out
+
+
+def test_no_import_circle_in_the_study_code_and_small_modules():
+    import ngbet
+
+    root = Path(ngbet.__file__).parent
+    files = {}
+    for p in root.rglob("*.py"):
+        rel = p.relative_to(root.parent).with_suffix("")
+        name = ".".join(rel.parts[:-1] if p.name == "__init__.py" else rel.parts)
+        files[name] = p
+    import ngbet.studies
+
+    for p in Path(ngbet.studies.__file__).parent.glob("*.py"):  # wherever the studies are installed from
+        files["ngbet.studies" + ("" if p.name == "__init__.py" else f".{p.stem}")] = p
+    graph = {m: {i for i in _imports(p, m) if i in files and i != m} for m, p in files.items()}
+    ours = [m for m in files if m.startswith(("ngbet.study", "ngbet.studies"))]
+    for start in ours:  # depth-first: no path from a study module back to itself
+        stack, seen = [(start, [start])], set()
+        while stack:
+            m, path = stack.pop()
+            for n in graph[m]:
+                assert n != start, " -> ".join([*path, n])
+                if n not in seen:
+                    seen.add(n)
+                    stack.append((n, [*path, n]))
+    big = {m: n for m in ours if (n := len(files[m].read_text().splitlines())) > 500}
+    assert not big, big
+
+
+def test_every_package_is_installed_and_the_studies_come_from_the_top_level_folder():
+    """pyproject.toml lists the packages (discovery does not follow package-dir): a new subpackage
+    missing from the list would be left out of a plain ``pip install .`` without a word."""
+    import tomllib
+
+    repo = Path(__file__).resolve().parent.parent
+    conf = tomllib.loads((repo / "pyproject.toml").read_text())["tool"]["setuptools"]
+    found = {".".join(p.parent.relative_to(repo).parts) for p in (repo / "ngbet").rglob("__init__.py")}
+    assert set(conf["packages"]) == found | {"ngbet.studies"}
+    assert conf["package-dir"] == {"ngbet.studies": "studies"} and (repo / "studies" / "__init__.py").exists()
+    assert not (repo / "ngbet" / "studies").exists()
+
+
+def test_without_matplotlib_the_tables_and_report_are_written_and_one_line_says_so(tmp_path, quick_cache,
+                                                                                      monkeypatch, capsys):
+    import importlib.util
+
+    from ngbet.cli import main
+
+    out = tmp_path / "a1"
+    assert main(["study", "alpha1", "--quick", "--quiet", "--out", str(out), "--cache", str(quick_cache)]) == 0
+    for f in out.glob("*.p*"):
+        f.unlink()
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "matplotlib" else real(name, *a))
+    capsys.readouterr()
+    assert main(["study", "alpha1", "--quick", "--plot-only", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "figures skipped: matplotlib is not installed" in err and err.count("\n") == 1
+    assert (out / "report.md").exists() and not list(out.glob("*.png"))
+    assert "matplotlib" in load(out).meta["figures_skipped"]
+
+
+def test_stations_and_the_split_corner_family_follow_the_scenes_loading():
+    from ngbet.studies import reference
+
+    scene = Scene().with_changes(**{"loading.u0_mm": 40.0, "loading.stops_mm": [30.0]})
+    assert C.stations(False, scene) == (30.0, 40.0) and C.stations(True) == (10.0, 20.0)
+    study = reference.build(False, scene)
+    split = [c for c in study.cases if c.get(C.BISECT)]
+    assert split and all(c["loading.u0_mm"] == 30.0 and c["loading.stops_mm"] == [] for c in split)
+    assert study.profile_stations == (30.0, 40.0)
+
+
+@pytest.mark.slow
+def test_a_stopped_study_keeps_its_cases_when_another_starts_on_the_same_cache(tmp_path):
+    """The fault as an operator meets it: study A (2 workers) is stopped by SIGSTOP while its cases
+    run; study B runs to its end on the same cache; A, continued, ends "ok" with every case's data."""
+    env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
+    cache = tmp_path / "cache"
+    slow = ["--set", "loading.first_step_mm=0.25", "--set", "loading.max_step_mm=0.25", "--set", "solver.grow_after=0"]
+    a = subprocess.Popen([sys.executable, "-m", "ngbet", "study", "alpha1", "--quick", "--quiet", "--workers", "2",
+                          "--out", str(tmp_path / "a"), "--cache", str(cache), *slow], env=env,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_until(lambda: cache.exists() and any((d / "results.csv").exists() for d in cache.glob(".run-*")), 120)
+        os.kill(a.pid, signal.SIGSTOP)
+        running = [d.name for d in cache.glob(".run-*")]
+        # A's workers go on: B starts once they have finished their cases (no run lock held), the
+        # moment a study that stores its cases late would have them lying about unstored
+        from ngbet.output import RUN_LOCK
+        from ngbet.study.cache import held
+
+        wait_until(lambda: not any(held(d / RUN_LOCK) for d in cache.glob(".run-*")), 300)
+        b = subprocess.run([sys.executable, "-m", "ngbet", "study", "alpha1", "--quick", "--quiet", "--workers", "1",
+                            "--out", str(tmp_path / "b"), "--cache", str(cache)], env=env, capture_output=True,
+                           text=True, timeout=300)
+        assert b.returncode == 0, b.stderr
+        for name in running:  # each of A's folders is still there, or its case is stored
+            assert (cache / name).exists() or (cache / name.split("-")[1]).exists(), name
+    finally:
+        os.kill(a.pid, signal.SIGCONT)
+    out, err = a.communicate(timeout=300)
+    assert a.returncode == 0, err
+    d = load(tmp_path / "a")
+    assert [c["status"] for c in d.cases()] == ["ok", "ok"]
+    assert all(math.isfinite(d.at(c["case"], 20.0, "force_N")) for c in d.cases())

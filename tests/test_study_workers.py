@@ -8,19 +8,20 @@ import os
 
 import pytest
 
-from ngbet import study
 from ngbet.scene import Scene
+from ngbet.study import executors
+from ngbet.study.model import Case
 
 pytestmark = pytest.mark.skipif("forkserver" not in mp.get_all_start_methods(), reason="no fork server here")
 
 
 def pool_getenv(name: str) -> str | None:
     """``os.getenv(name)`` in a worker of a fresh study pool (its fork server may be older)."""
-    ctx = study._worker_context([study._Case(0, {}, Scene(), "k")])
+    ctx = executors.worker_context([Case(0, {}, Scene(), "k")])
     alive_r, alive_w = ctx.Pipe(duplex=False)
     env = {k: v for k, v in os.environ.items() if k.startswith("NGBET_")}
     try:
-        with cf.ProcessPoolExecutor(1, mp_context=ctx, initializer=study._worker_init,
+        with cf.ProcessPoolExecutor(1, mp_context=ctx, initializer=executors.worker_init,
                                     initargs=(alive_r, env)) as ex:
             return ex.submit(os.getenv, name).result(timeout=60)
     finally:

@@ -1,6 +1,6 @@
 """Two stable equilibria of one discretization at 37 mm: the load path against orders raised at the load.
 
-    python bench/two_equilibria.py [CORNER_MM] [P_START] [P_END]      (defaults 0.125 10 12)
+    python docs/research/two_equilibria.py [CORNER_MM] [P_START] [P_END]      (defaults 0.125 10 12)
 
 The default scene on the 20 mm mesh graded to CORNER_MM at the clamp corners (Lagrange constraint,
 error estimate off). State L: order P_END loaded from 0 to 37 mm by the load path of ``ngbet run``.

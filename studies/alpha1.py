@@ -15,24 +15,26 @@ from pathlib import Path
 
 import numpy as np
 
+from ngbet.scene import Scene
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
+from . import reference as R
 
 A1 = "material.alpha1"
 FULL = (20.0, 200.0, 2000.0, 20000.0)
 QUICK = (20.0, 2000.0)
 
 
-def build(quick: bool = False) -> Study:
-    base = C.base_scene(quick, **({C.H: 20.0} if quick else {}))
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    base = C.study_scene(scene, quick)
     cases = [{A1: a} for a in (QUICK if quick else FULL)]
     return Study("alpha1", base, cases, description=__doc__ or "", plot=lambda d: plot(d, quick),
-                 report=lambda d: report(d, quick), profile_stations=C.stations(quick))
+                 report=lambda d: report(d, quick), profile_stations=C.stations(quick, base))
 
 
 def analyse(data: StudyData, quick: bool) -> list[dict]:
-    s2 = C.stations(quick)[1]
+    s2 = C.stations(quick, data)[1]
     a2 = data.meta["base_scene"]["material"]["alpha2"]
     out = []
     for c in data.meta["cases"]:
@@ -48,9 +50,10 @@ def analyse(data: StudyData, quick: bool) -> list[dict]:
 
 
 def report(data: StudyData, quick: bool) -> str:
-    s2 = C.stations(quick)[1]
+    s2 = C.stations(quick, data)[1]
     rows = analyse(data, quick)
-    L = [f"# alpha1 sweep at u0 = {s2:g} mm (alpha2 = {data.meta['base_scene']['material']['alpha2']:g} Pa m^2)", "",
+    L = [*C.header(data, f"alpha1 sweep at u0 = {s2:g} mm (alpha2 = "
+                   f"{data.meta['base_scene']['material']['alpha2']:g} Pa m^2)", R.reference_text(data, quick)),
          "| alpha1 [Pa m^2] | l1 = sqrt(alpha1/K_sh) [mm] | F [N] | max abs(u_y) on the mid-axis [mm] "
          "| u_y(L/4) [mm] | odd-symmetry residual [mm] |",
          "|---|---|---|---|---|---|"]
@@ -65,8 +68,8 @@ def report(data: StudyData, quick: bool) -> str:
 def plot(data: StudyData, quick: bool) -> list[Path]:
     import matplotlib.pyplot as plt
 
-    s2 = C.stations(quick)[1]
-    fig, ax = plt.subplots(figsize=(7, 4))
+    s2 = C.stations(quick, data)[1]
+    fig, ax = plt.subplots(layout="constrained", figsize=(7, 4))
     for j, r in enumerate(analyse(data, quick)):
         X, uy = data.profile(r["case"], s2)
         ax.plot(X, uy, color=f"C{j}", lw=2.5 if r["balanced"] else 1.5,
@@ -76,7 +79,6 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     ax.set_ylabel(f"u_y on the mid-axis [mm] at u0 = {s2:g} mm")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
     return [savefig(fig, data.out, "alpha1_profiles")]
 
 

@@ -15,21 +15,22 @@ from pathlib import Path
 
 import numpy as np
 
+from ngbet.scene import Scene
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
+from . import reference as R
 
 KEL = "material.K_el"
 FULL = (0.1e6, 0.3e6, 0.7e6, 2e6, 7e6)
 QUICK = (0.2e6, 2e6)
 
 
-def build(quick: bool = False) -> Study:
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
     u0 = 20.0 if quick else 37.0
-    base = C.base_scene(quick, **{"loading.u0_mm": u0, "loading.stops_mm": [], "outputs.vtk": True,
-                                  **({C.H: 20.0} if quick else {})})
+    base = C.study_scene(scene, quick, {"loading.u0_mm": u0, "loading.stops_mm": [], "outputs.vtk": True})
     return Study("kel", base, [{KEL: k} for k in (QUICK if quick else FULL)], description=__doc__ or "",
-                 extract=extract, plot=plot, report=report, profile_stations=(u0,))
+                 extract=extract, plot=plot, report=lambda d: report(d, quick), profile_stations=(u0,))
 
 
 def extract(rec: dict, run_dir: Path, out: Path) -> dict:
@@ -70,9 +71,9 @@ def widths(data: StudyData) -> list[dict]:
     return out
 
 
-def report(data: StudyData) -> str:
+def report(data: StudyData, quick: bool = False) -> str:
     u0 = data.meta["base_scene"]["loading"]["u0_mm"]
-    L = [f"# K_el sweep at u0 = {u0:g} mm", "",
+    L = [*C.header(data, f"K_el sweep at u0 = {u0:g} mm", R.reference_text(data, quick)),
          "| K_el [MPa] | width at X = L/2 [mm] | shear angle at the centre [deg] | "
          "length of the central zone, shear >= 90 % of the centre's [mm] | F [N] |", "|---|---|---|---|---|"]
     for r in widths(data):
@@ -85,7 +86,7 @@ def plot(data: StudyData) -> list[Path]:
     import matplotlib.pyplot as plt
 
     u0 = data.meta["base_scene"]["loading"]["u0_mm"]
-    fig, ax = plt.subplots(figsize=(10, 4))
+    fig, ax = plt.subplots(layout="constrained", figsize=(10, 4))
     for j, r in enumerate(widths(data)):
         pts = [q for q in data.tables.get("outlines", []) if int(q["case"]) == r["case"]]
         if pts:
@@ -93,13 +94,12 @@ def plot(data: StudyData) -> list[Path]:
                     label=f"K_el = {r['K_el'] / 1e6:g} MPa (width at centre {r['width_mm']:.1f} mm)")
     L = data.meta["base_scene"]["specimen"]["length_mm"]
     W = data.meta["base_scene"]["specimen"]["width_mm"]
-    ax.plot([0, L, L, 0, 0], [0, 0, W, W, 0], "k:", lw=0.8, label="reference")
+    ax.plot([0, L, L, 0, 0], [0, 0, W, W, 0], "k:", lw=0.8, label="undeformed specimen")
     ax.set_aspect("equal")
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
     ax.set_title(f"deformed outlines at u0 = {u0:g} mm")
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=2)
-    fig.tight_layout()
     return [savefig(fig, data.out, "kel_outlines")]
 
 

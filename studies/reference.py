@@ -31,7 +31,7 @@ and 0.25 mm families. Corners split more finely stop before 37 mm at all orders 
 (bisected three times: 27.4 mm at p = 14; the 0.5 mm grading bisected twice: 36.0 and 27.6 mm at
 p = 8 and 12, 61.21181 N at p = 10). The bound holds the 1.5e-4 N between the two corner states
 one discretization can have at 37 mm: the split family's p = 14 loaded in 2 mm steps, the
-unsplit p = 12 and 14 raised one order at a time at the load (bench/two_equilibria.py).
+unsplit p = 12 and 14 raised one order at a time at the load (docs/research/two_equilibria.py).
 
 Checks, not part of the study: the 10 mm mesh with 0.25 mm corners at p = 4 … 8 (the family
 this one replaces) extrapolates to 107.2375 N (its own bound 0.0052 N); at p = 6 halving the
@@ -52,18 +52,21 @@ from __future__ import annotations
 
 import math
 import sys
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ngbet.study import MissingValueError, Study, StudyData, main_for, savefig
+from ngbet.output import read_rows
+from ngbet.scene import Scene, SceneWarning
+from ngbet.study import CacheError, MissingValueError, Study, StudyData, case_key, main_for, savefig, verify_case
 
 from . import _common as C
 
-GRADE = "discretization.corner_mesh_size_mm"
-BISECT = "discretization.corner_bisections"
+GRADE = C.GRADE
+BISECT = C.BISECT
 OFF = {"outputs.error_estimate": "off"}
 #: (corner size [mm], p) on the :data:`REF_H` mesh (p = 7 stops at 55.7 mm there)
 REF_FAMILY = tuple((0.25, p) for p in (4, 5, 6, 8, 9, 10))
@@ -72,7 +75,6 @@ REF_H = 20.0
 #: times, loaded to the first station only, where it gives the reference (it stops before 56 mm)
 FINE_FAMILY = tuple((1.0, p) for p in range(6, 15))
 FINE_BISECTIONS = 2
-TO_37 = {"loading.u0_mm": 37.0, "loading.stops_mm": []}
 HP_FAMILY = ((2.5, 2), (1.0, 3), (0.5, 4), (0.25, 5))
 GRADED_P2 = ((2.5, 2), (1.0, 2), (0.5, 2), (0.25, 2))
 UNIFORM_P2 = (20.0, 10.0, 5.0)
@@ -80,7 +82,7 @@ QUICK_REF = ((0.5, 2), (0.5, 3), (0.5, 4))
 
 
 def graded(c: float, p: int, h: float = 10.0) -> dict[str, Any]:
-    return {**C.lagrange(h, p), GRADE: float(c), **OFF}
+    return {**C.lagrange(h, p, c), **OFF}
 
 
 def families(quick: bool) -> dict[str, list[dict[str, Any]]]:
@@ -93,17 +95,25 @@ def families(quick: bool) -> dict[str, list[dict[str, Any]]]:
             "hp": [graded(c, p) for c, p in HP_FAMILY]}
 
 
-def fine_family(quick: bool) -> list[dict[str, Any]]:
-    """The cases of :data:`FINE_FAMILY` (none in quick mode)."""
-    return [] if quick else [{**graded(c, p, REF_H), BISECT: FINE_BISECTIONS, **TO_37} for c, p in FINE_FAMILY]
+def fine_family(quick: bool, s1: float = 37.0) -> list[dict[str, Any]]:
+    """The cases of :data:`FINE_FAMILY`, loaded to the first station ``s1`` only (none in quick mode)."""
+    to_s1 = {"loading.u0_mm": float(s1), "loading.stops_mm": []}
+    return [] if quick else [{**graded(c, p, REF_H), BISECT: FINE_BISECTIONS, **to_s1} for c, p in FINE_FAMILY]
 
 
-def build(quick: bool = False) -> Study:
+
+def orders(quick: bool) -> list[int]:
+    """The orders p of the reference family."""
+    return [p for _, p in (QUICK_REF if quick else REF_FAMILY)]
+
+
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    base = C.require_continuum(C.study_scene(scene, quick, C.FREE_ORDERS), "reference")
     fam = families(quick)
-    cases = C.unique([c for cs in fam.values() for c in cs] + fine_family(quick))
-    return Study("reference", C.base_scene(quick), cases, description=__doc__ or "",
+    cases = C.unique([c for cs in fam.values() for c in cs] + fine_family(quick, C.stations(quick, base)[0]))
+    return Study("reference", base, cases, description=__doc__ or "",
                  plot=lambda d: plot(d, quick), report=lambda d: report(d, quick),
-                 profile_stations=C.stations(quick))
+                 profile_stations=C.stations(quick, base))
 
 
 def aitken(F: Sequence[float]) -> tuple[float, float]:
@@ -180,38 +190,139 @@ def _fits(p: np.ndarray, F: Sequence[float]) -> list[tuple[float, float]]:
 
 
 def _case(data: StudyData, prm: dict[str, Any]) -> int | None:
-    keys = {k: v for k, v in prm.items() if k != "outputs.error_estimate"}
-    for c in data.find(**keys):
-        if C.ok(data, c):
-            return c
-    return None
+    """The case with exactly the parameters ``prm``, when it finished ok."""
+    c = data.case(prm)
+    return c if c is not None and C.ok(data, c) else None
 
 
 def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
-    """The reference force at both stations with its bound, and the reference profile at the second."""
+    """The scene's reference force at both stations with its bound, and the reference profile.
+
+    ``out[s]`` is the reference at the station ``s``: the corner-graded p-family's extrapolation,
+    at the first station that of the split-corner family (:data:`FINE_FAMILY`) when its cases are in
+    the study or in the cache (the same value whichever study asks). ``out["family"][s]``: the
+    corner-graded family's own extrapolation at every station.
+    """
     fam = families(quick)["reference"]
     cs = [_case(data, p) for p in fam]
     missing = [p for p, c in zip(fam, cs, strict=True) if c is None]
     if missing:
         raise MissingValueError("reference cases missing or failed (no reference from an incomplete family): "
                                 + "; ".join(", ".join(f"{k}={v}" for k, v in p.items()) for p in missing))
-    out: dict[Any, Any] = {"cases": cs}
-    for s in C.stations(quick):
+    out: dict[Any, Any] = {"cases": cs, "family": {}}
+    for s in C.stations(quick, data):
         forces = [data.at(c, s, "force_N") for c in cs]  # type: ignore[arg-type]
-        F, bound = extrapolate(forces, [p for _, p in (QUICK_REF if quick else REF_FAMILY)])
-        out[s] = {"force_N": F, "bound_N": bound, "forces_N": forces}
-    s2 = C.stations(quick)[1]
+        if not all(math.isfinite(f) for f in forces):
+            raise MissingValueError(f"no reference: the force at u0 = {s:g} mm of the reference cases {cs} is "
+                                    f"{forces} (a case stopped before that load)")
+        F, bound = extrapolate(forces, orders(quick))
+        out["family"][s] = out[s] = {"force_N": F, "bound_N": bound, "forces_N": forces}
+    s1, s2 = C.stations(quick, data)
     X, uy = data.profile(cs[-1], s2)  # type: ignore[arg-type]
     _, uy5 = data.profile(cs[-2], s2)  # type: ignore[arg-type]
     out["X_mm"], out["uy_mm"] = list(X), list(uy)
     out["profile_bound_mm"] = float(np.max(np.abs(np.subtract(uy, uy5))))
-    fine = [_case(data, p) for p in fine_family(quick)]
-    if fine and all(c is not None for c in fine):  # the reference study runs them, work_precision not
-        s1 = C.stations(quick)[0]
+    fine = [_case(data, p) for p in fine_family(quick, s1)]
+    if fine and all(c is not None for c in fine):  # the reference study runs them
         forces = [data.at(c, s1, "force_N") for c in fine]  # type: ignore[arg-type]
+    else:  # the other studies find them in the cache when the reference study ran on this scene
+        forces = _cached_forces(data, fine_family(quick, s1), (s1,)).get(s1, [])
+    if forces and all(math.isfinite(f) for f in forces):
         F, bound = extrapolate(forces, [p for _, p in FINE_FAMILY])
-        out["fine"] = {"force_N": F, "bound_N": bound, "forces_N": forces, "station": s1}
+        out["fine"] = out[s1] = {"force_N": F, "bound_N": bound, "forces_N": forces, "station": s1}
     return out
+
+
+def _cached_forces(data: StudyData, cases: list[dict[str, Any]], stations: Sequence[float]) -> dict[float, list]:
+    """The forces of ``cases`` over the study's base scene at ``stations``, from the cache; {} if one is missing.
+
+    Found by their cache keys and verified like any cached case: a reference is never computed
+    from an incomplete or damaged family.
+    """
+    cache = data.meta.get("cache")
+    if not cache or not cases:
+        return {}
+    with warnings.catch_warnings():  # the base was warned about where it was read
+        warnings.simplefilter("ignore", SceneWarning)
+        base = Scene.from_dict(data.meta["base_scene"]).with_changes(**C.FREE_ORDERS)
+        dirs = [Path(cache) / case_key(base.with_changes(**prm)) for prm in cases]
+    forces: dict[float, list[float]] = {s: [] for s in stations}
+    for run_dir in dirs:
+        try:
+            if verify_case(run_dir)["status"] != "ok":
+                return {}
+        except CacheError:
+            return {}
+        rows = read_rows(run_dir / "results.csv")
+        for s in stations:
+            forces[s] += [float(r["force_N"]) for r in rows if abs(float(r["u0_mm"]) - s) < 1e-6]
+    return forces if all(len(v) == len(cases) for v in forces.values()) else {}
+
+
+def of_scene(data: StudyData, quick: bool) -> dict[float, dict[str, float]] | None:
+    """The reference of a study's base scene from the reference cases in its cache, or None.
+
+    The cases are those :func:`build` runs for the same scene, the values those of :func:`reference`
+    (at the first station the split-corner family's when it is cached). None when a case of the
+    corner-graded family is missing, failed or damaged.
+    """
+    s1, s2 = C.stations(quick, data)
+    forces = _cached_forces(data, families(quick)["reference"], (s1, s2))
+    if not forces:
+        return None
+    out = {}
+    for s, F in forces.items():
+        f, bound = extrapolate(F, orders(quick))
+        out[s] = {"force_N": f, "bound_N": bound}
+    fine = _cached_forces(data, fine_family(quick, s1), (s1,))
+    if fine:
+        f, bound = extrapolate(fine[s1], [p for _, p in FINE_FAMILY])
+        out[s1] = {"force_N": f, "bound_N": bound}
+    return out
+
+
+def reference_text(data: StudyData, quick: bool) -> str:
+    """The reference line of a report for a study that does not compute the reference itself.
+
+    With the reference found, the deviation of the study's own case of the base scene (the case
+    whose changes leave the base as it is), when it has one: the error of its discretization.
+    """
+    ref = of_scene(data, quick)
+    if ref is None:
+        lo = data.meta["base_scene"]["loading"]
+        stops = ", ".join(f"{x:g}" for x in lo["stops_mm"]) or "none"
+        return (f"none in the cache for this study's base scene as loaded here (to {lo['u0_mm']:g} mm, stops: "
+                f"{stops} mm); `ngbet study reference` on that scene, with the same `--quick` and `--cache`, "
+                "computes it, and this report then names it.")
+    text = ("`ngbet study reference` of this scene (from the cache): "
+            + ", ".join(f"F({s:g} mm) = {r['force_N']:.4f} N ± {r['bound_N']:.2g} N" for s, r in ref.items()) + ".")
+    if data.meta["base_scene"].get("effects", {}).get("constraint") != "lagrange":
+        text += " It is the limit of the exact constraint (Lagrange multiplier), which the reference family uses."
+    base = _base_case(data)
+    if base is not None:
+        devs = [(s, data.at(base, s, "force_N"), r["force_N"]) for s, r in ref.items()]
+        devs = [(s, F, R0) for s, F, R0 in devs if math.isfinite(F)]
+        if devs:
+            text += (f" The base scene's case of this study (case {base}) is off by "
+                     + ", ".join(f"{100 * (F - R0) / R0:+.2g} % at {s:g} mm" for s, F, R0 in devs) + ".")
+    return text
+
+
+def _base_case(data: StudyData) -> int | None:
+    """The ok case whose parameters are the base scene's own values (None when no case is)."""
+    base = data.meta["base_scene"]
+    for c in data.cases():
+        if c["status"] != "ok":
+            continue
+        same = True
+        for key, v in c["params"].items():
+            section, _, name = key.partition(".")
+            have = base.get(section, {}).get(name) if name else base.get(section)
+            same = same and have is not None and (have == v or (isinstance(v, (int, float)) and not isinstance(
+                v, bool) and isinstance(have, (int, float)) and math.isclose(float(have), float(v), rel_tol=1e-12)))
+        if same:
+            return int(c["case"])
+    return None
 
 
 def profile_error_max(uy: Sequence[float], ref: Sequence[float]) -> float:
@@ -236,7 +347,7 @@ def fits(dofs: Sequence[float], err: Sequence[float]) -> dict[str, float]:
 
 def analyse(data: StudyData, quick: bool) -> dict[str, Any]:
     ref = reference(data, quick)
-    s2 = C.stations(quick)[1]
+    s2 = C.stations(quick, data)[1]
     F0 = ref[s2]["force_N"]
     fam: dict[str, list[dict[str, Any]]] = {}
     for name, cases in families(quick).items():
@@ -260,14 +371,17 @@ def report(data: StudyData, quick: bool) -> str:
     a = analyse(data, quick)
     ref = a["ref"]
     orders = [p for _, p in (QUICK_REF if quick else REF_FAMILY)]
-    L = ["# Reference-grade solution of the paper's scene", "",
-         f"The mesh graded at the clamp corners, p = {', '.join(map(str, orders))}: the middle of the "
+    L = [*C.header(data, "Reference-grade solution of the scene", "computed here (below): "
+                   + ", ".join(f"F({s:g} mm) = {ref[s]['force_N']:.4f} N ± {ref[s]['bound_N']:.2g} N"
+                               for s in C.stations(quick, data)) + "."),
+         f"The {REF_H if not quick else 20.0:g} mm mesh graded at the clamp corners, "
+         f"p = {', '.join(map(str, orders))}: the middle of the "
          "range of the extrapolations (geometric and algebraic fits in p to the sequence and its tails); "
          "bound = half that range plus the largest fit residual.", "",
          "| u0 [mm] | " + " | ".join(f"F(p={p}) [N]" for p in orders) + " | reference [N] | bound [N] | bound [%] |",
          "|---|" + "---|" * len(orders) + "---|---|---|"]
-    for s in C.stations(quick):
-        r = ref[s]
+    for s in C.stations(quick, data):
+        r = ref["family"][s]
         L.append(f"| {s:g} | " + " | ".join(f"{f:.5f}" for f in r["forces_N"])
                  + f" | {r['force_N']:.5f} | {r['bound_N']:.2g} | {100 * r['bound_N'] / r['force_N']:.2g} |")
     fine = ref.get("fine")
@@ -277,8 +391,8 @@ def report(data: StudyData, quick: bool) -> str:
               f"{', '.join(str(p) for _, p in FINE_FAMILY)}: "
               + ", ".join(f"{f:.5f}" for f in fine["forces_N"])
               + f" N: **{fine['force_N']:.5f} N ± {fine['bound_N']:.2g} N** "
-              f"(the 0.25 mm family above: {ref[fine['station']]['force_N']:.5f} N ± "
-              f"{ref[fine['station']]['bound_N']:.2g} N)."]
+              f"(the 0.25 mm family above: {ref['family'][fine['station']]['force_N']:.5f} N ± "
+              f"{ref['family'][fine['station']]['bound_N']:.2g} N)."]
     L += ["", f"Reference profile (p = {orders[-1]}) at {a['s2']:g} mm: "
           f"max |u_y| = {np.max(np.abs(ref['uy_mm'])):.4f} mm, bound {ref['profile_bound_mm']:.2g} mm.", "",
           "## Convergence at the second station", "",
@@ -302,17 +416,27 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     import matplotlib.pyplot as plt
 
     a = analyse(data, quick)
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    for name, m in (("uniform", "o-"), ("graded", "s-"), ("hp", "*-")):
-        pts = a["fam"][name]
-        if pts:
-            ax.loglog([p["dofs"] for p in pts], [max(p["err"], 1e-9) for p in pts], m, label=name)
+    fig, ax = plt.subplots(layout="constrained", figsize=(6.5, 5.0))
     r2 = a["ref"][a["s2"]]
-    ax.axhline(r2["bound_N"] / r2["force_N"], color="grey", ls=":", label="reference bound")
+    bound = r2["bound_N"] / r2["force_N"]
+    names = {"uniform": "uniform mesh, p = 2", "graded": "corner-graded, p = 2", "hp": "hp (corner and p together)"}
+    for j, (name, m) in enumerate((("uniform", "o"), ("graded", "s"), ("hp", "*"))):
+        pts = [p for p in a["fam"][name] if p["err"] > 0]
+        if not pts:
+            continue
+        ax.loglog([p["dofs"] for p in pts], [p["err"] for p in pts], "-", color=f"C{j}", lw=1)
+        for below in (False, True):  # below the bound: open markers, the error is not resolved there
+            sel = [p for p in pts if (p["err"] < bound) == below]
+            ax.plot([p["dofs"] for p in sel], [p["err"] for p in sel], m, color=f"C{j}", ls="",
+                    mfc="none" if below else f"C{j}", label=None if below else names[name])
+    low = min([p["err"] for name in names for p in a["fam"][name] if p["err"] > 0] + [bound]) / 3
+    ax.axhspan(low, bound, color="grey", alpha=0.15, label="below the reference's bound (open markers: not resolved)")
+    ax.set_ylim(low, None)
+    ax.set_title(f"reference F({a['s2']:g} mm) = {r2['force_N']:.4f} N ± {r2['bound_N']:.2g} N", fontsize=9)
     ax.set_xlabel("dofs")
     ax.set_ylabel(f"relative error of the force at {a['s2']:g} mm")
     ax.grid(alpha=0.3, which="both")
-    ax.legend()
+    fig.legend(loc="outside lower center", ncol=2, fontsize=8)
     return [savefig(fig, data.out, "reference_convergence")]
 
 

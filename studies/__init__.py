@@ -1,11 +1,14 @@
 """Parameter studies of ngbet: one module per study, each runnable as ``python -m ngbet.studies.NAME``.
 
-Each module defines ``build(quick: bool) -> ngbet.study.Study`` and ``main``. ``ngbet study NAME``
-runs the same thing. See docs/studies.md.
+This folder is the package ``ngbet.studies`` (installed from the top-level ``studies/`` of the
+repository). Each module defines ``build(quick: bool = False, scene: Scene | None = None) ->
+ngbet.study.Study`` (``scene``: the base scene, default ``ngbet.default_scene()``) and ``main``.
+``ngbet study NAME [scene.toml] [--set ...]`` runs the same thing. A new study is a module here
+and one line in :data:`STUDIES`, the one list of the studies. See docs/studies.md.
 """
 
 STUDIES = {
-    "penalty_p": "penalty K x p (and h) convergence against the Lagrange solution and a reference",
+    "penalty_p": "penalty K x p (and h) convergence against the Lagrange solution and the scene's reference",
     "work_precision": "error of the force and of the mid-axis profile at 56 mm versus wall time",
     "alpha1": "alpha1 sweep at 56 mm, including the balanced fabric alpha1 = alpha2",
     "kel": "K_el sweep at 37 mm: deformed outlines",

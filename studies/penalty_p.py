@@ -1,8 +1,9 @@
 """Penalty K together with p- and h-refinement (paper, appendix A, and beyond).
 
 For each mesh size h and order p: the Lagrange-multiplier solution and the (mixed) penalty
-solution for K from about 10 K_sh to 1e12 Pa, all against a reference (Richardson extrapolation
-of the Lagrange force over h, h/2, h/4 at the highest order, see ``_common.reference``).
+solution for K from about 10 K_sh to 1e12 Pa, all against the scene's reference: the one of
+``ngbet study reference`` (its p-family on the corner-graded mesh runs as part of this study and is
+left out of the tables), the same value every study compares with.
 
 Two error sources, measured apart:
 - penalty error: |F_K(h, p) - F_Lagrange(h, p)| on the same mesh and order (expected ∝ 1/K);
@@ -23,52 +24,58 @@ from typing import TypedDict
 
 import numpy as np
 
+from ngbet.scene import Scene
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
+from . import reference as R
 
 
 class Grid(TypedDict):
-    """The cases of the study: mesh sizes, orders, penalties, the reference's meshes and the profiled case."""
+    """The cases of the study: mesh sizes, orders, penalties and the profiled case."""
 
     h: tuple[float, ...]
     p: tuple[int, ...]
     K: tuple[float, ...]
-    ref_p: int
-    ref_h: tuple[float, ...]
     profile_case: tuple[float, int]
 
 
 FULL: Grid = {"h": (10.0, 5.0), "p": (1, 2, 3, 4, 5), "K": (2e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12),
-              "ref_p": 4, "ref_h": (10.0, 5.0, 2.5), "profile_case": (5.0, 2)}
-QUICK: Grid = {"h": (20.0,), "p": (1, 2), "K": (1e6, 1e8, 1e9, 1e10), "ref_p": 3, "ref_h": (20.0, 10.0, 5.0),
-               "profile_case": (20.0, 2)}
+              "profile_case": (5.0, 2)}
+QUICK: Grid = {"h": (20.0,), "p": (1, 2), "K": (1e6, 1e8, 1e9, 1e10), "profile_case": (20.0, 2)}
 # penalty slopes are fitted where the penalty error is asymptotic and above round-off
 FIT_K = (1e8, 1e11)
 
 
-def build(quick: bool = False) -> Study:
-    g = QUICK if quick else FULL
+def own_cases(g: Grid) -> list[dict]:
+    """The study's own cases: Lagrange and penalty on each (h, p)."""
     cases = []
     for h in g["h"]:
         for p in g["p"]:
             cases.append(C.lagrange(h, p))
             cases += [C.penalty(h, p, k) for k in g["K"]]
-    cases += [C.lagrange(h, g["ref_p"]) for h in g["ref_h"]]
-    s1, s2 = C.stations(quick)
-    return Study("penalty_p" + ("" if not quick else ""), C.base_scene(quick), C.unique(cases),
+    return cases
+
+
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    g = QUICK if quick else FULL
+    cases = own_cases(g) + R.families(quick)["reference"]
+    base = C.require_continuum(C.study_scene(scene, quick, C.FREE_ORDERS), "penalty_p")
+    return Study("penalty_p", base, C.unique(cases),
                  description=__doc__ or "", plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
-                 profile_stations=(s1, s2))
+                 profile_stations=C.stations(quick, base))
 
 
 def analyse(data: StudyData, g: Grid, quick: bool) -> dict:
-    s1, s2 = C.stations(quick)
-    ref = C.reference(data, s2, g["ref_p"], g["ref_h"])
-    ref1 = C.reference(data, s1, g["ref_p"], g["ref_h"])
+    s1, s2 = C.stations(quick, data)
+    R_ = R.reference(data, quick)
+    ref = {**R_[s2], "uy_mm": R_["uy_mm"]}
+    ref1 = R_[s1]
+    own = own_cases(g)
     rows = []
     for c in data.meta["cases"]:
         i, prm = c["case"], c["params"]
-        if prm.get(C.CON) is None or prm.get(C.H) not in g["h"] or prm.get(C.P) not in g["p"]:
+        if prm not in own:  # the reference family: not one of the study's (h, p, K)
             continue
         h, p = prm[C.H], int(prm[C.P])
         lag_i = C.lagrange_case(data, h, p)
@@ -109,20 +116,20 @@ def analyse(data: StudyData, g: Grid, quick: bool) -> dict:
                                                    [lag[(h, p)]["err_ref"] for p in ps]),
                       "successive": [math.log(lag[(h, a)]["err_ref"] / lag[(h, b)]["err_ref"]) / math.log(b / a)
                                      if lag[(h, b)]["err_ref"] > 0 else math.nan for a, b in itertools.pairwise(ps)]}
-    return {"ref": ref, "ref1": ref1, "rows": rows, "slopes": slopes, "orders_h": orders_h, "rates_p": rates_p,
-            "kstar": kstar, "stations": (s1, s2)}
+    return {"ref": ref, "ref1": ref1, "ref1_split": "fine" in R_, "ref_cases": R_["cases"], "rows": rows,
+            "slopes": slopes, "orders_h": orders_h, "rates_p": rates_p, "kstar": kstar, "stations": (s1, s2)}
 
 
 def report(data: StudyData, g: Grid, quick: bool) -> str:
     a = analyse(data, g, quick)
     s1, s2 = a["stations"]
     ref = a["ref"]
-    L = [f"# Penalty K x p (x h) at u0 = {s1:g} and {s2:g} mm", "",
-         f"Reference: Richardson extrapolation of the Lagrange force, p = {ref['p']}, h = {ref['hs']} mm: "
-         f"F({s2:g}) = {ref['force_N']:.4f} N (meshes: {', '.join(f'{f:.4f}' for f in ref['forces_N'])} N; "
-         f"observed order in h {C.fmt(ref['order'], '.2f')}; extrapolation step, taken as its uncertainty, "
-         f"{ref['uncertainty_N']:.3g} N = {100 * ref['uncertainty_N'] / ref['force_N']:.2g} %); "
-         f"F({s1:g}) = {a['ref1']['force_N']:.4f} N.", "",
+    text = (f"`ngbet study reference` of this scene (p = {', '.join(map(str, R.orders(quick)))} on the "
+            f"corner-graded mesh, run as part of this study): F({s1:g}) = {a['ref1']['force_N']:.4f} N "
+            f"± {a['ref1']['bound_N']:.2g} N"
+            + (" (the split-corner family's, from the cache)" if a["ref1_split"] else "")
+            + f", F({s2:g}) = {ref['force_N']:.4f} N ± {ref['bound_N']:.2g} N.")
+    L = [*C.header(data, f"Penalty K x p (x h) at u0 = {s1:g} and {s2:g} mm", text),
          "## Lagrange solutions (discretization error)", "",
          f"| h [mm] | p | dofs | F({s1:g}) [N] | F({s2:g}) [N] | error vs ref | profile error vs ref "
          "| Newton its | time [s] |",
@@ -131,8 +138,11 @@ def report(data: StudyData, g: Grid, quick: bool) -> str:
         L.append(f"| {r['h']:g} | {r['p']} | {r['dofs']:.0f} | {C.fmt(r['F1'], '.4f')} | "
                  f"{C.fmt(r['F2'], '.4f')} | "
                  f"{100 * r['err_ref']:.3g} % | {100 * r['prof_ref']:.3g} % | {r['its']} | {r['time']:.2f} |")
-    L += ["", "Observed order of the force error in h (slope of log error vs log h, per p): "
-          + ", ".join(f"p={p}: {C.fmt(q, '.2f')}" for p, q in a["orders_h"].items()),
+    L += ["", ("Observed order of the force error in h (slope of log error vs log h, per p): "
+               + ", ".join(f"p={p}: {C.fmt(q, '.2f')}" for p, q in a["orders_h"].items()) + "."
+               if a["orders_h"] else
+               "Observed order in h: none, the grid has one mesh size "
+               f"(h = {', '.join(f'{h:g}' for h in g['h'])} mm)."),
           "", "Rate in p (slope of log error vs log dofs at fixed h; "
           "successive p-orders log(e_p/e_p+1)/log((p+1)/p)): "
           + "; ".join(f"h={h:g}: {C.fmt(v['dofs_slope'], '.2f')} "
@@ -174,7 +184,7 @@ def _plot_profiles(data: StudyData, g: Grid, a: dict) -> Path:
 
     s2 = a["stations"][1]
     h0, p0 = g["profile_case"]
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(layout="constrained", figsize=(7, 4))
     cmap = plt.get_cmap("viridis")
     pen = sorted((r for r in a["rows"] if r["h"] == h0 and r["p"] == p0 and r["method"] == "penalty"
                   and r["status"] == "ok"), key=lambda r: r["K"])
@@ -189,7 +199,6 @@ def _plot_profiles(data: StudyData, g: Grid, a: dict) -> Path:
     ax.set_title(f"penalty -> Lagrange (h = {h0:g} mm, p = {p0})")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    fig.tight_layout()
     return savefig(fig, data.out, "penalty_profiles")
 
 
@@ -197,7 +206,7 @@ def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, s
     """Penalty error, total error and constraint violation against K, one line per (h, p)."""
     import matplotlib.pyplot as plt
 
-    fig, axs = plt.subplots(1, 3, figsize=(15, 4.3))
+    fig, axs = plt.subplots(1, 3, layout="constrained", figsize=(15, 4.3))
     for h in g["h"]:
         for p in g["p"]:
             rs = sorted((r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "penalty"
@@ -221,7 +230,6 @@ def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, s
         ax.set_xlabel("penalty K [Pa]")
         ax.grid(alpha=0.3, which="both")
     axs[0].legend(fontsize=6, ncol=2)
-    fig.tight_layout()
     return savefig(fig, data.out, "penalty_error")
 
 
@@ -232,7 +240,7 @@ def _plot_discretization_error(data: StudyData, g: Grid, a: dict, styles: dict[f
     s2 = a["stations"][1]
     # the convergence in h needs two mesh sizes (the quick grid has one: a single panel then)
     two = len(g["h"]) > 1
-    fig, axs = plt.subplots(1, 2 if two else 1, figsize=(11 if two else 5.5, 4.2), squeeze=False)
+    fig, axs = plt.subplots(1, 2 if two else 1, layout="constrained", figsize=(11 if two else 5.5, 4.2), squeeze=False)
     axs = axs[0]
     lag = [r for r in a["rows"] if r["method"] == "lagrange" and r["status"] == "ok"]
     for h in g["h"]:
@@ -252,9 +260,8 @@ def _plot_discretization_error(data: StudyData, g: Grid, a: dict, styles: dict[f
         ax.set_ylabel(f"|F_Lagrange - F_ref| / F_ref at {s2:g} mm")
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7)
-    fig.suptitle(f"discretization error (reference: Richardson, p = {a['ref']['p']}, h = {a['ref']['hs']} mm)",
-                 fontsize=9)
-    fig.tight_layout()
+    fig.suptitle(f"discretization error (reference: {a['ref']['force_N']:.4f} N ± {a['ref']['bound_N']:.2g} N, "
+                 "ngbet study reference)", fontsize=9)
     return savefig(fig, data.out, "discretization_error")
 
 

@@ -1,6 +1,6 @@
 """Prototype: per-element orders rising with the distance from the clamp corners, default scene at 37 mm.
 
-    python bench/hp_prototype.py CORNER_MM P_MIN P_MAX [SLOPE_DIST_MM] [--uniform]
+    python docs/research/hp_prototype.py CORNER_MM P_MIN P_MAX [SLOPE_DIST_MM] [--uniform]
 
 The mesh is the 20 mm mesh graded by Netgen to CORNER_MM at the four clamp corners. The order of an
 element is p_min + (p_max - p_min) * log2(d / c) / log2(D / c), rounded and clamped, where d is the

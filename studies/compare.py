@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import shutil
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -24,10 +25,11 @@ import numpy as np
 
 from ngbet.kinematics import ideal_force
 from ngbet.plotting import SHEAR_LABEL, force_curve
-from ngbet.scene import Scene
+from ngbet.scene import Scene, SceneWarning
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
+from . import reference as R
 
 CASES: list[dict[str, Any]] = [{"model": "continuum", "outputs.vtk": True, "outputs.vtk_every_step": True},
                                {"model": "discrete"}]
@@ -44,13 +46,16 @@ def label(params: dict) -> str:
     return EQUIVALENT if "discrete.K_phi" in params else "discrete"
 
 
-def build(quick: bool = False) -> Study:
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
     from ngbet.discrete.equivalent import continuum_equivalent
 
-    base = C.base_scene(quick, **({C.H: 20.0, "discrete.spacing_mm": 10.0} if quick else {}))
+    with warnings.catch_warnings():  # a base for both models: each reads its own keys
+        warnings.simplefilter("ignore", SceneWarning)
+        base = C.study_scene(scene, quick, {"discrete.spacing_mm": 10.0} if quick else {})
     equivalent = {"model": "discrete", **continuum_equivalent(base)}
     return Study("compare", base, [*CASES, equivalent], description=__doc__ or "", extract=extract,
-                 plot=lambda d: plot(d, quick), report=lambda d: report(d, quick), profile_stations=C.stations(quick))
+                 plot=lambda d: plot(d, quick), report=lambda d: report(d, quick),
+                 profile_stations=C.stations(quick, base))
 
 
 def extract(rec: dict, run_dir: Path, out: Path) -> dict:
@@ -80,7 +85,7 @@ def _case(data: StudyData, model: str) -> int | None:
 
 
 def analyse(data: StudyData, quick: bool) -> dict:
-    s1, s2 = C.stations(quick)
+    s1, s2 = C.stations(quick, data)
     L = data.meta["base_scene"]["specimen"]["length_mm"]
     res = {}
     for m in LABELS:
@@ -103,9 +108,9 @@ def analyse(data: StudyData, quick: bool) -> dict:
 
 
 def report(data: StudyData, quick: bool) -> str:
-    s1, s2 = C.stations(quick)
+    s1, s2 = C.stations(quick, data)
     a = analyse(data, quick)
-    L = ["# Continuum and discrete model side by side", "",
+    L = [*C.header(data, "Continuum and discrete model side by side", R.reference_text(data, quick)),
          f"| model | status | F({s1:g}) [N] | F({s2:g}) [N] | u_y(L/4) at {s1:g} mm [mm] "
          f"| u_y(L/4) at {s2:g} mm [mm] | max abs(u_y) at {s2:g} mm [mm] | largest slip [mm] | wall time [s] |",
          "|---|---|---|---|---|---|---|---|---|"]
@@ -164,10 +169,13 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
 def _plot_curves(data: StudyData, quick: bool) -> Path:
     """Force curves of the three models and their mid-axis profiles at the two stations."""
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
-    s1, s2 = C.stations(quick)
-    scene = Scene.from_dict(data.meta["base_scene"])
-    fig, axs = plt.subplots(1, 3, figsize=(16, 4.3))
+    s1, s2 = C.stations(quick, data)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SceneWarning)
+        scene = Scene.from_dict(data.meta["base_scene"])
+    fig, axs = plt.subplots(1, 3, layout="constrained", figsize=(16, 4.8))
     for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True):
         i = _case(data, m)
         if i is None:
@@ -188,10 +196,13 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
         ax.set_xlabel("X [mm]")
         ax.set_ylabel("u_y [mm]")
         ax.axhline(0, color="k", lw=0.5)
+    axs[0].set_title("force (dots: converged steps; lines: cubic Hermite in F, dF/du0)", fontsize=9)
     for ax in axs:
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
+    handles = [Line2D([], [], color=col, label=m) for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True)
+               if _case(data, m) is not None]
+    handles.append(Line2D([], [], color="k", ls="--", lw=1, label="ideal kinematics (shear only)"))
+    fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=9)
     return savefig(fig, data.out, "compare_curves")
 
 
@@ -200,7 +211,7 @@ def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
     import matplotlib.pyplot as plt
 
     loads = sorted({u for _, u in files})
-    fig, axs = plt.subplots(len(loads), 2, figsize=(14, 3.6 * len(loads)), squeeze=False)
+    fig, axs = plt.subplots(len(loads), 2, layout="constrained", figsize=(14, 3.6 * len(loads)), squeeze=False)
     norm = plt.Normalize(0, 55)
     for row, u0 in enumerate(loads):
         f = files.get(("continuum", u0))

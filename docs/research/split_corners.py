@@ -1,6 +1,6 @@
 """Clamp corners split by bisection against Netgen's corner size: the force at 37 mm in p.
 
-    python bench/split_corners.py [P ...]      (default: 8 9 10 11 12 13 14)
+    python docs/research/split_corners.py [P ...]      (default: 8 9 10 11 12 13 14)
 
 Netgen's ``corner_mesh_size_mm`` bounds the size of the elements at a corner, but the element that
 holds a corner is not that small, and it is always a single triangle spanning the whole 90-degree

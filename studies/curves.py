@@ -20,13 +20,13 @@ from ngbet.scene import Scene
 from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
+from . import reference as R
 
 
-def build(quick: bool = False) -> Study:
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
     step = 2.5 if quick else 2.0
-    base = C.base_scene(quick, **{"loading.first_step_mm": step, "loading.max_step_mm": step,
-                                  **({C.H: 20.0} if quick else {})})
-    return Study("curves", base, [{}], description=__doc__ or "", plot=plot, report=report)
+    base = C.study_scene(scene, quick, {"loading.first_step_mm": step, "loading.max_step_mm": step})
+    return Study("curves", base, [{}], description=__doc__ or "", plot=plot, report=lambda d: report(d, quick))
 
 
 def analyse(data: StudyData) -> dict:
@@ -45,9 +45,9 @@ def analyse(data: StudyData) -> dict:
     return {"u0": u0, "F": F, "T": T, "Fid": Fid, "dE": dE, "envelope_max_rel": env}
 
 
-def report(data: StudyData) -> str:
+def report(data: StudyData, quick: bool = False) -> str:
     a = analyse(data)
-    L = ["# Load-displacement and double-force-displacement curves", "",
+    L = [*C.header(data, "Load-displacement and double-force-displacement curves", R.reference_text(data, quick)),
          f"Envelope check: max |dE/du0 - F| / F over the interior steps (central differences, "
          f"O(step^2)) = {a['envelope_max_rel']:.2g}", "",
          "| u0 [mm] | force [N] | ideal kinematics [N] | dE/du0 [N] | double force [N m] |", "|---|---|---|---|---|"]
@@ -60,7 +60,7 @@ def plot(data: StudyData) -> list[Path]:
     import matplotlib.pyplot as plt
 
     a = analyse(data)
-    fig, axs = plt.subplots(1, 2, figsize=(12, 4.3))
+    fig, axs = plt.subplots(1, 2, layout="constrained", figsize=(12, 4.3))
     ax = axs[0]
     ax.plot(np.r_[0, a["u0"]], np.r_[0, a["F"]], "o-", ms=3, label="reaction (volume integral)")
     ax.plot(a["u0"], a["dE"], "x", ms=5, label="dE/du0 (envelope theorem)")
@@ -75,7 +75,6 @@ def plot(data: StudyData) -> list[Path]:
     ax.set_ylabel("double force [N m]")
     ax.set_title("(no ideal-kinematics estimate: it has no bending)", fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     return [savefig(fig, data.out, "curves")]
 
 

@@ -1,0 +1,131 @@
+"""The command line of a study: ``ngbet study NAME`` and ``python -m ngbet.studies.NAME``.
+
+Options every study takes (:func:`add_arguments`); what ``--quick`` leaves out of the full study
+(:func:`left_out`), said in the report and on the terminal; the exit status of a study.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ..scene import Scene
+from .collect import StudyFolderError
+from .figures import plot_only
+from .keys import _floats
+from .model import Study, _same
+from .runner import default_out, run_study
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The command-line options every study takes."""
+    p.add_argument("--quick", action="store_true", help="a small version of the study (seconds; what the tests run)")
+    p.add_argument("--out", help="study folder (default: out/studies/NAME, or NAME-quick)")
+    p.add_argument("--cache", help="case cache folder (default: out/studies/cache)")
+    p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1 = in this process)")
+    p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
+    p.add_argument("--threads", type=int, help="NGSolve threads per case (default: 1 in parallel, all cores otherwise)")
+    p.add_argument("--plot-only", action="store_true", help="redraw figures and report from the CSV files")
+    p.add_argument("--retry-failed", action="store_true", help="rerun cases whose solver failed before")
+    p.add_argument("--quiet", action="store_true", help="one line: no progress bar, no report on the terminal")
+
+
+def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog: str | None = None) -> int:
+    """Command line of one study module: ``python -m ngbet.studies.NAME [--quick] [...]``."""
+    p = argparse.ArgumentParser(prog=prog, description=(build(False).description or "").split("\n")[0])
+    add_arguments(p)
+    return run_from_args(build, p.parse_args(argv))
+
+
+def _flat(d: dict[str, Any], pre: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{pre}{k}."))
+        else:
+            out[f"{pre}{k}"] = v
+    return out
+
+
+def left_out(full: Study, quick: Study) -> list[str]:
+    """What ``quick`` leaves out of ``full``: changed base-scene values and case values not run.
+
+    A base value the cases set themselves is not named (the cases say what runs).
+    """
+    varied = {k for k in full.params_columns() if all(k in c for c in full.cases)}
+    fb, qb = _flat(_floats(full.base.to_dict())), _flat(_floats(quick.base.to_dict()))
+    notes = [f"{k} = {_words(fb[k])} (runs {_words(qb.get(k))})" for k in fb
+             if fb[k] != qb.get(k) and k not in varied and k != "solver.threads"]
+    for k in full.params_columns():
+        ran = [c[k] for c in quick.cases if k in c]
+        gone = [c[k] for c in full.cases if k in c and not any(_same(c[k], v) for v in ran)]
+        with contextlib.suppress(TypeError):  # numbers in order; other values as they come
+            gone.sort()
+        if gone:
+            notes.append(f"{k} = {', '.join(dict.fromkeys(_words(v) for v in gone))}")
+    if len(quick.cases) < len(full.cases):
+        notes.append(f"{len(full.cases) - len(quick.cases)} of the full study's {len(full.cases)} cases")
+    return notes
+
+
+def _words(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_words(x) for x in v) + "]"
+    return str(v)
+
+
+def build_study(build: Callable[..., Study], quick: bool, scene: Scene | None = None, source: str = "") -> Study:
+    """The study ``build`` gives, on ``scene`` (None: the study's default), with what ``quick`` leaves out."""
+    study = build(quick, scene) if scene is not None else build(quick)
+    study.scene_source = source
+    if quick:
+        study.left_out = left_out(build(False, scene) if scene is not None else build(False), study)
+    return study
+
+
+def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: Scene | None = None,
+                  source: str = "") -> int:
+    """Run (or with ``--plot-only`` redraw) the study ``build`` gives for the options; the exit status.
+
+    scene : the base scene (None: the study's own, on ngbet's default scene); source names it.
+    """
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    study = build_study(build, args.quick, scene, source)
+    out = Path(args.out) if args.out else default_out(study.name, args.quick)
+    if args.plot_only:
+        try:
+            data = plot_only(study, out)
+        except StudyFolderError as exc:
+            print(f"ngbet: study {study.name}: {exc}", file=sys.stderr)
+            return 2
+    else:
+        data = run_study(study, out, cache=args.cache, workers=args.workers, scheduler=args.scheduler,
+                         progress=not args.quiet, retry_failed=args.retry_failed, threads=args.threads)
+    st = [c["status"] for c in data.cases()]
+    ex = data.meta["executor"]
+    warned = [c["case"] for c in data.cases() if c.get("warnings")]
+    if warned and not args.quiet:
+        print(f"ngbet: study {study.name}: {len(warned)} case(s) with warnings ({', '.join(map(str, warned[:8]))}"
+              f"{', ...' if len(warned) > 8 else ''}): meta.json lists them", file=sys.stderr)
+    if data.meta.get("figures_skipped"):
+        print(f"ngbet: study {study.name}: figures skipped: {data.meta['figures_skipped']}; the tables and "
+              "the report are written", file=sys.stderr)
+    quick = data.meta.get("quick_left_out") or []
+    if quick and not args.quiet:
+        print(f"study {study.name} --quick leaves out: " + "; ".join(quick))
+    print(f"study {study.name}{' (--quick: what it leaves out is in report.md)' if quick and args.quiet else ''}: "
+          f"{len(st)} cases ({st.count('ok')} ok, {st.count('failed')} failed, "
+          f"{st.count('error')} errors; {ex['cases_run']} run, {ex['cases_cached']} from the cache) "
+          f"in {data.meta['wall_s']:.1f} s -> {out}/")
+    if (out / "report.md").exists() and not args.quiet:  # --quiet: the one line above, the report in its file
+        print((out / "report.md").read_text())
+    if data.meta.get("report_error"):
+        return 1
+    return 0 if st.count("error") == 0 else 1

@@ -1,0 +1,64 @@
+"""A study's figures (PNG + PDF) and report.md, drawn from its folder's CSV files alone."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from .collect import load, write_text
+from .model import MissingValueError, Study, StudyData
+
+log = logging.getLogger(__name__)
+
+
+def finish(study: Study, data: StudyData) -> list[Path]:
+    """Figures (PNG + PDF) and report.md from the study folder's CSV files.
+
+    Without matplotlib the figures are skipped and meta.json says so (``figures_skipped``); the
+    tables and the report are written all the same.
+    """
+    figs: list[Path] = []
+    if study.plot is not None and importlib.util.find_spec("matplotlib") is None:
+        data.meta["figures_skipped"] = "matplotlib is not installed (pip install matplotlib)"
+        log.info("study %s: figures skipped: %s", study.name, data.meta["figures_skipped"])
+    elif study.plot is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        try:
+            figs = list(study.plot(data) or [])
+        except MissingValueError as exc:
+            data.meta["report_error"] = str(exc)
+            log.error("study %s: no figures: %s", study.name, exc)
+    if study.report is not None:
+        try:
+            text = study.report(data)
+        except MissingValueError as exc:  # no report from incomplete data, and no figure either
+            text = f"# {study.name}: no report\n\n{exc}\n"
+            data.meta["report_error"] = str(exc)
+            log.error("study %s: no report: %s", study.name, exc)
+        write_text(data.out / "report.md", text)
+    if data.meta.get("report_error") or data.meta.get("figures_skipped"):  # meta.json says so too
+        write_text(data.out / "meta.json", json.dumps(data.meta, indent=2, default=str))
+    return figs
+
+
+def plot_only(study: Study, out: str | Path) -> StudyData:
+    """Redraw figures and report from the CSV files of a finished study, without solving."""
+    data = load(out)
+    finish(study, data)
+    return data
+
+
+def savefig(fig: Any, out: Path, name: str) -> Path:
+    """Save a matplotlib figure as PNG and PDF; returns the PNG path."""
+    import matplotlib.pyplot as plt
+
+    png = out / f"{name}.png"
+    fig.savefig(png, dpi=140)
+    fig.savefig(out / f"{name}.pdf")
+    plt.close(fig)
+    return png

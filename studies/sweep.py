@@ -1,0 +1,155 @@
+"""A sweep from the command line: the base scene run once for every combination of the given values.
+
+    ngbet sweep material.alpha1=20,200,2000 [scene.toml] [--set section.key=value ...] [--quick]
+
+The table (results.csv, profiles.csv), meta.json, figures and report are those of any study:
+``sweep_force`` (force against the clamp displacement, one curve per case), ``sweep_profiles``
+(mid-axis u_y at the final load) and, for one numeric key, ``sweep_values`` (the final force
+against the swept value). The report gives the force at every load stop and at the final load,
+with the run's own error estimate where the scene asks for one.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ngbet.scene import Scene, SceneError
+from ngbet.study import Study, StudyData, grid, savefig
+
+from . import _common as C
+from . import reference as R
+
+
+def parse_items(items: list[str], parse: Callable[[str], Any]) -> tuple[dict[str, list[Any]], str | None]:
+    """``["a.b=1,2", "scene.toml"]`` -> ({"a.b": [1, 2]}, "scene.toml"); values read by ``parse``.
+
+    Commas inside brackets belong to a value (``loading.stops_mm=[10,20],[37]``).
+    """
+    axes: dict[str, list[Any]] = {}
+    scene = None
+    for item in items:
+        key, sep, values = item.partition("=")
+        if not sep:
+            if scene is not None:
+                raise SceneError(f"two scene files ({scene}, {item}); a swept key is written section.key=v1,v2")
+            scene = item
+            continue
+        key = key.strip()
+        if "." not in key and key != "model":
+            raise SceneError(f"a swept key is section.key or model, got {key!r}")
+        parts = [v.strip() for v in re.split(r",(?![^\[]*\])", values) if v.strip()]
+        if not parts:
+            raise SceneError(f"no values for {key}")
+        axes[key] = [parse(v) for v in parts]
+    if not axes:
+        raise SceneError("nothing to sweep: give section.key=v1,v2,... (e.g. material.alpha1=20,200,2000)")
+    return axes, scene
+
+
+def build(axes: dict[str, list[Any]], quick: bool = False, scene: Scene | None = None) -> Study:
+    """The sweep as a study; a value the scene refuses is a :class:`SceneError` naming it (before any run)."""
+    base = C.study_scene(scene, quick)
+    cases = grid(**axes)
+    for case in cases:
+        try:
+            base.with_changes(**case)
+        except SceneError as exc:
+            raise SceneError(f"{', '.join(f'{k} = {v}' for k, v in case.items())}: {exc}") from None
+    stations = (*base.loading.stops_mm, base.loading.u0_mm)
+    return Study("sweep", base, cases, description=__doc__ or "", plot=lambda d: plot(d, quick),
+                 report=lambda d: report(d, quick), profile_stations=stations)
+
+
+def _stations(data: StudyData) -> list[float]:
+    lo = data.meta["base_scene"]["loading"]
+    return [*lo["stops_mm"], lo["u0_mm"]]
+
+
+def _name(params: dict[str, Any]) -> str:
+    return ", ".join(f"{k.split('.')[-1]} = {v:g}" if isinstance(v, float) else f"{k.split('.')[-1]} = {v}"
+                     for k, v in params.items())
+
+
+def report(data: StudyData, quick: bool) -> str:
+    keys = data.meta["params"]
+    st = _stations(data)
+    L = [*C.header(data, "Sweep of " + ", ".join(keys), R.reference_text(data, quick)),
+         "| " + " | ".join(keys) + " | status | " + " | ".join(f"F({s:g} mm) [N]" for s in st)
+         + " | max abs(u_y) at the last load [mm] | dofs | wall time [s] |",
+         "|" + "---|" * (len(keys) + len(st) + 4)]
+    for c in data.cases():
+        i = c["case"]
+        cells = []
+        for s in st:
+            F, err = data.at(i, s, "force_N"), data.at(i, s, "force_error_N")
+            cells.append(C.fmt(F, ".4f") + (f" ± {err:.2g}" if math.isfinite(err) else ""))
+        _, uy = data.profile(i, st[-1])
+        amp = float(np.max(np.abs(uy))) if uy else math.nan
+        L.append("| " + " | ".join(C.fmt(c["params"][k], "g") if isinstance(c["params"][k], float)
+                                   else str(c["params"][k]) for k in keys)
+                 + f" | {c['status']} | " + " | ".join(cells) + f" | {C.fmt(amp, '.4g')} | "
+                 f"{C.fmt(C.dofs(data, i), '.0f')} | {C.fmt(C.wall(data, i), '.2f')} |")
+    if any(math.isfinite(data.at(c["case"], s, "force_error_N")) for c in data.cases() for s in st):
+        L += ["", "± : the run's estimate of its discretization error (outputs.error_estimate)."]
+    return "\n".join(L) + "\n"
+
+
+def plot(data: StudyData, quick: bool) -> list[Path]:
+    import matplotlib.pyplot as plt
+
+    st = _stations(data)
+    cases = [c for c in data.cases() if data.case_rows(c["case"])]
+    if not cases:  # nothing converged: the report says why, there is nothing to draw
+        return []
+    cmap = C.colormap()
+    colours = {c["case"]: cmap(j / max(len(cases) - 1, 1)) for j, c in enumerate(cases)}
+    fig, axs = plt.subplots(1, 2, layout="constrained", figsize=(12, 4.5))
+    for c in cases:
+        rows = data.case_rows(c["case"])
+        axs[0].plot([0.0] + [r["u0_mm"] for r in rows], [0.0] + [r["force_N"] for r in rows], "o-", ms=2.5,
+                    color=colours[c["case"]], label=_name(c["params"]))
+        X, uy = data.profile(c["case"], st[-1])
+        axs[1].plot(X, uy, color=colours[c["case"]])
+    axs[0].set_xlabel("clamp displacement u0 [mm]")
+    axs[0].set_ylabel("force [N]")
+    axs[1].set_xlabel("X [mm]")
+    axs[1].set_ylabel(f"u_y on the mid-axis at u0 = {st[-1]:g} mm [mm]")
+    axs[1].axhline(0, color="k", lw=0.5)
+    for ax in axs:
+        ax.grid(alpha=0.3)
+    fig.legend(loc="outside lower center", ncol=min(len(cases), 4), fontsize=8)
+    out = [savefig(fig, data.out, "sweep_force")]
+    keys = data.meta["params"]
+    vals = [c["params"][keys[0]] for c in data.cases()]
+    if len(keys) == 1 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals):
+        out.append(_plot_values(data, keys[0], st[-1]))
+    return out
+
+
+def _plot_values(data: StudyData, key: str, u0: float) -> Path:
+    """The final force against the swept value (log axis when the values span more than a decade)."""
+    import matplotlib.pyplot as plt
+
+    pts = sorted((float(c["params"][key]), data.at(c["case"], u0, "force_N"), data.at(c["case"], u0, "force_error_N"))
+                 for c in data.cases())
+    pts = [p for p in pts if math.isfinite(p[1])]
+    fig, ax = plt.subplots(layout="constrained", figsize=(6, 4.2))
+    v, F, e = (np.array(x) for x in zip(*pts, strict=True)) if pts else (np.array([]),) * 3
+    if np.isfinite(e).any():
+        ax.errorbar(v, F, yerr=np.where(np.isfinite(e), e, 0.0), fmt="o-", capsize=4,
+                    label="force ± the run's error estimate")
+        ax.legend(fontsize=8)
+    else:
+        ax.plot(v, F, "o-")
+    if len(v) and v.min() > 0 and v.max() / v.min() > 10:
+        ax.set_xscale("log")
+    ax.set_xlabel(key)
+    ax.set_ylabel(f"force at u0 = {u0:g} mm [N]")
+    ax.grid(alpha=0.3, which="both")
+    return savefig(fig, data.out, "sweep_values")
