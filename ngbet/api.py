@@ -13,7 +13,6 @@ kept as long as the :class:`Result` lives and deleted with it. Pass ``out`` to k
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
 import shutil
@@ -207,17 +206,14 @@ class Result:
 
 
 def _read_columns(path: Path) -> dict[str, np.ndarray]:
-    if not path.exists():
-        return {"u0_mm": np.zeros(0), "force_N": np.zeros(0)}
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    names = list(rows[0]) if rows else []
+    """results.csv as arrays, one per column (:func:`ngbet.output.read_rows`; an empty cell is nan)."""
+    from .output import read_rows
+
+    rows = read_rows(path) if path.exists() else []
     out: dict[str, np.ndarray] = {}
-    for n in names:
-        try:
-            out[n] = np.array([float(r[n]) if r[n] != "" else np.nan for r in rows])
-        except ValueError:
-            out[n] = np.array([r[n] for r in rows])
+    for n in rows[0] if rows else []:
+        values = [np.nan if r[n] == "" else r[n] for r in rows]
+        out[n] = np.array(values, dtype=float if all(isinstance(v, float) for v in values) else object)
     out.setdefault("u0_mm", np.zeros(0))
     out.setdefault("force_N", np.full(len(rows), np.nan))
     return out

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ngbet import plot_process
-from ngbet.output import draw_force, plot_force
+from ngbet.output import OutputError, draw_force, plot_force
 
 pytest.importorskip("matplotlib")
 ROWS = ("step,u0_mm,force_N,dforce_du0_N_per_mm,double_force_Nm,force_error_N\n"
@@ -105,9 +105,9 @@ def test_ngbet_run_writes_the_same_files_with_and_without_the_plot_process(tmp_p
 @pytest.mark.parametrize("with_process", [True, False])
 def test_the_plot_is_asked_for_first_and_finished_even_when_a_later_file_fails(tmp_path, monkeypatch, with_process):
     """The run asks for its figure as soon as results.csv is complete and writes the fields while the
-    plot process draws; when the fields' file fails (here: a full disk) the error still reaches the
-    caller, and the figure is waited for: complete, never half-written, asked of the plot process
-    before the fields when there is one."""
+    plot process draws; when the fields' file fails (here: a full disk) the error, naming the file,
+    still reaches the caller, and the figure is waited for: complete, never half-written, asked of
+    the plot process before the fields when there is one."""
     from ngbet.continuum import run as crun
     from ngbet.run import run
     from ngbet.scene import Scene
@@ -129,12 +129,12 @@ def test_the_plot_is_asked_for_first_and_finished_even_when_a_later_file_fails(t
         monkeypatch.setattr(proc, "request", lambda *a, **k: (asked.append("plot"), real_request(*a, **k)))
         monkeypatch.setattr(plot_process, "_ACTIVE", [proc])
         try:
-            with pytest.raises(OSError, match="No space left"):
+            with pytest.raises(OutputError, match=r"fields.vtu: No space left"):
                 run(sc, out)
         finally:
             proc.close()
     else:
-        with pytest.raises(OSError, match="No space left"):
+        with pytest.raises(OutputError, match=r"fields.vtu: No space left"):
             run(sc, out)
     assert asked == (["plot", "vtk"] if with_process else ["vtk"])
     assert pixels(out / "force.png").shape[0] > 100 and (out / "force.pdf").stat().st_size > 1000

@@ -450,14 +450,81 @@ def test_ctrl_c_acts_within_seconds_when_the_main_thread_is_stuck(tmp_path):
     assert s["status"] == "interrupted" and s["last_converged_mm"] == 3.0 and str(out) in err
 
 
-def test_files_written_after_the_summary_are_known_to_the_next_run(tmp_path):
+def test_files_the_writer_wrote_after_the_summary_are_listed_and_a_users_are_not(tmp_path):
+    """A file written through the run's writer after its summary is registered (listed, removed by
+    the next run); a file that appears in the folder during the run by other means is the user's:
+    not listed, never removed."""
     scene = Scene().with_changes(**TINY)
     with RunWriter(tmp_path, scene) as w:
         w.summary({}, "ok")
-        (tmp_path / "mode_1.vtu").write_text("written by the run after its summary")
-    assert "mode_1.vtu" in summary(tmp_path)["files"]
+        w.write_text("mode_1.vtu", "written by the run after its summary")
+        (tmp_path / "notes.txt").write_text("the user's, written while the run was on")
+    assert summary(tmp_path)["files"] == ["mode_1.vtu", "scene.toml", "summary.json"]
     run(scene, tmp_path)
     assert not (tmp_path / "mode_1.vtu").exists()
+    assert (tmp_path / "notes.txt").read_text() == "the user's, written while the run was on"
+    assert "notes.txt" not in summary(tmp_path)["files"]
+
+
+def test_a_column_that_first_appears_at_a_later_step_is_kept(tmp_path):
+    """The header of results.csv is the union of the columns of all rows; earlier rows are empty there."""
+    with RunWriter(tmp_path, Scene().with_changes(**TINY)) as w:
+        w.add_step({"step": 1, "u0_mm": 1.0, "force_N": 2.0})
+        w.add_step({"step": 2, "u0_mm": 2.0, "force_N": 3.0, "force_error_N": 0.5})
+        w.add_step({"step": 3, "u0_mm": 3.0, "force_N": 4.0})
+        w.summary({}, "ok")
+    assert (tmp_path / "results.csv").read_text().splitlines() == [
+        "step,u0_mm,force_N,force_error_N", "1,1.0,2.0,", "2,2.0,3.0,0.5", "3,3.0,4.0,"]
+    assert [r["force_error_N"] for r in read_rows(tmp_path / "results.csv")] == ["", 0.5, ""]
+
+
+def test_a_row_cut_short_by_a_kill_is_not_read(tmp_path):
+    """A row is complete only with its line end: the one reader leaves out a last line without it."""
+    (tmp_path / "results.csv").write_text("step,u0_mm,force_N\n1,1.0,2.0\n2,2.0,3.")
+    assert read_rows(tmp_path / "results.csv") == [{"step": 1.0, "u0_mm": 1.0, "force_N": 2.0}]
+
+
+def test_accuracy_run_lists_every_file_it_wrote(tmp_path, capsys):
+    """``--accuracy`` runs the chosen discretization and then adds its record to summary.json; the
+    force plot, drawn after the run's last summary, is listed too (it was missing)."""
+    out = tmp_path / "acc"
+    assert main(["run", "--out", str(out), "--quiet", "--accuracy", "1e-2", "--set=loading.u0_mm=20",
+                 "--set=outputs.vtk=false"]) == 0
+    s = summary(out)
+    on_disk = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+    assert s["files"] == on_disk == ["force.pdf", "force.png", "profile.csv", "results.csv", "scene.toml",
+                                     "summary.json"]
+    assert s["accuracy"]["met"] and s["status"] == "ok"
+
+
+def _vtu_points(path: Path):
+    import pyvista as pv
+
+    return pv.read(str(path)).points
+
+
+def test_fields_file_appears_only_complete_and_in_mm(tmp_path, monkeypatch):
+    """The fields file is written and rescaled to mm under a temporary name, then renamed: an
+    interrupt between NGSolve's write (coordinates in metres) and the rescale leaves no fields.vtu."""
+    pytest.importorskip("pyvista")
+    import ngbet.continuum.output as co
+
+    scene = Scene().with_changes(**{**TINY, "outputs.vtk": True, "loading.stops_mm": []})
+    run(scene, tmp_path / "ok")
+    x = _vtu_points(tmp_path / "ok" / "fields.vtu")[:, 0]
+    assert x.min() == pytest.approx(0.0, abs=1e-9) and x.max() == pytest.approx(220.0)  # mm, reference
+
+    def interrupted(vtu, factor):
+        raise KeyboardInterrupt("Ctrl-C inside the VTK write")
+
+    monkeypatch.setattr(co, "scale_points", interrupted)
+    out = tmp_path / "cut"
+    with pytest.raises(KeyboardInterrupt):
+        run(scene, out)
+    assert summary(out)["status"] == "interrupted"
+    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "profile.csv", "results.csv", "scene.toml",
+                                                     "summary.json"]
+    assert "fields.vtu" not in summary(out)["files"]
 
 
 def test_full_disk_during_a_run_exits_3_and_says_failed(tmp_path, capsys, monkeypatch):
