@@ -29,11 +29,12 @@ import signal
 import socket
 import sys
 import threading
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from .scene import Scene, SceneError, default_scene
+from .scene import Scene, SceneError, SceneNote, SceneWarning
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_IO, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 EPILOG = ("exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
@@ -53,15 +54,33 @@ def _parse_value(text: str) -> object:
 
 
 def load_scene(path: str | None, overrides: list[str]) -> Scene:
-    """The scene file (or the default scene) with ``section.key=value`` (or ``model=...``) overrides applied."""
-    scene = Scene.from_toml(path) if path else default_scene()
+    """The scene file (or the default scene) with ``section.key=value`` (or ``model=...``) overrides applied.
+
+    The file's tables and the overrides are read into one scene: its missing keys take the
+    defaults, and a default that contradicts a key the file or an override sets gives way to it,
+    with a note on stderr (``ngbet: note: ...``), as are the scene's warnings.
+    """
+    from .scene import apply_changes, read_toml
+
     changes = {}
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep or ("." not in key and key.strip() != "model"):
             raise SceneError(f"--set expects section.key=value or model=continuum|discrete, got {item!r}")
         changes[key.strip()] = _parse_value(value.strip())
-    return scene.with_changes(**changes) if changes else scene
+    data = read_toml(path) if path else {}
+    if not isinstance(data, dict):
+        raise SceneError(f"scene file {path}: not a table of sections")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SceneNote)
+        warnings.simplefilter("always", SceneWarning)
+        scene = Scene.from_dict(apply_changes(data, changes))
+    for w in caught:
+        if issubclass(w.category, (SceneNote, SceneWarning)):
+            _say(f"{'note' if issubclass(w.category, SceneNote) else 'warning'}: {w.message}")
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return scene
 
 
 def _say(msg: str) -> None:

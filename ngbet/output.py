@@ -293,13 +293,15 @@ class RunWriter:
         The header of results.csv is the union of the columns of all rows so far: a row with a new
         column rewrites the file (complete, under a temporary name) with it, earlier rows empty there.
         """
-        self.rows.append(row)
         new = [k for k in row if k not in self._columns]
-        self._columns.extend(new)
+        columns = [*self._columns, *new]
         if new:
-            self.write("results.csv", lambda p: _write_table(p, self._columns, self.rows))
+            self.write("results.csv", lambda p: _write_table(p, columns, [*self.rows, row]))
         else:
-            _io(self.out / "results.csv", lambda p: _append_rows(p, self._columns, [row]))
+            _io(self.out / "results.csv", lambda p: _append_rows(p, columns, [row]))
+        # counted once on disk: an interrupt before this line leaves the summary's steps = the file's rows
+        self._columns = columns
+        self.rows.append(row)
         if profile is not None:
             block = [[row["step"], row["u0_mm"], f"{X_mm:.6g}", f"{uy_mm:.9g}"] for X_mm, uy_mm in profile]
             if "profile.csv" in self._files:

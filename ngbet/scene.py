@@ -254,17 +254,23 @@ MAX_ORDER = 16
 
 @dataclass(frozen=True)
 class Discretization:
-    """Mesh and polynomial orders (``order_phi = "auto"``: order_u; ``order_lam = "auto"``: the stable pair)."""
+    """Mesh and polynomial orders (``order_phi = "auto"``: order_u; ``order_lam = "auto"``: the stable pair).
 
-    mesh_size_mm: float = 5.0
-    order_u: int = 2
+    The defaults are the accurate default discretization (:data:`DEFAULT_DISCRETIZATION`): a 10 mm
+    mesh graded to 0.25 mm at the four clamp corners, p = 3.
+    """
+
+    mesh_size_mm: float = 10.0
+    order_u: int = 3
     order_phi: int | str = AUTO  # "auto": same as order_u
     order_lam: int | str = AUTO  # "auto": max(order_u - 2, 0), the stable pair (see ngbet.continuum.problem)
     quad_bonus: int = 0  # extra quadrature order for the non-polynomial sqrt(i4), sqrt(i6) terms
     structured: bool = False  # crossed structured mesh instead of Netgen's unstructured one
     # mesh size at the four corners where a clamp meets a free edge (singular points of the
-    # solution); 0: no local refinement. Netgen grades the mesh from there to mesh_size_mm.
-    corner_mesh_size_mm: float = 0.0
+    # solution); 0: no local refinement. Netgen grades the mesh from there to mesh_size_mm. The
+    # default 0.25 gives way (to 0, with a note) when the scene sets a mesh finer than it or a
+    # structured mesh without setting this key
+    corner_mesh_size_mm: float = 0.25
     # times the elements at the four clamp corners are bisected after meshing (each bisection
     # halves the element at a corner). Netgen leaves one triangle spanning each 90-degree corner,
     # two of whose edges lie on the boundary; one bisection splits it, which at the same order
@@ -475,6 +481,34 @@ NOT_READ_BY: dict[str, dict[str, tuple[str, ...] | None]] = {
 class SceneWarning(UserWarning):
     """A scene value that has no effect on the chosen model."""
 
+
+class SceneNote(UserWarning):
+    """A default value that gave way to a key the scene sets (the note says which and why)."""
+
+
+def _yield_defaults(data: dict[str, Any], explicit: set[str]) -> None:
+    """Give defaults that contradict a key the scene sets way to it, in the tables ``data``, with a note.
+
+    ``explicit``: the keys ("section.key") the scene sets. Nothing valid is refused because of a
+    default the user never set: the graded corners (``discretization.corner_mesh_size_mm`` = 0.25
+    by default) are switched off for a mesh finer than them or a structured mesh.
+    """
+    d = data.get("discretization")
+    key = "discretization.corner_mesh_size_mm"
+    if not isinstance(d, dict) or key in explicit:
+        return
+    default = Discretization.corner_mesh_size_mm
+    if d.get("corner_mesh_size_mm", default) != default:
+        return
+    h, structured = d.get("mesh_size_mm", Discretization.mesh_size_mm), d.get("structured", False)
+    finer = isinstance(h, (int, float)) and not isinstance(h, bool) and h < default
+    if finer or structured is True:
+        why = (f"discretization.mesh_size_mm = {h:g} is finer than the default corners" if finer
+               else "a structured mesh cannot be graded")
+        d["corner_mesh_size_mm"] = 0.0
+        warnings.warn(SceneNote(f"{key} = 0 (no corner grading) instead of the default {default:g}: {why}"),
+                      stacklevel=4)
+
 _SECTIONS: dict[str, type] = {
     "specimen": Specimen,
     "material": Material,
@@ -538,28 +572,31 @@ class Scene:
                                        "these values have no effect"), stacklevel=3)
 
     def unused_keys(self) -> list[str]:
-        """The keys with a non-default value that the scene's model does not read ("section.key").
-
-        The embedded scene's discretization (:data:`DEFAULT_DISCRETIZATION`) counts as a default:
-        ``ngbet run --set model=discrete`` starts from it without asking for it.
-        """
+        """The keys with a non-default value that the scene's model does not read ("section.key")."""
         out = []
         for name, keys in NOT_READ_BY[self.model].items():
             section, default = getattr(self, name), _SECTIONS[name]()
-            embedded = DEFAULT_DISCRETIZATION if name == "discretization" else {}
             for f in fields(section):
                 value = getattr(section, f.name)
-                if (keys is None or f.name in keys) and value != getattr(default, f.name) \
-                        and value != embedded.get(f.name, getattr(default, f.name)):
+                if (keys is None or f.name in keys) and value != getattr(default, f.name):
                     out.append(f"{name}.{f.name}")
         return out
 
     # construction ------------------------------------------------------------------------------
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> Scene:
-        """Build a scene from nested dicts (TOML tables); unknown keys are refused by name."""
+    def from_dict(cls, data: dict[str, Any], explicit: set[str] | None = None) -> Scene:
+        """Build a scene from nested dicts (TOML tables); unknown keys are refused by name.
+
+        Missing sections and keys take the defaults (the same as :func:`default_scene`'s). A
+        default that contradicts a key the scene sets gives way to it with a :class:`SceneNote`
+        (``explicit``: the keys "section.key" set by the user; default: those in ``data``).
+        """
         if not isinstance(data, dict):
             raise SceneError(f"a scene must be a table of sections, got {type(data).__name__}")
+        if explicit is None:
+            explicit = {f"{n}.{k}" for n, t in data.items() if isinstance(t, dict) for k in t}
+        data = {n: dict(t) if isinstance(t, dict) else t for n, t in data.items()}
+        _yield_defaults(data, explicit)
         known = {"model", *_SECTIONS}
         for key in data:
             if key not in known:
@@ -586,15 +623,7 @@ class Scene:
     @classmethod
     def from_toml(cls, path: str | Path) -> Scene:
         """Read a scene file; missing sections and keys take the default values."""
-        path = Path(path)
-        try:
-            with path.open("rb") as fh:
-                data = tomllib.load(fh)
-        except FileNotFoundError:
-            raise SceneError(f"scene file not found: {path}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise SceneError(f"scene file {path} is not valid TOML: {exc}") from None
-        return cls.from_dict(data)
+        return cls.from_dict(read_toml(path))
 
     @classmethod
     def from_toml_string(cls, text: str) -> Scene:
@@ -617,21 +646,50 @@ class Scene:
         return tomli_w.dumps(self.to_dict())
 
     def with_changes(self, **dotted: Any) -> Scene:
-        """A variant: ``scene.with_changes(**{"material.alpha1": 20.0, "loading.u0_mm": 37})``."""
-        d = self.to_dict()
-        for key, value in dotted.items():
-            section, _, name = key.partition(".")
-            if not name:
-                d[section] = value
-                continue
-            if section not in d or not isinstance(d[section], dict):
-                raise SceneError(f"unknown scene section '{section}' in '{key}'")
-            d[section][name] = value
-        return Scene.from_dict(d)
+        """A variant: ``scene.with_changes(**{"material.alpha1": 20.0, "loading.u0_mm": 37})``.
+
+        A default of this scene that contradicts a changed key gives way to it (:class:`SceneNote`).
+        """
+        return Scene.from_dict(apply_changes(self.to_dict(), dotted), explicit=set(dotted))
 
     def digest(self) -> str:
         """A stable hash of the complete scene (for caches)."""
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """The tables of a scene file; :class:`SceneError` naming the file when it cannot be read as TOML."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise SceneError(f"scene file not found: {path}") from None
+    except IsADirectoryError:
+        raise SceneError(f"scene file {path} is a directory, not a TOML file") from None
+    except OSError as exc:
+        raise SceneError(f"scene file {path} cannot be read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise SceneError(f"scene file {path} is not a text (UTF-8) file: is it a TOML scene?") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"scene file {path} is not valid TOML: {exc}") from None
+
+
+def apply_changes(data: dict[str, Any], dotted: dict[str, Any]) -> dict[str, Any]:
+    """The tables ``data`` with ``{"section.key": value}`` (or ``{"model": ...}``) set; a new dict."""
+    d = {n: dict(t) if isinstance(t, dict) else t for n, t in data.items()}
+    for key, value in dotted.items():
+        section, _, name = key.partition(".")
+        if not name:
+            d[section] = value
+            continue
+        if section not in _SECTIONS:
+            raise SceneError(f"unknown scene section '{section}' in '{key}'")
+        table = d.setdefault(section, {})
+        if not isinstance(table, dict):
+            raise SceneError(f"scene section '{section}' must be a table, got {table!r}")
+        table[name] = value
+    return d
 
 
 MIN_YARNS_PER_FAMILY = 4
@@ -725,18 +783,20 @@ def check_size(scene: Scene) -> str | None:
     return f"a large problem: {what}" if mem > _WARN_BYTES else None
 
 
-#: The embedded default scene's discretization: the cheapest setting measured within 0.3 % of the
-#: reference force at 56 mm (107.2365 N, ngbet.studies.reference) and within 1 % on the mid-axis
+#: The default discretization (:class:`Discretization`'s defaults): the cheapest setting measured
+#: within 0.3 % of the reference force at 56 mm (107.2365 N, ngbet.studies.reference) and within 1 % on the mid-axis
 #: profile: 10 mm mesh graded to 0.25 mm at the four clamp corners, p = 3 (0.13 % and 0.39 %; its
 #: solve takes 0.4–0.6 times that of the uniform 5 mm p = 2 mesh, which is 2.1 % and 7.8 % off,
 #: measured interleaved on a loaded 2-core machine). p = 2 on the same mesh is 0.16 % on the force
 #: but 4 % on the profile.
-DEFAULT_DISCRETIZATION: dict[str, Any] = {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}
+DEFAULT_DISCRETIZATION: dict[str, Any] = {k: getattr(Discretization, k)
+                                           for k in ("mesh_size_mm", "corner_mesh_size_mm", "order_u")}
 
 
 def default_scene() -> Scene:
     """The paper's bias extension test: 70 x 220 mm, Table 1, Lagrange multiplier, u0 to 56 mm.
 
-    On the accurate default discretization (:data:`DEFAULT_DISCRETIZATION`).
+    On the accurate default discretization (:data:`DEFAULT_DISCRETIZATION`). The same scene as
+    ``Scene()``: a scene file's missing keys take these values.
     """
-    return Scene(discretization=Discretization(**DEFAULT_DISCRETIZATION))
+    return Scene()

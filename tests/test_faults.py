@@ -29,6 +29,7 @@ from ngbet.studies import _common as C
 from ngbet.study import MissingValueError, Study, run_study, verify_case
 
 TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
+        "discretization.corner_mesh_size_mm": 0.0, "discretization.order_u": 2,
         "loading.u0_mm": 10.0, "loading.stops_mm": [5.0]}
 TINY_SET = [f"--set={k}={v}" for k, v in TINY.items()]
 DISCRETE = {"model": "discrete", "discrete.spacing_mm": 10.0, "loading.u0_mm": 10.0, "outputs.plot": False}
@@ -36,7 +37,8 @@ DISCRETE = {"model": "discrete", "discrete.spacing_mm": 10.0, "loading.u0_mm": 1
 DISCRETE_FAILING = {**DISCRETE, "solver.rtol": 1e-300, "solver.atol_energy": 1e-300, "solver.max_iterations": 2,
                     "loading.min_step_mm": 1.0}
 # many short steps: a run that lasts long enough to be interrupted between steps
-SLOW_SET = ["--set=discretization.mesh_size_mm=20", "--set=outputs.vtk=false", "--set=outputs.plot=false",
+SLOW_SET = ["--set=discretization.mesh_size_mm=20", "--set=discretization.corner_mesh_size_mm=0",
+            "--set=discretization.order_u=2", "--set=outputs.vtk=false", "--set=outputs.plot=false",
             "--set=loading.first_step_mm=0.2", "--set=loading.max_step_mm=0.2", "--set=solver.grow_after=0"]
 
 
