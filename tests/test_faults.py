@@ -93,6 +93,68 @@ def test_folder_that_is_not_a_run_folder_is_refused(tmp_path, capsys):
     assert sorted(p.name for p in other.iterdir()) == ["cat.jpg"]  # untouched
 
 
+def test_a_project_folder_with_a_scene_and_a_csv_is_not_a_run_folder(tmp_path, monkeypatch, capsys):
+    """A folder counts as a run folder only by ngbet's marker: a project folder holding the user's
+    commented scene.toml and measured results.csv is refused (exit 3), nothing in it touched."""
+    proj = tmp_path / "proj"
+    proj.mkdir()
+    files = {"scene.toml": "# my fabric, measured 2024\n[material]\nalpha1 = 20.0\n",
+             "results.csv": "u0_mm,force_N\n10,3.1\n20,9.4\n"}
+    for name, text in files.items():
+        (proj / name).write_text(text)
+    monkeypatch.chdir(proj)
+    assert main(["run", "scene.toml", "--out", ".", *TINY_SET, "--quiet"]) == 3
+    err = capsys.readouterr().err
+    assert "not an ngbet run folder" in err and ".ngbet.lock" in err and err.count("\n") == 1
+    assert {p.name: p.read_text() for p in proj.iterdir()} == files
+
+
+def test_a_users_file_with_an_ngbet_name_in_a_run_folder_is_refused_not_replaced(tmp_path, capsys):
+    out = tmp_path / "run"
+    run(Scene().with_changes(**TINY), out)
+    (out / "force.png").write_bytes(b"the user's own figure")  # not written by a run
+    assert main(["run", "--out", str(out), *TINY_SET, "--quiet"]) == 3
+    assert "force.png" in capsys.readouterr().err
+    assert (out / "force.png").read_bytes() == b"the user's own figure"
+    assert summary(out)["status"] == "ok"  # the previous run's files are all there
+
+
+def test_removing_the_marker_during_a_run_does_not_let_a_second_run_in(tmp_path):
+    """The lock is held on the marker; a user who removes the marker while a run writes (it looks
+    stale) leaves a folder that is no longer marked as ngbet's: the second run is refused (exit 3)
+    and the first run's files stay as the first run wrote them."""
+    out = tmp_path / "run"
+    first = Scene().with_changes(**TINY)
+    with RunWriter(out, first) as w:
+        w.add_step({"step": 1, "u0_mm": 5.0, "force_N": 7.0})
+        (out / ".ngbet.lock").unlink()
+        p = ngbet("run", "--out", str(out), "--quiet", *TINY_SET, "--set=loading.u0_mm=8")
+        _, err = p.communicate(timeout=120)
+        assert p.returncode == 3, err
+        assert "not an ngbet run folder" in err and "Traceback" not in err
+        w.add_step({"step": 2, "u0_mm": 10.0, "force_N": 9.0})
+        w.summary({}, "ok")
+    assert [r["u0_mm"] for r in read_rows(out / "results.csv")] == [5.0, 10.0]
+    assert Scene.from_toml(out / "scene.toml") == first and summary(out)["steps"] == 2
+
+
+def test_the_lock_is_released_however_the_run_ends(tmp_path):
+    """The OS releases the flock when the process ends, SIGKILL included: the marker stays and
+    never goes stale; the next run takes the folder and removes only the killed run's files."""
+    out = tmp_path / "run"
+    code = ("import sys, time; from ngbet.output import RunWriter; from ngbet.scene import Scene\n"
+            "w = RunWriter(sys.argv[1], Scene()); w.add_step({'step': 1, 'u0_mm': 1.0, 'force_N': 1.0})\n"
+            "print('ready', flush=True); time.sleep(60)\n")
+    p = subprocess.Popen([sys.executable, "-c", code, str(out)], stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "ready"
+    (out / "mine.txt").write_text("the user's")
+    p.kill()
+    p.wait()
+    assert summary(out)["status"] == "running" and (out / ".ngbet.lock").exists()
+    assert run(Scene().with_changes(**TINY), out)["status"] == "ok"
+    assert (out / "mine.txt").read_text() == "the user's"
+
+
 def test_summary_says_running_while_the_run_is_on(tmp_path):
     with RunWriter(tmp_path, Scene().with_changes(**TINY)) as w:
         assert summary(tmp_path)["status"] == "running"
