@@ -303,6 +303,82 @@ def test_degenerate_input_exits_2_naming_the_key(tmp_path, capsys, sets, key):
     assert not out.exists()  # refused before anything was meshed or written
 
 
+@pytest.mark.parametrize("command", ["run", "scene"])
+def test_a_scene_path_that_is_a_folder_or_binary_exits_2(tmp_path, capsys, command):
+    binary = tmp_path / "scene.toml"
+    binary.write_bytes(bytes(range(256)))
+    for path, why in ((tmp_path, "is a directory"), (binary, "not a text (UTF-8) file")):
+        assert main([command, str(path), *(["--out", str(tmp_path / "o")] if command == "run" else [])]) == 2
+        err = capsys.readouterr().err
+        assert str(path) in err and why in err and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("key", ["specimen.thickness_mm", "specimen.length_mm", "specimen.width_mm"])
+def test_a_specimen_beyond_a_kilometre_is_refused_before_the_run(tmp_path, capsys, key):
+    """1e308 mm overflowed the force (a traceback in the plot after "ok") or the size estimate."""
+    assert main(["run", "--out", str(tmp_path / "o"), *TINY_SET, f"--set={key}=1e308", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert key in err and "at most 1e+06 mm" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_discrete_network_too_large_for_memory_is_refused_before_building(tmp_path, capsys, monkeypatch):
+    """spacing 0.1 mm: about 9.2 million dofs and 80 GB (a MemoryError traceback after 47 s); refused
+    by the size check before the network is built, naming the key (8 GB available here)."""
+    import ngbet.scene
+
+    monkeypatch.setattr(ngbet.scene, "available_memory", lambda: 8e9)
+    t0 = time.monotonic()
+    assert main(["run", "--out", str(tmp_path / "o"), "--set=model=discrete", "--set=discrete.spacing_mm=0.1",
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "discrete.spacing_mm" in err and "9,239,999 dofs" in err and "80.3 GB" in err
+    assert not (tmp_path / "o").exists() and time.monotonic() - t0 < 30
+
+
+def test_the_discrete_size_estimate_matches_measured_networks():
+    """Measured on the default specimen: 4 086 / 15 594 / 60 966 dofs and a peak of 181 / 237 / 521 MB
+    at spacing 5 / 2.5 / 1.25 mm; the estimate is within 12 % of both."""
+    from ngbet.scene import estimate_size
+
+    for spacing, dofs, peak in ((5.0, 4086, 181e6), (2.5, 15594, 237e6), (1.25, 60966, 521e6)):
+        n, mem = estimate_size(Scene().with_changes(**{"model": "discrete", "discrete.spacing_mm": spacing}))
+        assert abs(n / dofs - 1) < 0.12 and abs(mem / peak - 1) < 0.12, (spacing, n, mem)
+
+
+def test_a_full_stdout_ends_in_a_message_and_exit_3_with_the_run_intact(tmp_path):
+    """``ngbet run ... > /dev/full``: the run is complete on disk; the lost report is an I/O
+    problem (exit 3, one line on stderr), never a traceback or the solver's exit 1."""
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full on this system")
+    out = tmp_path / "r"
+    with open("/dev/full", "w") as full:
+        p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--out", str(out), "--quiet", *TINY_SET],
+                           stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+    assert p.returncode == 3, p.stderr
+    assert "Traceback" not in p.stderr and "No space left" in p.stderr and str(out) in p.stderr
+    assert p.stderr.count("\n") == 1
+    s = summary(out)
+    assert s["status"] == "ok" and len(read_rows(out / "results.csv")) == s["steps"] > 0
+
+
+def test_an_unexpected_error_is_one_line_and_exit_70(tmp_path, capsys, monkeypatch):
+    """A bug (an error ngbet does not raise on purpose) ends in one line naming it and exit 70:
+    never a traceback, never the solver's 1; the run folder says "failed"."""
+    import ngbet.continuum.observables as obs
+
+    def bug(problem):
+        raise TypeError("unsupported operand")
+
+    monkeypatch.setattr(obs, "centre_shear_angle_deg", bug)
+    out = tmp_path / "o"
+    assert main(["run", "--out", str(out), *TINY_SET, "--quiet"]) == 70
+    err = capsys.readouterr().err
+    assert "internal error (TypeError: unsupported operand)" in err and err.count("\n") == 1
+    assert summary(out)["status"] == "failed" and "TypeError" in summary(out)["error"]
+
+
 def test_large_problem_is_warned_about_before_meshing(caplog):
     from ngbet.output import preflight
 
