@@ -17,6 +17,7 @@ import json
 import logging
 import shutil
 import tempfile
+import warnings
 import weakref
 from pathlib import Path
 from typing import Any
@@ -103,7 +104,8 @@ class Result:
         ``summary.json``: status, dofs, timings, versions, warnings (docs/outputs.md).
     columns : dict[str, numpy.ndarray]
         Every column of ``results.csv``, one entry per converged load step; also reachable as
-        attributes (``r.gamma_centre_deg``).
+        attributes (``r.gamma_centre_deg``). Every array's name ends in its unit, as the column's
+        does (``u0_mm``, ``force_N``, ``double_force_Nm``, ``energy_J``, ``force_error_N``).
     profiles : dict[float, tuple[numpy.ndarray, numpy.ndarray]]
         Mid-axis profile per converged step: ``{u0_mm: (X_mm, uy_mm)}``.
     """
@@ -140,7 +142,7 @@ class Result:
         return self.columns["force_N"]
 
     @property
-    def double_force(self) -> np.ndarray | None:
+    def double_force_Nm(self) -> np.ndarray | None:
         """Reaction double force on the moving clamp [N m] (column ``double_force_Nm``).
 
         None when the run has none (the discrete model, or a scene without bending).
@@ -148,9 +150,21 @@ class Result:
         return self.columns.get("double_force_Nm")
 
     @property
-    def energy(self) -> np.ndarray | None:
+    def energy_J(self) -> np.ndarray | None:
         """Total stored energy [J] (column ``energy_J``); None when not computed."""
         return self.columns.get("energy_J")
+
+    @property
+    def double_force(self) -> np.ndarray | None:
+        """Deprecated name of :attr:`double_force_Nm` (every array's name carries its unit)."""
+        _renamed("double_force", "double_force_Nm")
+        return self.double_force_Nm
+
+    @property
+    def energy(self) -> np.ndarray | None:
+        """Deprecated name of :attr:`energy_J` (every array's name carries its unit)."""
+        _renamed("energy", "energy_J")
+        return self.energy_J
 
     @property
     def force_error_N(self) -> np.ndarray | None:
@@ -203,6 +217,11 @@ class Result:
         n = len(self.u0_mm)
         last = f", u0 = {self.u0_mm[-1]:g} mm, force = {self.force_N[-1]:.4g} N" if n else ""
         return f"<ngbet.Result {self.scene.model} {self.status}: {n} steps{last}; {self.out}>"
+
+
+def _renamed(old: str, new: str) -> None:
+    warnings.warn(f"Result.{old} is renamed Result.{new} (the unit in the name, as in results.csv); "
+                  f"the old name goes in the next release", DeprecationWarning, stacklevel=3)
 
 
 def _read_columns(path: Path) -> dict[str, np.ndarray]:
