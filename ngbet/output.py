@@ -121,7 +121,7 @@ class RunWriter:
 
     Every file is written complete under a temporary name (:data:`TMP_PREFIX`) and renamed into
     place (:meth:`write`, :meth:`write_text`, :meth:`write_group`), and registered in the marker as
-    it is written; summary.json lists them (``files``). The one exception are the two tables that
+    it is written; summary.json lists them (``files``). The exceptions are the two tables that
     grow by a row per converged step: results.csv (header: the union of the columns of all rows,
     in the order they first appear; a column that first appears at a later step rewrites the file
     under a temporary name) and profile.csv are appended to and flushed. Files that appear in the
