@@ -23,7 +23,9 @@ def base_scene(quick: bool = False, **changes: Any) -> Scene:
 
     quick: the same specimen loaded to 20 mm with a stop at 10 mm (seconds per case).
     """
-    d: dict[str, Any] = {"outputs.vtk": False, "outputs.plot": False}
+    # the studies' cases vary mesh and order from a uniform 5 mm, p = 2 mesh without corner grading
+    d: dict[str, Any] = {"outputs.vtk": False, "outputs.plot": False, H: 5.0, P: 2,
+                         "discretization.corner_mesh_size_mm": 0.0}
     if quick:
         d.update({"loading.u0_mm": 20.0, "loading.stops_mm": [10.0]})
     d.update(changes)
