@@ -1,8 +1,11 @@
 """Faults a user can cause, each ending in a clear message and a consistent folder or cache.
 
-Every test does the fault (corrupt cache files, a reused or busy or unwritable output folder,
-SIGINT/SIGTERM/SIGKILL on a run or a study, a failing solver, degenerate input, a load past
-yarn locking) and asserts that nothing finished is lost and nothing wrong is reported as right.
+Every test does the fault (corrupt cache files, a reused or busy or unwritable output folder, a
+project folder that is not a run folder, a removed lock marker, a user's file in a run folder,
+SIGINT/SIGTERM/SIGKILL on a run or a study or inside a file write, a failing solver, degenerate or
+oversized input, a scene path that is a folder or binary, a full stdout, an unexpected error, a
+load past yarn locking) and asserts that nothing finished is lost and nothing wrong is reported
+as right.
 The scenes are tiny (20 mm mesh, u0 = 10 mm unless the fault needs more) so that each test takes
 a second or two.
 """
