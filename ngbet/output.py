@@ -577,21 +577,20 @@ def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], 
     return start_plot(run_dir, extra)()
 
 
-def start_plot(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()
-               ) -> Callable[[], Path | None]:
+def start_plot(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = (),
+               service: Any = None) -> Callable[[], Path | None]:
     """Start :func:`plot_force` of a finished results.csv; the function returned finishes it.
 
-    With a plot process the request goes out now and the process draws while the run writes its
-    other files; the function returned waits for it (and draws here if it failed). Without one,
-    the function returned draws.
+    ``service``: the plot process the runner started (:func:`ngbet.plot_process.active`; this
+    module neither starts nor imports it). The request goes out now and the process draws while
+    the run writes its other files; the function returned waits for it, and draws here if the
+    process failed (its errors are RuntimeErrors). Without one, the function returned draws.
     """
-    from .plot_process import PlotProcessError, active
-
-    proc = active()
+    proc = service
     if proc is not None:
         try:
             proc.request(run_dir, extra)
-        except PlotProcessError as exc:
+        except RuntimeError as exc:
             log.info("the plot process did not take %s (%s): drawing it here", run_dir, exc)
             proc = None
 
@@ -599,7 +598,7 @@ def start_plot(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], 
         if proc is not None:
             try:
                 return proc.answer()
-            except PlotProcessError as exc:
+            except RuntimeError as exc:
                 log.info("the plot process did not draw %s (%s): drawing it here", run_dir, exc)
         return draw_force(Path(run_dir), extra)
 

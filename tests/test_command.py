@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ngbet import plot_process
-from ngbet.output import OutputError, draw_force, plot_force
+from ngbet.output import OutputError, draw_force, start_plot
 
 pytest.importorskip("matplotlib")
 ROWS = ("step,u0_mm,force_N,dforce_du0_N_per_mm,double_force_Nm,force_error_N\n"
@@ -47,14 +47,14 @@ def test_the_plot_process_draws_the_figure_of_the_run_itself(tmp_path, monkeypat
 
 
 def test_a_dead_plot_process_leaves_the_drawing_to_the_run(tmp_path, monkeypatch):
-    """Nothing is lost: the process killed, plot_force draws the figure itself."""
+    """Nothing is lost: the process killed, the run draws the figure itself."""
     monkeypatch.setenv(plot_process.ENV, "always")
     monkeypatch.delitem(sys.modules, "ngsolve", raising=False)  # as in ngbet run before the solve
     with plot_process.plot_process(True) as proc:
         assert proc is not None and plot_process.active() is proc
         proc.proc.kill()
         proc.proc.wait()
-        png = plot_force(run_folder(tmp_path / "run"))
+        png = start_plot(run_folder(tmp_path / "run"), service=plot_process.active())()
     assert png == tmp_path / "run" / "force.png" and png.stat().st_size > 1000
     assert plot_process.active() is None and proc.proc.returncode is not None
 

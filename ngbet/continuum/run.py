@@ -13,7 +13,8 @@ import ngsolve as ngs
 
 from ..engine import PathResult, StepRecord, progress_bar
 from ..errors import ConvergenceError
-from ..output import RunWriter, plot_force, start_plot
+from ..output import RunWriter, start_plot
+from ..plot_process import active as plot_service
 from ..scene import Scene
 from . import observables as obs
 from .arclength import arclength_runner
@@ -62,7 +63,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
                 info.update(_solver_info(problem, None), **err.path_info)
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
-                    plot_force(out)
+                    start_plot(out, service=plot_service())()
                     writer.record("force.png", "force.pdf")
                 raise
         info.update(estimates.summary(time.perf_counter() - t_cont))
@@ -167,7 +168,7 @@ def _finish(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Pat
     while the rest is written; it is waited for in any case, so that no half-written figure is
     left behind by an error in between.
     """
-    plotted = start_plot(out) if scene.outputs.plot else None
+    plotted = start_plot(out, service=plot_service()) if scene.outputs.plot else None
     try:
         summary = _final_files(problem, scene, writer, out, res, info, warnings)
     except BaseException:
