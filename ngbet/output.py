@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from .errors import NgbetError
+from .preflight import preflight
 from .scene import Scene
 
 log = logging.getLogger(__name__)
@@ -502,20 +503,6 @@ def _clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
     if other:
         log.warning("%s: keeping %s (not written by ngbet)", out, ", ".join(other))
     return gone
-
-
-def preflight(scene: Scene) -> list[str]:
-    """Checks of a scene against this machine before anything is built.
-
-    Warnings (loads past ideal yarn locking, a large problem) are logged and returned; a problem that cannot fit in the
-    available memory is refused (:class:`SceneError` naming the keys).
-    """
-    from .scene import check_size, locking_warning
-
-    found = [w for w in (locking_warning(scene), check_size(scene)) if w]
-    for w in found:
-        log.warning("%s", w)
-    return found
 
 
 def _jsonable(o: Any) -> Any:

@@ -329,9 +329,9 @@ def test_a_specimen_beyond_a_kilometre_is_refused_before_the_run(tmp_path, capsy
 def test_a_discrete_network_too_large_for_memory_is_refused_before_building(tmp_path, capsys, monkeypatch):
     """spacing 0.1 mm: about 9.2 million dofs and 80 GB (a MemoryError traceback after 47 s); refused
     by the size check before the network is built, naming the key (8 GB available here)."""
-    import ngbet.scene
+    import ngbet.preflight
 
-    monkeypatch.setattr(ngbet.scene, "available_memory", lambda: 8e9)
+    monkeypatch.setattr(ngbet.preflight, "available_memory", lambda: 8e9)
     t0 = time.monotonic()
     assert main(["run", "--out", str(tmp_path / "o"), "--set=model=discrete", "--set=discrete.spacing_mm=0.1",
                  "--quiet"]) == 2
@@ -343,7 +343,7 @@ def test_a_discrete_network_too_large_for_memory_is_refused_before_building(tmp_
 def test_the_discrete_size_estimate_matches_measured_networks():
     """Measured on the default specimen: 4 086 / 15 594 / 60 966 dofs and a peak of 181 / 237 / 521 MB
     at spacing 5 / 2.5 / 1.25 mm; the estimate is within 12 % of both."""
-    from ngbet.scene import estimate_size
+    from ngbet.preflight import estimate_size
 
     for spacing, dofs, peak in ((5.0, 4086, 181e6), (2.5, 15594, 237e6), (1.25, 60966, 521e6)):
         n, mem = estimate_size(Scene().with_changes(**{"model": "discrete", "discrete.spacing_mm": spacing}))
@@ -383,7 +383,7 @@ def test_an_unexpected_error_is_one_line_and_exit_70(tmp_path, capsys, monkeypat
 
 
 def test_large_problem_is_warned_about_before_meshing(caplog):
-    from ngbet.output import preflight
+    from ngbet.preflight import preflight
 
     big = Scene().with_changes(**{"discretization.order_u": 10})  # measured 860 MB
     with caplog.at_level(logging.WARNING):
