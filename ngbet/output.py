@@ -25,6 +25,7 @@ import csv
 import fcntl
 import fnmatch
 import functools
+import io
 import json
 import logging
 import os
@@ -370,8 +371,6 @@ def _write_table(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> 
 
 def _append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
     """Append complete rows in one write (a reader never sees half a row unless the disk fails)."""
-    import io
-
     buf = io.StringIO()
     csv.DictWriter(buf, fieldnames=columns, lineterminator="\n").writerows(rows)
     with path.open("a", newline="") as fh:
@@ -379,8 +378,6 @@ def _append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> 
 
 
 def _append_lines(path: Path, lines: list[list[Any]]) -> None:
-    import io
-
     buf = io.StringIO()
     csv.writer(buf, lineterminator="\n").writerows(lines)
     with path.open("a", newline="") as fh:
