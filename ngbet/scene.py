@@ -498,23 +498,37 @@ def _yield_defaults(data: dict[str, Any], explicit: set[str]) -> None:
 
     ``explicit``: the keys ("section.key") the scene sets. Nothing valid is refused because of a
     default the user never set: the graded corners (``discretization.corner_mesh_size_mm`` = 0.25
-    by default) are switched off for a mesh finer than them or a structured mesh.
+    by default) are switched off for a mesh finer than them or a structured mesh; the smallest
+    load step (``loading.min_step_mm`` = 0.05) becomes the user's first or largest step where
+    that is smaller.
     """
     d = data.get("discretization")
     key = "discretization.corner_mesh_size_mm"
-    if not isinstance(d, dict) or key in explicit:
-        return
     default = Discretization.corner_mesh_size_mm
-    if d.get("corner_mesh_size_mm", default) != default:
-        return
-    h, structured = d.get("mesh_size_mm", Discretization.mesh_size_mm), d.get("structured", False)
-    finer = isinstance(h, (int, float)) and not isinstance(h, bool) and h < default
-    if finer or structured is True:
-        why = (f"discretization.mesh_size_mm = {h:g} is finer than the default corners" if finer
-               else "a structured mesh cannot be graded")
-        d["corner_mesh_size_mm"] = 0.0
-        warnings.warn(SceneNote(f"{key} = 0 (no corner grading) instead of the default {default:g}: {why}"),
-                      stacklevel=4)
+    if isinstance(d, dict) and key not in explicit and d.get("corner_mesh_size_mm", default) == default:
+        h, structured = d.get("mesh_size_mm", Discretization.mesh_size_mm), d.get("structured", False)
+        finer = _number(h) and h < default
+        if finer or structured is True:
+            why = (f"discretization.mesh_size_mm = {h:g} is finer than the default corners" if finer
+                   else "a structured mesh cannot be graded")
+            d["corner_mesh_size_mm"] = 0.0
+            warnings.warn(SceneNote(f"{key} = 0 (no corner grading) instead of the default {default:g}: {why}"),
+                          stacklevel=4)
+    ld = data.get("loading")
+    key = "loading.min_step_mm"
+    default = Loading.min_step_mm
+    if isinstance(ld, dict) and key not in explicit and ld.get("min_step_mm", default) == default:
+        steps = [ld.get(k, getattr(Loading, k)) for k in ("first_step_mm", "max_step_mm")]
+        smallest = min((v for v in steps if _number(v) and v > 0), default=default)
+        if smallest < default:
+            ld["min_step_mm"] = smallest
+            warnings.warn(SceneNote(f"{key} = {smallest:g} instead of the default {default:g}: the scene's "
+                                    "load steps are smaller"), stacklevel=4)
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
 
 _SECTIONS: dict[str, type] = {
     "specimen": Specimen,

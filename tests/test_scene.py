@@ -187,3 +187,16 @@ def test_a_scene_with_only_material_gives_the_default_runs_force(tmp_path):
     F_file, F_set = (read_rows(tmp_path / n / "results.csv")[-1]["force_N"] for n in ("file", "set"))
     assert F_file == F_set
     assert F_set == pytest.approx(22.1535, abs=1e-4)  # the default discretization's force at 16 mm
+
+
+def test_the_default_smallest_step_gives_way_to_the_users_smaller_steps():
+    """loading.min_step_mm = 0.05 by default; a first (or largest) step below it, set alone, was
+    refused ("must not exceed loading.first_step_mm"): the default now becomes that step, with a note."""
+    from ngbet.scene import SceneNote
+
+    for key in ("loading.first_step_mm", "loading.max_step_mm"):
+        with pytest.warns(SceneNote, match="loading.min_step_mm = 0.01 instead of the default 0.05"):
+            s = Scene().with_changes(**{key: 0.01})
+        assert s.loading.min_step_mm == 0.01
+    with pytest.raises(SceneError, match="must not exceed loading.first_step_mm"):  # the user's own value stays
+        Scene().with_changes(**{"loading.first_step_mm": 0.01, "loading.min_step_mm": 0.05})
