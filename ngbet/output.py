@@ -30,6 +30,7 @@ import json
 import logging
 import os
 import platform
+import shutil
 import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -122,11 +123,12 @@ class RunWriter:
     ``scene.toml`` and summary.json with ``"status": "running"``.
 
     Every file is written complete under a temporary name (:data:`TMP_PREFIX`) and renamed into
-    place (:meth:`write`, :meth:`write_text`, :meth:`write_group`), and registered in the marker as
-    it is written; summary.json lists them (``files``). The exceptions are the two tables that
-    grow by a row per converged step: results.csv (header: the union of the columns of all rows,
-    in the order they first appear; a column that first appears at a later step rewrites the file
-    under a temporary name) and profile.csv are appended to and flushed. Files that appear in the
+    place (:meth:`write`, :meth:`write_text`, :meth:`write_group`; the force plot drawn in a
+    temporary folder, :meth:`plot`), and registered in the marker as it is written; summary.json
+    lists them (``files``). The exceptions are the two tables that grow by a row per converged
+    step: results.csv (header: the union of the columns of all rows, in the order they first
+    appear; a column that first appears at a later step rewrites the file under a temporary name)
+    and profile.csv are appended to and flushed. Files that appear in the
     folder by other means during a run are not ngbet's: never registered, never removed.
 
     :meth:`summary` records "ok" or "failed"; leaving the ``with`` block on Ctrl-C/SIGTERM records
@@ -183,7 +185,7 @@ class RunWriter:
             if self._lock is not None:  # what a write cut short left behind
                 with contextlib.suppress(OSError):
                     for t in self.out.glob(TMP_PREFIX + "*"):
-                        t.unlink(missing_ok=True)
+                        _remove(t)
             self.release()
 
     # registered files ------------------------------------------------------------------------
@@ -206,17 +208,38 @@ class RunWriter:
         text = json.dumps({"ngbet": "run folder", "pid": os.getpid(), "files": self._files})
         _io(self.out / RUN_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
 
-    def record(self, *names: str) -> list[str]:
-        """Register files that ngbet's own drawing code wrote in place (the force plot); those that exist.
+    def plot(self, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = (),
+             service: Any = None) -> Callable[[], Path | None]:
+        """Start the force plot of the finished results.csv; the function returned finishes it.
 
-        summary.json is rewritten to list them when the run has ended.
+        Drawn (:func:`start_plot`, by the runner's plot process ``service`` when there is one)
+        into a temporary folder that holds a link to results.csv; the function returned waits for
+        the drawing and renames force.png and force.pdf into the run folder, registered, and
+        returns force.png (None when nothing was drawn). A drawing cut short leaves no force.png.
         """
-        done = [n for n in names if (self.out / n).is_file()]
-        for n in done:
-            self._register(n)
-        if done and self.status not in ("new", "running"):
-            self._write_summary()
-        return done
+        tmp = self.out / (TMP_PREFIX + "plot")
+        shutil.rmtree(tmp, ignore_errors=True)
+        _io(tmp, lambda d: d.mkdir())
+        _io(tmp / "results.csv", functools.partial(_link_or_copy, self.out / "results.csv"))
+        drawn = start_plot(tmp, extra, service=service)
+
+        def finish() -> Path | None:
+            try:
+                png = drawn()
+                done = {}
+                for name in ("force.png", "force.pdf"):
+                    if (tmp / name).is_file():
+                        final = self._target(name)
+                        self._register(name)
+                        _io(final, functools.partial(os.replace, tmp / name))
+                        done[name] = final
+                if done and self.status not in ("new", "running"):
+                    self._write_summary()
+                return done.get("force.png") if png is not None else None
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+
+        return finish
 
     def write(self, name: str, produce: Callable[[Path], Any]) -> Path | None:
         """Write the file ``name``: ``produce(tmp)`` writes it complete at ``tmp``, which is then renamed.
@@ -362,6 +385,14 @@ class RunWriter:
             fh.close()
 
 
+def _link_or_copy(src: Path, dst: Path) -> None:
+    """``dst`` a hard link to ``src`` (a copy where the file system has none)."""
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
+
+
 def _write_table(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
     with path.open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n")
@@ -461,6 +492,14 @@ def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
     return fh, [n for n in previous if isinstance(n, str) and n and "/" not in n and not n.startswith(".")]
 
 
+def _remove(p: Path) -> None:
+    """Remove a file, or a temporary folder with what is in it."""
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p)
+    else:
+        p.unlink(missing_ok=True)
+
+
 def _marker_record(text: str) -> dict[str, Any]:
     try:
         rec = json.loads(text)
@@ -492,9 +531,9 @@ def _clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
         raise OutputError(out, f"holds {', '.join(clash)}, which no ngbet run registered there (they are not "
                                "ngbet's; this run would replace them): move them or choose another --out")
     gone = []
-    for p in present:
+    for p in [*present, *(d for d in out.iterdir() if d.is_dir() and d.name.startswith(TMP_PREFIX))]:
         if p.name in listed or p.name.startswith(TMP_PREFIX):
-            _io(p, lambda q: q.unlink())
+            _io(p, _remove)
             gone.append(p)
     other = sorted(p.name for p in out.iterdir() if p.name != RUN_MARKER)
     if other:

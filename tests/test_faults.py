@@ -640,6 +640,28 @@ def test_accuracy_run_lists_every_file_it_wrote(tmp_path, capsys):
     assert s["accuracy"]["met"] and s["status"] == "ok"
 
 
+def test_a_force_plot_cut_short_leaves_no_figure_and_the_folder_reusable(tmp_path, monkeypatch):
+    """The force plot is drawn in a temporary folder and renamed: Ctrl-C in the middle of the
+    drawing leaves no force.png (a half-written one, not registered, would block the next run)."""
+    import ngbet.output
+
+    def cut(run_dir, extra=(), fork_pdf=False):
+        (Path(run_dir) / "force.png").write_bytes(b"\x89PNG half")
+        raise KeyboardInterrupt("Ctrl-C while drawing")
+
+    scene = Scene().with_changes(**{**TINY, "outputs.plot": True})
+    out = tmp_path / "r"
+    monkeypatch.setattr(ngbet.output, "draw_force", cut)
+    with pytest.raises(KeyboardInterrupt):
+        run(scene, out)
+    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "profile.csv", "results.csv", "scene.toml",
+                                                     "summary.json"]
+    monkeypatch.undo()
+    run(scene, out)
+    assert {"force.png", "force.pdf"} <= set(summary(out)["files"]) and (out / "force.png").stat().st_size > 1000
+    assert not [p for p in out.iterdir() if p.name.startswith(".ngbet-tmp")]
+
+
 def _vtu_points(path: Path):
     import pyvista as pv
 

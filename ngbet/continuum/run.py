@@ -13,7 +13,7 @@ import ngsolve as ngs
 
 from ..engine import PathResult, StepRecord, progress_bar
 from ..errors import ConvergenceError
-from ..output import RunWriter, start_plot
+from ..output import RunWriter
 from ..plot_process import active as plot_service
 from ..scene import Scene
 from . import observables as obs
@@ -63,8 +63,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
                 info.update(_solver_info(problem, None), **err.path_info)
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
-                    start_plot(out, service=plot_service())()
-                    writer.record("force.png", "force.pdf")
+                    writer.plot(service=plot_service())()
                 raise
         info.update(estimates.summary(time.perf_counter() - t_cont))
         return _finish(problem, scene, writer, out, res, info, warnings)
@@ -168,18 +167,16 @@ def _finish(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Pat
     while the rest is written; it is waited for in any case, so that no half-written figure is
     left behind by an error in between.
     """
-    plotted = start_plot(out, service=plot_service()) if scene.outputs.plot else None
+    plotted = writer.plot(service=plot_service()) if scene.outputs.plot else None
     try:
         summary = _final_files(problem, scene, writer, out, res, info, warnings)
     except BaseException:
         if plotted is not None:
             with contextlib.suppress(Exception):
                 plotted()
-                writer.record("force.png", "force.pdf")
         raise
     if plotted is not None:
         plotted()
-        writer.record("force.png", "force.pdf")
     return summary
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from ..engine import StepRecord, progress_bar
 from ..errors import ConvergenceError
 from ..kinematics import gamma_a
-from ..output import RunWriter, plot_force
+from ..output import RunWriter
 from ..scene import Scene
 from . import observables as ob
 from .model import ENERGY_PARTS, NetworkModel
@@ -120,8 +120,7 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
         summary = writer.summary(info, "ok" if failure is None else "failed",
                                  None if failure is None else str(failure))
         if scene.outputs.plot and writer.rows:
-            plot_force(out)
-            writer.record("force.png", "force.pdf")
+            writer.plot()()
         if failure is not None:
             raise failure
         return summary
