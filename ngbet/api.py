@@ -13,11 +13,11 @@ kept as long as the :class:`Result` lives and deleted with it. Pass ``out`` to k
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
 import shutil
 import tempfile
+import warnings
 import weakref
 from pathlib import Path
 from typing import Any
@@ -104,7 +104,8 @@ class Result:
         ``summary.json``: status, dofs, timings, versions, warnings (docs/outputs.md).
     columns : dict[str, numpy.ndarray]
         Every column of ``results.csv``, one entry per converged load step; also reachable as
-        attributes (``r.gamma_centre_deg``).
+        attributes (``r.gamma_centre_deg``). Every array's name ends in its unit, as the column's
+        does (``u0_mm``, ``force_N``, ``double_force_Nm``, ``energy_J``, ``force_error_N``).
     profiles : dict[float, tuple[numpy.ndarray, numpy.ndarray]]
         Mid-axis profile per converged step: ``{u0_mm: (X_mm, uy_mm)}``.
     """
@@ -141,7 +142,7 @@ class Result:
         return self.columns["force_N"]
 
     @property
-    def double_force(self) -> np.ndarray | None:
+    def double_force_Nm(self) -> np.ndarray | None:
         """Reaction double force on the moving clamp [N m] (column ``double_force_Nm``).
 
         None when the run has none (the discrete model, or a scene without bending).
@@ -149,9 +150,21 @@ class Result:
         return self.columns.get("double_force_Nm")
 
     @property
-    def energy(self) -> np.ndarray | None:
+    def energy_J(self) -> np.ndarray | None:
         """Total stored energy [J] (column ``energy_J``); None when not computed."""
         return self.columns.get("energy_J")
+
+    @property
+    def double_force(self) -> np.ndarray | None:
+        """Deprecated name of :attr:`double_force_Nm` (every array's name carries its unit)."""
+        _renamed("double_force", "double_force_Nm")
+        return self.double_force_Nm
+
+    @property
+    def energy(self) -> np.ndarray | None:
+        """Deprecated name of :attr:`energy_J` (every array's name carries its unit)."""
+        _renamed("energy", "energy_J")
+        return self.energy_J
 
     @property
     def force_error_N(self) -> np.ndarray | None:
@@ -206,18 +219,20 @@ class Result:
         return f"<ngbet.Result {self.scene.model} {self.status}: {n} steps{last}; {self.out}>"
 
 
+def _renamed(old: str, new: str) -> None:
+    warnings.warn(f"Result.{old} is renamed Result.{new} (the unit in the name, as in results.csv); "
+                  f"the old name goes in the next release", DeprecationWarning, stacklevel=3)
+
+
 def _read_columns(path: Path) -> dict[str, np.ndarray]:
-    if not path.exists():
-        return {"u0_mm": np.zeros(0), "force_N": np.zeros(0)}
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    names = list(rows[0]) if rows else []
+    """results.csv as arrays, one per column (:func:`ngbet.output.read_rows`; an empty cell is nan)."""
+    from .output import read_rows
+
+    rows = read_rows(path) if path.exists() else []
     out: dict[str, np.ndarray] = {}
-    for n in names:
-        try:
-            out[n] = np.array([float(r[n]) if r[n] != "" else np.nan for r in rows])
-        except ValueError:
-            out[n] = np.array([r[n] for r in rows])
+    for n in rows[0] if rows else []:
+        values = [np.nan if r[n] == "" else r[n] for r in rows]
+        out[n] = np.array(values, dtype=float if all(isinstance(v, float) for v in values) else object)
     out.setdefault("u0_mm", np.zeros(0))
     out.setdefault("force_N", np.full(len(rows), np.nan))
     return out

@@ -10,11 +10,15 @@ Exit status (both models, runs and studies):
 3     an I/O problem: the output folder is not writable, a file is in its place, it is on
       a read-only mount, another run holds its lock, or a dask scheduler is unreachable
       (the message names the path or address)
+70    an internal error of ngbet (a bug: please report it with the run folder); the message
+      names the error, ``-v`` adds its traceback; summary.json says "failed"
 130   interrupted by Ctrl-C (SIGINT) or SIGTERM: summary.json says "interrupted" with the
       last converged load; a study keeps its finished cases in the cache
 ====  ==================================================================================
 
-Errors are one line on stderr, loads in mm; the details are in the run folder's summary.json.
+Errors are one line on stderr, loads in mm; the details are in the run folder's summary.json. A
+run that finished but whose report could not be written to stdout (a full device, a closed pipe)
+exits 3: its run folder is complete, the message on stderr says so.
 """
 
 from __future__ import annotations
@@ -29,17 +33,18 @@ import signal
 import socket
 import sys
 import threading
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from .scene import Scene, SceneError, default_scene
+from .scene import Scene, SceneError, SceneNote, SceneWarning
 
-EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_IO, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_IO, EXIT_INTERNAL, EXIT_INTERRUPTED = 0, 1, 2, 3, 70, 130
 EPILOG = ("exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
           "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
-          "busy with another run; scheduler unreachable); 130 interrupted (SIGINT/SIGTERM; summary.json "
-          "says interrupted, with the last converged load in mm)")
+          "busy with another run; scheduler unreachable; stdout not writable); 70 internal error of ngbet; "
+          "130 interrupted (SIGINT/SIGTERM; summary.json says interrupted, with the last converged load in mm)")
 
 
 def _parse_value(text: str) -> object:
@@ -53,19 +58,54 @@ def _parse_value(text: str) -> object:
 
 
 def load_scene(path: str | None, overrides: list[str]) -> Scene:
-    """The scene file (or the default scene) with ``section.key=value`` (or ``model=...``) overrides applied."""
-    scene = Scene.from_toml(path) if path else default_scene()
+    """The scene file (or the default scene) with ``section.key=value`` (or ``model=...``) overrides applied.
+
+    The file's tables and the overrides are read into one scene: its missing keys take the
+    defaults, and a default that contradicts a key the file or an override sets gives way to it,
+    with a note on stderr (``ngbet: note: ...``), as are the scene's warnings.
+    """
+    from .scene import apply_changes, read_toml
+
     changes = {}
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep or ("." not in key and key.strip() != "model"):
             raise SceneError(f"--set expects section.key=value or model=continuum|discrete, got {item!r}")
         changes[key.strip()] = _parse_value(value.strip())
-    return scene.with_changes(**changes) if changes else scene
+    data = read_toml(path) if path else {}
+    if not isinstance(data, dict):
+        raise SceneError(f"scene file {path}: not a table of sections")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SceneNote)
+        warnings.simplefilter("always", SceneWarning)
+        scene = Scene.from_dict(apply_changes(data, changes))
+    for w in caught:
+        if issubclass(w.category, (SceneNote, SceneWarning)):
+            _say(f"{'note' if issubclass(w.category, SceneNote) else 'warning'}: {w.message}")
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return scene
 
 
 def _say(msg: str) -> None:
-    print(f"ngbet: {' '.join(msg.split())}", file=sys.stderr)
+    with contextlib.suppress(OSError, ValueError):  # stderr itself may be gone: the exit status still says it
+        print(f"ngbet: {' '.join(msg.split())}", file=sys.stderr)
+
+
+def _print(text: str, what: str) -> int:
+    """Write ``text`` to stdout; EXIT_IO with a message when stdout cannot take it (a full device).
+
+    stdout is then pointed at the null device, so that the interpreter's last flush does not fail again.
+    """
+    try:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        return EXIT_OK
+    except OSError as exc:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        _say(f"could not write {what} to stdout: {exc.strerror or exc}")
+        return EXIT_IO
 
 
 GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the watchdog does
@@ -155,7 +195,13 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
     if isinstance(exc, OSError):
         path = exc.filename if exc.filename is not None else where
         return EXIT_IO, f"I/O error on {path if path is not None else 'an unnamed file'}: {exc.strerror or exc}"
-    raise exc
+    if isinstance(exc, MemoryError):  # the size check before the run should have refused it
+        return EXIT_INTERNAL, ("out of memory" + (f" (converged steps and summary.json are in {where}/)" if where
+                                                  else "") + ": the estimate of the problem's size missed it; "
+                               "please report it")
+    first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return EXIT_INTERNAL, (f"internal error ({type(exc).__name__}{': ' + first if first else ''}); this is a bug in "
+                           "ngbet: please report it (-v shows the traceback)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -166,6 +212,12 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:
             _say("interrupted")
             return EXIT_INTERRUPTED
+        except Exception as exc:  # what no command caught: one line, never a traceback, never exit 1
+            code, msg = exit_code(exc)
+            if code == EXIT_INTERNAL and logging.getLogger().isEnabledFor(logging.INFO):
+                logging.getLogger(__name__).exception("the traceback")
+            _say(msg)
+            return code
 
 
 def _parser(command: str | None = None) -> argparse.ArgumentParser:
@@ -235,8 +287,7 @@ def _main(argv: list[str] | None) -> int:
     if args.command == "scene":
         from .scene_doc import commented_toml
 
-        sys.stdout.write(commented_toml(scene))
-        return EXIT_OK
+        return _print(commented_toml(scene), "the scene")
     return _run(scene, Path(args.out), progress=not args.quiet)
 
 
@@ -259,10 +310,11 @@ def _run(scene: Scene, out: Path, progress: bool) -> int:
         code, msg = exit_code(exc, out)
         if code == EXIT_SOLVER:
             msg += f"; converged steps and details are in {out}/ (summary.json)"
+        if code == EXIT_INTERNAL and logging.getLogger().isEnabledFor(logging.INFO):
+            logging.getLogger(__name__).exception("the traceback")
         _say(msg)
         return code
-    print(_report(summary, out))
-    return EXIT_OK
+    return _print(_report(summary, out) + "\n", f"the report (the run is complete in {out}/)")
 
 
 def _last_converged_mm(out: Path) -> float:

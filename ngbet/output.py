@@ -7,28 +7,37 @@ Layout of a run folder (both models)::
     profile.csv       mid-axis (Y = W/2) vertical displacement, one block per step: step,u0_mm,X_mm,uy_mm
     summary.json      scene, versions, dofs, timings, status: "running" from the start, then "ok",
                       "failed" or "interrupted" with the last converged load (written atomically)
-    .ngbet.lock       held (fcntl.flock) while a run writes into the folder
+    .ngbet.lock       ngbet's mark of a run folder: held (fcntl.flock) while a run writes into the
+                      folder; lists the files the runs registered
     fields_*.vtu      fields for ParaView
     force.png/.pdf    force-displacement plot
 
-Plotting reads these files; nothing in the physics imports this module.
+:class:`RunWriter` is the one writer of a run folder: the runners hand it every file (the numerics
+write none), it writes each complete under a temporary name and renames it, and registers it.
+:func:`read_rows` is the one reader of the tables. Plotting reads these files; nothing in the
+physics imports this module.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import fcntl
 import fnmatch
+import functools
+import io
 import json
 import logging
 import os
 import platform
+import shutil
 import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
 from .errors import NgbetError
+from .preflight import preflight
 from .scene import Scene
 
 log = logging.getLogger(__name__)
@@ -76,13 +85,21 @@ def machine() -> dict[str, Any]:
             "system": platform.platform()}
 
 
-RUN_LOCK = ".ngbet.lock"
-# what an ngbet run writes into its folder; only these (and the files the previous summary.json
-# lists) are removed when a folder is reused
-RUN_FILE_PATTERNS = ("scene.toml", "summary.json", "summary.json.tmp", "results.csv", "profile.csv",
-                     "fields*.vtu", "fields*.pvd", "force.png", "force.pdf", "state_*.npz", "yarns_*.png",
-                     "yarns_*.pdf", "instability_mode.vtu", "instability_mode.png")
-_RUN_MARKERS = (RUN_LOCK, "summary.json", "scene.toml")
+#: ngbet's mark of a run folder, and its lock: a folder is a run folder only when it holds this file
+#: (created by the run that first wrote into the folder, and never removed by ngbet). A run holds
+#: ``fcntl.flock`` on it while it writes (released by the OS when the process ends, however it ends:
+#: it cannot go stale); it also lists the files the runs registered (JSON), the only files a later
+#: run into the folder removes.
+RUN_MARKER = ".ngbet.lock"
+RUN_LOCK = RUN_MARKER
+#: the prefix of the temporary names every file is written under before it is renamed into place
+TMP_PREFIX = ".ngbet-tmp."
+#: names an ngbet run writes: one of these in a run folder that no run registered is refused before
+#: anything is written (it is the user's; the run would replace it)
+RUN_FILE_PATTERNS = ("scene.toml", "summary.json", "results.csv", "profile.csv", "fields*.vtu", "force.png",
+                     "force.pdf", "state_*.npz", "yarns_*.png", "instability_mode.vtu", "instability_mode.png")
+# what an ngbet run before the marker listed its files wrote into every folder (the summary lists the rest)
+_OLD_CORE = ("scene.toml", "summary.json", "summary.json.tmp", "results.csv", "profile.csv")
 
 
 class OutputError(NgbetError):
@@ -97,16 +114,26 @@ class OutputError(NgbetError):
 
 
 class RunWriter:
-    """The run folder of one run: locked, cleared of a previous run, its status kept in summary.json.
+    """The one writer of a run folder: every file of a run is written, and registered, through it.
 
     Lifecycle: the constructor refuses a folder that is a file, not writable, not an ngbet run
-    folder (non-empty without ``summary.json``/``scene.toml``/``.ngbet.lock``) or locked by another
-    run (``fcntl.flock`` on ``.ngbet.lock``; the OS releases it when that process dies), then
-    removes what a previous run wrote (``RUN_FILE_PATTERNS`` and the files its summary.json lists;
-    nothing else) and writes ``scene.toml`` and summary.json with ``"status": "running"``. Each
-    converged step is appended to results.csv and flushed. :meth:`summary` records "ok" or
-    "failed"; leaving the ``with`` block on Ctrl-C/SIGTERM records "interrupted", on any other
-    exception "failed" with the error, both with the last converged load; then the lock is released.
+    folder (non-empty without the marker :data:`RUN_MARKER`), holding a file with an ngbet name
+    that no run registered (:data:`RUN_FILE_PATTERNS`), or locked by another run (``fcntl.flock``
+    on the marker); then removes the files the previous runs registered (nothing else) and writes
+    ``scene.toml`` and summary.json with ``"status": "running"``.
+
+    Every file is written complete under a temporary name (:data:`TMP_PREFIX`) and renamed into
+    place (:meth:`write`, :meth:`write_text`, :meth:`write_group`; the force plot drawn in a
+    temporary folder, :meth:`plot`), and registered in the marker as it is written; summary.json
+    lists them (``files``). The exceptions are the two tables that grow by a row per converged
+    step: results.csv (header: the union of the columns of all rows, in the order they first
+    appear; a column that first appears at a later step rewrites the file under a temporary name)
+    and profile.csv are appended to and flushed. Files that appear in the
+    folder by other means during a run are not ngbet's: never registered, never removed.
+
+    :meth:`summary` records "ok" or "failed"; leaving the ``with`` block on Ctrl-C/SIGTERM records
+    "interrupted", on any other exception "failed" with the error, both with the last converged
+    load; then the lock is released.
     """
 
     def __init__(self, out: str | Path, scene: Scene) -> None:
@@ -117,18 +144,19 @@ class RunWriter:
         self.t_start = time.perf_counter()
         # what every summary.json of this run carries, from the first ("running") to the last
         self._base = {"pid": os.getpid(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        self._summary: dict[str, Any] = {}
+        self._columns: list[str] = []
+        self._files: list[str] = []  # registered by this run, in the order written
         self.warnings: list[str] = preflight(scene)  # refuses before the folder is touched
-        self._lock: IO[str] | None = _acquire_run_folder(self.out)
+        self._lock: IO[str] | None = None
+        self._lock, previous = _acquire_run_folder(self.out)
         _ACTIVE.add(self)
         try:
-            cleared = _clear_previous_run(self.out)
+            cleared = _clear_previous_run(self.out, previous)
             if cleared:
                 log.info("%s: removed %d files of a previous run", self.out, len(cleared))
-            self._kept = {p.name for p in self.out.iterdir()}
-            _io(self.out / "scene.toml", lambda p: p.write_text(scene.to_toml()))
-            self._rows_path = self.out / "results.csv"
-            self._profile_path = self.out / "profile.csv"
-            self._columns: list[str] | None = None
+            self._save_registry()
+            self.write_text("scene.toml", scene.to_toml())
             self.summary({}, "running")
         except BaseException:
             self.release()
@@ -149,31 +177,130 @@ class RunWriter:
                              f"interrupted (SIGINT/SIGTERM) after u0 = {self.last_converged_mm:g} mm")
             elif exc_type is not None and self.status == "running":
                 self.summary({"error_type": exc_type.__name__}, "failed", f"{exc_type.__name__}: {exc}")
-            elif exc_type is None and self.status != "running":
-                self._record_files()
+            elif self._summary and self._summary.get("files") != self.files():
+                self._write_summary()
         except (OSError, NgbetError) as err:  # the folder itself failed: the original error says more
             log.error("could not record the end of the run in %s: %s", self.out, err)
         finally:
+            if self._lock is not None:  # what a write cut short left behind
+                with contextlib.suppress(OSError):
+                    for t in self.out.glob(TMP_PREFIX + "*"):
+                        _remove(t)
             self.release()
 
-    def _record_files(self) -> None:
-        """List in summary.json also the files written after it (plots, fields).
+    # registered files ------------------------------------------------------------------------
+    def files(self) -> list[str]:
+        """The files this run registered that are in the folder (sorted)."""
+        return sorted(n for n in self._files if (self.out / n).is_file())
 
-        So the next run into this folder knows them as ngbet's.
+    def _register(self, name: str) -> None:
+        if "/" in name or name.startswith(".") or not name:
+            raise ValueError(f"not a file name of a run folder: {name!r}")
+        if name not in self._files:
+            self._files.append(name)
+            self._save_registry()
+
+    def _save_registry(self) -> None:
+        """The marker's record: this run's pid and the files it registered (rewritten in place: the lock stays)."""
+        fh = self._lock
+        if fh is None:
+            return
+        text = json.dumps({"ngbet": "run folder", "pid": os.getpid(), "files": self._files})
+        _io(self.out / RUN_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
+
+    def plot(self, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = (),
+             service: Any = None) -> Callable[[], Path | None]:
+        """Start the force plot of the finished results.csv; the function returned finishes it.
+
+        Drawn (:func:`start_plot`, by the runner's plot process ``service`` when there is one)
+        into a temporary folder that holds a link to results.csv; the function returned waits for
+        the drawing and renames force.png and force.pdf into the run folder, registered, and
+        returns force.png (None when nothing was drawn). A drawing cut short leaves no force.png.
         """
-        path = self.out / "summary.json"
-        s = json.loads(path.read_text())
-        files = self._files()
-        if s.get("files") != files:
-            s["files"] = files
-            write_json_atomic(path, s)
+        tmp = self.out / (TMP_PREFIX + "plot")
+        shutil.rmtree(tmp, ignore_errors=True)
+        _io(tmp, lambda d: d.mkdir())
+        _io(tmp / "results.csv", functools.partial(_link_or_copy, self.out / "results.csv"))
+        drawn = start_plot(tmp, extra, service=service)
 
-    def _files(self) -> list[str]:
-        return sorted(p.name for p in self.out.iterdir() if p.is_file() and p.name not in self._kept
-                      and not p.name.startswith(".") and not p.name.endswith(".tmp"))
+        def finish() -> Path | None:
+            try:
+                png = drawn()
+                done = {}
+                for name in ("force.png", "force.pdf"):
+                    if (tmp / name).is_file():
+                        final = self._target(name)
+                        self._register(name)
+                        _io(final, functools.partial(os.replace, tmp / name))
+                        done[name] = final
+                if done and self.status not in ("new", "running"):
+                    self._write_summary()
+                return done.get("force.png") if png is not None else None
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+
+        return finish
+
+    def write(self, name: str, produce: Callable[[Path], Any]) -> Path | None:
+        """Write the file ``name``: ``produce(tmp)`` writes it complete at ``tmp``, which is then renamed.
+
+        ``tmp`` ends like ``name`` (writers that choose the format by the suffix see the right one).
+        An existing file of that name that this run did not register is never replaced
+        (:class:`OutputError`). Returns the final path, or None when ``produce`` wrote nothing
+        (a figure without matplotlib).
+        """
+        final = self._target(name)
+        tmp = self.out / (TMP_PREFIX + name)
+        self._register(name)
+        try:
+            _io(tmp, produce)
+            if not tmp.exists():
+                return None
+            _io(final, lambda p: os.replace(tmp, p))
+        finally:
+            tmp.unlink(missing_ok=True)
+        return final
+
+    def write_text(self, name: str, text: str) -> None:
+        """Write a text file (see :meth:`write`)."""
+        self.write(name, lambda p: p.write_text(text))
+
+    def write_json(self, name: str, data: Any) -> None:
+        """Write a JSON file (see :meth:`write`)."""
+        self.write_text(name, json.dumps(data, indent=2, default=_jsonable))
+
+    def write_group(self, stem: str, produce: Callable[[Path], Iterable[Path]]) -> list[Path]:
+        """Write files that one writer makes together, ``stem`` + a suffix each (a VTU file and its picture).
+
+        ``produce(tmp_stem)`` writes them as ``tmp_stem`` + suffix and returns their paths; each is
+        renamed to ``stem`` + its suffix and registered. Returns the final paths.
+        """
+        tmp_stem = self.out / (TMP_PREFIX + stem)
+        made: list[Path] = []
+        try:
+            made = [Path(p) for p in _io(tmp_stem, lambda p: list(produce(p)))]
+            done = []
+            for m in made:
+                if not m.name.startswith(tmp_stem.name):
+                    raise ValueError(f"{m}: not a file of the group {tmp_stem}")
+                name = stem + m.name[len(tmp_stem.name):]
+                final = self._target(name)
+                self._register(name)
+                _io(final, functools.partial(os.replace, m))
+                done.append(final)
+            return done
+        finally:
+            for m in made:
+                m.unlink(missing_ok=True)
+
+    def _target(self, name: str) -> Path:
+        final = self.out / name
+        if name not in self._files and final.exists():
+            raise OutputError(final, "exists and was not written by this run; ngbet does not replace it")
+        return final
 
     def release(self) -> None:
-        """Unlock the folder (the lock file stays: removing it would race with a waiting run)."""
+        """Unlock the folder (the marker stays: it marks the folder as ngbet's, and removing it would race)."""
         _ACTIVE.discard(self)
         if self._lock is not None:
             self._lock.close()
@@ -184,28 +311,35 @@ class RunWriter:
         """The last converged clamp displacement [mm] (0 before the first step)."""
         return float(self.rows[-1]["u0_mm"]) if self.rows else 0.0
 
+    # the growing tables ----------------------------------------------------------------------
     def add_step(self, row: dict[str, Any], profile: Sequence[tuple[float, float]] | None = None) -> None:
-        """Write one converged step (and its mid-axis profile) and flush it to disk."""
-        self.rows.append(row)
-        new = self._columns is None
-        if self._columns is None:
-            self._columns = list(row)
-        with self._rows_path.open("a", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=self._columns, extrasaction="ignore", lineterminator="\n")
-            if new:
-                w.writeheader()
-            w.writerow(row)
-        if profile is not None:
-            write_header = not self._profile_path.exists()
-            with self._profile_path.open("a", newline="") as fh:
-                w2 = csv.writer(fh, lineterminator="\n")
-                if write_header:
-                    w2.writerow(["step", "u0_mm", "X_mm", "uy_mm"])
-                for X_mm, uy_mm in profile:
-                    w2.writerow([row["step"], row["u0_mm"], f"{X_mm:.6g}", f"{uy_mm:.9g}"])
+        """Write one converged step (and its mid-axis profile) and flush it to disk.
 
+        The header of results.csv is the union of the columns of all rows so far: a row with a new
+        column rewrites the file (complete, under a temporary name) with it, earlier rows empty there.
+        """
+        new = [k for k in row if k not in self._columns]
+        columns = [*self._columns, *new]
+        if new:
+            self.write("results.csv", lambda p: _write_table(p, columns, [*self.rows, row]))
+        else:
+            _io(self.out / "results.csv", lambda p: _append_rows(p, columns, [row]))
+        # counted once on disk: an interrupt before this line leaves the summary's steps = the file's rows
+        self._columns = columns
+        self.rows.append(row)
+        if profile is not None:
+            block = [[row["step"], row["u0_mm"], f"{X_mm:.6g}", f"{uy_mm:.9g}"] for X_mm, uy_mm in profile]
+            if "profile.csv" in self._files:
+                _io(self.out / "profile.csv", lambda p: _append_lines(p, block))
+            else:
+                self.write("profile.csv", lambda p: _append_lines(p, [["step", "u0_mm", "X_mm", "uy_mm"], *block]))
+
+    # summary.json ----------------------------------------------------------------------------
     def summary(self, info: dict[str, Any], status: str, error: str | None = None) -> dict[str, Any]:
-        """Write summary.json atomically (at the start, at the end, and on failure with the error)."""
+        """Write summary.json atomically (at the start, at the end, and on failure with the error).
+
+        Returns the summary; the same dict is kept up to date with the files registered later.
+        """
         s = {
             "status": status,
             "error": error,
@@ -222,10 +356,63 @@ class RunWriter:
             **info,
         }
         s["warnings"] = [*self.warnings, *info.get("warnings", [])]
-        s["files"] = self._files()
-        write_json_atomic(self.out / "summary.json", s)
+        self._summary.clear()
+        self._summary.update(s)
+        self._write_summary()
         self.status = status
-        return s
+        return self._summary
+
+    def _write_summary(self) -> None:
+        self._register("summary.json")
+        self._summary["files"] = sorted(n for n in self._files if n == "summary.json" or (self.out / n).is_file())
+        self.write_json("summary.json", self._summary)
+
+    @classmethod
+    def amend(cls, out: str | Path, updates: dict[str, Any]) -> dict[str, Any]:
+        """Add ``updates`` to the summary.json of a finished run in ``out`` (under its lock); returns it.
+
+        ``files`` is taken from the folder's registry, the rest of the summary is kept.
+        """
+        out = Path(out)
+        fh, registry = _acquire_run_folder(out)
+        try:
+            s = json.loads(_io(out / "summary.json", lambda p: p.read_text()))
+            s.update(updates)
+            s["files"] = sorted(n for n in registry if (out / n).is_file())
+            write_json_atomic(out / "summary.json", s)
+            return s
+        finally:
+            fh.close()
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    """``dst`` a hard link to ``src`` (a copy where the file system has none)."""
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
+
+
+def _write_table(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+
+
+def _append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+    """Append complete rows in one write (a reader never sees half a row unless the disk fails)."""
+    buf = io.StringIO()
+    csv.DictWriter(buf, fieldnames=columns, lineterminator="\n").writerows(rows)
+    with path.open("a", newline="") as fh:
+        fh.write(buf.getvalue())
+
+
+def _append_lines(path: Path, lines: list[list[Any]]) -> None:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows(lines)
+    with path.open("a", newline="") as fh:
+        fh.write(buf.getvalue())
 
 
 _ACTIVE: set[RunWriter] = set()
@@ -249,9 +436,12 @@ def interrupt_active_runs(reason: str) -> list[Path]:
 
 def write_json_atomic(path: Path, data: Any) -> None:
     """Write JSON to a temporary file and rename it: a reader sees the old or the new file, never half."""
-    tmp = path.with_name(path.name + ".tmp")
-    _io(tmp, lambda p: p.write_text(json.dumps(data, indent=2, default=_jsonable)))
-    os.replace(tmp, path)
+    tmp = path.with_name(TMP_PREFIX + path.name)
+    try:
+        _io(tmp, lambda p: p.write_text(json.dumps(data, indent=2, default=_jsonable)))
+        _io(path, lambda p: os.replace(tmp, p))
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def _io(path: Path, action: Callable[[Path], Any]) -> Any:
@@ -262,62 +452,93 @@ def _io(path: Path, action: Callable[[Path], Any]) -> Any:
         raise OutputError(path, exc.strerror or str(exc)) from exc
 
 
-def _acquire_run_folder(out: Path) -> IO[str]:
-    """Create ``out`` if needed, refuse it if it cannot be a run folder, and lock it."""
+def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
+    """Create ``out`` if needed, refuse it if it cannot be a run folder, and lock it.
+
+    Returns the locked marker and the files the previous runs into the folder registered.
+    """
     if out.exists() and not out.is_dir():
         raise OutputError(out, "a file is in the place of the output folder")
     _io(out, lambda p: p.mkdir(parents=True, exist_ok=True))
-    names = {p.name for p in out.iterdir()}
-    if names and not names & set(_RUN_MARKERS):
+    names = {p.name for p in _io(out, lambda p: list(p.iterdir()))}
+    if names and RUN_MARKER not in names:
         raise OutputError(out, f"not empty and not an ngbet run folder (it holds {', '.join(sorted(names)[:5])}"
-                               f"{', ...' if len(names) > 5 else ''}); choose another --out")
-    fh = _io(out / RUN_LOCK, lambda p: p.open("a+"))
+                               f"{', ...' if len(names) > 5 else ''}; ngbet marks its run folders with "
+                               f"{RUN_MARKER}); choose another --out")
+    fh = _io(out / RUN_MARKER, lambda p: p.open("a+"))
     try:
         fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         fh.seek(0)
-        who = fh.read().strip()
+        who = _marker_record(fh.read()).get("pid")
         fh.close()
         raise OutputError(out, f"busy: another ngbet run{f' (pid {who})' if who else ''} is writing into "
                                "it; wait for it or choose another --out") from None
-    fh.seek(0)
-    fh.truncate()
-    fh.write(str(os.getpid()))
-    fh.flush()
-    return fh
-
-
-def _clear_previous_run(out: Path) -> list[Path]:
-    """Remove the files a previous ngbet run wrote into ``out``; anything else stays (with a warning)."""
-    listed: set[str] = set()
+    except OSError as exc:
+        fh.close()
+        raise OutputError(out / RUN_MARKER, exc.strerror or str(exc)) from exc
     try:
-        prev = json.loads((out / "summary.json").read_text())
-        listed = {n for n in prev.get("files", []) if isinstance(n, str) and "/" not in n and not n.startswith(".")}
+        same = os.fstat(fh.fileno()).st_ino == os.stat(out / RUN_MARKER).st_ino
+    except OSError:
+        same = False
+    if not same:  # removed or replaced between opening and locking: another process is at work here
+        fh.close()
+        raise OutputError(out, f"its {RUN_MARKER} was removed or replaced while this run took the folder; "
+                               "choose another --out")
+    fh.seek(0)
+    previous = _marker_record(fh.read()).get("files")
+    if not isinstance(previous, list):  # a folder of an ngbet that kept the list in summary.json only
+        previous = [*_OLD_CORE, *_summary_files(out)]
+    return fh, [n for n in previous if isinstance(n, str) and n and "/" not in n and not n.startswith(".")]
+
+
+def _remove(p: Path) -> None:
+    """Remove a file, or a temporary folder with what is in it."""
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p)
+    else:
+        p.unlink(missing_ok=True)
+
+
+def _marker_record(text: str) -> dict[str, Any]:
+    try:
+        rec = json.loads(text)
+    except ValueError:
+        return {"pid": text.strip()} if text.strip().isdigit() else {}
+    return rec if isinstance(rec, dict) else {}
+
+
+def _summary_files(out: Path) -> list[str]:
+    try:
+        files = json.loads((out / "summary.json").read_text()).get("files", [])
     except (OSError, ValueError, AttributeError):
-        pass
+        return []
+    return files if isinstance(files, list) else []
+
+
+def _clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
+    """Remove the files previous ngbet runs registered in ``out`` (and their temporary files).
+
+    Anything else stays (with a warning). A file with the name of one an ngbet run writes
+    (:data:`RUN_FILE_PATTERNS`) that no run registered is the user's: the folder is refused before
+    anything is removed, since this run would replace it.
+    """
+    listed = set(registered)
+    present = sorted(p for p in out.iterdir() if p.is_file() and p.name != RUN_MARKER)
+    clash = [p.name for p in present if p.name not in listed and not p.name.startswith(TMP_PREFIX)
+             and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_FILE_PATTERNS)]
+    if clash:
+        raise OutputError(out, f"holds {', '.join(clash)}, which no ngbet run registered there (they are not "
+                               "ngbet's; this run would replace them): move them or choose another --out")
     gone = []
-    for p in sorted(out.iterdir()):
-        if p.is_file() and (p.name in listed or any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_FILE_PATTERNS)):
-            _io(p, lambda q: q.unlink())
+    for p in [*present, *(d for d in out.iterdir() if d.is_dir() and d.name.startswith(TMP_PREFIX))]:
+        if p.name in listed or p.name.startswith(TMP_PREFIX):
+            _io(p, _remove)
             gone.append(p)
-    other = sorted(p.name for p in out.iterdir() if p.name != RUN_LOCK)
+    other = sorted(p.name for p in out.iterdir() if p.name != RUN_MARKER)
     if other:
         log.warning("%s: keeping %s (not written by ngbet)", out, ", ".join(other))
     return gone
-
-
-def preflight(scene: Scene) -> list[str]:
-    """Checks of a scene against this machine before anything is built.
-
-    Warnings (loads past ideal yarn locking, a large problem) are logged and returned; a problem that cannot fit in the
-    available memory is refused (:class:`SceneError` naming the keys).
-    """
-    from .scene import check_size, locking_warning
-
-    found = [w for w in (locking_warning(scene), check_size(scene)) if w]
-    for w in found:
-        log.warning("%s", w)
-    return found
 
 
 def _jsonable(o: Any) -> Any:
@@ -328,13 +549,16 @@ def _jsonable(o: Any) -> Any:
     return str(o)
 
 
-def read_rows(path: str | Path) -> list[dict[str, float]]:
-    """Read a results.csv back as a list of dicts of floats (non-numbers kept as strings)."""
-    rows = []
-    with Path(path).open() as fh:
-        for r in csv.DictReader(fh):
-            rows.append({k: _num(v) for k, v in r.items()})
-    return rows
+def read_rows(path: str | Path) -> list[dict[str, Any]]:
+    """Read a results.csv (or any ngbet table) back as a list of dicts: floats, non-numbers kept as strings.
+
+    The one reader of ngbet's tables. An empty cell stays ``""``. A last line without its line end
+    is a row cut short (the run was killed while appending it) and is left out.
+    """
+    text = Path(path).read_text()
+    if text and not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    return [{k: _num(v) for k, v in r.items()} for r in csv.DictReader(text.splitlines())]
 
 
 def _num(v: str) -> Any:
@@ -347,11 +571,10 @@ def _num(v: str) -> Any:
 def read_profiles(path: str | Path) -> dict[float, tuple[list[float], list[float]]]:
     """profile.csv -> {u0_mm: (X_mm, uy_mm)}."""
     out: dict[float, tuple[list[float], list[float]]] = {}
-    with Path(path).open() as fh:
-        for r in csv.DictReader(fh):
-            X, uy = out.setdefault(float(r["u0_mm"]), ([], []))
-            X.append(float(r["X_mm"]))
-            uy.append(float(r["uy_mm"]))
+    for r in read_rows(path):
+        X, uy = out.setdefault(float(r["u0_mm"]), ([], []))
+        X.append(float(r["X_mm"]))
+        uy.append(float(r["uy_mm"]))
     return out
 
 
@@ -377,21 +600,20 @@ def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], 
     return start_plot(run_dir, extra)()
 
 
-def start_plot(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()
-               ) -> Callable[[], Path | None]:
+def start_plot(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = (),
+               service: Any = None) -> Callable[[], Path | None]:
     """Start :func:`plot_force` of a finished results.csv; the function returned finishes it.
 
-    With a plot process the request goes out now and the process draws while the run writes its
-    other files; the function returned waits for it (and draws here if it failed). Without one,
-    the function returned draws.
+    ``service``: the plot process the runner started (:func:`ngbet.plot_process.active`; this
+    module neither starts nor imports it). The request goes out now and the process draws while
+    the run writes its other files; the function returned waits for it, and draws here if the
+    process failed (its errors are RuntimeErrors). Without one, the function returned draws.
     """
-    from .plot_process import PlotProcessError, active
-
-    proc = active()
+    proc = service
     if proc is not None:
         try:
             proc.request(run_dir, extra)
-        except PlotProcessError as exc:
+        except RuntimeError as exc:
             log.info("the plot process did not take %s (%s): drawing it here", run_dir, exc)
             proc = None
 
@@ -399,7 +621,7 @@ def start_plot(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], 
         if proc is not None:
             try:
                 return proc.answer()
-            except PlotProcessError as exc:
+            except RuntimeError as exc:
                 log.info("the plot process did not draw %s (%s): drawing it here", run_dir, exc)
         return draw_force(Path(run_dir), extra)
 

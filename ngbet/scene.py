@@ -88,6 +88,10 @@ def _choice(section: str, obj: Any, name: str, choices: tuple[str, ...]) -> None
     _check(v in choices, f"{section}.{name}" if section else name, v, f"must be one of {', '.join(map(repr, choices))}")
 
 
+#: the largest specimen dimension accepted [mm]: forces and sizes of larger ones overflow (1e308 did)
+MAX_SPECIMEN_MM = 1e6
+
+
 @dataclass(frozen=True)
 class Specimen:
     """Rectangular BET specimen B = [0, L] x [0, W]; clamps on X = 0 (fixed) and X = L (moving).
@@ -104,6 +108,9 @@ class Specimen:
 
     def __post_init__(self) -> None:
         _positive("specimen", self, "length_mm", "width_mm", "thickness_mm")
+        for n in ("length_mm", "width_mm", "thickness_mm"):
+            _check(getattr(self, n) <= MAX_SPECIMEN_MM, f"specimen.{n}", getattr(self, n),
+                   f"must be at most {MAX_SPECIMEN_MM:g} mm (1 km): larger values overflow the computation")
         a = self.yarn_angle_deg
         _check(isinstance(a, (int, float)) and 5.0 <= a <= 85.0, "specimen.yarn_angle_deg", a,
                "must lie between 5 and 85 degrees")
@@ -254,17 +261,23 @@ MAX_ORDER = 16
 
 @dataclass(frozen=True)
 class Discretization:
-    """Mesh and polynomial orders (``order_phi = "auto"``: order_u; ``order_lam = "auto"``: the stable pair)."""
+    """Mesh and polynomial orders (``order_phi = "auto"``: order_u; ``order_lam = "auto"``: the stable pair).
 
-    mesh_size_mm: float = 5.0
-    order_u: int = 2
+    The defaults are the accurate default discretization (:data:`DEFAULT_DISCRETIZATION`): a 10 mm
+    mesh graded to 0.25 mm at the four clamp corners, p = 3.
+    """
+
+    mesh_size_mm: float = 10.0
+    order_u: int = 3
     order_phi: int | str = AUTO  # "auto": same as order_u
     order_lam: int | str = AUTO  # "auto": max(order_u - 2, 0), the stable pair (see ngbet.continuum.problem)
     quad_bonus: int = 0  # extra quadrature order for the non-polynomial sqrt(i4), sqrt(i6) terms
     structured: bool = False  # crossed structured mesh instead of Netgen's unstructured one
     # mesh size at the four corners where a clamp meets a free edge (singular points of the
-    # solution); 0: no local refinement. Netgen grades the mesh from there to mesh_size_mm.
-    corner_mesh_size_mm: float = 0.0
+    # solution); 0: no local refinement. Netgen grades the mesh from there to mesh_size_mm. The
+    # default 0.25 gives way (to 0, with a note) when the scene sets a mesh finer than it or a
+    # structured mesh without setting this key
+    corner_mesh_size_mm: float = 0.25
     # times the elements at the four clamp corners are bisected after meshing (each bisection
     # halves the element at a corner). Netgen leaves one triangle spanning each 90-degree corner,
     # two of whose edges lie on the boundary; one bisection splits it, which at the same order
@@ -475,6 +488,48 @@ NOT_READ_BY: dict[str, dict[str, tuple[str, ...] | None]] = {
 class SceneWarning(UserWarning):
     """A scene value that has no effect on the chosen model."""
 
+
+class SceneNote(UserWarning):
+    """A default value that gave way to a key the scene sets (the note says which and why)."""
+
+
+def _yield_defaults(data: dict[str, Any], explicit: set[str]) -> None:
+    """Give defaults that contradict a key the scene sets way to it, in the tables ``data``, with a note.
+
+    ``explicit``: the keys ("section.key") the scene sets. Nothing valid is refused because of a
+    default the user never set: the graded corners (``discretization.corner_mesh_size_mm`` = 0.25
+    by default) are switched off for a mesh finer than them or a structured mesh; the smallest
+    load step (``loading.min_step_mm`` = 0.05) becomes the user's first or largest step where
+    that is smaller.
+    """
+    d = data.get("discretization")
+    key = "discretization.corner_mesh_size_mm"
+    default = Discretization.corner_mesh_size_mm
+    if isinstance(d, dict) and key not in explicit and d.get("corner_mesh_size_mm", default) == default:
+        h, structured = d.get("mesh_size_mm", Discretization.mesh_size_mm), d.get("structured", False)
+        finer = _number(h) and h < default
+        if finer or structured is True:
+            why = (f"discretization.mesh_size_mm = {h:g} is finer than the default corners" if finer
+                   else "a structured mesh cannot be graded")
+            d["corner_mesh_size_mm"] = 0.0
+            warnings.warn(SceneNote(f"{key} = 0 (no corner grading) instead of the default {default:g}: {why}"),
+                          stacklevel=4)
+    ld = data.get("loading")
+    key = "loading.min_step_mm"
+    default = Loading.min_step_mm
+    if isinstance(ld, dict) and key not in explicit and ld.get("min_step_mm", default) == default:
+        steps = [ld.get(k, getattr(Loading, k)) for k in ("first_step_mm", "max_step_mm")]
+        smallest = min((v for v in steps if _number(v) and v > 0), default=default)
+        if smallest < default:
+            ld["min_step_mm"] = smallest
+            warnings.warn(SceneNote(f"{key} = {smallest:g} instead of the default {default:g}: the scene's "
+                                    "load steps are smaller"), stacklevel=4)
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 _SECTIONS: dict[str, type] = {
     "specimen": Specimen,
     "material": Material,
@@ -538,28 +593,31 @@ class Scene:
                                        "these values have no effect"), stacklevel=3)
 
     def unused_keys(self) -> list[str]:
-        """The keys with a non-default value that the scene's model does not read ("section.key").
-
-        The embedded scene's discretization (:data:`DEFAULT_DISCRETIZATION`) counts as a default:
-        ``ngbet run --set model=discrete`` starts from it without asking for it.
-        """
+        """The keys with a non-default value that the scene's model does not read ("section.key")."""
         out = []
         for name, keys in NOT_READ_BY[self.model].items():
             section, default = getattr(self, name), _SECTIONS[name]()
-            embedded = DEFAULT_DISCRETIZATION if name == "discretization" else {}
             for f in fields(section):
                 value = getattr(section, f.name)
-                if (keys is None or f.name in keys) and value != getattr(default, f.name) \
-                        and value != embedded.get(f.name, getattr(default, f.name)):
+                if (keys is None or f.name in keys) and value != getattr(default, f.name):
                     out.append(f"{name}.{f.name}")
         return out
 
     # construction ------------------------------------------------------------------------------
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> Scene:
-        """Build a scene from nested dicts (TOML tables); unknown keys are refused by name."""
+    def from_dict(cls, data: dict[str, Any], explicit: set[str] | None = None) -> Scene:
+        """Build a scene from nested dicts (TOML tables); unknown keys are refused by name.
+
+        Missing sections and keys take the defaults (the same as :func:`default_scene`'s). A
+        default that contradicts a key the scene sets gives way to it with a :class:`SceneNote`
+        (``explicit``: the keys "section.key" set by the user; default: those in ``data``).
+        """
         if not isinstance(data, dict):
             raise SceneError(f"a scene must be a table of sections, got {type(data).__name__}")
+        if explicit is None:
+            explicit = {f"{n}.{k}" for n, t in data.items() if isinstance(t, dict) for k in t}
+        data = {n: dict(t) if isinstance(t, dict) else t for n, t in data.items()}
+        _yield_defaults(data, explicit)
         known = {"model", *_SECTIONS}
         for key in data:
             if key not in known:
@@ -586,15 +644,7 @@ class Scene:
     @classmethod
     def from_toml(cls, path: str | Path) -> Scene:
         """Read a scene file; missing sections and keys take the default values."""
-        path = Path(path)
-        try:
-            with path.open("rb") as fh:
-                data = tomllib.load(fh)
-        except FileNotFoundError:
-            raise SceneError(f"scene file not found: {path}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise SceneError(f"scene file {path} is not valid TOML: {exc}") from None
-        return cls.from_dict(data)
+        return cls.from_dict(read_toml(path))
 
     @classmethod
     def from_toml_string(cls, text: str) -> Scene:
@@ -617,21 +667,50 @@ class Scene:
         return tomli_w.dumps(self.to_dict())
 
     def with_changes(self, **dotted: Any) -> Scene:
-        """A variant: ``scene.with_changes(**{"material.alpha1": 20.0, "loading.u0_mm": 37})``."""
-        d = self.to_dict()
-        for key, value in dotted.items():
-            section, _, name = key.partition(".")
-            if not name:
-                d[section] = value
-                continue
-            if section not in d or not isinstance(d[section], dict):
-                raise SceneError(f"unknown scene section '{section}' in '{key}'")
-            d[section][name] = value
-        return Scene.from_dict(d)
+        """A variant: ``scene.with_changes(**{"material.alpha1": 20.0, "loading.u0_mm": 37})``.
+
+        A default of this scene that contradicts a changed key gives way to it (:class:`SceneNote`).
+        """
+        return Scene.from_dict(apply_changes(self.to_dict(), dotted), explicit=set(dotted))
 
     def digest(self) -> str:
         """A stable hash of the complete scene (for caches)."""
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """The tables of a scene file; :class:`SceneError` naming the file when it cannot be read as TOML."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise SceneError(f"scene file not found: {path}") from None
+    except IsADirectoryError:
+        raise SceneError(f"scene file {path} is a directory, not a TOML file") from None
+    except OSError as exc:
+        raise SceneError(f"scene file {path} cannot be read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise SceneError(f"scene file {path} is not a text (UTF-8) file: is it a TOML scene?") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"scene file {path} is not valid TOML: {exc}") from None
+
+
+def apply_changes(data: dict[str, Any], dotted: dict[str, Any]) -> dict[str, Any]:
+    """The tables ``data`` with ``{"section.key": value}`` (or ``{"model": ...}``) set; a new dict."""
+    d = {n: dict(t) if isinstance(t, dict) else t for n, t in data.items()}
+    for key, value in dotted.items():
+        section, _, name = key.partition(".")
+        if not name:
+            d[section] = value
+            continue
+        if section not in _SECTIONS:
+            raise SceneError(f"unknown scene section '{section}' in '{key}'")
+        table = d.setdefault(section, {})
+        if not isinstance(table, dict):
+            raise SceneError(f"scene section '{section}' must be a table, got {table!r}")
+        table[name] = value
+    return d
 
 
 MIN_YARNS_PER_FAMILY = 4
@@ -653,90 +732,20 @@ def _max_spacing(specimen: Specimen) -> float:
     return yarns_per_family(specimen, 1.0) / MIN_YARNS_PER_FAMILY
 
 
-def locking_warning(scene: Scene) -> str | None:
-    """A warning when the load passes ideal yarn locking.
-
-    Inextensible yarns would lock there; the model's yarns stretch, so it runs, with the yarns
-    carrying the load by elongation.
-    """
-    lock = scene.specimen.locking_u0_mm
-    if scene.loading.u0_mm < lock:
-        return None
-    return (f"loading.u0_mm = {scene.loading.u0_mm:g} mm is past ideal yarn locking (u0 = {lock:.1f} mm for "
-            f"this specimen): beyond it the yarns must stretch (K_el = {scene.material.K_el:.3g} Pa) and the "
-            "force rises steeply")
-
-
-# fitted to the default specimen (70 x 220 mm): Netgen's triangles have about 0.42 h² each, and the
-# peak memory of assembly + sparse Cholesky (condensed) grew like 250 B x dofs x (p + 2) over
-# 150 MB of libraries (h = 10, 5, 2.5 mm; p = 2 to 8: 159 to 313 MB after factorizing)
-_TRIANGLE_AREA = 0.42
-_BYTES_PER_DOF_ORDER = 250.0
-_BASE_BYTES = 1.5e8
-_WARN_BYTES = 5e8
-
-
-def estimate_size(scene: Scene) -> tuple[int, float]:
-    """(dofs, peak memory [bytes]) of a continuum run, estimated before meshing.
-
-    Triangles: the specimen area over 0.42 h² (plus about 12 per halving of the size at each graded
-    corner and about 17 per corner bisection); an H1 field
-    of order p has about p²/2 dofs per triangle (u two of them, phi one), the multiplier
-    (p_lam + 1)(p_lam + 2)/2.
-    """
-    sp, d = scene.specimen, scene.discretization
-    ntri = sp.length_mm * sp.width_mm / (_TRIANGLE_AREA * d.mesh_size_mm ** 2)
-    if d.corner_mesh_size_mm > 0:
-        ntri += 4 * 12 * math.log2(d.mesh_size_mm / d.corner_mesh_size_mm)  # measured 9-12 per halving
-    ntri += 4 * 17 * d.corner_bisections  # measured 12-17 per bisection and corner (1 mm corners)
-    per_tri: float = d.p_u ** 2
-    if scene.effects.bending:
-        per_tri += d.p_phi ** 2 / 2 + (d.p_lam + 1) * (d.p_lam + 2) / 2
-    dofs = int(ntri * per_tri)
-    return dofs, _BASE_BYTES + _BYTES_PER_DOF_ORDER * dofs * (max(d.p_u, d.p_phi) + 2)
-
-
-def available_memory() -> float | None:
-    """Available memory [bytes] (Linux /proc/meminfo MemAvailable; None elsewhere)."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return float(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
-
-
-def check_size(scene: Scene) -> str | None:
-    """Refuse (SceneError) a continuum problem that will not fit in the available memory.
-
-    A warning with its estimated size above 0.5 GB.
-    """
-    if scene.model != "continuum":
-        return None
-    dofs, mem = estimate_size(scene)
-    d = scene.discretization
-    what = (f"discretization.mesh_size_mm = {d.mesh_size_mm:g}, order_u = {d.order_u}: about {dofs:,} dofs "
-            f"and {mem / 1e9:.1f} GB (estimated before meshing)")
-    avail = available_memory()
-    _check(avail is None or mem < avail, "discretization.order_u", d.order_u,
-           f"{what}; only {(avail or 0) / 1e9:.1f} GB are available: coarsen the mesh or lower the order")
-    return f"a large problem: {what}" if mem > _WARN_BYTES else None
-
-
-#: The embedded default scene's discretization: the cheapest setting measured within 0.3 % of the
-#: reference force at 56 mm (107.2365 N, ngbet.studies.reference) and within 1 % on the mid-axis
+#: The default discretization (:class:`Discretization`'s defaults): the cheapest setting measured
+#: within 0.3 % of the reference force at 56 mm (107.2365 N, ngbet.studies.reference) and within 1 % on the mid-axis
 #: profile: 10 mm mesh graded to 0.25 mm at the four clamp corners, p = 3 (0.13 % and 0.39 %; its
 #: solve takes 0.4–0.6 times that of the uniform 5 mm p = 2 mesh, which is 2.1 % and 7.8 % off,
 #: measured interleaved on a loaded 2-core machine). p = 2 on the same mesh is 0.16 % on the force
 #: but 4 % on the profile.
-DEFAULT_DISCRETIZATION: dict[str, Any] = {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}
+DEFAULT_DISCRETIZATION: dict[str, Any] = {k: getattr(Discretization, k)
+                                           for k in ("mesh_size_mm", "corner_mesh_size_mm", "order_u")}
 
 
 def default_scene() -> Scene:
     """The paper's bias extension test: 70 x 220 mm, Table 1, Lagrange multiplier, u0 to 56 mm.
 
-    On the accurate default discretization (:data:`DEFAULT_DISCRETIZATION`).
+    On the accurate default discretization (:data:`DEFAULT_DISCRETIZATION`). The same scene as
+    ``Scene()``: a scene file's missing keys take these values.
     """
-    return Scene(discretization=Discretization(**DEFAULT_DISCRETIZATION))
+    return Scene()

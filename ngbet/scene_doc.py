@@ -20,10 +20,8 @@ from . import scene as S
 
 HEADER = """\
 # ngbet scene: a bias extension test (BET) of a woven fabric. Every key is optional; a missing key
-# takes the value printed here, except in [discretization]: there a file's missing keys take the
-# uniform mesh of Scene() (mesh_size_mm = 5, order_u = 2, no corner grading), so keep the whole
-# [discretization] table below to keep the accurate default. Run it with `ngbet run this.toml`, or
-# change single values with `ngbet run --set section.key=value`. The model and its conventions: docs/model.md.
+# takes the default value (that of `ngbet run` without a scene file). Run it with `ngbet run this.toml`,
+# or change single values with `ngbet run --set section.key=value`. The model and its conventions: docs/model.md.
 #
 # Units: lengths in mm (keys ending in _mm), angles in degrees (_deg), stiffnesses in SI units as
 # in the paper (Pa, Pa m^2, N, N m, N/m; stated beside each key). Results are in mm and N.

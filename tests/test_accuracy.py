@@ -102,8 +102,13 @@ def ref(base: str, station: int = 1) -> tuple[float, float]:
     return extrapolate(F, list(ORDERS.get(base, range(4, 4 + len(F)))))
 
 
+#: the discretization the cases below start from: uniform 5 mm, p = 2 (not the graded default)
+UNIFORM = {"discretization.mesh_size_mm": 5.0, "discretization.corner_mesh_size_mm": 0.0, "discretization.order_u": 2}
+
+
 def _scene(base: str, **disc) -> Scene:
-    ch = {"outputs.vtk": False, "outputs.plot": False, "outputs.error_estimate": "final", **BASES[base]}
+    ch = {"outputs.vtk": False, "outputs.plot": False, "outputs.error_estimate": "final", **BASES[base],
+          **UNIFORM}
     ch.update({f"discretization.{k}": v for k, v in disc.items()})
     return Scene().with_changes(**ch)
 

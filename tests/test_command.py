@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ngbet import plot_process
-from ngbet.output import draw_force, plot_force
+from ngbet.output import OutputError, draw_force, start_plot
 
 pytest.importorskip("matplotlib")
 ROWS = ("step,u0_mm,force_N,dforce_du0_N_per_mm,double_force_Nm,force_error_N\n"
@@ -47,14 +47,14 @@ def test_the_plot_process_draws_the_figure_of_the_run_itself(tmp_path, monkeypat
 
 
 def test_a_dead_plot_process_leaves_the_drawing_to_the_run(tmp_path, monkeypatch):
-    """Nothing is lost: the process killed, plot_force draws the figure itself."""
+    """Nothing is lost: the process killed, the run draws the figure itself."""
     monkeypatch.setenv(plot_process.ENV, "always")
     monkeypatch.delitem(sys.modules, "ngsolve", raising=False)  # as in ngbet run before the solve
     with plot_process.plot_process(True) as proc:
         assert proc is not None and plot_process.active() is proc
         proc.proc.kill()
         proc.proc.wait()
-        png = plot_force(run_folder(tmp_path / "run"))
+        png = start_plot(run_folder(tmp_path / "run"), service=plot_process.active())()
     assert png == tmp_path / "run" / "force.png" and png.stat().st_size > 1000
     assert plot_process.active() is None and proc.proc.returncode is not None
 
@@ -105,9 +105,9 @@ def test_ngbet_run_writes_the_same_files_with_and_without_the_plot_process(tmp_p
 @pytest.mark.parametrize("with_process", [True, False])
 def test_the_plot_is_asked_for_first_and_finished_even_when_a_later_file_fails(tmp_path, monkeypatch, with_process):
     """The run asks for its figure as soon as results.csv is complete and writes the fields while the
-    plot process draws; when the fields' file fails (here: a full disk) the error still reaches the
-    caller, and the figure is waited for: complete, never half-written, asked of the plot process
-    before the fields when there is one."""
+    plot process draws; when the fields' file fails (here: a full disk) the error, naming the file,
+    still reaches the caller, and the figure is waited for: complete, never half-written, asked of
+    the plot process before the fields when there is one."""
     from ngbet.continuum import run as crun
     from ngbet.run import run
     from ngbet.scene import Scene
@@ -129,12 +129,12 @@ def test_the_plot_is_asked_for_first_and_finished_even_when_a_later_file_fails(t
         monkeypatch.setattr(proc, "request", lambda *a, **k: (asked.append("plot"), real_request(*a, **k)))
         monkeypatch.setattr(plot_process, "_ACTIVE", [proc])
         try:
-            with pytest.raises(OSError, match="No space left"):
+            with pytest.raises(OutputError, match=r"fields.vtu: No space left"):
                 run(sc, out)
         finally:
             proc.close()
     else:
-        with pytest.raises(OSError, match="No space left"):
+        with pytest.raises(OutputError, match=r"fields.vtu: No space left"):
             run(sc, out)
     assert asked == (["plot", "vtk"] if with_process else ["vtk"])
     assert pixels(out / "force.png").shape[0] > 100 and (out / "force.pdf").stat().st_size > 1000

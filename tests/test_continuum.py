@@ -336,7 +336,8 @@ def test_vtk_output_at_a_high_order_stays_small(tmp_path):
 
     assert [vtk_subdivision(p) for p in (1, 2, 3, 4, 5, 8, 9, 16)] == [0, 1, 2, 2, 3, 3, 4, 4]
     sc = Scene().with_changes(**{"discretization.order_u": 10, "discretization.mesh_size_mm": 40.0,
-                                 "loading.u0_mm": 1.0, "loading.first_step_mm": 1.0, "loading.stops_mm": [],
+                                 "discretization.corner_mesh_size_mm": 0.0, "loading.u0_mm": 1.0,
+                                 "loading.first_step_mm": 1.0, "loading.stops_mm": [],
                                  "outputs.error_estimate": "off", "outputs.plot": False})
     run(sc, tmp_path)
     vtu = tmp_path / "fields.vtu"

@@ -1,8 +1,11 @@
 """Faults a user can cause, each ending in a clear message and a consistent folder or cache.
 
-Every test does the fault (corrupt cache files, a reused or busy or unwritable output folder,
-SIGINT/SIGTERM/SIGKILL on a run or a study, a failing solver, degenerate input, a load past
-yarn locking) and asserts that nothing finished is lost and nothing wrong is reported as right.
+Every test does the fault (corrupt cache files, a reused or busy or unwritable output folder, a
+project folder that is not a run folder, a removed lock marker, a user's file in a run folder,
+SIGINT/SIGTERM/SIGKILL on a run or a study or inside a file write, a failing solver, degenerate or
+oversized input, a scene path that is a folder or binary, a full stdout, an unexpected error, a
+load past yarn locking) and asserts that nothing finished is lost and nothing wrong is reported
+as right.
 The scenes are tiny (20 mm mesh, u0 = 10 mm unless the fault needs more) so that each test takes
 a second or two.
 """
@@ -29,6 +32,7 @@ from ngbet.studies import _common as C
 from ngbet.study import MissingValueError, Study, run_study, verify_case
 
 TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
+        "discretization.corner_mesh_size_mm": 0.0, "discretization.order_u": 2,
         "loading.u0_mm": 10.0, "loading.stops_mm": [5.0]}
 TINY_SET = [f"--set={k}={v}" for k, v in TINY.items()]
 DISCRETE = {"model": "discrete", "discrete.spacing_mm": 10.0, "loading.u0_mm": 10.0, "outputs.plot": False}
@@ -36,7 +40,8 @@ DISCRETE = {"model": "discrete", "discrete.spacing_mm": 10.0, "loading.u0_mm": 1
 DISCRETE_FAILING = {**DISCRETE, "solver.rtol": 1e-300, "solver.atol_energy": 1e-300, "solver.max_iterations": 2,
                     "loading.min_step_mm": 1.0}
 # many short steps: a run that lasts long enough to be interrupted between steps
-SLOW_SET = ["--set=discretization.mesh_size_mm=20", "--set=outputs.vtk=false", "--set=outputs.plot=false",
+SLOW_SET = ["--set=discretization.mesh_size_mm=20", "--set=discretization.corner_mesh_size_mm=0",
+            "--set=discretization.order_u=2", "--set=outputs.vtk=false", "--set=outputs.plot=false",
             "--set=loading.first_step_mm=0.2", "--set=loading.max_step_mm=0.2", "--set=solver.grow_after=0"]
 
 
@@ -89,6 +94,68 @@ def test_folder_that_is_not_a_run_folder_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err
     assert str(other) in err and "not an ngbet run folder" in err
     assert sorted(p.name for p in other.iterdir()) == ["cat.jpg"]  # untouched
+
+
+def test_a_project_folder_with_a_scene_and_a_csv_is_not_a_run_folder(tmp_path, monkeypatch, capsys):
+    """A folder counts as a run folder only by ngbet's marker: a project folder holding the user's
+    commented scene.toml and measured results.csv is refused (exit 3), nothing in it touched."""
+    proj = tmp_path / "proj"
+    proj.mkdir()
+    files = {"scene.toml": "# my fabric, measured 2024\n[material]\nalpha1 = 20.0\n",
+             "results.csv": "u0_mm,force_N\n10,3.1\n20,9.4\n"}
+    for name, text in files.items():
+        (proj / name).write_text(text)
+    monkeypatch.chdir(proj)
+    assert main(["run", "scene.toml", "--out", ".", *TINY_SET, "--quiet"]) == 3
+    err = capsys.readouterr().err
+    assert "not an ngbet run folder" in err and ".ngbet.lock" in err and err.count("\n") == 1
+    assert {p.name: p.read_text() for p in proj.iterdir()} == files
+
+
+def test_a_users_file_with_an_ngbet_name_in_a_run_folder_is_refused_not_replaced(tmp_path, capsys):
+    out = tmp_path / "run"
+    run(Scene().with_changes(**TINY), out)
+    (out / "force.png").write_bytes(b"the user's own figure")  # not written by a run
+    assert main(["run", "--out", str(out), *TINY_SET, "--quiet"]) == 3
+    assert "force.png" in capsys.readouterr().err
+    assert (out / "force.png").read_bytes() == b"the user's own figure"
+    assert summary(out)["status"] == "ok"  # the previous run's files are all there
+
+
+def test_removing_the_marker_during_a_run_does_not_let_a_second_run_in(tmp_path):
+    """The lock is held on the marker; a user who removes the marker while a run writes (it looks
+    stale) leaves a folder that is no longer marked as ngbet's: the second run is refused (exit 3)
+    and the first run's files stay as the first run wrote them."""
+    out = tmp_path / "run"
+    first = Scene().with_changes(**TINY)
+    with RunWriter(out, first) as w:
+        w.add_step({"step": 1, "u0_mm": 5.0, "force_N": 7.0})
+        (out / ".ngbet.lock").unlink()
+        p = ngbet("run", "--out", str(out), "--quiet", *TINY_SET, "--set=loading.u0_mm=8")
+        _, err = p.communicate(timeout=120)
+        assert p.returncode == 3, err
+        assert "not an ngbet run folder" in err and "Traceback" not in err
+        w.add_step({"step": 2, "u0_mm": 10.0, "force_N": 9.0})
+        w.summary({}, "ok")
+    assert [r["u0_mm"] for r in read_rows(out / "results.csv")] == [5.0, 10.0]
+    assert Scene.from_toml(out / "scene.toml") == first and summary(out)["steps"] == 2
+
+
+def test_the_lock_is_released_however_the_run_ends(tmp_path):
+    """The OS releases the flock when the process ends, SIGKILL included: the marker stays and
+    never goes stale; the next run takes the folder and removes only the killed run's files."""
+    out = tmp_path / "run"
+    code = ("import sys, time; from ngbet.output import RunWriter; from ngbet.scene import Scene\n"
+            "w = RunWriter(sys.argv[1], Scene()); w.add_step({'step': 1, 'u0_mm': 1.0, 'force_N': 1.0})\n"
+            "print('ready', flush=True); time.sleep(60)\n")
+    p = subprocess.Popen([sys.executable, "-c", code, str(out)], stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "ready"
+    (out / "mine.txt").write_text("the user's")
+    p.kill()
+    p.wait()
+    assert summary(out)["status"] == "running" and (out / ".ngbet.lock").exists()
+    assert run(Scene().with_changes(**TINY), out)["status"] == "ok"
+    assert (out / "mine.txt").read_text() == "the user's"
 
 
 def test_summary_says_running_while_the_run_is_on(tmp_path):
@@ -239,8 +306,84 @@ def test_degenerate_input_exits_2_naming_the_key(tmp_path, capsys, sets, key):
     assert not out.exists()  # refused before anything was meshed or written
 
 
+@pytest.mark.parametrize("command", ["run", "scene"])
+def test_a_scene_path_that_is_a_folder_or_binary_exits_2(tmp_path, capsys, command):
+    binary = tmp_path / "scene.toml"
+    binary.write_bytes(bytes(range(256)))
+    for path, why in ((tmp_path, "is a directory"), (binary, "not a text (UTF-8) file")):
+        assert main([command, str(path), *(["--out", str(tmp_path / "o")] if command == "run" else [])]) == 2
+        err = capsys.readouterr().err
+        assert str(path) in err and why in err and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("key", ["specimen.thickness_mm", "specimen.length_mm", "specimen.width_mm"])
+def test_a_specimen_beyond_a_kilometre_is_refused_before_the_run(tmp_path, capsys, key):
+    """1e308 mm overflowed the force (a traceback in the plot after "ok") or the size estimate."""
+    assert main(["run", "--out", str(tmp_path / "o"), *TINY_SET, f"--set={key}=1e308", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert key in err and "at most 1e+06 mm" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_discrete_network_too_large_for_memory_is_refused_before_building(tmp_path, capsys, monkeypatch):
+    """spacing 0.1 mm: about 9.2 million dofs and 80 GB (a MemoryError traceback after 47 s); refused
+    by the size check before the network is built, naming the key (8 GB available here)."""
+    import ngbet.preflight
+
+    monkeypatch.setattr(ngbet.preflight, "available_memory", lambda: 8e9)
+    t0 = time.monotonic()
+    assert main(["run", "--out", str(tmp_path / "o"), "--set=model=discrete", "--set=discrete.spacing_mm=0.1",
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "discrete.spacing_mm" in err and "9,239,999 dofs" in err and "80.3 GB" in err
+    assert not (tmp_path / "o").exists() and time.monotonic() - t0 < 30
+
+
+def test_the_discrete_size_estimate_matches_measured_networks():
+    """Measured on the default specimen: 4 086 / 15 594 / 60 966 dofs and a peak of 181 / 237 / 521 MB
+    at spacing 5 / 2.5 / 1.25 mm; the estimate is within 12 % of both."""
+    from ngbet.preflight import estimate_size
+
+    for spacing, dofs, peak in ((5.0, 4086, 181e6), (2.5, 15594, 237e6), (1.25, 60966, 521e6)):
+        n, mem = estimate_size(Scene().with_changes(**{"model": "discrete", "discrete.spacing_mm": spacing}))
+        assert abs(n / dofs - 1) < 0.12 and abs(mem / peak - 1) < 0.12, (spacing, n, mem)
+
+
+def test_a_full_stdout_ends_in_a_message_and_exit_3_with_the_run_intact(tmp_path):
+    """``ngbet run ... > /dev/full``: the run is complete on disk; the lost report is an I/O
+    problem (exit 3, one line on stderr), never a traceback or the solver's exit 1."""
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full on this system")
+    out = tmp_path / "r"
+    with open("/dev/full", "w") as full:
+        p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--out", str(out), "--quiet", *TINY_SET],
+                           stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+    assert p.returncode == 3, p.stderr
+    assert "Traceback" not in p.stderr and "No space left" in p.stderr and str(out) in p.stderr
+    assert p.stderr.count("\n") == 1
+    s = summary(out)
+    assert s["status"] == "ok" and len(read_rows(out / "results.csv")) == s["steps"] > 0
+
+
+def test_an_unexpected_error_is_one_line_and_exit_70(tmp_path, capsys, monkeypatch):
+    """A bug (an error ngbet does not raise on purpose) ends in one line naming it and exit 70:
+    never a traceback, never the solver's 1; the run folder says "failed"."""
+    import ngbet.continuum.observables as obs
+
+    def bug(problem):
+        raise TypeError("unsupported operand")
+
+    monkeypatch.setattr(obs, "centre_shear_angle_deg", bug)
+    out = tmp_path / "o"
+    assert main(["run", "--out", str(out), *TINY_SET, "--quiet"]) == 70
+    err = capsys.readouterr().err
+    assert "internal error (TypeError: unsupported operand)" in err and err.count("\n") == 1
+    assert summary(out)["status"] == "failed" and "TypeError" in summary(out)["error"]
+
+
 def test_large_problem_is_warned_about_before_meshing(caplog):
-    from ngbet.output import preflight
+    from ngbet.preflight import preflight
 
     big = Scene().with_changes(**{"discretization.order_u": 10})  # measured 860 MB
     with caplog.at_level(logging.WARNING):
@@ -444,14 +587,103 @@ def test_ctrl_c_acts_within_seconds_when_the_main_thread_is_stuck(tmp_path):
     assert s["status"] == "interrupted" and s["last_converged_mm"] == 3.0 and str(out) in err
 
 
-def test_files_written_after_the_summary_are_known_to_the_next_run(tmp_path):
+def test_files_the_writer_wrote_after_the_summary_are_listed_and_a_users_are_not(tmp_path):
+    """A file written through the run's writer after its summary is registered (listed, removed by
+    the next run); a file that appears in the folder during the run by other means is the user's:
+    not listed, never removed."""
     scene = Scene().with_changes(**TINY)
     with RunWriter(tmp_path, scene) as w:
         w.summary({}, "ok")
-        (tmp_path / "mode_1.vtu").write_text("written by the run after its summary")
-    assert "mode_1.vtu" in summary(tmp_path)["files"]
+        w.write_text("mode_1.vtu", "written by the run after its summary")
+        (tmp_path / "notes.txt").write_text("the user's, written while the run was on")
+    assert summary(tmp_path)["files"] == ["mode_1.vtu", "scene.toml", "summary.json"]
     run(scene, tmp_path)
     assert not (tmp_path / "mode_1.vtu").exists()
+    assert (tmp_path / "notes.txt").read_text() == "the user's, written while the run was on"
+    assert "notes.txt" not in summary(tmp_path)["files"]
+
+
+def test_a_column_that_first_appears_at_a_later_step_is_kept(tmp_path):
+    """The header of results.csv is the union of the columns of all rows; earlier rows are empty there."""
+    with RunWriter(tmp_path, Scene().with_changes(**TINY)) as w:
+        w.add_step({"step": 1, "u0_mm": 1.0, "force_N": 2.0})
+        w.add_step({"step": 2, "u0_mm": 2.0, "force_N": 3.0, "force_error_N": 0.5})
+        w.add_step({"step": 3, "u0_mm": 3.0, "force_N": 4.0})
+        w.summary({}, "ok")
+    assert (tmp_path / "results.csv").read_text().splitlines() == [
+        "step,u0_mm,force_N,force_error_N", "1,1.0,2.0,", "2,2.0,3.0,0.5", "3,3.0,4.0,"]
+    assert [r["force_error_N"] for r in read_rows(tmp_path / "results.csv")] == ["", 0.5, ""]
+
+
+def test_a_row_cut_short_by_a_kill_is_not_read(tmp_path):
+    """A row is complete only with its line end: the one reader leaves out a last line without it."""
+    (tmp_path / "results.csv").write_text("step,u0_mm,force_N\n1,1.0,2.0\n2,2.0,3.")
+    assert read_rows(tmp_path / "results.csv") == [{"step": 1.0, "u0_mm": 1.0, "force_N": 2.0}]
+
+
+def test_accuracy_run_lists_every_file_it_wrote(tmp_path, capsys):
+    """``--accuracy`` runs the chosen discretization and then adds its record to summary.json; the
+    force plot, drawn after the run's last summary, is listed too (it was missing)."""
+    out = tmp_path / "acc"
+    assert main(["run", "--out", str(out), "--quiet", "--accuracy", "1e-2", "--set=loading.u0_mm=20",
+                 "--set=outputs.vtk=false"]) == 0
+    s = summary(out)
+    on_disk = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+    assert s["files"] == on_disk == ["force.pdf", "force.png", "profile.csv", "results.csv", "scene.toml",
+                                     "summary.json"]
+    assert s["accuracy"]["met"] and s["status"] == "ok"
+
+
+def test_a_force_plot_cut_short_leaves_no_figure_and_the_folder_reusable(tmp_path, monkeypatch):
+    """The force plot is drawn in a temporary folder and renamed: Ctrl-C in the middle of the
+    drawing leaves no force.png (a half-written one, not registered, would block the next run)."""
+    import ngbet.output
+
+    def cut(run_dir, extra=(), fork_pdf=False):
+        (Path(run_dir) / "force.png").write_bytes(b"\x89PNG half")
+        raise KeyboardInterrupt("Ctrl-C while drawing")
+
+    scene = Scene().with_changes(**{**TINY, "outputs.plot": True})
+    out = tmp_path / "r"
+    monkeypatch.setattr(ngbet.output, "draw_force", cut)
+    with pytest.raises(KeyboardInterrupt):
+        run(scene, out)
+    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "profile.csv", "results.csv", "scene.toml",
+                                                     "summary.json"]
+    monkeypatch.undo()
+    run(scene, out)
+    assert {"force.png", "force.pdf"} <= set(summary(out)["files"]) and (out / "force.png").stat().st_size > 1000
+    assert not [p for p in out.iterdir() if p.name.startswith(".ngbet-tmp")]
+
+
+def _vtu_points(path: Path):
+    import pyvista as pv
+
+    return pv.read(str(path)).points
+
+
+def test_fields_file_appears_only_complete_and_in_mm(tmp_path, monkeypatch):
+    """The fields file is written and rescaled to mm under a temporary name, then renamed: an
+    interrupt between NGSolve's write (coordinates in metres) and the rescale leaves no fields.vtu."""
+    pytest.importorskip("pyvista")
+    import ngbet.continuum.output as co
+
+    scene = Scene().with_changes(**{**TINY, "outputs.vtk": True, "loading.stops_mm": []})
+    run(scene, tmp_path / "ok")
+    x = _vtu_points(tmp_path / "ok" / "fields.vtu")[:, 0]
+    assert x.min() == pytest.approx(0.0, abs=1e-9) and x.max() == pytest.approx(220.0)  # mm, reference
+
+    def interrupted(vtu, factor):
+        raise KeyboardInterrupt("Ctrl-C inside the VTK write")
+
+    monkeypatch.setattr(co, "scale_points", interrupted)
+    out = tmp_path / "cut"
+    with pytest.raises(KeyboardInterrupt):
+        run(scene, out)
+    assert summary(out)["status"] == "interrupted"
+    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "profile.csv", "results.csv", "scene.toml",
+                                                     "summary.json"]
+    assert "fields.vtu" not in summary(out)["files"]
 
 
 def test_full_disk_during_a_run_exits_3_and_says_failed(tmp_path, capsys, monkeypatch):

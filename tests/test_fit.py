@@ -173,7 +173,8 @@ def test_profile_determines_what_the_force_cannot():
     fit cannot separate K_sh from alpha2; with the mid-axis profile at 37 mm (10 points, 0.05 mm
     noise) all three parameters are determined, each within two standard errors of the truth,
     and the profile's sensitivities come from the same single run per iteration."""
-    truth = Scene().with_changes(**{"discretization.mesh_size_mm": 10.0, "loading.u0_mm": 37.0})
+    truth = Scene().with_changes(**{"discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 0.0,
+                                    "discretization.order_u": 2, "loading.u0_mm": 37.0})
     X, u = np.linspace(0.0, 220.0, 12), np.linspace(4.0, 37.0, 12)
     r = force_path(truth, u, (), {37.0: X[1:-1]})
     rng = np.random.default_rng(5)

@@ -119,7 +119,84 @@ def test_keys_the_model_does_not_read_are_named_in_a_warning():
     # the sections a model reads, and defaults elsewhere, are quiet
     assert Scene().with_changes(**{"model": "discrete", "loading.u0_mm": 30.0}).unused_keys() == []
     assert Scene().with_changes(**{"material.alpha1": 20.0}).unused_keys() == []
-    # the embedded scene's discretization was not asked for: `ngbet run --set model=discrete` is quiet
+    # the default discretization was not asked for: `ngbet run --set model=discrete` is quiet
     assert default_scene().with_changes(**{"model": "discrete"}).unused_keys() == []
     with pytest.warns(SceneWarning, match="does not read discretization.order_u"):
         default_scene().with_changes(**{"model": "discrete", "discretization.order_u": 5})
+
+
+def test_one_default_scene_file_keys_take_the_defaults_of_ngbet_run(tmp_path):
+    """Scene() is default_scene(), and a scene file with only [material] differs from the default
+    only there: its missing [discretization] is the accurate default, not another mesh."""
+    from ngbet.cli import load_scene
+
+    assert Scene() == default_scene()
+    f = tmp_path / "m.toml"
+    f.write_text("[material]\nalpha1 = 200.0\n")
+    from_file = load_scene(str(f), [])
+    assert from_file == Scene.from_toml(f) == default_scene().with_changes(**{"material.alpha1": 200.0})
+    assert from_file == load_scene(None, ["material.alpha1=200.0"])
+
+
+@pytest.mark.parametrize("sets,why", [
+    (["discretization.mesh_size_mm=0.2"], "finer than the default corners"),
+    (["discretization.structured=true"], "a structured mesh cannot be graded"),
+])
+def test_a_default_the_user_never_set_gives_way_with_one_note(capsys, sets, why):
+    """The default corner grading (0.25 mm) contradicts a finer mesh or a structured one: when the
+    user sets only those, the grading is switched off with one note instead of a refusal."""
+    from ngbet.cli import load_scene, main
+
+    assert load_scene(None, sets).discretization.corner_mesh_size_mm == 0.0
+    capsys.readouterr()
+    assert main(["scene", *[f"--set={s}" for s in sets]]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("ngbet: note: discretization.corner_mesh_size_mm = 0") and why in err[0]
+    # the same from Python, where the note is a SceneNote warning
+    from ngbet.scene import SceneNote
+
+    with pytest.warns(SceneNote, match=why):
+        key, value = sets[0].split("=")
+        Scene().with_changes(**{key: 0.2 if "mesh" in key else True})
+
+
+def test_a_default_the_user_set_does_not_give_way(tmp_path):
+    """The user's own corner size, in the file or on the command line, is checked as given."""
+    from ngbet.cli import load_scene
+
+    with pytest.raises(SceneError, match="must not exceed discretization.mesh_size_mm"):
+        load_scene(None, ["discretization.mesh_size_mm=0.2", "discretization.corner_mesh_size_mm=0.25"])
+    f = tmp_path / "s.toml"
+    f.write_text("[discretization]\ncorner_mesh_size_mm = 0.25\n")
+    with pytest.raises(SceneError, match="a structured mesh cannot be graded"):
+        load_scene(str(f), ["discretization.structured=true"])
+
+
+def test_a_scene_with_only_material_gives_the_default_runs_force(tmp_path):
+    """The force of a scene file with only [material] equals that of the same physics by --set
+    (38.2693 N against 38.2143 N when a file's missing keys took another mesh)."""
+    from ngbet.cli import main
+    from ngbet.output import read_rows
+
+    f = tmp_path / "m.toml"
+    f.write_text("[material]\nalpha1 = 2000.0\n")
+    short = ["--set=loading.u0_mm=16", "--set=outputs.vtk=false", "--set=outputs.plot=false",
+             "--set=outputs.error_estimate=off", "--quiet"]
+    assert main(["run", str(f), "--out", str(tmp_path / "file"), *short]) == 0
+    assert main(["run", "--out", str(tmp_path / "set"), "--set=material.alpha1=2000.0", *short]) == 0
+    F_file, F_set = (read_rows(tmp_path / n / "results.csv")[-1]["force_N"] for n in ("file", "set"))
+    assert F_file == F_set
+    assert F_set == pytest.approx(22.1535, abs=1e-4)  # the default discretization's force at 16 mm
+
+
+def test_the_default_smallest_step_gives_way_to_the_users_smaller_steps():
+    """loading.min_step_mm = 0.05 by default; a first (or largest) step below it, set alone, was
+    refused ("must not exceed loading.first_step_mm"): the default now becomes that step, with a note."""
+    from ngbet.scene import SceneNote
+
+    for key in ("loading.first_step_mm", "loading.max_step_mm"):
+        with pytest.warns(SceneNote, match="loading.min_step_mm = 0.01 instead of the default 0.05"):
+            s = Scene().with_changes(**{key: 0.01})
+        assert s.loading.min_step_mm == 0.01
+    with pytest.raises(SceneError, match="must not exceed loading.first_step_mm"):  # the user's own value stays
+        Scene().with_changes(**{"loading.first_step_mm": 0.01, "loading.min_step_mm": 0.05})

@@ -248,13 +248,10 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     the target.
 
     ``run_one(scene, out) -> summary`` runs one discretization into ``out`` (the last attempt's
-    files stay there). The returned summary (also written back to summary.json) gains
+    files stay there). The returned summary (the runner adds it to summary.json) gains
     ``accuracy``: the target, the chosen discretization, whether it was met, and every attempt
     with its estimate and times.
     """
-    import json
-    from pathlib import Path
-
     target = scene.discretization.target_error
     attempts: list[dict[str, Any]] = []
     summary: dict[str, Any] = {}
@@ -290,7 +287,6 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
                f"estimates {attempts[-1]['force_error_rel']:.2g}")
         summary.setdefault("warnings", []).append(msg)
         log.warning("%s", msg)
-    Path(out, "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     return summary
 
 

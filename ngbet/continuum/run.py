@@ -13,7 +13,8 @@ import ngsolve as ngs
 
 from ..engine import PathResult, StepRecord, progress_bar
 from ..errors import ConvergenceError
-from ..output import RunWriter, plot_force, start_plot
+from ..output import RunWriter
+from ..plot_process import active as plot_service
 from ..scene import Scene
 from . import observables as obs
 from .arclength import arclength_runner
@@ -45,7 +46,8 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
     from .estimate import RunEstimates, run_to_accuracy
 
     if scene.discretization.target_error > 0:  # accuracy on demand: the discretization is chosen
-        return run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress))
+        acc = run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress))
+        return RunWriter.amend(out, {k: acc[k] for k in ("accuracy", "warnings") if k in acc})
     t0 = time.perf_counter()
     with RunWriter(out, scene) as writer:
         problem = ContinuumProblem(scene)
@@ -56,20 +58,20 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             recorder = _StepWriter(problem, writer, out, estimates)
             t_cont = time.perf_counter()
             try:
-                res = _carry_load(problem, scene, recorder.on_step, bar, out)
+                res = _carry_load(problem, scene, recorder.on_step, bar, writer)
             except ConvergenceError as err:
                 info.update(_solver_info(problem, None), **err.path_info)
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
-                    plot_force(out)
+                    writer.plot(service=plot_service())()
                 raise
         info.update(estimates.summary(time.perf_counter() - t_cont))
         return _finish(problem, scene, writer, out, res, info, warnings)
 
 
 def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
-                progress: Callable[[float], None] | None, out: Path | None = None) -> PathResult:
-    """The load path of the scene on the engine."""
+                progress: Callable[[float], None] | None, writer: RunWriter | None = None) -> PathResult:
+    """The load path of the scene on the engine (``writer``: the run folder, for the instability's mode)."""
     L = scene.loading
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                         max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
@@ -78,7 +80,8 @@ def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[Step
                         psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
                         path_following=scene.solver.path_following,
                         arclength=None if scene.solver.path_following == "displacement"
-                        else arclength_runner(problem, on_step, progress, out))
+                        else arclength_runner(problem, on_step, progress,
+                                              writer.write_group if writer is not None else None))
 
 
 def _diagnose(problem: ContinuumProblem) -> Any:
@@ -134,7 +137,7 @@ class _StepWriter:
             profile = list(zip(X * 1e3, uy * 1e3, strict=True))
         self.writer.add_step(row, profile)
         if o.vtk and o.vtk_every_step:
-            write_vtk(p, self.out / f"fields_{row['step']:03d}")
+            self.writer.write(f"fields_{row['step']:03d}.vtu", lambda tmp: write_vtk(p, tmp.with_suffix("")))
 
     def _observables(self, info: StepRecord) -> dict[str, Any]:
         """Force, double force, energy, centre shear and constraint error of the state."""
@@ -164,7 +167,7 @@ def _finish(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Pat
     while the rest is written; it is waited for in any case, so that no half-written figure is
     left behind by an error in between.
     """
-    plotted = start_plot(out) if scene.outputs.plot else None
+    plotted = writer.plot(service=plot_service()) if scene.outputs.plot else None
     try:
         summary = _final_files(problem, scene, writer, out, res, info, warnings)
     except BaseException:
@@ -181,7 +184,7 @@ def _final_files(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out
                  info: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
     """Final fields, statistics, the multiplier check and the summary."""
     if scene.outputs.vtk:
-        write_vtk(problem, out / "fields")
+        writer.write("fields.vtu", lambda tmp: write_vtk(problem, tmp.with_suffix("")))
     info.update(_solver_info(problem, res))
     info["warnings"] = warnings
     osc = obs.multiplier_oscillation(problem)

@@ -21,7 +21,7 @@ import numpy as np
 from ..engine import StepRecord, progress_bar
 from ..errors import ConvergenceError
 from ..kinematics import gamma_a
-from ..output import RunWriter, plot_force
+from ..output import RunWriter
 from ..scene import Scene
 from . import observables as ob
 from .model import ENERGY_PARTS, NetworkModel
@@ -120,7 +120,7 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
         summary = writer.summary(info, "ok" if failure is None else "failed",
                                  None if failure is None else str(failure))
         if scene.outputs.plot and writer.rows:
-            plot_force(out)
+            writer.plot()()
         if failure is not None:
             raise failure
         return summary
@@ -161,9 +161,9 @@ class _Recorder:
     def snapshot(self, u: np.ndarray, u0: float) -> None:
         """The state (``state_XXmm.npz``) and, with ``outputs.plot``, its picture."""
         tag = f"{u0 * 1e3:g}mm"  # 37mm, 0.5mm
-        ob.save_state(self.out / f"state_{tag}.npz", self.model.net, u, u0)
+        self.writer.write(f"state_{tag}.npz", lambda tmp: ob.save_state(tmp, self.model.net, u, u0))
         if self.scene.outputs.plot:
-            ob.plot_state(self.out / f"yarns_{tag}.png", self.model.net, u, u0)
+            self.writer.write(f"yarns_{tag}.png", lambda tmp: ob.plot_state(tmp, self.model.net, u, u0))
 
     def final_snapshot(self) -> None:
         """The last converged state (if any step converged)."""
