@@ -243,12 +243,8 @@ def cached(case_dir: Path) -> dict[str, Any] | None:
 
 def reached(workdir: Path) -> float:
     """Last converged u0 [mm] of a running case (read from its results.csv)."""
-    p = workdir / "results.csv"
     try:
-        lines = p.read_text().strip().splitlines()
-        if len(lines) < 2:
-            return 0.0
-        head = lines[0].split(",")
-        return float(lines[-1].split(",")[head.index("u0_mm")])
-    except (OSError, ValueError, IndexError):
+        rows = read_rows(workdir / "results.csv")
+        return float(rows[-1]["u0_mm"]) if rows else 0.0
+    except (OSError, ValueError, KeyError, TypeError):
         return 0.0
