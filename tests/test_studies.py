@@ -427,7 +427,7 @@ def test_a_live_studys_finished_unstored_case_survives_another_studys_start(tmp_
 
     cache = tmp_path / "cache"
     cache.mkdir()
-    scene = Scene().with_changes(**TINY, **{C.P: 3})
+    scene = Scene().with_changes(**{**TINY, C.P: 3})
     key = case_key(scene)
     with study_lock(cache) as token:
         wd = run_dir(cache, key, token)
