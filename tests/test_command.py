@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ngbet import plot_process
-from ngbet.output import draw_force, plot_force
+from ngbet.figures import draw_force, plot_force
 
 pytest.importorskip("matplotlib")
 ROWS = ("step,u0_mm,force_N,dforce_du0_N_per_mm,double_force_Nm,force_error_N\n"

@@ -13,7 +13,9 @@ import ngsolve as ngs
 
 from ..engine import PathResult, StepRecord, progress_bar
 from ..errors import ConvergenceError
-from ..output import RunWriter, plot_force, start_plot
+from ..figures import map_file_name, plot_force, save_map
+from ..kinematics import BetColumns
+from ..output import RunWriter, start_plot
 from ..scene import Scene
 from . import observables as obs
 from .arclength import arclength_runner
@@ -21,6 +23,9 @@ from .linear import assembly_thread_count
 from .output import write_vtk
 from .problem import ContinuumProblem
 from .solver import NewtonSettings, continuation
+
+#: each element of the shear-angle map is split into this many² triangles (p = 2 fields: enough)
+MAP_SUBDIVISION = 2
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +78,7 @@ def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[Step
     L = scene.loading
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                         max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
-                        stops=[s * 1e-3 for s in L.stops_mm], on_step=on_step,
+                        stops=[s * 1e-3 for s in L.path_stops_mm], on_step=on_step,
                         diagnose=lambda: _diagnose(problem),
                         psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
                         path_following=scene.solver.path_following,
@@ -112,6 +117,11 @@ class _StepWriter:
 
     def __init__(self, problem: ContinuumProblem, writer: RunWriter, out: Path, estimates: Any) -> None:
         self.problem, self.writer, self.out, self.estimates = problem, writer, out, estimates
+        sp, ld = problem.scene.specimen, problem.scene.loading
+        self.zones = obs.ZoneShearMeans(problem)
+        self.bet = BetColumns(sp.length_mm, sp.width_mm, sp.yarn_angle_deg)
+        # the map's stations: the load stops and the final load
+        self.stations = (*ld.stops_mm, ld.u0_mm)
         self.t_prev = time.perf_counter()
         self.timers = dict(problem.timers)
 
@@ -120,6 +130,7 @@ class _StepWriter:
         p, o = self.problem, self.problem.scene.outputs
         row: dict[str, Any] = {"step": len(self.writer.rows) + 1, "u0_mm": round(info.u0 * 1e3, 9)}
         row.update(self._observables(info))
+        row.update(self.bet.row(row["u0_mm"], row.get("force_N")))
         now = time.perf_counter()
         row["newton_iterations"] = info.iterations
         row["step_wall_s"] = now - self.t_prev
@@ -133,6 +144,8 @@ class _StepWriter:
             X, uy = obs.midaxis_profile(p, o.profile_points)
             profile = list(zip(X * 1e3, uy * 1e3, strict=True))
         self.writer.add_step(row, profile)
+        if o.plot and any(abs(row["u0_mm"] - s) < 1e-6 for s in self.stations):
+            save_map(self.out / map_file_name(row["u0_mm"]), obs.map_samples(p, MAP_SUBDIVISION), row["u0_mm"])
         if o.vtk and o.vtk_every_step:
             write_vtk(p, self.out / f"fields_{row['step']:03d}")
 
@@ -151,6 +164,7 @@ class _StepWriter:
             E = p.energy()
             row.update(energy_J_per_m=E, energy_J=E * t)
         row["gamma_centre_deg"] = obs.centre_shear_angle_deg(p)
+        row.update({f"gamma_{z}_deg": g for z, g in self.zones().items()})
         if "constraint" in o.fields and p.phi is not None:
             row["constraint_rms"] = obs.constraint_l2(p)
         return row
