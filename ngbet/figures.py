@@ -57,7 +57,7 @@ STYLE: Any = {  # matplotlib's rcParams (typed as its literal keys)
 #: one angle convention in every figure of both models: the shear angle γ, the change of the
 #: angle between the yarns (0 at rest; 90° − γ between the yarns of a ±45° fabric)
 SHEAR_LABEL = "shear angle γ [°] (0 at rest)"
-U0_LABEL = "clamp displacement $u_0$ [mm]"
+U0_LABEL = "clamp displacement u₀ [mm]"
 
 #: figure files of a run (each as .png and .pdf)
 RUN_FIGURES = ("force", "shear_force", "profile", "shear_map")
@@ -193,20 +193,28 @@ def measured_fsh(m: Measured, width_mm: float, length_mm: float) -> tuple[np.nda
 # ------------------------------------------------------------------------------------------------
 # captions
 # ------------------------------------------------------------------------------------------------
+def _q(name: str, value: float, unit: str = "") -> str:
+    """``name = value unit`` held together (no-break spaces) when the caption is broken into lines."""
+    nb = "\u00a0"
+    return f"{name}{nb}={nb}{value:g}" + (f"{nb}{unit}" if unit else "")
+
+
 def caption(scene: Any) -> str:
     """One line naming the specimen (W × H mm, yarn angle) and the material of a scene."""
     if scene is None:
         return ""
     sp = scene.specimen
-    spec = (f"specimen {sp.width_mm:g} × {sp.length_mm:g} mm (W × H), yarns ±{sp.yarn_angle_deg:g}°, "
-            f"t = {sp.thickness_mm:g} mm")
+    nb = "\u00a0"
+    spec = (f"specimen {sp.width_mm:g}{nb}×{nb}{sp.length_mm:g}{nb}mm (W{nb}×{nb}H), yarns{nb}±{sp.yarn_angle_deg:g}°, "
+            f"{_q('t', sp.thickness_mm, 'mm')}")
     if scene.model == "discrete":
         d = scene.discrete
-        return (f"{spec}; yarn network: EI1 = {d.EI1:g}, EI2 = {d.EI2:g} N m², EA = {d.EA1:g} N, "
-                f"K_φ = {d.K_phi:g} N m, K_slip = {d.K_slip:g} N/m, spacing {d.spacing_mm:g} mm")
+        return (f"{spec}; yarn network: {_q('EI1', d.EI1, f'N{nb}m²')}, {_q('EI2', d.EI2, f'N{nb}m²')}, "
+                f"{_q('EA', d.EA1, 'N')}, {_q('K_φ', d.K_phi, f'N{nb}m')}, {_q('K_slip', d.K_slip, 'N/m')}, "
+                f"spacing{nb}{d.spacing_mm:g}{nb}mm")
     m = scene.material
-    return (f"{spec}; material: K_sh = {m.K_sh / 1e3:g} kPa, α1 = {m.alpha1 / 1e3:g} kPa m², "
-            f"α2 = {m.alpha2 / 1e3:g} kPa m², K_el = {m.K_el / 1e6:g} MPa")
+    return (f"{spec}; material: {_q('K_sh', m.K_sh / 1e3, 'kPa')}, {_q('α1', m.alpha1 / 1e3, f'kPa{nb}m²')}, "
+            f"{_q('α2', m.alpha2 / 1e3, f'kPa{nb}m²')}, {_q('K_el', m.K_el / 1e6, 'MPa')}")
 
 
 def _read_scene(run_dir: Path) -> Any:
@@ -226,11 +234,14 @@ def _figure(width: float, height: float) -> Figure:
 
 
 def _caption(fig: Figure, text: str) -> None:
+    """The caption line(s) above the panels, broken at the figure's width (8 pt: about 17 characters an inch)."""
+    import textwrap
+
     if text:
-        fig.suptitle(text, fontsize=8)
+        fig.suptitle(textwrap.fill(text, width=int(fig.get_figwidth() * 17)), fontsize=8)
 
 
-class _Writer:
+class FigureWriter:
     """Writes each figure as PNG and PDF.
 
     With ``fork_pdf`` a forked child writes each PDF while this process goes on with the next
@@ -246,6 +257,7 @@ class _Writer:
         self.pending: list[tuple[int, Figure, Path]] = []
 
     def save(self, fig: Figure, stem: Path) -> Path:
+        """Write ``stem``.png now and ``stem``.pdf now or in a child; returns the PNG."""
         png, pdf = stem.with_suffix(".png"), stem.with_suffix(".pdf")
         fig.savefig(png, dpi=PNG_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
         fig.set_layout_engine("none")
@@ -396,7 +408,7 @@ def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
         if len(g_m):
             ax.plot(np.r_[0.0, g_m], np.r_[0.0, f_m], "-", color="0.35", lw=1.2, label=_measured_label(measured, scene))
     ax.set_xlabel("kinematic shear angle γ of the ideal test [°] (Eq. 13)")
-    ax.set_ylabel("normalised shear force $F_{sh}$ [N/mm]")
+    ax.set_ylabel("normalised shear force F_sh [N/mm]")
     ax.set_xlim(left=0)
     ax.set_title("(a) normalised shear force")
     if not ok.any():
@@ -446,10 +458,10 @@ def profile_figure(profiles: dict[float, tuple[list[float], list[float]]], stati
         hit = [u for u in profiles if abs(u - s) < 1e-6]
         if hit:
             X, uy = profiles[hit[0]]
-            ax.plot(X, uy, "-", color=f"C{k}", lw=1.8, label=f"$u_0$ = {s:g} mm")
+            ax.plot(X, uy, "-", color=f"C{k}", lw=1.8, label=f"u₀ = {s:g} mm")
     ax.axhline(0.0, color="k", lw=0.6)
     ax.set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
-    ax.set_ylabel("vertical displacement $u_y$ [mm]")
+    ax.set_ylabel("vertical displacement u_y [mm]")
     ax.legend(loc="best")
     _caption(fig, caption(scene))
     return fig
@@ -501,7 +513,7 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
                      yarns: dict[float, dict[int, list[np.ndarray]]] | None = None) -> Figure | None:
     """The shear angle on the deformed specimen, one panel per station, one colour scale (see :func:`colour_scale`).
 
-    ``yarns``: deformed yarn polylines [mm] per station and family (1 thick, drawn black; 2 thin, white).
+    ``yarns``: deformed yarn polylines [mm] per station and family (1 thick, drawn black; 2 thin, grey).
     """
     if not maps:
         return None
@@ -522,7 +534,7 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
     for ax, m in zip(axes, maps, strict=True):
         tri = mtri.Triangulation(m.x_mm, m.y_mm, m.triangles)
         art = ax.tripcolor(tri, m.gamma_deg, shading="gouraud", cmap=cs.cmap, norm=norm, rasterized=True)
-        for fam, (colour, lw) in ((1, ("k", 1.3)), (2, ("w", 0.6))):
+        for fam, (colour, lw) in ((1, ("k", 1.4)), (2, ("0.4", 0.7))):
             for pl in (yarns or {}).get(m.u0_mm, {}).get(fam, []):
                 ax.plot(pl[:, 0], pl[:, 1], "-", color=colour, lw=lw)
         ax.set_aspect("equal")
@@ -532,7 +544,7 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
         ax.xaxis.set_major_locator(MaxNLocator(steps=[1, 2, 5, 10], integer=True))
         ax.yaxis.set_major_locator(MaxNLocator(nbins=4, steps=[1, 2, 5, 10], integer=True))
         ax.set_ylabel("y [mm]")
-        ax.set_title(f"$u_0$ = {m.u0_mm:g} mm: shear angle from {_deg(m.gamma_deg.min())} to {_deg(m.gamma_deg.max())}"
+        ax.set_title(f"u₀ = {m.u0_mm:g} mm: shear angle from {_deg(m.gamma_deg.min())} to {_deg(m.gamma_deg.max())}"
                      + (" (at the crossings)" if m.what == "crossings" else ""))
     axes[-1].set_xlabel("x (deformed) [mm]")
     assert art is not None
@@ -545,7 +557,7 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
         note = (f"; colour scale {_deg(cs.vmin)} to {_deg(cs.vmax)}: values beyond it (data {_deg(cs.data_min)} "
                 f"to {_deg(cs.data_max)}) in the end colours (arrows)")
     if yarns:
-        note += "; thick yarns black, thin yarns white"
+        note += "; thick yarns black, thin yarns grey"
     _caption(fig, caption(scene) + note)
     return fig
 
@@ -577,7 +589,7 @@ def draw_run(run_dir: str | Path, extra: Extra = (), fork_pdf: bool = False,
         return None
     scene = _read_scene(run_dir)
     png = None
-    out = _Writer(fork_pdf)
+    out = FigureWriter(fork_pdf)
     try:
         with mpl.rc_context(STYLE):
             if "force" in only:
