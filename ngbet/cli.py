@@ -182,6 +182,8 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
                     help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
     pr.add_argument("--accuracy", type=float, metavar="REL",
                     help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
+    pr.add_argument("--data", metavar="CSV", help="a measured curve (header displacement_mm,force_N; '#' comment "
+                    "lines allowed) drawn on the force and normalised shear force figures")
     pr.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
     ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
@@ -221,15 +223,24 @@ def _main(argv: list[str] | None) -> int:
     except SceneError as exc:
         _say(f"bad scene: {exc}")
         return EXIT_INPUT
+    measured = None
+    if getattr(args, "data", None):
+        from .figures import read_measured
+
+        try:
+            measured = read_measured(args.data)
+        except ValueError as exc:
+            _say(f"bad data: {exc}")
+            return EXIT_INPUT
     if args.command == "scene":
         from .scene_doc import commented_toml
 
         sys.stdout.write(commented_toml(scene))
         return EXIT_OK
-    return _run(scene, Path(args.out), progress=not args.quiet)
+    return _run(scene, Path(args.out), progress=not args.quiet, measured=measured)
 
 
-def _run(scene: Scene, out: Path, progress: bool) -> int:
+def _run(scene: Scene, out: Path, progress: bool, measured: Any = None) -> int:
     """``ngbet run``: one line on success or failure; the details are in ``out``/summary.json."""
     from .plot_process import plot_process
 
@@ -250,6 +261,10 @@ def _run(scene: Scene, out: Path, progress: bool) -> int:
             msg += f"; converged steps and details are in {out}/ (summary.json)"
         _say(msg)
         return code
+    if measured is not None and scene.outputs.plot:  # the figures that show it, drawn again with it
+        from .figures import draw_measured
+
+        draw_measured(out, measured)
     print(_report(summary, out))
     return EXIT_OK
 

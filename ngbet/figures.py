@@ -617,6 +617,16 @@ def draw_force(run_dir: Path, extra: Extra = (), fork_pdf: bool = False) -> Path
     return draw_run(run_dir, extra, fork_pdf)
 
 
+def draw_measured(run_dir: str | Path, measured: Measured) -> Path | None:
+    """Draw the force and F_sh figures of ``run_dir`` again with a measured curve on them."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        log.warning("no figures: matplotlib is not installed (pip install 'ngbet[viz]')")
+        return None
+    return draw_run(run_dir, measured=measured, only=("force", "shear_force"))
+
+
 def plot_force(run_dir: str | Path, extra: Extra = ()) -> Path | None:
     """The run's figures from its files (force.png, shear_force.png, profile.png, shear_map.png and PDFs).
 
