@@ -17,7 +17,7 @@ from ngbet import figures as F  # noqa: E402
 def rows(snap_at=None, errors=None):
     """Rows of a results.csv: F = u0² with a jump of +30 N at ``snap_at``, errors at the rows given."""
     out = []
-    for k, u in enumerate((2.0, 4.0, 6.0, 6.5, 8.0)):
+    for u in (2.0, 4.0, 6.0, 6.5, 8.0):
         jump = 30.0 if snap_at is not None and u >= snap_at else 0.0
         out.append({"u0_mm": u, "force_N": u * u + jump, "snap": float(u == snap_at),
                     "force_error_N": (errors or {}).get(u, "")})
