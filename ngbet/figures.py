@@ -109,8 +109,13 @@ def load_maps(run_dir: Path) -> list[MapData]:
             nodes = z["crossing_nodes"][:, 0]
             X, u = z["X_mm"][nodes], z["u_mm"][nodes]
             tri = mtri.Triangulation(X[:, 0], X[:, 1])
+            # the crossings lie on a lattice: its Delaunay triangles are half cells (longest edge √2
+            # times the shortest); longer ones span the gaps along the edges and are left out
+            t = tri.triangles
+            edges = np.stack([np.hypot(*(X[t[:, i]] - X[t[:, (i + 1) % 3]]).T) for i in range(3)], axis=1)
+            keep = edges.max(axis=1) <= 1.5 * edges.min()
             maps.append(MapData(float(f.stem[len("state_"):-2]), X[:, 0] + u[:, 0], X[:, 1] + u[:, 1],
-                                tri.triangles, z["crossing_gamma_deg"], "crossings"))
+                                t[keep], z["crossing_gamma_deg"], "crossings"))
     return sorted(maps, key=lambda m: m.u0_mm)
 
 
@@ -402,7 +407,8 @@ def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
     ax, ax2 = fig.subplots(1, 2)
     ok = np.isfinite(g_kin) & np.isfinite(fsh)
     if ok.any():
-        ax.plot(np.r_[0.0, g_kin[ok]], np.r_[0.0, fsh[ok]], "o-", ms=3.5, label="computed (Eq. 18 on the run's force)")
+        snap = _column(rows, "snap")[ok] if "snap" in rows[0] else None
+        curve_with_jumps(ax, g_kin[ok], fsh[ok], snap, label="computed (Eq. 18 on the run's force)")
     if measured is not None and scene is not None:
         g_m, f_m = measured_fsh(measured, scene.specimen.width_mm, scene.specimen.length_mm)
         if len(g_m):
@@ -554,7 +560,7 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
     cb.update_ticks()
     note = ""
     if cs.extend != "neither":
-        note = (f"; colour scale {_deg(cs.vmin)} to {_deg(cs.vmax)}: values beyond it (data {_deg(cs.data_min)} "
+        note = (f"; colour scale {cs.vmin:g}° to {cs.vmax:g}°: values beyond it (data {_deg(cs.data_min)} "
                 f"to {_deg(cs.data_max)}) in the end colours (arrows)")
     if yarns:
         note += "; thick yarns black, thin yarns grey"
