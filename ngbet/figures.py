@@ -64,6 +64,9 @@ RUN_FIGURES = ("force", "shear_force", "profile", "shear_map")
 
 Extra = Iterable[tuple[str, Sequence[float], Sequence[float]]]
 
+NO_MATPLOTLIB = ("no force plot: matplotlib is not installed (pip install 'ngbet[viz]'); the other figures "
+                 "are left out too")
+
 
 # ------------------------------------------------------------------------------------------------
 # data of a run folder
@@ -618,7 +621,7 @@ def draw_force(run_dir: Path, extra: Extra = (), fork_pdf: bool = False) -> Path
     try:
         import matplotlib  # noqa: F401
     except ImportError:
-        log.warning("no figures: matplotlib is not installed (pip install 'ngbet[viz]')")
+        log.warning(NO_MATPLOTLIB)
         return None
     return draw_run(run_dir, extra, fork_pdf)
 
@@ -628,7 +631,7 @@ def draw_measured(run_dir: str | Path, measured: Measured) -> Path | None:
     try:
         import matplotlib  # noqa: F401
     except ImportError:
-        log.warning("no figures: matplotlib is not installed (pip install 'ngbet[viz]')")
+        log.warning(NO_MATPLOTLIB)
         return None
     return draw_run(run_dir, measured=measured, only=("force", "shear_force"))
 
@@ -668,13 +671,14 @@ def warm_up() -> None:
 # ------------------------------------------------------------------------------------------------
 def force_curve(ax: Axes, u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None = None,
                 label: str | None = None, color: str | None = None, **kwargs: Any) -> Any:
-    """Draw a force–displacement curve on ``ax``: the computed points joined by straight lines from (0, 0).
+    """Draw a force–displacement curve on ``ax``: the converged steps (markers) joined by straight lines from (0, 0).
 
-    ``dforce`` is accepted and not drawn (the slopes are not data between the points).
+    ``dforce`` is accepted and not drawn (the slopes are not data between the steps).
     """
     u = np.r_[0.0, np.asarray(u0, dtype=float)]
     F = np.r_[0.0, np.asarray(force, dtype=float)]
-    (line,) = ax.plot(u, F, "o-", ms=3.5, color=color, label=f"{label + ': ' if label else ''}computed points",
+    (line,) = ax.plot(u, F, "-", color=color, label=f"{label + ': ' if label else ''}straight lines between steps",
                       **kwargs)
+    ax.plot(u, F, "o", ms=3.5, color=line.get_color(), label="converged steps")
     ax.grid(alpha=0.3)
     return line
