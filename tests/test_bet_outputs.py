@@ -133,3 +133,13 @@ def test_discrete_bet_columns(tmp_path):
     assert np.allclose(g, np.degrees(shear_angle_rad(u0, 220.0, 70.0)), rtol=1e-12, atol=0)
     assert np.allclose(fsh, eq18_by_fixed_point(u0, F, 220.0, 70.0)[1], rtol=1e-10, atol=0)
     assert np.all((centre > 0.5 * g) & (centre < 1.5 * g))
+
+
+def test_the_path_lands_on_the_output_grid_and_the_stops_below_the_final_load():
+    from ngbet.scene import Loading, SceneError
+
+    assert Loading(u0_mm=10.0, stops_mm=(5.0,), output_every_mm=3.0).path_stops_mm == (3.0, 5.0, 6.0, 9.0)
+    assert Loading(u0_mm=10.0, stops_mm=(5.0,), output_every_mm=0.0).path_stops_mm == (5.0,)
+    assert Loading(u0_mm=4.0, output_every_mm=2.0).path_stops_mm == (2.0,)  # 4 is the final load, 37 not reached
+    with pytest.raises(SceneError, match="loading.output_every_mm"):
+        Loading(output_every_mm=-1.0)
