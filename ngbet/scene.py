@@ -333,8 +333,6 @@ class Loading:
     def __post_init__(self) -> None:
         _positive("loading", self, "u0_mm", "first_step_mm", "max_step_mm", "min_step_mm")
         _nonnegative("loading", self, "output_every_mm")
-        _check(self.output_every_mm == 0 or self.output_every_mm >= self.min_step_mm, "loading.output_every_mm",
-               self.output_every_mm, f"must be 0 (off) or at least loading.min_step_mm = {self.min_step_mm:g} mm")
         object.__setattr__(self, "stops_mm", tuple(self.stops_mm))
         for s in self.stops_mm:
             _check(isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0, "loading.stops_mm", s,

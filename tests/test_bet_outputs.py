@@ -143,3 +143,6 @@ def test_the_path_lands_on_the_output_grid_and_the_stops_below_the_final_load():
     assert Loading(u0_mm=4.0, output_every_mm=2.0).path_stops_mm == (2.0,)  # 4 is the final load, 37 not reached
     with pytest.raises(SceneError, match="loading.output_every_mm"):
         Loading(output_every_mm=-1.0)
+    # a grid finer than the smallest step is landed on all the same (a landing step is not a cut)
+    fine = Loading(u0_mm=1.0, min_step_mm=0.5, first_step_mm=0.5, output_every_mm=0.25)
+    assert fine.path_stops_mm == (0.25, 0.5, 0.75)

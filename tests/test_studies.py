@@ -12,7 +12,7 @@ from ngbet.studies import _common as C
 from ngbet.study import Study, load, plot_only, run_study
 
 TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
-        "loading.u0_mm": 10.0, "loading.stops_mm": [5.0]}
+        "loading.u0_mm": 10.0, "loading.stops_mm": [5.0], "loading.output_every_mm": 0.0}
 # a case whose solver must give up: one Newton iteration allowed and no step cutting possible
 FAILING = {"loading.first_step_mm": 10.0, "loading.min_step_mm": 10.0, "loading.max_step_mm": 10.0,
            "solver.max_iterations": 1}

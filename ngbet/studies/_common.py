@@ -19,11 +19,12 @@ FORM = "effects.penalty_form"
 
 
 def base_scene(quick: bool = False, **changes: Any) -> Scene:
-    """The paper's scene (Table 1, u0 = 56 mm, stop at 37 mm) without per-case VTK and plots.
+    """The paper's scene (Table 1, u0 = 56 mm, stop at 37 mm) without per-case VTK, plots and output grid.
 
     quick: the same specimen loaded to 20 mm with a stop at 10 mm (seconds per case).
     """
-    d: dict[str, Any] = {"outputs.vtk": False, "outputs.plot": False}
+    # the studies choose their own loads (stops): no output grid
+    d: dict[str, Any] = {"outputs.vtk": False, "outputs.plot": False, "loading.output_every_mm": 0.0}
     if quick:
         d.update({"loading.u0_mm": 20.0, "loading.stops_mm": [10.0]})
     d.update(changes)
