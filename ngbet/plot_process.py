@@ -1,4 +1,4 @@
-"""A second process that draws the force plot, so that importing matplotlib overlaps the solve.
+"""A second process that draws the run's figures, so that importing matplotlib overlaps the solve.
 
 ``ngbet run`` spends about 0.4 s importing matplotlib and its PDF backend and about 0.1 s on the
 first drawing (fonts, the mathtext parser), all of it independent of the results. On a machine
@@ -58,7 +58,7 @@ class PlotProcess:
 
     def plot(self, run_dir: str | Path,
              extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> Path | None:
-        """Draw the force plot of ``run_dir`` in the process; returns force.png (None: nothing to draw).
+        """Draw the figures of ``run_dir`` in the process; returns force.png (None: nothing to draw).
 
         Raises
         ------
@@ -70,7 +70,7 @@ class PlotProcess:
 
     def request(self, run_dir: str | Path,
                 extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> None:
-        """Ask for the force plot of ``run_dir`` without waiting (:meth:`answer` waits).
+        """Ask for the figures of ``run_dir`` without waiting (:meth:`answer` waits).
 
         Raises
         ------
