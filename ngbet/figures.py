@@ -44,6 +44,8 @@ if TYPE_CHECKING:  # pragma: no cover
 log = logging.getLogger(__name__)
 
 PNG_DPI = 130
+#: resolution of the rasterized parts of a PDF (the map's colour field; lines and text stay vector)
+PDF_RASTER_DPI = 200
 #: zlib level of the PNG files: 1 writes them 3-4 times faster than the default 6, 20 % larger
 PNG_COMPRESSION = 1
 
@@ -273,12 +275,12 @@ class FigureWriter:
         if child == 0:  # the child: the PDF, and out without running anything of the parent's
             code = 1
             try:
-                fig.savefig(pdf)
+                fig.savefig(pdf, dpi=PDF_RASTER_DPI)
                 code = 0
             finally:
                 os._exit(code)
         if child < 0:
-            fig.savefig(pdf)
+            fig.savefig(pdf, dpi=PDF_RASTER_DPI)
         else:
             self.pending.append((child, fig, pdf))
         return png
@@ -287,7 +289,7 @@ class FigureWriter:
         """Wait for the children; write here any PDF a child did not."""
         for child, fig, pdf in self.pending:
             if os.waitstatus_to_exitcode(os.waitpid(child, 0)[1]) != 0:
-                fig.savefig(pdf)
+                fig.savefig(pdf, dpi=PDF_RASTER_DPI)
         self.pending = []
 
 
