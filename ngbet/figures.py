@@ -3,19 +3,16 @@
 A run folder's figures are drawn from its files alone (results.csv, profile.csv, scene.toml and
 the map data), so that they can be redrawn without solving:
 
-==========================  ====================================================================
-``force.png``/``.pdf``      clamp force against clamp displacement: the computed rows as points
-                            joined by straight lines, estimated discretization errors as error
-                            bars, snap-throughs (rows with ``snap`` = 1) as dashed vertical jumps;
-                            the double force in a second panel (continuum)
-``shear_force.png``/``.pdf`` (a) the normalised shear force F_sh against the kinematic shear angle
-                            γ of the ideal test; (b) the shear angles against the clamp
-                            displacement: γ (Eq. 13), γ/2, the simulated centre and zone means
-``profile.png``/``.pdf``    the S-profile: mid-axis vertical displacement at the stations (the
-                            load stops and the last load), the other rows in grey
-``shear_map.png``/``.pdf``  the shear angle on the deformed specimen at the stations, one colour
-                            scale for all panels
-==========================  ====================================================================
+- ``force.png``/``.pdf``: clamp force against clamp displacement, the computed rows as points
+  joined by straight lines, estimated discretization errors as error bars, snap-throughs (rows
+  with ``snap`` = 1) as dashed vertical jumps; the double force in a second panel (continuum);
+- ``shear_force.png``/``.pdf``: (a) the normalised shear force F_sh against the kinematic shear
+  angle γ of the ideal test; (b) the shear angles against the clamp displacement: γ (Eq. 13),
+  γ/2, the simulated centre and zone means;
+- ``profile.png``/``.pdf``: the S-profile, mid-axis vertical displacement at the stations (the
+  load stops and the last load), the other rows in grey;
+- ``shear_map.png``/``.pdf``: the shear angle on the deformed specimen at the stations, one
+  colour scale for all panels.
 
 Every figure carries a caption line naming the specimen (W × H mm, yarn angle) and the material.
 A measured curve (:func:`read_measured`) is drawn on the force and F_sh figures.
