@@ -58,6 +58,10 @@ STYLE: Any = {  # matplotlib's rcParams (typed as its literal keys)
 SHEAR_LABEL = "shear angle γ [°] (0 at rest)"
 U0_LABEL = "clamp displacement u₀ [mm]"
 
+#: F_sh is drawn up to this kinematic shear angle [deg]: towards yarn locking (90°) Eq. 18 divides
+#: by cos γ → 0 and its values say more about the equation than about the fabric
+FSH_GAMMA_MAX_DEG = 70.0
+
 #: figure files of a run (each as .png and .pdf)
 RUN_FIGURES = ("force", "shear_force", "profile", "shear_map")
 
@@ -408,21 +412,29 @@ def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
     fig = _figure(10, 4.2)
     ax, ax2 = fig.subplots(1, 2)
     ok = np.isfinite(g_kin) & np.isfinite(fsh)
-    if ok.any():
-        snap = _column(rows, "snap")[ok] if "snap" in rows[0] else None
-        curve_with_jumps(ax, g_kin[ok], fsh[ok], snap, label="computed (Eq. 18 on the run's force)")
+    shown = ok & (g_kin <= FSH_GAMMA_MAX_DEG)
+    left_out = bool(np.any(ok & ~shown))
+    if shown.any():
+        snap = _column(rows, "snap")[shown] if "snap" in rows[0] else None
+        curve_with_jumps(ax, g_kin[shown], fsh[shown], snap, label="computed (Eq. 18 on the run's force)")
     if measured is not None and scene is not None:
         g_m, f_m = measured_fsh(measured, scene.specimen.width_mm, scene.specimen.length_mm)
-        if len(g_m):
-            ax.plot(np.r_[0.0, g_m], np.r_[0.0, f_m], "-", color="0.35", lw=1.2, label=_measured_label(measured, scene))
+        keep = g_m <= FSH_GAMMA_MAX_DEG
+        left_out = left_out or bool(np.any(~keep))
+        if keep.any():
+            ax.plot(np.r_[0.0, g_m[keep]], np.r_[0.0, f_m[keep]], "-", color="0.35", lw=1.2,
+                    label=_measured_label(measured, scene))
     ax.set_xlabel("kinematic shear angle γ of the ideal test [°] (Eq. 13)")
     ax.set_ylabel("normalised shear force F_sh [N/mm]")
-    ax.set_xlim(left=0)
+    ax.set_xlim(0, FSH_GAMMA_MAX_DEG if left_out else None)
     ax.set_title("(a) normalised shear force")
     if not ok.any():
         ax.text(0.5, 0.5, "F_sh: 45° yarns only (Eq. 18)", transform=ax.transAxes, ha="center")
     else:
         ax.legend(loc="upper left")
+    if left_out:
+        ax.text(0.98, 0.03, f"beyond γ = {FSH_GAMMA_MAX_DEG:g}° (near yarn locking, where Eq. 18\n"
+                "divides by cos γ → 0): not drawn", transform=ax.transAxes, ha="right", va="bottom", fontsize=7)
     ax2.plot(np.r_[0.0, u0], np.r_[0.0, g_kin], "-", color="k", label="ideal test, zone A: γ (Eq. 13)")
     ax2.plot(np.r_[0.0, u0], np.r_[0.0, g_kin / 2], ":", color="k", label="ideal test, zones B: γ/2")
     for key, style, label in (("gamma_centre_deg", "o", "computed, centre"),

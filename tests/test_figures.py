@@ -121,3 +121,12 @@ def test_run_figures_and_data_overlay_from_the_command_line(tmp_path):
     csv.write_text("u,F\n")
     p = subprocess.run(cmd, capture_output=True, text=True)
     assert p.returncode == 2 and "m.csv" in p.stderr
+
+
+def test_fsh_is_drawn_up_to_70_degrees_and_the_panel_says_what_it_leaves_out():
+    """Towards yarn locking Eq. 18 divides by cos γ → 0: points beyond 70° are not drawn, and said so."""
+    rs = [{"u0_mm": u, "force_N": u, "gamma_kinematic_deg": g, "fsh_N_per_mm": 0.01 * g, "gamma_centre_deg": g}
+          for u, g in ((10.0, 30.0), (20.0, 60.0), (30.0, 80.0))]
+    ax = F.shear_force_figure(rs).axes[0]
+    (curve,) = lines_of(ax)
+    assert list(curve.get_xdata()) == [0.0, 30.0, 60.0] and "not drawn" in ax.texts[0].get_text()
