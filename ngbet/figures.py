@@ -350,9 +350,10 @@ def _error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: 
         return
     ax.errorbar(u0[ok], F[ok], yerr=err[ok], fmt="none", ecolor="C3", elinewidth=1.6, capsize=5, capthick=1.6,
                 zorder=5, label="± estimated discretization error")
-    for u, f, e in zip(u0[ok], F[ok], err[ok], strict=True):
-        if 2 * e < 0.02 * span:
-            ax.annotate(f"±{e:.2g} N", (u, f), xytext=(6, -10), textcoords="offset points", fontsize=7, color="C3")
+    small = [(u, f, e) for u, f, e in zip(u0[ok], F[ok], err[ok], strict=True) if 2 * e < 0.02 * span]
+    for k, (u, f, e) in enumerate(small):  # below right and above left in turn: neighbours do not overlap
+        ax.annotate(f"±{e:.2g} N", (u, f), xytext=(6, -11) if k % 2 == 0 else (-6, 7), textcoords="offset points",
+                    fontsize=7, color="C3", ha="left" if k % 2 == 0 else "right")
 
 
 def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (),
