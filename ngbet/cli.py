@@ -234,6 +234,8 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
                     help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
     pr.add_argument("--accuracy", type=float, metavar="REL",
                     help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
+    pr.add_argument("--data", metavar="CSV", help="a measured curve (header displacement_mm,force_N; '#' comment "
+                    "lines allowed) drawn on the force and normalised shear force figures")
     pr.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
     ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
@@ -284,14 +286,23 @@ def _main(argv: list[str] | None) -> int:
     except SceneError as exc:
         _say(f"bad scene: {exc}")
         return EXIT_INPUT
+    measured = None
+    if getattr(args, "data", None):
+        from .figures import read_measured
+
+        try:
+            measured = read_measured(args.data)
+        except ValueError as exc:
+            _say(f"bad data: {exc}")
+            return EXIT_INPUT
     if args.command == "scene":
         from .scene_doc import commented_toml
 
         return _print(commented_toml(scene), "the scene")
-    return _run(scene, Path(args.out), progress=not args.quiet)
+    return _run(scene, Path(args.out), progress=not args.quiet, measured=measured)
 
 
-def _run(scene: Scene, out: Path, progress: bool) -> int:
+def _run(scene: Scene, out: Path, progress: bool, measured: Any = None) -> int:
     """``ngbet run``: one line on success or failure; the details are in ``out``/summary.json."""
     from .plot_process import plot_process
 
@@ -301,7 +312,7 @@ def _run(scene: Scene, out: Path, progress: bool) -> int:
         with plot_process(scene.outputs.plot and scene.model == "continuum"):
             from .run import run
 
-            summary = run(scene, out, progress=progress)
+            summary = run(scene, out, progress=progress, measured=measured)
     except KeyboardInterrupt:
         _say(f"interrupted after u0 = {_last_converged_mm(out):g} mm; converged steps and "
              f"summary.json (status interrupted) are in {out}/")

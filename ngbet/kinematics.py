@@ -137,3 +137,55 @@ def force_from_normalised(gamma_rad: ArrayLike, fsh_N_per_mm: ArrayLike, d_mm: A
     fh = np.interp(gamma / 2, gt, ft, right=np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(a > 0, (b * f + c * fh) / a, np.nan)
+
+
+#: the yarn angle [deg] of Cao's Eqs. 13 and 18 (the zone geometry and the power balance assume it)
+CAO_YARN_ANGLE_DEG = 45.0
+
+
+def zone_index(X_mm: ArrayLike, Y_mm: ArrayLike, L_mm: float, W_mm: float, yarn_angle_deg: float = 45.0
+               ) -> np.ndarray:
+    """The ideal BET zone of reference points: 0 = A (central), 1 = B, 2 = C (clamp triangles).
+
+    A point's two yarns (along m1 = (cos a, sin a) and m2 = (−cos a, sin a)) each end either on a
+    free edge or on a clamp: zone A when neither ends on a clamp, B when exactly one does, C when
+    both do (docs/model.md, *Zones*). The same rule as the discrete model's crossings.
+    """
+    X = np.asarray(X_mm, dtype=float)
+    Y = np.asarray(Y_mm, dtype=float)
+    t = math.tan(math.radians(yarn_angle_deg))
+    held_1 = (Y - X * t >= 0) | (Y + (L_mm - X) * t <= W_mm)
+    held_2 = (Y + X * t <= W_mm) | (Y - (L_mm - X) * t >= 0)
+    return held_1.astype(int) + held_2.astype(int)
+
+
+class BetColumns:
+    """The BET-standard columns of a run's results.csv, row by row, for both models.
+
+    ``gamma_kinematic_deg``: Cao's Eq. 13 at the row's clamp displacement [deg];
+    ``fsh_N_per_mm``: the normalised shear force of Eq. 18 (:func:`normalised_shear_force`) solved
+    along the rows so far with the run's own force. Both are empty ("") where they are not
+    defined: yarns not at 45° (Eqs. 13 and 18 are the ±45° bias test's), displacements at or
+    beyond yarn locking, and, for F_sh, rows without a force or where the path has turned back in
+    u0 (Eq. 18 follows a curve along increasing γ; such rows are left out of the recursion).
+    """
+
+    def __init__(self, length_mm: float, width_mm: float, yarn_angle_deg: float) -> None:
+        self.H, self.W = length_mm, width_mm
+        self.applies = abs(yarn_angle_deg - CAO_YARN_ANGLE_DEG) < 1e-9
+        self.locking_mm = (math.sqrt(2.0) - 1.0) * (length_mm - width_mm)
+        self.d: list[float] = []
+        self.F: list[float] = []
+
+    def row(self, u0_mm: float, force_N: float | None) -> dict[str, float | str]:
+        """The two columns of the row at clamp displacement ``u0_mm`` with force ``force_N`` [N]."""
+        out: dict[str, float | str] = {"gamma_kinematic_deg": "", "fsh_N_per_mm": ""}
+        if not self.applies or not 0.0 < u0_mm < self.locking_mm:
+            return out
+        out["gamma_kinematic_deg"] = math.degrees(float(shear_angle_rad(u0_mm, self.H, self.W)))
+        if force_N is None or not math.isfinite(force_N) or (self.d and u0_mm <= self.d[-1]):
+            return out
+        self.d.append(u0_mm)
+        self.F.append(force_N)
+        out["fsh_N_per_mm"] = float(normalised_shear_force(self.d, self.F, self.H, self.W)[1][-1])
+        return out

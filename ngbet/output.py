@@ -97,7 +97,11 @@ TMP_PREFIX = ".ngbet-tmp."
 #: names an ngbet run writes: one of these in a run folder that no run registered is refused before
 #: anything is written (it is the user's; the run would replace it)
 RUN_FILE_PATTERNS = ("scene.toml", "summary.json", "results.csv", "profile.csv", "fields*.vtu", "force.png",
-                     "force.pdf", "state_*.npz", "yarns_*.png", "instability_mode.vtu", "instability_mode.png")
+                     "force.pdf", "shear_force.png", "shear_force.pdf", "profile.png", "profile.pdf",
+                     "shear_map.png", "shear_map.pdf", "map_*.npz", "state_*.npz", "yarns_*.png",
+                     "instability_mode.vtu", "instability_mode.png")
+#: the run's figures: drawn from its files, never read by a figure
+FIGURE_SUFFIXES = (".png", ".pdf")
 # what an ngbet run before the marker listed its files wrote into every folder (the summary lists the rest)
 _OLD_CORE = ("scene.toml", "summary.json", "summary.json.tmp", "results.csv", "profile.csv")
 
@@ -208,31 +212,33 @@ class RunWriter:
         text = json.dumps({"ngbet": "run folder", "pid": os.getpid(), "files": self._files})
         _io(self.out / RUN_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
 
-    def plot(self, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = (),
-             service: Any = None) -> Callable[[], Path | None]:
-        """Start the force plot of the finished results.csv; the function returned finishes it.
+    def plot(self, start: Callable[[Path], Callable[[], Path | None]]) -> Callable[[], Path | None]:
+        """Start drawing the run's figures from its finished files; the function returned finishes it.
 
-        Drawn (:func:`start_plot`, by the runner's plot process ``service`` when there is one)
-        into a temporary folder that holds a link to results.csv; the function returned waits for
-        the drawing and renames force.png and force.pdf into the run folder, registered, and
-        returns force.png (None when nothing was drawn). A drawing cut short leaves no force.png.
+        ``start(folder)`` (the runner's: :func:`ngbet.figures.start_plot`) starts drawing the figures
+        of the run files in ``folder``, a temporary folder of links to the files this run registered,
+        and returns a function that waits for the drawing. The function returned here waits, renames
+        every PNG and PDF drawn into the run folder, registered, and returns force.png (None when
+        nothing was drawn). A drawing cut short leaves no figure.
         """
         tmp = self.out / (TMP_PREFIX + "plot")
         shutil.rmtree(tmp, ignore_errors=True)
         _io(tmp, lambda d: d.mkdir())
-        _io(tmp / "results.csv", functools.partial(_link_or_copy, self.out / "results.csv"))
-        drawn = start_plot(tmp, extra, service=service)
+        for name in self.files():
+            if not name.endswith(FIGURE_SUFFIXES):
+                _io(tmp / name, functools.partial(_link_or_copy, self.out / name))
+        drawn = start(tmp)
 
         def finish() -> Path | None:
             try:
                 png = drawn()
                 done = {}
-                for name in ("force.png", "force.pdf"):
-                    if (tmp / name).is_file():
-                        final = self._target(name)
-                        self._register(name)
-                        _io(final, functools.partial(os.replace, tmp / name))
-                        done[name] = final
+                for fig in sorted(tmp.iterdir()):
+                    if fig.name.endswith(FIGURE_SUFFIXES) and fig.is_file():
+                        final = self._target(fig.name)
+                        self._register(fig.name)
+                        _io(final, functools.partial(os.replace, fig))
+                        done[fig.name] = final
                 if done and self.status not in ("new", "running"):
                     self._write_summary()
                 return done.get("force.png") if png is not None else None
@@ -576,130 +582,3 @@ def read_profiles(path: str | Path) -> dict[float, tuple[list[float], list[float
         X.append(float(r["X_mm"]))
         uy.append(float(r["uy_mm"]))
     return out
-
-
-def _error_bars(ax: Any, rows: list[dict[str, Any]]) -> None:
-    """The estimated discretization error of the force (``force_error_N``) as error bars where estimated."""
-    pts = [(r["u0_mm"], r["force_N"], r["force_error_N"]) for r in rows
-           if isinstance(r.get("force_error_N"), float) and r["force_error_N"] == r["force_error_N"]]
-    if pts:
-        u, F, e = zip(*pts, strict=True)
-        ax.errorbar(u, F, yerr=e, fmt="none", ecolor="k", elinewidth=1, capsize=4,
-                    label="estimated discretization error")
-
-
-def plot_force(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> Path | None:
-    """Force-displacement plot (and the double force when present) from results.csv: force.png, force.pdf.
-
-    The converged steps are marked; between them the curve is the cubic Hermite interpolant of the
-    force and dF/du0 when results.csv has ``dforce_du0_N_per_mm``, else straight lines (the legend
-    says which). ``extra``: more curves (label, u0 [mm], force [N]), dashed. Drawn by the run's plot
-    process when one runs (:mod:`ngbet.plot_process`), else here; the figure is the same. Returns
-    None, with a note in the log, when matplotlib is not installed or results.csv has no force.
-    """
-    return start_plot(run_dir, extra)()
-
-
-def start_plot(run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = (),
-               service: Any = None) -> Callable[[], Path | None]:
-    """Start :func:`plot_force` of a finished results.csv; the function returned finishes it.
-
-    ``service``: the plot process the runner started (:func:`ngbet.plot_process.active`; this
-    module neither starts nor imports it). The request goes out now and the process draws while
-    the run writes its other files; the function returned waits for it, and draws here if the
-    process failed (its errors are RuntimeErrors). Without one, the function returned draws.
-    """
-    proc = service
-    if proc is not None:
-        try:
-            proc.request(run_dir, extra)
-        except RuntimeError as exc:
-            log.info("the plot process did not take %s (%s): drawing it here", run_dir, exc)
-            proc = None
-
-    def finish() -> Path | None:
-        if proc is not None:
-            try:
-                return proc.answer()
-            except RuntimeError as exc:
-                log.info("the plot process did not draw %s (%s): drawing it here", run_dir, exc)
-        return draw_force(Path(run_dir), extra)
-
-    return finish
-
-
-def draw_force(run_dir: Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = (),
-               fork_pdf: bool = False) -> Path | None:
-    """Draw force.png and force.pdf of ``run_dir`` in this process (see :func:`plot_force`).
-
-    ``fork_pdf``: a forked child writes the PDF while this process writes the PNG (for a process
-    without threads, such as the plot process; if the child fails, the PDF is written here).
-    """
-    try:
-        from matplotlib.figure import Figure
-    except ImportError:
-        log.warning("no force plot: matplotlib is not installed (pip install 'ngbet[viz]')")
-        return None
-    rows = read_rows(run_dir / "results.csv")
-    if not rows or "force_N" not in rows[0]:
-        return None
-    fig = _force_figure(Figure, rows, extra)
-    png, pdf = run_dir / "force.png", run_dir / "force.pdf"
-    child = os.fork() if fork_pdf else -1
-    if child == 0:  # the child: the PDF, and out without running anything of the parent's
-        code = 1
-        try:
-            fig.savefig(pdf)
-            code = 0
-        finally:
-            os._exit(code)
-    fig.savefig(png, dpi=PNG_DPI)
-    if child < 0 or os.waitstatus_to_exitcode(os.waitpid(child, 0)[1]) != 0:
-        fig.savefig(pdf)
-    return png
-
-
-PNG_DPI = 130
-
-
-def warm_up() -> None:
-    """Draw a throw-away force figure into memory: loads matplotlib's fonts, mathtext and PDF backend."""
-    import io
-
-    from matplotlib.figure import Figure
-
-    rows = [{"u0_mm": u, "force_N": u * u, "dforce_du0_N_per_mm": 2 * u, "force_error_N": 0.1,
-             "double_force_Nm": 0.1 * u} for u in (1.0, 2.0)]
-    fig = _force_figure(Figure, rows, [("extra", [0.0, 2.0], [0.0, 4.0])])
-    fig.savefig(io.BytesIO(), format="png", dpi=PNG_DPI)
-    fig.savefig(io.BytesIO(), format="pdf")
-
-
-def _force_figure(figure: Any, rows: list[dict[str, Any]],
-                  extra: Iterable[tuple[str, Sequence[float], Sequence[float]]]) -> Any:
-    """The force figure of the rows of a results.csv (``figure``: matplotlib's Figure class)."""
-    from .plotting import force_curve
-
-    u0 = [r["u0_mm"] for r in rows]
-    has_T = "double_force_Nm" in rows[0]
-    fig = figure(figsize=(10 if has_T else 5.5, 4))
-    axes = fig.subplots(1, 2 if has_T else 1, squeeze=False)
-    ax = axes[0, 0]
-    dF = [r["dforce_du0_N_per_mm"] for r in rows] if "dforce_du0_N_per_mm" in rows[0] else None
-    force_curve(ax, u0, [r["force_N"] for r in rows], dF, label="force")
-    _error_bars(ax, rows)
-    for label, x, y in extra:
-        ax.plot(x, y, "--", label=label)
-    ax.set_xlabel("clamp displacement $u_0$ [mm]")
-    ax.set_ylabel("reaction force on the moving clamp [N]")
-    ax.legend(fontsize=8, loc="upper left")
-    if has_T:
-        ax2 = axes[0, 1]
-        ax2.plot([0.0] + u0, [0.0] + [r["double_force_Nm"] for r in rows], "s-", ms=4, color="C3",
-                 label="converged steps, joined by lines")
-        ax2.set_xlabel("clamp displacement $u_0$ [mm]")
-        ax2.set_ylabel("reaction double force [N m]")
-        ax2.grid(alpha=0.3)
-        ax2.legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
-    return fig

@@ -1,12 +1,13 @@
-"""A second process that draws the force plot, so that importing matplotlib overlaps the solve.
+"""A second process that draws the run's figures, so that importing matplotlib overlaps the solve.
 
 ``ngbet run`` spends about 0.4 s importing matplotlib and its PDF backend and about 0.1 s on the
 first drawing (fonts, the mathtext parser), all of it independent of the results. On a machine
 with an idle core the command starts this process before it imports NGSolve: it imports
-matplotlib and draws one throw-away figure while the run solves, then waits on its stdin for the
-run folder, draws ``force.png`` and ``force.pdf`` with the same function as the run itself
-(:func:`ngbet.output.draw_force`, so the figure is the same; the PDF written by a forked child
-while the PNG is written) and answers on its stdout.
+matplotlib and draws throw-away figures while the run solves, then waits on its stdin for the
+run folder, draws the run's figures (``force.png``, ``shear_force.png``, ``profile.png``,
+``shear_map.png`` and their PDFs) with the same function as the run itself
+(:func:`ngbet.figures.draw_force`, so the figures are the same; each PDF written by a forked child
+while its PNG is written) and answers on its stdout with force.png.
 
 Nothing depends on it: when it is not running, died, or answers with an error, the run draws
 the figure itself (the log says why at INFO level). It is a child of the run in its own session
@@ -57,7 +58,7 @@ class PlotProcess:
 
     def plot(self, run_dir: str | Path,
              extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> Path | None:
-        """Draw the force plot of ``run_dir`` in the process; returns force.png (None: nothing to draw).
+        """Draw the figures of ``run_dir`` in the process; returns force.png (None: nothing to draw).
 
         Raises
         ------
@@ -69,7 +70,7 @@ class PlotProcess:
 
     def request(self, run_dir: str | Path,
                 extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> None:
-        """Ask for the force plot of ``run_dir`` without waiting (:meth:`answer` waits).
+        """Ask for the figures of ``run_dir`` without waiting (:meth:`answer` waits).
 
         Raises
         ------
@@ -173,7 +174,7 @@ def serve(stdin: IO[bytes] | None = None, stdout: IO[bytes] | None = None) -> No
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides
     stdin = stdin or sys.stdin.buffer
     stdout = stdout or sys.stdout.buffer
-    from .output import draw_force, warm_up
+    from .figures import draw_force, warm_up
 
     try:
         warm_up()

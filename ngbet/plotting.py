@@ -1,14 +1,17 @@
-"""Drawing functions shared by the run's force plot, :meth:`ngbet.Result.plot` and the studies.
+"""Names of the plotting module :mod:`ngbet.figures` used by :meth:`ngbet.Result.plot` and the studies.
 
-matplotlib is imported by the callers (it is an optional dependency: ``pip install ngbet[viz]``).
+:func:`dense_force` samples the Hermite interpolant of (F, dF/du0) between converged steps, for a
+user who wants it; ngbet's figures draw the computed points only.
 """
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from numpy.typing import ArrayLike
+
+from .figures import SHEAR_LABEL, force_curve
+
+__all__ = ["SHEAR_LABEL", "dense_force", "force_curve"]
 
 #: the curve between converged steps is sampled every this many mm
 DENSE_STEP_MM = 0.25
@@ -40,23 +43,3 @@ def _hermite(x: np.ndarray, y: np.ndarray, dy: np.ndarray, xe: np.ndarray) -> np
     t = (xe - x[i]) / h
     h00, h10, h01, h11 = (1 + 2 * t) * (1 - t) ** 2, t * (1 - t) ** 2, t * t * (3 - 2 * t), t * t * (t - 1)
     return h00 * y[i] + h10 * h * dy[i] + h01 * y[i + 1] + h11 * h * dy[i + 1]
-
-
-def force_curve(ax: Any, u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None = None,
-                label: str | None = None, color: str | None = None, **kwargs: Any) -> Any:
-    """Draw a force–displacement curve on ``ax``.
-
-    The curve (see :func:`dense_force`) and the converged steps as markers; the legend says how the
-    curve between steps was drawn.
-    """
-    ud, Fd, how = dense_force(u0, force, dforce)
-    (line,) = ax.plot(ud, Fd, "-", color=color, label=f"{label + ': ' if label else ''}{how}", **kwargs)
-    ax.plot(np.r_[0.0, np.asarray(u0, dtype=float)], np.r_[0.0, np.asarray(force, dtype=float)], "o",
-            ms=4, color=line.get_color(), label="converged steps")
-    ax.grid(alpha=0.3)
-    return line
-
-
-#: one angle convention in every figure of both models: the shear angle γ, the change of the
-#: angle between the yarns (0 at rest; 90° − γ between the yarns of a ±45° fabric)
-SHEAR_LABEL = "shear angle γ [°] (0 at rest)"

@@ -84,7 +84,7 @@ def ngsolve_threads(scene: Scene) -> Iterator[None]:
             yield
 
 
-def run(scene: Scene, out: str | Path, progress: bool = False) -> dict[str, Any]:
+def run(scene: Scene, out: str | Path, progress: bool = False, measured: Any = None) -> dict[str, Any]:
     """Run a scene into the folder ``out``; returns the summary (also in summary.json).
 
     Raises
@@ -107,7 +107,7 @@ def run(scene: Scene, out: str | Path, progress: bool = False) -> dict[str, Any]
         if scene.model == "discrete":
             from . import discrete
 
-            return discrete.run(scene, out, progress=progress)
+            return discrete.run(scene, out, progress=progress, measured=measured)
         from .continuum.run import run_continuum
 
-        return run_continuum(scene, Path(out), progress)
+        return run_continuum(scene, Path(out), progress, measured)

@@ -338,9 +338,14 @@ class Loading:
     first_step_mm: float = 16.0
     max_step_mm: float = 28.0
     min_step_mm: float = 0.05
+    # a results.csv row at least every this many mm: the path lands on every multiple of it (and
+    # on the stops), so that results.csv is a force-displacement curve; 0: only where the step
+    # control lands
+    output_every_mm: float = 2.0
 
     def __post_init__(self) -> None:
         _positive("loading", self, "u0_mm", "first_step_mm", "max_step_mm", "min_step_mm")
+        _nonnegative("loading", self, "output_every_mm")
         object.__setattr__(self, "stops_mm", tuple(self.stops_mm))
         for s in self.stops_mm:
             _check(isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0, "loading.stops_mm", s,
@@ -352,6 +357,15 @@ class Loading:
                "must not exceed loading.first_step_mm")
         _check(self.min_step_mm <= self.max_step_mm, "loading.min_step_mm", self.min_step_mm,
                "must not exceed loading.max_step_mm")
+
+    @property
+    def path_stops_mm(self) -> tuple[float, ...]:
+        """The loads the path lands on below u0_mm [mm]: the stops and the multiples of output_every_mm."""
+        grid: tuple[float, ...] = ()
+        if self.output_every_mm > 0:
+            n = int(math.floor(self.u0_mm / self.output_every_mm * (1 + 1e-12)))
+            grid = tuple(round(k * self.output_every_mm, 9) for k in range(1, n + 1))
+        return tuple(sorted({s for s in (*self.stops_mm, *grid) if s < self.u0_mm - 1e-9}))
 
 
 LINEAR_SOLVERS = ("auto", "cholmod", "sparsecholesky", "umfpack", "pardiso")

@@ -38,10 +38,11 @@ def study_scene(scene: Scene | None, quick: bool = False, changes: dict[str, Any
     """A study's base scene.
 
     ``scene`` (None: :func:`ngbet.default_scene`, the paper's BET on the accurate default
-    discretization) without per-case VTK and plots, with :data:`QUICK` when ``quick`` (a coarse
+    discretization) without per-case VTK, plots and output grid, with :data:`QUICK` when ``quick`` (a coarse
     mesh, loaded to 20 mm), then ``changes``.
     """
-    d: dict[str, Any] = {"outputs.vtk": False, "outputs.plot": False}
+    # the studies choose their own loads (stops): no output grid
+    d: dict[str, Any] = {"outputs.vtk": False, "outputs.plot": False, "loading.output_every_mm": 0.0}
     if quick:
         d.update(QUICK)
     d.update(changes or {})

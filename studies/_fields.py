@@ -1,4 +1,4 @@
-"""Fields of continuum runs (fields*.vtu) for the studies: outlines, yarn lines, pyvista maps.
+"""Fields of continuum runs (fields*.vtu) for the studies: outlines, yarn lines, sampled fields.
 
 Everything here reads VTK files, so figures can be redrawn from the study folder without solving.
 Coordinates and displacements in the VTK files are in millimetres, as the figures.
@@ -128,50 +128,3 @@ def write_yarns_vtp(path: str | Path, yarns_mm: dict[int, list[np.ndarray]]) -> 
             polys.append(p)
     merged = polys[0].merge(polys[1:]) if len(polys) > 1 else polys[0]
     merged.save(str(path))
-
-
-def render_map(vtu: str | Path, yarns_mm: dict[int, list[np.ndarray]], png: str | Path, title: str,
-               clim: tuple[float, float] | None = None) -> Path:
-    """Off-screen pyvista picture: the deformed specimen coloured by the shear angle γ, axes in mm.
-
-    Thick yarns (family 1) as thick black lines, thin yarns (family 2) as thin white lines.
-    """
-    pv = _pv()
-    mesh = warped_mm(vtu)
-    pl = pv.Plotter(off_screen=True, window_size=(1800, 800))
-    pl.set_background("white")
-    pl.add_mesh(mesh, scalars="shear_angle_deg", cmap="viridis", clim=clim, show_scalar_bar=True,
-                scalar_bar_args={"title": "shear angle [deg]", "color": "black", "vertical": True,
-                                 "position_x": 0.88, "position_y": 0.15, "height": 0.7, "width": 0.05})
-    if yarns_mm.get(1):
-        thick = lines_polydata(yarns_mm[1]).translate((0, 0, 0.5))
-        pl.add_mesh(thick, color="black", line_width=5, label="thick yarns")
-    if yarns_mm.get(2):
-        thin = lines_polydata(yarns_mm[2]).translate((0, 0, 0.6))
-        pl.add_mesh(thin, color="white", line_width=1.5, label="thin yarns")
-    pl.show_bounds(xtitle="x [mm]", ytitle="y [mm]", n_zlabels=0, ztitle="", color="black", font_size=18,
-                   location="outer", ticks="outside", use_2d=True)
-    pl.add_text(title, font_size=12, color="black")
-    pl.add_legend(bcolor="lightgrey", face="line", size=(0.16, 0.12), loc="lower left")
-    pl.view_xy()
-    pl.camera.zoom(1.6)
-    pl.screenshot(str(png))
-    pl.close()
-    return Path(png)
-
-
-def png_to_pdf(png: str | Path, pdf: str | Path) -> None:
-    """The rendered picture as a PDF page (the pixels; the vector form is the VTK file)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    img = plt.imread(str(png))
-    h, w = img.shape[:2]
-    fig = plt.figure(figsize=(w / 200, h / 200))
-    ax = fig.add_axes((0, 0, 1, 1))
-    ax.imshow(img)
-    ax.axis("off")
-    fig.savefig(str(pdf), dpi=200)
-    plt.close(fig)

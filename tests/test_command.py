@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from ngbet import plot_process
-from ngbet.output import OutputError, draw_force, start_plot
+from ngbet.figures import draw_force, start_plot
+from ngbet.output import OutputError
 
 pytest.importorskip("matplotlib")
 ROWS = ("step,u0_mm,force_N,dforce_du0_N_per_mm,double_force_Nm,force_error_N\n"

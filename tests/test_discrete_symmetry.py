@@ -211,7 +211,7 @@ def test_the_17k_network_keeps_its_forces_and_snaps():
     Reference: F(37) = 13.176711539 N, F(56) = 26.688239758 N and the three snap brackets,
     from the run that factorized every tangent whole (bench/bench_discrete.py --run-only).
     """
-    sc = Scene().with_changes(**{**SCENE, "discrete.spacing_mm": 2.4})
+    sc = Scene().with_changes(**{**SCENE, "discrete.spacing_mm": 2.4, "loading.output_every_mm": 0.0})
     net_model = NetworkModel.from_scene(sc)
     F: dict[float, float] = {}
 

@@ -29,10 +29,11 @@ PINNED_CONTINUUM = {"discretization.mesh_size_mm": 5.0, "discretization.order_u"
                     "discretization.corner_mesh_size_mm": 0.0, "discretization.structured": False,
                     "material.K_el": 0.7e6, "material.K_sh": 21e3, "material.alpha1": 2e3, "material.alpha2": 20.0,
                     "loading.u0_mm": 56.0, "loading.stops_mm": [37.0], "loading.first_step_mm": 16.0,
-                    "loading.max_step_mm": 28.0, "outputs.vtk": False, "outputs.plot": False}
+                    "loading.max_step_mm": 28.0, "loading.output_every_mm": 0.0, "outputs.vtk": False,
+                    "outputs.plot": False}
 PINNED_DISCRETE = {"model": "discrete", "discrete.spacing_mm": 5.0, "loading.u0_mm": 56.0,
                    "loading.stops_mm": [37.0], "discrete.first_step_mm": 2.0, "discrete.max_step_mm": 8.0,
-                   "outputs.plot": False}
+                   "loading.output_every_mm": 0.0, "outputs.plot": False}
 PINNED = {"continuum": {37.0: 62.40407179415401, 56.0: 109.53820079805064},
           "discrete": {37.0: 5.711766584489289, 56.0: 10.285809592037236}}
 
@@ -165,7 +166,7 @@ def _failed_run(tmp_path, capsys, model: str) -> tuple[int, str, dict]:
     sets = {"model": model, "loading.u0_mm": 4, "loading.first_step_mm": 4, "loading.min_step_mm": 2,
             "discrete.first_step_mm": 4, "solver.max_iterations": 1, "solver.rtol": 1e-30,
             "solver.atol_energy": 1e-40, "discretization.mesh_size_mm": 20, "outputs.vtk": "false",
-            "outputs.plot": "false"}
+            "outputs.plot": "false", "loading.output_every_mm": 0}
     del sets["discrete.first_step_mm" if model == "continuum" else "discretization.mesh_size_mm"]
     args = ["run", "--quiet", "--out", str(tmp_path / "run")]
     for k, v in sets.items():

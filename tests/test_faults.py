@@ -629,15 +629,16 @@ def test_accuracy_run_lists_every_file_it_wrote(tmp_path, capsys):
                  "--set=outputs.vtk=false"]) == 0
     s = summary(out)
     on_disk = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
-    assert s["files"] == on_disk == ["force.pdf", "force.png", "profile.csv", "results.csv", "scene.toml",
-                                     "summary.json"]
+    figures = [f"{name}.{ext}" for name in ("force", "profile", "shear_force", "shear_map") for ext in ("pdf", "png")]
+    assert s["files"] == on_disk == sorted([*figures, "map_20mm.npz", "profile.csv", "results.csv", "scene.toml",
+                                            "summary.json"])
     assert s["accuracy"]["met"] and s["status"] == "ok"
 
 
 def test_a_force_plot_cut_short_leaves_no_figure_and_the_folder_reusable(tmp_path, monkeypatch):
     """The force plot is drawn in a temporary folder and renamed: Ctrl-C in the middle of the
     drawing leaves no force.png (a half-written one, not registered, would block the next run)."""
-    import ngbet.output
+    import ngbet.figures
 
     def cut(run_dir, extra=(), fork_pdf=False):
         (Path(run_dir) / "force.png").write_bytes(b"\x89PNG half")
@@ -645,11 +646,11 @@ def test_a_force_plot_cut_short_leaves_no_figure_and_the_folder_reusable(tmp_pat
 
     scene = Scene().with_changes(**{**TINY, "outputs.plot": True})
     out = tmp_path / "r"
-    monkeypatch.setattr(ngbet.output, "draw_force", cut)
+    monkeypatch.setattr(ngbet.figures, "draw_force", cut)
     with pytest.raises(KeyboardInterrupt):
         run(scene, out)
-    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "profile.csv", "results.csv", "scene.toml",
-                                                     "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "map_10mm.npz", "map_5mm.npz", "profile.csv",
+                                                     "results.csv", "scene.toml", "summary.json"]
     monkeypatch.undo()
     run(scene, out)
     assert {"force.png", "force.pdf"} <= set(summary(out)["files"]) and (out / "force.png").stat().st_size > 1000
@@ -681,8 +682,8 @@ def test_fields_file_appears_only_complete_and_in_mm(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         run(scene, out)
     assert summary(out)["status"] == "interrupted"
-    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "profile.csv", "results.csv", "scene.toml",
-                                                     "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "map_10mm.npz", "map_5mm.npz", "profile.csv",
+                                                     "results.csv", "scene.toml", "summary.json"]
     assert "fields.vtu" not in summary(out)["files"]
 
 

@@ -78,7 +78,8 @@ def test_u0_to_60mm_close_to_yarn_locking(tmp_path):
 def test_first_step_asks_for_the_whole_load(tmp_path):
     """A first step of 56 mm (max step 56 mm): the stepping recovers by itself (here it lands on
     the 37 mm stop, then 56 mm) and gives the force of the default stepping to 1e-8."""
-    s, rows, _ = _run(tmp_path, "first56", **{"loading.first_step_mm": 56.0, "loading.max_step_mm": 56.0})
+    s, rows, _ = _run(tmp_path, "first56", **{"loading.first_step_mm": 56.0, "loading.max_step_mm": 56.0,
+                                                        "loading.output_every_mm": 0.0})
     _assert_sane(s, rows, 56.0)
     assert s["load_steps"] <= 4
     assert abs(rows[-1]["force_N"] - F56_LAGRANGE_H10) < 1e-3  # same equilibrium as the default stepping
@@ -261,7 +262,8 @@ def test_stiff_yarns_K_el_1e7_lose_stability_and_the_named_remedy_works(tmp_path
     discretization (|δφ − δi8| = |δi8|), and the error says to raise stabilization_K to K_el.
     Doing so carries the run to 56 mm (measured 310.65 N; Λ ∈ L2(P1), next test: 316 N)."""
     with pytest.raises(ConvergenceError) as info:
-        _run(tmp_path, "kel7", **{"material.K_el": 1e7})
+        # the default stepping (no output grid): its last converged state lies past the loss of stability
+        _run(tmp_path, "kel7", **{"material.K_el": 1e7, "loading.output_every_mm": 0.0})
     _assert_stops_with_lost_stability(info.value, 50.0)
     d = info.value.detail
     assert d.mode_class == "discretization" and d.ratio > 0.5 and d.K_el == 1e7 and not d.ellipticity_loss, d
@@ -586,7 +588,7 @@ def test_stiff_bending_on_a_graded_mesh_needs_no_step_cut(tmp_path):
     0.02 N of the uncapped one (294.791 N, measured), below the estimated discretization error."""
     s, rows, _ = _run(tmp_path, "a2000", **{"material.alpha1": 2000.0, "material.alpha2": 2000.0,
                                             "discretization.corner_mesh_size_mm": 0.5, "discretization.order_u": 3,
-                                            "outputs.profile": False})
+                                            "outputs.profile": False, "loading.output_every_mm": 0.0})
     _assert_sane(s, rows, 56.0)
     assert s["step_cuts"] == 0 and s["load_steps"] == 3
     assert s["stabilization_K_Pa"][1] == pytest.approx(30 * 0.7e6)

@@ -164,6 +164,7 @@ def test_running_out_of_newton_iterations_fails_in_bounded_time(tmp_path):
     (4 mm) and keeps every attempt's history; the converged step already on disk is intact."""
     scene = coarse(**{"solver.max_iterations": 2, "solver.growth": 8.0, "solver.cut": 0.1, "loading.first_step_mm": 4.0,
                       "loading.min_step_mm": 4.0, "loading.max_step_mm": 56.0, "loading.stops_mm": [],
+                      "loading.output_every_mm": 0.0,
                       "discretization.mesh_size_mm": 20.0})
     t0 = time.perf_counter()
     with pytest.raises(ConvergenceError) as info:

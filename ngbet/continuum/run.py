@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import time
 from collections.abc import Callable
@@ -13,6 +14,8 @@ import ngsolve as ngs
 
 from ..engine import PathResult, StepRecord, progress_bar
 from ..errors import ConvergenceError
+from ..figures import map_file_name, save_map, start_plot
+from ..kinematics import BetColumns
 from ..output import RunWriter
 from ..plot_process import active as plot_service
 from ..scene import Scene
@@ -22,6 +25,9 @@ from .linear import assembly_thread_count
 from .output import write_vtk
 from .problem import ContinuumProblem
 from .solver import NewtonSettings, continuation
+
+#: each element of the shear-angle map is split into this many² triangles (p = 2 fields: enough)
+MAP_SUBDIVISION = 2
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +41,7 @@ def newton_settings(scene: Scene) -> NewtonSettings:
                           grow_after=s.grow_after, growth=s.growth, cut=s.cut, predictor=s.predictor)
 
 
-def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
+def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None) -> dict[str, Any]:
     """Run a continuum scene into ``out`` (called by :func:`ngbet.run.run`).
 
     Raises
@@ -46,9 +52,10 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
     from .estimate import RunEstimates, run_to_accuracy
 
     if scene.discretization.target_error > 0:  # accuracy on demand: the discretization is chosen
-        acc = run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress))
+        acc = run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress, measured))
         return RunWriter.amend(out, {k: acc[k] for k in ("accuracy", "warnings") if k in acc})
     t0 = time.perf_counter()
+    draw = functools.partial(start_plot, service=plot_service(), measured=measured)
     with RunWriter(out, scene) as writer:
         problem = ContinuumProblem(scene)
         estimates = RunEstimates(problem)
@@ -63,10 +70,10 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
                 info.update(_solver_info(problem, None), **err.path_info)
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
-                    writer.plot(service=plot_service())()
+                    writer.plot(draw)()
                 raise
         info.update(estimates.summary(time.perf_counter() - t_cont))
-        return _finish(problem, scene, writer, out, res, info, warnings)
+        return _finish(problem, scene, writer, out, res, info, warnings, draw)
 
 
 def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
@@ -75,7 +82,7 @@ def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[Step
     L = scene.loading
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                         max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
-                        stops=[s * 1e-3 for s in L.stops_mm], on_step=on_step,
+                        stops=[s * 1e-3 for s in L.path_stops_mm], on_step=on_step,
                         diagnose=lambda: _diagnose(problem),
                         psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
                         path_following=scene.solver.path_following,
@@ -115,6 +122,11 @@ class _StepWriter:
 
     def __init__(self, problem: ContinuumProblem, writer: RunWriter, out: Path, estimates: Any) -> None:
         self.problem, self.writer, self.out, self.estimates = problem, writer, out, estimates
+        sp, ld = problem.scene.specimen, problem.scene.loading
+        self.zones = obs.ZoneShearMeans(problem)
+        self.bet = BetColumns(sp.length_mm, sp.width_mm, sp.yarn_angle_deg)
+        # the map's stations: the load stops and the final load
+        self.stations = (*ld.stops_mm, ld.u0_mm)
         self.t_prev = time.perf_counter()
         self.timers = dict(problem.timers)
 
@@ -123,6 +135,7 @@ class _StepWriter:
         p, o = self.problem, self.problem.scene.outputs
         row: dict[str, Any] = {"step": len(self.writer.rows) + 1, "u0_mm": round(info.u0 * 1e3, 9)}
         row.update(self._observables(info))
+        row.update(self.bet.row(row["u0_mm"], row.get("force_N")))
         now = time.perf_counter()
         row["newton_iterations"] = info.iterations
         row["step_wall_s"] = now - self.t_prev
@@ -136,6 +149,9 @@ class _StepWriter:
             X, uy = obs.midaxis_profile(p, o.profile_points)
             profile = list(zip(X * 1e3, uy * 1e3, strict=True))
         self.writer.add_step(row, profile)
+        if o.plot and any(abs(row["u0_mm"] - s) < 1e-6 for s in self.stations):
+            samples, u0 = obs.map_samples(p, MAP_SUBDIVISION), row["u0_mm"]
+            self.writer.write(map_file_name(u0), lambda tmp: save_map(tmp, samples, u0))
         if o.vtk and o.vtk_every_step:
             self.writer.write(f"fields_{row['step']:03d}.vtu", lambda tmp: write_vtk(p, tmp.with_suffix("")))
 
@@ -154,20 +170,22 @@ class _StepWriter:
             E = p.energy()
             row.update(energy_J_per_m=E, energy_J=E * t)
         row["gamma_centre_deg"] = obs.centre_shear_angle_deg(p)
+        row.update({f"gamma_{z}_deg": g for z, g in self.zones().items()})
         if "constraint" in o.fields and p.phi is not None:
             row["constraint_rms"] = obs.constraint_l2(p)
         return row
 
 
 def _finish(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
-            info: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
+            info: dict[str, Any], warnings: list[str], draw: Callable[[Path], Callable[[], Path | None]]
+            ) -> dict[str, Any]:
     """Final fields, statistics, the multiplier check, summary and plot.
 
     results.csv is complete here, so the plot is asked for first and drawn (by the plot process)
     while the rest is written; it is waited for in any case, so that no half-written figure is
     left behind by an error in between.
     """
-    plotted = writer.plot(service=plot_service()) if scene.outputs.plot else None
+    plotted = writer.plot(draw) if scene.outputs.plot else None
     try:
         summary = _final_files(problem, scene, writer, out, res, info, warnings)
     except BaseException:

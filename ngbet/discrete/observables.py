@@ -80,6 +80,15 @@ def zone_means(net: Network, values: np.ndarray) -> dict[str, float]:
     return out
 
 
+def centre_mean(net: Network, values: np.ndarray) -> float:
+    """Mean of a per-crossing value over the crossings nearest the specimen centre (L/2, W/2)."""
+    Xc = net.X[net.crossings[:, 0]]
+    r = np.hypot(Xc[:, 0] - 0.5 * net.L, Xc[:, 1] - 0.5 * net.W)
+    if not len(r):
+        return math.nan
+    return float(values[r <= r.min() * (1 + 1e-9) + 1e-12].mean())
+
+
 def midline_points(net: Network, u: np.ndarray, family: int) -> tuple[np.ndarray, np.ndarray]:
     """(X, u_y) [m] where the beams of one family cross Y = W/2 in the reference configuration."""
     b = net.beams[net.beam_family == family]

@@ -1,8 +1,10 @@
 """Entry point of the discrete model: scene -> network -> load path -> run folder.
 
 Per converged step a row of results.csv (force on the moving clamp and its slope dF/du0, energies
-per term, zone shear angles, largest slip, Newton iterations, wall time, lowest tangent eigenvalue)
-and the mid-axis profile (as ``[outputs]`` asks); at each of ``loading.stops_mm`` (37 mm by
+per term, centre and zone shear angles, the kinematic shear angle and the normalised shear force
+of the ideal test, largest slip, Newton iterations, wall time, lowest tangent eigenvalue)
+and the mid-axis profile (as ``[outputs]`` asks), at every multiple of ``loading.output_every_mm``
+and wherever the step control lands; at each of ``loading.stops_mm`` (37 mm by
 default: the paper's intermediate shape) and at the last converged step the state
 (``state_XXmm.npz``: deformed yarns, slip and angle per crossing) and its picture
 (``yarns_XXmm.png``, with ``outputs.plot``).
@@ -10,6 +12,7 @@ default: the paper's intermediate shape) and at the last converged step the stat
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -20,7 +23,8 @@ import numpy as np
 
 from ..engine import StepRecord, progress_bar
 from ..errors import ConvergenceError
-from ..kinematics import gamma_a
+from ..figures import start_plot
+from ..kinematics import BetColumns, gamma_a
 from ..output import RunWriter
 from ..scene import Scene
 from . import observables as ob
@@ -38,7 +42,7 @@ def step_control(scene: Scene) -> StepControl:
                        max_step=max_step * 1e-3, min_step=ld.min_step_mm * 1e-3, rtol=so.rtol,
                        atol=so.atol_energy, max_iterations=so.max_iterations, grow_after=so.grow_after,
                        growth=so.growth, cut=so.cut, predictor=so.predictor, backend=so.linear_solver,
-                       stations=tuple(s * 1e-3 for s in ld.stops_mm if s < ld.u0_mm),
+                       stations=tuple(s * 1e-3 for s in ld.path_stops_mm),
                        snap_bracket=min(max(4 * ld.min_step_mm, 1.0), max_step) * 1e-3)
 
 
@@ -48,7 +52,8 @@ def step_row(model: NetworkModel, info: StepRecord, u: np.ndarray, scene: Scene)
     The force and energy columns follow ``outputs.reaction`` and ``outputs.energy``.
     """
     net, specimen, o = model.net, scene.specimen, scene.outputs
-    gz = ob.zone_means(net, ob.crossing_gamma(net, u))
+    gc = ob.crossing_gamma(net, u)
+    gz = ob.zone_means(net, gc)
     g_ideal = gamma_a(specimen, info.u0 * 1e3) if info.u0 * 1e3 < specimen.locking_u0_mm else math.nan
     slip = ob.crossing_slip(net, u)
     row: dict[str, Any] = {"step": info.step, "u0_mm": round(info.u0 * 1e3, 9)}
@@ -62,6 +67,7 @@ def step_row(model: NetworkModel, info: StepRecord, u: np.ndarray, scene: Scene)
         row.update({f"energy_{k}_J": parts[k] for k in ENERGY_PARTS})
     row.update({"newton_iterations": info.iterations, "step_wall_s": round(info.wall_s, 4),
                 "max_slip_mm": float(slip.max(initial=0.0)) * 1e3,
+                "gamma_centre_deg": math.degrees(ob.centre_mean(net, gc)),
                 "gamma_A_deg": np.degrees(gz["A"]), "gamma_B_deg": np.degrees(gz["B"]),
                 "gamma_C_deg": np.degrees(gz["C"]), "gamma_A_ideal_deg": np.degrees(g_ideal),
                 "gamma_B_ideal_deg": np.degrees(g_ideal) / 2, "lambda_min": info.lambda_min, "snap": int(info.snap),
@@ -69,7 +75,7 @@ def step_row(model: NetworkModel, info: StepRecord, u: np.ndarray, scene: Scene)
     return row
 
 
-def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
+def run(scene: Scene, out: str | Path, progress: bool = True, measured: Any = None) -> dict[str, Any]:
     """Run the discrete BET model of ``scene`` and write its run folder.
 
     Parameters
@@ -81,6 +87,8 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
         Run folder (created).
     progress : bool
         Show a tqdm bar over the clamp displacement.
+    measured : ngbet.figures.Measured, optional
+        A measured curve drawn on the force and normalised-shear-force figures.
 
     Returns
     -------
@@ -101,7 +109,7 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
         t_build = time.perf_counter() - t0
         log.info("discrete network: %s", net.counts())
         ctl = step_control(scene)
-        rec = _Recorder(scene, model, writer, out, ctl.stations)
+        rec = _Recorder(scene, model, writer, out, tuple(s * 1e-3 for s in scene.loading.stops_mm))
         info: dict[str, Any] = {"model": "discrete", "network": net.counts(), "dofs": model.n_dofs,
                                 "free_dofs": int((~model.fixed).sum()), "t_build_s": t_build,
                                 "threads": scene.solver.threads}
@@ -120,7 +128,7 @@ def run(scene: Scene, out: str | Path, progress: bool = True) -> dict[str, Any]:
         summary = writer.summary(info, "ok" if failure is None else "failed",
                                  None if failure is None else str(failure))
         if scene.outputs.plot and writer.rows:
-            writer.plot()()
+            writer.plot(functools.partial(start_plot, measured=measured))()
         if failure is not None:
             raise failure
         return summary
@@ -143,11 +151,14 @@ class _Recorder:
         self.scene, self.model, self.writer, self.out, self.stops = scene, model, writer, out, stops
         self.last_u: np.ndarray = np.zeros(model.n_dofs)
         self.last_u0 = 0.0
+        sp = scene.specimen
+        self.bet = BetColumns(sp.length_mm, sp.width_mm, sp.yarn_angle_deg)
 
     def on_step(self, info: StepRecord, u: np.ndarray) -> None:
         """One converged step: its row, its profile, its state at a stop."""
         o, net = self.scene.outputs, self.model.net
         row = step_row(self.model, info, u, self.scene)
+        row.update(self.bet.row(row["u0_mm"], row.get("force_N")))
         profile = None
         if o.profile:
             X, uy = ob.midline_profile(net, u, o.profile_points)
