@@ -196,9 +196,9 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     from .study import add_arguments
 
     add_arguments(pst)
-    from . import fit
+    from .calibration import command as fit_command
 
-    fit.add_parser(sub)
+    fit_command.add_parser(sub)
     return parser
 
 
@@ -208,9 +208,9 @@ def _main(argv: list[str] | None) -> int:
     if args.command == "study":
         return _study(args)
     if args.command == "fit":
-        from . import fit
+        from .calibration import command as fit_command
 
-        return fit.run_from_args(args)
+        return fit_command.run_from_args(args)
 
     level = logging.INFO if getattr(args, "verbose", False) else logging.WARNING
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
