@@ -332,14 +332,22 @@ class CurvePrediction:
         return np.sqrt(self.sd_param_N ** 2 + self.sd_disc_N ** 2)
 
 
-def predict_specimen(result: JointFit, specimen: dict[str, float], u_mm: np.ndarray) -> CurvePrediction:
-    """The fitted scene on ``specimen`` (scene keys) at the displacements ``u_mm``, with its band."""
+def predict_specimen(result: JointFit, specimen: dict[str, float], u_mm: np.ndarray,
+                     fixed_var_log: dict[str, float] | None = None) -> CurvePrediction:
+    """The fitted scene on ``specimen`` (scene keys) at the displacements ``u_mm``, with its band.
+
+    ``fixed_var_log``: parameters held fixed in the fit whose value is uncertain, with the
+    variance of their ln p (independent of the fitted ones); they widen the band by g_k² var_k.
+    """
     from ..continuum.sensitivity import force_path
 
+    fixed = dict(fixed_var_log or {})
     sc = result.scene.with_changes(**specimen, **{"loading.u0_mm": float(np.max(u_mm)), "loading.stops_mm": []})
-    r = force_path(sc, u_mm, result.names)
+    r = force_path(sc, u_mm, [*result.names, *fixed])
     assert r.dlogp is not None
+    n = len(result.names)
+    var = band(r.dlogp[:, :n], result.cov_log) ** 2 + (r.dlogp[:, n:] ** 2) @ np.array(list(fixed.values()))
     d = sc.discretization
     finer = sc.with_changes(**{"discretization.order_u": d.order_u + 1})
     disc = np.abs(force_path(finer, u_mm).force_N - r.force_N)
-    return CurvePrediction(np.asarray(u_mm, float), r.force_N, band(r.dlogp, result.cov_log), disc, sc)
+    return CurvePrediction(np.asarray(u_mm, float), r.force_N, np.sqrt(var), disc, sc)
