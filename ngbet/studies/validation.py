@@ -264,7 +264,7 @@ def report(data: StudyData) -> str:
           "K_el from |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         f = r["fit"]
-        L.append(f"| {r['fabric']} | {f.get('model_runs', '')} | {float(f.get('wall_s', 'nan')):.1f} | "
+        L.append(f"| {r['fabric']} | {int(float(f.get('model_runs', 0)))} | {float(f.get('wall_s', 'nan')):.1f} | "
                  f"{f.get('converged', '')} | {float(f.get('material.K_el', 'nan')):.3g} | "
                  f"{float(f.get('se_log K_el (held)', 'nan')):.2f} | {f.get('K_el_from') or 'the scene (quick)'} |")
     pairs = data.tables.get("pair_fits") or []
@@ -274,7 +274,7 @@ def report(data: StudyData) -> str:
               "|---|---|---|---|---|---|"]
         for p in pairs:
             L.append(f"| {p['fabric']} | {float(p['K_el']):.3g} | {float(p['se_log_K_el']):.2f} | "
-                     f"{', '.join(f'{100 * float(x):.1f} %' for x in str(p['rms']).split())} | {p['model_runs']} | "
+                     f"{', '.join(f'{100 * float(x):.1f} %' for x in str(p['rms']).split())} | {int(float(p['model_runs']))} | "
                      f"{float(p['wall_s']):.0f} |")
     return "\n".join(L) + "\n"
 
