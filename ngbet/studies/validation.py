@@ -274,7 +274,8 @@ def report(data: StudyData) -> str:
               "|---|---|---|---|---|---|"]
         for p in pairs:
             L.append(f"| {p['fabric']} | {float(p['K_el']):.3g} | {float(p['se_log_K_el']):.2f} | "
-                     f"{', '.join(f'{100 * float(x):.1f} %' for x in str(p['rms']).split())} | {int(float(p['model_runs']))} | "
+                     f"{', '.join(f'{100 * float(x):.1f} %' for x in str(p['rms']).split())} | "
+                     f"{int(float(p['model_runs']))} | "
                      f"{float(p['wall_s']):.0f} |")
     return "\n".join(L) + "\n"
 
