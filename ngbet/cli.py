@@ -192,7 +192,7 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them",
                          epilog=EPILOG)
     pst.add_argument("name", help="study name (reference, work_precision, penalty_p, alpha1, kel, curves, maps, "
-                     "compare) or 'list'")
+                     "compare, validation) or 'list'")
     from .study import add_arguments
 
     add_arguments(pst)
