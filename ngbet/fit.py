@@ -66,23 +66,15 @@ def _csv_rows(path: Path, what: str) -> list[list[str]]:
 
 
 def read_curve(path: str | Path) -> Curve:
-    """Read a measured force curve from a CSV with a header.
+    """Read a measured force curve from a CSV with a header, checked line by line.
 
-    The first column is the clamp displacement [mm], the column ``force_N`` (or the second column)
-    the force [N]. Rows are sorted by displacement.
+    The checks are those of :func:`ngbet.calibration.data.read_measured`. The first column is the clamp displacement [mm], the column ``force_N`` (or the second column)
+    the force [N]. Rows are sorted by displacement; rows of equal displacement are averaged.
     """
-    path = Path(path)
-    rows = _csv_rows(path, "data")
-    if len(rows) < 3 or len(rows[0]) < 2:
-        raise SceneError(f"data file {path}: expected a header and at least two rows of displacement_mm,force_N")
-    head = [h.strip() for h in rows[0]]
-    j = head.index("force_N") if "force_N" in head else 1
-    try:
-        data = np.array([[float(r[0]), float(r[j])] for r in rows[1:] if r and r[0].strip()])
-    except (ValueError, IndexError) as exc:
-        raise SceneError(f"data file {path}: not a table of numbers under {head[0]!r}, {head[j]!r}: {exc}") from None
-    data = data[np.argsort(data[:, 0])]
-    return Curve(data[:, 0], data[:, 1], str(path))
+    from .calibration.data import read_measured
+
+    c = read_measured(path)
+    return Curve(c.u_mm, c.force_N, c.source)
 
 
 @dataclass(frozen=True)

@@ -358,3 +358,25 @@ def test_validation_study_quick(tmp_path, monkeypatch):
     row = V.summary(load(out))[0]
     assert row["normalisation_rms"] == pytest.approx(rms, rel=1e-9)
     assert f"{100 * rms:.1f} %" in text
+
+
+def test_progress_line_names_runs_and_each_curves_rms():
+    """The progress of a fit on a stream that is not a terminal: one line per model run."""
+    import io
+
+    stream = io.StringIO()
+    show = joint.terminal_progress(stream)
+    show(3, [0.123, 0.045], 12.5)
+    show(4, [0.1, 0.04], 11.0)
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 2 and lines[0].startswith("ngbet fit: model run 3, RMS 12.3 %, 4.5 %")
+
+
+def test_python_reader_refuses_a_file_without_header(tmp_path):
+    """ngbet.fit.read_curve, the reader of the single-curve fit, takes the same checks."""
+    from ngbet import fit as F
+
+    p = tmp_path / "noheader.csv"
+    p.write_text("".join(f"{u},{0.1 * u}\n" for u in range(1, 11)))
+    with pytest.raises(SceneError, match="line 1: a row of numbers where the header should be"):
+        F.read_curve(p)
