@@ -68,8 +68,9 @@ def _csv_rows(path: Path, what: str) -> list[list[str]]:
 def read_curve(path: str | Path) -> Curve:
     """Read a measured force curve from a CSV with a header, checked line by line.
 
-    The checks are those of :func:`ngbet.calibration.data.read_measured`. The first column is the clamp displacement [mm], the column ``force_N`` (or the second column)
-    the force [N]. Rows are sorted by displacement; rows of equal displacement are averaged.
+    The checks are those of :func:`ngbet.calibration.data.read_measured`. The first column is the
+    clamp displacement [mm], the column ``force_N`` (or the second column) the force [N]. Rows are
+    sorted by displacement; rows of equal displacement are averaged.
     """
     from .calibration.data import read_measured
 
