@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from .data import MeasuredCurve
-from .joint import CurvePrediction, JointFit, band
+from .joint import TABLE_KEY, CurvePrediction, JointFit, band
 
 
 def _atomic(path: Path, text: str) -> Path:
@@ -34,7 +34,47 @@ def write_fit(result: JointFit, out: str | Path) -> list[Path]:
     paths = [_atomic(out / "fit.json", json.dumps(doc, indent=2)),
              _atomic(out / "fitted_scene.toml", header + result.scene.to_toml())]
     paths.append(plot_fit(result, out / "fit.png"))
+    if result.scene.effects.shear_law == "table":
+        paths.append(plot_table(result, out / "shear_table.png"))
     return paths
+
+
+def plot_table(result: JointFit, path: Path) -> Path:
+    """The tabulated shear stress against |i8|: start, fitted, and each curve by the normalisation method.
+
+    The normalisation method's points are τ(sin γ) = F_sh(γ)/t along each measured curve
+    (:func:`ngbet.calibration.table.shear_stress_points`): what the fitted table differs from them
+    by is what the continuum (yarn elongation, bending, the real kinematics) adds.
+    """
+    from matplotlib.figure import Figure
+
+    from ..continuum.physics import table_stress_spline
+    from .table import shear_stress_points
+
+    fitted = result.scene.material
+    steps0 = np.array(fitted.shear_stress_steps_Pa, dtype=float)
+    for k, n in enumerate(result.names):  # the start table: the fitted one with the start values put back
+        if n.startswith(TABLE_KEY):
+            steps0[int(n[len(TABLE_KEY) + 1:-1])] = result.start[k]
+    x = np.linspace(0.01 * fitted.shear_table_i8_max, fitted.shear_table_i8_max, 200)
+    fig = Figure(figsize=(6.0, 4.2))
+    ax = fig.subplots()
+    t = result.scene.specimen.thickness_mm
+    for k, c in enumerate(result.curves):
+        xs, tau = shear_stress_points(c.curve, t)
+        ax.plot(xs, tau / 1e3, "o", ms=3, color=f"C{k}", label=f"{c.curve.label}: normalisation method, F_sh / t")
+    ax.plot(x, table_stress_spline(steps0, fitted.shear_table_i8_max)(x) / 1e3, ":", color="0.3", label="start table")
+    ax.plot(x, table_stress_spline(fitted.shear_stress_steps_Pa, fitted.shear_table_i8_max)(x) / 1e3, "-",
+            color="k", lw=1.6, label="fitted table (continuum)")
+    ax.set_yscale("log")
+    ax.set_xlabel("|i8| (= sin γ for inextensible yarns)")
+    ax.set_ylabel("shear stress τ = dW/d|i8| [kPa] (log scale)")
+    ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}, t = {t:g} mm; fitted K_el = "
+                 f"{result.scene.material.K_el:.3g} Pa", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return path
 
 
 def plot_fit(result: JointFit, path: Path) -> Path:
