@@ -129,6 +129,21 @@ def test_tabulated_energy_is_convex_for_a_monotone_table():
         Scene().with_changes(**{"effects.shear_law": "table"})
 
 
+def test_tabulated_energy_is_twice_continuously_differentiable():
+    """Newton needs a continuous tangent: W'' = dτ/d|i8| agrees on both sides of every knot (and
+    of the end of the table) to 1e-5 of its size for a step of 1e-7 (its third derivative is finite)."""
+    steps, x_max = [3e3, 500.0, 8e3, 2e4, 6e4, 1e4], 0.95
+    knots = np.unique(physics.table_stress_spline(steps, x_max).t)
+    i8 = ngs.Parameter(0.0)
+    H = physics.table_shear_energy(i8, steps, x_max).Diff(i8).Diff(i8)
+    for k in knots[1:]:
+        vals = []
+        for v in (k - 1e-7, k + 1e-7):
+            i8.Set(v)
+            vals.append(_at(H))
+        assert abs(vals[1] - vals[0]) <= 1e-5 * max(abs(vals[0]), 1.0), (k, vals)
+
+
 def test_table_sensitivities_match_finite_differences():
     """dF/d ln(rise) of the table (its energy is linear in the rises) and dF/d ln K_el agree with
     central differences of whole runs to 1e-4 of each column's largest value (measured 1.4e-5,
