@@ -395,3 +395,21 @@ def test_python_reader_refuses_a_file_without_header(tmp_path):
     p.write_text("".join(f"{u},{0.1 * u}\n" for u in range(1, 11)))
     with pytest.raises(SceneError, match="line 1: a row of numbers where the header should be"):
         F.read_curve(p)
+
+
+def test_a_held_parameter_widens_the_band_by_its_own_term(synthetic_joint):
+    """K_el held fixed with var(ln K_el) = 0.09: the parameter part of the band becomes
+    √(sd² + (dF/d ln K_el)² · 0.09), the derivative from central differences of whole runs (to
+    2e-3 of the largest value: the two derivatives differ by that much on this 30 mm mesh)."""
+    _, paths, _ = synthetic_joint
+    res = joint.fit_curves([read_measured(p) for p in paths], synthetic_scene(), params=["material.K_sh"], max_runs=3)
+    spec = {"specimen.width_mm": 100.0, "specimen.length_mm": 300.0}
+    u = np.array([20.0, 50.0])
+    plain = joint.predict_specimen(res, spec, u)
+    held = joint.predict_specimen(res, spec, u, {"material.K_el": 0.09})
+    sc = res.scene.with_changes(**spec, **{"loading.u0_mm": 50.0})
+    g = finite_difference(sc, u, ["material.K_el"], rel_step=1e-3)[:, 0]
+    want = np.sqrt(plain.sd_param_N ** 2 + 0.09 * g ** 2)
+    np.testing.assert_allclose(held.sd_param_N, want, rtol=0, atol=2e-3 * want.max())  # measured 2.3e-4 N, band 0.14 N
+    assert np.all(held.sd_param_N > 1.5 * plain.sd_param_N)
+    np.testing.assert_allclose(held.force_N, plain.force_N, rtol=1e-12)
