@@ -259,9 +259,9 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     psw.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                      help="override one value of the base scene (repeatable)")
     add_arguments(psw)
-    from . import fit
+    from .calibration import command as fit_command
 
-    fit.add_parser(sub)
+    fit_command.add_parser(sub)
     return parser
 
 
@@ -273,9 +273,9 @@ def _main(argv: list[str] | None) -> int:
     if args.command == "sweep":
         return _sweep(args)
     if args.command == "fit":
-        from . import fit
+        from .calibration import command as fit_command
 
-        return fit.run_from_args(args)
+        return fit_command.run_from_args(args)
 
     level = logging.INFO if getattr(args, "verbose", False) else logging.WARNING
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")

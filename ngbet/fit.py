@@ -21,12 +21,10 @@ times the largest); pairs with |correlation| > :data:`STRONG_CORRELATION` are na
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import logging
 import math
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -68,23 +66,16 @@ def _csv_rows(path: Path, what: str) -> list[list[str]]:
 
 
 def read_curve(path: str | Path) -> Curve:
-    """Read a measured force curve from a CSV with a header.
+    """Read a measured force curve from a CSV with a header, checked line by line.
 
-    The first column is the clamp displacement [mm], the column ``force_N`` (or the second column)
-    the force [N]. Rows are sorted by displacement.
+    The checks are those of :func:`ngbet.calibration.data.read_measured`. The first column is the
+    clamp displacement [mm], the column ``force_N`` (or the second column) the force [N]. Rows are
+    sorted by displacement; rows of equal displacement are averaged.
     """
-    path = Path(path)
-    rows = _csv_rows(path, "data")
-    if len(rows) < 3 or len(rows[0]) < 2:
-        raise SceneError(f"data file {path}: expected a header and at least two rows of displacement_mm,force_N")
-    head = [h.strip() for h in rows[0]]
-    j = head.index("force_N") if "force_N" in head else 1
-    try:
-        data = np.array([[float(r[0]), float(r[j])] for r in rows[1:] if r and r[0].strip()])
-    except (ValueError, IndexError) as exc:
-        raise SceneError(f"data file {path}: not a table of numbers under {head[0]!r}, {head[j]!r}: {exc}") from None
-    data = data[np.argsort(data[:, 0])]
-    return Curve(data[:, 0], data[:, 1], str(path))
+    from .calibration.data import read_measured
+
+    c = read_measured(path)
+    return Curve(c.u_mm, c.force_N, c.source)
 
 
 @dataclass(frozen=True)
@@ -506,73 +497,6 @@ def plot_prediction(pred: Prediction, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
-
-
-# ------------------------------------------------------------------------------------------- CLI
-def add_parser(sub: Any) -> None:
-    """The ``ngbet fit`` subcommand."""
-    p = sub.add_parser("fit", help="fit material parameters to a measured force-displacement curve")
-    p.add_argument("data", help="CSV: displacement_mm,force_N")
-    p.add_argument("scene", nargs="?", help="scene TOML of the tested specimen (default: the embedded scene)")
-    p.add_argument("--params", required=True, help="comma-separated material keys, e.g. material.K_sh,material.K_lock")
-    p.add_argument("--out", default="out/fit", help="output folder (default: out/fit)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="override one scene value (also the start values), repeatable")
-    p.add_argument("--range", dest="u_range", metavar="FROM:TO", help="fit the points between FROM and TO mm "
-                   "(default: from a tenth of the largest displacement)")
-    p.add_argument("--noise", choices=("relative", "absolute"), default="relative",
-                   help="error model of the data (default: relative)")
-    p.add_argument("--max-runs", type=int, default=60, help="at most this many model runs (default 60)")
-    p.add_argument("--profile", metavar="PROFILE.csv", help="a measured mid-axis profile (u0_mm,X_mm,uy_mm) "
-                   "fitted together with the force")
-    p.add_argument("--force-sd", type=float, default=0.01, help="error scale of the force: a fraction for "
-                   "--noise relative (default 0.01), N for absolute; weighs the profile against the force")
-    p.add_argument("--profile-sd", type=float, default=1.0, help="error scale of the profile [mm] (default 1)")
-    p.add_argument("--predict", metavar="OTHER.csv", help="a second data set to predict with the fitted values")
-    p.add_argument("--predict-scene", metavar="OTHER.toml",
-                   help="the scene of the second test (default: the fitted one)")
-
-
-def _range(text: str | None) -> tuple[float, float] | None:
-    if not text:
-        return None
-    a, sep, b = text.partition(":")
-    try:
-        return (float(a), float(b)) if sep else (float(a), math.inf)
-    except ValueError:
-        raise SceneError(f"--range expects FROM:TO in mm, got {text!r}") from None
-
-
-def run_from_args(args: argparse.Namespace) -> int:
-    """``ngbet fit``: the command.
-
-    Exit 0 done, 1 the model could not be solved or the search did not converge, 2 bad input,
-    3 an output folder it cannot use.
-    """
-    from .cli import load_scene
-
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        scene = load_scene(args.scene, args.overrides)
-        params = [p.strip() for p in args.params.split(",") if p.strip()]
-        result = fit(args.data, scene, params, _range(args.u_range), args.noise, args.max_runs,
-                     args.profile, args.force_sd, args.profile_sd)
-        pred = None
-        if args.predict:
-            other = Scene.from_toml(args.predict_scene) if args.predict_scene else None
-            pred = predict(result, args.predict, other)
-        write_outputs(result, args.out, pred)
-    except SceneError as exc:
-        print(f"ngbet fit: {exc}", file=sys.stderr)
-        return 2
-    except Exception as exc:  # the command's exit-code contract (1 solver, 3 I/O), one line
-        from .cli import exit_code
-
-        code, msg = exit_code(exc, Path(args.out))
-        print(f"ngbet fit: {msg}", file=sys.stderr)
-        return code
-    print(summary_text(result, Path(args.out), pred))
-    return 0 if result.extra.get("converged", True) else 1
 
 
 def summary_text(result: FitResult, out: Path, pred: Prediction | None = None) -> str:

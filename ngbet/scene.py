@@ -176,12 +176,26 @@ class Material:
     K_sh6: float = 0.0  # Pa: "polynomial", 1/6 K_sh6 i8^6
     K_lock: float = 0.0  # Pa: "locking", modulus of the term that diverges at the locking angle
     gamma_lock_deg: float = 60.0  # deg: "locking", shear angle at which the yarns lock
+    # "table": the rises [Pa] of the shear stress between consecutive control points of a cubic
+    # B-spline in |i8| (uniform knots from 0 to shear_table_i8_max; the stress is 0 at i8 = 0); each
+    # rise >= 0, so the stress is monotone and the energy convex (ngbet.continuum.physics)
+    shear_stress_steps_Pa: tuple[float, ...] = ()
+    shear_table_i8_max: float = 1.0  # "table": |i8| of the last knot; beyond it the stress goes on linearly
 
     def __post_init__(self) -> None:
         _nonnegative("material", self, "K_el", "K_sh", "alpha1", "alpha2", "K_sh4", "K_sh6", "K_lock")
         g = self.gamma_lock_deg
         _check(isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g < 90, "material.gamma_lock_deg",
                g, "must lie strictly between 0 and 90 degrees")
+        steps = self.shear_stress_steps_Pa
+        _check(isinstance(steps, (list, tuple)), "material.shear_stress_steps_Pa", steps, "must be a list of numbers")
+        object.__setattr__(self, "shear_stress_steps_Pa", tuple(steps))
+        for v in self.shear_stress_steps_Pa:
+            _check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
+                   "material.shear_stress_steps_Pa", v, "each rise must be a finite number >= 0 (a monotone table)")
+        _check(len(self.shear_stress_steps_Pa) <= 40, "material.shear_stress_steps_Pa", len(steps),
+               "at most 40 control points")
+        _positive("material", self, "shear_table_i8_max")
 
     def internal_lengths_mm(self) -> tuple[float, float]:
         """l_i = sqrt(alpha_i / K_sh) [mm]: 309 mm and 31 mm for Table 1."""
@@ -192,7 +206,7 @@ class Material:
 
 CONSTRAINTS = ("lagrange", "penalty")
 PENALTY_FORMS = ("mixed", "full")
-SHEAR_LAWS = ("quadratic", "polynomial", "locking")  # ngbet.continuum.physics.SHEAR_LAWS
+SHEAR_LAWS = ("quadratic", "polynomial", "locking", "table")  # ngbet.continuum.physics.SHEAR_LAWS
 
 
 @dataclass(frozen=True)
@@ -212,7 +226,8 @@ class Effects:
 
     shear: bool = True  # 1/2 K_sh i8^2
     # the shear energy: "quadratic" 1/2 K_sh i8^2 (the paper's); "polynomial" adds 1/4 K_sh4 i8^4
-    # + 1/6 K_sh6 i8^6; "locking" adds a term that diverges at material.gamma_lock_deg (K_lock)
+    # + 1/6 K_sh6 i8^6; "locking" adds a term that diverges at material.gamma_lock_deg (K_lock);
+    # "table": a monotone spline of the shear stress against |i8| (material.shear_stress_steps_Pa)
     shear_law: str = "quadratic"
     elongation: bool = True  # 1/2 K_el [(sqrt(i4) - 1)^2 + (sqrt(i6) - 1)^2]
     bending: bool = True  # 1/2 alpha1 phi_1^2 + 1/2 alpha2 phi_2^2 with phi = i8
@@ -489,6 +504,48 @@ class Discrete:
         _positive("discrete", self, "first_step_mm", "max_step_mm")
 
 
+@dataclass(frozen=True)
+class Calibration:
+    """What ``ngbet fit`` adjusts when no ``--params`` are given, and the fabric's yarn families.
+
+    The runs do not read this section; it travels with the scene so that a fabric's scene says
+    which of its parameters the measured curves determine.
+    """
+
+    # material keys the fit adjusts (e.g. "material.K_el"); a list key such as
+    # "material.shear_stress_steps_Pa" stands for each of its entries
+    params: tuple[str, ...] = ()
+    lower: tuple[float, ...] = ()  # bound below of each parameter (empty: start / 1e4); > 0
+    upper: tuple[float, ...] = ()  # bound above of each parameter (empty: start x 1e4)
+    yarns_m1: str = ""  # the yarn family along m1 (bending stiffness alpha1), e.g. "warp, 3.39 ends/cm"
+    yarns_m2: str = ""  # the yarn family along m2 (alpha2)
+
+    def __post_init__(self) -> None:
+        for name in ("params", "lower", "upper"):
+            v = getattr(self, name)
+            _check(isinstance(v, (list, tuple)), f"calibration.{name}", v, "must be a list")
+            object.__setattr__(self, name, tuple(v))
+        known = {f.name for f in fields(Material)}
+        for p in self.params:
+            section, _, key = p.partition(".") if isinstance(p, str) else ("", "", "")
+            _check(section == "material" and key in known, "calibration.params", p,
+                   f"must name a material key (material.{', material.'.join(sorted(known))})")
+        _check(len(set(self.params)) == len(self.params), "calibration.params", list(self.params),
+               "names a key twice")
+        for name in ("lower", "upper"):
+            v = getattr(self, name)
+            _check(len(v) in (0, len(self.params)), f"calibration.{name}", list(v),
+                   f"needs one bound per entry of calibration.params ({len(self.params)}) or none")
+            for b in v:
+                _check(isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b) and b > 0,
+                       f"calibration.{name}", b, "each bound must be a finite number > 0 (the fit works on ln p)")
+        if self.lower and self.upper:
+            for p, lo, hi in zip(self.params, self.lower, self.upper, strict=True):
+                _check(lo < hi, "calibration.lower", lo, f"must lie below calibration.upper ({hi}) for {p}")
+        _check(isinstance(self.yarns_m1, str) and isinstance(self.yarns_m2, str), "calibration.yarns_m1",
+               self.yarns_m1, "must be text")
+
+
 MODELS = ("continuum", "discrete")
 
 #: what each model does not read: whole sections (None) or some of their keys. A non-default value
@@ -553,6 +610,7 @@ _SECTIONS: dict[str, type] = {
     "solver": Solver,
     "outputs": Outputs,
     "discrete": Discrete,
+    "calibration": Calibration,
 }
 
 
@@ -569,6 +627,7 @@ class Scene:
     solver: Solver = field(default_factory=Solver)
     outputs: Outputs = field(default_factory=Outputs)
     discrete: Discrete = field(default_factory=Discrete)
+    calibration: Calibration = field(default_factory=Calibration)
 
     def __post_init__(self) -> None:
         _choice("", self, "model", MODELS)
@@ -591,7 +650,11 @@ class Scene:
                    self.solver.linear_solver, "needs solver.condense = true: the uncondensed Newton matrix holds "
                    "the multiplier's block and is indefinite, which a Cholesky LL^T cannot factorize")
             m, e = self.material, self.effects
-            if e.shear:
+            if e.shear and e.shear_law == "table":
+                _check(len(m.shear_stress_steps_Pa) >= 2 and sum(m.shear_stress_steps_Pa) > 0,
+                       "material.shear_stress_steps_Pa", list(m.shear_stress_steps_Pa),
+                       "effects.shear_law = 'table' needs at least 2 rises, not all 0")
+            elif e.shear:
                 _check(m.K_sh > 0, "material.K_sh", m.K_sh, "must be > 0 when effects.shear is on")
             _check(m.K_el > 0, "material.K_el", m.K_el, "must be > 0 (effects.elongation is on)")
             if e.bending:
@@ -674,6 +737,9 @@ class Scene:
         d = dataclasses.asdict(self)
         d["outputs"]["fields"] = list(d["outputs"]["fields"])
         d["loading"]["stops_mm"] = list(d["loading"]["stops_mm"])
+        d["material"]["shear_stress_steps_Pa"] = list(d["material"]["shear_stress_steps_Pa"])
+        for k in ("params", "lower", "upper"):
+            d["calibration"][k] = list(d["calibration"][k])
         return d
 
     def to_toml(self) -> str:

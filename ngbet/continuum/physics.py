@@ -19,9 +19,11 @@ The paper prints W_b = ½⟨α, ∇φ⟩², which drops the squares; docs/model.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import ngsolve as ngs
+import numpy as np
 from ngsolve import CoefficientFunction as CF
 
 
@@ -88,11 +90,73 @@ def locking_shear_energy(i8: CF, K_sh: float, K_lock: float, gamma_lock_deg: flo
     return 0.5 * K_sh * i8 * i8 - 0.5 * K_lock * s2 * (log1mx + x)
 
 
+def table_stress_spline(steps: Sequence[float] | np.ndarray, x_max: float) -> Any:
+    r"""The shear stress τ(x) of the tabulated law, x = |i8|, as a :class:`scipy.interpolate.BSpline`.
+
+    A B-spline of degree 3 (2 with two rises) on uniform clamped knots over [0, x_max] whose
+    control values are c_0 = 0 and c_j = Σ_{i<=j} steps_i: rises >= 0 make the control values
+    monotone, and a B-spline with monotone control values is monotone (its derivative is a
+    B-spline with the differences as control values), so the energy is convex. A B-spline
+    reproduces straight lines from their values at the Greville abscissae
+    (:func:`table_greville`): the rises K (ξ_j − ξ_{j−1}) give τ = K x, the quadratic law, exactly.
+    """
+    from scipy.interpolate import BSpline
+
+    c = np.concatenate([[0.0], np.cumsum(np.asarray(steps, dtype=float))])
+    k = min(3, len(c) - 1)
+    inner = np.linspace(0.0, x_max, len(c) - k + 1)
+    t = np.concatenate([[0.0] * k, inner, [x_max] * k])
+    return BSpline(t, c, k, extrapolate=False)
+
+
+def table_greville(n_steps: int, x_max: float) -> np.ndarray:
+    """The Greville abscissae of the tabulated law's control values (n_steps + 1 of them, from 0)."""
+    t = table_stress_spline(np.ones(n_steps), x_max).t
+    k = min(3, n_steps)
+    return np.array([t[j + 1:j + k + 1].mean() for j in range(n_steps + 1)])
+
+
+def _piecewise(x: CF, breaks: np.ndarray, coeffs: np.ndarray, tail: tuple[float, float, float]) -> CF:
+    """Σ_k coeffs[k, i] (x − breaks[i])^(K−k) on [breaks[i], breaks[i+1]] (Horner), by nested IfPos.
+
+    Beyond the last break: tail = (W, τ, k) there, continued as W + τ s + ½ k s², s = x − x_end.
+    """
+    s_end = x - float(breaks[-1])
+    expr: CF = tail[0] + s_end * (tail[1] + 0.5 * tail[2] * s_end)
+    for i in range(len(breaks) - 2, -1, -1):
+        s = x - float(breaks[i])
+        poly: CF = float(coeffs[0, i])
+        for a in coeffs[1:, i]:
+            poly = poly * s + float(a)
+        expr = ngs.IfPos(x - float(breaks[i + 1]), expr, poly)
+    return expr
+
+
+def table_shear_energy(i8: CF, steps: Sequence[float] | np.ndarray, x_max: float) -> CF:
+    r"""W_sh(i8) = ∫₀^|i8| τ(x) dx [Pa] with τ the monotone spline of :func:`table_stress_spline`.
+
+    A piecewise polynomial in i8 (degree 4 with cubic τ), even in i8, built from ``IfPos``: W is
+    C², so the Newton tangent W'' = τ' is continuous; beyond x_max the stress continues linearly
+    with its end slope (W quadratic there, still convex). The energy is linear in the rises, so
+    dW/d(rise j) is this function with the unit rise e_j.
+    """
+    from scipy.interpolate import PPoly
+
+    spl = table_stress_spline(steps, x_max)
+    spl_e = type(spl)(spl.t, spl.c, spl.k, extrapolate=True)
+    W = PPoly.from_spline(spl_e.antiderivative())
+    keep = np.r_[np.diff(W.x) > 0, True]  # drop the empty intervals of the clamped knots
+    x, c = W.x[keep], W.c[:, keep[:-1]]
+    tail = (float(W(x_max)), float(spl_e(x_max)), float(spl_e.derivative()(x_max)))
+    return ngs.IfPos(i8, _piecewise(i8, x, c, tail), _piecewise(-i8, x, c, tail))
+
+
 #: the shear laws a scene can name (``effects.shear_law``) and the material keys each one reads
 SHEAR_LAWS: dict[str, tuple[str, ...]] = {
     "quadratic": ("K_sh",),
     "polynomial": ("K_sh", "K_sh4", "K_sh6"),
     "locking": ("K_sh", "K_lock", "gamma_lock_deg"),
+    "table": ("shear_stress_steps_Pa", "shear_table_i8_max"),
 }
 
 
@@ -106,6 +170,8 @@ def shear_law_energy(i8: CF, law: str, coefficients: dict[str, Any]) -> CF:
         return polynomial_shear_energy(i8, *c)
     if law == "locking":
         return locking_shear_energy(i8, *c)
+    if law == "table":
+        return table_shear_energy(i8, *c)
     return shear_energy(i8, *c)
 
 

@@ -39,8 +39,26 @@ from . import physics
 
 log = logging.getLogger(__name__)
 
-#: material keys whose derivative the forms below know (the energy terms that read them)
-DIFFERENTIABLE = ("K_el", "K_sh", "K_sh4", "K_sh6", "K_lock", "gamma_lock_deg", "alpha1", "alpha2")
+#: material keys whose derivative the forms below know (the energy terms that read them); the
+#: tabulated shear law's rises are named one by one: "shear_stress_steps_Pa[j]"
+DIFFERENTIABLE = ("K_el", "K_sh", "K_sh4", "K_sh6", "K_lock", "gamma_lock_deg", "alpha1", "alpha2",
+                  "shear_stress_steps_Pa[j]")
+TABLE = "shear_stress_steps_Pa"
+
+
+def _table_index(name: str) -> int | None:
+    """The index of a rise "shear_stress_steps_Pa[j]", else None."""
+    if name.startswith(TABLE + "[") and name.endswith("]") and name[len(TABLE) + 1:-1].isdigit():
+        return int(name[len(TABLE) + 1:-1])
+    return None
+
+
+def material_value(scene: Scene, name: str) -> float:
+    """The value of a material key, or of one rise of the tabulated law ("shear_stress_steps_Pa[j]")."""
+    j = _table_index(name)
+    if j is None:
+        return float(getattr(scene.material, name))
+    return float(scene.material.shear_stress_steps_Pa[j])
 
 
 @dataclass
@@ -64,9 +82,16 @@ def _energy_derivative(problem: Any, name: str, value: float) -> ngs.Coefficient
     scene: Scene = problem.scene
     mat, eff = vars(scene.material).copy(), scene.effects
     P = ngs.Parameter(value)
-    mat[name] = P
     trial = problem.X.TrialFunction()
     inv = physics.invariants(ngs.Grad(trial[0]), problem.m1, problem.m2)
+    j = _table_index(name)
+    if j is not None:  # the energy is linear in the rises: dW/d(rise j) is the law with the unit rise e_j
+        if not eff.shear or eff.shear_law != "table":
+            return ngs.CoefficientFunction(0.0)
+        unit = np.zeros(len(scene.material.shear_stress_steps_Pa))
+        unit[j] = 1.0
+        return physics.table_shear_energy(inv.i8, unit, scene.material.shear_table_i8_max) + _same_rule(trial)
+    mat[name] = P
     if name == "K_el":
         W = physics.elongation_energy(inv.i4, inv.i6, P)
     elif name in ("alpha1", "alpha2"):
@@ -103,6 +128,10 @@ def _check_params(scene: Scene, params: Sequence[str]) -> list[str]:
     names = []
     for p in params:
         section, _, key = p.partition(".")
+        j = _table_index(key)
+        if j is not None and j < len(scene.material.shear_stress_steps_Pa):
+            names.append(key)
+            continue
         if section != "material" or key not in DIFFERENTIABLE:
             raise SceneError(f"cannot differentiate with respect to '{p}': known are "
                              f"{', '.join('material.' + k for k in DIFFERENTIABLE)}")
@@ -119,9 +148,9 @@ class _Recorder:
         self.forms = []
         for n in names:
             f = ngs.BilinearForm(problem.X, symmetric=True)
-            f += ngs.Variation(_energy_derivative(problem, n, getattr(scene.material, n)).Compile() * problem.dx)
+            f += ngs.Variation(_energy_derivative(problem, n, material_value(scene, n)).Compile() * problem.dx)
             self.forms.append(f)
-        self.values = [getattr(scene.material, n) for n in names]
+        self.values = [material_value(scene, n) for n in names]
         self.g = problem.gf.vec.CreateVector()
         self.dgf = ngs.GridFunction(problem.X)
         self.rows: dict[float, tuple[float, list[float]]] = {}
@@ -155,14 +184,16 @@ class _Recorder:
 
 
 def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str] = (),
-               profile: dict[float, np.ndarray] | None = None) -> ForcePath:
+               profile: dict[float, np.ndarray] | None = None, mesh: Any = None) -> ForcePath:
     """The force at each of ``u_mm`` and its derivatives dF/d ln p for the material keys ``params``.
 
     ``scene`` (continuum) runs with a load step landing on each of ``u_mm``; ``params`` are keys
     such as ``"material.K_sh"``.
 
     ``profile``: {u0 [mm]: X [mm]}: also the mid-axis u_y at those X at load u0 (and its
-    derivatives, one more back-substitution per parameter). Nothing is written to disk. Raises
+    derivatives, one more back-substitution per parameter). ``mesh``: a mesh of the scene's
+    specimen made before (:func:`ngbet.continuum.mesh.make_mesh`), reused instead of meshing
+    again. Nothing is written to disk. Raises
     :class:`ngbet.errors.ConvergenceError` when the path cannot be followed to the last load.
     """
     from .problem import ContinuumProblem
@@ -177,7 +208,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     from ..run import ngsolve_threads
 
     with ngsolve_threads(scene):
-        rec = _Recorder(ContinuumProblem(scene), names, profile)
+        rec = _Recorder(ContinuumProblem(scene, mesh), names, profile)
         continuation(rec.problem, u[-1] * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                      max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
                      stops=[s * 1e-3 for s in u], on_step=rec)
@@ -192,6 +223,16 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     return ForcePath(want, F, D, float(keys[-1]) if len(keys) else 0.0, rec.profiles, rec.profile_dlogp)
 
 
+def with_material(scene: Scene, name: str, value: float) -> Scene:
+    """``scene`` with one material key (or one rise "shear_stress_steps_Pa[j]") set to ``value``."""
+    j = _table_index(name)
+    if j is None:
+        return scene.with_changes(**{f"material.{name}": value})
+    steps = list(scene.material.shear_stress_steps_Pa)
+    steps[j] = value
+    return scene.with_changes(**{f"material.{TABLE}": steps})
+
+
 def finite_difference(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str],
                       rel_step: float = 1e-4) -> np.ndarray:
     """The derivatives dF/d ln p by central differences of :func:`force_path` (2 runs per parameter).
@@ -200,8 +241,9 @@ def finite_difference(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: 
     """
     cols = []
     for p in params:
-        value = getattr(scene.material, p.partition(".")[2])
-        up = force_path(scene.with_changes(**{p: value * math.exp(rel_step)}), u_mm).force_N
-        dn = force_path(scene.with_changes(**{p: value * math.exp(-rel_step)}), u_mm).force_N
+        name = p.partition(".")[2]
+        value = material_value(scene, name)
+        up = force_path(with_material(scene, name, value * math.exp(rel_step)), u_mm).force_N
+        dn = force_path(with_material(scene, name, value * math.exp(-rel_step)), u_mm).force_N
         cols.append((up - dn) / (2 * rel_step))
     return np.column_stack(cols)

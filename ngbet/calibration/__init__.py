@@ -1,0 +1,1 @@
+"""Calibration of the continuum model on measured BET curves: data, shear tables, joint fits, predictions."""

@@ -1,0 +1,254 @@
+"""``ngbet fit``: the command line of the calibration.
+
+``ngbet fit A.csv [B.csv ...] [--scene S.toml] [--params KEYS] --out DIR``
+
+Every input is checked before the first model run (data files line by line, error-bar files,
+``--predict`` files and ``--predict-scene``, ``--params``, ``--max-runs``, ``--range``, the output
+folder); a refusal exits with 2 (3 for the output folder) and names the file, line or key. The fit
+is written as soon as it is done, before any prediction, so that a prediction that fails keeps it.
+
+Data files whose header gives their specimen (``# specimen.width_mm = ...``), or several files,
+are fitted together (:func:`ngbet.calibration.joint.fit_curves`); a single file without specimen
+keys, or with ``--profile``, is fitted on the scene's specimen by :func:`ngbet.fit.fit`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..scene import Scene, SceneError
+from .data import MeasuredCurve, read_measured
+
+
+def add_parser(sub: Any) -> None:
+    """The ``ngbet fit`` subcommand."""
+    p = sub.add_parser("fit", help="fit material parameters to measured force-displacement curves (one or several "
+                       "specimen sizes)")
+    p.add_argument("inputs", nargs="+", metavar="DATA.csv",
+                   help="measured curves: CSV with a header (displacement_mm,force_N); '# specimen.width_mm = ...' "
+                   "comment lines give each curve's specimen; NAME_errorbars.csv beside NAME.csv weights the points. "
+                   "A .toml among them is the scene (as --scene)")
+    p.add_argument("--scene", help="scene TOML of the fabric (default: the embedded scene)")
+    p.add_argument("--params", help="comma-separated material keys, e.g. material.K_sh,material.K_el "
+                   "(default: the scene's [calibration] params)")
+    p.add_argument("--out", default="out/fit", help="output folder (default: out/fit)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one scene value (also the start values), repeatable")
+    p.add_argument("--range", dest="u_range", metavar="FROM:TO", help="fit the points between FROM and TO mm "
+                   "(default: 10 to 90 %% of each curve's displacement range)")
+    p.add_argument("--noise", choices=("relative", "absolute"), default="relative",
+                   help="error model of a single curve without specimen keys (default: relative)")
+    p.add_argument("--max-runs", type=int, default=40, help="at most this many model runs (default 40)")
+    p.add_argument("--profile", metavar="PROFILE.csv", help="a measured mid-axis profile (u0_mm,X_mm,uy_mm) "
+                   "fitted together with the force (one data file)")
+    p.add_argument("--force-sd", type=float, default=0.01, help="with --profile: error scale of the force")
+    p.add_argument("--profile-sd", type=float, default=1.0, help="with --profile: error scale of the profile [mm]")
+    p.add_argument("--predict", metavar="OTHER.csv", action="append", default=[],
+                   help="another measured curve to predict with the fitted values (repeatable)")
+    p.add_argument("--predict-scene", metavar="OTHER.toml",
+                   help="the scene of a --predict curve without specimen keys (default: the fitted one)")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+
+
+def _range(text: str | None) -> tuple[float, float] | None:
+    if not text:
+        return None
+    a, sep, b = text.partition(":")
+    try:
+        lo, hi = (float(a), float(b)) if sep else (float(a), math.inf)
+    except ValueError:
+        raise SceneError(f"--range expects FROM:TO in mm, got {text!r}") from None
+    if not (math.isfinite(lo) and lo < hi):
+        raise SceneError(f"--range {text!r}: FROM must be a number below TO")
+    return lo, hi
+
+
+def _out_folder(out: Path) -> None:
+    """Create the output folder now, so that an unusable one is refused before the fit (exit 3)."""
+    from ..output import OutputError
+
+    if out.exists() and not out.is_dir():
+        raise OutputError(out, "a file is in its place")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".ngbet-fit-probe-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise OutputError(out, str(exc.strerror or exc)) from None
+
+
+class Inputs:
+    """Everything ``ngbet fit`` reads, read and checked before the first model run."""
+
+    def __init__(self, args: argparse.Namespace) -> None:  # noqa: C901 - one check after the other
+        from ..cli import load_scene
+
+        tomls = [a for a in args.inputs if a.lower().endswith(".toml")]
+        self.data = [a for a in args.inputs if not a.lower().endswith(".toml")]
+        if len(tomls) + bool(args.scene) > 1:
+            raise SceneError(f"one scene only: got {', '.join(tomls + ([args.scene] if args.scene else []))}")
+        if not self.data:
+            raise SceneError("no data file: give at least one CSV of displacement_mm,force_N")
+        self.scene = load_scene(args.scene or (tomls[0] if tomls else None), args.overrides)
+        if self.scene.model != "continuum":
+            raise SceneError(f"model = {self.scene.model!r}: ngbet fit calibrates the continuum model "
+                             "(model = 'continuum')")
+        if args.params is not None:
+            self.params = [p.strip() for p in args.params.split(",") if p.strip()]
+            if not self.params:
+                raise SceneError(f"--params {args.params!r} names no key (e.g. --params material.K_sh,material.K_el)")
+        else:
+            self.params = list(self.scene.calibration.params)
+            if not self.params:
+                raise SceneError("no parameters to fit: give --params (e.g. material.K_sh) or name them in the "
+                                 "scene's [calibration] params")
+        if not args.max_runs >= 1:
+            raise SceneError(f"--max-runs {args.max_runs}: must be at least 1")
+        self.u_range = _range(args.u_range)
+        self.curves = [read_measured(p) for p in self.data]
+        self.predict = [read_measured(p) for p in args.predict]
+        self.predict_scene = Scene.from_toml(args.predict_scene) if args.predict_scene else None
+        self.joint = (len(self.curves) > 1 or bool(self.curves[0].specimen)) and not args.profile
+        if args.profile and len(self.curves) > 1:
+            raise SceneError("--profile goes with one data file")
+        if self.joint:
+            from .joint import curve_scene, expand_params, value_of
+
+            names = expand_params(self.scene, self.params)
+            bad = [n for n in names if not value_of(self.scene, n) > 0]
+            if bad:
+                raise SceneError(f"--params: {', '.join(bad)} must have a positive start value (the fit works on "
+                                 "ln p; give one with --set)")
+            for c in self.curves:
+                curve_scene(self.scene, c, c.sample(fraction=self._fraction(c))[0])
+            for c in self.predict:
+                if not c.specimen and self.predict_scene is None:
+                    raise SceneError(f"--predict {c.source}: its header gives no specimen "
+                                     "(# specimen.width_mm = ..., # specimen.length_mm = ...) and no --predict-scene")
+        else:
+            from ..fit import _check_inputs, _start
+
+            _start(self.scene, self.params)
+            _check_inputs(self.scene, args.noise, args.profile, args.force_sd, args.profile_sd)
+
+    def _fraction(self, c: MeasuredCurve) -> tuple[float, float]:
+        from .data import RANGE
+
+        if self.u_range is None:
+            return RANGE
+        lo, hi = float(c.u_mm.min()), float(c.u_mm.max())
+        a, b = max(self.u_range[0], lo), min(self.u_range[1], hi)
+        if not a < b:
+            raise SceneError(f"--range {self.u_range[0]:g}:{self.u_range[1]:g} mm holds no point of {c.source} "
+                             f"({lo:g} to {hi:g} mm)")
+        return (a - lo) / (hi - lo), (b - lo) / (hi - lo)
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    """``ngbet fit``: exit 0 done, 1 a model run or the search failed, 2 bad input, 3 unusable output folder."""
+    from ..cli import exit_code
+
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    out = Path(args.out)
+    try:
+        inp = Inputs(args)
+        _out_folder(out)
+        if not inp.joint:
+            return _legacy(args, inp, out)
+        from .joint import fit_curves, terminal_progress
+
+        fractions = [inp._fraction(c) for c in inp.curves]
+        result = fit_curves(inp.curves, inp.scene, inp.params, args.max_runs,
+                            None if args.quiet else terminal_progress(), fractions=fractions)
+        if not args.quiet and sys.stderr.isatty():
+            sys.stderr.write("\n")
+        from .report import write_fit
+
+        write_fit(result, out)
+        print(summary(result, out))
+        code = 0 if result.converged else 1
+        for c in inp.predict:
+            code = max(code, _predict_one(result, c, inp.predict_scene, out))
+        return code
+    except SceneError as exc:
+        print(f"ngbet fit: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # the command's exit-code contract (1 solver, 3 I/O), one line
+        code, msg = exit_code(exc, out)
+        print(f"ngbet fit: {msg}", file=sys.stderr)
+        return code
+
+
+def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) -> int:
+    """Predict one curve; a solver failure is reported and leaves the fit's files in place."""
+    from ..errors import ConvergenceError
+    from .joint import predict_specimen
+    from .report import write_prediction
+
+    u, F = c.sample(24)
+    spec = dict(c.specimen)
+    if scene is not None and not spec:
+        sp = scene.specimen
+        spec = {"specimen.width_mm": sp.width_mm, "specimen.length_mm": sp.length_mm,
+                "specimen.thickness_mm": sp.thickness_mm}
+    try:
+        pred = predict_specimen(result, spec, u)
+    except ConvergenceError as exc:
+        print(f"ngbet fit: prediction of {c.source} failed (the fit is kept in {out}/): {exc}", file=sys.stderr)
+        return 1
+    path = write_prediction(pred, c, F, out)
+    rms = float(np.sqrt(np.mean(((pred.force_N - F) / F) ** 2)))
+    print(f"  prediction of {c.source}: RMS relative error {100 * rms:.1f} % over {u[0]:.3g} to {u[-1]:.3g} mm "
+          f"-> {path.name}")
+    return 0
+
+
+def summary(result: Any, out: Path) -> str:
+    """A few lines for the terminal."""
+    head = "" if result.converged else "NOT CONVERGED (raise --max-runs): "
+    lines = [f"ngbet fit: {head}{len(result.names)} parameters, {len(result.curves)} curve(s), "
+             f"{result.model_runs} model runs, {result.wall_s:.1f} s; results in {out}/"]
+    for c in result.curves:
+        lines.append(f"  {c.curve.label:>16s}: RMS relative error {100 * c.rms_relative:5.1f} % "
+                     f"({len(c.u_mm)} points, {c.u_mm[0]:.3g} to {c.u_mm[-1]:.3g} mm)")
+    se = result.se_log
+    for k, n in enumerate(result.names):
+        flag = ("  at its bound" if n in result.at_bound
+                else "  undetermined (se of ln p > 0.5)" if se[k] > 0.5 else "")
+        lines.append(f"  {n:36s} = {result.values[k]:11.5g}   se(ln p) = {se[k]:.3g}{flag}")
+    return "\n".join(lines)
+
+
+def _legacy(args: argparse.Namespace, inp: Inputs, out: Path) -> int:
+    """One curve on the scene's own specimen (and an optional profile): :func:`ngbet.fit.fit`."""
+    from .. import fit as F
+
+    c = inp.curves[0]
+    curve = F.Curve(c.u_mm, c.force_N, c.source)
+    result = F.fit(curve, inp.scene, inp.params, inp.u_range, args.noise, args.max_runs,
+                   args.profile, args.force_sd, args.profile_sd)
+    F.write_outputs(result, out)  # the fit first: a prediction that fails keeps it
+    print(F.summary_text(result, out))
+    code = 0 if result.extra.get("converged", True) else 1
+    for p in inp.predict:
+        try:
+            pred = F.predict(result, F.Curve(p.u_mm, p.force_N, p.source), inp.predict_scene, inp.u_range)
+        except Exception as exc:
+            from ..cli import exit_code
+
+            code2, msg = exit_code(exc, out)
+            print(f"ngbet fit: prediction of {p.source} failed (the fit is kept in {out}/): {msg}", file=sys.stderr)
+            code = max(code, code2)
+            continue
+        F.write_outputs(result, out, pred)
+        print(f"  prediction of {p.source}: RMS relative error {100 * pred.to_json()['rms_relative_error']:.2f} %")
+    return code

@@ -1,0 +1,137 @@
+"""Files and figures of a joint fit and of its predictions (each file written whole, then renamed)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .data import MeasuredCurve
+from .joint import TABLE_KEY, CurvePrediction, JointFit, band
+
+
+def _atomic(path: Path, text: str) -> Path:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path
+
+
+def write_fit(result: JointFit, out: str | Path) -> list[Path]:
+    """fit.json, fitted_scene.toml (runs on any specimen as it is) and fit.png in ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = result.to_json()
+    rms = ", ".join(f"{c.curve.label} {100 * c.rms_relative:.1f} %" for c in result.curves)
+    header = (f"# ngbet fit of {', '.join(result.params)} to {len(result.curves)} curve(s): "
+              f"{', '.join(Path(c.curve.source).name for c in result.curves)}\n"
+              f"# RMS relative error {rms}; fit.json holds the uncertainties. The specimen and load are\n"
+              "# those of the scene; run it on another specimen with --set specimen.width_mm=...,\n"
+              "# --set specimen.length_mm=..., --set loading.u0_mm=...\n")
+    paths = [_atomic(out / "fit.json", json.dumps(doc, indent=2)),
+             _atomic(out / "fitted_scene.toml", header + result.scene.to_toml())]
+    paths.append(plot_fit(result, out / "fit.png"))
+    if result.scene.effects.shear_law == "table":
+        paths.append(plot_table(result, out / "shear_table.png"))
+    return paths
+
+
+def plot_table(result: JointFit, path: Path) -> Path:
+    """The tabulated shear stress against |i8|: start, fitted, and each curve by the normalisation method.
+
+    The normalisation method's points are τ(sin γ) = F_sh(γ)/t along each measured curve
+    (:func:`ngbet.calibration.table.shear_stress_points`): what the fitted table differs from them
+    by is what the continuum (yarn elongation, bending, the real kinematics) adds.
+    """
+    from matplotlib.figure import Figure
+
+    from ..continuum.physics import table_stress_spline
+    from .table import shear_stress_points
+
+    fitted = result.scene.material
+    steps0 = np.array(fitted.shear_stress_steps_Pa, dtype=float)
+    for k, n in enumerate(result.names):  # the start table: the fitted one with the start values put back
+        if n.startswith(TABLE_KEY):
+            steps0[int(n[len(TABLE_KEY) + 1:-1])] = result.start[k]
+    x = np.linspace(0.01 * fitted.shear_table_i8_max, fitted.shear_table_i8_max, 200)
+    fig = Figure(figsize=(6.0, 4.2))
+    ax = fig.subplots()
+    t = result.scene.specimen.thickness_mm
+    for k, c in enumerate(result.curves):
+        xs, tau = shear_stress_points(c.curve, t)
+        ax.plot(xs, tau / 1e3, "o", ms=3, color=f"C{k}", label=f"{c.curve.label}: normalisation method, F_sh / t")
+    ax.plot(x, table_stress_spline(steps0, fitted.shear_table_i8_max)(x) / 1e3, ":", color="0.3", label="start table")
+    ax.plot(x, table_stress_spline(fitted.shear_stress_steps_Pa, fitted.shear_table_i8_max)(x) / 1e3, "-",
+            color="k", lw=1.6, label="fitted table (continuum)")
+    ax.set_yscale("log")
+    ax.set_xlabel("|i8| (= sin γ for inextensible yarns)")
+    ax.set_ylabel("shear stress τ = dW/d|i8| [kPa] (log scale)")
+    ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}, t = {t:g} mm; fitted K_el = "
+                 f"{result.scene.material.K_el:.3g} Pa", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def plot_fit(result: JointFit, path: Path) -> Path:
+    """Each curve: data with its error bars, the start and the fitted model (±2 sd), relative residuals."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.4, 6.2))
+    ax, ar = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1.4))
+    for k, c in enumerate(result.curves):
+        col = f"C{k}"
+        ax.plot(c.curve.u_mm, c.curve.force_N, "-", color=col, lw=0.8, alpha=0.5)
+        ax.errorbar(c.u_mm, c.measured_N, yerr=c.sd_N, fmt="o", ms=3, color=col, label=f"{c.curve.label}: data (±1 sd)")
+        sd = band(c.dlogp, result.cov_log)
+        ax.fill_between(c.u_mm, c.model_N - 2 * sd, c.model_N + 2 * sd, color=col, alpha=0.2, lw=0)
+        ax.plot(c.u_mm, c.model_N, "-", color=col, lw=1.6,
+                label=f"{c.curve.label}: fitted, RMS {100 * c.rms_relative:.1f} %")
+        ax.plot(c.u_mm, c.start_N, ":", color=col, lw=1.0)
+        ar.plot(c.u_mm, 100 * (c.model_N - c.measured_N) / c.measured_N, "o-", ms=3, color=col)
+    ax.plot([], [], ":", color="0.4", label="start values")
+    ax.set_ylabel("clamp force [N]")
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters, "
+                 f"{result.model_runs} model runs", fontsize=9)
+    ar.axhline(0, color="0.5", lw=0.8)
+    ar.set_ylabel("model − data [%]")
+    ar.set_xlabel("clamp displacement [mm]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def prediction_json(pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray) -> dict[str, Any]:
+    """The content of predict_NAME.json."""
+    rel = (pred.force_N - measured) / measured
+    return {"data": curve.source, "specimen": curve.specimen, "points": len(pred.u_mm),
+            "rms_relative_error": float(np.sqrt(np.mean(rel ** 2))),
+            "within_2sd": float(np.mean(np.abs(pred.force_N - measured) <= 2 * pred.sd_N)),
+            "u_mm": pred.u_mm.tolist(), "measured_N": measured.tolist(), "force_N": pred.force_N.tolist(),
+            "sd_parameters_N": pred.sd_param_N.tolist(), "sd_discretization_N": pred.sd_disc_N.tolist()}
+
+
+def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray, out: Path) -> Path:
+    """predict_NAME.json and predict_NAME.png in ``out``; returns the PNG."""
+    stem = Path(curve.source).stem
+    _atomic(out / f"predict_{stem}.json", json.dumps(prediction_json(pred, curve, measured), indent=2))
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.4, 4.2))
+    ax = fig.subplots()
+    ax.plot(curve.u_mm, curve.force_N, "-", color="k", lw=1.0, label=f"measured, {curve.label}")
+    ax.fill_between(pred.u_mm, pred.force_N - 2 * pred.sd_N, pred.force_N + 2 * pred.sd_N, color="tab:orange",
+                    alpha=0.3, lw=0, label="±2 sd (parameters and discretization)")
+    ax.plot(pred.u_mm, pred.force_N, "-", color="tab:orange", label="ngbet prediction")
+    ax.set_xlabel("clamp displacement [mm]")
+    ax.set_ylabel("clamp force [N]")
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    png = out / f"predict_{stem}.png"
+    fig.savefig(png, dpi=110)
+    return png

@@ -1,0 +1,47 @@
+r"""A starting shear table from a measured curve by the normalisation method.
+
+The normalised shear force F_sh(γ) [N/mm] of a BET curve (Cao et al. 2008, Eq. 18;
+:func:`ngbet.kinematics.normalised_shear_force`) is the shear moment per unit area divided by
+cos γ: the power balance of the ideal zones reads F ḋ = Σ_zones A M(γ_zone) γ̇_zone with
+M(γ) = F_sh(γ) cos γ. The continuum's shear energy per unit volume W(i8), with i8 = −sin γ for
+inextensible yarns at ±45°, gives M = t dW/dγ = t τ(sin γ) cos γ, τ = dW/d|i8|. Hence
+
+.. math::  τ(\sin γ) = F_{sh}(γ) / t
+
+(F_sh in N/m, t in m: τ in Pa). The rises of the table's control values (all >= 0:
+:func:`ngbet.continuum.physics.table_stress_spline`) are fitted to these points by non-negative
+least squares, relative to each point's stress.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..continuum.physics import table_stress_spline
+from ..kinematics import normalised_shear_force
+from .data import MeasuredCurve
+
+
+def shear_stress_points(curve: MeasuredCurve, thickness_mm: float, n: int = 40,
+                        fraction: tuple[float, float] = (0.02, 0.9)) -> tuple[np.ndarray, np.ndarray]:
+    """(|i8| = sin γ, τ [Pa]) from the curve by the normalisation method, at n displacements."""
+    H = curve.specimen["specimen.length_mm"]
+    W = curve.specimen["specimen.width_mm"]
+    a, b = curve.window(fraction)
+    u = np.linspace(max(a, 1e-3), b, n)
+    F = np.interp(u, curve.u_mm, curve.force_N)
+    gamma, fsh = normalised_shear_force(u, np.maximum(F, 0.0), H, W)
+    return np.sin(gamma), fsh * 1e3 / (thickness_mm * 1e-3)
+
+
+def start_table(curve: MeasuredCurve, thickness_mm: float, n_steps: int, x_max: float) -> np.ndarray:
+    """Rises [Pa] of a table whose stress follows the normalisation method's on ``curve``."""
+    from scipy.optimize import nnls
+
+    x, tau = shear_stress_points(curve, thickness_mm)
+    basis = np.column_stack([np.nan_to_num(table_stress_spline(np.eye(n_steps)[j], x_max)(x))
+                             for j in range(n_steps)])
+    w = 1.0 / np.maximum(np.abs(tau), 0.05 * np.abs(tau).max())
+    steps, _ = nnls(basis * w[:, None], tau * w)
+    # a rise of exactly 0 cannot be fitted in ln p: a small floor
+    return np.maximum(steps, 1e-3 * max(float(steps.max()), 1.0))

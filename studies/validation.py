@@ -1,0 +1,358 @@
+"""Validation on measured data: each Twintex fabric fitted on one specimen size, the other predicted.
+
+For each fabric of Cao et al. (2008) (data/cao2008/, geometry/twintex_*.toml), in both directions
+(the first size fitted and the second predicted, then the reverse), the tabulated shear law's
+rises are fitted to the curve of one specimen size
+(:func:`ngbet.calibration.joint.fit_curves`), and the fitted scene predicts the other size, with a
+band of one standard deviation from the parameters' covariance, the uncertainty of K_el and the
+discretization (:func:`ngbet.calibration.joint.predict_specimen`).
+
+K_el cannot come from the fitted curve: on one size it trades against the shear table (its
+se(ln K_el) is 8–17 when fitted with it). It is taken from the other two fabrics (leave one fabric
+out): each of them is fitted on both its sizes together (table and K_el), and the fabric under
+test gets the geometric mean of their K_el, with the variance of ln K_el from their scatter and
+standard errors. The fabric under test lends none of its predicted curve to anything. alpha1 and
+alpha2 stay at the scene's values: the clamp force alone does not determine them.
+
+The normalisation method predicts the same points from the fitted size's curve (Cao's Eq. 18
+solved along it and inverted for the other size: :func:`ngbet.kinematics.force_from_normalised`).
+Errors are RMS of (prediction − measured)/measured at 24 equally spaced displacements over
+10–90 % of each curve's displacement range.
+
+The fits and the predictions' bands run when the study is built and are kept beside the case
+cache (``out/studies/cache/validation-fits/``, keyed by the scenes, the data and the code); the
+study's cases are then ordinary runs of each fitted scene on both sizes, whose forces the report
+compares. ``--quick``: one fabric in one direction, K_el at the scene's value, 3 model runs.
+
+    python -m ngbet.studies.validation [--quick] [--workers N] [--plot-only]
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ngbet.study import Study, StudyData, main_for, savefig
+
+log = logging.getLogger(__name__)
+
+ROOT = Path(__file__).resolve().parents[2]
+#: fabric: (scene, curve A, curve B); direction 0 fits A and predicts B, direction 1 the reverse
+FABRICS = {
+    "plain": ("twintex_plain.toml", "cao2008_plain_150x300_INSA-NU.csv", "cao2008_plain_150x450_INSA-NU.csv"),
+    "twill_balanced": ("twintex_twill_balanced.toml", "cao2008_twill_balanced_150x300_INSA-NU.csv",
+                       "cao2008_twill_balanced_150x450_INSA-NU.csv"),
+    "twill_unbalanced": ("twintex_twill_unbalanced.toml", "cao2008_twill_unbalanced_100x250_UN.csv",
+                         "cao2008_twill_unbalanced_100x200_UN.csv"),
+}
+QUICK = (("twill_unbalanced", 0),)
+TABLE, KEL = "material.shear_stress_steps_Pa", "material.K_el"
+SCORE_POINTS = 24
+MAX_RUNS, QUICK_RUNS = 40, 3
+FIT_CACHE = Path("out/studies/cache/validation-fits")
+
+
+def _paths(fabric: str) -> tuple[Path, Path, Path]:
+    s, a, b = FABRICS[fabric]
+    return ROOT / "geometry" / s, ROOT / "data" / "cao2008" / a, ROOT / "data" / "cao2008" / b
+
+
+def _files(fabric: str, direction: int) -> tuple[Path, Path, Path]:
+    """(scene, fitted curve, predicted curve) of a fabric in one direction."""
+    s, a, b = _paths(fabric)
+    return (s, a, b) if direction == 0 else (s, b, a)
+
+
+def _key(fabric: str, max_runs: int) -> str:
+    """A key of everything a fabric's fits read: every fabric's scene and data, the settings, the code."""
+    from ngbet.study import code_version
+
+    h = hashlib.sha256()
+    for f in FABRICS:
+        for p in _paths(f):
+            h.update(p.read_bytes())
+            eb = p.with_name(p.stem + "_errorbars.csv")
+            if eb.exists():
+                h.update(eb.read_bytes())
+    h.update(json.dumps([fabric, max_runs, SCORE_POINTS, code_version("continuum")], sort_keys=True).encode())
+    return f"{fabric}-{h.hexdigest()[:16]}"
+
+
+def _cached(name: str, make: Any) -> dict[str, Any]:
+    path = FIT_CACHE / f"{name}.json"
+    if path.exists():
+        return dict(json.loads(path.read_text()))
+    doc = make()
+    FIT_CACHE.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(doc))
+    tmp.replace(path)
+    return doc
+
+
+def pair_fit(fabric: str) -> dict[str, Any]:
+    """The table and K_el fitted to both sizes of a fabric together (cached): its K_el and se(ln K_el)."""
+    from ngbet.calibration.data import read_measured
+    from ngbet.calibration.joint import fit_curves
+    from ngbet.scene import Scene
+
+    def make() -> dict[str, Any]:
+        scene_path, a, b = _paths(fabric)
+        res = fit_curves([read_measured(a), read_measured(b)], Scene.from_toml(scene_path),
+                         params=[TABLE, KEL], max_runs=MAX_RUNS)
+        k = res.names.index(KEL)
+        return {"fabric": fabric, "K_el": float(res.values[k]), "se_log_K_el": float(res.se_log[k]),
+                "rms": [c.rms_relative for c in res.curves], "wall_s": res.wall_s, "model_runs": res.model_runs,
+                "converged": res.converged}
+
+    return _cached(f"pair-{_key(fabric, MAX_RUNS)}", make)
+
+
+def elongation_for(fabric: str, quick: bool) -> tuple[float, float, list[str]]:
+    """K_el and the variance of its ln for ``fabric`` from the two-size fits of the other fabrics.
+
+    One size's curve does not determine K_el (it trades against the shear table); the two sizes
+    of a fabric do. The fabric under test lends none of its data: its K_el is the geometric mean
+    of the others', and the variance of ln K_el is their scatter plus their own variances. Quick:
+    the scene's start value, with a variance of 1 (a factor e either way).
+    """
+    from ngbet.scene import Scene
+
+    if quick:
+        return Scene.from_toml(_paths(fabric)[0]).material.K_el, 1.0, []
+    others = [f for f in FABRICS if f != fabric]
+    fits = [pair_fit(f) for f in others]
+    ln = np.log([f["K_el"] for f in fits])
+    var = float(np.var(ln, ddof=1) + np.mean([f["se_log_K_el"] ** 2 for f in fits]))
+    return float(np.exp(ln.mean())), var, others
+
+
+def fit_and_predict(fabric: str, direction: int, quick: bool) -> dict[str, Any]:
+    """The table fitted on one size (K_el from the other fabrics) and the other size predicted (cached)."""
+    from ngbet.calibration.data import read_measured
+    from ngbet.calibration.joint import fit_curves, predict_specimen
+    from ngbet.scene import Scene
+
+    runs = QUICK_RUNS if quick else MAX_RUNS
+
+    def make() -> dict[str, Any]:
+        scene_path, fitted_path, predicted_path = _files(fabric, direction)
+        fitted, predicted = read_measured(fitted_path), read_measured(predicted_path)
+        K_el, var, donors = elongation_for(fabric, quick)
+        scene = Scene.from_toml(scene_path).with_changes(**{KEL: K_el})
+        res = fit_curves([fitted], scene, params=[TABLE], max_runs=runs)
+        u, _ = predicted.sample(SCORE_POINTS)
+        pred = predict_specimen(res, predicted.specimen, u, {KEL: var})
+        return {"fabric": fabric, "direction": direction, "max_runs": runs, "K_el": K_el, "var_log_K_el": var,
+                "K_el_from": donors,
+                "fit": res.to_json(), "fitted_scene": res.scene.to_toml(),
+                "prediction": {"u_mm": u.tolist(), "force_N": pred.force_N.tolist(),
+                               "sd_parameters_N": pred.sd_param_N.tolist(),
+                               "sd_discretization_N": pred.sd_disc_N.tolist()}}
+
+    return _cached(f"{'quick' if quick else 'full'}{direction}-{_key(fabric, runs)}", make)
+
+
+def _case(doc: dict[str, Any], which: str) -> dict[str, Any]:
+    """The fitted scene's material on the fitted or the predicted specimen, stopping at the scored points."""
+    from ngbet.calibration.data import read_measured
+    from ngbet.scene import Scene
+
+    sc = Scene.from_toml_string(doc["fitted_scene"])
+    _, a, b = _files(doc["fabric"], doc["direction"])
+    curve = read_measured(a if which == "fitted" else b)
+    u, _ = curve.sample(SCORE_POINTS)
+    m = sc.material
+    return {"specimen.name": f"{doc['fabric']}:{doc['direction']}:{which}:{doc['max_runs']}", **curve.specimen,
+            "material.K_el": m.K_el, "material.alpha1": m.alpha1, "material.alpha2": m.alpha2,
+            "material.shear_stress_steps_Pa": list(m.shear_stress_steps_Pa),
+            "material.shear_table_i8_max": m.shear_table_i8_max,
+            "loading.u0_mm": float(u[-1]), "loading.stops_mm": [float(x) for x in u[:-1]]}
+
+
+def build(quick: bool = False) -> Study:
+    from ngbet.scene import Scene
+
+    runs = QUICK if quick else tuple((f, d) for d in (0, 1) for f in FABRICS)
+    docs = [fit_and_predict(f, d, quick) for f, d in runs]
+    base = Scene.from_toml_string(docs[0]["fitted_scene"]).with_changes(
+        **{"outputs.vtk": False, "outputs.plot": False, "outputs.profile": False, "outputs.error_estimate": "off"})
+    cases = [_case(d, w) for d in docs for w in ("fitted", "predicted")]
+    return Study("validation", base, cases, description=__doc__ or "", extract=extract, plot=plot, report=report)
+
+
+def extract(rec: dict, run_dir: Path, out: Path) -> dict:
+    """Measured, ngbet and (for the predicted size) the normalisation method's force at the scored points."""
+    from ngbet.calibration.data import read_measured
+    from ngbet.kinematics import force_from_normalised, normalised_shear_force
+    from ngbet.output import read_rows
+
+    fabric, d, which, runs = rec["params"]["specimen.name"].split(":")
+    direction = int(d)
+    doc = fit_and_predict(fabric, direction, int(runs) == QUICK_RUNS)
+    _, a, b = _files(fabric, direction)
+    fitted, curve = read_measured(a), read_measured(a if which == "fitted" else b)
+    pair = f"{fitted.label} → {read_measured(b).label}"
+    u, F = curve.sample(SCORE_POINTS)
+    rows = read_rows(run_dir / "results.csv")
+    Fr = np.array([float(r["force_N"]) for r in rows])
+    ur = np.array([float(r["u0_mm"]) for r in rows])
+    model = np.array([Fr[int(np.argmin(np.abs(ur - x)))] if np.min(np.abs(ur - x)) < 1e-6 else np.nan for x in u])
+    norm, sd = np.full(len(u), np.nan), np.full(len(u), np.nan)
+    tables: dict[str, list[dict[str, Any]]] = {}
+    if which == "fitted":
+        fit = doc["fit"]
+        tables["fits"] = [{"fabric": fabric, "pair": pair, "wall_s": fit["wall_s"],
+                           "model_runs": int(fit["model_runs"]),
+                           "converged": fit["converged"], "noise_scale": fit["noise_scale"],
+                           "material.K_el": doc["K_el"], "se_log K_el (held)": doc["var_log_K_el"] ** 0.5,
+                           "K_el_from": " ".join(doc["K_el_from"]),
+                           **{k: v["value"] for k, v in fit["parameters"].items()},
+                           **{f"se_log {k}": v["standard_error_log"] for k, v in fit["parameters"].items()}}]
+        if doc["K_el_from"] and direction == 0:  # full study: the fabric's two-size fit was a donor for others
+            pf = pair_fit(fabric)
+            tables["pair_fits"] = [{**{k: pf[k] for k in ("fabric", "K_el", "se_log_K_el", "model_runs", "wall_s")},
+                                    "rms": " ".join(f"{x:.4f}" for x in pf["rms"])}]
+    if which == "predicted":
+        pr = doc["prediction"]
+        sd = np.hypot(np.interp(u, pr["u_mm"], pr["sd_parameters_N"]),
+                      np.interp(u, pr["u_mm"], pr["sd_discretization_N"]))
+        H, W = fitted.specimen["specimen.length_mm"], fitted.specimen["specimen.width_mm"]
+        uf = fitted.u_mm[fitted.u_mm > 0]
+        g, fsh = normalised_shear_force(uf, np.maximum(np.interp(uf, fitted.u_mm, fitted.force_N), 0.0), H, W)
+        sp = curve.specimen
+        norm = force_from_normalised(g, fsh, u, sp["specimen.length_mm"], sp["specimen.width_mm"])
+    tables["points"] = [{"fabric": fabric, "pair": pair, "size": which, "u_mm": float(x), "measured_N": float(f),
+                         "ngbet_N": float(m), "ngbet_sd_N": float(d), "normalisation_N": float(n)}
+                        for x, f, m, d, n in zip(u, F, model, sd, norm, strict=True)]
+    return tables
+
+
+def _rms(a: np.ndarray, b: np.ndarray) -> float:
+    ok = np.isfinite(a) & np.isfinite(b)
+    return float(np.sqrt(np.mean(((a[ok] - b[ok]) / b[ok]) ** 2))) if ok.any() else float("nan")
+
+
+def summary(data: StudyData) -> list[dict[str, Any]]:
+    """Per fabric and direction: fitted RMS, ngbet's and the normalisation's prediction RMS, band coverage."""
+    pts = data.tables.get("points", [])
+    out = []
+    for fabric, pair in dict.fromkeys((str(p["fabric"]), str(p["pair"])) for p in pts):
+        def col(which: str, key: str, fabric: str = fabric, pair: str = pair) -> np.ndarray:
+            return np.array([float(p[key]) for p in pts
+                             if p["fabric"] == fabric and p["pair"] == pair and p["size"] == which])
+
+        meas, pred = col("predicted", "measured_N"), col("predicted", "ngbet_N")
+        norm = col("predicted", "normalisation_N")
+        sd = col("predicted", "ngbet_sd_N")
+        common = np.isfinite(norm)
+        out.append({"fabric": fabric, "pair": pair,
+                    "fitted_rms": _rms(col("fitted", "ngbet_N"), col("fitted", "measured_N")),
+                    "ngbet_rms": _rms(pred, meas), "ngbet_rms_common": _rms(np.where(common, pred, np.nan), meas),
+                    "normalisation_rms": _rms(norm, meas),
+                    "normalisation_points": int(common.sum()), "points": len(meas),
+                    "within_2sd": float(np.mean(np.abs(pred - meas) <= 2 * sd)),
+                    "fit": next((f for f in data.tables.get("fits", [])
+                                 if f["fabric"] == fabric and f["pair"] == pair), {})})
+    return out
+
+
+def report(data: StudyData) -> str:
+    """The validation table, the fits' records and the two-size fits that gave K_el."""
+    L = ["# Validation: fitted on one specimen size, predicted on the other", "",
+         "RMS of (prediction − measured)/measured at 24 points over 10–90 % of the predicted curve's displacement "
+         "range.", "",
+         "| fabric | fitted → predicted | fitted size: RMS | ngbet prediction: RMS | normalisation method: RMS | "
+         "ngbet better? | measured inside ngbet's ±2 sd |", "|---|---|---|---|---|---|---|"]
+    rows = summary(data)
+    for r in rows:
+        better = "yes" if r["ngbet_rms_common"] <= r["normalisation_rms"] else "**no**"
+        n, m = r["normalisation_points"], r["points"]
+        nn = "" if n == m else (f" ({n} of {m} points, where the fitted curve's shear angles reach; ngbet on "
+                                f"them: {100 * r['ngbet_rms_common']:.1f} %)")
+        L.append(f"| {r['fabric']} | {r['pair']} | {100 * r['fitted_rms']:.1f} % | {100 * r['ngbet_rms']:.1f} % | "
+                 f"{100 * r['normalisation_rms']:.1f} %{nn} | {better} | {100 * r['within_2sd']:.0f} % |")
+    L += ["", "| fitted → predicted | table fit: model runs | wall time [s] | converged | K_el [Pa] (held) | "
+          "se(ln K_el) | K_el from |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        f = r["fit"]
+        L.append(f"| {r['fabric']} {r['pair']} | {int(float(f.get('model_runs', 0)))} | "
+                 f"{float(f.get('wall_s', 'nan')):.1f} | {f.get('converged', '')} | "
+                 f"{float(f.get('material.K_el', 'nan')):.3g} | {float(f.get('se_log K_el (held)', 'nan')):.2f} | "
+                 f"{f.get('K_el_from') or 'the scene (quick)'} |")
+    pairs = data.tables.get("pair_fits") or []
+    if pairs:
+        L += ["", "Two-size fits (table and K_el on both sizes of a fabric), the source of K_el:", "",
+              "| fabric | K_el [Pa] | se(ln K_el) | RMS per size | model runs | wall time [s] |",
+              "|---|---|---|---|---|---|"]
+        for p in pairs:
+            L.append(f"| {p['fabric']} | {float(p['K_el']):.3g} | {float(p['se_log_K_el']):.2f} | "
+                     f"{', '.join(f'{100 * float(x):.1f} %' for x in str(p['rms']).split())} | "
+                     f"{int(float(p['model_runs']))} | {float(p['wall_s']):.0f} |")
+    return "\n".join(L) + "\n"
+
+
+def plot(data: StudyData) -> list[Path]:
+    """One panel per fabric and direction: measured curves, fit, prediction with its band, normalisation."""
+    from matplotlib.figure import Figure
+
+    from ngbet.calibration.data import read_measured
+
+    rows = summary(data)
+    pts = data.tables.get("points", [])
+    fabrics = list(dict.fromkeys(r["fabric"] for r in rows))
+    ndir = max(sum(r["fabric"] == f for r in rows) for f in fabrics)
+    fig = Figure(figsize=(4.3 * len(fabrics), 4.0 * ndir))
+    axes = fig.subplots(ndir, len(fabrics), squeeze=False)
+    used = {f: 0 for f in fabrics}
+    for r in rows:
+        j = fabrics.index(r["fabric"])
+        ax = axes[used[r["fabric"]], j]
+        used[r["fabric"]] += 1
+        sel = {w: [p for p in pts if p["fabric"] == r["fabric"] and p["pair"] == r["pair"] and p["size"] == w]
+               for w in ("fitted", "predicted")}
+        for which, col in (("fitted", "tab:green"), ("predicted", "k")):
+            c = read_measured(_curve_path(r["fabric"], r["pair"], which))
+            ax.plot(c.u_mm, c.force_N, "-", color=col, lw=0.9, alpha=0.8, label=f"measured {c.label} ({which})")
+        u = np.array([float(p["u_mm"]) for p in sel["fitted"]])
+        ax.plot(u, [float(p["ngbet_N"]) for p in sel["fitted"]], "o", ms=3, color="tab:green",
+                label=f"ngbet, fitted (RMS {100 * r['fitted_rms']:.1f} %)")
+        u = np.array([float(p["u_mm"]) for p in sel["predicted"]])
+        Fm = np.array([float(p["ngbet_N"]) for p in sel["predicted"]])
+        sd = np.array([float(p["ngbet_sd_N"]) for p in sel["predicted"]])
+        ax.fill_between(u, Fm - 2 * sd, Fm + 2 * sd, color="tab:orange", alpha=0.25, lw=0,
+                        label="ngbet ±2 sd (parameters, K_el, discretization)")
+        ax.plot(u, Fm, "-", color="tab:orange", label=f"ngbet prediction, RMS {100 * r['ngbet_rms']:.1f} %")
+        ax.plot(u, [float(p["normalisation_N"]) for p in sel["predicted"]], "--", color="tab:blue",
+                label=f"normalisation method, RMS {100 * r['normalisation_rms']:.1f} %")
+        ax.set_title(f"{r['fabric'].replace('_', ' ')}: {r['pair']}", fontsize=9)
+        ax.set_xlabel("clamp displacement [mm]")
+        ax.set_ylabel("clamp force [N]")
+        ax.legend(fontsize=6, loc="upper left")
+    fig.tight_layout()
+    return [savefig(fig, data.out, "validation")]
+
+
+def _curve_path(fabric: str, pair: str, which: str) -> Path:
+    """The data file of the fitted or the predicted curve of a pair ("W x L mm → W x L mm")."""
+    from ngbet.calibration.data import read_measured
+
+    _, a, b = _paths(fabric)
+    fitted_label = pair.split(" → ")[0]
+    first = read_measured(a).label == fitted_label
+    return (a if first else b) if which == "fitted" else (b if first else a)
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_for(build, argv, prog="python -m ngbet.studies.validation")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

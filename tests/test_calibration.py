@@ -1,0 +1,415 @@
+"""Fabric scenes, the tabulated shear law, measured-data checks and the joint fit of several specimen sizes."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import ngsolve as ngs
+import numpy as np
+import pytest
+
+from ngbet.calibration import joint
+from ngbet.calibration.data import read_measured
+from ngbet.calibration.table import shear_stress_points, start_table
+from ngbet.cli import main
+from ngbet.continuum import physics
+from ngbet.continuum.sensitivity import finite_difference, force_path
+from ngbet.kinematics import ideal_force
+from ngbet.scene import Scene, SceneError
+
+ROOT = Path(__file__).resolve().parents[1]
+GEO = ROOT / "geometry"
+DATA = ROOT / "data" / "cao2008"
+FABRICS = {"plain": ("plain_150x300_INSA-NU", 1.2), "twill_balanced": ("twill_balanced_150x300_INSA-NU", 2.0),
+           "twill_unbalanced": ("twill_unbalanced_100x250_UN", 3.3)}
+
+
+# ------------------------------------------------------------------------------------------ fabric scenes
+@pytest.mark.parametrize("fabric", FABRICS)
+def test_fabric_scene_is_the_data_specimen(fabric):
+    """Each fabric scene is the specimen of its fitted curve (the data file's header keys), with
+    the fabric's thickness, and names the parameters a fit adjusts with a bound for each."""
+    stem, t = FABRICS[fabric]
+    sc = Scene.from_toml(GEO / f"twintex_{fabric}.toml")
+    c = read_measured(DATA / f"cao2008_{stem}.csv")
+    assert sc.specimen.width_mm == c.specimen["specimen.width_mm"]
+    assert sc.specimen.length_mm == c.specimen["specimen.length_mm"]
+    assert sc.specimen.thickness_mm == c.specimen["specimen.thickness_mm"] == t
+    assert sc.effects.shear_law == "table"
+    cal = sc.calibration
+    assert len(cal.lower) == len(cal.upper) == len(cal.params) >= 2
+    names = joint.expand_params(sc, cal.params)
+    start = np.array([joint.value_of(sc, n) for n in names])
+    lo, hi = joint.bounds(sc, cal.params, names, start)
+    assert np.all((lo < start) & (start < hi))
+    assert "warp" in cal.yarns_m1 and "weft" in cal.yarns_m2
+
+
+def test_unbalanced_twill_warp_is_the_stiffer_family():
+    """3.39 warp ends/cm against 1.52 weft picks/cm: the warp runs along m1 and bends more stiffly."""
+    sc = Scene.from_toml(GEO / "twintex_twill_unbalanced.toml")
+    assert "3.39" in sc.calibration.yarns_m1 and "1.52" in sc.calibration.yarns_m2
+    assert sc.material.alpha1 > sc.material.alpha2
+    bal = Scene.from_toml(GEO / "twintex_twill_balanced.toml")
+    assert bal.material.alpha1 == bal.material.alpha2
+
+
+def test_calibration_section_is_validated():
+    with pytest.raises(SceneError, match="calibration.params"):
+        Scene().with_changes(**{"calibration.params": ["loading.u0_mm"]})
+    with pytest.raises(SceneError, match="calibration.lower"):
+        Scene().with_changes(**{"calibration.params": ["material.K_sh"], "calibration.lower": [1.0, 2.0]})
+    with pytest.raises(SceneError, match="calibration.lower"):
+        Scene().with_changes(**{"calibration.params": ["material.K_sh"], "calibration.lower": [5.0],
+                                "calibration.upper": [1.0]})
+    sc = Scene.from_toml(GEO / "twintex_plain.toml")
+    assert Scene.from_toml_string(sc.to_toml()) == sc
+
+
+# ------------------------------------------------------------------------------------------ tabulated law
+_MESH: list[ngs.Mesh] = []
+
+
+def _at(cf: ngs.CoefficientFunction) -> float:
+    if not _MESH:
+        _MESH.append(ngs.Mesh(ngs.unit_square.GenerateMesh(maxh=1.0)))
+    return float(cf(_MESH[0](0.5, 0.5)))
+
+
+def quadratic_table(K: float, n: int, x_max: float) -> list[float]:
+    """The rises that make the tabulated stress K |i8|: K times the steps of the Greville abscissae."""
+    return list(K * np.diff(physics.table_greville(n, x_max)))
+
+
+@pytest.mark.parametrize("i8v", [0.05, -0.4, 0.93, 1.2])
+def test_table_of_the_quadratic_law_is_the_quadratic_law(i8v):
+    """A spline reproduces a straight line from its values at the Greville abscissae: energy,
+    stress and stiffness equal ½K i8², K i8, K to round-off, inside the table and beyond it."""
+    K, i8 = 2.1e4, ngs.Parameter(i8v)
+    W = physics.table_shear_energy(i8, quadratic_table(K, 6, 0.95), 0.95)
+    assert _at(W) == pytest.approx(0.5 * K * i8v ** 2, rel=1e-12)
+    assert _at(W.Diff(i8)) == pytest.approx(K * i8v, rel=1e-12)
+    assert _at(W.Diff(i8).Diff(i8)) == pytest.approx(K, rel=1e-10)
+
+
+def test_tabulated_law_reproduces_the_quadratic_run():
+    """On a coarse mesh (25 mm, p = 2, the plain-weave specimen to 50 mm), the table of the
+    quadratic law gives the quadratic law's forces to 1e-8 (the energies agree to round-off)."""
+    sc = Scene.from_toml(GEO / "twintex_plain.toml").with_changes(**{
+        "effects.shear_law": "quadratic", "material.K_sh": 2e4, "loading.u0_mm": 50.0})
+    u = [10.0, 30.0, 50.0]
+    quad = force_path(sc, u).force_N
+    tab = force_path(sc.with_changes(**{"effects.shear_law": "table",
+                                        "material.shear_stress_steps_Pa": quadratic_table(2e4, 6, 0.95)}), u).force_N
+    np.testing.assert_allclose(tab, quad, rtol=1e-8)
+
+
+def test_tabulated_energy_is_convex_for_a_monotone_table():
+    """Random non-negative rises (a monotone table): W'' = dτ/d|i8| >= 0 at 400 points from −1.3
+    to 1.3 (in and beyond the table), and the energy is even in i8. A falling table is refused."""
+    rng = np.random.default_rng(3)
+    x = np.linspace(-1.3, 1.3, 401)
+    for _ in range(5):
+        steps = list(rng.exponential(1e4, 7) * (rng.random(7) > 0.3))
+        i8 = ngs.Parameter(0.0)
+        W = physics.table_shear_energy(i8, steps, 0.9)
+        H = W.Diff(i8).Diff(i8)
+        curv, energy = [], []
+        for v in x:
+            i8.Set(v)
+            curv.append(_at(H))
+            energy.append(_at(W))
+        assert min(curv) >= -1e-9 * max(curv)
+        np.testing.assert_allclose(energy, energy[::-1], rtol=1e-12, atol=1e-9)
+    with pytest.raises(SceneError, match="shear_stress_steps_Pa"):
+        Scene().with_changes(**{"material.shear_stress_steps_Pa": [1e4, -10.0, 1e4]})
+    with pytest.raises(SceneError, match="shear_stress_steps_Pa"):
+        Scene().with_changes(**{"effects.shear_law": "table"})
+
+
+def test_tabulated_energy_is_twice_continuously_differentiable():
+    """Newton needs a continuous tangent: W'' = dτ/d|i8| agrees on both sides of every knot (and
+    of the end of the table) to 1e-5 of its size for a step of 1e-7 (its third derivative is finite)."""
+    steps, x_max = [3e3, 500.0, 8e3, 2e4, 6e4, 1e4], 0.95
+    knots = np.unique(physics.table_stress_spline(steps, x_max).t)
+    i8 = ngs.Parameter(0.0)
+    H = physics.table_shear_energy(i8, steps, x_max).Diff(i8).Diff(i8)
+    for k in knots[1:]:
+        vals = []
+        for v in (k - 1e-7, k + 1e-7):
+            i8.Set(v)
+            vals.append(_at(H))
+        assert abs(vals[1] - vals[0]) <= 1e-5 * max(abs(vals[0]), 1.0), (k, vals)
+
+
+def test_table_sensitivities_match_finite_differences():
+    """dF/d ln(rise) of the table (its energy is linear in the rises) and dF/d ln K_el agree with
+    central differences of whole runs to 1e-4 of each column's largest value (measured 1.4e-5,
+    3e-6, 2.2e-5 on this 25 mm p = 2 mesh); dF/d ln alpha1 to 2e-3 (measured 1.0e-3)."""
+    sc = Scene.from_toml(GEO / "twintex_plain.toml").with_changes(**{"loading.u0_mm": 45.0})
+    u = [15.0, 30.0, 45.0]
+    P = ["material.shear_stress_steps_Pa[0]", "material.shear_stress_steps_Pa[3]", "material.K_el",
+         "material.alpha1"]
+    impl = force_path(sc, u, P).dlogp
+    fd = finite_difference(sc, u, P, rel_step=1e-3)
+    err = np.abs(impl - fd).max(axis=0) / np.abs(fd).max(axis=0)
+    assert np.all(err < [1e-4, 1e-4, 1e-4, 2e-3]), dict(zip(P, err, strict=True))
+
+
+def test_start_table_from_the_ideal_quadratic_curve(tmp_path):
+    """The ideal-kinematics force of the quadratic law (K = 2e4 Pa, 150 x 300 mm, t = 1.2 mm),
+    normalised by Cao's Eq. 18 and turned into a stress, is τ = K sin γ = K |i8|: the points agree
+    to 1 % and the fitted table's rises to 3 % of the quadratic law's."""
+    sc = Scene().with_changes(**{"specimen.width_mm": 150.0, "specimen.length_mm": 300.0,
+                                 "specimen.thickness_mm": 1.2, "material.K_sh": 2e4})
+    u = np.linspace(0.5, 56.0, 200)
+    F = np.array([ideal_force(sc, v) for v in u])
+    path = tmp_path / "ideal.csv"
+    path.write_text("# specimen.width_mm = 150\n# specimen.length_mm = 300\ndisplacement_mm,force_N\n"
+                    + "".join(f"{a},{b}\n" for a, b in zip(u, F, strict=True)))
+    c = read_measured(path)
+    x, tau = shear_stress_points(c, 1.2)
+    np.testing.assert_allclose(tau, 2e4 * x, rtol=0.01)
+    steps = start_table(c, 1.2, 4, 0.95)
+    np.testing.assert_allclose(steps, quadratic_table(2e4, 4, 0.95), rtol=0.03)
+
+
+# ------------------------------------------------------------------------------------------ input checks
+def _csv(path: Path, body: str, header: str = "# specimen.width_mm = 150\n# specimen.length_mm = 300\n") -> Path:
+    path.write_text(header + body)
+    return path
+
+
+GOOD = "displacement_mm,force_N\n" + "".join(f"{u},{0.02 * u + 0.001 * u * u}\n" for u in range(1, 41))
+
+
+@pytest.mark.parametrize("body, message", [
+    ("".join(f"{u},{u * 0.1}\n" for u in range(1, 20)), "line 3: a row of numbers where the header should be"),
+    (GOOD.replace("20,0.8", "20,nan"), "line 23: force_N = 'nan' is not a finite number"),
+    (GOOD.replace("20,0.8", "20,inf"), "line 23: force_N = 'inf' is not a finite number"),
+    (GOOD.replace("20,0.8", "20,0.8x"), "line 23: force_N = '0.8x' is not a number"),
+    (GOOD.replace("20,0.8", "20,-0.8"), "line 23: displacement 20 mm, force -0.8 N"),
+    ("displacement_mm,force_N\n1,2\n", "at least 3 are needed"),
+])
+def test_bad_data_is_refused_before_any_model_run(tmp_path, capsys, body, message):
+    """Each fault of a data file ends with exit 2 and a message naming the file and the line;
+    nothing is fitted (no fit.json)."""
+    bad = _csv(tmp_path / "bad.csv", body)
+    out = tmp_path / "fit"
+    assert main(["fit", str(bad), "--scene", str(GEO / "twintex_plain.toml"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and message in err
+    assert not (out / "fit.json").exists()
+
+
+def test_bad_options_and_predict_inputs_are_refused_first(tmp_path, capsys):
+    """--predict files and scenes, --max-runs, --params, two scenes: refused with exit 2 before the fit."""
+    good = _csv(tmp_path / "good.csv", GOOD)
+    scene = str(GEO / "twintex_plain.toml")
+    out = tmp_path / "fit"
+    cases = [
+        (["--predict", str(tmp_path / "missing.csv")], "data file not found"),
+        (["--predict", str(_csv(tmp_path / "p.csv", "displacement_mm,force_N\n1,x\n2,3\n3,4\n"))], "line 4"),
+        (["--predict", str(good), "--predict-scene", str(tmp_path / "none.toml")], "scene file not found"),
+        (["--max-runs", "0"], "--max-runs 0"),
+        (["--params", ","], "--params ',' names no key"),
+        (["--params", "material.K_lock"], "positive start value"),
+        (["--params", "loading.u0_mm"], "not a material key"),
+    ]
+    for extra, message in cases:
+        assert main(["fit", str(good), "--scene", scene, "--out", str(out), *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert message in err, (extra, err)
+    assert main(["fit", str(good), str(GEO / "bet_100x300.toml"), "--scene", scene, "--out", str(out)]) == 2
+    assert "one scene only" in capsys.readouterr().err
+    assert not (out / "fit.json").exists()
+
+
+def test_errorbars_are_read_and_floored():
+    """The printed bars give the points' standard deviations (half a bar), never below the reading
+    error or 1 % of the force; a bar of zero height (printed so) is floored."""
+    c = read_measured(DATA / "cao2008_twill_balanced_150x450_INSA-NU.csv")
+    assert c.bars is not None and len(c.bars[0]) == 38  # every bar of the file
+    u = np.array([5.3565, 104.3585])
+    sd = c.sd(u, np.interp(u, c.u_mm, c.force_N))
+    assert sd[0] == pytest.approx(max(0.03, 0.01 * np.interp(5.3565, c.u_mm, c.force_N)))
+    assert sd[1] == pytest.approx(0.5 * (38.3214 - 35.6856), rel=1e-6)
+
+
+# ------------------------------------------------------------------------------------------ joint fit
+SYN_TRUTH = {"material.K_sh": 2.5e4, "material.K_el": 3e6}
+SYN_SIZES = [(150.0, 300.0), (150.0, 450.0)]
+
+
+def synthetic_scene(**changes) -> Scene:
+    """The plain-weave scene, quadratic law, bending too weak to see, a 30 mm mesh."""
+    base = {"effects.shear_law": "quadratic", "material.alpha1": 0.05, "material.alpha2": 0.05,
+            "discretization.mesh_size_mm": 30.0, "calibration.params": list(SYN_TRUTH),
+            "calibration.lower": [1e3, 1e5], "calibration.upper": [1e6, 1e9], **SYN_TRUTH}
+    base.update(changes)
+    return Scene.from_toml(GEO / "twintex_plain.toml").with_changes(**base)
+
+
+def write_synthetic(folder: Path, seed: int = 7, rel: float = 0.02) -> list[Path]:
+    """Two sizes of the truth with 2 % noise, 40 points each, and error bars of ±2 %."""
+    rng = np.random.default_rng(seed)
+    paths = []
+    for W, L in SYN_SIZES:
+        sc = synthetic_scene(**{"specimen.width_mm": W, "specimen.length_mm": L})
+        u = np.linspace(2.0, 0.85 * sc.specimen.locking_u0_mm, 40)
+        F = force_path(sc.with_changes(**{"loading.u0_mm": float(u[-1])}), u).force_N
+        F = F * (1 + rel * rng.standard_normal(len(F)))
+        head = f"# synthetic\n# specimen.width_mm = {W:g}\n# specimen.length_mm = {L:g}\n"
+        p = folder / f"syn_{W:g}x{L:g}.csv"
+        p.write_text(head + "displacement_mm,force_N\n" + "".join(f"{a},{b}\n" for a, b in zip(u, F, strict=True)))
+        p.with_name(p.stem + "_errorbars.csv").write_text(
+            head + "displacement_mm,force_N,force_low_N,force_high_N\n"
+            + "".join(f"{a},{b},{b * (1 - rel)},{b * (1 + rel)}\n" for a, b in zip(u, F, strict=True)))
+        paths.append(p)
+    return paths
+
+
+@pytest.fixture(scope="module")
+def synthetic_joint(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("syn")
+    paths = write_synthetic(folder)
+    start = synthetic_scene(**{"material.K_sh": 4e4, "material.K_el": 1e6})
+    return folder, paths, joint.fit_curves([read_measured(p) for p in paths], start)
+
+
+def test_joint_fit_recovers_the_truth_within_two_standard_errors(synthetic_joint):
+    """Two sizes, start values off by 1.6 and 0.33: K_sh and K_el within 2 se of the truth, each
+    curve at the noise level (2 % noise: RMS 1-3 %)."""
+    _, _, res = synthetic_joint
+    for k, n in enumerate(res.names):
+        z = abs(math.log(res.values[k] / SYN_TRUTH[n])) / res.se_log[k]
+        assert z <= 2.0, (n, res.values[k], res.se_log[k])
+        assert res.se_log[k] < 0.5
+    assert all(0.01 < c.rms_relative < 0.03 for c in res.curves)
+
+
+def test_prediction_of_a_third_size_lies_in_its_band(synthetic_joint):
+    """The fitted model on 100 x 300 mm: |prediction − truth| ≤ 2 sd (parameters and
+    discretization) at every point, and the band is not vacuous: the start values miss by more."""
+    _, _, res = synthetic_joint
+    spec = {"specimen.width_mm": 100.0, "specimen.length_mm": 300.0}
+    u = np.linspace(10.0, 65.0, 6)
+    truth_scene = synthetic_scene(**spec, **{"loading.u0_mm": 65.0})
+    truth = force_path(truth_scene, u).force_N
+    pred = joint.predict_specimen(res, spec, u)
+    assert np.all(np.abs(pred.force_N - truth) <= 2 * pred.sd_N)
+    start = force_path(truth_scene.with_changes(**{"material.K_sh": 4e4, "material.K_el": 1e6}), u).force_N
+    assert np.all(np.abs(start - truth) > 2 * pred.sd_N)
+
+
+def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint, tmp_path, capsys):
+    """`ngbet fit A.csv B.csv --scene S` without --params (the scene names them) writes fit.json
+    with each curve's RMS, fit.png and a fitted scene that `ngbet run` takes on another specimen
+    with only the specimen and the load changed."""
+    _, paths, res = synthetic_joint
+    scene = tmp_path / "syn.toml"
+    scene.write_text(synthetic_scene().to_toml())
+    out = tmp_path / "fit"
+    code = main(["fit", *map(str, paths), "--scene", str(scene), "--out", str(out), "--max-runs", "3", "--quiet",
+                 "--predict", str(paths[0])])
+    assert code in (0, 1)  # 3 runs may stop the search early; the files are what is tested here
+    text = capsys.readouterr().out
+    assert "150 x 300 mm: RMS relative error" in text and "150 x 450 mm: RMS relative error" in text
+    doc = json.loads((out / "fit.json").read_text())
+    assert [c["specimen"]["specimen.length_mm"] for c in doc["curves"]] == [300.0, 450.0]
+    assert set(doc["parameters"]) == set(SYN_TRUTH) and doc["model_runs"] <= 4
+    assert (out / "fit.png").stat().st_size > 10_000 and (out / f"predict_{paths[0].stem}.json").exists()
+    run = tmp_path / "run"
+    assert main(["run", str(out / "fitted_scene.toml"), "--set", "specimen.width_mm=100", "--set",
+                 "specimen.length_mm=300", "--set", "loading.u0_mm=80", "--set", "outputs.plot=false",
+                 "--out", str(run), "--quiet"]) == 0
+    assert json.loads((run / "summary.json").read_text())["u0_reached_mm"] == pytest.approx(80.0)
+
+
+def test_a_failed_prediction_keeps_the_fit(synthetic_joint, tmp_path, capsys, monkeypatch):
+    """A prediction whose model run fails exits 1 and leaves fit.json and fitted_scene.toml."""
+    from ngbet.errors import ConvergenceError
+
+    _, paths, _ = synthetic_joint
+
+    def fail(*a, **k):
+        raise ConvergenceError("step too small", last_converged_mm=3.0)
+
+    monkeypatch.setattr(joint, "predict_specimen", fail)
+    out = tmp_path / "fit"
+    scene = tmp_path / "syn.toml"
+    scene.write_text(synthetic_scene().to_toml())
+    assert main(["fit", str(paths[0]), "--scene", str(scene), "--out", str(out), "--max-runs", "1", "--quiet",
+                 "--predict", str(paths[1])]) == 1
+    assert "the fit is kept" in capsys.readouterr().err
+    assert (out / "fit.json").exists() and (out / "fitted_scene.toml").exists()
+
+
+# ------------------------------------------------------------------------------------------ the study
+@pytest.mark.slow
+def test_validation_study_quick(tmp_path, monkeypatch):
+    """`ngbet study validation --quick`: one fabric fitted (3 model runs), its other size
+    predicted; the report holds the table with ngbet's and the normalisation method's RMS, and the
+    normalisation column equals an independent computation from the measured curves."""
+    from ngbet.kinematics import force_from_normalised, normalised_shear_force
+    from ngbet.studies import validation as V
+    from ngbet.study import load
+
+    monkeypatch.setattr(V, "FIT_CACHE", tmp_path / "fits")
+    out = tmp_path / "study"
+    assert main(["study", "validation", "--quick", "--workers", "1", "--quiet", "--out", str(out),
+                 "--cache", str(tmp_path / "cache")]) == 0
+    text = (out / "report.md").read_text()
+    assert "| twill_unbalanced |" in text and (out / "validation.png").exists()
+    fitted = read_measured(DATA / "cao2008_twill_unbalanced_100x250_UN.csv")
+    other = read_measured(DATA / "cao2008_twill_unbalanced_100x200_UN.csv")
+    u, F = other.sample(24)
+    uf = fitted.u_mm[fitted.u_mm > 0]
+    # the slack's negative forces (−0.0065 N at 0.0085 mm) count as 0, as in the study
+    g, f = normalised_shear_force(uf, np.maximum(np.interp(uf, fitted.u_mm, fitted.force_N), 0.0), 250.0, 100.0)
+    rms = float(np.sqrt(np.mean(((force_from_normalised(g, f, u, 200.0, 100.0) - F) / F) ** 2)))
+    row = V.summary(load(out))[0]
+    assert row["normalisation_rms"] == pytest.approx(rms, rel=1e-9)
+    assert f"{100 * rms:.1f} %" in text
+
+
+def test_progress_line_names_runs_and_each_curves_rms():
+    """The progress of a fit on a stream that is not a terminal: one line per model run."""
+    import io
+
+    stream = io.StringIO()
+    show = joint.terminal_progress(stream)
+    show(3, [0.123, 0.045], 12.5)
+    show(4, [0.1, 0.04], 11.0)
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 2 and lines[0].startswith("ngbet fit: model run 3, RMS 12.3 %, 4.5 %")
+
+
+def test_python_reader_refuses_a_file_without_header(tmp_path):
+    """ngbet.fit.read_curve, the reader of the single-curve fit, takes the same checks."""
+    from ngbet import fit as F
+
+    p = tmp_path / "noheader.csv"
+    p.write_text("".join(f"{u},{0.1 * u}\n" for u in range(1, 11)))
+    with pytest.raises(SceneError, match="line 1: a row of numbers where the header should be"):
+        F.read_curve(p)
+
+
+def test_a_held_parameter_widens_the_band_by_its_own_term(synthetic_joint):
+    """K_el held fixed with var(ln K_el) = 0.09: the parameter part of the band becomes
+    √(sd² + (dF/d ln K_el)² · 0.09), the derivative from central differences of whole runs (to
+    2e-3 of the largest value: the two derivatives differ by that much on this 30 mm mesh)."""
+    _, paths, _ = synthetic_joint
+    res = joint.fit_curves([read_measured(p) for p in paths], synthetic_scene(), params=["material.K_sh"], max_runs=3)
+    spec = {"specimen.width_mm": 100.0, "specimen.length_mm": 300.0}
+    u = np.array([20.0, 50.0])
+    plain = joint.predict_specimen(res, spec, u)
+    held = joint.predict_specimen(res, spec, u, {"material.K_el": 0.09})
+    sc = res.scene.with_changes(**spec, **{"loading.u0_mm": 50.0})
+    g = finite_difference(sc, u, ["material.K_el"], rel_step=1e-3)[:, 0]
+    want = np.sqrt(plain.sd_param_N ** 2 + 0.09 * g ** 2)
+    np.testing.assert_allclose(held.sd_param_N, want, rtol=0, atol=2e-3 * want.max())  # measured 2.3e-4 N, band 0.14 N
+    assert np.all(held.sd_param_N > 1.5 * plain.sd_param_N)
+    np.testing.assert_allclose(held.force_N, plain.force_N, rtol=1e-12)
