@@ -682,8 +682,8 @@ def test_fields_file_appears_only_complete_and_in_mm(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         run(scene, out)
     assert summary(out)["status"] == "interrupted"
-    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "map_10mm.npz", "map_5mm.npz", "profile.csv",
-                                                     "results.csv", "scene.toml", "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "profile.csv", "results.csv", "scene.toml",
+                                                     "summary.json"]
     assert "fields.vtu" not in summary(out)["files"]
 
 
