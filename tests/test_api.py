@@ -145,33 +145,3 @@ def test_cli_scene_and_version():
     v = subprocess.run([sys.executable, "-m", "ngbet", "--version"], capture_output=True, text=True, check=True)
     assert v.stdout.startswith(f"ngbet {ngbet.__version__} (git revision ")
     assert isinstance(ngbet.__revision__, str) and ngbet.__revision__
-
-
-def _backend():
-    import importlib.util
-
-    path = ROOT / "_build" / "backend.py"
-    if not path.exists():
-        pytest.skip("the build backend is not beside the tests (tests run against an installed package)")
-    spec = importlib.util.spec_from_file_location("_ngbet_backend", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_build_records_the_revision(tmp_path, monkeypatch):
-    """The build backend writes ngbet/_revision.py: the checkout's revision, or 'unknown' outside one."""
-    backend = _backend()
-    (tmp_path / "ngbet").mkdir()
-    (tmp_path / "ngbet" / "revision.py").write_text((ROOT / "ngbet" / "revision.py").read_text())
-    monkeypatch.setattr(backend, "ROOT", tmp_path)
-    backend._record_revision()
-    ns: dict = {}
-    exec((tmp_path / "ngbet" / "_revision.py").read_text(), ns)
-    assert ns["REVISION"] == "unknown"  # tmp_path is no git checkout
-    head = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    if head.returncode != 0:
-        pytest.skip("the tests do not run from a git checkout")
-    from ngbet.revision import from_checkout
-
-    assert from_checkout(ROOT).removesuffix("-dirty") == head.stdout.strip()
