@@ -23,7 +23,6 @@ import argparse
 import ast
 import contextlib
 import json
-import logging
 import os
 import signal
 import socket
@@ -33,6 +32,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from .messages import messages, say
 from .scene import Scene, SceneError, default_scene
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_IO, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
@@ -64,8 +64,7 @@ def load_scene(path: str | None, overrides: list[str]) -> Scene:
     return scene.with_changes(**changes) if changes else scene
 
 
-def _say(msg: str) -> None:
-    print(f"ngbet: {' '.join(msg.split())}", file=sys.stderr)
+_say = say  # one `ngbet: ...` line on stderr
 
 
 GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the watchdog does
@@ -147,7 +146,9 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
         return EXIT_INPUT, f"bad scene: {exc}"
     if isinstance(exc, ConvergenceError):
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        return EXIT_SOLVER, (f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}")
+        advice = getattr(exc.detail, "advice", lambda: "")()  # the diagnosis's cause and remedy
+        return EXIT_SOLVER, (f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}"
+                             + (f"; {advice}" if advice else ""))
     if isinstance(exc, OutputError):
         return EXIT_IO, f"cannot use the output folder {exc}"
     if isinstance(exc, SchedulerError):
@@ -160,7 +161,8 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
 
 def main(argv: list[str] | None = None) -> int:
     """The ``ngbet`` command (see the module docstring for the exit status)."""
-    with _interrupts():
+    words = sys.argv[1:] if argv is None else argv
+    with _interrupts(), messages("-v" in words or "--verbose" in words):
         try:
             return _main(argv)
         except KeyboardInterrupt:
@@ -182,7 +184,8 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
                     help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
     pr.add_argument("--accuracy", type=float, metavar="REL",
                     help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
-    pr.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
+    pr.add_argument("--quiet", action="store_true", help="print no progress and no results; warnings and errors "
+                    "still go to stderr")
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
     ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
@@ -212,8 +215,6 @@ def _main(argv: list[str] | None) -> int:
 
         return fit.run_from_args(args)
 
-    level = logging.INFO if getattr(args, "verbose", False) else logging.WARNING
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
         scene = load_scene(args.scene, args.overrides)
         if getattr(args, "accuracy", None) is not None:
@@ -226,11 +227,11 @@ def _main(argv: list[str] | None) -> int:
 
         sys.stdout.write(commented_toml(scene))
         return EXIT_OK
-    return _run(scene, Path(args.out), progress=not args.quiet)
+    return _run(scene, Path(args.out), quiet=args.quiet)
 
 
-def _run(scene: Scene, out: Path, progress: bool) -> int:
-    """``ngbet run``: one line on success or failure; the details are in ``out``/summary.json."""
+def _run(scene: Scene, out: Path, quiet: bool = False) -> int:
+    """``ngbet run``: the results on stdout (none when ``quiet``); warnings and errors on stderr."""
     from .plot_process import plot_process
 
     try:
@@ -239,7 +240,7 @@ def _run(scene: Scene, out: Path, progress: bool) -> int:
         with plot_process(scene.outputs.plot and scene.model == "continuum"):
             from .run import run
 
-            summary = run(scene, out, progress=progress)
+            summary = run(scene, out, progress=not quiet)
     except KeyboardInterrupt:
         _say(f"interrupted after u0 = {_last_converged_mm(out):g} mm; converged steps and "
              f"summary.json (status interrupted) are in {out}/")
@@ -250,7 +251,8 @@ def _run(scene: Scene, out: Path, progress: bool) -> int:
             msg += f"; converged steps and details are in {out}/ (summary.json)"
         _say(msg)
         return code
-    print(_report(summary, out))
+    if not quiet:
+        print(_report(summary, out))
     return EXIT_OK
 
 
@@ -278,7 +280,9 @@ def _study(args: argparse.Namespace) -> int:
 
     module = importlib.import_module(f"ngbet.studies.{args.name}")
     try:
-        return run_from_args(module.build, args)
+        with open(os.devnull, "w") if args.quiet else contextlib.nullcontext(sys.stdout) as stdout, \
+                contextlib.redirect_stdout(stdout):  # --quiet: no table, no report (both are in the folder)
+            return run_from_args(module.build, args)
     except StudyInterrupted as exc:
         _say(str(exc))
         return EXIT_INTERRUPTED
