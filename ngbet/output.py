@@ -416,7 +416,7 @@ def draw_force(run_dir: Path, extra: Iterable[tuple[str, Sequence[float], Sequen
     try:
         from matplotlib.figure import Figure
     except ImportError:
-        log.warning("no force plot: matplotlib is not installed (pip install 'ngbet[viz]')")
+        log.warning("no force plot: matplotlib is not installed (pip install matplotlib)")
         return None
     rows = read_rows(run_dir / "results.csv")
     if not rows or "force_N" not in rows[0]:

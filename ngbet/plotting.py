@@ -1,6 +1,6 @@
 """Drawing functions shared by the run's force plot, :meth:`ngbet.Result.plot` and the studies.
 
-matplotlib is imported by the callers (it is an optional dependency: ``pip install ngbet[viz]``).
+matplotlib is imported by the callers, only when they draw (it is not needed to compute).
 """
 
 from __future__ import annotations

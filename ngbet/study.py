@@ -559,6 +559,9 @@ def _worker_init(parent_alive: Any, ngbet_env: dict[str, str]) -> None:
     (the fork server's environment is the one it started with).
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from .messages import install
+
+    install()  # the case's warnings as one `ngbet:` line each, as the command's
     for k in [k for k in os.environ if k.startswith("NGBET_") and k not in ngbet_env]:
         del os.environ[k]
     os.environ.update(ngbet_env)
@@ -896,7 +899,11 @@ def _extract(study: Study, c: _Case, record: dict[str, Any], run_dir: Path, out:
             tables.setdefault(name, []).extend({"case": c.index, **r} for r in trs)
     except Exception as exc:
         record["extract_error"] = f"{type(exc).__name__}: {exc}"
-        log.warning("study %s case %d: extraction failed: %s", study.name, c.index, exc)
+        if isinstance(exc, ImportError) and exc.name:  # pyvista reads the fields
+            log.warning("study %s case %d: no tables from the fields: %s is not installed (pip install %s)",
+                        study.name, c.index, exc.name, exc.name)
+        else:
+            log.warning("study %s case %d: extraction failed: %s", study.name, c.index, exc)
 
 
 def _cell(v: Any) -> Any:
@@ -954,8 +961,12 @@ def load(out: str | Path) -> StudyData:
 
 def finish(study: Study, data: StudyData) -> list[Path]:
     """Figures (PNG + PDF) and report.md from the study folder's CSV files."""
+    from importlib.util import find_spec
+
     figs: list[Path] = []
-    if study.plot is not None:
+    if study.plot is not None and find_spec("matplotlib") is None:
+        log.warning("study %s: no figures: matplotlib is not installed (pip install matplotlib)", study.name)
+    elif study.plot is not None:
         import matplotlib
 
         matplotlib.use("Agg")

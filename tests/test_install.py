@@ -1,4 +1,5 @@
-"""What an install gives: the version and git revision setuptools-scm records at build time."""
+"""What an install gives: the version and git revision setuptools-scm records at build time, and
+what every command still does when the plotting packages (matplotlib, pyvista) are missing."""
 
 from __future__ import annotations
 
@@ -91,3 +92,60 @@ def test_a_clone_builds_with_its_commit(tmp_path):
     version, ns = _wheel(ROOT, tmp_path / "w3")
     commit = str(ns["__commit_id__"]).removeprefix("g")
     assert len(commit) >= 7 and head.stdout.strip().startswith(commit) and f"+g{commit}" in version
+
+
+# ------------------------------------------------------------------ without matplotlib and pyvista
+@pytest.fixture
+def bare_env(tmp_path):
+    """An environment whose Python processes (workers and the plot process too) find neither matplotlib
+    nor pyvista: a sitecustomize module blocks both imports, as if they were not installed."""
+    site = tmp_path / "site"
+    site.mkdir()
+    block = "import sys\nfor _m in ('matplotlib', 'pyvista'):\n    sys.modules[_m] = None\n"
+    (site / "sitecustomize.py").write_text(block)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    for m in ("matplotlib", "pyvista"):
+        probe = subprocess.run([sys.executable, "-c", f"import {m}"], env=env, capture_output=True, text=True)
+        assert probe.returncode == 1 and "ModuleNotFoundError" in probe.stderr
+    return env
+
+
+RUN_AND_API = """
+import sys
+import ngbet
+from ngbet.cli import main
+code = main(["run", "--quiet", "--out", sys.argv[1], "--set", "discretization.mesh_size_mm=20",
+             "--set", "loading.u0_mm=10", "--set", "loading.stops_mm=[]"])
+r = ngbet.load_result(sys.argv[1])
+for call in (r.plot, r.fields):
+    try:
+        call()
+    except ImportError as exc:
+        print("ImportError:", exc)
+sys.exit(code)
+"""
+
+
+def test_a_run_without_matplotlib_and_pyvista_writes_its_data_and_says_what_it_skipped(tmp_path, bare_env):
+    out = tmp_path / "run"
+    p = subprocess.run([sys.executable, "-c", RUN_AND_API, str(out)], env=bare_env, capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert p.stderr.splitlines() == ["ngbet: no force plot: matplotlib is not installed (pip install matplotlib)"]
+    assert {"results.csv", "profile.csv", "summary.json", "fields.vtu", "scene.toml"} <= {f.name for f in out.iterdir()}
+    assert not (out / "force.png").exists()
+    assert p.stdout.splitlines() == [  # nothing from the quiet run; clear errors from the API
+        "ImportError: Result.plot() draws with matplotlib, which is not installed: pip install matplotlib",
+        "ImportError: Result.fields() reads the VTU file with pyvista, which is not installed: pip install pyvista"]
+
+
+@pytest.mark.slow
+def test_a_study_without_matplotlib_and_pyvista_writes_its_tables_and_report(tmp_path, bare_env):
+    out = tmp_path / "alpha1"
+    p = subprocess.run([sys.executable, "-m", "ngbet", "study", "alpha1", "--quick", "--quiet", "--out", str(out),
+                        "--cache", str(tmp_path / "cache")], env=bare_env, capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert p.stderr.splitlines() == ["ngbet: study alpha1: no figures: matplotlib is not installed "
+                                     "(pip install matplotlib)"]
+    assert p.stdout == ""  # --quiet
+    assert {"results.csv", "report.md", "meta.json"} <= {f.name for f in out.iterdir()}
+    assert not list(out.glob("*.png"))
