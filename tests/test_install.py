@@ -72,19 +72,19 @@ def _wheel(src: Path, out: Path, **env: str) -> tuple[str, dict[str, object]]:
     return wheel.name.split("-")[1], ns
 
 
-@pytest.mark.slow
+@pytest.mark.integration
 def test_sources_without_git_build_with_the_fallback_version(tmp_path):
     version, ns = _wheel(_sources(tmp_path), tmp_path / "w1")
     assert version == ns["__version__"] == "0.1.dev0" and ns["__commit_id__"] is None
 
 
-@pytest.mark.slow
+@pytest.mark.integration
 def test_sources_without_git_take_the_version_they_are_given(tmp_path):
     version, ns = _wheel(_sources(tmp_path), tmp_path / "w2", SETUPTOOLS_SCM_PRETEND_VERSION="0.1.dev0+gabc1234")
     assert version == ns["__version__"] == "0.1.dev0+gabc1234"
 
 
-@pytest.mark.slow
+@pytest.mark.integration
 def test_a_clone_builds_with_its_commit(tmp_path):
     head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     if head.returncode != 0 or not (ROOT / "pyproject.toml").exists():
@@ -138,7 +138,7 @@ def test_a_run_without_matplotlib_and_pyvista_writes_its_data_and_says_what_it_s
         "ImportError: Result.fields() reads the VTU file with pyvista, which is not installed: pip install pyvista"]
 
 
-@pytest.mark.slow
+@pytest.mark.integration
 def test_a_study_without_matplotlib_and_pyvista_writes_its_tables_and_report(tmp_path, bare_env):
     out = tmp_path / "alpha1"
     p = subprocess.run([sys.executable, "-m", "ngbet", "study", "alpha1", "--quick", "--quiet", "--out", str(out),

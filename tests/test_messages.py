@@ -82,7 +82,7 @@ def test_each_diagnosis_names_its_remedy(detail, remedy):
     assert advice.endswith(remedy) if remedy else advice == ""
 
 
-@pytest.mark.slow
+@pytest.mark.integration
 def test_an_ill_posed_scene_fails_with_the_remedy_on_the_terminal(tmp_path):
     out = tmp_path / "run"
     p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(out), "--set",
