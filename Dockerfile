@@ -46,9 +46,13 @@ RUN python -c "import ngbet, sys; assert '/opt/ngbet/' in ngbet.__file__, ngbet.
 FROM install AS runtime
 USER ngbet
 WORKDIR /work
-# prove the image: a small scene with its VTU file and its force plot
-RUN ngbet --version && ngbet run --quiet --out /tmp/ngbet-check --set discretization.mesh_size_mm=20 \
-    && test -s /tmp/ngbet-check/results.csv && test -s /tmp/ngbet-check/fields.vtu \
-    && test -s /tmp/ngbet-check/force.png && rm -rf /tmp/ngbet-check
+# prove the image as docs/container.md uses it: a small scene with its VTU file and force plot, a
+# commented scene that reads back, a quick study with its figures (all relative to /work, then removed)
+RUN ngbet --version && ngbet run --quiet --out out/run --set discretization.mesh_size_mm=20 \
+    && test -s out/run/results.csv && test -s out/run/fields.vtu && test -s out/run/force.png \
+    && ngbet scene > my_scene.toml && ngbet run my_scene.toml --quiet --out out/mine \
+       --set discretization.mesh_size_mm=20 --set outputs.vtk=false \
+    && ngbet study alpha1 --quick --quiet --out out/alpha1 && test -s out/alpha1/report.md \
+    && ls out/alpha1/*.png && rm -rf out my_scene.toml
 ENTRYPOINT ["ngbet"]
 CMD ["run", "--out", "/work/out/run"]
