@@ -89,7 +89,9 @@ def test_a_clone_builds_with_its_commit(tmp_path):
     head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     if head.returncode != 0 or not (ROOT / "pyproject.toml").exists():
         pytest.skip("the tests do not run from a git checkout of ngbet")
-    version, ns = _wheel(ROOT, tmp_path / "w3")
+    clone = tmp_path / "clone"  # a clone of the checkout's HEAD: the build writes into its tree, not ROOT's
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True, capture_output=True)
+    version, ns = _wheel(clone, tmp_path / "w3")
     commit = str(ns["__commit_id__"]).removeprefix("g")
     assert len(commit) >= 7 and head.stdout.strip().startswith(commit) and f"+g{commit}" in version
 
