@@ -2,7 +2,7 @@
 
 Log records of level WARNING and above and Python warnings (a :class:`ngbet.scene.SceneWarning`
 among them) are each written as one line, without the logger's name or the warning's source line;
-a warning said once is not repeated within a command. ``-v`` (verbose) keeps the level, the
+a line said once is not repeated within a command. ``-v`` (verbose) keeps the level, the
 logger's name, INFO records and Python's own warning format. The command line installs this for the
 span of a command (:func:`messages`), a study's worker processes for their lifetime (:func:`install`).
 """
@@ -28,6 +28,20 @@ def one_line(msg: str) -> str:
     return f"ngbet: {' '.join(str(msg).split())}"
 
 
+_SHOWN: set[str] = set()  # the lines said so far (in this command): each is said once
+
+
+class _Once(logging.Filter):
+    """Lets a record through only the first time its line is said (in this command)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = one_line(record.getMessage())
+        if text in _SHOWN:
+            return False
+        _SHOWN.add(text)
+        return True
+
+
 class OneLine(logging.Formatter):
     """A log record as one ``ngbet: ...`` line (``verbose``: level and logger too, every line kept)."""
 
@@ -38,9 +52,6 @@ class OneLine(logging.Formatter):
     def format(self, record: logging.LogRecord) -> str:
         """The record in one line (verbose: Python's format, with a traceback if the record has one)."""
         return super().format(record) if self.verbose else one_line(record.getMessage())
-
-
-_SHOWN: set[str] = set()  # the warnings said so far (in this command): each is said once
 
 
 def show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
@@ -60,12 +71,14 @@ def install(verbose: bool = False) -> logging.Handler:
     """Log records and warnings as ``ngbet:`` lines from now on in this process; the handler added."""
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(OneLine(verbose))
+    if not verbose:
+        handler.addFilter(_Once())
     root = logging.getLogger()
     root.addHandler(handler)
     root.setLevel(logging.INFO if verbose else logging.WARNING)
+    _SHOWN.clear()
     if not verbose:  # -v keeps Python's warnings with their source
         warnings.showwarning = show_warning
-        _SHOWN.clear()
     return handler
 
 
