@@ -1,6 +1,6 @@
 """Regenerate the figures of the documentation (docs/figures/*.png) from fresh runs.
 
-    python docs/make_figures.py          # needs ngbet[viz]; a few seconds
+    python docs/make_figures.py          # a few seconds
 
 bet_default.png: the default scene (the paper's BET to 56 mm): the deformed specimen coloured
 by the shear angle with the yarns drawn on it, and the force-displacement curve.

@@ -8,19 +8,11 @@ D'Agostino & Boisse (2016); conventions and equations in docs/model.md.
     >>> r.force_N[-1]                                # doctest: +SKIP
 """
 
-__version__ = "0.1.0"
-
 from .api import Result, load_result, simulate  # noqa: E402
 from .errors import ConvergenceError  # noqa: E402
+from .revision import __revision__, __version__  # noqa: E402  (written by setuptools-scm at build time)
 from .scene import Scene, SceneError, default_scene  # noqa: E402
 
 __all__ = ["ConvergenceError", "Result", "Scene", "SceneError", "default_scene", "load_result", "simulate",
            "__version__", "__revision__"]
 
-
-def __getattr__(name: str) -> str:
-    if name == "__revision__":  # computed on first use: it may ask git
-        from .revision import revision
-
-        return revision()
-    raise AttributeError(f"module 'ngbet' has no attribute {name!r}")

@@ -173,7 +173,7 @@ class Result:
 
     # files ----------------------------------------------------------------------------------
     def fields(self, step: int | None = None) -> Any:
-        """The fields on the mesh as a ``pyvista.UnstructuredGrid`` (needs ``pip install ngbet[viz]``).
+        """The fields on the mesh as a ``pyvista.UnstructuredGrid`` (pyvista reads the VTU file).
 
         ``step=None``: the final fields (``fields.vtu``); ``step=k``: ``fields_00k.vtu``, written
         when ``outputs.vtk_every_step`` is on. Coordinates and displacements are in mm; warp by
@@ -185,8 +185,9 @@ class Result:
                                     + ("" if step is None else " and outputs.vtk_every_step is true"))
         try:
             import pyvista as pv
-        except ImportError as exc:  # pragma: no cover - depends on the environment
-            raise ImportError("Result.fields() reads the VTU file with pyvista: pip install 'ngbet[viz]'") from exc
+        except ImportError as exc:
+            raise ImportError("Result.fields() reads the VTU file with pyvista, which is not installed: "
+                              "pip install pyvista") from exc
         return pv.read(str(path))
 
     def to_csv(self, path: str | Path) -> Path:
@@ -205,7 +206,11 @@ class Result:
         from .plotting import force_curve
 
         if ax is None:
-            import matplotlib.pyplot as plt
+            try:
+                import matplotlib.pyplot as plt
+            except ImportError as exc:
+                raise ImportError("Result.plot() draws with matplotlib, which is not installed: "
+                                  "pip install matplotlib") from exc
 
             _, ax = plt.subplots(figsize=(5.5, 4))
         force_curve(ax, self.u0_mm, self.force_N, self.columns.get("dforce_du0_N_per_mm"), label=label, **kwargs)

@@ -38,6 +38,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from .messages import messages, say
 from .scene import Scene, SceneError, SceneNote, SceneWarning
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_IO, EXIT_INTERNAL, EXIT_INTERRUPTED = 0, 1, 2, 3, 70, 130
@@ -87,9 +88,7 @@ def load_scene(path: str | None, overrides: list[str]) -> Scene:
     return scene
 
 
-def _say(msg: str) -> None:
-    with contextlib.suppress(OSError, ValueError):  # stderr itself may be gone: the exit status still says it
-        print(f"ngbet: {' '.join(msg.split())}", file=sys.stderr)
+_say = say  # one `ngbet: ...` line on stderr (stderr itself may be gone: the exit status still says it)
 
 
 def _print(text: str, what: str) -> int:
@@ -187,7 +186,9 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
         return EXIT_INPUT, f"bad scene: {exc}"
     if isinstance(exc, ConvergenceError):
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        return EXIT_SOLVER, (f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}")
+        advice = getattr(exc.detail, "advice", lambda: "")()  # the diagnosis's cause and remedy
+        return EXIT_SOLVER, (f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}"
+                             + (f"; {advice}" if advice else ""))
     if isinstance(exc, OutputError):
         return EXIT_IO, f"cannot use the output folder {exc}"
     if isinstance(exc, SchedulerError):
@@ -206,7 +207,8 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
 
 def main(argv: list[str] | None = None) -> int:
     """The ``ngbet`` command (see the module docstring for the exit status)."""
-    with _interrupts():
+    words = sys.argv[1:] if argv is None else argv
+    with _interrupts(), messages("-v" in words or "--verbose" in words):
         try:
             return _main(argv)
         except KeyboardInterrupt:
@@ -236,7 +238,8 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
                     help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
     pr.add_argument("--data", metavar="CSV", help="a measured curve (header displacement_mm,force_N; '#' comment "
                     "lines allowed) drawn on the force and normalised shear force figures")
-    pr.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
+    pr.add_argument("--quiet", action="store_true", help="print no progress and no results; warnings and errors "
+                    "still go to stderr")
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
     ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
@@ -277,8 +280,6 @@ def _main(argv: list[str] | None) -> int:
 
         return fit_command.run_from_args(args)
 
-    level = logging.INFO if getattr(args, "verbose", False) else logging.WARNING
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
         scene = load_scene(args.scene, args.overrides)
         if getattr(args, "accuracy", None) is not None:
@@ -299,11 +300,11 @@ def _main(argv: list[str] | None) -> int:
         from .scene_doc import commented_toml
 
         return _print(commented_toml(scene), "the scene")
-    return _run(scene, Path(args.out), progress=not args.quiet, measured=measured)
+    return _run(scene, Path(args.out), quiet=args.quiet, measured=measured)
 
 
-def _run(scene: Scene, out: Path, progress: bool, measured: Any = None) -> int:
-    """``ngbet run``: one line on success or failure; the details are in ``out``/summary.json."""
+def _run(scene: Scene, out: Path, quiet: bool = False, measured: Any = None) -> int:
+    """``ngbet run``: the results on stdout (none when ``quiet``); warnings and errors on stderr."""
     from .plot_process import plot_process
 
     try:
@@ -312,7 +313,7 @@ def _run(scene: Scene, out: Path, progress: bool, measured: Any = None) -> int:
         with plot_process(scene.outputs.plot and scene.model == "continuum"):
             from .run import run
 
-            summary = run(scene, out, progress=progress, measured=measured)
+            summary = run(scene, out, progress=not quiet, measured=measured)
     except KeyboardInterrupt:
         _say(f"interrupted after u0 = {_last_converged_mm(out):g} mm; converged steps and "
              f"summary.json (status interrupted) are in {out}/")
@@ -325,6 +326,8 @@ def _run(scene: Scene, out: Path, progress: bool, measured: Any = None) -> int:
             logging.getLogger(__name__).exception("the traceback")
         _say(msg)
         return code
+    if quiet:
+        return EXIT_OK
     return _print(_report(summary, out) + "\n", f"the report (the run is complete in {out}/)")
 
 
@@ -395,7 +398,9 @@ def _run_study_command(what: str, build: Any, args: argparse.Namespace) -> int:
         _say(f"{what}: bad scene: {exc}")
         return EXIT_INPUT
     try:
-        return run_from_args(build, args, scene, source)
+        with open(os.devnull, "w") if args.quiet else contextlib.nullcontext(sys.stdout) as stdout, \
+                contextlib.redirect_stdout(stdout):  # --quiet: no table, no report (both are in the folder)
+            return run_from_args(build, args, scene, source)
     except StudyInterrupted as exc:
         _say(str(exc))
         return EXIT_INTERRUPTED

@@ -67,8 +67,7 @@ RUN_FIGURES = ("force", "shear_force", "profile", "shear_map")
 
 Extra = Iterable[tuple[str, Sequence[float], Sequence[float]]]
 
-NO_MATPLOTLIB = ("no force plot: matplotlib is not installed (pip install 'ngbet[viz]'); the other figures "
-                 "are left out too")
+NO_MATPLOTLIB = "no figures: matplotlib is not installed (pip install matplotlib)"
 
 
 # ------------------------------------------------------------------------------------------------

@@ -424,7 +424,13 @@ def write_outputs(result: FitResult, out: str | Path, prediction: Prediction | N
               f"# RMS relative error {result.rms_relative_error:.4f} over {doc['range_mm'][0]:g} to "
               f"{doc['range_mm'][1]:g} mm; see fit.json for the uncertainties\n")
     (out / "fitted_scene.toml").write_text(header + result.scene.to_toml())
-    paths = [out / "fit.json", out / "fitted_scene.toml", plot_fit(result, out / "fit.png")]
+    paths = [out / "fit.json", out / "fitted_scene.toml"]
+    from importlib.util import find_spec
+
+    if find_spec("matplotlib") is None:
+        log.warning("no figures of the fit: matplotlib is not installed (pip install matplotlib)")
+        return paths
+    paths.append(plot_fit(result, out / "fit.png"))
     if "profile" in result.extra:
         paths.append(plot_profile(result.extra["profile"], out / "fit_profile.png"))
     if prediction is not None:

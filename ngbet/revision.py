@@ -1,53 +1,34 @@
-"""The git revision ngbet was built from.
+"""The version and git revision of this ngbet, as setuptools-scm recorded them at build time.
 
-- Run from a git checkout (an editable install, or the source tree on ``sys.path``): the
-  checkout's current revision, with ``-dirty`` when tracked files are modified.
-- Installed with ``pip install .`` from a clone: the revision recorded at build time in
-  ``ngbet/_revision.py`` (written by the in-tree build backend, ``_build/backend.py``).
-- Otherwise ``"unknown"``; finding the revision never raises.
+Building or installing ngbet (``pip install .``, ``pip install -e .``, ``python -m build``) lets
+setuptools-scm write ``ngbet/_version.py``: the version from the git tags (``0.1.devN+g<commit>``
+between releases) and the commit. An sdist carries the file. A source tree without git metadata
+(a container's build context) gets the fallback version of ``pyproject.toml`` and the revision
+``"unknown"``, unless ``SETUPTOOLS_SCM_PRETEND_VERSION`` gives the version (``0.1.dev0+g<commit>``).
+An editable install keeps what it recorded when it was installed. Nothing here asks git or raises.
 """
 
 from __future__ import annotations
 
-import functools
-import subprocess
-from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parent
-
-
-def _git(*args: str, cwd: Path = PACKAGE) -> str | None:
+def _recorded() -> tuple[str, str]:
     try:
-        p = subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, timeout=5)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return p.stdout.strip() if p.returncode == 0 else None
+        from ._version import __commit_id__, __version__
+    except ImportError:  # sources on sys.path that were never built
+        return "unknown", "unknown"
+    version = str(__version__)
+    # the local version: "+g<commit>", with ".d<date>" for a tree with uncommitted changes
+    local = version.partition("+")[2].split(".")
+    node = str(__commit_id__ or "") or next((p for p in local if p.startswith("g")), "")
+    if not node:
+        return version, "unknown"
+    dirty = any(p.startswith("d") and p[1:].isdigit() for p in local)
+    return version, node.removeprefix("g") + ("-dirty" if dirty else "")
 
 
-def from_checkout(root: Path | None = None) -> str | None:
-    """The revision of the checkout that holds ngbet's sources (``root``: the repository), or None.
-
-    None when the package is not a tracked folder of a checkout (e.g. installed into a venv inside one).
-    """
-    pkg = (root / "ngbet") if root is not None else PACKAGE
-    if _git("rev-parse", "--show-prefix", cwd=pkg) != "ngbet/":
-        return None
-    rev = _git("rev-parse", "--short=12", "HEAD", cwd=pkg)
-    if rev is None:
-        return None
-    dirty = _git("status", "--porcelain", "--untracked-files=no", cwd=pkg)
-    return rev + ("-dirty" if dirty else "")
+__version__, __revision__ = _recorded()
 
 
-@functools.lru_cache(maxsize=1)
 def revision() -> str:
-    """The git revision of this ngbet (see the module docstring), or ``"unknown"``."""
-    rev = from_checkout()
-    if rev:
-        return rev
-    try:
-        from ._revision import REVISION
-
-        return str(REVISION)
-    except ImportError:
-        return "unknown"
+    """The git revision ngbet was built from (``-dirty``: with uncommitted changes), or ``"unknown"``."""
+    return __revision__

@@ -349,7 +349,7 @@ class Loading:
     # except the default one, which applies only when u0_mm passes it
     stops_mm: tuple[float, ...] = (37.0,)
     # the continuum's path is smooth: 16 mm, then 37 (stop), then 56 mm in 3 steps and 7 Newton
-    # iterations (bench/README.md); the discrete model has its own limits ([discrete])
+    # iterations; the discrete model has its own limits ([discrete])
     first_step_mm: float = 16.0
     max_step_mm: float = 28.0
     min_step_mm: float = 0.05
@@ -388,7 +388,7 @@ LINEAR_SOLVERS = ("auto", "cholmod", "sparsecholesky", "umfpack", "pardiso")
 
 @dataclass(frozen=True)
 class Solver:
-    """Numerics only (kept apart from the problem, as in Firedrake/dolfinx).
+    """Numerics only (kept apart from the problem).
 
     Newton stops when the Newton decrement |<du, r>|, an energy, is below ``rtol`` times the
     current total energy (unit-free), or below ``atol_energy`` J/m.

@@ -1,6 +1,29 @@
+"""Shared test helpers, and the test tiers.
+
+Three tiers: the default run (``python -m pytest``) holds the unit and finite-element tests, fast;
+``-m integration`` the whole commands, studies, fault injection, builds, the hard cases and a few
+long finite-element checks (marked here: INTEGRATION_MODULES whole, LONG_CHECKS; other tests mark
+themselves); ``-m slow`` the long runs. ``-m "integration or slow"`` with the default gives everything.
+"""
+
 import pytest
 
 from ngbet.scene import Scene
+
+#: modules that run whole commands, studies, worker processes and the hard cases
+INTEGRATION_MODULES = {"test_command.py", "test_faults.py", "test_hard_cases.py", "test_studies.py",
+                       "test_study_workers.py"}
+#: long finite-element checks of other modules (15-40 s each on the 2-core machine at load 6,
+#: together more than a third of the default tier): with the integration tier
+LONG_CHECKS = {("test_cholmod.py", "test_the_llt_solves_as_the_ldlt"),
+               ("test_cholmod.py", "test_a_matrix_that_is_not_positive_definite_goes_to_the_ldlt"),
+               ("test_discrete_symmetry.py", "test_stability_check_of_the_network_reports_both_blocks")}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.path.name in INTEGRATION_MODULES or (item.path.name, item.originalname) in LONG_CHECKS:
+            item.add_marker(pytest.mark.integration)
 
 
 def coarse(**changes) -> Scene:

@@ -63,7 +63,7 @@ def test_run_without_matplotlib_writes_everything_but_the_plot(tmp_path):
             "'--set', 'loading.stops_mm=[]', '--set', 'discretization.mesh_size_mm=20']))")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0
-    assert "no force plot: matplotlib is not installed" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+    assert "no figures: matplotlib is not installed" in p.stderr and len(p.stderr.strip().splitlines()) == 1
     files = {f.name for f in (tmp_path / "run").iterdir()}
     assert {"results.csv", "profile.csv", "summary.json", "fields.vtu", "scene.toml"} <= files
     assert "force.png" not in files
@@ -150,36 +150,6 @@ def test_cli_scene_and_version():
     v = subprocess.run([sys.executable, "-m", "ngbet", "--version"], capture_output=True, text=True, check=True)
     assert v.stdout.startswith(f"ngbet {ngbet.__version__} (git revision ")
     assert isinstance(ngbet.__revision__, str) and ngbet.__revision__
-
-
-def _backend():
-    import importlib.util
-
-    path = ROOT / "_build" / "backend.py"
-    if not path.exists():
-        pytest.skip("the build backend is not beside the tests (tests run against an installed package)")
-    spec = importlib.util.spec_from_file_location("_ngbet_backend", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_build_records_the_revision(tmp_path, monkeypatch):
-    """The build backend writes ngbet/_revision.py: the checkout's revision, or 'unknown' outside one."""
-    backend = _backend()
-    (tmp_path / "ngbet").mkdir()
-    (tmp_path / "ngbet" / "revision.py").write_text((ROOT / "ngbet" / "revision.py").read_text())
-    monkeypatch.setattr(backend, "ROOT", tmp_path)
-    backend._record_revision()
-    ns: dict = {}
-    exec((tmp_path / "ngbet" / "_revision.py").read_text(), ns)
-    assert ns["REVISION"] == "unknown"  # tmp_path is no git checkout
-    head = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    if head.returncode != 0:
-        pytest.skip("the tests do not run from a git checkout")
-    from ngbet.revision import from_checkout
-
-    assert from_checkout(ROOT).removesuffix("-dirty") == head.stdout.strip()
 
 
 def test_old_array_names_without_a_unit_still_work_with_a_deprecation_warning(small_run):

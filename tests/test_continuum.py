@@ -153,10 +153,11 @@ def test_ideal_kinematics_energy_is_approached_from_below(tmp_path):
           "discretization.mesh_size_mm": 5.0, "discretization.order_u": 3}
     _, rows, _ = _run(tmp_path, "ideal", **ch)
     scene = coarse(**ch)
-    for r in rows:
-        if r["u0_mm"] in (10.0, 20.0):
-            E_id = ideal_energy(scene, r["u0_mm"])
-            assert 0.97 * E_id < r["energy_J"] < E_id
+    at = {r["u0_mm"]: r for r in rows if r["u0_mm"] in (10.0, 20.0)}
+    assert sorted(at) == [10.0, 20.0]  # the stop and the end are steps of the run
+    for u0, r in at.items():
+        E_id = ideal_energy(scene, u0)
+        assert 0.97 * E_id < r["energy_J"] < E_id
 
 
 @pytest.mark.parametrize("u0", [10.0, 20.0])

@@ -1,8 +1,7 @@
-"""The damped Newton and the continuation: derivatives, convergence and failure in bounded time."""
+"""The damped Newton and the continuation: derivatives, convergence and failure after a bounded number of attempts."""
 
 import json
 import math
-import time
 
 import ngsolve as ngs
 import numpy as np
@@ -157,7 +156,7 @@ def test_simplified_exit_saves_a_linearization_without_changing_the_answer():
     assert abs(forces[1] - forces[0]) < 1e-8 * abs(forces[0])
 
 
-def test_running_out_of_newton_iterations_fails_in_bounded_time(tmp_path):
+def test_running_out_of_newton_iterations_fails_after_two_attempts(tmp_path):
     """Two Newton iterations carry the first 4 mm but not the grown step after it (4 -> 36 mm, no
     Newton reaches 1e-10 from so far in two iterations), and the first cut (x 0.1) falls below
     min_step = 4 mm: the run stops with a ConvergenceError that names the last converged load
@@ -166,12 +165,10 @@ def test_running_out_of_newton_iterations_fails_in_bounded_time(tmp_path):
                       "loading.min_step_mm": 4.0, "loading.max_step_mm": 56.0, "loading.stops_mm": [],
                       "loading.output_every_mm": 0.0,
                       "discretization.mesh_size_mm": 20.0})
-    t0 = time.perf_counter()
     with pytest.raises(ConvergenceError) as info:
         run(scene, tmp_path / "run")
-    wall = time.perf_counter() - t0
     err = info.value
-    assert wall < 60.0
+    assert [a.converged for a in err.attempts] == [True, False]  # 0 -> 4 mm, 4 -> 36 mm; no third try
     assert math.isclose(err.last_converged_mm, 4.0, rel_tol=1e-12)
     failed = [a for a in err.attempts if not a.converged]
     assert failed and all(a.iterations <= 2 for a in err.attempts)

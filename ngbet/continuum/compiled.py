@@ -10,12 +10,16 @@ small second source file, so the large file depends on the expression alone.
 
 This module puts a caching ``ngscxx`` and ``ngsld`` in front of NGSolve's (on ``PATH`` while
 compiling): the object file of a source is kept under :func:`cache_dir`, named by a SHA-256 of
-the source, the NGSolve version and the compiler wrapper, and copied back when the same source
-comes again; its shared library (linked against NGSolve's libraries, 0.1–0.2 s) is kept beside
-it. The address table is compiled directly (no NGSolve headers) and linked alone, by ``ld``
-without the C++ driver, against a private copy of the cached library, whose address symbols bind
-to that table when NGSolve loads it (two compiles of one source in a process keep apart). A warm
-compile then costs ~50 ms per library (0.3 s for the six of the default scene, measured under
+the source (the expression, with its constants as literals), the NGSolve version and the compiler
+wrapper, and copied back when the same source comes again; its shared library (linked against
+NGSolve's libraries, 0.1–0.2 s) is kept beside it. Each kept file has a checksum file beside it
+(the SHA-256 of what was built and the key it was built for), checked on the copy that is used: a
+file that does not match (changed bytes, or another source's file under this key) is removed with
+an ``ngbet:`` line on stderr and built again (``"auto"``: interpreted, as for a missing file).
+The address table is compiled directly (no NGSolve headers) and linked alone, by ``ld`` without
+the C++ driver, against a private copy of the cached library, whose address symbols bind to that
+table when NGSolve loads it (two compiles of one source in a process keep apart). A warm compile
+then costs ~50 ms per library (0.3 s for the six of the default scene, measured under
 load 2–4; 1.2 s when each was linked against NGSolve's libraries).
 
 ``solver.compile``:
@@ -85,31 +89,50 @@ NATIVE_IF_CACHED = 30_000
 NATIVE_COLD = 500_000
 
 _NGSCXX = """#!/bin/sh
-# ngbet: object cache in front of NGSolve's ngscxx (called as: ngscxx -c SOURCE -o OBJECT)
+# ngbet: object cache in front of NGSolve's ngscxx (called as: ngscxx -c SOURCE -o OBJECT). KEY hashes
+# this wrapper's key and the source (the expression, its constants as literals); the object is kept as
+# KEY.o beside KEY.o.sum ("<sha256 of the object> KEY"). A kept object is used only when its copy
+# matches both; else the entry (and its library) is removed, and built again unless only cached code
+# is asked for.
 src="$2"; obj="$4"
 if ! grep -q '#include' "$src"; then exec {cxx} -c -fPIC -x c++ "$src" -o "$obj"; fi
 key=$(cat "$0.key" "$src" | sha256sum | cut -c1-40)
 hit="{objects}/$key.o"
 echo "$key" > "$obj.key"
-if [ -f "$hit" ]; then cp "$hit" "$obj"; exit 0; fi
+if [ -f "$hit" ] && cp "$hit" "$obj"; then
+  [ "$(sha256sum < "$obj" | cut -c1-64) $key" = "$(cat "$hit.sum" 2>/dev/null)" ] && exit 0
+  echo "ngbet: native-code cache: $hit does not match its checksum; removed" >&2
+  rm -f "$hit" "$hit.sum" "{objects}/$key.so" "{objects}/$key.so.sum" "$obj"
+fi
 if [ -n "$NGBET_CACHED_ONLY" ]; then exit 1; fi
 {real} "$@" || exit $?
-cp "$obj" "$hit.$$" && mv "$hit.$$" "$hit"
+echo "$(sha256sum < "$obj" | cut -c1-64) $key" > "$hit.sum.$$" && cp "$obj" "$hit.$$" \\
+  && mv "$hit.sum.$$" "$hit.sum" && mv "$hit.$$" "$hit"
 """
 
 _NGSLD = """#!/bin/sh
 # ngbet: NGSolve's ngsld (called as: ngsld -shared CODE.o TABLE.o -o LIBRARY -l...). The code's
-# shared library is cached by the code object's key and copied beside LIBRARY; LIBRARY is the
-# address table alone, linked without the C++ driver, with the copy as its dependency (the copy's
-# address symbols bind to this table when LIBRARY is loaded). Any other call: the plain link.
+# shared library is cached by the code object's key as KEY.so beside KEY.so.sum (as the objects) and
+# copied beside LIBRARY; a copy that does not match is linked again. LIBRARY is the address table
+# alone, linked without the C++ driver, with the copy as its dependency (the copy's address symbols
+# bind to this table when LIBRARY is loaded). Any other call: the plain link.
 if [ "$1" = -shared ] && [ "$4" = -o ] && [ -f "$2.key" ] && [ -n "{ld}" ]; then
   code="$2"; table="$3"; lib="$5"; shift 5
-  so="{objects}/$(cat "$code.key").so"
-  if [ ! -f "$so" ]; then
-    {cxx} {args} -shared "$code" -o "$so.$$" "$@" && mv "$so.$$" "$so" || exit 1
-  fi
+  key=$(cat "$code.key")
+  so="{objects}/$key.so"
   dir=$(cd "$(dirname "$lib")" && pwd) || exit 1
-  cp "$so" "$dir/code.so" && exec {ld} -shared "$table" "$dir/code.so" -o "$lib"
+  if [ -f "$so" ] && cp "$so" "$dir/code.so" \\
+     && [ "$(sha256sum < "$dir/code.so" | cut -c1-64) $key" = "$(cat "$so.sum" 2>/dev/null)" ]; then
+    exec {ld} -shared "$table" "$dir/code.so" -o "$lib"
+  fi
+  if [ -f "$so" ]; then
+    echo "ngbet: native-code cache: $so does not match its checksum; linked again" >&2
+    rm -f "$so" "$so.sum"
+  fi
+  {cxx} {args} -shared "$code" -o "$dir/code.so" "$@" || exit 1
+  echo "$(sha256sum < "$dir/code.so" | cut -c1-64) $key" > "$so.sum.$$" && cp "$dir/code.so" "$so.$$" \\
+    && mv "$so.sum.$$" "$so.sum" && mv "$so.$$" "$so"
+  exec {ld} -shared "$table" "$dir/code.so" -o "$lib"
 fi
 exec {cxx} {args} "$@"
 """

@@ -89,6 +89,22 @@ class StabilityDiagnosis:
         """Whether the tangent is positive definite (None: not tested)."""
         return None if not self.eigenvalues else self.eigenvalues[0] > 0
 
+    def advice(self) -> str:
+        """Cause and remedy in one sentence for the terminal ("" when the diagnosis names no remedy)."""
+        if self.ellipticity_loss:
+            e = self.ellipticity_loss[0]
+            return (f"alpha{e.family} = 0 leaves the model ill-posed for the compressed yarns of family "
+                    f"{e.family} ({e.area_mm2:.0f} mm² lost ellipticity): give alpha{e.family} > 0")
+        if self.mode_class == "discretization":
+            lo, hi = self.stabilization_K_Pa
+            return (f"an unstable mode of the discretization at u0 = {self.u0_mm:.4g} mm: raise "
+                    f"effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa), e.g. to material.K_el = "
+                    f"{self.K_el:.3g} Pa")
+        if self.mode_class == "continuum" and self.stable is False:
+            return (f"the model's own limit point or bifurcation at u0 = {self.u0_mm:.4g} mm: "
+                    "solver.path_following = 'auto' follows the path through it")
+        return ""
+
     def message(self) -> str:
         """The diagnosis in words (for the error message)."""
         if self.skipped:

@@ -161,7 +161,7 @@ def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None
         import matplotlib.pyplot as plt
         from matplotlib.collections import LineCollection
     except ImportError:
-        log.warning("no yarn figure: matplotlib is not installed (pip install 'ngbet[viz]')")
+        log.warning("no yarn figure: matplotlib is not installed (pip install matplotlib)")
         return
 
     x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3

@@ -132,7 +132,11 @@ def _extract(study: Study, c: Case, record: dict[str, Any], run_dir: Path, out: 
             tables.setdefault(name, []).extend({"case": c.index, **r} for r in trs)
     except Exception as exc:
         record["extract_error"] = f"{type(exc).__name__}: {exc}"
-        log.warning("study %s case %d: extraction failed: %s", study.name, c.index, exc)
+        if isinstance(exc, ImportError) and exc.name:  # pyvista reads the fields
+            log.warning("study %s case %d: no tables from the fields: %s is not installed (pip install %s)",
+                        study.name, c.index, exc.name, exc.name)
+        else:
+            log.warning("study %s case %d: extraction failed: %s", study.name, c.index, exc)
 
 
 def _cell(v: Any) -> Any:

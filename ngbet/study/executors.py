@@ -129,6 +129,9 @@ def worker_init(parent_alive: Any, ngbet_env: dict[str, str]) -> None:
     (the fork server's environment is the one it started with).
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from ..messages import install
+
+    install()  # the case's warnings as one `ngbet:` line each, as the command's
     for k in [k for k in os.environ if k.startswith("NGBET_") and k not in ngbet_env]:
         del os.environ[k]
     os.environ.update(ngbet_env)

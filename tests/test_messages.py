@@ -1,0 +1,95 @@
+"""What the commands say on the terminal: one ``ngbet:`` line per warning, nothing on stdout with
+``--quiet``, and a solver failure's cause and remedy."""
+
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+import sys
+import warnings
+
+import pytest
+
+from ngbet.cli import exit_code, main
+from ngbet.continuum.stability import EllipticityLoss, StabilityDiagnosis
+from ngbet.errors import ConvergenceError
+from ngbet.messages import messages
+from ngbet.scene import SceneWarning
+
+SMALL = ["--set", "discretization.mesh_size_mm=20", "--set", "loading.u0_mm=10", "--set", "loading.stops_mm=[]",
+         "--set", "outputs.vtk=false", "--set", "outputs.plot=false"]
+
+
+def test_a_scene_warning_is_one_ngbet_line_and_quiet_prints_nothing_else(tmp_path):
+    p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(tmp_path / "run"), *SMALL,
+                        "--set", "discrete.spacing_mm=3"], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout == ""
+    # said once, although the scene is built more than once; no Python source line
+    assert p.stderr.splitlines() == ["ngbet: model = 'continuum' does not read discrete.spacing_mm: "
+                                     "these values have no effect"]
+
+
+def test_without_quiet_the_results_go_to_stdout(tmp_path, capsys):
+    assert main(["run", "--out", str(tmp_path / "run"), *SMALL]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("ngbet: ok: u0 = 10 mm in ") and out[1].startswith("  u0 =  10.00 mm   force =")
+
+
+def test_log_records_and_warnings_are_one_line_each_and_restored_after(capsys):
+    before = warnings.showwarning
+    with messages():
+        for _ in range(2):  # said once
+            logging.getLogger("ngbet.somewhere").warning("first line\n   second line")
+        logging.getLogger("ngbet.somewhere").info("not shown")
+        with warnings.catch_warnings():
+            warnings.simplefilter("always")
+            for _ in range(2):
+                warnings.warn(SceneWarning("a key\nwithout effect"), stacklevel=1)
+            warnings.warn("a library's warning", RuntimeWarning, stacklevel=1)
+    assert warnings.showwarning is before
+    assert capsys.readouterr().err.splitlines() == ["ngbet: first line second line", "ngbet: a key without effect",
+                                                    "ngbet: RuntimeWarning: a library's warning"]
+
+
+def _ill_posed() -> ConvergenceError:
+    """The failure of the paper's scene with alpha2 = 0 on a 10 mm mesh, as the diagnosis describes it."""
+    loss = EllipticityLoss(family=2, area_mm2=1097.0, min_eigenvalue_Ksh=-29.75)
+    detail = StabilityDiagnosis(u0_mm=48.1377, eigenvalues=(-1.2e-4, 8e-7, 2.2e-6), mode_class="discretization",
+                                ratio=1.0, location_mm=(195.0, 66.0), ellipticity_loss=(loss,))
+    return ConvergenceError("load step cut below the minimum 0.05 mm on the way from 48.1377 mm to 56 mm",
+                            48.1377, diagnosis=detail.message(), detail=detail)
+
+
+def test_a_solver_failure_says_its_cause_and_remedy():
+    code, msg = exit_code(_ill_posed())
+    assert code == 1
+    assert msg == ("the solver stopped after u0 = 48.1377 mm: load step cut below the minimum 0.05 mm on the way "
+                   "from 48.1377 mm to 56 mm; alpha2 = 0 leaves the model ill-posed for the compressed yarns of "
+                   "family 2 (1097 mm² lost ellipticity): give alpha2 > 0")
+
+
+@pytest.mark.parametrize(("detail", "remedy"), [
+    (StabilityDiagnosis(u0_mm=30.0, eigenvalues=(-1e-3,), mode_class="discretization",
+                        stabilization_K_Pa=(10.0, 20.0), K_el=2e6),
+     "raise effects.stabilization_K (now 10 to 20 Pa), e.g. to material.K_el = 2e+06 Pa"),
+    (StabilityDiagnosis(u0_mm=30.0, eigenvalues=(-1e-3,), mode_class="continuum"),
+     "solver.path_following = 'auto' follows the path through it"),
+    (StabilityDiagnosis(u0_mm=30.0, eigenvalues=(1e-3,), mode_class="none"), None),
+])
+def test_each_diagnosis_names_its_remedy(detail, remedy):
+    advice = detail.advice()
+    assert advice.endswith(remedy) if remedy else advice == ""
+
+
+@pytest.mark.integration
+def test_an_ill_posed_scene_fails_with_the_remedy_on_the_terminal(tmp_path):
+    out = tmp_path / "run"
+    p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(out), "--set",
+                        "material.alpha2=0", "--set", "discretization.mesh_size_mm=10", "--set", "outputs.vtk=false",
+                        "--set", "outputs.plot=false"], capture_output=True, text=True)
+    assert p.returncode == 1 and p.stdout == ""
+    (line,) = p.stderr.splitlines()
+    assert line.startswith("ngbet: the solver stopped after u0 = ") and "give alpha2 > 0" in line
+    assert json.loads((out / "summary.json").read_text())["status"] == "failed"
