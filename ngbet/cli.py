@@ -80,11 +80,8 @@ def load_scene(path: str | None, overrides: list[str]) -> Scene:
         warnings.simplefilter("always", SceneNote)
         warnings.simplefilter("always", SceneWarning)
         scene = Scene.from_dict(apply_changes(data, changes))
-    for w in caught:
-        if issubclass(w.category, (SceneNote, SceneWarning)):
-            _say(f"{'note' if issubclass(w.category, SceneNote) else 'warning'}: {w.message}")
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    for w in caught:  # shown as one `ngbet:` line each, once (ngbet.messages)
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     return scene
 
 

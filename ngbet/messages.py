@@ -57,9 +57,10 @@ class OneLine(logging.Formatter):
 def show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
                  file: Any = None, line: str | None = None) -> None:
     """A warning as one ``ngbet: ...`` line on stderr, without Python's source line; each once."""
-    from .scene import SceneWarning
+    from .scene import SceneNote, SceneWarning
 
-    kind = "" if issubclass(category, SceneWarning) else f"{category.__name__}: "
+    kind = ("note: " if issubclass(category, SceneNote) else "" if issubclass(category, SceneWarning)
+            else f"{category.__name__}: ")
     text = one_line(f"{kind}{message}")
     if text not in _SHOWN:
         _SHOWN.add(text)
