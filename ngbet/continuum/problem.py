@@ -149,6 +149,7 @@ class ContinuumProblem:
         self._load_fields(sp)
         self._weights = self._norm_weights()
         self.lam = 0.0
+        self._lam_mass: tuple[slice, np.ndarray] | None = None  # Λ's rows and the diagonal of its mass matrix
         self._t_residual = 0.0
         self._n_residual = 0
 
@@ -279,9 +280,60 @@ class ContinuumProblem:
         """The total energy (Lagrangian) per unit thickness at x [J/m]."""
         return float(self.a.Energy(self.gf.vec))
 
-    def factorize(self) -> None:
-        """Linearize at the current state and factorize."""
-        self.linear.factorize(self.gf.vec)
+    def factorize(self, shift: float = 0.0) -> float:
+        """Linearize at the current state and factorize.
+
+        ``shift`` > 0: the diagonal raised by s |diag|, s ≥ shift enough for a positive definite
+        matrix where that can be tested (:meth:`NewtonLinearSolver.factorize`); returns s.
+        """
+        return self.linear.factorize(self.gf.vec, shift)
+
+    def merit(self, r: np.ndarray) -> float:
+        """The energy plus ½ρ‖Π(φ − i8)‖² at the state whose residual is ``r``: a merit for descent.
+
+        The Lagrangian alone is no merit off the constraint (Λ(φ − i8) can fall without bound).
+        The constraint's element moments come from the residual's Λ rows
+        r_Λ = ∫ δΛ (φ − i8 − Λ/K) with the diagonal of Λ's mass matrix (L2-orthogonal basis);
+        ρ is the augmentation of the Newton matrix (or the penalty K).
+        """
+        E = self.energy()
+        if "lam" not in self.field_names:
+            return E
+        if self._lam_mass is None:
+            V = self.X.components[2]
+            m = ngs.BilinearForm(V, symmetric=True)
+            m += V.TrialFunction() * V.TestFunction() * ngs.dx
+            m.Assemble()
+            rng = self.X.Range(2)
+            self._lam_mass = (slice(rng.start, rng.stop), np.array([m.mat[i, i] for i in range(V.ndof)]))
+        rows, mass = self._lam_mass
+        rho = self.linear.K_aug or self.scene.effects.penalty_K
+        return E + 0.5 * rho * float(np.sum(r[rows] ** 2 / mass))
+
+    @property
+    def can_relax(self) -> bool:
+        """Whether the Newton matrix is a Hessian (condensed, or no multiplier).
+
+        Then energy descent and the stability test work (:func:`ngbet.continuum.solver.relax`).
+        """
+        return self.linear.condensed or "lam" not in self.field_names
+
+    def lowest_mode(self) -> tuple[float, np.ndarray]:
+        """The lowest eigenvalue of the scaled tangent at the current state and its mode (full length)."""
+        from .stability import lowest_eigenpair
+
+        mu, mode = lowest_eigenpair(self)
+        self._w.FV().NumPy()[:] = mode
+        self.linear.extend(self._w)  # the condensed local dofs follow
+        full = self._w.FV().NumPy().copy()
+        full[self.dirichlet] = 0.0
+        return mu, full
+
+    def locate(self, dx: np.ndarray) -> dict[str, object]:
+        """Where a change of state ``dx`` (full length) lives: the centroid and extent of |∇δu|² [mm]."""
+        from .stability import field_location
+
+        return field_location(self, dx)
 
     def solve(self, r: np.ndarray) -> np.ndarray:
         """The correction −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""

@@ -58,7 +58,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             try:
                 res = _carry_load(problem, scene, recorder.on_step, bar, out)
             except ConvergenceError as err:
-                info.update(_solver_info(problem, None), **err.path_info)
+                info.update(_solver_info(problem, None), **snaps_in_units(err.path_info, scene.specimen.t))
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
                     plot_force(out)
@@ -120,6 +120,8 @@ class _StepWriter:
         p, o = self.problem, self.problem.scene.outputs
         row: dict[str, Any] = {"step": len(self.writer.rows) + 1, "u0_mm": round(info.u0 * 1e3, 9)}
         row.update(self._observables(info))
+        if info.snap:  # a snap-through ended at this step: the energy it released [J]
+            row.update(snap=1, released_J=info.released * p.scene.specimen.t)
         now = time.perf_counter()
         row["newton_iterations"] = info.iterations
         row["step_wall_s"] = now - self.t_prev
@@ -197,10 +199,27 @@ def _final_files(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out
     return writer.summary(info, "ok")
 
 
+def snaps_in_units(path_info: dict[str, Any], t: float) -> dict[str, Any]:
+    """``path_info`` with its snap-throughs in N, J and mm (the solver's are per unit thickness)."""
+    snaps = path_info.get("snaps")
+    if not snaps:
+        return path_info
+    out = []
+    for s in snaps:
+        out.append({"u0_mm": s["u0_mm"], "u0_before_mm": s["u0_before_mm"],
+                    "force_before_N": s["reaction_before"] * t, "force_after_N": s["reaction_after"] * t,
+                    "energy_released_J": s["released"] * t, "clamp_work_J": s["work"] * t,
+                    "energy_before_J": s["energy_before"] * t, "energy_after_J": s["energy_after"] * t,
+                    "lowest_eigenvalue_after": s["lowest_eigenvalue_after"],
+                    "relaxation_iterations": s["relaxation_iterations"],
+                    **{k: s[k] for k in ("location_mm", "spread_mm", "max_du_mm") if k in s}})
+    return {**path_info, "snaps": out}
+
+
 def _solver_info(problem: ContinuumProblem, res: PathResult | None) -> dict[str, Any]:
     d: dict[str, Any] = {"timers": dict(problem.timers), "counts": dict(problem.counts)}
     if res is not None:
-        d.update(res.path_info)
+        d.update(snaps_in_units(res.path_info, problem.scene.specimen.t))
         d["load_steps"] = len(res.steps)
         d["step_cuts"] = res.cuts
         d["newton_iterations"] = sum(s.iterations for s in res.steps) + sum(

@@ -208,6 +208,28 @@ def mode_constraint_ratio(problem: ContinuumProblem, x: np.ndarray) -> tuple[flo
     return float(np.sqrt(num / max(den, 1e-300))), where
 
 
+def field_location(problem: ContinuumProblem, dx: np.ndarray) -> dict[str, object]:
+    """Where a change of state ``dx`` (full length) lives: centroid and spread of |∇δu|², and its size.
+
+    Returns ``location_mm`` (X, Y), ``spread_mm`` (the root-mean-square distance from the centroid,
+    weighted by |∇δu|²: small for a local jump, about the specimen's size for a global one) and
+    ``max_du_mm`` (the largest nodal |δu|).
+    """
+    gf = ngs.GridFunction(problem.X)
+    gf.vec.FV().NumPy()[:] = dx
+    du = gf.components[0]
+    G = ngs.Grad(du)
+    mesh = problem.mesh
+    dens = ngs.InnerProduct(G, G)
+    tot = max(ngs.Integrate(dens, mesh), 1e-300)
+    cx = ngs.Integrate(dens * ngs.x, mesh) / tot
+    cy = ngs.Integrate(dens * ngs.y, mesh) / tot
+    spread = math.sqrt(max(ngs.Integrate(dens * ((ngs.x - cx) ** 2 + (ngs.y - cy) ** 2), mesh) / tot, 0.0))
+    vals = [du(mesh(*v.point[:2])) for v in mesh.vertices]
+    big = max((math.hypot(*v) for v in vals), default=0.0)
+    return {"location_mm": [1e3 * cx, 1e3 * cy], "spread_mm": 1e3 * spread, "max_du_mm": 1e3 * big}
+
+
 def write_mode(problem: ContinuumProblem, mode: np.ndarray, path: Path, title: str = "") -> list[Path]:
     """The mode (δu, δφ) of an instability as ``path``.vtu and ``path``.png, δu scaled to 1 mm at most.
 
