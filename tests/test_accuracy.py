@@ -309,6 +309,58 @@ def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
     assert a["chosen"]["order_u"] == 10 and a["attempts"][0]["discretization"]["order_u"] == 8
 
 
+def test_an_unreachable_target_is_refused_before_solving(tmp_path, capsys):
+    """Below the finest rung's expected error (2.5e-5) no setting can be expected to meet the target:
+    exit 2 at once, naming the best reachable accuracy, and nothing is solved."""
+    from ngbet.continuum import estimate
+
+    out = tmp_path / "acc1e-6"
+    assert main(["run", "--quiet", "--accuracy", "1e-6", "--out", str(out)]) == 2
+    msg = capsys.readouterr().err
+    assert "discretization.target_error = 1e-06" in msg and "best reachable accuracy is about 2.5e-05" in msg
+    assert estimate.reachable_accuracy() == 2.5e-5
+    assert not (out / "results.csv").exists()
+
+
+def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path):
+    """A finer rung whose estimate is no better than the best so far ends the climb (exit 1, not met);
+    the best rung is run again so that its files are the ones left, and a failed rung's solve time
+    is its wall time, not zero."""
+    from ngbet.continuum import estimate
+    from ngbet.errors import ConvergenceError
+
+    calls = []
+    errors = {2: 4e-3, 3: 3e-3, 4: 3.2e-3}
+
+    def run_one(sc, out):
+        p = sc.discretization.order_u
+        calls.append(p)
+        if p == 5:
+            raise AssertionError("the ladder went past a rung that did not improve")
+        return {"force_N": 107.0, "force_error_rel": errors[p], "solve_s": 1.0, "estimate_s": 0.1,
+                "u0_reached_mm": 56.0}
+
+    with pytest.raises(ConvergenceError, match="not reached: p = 4 .* no better than 0.003 at p = 3"):
+        estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 2.5e-3}),
+                                 tmp_path, run_one)
+    assert calls == [2, 3, 4, 3]  # the best rung (p = 3) again, last
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["status"] == "failed" and not s["accuracy"]["met"] and s["accuracy"]["chosen"]["order_u"] == 3
+
+    def failing_first(sc, out):
+        if sc.discretization.order_u == 8:
+            import time
+
+            time.sleep(0.05)
+            raise ConvergenceError("load step cut below the minimum", last_converged_mm=48.0)
+        return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
+
+    s = estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
+                                 tmp_path, failing_first)
+    a = s["accuracy"]
+    assert a["attempts"][0]["solve_s"] >= 0.05 and a["solve_s"] >= 1.05
+
+
 def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
     """The rungs' expected errors were measured on Netgen's meshes: a scene's corner_bisections
     does not leak into the discretizations the ladder tries."""

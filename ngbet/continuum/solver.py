@@ -118,6 +118,8 @@ class NewtonReport:
     damping: list[float]  # accepted damping factor per iteration
     reason: str = ""
     residual: np.ndarray | None = None  # r at the returned state (reactions come from it)
+    #: ‖next correction‖ / ‖last correction‖ where measured (one-step estimates), else nan
+    contraction: float = math.nan
 
 
 def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
