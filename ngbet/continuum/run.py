@@ -120,8 +120,8 @@ class _StepWriter:
         p, o = self.problem, self.problem.scene.outputs
         row: dict[str, Any] = {"step": len(self.writer.rows) + 1, "u0_mm": round(info.u0 * 1e3, 9)}
         row.update(self._observables(info))
-        if info.snap:  # a snap-through ended at this step: the energy it released [J]
-            row.update(snap=1, released_J=info.released * p.scene.specimen.t)
+        # a snap-through ended at this step (1), and the energy it released [J] (as the network's rows)
+        row.update(snap=int(info.snap), released_J=info.released * p.scene.specimen.t if info.snap else 0.0)
         now = time.perf_counter()
         row["newton_iterations"] = info.iterations
         row["step_wall_s"] = now - self.t_prev

@@ -210,7 +210,7 @@ class RelaxSettings:
     """Pseudo-transient continuation to a stable equilibrium at a fixed load (:func:`relax`)."""
 
     #: factorizations allowed for one relaxation
-    max_iterations: int = 3000
+    max_iterations: int = 1500
     #: the first shift s (of |diag J|), and at least twice the lowest scaled eigenvalue's modulus
     first_shift: float = 1e-6
     #: the smallest shift
@@ -526,8 +526,9 @@ def continuation(
                       stops=tuple(stops), land_within=0.2, max_attempts=max_attempts)
     if path_following != "auto" or arclength is None:
         # displacement control relaxes to a stable state where the path folds (the last increment
-        # before the minimum); a problem without a Hessian tangent cannot (no stability test)
-        below = min_step / settings.cut if snap and getattr(problem, "can_relax", False) else 0.0
+        # before the minimum, if within twice the minimum: a snap is bracketed as closely as the
+        # steps go); a problem without a Hessian tangent cannot (no stability test)
+        below = min(min_step / settings.cut, 2 * min_step) if snap and getattr(problem, "can_relax", False) else 0.0
         corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below)
         try:
             res = follow_path(corrector, ctl, on_step=on_step, progress=progress)

@@ -107,8 +107,9 @@ class StabilityDiagnosis:
             kind = "a mode of the discretization: i8 varies inside the elements and phi does not follow"
             if not self.ellipticity_loss:
                 lo, hi = self.stabilization_K_Pa
-                kind += (f"; raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa), e.g. to "
-                         f"material.K_el = {self.K_el:.3g} Pa")
+                kind += (f"; raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa) to about the yarns' "
+                         f"elongation modulus: --set effects.stabilization_K={self.K_el:.3g} (material.K_el "
+                         "stays as it is)")
         else:
             kind = ("a mode of the constrained continuum (phi follows i8): the model's own limit point or "
                     "bifurcation; solver.path_following = 'auto' follows the path through it and reports its kind")
