@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from ..scene import AUTO, Discretization, Scene
+from .solver import RelaxSettings
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +69,8 @@ CORNER_LEVELS = 3
 THETA_CORNER = 2.0
 #: Newton tolerance of the enriched solve (relative energy): the force to ~1e-7 relative
 ENRICHED_RTOL = 1e-8
+#: the relaxation to a stable state of an enriched level where damped Newton fails: a bounded effort
+ENRICHED_RELAX = RelaxSettings(max_iterations=60, kicks=0)
 
 
 #: factor on |F_p − F_p+2|, the plateau check: on a sequence converging monotonically with ratio
@@ -140,6 +143,7 @@ class ForceErrorEstimator:
         self._enriched: Any = None  # p + 1
         self._enriched2: Any = None  # p + 2, on the same mesh as p + 1
         self.total_s = 0.0
+        self.notes: dict[str, str] = {}  # load [mm] -> what the estimate there could not check
 
     def _build(self, up: int) -> Any:
         """The problem ``up`` orders above the run's, on the enrichment's mesh."""
@@ -173,31 +177,40 @@ class ForceErrorEstimator:
         pb = self.problem
         if self._enriched is None:
             self._enriched = self._build(1)
-        F1, its1, why1 = self._level(self._enriched, pb, lam)
+        F1, its1, why = self._level(self._enriched, pb, lam, relax_on_failure=True)
         F2, its2, why2 = math.nan, 0, ""
-        if not why1:
+        if not why:
             if self._enriched2 is None:
                 self._enriched2 = self._build(2)
-            F2, its2, why2 = self._level(self._enriched2, self._enriched, lam)
-        why = why1 or why2
+            F2, its2, why2 = self._level(self._enriched2, self._enriched, lam, relax_on_failure=False)
+            if why2:
+                self.notes[f"{lam * 1e3:g}"] = f"no plateau check at p + 2: {why2}"
         prof = math.nan
-        if self.profile_points and not why1:
+        if self.profile_points and not why:
             _, uy = obs.midaxis_profile(pb, self.profile_points)
             _, uy_plus = obs.midaxis_profile(self._enriched, self.profile_points)
             prof = self.theta * 1e3 * float(np.max(np.abs(uy - uy_plus)))
         dt = time.perf_counter() - t0
         self.total_s += dt
         if why:
+            why = (f"no error bar: {why}; the run may stand near a limit point or a locking discretization, "
+                   "where the p-sequence says nothing about the error")
             log.warning("error estimate at u0 = %.4g mm: %s", lam * 1e3, why)
             return Estimate(force_N, math.nan, F1, prof, self.method, dt, its1 + its2, F2, why)
-        err = max(self.theta * abs(force_N - F1), THETA_PLATEAU * abs(force_N - F2))
+        err = self.theta * abs(force_N - F1)
+        if math.isfinite(F2):
+            err = max(err, THETA_PLATEAU * abs(force_N - F2))
         return Estimate(force_N, err, F1, prof, self.method, dt, its1 + its2, F2)
 
-    def _level(self, enr: Any, src: Any, lam: float) -> tuple[float, int, str]:
-        """The force of ``enr`` at ``lam`` from the state of ``src``: (F [N], Newton iterations, why not)."""
+    def _level(self, enr: Any, src: Any, lam: float, relax_on_failure: bool) -> tuple[float, int, str]:
+        """The force of ``enr`` at ``lam`` from the state of ``src``: (F [N], Newton iterations, why not).
+
+        ``relax_on_failure``: where damped Newton fails, descend to the stable equilibrium next to
+        the carried state (:func:`ngbet.continuum.solver.relax`, bounded by :data:`ENRICHED_RELAX`).
+        """
         from . import observables as obs
         from .run import newton_settings
-        from .solver import newton
+        from .solver import NewtonReport, newton, relax
 
         for i in range(len(src.field_names)):
             enr.gf.components[i].Set(src.gf.components[i])
@@ -214,11 +227,17 @@ class ForceErrorEstimator:
             settings = dataclasses.replace(newton_settings(enr.scene),
                                            rtol=max(ENRICHED_RTOL, enr.scene.solver.rtol))
             report = newton(enr, settings, enr.energy())
+            if not report.converged and relax_on_failure and enr.can_relax:
+                # damped Newton's monotonicity test fails near a soft corner mode: descend to the
+                # stable equilibrium next to the carried state instead
+                enr.x[:] = x0
+                rel = relax(enr, settings, enr.energy(), ENRICHED_RELAX)
+                report = NewtonReport(rel.converged, report.iterations + rel.iterations, rel.history, [],
+                                      f"{report.reason}; relaxation: {rel.reason}", rel.residual)
             if not report.converged or report.residual is None:
                 return math.nan, report.iterations, (
-                    f"the enriched problem (p = {p_enr}) has no equilibrium that Newton reaches from the run's "
-                    f"state ({'; '.join(t for t in (first, report.reason) if t)}): the run may stand near a "
-                    "limit point or a locking discretization, and the p-sequence gives no error bar here")
+                    f"the enriched problem (p = {p_enr}) has no equilibrium that Newton reaches from the state "
+                    f"one order below ({'; '.join(t for t in (first, report.reason) if t)})")
         assert report.residual is not None  # a converged report carries its residual
         return obs.reaction_force(enr, report.residual) * enr.scene.specimen.t, report.iterations, ""
 
@@ -455,6 +474,8 @@ class RunEstimates:
             out["force_enriched_N"] = [e.force_enriched_N, e.force_enriched2_N]
         if self.unreliable:
             out["error_estimate_unreliable"] = self.unreliable
+        if self.estimator.notes:
+            out["error_estimate_checks"] = self.estimator.notes
         if self.note:
             out["error_estimate_note"] = self.note
         return out

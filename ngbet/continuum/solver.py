@@ -215,6 +215,9 @@ class RelaxSettings:
     first_shift: float = 1e-6
     #: the smallest shift
     min_shift: float = 1e-12
+    #: a decrement below the tolerance ends the shifted steps only with a shift at most this
+    #: (a larger one hides soft directions that Newton would still move along)
+    newton_shift: float = 1e-8
     #: the largest shift before giving up
     max_shift: float = 1e3
     #: the kick along an unstable mode: its largest weighted entry (u/L, phi)
@@ -269,13 +272,12 @@ def relax(problem: NonlinearProblem, newton_settings: NewtonSettings, e_ref: flo
         rep = newton(problem, newton_settings, e_ref)
         its += rep.iterations
         history.extend(rep.history)
-        if not rep.converged:
-            return RelaxReport(False, its, history, f"Newton after the relaxation: {rep.reason}", kicked_from=kicked)
         mu, mode = problem.lowest_mode()  # type: ignore[attr-defined]
-        if mu > 0:
+        if rep.converged and mu > 0:
             return RelaxReport(True, its, history, "relaxed to a stable equilibrium", rep.residual, mu, kicked)
-    return RelaxReport(False, its, history, f"the equilibria found are unstable (lowest scaled eigenvalue {mu:.3g})",
-                       lowest_eigenvalue=mu, kicked_from=kicked)
+        why = (f"the equilibria found are unstable (lowest scaled eigenvalue {mu:.3g})" if rep.converged
+               else f"Newton after the relaxation: {rep.reason}")
+    return RelaxReport(False, its, history, why, lowest_eigenvalue=mu, kicked_from=kicked)
 
 
 def _weights_of(problem: NonlinearProblem) -> np.ndarray:
@@ -320,7 +322,10 @@ def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float
             return False, its, "the relaxation gave a non-finite correction"
         history.append(delta)
         if delta <= tol:
-            return True, its, ""
+            if shift <= settings.newton_shift:
+                return True, its, ""
+            shift = max(shift / 100.0, settings.min_shift)  # small only because shifted: go on towards Newton
+            continue
         x0 = problem.x.copy()
         t = 1.0
         while t >= settings.min_step:
