@@ -27,8 +27,9 @@ reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accu
   estimate of F_p+1; converged, that level gives 107.29393 N, the p = 4 run's force); where
   Newton fails at p + 1 (next to a limit point, after a snap-through, on locking or split
   corners) the estimate says it cannot vouch: ``force_error_N`` is empty and
-  ``error_estimate_unreliable`` in summary.json says why. A failed p + 2 level leaves the p + 1
-  estimate and a note (``error_estimate_checks``);
+  ``error_estimate_unreliable`` in summary.json says why. The p + 2 level is taken by its one step
+  only, where that contracts; otherwise the p + 1 estimate stands with a note
+  (``error_estimate_checks``): a converged solve two orders up would cost more than the run;
 * an enriched solve on a mesh refined at the corners sees the corner error better, but Newton
   from the carried-over state does not converge there (the corner solution of the finer mesh is
   too far from the coarse one at 37–56 mm); only a full load continuation would do, at 2–4
@@ -187,7 +188,7 @@ class ForceErrorEstimator:
         if not why:
             if self._enriched2 is None:
                 self._enriched2 = self._build(2)
-            F2, its2, why2 = self._level(self._enriched2, self._enriched, lam)
+            F2, its2, why2 = self._level(self._enriched2, self._enriched, lam, converge=False)
             if why2:
                 self.notes[f"{lam * 1e3:g}"] = f"no plateau check at p + 2: {why2}"
         prof = math.nan
@@ -207,8 +208,12 @@ class ForceErrorEstimator:
             err = max(err, THETA_PLATEAU * abs(force_N - F2))
         return Estimate(force_N, err, F1, prof, self.method, dt, its1 + its2, F2)
 
-    def _level(self, enr: Any, src: Any, lam: float) -> tuple[float, int, str]:
-        """The force of ``enr`` at ``lam`` from the state of ``src``: (F [N], Newton iterations, why not)."""
+    def _level(self, enr: Any, src: Any, lam: float, converge: bool = True) -> tuple[float, int, str]:
+        """The force of ``enr`` at ``lam`` from the state of ``src``: (F [N], Newton iterations, why not).
+
+        ``converge``: where the one step does not contract, run Newton to convergence (else give up:
+        the p + 2 level, a check that is not worth a converged solve one order further up).
+        """
         from . import observables as obs
         from .run import newton_settings
         from .solver import newton
@@ -224,6 +229,8 @@ class ForceErrorEstimator:
             first = "" if report is None else (
                 f"one Newton step at p = {p_enr} contracts by {report.contraction:.2g}"
                 if report.converged else f"one Newton step at p = {p_enr}: {report.reason}")
+            if not converge and report is not None:
+                return math.nan, report.iterations, f"{first} (not solved further)"
             enr.x[:] = x0
             settings = dataclasses.replace(newton_settings(enr.scene),
                                            rtol=max(ENRICHED_RTOL, enr.scene.solver.rtol))

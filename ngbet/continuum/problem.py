@@ -86,6 +86,12 @@ STABILIZATION_C = 0.1
 STABILIZATION_CAP = 30.0
 
 
+#: inverted material (det F ≤ 0) on more than this fraction of the specimen makes a state
+#: inadmissible for the relaxation to a stable state (a few integration points at a singular clamp
+#: corner may invert without meaning anything)
+INVERTED_AREA_FRACTION = 1e-4
+
+
 def stabilization_modulus(scene: Scene, mesh: ngs.Mesh) -> CF | float:
     """K_s of ``effects.stabilization_K``: the constant, or ("auto") c min(α1, α2)/h_T², at most 30 K_el.
 
@@ -150,6 +156,8 @@ class ContinuumProblem:
         self._weights = self._norm_weights()
         self.lam = 0.0
         self._lam_mass: tuple[slice, np.ndarray] | None = None  # Λ's rows and the diagonal of its mass matrix
+        self._det_F: ngs.CoefficientFunction | None = None
+        self.inverted_allowed = 0.0  # inverted area [m²] a state may have and be admissible
         self._t_residual = 0.0
         self._n_residual = 0
 
@@ -291,11 +299,16 @@ class ContinuumProblem:
     def merit(self, r: np.ndarray) -> float:
         """The energy plus ½ρ‖Π(φ − i8)‖² at the state whose residual is ``r``: a merit for descent.
 
+        Infinite where the material is inverted somewhere (det F ≤ 0): the descent stays among
+        physical states.
+
         The Lagrangian alone is no merit off the constraint (Λ(φ − i8) can fall without bound).
         The constraint's element moments come from the residual's Λ rows
         r_Λ = ∫ δΛ (φ − i8 − Λ/K) with the diagonal of Λ's mass matrix (L2-orthogonal basis);
         ρ is the augmentation of the Newton matrix (or the penalty K).
         """
+        if self.admissible():  # outside the energy's domain: the material would turn inside out
+            return float("inf")
         E = self.energy()
         if "lam" not in self.field_names:
             return E
@@ -309,6 +322,27 @@ class ContinuumProblem:
         rows, mass = self._lam_mass
         rho = self.linear.K_aug or self.scene.effects.penalty_K
         return E + 0.5 * rho * float(np.sum(r[rows] ** 2 / mass))
+
+    def inverted_area(self) -> float:
+        """The area [m²] where det F ≤ 0 (the material turned inside out; the yarn invariants do not see it)."""
+        if self._det_F is None:
+            self._det_F = ngs.Det(ngs.Id(2) + ngs.Grad(self.u))
+        return float(ngs.Integrate(ngs.IfPos(-self._det_F, 1.0, 0.0), self.mesh))
+
+    def admissible(self) -> str:
+        """Why the current state is not a physical one ("" when it is).
+
+        Material inverted (det F ≤ 0) on more than :data:`INVERTED_AREA_FRACTION` of the specimen
+        beyond ``inverted_allowed`` [m²] (what there was where the relaxation began).
+        """
+        a = self.inverted_area()
+        if a <= self.inverted_allowed + INVERTED_AREA_FRACTION * self.scene.specimen.L * self.scene.specimen.W:
+            return ""
+        return f"det F <= 0 on {a * 1e6:.3g} mm² (the material turned inside out)"
+
+    def begin_relaxation(self) -> None:
+        """A relaxation starts from the current state: it may not invert more material than there is now."""
+        self.inverted_allowed = self.inverted_area()
 
     @property
     def can_relax(self) -> bool:

@@ -185,6 +185,13 @@ def _final_files(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out
     if scene.outputs.vtk:
         write_vtk(problem, out / "fields")
     info.update(_solver_info(problem, res))
+    problem.inverted_allowed = 0.0
+    inverted = problem.admissible()
+    if inverted:  # the energy has no barrier against it: say so rather than report the state as physical
+        warnings.append(f"at the final load {inverted}: the yarn invariants do not see the orientation of the "
+                        "material, so the model lets the specimen fold over itself there; the force there is "
+                        "not that of a physical state")
+        log.warning("%s", warnings[-1])
     info["warnings"] = warnings
     osc = obs.multiplier_oscillation(problem)
     if osc is not None:

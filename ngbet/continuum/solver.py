@@ -20,9 +20,10 @@ Snap-through:     under displacement control, when an increment no longer than `
                   near the predicted state), :func:`relax` looks for a stable equilibrium at
                   the same clamp displacement by pseudo-transient continuation from the
                   predicted state, kicked along the lowest mode of the tangent if that is
-                  unstable: (J + s |diag J|) dx = −r with the shift s following the decrement
-                  (switched evolution relaxation, s → 0 gives Newton). The state found is
-                  accepted only if the tangent is positive definite there; if the step released
+                  unstable: shifted Newton steps (J + s |diag J|) dx = −r, s raised until the
+                  matrix is positive definite, with a line search on the problem's merit
+                  (infinite outside the energy's domain: inverted material). The state found is
+                  accepted only if it is admissible and the tangent is positive definite there; if the step released
                   energy beyond the clamp's work it is recorded as a snap-through (load, energy
                   released, force before and after, where the jump lives).
 
@@ -258,6 +259,9 @@ def relax(problem: NonlinearProblem, newton_settings: NewtonSettings, e_ref: flo
     history: list[float] = []
     tol = newton_settings.rtol * abs(e_ref) + newton_settings.atol
     weights = _weights_of(problem)
+    begin = getattr(problem, "begin_relaxation", None)
+    if begin is not None:  # what the problem counts as admissible is judged against the start
+        begin()
     mu, mode = start_eigen if start_eigen is not None else problem.lowest_mode()  # type: ignore[attr-defined]
     kicked = math.nan
     its = 0
@@ -272,6 +276,10 @@ def relax(problem: NonlinearProblem, newton_settings: NewtonSettings, e_ref: flo
         rep = newton(problem, newton_settings, e_ref)
         its += rep.iterations
         history.extend(rep.history)
+        bad = problem.admissible() if rep.converged and hasattr(problem, "admissible") else ""
+        if bad:
+            return RelaxReport(False, its, history, f"the equilibrium found is not physical: {bad}",
+                               kicked_from=kicked)
         mu, mode = problem.lowest_mode()  # type: ignore[attr-defined]
         if rep.converged and mu > 0:
             return RelaxReport(True, its, history, "relaxed to a stable equilibrium", rep.residual, mu, kicked)
@@ -312,7 +320,8 @@ def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float
     r = problem.residual()
     E = merit(r)
     if not (np.all(np.isfinite(r)) and math.isfinite(E)):
-        return False, its, "residual is not finite at the start of the relaxation"
+        return False, its, "the relaxation starts outside the energy's domain (or with a non-finite residual)"
+    barrier = False  # a trial step left the energy's domain (e.g. inverted material)
     while its < settings.max_iterations:
         its += 1
         shift = problem.factorize(shift)
@@ -332,6 +341,7 @@ def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float
             problem.x[:] = x0 + t * dx
             r_new = problem.residual()
             E_new = merit(r_new)
+            barrier = barrier or E_new == math.inf
             if np.all(np.isfinite(r_new)) and E_new <= E - 1e-4 * t * delta:
                 break
             t *= 0.5
@@ -339,7 +349,9 @@ def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float
             problem.x[:] = x0
             shift = max(10.0 * shift, 1e-6)
             if shift > settings.max_shift:
-                return False, its, "no descent direction found in the relaxation"
+                return False, its, ("the descent ends where the material would turn inside out (det F <= 0): no "
+                                    "physical stable state was found at this clamp displacement" if barrier
+                                    else "no descent direction found in the relaxation")
             continue
         log.debug("relaxation %d: shift %.3g, step %.3g, decrement %.3g, energy %.12g", its, shift, t, delta, E_new)
         r, E = r_new, E_new
