@@ -120,3 +120,27 @@ def test_relaxation_leaves_an_unstable_equilibrium_along_its_mode():
     rep = relax(toy, NewtonSettings(), 1.0)
     assert rep.converged and abs(toy.x[1]) == pytest.approx(1.0, rel=1e-10)
     assert rep.kicked_from == -1.0 and rep.lowest_eigenvalue > 0
+
+
+class _WallAtZero(_DoubleWell):
+    """The double well with its right well outside the energy's domain (y > 0 inadmissible, as
+    inverted material is for the continuum): past the fold there is no admissible stable state."""
+
+    def merit(self, r):
+        return math.inf if self.x[1] > 0 else self.energy()
+
+    def admissible(self):
+        return "y > 0" if self.x[1] > 0 else ""
+
+
+def test_no_snap_into_an_inadmissible_state():
+    """The relaxation does not cross into the inadmissible region: the run stops at the fold with
+    the reason in the attempts, instead of jumping to the right well."""
+    from ngbet.continuum.solver import NewtonSettings, continuation
+    from ngbet.errors import ConvergenceError
+
+    with pytest.raises(ConvergenceError) as info:
+        continuation(_WallAtZero(), 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
+    assert info.value.last_converged_mm * 1e-3 < 2 / (3 * math.sqrt(3))
+    assert "no physical stable state" in info.value.attempts[-1].reason
+    assert info.value.path_info["relaxations"] == 1 and info.value.path_info["snaps"] == []
