@@ -247,6 +247,21 @@ def _assert_snaps(s, rows, n_min):
     return snaps
 
 
+def test_a_local_corner_snap_is_recorded_and_the_run_goes_on(tmp_path):
+    """0.25 mm corners without stabilization (p = 2): the corner loses stability at 52.7 mm in a
+    mode of the discretization; displacement control relaxes to the stable state at that clamp
+    displacement (a jump within 2 mm of a clamp corner, measured 1.6e-5 J released) and reaches
+    56 mm, the jump in results.csv and summary.json, and no material inverted at the end."""
+    s, rows, _ = _run(tmp_path, "corner", **{"discretization.corner_mesh_size_mm": 0.25,
+                                             "effects.stabilization_K": 0.0, "outputs.error_estimate": "off",
+                                             "outputs.profile": False})
+    assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
+    (jump,) = _assert_snaps(s, rows, 1)
+    X, Y = jump["location_mm"]
+    assert min(X, 220 - X) < 2 and min(Y, 70 - Y) < 2 and jump["spread_mm"] < 2
+    assert not any("inside out" in w for w in s["warnings"])
+
+
 def test_stiff_yarns_K_el_1e7_fold_has_no_physical_state_beyond_and_the_stabilization_removes_it(tmp_path):
     """K_el = 1e7 Pa (14 x Table 1): the path folds at 54.0 mm (a snap-back under arc length).
     Displacement control tries to relax to a stable state at the next clamp displacement, but the
@@ -276,21 +291,21 @@ def test_stiff_yarns_K_el_1e7_with_p1_multiplier(tmp_path):
     assert F[-1] > 2 * F56_LAGRANGE_H10
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("K_el,first_mm", [(1e8, 54.5), (1e9, 51.2)])
-def test_nearly_inextensible_yarns_snap_through_to_the_final_load(tmp_path, K_el, first_mm):
+@pytest.mark.parametrize("K_el", [1e8, 1e9])
+def test_nearly_inextensible_yarns_fold_where_no_physical_state_follows(tmp_path, K_el):
     """K_el = 1e8, 1e9 Pa: the path folds past 50 mm (a snap-back of the model: the quadratic shear
-    energy is not convex beyond 45°). Displacement control relaxes to the stable state at the same
-    clamp displacement, records each jump and goes on to 56 mm (measured on this mesh: jumps at
-    54.53 and 54.83 mm for 1e8, 2.6 J released at the first; at 51.28, 53.28 and 55.10 mm for 1e9).
-    The first jump is global (spread over tens of mm about the centre) and lowers the force."""
-    s, rows, _ = _run(tmp_path, "kel", **{"material.K_el": K_el, "outputs.error_estimate": "off",
-                                          "outputs.profile": False})
-    assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
-    snaps = _assert_snaps(s, rows, 1)
-    first = snaps[0]
-    assert abs(first["u0_mm"] - first_mm) < 0.3 and first["force_after_N"] < first["force_before_N"]
-    assert abs(first["location_mm"][0] - 110) < 10 and first["spread_mm"] > 20
+    energy is not convex beyond 45°). The relaxation at the next clamp displacement finds lower
+    energy only by turning material inside out (without that limit it jumps to states with det F <= 0
+    on about 2400 mm², measured for 1e8), so the run stops at the fold in bounded time, saying so,
+    with the converged steps on disk."""
+    with pytest.raises(ConvergenceError) as info:
+        _run(tmp_path, "kel", **{"material.K_el": K_el, "outputs.error_estimate": "off", "outputs.profile": False})
+    err = info.value
+    assert 50.0 <= err.last_converged_mm < 56.0
+    assert "no physical stable state" in err.attempts[-1].reason, err.attempts[-1]
+    assert "failed" in err.diagnosis and err.detail.eigenvalues and not err.detail.skipped, err.detail
+    rows = read_rows(tmp_path / "kel" / "results.csv")
+    assert math.isclose(rows[-1]["u0_mm"], err.last_converged_mm, rel_tol=1e-9)
 
 
 # ------------------------------------------------------------------------------ discretization

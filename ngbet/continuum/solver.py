@@ -211,7 +211,7 @@ class RelaxSettings:
     """Pseudo-transient continuation to a stable equilibrium at a fixed load (:func:`relax`)."""
 
     #: factorizations allowed for one relaxation
-    max_iterations: int = 1500
+    max_iterations: int = 500
     #: the first shift s (of |diag J|), and at least twice the lowest scaled eigenvalue's modulus
     first_shift: float = 1e-6
     #: the smallest shift
@@ -358,6 +358,10 @@ def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float
         shift = shift / 4.0 if t == 1.0 else 2.0 * shift
         if shift < settings.min_shift:
             shift = settings.min_shift
+    if barrier:
+        return False, its, (f"no physical stable state was found within {settings.max_iterations} relaxation "
+                            "iterations: the descent kept meeting states where the material would turn inside "
+                            "out (det F <= 0)")
     return False, its, f"no equilibrium within {settings.max_iterations} relaxation iterations"
 
 
