@@ -315,7 +315,8 @@ def test_effectivity_all_scenes(tmp_path, base, disc):
 
 
 def test_same_mesh_enrichment_misses_the_ungraded_alpha1_200_error(tmp_path):
-    """Why ungraded meshes get the corner-refined enrichment: p + 1 alone sees a tenth of the error."""
+    """Why ungraded meshes get the corner-refined enrichment: on the same mesh p + 1 sees a tenth of
+    the error, and with the p + 2 check the estimate still only half (measured 0.11 and 0.51)."""
     from ngbet.continuum import estimate
 
     old = estimate.CORNER_LEVELS
@@ -324,7 +325,9 @@ def test_same_mesh_enrichment_misses_the_ungraded_alpha1_200_error(tmp_path):
         eff, s = _effectivity(tmp_path, "alpha1_200", mesh_size_mm=10.0)
     finally:
         estimate.CORNER_LEVELS = old
-    assert eff < 0.3 and "not graded" in s["error_estimate_note"]
+    err = abs(s["force_N"] - ref("alpha1_200")[0])
+    assert estimate.THETA * abs(s["force_N"] - s["force_enriched_N"][0]) / err < 0.3
+    assert eff < 0.6 and "not graded" in s["error_estimate_note"]
 
 
 def test_results_csv_has_the_error_at_the_stops(tmp_path):
