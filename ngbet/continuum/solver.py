@@ -245,16 +245,17 @@ class RelaxReport:
 def relax(problem: NonlinearProblem, newton_settings: NewtonSettings, e_ref: float,
           settings: RelaxSettings = RelaxSettings(), start_eigen: tuple[float, np.ndarray] | None = None
           ) -> RelaxReport:
-    """A stable equilibrium at the current load from the current state, by pseudo-transient continuation.
+    """A stable equilibrium at the current load from the current state, by a shifted descent.
 
-    Needs ``problem.factorize(shift)`` and ``problem.lowest_mode()`` (a Hessian tangent). The
-    state is first moved along the lowest mode when that eigenvalue is not positive (sign: the
-    one that lowers the energy to first order). Each iteration solves (J + s|diag J|) dx = −r,
-    with s multiplied by ‖r_k‖/‖r_k−1‖ (unit-free norms; switched evolution relaxation): a
-    gradient flow that becomes Newton as it settles. Once s is below ``min_shift``, or δ is below the tolerance, Newton
-    (:func:`newton`) finishes, and the tangent's lowest eigenvalue decides: positive, converged;
-    else the state is kicked along the new unstable mode (twice as far each time) and the flow goes on.
-    On failure x is left where it stopped.
+    Needs ``problem.factorize(shift)`` and ``problem.lowest_mode()`` (a Hessian tangent); uses
+    ``problem.merit(r)``, ``problem.begin_relaxation()`` and ``problem.admissible()`` where the
+    problem has them. The state is first moved along the lowest mode when that eigenvalue is not
+    positive (the sign that lowers the energy to first order). Then :func:`_flow`: shifted Newton
+    steps (J + s|diag J|) dx = −r with s at least what makes the matrix positive definite and a
+    line search on the merit, s falling as full steps are taken (a pseudo-transient continuation
+    that becomes Newton as it settles). Newton (:func:`newton`) finishes; the state is accepted if
+    admissible and the tangent's lowest eigenvalue is positive; an unstable one is kicked along
+    its mode (twice as far each time) and the descent goes on. On failure x is left where it stopped.
     """
     history: list[float] = []
     tol = newton_settings.rtol * abs(e_ref) + newton_settings.atol
