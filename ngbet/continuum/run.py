@@ -58,6 +58,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
             try:
                 res = _carry_load(problem, scene, recorder.on_step, bar, out)
             except ConvergenceError as err:
+                _write_mode(problem, err.path_info, out)
                 info.update(_solver_info(problem, None), **snaps_in_units(err.path_info, scene.specimen.t))
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
@@ -67,8 +68,33 @@ def run_continuum(scene: Scene, out: Path, progress: bool) -> dict[str, Any]:
         return _finish(problem, scene, writer, out, res, info, warnings)
 
 
+def _write_mode(problem: ContinuumProblem, path_info: dict[str, Any], out: Path) -> None:
+    """Write the instability mode that path following found (if any) and name its files in ``path_info``."""
+    from .arclength import MODE_KEY
+
+    found = path_info.pop(MODE_KEY, None)
+    if found is None:
+        return
+    from .stability import write_mode
+
+    mode, name, title = found
+    saved = problem.x.copy()
+    files = write_mode(problem, mode, out / name, title)
+    problem.x[:] = saved
+    path_info["instability_mode_files"] = [f.name for f in files]
+
+
 def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
                 progress: Callable[[float], None] | None, out: Path | None = None) -> PathResult:
+    """The load path of the scene on the engine (the instability mode it found written into ``out``)."""
+    res = _follow(problem, scene, on_step, progress)
+    if out is not None:
+        _write_mode(problem, res.path_info, out)
+    return res
+
+
+def _follow(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
+            progress: Callable[[float], None] | None) -> PathResult:
     """The load path of the scene on the engine."""
     L = scene.loading
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
@@ -78,7 +104,7 @@ def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[Step
                         psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
                         path_following=scene.solver.path_following,
                         arclength=None if scene.solver.path_following == "displacement"
-                        else arclength_runner(problem, on_step, progress, out))
+                        else arclength_runner(problem, on_step, progress))
 
 
 def _diagnose(problem: ContinuumProblem) -> Any:
