@@ -366,6 +366,18 @@ def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float
     return False, its, f"no equilibrium within {settings.max_iterations} relaxation iterations"
 
 
+def _stalled(rep: NewtonReport) -> bool:
+    """Whether a failed Newton run stalled (no damping helped, or the decrement stopped falling).
+
+    A run that only ran out of iterations while its decrement kept falling was converging: a
+    shorter step, not a relaxation, is the answer (and ``solver.max_iterations`` stays the user's bound).
+    """
+    if rep.reason != "iteration limit":
+        return True
+    h = rep.history
+    return len(h) >= 2 and h[-1] >= h[-2]
+
+
 class SaddlePointNewton:
     """The continuum's corrector for :func:`ngbet.engine.follow_path`.
 
@@ -424,7 +436,7 @@ class SaddlePointNewton:
         e_ref = e_ref if math.isfinite(e_ref) else 0.0
         self._jump = None
         self.report = rep = newton(p, self.settings, e_ref)
-        if not rep.converged and h < self.relax_below and self._predicted is not None:
+        if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
             return self._relax(u0, h, e_ref, rep)
         return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
 
