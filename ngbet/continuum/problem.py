@@ -340,6 +340,14 @@ class ContinuumProblem:
             return ""
         return f"det F <= 0 on {a * 1e6:.3g} mm² (the material turned inside out)"
 
+    @property
+    def inadmissible_hint(self) -> str:
+        """What keeps the specimen out of inverted states (the relaxation's advice when it meets them)."""
+        if self.scene.effects.shear and self.scene.effects.shear_law == "locking" and self.scene.material.K_lock > 0:
+            return ""
+        return ("the shear energy falls again once the yarns turn past parallel; a shear law that locks before "
+                "(effects.shear_law = 'locking' with material.K_lock > 0) keeps the yarns from crossing")
+
     def begin_relaxation(self) -> None:
         """A relaxation starts from the current state: it may not invert more material than there is now."""
         self.inverted_allowed = self.inverted_area()

@@ -351,8 +351,8 @@ def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float
             shift = max(10.0 * shift, 1e-6)
             if shift > settings.max_shift:
                 return False, its, ("the descent ends where the material would turn inside out (det F <= 0): no "
-                                    "physical stable state was found at this clamp displacement" if barrier
-                                    else "no descent direction found in the relaxation")
+                                    "physical stable state was found at this clamp displacement" + _hint(problem)
+                                    if barrier else "no descent direction found in the relaxation")
             continue
         log.debug("relaxation %d: shift %.3g, step %.3g, decrement %.3g, energy %.12g", its, shift, t, delta, E_new)
         r, E = r_new, E_new
@@ -362,8 +362,14 @@ def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float
     if barrier:
         return False, its, (f"no physical stable state was found within {settings.max_iterations} relaxation "
                             "iterations: the descent kept meeting states where the material would turn inside "
-                            "out (det F <= 0)")
+                            "out (det F <= 0)" + _hint(problem))
     return False, its, f"no equilibrium within {settings.max_iterations} relaxation iterations"
+
+
+def _hint(problem: NonlinearProblem) -> str:
+    """The problem's advice for a relaxation that meets its inadmissible states ("; ..." or "")."""
+    hint = getattr(problem, "inadmissible_hint", "")
+    return f"; {hint}" if hint else ""
 
 
 def _stalled(rep: NewtonReport) -> bool:
