@@ -308,6 +308,19 @@ def test_nearly_inextensible_yarns_fold_where_no_physical_state_follows(tmp_path
     assert math.isclose(rows[-1]["u0_mm"], err.last_converged_mm, rel_tol=1e-9)
 
 
+def test_a_locking_shear_law_keeps_nearly_inextensible_yarns_from_crossing(tmp_path):
+    """K_el = 1e8 Pa with the limiting-angle shear law (K_lock = K_sh, γ_lock = 60°): the shear
+    energy no longer falls as the yarns turn towards parallel, the path does not fold, and the run
+    reaches 56 mm without a relaxation and without inverted material (the remedy the relaxation
+    names when it meets inverted states)."""
+    s, rows, _ = _run(tmp_path, "lock", **{"material.K_el": 1e8, "effects.shear_law": "locking",
+                                           "material.K_lock": 21000.0, "outputs.error_estimate": "off",
+                                           "outputs.profile": False})
+    assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
+    assert "relaxations" not in s and not any("inside out" in w for w in s["warnings"])
+    assert np.all(np.diff([r["force_N"] for r in rows]) > 0)
+
+
 # ------------------------------------------------------------------------------ discretization
 @pytest.mark.parametrize("p", [1, 2, 3, 4])
 def test_polynomial_orders_on_a_coarse_mesh(tmp_path, p):
