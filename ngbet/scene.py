@@ -660,6 +660,11 @@ class Scene:
             if e.bending:
                 _check(m.alpha1 + m.alpha2 > 0, "material.alpha1", m.alpha1,
                        "alpha1 + alpha2 must be > 0 when effects.bending is on (else turn bending off)")
+                for fam, a in ((1, m.alpha1), (2, m.alpha2)):
+                    _check(a > 0, f"material.alpha{fam}", a,
+                           f"must be > 0 when effects.bending is on: without bending stiffness the yarns of family "
+                           f"{fam} lose ellipticity where they are compressed, and the model has no mesh-independent "
+                           "solution there (a small value, e.g. 1e-3 Pa m^2, keeps it well posed; or turn bending off)")
                 _check(self.discretization.p_lam < self.discretization.p_phi or e.fields == ("u", "phi"),
                        "discretization.order_lam", self.discretization.order_lam,
                        "the multiplier order must be below the order of phi, else the constraint locks")

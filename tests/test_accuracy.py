@@ -10,31 +10,33 @@ the paper's scene the family of ``ngbet study reference`` instead: the 20 mm mes
 step as the bound; for more, the range of geometric and algebraic fits in p).
 
 Effectivity table (estimate / true error of the force at 56 mm, estimate at the final load only:
-on meshes without corner grading the corner-refined one-step enrichment with θ = 2, on graded
-meshes the same-mesh one-step p + 1 with θ = 2.5, ngbet.continuum.estimate; the cost is the
-estimate's wall time over the run's solve, on the 2-core machine, loaded):
+on meshes without corner grading the corner-refined enrichment with θ = 2, on graded meshes the
+same-mesh enrichment with θ = 2.5, both with the p + 2 plateau check, ngbet.continuum.estimate):
 
-=====================================  ========  ===========  =========  ===========  ===============
-scene (h [mm], corner [mm], p)         F [N]     ref. [N]     error [N]  effectivity  estimate/solve
-=====================================  ========  ===========  =========  ===========  ===============
-paper, 10, –, 2                        111.914   107.237      +4.677     1.89         0.48
-paper, 5, –, 2                         109.538   107.237      +2.301     1.31         0.35
-paper, 10, –, 3                        110.356   107.237      +3.119     0.98         0.37
-paper, 10, –, 4                        109.016   107.237      +1.779     1.97         0.36
-mixed penalty K = 1e8, 10, –, 2        111.772   107.099      +4.672     0.94         0.46
-α1 = 20000, 10, –, 2                   150.184   130.320      +19.864    0.90         0.48
-α1 = 200, 10, –, 2                      66.764    66.577      +0.186     1.58         0.46
-100 x 300 specimen, 10, –, 2            88.368    86.354      +2.014     0.94         0.48
-yarns at 50°, 10, –, 2                  62.701    60.567      +2.134     1.87         0.48
-paper, 10, 0.5, 2                      107.787   107.237      +0.550     0.78         0.16
-paper, 10, 0.25, 2                     107.412   107.237      +0.175     0.56         0.28
-paper, 10, 0.25, 3 (the default)       107.374   107.237      +0.137     0.98         0.33
-mixed penalty K = 1e8, 10, 0.25, 3     107.232   107.099      +0.133     1.10         0.28
-α1 = 200, 10, 0.5, 2                    66.480    66.577      −0.097     2.89         0.22
-yarns at 50°, 10, 0.5, 3                60.716    60.567      +0.149     1.22         0.57
-paper, 20, 0.25, 4 (--accuracy 1e-3)   107.309   107.237      +0.072     1.20         0.13
-paper, 20, 0.25, 6                     107.256   107.237      +0.019     2.82         0.21
-=====================================  ========  ===========  =========  ===========  ===============
+=====================================  ========  ===========  =========  ===========
+scene (h [mm], corner [mm], p)         F [N]     ref. [N]     error [N]  effectivity
+=====================================  ========  ===========  =========  ===========
+paper, 10, –, 2                        111.914   107.237      +4.677     1.95
+paper, 5, –, 2                         109.538   107.237      +2.301     1.95
+paper, 10, –, 3                        110.356   107.237      +3.119     1.97
+paper, 10, –, 4                        109.016   107.237      +1.779     1.98
+mixed penalty K = 1e8, 10, –, 2        111.772   107.099      +4.672     1.95
+α1 = 20000, 10, –, 2                   150.184   130.320      +19.864    1.84
+α1 = 200, 10, –, 2                      66.764    66.577      +0.186     1.95
+100 x 300 specimen, 10, –, 2            88.368    86.354      +2.014     1.88
+yarns at 50°, 10, –, 2                  62.701    60.567      +2.134     1.93
+paper, 10, 0.5, 2                      107.787   107.237      +0.550     0.98
+paper, 10, 0.25, 2                     107.412   107.237      +0.175     0.55
+paper, 10, 0.25, 3 (the default)       107.374   107.237      +0.137     1.45
+mixed penalty K = 1e8, 10, 0.25, 3     107.232   107.099      +0.133     1.49
+α1 = 200, 10, 0.5, 2                    66.480    66.577      −0.097     2.89
+yarns at 50°, 10, 0.5, 3                60.716    60.567      +0.149     1.22
+paper, 20, 0.25, 4 (--accuracy 1e-3)   107.309   107.237      +0.072     1.22
+paper, 20, 0.25, 6                     107.256   107.237      +0.019     0.90
+=====================================  ========  ===========  =========  ===========
+
+The scenes of :data:`NEW_BASES` (bending off, yarns at 60°, a 50 x 150 specimen, a polynomial
+shear law, a 20 mm load) on three discretizations each: 0.68–1.98 (docs/accuracy.md has the table).
 
 On the ungraded α1 = 200 scene the same-mesh p + 1 enrichment sees only a tenth of the error
 (its force hardly changes with p there); the corner-refined enrichment sees it.
@@ -97,6 +99,43 @@ FINE_37 = (61.252553, 61.231165, 61.221843, 61.217845, 61.216159, 61.214853, 61.
 FINE_ORDERS = (4, 5, 6, 7, 8, 9, 10, 12, 14)
 
 
+#: Scenes unlike those above, each with its own references computed from scratch (forces [N] at the
+#: final load; ``ngbet run`` with the scene's keys and ``--set discretization.mesh_size_mm=H --set
+#: discretization.corner_mesh_size_mm=C --set discretization.corner_bisections=B --set
+#: discretization.order_u=P --set outputs.error_estimate=off``): a p-sequence on the 20 mm mesh with
+#: 1 mm corners bisected twice (:data:`SPLIT_NEW`, p = 4 onwards; bet_50x150 at p = 9 and polynomial
+#: at p = 9 stop before the final load), and an h-check on the 10 mm mesh with 0.5 mm corners
+#: bisected once at p = 4, 5, 6 (:data:`CHECK_NEW`)
+NEW_BASES = {"bending_off": {"effects.bending": False},
+             "yarn_60": {"specimen.yarn_angle_deg": 60.0},
+             "bet_50x150": {"specimen.width_mm": 50.0, "specimen.length_mm": 150.0, "loading.u0_mm": 37.0,
+                            "loading.stops_mm": []},
+             "polynomial": {"effects.shear_law": "polynomial", "material.K_sh4": 50000.0},
+             "short_20": {"loading.u0_mm": 20.0, "loading.stops_mm": []}}
+SPLIT_NEW = {
+    "bending_off": (36.7102760, 36.7102559, 36.7102511, 36.7102507, 36.7102500, 36.7102496, 36.7102493),
+    "yarn_60": (15.9972775, 15.9921875, 15.9904697, 15.9898378, 15.9896129, 15.9894853, 15.9894222),
+    "bet_50x150": (97.1574298, 97.0538196, 97.0228584, 97.0073915, 97.0036185),
+    "polynomial": (133.4106656, 133.3548384, 133.3350164, 133.3288831, 133.3257628),
+    "short_20": (28.7014301, 28.6901328, 28.6862000, 28.6849086, 28.6842078, 28.6838574, 28.6836362),
+}
+CHECK_NEW = {
+    "bending_off": (36.7102665, 36.7102522, 36.7102514),
+    "yarn_60": (15.9971604, 15.9921638, 15.9908392),
+    "bet_50x150": (97.0599782, 97.0204205, 97.0081631),
+    "polynomial": (133.4059363, 133.3548949, 133.3373120),
+    "short_20": (28.7003193, 28.6901735, 28.6866367),
+}
+
+
+def ref_new(base: str) -> tuple[float, float]:
+    """The reference of a scene of :data:`NEW_BASES` and its bound: the split p-sequence's limit, bounded
+    by the larger of its own bound and its distance to the h-check's limit plus that one's bound."""
+    F, bound = extrapolate(SPLIT_NEW[base], list(range(4, 4 + len(SPLIT_NEW[base]))))
+    Fc, bound_c = extrapolate(CHECK_NEW[base], [4, 5, 6])
+    return F, max(bound, abs(F - Fc) + bound_c)
+
+
 def ref(base: str, station: int = 1) -> tuple[float, float]:
     F = [f[station] for f in FAMILY[base]]
     return extrapolate(F, list(ORDERS.get(base, range(4, 4 + len(F)))))
@@ -107,8 +146,8 @@ UNIFORM = {"discretization.mesh_size_mm": 5.0, "discretization.corner_mesh_size_
 
 
 def _scene(base: str, **disc) -> Scene:
-    ch = {"outputs.vtk": False, "outputs.plot": False, "outputs.error_estimate": "final", **BASES[base],
-          **UNIFORM}
+    ch = {"outputs.vtk": False, "outputs.plot": False, "outputs.error_estimate": "final",
+          **(BASES[base] if base in BASES else NEW_BASES[base]), **UNIFORM}
     ch.update({f"discretization.{k}": v for k, v in disc.items()})
     return Scene().with_changes(**ch)
 
@@ -193,7 +232,7 @@ def test_extrapolation_bound_covers_geometric_and_algebraic_sequences(tail):
 
 def _effectivity(tmp_path, base: str, **disc) -> tuple[float, dict]:
     s = run(_scene(base, **disc), tmp_path / f"{base}_{'_'.join(map(str, disc.values()))}")
-    F_ref, bound = ref(base)
+    F_ref, bound = ref_new(base) if base in NEW_BASES else ref(base)
     err = abs(s["force_N"] - F_ref)
     assert err > 3 * bound, "the scene's error must stand above the reference's bound"
     return s["force_error_N"] / err, s
@@ -222,6 +261,48 @@ def test_effectivity_fast_subset(tmp_path, base, disc):
     assert math.isclose(s["force_error_rel"], s["force_error_N"] / s["force_N"])
 
 
+def test_new_references_agree_across_meshes():
+    """Each new scene's split p-sequence and its 10 mm h-check extrapolate to limits whose bounds
+    overlap (measured distances: 3.2e-6, 1e-3, 4e-3, 5e-3, 1e-3 N; with bending off the two bounds,
+    2.3e-6 and 8e-8 N, leave 1e-6 N: 3e-8 of the force, below the corner states' path dependence);
+    the bound used is at most 0.03 % of the force, far below the errors measured against it."""
+    for base in NEW_BASES:
+        F, bound = extrapolate(SPLIT_NEW[base], list(range(4, 4 + len(SPLIT_NEW[base]))))
+        Fc, bound_c = extrapolate(CHECK_NEW[base], [4, 5, 6])
+        assert abs(F - Fc) <= bound + bound_c + 1.5e-6, (base, F, bound, Fc, bound_c)
+        assert ref_new(base)[1] < 3e-4 * F, base
+
+
+NEW_FAST = [("bending_off", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}),
+            ("short_20", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3})]
+NEW_SLOW = [*((b, {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3})
+              for b in ("yarn_60", "bet_50x150", "polynomial")),
+            *((b, {"mesh_size_mm": 10.0}) for b in NEW_BASES),
+            *((b, {"mesh_size_mm": 20.0, "corner_mesh_size_mm": 0.25, "order_u": 4})
+              for b in ("bending_off", "yarn_60", "bet_50x150", "polynomial", "short_20"))]
+
+
+@pytest.mark.parametrize("base,disc", NEW_FAST)
+def test_effectivity_on_new_scenes(tmp_path, base, disc):
+    """Bending off (where p → p + 1 stands still: the plateau check decides) and a short load."""
+    eff, s = _effectivity(tmp_path, base, **disc)
+    assert 0.5 <= eff <= 3.0, eff
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("base,disc", NEW_SLOW)
+def test_effectivity_on_new_scenes_all(tmp_path, base, disc):
+    """The estimate is within [0.5, 3] of the true error, or says that it cannot vouch for it."""
+    s = run(_scene(base, **disc), tmp_path / "r")
+    F_ref, bound = ref_new(base)
+    err = abs(s["force_N"] - F_ref)
+    assert err > 3 * bound
+    if s["force_error_N"] is None:
+        assert s["error_estimate_unreliable"]
+    else:
+        assert 0.5 <= s["force_error_N"] / err <= 3.0, s["force_error_N"] / err
+
+
 def test_profile_estimate_effectivity(tmp_path):
     """Max-norm error of the mid-axis profile at 56 mm (measured 0.59–2.5 on six meshes of this scene)."""
     from ngbet.output import read_profiles
@@ -240,7 +321,8 @@ def test_effectivity_all_scenes(tmp_path, base, disc):
 
 
 def test_same_mesh_enrichment_misses_the_ungraded_alpha1_200_error(tmp_path):
-    """Why ungraded meshes get the corner-refined enrichment: p + 1 alone sees a tenth of the error."""
+    """Why ungraded meshes get the corner-refined enrichment: on the same mesh p + 1 sees a tenth of
+    the error, and with the p + 2 check the estimate still only half (measured 0.11 and 0.51)."""
     from ngbet.continuum import estimate
 
     old = estimate.CORNER_LEVELS
@@ -249,7 +331,9 @@ def test_same_mesh_enrichment_misses_the_ungraded_alpha1_200_error(tmp_path):
         eff, s = _effectivity(tmp_path, "alpha1_200", mesh_size_mm=10.0)
     finally:
         estimate.CORNER_LEVELS = old
-    assert eff < 0.3 and "not graded" in s["error_estimate_note"]
+    err = abs(s["force_N"] - ref("alpha1_200")[0])
+    assert estimate.THETA * abs(s["force_N"] - s["force_enriched_N"][0]) / err < 0.3
+    assert eff < 0.6 and "not graded" in s["error_estimate_note"]
 
 
 def test_results_csv_has_the_error_at_the_stops(tmp_path):
@@ -312,6 +396,58 @@ def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
     a = s["accuracy"]
     assert calls == [8, 10] and a["met"] and "failed" in a["attempts"][0]
     assert a["chosen"]["order_u"] == 10 and a["attempts"][0]["discretization"]["order_u"] == 8
+
+
+def test_an_unreachable_target_is_refused_before_solving(tmp_path, capsys):
+    """Below the finest rung's expected error (2.5e-5) no setting can be expected to meet the target:
+    exit 2 at once, naming the best reachable accuracy, and nothing is solved."""
+    from ngbet.continuum import estimate
+
+    out = tmp_path / "acc1e-6"
+    assert main(["run", "--quiet", "--accuracy", "1e-6", "--out", str(out)]) == 2
+    msg = capsys.readouterr().err
+    assert "discretization.target_error = 1e-06" in msg and "best reachable accuracy is about 2.5e-05" in msg
+    assert estimate.reachable_accuracy() == 2.5e-5
+    assert not (out / "results.csv").exists()
+
+
+def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path):
+    """A finer rung whose estimate is no better than the best so far ends the climb (exit 1, not met);
+    the best rung is run again so that its files are the ones left, and a failed rung's solve time
+    is its wall time, not zero."""
+    from ngbet.continuum import estimate
+    from ngbet.errors import ConvergenceError
+
+    calls = []
+    errors = {2: 4e-3, 3: 3e-3, 4: 3.2e-3}
+
+    def run_one(sc, out):
+        p = sc.discretization.order_u
+        calls.append(p)
+        if p == 5:
+            raise AssertionError("the ladder went past a rung that did not improve")
+        return {"force_N": 107.0, "force_error_rel": errors[p], "solve_s": 1.0, "estimate_s": 0.1,
+                "u0_reached_mm": 56.0}
+
+    with pytest.raises(ConvergenceError, match="not reached: p = 4 .* no better than 0.003 at p = 3"):
+        estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 2.5e-3}),
+                                 tmp_path, run_one)
+    assert calls == [2, 3, 4, 3]  # the best rung (p = 3) again, last
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["status"] == "failed" and not s["accuracy"]["met"] and s["accuracy"]["chosen"]["order_u"] == 3
+
+    def failing_first(sc, out):
+        if sc.discretization.order_u == 8:
+            import time
+
+            time.sleep(0.05)
+            raise ConvergenceError("load step cut below the minimum", last_converged_mm=48.0)
+        return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
+
+    s = estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
+                                 tmp_path, failing_first)
+    a = s["accuracy"]
+    assert a["attempts"][0]["solve_s"] >= 0.05 and a["solve_s"] >= 1.05
 
 
 def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):

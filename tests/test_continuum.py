@@ -286,20 +286,21 @@ def test_stabilization_carries_fine_corner_meshes_and_is_small(tmp_path):
     # Λ ∈ L2(p − 2) leaves the within-element part of φ − i8 free; in the compressed corners the
     # first-gradient energy is not convex there, and with 0.25 mm corner elements (h = 10 mm,
     # p = 2) the run without stabilization loses stability at 52.6 mm in a corner mode with
-    # ‖δφ − δi8‖ = ‖δi8‖ (φ does not follow i8): the diagnosis must say it is a mode of the
+    # ‖δφ − δi8‖ = ‖δi8‖ (φ does not follow i8), a mode of the
     # discretization. The default ½K_s(φ − i8)², K_s = 0.1 min(α) / h_T², carries the same mesh to
     # 56 mm with a smooth Λ (measured 107.41 N, oscillation 0.10; reference 107.24 N ± 0.4 %), and
     # costs little accuracy on uniform meshes: +0.065 N at h = 10 mm (discretization error 4.6 N)
     # and +0.002 N at p = 3 (measured)
-    from ngbet.errors import ConvergenceError
-
+    # (displacement control relaxes through that instability: one snap-through at 52.69 mm, local to
+    # a clamp corner, spread 0.85 mm, 1.6e-5 J released)
     graded = {"discretization.corner_mesh_size_mm": 0.25}
-    with pytest.raises(ConvergenceError) as info:  # the default stepping (no output grid) passes the loss
-        _run(tmp_path, "graded_off", **graded, **{"effects.stabilization_K": 0.0, "loading.output_every_mm": 0.0})
-    d = info.value.detail
-    assert d.stable is False and d.mode_class == "discretization" and d.ratio > 0.9, d
-    assert d.location_mm is not None and d.eigenvalues == tuple(sorted(d.eigenvalues))
+    s_off, _, _ = _run(tmp_path, "graded_off", **graded, **{"effects.stabilization_K": 0.0,
+                                                                "loading.output_every_mm": 0.0})
+    (jump,) = s_off["snaps"]
+    X, Y = jump["location_mm"]
+    assert 52.0 < jump["u0_mm"] < 53.5 and jump["spread_mm"] < 2.0 and min(X, 220 - X) < 2 and min(Y, 70 - Y) < 2
     s, rows, _ = _run(tmp_path, "graded", **graded)
+    assert "snaps" not in s
     assert s["status"] == "ok" and abs(rows[-1]["force_N"] - 107.24) < 0.005 * 107.24, rows[-1]["force_N"]
     assert s["multiplier_oscillation"] < 0.2, s["multiplier_oscillation"]
     lo, hi = s["stabilization_K_Pa"]

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+import pytest
+
 from ngbet.continuum.stability import EllipticityLoss, StabilityDiagnosis
 
 
@@ -12,7 +15,8 @@ def test_message_names_the_remedy_only_for_a_discretization_mode_of_a_well_posed
                               stabilization_K_Pa=(1.5e4, 3.3e4), K_el=1e7)
     msg = base.message()
     assert base.stable is False
-    assert "stability lost" in msg and "a mode of the discretization" in msg and "material.K_el = 1e+07 Pa" in msg
+    assert "stability lost" in msg and "a mode of the discretization" in msg
+    assert "--set effects.stabilization_K=1e+07" in msg and "material.K_el =" not in msg  # the key to change
     ill = StabilityDiagnosis(54.8, (-0.01, 0.2), "discretization", 0.97, (3.0, 68.0),
                              (EllipticityLoss(2, 950.0, -0.3),), (1.5e4, 3.3e4), 0.7e6)
     assert "raise effects.stabilization_K" not in ill.message()  # no false remedy: the model is ill-posed
@@ -25,3 +29,118 @@ def test_a_skipped_test_says_why_and_classifies_nothing():
     d = StabilityDiagnosis(12.0, skipped="the uncondensed saddle-point tangent is indefinite by construction")
     assert d.stable is None and d.mode_class == "none" and math.isnan(d.ratio)
     assert d.message() == d.skipped
+
+
+class _DoubleWell:
+    """A one-dof toy of a snap-through under displacement control: x = (λ, y), λ the Dirichlet entry,
+    E = y⁴/4 − y²/2 − λy, so r_y = y³ − y − λ and the reaction r_λ = −y. From the left well
+    (y = −1 at λ = 0) the branch y < −1/√3 folds at λ_f = 2/(3√3) = 0.3849; beyond it the only
+    equilibrium is in the right well, where y = 2/√3 at λ_f: a jump that releases
+    E(−1/√3) − E(2/√3) = 1/12 + 2/3 = 0.75 at λ_f."""
+
+    def __init__(self, y0: float = -1.0) -> None:
+        self.x = np.array([0.0, y0])
+        self._weights = np.array([0.0, 1.0])
+        self.can_relax = True
+
+    def set_load(self, lam):
+        self.x[0] = lam
+
+    def residual(self):
+        lam, y = self.x
+        return np.array([-y, y ** 3 - y - lam])
+
+    def energy(self):
+        lam, y = self.x
+        return y ** 4 / 4 - y ** 2 / 2 - lam * y
+
+    def factorize(self, shift=0.0):
+        J = 3 * self.x[1] ** 2 - 1
+        while shift > 0 and J + shift * abs(J) <= 0:  # raised until positive definite
+            shift = max(4 * shift, 1e-8)
+        self.J = J + shift * abs(J)
+        return shift
+
+    def solve(self, r):
+        return np.array([0.0, -r[1] / self.J])
+
+    def load_tangent(self, dlam):
+        return np.array([dlam, dlam / self.J])
+
+    def clamp_predictor(self, dlam):
+        return np.array([dlam, 0.0])
+
+    def norm(self, dx):
+        return abs(dx[1])
+
+    def load_derivative(self, psi, tangent):
+        return float(psi @ np.array([-tangent[1], self.J * tangent[1] - tangent[0]]))
+
+    def lowest_mode(self):
+        J = 3 * self.x[1] ** 2 - 1
+        return J / max(abs(J), 1e-300), np.array([0.0, 1.0])
+
+
+def test_displacement_control_snaps_through_a_fold_to_the_other_well_and_goes_on():
+    """At the fold the step is relaxed to the stable state at the same load (the right well), the
+    jump is recorded with the energy it released (0.75 at the fold, the exact value of the toy),
+    and the path goes on to λ = 1, where the equilibrium is the real root of y³ − y = 1."""
+    from ngbet.continuum.solver import NewtonSettings, continuation
+
+    toy = _DoubleWell()
+    res = continuation(toy, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
+    lam_f = 2 / (3 * math.sqrt(3))
+    assert res.u0 == 1.0
+    assert toy.x[1] == pytest.approx(1.3247179572, rel=1e-8)  # the plastic number
+    snaps = res.path_info["snaps"]
+    assert len(snaps) == 1 and [s.u0 for s in res.steps if s.snap] == [pytest.approx(snaps[0]["u0_mm"] * 1e-3)]
+    jump = snaps[0]
+    assert lam_f < jump["u0_mm"] * 1e-3 < lam_f + 2e-4  # the first increment past the fold, at most 2 min_step
+    assert jump["released"] == pytest.approx(0.75, abs=0.01)
+    assert jump["reaction_before"] > 0 > jump["reaction_after"]  # y jumped from the left well to the right one
+    assert jump["lowest_eigenvalue_after"] > 0
+
+
+def test_without_relaxation_displacement_control_stops_at_the_fold():
+    """The same toy with ``snap = False``: displacement control cannot pass the fold."""
+    from ngbet.continuum.solver import NewtonSettings, continuation
+    from ngbet.errors import ConvergenceError
+
+    with pytest.raises(ConvergenceError) as info:
+        continuation(_DoubleWell(), 1.0, 0.05, NewtonSettings(), min_step=1e-4, snap=False)
+    assert info.value.last_converged_mm * 1e-3 < 2 / (3 * math.sqrt(3))
+
+
+def test_relaxation_leaves_an_unstable_equilibrium_along_its_mode():
+    """Started on the hilltop y = 0 at λ = 0 (an equilibrium, tangent −1), :func:`relax` kicks
+    along the unstable mode and finds a well bottom y = ±1, stable, reporting the eigenvalue it left."""
+    from ngbet.continuum.solver import NewtonSettings, relax
+
+    toy = _DoubleWell(0.0)
+    rep = relax(toy, NewtonSettings(), 1.0)
+    assert rep.converged and abs(toy.x[1]) == pytest.approx(1.0, rel=1e-10)
+    assert rep.kicked_from == -1.0 and rep.lowest_eigenvalue > 0
+
+
+class _WallAtZero(_DoubleWell):
+    """The double well with its right well outside the energy's domain (y > 0 inadmissible, as
+    inverted material is for the continuum): past the fold there is no admissible stable state."""
+
+    def merit(self, r):
+        return math.inf if self.x[1] > 0 else self.energy()
+
+    def admissible(self):
+        return "y > 0" if self.x[1] > 0 else ""
+
+
+def test_no_snap_into_an_inadmissible_state():
+    """The relaxation does not cross into the inadmissible region: the run stops at the fold with
+    the reason in the attempts, instead of jumping to the right well."""
+    from ngbet.continuum.solver import NewtonSettings, continuation
+    from ngbet.errors import ConvergenceError
+
+    with pytest.raises(ConvergenceError) as info:
+        continuation(_WallAtZero(), 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
+    assert info.value.last_converged_mm * 1e-3 < 2 / (3 * math.sqrt(3))
+    assert "no physical stable state" in info.value.attempts[-1].reason
+    assert info.value.path_info["relaxations"] == 1 and info.value.path_info["snaps"] == []

@@ -44,7 +44,6 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -378,16 +377,14 @@ def _bifurcation(prev: Instability, here: Instability) -> Instability:
 
 
 def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
-                     progress: Callable[[float], None] | None = None,
-                     write_files: Callable[[str, Callable[[Path], list[Path]]], list[Path]] | None = None
+                     progress: Callable[[float], None] | None = None
                      ) -> Callable[[PathResult], PathResult]:
     """The continuation the continuum's run hands to :func:`ngbet.continuum.solver.continuation`.
 
     Follows the path of ``problem`` (a :class:`~ngbet.continuum.problem.ContinuumProblem`) from
     its converged state to ``loading.u0_mm``, appending to the result it is given; fills
     ``path_info`` (instabilities with kind, load, force and mode class; the first one's mode as
-    ``instability_mode.vtu`` and ``.png``, handed to ``write_files(stem, produce)``, the run folder's
-    :meth:`~ngbet.output.RunWriter.write_group`) and raises
+    mode to picture under :data:`MODE_KEY`, for the runner to write and pop) and raises
     :class:`~ngbet.errors.ConvergenceError` with it when the target is not reached.
     """
     from .run import newton_settings
@@ -422,7 +419,7 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
                                       lowest_eigenpair=None if indefinite else lambda: lowest_eigenpair(problem),
                                       on_step=step, result=res,
                                       branch=scene.solver.branch)
-        res.path_info = _path_info(problem, found, start_mm, write_files)
+        res.path_info = _path_info(problem, found, start_mm)
         if res.steps:
             t = scene.specimen.t
             F = [float(psi @ s.residual) * t if s.residual is not None else math.nan for s in res.steps]
@@ -442,9 +439,14 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
     return run
 
 
-def _path_info(problem: Any, found: list[Instability], start_mm: float, write_files: Any) -> dict[str, Any]:
-    """The summary's record of the path: each instability with its mode's class and place; the first mode's files."""
-    from .stability import DISCRETIZATION_MODE_RATIO, mode_constraint_ratio, write_mode
+#: the key of ``path_info`` that holds the mode to picture, (mode, name, title), not for the summary:
+#: the runner writes the files and pops it (numerics write no files)
+MODE_KEY = "_instability_mode"
+
+
+def _path_info(problem: Any, found: list[Instability], start_mm: float) -> dict[str, Any]:
+    """The summary's record of the path: each instability with its mode's class and place; the first mode."""
+    from .stability import DISCRETIZATION_MODE_RATIO, mode_constraint_ratio
 
     saved = problem.x.copy()
     for ins in found:
@@ -458,10 +460,9 @@ def _path_info(problem: Any, found: list[Instability], start_mm: float, write_fi
     # the mode pictured: that of the first switch to a bifurcated branch, else of the first instability
     switched = [i for i in found if i.details.get("branch") == "switched"]
     first = next((i for i in switched + found if i.mode is not None), None)
-    if write_files is not None and first is not None and first.mode is not None:
-        files = write_files("instability_mode", lambda stem: write_mode(
-            problem, first.mode, stem, f"{first.kind} at u0 = {first.u0_mm:.4g} mm: lowest mode of the tangent"))
-        info["instability_mode_files"] = [f.name for f in files]
+    if first is not None and first.mode is not None:
+        info[MODE_KEY] = (first.mode, "instability_mode",
+                          f"{first.kind} at u0 = {first.u0_mm:.4g} mm: lowest mode of the tangent")
         info["instability_mode_of"] = {"kind": first.kind, "u0_mm": first.u0_mm}
     problem.x[:] = saved
     return info

@@ -144,6 +144,7 @@ class NewtonLinearSolver:
         self._factorized: ngs.BaseMatrix | None = None  # the matrix self._inv factorizes
         self._llt: _FreeCholesky | None = None  # "cholmod": the LLᵀ of the free block
         self._use_llt = False  # the last matrix is factorized by self._llt (else by self._inv)
+        self._diag: tuple[ngs.BaseMatrix, np.ndarray] | None = None  # a matrix and its diagonal's value positions
         self.timers = {"assembly_s": 0.0, "factorization_s": 0.0, "solve_s": 0.0}
         self.counts = {"factorizations": 0, "solves": 0}
         if self.inverse_type == "cholmod":
@@ -154,19 +155,59 @@ class NewtonLinearSolver:
         """The assembled Newton matrix (condensed: the Schur complement on the coupling dofs)."""
         return self.form.mat
 
-    def factorize(self, state: ngs.BaseVector) -> None:
-        """Linearize at ``state`` and factorize (the symbolic factorization is reused)."""
+    def factorize(self, state: ngs.BaseVector, shift: float = 0.0) -> float:
+        """Linearize at ``state`` and factorize (the symbolic factorization is reused).
+
+        ``shift`` > 0: factorize A + s |diag A| instead, s ≥ ``shift`` (the free diagonal raised in
+        proportion to itself, a unit-free regularization for pseudo-transient continuation); where
+        CHOLMOD is available s is raised (×4, from at least 1e-8) until the matrix is positive
+        definite (its LLᵀ exists). Returns s.
+        """
         threaded = ngs.TaskManager() if _ASSEMBLY_THREADS.get() > 1 else contextlib.nullcontext()
         with threaded:  # assembly and factorization: two long parallel regions
             t0 = time.perf_counter()
             self.form.AssembleLinearization(state)
             t1 = time.perf_counter()
-            self._use_llt = self.inverse_type == "cholmod" and self._factor_llt()
-            if not self._use_llt:
-                self._factor_ngsolve()
+            if shift > 0:
+                shift = self._factor_shifted(shift)
+            else:
+                self._use_llt = self.inverse_type == "cholmod" and self._factor_llt()
+                if not self._use_llt:
+                    self._factor_ngsolve()
         self.timers["assembly_s"] += t1 - t0
         self.timers["factorization_s"] += time.perf_counter() - t1
         self.counts["factorizations"] += 1
+        return shift
+
+    def _factor_shifted(self, shift: float, max_shift: float = 1e6) -> float:
+        """Factorize A + s|diag A| with the least s = shift·4ᵏ that is positive definite (CHOLMOD), or s = shift."""
+        from .. import cholmod
+
+        vals, pos = self._diagonal()
+        diag = vals[pos].copy()
+        while True:
+            vals[pos] = diag + shift * np.abs(diag)
+            if not cholmod.available():
+                self._use_llt = False
+                self._factor_ngsolve()
+                return shift
+            mat = self.form.mat
+            if self._llt is None or self._llt.mat is not mat:
+                self._llt = _FreeCholesky(mat, self.freedofs)
+            if self._llt.factor() or shift >= max_shift:
+                self._use_llt = True
+                return shift
+            shift = max(4.0 * shift, 1e-8)
+
+    def _diagonal(self) -> tuple[np.ndarray, np.ndarray]:
+        """The assembled matrix's value array (a view) and the positions of its diagonal in it."""
+        mat = self.form.mat
+        if self._diag is None or self._diag[0] is not mat:
+            _, cols, ptr = mat.CSR()
+            cols, ptr = np.asarray(cols, dtype=np.int64), np.asarray(ptr, dtype=np.int64)
+            rows = np.repeat(np.arange(len(ptr) - 1), np.diff(ptr))
+            self._diag = (mat, np.flatnonzero(cols == rows))
+        return mat.AsVector().FV().NumPy(), self._diag[1]
 
     def _factor_ngsolve(self) -> None:
         """NGSolve's inverse of the assembled matrix ("cholmod": its LDLᵀ), its analysis reused."""

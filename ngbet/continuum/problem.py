@@ -86,6 +86,12 @@ STABILIZATION_C = 0.1
 STABILIZATION_CAP = 30.0
 
 
+#: inverted material (det F ≤ 0) on more than this fraction of the specimen makes a state
+#: inadmissible for the relaxation to a stable state (a few integration points at a singular clamp
+#: corner may invert without meaning anything)
+INVERTED_AREA_FRACTION = 1e-4
+
+
 def stabilization_modulus(scene: Scene, mesh: ngs.Mesh) -> CF | float:
     """K_s of ``effects.stabilization_K``: the constant, or ("auto") c min(α1, α2)/h_T², at most 30 K_el.
 
@@ -149,6 +155,9 @@ class ContinuumProblem:
         self._load_fields(sp)
         self._weights = self._norm_weights()
         self.lam = 0.0
+        self._lam_mass: tuple[slice, np.ndarray] | None = None  # Λ's rows and the diagonal of its mass matrix
+        self._det_F: ngs.CoefficientFunction | None = None
+        self.inverted_allowed = 0.0  # inverted area [m²] a state may have and be admissible
         self._t_residual = 0.0
         self._n_residual = 0
 
@@ -279,9 +288,94 @@ class ContinuumProblem:
         """The total energy (Lagrangian) per unit thickness at x [J/m]."""
         return float(self.a.Energy(self.gf.vec))
 
-    def factorize(self) -> None:
-        """Linearize at the current state and factorize."""
-        self.linear.factorize(self.gf.vec)
+    def factorize(self, shift: float = 0.0) -> float:
+        """Linearize at the current state and factorize.
+
+        ``shift`` > 0: the diagonal raised by s |diag|, s ≥ shift enough for a positive definite
+        matrix where that can be tested (:meth:`NewtonLinearSolver.factorize`); returns s.
+        """
+        return self.linear.factorize(self.gf.vec, shift)
+
+    def merit(self, r: np.ndarray) -> float:
+        """The energy plus ½ρ‖Π(φ − i8)‖² at the state whose residual is ``r``: a merit for descent.
+
+        Infinite where the material is inverted somewhere (det F ≤ 0): the descent stays among
+        physical states.
+
+        The Lagrangian alone is no merit off the constraint (Λ(φ − i8) can fall without bound).
+        The constraint's element moments come from the residual's Λ rows
+        r_Λ = ∫ δΛ (φ − i8 − Λ/K) with the diagonal of Λ's mass matrix (L2-orthogonal basis);
+        ρ is the augmentation of the Newton matrix (or the penalty K).
+        """
+        if self.admissible():  # outside the energy's domain: the material would turn inside out
+            return float("inf")
+        E = self.energy()
+        if "lam" not in self.field_names:
+            return E
+        if self._lam_mass is None:
+            V = self.X.components[2]
+            m = ngs.BilinearForm(V, symmetric=True)
+            m += V.TrialFunction() * V.TestFunction() * ngs.dx
+            m.Assemble()
+            rng = self.X.Range(2)
+            self._lam_mass = (slice(rng.start, rng.stop), np.array([m.mat[i, i] for i in range(V.ndof)]))
+        rows, mass = self._lam_mass
+        rho = self.linear.K_aug or self.scene.effects.penalty_K
+        return E + 0.5 * rho * float(np.sum(r[rows] ** 2 / mass))
+
+    def inverted_area(self) -> float:
+        """The area [m²] where det F ≤ 0 (the material turned inside out; the yarn invariants do not see it)."""
+        if self._det_F is None:
+            self._det_F = ngs.Det(ngs.Id(2) + ngs.Grad(self.u))
+        return float(ngs.Integrate(ngs.IfPos(-self._det_F, 1.0, 0.0), self.mesh))
+
+    def admissible(self) -> str:
+        """Why the current state is not a physical one ("" when it is).
+
+        Material inverted (det F ≤ 0) on more than :data:`INVERTED_AREA_FRACTION` of the specimen
+        beyond ``inverted_allowed`` [m²] (what there was where the relaxation began).
+        """
+        a = self.inverted_area()
+        if a <= self.inverted_allowed + INVERTED_AREA_FRACTION * self.scene.specimen.L * self.scene.specimen.W:
+            return ""
+        return f"det F <= 0 on {a * 1e6:.3g} mm² (the material turned inside out)"
+
+    @property
+    def inadmissible_hint(self) -> str:
+        """What keeps the specimen out of inverted states (the relaxation's advice when it meets them)."""
+        if self.scene.effects.shear and self.scene.effects.shear_law == "locking" and self.scene.material.K_lock > 0:
+            return ""
+        return ("the shear energy falls again once the yarns turn past parallel; a shear law that locks before "
+                "(effects.shear_law = 'locking' with material.K_lock > 0) keeps the yarns from crossing")
+
+    def begin_relaxation(self) -> None:
+        """A relaxation starts from the current state: it may not invert more material than there is now."""
+        self.inverted_allowed = self.inverted_area()
+
+    @property
+    def can_relax(self) -> bool:
+        """Whether the Newton matrix is a Hessian (condensed, or no multiplier).
+
+        Then energy descent and the stability test work (:func:`ngbet.continuum.solver.relax`).
+        """
+        return self.linear.condensed or "lam" not in self.field_names
+
+    def lowest_mode(self) -> tuple[float, np.ndarray]:
+        """The lowest eigenvalue of the scaled tangent at the current state and its mode (full length)."""
+        from .stability import lowest_eigenpair
+
+        mu, mode = lowest_eigenpair(self)
+        self._w.FV().NumPy()[:] = mode
+        self.linear.extend(self._w)  # the condensed local dofs follow
+        full = self._w.FV().NumPy().copy()
+        full[self.dirichlet] = 0.0
+        return mu, full
+
+    def locate(self, dx: np.ndarray) -> dict[str, object]:
+        """Where a change of state ``dx`` (full length) lives: the centroid and extent of |∇δu|² [mm]."""
+        from .stability import field_location
+
+        return field_location(self, dx)
 
     def solve(self, r: np.ndarray) -> np.ndarray:
         """The correction −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""

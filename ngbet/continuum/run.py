@@ -53,7 +53,11 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
 
     if scene.discretization.target_error > 0:  # accuracy on demand: the discretization is chosen
         acc = run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress, measured))
-        return RunWriter.amend(out, {k: acc[k] for k in ("accuracy", "warnings") if k in acc})
+        summary = RunWriter.amend(out, {k: acc[k] for k in ("accuracy", "warnings", "status", "error") if k in acc})
+        if not acc["accuracy"]["met"]:
+            raise ConvergenceError(acc["error"], float(acc.get("u0_reached_mm", scene.loading.u0_mm)),
+                                   path_info={"accuracy": acc["accuracy"]})
+        return summary
     t0 = time.perf_counter()
     draw = functools.partial(start_plot, service=plot_service(), measured=measured)
     with RunWriter(out, scene) as writer:
@@ -67,7 +71,8 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
             try:
                 res = _carry_load(problem, scene, recorder.on_step, bar, writer)
             except ConvergenceError as err:
-                info.update(_solver_info(problem, None), **err.path_info)
+                _write_mode(problem, err.path_info, writer)
+                info.update(_solver_info(problem, None), **snaps_in_units(err.path_info, scene.specimen.t))
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
                     writer.plot(draw)()
@@ -76,9 +81,34 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
         return _finish(problem, scene, writer, out, res, info, warnings, draw)
 
 
+def _write_mode(problem: ContinuumProblem, path_info: dict[str, Any], writer: RunWriter) -> None:
+    """Write the instability mode that path following found (if any) and name its files in ``path_info``."""
+    from .arclength import MODE_KEY
+
+    found = path_info.pop(MODE_KEY, None)
+    if found is None:
+        return
+    from .stability import write_mode
+
+    mode, name, title = found
+    saved = problem.x.copy()
+    files = writer.write_group(name, lambda stem: write_mode(problem, mode, stem, title))
+    problem.x[:] = saved
+    path_info["instability_mode_files"] = [f.name for f in files]
+
+
 def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
                 progress: Callable[[float], None] | None, writer: RunWriter | None = None) -> PathResult:
-    """The load path of the scene on the engine (``writer``: the run folder, for the instability's mode)."""
+    """The load path of the scene on the engine (the instability mode it found written by ``writer``)."""
+    res = _follow(problem, scene, on_step, progress)
+    if writer is not None:
+        _write_mode(problem, res.path_info, writer)
+    return res
+
+
+def _follow(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
+            progress: Callable[[float], None] | None) -> PathResult:
+    """The load path of the scene on the engine."""
     L = scene.loading
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                         max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
@@ -87,8 +117,7 @@ def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[Step
                         psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
                         path_following=scene.solver.path_following,
                         arclength=None if scene.solver.path_following == "displacement"
-                        else arclength_runner(problem, on_step, progress,
-                                              writer.write_group if writer is not None else None))
+                        else arclength_runner(problem, on_step, progress))
 
 
 def _diagnose(problem: ContinuumProblem) -> Any:
@@ -136,6 +165,8 @@ class _StepWriter:
         row: dict[str, Any] = {"step": len(self.writer.rows) + 1, "u0_mm": round(info.u0 * 1e3, 9)}
         row.update(self._observables(info))
         row.update(self.bet.row(row["u0_mm"], row.get("force_N")))
+        # a snap-through ended at this step (1), and the energy it released [J] (as the network's rows)
+        row.update(snap=int(info.snap), released_J=info.released * p.scene.specimen.t if info.snap else 0.0)
         now = time.perf_counter()
         row["newton_iterations"] = info.iterations
         row["step_wall_s"] = now - self.t_prev
@@ -204,6 +235,13 @@ def _final_files(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out
     if scene.outputs.vtk:
         writer.write("fields.vtu", lambda tmp: write_vtk(problem, tmp.with_suffix("")))
     info.update(_solver_info(problem, res))
+    problem.inverted_allowed = 0.0
+    inverted = problem.admissible()
+    if inverted:  # the energy has no barrier against it: say so rather than report the state as physical
+        warnings.append(f"at the final load {inverted}: the yarn invariants do not see the orientation of the "
+                        "material, so the model lets the specimen fold over itself there; the force there is "
+                        "not that of a physical state")
+        log.warning("%s", warnings[-1])
     info["warnings"] = warnings
     osc = obs.multiplier_oscillation(problem)
     if osc is not None:
@@ -218,10 +256,27 @@ def _final_files(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out
     return writer.summary(info, "ok")
 
 
+def snaps_in_units(path_info: dict[str, Any], t: float) -> dict[str, Any]:
+    """``path_info`` with its snap-throughs in N, J and mm (the solver's are per unit thickness)."""
+    snaps = path_info.get("snaps")
+    if not snaps:
+        return path_info
+    out = []
+    for s in snaps:
+        out.append({"u0_mm": s["u0_mm"], "u0_before_mm": s["u0_before_mm"],
+                    "force_before_N": s["reaction_before"] * t, "force_after_N": s["reaction_after"] * t,
+                    "energy_released_J": s["released"] * t, "clamp_work_J": s["work"] * t,
+                    "energy_before_J": s["energy_before"] * t, "energy_after_J": s["energy_after"] * t,
+                    "lowest_eigenvalue_after": s["lowest_eigenvalue_after"],
+                    "relaxation_iterations": s["relaxation_iterations"],
+                    **{k: s[k] for k in ("location_mm", "spread_mm", "max_du_mm") if k in s}})
+    return {**path_info, "snaps": out}
+
+
 def _solver_info(problem: ContinuumProblem, res: PathResult | None) -> dict[str, Any]:
     d: dict[str, Any] = {"timers": dict(problem.timers), "counts": dict(problem.counts)}
     if res is not None:
-        d.update(res.path_info)
+        d.update(snaps_in_units(res.path_info, problem.scene.specimen.t))
         d["load_steps"] = len(res.steps)
         d["step_cuts"] = res.cuts
         d["newton_iterations"] = sum(s.iterations for s in res.steps) + sum(

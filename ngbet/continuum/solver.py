@@ -15,6 +15,18 @@ Predictor:        tangent (Euler): x += ∂x/∂λ Δλ from the last factorizat
 Stepping:         :func:`ngbet.engine.follow_path`: cut by ``cut`` on failure, grow by ``growth``
                   after easy increments, land on stops (:func:`continuation` puts it together).
 
+Snap-through:     under displacement control, when an increment no longer than ``relax_below``
+                  fails (the path folds or branches: past the fold there is no equilibrium
+                  near the predicted state), :func:`relax` looks for a stable equilibrium at
+                  the same clamp displacement by pseudo-transient continuation from the
+                  predicted state, kicked along the lowest mode of the tangent if that is
+                  unstable: shifted Newton steps (J + s |diag J|) dx = −r, s raised until the
+                  matrix is positive definite, with a line search on the problem's merit
+                  (infinite outside the energy's domain: inverted material). The state found is
+                  accepted only if it is admissible and the tangent is positive definite there; if the step released
+                  energy beyond the clamp's work it is recorded as a snap-through (load, energy
+                  released, force before and after, where the jump lives).
+
 A load that cannot be reached raises :class:`ngbet.errors.ConvergenceError` carrying every
 attempt's decrements, the last converged load [mm] and the diagnosis; the caller has already
 saved each converged step.
@@ -57,8 +69,12 @@ class NonlinearProblem(Protocol):
     def energy(self) -> float:
         """Total energy (or Lagrangian) at x."""
 
-    def factorize(self) -> None:
-        """Linearize at x and factorize the free block (reusing the symbolic factorization)."""
+    def factorize(self, shift: float = 0.0) -> float:
+        """Linearize at x and factorize the free block (reusing the symbolic factorization).
+
+        ``shift`` > 0: J + s|diag J| with s ≥ shift raised until positive definite where that can
+        be tested; returns s (for :func:`relax`; 0 without a shift).
+        """
 
     def solve(self, r: np.ndarray) -> np.ndarray:
         """Dx = −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
@@ -103,6 +119,8 @@ class NewtonReport:
     damping: list[float]  # accepted damping factor per iteration
     reason: str = ""
     residual: np.ndarray | None = None  # r at the returned state (reactions come from it)
+    #: ‖next correction‖ / ‖last correction‖ where measured (one-step estimates), else nan
+    contraction: float = math.nan
 
 
 def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
@@ -183,6 +201,189 @@ def _simplified_exit(problem: NonlinearProblem, dx_bar: np.ndarray, r: np.ndarra
     return None
 
 
+#: a relaxed step that releases more than this fraction of the clamp's work in it is a snap-through
+#: (the network's threshold with the work by a rule that has the tangents: ``snap_release_hermite``)
+SNAP_RELEASE = 1e-3
+
+
+@dataclass(frozen=True)
+class RelaxSettings:
+    """Pseudo-transient continuation to a stable equilibrium at a fixed load (:func:`relax`)."""
+
+    #: factorizations allowed for one relaxation
+    max_iterations: int = 500
+    #: the first shift s (of |diag J|), and at least twice the lowest scaled eigenvalue's modulus
+    first_shift: float = 1e-6
+    #: the smallest shift
+    min_shift: float = 1e-12
+    #: a decrement below the tolerance ends the shifted steps only with a shift at most this
+    #: (a larger one hides soft directions that Newton would still move along)
+    newton_shift: float = 1e-8
+    #: the largest shift before giving up
+    max_shift: float = 1e3
+    #: the kick along an unstable mode: its largest weighted entry (u/L, phi)
+    kick: float = 1e-3
+    #: the shortest step of the line search
+    min_step: float = 1.0 / 1024
+    #: tries with a larger kick when the equilibrium found is unstable
+    kicks: int = 3
+
+
+@dataclass
+class RelaxReport:
+    """How a relaxation ended."""
+
+    converged: bool
+    iterations: int
+    history: list[float]
+    reason: str
+    residual: np.ndarray | None = None
+    lowest_eigenvalue: float = math.nan  # at the state found (scaled tangent)
+    kicked_from: float = math.nan  # the lowest eigenvalue at the start when it was kicked along its mode
+
+
+def relax(problem: NonlinearProblem, newton_settings: NewtonSettings, e_ref: float,
+          settings: RelaxSettings = RelaxSettings(), start_eigen: tuple[float, np.ndarray] | None = None
+          ) -> RelaxReport:
+    """A stable equilibrium at the current load from the current state, by a shifted descent.
+
+    Needs ``problem.factorize(shift)`` and ``problem.lowest_mode()`` (a Hessian tangent); uses
+    ``problem.merit(r)``, ``problem.begin_relaxation()`` and ``problem.admissible()`` where the
+    problem has them. The state is first moved along the lowest mode when that eigenvalue is not
+    positive (the sign that lowers the energy to first order). Then :func:`_flow`: shifted Newton
+    steps (J + s|diag J|) dx = −r with s at least what makes the matrix positive definite and a
+    line search on the merit, s falling as full steps are taken (a pseudo-transient continuation
+    that becomes Newton as it settles). Newton (:func:`newton`) finishes; the state is accepted if
+    admissible and the tangent's lowest eigenvalue is positive; an unstable one is kicked along
+    its mode (twice as far each time) and the descent goes on. On failure x is left where it stopped.
+    """
+    history: list[float] = []
+    tol = newton_settings.rtol * abs(e_ref) + newton_settings.atol
+    weights = _weights_of(problem)
+    begin = getattr(problem, "begin_relaxation", None)
+    if begin is not None:  # what the problem counts as admissible is judged against the start
+        begin()
+    mu, mode = start_eigen if start_eigen is not None else problem.lowest_mode()  # type: ignore[attr-defined]
+    kicked = math.nan
+    its = 0
+    for attempt in range(settings.kicks + 1):
+        if mu <= 0:
+            kicked = mu if math.isnan(kicked) else kicked
+            _kick(problem, mode, weights, settings.kick * 2 ** attempt)
+        shift = max(settings.first_shift, -2.0 * mu)
+        done, its, why = _flow(problem, newton_settings, tol, settings, shift, history, its)
+        if not done:
+            return RelaxReport(False, its, history, why, kicked_from=kicked)
+        rep = newton(problem, newton_settings, e_ref)
+        its += rep.iterations
+        history.extend(rep.history)
+        bad = problem.admissible() if rep.converged and hasattr(problem, "admissible") else ""
+        if bad:
+            return RelaxReport(False, its, history, f"the equilibrium found is not physical: {bad}",
+                               kicked_from=kicked)
+        mu, mode = problem.lowest_mode()  # type: ignore[attr-defined]
+        if rep.converged and mu > 0:
+            return RelaxReport(True, its, history, "relaxed to a stable equilibrium", rep.residual, mu, kicked)
+        why = (f"the equilibria found are unstable (lowest scaled eigenvalue {mu:.3g})" if rep.converged
+               else f"Newton after the relaxation: {rep.reason}")
+    return RelaxReport(False, its, history, why, lowest_eigenvalue=mu, kicked_from=kicked)
+
+
+def _weights_of(problem: NonlinearProblem) -> np.ndarray:
+    """Weights that make the entries of a correction unit-free (those of ``problem.norm``), or ones."""
+    w = getattr(problem, "_weights", None)
+    return np.asarray(w) if w is not None else np.ones_like(problem.x)
+
+
+def _kick(problem: NonlinearProblem, mode: np.ndarray, weights: np.ndarray, size: float) -> None:
+    """X += a mode, its largest weighted entry ``size``, the sign lowering the energy to first order."""
+    big = float(np.max(np.abs(weights * mode)))
+    if big <= 0:
+        return
+    a = size / big
+    r = problem.residual()
+    if np.isfinite(r).all() and float(r @ mode) > 0:
+        a = -a
+    problem.x[:] += a * mode
+
+
+def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float, settings: RelaxSettings,
+          shift: float, history: list[float], its: int) -> tuple[bool, int, str]:
+    """Shifted Newton steps with a line search on the merit until the decrement is small (True).
+
+    Each step solves (J + s|diag J|) dx = −r with s at least what makes the matrix positive
+    definite (``problem.factorize(shift)``), then halves the step until the merit (``problem.merit``,
+    the energy with the constraint's violation penalized; the energy without it) falls by at
+    least 1e-4 of the decrement; a full step lowers s by 4, a shortened one doubles it, no
+    descent at all raises it tenfold.
+    """
+    merit = getattr(problem, "merit", lambda _r: problem.energy())
+    r = problem.residual()
+    E = merit(r)
+    if not (np.all(np.isfinite(r)) and math.isfinite(E)):
+        return False, its, "the relaxation starts outside the energy's domain (or with a non-finite residual)"
+    barrier = False  # a trial step left the energy's domain (e.g. inverted material)
+    while its < settings.max_iterations:
+        its += 1
+        shift = problem.factorize(shift)
+        dx = problem.solve(r)
+        delta = abs(float(dx @ r))
+        if not math.isfinite(delta):
+            return False, its, "the relaxation gave a non-finite correction"
+        history.append(delta)
+        if delta <= tol:
+            if shift <= settings.newton_shift:
+                return True, its, ""
+            shift = max(shift / 100.0, settings.min_shift)  # small only because shifted: go on towards Newton
+            continue
+        x0 = problem.x.copy()
+        t = 1.0
+        while t >= settings.min_step:
+            problem.x[:] = x0 + t * dx
+            r_new = problem.residual()
+            E_new = merit(r_new)
+            barrier = barrier or E_new == math.inf
+            if np.all(np.isfinite(r_new)) and E_new <= E - 1e-4 * t * delta:
+                break
+            t *= 0.5
+        else:
+            problem.x[:] = x0
+            shift = max(10.0 * shift, 1e-6)
+            if shift > settings.max_shift:
+                return False, its, ("the descent ends where the material would turn inside out (det F <= 0): no "
+                                    "physical stable state was found at this clamp displacement" + _hint(problem)
+                                    if barrier else "no descent direction found in the relaxation")
+            continue
+        log.debug("relaxation %d: shift %.3g, step %.3g, decrement %.3g, energy %.12g", its, shift, t, delta, E_new)
+        r, E = r_new, E_new
+        shift = shift / 4.0 if t == 1.0 else 2.0 * shift
+        if shift < settings.min_shift:
+            shift = settings.min_shift
+    if barrier:
+        return False, its, (f"no physical stable state was found within {settings.max_iterations} relaxation "
+                            "iterations: the descent kept meeting states where the material would turn inside "
+                            "out (det F <= 0)" + _hint(problem))
+    return False, its, f"no equilibrium within {settings.max_iterations} relaxation iterations"
+
+
+def _hint(problem: NonlinearProblem) -> str:
+    """The problem's advice for a relaxation that meets its inadmissible states ("; ..." or "")."""
+    hint = getattr(problem, "inadmissible_hint", "")
+    return f"; {hint}" if hint else ""
+
+
+def _stalled(rep: NewtonReport) -> bool:
+    """Whether a failed Newton run stalled (no damping helped, or the decrement stopped falling).
+
+    A run that only ran out of iterations while its decrement kept falling was converging: a
+    shorter step, not a relaxation, is the answer (and ``solver.max_iterations`` stays the user's bound).
+    """
+    if rep.reason != "iteration limit":
+        return True
+    h = rep.history
+    return len(h) >= 2 and h[-1] >= h[-2]
+
+
 class SaddlePointNewton:
     """The continuum's corrector for :func:`ngbet.engine.follow_path`.
 
@@ -196,11 +397,20 @@ class SaddlePointNewton:
     """
 
     def __init__(self, problem: NonlinearProblem, settings: NewtonSettings,
-                 diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None) -> None:
+                 diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
+                 relax_below: float = 0.0, relax_settings: RelaxSettings = RelaxSettings()) -> None:
         self.problem = problem
         self.settings = settings
         self._diagnose = diagnose
         self._psi = psi
+        #: an increment shorter than this that fails is relaxed to a stable state (0: never)
+        self.relax_below = relax_below
+        self.relax_settings = relax_settings
+        #: the snap-throughs met, as the summary records them
+        self.snaps: list[dict[str, object]] = []
+        self.relaxations = 0
+        self._predicted: np.ndarray | None = None
+        self._jump: dict[str, object] | None = None  # the snap of the trial being corrected
         self._tangent: np.ndarray | None = None  # ∂x/∂λ at the converged state
         self._factorized = False
         self._saved = problem.x.copy()
@@ -214,6 +424,7 @@ class SaddlePointNewton:
             p.x[:] += h * self._load_tangent()
         else:
             p.x[:] += p.clamp_predictor(h)
+        self._predicted = p.x.copy() if self.relax_below > 0 else None
 
     def _load_tangent(self) -> np.ndarray:
         if self._tangent is None:
@@ -228,8 +439,53 @@ class SaddlePointNewton:
         p = self.problem
         p.set_load(u0 + h)
         e_ref = p.energy()
-        self.report = rep = newton(p, self.settings, e_ref if math.isfinite(e_ref) else 0.0)
+        e_ref = e_ref if math.isfinite(e_ref) else 0.0
+        self._jump = None
+        self.report = rep = newton(p, self.settings, e_ref)
+        if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
+            return self._relax(u0, h, e_ref, rep)
         return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
+
+    def _relax(self, u0: float, h: float, e_ref: float, failed: NewtonReport) -> Outcome:
+        """After Newton failed on a short increment: a stable equilibrium at u0 + h by :func:`relax`."""
+        p = self.problem
+        assert self._predicted is not None
+        self.relaxations += 1
+        before = self._state_at(self._saved, u0)
+        p.x[:] = self._predicted
+        p.set_load(u0 + h)
+        log.info("Newton failed on %.6g -> %.6g mm (%s): relaxing to a stable state", u0 * 1e3, (u0 + h) * 1e3,
+                 failed.reason)
+        rel = relax(p, self.settings, e_ref, self.relax_settings)
+        its = failed.iterations + rel.iterations
+        history = [*failed.history, *rel.history]
+        if not rel.converged:
+            return Outcome("failed", its, history, f"{failed.reason}; relaxation: {rel.reason}")
+        self.report = NewtonReport(True, its, history, [], rel.reason, rel.residual)
+        E1 = p.energy()
+        R1 = float(self._psi @ rel.residual) if self._psi is not None and rel.residual is not None else math.nan
+        E0, R0 = before
+        work = 0.5 * h * (R0 + R1) if math.isfinite(R0 + R1) else math.nan
+        released = E0 + work - E1 if math.isfinite(work) else math.nan
+        # a jump to another state: energy released beyond the clamp's work (the network's criterion)
+        jumped = math.isfinite(released) and released > SNAP_RELEASE * abs(work)
+        if jumped:
+            self._jump = {"u0_mm": (u0 + h) * 1e3, "u0_before_mm": u0 * 1e3, "energy_before": E0, "energy_after": E1,
+                          "released": released, "work": work, "reaction_before": R0, "reaction_after": R1,
+                          "lowest_eigenvalue_after": rel.lowest_eigenvalue,
+                          "lowest_eigenvalue_before": rel.kicked_from, "relaxation_iterations": rel.iterations}
+            locate = getattr(p, "locate", None)
+            if locate is not None:
+                self._jump.update(locate(p.x - self._predicted))
+        return Outcome("converged", its, history, rel.reason + (" (snap-through)" if jumped else ""))
+
+    def _state_at(self, x: np.ndarray, u0: float) -> tuple[float, float]:
+        """Energy and reaction psi·r of the state x at load u0 (the problem's state is left at x)."""
+        p = self.problem
+        p.x[:] = x
+        p.set_load(u0)
+        r = p.residual()
+        return p.energy(), float(self._psi @ r) if self._psi is not None else math.nan
 
     def accept(self, u0: float, h: float, outcome: Outcome) -> StepRecord:
         """The state is converged: its residual, and the load tangent for dR/du0 and the next predictor."""
@@ -238,6 +494,13 @@ class SaddlePointNewton:
         self._tangent = None
         rec = StepRecord(0, u0 + h, outcome.iterations, residual=self.report.residual,
                          history=list(outcome.history), reason=outcome.reason)
+        if self._jump is not None:
+            rec.snap = True
+            rec.released = float(self._jump["released"])  # type: ignore[arg-type]
+            self.snaps.append(self._jump)
+            log.warning("snap-through at u0 = %.6g mm: the state jumped to a stable one (energy released %.3g "
+                        "per unit thickness)", (u0 + h) * 1e3, rec.released)
+            self._jump = None
         if self.settings.predictor == "tangent" and self._psi is not None:
             rec.dforce_du0 = self.problem.load_derivative(self._psi, self._load_tangent())
         return rec
@@ -275,6 +538,7 @@ def continuation(
     progress: Callable[[float], None] | None = None,
     path_following: str = "displacement",
     arclength: Callable[[PathResult], PathResult] | None = None,
+    snap: bool = True,
 ) -> PathResult:
     """Carry the load from 0 to ``target`` with :class:`SaddlePointNewton` on the engine.
 
@@ -291,7 +555,9 @@ def continuation(
     ``path_following`` (``solver.path_following``): "displacement" control alone; "arclength":
     ``arclength(result)`` follows the path from the start; "auto": displacement control, and
     where it fails, ``arclength(result)`` goes on from the last converged state (the steps are
-    appended to the same result).
+    appended to the same result). ``snap``: under displacement control, an increment that fails
+    at the shortest length is relaxed to a stable state at its load (:func:`relax`; a snap-through
+    is recorded in the step and in ``path_info["snaps"]``).
     """
     if path_following == "arclength" and arclength is not None:
         return arclength(PathResult(0.0))
@@ -299,8 +565,18 @@ def continuation(
                       growth=settings.growth, cut=settings.cut, grow_after=settings.grow_after,
                       stops=tuple(stops), land_within=0.2, max_attempts=max_attempts)
     if path_following != "auto" or arclength is None:
-        corrector = SaddlePointNewton(problem, settings, diagnose, psi)
-        return follow_path(corrector, ctl, on_step=on_step, progress=progress)
+        # displacement control relaxes to a stable state where the path folds (the last increment
+        # before the minimum, if within twice the minimum: a snap is bracketed as closely as the
+        # steps go); a problem without a Hessian tangent cannot (no stability test)
+        below = min(min_step / settings.cut, 2 * min_step) if snap and getattr(problem, "can_relax", False) else 0.0
+        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below)
+        try:
+            res = follow_path(corrector, ctl, on_step=on_step, progress=progress)
+        except ConvergenceError as err:
+            err.path_info.update(_snap_info(corrector))
+            raise
+        res.path_info.update(_snap_info(corrector))
+        return res
     # under "auto" a failure hands over to arc length, which reports the path's instabilities
     # itself: no diagnosis (an eigen-solve) at the hand-over
     corrector = SaddlePointNewton(problem, settings, None, psi)
@@ -319,6 +595,13 @@ def continuation(
         partial.attempts = list(err.attempts)
         partial.cuts = sum(not a.converged for a in err.attempts)
         return arclength(partial)
+
+
+def _snap_info(corrector: SaddlePointNewton) -> dict[str, object]:
+    """The snap-throughs and relaxations of a displacement-controlled path, for the summary."""
+    if not corrector.relaxations:
+        return {}
+    return {"snaps": list(corrector.snaps), "relaxations": corrector.relaxations}
 
 
 def failure_pattern(attempts: Sequence[Attempt]) -> str:

@@ -123,8 +123,9 @@ class StabilityDiagnosis:
             kind = "a mode of the discretization: i8 varies inside the elements and phi does not follow"
             if not self.ellipticity_loss:
                 lo, hi = self.stabilization_K_Pa
-                kind += (f"; raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa), e.g. to "
-                         f"material.K_el = {self.K_el:.3g} Pa")
+                kind += (f"; raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa) to about the yarns' "
+                         f"elongation modulus: --set effects.stabilization_K={self.K_el:.3g} (material.K_el "
+                         "stays as it is)")
         else:
             kind = ("a mode of the constrained continuum (phi follows i8): the model's own limit point or "
                     "bifurcation; solver.path_following = 'auto' follows the path through it and reports its kind")
@@ -222,6 +223,28 @@ def mode_constraint_ratio(problem: ContinuumProblem, x: np.ndarray) -> tuple[flo
     tot = ngs.Integrate(dens, mesh)
     where = (1e3 * ngs.Integrate(dens * ngs.x, mesh) / tot, 1e3 * ngs.Integrate(dens * ngs.y, mesh) / tot)
     return float(np.sqrt(num / max(den, 1e-300))), where
+
+
+def field_location(problem: ContinuumProblem, dx: np.ndarray) -> dict[str, object]:
+    """Where a change of state ``dx`` (full length) lives: centroid and spread of |∇δu|², and its size.
+
+    Returns ``location_mm`` (X, Y), ``spread_mm`` (the root-mean-square distance from the centroid,
+    weighted by |∇δu|²: small for a local jump, about the specimen's size for a global one) and
+    ``max_du_mm`` (the largest nodal |δu|).
+    """
+    gf = ngs.GridFunction(problem.X)
+    gf.vec.FV().NumPy()[:] = dx
+    du = gf.components[0]
+    G = ngs.Grad(du)
+    mesh = problem.mesh
+    dens = ngs.InnerProduct(G, G)
+    tot = max(ngs.Integrate(dens, mesh), 1e-300)
+    cx = ngs.Integrate(dens * ngs.x, mesh) / tot
+    cy = ngs.Integrate(dens * ngs.y, mesh) / tot
+    spread = math.sqrt(max(ngs.Integrate(dens * ((ngs.x - cx) ** 2 + (ngs.y - cy) ** 2), mesh) / tot, 0.0))
+    vals = [du(mesh(*v.point[:2])) for v in mesh.vertices]
+    big = max((math.hypot(*v) for v in vals), default=0.0)
+    return {"location_mm": [1e3 * cx, 1e3 * cy], "spread_mm": 1e3 * spread, "max_du_mm": 1e3 * big}
 
 
 def write_mode(problem: ContinuumProblem, mode: np.ndarray, path: Path, title: str = "") -> list[Path]:
