@@ -408,6 +408,8 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
         msg = f"discretization.target_error = {target:g} not reached: {why}"
         summary["status"], summary["error"] = "failed", msg
         log.warning("%s", msg)
+        raise ConvergenceError(msg, float(summary.get("u0_reached_mm", scene.loading.u0_mm)),
+                               path_info={"accuracy": summary["accuracy"]})
     return summary
 
 

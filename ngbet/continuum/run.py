@@ -52,12 +52,13 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
     from .estimate import RunEstimates, run_to_accuracy
 
     if scene.discretization.target_error > 0:  # accuracy on demand: the discretization is chosen
-        acc = run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress, measured))
-        summary = RunWriter.amend(out, {k: acc[k] for k in ("accuracy", "warnings", "status", "error") if k in acc})
-        if not acc["accuracy"]["met"]:
-            raise ConvergenceError(acc["error"], float(acc.get("u0_reached_mm", scene.loading.u0_mm)),
-                                   path_info={"accuracy": acc["accuracy"]})
-        return summary
+        try:
+            acc = run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress, measured))
+        except ConvergenceError as err:  # the target not reached: its record, then the failure
+            if "accuracy" in err.path_info:
+                RunWriter.amend(out, {"accuracy": err.path_info["accuracy"], "status": "failed", "error": str(err)})
+            raise
+        return RunWriter.amend(out, {k: acc[k] for k in ("accuracy", "warnings") if k in acc})
     t0 = time.perf_counter()
     draw = functools.partial(start_plot, service=plot_service(), measured=measured)
     with RunWriter(out, scene) as writer:
