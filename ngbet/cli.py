@@ -24,7 +24,6 @@ exits 3: its run folder is complete, the message on stderr says so.
 from __future__ import annotations
 
 import argparse
-import ast
 import contextlib
 import json
 import logging
@@ -33,56 +32,19 @@ import signal
 import socket
 import sys
 import threading
-import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from .commands import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_IO, EXIT_OK, EXIT_SOLVER, exit_code, load_scene
+from .commands import parse_value as _parse_value
 from .messages import messages, say
-from .scene import Scene, SceneError, SceneNote, SceneWarning
+from .scene import Scene, SceneError
 
-EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_IO, EXIT_INTERNAL, EXIT_INTERRUPTED = 0, 1, 2, 3, 70, 130
 EPILOG = ("exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
           "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
           "busy with another run; scheduler unreachable; stdout not writable); 70 internal error of ngbet; "
           "130 interrupted (SIGINT/SIGTERM; summary.json says interrupted, with the last converged load in mm)")
-
-
-def _parse_value(text: str) -> object:
-    low = text.lower()
-    if low in ("true", "false"):
-        return low == "true"
-    try:
-        return ast.literal_eval(text)
-    except (ValueError, SyntaxError):
-        return text
-
-
-def load_scene(path: str | None, overrides: list[str]) -> Scene:
-    """The scene file (or the default scene) with ``section.key=value`` (or ``model=...``) overrides applied.
-
-    The file's tables and the overrides are read into one scene: its missing keys take the
-    defaults, and a default that contradicts a key the file or an override sets gives way to it,
-    with a note on stderr (``ngbet: note: ...``), as are the scene's warnings.
-    """
-    from .scene import apply_changes, read_toml
-
-    changes = {}
-    for item in overrides:
-        key, sep, value = item.partition("=")
-        if not sep or ("." not in key and key.strip() != "model"):
-            raise SceneError(f"--set expects section.key=value or model=continuum|discrete, got {item!r}")
-        changes[key.strip()] = _parse_value(value.strip())
-    data = read_toml(path) if path else {}
-    if not isinstance(data, dict):
-        raise SceneError(f"scene file {path}: not a table of sections")
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", SceneNote)
-        warnings.simplefilter("always", SceneWarning)
-        scene = Scene.from_dict(apply_changes(data, changes))
-    for w in caught:  # shown as one `ngbet:` line each, once (ngbet.messages)
-        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    return scene
 
 
 _say = say  # one `ngbet: ...` line on stderr (stderr itself may be gone: the exit status still says it)
@@ -168,38 +130,6 @@ def _watch(r: socket.socket, acted: threading.Event) -> None:
             sys.stderr.flush()
             os._exit(EXIT_INTERRUPTED)
         acted.clear()
-
-
-def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
-    """The exit status and the one-line message of an error that ends a command.
-
-    ``where``: the output folder, named when the OS error names no file (e.g. a full disk on write).
-    """
-    from .errors import ConvergenceError
-    from .output import OutputError
-    from .study import SchedulerError
-
-    if isinstance(exc, SceneError):
-        return EXIT_INPUT, f"bad scene: {exc}"
-    if isinstance(exc, ConvergenceError):
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        advice = getattr(exc.detail, "advice", lambda: "")()  # the diagnosis's cause and remedy
-        return EXIT_SOLVER, (f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}"
-                             + (f"; {advice}" if advice else ""))
-    if isinstance(exc, OutputError):
-        return EXIT_IO, f"cannot use the output folder {exc}"
-    if isinstance(exc, SchedulerError):
-        return EXIT_IO, str(exc)
-    if isinstance(exc, OSError):
-        path = exc.filename if exc.filename is not None else where
-        return EXIT_IO, f"I/O error on {path if path is not None else 'an unnamed file'}: {exc.strerror or exc}"
-    if isinstance(exc, MemoryError):  # the size check before the run should have refused it
-        return EXIT_INTERNAL, ("out of memory" + (f" (converged steps and summary.json are in {where}/)" if where
-                                                  else "") + ": the estimate of the problem's size missed it; "
-                               "please report it")
-    first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-    return EXIT_INTERNAL, (f"internal error ({type(exc).__name__}{': ' + first if first else ''}); this is a bug in "
-                           "ngbet: please report it (-v shows the traceback)")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,8 +12,7 @@ from conftest import coarse
 
 from ngbet.continuum import observables as obs
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.run import newton_settings
-from ngbet.continuum.solver import newton
+from ngbet.continuum.solver import newton, newton_settings
 from ngbet.output import read_profiles, read_rows
 from ngbet.run import run
 from ngbet.scene import Scene, default_scene

@@ -9,8 +9,7 @@ import pytest
 from conftest import coarse
 
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.run import newton_settings
-from ngbet.continuum.solver import NewtonSettings, continuation
+from ngbet.continuum.solver import NewtonSettings, continuation, newton_settings
 from ngbet.errors import ConvergenceError
 from ngbet.output import read_rows
 from ngbet.run import run

@@ -22,8 +22,8 @@ import numpy as np
 
 from ngbet.continuum import observables as obs
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.run import _carry_load, newton_settings
-from ngbet.continuum.solver import newton
+from ngbet.continuum.run import _carry_load
+from ngbet.continuum.solver import newton, newton_settings
 from ngbet.continuum.stability import diagnose_stability
 from ngbet.studies import _common as C
 

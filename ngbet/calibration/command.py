@@ -90,7 +90,7 @@ class Inputs:
     """Everything ``ngbet fit`` reads, read and checked before the first model run."""
 
     def __init__(self, args: argparse.Namespace) -> None:  # noqa: C901 - one check after the other
-        from ..cli import load_scene
+        from ..commands import load_scene
 
         tomls = [a for a in args.inputs if a.lower().endswith(".toml")]
         self.data = [a for a in args.inputs if not a.lower().endswith(".toml")]
@@ -155,7 +155,7 @@ class Inputs:
 
 def run_from_args(args: argparse.Namespace) -> int:
     """``ngbet fit``: exit 0 done, 1 a model run or the search failed, 2 bad input, 3 unusable output folder."""
-    from ..cli import exit_code
+    from ..commands import exit_code
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     out = Path(args.out)
@@ -243,7 +243,7 @@ def _legacy(args: argparse.Namespace, inp: Inputs, out: Path) -> int:
         try:
             pred = F.predict(result, F.Curve(p.u_mm, p.force_N, p.source), inp.predict_scene, inp.u_range)
         except Exception as exc:
-            from ..cli import exit_code
+            from ..commands import exit_code
 
             code2, msg = exit_code(exc, out)
             print(f"ngbet fit: prediction of {p.source} failed (the fit is kept in {out}/): {msg}", file=sys.stderr)

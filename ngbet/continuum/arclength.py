@@ -387,7 +387,7 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
     mode to picture under :data:`MODE_KEY`, for the runner to write and pop) and raises
     :class:`~ngbet.errors.ConvergenceError` with it when the target is not reached.
     """
-    from .run import newton_settings
+    from .solver import newton_settings
     from .stability import diagnose_stability, indefinite_by_construction, lowest_eigenpair
 
     scene = problem.scene

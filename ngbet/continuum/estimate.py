@@ -215,8 +215,7 @@ class ForceErrorEstimator:
         the p + 2 level, a check that is not worth a converged solve one order further up).
         """
         from . import observables as obs
-        from .run import newton_settings
-        from .solver import newton
+        from .solver import newton, newton_settings
 
         for i in range(len(src.field_names)):
             enr.gf.components[i].Set(src.gf.components[i])

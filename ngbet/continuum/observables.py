@@ -10,13 +10,15 @@ R = Σ_{d ∈ Σ2} r_d ψ_d: the same number as any other test field with those 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import ngsolve as ngs
 import numpy as np
 
 from . import physics
-from .problem import ContinuumProblem
+
+if TYPE_CHECKING:  # for the annotations only: the problem's diagnosis uses these observables
+    from .problem import ContinuumProblem
 
 
 def reaction_force(problem: ContinuumProblem, r: np.ndarray) -> float:

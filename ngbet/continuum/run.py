@@ -24,7 +24,7 @@ from .arclength import arclength_runner
 from .linear import assembly_thread_count
 from .output import write_vtk
 from .problem import ContinuumProblem
-from .solver import NewtonSettings, continuation
+from .solver import continuation, newton_settings
 
 #: each element of the shear-angle map is split into this many² triangles (p = 2 fields: enough)
 MAP_SUBDIVISION = 2
@@ -32,13 +32,6 @@ MAP_SUBDIVISION = 2
 log = logging.getLogger(__name__)
 
 __all__ = ["newton_settings", "run_continuum", "write_vtk"]  # write_vtk: ngbet.continuum.output
-
-
-def newton_settings(scene: Scene) -> NewtonSettings:
-    """The Newton numerics of ``scene.solver``."""
-    s = scene.solver
-    return NewtonSettings(rtol=s.rtol, atol=s.atol_energy, max_iterations=s.max_iterations,
-                          grow_after=s.grow_after, growth=s.growth, cut=s.cut, predictor=s.predictor)
 
 
 def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None) -> dict[str, Any]:

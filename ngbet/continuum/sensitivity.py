@@ -197,8 +197,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     :class:`ngbet.errors.ConvergenceError` when the path cannot be followed to the last load.
     """
     from .problem import ContinuumProblem
-    from .run import newton_settings
-    from .solver import continuation
+    from .solver import continuation, newton_settings
 
     names = _check_params(scene, params)
     profile = {float(k): np.asarray(v, float) for k, v in (profile or {}).items()}

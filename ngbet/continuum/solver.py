@@ -38,12 +38,15 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
 from ..errors import Attempt, ConvergenceError
+
+if TYPE_CHECKING:
+    from ..scene import Scene
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +110,13 @@ class NewtonSettings:
     #: contraction θ = ‖dx̄‖/‖dx‖ below which a small simplified correction ends Newton without a
     #: new linearization (0 disables the shortcut)
     simplified_theta: float = 0.5
+
+
+def newton_settings(scene: Scene) -> NewtonSettings:
+    """The Newton numerics of ``scene.solver`` (the one translation of the scene into them)."""
+    s = scene.solver
+    return NewtonSettings(rtol=s.rtol, atol=s.atol_energy, max_iterations=s.max_iterations,
+                          grow_after=s.grow_after, growth=s.growth, cut=s.cut, predictor=s.predictor)
 
 
 @dataclass
