@@ -67,6 +67,9 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
     if isinstance(exc, ConvergenceError):
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         advice = getattr(exc.detail, "advice", lambda: "")()  # the diagnosis's cause and remedy
+        reason = exc.attempts[-1].reason if exc.attempts else ""
+        if not advice and "relaxation:" in reason:  # why no stable state was found at the load
+            advice = reason.split("relaxation:", 1)[1].strip().removesuffix(")")
         return EXIT_SOLVER, (f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}"
                              + (f"; {advice}" if advice else ""))
     if isinstance(exc, OutputError):

@@ -72,6 +72,8 @@ def install(verbose: bool = False) -> logging.Handler:
     """Log records and warnings as ``ngbet:`` lines from now on in this process; the handler added."""
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(OneLine(verbose))
+    # records of other libraries' loggers that set their own level (dask's INFO) stop here too
+    handler.setLevel(logging.INFO if verbose else logging.WARNING)
     if not verbose:
         handler.addFilter(_Once())
     root = logging.getLogger()

@@ -55,7 +55,8 @@ def _sources(tmp_path: Path) -> Path:
     src.mkdir()
     for name in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy(ROOT / name, src / name)
-    shutil.copytree(ROOT / "ngbet", src / "ngbet", ignore=shutil.ignore_patterns("__pycache__", "_version.py"))
+    for pkg in ("ngbet", "studies"):  # studies/ is installed as ngbet.studies
+        shutil.copytree(ROOT / pkg, src / pkg, ignore=shutil.ignore_patterns("__pycache__", "_version.py"))
     return src
 
 
@@ -146,8 +147,8 @@ def test_a_study_without_matplotlib_and_pyvista_writes_its_tables_and_report(tmp
     p = subprocess.run([sys.executable, "-m", "ngbet", "study", "alpha1", "--quick", "--quiet", "--out", str(out),
                         "--cache", str(tmp_path / "cache")], env=bare_env, capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
-    assert p.stderr.splitlines() == ["ngbet: study alpha1: no figures: matplotlib is not installed "
-                                     "(pip install matplotlib)"]
+    assert p.stderr.splitlines() == ["ngbet: study alpha1: figures skipped: matplotlib is not installed "
+                                     "(pip install matplotlib); the tables and the report are written"]
     assert p.stdout == ""  # --quiet
     assert {"results.csv", "report.md", "meta.json"} <= {f.name for f in out.iterdir()}
     assert not list(out.glob("*.png"))

@@ -23,7 +23,7 @@ def finish(study: Study, data: StudyData) -> list[Path]:
     figs: list[Path] = []
     if study.plot is not None and importlib.util.find_spec("matplotlib") is None:
         data.meta["figures_skipped"] = "matplotlib is not installed (pip install matplotlib)"
-        log.warning("study %s: no figures: %s", study.name, data.meta["figures_skipped"])
+        log.info("study %s: figures skipped: %s", study.name, data.meta["figures_skipped"])
     elif study.plot is not None:
         import matplotlib
 
