@@ -320,7 +320,7 @@ def _run_study_command(what: str, build: Any, args: argparse.Namespace) -> int:
     try:
         scene, source = _study_scene(args.scene, args.overrides)
         if scene is not None and not _takes_scene(build):
-            raise SceneError(f"{what} runs on ngbet's default scene only (it takes no scene file or --set)")
+            raise SceneError(f"{what} runs on its own scenes (it takes no scene file or --set)")
     except SceneError as exc:
         _say(f"{what}: bad scene: {exc}")
         return EXIT_INPUT

@@ -17,18 +17,19 @@ from pathlib import Path
 
 import numpy as np
 
+from ngbet.scene import Scene
 from ngbet.study import Study, StudyData, main_for
 
 from . import _common as C
+from . import reference as R
 
 YARN_SPACING_MM = 10.0  # drawn yarns (one line per 10 mm; the fabric's yarns are denser)
 
 
-def build(quick: bool = False) -> Study:
-    s1, s2 = C.stations(quick)
-    base = C.base_scene(quick, **{"outputs.plot": True, **({C.H: 20.0} if quick else {})})
-    return Study("maps", base, [{}], description=__doc__ or "", extract=extract, plot=plot, report=report,
-                 profile_stations=(s1, s2))
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    base = C.study_scene(scene, quick, {"outputs.plot": True, **({C.H: 20.0} if quick else {})})
+    return Study("maps", base, [{}], description=__doc__ or "", extract=extract, plot=plot,
+                 report=lambda d: report(d, quick), profile_stations=C.stations(quick, base))
 
 
 def step_vtu(run_dir: Path, u0: float) -> Path | None:
@@ -116,8 +117,9 @@ def plot(data: StudyData) -> list[Path]:
     return [png]
 
 
-def report(data: StudyData) -> str:
-    L = ["# Angle maps", "", "One colour scale for both loads: `map.png`, `map.pdf`.", "",
+def report(data: StudyData, quick: bool = False) -> str:
+    L = [*C.header(data, "Angle maps", R.reference_text(data, quick)),
+         "One colour scale for both loads: `map.png`, `map.pdf`.", "",
          "| u0 [mm] | smallest shear angle γ [deg] | largest [deg] | data |", "|---|---|---|---|"]
     for r in data.tables.get("maps", []):
         L.append(f"| {r['u0_mm']:g} | {r['gamma_min_deg']:.2f} | {r['gamma_max_deg']:.2f} | {r['data']} |")
