@@ -185,15 +185,16 @@ def test_full_penalty_mixed_form_is_the_pointwise_penalty(order_u):
 @pytest.mark.slow
 def test_full_penalty_K_1e12_locks_and_says_so(tmp_path):
     """K = 1e12 Pa pointwise: φ = i8 exactly at every point asks i8 (discontinuous P2) to equal a
-    continuous φ: the discrete problem locks and, past ~40 mm, no increment converges however
-    small, or a relaxation carries it to a locked state whose multiplier oscillates. Either way the run
-    fails with the load reached and the reason; use the mixed form."""
-    with pytest.raises(ConvergenceError) as info:
-        _run(tmp_path, "full", **{"effects.constraint": "penalty", "effects.penalty_form": "full",
-                                  "effects.penalty_K": 1e12, "loading.output_every_mm": 0.0})
-    err = info.value  # stopped on the way, or carried through to a locked state that is refused
-    assert 35.0 <= err.last_converged_mm <= 56.0
-    assert ("failed" in err.diagnosis and "not smooth" in err.diagnosis) or "the pointwise penalty locks" in str(err)
+    continuous φ: the discrete problem locks. Past ~44 mm the path folds; a relaxation carries it on
+    to a locked state (measured: 128.7 N at 56 mm against the Lagrange solution's 109.5 N on this
+    mesh) whose multiplier oscillates wholly: the run says it locks and names the remedy, and gives
+    no error bar (the enriched problems have no equilibrium)."""
+    s, rows, _ = _run(tmp_path, "full", **{"effects.constraint": "penalty", "effects.penalty_form": "full",
+                                           "effects.penalty_K": 1e12, "loading.output_every_mm": 0.0})
+    assert s["multiplier_oscillation"] > 0.9
+    assert any("the pointwise penalty locks (use effects.constraint = 'lagrange' or penalty_form = 'mixed')" in w
+               for w in s["warnings"])
+    assert rows[-1]["force_N"] > 1.1 * 109.5 and rows[-1]["force_error_N"] == ""
 
 
 # ------------------------------------------------------------------------------ bending stiffnesses

@@ -246,10 +246,6 @@ def _final_files(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out
                    f"the orders (u, phi, lam) = ({scene.discretization.p_u}, {scene.discretization.p_phi}, "
                    f"{problem.p_lam}) are not a stable pair (the default orders are, for order_u >= 2)")
             warnings.append(f"the multiplier oscillates ({osc:.2f} of its L2 norm is not continuous): {why}")
-            if problem.full_as_mixed:  # a locked discretization: its forces are not the model's
-                info["warnings"] = warnings
-                raise ConvergenceError(f"the discrete problem locks: {warnings[-1]}", writer.last_converged_mm,
-                                       path_info=info)
             log.warning("%s", warnings[-1])
     return writer.summary(info, "ok")
 
