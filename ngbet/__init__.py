@@ -8,6 +8,33 @@ D'Agostino & Boisse (2016); conventions and equations in docs/model.md.
     >>> r.force_N[-1]                                # doctest: +SKIP
 """
 
+import importlib.util as _importlib_util
+import sys as _sys
+from pathlib import Path as _Path
+
+
+def _studies_of_a_source_checkout() -> None:
+    """``ngbet.studies`` where ngbet runs from a source checkout rather than an install.
+
+    An install places the top-level ``studies/`` folder at ``ngbet/studies``; in a checkout (the
+    tests and docs scripts run from its root import this folder's ngbet) the same scripts are
+    found in ``studies/`` beside it.
+    """
+    here = _Path(__file__).resolve().parent
+    src = here.parent / "studies"
+    if (here / "studies").exists() or not (src / "__init__.py").is_file() or "ngbet.studies" in _sys.modules:
+        return
+    spec = _importlib_util.spec_from_file_location(__name__ + ".studies", src / "__init__.py",
+                                                    submodule_search_locations=[str(src)])
+    if spec is None or spec.loader is None:
+        return
+    module = _importlib_util.module_from_spec(spec)
+    _sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+
+
+_studies_of_a_source_checkout()
+
 from .api import Result, load_result, simulate  # noqa: E402
 from .errors import ConvergenceError  # noqa: E402
 from .revision import __revision__, __version__  # noqa: E402  (written by setuptools-scm at build time)
