@@ -31,6 +31,7 @@ def _studies_of_a_source_checkout() -> None:
     module = _importlib_util.module_from_spec(spec)
     _sys.modules[spec.name] = module
     spec.loader.exec_module(module)
+    globals()["studies"] = module  # as the import system binds a subpackage it imported
 
 
 _studies_of_a_source_checkout()
