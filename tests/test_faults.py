@@ -45,9 +45,9 @@ SLOW_SET = ["--set=discretization.mesh_size_mm=20", "--set=discretization.corner
             "--set=loading.first_step_mm=0.2", "--set=loading.max_step_mm=0.2", "--set=solver.grow_after=0"]
 
 
-def ngbet(*args: str, **kw) -> subprocess.Popen:
+def ngbet(*args: str, env: dict[str, str] | None = None, **kw) -> subprocess.Popen:
     """``ngbet ARGS`` in a new process group (as a terminal runs it: Ctrl-C reaches the group)."""
-    env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
+    env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg", **(env or {})}
     return subprocess.Popen([sys.executable, "-m", "ngbet", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env, start_new_session=True, **kw)
 
@@ -714,3 +714,41 @@ def test_reference_from_an_incomplete_family_names_the_missing_cases(tmp_path):
     data = StudyData(tmp_path, [], [], {}, {"cases": []})
     with pytest.raises(MissingValueError, match=r"reference cases missing.*discretization\.order_u=4"):
         R.reference(data, quick=True)
+
+
+CRASH_SITE = '''
+import os, pathlib, signal, threading, time
+if os.environ.get("NGBET_SUPERVISED") and os.environ.get("CRASH_AFTER_ROWS_IN"):
+    rows = pathlib.Path(os.environ["CRASH_AFTER_ROWS_IN"]) / "results.csv"
+
+    def crash():
+        while True:
+            try:
+                if rows.read_text().count("\\n") >= 3:
+                    os.kill(os.getpid(), signal.SIGILL)  # as compiled code gone wrong would
+            except OSError:
+                pass
+            time.sleep(0.02)
+
+    threading.Thread(target=crash, daemon=True).start()
+'''
+
+
+def test_a_run_that_dies_without_a_word_is_recorded_as_crashed(tmp_path):
+    """A crash inside the run's process (here a SIGILL once two steps are on disk) cannot record its
+    end; the process that watches ``ngbet run`` records "crashed" with the signal, keeps the
+    converged steps, says it in one line and exits 70, never leaving "running" behind."""
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(CRASH_SITE)
+    out = tmp_path / "run"
+    p = ngbet("run", "--out", str(out), "--quiet", *SLOW_SET,
+              env={"PYTHONPATH": str(site), "CRASH_AFTER_ROWS_IN": str(out)})
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 70, err
+    assert "died by SIGILL" in err and "Traceback" not in err and str(out) in err
+    s, rows = summary(out), read_rows(out / "results.csv")
+    assert s["status"] == "crashed" and "SIGILL" in s["error"] and len(rows) >= 2
+    assert s["u0_reached_mm"] == rows[-1]["u0_mm"] and f"after u0 = {rows[-1]['u0_mm']:g} mm" in err
+    run(Scene().with_changes(**TINY), out)  # the folder is free for the next run
+    assert summary(out)["status"] == "ok"
