@@ -6,6 +6,7 @@ long finite-element checks (marked here: INTEGRATION_MODULES whole, LONG_CHECKS;
 themselves); ``-m slow`` the long runs. ``-m "integration or slow"`` with the default gives everything.
 """
 
+import numpy as np
 import pytest
 
 from ngbet.scene import Scene
@@ -37,3 +38,26 @@ def coarse(**changes) -> Scene:
 @pytest.fixture
 def coarse_scene():
     return coarse
+
+
+class OneDofToy:
+    """The linear algebra of a one-dof toy problem x = (λ, y) with λ the Dirichlet entry and the
+    tangent J = dr_y/dy, as the continuation engines see a problem; subclasses give the residual,
+    the energy and ``factorize`` (which sets J)."""
+
+    J: float
+
+    def solve(self, r):
+        return np.array([0.0, -r[1] / self.J])
+
+    def load_tangent(self, dlam):
+        return np.array([dlam, dlam / self.J])
+
+    def clamp_predictor(self, dlam):
+        return np.array([dlam, 0.0])
+
+    def norm(self, dx):
+        return abs(dx[1])
+
+    def load_derivative(self, psi, tangent):
+        return float(psi @ np.array([-tangent[1], self.J * tangent[1] - tangent[0]]))

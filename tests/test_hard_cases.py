@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import coarse
+from conftest import OneDofToy, coarse
 
 from ngbet.errors import ConvergenceError
 from ngbet.output import read_profiles, read_rows
@@ -368,7 +368,7 @@ def test_other_yarn_angles(tmp_path, angle, u0):
 
 
 # ------------------------------------------------------------------------------ through the instability
-class _Fold:
+class _Fold(OneDofToy):
     """A one-dof toy with a snap-back in the control λ: E = G(y) − λ y, r_y = g(y) − λ with
     g(y) = y³ − 1.5 y² + 0.6 y, which rises to a fold at y₁ = (3 − √1.8)/6 (λ = g(y₁) = 0.0726),
     falls to y₂ = (3 + √1.8)/6 and rises again. x = (λ, y): λ is the Dirichlet entry."""
@@ -396,21 +396,6 @@ class _Fold:
     def factorize(self):
         y = self.x[1]
         self.J = 3 * y ** 2 - 3 * y + 0.6
-
-    def solve(self, r):
-        return np.array([0.0, -r[1] / self.J])
-
-    def load_tangent(self, dlam):
-        return np.array([dlam, dlam / self.J])
-
-    def clamp_predictor(self, dlam):
-        return np.array([dlam, 0.0])
-
-    def norm(self, dx):
-        return abs(dx[1])
-
-    def load_derivative(self, psi, tangent):
-        return float(psi @ np.array([-tangent[1], self.J * tangent[1] - tangent[0]]))
 
 
 def test_arclength_passes_the_snap_back_of_a_toy_that_displacement_control_cannot():

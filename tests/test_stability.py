@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import OneDofToy
 
 from ngbet.continuum.stability import EllipticityLoss, StabilityDiagnosis
 
@@ -31,7 +32,7 @@ def test_a_skipped_test_says_why_and_classifies_nothing():
     assert d.message() == d.skipped
 
 
-class _DoubleWell:
+class _DoubleWell(OneDofToy):
     """A one-dof toy of a snap-through under displacement control: x = (λ, y), λ the Dirichlet entry,
     E = y⁴/4 − y²/2 − λy, so r_y = y³ − y − λ and the reaction r_λ = −y. From the left well
     (y = −1 at λ = 0) the branch y < −1/√3 folds at λ_f = 2/(3√3) = 0.3849; beyond it the only
@@ -60,21 +61,6 @@ class _DoubleWell:
             shift = max(4 * shift, 1e-8)
         self.J = J + shift * abs(J)
         return shift
-
-    def solve(self, r):
-        return np.array([0.0, -r[1] / self.J])
-
-    def load_tangent(self, dlam):
-        return np.array([dlam, dlam / self.J])
-
-    def clamp_predictor(self, dlam):
-        return np.array([dlam, 0.0])
-
-    def norm(self, dx):
-        return abs(dx[1])
-
-    def load_derivative(self, psi, tangent):
-        return float(psi @ np.array([-tangent[1], self.J * tangent[1] - tangent[0]]))
 
     def lowest_mode(self):
         J = 3 * self.x[1] ** 2 - 1
