@@ -61,6 +61,7 @@ from ngsolve import CoefficientFunction as CF
 from ..scene import AUTO, Scene, Specimen
 from . import physics
 from .compiled import add_energy
+from .parameters import material_parameters
 from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver, energy_form, pick_inverse
 from .mesh import make_mesh
 
@@ -92,19 +93,27 @@ STABILIZATION_CAP = 30.0
 INVERTED_AREA_FRACTION = 1e-4
 
 
-def stabilization_modulus(scene: Scene, mesh: ngs.Mesh) -> CF | float:
+def stabilization_modulus(scene: Scene, mesh: ngs.Mesh, parameters: dict[str, ngs.Parameter] | None = None
+                          ) -> CF | float:
     """K_s of ``effects.stabilization_K``: the constant, or ("auto") c min(α1, α2)/h_T², at most 30 K_el.
 
-    The cap is :data:`STABILIZATION_CAP` (none when K_el = 0).
+    The cap is :data:`STABILIZATION_CAP` (none when K_el = 0). ``parameters``: α1, α2 and K_el as
+    the energy's Parameters (:mod:`ngbet.continuum.parameters`), so that K_s follows them.
     """
     k = scene.effects.stabilization_K
     if k != AUTO:
         return float(k)
     m = scene.material
-    k_h = STABILIZATION_C * min(m.alpha1, m.alpha2) / (ngs.specialcf.mesh_size ** 2)
+    if parameters is None:
+        alpha_min: CF | float = min(m.alpha1, m.alpha2)
+        K_el: CF | float = m.K_el
+    else:
+        a1, a2 = parameters["alpha1"], parameters["alpha2"]
+        alpha_min, K_el = ngs.IfPos(a1 - a2, a2, a1), parameters["K_el"]
+    k_h = STABILIZATION_C * alpha_min / (ngs.specialcf.mesh_size ** 2)
     if m.K_el <= 0:
         return k_h
-    cap = STABILIZATION_CAP * m.K_el
+    cap = STABILIZATION_CAP * K_el
     return ngs.IfPos(k_h - cap, cap, k_h)
 
 
@@ -134,6 +143,7 @@ class ContinuumProblem:
         self.K_ref = mat.K_sh if mat.K_sh > 0 else mat.K_el
         self.dx = ngs.dx(bonus_intorder=disc.quad_bonus)
         energy, saddle_energy = self._energy(scene)
+        self.energy_parts = energy  # differentiated with respect to self.parameters (sensitivity.py)
         # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
         self.condense = scene.solver.condense
         inverse = pick_inverse(scene.solver.linear_solver, saddle_energy is not None and not self.condense,
@@ -190,21 +200,25 @@ class ContinuumProblem:
         the bending energy, of degree 2p_φ − 2, is integrated exactly both by the rule of order
         2p − 2 NGSolve picks for an integrand in ∇φ alone and by the rule of order 2p of the rest
         (p the largest order of the spaces).
+
+        The material values calibration varies are the Parameters ``self.parameters``
+        (:mod:`ngbet.continuum.parameters`).
         """
         mat, eff = scene.material, scene.effects
+        par = self.parameters = material_parameters(mat)
         trial = self.X.TrialFunction()
         inv = physics.invariants(ngs.Grad(trial[0]), self.m1, self.m2)
-        base = physics.elongation_energy(inv.i4, inv.i6, mat.K_el)
+        base = physics.elongation_energy(inv.i4, inv.i6, par["K_el"])
         if eff.shear:
-            base = base + physics.shear_law_energy(inv.i8, eff.shear_law, vars(mat))
+            base = base + physics.shear_law_energy(inv.i8, eff.shear_law, {**vars(mat), **par})
         self.K_s: CF | float = 0.0  # the stabilization modulus (a CF when element-wise)
         self.K_s_range = (0.0, 0.0)  # its smallest and largest value over the elements [Pa]
         if not eff.bending:
             return (base,), None
         phi = trial[1]
-        bending = physics.bending_energy(ngs.Grad(phi), self.m1, self.m2, mat.alpha1, mat.alpha2)
+        bending = physics.bending_energy(ngs.Grad(phi), self.m1, self.m2, par["alpha1"], par["alpha2"])
         if eff.constraint == "lagrange" or eff.penalty_form == "mixed":
-            self.K_s = stabilization_modulus(scene, self.mesh)
+            self.K_s = stabilization_modulus(scene, self.mesh, par)
         self.K_s_range = _range_over_elements(self.K_s, self.mesh)
         if self.K_s_range[1] > 0:
             base = base + physics.penalty_constraint(phi, inv.i8, self.K_s)
