@@ -146,8 +146,11 @@ def test_tabulated_energy_is_twice_continuously_differentiable():
 
 def test_table_sensitivities_match_finite_differences():
     """dF/d ln(rise) of the table (its energy is linear in the rises) and dF/d ln K_el agree with
-    central differences of whole runs to 1e-4 of each column's largest value (measured 1.4e-5,
-    3e-6, 2.2e-5 on this 25 mm p = 2 mesh); dF/d ln alpha1 to 2e-3 (measured 1.0e-3)."""
+    central differences of whole runs to 1e-6 of each column's largest value (measured 1.6e-7,
+    9e-8, 9e-8 on this 25 mm p = 2 mesh); dF/d ln alpha1 to 2e-3 (measured 1.0e-3): the scene has
+    alpha1 = alpha2, where K_s = c min(alpha1, alpha2)/h_T² has a kink; the implicit derivative
+    takes the side where K_s follows alpha1, the central difference the mean of both sides (the
+    sum of the alpha1 and alpha2 derivatives agrees to 2e-6)."""
     sc = Scene.from_toml(GEO / "twintex_plain.toml").with_changes(**{"loading.u0_mm": 45.0})
     u = [15.0, 30.0, 45.0]
     P = ["material.shear_stress_steps_Pa[0]", "material.shear_stress_steps_Pa[3]", "material.K_el",
@@ -155,7 +158,7 @@ def test_table_sensitivities_match_finite_differences():
     impl = force_path(sc, u, P).dlogp
     fd = finite_difference(sc, u, P, rel_step=1e-3)
     err = np.abs(impl - fd).max(axis=0) / np.abs(fd).max(axis=0)
-    assert np.all(err < [1e-4, 1e-4, 1e-4, 2e-3]), dict(zip(P, err, strict=True))
+    assert np.all(err < [1e-6, 1e-6, 1e-6, 2e-3]), dict(zip(P, err, strict=True))
 
 
 def test_start_table_from_the_ideal_quadratic_curve(tmp_path):

@@ -1,4 +1,4 @@
-"""The material values of the energy that calibration varies, as NGSolve ``Parameter``\\ s.
+"""The material values of the energy that calibration varies, as NGSolve ``Parameter`` objects.
 
 The continuum energy is built once per problem (:meth:`ngbet.continuum.problem.ContinuumProblem._energy`)
 with these values as ``ngsolve.Parameter`` objects instead of number literals. Two things follow:

@@ -61,9 +61,9 @@ from ngsolve import CoefficientFunction as CF
 from ..scene import AUTO, Scene, Specimen
 from . import physics
 from .compiled import add_energy
-from .parameters import material_parameters
 from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver, energy_form, pick_inverse
 from .mesh import make_mesh
+from .parameters import material_parameters
 
 log = logging.getLogger(__name__)
 

@@ -12,15 +12,21 @@ is R = ψ·r(x, p) for any test field ψ with ψ = 1 on the moving clamp and 0 o
 Choosing ψ* with (Hψ*)_f = 0 removes the second term: ψ* is the load tangent ∂x/∂u0 (Dirichlet
 values of ψ, free values −H_ff⁻¹ H_fD ψ_D), one back-substitution with the factorization the
 Newton solver already holds. Then dR/dp = ψ*·∂r/∂p for every parameter at once, and ∂r/∂p is the
-residual of the energy's derivative ∂W/∂p, which NGSolve forms from the same physics functions
-with the parameter as an ``ngsolve.Parameter`` (``CoefficientFunction.Diff``). Per converged step
+residual of the energy's derivative ∂W/∂p: the problem's own energy, which reads the material
+values as ``ngsolve.Parameter``\ s (:mod:`ngbet.continuum.parameters`), differentiated by NGSolve
+(``CoefficientFunction.Diff``), every term that reads p included. Per converged step
 this costs one back-substitution plus one residual evaluation per parameter, against a whole
 extra load path per parameter for finite differences.
 
-Accuracy, measured against central differences of whole runs (tests/test_fit.py): 5e-4 of the
-largest derivative at p = 2, 1e-5 at p = 3, for the shear-law coefficients and K_el, with and
-without bending. The derivative form must integrate with the quadrature of the problem's energy
-(:func:`_same_rule`); with NGSolve's default for the form alone, dF/d ln K_el was 1.3 % off.
+H is linearized at the converged state itself (Newton's last factorization belongs to the iterate
+before its last correction). Accuracy, measured against central differences of whole runs
+(tests/test_fit.py, tests/test_calibration.py): 4e-6 of the largest derivative or better at p = 2
+for the shear-law coefficients, the table's rises and K_el, with and without bending, and 1.3e-5
+for K_el, K_sh, α1, α2 on a scene where the cap 30 K_el of the stabilization holds on part of the
+elements (the Newton tolerance of the runs). min(α1, α2) has a kink at α1 = α2: there the
+derivative is the one-sided one where K_s follows α1. The derivative form must integrate with
+the quadrature of the problem's energy (:func:`_same_rule`); with NGSolve's default for the form
+alone, dF/d ln K_el was 1.3 % off.
 """
 
 from __future__ import annotations
@@ -34,15 +40,15 @@ from typing import Any
 import ngsolve as ngs
 import numpy as np
 
-from ..scene import AUTO, Scene, SceneError
+from ..scene import Scene, SceneError
 from . import physics
+from .parameters import PARAMETERS
 
 log = logging.getLogger(__name__)
 
-#: material keys whose derivative the forms below know (the energy terms that read them); the
-#: tabulated shear law's rises are named one by one: "shear_stress_steps_Pa[j]"
-DIFFERENTIABLE = ("K_el", "K_sh", "K_sh4", "K_sh6", "K_lock", "gamma_lock_deg", "alpha1", "alpha2",
-                  "shear_stress_steps_Pa[j]")
+#: material keys the force can be differentiated with respect to: the energy's Parameters, and
+#: the tabulated shear law's rises one by one: "shear_stress_steps_Pa[j]"
+DIFFERENTIABLE = (*PARAMETERS, "shear_stress_steps_Pa[j]")
 TABLE = "shear_stress_steps_Pa"
 
 
@@ -77,41 +83,30 @@ class ForcePath:
     profile_dlogp: dict[float, np.ndarray] = field(default_factory=dict)
 
 
-def _energy_derivative(problem: Any, name: str, value: float) -> ngs.CoefficientFunction:
-    """∂W/∂p of the terms that read material key ``name``, at the trial functions of ``problem``."""
+def _energy_derivative(problem: Any, name: str) -> ngs.CoefficientFunction:
+    """∂W/∂p of the problem's own energy with respect to material key ``name``, at its trial functions.
+
+    The energy is the one the problem solves (:attr:`ContinuumProblem.energy_parts`), differentiated
+    with respect to its Parameter (:mod:`ngbet.continuum.parameters`): every term that reads the
+    value contributes, the stabilization K_s = min(c min(α1, α2)/h_T², 30 K_el) included. The energy
+    is linear in the rises of the tabulated shear law: ∂W/∂(rise j) is that law with the unit rise e_j.
+    """
     scene: Scene = problem.scene
-    mat, eff = vars(scene.material).copy(), scene.effects
-    P = ngs.Parameter(value)
     trial = problem.X.TrialFunction()
-    inv = physics.invariants(ngs.Grad(trial[0]), problem.m1, problem.m2)
     j = _table_index(name)
-    if j is not None:  # the energy is linear in the rises: dW/d(rise j) is the law with the unit rise e_j
+    if j is not None:
+        eff = scene.effects
         if not eff.shear or eff.shear_law != "table":
             return ngs.CoefficientFunction(0.0)
+        inv = physics.invariants(ngs.Grad(trial[0]), problem.m1, problem.m2)
         unit = np.zeros(len(scene.material.shear_stress_steps_Pa))
         unit[j] = 1.0
         return physics.table_shear_energy(inv.i8, unit, scene.material.shear_table_i8_max) + _same_rule(trial)
-    mat[name] = P
-    if name == "K_el":
-        W = physics.elongation_energy(inv.i4, inv.i6, P)
-    elif name in ("alpha1", "alpha2"):
-        if not eff.bending:
-            return ngs.CoefficientFunction(0.0)
-        W = physics.bending_energy(ngs.Grad(trial[1]), problem.m1, problem.m2, mat["alpha1"], mat["alpha2"])
-        if eff.stabilization_K == AUTO and problem.K_s_range[1] > 0:  # K_s = c min(α1, α2)/h_T² follows α
-            from .problem import STABILIZATION_C
-
-            a1, a2 = mat["alpha1"], mat["alpha2"]
-            K_s = STABILIZATION_C * ngs.IfPos(a1 - a2, a2, a1) / ngs.specialcf.mesh_size ** 2
-            W = W + physics.penalty_constraint(trial[1], inv.i8, K_s)
-    else:
-        if not eff.shear or name not in physics.SHEAR_LAWS[eff.shear_law]:
-            return ngs.CoefficientFunction(0.0)
-        W = physics.shear_law_energy(inv.i8, eff.shear_law, mat)
+    W = sum(problem.energy_parts[1:], problem.energy_parts[0])
     # NGSolve chooses the quadrature from the proxies in the integrand (the polynomial order of
     # φ, Λ themselves is higher than that of ∇u): a term of negligible size in each of them makes
     # this form integrate with the rule of the problem's energy
-    return W.Diff(P) + _same_rule(trial)
+    return W.Diff(problem.parameters[name]) + _same_rule(trial)
 
 
 #: coefficient of the terms that only align the quadrature (their residual is < 1e-290)
@@ -142,13 +137,15 @@ def _check_params(scene: Scene, params: Sequence[str]) -> list[str]:
 class _Recorder:
     """What :func:`force_path` records at each converged step (an ``on_step`` callback)."""
 
-    def __init__(self, problem: Any, names: list[str], profile: dict[float, np.ndarray]) -> None:
+    def __init__(self, problem: Any, names: list[str], profile: dict[float, np.ndarray],
+                 loads: Sequence[float] = ()) -> None:
         self.problem, self.names, self.profile = problem, names, profile
+        self.loads = [float(v) for v in loads]  # [mm]: the loads whose derivatives are wanted
         scene = problem.scene
         self.forms = []
         for n in names:
             f = ngs.BilinearForm(problem.X, symmetric=True)
-            f += ngs.Variation(_energy_derivative(problem, n, material_value(scene, n)).Compile() * problem.dx)
+            f += ngs.Variation(_energy_derivative(problem, n).Compile() * problem.dx)
             self.forms.append(f)
         self.values = [material_value(scene, n) for n in names]
         self.g = problem.gf.vec.CreateVector()
@@ -170,8 +167,14 @@ class _Recorder:
             pts = pb.mesh(X, np.full(len(X), 0.5 * sp.W))
             self.profiles[want] = 1e3 * np.asarray(pb.u(pts))[:, 1]
         d, dprof = [], []
-        psi = pb.load_tangent(1.0) if self.forms else None  # ψ*: ψ on the clamps, H-orthogonal to free dofs
-        for f, p in zip(self.forms, self.values, strict=True):
+        psi = None
+        if self.forms and (want is not None or any(abs(v - key) < 1e-6 for v in self.loads)):
+            # ψ*: ψ on the clamps, H-orthogonal to the free dofs, with H at this state: Newton's last
+            # factorization belongs to the iterate before the last correction (which made dF/dp
+            # differ from central differences of whole runs by up to 6e-3)
+            pb.factorize()
+            psi = pb.load_tangent(1.0)
+        for f, p in zip(self.forms if psi is not None else (), self.values, strict=False):
             f.Apply(pb.gf.vec, self.g)
             gv = self.g.FV().NumPy()
             d.append(p * float(psi @ gv) * t)
@@ -207,7 +210,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     from ..run import ngsolve_threads
 
     with ngsolve_threads(scene):
-        rec = _Recorder(ContinuumProblem(scene, mesh), names, profile)
+        rec = _Recorder(ContinuumProblem(scene, mesh), names, profile, u)
         continuation(rec.problem, u[-1] * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                      max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
                      stops=[s * 1e-3 for s in u], on_step=rec)
@@ -218,7 +221,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     zero = (0.0, np.zeros(len(names)))
     at = [rec.rows[keys[int(np.argmin(np.abs(keys - v)))]] if v > 0 else zero for v in want]
     F = np.array([a[0] for a in at])
-    D = np.array([a[1] for a in at]) if names else None
+    D = np.array([a[1] if len(a[1]) == len(names) else np.full(len(names), np.nan) for a in at]) if names else None
     return ForcePath(want, F, D, float(keys[-1]) if len(keys) else 0.0, rec.profiles, rec.profile_dlogp)
 
 
