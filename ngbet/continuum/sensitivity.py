@@ -210,7 +210,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     from ..run import ngsolve_threads
 
     with ngsolve_threads(scene):
-        rec = _Recorder(ContinuumProblem(scene, mesh), names, profile, u)
+        rec = _Recorder(ContinuumProblem(scene, mesh), names, profile, [float(v) for v in u])
         continuation(rec.problem, u[-1] * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                      max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
                      stops=[s * 1e-3 for s in u], on_step=rec)
