@@ -1,6 +1,6 @@
 """A scene as commented TOML (``ngbet scene``): every key with its unit, allowed values and meaning.
 
-The comments come from the scene's own definition (ngbet/scene.py: each section's docstring and
+The comments come from the scene's own definition (ngbet/scene/: each section's docstring and
 the comment beside or above each key), so a key added there is documented here without a
 second list to keep. Allowed values of the keys that take one of a few words are added from the
 scene's tuples of choices.

@@ -8,7 +8,8 @@ import scipy.sparse as sp
 
 from ngbet import cholmod
 from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError, resolve_backend
-from ngbet.discrete.solver import StepControl, _StepFailed, newton, single_threaded_blas, solve_path
+from ngbet.discrete.newton import _StepFailed
+from ngbet.discrete.solver import StepControl, newton, single_threaded_blas, solve_path
 
 
 class DoubleWell:
@@ -176,7 +177,7 @@ def test_energy_balance_by_the_hermite_rule_on_a_smooth_branch():
 def test_krylov_step_with_the_tangents_own_factorization_is_the_newton_step():
     # preconditioned by K itself, conjugate gradients solve K du = -r in one iteration: the step
     # and its decrement r . K^-1 r are Newton's to round-off
-    from ngbet.discrete.solver import _krylov_step
+    from ngbet.discrete.newton import _krylov_step
 
     p = Convex(40)
     u = np.linspace(-1, 1, p.n_dofs)
@@ -193,7 +194,7 @@ def test_krylov_step_refuses_an_indefinite_tangent():
     # next to the double well's saddle K_xx = 3x^2 - 1 < 0: the first CG direction (from the
     # preconditioner, the positive tangent at the minimum) meets negative curvature, and the
     # caller must factorize and shift instead
-    from ngbet.discrete.solver import _krylov_step
+    from ngbet.discrete.newton import _krylov_step
 
     p = DoubleWell()
     lin = solver(p)

@@ -1,0 +1,191 @@
+"""The physical sections of a scene: the specimen, the material (paper, Table 1) and the effects.
+
+Each is a frozen dataclass that validates itself on construction (:mod:`ngbet.scene.validate`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .validate import AUTO, _auto_or, _boolean, _check, _choice, _nonnegative, _positive
+
+#: the largest specimen dimension accepted [mm]: forces and sizes of larger ones overflow (1e308 did)
+MAX_SPECIMEN_MM = 1e6
+
+
+@dataclass(frozen=True)
+class Specimen:
+    """Rectangular BET specimen B = [0, L] x [0, W]; clamps on X = 0 (fixed) and X = L (moving).
+
+    The thick yarns (bending stiffness alpha1) run along m1 = (cos a, sin a), the thin yarns
+    (alpha2) along m2 = (-cos a, sin a), with a = ``yarn_angle_deg`` (45 in the paper).
+    """
+
+    length_mm: float = 220.0  # L, loading direction e1
+    width_mm: float = 70.0  # W
+    thickness_mm: float = 15.0  # t: converts forces per unit thickness [N/m] to machine forces [N]
+    yarn_angle_deg: float = 45.0  # angle of the thick yarns m1 to e1
+    name: str = "madeo2016-70x220"
+
+    def __post_init__(self) -> None:
+        _positive("specimen", self, "length_mm", "width_mm", "thickness_mm")
+        for n in ("length_mm", "width_mm", "thickness_mm"):
+            _check(getattr(self, n) <= MAX_SPECIMEN_MM, f"specimen.{n}", getattr(self, n),
+                   f"must be at most {MAX_SPECIMEN_MM:g} mm (1 km): larger values overflow the computation")
+        a = self.yarn_angle_deg
+        _check(isinstance(a, (int, float)) and 5.0 <= a <= 85.0, "specimen.yarn_angle_deg", a,
+               "must lie between 5 and 85 degrees")
+        _check(self.zone_a_length_mm > 0, "specimen.width_mm", self.width_mm,
+               f"the central zone A vanishes: a BET specimen needs L > W/tan(a) "
+               f"(L = {self.length_mm} mm, W/tan(a) = {self.width_mm / math.tan(math.radians(a)):.1f} mm)")
+
+    # SI views ---------------------------------------------------------------------------------
+    @property
+    def L(self) -> float:
+        """Length [m]."""
+        return self.length_mm * 1e-3
+
+    @property
+    def W(self) -> float:
+        """Width [m]."""
+        return self.width_mm * 1e-3
+
+    @property
+    def t(self) -> float:
+        """Thickness [m]."""
+        return self.thickness_mm * 1e-3
+
+    @property
+    def m1(self) -> tuple[float, float]:
+        """Direction of the thick yarns (cos a, sin a)."""
+        a = math.radians(self.yarn_angle_deg)
+        return (math.cos(a), math.sin(a))
+
+    @property
+    def m2(self) -> tuple[float, float]:
+        """Direction of the thin yarns (−cos a, sin a)."""
+        a = math.radians(self.yarn_angle_deg)
+        return (-math.cos(a), math.sin(a))
+
+    @property
+    def cos0(self) -> float:
+        """m1·m2 = −cos 2a: the cosine of the rest angle between the yarn directions (0 at ±45°)."""
+        return -math.cos(2 * math.radians(self.yarn_angle_deg))
+
+    # ideal BET kinematics -----------------------------------------------------------------------
+    @property
+    def zone_a_length_mm(self) -> float:
+        """D = L - W/tan(a): length of the central zone A along the axis (150 mm in the paper)."""
+        return self.length_mm - self.width_mm / math.tan(math.radians(self.yarn_angle_deg))
+
+    @property
+    def locking_u0_mm(self) -> float:
+        """Clamp displacement at which inextensible yarns lock: D (1/cos a - 1) (62.1 mm in the paper)."""
+        return self.zone_a_length_mm * (1.0 / math.cos(math.radians(self.yarn_angle_deg)) - 1.0)
+
+
+@dataclass(frozen=True)
+class Material:
+    """Constitutive parameters of the constrained micromorphic continuum (paper, Table 1)."""
+
+    K_el: float = 0.7e6  # Pa: equivalent elongation (decrimping and slip) of both yarn families
+    K_sh: float = 21e3  # Pa: in-plane shear (angle variation i8)
+    alpha1: float = 2e3  # Pa m^2: bending of the thick yarns (along m1)
+    alpha2: float = 20.0  # Pa m^2: bending of the thin yarns (along m2)
+    # coefficients of the stiffening shear laws (effects.shear_law; ngbet.continuum.physics)
+    K_sh4: float = 0.0  # Pa: "polynomial", 1/4 K_sh4 i8^4
+    K_sh6: float = 0.0  # Pa: "polynomial", 1/6 K_sh6 i8^6
+    K_lock: float = 0.0  # Pa: "locking", modulus of the term that diverges at the locking angle
+    gamma_lock_deg: float = 60.0  # deg: "locking", shear angle at which the yarns lock
+    # "table": the rises [Pa] of the shear stress between consecutive control points of a cubic
+    # B-spline in |i8| (uniform knots from 0 to shear_table_i8_max; the stress is 0 at i8 = 0); each
+    # rise >= 0, so the stress is monotone and the energy convex (ngbet.continuum.physics)
+    shear_stress_steps_Pa: tuple[float, ...] = ()
+    shear_table_i8_max: float = 1.0  # "table": |i8| of the last knot; beyond it the stress goes on linearly
+
+    def __post_init__(self) -> None:
+        _nonnegative("material", self, "K_el", "K_sh", "alpha1", "alpha2", "K_sh4", "K_sh6", "K_lock")
+        g = self.gamma_lock_deg
+        _check(isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g < 90, "material.gamma_lock_deg",
+               g, "must lie strictly between 0 and 90 degrees")
+        steps = self.shear_stress_steps_Pa
+        _check(isinstance(steps, (list, tuple)), "material.shear_stress_steps_Pa", steps, "must be a list of numbers")
+        object.__setattr__(self, "shear_stress_steps_Pa", tuple(steps))
+        for v in self.shear_stress_steps_Pa:
+            _check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
+                   "material.shear_stress_steps_Pa", v, "each rise must be a finite number >= 0 (a monotone table)")
+        _check(len(self.shear_stress_steps_Pa) <= 40, "material.shear_stress_steps_Pa", len(steps),
+               "at most 40 control points")
+        _positive("material", self, "shear_table_i8_max")
+
+    def internal_lengths_mm(self) -> tuple[float, float]:
+        """l_i = sqrt(alpha_i / K_sh) [mm]: 309 mm and 31 mm for Table 1."""
+        if self.K_sh == 0:
+            return (math.inf, math.inf)
+        return tuple(1e3 * math.sqrt(a / self.K_sh) for a in (self.alpha1, self.alpha2))  # type: ignore[return-value]
+
+
+CONSTRAINTS = ("lagrange", "penalty")
+PENALTY_FORMS = ("mixed", "full")
+SHEAR_LAWS = ("quadratic", "polynomial", "locking", "table")  # ngbet.continuum.physics.SHEAR_LAWS
+
+
+@dataclass(frozen=True)
+class Effects:
+    """The physical effects a scene calls for; only their energy terms and fields are built.
+
+    ``bending`` brings the micro-variable phi (H1) and the constraint phi = i8, imposed either by
+    a Lagrange multiplier Lambda in L2 (``constraint = "lagrange"``) or by the penalty
+    1/2 K (phi - i8)^2 (``"penalty"``, paper appendix A). ``penalty_form = "mixed"`` writes the
+    penalty with Lambda as an element-local unknown (Lambda (phi - i8) - Lambda^2 / 2K) that is
+    condensed out: it converges to the Lagrange solution like 1/K on the same mesh; ``"full"`` is
+    the paper's pointwise penalty, solved in its exactly equivalent mixed form (Lambda of the degree
+    of phi - i8, on which the L2 projection is the identity: the same discrete solution, far fewer
+    Newton steps at large K; see ngbet.continuum.problem). The formulation is chosen here alone:
+    ``solver.condense`` only eliminates element-local unknowns before factorizing.
+    """
+
+    shear: bool = True  # 1/2 K_sh i8^2
+    # the shear energy: "quadratic" 1/2 K_sh i8^2 (the paper's); "polynomial" adds 1/4 K_sh4 i8^4
+    # + 1/6 K_sh6 i8^6; "locking" adds a term that diverges at material.gamma_lock_deg (K_lock);
+    # "table": a monotone spline of the shear stress against |i8| (material.shear_stress_steps_Pa)
+    shear_law: str = "quadratic"
+    elongation: bool = True  # 1/2 K_el [(sqrt(i4) - 1)^2 + (sqrt(i6) - 1)^2]
+    bending: bool = True  # 1/2 alpha1 phi_1^2 + 1/2 alpha2 phi_2^2 with phi = i8
+    constraint: str = "lagrange"
+    penalty_K: float = 1e8  # Pa, used only with constraint = "penalty"
+    penalty_form: str = "mixed"
+    # Pa; adds ½ K_s (φ − i8)² to the Lagrange and mixed-penalty forms (an augmented Lagrangian:
+    # zero with its variation wherever φ = i8, so the exact solution is unchanged). It acts on the
+    # within-element part of φ − i8 that Λ ∈ L2(p − 2) leaves free. "auto" (default): element by
+    # element K_s = 0.1 min(alpha1, alpha2) / h_T^2, a tenth of the bending energy the exact
+    # constraint would charge for a variation of i8 on the element's scale; 0: off; > 0: that
+    # constant (ngbet.continuum.problem)
+    stabilization_K: float | str = AUTO
+
+    def __post_init__(self) -> None:
+        _boolean("effects", self, "shear", "elongation", "bending")
+        _choice("effects", self, "constraint", CONSTRAINTS)
+        _choice("effects", self, "penalty_form", PENALTY_FORMS)
+        _choice("effects", self, "shear_law", SHEAR_LAWS)
+        _check(self.shear or self.shear_law == "quadratic", "effects.shear_law", self.shear_law,
+               "a shear law needs effects.shear = true")
+        _auto_or("effects", self, "stabilization_K",
+                 lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v >= 0,
+                 "a number >= 0 [Pa] (0: off); \"auto\" is K_s = 0.1 min(alpha1, alpha2) / h_T^2", old=(-1,))
+        _positive("effects", self, "penalty_K")
+        _check(self.elongation, "effects.elongation", self.elongation,
+               "the yarn elongation term is what makes the yarns resist stretching; without it the "
+               "tangent is singular (inextensible yarns would need a constraint ngbet does not model)")
+        _check(self.shear or self.bending, "effects.shear", self.shear,
+               "with neither shear nor bending nothing resists the shear of the yarn network")
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """Names of the unknown fields this scene needs, in the order of the compound space."""
+        if not self.bending:
+            return ("u",)
+        if self.constraint == "lagrange" or self.penalty_form == "mixed":
+            return ("u", "phi", "lam")
+        return ("u", "phi")
