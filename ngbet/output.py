@@ -21,15 +21,10 @@ physics imports this module.
 from __future__ import annotations
 
 import contextlib
-import csv
-import fcntl
-import fnmatch
 import functools
-import io
 import json
 import logging
 import os
-import platform
 import shutil
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -38,83 +33,30 @@ from typing import IO, Any
 
 from .errors import NgbetError
 from .preflight import preflight
+from .provenance import DISTRIBUTIONS, git_revision, machine, versions
+from .run_folder import (
+    FIGURE_SUFFIXES,
+    RUN_FILE_PATTERNS,
+    RUN_LOCK,
+    RUN_MARKER,
+    TMP_PREFIX,
+    OutputError,
+    _acquire_run_folder,
+    _clear_previous_run,
+    _io,
+    _jsonable,
+    _link_or_copy,
+    _remove,
+    write_json_atomic,
+)
 from .scene import Scene
+from .tables import _append_lines, _append_rows, _write_table, read_profiles, read_rows
 
 log = logging.getLogger(__name__)
 
-
-#: module -> the distribution that installs it
-DISTRIBUTIONS = {"ngbet": "ngbet", "ngsolve": "ngsolve", "netgen": "netgen-mesher", "numpy": "numpy", "scipy": "scipy"}
-
-
-def versions() -> dict[str, str]:
-    """Versions of the libraries a result depends on.
-
-    The ``__version__`` of a module already imported (ngbet itself, NGSolve in a run), else the
-    installed package's metadata (no import: a study's process need not import NGSolve to name its
-    version); a module installed without metadata is imported; one not installed is left out.
-    """
-    import sys
-    from importlib.metadata import PackageNotFoundError, version
-
-    out: dict[str, str] = {"python": platform.python_version()}
-    for mod, dist in DISTRIBUTIONS.items():
-        try:
-            m = sys.modules.get(mod)
-            out[mod] = str(getattr(m, "__version__", "unknown")) if m is not None else version(dist)
-        except PackageNotFoundError:
-            try:
-                out[mod] = str(getattr(__import__(mod), "__version__", "unknown"))
-            except Exception:  # pragma: no cover - optional modules
-                pass
-    return out
-
-
-def git_revision(path: Path | None = None) -> str:
-    """The git revision of ngbet (the checkout's, or the one recorded at install), or 'unknown'."""
-    from .revision import revision
-
-    return revision()
-
-
-def machine() -> dict[str, Any]:
-    """The machine a run ran on (node, architecture, CPUs, system), for summary.json."""
-    import os
-
-    return {"node": platform.node(), "machine": platform.machine(), "cpus": os.cpu_count(),
-            "system": platform.platform()}
-
-
-#: ngbet's mark of a run folder, and its lock: a folder is a run folder only when it holds this file
-#: (created by the run that first wrote into the folder, and never removed by ngbet). A run holds
-#: ``fcntl.flock`` on it while it writes (released by the OS when the process ends, however it ends:
-#: it cannot go stale); it also lists the files the runs registered (JSON), the only files a later
-#: run into the folder removes.
-RUN_MARKER = ".ngbet.lock"
-RUN_LOCK = RUN_MARKER
-#: the prefix of the temporary names every file is written under before it is renamed into place
-TMP_PREFIX = ".ngbet-tmp."
-#: names an ngbet run writes: one of these in a run folder that no run registered is refused before
-#: anything is written (it is the user's; the run would replace it)
-RUN_FILE_PATTERNS = ("scene.toml", "summary.json", "results.csv", "profile.csv", "fields*.vtu", "force.png",
-                     "force.pdf", "shear_force.png", "shear_force.pdf", "profile.png", "profile.pdf",
-                     "shear_map.png", "shear_map.pdf", "map_*.npz", "state_*.npz", "yarns_*.png",
-                     "instability_mode.vtu", "instability_mode.png")
-#: the run's figures: drawn from its files, never read by a figure
-FIGURE_SUFFIXES = (".png", ".pdf")
-# what an ngbet run before the marker listed its files wrote into every folder (the summary lists the rest)
-_OLD_CORE = ("scene.toml", "summary.json", "summary.json.tmp", "results.csv", "profile.csv")
-
-
-class OutputError(NgbetError):
-    """The output folder cannot be used.
-
-    Not writable, a file in its place, busy with another run, or not an ngbet run folder. ``path`` names it.
-    """
-
-    def __init__(self, path: str | Path, why: str) -> None:
-        super().__init__(f"{path}: {why}")
-        self.path = Path(path)
+__all__ = ["DISTRIBUTIONS", "FIGURE_SUFFIXES", "RUN_FILE_PATTERNS", "RUN_LOCK", "RUN_MARKER", "TMP_PREFIX",
+           "OutputError", "RunWriter", "git_revision", "interrupt_active_runs", "machine", "read_profiles",
+           "read_rows", "versions", "write_json_atomic"]
 
 
 class RunWriter:
@@ -391,36 +333,6 @@ class RunWriter:
             fh.close()
 
 
-def _link_or_copy(src: Path, dst: Path) -> None:
-    """``dst`` a hard link to ``src`` (a copy where the file system has none)."""
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copyfile(src, dst)
-
-
-def _write_table(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
-    with path.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n")
-        w.writeheader()
-        w.writerows(rows)
-
-
-def _append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
-    """Append complete rows in one write (a reader never sees half a row unless the disk fails)."""
-    buf = io.StringIO()
-    csv.DictWriter(buf, fieldnames=columns, lineterminator="\n").writerows(rows)
-    with path.open("a", newline="") as fh:
-        fh.write(buf.getvalue())
-
-
-def _append_lines(path: Path, lines: list[list[Any]]) -> None:
-    buf = io.StringIO()
-    csv.writer(buf, lineterminator="\n").writerows(lines)
-    with path.open("a", newline="") as fh:
-        fh.write(buf.getvalue())
-
-
 _ACTIVE: set[RunWriter] = set()
 
 
@@ -438,147 +350,3 @@ def interrupt_active_runs(reason: str) -> list[Path]:
             except (OSError, NgbetError) as exc:
                 log.error("could not record the interruption in %s: %s", w.out, exc)
     return done
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write JSON to a temporary file and rename it: a reader sees the old or the new file, never half."""
-    tmp = path.with_name(TMP_PREFIX + path.name)
-    try:
-        _io(tmp, lambda p: p.write_text(json.dumps(data, indent=2, default=_jsonable)))
-        _io(path, lambda p: os.replace(tmp, p))
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def _io(path: Path, action: Callable[[Path], Any]) -> Any:
-    """Run a file operation; an OSError becomes an OutputError naming the path."""
-    try:
-        return action(path)
-    except OSError as exc:
-        raise OutputError(path, exc.strerror or str(exc)) from exc
-
-
-def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
-    """Create ``out`` if needed, refuse it if it cannot be a run folder, and lock it.
-
-    Returns the locked marker and the files the previous runs into the folder registered.
-    """
-    if out.exists() and not out.is_dir():
-        raise OutputError(out, "a file is in the place of the output folder")
-    _io(out, lambda p: p.mkdir(parents=True, exist_ok=True))
-    names = {p.name for p in _io(out, lambda p: list(p.iterdir()))}
-    if names and RUN_MARKER not in names:
-        raise OutputError(out, f"not empty and not an ngbet run folder (it holds {', '.join(sorted(names)[:5])}"
-                               f"{', ...' if len(names) > 5 else ''}; ngbet marks its run folders with "
-                               f"{RUN_MARKER}); choose another --out")
-    fh = _io(out / RUN_MARKER, lambda p: p.open("a+"))
-    try:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        fh.seek(0)
-        who = _marker_record(fh.read()).get("pid")
-        fh.close()
-        raise OutputError(out, f"busy: another ngbet run{f' (pid {who})' if who else ''} is writing into "
-                               "it; wait for it or choose another --out") from None
-    except OSError as exc:
-        fh.close()
-        raise OutputError(out / RUN_MARKER, exc.strerror or str(exc)) from exc
-    try:
-        same = os.fstat(fh.fileno()).st_ino == os.stat(out / RUN_MARKER).st_ino
-    except OSError:
-        same = False
-    if not same:  # removed or replaced between opening and locking: another process is at work here
-        fh.close()
-        raise OutputError(out, f"its {RUN_MARKER} was removed or replaced while this run took the folder; "
-                               "choose another --out")
-    fh.seek(0)
-    previous = _marker_record(fh.read()).get("files")
-    if not isinstance(previous, list):  # a folder of an ngbet that kept the list in summary.json only
-        previous = [*_OLD_CORE, *_summary_files(out)]
-    return fh, [n for n in previous if isinstance(n, str) and n and "/" not in n and not n.startswith(".")]
-
-
-def _remove(p: Path) -> None:
-    """Remove a file, or a temporary folder with what is in it."""
-    if p.is_dir() and not p.is_symlink():
-        shutil.rmtree(p)
-    else:
-        p.unlink(missing_ok=True)
-
-
-def _marker_record(text: str) -> dict[str, Any]:
-    try:
-        rec = json.loads(text)
-    except ValueError:
-        return {"pid": text.strip()} if text.strip().isdigit() else {}
-    return rec if isinstance(rec, dict) else {}
-
-
-def _summary_files(out: Path) -> list[str]:
-    try:
-        files = json.loads((out / "summary.json").read_text()).get("files", [])
-    except (OSError, ValueError, AttributeError):
-        return []
-    return files if isinstance(files, list) else []
-
-
-def _clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
-    """Remove the files previous ngbet runs registered in ``out`` (and their temporary files).
-
-    Anything else stays (with a warning). A file with the name of one an ngbet run writes
-    (:data:`RUN_FILE_PATTERNS`) that no run registered is the user's: the folder is refused before
-    anything is removed, since this run would replace it.
-    """
-    listed = set(registered)
-    present = sorted(p for p in out.iterdir() if p.is_file() and p.name != RUN_MARKER)
-    clash = [p.name for p in present if p.name not in listed and not p.name.startswith(TMP_PREFIX)
-             and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_FILE_PATTERNS)]
-    if clash:
-        raise OutputError(out, f"holds {', '.join(clash)}, which no ngbet run registered there (they are not "
-                               "ngbet's; this run would replace them): move them or choose another --out")
-    gone = []
-    for p in [*present, *(d for d in out.iterdir() if d.is_dir() and d.name.startswith(TMP_PREFIX))]:
-        if p.name in listed or p.name.startswith(TMP_PREFIX):
-            _io(p, _remove)
-            gone.append(p)
-    other = sorted(p.name for p in out.iterdir() if p.name != RUN_MARKER)
-    if other:
-        log.warning("%s: keeping %s (not written by ngbet)", out, ", ".join(other))
-    return gone
-
-
-def _jsonable(o: Any) -> Any:
-    if hasattr(o, "tolist"):
-        return o.tolist()
-    if isinstance(o, (set, tuple)):
-        return list(o)
-    return str(o)
-
-
-def read_rows(path: str | Path) -> list[dict[str, Any]]:
-    """Read a results.csv (or any ngbet table) back as a list of dicts: floats, non-numbers kept as strings.
-
-    The one reader of ngbet's tables. An empty cell stays ``""``. A last line without its line end
-    is a row cut short (the run was killed while appending it) and is left out.
-    """
-    text = Path(path).read_text()
-    if text and not text.endswith("\n"):
-        text = text[: text.rfind("\n") + 1]
-    return [{k: _num(v) for k, v in r.items()} for r in csv.DictReader(text.splitlines())]
-
-
-def _num(v: str) -> Any:
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return v
-
-
-def read_profiles(path: str | Path) -> dict[float, tuple[list[float], list[float]]]:
-    """profile.csv -> {u0_mm: (X_mm, uy_mm)}."""
-    out: dict[float, tuple[list[float], list[float]]] = {}
-    for r in read_rows(path):
-        X, uy = out.setdefault(float(r["u0_mm"]), ([], []))
-        X.append(float(r["X_mm"]))
-        uy.append(float(r["uy_mm"]))
-    return out

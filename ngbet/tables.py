@@ -1,0 +1,59 @@
+"""ngbet's tables (results.csv, profile.csv): written whole or appended by complete rows, and the one reader."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+from typing import Any
+
+
+def _write_table(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+
+
+def _append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+    """Append complete rows in one write (a reader never sees half a row unless the disk fails)."""
+    buf = io.StringIO()
+    csv.DictWriter(buf, fieldnames=columns, lineterminator="\n").writerows(rows)
+    with path.open("a", newline="") as fh:
+        fh.write(buf.getvalue())
+
+
+def _append_lines(path: Path, lines: list[list[Any]]) -> None:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows(lines)
+    with path.open("a", newline="") as fh:
+        fh.write(buf.getvalue())
+
+
+def read_rows(path: str | Path) -> list[dict[str, Any]]:
+    """Read a results.csv (or any ngbet table) back as a list of dicts: floats, non-numbers kept as strings.
+
+    The one reader of ngbet's tables. An empty cell stays ``""``. A last line without its line end
+    is a row cut short (the run was killed while appending it) and is left out.
+    """
+    text = Path(path).read_text()
+    if text and not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    return [{k: _num(v) for k, v in r.items()} for r in csv.DictReader(text.splitlines())]
+
+
+def _num(v: str) -> Any:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return v
+
+
+def read_profiles(path: str | Path) -> dict[float, tuple[list[float], list[float]]]:
+    """profile.csv -> {u0_mm: (X_mm, uy_mm)}."""
+    out: dict[float, tuple[list[float], list[float]]] = {}
+    for r in read_rows(path):
+        X, uy = out.setdefault(float(r["u0_mm"]), ([], []))
+        X.append(float(r["X_mm"]))
+        uy.append(float(r["uy_mm"]))
+    return out
