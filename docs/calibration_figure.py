@@ -11,6 +11,7 @@ import json
 from pathlib import Path
 
 from ngbet import fit
+from ngbet.calibration.fit_files import plot_fit, summary_text
 from ngbet.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -22,11 +23,11 @@ def main() -> None:
     scene = Scene.from_toml(ROOT / "geometry" / "cao2008_150x450.toml")
     result = fit.fit(ROOT / "data" / "cao2008_glass_plain_150x450.csv", scene, PARAMS, u_range=(10.0, 106.0))
     out = ROOT / "docs"
-    fit.plot_fit(result, out / "calibration_fit.png")
+    plot_fit(result, out / "calibration_fit.png")
     doc = result.to_json()
     doc["data"] = "data/cao2008_glass_plain_150x450.csv"
     (out / "calibration_fit.json").write_text(json.dumps(doc, indent=2) + "\n")
-    print(fit.summary_text(result, out))
+    print(summary_text(result, out))
 
 
 if __name__ == "__main__":

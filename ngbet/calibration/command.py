@@ -231,13 +231,14 @@ def summary(result: Any, out: Path) -> str:
 def _legacy(args: argparse.Namespace, inp: Inputs, out: Path) -> int:
     """One curve on the scene's own specimen (and an optional profile): :func:`ngbet.fit.fit`."""
     from .. import fit as F
+    from .fit_files import summary_text, write_outputs
 
     c = inp.curves[0]
     curve = F.Curve(c.u_mm, c.force_N, c.source)
     result = F.fit(curve, inp.scene, inp.params, inp.u_range, args.noise, args.max_runs,
                    args.profile, args.force_sd, args.profile_sd)
-    F.write_outputs(result, out)  # the fit first: a prediction that fails keeps it
-    print(F.summary_text(result, out))
+    write_outputs(result, out)  # the fit first: a prediction that fails keeps it
+    print(summary_text(result, out))
     code = 0 if result.extra.get("converged", True) else 1
     for p in inp.predict:
         try:
@@ -249,6 +250,6 @@ def _legacy(args: argparse.Namespace, inp: Inputs, out: Path) -> int:
             print(f"ngbet fit: prediction of {p.source} failed (the fit is kept in {out}/): {msg}", file=sys.stderr)
             code = max(code, code2)
             continue
-        F.write_outputs(result, out, pred)
+        write_outputs(result, out, pred)
         print(f"  prediction of {p.source}: RMS relative error {100 * pred.to_json()['rms_relative_error']:.2f} %")
     return code
