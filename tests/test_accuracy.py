@@ -76,9 +76,6 @@ PROFILE_56 = (0.0, -1.87054, -2.8078, -1.76807, -0.64915, 0.0001, 0.64935, 1.768
 PROFILE_56_MAX = 2.8252
 #: the orders of FAMILY (p = 7 stops at 55.7 mm on the 20 mm mesh)
 ORDERS = {"default": (4, 5, 6, 8, 9, 10)}
-#: an independent family of the paper's scene: the 10 mm mesh with 0.25 mm corners at p = 4 … 8
-#: (forces at 56 mm; the previous reference family, same code)
-FAMILY_10MM_56 = (107.29393, 107.26834, 107.25492, 107.24838, 107.24387)
 
 
 #: forces [N] at 37 mm on the 20 mm mesh graded to 1 mm with the corners bisected twice, p = 6 … 14,
@@ -152,27 +149,37 @@ def _scene(base: str, **disc) -> Scene:
     return Scene().with_changes(**ch)
 
 
-def test_reference_digits_and_bound():
-    """107.2365 N ± 0.0032 N at 56 mm, 61.2138 N ± 0.0029 N at 37 mm: the range of the geometric
-    and algebraic fits of p = 4, 5, 6, 8, 9, 10 on the 20 mm mesh with 0.25 mm corners."""
+@pytest.mark.parametrize("changes,stored", [
+    ({"discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 0.25, "discretization.order_u": 4,
+      "loading.u0_mm": 37.0, "loading.stops_mm": []}, {37.0: FAMILY["default"][0][0]}),
+    ({**NEW_BASES["bending_off"], "discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 0.5,
+      "discretization.corner_bisections": 1, "discretization.order_u": 4}, {56.0: CHECK_NEW["bending_off"][0]}),
+], ids=["reference_family_p4", "bending_off_check_p4"])
+def test_stored_families_are_this_codes_forces(changes, stored):
+    """The stored families are forces of this code: the cheapest member of the reference family
+    (20 mm mesh, 0.25 mm corners, p = 4, here loaded to 37 mm only) and of a new base's h-check
+    (bending off, 10 mm mesh with 0.5 mm corners bisected once, p = 4) run again give the stored
+    force to the 1e-6 N it is stored with (measured 61.2520402 N and 36.7102665 N). A change of
+    the code that moves a force leaves the references below stale; this test says so."""
+    from ngbet.api import simulate
+
+    r = simulate(Scene().with_changes(**{**changes, "outputs.error_estimate": "off", "outputs.vtk": False,
+                                         "outputs.plot": False, "loading.output_every_mm": 0}))
+    for u0, F in stored.items():
+        k = int(np.argmin(np.abs(r.u0_mm - u0)))
+        assert r.u0_mm[k] == pytest.approx(u0, abs=1e-9)
+        assert abs(r.force_N[k] - F) < 1e-6, (u0, r.force_N[k], F)
+
+
+def test_published_reference_is_the_extrapolation_of_the_stored_family():
+    """README and docs/accuracy.md give the reference at 56 mm as 107.2365 N ± 0.0032 N, and
+    docs/studies.md that of the same family at 37 mm as 61.2138 N ± 0.0029 N: the extrapolation
+    (:func:`ngbet.studies.reference.extrapolate`) of the stored family, whose members are this
+    code's forces (the test above), rounded to the digits printed."""
     F, bound = ref("default")
-    assert abs(F - 107.2365) < 2e-4 and bound < 0.0033
-    # the work-precision study resolves a target t when t >= 2 bound / F: its 0.01 % row too
-    assert 2 * bound / F < 1e-4
+    assert round(F, 4) == 107.2365 and round(bound, 4) == 0.0032
     F37, b37 = ref("default", 0)
-    assert abs(F37 - 61.2138) < 2e-4 and b37 < 0.003
-    Fs = [f[1] for f in FAMILY["default"]]
-    # leave the highest order out: the reference from p = 4 … 9 alone agrees within its own bound
-    # (measured difference 0.0004 N against a bound of 0.0037 N; at 37 mm 0.0016 N against 0.0019 N)
-    for st in (0, 1):
-        Fst = [f[st] for f in FAMILY["default"]]
-        F9, bound9 = extrapolate(Fst[:-1], ORDERS["default"][:-1])
-        assert abs(F9 - ref("default", st)[0]) <= bound9
-    # an independent family (10 mm bulk, p = 4 … 8) extrapolates to the same force within both bounds
-    # (measured 107.2364 N ± 0.0041 N: 0.0002 N apart)
-    F10, bound10 = extrapolate(FAMILY_10MM_56, [4, 5, 6, 7, 8])
-    assert abs(F10 - F) <= min(bound, bound10)
-    assert 0 < Fs[-1] - F < 2 * bound  # the highest order lies above the limit
+    assert round(F37, 4) == 61.2138 and round(b37, 4) == 0.0029
 
 
 def test_reference_at_37_mm_from_the_split_corners():
@@ -297,10 +304,9 @@ def test_effectivity_on_new_scenes_all(tmp_path, base, disc):
     F_ref, bound = ref_new(base)
     err = abs(s["force_N"] - F_ref)
     assert err > 3 * bound
-    if s["force_error_N"] is None:
-        assert s["error_estimate_unreliable"]
-    else:
-        assert 0.5 <= s["force_error_N"] / err <= 3.0, s["force_error_N"] / err
+    est = s["force_error_N"]
+    vouched = est is not None and 0.5 <= est / err <= 3.0
+    assert vouched or (est is None and s["error_estimate_unreliable"]), (est, err)
 
 
 def test_profile_estimate_effectivity(tmp_path):

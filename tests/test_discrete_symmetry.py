@@ -238,12 +238,11 @@ def test_a_state_off_the_symmetric_path_is_solved_whole(model):
     assert ht.project(start, 0.01) is None and not model._on_symmetric_path(start)
     K = model.evaluate(start, True)[2]
     ctl = step_control(sc)
-    ends = {}
-    for name, lin in (("blocks", FreeBlockSolver(K, ~model.fixed, "auto", ht)),
-                      ("whole", FreeBlockSolver(K, ~model.fixed, "auto", None))):
-        ends[name] = newton(model, start, lin, ctl, max_iterations=40, line_search=True)[0]
-        if name == "blocks":  # every tangent met has a coupling block: factorized whole
-            assert lin.n_factor_whole == lin.n_factor > 0 and not lin.in_blocks
+    lins = {"blocks": FreeBlockSolver(K, ~model.fixed, "auto", ht),
+            "whole": FreeBlockSolver(K, ~model.fixed, "auto", None)}
+    ends = {name: newton(model, start, lin, ctl, max_iterations=40, line_search=True)[0] for name, lin in lins.items()}
+    blocks = lins["blocks"]  # every tangent met has a coupling block: factorized whole
+    assert blocks.n_factor_whole == blocks.n_factor > 0 and not blocks.in_blocks
     # the same iterates as the whole solver's (measured 1.5e-15 apart), back on the path's equilibrium
     # (stable at 10 mm; measured 2.6e-12 from it, from a kick of 2.5e-6)
     scale = np.abs(u).max()
