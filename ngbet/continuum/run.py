@@ -107,6 +107,8 @@ def _follow(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepReco
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                         max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
                         stops=[s * 1e-3 for s in L.path_stops_mm], on_step=on_step,
+                        chord_at=[s * 1e-3 for s in L.path_stops_mm if s not in L.stops_mm],
+                        length=scene.specimen.L,
                         diagnose=lambda: _diagnose(problem),
                         psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
                         path_following=scene.solver.path_following,

@@ -44,6 +44,7 @@ import numpy as np
 
 from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
 from ..errors import Attempt, ConvergenceError
+from .chord import CHORD_PREDICTOR_STATES, FD_STEP, chord, extrapolate, tangent_at_hand
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -133,16 +134,22 @@ class NewtonReport:
     contraction: float = math.nan
 
 
-def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
-    """Damped Newton from the current x at fixed load; on failure x is left where it stopped."""
+def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float, factorized: bool = False,
+           r: np.ndarray | None = None) -> NewtonReport:
+    """Damped Newton from the current x at fixed load; on failure x is left where it stopped.
+
+    ``factorized``: the problem's last factorization is that at the current x (the first iteration
+    uses it); ``r``: the residual there, when at hand.
+    """
     history: list[float] = []
     damping: list[float] = []
-    r = problem.residual()
+    r = problem.residual() if r is None else r
     if not np.all(np.isfinite(r)):
         return NewtonReport(False, 0, history, damping, "residual is not finite at the start")
     tol = settings.rtol * abs(e_ref) + settings.atol
     for it in range(1, settings.max_iterations + 1):
-        problem.factorize()
+        if it > 1 or not factorized:
+            problem.factorize()
         dx = problem.solve(r)
         delta = abs(float(dx @ r))
         history.append(delta)
@@ -408,8 +415,18 @@ class SaddlePointNewton:
 
     def __init__(self, problem: NonlinearProblem, settings: NewtonSettings,
                  diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
-                 relax_below: float = 0.0, relax_settings: RelaxSettings = RelaxSettings()) -> None:
+                 relax_below: float = 0.0, relax_settings: RelaxSettings = RelaxSettings(),
+                 chord_at: Sequence[float] = (), length: float = 1.0) -> None:
         self.problem = problem
+        #: loads where a chord correction with the factorization at hand is tried first
+        #: (:mod:`ngbet.continuum.chord`); ``length`` scales its difference step
+        self.chord_at = np.sort(np.asarray(chord_at, dtype=float))
+        self._fd_step = FD_STEP * length
+        self._chorded = False
+        self._contraction = math.nan  # of the chord with the factorization at hand, at the last load
+        self._states: list[tuple[float, np.ndarray]] = []  # the last converged loads and states (chord)
+        self.chord_steps = 0
+        self.chord_failures = 0
         self.settings = settings
         self._diagnose = diagnose
         self._psi = psi
@@ -430,7 +447,9 @@ class SaddlePointNewton:
         """X += ∂x/∂λ h (tangent) or the clamp's linear field."""
         p = self.problem
         self._saved = p.x.copy()
-        if self.settings.predictor == "tangent":
+        if self._chord_load(u0 + h) and len(self._states) >= CHORD_PREDICTOR_STATES:
+            p.x[:] = extrapolate(self._states, u0 + h)
+        elif self.settings.predictor == "tangent":
             p.x[:] += h * self._load_tangent()
         else:
             p.x[:] += p.clamp_predictor(h)
@@ -440,6 +459,7 @@ class SaddlePointNewton:
         if self._tangent is None:
             if not self._factorized:
                 self.problem.factorize()
+                self._contraction = math.nan
                 self._factorized = True
             self._tangent = self.problem.load_tangent(1.0)
         return self._tangent
@@ -451,10 +471,28 @@ class SaddlePointNewton:
         e_ref = p.energy()
         e_ref = e_ref if math.isfinite(e_ref) else 0.0
         self._jump = None
+        self._chorded = False
+        if self._factorized and self._chord_load(u0 + h):
+            x_pred = p.x.copy()
+            self.report = rep = chord(p, self.settings, e_ref, prior=self._contraction)
+            self._contraction = rep.contraction if rep.converged else math.nan
+            if rep.converged:
+                self._chorded = True
+                return Outcome("converged", rep.iterations, list(rep.history), rep.reason)
+            log.debug("chord at %.6g mm: %s; Newton takes over", (u0 + h) * 1e3, rep.reason)
+            self.chord_failures += 1
+            p.x[:] = x_pred
+        self._contraction = math.nan  # Newton factorizes anew
         self.report = rep = newton(p, self.settings, e_ref)
         if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
             return self._relax(u0, h, e_ref, rep)
         return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
+
+    def _chord_load(self, lam: float) -> bool:
+        """Whether ``lam`` is one of the loads where the chord is tried."""
+        if not self.chord_at.size:
+            return False
+        return bool(np.min(np.abs(self.chord_at - lam)) <= 1e-12 * max(1.0, abs(lam)))
 
     def _relax(self, u0: float, h: float, e_ref: float, failed: NewtonReport) -> Outcome:
         """After Newton failed on a short increment: a stable equilibrium at u0 + h by :func:`relax`."""
@@ -502,6 +540,13 @@ class SaddlePointNewton:
         assert self.report is not None
         self._factorized = True  # Newton factorized at its iterates
         self._tangent = None
+        if self.chord_at.size:  # the last converged states, for the chord's predictor
+            self._states = [*self._states[1 - CHORD_PREDICTOR_STATES:], (u0 + h, self.problem.x.copy())]
+        dR = math.nan
+        if self._chorded:  # the factorization is an earlier state's: the tangent refined (chord module)
+            self.chord_steps += 1
+            if self.settings.predictor == "tangent" or self._psi is not None:
+                self._tangent, dR = tangent_at_hand(self.problem, self._psi, self._fd_step, self.report.residual)
         rec = StepRecord(0, u0 + h, outcome.iterations, residual=self.report.residual,
                          history=list(outcome.history), reason=outcome.reason)
         if self._jump is not None:
@@ -511,7 +556,10 @@ class SaddlePointNewton:
             log.warning("snap-through at u0 = %.6g mm: the state jumped to a stable one (energy released %.3g "
                         "per unit thickness)", (u0 + h) * 1e3, rec.released)
             self._jump = None
-        if self.settings.predictor == "tangent" and self._psi is not None:
+            self._states = []  # a jump: no extrapolation across it
+        if self._chorded:
+            rec.dforce_du0 = dR
+        elif self.settings.predictor == "tangent" and self._psi is not None:
             rec.dforce_du0 = self.problem.load_derivative(self._psi, self._load_tangent())
         return rec
 
@@ -524,6 +572,7 @@ class SaddlePointNewton:
         if self.settings.predictor == "tangent":
             p.factorize()
             self._factorized = True
+            self._contraction = math.nan
 
     def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
         """The failure pattern of the last attempts and the problem's own diagnosis (text and object)."""
@@ -549,6 +598,8 @@ def continuation(
     path_following: str = "displacement",
     arclength: Callable[[PathResult], PathResult] | None = None,
     snap: bool = True,
+    chord_at: Sequence[float] = (),
+    length: float = 1.0,
 ) -> PathResult:
     """Carry the load from 0 to ``target`` with :class:`SaddlePointNewton` on the engine.
 
@@ -579,7 +630,8 @@ def continuation(
         # before the minimum, if within twice the minimum: a snap is bracketed as closely as the
         # steps go); a problem without a Hessian tangent cannot (no stability test)
         below = min(min_step / settings.cut, 2 * min_step) if snap and getattr(problem, "can_relax", False) else 0.0
-        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below)
+        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below, chord_at=chord_at,
+                                      length=length)
         try:
             res = follow_path(corrector, ctl, on_step=on_step, progress=progress)
         except ConvergenceError as err:
@@ -589,7 +641,7 @@ def continuation(
         return res
     # under "auto" a failure hands over to arc length, which reports the path's instabilities
     # itself: no diagnosis (an eigen-solve) at the hand-over
-    corrector = SaddlePointNewton(problem, settings, None, psi)
+    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=chord_at, length=length)
     partial = PathResult(0.0)
 
     def keep(rec: StepRecord) -> None:
