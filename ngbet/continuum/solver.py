@@ -447,7 +447,9 @@ class SaddlePointNewton:
         """X += ∂x/∂λ h (tangent) or the clamp's linear field."""
         p = self.problem
         self._saved = p.x.copy()
-        if self._chord_load(u0 + h) and len(self._states) >= CHORD_PREDICTOR_STATES:
+        if self.chord_at.size and not self._states and u0 == 0.0:  # the unloaded state is the first
+            self._states = [(0.0, p.x.copy())]
+        if self._chord_load(u0 + h) and len(self._states) >= 3:  # at least a parabola
             p.x[:] = extrapolate(self._states, u0 + h)
         elif self.settings.predictor == "tangent":
             p.x[:] += h * self._load_tangent()
