@@ -548,7 +548,13 @@ class SaddlePointNewton:
         if self._chorded:  # the factorization is an earlier state's: the tangent refined (chord module)
             self.chord_steps += 1
             if self.settings.predictor == "tangent" or self._psi is not None:
-                self._tangent, dR = tangent_at_hand(self.problem, self._psi, self._fd_step, self.report.residual)
+                found = tangent_at_hand(self.problem, self._psi, self._fd_step, self.report.residual)
+                if found is None:  # too far from the factorization: the tangent of a new one
+                    self.problem.factorize()
+                    self._contraction = math.nan
+                    self._chorded = False
+                else:
+                    self._tangent, dR = found
         rec = StepRecord(0, u0 + h, outcome.iterations, residual=self.report.residual,
                          history=list(outcome.history), reason=outcome.reason)
         if self._jump is not None:
