@@ -668,10 +668,13 @@ def continuation(
 
 
 def _snap_info(corrector: SaddlePointNewton) -> dict[str, object]:
-    """The snap-throughs and relaxations of a displacement-controlled path, for the summary."""
-    if not corrector.relaxations:
-        return {}
-    return {"snaps": list(corrector.snaps), "relaxations": corrector.relaxations}
+    """The snap-throughs and relaxations of a displacement-controlled path, and its chord rows, for the summary."""
+    info: dict[str, object] = {}
+    if corrector.chord_at.size:
+        info.update(chord_rows=corrector.chord_steps, chord_handovers=corrector.chord_failures)
+    if corrector.relaxations:
+        info.update(snaps=list(corrector.snaps), relaxations=corrector.relaxations)
+    return info
 
 
 def failure_pattern(attempts: Sequence[Attempt]) -> str:
