@@ -30,12 +30,10 @@ step on the tangent's equation) is the next predictor.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from .solver import NewtonReport, NewtonSettings, NonlinearProblem
+from .newton import NewtonReport, NewtonSettings, NonlinearProblem
 
 #: the chord run fails (Newton takes over) when a correction is more than this fraction of the last
 CHORD_CONTRACTION = 0.2
@@ -65,8 +63,6 @@ def chord(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float,
     the first step may be judged by (``report.contraction`` says which factorization it was:
     nan after a new one). On failure x is left where it stopped (the caller restores it).
     """
-    from .solver import NewtonReport
-
     history: list[float] = []
     r = problem.residual()
     if not np.all(np.isfinite(r)):

@@ -60,6 +60,7 @@ from typing import Any
 import numpy as np
 
 from ..scene import AUTO, Discretization, Scene
+from .newton import NewtonReport, newton, newton_settings
 
 log = logging.getLogger(__name__)
 
@@ -228,7 +229,6 @@ class ForceErrorEstimator:
         the p + 2 level, a check that is not worth a converged solve one order further up).
         """
         from . import observables as obs
-        from .solver import newton, newton_settings
 
         for i in range(len(src.field_names)):
             enr.gf.components[i].Set(src.gf.components[i])
@@ -264,8 +264,6 @@ def one_newton_step(problem: Any, r: np.ndarray | None = None) -> Any:
     The report carries the new residual; ``converged`` means only that the step and the residual
     are finite. The problem's factorization is left at the starting state.
     """
-    from .solver import NewtonReport
-
     r = problem.residual() if r is None else r
     problem.factorize()
     dx = problem.solve(r)

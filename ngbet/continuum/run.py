@@ -21,6 +21,7 @@ from ..plot_process import active as plot_service
 from ..scene import Scene
 from . import observables as obs
 from .arclength import arclength_runner
+from .estimate import RunEstimates, run_to_accuracy
 from .linear import assembly_thread_count
 from .output import write_vtk
 from .problem import ContinuumProblem
@@ -42,8 +43,6 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
     ngbet.errors.ConvergenceError
         when the load cannot be carried to the end (the converged steps are on disk).
     """
-    from .estimate import RunEstimates, run_to_accuracy
-
     if scene.discretization.target_error > 0:  # accuracy on demand: the discretization is chosen
         try:
             acc = run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress, measured))
