@@ -36,7 +36,8 @@ def _studies_of_a_source_checkout() -> None:
 
 _studies_of_a_source_checkout()
 
-from .api import Result, load_result, simulate  # noqa: E402
+from typing import TYPE_CHECKING as _TYPE_CHECKING  # noqa: E402
+
 from .errors import ConvergenceError  # noqa: E402
 from .revision import __revision__, __version__  # noqa: E402  (written by setuptools-scm at build time)
 from .scene import Scene, SceneError, default_scene  # noqa: E402
@@ -44,3 +45,18 @@ from .scene import Scene, SceneError, default_scene  # noqa: E402
 __all__ = ["ConvergenceError", "Result", "Scene", "SceneError", "default_scene", "load_result", "simulate",
            "__version__", "__revision__"]
 
+
+if _TYPE_CHECKING:
+    from .api import Result, load_result, simulate
+
+
+def __getattr__(name: str) -> object:
+    """The API (``simulate``, ``load_result``, ``Result``), imported on first use.
+
+    So the process of the ``ngbet`` command that watches a run imports neither numpy nor the API.
+    """
+    if name in ("Result", "load_result", "simulate"):
+        from . import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

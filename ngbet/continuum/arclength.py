@@ -51,7 +51,7 @@ import numpy as np
 from ..engine import PathResult, StepRecord, check_stop
 from ..errors import Attempt
 from ..scene import SceneError
-from .solver import NewtonSettings, NonlinearProblem, newton
+from .newton import NewtonSettings, NonlinearProblem, newton
 
 log = logging.getLogger(__name__)
 
@@ -387,7 +387,7 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
     mode to picture under :data:`MODE_KEY`, for the runner to write and pop) and raises
     :class:`~ngbet.errors.ConvergenceError` with it when the target is not reached.
     """
-    from .solver import newton_settings
+    from .newton import newton_settings
     from .stability import diagnose_stability, indefinite_by_construction, lowest_eigenpair
 
     scene = problem.scene

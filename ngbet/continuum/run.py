@@ -21,6 +21,7 @@ from ..plot_process import active as plot_service
 from ..scene import Scene
 from . import observables as obs
 from .arclength import arclength_runner
+from .estimate import RunEstimates, run_to_accuracy
 from .linear import assembly_thread_count
 from .output import write_vtk
 from .problem import ContinuumProblem
@@ -42,8 +43,6 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
     ngbet.errors.ConvergenceError
         when the load cannot be carried to the end (the converged steps are on disk).
     """
-    from .estimate import RunEstimates, run_to_accuracy
-
     if scene.discretization.target_error > 0:  # accuracy on demand: the discretization is chosen
         try:
             acc = run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress, measured))
@@ -107,6 +106,8 @@ def _follow(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepReco
     return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
                         max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
                         stops=[s * 1e-3 for s in L.path_stops_mm], on_step=on_step,
+                        chord_at=[s * 1e-3 for s in L.path_stops_mm if s not in L.stops_mm],
+                        length=scene.specimen.L,
                         diagnose=lambda: _diagnose(problem),
                         psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
                         path_following=scene.solver.path_following,

@@ -1,17 +1,14 @@
-r"""The continuum's corrector: damped Newton for a saddle point, on the engine's load stepping.
+r"""The continuum's corrector on the engine's load stepping: predictor, Newton, chord rows, relaxation.
 
 The solver knows nothing of fabrics (as NGSolve's ``nonlinearsolvers.py``): it talks to a
-:class:`NonlinearProblem` through numpy views of the state and residual, a factorization of the
-linearization, and the load parameter λ that the Dirichlet data follow.
+:class:`~ngbet.continuum.newton.NonlinearProblem` through numpy views of the state and residual,
+a factorization of the linearization, and the load parameter λ that the Dirichlet data follow.
+Newton at a fixed load is :mod:`ngbet.continuum.newton`; the rows of an output grid between the
+load steps are corrected by :mod:`ngbet.continuum.chord`.
 
-Newton step:      J(x) dx = −r(x)
-Convergence:      |dx·r| ≤ rtol · E_ref + atol   (an energy, so the test is free of units;
-                  E_ref is the energy after the predictor of the increment)
-Damping:          natural monotonicity test (Deuflhard): with the simplified correction
-                  dx̄ = −J(x)⁻¹ r(x + λ dx), accept λ when ‖dx̄‖ ≤ (1 − λ/4) ‖dx‖, else halve λ.
-                  It is affine invariant and needs only one extra back-substitution, so it works
-                  for saddle points (Lagrange multiplier) as for minimization.
-Predictor:        tangent (Euler): x += ∂x/∂λ Δλ from the last factorization, or the clamp one.
+Predictor:        tangent (Euler): x += ∂x/∂λ Δλ from the last factorization, or the clamp one;
+                  at the loads of an output grid (``chord_at``) the polynomial through the last
+                  converged states (:func:`ngbet.continuum.chord.extrapolate`).
 Stepping:         :func:`ngbet.engine.follow_path`: cut by ``cut`` on failure, grow by ``growth``
                   after easy increments, land on stops (:func:`continuation` puts it together).
 
@@ -38,177 +35,18 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
 from ..errors import Attempt, ConvergenceError
+from .chord import CHORD_PREDICTOR_STATES, FD_STEP, chord, extrapolate, tangent_at_hand
+from .newton import Diagnosis, NewtonReport, NewtonSettings, NonlinearProblem, failure_pattern, newton, newton_settings
 
-if TYPE_CHECKING:
-    from ..scene import Scene
+__all__ = ["Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "RelaxReport", "RelaxSettings",
+           "SaddlePointNewton", "continuation", "failure_pattern", "newton", "newton_settings", "relax"]
 
 log = logging.getLogger(__name__)
-
-
-class Diagnosis(Protocol):
-    """A structured diagnosis of a failure that can put itself in words."""
-
-    def message(self) -> str:
-        """The diagnosis for the error message."""
-
-
-class NonlinearProblem(Protocol):
-    """What the solver needs from a problem. All vectors are numpy views of full length."""
-
-    x: np.ndarray  # the state, including Dirichlet entries
-
-    def set_load(self, lam: float) -> None:
-        """Set the Dirichlet entries of ``x`` for load λ (free entries untouched)."""
-
-    def residual(self) -> np.ndarray:
-        """r(x), full length (Dirichlet rows hold the reactions)."""
-
-    def energy(self) -> float:
-        """Total energy (or Lagrangian) at x."""
-
-    def factorize(self, shift: float = 0.0) -> float:
-        """Linearize at x and factorize the free block (reusing the symbolic factorization).
-
-        ``shift`` > 0: J + s|diag J| with s ≥ shift raised until positive definite where that can
-        be tested; returns s (for :func:`relax`; 0 without a shift).
-        """
-
-    def solve(self, r: np.ndarray) -> np.ndarray:
-        """Dx = −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
-
-    def load_tangent(self, dlam: float) -> np.ndarray:
-        """Dx with Dirichlet entries moved by dlam and free entries from −J⁻¹ J_fd dlam."""
-
-    def clamp_predictor(self, dlam: float) -> np.ndarray:
-        """A cheap load-following guess (for the problem to define)."""
-
-    def norm(self, dx: np.ndarray) -> float:
-        """A unit-free norm of a correction."""
-
-    def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
-        """psi·(J tangent): the load derivative of the reaction psi·r along the tangent."""
-
-
-@dataclass(frozen=True)
-class NewtonSettings:
-    """Tolerances, damping and step control of the continuum's Newton (from ``scene.solver``)."""
-
-    rtol: float = 1e-10
-    atol: float = 1e-14
-    max_iterations: int = 12
-    min_damping: float = 1.0 / 64
-    grow_after: int = 4
-    growth: float = 1.5
-    cut: float = 0.5
-    predictor: str = "tangent"
-    #: contraction θ = ‖dx̄‖/‖dx‖ below which a small simplified correction ends Newton without a
-    #: new linearization (0 disables the shortcut)
-    simplified_theta: float = 0.5
-
-
-def newton_settings(scene: Scene) -> NewtonSettings:
-    """The Newton numerics of ``scene.solver`` (the one translation of the scene into them)."""
-    s = scene.solver
-    return NewtonSettings(rtol=s.rtol, atol=s.atol_energy, max_iterations=s.max_iterations,
-                          grow_after=s.grow_after, growth=s.growth, cut=s.cut, predictor=s.predictor)
-
-
-@dataclass
-class NewtonReport:
-    """How a Newton run at fixed load ended."""
-
-    converged: bool
-    iterations: int
-    history: list[float]  # Newton decrement |dx·r| per iteration
-    damping: list[float]  # accepted damping factor per iteration
-    reason: str = ""
-    residual: np.ndarray | None = None  # r at the returned state (reactions come from it)
-    #: ‖next correction‖ / ‖last correction‖ where measured (one-step estimates), else nan
-    contraction: float = math.nan
-
-
-def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
-    """Damped Newton from the current x at fixed load; on failure x is left where it stopped."""
-    history: list[float] = []
-    damping: list[float] = []
-    r = problem.residual()
-    if not np.all(np.isfinite(r)):
-        return NewtonReport(False, 0, history, damping, "residual is not finite at the start")
-    tol = settings.rtol * abs(e_ref) + settings.atol
-    for it in range(1, settings.max_iterations + 1):
-        problem.factorize()
-        dx = problem.solve(r)
-        delta = abs(float(dx @ r))
-        history.append(delta)
-        if not math.isfinite(delta):
-            return NewtonReport(False, it, history, damping, "linear solve gave a non-finite correction")
-        step = _damped_step(problem, dx, delta <= tol, settings.min_damping)
-        if step is None:
-            return NewtonReport(False, it, history, damping, "no damping factor reduced the residual")
-        lam, r, dx_bar, theta = step
-        damping.append(lam)
-        if delta <= tol and lam == 1.0:
-            return NewtonReport(True, it, history, damping, "converged", residual=r)
-        if dx_bar is not None and lam == 1.0 and theta <= settings.simplified_theta:
-            done = _simplified_exit(problem, dx_bar, r, tol)
-            if done is not None:
-                history.append(done[0])
-                return NewtonReport(True, it, history, damping, "converged (simplified correction)",
-                                    residual=done[1])
-    return NewtonReport(False, settings.max_iterations, history, damping, "iteration limit")
-
-
-def _damped_step(problem: NonlinearProblem, dx: np.ndarray, last: bool, min_damping: float
-                 ) -> tuple[float, np.ndarray, np.ndarray | None, float] | None:
-    """X += λ dx with the largest λ = 1, 1/2, ... that passes the natural monotonicity test.
-
-    ``last``: the decrement is below the tolerance, the step needs no test. Returns λ, the
-    residual there, the simplified correction dx̄ and θ = ‖dx̄‖/‖dx‖ (None, 0 when not computed);
-    None (x restored) when λ fell below ``min_damping``.
-    """
-    x0 = problem.x.copy()
-    ndx = problem.norm(dx)
-    lam = 1.0
-    while True:
-        problem.x[:] = x0 + lam * dx
-        r_trial = problem.residual()
-        if np.all(np.isfinite(r_trial)):
-            if last:  # quadratic convergence: the last step needs no test
-                return lam, r_trial, None, 0.0
-            dx_bar = problem.solve(r_trial)
-            theta = problem.norm(dx_bar) / ndx if ndx > 0 else 0.0
-            if theta <= 1.0 - lam / 4.0:
-                return lam, r_trial, dx_bar, theta
-        lam *= 0.5
-        if lam < min_damping:
-            problem.x[:] = x0
-            return None
-
-
-def _simplified_exit(problem: NonlinearProblem, dx_bar: np.ndarray, r: np.ndarray, tol: float
-                     ) -> tuple[float, np.ndarray] | None:
-    """End Newton with the simplified correction when its decrement is below the tolerance.
-
-    Deuflhard's NLEQ-ERR: the correction dx̄ = −J(x_k)⁻¹ r(x_k+1), already computed for the
-    monotonicity test, is the next Newton correction up to O(θ) relative; when its decrement is
-    below the tolerance, x_k+1 + dx̄ is the solution and the linearization that would only confirm
-    it is saved (one per load step). Returns the decrement and the residual, or None (x unchanged).
-    """
-    delta_bar = abs(float(dx_bar @ r))
-    if delta_bar > tol:
-        return None
-    problem.x[:] += dx_bar
-    r_new = problem.residual()
-    if np.all(np.isfinite(r_new)):
-        return delta_bar, r_new
-    problem.x[:] -= dx_bar
-    return None
 
 
 #: a relaxed step that releases more than this fraction of the clamp's work in it is a snap-through
@@ -408,8 +246,18 @@ class SaddlePointNewton:
 
     def __init__(self, problem: NonlinearProblem, settings: NewtonSettings,
                  diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
-                 relax_below: float = 0.0, relax_settings: RelaxSettings = RelaxSettings()) -> None:
+                 relax_below: float = 0.0, relax_settings: RelaxSettings = RelaxSettings(),
+                 chord_at: Sequence[float] = (), length: float = 1.0) -> None:
         self.problem = problem
+        #: loads where a chord correction with the factorization at hand is tried first
+        #: (:mod:`ngbet.continuum.chord`); ``length`` scales its difference step
+        self.chord_at = np.sort(np.asarray(chord_at, dtype=float))
+        self._fd_step = FD_STEP * length
+        self._chorded = False
+        self._contraction = math.nan  # of the chord with the factorization at hand, at the last load
+        self._states: list[tuple[float, np.ndarray]] = []  # the last converged loads and states (chord)
+        self.chord_steps = 0
+        self.chord_failures = 0
         self.settings = settings
         self._diagnose = diagnose
         self._psi = psi
@@ -430,7 +278,11 @@ class SaddlePointNewton:
         """X += ∂x/∂λ h (tangent) or the clamp's linear field."""
         p = self.problem
         self._saved = p.x.copy()
-        if self.settings.predictor == "tangent":
+        if self.chord_at.size and not self._states and u0 == 0.0:  # the unloaded state is the first
+            self._states = [(0.0, p.x.copy())]
+        if self._chord_load(u0 + h) and len(self._states) >= 3:  # at least a parabola
+            p.x[:] = extrapolate(self._states, u0 + h)
+        elif self.settings.predictor == "tangent":
             p.x[:] += h * self._load_tangent()
         else:
             p.x[:] += p.clamp_predictor(h)
@@ -440,6 +292,7 @@ class SaddlePointNewton:
         if self._tangent is None:
             if not self._factorized:
                 self.problem.factorize()
+                self._contraction = math.nan
                 self._factorized = True
             self._tangent = self.problem.load_tangent(1.0)
         return self._tangent
@@ -451,10 +304,28 @@ class SaddlePointNewton:
         e_ref = p.energy()
         e_ref = e_ref if math.isfinite(e_ref) else 0.0
         self._jump = None
+        self._chorded = False
+        if self._factorized and self._chord_load(u0 + h):
+            x_pred = p.x.copy()
+            self.report = rep = chord(p, self.settings, e_ref, prior=self._contraction)
+            self._contraction = rep.contraction if rep.converged else math.nan
+            if rep.converged:
+                self._chorded = True
+                return Outcome("converged", rep.iterations, list(rep.history), rep.reason)
+            log.debug("chord at %.6g mm: %s; Newton takes over", (u0 + h) * 1e3, rep.reason)
+            self.chord_failures += 1
+            p.x[:] = x_pred
+        self._contraction = math.nan  # Newton factorizes anew
         self.report = rep = newton(p, self.settings, e_ref)
         if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
             return self._relax(u0, h, e_ref, rep)
         return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
+
+    def _chord_load(self, lam: float) -> bool:
+        """Whether ``lam`` is one of the loads where the chord is tried."""
+        if not self.chord_at.size:
+            return False
+        return bool(np.min(np.abs(self.chord_at - lam)) <= 1e-12 * max(1.0, abs(lam)))
 
     def _relax(self, u0: float, h: float, e_ref: float, failed: NewtonReport) -> Outcome:
         """After Newton failed on a short increment: a stable equilibrium at u0 + h by :func:`relax`."""
@@ -502,6 +373,19 @@ class SaddlePointNewton:
         assert self.report is not None
         self._factorized = True  # Newton factorized at its iterates
         self._tangent = None
+        if self.chord_at.size:  # the last converged states, for the chord's predictor
+            self._states = [*self._states[1 - CHORD_PREDICTOR_STATES:], (u0 + h, self.problem.x.copy())]
+        dR = math.nan
+        if self._chorded:  # the factorization is an earlier state's: the tangent refined (chord module)
+            self.chord_steps += 1
+            if self.settings.predictor == "tangent" or self._psi is not None:
+                found = tangent_at_hand(self.problem, self._psi, self._fd_step, self.report.residual)
+                if found is None:  # too far from the factorization: the tangent of a new one
+                    self.problem.factorize()
+                    self._contraction = math.nan
+                    self._chorded = False
+                else:
+                    self._tangent, dR = found
         rec = StepRecord(0, u0 + h, outcome.iterations, residual=self.report.residual,
                          history=list(outcome.history), reason=outcome.reason)
         if self._jump is not None:
@@ -511,7 +395,10 @@ class SaddlePointNewton:
             log.warning("snap-through at u0 = %.6g mm: the state jumped to a stable one (energy released %.3g "
                         "per unit thickness)", (u0 + h) * 1e3, rec.released)
             self._jump = None
-        if self.settings.predictor == "tangent" and self._psi is not None:
+            self._states = []  # a jump: no extrapolation across it
+        if self._chorded:
+            rec.dforce_du0 = dR
+        elif self.settings.predictor == "tangent" and self._psi is not None:
             rec.dforce_du0 = self.problem.load_derivative(self._psi, self._load_tangent())
         return rec
 
@@ -524,6 +411,7 @@ class SaddlePointNewton:
         if self.settings.predictor == "tangent":
             p.factorize()
             self._factorized = True
+            self._contraction = math.nan
 
     def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
         """The failure pattern of the last attempts and the problem's own diagnosis (text and object)."""
@@ -549,6 +437,8 @@ def continuation(
     path_following: str = "displacement",
     arclength: Callable[[PathResult], PathResult] | None = None,
     snap: bool = True,
+    chord_at: Sequence[float] = (),
+    length: float = 1.0,
 ) -> PathResult:
     """Carry the load from 0 to ``target`` with :class:`SaddlePointNewton` on the engine.
 
@@ -579,7 +469,8 @@ def continuation(
         # before the minimum, if within twice the minimum: a snap is bracketed as closely as the
         # steps go); a problem without a Hessian tangent cannot (no stability test)
         below = min(min_step / settings.cut, 2 * min_step) if snap and getattr(problem, "can_relax", False) else 0.0
-        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below)
+        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below, chord_at=chord_at,
+                                      length=length)
         try:
             res = follow_path(corrector, ctl, on_step=on_step, progress=progress)
         except ConvergenceError as err:
@@ -589,7 +480,7 @@ def continuation(
         return res
     # under "auto" a failure hands over to arc length, which reports the path's instabilities
     # itself: no diagnosis (an eigen-solve) at the hand-over
-    corrector = SaddlePointNewton(problem, settings, None, psi)
+    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=chord_at, length=length)
     partial = PathResult(0.0)
 
     def keep(rec: StepRecord) -> None:
@@ -608,34 +499,10 @@ def continuation(
 
 
 def _snap_info(corrector: SaddlePointNewton) -> dict[str, object]:
-    """The snap-throughs and relaxations of a displacement-controlled path, for the summary."""
-    if not corrector.relaxations:
-        return {}
-    return {"snaps": list(corrector.snaps), "relaxations": corrector.relaxations}
-
-
-def failure_pattern(attempts: Sequence[Attempt]) -> str:
-    """What the last failed increments say (near the last converged load).
-
-    With a tangent predictor the residual after the predictor is O(Δλ²) on a smooth solution path,
-    so the first Newton decrement (an energy) falls like Δλ⁴ when the increment is cut. If it falls
-    much slower, or Newton fails however small the increment, the path is not smooth there: it turns
-    back in the load (limit point), branches (bifurcation) or the discrete problem locks.
-    """
-    if not attempts or attempts[-1].converged:
-        return ""
-    tail = [a for a in attempts[-12:] if not a.converged]
-    inc = np.array([a.u0_to - a.u0_from for a in tail if a.history])
-    first = np.array([a.history[0] for a in tail if a.history])
-    text = (f"{len(tail)} of the last {min(12, len(attempts))} increments failed (last from "
-            f"{attempts[-1].u0_from * 1e3:.6g} mm), the smallest {inc.min() * 1e3 if inc.size else 0:.3g} mm "
-            f"({tail[-1].reason})")
-    ok = (inc > 0) & (first > 0) & np.isfinite(first)
-    if ok.sum() >= 3 and np.ptp(np.log(inc[ok])) > 0.5:
-        k = float(np.polyfit(np.log(inc[ok]), np.log(first[ok]), 1)[0])
-        text += (f"; the first Newton decrement falls like (increment)^{k:.1f} when the increment is cut "
-                 f"(a smooth path gives ~4 with the tangent predictor)")
-        if k < 2.5:
-            text += (": the solution path is not smooth here (limit point or bifurcation in the load, or a "
-                     "locking discretization)")
-    return text
+    """The snap-throughs and relaxations of a displacement-controlled path, and its chord rows, for the summary."""
+    info: dict[str, object] = {}
+    if corrector.chord_at.size:
+        info.update(chord_rows=corrector.chord_steps, chord_handovers=corrector.chord_failures)
+    if corrector.relaxations:
+        info.update(snaps=list(corrector.snaps), relaxations=corrector.relaxations)
+    return info

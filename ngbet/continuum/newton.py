@@ -1,0 +1,221 @@
+r"""Damped Newton for a saddle point at a fixed load, and what its failures say.
+
+The solver knows nothing of fabrics (as NGSolve's ``nonlinearsolvers.py``): it talks to a
+:class:`NonlinearProblem` through numpy views of the state and residual, a factorization of the
+linearization, and the load parameter λ that the Dirichlet data follow.
+
+Newton step:      J(x) dx = −r(x)
+Convergence:      |dx·r| ≤ rtol · E_ref + atol   (an energy, so the test is free of units;
+                  E_ref is the energy after the predictor of the increment)
+Damping:          natural monotonicity test (Deuflhard): with the simplified correction
+                  dx̄ = −J(x)⁻¹ r(x + λ dx), accept λ when ‖dx̄‖ ≤ (1 − λ/4) ‖dx‖, else halve λ.
+                  It is affine invariant and needs only one extra back-substitution, so it works
+                  for saddle points (Lagrange multiplier) as for minimization.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from ..errors import Attempt
+
+if TYPE_CHECKING:
+    from ..scene import Scene
+
+
+class Diagnosis(Protocol):
+    """A structured diagnosis of a failure that can put itself in words."""
+
+    def message(self) -> str:
+        """The diagnosis for the error message."""
+
+
+class NonlinearProblem(Protocol):
+    """What the solver needs from a problem. All vectors are numpy views of full length."""
+
+    x: np.ndarray  # the state, including Dirichlet entries
+
+    def set_load(self, lam: float) -> None:
+        """Set the Dirichlet entries of ``x`` for load λ (free entries untouched)."""
+
+    def residual(self) -> np.ndarray:
+        """r(x), full length (Dirichlet rows hold the reactions)."""
+
+    def energy(self) -> float:
+        """Total energy (or Lagrangian) at x."""
+
+    def factorize(self, shift: float = 0.0) -> float:
+        """Linearize at x and factorize the free block (reusing the symbolic factorization).
+
+        ``shift`` > 0: J + s|diag J| with s ≥ shift raised until positive definite where that can
+        be tested; returns s (for :func:`relax`; 0 without a shift).
+        """
+
+    def solve(self, r: np.ndarray) -> np.ndarray:
+        """Dx = −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
+
+    def load_tangent(self, dlam: float) -> np.ndarray:
+        """Dx with Dirichlet entries moved by dlam and free entries from −J⁻¹ J_fd dlam."""
+
+    def clamp_predictor(self, dlam: float) -> np.ndarray:
+        """A cheap load-following guess (for the problem to define)."""
+
+    def norm(self, dx: np.ndarray) -> float:
+        """A unit-free norm of a correction."""
+
+    def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
+        """psi·(J tangent): the load derivative of the reaction psi·r along the tangent."""
+
+
+@dataclass(frozen=True)
+class NewtonSettings:
+    """Tolerances, damping and step control of the continuum's Newton (from ``scene.solver``)."""
+
+    rtol: float = 1e-10
+    atol: float = 1e-14
+    max_iterations: int = 12
+    min_damping: float = 1.0 / 64
+    grow_after: int = 4
+    growth: float = 1.5
+    cut: float = 0.5
+    predictor: str = "tangent"
+    #: contraction θ = ‖dx̄‖/‖dx‖ below which a small simplified correction ends Newton without a
+    #: new linearization (0 disables the shortcut)
+    simplified_theta: float = 0.5
+
+
+def newton_settings(scene: Scene) -> NewtonSettings:
+    """The Newton numerics of ``scene.solver`` (the one translation of the scene into them)."""
+    s = scene.solver
+    return NewtonSettings(rtol=s.rtol, atol=s.atol_energy, max_iterations=s.max_iterations,
+                          grow_after=s.grow_after, growth=s.growth, cut=s.cut, predictor=s.predictor)
+
+
+@dataclass
+class NewtonReport:
+    """How a Newton run at fixed load ended."""
+
+    converged: bool
+    iterations: int
+    history: list[float]  # Newton decrement |dx·r| per iteration
+    damping: list[float]  # accepted damping factor per iteration
+    reason: str = ""
+    residual: np.ndarray | None = None  # r at the returned state (reactions come from it)
+    #: ‖next correction‖ / ‖last correction‖ where measured (one-step estimates), else nan
+    contraction: float = math.nan
+
+
+def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float, factorized: bool = False,
+           r: np.ndarray | None = None) -> NewtonReport:
+    """Damped Newton from the current x at fixed load; on failure x is left where it stopped.
+
+    ``factorized``: the problem's last factorization is that at the current x (the first iteration
+    uses it); ``r``: the residual there, when at hand.
+    """
+    history: list[float] = []
+    damping: list[float] = []
+    r = problem.residual() if r is None else r
+    if not np.all(np.isfinite(r)):
+        return NewtonReport(False, 0, history, damping, "residual is not finite at the start")
+    tol = settings.rtol * abs(e_ref) + settings.atol
+    for it in range(1, settings.max_iterations + 1):
+        if it > 1 or not factorized:
+            problem.factorize()
+        dx = problem.solve(r)
+        delta = abs(float(dx @ r))
+        history.append(delta)
+        if not math.isfinite(delta):
+            return NewtonReport(False, it, history, damping, "linear solve gave a non-finite correction")
+        step = _damped_step(problem, dx, delta <= tol, settings.min_damping)
+        if step is None:
+            return NewtonReport(False, it, history, damping, "no damping factor reduced the residual")
+        lam, r, dx_bar, theta = step
+        damping.append(lam)
+        if delta <= tol and lam == 1.0:
+            return NewtonReport(True, it, history, damping, "converged", residual=r)
+        if dx_bar is not None and lam == 1.0 and theta <= settings.simplified_theta:
+            done = _simplified_exit(problem, dx_bar, r, tol)
+            if done is not None:
+                history.append(done[0])
+                return NewtonReport(True, it, history, damping, "converged (simplified correction)",
+                                    residual=done[1])
+    return NewtonReport(False, settings.max_iterations, history, damping, "iteration limit")
+
+
+def _damped_step(problem: NonlinearProblem, dx: np.ndarray, last: bool, min_damping: float
+                 ) -> tuple[float, np.ndarray, np.ndarray | None, float] | None:
+    """X += λ dx with the largest λ = 1, 1/2, ... that passes the natural monotonicity test.
+
+    ``last``: the decrement is below the tolerance, the step needs no test. Returns λ, the
+    residual there, the simplified correction dx̄ and θ = ‖dx̄‖/‖dx‖ (None, 0 when not computed);
+    None (x restored) when λ fell below ``min_damping``.
+    """
+    x0 = problem.x.copy()
+    ndx = problem.norm(dx)
+    lam = 1.0
+    while True:
+        problem.x[:] = x0 + lam * dx
+        r_trial = problem.residual()
+        if np.all(np.isfinite(r_trial)):
+            if last:  # quadratic convergence: the last step needs no test
+                return lam, r_trial, None, 0.0
+            dx_bar = problem.solve(r_trial)
+            theta = problem.norm(dx_bar) / ndx if ndx > 0 else 0.0
+            if theta <= 1.0 - lam / 4.0:
+                return lam, r_trial, dx_bar, theta
+        lam *= 0.5
+        if lam < min_damping:
+            problem.x[:] = x0
+            return None
+
+
+def _simplified_exit(problem: NonlinearProblem, dx_bar: np.ndarray, r: np.ndarray, tol: float
+                     ) -> tuple[float, np.ndarray] | None:
+    """End Newton with the simplified correction when its decrement is below the tolerance.
+
+    Deuflhard's NLEQ-ERR: the correction dx̄ = −J(x_k)⁻¹ r(x_k+1), already computed for the
+    monotonicity test, is the next Newton correction up to O(θ) relative; when its decrement is
+    below the tolerance, x_k+1 + dx̄ is the solution and the linearization that would only confirm
+    it is saved (one per load step). Returns the decrement and the residual, or None (x unchanged).
+    """
+    delta_bar = abs(float(dx_bar @ r))
+    if delta_bar > tol:
+        return None
+    problem.x[:] += dx_bar
+    r_new = problem.residual()
+    if np.all(np.isfinite(r_new)):
+        return delta_bar, r_new
+    problem.x[:] -= dx_bar
+    return None
+
+
+def failure_pattern(attempts: Sequence[Attempt]) -> str:
+    """What the last failed increments say (near the last converged load).
+
+    With a tangent predictor the residual after the predictor is O(Δλ²) on a smooth solution path,
+    so the first Newton decrement (an energy) falls like Δλ⁴ when the increment is cut. If it falls
+    much slower, or Newton fails however small the increment, the path is not smooth there: it turns
+    back in the load (limit point), branches (bifurcation) or the discrete problem locks.
+    """
+    if not attempts or attempts[-1].converged:
+        return ""
+    tail = [a for a in attempts[-12:] if not a.converged]
+    inc = np.array([a.u0_to - a.u0_from for a in tail if a.history])
+    first = np.array([a.history[0] for a in tail if a.history])
+    text = (f"{len(tail)} of the last {min(12, len(attempts))} increments failed (last from "
+            f"{attempts[-1].u0_from * 1e3:.6g} mm), the smallest {inc.min() * 1e3 if inc.size else 0:.3g} mm "
+            f"({tail[-1].reason})")
+    ok = (inc > 0) & (first > 0) & np.isfinite(first)
+    if ok.sum() >= 3 and np.ptp(np.log(inc[ok])) > 0.5:
+        k = float(np.polyfit(np.log(inc[ok]), np.log(first[ok]), 1)[0])
+        text += (f"; the first Newton decrement falls like (increment)^{k:.1f} when the increment is cut "
+                 f"(a smooth path gives ~4 with the tangent predictor)")
+        if k < 2.5:
+            text += (": the solution path is not smooth here (limit point or bifurcation in the load, or a "
+                     "locking discretization)")
+    return text
