@@ -147,40 +147,59 @@ def load_tangent_at_state(problem: Any, residual: np.ndarray | None = None, rtol
 
     Newton's last factorization belongs to the iterate before its last correction (or an earlier
     one, after a simplified Newton step); its load tangent made dF/dp differ from central
-    differences of whole runs by up to 8e-5 of the value. It is corrected here by Richardson steps
-    ψ ← ψ − H_old⁻¹ (H ψ)_f, with H ψ the difference quotient of the residual along ψ (one residual
-    evaluation, against an assembly and a factorization for H itself), until (H ψ)_f is below
-    ``rtol`` of H ψ's clamp rows (measured: 1e-3–6e-3 before, ~1e-6 after one step, the level of
-    the difference quotient); where a step does not contract by :data:`TANGENT_CONTRACTION`, H is
-    factorized at this state instead. ``residual``: r at this state, when at hand.
+    differences of whole runs by up to 8e-5 of the value. It is corrected by
+    :func:`solve_at_state`; ``residual``: r at this state, when at hand.
 
     H is the Jacobian of the residual itself, also for the exact Lagrangian, whose Newton matrix
     is augmented (K_aug, :mod:`ngbet.continuum.linear`): a load tangent of the augmented matrix
     leaves an O(1/K_aug) error (measured 1e-5 of dF/dK_sh).
     """
+    r0 = residual if residual is not None else problem.residual()
+    psi = solve_at_state(problem, problem.load_tangent(1.0), None, r0, rtol)
+    if psi is None:
+        problem.factorize()
+        psi = problem.load_tangent(1.0)
+    return psi
+
+
+def solve_at_state(problem: Any, y: np.ndarray, g: np.ndarray | None, residual: np.ndarray,
+                   rtol: float = 1e-5) -> np.ndarray | None:
+    """The solution of (H y + g)_f = 0 (g None: 0) from a start y of Newton's last factorization.
+
+    H is the tangent at the current, converged state.
+
+    Richardson steps y ← y − H_old⁻¹ (H y + g)_f, with H y the difference quotient of the residual
+    along y (one residual evaluation, against an assembly and a factorization for H itself; y's
+    Dirichlet entries stay), until (H y + g)_f is below ``rtol`` of g's free rows (g None: of
+    H y's Dirichlet rows). Measured: 1e-3–6e-3 from the start, ~1e-6 after one step (the level of
+    the difference quotient). None where a step does not contract by :data:`TANGENT_CONTRACTION`
+    within :data:`TANGENT_REFINEMENTS` steps (then H must be factorized here). The state is left
+    as it was.
+    """
     pb = problem
-    psi = pb.load_tangent(1.0)
     x0 = pb.x.copy()
-    r0 = residual if residual is not None else pb.residual()
     scale = float(np.linalg.norm(x0))
+    ref = None if g is None else float(np.linalg.norm(np.where(pb.dirichlet, 0.0, g)))
     last = math.inf
     for _ in range(TANGENT_REFINEMENTS + 1):
-        h = 1e-7 * scale / float(np.linalg.norm(psi))
-        pb.x[:] = x0 + h * psi
-        rho = (pb.residual() - r0) / h
+        if not np.any(y):
+            return y if g is None or ref == 0 else None
+        h = 1e-7 * scale / float(np.linalg.norm(y))
+        pb.x[:] = x0 + h * y
+        rho = (pb.residual() - residual) / h
         pb.x[:] = x0
-        clamp = float(np.linalg.norm(rho[pb.dirichlet]))
+        if g is not None:
+            rho += g
+        size_ref = float(np.linalg.norm(rho[pb.dirichlet])) if ref is None else ref
         rho[pb.dirichlet] = 0.0
         size = float(np.linalg.norm(rho))
-        if size <= rtol * clamp:
-            return psi
+        if size <= rtol * size_ref:
+            return y
         if size > TANGENT_CONTRACTION * last:
-            break
+            return None
         last = size
-        psi = psi + pb.solve(rho)
-    pb.x[:] = x0
-    pb.factorize()
-    return pb.load_tangent(1.0)
+        y = y + pb.solve(rho)
+    return None
 
 
 class _Recorder:
@@ -223,8 +242,12 @@ class _Recorder:
             f.Apply(pb.gf.vec, self.g)
             gv = self.g.FV().NumPy()
             d.append(p * float(psi @ gv) * t)
-            if pts is not None:  # dx/dp = −J⁻¹ ∂r/∂p (solve returns −J⁻¹ r)
-                self.dgf.vec.FV().NumPy()[:] = pb.solve(gv.copy())
+            if pts is not None:  # dx/dp = −J⁻¹ ∂r/∂p (solve returns −J⁻¹ r), J at this state
+                dx = solve_at_state(pb, pb.solve(gv.copy()), gv, r)
+                if dx is None:
+                    pb.factorize()
+                    dx = pb.solve(gv.copy())
+                self.dgf.vec.FV().NumPy()[:] = dx
                 dprof.append(1e3 * p * np.asarray(self.dgf.components[0](pts))[:, 1])
         if want is not None and dprof:
             self.profile_dlogp[want] = np.column_stack(dprof)
@@ -239,7 +262,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     such as ``"material.K_sh"``.
 
     ``profile``: {u0 [mm]: X [mm]}: also the mid-axis u_y at those X at load u0 (and its
-    derivatives, one more back-substitution per parameter). ``mesh``: a mesh of the scene's
+    derivatives, two more back-substitutions and residual evaluations per parameter). ``mesh``: a mesh of the scene's
     specimen made before (:func:`ngbet.continuum.mesh.make_mesh`), reused instead of meshing
     again. Nothing is written to disk. Raises
     :class:`ngbet.errors.ConvergenceError` when the path cannot be followed to the last load.
