@@ -309,7 +309,9 @@ def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
     assert fitted.material.K_sh == pytest.approx(doc["parameters"]["material.K_sh"]["value"])
 
 
-def test_cli_fit_refuses_bad_input(tmp_path, capsys):
+def test_cli_fit_refuses_bad_input(tmp_path, capsys, monkeypatch):
+    """Each bad input exits 2 with its reason, before the output folder (default out/fit) is made."""
+    monkeypatch.chdir(tmp_path)
     assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "loading.u0_mm"]) == 2
     assert "not a material key" in capsys.readouterr().err
     assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh4"]) == 2
@@ -321,6 +323,7 @@ def test_cli_fit_refuses_bad_input(tmp_path, capsys):
     assert "beyond the specimen's locking load" in capsys.readouterr().err
     assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--set", "model='discrete'"]) == 2
     assert "calibrates the continuum model" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 def test_measured_data_file_is_the_cao_curve():
