@@ -240,6 +240,20 @@ def _select(data: Curve, u_range: tuple[float, float] | None) -> np.ndarray:
     return used
 
 
+def _fitted_points(curve: Curve, scene: Scene, u_range: tuple[float, float] | None, noise: str
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The points fitted (mask, displacements, forces) and their weights; refused when the scene cannot carry them."""
+    used = _select(curve, u_range)
+    u, F = curve.u_mm[used], curve.force_N[used]
+    if u.max() >= scene.specimen.locking_u0_mm:
+        raise SceneError(f"the data reach {u.max():g} mm, beyond the specimen's locking load "
+                         f"{scene.specimen.locking_u0_mm:.1f} mm: is the scene the data's specimen?")
+    w = np.abs(F) if noise == "relative" else np.ones_like(F)
+    if np.any(w == 0):
+        raise SceneError("noise = 'relative' needs non-zero measured forces in the fitted range")
+    return used, u, F, w
+
+
 def _start(scene: Scene, params: Sequence[str]) -> np.ndarray:
     vals = []
     for p in params:
@@ -273,14 +287,7 @@ def fit(data: Curve | str | Path, scene: Scene, params: Sequence[str],
     t0 = time.perf_counter()
     curve = data if isinstance(data, Curve) else read_curve(data)
     prof = _check_inputs(scene, noise, profile, force_sd, profile_sd_mm)
-    used = _select(curve, u_range)
-    u, F = curve.u_mm[used], curve.force_N[used]
-    if u.max() >= scene.specimen.locking_u0_mm:
-        raise SceneError(f"the data reach {u.max():g} mm, beyond the specimen's locking load "
-                         f"{scene.specimen.locking_u0_mm:.1f} mm: is the scene the data's specimen?")
-    w = np.abs(F) if noise == "relative" else np.ones_like(F)
-    if np.any(w == 0):
-        raise SceneError("noise = 'relative' needs non-zero measured forces in the fitted range")
+    used, u, F, w = _fitted_points(curve, scene, u_range, noise)
     start = _start(scene, params)
     model = _Model(scene, params, u, prof)
     Pd = prof.measured() if prof is not None else np.zeros(0)

@@ -43,7 +43,7 @@ from ngbet.study import Study, StudyData, main_for, savefig
 
 log = logging.getLogger(__name__)
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 #: fabric: (scene, curve A, curve B); direction 0 fits A and predicts B, direction 1 the reverse
 FABRICS = {
     "plain": ("twintex_plain.toml", "cao2008_plain_150x300_INSA-NU.csv", "cao2008_plain_150x450_INSA-NU.csv"),

@@ -154,13 +154,20 @@ def _scene(base: str, **disc) -> Scene:
       "loading.u0_mm": 37.0, "loading.stops_mm": []}, {37.0: FAMILY["default"][0][0]}),
     ({**NEW_BASES["bending_off"], "discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 0.5,
       "discretization.corner_bisections": 1, "discretization.order_u": 4}, {56.0: CHECK_NEW["bending_off"][0]}),
-], ids=["reference_family_p4", "bending_off_check_p4"])
+    ({"discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 1.0,
+      "discretization.corner_bisections": 2, "discretization.order_u": 6, "loading.u0_mm": 37.0,
+      "loading.stops_mm": []}, {37.0: SPLIT_37[0]}),
+    ({"discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 0.125, "discretization.order_u": 4,
+      "loading.u0_mm": 37.0, "loading.stops_mm": []}, {37.0: FINE_37[0]}),
+], ids=["reference_family_p4", "bending_off_check_p4", "split_37_p6", "fine_37_p4"])
 def test_stored_families_are_this_codes_forces(changes, stored):
     """The stored families are forces of this code: the cheapest member of the reference family
-    (20 mm mesh, 0.25 mm corners, p = 4, here loaded to 37 mm only) and of a new base's h-check
-    (bending off, 10 mm mesh with 0.5 mm corners bisected once, p = 4) run again give the stored
-    force to the 1e-6 N it is stored with (measured 61.2520402 N and 36.7102665 N). A change of
-    the code that moves a force leaves the references below stale; this test says so."""
+    (20 mm mesh, 0.25 mm corners, p = 4, here loaded to 37 mm only), of a new base's h-check
+    (bending off, 10 mm mesh with 0.5 mm corners bisected once, p = 4), of the split family at
+    37 mm (1 mm corners bisected twice, p = 6) and of the unsplit 0.125 mm family (p = 4) run
+    again give the stored force to the 1e-6 N it is stored with (measured 61.2520402 N,
+    36.7102665 N, 61.2191394 N, 61.2525530 N). A change of the code that moves a force leaves the
+    references below stale; this test says so."""
     from ngbet.api import simulate
 
     r = simulate(Scene().with_changes(**{**changes, "outputs.error_estimate": "off", "outputs.vtk": False,

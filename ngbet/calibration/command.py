@@ -135,10 +135,12 @@ class Inputs:
                     raise SceneError(f"--predict {c.source}: its header gives no specimen "
                                      "(# specimen.width_mm = ..., # specimen.length_mm = ...) and no --predict-scene")
         else:
-            from ..fit import _check_inputs, _start
+            from ..fit import Curve, _check_inputs, _fitted_points, _start
 
             _start(self.scene, self.params)
             _check_inputs(self.scene, args.noise, args.profile, args.force_sd, args.profile_sd)
+            c = self.curves[0]
+            _fitted_points(Curve(c.u_mm, c.force_N, c.source), self.scene, self.u_range, args.noise)
 
     def _fraction(self, c: MeasuredCurve) -> tuple[float, float]:
         from .data import RANGE

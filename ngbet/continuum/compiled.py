@@ -37,8 +37,10 @@ load 2–4; 1.2 s when each was linked against NGSolve's libraries).
   save ~0.1 s); native from the cache (nothing compiled) up to :data:`NATIVE_COLD`; native,
   compiling if needed, above. Run once with ``"native"`` to fill the cache for a family of scenes.
 
-The constants of the energy (material parameters, K_aug) are literals in the generated code, so
-each set of values is its own source. The tangent is the same either way: uncondensed to 2e-16
+The constants of the energy (K_aug, the penalty K, the tabulated law's rises) are literals in the
+generated code, so each set of them is its own source; the material values of
+:mod:`ngbet.continuum.parameters` are Parameters, read at run time (a run with other K_el and α1
+reused the cached code: setup 0.8 s). The tangent is the same either way: uncondensed to 2e-16
 of its largest entry, the residual to 4e-18 (measured; after the element-wise condensation of
 the exact Lagrangian's Newton matrix, whose local blocks carry K_aug, the corner entries differ by
 the round-off that elimination amplifies, 2.5e-2 at p = 3 with 0.25 mm corners, and the condensed

@@ -15,18 +15,21 @@ Newton solver already holds. Then dR/dp = ψ*·∂r/∂p for every parameter at 
 residual of the energy's derivative ∂W/∂p: the problem's own energy, which reads the material
 values as ``ngsolve.Parameter``\ s (:mod:`ngbet.continuum.parameters`), differentiated by NGSolve
 (``CoefficientFunction.Diff``), every term that reads p included. Per converged step
-this costs one back-substitution plus one residual evaluation per parameter, against a whole
-extra load path per parameter for finite differences.
+this costs two back-substitutions and two residual evaluations plus one residual evaluation per
+parameter, against a whole extra load path per parameter for finite differences.
 
-H is linearized at the converged state itself (Newton's last factorization belongs to the iterate
-before its last correction). Accuracy, measured against central differences of whole runs
-(tests/test_fit.py, tests/test_calibration.py): 4e-6 of the largest derivative or better at p = 2
-for the shear-law coefficients, the table's rises and K_el, with and without bending, and 1.3e-5
-for K_el, K_sh, α1, α2 on a scene where the cap 30 K_el of the stabilization holds on part of the
-elements (the Newton tolerance of the runs). min(α1, α2) has a kink at α1 = α2: there the
-derivative is the one-sided one where K_s follows α1. The derivative form must integrate with
-the quadrature of the problem's energy (:func:`_same_rule`); with NGSolve's default for the form
-alone, dF/d ln K_el was 1.3 % off.
+H is the tangent at the converged state itself: Newton's last factorization belongs to an
+earlier iterate, and the load tangent it gives is corrected by a Richardson step with the
+residual's difference quotient (:func:`load_tangent_at_state`). Accuracy, measured against
+central differences of whole runs (tests/test_fit.py, tests/test_calibration.py; step 1e-3, whose
+own accuracy is ~1e-7): 3e-8–1.6e-7 of the largest derivative at p = 2 for the shear-law
+coefficients, the table's rises and K_el, 4e-6 for γ_lock, and 3e-8–7e-8 for K_el, K_sh, α1, α2
+on a scene where the cap 30 K_el of the stabilization holds on part of the elements. With Newton's
+factorization as it stands the error was up to 8e-5, with the augmented Newton matrix of the exact
+Lagrangian refactorized 1.3e-5, and with the stabilization's cap left out of ∂W/∂p 1.4e-2.
+min(α1, α2) has a kink at α1 = α2: there the derivative is the one-sided one where K_s follows
+α1. The derivative form must integrate with the quadrature of the problem's energy
+(:func:`_same_rule`); with NGSolve's default for the form alone, dF/d ln K_el was 1.3 % off.
 """
 
 from __future__ import annotations
@@ -134,6 +137,71 @@ def _check_params(scene: Scene, params: Sequence[str]) -> list[str]:
     return names
 
 
+#: refinements of the load tangent at most, and the contraction each must reach (else: factorize anew)
+TANGENT_REFINEMENTS = 3
+TANGENT_CONTRACTION = 0.5
+
+
+def load_tangent_at_state(problem: Any, residual: np.ndarray | None = None, rtol: float = 1e-5) -> np.ndarray:
+    """ψ* = ∂x/∂u0 at the current, converged state: ψ on the clamps, (H ψ*)_f = 0 with H the tangent here.
+
+    Newton's last factorization belongs to the iterate before its last correction (or an earlier
+    one, after a simplified Newton step); its load tangent made dF/dp differ from central
+    differences of whole runs by up to 8e-5 of the value. It is corrected by
+    :func:`solve_at_state`; ``residual``: r at this state, when at hand.
+
+    H is the Jacobian of the residual itself, also for the exact Lagrangian, whose Newton matrix
+    is augmented (K_aug, :mod:`ngbet.continuum.linear`): a load tangent of the augmented matrix
+    leaves an O(1/K_aug) error (measured 1e-5 of dF/dK_sh).
+    """
+    r0 = residual if residual is not None else problem.residual()
+    psi = solve_at_state(problem, problem.load_tangent(1.0), None, r0, rtol)
+    if psi is None:
+        problem.factorize()
+        psi = problem.load_tangent(1.0)
+    return psi
+
+
+def solve_at_state(problem: Any, y: np.ndarray, g: np.ndarray | None, residual: np.ndarray,
+                   rtol: float = 1e-5) -> np.ndarray | None:
+    """The solution of (H y + g)_f = 0 (g None: 0) from a start y of Newton's last factorization.
+
+    H is the tangent at the current, converged state.
+
+    Richardson steps y ← y − H_old⁻¹ (H y + g)_f, with H y the difference quotient of the residual
+    along y (one residual evaluation, against an assembly and a factorization for H itself; y's
+    Dirichlet entries stay), until (H y + g)_f is below ``rtol`` of g's free rows (g None: of
+    H y's Dirichlet rows). Measured: 1e-3–6e-3 from the start, ~1e-6 after one step (the level of
+    the difference quotient). None where a step does not contract by :data:`TANGENT_CONTRACTION`
+    within :data:`TANGENT_REFINEMENTS` steps (then H must be factorized here). The state is left
+    as it was.
+    """
+    pb = problem
+    x0 = pb.x.copy()
+    scale = float(np.linalg.norm(x0))
+    ref = None if g is None else float(np.linalg.norm(np.where(pb.dirichlet, 0.0, g)))
+    last = math.inf
+    for _ in range(TANGENT_REFINEMENTS + 1):
+        if not np.any(y):
+            return y if g is None or ref == 0 else None
+        h = 1e-7 * scale / float(np.linalg.norm(y))
+        pb.x[:] = x0 + h * y
+        rho = (pb.residual() - residual) / h
+        pb.x[:] = x0
+        if g is not None:
+            rho += g
+        size_ref = float(np.linalg.norm(rho[pb.dirichlet])) if ref is None else ref
+        rho[pb.dirichlet] = 0.0
+        size = float(np.linalg.norm(rho))
+        if size <= rtol * size_ref:
+            return y
+        if size > TANGENT_CONTRACTION * last:
+            return None
+        last = size
+        y = y + pb.solve(rho)
+    return None
+
+
 class _Recorder:
     """What :func:`force_path` records at each converged step (an ``on_step`` callback)."""
 
@@ -169,17 +237,17 @@ class _Recorder:
         d, dprof = [], []
         psi = None
         if self.forms and (want is not None or any(abs(v - key) < 1e-6 for v in self.loads)):
-            # ψ*: ψ on the clamps, H-orthogonal to the free dofs, with H at this state: Newton's last
-            # factorization belongs to the iterate before the last correction (which made dF/dp
-            # differ from central differences of whole runs by up to 6e-3)
-            pb.factorize()
-            psi = pb.load_tangent(1.0)
+            psi = load_tangent_at_state(pb, r)
         for f, p in zip(self.forms if psi is not None else (), self.values, strict=False):
             f.Apply(pb.gf.vec, self.g)
             gv = self.g.FV().NumPy()
             d.append(p * float(psi @ gv) * t)
-            if pts is not None:  # dx/dp = −J⁻¹ ∂r/∂p (solve returns −J⁻¹ r)
-                self.dgf.vec.FV().NumPy()[:] = pb.solve(gv.copy())
+            if pts is not None:  # dx/dp = −J⁻¹ ∂r/∂p (solve returns −J⁻¹ r), J at this state
+                dx = solve_at_state(pb, pb.solve(gv.copy()), gv, r)
+                if dx is None:
+                    pb.factorize()
+                    dx = pb.solve(gv.copy())
+                self.dgf.vec.FV().NumPy()[:] = dx
                 dprof.append(1e3 * p * np.asarray(self.dgf.components[0](pts))[:, 1])
         if want is not None and dprof:
             self.profile_dlogp[want] = np.column_stack(dprof)
@@ -194,7 +262,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     such as ``"material.K_sh"``.
 
     ``profile``: {u0 [mm]: X [mm]}: also the mid-axis u_y at those X at load u0 (and its
-    derivatives, one more back-substitution per parameter). ``mesh``: a mesh of the scene's
+    derivatives, two more back-substitutions and residual evaluations per parameter). ``mesh``: a mesh of the scene's
     specimen made before (:func:`ngbet.continuum.mesh.make_mesh`), reused instead of meshing
     again. Nothing is written to disk. Raises
     :class:`ngbet.errors.ConvergenceError` when the path cannot be followed to the last load.

@@ -1,7 +1,8 @@
 """The network's corrector: shifted minimizing Newton with stability check and snap handling.
 
 :class:`ShiftedNewton` runs on the engine's load stepping (:func:`ngbet.engine.follow_path`);
-:func:`solve_path` puts the two together.
+:func:`solve_path` puts the two together. Newton at a fixed load is :func:`ngbet.discrete.newton.newton`,
+the stability check :func:`ngbet.discrete.eigen.lowest_eigenvalues`; both are described below.
 
 The solver knows nothing of yarns. A problem provides ``n_dofs``, ``fixed`` (bool mask of
 prescribed dofs), ``load`` (prescribed values per unit load parameter u0), ``ramp`` (a field for
