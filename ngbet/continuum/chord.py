@@ -118,17 +118,18 @@ def jacobian_times(problem: NonlinearProblem, v: np.ndarray, eps: float, r: np.n
 
 
 def tangent_at_hand(problem: NonlinearProblem, psi: np.ndarray | None, eps: float, r: np.ndarray | None = None,
-                    rel: float = TANGENT_RTOL, max_refinements: int = TANGENT_REFINEMENTS
-                    ) -> tuple[np.ndarray, float] | None:
+                    rel: float = TANGENT_RTOL, max_refinements: int = TANGENT_REFINEMENTS,
+                    start: np.ndarray | None = None) -> tuple[np.ndarray, float] | None:
     """The load tangent at the current (converged) state and dR/dλ (nan without ``psi``), without a linearization.
 
     From the factorization at hand, of an earlier state (module docstring), refined until the
     correction term of dR/dλ is below ``rel`` of it (its error is then a contraction factor
     smaller still): each refinement one residual (two without ``r``, the residual at the state)
     and one solve. None when ``max_refinements`` did not get there (the factorization is too far
-    from the state: linearize anew).
+    from the state: linearize anew). ``start``: a first guess of the tangent (its prescribed
+    entries those of the load), else the factorization's own.
     """
-    t = problem.load_tangent(1.0)
+    t = problem.load_tangent(1.0) if start is None else start
     prescribed = getattr(problem, "dirichlet", None)
     if psi is not None and (prescribed is None or not np.allclose(psi[prescribed], t[prescribed])):
         raise ValueError("dR/dλ = t·J t needs the reaction's test vector equal to the load tangent on the "

@@ -256,6 +256,7 @@ class SaddlePointNewton:
         self._chorded = False
         self._contraction = math.nan  # of the chord with the factorization at hand, at the last load
         self._states: list[tuple[float, np.ndarray]] = []  # the last converged loads and states (chord)
+        self._tangents: list[tuple[float, np.ndarray]] = []  # and the last two tangents
         self.chord_steps = 0
         self.chord_failures = 0
         self.settings = settings
@@ -372,14 +373,17 @@ class SaddlePointNewton:
         """The state is converged: its residual, and the load tangent for dR/du0 and the next predictor."""
         assert self.report is not None
         self._factorized = True  # Newton factorized at its iterates
-        self._tangent = None
-        if self.chord_at.size:  # the last converged states, for the chord's predictor
+        if self.chord_at.size:  # the last converged states and tangents, for the chord's predictors
             self._states = [*self._states[1 - CHORD_PREDICTOR_STATES:], (u0 + h, self.problem.x.copy())]
+            if self._tangent is not None:
+                self._tangents = [*self._tangents[-1:], (u0, self._tangent)]
+        self._tangent = None
         dR = math.nan
         if self._chorded:  # the factorization is an earlier state's: the tangent refined (chord module)
             self.chord_steps += 1
             if self.settings.predictor == "tangent" or self._psi is not None:
-                found = tangent_at_hand(self.problem, self._psi, self._fd_step, self.report.residual)
+                start = extrapolate(self._tangents, u0 + h) if len(self._tangents) == 2 else None
+                found = tangent_at_hand(self.problem, self._psi, self._fd_step, self.report.residual, start=start)
                 if found is None:  # too far from the factorization: the tangent of a new one
                     self.problem.factorize()
                     self._contraction = math.nan
@@ -395,7 +399,7 @@ class SaddlePointNewton:
             log.warning("snap-through at u0 = %.6g mm: the state jumped to a stable one (energy released %.3g "
                         "per unit thickness)", (u0 + h) * 1e3, rec.released)
             self._jump = None
-            self._states = []  # a jump: no extrapolation across it
+            self._states, self._tangents = [], []  # a jump: no extrapolation across it
         if self._chorded:
             rec.dforce_du0 = dR
         elif self.settings.predictor == "tangent" and self._psi is not None:
