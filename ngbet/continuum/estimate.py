@@ -78,6 +78,9 @@ CORNER_LEVELS = 3
 THETA_CORNER = 2.0
 #: Newton tolerance of the enriched solve (relative energy): the force to ~1e-7 relative
 ENRICHED_RTOL = 1e-8
+#: the enriched Newton keeps its factorization after a step that contracted by at most this
+#: (:attr:`ngbet.continuum.newton.NewtonSettings.reuse_contraction`)
+ENRICHED_REUSE = 0.25
 
 
 #: factor on |F_p − F_p+2|, the plateau check: on a sequence converging monotonically with ratio
@@ -246,7 +249,7 @@ class ForceErrorEstimator:
             if not converge and report is not None:
                 return math.nan, report.iterations, f"{first} (not solved further)"
             enr.x[:] = x0
-            settings = dataclasses.replace(newton_settings(enr.scene),
+            settings = dataclasses.replace(newton_settings(enr.scene), reuse_contraction=ENRICHED_REUSE,
                                            rtol=max(ENRICHED_RTOL, enr.scene.solver.rtol))
             # the one step's factorization is that at x0: Newton's first iteration reuses it
             report = newton(enr, settings, enr.energy(), factorized=r0 is not None, r=r0)
