@@ -18,14 +18,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from ..errors import Attempt
+from .settings import NewtonSettings, newton_settings
 
-if TYPE_CHECKING:
-    from ..scene import Scene
+__all__ = ["Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "failure_pattern", "newton",
+           "newton_settings"]
 
 
 class Diagnosis(Protocol):
@@ -70,34 +71,6 @@ class NonlinearProblem(Protocol):
 
     def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
         """psi·(J tangent): the load derivative of the reaction psi·r along the tangent."""
-
-
-@dataclass(frozen=True)
-class NewtonSettings:
-    """Tolerances, damping and step control of the continuum's Newton (from ``scene.solver``)."""
-
-    rtol: float = 1e-10
-    atol: float = 1e-14
-    max_iterations: int = 12
-    min_damping: float = 1.0 / 64
-    grow_after: int = 4
-    growth: float = 1.5
-    cut: float = 0.5
-    predictor: str = "tangent"
-    #: contraction θ = ‖dx̄‖/‖dx‖ below which a small simplified correction ends Newton without a
-    #: new linearization (0 disables the shortcut)
-    simplified_theta: float = 0.5
-    #: an iteration after a full step that contracted by at most this keeps the factorization (a
-    #: chord step, its decrement tested against (1 − θ) times the tolerance); 0: a new
-    #: linearization at every iteration
-    reuse_contraction: float = 0.0
-
-
-def newton_settings(scene: Scene) -> NewtonSettings:
-    """The Newton numerics of ``scene.solver`` (the one translation of the scene into them)."""
-    s = scene.solver
-    return NewtonSettings(rtol=s.rtol, atol=s.atol_energy, max_iterations=s.max_iterations,
-                          grow_after=s.grow_after, growth=s.growth, cut=s.cut, predictor=s.predictor)
 
 
 @dataclass

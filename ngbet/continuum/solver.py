@@ -41,10 +41,12 @@ import numpy as np
 from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
 from ..errors import Attempt, ConvergenceError
 from .chord import CHORD_PREDICTOR_STATES, FD_STEP, chord, extrapolate, tangent_at_hand
-from .newton import Diagnosis, NewtonReport, NewtonSettings, NonlinearProblem, failure_pattern, newton, newton_settings
+from .newton import Diagnosis, NewtonReport, NonlinearProblem, failure_pattern, newton
+from .settings import NewtonSettings, PathSettings, newton_settings, path_settings
 
-__all__ = ["Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "RelaxReport", "RelaxSettings",
-           "SaddlePointNewton", "continuation", "failure_pattern", "newton", "newton_settings", "relax"]
+__all__ = ["Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "PathSettings", "RelaxReport",
+           "RelaxSettings", "SaddlePointNewton", "continuation", "failure_pattern", "follow", "newton",
+           "newton_settings", "path_settings", "relax"]
 
 log = logging.getLogger(__name__)
 
@@ -424,27 +426,11 @@ class SaddlePointNewton:
         return "; ".join(t for t in texts if t), detail
 
 
-def continuation(
-    problem: NonlinearProblem,
-    target: float,
-    first_step: float,
-    settings: NewtonSettings,
-    *,
-    max_step: float = math.inf,
-    min_step: float = 0.0,
-    stops: Sequence[float] = (),
-    on_step: Callable[[StepRecord], None] | None = None,
-    diagnose: Callable[[], Diagnosis] | None = None,
-    max_attempts: int = 500,
-    psi: np.ndarray | None = None,
-    progress: Callable[[float], None] | None = None,
-    path_following: str = "displacement",
-    arclength: Callable[[PathResult], PathResult] | None = None,
-    snap: bool = True,
-    chord_at: Sequence[float] = (),
-    length: float = 1.0,
-) -> PathResult:
-    """Carry the load from 0 to ``target`` with :class:`SaddlePointNewton` on the engine.
+def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, *,
+           on_step: Callable[[StepRecord], None] | None = None, diagnose: Callable[[], Diagnosis] | None = None,
+           psi: np.ndarray | None = None, progress: Callable[[float], None] | None = None,
+           arclength: Callable[[PathResult], PathResult] | None = None) -> PathResult:
+    """Carry the load from 0 to ``path.target`` with :class:`SaddlePointNewton` on the engine.
 
     A stop within a fifth of a step beyond a trial load is landed on. ``on_step`` is called after
     every converged increment.
@@ -455,26 +441,34 @@ def continuation(
         when the increment has been cut below ``min_step``, or after ``max_attempts`` increments
         (converged or not: a bound on the time), with the pattern of the last failures and what
         ``diagnose`` finds.
+    ValueError
+        when ``path.path_following`` asks for arc length and no ``arclength`` runner is given.
 
-    ``path_following`` (``solver.path_following``): "displacement" control alone; "arclength":
-    ``arclength(result)`` follows the path from the start; "auto": displacement control, and
-    where it fails, ``arclength(result)`` goes on from the last converged state (the steps are
-    appended to the same result). ``snap``: under displacement control, an increment that fails
-    at the shortest length is relaxed to a stable state at its load (:func:`relax`; a snap-through
-    is recorded in the step and in ``path_info["snaps"]``).
+    ``path.path_following``: "displacement" control alone; "arclength": ``arclength(result)``
+    follows the path from the start; "auto": displacement control, and where it fails,
+    ``arclength(result)`` goes on from the last converged state (the steps are appended to the
+    same result). ``path.snap``: under displacement control, an increment that fails at the
+    shortest length is relaxed to a stable state at its load (:func:`relax`; a snap-through is
+    recorded in the step and in ``path_info["snaps"]``).
     """
-    if path_following == "arclength" and arclength is not None:
+    if path.path_following not in ("displacement", "arclength", "auto"):
+        raise ValueError(f"path_following = {path.path_following!r}: not 'displacement', 'arclength' or 'auto'")
+    if path.path_following != "displacement" and arclength is None:
+        raise ValueError(f"path_following = {path.path_following!r} needs an arc-length runner; none was given")
+    if path.path_following == "arclength" and arclength is not None:
         return arclength(PathResult(0.0))
-    ctl = PathControl(target=target, first_step=first_step, max_step=max_step, min_step=min_step,
-                      growth=settings.growth, cut=settings.cut, grow_after=settings.grow_after,
-                      stops=tuple(stops), land_within=0.2, max_attempts=max_attempts)
-    if path_following != "auto" or arclength is None:
+    ctl = PathControl(target=path.target, first_step=path.first_step, max_step=path.max_step,
+                      min_step=path.min_step, growth=settings.growth, cut=settings.cut,
+                      grow_after=settings.grow_after, stops=path.stops, land_within=0.2,
+                      max_attempts=path.max_attempts)
+    if path.path_following == "displacement" or arclength is None:
         # displacement control relaxes to a stable state where the path folds (the last increment
         # before the minimum, if within twice the minimum: a snap is bracketed as closely as the
         # steps go); a problem without a Hessian tangent cannot (no stability test)
-        below = min(min_step / settings.cut, 2 * min_step) if snap and getattr(problem, "can_relax", False) else 0.0
-        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below, chord_at=chord_at,
-                                      length=length)
+        can = path.snap and getattr(problem, "can_relax", False)
+        below = min(path.min_step / settings.cut, 2 * path.min_step) if can else 0.0
+        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below, chord_at=path.chord_at,
+                                      length=path.length)
         try:
             res = follow_path(corrector, ctl, on_step=on_step, progress=progress)
         except ConvergenceError as err:
@@ -484,7 +478,7 @@ def continuation(
         return res
     # under "auto" a failure hands over to arc length, which reports the path's instabilities
     # itself: no diagnosis (an eigen-solve) at the hand-over
-    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=chord_at, length=length)
+    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=path.chord_at, length=path.length)
     partial = PathResult(0.0)
 
     def keep(rec: StepRecord) -> None:
@@ -500,6 +494,16 @@ def continuation(
         partial.attempts = list(err.attempts)
         partial.cuts = sum(not a.converged for a in err.attempts)
         return arclength(partial)
+
+
+def continuation(problem: NonlinearProblem, target: float, first_step: float, settings: NewtonSettings, *,
+                 on_step: Callable[[StepRecord], None] | None = None, diagnose: Callable[[], Diagnosis] | None = None,
+                 psi: np.ndarray | None = None, progress: Callable[[float], None] | None = None,
+                 arclength: Callable[[PathResult], PathResult] | None = None, **path: object) -> PathResult:
+    """:func:`follow` with the path given by its fields: ``PathSettings(target, first_step, **path)``."""
+    path.update({k: tuple(path[k]) for k in ("stops", "chord_at") if k in path})  # type: ignore[arg-type]
+    return follow(problem, PathSettings(target, first_step, **path), settings,  # type: ignore[arg-type]
+                  on_step=on_step, diagnose=diagnose, psi=psi, progress=progress, arclength=arclength)
 
 
 def _snap_info(corrector: SaddlePointNewton) -> dict[str, object]:
