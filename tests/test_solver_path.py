@@ -36,3 +36,23 @@ def test_an_unknown_path_following_is_refused():
 def test_path_settings_default_bounds():
     p = PathSettings(0.02, 0.01)
     assert math.isinf(p.max_step) and p.stops == () and p.snap and p.max_attempts == 500
+
+
+def test_the_path_is_a_generator_of_step_records_the_caller_consumes():
+    """The engine yields each converged step as it is accepted (the caller decides what to keep and
+    may stop early); its return value is the path, the same records follow_path hands to on_step."""
+    from test_engine import Toy
+
+    from ngbet.engine import PathControl, follow_path, path_steps
+
+    ctl = PathControl(target=0.010, first_step=0.001, max_step=0.004, growth=2.0, stops=(0.0035,))
+    gen = path_steps(Toy(), ctl)
+    seen = [round(next(gen).u0 * 1e3, 9) for _ in range(3)]  # the caller stops after three steps
+    assert seen == [1.0, 3.0, 3.5]
+    loads = []
+    res = follow_path(Toy(), ctl, on_step=lambda rec: loads.append(round(rec.u0 * 1e3, 9)))
+    assert loads == [round(s.u0 * 1e3, 9) for s in res.steps] == [1.0, 3.0, 3.5, 7.5, 10.0]
+    with pytest.raises(StopIteration) as done:
+        for _ in range(10):
+            next(gen)
+    assert [s.step for s in done.value.value.steps] == [1, 2, 3, 4, 5]
