@@ -268,8 +268,11 @@ def _solver_info(problem: ContinuumProblem, res: PathResult | None) -> dict[str,
         d.update(snaps_in_units(res.path_info, problem.scene.specimen.t))
         d["load_steps"] = len(res.steps)
         d["step_cuts"] = res.cuts
-        d["newton_iterations"] = sum(s.iterations for s in res.steps) + sum(
+        chord = sum(s.iterations for s in res.steps if "(chord)" in s.reason)  # the grid rows' (chord module)
+        d["newton_iterations"] = sum(s.iterations for s in res.steps) - chord + sum(
             a.iterations for a in res.attempts if not a.converged)
+        if chord:
+            d["chord_iterations"] = chord
     return d
 
 
