@@ -283,13 +283,30 @@ class SaddlePointNewton:
         self._saved = p.x.copy()
         if self.chord_at.size and not self._states and u0 == 0.0:  # the unloaded state is the first
             self._states = [(0.0, p.x.copy())]
-        if self._chord_load(u0 + h) and len(self._states) >= 3:  # at least a parabola
+        if self._chord_load(u0 + h) and self._extrapolates(u0, h):
             p.x[:] = extrapolate(self._states, u0 + h)
-        elif self.settings.predictor == "tangent":
+        else:
+            self._predict_newton(h)
+
+    def _predict_newton(self, h: float) -> None:
+        """X = the converged state + ∂x/∂λ h (tangent) or the clamp's linear field."""
+        p = self.problem
+        p.x[:] = self._saved
+        if self.settings.predictor == "tangent":
             p.x[:] += h * self._load_tangent()
         else:
             p.x[:] += p.clamp_predictor(h)
         self._predicted = p.x.copy() if self.relax_below > 0 else None
+
+    def _extrapolates(self, u0: float, h: float) -> bool:
+        """Whether the polynomial through the last states may predict u0 + h.
+
+        At least a parabola, its states ending at u0 and no closer together than half the step (a cut
+        step's closely spaced states extrapolated far amplify their differences).
+        """
+        if len(self._states) < 3 or abs(self._states[-1][0] - u0) > 1e-12 * max(1.0, abs(u0)):
+            return False
+        return bool(np.min(np.diff([s[0] for s in self._states])) >= (0.5 - 1e-9) * h)
 
     def _load_tangent(self) -> np.ndarray:
         if self._tangent is None:
@@ -309,7 +326,6 @@ class SaddlePointNewton:
         self._jump = None
         self._chorded = False
         if self._factorized and self._chord_load(u0 + h):
-            x_pred = p.x.copy()
             self.report = rep = chord(p, self.settings, e_ref, prior=self._contraction)
             self._contraction = rep.contraction if rep.converged else math.nan
             if rep.converged:
@@ -317,7 +333,10 @@ class SaddlePointNewton:
                 return Outcome("converged", rep.iterations, list(rep.history), rep.reason)
             log.debug("chord at %.6g mm: %s; Newton takes over", (u0 + h) * 1e3, rep.reason)
             self.chord_failures += 1
-            p.x[:] = x_pred
+            self._predict_newton(h)  # from Newton's own predictor
+            p.set_load(u0 + h)
+            e_ref = p.energy()
+            e_ref = e_ref if math.isfinite(e_ref) else 0.0
         self._contraction = math.nan  # Newton factorizes anew
         self.report = rep = newton(p, self.settings, e_ref)
         if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
@@ -467,8 +486,8 @@ def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettin
         # steps go); a problem without a Hessian tangent cannot (no stability test)
         can = path.snap and getattr(problem, "can_relax", False)
         below = min(path.min_step / settings.cut, 2 * path.min_step) if can else 0.0
-        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below, chord_at=path.chord_at,
-                                      length=path.length)
+        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below,
+                                      chord_at=_chord_loads(problem, path), length=path.length)
         try:
             res = follow_path(corrector, ctl, on_step=on_step, progress=progress)
         except ConvergenceError as err:
@@ -478,7 +497,8 @@ def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettin
         return res
     # under "auto" a failure hands over to arc length, which reports the path's instabilities
     # itself: no diagnosis (an eigen-solve) at the hand-over
-    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=path.chord_at, length=path.length)
+    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=_chord_loads(problem, path),
+                                  length=path.length)
     partial = PathResult(0.0)
 
     def keep(rec: StepRecord) -> None:
@@ -494,6 +514,15 @@ def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettin
         partial.attempts = list(err.attempts)
         partial.cuts = sum(not a.converged for a in err.attempts)
         return arclength(partial)
+
+
+def _chord_loads(problem: NonlinearProblem, path: PathSettings) -> tuple[float, ...]:
+    """The loads where the chord is tried: the output grid where the Newton matrix is a Hessian.
+
+    The chord's decrements measure its contraction in the matrix's energy norm; an indefinite
+    (uncondensed saddle-point) matrix has none, and its rows are left to Newton.
+    """
+    return path.chord_at if getattr(problem, "can_relax", False) else ()
 
 
 def continuation(problem: NonlinearProblem, target: float, first_step: float, settings: NewtonSettings, *,
