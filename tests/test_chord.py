@@ -135,3 +135,14 @@ def test_output_rows_by_chord_match_newton_and_save_linearizations(tmp_path, mon
     for a, b in zip(rows[:-1], rows[1:], strict=True):
         fd = (b["force_N"] - a["force_N"]) / (b["u0_mm"] - a["u0_mm"])
         assert math.isclose(fd, 0.5 * (a["dforce_du0_N_per_mm"] + b["dforce_du0_N_per_mm"]), rel_tol=2e-3)
+
+
+def test_the_polynomial_predicts_only_from_states_spaced_like_the_step():
+    """After cut steps (states 0.125 mm apart) a 0.3 mm step is predicted by the tangent, not by a
+    cubic through them (which amplifies their differences ~30 times); states 2 mm apart predict 2 mm."""
+    sp = SaddlePointNewton(Hardening(0.0, 0.0), NewtonSettings(), chord_at=[0.002, 0.004])
+    sp._states = [(lam, np.zeros(2)) for lam in (0.0185, 0.019, 0.019125, 0.01925)]
+    assert not sp._extrapolates(0.01925, 0.0003)
+    sp._states = [(lam, np.zeros(2)) for lam in (0.012, 0.014, 0.016, 0.018)]
+    assert sp._extrapolates(0.018, 0.002) and not sp._extrapolates(0.016, 0.002)
+    assert not sp._extrapolates(0.018, 0.005)
