@@ -7,7 +7,7 @@ import pytest
 from conftest import coarse
 
 from ngbet.continuum import chord as C
-from ngbet.continuum.solver import NewtonSettings, SaddlePointNewton
+from ngbet.continuum.solver import NewtonSettings
 from ngbet.output import read_rows
 from ngbet.run import run
 
@@ -124,7 +124,7 @@ def test_output_rows_by_chord_match_newton_and_save_linearizations(tmp_path, mon
     scene = coarse(**{"loading.u0_mm": 20.0, "loading.stops_mm": [11.0], "loading.output_every_mm": 2.0,
                       "outputs.error_estimate": "off"})
     s = run(scene, tmp_path / "chord", progress=False)
-    monkeypatch.setattr(SaddlePointNewton, "_chord_load", lambda self, lam: False)  # Newton on every row
+    monkeypatch.setattr(C.ChordRows, "due", lambda self, lam: False)  # Newton on every row
     n = run(scene, tmp_path / "newton", progress=False)
     rows, ref = read_rows(tmp_path / "chord" / "results.csv"), read_rows(tmp_path / "newton" / "results.csv")
     assert [r["u0_mm"] for r in rows] == [r["u0_mm"] for r in ref] == [2, 4, 6, 8, 10, 11, 12, 14, 16, 18, 20]
@@ -140,9 +140,11 @@ def test_output_rows_by_chord_match_newton_and_save_linearizations(tmp_path, mon
 def test_the_polynomial_predicts_only_from_states_spaced_like_the_step():
     """After cut steps (states 0.125 mm apart) a 0.3 mm step is predicted by the tangent, not by a
     cubic through them (which amplifies their differences ~30 times); states 2 mm apart predict 2 mm."""
-    sp = SaddlePointNewton(Hardening(0.0, 0.0), NewtonSettings(), chord_at=[0.002, 0.004])
-    sp._states = [(lam, np.zeros(2)) for lam in (0.0185, 0.019, 0.019125, 0.01925)]
-    assert not sp._extrapolates(0.01925, 0.0003)
-    sp._states = [(lam, np.zeros(2)) for lam in (0.012, 0.014, 0.016, 0.018)]
-    assert sp._extrapolates(0.018, 0.002) and not sp._extrapolates(0.016, 0.002)
-    assert not sp._extrapolates(0.018, 0.005)
+    rows = C.ChordRows([0.002, 0.004, 0.0192, 0.02, 0.023])
+    x = np.zeros(2)
+    rows.states = [(lam, x) for lam in (0.0185, 0.019, 0.019125, 0.01925)]
+    assert rows.predictor(x, 0.01925, 0.00075) is None
+    rows.states = [(lam, np.full(2, lam)) for lam in (0.012, 0.014, 0.016, 0.018)]
+    np.testing.assert_allclose(rows.predictor(x, 0.018, 0.002), [0.02, 0.02])
+    assert rows.predictor(x, 0.016, 0.004) is None and rows.predictor(x, 0.018, 0.005) is None
+    assert rows.predictor(x, 0.018, 0.001) is None  # 19 mm is not a row of the grid

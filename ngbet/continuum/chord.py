@@ -30,6 +30,7 @@ step on the tangent's equation) is the next predictor.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -142,3 +143,77 @@ def tangent_at_hand(problem: NonlinearProblem, psi: np.ndarray | None, eps: floa
         if abs(term) <= rel * abs(dR):
             return t, dR if psi is not None else math.nan
     return None
+
+
+class ChordRows:
+    """The rows of an output grid on a path: where the chord is tried, what it extrapolates from, counts.
+
+    Parameters
+    ----------
+    loads : sequence of float
+        The loads [m] corrected by the chord (the output grid).
+    length : float
+        The problem's length scale [m] (the difference step of the tangent, :data:`FD_STEP`).
+    """
+
+    def __init__(self, loads: Sequence[float], length: float = 1.0) -> None:
+        self.loads = np.sort(np.asarray(loads, dtype=float))
+        self.fd_step = FD_STEP * length
+        #: the chord's contraction with the factorization at hand, at the last load (nan: a new one)
+        self.contraction = math.nan
+        self.states: list[tuple[float, np.ndarray]] = []  # the last converged loads and states
+        self.tangents: list[tuple[float, np.ndarray]] = []  # the last two loads and tangents
+        self.rows = 0
+        self.handovers = 0
+
+    def due(self, lam: float) -> bool:
+        """Whether ``lam`` is one of the loads where the chord is tried."""
+        return bool(self.loads.size) and bool(np.min(np.abs(self.loads - lam)) <= 1e-12 * max(1.0, abs(lam)))
+
+    def predictor(self, x: np.ndarray, u0: float, h: float) -> np.ndarray | None:
+        """The polynomial through the last states at u0 + h (``x``: the state at u0), or None.
+
+        None unless the load is due and there are at least three states, ending at u0 and no
+        closer together than half the step (a cut step's closely spaced states extrapolated far
+        amplify their differences): then Newton's predictor.
+        """
+        if not self.loads.size:
+            return None
+        if not self.states and u0 == 0.0:  # the unloaded state is the first
+            self.states = [(0.0, x.copy())]
+        s = self.states
+        if (not self.due(u0 + h) or len(s) < 3 or abs(s[-1][0] - u0) > 1e-12 * max(1.0, abs(u0))
+                or np.min(np.diff([st[0] for st in s])) < (0.5 - 1e-9) * h):
+            return None
+        return extrapolate(s, u0 + h)
+
+    def correct(self, problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
+        """:func:`chord` from the predicted state, judged by the contraction at hand; counts a hand-over."""
+        rep = chord(problem, settings, e_ref, prior=self.contraction)
+        self.contraction = rep.contraction if rep.converged else math.nan
+        if not rep.converged:
+            self.handovers += 1
+        return rep
+
+    def refactorized(self) -> None:
+        """The factorization at hand is new: no contraction is known for it."""
+        self.contraction = math.nan
+
+    def converged(self, lam: float, x: np.ndarray, tangent: tuple[float, np.ndarray] | None) -> None:
+        """A converged state at ``lam``, and the tangent at the previous converged load (if known)."""
+        if not self.loads.size:
+            return
+        self.states = [*self.states[1 - CHORD_PREDICTOR_STATES:], (lam, x.copy())]
+        if tangent is not None:
+            self.tangents = [*self.tangents[-1:], tangent]
+
+    def forget(self) -> None:
+        """A jump (snap-through): no extrapolation across it."""
+        self.states, self.tangents = [], []
+
+    def tangent(self, problem: NonlinearProblem, psi: np.ndarray | None, lam: float, r: np.ndarray | None
+                ) -> tuple[np.ndarray, float] | None:
+        """:func:`tangent_at_hand` at a chord row at ``lam``, from the extrapolation of the last two tangents."""
+        self.rows += 1
+        start = extrapolate(self.tangents, lam) if len(self.tangents) == 2 else None
+        return tangent_at_hand(problem, psi, self.fd_step, r, start=start)

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
 from ..errors import Attempt, ConvergenceError
-from .chord import CHORD_PREDICTOR_STATES, FD_STEP, chord, extrapolate, tangent_at_hand
+from .chord import ChordRows
 from .newton import Diagnosis, NewtonReport, NonlinearProblem, failure_pattern, newton
 from .settings import NewtonSettings, PathSettings, newton_settings, path_settings
 
@@ -251,16 +251,10 @@ class SaddlePointNewton:
                  relax_below: float = 0.0, relax_settings: RelaxSettings = RelaxSettings(),
                  chord_at: Sequence[float] = (), length: float = 1.0) -> None:
         self.problem = problem
-        #: loads where a chord correction with the factorization at hand is tried first
+        #: the loads where a chord correction with the factorization at hand is tried first
         #: (:mod:`ngbet.continuum.chord`); ``length`` scales its difference step
-        self.chord_at = np.sort(np.asarray(chord_at, dtype=float))
-        self._fd_step = FD_STEP * length
+        self.chord = ChordRows(chord_at, length)
         self._chorded = False
-        self._contraction = math.nan  # of the chord with the factorization at hand, at the last load
-        self._states: list[tuple[float, np.ndarray]] = []  # the last converged loads and states (chord)
-        self._tangents: list[tuple[float, np.ndarray]] = []  # and the last two tangents
-        self.chord_steps = 0
-        self.chord_failures = 0
         self.settings = settings
         self._diagnose = diagnose
         self._psi = psi
@@ -281,10 +275,9 @@ class SaddlePointNewton:
         """X += ∂x/∂λ h (tangent) or the clamp's linear field."""
         p = self.problem
         self._saved = p.x.copy()
-        if self.chord_at.size and not self._states and u0 == 0.0:  # the unloaded state is the first
-            self._states = [(0.0, p.x.copy())]
-        if self._chord_load(u0 + h) and self._extrapolates(u0, h):
-            p.x[:] = extrapolate(self._states, u0 + h)
+        guess = self.chord.predictor(p.x, u0, h)
+        if guess is not None:
+            p.x[:] = guess
         else:
             self._predict_newton(h)
 
@@ -298,21 +291,11 @@ class SaddlePointNewton:
             p.x[:] += p.clamp_predictor(h)
         self._predicted = p.x.copy() if self.relax_below > 0 else None
 
-    def _extrapolates(self, u0: float, h: float) -> bool:
-        """Whether the polynomial through the last states may predict u0 + h.
-
-        At least a parabola, its states ending at u0 and no closer together than half the step (a cut
-        step's closely spaced states extrapolated far amplify their differences).
-        """
-        if len(self._states) < 3 or abs(self._states[-1][0] - u0) > 1e-12 * max(1.0, abs(u0)):
-            return False
-        return bool(np.min(np.diff([s[0] for s in self._states])) >= (0.5 - 1e-9) * h)
-
     def _load_tangent(self) -> np.ndarray:
         if self._tangent is None:
             if not self._factorized:
                 self.problem.factorize()
-                self._contraction = math.nan
+                self.chord.refactorized()
                 self._factorized = True
             self._tangent = self.problem.load_tangent(1.0)
         return self._tangent
@@ -325,29 +308,21 @@ class SaddlePointNewton:
         e_ref = e_ref if math.isfinite(e_ref) else 0.0
         self._jump = None
         self._chorded = False
-        if self._factorized and self._chord_load(u0 + h):
-            self.report = rep = chord(p, self.settings, e_ref, prior=self._contraction)
-            self._contraction = rep.contraction if rep.converged else math.nan
+        if self._factorized and self.chord.due(u0 + h):
+            self.report = rep = self.chord.correct(p, self.settings, e_ref)
             if rep.converged:
                 self._chorded = True
                 return Outcome("converged", rep.iterations, list(rep.history), rep.reason)
             log.debug("chord at %.6g mm: %s; Newton takes over", (u0 + h) * 1e3, rep.reason)
-            self.chord_failures += 1
             self._predict_newton(h)  # from Newton's own predictor
             p.set_load(u0 + h)
             e_ref = p.energy()
             e_ref = e_ref if math.isfinite(e_ref) else 0.0
-        self._contraction = math.nan  # Newton factorizes anew
+        self.chord.refactorized()  # Newton factorizes anew
         self.report = rep = newton(p, self.settings, e_ref)
         if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
             return self._relax(u0, h, e_ref, rep)
         return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
-
-    def _chord_load(self, lam: float) -> bool:
-        """Whether ``lam`` is one of the loads where the chord is tried."""
-        if not self.chord_at.size:
-            return False
-        return bool(np.min(np.abs(self.chord_at - lam)) <= 1e-12 * max(1.0, abs(lam)))
 
     def _relax(self, u0: float, h: float, e_ref: float, failed: NewtonReport) -> Outcome:
         """After Newton failed on a short increment: a stable equilibrium at u0 + h by :func:`relax`."""
@@ -394,20 +369,15 @@ class SaddlePointNewton:
         """The state is converged: its residual, and the load tangent for dR/du0 and the next predictor."""
         assert self.report is not None
         self._factorized = True  # Newton factorized at its iterates
-        if self.chord_at.size:  # the last converged states and tangents, for the chord's predictors
-            self._states = [*self._states[1 - CHORD_PREDICTOR_STATES:], (u0 + h, self.problem.x.copy())]
-            if self._tangent is not None:
-                self._tangents = [*self._tangents[-1:], (u0, self._tangent)]
+        self.chord.converged(u0 + h, self.problem.x, None if self._tangent is None else (u0, self._tangent))
         self._tangent = None
         dR = math.nan
         if self._chorded:  # the factorization is an earlier state's: the tangent refined (chord module)
-            self.chord_steps += 1
             if self.settings.predictor == "tangent" or self._psi is not None:
-                start = extrapolate(self._tangents, u0 + h) if len(self._tangents) == 2 else None
-                found = tangent_at_hand(self.problem, self._psi, self._fd_step, self.report.residual, start=start)
+                found = self.chord.tangent(self.problem, self._psi, u0 + h, self.report.residual)
                 if found is None:  # too far from the factorization: the tangent of a new one
                     self.problem.factorize()
-                    self._contraction = math.nan
+                    self.chord.refactorized()
                     self._chorded = False
                 else:
                     self._tangent, dR = found
@@ -420,7 +390,7 @@ class SaddlePointNewton:
             log.warning("snap-through at u0 = %.6g mm: the state jumped to a stable one (energy released %.3g "
                         "per unit thickness)", (u0 + h) * 1e3, rec.released)
             self._jump = None
-            self._states, self._tangents = [], []  # a jump: no extrapolation across it
+            self.chord.forget()  # a jump: no extrapolation across it
         if self._chorded:
             rec.dforce_du0 = dR
         elif self.settings.predictor == "tangent" and self._psi is not None:
@@ -436,7 +406,7 @@ class SaddlePointNewton:
         if self.settings.predictor == "tangent":
             p.factorize()
             self._factorized = True
-            self._contraction = math.nan
+            self.chord.refactorized()
 
     def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
         """The failure pattern of the last attempts and the problem's own diagnosis (text and object)."""
@@ -538,8 +508,8 @@ def continuation(problem: NonlinearProblem, target: float, first_step: float, se
 def _snap_info(corrector: SaddlePointNewton) -> dict[str, object]:
     """The snap-throughs and relaxations of a displacement-controlled path, and its chord rows, for the summary."""
     info: dict[str, object] = {}
-    if corrector.chord_at.size:
-        info.update(chord_rows=corrector.chord_steps, chord_handovers=corrector.chord_failures)
+    if corrector.chord.loads.size:
+        info.update(chord_rows=corrector.chord.rows, chord_handovers=corrector.chord.handovers)
     if corrector.relaxations:
         info.update(snaps=list(corrector.snaps), relaxations=corrector.relaxations)
     return info
