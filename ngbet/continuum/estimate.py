@@ -29,7 +29,11 @@ reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accu
   corners) the estimate says it cannot vouch: ``force_error_N`` is empty and
   ``error_estimate_unreliable`` in summary.json says why. The p + 2 level is taken by its one step
   only, where that contracts; otherwise the p + 1 estimate stands with a note
-  (``error_estimate_checks``): a converged solve two orders up would cost more than the run;
+  (``error_estimate_checks``): a converged solve two orders up would cost more than the run. On
+  graded meshes it is not tried after a p + 1 step that contracted by more than
+  :data:`PLATEAU_SKIP_CONTRACTION` (measured: the p + 2 step then never contracted). The
+  Newton at p + 1 starts from the one step's factorization and keeps a factorization while its
+  steps contract by :data:`ENRICHED_REUSE` (chord steps: :mod:`ngbet.continuum.chord`);
 * an enriched solve on a mesh refined at the corners sees the corner error better, but Newton
   from the carried-over state does not converge there (the corner solution of the finer mesh is
   too far from the coarse one at 37–56 mm); only a full load continuation would do, at 2–4
