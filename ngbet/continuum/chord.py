@@ -3,28 +3,37 @@ r"""Rows between the load steps: a chord (modified Newton) correction and the lo
 Where a run asks for results at closely spaced loads (``loading.output_every_mm``), each of them
 is an equilibrium; Newton with a new linearization at each would cost an assembly and a
 factorization per row. Between those the Jacobian changes little, so the factorization at hand
-(that of the last Newton step) is reused:
+(that of the last Newton step) is reused, from a predictor that needs no linear solve:
 
+Predictor:        the cubic through the last four converged states (:func:`extrapolate`), where
+                  they are no closer together than half the step (else Newton's predictor).
 Chord step:       dx_k = −J₀⁻¹ r(x_k),  J₀ the factorized matrix of an earlier state.
 Contraction:      θ_k = (δ_k / δ_k−1)^½ with the decrements δ_k = |dx_k·r_k| = ‖dx_k‖²_J₀, the
                   contraction in the energy norm of J₀. Where θ_k > ``max_contraction`` the
                   problem is linearized again at x_k (once) and the chord goes on; a run that still
-                  does not contract fails, and Newton takes over from the predicted state.
+                  does not contract fails, and Newton takes over from its own predictor. The
+                  first step of a load may be judged by the contraction the same factorization
+                  showed at the last load.
 Convergence:      |dx_k·r_k| ≤ (1 − θ_k) · tol, tol = rtol · E_ref + atol as Newton's; then
                   x += dx_k. With ‖J₀⁻¹J − I‖ ≤ θ the Newton decrement r·J⁻¹r is at most
                   |dx_k·r_k| / (1 − θ): the state passes Newton's own test, and the step
-                  taken after it leaves an error θ times smaller still.
+                  taken after it leaves an error θ times smaller still. Measured on the default
+                  run against Newton to rtol = 1e-14: forces to 5e-7 (Newton's rows: 2e-9).
 
 The load tangent at such a state, t = ∂x/∂λ (prescribed entries d, free ones from
 J_ff t_f = −J_fd d), and the load derivative of the reaction dR/dλ = ψ·J t, are computed without
-a new linearization: t₀ = −J₀⁻¹ J₀ d from the factorization at hand (error e = t₀ − t, zero on
-the prescribed entries), J t₀ by central differences of the residual, and
+a new linearization: t₀ a guess (the extrapolation of the last two rows' tangents, else
+d − J₀⁻¹ J₀ d from the factorization at hand; error e = t₀ − t, zero on the prescribed entries),
+J t₀ by forward differences of the residual (the residual at the state is at hand), and
 
 .. math::  dR/dλ = t₀·J t₀ − g·J₀⁻¹ g + O(‖J₀⁻¹J − I‖ ‖e‖²_J), \qquad g = (J t₀)_{free} = J_{ff} e,
 
 because t·J t = ψ·J t (ψ = d on the prescribed entries, J t = 0 on the free ones) and
 t₀·J t₀ = t·J t + e·J e with e·J e = g·J_ff⁻¹ g. The refined tangent t₀ − J₀⁻¹ g (one chord
-step on the tangent's equation) is the next predictor.
+step on the tangent's equation) is refined again until the correction term g·J₀⁻¹g is below
+:data:`TANGENT_RTOL` of dR/dλ, else the problem is linearized anew. Measured on the default run:
+dR/dλ to 1e-4 of a tight Newton reference (6e-6 on 26 of the 27 rows), Newton's own, whose
+tangent is that of its last iterate, to 5e-4.
 """
 
 from __future__ import annotations
@@ -36,7 +45,9 @@ import numpy as np
 
 from .newton import NewtonReport, NewtonSettings, NonlinearProblem
 
-#: the chord run fails (Newton takes over) when a correction is more than this fraction of the last
+#: a chord correction contracting by more than this (energy norm) linearizes again, once; if it still
+#: does, Newton takes over. Measured on the default run: 0.15, 0.2, 0.3, 0.4 give 10, 8, 7, 7
+#: factorizations and 124, 122, 124, 124 residuals
 CHORD_CONTRACTION = 0.2
 #: the chord's predictor is the polynomial through this many last converged states (a cubic)
 CHORD_PREDICTOR_STATES = 4
