@@ -10,7 +10,8 @@ Predictor:        tangent (Euler): x += ∂x/∂λ Δλ from the last factorizat
                   at the loads of an output grid (``chord_at``) the polynomial through the last
                   converged states (:func:`ngbet.continuum.chord.extrapolate`).
 Stepping:         :func:`ngbet.engine.follow_path`: cut by ``cut`` on failure, grow by ``growth``
-                  after easy increments, land on stops (:func:`continuation` puts it together).
+                  after easy increments, land on stops (:func:`follow` puts it together, with
+                  the settings of :mod:`ngbet.continuum.settings`).
 
 Snap-through:     under displacement control, when an increment no longer than ``relax_below``
                   fails (the path folds or branches: past the fold there is no equilibrium
@@ -272,7 +273,7 @@ class SaddlePointNewton:
         self.report: NewtonReport | None = None  # of the last correction
 
     def predict(self, u0: float, h: float) -> None:
-        """X += ∂x/∂λ h (tangent) or the clamp's linear field."""
+        """X += ∂x/∂λ h (tangent) or the clamp's linear field; at a chord row the polynomial through the last states."""
         p = self.problem
         self._saved = p.x.copy()
         guess = self.chord.predictor(p.x, u0, h)
