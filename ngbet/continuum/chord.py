@@ -162,6 +162,15 @@ def tangent_at_hand(problem: NonlinearProblem, psi: np.ndarray | None, eps: floa
     return None
 
 
+def chord_loads(problem: NonlinearProblem, grid: tuple[float, ...]) -> tuple[float, ...]:
+    """The loads of the output ``grid`` where the chord is tried: all where the Newton matrix is a Hessian.
+
+    The chord's decrements measure its contraction in the matrix's energy norm; an indefinite
+    (uncondensed saddle-point) matrix has none, and its rows are left to Newton.
+    """
+    return grid if getattr(problem, "can_relax", False) else ()
+
+
 class ChordRows:
     """The rows of an output grid on a path: where the chord is tried, what it extrapolates from, counts.
 

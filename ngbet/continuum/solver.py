@@ -41,7 +41,7 @@ import numpy as np
 
 from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
 from ..errors import Attempt, ConvergenceError
-from .chord import ChordRows
+from .chord import ChordRows, chord_loads
 from .newton import Diagnosis, NewtonReport, NonlinearProblem, failure_pattern, newton
 from .settings import NewtonSettings, PathSettings, newton_settings, path_settings
 
@@ -458,7 +458,7 @@ def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettin
         can = path.snap and getattr(problem, "can_relax", False)
         below = min(path.min_step / settings.cut, 2 * path.min_step) if can else 0.0
         corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below,
-                                      chord_at=_chord_loads(problem, path), length=path.length)
+                                      chord_at=chord_loads(problem, path.chord_at), length=path.length)
         try:
             res = follow_path(corrector, ctl, on_step=on_step, progress=progress)
         except ConvergenceError as err:
@@ -468,7 +468,7 @@ def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettin
         return res
     # under "auto" a failure hands over to arc length, which reports the path's instabilities
     # itself: no diagnosis (an eigen-solve) at the hand-over
-    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=_chord_loads(problem, path),
+    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=chord_loads(problem, path.chord_at),
                                   length=path.length)
     partial = PathResult(0.0)
 
@@ -485,15 +485,6 @@ def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettin
         partial.attempts = list(err.attempts)
         partial.cuts = sum(not a.converged for a in err.attempts)
         return arclength(partial)
-
-
-def _chord_loads(problem: NonlinearProblem, path: PathSettings) -> tuple[float, ...]:
-    """The loads where the chord is tried: the output grid where the Newton matrix is a Hessian.
-
-    The chord's decrements measure its contraction in the matrix's energy norm; an indefinite
-    (uncondensed saddle-point) matrix has none, and its rows are left to Newton.
-    """
-    return path.chord_at if getattr(problem, "can_relax", False) else ()
 
 
 def continuation(problem: NonlinearProblem, target: float, first_step: float, settings: NewtonSettings, *,
