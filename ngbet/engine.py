@@ -28,7 +28,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
 
@@ -39,7 +39,7 @@ from .errors import Attempt, ConvergenceError
 log = logging.getLogger(__name__)
 
 __all__ = ["Attempt", "ConvergenceError", "Corrector", "Outcome", "PathControl", "PathResult", "StepRecord",
-           "follow_path", "progress_bar"]
+           "follow_path", "path_steps", "progress_bar"]
 
 
 @dataclass(frozen=True)
@@ -139,18 +139,20 @@ def check_stop() -> None:
         raise KeyboardInterrupt("stop requested by a signal")
 
 
-def follow_path(corrector: Corrector, ctl: PathControl, *,
-                on_step: Callable[[StepRecord], None] | None = None,
-                progress: Callable[[float], None] | None = None) -> PathResult:
-    """Carry the load from 0 to ``ctl.target``; ``on_step`` and ``progress(u0)`` follow each converged step.
+def path_steps(corrector: Corrector, ctl: PathControl, out: PathResult | None = None
+               ) -> Generator[StepRecord, None, PathResult]:
+    """Carry the load from 0 to ``ctl.target``, yielding each converged step's record as it is accepted.
+
+    The caller decides what to keep and write; the generator's return value (``StopIteration.value``,
+    or ``yield from``) is the :class:`PathResult`, which ``out`` (filled as the path goes) also is.
 
     Raises
     ------
     ConvergenceError
         when a failed increment is cut below ``ctl.min_step`` or after ``ctl.max_attempts``
-        trials; every converged step has been passed to ``on_step`` by then.
+        trials; every converged step has been yielded by then.
     """
-    out = PathResult(0.0)
+    out = PathResult(0.0) if out is None else out
     marks = sorted({s for s in ctl.stops if 0 < s < ctl.target} | {ctl.target})
     eps = 1e-12 * max(1.0, abs(ctl.target))
     step = min(ctl.first_step, ctl.max_step)
@@ -165,15 +167,32 @@ def follow_path(corrector: Corrector, ctl: PathControl, *,
                                     list(outcome.history)))
         if outcome.kind == "converged":
             _record(corrector, out, lam, nxt, h, outcome, t0)
-            if on_step is not None:
-                on_step(out.steps[-1])
-            if progress is not None:
-                progress(out.u0)
+            yield out.steps[-1]
             if outcome.iterations <= ctl.grow_after:
                 step = min(step * ctl.growth, ctl.max_step)
             continue
         corrector.reject(lam, outcome)
         step = _after_rejection(corrector, ctl, out, lam, nxt, h, outcome)
+    return out
+
+
+def follow_path(corrector: Corrector, ctl: PathControl, *,
+                on_step: Callable[[StepRecord], None] | None = None,
+                progress: Callable[[float], None] | None = None) -> PathResult:
+    """:func:`path_steps` with ``on_step(record)`` and ``progress(u0)`` after each converged step.
+
+    Raises
+    ------
+    ConvergenceError
+        when a failed increment is cut below ``ctl.min_step`` or after ``ctl.max_attempts``
+        trials; every converged step has been passed to ``on_step`` by then.
+    """
+    out = PathResult(0.0)
+    for rec in path_steps(corrector, ctl, out):
+        if on_step is not None:
+            on_step(rec)
+        if progress is not None:
+            progress(out.u0)
     return out
 
 

@@ -7,7 +7,7 @@ import pytest
 from conftest import coarse
 
 from ngbet.continuum import chord as C
-from ngbet.continuum.solver import NewtonSettings, SaddlePointNewton
+from ngbet.continuum.solver import NewtonSettings
 from ngbet.output import read_rows
 from ngbet.run import run
 
@@ -118,20 +118,33 @@ def test_extrapolation_is_exact_for_a_cubic():
 
 def test_output_rows_by_chord_match_newton_and_save_linearizations(tmp_path, monkeypatch):
     """The coarse scene to 20 mm with a row every 2 mm: the rows agree with Newton's on every row
-    (force to 1e-6, dF/du0 to 2e-3, Newton's own being taken with the matrix of the predicted
+    (force to 1e-7, dF/du0 to 2e-3, Newton's own being taken with the matrix of the predicted
     state), the stop and the final load to 1e-9, with fewer linearizations than rows; the chord's
     slopes satisfy the trapezoid rule over each 2 mm step, (F1 − F0)/h = (F0' + F1')/2 + O(h²)."""
     scene = coarse(**{"loading.u0_mm": 20.0, "loading.stops_mm": [11.0], "loading.output_every_mm": 2.0,
                       "outputs.error_estimate": "off"})
     s = run(scene, tmp_path / "chord", progress=False)
-    monkeypatch.setattr(SaddlePointNewton, "_chord_load", lambda self, lam: False)  # Newton on every row
+    monkeypatch.setattr(C.ChordRows, "due", lambda self, lam: False)  # Newton on every row
     n = run(scene, tmp_path / "newton", progress=False)
     rows, ref = read_rows(tmp_path / "chord" / "results.csv"), read_rows(tmp_path / "newton" / "results.csv")
     assert [r["u0_mm"] for r in rows] == [r["u0_mm"] for r in ref] == [2, 4, 6, 8, 10, 11, 12, 14, 16, 18, 20]
     for a, b in zip(rows, ref, strict=True):
-        assert a["force_N"] == pytest.approx(b["force_N"], rel=1e-9 if a["u0_mm"] in (11, 20) else 1e-6)
+        assert a["force_N"] == pytest.approx(b["force_N"], rel=1e-9 if a["u0_mm"] in (11, 20) else 1e-7)
         assert a["dforce_du0_N_per_mm"] == pytest.approx(b["dforce_du0_N_per_mm"], rel=2e-3)
     assert s["counts"]["factorizations"] < len(rows) <= n["counts"]["factorizations"]
     for a, b in zip(rows[:-1], rows[1:], strict=True):
         fd = (b["force_N"] - a["force_N"]) / (b["u0_mm"] - a["u0_mm"])
         assert math.isclose(fd, 0.5 * (a["dforce_du0_N_per_mm"] + b["dforce_du0_N_per_mm"]), rel_tol=2e-3)
+
+
+def test_the_polynomial_predicts_only_from_states_spaced_like_the_step():
+    """After cut steps (states 0.125 mm apart) a 0.3 mm step is predicted by the tangent, not by a
+    cubic through them (which amplifies their differences ~30 times); states 2 mm apart predict 2 mm."""
+    rows = C.ChordRows([0.002, 0.004, 0.0192, 0.02, 0.023])
+    x = np.zeros(2)
+    rows.states = [(lam, x) for lam in (0.0185, 0.019, 0.019125, 0.01925)]
+    assert rows.predictor(x, 0.01925, 0.00075) is None
+    rows.states = [(lam, np.full(2, lam)) for lam in (0.012, 0.014, 0.016, 0.018)]
+    np.testing.assert_allclose(rows.predictor(x, 0.018, 0.002), [0.02, 0.02])
+    assert rows.predictor(x, 0.016, 0.004) is None and rows.predictor(x, 0.018, 0.005) is None
+    assert rows.predictor(x, 0.018, 0.001) is None  # 19 mm is not a row of the grid

@@ -52,6 +52,7 @@ from ..engine import PathResult, StepRecord, check_stop
 from ..errors import Attempt
 from ..scene import SceneError
 from .newton import NewtonSettings, NonlinearProblem, newton
+from .settings import newton_settings, path_settings
 
 log = logging.getLogger(__name__)
 
@@ -387,14 +388,12 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
     mode to picture under :data:`MODE_KEY`, for the runner to write and pop) and raises
     :class:`~ngbet.errors.ConvergenceError` with it when the target is not reached.
     """
-    from .newton import newton_settings
     from .stability import diagnose_stability, indefinite_by_construction, lowest_eigenpair
 
     scene = problem.scene
-    L = scene.loading
-    ctl = ArcLengthSettings(target=L.u0_mm * 1e-3, first_step=L.first_step_mm * 1e-3,
-                            max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
-                            stops=tuple(s * 1e-3 for s in L.stops_mm))
+    path = path_settings(scene)  # arc length lands on the stops, not on the output grid
+    ctl = ArcLengthSettings(target=path.target, first_step=path.first_step, max_step=path.max_step,
+                            min_step=path.min_step, stops=tuple(s * 1e-3 for s in scene.loading.stops_mm))
     psi = problem.psi_u.vec.FV().NumPy().copy()
     # an uncondensed saddle-point tangent has no stability test: no instability by eigenvalue then
     indefinite = indefinite_by_construction(problem)

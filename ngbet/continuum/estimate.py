@@ -29,7 +29,11 @@ reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accu
   corners) the estimate says it cannot vouch: ``force_error_N`` is empty and
   ``error_estimate_unreliable`` in summary.json says why. The p + 2 level is taken by its one step
   only, where that contracts; otherwise the p + 1 estimate stands with a note
-  (``error_estimate_checks``): a converged solve two orders up would cost more than the run;
+  (``error_estimate_checks``): a converged solve two orders up would cost more than the run. On
+  graded meshes it is not tried after a p + 1 step that contracted by more than
+  :data:`PLATEAU_SKIP_CONTRACTION` (measured: the p + 2 step then never contracted). The
+  Newton at p + 1 starts from the one step's factorization and keeps a factorization while its
+  steps contract by :data:`ENRICHED_REUSE` (chord steps: :mod:`ngbet.continuum.chord`);
 * an enriched solve on a mesh refined at the corners sees the corner error better, but Newton
   from the carried-over state does not converge there (the corner solution of the finer mesh is
   too far from the coarse one at 37–56 mm); only a full load continuation would do, at 2–4
@@ -78,6 +82,9 @@ CORNER_LEVELS = 3
 THETA_CORNER = 2.0
 #: Newton tolerance of the enriched solve (relative energy): the force to ~1e-7 relative
 ENRICHED_RTOL = 1e-8
+#: the enriched Newton keeps its factorization after a step that contracted by at most this
+#: (:attr:`ngbet.continuum.newton.NewtonSettings.reuse_contraction`)
+ENRICHED_REUSE = 0.25
 
 
 #: factor on |F_p − F_p+2|, the plateau check: on a sequence converging monotonically with ratio
@@ -246,7 +253,7 @@ class ForceErrorEstimator:
             if not converge and report is not None:
                 return math.nan, report.iterations, f"{first} (not solved further)"
             enr.x[:] = x0
-            settings = dataclasses.replace(newton_settings(enr.scene),
+            settings = dataclasses.replace(newton_settings(enr.scene), reuse_contraction=ENRICHED_REUSE,
                                            rtol=max(ENRICHED_RTOL, enr.scene.solver.rtol))
             # the one step's factorization is that at x0: Newton's first iteration reuses it
             report = newton(enr, settings, enr.energy(), factorized=r0 is not None, r=r0)

@@ -18,14 +18,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from ..errors import Attempt
+from .settings import NewtonSettings, newton_settings
 
-if TYPE_CHECKING:
-    from ..scene import Scene
+__all__ = ["Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "failure_pattern", "newton",
+           "newton_settings"]
 
 
 class Diagnosis(Protocol):
@@ -72,30 +73,6 @@ class NonlinearProblem(Protocol):
         """psi·(J tangent): the load derivative of the reaction psi·r along the tangent."""
 
 
-@dataclass(frozen=True)
-class NewtonSettings:
-    """Tolerances, damping and step control of the continuum's Newton (from ``scene.solver``)."""
-
-    rtol: float = 1e-10
-    atol: float = 1e-14
-    max_iterations: int = 12
-    min_damping: float = 1.0 / 64
-    grow_after: int = 4
-    growth: float = 1.5
-    cut: float = 0.5
-    predictor: str = "tangent"
-    #: contraction θ = ‖dx̄‖/‖dx‖ below which a small simplified correction ends Newton without a
-    #: new linearization (0 disables the shortcut)
-    simplified_theta: float = 0.5
-
-
-def newton_settings(scene: Scene) -> NewtonSettings:
-    """The Newton numerics of ``scene.solver`` (the one translation of the scene into them)."""
-    s = scene.solver
-    return NewtonSettings(rtol=s.rtol, atol=s.atol_energy, max_iterations=s.max_iterations,
-                          grow_after=s.grow_after, growth=s.growth, cut=s.cut, predictor=s.predictor)
-
-
 @dataclass
 class NewtonReport:
     """How a Newton run at fixed load ended."""
@@ -123,23 +100,27 @@ def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float, fa
     if not np.all(np.isfinite(r)):
         return NewtonReport(False, 0, history, damping, "residual is not finite at the start")
     tol = settings.rtol * abs(e_ref) + settings.atol
+    theta_last = math.inf  # the contraction of the last full step
     for it in range(1, settings.max_iterations + 1):
-        if it > 1 or not factorized:
+        reuse = it > 1 and theta_last <= settings.reuse_contraction
+        if not reuse and (it > 1 or not factorized):
             problem.factorize()
+        tol_it = tol * (1.0 - theta_last) if reuse else tol  # a chord decrement (chord module)
         dx = problem.solve(r)
         delta = abs(float(dx @ r))
         history.append(delta)
         if not math.isfinite(delta):
             return NewtonReport(False, it, history, damping, "linear solve gave a non-finite correction")
-        step = _damped_step(problem, dx, delta <= tol, settings.min_damping)
+        step = _damped_step(problem, dx, delta <= tol_it, settings.min_damping)
         if step is None:
             return NewtonReport(False, it, history, damping, "no damping factor reduced the residual")
         lam, r, dx_bar, theta = step
         damping.append(lam)
-        if delta <= tol and lam == 1.0:
+        if delta <= tol_it and lam == 1.0:
             return NewtonReport(True, it, history, damping, "converged", residual=r)
+        theta_last = theta if lam == 1.0 and dx_bar is not None else math.inf
         if dx_bar is not None and lam == 1.0 and theta <= settings.simplified_theta:
-            done = _simplified_exit(problem, dx_bar, r, tol)
+            done = _simplified_exit(problem, dx_bar, r, tol_it)
             if done is not None:
                 history.append(done[0])
                 return NewtonReport(True, it, history, damping, "converged (simplified correction)",

@@ -25,7 +25,8 @@ from .estimate import RunEstimates, run_to_accuracy
 from .linear import assembly_thread_count
 from .output import write_vtk
 from .problem import ContinuumProblem
-from .solver import continuation, newton_settings
+from .settings import newton_settings, path_settings
+from .solver import follow
 
 #: each element of the shear-angle map is split into this many² triangles (p = 2 fields: enough)
 MAP_SUBDIVISION = 2
@@ -102,17 +103,10 @@ def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[Step
 def _follow(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
             progress: Callable[[float], None] | None) -> PathResult:
     """The load path of the scene on the engine."""
-    L = scene.loading
-    return continuation(problem, L.u0_mm * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
-                        max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
-                        stops=[s * 1e-3 for s in L.path_stops_mm], on_step=on_step,
-                        chord_at=[s * 1e-3 for s in L.path_stops_mm if s not in L.stops_mm],
-                        length=scene.specimen.L,
-                        diagnose=lambda: _diagnose(problem),
-                        psi=problem.psi_u.vec.FV().NumPy().copy(), progress=progress,
-                        path_following=scene.solver.path_following,
-                        arclength=None if scene.solver.path_following == "displacement"
-                        else arclength_runner(problem, on_step, progress))
+    arclength = None if scene.solver.path_following == "displacement" else arclength_runner(problem, on_step, progress)
+    return follow(problem, path_settings(scene), newton_settings(scene), on_step=on_step,
+                  diagnose=lambda: _diagnose(problem), psi=problem.psi_u.vec.FV().NumPy().copy(),
+                  progress=progress, arclength=arclength)
 
 
 def _diagnose(problem: ContinuumProblem) -> Any:
@@ -274,8 +268,11 @@ def _solver_info(problem: ContinuumProblem, res: PathResult | None) -> dict[str,
         d.update(snaps_in_units(res.path_info, problem.scene.specimen.t))
         d["load_steps"] = len(res.steps)
         d["step_cuts"] = res.cuts
-        d["newton_iterations"] = sum(s.iterations for s in res.steps) + sum(
+        chord = sum(s.iterations for s in res.steps if "(chord)" in s.reason)  # the grid rows' (chord module)
+        d["newton_iterations"] = sum(s.iterations for s in res.steps) - chord + sum(
             a.iterations for a in res.attempts if not a.converged)
+        if chord:
+            d["chord_iterations"] = chord
     return d
 
 

@@ -10,7 +10,8 @@ Predictor:        tangent (Euler): x += ∂x/∂λ Δλ from the last factorizat
                   at the loads of an output grid (``chord_at``) the polynomial through the last
                   converged states (:func:`ngbet.continuum.chord.extrapolate`).
 Stepping:         :func:`ngbet.engine.follow_path`: cut by ``cut`` on failure, grow by ``growth``
-                  after easy increments, land on stops (:func:`continuation` puts it together).
+                  after easy increments, land on stops (:func:`follow` puts it together, with
+                  the settings of :mod:`ngbet.continuum.settings`).
 
 Snap-through:     under displacement control, when an increment no longer than ``relax_below``
                   fails (the path folds or branches: past the fold there is no equilibrium
@@ -40,11 +41,13 @@ import numpy as np
 
 from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
 from ..errors import Attempt, ConvergenceError
-from .chord import CHORD_PREDICTOR_STATES, FD_STEP, chord, extrapolate, tangent_at_hand
-from .newton import Diagnosis, NewtonReport, NewtonSettings, NonlinearProblem, failure_pattern, newton, newton_settings
+from .chord import ChordRows, chord_loads
+from .newton import Diagnosis, NewtonReport, NonlinearProblem, failure_pattern, newton
+from .settings import NewtonSettings, PathSettings, newton_settings, path_settings
 
-__all__ = ["Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "RelaxReport", "RelaxSettings",
-           "SaddlePointNewton", "continuation", "failure_pattern", "newton", "newton_settings", "relax"]
+__all__ = ["Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "PathSettings", "RelaxReport",
+           "RelaxSettings", "SaddlePointNewton", "continuation", "failure_pattern", "follow", "newton",
+           "newton_settings", "path_settings", "relax"]
 
 log = logging.getLogger(__name__)
 
@@ -249,15 +252,10 @@ class SaddlePointNewton:
                  relax_below: float = 0.0, relax_settings: RelaxSettings = RelaxSettings(),
                  chord_at: Sequence[float] = (), length: float = 1.0) -> None:
         self.problem = problem
-        #: loads where a chord correction with the factorization at hand is tried first
+        #: the loads where a chord correction with the factorization at hand is tried first
         #: (:mod:`ngbet.continuum.chord`); ``length`` scales its difference step
-        self.chord_at = np.sort(np.asarray(chord_at, dtype=float))
-        self._fd_step = FD_STEP * length
+        self.chord = ChordRows(chord_at, length)
         self._chorded = False
-        self._contraction = math.nan  # of the chord with the factorization at hand, at the last load
-        self._states: list[tuple[float, np.ndarray]] = []  # the last converged loads and states (chord)
-        self.chord_steps = 0
-        self.chord_failures = 0
         self.settings = settings
         self._diagnose = diagnose
         self._psi = psi
@@ -275,14 +273,20 @@ class SaddlePointNewton:
         self.report: NewtonReport | None = None  # of the last correction
 
     def predict(self, u0: float, h: float) -> None:
-        """X += ∂x/∂λ h (tangent) or the clamp's linear field."""
+        """X += ∂x/∂λ h (tangent) or the clamp's linear field; at a chord row the polynomial through the last states."""
         p = self.problem
         self._saved = p.x.copy()
-        if self.chord_at.size and not self._states and u0 == 0.0:  # the unloaded state is the first
-            self._states = [(0.0, p.x.copy())]
-        if self._chord_load(u0 + h) and len(self._states) >= 3:  # at least a parabola
-            p.x[:] = extrapolate(self._states, u0 + h)
-        elif self.settings.predictor == "tangent":
+        guess = self.chord.predictor(p.x, u0, h)
+        if guess is not None:
+            p.x[:] = guess
+        else:
+            self._predict_newton(h)
+
+    def _predict_newton(self, h: float) -> None:
+        """X = the converged state + ∂x/∂λ h (tangent) or the clamp's linear field."""
+        p = self.problem
+        p.x[:] = self._saved
+        if self.settings.predictor == "tangent":
             p.x[:] += h * self._load_tangent()
         else:
             p.x[:] += p.clamp_predictor(h)
@@ -292,7 +296,7 @@ class SaddlePointNewton:
         if self._tangent is None:
             if not self._factorized:
                 self.problem.factorize()
-                self._contraction = math.nan
+                self.chord.refactorized()
                 self._factorized = True
             self._tangent = self.problem.load_tangent(1.0)
         return self._tangent
@@ -305,27 +309,21 @@ class SaddlePointNewton:
         e_ref = e_ref if math.isfinite(e_ref) else 0.0
         self._jump = None
         self._chorded = False
-        if self._factorized and self._chord_load(u0 + h):
-            x_pred = p.x.copy()
-            self.report = rep = chord(p, self.settings, e_ref, prior=self._contraction)
-            self._contraction = rep.contraction if rep.converged else math.nan
+        if self._factorized and self.chord.due(u0 + h):
+            self.report = rep = self.chord.correct(p, self.settings, e_ref)
             if rep.converged:
                 self._chorded = True
                 return Outcome("converged", rep.iterations, list(rep.history), rep.reason)
             log.debug("chord at %.6g mm: %s; Newton takes over", (u0 + h) * 1e3, rep.reason)
-            self.chord_failures += 1
-            p.x[:] = x_pred
-        self._contraction = math.nan  # Newton factorizes anew
+            self._predict_newton(h)  # from Newton's own predictor
+            p.set_load(u0 + h)
+            e_ref = p.energy()
+            e_ref = e_ref if math.isfinite(e_ref) else 0.0
+        self.chord.refactorized()  # Newton factorizes anew
         self.report = rep = newton(p, self.settings, e_ref)
         if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
             return self._relax(u0, h, e_ref, rep)
         return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
-
-    def _chord_load(self, lam: float) -> bool:
-        """Whether ``lam`` is one of the loads where the chord is tried."""
-        if not self.chord_at.size:
-            return False
-        return bool(np.min(np.abs(self.chord_at - lam)) <= 1e-12 * max(1.0, abs(lam)))
 
     def _relax(self, u0: float, h: float, e_ref: float, failed: NewtonReport) -> Outcome:
         """After Newton failed on a short increment: a stable equilibrium at u0 + h by :func:`relax`."""
@@ -372,17 +370,15 @@ class SaddlePointNewton:
         """The state is converged: its residual, and the load tangent for dR/du0 and the next predictor."""
         assert self.report is not None
         self._factorized = True  # Newton factorized at its iterates
+        self.chord.converged(u0 + h, self.problem.x, None if self._tangent is None else (u0, self._tangent))
         self._tangent = None
-        if self.chord_at.size:  # the last converged states, for the chord's predictor
-            self._states = [*self._states[1 - CHORD_PREDICTOR_STATES:], (u0 + h, self.problem.x.copy())]
         dR = math.nan
         if self._chorded:  # the factorization is an earlier state's: the tangent refined (chord module)
-            self.chord_steps += 1
             if self.settings.predictor == "tangent" or self._psi is not None:
-                found = tangent_at_hand(self.problem, self._psi, self._fd_step, self.report.residual)
+                found = self.chord.tangent(self.problem, self._psi, u0 + h, self.report.residual)
                 if found is None:  # too far from the factorization: the tangent of a new one
                     self.problem.factorize()
-                    self._contraction = math.nan
+                    self.chord.refactorized()
                     self._chorded = False
                 else:
                     self._tangent, dR = found
@@ -395,7 +391,7 @@ class SaddlePointNewton:
             log.warning("snap-through at u0 = %.6g mm: the state jumped to a stable one (energy released %.3g "
                         "per unit thickness)", (u0 + h) * 1e3, rec.released)
             self._jump = None
-            self._states = []  # a jump: no extrapolation across it
+            self.chord.forget()  # a jump: no extrapolation across it
         if self._chorded:
             rec.dforce_du0 = dR
         elif self.settings.predictor == "tangent" and self._psi is not None:
@@ -411,7 +407,7 @@ class SaddlePointNewton:
         if self.settings.predictor == "tangent":
             p.factorize()
             self._factorized = True
-            self._contraction = math.nan
+            self.chord.refactorized()
 
     def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
         """The failure pattern of the last attempts and the problem's own diagnosis (text and object)."""
@@ -420,27 +416,11 @@ class SaddlePointNewton:
         return "; ".join(t for t in texts if t), detail
 
 
-def continuation(
-    problem: NonlinearProblem,
-    target: float,
-    first_step: float,
-    settings: NewtonSettings,
-    *,
-    max_step: float = math.inf,
-    min_step: float = 0.0,
-    stops: Sequence[float] = (),
-    on_step: Callable[[StepRecord], None] | None = None,
-    diagnose: Callable[[], Diagnosis] | None = None,
-    max_attempts: int = 500,
-    psi: np.ndarray | None = None,
-    progress: Callable[[float], None] | None = None,
-    path_following: str = "displacement",
-    arclength: Callable[[PathResult], PathResult] | None = None,
-    snap: bool = True,
-    chord_at: Sequence[float] = (),
-    length: float = 1.0,
-) -> PathResult:
-    """Carry the load from 0 to ``target`` with :class:`SaddlePointNewton` on the engine.
+def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, *,
+           on_step: Callable[[StepRecord], None] | None = None, diagnose: Callable[[], Diagnosis] | None = None,
+           psi: np.ndarray | None = None, progress: Callable[[float], None] | None = None,
+           arclength: Callable[[PathResult], PathResult] | None = None) -> PathResult:
+    """Carry the load from 0 to ``path.target`` with :class:`SaddlePointNewton` on the engine.
 
     A stop within a fifth of a step beyond a trial load is landed on. ``on_step`` is called after
     every converged increment.
@@ -451,26 +431,34 @@ def continuation(
         when the increment has been cut below ``min_step``, or after ``max_attempts`` increments
         (converged or not: a bound on the time), with the pattern of the last failures and what
         ``diagnose`` finds.
+    ValueError
+        when ``path.path_following`` asks for arc length and no ``arclength`` runner is given.
 
-    ``path_following`` (``solver.path_following``): "displacement" control alone; "arclength":
-    ``arclength(result)`` follows the path from the start; "auto": displacement control, and
-    where it fails, ``arclength(result)`` goes on from the last converged state (the steps are
-    appended to the same result). ``snap``: under displacement control, an increment that fails
-    at the shortest length is relaxed to a stable state at its load (:func:`relax`; a snap-through
-    is recorded in the step and in ``path_info["snaps"]``).
+    ``path.path_following``: "displacement" control alone; "arclength": ``arclength(result)``
+    follows the path from the start; "auto": displacement control, and where it fails,
+    ``arclength(result)`` goes on from the last converged state (the steps are appended to the
+    same result). ``path.snap``: under displacement control, an increment that fails at the
+    shortest length is relaxed to a stable state at its load (:func:`relax`; a snap-through is
+    recorded in the step and in ``path_info["snaps"]``).
     """
-    if path_following == "arclength" and arclength is not None:
+    if path.path_following not in ("displacement", "arclength", "auto"):
+        raise ValueError(f"path_following = {path.path_following!r}: not 'displacement', 'arclength' or 'auto'")
+    if path.path_following != "displacement" and arclength is None:
+        raise ValueError(f"path_following = {path.path_following!r} needs an arc-length runner; none was given")
+    if path.path_following == "arclength" and arclength is not None:
         return arclength(PathResult(0.0))
-    ctl = PathControl(target=target, first_step=first_step, max_step=max_step, min_step=min_step,
-                      growth=settings.growth, cut=settings.cut, grow_after=settings.grow_after,
-                      stops=tuple(stops), land_within=0.2, max_attempts=max_attempts)
-    if path_following != "auto" or arclength is None:
+    ctl = PathControl(target=path.target, first_step=path.first_step, max_step=path.max_step,
+                      min_step=path.min_step, growth=settings.growth, cut=settings.cut,
+                      grow_after=settings.grow_after, stops=path.stops, land_within=0.2,
+                      max_attempts=path.max_attempts)
+    if path.path_following == "displacement" or arclength is None:
         # displacement control relaxes to a stable state where the path folds (the last increment
         # before the minimum, if within twice the minimum: a snap is bracketed as closely as the
         # steps go); a problem without a Hessian tangent cannot (no stability test)
-        below = min(min_step / settings.cut, 2 * min_step) if snap and getattr(problem, "can_relax", False) else 0.0
-        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below, chord_at=chord_at,
-                                      length=length)
+        can = path.snap and getattr(problem, "can_relax", False)
+        below = min(path.min_step / settings.cut, 2 * path.min_step) if can else 0.0
+        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below,
+                                      chord_at=chord_loads(problem, path.chord_at), length=path.length)
         try:
             res = follow_path(corrector, ctl, on_step=on_step, progress=progress)
         except ConvergenceError as err:
@@ -480,7 +468,8 @@ def continuation(
         return res
     # under "auto" a failure hands over to arc length, which reports the path's instabilities
     # itself: no diagnosis (an eigen-solve) at the hand-over
-    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=chord_at, length=length)
+    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=chord_loads(problem, path.chord_at),
+                                  length=path.length)
     partial = PathResult(0.0)
 
     def keep(rec: StepRecord) -> None:
@@ -498,11 +487,21 @@ def continuation(
         return arclength(partial)
 
 
+def continuation(problem: NonlinearProblem, target: float, first_step: float, settings: NewtonSettings, *,
+                 on_step: Callable[[StepRecord], None] | None = None, diagnose: Callable[[], Diagnosis] | None = None,
+                 psi: np.ndarray | None = None, progress: Callable[[float], None] | None = None,
+                 arclength: Callable[[PathResult], PathResult] | None = None, **path: object) -> PathResult:
+    """:func:`follow` with the path given by its fields: ``PathSettings(target, first_step, **path)``."""
+    path.update({k: tuple(path[k]) for k in ("stops", "chord_at") if k in path})  # type: ignore[arg-type]
+    return follow(problem, PathSettings(target, first_step, **path), settings,  # type: ignore[arg-type]
+                  on_step=on_step, diagnose=diagnose, psi=psi, progress=progress, arclength=arclength)
+
+
 def _snap_info(corrector: SaddlePointNewton) -> dict[str, object]:
     """The snap-throughs and relaxations of a displacement-controlled path, and its chord rows, for the summary."""
     info: dict[str, object] = {}
-    if corrector.chord_at.size:
-        info.update(chord_rows=corrector.chord_steps, chord_handovers=corrector.chord_failures)
+    if corrector.chord.loads.size:
+        info.update(chord_rows=corrector.chord.rows, chord_handovers=corrector.chord.handovers)
     if corrector.relaxations:
         info.update(snaps=list(corrector.snaps), relaxations=corrector.relaxations)
     return info
