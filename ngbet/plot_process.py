@@ -184,7 +184,7 @@ def serve(stdin: IO[bytes] | None = None, stdout: IO[bytes] | None = None) -> No
         try:
             req = json.loads(line)
             png = draw_force(Path(req["run_dir"]), [(lab, x, y) for lab, x, y in req.get("extra", [])],
-                             fork_pdf=hasattr(os, "fork"))
+                             parallel=True)
             answer: dict[str, Any] = {"png": str(png) if png is not None else None}
         except Exception as exc:  # reported to the run, which draws the figure itself
             answer = {"error": f"{type(exc).__name__}: {exc}"}
