@@ -34,11 +34,10 @@ def tiny_study(cases):
 
 
 def _force_plot(d):
-    import matplotlib.pyplot as plt
-
+    from ngbet.figures import subplots
     from ngbet.study import savefig
 
-    fig, ax = plt.subplots()
+    fig, ax = subplots()
     for c in d.cases():
         rows = d.case_rows(c["case"])
         ax.plot([r["u0_mm"] for r in rows], [r["force_N"] for r in rows])
@@ -266,14 +265,10 @@ def capture(monkeypatch, mod, figures):
 
 
 def labels_inside(fig):
-    fig.canvas.draw()
-    w, h = fig.canvas.get_width_height()
-    for ax in fig.axes:
-        for lab in (ax.xaxis.label, ax.yaxis.label):
-            if lab.get_text():
-                bb = lab.get_window_extent()
-                # inside the canvas, to the pixel of the text's own descent (a cut label lost tens of pixels)
-                assert bb.x0 >= -2 and bb.y0 >= -2 and bb.x1 <= w + 2 and bb.y1 <= h + 2, (lab.get_text(), bb)
+    """Every text of the figure inside its canvas, measured with the renderer's bounding boxes."""
+    from ngbet.figures import texts_outside
+
+    assert texts_outside(fig) == []
 
 
 def test_quick_reference_rows_are_their_own_cases(tmp_path, quick_cache, monkeypatch, figures):
@@ -704,3 +699,26 @@ def test_a_stopped_study_keeps_its_cases_when_another_starts_on_the_same_cache(t
     d = load(tmp_path / "a")
     assert [c["status"] for c in d.cases()] == ["ok", "ok"]
     assert all(math.isfinite(d.at(c["case"], 20.0, "force_N")) for c in d.cases())
+
+
+def test_the_studies_draw_through_ngbet_figures_without_pyplot():
+    """One plotting package: no study module keeps pyplot state or saves a figure itself."""
+    import ngbet.studies
+
+    for p in Path(ngbet.studies.__file__).parent.glob("*.py"):
+        text = p.read_text()
+        assert "pyplot" not in text and "plt." not in text and ".savefig(" not in text, p.name
+
+
+def test_validation_takes_the_scene_of_a_fabric_and_refuses_another_naming_the_key():
+    from ngbet.scene import SceneError, default_scene
+    from ngbet.studies import validation as V
+
+    repo = Path(__file__).resolve().parent.parent
+    for fabric, (scene, _, _) in V.FABRICS.items():
+        sc = Scene.from_toml(repo / "geometry" / scene)
+        assert V.fabric_of(sc) == fabric
+        # another specimen size of the same fabric is the same fabric
+        assert V.fabric_of(sc.with_changes(**{"specimen.name": sc.specimen.name.rsplit("-", 1)[0] + "-80x250"})) == fabric
+    with pytest.raises(SceneError, match="specimen.name"):
+        V.fabric_of(default_scene())

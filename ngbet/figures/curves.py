@@ -58,21 +58,19 @@ def curve_with_jumps(ax: Axes, u0: ArrayLike, y: ArrayLike, snap: ArrayLike | No
 def error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: float) -> None:
     """The estimated discretization error of the force as error bars (with caps, in red).
 
-    Each bar's size is written below right of it when the bar is too short to see (below 2 % of
-    the axis); the x axis is then extended so that the last label stays inside the axes.
+    Bars too short to see (below 2 % of the axis) have their sizes written in one note in the
+    lower right corner of the axes (inside them, off a rising curve).
     """
     ok = np.isfinite(err)
     if not ok.any():
         return
     ax.errorbar(u0[ok], F[ok], yerr=err[ok], fmt="none", ecolor="C3", elinewidth=1.6, capsize=5, capthick=1.6,
                 zorder=5, label="± estimated discretization error")
-    small = [(u, f, e) for u, f, e in zip(u0[ok], F[ok], err[ok], strict=True) if 2 * e < 0.02 * span]
-    for u, f, e in small:
-        ax.annotate(f"±{e:.2g} N", (u, f), xytext=(6, -4), textcoords="offset points", fontsize=7, color="C3",
-                    ha="left", va="top")
+    small = [(u, e) for u, f, e in zip(u0[ok], F[ok], err[ok], strict=True) if 2 * e < 0.02 * span]
     if small:
-        right = float(np.nanmax(u0))
-        ax.set_xlim(right=right + 0.1 * right)
+        ax.text(0.98, 0.03, "error bars shorter than the markers:\n"
+                + "\n".join(f"±{e:.2g} N at u₀ = {u:g} mm" for u, e in small),
+                transform=ax.transAxes, ha="right", va="bottom", fontsize=7, color="C3")
 
 
 def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (),
