@@ -221,7 +221,9 @@ def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
     disc = {u: _discrete_segments(files[("discrete", u)]) for u in loads if ("discrete", u) in files}
     cs = FG.colour_scale([m.gamma_deg for m, _ in cont.values()] + [a for _, _, a in disc.values()])
     norm = cs.norm()
-    fig, axs = FG.subplots(len(loads), 2, size=(11, 0.9 + 2.6 * len(loads)), squeeze=False)
+    L, W = float(sp["length_mm"]), float(sp["width_mm"])
+    fig, axs = FG.subplots(len(loads), 2, size=(11, 0.6 + len(loads) * (0.55 + 4.2 * min(W / L, 1.0))),
+                           squeeze=False, layout="compressed")
     art = None
     for row, u0 in enumerate(loads):
         if u0 in cont:
@@ -243,7 +245,8 @@ def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
         ax.set_xlabel("x (deformed) [mm]")
     if art is not None:
         FG.colour_bar(fig, axs, art, cs)
-    FG.put_caption(fig, FG.study_caption(data.meta, cs.note()))
+    FG.put_caption(fig, FG.caption(data.meta["base_scene"]) + " (the continuum's); the network of the same "
+                   "specimen with its own parameters (paper Table 2)" + (f"; {cs.note()}" if cs.note() else ""))
     return savefig(fig, data.out, "compare_maps")
 
 

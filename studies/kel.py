@@ -86,7 +86,7 @@ def plot(data: StudyData) -> list[Path]:
     from ngbet import figures as FG
 
     u0 = data.meta["base_scene"]["loading"]["u0_mm"]
-    fig, ax = FG.subplots(size=(10, 4))
+    fig, ax = FG.subplots(size=(10, 4), layout="compressed")
     for j, r in enumerate(widths(data)):
         pts = [q for q in data.tables.get("outlines", []) if int(q["case"]) == r["case"]]
         if pts:

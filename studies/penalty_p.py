@@ -250,7 +250,7 @@ def _plot_discretization_error(data: StudyData, g: Grid, a: dict, styles: dict[f
     for h in g["h"]:
         rs = sorted((r for r in lag if r["h"] == h), key=lambda r: r["p"])
         axs[0].loglog([r["dofs"] for r in rs], [r["err_ref"] for r in rs], "o" + styles[h],
-                      label=f"h = {h:g} mm, p = {rs[0]['p'] if rs else ''}..")
+                      label=f"h = {h:g} mm, p = " + ", ".join(str(r["p"]) for r in rs))
         for r in rs:
             axs[0].annotate(f"p{r['p']}", (r["dofs"], r["err_ref"]), fontsize=7)
     for p in g["p"] if two else ():

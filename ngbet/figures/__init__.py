@@ -75,5 +75,5 @@ __all__ = [
     "legend_below", "load_maps", "map_file_name", "map_panel", "measured_fsh", "nice_ceil", "profile_figure",
     "put_caption", "read_measured", "read_scene", "round_ticks", "save", "save_map", "shear_force_figure",
     "shear_map_figure", "short_log_axis", "start_plot", "stations_of", "study_caption", "style", "subplots",
-    "texts_outside", "warm_up",
+    "texts_outside", "tidy_log_axes", "warm_up",
 ]

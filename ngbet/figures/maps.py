@@ -107,7 +107,7 @@ def colour_bar(fig: Figure, axes: Any, art: Any, cs: ColourScale, label: str = S
     """The one colour bar of the panels, round ticks, arrows where values lie beyond the scale."""
     from matplotlib.ticker import MaxNLocator
 
-    cb = fig.colorbar(art, ax=list(axes), extend=cs.extend, shrink=0.9, aspect=25)
+    cb = fig.colorbar(art, ax=list(np.ravel(axes)), extend=cs.extend, shrink=0.9, aspect=25)
     cb.set_label(label)
     cb.locator = MaxNLocator(nbins=6, steps=[1, 2, 2.5, 5, 10])
     cb.update_ticks()

@@ -57,17 +57,20 @@ def style() -> Iterator[None]:
         yield
 
 
-def figure(width: float, height: float) -> Figure:
-    """A figure of ``width`` × ``height`` inches with matplotlib's constrained layout (labels inside the canvas)."""
+def figure(width: float, height: float, layout: str = "constrained") -> Figure:
+    """A figure of ``width`` × ``height`` inches laid out by matplotlib (labels inside the canvas).
+
+    ``layout``: "constrained", or "compressed" for grids of maps (equal aspect: no gaps between them).
+    """
     from matplotlib.figure import Figure
 
-    return Figure(figsize=(width, height), layout="constrained")
+    return Figure(figsize=(width, height), layout=layout)  # type: ignore[arg-type]
 
 
 def subplots(nrows: int = 1, ncols: int = 1, *, size: tuple[float, float] = (6.4, 4.0), squeeze: bool = True,
-             **kwargs: Any) -> tuple[Figure, Any]:
+             layout: str = "constrained", **kwargs: Any) -> tuple[Figure, Any]:
     """A :func:`figure` and its axes (as :meth:`matplotlib.figure.Figure.subplots`)."""
-    fig = figure(*size)
+    fig = figure(*size, layout=layout)
     return fig, fig.subplots(nrows, ncols, squeeze=squeeze, **kwargs)
 
 
@@ -139,21 +142,30 @@ def round_ticks(ax: Axes, axis: str = "both", nbins: int = 6) -> None:
 
 
 def short_log_axis(ax: Axes, axis: str = "x") -> None:
-    """Plain-number tick labels on a log axis that spans less than a decade (else matplotlib's).
+    """Readable tick labels on a log axis: plain numbers at 1, 2 (3) and 5 × 10^k over less than two decades.
 
-    Without it, a short range gets crowded minor labels such as 1.8×10⁻¹ 2×10⁻¹ 2.2×10⁻¹.
+    Over less than a factor 3 every minor tick is labelled, below a decade 2, 3 and 5, below two
+    decades 2 and 5; over more, the decades alone (matplotlib's 10^k labels).
     """
     from matplotlib.ticker import FuncFormatter, NullFormatter
 
     lo, hi = ax.get_xlim() if axis == "x" else ax.get_ylim()
+    lo, hi = min(lo, hi), max(lo, hi)
     a = ax.xaxis if axis == "x" else ax.yaxis
-    if lo > 0 and hi / lo < 10:
+    if lo > 0 and hi / lo < 100:
+        digits = "123456789" if hi / lo < 3 else "235" if hi / lo < 10 else "25"
         a.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        # over less than a factor 3 every minor tick; else at 2, 3 and 5 times a power of ten only
-        digits = "123456789" if hi / lo < 3 else "235"
         a.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:e}"[0] in digits else ""))
     else:
         a.set_minor_formatter(NullFormatter())
+
+
+def tidy_log_axes(fig: Figure) -> None:
+    """:func:`short_log_axis` on every log axis of ``fig`` (at its final limits)."""
+    for ax in fig.axes:
+        for axis in ("x", "y"):
+            if (ax.get_xscale() if axis == "x" else ax.get_yscale()) == "log":
+                short_log_axis(ax, axis)
 
 
 def colormap(name: str = "viridis") -> Any:
@@ -165,11 +177,20 @@ def colormap(name: str = "viridis") -> Any:
 
 
 def legend_below(fig: Figure, handles: Sequence[Any] | None = None, ncol: int = 2) -> Any:
-    """The figure's legend below the panels, off the data (constrained layout makes room for it)."""
-    kw: dict[str, Any] = {"loc": "outside lower center", "ncol": ncol}
-    if handles is not None:
-        kw["handles"] = list(handles)
-    return fig.legend(**kw)
+    """The figure's legend below the panels, off the data (constrained layout makes room for it).
+
+    Without ``handles``: those of every panel, each label once.
+    """
+    if handles is None:
+        seen: dict[str, Any] = {}
+        for ax in fig.axes:
+            for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+                seen.setdefault(lab, h)
+        labels, handles = list(seen), list(seen.values())
+    else:
+        handles = list(handles)
+        labels = [h.get_label() for h in handles]
+    return fig.legend(handles, labels, loc="outside lower center", ncol=min(ncol, max(len(handles), 1)))
 
 
 def texts_outside(fig: Figure) -> list[str]:
@@ -245,7 +266,8 @@ class FigureWriter:
 
 
 def save(fig: Figure, out: Path, name: str, formats: Sequence[str] = STUDY_FORMATS) -> Path:
-    """Write ``out/name`` in ``formats`` (a study's figure: PNG and PDF); returns the first file."""
+    """Write ``out/name`` in ``formats`` (a study's figure: PNG and PDF), log axes tidied; returns the first file."""
+    tidy_log_axes(fig)
     return FigureWriter(formats).save(fig, Path(out) / name)
 
 
