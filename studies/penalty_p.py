@@ -214,7 +214,7 @@ def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, s
             if not rs:
                 continue
             K = [r["K"] for r in rs]
-            kw = {"color": f"C{p - 1}", "marker": "o", "ms": 3, "label": f"h={h:g}, p={p}"}
+            kw = {"color": f"C{p - 1}", "marker": "o", "ms": 3, "label": f"h = {h:g} mm, p = {p}"}
             axs[0].loglog(K, [max(r.get("err_pen", math.nan), 1e-16) for r in rs], styles[h], **kw)
             axs[1].loglog(K, [max(r["err_ref"], 1e-16) for r in rs], styles[h], **kw)
             lr = [r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "lagrange"]
