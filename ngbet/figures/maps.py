@@ -133,7 +133,7 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
     norm = cs.norm()
     lim = limits_of(maps)
     panel_h = max(1.2, 6.2 * (lim[3] - lim[2]) / max(lim[1] - lim[0], 1e-9))
-    fig = figure(7.4, 0.9 + len(maps) * (panel_h + 0.45))
+    fig = figure(7.4, 0.9 + len(maps) * (panel_h + 0.45), layout="compressed")
     axes = fig.subplots(len(maps), 1, squeeze=False)[:, 0]
     art = None
     for ax, m in zip(axes, maps, strict=True):
@@ -147,4 +147,45 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
     if yarns:
         note += "; thick yarns black, thin yarns grey"
     put_caption(fig, caption(scene) + note)
+    return fig
+
+
+def yarn_network_figure(x_mm: np.ndarray, beams: np.ndarray, family: np.ndarray, gamma_deg: np.ndarray,
+                        ends_mm: np.ndarray, u0_mm: float, scene: Any = None) -> Figure:
+    """The deformed yarn network coloured by the shear angle γ of each segment, on a round colour scale.
+
+    ``x_mm``: deformed node positions (n, 2); ``beams``: node pairs; ``family``: 1 (thick, drawn
+    thick and solid) or 2 (thin, dashed) per beam; ``gamma_deg``: per beam; ``ends_mm``: the
+    clamped yarn ends, marked. Axes in mm, legend below the panel.
+    """
+    from matplotlib.collections import LineCollection
+    from matplotlib.lines import Line2D
+
+    cs = colour_scale([gamma_deg])
+    norm = cs.norm()
+    span_x = float(np.ptp(x_mm[:, 0])) or 1.0
+    span_y = float(np.ptp(x_mm[:, 1])) or 1.0
+    fig = figure(9.0, 1.4 + 7.4 * span_y / span_x, layout="compressed")
+    ax = fig.subplots()
+    lc = None
+    for fam, lw, ls in ((2, 0.6, (0, (3, 1))), (1, 1.8, "solid")):
+        sel = family == fam
+        lc = LineCollection(x_mm[beams[sel]], linewidths=lw, linestyles=ls, cmap=cs.cmap, norm=norm)
+        lc.set_array(gamma_deg[sel])
+        ax.add_collection(lc)
+    ax.plot(ends_mm[:, 0], ends_mm[:, 1], "k|", ms=4)
+    ax.set_aspect("equal")
+    ax.autoscale()
+    ax.grid(False)
+    ax.set_xlabel("x (deformed) [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_title(f"yarn network at u₀ = {u0_mm:g} mm: shear angle from {_num(gamma_deg.min(), '.1f')}° to "
+                 f"{_num(gamma_deg.max(), '.1f')}°")
+    colour_bar(fig, [ax], lc, cs)
+    fig.legend(handles=[Line2D([], [], color="0.2", lw=1.8, label="thick yarns (family 1)"),
+                        Line2D([], [], color="0.2", lw=0.6, ls=(0, (3, 1)), label="thin yarns (family 2)"),
+                        Line2D([], [], color="k", ls="", marker="|", label="clamped yarn ends")],
+               loc="outside lower center", ncol=3)
+    note = cs.note()
+    put_caption(fig, caption(scene) + (f"; {note}" if note else ""))
     return fig
