@@ -72,8 +72,9 @@ def _stations(data: StudyData) -> list[float]:
 
 
 def _name(params: dict[str, Any]) -> str:
-    return ", ".join(f"{k.split('.')[-1]} = {v:g}" if isinstance(v, float) else f"{k.split('.')[-1]} = {v}"
-                     for k, v in params.items())
+    from ngbet.figures import key_value
+
+    return ", ".join(key_value(k, v) for k, v in params.items())
 
 
 def report(data: StudyData, quick: bool) -> str:
@@ -151,7 +152,7 @@ def _plot_values(data: StudyData, key: str, u0: float) -> Path:
         ax.plot(v, F, "o-")
     if len(v) and v.min() > 0 and v.max() / v.min() > 10:
         ax.set_xscale("log")
-    ax.set_xlabel(key)
+    ax.set_xlabel(FG.key_label(key))
     ax.set_ylabel(f"force at u₀ = {u0:g} mm [N]")
     ax.grid(alpha=0.3, which="both")
     FG.put_caption(fig, FG.study_caption(data.meta))
