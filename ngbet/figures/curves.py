@@ -201,12 +201,13 @@ def profile_figure(profiles: dict[float, tuple[list[float], list[float]]], stati
 
 def force_curve(ax: Axes, u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None = None,
                 label: str | None = None, color: str | None = None, **kwargs: Any) -> Any:
-    """Draw a force–displacement curve on ``ax``: the converged steps (markers) joined by straight lines from (0, 0).
+    """Draw a force–displacement curve on ``ax`` (:meth:`ngbet.Result.plot`): straight lines from (0, 0), steps marked.
 
     ``dforce`` is accepted and not drawn (the slopes are not data between the steps).
     """
     u = np.r_[0.0, np.asarray(u0, dtype=float)]
     F = np.r_[0.0, np.asarray(force, dtype=float)]
-    kwargs.setdefault("ms", 3.5)
-    (line,) = ax.plot(u, F, "-o", color=color, label=label, **kwargs)
+    (line,) = ax.plot(u, F, "-", color=color, label=f"{label + ': ' if label else ''}straight lines between steps",
+                      **kwargs)
+    ax.plot(u, F, "o", ms=3.5, color=line.get_color(), label="converged steps")
     return line
