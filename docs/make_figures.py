@@ -37,7 +37,7 @@ def _draw(r: ngbet.Result, out: Path) -> int:
     npz = r.out / FG.map_file_name(last.u0_mm)
     yarns = deformed_yarns(npz, sp.length_mm, sp.width_mm, sp.yarn_angle_deg, YARN_SPACING_MM)
     rows = read_rows(r.out / "results.csv")
-    with FG.style():
+    with FG.in_style():
         fig = FG.figure(10, 3.6)
         a1, a2 = fig.subplots(1, 2, width_ratios=[2.1, 1])
         cs = FG.colour_scale([last.gamma_deg])

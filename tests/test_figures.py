@@ -257,3 +257,11 @@ def test_an_unknown_figure_format_is_refused_naming_the_key():
         default_scene().with_changes(**{"outputs.figure_formats": ["png", "jpg"]})
     with pytest.raises(SceneError, match="outputs.figure_formats"):
         default_scene().with_changes(**{"outputs.figure_formats": []})
+
+
+def test_the_package_exports_what_it_lists_without_importing_matplotlib():
+    code = ("import sys, ngbet.figures as F; "
+            "print([n for n in F.__all__ if not hasattr(F, n)], 'matplotlib' in sys.modules)")
+    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert out.stdout.strip() == "[] False"

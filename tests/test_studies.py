@@ -119,6 +119,24 @@ def quick_cache(tmp_path_factory):
     return tmp_path_factory.mktemp("quick_cache")
 
 
+@pytest.fixture(autouse=True)
+def every_figure_inside_its_canvas(monkeypatch):
+    """Every figure a study writes in these tests has every text inside its canvas (renderer boxes)."""
+    pytest.importorskip("matplotlib")
+    from ngbet.figures import style, texts_outside  # the style module (its context manager is in_style)
+
+    written = {}
+    real = style.FigureWriter.save
+
+    def save(self, fig, stem):
+        written[Path(stem).name] = texts_outside(fig)
+        return real(self, fig, stem)
+
+    monkeypatch.setattr(style.FigureWriter, "save", save)
+    yield written
+    assert {name: bad for name, bad in written.items() if bad} == {}
+
+
 def run_quick(name, tmp_path, quick_cache):
     import importlib
 
@@ -206,7 +224,10 @@ def test_quick_maps(tmp_path, quick_cache):
     assert all((d.out / f"map_{u}mm.npz").exists() for u in ("10", "20"))
 
 
-def test_quick_compare(tmp_path, quick_cache):
+def test_quick_compare(tmp_path, quick_cache, monkeypatch, figures):
+    from ngbet.studies import compare
+
+    capture(monkeypatch, compare, figures)
     mod, d = run_quick("compare", tmp_path, quick_cache)
     assert [mod.label(c["params"]) for c in d.cases()] == ["continuum", "discrete", mod.EQUIVALENT]
     assert all(c["status"] == "ok" for c in d.cases())
@@ -216,6 +237,12 @@ def test_quick_compare(tmp_path, quick_cache):
     assert a["continuum"]["uyq20"] < 0 and a[mod.EQUIVALENT]["uyq20"] < 0, a
     assert "Bending direction" in (d.out / "report.md").read_text()
     assert (d.out / "compare_curves.png").exists() and (d.out / "compare_maps.png").exists()
+    # one colour scale for the continuum's maps and the networks': the same norm, symmetric when signed
+    norms = {(c.norm.vmin, c.norm.vmax) for ax in figures["compare_maps"].axes[:4] for c in ax.collections
+             if c.get_array() is not None}
+    assert len(norms) == 1
+    lo, hi = norms.pop()
+    assert lo == 0.0 or lo == -hi
 
 
 def test_cli_study(tmp_path, quick_cache, capsys):
@@ -719,6 +746,7 @@ def test_validation_takes_the_scene_of_a_fabric_and_refuses_another_naming_the_k
         sc = Scene.from_toml(repo / "geometry" / scene)
         assert V.fabric_of(sc) == fabric
         # another specimen size of the same fabric is the same fabric
-        assert V.fabric_of(sc.with_changes(**{"specimen.name": sc.specimen.name.rsplit("-", 1)[0] + "-80x250"})) == fabric
+        other = sc.specimen.name.rsplit("-", 1)[0] + "-80x250"
+        assert V.fabric_of(sc.with_changes(**{"specimen.name": other})) == fabric
     with pytest.raises(SceneError, match="specimen.name"):
         V.fabric_of(default_scene())

@@ -155,7 +155,7 @@ def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: 
 
     γ is 0 at rest, the convention of the continuum's maps; ``scene`` names specimen and network in the caption.
     """
-    from ..figures import PNG_DPI, style, yarn_network_figure
+    from ..figures import PNG_DPI, in_style, yarn_network_figure
 
     try:
         import matplotlib  # noqa: F401
@@ -165,6 +165,6 @@ def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: 
     x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3
     ang = np.degrees(node_gamma(net, u))
     seg_ang = 0.5 * (ang[net.beams[:, 0]] + ang[net.beams[:, 1]])
-    with style():
+    with in_style():
         fig = yarn_network_figure(x, net.beams, net.beam_family, seg_ang, x[net.node_end > 0], u0 * 1e3, scene)
         fig.savefig(path, dpi=PNG_DPI)

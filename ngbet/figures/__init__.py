@@ -56,15 +56,16 @@ from .style import (
     check_formats,
     colormap,
     figure,
+    in_style,
     legend_below,
     nice_ceil,
     put_caption,
     round_ticks,
     save,
     short_log_axis,
-    style,
     subplots,
     texts_outside,
+    tidy_log_axes,
 )
 
 __all__ = [
@@ -74,7 +75,7 @@ __all__ = [
     "draw_run", "error_bars", "figure", "force_curve", "force_figure", "formats_of", "increasing_curve",
     "legend_below", "load_maps", "map_file_name", "map_panel", "measured_fsh", "nice_ceil", "profile_figure",
     "put_caption", "read_measured", "read_scene", "round_ticks", "save", "save_map", "shear_force_figure",
-    "shear_map_figure", "short_log_axis", "start_plot", "stations_of", "study_caption", "style", "subplots",
+    "shear_map_figure", "short_log_axis", "start_plot", "stations_of", "study_caption", "in_style", "subplots",
     "unit_of", "key_label", "key_value",
     "texts_outside", "tidy_log_axes", "warm_up", "yarn_network_figure",
 ]

@@ -22,7 +22,7 @@ import numpy as np
 from .curves import Extra, force_figure, profile_figure, shear_force_figure, stations_of
 from .data import MapData, Measured, load_maps, read_scene
 from .maps import shear_map_figure
-from .style import PNG_COMPRESSION, PNG_DPI, FigureWriter, can_fork, style
+from .style import PNG_COMPRESSION, PNG_DPI, FigureWriter, can_fork, in_style
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +68,7 @@ def draw_run(run_dir: str | Path, extra: Extra = (), parallel: bool = False, mea
     names = [n for n in RUN_FIGURES if n in only]
 
     def draw(name: str) -> None:
-        with style():
+        with in_style():
             fig = makers[name]()
             if fig is not None:
                 out.save(fig, run_dir / name)
@@ -150,7 +150,7 @@ def warm_up() -> None:
              "gamma_kinematic_deg": u, "fsh_N_per_mm": 0.1 * u, "gamma_centre_deg": u} for u in (1.0, 2.0)]
     tri = MapData(1.0, np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([[0, 1, 2]]),
                   np.array([0.0, 1.0, 2.0]))
-    with style():
+    with in_style():
         for fig in (force_figure(rows, None, [("extra", [0.0, 2.0], [0.0, 4.0])]), shear_force_figure(rows),
                     shear_map_figure([tri])):
             assert fig is not None

@@ -49,7 +49,7 @@ NB = "\u00a0"  # a no-break space: "name = value unit" stays on one line of a ca
 
 
 @contextlib.contextmanager
-def style() -> Iterator[None]:
+def in_style() -> Iterator[None]:
     """Draw inside this block: the rcParams of :data:`STYLE` (artists read them when they are made)."""
     import matplotlib as mpl
 
@@ -114,9 +114,13 @@ def caption(scene: Any) -> str:
 
 
 def put_caption(fig: Figure, text: str) -> None:
-    """The caption line(s) above the panels, broken at the figure's width (8 pt: about 17 characters an inch)."""
+    """The caption line(s) above the panels, broken at the figure's width (8 pt: at most 14.5 characters an inch).
+
+    DejaVu Sans at 8 pt sets about 15 characters of mixed text an inch; the margin keeps every
+    line inside the canvas (:func:`texts_outside` checks it).
+    """
     if text:
-        fig.suptitle(textwrap.fill(text, width=int(fig.get_figwidth() * 17)), fontsize=8)
+        fig.suptitle(textwrap.fill(text, width=int((fig.get_figwidth() - 0.3) * 14.5)), fontsize=8)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -25,10 +25,10 @@ def finish(study: Study, data: StudyData) -> list[Path]:
         data.meta["figures_skipped"] = "matplotlib is not installed (pip install matplotlib)"
         log.info("study %s: figures skipped: %s", study.name, data.meta["figures_skipped"])
     elif study.plot is not None:
-        from ..figures import style
+        from ..figures import in_style
 
         try:
-            with style():  # the one style of ngbet's figures
+            with in_style():  # the one style of ngbet's figures
                 figs = list(study.plot(data) or [])
         except MissingValueError as exc:
             data.meta["report_error"] = str(exc)
