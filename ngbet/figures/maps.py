@@ -133,7 +133,7 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
     norm = cs.norm()
     lim = limits_of(maps)
     panel_h = max(1.2, 6.2 * (lim[3] - lim[2]) / max(lim[1] - lim[0], 1e-9))
-    fig = figure(7.4, 0.9 + len(maps) * (panel_h + 0.45), layout="compressed")
+    fig = figure(7.4, 0.9 + len(maps) * (panel_h + 0.45))
     axes = fig.subplots(len(maps), 1, squeeze=False)[:, 0]
     art = None
     for ax, m in zip(axes, maps, strict=True):
