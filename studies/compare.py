@@ -222,7 +222,7 @@ def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
     cs = FG.colour_scale([m.gamma_deg for m, _ in cont.values()] + [a for _, _, a in disc.values()])
     norm = cs.norm()
     L, W = float(sp["length_mm"]), float(sp["width_mm"])
-    fig, axs = FG.subplots(len(loads), 2, size=(11, 0.6 + len(loads) * (0.55 + 4.2 * min(W / L, 1.0))),
+    fig, axs = FG.subplots(len(loads), 2, size=(11, 0.7 + len(loads) * (0.85 + 4.2 * min(W / L, 1.0))),
                            squeeze=False, layout="compressed")
     art = None
     for row, u0 in enumerate(loads):
