@@ -242,12 +242,19 @@ def test_the_figures_are_written_in_the_formats_the_scene_asks_for(tmp_path, for
     assert {p.suffix[1:] for p in run.glob("force.*")} == files
 
 
-def test_the_plot_process_draws_each_figure_in_a_child_with_the_same_files(tmp_path):
+def test_the_figures_drawn_in_forked_children_are_those_drawn_here(tmp_path):
     here, there = write_run(tmp_path / "here"), write_run(tmp_path / "there")
     F.draw_run(here, parallel=False)
-    F.draw_run(there, parallel=True)
+    # a fresh interpreter has no other thread: each figure is drawn by a forked child there
+    code = ("import sys, ngbet.figures as F; from ngbet.figures.style import can_fork; assert can_fork(); "
+            f"F.draw_run({str(there)!r}, parallel=True)")
+    subprocess.run([sys.executable, "-c", code], check=True, env={**os.environ, "MPLBACKEND": "Agg"})
     names = sorted(p.name for p in here.glob("*.png"))
     assert names == ["force.png", "shear_force.png"] == sorted(p.name for p in there.glob("*.png"))
+    from matplotlib.image import imread
+
+    for name in names:
+        np.testing.assert_array_equal(imread(here / name), imread(there / name))
 
 
 def test_an_unknown_figure_format_is_refused_naming_the_key():
