@@ -160,8 +160,8 @@ class RunWriter:
         ``start(folder)`` (the runner's: :func:`ngbet.figures.start_plot`) starts drawing the figures
         of the run files in ``folder``, a temporary folder of links to the files this run registered,
         and returns a function that waits for the drawing. The function returned here waits, renames
-        every PNG and PDF drawn into the run folder, registered, and returns force.png (None when
-        nothing was drawn). A drawing cut short leaves no figure.
+        every PNG and PDF drawn into the run folder, registered, and returns the force figure's file
+        (None when nothing was drawn). A drawing cut short leaves no figure.
         """
         tmp = self.out / (TMP_PREFIX + "plot")
         shutil.rmtree(tmp, ignore_errors=True)
@@ -183,7 +183,7 @@ class RunWriter:
                         done[fig.name] = final
                 if done and self.status not in ("new", "running"):
                     self._write_summary()
-                return done.get("force.png") if png is not None else None
+                return done.get(png.name) if png is not None else None
             finally:
                 shutil.rmtree(tmp, ignore_errors=True)
 

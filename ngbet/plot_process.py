@@ -1,13 +1,14 @@
 """A second process that draws the run's figures, so that importing matplotlib overlaps the solve.
 
-``ngbet run`` spends about 0.4 s importing matplotlib and its PDF backend and about 0.1 s on the
-first drawing (fonts, the mathtext parser), all of it independent of the results. On a machine
-with an idle core the command starts this process before it imports NGSolve: it imports
-matplotlib and draws throw-away figures while the run solves, then waits on its stdin for the
-run folder, draws the run's figures (``force.png``, ``shear_force.png``, ``profile.png``,
-``shear_map.png`` and their PDFs) with the same function as the run itself
-(:func:`ngbet.figures.draw_force`, so the figures are the same; each PDF written by a forked child
-while its PNG is written) and answers on its stdout with force.png.
+``ngbet run`` spends about 0.4 s importing matplotlib and about 0.1 s on the first drawing
+(fonts, the text layout), all of it independent of the results. On a machine with an idle core
+the command starts this process before it imports NGSolve: it imports matplotlib and draws
+throw-away figures while the run solves, then waits on its stdin for the run folder, draws the
+run's figures (``force``, ``shear_force``, ``profile``, ``shear_map``, in the scene's
+``outputs.figure_formats``) with the same function as the run itself
+(:func:`ngbet.figures.draw_force`, so the figures are the same; when a whole core is idle, each
+figure drawn by a forked child, all four at once: on a busy machine the children cost about 20 %
+more CPU time and gain nothing) and answers on its stdout with the force figure's file.
 
 Nothing depends on it: when it is not running, died, or answers with an error, the run draws
 the figure itself (the log says why at INFO level). It is a child of the run in its own session
@@ -16,9 +17,10 @@ i.e. when the run ends by any means, SIGKILL included.
 
 ``NGBET_PLOT_PROCESS`` chooses: ``auto`` (default: only when the machine has the half core the
 process needs to spare, i.e. the 1-minute load average is at most the number of usable cores
-minus 0.5), ``always`` or ``never``. On a saturated machine the process still shortens the run
-(measured on 2 cores at load 4 to 5: 0.80–0.94× the median wall time in three sittings) but
-costs about 0.2–0.3 s more CPU time in all, which the other jobs pay; ``auto`` leaves it out there.
+minus 0.5), ``always`` or ``never``. On a saturated machine the process gains nothing (measured
+on 2 cores at a load of 3.5: 5.88 s against 5.93 s median wall time of the default run, six runs
+each) and costs about 0.5 s more CPU time in all (a second interpreter, the warm-up, the forked
+children), which the other jobs pay; ``auto`` leaves it out there.
 
 Protocol: one JSON line per request, ``{"run_dir": str, "extra": [[label, x, y], ...]}``; one JSON
 line per answer, ``{"png": str | None}`` or ``{"error": str}``.
@@ -139,8 +141,13 @@ def wanted(plot: bool) -> bool:
         return False
     if choice == "always":
         return True
+    return _spare_cores() >= SPARE_CORES
+
+
+def _spare_cores() -> float:
+    """The usable cores minus the 1-minute load average."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return os.getloadavg()[0] <= cores - SPARE_CORES
+    return cores - os.getloadavg()[0]
 
 
 #: the share of a core the plot process needs during a run (about 0.5 s of CPU time in a run of 1 s)
@@ -184,7 +191,7 @@ def serve(stdin: IO[bytes] | None = None, stdout: IO[bytes] | None = None) -> No
         try:
             req = json.loads(line)
             png = draw_force(Path(req["run_dir"]), [(lab, x, y) for lab, x, y in req.get("extra", [])],
-                             fork_pdf=hasattr(os, "fork"))
+                             parallel=_spare_cores() >= 1.0)
             answer: dict[str, Any] = {"png": str(png) if png is not None else None}
         except Exception as exc:  # reported to the run, which draws the figure itself
             answer = {"error": f"{type(exc).__name__}: {exc}"}

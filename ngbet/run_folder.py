@@ -38,7 +38,7 @@ RUN_FILE_PATTERNS = ("scene.toml", "summary.json", "results.csv", "profile.csv",
                      "shear_map.png", "shear_map.pdf", "map_*.npz", "state_*.npz", "yarns_*.png",
                      "instability_mode.vtu", "instability_mode.png")
 #: the run's figures: drawn from its files, never read by a figure
-FIGURE_SUFFIXES = (".png", ".pdf")
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 # what an ngbet run before the marker listed its files wrote into every folder (the summary lists the rest)
 _OLD_CORE = ("scene.toml", "summary.json", "summary.json.tmp", "results.csv", "profile.csv")
 

@@ -212,29 +212,17 @@ def header(data: StudyData, title: str, reference: str) -> list[str]:
 
 
 def short_log_axis(ax: Any, axis: str = "x") -> None:
-    """Plain-number tick labels on a log axis that spans less than a decade (else matplotlib's).
+    """:func:`ngbet.figures.short_log_axis`."""
+    from ngbet.figures import short_log_axis as sla
 
-    Without it, a short range gets crowded minor labels such as 1.8×10⁻¹ 2×10⁻¹ 2.2×10⁻¹.
-    """
-    from matplotlib.ticker import FuncFormatter, NullFormatter
-
-    lo, hi = ax.get_xlim() if axis == "x" else ax.get_ylim()
-    a = ax.xaxis if axis == "x" else ax.yaxis
-    if lo > 0 and hi / lo < 10:
-        a.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        # over less than a factor 3 every minor tick; else at 2, 3 and 5 times a power of ten only
-        digits = "123456789" if hi / lo < 3 else "235"
-        a.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:e}"[0] in digits else ""))
-    else:
-        a.set_minor_formatter(NullFormatter())
+    sla(ax, axis)
 
 
 def colormap(name: str = "viridis") -> Any:
-    """A sequential colour map without its palest end (readable on white and on shaded bands)."""
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import ListedColormap
+    """:func:`ngbet.figures.colormap`: a sequential colour map without its palest end."""
+    from ngbet.figures import colormap as cm
 
-    return ListedColormap(plt.get_cmap(name)(np.linspace(0.0, 0.85, 256)), name=f"{name}_dark")
+    return cm(name)
 
 
 def require_continuum(base: Scene, study: str) -> Scene:

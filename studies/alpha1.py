@@ -66,19 +66,20 @@ def report(data: StudyData, quick: bool) -> str:
 
 
 def plot(data: StudyData, quick: bool) -> list[Path]:
-    import matplotlib.pyplot as plt
+    from ngbet import figures as FG
 
     s2 = C.stations(quick, data)[1]
-    fig, ax = plt.subplots(layout="constrained", figsize=(7, 4))
+    fig, ax = FG.subplots(size=(7, 4))
     for j, r in enumerate(analyse(data, quick)):
         X, uy = data.profile(r["case"], s2)
         ax.plot(X, uy, color=f"C{j}", lw=2.5 if r["balanced"] else 1.5,
                 label=f"alpha1 = {r['alpha1']:g} Pa m²" + (" = alpha2 (balanced)" if r["balanced"] else ""))
     ax.axhline(0, color="k", lw=0.5)
-    ax.set_xlabel("X [mm]")
-    ax.set_ylabel(f"u_y on the mid-axis [mm] at u0 = {s2:g} mm")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
+    ax.set_ylabel("vertical displacement u_y [mm]")
+    ax.set_title(f"mid-axis profile at u₀ = {s2:g} mm")
+    FG.legend_below(fig, ncol=2)
+    FG.put_caption(fig, FG.study_caption(data.meta))
     return [savefig(fig, data.out, "alpha1_profiles")]
 
 

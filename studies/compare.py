@@ -24,7 +24,6 @@ from typing import Any
 import numpy as np
 
 from ngbet.kinematics import ideal_force
-from ngbet.plotting import SHEAR_LABEL, force_curve
 from ngbet.scene import Scene, SceneWarning
 from ngbet.study import Study, StudyData, main_for, savefig
 
@@ -168,98 +167,116 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
 
 def _plot_curves(data: StudyData, quick: bool) -> Path:
     """Force curves of the three models and their mid-axis profiles at the two stations."""
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
+
+    from ngbet import figures as FG
 
     s1, s2 = C.stations(quick, data)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
         scene = Scene.from_dict(data.meta["base_scene"])
-    fig, axs = plt.subplots(1, 3, layout="constrained", figsize=(16, 4.8))
+    fig, axs = FG.subplots(1, 3, size=(14, 4.6))
+    snapped = False
     for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True):
         i = _case(data, m)
         if i is None:
             continue
         rows = data.case_rows(i)
-        dF = [r["dforce_du0_N_per_mm"] for r in rows] if rows and "dforce_du0_N_per_mm" in rows[0] else None
-        force_curve(axs[0], [r["u0_mm"] for r in rows], [r["force_N"] for r in rows], dF, label=m, color=col)
+        snap = [float(r.get("snap") or 0.0) for r in rows] if rows and "snap" in rows[0] else None
+        snapped = snapped or bool(snap and any(snap))
+        FG.curve_with_jumps(axs[0], [r["u0_mm"] for r in rows], [r["force_N"] for r in rows], snap, label=m,
+                            color=col, jump_label=None)
         for ax, s in ((axs[1], s1), (axs[2], s2)):
             X, uy = data.profile(i, s)
             if X:
                 ax.plot(X, uy, color=col, label=m)
     u = np.linspace(0.5, scene.loading.u0_mm, 60)
     axs[0].plot(u, [ideal_force(scene, x) for x in u], "k--", lw=1, label="ideal kinematics (shear only)")
-    axs[0].set_xlabel("u0 [mm]")
-    axs[0].set_ylabel("force [N]")
+    axs[0].set_xlabel(FG.U0_LABEL)
+    axs[0].set_ylabel(FG.FORCE_LABEL)
+    axs[0].set_xlim(left=0)
     for ax, s in ((axs[1], s1), (axs[2], s2)):
-        ax.set_title(f"mid-axis u_y at u0 = {s:g} mm")
-        ax.set_xlabel("X [mm]")
-        ax.set_ylabel("u_y [mm]")
+        ax.set_title(f"mid-axis profile at u₀ = {s:g} mm")
+        ax.set_xlabel("reference position X on the mid-axis [mm]")
+        ax.set_ylabel("vertical displacement u_y [mm]")
         ax.axhline(0, color="k", lw=0.5)
-    axs[0].set_title("force (dots: converged steps; lines: cubic Hermite in F, dF/du0)", fontsize=9)
-    for ax in axs:
-        ax.grid(alpha=0.3)
-    handles = [Line2D([], [], color=col, label=m) for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True)
-               if _case(data, m) is not None]
+    axs[0].set_title("force (points: converged steps, joined by straight lines)")
+    handles = [Line2D([], [], color=col, marker="o", ms=3.5, label=m)
+               for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True) if _case(data, m) is not None]
     handles.append(Line2D([], [], color="k", ls="--", lw=1, label="ideal kinematics (shear only)"))
-    fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=9)
+    if snapped:
+        handles.append(Line2D([], [], color="0.3", ls="--", lw=1.2, label="snap-through (vertical dashed jump)"))
+    FG.legend_below(fig, handles, ncol=len(handles))
+    FG.put_caption(fig, FG.caption(data.meta["base_scene"]) + "; the three models of the legend")
     return savefig(fig, data.out, "compare_curves")
 
 
 def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
-    """Shear-angle maps of the continuum beside the deformed network, one row per saved load."""
-    import matplotlib.pyplot as plt
+    """Shear-angle maps of the continuum beside the deformed network, one row per saved load, one colour scale."""
+    from ngbet import figures as FG
 
+    sp = data.meta["base_scene"]["specimen"]
     loads = sorted({u for _, u in files})
-    fig, axs = plt.subplots(len(loads), 2, layout="constrained", figsize=(14, 3.6 * len(loads)), squeeze=False)
-    norm = plt.Normalize(0, 55)
+    cont = {u: _continuum_map(files[("continuum", u)], sp) for u in loads if ("continuum", u) in files}
+    disc = {u: _discrete_segments(files[("discrete", u)]) for u in loads if ("discrete", u) in files}
+    cs = FG.colour_scale([m.gamma_deg for m, _ in cont.values()] + [a for _, _, a in disc.values()])
+    norm = cs.norm()
+    L, W = float(sp["length_mm"]), float(sp["width_mm"])
+    fig, axs = FG.subplots(len(loads), 2, size=(11, 0.7 + len(loads) * (0.85 + 4.2 * min(W / L, 1.0))),
+                           squeeze=False, layout="compressed")
+    art = None
     for row, u0 in enumerate(loads):
-        f = files.get(("continuum", u0))
-        if f is not None:
-            _map_continuum(axs[row, 0], f, data.meta["base_scene"]["specimen"], norm)
-        axs[row, 0].set_title(f"continuum, u0 = {u0:g} mm (thick yarns black, thin white)", fontsize=9)
-        f = files.get(("discrete", u0))
-        if f is not None:
-            _map_discrete(axs[row, 1], f, norm)
+        if u0 in cont:
+            m, yarns = cont[u0]
+            art = FG.map_panel(axs[row, 0], m, cs, norm, yarns)
+        axs[row, 0].set_title(f"continuum, u₀ = {u0:g} mm (thick yarns black, thin grey)")
+        if u0 in disc:
+            lc = _map_discrete(axs[row, 1], disc[u0], cs, norm)
+            art = art if art is not None else lc
         else:
-            axs[row, 1].text(0.5, 0.5, "no discrete state saved at this load\n(states: 37 mm and the last load)",
-                             ha="center", va="center", transform=axs[row, 1].transAxes, fontsize=8)
-        axs[row, 1].set_title(f"discrete, u0 = {u0:g} mm (thick yarns solid, thin dashed)", fontsize=9)
+            axs[row, 1].text(0.5, 0.5, "no state of the network saved at this load\n(states: the load stops and "
+                             "the last load)", ha="center", va="center", transform=axs[row, 1].transAxes, fontsize=8)
+        axs[row, 1].set_title(f"yarn network, u₀ = {u0:g} mm (thick yarns solid, thin dashed)")
         for ax in axs[row]:
             ax.set_aspect("equal")
-            ax.set_xlabel("x [mm]")
+            ax.grid(False)
             ax.set_ylabel("y [mm]")
-    sm = plt.cm.ScalarMappable(norm=norm, cmap="viridis")
-    fig.colorbar(sm, ax=axs, label=SHEAR_LABEL, shrink=0.7)
+    for ax in axs[-1]:
+        ax.set_xlabel("x (deformed) [mm]")
+    if art is not None:
+        FG.colour_bar(fig, axs, art, cs)
+    FG.put_caption(fig, FG.caption(data.meta["base_scene"]) + " (the continuum's); the network of the same "
+                   "specimen with its own parameters (paper Table 2)" + (f"; {cs.note()}" if cs.note() else ""))
     return savefig(fig, data.out, "compare_maps")
 
 
-def _map_continuum(ax: Any, vtu: Path, sp: dict[str, Any], norm: Any) -> None:
-    """The continuum's deformed specimen coloured by γ, with both yarn families drawn on it."""
+def _continuum_map(vtu: Path, sp: dict[str, Any]) -> tuple[Any, dict[int, list[np.ndarray]]]:
+    """The continuum's shear angle on the deformed specimen (a triangulated map) and its yarns."""
+    from ngbet.figures import MapData
+
     from . import _fields as F
 
     surf = F.warped_mm(vtu).extract_surface(algorithm="dataset_surface").triangulate()
     tri = np.asarray(surf.faces).reshape(-1, 4)[:, 1:]
-    ax.tripcolor(surf.points[:, 0], surf.points[:, 1], tri, np.asarray(surf["shear_angle_deg"]),
-                 shading="gouraud", cmap="viridis", norm=norm)
-    y = F.deformed_yarns(vtu, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"], 10.0)
-    for fam, lw, c in ((1, 1.8, "k"), (2, 0.6, "w")):
-        for pl in y[fam]:
-            ax.plot(pl[:, 0], pl[:, 1], color=c, lw=lw)
+    m = MapData(0.0, np.asarray(surf.points[:, 0]), np.asarray(surf.points[:, 1]), tri,
+                np.asarray(surf["shear_angle_deg"]))
+    return m, F.deformed_yarns(vtu, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"], 10.0)
 
 
-def _map_discrete(ax: Any, npz: Path, norm: Any) -> None:
-    """The deformed network coloured by γ; thick yarns solid, thin yarns dashed."""
+def _map_discrete(ax: Any, network: tuple[list[np.ndarray], np.ndarray, np.ndarray], cs: Any, norm: Any) -> Any:
+    """The deformed network coloured by γ; thick yarns solid, thin yarns dashed. Returns a coloured artist."""
     from matplotlib.collections import LineCollection
 
-    segs, fam, ang = _discrete_segments(npz)
+    segs, fam, ang = network
+    lc = None
     for fm, lw, ls in ((2, 0.6, (0, (3, 1))), (1, 1.8, "solid")):
         sel = fam == fm
         lc = LineCollection([segs[k] for k in np.flatnonzero(sel)], linewidths=lw, linestyles=ls,
-                            cmap="viridis", norm=norm)
+                            cmap=cs.cmap, norm=norm)
         lc.set_array(ang[sel])
         ax.add_collection(lc)
     ax.autoscale()
+    return lc
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -42,7 +42,8 @@ def analyse(data: StudyData) -> dict:
     dE = np.gradient(EE, uu * 1e-3)[1:]
     inner = slice(1, len(u0) - 1)
     env = float(np.max(np.abs(dE[inner] - F[inner]) / np.abs(F[inner]))) if len(u0) > 2 else np.nan
-    return {"u0": u0, "F": F, "T": T, "Fid": Fid, "dE": dE, "envelope_max_rel": env}
+    snap = np.array([float(r.get("snap") or 0.0) for r in rows])
+    return {"u0": u0, "F": F, "T": T, "Fid": Fid, "dE": dE, "envelope_max_rel": env, "snap": snap}
 
 
 def report(data: StudyData, quick: bool = False) -> str:
@@ -57,24 +58,27 @@ def report(data: StudyData, quick: bool = False) -> str:
 
 
 def plot(data: StudyData) -> list[Path]:
-    import matplotlib.pyplot as plt
+    from ngbet import figures as FG
 
     a = analyse(data)
-    fig, axs = plt.subplots(1, 2, layout="constrained", figsize=(12, 4.3))
+    fig, axs = FG.subplots(1, 2, size=(12, 4.3))
     ax = axs[0]
-    ax.plot(np.r_[0, a["u0"]], np.r_[0, a["F"]], "o-", ms=3, label="reaction (volume integral)")
-    ax.plot(a["u0"], a["dE"], "x", ms=5, label="dE/du0 (envelope theorem)")
+    FG.curve_with_jumps(ax, a["u0"], a["F"], a.get("snap"), label="reaction (volume integral)")
+    inner = slice(1, len(a["u0"]) - 1)  # central differences: the interior steps, as in the report
+    ax.plot(a["u0"][inner], a["dE"][inner], "x", ms=5, label="dE/du₀ (envelope theorem, interior steps)")
     ax.plot(np.r_[0, a["u0"]], np.r_[0, a["Fid"]], "k--", label="ideal BET kinematics (shear only)")
-    ax.set_xlabel("clamp displacement u0 [mm]")
-    ax.set_ylabel("force [N]")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.set_xlabel(FG.U0_LABEL)
+    ax.set_ylabel(FG.FORCE_LABEL)
+    ax.set_xlim(left=0)
+    ax.set_title("(a) force")
+    ax.legend(loc="upper left")
     ax = axs[1]
-    ax.plot(np.r_[0, a["u0"]], np.r_[0, a["T"]], "s-", ms=3, color="C3")
-    ax.set_xlabel("clamp displacement u0 [mm]")
-    ax.set_ylabel("double force [N m]")
-    ax.set_title("(no ideal-kinematics estimate: it has no bending)", fontsize=8)
-    ax.grid(alpha=0.3)
+    FG.curve_with_jumps(ax, a["u0"], a["T"], a.get("snap"), color="C3", marker="s", label="double force")
+    ax.set_xlabel(FG.U0_LABEL)
+    ax.set_ylabel("double force on the moving clamp [N m]")
+    ax.set_xlim(left=0)
+    ax.set_title("(b) double force (no ideal-kinematics estimate: it has no bending)")
+    FG.put_caption(fig, FG.study_caption(data.meta))
     return [savefig(fig, data.out, "curves")]
 
 

@@ -83,10 +83,10 @@ def report(data: StudyData, quick: bool = False) -> str:
 
 
 def plot(data: StudyData) -> list[Path]:
-    import matplotlib.pyplot as plt
+    from ngbet import figures as FG
 
     u0 = data.meta["base_scene"]["loading"]["u0_mm"]
-    fig, ax = plt.subplots(layout="constrained", figsize=(10, 4))
+    fig, ax = FG.subplots(size=(10, 4), layout="compressed")
     for j, r in enumerate(widths(data)):
         pts = [q for q in data.tables.get("outlines", []) if int(q["case"]) == r["case"]]
         if pts:
@@ -96,10 +96,11 @@ def plot(data: StudyData) -> list[Path]:
     W = data.meta["base_scene"]["specimen"]["width_mm"]
     ax.plot([0, L, L, 0, 0], [0, 0, W, W, 0], "k:", lw=0.8, label="undeformed specimen")
     ax.set_aspect("equal")
-    ax.set_xlabel("x [mm]")
+    ax.set_xlabel("x (deformed) [mm]")
     ax.set_ylabel("y [mm]")
-    ax.set_title(f"deformed outlines at u0 = {u0:g} mm")
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=2)
+    ax.set_title(f"deformed outlines at u₀ = {u0:g} mm")
+    FG.legend_below(fig, ncol=2)
+    FG.put_caption(fig, FG.study_caption(data.meta))
     return [savefig(fig, data.out, "kel_outlines")]
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ngbet.scene import Scene
-from ngbet.study import Study, StudyData, main_for
+from ngbet.study import Study, StudyData, main_for, savefig
 
 from . import _common as C
 from . import reference as R
@@ -91,30 +91,19 @@ def deformed_yarns(npz: Path, L_mm: float, W_mm: float, angle_deg: float,
 
 
 def plot(data: StudyData) -> list[Path]:
-    import matplotlib as mpl
+    from ngbet import figures as FG
 
-    from ngbet import figures as F
-    from ngbet.scene import Scene
-
-    scene = Scene.from_dict(data.meta["base_scene"])
     sp = data.meta["base_scene"]["specimen"]
     maps, yarns = [], {}
     for r in data.tables.get("maps", []):
         npz = data.out / r["data"]
         with np.load(npz) as z:
-            maps.append(F.MapData(float(z["u0_mm"]), z["X_mm"] + z["ux_mm"], z["Y_mm"] + z["uy_mm"], z["triangles"],
-                                  z["gamma_deg"]))
+            maps.append(FG.MapData(float(z["u0_mm"]), z["X_mm"] + z["ux_mm"], z["Y_mm"] + z["uy_mm"],
+                                   z["triangles"], z["gamma_deg"]))
         yarns[maps[-1].u0_mm] = deformed_yarns(npz, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"],
                                                YARN_SPACING_MM)
-    if not maps:
-        return []
-    with mpl.rc_context(F.STYLE):
-        fig = F.shear_map_figure(maps, scene, yarns)
-        assert fig is not None
-        writer = F.FigureWriter()
-        png = writer.save(fig, data.out / "map")
-        writer.finish()
-    return [png]
+    fig = FG.shear_map_figure(maps, data.meta["base_scene"], yarns)
+    return [] if fig is None else [savefig(fig, data.out, "map")]
 
 
 def report(data: StudyData, quick: bool = False) -> str:

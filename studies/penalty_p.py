@@ -180,12 +180,12 @@ def plot(data: StudyData, g: Grid, quick: bool) -> list[Path]:
 
 def _plot_profiles(data: StudyData, g: Grid, a: dict) -> Path:
     """Mid-axis u_y at the second station for several K (the paper's figure)."""
-    import matplotlib.pyplot as plt
+    from ngbet import figures as FG
 
     s2 = a["stations"][1]
     h0, p0 = g["profile_case"]
-    fig, ax = plt.subplots(layout="constrained", figsize=(7, 4))
-    cmap = plt.get_cmap("viridis")
+    fig, ax = FG.subplots(size=(7, 4))
+    cmap = FG.colormap()
     pen = sorted((r for r in a["rows"] if r["h"] == h0 and r["p"] == p0 and r["method"] == "penalty"
                   and r["status"] == "ok"), key=lambda r: r["K"])
     for j, r in enumerate(pen):
@@ -194,19 +194,19 @@ def _plot_profiles(data: StudyData, g: Grid, a: dict) -> Path:
     lag = C.lagrange_case(data, h0, p0)
     if lag is not None:
         ax.plot(*data.profile(lag, s2), "k--", lw=2, label="Lagrange multiplier")
-    ax.set_xlabel("X [mm]")
-    ax.set_ylabel(f"u_y on the mid-axis Y = W/2 [mm] at u0 = {s2:g} mm")
-    ax.set_title(f"penalty -> Lagrange (h = {h0:g} mm, p = {p0})")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
+    ax.set_ylabel("vertical displacement u_y [mm]")
+    ax.set_title(f"penalty → Lagrange multiplier: mid-axis profile at u₀ = {s2:g} mm (h = {h0:g} mm, p = {p0})")
+    FG.legend_below(fig, ncol=3)
+    FG.put_caption(fig, FG.study_caption(data.meta))
     return savefig(fig, data.out, "penalty_profiles")
 
 
 def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, str]) -> Path:
     """Penalty error, total error and constraint violation against K, one line per (h, p)."""
-    import matplotlib.pyplot as plt
+    from ngbet import figures as FG
 
-    fig, axs = plt.subplots(1, 3, layout="constrained", figsize=(15, 4.3))
+    fig, axs = FG.subplots(1, 3, size=(15, 4.3))
     for h in g["h"]:
         for p in g["p"]:
             rs = sorted((r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "penalty"
@@ -214,7 +214,7 @@ def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, s
             if not rs:
                 continue
             K = [r["K"] for r in rs]
-            kw = {"color": f"C{p - 1}", "marker": "o", "ms": 3, "label": f"h={h:g}, p={p}"}
+            kw = {"color": f"C{p - 1}", "marker": "o", "ms": 3, "label": f"h = {h:g} mm, p = {p}"}
             axs[0].loglog(K, [max(r.get("err_pen", math.nan), 1e-16) for r in rs], styles[h], **kw)
             axs[1].loglog(K, [max(r["err_ref"], 1e-16) for r in rs], styles[h], **kw)
             lr = [r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "lagrange"]
@@ -223,30 +223,34 @@ def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, s
             axs[2].loglog(K, [r["constraint"] for r in rs], styles[h], **kw)
     k = np.array([1e8, 1e11])
     axs[0].loglog(k, 1e-3 * (k / 1e8) ** -1.0, "k:", lw=1, label="slope -1")
-    axs[0].set_title("penalty error |F_K - F_Lagrange| / F_Lagrange")
-    axs[1].set_title("total error |F_K - F_ref| / F_ref\n(lines: Lagrange on the same mesh = discretization error)")
-    axs[2].set_title("constraint violation ||phi - i8|| (RMS)")
+    axs[0].set_title("(a) penalty error |F_K − F_Lagrange| / F_Lagrange")
+    axs[1].set_title("(b) total error |F_K − F_ref| / F_ref\n(lines: Lagrange on the same mesh = discretization error)")
+    axs[2].set_title("(c) constraint violation ‖φ − i8‖ (RMS)")
     for ax in axs:
         ax.set_xlabel("penalty K [Pa]")
         ax.grid(alpha=0.3, which="both")
-    axs[0].legend(fontsize=6, ncol=2)
+    axs[0].set_ylabel("relative error of the force")
+    axs[1].set_ylabel("relative error of the force")
+    axs[2].set_ylabel("RMS of φ − i8 [−]")
+    FG.legend_below(fig, ncol=8)
+    FG.put_caption(fig, FG.study_caption(data.meta))
     return savefig(fig, data.out, "penalty_error")
 
 
 def _plot_discretization_error(data: StudyData, g: Grid, a: dict, styles: dict[float, str]) -> Path:
     """Discretization error of the Lagrange solutions against dofs (and against h with two mesh sizes)."""
-    import matplotlib.pyplot as plt
+    from ngbet import figures as FG
 
     s2 = a["stations"][1]
     # the convergence in h needs two mesh sizes (the quick grid has one: a single panel then)
     two = len(g["h"]) > 1
-    fig, axs = plt.subplots(1, 2 if two else 1, layout="constrained", figsize=(11 if two else 5.5, 4.2), squeeze=False)
+    fig, axs = FG.subplots(1, 2 if two else 1, size=(11 if two else 5.5, 4.2), squeeze=False)
     axs = axs[0]
     lag = [r for r in a["rows"] if r["method"] == "lagrange" and r["status"] == "ok"]
     for h in g["h"]:
         rs = sorted((r for r in lag if r["h"] == h), key=lambda r: r["p"])
         axs[0].loglog([r["dofs"] for r in rs], [r["err_ref"] for r in rs], "o" + styles[h],
-                      label=f"h = {h:g} mm, p = {rs[0]['p'] if rs else ''}..")
+                      label=f"h = {h:g} mm, p = " + ", ".join(str(r["p"]) for r in rs))
         for r in rs:
             axs[0].annotate(f"p{r['p']}", (r["dofs"], r["err_ref"]), fontsize=7)
     for p in g["p"] if two else ():
@@ -259,9 +263,9 @@ def _plot_discretization_error(data: StudyData, g: Grid, a: dict, styles: dict[f
     for ax in axs:
         ax.set_ylabel(f"|F_Lagrange - F_ref| / F_ref at {s2:g} mm")
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
-    fig.suptitle(f"discretization error (reference: {a['ref']['force_N']:.4f} N ± {a['ref']['bound_N']:.2g} N, "
-                 "ngbet study reference)", fontsize=9)
+        ax.legend(loc="best")
+    FG.put_caption(fig, FG.study_caption(data.meta, f"discretization error against the reference "
+                                                    f"{a['ref']['force_N']:.4f} N ± {a['ref']['bound_N']:.2g} N"))
     return savefig(fig, data.out, "discretization_error")
 
 

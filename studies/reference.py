@@ -413,10 +413,10 @@ def report(data: StudyData, quick: bool) -> str:
 
 
 def plot(data: StudyData, quick: bool) -> list[Path]:
-    import matplotlib.pyplot as plt
+    from ngbet import figures as FG
 
     a = analyse(data, quick)
-    fig, ax = plt.subplots(layout="constrained", figsize=(6.5, 5.0))
+    fig, ax = FG.subplots(size=(6.5, 5.0))
     r2 = a["ref"][a["s2"]]
     bound = r2["bound_N"] / r2["force_N"]
     names = {"uniform": "uniform mesh, p = 2", "graded": "corner-graded, p = 2", "hp": "hp (corner and p together)"}
@@ -436,7 +436,8 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     ax.set_xlabel("dofs")
     ax.set_ylabel(f"relative error of the force at {a['s2']:g} mm")
     ax.grid(alpha=0.3, which="both")
-    fig.legend(loc="outside lower center", ncol=2, fontsize=8)
+    FG.legend_below(fig, ncol=2)
+    FG.put_caption(fig, FG.study_caption(data.meta))
     return [savefig(fig, data.out, "reference_convergence")]
 
 

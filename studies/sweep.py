@@ -72,8 +72,9 @@ def _stations(data: StudyData) -> list[float]:
 
 
 def _name(params: dict[str, Any]) -> str:
-    return ", ".join(f"{k.split('.')[-1]} = {v:g}" if isinstance(v, float) else f"{k.split('.')[-1]} = {v}"
-                     for k, v in params.items())
+    from ngbet.figures import key_value
+
+    return ", ".join(key_value(k, v) for k, v in params.items())
 
 
 def report(data: StudyData, quick: bool) -> str:
@@ -101,7 +102,7 @@ def report(data: StudyData, quick: bool) -> str:
 
 
 def plot(data: StudyData, quick: bool) -> list[Path]:
-    import matplotlib.pyplot as plt
+    from ngbet import figures as FG
 
     st = _stations(data)
     cases = [c for c in data.cases() if data.case_rows(c["case"])]
@@ -109,21 +110,23 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
         return []
     cmap = C.colormap()
     colours = {c["case"]: cmap(j / max(len(cases) - 1, 1)) for j, c in enumerate(cases)}
-    fig, axs = plt.subplots(1, 2, layout="constrained", figsize=(12, 4.5))
+    fig, axs = FG.subplots(1, 2, size=(12, 4.5))
     for c in cases:
         rows = data.case_rows(c["case"])
         axs[0].plot([0.0] + [r["u0_mm"] for r in rows], [0.0] + [r["force_N"] for r in rows], "o-", ms=2.5,
                     color=colours[c["case"]], label=_name(c["params"]))
         X, uy = data.profile(c["case"], st[-1])
         axs[1].plot(X, uy, color=colours[c["case"]])
-    axs[0].set_xlabel("clamp displacement u0 [mm]")
-    axs[0].set_ylabel("force [N]")
-    axs[1].set_xlabel("X [mm]")
-    axs[1].set_ylabel(f"u_y on the mid-axis at u0 = {st[-1]:g} mm [mm]")
+    axs[0].set_xlabel(FG.U0_LABEL)
+    axs[0].set_ylabel(FG.FORCE_LABEL)
+    axs[0].set_xlim(left=0)
+    axs[0].set_title("(a) force (points: converged steps)")
+    axs[1].set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
+    axs[1].set_ylabel("vertical displacement u_y [mm]")
+    axs[1].set_title(f"(b) mid-axis profile at u₀ = {st[-1]:g} mm")
     axs[1].axhline(0, color="k", lw=0.5)
-    for ax in axs:
-        ax.grid(alpha=0.3)
-    fig.legend(loc="outside lower center", ncol=min(len(cases), 4), fontsize=8)
+    FG.legend_below(fig, ncol=min(len(cases), 4))
+    FG.put_caption(fig, FG.study_caption(data.meta))
     out = [savefig(fig, data.out, "sweep_force")]
     keys = data.meta["params"]
     vals = [c["params"][keys[0]] for c in data.cases()]
@@ -134,12 +137,12 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
 
 def _plot_values(data: StudyData, key: str, u0: float) -> Path:
     """The final force against the swept value (log axis when the values span more than a decade)."""
-    import matplotlib.pyplot as plt
+    from ngbet import figures as FG
 
     pts = sorted((float(c["params"][key]), data.at(c["case"], u0, "force_N"), data.at(c["case"], u0, "force_error_N"))
                  for c in data.cases())
     pts = [p for p in pts if math.isfinite(p[1])]
-    fig, ax = plt.subplots(layout="constrained", figsize=(6, 4.2))
+    fig, ax = FG.subplots(size=(6, 4.2))
     v, F, e = (np.array(x) for x in zip(*pts, strict=True)) if pts else (np.array([]),) * 3
     if np.isfinite(e).any():
         ax.errorbar(v, F, yerr=np.where(np.isfinite(e), e, 0.0), fmt="o-", capsize=4,
@@ -149,7 +152,8 @@ def _plot_values(data: StudyData, key: str, u0: float) -> Path:
         ax.plot(v, F, "o-")
     if len(v) and v.min() > 0 and v.max() / v.min() > 10:
         ax.set_xscale("log")
-    ax.set_xlabel(key)
-    ax.set_ylabel(f"force at u0 = {u0:g} mm [N]")
+    ax.set_xlabel(FG.key_label(key))
+    ax.set_ylabel(f"force at u₀ = {u0:g} mm [N]")
     ax.grid(alpha=0.3, which="both")
+    FG.put_caption(fig, FG.study_caption(data.meta))
     return savefig(fig, data.out, "sweep_values")

@@ -39,11 +39,29 @@ from typing import Any
 
 import numpy as np
 
+from ngbet.scene import Scene
 from ngbet.study import Study, StudyData, main_for, savefig
 
 log = logging.getLogger(__name__)
 
-ROOT = Path(__file__).resolve().parents[1]
+
+
+def _root() -> Path:
+    """The source tree holding the fabric scenes (geometry/) and their measured curves (data/cao2008/).
+
+    The clone this module is in (``studies/`` of the source tree, an editable install), else the
+    current directory (ngbet installed from a clone and run in it).
+    """
+    for root in (Path(__file__).resolve().parents[1], Path.cwd()):
+        if (root / "data" / "cao2008").is_dir() and (root / "geometry" / "twintex_plain.toml").is_file():
+            return root
+    from ngbet.scene import SceneError
+
+    raise SceneError("study validation reads the fabric scenes geometry/twintex_*.toml and their measured curves "
+                     "data/cao2008/ of ngbet's source tree: run it in a clone of ngbet (not found in "
+                     f"{Path(__file__).resolve().parents[1]} nor in the current directory {Path.cwd()})")
+
+
 #: fabric: (scene, curve A, curve B); direction 0 fits A and predicts B, direction 1 the reverse
 FABRICS = {
     "plain": ("twintex_plain.toml", "cao2008_plain_150x300_INSA-NU.csv", "cao2008_plain_150x450_INSA-NU.csv"),
@@ -61,7 +79,8 @@ FIT_CACHE = Path("out/studies/cache/validation-fits")
 
 def _paths(fabric: str) -> tuple[Path, Path, Path]:
     s, a, b = FABRICS[fabric]
-    return ROOT / "geometry" / s, ROOT / "data" / "cao2008" / a, ROOT / "data" / "cao2008" / b
+    root = _root()
+    return root / "geometry" / s, root / "data" / "cao2008" / a, root / "data" / "cao2008" / b
 
 
 def _files(fabric: str, direction: int) -> tuple[Path, Path, Path]:
@@ -70,11 +89,14 @@ def _files(fabric: str, direction: int) -> tuple[Path, Path, Path]:
     return (s, a, b) if direction == 0 else (s, b, a)
 
 
-def _key(fabric: str, max_runs: int) -> str:
-    """A key of everything a fabric's fits read: every fabric's scene and data, the settings, the code."""
+def _key(fabric: str, max_runs: int, scene_toml: str = "") -> str:
+    """A key of everything a fabric's fits read: every fabric's scene and data, the settings, the code.
+
+    ``scene_toml``: the scene the fabric under test starts from when it is not its own scene file.
+    """
     from ngbet.study import code_version
 
-    h = hashlib.sha256()
+    h = hashlib.sha256(scene_toml.encode())
     for f in FABRICS:
         for p in _paths(f):
             h.update(p.read_bytes())
@@ -115,7 +137,7 @@ def pair_fit(fabric: str) -> dict[str, Any]:
     return _cached(f"pair-{_key(fabric, MAX_RUNS)}", make)
 
 
-def elongation_for(fabric: str, quick: bool) -> tuple[float, float, list[str]]:
+def elongation_for(fabric: str, quick: bool, scene: Scene | None = None) -> tuple[float, float, list[str]]:
     """K_el and the variance of its ln for ``fabric`` from the two-size fits of the other fabrics.
 
     One size's curve does not determine K_el (it trades against the shear table); the two sizes
@@ -126,7 +148,7 @@ def elongation_for(fabric: str, quick: bool) -> tuple[float, float, list[str]]:
     from ngbet.scene import Scene
 
     if quick:
-        return Scene.from_toml(_paths(fabric)[0]).material.K_el, 1.0, []
+        return (scene or Scene.from_toml(_paths(fabric)[0])).material.K_el, 1.0, []
     others = [f for f in FABRICS if f != fabric]
     fits = [pair_fit(f) for f in others]
     ln = np.log([f["K_el"] for f in fits])
@@ -134,8 +156,12 @@ def elongation_for(fabric: str, quick: bool) -> tuple[float, float, list[str]]:
     return float(np.exp(ln.mean())), var, others
 
 
-def fit_and_predict(fabric: str, direction: int, quick: bool) -> dict[str, Any]:
-    """The table fitted on one size (K_el from the other fabrics) and the other size predicted (cached)."""
+def fit_and_predict(fabric: str, direction: int, quick: bool, start: Scene | None = None) -> dict[str, Any]:
+    """The table fitted on one size (K_el from the other fabrics) and the other size predicted (cached).
+
+    ``start``: the scene the fit starts from (None: the fabric's scene file); its shear table,
+    bending stiffnesses, discretization and solver settings are used, the specimen is each curve's.
+    """
     from ngbet.calibration.data import read_measured
     from ngbet.calibration.joint import fit_curves, predict_specimen
     from ngbet.scene import Scene
@@ -145,8 +171,8 @@ def fit_and_predict(fabric: str, direction: int, quick: bool) -> dict[str, Any]:
     def make() -> dict[str, Any]:
         scene_path, fitted_path, predicted_path = _files(fabric, direction)
         fitted, predicted = read_measured(fitted_path), read_measured(predicted_path)
-        K_el, var, donors = elongation_for(fabric, quick)
-        scene = Scene.from_toml(scene_path).with_changes(**{KEL: K_el})
+        K_el, var, donors = elongation_for(fabric, quick, start)
+        scene = (start or Scene.from_toml(scene_path)).with_changes(**{KEL: K_el})
         res = fit_curves([fitted], scene, params=[TABLE], max_runs=runs)
         u, _ = predicted.sample(SCORE_POINTS)
         pred = predict_specimen(res, predicted.specimen, u, {KEL: var})
@@ -157,7 +183,36 @@ def fit_and_predict(fabric: str, direction: int, quick: bool) -> dict[str, Any]:
                                "sd_parameters_N": pred.sd_param_N.tolist(),
                                "sd_discretization_N": pred.sd_disc_N.tolist()}}
 
-    return _cached(f"{'quick' if quick else 'full'}{direction}-{_key(fabric, runs)}", make)
+    name = f"{'quick' if quick else 'full'}{direction}-{_key(fabric, runs, start.to_toml() if start else '')}"
+    return {**_cached(name, make), "cache_name": name}
+
+
+def _doc(name: str) -> dict[str, Any]:
+    """A fit and prediction kept by :func:`fit_and_predict` under ``name``."""
+    return dict(json.loads((FIT_CACHE / f"{name}.json").read_text()))
+
+
+def fabric_of(scene: Scene) -> str:
+    """The fabric of :data:`FABRICS` a scene is for, by its ``specimen.name`` (its size left out).
+
+    Raises
+    ------
+    SceneError
+        naming the key when the scene is for none of them.
+    """
+    from ngbet.scene import SceneError
+
+    def stem(name: str) -> str:
+        return name.rsplit("-", 1)[0] if "x" in name.rsplit("-", 1)[-1] else name
+
+    known = {stem(Scene.from_toml(_paths(f)[0]).specimen.name): f for f in FABRICS}
+    fabric = known.get(stem(scene.specimen.name))
+    if fabric is None:
+        raise SceneError(f"scene key 'specimen.name' = {scene.specimen.name!r}: study validation needs measured "
+                         f"curves of two specimen sizes of the fabric, which ngbet has for {', '.join(known)} "
+                         "(geometry/twintex_*.toml, data/cao2008/); for another fabric fit its curves with "
+                         "ngbet fit A.csv B.csv --scene S.toml")
+    return fabric
 
 
 def _case(doc: dict[str, Any], which: str) -> dict[str, Any]:
@@ -170,18 +225,23 @@ def _case(doc: dict[str, Any], which: str) -> dict[str, Any]:
     curve = read_measured(a if which == "fitted" else b)
     u, _ = curve.sample(SCORE_POINTS)
     m = sc.material
-    return {"specimen.name": f"{doc['fabric']}:{doc['direction']}:{which}:{doc['max_runs']}", **curve.specimen,
+    return {"specimen.name": f"{doc['fabric']}:{doc['direction']}:{which}:{doc['cache_name']}", **curve.specimen,
             "material.K_el": m.K_el, "material.alpha1": m.alpha1, "material.alpha2": m.alpha2,
             "material.shear_stress_steps_Pa": list(m.shear_stress_steps_Pa),
             "material.shear_table_i8_max": m.shear_table_i8_max,
             "loading.u0_mm": float(u[-1]), "loading.stops_mm": [float(x) for x in u[:-1]]}
 
 
-def build(quick: bool = False) -> Study:
+def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    """The study on the three fabrics, or with ``scene`` on the fabric it is for (:func:`fabric_of`), from it."""
     from ngbet.scene import Scene
 
-    runs = QUICK if quick else tuple((f, d) for d in (0, 1) for f in FABRICS)
-    docs = [fit_and_predict(f, d, quick) for f, d in runs]
+    if scene is not None:
+        fabric = fabric_of(scene)
+        runs: tuple[tuple[str, int], ...] = ((fabric, 0),) if quick else ((fabric, 0), (fabric, 1))
+    else:
+        runs = QUICK if quick else tuple((f, d) for d in (0, 1) for f in FABRICS)
+    docs = [fit_and_predict(f, d, quick, scene) for f, d in runs]
     base = Scene.from_toml_string(docs[0]["fitted_scene"]).with_changes(
         **{"outputs.vtk": False, "outputs.plot": False, "outputs.profile": False, "outputs.error_estimate": "off"})
     cases = [_case(d, w) for d in docs for w in ("fitted", "predicted")]
@@ -194,9 +254,9 @@ def extract(rec: dict, run_dir: Path, out: Path) -> dict:
     from ngbet.kinematics import force_from_normalised, normalised_shear_force
     from ngbet.output import read_rows
 
-    fabric, d, which, runs = rec["params"]["specimen.name"].split(":")
+    fabric, d, which, name = rec["params"]["specimen.name"].split(":")
     direction = int(d)
-    doc = fit_and_predict(fabric, direction, int(runs) == QUICK_RUNS)
+    doc = _doc(name)
     _, a, b = _files(fabric, direction)
     fitted, curve = read_measured(a), read_measured(a if which == "fitted" else b)
     pair = f"{fitted.label} → {read_measured(b).label}"
@@ -300,17 +360,23 @@ def report(data: StudyData) -> str:
 
 
 def plot(data: StudyData) -> list[Path]:
-    """One panel per fabric and direction: measured curves, fit, prediction with its band, normalisation."""
-    from matplotlib.figure import Figure
+    """One panel per fabric and direction: measured curves, fit, prediction with its band, normalisation.
 
+    The measured curves carry their printed error bars; the RMS errors are in each panel's title,
+    one legend below the panels.
+    """
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    from ngbet import figures as FG
     from ngbet.calibration.data import read_measured
 
     rows = summary(data)
     pts = data.tables.get("points", [])
     fabrics = list(dict.fromkeys(r["fabric"] for r in rows))
     ndir = max(sum(r["fabric"] == f for r in rows) for f in fabrics)
-    fig = Figure(figsize=(4.3 * len(fabrics), 4.0 * ndir))
-    axes = fig.subplots(ndir, len(fabrics), squeeze=False)
+    size = (max(6.4, 4.4 * len(fabrics) + 0.6), 3.4 * ndir + 1.5)
+    fig, axes = FG.subplots(ndir, len(fabrics), size=size, squeeze=False)
     used = {f: 0 for f in fabrics}
     for r in rows:
         j = fabrics.index(r["fabric"])
@@ -320,23 +386,40 @@ def plot(data: StudyData) -> list[Path]:
                for w in ("fitted", "predicted")}
         for which, col in (("fitted", "tab:green"), ("predicted", "k")):
             c = read_measured(_curve_path(r["fabric"], r["pair"], which))
-            ax.plot(c.u_mm, c.force_N, "-", color=col, lw=0.9, alpha=0.8, label=f"measured {c.label} ({which})")
+            ax.plot(c.u_mm, c.force_N, "-", color=col, lw=0.9)
+            if c.bars is not None:  # the printed error bars of the measured curve
+                bu, lo, hi = c.bars
+                mid = np.interp(bu, c.u_mm, c.force_N)
+                ax.errorbar(bu, mid, yerr=[np.maximum(mid - lo, 0.0), np.maximum(hi - mid, 0.0)], fmt="none",
+                            ecolor=col, elinewidth=0.8, capsize=2.5, alpha=0.8)
         u = np.array([float(p["u_mm"]) for p in sel["fitted"]])
-        ax.plot(u, [float(p["ngbet_N"]) for p in sel["fitted"]], "o", ms=3, color="tab:green",
-                label=f"ngbet, fitted (RMS {100 * r['fitted_rms']:.1f} %)")
+        ax.plot(u, [float(p["ngbet_N"]) for p in sel["fitted"]], "o", ms=3, color="tab:green")
         u = np.array([float(p["u_mm"]) for p in sel["predicted"]])
         Fm = np.array([float(p["ngbet_N"]) for p in sel["predicted"]])
         sd = np.array([float(p["ngbet_sd_N"]) for p in sel["predicted"]])
-        ax.fill_between(u, Fm - 2 * sd, Fm + 2 * sd, color="tab:orange", alpha=0.25, lw=0,
-                        label="ngbet ±2 sd (parameters, K_el, discretization)")
-        ax.plot(u, Fm, "-", color="tab:orange", label=f"ngbet prediction, RMS {100 * r['ngbet_rms']:.1f} %")
-        ax.plot(u, [float(p["normalisation_N"]) for p in sel["predicted"]], "--", color="tab:blue",
-                label=f"normalisation method, RMS {100 * r['normalisation_rms']:.1f} %")
-        ax.set_title(f"{r['fabric'].replace('_', ' ')}: {r['pair']}", fontsize=9)
-        ax.set_xlabel("clamp displacement [mm]")
-        ax.set_ylabel("clamp force [N]")
-        ax.legend(fontsize=6, loc="upper left")
-    fig.tight_layout()
+        ax.fill_between(u, Fm - 2 * sd, Fm + 2 * sd, color="tab:orange", alpha=0.25, lw=0)
+        ax.plot(u, Fm, "-", color="tab:orange")
+        ax.plot(u, [float(p["normalisation_N"]) for p in sel["predicted"]], "--", color="tab:blue")
+        ax.set_title(f"{r['fabric'].replace('_', ' ')}: {r['pair']}\nRMS: fit {100 * r['fitted_rms']:.1f} %, "
+                     f"ngbet {100 * r['ngbet_rms']:.1f} %, normalisation {100 * r['normalisation_rms']:.1f} %")
+        ax.set_xlabel(FG.U0_LABEL)
+        ax.set_ylabel(FG.FORCE_LABEL)
+        ax.set_xlim(left=0)
+        ax.set_ylim(bottom=0)
+    for ax in axes.ravel()[len(rows):]:
+        ax.set_visible(False)
+    handles = [Line2D([], [], color="tab:green", lw=0.9, marker="|", label="measured, fitted size (error bars)"),
+               Line2D([], [], color="k", lw=0.9, marker="|", label="measured, predicted size (error bars)"),
+               Line2D([], [], color="tab:green", ls="", marker="o", ms=3, label="ngbet, fitted"),
+               Line2D([], [], color="tab:orange", label="ngbet, predicted"),
+               Patch(color="tab:orange", alpha=0.25, lw=0, label="ngbet ±2 sd"),
+               Line2D([], [], color="tab:blue", ls="--", label="normalisation method (Cao Eq. 18)")]
+    FG.legend_below(fig, handles, ncol=3 if len(fabrics) > 1 else 2)
+    FG.put_caption(fig, "Twintex fabrics of Cao et al. (2008), yarns ±45°, each on its scene "
+                   "(geometry/twintex_*.toml): tabulated shear law fitted on one specimen size, K_el held, "
+                   "α1 and α2 of the scene; the other size predicted (band: parameters, K_el and discretization); "
+                   "RMS of (prediction − measured)/measured "
+                   "over 10–90 % of the displacement range")
     return [savefig(fig, data.out, "validation")]
 
 

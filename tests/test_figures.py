@@ -52,8 +52,8 @@ def test_error_bars_where_the_run_estimated_and_their_size_written_when_too_smal
     (bars,) = [c for c in ax.containers if c.__class__.__name__ == "ErrorbarContainer"]
     segments = bars.lines[2][0].get_segments()
     assert [(s[0][0], s[0][1], s[1][1]) for s in segments] == [(4.0, 15.95, 16.05), (8.0, 61.0, 67.0)]
-    # 2 × 0.05 N is below 2 % of the 64 N axis: written beside the bar; 2 × 3 N is not
-    assert [t.get_text() for t in ax.texts] == ["±0.05 N"]
+    # 2 × 0.05 N is below 2 % of the 64 N axis: its size is written; 2 × 3 N is not
+    assert [t.get_text() for t in ax.texts] == ["error bars shorter than the markers:\n±0.05 N at u₀ = 4 mm"]
 
 
 def test_measured_curve_on_the_force_and_shear_force_figures(tmp_path):
@@ -116,8 +116,8 @@ def test_run_figures_and_data_overlay_from_the_command_line(tmp_path):
            "--set", "outputs.error_estimate='off'"]
     p = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "MPLBACKEND": "Agg"})
     assert p.returncode == 0, p.stderr
-    for name in F.RUN_FIGURES:
-        assert (out / f"{name}.png").stat().st_size > 10000 and (out / f"{name}.pdf").exists(), name
+    for name in F.RUN_FIGURES:  # PNG only: the scene asks for no other format
+        assert (out / f"{name}.png").stat().st_size > 10000 and not (out / f"{name}.pdf").exists(), name
     csv.write_text("u,F\n")
     p = subprocess.run(cmd, capture_output=True, text=True)
     assert p.returncode == 2 and "m.csv" in p.stderr
@@ -130,3 +130,145 @@ def test_fsh_is_drawn_up_to_70_degrees_and_the_panel_says_what_it_leaves_out():
     ax = F.shear_force_figure(rs).axes[0]
     (curve,) = lines_of(ax)
     assert list(curve.get_xdata()) == [0.0, 30.0, 60.0] and "not drawn" in ax.texts[0].get_text()
+
+
+# ------------------------------------------------------------------------------------------------
+# one style: labels inside the canvas, honest colour scales, the formats the scene asks for
+# ------------------------------------------------------------------------------------------------
+def default_rows():
+    """Rows like the default run's: a rising force, small error bars at the stations (the last one at the top)."""
+    out = []
+    for u in np.arange(2.0, 57.0, 2.0):
+        out.append({"u0_mm": float(u), "force_N": 0.034 * u * u + 0.1 * u, "snap": 0.0,
+                    "force_error_N": 0.14 if u in (36.0, 56.0) else "", "double_force_Nm": 0.07 * u,
+                    "gamma_kinematic_deg": 1.1 * u, "fsh_N_per_mm": 0.01 * u, "gamma_centre_deg": 0.8 * u})
+    return out
+
+
+def sheared_maps(low=-20.0):
+    """Two maps on a rectangle whose angles run from ``low`` to 40° (the second twice the first)."""
+    from matplotlib.tri import Triangulation
+
+    x, y = np.meshgrid(np.linspace(0.0, 220.0, 45), np.linspace(0.0, 70.0, 15))
+    x, y = x.ravel(), y.ravel()
+    tri = Triangulation(x, y).triangles
+    g = low + (40.0 - low) * x / 220.0
+    return [F.MapData(u, x, y, tri, g * u / 56.0) for u in (28.0, 56.0)]
+
+
+def test_every_run_figure_keeps_its_texts_inside_the_canvas():
+    from ngbet.scene import default_scene
+
+    scene = default_scene()
+    rows = default_rows()
+    figs = {"force": F.force_figure(rows, scene), "shear_force": F.shear_force_figure(rows, scene),
+            "profile": F.profile_figure({56.0: ([0.0, 110.0, 220.0], [0.0, 2.0, 0.0])}, [56.0], scene),
+            "shear_map": F.shear_map_figure(sheared_maps(), scene)}
+    for name, fig in figs.items():
+        assert F.texts_outside(fig) == [], name
+
+
+def test_the_sizes_of_short_error_bars_are_written_inside_the_axes():
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    fig = F.force_figure(default_rows())
+    ax = fig.axes[0]
+    FigureCanvasAgg(fig).draw()
+    r = fig.canvas.get_renderer()
+    labels = [t for t in ax.texts if t.get_text().count("±0.14 N") == 2]
+    assert len(labels) == 1
+    box = ax.get_window_extent(r)
+    for t in labels:
+        bb = t.get_window_extent(r)
+        assert box.x0 <= bb.x0 and bb.x1 <= box.x1 and box.y0 <= bb.y0 and bb.y1 <= box.y1, bb
+
+
+def test_texts_outside_finds_a_label_beyond_the_canvas():
+    fig = F.force_figure(rows())
+    fig.axes[0].text(1.4, 0.5, "far right", transform=fig.axes[0].transAxes)
+    fig.set_layout_engine("none")  # the layout would otherwise not move it back: it is data, not a label
+    assert "far right" in F.texts_outside(fig)
+
+
+def test_signed_map_panels_share_one_symmetric_diverging_norm_and_say_what_they_clip():
+    maps = sheared_maps(low=-20.0)
+    maps[1].gamma_deg[0] = 300.0  # a corner spike: beyond the scale, marked by the arrow and the caption
+    fig = F.shear_map_figure(maps)
+    norms = [c.norm for ax in fig.axes[:2] for c in ax.collections]
+    assert len(norms) == 2 and norms[0] is norms[1]  # one norm object for both panels
+    assert (norms[0].vmin, norms[0].vmax) == (-40.0, 40.0)
+    assert {c.get_cmap().name for ax in fig.axes[:2] for c in ax.collections} == {"RdBu_r"}
+    assert "300.0°" in fig.get_suptitle() and "arrows" in fig.get_suptitle()
+    cbar_ax = fig.axes[2]
+    assert cbar_ax.get_ylim() == (-40.0, 40.0)
+
+
+def test_the_caption_names_specimen_and_material():
+    from ngbet.scene import default_scene
+
+    sc = default_scene()
+    text = F.caption(sc)
+    sp = sc.specimen
+    assert f"{sp.width_mm:g}\u00a0×\u00a0{sp.length_mm:g}\u00a0mm" in text
+    assert f"K_el\u00a0=\u00a0{sc.material.K_el / 1e6:g}\u00a0MPa" in text
+    assert "yarn network" in F.caption(sc.with_changes(model="discrete"))
+    assert F.caption(sc.to_dict()) == text  # a study's base scene as its dictionary
+
+
+def write_run(folder, formats=None):
+    import csv
+
+    from ngbet.scene import default_scene
+
+    folder.mkdir()
+    rows = default_rows()
+    with open(folder / "results.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    sc = default_scene()
+    if formats is not None:
+        sc = sc.with_changes(**{"outputs.figure_formats": formats})
+    (folder / "scene.toml").write_text(sc.to_toml())
+    return folder
+
+
+@pytest.mark.parametrize(("formats", "files"), [(None, {"png"}), (["png", "pdf"], {"png", "pdf"}),
+                                                 (["svg"], {"svg"})])
+def test_the_figures_are_written_in_the_formats_the_scene_asks_for(tmp_path, formats, files):
+    run = write_run(tmp_path / "r", formats)
+    first = F.draw_run(run, only=["force"])
+    assert first == run / f"force.{(formats or ['png'])[0]}"
+    assert {p.suffix[1:] for p in run.glob("force.*")} == files
+
+
+def test_the_figures_drawn_in_forked_children_are_those_drawn_here(tmp_path):
+    here, there = write_run(tmp_path / "here"), write_run(tmp_path / "there")
+    F.draw_run(here, parallel=False)
+    # a fresh interpreter has no other thread: each figure is drawn by a forked child there
+    code = ("import sys, ngbet.figures as F; from ngbet.figures.style import can_fork; assert can_fork(); "
+            f"F.draw_run({str(there)!r}, parallel=True)")
+    subprocess.run([sys.executable, "-c", code], check=True, env={**os.environ, "MPLBACKEND": "Agg"})
+    names = sorted(p.name for p in here.glob("*.png"))
+    assert names == ["force.png", "shear_force.png"] == sorted(p.name for p in there.glob("*.png"))
+    from matplotlib.image import imread
+
+    for name in names:
+        np.testing.assert_array_equal(imread(here / name), imread(there / name))
+
+
+def test_an_unknown_figure_format_is_refused_naming_the_key():
+    from ngbet.scene import SceneError, default_scene
+
+    with pytest.raises(SceneError, match="outputs.figure_formats"):
+        default_scene().with_changes(**{"outputs.figure_formats": ["png", "jpg"]})
+    with pytest.raises(SceneError, match="outputs.figure_formats"):
+        default_scene().with_changes(**{"outputs.figure_formats": []})
+
+
+def test_the_package_exports_what_it_lists_without_importing_matplotlib():
+    code = ("import sys, ngbet.figures as F; "
+            "print([n for n in F.__all__ if not hasattr(F, n)], 'matplotlib' in sys.modules)")
+    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert out.stdout.strip() == "[] False"

@@ -34,11 +34,10 @@ def tiny_study(cases):
 
 
 def _force_plot(d):
-    import matplotlib.pyplot as plt
-
+    from ngbet.figures import subplots
     from ngbet.study import savefig
 
-    fig, ax = plt.subplots()
+    fig, ax = subplots()
     for c in d.cases():
         rows = d.case_rows(c["case"])
         ax.plot([r["u0_mm"] for r in rows], [r["force_N"] for r in rows])
@@ -118,6 +117,24 @@ def test_dask_local_cluster_gives_the_local_results(tmp_path, cache):
 @pytest.fixture(scope="module")
 def quick_cache(tmp_path_factory):
     return tmp_path_factory.mktemp("quick_cache")
+
+
+@pytest.fixture(autouse=True)
+def every_figure_inside_its_canvas(monkeypatch):
+    """Every figure a study writes in these tests has every text inside its canvas (renderer boxes)."""
+    pytest.importorskip("matplotlib")
+    from ngbet.figures import style, texts_outside  # the style module (its context manager is in_style)
+
+    written = {}
+    real = style.FigureWriter.save
+
+    def save(self, fig, stem):
+        written[Path(stem).name] = texts_outside(fig)
+        return real(self, fig, stem)
+
+    monkeypatch.setattr(style.FigureWriter, "save", save)
+    yield written
+    assert {name: bad for name, bad in written.items() if bad} == {}
 
 
 def run_quick(name, tmp_path, quick_cache):
@@ -207,7 +224,10 @@ def test_quick_maps(tmp_path, quick_cache):
     assert all((d.out / f"map_{u}mm.npz").exists() for u in ("10", "20"))
 
 
-def test_quick_compare(tmp_path, quick_cache):
+def test_quick_compare(tmp_path, quick_cache, monkeypatch, figures):
+    from ngbet.studies import compare
+
+    capture(monkeypatch, compare, figures)
     mod, d = run_quick("compare", tmp_path, quick_cache)
     assert [mod.label(c["params"]) for c in d.cases()] == ["continuum", "discrete", mod.EQUIVALENT]
     assert all(c["status"] == "ok" for c in d.cases())
@@ -217,6 +237,12 @@ def test_quick_compare(tmp_path, quick_cache):
     assert a["continuum"]["uyq20"] < 0 and a[mod.EQUIVALENT]["uyq20"] < 0, a
     assert "Bending direction" in (d.out / "report.md").read_text()
     assert (d.out / "compare_curves.png").exists() and (d.out / "compare_maps.png").exists()
+    # one colour scale for the continuum's maps and the networks': the same norm, symmetric when signed
+    norms = {(c.norm.vmin, c.norm.vmax) for ax in figures["compare_maps"].axes[:4] for c in ax.collections
+             if c.get_array() is not None}
+    assert len(norms) == 1
+    lo, hi = norms.pop()
+    assert lo == 0.0 or lo == -hi
 
 
 def test_cli_study(tmp_path, quick_cache, capsys):
@@ -266,14 +292,10 @@ def capture(monkeypatch, mod, figures):
 
 
 def labels_inside(fig):
-    fig.canvas.draw()
-    w, h = fig.canvas.get_width_height()
-    for ax in fig.axes:
-        for lab in (ax.xaxis.label, ax.yaxis.label):
-            if lab.get_text():
-                bb = lab.get_window_extent()
-                # inside the canvas, to the pixel of the text's own descent (a cut label lost tens of pixels)
-                assert bb.x0 >= -2 and bb.y0 >= -2 and bb.x1 <= w + 2 and bb.y1 <= h + 2, (lab.get_text(), bb)
+    """Every text of the figure inside its canvas, measured with the renderer's bounding boxes."""
+    from ngbet.figures import texts_outside
+
+    assert texts_outside(fig) == []
 
 
 def test_quick_reference_rows_are_their_own_cases(tmp_path, quick_cache, monkeypatch, figures):
@@ -704,3 +726,27 @@ def test_a_stopped_study_keeps_its_cases_when_another_starts_on_the_same_cache(t
     d = load(tmp_path / "a")
     assert [c["status"] for c in d.cases()] == ["ok", "ok"]
     assert all(math.isfinite(d.at(c["case"], 20.0, "force_N")) for c in d.cases())
+
+
+def test_the_studies_draw_through_ngbet_figures_without_pyplot():
+    """One plotting package: no study module keeps pyplot state or saves a figure itself."""
+    import ngbet.studies
+
+    for p in Path(ngbet.studies.__file__).parent.glob("*.py"):
+        text = p.read_text()
+        assert "pyplot" not in text and "plt." not in text and ".savefig(" not in text, p.name
+
+
+def test_validation_takes_the_scene_of_a_fabric_and_refuses_another_naming_the_key():
+    from ngbet.scene import SceneError, default_scene
+    from ngbet.studies import validation as V
+
+    repo = Path(__file__).resolve().parent.parent
+    for fabric, (scene, _, _) in V.FABRICS.items():
+        sc = Scene.from_toml(repo / "geometry" / scene)
+        assert V.fabric_of(sc) == fabric
+        # another specimen size of the same fabric is the same fabric
+        other = sc.specimen.name.rsplit("-", 1)[0] + "-80x250"
+        assert V.fabric_of(sc.with_changes(**{"specimen.name": other})) == fabric
+    with pytest.raises(SceneError, match="specimen.name"):
+        V.fabric_of(default_scene())

@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -149,42 +150,21 @@ def save_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None
         crossing_angle_deg=180.0 - 2 * math.degrees(net.angle) + np.degrees(gamma))
 
 
-def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None:
-    """PNG of the deformed yarns coloured by the shear angle γ; thick yarns drawn thick, axes in mm.
+def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: Any = None) -> None:
+    """PNG of the deformed yarns coloured by the shear angle γ (:func:`ngbet.figures.yarn_network_figure`).
 
-    γ is 0 at rest, the convention of the continuum's maps.
+    γ is 0 at rest, the convention of the continuum's maps; ``scene`` names specimen and network in the caption.
     """
-    try:
-        import matplotlib
+    from ..figures import PNG_DPI, in_style, yarn_network_figure
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from matplotlib.collections import LineCollection
+    try:
+        import matplotlib  # noqa: F401
     except ImportError:
         log.warning("no yarn figure: matplotlib is not installed (pip install matplotlib)")
         return
-
     x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3
     ang = np.degrees(node_gamma(net, u))
     seg_ang = 0.5 * (ang[net.beams[:, 0]] + ang[net.beams[:, 1]])
-    norm = plt.Normalize(float(seg_ang.min()), max(float(seg_ang.max()), float(seg_ang.min()) + 1e-6))
-    fig, ax = plt.subplots(figsize=(11, 3.6))
-    for fam, lw, ls in ((2, 0.6, (0, (3, 1))), (1, 1.8, "solid")):
-        sel = net.beam_family == fam
-        lc = LineCollection(x[net.beams[sel]], linewidths=lw, linestyles=ls, cmap="viridis", norm=norm,
-                            label="thick yarns (family 1)" if fam == 1 else "thin yarns (family 2, dashed)")
-        lc.set_array(seg_ang[sel])
-        ax.add_collection(lc)
-    ax.plot(*x[net.node_end > 0].T, "k|", ms=4)  # clamped yarn ends, deformed
-    ax.set_aspect("equal")
-    ax.autoscale()
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("y [mm]")
-    ax.set_title(f"discrete model, u0 = {u0 * 1e3:.1f} mm")
-    from ..plotting import SHEAR_LABEL
-
-    fig.colorbar(lc, ax=ax, label=SHEAR_LABEL, fraction=0.025, pad=0.02)
-    ax.legend(loc="upper left", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=140)
-    plt.close(fig)
+    with in_style():
+        fig = yarn_network_figure(x, net.beams, net.beam_family, seg_ang, x[net.node_end > 0], u0 * 1e3, scene)
+        fig.savefig(path, dpi=PNG_DPI)

@@ -174,7 +174,7 @@ class _Recorder:
         tag = f"{u0 * 1e3:g}mm"  # 37mm, 0.5mm
         self.writer.write(f"state_{tag}.npz", lambda tmp: ob.save_state(tmp, self.model.net, u, u0))
         if self.scene.outputs.plot:
-            self.writer.write(f"yarns_{tag}.png", lambda tmp: ob.plot_state(tmp, self.model.net, u, u0))
+            self.writer.write(f"yarns_{tag}.png", lambda tmp: ob.plot_state(tmp, self.model.net, u, u0, self.scene))
 
     def final_snapshot(self) -> None:
         """The last converged state (if any step converged)."""

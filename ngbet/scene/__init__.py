@@ -40,6 +40,7 @@ from .document import (
 )
 from .numerical import (
     FIELD_OUTPUTS,
+    FIGURE_FORMATS,
     LINEAR_SOLVERS,
     MAX_ORDER,
     PAPER_STOPS_MM,
@@ -54,7 +55,7 @@ from .physical import CONSTRAINTS, MAX_SPECIMEN_MM, PENALTY_FORMS, SHEAR_LAWS, E
 from .validate import AUTO, SceneError
 
 __all__ = [
-    "AUTO", "CONSTRAINTS", "DEFAULT_DISCRETIZATION", "FIELD_OUTPUTS", "LINEAR_SOLVERS", "MAX_ORDER",
+    "AUTO", "CONSTRAINTS", "DEFAULT_DISCRETIZATION", "FIELD_OUTPUTS", "FIGURE_FORMATS", "LINEAR_SOLVERS", "MAX_ORDER",
     "MAX_SPECIMEN_MM", "MIN_YARNS_PER_FAMILY", "MODELS", "NOT_READ_BY", "PAPER_STOPS_MM", "PENALTY_FORMS",
     "SHEAR_LAWS", "Calibration", "Discrete", "Discretization", "Effects", "Loading", "Material", "Outputs",
     "Scene", "SceneError", "SceneNote", "SceneWarning", "Solver", "Specimen", "apply_changes", "default_scene",

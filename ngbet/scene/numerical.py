@@ -186,6 +186,7 @@ class Solver:
 
 
 FIELD_OUTPUTS = ("shear_angle", "constraint", "elongation")
+FIGURE_FORMATS = ("png", "pdf", "svg")
 
 
 @dataclass(frozen=True)
@@ -204,10 +205,19 @@ class Outputs:
     # load stops and the final load), "every" (every converged step), "final", or "off"
     error_estimate: str = "stops"
     plot: bool = True
+    figure_formats: tuple[str, ...] = ("png",)  # files of each figure: any of "png", "pdf", "svg"
 
     def __post_init__(self) -> None:
         _boolean("outputs", self, "reaction", "double_force", "energy", "profile", "vtk",
                  "vtk_every_step", "plot")
+        _check(isinstance(self.figure_formats, (list, tuple)) and len(self.figure_formats) > 0,
+               "outputs.figure_formats", self.figure_formats, 'must be a non-empty list such as ["png", "pdf"]')
+        object.__setattr__(self, "figure_formats", tuple(self.figure_formats))
+        for f in self.figure_formats:
+            _check(f in FIGURE_FORMATS, "outputs.figure_formats", f,
+                   f"unknown figure format, known: {', '.join(FIGURE_FORMATS)}")
+        _check(len(set(self.figure_formats)) == len(self.figure_formats), "outputs.figure_formats",
+               list(self.figure_formats), "names a format twice")
         _integer("outputs", self, "profile_points", 3, 100000)
         _choice("outputs", self, "error_estimate", ("stops", "every", "final", "off"))
         object.__setattr__(self, "fields", tuple(self.fields))

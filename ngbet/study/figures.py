@@ -1,4 +1,4 @@
-"""A study's figures (PNG + PDF) and report.md, drawn from its folder's CSV files alone."""
+"""A study's figures (PNG + PDF, by :mod:`ngbet.figures`) and report.md, drawn from its folder's CSV files alone."""
 
 from __future__ import annotations
 
@@ -25,11 +25,11 @@ def finish(study: Study, data: StudyData) -> list[Path]:
         data.meta["figures_skipped"] = "matplotlib is not installed (pip install matplotlib)"
         log.info("study %s: figures skipped: %s", study.name, data.meta["figures_skipped"])
     elif study.plot is not None:
-        import matplotlib
+        from ..figures import in_style
 
-        matplotlib.use("Agg")
         try:
-            figs = list(study.plot(data) or [])
+            with in_style():  # the one style of ngbet's figures
+                figs = list(study.plot(data) or [])
         except MissingValueError as exc:
             data.meta["report_error"] = str(exc)
             log.error("study %s: no figures: %s", study.name, exc)
@@ -54,11 +54,7 @@ def plot_only(study: Study, out: str | Path) -> StudyData:
 
 
 def savefig(fig: Any, out: Path, name: str) -> Path:
-    """Save a matplotlib figure as PNG and PDF; returns the PNG path."""
-    import matplotlib.pyplot as plt
+    """Write a study's figure as PNG and PDF (:func:`ngbet.figures.save`); returns the PNG path."""
+    from ..figures import STUDY_FORMATS, save
 
-    png = out / f"{name}.png"
-    fig.savefig(png, dpi=140)
-    fig.savefig(out / f"{name}.pdf")
-    plt.close(fig)
-    return png
+    return save(fig, out, name, STUDY_FORMATS)

@@ -1,0 +1,161 @@
+"""The data a run folder's figures are drawn from: map files, measured curves, table columns.
+
+Nothing here imports matplotlib at import time: the run writes its map data through
+:func:`save_map` without it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+log = logging.getLogger(__name__)
+
+
+def map_file_name(u0_mm: float) -> str:
+    """The continuum's map data at a station: ``map_37mm.npz``."""
+    return f"map_{u0_mm:g}mm.npz"
+
+
+def save_map(path: Path, samples: dict[str, np.ndarray], u0_mm: float) -> None:
+    """Write the map data of one station (:func:`ngbet.continuum.observables.map_samples`) [mm, deg]."""
+    data: dict[str, Any] = {"u0_mm": np.float64(u0_mm), **samples}
+    np.savez_compressed(path, **data)
+
+
+@dataclass
+class MapData:
+    """A triangulated shear-angle field on the deformed specimen at one clamp displacement [mm, deg]."""
+
+    u0_mm: float
+    x_mm: np.ndarray  #: deformed positions
+    y_mm: np.ndarray
+    triangles: np.ndarray
+    gamma_deg: np.ndarray
+    what: str = "continuum"
+
+
+def load_maps(run_dir: Path) -> list[MapData]:
+    """The run's maps at its stations, by increasing u0: the continuum's map_*.npz or the network's state_*.npz.
+
+    The network's map triangulates its crossings (Delaunay on the reference positions, drawn at the
+    deformed ones), coloured by the shear angle at each crossing.
+    """
+    import matplotlib.tri as mtri
+
+    maps = []
+    for f in run_dir.glob("map_*mm.npz"):
+        with np.load(f) as z:
+            maps.append(MapData(float(z["u0_mm"]), z["X_mm"] + z["ux_mm"], z["Y_mm"] + z["uy_mm"],
+                                z["triangles"], z["gamma_deg"]))
+    for f in run_dir.glob("state_*mm.npz"):
+        with np.load(f) as z:
+            nodes = z["crossing_nodes"][:, 0]
+            X, u = z["X_mm"][nodes], z["u_mm"][nodes]
+            tri = mtri.Triangulation(X[:, 0], X[:, 1])
+            # the crossings lie on a lattice: its Delaunay triangles are half cells (longest edge √2
+            # times the shortest); longer ones span the gaps along the edges and are left out
+            t = tri.triangles
+            edges = np.stack([np.hypot(*(X[t[:, i]] - X[t[:, (i + 1) % 3]]).T) for i in range(3)], axis=1)
+            keep = edges.max(axis=1) <= 1.5 * edges.min()
+            maps.append(MapData(float(f.stem[len("state_"):-2]), X[:, 0] + u[:, 0], X[:, 1] + u[:, 1],
+                                t[keep], z["crossing_gamma_deg"], "crossings"))
+    return sorted(maps, key=lambda m: m.u0_mm)
+
+
+@dataclass
+class Measured:
+    """A measured force–displacement curve (``displacement_mm,force_N``) and the specimen its header names."""
+
+    path: Path
+    displacement_mm: np.ndarray
+    force_N: np.ndarray
+    width_mm: float | None = None
+    length_mm: float | None = None
+    label: str = field(default="")
+
+    def specimen(self, width_mm: float, length_mm: float) -> tuple[float, float]:
+        """(W, H) of the measured specimen: its header's, else the run's."""
+        return (self.width_mm or width_mm, self.length_mm or length_mm)
+
+
+def read_measured(path: str | Path) -> Measured:
+    """Read a measured curve: CSV with the header ``displacement_mm,force_N``; ``#`` lines are comments.
+
+    Comment lines ``# specimen.width_mm = 150`` and ``# specimen.length_mm = 300`` name the
+    measured specimen (its F_sh is computed with them).
+
+    Raises
+    ------
+    ValueError
+        naming the file and what is wrong with it.
+    """
+    import csv
+
+    p = Path(path)
+    try:
+        lines = p.read_text().splitlines()
+    except OSError as exc:
+        raise ValueError(f"{p}: cannot read the measured curve ({exc.strerror or exc})") from exc
+    header: dict[str, float] = {}
+    for line in lines:
+        if line.lstrip().startswith("#") and "=" in line:
+            key, _, value = line.lstrip("# ").partition("=")
+            try:
+                header[key.strip()] = float(value.strip())
+            except ValueError:
+                pass
+    data = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
+    rows = list(csv.reader(data))
+    if not rows or [c.strip() for c in rows[0][:2]] != ["displacement_mm", "force_N"]:
+        raise ValueError(f"{p}: the first line that is not a comment must be the header 'displacement_mm,force_N'")
+    try:
+        values = np.array([[float(r[0]), float(r[1])] for r in rows[1:]], dtype=float)
+    except (ValueError, IndexError) as exc:
+        raise ValueError(f"{p}: every data line must hold two numbers, displacement_mm,force_N ({exc})") from exc
+    if len(values) < 2 or not np.all(np.isfinite(values)):
+        raise ValueError(f"{p}: needs at least two finite points (displacement_mm,force_N)")
+    return Measured(p, values[:, 0], values[:, 1], header.get("specimen.width_mm"), header.get("specimen.length_mm"),
+                    f"measured ({p.name})")
+
+
+def increasing_curve(d: ArrayLike, F: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """A curve with strictly increasing displacement: points at the same displacement are averaged."""
+    d, F = np.asarray(d, dtype=float), np.asarray(F, dtype=float)
+    u, inv = np.unique(d, return_inverse=True)
+    return u, np.bincount(inv, weights=F) / np.bincount(inv)
+
+
+def measured_fsh(m: Measured, width_mm: float, length_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(γ [deg], F_sh [N/mm]) of a measured curve by Eq. 18, below yarn locking of its specimen."""
+    from ..kinematics import normalised_shear_force
+
+    W, H = m.specimen(width_mm, length_mm)
+    d, F = increasing_curve(m.displacement_mm, m.force_N)
+    keep = (d > 0) & (d < (math.sqrt(2.0) - 1.0) * (H - W) * (1 - 1e-9))
+    if keep.sum() < 1:
+        return np.array([]), np.array([])
+    g, f = normalised_shear_force(d[keep], F[keep], H, W)
+    return np.degrees(g), f
+
+
+def column(rows: list[dict[str, Any]], key: str) -> np.ndarray:
+    """A column of results.csv rows as floats (empty cells and missing keys as nan)."""
+    return np.array([r[key] if isinstance(r.get(key), float) else math.nan for r in rows], dtype=float)
+
+
+def read_scene(run_dir: Path) -> Any:
+    """The scene of a run folder (its scene.toml), or None (logged) when it cannot be read."""
+    from ..scene import Scene, SceneError
+
+    try:
+        return Scene.from_toml(run_dir / "scene.toml")
+    except (OSError, SceneError) as exc:
+        log.info("%s: no caption (%s)", run_dir, exc)
+        return None

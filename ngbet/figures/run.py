@@ -1,0 +1,157 @@
+"""A run folder's figures, drawn from its files alone (results.csv, profile.csv, scene.toml, map data).
+
+- ``force``: clamp force against clamp displacement (and the double force, continuum);
+- ``shear_force``: (a) F_sh against the kinematic shear angle γ; (b) the shear angles against u0;
+- ``profile``: the S-profile at the stations, the other rows in grey;
+- ``shear_map``: the shear angle on the deformed specimen at the stations, one colour scale.
+
+Each is written in the scene's ``outputs.figure_formats`` (default PNG only). In a process without
+threads (the plot process) each figure is drawn by a forked child, all at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .curves import Extra, force_figure, profile_figure, shear_force_figure, stations_of
+from .data import MapData, Measured, load_maps, read_scene
+from .maps import shear_map_figure
+from .style import PNG_COMPRESSION, PNG_DPI, FigureWriter, can_fork, in_style
+
+log = logging.getLogger(__name__)
+
+#: figure files of a run
+RUN_FIGURES = ("force", "shear_force", "profile", "shear_map")
+
+NO_MATPLOTLIB = "no figures: matplotlib is not installed (pip install matplotlib)"
+
+
+def formats_of(scene: Any) -> tuple[str, ...]:
+    """The figure formats a run's scene asks for (``outputs.figure_formats``; PNG without a scene)."""
+    return tuple(getattr(getattr(scene, "outputs", None), "figure_formats", ("png",)))
+
+
+def draw_run(run_dir: str | Path, extra: Extra = (), parallel: bool = False, measured: Measured | None = None,
+             only: Sequence[str] = RUN_FIGURES) -> Path | None:
+    """Draw the figures of ``run_dir`` (:data:`RUN_FIGURES`, or those in ``only``).
+
+    Returns the force figure's file, or None when there was nothing to draw (no force in
+    results.csv). ``extra``: more curves (label, u0 [mm], force [N]) on the force figure.
+    ``parallel``: each figure drawn by a forked child (only in a process without threads; a figure
+    whose child failed is drawn here).
+
+    Raises
+    ------
+    OSError
+        when results.csv cannot be read.
+    """
+    from ..output import read_profiles, read_rows
+
+    run_dir = Path(run_dir)
+    rows = read_rows(run_dir / "results.csv")
+    if not rows or "force_N" not in rows[0]:
+        return None
+    scene = read_scene(run_dir)
+    out = FigureWriter(formats_of(scene))
+    makers: dict[str, Callable[[], Any]] = {
+        "force": lambda: force_figure(rows, scene, extra, measured),
+        "shear_force": lambda: shear_force_figure(rows, scene, measured),
+        "profile": lambda: (profile_figure(read_profiles(run_dir / "profile.csv"), stations_of(rows, scene), scene)
+                            if (run_dir / "profile.csv").exists() else None),
+        "shear_map": lambda: shear_map_figure(load_maps(run_dir), scene)}
+    names = [n for n in RUN_FIGURES if n in only]
+
+    def draw(name: str) -> None:
+        with in_style():
+            fig = makers[name]()
+            if fig is not None:
+                out.save(fig, run_dir / name)
+
+    children: dict[str, int] = {}
+    if parallel and can_fork():
+        for name in names:
+            child = os.fork()
+            if child == 0:  # the child: one figure, and out without running anything of the parent's
+                code = 1
+                try:
+                    draw(name)
+                    code = 0
+                finally:
+                    os._exit(code)
+            children[name] = child
+    for name in names:
+        if name in children:
+            if os.waitstatus_to_exitcode(os.waitpid(children[name], 0)[1]) == 0:
+                continue
+            log.info("the child drawing %s failed: drawing it here", name)
+        draw(name)
+    first = run_dir / f"force.{out.formats[0]}"
+    return first if "force" in names and first.exists() else None
+
+
+def draw_force(run_dir: Path, extra: Extra = (), parallel: bool = False) -> Path | None:
+    """Draw the run's figures in this process (:func:`draw_run`); None without matplotlib (logged)."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        log.warning(NO_MATPLOTLIB)
+        return None
+    return draw_run(run_dir, extra, parallel)
+
+
+def start_plot(run_dir: str | Path, extra: Extra = (), service: Any = None,
+               measured: Measured | None = None) -> Callable[[], Path | None]:
+    """Start drawing the figures of the run files in ``run_dir``; the function returned finishes it.
+
+    ``service``: the plot process the runner started (:func:`ngbet.plot_process.active`). The
+    request goes out now and the process draws while the run writes its other files; the function
+    returned waits for it, and draws here if the process failed (its errors are RuntimeErrors).
+    Without one, or with a ``measured`` curve to overlay, the function returned draws here.
+    """
+    from .. import figures as package  # draw_force as the package has it (a test may replace it there)
+
+    proc = service if measured is None else None
+    if proc is not None:
+        try:
+            proc.request(run_dir, extra)
+        except RuntimeError as exc:
+            log.info("the plot process did not take %s (%s): drawing it here", run_dir, exc)
+            proc = None
+
+    def finish() -> Path | None:
+        if proc is not None:
+            try:
+                return proc.answer()
+            except RuntimeError as exc:
+                log.info("the plot process did not draw %s (%s): drawing it here", run_dir, exc)
+        if measured is not None:
+            try:
+                import matplotlib  # noqa: F401
+            except ImportError:
+                log.warning(NO_MATPLOTLIB)
+                return None
+            return draw_run(Path(run_dir), extra, measured=measured)
+        return package.draw_force(Path(run_dir), extra)
+
+    return finish
+
+
+def warm_up() -> None:
+    """Draw throw-away figures into memory: loads matplotlib's fonts, the text layout, tri and the PNG writer."""
+    import io
+
+    rows = [{"u0_mm": u, "force_N": u * u, "force_error_N": 0.1, "double_force_Nm": 0.1 * u, "snap": 0.0,
+             "gamma_kinematic_deg": u, "fsh_N_per_mm": 0.1 * u, "gamma_centre_deg": u} for u in (1.0, 2.0)]
+    tri = MapData(1.0, np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([[0, 1, 2]]),
+                  np.array([0.0, 1.0, 2.0]))
+    with in_style():
+        for fig in (force_figure(rows, None, [("extra", [0.0, 2.0], [0.0, 4.0])]), shear_force_figure(rows),
+                    shear_map_figure([tri])):
+            assert fig is not None
+            fig.savefig(io.BytesIO(), format="png", dpi=PNG_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
