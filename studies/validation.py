@@ -50,16 +50,19 @@ def _root() -> Path:
     """The source tree holding the fabric scenes (geometry/) and their measured curves (data/cao2008/).
 
     The clone this module is in (``studies/`` of the source tree, an editable install), else the
-    current directory (ngbet installed from a clone and run in it).
+    copies installed with ngbet (``ngbet/geometry``, ``ngbet/data``), else the current directory.
     """
-    for root in (Path(__file__).resolve().parents[1], Path.cwd()):
+    import ngbet
+
+    for root in (Path(__file__).resolve().parents[1], Path(ngbet.__file__).resolve().parent, Path.cwd()):
         if (root / "data" / "cao2008").is_dir() and (root / "geometry" / "twintex_plain.toml").is_file():
             return root
     from ngbet.scene import SceneError
 
     raise SceneError("study validation reads the fabric scenes geometry/twintex_*.toml and their measured curves "
-                     "data/cao2008/ of ngbet's source tree: run it in a clone of ngbet (not found in "
-                     f"{Path(__file__).resolve().parents[1]} nor in the current directory {Path.cwd()})")
+                     "data/cao2008/, installed with ngbet: not found beside the studies, in the installed package "
+                     f"{Path(ngbet.__file__).resolve().parent} nor in the current directory {Path.cwd()} "
+                     "(reinstall ngbet)")
 
 
 #: fabric: (scene, curve A, curve B); direction 0 fits A and predicts B, direction 1 the reverse

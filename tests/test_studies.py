@@ -657,8 +657,14 @@ def test_every_package_is_installed_and_the_studies_come_from_the_top_level_fold
     repo = Path(__file__).resolve().parent.parent
     conf = tomllib.loads((repo / "pyproject.toml").read_text())["tool"]["setuptools"]
     found = {".".join(p.parent.relative_to(repo).parts) for p in (repo / "ngbet").rglob("__init__.py")}
-    assert set(conf["packages"]) == found | {"ngbet.studies"}
-    assert conf["package-dir"] == {"ngbet.studies": "studies"} and (repo / "studies" / "__init__.py").exists()
+    shipped = {"ngbet.data", "ngbet.data.cao2008", "ngbet.geometry"}  # data folders, installed with ngbet
+    assert set(conf["packages"]) == found | {"ngbet.studies"} | shipped
+    assert conf["package-dir"] == {"ngbet.studies": "studies", "ngbet.data": "data", "ngbet.geometry": "geometry"}
+    assert (repo / "studies" / "__init__.py").exists()
+    for pkg in shipped:  # every data file of the folders is in the package data
+        folder = repo / conf["package-dir"].get(pkg, "data/" + pkg.rsplit(".", 1)[-1])
+        kinds = {"*" + f.suffix for f in folder.iterdir() if f.is_file()}
+        assert kinds <= set(conf["package-data"][pkg]), (pkg, kinds)
     assert not (repo / "ngbet" / "studies").exists()
 
 
