@@ -181,12 +181,19 @@ class Material:
     # rise >= 0, so the stress is monotone and the energy convex (ngbet.continuum.physics)
     shear_stress_steps_Pa: tuple[float, ...] = ()
     shear_table_i8_max: float = 1.0  # "table": |i8| of the last knot; beyond it the stress goes on linearly
+    # deg: effects.jamming, the acute angle between the deformed yarns below which they jam (the
+    # barrier K_jam s_jam^2 (1 - t)^3 / t, t = sin(angle) / sin(jamming_angle_deg), K_jam = max(K_el, K_sh);
+    # ngbet.continuum.physics.jamming_energy)
+    jamming_angle_deg: float = 5.0
 
     def __post_init__(self) -> None:
         _nonnegative("material", self, "K_el", "K_sh", "alpha1", "alpha2", "K_sh4", "K_sh6", "K_lock")
         g = self.gamma_lock_deg
         _check(isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g < 90, "material.gamma_lock_deg",
                g, "must lie strictly between 0 and 90 degrees")
+        j = self.jamming_angle_deg
+        _check(isinstance(j, (int, float)) and not isinstance(j, bool) and 0 < j < 90, "material.jamming_angle_deg",
+               j, "must lie strictly between 0 and 90 degrees")
         steps = self.shear_stress_steps_Pa
         _check(isinstance(steps, (list, tuple)), "material.shear_stress_steps_Pa", steps, "must be a list of numbers")
         object.__setattr__(self, "shear_stress_steps_Pa", tuple(steps))
@@ -241,9 +248,13 @@ class Effects:
     # constraint would charge for a variation of i8 on the element's scale; 0: off; > 0: that
     # constant (ngbet.continuum.problem)
     stabilization_K: float | str = AUTO
+    # the yarns cannot cross: a barrier on the sine of the angle between the deformed yarns, zero
+    # while they are more open than material.jamming_angle_deg and growing without bound as they
+    # close (docs/model.md, *Jamming*); no ordinary state reaches it. false: off
+    jamming: bool = True
 
     def __post_init__(self) -> None:
-        _boolean("effects", self, "shear", "elongation", "bending")
+        _boolean("effects", self, "shear", "elongation", "bending", "jamming")
         _choice("effects", self, "constraint", CONSTRAINTS)
         _choice("effects", self, "penalty_form", PENALTY_FORMS)
         _choice("effects", self, "shear_law", SHEAR_LAWS)
@@ -657,6 +668,9 @@ class Scene:
             elif e.shear:
                 _check(m.K_sh > 0, "material.K_sh", m.K_sh, "must be > 0 when effects.shear is on")
             _check(m.K_el > 0, "material.K_el", m.K_el, "must be > 0 (effects.elongation is on)")
+            rest = min(2 * self.specimen.yarn_angle_deg, 180 - 2 * self.specimen.yarn_angle_deg)
+            _check(not e.jamming or m.jamming_angle_deg < rest, "material.jamming_angle_deg", m.jamming_angle_deg,
+                   f"must be below the angle between the yarns at rest ({rest:g} degrees), else they jam at rest")
             if e.bending:
                 _check(m.alpha1 + m.alpha2 > 0, "material.alpha1", m.alpha1,
                        "alpha1 + alpha2 must be > 0 when effects.bending is on (else turn bending off)")

@@ -51,6 +51,7 @@ Dirichlet data (docs/model.md, *Boundary conditions*): u = 0, φ = 0 on Σ1 (``l
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 
@@ -197,6 +198,8 @@ class ContinuumProblem:
         base = physics.elongation_energy(inv.i4, inv.i6, mat.K_el)
         if eff.shear:
             base = base + physics.shear_law_energy(inv.i8, eff.shear_law, vars(mat))
+        if eff.jamming:
+            base = base + self._jamming_energy(inv.F)
         self.K_s: CF | float = 0.0  # the stabilization modulus (a CF when element-wise)
         self.K_s_range = (0.0, 0.0)  # its smallest and largest value over the elements [Pa]
         if not eff.bending:
@@ -215,6 +218,13 @@ class ContinuumProblem:
         if eff.penalty_form == "mixed" or self.full_as_mixed:
             return (base + physics.mixed_penalty_constraint(phi, inv.i8, trial[2], eff.penalty_K), bending), None
         return (base + physics.penalty_constraint(phi, inv.i8, eff.penalty_K), bending), None
+
+    def _jamming_energy(self, F: CF) -> CF:
+        """The barrier that keeps the yarns from crossing (:func:`physics.jamming_energy`), K_jam = max(K_el, K_sh)."""
+        sp, mat = self.scene.specimen, self.scene.material
+        orientation = math.copysign(1.0, sp.m1[0] * sp.m2[1] - sp.m1[1] * sp.m2[0])
+        s = physics.yarn_angle_sine(F, self.m1, self.m2, orientation)
+        return physics.jamming_energy(s, max(mat.K_el, mat.K_sh), math.sin(math.radians(mat.jamming_angle_deg)))
 
     def _load_fields(self, sp: Specimen) -> None:
         """Reaction test fields (ψ_u = (X/L, 0), ψ_φ = X/L; exact in the spaces) and the load direction."""
