@@ -353,10 +353,12 @@ class ContinuumProblem:
     @property
     def inadmissible_hint(self) -> str:
         """What keeps the specimen out of inverted states (the relaxation's advice when it meets them)."""
-        if self.scene.effects.shear and self.scene.effects.shear_law == "locking" and self.scene.material.K_lock > 0:
+        eff = self.scene.effects
+        if eff.jamming or (eff.shear and eff.shear_law == "locking" and self.scene.material.K_lock > 0):
             return ""
-        return ("the shear energy falls again once the yarns turn past parallel; a shear law that locks before "
-                "(effects.shear_law = 'locking' with material.K_lock > 0) keeps the yarns from crossing")
+        return ("the shear energy falls again once the yarns turn past parallel; the jamming barrier "
+                "(effects.jamming = true) or a shear law that locks before (effects.shear_law = 'locking' with "
+                "material.K_lock > 0) keeps the yarns from crossing")
 
     def begin_relaxation(self) -> None:
         """A relaxation starts from the current state: it may not invert more material than there is now."""
