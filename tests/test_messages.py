@@ -90,7 +90,8 @@ def test_a_solver_failure_names_its_cause_and_remedy_on_the_terminal(tmp_path):
     and names the remedy."""
     out = tmp_path / "run"
     p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(out), "--set",
-                        "material.K_el=1e8", "--set", "effects.jamming=false", "--set", "discretization.mesh_size_mm=10", "--set", "outputs.vtk=false",
+                        "material.K_el=1e8", "--set", "effects.jamming=false",
+                        "--set", "discretization.mesh_size_mm=10", "--set", "outputs.vtk=false",
                         "--set", "outputs.plot=false"], capture_output=True, text=True)
     assert p.returncode == 1 and p.stdout == ""
     (line,) = p.stderr.splitlines()

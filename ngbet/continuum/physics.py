@@ -186,7 +186,7 @@ JAMMING_CUTOFF = 0.05
 
 
 def yarn_angle_sine(F: CF, m1: CF, m2: CF, orientation: float = 1.0) -> CF:
-    r"""s = (Fm1 × Fm2)/(|Fm1| |Fm2|): the sine of the angle between the deformed yarns, signed.
+    r"""The sine s = (Fm1 × Fm2)/(|Fm1| |Fm2|) of the angle between the deformed yarns, signed.
 
     Fm1 × Fm2 = det F (m1 × m2), so s = det F sin θ0 / √(i4 i6) (θ0 the rest angle): it falls to 0 as
     the yarns close on each other (θ → 0 or 180°, as lines the acute angle → 0) and changes sign
