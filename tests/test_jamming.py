@@ -119,18 +119,63 @@ def test_it_forbids_inversion():
                for (w, _), g in zip(ordinary, np.linspace(0.0, 84.9, 50), strict=True))
 
 
-def test_an_ordinary_run_never_reaches_it(tmp_path):
-    """The default material to 56 mm (coarse mesh): the smallest angle between the yarns stays far above
-    5° (the sine at least 0.47 on the default mesh, measured), so the forces, load steps and Newton
-    iterations are those without the barrier, bit for bit."""
-    ch = {"solver.threads": 1, "outputs.profile": False, "outputs.error_estimate": "off"}
-    on = run(coarse(**ch), tmp_path / "on")
-    off = run(coarse(**ch, **{"effects.jamming": False}), tmp_path / "off")
+def test_an_ordinary_run_never_reaches_it(tmp_path, monkeypatch):
+    """The default material to 56 mm (coarse mesh): the yarns never come within twice the jamming
+    angle (the smallest angle between them is 35° on the embedded scene, measured), so the barrier is
+    never even evaluated, and the forces and Newton iterations are those without it, bit for bit."""
+    from ngbet.continuum import problem as problem_module
     from ngbet.output import read_rows
 
+    made = []
+    init = problem_module.ContinuumProblem.__init__
+
+    def keep(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        made.append(self)
+
+    monkeypatch.setattr(problem_module.ContinuumProblem, "__init__", keep)
+    ch = {"solver.threads": 1, "outputs.profile": False, "outputs.error_estimate": "off"}
+    on = run(coarse(**ch), tmp_path / "on")
+    assert len(made) == 1 and not made[0].jamming_on
+    off = run(coarse(**ch, **{"effects.jamming": False}), tmp_path / "off")
     F_on = [(r["u0_mm"], r["force_N"], r["newton_iterations"]) for r in read_rows(tmp_path / "on" / "results.csv")]
     F_off = [(r["u0_mm"], r["force_N"], r["newton_iterations"]) for r in read_rows(tmp_path / "off" / "results.csv")]
     assert F_on == F_off and on["load_steps"] == off["load_steps"]
+
+
+def _sheared_problem(gamma_deg):
+    """A coarse problem (p = 2, no Dirichlet data) in the homogeneous state of inextensible ±45° yarns sheared by γ."""
+    from ngbet.continuum.problem import ContinuumProblem
+
+    pb = ContinuumProblem(coarse(**{"discretization.mesh_size_mm": 20.0}), dirichlet="")
+    m1, m2 = np.array(pb.scene.specimen.m1), np.array(pb.scene.specimen.m2)
+    b = math.radians(45.0 - gamma_deg / 2)
+    a1, a2 = np.array([math.cos(b), math.sin(b)]), np.array([-math.cos(b), math.sin(b)])
+    G = np.column_stack([a1, a2]) @ np.linalg.inv(np.column_stack([m1, m2])) - np.eye(2)
+    pb.u.Set(ngs.CF((G[0, 0] * ngs.x + G[0, 1] * ngs.y, G[1, 0] * ngs.x + G[1, 1] * ngs.y)))
+    return pb, ngs.Id(2) + ngs.Grad(pb.u)
+
+
+def test_the_barrier_is_switched_on_where_the_yarns_come_near():
+    """At a new load the state is checked: yarns 30° apart (γ = 60°) leave the barrier off; 6° apart
+    (γ = 84°, within twice the 5° threshold) switch it on, for good, yet add exactly 0 to the energy
+    (above the threshold); 4° apart (γ = 86°) the energy holds ∫W_jam at the energy's own quadrature
+    order 2p."""
+    K, s_jam = 7e5, S_JAM
+    pb, _ = _sheared_problem(60.0)
+    pb.set_load(0.0)
+    assert not pb.jamming_on
+    pb, _ = _sheared_problem(84.0)
+    E_before = pb.energy()
+    pb.set_load(0.0)
+    assert pb.jamming_on and pb.energy() == E_before
+    pb, F = _sheared_problem(86.0)
+    pb.set_load(0.0)
+    assert pb.jamming_on
+    E_on = pb.energy()
+    pb.jam_elements.Clear()
+    W = physics.jamming_energy(physics.yarn_angle_sine(F, pb.m1, pb.m2), K, s_jam)
+    assert E_on - pb.energy() == pytest.approx(ngs.Integrate(W, pb.mesh, order=4), rel=1e-10)
 
 
 @pytest.mark.parametrize("changes, key", [
