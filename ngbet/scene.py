@@ -228,7 +228,9 @@ class Effects:
     the paper's pointwise penalty, solved in its exactly equivalent mixed form (Lambda of the degree
     of phi - i8, on which the L2 projection is the identity: the same discrete solution, far fewer
     Newton steps at large K; see ngbet.continuum.problem). The formulation is chosen here alone:
-    ``solver.condense`` only eliminates element-local unknowns before factorizing.
+    ``solver.condense`` only eliminates element-local unknowns before factorizing. ``jamming``
+    keeps the yarns from crossing: a barrier on the sine of the angle between the deformed yarns,
+    zero above ``material.jamming_angle_deg`` (on by default; no ordinary state reaches it).
     """
 
     shear: bool = True  # 1/2 K_sh i8^2
