@@ -10,6 +10,12 @@ volume [Pa], with F = I + ∇u, C = FᵀF and the yarn directions m1 (thick), m2
     W_{el} = \tfrac12 K_{el}\,[(\sqrt{i_4}-1)^2 + (\sqrt{i_6}-1)^2] \\
     W_{b} = \tfrac12 \alpha_1 (\nabla\varphi\cdot m_1)^2 + \tfrac12 \alpha_2 (\nabla\varphi\cdot m_2)^2
 
+the jamming barrier on the sine s of the angle between the deformed yarns (the yarns cannot cross)
+
+.. math::
+
+    W_{jam} = K_{jam}\, s_{jam}^2 \,(1 - t)^3/t,\quad t = s/s_{jam} < 1 \quad (0 \text{ for } t \ge 1),
+
 and the constraint φ = i8 by a multiplier Λ (Λ(φ − i8)), a penalty ½K(φ − i8)², or the mixed
 penalty Λ(φ − i8) − Λ²/(2K) whose Λ is eliminated element by element.
 
