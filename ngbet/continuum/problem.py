@@ -285,8 +285,9 @@ class ContinuumProblem:
         smallest = float(np.min(np.asarray(s(points))))
         self._jam_close = self._jam_close or not smallest >= JAMMING_WATCH * self.s_jam
         if not smallest >= JAMMING_MARGIN * self.s_jam:  # nan (a degenerate state) counts as near
-            log.info("the yarns close to %.3g degrees: the jamming barrier is on",
-                     math.degrees(math.asin(max(-1.0, min(1.0, smallest)))) if math.isfinite(smallest) else math.nan)
+            angle = math.degrees(math.asin(max(-1.0, min(1.0, smallest)))) if math.isfinite(smallest) else math.nan
+            log.info("the jamming barrier is on: %s", f"the yarns close to {angle:.3g} degrees" if angle > 0
+                     else "the yarns of a trial state cross")
             self.jam_elements.Set()
 
     def _load_fields(self, sp: Specimen) -> None:
