@@ -303,7 +303,8 @@ def test_stabilization_carries_fine_corner_meshes_and_is_small(tmp_path):
     # (displacement control relaxes through that instability: one snap-through at 52.69 mm, local to
     # a clamp corner, spread 0.85 mm, 1.6e-5 J released)
     graded = {"discretization.corner_mesh_size_mm": 0.25}
-    s_off, _, _ = _run(tmp_path, "graded_off", **graded, **{"effects.stabilization_K": 0.0,
+    # without the jamming barrier, which holds that corner mode once its yarns close to 5°
+    s_off, _, _ = _run(tmp_path, "graded_off", **graded, **{"effects.stabilization_K": 0.0, "effects.jamming": False,
                                                                 "loading.output_every_mm": 0.0})
     (jump,) = s_off["snaps"]
     X, Y = jump["location_mm"]

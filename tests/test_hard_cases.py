@@ -25,6 +25,7 @@ from conftest import OneDofToy, coarse
 from ngbet.errors import ConvergenceError
 from ngbet.output import read_profiles, read_rows
 from ngbet.run import run
+from ngbet.scene import Scene
 
 # reference: default scene (Lagrange, Λ ∈ L2(P0)) on the 10 mm mesh, force at 56 mm [N] (measured)
 F56_LAGRANGE_H10 = 111.914  # N, h = 10 mm, p = 2, Lagrange with the default stabilization
@@ -39,18 +40,46 @@ def _run(tmp_path, tag, **changes):
     return summary, read_rows(out / "results.csv"), prof
 
 
+def _run_keeping_problem(tmp_path, tag, monkeypatch, scene):
+    """Run ``scene`` and keep its ContinuumProblem, whose state is the last converged one (error estimate off)."""
+    from ngbet.continuum import problem as problem_module
+
+    made = []
+    init = problem_module.ContinuumProblem.__init__
+
+    def keep(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        made.append(self)
+
+    monkeypatch.setattr(problem_module.ContinuumProblem, "__init__", keep)
+    out = tmp_path / tag
+    summary = run(scene, out)
+    return summary, read_rows(out / "results.csv"), made[0]
+
+
+def _smallest_yarn_angle_sine(pb):
+    """The smallest sine of the angle between the deformed yarns over the quadrature points of order 2p."""
+    import ngsolve as ngs
+
+    from ngbet.continuum import physics
+
+    mir = pb.mesh.MapToAllElements(ngs.IntegrationRule(ngs.TRIG, 2 * pb.scene.discretization.order_u), ngs.VOL)
+    s = physics.yarn_angle_sine(ngs.Id(2) + ngs.Grad(pb.u), pb.m1, pb.m2)
+    return float(np.min(s(mir)))
+
+
 def _assert_sane(summary, rows, u0_mm, constraint_rms=0.05, its_per_step=5.0, oscillation=0.5):
+    """Every scene here has the multiplier Λ and φ (bending on): both checks always apply, except the
+    oscillation where a test says why it cannot hold (``oscillation=None``)."""
     assert summary["status"] == "ok"
-    if oscillation is not None and summary.get("multiplier_oscillation") is not None:
-        # no oscillating multiplier: the default pair measures ~0.1 at h = 10 mm, an unstable pair
-        # ~0.85 (ngbet.continuum.observables.multiplier_oscillation)
-        assert summary["multiplier_oscillation"] < oscillation
+    # no oscillating multiplier: the default pair measures ~0.1 at h = 10 mm, an unstable pair
+    # ~0.85 (ngbet.continuum.observables.multiplier_oscillation)
+    assert oscillation is None or summary["multiplier_oscillation"] < oscillation
     assert math.isclose(rows[-1]["u0_mm"], u0_mm, rel_tol=1e-12)
     F = np.array([r["force_N"] for r in rows])
     assert np.all(np.isfinite(F)) and F[0] > 0
     assert np.all(np.diff(F) > 0), F  # monotone BET curve
-    if "constraint_rms" in rows[0]:
-        assert max(r["constraint_rms"] for r in rows) < constraint_rms
+    assert max(r["constraint_rms"] for r in rows) < constraint_rms
     assert summary["newton_iterations"] / summary["load_steps"] <= its_per_step
     return F
 
@@ -77,12 +106,15 @@ def test_u0_to_60mm_close_to_yarn_locking(tmp_path):
 
 def test_first_step_asks_for_the_whole_load(tmp_path):
     """A first step of 56 mm (max step 56 mm): the stepping recovers by itself (here it lands on
-    the 37 mm stop, then 56 mm) and gives the force of the default stepping to 1e-8."""
+    the 37 mm stop, then 56 mm) and gives the force of the default stepping to 1e-8 (relative:
+    both converged to Newton's energy tolerance)."""
     s, rows, _ = _run(tmp_path, "first56", **{"loading.first_step_mm": 56.0, "loading.max_step_mm": 56.0,
                                                         "loading.output_every_mm": 0.0})
     _assert_sane(s, rows, 56.0)
     assert s["load_steps"] <= 4
-    assert abs(rows[-1]["force_N"] - F56_LAGRANGE_H10) < 1e-3  # same equilibrium as the default stepping
+    _, default, _ = _run(tmp_path, "default", **{"loading.output_every_mm": 0.0})
+    assert rows[-1]["force_N"] == pytest.approx(default[-1]["force_N"], rel=1e-8)
+    assert abs(rows[-1]["force_N"] - F56_LAGRANGE_H10) < 1e-3  # the recorded reference, to its rounding
 
 
 # ------------------------------------------------------------------------------ penalty K and Lagrange
@@ -230,7 +262,7 @@ def test_vanishing_thick_yarn_bending(tmp_path, alpha1):
     (continuity of the limit; measured 42.0226 and 42.0219 N)."""
     s, rows, _ = _run(tmp_path, "a1", **{"material.alpha1": alpha1})
     F = _assert_sane(s, rows, 56.0)
-    assert abs(F[-1] - 42.022) < 0.01  # N, measured on this mesh
+    assert abs(F[-1] - 42.0225) < 0.005  # N, measured on this mesh: the two within 1e-2 N of each other
     assert F[-1] < 0.5 * F56_LAGRANGE_H10  # the stiff thick yarns carried most of the force
 
 
@@ -251,33 +283,41 @@ def _assert_snaps(s, rows, n_min):
 
 
 def test_a_local_corner_snap_is_recorded_and_the_run_goes_on(tmp_path):
-    """0.25 mm corners without stabilization (p = 2): the corner loses stability at 52.7 mm in a
-    mode of the discretization; displacement control relaxes to the stable state at that clamp
-    displacement (a jump within 2 mm of a clamp corner, measured 1.6e-5 J released) and reaches
-    56 mm, the jump in results.csv and summary.json, and no material inverted at the end."""
-    s, rows, _ = _run(tmp_path, "corner", **{"discretization.corner_mesh_size_mm": 0.25,
-                                             "effects.stabilization_K": 0.0, "outputs.error_estimate": "off",
-                                             "outputs.profile": False})
+    """0.25 mm corners without stabilization (p = 2) and without the jamming barrier: the corner loses
+    stability at 52.7 mm in a mode of the discretization whose yarns close and cross; displacement
+    control relaxes to the stable state at that clamp displacement (a jump within 2 mm of a clamp
+    corner, measured 1.6e-5 J released) and reaches 56 mm, the jump in results.csv and summary.json.
+    With the barrier (the default) the yarns of that corner stop at 3.1° from each other: the path
+    has no instability, and the force at 56 mm is within 0.01 N of the one after the jump (measured
+    107.3059 and 107.3029 N)."""
+    ch = {"discretization.corner_mesh_size_mm": 0.25, "effects.stabilization_K": 0.0,
+          "outputs.error_estimate": "off", "outputs.profile": False}
+    s, rows, _ = _run(tmp_path, "corner", **ch, **{"effects.jamming": False})
     assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
     (jump,) = _assert_snaps(s, rows, 1)
     X, Y = jump["location_mm"]
     assert min(X, 220 - X) < 2 and min(Y, 70 - Y) < 2 and jump["spread_mm"] < 2
-    assert not any("inside out" in w for w in s["warnings"])
+    s_jam, rows_jam, _ = _run(tmp_path, "corner_jam", **ch)
+    assert s_jam["status"] == "ok" and "relaxations" not in s_jam and "snaps" not in s_jam
+    assert abs(rows_jam[-1]["force_N"] - rows[-1]["force_N"]) < 0.01
 
 
-def test_stiff_yarns_K_el_1e7_fold_has_no_physical_state_beyond_and_the_stabilization_removes_it(tmp_path):
-    """K_el = 1e7 Pa (14 x Table 1): the path folds at 54.0 mm (a snap-back under arc length).
-    Displacement control tries to relax to a stable state at the next clamp displacement, but the
-    energy descends only by turning material inside out (det F <= 0; the yarn invariants do not see
-    it): no physical state, so the run stops there with that reason, the steps before on disk.
+def test_stiff_yarns_K_el_1e7_fold_without_jamming_has_no_physical_state_beyond(tmp_path):
+    """K_el = 1e7 Pa (14 x Table 1) without the jamming barrier: the path folds at 54.0 mm (a
+    snap-back under arc length). Displacement control tries to relax to a stable state at the next
+    clamp displacement, but the energy descends only by turning material inside out (det F <= 0; the
+    yarn invariants do not see it): no physical state, so the run stops there with that reason and
+    the remedy (the jamming barrier), the steps before on disk.
     Raising effects.stabilization_K to K_el removes the fold on this mesh: 56 mm without a
     relaxation, 310.65 N (measured; Λ ∈ L2(P1), next test: 316 N), no inverted material."""
     off = {"outputs.error_estimate": "off", "outputs.profile": False}
     with pytest.raises(ConvergenceError) as info:
-        _run(tmp_path, "kel7", **{"material.K_el": 1e7, "loading.output_every_mm": 0.0, **off})
+        _run(tmp_path, "kel7", **{"material.K_el": 1e7, "effects.jamming": False, "loading.output_every_mm": 0.0,
+                                  **off})
     err = info.value
     assert 53.5 < err.last_converged_mm < 54.5  # measured: 53.96 mm
-    assert "turn inside out" in err.attempts[-1].reason and "no physical stable state" in err.attempts[-1].reason
+    reason = err.attempts[-1].reason
+    assert "turn inside out" in reason and "no physical stable state" in reason and "effects.jamming = true" in reason
     assert err.path_info["relaxations"] >= 1 and err.path_info["snaps"] == []
     rows = read_rows(tmp_path / "kel7" / "results.csv")
     assert math.isclose(rows[-1]["u0_mm"], err.last_converged_mm, rel_tol=1e-9)
@@ -295,21 +335,66 @@ def test_stiff_yarns_K_el_1e7_with_p1_multiplier(tmp_path):
     assert F[-1] > 2 * F56_LAGRANGE_H10
 
 
-@pytest.mark.parametrize("K_el", [1e8, 1e9])
-def test_nearly_inextensible_yarns_fold_where_no_physical_state_follows(tmp_path, K_el):
-    """K_el = 1e8, 1e9 Pa: the path folds past 50 mm (a snap-back of the model: the quadratic shear
-    energy is not convex beyond 45°). The relaxation at the next clamp displacement finds lower
-    energy only by turning material inside out (without that limit it jumps to states with det F <= 0
-    on about 2400 mm², measured for 1e8), so the run stops at the fold in bounded time, saying so,
-    with the converged steps on disk."""
-    with pytest.raises(ConvergenceError) as info:
-        _run(tmp_path, "kel", **{"material.K_el": K_el, "outputs.error_estimate": "off", "outputs.profile": False})
-    err = info.value
-    assert 50.0 <= err.last_converged_mm < 56.0
-    assert "no physical stable state" in err.attempts[-1].reason, err.attempts[-1]
-    assert "failed" in err.diagnosis and err.detail.eigenvalues and not err.detail.skipped, err.detail
-    rows = read_rows(tmp_path / "kel" / "results.csv")
-    assert math.isclose(rows[-1]["u0_mm"], err.last_converged_mm, rel_tol=1e-9)
+@pytest.mark.integration
+@pytest.mark.parametrize("K_el, jump_mm, F56", [(1e7, 53.13, 266.04), (1e8, 54.51, 605.78), (1e9, 51.29, 1502.69)])
+def test_stiff_yarns_jump_past_the_fold_to_56mm(tmp_path, monkeypatch, K_el, jump_mm, F56):
+    """K_el = 1e7, 1e8, 1e9 Pa (10 mm mesh, p = 2): the path folds past 50 mm (the quadratic shear energy
+    is not convex beyond 45°: the central zone localizes). Past the fold the lower-energy states have
+    yarns that close on each other in a band; the jamming barrier keeps them from crossing, so the
+    relaxation finds a stable state at the same clamp displacement. The largest jump is the fold of
+    the central zone: its centroid within 10 mm of the specimen's centre, spread over more than 25 mm
+    (measured 50, 51, 31 mm), the force falling; the run reaches 56 mm with no material inverted.
+    The load of that jump and the force at 56 mm as measured (the path past a jump depends on
+    round-off-sized differences of the descent: the force is asserted to 1 %)."""
+    scene = coarse(**{"solver.threads": 1, "material.K_el": K_el, "outputs.error_estimate": "off",
+                      "outputs.profile": False})
+    s, rows, pb = _run_keeping_problem(tmp_path, "kel", monkeypatch, scene)
+    assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
+    # the yarns closed on each other in the band (below the 5° threshold: the barrier holds them), not crossed
+    assert 0 < _smallest_yarn_angle_sine(pb) < math.sin(math.radians(5.0)) and pb.inverted_area() == 0
+    main = max(_assert_snaps(s, rows, 1), key=lambda j: j["energy_released_J"])
+    assert main["u0_mm"] == pytest.approx(jump_mm, abs=0.1)
+    assert abs(main["location_mm"][0] - 110.0) < 10 and abs(main["location_mm"][1] - 35.0) < 10
+    assert main["spread_mm"] > 25 and main["force_after_N"] < main["force_before_N"]
+    assert rows[-1]["force_N"] == pytest.approx(F56, rel=0.01)
+
+
+#: the scenes that stopped at a fold or at material turning inside out before the jamming barrier, on
+#: the embedded scene's mesh (10 mm, 0.25 mm corners, p = 3): force at 56 mm [N], the jumps
+#: (u0 [mm], energy released [J]) as measured, and whether the barrier is active at 56 mm
+HARD_SCENES = {
+    "K_el=1e8": ({"material.K_el": 1e8}, 582.58, [(54.81, 2.659), (55.41, 5.8e-3), (55.67, 4.8e-4)]),
+    "K_el=1e9": ({"material.K_el": 1e9}, 1169.73, [(52.22, 0.0884), (52.74, 4.0e-4), (54.51, 0.0139),
+                                                   (54.94, 7.6e-3), (55.15, 0.0281), (55.95, 8.8e-3)]),
+    "K_sh=2100": ({"material.K_sh": 2100.0}, 77.571, [(50.47, 1.73e-3), (53.46, 3.2e-5), (54.68, 4.6e-5),
+                                                      (55.62, 1.7e-5)]),
+    "yarns_35": ({"specimen.yarn_angle_deg": 35.0}, 301.74, []),
+}
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("name", list(HARD_SCENES))
+def test_hard_scenes_reach_56mm_through_their_jumps(tmp_path, monkeypatch, name):
+    """The embedded scene with nearly inextensible yarns (K_el = 1e8, 1e9 Pa), a soft shear modulus
+    (K_sh = 2100 Pa) or yarns at ±35° (past ideal locking at 26.5 mm): each reaches 56 mm. Where the path
+    folds the relaxation finds a stable state at the same clamp displacement, every jump in results.csv
+    and summary.json; the yarns end closed but not crossed (no material inverted). Yarns at 35° are
+    relaxed four times, each releasing less than 1e-3 of the clamp's work (no jump). The first jump's
+    load to 0.05 mm and energy to 5 %, the force at 56 mm to 1 % (measured; the later, smaller jumps,
+    listed, depend on round-off-sized differences of the descent and are not asserted one by one)."""
+    changes, F56, jumps = HARD_SCENES[name]
+    scene = Scene().with_changes(**{"solver.threads": 1, "outputs.error_estimate": "off", "outputs.vtk": False,
+                                    "outputs.plot": False, **changes})
+    s, rows, pb = _run_keeping_problem(tmp_path, name, monkeypatch, scene)
+    assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
+    assert s["relaxations"] >= max(len(jumps), 1)
+    assert pb.inverted_area() == 0 and _smallest_yarn_angle_sine(pb) > 0
+    snaps = _assert_snaps({"snaps": s.get("snaps", [])}, rows, min(len(jumps), 1))
+    assert bool(snaps) == bool(jumps)
+    first = [(j["u0_mm"], j["energy_released_J"]) for j in snaps[:1]]
+    assert [u for u, _ in first] == pytest.approx([u for u, _ in jumps[:1]], abs=0.05)
+    assert [e for _, e in first] == pytest.approx([e for _, e in jumps[:1]], rel=0.05)
+    assert rows[-1]["force_N"] == pytest.approx(F56, rel=0.01)
 
 
 def test_a_locking_shear_law_keeps_nearly_inextensible_yarns_from_crossing(tmp_path):
@@ -335,8 +420,9 @@ def test_polynomial_orders_on_a_coarse_mesh(tmp_path, p):
     # ~0.04-0.05 for p ≤ 3 on 20 mm elements
     # p = 1 locks and its P0 multiplier oscillates (0.85 measured): use p ≥ 2
     F = _assert_sane(s, rows, 56.0, constraint_rms=0.1, oscillation=None if p == 1 else 0.5)
-    if p >= 2:
-        assert abs(F[-1] - F56_LAGRANGE_H10) < 0.15 * F56_LAGRANGE_H10
+    # p = 1 locks: measured 168.5 N, 51 % above the reference; p = 2, 3, 4: 114.9, 113.3, 110.7 N
+    lo, hi = (1.4, 1.6) if p == 1 else (0.85, 1.15)
+    assert lo * F56_LAGRANGE_H10 < F[-1] < hi * F56_LAGRANGE_H10
 
 
 @pytest.mark.parametrize("p", [5, 6])
@@ -608,4 +694,4 @@ def test_stiff_bending_on_a_graded_mesh_needs_no_step_cut(tmp_path):
     _assert_sane(s, rows, 56.0)
     assert s["step_cuts"] == 0 and s["load_steps"] == 3
     assert s["stabilization_K_Pa"][1] == pytest.approx(30 * 0.7e6)
-    assert abs(rows[-1]["force_N"] - 294.791) < 0.03
+    assert abs(rows[-1]["force_N"] - 294.791) < 0.03  # below the estimated discretization error, 0.030 N

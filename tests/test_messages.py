@@ -85,11 +85,13 @@ def test_each_diagnosis_names_its_remedy(detail, remedy):
 
 @pytest.mark.integration
 def test_a_solver_failure_names_its_cause_and_remedy_on_the_terminal(tmp_path):
-    """Nearly inextensible yarns (K_el = 1e8 Pa) fold near 54.8 mm: no physical stable state lies past
-    the fold (the descent would turn material inside out); the one line says so and names the remedy."""
+    """Nearly inextensible yarns (K_el = 1e8 Pa) without the jamming barrier fold near 54.8 mm: no physical
+    stable state lies past the fold (the descent would turn material inside out); the one line says so
+    and names the remedy."""
     out = tmp_path / "run"
     p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(out), "--set",
-                        "material.K_el=1e8", "--set", "discretization.mesh_size_mm=10", "--set", "outputs.vtk=false",
+                        "material.K_el=1e8", "--set", "effects.jamming=false",
+                        "--set", "discretization.mesh_size_mm=10", "--set", "outputs.vtk=false",
                         "--set", "outputs.plot=false"], capture_output=True, text=True)
     assert p.returncode == 1 and p.stdout == ""
     (line,) = p.stderr.splitlines()

@@ -10,6 +10,12 @@ volume [Pa], with F = I + ∇u, C = FᵀF and the yarn directions m1 (thick), m2
     W_{el} = \tfrac12 K_{el}\,[(\sqrt{i_4}-1)^2 + (\sqrt{i_6}-1)^2] \\
     W_{b} = \tfrac12 \alpha_1 (\nabla\varphi\cdot m_1)^2 + \tfrac12 \alpha_2 (\nabla\varphi\cdot m_2)^2
 
+the jamming barrier on the sine s of the angle between the deformed yarns (the yarns cannot cross)
+
+.. math::
+
+    W_{jam} = K_{jam}\, s_{jam}^2 \,(1 - t)^3/t,\quad t = s/s_{jam} < 1 \quad (0 \text{ for } t \ge 1),
+
 and the constraint φ = i8 by a multiplier Λ (Λ(φ − i8)), a penalty ½K(φ − i8)², or the mixed
 penalty Λ(φ − i8) − Λ²/(2K) whose Λ is eliminated element by element.
 
@@ -178,6 +184,47 @@ def shear_law_energy(i8: CF, law: str, coefficients: dict[str, Any]) -> CF:
 def elongation_energy(i4: CF, i6: CF, K_el: float) -> CF:
     """W_el = ½ K_el [(√i4 − 1)² + (√i6 − 1)²]: equivalent elongation (decrimping, slip)."""
     return 0.5 * K_el * ((ngs.sqrt(i4) - 1) ** 2 + (ngs.sqrt(i6) - 1) ** 2)
+
+
+#: t = s/s_jam below which the jamming barrier continues by its second-order Taylor polynomial in t
+#: (C² join), so that the energy stays finite and convex in t for crossed yarns (t <= 0) too
+JAMMING_CUTOFF = 0.05
+
+
+def yarn_angle_sine(F: CF, m1: CF, m2: CF, orientation: float = 1.0) -> CF:
+    r"""The sine s = (Fm1 × Fm2)/(|Fm1| |Fm2|) of the angle between the deformed yarns, signed.
+
+    Fm1 × Fm2 = det F (m1 × m2), so s = det F sin θ0 / √(i4 i6) (θ0 the rest angle): it falls to 0 as
+    the yarns close on each other (θ → 0 or 180°, as lines the acute angle → 0) and changes sign
+    where they cross, i.e. where the material turns inside out (det F < 0). ``orientation`` is the
+    sign of m1 × m2, so that s > 0 at rest.
+    """
+    a, b = F * m1, F * m2
+    cross = a[0] * b[1] - a[1] * b[0]
+    return orientation * cross / ngs.sqrt(ngs.InnerProduct(a, a) * ngs.InnerProduct(b, b))
+
+
+def jamming_energy(s: CF, K_jam: float, s_jam: float) -> CF:
+    r"""W_jam = K_jam s_jam² (1 − t)³/t for t = s/s_jam < 1, 0 beyond [Pa]: the yarns cannot cross.
+
+    A barrier on the sine s of the angle between the deformed yarns (:func:`yarn_angle_sine`). It
+    vanishes with its first and second derivatives at the threshold t = 1 (Newton's tangent is
+    continuous there: the term is invisible to any state whose yarns stay more open than s_jam),
+    is convex in t below it and grows like K_jam s_jam²/t as the yarns close (t → 0), so that
+    no state of finite energy has crossed yarns. Below t = :data:`JAMMING_CUTOFF` it continues by
+    its second-order Taylor polynomial in t (still decreasing and convex), so that a Newton
+    iterate with crossed yarns sees a large, finite energy rather than a negative one.
+    """
+    tc = JAMMING_CUTOFF
+    h_c = (1.0 - tc) ** 3 / tc
+    dh_c = -3.0 * (1.0 - tc) ** 2 / tc - (1.0 - tc) ** 3 / tc ** 2
+    d2h_c = 6.0 * (1.0 - tc) / tc + 6.0 * (1.0 - tc) ** 2 / tc ** 2 + 2.0 * (1.0 - tc) ** 3 / tc ** 3
+    t = s / s_jam
+    dt = t - tc
+    # the branches are evaluated everywhere: keep t away from 0 where the rational branch is not taken
+    t_safe = ngs.IfPos(dt, t, tc)
+    h = ngs.IfPos(dt, (1.0 - t_safe) ** 3 / t_safe, h_c + dt * (dh_c + 0.5 * d2h_c * dt))
+    return ngs.IfPos(t - 1.0, 0.0, (K_jam * s_jam * s_jam) * h)
 
 
 def bending_energy(grad_phi: CF, m1: CF, m2: CF, alpha1: float, alpha2: float) -> CF:

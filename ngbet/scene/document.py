@@ -132,6 +132,9 @@ class Scene:
             elif e.shear:
                 _check(m.K_sh > 0, "material.K_sh", m.K_sh, "must be > 0 when effects.shear is on")
             _check(m.K_el > 0, "material.K_el", m.K_el, "must be > 0 (effects.elongation is on)")
+            rest = min(2 * self.specimen.yarn_angle_deg, 180 - 2 * self.specimen.yarn_angle_deg)
+            _check(not e.jamming or m.jamming_angle_deg < rest, "material.jamming_angle_deg", m.jamming_angle_deg,
+                   f"must be below the angle between the yarns at rest ({rest:g} degrees), else they jam at rest")
             if e.bending:
                 _check(m.alpha1 + m.alpha2 > 0, "material.alpha1", m.alpha1,
                        "alpha1 + alpha2 must be > 0 when effects.bending is on (else turn bending off)")

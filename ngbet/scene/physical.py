@@ -103,12 +103,19 @@ class Material:
     # rise >= 0, so the stress is monotone and the energy convex (ngbet.continuum.physics)
     shear_stress_steps_Pa: tuple[float, ...] = ()
     shear_table_i8_max: float = 1.0  # "table": |i8| of the last knot; beyond it the stress goes on linearly
+    # deg: effects.jamming, the acute angle between the deformed yarns below which they jam (the
+    # barrier K_jam s_jam^2 (1 - t)^3 / t, t = sin(angle) / sin(jamming_angle_deg), K_jam = max(K_el, K_sh);
+    # ngbet.continuum.physics.jamming_energy)
+    jamming_angle_deg: float = 5.0
 
     def __post_init__(self) -> None:
         _nonnegative("material", self, "K_el", "K_sh", "alpha1", "alpha2", "K_sh4", "K_sh6", "K_lock")
         g = self.gamma_lock_deg
         _check(isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g < 90, "material.gamma_lock_deg",
                g, "must lie strictly between 0 and 90 degrees")
+        j = self.jamming_angle_deg
+        _check(isinstance(j, (int, float)) and not isinstance(j, bool) and 0 < j < 90, "material.jamming_angle_deg",
+               j, "must lie strictly between 0 and 90 degrees")
         steps = self.shear_stress_steps_Pa
         _check(isinstance(steps, (list, tuple)), "material.shear_stress_steps_Pa", steps, "must be a list of numbers")
         object.__setattr__(self, "shear_stress_steps_Pa", tuple(steps))
@@ -143,7 +150,9 @@ class Effects:
     the paper's pointwise penalty, solved in its exactly equivalent mixed form (Lambda of the degree
     of phi - i8, on which the L2 projection is the identity: the same discrete solution, far fewer
     Newton steps at large K; see ngbet.continuum.problem). The formulation is chosen here alone:
-    ``solver.condense`` only eliminates element-local unknowns before factorizing.
+    ``solver.condense`` only eliminates element-local unknowns before factorizing. ``jamming``
+    keeps the yarns from crossing: a barrier on the sine of the angle between the deformed yarns,
+    zero above ``material.jamming_angle_deg`` (on by default; no ordinary state reaches it).
     """
 
     shear: bool = True  # 1/2 K_sh i8^2
@@ -163,9 +172,13 @@ class Effects:
     # constraint would charge for a variation of i8 on the element's scale; 0: off; > 0: that
     # constant (ngbet.continuum.problem)
     stabilization_K: float | str = AUTO
+    # the yarns cannot cross: a barrier on the sine of the angle between the deformed yarns, zero
+    # while they are more open than material.jamming_angle_deg and growing without bound as they
+    # close (docs/model.md, *Jamming*); no ordinary state reaches it. false: off
+    jamming: bool = True
 
     def __post_init__(self) -> None:
-        _boolean("effects", self, "shear", "elongation", "bending")
+        _boolean("effects", self, "shear", "elongation", "bending", "jamming")
         _choice("effects", self, "constraint", CONSTRAINTS)
         _choice("effects", self, "penalty_form", PENALTY_FORMS)
         _choice("effects", self, "shear_law", SHEAR_LAWS)
