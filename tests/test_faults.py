@@ -632,7 +632,7 @@ def test_accuracy_run_lists_every_file_it_wrote(tmp_path, capsys):
 def test_a_force_plot_cut_short_leaves_no_figure_and_the_folder_reusable(tmp_path, monkeypatch):
     """The force plot is drawn in a temporary folder and renamed: Ctrl-C in the middle of the
     drawing leaves no force.png (a half-written one, not registered, would block the next run)."""
-    import ngbet.figures
+    import ngbet.figures.run
 
     def cut(run_dir, extra=(), parallel=False):
         (Path(run_dir) / "force.png").write_bytes(b"\x89PNG half")
@@ -640,7 +640,7 @@ def test_a_force_plot_cut_short_leaves_no_figure_and_the_folder_reusable(tmp_pat
 
     scene = Scene().with_changes(**{**TINY, "outputs.plot": True})
     out = tmp_path / "r"
-    monkeypatch.setattr(ngbet.figures, "draw_force", cut)
+    monkeypatch.setattr(ngbet.figures.run, "draw_force", cut)
     with pytest.raises(KeyboardInterrupt):
         run(scene, out)
     assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "map_10mm.npz", "map_5mm.npz", "profile.csv",

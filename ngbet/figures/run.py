@@ -114,8 +114,6 @@ def start_plot(run_dir: str | Path, extra: Extra = (), service: Any = None,
     returned waits for it, and draws here if the process failed (its errors are RuntimeErrors).
     Without one, or with a ``measured`` curve to overlay, the function returned draws here.
     """
-    from .. import figures as package  # draw_force as the package has it (a test may replace it there)
-
     proc = service if measured is None else None
     if proc is not None:
         try:
@@ -137,7 +135,7 @@ def start_plot(run_dir: str | Path, extra: Extra = (), service: Any = None,
                 log.warning(NO_MATPLOTLIB)
                 return None
             return draw_run(Path(run_dir), extra, measured=measured)
-        return package.draw_force(Path(run_dir), extra)
+        return draw_force(Path(run_dir), extra)
 
     return finish
 
