@@ -173,7 +173,7 @@ def test_the_barrier_is_switched_on_where_the_yarns_come_near():
     pb.set_load(0.0)
     assert pb.jamming_on
     E_on = pb.energy()
-    pb.jam_elements.Clear()
+    pb.jamming.elements.Clear()
     W = physics.jamming_energy(physics.yarn_angle_sine(F, pb.m1, pb.m2), K, s_jam)
     assert E_on - pb.energy() == pytest.approx(ngs.Integrate(W, pb.mesh, order=4), rel=1e-10)
 

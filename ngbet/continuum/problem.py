@@ -51,7 +51,6 @@ Dirichlet data (docs/model.md, *Boundary conditions*): u = 0, φ = 0 on Σ1 (``l
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable
 
@@ -62,6 +61,7 @@ from ngsolve import CoefficientFunction as CF
 from ..scene import AUTO, Scene, Specimen
 from . import physics
 from .compiled import add_energy
+from .jamming import JammingBarrier
 from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver, energy_form, pick_inverse
 from .mesh import make_mesh
 from .parameters import material_parameters
@@ -86,17 +86,6 @@ STABILIZATION_C = 0.1
 #: 10 K_el: 294.761 N (0.030 N, above the estimate 0.018 N). On the default scene (0.25 mm corners,
 #: K_s up to 2.3e7 Pa) the cap moves the force at 56 mm by 6e-8 N (107.3735 N).
 STABILIZATION_CAP = 30.0
-
-
-#: the jamming barrier is evaluated once a state's yarns come closer than this multiple of the
-#: jamming angle's sine (before, it is zero): twice, i.e. about 10° for the default 5°, which no
-#: ordinary state reaches (smallest angle 35° on the embedded scene at 56 mm, 18° at 66 mm)
-JAMMING_MARGIN = 2.0
-
-
-#: once a state's yarns come closer than this multiple of the jamming angle's sine (about 20° for
-#: the default 5°), every Newton iterate is checked for JAMMING_MARGIN, not only each new load
-JAMMING_WATCH = 4.0
 
 
 #: inverted material (det F ≤ 0) on more than this fraction of the specimen makes a state
@@ -168,7 +157,8 @@ class ContinuumProblem:
                                          self.K_ref, self.dx,
                                          scene.solver.compile if self.compile_mode == "native" else "interpret")
         self.gf = ngs.GridFunction(self.X)
-        self._jamming(scene, linearized)
+        forms = [(self.a, linearized)] if self.linear.form is self.a else [(self.a, False), (self.linear.form, True)]
+        self.jamming = JammingBarrier(scene, self.mesh, self.X, self.u, self.m1, self.m2, forms)
         self.x = self.gf.vec.FV().NumPy()
         self._r = self.gf.vec.CreateVector()
         self._w = self.gf.vec.CreateVector()
@@ -243,66 +233,10 @@ class ContinuumProblem:
             return (base + physics.mixed_penalty_constraint(phi, inv.i8, trial[2], eff.penalty_K), bending), None
         return (base + physics.penalty_constraint(phi, inv.i8, eff.penalty_K), bending), None
 
-    def _jamming(self, scene: Scene, linearized: bool) -> None:
-        """The jamming barrier (:func:`physics.jamming_energy`, K_jam = max(K_el, K_sh)), off until a state nears it.
-
-        The barrier is an energy term like the others, but it is zero wherever the yarns are more
-        open than the jamming angle, which is everywhere in ordinary states; evaluated on every
-        element it costs ~40 % of each assembly (measured on the embedded scene). It is therefore
-        an integrator of its own, defined on the elements of ``jam_elements``: none until a state
-        brings the yarns within :data:`JAMMING_MARGIN` times the threshold's sine somewhere
-        (:meth:`_watch_jamming`) or a relaxation begins, all from then on. Until
-        then it is exactly 0 with its derivatives, so the energy is the same either way.
-        """
-        self.jam_elements = ngs.BitArray(self.mesh.ne)
-        self.jam_elements.Clear()
-        self._jam_check: tuple[CF, object] | None = None
-        self._jam_close = False  # a state came within JAMMING_WATCH s_jam: every iterate is checked
-        if not scene.effects.jamming:
-            return
-        sp, mat, disc = scene.specimen, scene.material, scene.discretization
-        orientation = math.copysign(1.0, sp.m1[0] * sp.m2[1] - sp.m1[1] * sp.m2[0])
-        self.s_jam = math.sin(math.radians(mat.jamming_angle_deg))
-
-        def sine(grad_u: CF) -> CF:
-            return physics.yarn_angle_sine(ngs.Id(2) + grad_u, self.m1, self.m2, orientation)
-
-        W = physics.jamming_energy(sine(ngs.Grad(self.X.TrialFunction()[0])), max(mat.K_el, mat.K_sh),
-                                   self.s_jam).Compile()
-        forms = [(self.a, linearized)] if self.linear.form is self.a else [(self.a, False), (self.linear.form, True)]
-        before = ngs.ngsglobals.symbolic_integrator_uses_diff
-        try:
-            for form, symbolic in forms:
-                ngs.ngsglobals.symbolic_integrator_uses_diff = symbolic
-                form += ngs.SymbolicEnergy(W, ngs.VOL, bonus_intorder=2 + disc.quad_bonus,
-                                           definedonelements=self.jam_elements)
-        finally:
-            ngs.ngsglobals.symbolic_integrator_uses_diff = before
-        rule = ngs.IntegrationRule(ngs.TRIG, 2 * max(disc.p_u, 1) + disc.quad_bonus)
-        self._jam_check = (sine(ngs.Grad(self.u)).Compile(), self.mesh.MapToAllElements(rule, ngs.VOL))
-
     @property
     def jamming_on(self) -> bool:
         """Whether the jamming barrier is evaluated (a state came near it, or a relaxation began)."""
-        return bool(self.jam_elements.NumSet())
-
-    def _watch_jamming(self, iterate: bool = False) -> None:
-        """Turn the jamming barrier on for good once the yarns come within :data:`JAMMING_MARGIN` s_jam.
-
-        Checked at each new load; at each residual (``iterate``, a Newton iterate or
-        trial) only once a state came within :data:`JAMMING_WATCH` s_jam, so that ordinary runs
-        pay one check per increment (0.4 ms for the embedded scene's 545 elements, measured).
-        """
-        if self._jam_check is None or self.jamming_on or (iterate and not self._jam_close):
-            return
-        s, points = self._jam_check
-        smallest = float(np.min(np.asarray(s(points))))
-        self._jam_close = self._jam_close or not smallest >= JAMMING_WATCH * self.s_jam
-        if not smallest >= JAMMING_MARGIN * self.s_jam:  # nan (a degenerate state) counts as near
-            angle = math.degrees(math.asin(max(-1.0, min(1.0, smallest)))) if math.isfinite(smallest) else math.nan
-            log.info("the jamming barrier is on: %s", f"the yarns close to {angle:.3g} degrees" if angle > 0
-                     else "the yarns of a trial state cross")
-            self.jam_elements.Set()
+        return self.jamming.on
 
     def _load_fields(self, sp: Specimen) -> None:
         """Reaction test fields (ψ_u = (X/L, 0), ψ_φ = X/L; exact in the spaces) and the load direction."""
@@ -363,11 +297,11 @@ class ContinuumProblem:
         """Set the load λ = u0 [m]: the Dirichlet entries of x follow it."""
         self.lam = lam
         self.x[self.dirichlet] = lam * self._load_dir[self.dirichlet]
-        self._watch_jamming()
+        self.jamming.watch()
 
     def residual(self) -> np.ndarray:
         """r(x), full length (Dirichlet rows hold the reactions)."""
-        self._watch_jamming(iterate=True)
+        self.jamming.watch(iterate=True)
         t0 = time.perf_counter()
         self.a.Apply(self.gf.vec, self._r)
         self._t_residual += time.perf_counter() - t0
@@ -446,7 +380,7 @@ class ContinuumProblem:
         The descent may close the yarns anywhere: the jamming barrier is on from now on.
         """
         self.inverted_allowed = self.inverted_area()
-        self.jam_elements.Set()
+        self.jamming.switch_on()
 
     @property
     def can_relax(self) -> bool:
