@@ -20,6 +20,8 @@ WORKDIR /src
 COPY pyproject.toml README.md LICENSE ./
 COPY ngbet ./ngbet
 COPY studies ./studies
+COPY data ./data
+COPY geometry ./geometry
 # the build context holds no .git: the version and revision ngbet reports (--version, summary.json)
 # are passed in, e.g. --build-arg SETUPTOOLS_SCM_PRETEND_VERSION=0.1.dev0+g$(git rev-parse --short HEAD);
 # without it, the fallback version of pyproject.toml and the revision "unknown"

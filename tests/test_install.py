@@ -55,7 +55,7 @@ def _sources(tmp_path: Path) -> Path:
     src.mkdir()
     for name in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy(ROOT / name, src / name)
-    for pkg in ("ngbet", "studies"):  # studies/ is installed as ngbet.studies
+    for pkg in ("ngbet", "studies", "data", "geometry"):  # installed as ngbet.studies, ngbet.data, ngbet.geometry
         shutil.copytree(ROOT / pkg, src / pkg, ignore=shutil.ignore_patterns("__pycache__", "_version.py"))
     return src
 

@@ -5,7 +5,7 @@ term like the others, but it is zero wherever the yarns are more open than the j
 is everywhere in ordinary states; evaluated on every element it costs ~40 % of each assembly
 (measured on the embedded scene). It is therefore an integrator of its own, defined on the elements
 of ``elements``: none until a state brings the yarns within :data:`JAMMING_MARGIN` times the
-threshold's sine somewhere (:meth:`JammingBarrier.watch`) or a relaxation begins
+threshold's sine somewhere in a solved state (:meth:`JammingBarrier.watch`) or a relaxation begins
 (:meth:`JammingBarrier.switch_on`), all from then on. Until then it is exactly 0 with its
 derivatives, so the energy is the same either way.
 """
@@ -30,11 +30,6 @@ log = logging.getLogger(__name__)
 #: ordinary state reaches (smallest angle 35° on the embedded scene at 56 mm, 18° at 66 mm)
 JAMMING_MARGIN = 2.0
 
-#: once a state's yarns come closer than this multiple of the jamming angle's sine (about 20° for
-#: the default 5°), every Newton iterate is checked for JAMMING_MARGIN, not only each new load
-JAMMING_WATCH = 4.0
-
-
 class JammingBarrier:
     """The barrier's integrator on the forms of a problem, and the watch that switches it on.
 
@@ -48,7 +43,6 @@ class JammingBarrier:
         self.elements = ngs.BitArray(mesh.ne)
         self.elements.Clear()
         self._check: tuple[CF, object] | None = None
-        self._close = False  # a state came within JAMMING_WATCH s_jam: every iterate is checked
         self.s_jam = math.nan
         if not scene.effects.jamming:
             return
@@ -81,20 +75,20 @@ class JammingBarrier:
         """Evaluate the barrier on every element from now on."""
         self.elements.Set()
 
-    def watch(self, iterate: bool = False) -> None:
+    def watch(self) -> None:
         """Switch the barrier on for good once the yarns come within :data:`JAMMING_MARGIN` s_jam.
 
-        Checked at each new load; at each residual (``iterate``, a Newton iterate or trial) only
-        once a state came within :data:`JAMMING_WATCH` s_jam, so that ordinary runs pay one check
-        per increment (0.4 ms for the embedded scene's 545 elements, measured).
+        Called at each converged state of the path (:meth:`ContinuumProblem.converged`): one check
+        per increment (0.4 ms for the embedded scene's 545 elements, measured). A state that comes
+        within the margin is still exact (the barrier is zero above s_jam); the barrier holds from
+        the next load on. A relaxation switches it on before it starts (:meth:`switch_on`).
         """
-        if self._check is None or self.on or (iterate and not self._close):
+        if self._check is None or self.on:
             return
         s, points = self._check
         smallest = float(np.min(np.asarray(s(points))))
-        self._close = self._close or not smallest >= JAMMING_WATCH * self.s_jam
         if not smallest >= JAMMING_MARGIN * self.s_jam:  # nan (a degenerate state) counts as near
             angle = math.degrees(math.asin(max(-1.0, min(1.0, smallest)))) if math.isfinite(smallest) else math.nan
             log.info("the jamming barrier is on: %s", f"the yarns close to {angle:.3g} degrees" if angle > 0
-                     else "the yarns of a trial state cross")
+                     else "the yarns of a solved state cross")
             self.switch_on()

@@ -297,11 +297,17 @@ class ContinuumProblem:
         """Set the load λ = u0 [m]: the Dirichlet entries of x follow it."""
         self.lam = lam
         self.x[self.dirichlet] = lam * self._load_dir[self.dirichlet]
+
+    def converged(self) -> None:
+        """The current state is an equilibrium the path keeps: the jamming barrier watches it.
+
+        Only solved states are watched, not predictors or trial iterates, which may cross the yarns
+        at a clamp for a moment without meaning anything (:meth:`JammingBarrier.watch`).
+        """
         self.jamming.watch()
 
     def residual(self) -> np.ndarray:
         """r(x), full length (Dirichlet rows hold the reactions)."""
-        self.jamming.watch(iterate=True)
         t0 = time.perf_counter()
         self.a.Apply(self.gf.vec, self._r)
         self._t_residual += time.perf_counter() - t0
