@@ -82,7 +82,7 @@ def _q(name: str, value: float, unit: str = "") -> str:
 
 
 def caption(scene: Any) -> str:
-    """One line naming the specimen (W × H mm, yarn angle, thickness) and the material of a scene.
+    """One line naming the specimen (W × L mm, yarn angle, thickness) and the material of a scene.
 
     ``scene``: a :class:`ngbet.scene.Scene`, its dictionary (a study's ``base_scene``), or None ("").
     """
@@ -99,7 +99,7 @@ def caption(scene: Any) -> str:
             return ""
     sp = scene.specimen
     name = f"{sp.name}: " if getattr(sp, "name", "") else ""
-    spec = (f"{name}specimen {sp.width_mm:g}{NB}×{NB}{sp.length_mm:g}{NB}mm (W{NB}×{NB}H), yarns{NB}±"
+    spec = (f"{name}specimen {sp.width_mm:g}{NB}×{NB}{sp.length_mm:g}{NB}mm (W{NB}×{NB}L), yarns{NB}±"
             f"{sp.yarn_angle_deg:g}°, {_q('t', sp.thickness_mm, 'mm')}")
     if scene.model == "discrete":
         d = scene.discrete
