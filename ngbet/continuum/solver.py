@@ -392,7 +392,7 @@ class SaddlePointNewton:
             rec.released = float(self._jump["released"])  # type: ignore[arg-type]
             self.snaps.append(self._jump)
             log.warning("snap-through at u0 = %.6g mm: the state jumped to a stable one (energy released %.3g "
-                        "per unit thickness)", (u0 + h) * 1e3, rec.released)
+                        "J per metre of thickness)", (u0 + h) * 1e3, rec.released)
             self._jump = None
             self.chord.forget()  # a jump: no extrapolation across it
         if self._chorded:
