@@ -8,6 +8,7 @@ from conftest import OneDofToy
 
 from ngbet.continuum.path_spread import PathSpread
 from ngbet.continuum.solver import NewtonSettings, PathSettings, continuation, follow
+from ngbet.scene import Scene
 
 LAM_FOLD = 2 / (3 * math.sqrt(3))  # the left well's branch folds here
 
@@ -103,3 +104,50 @@ def test_the_path_tells_the_branch_it_left_at_a_snap_and_its_forces_stay_the_sam
     assert len(left) == 1
     lam, x, snap = left[0]
     assert snap and LAM_FOLD - 2e-4 < lam < LAM_FOLD and x[1] < -1 / math.sqrt(3)
+
+
+def test_the_spread_is_added_to_the_discretization_bar_and_recorded_on_its_own():
+    """RunEstimates' fold: the bar becomes η + s (s the spread between the wells at λ = 0.2); a bar
+    the estimate cannot vouch for stays empty (nan) with the spread recorded all the same."""
+    from types import SimpleNamespace
+
+    from ngbet.continuum.estimate import Estimate
+    from ngbet.continuum.path_spread import RunPathSpread
+
+    y = _roots(0.2)
+    run = RunPathSpread(SimpleNamespace(jamming=SimpleNamespace(on=False), x=np.array([0.2, y[-1]])))
+    run.spread = _spread()
+    run.spread.problem = _DoubleWell()
+    run.spread.left(0.0, np.array([0.0, -1.0]), snap=True)
+    e = run.fold(0.2, Estimate(-y[-1], 0.01, math.nan, math.nan, "toy", 0.0, 0))
+    assert e.path_spread_N == pytest.approx(y[-1] - y[0], rel=1e-10)
+    assert e.force_error_N == 0.01 + e.path_spread_N
+    assert run.summary()["force_path_spread_N"] == e.path_spread_N
+    e2 = run.fold(0.2, Estimate(-y[-1], math.nan, math.nan, math.nan, "toy", 0.0, 0))
+    assert math.isnan(e2.force_error_N) and e2.path_spread_N == e.path_spread_N
+
+
+@pytest.mark.integration
+def test_a_corner_that_relaxes_leaves_branches_that_fold_and_the_bar_is_the_estimate_alone(tmp_path):
+    """The default mesh without stabilization relaxes at clamp corners (34.3, 37.7 and 54.1 mm): each
+    branch the path left ends at its fold within the shortest step (Newton failed there on the
+    path too), so no second stable equilibrium exists at the stops and the spread is exactly 0;
+    the bar at 37 mm is the discretization estimate alone, and the summary records every branch."""
+    import csv
+    import json
+
+    from ngbet.api import simulate
+
+    scene = Scene().with_changes(**{"effects.stabilization_K": 0.0, "outputs.plot": False, "outputs.vtk": False})
+    simulate(scene, tmp_path)
+    s = json.loads((tmp_path / "summary.json").read_text())
+    branches = s["path_spread"]["branches"]
+    assert s["relaxations"] == len(branches) >= 1
+    min_step = scene.loading.min_step_mm
+    for b in branches:
+        assert "folds" in b["ended"]
+        ended_at = float(b["ended"].split("beyond ")[1].split(" mm")[0])
+        assert b["left_at_mm"] <= ended_at < b["left_at_mm"] + 2 * min_step
+    rows = {float(r["u0_mm"]): r for r in csv.DictReader((tmp_path / "results.csv").open())}
+    assert rows[37.0]["force_path_spread_N"] == "0.0" and rows[56.0]["force_path_spread_N"] == "0.0"
+    assert s["force_path_spread_N"] == 0.0

@@ -57,6 +57,7 @@ class Branch:
     lam: float  #: the load of ``x`` [m]
     x: np.ndarray  #: its last state
     ended: str = ""  #: why it no longer exists ("" while it does)
+    h: float = 0.0  #: the next increment of its continuation [m] (0: not started)
     records: dict[str, dict[str, Any]] = field(default_factory=dict)  # load [mm] -> what it gave there
 
 
@@ -121,7 +122,9 @@ class PathSpread:
     def _continue(self, b: Branch, lam: float) -> dict[str, Any]:
         """Carry branch ``b`` to ``lam``: its force there if it is a stable equilibrium, or why it ended."""
         p = self.problem
-        h = min(self.first_step, self.max_step)
+        # a branch left at a relaxation stands next to its fold: the first increment is the shortest
+        # but one, doubled after each success (a long one could jump over the fold onto another branch)
+        h = b.h if b.h > 0 else min(2.0 * self.min_step, self.first_step, self.max_step)
         its = 0
         while b.lam < lam:
             h = min(h, lam - b.lam)
@@ -136,7 +139,7 @@ class PathSpread:
             if rep.converged:
                 b.lam += h
                 b.x = p.x.copy()
-                h = min(2.0 * h, self.max_step)
+                h = b.h = min(2.0 * h, self.first_step, self.max_step)
                 continue
             h *= 0.5
             if h < self.min_step:
