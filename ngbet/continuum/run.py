@@ -67,6 +67,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
             except ConvergenceError as err:
                 _write_mode(problem, err.path_info, writer)
                 info.update(_solver_info(problem, None), **snaps_in_units(err.path_info, scene.specimen.t))
+                info.update(estimates.spread.summary())  # the branches left before the failure
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
                     writer.plot(draw)()
