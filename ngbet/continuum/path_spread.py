@@ -108,9 +108,10 @@ class PathSpread:
             if self.problem is None:
                 self.problem = self._make()
             rec = self._continue(b, lam)
+            if "force_N" in rec and x_path is not None:  # how far from the path's state (unit-free norm)
+                rec["distance_to_path"] = float(self.problem.norm(self.problem.x - x_path))
             if rec.get("stable"):
-                p = self.problem
-                if x_path is not None and p.norm(p.x - x_path) <= SAME_STATE:
+                if rec.get("distance_to_path", math.inf) <= SAME_STATE:
                     rec["same_as_path"] = True
                 else:
                     rec["spread_N"] = abs(rec["force_N"] - force_N)
@@ -149,13 +150,12 @@ class PathSpread:
                 return {"stable": False, "ended": b.ended, "newton_iterations": its}
         p.x[:] = b.x
         p.set_load(lam)
-        r = p.residual()
+        F = float(self.force(p, p.residual()))
         mu, _ = p.lowest_mode()
         if not mu > 0:
             b.ended = f"unstable at {lam * 1e3:.6g} mm (lowest scaled eigenvalue {mu:.3g})"
-            return {"stable": False, "ended": b.ended, "newton_iterations": its}
-        return {"stable": True, "force_N": float(self.force(p, r)), "lowest_eigenvalue": float(mu),
-                "newton_iterations": its}
+            return {"stable": False, "ended": b.ended, "force_N": F, "newton_iterations": its}
+        return {"stable": True, "force_N": F, "lowest_eigenvalue": float(mu), "newton_iterations": its}
 
     def summary(self) -> list[dict[str, Any]]:
         """Each branch left: where, whether by a snap-through, and what it gave at each load asked."""
