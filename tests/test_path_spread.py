@@ -81,13 +81,15 @@ def test_a_branch_past_its_fold_contributes_nothing_from_then_on():
     assert spread.at(0.6, -_roots(0.6)[-1]) == 0.0 and "600" not in b.records
 
 
-def test_a_branch_that_is_the_path_itself_gives_no_spread():
-    """A relaxation that came back to the path's own state: no second equilibrium."""
+def test_a_branch_that_is_the_path_itself_gives_no_spread_and_ends():
+    """A relaxation that came back to the path's own state: no second equilibrium; the branch has
+    rejoined the path and is not continued further."""
     spread = _spread()
     spread.left(0.0, np.array([0.0, 1.0]), snap=False)
     y = _roots(0.2)[-1]
     assert spread.at(0.2, -y, np.array([0.2, y])) == 0.0
-    assert spread.branches[0].records["200"]["same_as_path"]
+    assert spread.branches[0].ended == "rejoined the path at 200 mm"
+    assert spread.at(0.3, -_roots(0.3)[-1]) == 0.0 and "300" not in spread.branches[0].records
 
 
 def test_the_path_tells_the_branch_it_left_at_a_snap_and_its_forces_stay_the_same():

@@ -11,12 +11,14 @@ Method: the state just before each relaxation (at its load λ_b, on the branch t
 kept. At every load λ > λ_b where the error is estimated, that branch is continued from its last
 state to λ on a copy of the problem (the run's own is not touched: its state and factorization
 stay the path's, and its forces are the same bit for bit): tangent predictor and Newton
-(:func:`ngbet.continuum.newton.newton`), the increment halved on failure down to the path's
-shortest step. If it reaches λ and the condensed tangent is positive definite there
-(``problem.lowest_mode()``), the branch is a stable equilibrium at λ and contributes
-|F_branch − F_path|; if it cannot be continued (a fold: the usual end of the branch a snap
-left) or is unstable, it no longer exists at λ and contributes nothing from then on (its record
-says where and why it ended). The continued state is kept for the next estimated load.
+(:func:`ngbet.continuum.newton.newton`), the first increment twice the path's shortest step (the
+branch stands next to its fold), doubled after each success up to :data:`BRANCH_MAX_STEP`,
+halved on failure down to the shortest step. If it reaches λ and the condensed tangent is
+positive definite there (``problem.lowest_mode()``), the branch is a stable equilibrium at λ and
+contributes |F_branch − F_path|; if it cannot be continued (a fold: the usual end of the branch a
+snap left), is unstable, or has rejoined the path's state, it no longer exists apart from the
+path and contributes nothing from then on (its record says where and why it ended). The continued
+state is kept for the next estimated load.
 
 .. math::  s(\lambda) = \max_b |F_b(\lambda) - F_{path}(\lambda)|
 
@@ -115,22 +117,21 @@ class PathSpread:
                 continue
             if self.problem is None:
                 self.problem = self._make()
-            rec = self._continue(b, lam)
-            if "force_N" in rec and x_path is not None:  # how far from the path's state (unit-free norm)
-                rec["distance_to_path"] = float(self.problem.norm(self.problem.x - x_path))
+            rec = self._continue(b, lam, force_N, x_path)
             if rec.get("stable"):
-                if (rec.get("distance_to_path", math.inf) <= SAME_STATE
-                        or abs(rec["force_N"] - force_N) <= SAME_FORCE * abs(force_N)):
-                    rec["same_as_path"] = True
-                else:
-                    rec["spread_N"] = abs(rec["force_N"] - force_N)
-                    spread = max(spread, rec["spread_N"])
+                rec["spread_N"] = abs(rec["force_N"] - force_N)
+                spread = max(spread, rec["spread_N"])
             b.records[f"{lam * 1e3:g}"] = rec
         self.total_s += time.perf_counter() - t0
         return spread
 
-    def _continue(self, b: Branch, lam: float) -> dict[str, Any]:
-        """Carry branch ``b`` to ``lam``: its force there if it is a stable equilibrium, or why it ended."""
+    def _continue(self, b: Branch, lam: float, force_N: float, x_path: np.ndarray | None) -> dict[str, Any]:
+        """Carry branch ``b`` to ``lam``: its force there if it is a stable equilibrium, or why it ended.
+
+        A branch back on the path's state (within :data:`SAME_STATE`, or its force within
+        :data:`SAME_FORCE` of the path's) has rejoined the path: it ends there (from the same
+        state it would follow the path), without a stability test.
+        """
         p = self.problem
         # a branch left at a relaxation stands next to its fold: the first increment is the shortest
         # but one, doubled after each success (a long one could jump over the fold onto another branch)
@@ -160,11 +161,18 @@ class PathSpread:
         p.x[:] = b.x
         p.set_load(lam)
         F = float(self.force(p, p.residual()))
+        dist = float(p.norm(p.x - x_path)) if x_path is not None else math.inf  # unit-free
+        if dist <= SAME_STATE or abs(F - force_N) <= SAME_FORCE * abs(force_N):
+            b.ended = f"rejoined the path at {lam * 1e3:.6g} mm"
+            return {"stable": False, "ended": b.ended, "force_N": F, "distance_to_path": dist,
+                    "newton_iterations": its}
         mu, _ = p.lowest_mode()
         if not mu > 0:
             b.ended = f"unstable at {lam * 1e3:.6g} mm (lowest scaled eigenvalue {mu:.3g})"
-            return {"stable": False, "ended": b.ended, "force_N": F, "newton_iterations": its}
-        return {"stable": True, "force_N": F, "lowest_eigenvalue": float(mu), "newton_iterations": its}
+            return {"stable": False, "ended": b.ended, "force_N": F, "distance_to_path": dist,
+                    "newton_iterations": its}
+        return {"stable": True, "force_N": F, "lowest_eigenvalue": float(mu), "distance_to_path": dist,
+                "newton_iterations": its}
 
     def summary(self) -> list[dict[str, Any]]:
         """Each branch left: where, whether by a snap-through, and what it gave at each load asked."""
