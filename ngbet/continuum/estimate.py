@@ -440,7 +440,8 @@ class RunEstimates:
 
     ``outputs.error_estimate``: "stops" (the load stops and the final load), "every" (every
     converged step), "final", "off".
-    Steps without an estimate get an empty ``force_error_N``.
+    Steps without an estimate get an empty ``force_error_N``. After a relaxation of the path the bar
+    is the estimate plus the force's spread over the branches left (:mod:`ngbet.continuum.path_spread`).
     """
 
     def __init__(self, problem: Any) -> None:
