@@ -81,6 +81,18 @@ def test_a_branch_past_its_fold_contributes_nothing_from_then_on():
     assert spread.at(0.6, -_roots(0.6)[-1]) == 0.0 and "600" not in b.records
 
 
+def test_an_unstable_branch_contributes_nothing():
+    """The middle root of y³ − y = λ (J = 3y² − 1 < 0) continued from λ = 0 to 0.1 is an
+    equilibrium, but unstable: no spread, and its record says so with its force (−y)."""
+    spread = _spread()
+    spread.left(0.0, np.array([0.0, 0.0]), snap=False)
+    assert spread.at(0.1, -_roots(0.1)[-1]) == 0.0
+    rec = spread.branches[0].records["100"]
+    assert not rec["stable"] and rec["ended"].startswith("unstable at 100 mm")
+    # to Newton's tolerance: the decrement (an energy) below 1e-14 leaves y within about its square root
+    assert rec["force_N"] == pytest.approx(-_roots(0.1)[1], abs=1e-7)
+
+
 def test_a_branch_that_is_the_path_itself_gives_no_spread_and_ends():
     """A relaxation that came back to the path's own state: no second equilibrium; the branch has
     rejoined the path and is not continued further."""
