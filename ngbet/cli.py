@@ -431,6 +431,9 @@ def _report(summary: dict, out: Path) -> str:
             bar = (f" ± {err:.2g} N (estimated discretization error)" if isinstance(err, float) and err == err
                    else " (error estimate failed)" if isinstance(err, float) else "")
             lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N{bar}")
+            spread = r.get("force_path_spread_N")
+            if isinstance(spread, float) and spread > 0:  # in the bar: another stable state the path left
+                lines.append(f"{'':26}of which {spread:.2g} N the force's spread over the path's snaps")
     if "accuracy" in summary:
         a, d = summary["accuracy"], summary["accuracy"]["chosen"]
         lines.append(f"  accuracy {a['target_error']:g} {'met' if a['met'] else 'NOT met'}: "

@@ -65,6 +65,7 @@ import numpy as np
 
 from ..scene import AUTO, Discretization, Scene
 from .newton import NewtonReport, newton, newton_settings
+from .path_spread import RunPathSpread
 
 log = logging.getLogger(__name__)
 
@@ -121,6 +122,7 @@ class Estimate:
     force_enriched2_N: float = math.nan
     #: why the estimate cannot vouch for the error ("" when it can)
     unreliable: str = ""
+    path_spread_N: float = math.nan  #: the force's spread over the branches the path left (path_spread.py), in the bar
 
     @property
     def force_error_rel(self) -> float:
@@ -438,7 +440,8 @@ class RunEstimates:
 
     ``outputs.error_estimate``: "stops" (the load stops and the final load), "every" (every
     converged step), "final", "off".
-    Steps without an estimate get an empty ``force_error_N``.
+    Steps without an estimate get an empty ``force_error_N``. After a relaxation of the path the bar
+    is the estimate plus the force's spread over the branches left (:mod:`ngbet.continuum.path_spread`).
     """
 
     def __init__(self, problem: Any) -> None:
@@ -450,6 +453,7 @@ class RunEstimates:
                                               one_step=ONE_STEP)
                           if self.mode != "off" and sc.outputs.reaction else None)
         self.last: Estimate | None = None
+        self.spread = RunPathSpread(problem)  # the path's relaxations tell it the branches they left
         self.profile_errors: dict[str, float] = {}
         self.unreliable: dict[str, str] = {}  # load [mm] -> why the estimate there cannot vouch
         d = sc.discretization
@@ -465,17 +469,17 @@ class RunEstimates:
                or any(abs(u0 - s) < 1e-6 for s in self.stops))
         if self.estimator is None or force_N is None or not due:
             return {"force_error_N": ""}
-        e = self.estimator.estimate(lam, force_N)
-        self.last = e
+        e = self.last = self.spread.fold(lam, self.estimator.estimate(lam, force_N))
         if math.isfinite(e.profile_error_mm):
             self.profile_errors[f"{u0:g}"] = e.profile_error_mm
         if e.unreliable:
             self.unreliable[f"{u0:g}"] = e.unreliable
-        return {"force_error_N": e.force_error_N if math.isfinite(e.force_error_N) else ""}
+        spread = {"force_path_spread_N": e.path_spread_N} if math.isfinite(e.path_spread_N) else {}
+        return {"force_error_N": e.force_error_N if math.isfinite(e.force_error_N) else "", **spread}
 
     def summary(self, solve_wall_s: float) -> dict[str, Any]:
         """Summary keys: the final estimate, the method, its cost and the solve time without it."""
-        est_s = self.estimator.total_s if self.estimator is not None else 0.0
+        est_s = (self.estimator.total_s if self.estimator is not None else 0.0) + self.spread.cost_s
         out: dict[str, Any] = {"solve_s": solve_wall_s - est_s, "estimate_s": est_s}
         if self.estimator is None:
             return out
@@ -494,4 +498,5 @@ class RunEstimates:
             out["error_estimate_checks"] = self.estimator.notes
         if self.note:
             out["error_estimate_note"] = self.note
+        out.update(self.spread.summary())
         return out

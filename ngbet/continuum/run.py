@@ -63,10 +63,11 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
             recorder = _StepWriter(problem, writer, out, estimates)
             t_cont = time.perf_counter()
             try:
-                res = _carry_load(problem, scene, recorder.on_step, bar, writer)
+                res = _carry_load(problem, scene, recorder.on_step, bar, writer, estimates.spread.left)
             except ConvergenceError as err:
                 _write_mode(problem, err.path_info, writer)
                 info.update(_solver_info(problem, None), **snaps_in_units(err.path_info, scene.specimen.t))
+                info.update(estimates.spread.summary())  # the branches left before the failure
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
                     writer.plot(draw)()
@@ -92,21 +93,26 @@ def _write_mode(problem: ContinuumProblem, path_info: dict[str, Any], writer: Ru
 
 
 def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
-                progress: Callable[[float], None] | None, writer: RunWriter | None = None) -> PathResult:
-    """The load path of the scene on the engine (the instability mode it found written by ``writer``)."""
-    res = _follow(problem, scene, on_step, progress)
+                progress: Callable[[float], None] | None, writer: RunWriter | None = None,
+                on_relax: Callable[[float, Any, bool], None] | None = None) -> PathResult:
+    """The load path of the scene on the engine (the instability mode it found written by ``writer``).
+
+    ``on_relax``: told of the branch the path leaves at each relaxation (the path spread of the estimate).
+    """
+    res = _follow(problem, scene, on_step, progress, on_relax)
     if writer is not None:
         _write_mode(problem, res.path_info, writer)
     return res
 
 
 def _follow(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
-            progress: Callable[[float], None] | None) -> PathResult:
+            progress: Callable[[float], None] | None,
+            on_relax: Callable[[float, Any, bool], None] | None = None) -> PathResult:
     """The load path of the scene on the engine."""
     arclength = None if scene.solver.path_following == "displacement" else arclength_runner(problem, on_step, progress)
     return follow(problem, path_settings(scene), newton_settings(scene), on_step=on_step,
                   diagnose=lambda: _diagnose(problem), psi=problem.psi_u.vec.FV().NumPy().copy(),
-                  progress=progress, arclength=arclength)
+                  progress=progress, arclength=arclength, on_relax=on_relax)
 
 
 def _diagnose(problem: ContinuumProblem) -> Any:

@@ -16,14 +16,14 @@ Stepping:         :func:`ngbet.engine.follow_path`: cut by ``cut`` on failure, g
 Snap-through:     under displacement control, when an increment no longer than ``relax_below``
                   fails (the path folds or branches: past the fold there is no equilibrium
                   near the predicted state), :func:`relax` looks for a stable equilibrium at
-                  the same clamp displacement by pseudo-transient continuation from the
-                  predicted state, kicked along the lowest mode of the tangent if that is
-                  unstable: shifted Newton steps (J + s |diag J|) dx = −r, s raised until the
-                  matrix is positive definite, with a line search on the problem's merit
-                  (infinite outside the energy's domain: inverted material). The state found is
-                  accepted only if it is admissible and the tangent is positive definite there; if the step released
-                  energy beyond the clamp's work it is recorded as a snap-through (load, energy
-                  released, force before and after, where the jump lives).
+                  the same clamp displacement by pseudo-transient continuation from the predicted
+                  state, kicked along the lowest mode of the tangent if that is unstable: shifted
+                  Newton steps (J + s |diag J|) dx = −r, s raised until the matrix is positive
+                  definite, with a line search on the problem's merit (infinite outside the energy's
+                  domain: inverted material). The state found is accepted only if it is admissible
+                  and the tangent positive definite there; if the step released energy beyond the
+                  clamp's work, it is a snap-through (load, energy released, force before and after,
+                  where the jump lives); the branch left is told to ``on_relax`` (path_spread.py).
 
 A load that cannot be reached raises :class:`ngbet.errors.ConvergenceError` carrying every
 attempt's decrements, the last converged load [mm] and the diagnosis; the caller has already
@@ -61,23 +61,18 @@ SNAP_RELEASE = 1e-3
 class RelaxSettings:
     """Pseudo-transient continuation to a stable equilibrium at a fixed load (:func:`relax`)."""
 
-    #: factorizations allowed for one relaxation
-    max_iterations: int = 500
+    max_iterations: int = 500  #: factorizations allowed for one relaxation
     #: the first shift s (of |diag J|), and at least twice the lowest scaled eigenvalue's modulus
     first_shift: float = 1e-6
-    #: the smallest shift
-    min_shift: float = 1e-12
+    min_shift: float = 1e-12  #: the smallest shift
     #: a decrement below the tolerance ends the shifted steps only with a shift at most this
     #: (a larger one hides soft directions that Newton would still move along)
     newton_shift: float = 1e-8
-    #: the largest shift before giving up
-    max_shift: float = 1e3
+    max_shift: float = 1e3  #: the largest shift before giving up
     #: the kick along an unstable mode: its largest weighted entry (u/L, phi)
     kick: float = 1e-3
-    #: the shortest step of the line search
-    min_step: float = 1.0 / 1024
-    #: tries with a larger kick when the equilibrium found is unstable
-    kicks: int = 3
+    min_step: float = 1.0 / 1024  #: the shortest step of the line search
+    kicks: int = 3  #: tries with a larger kick when the equilibrium found is unstable
 
 
 @dataclass
@@ -219,8 +214,7 @@ def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float
 
 def _hint(problem: NonlinearProblem) -> str:
     """The problem's advice for a relaxation that meets its inadmissible states ("; ..." or "")."""
-    hint = getattr(problem, "inadmissible_hint", "")
-    return f"; {hint}" if hint else ""
+    return f"; {hint}" if (hint := getattr(problem, "inadmissible_hint", "")) else ""
 
 
 def _stalled(rep: NewtonReport) -> bool:
@@ -250,18 +244,18 @@ class SaddlePointNewton:
     def __init__(self, problem: NonlinearProblem, settings: NewtonSettings,
                  diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
                  relax_below: float = 0.0, relax_settings: RelaxSettings = RelaxSettings(),
-                 chord_at: Sequence[float] = (), length: float = 1.0) -> None:
+                 chord_at: Sequence[float] = (), length: float = 1.0,
+                 on_relax: Callable[[float, np.ndarray, bool], None] | None = None) -> None:
         self.problem = problem
+        self.on_relax = on_relax  # told of each relaxation: (load [m], the branch left, snap?)
+        self._left: tuple[float, np.ndarray, bool] | None = None
         #: the loads where a chord correction with the factorization at hand is tried first
         #: (:mod:`ngbet.continuum.chord`); ``length`` scales its difference step
         self.chord = ChordRows(chord_at, length)
         self._chorded = False
-        self.settings = settings
-        self._diagnose = diagnose
-        self._psi = psi
+        self.settings, self._diagnose, self._psi = settings, diagnose, psi
         #: an increment shorter than this that fails is relaxed to a stable state (0: never)
-        self.relax_below = relax_below
-        self.relax_settings = relax_settings
+        self.relax_below, self.relax_settings = relax_below, relax_settings
         #: the snap-throughs met, as the summary records them
         self.snaps: list[dict[str, object]] = []
         self.relaxations = 0
@@ -307,7 +301,7 @@ class SaddlePointNewton:
         p.set_load(u0 + h)
         e_ref = p.energy()
         e_ref = e_ref if math.isfinite(e_ref) else 0.0
-        self._jump = None
+        self._jump = self._left = None
         self._chorded = False
         if self._factorized and self.chord.due(u0 + h):
             self.report = rep = self.chord.correct(p, self.settings, e_ref)
@@ -356,6 +350,7 @@ class SaddlePointNewton:
             locate = getattr(p, "locate", None)
             if locate is not None:
                 self._jump.update(locate(p.x - self._predicted))
+        self._left = (u0, self._saved.copy(), jumped) if self.on_relax is not None else None
         return Outcome("converged", its, history, rel.reason + (" (snap-through)" if jumped else ""))
 
     def _state_at(self, x: np.ndarray, u0: float) -> tuple[float, float]:
@@ -395,6 +390,8 @@ class SaddlePointNewton:
                         "J per metre of thickness)", (u0 + h) * 1e3, rec.released)
             self._jump = None
             self.chord.forget()  # a jump: no extrapolation across it
+        if self._left is not None and self.on_relax is not None:
+            self.on_relax(*self._left)
         if self._chorded:
             rec.dforce_du0 = dR
         elif self.settings.predictor == "tangent" and self._psi is not None:
@@ -422,7 +419,8 @@ class SaddlePointNewton:
 def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, *,
            on_step: Callable[[StepRecord], None] | None = None, diagnose: Callable[[], Diagnosis] | None = None,
            psi: np.ndarray | None = None, progress: Callable[[float], None] | None = None,
-           arclength: Callable[[PathResult], PathResult] | None = None) -> PathResult:
+           arclength: Callable[[PathResult], PathResult] | None = None,
+           on_relax: Callable[[float, np.ndarray, bool], None] | None = None) -> PathResult:
     """Carry the load from 0 to ``path.target`` with :class:`SaddlePointNewton` on the engine.
 
     A stop within a fifth of a step beyond a trial load is landed on. ``on_step`` is called after
@@ -442,7 +440,8 @@ def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettin
     ``arclength(result)`` goes on from the last converged state (the steps are appended to the
     same result). ``path.snap``: under displacement control, an increment that fails at the
     shortest length is relaxed to a stable state at its load (:func:`relax`; a snap-through is
-    recorded in the step and in ``path_info["snaps"]``).
+    recorded in the step and in ``path_info["snaps"]``); ``on_relax(load, state, snap)`` is told
+    of the branch the path left there.
     """
     if path.path_following not in ("displacement", "arclength", "auto"):
         raise ValueError(f"path_following = {path.path_following!r}: not 'displacement', 'arclength' or 'auto'")
@@ -461,7 +460,8 @@ def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettin
         can = path.snap and getattr(problem, "can_relax", False)
         below = min(path.min_step / settings.cut, 2 * path.min_step) if can else 0.0
         corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below,
-                                      chord_at=chord_loads(problem, path.chord_at), length=path.length)
+                                      chord_at=chord_loads(problem, path.chord_at), length=path.length,
+                                      on_relax=on_relax)
         try:
             res = follow_path(corrector, ctl, on_step=on_step, progress=progress)
         except ConvergenceError as err:
