@@ -61,3 +61,57 @@ class OneDofToy:
 
     def load_derivative(self, psi, tangent):
         return float(psi @ np.array([-tangent[1], self.J * tangent[1] - tangent[0]]))
+
+    def converged(self):
+        pass
+
+
+class DoubleWell(OneDofToy):
+    """A one-dof toy of a snap-through under displacement control: x = (λ, y), λ the Dirichlet entry,
+    E = y⁴/4 − y²/2 − λy, so r_y = y³ − y − λ and the reaction r_λ = −y. From the left well
+    (y = −1 at λ = 0) the branch y < −1/√3 folds at λ_f = 2/(3√3) = 0.3849; beyond it the only
+    equilibrium is in the right well, where y = 2/√3 at λ_f: a jump that releases
+    E(−1/√3) − E(2/√3) = 1/12 + 2/3 = 0.75 at λ_f."""
+
+    def __init__(self, y0: float = -1.0) -> None:
+        self.x = np.array([0.0, y0])
+        self._weights = np.array([0.0, 1.0])
+        self.can_relax = True
+
+    def set_load(self, lam):
+        self.x[0] = lam
+
+    def residual(self):
+        lam, y = self.x
+        return np.array([-y, y ** 3 - y - lam])
+
+    def energy(self):
+        lam, y = self.x
+        return y ** 4 / 4 - y ** 2 / 2 - lam * y
+
+    def factorize(self, shift=0.0):
+        J = 3 * self.x[1] ** 2 - 1
+        while shift > 0 and J + shift * abs(J) <= 0:  # raised until positive definite
+            shift = max(4 * shift, 1e-8)
+        self.J = J + shift * abs(J)
+        return shift
+
+    def lowest_mode(self):
+        J = 3 * self.x[1] ** 2 - 1
+        return J / max(abs(J), 1e-300), np.array([0.0, 1.0])
+
+
+@pytest.fixture
+def made_problems(monkeypatch):
+    """Every ContinuumProblem built while the test runs, in order; each keeps the last state solved."""
+    from ngbet.continuum import problem as problem_module
+
+    made = []
+    init = problem_module.ContinuumProblem.__init__
+
+    def keep(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        made.append(self)
+
+    monkeypatch.setattr(problem_module.ContinuumProblem, "__init__", keep)
+    return made

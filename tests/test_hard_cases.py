@@ -40,18 +40,9 @@ def _run(tmp_path, tag, **changes):
     return summary, read_rows(out / "results.csv"), prof
 
 
-def _run_keeping_problem(tmp_path, tag, monkeypatch, scene):
-    """Run ``scene`` and keep its ContinuumProblem, whose state is the last converged one (error estimate off)."""
-    from ngbet.continuum import problem as problem_module
-
-    made = []
-    init = problem_module.ContinuumProblem.__init__
-
-    def keep(self, *args, **kwargs):
-        init(self, *args, **kwargs)
-        made.append(self)
-
-    monkeypatch.setattr(problem_module.ContinuumProblem, "__init__", keep)
+def _run_keeping_problem(tmp_path, tag, made, scene):
+    """Run ``scene`` and keep its ContinuumProblem (``made``: the made_problems fixture), whose state is
+    the last converged one (error estimate off)."""
     out = tmp_path / tag
     summary = run(scene, out)
     return summary, read_rows(out / "results.csv"), made[0]
@@ -337,7 +328,7 @@ def test_stiff_yarns_K_el_1e7_with_p1_multiplier(tmp_path):
 
 @pytest.mark.integration
 @pytest.mark.parametrize("K_el, jump_mm, F56", [(1e7, 53.13, 266.04), (1e8, 54.51, 605.78), (1e9, 51.29, 1502.69)])
-def test_stiff_yarns_jump_past_the_fold_to_56mm(tmp_path, monkeypatch, K_el, jump_mm, F56):
+def test_stiff_yarns_jump_past_the_fold_to_56mm(tmp_path, made_problems, K_el, jump_mm, F56):
     """K_el = 1e7, 1e8, 1e9 Pa (10 mm mesh, p = 2): the path folds past 50 mm (the quadratic shear energy
     is not convex beyond 45°: the central zone localizes). Past the fold the lower-energy states have
     yarns that close on each other in a band; the jamming barrier keeps them from crossing, so the
@@ -348,7 +339,7 @@ def test_stiff_yarns_jump_past_the_fold_to_56mm(tmp_path, monkeypatch, K_el, jum
     round-off-sized differences of the descent: the force is asserted to 1 %)."""
     scene = coarse(**{"solver.threads": 1, "material.K_el": K_el, "outputs.error_estimate": "off",
                       "outputs.profile": False})
-    s, rows, pb = _run_keeping_problem(tmp_path, "kel", monkeypatch, scene)
+    s, rows, pb = _run_keeping_problem(tmp_path, "kel", made_problems, scene)
     assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
     # the yarns closed on each other in the band (below the 5° threshold: the barrier holds them), not crossed
     assert 0 < _smallest_yarn_angle_sine(pb) < math.sin(math.radians(5.0)) and pb.inverted_area() == 0
@@ -374,7 +365,7 @@ HARD_SCENES = {
 
 @pytest.mark.integration
 @pytest.mark.parametrize("name", list(HARD_SCENES))
-def test_hard_scenes_reach_56mm_through_their_jumps(tmp_path, monkeypatch, name):
+def test_hard_scenes_reach_56mm_through_their_jumps(tmp_path, made_problems, name):
     """The embedded scene with nearly inextensible yarns (K_el = 1e8, 1e9 Pa), a soft shear modulus
     (K_sh = 2100 Pa) or yarns at ±35° (past ideal locking at 26.5 mm): each reaches 56 mm. Where the path
     folds the relaxation finds a stable state at the same clamp displacement, every jump in results.csv
@@ -385,7 +376,7 @@ def test_hard_scenes_reach_56mm_through_their_jumps(tmp_path, monkeypatch, name)
     changes, F56, jumps = HARD_SCENES[name]
     scene = Scene().with_changes(**{"solver.threads": 1, "outputs.error_estimate": "off", "outputs.vtk": False,
                                     "outputs.plot": False, **changes})
-    s, rows, pb = _run_keeping_problem(tmp_path, name, monkeypatch, scene)
+    s, rows, pb = _run_keeping_problem(tmp_path, name, made_problems, scene)
     assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
     assert s["relaxations"] >= max(len(jumps), 1)
     assert pb.inverted_area() == 0 and _smallest_yarn_angle_sine(pb) > 0

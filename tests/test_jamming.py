@@ -119,21 +119,13 @@ def test_it_forbids_inversion():
                for (w, _), g in zip(ordinary, np.linspace(0.0, 84.9, 50), strict=True))
 
 
-def test_an_ordinary_run_never_reaches_it(tmp_path, monkeypatch):
+def test_an_ordinary_run_never_reaches_it(tmp_path, made_problems):
     """The default material to 56 mm (coarse mesh): the yarns never come within twice the jamming
     angle (the smallest angle between them is 35° on the embedded scene, measured), so the barrier is
     never even evaluated, and the forces and Newton iterations are those without it, bit for bit."""
-    from ngbet.continuum import problem as problem_module
     from ngbet.output import read_rows
 
-    made = []
-    init = problem_module.ContinuumProblem.__init__
-
-    def keep(self, *args, **kwargs):
-        init(self, *args, **kwargs)
-        made.append(self)
-
-    monkeypatch.setattr(problem_module.ContinuumProblem, "__init__", keep)
+    made = made_problems
     ch = {"solver.threads": 1, "outputs.profile": False, "outputs.error_estimate": "off"}
     on = run(coarse(**ch), tmp_path / "on")
     assert len(made) == 1 and not made[0].jamming_on

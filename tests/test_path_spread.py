@@ -4,46 +4,13 @@ import math
 
 import numpy as np
 import pytest
-from conftest import OneDofToy
+from conftest import DoubleWell
 
 from ngbet.continuum.path_spread import PathSpread
 from ngbet.continuum.solver import NewtonSettings, PathSettings, continuation, follow
 from ngbet.scene import Scene
 
 LAM_FOLD = 2 / (3 * math.sqrt(3))  # the left well's branch folds here
-
-
-class _DoubleWell(OneDofToy):
-    """E = y⁴/4 − y²/2 − λy, x = (λ, y) with λ the Dirichlet entry: r_y = y³ − y − λ, the reaction
-    r_λ = −y. For |λ| < λ_f = 2/(3√3) two stable equilibria (the two outer roots of y³ − y = λ);
-    the left one (y < −1/√3) folds at λ_f."""
-
-    def __init__(self, y0: float = -1.0) -> None:
-        self.x = np.array([0.0, y0])
-        self._weights = np.array([0.0, 1.0])
-        self.can_relax = True
-
-    def set_load(self, lam):
-        self.x[0] = lam
-
-    def residual(self):
-        lam, y = self.x
-        return np.array([-y, y ** 3 - y - lam])
-
-    def energy(self):
-        lam, y = self.x
-        return y ** 4 / 4 - y ** 2 / 2 - lam * y
-
-    def factorize(self, shift=0.0):
-        J = 3 * self.x[1] ** 2 - 1
-        while shift > 0 and J + shift * abs(J) <= 0:
-            shift = max(4 * shift, 1e-8)
-        self.J = J + shift * abs(J)
-        return shift
-
-    def lowest_mode(self):
-        J = 3 * self.x[1] ** 2 - 1
-        return J / max(abs(J), 1e-300), np.array([0.0, 1.0])
 
 
 def _roots(lam: float) -> np.ndarray:
@@ -53,7 +20,7 @@ def _roots(lam: float) -> np.ndarray:
 
 
 def _spread(first_step: float = 0.05) -> PathSpread:
-    return PathSpread(_DoubleWell, lambda p, r: float(r[0]), NewtonSettings(rtol=1e-14, atol=1e-14),
+    return PathSpread(DoubleWell, lambda p, r: float(r[0]), NewtonSettings(rtol=1e-14, atol=1e-14),
                       first_step=first_step, min_step=1e-4)
 
 
@@ -109,7 +76,7 @@ def test_the_path_tells_the_branch_it_left_at_a_snap_and_its_forces_stay_the_sam
     the state it left (the left well just before λ_f); the path's states are bit for bit those of
     the run without the hook."""
     left = []
-    a, b = _DoubleWell(), _DoubleWell()
+    a, b = DoubleWell(), DoubleWell()
     res_a = continuation(a, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
     res_b = follow(b, PathSettings(1.0, 0.05, min_step=1e-4), NewtonSettings(), psi=np.array([1.0, 0.0]),
                    on_relax=lambda lam, x, snap: left.append((lam, x.copy(), snap)))
@@ -131,7 +98,7 @@ def test_the_spread_is_added_to_the_discretization_bar_and_recorded_on_its_own()
     y = _roots(0.2)
     run = RunPathSpread(SimpleNamespace(jamming=SimpleNamespace(on=False), x=np.array([0.2, y[-1]])))
     run.spread = _spread()
-    run.spread.problem = _DoubleWell()
+    run.spread.problem = DoubleWell()
     run.spread.left(0.0, np.array([0.0, -1.0]), snap=True)
     e = run.fold(0.2, Estimate(-y[-1], 0.01, math.nan, math.nan, "toy", 0.0, 0))
     assert e.path_spread_N == pytest.approx(y[-1] - y[0], rel=1e-10)

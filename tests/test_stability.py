@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import OneDofToy
+from conftest import DoubleWell
 
 from ngbet.continuum.stability import EllipticityLoss, StabilityDiagnosis
 
@@ -32,48 +32,13 @@ def test_a_skipped_test_says_why_and_classifies_nothing():
     assert d.message() == d.skipped
 
 
-class _DoubleWell(OneDofToy):
-    """A one-dof toy of a snap-through under displacement control: x = (λ, y), λ the Dirichlet entry,
-    E = y⁴/4 − y²/2 − λy, so r_y = y³ − y − λ and the reaction r_λ = −y. From the left well
-    (y = −1 at λ = 0) the branch y < −1/√3 folds at λ_f = 2/(3√3) = 0.3849; beyond it the only
-    equilibrium is in the right well, where y = 2/√3 at λ_f: a jump that releases
-    E(−1/√3) − E(2/√3) = 1/12 + 2/3 = 0.75 at λ_f."""
-
-    def __init__(self, y0: float = -1.0) -> None:
-        self.x = np.array([0.0, y0])
-        self._weights = np.array([0.0, 1.0])
-        self.can_relax = True
-
-    def set_load(self, lam):
-        self.x[0] = lam
-
-    def residual(self):
-        lam, y = self.x
-        return np.array([-y, y ** 3 - y - lam])
-
-    def energy(self):
-        lam, y = self.x
-        return y ** 4 / 4 - y ** 2 / 2 - lam * y
-
-    def factorize(self, shift=0.0):
-        J = 3 * self.x[1] ** 2 - 1
-        while shift > 0 and J + shift * abs(J) <= 0:  # raised until positive definite
-            shift = max(4 * shift, 1e-8)
-        self.J = J + shift * abs(J)
-        return shift
-
-    def lowest_mode(self):
-        J = 3 * self.x[1] ** 2 - 1
-        return J / max(abs(J), 1e-300), np.array([0.0, 1.0])
-
-
 def test_displacement_control_snaps_through_a_fold_to_the_other_well_and_goes_on():
     """At the fold the step is relaxed to the stable state at the same load (the right well), the
     jump is recorded with the energy it released (0.75 at the fold, the exact value of the toy),
     and the path goes on to λ = 1, where the equilibrium is the real root of y³ − y = 1."""
     from ngbet.continuum.solver import NewtonSettings, continuation
 
-    toy = _DoubleWell()
+    toy = DoubleWell()
     res = continuation(toy, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
     lam_f = 2 / (3 * math.sqrt(3))
     assert res.u0 == 1.0
@@ -93,7 +58,7 @@ def test_without_relaxation_displacement_control_stops_at_the_fold():
     from ngbet.errors import ConvergenceError
 
     with pytest.raises(ConvergenceError) as info:
-        continuation(_DoubleWell(), 1.0, 0.05, NewtonSettings(), min_step=1e-4, snap=False)
+        continuation(DoubleWell(), 1.0, 0.05, NewtonSettings(), min_step=1e-4, snap=False)
     assert info.value.last_converged_mm * 1e-3 < 2 / (3 * math.sqrt(3))
 
 
@@ -102,13 +67,13 @@ def test_relaxation_leaves_an_unstable_equilibrium_along_its_mode():
     along the unstable mode and finds a well bottom y = ±1, stable, reporting the eigenvalue it left."""
     from ngbet.continuum.solver import NewtonSettings, relax
 
-    toy = _DoubleWell(0.0)
+    toy = DoubleWell(0.0)
     rep = relax(toy, NewtonSettings(), 1.0)
     assert rep.converged and abs(toy.x[1]) == pytest.approx(1.0, rel=1e-10)
     assert rep.kicked_from == -1.0 and rep.lowest_eigenvalue > 0
 
 
-class _WallAtZero(_DoubleWell):
+class _WallAtZero(DoubleWell):
     """The double well with its right well outside the energy's domain (y > 0 inadmissible, as
     inverted material is for the continuum): past the fold there is no admissible stable state."""
 

@@ -72,6 +72,9 @@ class NonlinearProblem(Protocol):
     def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
         """psi·(J tangent): the load derivative of the reaction psi·r along the tangent."""
 
+    def converged(self) -> None:
+        """The current x is an equilibrium the path keeps (the continuum's jamming barrier watches it)."""
+
 
 @dataclass
 class NewtonReport:

@@ -364,9 +364,7 @@ class SaddlePointNewton:
     def accept(self, u0: float, h: float, outcome: Outcome) -> StepRecord:
         """The state is converged: its residual, and the load tangent for dR/du0 and the next predictor."""
         assert self.report is not None
-        converged = getattr(self.problem, "converged", None)
-        if converged is not None:  # the continuum watches its solved states (ngbet.continuum.jamming)
-            converged()
+        self.problem.converged()
         self._factorized = True  # Newton factorized at its iterates
         self.chord.converged(u0 + h, self.problem.x, None if self._tangent is None else (u0, self._tangent))
         self._tangent = None
