@@ -56,6 +56,21 @@ def test_error_bars_where_the_run_estimated_and_their_size_written_when_too_smal
     assert [t.get_text() for t in ax.texts] == ["error bars shorter than the markers:\n±0.05 N at u₀ = 4 mm"]
 
 
+def test_a_load_whose_estimate_could_not_vouch_is_named_where_its_bar_would_be():
+    """The scene asks for estimates at its stop (4 mm) and final load (8 mm); 8 mm has none."""
+    from ngbet.scene import default_scene
+
+    scene = default_scene().with_changes(**{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0})
+    fig = F.force_figure(rows(errors={4.0: 3.0}), scene)
+    texts = [t.get_text() for t in fig.axes[0].texts]
+    assert texts == ["no error bar at u₀ = 8 mm:\nthe estimate could not vouch for the force\n"
+                     "(summary.json: error_estimate_unreliable)"]
+    # rows without a due estimate (2, 6, 6.5 mm) are not named; with estimates off, none is
+    off = default_scene().with_changes(**{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0,
+                                          "outputs.error_estimate": "off"})
+    assert not F.force_figure(rows(errors={4.0: 3.0}), off).axes[0].texts
+
+
 def test_measured_curve_on_the_force_and_shear_force_figures(tmp_path):
     csv = tmp_path / "m.csv"
     csv.write_text("# a comment\n# specimen.width_mm = 70\n# specimen.length_mm = 220\n"

@@ -73,6 +73,15 @@ def error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: f
                 transform=ax.transAxes, ha="right", va="bottom", fontsize=7, color="C3")
 
 
+def estimate_due(u0_mm: float, scene: Any) -> bool:
+    """Whether the run's ``outputs.error_estimate`` asks for an error estimate at the row of ``u0_mm``."""
+    if scene is None or "error_estimate" not in vars(scene.outputs):
+        return False
+    which, ld = scene.outputs.error_estimate, scene.loading
+    at = {"stops": (*ld.stops_mm, ld.u0_mm), "final": (ld.u0_mm,)}.get(which, ())
+    return which == "every" or any(abs(u0_mm - s) < 1e-6 for s in at)
+
+
 def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (),
                  measured: Measured | None = None) -> Figure:
     """The force figure of the rows of a results.csv (see the module docstring)."""
@@ -89,7 +98,13 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
     for label, x, y in extra:
         ax.plot(x, y, "--", label=label)
     span = float(np.nanmax(np.abs(np.r_[F, 0.0]))) or 1.0
-    error_bars(ax, u0, F, column(rows, "force_error_N"), span)
+    err = column(rows, "force_error_N")
+    error_bars(ax, u0, F, err, span)
+    missing = [u for u, e in zip(u0, err, strict=True) if not np.isfinite(e) and estimate_due(u, scene)]
+    if missing:  # an estimate that could not vouch for the force: no bar, said where the bar would be
+        ax.text(0.98, 0.5, "no error bar at u₀ = " + ", ".join(f"{u:g}" for u in missing)
+                + " mm:\nthe estimate could not vouch for the force\n(summary.json: error_estimate_unreliable)",
+                transform=ax.transAxes, ha="right", va="center", fontsize=7, color="C3")
     ax.set_xlabel(U0_LABEL)
     ax.set_ylabel(FORCE_LABEL)
     ax.set_xlim(left=0)
