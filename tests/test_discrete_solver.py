@@ -9,7 +9,8 @@ import scipy.sparse as sp
 from ngbet import cholmod
 from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError, resolve_backend
 from ngbet.discrete.newton import _StepFailed
-from ngbet.discrete.solver import StepControl, newton, single_threaded_blas, solve_path
+from ngbet.discrete.solver import StepControl, load_steps, newton, single_threaded_blas
+from ngbet.engine import PathControl, Steps
 
 
 class DoubleWell:
@@ -67,7 +68,7 @@ class Pulled:
 
 
 def ctl(**kw) -> StepControl:
-    return StepControl(u0_final=1.0, first_step=1.0, max_step=1.0, min_step=1e-3, **kw)
+    return StepControl(PathControl(target=1.0, first_step=1.0, max_step=1.0, min_step=1e-3), **kw)
 
 
 def solver(problem):
@@ -159,9 +160,12 @@ def test_energy_balance_by_the_hermite_rule_on_a_smooth_branch():
     # tells a snap-through (a jump releases percents of the step's work) from a long smooth step
     p = Pulled()
     rows = []
-    res = solve_path(p, StepControl(u0_final=2.0, first_step=0.25, max_step=0.25, min_step=1e-3, stability=False),
-                     on_step=lambda info, u: rows.append((info.u0, float(p.load @ info.residual), info.energy,
-                                                          info.released)))
+    steps = Steps(load_steps(p, StepControl(PathControl(target=2.0, first_step=0.25, max_step=0.25, min_step=1e-3),
+                                            stability=False)))
+    for info in steps:
+        rows.append((info.u0, float(p.load @ info.residual), info.energy, info.released))
+    assert steps.result is not None
+    res = steps.result.path_info
     assert not res["snap_events"] and res["failed_steps"] == 0, \
         f"snaps {res['snap_events']}, failed {res['failed_steps']}"
     prev = (0.0, 0.0, 0.0)

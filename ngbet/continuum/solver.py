@@ -422,29 +422,17 @@ ArcLength = Callable[[PathResult], Generator[StepRecord, None, PathResult]]
 def load_steps(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, *,
                diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
                arclength: ArcLength | None = None) -> Generator[StepRecord, None, PathResult]:
-    """Carry the load from 0 to ``path.target`` with :class:`SaddlePointNewton` on the engine.
+    """Carry the load from 0 to ``path.target``: a generator of the converged increments' records.
 
-    A generator: it yields the record of each converged increment (the caller decides what to
-    keep and write) and returns the :class:`~ngbet.engine.PathResult`. ``psi``: the reaction's
-    test vector (the records' dF/du0); ``diagnose()``: the problem's diagnosis after a failure.
-
-    ``path.path_following``: "displacement" control alone; "arclength": ``arclength(result)``
-    follows the path from the start; "auto": displacement control, and where it fails,
-    ``arclength(result)`` goes on from the last converged state (the steps are appended to the
-    same result). ``path.snap``: under displacement control, an increment that fails at the
-    shortest length is relaxed to a stable state at its load (:func:`relax`; a snap-through is
-    recorded in the step and in ``path_info["snaps"]``); the record of that step carries the
-    branch the path left there in ``left``.
-
-    Raises
-    ------
-    ValueError
-        at once, when ``path.path_following`` is unknown or asks for arc length and no
-        ``arclength`` runner is given.
-    ngbet.errors.ConvergenceError
-        while iterating, when the increment has been cut below ``min_step``, or after
-        ``max_attempts`` increments (converged or not: a bound on the time), with the pattern of
-        the last failures and what ``diagnose`` finds.
+    The caller decides what to keep and write; the return value is the
+    :class:`~ngbet.engine.PathResult`. ``path.path_following``: "displacement" control
+    (:class:`SaddlePointNewton` on the engine; with ``path.snap``, an increment that fails at the
+    shortest length is relaxed to a stable state, :func:`relax`, and its record carries the branch
+    left in ``left``); "arclength": ``arclength(result)`` from the start; "auto": displacement
+    control, and where it fails ``arclength(result)`` goes on (its steps appended). Raises
+    ValueError at once for an unknown ``path_following`` or arc length without ``arclength``;
+    :class:`~ngbet.errors.ConvergenceError` while iterating, below ``min_step`` or after
+    ``max_attempts`` increments, with the failures' pattern and what ``diagnose()`` finds.
     """
     if path.path_following not in ("displacement", "arclength", "auto"):
         raise ValueError(f"path_following = {path.path_following!r}: not 'displacement', 'arclength' or 'auto'")
@@ -460,10 +448,8 @@ def load_steps(problem: NonlinearProblem, path: PathSettings, settings: NewtonSe
 def _displacement_steps(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings,
                         diagnose: Callable[[], Diagnosis] | None, psi: np.ndarray | None
                         ) -> Generator[StepRecord, None, PathResult]:
-    """Displacement control; relaxed to a stable state where the path folds (``path.snap``)."""
-    # the last increment before the minimum, if within twice the minimum, is relaxed: a snap is
-    # bracketed as closely as the steps go; a problem without a Hessian tangent cannot relax (no
-    # stability test)
+    """Displacement control, relaxing where the path folds (not without a Hessian tangent)."""
+    # the last increment before the minimum, if within twice it: a snap bracketed as closely as the steps go
     can = path.snap and getattr(problem, "can_relax", False)
     below = min(path.min_step / path.cut, 2 * path.min_step) if can else 0.0
     left: list[tuple[float, np.ndarray]] = []  # the branch left by the step being accepted
@@ -484,8 +470,7 @@ def _displacement_steps(problem: NonlinearProblem, path: PathSettings, settings:
 
 def _auto_steps(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, psi: np.ndarray | None,
                 arclength: ArcLength) -> Generator[StepRecord, None, PathResult]:
-    """Displacement control, handing over to arc length where it fails."""
-    # arc length reports the path's instabilities itself: no diagnosis (an eigen-solve) at the hand-over
+    """Displacement control, then arc length where it fails (which diagnoses: no eigen-solve here)."""
     corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=chord_loads(problem, path.chord_at),
                                   length=path.length)
     partial = PathResult(0.0)
