@@ -140,9 +140,9 @@ class PathResult:
     attempts: list[Attempt] = field(default_factory=list)
     cuts: int = 0
     retries: int = 0
-    #: what path following found beyond displacement control (kind, load, force, mode), for the summary
+    #: what the path found beyond the steps, for the summary: arc length's instabilities, the
+    #: continuum's snap-throughs and chord rows, the network's solver statistics
     path_info: dict[str, object] = field(default_factory=dict)
-    #: the error that ended displacement control when arc-length continuation took over
 
 
 #: Set by the command line's signal handler (Ctrl-C, SIGTERM) when it raises KeyboardInterrupt.
