@@ -18,7 +18,15 @@ Outcomes
     length (e.g. to bracket a snap-through), not a failure. ``failed``: the length is cut by
     ``cut``; below ``min_step`` (or after ``max_attempts`` trials) :class:`ConvergenceError`
     is raised with every attempt and the corrector's diagnosis; each converged step has been
-    handed to ``on_step`` by then.
+    yielded by then.
+Consumers
+    :func:`path_steps` is a generator (as scikit-fem's continuation): it yields the record of each
+    converged step and returns the :class:`PathResult`. The runner iterates it and alone decides
+    what to write (:class:`Steps` keeps the return value of a ``for`` loop over it);
+    :func:`run_to_end` and :func:`follow_path` only carry the path to its end.
+
+:class:`PathControl` is the one class of the step fields; the models' settings hold or extend it
+(:class:`ngbet.continuum.settings.PathSettings`, :class:`ngbet.discrete.newton.StepControl`).
 """
 
 from __future__ import annotations
@@ -30,7 +38,7 @@ import threading
 import time
 from collections.abc import Callable, Generator, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
@@ -39,12 +47,16 @@ from .errors import Attempt, ConvergenceError
 log = logging.getLogger(__name__)
 
 __all__ = ["Attempt", "ConvergenceError", "Corrector", "Outcome", "PathControl", "PathResult", "StepRecord",
-           "follow_path", "path_steps", "progress_bar"]
+           "Steps", "follow_path", "path_steps", "progress_bar", "run_to_end"]
 
 
 @dataclass(frozen=True)
 class PathControl:
-    """Step-length control of a load path; loads in metres of clamp displacement."""
+    """Step-length control of a load path; loads in metres of clamp displacement (module docstring).
+
+    The one place of the step fields: the continuum's path settings extend it, the network's step
+    control holds one.
+    """
 
     target: float
     first_step: float
@@ -87,6 +99,14 @@ class StepRecord:
     released: float = 0.0  # energy released beyond the clamp work in the step [J] (a snap-through)
     history: list[float] = field(default_factory=list)
     reason: str = ""
+    #: the model's unknowns at the step, where the caller cannot read them from the problem (the
+    #: network's); a generator may drop it once it moves on, so that a path keeps no states
+    state: np.ndarray | None = None
+    #: a relaxation left a branch in this step: the load [m] of the converged state before it and
+    #: that state (the snap flag is ``snap``)
+    left: tuple[float, np.ndarray] | None = None
+    #: what path following found in this step beyond displacement control (arc length's instabilities)
+    instabilities: list[Any] = field(default_factory=list)
 
 
 class Corrector(Protocol):
@@ -120,9 +140,9 @@ class PathResult:
     attempts: list[Attempt] = field(default_factory=list)
     cuts: int = 0
     retries: int = 0
-    #: what path following found beyond displacement control (kind, load, force, mode), for the summary
+    #: what the path found beyond the steps, for the summary: arc length's instabilities, the
+    #: continuum's snap-throughs and chord rows, the network's solver statistics
     path_info: dict[str, object] = field(default_factory=dict)
-    #: the error that ended displacement control when arc-length continuation took over
 
 
 #: Set by the command line's signal handler (Ctrl-C, SIGTERM) when it raises KeyboardInterrupt.
@@ -176,24 +196,43 @@ def path_steps(corrector: Corrector, ctl: PathControl, out: PathResult | None = 
     return out
 
 
-def follow_path(corrector: Corrector, ctl: PathControl, *,
-                on_step: Callable[[StepRecord], None] | None = None,
-                progress: Callable[[float], None] | None = None) -> PathResult:
-    """:func:`path_steps` with ``on_step(record)`` and ``progress(u0)`` after each converged step.
+def run_to_end(steps: Generator[StepRecord, None, PathResult]) -> PathResult:
+    """Carry a path generator to its end, keeping nothing but its return value."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+
+
+def follow_path(corrector: Corrector, ctl: PathControl) -> PathResult:
+    """:func:`path_steps` carried to the end: the path (its records in ``steps``).
 
     Raises
     ------
     ConvergenceError
-        when a failed increment is cut below ``ctl.min_step`` or after ``ctl.max_attempts``
-        trials; every converged step has been passed to ``on_step`` by then.
+        when a failed increment is cut below ``ctl.min_step`` or after ``ctl.max_attempts`` trials.
     """
-    out = PathResult(0.0)
-    for rec in path_steps(corrector, ctl, out):
-        if on_step is not None:
-            on_step(rec)
-        if progress is not None:
-            progress(out.u0)
-    return out
+    return run_to_end(path_steps(corrector, ctl))
+
+
+class Steps:
+    """Iterate a path generator's step records in a ``for`` loop and keep its return value.
+
+    ``result`` is the :class:`PathResult` once the loop has run to the end (None before)::
+
+        steps = Steps(path_steps(corrector, ctl))
+        for rec in steps:
+            ...  # write what the runner wants of the step
+        res = steps.result
+    """
+
+    def __init__(self, steps: Generator[StepRecord, None, PathResult]) -> None:
+        self._steps = steps
+        self.result: PathResult | None = None
+
+    def __iter__(self) -> Iterator[StepRecord]:
+        self.result = yield from self._steps
 
 
 def _trial_load(lam: float, step: float, marks: list[float], eps: float, land_within: float) -> tuple[float, float]:
@@ -239,7 +278,7 @@ def _after_rejection(corrector: Corrector, ctl: PathControl, out: PathResult, la
 
 @contextlib.contextmanager
 def progress_bar(show: bool, target_mm: float, desc: str = "u0") -> Iterator[Callable[[float], None] | None]:
-    """A tqdm bar over the clamp displacement [mm] for ``follow_path(progress=...)`` (fed with u0 [m]).
+    """A tqdm bar over the clamp displacement [mm]: a callable the runner feeds with each step's u0 [m].
 
     Yields None when not shown.
     """

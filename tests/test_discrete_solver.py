@@ -9,7 +9,8 @@ import scipy.sparse as sp
 from ngbet import cholmod
 from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError, resolve_backend
 from ngbet.discrete.newton import _StepFailed
-from ngbet.discrete.solver import StepControl, newton, single_threaded_blas, solve_path
+from ngbet.discrete.solver import StepControl, load_steps, newton, single_threaded_blas, solve_path
+from ngbet.engine import PathControl, PathResult, Steps
 
 
 class DoubleWell:
@@ -67,7 +68,7 @@ class Pulled:
 
 
 def ctl(**kw) -> StepControl:
-    return StepControl(u0_final=1.0, first_step=1.0, max_step=1.0, min_step=1e-3, **kw)
+    return StepControl(PathControl(target=1.0, first_step=1.0, max_step=1.0, min_step=1e-3), **kw)
 
 
 def solver(problem):
@@ -159,9 +160,12 @@ def test_energy_balance_by_the_hermite_rule_on_a_smooth_branch():
     # tells a snap-through (a jump releases percents of the step's work) from a long smooth step
     p = Pulled()
     rows = []
-    res = solve_path(p, StepControl(u0_final=2.0, first_step=0.25, max_step=0.25, min_step=1e-3, stability=False),
-                     on_step=lambda info, u: rows.append((info.u0, float(p.load @ info.residual), info.energy,
-                                                          info.released)))
+    steps = Steps(load_steps(p, StepControl(PathControl(target=2.0, first_step=0.25, max_step=0.25, min_step=1e-3),
+                                            stability=False)))
+    for info in steps:
+        rows.append((info.u0, float(p.load @ info.residual), info.energy, info.released))
+    assert steps.result is not None
+    res = steps.result.path_info
     assert not res["snap_events"] and res["failed_steps"] == 0, \
         f"snaps {res['snap_events']}, failed {res['failed_steps']}"
     prev = (0.0, 0.0, 0.0)
@@ -246,3 +250,29 @@ def test_lowest_eigenvalues_match_a_dense_solve_with_a_near_degenerate_pair():
     X0 = modes + 1e-2 * np.random.default_rng(3).standard_normal(modes.shape) * np.abs(modes).max()
     lam2, _ = lowest_eigenvalues(lin, 2, X0)
     assert lam2[0] == pytest.approx(ref[0], rel=1e-5), (lam2, ref)
+
+
+def test_the_network_path_is_a_generator_that_hands_out_each_state_and_keeps_none():
+    """The runner's loop: each record carries the converged state while it is the current step
+    (x solves k (c - x) = m x + b x³ at c = u0, the pulled chain's equilibrium), dropped when the
+    path moves on; breaking out after k records leaves k steps counted in the statistics, and the
+    path carried to the end returns them with ``solve_path``'s numbers."""
+    p = Pulled()
+    ctl = StepControl(PathControl(target=1.0, first_step=0.25, max_step=0.25, min_step=1e-3), stability=False)
+    res = PathResult(0.0)
+    seen = []
+    for rec in load_steps(p, ctl, res):
+        assert rec.state is not None and rec.state[1] == pytest.approx(rec.u0, abs=1e-15)
+        x, c = rec.state
+        assert p.k * (c - x) == pytest.approx(p.m * x + p.b * x**3, abs=1e-10)
+        seen.append(rec)
+        if len(seen) == 2:
+            break
+    assert seen[0].state is None and seen[1].state is not None  # the first dropped when the second came
+    assert res.path_info["steps"] == 2 and [s.u0 for s in res.steps] == [0.25, 0.5]
+    steps = Steps(load_steps(Pulled(), ctl))
+    states = [rec.state.copy() for rec in steps]
+    assert steps.result is not None and len(states) == 4 == steps.result.path_info["steps"]
+    whole = solve_path(Pulled(), ctl)
+    assert np.array_equal(whole["u"], states[-1])
+    assert whole["newton_iterations"] == steps.result.path_info["newton_iterations"]

@@ -19,8 +19,9 @@ import scipy.sparse as sp
 from ngbet.discrete.linsolve import FreeBlockSolver
 from ngbet.discrete.model import NetworkModel
 from ngbet.discrete.run import step_control
-from ngbet.discrete.solver import OTHER_BLOCK_TOL, lowest_eigenvalues, newton, solve_path
+from ngbet.discrete.solver import OTHER_BLOCK_TOL, load_steps, lowest_eigenvalues, newton, solve_path
 from ngbet.discrete.symmetry import COUPLING_TOL, Blocks, HalfTurn, half_turn
+from ngbet.engine import Steps
 from ngbet.scene import Scene
 
 SCENE = {"model": "discrete", "discrete.spacing_mm": 5.0, "loading.u0_mm": 56.0, "outputs.plot": False}
@@ -129,18 +130,20 @@ def test_block_solves_equal_the_whole_factorization(model, symmetric):
                                atol=1e-9 * np.abs(x_whole).max())
 
 
+def forces_on_the_path(model: NetworkModel, ctl) -> tuple[dict, dict[float, float]]:
+    """The path's statistics and its force at each load [mm] (the runner's loop over the step records)."""
+    steps = Steps(load_steps(model, ctl))
+    F = {round(rec.u0 * 1e3, 6): model.reaction(rec.residual)[0] for rec in steps}
+    assert steps.result is not None
+    return steps.result.path_info, F
+
+
 def test_path_with_blocks_is_the_path_without(model):
     sc = Scene().with_changes(**SCENE)
     forces = {}
     stats = {}
     for on in (True, False):
-        F: dict[float, float] = {}
-
-        def record(rec, u, F=F):
-            F[round(rec.u0 * 1e3, 6)] = model.reaction(rec.residual)[0]
-
-        stats[on] = solve_path(model, dataclasses.replace(step_control(sc), half_turn=on), on_step=record)
-        forces[on] = F
+        stats[on], forces[on] = forces_on_the_path(model, dataclasses.replace(step_control(sc), half_turn=on))
     on, off = stats[True], stats[False]
     assert on["half_turn_blocks"] and not off["half_turn_blocks"]
     for key in ("steps", "newton_iterations", "factorizations"):
@@ -167,13 +170,8 @@ def test_path_with_cholmod_is_the_path_with_the_ldlt(model):
     sc = Scene().with_changes(**SCENE)
     forces, stats = {}, {}
     for backend in ("cholmod", "sparsecholesky"):
-        F: dict[float, float] = {}
-
-        def record(rec, u, F=F):
-            F[round(rec.u0 * 1e3, 6)] = model.reaction(rec.residual)[0]
-
-        stats[backend] = solve_path(model, dataclasses.replace(step_control(sc), backend=backend), on_step=record)
-        forces[backend] = F
+        stats[backend], forces[backend] = forces_on_the_path(model, dataclasses.replace(step_control(sc),
+                                                                                         backend=backend))
     ch, ld = stats["cholmod"], stats["sparsecholesky"]
     assert ch["backend"] == "cholmod" and ld["backend"] == "sparsecholesky"
     for key in ("steps", "newton_iterations", "factorizations", "factorizations_antisymmetric"):
@@ -213,12 +211,7 @@ def test_the_17k_network_keeps_its_forces_and_snaps():
     """
     sc = Scene().with_changes(**{**SCENE, "discrete.spacing_mm": 2.4, "loading.output_every_mm": 0.0})
     net_model = NetworkModel.from_scene(sc)
-    F: dict[float, float] = {}
-
-    def record(rec, u):
-        F[round(rec.u0 * 1e3, 6)] = net_model.reaction(rec.residual)[0]
-
-    st = solve_path(net_model, step_control(sc), on_step=record)
+    st, F = forces_on_the_path(net_model, step_control(sc))
     assert st["half_turn_blocks"] and st["n_free"] == 16_730
     assert F[37.0] == pytest.approx(13.176711539, rel=1e-6)
     assert F[56.0] == pytest.approx(26.688239758, rel=1e-6)
@@ -298,8 +291,9 @@ def test_stability_check_of_the_network_reports_both_blocks(model):
     # block's within the residual it is resolved to; started cold and from antisymmetric modes.
     ht = model.half_turn()
     states = {}
-    ctl = dataclasses.replace(step_control(Scene().with_changes(**SCENE)), u0_final=4e-3, stability=False)
-    solve_path(model, ctl, on_step=lambda info, u: states.update({info.u0: u.copy()}))
+    ctl = step_control(Scene().with_changes(**SCENE))
+    ctl = dataclasses.replace(ctl, path=dataclasses.replace(ctl.path, target=4e-3), stability=False)
+    states.update({rec.u0: rec.state.copy() for rec in load_steps(model, ctl)})
     u = states[max(states)]
     K = model.evaluate(u, True)[2]
     lin = FreeBlockSolver(K, ~model.fixed, "auto", ht)

@@ -7,7 +7,8 @@ import pytest
 from conftest import DoubleWell
 
 from ngbet.continuum.path_spread import PathSpread
-from ngbet.continuum.solver import NewtonSettings, PathSettings, continuation, follow
+from ngbet.continuum.solver import NewtonSettings, PathSettings, continuation, load_steps
+from ngbet.engine import Steps
 from ngbet.scene import Scene
 
 LAM_FOLD = 2 / (3 * math.sqrt(3))  # the left well's branch folds here
@@ -72,14 +73,15 @@ def test_a_branch_that_is_the_path_itself_gives_no_spread_and_ends():
 
 
 def test_the_path_tells_the_branch_it_left_at_a_snap_and_its_forces_stay_the_same():
-    """Displacement control snaps from the left well to the right at the fold and tells ``on_relax``
-    the state it left (the left well just before λ_f); the path's states are bit for bit those of
-    the run without the hook."""
-    left = []
+    """Displacement control snaps from the left well to the right at the fold; the record of that
+    step carries the state it left (the left well just before λ_f), the others none; the path's
+    states are bit for bit those of :func:`continuation`, which keeps nothing of the records."""
     a, b = DoubleWell(), DoubleWell()
     res_a = continuation(a, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
-    res_b = follow(b, PathSettings(1.0, 0.05, min_step=1e-4), NewtonSettings(), psi=np.array([1.0, 0.0]),
-                   on_relax=lambda lam, x, snap: left.append((lam, x.copy(), snap)))
+    steps = Steps(load_steps(b, PathSettings(1.0, 0.05, min_step=1e-4), NewtonSettings(), psi=np.array([1.0, 0.0])))
+    left = [(rec.left[0], rec.left[1].copy(), rec.snap) for rec in steps if rec.left is not None]
+    assert steps.result is not None
+    res_b = steps.result
     assert [s.u0 for s in res_a.steps] == [s.u0 for s in res_b.steps]
     assert [float(s.residual[0]) for s in res_a.steps] == [float(s.residual[0]) for s in res_b.steps]
     assert len(left) == 1

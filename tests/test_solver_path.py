@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 
 from ngbet.continuum.settings import PathSettings, newton_settings, path_settings
@@ -40,19 +41,53 @@ def test_path_settings_default_bounds():
 
 def test_the_path_is_a_generator_of_step_records_the_caller_consumes():
     """The engine yields each converged step as it is accepted (the caller decides what to keep and
-    may stop early); its return value is the path, the same records follow_path hands to on_step."""
+    may stop early: after k records, exactly k steps are done and no further trial was made); its
+    return value is the path, whose records are those yielded."""
     from test_engine import Toy
 
-    from ngbet.engine import PathControl, follow_path, path_steps
+    from ngbet.engine import PathControl, Steps, follow_path, path_steps
 
     ctl = PathControl(target=0.010, first_step=0.001, max_step=0.004, growth=2.0, stops=(0.0035,))
-    gen = path_steps(Toy(), ctl)
+    toy = Toy()
+    gen = path_steps(toy, ctl)
     seen = [round(next(gen).u0 * 1e3, 9) for _ in range(3)]  # the caller stops after three steps
     assert seen == [1.0, 3.0, 3.5]
-    loads = []
-    res = follow_path(Toy(), ctl, on_step=lambda rec: loads.append(round(rec.u0 * 1e3, 9)))
-    assert loads == [round(s.u0 * 1e3, 9) for s in res.steps] == [1.0, 3.0, 3.5, 7.5, 10.0]
+    assert len(toy.trials) == 3  # nothing was computed beyond the third step
+    steps = Steps(path_steps(Toy(), ctl))
+    loads = [round(rec.u0 * 1e3, 9) for rec in steps]
+    assert steps.result is not None
+    assert loads == [round(s.u0 * 1e3, 9) for s in steps.result.steps] == [1.0, 3.0, 3.5, 7.5, 10.0]
+    assert [round(s.u0 * 1e3, 9) for s in follow_path(Toy(), ctl).steps] == loads
     with pytest.raises(StopIteration) as done:
         for _ in range(10):
             next(gen)
     assert [s.step for s in done.value.value.steps] == [1, 2, 3, 4, 5]
+
+
+def test_the_continuum_path_stops_where_its_caller_stops_and_returns_what_it_yielded():
+    """Breaking out of the continuum's generator after k records leaves the problem at the k-th
+    load, with k steps done and no trial beyond; carried to the end, the generator's return value
+    is the path whose records were yielded, the numbers of :func:`follow` (which keeps nothing of
+    them) bit for bit, and the snap-through's step is the one record that carries the branch left."""
+    from conftest import DoubleWell
+
+    from ngbet.continuum.solver import NewtonSettings, load_steps
+    from ngbet.engine import Steps
+
+    path, psi = PathSettings(1.0, 0.05, min_step=1e-4), np.array([1.0, 0.0])
+    toy = DoubleWell()
+    k, loads = 3, []
+    for rec in load_steps(toy, path, NewtonSettings(), psi=psi):
+        loads.append(rec.u0)
+        if len(loads) == k:
+            break
+    assert toy.x[0] == loads[-1] == pytest.approx(0.05 * (1 + 1.5 + 2.25))  # grown by 1.5 after easy steps
+    steps = Steps(load_steps(DoubleWell(), path, NewtonSettings(), psi=psi))
+    records = list(steps)
+    assert steps.result is not None and steps.result.steps == records and steps.result.u0 == 1.0
+    assert [r.u0 for r in records[:k]] == loads
+    whole = follow(DoubleWell(), path, NewtonSettings(), psi=psi)
+    assert [r.u0 for r in whole.steps] == [r.u0 for r in records]
+    assert [r.dforce_du0 for r in whole.steps] == [r.dforce_du0 for r in records]
+    assert [r.snap for r in records].count(True) == 1 == sum(r.left is not None for r in records)
+    assert next(r for r in records if r.snap).left is not None

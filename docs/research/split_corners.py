@@ -24,7 +24,8 @@ import ngsolve as ngs
 from ngbet.continuum import observables as obs
 from ngbet.continuum.mesh import corner_elements, make_mesh
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.run import _carry_load
+from ngbet.continuum.run import load_path
+from ngbet.engine import run_to_end
 from ngbet.studies import _common as C
 from ngbet.studies.reference import extrapolate
 
@@ -44,7 +45,7 @@ def force(corner_mm: float, p: int) -> tuple[float | None, int, float]:
     t0 = time.perf_counter()
     sc = scene(corner_mm, p)
     prob = ContinuumProblem(sc)
-    _carry_load(prob, sc, on_step=lambda _: None, progress=None)
+    run_to_end(load_path(prob, sc))
     F = obs.reaction_force(prob, prob.residual()) * sc.specimen.t if abs(prob.lam * 1e3 - U0_MM) < 1e-9 else None
     if F is None:
         print(f"  the load path stops at {prob.lam * 1e3:.2f} mm")

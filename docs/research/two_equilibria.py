@@ -22,9 +22,10 @@ import numpy as np
 
 from ngbet.continuum import observables as obs
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.run import _carry_load
+from ngbet.continuum.run import load_path
 from ngbet.continuum.solver import newton, newton_settings
 from ngbet.continuum.stability import diagnose_stability
+from ngbet.engine import run_to_end
 from ngbet.studies import _common as C
 
 ARGS = sys.argv[1:]
@@ -43,7 +44,7 @@ def scene(p: int):  # noqa: ANN201 - a Scene
 def loaded(p: int) -> ContinuumProblem:
     sc = scene(p)
     prob = ContinuumProblem(sc)
-    _carry_load(prob, sc, on_step=lambda _: None, progress=None)
+    run_to_end(load_path(prob, sc))
     if abs(prob.lam * 1e3 - U0_MM) > 1e-9:
         sys.exit(f"p = {p}: the load path stops at {prob.lam * 1e3:.3f} mm")
     return prob

@@ -35,6 +35,9 @@ the current Δs:
 
 The trivial branch lies in that hyperplane's direction to first order, so the corrector lands on
 the bifurcated branch, at amplitude ≈ Δs along φ_c; the path goes on from there.
+
+:func:`arclength_steps` is a generator of the engine's step records (each carrying the
+instabilities found in its step); the runner iterates it and decides what to write.
 """
 
 from __future__ import annotations
@@ -42,36 +45,35 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from ..engine import PathResult, StepRecord, check_stop
-from ..errors import Attempt
+from ..engine import PathControl, PathResult, StepRecord, Steps, check_stop
+from ..errors import Attempt, ConvergenceError
 from ..scene import SceneError
 from .newton import NewtonSettings, NonlinearProblem, newton
 from .settings import newton_settings, path_settings
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ArcLengthSettings", "Instability", "follow_arclength"]
+__all__ = ["ArcLengthSettings", "Instability", "arclength_steps", "follow_arclength"]
 
 
 @dataclass(frozen=True)
-class ArcLengthSettings:
-    """Step control of the arc-length continuation (lengths as clamp displacements [m] at the start)."""
+class ArcLengthSettings(PathControl):
+    """Step control of the arc-length continuation (lengths as clamp displacements [m] at the start).
 
-    target: float
-    first_step: float
-    max_step: float
-    min_step: float
+    The engine's (:class:`~ngbet.engine.PathControl`): ``stops`` are the loads the path lands on
+    the first time it reaches them (output stops), besides the target; ``growth``, ``cut`` and
+    ``grow_after`` act on the arc length; ``land_within`` and ``max_attempts`` are not read.
+    """
+
     max_steps: int = 200
     #: the path is given up when it returns below this fraction of the load it started from
     floor: float = 0.9
-    #: loads [m] the path lands on the first time it reaches them (output stops), besides the target
-    stops: tuple[float, ...] = ()
 
 
 @dataclass
@@ -168,30 +170,43 @@ class _Path:
         self.p.set_load(self.lam0)
 
 
-def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings: NewtonSettings, *,
-                     weights: np.ndarray, length: float, psi: np.ndarray,
-                     lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None = None,
-                     on_step: Callable[[StepRecord], None] | None = None,
-                     result: PathResult | None = None, branch: str = "stay",
-                     branch_sign: float = 1.0) -> tuple[PathResult, list[Instability]]:
+def arclength_steps(problem: NonlinearProblem, ctl: ArcLengthSettings, settings: NewtonSettings, *,
+                    weights: np.ndarray, length: float, psi: np.ndarray,
+                    lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None = None,
+                    result: PathResult | None = None, branch: str = "stay",
+                    branch_sign: float = 1.0) -> Generator[StepRecord, None, PathResult]:
     """Follow the path from the converged state of ``problem`` until u0 = ``ctl.target``.
 
-    ``psi`` is the reaction's test vector (R = ψ·r); ``lowest_eigenpair()`` gives the lowest
-    eigenvalue of the tangent at the current state and its mode (full length), used to tell a
-    bifurcation and to keep the mode of each instability. Steps are appended to ``result`` (a new
-    one if None). ``branch``: at a bifurcation "stay" on the branch followed or "switch" to the
-    bifurcated one along ``branch_sign`` times its mode (module docstring; needs
-    ``lowest_eigenpair``). The point past a bifurcation on the branch left is not recorded.
-    Returns the result (``u0`` the last load reached) and the instabilities passed or met;
-    the caller decides what an unreached target means.
+    A generator of the converged points' records, each with the instabilities passed or met in
+    its step (``instabilities``); it returns the result (``u0`` the last load reached; the
+    caller decides what an unreached target means). ``psi`` is the reaction's test vector
+    (R = ψ·r); ``lowest_eigenpair()`` gives the lowest eigenvalue of the tangent at the current
+    state and its mode (full length), used to tell a bifurcation and to keep the mode of each
+    instability. Steps are appended to ``result`` (a new one if None). ``branch``: at a
+    bifurcation "stay" on the branch followed or "switch" to the bifurcated one along
+    ``branch_sign`` times its mode (module docstring; needs ``lowest_eigenpair``). The point past
+    a bifurcation on the branch left is not recorded.
+
+    Raises
+    ------
+    ValueError
+        at once, for an unknown ``branch`` or a switch without ``lowest_eigenpair``.
     """
     if branch not in ("stay", "switch"):
         raise ValueError(f"branch must be 'stay' or 'switch', not {branch!r}")
     if branch == "switch" and lowest_eigenpair is None:
         raise ValueError("branch = 'switch' needs lowest_eigenpair (the critical mode)")
+    return _arclength_steps(problem, ctl, settings, weights, length, psi, lowest_eigenpair, result, branch,
+                            branch_sign)
+
+
+def _arclength_steps(problem: NonlinearProblem, ctl: ArcLengthSettings, settings: NewtonSettings,
+                     weights: np.ndarray, length: float, psi: np.ndarray,
+                     lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None, result: PathResult | None,
+                     branch: str, branch_sign: float) -> Generator[StepRecord, None, PathResult]:
+    """The generator of :func:`arclength_steps` (its arguments checked)."""
     res = result if result is not None else PathResult(float(getattr(problem, "lam", 0.0)))
     path = _Path(problem, weights, length, settings)
-    found: list[Instability] = []
     n = path.tangent(orient=False)
     # the first step moves the state as a load step of first_step would (Δx ≈ T Δu0)
     ds = min(ctl.first_step, ctl.max_step) * n
@@ -214,7 +229,7 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
         if not ok:
             path.restore()
             res.cuts += 1
-            ds *= settings.cut
+            ds *= ctl.cut
             if ds < ds_min:
                 break
             continue
@@ -224,17 +239,27 @@ def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
         rec = _step_record(problem, psi, len(res.steps) + 1, its, hist, r, "arc-length")
         new = track.update(path, rec, r)
         if before is not None:
-            switch = _Switch(problem, path, psi, settings, res, branch_sign)
+            switch = _Switch(problem, path, psi, ctl.cut, res, branch_sign)
             rec = switch.at_bifurcation(new, before, track, ds, ds_min) or rec
-        found += new
+        rec.instabilities = new
         res.steps.append(rec)
         res.u0 = rec.u0
         reached = max(reached, rec.u0)
-        if on_step is not None:
-            on_step(rec)
-        if its <= settings.grow_after:
-            ds = min(ds * settings.growth, ds_max)
-    return res, found
+        yield rec
+        if its <= ctl.grow_after:
+            ds = min(ds * ctl.growth, ds_max)
+    return res
+
+
+def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings: NewtonSettings,
+                     **kwargs: Any) -> tuple[PathResult, list[Instability]]:
+    """:func:`arclength_steps` carried to the end: the result and the instabilities passed or met."""
+    found: list[Instability] = []
+    steps = Steps(arclength_steps(problem, ctl, settings, **kwargs))
+    for rec in steps:
+        found += rec.instabilities
+    assert steps.result is not None
+    return steps.result, found
 
 
 def _step_record(problem: NonlinearProblem, psi: np.ndarray, number: int, its: int, hist: list[float],
@@ -248,9 +273,9 @@ def _step_record(problem: NonlinearProblem, psi: np.ndarray, number: int, its: i
 class _Switch:
     """Branch switching at a bifurcation (module docstring): from the located point along the critical mode."""
 
-    def __init__(self, problem: NonlinearProblem, path: _Path, psi: np.ndarray, settings: NewtonSettings,
-                 res: PathResult, sign: float) -> None:
-        self.p, self.path, self.psi, self.settings, self.res = problem, path, psi, settings, res
+    def __init__(self, problem: NonlinearProblem, path: _Path, psi: np.ndarray, cut: float, res: PathResult,
+                 sign: float) -> None:
+        self.p, self.path, self.psi, self.cut, self.res = problem, path, psi, cut, res
         self.sign = 1.0 if sign >= 0 else -1.0
 
     def direction(self, mode: np.ndarray) -> tuple[np.ndarray, float]:
@@ -294,7 +319,7 @@ class _Switch:
                 log.warning("switched to the bifurcated branch at u0 = %.4g mm", bif.u0_mm)
                 return rec
             self.res.cuts += 1
-            ds *= self.settings.cut
+            ds *= self.cut
         path.reset(after)
         bif.details["branch"] = "stayed: no equilibrium found on the bifurcated branch"
         log.warning("no equilibrium found on the bifurcated branch at u0 = %.4g mm; staying", bif.u0_mm)
@@ -377,23 +402,22 @@ def _bifurcation(prev: Instability, here: Instability) -> Instability:
                        near.mode, t)
 
 
-def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
-                     progress: Callable[[float], None] | None = None
-                     ) -> Callable[[PathResult], PathResult]:
-    """The continuation the continuum's run hands to :func:`ngbet.continuum.solver.continuation`.
+def arclength_runner(problem: Any) -> Callable[[PathResult], Generator[StepRecord, None, PathResult]]:
+    """The continuation the continuum's run hands to :func:`ngbet.continuum.solver.load_steps`.
 
     Follows the path of ``problem`` (a :class:`~ngbet.continuum.problem.ContinuumProblem`) from
-    its converged state to ``loading.u0_mm``, appending to the result it is given; fills
-    ``path_info`` (instabilities with kind, load, force and mode class; the first one's mode as
-    mode to picture under :data:`MODE_KEY`, for the runner to write and pop) and raises
-    :class:`~ngbet.errors.ConvergenceError` with it when the target is not reached.
+    its converged state to ``loading.u0_mm``, yielding each step's record and appending it to the
+    result it is given; fills ``path_info`` (instabilities with kind, load, force and mode class;
+    the first one's mode as mode to picture under :data:`MODE_KEY`, for the runner to write and
+    pop) and raises :class:`~ngbet.errors.ConvergenceError` with it when the target is not reached.
     """
     from .stability import diagnose_stability, indefinite_by_construction, lowest_eigenpair
 
     scene = problem.scene
     path = path_settings(scene)  # arc length lands on the stops, not on the output grid
     ctl = ArcLengthSettings(target=path.target, first_step=path.first_step, max_step=path.max_step,
-                            min_step=path.min_step, stops=tuple(s * 1e-3 for s in scene.loading.stops_mm))
+                            min_step=path.min_step, growth=path.growth, cut=path.cut, grow_after=path.grow_after,
+                            stops=tuple(s * 1e-3 for s in scene.loading.stops_mm))
     psi = problem.psi_u.vec.FV().NumPy().copy()
     # an uncondensed saddle-point tangent has no stability test: no instability by eigenvalue then
     indefinite = indefinite_by_construction(problem)
@@ -401,23 +425,23 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
         raise SceneError("solver.branch = 'switch' needs the critical mode, and the uncondensed saddle-point "
                          "tangent (solver.condense = false) has no stability test: set solver.condense = true")
 
-    def step(rec: StepRecord) -> None:
-        on_step(rec)
-        if progress is not None:
-            progress(max(rec.u0, 0.0))
-
-    def run(res: PathResult) -> PathResult:
+    def run(res: PathResult) -> Generator[StepRecord, None, PathResult]:
         start_mm = problem.lam * 1e3
         c = ctl
         if len(res.steps) >= 2:  # after displacement control: start with its last step
             h = res.steps[-1].u0 - res.steps[-2].u0
             c = dataclasses.replace(ctl, first_step=h, max_step=min(ctl.max_step, 8 * h),
                                     min_step=min(ctl.min_step, h / 64))
-        res, found = follow_arclength(problem, c, newton_settings(scene), weights=problem._weights,
+        found: list[Instability] = []
+        steps = Steps(arclength_steps(problem, c, newton_settings(scene), weights=problem._weights,
                                       length=scene.specimen.L, psi=psi,
                                       lowest_eigenpair=None if indefinite else lambda: lowest_eigenpair(problem),
-                                      on_step=step, result=res,
-                                      branch=scene.solver.branch)
+                                      result=res, branch=scene.solver.branch))
+        for rec in steps:
+            found += rec.instabilities
+            yield rec
+        assert steps.result is not None
+        res = steps.result
         res.path_info = _path_info(problem, found, start_mm)
         if res.steps:
             t = scene.specimen.t
@@ -425,8 +449,6 @@ def arclength_runner(problem: Any, on_step: Callable[[StepRecord], None],
             k = int(np.nanargmax(F))
             res.path_info["force_maximum"] = {"u0_mm": res.steps[k].u0 * 1e3, "force_N": F[k]}
         if res.u0 < ctl.target * (1 - 1e-9):
-            from ..errors import ConvergenceError
-
             d = diagnose_stability(problem)
             kinds = ", ".join(f"{i.kind} at {i.u0_mm:.4g} mm" for i in found) or "none detected"
             raise ConvergenceError(

@@ -1,4 +1,8 @@
-"""Running a continuum scene: build the problem, carry the load, record every converged step."""
+"""Running a continuum scene: build the problem, carry the load, record every converged step.
+
+The load path is a generator of step records (:func:`load_path`); the loop of
+:func:`run_continuum` alone decides what to write of each step.
+"""
 
 from __future__ import annotations
 
@@ -6,13 +10,13 @@ import contextlib
 import functools
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from pathlib import Path
 from typing import Any
 
 import ngsolve as ngs
 
-from ..engine import PathResult, StepRecord, progress_bar
+from ..engine import PathResult, StepRecord, Steps, progress_bar
 from ..errors import ConvergenceError
 from ..figures import map_file_name, save_map, start_plot
 from ..kinematics import BetColumns
@@ -20,20 +24,20 @@ from ..output import RunWriter
 from ..plot_process import active as plot_service
 from ..scene import Scene
 from . import observables as obs
-from .arclength import arclength_runner
+from .arclength import MODE_KEY, arclength_runner
 from .estimate import RunEstimates, run_to_accuracy
 from .linear import assembly_thread_count
 from .output import write_vtk
 from .problem import ContinuumProblem
 from .settings import newton_settings, path_settings
-from .solver import follow
+from .solver import load_steps
 
 #: each element of the shear-angle map is split into this many² triangles (p = 2 fields: enough)
 MAP_SUBDIVISION = 2
 
 log = logging.getLogger(__name__)
 
-__all__ = ["newton_settings", "run_continuum", "write_vtk"]  # write_vtk: ngbet.continuum.output
+__all__ = ["load_path", "newton_settings", "run_continuum", "write_vtk"]  # write_vtk: ngbet.continuum.output
 
 
 def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None) -> dict[str, Any]:
@@ -62,8 +66,17 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
         with progress_bar(progress, scene.loading.u0_mm) as bar:
             recorder = _StepWriter(problem, writer, out, estimates)
             t_cont = time.perf_counter()
+            steps = Steps(load_path(problem, scene))
             try:
-                res = _carry_load(problem, scene, recorder.on_step, bar, writer, estimates.spread.left)
+                for rec in steps:
+                    if rec.left is not None:  # before the row: its estimate continues the branch left
+                        estimates.spread.left(*rec.left, rec.snap)
+                    recorder.on_step(rec)
+                    if bar is not None:
+                        bar(max(rec.u0, 0.0))
+                assert steps.result is not None
+                res = steps.result
+                _write_mode(problem, res.path_info, writer)
             except ConvergenceError as err:
                 _write_mode(problem, err.path_info, writer)
                 info.update(_solver_info(problem, None), **snaps_in_units(err.path_info, scene.specimen.t))
@@ -78,8 +91,6 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
 
 def _write_mode(problem: ContinuumProblem, path_info: dict[str, Any], writer: RunWriter) -> None:
     """Write the instability mode that path following found (if any) and name its files in ``path_info``."""
-    from .arclength import MODE_KEY
-
     found = path_info.pop(MODE_KEY, None)
     if found is None:
         return
@@ -92,27 +103,16 @@ def _write_mode(problem: ContinuumProblem, path_info: dict[str, Any], writer: Ru
     path_info["instability_mode_files"] = [f.name for f in files]
 
 
-def _carry_load(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
-                progress: Callable[[float], None] | None, writer: RunWriter | None = None,
-                on_relax: Callable[[float, Any, bool], None] | None = None) -> PathResult:
-    """The load path of the scene on the engine (the instability mode it found written by ``writer``).
+def load_path(problem: ContinuumProblem, scene: Scene) -> Generator[StepRecord, None, PathResult]:
+    """The load path of the scene: a generator of its step records (nothing written; the caller decides).
 
-    ``on_relax``: told of the branch the path leaves at each relaxation (the path spread of the estimate).
+    Arc length follows where ``solver.path_following`` asks for it; the mode of an instability it
+    found is left in ``path_info`` (under :data:`~ngbet.continuum.arclength.MODE_KEY`) for the
+    runner to write.
     """
-    res = _follow(problem, scene, on_step, progress, on_relax)
-    if writer is not None:
-        _write_mode(problem, res.path_info, writer)
-    return res
-
-
-def _follow(problem: ContinuumProblem, scene: Scene, on_step: Callable[[StepRecord], None],
-            progress: Callable[[float], None] | None,
-            on_relax: Callable[[float, Any, bool], None] | None = None) -> PathResult:
-    """The load path of the scene on the engine."""
-    arclength = None if scene.solver.path_following == "displacement" else arclength_runner(problem, on_step, progress)
-    return follow(problem, path_settings(scene), newton_settings(scene), on_step=on_step,
-                  diagnose=lambda: _diagnose(problem), psi=problem.psi_u.vec.FV().NumPy().copy(),
-                  progress=progress, arclength=arclength, on_relax=on_relax)
+    arclength = None if scene.solver.path_following == "displacement" else arclength_runner(problem)
+    return load_steps(problem, path_settings(scene), newton_settings(scene), diagnose=lambda: _diagnose(problem),
+                      psi=problem.psi_u.vec.FV().NumPy().copy(), arclength=arclength)
 
 
 def _diagnose(problem: ContinuumProblem) -> Any:

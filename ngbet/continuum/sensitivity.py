@@ -34,6 +34,7 @@ min(α1, α2) has a kink at α1 = α2: there the derivative is the one-sided one
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Sequence
@@ -268,20 +269,21 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     :class:`ngbet.errors.ConvergenceError` when the path cannot be followed to the last load.
     """
     from .problem import ContinuumProblem
-    from .solver import continuation, newton_settings
+    from .solver import load_steps, newton_settings, path_settings
 
     names = _check_params(scene, params)
     profile = {float(k): np.asarray(v, float) for k, v in (profile or {}).items()}
     u = np.asarray(sorted(set(float(v) for v in u_mm if v > 0) | set(profile)))
-    L = scene.loading
     scene = scene.with_changes(**{"loading.u0_mm": float(u[-1]), "loading.stops_mm": list(u[:-1])})
+    # displacement control landing on each load asked for (no output grid)
+    path = dataclasses.replace(path_settings(scene), stops=tuple(s * 1e-3 for s in u), chord_at=(),
+                               path_following="displacement")
     from ..run import ngsolve_threads
 
     with ngsolve_threads(scene):
         rec = _Recorder(ContinuumProblem(scene, mesh), names, profile, [float(v) for v in u])
-        continuation(rec.problem, u[-1] * 1e-3, L.first_step_mm * 1e-3, newton_settings(scene),
-                     max_step=L.max_step_mm * 1e-3, min_step=L.min_step_mm * 1e-3,
-                     stops=[s * 1e-3 for s in u], on_step=rec)
+        for step in load_steps(rec.problem, path, newton_settings(scene)):
+            rec(step)
     keys = np.array(sorted(rec.rows))
     # the force (and its derivatives) at each requested load, in the caller's order, repeats
     # included; the unloaded state carries none; loads only asked for by the profile are left out

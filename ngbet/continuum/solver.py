@@ -9,9 +9,10 @@ load steps are corrected by :mod:`ngbet.continuum.chord`.
 Predictor:        tangent (Euler): x += ∂x/∂λ Δλ from the last factorization, or the clamp one;
                   at the loads of an output grid (``chord_at``) the polynomial through the last
                   converged states (:func:`ngbet.continuum.chord.extrapolate`).
-Stepping:         :func:`ngbet.engine.follow_path`: cut by ``cut`` on failure, grow by ``growth``
-                  after easy increments, land on stops (:func:`follow` puts it together, with
-                  the settings of :mod:`ngbet.continuum.settings`).
+Stepping:         :func:`ngbet.engine.path_steps`: cut by ``cut`` on failure, grow by ``growth``
+                  after easy increments, land on stops (:func:`load_steps` puts it together, with
+                  the settings of :mod:`ngbet.continuum.settings`: a generator of step records
+                  that the runner iterates; :func:`follow` carries it to the end).
 
 Snap-through:     under displacement control, when an increment no longer than ``relax_below``
                   fails (the path folds or branches: past the fold there is no equilibrium
@@ -23,31 +24,31 @@ Snap-through:     under displacement control, when an increment no longer than `
                   domain: inverted material). The state found is accepted only if it is admissible
                   and the tangent positive definite there; if the step released energy beyond the
                   clamp's work, it is a snap-through (load, energy released, force before and after,
-                  where the jump lives); the branch left is told to ``on_relax`` (path_spread.py).
+                  where the jump lives); the branch left rides on the step's record (``left``).
 
 A load that cannot be reached raises :class:`ngbet.errors.ConvergenceError` carrying every
-attempt's decrements, the last converged load [mm] and the diagnosis; the caller has already
-saved each converged step.
+attempt's decrements, the last converged load [mm] and the diagnosis; each converged step has
+been yielded to the caller by then.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine import Outcome, PathControl, PathResult, StepRecord, follow_path
+from ..engine import Outcome, PathResult, StepRecord, path_steps, run_to_end
 from ..errors import Attempt, ConvergenceError
 from .chord import ChordRows, chord_loads
 from .newton import Diagnosis, NewtonReport, NonlinearProblem, failure_pattern, newton
 from .settings import NewtonSettings, PathSettings, newton_settings, path_settings
 
-__all__ = ["Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "PathSettings", "RelaxReport",
-           "RelaxSettings", "SaddlePointNewton", "continuation", "failure_pattern", "follow", "newton",
-           "newton_settings", "path_settings", "relax"]
+__all__ = ["ArcLength", "Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "PathSettings",
+           "RelaxReport", "RelaxSettings", "SaddlePointNewton", "continuation", "failure_pattern", "follow",
+           "load_steps", "newton", "newton_settings", "path_settings", "relax"]
 
 log = logging.getLogger(__name__)
 
@@ -414,88 +415,87 @@ class SaddlePointNewton:
         return "; ".join(t for t in texts if t), detail
 
 
-def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, *,
-           on_step: Callable[[StepRecord], None] | None = None, diagnose: Callable[[], Diagnosis] | None = None,
-           psi: np.ndarray | None = None, progress: Callable[[float], None] | None = None,
-           arclength: Callable[[PathResult], PathResult] | None = None,
-           on_relax: Callable[[float, np.ndarray, bool], None] | None = None) -> PathResult:
-    """Carry the load from 0 to ``path.target`` with :class:`SaddlePointNewton` on the engine.
+#: an arc-length continuation that goes on from a result (its steps appended): a generator of step records
+ArcLength = Callable[[PathResult], Generator[StepRecord, None, PathResult]]
 
-    A stop within a fifth of a step beyond a trial load is landed on. ``on_step`` is called after
-    every converged increment.
 
-    Raises
-    ------
-    ngbet.errors.ConvergenceError
-        when the increment has been cut below ``min_step``, or after ``max_attempts`` increments
-        (converged or not: a bound on the time), with the pattern of the last failures and what
-        ``diagnose`` finds.
-    ValueError
-        when ``path.path_following`` asks for arc length and no ``arclength`` runner is given.
+def load_steps(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, *,
+               diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
+               arclength: ArcLength | None = None) -> Generator[StepRecord, None, PathResult]:
+    """Carry the load from 0 to ``path.target``: a generator of the converged increments' records.
 
-    ``path.path_following``: "displacement" control alone; "arclength": ``arclength(result)``
-    follows the path from the start; "auto": displacement control, and where it fails,
-    ``arclength(result)`` goes on from the last converged state (the steps are appended to the
-    same result). ``path.snap``: under displacement control, an increment that fails at the
-    shortest length is relaxed to a stable state at its load (:func:`relax`; a snap-through is
-    recorded in the step and in ``path_info["snaps"]``); ``on_relax(load, state, snap)`` is told
-    of the branch the path left there.
+    The caller decides what to keep and write; the return value is the
+    :class:`~ngbet.engine.PathResult`. ``path.path_following``: "displacement" control
+    (:class:`SaddlePointNewton` on the engine; with ``path.snap``, an increment that fails at the
+    shortest length is relaxed to a stable state, :func:`relax`, and its record carries the branch
+    left in ``left``); "arclength": ``arclength(result)`` from the start; "auto": displacement
+    control, and where it fails ``arclength(result)`` goes on (its steps appended). Raises
+    ValueError at once for an unknown ``path_following`` or arc length without ``arclength``;
+    :class:`~ngbet.errors.ConvergenceError` while iterating, below ``min_step`` or after
+    ``max_attempts`` increments, with the failures' pattern and what ``diagnose()`` finds.
     """
     if path.path_following not in ("displacement", "arclength", "auto"):
         raise ValueError(f"path_following = {path.path_following!r}: not 'displacement', 'arclength' or 'auto'")
-    if path.path_following != "displacement" and arclength is None:
+    if path.path_following == "displacement":
+        return _displacement_steps(problem, path, settings, diagnose, psi)
+    if arclength is None:
         raise ValueError(f"path_following = {path.path_following!r} needs an arc-length runner; none was given")
-    if path.path_following == "arclength" and arclength is not None:
+    if path.path_following == "arclength":
         return arclength(PathResult(0.0))
-    ctl = PathControl(target=path.target, first_step=path.first_step, max_step=path.max_step,
-                      min_step=path.min_step, growth=settings.growth, cut=settings.cut,
-                      grow_after=settings.grow_after, stops=path.stops, land_within=0.2,
-                      max_attempts=path.max_attempts)
-    if path.path_following == "displacement" or arclength is None:
-        # displacement control relaxes to a stable state where the path folds (the last increment
-        # before the minimum, if within twice the minimum: a snap is bracketed as closely as the
-        # steps go); a problem without a Hessian tangent cannot (no stability test)
-        can = path.snap and getattr(problem, "can_relax", False)
-        below = min(path.min_step / settings.cut, 2 * path.min_step) if can else 0.0
-        corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below,
-                                      chord_at=chord_loads(problem, path.chord_at), length=path.length,
-                                      on_relax=on_relax)
-        try:
-            res = follow_path(corrector, ctl, on_step=on_step, progress=progress)
-        except ConvergenceError as err:
-            err.path_info.update(_snap_info(corrector))
-            raise
-        res.path_info.update(_snap_info(corrector))
-        return res
-    # under "auto" a failure hands over to arc length, which reports the path's instabilities
-    # itself: no diagnosis (an eigen-solve) at the hand-over
+    return _auto_steps(problem, path, settings, psi, arclength)
+
+
+def _displacement_steps(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings,
+                        diagnose: Callable[[], Diagnosis] | None, psi: np.ndarray | None
+                        ) -> Generator[StepRecord, None, PathResult]:
+    """Displacement control, relaxing where the path folds (not without a Hessian tangent)."""
+    # the last increment before the minimum, if within twice it: a snap bracketed as closely as the steps go
+    can = path.snap and getattr(problem, "can_relax", False)
+    below = min(path.min_step / path.cut, 2 * path.min_step) if can else 0.0
+    left: list[tuple[float, np.ndarray]] = []  # the branch left by the step being accepted
+    corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below,
+                                  chord_at=chord_loads(problem, path.chord_at), length=path.length,
+                                  on_relax=lambda lam, x, _snap: left.append((lam, x)))
+    out = PathResult(0.0)
+    try:
+        for rec in path_steps(corrector, path, out):
+            rec.left = left.pop() if left else None
+            yield rec
+    except ConvergenceError as err:
+        err.path_info.update(_snap_info(corrector))
+        raise
+    out.path_info.update(_snap_info(corrector))
+    return out
+
+
+def _auto_steps(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, psi: np.ndarray | None,
+                arclength: ArcLength) -> Generator[StepRecord, None, PathResult]:
+    """Displacement control, then arc length where it fails (which diagnoses: no eigen-solve here)."""
     corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=chord_loads(problem, path.chord_at),
                                   length=path.length)
     partial = PathResult(0.0)
-
-    def keep(rec: StepRecord) -> None:
-        partial.steps.append(rec)
-        if on_step is not None:
-            on_step(rec)
-
     try:
-        return follow_path(corrector, ctl, on_step=keep, progress=progress)
+        return (yield from path_steps(corrector, path, partial))
     except ConvergenceError as err:
         log.warning("displacement control stops at %.6g mm; following the path by arc length", err.last_converged_mm)
         partial.u0 = err.last_converged_mm * 1e-3
         partial.attempts = list(err.attempts)
         partial.cuts = sum(not a.converged for a in err.attempts)
-        return arclength(partial)
+    return (yield from arclength(partial))
+
+
+def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, *,
+           diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
+           arclength: ArcLength | None = None) -> PathResult:
+    """:func:`load_steps` carried to the end (nothing kept but the result)."""
+    return run_to_end(load_steps(problem, path, settings, diagnose=diagnose, psi=psi, arclength=arclength))
 
 
 def continuation(problem: NonlinearProblem, target: float, first_step: float, settings: NewtonSettings, *,
-                 on_step: Callable[[StepRecord], None] | None = None, diagnose: Callable[[], Diagnosis] | None = None,
-                 psi: np.ndarray | None = None, progress: Callable[[float], None] | None = None,
-                 arclength: Callable[[PathResult], PathResult] | None = None, **path: object) -> PathResult:
+                 psi: np.ndarray | None = None, **path: object) -> PathResult:
     """:func:`follow` with the path given by its fields: ``PathSettings(target, first_step, **path)``."""
     path.update({k: tuple(path[k]) for k in ("stops", "chord_at") if k in path})  # type: ignore[arg-type]
-    return follow(problem, PathSettings(target, first_step, **path), settings,  # type: ignore[arg-type]
-                  on_step=on_step, diagnose=diagnose, psi=psi, progress=progress, arclength=arclength)
+    return follow(problem, PathSettings(target, first_step, **path), settings, psi=psi)  # type: ignore[arg-type]
 
 
 def _snap_info(corrector: SaddlePointNewton) -> dict[str, object]:

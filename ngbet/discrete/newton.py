@@ -18,6 +18,7 @@ from typing import Any, Protocol
 import numpy as np
 import scipy.sparse as sp
 
+from ..engine import PathControl
 from .linsolve import FreeBlockSolver, LinearSolverError
 
 log = logging.getLogger(__name__)
@@ -37,23 +38,20 @@ class Problem(Protocol):
 
 @dataclass(frozen=True)
 class StepControl:
-    """Numerics of the load path (SI load units); built from the scene by the entry point."""
+    """Numerics of the network's load path (SI load units); built from the scene by the entry point.
 
-    u0_final: float
-    first_step: float
-    max_step: float
-    min_step: float
+    ``path`` is the step control of the engine (target, steps, growth, cut, and the loads the path
+    must hit exactly: shapes are wanted there); the other fields are the corrector's.
+    """
+
+    path: PathControl
     rtol: float = 1e-10
     atol: float = 1e-14
     max_iterations: int = 12
-    grow_after: int = 4
-    growth: float = 1.5
-    cut: float = 0.5
     predictor: str = "tangent"
     backend: str = "auto"
     stability: bool = True
     n_eigs: int = 2
-    stations: tuple[float, ...] = ()  # loads the path must hit exactly (shapes are wanted there)
     snap_release: float = 0.05  # released fraction of the step's work that marks a snap-through (trapezoid)
     snap_release_hermite: float = 1e-3  # the same with the work by the Hermite rule (tangents at both ends)
     snap_bracket: float = 1e-3  # a step that snaps is cut until it is at most this long

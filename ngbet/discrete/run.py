@@ -12,6 +12,7 @@ default: the paper's intermediate shape) and at the last converged step the stat
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import math
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..engine import StepRecord, progress_bar
+from ..engine import PathControl, PathResult, StepRecord, progress_bar
 from ..errors import ConvergenceError
 from ..figures import start_plot
 from ..kinematics import BetColumns, gamma_a
@@ -30,19 +31,24 @@ from ..scene import Scene
 from . import observables as ob
 from .model import ENERGY_PARTS, NetworkModel
 from .network import network_from_scene
-from .solver import StepControl, solve_path
+from .solver import StepControl, load_steps
 
 log = logging.getLogger(__name__)
 
+
 def step_control(scene: Scene) -> StepControl:
-    """The solver numerics of a scene in SI units; the steps are the smaller of [loading] and [discrete]."""
+    """The network's numerics of a scene in SI units (the one translation of the scene into them).
+
+    The steps are the smaller of [loading] and [discrete]; the path lands on the stops and the
+    output grid.
+    """
     ld, so, d = scene.loading, scene.solver, scene.discrete
     max_step = min(ld.max_step_mm, d.max_step_mm)
-    return StepControl(u0_final=ld.u0_mm * 1e-3, first_step=min(ld.first_step_mm, d.first_step_mm) * 1e-3,
-                       max_step=max_step * 1e-3, min_step=ld.min_step_mm * 1e-3, rtol=so.rtol,
-                       atol=so.atol_energy, max_iterations=so.max_iterations, grow_after=so.grow_after,
-                       growth=so.growth, cut=so.cut, predictor=so.predictor, backend=so.linear_solver,
-                       stations=tuple(s * 1e-3 for s in ld.path_stops_mm),
+    path = PathControl(target=ld.u0_mm * 1e-3, first_step=min(ld.first_step_mm, d.first_step_mm) * 1e-3,
+                       max_step=max_step * 1e-3, min_step=ld.min_step_mm * 1e-3, growth=so.growth, cut=so.cut,
+                       grow_after=so.grow_after, stops=tuple(s * 1e-3 for s in ld.path_stops_mm))
+    return StepControl(path=path, rtol=so.rtol, atol=so.atol_energy, max_iterations=so.max_iterations,
+                       predictor=so.predictor, backend=so.linear_solver,
                        snap_bracket=min(max(4 * ld.min_step_mm, 1.0), max_step) * 1e-3)
 
 
@@ -114,9 +120,21 @@ def run(scene: Scene, out: str | Path, progress: bool = True, measured: Any = No
                                 "free_dofs": int((~model.fixed).sum()), "t_build_s": t_build,
                                 "threads": scene.solver.threads}
         failure = None
-        with progress_bar(progress, ctl.u0_final * 1e3, "discrete BET") as bar:
+        res = PathResult(0.0)  # its path_info: the solver's statistics as of the last step
+        # closed on the way out: the solver's hold on the BLAS threads ends with the path
+        with progress_bar(progress, ctl.path.target * 1e3, "discrete BET") as bar, \
+                contextlib.closing(load_steps(model, ctl, res)) as steps:
             try:
-                stats = solve_path(model, ctl, on_step=rec.on_step, progress=bar)
+                for step in steps:
+                    assert step.state is not None
+                    rec.on_step(step, step.state)
+                    if bar is not None:
+                        bar(step.u0)
+                stats = res.path_info
+            except KeyboardInterrupt as exc:  # Ctrl-C / SIGTERM while writing a step: the statistics so far
+                if not hasattr(exc, "path_info"):
+                    exc.path_info = dict(res.path_info)  # type: ignore[attr-defined]
+                raise
             except ConvergenceError as exc:
                 failure = exc
                 stats = {**exc.path_info, "last_converged_u0_mm": exc.last_converged_mm,
@@ -136,7 +154,7 @@ def run(scene: Scene, out: str | Path, progress: bool = True, measured: Any = No
 
 def _run_info(stats: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The summary's solver statistics and totals over the written rows."""
-    info = {k: v for k, v in stats.items() if k != "u"}
+    info = dict(stats)
     info["snap_event_count"] = len(stats.get("snap_events", []))
     info["newton_iterations_total"] = int(sum(r["newton_iterations"] for r in rows))
     info["max_slip_mm"] = max((r["max_slip_mm"] for r in rows), default=0.0)

@@ -1,7 +1,8 @@
 """The network's corrector: shifted minimizing Newton with stability check and snap handling.
 
-:class:`ShiftedNewton` runs on the engine's load stepping (:func:`ngbet.engine.follow_path`);
-:func:`solve_path` puts the two together. Newton at a fixed load is :func:`ngbet.discrete.newton.newton`,
+:class:`ShiftedNewton` runs on the engine's load stepping (:func:`ngbet.engine.path_steps`);
+:func:`load_steps` puts the two together: a generator of the step records (each with its state),
+which the runner iterates and writes from. Newton at a fixed load is :func:`ngbet.discrete.newton.newton`,
 the stability check :func:`ngbet.discrete.eigen.lowest_eigenvalues`; both are described below.
 
 The solver knows nothing of yarns. A problem provides ``n_dofs``, ``fixed`` (bool mask of
@@ -25,9 +26,9 @@ Step from u0 to u0 + h:
              and a step converged that way ends with one full Newton iteration.
   converged  when the Newton decrement |r . du| (an energy, twice the predicted energy change)
              is below rtol |E| + atol: unit-free.
-  step size  (the engine) grows by ``growth`` (up to max_step) after a step with at most
-             ``grow_after`` iterations, is cut by ``cut`` after a failed step, and a step below
-             ``min_step`` raises :class:`ngbet.errors.ConvergenceError` (every attempt's
+  step size  (the engine, with ``ctl.path``) grows by ``growth`` (up to max_step) after a step
+             with at most ``grow_after`` iterations, is cut by ``cut`` after a failed step, and a
+             step below ``min_step`` raises :class:`ngbet.errors.ConvergenceError` (every attempt's
              decrements, the last converged u0 in mm). A step
              longer than ``snap_bracket`` stops at its first indefinite tangent and is cut (it
              would be cut as a possible snap anyway, see below).
@@ -51,15 +52,15 @@ import contextlib
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Generator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
-from .. import cholmod
-from ..engine import Outcome, PathControl, StepRecord, follow_path
+from .. import cholmod, engine
+from ..engine import Outcome, PathResult, StepRecord, Steps
 from ..errors import Attempt, ConvergenceError
 from .eigen import (
     OTHER_BLOCK_TOL,
@@ -72,8 +73,8 @@ from .newton import Problem, StepControl, _StepFailed, _Tally, _TimedProblem, ne
 
 log = logging.getLogger(__name__)
 
-__all__ = ["OTHER_BLOCK_TOL", "Problem", "ShiftedNewton", "StepControl", "lowest_eigenvalues", "newton",
-           "single_threaded_blas", "solve_path"]
+__all__ = ["OTHER_BLOCK_TOL", "Problem", "ShiftedNewton", "StepControl", "load_steps", "lowest_eigenvalues",
+           "newton", "single_threaded_blas", "solve_path"]
 
 
 def single_threaded_blas() -> Any:
@@ -91,46 +92,55 @@ def single_threaded_blas() -> Any:
     return threadpool_limits(limits=1)
 
 
-def solve_path(problem: Problem, ctl: StepControl,
-               on_step: Callable[[StepRecord, np.ndarray], None] | None = None,
-               progress: Callable[[float], None] | None = None) -> dict[str, Any]:
-    """Follow the load path u0 = 0 -> ctl.u0_final with :class:`ShiftedNewton` on the engine.
+def load_steps(problem: Problem, ctl: StepControl, out: PathResult | None = None
+               ) -> Generator[StepRecord, None, PathResult]:
+    """Follow the load path u0 = 0 -> ``ctl.path.target`` with :class:`ShiftedNewton` on the engine.
 
-    ``on_step(record, u)`` is called after each converged step, ``progress(u0)`` after it. The
-    BLAS libraries in the process (numpy's and scipy's OpenBLAS, NGSolve's OpenBLAS and MKL)
-    are held to one thread meanwhile: the solver's dense operations are vector-sized (dot products,
-    the Lanczos block of a few columns), where a second BLAS thread saves nothing and, spinning
-    between calls, kept a second core busy for the whole run (CPU time = 2x wall time).
-
-    Returns
-    -------
-    dict
-        Iteration and time statistics, snap events and the final state ``u``.
+    Yields the record of each converged step, its state in ``state`` (dropped when the path moves
+    on: the result keeps no states); returns the :class:`~ngbet.engine.PathResult` (``out`` if
+    given), whose ``path_info`` holds the iteration and time statistics and the snap events, as of
+    the last step yielded while the path goes on. The BLAS libraries in the process (numpy's and
+    scipy's OpenBLAS, NGSolve's OpenBLAS and MKL) are held to one thread meanwhile: the solver's
+    dense operations are vector-sized (dot products, the Lanczos block of a few columns), where a
+    second BLAS thread saves nothing and, spinning between calls, kept a second core busy for the
+    whole run (CPU time = 2x wall time).
 
     Raises
     ------
     ngbet.errors.ConvergenceError
-        when a step fails at the minimum step size (the states before it were passed to on_step);
-        its ``path_info`` holds the statistics gathered until then (snap events included, not ``u``).
+        when a step fails at the minimum step size (the states before it have been yielded);
+        its ``path_info`` holds the statistics gathered until then (snap events included).
     KeyboardInterrupt
         passed on with the same ``path_info`` attached (Ctrl-C, SIGTERM).
     """
+    out = PathResult(0.0) if out is None else out
     with single_threaded_blas():
         corrector = ShiftedNewton(problem, ctl)
-        path = PathControl(target=ctl.u0_final, first_step=ctl.first_step, max_step=ctl.max_step,
-                           min_step=ctl.min_step, growth=ctl.growth, cut=ctl.cut, grow_after=ctl.grow_after,
-                           stops=ctl.stations)
-        hook = None if on_step is None else (lambda rec: on_step(rec, corrector.u))
         try:
-            follow_path(corrector, path, on_step=hook, progress=progress)
+            for rec in engine.path_steps(corrector, ctl.path, out):
+                out.path_info = corrector.statistics()
+                yield rec
+                rec.state = None
         except (ConvergenceError, KeyboardInterrupt) as exc:  # Ctrl-C / SIGTERM too: the statistics so far
-            info = {k: v for k, v in corrector.statistics().items() if k != "u"}
+            out.path_info = info = corrector.statistics()
             if isinstance(exc, ConvergenceError):
                 exc.path_info.update(info)
             else:
                 exc.path_info = info  # type: ignore[attr-defined]
             raise
-        return corrector.statistics()
+        out.path_info = corrector.statistics()
+    return out
+
+
+def solve_path(problem: Problem, ctl: StepControl) -> dict[str, Any]:
+    """:func:`load_steps` carried to the end: its statistics and the final state ``u``."""
+    u = np.zeros(problem.n_dofs)
+    steps = Steps(load_steps(problem, ctl))
+    for rec in steps:
+        assert rec.state is not None
+        u = rec.state
+    assert steps.result is not None
+    return {**steps.result.path_info, "u": u}
 
 
 @dataclass
@@ -158,7 +168,7 @@ def _decrements(history: list[tuple[float, float, float]]) -> list[float]:
 
 
 class ShiftedNewton:
-    """The network's corrector for :func:`ngbet.engine.follow_path` (see the module docstring).
+    """The network's corrector for :func:`ngbet.engine.path_steps` (see the module docstring).
 
     Two factorizations of the same pattern: ``lin`` holds the tangent at the converged state
     (predictor, stability check, restart after a failed or cut step: no refactorization),
@@ -259,7 +269,7 @@ class ShiftedNewton:
             self.stats["failed_steps"] += 1
             log.info("step u0 %.5g -> %.5g mm failed (%s)", u0 * 1e3, (u0 + h) * 1e3, exc)
             relaxed = None
-            if not bracketing or h * ctl.cut < ctl.min_step * (1 - 1e-9):
+            if not bracketing or h * ctl.path.cut < ctl.path.min_step * (1 - 1e-9):
                 relaxed = self._relax(exc, u0, h)
             if relaxed is None:
                 return Outcome("failed", len(exc.history), _decrements(exc.history), str(exc))
@@ -269,7 +279,8 @@ class ShiftedNewton:
     def _bracket(self, h: float, iterations: int, history: list[float], reason: str) -> Outcome:
         """Retry at a shorter step, not below the snap bracket."""
         self.stats["snap_bracketing"] += 1
-        return Outcome("retry", iterations, history, reason, retry_step=max(h * self.ctl.cut, self.ctl.snap_bracket))
+        step = max(h * self.ctl.path.cut, self.ctl.snap_bracket)
+        return Outcome("retry", iterations, history, reason, retry_step=step)
 
     def _relax(self, exc: _StepFailed, u0: float, h: float) -> _Trial | None:
         """After a short step failed: no equilibrium near the predictor, the branch ends (limit point).
@@ -353,6 +364,7 @@ class ShiftedNewton:
             if escaped:
                 rec.residual, rec.energy, rec.snap, rec.dforce_du0 = self.g, self.E, True, math.nan
         self.stats["lambda_min"].append(rec.lambda_min)
+        rec.state = self.u
         return rec
 
     def _commit(self, tr: _Trial, h: float) -> None:
@@ -422,10 +434,10 @@ class ShiftedNewton:
         return (f"{n} snap events before the failure" if n else ""), None
 
     def statistics(self) -> dict[str, Any]:
-        """Iteration, factorization and time statistics of the path, and the final state ``u``."""
+        """Iteration, factorization and time statistics of the path (for the summary)."""
         lin, work, t = self.lin, self.work, self._timed
         s = dict(self.stats)
-        s.update({"u": self.u, "steps": self.step, "backend": lin.backend, "n_free": len(self.free),
+        s.update({"steps": self.step, "backend": lin.backend, "n_free": len(self.free),
                   "factorizations": lin.n_factor + work.n_factor, "work_by_cause": self.tally.rows,
                   "half_turn_blocks": lin.has_half_turn,
                   "factorizations_antisymmetric": lin.n_factor_antisymmetric + work.n_factor_antisymmetric,
