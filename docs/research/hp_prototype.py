@@ -82,7 +82,7 @@ def _spaces(self, scene, dirichlet):  # noqa: ANN001
 
 P.ContinuumProblem._spaces = _spaces
 
-scene = C.base_scene(False, **{**C.lagrange(20.0, PMAX), "discretization.corner_mesh_size_mm": CORNER,
+scene = C.base_scene(False, **{**C.lagrange(20.0, PMAX, CORNER),
                                "outputs.error_estimate": "off", "loading.u0_mm": 37.0, "loading.stops_mm": [],
                                **json.loads(os.environ.get("EXTRA", "{}"))})
 t0 = time.perf_counter()

@@ -35,9 +35,9 @@ BISECTIONS = 2
 
 
 def scene(corner_mm: float, p: int, bisections: int = BISECTIONS):  # noqa: ANN201 - a Scene
-    return C.base_scene(False).with_changes(**C.lagrange(20.0, p), **{
-        "discretization.corner_mesh_size_mm": corner_mm, "discretization.corner_bisections": bisections,
-        "outputs.error_estimate": "off", "loading.u0_mm": U0_MM, "loading.stops_mm": []})
+    return C.base_scene(False).with_changes(**C.mesh(20.0, p, corner_mm, bisections), **{
+        "effects.constraint": "lagrange", "outputs.error_estimate": "off", "loading.u0_mm": U0_MM,
+        "loading.stops_mm": []})
 
 
 def force(corner_mm: float, p: int) -> tuple[float | None, int, float]:

@@ -36,8 +36,8 @@ U0_MM = 37.0
 
 
 def scene(p: int):  # noqa: ANN201 - a Scene
-    return C.base_scene(False).with_changes(**C.lagrange(20.0, p), **{
-        "discretization.corner_mesh_size_mm": CORNER, "outputs.error_estimate": "off",
+    return C.base_scene(False).with_changes(**C.lagrange(20.0, p, CORNER), **{
+        "outputs.error_estimate": "off",
         "loading.u0_mm": U0_MM, "loading.stops_mm": []})
 
 
