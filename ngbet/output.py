@@ -303,6 +303,7 @@ class RunWriter:
             **self._base,
             **info,
         }
+        s["steps"] = len(self.rows)  # the rows on disk, whatever a solver's statistics counted (an interrupt in a step)
         s["warnings"] = [*self.warnings, *info.get("warnings", [])]
         self._summary.clear()
         self._summary.update(s)

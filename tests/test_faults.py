@@ -261,6 +261,30 @@ def test_an_interrupt_lost_inside_a_library_still_stops_the_run(tmp_path, monkey
     assert not engine.STOP_REQUESTED.is_set()  # cleared for the next command in this process
 
 
+def test_an_interrupt_while_a_network_step_is_written_counts_the_rows_on_disk(tmp_path, monkeypatch, capsys):
+    """The network's solver has counted the step it hands out before its row is written: an
+    interrupt in between leaves summary.json's ``steps`` equal to the rows on disk, not to the
+    solver's count."""
+    from ngbet.kinematics import BetColumns
+
+    calls = []
+    row = BetColumns.row
+
+    def interrupted_third_row(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return row(self, *args, **kwargs)
+
+    monkeypatch.setattr(BetColumns, "row", interrupted_third_row)
+    out = tmp_path / "d"
+    assert main(["run", "--out", str(out), "--quiet", *(f"--set={k}={v}" for k, v in DISCRETE.items())]) == 130
+    assert "interrupted" in capsys.readouterr().err
+    s, rows = summary(out), read_rows(out / "results.csv")
+    assert s["status"] == "interrupted" and len(rows) == 2 == s["steps"]
+    assert s["last_converged_mm"] == rows[-1]["u0_mm"]
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_interrupted_run_exits_130_and_keeps_its_steps(tmp_path, sig):
     out = tmp_path / "run"
