@@ -161,6 +161,25 @@ def test_table_sensitivities_match_finite_differences():
     assert np.all(err < [1e-6, 1e-6, 1e-6, 2e-3]), dict(zip(P, err, strict=True))
 
 
+def test_band_of_the_fitted_table_is_the_covariance_of_its_rises_through_the_spline():
+    """τ is linear in the rises: one fitted rise s_i with se σ of ln s_i gives sd τ = σ s_i τ_i(x);
+    two independent ones add in quadrature; a parameter that is not a rise adds nothing."""
+    from types import SimpleNamespace
+
+    from ngbet.calibration.report import table_band
+
+    steps, x_max = [2.0e3, 5.0e3, 8.0e3, 1.0e4], 0.9
+    x = np.linspace(0.05, 0.85, 9)
+    unit = [np.nan_to_num(physics.table_stress_spline(np.eye(4)[i], x_max)(x)) for i in range(4)]
+    material = SimpleNamespace(shear_stress_steps_Pa=steps, shear_table_i8_max=x_max)
+    names = ["material.shear_stress_steps_Pa[1]", "material.K_el", "material.shear_stress_steps_Pa[3]"]
+    cov = np.diag([0.3**2, 7.0, 0.1**2])
+    result = SimpleNamespace(names=names, cov_log=cov, scene=SimpleNamespace(material=material))
+    expected = np.hypot(0.3 * steps[1] * unit[1], 0.1 * steps[3] * unit[3])
+    assert np.allclose(table_band(result, x), expected, rtol=1e-12, atol=0.0)
+    assert expected.min() > 0  # the rises reach every x here: the test compares nonzero values
+
+
 def test_start_table_from_the_ideal_quadratic_curve(tmp_path):
     """The ideal-kinematics force of the quadratic law (K = 2e4 Pa, 150 x 300 mm, t = 1.2 mm),
     normalised by Cao's Eq. 18 and turned into a stress, is τ = K sin γ = K |i8|: the points agree

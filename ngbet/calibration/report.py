@@ -64,9 +64,14 @@ def plot_table(result: JointFit, path: Path) -> Path:
         xs, tau = shear_stress_points(c.curve, t)
         ax.plot(xs, tau / 1e3, "o", ms=3, color=f"C{k}", label=f"{c.curve.label}: normalisation method, F_sh / t")
     ax.plot(x, table_stress_spline(steps0, fitted.shear_table_i8_max)(x) / 1e3, ":", color="0.3", label="start table")
-    ax.plot(x, table_stress_spline(fitted.shear_stress_steps_Pa, fitted.shear_table_i8_max)(x) / 1e3, "-",
-            color="k", lw=1.6, label="fitted table (continuum)")
+    tau = table_stress_spline(fitted.shear_stress_steps_Pa, fitted.shear_table_i8_max)(x)
+    ax.plot(x, tau / 1e3, "-", color="k", lw=1.6, label="fitted table (continuum)")
     ax.set_yscale("log")
+    lo, hi = ax.get_ylim()  # the band does not set the scale: where a rise is undetermined it spans decades
+    rel = table_band(result, x) / np.maximum(tau, 1e-300)
+    ax.fill_between(x, tau * np.exp(-np.minimum(2 * rel, 50)) / 1e3, tau * np.exp(np.minimum(2 * rel, 50)) / 1e3,
+                    color="k", alpha=0.12, lw=0, label="fitted table ± 2 sd (first order in ln τ)")
+    ax.set_ylim(lo, hi)
     ax.set_xlabel("|i8| (= sin γ for inextensible yarns)")
     ax.set_ylabel("shear stress τ = dW/d|i8| [kPa] (log scale)")
     ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}, t = {t:g} mm; fitted K_el = "
@@ -75,6 +80,25 @@ def plot_table(result: JointFit, path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     return path
+
+
+def table_band(result: JointFit, x: np.ndarray) -> np.ndarray:
+    """The standard deviation [Pa] of the fitted table's stress τ(x) from the covariance of its fitted rises.
+
+    τ is linear in the rises s_i, so ∂τ/∂ln s_i = s_i τ_i(x) with τ_i the table of the unit rise i
+    (:func:`ngbet.continuum.physics.table_stress_spline`); rises not fitted contribute nothing.
+    """
+    from ..continuum.physics import table_stress_spline
+
+    mat = result.scene.material
+    steps = np.asarray(mat.shear_stress_steps_Pa, dtype=float)
+    fitted = [(k, int(n[len(TABLE_KEY) + 1:-1])) for k, n in enumerate(result.names) if n.startswith(TABLE_KEY)]
+    if not fitted:
+        return np.zeros_like(x)
+    G = np.column_stack([steps[i] * np.nan_to_num(table_stress_spline(np.eye(len(steps))[i], mat.shear_table_i8_max)(x))
+                         for _, i in fitted])
+    rows = [k for k, _ in fitted]
+    return band(G, result.cov_log[np.ix_(rows, rows)])
 
 
 def plot_fit(result: JointFit, path: Path) -> Path:
