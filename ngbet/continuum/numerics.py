@@ -19,9 +19,10 @@ owns everything that is numerics, as NGSolve's ``NewtonSolver`` owns its inverse
   inverse, factorizations and solves) and the wall time and count of every assembly,
   factorization, solve and residual (``timers``, ``counts``).
 
-The solver is the :class:`~ngbet.continuum.newton.NonlinearProblem` that Newton
+The solver, not the problem, is the :class:`~ngbet.continuum.newton.NonlinearProblem` that Newton
 (:mod:`ngbet.continuum.newton`), the chord rows, the relaxation, the arc length and the
-estimates drive:
+estimates drive: the protocol asks for factorizations and solves, which the problem does not
+serve, and those modules talk to the protocol alone, as NGSolve's Newton to a form:
 
 .. math::  r(x) = a(x; \cdot),\quad E(x),\quad J(x) = \partial r/\partial x,\quad
            dx = -J^{-1} r \text{ on the free dofs},\quad
