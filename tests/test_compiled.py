@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from ngbet.continuum import compiled
+from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.scene import default_scene
 
@@ -46,16 +47,17 @@ def test_auto_compiles_nothing_when_the_cache_is_empty(monkeypatch, tmp_path):
 def test_the_interpreted_linearization_is_the_hessian():
     """Symbolic derivatives (the interpreted default) give the tangent of the residual: a central
     difference of the residual agrees to the difference's own error (~1e-10)."""
-    pr = ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
-                                                          "discretization.corner_mesh_size_mm": 0.0,
-                                                          "solver.compile": "interpret"}))
+    pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{
+        "discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 0.0,
+        "solver.compile": "interpret"})))
     assert pr.compile_mode == "interpret"
     pr.set_load(0.02)
     rng = np.random.default_rng(0)
-    pr.x[pr.free_all] += 1e-4 * rng.standard_normal(int(pr.free_all.sum()))
-    pr.a.AssembleLinearization(pr.gf.vec)
-    v = pr.gf.vec.CreateVector()
-    v.FV().NumPy()[:] = rng.standard_normal(len(v)) * pr.free_all
+    free = pr.problem.free_all
+    pr.x[free] += 1e-4 * rng.standard_normal(int(free.sum()))
+    pr.a.AssembleLinearization(pr.problem.gf.vec)
+    v = pr.problem.gf.vec.CreateVector()
+    v.FV().NumPy()[:] = rng.standard_normal(len(v)) * free
     Jv = v.CreateVector()
     Jv.data = pr.a.mat * v
     x0, eps = pr.x.copy(), 1e-7
@@ -67,20 +69,20 @@ def test_the_interpreted_linearization_is_the_hessian():
     assert np.linalg.norm(Jv.FV().NumPy() - fd) < 1e-8 * np.linalg.norm(fd)
 
 
-def _state(h_mm: float, mode: str) -> ContinuumProblem:
-    pr = ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": h_mm,
-                                                          "discretization.corner_mesh_size_mm": 0.0,
-                                                          "solver.compile": mode}))
+def _state(h_mm: float, mode: str) -> ContinuumSolver:
+    pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{
+        "discretization.mesh_size_mm": h_mm, "discretization.corner_mesh_size_mm": 0.0, "solver.compile": mode})))
     assert pr.compile_mode == mode
     pr.set_load(0.02)
-    pr.x[pr.free_all] += 1e-4 * np.random.default_rng(0).standard_normal(int(pr.free_all.sum()))
+    free = pr.problem.free_all
+    pr.x[free] += 1e-4 * np.random.default_rng(0).standard_normal(int(free.sum()))
     return pr
 
 
-def _matrices(pr: ContinuumProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _matrices(pr: ContinuumSolver) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The energy's uncondensed Hessian, the condensed Newton matrix and the residual."""
-    pr.a.AssembleLinearization(pr.gf.vec)
-    pr.linear.form.AssembleLinearization(pr.gf.vec)
+    pr.a.AssembleLinearization(pr.problem.gf.vec)
+    pr.linear.form.AssembleLinearization(pr.problem.gf.vec)
     return np.array(pr.a.mat.CSR()[0]), np.array(pr.linear.mat.AsVector()), pr.residual()
 
 

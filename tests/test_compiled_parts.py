@@ -6,26 +6,28 @@ import pytest
 import scipy.sparse as sps
 
 from ngbet.continuum import compiled
+from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.scene import default_scene
 
 
-def _problem(p: int) -> ContinuumProblem:
-    pr = ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
+def _problem(p: int) -> ContinuumSolver:
+    pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
                                                           "discretization.order_u": p,
                                                           "solver.compile": "interpret",
                                                           # the parts of the energy alone (the jamming
                                                           # barrier is an integrator of its own)
-                                                          "effects.jamming": False}))
+                                                          "effects.jamming": False})))
     pr.set_load(0.02)
-    pr.x[pr.free_all] += 1e-4 * np.random.default_rng(0).standard_normal(int(pr.free_all.sum()))
+    free = pr.problem.free_all
+    pr.x[free] += 1e-4 * np.random.default_rng(0).standard_normal(int(free.sum()))
     return pr
 
 
-def _whole(pr: ContinuumProblem, parts, condense: bool) -> ngs.BilinearForm:
+def _whole(pr: ContinuumSolver, parts, condense: bool) -> ngs.BilinearForm:
     """The sum of the parts as one integrand (one integrator), stored in full."""
-    form = ngs.BilinearForm(pr.X, symmetric=True, condense=condense)
-    compiled.add_energy(form, sum(parts[1:], parts[0]), pr.dx, "interpret")
+    form = ngs.BilinearForm(pr.problem.X, symmetric=True, condense=condense)
+    compiled.add_energy(form, sum(parts[1:], parts[0]), pr.problem.dx, "interpret")
     return form
 
 
@@ -36,18 +38,19 @@ def test_the_energy_in_parts_is_the_whole_energy(p):
     energy, residual and uncondensed Hessian of the parts are those of their sum as one
     integrand to round-off, and so is the condensed Newton matrix of the augmented energy."""
     pr = _problem(p)
-    parts, saddle = pr._energy(pr.scene)
+    parts, saddle = pr.problem.energy_parts, pr.problem.augmented_energy
     assert len(parts) == 2 and len(list(pr.a.integrators)) == 2
     assert len(list(pr.linear.form.integrators)) == 2
     whole = _whole(pr, parts, condense=False)
-    assert pr.energy() == pytest.approx(whole.Energy(pr.gf.vec), rel=1e-13)
-    r = pr.gf.vec.CreateVector()
-    whole.Apply(pr.gf.vec, r)
+    vec = pr.problem.gf.vec
+    assert pr.energy() == pytest.approx(whole.Energy(vec), rel=1e-13)
+    r = vec.CreateVector()
+    whole.Apply(vec, r)
     assert np.abs(pr.residual() - r.FV().NumPy()).max() <= 1e-13 * np.abs(r.FV().NumPy()).max()
     for mine, theirs in ((pr.a, whole), (pr.linear.form, _whole(pr, saddle(pr.K_aug), condense=True))):
-        mine.AssembleLinearization(pr.gf.vec)
-        theirs.AssembleLinearization(pr.gf.vec)
-        fd = np.flatnonzero(np.array(list(pr.X.FreeDofs(mine.condense)), dtype=bool))
+        mine.AssembleLinearization(vec)
+        theirs.AssembleLinearization(vec)
+        fd = np.flatnonzero(np.array(list(pr.problem.X.FreeDofs(mine.condense)), dtype=bool))
         A, B = _full(mine.mat)[fd][:, fd], _full(theirs.mat)[fd][:, fd]
         assert abs(A - B).max() <= 1e-13 * abs(B).max()
 

@@ -6,6 +6,7 @@ import scipy.sparse as sps
 
 from ngbet.continuum.linear import NewtonLinearSolver
 from ngbet.continuum.mesh import corner_refined
+from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.scene import default_scene
 
@@ -15,12 +16,17 @@ def _scene(**changes):
                                            **changes})
 
 
-def _perturb(pr: ContinuumProblem, seed: int) -> None:
+def _solver(scene, mesh=None) -> ContinuumSolver:
+    return continuum_solver(ContinuumProblem(scene, mesh=mesh))
+
+
+def _perturb(pr: ContinuumSolver, seed: int) -> None:
     pr.set_load(0.02)
-    pr.x[pr.free_all] += 1e-4 * np.random.default_rng(seed).standard_normal(int(pr.free_all.sum()))
+    free = pr.problem.free_all
+    pr.x[free] += 1e-4 * np.random.default_rng(seed).standard_normal(int(free.sum()))
 
 
-def _stored(pr: ContinuumProblem) -> sps.csr_matrix:
+def _stored(pr: ContinuumSolver) -> sps.csr_matrix:
     vals, cols, ptr = pr.linear.mat.CSR()
     n = pr.linear.mat.height
     return sps.csr_matrix((np.array(vals), np.array(cols), np.array(ptr)), shape=(n, n))
@@ -30,8 +36,8 @@ def test_the_lower_triangle_is_the_full_newton_matrix():
     """The condensed Newton matrix for the sparse LDLᵀ is stored as its lower triangle; with
     UMFPACK (full storage) the same element matrices are added: the same free block, entry by
     entry, and the same correction (to the round-off the augmented matrix amplifies)."""
-    lower = ContinuumProblem(_scene())
-    full = ContinuumProblem(_scene(**{"solver.linear_solver": "umfpack"}))
+    lower = _solver(_scene())
+    full = _solver(_scene(**{"solver.linear_solver": "umfpack"}))
     for pr in (lower, full):
         _perturb(pr, 0)
         pr.factorize()
@@ -51,7 +57,7 @@ def test_a_refined_mesh_keeps_the_full_matrix():
     """On a mesh with levels (corner refinement, as the error estimate uses) the Newton matrix is
     stored in full, one matrix for every linearization (its factorization is updated)."""
     sc = _scene()
-    pr = ContinuumProblem(sc, mesh=corner_refined(ContinuumProblem(sc).mesh, sc.specimen, 2))
+    pr = _solver(sc, mesh=corner_refined(ContinuumProblem(sc).mesh, sc.specimen, 2))
     _perturb(pr, 0)
     pr.factorize()
     first = pr.linear.mat
@@ -65,8 +71,8 @@ def test_a_new_matrix_is_factorized_anew():
     until it holds one per mesh level (NGSolve): the second linearization's correction is the
     one of a fresh factorization of that state, not an update of the first matrix's."""
     sc = _scene()
-    pr = ContinuumProblem(sc, mesh=corner_refined(ContinuumProblem(sc).mesh, sc.specimen, 2))
-    form = ngs.BilinearForm(pr.X, symmetric=True, symmetric_storage=True, condense=True)
+    pr = _solver(sc, mesh=corner_refined(ContinuumProblem(sc).mesh, sc.specimen, 2))
+    form = ngs.BilinearForm(pr.problem.X, symmetric=True, symmetric_storage=True, condense=True)
     for integrator in pr.linear.form.integrators:
         form += integrator
     pr.linear = NewtonLinearSolver(form, condense=True, choice="sparsecholesky")

@@ -6,6 +6,7 @@ import pytest
 
 from ngbet import run as ngbet_run
 from ngbet.continuum import linear
+from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.scene import default_scene
 
@@ -33,11 +34,12 @@ def test_auto_threads_run_serial_and_assemble_in_their_own_task_manager(monkeypa
     assert linear._ASSEMBLY_THREADS.get() == 0
 
 
-def _problem() -> ContinuumProblem:
-    pr = ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
-                                                          "solver.compile": "interpret"}))
+def _problem() -> ContinuumSolver:
+    pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
+                                                                           "solver.compile": "interpret"})))
     pr.set_load(0.02)
-    pr.x[pr.free_all] += 1e-4 * np.random.default_rng(0).standard_normal(int(pr.free_all.sum()))
+    free = pr.problem.free_all
+    pr.x[free] += 1e-4 * np.random.default_rng(0).standard_normal(int(free.sum()))
     return pr
 
 

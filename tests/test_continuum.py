@@ -11,6 +11,7 @@ import pytest
 from conftest import coarse
 
 from ngbet.continuum import observables as obs
+from ngbet.continuum.numerics import continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.continuum.solver import newton, newton_settings
 from ngbet.output import read_profiles, read_rows
@@ -42,6 +43,7 @@ def _homogeneous(bending: bool):
     """Newton on all-boundary Dirichlet data of an affine map: the problem, its scene, H and i8."""
     scene = coarse(**{"effects.bending": bending, "discretization.mesh_size_mm": 20.0})
     problem = ContinuumProblem(scene, dirichlet="left|right|bottom|top")
+    solver = continuum_solver(problem)
     H = np.array([[0.08, 0.03], [-0.02, -0.04]])  # displacement gradient: stretch + shear
     F = np.eye(2) + H
     C = F.T @ F
@@ -49,7 +51,7 @@ def _homogeneous(bending: bool):
     i8 = m1 @ C @ m2
     _affine_state(problem, H, i8)
     with ngs.TaskManager():
-        rep = newton(problem, newton_settings(scene), e_ref=1.0)
+        rep = newton(solver, newton_settings(scene), e_ref=1.0)
     assert rep.converged
     return problem, scene, H, i8
 
@@ -82,10 +84,11 @@ def test_small_stretch_reaction_matches_the_linearized_value():
     R_small = math.nan
     for eps in (1e-6, 0.05):
         problem = ContinuumProblem(scene, dirichlet="left|right|bottom|top")
+        solver = continuum_solver(problem)
         _affine_state(problem, [[eps, 0.0], [0.0, 0.0]], 0.0)
         with ngs.TaskManager():
-            rep = newton(problem, newton_settings(scene), e_ref=1.0)
-            R = obs.reaction_force(problem, problem.residual())
+            rep = newton(solver, newton_settings(scene), e_ref=1.0)
+            R = obs.reaction_force(problem, solver.residual())
         assert rep.converged
         lam = 1 + eps
         i4, i8 = (lam ** 2 + 1) / 2, (1 - lam ** 2) / 2
@@ -112,9 +115,10 @@ def test_reaction_does_not_depend_on_the_test_field(tmp_path):
     problem = ContinuumProblem(scene)
     from ngbet.continuum.solver import continuation
 
+    solver = continuum_solver(problem)
     with ngs.TaskManager():
-        continuation(problem, 0.02, 0.008, newton_settings(scene))
-        r = problem.residual()
+        continuation(solver, 0.02, 0.008, newton_settings(scene))
+        r = solver.residual()
         psi2 = ngs.GridFunction(problem.X)
         psi2.components[0].Set(ngs.CF(((ngs.x / scene.specimen.L) ** 2, 0)))
     R1 = obs.reaction_force(problem, r)
@@ -188,7 +192,8 @@ def test_ideal_kinematics_shear_angle_follows_the_table(u0):
                       "discretization.structured": True})
     with ngs.TaskManager():
         problem = ContinuumProblem(scene)
-        continuation(problem, u0 * 1e-3, 4e-3, newton_settings(scene), max_step=14e-3, min_step=5e-5)
+        continuation(continuum_solver(problem), u0 * 1e-3, 4e-3, newton_settings(scene), max_step=14e-3,
+                     min_step=5e-5)
         inv = problem.invariants()
         gamma = physics.shear_angle(inv.i4, inv.i6, inv.i8)
         W, L = scene.specimen.W, scene.specimen.L

@@ -616,15 +616,17 @@ def test_branch_switching_is_refused_where_it_does_not_apply():
 def test_no_eigenvalue_of_an_uncondensed_saddle_point_tangent(tmp_path):
     """With Λ kept in the matrix the tangent is indefinite by construction: the lowest eigenpair is
     refused (it would report a negative eigenvalue at the unloaded state) and the diagnosis skips."""
+    from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
     from ngbet.continuum.stability import diagnose_stability, lowest_eigenpair
     from ngbet.scene import Scene
 
-    pb = ContinuumProblem(Scene().with_changes(**{"discretization.mesh_size_mm": 20.0, "solver.condense": False}))
+    pb = continuum_solver(ContinuumProblem(Scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
+                                                                    "solver.condense": False})))
     with pytest.raises(ValueError, match="indefinite by construction"):
         lowest_eigenpair(pb)
     assert "indefinite by construction" in diagnose_stability(pb).skipped
-    condensed = ContinuumProblem(Scene().with_changes(**{"discretization.mesh_size_mm": 20.0}))
+    condensed = continuum_solver(ContinuumProblem(Scene().with_changes(**{"discretization.mesh_size_mm": 20.0})))
     assert lowest_eigenpair(condensed)[0] > 0  # the unloaded state is stable
 
 

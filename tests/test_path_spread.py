@@ -98,9 +98,11 @@ def test_the_spread_is_added_to_the_discretization_bar_and_recorded_on_its_own()
     from ngbet.continuum.path_spread import RunPathSpread
 
     y = _roots(0.2)
-    run = RunPathSpread(SimpleNamespace(jamming=SimpleNamespace(on=False), x=np.array([0.2, y[-1]])))
+    barrier = SimpleNamespace(problem=SimpleNamespace(jamming=SimpleNamespace(on=False)))  # a solver's problem
+    run = RunPathSpread(SimpleNamespace(**vars(barrier), x=np.array([0.2, y[-1]])))
     run.spread = _spread()
     run.spread.problem = DoubleWell()
+    run.spread.problem.problem = barrier.problem
     run.spread.left(0.0, np.array([0.0, -1.0]), snap=True)
     e = run.fold(0.2, Estimate(-y[-1], 0.01, math.nan, math.nan, "toy", 0.0, 0))
     assert e.path_spread_N == pytest.approx(y[-1] - y[0], rel=1e-10)

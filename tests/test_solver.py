@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from conftest import coarse
 
+from ngbet.continuum.numerics import continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.continuum.solver import NewtonSettings, continuation, newton_settings
 from ngbet.errors import ConvergenceError
@@ -16,18 +17,18 @@ from ngbet.run import run
 
 
 def _deformed_problem(**changes):
-    """A coarse problem carried to u0 = 20 mm, then perturbed off equilibrium so that every
-    term of the Hessian (also the multiplier's curvature term Λ·D²i8) is exercised."""
+    """The solver of a coarse problem carried to u0 = 20 mm, then perturbed off equilibrium so that
+    every term of the Hessian (also the multiplier's curvature term Λ·D²i8) is exercised."""
     scene = coarse(**{"discretization.mesh_size_mm": 20.0, "solver.condense": False,
                       "solver.linear_solver": "umfpack", **changes})
-    problem = ContinuumProblem(scene)
+    solver = continuum_solver(ContinuumProblem(scene))
     with ngs.TaskManager():
-        continuation(problem, 0.02, 0.01, newton_settings(scene))
+        continuation(solver, 0.02, 0.01, newton_settings(scene))
     rng = np.random.default_rng(1)
-    free = problem.free_all
-    scale = _field_scales(problem)
-    problem.x[free] += 0.05 * scale[free] * rng.standard_normal(int(free.sum()))
-    return problem
+    free = solver.problem.free_all
+    scale = _field_scales(solver.problem)
+    solver.x[free] += 0.05 * scale[free] * rng.standard_normal(int(free.sum()))
+    return solver
 
 
 def _field_scales(problem):
@@ -47,19 +48,20 @@ def _field_scales(problem):
 ], ids=["penalty-full", "penalty-mixed", "lagrange"])
 def test_jacobian_matches_finite_differences_of_the_residual(changes):
     """J v = (r(x + εv) − r(x − εv)) / 2ε + O(ε²) for random directions v, on every row
-    (Dirichlet rows included). ``problem.a`` is the exact energy's form (for the Lagrange method
-    the Newton matrix ``problem.linear.form`` is deliberately the augmented one; the exact Hessian is checked
+    (Dirichlet rows included). ``solver.a`` is the exact energy's form (for the Lagrange method
+    the Newton matrix ``solver.linear.form`` is deliberately the augmented one; the exact Hessian is checked
     here). A wrong sign or a missing term (e.g. the Λ·D²i8 curvature) gives errors of O(1)."""
     problem = _deformed_problem(**changes)
     rng = np.random.default_rng(2)
     x0 = problem.x.copy()
-    scale = _field_scales(problem)
+    scale = _field_scales(problem.problem)
+    vec = problem.problem.gf.vec
     with ngs.TaskManager():
-        problem.a.AssembleLinearization(problem.gf.vec)
-        vin, vout = problem.gf.vec.CreateVector(), problem.gf.vec.CreateVector()
+        problem.a.AssembleLinearization(vec)
+        vin, vout = vec.CreateVector(), vec.CreateVector()
         errors = []
         for _ in range(3):
-            v = scale * rng.standard_normal(problem.X.ndof)
+            v = scale * rng.standard_normal(len(x0))
             vin.FV().NumPy()[:] = v
             vout.data = problem.a.mat * vin
             Jv = vout.FV().NumPy().copy()
@@ -85,7 +87,8 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
     it differs from the exact Hessian only through Λ²/2K_aug, so applied to a direction without Λ
     component the two agree to round-off, and on a Λ direction they differ by exactly M/K_aug
     (M the L2 mass matrix of Λ): the quasi-Newton is close to Newton and its limit is exact."""
-    problem = _deformed_problem(**{"effects.constraint": "lagrange", "solver.condense": True})
+    solver = _deformed_problem(**{"effects.constraint": "lagrange", "solver.condense": True})
+    problem = solver.problem
     # condense=True with Λ: the Newton matrix is condensed, rebuild the uncondensed augmented form to compare
     from ngbet.continuum import physics
 
@@ -99,9 +102,9 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
             + physics.penalty_constraint(phi, inv.i8, problem.K_s))  # the default stabilization
     assert problem.K_s_range[0] > 0
     aug = ngs.BilinearForm(X, symmetric=True)
-    aug += ngs.Variation((base + physics.mixed_penalty_constraint(phi, inv.i8, lam, problem.K_aug)) * problem.dx)
+    aug += ngs.Variation((base + physics.mixed_penalty_constraint(phi, inv.i8, lam, solver.K_aug)) * problem.dx)
     with ngs.TaskManager():
-        problem.a.AssembleLinearization(problem.gf.vec)
+        solver.a.AssembleLinearization(problem.gf.vec)
         aug.AssembleLinearization(problem.gf.vec)
         rng = np.random.default_rng(3)
         vin, o1, o2 = (problem.gf.vec.CreateVector() for _ in range(3))
@@ -110,13 +113,13 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
         v_nolam = v.copy()
         v_nolam[r_lam.start:r_lam.stop] = 0
         vin.FV().NumPy()[:] = v_nolam
-        o1.data = problem.a.mat * vin
+        o1.data = solver.a.mat * vin
         o2.data = aug.mat * vin
         a1, a2 = o1.FV().NumPy(), o2.FV().NumPy()
         assert np.linalg.norm(a1 - a2) < 1e-12 * np.linalg.norm(a1)
         v_lam = v - v_nolam
         vin.FV().NumPy()[:] = v_lam
-        o1.data = problem.a.mat * vin
+        o1.data = solver.a.mat * vin
         o2.data = aug.mat * vin
         diff = o2.FV().NumPy() - o1.FV().NumPy()
         # −M v_Λ / K_aug: relative to the coupling term it is ~K_sh/K_aug = 1e-6, and non-zero
@@ -129,7 +132,7 @@ def test_newton_converges_quadratically_on_a_load_step():
     iteration to the next once in the contraction region (δ_k+1 ≤ C δ_k² with a small C)."""
     scene = coarse(**{"effects.constraint": "penalty", "effects.penalty_K": 1e6, "loading.u0_mm": 20.0,
                       "discretization.mesh_size_mm": 20.0})
-    problem = ContinuumProblem(scene)
+    problem = continuum_solver(ContinuumProblem(scene))
     settings = NewtonSettings(rtol=1e-14, atol=1e-20, max_iterations=12, simplified_theta=0.0)
     with ngs.TaskManager():
         res = continuation(problem, 0.02, 0.02, settings)
@@ -144,11 +147,11 @@ def test_simplified_exit_saves_a_linearization_without_changing_the_answer():
     scene = coarse(**{"loading.u0_mm": 37.0, "discretization.mesh_size_mm": 20.0})
     forces, facts = [], []
     for theta in (0.0, 0.5):
-        problem = ContinuumProblem(scene)
+        problem = continuum_solver(ContinuumProblem(scene))
         s = NewtonSettings(rtol=scene.solver.rtol, atol=scene.solver.atol_energy, simplified_theta=theta)
         with ngs.TaskManager():
             res = continuation(problem, 0.037, 0.008, s, max_step=0.014, stops=[0.037])
-            forces.append(float(problem.residual() @ problem.psi_u.vec.FV().NumPy()))
+            forces.append(float(problem.residual() @ problem.problem.psi_u.vec.FV().NumPy()))
         facts.append(problem.counts["factorizations"])
         assert len(res.steps) >= 3
     assert facts[1] <= facts[0] - 3  # at least one linearization saved per load step (≥ 3 steps)

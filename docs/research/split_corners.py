@@ -23,6 +23,7 @@ import ngsolve as ngs
 
 from ngbet.continuum import observables as obs
 from ngbet.continuum.mesh import corner_elements, make_mesh
+from ngbet.continuum.numerics import continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.continuum.run import load_path
 from ngbet.engine import run_to_end
@@ -44,12 +45,13 @@ def force(corner_mm: float, p: int) -> tuple[float | None, int, float]:
     """F(37 mm) [N] (None if the load path stops), dofs and seconds on the split mesh."""
     t0 = time.perf_counter()
     sc = scene(corner_mm, p)
-    prob = ContinuumProblem(sc)
+    prob = continuum_solver(ContinuumProblem(sc))
     run_to_end(load_path(prob, sc))
-    F = obs.reaction_force(prob, prob.residual()) * sc.specimen.t if abs(prob.lam * 1e3 - U0_MM) < 1e-9 else None
+    reached = abs(prob.lam * 1e3 - U0_MM) < 1e-9
+    F = obs.reaction_force(prob.problem, prob.residual()) * sc.specimen.t if reached else None
     if F is None:
         print(f"  the load path stops at {prob.lam * 1e3:.2f} mm")
-    return F, prob.X.ndof, time.perf_counter() - t0
+    return F, prob.problem.X.ndof, time.perf_counter() - t0
 
 
 def main() -> None:

@@ -21,6 +21,7 @@ import ngsolve as ngs
 import numpy as np
 
 from ngbet.continuum import observables as obs
+from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.continuum.run import load_path
 from ngbet.continuum.solver import newton, newton_settings
@@ -41,19 +42,20 @@ def scene(p: int):  # noqa: ANN201 - a Scene
         "loading.u0_mm": U0_MM, "loading.stops_mm": []})
 
 
-def loaded(p: int) -> ContinuumProblem:
+def loaded(p: int) -> ContinuumSolver:
     sc = scene(p)
-    prob = ContinuumProblem(sc)
+    prob = continuum_solver(ContinuumProblem(sc))
     run_to_end(load_path(prob, sc))
     if abs(prob.lam * 1e3 - U0_MM) > 1e-9:
         sys.exit(f"p = {p}: the load path stops at {prob.lam * 1e3:.3f} mm")
     return prob
 
 
-def describe(name: str, prob: ContinuumProblem) -> None:
-    t = prob.scene.specimen.t
-    print(f"{name}: p = {prob.scene.discretization.order_u}, {prob.X.ndof} dofs, "
-          f"F = {obs.reaction_force(prob, prob.residual()) * t:.7f} N, energy = {prob.energy() * t:.10e} J")
+def describe(name: str, prob: ContinuumSolver) -> None:
+    pb = prob.problem
+    t = pb.scene.specimen.t
+    print(f"{name}: p = {pb.scene.discretization.order_u}, {pb.X.ndof} dofs, "
+          f"F = {obs.reaction_force(pb, prob.residual()) * t:.7f} N, energy = {prob.energy() * t:.10e} J")
     print(f"  {diagnose_stability(prob).message()[:240]}", flush=True)
 
 
@@ -64,9 +66,9 @@ def main() -> None:
     describe("load path", L)
     A = loaded(P_START)
     for p in range(P_START + 1, P_END + 1):
-        B = ContinuumProblem(scene(p))
-        for k in range(len(B.field_names)):
-            B.gf.components[k].Set(A.gf.components[k])
+        B = continuum_solver(ContinuumProblem(scene(p)))
+        for k in range(len(B.problem.field_names)):
+            B.problem.gf.components[k].Set(A.problem.gf.components[k])
         B.set_load(U0_MM * 1e-3)
         st = dataclasses.replace(newton_settings(scene(p)), max_iterations=60, min_damping=1 / 1024)
         rep = newton(B, st, B.energy())
@@ -74,12 +76,12 @@ def main() -> None:
             sys.exit(f"p = {p} at {U0_MM} mm from p = {p - 1}: Newton failed ({rep.reason})")
         A = B
     describe(f"orders raised at the load from p = {P_START}", A)
-    du = L.gf.components[0] - A.gf.components[0]
-    sp = L.scene.specimen
+    du = L.problem.gf.components[0] - A.problem.gf.components[0]
+    sp = L.problem.scene.specimen
     diffs = []
     for x in np.linspace(0.0, sp.length_mm * 1e-3, int(sp.length_mm / 0.5) + 1):
         for y in np.linspace(0.0, sp.width_mm * 1e-3, int(sp.width_mm / 0.5) + 1):
-            mp = L.mesh(x, y)
+            mp = L.problem.mesh(x, y)
             if mp.nr >= 0:
                 diffs.append((float(np.hypot(*du(mp))), x * 1e3, y * 1e3))
     diffs.sort(reverse=True)

@@ -1,6 +1,7 @@
 """The constrained micromorphic continuum (second gradient through the micro-variable φ = i8) on NGSolve.
 
-problem      spaces, forms, boundary conditions and load of one scene
+problem      spaces, energy, boundary conditions, load and state of one scene
+numerics     the problem's solver: energy forms, linear solver, native code, timers
 physics      the energy terms, each written once
 observables  reactions (volume-integral method), profiles, fields
 solver       damped Newton and load stepping

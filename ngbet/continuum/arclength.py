@@ -405,7 +405,7 @@ def _bifurcation(prev: Instability, here: Instability) -> Instability:
 def arclength_runner(problem: Any) -> Callable[[PathResult], Generator[StepRecord, None, PathResult]]:
     """The continuation the continuum's run hands to :func:`ngbet.continuum.solver.load_steps`.
 
-    Follows the path of ``problem`` (a :class:`~ngbet.continuum.problem.ContinuumProblem`) from
+    Follows the path of ``problem`` (a :class:`~ngbet.continuum.numerics.ContinuumSolver`) from
     its converged state to ``loading.u0_mm``, yielding each step's record and appending it to the
     result it is given; fills ``path_info`` (instabilities with kind, load, force and mode class;
     the first one's mode as mode to picture under :data:`MODE_KEY`, for the runner to write and
@@ -413,12 +413,12 @@ def arclength_runner(problem: Any) -> Callable[[PathResult], Generator[StepRecor
     """
     from .stability import diagnose_stability, indefinite_by_construction, lowest_eigenpair
 
-    scene = problem.scene
+    scene = problem.problem.scene
     path = path_settings(scene)  # arc length lands on the stops, not on the output grid
     ctl = ArcLengthSettings(target=path.target, first_step=path.first_step, max_step=path.max_step,
                             min_step=path.min_step, growth=path.growth, cut=path.cut, grow_after=path.grow_after,
                             stops=tuple(s * 1e-3 for s in scene.loading.stops_mm))
-    psi = problem.psi_u.vec.FV().NumPy().copy()
+    psi = problem.problem.psi_u.vec.FV().NumPy().copy()
     # an uncondensed saddle-point tangent has no stability test: no instability by eigenvalue then
     indefinite = indefinite_by_construction(problem)
     if indefinite and scene.solver.branch == "switch":
@@ -471,13 +471,14 @@ def _path_info(problem: Any, found: list[Instability], start_mm: float) -> dict[
 
     saved = problem.x.copy()
     for ins in found:
-        if ins.mode is not None and problem.phi is not None:
+        if ins.mode is not None and problem.problem.phi is not None:
             r, where = mode_constraint_ratio(problem, ins.mode)
             ins.details.update(mode_ratio=r, mode_class="discretization" if r > DISCRETIZATION_MODE_RATIO
                                else "continuum", mode_location_mm=list(where))
-    info: dict[str, Any] = {"path_following": problem.scene.solver.path_following, "arclength_from_mm": start_mm,
-                            "branch": problem.scene.solver.branch,
-                            "instabilities": [i.as_dict(problem.scene.specimen.t) for i in found]}
+    scene = problem.problem.scene
+    info: dict[str, Any] = {"path_following": scene.solver.path_following, "arclength_from_mm": start_mm,
+                            "branch": scene.solver.branch,
+                            "instabilities": [i.as_dict(scene.specimen.t) for i in found]}
     # the mode pictured: that of the first switch to a bifurcated branch, else of the first instability
     switched = [i for i in found if i.details.get("branch") == "switched"]
     first = next((i for i in switched + found if i.mode is not None), None)

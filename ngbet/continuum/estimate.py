@@ -145,22 +145,23 @@ def enriched_discretization(disc: Discretization) -> Discretization:
 
 
 class ForceErrorEstimator:
-    """Estimates of the force (and profile) error of ``problem`` at its converged loads.
+    """Estimates of the force (and profile) error of a run's problem at its converged loads.
 
     Parameters
     ----------
-    problem : ngbet.continuum.problem.ContinuumProblem
-        The run's problem; its state is read, never changed.
+    solver : ngbet.continuum.numerics.ContinuumSolver
+        The run's solver; its problem's state is read, never changed. The enriched problems get
+        solvers of their own with its settings.
     profile_points : int
         Points of the mid-axis profile (0: no profile estimate).
     """
 
-    def __init__(self, problem: Any, profile_points: int = 0, one_step: bool = ONE_STEP) -> None:
-        self.problem = problem
+    def __init__(self, solver: Any, profile_points: int = 0, one_step: bool = ONE_STEP) -> None:
+        self.solver, self.problem = solver, solver.problem
         self.profile_points = profile_points
         self.one_step = one_step
         # without corner grading the error does not fall with p alone: enrich at the corners too
-        self.corner = problem.scene.discretization.corner_mesh_size_mm <= 0 and one_step and CORNER_LEVELS > 0
+        self.corner = self.problem.scene.discretization.corner_mesh_size_mm <= 0 and one_step and CORNER_LEVELS > 0
         self.method = METHOD_CORNER if self.corner else METHOD_ONE_STEP if one_step else METHOD
         self.theta = THETA_CORNER if self.corner else THETA
         self._enriched: Any = None  # p + 1
@@ -170,19 +171,21 @@ class ForceErrorEstimator:
         self.last_contraction = math.nan  # of the one step of the last level
 
     def _build(self, up: int) -> Any:
-        """The problem ``up`` orders above the run's, on the enrichment's mesh."""
+        """The solver of the problem ``up`` orders above the run's, on the enrichment's mesh (the run's settings)."""
         from .mesh import corner_refined
+        from .numerics import ContinuumSolver
         from .problem import ContinuumProblem
 
         sc: Scene = self.problem.scene
         if up > 1:
-            mesh = self._enriched.mesh
+            mesh = self._enriched.problem.mesh
         else:
             mesh = corner_refined(self.problem.mesh, sc.specimen, CORNER_LEVELS) if self.corner else self.problem.mesh
         disc = sc.discretization
         for _ in range(up):
             disc = enriched_discretization(disc)
-        return ContinuumProblem(dataclasses.replace(sc, discretization=disc), mesh=mesh)
+        return ContinuumSolver(ContinuumProblem(dataclasses.replace(sc, discretization=disc), mesh=mesh),
+                               self.solver.settings)
 
     def estimate(self, lam: float, force_N: float) -> Estimate:
         """The error estimate at the current (converged) state of the problem, load ``lam`` [m].
@@ -211,13 +214,13 @@ class ForceErrorEstimator:
         elif not why:
             if self._enriched2 is None:
                 self._enriched2 = self._build(2)
-            F2, its2, why2 = self._level(self._enriched2, self._enriched, lam, converge=False)
+            F2, its2, why2 = self._level(self._enriched2, self._enriched.problem, lam, converge=False)
             if why2:
                 self.notes[f"{lam * 1e3:g}"] = f"no plateau check at p + 2: {why2}"
         prof = math.nan
         if self.profile_points and not why:
             _, uy = obs.midaxis_profile(pb, self.profile_points)
-            _, uy_plus = obs.midaxis_profile(self._enriched, self.profile_points)
+            _, uy_plus = obs.midaxis_profile(self._enriched.problem, self.profile_points)
             prof = self.theta * 1e3 * float(np.max(np.abs(uy - uy_plus)))
         dt = time.perf_counter() - t0
         self.total_s += dt
@@ -232,17 +235,18 @@ class ForceErrorEstimator:
         return Estimate(force_N, err, F1, prof, self.method, dt, its1 + its2, F2)
 
     def _level(self, enr: Any, src: Any, lam: float, converge: bool = True) -> tuple[float, int, str]:
-        """The force of ``enr`` at ``lam`` from the state of ``src``: (F [N], Newton iterations, why not).
+        """The force of the solver ``enr`` at ``lam`` from the problem ``src``'s state: (F [N], iterations, why not).
 
         ``converge``: where the one step does not contract, run Newton to convergence (else give up:
         the p + 2 level, a check that is not worth a converged solve one order further up).
         """
         from . import observables as obs
 
+        up = enr.problem
         for i in range(len(src.field_names)):
-            enr.gf.components[i].Set(src.gf.components[i])
+            up.gf.components[i].Set(src.gf.components[i])
         enr.set_load(lam)
-        p_enr = enr.scene.discretization.p_u
+        p_enr = up.scene.discretization.p_u
         x0 = enr.x.copy()
         r0 = enr.residual() if self.one_step else None
         report = one_newton_step(enr, r0) if self.one_step else None
@@ -255,8 +259,8 @@ class ForceErrorEstimator:
             if not converge and report is not None:
                 return math.nan, report.iterations, f"{first} (not solved further)"
             enr.x[:] = x0
-            settings = dataclasses.replace(newton_settings(enr.scene), reuse_contraction=ENRICHED_REUSE,
-                                           rtol=max(ENRICHED_RTOL, enr.scene.solver.rtol))
+            settings = dataclasses.replace(newton_settings(up.scene), reuse_contraction=ENRICHED_REUSE,
+                                           rtol=max(ENRICHED_RTOL, up.scene.solver.rtol))
             # the one step's factorization is that at x0: Newton's first iteration reuses it
             report = newton(enr, settings, enr.energy(), factorized=r0 is not None, r=r0)
             if not report.converged or report.residual is None:
@@ -264,11 +268,11 @@ class ForceErrorEstimator:
                     f"the enriched problem (p = {p_enr}) has no equilibrium that Newton reaches from the state "
                     f"one order below ({'; '.join(t for t in (first, report.reason) if t)})")
         assert report.residual is not None  # a converged report carries its residual
-        return obs.reaction_force(enr, report.residual) * enr.scene.specimen.t, report.iterations, ""
+        return obs.reaction_force(up, report.residual) * up.scene.specimen.t, report.iterations, ""
 
 
 def one_newton_step(problem: Any, r: np.ndarray | None = None) -> Any:
-    """One full Newton step of ``problem`` from its state (whose residual is ``r`` when given).
+    """One full Newton step of ``problem`` (a NonlinearProblem) from its state (whose residual is ``r`` when given).
 
     The report carries the new residual; ``converged`` means only that the step and the residual
     are finite. The problem's factorization is left at the starting state.
@@ -287,9 +291,9 @@ def one_newton_step(problem: Any, r: np.ndarray | None = None) -> Any:
     return rep
 
 
-def estimate(problem: Any, lam: float, force_N: float, profile_points: int = 0) -> Estimate:
-    """One-off :meth:`ForceErrorEstimator.estimate` (builds the enriched problem each call)."""
-    return ForceErrorEstimator(problem, profile_points).estimate(lam, force_N)
+def estimate(solver: Any, lam: float, force_N: float, profile_points: int = 0) -> Estimate:
+    """One-off :meth:`ForceErrorEstimator.estimate` of a run's solver (builds the enriched problem each call)."""
+    return ForceErrorEstimator(solver, profile_points).estimate(lam, force_N)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -445,16 +449,16 @@ class RunEstimates:
     is the estimate plus the force's spread over the branches left (:mod:`ngbet.continuum.path_spread`).
     """
 
-    def __init__(self, problem: Any) -> None:
-        sc: Scene = problem.scene
+    def __init__(self, solver: Any) -> None:
+        sc: Scene = solver.problem.scene
         self.mode = sc.outputs.error_estimate
         self.final = sc.loading.u0_mm
         self.stops = tuple(sc.loading.stops_mm) if self.mode == "stops" else ()
-        self.estimator = (ForceErrorEstimator(problem, sc.outputs.profile_points if sc.outputs.profile else 0,
+        self.estimator = (ForceErrorEstimator(solver, sc.outputs.profile_points if sc.outputs.profile else 0,
                                               one_step=ONE_STEP)
                           if self.mode != "off" and sc.outputs.reaction else None)
         self.last: Estimate | None = None
-        self.spread = RunPathSpread(problem)  # the path's relaxations tell it the branches they left
+        self.spread = RunPathSpread(solver)  # the path's relaxations tell it the branches they left
         self.profile_errors: dict[str, float] = {}
         self.unreliable: dict[str, str] = {}  # load [mm] -> why the estimate there cannot vouch
         d = sc.discretization

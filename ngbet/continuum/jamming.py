@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import ngsolve as ngs
@@ -33,16 +34,17 @@ JAMMING_MARGIN = 2.0
 class JammingBarrier:
     """The barrier's integrator on the forms of a problem, and the watch that switches it on.
 
-    ``forms``: (bilinear form, linearized) pairs the energy term is added to; ``u``: the
-    displacement whose yarn angle is watched. With ``effects.jamming`` off nothing is added and
-    :attr:`on` stays False.
+    ``forms``: (bilinear form, linearized) pairs the energy term is added to (more with
+    :meth:`add_to`); ``u``: the displacement whose yarn angle is watched. With ``effects.jamming``
+    off nothing is added and :attr:`on` stays False.
     """
 
     def __init__(self, scene: Scene, mesh: ngs.Mesh, X: ngs.FESpace, u: Any, m1: CF, m2: CF,
-                 forms: list[tuple[ngs.BilinearForm, bool]]) -> None:
+                 forms: Sequence[tuple[ngs.BilinearForm, bool]] = ()) -> None:
         self.elements = ngs.BitArray(mesh.ne)
         self.elements.Clear()
         self._check: tuple[CF, object] | None = None
+        self._energy: tuple[CF, int] | None = None  # the integrand and its bonus integration order
         self.s_jam = math.nan
         if not scene.effects.jamming:
             return
@@ -55,16 +57,23 @@ class JammingBarrier:
 
         W = physics.jamming_energy(sine(ngs.Grad(X.TrialFunction()[0])), max(mat.K_el, mat.K_sh),
                                    self.s_jam).Compile()
+        self._energy = (W, 2 + disc.quad_bonus)
+        self.add_to(forms)
+        rule = ngs.IntegrationRule(ngs.TRIG, 2 * max(disc.p_u, 1) + disc.quad_bonus)
+        self._check = (sine(ngs.Grad(u)).Compile(), mesh.MapToAllElements(rule, ngs.VOL))
+
+    def add_to(self, forms: Sequence[tuple[ngs.BilinearForm, bool]]) -> None:
+        """Add the barrier's integrator to each (bilinear form, linearized) pair (nothing when jamming is off)."""
+        if self._energy is None:
+            return
+        W, bonus = self._energy
         before = ngs.ngsglobals.symbolic_integrator_uses_diff
         try:
             for form, symbolic in forms:
                 ngs.ngsglobals.symbolic_integrator_uses_diff = symbolic
-                form += ngs.SymbolicEnergy(W, ngs.VOL, bonus_intorder=2 + disc.quad_bonus,
-                                           definedonelements=self.elements)
+                form += ngs.SymbolicEnergy(W, ngs.VOL, bonus_intorder=bonus, definedonelements=self.elements)
         finally:
             ngs.ngsglobals.symbolic_integrator_uses_diff = before
-        rule = ngs.IntegrationRule(ngs.TRIG, 2 * max(disc.p_u, 1) + disc.quad_bonus)
-        self._check = (sine(ngs.Grad(u)).Compile(), mesh.MapToAllElements(rule, ngs.VOL))
 
     @property
     def on(self) -> bool:

@@ -2,7 +2,8 @@
 
 :class:`NewtonLinearSolver` owns what is numerics, not formulation: whether element-local dofs (Λ)
 are condensed out before factorizing, the sparse inverse, the augmented Newton matrix of the exact
-Lagrange method, and the time and count of every assembly, factorization and solve.
+Lagrange method, and the time and count of every assembly, factorization and solve. It is the
+linear algebra of a problem's :class:`~ngbet.continuum.numerics.ContinuumSolver`.
 
 Augmentation. The exact Lagrangian's Λ-Λ block is zero, so Λ cannot be condensed from it. With
 condensation the Newton matrix is therefore that of the mixed penalty with a very large

@@ -37,7 +37,12 @@ class Diagnosis(Protocol):
 
 
 class NonlinearProblem(Protocol):
-    """What the solver needs from a problem. All vectors are numpy views of full length."""
+    """What the solver needs from a problem. All vectors are numpy views of full length.
+
+    The continuum's is :class:`ngbet.continuum.numerics.ContinuumSolver`: a
+    :class:`~ngbet.continuum.problem.ContinuumProblem` (state, load, norm) bound to its forms and
+    linear solver (residual, energy, factorizations and solves).
+    """
 
     x: np.ndarray  # the state, including Dirichlet entries
 

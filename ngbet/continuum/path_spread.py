@@ -184,11 +184,12 @@ class RunPathSpread:
     """The path spread of a continuum run, folded into its error estimates (:class:`~.estimate.RunEstimates`).
 
     Costs nothing until the path relaxes (:meth:`left`); from then on, at each estimated load, the
-    branches left are continued on a copy of the problem (built once).
+    branches left are continued on a copy of the problem (built once) with a solver of its own,
+    of the run's settings. ``solver``: the run's (:class:`~ngbet.continuum.numerics.ContinuumSolver`).
     """
 
-    def __init__(self, problem: Any) -> None:
-        self.problem = problem
+    def __init__(self, solver: Any) -> None:
+        self.solver = solver
         self.spread: PathSpread | None = None
         self.last = math.nan  #: the spread at the last estimated load [N]
 
@@ -202,21 +203,23 @@ class RunPathSpread:
         if self.spread is None:
             from .settings import newton_settings, path_settings
 
-            sc = self.problem.scene
+            sc = self.solver.problem.scene
             path = path_settings(sc)
             self.spread = PathSpread(self._copy, self._force, newton_settings(sc), path.first_step, path.min_step,
                                      min(path.max_step, BRANCH_MAX_STEP))
         self.spread.left(lam, x, snap)
 
     def _copy(self) -> Any:
+        from .numerics import ContinuumSolver
         from .problem import ContinuumProblem
 
-        return ContinuumProblem(self.problem.scene, mesh=self.problem.mesh)
+        run = self.solver.problem
+        return ContinuumSolver(ContinuumProblem(run.scene, mesh=run.mesh), self.solver.settings)
 
-    def _force(self, problem: Any, r: np.ndarray) -> float:
+    def _force(self, solver: Any, r: np.ndarray) -> float:
         from .observables import reaction_force
 
-        return float(reaction_force(problem, r)) * problem.scene.specimen.t
+        return float(reaction_force(solver.problem, r)) * solver.problem.scene.specimen.t
 
     def fold(self, lam: float, e: Any) -> Any:
         """The estimate ``e`` at ``lam`` [m] with the spread added to its bar (``e`` itself before any relaxation).
@@ -228,9 +231,10 @@ class RunPathSpread:
         sp = self.spread
         if sp.problem is None:
             sp.problem = self._copy()
-        if self.problem.jamming.on and not sp.problem.jamming.on:
-            sp.problem.jamming.switch_on()  # the copy's barrier as the run's
-        s = self.last = sp.at(lam, e.force_N, self.problem.x)
+        run, copy = self.solver.problem, sp.problem.problem
+        if run.jamming.on and not copy.jamming.on:
+            copy.jamming.switch_on()  # the copy's barrier as the run's
+        s = self.last = sp.at(lam, e.force_N, self.solver.x)
         if s > 0:
             log.warning("at u0 = %.6g mm the force depends on the path: a branch the path left at a relaxation is "
                         "stable there with a force %.3g N away; the error bar includes it", lam * 1e3, s)

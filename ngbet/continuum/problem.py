@@ -11,10 +11,13 @@ shear (+ elongation)       u ∈ VectorH1(p)                      W_sh + W_el (f
 + bending, penalty full    u, φ (+ Λ, see below)                + W_b + ½K(φ − i8)²
 =========================  ==================================  ===============================
 
-The energy is written once, handed to ``Variation`` (with bending in two parts, the bending
-energy and the rest: :meth:`ContinuumProblem._energy` says why) and compiled; NGSolve differentiates it for
-the residual and the linearization. The multiplier lives in L2 of order max(p − 2, 0)
-(discontinuous, element-local, so it can be eliminated element by element). Measured with
+The energy is written once as an integrand in parts (the bending energy and the rest:
+:meth:`ContinuumProblem._energy` says why); its solver (:class:`ngbet.continuum.numerics.ContinuumSolver`)
+hands it to ``Variation`` and compiles it, and NGSolve differentiates it for the residual and the
+linearization. The problem holds no form, inverse or timer: those are numerics, the solver's.
+
+The multiplier lives in L2 of order max(p − 2, 0) (discontinuous, element-local, so it can be
+eliminated element by element). Measured with
 :func:`ngbet.continuum.observables.multiplier_oscillation` (the part of Λ that a continuous field cannot
 represent, away from the clamps) on the default scene at 37 mm: with Λ ∈ L2(p − 1) it stays at
 0.84–0.86 on h = 10, 5, 2.5 mm for p = 2 (also with φ of order 3): the multiplier oscillates
@@ -22,8 +25,8 @@ from element to element and does not converge, though u, φ and the force do; wi
 it falls as O(h) for p = 2 (0.093, 0.048, 0.025) and as O(h²) for p = 3 (0.0061, 0.0015), with
 the same force (Richardson limit 61.2 N for both pairs at p = 2). p = 1 locks (84 N against
 62 N at h = 10 mm with Λ ∈ L2(0)); use p ≥ 2. For the exact Lagrange method with ``condense`` the
-Newton matrix is augmented (:mod:`ngbet.continuum.linear`, which owns condensation, the sparse
-inverse and the solver timers).
+Newton matrix is augmented (:mod:`ngbet.continuum.linear`, which owns condensation and the sparse
+inverse): the problem gives the augmented integrand (``augmented_energy``) for it.
 
 Stabilization. Λ ∈ L2(p − 2) ties φ to i8 only in the element moments of degree p − 2; the rest
 of i8 inside an element is held by the first-gradient energy alone, and where the yarns are
@@ -42,7 +45,7 @@ discrete solution, since the L2 projection onto that space is the identity on φ
 linearizes around the iterate's Λ instead of K(φ − i8), which the predictor makes huge for large
 K (K = 1e10: 56 load steps pointwise, 6 in this form). The formulation follows the effects alone;
 ``solver.condense`` eliminates Λ, like every element-local unknown, or keeps it in the factorized
-matrix, to the same solution.
+matrix, to the same solution (a choice of the solver, not of the problem).
 
 Dirichlet data (docs/model.md, *Boundary conditions*): u = 0, φ = 0 on Σ1 (``left``); u = (u0, 0), φ = 0 on Σ2
 (``right``). The load parameter λ of the solver is u0 in metres.
@@ -51,7 +54,6 @@ Dirichlet data (docs/model.md, *Boundary conditions*): u = 0, φ = 0 on Σ1 (``l
 from __future__ import annotations
 
 import logging
-import time
 from collections.abc import Callable
 
 import ngsolve as ngs
@@ -60,9 +62,8 @@ from ngsolve import CoefficientFunction as CF
 
 from ..scene import AUTO, Scene, Specimen
 from . import physics
-from .compiled import add_energy
 from .jamming import JammingBarrier
-from .linear import LAGRANGE_AUGMENTATION, NewtonLinearSolver, energy_form, pick_inverse
+from .linear import LAGRANGE_AUGMENTATION
 from .mesh import make_mesh
 from .parameters import material_parameters
 
@@ -128,10 +129,13 @@ def _range_over_elements(k: CF | float, mesh: ngs.Mesh) -> tuple[float, float]:
 
 
 class ContinuumProblem:
-    """Spaces, forms, boundary conditions and load of one scene.
+    """Spaces, energy, boundary conditions, load and state of one scene.
 
-    Implements :class:`ngbet.continuum.solver.NonlinearProblem`; its linear algebra is the
-    :class:`~ngbet.continuum.linear.NewtonLinearSolver` ``self.linear``.
+    The energy integrand is ``energy_parts`` (and ``augmented_energy`` for the Newton matrix of the
+    condensed exact Lagrangian); the state is ``gf`` with its numpy view ``x``; the load λ = u0 [m]
+    moves the Dirichlet entries (:meth:`set_load`). Newton, the path and the estimates drive it
+    through its solver (:class:`ngbet.continuum.numerics.ContinuumSolver`, the
+    :class:`~ngbet.continuum.newton.NonlinearProblem`), which owns the forms and linear algebra.
     """
 
     def __init__(self, scene: Scene, mesh: ngs.Mesh | None = None, dirichlet: str = DIRICHLET) -> None:
@@ -143,26 +147,13 @@ class ContinuumProblem:
         mat = scene.material
         self.K_ref = mat.K_sh if mat.K_sh > 0 else mat.K_el
         self.dx = ngs.dx(bonus_intorder=disc.quad_bonus)
-        energy, saddle_energy = self._energy(scene)
-        self.energy_parts = energy  # differentiated with respect to self.parameters (sensitivity.py)
-        # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
-        self.condense = scene.solver.condense
-        inverse = pick_inverse(scene.solver.linear_solver, saddle_energy is not None and not self.condense,
-                               self.condense, self.X.FreeDofs(self.condense).NumSet())
-        self.a = energy_form(self.X, inverse, condense=self.condense and saddle_energy is None)
-        # the energy form is linearized unless the augmented Newton matrix of linear.py replaces it
-        linearized = not (self.condense and saddle_energy is not None)
-        self.compile_mode = add_energy(self.a, energy, self.dx, scene.solver.compile, self.X.ndof, linearized)
-        self.linear = NewtonLinearSolver(self.a, self.condense, scene.solver.linear_solver, saddle_energy,
-                                         self.K_ref, self.dx,
-                                         scene.solver.compile if self.compile_mode == "native" else "interpret")
+        #: the energy integrand in parts (differentiated with respect to self.parameters in
+        #: sensitivity.py), and for the exact Lagrangian K_aug -> the augmented one (else None)
+        self.energy_parts, self.augmented_energy = self._energy(scene)
         self.gf = ngs.GridFunction(self.X)
-        forms = [(self.a, linearized)] if self.linear.form is self.a else [(self.a, False), (self.linear.form, True)]
-        self.jamming = JammingBarrier(scene, self.mesh, self.X, self.u, self.m1, self.m2, forms)
+        # an energy term of its own, added to the solver's forms (ContinuumSolver)
+        self.jamming = JammingBarrier(scene, self.mesh, self.X, self.u, self.m1, self.m2)
         self.x = self.gf.vec.FV().NumPy()
-        self._r = self.gf.vec.CreateVector()
-        self._w = self.gf.vec.CreateVector()
-        self._w2 = self.gf.vec.CreateVector()
         self.free_all = np.array(list(self.X.FreeDofs()), dtype=bool)
         self.dirichlet = ~self.free_all
         self._load_fields(sp)
@@ -171,8 +162,6 @@ class ContinuumProblem:
         self._lam_mass: tuple[slice, np.ndarray] | None = None  # Λ's rows and the diagonal of its mass matrix
         self._det_F: ngs.CoefficientFunction | None = None
         self.inverted_allowed = 0.0  # inverted area [m²] a state may have and be admissible
-        self._t_residual = 0.0
-        self._n_residual = 0
 
     def _spaces(self, scene: Scene, dirichlet: str) -> None:
         """The compound space of the fields the effects call for."""
@@ -246,41 +235,15 @@ class ContinuumProblem:
         if "phi" in self.field_names:
             self.psi_phi = ngs.GridFunction(self.X)
             self.psi_phi.components[1].Set(ngs.x / sp.L)
-        self._load_dir = np.where(self.dirichlet, self.psi_u.vec.FV().NumPy(), 0.0)
+        #: ψ_D: the Dirichlet entries' change per unit load (0 on the free entries)
+        self.load_direction = np.where(self.dirichlet, self.psi_u.vec.FV().NumPy(), 0.0)
         self._clamp_dir = self.psi_u.vec.FV().NumPy().copy()
-
-    # --------------------------------------------------------------------------- linear algebra
-    @property
-    def K_aug(self) -> float:
-        """K_aug of the augmented Newton matrix (0 when not augmented) [Pa]."""
-        return self.linear.K_aug
-
-    @property
-    def inverse_type(self) -> str:
-        """The sparse inverse in use."""
-        return self.linear.inverse_type
-
-    @property
-    def freedofs(self) -> ngs.BitArray:
-        """The dofs the Newton matrix is factorized on (after condensation)."""
-        return self.linear.freedofs
-
-    @property
-    def timers(self) -> dict[str, float]:
-        """Wall time [s] by kind: assembly, factorization, solve, residual."""
-        return {**self.linear.timers, "residual_s": self._t_residual}
-
-    @property
-    def counts(self) -> dict[str, int]:
-        """Factorizations, solves, residual evaluations."""
-        return {**self.linear.counts, "residuals": self._n_residual}
 
     # --------------------------------------------------------------------------- bookkeeping
     def ndofs(self) -> dict[str, int]:
-        """Degrees of freedom per field, and those left after condensation."""
+        """Degrees of freedom per field and in all (those factorized: :meth:`ContinuumSolver.ndofs`)."""
         out = {name: int(self.X.components[i].ndof) for i, name in enumerate(self.field_names)}
         out["total"] = int(self.X.ndof)
-        out["factorized"] = int(sum(self.linear.freedofs))
         return out
 
     def _norm_weights(self) -> np.ndarray:
@@ -292,11 +255,11 @@ class ContinuumProblem:
             w[rng.start:rng.stop] = scale[name]
         return w * self.free_all
 
-    # --------------------------------------------------------------------------- solver interface
+    # --------------------------------------------------------------------------- load, state, admissibility
     def set_load(self, lam: float) -> None:
         """Set the load λ = u0 [m]: the Dirichlet entries of x follow it."""
         self.lam = lam
-        self.x[self.dirichlet] = lam * self._load_dir[self.dirichlet]
+        self.x[self.dirichlet] = lam * self.load_direction[self.dirichlet]
 
     def converged(self) -> None:
         """The current state is an equilibrium the path keeps: the jamming barrier watches it.
@@ -306,42 +269,12 @@ class ContinuumProblem:
         """
         self.jamming.watch()
 
-    def residual(self) -> np.ndarray:
-        """r(x), full length (Dirichlet rows hold the reactions)."""
-        t0 = time.perf_counter()
-        self.a.Apply(self.gf.vec, self._r)
-        self._t_residual += time.perf_counter() - t0
-        self._n_residual += 1
-        return self._r.FV().NumPy().copy()
+    def constraint_moments(self, r: np.ndarray) -> float:
+        """‖Π(φ − i8)‖²: the squared element moments of the constraint at the state whose residual is ``r``.
 
-    def energy(self) -> float:
-        """The total energy (Lagrangian) per unit thickness at x [J/m]."""
-        return float(self.a.Energy(self.gf.vec))
-
-    def factorize(self, shift: float = 0.0) -> float:
-        """Linearize at the current state and factorize.
-
-        ``shift`` > 0: the diagonal raised by s |diag|, s ≥ shift enough for a positive definite
-        matrix where that can be tested (:meth:`NewtonLinearSolver.factorize`); returns s.
+        From the residual's Λ rows r_Λ = ∫ δΛ (φ − i8 − Λ/K) with the diagonal of Λ's mass matrix
+        (L2-orthogonal basis): Σ r_Λ² / m_ΛΛ (the merit of :meth:`ContinuumSolver.merit`).
         """
-        return self.linear.factorize(self.gf.vec, shift)
-
-    def merit(self, r: np.ndarray) -> float:
-        """The energy plus ½ρ‖Π(φ − i8)‖² at the state whose residual is ``r``: a merit for descent.
-
-        Infinite where the material is inverted somewhere (det F ≤ 0): the descent stays among
-        physical states.
-
-        The Lagrangian alone is no merit off the constraint (Λ(φ − i8) can fall without bound).
-        The constraint's element moments come from the residual's Λ rows
-        r_Λ = ∫ δΛ (φ − i8 − Λ/K) with the diagonal of Λ's mass matrix (L2-orthogonal basis);
-        ρ is the augmentation of the Newton matrix (or the penalty K).
-        """
-        if self.admissible():  # outside the energy's domain: the material would turn inside out
-            return float("inf")
-        E = self.energy()
-        if "lam" not in self.field_names:
-            return E
         if self._lam_mass is None:
             V = self.X.components[2]
             m = ngs.BilinearForm(V, symmetric=True)
@@ -350,8 +283,7 @@ class ContinuumProblem:
             rng = self.X.Range(2)
             self._lam_mass = (slice(rng.start, rng.stop), np.array([m.mat[i, i] for i in range(V.ndof)]))
         rows, mass = self._lam_mass
-        rho = self.linear.K_aug or self.scene.effects.penalty_K
-        return E + 0.5 * rho * float(np.sum(r[rows] ** 2 / mass))
+        return float(np.sum(r[rows] ** 2 / mass))
 
     def inverted_area(self) -> float:
         """The area [m²] where det F ≤ 0 (the material turned inside out; the yarn invariants do not see it)."""
@@ -388,57 +320,11 @@ class ContinuumProblem:
         self.inverted_allowed = self.inverted_area()
         self.jamming.switch_on()
 
-    @property
-    def can_relax(self) -> bool:
-        """Whether the Newton matrix is a Hessian (condensed, or no multiplier).
-
-        Then energy descent and the stability test work (:func:`ngbet.continuum.solver.relax`).
-        """
-        return self.linear.condensed or "lam" not in self.field_names
-
-    def lowest_mode(self) -> tuple[float, np.ndarray]:
-        """The lowest eigenvalue of the scaled tangent at the current state and its mode (full length)."""
-        from .stability import lowest_eigenpair
-
-        mu, mode = lowest_eigenpair(self)
-        self._w.FV().NumPy()[:] = mode
-        self.linear.extend(self._w)  # the condensed local dofs follow
-        full = self._w.FV().NumPy().copy()
-        full[self.dirichlet] = 0.0
-        return mu, full
-
     def locate(self, dx: np.ndarray) -> dict[str, object]:
         """Where a change of state ``dx`` (full length) lives: the centroid and extent of |∇δu|² [mm]."""
         from .stability import field_location
 
         return field_location(self, dx)
-
-    def solve(self, r: np.ndarray) -> np.ndarray:
-        """The correction −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
-        self._w.FV().NumPy()[:] = r
-        self.linear.solve_into(self._w, self._w2)
-        dx = -self._w2.FV().NumPy()
-        dx[self.dirichlet] = 0.0
-        return dx
-
-    def load_tangent(self, dlam: float) -> np.ndarray:
-        """The load tangent times dlam: Dirichlet entries moved by dlam, the others −J⁻¹ J_fd dlam."""
-        d = dlam * self._load_dir
-        self._w2.FV().NumPy()[:] = d
-        self._w.data = self.linear.mat * self._w2
-        dx = self.solve(self._w.FV().NumPy())
-        dx[self.dirichlet] = d[self.dirichlet]
-        if self.linear.condensed:  # local dofs follow the Dirichlet move through the extension
-            self._w2.FV().NumPy()[:] = np.where(self.dirichlet, d, 0.0)
-            self._w.data = self.linear.form.harmonic_extension * self._w2
-            dx += self._w.FV().NumPy() * ~self.dirichlet
-        return dx
-
-    def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
-        """psi·(J tangent) with the Jacobian at hand: dR/dλ of the reaction R = psi·r along ∂x/∂λ."""
-        self._w2.FV().NumPy()[:] = tangent
-        self._w.data = self.linear.mat * self._w2
-        return float(psi @ self._w.FV().NumPy())
 
     def clamp_predictor(self, dlam: float) -> np.ndarray:
         """The clamp's linear field (X/L, 0) dlam."""

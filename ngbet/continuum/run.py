@@ -27,9 +27,10 @@ from . import observables as obs
 from .arclength import MODE_KEY, arclength_runner
 from .estimate import RunEstimates, run_to_accuracy
 from .linear import assembly_thread_count
+from .numerics import ContinuumSolver
 from .output import write_vtk
 from .problem import ContinuumProblem
-from .settings import newton_settings, path_settings
+from .settings import linear_settings, newton_settings, path_settings
 from .solver import load_steps
 
 #: each element of the shear-angle map is split into this many² triangles (p = 2 fields: enough)
@@ -59,14 +60,14 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
     t0 = time.perf_counter()
     draw = functools.partial(start_plot, service=plot_service(), measured=measured)
     with RunWriter(out, scene) as writer:
-        problem = ContinuumProblem(scene)
-        estimates = RunEstimates(problem)
-        info = _setup_info(problem, time.perf_counter() - t0)
+        solver = ContinuumSolver(ContinuumProblem(scene), linear_settings(scene))
+        estimates = RunEstimates(solver)
+        info = _setup_info(solver, time.perf_counter() - t0)
         warnings = _order_warnings(scene)
         with progress_bar(progress, scene.loading.u0_mm) as bar:
-            recorder = _StepWriter(problem, writer, out, estimates)
+            recorder = _StepWriter(solver, writer, out, estimates)
             t_cont = time.perf_counter()
-            steps = Steps(load_path(problem, scene))
+            steps = Steps(load_path(solver, scene))
             try:
                 for rec in steps:
                     if rec.left is not None:  # before the row: its estimate continues the branch left
@@ -76,20 +77,20 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
                         bar(max(rec.u0, 0.0))
                 assert steps.result is not None
                 res = steps.result
-                _write_mode(problem, res.path_info, writer)
+                _write_mode(solver, res.path_info, writer)
             except ConvergenceError as err:
-                _write_mode(problem, err.path_info, writer)
-                info.update(_solver_info(problem, None), **snaps_in_units(err.path_info, scene.specimen.t))
+                _write_mode(solver, err.path_info, writer)
+                info.update(_solver_info(solver, None), **snaps_in_units(err.path_info, scene.specimen.t))
                 info.update(estimates.spread.summary())  # the branches left before the failure
                 writer.summary(info, "failed", str(err))
                 if writer.rows and scene.outputs.plot:
                     writer.plot(draw)()
                 raise
         info.update(estimates.summary(time.perf_counter() - t_cont))
-        return _finish(problem, scene, writer, out, res, info, warnings, draw)
+        return _finish(solver, scene, writer, out, res, info, warnings, draw)
 
 
-def _write_mode(problem: ContinuumProblem, path_info: dict[str, Any], writer: RunWriter) -> None:
+def _write_mode(problem: ContinuumSolver, path_info: dict[str, Any], writer: RunWriter) -> None:
     """Write the instability mode that path following found (if any) and name its files in ``path_info``."""
     found = path_info.pop(MODE_KEY, None)
     if found is None:
@@ -103,7 +104,7 @@ def _write_mode(problem: ContinuumProblem, path_info: dict[str, Any], writer: Ru
     path_info["instability_mode_files"] = [f.name for f in files]
 
 
-def load_path(problem: ContinuumProblem, scene: Scene) -> Generator[StepRecord, None, PathResult]:
+def load_path(problem: ContinuumSolver, scene: Scene) -> Generator[StepRecord, None, PathResult]:
     """The load path of the scene: a generator of its step records (nothing written; the caller decides).
 
     Arc length follows where ``solver.path_following`` asks for it; the mode of an instability it
@@ -112,19 +113,19 @@ def load_path(problem: ContinuumProblem, scene: Scene) -> Generator[StepRecord, 
     """
     arclength = None if scene.solver.path_following == "displacement" else arclength_runner(problem)
     return load_steps(problem, path_settings(scene), newton_settings(scene), diagnose=lambda: _diagnose(problem),
-                      psi=problem.psi_u.vec.FV().NumPy().copy(), arclength=arclength)
+                      psi=problem.problem.psi_u.vec.FV().NumPy().copy(), arclength=arclength)
 
 
-def _diagnose(problem: ContinuumProblem) -> Any:
+def _diagnose(problem: ContinuumSolver) -> Any:
     from .stability import diagnose_stability  # scipy's eigensolver: imported when a run fails
 
     return diagnose_stability(problem)
 
 
-def _setup_info(problem: ContinuumProblem, t_setup: float) -> dict[str, Any]:
-    return {"model": "continuum", "dofs": problem.ndofs(), "linear_solver": problem.inverse_type,
-            "stabilization_K_Pa": list(problem.K_s_range), "condensed": problem.linear.condensed,
-            "setup_s": t_setup, "compile_mode": problem.compile_mode,
+def _setup_info(solver: ContinuumSolver, t_setup: float) -> dict[str, Any]:
+    return {"model": "continuum", "dofs": solver.ndofs(), "linear_solver": solver.inverse_type,
+            "stabilization_K_Pa": list(solver.problem.K_s_range), "condensed": solver.linear.condensed,
+            "setup_s": t_setup, "compile_mode": solver.compile_mode,
             "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None,
             "assembly_threads": assembly_thread_count()}
 
@@ -144,15 +145,17 @@ def _order_warnings(scene: Scene) -> list[str]:
 class _StepWriter:
     """Writes the row, profile and (if asked) fields of each converged step, as ``[outputs]`` asks."""
 
-    def __init__(self, problem: ContinuumProblem, writer: RunWriter, out: Path, estimates: Any) -> None:
-        self.problem, self.writer, self.out, self.estimates = problem, writer, out, estimates
+    def __init__(self, solver: ContinuumSolver, writer: RunWriter, out: Path, estimates: Any) -> None:
+        self.solver, self.problem = solver, solver.problem
+        self.writer, self.out, self.estimates = writer, out, estimates
+        problem = solver.problem
         sp, ld = problem.scene.specimen, problem.scene.loading
         self.zones = obs.ZoneShearMeans(problem)
         self.bet = BetColumns(sp.length_mm, sp.width_mm, sp.yarn_angle_deg)
         # the map's stations: the load stops and the final load
         self.stations = (*ld.stops_mm, ld.u0_mm)
         self.t_prev = time.perf_counter()
-        self.timers = dict(problem.timers)
+        self.timers = dict(solver.timers)
 
     def on_step(self, info: StepRecord) -> None:
         """Record one converged step."""
@@ -165,7 +168,7 @@ class _StepWriter:
         now = time.perf_counter()
         row["newton_iterations"] = info.iterations
         row["step_wall_s"] = now - self.t_prev
-        timers = p.timers
+        timers = self.solver.timers
         row.update({k: v - self.timers[k] for k, v in timers.items()})
         self.timers = dict(timers)
         row.update(self.estimates.row(info.u0, row.get("force_N")))
@@ -184,7 +187,7 @@ class _StepWriter:
     def _observables(self, info: StepRecord) -> dict[str, Any]:
         """Force, double force, energy, centre shear and constraint error of the state."""
         p, o, t = self.problem, self.problem.scene.outputs, self.problem.scene.specimen.t
-        r = info.residual if info.residual is not None else p.residual()
+        r = info.residual if info.residual is not None else self.solver.residual()
         row: dict[str, Any] = {}
         if o.reaction:
             R = obs.reaction_force(p, r)
@@ -193,7 +196,7 @@ class _StepWriter:
             T = obs.reaction_double_force(p, r)
             row.update(double_force_N=T, double_force_Nm=T * t)
         if o.energy:
-            E = p.energy()
+            E = self.solver.energy()
             row.update(energy_J_per_m=E, energy_J=E * t)
         row["gamma_centre_deg"] = obs.centre_shear_angle_deg(p)
         row.update({f"gamma_{z}_deg": g for z, g in self.zones().items()})
@@ -202,7 +205,7 @@ class _StepWriter:
         return row
 
 
-def _finish(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
+def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
             info: dict[str, Any], warnings: list[str], draw: Callable[[Path], Callable[[], Path | None]]
             ) -> dict[str, Any]:
     """Final fields, statistics, the multiplier check, summary and plot.
@@ -213,7 +216,7 @@ def _finish(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Pat
     """
     plotted = writer.plot(draw) if scene.outputs.plot else None
     try:
-        summary = _final_files(problem, scene, writer, out, res, info, warnings)
+        summary = _final_files(solver, scene, writer, out, res, info, warnings)
     except BaseException:
         if plotted is not None:
             with contextlib.suppress(Exception):
@@ -224,12 +227,13 @@ def _finish(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Pat
     return summary
 
 
-def _final_files(problem: ContinuumProblem, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
+def _final_files(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
                  info: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
     """Final fields, statistics, the multiplier check and the summary."""
+    problem = solver.problem
     if scene.outputs.vtk:
         writer.write("fields.vtu", lambda tmp: write_vtk(problem, tmp.with_suffix("")))
-    info.update(_solver_info(problem, res))
+    info.update(_solver_info(solver, res))
     problem.inverted_allowed = 0.0
     inverted = problem.admissible()
     if inverted:  # the energy has no barrier against it: say so rather than report the state as physical
@@ -268,10 +272,10 @@ def snaps_in_units(path_info: dict[str, Any], t: float) -> dict[str, Any]:
     return {**path_info, "snaps": out}
 
 
-def _solver_info(problem: ContinuumProblem, res: PathResult | None) -> dict[str, Any]:
-    d: dict[str, Any] = {"timers": dict(problem.timers), "counts": dict(problem.counts)}
+def _solver_info(solver: ContinuumSolver, res: PathResult | None) -> dict[str, Any]:
+    d: dict[str, Any] = {"timers": dict(solver.timers), "counts": dict(solver.counts)}
     if res is not None:
-        d.update(snaps_in_units(res.path_info, problem.scene.specimen.t))
+        d.update(snaps_in_units(res.path_info, solver.problem.scene.specimen.t))
         d["load_steps"] = len(res.steps)
         d["step_cuts"] = res.cuts
         chord = sum(s.iterations for s in res.steps if "(chord)" in s.reason)  # the grid rows' (chord module)

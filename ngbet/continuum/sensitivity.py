@@ -143,8 +143,10 @@ TANGENT_REFINEMENTS = 3
 TANGENT_CONTRACTION = 0.5
 
 
-def load_tangent_at_state(problem: Any, residual: np.ndarray | None = None, rtol: float = 1e-5) -> np.ndarray:
+def load_tangent_at_state(solver: Any, residual: np.ndarray | None = None, rtol: float = 1e-5) -> np.ndarray:
     """ψ* = ∂x/∂u0 at the current, converged state: ψ on the clamps, (H ψ*)_f = 0 with H the tangent here.
+
+    ``solver``: the problem's :class:`~ngbet.continuum.numerics.ContinuumSolver`.
 
     Newton's last factorization belongs to the iterate before its last correction (or an earlier
     one, after a simplified Newton step); its load tangent made dF/dp differ from central
@@ -155,15 +157,15 @@ def load_tangent_at_state(problem: Any, residual: np.ndarray | None = None, rtol
     is augmented (K_aug, :mod:`ngbet.continuum.linear`): a load tangent of the augmented matrix
     leaves an O(1/K_aug) error (measured 1e-5 of dF/dK_sh).
     """
-    r0 = residual if residual is not None else problem.residual()
-    psi = solve_at_state(problem, problem.load_tangent(1.0), None, r0, rtol)
+    r0 = residual if residual is not None else solver.residual()
+    psi = solve_at_state(solver, solver.load_tangent(1.0), None, r0, rtol)
     if psi is None:
-        problem.factorize()
-        psi = problem.load_tangent(1.0)
+        solver.factorize()
+        psi = solver.load_tangent(1.0)
     return psi
 
 
-def solve_at_state(problem: Any, y: np.ndarray, g: np.ndarray | None, residual: np.ndarray,
+def solve_at_state(solver: Any, y: np.ndarray, g: np.ndarray | None, residual: np.ndarray,
                    rtol: float = 1e-5) -> np.ndarray | None:
     """The solution of (H y + g)_f = 0 (g None: 0) from a start y of Newton's last factorization.
 
@@ -177,10 +179,10 @@ def solve_at_state(problem: Any, y: np.ndarray, g: np.ndarray | None, residual: 
     within :data:`TANGENT_REFINEMENTS` steps (then H must be factorized here). The state is left
     as it was.
     """
-    pb = problem
+    pb, dirichlet = solver, solver.problem.dirichlet
     x0 = pb.x.copy()
     scale = float(np.linalg.norm(x0))
-    ref = None if g is None else float(np.linalg.norm(np.where(pb.dirichlet, 0.0, g)))
+    ref = None if g is None else float(np.linalg.norm(np.where(dirichlet, 0.0, g)))
     last = math.inf
     for _ in range(TANGENT_REFINEMENTS + 1):
         if not np.any(y):
@@ -191,8 +193,8 @@ def solve_at_state(problem: Any, y: np.ndarray, g: np.ndarray | None, residual: 
         pb.x[:] = x0
         if g is not None:
             rho += g
-        size_ref = float(np.linalg.norm(rho[pb.dirichlet])) if ref is None else ref
-        rho[pb.dirichlet] = 0.0
+        size_ref = float(np.linalg.norm(rho[dirichlet])) if ref is None else ref
+        rho[dirichlet] = 0.0
         size = float(np.linalg.norm(rho))
         if size <= rtol * size_ref:
             return y
@@ -206,9 +208,11 @@ def solve_at_state(problem: Any, y: np.ndarray, g: np.ndarray | None, residual: 
 class _Recorder:
     """What :func:`force_path` records at each converged step (an ``on_step`` callback)."""
 
-    def __init__(self, problem: Any, names: list[str], profile: dict[float, np.ndarray],
+    def __init__(self, solver: Any, names: list[str], profile: dict[float, np.ndarray],
                  loads: Sequence[float] = ()) -> None:
-        self.problem, self.names, self.profile = problem, names, profile
+        self.solver, self.problem = solver, solver.problem
+        self.names, self.profile = names, profile
+        problem = solver.problem
         self.loads = [float(v) for v in loads]  # [mm]: the loads whose derivatives are wanted
         scene = problem.scene
         self.forms = []
@@ -224,9 +228,9 @@ class _Recorder:
         self.profile_dlogp: dict[float, np.ndarray] = {}
 
     def __call__(self, info: Any) -> None:
-        pb, t = self.problem, self.problem.scene.specimen.t
+        pb, solver, t = self.problem, self.solver, self.problem.scene.specimen.t
         key = round(info.u0 * 1e3, 9)
-        r = info.residual if info.residual is not None else pb.residual()
+        r = info.residual if info.residual is not None else solver.residual()
         F = float(r @ pb.psi_u.vec.FV().NumPy()) * t
         want = next((u0 for u0 in self.profile if abs(u0 - key) < 1e-6), None)
         pts = None
@@ -238,16 +242,16 @@ class _Recorder:
         d, dprof = [], []
         psi = None
         if self.forms and (want is not None or any(abs(v - key) < 1e-6 for v in self.loads)):
-            psi = load_tangent_at_state(pb, r)
+            psi = load_tangent_at_state(solver, r)
         for f, p in zip(self.forms if psi is not None else (), self.values, strict=False):
             f.Apply(pb.gf.vec, self.g)
             gv = self.g.FV().NumPy()
             d.append(p * float(psi @ gv) * t)
             if pts is not None:  # dx/dp = −J⁻¹ ∂r/∂p (solve returns −J⁻¹ r), J at this state
-                dx = solve_at_state(pb, pb.solve(gv.copy()), gv, r)
+                dx = solve_at_state(solver, solver.solve(gv.copy()), gv, r)
                 if dx is None:
-                    pb.factorize()
-                    dx = pb.solve(gv.copy())
+                    solver.factorize()
+                    dx = solver.solve(gv.copy())
                 self.dgf.vec.FV().NumPy()[:] = dx
                 dprof.append(1e3 * p * np.asarray(self.dgf.components[0](pts))[:, 1])
         if want is not None and dprof:
@@ -268,7 +272,9 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     again. Nothing is written to disk. Raises
     :class:`ngbet.errors.ConvergenceError` when the path cannot be followed to the last load.
     """
+    from .numerics import ContinuumSolver
     from .problem import ContinuumProblem
+    from .settings import linear_settings
     from .solver import load_steps, newton_settings, path_settings
 
     names = _check_params(scene, params)
@@ -281,8 +287,9 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     from ..run import ngsolve_threads
 
     with ngsolve_threads(scene):
-        rec = _Recorder(ContinuumProblem(scene, mesh), names, profile, [float(v) for v in u])
-        for step in load_steps(rec.problem, path, newton_settings(scene)):
+        rec = _Recorder(ContinuumSolver(ContinuumProblem(scene, mesh), linear_settings(scene)), names, profile,
+                        [float(v) for v in u])
+        for step in load_steps(rec.solver, path, newton_settings(scene)):
             rec(step)
     keys = np.array(sorted(rec.rows))
     # the force (and its derivatives) at each requested load, in the caller's order, repeats

@@ -44,6 +44,30 @@ def newton_settings(scene: Scene) -> NewtonSettings:
 
 
 @dataclass(frozen=True)
+class LinearSettings:
+    """The linear algebra of the continuum's Newton (from ``scene.solver``).
+
+    What :class:`ngbet.continuum.numerics.ContinuumSolver` is built with. The choices are the
+    user's; "auto" is resolved by each solver for its own problem (the inverse by definiteness and
+    size, the compilation by size), so that one set of settings serves the run, its enriched
+    estimates and its branch copies alike.
+    """
+
+    #: the sparse inverse: "auto", "sparsecholesky", "umfpack", "cholmod", ... (``solver.linear_solver``)
+    linear_solver: str = "auto"
+    #: eliminate element-local dofs (Λ) before factorizing (``solver.condense``)
+    condense: bool = True
+    #: the energy integrand "interpret"ed, "native" C++ or "auto" by size (``solver.compile``)
+    compile: str = "auto"
+
+
+def linear_settings(scene: Scene) -> LinearSettings:
+    """The linear algebra of ``scene.solver`` (the one translation of the scene into it)."""
+    s = scene.solver
+    return LinearSettings(linear_solver=s.linear_solver, condense=s.condense, compile=s.compile)
+
+
+@dataclass(frozen=True)
 class PathSettings(PathControl):
     """How a continuum load path is carried (from ``scene.loading`` and ``scene.solver``); loads in m.
 

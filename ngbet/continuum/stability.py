@@ -30,6 +30,7 @@ from . import observables as obs
 from . import physics
 
 if TYPE_CHECKING:
+    from .numerics import ContinuumSolver
     from .problem import ContinuumProblem
 
 #: r above which the lowest mode is one of the discretization (φ does not follow i8)
@@ -134,18 +135,20 @@ class StabilityDiagnosis:
                 f"{self.ratio:.2f}: {kind}{ill}")
 
 
-def diagnose_stability(problem: ContinuumProblem, k: int = 3) -> StabilityDiagnosis:
+def diagnose_stability(solver: ContinuumSolver, k: int = 3) -> StabilityDiagnosis:
     """The lowest eigenvalues of the (condensed) tangent at the current state and what its lowest mode is.
 
-    Never raises: a failed eigenvalue computation is reported in ``skipped`` (the diagnosis must
-    not hide the error it explains).
+    ``solver``: the problem's (:class:`~ngbet.continuum.numerics.ContinuumSolver`), whose tangent is
+    analysed. Never raises: a failed eigenvalue computation is reported in ``skipped`` (the diagnosis
+    must not hide the error it explains).
     """
+    problem = solver.problem
     u0_mm = problem.lam * 1e3
     try:
-        if indefinite_by_construction(problem):
+        if indefinite_by_construction(solver):
             return StabilityDiagnosis(u0_mm, skipped="the uncondensed saddle-point tangent is indefinite by "
                                                      "construction: no stability test")
-        ev, V, d, fd = _lowest_scaled(problem, k)
+        ev, V, d, fd = _lowest_scaled(solver, k)
         eigenvalues = tuple(sorted(map(float, ev)))
         base = StabilityDiagnosis(u0_mm, eigenvalues, stabilization_K_Pa=tuple(problem.K_s_range),  # type: ignore[arg-type]
                                   K_el=problem.scene.material.K_el)
@@ -153,7 +156,7 @@ def diagnose_stability(problem: ContinuumProblem, k: int = 3) -> StabilityDiagno
             return base
         x = np.zeros(problem.X.ndof)
         x[fd] = V[:, int(np.argmin(ev))] / d
-        r, where = mode_constraint_ratio(problem, x)
+        r, where = mode_constraint_ratio(solver, x)
         mode: ModeClass = "discretization" if r > DISCRETIZATION_MODE_RATIO else "continuum"
         return StabilityDiagnosis(u0_mm, eigenvalues, mode, r, where, _ellipticity_losses(problem),
                                   base.stabilization_K_Pa, base.K_el)
@@ -161,32 +164,32 @@ def diagnose_stability(problem: ContinuumProblem, k: int = 3) -> StabilityDiagno
         return StabilityDiagnosis(u0_mm, skipped=f"stability check failed: {exc}")
 
 
-def lowest_eigenpair(problem: ContinuumProblem) -> tuple[float, np.ndarray]:
+def lowest_eigenpair(solver: ContinuumSolver) -> tuple[float, np.ndarray]:
     """The lowest eigenvalue of the diagonally scaled tangent at the current state and its mode (full length).
 
     The mode holds the free dofs of the (condensed) tangent, scaled to unit maximum norm (the
     condensed local dofs are 0: :func:`mode_constraint_ratio` and :func:`write_mode` extend it).
     """
-    if indefinite_by_construction(problem):
+    if indefinite_by_construction(solver):
         raise ValueError("the uncondensed saddle-point tangent is indefinite by construction: no stability test")
-    ev, V, d, fd = _lowest_scaled(problem, 1)
-    x = np.zeros(problem.X.ndof)
+    ev, V, d, fd = _lowest_scaled(solver, 1)
+    x = np.zeros(solver.problem.X.ndof)
     x[fd] = V[:, 0] / d
     return float(ev[0]), x / max(float(np.max(np.abs(x))), 1e-300)
 
 
-def indefinite_by_construction(problem: ContinuumProblem) -> bool:
+def indefinite_by_construction(solver: ContinuumSolver) -> bool:
     """True when the tangent keeps the multiplier Λ (uncondensed): a saddle point, no stability test."""
-    return not problem.linear.condensed and "lam" in problem.field_names
+    return not solver.linear.condensed and "lam" in solver.problem.field_names
 
 
-def _lowest_scaled(problem: ContinuumProblem, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _lowest_scaled(solver: ContinuumSolver, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The k lowest eigenpairs of the diagonally scaled (unit-free) tangent at the current state.
 
     Returns (eigenvalues, eigenvectors of the scaled matrix, the scaling d, the free dofs).
     """
-    problem.factorize()
-    A, fd = problem.linear.free_matrix()
+    solver.factorize()
+    A, fd = solver.linear.free_matrix()
     d = np.sqrt(np.abs(A.diagonal()) + 1e-300)
     # a fixed start vector: ARPACK's default is random, and a relaxation kicked along the mode would
     # make runs that snap differ in their last digits from one run to the next
@@ -205,15 +208,16 @@ def _ellipticity_losses(problem: ContinuumProblem) -> tuple[EllipticityLoss, ...
     return tuple(out)
 
 
-def mode_constraint_ratio(problem: ContinuumProblem, x: np.ndarray) -> tuple[float, tuple[float, float]]:
+def mode_constraint_ratio(solver: ContinuumSolver, x: np.ndarray) -> tuple[float, tuple[float, float]]:
     """R = ‖δφ − δi8‖ / ‖δi8‖ of a mode x, and the centroid [mm] of |∇δu|².
 
     ``x`` holds the free dofs of the (condensed) tangent; the condensed local dofs are recovered by
-    the harmonic extension. δi8 is NGSolve's derivative of i8(∇u) in the direction ∇δu.
+    the harmonic extension (``solver``'s). δi8 is NGSolve's derivative of i8(∇u) in the direction ∇δu.
     """
+    problem = solver.problem
     mode = ngs.GridFunction(problem.X)
     mode.vec.FV().NumPy()[:] = x
-    problem.linear.extend(mode.vec)
+    solver.linear.extend(mode.vec)
     du, dphi = mode.components[0], mode.components[1]
     grad = ngs.CoefficientFunction(ngs.Grad(problem.u)).MakeVariable()
     G = ngs.Grad(du)
@@ -249,7 +253,7 @@ def field_location(problem: ContinuumProblem, dx: np.ndarray) -> dict[str, objec
     return {"location_mm": [1e3 * cx, 1e3 * cy], "spread_mm": 1e3 * spread, "max_du_mm": 1e3 * big}
 
 
-def write_mode(problem: ContinuumProblem, mode: np.ndarray, path: Path, title: str = "") -> list[Path]:
+def write_mode(solver: ContinuumSolver, mode: np.ndarray, path: Path, title: str = "") -> list[Path]:
     """The mode (δu, δφ) of an instability as ``path``.vtu and ``path``.png, δu scaled to 1 mm at most.
 
     ``mode`` holds the free dofs of the (condensed) tangent (:func:`lowest_eigenpair`).
@@ -261,9 +265,10 @@ def write_mode(problem: ContinuumProblem, mode: np.ndarray, path: Path, title: s
     """
     from .output import MM, scale_points, vtk_subdivision
 
+    problem = solver.problem
     gf = ngs.GridFunction(problem.X)
     gf.vec.FV().NumPy()[:] = mode
-    problem.linear.extend(gf.vec)
+    solver.linear.extend(gf.vec)
     du = gf.components[0]
     pts = np.array([p.point[:2] for p in problem.mesh.vertices])
     vals = np.array([du(problem.mesh(*p)) for p in pts])

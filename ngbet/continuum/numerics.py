@@ -1,0 +1,254 @@
+r"""The numerics of a continuum problem: its energy forms, linear solver, native code and timers.
+
+A :class:`~ngbet.continuum.problem.ContinuumProblem` is the mathematics of one scene: the spaces,
+the energy integrand E(x) (in parts), the Dirichlet data x_D = λ ψ_D on the clamps with the load λ
+(u0 [m]), the state x and what a state means physically (reactions, admissibility). A
+:class:`ContinuumSolver` is built from a problem and the :class:`~ngbet.continuum.settings.LinearSettings`
+of ``scene.solver`` (the one translation, :func:`~ngbet.continuum.settings.linear_settings`) and
+owns everything that is numerics, as NGSolve's ``NewtonSolver`` owns its inverse and Firedrake's
+``NonlinearVariationalSolver(problem, solver_parameters=...)`` its linear algebra:
+
+* the energy forms. NGSolve's ``BilinearForm`` is the owner of the Newton matrix: whether it
+  condenses the element-local dofs (Λ), whether it stores the lower triangle only (for the sparse
+  LDLᵀ, :func:`~ngbet.continuum.linear.energy_form`) and whether its integrand runs as native code
+  (:mod:`ngbet.continuum.compiled`) are fixed when it is built, and all three are numerics. The
+  problem hands over the integrand; the solver builds the form a(x; ·) = δE(x)[·] from it (and for
+  the condensed exact Lagrangian the augmented form of the Newton matrix,
+  :mod:`ngbet.continuum.linear`), and adds the problem's jamming barrier to them;
+* the linear solver (:class:`~ngbet.continuum.linear.NewtonLinearSolver`: condensation, the sparse
+  inverse, factorizations and solves) and the wall time and count of every assembly,
+  factorization, solve and residual (``timers``, ``counts``).
+
+The solver, not the problem, is the :class:`~ngbet.continuum.newton.NonlinearProblem` that Newton
+(:mod:`ngbet.continuum.newton`), the chord rows, the relaxation, the arc length and the
+estimates drive: the protocol asks for factorizations and solves, which the problem does not
+serve, and those modules talk to the protocol alone, as NGSolve's Newton to a form:
+
+.. math::  r(x) = a(x; \cdot),\quad E(x),\quad J(x) = \partial r/\partial x,\quad
+           dx = -J^{-1} r \text{ on the free dofs},\quad
+           \partial x/\partial\lambda = (\psi_D, -J_{ff}^{-1} J_{fD}\,\psi_D)
+
+The state x, the load λ (``set_load``), the unit-free norm, the clamp predictor and the watch of
+a converged state are the problem's, reached through the solver (the same numpy view ``x``);
+physical queries (forces, observables, fields) go to the problem itself (``solver.problem``). An
+enriched problem of the error estimate and a branch copy of the path spread get a solver of
+their own with the same settings.
+"""
+
+from __future__ import annotations
+
+import time
+
+import ngsolve as ngs
+import numpy as np
+
+from .compiled import add_energy
+from .linear import NewtonLinearSolver, energy_form, pick_inverse
+from .problem import ContinuumProblem
+from .settings import LinearSettings, linear_settings
+
+__all__ = ["ContinuumSolver", "continuum_solver"]
+
+
+class ContinuumSolver:
+    """The energy forms and linear algebra of a :class:`~ngbet.continuum.problem.ContinuumProblem`.
+
+    Implements :class:`ngbet.continuum.newton.NonlinearProblem` (and what the relaxation of
+    :func:`ngbet.continuum.solver.relax` asks besides: ``merit``, ``lowest_mode``, ...).
+
+    Parameters
+    ----------
+    problem : ContinuumProblem
+        Spaces, energy, boundary conditions, load and state.
+    settings : LinearSettings
+        The linear algebra (``linear_settings(scene)``).
+    """
+
+    def __init__(self, problem: ContinuumProblem, settings: LinearSettings) -> None:
+        self.problem, self.settings = problem, settings
+        X, saddle = problem.X, problem.augmented_energy
+        condense = settings.condense
+        inverse = pick_inverse(settings.linear_solver, saddle is not None and not condense, condense,
+                               X.FreeDofs(condense).NumSet())
+        # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
+        self.a = energy_form(X, inverse, condense=condense and saddle is None)
+        # the energy form is linearized unless the augmented Newton matrix of linear.py replaces it
+        linearized = not (condense and saddle is not None)
+        self.compile_mode = add_energy(self.a, problem.energy_parts, problem.dx, settings.compile, X.ndof, linearized)
+        self.linear = NewtonLinearSolver(self.a, condense, settings.linear_solver, saddle, problem.K_ref, problem.dx,
+                                         settings.compile if self.compile_mode == "native" else "interpret")
+        forms = [(self.a, linearized)] if self.linear.form is self.a else [(self.a, False), (self.linear.form, True)]
+        problem.jamming.add_to(forms)
+        self.x = problem.x  # the problem's state (a view of its GridFunction)
+        self.dirichlet = problem.dirichlet  # its Dirichlet entries (the chord's check of the reaction's test vector)
+        self._vec = problem.gf.vec
+        self._r = self._vec.CreateVector()
+        self._w = self._vec.CreateVector()
+        self._w2 = self._vec.CreateVector()
+        self._t_residual = 0.0
+        self._n_residual = 0
+
+    # --------------------------------------------------------------------------- what the run reports
+    @property
+    def K_aug(self) -> float:
+        """K_aug of the augmented Newton matrix (0 when not augmented) [Pa]."""
+        return self.linear.K_aug
+
+    @property
+    def inverse_type(self) -> str:
+        """The sparse inverse in use."""
+        return self.linear.inverse_type
+
+    @property
+    def freedofs(self) -> ngs.BitArray:
+        """The dofs the Newton matrix is factorized on (after condensation)."""
+        return self.linear.freedofs
+
+    @property
+    def timers(self) -> dict[str, float]:
+        """Wall time [s] by kind: assembly, factorization, solve, residual."""
+        return {**self.linear.timers, "residual_s": self._t_residual}
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Factorizations, solves, residual evaluations."""
+        return {**self.linear.counts, "residuals": self._n_residual}
+
+    def ndofs(self) -> dict[str, int]:
+        """Degrees of freedom per field, in all, and those left after condensation ("factorized")."""
+        return {**self.problem.ndofs(), "factorized": int(sum(self.linear.freedofs))}
+
+    # --------------------------------------------------------------------------- the problem's load and state
+    @property
+    def lam(self) -> float:
+        """The load λ = u0 [m] of the state."""
+        return self.problem.lam
+
+    @property
+    def _weights(self) -> np.ndarray:
+        """The weights of :meth:`norm` (read by the relaxation's kick and the arc length's inner product)."""
+        return self.problem._weights
+
+    def set_load(self, lam: float) -> None:
+        """Set the load λ = u0 [m]: the Dirichlet entries of x follow it."""
+        self.problem.set_load(lam)
+
+    def clamp_predictor(self, dlam: float) -> np.ndarray:
+        """The clamp's linear field (X/L, 0) dlam."""
+        return self.problem.clamp_predictor(dlam)
+
+    def norm(self, dx: np.ndarray) -> float:
+        """A unit-free norm of a correction (u by 1/L, φ by 1, Λ by 1/K_ref)."""
+        return self.problem.norm(dx)
+
+    def converged(self) -> None:
+        """The current state is an equilibrium the path keeps (:meth:`ContinuumProblem.converged`)."""
+        self.problem.converged()
+
+    def admissible(self) -> str:
+        """Why the current state is not a physical one ("" when it is): :meth:`ContinuumProblem.admissible`."""
+        return self.problem.admissible()
+
+    def begin_relaxation(self) -> None:
+        """A relaxation starts from the current state (:meth:`ContinuumProblem.begin_relaxation`)."""
+        self.problem.begin_relaxation()
+
+    @property
+    def inadmissible_hint(self) -> str:
+        """What keeps the specimen out of inverted states (:attr:`ContinuumProblem.inadmissible_hint`)."""
+        return self.problem.inadmissible_hint
+
+    def locate(self, dx: np.ndarray) -> dict[str, object]:
+        """Where a change of state ``dx`` lives (:meth:`ContinuumProblem.locate`)."""
+        return self.problem.locate(dx)
+
+    # --------------------------------------------------------------------------- the forms
+    def residual(self) -> np.ndarray:
+        """r(x), full length (Dirichlet rows hold the reactions)."""
+        t0 = time.perf_counter()
+        self.a.Apply(self._vec, self._r)
+        self._t_residual += time.perf_counter() - t0
+        self._n_residual += 1
+        return self._r.FV().NumPy().copy()
+
+    def energy(self) -> float:
+        """The total energy (Lagrangian) per unit thickness at x [J/m]."""
+        return float(self.a.Energy(self._vec))
+
+    def merit(self, r: np.ndarray) -> float:
+        """The energy plus ½ρ‖Π(φ − i8)‖² at the state whose residual is ``r``: a merit for descent.
+
+        Infinite where the material is inverted somewhere (det F ≤ 0): the descent stays among
+        physical states. The Lagrangian alone is no merit off the constraint (Λ(φ − i8) can fall
+        without bound); ‖Π(φ − i8)‖² is :meth:`ContinuumProblem.constraint_moments`, ρ the
+        augmentation of the Newton matrix (or the penalty K).
+        """
+        pb = self.problem
+        if pb.admissible():  # outside the energy's domain: the material would turn inside out
+            return float("inf")
+        E = self.energy()
+        if "lam" not in pb.field_names:
+            return E
+        rho = self.linear.K_aug or pb.scene.effects.penalty_K
+        return E + 0.5 * rho * pb.constraint_moments(r)
+
+    # --------------------------------------------------------------------------- linear algebra
+    def factorize(self, shift: float = 0.0) -> float:
+        """Linearize at the current state and factorize.
+
+        ``shift`` > 0: the diagonal raised by s |diag|, s ≥ shift enough for a positive definite
+        matrix where that can be tested (:meth:`NewtonLinearSolver.factorize`); returns s.
+        """
+        return self.linear.factorize(self._vec, shift)
+
+    def solve(self, r: np.ndarray) -> np.ndarray:
+        """The correction −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
+        self._w.FV().NumPy()[:] = r
+        self.linear.solve_into(self._w, self._w2)
+        dx = -self._w2.FV().NumPy()
+        dx[self.dirichlet] = 0.0
+        return dx
+
+    def load_tangent(self, dlam: float) -> np.ndarray:
+        """The load tangent times dlam: Dirichlet entries moved by dlam, the others −J⁻¹ J_fd dlam."""
+        dirichlet = self.dirichlet
+        d = dlam * self.problem.load_direction
+        self._w2.FV().NumPy()[:] = d
+        self._w.data = self.linear.mat * self._w2
+        dx = self.solve(self._w.FV().NumPy())
+        dx[dirichlet] = d[dirichlet]
+        if self.linear.condensed:  # local dofs follow the Dirichlet move through the extension
+            self._w2.FV().NumPy()[:] = np.where(dirichlet, d, 0.0)
+            self._w.data = self.linear.form.harmonic_extension * self._w2
+            dx += self._w.FV().NumPy() * ~dirichlet
+        return dx
+
+    def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
+        """psi·(J tangent) with the Jacobian at hand: dR/dλ of the reaction R = psi·r along ∂x/∂λ."""
+        self._w2.FV().NumPy()[:] = tangent
+        self._w.data = self.linear.mat * self._w2
+        return float(psi @ self._w.FV().NumPy())
+
+    @property
+    def can_relax(self) -> bool:
+        """Whether the Newton matrix is a Hessian (condensed, or no multiplier).
+
+        Then energy descent and the stability test work (:func:`ngbet.continuum.solver.relax`).
+        """
+        return self.linear.condensed or "lam" not in self.problem.field_names
+
+    def lowest_mode(self) -> tuple[float, np.ndarray]:
+        """The lowest eigenvalue of the scaled tangent at the current state and its mode (full length)."""
+        from .stability import lowest_eigenpair
+
+        mu, mode = lowest_eigenpair(self)
+        self._w.FV().NumPy()[:] = mode
+        self.linear.extend(self._w)  # the condensed local dofs follow
+        full = self._w.FV().NumPy().copy()
+        full[self.dirichlet] = 0.0
+        return mu, full
+
+
+def continuum_solver(problem: ContinuumProblem) -> ContinuumSolver:
+    """The solver of ``problem`` with the linear algebra its scene asks for (``linear_settings(problem.scene)``)."""
+    return ContinuumSolver(problem, linear_settings(problem.scene))
