@@ -225,13 +225,17 @@ def test_default_multiplier_is_smooth_and_converges(tmp_path):
     # the default pair (u, φ ∈ P2, Λ ∈ L2(P0)) gives a multiplier whose non-continuous part falls
     # as O(h) away from the clamps (measured 0.093 -> 0.048 for h = 10 -> 5 mm at 37 mm);
     # Λ ∈ L2(P1) on the same meshes oscillates from element to element (0.84, not falling)
-    osc = {}
+    osc, warned = {}, {}
     for tag, changes in (("h10", {}), ("h5", {"discretization.mesh_size_mm": 5.0}),
                          ("p1", {"discretization.order_lam": 1})):
         s, _, _ = _run(tmp_path, tag, **{"loading.u0_mm": 37.0, "loading.stops_mm": (), **changes})
         osc[tag] = s["multiplier_oscillation"]
+        warned[tag] = [w for w in s["warnings"] if "multiplier oscillates" in w]
     assert osc["h10"] < 0.15 and osc["h5"] < 0.65 * osc["h10"], f"default pair: {osc}"
     assert osc["p1"] > 0.5, f"the unstable pair no longer oscillates: {osc} (is the indicator broken?)"
+    # the run says so, and why: the orders it used are not a stable pair; the default pair says nothing
+    assert not warned["h10"] and not warned["h5"]
+    assert len(warned["p1"]) == 1 and "(u, phi, lam) = (2, 2, 1) are not a stable pair" in warned["p1"][0]
 
 
 def test_corner_grading_removes_most_of_the_discretization_error(tmp_path):

@@ -239,7 +239,19 @@ class ChordRows:
 
     def tangent(self, problem: NonlinearProblem, psi: np.ndarray | None, lam: float, r: np.ndarray | None
                 ) -> tuple[np.ndarray, float] | None:
-        """:func:`tangent_at_hand` at a chord row at ``lam``, from the extrapolation of the last two tangents."""
+        """:func:`tangent_at_hand` at a chord row at ``lam``, from the extrapolation of the last two tangents.
+
+        The extrapolation is of the free entries only: the prescribed ones are the load's at every
+        load and are copied from the last tangent. Extrapolated, their round-off would grow from row to
+        row by the ratio of the steps (e_n+1 = e_n + a (e_n − e_n−1)): measured, 1.9e-5 after the
+        rows between unevenly spaced stops of a 95 mm path, where the reaction's test vector no
+        longer matched the tangent.
+        """
         self.rows += 1
-        start = extrapolate(self.tangents, lam) if len(self.tangents) == 2 else None
+        start = None
+        if len(self.tangents) == 2:
+            start = extrapolate(self.tangents, lam)
+            prescribed = getattr(problem, "dirichlet", None)
+            if prescribed is not None:
+                start[prescribed] = self.tangents[-1][1][prescribed]
         return tangent_at_hand(problem, psi, self.fd_step, r, start=start)
