@@ -766,3 +766,24 @@ def test_validation_takes_the_scene_of_a_fabric_and_refuses_another_naming_the_k
         assert V.fabric_of(sc.with_changes(**{"specimen.name": other})) == fabric
     with pytest.raises(SceneError, match="specimen.name"):
         V.fabric_of(default_scene())
+
+
+def test_quick_validation_makes_only_its_own_fit_and_says_what_it_leaves_out(monkeypatch):
+    """The quick study fits one fabric in one direction; what it leaves out of the full study is said
+    by the study itself, without building the full one (whose six fits take minutes)."""
+    from ngbet.studies import validation as V
+    from ngbet.study.command import build_study
+
+    made = []
+
+    def fit_stub(fabric, direction, quick, start=None):
+        made.append((fabric, direction, quick))
+        return {"fitted_scene": Scene().to_toml()}
+
+    monkeypatch.setattr(V, "fit_and_predict", fit_stub)
+    monkeypatch.setattr(V, "_case", lambda doc, which: {"specimen.name": which})
+    study = build_study(V.build, True)
+    assert made == [(*V.QUICK[0], True)]
+    assert study.left_out == ["5 of the full study's 6 fits (each fabric in both directions)",
+                              "K_el from the other fabrics' two-size fits (the scene's value instead)",
+                              f"{V.MAX_RUNS} model runs per fit ({V.QUICK_RUNS} instead)"]

@@ -311,7 +311,9 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
     fitted = portable_scene(with_values(scene, names, values))
     ok = bool(sol.success and sol.status > 0)
     if not ok:
-        log.warning("the least-squares search did not converge (%s); raise --max-runs", sol.message)
+        # the caller says it (the command with its option, a study in its table): no advice from here
+        log.info("the least-squares search stopped without converging after %d model runs (%s)", model.runs,
+                 sol.message)
     return JointFit(params, names, values, np.exp(th0), lo, hi, cov, cfs, fitted, math.sqrt(s2), model.runs,
                     time.perf_counter() - t0, ok, str(sol.message), at_bound)
 

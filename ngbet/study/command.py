@@ -37,7 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog: str | None = None) -> int:
     """Command line of one study module: ``python -m ngbet.studies.NAME [--quick] [...]``."""
-    p = argparse.ArgumentParser(prog=prog, description=(build(False).description or "").split("\n")[0])
+    doc = sys.modules[build.__module__].__doc__ if build.__module__ in sys.modules else None
+    p = argparse.ArgumentParser(prog=prog, description=(doc or "").split("\n")[0])  # no build: it may fit
     add_arguments(p)
     return run_from_args(build, p.parse_args(argv))
 
@@ -85,7 +86,7 @@ def build_study(build: Callable[..., Study], quick: bool, scene: Scene | None = 
     """The study ``build`` gives, on ``scene`` (None: the study's default), with what ``quick`` leaves out."""
     study = build(quick, scene) if scene is not None else build(quick)
     study.scene_source = source
-    if quick:
+    if quick and not study.left_out:  # a study whose full build is costly (fits) says it itself
         study.left_out = left_out(build(False, scene) if scene is not None else build(False), study)
     return study
 
