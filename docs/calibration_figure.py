@@ -1,33 +1,67 @@
-"""Regenerate docs/calibration_fit.png, the fit of the locking shear law to a measured BET curve.
+"""Regenerate the figures of docs/calibration.md from fresh fits and the validation study.
 
-The curve is the Cao et al. (2008) glass plain weave; this is the command of docs/calibration.md, run from Python.
+- calibration_fit.png (and calibration_fit.json): the locking shear law fitted to the Cao et al.
+  (2008) glass plain weave 150 × 450 mm curve, the single-curve command of docs/calibration.md run
+  from Python;
+- calibration_twill_balanced_fit.png and calibration_table.png: ``ngbet fit`` on the two sizes of
+  the balanced Twintex twill at once (its fit.png and shear_table.png);
+- validation.png: ``ngbet study validation`` (each fabric fitted on one size, the other predicted).
 
-    python docs/calibration_figure.py
+    python docs/calibration_figure.py            # all of them (the validation study takes minutes)
+    python docs/calibration_figure.py --no-study # the fits only
 """
 
 from __future__ import annotations
 
 import json
+import shutil
+import sys
+import tempfile
 from pathlib import Path
 
 from ngbet import fit
 from ngbet.calibration.fit_files import plot_fit, summary_text
+from ngbet.cli import main as ngbet
 from ngbet.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "docs"
 PARAMS = ["material.K_sh", "material.K_lock", "material.gamma_lock_deg"]
+TWILL = ["data/cao2008/cao2008_twill_balanced_150x300_INSA-NU.csv",
+         "data/cao2008/cao2008_twill_balanced_150x450_INSA-NU.csv"]
+
+
+def single_curve() -> None:
+    """The locking law fitted to one curve: calibration_fit.png and its record."""
+    scene = Scene.from_toml(ROOT / "geometry" / "cao2008_150x450.toml")
+    result = fit.fit(ROOT / "data" / "cao2008_glass_plain_150x450.csv", scene, PARAMS, u_range=(10.0, 106.0))
+    plot_fit(result, OUT / "calibration_fit.png")
+    doc = result.to_json()
+    doc["data"] = "data/cao2008_glass_plain_150x450.csv"
+    (OUT / "calibration_fit.json").write_text(json.dumps(doc, indent=2) + "\n")
+    print(summary_text(result, OUT))
+
+
+def run(argv: list[str]) -> None:
+    """One ngbet command from the repository root; stops the script if it fails."""
+    code = ngbet(argv)
+    if code != 0:
+        raise SystemExit(f"ngbet {' '.join(argv)} exited with status {code}")
 
 
 def main() -> None:
-    """Fit, draw the figure and write the fit's record beside it."""
-    scene = Scene.from_toml(ROOT / "geometry" / "cao2008_150x450.toml")
-    result = fit.fit(ROOT / "data" / "cao2008_glass_plain_150x450.csv", scene, PARAMS, u_range=(10.0, 106.0))
-    out = ROOT / "docs"
-    plot_fit(result, out / "calibration_fit.png")
-    doc = result.to_json()
-    doc["data"] = "data/cao2008_glass_plain_150x450.csv"
-    (out / "calibration_fit.json").write_text(json.dumps(doc, indent=2) + "\n")
-    print(summary_text(result, out))
+    """Fit, draw and copy the figures into docs/."""
+    single_curve()
+    with tempfile.TemporaryDirectory() as tmp:
+        fitted = Path(tmp) / "fit"
+        run(["fit", *(str(ROOT / f) for f in TWILL), "--scene", str(ROOT / "geometry" / "twintex_twill_balanced.toml"),
+             "--out", str(fitted)])
+        shutil.copyfile(fitted / "fit.png", OUT / "calibration_twill_balanced_fit.png")
+        shutil.copyfile(fitted / "shear_table.png", OUT / "calibration_table.png")
+        if "--no-study" not in sys.argv[1:]:
+            study = Path(tmp) / "validation"
+            run(["study", "validation", "--out", str(study), "--cache", str(Path(tmp) / "cache"), "--quiet"])
+            shutil.copyfile(study / "validation.png", OUT / "validation.png")
 
 
 if __name__ == "__main__":
