@@ -146,15 +146,15 @@ def test_a_default_the_user_never_set_gives_way_with_one_note(capsys, sets, why)
     """The default corner grading (0.25 mm) contradicts a finer mesh or a structured one: when the
     user sets only those, the grading is switched off with one note instead of a refusal."""
     from ngbet.cli import load_scene, main
+    from ngbet.scene import SceneNote
 
-    assert load_scene(None, sets).discretization.corner_mesh_size_mm == 0.0
+    with pytest.warns(SceneNote, match=why):  # from Python the note is a warning (below: one line from the command)
+        assert load_scene(None, sets).discretization.corner_mesh_size_mm == 0.0
     capsys.readouterr()
     assert main(["scene", *[f"--set={s}" for s in sets]]) == 0
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith("ngbet: note: discretization.corner_mesh_size_mm = 0") and why in err[0]
-    # the same from Python, where the note is a SceneNote warning
-    from ngbet.scene import SceneNote
-
+    # the same from a Scene
     with pytest.warns(SceneNote, match=why):
         key, value = sets[0].split("=")
         Scene().with_changes(**{key: 0.2 if "mesh" in key else True})
