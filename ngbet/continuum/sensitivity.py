@@ -206,7 +206,7 @@ def solve_at_state(solver: Any, y: np.ndarray, g: np.ndarray | None, residual: n
 
 
 class _Recorder:
-    """What :func:`force_path` records at each converged step (an ``on_step`` callback)."""
+    """What :func:`force_path` records at each converged step (called with each step record of the path)."""
 
     def __init__(self, solver: Any, names: list[str], profile: dict[float, np.ndarray],
                  loads: Sequence[float] = ()) -> None:
