@@ -19,9 +19,9 @@ solved along it and inverted for the other size: :func:`ngbet.kinematics.force_f
 Errors are RMS of (prediction − measured)/measured at 24 equally spaced displacements over
 10–90 % of each curve's displacement range.
 
-The fits and the predictions' bands run when the study is built and are kept in
-``out/studies/cache/validation-fits/`` of the current folder, whatever ``--cache`` says (keyed by
-the scenes, the data and the code: a change of any refits); the
+The fits and the predictions' bands run when the study is built and are kept in the study cache
+(``validation-fits/`` in ``--cache``, default ``out/studies/cache``; keyed by the scenes, the data
+and the code: a change of any refits); the
 study's cases are then ordinary runs of each fitted scene on both sizes, whose forces the report
 compares. ``--quick``: one fabric in one direction, K_el at the scene's value, 3 model runs.
 
@@ -78,7 +78,8 @@ QUICK = (("twill_unbalanced", 0),)
 TABLE, KEL = "material.shear_stress_steps_Pa", "material.K_el"
 SCORE_POINTS = 24
 MAX_RUNS, QUICK_RUNS = 40, 3
-FIT_CACHE = Path("out/studies/cache/validation-fits")
+#: the fits' folder inside the study cache (``--cache``, default out/studies/cache)
+FITS_FOLDER = "validation-fits"
 
 
 def _paths(fabric: str) -> tuple[Path, Path, Path]:
@@ -111,19 +112,26 @@ def _key(fabric: str, max_runs: int, scene_toml: str = "") -> str:
     return f"{fabric}-{h.hexdigest()[:16]}"
 
 
-def _cached(name: str, make: Any) -> dict[str, Any]:
-    path = FIT_CACHE / f"{name}.json"
+def fits_folder(cache: Path | None = None) -> Path:
+    """Where the fits are kept: ``validation-fits`` in the study cache (None: the default cache)."""
+    from ngbet.study import DEFAULT_ROOT
+
+    return Path(cache if cache is not None else DEFAULT_ROOT / "cache") / FITS_FOLDER
+
+
+def _cached(folder: Path, name: str, make: Any) -> dict[str, Any]:
+    path = folder / f"{name}.json"
     if path.exists():
         return dict(json.loads(path.read_text()))
     doc = make()
-    FIT_CACHE.mkdir(parents=True, exist_ok=True)
+    folder.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
     tmp.write_text(json.dumps(doc))
     tmp.replace(path)
     return doc
 
 
-def pair_fit(fabric: str) -> dict[str, Any]:
+def pair_fit(fabric: str, folder: Path) -> dict[str, Any]:
     """The table and K_el fitted to both sizes of a fabric together (cached): its K_el and se(ln K_el)."""
     from ngbet.calibration.data import read_measured
     from ngbet.calibration.joint import fit_curves
@@ -138,10 +146,10 @@ def pair_fit(fabric: str) -> dict[str, Any]:
                 "rms": [c.rms_relative for c in res.curves], "wall_s": res.wall_s, "model_runs": res.model_runs,
                 "converged": res.converged}
 
-    return _cached(f"pair-{_key(fabric, MAX_RUNS)}", make)
+    return _cached(folder, f"pair-{_key(fabric, MAX_RUNS)}", make)
 
 
-def elongation_for(fabric: str, quick: bool, scene: Scene | None = None) -> tuple[float, float, list[str]]:
+def elongation_for(fabric: str, quick: bool, scene: Scene | None, folder: Path) -> tuple[float, float, list[str]]:
     """K_el and the variance of its ln for ``fabric`` from the two-size fits of the other fabrics.
 
     One size's curve does not determine K_el (it trades against the shear table); the two sizes
@@ -154,13 +162,13 @@ def elongation_for(fabric: str, quick: bool, scene: Scene | None = None) -> tupl
     if quick:
         return (scene or Scene.from_toml(_paths(fabric)[0])).material.K_el, 1.0, []
     others = [f for f in FABRICS if f != fabric]
-    fits = [pair_fit(f) for f in others]
+    fits = [pair_fit(f, folder) for f in others]
     ln = np.log([f["K_el"] for f in fits])
     var = float(np.var(ln, ddof=1) + np.mean([f["se_log_K_el"] ** 2 for f in fits]))
     return float(np.exp(ln.mean())), var, others
 
 
-def fit_and_predict(fabric: str, direction: int, quick: bool, start: Scene | None = None) -> dict[str, Any]:
+def fit_and_predict(fabric: str, direction: int, quick: bool, start: Scene | None, folder: Path) -> dict[str, Any]:
     """The table fitted on one size (K_el from the other fabrics) and the other size predicted (cached).
 
     ``start``: the scene the fit starts from (None: the fabric's scene file); its shear table,
@@ -175,7 +183,7 @@ def fit_and_predict(fabric: str, direction: int, quick: bool, start: Scene | Non
     def make() -> dict[str, Any]:
         scene_path, fitted_path, predicted_path = _files(fabric, direction)
         fitted, predicted = read_measured(fitted_path), read_measured(predicted_path)
-        K_el, var, donors = elongation_for(fabric, quick, start)
+        K_el, var, donors = elongation_for(fabric, quick, start, folder)
         scene = (start or Scene.from_toml(scene_path)).with_changes(**{KEL: K_el})
         res = fit_curves([fitted], scene, params=[TABLE], max_runs=runs)
         u, _ = predicted.sample(SCORE_POINTS)
@@ -188,12 +196,7 @@ def fit_and_predict(fabric: str, direction: int, quick: bool, start: Scene | Non
                                "sd_discretization_N": pred.sd_disc_N.tolist()}}
 
     name = f"{'quick' if quick else 'full'}{direction}-{_key(fabric, runs, start.to_toml() if start else '')}"
-    return {**_cached(name, make), "cache_name": name}
-
-
-def _doc(name: str) -> dict[str, Any]:
-    """A fit and prediction kept by :func:`fit_and_predict` under ``name``."""
-    return dict(json.loads((FIT_CACHE / f"{name}.json").read_text()))
+    return {**_cached(folder, name, make), "cache_name": name}
 
 
 def fabric_of(scene: Scene) -> str:
@@ -236,20 +239,28 @@ def _case(doc: dict[str, Any], which: str) -> dict[str, Any]:
             "loading.u0_mm": float(u[-1]), "loading.stops_mm": [float(x) for x in u[:-1]]}
 
 
-def build(quick: bool = False, scene: Scene | None = None) -> Study:
-    """The study on the three fabrics, or with ``scene`` on the fabric it is for (:func:`fabric_of`), from it."""
+def build(quick: bool = False, scene: Scene | None = None, cache: Path | None = None) -> Study:
+    """The study on the three fabrics, or with ``scene`` on the fabric it is for (:func:`fabric_of`), from it.
+
+    ``cache``: the study cache (``--cache``; None: the default), whose ``validation-fits`` keeps the fits.
+    """
+    import functools
+
     from ngbet.scene import Scene
 
+    folder = fits_folder(cache)
     if scene is not None:
         fabric = fabric_of(scene)
         runs: tuple[tuple[str, int], ...] = ((fabric, 0),) if quick else ((fabric, 0), (fabric, 1))
     else:
         runs = QUICK if quick else tuple((f, d) for d in (0, 1) for f in FABRICS)
-    docs = [fit_and_predict(f, d, quick, scene) for f, d in runs]
+    docs = [fit_and_predict(f, d, quick, scene, folder) for f, d in runs]
     base = Scene.from_toml_string(docs[0]["fitted_scene"]).with_changes(
         **{"outputs.vtk": False, "outputs.plot": False, "outputs.profile": False, "outputs.error_estimate": "off"})
     cases = [_case(d, w) for d in docs for w in ("fitted", "predicted")]
-    study = Study("validation", base, cases, description=__doc__ or "", extract=extract, plot=plot, report=report)
+    kept = {d["cache_name"]: d for d in docs}
+    study = Study("validation", base, cases, description=__doc__ or "",
+                  extract=functools.partial(extract, docs=kept, folder=folder), plot=plot, report=report)
     if quick:  # said here: comparing with the full study would make its fits (minutes)
         full = 2 if scene is not None else 2 * len(FABRICS)
         study.left_out = [f"{full - len(runs)} of the full study's {full} fits (each fabric in both directions)",
@@ -258,15 +269,18 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
     return study
 
 
-def extract(rec: dict, run_dir: Path, out: Path) -> dict:
-    """Measured, ngbet and (for the predicted size) the normalisation method's force at the scored points."""
+def extract(rec: dict, run_dir: Path, out: Path, docs: dict[str, dict[str, Any]], folder: Path) -> dict:
+    """Measured, ngbet and (for the predicted size) the normalisation method's force at the scored points.
+
+    ``docs``: the study's fits and predictions by name; ``folder``: where the two-size fits are kept.
+    """
     from ngbet.calibration.data import read_measured
     from ngbet.kinematics import force_from_normalised, normalised_shear_force
     from ngbet.output import read_rows
 
     fabric, d, which, name = rec["params"]["specimen.name"].split(":")
     direction = int(d)
-    doc = _doc(name)
+    doc = docs[name]
     _, a, b = _files(fabric, direction)
     fitted, curve = read_measured(a), read_measured(a if which == "fitted" else b)
     pair = f"{fitted.label} → {read_measured(b).label}"
@@ -287,7 +301,7 @@ def extract(rec: dict, run_dir: Path, out: Path) -> dict:
                            **{k: v["value"] for k, v in fit["parameters"].items()},
                            **{f"se_log {k}": v["standard_error_log"] for k, v in fit["parameters"].items()}}]
         if doc["K_el_from"] and direction == 0:  # full study: the fabric's two-size fit was a donor for others
-            pf = pair_fit(fabric)
+            pf = pair_fit(fabric, folder)
             tables["pair_fits"] = [{**{k: pf[k] for k in ("fabric", "K_el", "se_log_K_el", "model_runs", "wall_s")},
                                     "rms": " ".join(f"{x:.4f}" for x in pf["rms"])}]
     if which == "predicted":

@@ -379,10 +379,12 @@ def test_validation_study_quick(tmp_path, monkeypatch):
     from ngbet.studies import validation as V
     from ngbet.study import load
 
-    monkeypatch.setattr(V, "FIT_CACHE", tmp_path / "fits")
     out = tmp_path / "study"
     assert main(["study", "validation", "--quick", "--workers", "1", "--quiet", "--out", str(out),
                  "--cache", str(tmp_path / "cache")]) == 0
+    # the fit is kept in the study cache that --cache names
+    assert [f.name[:len("quick0-twill_unbalanced")] for f in (tmp_path / "cache" / V.FITS_FOLDER).glob("*.json")] \
+        == ["quick0-twill_unbalanced"]
     text = (out / "report.md").read_text()
     assert "| twill_unbalanced |" in text and (out / "validation.png").exists()
     fitted = read_measured(DATA / "cao2008_twill_unbalanced_100x250_UN.csv")

@@ -143,7 +143,8 @@ def run_quick(name, tmp_path, quick_cache):
     from ngbet.study import build_study
 
     mod = importlib.import_module(f"ngbet.studies.{name}")
-    return mod, run_study(build_study(mod.build, True), tmp_path / name, cache=quick_cache, progress=False)
+    return mod, run_study(build_study(mod.build, True, cache=quick_cache), tmp_path / name, cache=quick_cache,
+                          progress=False)
 
 
 def test_quick_penalty_p(tmp_path, quick_cache):
@@ -776,9 +777,9 @@ def test_quick_validation_makes_only_its_own_fit_and_says_what_it_leaves_out(mon
 
     made = []
 
-    def fit_stub(fabric, direction, quick, start=None):
+    def fit_stub(fabric, direction, quick, start, folder):
         made.append((fabric, direction, quick))
-        return {"fitted_scene": Scene().to_toml()}
+        return {"fitted_scene": Scene().to_toml(), "cache_name": f"{fabric}{direction}"}
 
     monkeypatch.setattr(V, "fit_and_predict", fit_stub)
     monkeypatch.setattr(V, "_case", lambda doc, which: {"specimen.name": which})

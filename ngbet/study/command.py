@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import inspect
 import logging
 import sys
 from collections.abc import Callable
@@ -82,12 +83,18 @@ def _words(v: Any) -> str:
     return str(v)
 
 
-def build_study(build: Callable[..., Study], quick: bool, scene: Scene | None = None, source: str = "") -> Study:
-    """The study ``build`` gives, on ``scene`` (None: the study's default), with what ``quick`` leaves out."""
-    study = build(quick, scene) if scene is not None else build(quick)
+def build_study(build: Callable[..., Study], quick: bool, scene: Scene | None = None, source: str = "",
+                cache: Path | None = None) -> Study:
+    """The study ``build`` gives, on ``scene`` (None: the study's default), with what ``quick`` leaves out.
+
+    ``cache``: the study cache, handed to a ``build`` that keeps work of its own there (a ``cache``
+    parameter: the validation study's fits).
+    """
+    kw: dict[str, Any] = {"cache": cache} if "cache" in inspect.signature(build).parameters else {}
+    study = build(quick, scene, **kw) if scene is not None else build(quick, **kw)
     study.scene_source = source
     if quick and not study.left_out:  # a study whose full build is costly (fits) says it itself
-        study.left_out = left_out(build(False, scene) if scene is not None else build(False), study)
+        study.left_out = left_out(build(False, scene, **kw) if scene is not None else build(False, **kw), study)
     return study
 
 
@@ -98,7 +105,7 @@ def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: 
     scene : the base scene (None: the study's own, on ngbet's default scene); source names it.
     """
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    study = build_study(build, args.quick, scene, source)
+    study = build_study(build, args.quick, scene, source, Path(args.cache) if args.cache else None)
     out = Path(args.out) if args.out else default_out(study.name, args.quick)
     if args.plot_only:
         try:
