@@ -258,7 +258,8 @@ def _final_files(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: 
             else:
                 why = (f"the orders {orders} are not a stable pair (order_phi and order_lam = 'auto' give one for "
                        "order_u >= 2)")
-            warnings.append(f"the multiplier oscillates ({osc:.2f} of its L2 norm is not continuous): {why}")
+            warnings.append(f"the multiplier oscillates (‖Λ − ΠΛ‖/‖Λ‖ = {osc:.2f} away from the clamps, Π the L2 "
+                            f"projection onto continuous fields): {why}")
             log.warning("%s", warnings[-1])
     return writer.summary(info, "ok")
 
