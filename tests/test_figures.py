@@ -84,6 +84,22 @@ def test_measured_curve_on_the_force_and_shear_force_figures(tmp_path):
     assert len(g) == 2 and np.allclose(g, np.degrees([0.138217, 0.288427]), rtol=1e-5)
 
 
+def test_a_measured_curve_of_another_specimen_keeps_the_legend_inside_its_panel(tmp_path):
+    """A long file name and another specimen size: the legend entry takes two lines, inside the axes."""
+    from ngbet.scene import default_scene
+
+    csv = tmp_path / "cao2008_twill_unbalanced_100x200_UN.csv"
+    csv.write_text("# specimen.width_mm = 100\n# specimen.length_mm = 200\ndisplacement_mm,force_N\n0,0\n10,5\n20,20\n")
+    fig = F.force_figure(rows(), default_scene(), measured=F.read_measured(csv))
+    fig.canvas.draw()  # matplotlib's Agg canvas of a Figure made without pyplot
+    ax = fig.axes[0]
+    legend = ax.get_legend()
+    assert "measured, specimen 100 × 200 mm:\ncao2008_twill_unbalanced_100x200_UN.csv" in [
+        t.get_text() for t in legend.texts]
+    box, panel = legend.get_window_extent(), ax.get_window_extent()
+    assert panel.x0 <= box.x0 and box.x1 <= panel.x1, (box, panel)
+
+
 @pytest.mark.parametrize("text", ["d,F\n1,2\n", "displacement_mm,force_N\n1,x\n", "displacement_mm,force_N\n1,2\n"])
 def test_a_bad_measured_file_is_refused_naming_it(tmp_path, text):
     csv = tmp_path / "bad.csv"

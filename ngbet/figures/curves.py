@@ -108,7 +108,9 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
     ax.set_xlabel(U0_LABEL)
     ax.set_ylabel(FORCE_LABEL)
     ax.set_xlim(left=0)
-    ax.legend(loc="upper left")
+    if measured is not None or extra:  # a curve that rises more steeply: room above the curves for the legend
+        ax.set_ylim(top=ax.get_ylim()[1] * 1.3)
+    ax.legend(loc="upper left")  # rising curves leave the upper left free
     ax.set_title("(a) force" if has_T else "")
     if has_T:
         ax2 = axes[1]
@@ -124,12 +126,14 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
 
 
 def _measured_label(m: Measured, scene: Any) -> str:
-    if scene is None or m.width_mm is None or m.length_mm is None:
-        return m.label
-    sp = scene.specimen
-    if (m.width_mm, m.length_mm) == (sp.width_mm, sp.length_mm):
-        return m.label
-    return f"{m.label}, specimen {m.width_mm:g} × {m.length_mm:g} mm"
+    """The measured curve's legend entry: its file on a line of its own, and its specimen where it is not the run's.
+
+    (A long file name stays inside the axes on its own line.)
+    """
+    other = scene is not None and m.width_mm is not None and m.length_mm is not None and (
+        (m.width_mm, m.length_mm) != (scene.specimen.width_mm, scene.specimen.length_mm))
+    size = f", specimen {m.width_mm:g} × {m.length_mm:g} mm" if other else ""
+    return f"measured{size}:\n{m.path.name}"
 
 
 def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,

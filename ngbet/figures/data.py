@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -78,7 +78,6 @@ class Measured:
     force_N: np.ndarray
     width_mm: float | None = None
     length_mm: float | None = None
-    label: str = field(default="")
 
     def specimen(self, width_mm: float, length_mm: float) -> tuple[float, float]:
         """(W, H) of the measured specimen: its header's, else the run's."""
@@ -121,8 +120,7 @@ def read_measured(path: str | Path) -> Measured:
         raise ValueError(f"{p}: every data line must hold two numbers, displacement_mm,force_N ({exc})") from exc
     if len(values) < 2 or not np.all(np.isfinite(values)):
         raise ValueError(f"{p}: needs at least two finite points (displacement_mm,force_N)")
-    return Measured(p, values[:, 0], values[:, 1], header.get("specimen.width_mm"), header.get("specimen.length_mm"),
-                    f"measured ({p.name})")
+    return Measured(p, values[:, 0], values[:, 1], header.get("specimen.width_mm"), header.get("specimen.length_mm"))
 
 
 def increasing_curve(d: ArrayLike, F: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
