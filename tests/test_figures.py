@@ -24,6 +24,13 @@ def rows(snap_at=None, errors=None):
     return out
 
 
+def fresh_python(code):
+    """What ``code`` prints in a new interpreter (without the test session's MPLBACKEND)."""
+    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                          check=True).stdout.strip()
+
+
 def lines_of(ax):
     return [ln for ln in ax.get_lines() if len(ln.get_xdata())]
 
@@ -69,6 +76,14 @@ def test_a_load_whose_estimate_could_not_vouch_is_named_where_its_bar_would_be()
     off = default_scene().with_changes(**{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0,
                                           "outputs.error_estimate": "off"})
     assert not F.force_figure(rows(errors={4.0: 3.0}), off).axes[0].texts
+    # a bar too short to see and a missing one: one note, the sizes first
+    fig = F.force_figure(rows(errors={4.0: 0.05}), scene)
+    assert [t.get_text() for t in fig.axes[0].texts] == [
+        "error bars shorter than the markers:\n±0.05 N at u₀ = 4 mm\nno error bar at u₀ = 8 mm:\n"
+        "the estimate could not vouch for the force\n(summary.json: error_estimate_unreliable)"]
+    # the network estimates no error (its rows have no force_error_N column): nothing is due, nothing named
+    network = [{k: v for k, v in r.items() if k != "force_error_N"} for r in rows()]
+    assert not F.force_figure(network, scene.with_changes(model="discrete")).axes[0].texts
 
 
 def test_measured_curve_on_the_force_and_shear_force_figures(tmp_path):
@@ -133,9 +148,7 @@ def test_the_map_panels_share_one_norm():
 def test_ngbet_run_imports_no_matplotlib_before_it_solves():
     code = ("import sys, ngbet.cli, ngbet.run, ngbet.figures, ngbet.continuum.run, ngbet.discrete.run; "
             "print('matplotlib' in sys.modules)")
-    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
-    assert out.stdout.strip() == "False"
+    assert fresh_python(code) == "False"
 
 
 def test_run_figures_and_data_overlay_from_the_command_line(tmp_path):
@@ -300,6 +313,4 @@ def test_an_unknown_figure_format_is_refused_naming_the_key():
 def test_the_package_exports_what_it_lists_without_importing_matplotlib():
     code = ("import sys, ngbet.figures as F; "
             "print([n for n in F.__all__ if not hasattr(F, n)], 'matplotlib' in sys.modules)")
-    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
-    assert out.stdout.strip() == "[] False"
+    assert fresh_python(code) == "[] False"

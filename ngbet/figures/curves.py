@@ -55,31 +55,40 @@ def curve_with_jumps(ax: Axes, u0: ArrayLike, y: ArrayLike, snap: ArrayLike | No
     return line
 
 
-def error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: float) -> None:
+def error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: float,
+               due: np.ndarray | None = None) -> None:
     """The estimated discretization error of the force as error bars (with caps, in red).
 
-    Bars too short to see (below 2 % of the axis) have their sizes written in one note in the
-    lower right corner of the axes (inside them, off a rising curve).
+    One note in the lower right corner of the axes (inside them, off a rising curve) gives the sizes
+    of bars too short to see (below 2 % of the axis) and names the loads where an estimate was
+    ``due`` (a mask of the rows) but none vouched for the force (no bar there).
     """
     ok = np.isfinite(err)
-    if not ok.any():
-        return
-    ax.errorbar(u0[ok], F[ok], yerr=err[ok], fmt="none", ecolor="C3", elinewidth=1.6, capsize=5, capthick=1.6,
-                zorder=5, label="± estimated discretization error")
-    small = [(u, e) for u, f, e in zip(u0[ok], F[ok], err[ok], strict=True) if 2 * e < 0.02 * span]
-    if small:
-        ax.text(0.98, 0.03, "error bars shorter than the markers:\n"
-                + "\n".join(f"±{e:.2g} N at u₀ = {u:g} mm" for u, e in small),
-                transform=ax.transAxes, ha="right", va="bottom", fontsize=7, color="C3")
+    lines = []
+    if ok.any():
+        ax.errorbar(u0[ok], F[ok], yerr=err[ok], fmt="none", ecolor="C3", elinewidth=1.6, capsize=5, capthick=1.6,
+                    zorder=5, label="± estimated discretization error")
+        small = [(u, e) for u, f, e in zip(u0[ok], F[ok], err[ok], strict=True) if 2 * e < 0.02 * span]
+        if small:
+            lines += ["error bars shorter than the markers:", *(f"±{e:.2g} N at u₀ = {u:g} mm" for u, e in small)]
+    missing = u0[~ok & due] if due is not None else []
+    if len(missing):
+        lines += ["no error bar at u₀ = " + ", ".join(f"{u:g}" for u in missing) + " mm:",
+                  "the estimate could not vouch for the force", "(summary.json: error_estimate_unreliable)"]
+    if lines:
+        ax.text(0.98, 0.03, "\n".join(lines), transform=ax.transAxes, ha="right", va="bottom", fontsize=7, color="C3")
 
 
-def estimate_due(u0_mm: float, scene: Any) -> bool:
-    """Whether the run's ``outputs.error_estimate`` asks for an error estimate at the row of ``u0_mm``."""
-    if scene is None or "error_estimate" not in vars(scene.outputs):
-        return False
+def estimate_due(u0_mm: np.ndarray, scene: Any) -> np.ndarray:
+    """The rows (by ``u0_mm``) where the run's ``outputs.error_estimate`` asks for an error estimate."""
+    u0_mm = np.asarray(u0_mm, dtype=float)
+    if scene is None:
+        return np.zeros(u0_mm.shape, dtype=bool)
     which, ld = scene.outputs.error_estimate, scene.loading
-    at = {"stops": (*ld.stops_mm, ld.u0_mm), "final": (ld.u0_mm,)}.get(which, ())
-    return which == "every" or any(abs(u0_mm - s) < 1e-6 for s in at)
+    at = np.array({"stops": (*ld.stops_mm, ld.u0_mm), "final": (ld.u0_mm,)}.get(which, ()), dtype=float)
+    if which == "every":
+        return np.ones(u0_mm.shape, dtype=bool)
+    return (np.abs(u0_mm[:, None] - at[None, :]) < 1e-6).any(axis=1) if at.size else np.zeros(u0_mm.shape, bool)
 
 
 def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (),
@@ -98,13 +107,9 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
     for label, x, y in extra:
         ax.plot(x, y, "--", label=label)
     span = float(np.nanmax(np.abs(np.r_[F, 0.0]))) or 1.0
-    err = column(rows, "force_error_N")
-    error_bars(ax, u0, F, err, span)
-    missing = [u for u, e in zip(u0, err, strict=True) if not np.isfinite(e) and estimate_due(u, scene)]
-    if missing:  # an estimate that could not vouch for the force: no bar, said where the bar would be
-        ax.text(0.98, 0.5, "no error bar at u₀ = " + ", ".join(f"{u:g}" for u in missing)
-                + " mm:\nthe estimate could not vouch for the force\n(summary.json: error_estimate_unreliable)",
-                transform=ax.transAxes, ha="right", va="center", fontsize=7, color="C3")
+    # a model that estimates its error writes the column (the network does not: nothing is due there)
+    due = estimate_due(u0, scene) if "force_error_N" in rows[0] else None
+    error_bars(ax, u0, F, column(rows, "force_error_N"), span, due)
     ax.set_xlabel(U0_LABEL)
     ax.set_ylabel(FORCE_LABEL)
     ax.set_xlim(left=0)
