@@ -314,7 +314,7 @@ def _parse_columns(spec: str | Sequence[str]) -> list[tuple[str, str | None]]:
     if len(items) != 2 or not all(items):
         raise SceneError(f"--columns {spec!r}: give two columns, the displacement (or shear angle) and the force, "
                          "by header name or number, each with an optional unit: --columns 'Weg:mm,Kraft:kN'")
-    out = []
+    out: list[tuple[str, str | None]] = []
     for s in items:
         name, sep, unit = s.rpartition(":")
         out.append((name.strip(), _unit_key(unit)) if sep and _unit_key(unit) in UNITS else (s, None))
