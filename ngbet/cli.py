@@ -263,6 +263,9 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     from .calibration import command as fit_command
 
     fit_command.add_parser(sub)
+    from . import normalise
+
+    normalise.add_parser(sub)
     return parser
 
 
@@ -277,6 +280,10 @@ def _main(argv: list[str] | None) -> int:
         from .calibration import command as fit_command
 
         return fit_command.run_from_args(args)
+    if args.command == "normalise":
+        from . import normalise
+
+        return normalise.run_from_args(args)
 
     try:
         scene = load_scene(args.scene, args.overrides)
