@@ -240,17 +240,32 @@ def spread(curves: Sequence[Normalised]) -> dict[str, Any] | None:
             "at_max_deg": float(g[k]), "from_deg": float(a), "to_deg": float(b), "curves": len(curves)}
 
 
-def spread_text(curves: Sequence[Normalised], s: dict[str, Any] | None) -> str:
-    """One sentence on the spread (figure caption and terminal)."""
-    kinds = {c.test for c in curves}
-    between = "the sizes" if kinds == {"bias_extension"} else "the frames" if kinds == {"picture_frame"} else \
-        "the tests"
-    if s is None:
-        return ("one curve: no spread to state" if len(curves) < 2 else
-                f"the curves share no shear angle range above {SPREAD_FROM_DEG:g}°: no spread stated")
-    return (f"between {between}, the normalised shear force differs by up to {s['max_percent']:.0f} % "
-            f"(at γ = {s['at_max_deg']:.0f}°; median {s['median_percent']:.0f} %) over γ = {s['from_deg']:.0f}–"
-            f"{s['to_deg']:.0f}° (max − min over mean)")
+def spreads(curves: Sequence[Normalised]) -> list[tuple[str, dict[str, Any] | None]]:
+    """The spread between the bias extension sizes, between the picture frames, and between the tests where both are.
+
+    Each as (what, :func:`spread`), for every group of at least two curves.
+    """
+    bet = [c for c in curves if c.test == "bias_extension"]
+    pf = [c for c in curves if c.test == "picture_frame"]
+    out = [(what, spread(group)) for what, group in (("the bias extension sizes", bet), ("the picture frames", pf),
+                                                      ("the tests", curves if bet and pf else []))
+           if len(group) > 1]
+    return out
+
+
+def spread_text(curves: Sequence[Normalised], groups: list[tuple[str, dict[str, Any] | None]]) -> str:
+    """One sentence on the spreads (figure caption and terminal)."""
+    if not groups:
+        return "one curve: no spread to state"
+    parts = []
+    for what, s in groups:
+        if s is None:
+            parts.append(f"{what} share no shear angle range above {SPREAD_FROM_DEG:g}°: no spread stated")
+        else:
+            parts.append(f"between {what}, the normalised shear force differs by up to {s['max_percent']:.0f} % "
+                         f"(at γ = {s['at_max_deg']:.0f}°; median {s['median_percent']:.0f} %) over γ = "
+                         f"{s['from_deg']:.0f}–{s['to_deg']:.0f}°")
+    return "; ".join(parts) + " ((max − min)/mean)"
 
 
 # --- the folder --------------------------------------------------------------------------------------------------
@@ -412,8 +427,8 @@ def run_from_args(args: argparse.Namespace) -> int:
     try:
         curves = read_inputs(args)
         names = _names(curves)
-        s = spread(curves)
-        text = spread_text(curves, s)
+        groups = spreads(curves)
+        text = spread_text(curves, groups)
         folder = NormaliseFolder(out, [*names, FIGURE + ".png", FIGURE + ".pdf", SUMMARY])
         try:
             for c, name in zip(curves, names, strict=True):
@@ -422,7 +437,8 @@ def run_from_args(args: argparse.Namespace) -> int:
             summary = {"curves": [{"source": c.source, "test": c.test, "label": c.label, "table": name,
                                    "shear_angle_deg": [float(c.gamma_deg.min()), float(c.gamma_deg.max())],
                                    "notes": c.notes} for c, name in zip(curves, names, strict=True)],
-                       "spread": s, "spread_text": text, "figure": figure, "files": sorted(folder.files)}
+                       "spread": {what: s for what, s in groups}, "spread_text": text, "figure": figure,
+                       "files": sorted(folder.files)}
             folder.write(SUMMARY, lambda p: p.write_text(json.dumps(summary, indent=2, allow_nan=False)))
         finally:
             folder.close()
@@ -462,7 +478,8 @@ def _report(curves: Sequence[Normalised], names: Sequence[str], text: str, out: 
     for c, name in zip(curves, names, strict=True):
         g = c.gamma_deg
         at = [x for x in (20.0, 40.0) if g.min() <= x <= g.max()]
-        vals = ", ".join(f"F_sh({x:g}°) = {np.interp(x, g, c.fsh):.3g} N/mm" for x in at)
+        sym = "F_sh" if c.test == "bias_extension" else "F_norm"
+        vals = ", ".join(f"{sym}({x:g}°) = {np.interp(x, g, c.fsh):.3g} N/mm" for x in at)
         method = "Eq. 18" if c.test == "bias_extension" else "Eq. 10"
         lines.append(f"  {c.label:>28s} ({c.test.replace('_', ' ')}): γ {g.min():.3g}–{g.max():.3g}°"
                      f"{', ' + vals + ' (' + method + ')' if vals else ''} -> {name}")
