@@ -438,7 +438,7 @@ def run_from_args(args: argparse.Namespace) -> int:
                                    "shear_angle_deg": [float(c.gamma_deg.min()), float(c.gamma_deg.max())],
                                    "notes": c.notes} for c, name in zip(curves, names, strict=True)],
                        "spread": {what: s for what, s in groups}, "spread_text": text, "figure": figure,
-                       "files": sorted(folder.files)}
+                       "files": sorted({*folder.files, SUMMARY})}
             folder.write(SUMMARY, lambda p: p.write_text(json.dumps(summary, indent=2, allow_nan=False)))
         finally:
             folder.close()

@@ -486,7 +486,7 @@ def parse_sizes(text: str, what: str, names: Sequence[str]) -> dict[str, float]:
         example = "x".join(("100", "250", "3.3")[:len(names)])
         raise SceneError(f"{what} {text!r}: write sizes in mm joined by x, e.g. {what} {example} "
                          f"({' x '.join(n.split('.')[-1].removesuffix('_mm') for n in names)})")
-    bad = [f"{n.split('.')[-1]} {v:g}" for n, v in zip(names, vals, strict=False) if not v > 0]
+    bad = [f"{n.split('.')[-1].removesuffix('_mm')} {v:g}" for n, v in zip(names, vals, strict=False) if not v > 0]
     if bad:
         raise SceneError(f"{what} {text!r}: {', '.join(bad)}: sizes must be > 0 mm")
     return dict(zip(names, vals, strict=False))
