@@ -247,7 +247,7 @@ def test_a_machine_export_of_each_shipped_twintex_curve_reads_back_to_the_same_n
     assert c.label == ref.label
 
 
-# --- ngbet normalise ---------------------------------------------------------------------------------------------------
+# --- ngbet normalise ---------------------------------------------------------------------------------------------
 
 def test_eq18_and_the_energy_method_recover_a_known_normalised_shear_force():
     """A curve made from F_sh(γ) = a tan γ + b γ by Eq. 18 inverted: both methods give the law back.
