@@ -265,7 +265,7 @@ def spread_text(curves: Sequence[Normalised], groups: list[tuple[str, dict[str, 
             parts.append(f"between {what}, the normalised shear force differs by up to {s['max_percent']:.0f} % "
                          f"(at γ = {s['at_max_deg']:.0f}°; median {s['median_percent']:.0f} %) over γ = "
                          f"{s['from_deg']:.0f}–{s['to_deg']:.0f}°")
-    return "; ".join(parts) + " ((max − min)/mean)"
+    return "; ".join(parts) + "; spread = (max − min)/mean"
 
 
 # --- the folder --------------------------------------------------------------------------------------------------

@@ -80,6 +80,8 @@ UNITS: dict[str, tuple[str, float]] = {
     "n_per_mm": ("force/length", 1.0), "n_per_m": ("force/length", 1e-3),
     "s": ("time", 1.0), "ms": ("time", 1e-3), "min": ("time", 60.0), "h": ("time", 3600.0),
 }
+#: how a unit is written in messages
+PRETTY = {"n": "N", "kn": "kN", "n/mm": "N/mm", "n/m": "N/m", "kn/m": "kN/m", "n_per_mm": "N/mm", "n_per_m": "N/m"}
 CANONICAL = {"length": "mm", "force": "N", "angle": "deg", "force/length": "N/mm", "time": "s"}
 #: quantities: their words in a header (the more specific first) and the unit kind they take
 QUANTITIES: dict[str, tuple[tuple[str, ...], str]] = {
@@ -605,7 +607,7 @@ def read_table(path: str | Path, *, test: str | None = None, columns: str | Sequ
     if sep != ",":
         notes.append(f"columns separated by {'semicolons' if sep == ';' else 'tabs'}"
                      + (", decimal commas" if any("," in c for _, r in rows for c in r) else ""))
-    notes += [f"column {c.name!r} read as the {WORDS[c.quantity or '']} in {c.unit}, converted to "
+    notes += [f"column {c.name!r} read as the {WORDS[c.quantity or '']} in {PRETTY.get(c.unit, c.unit)}, converted to "
               f"{CANONICAL[UNITS[c.unit][0]]} (x {f:g})" for c, f in ((x, fx), (y, fy))
               if c.unit is not None and f != 1.0]
     ignored = [c.name for c in cols if c.index not in (x.index, y.index)]
