@@ -404,6 +404,9 @@ def test_fit_refuses_an_incomplete_specimen_or_a_curve_twice_before_any_model_ru
     assert "the same file twice" in capsys.readouterr().err
     assert main(["fit", str(a), "--range", "0:3", "--params", "material.K_sh", "--out", str(tmp_path / "f")]) == 2
     assert "holds 1 measured point" in capsys.readouterr().err
+    b = _csv(tmp_path / "b.csv", "displacement_mm,force_N\n" + _body())  # no specimen: fitted on the scene's
+    assert main(["fit", str(b), "--range", "0:3", "--params", "material.K_sh", "--out", str(tmp_path / "f")]) == 2
+    assert "holds 1 measured point" in capsys.readouterr().err
 
 
 def test_fit_reads_a_kn_export_with_the_specimen_from_the_command_line(tmp_path):

@@ -153,6 +153,8 @@ class Inputs:
             _start(self.scene, self.params)
             _check_inputs(self.scene, args.noise, args.profile, args.force_sd, args.profile_sd)
             c = self.curves[0]
+            note = c.check_window(self._fraction(c))
+            self.notes += [note] if note else []
             _fitted_points(Curve(c.u_mm, c.force_N, c.source), self.scene, self.u_range, args.noise)
 
     def _fraction(self, c: MeasuredCurve) -> tuple[float, float]:
