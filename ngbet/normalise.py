@@ -81,6 +81,10 @@ class Normalised:
     notes: list[str] = field(default_factory=list)
 
 
+def _points(n: int) -> str:
+    return f"{n} point{'' if n == 1 else 's'}"
+
+
 # --- bias extension ------------------------------------------------------------------------------------------------
 
 def _half_angle_solve(gamma: np.ndarray, rhs: np.ndarray, own: np.ndarray, half: np.ndarray) -> np.ndarray:
@@ -141,8 +145,10 @@ def normalise_bet(path: str | Path, specimen: dict[str, float] | None = None,
     keep = (c.u_mm > 0) & (c.u_mm < lock * (1 - 1e-9))
     notes = list(c.notes)
     if np.count_nonzero(c.u_mm >= lock * (1 - 1e-9)):
-        notes.append(f"{np.count_nonzero(c.u_mm >= lock * (1 - 1e-9))} points at or beyond the ideal yarn locking "
+        notes.append(f"{_points(np.count_nonzero(c.u_mm >= lock * (1 - 1e-9)))} at or beyond the ideal yarn locking "
                      f"({lock:.4g} mm) left out")
+    if np.count_nonzero(c.u_mm <= 0):
+        notes.append(f"{_points(np.count_nonzero(c.u_mm <= 0))} at zero or negative displacement left out (γ = 0)")
     if keep.sum() < 3:
         raise SceneError(f"{path}: {int(keep.sum())} points between 0 and the yarn locking ({lock:.4g} mm) of the "
                          f"{W:g} x {H:g} mm specimen; at least 3 are needed (is the specimen right?)")
@@ -179,16 +185,21 @@ def normalise_pf(t: CurveTable) -> Normalised:
     ux, inv = np.unique(x, return_inverse=True)
     y = np.bincount(inv, weights=y) / np.bincount(inv)
     cols: dict[str, np.ndarray] = {}
+    notes = list(t.notes)
     if t.x_quantity == "displacement":
         c = (math.sqrt(2.0) * L + ux) / (2 * L)
         ok = (ux >= 0) & (c < 1)
         ux, y = ux[ok], y[ok]
         theta = np.arccos((math.sqrt(2.0) * L + ux) / (2 * L))
         cols["displacement_mm"] = ux
+        domain = f"displacements from 0 to {(2 - math.sqrt(2.0)) * L:.4g} mm (Eq. 1)"
     else:
         ok = (ux >= 0) & (ux < 90)
         ux, y = ux[ok], y[ok]
         theta = np.radians(90.0 - ux) / 2
+        domain = "shear angles from 0 to 90°"
+    if not ok.all():
+        notes.append(f"{_points(np.count_nonzero(~ok))} outside the frame's {domain} left out")
     gamma = 90.0 - 2 * np.degrees(theta)
     cols["shear_angle_deg"] = gamma
     if t.y_quantity == "force":
@@ -209,7 +220,7 @@ def normalise_pf(t: CurveTable) -> Normalised:
     if "force_N" in cols:
         header.insert(1, "displacement_mm, force_N: crosshead displacement and force (less the empty frame's)")
     return Normalised(t.source, "picture_frame", f"frame {L:g} mm, fabric {Lf:g} mm", gamma,
-                      cols["fnorm_N_per_mm"], None, cols, header, list(t.notes))
+                      cols["fnorm_N_per_mm"], None, cols, header, notes)
 
 
 # --- the collapse -------------------------------------------------------------------------------------------------

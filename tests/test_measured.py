@@ -316,9 +316,12 @@ def test_normalise_picture_frame_from_crosshead_displacement_and_force(tmp_path)
     gamma = 90 - 2 * np.degrees(theta)
     fs = 5.0 * gamma + 0.02 * gamma ** 2
     p = _csv(tmp_path / "raw.csv", "# test: picture-frame\ncrosshead_mm;load_kN\n" +
-             "".join(f"{a:.9g};{b / 1000:.12g}\n" for a, b in zip(d, 2 * np.cos(theta) * fs, strict=True)))
+             "".join(f"{a:.9g};{b / 1000:.12g}\n" for a, b in zip(d, 2 * np.cos(theta) * fs, strict=True))
+             + "90;0,5\n")  # beyond (2 - √2) L = 84.94 mm the frame is folded (Eq. 1): left out and said
     out = tmp_path / "o"
     assert _normalise(str(p), "--frame", "145x120", "--out", str(out)) == 0
+    assert json.loads((out / "normalise.json").read_text())["curves"][0]["notes"][-1] == (
+        "1 point outside the frame's displacements from 0 to 84.94 mm (Eq. 1) left out")
     rows = _table(out / "raw_normalised.csv")
     np.testing.assert_allclose(rows["shear_angle_deg"], gamma, rtol=1e-5)
     np.testing.assert_allclose(rows["shear_force_N"], fs, rtol=1e-5)
