@@ -81,8 +81,8 @@ class Normalised:
     notes: list[str] = field(default_factory=list)
 
 
-def _points(n: int) -> str:
-    return f"{n} point{'' if n == 1 else 's'}"
+def _points(n: Any) -> str:
+    return f"{int(n)} point{'' if n == 1 else 's'}"
 
 
 # --- bias extension ------------------------------------------------------------------------------------------------
