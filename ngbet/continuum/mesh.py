@@ -14,7 +14,7 @@ import math
 
 import ngsolve as ngs
 
-from ..scene import Discretization, PictureFrame, Specimen
+from ..scene import Discretization, PictureFrame, Scene, Specimen
 
 FIXED, MOVING, FREE = "left", "right", "bottom|top"
 CLAMPED_ARMS = "clamp"
@@ -139,3 +139,13 @@ def make_cross_mesh(frame: PictureFrame, specimen: Specimen, disc: Discretizatio
     if disc.corner_bisections:
         mesh = corner_refined(mesh, specimen, disc.corner_bisections, tuple(p for p, _ in outline))
     return mesh
+
+
+def singular_corners(scene: Scene) -> tuple[tuple[float, float], ...] | None:
+    """The corners [m] where the solution is singular, for :func:`corner_refined`: None for the BET's own four.
+
+    The picture frame: every vertex of its cross (:func:`cross_outline`).
+    """
+    if scene.test != "picture_frame":
+        return None
+    return tuple(p for p, _ in cross_outline(scene.picture_frame))
