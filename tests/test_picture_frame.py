@@ -2,6 +2,7 @@
 
 import math
 import warnings
+from pathlib import Path
 
 import ngsolve as ngs
 import numpy as np
@@ -122,6 +123,8 @@ def test_the_scene_refuses_what_a_frame_cannot_do():
 def test_keys_the_test_does_not_read_are_named():
     with pytest.warns(SceneWarning, match="specimen.length_mm"):
         frame_scene(**{"specimen.length_mm": 300.0})
+    with pytest.warns(SceneWarning, match="discretization.structured"):   # Netgen meshes the cross
+        frame_scene(**{"discretization.structured": True})
     with pytest.warns(SceneWarning, match="picture_frame.frame_mm"):
         Scene().with_changes(**{"picture_frame.frame_mm": 216.0})
 
@@ -206,3 +209,49 @@ def test_cutting_the_corners_only_lowers_the_energy():
     bound = np.array([sc.specimen.t * area * homogeneous_energy(sc, x) for x in r.u0_mm])
     assert np.all(r.energy_J < bound * (1 - 1e-4))
     assert np.all(r.energy_J > 0.5 * bound)
+
+
+# --------------------------------------------------------------------------- shipped scenes, figures
+GEOMETRY = Path(__file__).resolve().parents[1] / "geometry"
+
+
+def test_the_shipped_frame_scenes_are_the_benchmarks_frames():
+    # Cao et al. 2008, Table 3: UN 145 / 120 mm, UML 216 / 140 mm; every key read
+    files = sorted(GEOMETRY.glob("twintex_*_pf_*.toml"))
+    assert len(files) == 4
+    for f in files:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", SceneWarning)
+            sc = Scene.from_toml(f)
+        frame = {"UN": (145.0, 120.0), "UML": (216.0, 140.0)}[f.stem.rsplit("_", 1)[1]]
+        assert (sc.test, sc.picture_frame.frame_mm, sc.picture_frame.fabric_mm) == ("picture_frame", *frame)
+        assert math.degrees(frame_shear_angle_rad(sc.loading.u0_mm, frame[0])) == pytest.approx(49.5, abs=0.2)
+
+
+def test_the_frame_figures_are_drawn_inside_their_canvas(tmp_path):
+    from ngbet.figures import texts_outside
+    from ngbet.figures.data import read_scene
+    from ngbet.figures.frame import frame_force_figure, frame_shear_figure
+    from ngbet.figures.style import in_style
+    from ngbet.output import read_rows
+
+    sc = frame_scene(**{"picture_frame.fabric_mm": 80.0, "picture_frame.misalignment_deg": 1.0})
+    simulate(sc, out=tmp_path / "run")
+    rows, scene = read_rows(tmp_path / "run" / "results.csv"), read_scene(tmp_path / "run")
+    with in_style():
+        for fig in (frame_force_figure(rows, scene), frame_shear_figure(rows, scene)):
+            assert texts_outside(fig) == []
+            assert "picture-frame test, frame 100 mm pin to pin, fabric square 80 mm" in fig.get_suptitle().replace(
+                "\u00a0", " ").replace("\n", " ")
+
+
+@pytest.mark.integration
+def test_a_shipped_frame_scene_runs_with_its_figures_and_an_ideal_centre(tmp_path):
+    # the plain weave in the UN frame: the inner square shears with the frame (bending stiffness
+    # 1 Pa m², internal lengths < 1 mm): the centre's shear angle within 0.1° of Eqs. 1-2
+    r = simulate(Scene.from_toml(GEOMETRY / "twintex_plain_pf_UN.toml"), out=tmp_path / "run")
+    assert r.summary["status"] == "ok"
+    assert np.max(np.abs(r.gamma_centre_deg - r.shear_angle_deg)) < 0.1
+    for name in ("force", "shear_force", "shear_map"):
+        assert (tmp_path / "run" / f"{name}.png").exists()
+    assert not (tmp_path / "run" / "profile.png").exists()

@@ -34,7 +34,7 @@ NOT_READ_BY: dict[str, dict[str, tuple[str, ...] | None]] = {
 #: that [picture_frame] describes)
 NOT_READ_BY_TEST: dict[str, dict[str, tuple[str, ...] | None]] = {
     "bias_extension": {"picture_frame": None},
-    "picture_frame": {"specimen": ("length_mm", "width_mm")},
+    "picture_frame": {"specimen": ("length_mm", "width_mm"), "discretization": ("structured",)},
 }
 
 
