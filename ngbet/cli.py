@@ -230,7 +230,8 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     pr.add_argument("--accuracy", type=float, metavar="REL",
                     help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
     pr.add_argument("--data", metavar="CSV", help="a measured curve (header displacement_mm,force_N; '#' comment "
-                    "lines allowed) drawn on the force and normalised shear force figures")
+                    "lines allowed) drawn on the force and normalised shear force figures (a picture-frame scene: "
+                    "header shear_angle_deg,shear_force_N or shear_angle_deg,normalized_shear_force_N_per_mm)")
     pr.add_argument("--quiet", action="store_true", help="print no progress and no results; warnings and errors "
                     "still go to stderr")
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
@@ -280,12 +281,14 @@ def _main(argv: list[str] | None) -> int:
     except SceneError as exc:
         _say(f"bad scene: {exc}")
         return EXIT_INPUT
-    measured = None
+    measured: Any = None
     if getattr(args, "data", None):
         from .figures import read_measured
+        from .figures.frame import read_frame_measured
 
         try:
-            measured = read_measured(args.data)
+            measured = (read_frame_measured(args.data) if scene.test == "picture_frame"
+                        else read_measured(args.data))
         except ValueError as exc:
             _say(f"bad data: {exc}")
             return EXIT_INPUT

@@ -255,3 +255,19 @@ def test_a_shipped_frame_scene_runs_with_its_figures_and_an_ideal_centre(tmp_pat
     for name in ("force", "shear_force", "shear_map"):
         assert (tmp_path / "run" / f"{name}.png").exists()
     assert not (tmp_path / "run" / "profile.png").exists()
+
+
+def test_a_measured_frame_curve_is_read_without_its_clipped_points(tmp_path):
+    from ngbet.figures.frame import read_frame_measured
+
+    m = read_frame_measured(Path(__file__).resolve().parents[1] / "data" / "cao2008_pf"
+                            / "cao2008_pf_twill_unbalanced_UN_fig30_normalized_energy.csv")
+    # the chart's top edge (0.3 N/mm) clips the curve near 40°: those points are not values
+    assert m.quantity == "normalized_shear_force_N_per_mm" and m.values.max() < 0.29996
+    assert m.fnorm(145.0, 120.0) is m.values
+    f = tmp_path / "fs.csv"
+    f.write_text("# a frame\nshear_angle_deg,shear_force_N\n0,0\n30,5.7735\n")
+    assert read_frame_measured(f).fnorm(145.0, 120.0)[1] == pytest.approx(5.7735 * 145 / 120 ** 2, rel=1e-14)
+    f.write_text("displacement_mm,force_N\n0,0\n1,1\n")
+    with pytest.raises(ValueError, match="shear_angle_deg,shear_force_N"):
+        read_frame_measured(f)

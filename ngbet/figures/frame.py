@@ -12,6 +12,8 @@ extension test (:mod:`ngbet.figures.curves`).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -23,7 +25,62 @@ from .style import SHEAR_LABEL, caption, figure, put_caption
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
+#: the force columns a measured picture-frame curve may hold, after ``shear_angle_deg``
+FRAME_DATA_COLUMNS = ("shear_force_N", "normalized_shear_force_N_per_mm")
 TRAVEL_LABEL = "crosshead travel d [mm]"
+
+
+@dataclass(frozen=True)
+class FrameMeasured:
+    """A measured picture-frame curve: the shear angle [deg] and F_s [N] or F_norm [N/mm] (``quantity``)."""
+
+    path: Path
+    shear_angle_deg: np.ndarray
+    values: np.ndarray
+    quantity: str  # one of FRAME_DATA_COLUMNS
+
+    def fnorm(self, frame_mm: float, fabric_mm: float) -> np.ndarray:
+        """F_norm [N/mm] (Eq. 10): as measured, or from F_s with the run's frame and fabric sides."""
+        if self.quantity == "shear_force_N":
+            return self.values * frame_mm / fabric_mm ** 2
+        return self.values
+
+
+def read_frame_measured(path: str | Path) -> FrameMeasured:
+    """Read a measured picture-frame curve (CSV; ``#`` lines are comments).
+
+    Its header: ``shear_angle_deg,shear_force_N`` or ``shear_angle_deg,normalized_shear_force_N_per_mm``.
+
+    A third column ``on_frame_edge`` (the files of data/cao2008_pf) marks points where the printed
+    chart clipped the curve: those on its top or right edge, whose true value lies beyond, are left out.
+
+    Raises
+    ------
+    ValueError
+        naming the file and what is wrong with it.
+    """
+    import csv
+
+    p = Path(path)
+    try:
+        lines = p.read_text().splitlines()
+    except OSError as exc:
+        raise ValueError(f"{p}: cannot read the measured curve ({exc.strerror or exc})") from exc
+    rows = list(csv.reader([ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]))
+    head = [c.strip() for c in rows[0]] if rows else []
+    if len(head) < 2 or head[0] != "shear_angle_deg" or head[1] not in FRAME_DATA_COLUMNS:
+        raise ValueError(f"{p}: the first line that is not a comment must be the header 'shear_angle_deg,"
+                         f"{FRAME_DATA_COLUMNS[0]}' or 'shear_angle_deg,{FRAME_DATA_COLUMNS[1]}' "
+                         "(a picture-frame curve)")
+    edge = head.index("on_frame_edge") if "on_frame_edge" in head else None
+    kept = [r for r in rows[1:] if edge is None or len(r) <= edge or not {"top", "right"} & set(r[edge].split("+"))]
+    try:
+        values = np.array([[float(r[0]), float(r[1])] for r in kept], dtype=float)
+    except (ValueError, IndexError) as exc:
+        raise ValueError(f"{p}: every data line must hold two numbers, {head[0]},{head[1]} ({exc})") from exc
+    if len(values) < 2 or not np.all(np.isfinite(values)):
+        raise ValueError(f"{p}: needs at least two finite points ({head[0]},{head[1]})")
+    return FrameMeasured(p, values[:, 0], values[:, 1], head[1])
 FRAME_ANGLE_LABEL = "shear angle of the frame γ [°] (Eqs. 1–2)"
 
 
@@ -53,14 +110,24 @@ def frame_force_figure(rows: list[dict[str, Any]], scene: Any = None) -> Figure:
     return fig
 
 
-def frame_shear_figure(rows: list[dict[str, Any]], scene: Any = None) -> Figure:
-    """(a) F_norm (Eq. 10) against the frame's shear angle; (b) the shear angles against the travel."""
+def frame_shear_figure(rows: list[dict[str, Any]], scene: Any = None, measured: FrameMeasured | None = None
+                       ) -> Figure:
+    """(a) F_norm (Eq. 10) against the frame's shear angle; (b) the shear angles against the travel.
+
+    ``measured``: a measured curve drawn on (a) (F_s converted with the run's frame and fabric sides).
+    """
     fig = figure(10, 4.2)
     ax, ax2 = fig.subplots(1, 2)
     d, g = column(rows, "u0_mm"), column(rows, "shear_angle_deg")
     snap = column(rows, "snap") if "snap" in rows[0] else None
     curve_with_jumps(ax, g, column(rows, "fnorm_N_per_mm"), snap,
                      label="computed, F_norm = F_s L_frame / L_fabric²")
+    if measured is not None and scene is not None:
+        pf = scene.picture_frame
+        how = "" if measured.quantity != "shear_force_N" else " (its F_s × L_frame / L_fabric² of this run)"
+        ax.plot(measured.shear_angle_deg, measured.fnorm(pf.frame_mm, pf.fabric_mm), "-", color="0.35", lw=1.2,
+                label=f"measured{how}:\n{measured.path.name}")
+        ax.set_ylim(top=ax.get_ylim()[1] * 1.15)  # room for the legend above the steeper curve
     ax.set_xlabel(FRAME_ANGLE_LABEL)
     ax.set_ylabel("normalised shear force F_norm [N/mm] (Eq. 10)")
     ax.set_xlim(left=0)
