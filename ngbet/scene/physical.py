@@ -210,7 +210,7 @@ TESTS = ("bias_extension", "picture_frame")
 
 @dataclass(frozen=True)
 class PictureFrame:
-    """The picture-frame test (``test = "picture_frame"``): a rigid frame of four bars hinged at its corners.
+    """The picture-frame test (test = "picture_frame"): a rigid frame of four bars hinged at its corners.
 
     The crosshead pulls one pin away from the opposite one along e1 (``loading.u0_mm`` is its travel d);
     the bars rotate about the pins and the frame turns from a square into a rhombus of frame angle θ,
