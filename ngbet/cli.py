@@ -231,7 +231,8 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
                     help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
     pr.add_argument("--data", metavar="CSV", help="a measured curve (header displacement_mm,force_N or with other "
                     "units, e.g. 'Displacement (mm);Force (kN)'; '#' comment lines allowed) drawn on the force and "
-                    "normalised shear force figures")
+                    "normalised shear force figures; a picture-frame scene: the shear angle and F_s [N] or F_norm [N/mm], "
+                    "e.g. shear_angle_deg,shear_force_N)")
     pr.add_argument("--specimen", metavar="WxL", help="with --data: the measured specimen, width x clamp-to-clamp "
                     "length in mm (e.g. 100x250), where the file's header does not give it")
     pr.add_argument("--columns", metavar="X,Y", help="with --data: the displacement and force columns by header "
@@ -315,6 +316,17 @@ def _measured(args: argparse.Namespace, scene: Scene) -> Any:
     if not scene.outputs.plot:
         raise SceneError(f"--data {args.data} is drawn on the run's figures, and outputs.plot = false draws none: "
                          "drop --data or set outputs.plot = true")
+    if scene.test == "picture_frame":
+        if args.specimen:
+            raise SceneError("--specimen describes a bias extension specimen; a picture-frame curve's frame is "
+                             "the scene's [picture_frame] section")
+        from .figures.frame import read_frame_measured
+
+        frame = read_frame_measured(args.data, columns=args.columns)
+        if not args.quiet:
+            for note in frame.notes:
+                _say(f"data {args.data}: {note}")
+        return frame
     from .calibration.data import parse_sizes
     from .figures import Measured
 

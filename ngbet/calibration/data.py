@@ -614,6 +614,14 @@ def read_table(path: str | Path, *, test: str | None = None, columns: str | Sequ
     if ignored or columns:
         notes.append(f"columns: {x.name!r} as the {WORDS[x.quantity or '']}, {y.name!r} as the "
                      f"{WORDS[y.quantity or '']}" + (f"; ignored: {', '.join(map(repr, ignored))}" if ignored else ""))
+    clip = next((c for c in cols if c.name.lower() == "on_frame_edge"), None)
+    if clip is not None:  # a chart's clipped points: the true value lies beyond the plotted axis
+        beyond = np.array([bool({"top", "right"} & set(cells[clip.index].strip().lower().split("+")))
+                           if len(cells) > clip.index else False for _, cells in rows])
+        if beyond.any():
+            notes.append(f"{int(beyond.sum())} point(s) marked on_frame_edge top or right left out (the chart "
+                         "clipped them: their true value lies beyond its axis)")
+            xs, ys, ls = xs[~beyond], ys[~beyond], ls[~beyond]
     xs, ys, ls, cut = _loading_branch(xs, ys, ls, path, x.quantity or "")
     if cut:
         notes.append(cut)

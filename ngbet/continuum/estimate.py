@@ -172,7 +172,7 @@ class ForceErrorEstimator:
 
     def _build(self, up: int) -> Any:
         """The solver of the problem ``up`` orders above the run's, on the enrichment's mesh (the run's settings)."""
-        from .mesh import corner_refined
+        from .mesh import corner_refined, singular_corners
         from .numerics import ContinuumSolver
         from .problem import ContinuumProblem
 
@@ -180,7 +180,8 @@ class ForceErrorEstimator:
         if up > 1:
             mesh = self._enriched.problem.mesh
         else:
-            mesh = corner_refined(self.problem.mesh, sc.specimen, CORNER_LEVELS) if self.corner else self.problem.mesh
+            mesh = (corner_refined(self.problem.mesh, sc.specimen, CORNER_LEVELS, singular_corners(sc)) if self.corner
+                    else self.problem.mesh)
         disc = sc.discretization
         for _ in range(up):
             disc = enriched_discretization(disc)
