@@ -231,8 +231,8 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
                     help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
     pr.add_argument("--data", metavar="CSV", help="a measured curve (header displacement_mm,force_N or with other "
                     "units, e.g. 'Displacement (mm);Force (kN)'; '#' comment lines allowed) drawn on the force and "
-                    "normalised shear force figures; a picture-frame scene: the shear angle and F_s [N] or F_norm [N/mm], "
-                    "e.g. shear_angle_deg,shear_force_N)")
+                    "normalised shear force figures; for a picture-frame scene the shear angle and F_s [N] or "
+                    "F_norm [N/mm], e.g. shear_angle_deg,shear_force_N)")
     pr.add_argument("--specimen", metavar="WxL", help="with --data: the measured specimen, width x clamp-to-clamp "
                     "length in mm (e.g. 100x250), where the file's header does not give it")
     pr.add_argument("--columns", metavar="X,Y", help="with --data: the displacement and force columns by header "

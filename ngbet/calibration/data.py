@@ -614,14 +614,11 @@ def read_table(path: str | Path, *, test: str | None = None, columns: str | Sequ
     if ignored or columns:
         notes.append(f"columns: {x.name!r} as the {WORDS[x.quantity or '']}, {y.name!r} as the "
                      f"{WORDS[y.quantity or '']}" + (f"; ignored: {', '.join(map(repr, ignored))}" if ignored else ""))
-    clip = next((c for c in cols if c.name.lower() == "on_frame_edge"), None)
-    if clip is not None:  # a chart's clipped points: the true value lies beyond the plotted axis
-        beyond = np.array([bool({"top", "right"} & set(cells[clip.index].strip().lower().split("+")))
-                           if len(cells) > clip.index else False for _, cells in rows])
-        if beyond.any():
-            notes.append(f"{int(beyond.sum())} point(s) marked on_frame_edge top or right left out (the chart "
-                         "clipped them: their true value lies beyond its axis)")
-            xs, ys, ls = xs[~beyond], ys[~beyond], ls[~beyond]
+    beyond = _clipped(cols, rows)
+    if beyond.any():
+        notes.append(f"{int(beyond.sum())} point(s) marked on_frame_edge top or right left out (the chart "
+                     "clipped them: their true value lies beyond its axis)")
+        xs, ys, ls = xs[~beyond], ys[~beyond], ls[~beyond]
     xs, ys, ls, cut = _loading_branch(xs, ys, ls, path, x.quantity or "")
     if cut:
         notes.append(cut)
@@ -635,6 +632,16 @@ def read_table(path: str | Path, *, test: str | None = None, columns: str | Sequ
     frm, n2 = _frame(path, header.keys, frame)
     return CurveTable(str(path), x.quantity or "", y.quantity or "", xs, ys, ls, spec, frm, ftest,
                       tuple(notes + header.notes + n1 + n2))
+
+
+def _clipped(cols: list[_Column], rows: list[tuple[int, list[str]]]) -> np.ndarray:
+    """Rows an ``on_frame_edge`` column marks "top" or "right": a printed chart clipped them there."""
+    clip = next((c for c in cols if c.name.lower() == "on_frame_edge"), None)
+    if clip is None:
+        return np.zeros(len(rows), dtype=bool)
+    return np.array([len(cells) > clip.index and bool({"top", "right"} & set(cells[clip.index].strip().lower()
+                                                                          .split("+"))) for _, cells in rows],
+                    dtype=bool)
 
 
 def _loading_branch(x: np.ndarray, y: np.ndarray, lines: np.ndarray, path: Path, quantity: str
