@@ -6,7 +6,9 @@ the integration points (the jamming barrier's own check) and the corrector's ite
 bending nothing spreads the shear away from the clamp corners: their yarns close to the jamming
 angle within the first 20 mm, where the barrier (K_jam = max(K_el, K_sh)) takes over and the
 path needs cut steps and Newton iterations that the full model, whose corners stay open, does
-not. Writes ``bench/out/reduced_scene.png`` and a JSON record; prints steps, iterations,
+not; without the barrier (``effects.jamming = false``, as before the barrier existed) their yarns
+cross and the first-gradient path is cheap again (the force the same to 1e-6). Writes
+``bench/out/reduced_scene.png`` and a JSON record; prints steps, iterations,
 factorizations and CPU time of each model.
 
     python bench/bench_reduced.py
@@ -25,18 +27,30 @@ HERE = Path(__file__).resolve().parent
 OUT = HERE / "out"
 
 
-def one_run(bending: bool) -> dict:
-    """The path of the embedded scene (``effects.bending`` = ``bending``): per state the smallest yarn angle."""
+def _yarn_sine(problem, scene):  # the barrier's own check, built also where jamming is off
+    import ngsolve as ngs
+
+    from ngbet.continuum import physics
+
+    sp, disc = scene.specimen, scene.discretization
+    orientation = math.copysign(1.0, sp.m1[0] * sp.m2[1] - sp.m1[1] * sp.m2[0])
+    sine = physics.yarn_angle_sine(ngs.Id(2) + ngs.Grad(problem.u), problem.m1, problem.m2, orientation).Compile()
+    rule = ngs.IntegrationRule(ngs.TRIG, 2 * max(disc.p_u, 1) + disc.quad_bonus)
+    return sine, problem.mesh.MapToAllElements(rule, ngs.VOL)
+
+
+def one_run(bending: bool, jamming: bool = True) -> dict:
+    """The path of the embedded scene (``effects.bending``, ``effects.jamming``): per state the smallest yarn angle."""
     from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
     from ngbet.continuum.run import load_path
     from ngbet.scene import Scene
 
-    scene = Scene().with_changes(**{"effects.bending": bending})
+    scene = Scene().with_changes(**{"effects.bending": bending, "effects.jamming": jamming})
     t0, c0 = time.perf_counter(), time.process_time()
     solver = continuum_solver(ContinuumProblem(scene))
     jam = solver.problem.jamming
-    sine, points = jam._check
+    sine, points = _yarn_sine(solver.problem, scene)
     angles: list[tuple[float, float, bool, int]] = []
     original = solver.converged
 
@@ -55,9 +69,10 @@ def one_run(bending: bool) -> dict:
             steps.append((rec.u0 * 1e3, rec.iterations))
     except StopIteration as done:
         res = done.value
-    return {"bending": bending, "angles": angles, "steps": steps, "u0_mm": res.u0 * 1e3,
+    return {"bending": bending, "jamming": jamming, "angles": angles, "steps": steps, "u0_mm": res.u0 * 1e3,
             "cuts": res.cuts, "counts": solver.counts, "cpu_s": time.process_time() - c0,
-            "wall_s": time.perf_counter() - t0, "jamming_angle_deg": math.degrees(math.asin(jam.s_jam))}
+            "wall_s": time.perf_counter() - t0,
+            "jamming_angle_deg": scene.material.jamming_angle_deg}
 
 
 def figure(runs: list[dict], path: Path) -> None:
@@ -67,8 +82,8 @@ def figure(runs: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(9.0, 3.6), constrained_layout=True)
-    for r, color in zip(runs, ("tab:blue", "tab:red"), strict=True):
-        label = "full model (bending)" if r["bending"] else "first gradient (no bending)"
+    for r, color in zip(runs, ("tab:blue", "tab:red", "tab:gray"), strict=True):
+        label = ("full model" if r["bending"] else "first gradient") + ("" if r["jamming"] else ", no jamming barrier")
         a = np.array([(u, g, on, n) for u, g, on, n in r["angles"]], dtype=float)
         ax.plot(a[:, 0], a[:, 1], "o-", ms=3, color=color, label=label)
         bx.step(a[:, 0], a[:, 3], where="post", color=color,
@@ -80,7 +95,7 @@ def figure(runs: list[dict], path: Path) -> None:
                         textcoords="offset points", fontsize=8, color=color)
     ax.axhline(runs[0]["jamming_angle_deg"], color="k", lw=0.8, ls="--")
     ax.text(30.0, runs[0]["jamming_angle_deg"] + 2, "jamming angle", fontsize=8)
-    ax.set(xlabel="clamp displacement $u_0$ [mm]", ylabel="smallest angle between the yarns [°]", ylim=(0, 95))
+    ax.set(xlabel="clamp displacement $u_0$ [mm]", ylabel="smallest angle between the yarns [°]", ylim=(-95, 95))
     ax.legend(fontsize=8, loc="upper right")
     bx.set(xlabel="clamp displacement $u_0$ [mm]", ylabel="factorizations so far")
     bx.legend(fontsize=8, loc="upper left")
@@ -89,13 +104,14 @@ def figure(runs: list[dict], path: Path) -> None:
 
 
 def main() -> None:
-    runs = [one_run(True), one_run(False)]
+    runs = [one_run(True), one_run(False), one_run(False, jamming=False)]
     OUT.mkdir(exist_ok=True)
     stamp = time.strftime("%Y%m%dT%H%M%S")
     (OUT / f"bench_reduced_{stamp}.json").write_text(json.dumps(runs, indent=1))
     figure(runs, OUT / "reduced_scene.png")
     for r in runs:
-        print(f"bending={r['bending']}: {len(r['steps'])} steps to {r['u0_mm']:.4g} mm, {r['cuts']} cuts, "
+        print(f"bending={r['bending']}, jamming={r['jamming']}: {len(r['steps'])} steps to {r['u0_mm']:.4g} mm, "
+              f"{r['cuts']} cuts, "
               f"{r['counts']}, CPU {r['cpu_s']:.2f} s, wall {r['wall_s']:.2f} s; smallest yarn angle "
               f"{min(a[1] for a in r['angles']):.3g}°")
     print(f"figure: {OUT / 'reduced_scene.png'}")
