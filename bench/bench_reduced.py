@@ -12,6 +12,7 @@ cross and the first-gradient path is cheap again (the force the same to 1e-6). W
 factorizations and CPU time of each model.
 
     python bench/bench_reduced.py
+    python bench/bench_reduced.py bench/out/bench_reduced_<time>.json   # the figure of a record again
 """
 
 from __future__ import annotations
@@ -87,7 +88,7 @@ def figure(runs: list[dict], path: Path) -> None:
         a = np.array([(u, g, on, n) for u, g, on, n in r["angles"]], dtype=float)
         ax.plot(a[:, 0], a[:, 1], "o-", ms=3, color=color, label=label)
         bx.step(a[:, 0], a[:, 3], where="post", color=color,
-                label=f"{label}: {len(r['steps'])} steps, {r['cuts']} cuts")
+                label=f"{label}: {len(r['steps'])} steps, {r['cuts']} cut{'' if r['cuts'] == 1 else 's'}")
         on = a[a[:, 2] > 0]
         if on.size:
             bx.axvline(on[0, 0], color=color, lw=0.8, ls=":")
@@ -96,7 +97,7 @@ def figure(runs: list[dict], path: Path) -> None:
     ax.axhline(runs[0]["jamming_angle_deg"], color="k", lw=0.8, ls="--")
     ax.text(30.0, runs[0]["jamming_angle_deg"] + 2, "jamming angle", fontsize=8)
     ax.set(xlabel="clamp displacement $u_0$ [mm]", ylabel="smallest angle between the yarns [°]", ylim=(-95, 95))
-    ax.legend(fontsize=8, loc="upper right")
+    ax.legend(fontsize=8, loc="lower left")
     bx.set(xlabel="clamp displacement $u_0$ [mm]", ylabel="factorizations so far")
     bx.legend(fontsize=8, loc="upper left")
     fig.savefig(path, dpi=150)
@@ -104,6 +105,11 @@ def figure(runs: list[dict], path: Path) -> None:
 
 
 def main() -> None:
+    import sys
+
+    if len(sys.argv) > 1:  # a record of an earlier run: its figure again
+        figure(json.loads(Path(sys.argv[1]).read_text()), OUT / "reduced_scene.png")
+        return
     runs = [one_run(True), one_run(False), one_run(False, jamming=False)]
     OUT.mkdir(exist_ok=True)
     stamp = time.strftime("%Y%m%dT%H%M%S")
