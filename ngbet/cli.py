@@ -12,7 +12,7 @@ Exit status (both models, runs and studies):
       (the message names the path or address)
 70    an internal error of ngbet (a bug: please report it with the run folder); the message
       names the error, ``-v`` adds its traceback; summary.json says "failed"
-130   interrupted by Ctrl-C (SIGINT) or SIGTERM: summary.json says "interrupted" with the
+130   interrupted by Ctrl-C (SIGINT), SIGTERM, SIGHUP or SIGUSR1/2: summary.json says "interrupted" with the
       last converged load; a study keeps its finished cases in the cache
 ====  ==================================================================================
 
@@ -45,19 +45,27 @@ from .scene import Scene, SceneError
 EPILOG = ("exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
           "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
           "busy with another run; scheduler unreachable; stdout not writable); 70 internal error of ngbet; "
-          "130 interrupted (SIGINT/SIGTERM; summary.json says interrupted, with the last converged load in mm)")
+          "130 interrupted (SIGINT/SIGTERM/SIGHUP/SIGUSR1; summary.json says interrupted, with the last converged "
+          "load in mm)")
 
 
 _say = say  # one `ngbet: ...` line on stderr (stderr itself may be gone: the exit status still says it)
 
 
-def _print(text: str, what: str) -> int:
+def _print(text: str, what: str, utf8: bool = False) -> int:
     """Write ``text`` to stdout; EXIT_IO with a message when stdout cannot take it (a full device).
 
+    ``utf8``: as UTF-8 bytes whatever the locale (a TOML file is UTF-8), where stdout takes bytes.
     stdout is then pointed at the null device, so that the interpreter's last flush does not fail again.
     """
     try:
-        sys.stdout.write(text)
+        buffer = getattr(sys.stdout, "buffer", None) if utf8 else None
+        if buffer is not None:
+            sys.stdout.flush()
+            buffer.write(text.encode("utf-8"))
+            buffer.flush()
+        else:
+            sys.stdout.write(text)
         sys.stdout.flush()
         return EXIT_OK
     except OSError as exc:
@@ -68,11 +76,24 @@ def _print(text: str, what: str) -> int:
 
 
 GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the watchdog does
+#: the signals that end a command as an interruption (summary.json "interrupted", exit 130): Ctrl-C,
+#: SIGTERM, the terminal closed (SIGHUP) and the user signals, whose default would kill the run silently
+STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2")
+                     if hasattr(signal, n))
+
+
+def _signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
 
 
 @contextlib.contextmanager
 def _interrupts() -> Iterator[None]:
-    """Ctrl-C and SIGTERM raise KeyboardInterrupt in the main thread (the run folder records "interrupted").
+    """Ctrl-C, SIGTERM, SIGHUP and SIGUSR1/2 raise KeyboardInterrupt in the main thread (recorded as "interrupted").
+
+    The run folder's summary names the signal.
 
     The main thread can be inside one NGSolve call for a long time (assembly or
     factorization at high order: tens of seconds) and only acts when it returns; a watchdog thread
@@ -86,10 +107,10 @@ def _interrupts() -> Iterator[None]:
     def handler(signum: int, frame: Any) -> None:
         acted.set()
         STOP_REQUESTED.set()  # in case the exception is lost (engine.STOP_REQUESTED): the next step raises
-        raise KeyboardInterrupt(f"signal {signum}")
+        raise KeyboardInterrupt(_signal_name(signum))
 
     try:
-        previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+        previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
     except ValueError:  # not the main thread: leave the signals alone
         yield
         return
@@ -119,12 +140,13 @@ def _watch(r: socket.socket, acted: threading.Event) -> None:
             return
         if not data:
             return
-        if not set(data) & {signal.SIGINT, signal.SIGTERM}:  # another library's signal
+        got = [s for s in data if s in STOP_SIGNALS]
+        if not got:  # another library's signal
             continue
         if not acted.wait(GRACE_S):
             from .output import interrupt_active_runs
 
-            folders = interrupt_active_runs(f"interrupted (SIGINT/SIGTERM) inside a computation; "
+            folders = interrupt_active_runs(f"interrupted ({_signal_name(got[0])}) inside a computation; "
                                             f"stopped after {GRACE_S:g} s")
             _say(f"interrupted; converged steps and summary.json (status interrupted) are in "
                  f"{', '.join(map(str, folders)) or 'no run folder'}")
@@ -142,9 +164,11 @@ def console() -> int:
 
     A run that dies without a word (a crash in compiled code, the kernel's OOM killer) cannot
     record its end itself; the watching process records it in the run folder's summary.json
-    ("crashed", with the signal) and says so in one line (exit 70). Ctrl-C and SIGTERM are passed
-    on to the run, which records "interrupted" as always; the run dies with its watcher.
+    ("crashed", with the signal) and says so in one line (exit 70). Ctrl-C, SIGTERM, SIGHUP (the
+    terminal closed) and SIGUSR1/2 are passed on to the run, which records "interrupted" as always;
+    the run dies with its watcher.
     """
+    _tolerant_streams()
     argv = sys.argv[1:]
     if os.environ.get(SUPERVISED) or not argv or argv[0] != "run" or not hasattr(signal, "SIGKILL"):
         return main(argv)
@@ -157,7 +181,7 @@ def console() -> int:
         with contextlib.suppress(ProcessLookupError):
             child.send_signal(signum)
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in STOP_SIGNALS:
         signal.signal(sig, forward)
     code = child.wait()
     return code if code >= 0 else _died(argv, -code)
@@ -175,11 +199,8 @@ def _died(argv: list[str], signum: int) -> int:
     """The run's process ended by signal ``signum`` without recording its end: record it, say it."""
     from .output import RunWriter, read_rows
 
-    try:
-        name = signal.Signals(signum).name
-    except ValueError:
-        name = f"signal {signum}"
-    interrupted = signum in (signal.SIGINT, signal.SIGTERM)
+    name = _signal_name(signum)
+    interrupted = signum in STOP_SIGNALS
     status = "interrupted" if interrupted else "crashed"
     msg = (f"the run was interrupted by {name}" if interrupted else
            f"the run's process died by {name} (a crash in compiled code, or killed from outside)")
@@ -198,8 +219,19 @@ def _died(argv: list[str], signum: int) -> int:
     return EXIT_INTERRUPTED if interrupted else EXIT_INTERNAL
 
 
+def _tolerant_streams() -> None:
+    """Make stdout and stderr never fail on a character their encoding lacks (``LC_ALL=C``, ASCII pipes).
+
+    Such a character (±, γ, ½) is written as its backslash escape: a run is never failed by its report.
+    """
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, ValueError, OSError):
+            stream.reconfigure(errors="backslashreplace")  # type: ignore[union-attr]
+
+
 def main(argv: list[str] | None = None) -> int:
     """The ``ngbet`` command (see the module docstring for the exit status)."""
+    _tolerant_streams()
     words = sys.argv[1:] if argv is None else argv
     with _interrupts(), messages("-v" in words or "--verbose" in words):
         try:
@@ -292,7 +324,7 @@ def _main(argv: list[str] | None) -> int:
     if args.command == "scene":
         from .scene_doc import commented_toml
 
-        return _print(commented_toml(scene), "the scene")
+        return _print(commented_toml(scene), "the scene", utf8=True)
     return _run(scene, Path(args.out), quiet=args.quiet, measured=measured)
 
 
@@ -415,6 +447,11 @@ def _version() -> str:
     return f"ngbet {__version__} (git revision {__revision__})"
 
 
+def _force_text(force_N: float) -> str:
+    """A force with seven significant digits (107.3735, 2.345678e-07): never 0.0000 for a thin specimen."""
+    return f"{force_N:9.7g}"
+
+
 def _report(summary: dict, out: Path) -> str:
     from .output import read_rows
 
@@ -430,7 +467,7 @@ def _report(summary: dict, out: Path) -> str:
             err = r.get("force_error_N")
             bar = (f" ± {err:.2g} N (estimated discretization error)" if isinstance(err, float) and err == err
                    else " (error estimate failed)" if isinstance(err, float) else "")
-            lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N{bar}")
+            lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {_force_text(r['force_N'])} N{bar}")
             spread = r.get("force_path_spread_N")
             if isinstance(spread, float) and spread > 0:  # in the bar: another stable state the path left
                 lines.append(f"{'':26}of which {spread:.2g} N the force's spread over the path's snaps")

@@ -77,7 +77,8 @@ class RunWriter:
     and profile.csv are appended to and flushed. Files that appear in the
     folder by other means during a run are not ngbet's: never registered, never removed.
 
-    :meth:`summary` records "ok" or "failed"; leaving the ``with`` block on Ctrl-C/SIGTERM records
+    :meth:`summary` records "ok" or "failed"; leaving the ``with`` block on Ctrl-C/SIGTERM (any signal
+    the command line turns into KeyboardInterrupt, named in the error) records
     "interrupted", on any other exception "failed" with the error, both with the last converged
     load; then the lock is released.
     """
@@ -119,8 +120,9 @@ class RunWriter:
         try:
             if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
                 # the solver's statistics until then, where it attached them (the network's)
+                why = str(exc) if str(exc).startswith("SIG") else "SIGINT/SIGTERM"  # the CLI's handler names it
                 self.summary(dict(getattr(exc, "path_info", {})), "interrupted",
-                             f"interrupted (SIGINT/SIGTERM) after u0 = {self.last_converged_mm:g} mm")
+                             f"interrupted ({why}) after u0 = {self.last_converged_mm:g} mm")
             elif exc_type is not None and self.status == "running":
                 self.summary({"error_type": exc_type.__name__}, "failed", f"{exc_type.__name__}: {exc}")
             elif self._summary and self._summary.get("files") != self.files():

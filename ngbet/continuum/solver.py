@@ -464,6 +464,9 @@ def _displacement_steps(problem: NonlinearProblem, path: PathSettings, settings:
     except ConvergenceError as err:
         err.path_info.update(_snap_info(corrector))
         raise
+    except KeyboardInterrupt as exc:  # Ctrl-C or a signal: the snaps so far go into the summary too
+        exc.path_info = {**getattr(exc, "path_info", {}), **_snap_info(corrector)}  # type: ignore[attr-defined]
+        raise
     out.path_info.update(_snap_info(corrector))
     return out
 
