@@ -47,6 +47,7 @@ from .run_folder import (
     _jsonable,
     _link_or_copy,
     _remove,
+    check_complete,
     write_json_atomic,
 )
 from .scene import Scene
@@ -203,9 +204,14 @@ class RunWriter:
         tmp = self.out / (TMP_PREFIX + name)
         self._register(name)
         try:
-            _io(tmp, produce)
+            try:
+                _io(tmp, produce)
+            except Exception:  # a reader of a cut file (the VTU's rescaling) fails: the cut is the cause
+                check_complete(tmp, final)
+                raise
             if not tmp.exists():
                 return None
+            check_complete(tmp, final)
             _io(final, lambda p: os.replace(tmp, p))
         finally:
             tmp.unlink(missing_ok=True)
@@ -235,6 +241,7 @@ class RunWriter:
                     raise ValueError(f"{m}: not a file of the group {tmp_stem}")
                 name = stem + m.name[len(tmp_stem.name):]
                 final = self._target(name)
+                check_complete(m, final)
                 self._register(name)
                 _io(final, functools.partial(os.replace, m))
                 done.append(final)

@@ -7,6 +7,7 @@ nothing else writes into a run folder.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import fnmatch
 import json
@@ -113,11 +114,38 @@ def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
         fh.close()
         raise OutputError(out, f"its {RUN_MARKER} was removed or replaced while this run took the folder; "
                                "choose another --out")
+    try:
+        _probe_longest(out)
+    except OutputError:
+        fh.close()
+        raise
     fh.seek(0)
     previous = _marker_record(fh.read()).get("files")
     if not isinstance(previous, list):  # a folder of an ngbet that kept the list in summary.json only
         previous = [*_OLD_CORE, *_summary_files(out)]
     return fh, [n for n in previous if isinstance(n, str) and n and "/" not in n and not n.startswith(".")]
+
+
+#: the deepest path a run writes below its folder: a temporary folder with a file in it (the figures)
+_LONGEST = (TMP_PREFIX + "probe.xxxxxxxxxxxx", "x" * 40)
+
+
+def _probe_longest(out: Path) -> None:
+    """Write and remove a file at the longest path a run writes in ``out``.
+
+    A folder whose path leaves no room for the run's names (the OS limits a path to PATH_MAX) is
+    refused now, before the solve, rather than when its last files are written.
+    """
+    d = out / f"{_LONGEST[0]}{os.getpid()}"
+    try:
+        d.mkdir(exist_ok=True)
+        (d / _LONGEST[1]).write_bytes(b"")
+    except OSError as exc:
+        raise OutputError(out, f"cannot hold the files of a run ({exc.strerror or exc} for a file "
+                               f"{len(str(d / _LONGEST[1])) - len(str(out))} characters deeper); choose a shorter "
+                               "--out") from None
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
 
 
 def _remove(p: Path) -> None:
@@ -158,15 +186,68 @@ def _clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
     if clash:
         raise OutputError(out, f"holds {', '.join(clash)}, which no ngbet run registered there (they are not "
                                "ngbet's; this run would replace them): move them or choose another --out")
-    gone = []
-    for p in [*present, *(d for d in out.iterdir() if d.is_dir() and d.name.startswith(TMP_PREFIX))]:
-        if p.name in listed or p.name.startswith(TMP_PREFIX):
-            _io(p, _remove)
-            gone.append(p)
+    doomed = [p for p in [*present, *(d for d in out.iterdir() if d.is_dir() and d.name.startswith(TMP_PREFIX))]
+              if p.name in listed or p.name.startswith(TMP_PREFIX)]
+    gone = _remove_all_or_none(out, doomed)
     other = sorted(p.name for p in out.iterdir() if p.name != RUN_MARKER)
     if other:
         log.warning("%s: keeping %s (not written by ngbet)", out, ", ".join(other))
     return gone
+
+
+def _remove_all_or_none(out: Path, doomed: list[Path]) -> list[Path]:
+    """Remove ``doomed`` (files and folders in ``out``), all of them or none.
+
+    Each is first moved into a temporary folder; when one cannot be moved (an immutable file, a
+    folder turned read-only) the moved ones are put back and :class:`OutputError` names it: the
+    previous run's files and its summary.json stay as they were, true.
+    """
+    if not doomed:
+        return []
+    trash = out / f"{TMP_PREFIX}previous.{os.getpid()}"
+    _io(trash, lambda p: p.mkdir(exist_ok=True))
+    moved: list[Path] = []
+    try:
+        for p in doomed:
+            os.rename(p, trash / p.name)
+            moved.append(p)
+    except OSError as exc:
+        for m in reversed(moved):
+            with contextlib.suppress(OSError):
+                os.rename(trash / m.name, m)
+        with contextlib.suppress(OSError):
+            trash.rmdir()
+        bad = doomed[len(moved)]
+        raise OutputError(bad, f"cannot be removed ({exc.strerror or exc}), so the previous run's files cannot be "
+                               "replaced; nothing was removed: make it writable or choose another --out") from None
+    shutil.rmtree(trash, ignore_errors=True)
+    return doomed
+
+
+#: how a complete file of each kind ends (the last bytes a writer puts there), looked for in its tail
+_ENDINGS = {".vtu": b"</VTKFile>", ".png": b"IEND\xaeB`\x82", ".pdf": b"%%EOF", ".npz": b"PK\x05\x06"}
+
+
+def check_complete(path: Path, final: Path) -> None:
+    """Refuse a file that its writer left incomplete (:class:`OutputError` naming ``final``).
+
+    Writers in compiled code (NGSolve's VTU output) stop silently when the disk is full or a file
+    size limit (``ulimit -f``) is reached; the file's own ending (:data:`_ENDINGS`) tells a
+    complete file from a cut one, so that no cut file is renamed into place or listed.
+    """
+    end = _ENDINGS.get(path.suffix)
+    if end is None or not path.exists():
+        return
+    try:
+        with path.open("rb") as fh:
+            size = fh.seek(0, os.SEEK_END)
+            fh.seek(max(0, size - 65536))
+            tail = fh.read()
+    except OSError as exc:
+        raise OutputError(final, exc.strerror or str(exc)) from exc
+    if end not in tail:
+        raise OutputError(final, f"written incomplete ({size} bytes, without its ending): the disk is full or "
+                                 "a file size limit (ulimit -f) was reached")
 
 
 def _jsonable(o: Any) -> Any:
