@@ -395,7 +395,7 @@ def _study(args: argparse.Namespace) -> int:
         _say(f"study: unknown study {args.name!r}; known: {', '.join(STUDIES)}")
         return EXIT_INPUT
     module = importlib.import_module(f"ngbet.studies.{args.name}")
-    return _run_study_command(f"study {args.name}", module.build, args)
+    return _run_study_command(f"study {args.name}", module.build, args, args.name)
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -408,10 +408,10 @@ def _sweep(args: argparse.Namespace) -> int:
         _say(f"sweep: {exc}")
         return EXIT_INPUT
     args.scene = path
-    return _run_study_command("sweep", lambda quick, scene=None: sweep.build(axes, quick, scene), args)
+    return _run_study_command("sweep", lambda quick, scene=None: sweep.build(axes, quick, scene), args, "sweep")
 
 
-def _run_study_command(what: str, build: Any, args: argparse.Namespace) -> int:
+def _run_study_command(what: str, build: Any, args: argparse.Namespace, name: str | None = None) -> int:
     """Run a study from the command line; every error is one line and its exit status."""
     from .study import StudyInterrupted, run_from_args
 
@@ -425,7 +425,7 @@ def _run_study_command(what: str, build: Any, args: argparse.Namespace) -> int:
     try:
         with open(os.devnull, "w") if args.quiet else contextlib.nullcontext(sys.stdout) as stdout, \
                 contextlib.redirect_stdout(stdout):  # --quiet: no table, no report (both are in the folder)
-            return run_from_args(build, args, scene, source)
+            return run_from_args(build, args, scene, source, name)
     except StudyInterrupted as exc:
         _say(str(exc))
         return EXIT_INTERRUPTED
