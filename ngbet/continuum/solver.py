@@ -461,11 +461,9 @@ def _displacement_steps(problem: NonlinearProblem, path: PathSettings, settings:
         for rec in path_steps(corrector, path, out):
             rec.left = left.pop() if left else None
             yield rec
-    except ConvergenceError as err:
-        err.path_info.update(_snap_info(corrector))
-        raise
-    except KeyboardInterrupt as exc:  # Ctrl-C or a signal: the snaps so far go into the summary too
-        exc.path_info = {**getattr(exc, "path_info", {}), **_snap_info(corrector)}  # type: ignore[attr-defined]
+    except (ConvergenceError, KeyboardInterrupt) as err:  # a signal's summary keeps the snaps so far too
+        err.path_info = getattr(err, "path_info", {})  # type: ignore[union-attr]
+        err.path_info.update(_snap_info(corrector))  # type: ignore[union-attr]
         raise
     out.path_info.update(_snap_info(corrector))
     return out
