@@ -92,6 +92,8 @@ def simulate(scene: Scene | str | Path, out: str | Path | None = None, progress:
         scene = Scene.from_toml(scene)
     if not isinstance(scene, Scene):
         raise TypeError(f"simulate() takes a Scene or the path of a scene file, not {type(scene).__name__}")
+    if _RAN_IN[0] not in (None, os.getpid()):  # forked from a process that ran one: Netgen's mesher hangs here
+        return _in_a_fresh_process(scene, out, progress)
     if out is not None and _real(out) in _OWNED:
         raise OutputError(out, "the temporary folder of a live Result (its fields() are read from it); "
                                "choose another out= (or out=None)")
@@ -102,6 +104,7 @@ def simulate(scene: Scene | str | Path, out: str | Path | None = None, progress:
         if scene.outputs.plot:
             scene = scene.with_changes(**{"outputs.plot": False})
     out = Path(out)
+    _RAN_IN[0] = os.getpid()
     try:
         run(scene, out, progress=progress)
     except ConvergenceError as err:
@@ -112,6 +115,29 @@ def simulate(scene: Scene | str | Path, out: str | Path | None = None, progress:
             shutil.rmtree(tmp, ignore_errors=True)
         raise
     return load_result(out, _owned=tmp)
+
+
+#: the process that ran a scene through :func:`simulate` (None: none yet)
+_RAN_IN: list[int | None] = [None]
+
+
+def _in_a_fresh_process(scene: Scene, out: str | Path | None, progress: bool) -> Result:
+    """:func:`simulate` in a spawned process, for a process forked after its parent ran a scene.
+
+    Netgen's mesher does not survive a fork once it has run (a forked worker of
+    ``ProcessPoolExecutor`` waited forever for its threads); a spawned process starts clean. The
+    Result comes back pickled, with its folder's files (:meth:`Result.__getstate__`).
+    """
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    if mp.current_process().daemon:  # multiprocessing.Pool's workers may not start processes
+        raise RuntimeError("ngbet.simulate() cannot run in a daemonic worker forked from a process that already "
+                           "ran a scene (Netgen's mesher does not survive the fork, and the worker may not start a "
+                           "fresh process): give the pool a 'spawn' or 'forkserver' context, e.g. "
+                           "multiprocessing.get_context('forkserver').Pool()")
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as ex:
+        return ex.submit(simulate, scene, out, progress).result()
 
 
 def load_result(out: str | Path, _owned: Path | None = None) -> Result:

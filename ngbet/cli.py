@@ -27,6 +27,7 @@ import argparse
 import contextlib
 import json
 import logging
+import math
 import os
 import signal
 import socket
@@ -293,9 +294,48 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _positionals_first(parser: argparse.ArgumentParser, words: list[str]) -> list[str]:
+    """``words`` after the command with its positional words first (``study alpha1 --quick my.toml``).
+
+    argparse takes a command's positionals in one go, before its options; a scene file written
+    after an option was refused. Options that take a value keep it.
+    """
+    if not words or words[0] not in ("study", "sweep"):
+        return words
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[words[0]]
+    valued = {o for a in sub._actions if a.option_strings and a.nargs != 0 for o in a.option_strings}
+    pos: list[str] = []
+    opts: list[str] = []
+    rest = words[1:]
+    i = 0
+    while i < len(rest):
+        w = rest[i]
+        if w == "--":
+            pos += rest[i + 1:]
+            break
+        if w.startswith("-") and len(w) > 1 and not _number(w):
+            opts.append(w)
+            if w in valued and i + 1 < len(rest):
+                opts.append(rest[i + 1])
+                i += 1
+        else:
+            pos.append(w)
+        i += 1
+    return [words[0], *pos, *opts]
+
+
+def _number(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True
+
+
 def _main(argv: list[str] | None) -> int:
     words = sys.argv[1:] if argv is None else argv
-    args = _parser(words[0] if words else None).parse_args(argv)
+    parser = _parser(words[0] if words else None)
+    args = parser.parse_args(_positionals_first(parser, list(words)))
     if args.command == "study":
         return _study(args)
     if args.command == "sweep":
@@ -408,7 +448,15 @@ def _sweep(args: argparse.Namespace) -> int:
         _say(f"sweep: {exc}")
         return EXIT_INPUT
     args.scene = path
+    n = math.prod(len(v) for v in axes.values())
+    if n >= LARGE_SWEEP and not args.quiet:  # its scenes are checked before the first case runs: say so first
+        _say(f"sweep: {n} cases ({' x '.join(f'{len(v)} values of {k}' for k, v in axes.items())}), each a run of "
+             "the scene; checking their scenes, then running the cases not in the cache")
     return _run_study_command("sweep", lambda quick, scene=None: sweep.build(axes, quick, scene), args, "sweep")
+
+
+#: a sweep of at least this many cases says what it will do before it starts
+LARGE_SWEEP = 100
 
 
 def _run_study_command(what: str, build: Any, args: argparse.Namespace, name: str | None = None) -> int:

@@ -29,6 +29,8 @@ from . import reference as R
 def parse_items(items: list[str], parse: Callable[[str], Any]) -> tuple[dict[str, list[Any]], str | None]:
     """``["a.b=1,2", "scene.toml"]`` -> ({"a.b": [1, 2]}, "scene.toml"); values read by ``parse``.
 
+    A key given in two items has the values of both (a value given twice counts once).
+
     Commas inside brackets belong to a value (``loading.stops_mm=[10,20],[37]``).
     """
     axes: dict[str, list[Any]] = {}
@@ -46,7 +48,10 @@ def parse_items(items: list[str], parse: Callable[[str], Any]) -> tuple[dict[str
         parts = [v.strip() for v in re.split(r",(?![^\[]*\])", values) if v.strip()]
         if not parts:
             raise SceneError(f"no values for {key}")
-        axes[key] = [parse(v) for v in parts]
+        axis = axes.setdefault(key, [])  # a key given twice (k=20 k=200): its values together, each once
+        for v in map(parse, parts):
+            if v not in axis:
+                axis.append(v)
     if not axes:
         raise SceneError("nothing to sweep: give section.key=v1,v2,... (e.g. material.alpha1=20,200,2000)")
     return axes, scene

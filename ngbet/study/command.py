@@ -46,6 +46,20 @@ def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog
     return run_from_args(build, p.parse_args(argv), name=build.__module__.rsplit(".", 1)[-1])
 
 
+def _refuse_set_of_varied_keys(study: Study, overrides: list[str]) -> None:
+    """A ``--set`` of a key the study's cases set themselves would be overridden by every case: refused."""
+    from ..scene import SceneError
+
+    varied = set(study.params_columns())
+    for item in overrides:
+        key = item.partition("=")[0].strip()
+        if key in varied:
+            values = list(dict.fromkeys(_words(c[key]) for c in study.cases if key in c))
+            raise SceneError(f"--set {item}: {key} is what the {study.name} study varies (its cases set it to "
+                             f"{', '.join(values[:6])}{', ...' if len(values) > 6 else ''}), so the value would not "
+                             "be used; leave it out, or sweep the values you want (ngbet sweep)")
+
+
 def _check_working_folder(args: argparse.Namespace) -> None:
     """A relative --out or --cache (or their defaults) needs the current folder: refuse a deleted one by name."""
     try:
@@ -140,6 +154,7 @@ def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: 
         if not args.plot_only:
             _probe_cache(Path(args.cache) if args.cache else DEFAULT_ROOT / "cache")
         study = build_study(build, args.quick, scene, source, Path(args.cache) if args.cache else None)
+        _refuse_set_of_varied_keys(study, getattr(args, "overrides", None) or [])
     except BaseException:
         if folder is not None:
             folder.release()
