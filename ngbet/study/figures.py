@@ -54,6 +54,8 @@ def plot_only(study: Study, out: str | Path) -> StudyData:
     """
     from ..run_folder import OwnedFolder
 
+    if not Path(out).is_dir():
+        load(out)  # names what is missing; nothing is created
     own = OwnedFolder(out, "study", study.name)
     try:
         data = load(out)
