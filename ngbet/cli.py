@@ -54,20 +54,28 @@ _say = say  # one `ngbet: ...` line on stderr (stderr itself may be gone: the ex
 
 
 def _print(text: str, what: str, utf8: bool = False) -> int:
-    """Write ``text`` to stdout; EXIT_IO with a message when stdout cannot take it (a full device).
+    """Write ``text`` to stdout; EXIT_IO with a message when stdout cannot take it all (a full device).
 
-    ``utf8``: as UTF-8 bytes whatever the locale (a TOML file is UTF-8), where stdout takes bytes.
+    ``utf8``: as UTF-8 bytes whatever the locale (a TOML file is UTF-8); else in stdout's encoding,
+    a character it lacks as its escape. Written to the file descriptor until every byte is taken:
+    Python's buffered stdout reports a write cut short by a file size limit (``ulimit -f``) as done.
     stdout is then pointed at the null device, so that the interpreter's last flush does not fail again.
     """
     try:
-        buffer = getattr(sys.stdout, "buffer", None) if utf8 else None
-        if buffer is not None:
-            sys.stdout.flush()
-            buffer.write(text.encode("utf-8"))
-            buffer.flush()
-        else:
+        if sys.stdout is None:  # closed by the shell (>&-)
+            raise OSError(9, "stdout is closed")
+        try:
+            fd = sys.stdout.fileno()
+        except (AttributeError, ValueError, OSError):  # not a file (captured): its own write
+            fd = None
+        if fd is None:
             sys.stdout.write(text)
+            sys.stdout.flush()
+            return EXIT_OK
         sys.stdout.flush()
+        data = text.encode("utf-8" if utf8 else (sys.stdout.encoding or "utf-8"), errors="backslashreplace")
+        while data:
+            data = data[os.write(fd, data):]
         return EXIT_OK
     except OSError as exc:
         with contextlib.suppress(OSError, ValueError, AttributeError):
@@ -225,6 +233,8 @@ def _tolerant_streams() -> None:
 
     Such a character (±, γ, ½) is written as its backslash escape: a run is never failed by its report.
     """
+    if sys.stderr is None:  # closed by the shell (2>&-): the messages go nowhere, the exit status still says it
+        sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - for the life of the process
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(AttributeError, ValueError, OSError):
             stream.reconfigure(errors="backslashreplace")  # type: ignore[union-attr]

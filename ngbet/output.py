@@ -206,6 +206,10 @@ class RunWriter:
         try:
             try:
                 _io(tmp, produce)
+            except OutputError as exc:  # named as the file it becomes, not its temporary name
+                if exc.path != tmp:
+                    raise
+                raise OutputError(final, str(exc)[len(str(tmp)) + 2:]) from exc
             except Exception:  # a reader of a cut file (the VTU's rescaling) fails: the cut is the cause
                 check_complete(tmp, final)
                 raise
