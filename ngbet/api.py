@@ -290,7 +290,10 @@ class Result:
         """Copy the per-step table (the run's results.csv, every column as written) to ``path``."""
         import shutil
 
-        return Path(shutil.copyfile(self.out / "results.csv", path))
+        src = self.out / "results.csv"
+        if Path(path).exists() and os.path.samefile(src, path):  # the table itself: nothing to copy
+            return Path(path)
+        return Path(shutil.copyfile(src, path))
 
     def plot(self, ax: Any = None, label: str | None = None, **kwargs: Any) -> Any:
         """Draw force against clamp displacement on ``ax`` (a new figure when None); returns ax.

@@ -77,8 +77,21 @@ def _io(path: Path, action: Callable[[Path], Any]) -> Any:
     """Run a file operation; an OSError becomes an OutputError naming the path."""
     try:
         return action(path)
+    except FileNotFoundError as exc:
+        raise OutputError(path, _why_not_found(path, exc)) from exc
     except OSError as exc:
         raise OutputError(path, exc.strerror or str(exc)) from exc
+
+
+def _why_not_found(path: Path, exc: OSError) -> str:
+    """A missing file's error; a relative path's when the current folder itself is gone says that."""
+    if not path.is_absolute():
+        try:
+            os.getcwd()
+        except FileNotFoundError:
+            return ("the current folder no longer exists (deleted or moved), and this path is relative to it: "
+                    "change to a folder that exists, or give an absolute path")
+    return exc.strerror or str(exc)
 
 
 def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:

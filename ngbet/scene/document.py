@@ -250,9 +250,13 @@ class Scene:
 def read_toml(path: str | Path) -> dict[str, Any]:
     """The tables of a scene file; :class:`SceneError` naming the file when it cannot be read as TOML."""
     path = Path(path)
+    raw = b""
     try:
+        raw = path.read_bytes()
+        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+            raise SceneError(f"scene file {path} is UTF-16 text (\"Unicode\" in some editors); save it as UTF-8")
         # a byte-order mark (as some editors save UTF-8) is not TOML: read past it; CRLF lines are TOML
-        return tomllib.loads(path.read_bytes().decode("utf-8-sig"))
+        return tomllib.loads(raw.decode("utf-8-sig"))
     except FileNotFoundError:
         raise SceneError(f"scene file not found: {path}") from None
     except IsADirectoryError:
@@ -262,7 +266,9 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     except UnicodeDecodeError:
         raise SceneError(f"scene file {path} is not a text (UTF-8) file: is it a TOML scene?") from None
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"scene file {path} is not valid TOML: {exc}") from None
+        cr = b"\r" in raw and b"\n" not in raw  # a classic Mac file: TOML does not end a line in CR alone
+        raise SceneError(f"scene file {path} is not valid TOML: {exc}"
+                         + ("; its lines end in CR alone, save it with LF (or CRLF) line ends" if cr else "")) from None
 
 
 def apply_changes(data: dict[str, Any], dotted: dict[str, Any]) -> dict[str, Any]:
