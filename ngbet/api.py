@@ -197,8 +197,9 @@ class Result:
         """The pickled state: an owned temporary folder travels as its files (another process may unpickle it)."""
         state = dict(self.__dict__)
         folder = state.pop("_folder", None)
-        if folder is not None:
-            state["_folder_files"] = {p.name: p.read_bytes() for p in folder.path.iterdir() if p.is_file()}
+        if folder is not None:  # (a folder a cleaner of /tmp removed: the tables travel, fields() says it is gone)
+            paths = list(folder.path.iterdir()) if folder.path.is_dir() else []
+            state["_folder_files"] = {p.name: p.read_bytes() for p in paths if p.is_file()}
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
