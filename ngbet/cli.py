@@ -37,6 +37,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from . import commands as _commands
 from .commands import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_IO, EXIT_OK, EXIT_SOLVER, exit_code, load_scene
 from .commands import parse_value as _parse_value
 from .errors import NgbetError
@@ -177,7 +178,7 @@ def console() -> int:
     terminal closed) and SIGUSR1/2 are passed on to the run, which records "interrupted" as always;
     the run dies with its watcher.
     """
-    _tolerant_streams()
+    _commands.tolerant_streams()
     argv = sys.argv[1:]
     if os.environ.get(SUPERVISED) or not argv or argv[0] != "run" or not hasattr(signal, "SIGKILL"):
         return main(argv)
@@ -228,21 +229,9 @@ def _died(argv: list[str], signum: int) -> int:
     return EXIT_INTERRUPTED if interrupted else EXIT_INTERNAL
 
 
-def _tolerant_streams() -> None:
-    """Make stdout and stderr never fail on a character their encoding lacks (``LC_ALL=C``, ASCII pipes).
-
-    Such a character (±, γ, ½) is written as its backslash escape: a run is never failed by its report.
-    """
-    if sys.stderr is None:  # closed by the shell (2>&-): the messages go nowhere, the exit status still says it
-        sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - for the life of the process
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(AttributeError, ValueError, OSError):
-            stream.reconfigure(errors="backslashreplace")  # type: ignore[union-attr]
-
-
 def main(argv: list[str] | None = None) -> int:
     """The ``ngbet`` command (see the module docstring for the exit status)."""
-    _tolerant_streams()
+    _commands.tolerant_streams()
     words = sys.argv[1:] if argv is None else argv
     with _interrupts(), messages("-v" in words or "--verbose" in words):
         try:
@@ -304,48 +293,10 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def _positionals_first(parser: argparse.ArgumentParser, words: list[str]) -> list[str]:
-    """``words`` after the command with its positional words first (``study alpha1 --quick my.toml``).
-
-    argparse takes a command's positionals in one go, before its options; a scene file written
-    after an option was refused. Options that take a value keep it.
-    """
-    if not words or words[0] not in ("study", "sweep"):
-        return words
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[words[0]]
-    valued = {o for a in sub._actions if a.option_strings and a.nargs != 0 for o in a.option_strings}
-    pos: list[str] = []
-    opts: list[str] = []
-    rest = words[1:]
-    i = 0
-    while i < len(rest):
-        w = rest[i]
-        if w == "--":
-            pos += rest[i + 1:]
-            break
-        if w.startswith("-") and len(w) > 1 and not _number(w):
-            opts.append(w)
-            if w in valued and i + 1 < len(rest):
-                opts.append(rest[i + 1])
-                i += 1
-        else:
-            pos.append(w)
-        i += 1
-    return [words[0], *pos, *opts]
-
-
-def _number(word: str) -> bool:
-    try:
-        float(word)
-    except ValueError:
-        return False
-    return True
-
-
 def _main(argv: list[str] | None) -> int:
     words = sys.argv[1:] if argv is None else argv
     parser = _parser(words[0] if words else None)
-    args = parser.parse_args(_positionals_first(parser, list(words)))
+    args = parser.parse_args(_commands.positionals_first(parser, list(words)))
     if args.command == "study":
         return _study(args)
     if args.command == "sweep":
