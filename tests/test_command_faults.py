@@ -103,6 +103,24 @@ def test_a_fit_into_a_folder_with_the_users_fit_is_refused_before_the_fit(tmp_pa
     assert files(d) == {"fit.json": b'{"mine": true}', "fitted_scene.toml": b"# my scene\n"}
 
 
+def test_a_fit_again_into_its_folder_removes_only_the_earlier_fits_figures(tmp_path, capsys):
+    """A tabulated fit draws shear_table.png; a quadratic fit into the same folder draws none: the
+    earlier fit's table figure goes (it would stand beside a fit it does not belong to), the user's
+    notes stay."""
+    d = tmp_path / "fit"
+    data = str(ROOT / "data" / "cao2008" / "cao2008_twill_unbalanced_100x200_UN.csv")
+    scene = str(ROOT / "geometry" / "twintex_twill_unbalanced.toml")
+    main(["fit", data, "--scene", scene, "--out", str(d), "--max-runs", "1", "--quiet"])
+    assert (d / "shear_table.png").exists()
+    (d / "notes.md~").write_text("mine")
+    main(["fit", data, "--scene", scene, "--set", "effects.shear_law=quadratic", "--params", "material.K_sh",
+          "--out", str(d), "--max-runs", "1", "--quiet"])
+    assert "cannot use the output folder" not in capsys.readouterr().err  # its own folder: taken again
+    assert sorted(p.name for p in d.iterdir()) == [".ngbet-folder.json", "fit.json", "fit.png", "fitted_scene.toml",
+                                                   "notes.md~"]
+    assert Scene.from_toml(d / "fitted_scene.toml").effects.shear_law == "quadratic"
+
+
 def test_a_set_of_the_key_a_study_varies_is_refused_before_any_case(tmp_path, capsys):
     assert main(["study", "alpha1", "--quick", "--quiet", "--set", "material.alpha1=5", "--out", str(tmp_path / "o"),
                  "--cache", str(tmp_path / "c")]) == 2
