@@ -92,6 +92,11 @@ STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP",
                      if hasattr(signal, n))
 
 
+def _stop_signals() -> list[int]:
+    """:data:`STOP_SIGNALS` but those this process ignores (``nohup`` ignores SIGHUP: the run goes on)."""
+    return [sig for sig in STOP_SIGNALS if signal.getsignal(sig) is not signal.SIG_IGN]
+
+
 def _signal_name(signum: int) -> str:
     try:
         return signal.Signals(signum).name
@@ -120,7 +125,7 @@ def _interrupts() -> Iterator[None]:
         raise KeyboardInterrupt(_signal_name(signum))
 
     try:
-        previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
+        previous = {sig: signal.signal(sig, handler) for sig in _stop_signals()}
     except ValueError:  # not the main thread: leave the signals alone
         yield
         return
@@ -191,7 +196,7 @@ def console() -> int:
         with contextlib.suppress(ProcessLookupError):
             child.send_signal(signum)
 
-    for sig in STOP_SIGNALS:
+    for sig in _stop_signals():
         signal.signal(sig, forward)
     code = child.wait()
     return code if code >= 0 else _died(argv, -code)

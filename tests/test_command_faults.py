@@ -208,6 +208,25 @@ def test_a_closed_terminal_or_a_user_signal_leaves_a_true_summary(tmp_path, sig)
     assert s["steps"] == rows and s["last_converged_mm"] > 0
 
 
+def test_a_run_under_nohup_goes_on_when_the_terminal_closes(tmp_path):
+    """nohup ignores SIGHUP for the run it starts: the run keeps ignoring it (no interruption)."""
+    out = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "ngbet", "run", "--out", str(out), "--quiet", *SLOW_SET,
+                          "--set=loading.u0_mm=10"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env=ENV, start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
+    try:
+        while not (out / "results.csv").exists() or len((out / "results.csv").read_text().splitlines()) < 4:
+            assert p.poll() is None
+            __import__("time").sleep(0.02)
+        p.send_signal(signal.SIGHUP)
+        _, err = p.communicate(timeout=120)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert summary(out)["status"] == "ok" and summary(out)["u0_reached_mm"] == 10.0
+
+
 def test_ctrl_c_right_after_a_snap_through_keeps_the_snap_in_the_summary(tmp_path, monkeypatch):
     """K_el = 1e7 Pa on a 10 mm mesh snaps at 53.0 mm; an interrupt while that row is written keeps it."""
     from ngbet.continuum import run as continuum_run
