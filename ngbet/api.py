@@ -8,13 +8,18 @@
 ``summary.json``) and reads the folder back into a :class:`Result`. With ``out=None`` the run
 goes into a temporary folder: the tables (``results.csv``, ``profile.csv``, ``summary.json``) are
 read fully into memory, and the folder itself, which holds the final fields (``fields.vtu``), is
-kept as long as the :class:`Result` lives and deleted with it. Pass ``out`` to keep the files.
+kept as long as the :class:`Result` or any copy of it lives (``copy.copy`` and ``copy.deepcopy``
+share it; a pickled :class:`Result`, as a worker process returns it, carries the folder's files and
+unpickles into a temporary folder of its own), and deleted with the last. Pass ``out`` to keep the
+files; a temporary folder of a live :class:`Result` is never run into again.
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
+import os
 import shutil
 import tempfile
 import warnings
@@ -32,17 +37,37 @@ log = logging.getLogger(__name__)
 __all__ = ["Result", "simulate", "load_result"]
 
 
-def simulate(scene: Scene, out: str | Path | None = None, progress: bool = False) -> Result:
+class _Folder:
+    """A temporary run folder owned by the :class:`Result` objects that hold this (removed with the last)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._finalizer = weakref.finalize(self, shutil.rmtree, str(path), True)
+        _OWNED[_real(path)] = self
+
+
+#: the temporary folders of live Results, by their real path: never run into again
+_OWNED: weakref.WeakValueDictionary[str, _Folder] = weakref.WeakValueDictionary()
+
+
+def _real(path: str | Path) -> str:
+    return os.path.realpath(path)
+
+
+def simulate(scene: Scene | str | Path, out: str | Path | None = None, progress: bool = False) -> Result:
     """Run ``scene`` and return its :class:`Result`.
 
     Parameters
     ----------
-    scene : Scene
-        The scene, e.g. ``ngbet.default_scene().with_changes(**{"material.alpha1": 200.0})``.
+    scene : Scene, or the path of a scene TOML file
+        The scene, e.g. ``ngbet.default_scene().with_changes(**{"material.alpha1": 200.0})`` or
+        ``"my.toml"`` (read with :meth:`Scene.from_toml`).
     out : str or Path, optional
         Run folder (created; the layout of ``ngbet run``, see docs/outputs.md). ``None``: a
-        temporary folder that lives as long as the returned :class:`Result`; the force plot file
-        is then not drawn (``outputs.plot`` is switched off; draw it with :meth:`Result.plot`).
+        temporary folder that lives as long as the returned :class:`Result` (and its copies); the
+        force plot file is then not drawn (``outputs.plot`` is switched off; draw it with
+        :meth:`Result.plot`). The temporary folder of another live :class:`Result` is refused
+        (:class:`~ngbet.output.OutputError`): that Result reads its fields from it.
     progress : bool
         Show a progress bar over the clamp displacement.
 
@@ -56,10 +81,22 @@ def simulate(scene: Scene, out: str | Path | None = None, progress: bool = False
         When the load cannot be carried to the end. The exception's ``result`` attribute is the
         :class:`Result` of the converged steps (with ``status == "failed"``).
     ngbet.SceneError
-        A bad scene.
+        A bad scene (or scene file).
+    ngbet.output.OutputError
+        An output folder that cannot be used (as ``ngbet run`` refuses it).
     """
+    from .output import OutputError
     from .run import run
 
+    if isinstance(scene, (str, os.PathLike)):
+        scene = Scene.from_toml(scene)
+    if not isinstance(scene, Scene):
+        raise TypeError(f"simulate() takes a Scene or the path of a scene file, not {type(scene).__name__}")
+    if _RAN_IN[0] not in (None, os.getpid()):  # forked from a process that ran one: Netgen's mesher hangs here
+        return _in_a_fresh_process(scene, out, progress)
+    if out is not None and _real(out) in _OWNED:
+        raise OutputError(out, "the temporary folder of a live Result (its fields() are read from it); "
+                               "choose another out= (or out=None)")
     tmp = None
     if out is None:
         tmp = Path(tempfile.mkdtemp(prefix="ngbet-"))
@@ -67,6 +104,7 @@ def simulate(scene: Scene, out: str | Path | None = None, progress: bool = False
         if scene.outputs.plot:
             scene = scene.with_changes(**{"outputs.plot": False})
     out = Path(out)
+    _RAN_IN[0] = os.getpid()
     try:
         run(scene, out, progress=progress)
     except ConvergenceError as err:
@@ -79,6 +117,29 @@ def simulate(scene: Scene, out: str | Path | None = None, progress: bool = False
     return load_result(out, _owned=tmp)
 
 
+#: the process that ran a scene through :func:`simulate` (None: none yet)
+_RAN_IN: list[int | None] = [None]
+
+
+def _in_a_fresh_process(scene: Scene, out: str | Path | None, progress: bool) -> Result:
+    """:func:`simulate` in a spawned process, for a process forked after its parent ran a scene.
+
+    Netgen's mesher does not survive a fork once it has run (a forked worker of
+    ``ProcessPoolExecutor`` waited forever for its threads); a spawned process starts clean. The
+    Result comes back pickled, with its folder's files (:meth:`Result.__getstate__`).
+    """
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    if mp.current_process().daemon:  # multiprocessing.Pool's workers may not start processes
+        raise RuntimeError("ngbet.simulate() cannot run in a daemonic worker forked from a process that already "
+                           "ran a scene (Netgen's mesher does not survive the fork, and the worker may not start a "
+                           "fresh process): give the pool a 'spawn' or 'forkserver' context, e.g. "
+                           "multiprocessing.get_context('forkserver').Pool()")
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as ex:
+        return ex.submit(simulate, scene, out, progress).result()
+
+
 def load_result(out: str | Path, _owned: Path | None = None) -> Result:
     """Read a run folder (written by ``ngbet run`` or :func:`simulate`) into a :class:`Result`."""
     out = Path(out)
@@ -87,7 +148,7 @@ def load_result(out: str | Path, _owned: Path | None = None) -> Result:
     profiles = _read_profiles(out / "profile.csv")
     res = Result(out, Scene.from_dict(summary["scene"]), summary, columns, profiles)
     if _owned is not None:
-        res._finalizer = weakref.finalize(res, shutil.rmtree, str(_owned), True)
+        res._folder = _Folder(_owned)
     return res
 
 
@@ -117,7 +178,40 @@ class Result:
         self.summary = summary
         self.columns = columns
         self.profiles = profiles
-        self._finalizer: Any = None
+        self._folder: _Folder | None = None  # the temporary folder this Result (with its copies) owns
+
+    # copies ---------------------------------------------------------------------------------
+    def __copy__(self) -> Result:
+        new = Result.__new__(Result)
+        new.__dict__.update(self.__dict__)  # the same folder, owned by both
+        return new
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> Result:
+        new = Result.__new__(Result)
+        memo[id(self)] = new
+        for k, v in self.__dict__.items():  # the arrays copied, the folder shared (owned by both)
+            new.__dict__[k] = v if k == "_folder" else copy.deepcopy(v, memo)
+        return new
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The pickled state: an owned temporary folder travels as its files (another process may unpickle it)."""
+        state = dict(self.__dict__)
+        folder = state.pop("_folder", None)
+        if folder is not None:  # (a folder a cleaner of /tmp removed: the tables travel, fields() says it is gone)
+            paths = list(folder.path.iterdir()) if folder.path.is_dir() else []
+            state["_folder_files"] = {p.name: p.read_bytes() for p in paths if p.is_file()}
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        files = state.pop("_folder_files", None)
+        self.__dict__.update(state)
+        self._folder = None
+        if files is not None:  # a temporary folder of its own, with the files of the pickled one
+            path = Path(tempfile.mkdtemp(prefix="ngbet-"))
+            self._folder = _Folder(path)
+            for name, data in files.items():
+                (path / name).write_bytes(data)
+            self.out = path
 
     # per-step arrays ------------------------------------------------------------------------
     def __getattr__(self, name: str) -> np.ndarray:
@@ -180,6 +274,9 @@ class Result:
         ``displacement`` to see the deformed specimen (docs/outputs.md).
         """
         path = self.out / ("fields.vtu" if step is None else f"fields_{step:03d}.vtu")
+        if not self.out.is_dir():
+            raise FileNotFoundError(f"{self.out}: the run folder no longer exists (removed after this Result "
+                                    "was read); its tables are in memory, its fields were in the folder")
         if not path.exists():
             raise FileNotFoundError(f"{path} does not exist: the continuum model writes it when outputs.vtk is true"
                                     + ("" if step is None else " and outputs.vtk_every_step is true"))
@@ -194,7 +291,10 @@ class Result:
         """Copy the per-step table (the run's results.csv, every column as written) to ``path``."""
         import shutil
 
-        return Path(shutil.copyfile(self.out / "results.csv", path))
+        src = self.out / "results.csv"
+        if Path(path).exists() and os.path.samefile(src, path):  # the table itself: nothing to copy
+            return Path(path)
+        return Path(shutil.copyfile(src, path))
 
     def plot(self, ax: Any = None, label: str | None = None, **kwargs: Any) -> Any:
         """Draw force against clamp displacement on ``ax`` (a new figure when None); returns ax.

@@ -12,7 +12,7 @@ Exit status (both models, runs and studies):
       (the message names the path or address)
 70    an internal error of ngbet (a bug: please report it with the run folder); the message
       names the error, ``-v`` adds its traceback; summary.json says "failed"
-130   interrupted by Ctrl-C (SIGINT) or SIGTERM: summary.json says "interrupted" with the
+130   interrupted by Ctrl-C (SIGINT), SIGTERM, SIGHUP or SIGUSR1/2: summary.json says "interrupted" with the
       last converged load; a study keeps its finished cases in the cache
 ====  ==================================================================================
 
@@ -27,6 +27,7 @@ import argparse
 import contextlib
 import json
 import logging
+import math
 import os
 import signal
 import socket
@@ -36,6 +37,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from . import commands as _commands
 from .commands import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_IO, EXIT_OK, EXIT_SOLVER, exit_code, load_scene
 from .commands import parse_value as _parse_value
 from .errors import NgbetError
@@ -45,20 +47,36 @@ from .scene import Scene, SceneError
 EPILOG = ("exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
           "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
           "busy with another run; scheduler unreachable; stdout not writable); 70 internal error of ngbet; "
-          "130 interrupted (SIGINT/SIGTERM; summary.json says interrupted, with the last converged load in mm)")
+          "130 interrupted (SIGINT/SIGTERM/SIGHUP/SIGUSR1; summary.json says interrupted, with the last converged "
+          "load in mm)")
 
 
 _say = say  # one `ngbet: ...` line on stderr (stderr itself may be gone: the exit status still says it)
 
 
-def _print(text: str, what: str) -> int:
-    """Write ``text`` to stdout; EXIT_IO with a message when stdout cannot take it (a full device).
+def _print(text: str, what: str, utf8: bool = False) -> int:
+    """Write ``text`` to stdout; EXIT_IO with a message when stdout cannot take it all (a full device).
 
+    ``utf8``: as UTF-8 bytes whatever the locale (a TOML file is UTF-8); else in stdout's encoding,
+    a character it lacks as its escape. Written to the file descriptor until every byte is taken:
+    Python's buffered stdout reports a write cut short by a file size limit (``ulimit -f``) as done.
     stdout is then pointed at the null device, so that the interpreter's last flush does not fail again.
     """
     try:
-        sys.stdout.write(text)
+        if sys.stdout is None:  # closed by the shell (>&-)
+            raise OSError(9, "stdout is closed")
+        try:
+            fd = sys.stdout.fileno()
+        except (AttributeError, ValueError, OSError):  # not a file (captured): its own write
+            fd = None
+        if fd is None:
+            sys.stdout.write(text)
+            sys.stdout.flush()
+            return EXIT_OK
         sys.stdout.flush()
+        data = text.encode("utf-8" if utf8 else (sys.stdout.encoding or "utf-8"), errors="backslashreplace")
+        while data:
+            data = data[os.write(fd, data):]
         return EXIT_OK
     except OSError as exc:
         with contextlib.suppress(OSError, ValueError, AttributeError):
@@ -68,11 +86,29 @@ def _print(text: str, what: str) -> int:
 
 
 GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the watchdog does
+#: the signals that end a command as an interruption (summary.json "interrupted", exit 130): Ctrl-C,
+#: SIGTERM, the terminal closed (SIGHUP) and the user signals, whose default would kill the run silently
+STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2")
+                     if hasattr(signal, n))
+
+
+def _stop_signals() -> list[int]:
+    """:data:`STOP_SIGNALS` but those this process ignores (``nohup`` ignores SIGHUP: the run goes on)."""
+    return [sig for sig in STOP_SIGNALS if signal.getsignal(sig) is not signal.SIG_IGN]
+
+
+def _signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
 
 
 @contextlib.contextmanager
 def _interrupts() -> Iterator[None]:
-    """Ctrl-C and SIGTERM raise KeyboardInterrupt in the main thread (the run folder records "interrupted").
+    """Ctrl-C, SIGTERM, SIGHUP and SIGUSR1/2 raise KeyboardInterrupt in the main thread (recorded as "interrupted").
+
+    The run folder's summary names the signal.
 
     The main thread can be inside one NGSolve call for a long time (assembly or
     factorization at high order: tens of seconds) and only acts when it returns; a watchdog thread
@@ -86,10 +122,10 @@ def _interrupts() -> Iterator[None]:
     def handler(signum: int, frame: Any) -> None:
         acted.set()
         STOP_REQUESTED.set()  # in case the exception is lost (engine.STOP_REQUESTED): the next step raises
-        raise KeyboardInterrupt(f"signal {signum}")
+        raise KeyboardInterrupt(_signal_name(signum))
 
     try:
-        previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+        previous = {sig: signal.signal(sig, handler) for sig in _stop_signals()}
     except ValueError:  # not the main thread: leave the signals alone
         yield
         return
@@ -119,12 +155,13 @@ def _watch(r: socket.socket, acted: threading.Event) -> None:
             return
         if not data:
             return
-        if not set(data) & {signal.SIGINT, signal.SIGTERM}:  # another library's signal
+        got = [s for s in data if s in STOP_SIGNALS]
+        if not got:  # another library's signal
             continue
         if not acted.wait(GRACE_S):
             from .output import interrupt_active_runs
 
-            folders = interrupt_active_runs(f"interrupted (SIGINT/SIGTERM) inside a computation; "
+            folders = interrupt_active_runs(f"interrupted ({_signal_name(got[0])}) inside a computation; "
                                             f"stopped after {GRACE_S:g} s")
             _say(f"interrupted; converged steps and summary.json (status interrupted) are in "
                  f"{', '.join(map(str, folders)) or 'no run folder'}")
@@ -142,9 +179,11 @@ def console() -> int:
 
     A run that dies without a word (a crash in compiled code, the kernel's OOM killer) cannot
     record its end itself; the watching process records it in the run folder's summary.json
-    ("crashed", with the signal) and says so in one line (exit 70). Ctrl-C and SIGTERM are passed
-    on to the run, which records "interrupted" as always; the run dies with its watcher.
+    ("crashed", with the signal) and says so in one line (exit 70). Ctrl-C, SIGTERM, SIGHUP (the
+    terminal closed) and SIGUSR1/2 are passed on to the run, which records "interrupted" as always;
+    the run dies with its watcher.
     """
+    _commands.tolerant_streams()
     argv = sys.argv[1:]
     if os.environ.get(SUPERVISED) or not argv or argv[0] != "run" or not hasattr(signal, "SIGKILL"):
         return main(argv)
@@ -157,7 +196,7 @@ def console() -> int:
         with contextlib.suppress(ProcessLookupError):
             child.send_signal(signum)
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in _stop_signals():
         signal.signal(sig, forward)
     code = child.wait()
     return code if code >= 0 else _died(argv, -code)
@@ -175,11 +214,8 @@ def _died(argv: list[str], signum: int) -> int:
     """The run's process ended by signal ``signum`` without recording its end: record it, say it."""
     from .output import RunWriter, read_rows
 
-    try:
-        name = signal.Signals(signum).name
-    except ValueError:
-        name = f"signal {signum}"
-    interrupted = signum in (signal.SIGINT, signal.SIGTERM)
+    name = _signal_name(signum)
+    interrupted = signum in STOP_SIGNALS
     status = "interrupted" if interrupted else "crashed"
     msg = (f"the run was interrupted by {name}" if interrupted else
            f"the run's process died by {name} (a crash in compiled code, or killed from outside)")
@@ -200,6 +236,7 @@ def _died(argv: list[str], signum: int) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """The ``ngbet`` command (see the module docstring for the exit status)."""
+    _commands.tolerant_streams()
     words = sys.argv[1:] if argv is None else argv
     with _interrupts(), messages("-v" in words or "--verbose" in words):
         try:
@@ -272,7 +309,8 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
 
 def _main(argv: list[str] | None) -> int:
     words = sys.argv[1:] if argv is None else argv
-    args = _parser(words[0] if words else None).parse_args(argv)
+    parser = _parser(words[0] if words else None)
+    args = parser.parse_args(_commands.positionals_first(parser, list(words)))
     if args.command == "study":
         return _study(args)
     if args.command == "sweep":
@@ -302,7 +340,7 @@ def _main(argv: list[str] | None) -> int:
     if args.command == "scene":
         from .scene_doc import commented_toml
 
-        return _print(commented_toml(scene), "the scene")
+        return _print(commented_toml(scene), "the scene", utf8=True)
     return _run(scene, Path(args.out), quiet=args.quiet, measured=measured)
 
 
@@ -406,7 +444,7 @@ def _study(args: argparse.Namespace) -> int:
         _say(f"study: unknown study {args.name!r}; known: {', '.join(STUDIES)}")
         return EXIT_INPUT
     module = importlib.import_module(f"ngbet.studies.{args.name}")
-    return _run_study_command(f"study {args.name}", module.build, args)
+    return _run_study_command(f"study {args.name}", module.build, args, args.name)
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -419,10 +457,18 @@ def _sweep(args: argparse.Namespace) -> int:
         _say(f"sweep: {exc}")
         return EXIT_INPUT
     args.scene = path
-    return _run_study_command("sweep", lambda quick, scene=None: sweep.build(axes, quick, scene), args)
+    n = math.prod(len(v) for v in axes.values())
+    if n >= LARGE_SWEEP and not args.quiet:  # its scenes are checked before the first case runs: say so first
+        _say(f"sweep: {n} cases ({' x '.join(f'{len(v)} values of {k}' for k, v in axes.items())}), each a run of "
+             "the scene; checking their scenes, then running the cases not in the cache")
+    return _run_study_command("sweep", lambda quick, scene=None: sweep.build(axes, quick, scene), args, "sweep")
 
 
-def _run_study_command(what: str, build: Any, args: argparse.Namespace) -> int:
+#: a sweep of at least this many cases says what it will do before it starts
+LARGE_SWEEP = 100
+
+
+def _run_study_command(what: str, build: Any, args: argparse.Namespace, name: str | None = None) -> int:
     """Run a study from the command line; every error is one line and its exit status."""
     from .study import StudyInterrupted, run_from_args
 
@@ -436,7 +482,7 @@ def _run_study_command(what: str, build: Any, args: argparse.Namespace) -> int:
     try:
         with open(os.devnull, "w") if args.quiet else contextlib.nullcontext(sys.stdout) as stdout, \
                 contextlib.redirect_stdout(stdout):  # --quiet: no table, no report (both are in the folder)
-            return run_from_args(build, args, scene, source)
+            return run_from_args(build, args, scene, source, name)
     except StudyInterrupted as exc:
         _say(str(exc))
         return EXIT_INTERRUPTED
@@ -458,6 +504,11 @@ def _version() -> str:
     return f"ngbet {__version__} (git revision {__revision__})"
 
 
+def _force_text(force_N: float) -> str:
+    """A force with seven significant digits (107.3735, 2.345678e-07): never 0.0000 for a thin specimen."""
+    return f"{force_N:9.7g}"
+
+
 def _report(summary: dict, out: Path) -> str:
     from .output import read_rows
 
@@ -473,7 +524,7 @@ def _report(summary: dict, out: Path) -> str:
             err = r.get("force_error_N")
             bar = (f" ± {err:.2g} N (estimated discretization error)" if isinstance(err, float) and err == err
                    else " (error estimate failed)" if isinstance(err, float) else "")
-            lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N{bar}")
+            lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {_force_text(r['force_N'])} N{bar}")
             spread = r.get("force_path_spread_N")
             if isinstance(spread, float) and spread > 0:  # in the bar: another stable state the path left
                 lines.append(f"{'':26}of which {spread:.2g} N the force's spread over the path's snaps")

@@ -6,7 +6,11 @@ command line (a scene file with ``--set`` overrides).
 
 from __future__ import annotations
 
+import argparse
 import ast
+import contextlib
+import os
+import sys
 import warnings
 from pathlib import Path
 
@@ -86,3 +90,53 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
     first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
     return EXIT_INTERNAL, (f"internal error ({type(exc).__name__}{': ' + first if first else ''}); this is a bug in "
                            "ngbet: please report it (-v shows the traceback)")
+
+
+def tolerant_streams() -> None:
+    """Make stdout and stderr never fail on a character their encoding lacks (``LC_ALL=C``, ASCII pipes).
+
+    Such a character (±, γ, ½) is written as its backslash escape: a run is never failed by its report.
+    """
+    if sys.stderr is None:  # closed by the shell (2>&-): the messages go nowhere, the exit status still says it
+        sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - for the life of the process
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, ValueError, OSError):
+            stream.reconfigure(errors="backslashreplace")  # type: ignore[union-attr]
+
+
+def positionals_first(parser: argparse.ArgumentParser, words: list[str]) -> list[str]:
+    """``words`` after the command with its positional words first (``study alpha1 --quick my.toml``).
+
+    argparse takes a command's positionals in one go, before its options; a scene file written
+    after an option was refused. Options that take a value keep it.
+    """
+    if not words or words[0] not in ("study", "sweep"):
+        return words
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[words[0]]
+    valued = {o for a in sub._actions if a.option_strings and a.nargs != 0 for o in a.option_strings}
+    pos: list[str] = []
+    opts: list[str] = []
+    rest = words[1:]
+    i = 0
+    while i < len(rest):
+        w = rest[i]
+        if w == "--":
+            pos += rest[i + 1:]
+            break
+        if w.startswith("-") and len(w) > 1 and not _number(w):
+            opts.append(w)
+            if w in valued and i + 1 < len(rest):
+                opts.append(rest[i + 1])
+                i += 1
+        else:
+            pos.append(w)
+        i += 1
+    return [words[0], *pos, *opts]
+
+
+def _number(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True

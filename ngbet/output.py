@@ -47,6 +47,7 @@ from .run_folder import (
     _jsonable,
     _link_or_copy,
     _remove,
+    check_complete,
     write_json_atomic,
 )
 from .scene import Scene
@@ -77,7 +78,8 @@ class RunWriter:
     and profile.csv are appended to and flushed. Files that appear in the
     folder by other means during a run are not ngbet's: never registered, never removed.
 
-    :meth:`summary` records "ok" or "failed"; leaving the ``with`` block on Ctrl-C/SIGTERM records
+    :meth:`summary` records "ok" or "failed"; leaving the ``with`` block on Ctrl-C/SIGTERM (any signal
+    the command line turns into KeyboardInterrupt, named in the error) records
     "interrupted", on any other exception "failed" with the error, both with the last converged
     load; then the lock is released.
     """
@@ -119,8 +121,9 @@ class RunWriter:
         try:
             if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
                 # the solver's statistics until then, where it attached them (the network's)
+                why = str(exc) if str(exc).startswith("SIG") else "SIGINT/SIGTERM"  # the CLI's handler names it
                 self.summary(dict(getattr(exc, "path_info", {})), "interrupted",
-                             f"interrupted (SIGINT/SIGTERM) after u0 = {self.last_converged_mm:g} mm")
+                             f"interrupted ({why}) after u0 = {self.last_converged_mm:g} mm")
             elif exc_type is not None and self.status == "running":
                 self.summary({"error_type": exc_type.__name__}, "failed", f"{exc_type.__name__}: {exc}")
             elif self._summary and self._summary.get("files") != self.files():
@@ -201,9 +204,18 @@ class RunWriter:
         tmp = self.out / (TMP_PREFIX + name)
         self._register(name)
         try:
-            _io(tmp, produce)
+            try:
+                _io(tmp, produce)
+            except OutputError as exc:  # named as the file it becomes, not its temporary name
+                if exc.path != tmp:
+                    raise
+                raise OutputError(final, str(exc)[len(str(tmp)) + 2:]) from exc
+            except Exception:  # a reader of a cut file (the VTU's rescaling) fails: the cut is the cause
+                check_complete(tmp, final)
+                raise
             if not tmp.exists():
                 return None
+            check_complete(tmp, final)
             _io(final, lambda p: os.replace(tmp, p))
         finally:
             tmp.unlink(missing_ok=True)
@@ -233,6 +245,7 @@ class RunWriter:
                     raise ValueError(f"{m}: not a file of the group {tmp_stem}")
                 name = stem + m.name[len(tmp_stem.name):]
                 final = self._target(name)
+                check_complete(m, final)
                 self._register(name)
                 _io(final, functools.partial(os.replace, m))
                 done.append(final)

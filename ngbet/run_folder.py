@@ -7,6 +7,7 @@ nothing else writes into a run folder.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import fnmatch
 import json
@@ -76,8 +77,21 @@ def _io(path: Path, action: Callable[[Path], Any]) -> Any:
     """Run a file operation; an OSError becomes an OutputError naming the path."""
     try:
         return action(path)
+    except FileNotFoundError as exc:
+        raise OutputError(path, _why_not_found(path, exc)) from exc
     except OSError as exc:
         raise OutputError(path, exc.strerror or str(exc)) from exc
+
+
+def _why_not_found(path: Path, exc: OSError) -> str:
+    """A missing file's error; a relative path's when the current folder itself is gone says that."""
+    if not path.is_absolute():
+        try:
+            os.getcwd()
+        except FileNotFoundError:
+            return ("the current folder no longer exists (deleted or moved), and this path is relative to it: "
+                    "change to a folder that exists, or give an absolute path")
+    return exc.strerror or str(exc)
 
 
 def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
@@ -113,11 +127,38 @@ def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
         fh.close()
         raise OutputError(out, f"its {RUN_MARKER} was removed or replaced while this run took the folder; "
                                "choose another --out")
+    try:
+        _probe_longest(out)
+    except OutputError:
+        fh.close()
+        raise
     fh.seek(0)
     previous = _marker_record(fh.read()).get("files")
     if not isinstance(previous, list):  # a folder of an ngbet that kept the list in summary.json only
         previous = [*_OLD_CORE, *_summary_files(out)]
     return fh, [n for n in previous if isinstance(n, str) and n and "/" not in n and not n.startswith(".")]
+
+
+#: the deepest path a run writes below its folder: a temporary folder with a file in it (the figures)
+_LONGEST = (TMP_PREFIX + "probe.xxxxxxxxxxxx", "x" * 40)
+
+
+def _probe_longest(out: Path) -> None:
+    """Write and remove a file at the longest path a run writes in ``out``.
+
+    A folder whose path leaves no room for the run's names (the OS limits a path to PATH_MAX) is
+    refused now, before the solve, rather than when its last files are written.
+    """
+    d = out / f"{_LONGEST[0]}{os.getpid()}"
+    try:
+        d.mkdir(exist_ok=True)
+        (d / _LONGEST[1]).write_bytes(b"")
+    except OSError as exc:
+        raise OutputError(out, f"cannot hold the files of a run ({exc.strerror or exc} for a file "
+                               f"{len(str(d / _LONGEST[1])) - len(str(out))} characters deeper); choose a shorter "
+                               "--out") from None
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
 
 
 def _remove(p: Path) -> None:
@@ -158,15 +199,68 @@ def _clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
     if clash:
         raise OutputError(out, f"holds {', '.join(clash)}, which no ngbet run registered there (they are not "
                                "ngbet's; this run would replace them): move them or choose another --out")
-    gone = []
-    for p in [*present, *(d for d in out.iterdir() if d.is_dir() and d.name.startswith(TMP_PREFIX))]:
-        if p.name in listed or p.name.startswith(TMP_PREFIX):
-            _io(p, _remove)
-            gone.append(p)
+    doomed = [p for p in [*present, *(d for d in out.iterdir() if d.is_dir() and d.name.startswith(TMP_PREFIX))]
+              if p.name in listed or p.name.startswith(TMP_PREFIX)]
+    gone = _remove_all_or_none(out, doomed)
     other = sorted(p.name for p in out.iterdir() if p.name != RUN_MARKER)
     if other:
         log.warning("%s: keeping %s (not written by ngbet)", out, ", ".join(other))
     return gone
+
+
+def _remove_all_or_none(out: Path, doomed: list[Path]) -> list[Path]:
+    """Remove ``doomed`` (files and folders in ``out``), all of them or none.
+
+    Each is first moved into a temporary folder; when one cannot be moved (an immutable file, a
+    folder turned read-only) the moved ones are put back and :class:`OutputError` names it: the
+    previous run's files and its summary.json stay as they were, true.
+    """
+    if not doomed:
+        return []
+    trash = out / f"{TMP_PREFIX}previous.{os.getpid()}"
+    _io(trash, lambda p: p.mkdir(exist_ok=True))
+    moved: list[Path] = []
+    try:
+        for p in doomed:
+            os.rename(p, trash / p.name)
+            moved.append(p)
+    except OSError as exc:
+        for m in reversed(moved):
+            with contextlib.suppress(OSError):
+                os.rename(trash / m.name, m)
+        with contextlib.suppress(OSError):
+            trash.rmdir()
+        bad = doomed[len(moved)]
+        raise OutputError(bad, f"cannot be removed ({exc.strerror or exc}), so the previous run's files cannot be "
+                               "replaced; nothing was removed: make it writable or choose another --out") from None
+    shutil.rmtree(trash, ignore_errors=True)
+    return doomed
+
+
+#: how a complete file of each kind ends (the last bytes a writer puts there), looked for in its tail
+_ENDINGS = {".vtu": b"</VTKFile>", ".png": b"IEND\xaeB`\x82", ".pdf": b"%%EOF", ".npz": b"PK\x05\x06"}
+
+
+def check_complete(path: Path, final: Path) -> None:
+    """Refuse a file that its writer left incomplete (:class:`OutputError` naming ``final``).
+
+    Writers in compiled code (NGSolve's VTU output) stop silently when the disk is full or a file
+    size limit (``ulimit -f``) is reached; the file's own ending (:data:`_ENDINGS`) tells a
+    complete file from a cut one, so that no cut file is renamed into place or listed.
+    """
+    end = _ENDINGS.get(path.suffix)
+    if end is None or not path.exists():
+        return
+    try:
+        with path.open("rb") as fh:
+            size = fh.seek(0, os.SEEK_END)
+            fh.seek(max(0, size - 65536))
+            tail = fh.read()
+    except OSError as exc:
+        raise OutputError(final, exc.strerror or str(exc)) from exc
+    if end not in tail:
+        raise OutputError(final, f"written incomplete ({size} bytes, without its ending): the disk is full or "
+                                 "a file size limit (ulimit -f) was reached")
 
 
 def _jsonable(o: Any) -> Any:
@@ -175,3 +269,140 @@ def _jsonable(o: Any) -> Any:
     if isinstance(o, (set, tuple)):
         return list(o)
     return str(o)
+
+
+#: the mark of a folder a study, a sweep or a fit writes (``ngbet run``'s is :data:`RUN_MARKER`); held
+#: (``fcntl.flock``) while the command writes, it records the command and the files it wrote (JSON)
+FOLDER_MARKER = ".ngbet-folder.json"
+#: names a study or fit may write: one of these in its folder that the command did not write is the
+#: user's, and the folder is refused before anything is written
+FOLDER_FILE_PATTERNS = ("*.csv", "*.json", "*.md", "*.png", "*.pdf", "*.svg", "*.toml", "*.vtu", "*.npz")
+
+
+class OwnedFolder:
+    """The output folder of a study, a sweep or a fit, owned as ``ngbet run`` owns its run folder.
+
+    The constructor refuses (:class:`OutputError`, before anything is written or removed): a file in
+    the folder's place; an ``ngbet run`` folder; a non-empty folder without :data:`FOLDER_MARKER`;
+    the folder of another command (``kind``, ``name``: "study"/"alpha1", "study"/"sweep",
+    "fit"/"fit"); a folder busy with another command; an unwritable folder; a file with a name the
+    command may write (:data:`FOLDER_FILE_PATTERNS`) that the command did not write there before.
+    :meth:`remove` removes files the command wrote before (and only those); :meth:`finish`
+    registers what this command wrote (every file created or replaced meanwhile) and removes what
+    the earlier command wrote and this one did not (an earlier study's figures); :meth:`release`
+    unlocks. The folder's other files (the user's notes) are never touched.
+    """
+
+    def __init__(self, out: str | Path, kind: str, name: str) -> None:
+        self.out, self.kind, self.name = Path(out), kind, name
+        out = self.out
+        if out.exists() and not out.is_dir():
+            raise OutputError(out, "a file is in the place of the output folder")
+        _io(out, lambda p: p.mkdir(parents=True, exist_ok=True))
+        names = {p.name for p in _io(out, lambda p: list(p.iterdir()))}
+        if RUN_MARKER in names:
+            raise OutputError(out, f"an ngbet run folder (it holds {RUN_MARKER}); a {kind} writes a folder of its "
+                                   "own: choose another --out")
+        if names and FOLDER_MARKER not in names:
+            raise OutputError(out, f"not empty and not written by an ngbet {kind} (it holds "
+                                   f"{', '.join(sorted(names)[:5])}{', ...' if len(names) > 5 else ''}; ngbet marks "
+                                   f"the folders it writes with {FOLDER_MARKER}); choose another --out")
+        self._fh: IO[str] | None = _io(out / FOLDER_MARKER, lambda p: p.open("a+"))
+        self._before: dict[str, tuple[int, int, int]] = {}
+        self.previous: list[str] = []
+        try:
+            fcntl.flock(self._fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self._fh.close()
+            self._fh = None
+            raise OutputError(out, "busy: another ngbet command is writing into it; wait for it or choose "
+                                   "another --out") from None
+        try:
+            self._fh.seek(0)
+            rec = _marker_record(self._fh.read())
+            if rec and (rec.get("kind"), rec.get("name")) != (kind, name):
+                raise OutputError(out, f"the folder of the {rec.get('kind')} {rec.get('name')!r}, not of the {kind} "
+                                       f"{name!r}: choose another --out")
+            files = rec.get("files")
+            self.previous = [n for n in files if isinstance(n, str) and "/" not in n] if isinstance(files, list) else []
+            clash = sorted(n for n in names - {*self.previous, FOLDER_MARKER}
+                           if (out / n).is_file() and any(fnmatch.fnmatchcase(n, pat) for pat in FOLDER_FILE_PATTERNS))
+            if clash:
+                raise OutputError(out, f"holds {', '.join(clash)}, which no ngbet {kind} wrote there (this {kind} "
+                                       "could replace them): move them or choose another --out")
+            probe = out / f"{TMP_PREFIX}probe.{os.getpid()}"
+            _io(probe, lambda p: p.write_bytes(b""))
+            probe.unlink()
+            self._before = self._stat_files()
+            self._save(self.previous)
+        except BaseException:
+            self._fh.close()
+            self._fh = None
+            raise
+
+    def _stat_files(self) -> dict[str, tuple[int, int, int]]:
+        out: dict[str, tuple[int, int, int]] = {}
+        for p in self.out.iterdir():
+            if p.name != FOLDER_MARKER and not p.name.startswith(TMP_PREFIX) and p.is_file():
+                st = p.stat()
+                out[p.name] = (st.st_ino, st.st_mtime_ns, st.st_size)
+        return out
+
+    def _save(self, files: list[str]) -> None:
+        fh = self._fh
+        if fh is None:
+            return
+        text = json.dumps({"ngbet": "folder", "kind": self.kind, "name": self.name, "pid": os.getpid(),
+                           "files": sorted(set(files))})
+        _io(self.out / FOLDER_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
+
+    def remove(self, *names: str) -> None:
+        """Remove files of ``names`` that a command of this folder wrote (a user's file is never removed)."""
+        for n in names:
+            if n in self.previous:
+                _io(self.out / n, lambda p: p.unlink(missing_ok=True))
+
+    def written(self) -> list[str]:
+        """The files created or replaced in the folder since it was taken."""
+        before = self._before
+        return sorted(n for n, st in self._stat_files().items() if before.get(n) != st)
+
+    def finish(self, stale: bool = True) -> list[str]:
+        """Register what this command wrote; with ``stale``, remove the earlier files it did not write again.
+
+        ``stale=False`` (a redraw: figures and report from the tables) keeps every earlier file.
+        Returns the files removed.
+        """
+        now = self.written()
+        gone = [n for n in self.previous if n not in now and (self.out / n).is_file()] if stale else []
+        for n in gone:
+            _io(self.out / n, lambda p: p.unlink(missing_ok=True))
+        self.previous = sorted({*now, *(n for n in self.previous if n not in gone)}) if not stale else now
+        self._save(self.previous)
+        self._before = self._stat_files()
+        return gone
+
+    def release(self) -> None:
+        """Unlock the folder, registering what was written meanwhile (the marker stays: it marks the folder).
+
+        After an error nothing is removed: the earlier command's files stay, with this one's.
+        """
+        if self._fh is not None:
+            try:
+                self._save(sorted({*self.previous, *self.written()}))
+            except (OSError, NgbetError) as exc:
+                log.error("%s: could not record the files written: %s", self.out, exc)
+            finally:
+                self._fh.close()
+                self._fh = None
+
+    def __enter__(self) -> OwnedFolder:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        """On success :meth:`finish`; on an error only what was written is registered; then unlock."""
+        try:
+            if exc_type is None:
+                self.finish()
+        finally:
+            self.release()

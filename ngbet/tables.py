@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
+import os
 from pathlib import Path
 from typing import Any
 
@@ -16,18 +18,39 @@ def _write_table(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> 
 
 
 def _append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
-    """Append complete rows in one write (a reader never sees half a row unless the disk fails)."""
+    """Append complete rows in one write (see :func:`_append`)."""
     buf = io.StringIO()
     csv.DictWriter(buf, fieldnames=columns, lineterminator="\n").writerows(rows)
-    with path.open("a", newline="") as fh:
-        fh.write(buf.getvalue())
+    _append(path, buf.getvalue())
 
 
 def _append_lines(path: Path, lines: list[list[Any]]) -> None:
+    """Append complete lines, a step's profile block (see :func:`_append`)."""
     buf = io.StringIO()
     csv.writer(buf, lineterminator="\n").writerows(lines)
-    with path.open("a", newline="") as fh:
-        fh.write(buf.getvalue())
+    _append(path, buf.getvalue())
+
+
+def _append(path: Path, text: str) -> None:
+    """Append ``text`` whole or not at all: a write the disk cuts short (full, ``ulimit -f``) is taken back.
+
+    Written to the file descriptor until every byte is taken (a buffered file may report a cut
+    write as done); on an OSError the file is truncated to its length before, so that no reader
+    sees part of a step's rows (a profile block of fewer points), and the error is raised.
+    """
+    data = text.encode()
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        size = os.fstat(fd).st_size
+        try:
+            while data:
+                data = data[os.write(fd, data):]
+        except OSError:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, size)
+            raise
+    finally:
+        os.close(fd)
 
 
 def read_rows(path: str | Path) -> list[dict[str, Any]]:

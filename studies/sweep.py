@@ -29,6 +29,8 @@ from . import reference as R
 def parse_items(items: list[str], parse: Callable[[str], Any]) -> tuple[dict[str, list[Any]], str | None]:
     """``["a.b=1,2", "scene.toml"]`` -> ({"a.b": [1, 2]}, "scene.toml"); values read by ``parse``.
 
+    A key given in two items has the values of both (a value given twice counts once).
+
     Commas inside brackets belong to a value (``loading.stops_mm=[10,20],[37]``).
     """
     axes: dict[str, list[Any]] = {}
@@ -46,7 +48,10 @@ def parse_items(items: list[str], parse: Callable[[str], Any]) -> tuple[dict[str
         parts = [v.strip() for v in re.split(r",(?![^\[]*\])", values) if v.strip()]
         if not parts:
             raise SceneError(f"no values for {key}")
-        axes[key] = [parse(v) for v in parts]
+        axis = axes.setdefault(key, [])  # a key given twice (k=20 k=200): its values together, each once
+        for v in map(parse, parts):
+            if v not in axis:
+                axis.append(v)
     if not axes:
         raise SceneError("nothing to sweep: give section.key=v1,v2,... (e.g. material.alpha1=20,200,2000)")
     return axes, scene
@@ -61,14 +66,26 @@ def build(axes: dict[str, list[Any]], quick: bool = False, scene: Scene | None =
             base.with_changes(**case)
         except SceneError as exc:
             raise SceneError(f"{', '.join(f'{k} = {v}' for k, v in case.items())}: {exc}") from None
-    stations = (*base.loading.stops_mm, base.loading.u0_mm)
+    # the load stops and the final load: each case's own where the sweep varies it
+    finals = [float(c[U0]) for c in cases if U0 in c] or [base.loading.u0_mm]
+    stations = tuple(dict.fromkeys((*base.loading.stops_mm, *finals)))
     return Study("sweep", base, cases, description=__doc__ or "", plot=lambda d: plot(d, quick),
                  report=lambda d: report(d, quick), profile_stations=stations)
 
 
+U0 = "loading.u0_mm"
+
+
 def _stations(data: StudyData) -> list[float]:
+    """The loads of the report's columns: the stops and the final load (every case's, where swept)."""
     lo = data.meta["base_scene"]["loading"]
-    return [*lo["stops_mm"], lo["u0_mm"]]
+    finals = [float(c["params"][U0]) for c in data.cases() if U0 in c["params"]] or [lo["u0_mm"]]
+    return list(dict.fromkeys([*lo["stops_mm"], *sorted(finals)]))
+
+
+def _last(case: dict[str, Any], st: list[float]) -> float:
+    """A case's final load [mm]: its own where the sweep varies it."""
+    return float(case["params"].get(U0, st[-1]))
 
 
 def _name(params: dict[str, Any]) -> str:
@@ -90,7 +107,7 @@ def report(data: StudyData, quick: bool) -> str:
         for s in st:
             F, err = data.at(i, s, "force_N"), data.at(i, s, "force_error_N")
             cells.append(C.fmt(F, ".4f") + (f" ± {err:.2g}" if math.isfinite(err) else ""))
-        _, uy = data.profile(i, st[-1])
+        _, uy = data.profile(i, _last(c, st))
         amp = float(np.max(np.abs(uy))) if uy else math.nan
         L.append("| " + " | ".join(C.fmt(c["params"][k], "g") if isinstance(c["params"][k], float)
                                    else str(c["params"][k]) for k in keys)
@@ -115,7 +132,7 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
         rows = data.case_rows(c["case"])
         axs[0].plot([0.0] + [r["u0_mm"] for r in rows], [0.0] + [r["force_N"] for r in rows], "o-", ms=2.5,
                     color=colours[c["case"]], label=_name(c["params"]))
-        X, uy = data.profile(c["case"], st[-1])
+        X, uy = data.profile(c["case"], _last(c, st))
         axs[1].plot(X, uy, color=colours[c["case"]])
     axs[0].set_xlabel(FG.U0_LABEL)
     axs[0].set_ylabel(FG.FORCE_LABEL)
@@ -123,7 +140,8 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     axs[0].set_title("(a) force (points: converged steps)")
     axs[1].set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
     axs[1].set_ylabel("vertical displacement u_y [mm]")
-    axs[1].set_title(f"(b) mid-axis profile at u₀ = {st[-1]:g} mm")
+    axs[1].set_title("(b) mid-axis profile at each case's final load" if U0 in data.meta["params"]
+                     else f"(b) mid-axis profile at u₀ = {st[-1]:g} mm")
     axs[1].axhline(0, color="k", lw=0.5)
     FG.legend_below(fig, ncol=min(len(cases), 4))
     FG.put_caption(fig, FG.study_caption(data.meta))
@@ -139,8 +157,9 @@ def _plot_values(data: StudyData, key: str, u0: float) -> Path:
     """The final force against the swept value (log axis when the values span more than a decade)."""
     from ngbet import figures as FG
 
-    pts = sorted((float(c["params"][key]), data.at(c["case"], u0, "force_N"), data.at(c["case"], u0, "force_error_N"))
-                 for c in data.cases())
+    own = key == U0  # each case's force at its own final load
+    pts = sorted((float(c["params"][key]), *(data.at(c["case"], float(c["params"][key]) if own else u0, col)
+                                              for col in ("force_N", "force_error_N"))) for c in data.cases())
     pts = [p for p in pts if math.isfinite(p[1])]
     fig, ax = FG.subplots(size=(6, 4.2))
     v, F, e = (np.array(x) for x in zip(*pts, strict=True)) if pts else (np.array([]),) * 3
@@ -153,7 +172,7 @@ def _plot_values(data: StudyData, key: str, u0: float) -> Path:
     if len(v) and v.min() > 0 and v.max() / v.min() > 10:
         ax.set_xscale("log")
     ax.set_xlabel(FG.key_label(key))
-    ax.set_ylabel(f"force at u₀ = {u0:g} mm [N]")
+    ax.set_ylabel("force at the final load [N]" if own else f"force at u₀ = {u0:g} mm [N]")
     ax.grid(alpha=0.3, which="both")
     FG.put_caption(fig, FG.study_caption(data.meta))
     return savefig(fig, data.out, "sweep_values")

@@ -120,11 +120,26 @@ def fits_folder(cache: Path | None = None) -> Path:
 
 
 def _cached(folder: Path, name: str, make: Any) -> dict[str, Any]:
+    """The fit ``name`` kept in ``folder``, or ``make()`` kept there.
+
+    A kept file that cannot be read (truncated, not a JSON object) is named in a warning and made
+    again; a folder that cannot keep the fit is an OSError naming it before the fit runs.
+    """
     path = folder / f"{name}.json"
     if path.exists():
-        return dict(json.loads(path.read_text()))
-    doc = make()
+        try:
+            doc = json.loads(path.read_text())
+            if isinstance(doc, dict):
+                return doc
+            why = "not a JSON object"
+        except (OSError, ValueError) as exc:
+            why = f"{type(exc).__name__}: {exc}"
+        log.warning("%s is unreadable (%s): the fit is made again", path, why)
     folder.mkdir(parents=True, exist_ok=True)
+    probe = folder / f".probe.{os.getpid()}"
+    probe.write_text("")  # an unwritable cache fails here, before the fit, naming it
+    probe.unlink()
+    doc = make()
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
     tmp.write_text(json.dumps(doc))
     tmp.replace(path)

@@ -612,7 +612,7 @@ def test_files_the_writer_wrote_after_the_summary_are_listed_and_a_users_are_not
     scene = Scene().with_changes(**TINY)
     with RunWriter(tmp_path, scene) as w:
         w.summary({}, "ok")
-        w.write_text("mode_1.vtu", "written by the run after its summary")
+        w.write_text("mode_1.vtu", "<VTKFile>written by the run after its summary</VTKFile>\n")  # a whole one
         (tmp_path / "notes.txt").write_text("the user's, written while the run was on")
     assert summary(tmp_path)["files"] == ["mode_1.vtu", "scene.toml", "summary.json"]
     run(scene, tmp_path)

@@ -17,13 +17,13 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import os
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..run_folder import OwnedFolder
 from ..scene import Scene, SceneError
 from .data import MeasuredCurve, read_measured
 
@@ -76,19 +76,16 @@ def _range(text: str | None) -> tuple[float, float] | None:
     return lo, hi
 
 
-def _out_folder(out: Path) -> None:
-    """Create the output folder now, so that an unusable one is refused before the fit (exit 3)."""
-    from ..output import OutputError
+def _out_folder(out: Path) -> OwnedFolder:
+    """Take the output folder now, so that an unusable one is refused before the fit (exit 3).
 
-    if out.exists() and not out.is_dir():
-        raise OutputError(out, "a file is in its place")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".ngbet-fit-probe-{os.getpid()}"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise OutputError(out, str(exc.strerror or exc)) from None
+    Owned as ``ngbet run`` owns its run folder (:class:`~ngbet.run_folder.OwnedFolder`): a run
+    folder, a study's, or a folder holding the user's fit.json or fitted_scene.toml is refused; an
+    earlier fit's files that this fit does not write again (its shear_table.png) go at the end.
+    """
+    from ..run_folder import OwnedFolder
+
+    return OwnedFolder(out, "fit", "fit")
 
 
 class Inputs:
@@ -176,13 +173,16 @@ def run_from_args(args: argparse.Namespace) -> int:
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     out = Path(args.out)
+    folder = None
     try:
         inp = Inputs(args)
-        _out_folder(out)
+        folder = _out_folder(out)
         for note in inp.notes:
             print(f"ngbet fit: {note}", file=sys.stderr)
         if not inp.joint:
-            return _legacy(args, inp, out)
+            code = _legacy(args, inp, out)
+            folder.finish()
+            return code
         from .joint import fit_curves, terminal_progress
 
         fractions = [inp._fraction(c) for c in inp.curves]
@@ -197,6 +197,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         code = 0 if result.converged else 1
         for c in inp.predict:
             code = max(code, _predict_one(result, c, inp.predict_scene, out))
+        folder.finish()
         return code
     except SceneError as exc:
         print(f"ngbet fit: {exc}", file=sys.stderr)
@@ -205,6 +206,9 @@ def run_from_args(args: argparse.Namespace) -> int:
         code, msg = exit_code(exc, out)
         print(f"ngbet fit: {msg}", file=sys.stderr)
         return code
+    finally:
+        if folder is not None:
+            folder.release()
 
 
 def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) -> int:

@@ -67,9 +67,11 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
         with progress_bar(progress, scene.loading.u0_mm) as bar:
             recorder = _StepWriter(solver, writer, out, estimates)
             t_cont = time.perf_counter()
-            steps = Steps(load_path(solver, scene))
+            path = load_path(solver, scene)
+            steps = Steps(path)
+            walk = iter(steps)  # held: the path stays open for an interrupt to reach (below)
             try:
-                for rec in steps:
+                for rec in walk:
                     if rec.left is not None:  # before the row: its estimate continues the branch left
                         estimates.spread.left(*rec.left, rec.snap)
                     recorder.on_step(rec)
@@ -78,6 +80,13 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
                 assert steps.result is not None
                 res = steps.result
                 _write_mode(solver, res.path_info, writer)
+            except KeyboardInterrupt as exc:  # the summary ("interrupted") keeps the path's snaps so far
+                if not hasattr(exc, "path_info"):  # raised while a step was written: the path attaches them
+                    with contextlib.suppress(BaseException):
+                        path.throw(exc)
+                exc.path_info = {**_solver_info(solver, None),  # type: ignore[attr-defined]
+                                 **snaps_in_units(getattr(exc, "path_info", {}), scene.specimen.t)}
+                raise
             except ConvergenceError as err:
                 _write_mode(solver, err.path_info, writer)
                 info.update(_solver_info(solver, None), **snaps_in_units(err.path_info, scene.specimen.t))

@@ -470,8 +470,9 @@ def _displacement_steps(problem: NonlinearProblem, path: PathSettings, settings:
         for rec in path_steps(corrector, path, out):
             rec.left = left.pop() if left else None
             yield rec
-    except ConvergenceError as err:
-        err.path_info.update(_snap_info(corrector))
+    except (ConvergenceError, KeyboardInterrupt) as err:  # a signal's summary keeps the snaps so far too
+        err.path_info = getattr(err, "path_info", {})  # type: ignore[union-attr]
+        err.path_info.update(_snap_info(corrector))  # type: ignore[union-attr]
         raise
     out.path_info.update(_snap_info(corrector))
     return out

@@ -108,10 +108,33 @@ def draw_force(run_dir: Path, extra: Extra = (), parallel: bool = False) -> Path
     """Draw the run's figures in this process (:func:`draw_run`); None without matplotlib (logged)."""
     try:
         import matplotlib  # noqa: F401
-    except ImportError:
-        log.warning(NO_MATPLOTLIB)
+    except ImportError as exc:
+        _not_installed(exc)
         return None
     return draw_run(run_dir, extra, parallel)
+
+
+def _not_installed(exc: ImportError) -> None:
+    """Log :data:`NO_MATPLOTLIB` for an import of matplotlib that failed because it is not installed.
+
+    An installed matplotlib whose import failed (cut short by Ctrl-C or a signal, which leaves a
+    partial module behind) is not called missing: the interrupt is raised again (the run records
+    "interrupted"), any other failure as it is.
+    """
+    import importlib.util
+
+    try:
+        installed = importlib.util.find_spec("matplotlib") is not None
+    except ValueError:  # a partial module without a spec: it was being imported
+        installed = True
+    if not installed:
+        log.warning(NO_MATPLOTLIB)
+        return
+    from ..engine import STOP_REQUESTED
+
+    if STOP_REQUESTED.is_set():
+        raise KeyboardInterrupt("stop requested by a signal") from exc
+    raise exc
 
 
 def start_plot(run_dir: str | Path, extra: Extra = (), service: Any = None,
@@ -140,8 +163,8 @@ def start_plot(run_dir: str | Path, extra: Extra = (), service: Any = None,
         if measured is not None:
             try:
                 import matplotlib  # noqa: F401
-            except ImportError:
-                log.warning(NO_MATPLOTLIB)
+            except ImportError as exc:
+                _not_installed(exc)
                 return None
             return draw_run(Path(run_dir), extra, measured=measured)
         return draw_force(Path(run_dir), extra)

@@ -264,10 +264,15 @@ class FigureWriter:
         first = None
         for k, fmt in enumerate(self.formats):
             path = stem.with_suffix(f".{fmt}")
-            if fmt == "png":
-                fig.savefig(path, dpi=PNG_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
-            else:
-                fig.savefig(path, dpi=VECTOR_RASTER_DPI)
+            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # complete, then renamed: never half a figure
+            try:
+                if fmt == "png":
+                    fig.savefig(tmp, format=fmt, dpi=PNG_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
+                else:
+                    fig.savefig(tmp, format=fmt, dpi=VECTOR_RASTER_DPI)
+                os.replace(tmp, path)
+            finally:
+                tmp.unlink(missing_ok=True)
             if k == 0:
                 fig.set_layout_engine("none")
                 first = path

@@ -162,6 +162,12 @@ class Scene:
             self._check_picture_frame()
 
         unused = self.unused_keys()
+        m, e = self.material, self.effects
+        if self.model == "continuum" and m.shear_stress_steps_Pa and not (e.shear and e.shear_law == "table"):
+            warnings.warn(SceneWarning(
+                f"material.shear_stress_steps_Pa holds {len(m.shear_stress_steps_Pa)} rises of a shear table, but "
+                f"effects.shear_law = {e.shear_law!r}{'' if e.shear else ' with effects.shear = false'}: the table "
+                "is not used (effects.shear_law = \"table\" uses it)"), stacklevel=3)
         if unused:
             test = self.test != "bias_extension" or any(k.startswith("picture_frame.") for k in unused)
             who = f"model = {self.model!r}" + (f" with test = {self.test!r}" if test else "")
@@ -279,9 +285,13 @@ def _section(name: str, scls: type, table: Any) -> Any:
 def read_toml(path: str | Path) -> dict[str, Any]:
     """The tables of a scene file; :class:`SceneError` naming the file when it cannot be read as TOML."""
     path = Path(path)
+    raw = b""
     try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
+        raw = path.read_bytes()
+        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+            raise SceneError(f"scene file {path} is UTF-16 text (\"Unicode\" in some editors); save it as UTF-8")
+        # a byte-order mark (as some editors save UTF-8) is not TOML: read past it; CRLF lines are TOML
+        return tomllib.loads(raw.decode("utf-8-sig"))
     except FileNotFoundError:
         raise SceneError(f"scene file not found: {path}") from None
     except IsADirectoryError:
@@ -291,13 +301,16 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     except UnicodeDecodeError:
         raise SceneError(f"scene file {path} is not a text (UTF-8) file: is it a TOML scene?") from None
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"scene file {path} is not valid TOML: {exc}") from None
+        cr = b"\r" in raw and b"\n" not in raw  # a classic Mac file: TOML does not end a line in CR alone
+        raise SceneError(f"scene file {path} is not valid TOML: {exc}"
+                         + ("; its lines end in CR alone, save it with LF (or CRLF) line ends" if cr else "")) from None
 
 
 def apply_changes(data: dict[str, Any], dotted: dict[str, Any]) -> dict[str, Any]:
     """The tables ``data`` with ``{"section.key": value}`` (or ``{"model": ...}``) set; a new dict."""
     d = {n: dict(t) if isinstance(t, dict) else t for n, t in data.items()}
     for key, value in dotted.items():
+        value = _plain(value)
         section, _, name = key.partition(".")
         if not name:
             d[section] = value
@@ -309,6 +322,15 @@ def apply_changes(data: dict[str, Any], dotted: dict[str, Any]) -> dict[str, Any
             raise SceneError(f"scene section '{section}' must be a table, got {table!r}")
         table[name] = value
     return d
+
+
+def _plain(v: Any) -> Any:
+    """A value with numpy scalars and arrays (``np.float32(2.0)``, ``np.int64(3)``) as Python's, in lists too."""
+    if isinstance(v, (list, tuple)):
+        return type(v)(_plain(x) for x in v)
+    if type(v).__module__ == "numpy" and hasattr(v, "tolist"):  # a scalar's is the Python number, an array's a list
+        return v.tolist()
+    return v
 
 
 MIN_YARNS_PER_FAMILY = 4

@@ -10,17 +10,19 @@ import argparse
 import contextlib
 import inspect
 import logging
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ..run_folder import OutputError, OwnedFolder
 from ..scene import Scene
 from .collect import StudyFolderError
 from .figures import plot_only
 from .keys import _floats
 from .model import Study, _same
-from .runner import default_out, run_study
+from .runner import DEFAULT_ROOT, default_out, run_study
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -41,7 +43,44 @@ def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog
     doc = sys.modules[build.__module__].__doc__ if build.__module__ in sys.modules else None
     p = argparse.ArgumentParser(prog=prog, description=(doc or "").split("\n")[0])  # no build: it may fit
     add_arguments(p)
-    return run_from_args(build, p.parse_args(argv))
+    return run_from_args(build, p.parse_args(argv), name=build.__module__.rsplit(".", 1)[-1])
+
+
+def _refuse_set_of_varied_keys(study: Study, overrides: list[str]) -> None:
+    """A ``--set`` of a key the study's cases set themselves would be overridden by every case: refused."""
+    from ..scene import SceneError
+
+    varied = set(study.params_columns())
+    for item in overrides:
+        key = item.partition("=")[0].strip()
+        if key in varied:
+            values = list(dict.fromkeys(_words(c[key]) for c in study.cases if key in c))
+            raise SceneError(f"--set {item}: {key} is what the {study.name} study varies (its cases set it to "
+                             f"{', '.join(values[:6])}{', ...' if len(values) > 6 else ''}), so the value would not "
+                             "be used; leave it out, or sweep the values you want (ngbet sweep)")
+
+
+def _check_working_folder(args: argparse.Namespace) -> None:
+    """A relative --out or --cache (or their defaults) needs the current folder: refuse a deleted one by name."""
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        if not (args.out and os.path.isabs(args.out) and args.cache and os.path.isabs(args.cache)):
+            raise OutputError(os.environ.get("PWD", "."), "the current folder no longer exists (deleted or moved), "
+                              "and the study's folder or cache is relative to it: change to a folder that "
+                              "exists, or give --out and --cache as absolute paths") from None
+
+
+def _probe_cache(cache: Path) -> None:
+    """Create the case cache and write into it once: an unusable one is an OSError naming it, before any work."""
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+        probe = cache / f".probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise OSError(exc.errno, f"{exc.strerror} (a study keeps its cases and fits in its cache folder)",
+                      str(cache)) from None
 
 
 def _flat(d: dict[str, Any], pre: str = "") -> dict[str, Any]:
@@ -99,13 +138,27 @@ def build_study(build: Callable[..., Study], quick: bool, scene: Scene | None = 
 
 
 def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: Scene | None = None,
-                  source: str = "") -> int:
+                  source: str = "", name: str | None = None) -> int:
     """Run (or with ``--plot-only`` redraw) the study ``build`` gives for the options; the exit status.
 
     scene : the base scene (None: the study's own, on ngbet's default scene); source names it.
+    name : the study's name, when known before it is built: its folder and cache are then checked
+        first (a study may fit before it runs its cases; an unusable folder is refused before that).
     """
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    study = build_study(build, args.quick, scene, source, Path(args.cache) if args.cache else None)
+    folder = None
+    if name is not None and not args.plot_only:
+        _check_working_folder(args)
+        folder = OwnedFolder(Path(args.out) if args.out else default_out(name, args.quick), "study", name)
+    try:
+        if not args.plot_only:
+            _probe_cache(Path(args.cache) if args.cache else DEFAULT_ROOT / "cache")
+        study = build_study(build, args.quick, scene, source, Path(args.cache) if args.cache else None)
+        _refuse_set_of_varied_keys(study, getattr(args, "overrides", None) or [])
+    except BaseException:
+        if folder is not None:
+            folder.release()
+        raise
     out = Path(args.out) if args.out else default_out(study.name, args.quick)
     if args.plot_only:
         try:
@@ -115,7 +168,8 @@ def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: 
             return 2
     else:
         data = run_study(study, out, cache=args.cache, workers=args.workers, scheduler=args.scheduler,
-                         progress=not args.quiet, retry_failed=args.retry_failed, threads=args.threads)
+                         progress=not args.quiet, retry_failed=args.retry_failed, threads=args.threads,
+                         folder=folder)
     st = [c["status"] for c in data.cases()]
     ex = data.meta["executor"]
     warned = [c["case"] for c in data.cases() if c.get("warnings")]

@@ -47,9 +47,22 @@ def finish(study: Study, data: StudyData) -> list[Path]:
 
 
 def plot_only(study: Study, out: str | Path) -> StudyData:
-    """Redraw figures and report from the CSV files of a finished study, without solving."""
-    data = load(out)
-    finish(study, data)
+    """Redraw figures and report from the CSV files of a finished study, without solving.
+
+    The folder must be this study's (:class:`~ngbet.run_folder.OwnedFolder`: another study's or a
+    run folder is refused, :class:`~ngbet.run_folder.OutputError`); nothing in it is removed.
+    """
+    from ..run_folder import OwnedFolder
+
+    if not Path(out).is_dir():
+        load(out)  # names what is missing; nothing is created
+    own = OwnedFolder(out, "study", study.name)
+    try:
+        data = load(out)
+        finish(study, data)
+        own.finish(stale=False)
+    finally:
+        own.release()
     return data
 
 

@@ -21,6 +21,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from ..run_folder import OwnedFolder
 from ..scene import SceneError, SceneWarning
 from .cache import cached, clean_debris, run_dir, study_lock
 from .cluster import run_dask
@@ -42,21 +43,31 @@ def default_out(name: str, quick: bool) -> Path:
 
 def run_study(study: Study, out: str | Path | None = None, cache: str | Path | None = None,
               workers: int | None = None, scheduler: str | None = None, progress: bool = True,
-              retry_failed: bool = False, threads: int | None = None) -> StudyData:
+              retry_failed: bool = False, threads: int | None = None, folder: OwnedFolder | None = None) -> StudyData:
     """Run the missing cases of ``study``, then write its tables, meta.json, figures and report.
+
+    The study folder ``out`` is owned as ``ngbet run`` owns its run folder (:class:`OwnedFolder`):
+    refused when it is a run folder, another command's, or holds files of the user's with the names
+    a study writes; the files of the study's earlier run there that this one does not write again
+    (an earlier figure) are removed at the end, nothing else.
 
     workers : local worker processes (default: one per core, at most one per missing case);
         1 runs the cases in this process.
     scheduler : address of a dask.distributed scheduler ("tcp://host:8786"); overrides workers.
     threads : NGSolve threads per case (default: all cores in this process, 1 in parallel).
+    folder : ``out`` already taken by the caller (its ownership passes to this call, which releases it).
     """
     t_start = time.perf_counter()
     out = Path(out) if out is not None else default_out(study.name, False)
     cache = Path(cache) if cache is not None else DEFAULT_ROOT / "cache"
-    out.mkdir(parents=True, exist_ok=True)
-    cache.mkdir(parents=True, exist_ok=True)
-    for stale in ("report.md", "meta.json"):  # written again at the end; never left from an older run
-        (out / stale).unlink(missing_ok=True)
+    with folder or OwnedFolder(out, "study", study.name) as own:
+        own.remove("report.md", "meta.json")  # written again at the end; never left from an older run
+        cache.mkdir(parents=True, exist_ok=True)
+        return _locked(study, out, cache, workers, scheduler, progress, retry_failed, threads, t_start)
+
+
+def _locked(study: Study, out: Path, cache: Path, workers: int | None, scheduler: str | None, progress: bool,
+            retry_failed: bool, threads: int | None, t_start: float) -> StudyData:
     with study_lock(cache) as token:  # an unwritable cache fails here, naming it, whatever the workers
         if clean_debris(cache):
             log.info("removed the unfinished case folders of ended studies from %s", cache)
