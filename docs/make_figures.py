@@ -5,10 +5,14 @@
 bet_default.png: the default scene (the paper's BET to 56 mm): the deformed specimen at the last
 load coloured by the shear angle with the yarns drawn on it, and the force-displacement curve,
 drawn by ngbet's plotting package (ngbet.figures) from the run's files.
+
+normalise_twill_unbalanced.png: the collapse figure of ``ngbet normalise`` on the two shipped sizes
+of the unbalanced Twintex twill (docs/normalise.md).
 """
 
 from __future__ import annotations
 
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -28,7 +32,23 @@ def main() -> int:
     out = HERE / "figures"
     out.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:  # a run folder of its own: it writes the map data
-        return _draw(ngbet.simulate(ngbet.default_scene(), out=Path(tmp) / "run"), out)
+        code = _draw(ngbet.simulate(ngbet.default_scene(), out=Path(tmp) / "run"), out)
+        return code or _collapse(Path(tmp) / "normalise", out)
+
+
+def _collapse(folder: Path, out: Path) -> int:
+    """``ngbet normalise`` on the unbalanced twill's two sizes; its collapse figure copied to ``out``."""
+    from ngbet.cli import main as ngbet_main
+
+    data = HERE.parent / "data" / "cao2008"
+    files = [str(data / f"cao2008_twill_unbalanced_{size}_UN.csv") for size in ("100x200", "100x250")]
+    code = ngbet_main(["normalise", *files, "--out", str(folder), "--quiet"])
+    if code:
+        return code
+    path = out / "normalise_twill_unbalanced.png"
+    shutil.copyfile(folder / "collapse.png", path)
+    print(f"{path}: {path.stat().st_size / 1024:.0f} kB")
+    return 0
 
 
 def _draw(r: ngbet.Result, out: Path) -> int:
