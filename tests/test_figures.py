@@ -254,7 +254,11 @@ def test_the_caption_names_specimen_and_material():
     text = F.caption(sc)
     sp = sc.specimen
     assert f"{sp.width_mm:g}\u00a0×\u00a0{sp.length_mm:g}\u00a0mm" in text
-    assert f"K_el\u00a0=\u00a0{sc.material.K_el / 1e6:g}\u00a0MPa" in text
+    assert "K_el\u00a0=\u00a0700\u00a0kPa" in text and "α1\u00a0=\u00a02\u00a0kPa\u00a0m²" in text
+    # engineering notation at any size: no "1e-06 kPa m²", no "3.33e+06 Pa"
+    tiny = F.caption(sc.with_changes(**{"material.alpha1": 1e-3, "material.K_el": 3.33e6}))
+    assert "α1\u00a0=\u00a01\u00a0mPa\u00a0m²" in tiny and "K_el\u00a0=\u00a03.33\u00a0MPa" in tiny
+    assert "e-0" not in tiny and "e+0" not in tiny
     assert "yarn network" in F.caption(sc.with_changes(model="discrete"))
     assert F.caption(sc.to_dict()) == text  # a study's base scene as its dictionary
 
