@@ -70,8 +70,7 @@ def test_a_load_whose_estimate_could_not_vouch_is_named_where_its_bar_would_be()
     scene = default_scene().with_changes(**{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0})
     fig = F.force_figure(rows(errors={4.0: 3.0}), scene)
     texts = [t.get_text() for t in fig.axes[0].texts]
-    assert texts == ["no error bar at u₀ = 8 mm:\nthe estimate could not vouch for the force\n"
-                     "(summary.json: error_estimate_unreliable)"]
+    assert texts == ["no error bar at u₀ = 8 mm:\nthe estimate could not vouch for the force"]
     # rows without a due estimate (2, 6, 6.5 mm) are not named; with estimates off, none is
     off = default_scene().with_changes(**{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0,
                                           "outputs.error_estimate": "off"})
@@ -80,7 +79,7 @@ def test_a_load_whose_estimate_could_not_vouch_is_named_where_its_bar_would_be()
     fig = F.force_figure(rows(errors={4.0: 0.05}), scene)
     assert [t.get_text() for t in fig.axes[0].texts] == [
         "error bars shorter than the markers:\n±0.05 N at u₀ = 4 mm\nno error bar at u₀ = 8 mm:\n"
-        "the estimate could not vouch for the force\n(summary.json: error_estimate_unreliable)"]
+        "the estimate could not vouch for the force"]
     # the network estimates no error (its rows have no force_error_N column): nothing is due, nothing named
     network = [{k: v for k, v in r.items() if k != "force_error_N"} for r in rows()]
     assert not F.force_figure(network, scene.with_changes(model="discrete")).axes[0].texts
@@ -100,7 +99,7 @@ def test_measured_curve_on_the_force_and_shear_force_figures(tmp_path):
 
 
 def test_a_measured_curve_of_another_specimen_keeps_the_legend_inside_its_panel(tmp_path):
-    """A long file name and another specimen size: the legend entry takes two lines, inside the axes."""
+    """Another specimen size: the legend entry names it (not the file), inside the axes."""
     from ngbet.scene import default_scene
 
     csv = tmp_path / "cao2008_twill_unbalanced_100x200_UN.csv"
@@ -109,8 +108,8 @@ def test_a_measured_curve_of_another_specimen_keeps_the_legend_inside_its_panel(
     fig.canvas.draw()  # matplotlib's Agg canvas of a Figure made without pyplot
     ax = fig.axes[0]
     legend = ax.get_legend()
-    assert "measured, specimen 100 × 200 mm:\ncao2008_twill_unbalanced_100x200_UN.csv" in [
-        t.get_text() for t in legend.texts]
+    assert "measured, specimen 100 × 200 mm" in [t.get_text() for t in legend.texts]
+    assert not any(".csv" in t.get_text() for t in legend.texts)
     box, panel = legend.get_window_extent(), ax.get_window_extent()
     assert panel.x0 <= box.x0 and box.x1 <= panel.x1, (box, panel)
 
@@ -261,6 +260,12 @@ def test_the_caption_names_specimen_and_material():
     assert "e-0" not in tiny and "e+0" not in tiny
     assert "yarn network" in F.caption(sc.with_changes(model="discrete"))
     assert F.caption(sc.to_dict()) == text  # a study's base scene as its dictionary
+    # a scene named after its size, run at another size, is not captioned with the other size
+    named = sc.with_changes(**{"specimen.name": "twill-100x250", "specimen.width_mm": 100.0,
+                               "specimen.length_mm": 250.0})
+    assert F.caption(named).startswith("twill-100x250: specimen 100\u00a0×\u00a0250")
+    other = F.caption(named.with_changes(**{"specimen.length_mm": 300.0}))
+    assert other.startswith("twill: specimen 100\u00a0×\u00a0300")
 
 
 def write_run(folder, formats=None):

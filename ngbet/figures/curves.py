@@ -74,7 +74,7 @@ def error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: f
     missing = u0[~ok & due] if due is not None else []
     if len(missing):
         lines += ["no error bar at u₀ = " + ", ".join(f"{u:g}" for u in missing) + " mm:",
-                  "the estimate could not vouch for the force", "(summary.json: error_estimate_unreliable)"]
+                  "the estimate could not vouch for the force"]
     if lines:
         ax.text(0.98, 0.03, "\n".join(lines), transform=ax.transAxes, ha="right", va="bottom", fontsize=7, color="C3")
 
@@ -100,7 +100,7 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
     ax = axes[0]
     u0, F = column(rows, "u0_mm"), column(rows, "force_N")
     snap = column(rows, "snap") if "snap" in rows[0] else None
-    curve_with_jumps(ax, u0, F, snap, label="computed (rows of results.csv), joined by straight lines")
+    curve_with_jumps(ax, u0, F, snap, label="computed at the output loads, joined by straight lines")
     if measured is not None:
         ax.plot(measured.displacement_mm, measured.force_N, "-", color="0.35", lw=1.2,
                 label=_measured_label(measured, scene))
@@ -131,14 +131,9 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
 
 
 def _measured_label(m: Measured, scene: Any) -> str:
-    """The measured curve's legend entry: its file on a line of its own, and its specimen where it is not the run's.
-
-    (A long file name stays inside the axes on its own line.)
-    """
-    other = scene is not None and m.width_mm is not None and m.length_mm is not None and (
-        (m.width_mm, m.length_mm) != (scene.specimen.width_mm, scene.specimen.length_mm))
-    size = f", specimen {m.width_mm:g} × {m.length_mm:g} mm" if other else ""
-    return f"measured{size}:\n{m.path.name}"
+    """The measured curve's legend entry: "measured", with its specimen where the file gives it (no file name)."""
+    known = m.width_mm is not None and m.length_mm is not None
+    return f"measured, specimen {m.width_mm:g} × {m.length_mm:g} mm" if known else "measured"
 
 
 def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
@@ -170,7 +165,7 @@ def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
     if not ok.any():
         ax.text(0.5, 0.5, "F_sh: 45° yarns only (Eq. 18)", transform=ax.transAxes, ha="center")
     else:
-        ax.legend(loc="upper left")
+        ax.legend(loc="best")  # the F_sh curves of fabrics stiffen (upper left free) or soften (lower right free)
     if left_out:
         ax.text(0.98, 0.03, f"beyond γ = {FSH_GAMMA_MAX_DEG:g}° (near yarn locking, where Eq. 18\n"
                 "divides by cos γ → 0): not drawn", transform=ax.transAxes, ha="right", va="bottom", fontsize=7)

@@ -129,7 +129,7 @@ def caption(scene: Any) -> str:
         except SceneError:
             return ""
     sp = scene.specimen
-    name = f"{sp.name}: " if getattr(sp, "name", "") else ""
+    name = f"{_name_of(sp)}: " if _name_of(sp) else ""
     spec = (f"{name}specimen {sp.width_mm:g}{NB}×{NB}{sp.length_mm:g}{NB}mm (W{NB}×{NB}L), yarns{NB}±"
             f"{sp.yarn_angle_deg:g}°, {_q('t', sp.thickness_mm, 'mm')}")
     if scene.model == "discrete":
@@ -143,6 +143,21 @@ def caption(scene: Any) -> str:
              if scene.effects.shear_law == "table" else _qe("K_sh", m.K_sh, "Pa"))
     return (f"{spec}; material: {shear}, {_qe('α1', m.alpha1, f'Pa{NB}m²')}, "
             f"{_qe('α2', m.alpha2, f'Pa{NB}m²')}, {_qe('K_el', m.K_el, 'Pa')}")
+
+
+def _name_of(specimen: Any) -> str:
+    """The specimen's name, without a size suffix ("-100x250") that is not its width × length.
+
+    A fitted scene run at another size keeps the name of the specimen it was fitted on; the caption
+    must not title a 100 × 300 mm run "…-100x250".
+    """
+    import re
+
+    name = str(getattr(specimen, "name", "") or "")
+    m = re.search(r"[-_ ]?(\d+(?:\.\d+)?)\s*[x×]\s*(\d+(?:\.\d+)?)$", name)
+    if m and (float(m.group(1)), float(m.group(2))) != (specimen.width_mm, specimen.length_mm):
+        return name[:m.start()]
+    return name
 
 
 def put_caption(fig: Figure, text: str) -> None:
