@@ -452,12 +452,9 @@ def _report(summary: dict, out: Path) -> str:
     from .output import read_rows
 
     rows = read_rows(out / "results.csv")
+    # the solver's iteration counts are in summary.json: nothing on the terminal a user would act on
     lines = [f"ngbet: {summary['status']}: u0 = {summary['u0_reached_mm']:g} mm in "
-             f"{summary.get('load_steps', len(rows))} load steps, "
-             f"{summary.get('newton_iterations', '?')} Newton iterations"
-             + (f" and {summary['chord_iterations']} chord iterations" if summary.get("chord_iterations") else "")
-             + f", {summary['wall_s']:.2f} s; "
-             f"results in {out}/"]
+             f"{summary.get('load_steps', len(rows))} load steps, {summary['wall_s']:.2f} s; results in {out}/"]
     for r in rows:
         if "force_N" in r and (abs(r["u0_mm"] - 37) < 1e-9 or r is rows[-1]):
             err = r.get("force_error_N")

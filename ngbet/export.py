@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from .run_folder import RUN_MARKER, TMP_PREFIX, _acquire_run_folder, _clear_previous_run, _io
+from .run_folder import RUN_MARKER, TMP_PREFIX, _acquire_run_folder, _clear_previous_run, _io, json_text
 from .scene import Scene, SceneError
 
 #: the formats ``ngbet export`` writes and each one's file
@@ -380,7 +380,7 @@ def export(source: str | Path, fmt: str, out: str | Path, max_angle_deg: float |
                    "bending_t_alpha_Nmm": card.bending, "left_out": card.left_out,
                    "K_el_MPa": None if card.K_el_Pa is None else card.K_el_Pa * 1e-6, "figure": figure}
         summary["files"] = sorted([*written, "export.json"])
-        put("export.json", lambda p: p.write_text(json.dumps(summary, indent=2, allow_nan=False)))
+        put("export.json", lambda p: p.write_text(json_text(summary)))
         return summary
     finally:
         fh.close()

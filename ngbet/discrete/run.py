@@ -155,6 +155,9 @@ def run(scene: Scene, out: str | Path, progress: bool = True, measured: Any = No
 def _run_info(stats: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The summary's solver statistics and totals over the written rows."""
     info = dict(stats)
+    # the solver's loads are in m; the summary's, like every other load ngbet reports, in mm
+    info["snap_events"] = [{(f"{k}_mm" if k in ("u0", "u0_before") else k): (v * 1e3 if k in ("u0", "u0_before") else v)
+                            for k, v in e.items()} for e in stats.get("snap_events", [])]
     info["snap_event_count"] = len(stats.get("snap_events", []))
     info["newton_iterations_total"] = int(sum(r["newton_iterations"] for r in rows))
     info["max_slip_mm"] = max((r["max_slip_mm"] for r in rows), default=0.0)
