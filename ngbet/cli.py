@@ -458,8 +458,10 @@ def _report(summary: dict, out: Path) -> str:
     for r in rows:
         if "force_N" in r and (abs(r["u0_mm"] - 37) < 1e-9 or r is rows[-1]):
             err = r.get("force_error_N")
+            failed = f"{r['u0_mm']:g}" in (summary.get("error_estimate_unreliable") or {})
             bar = (f" ± {err:.2g} N (estimated discretization error)" if isinstance(err, float) and err == err
-                   else " (error estimate failed)" if isinstance(err, float) else "")
+                   else " (no error bar: the estimate could not vouch for this force; summary.json says why)"
+                   if failed or isinstance(err, float) else "")
             lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {r['force_N']:9.4f} N{bar}")
             spread = r.get("force_path_spread_N")
             if isinstance(spread, float) and spread > 0:  # in the bar: another stable state the path left

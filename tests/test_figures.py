@@ -323,3 +323,14 @@ def test_the_package_exports_what_it_lists_without_importing_matplotlib():
     code = ("import sys, ngbet.figures as F; "
             "print([n for n in F.__all__ if not hasattr(F, n)], 'matplotlib' in sys.modules)")
     assert fresh_python(code) == "[] False"
+
+
+def test_a_small_double_force_has_a_prefixed_unit_and_no_offset():
+    """T of order 1e-5 N m is drawn in µN m (values −12..0), not with a '1e−5' offset above the axis."""
+    tiny = [{**r, "double_force_Nm": -1.2e-5 * r["u0_mm"] / 8.0} for r in rows()]
+    fig = F.force_figure(tiny)
+    fig.canvas.draw()
+    ax2 = fig.axes[1]
+    assert ax2.get_ylabel() == "double force on the moving clamp [µN\u00a0m]"
+    assert min(lines_of(ax2)[0].get_ydata()) == pytest.approx(-12.0)
+    assert ax2.yaxis.get_offset_text().get_text() == ""

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .data import Measured, column, measured_fsh
-from .style import FORCE_LABEL, SHEAR_LABEL, U0_LABEL, caption, figure, put_caption
+from .style import FORCE_LABEL, NB, SHEAR_LABEL, U0_LABEL, caption, eng_scale, figure, put_caption
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
@@ -119,10 +119,12 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
     ax.set_title("(a) force" if has_T else "")
     if has_T:
         ax2 = axes[1]
-        curve_with_jumps(ax2, u0, column(rows, "double_force_Nm"), snap, color="C2", marker="s",
-                         label="computed, joined by straight lines")
+        T = column(rows, "double_force_Nm")
+        # a prefixed unit instead of an offset ("1e−5" above the axis): µN m, mN m, N m, ...
+        k, unit = eng_scale(float(np.nanmax(np.abs(np.r_[T, 0.0]))) or 1.0, "N")
+        curve_with_jumps(ax2, u0, T * k, snap, color="C2", marker="s", label="computed, joined by straight lines")
         ax2.set_xlabel(U0_LABEL)
-        ax2.set_ylabel("double force on the moving clamp [N m]")
+        ax2.set_ylabel(f"double force on the moving clamp [{unit}{NB}m]")
         ax2.set_xlim(left=0)
         ax2.legend(loc="upper left")
         ax2.set_title("(b) double force")
