@@ -334,3 +334,18 @@ def test_a_small_double_force_has_a_prefixed_unit_and_no_offset():
     assert ax2.get_ylabel() == "double force on the moving clamp [µN\u00a0m]"
     assert min(lines_of(ax2)[0].get_ydata()) == pytest.approx(-12.0)
     assert ax2.yaxis.get_offset_text().get_text() == ""
+
+
+def test_the_yarn_pictures_of_one_run_share_one_colour_scale():
+    """Two states (γ up to 40° and up to 86°) drawn with each other's angles: both colour bars end at 100°."""
+    x = np.array([[0.0, 0.0], [10.0, 10.0], [20.0, 0.0]])
+    beams, family = np.array([[0, 1], [1, 2]]), np.array([1, 2])
+    ends = x[[0, 2]]
+    g1, g2 = np.array([10.0, 40.0]), np.array([20.0, 85.8])
+    tops = []
+    for g in (g1, g2):
+        fig = F.yarn_network_figure(x, beams, family, g, ends, 37.0, scale_over=[g1, g2])
+        tops.append(fig.axes[-1].get_ylim()[1])
+    assert tops == [100.0, 100.0]
+    alone = F.yarn_network_figure(x, beams, family, g1, ends, 37.0)
+    assert alone.axes[-1].get_ylim()[1] == 40.0  # without the run's other states: its own round scale

@@ -134,9 +134,8 @@ def caption(scene: Any) -> str:
             f"{sp.yarn_angle_deg:g}°, {_q('t', sp.thickness_mm, 'mm')}")
     if scene.model == "discrete":
         d = scene.discrete
-        return (f"{spec}; yarn network: {_qe('EI1', d.EI1 * 1e6, f'N{NB}mm²')}, "
-                f"{_qe('EI2', d.EI2 * 1e6, f'N{NB}mm²')}, {_qe('EA', d.EA1, 'N')}, "
-                f"{_qe('K_φ', d.K_phi * 1e3, f'N{NB}mm')}, {_qe('K_slip', d.K_slip * 1e-3, 'N/mm')}, "
+        return (f"{spec}; yarn network: {_qe('EI1', d.EI1, f'N{NB}m²')}, {_qe('EI2', d.EI2, f'N{NB}m²')}, "
+                f"{_qe('EA', d.EA1, 'N')}, {_qe('K_φ', d.K_phi, f'N{NB}m')}, {_qe('K_slip', d.K_slip, 'N/m')}, "
                 f"spacing{NB}{d.spacing_mm:g}{NB}mm")
     m = scene.material
     shear = (f"tabulated shear law ({len(m.shear_stress_steps_Pa)} rises)"
