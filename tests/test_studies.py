@@ -398,17 +398,17 @@ def test_study_on_a_scene_file_with_set(tmp_path, quick_cache, capsys):
     assert "study alpha1 --quick leaves out:" in capsys.readouterr().out  # said on the terminal too
 
 
-def test_sweep_is_a_study_with_the_cases_of_the_same_scenes(tmp_path, quick_cache, capsys):
+def test_sweep_is_a_study_with_whole_force_curves(tmp_path, quick_cache, capsys):
     from ngbet.cli import main
 
-    run_quick("alpha1", tmp_path, quick_cache)  # alpha1 = 20 and 2000 on the quick default scene
     out = tmp_path / "sw"
     assert main(["sweep", "material.alpha1=20,2000", "--quick", "--quiet", "--out", str(out),
                  "--cache", str(quick_cache)]) == 0
     d = load(out)
-    # the same scenes as the study's: found in the cache, nothing run
-    assert d.meta["executor"]["cases_run"] == 0 and d.meta["params"] == ["material.alpha1"]
+    assert d.meta["params"] == ["material.alpha1"]
     assert [c["params"]["material.alpha1"] for c in d.cases()] == [20, 2000]
+    # the scene's output grid (every 2 mm to the quick 20 mm), not the stops alone: whole force curves
+    assert [r["u0_mm"] for r in d.case_rows(0)] == [2.0 * k for k in range(1, 11)]
     assert (out / "sweep_force.png").exists() and (out / "sweep_values.png").exists()
     text = (out / "report.md").read_text()
     assert "| material.alpha1 | status |" in text and "- Discretization: Netgen mesh of 20 mm, p = 2." in text
