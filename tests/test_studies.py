@@ -382,6 +382,23 @@ def test_studies_start_from_the_default_scene_and_quick_says_what_it_leaves_out(
 
 
 # --- studies on any scene, sweeps from the command line ------------------------------------------
+def test_a_study_on_another_scene_leaves_the_default_studys_folder(quick_cache, capsys):
+    """Without --out, the study on a changed scene writes into a folder named by the scene's digest."""
+    from pathlib import Path
+
+    from ngbet.cli import main
+    from ngbet.commands import load_scene
+
+    default = Path("out/studies/alpha1-quick")
+    default.mkdir(parents=True)
+    (default / "kept.txt").write_text("the default study's")
+    assert main(["study", "alpha1", "--set", "material.alpha2=30", "--quick", "--quiet",
+                 "--cache", str(quick_cache)]) == 0, capsys.readouterr().err
+    assert [p.name for p in default.iterdir()] == ["kept.txt"]
+    digest = load_scene(None, ["material.alpha2=30"]).digest()[:8]
+    assert (Path("out/studies") / f"alpha1-scene-{digest}-quick" / "report.md").exists()
+
+
 def test_study_on_a_scene_file_with_set(tmp_path, quick_cache, capsys):
     from ngbet.cli import main
 

@@ -26,7 +26,8 @@ from .runner import default_out, run_study
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The command-line options every study takes."""
     p.add_argument("--quick", action="store_true", help="a small version of the study (seconds; what the tests run)")
-    p.add_argument("--out", help="study folder (default: out/studies/NAME, or NAME-quick)")
+    p.add_argument("--out", help="study folder (default: out/studies/NAME, or NAME-quick; on a scene file or with "
+                   "--set, NAME-scene-DIGEST, DIGEST the scene's)")
     p.add_argument("--cache", help="case cache folder (default: out/studies/cache)")
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1 = in this process)")
     p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
@@ -106,7 +107,9 @@ def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: 
     """
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     study = build_study(build, args.quick, scene, source, Path(args.cache) if args.cache else None)
-    out = Path(args.out) if args.out else default_out(study.name, args.quick)
+    # a study on another scene gets a folder of its own: the default study's folder stays as it is
+    name = study.name if scene is None else f"{study.name}-scene-{scene.digest()[:8]}"
+    out = Path(args.out) if args.out else default_out(name, args.quick)
     if args.plot_only:
         try:
             data = plot_only(study, out)
