@@ -131,6 +131,35 @@ def _cached(folder: Path, name: str, make: Any) -> dict[str, Any]:
     return doc
 
 
+def _progress(label: str) -> Any:
+    """A fit's progress on stderr (the full study's fits take minutes).
+
+    On a terminal a line that updates itself; otherwise a line at the start and at the end of each fit.
+    """
+    import sys
+    import time
+
+    stream, t0 = sys.stderr, time.perf_counter()
+    tty = hasattr(stream, "isatty") and stream.isatty()
+    if not tty:
+        print(f"ngbet: study validation: fitting {label}", file=stream, flush=True)
+
+    def show(runs: int, rms: list[float], best: float) -> None:
+        if tty:
+            stream.write(f"\rngbet: study validation: fitting {label}: model run {runs}, RMS "
+                         + ", ".join(f"{100 * r:.1f} %" for r in rms) + f", {time.perf_counter() - t0:.0f} s\x1b[K")
+            stream.flush()
+
+    return show
+
+
+def _done(label: str, doc: dict[str, Any]) -> None:
+    import sys
+
+    print(f"\rngbet: study validation: fitted {label} in {doc.get('wall_s', 0.0):.0f} s\x1b[K"
+          if sys.stderr.isatty() else f"ngbet: study validation: fitted {label}", file=sys.stderr, flush=True)
+
+
 def pair_fit(fabric: str, folder: Path) -> dict[str, Any]:
     """The table and K_el fitted to both sizes of a fabric together (cached): its K_el and se(ln K_el)."""
     from ngbet.calibration.data import read_measured
@@ -139,12 +168,15 @@ def pair_fit(fabric: str, folder: Path) -> dict[str, Any]:
 
     def make() -> dict[str, Any]:
         scene_path, a, b = _paths(fabric)
+        label = f"{fabric}, both sizes (its K_el for the other fabrics)"
         res = fit_curves([read_measured(a), read_measured(b)], Scene.from_toml(scene_path),
-                         params=[TABLE, KEL], max_runs=MAX_RUNS)
+                         params=[TABLE, KEL], max_runs=MAX_RUNS, progress=_progress(label))
         k = res.names.index(KEL)
-        return {"fabric": fabric, "K_el": float(res.values[k]), "se_log_K_el": float(res.se_log[k]),
-                "rms": [c.rms_relative for c in res.curves], "wall_s": res.wall_s, "model_runs": res.model_runs,
-                "converged": res.converged}
+        doc = {"fabric": fabric, "K_el": float(res.values[k]), "se_log_K_el": float(res.se_log[k]),
+               "rms": [c.rms_relative for c in res.curves], "wall_s": res.wall_s, "model_runs": res.model_runs,
+               "converged": res.converged}
+        _done(label, doc)
+        return doc
 
     return _cached(folder, f"pair-{_key(fabric, MAX_RUNS)}", make)
 
@@ -185,7 +217,9 @@ def fit_and_predict(fabric: str, direction: int, quick: bool, start: Scene | Non
         fitted, predicted = read_measured(fitted_path), read_measured(predicted_path)
         K_el, var, donors = elongation_for(fabric, quick, start, folder)
         scene = (start or Scene.from_toml(scene_path)).with_changes(**{KEL: K_el})
-        res = fit_curves([fitted], scene, params=[TABLE], max_runs=runs)
+        label = f"{fabric} on {fitted_path.stem}"
+        res = fit_curves([fitted], scene, params=[TABLE], max_runs=runs, progress=_progress(label))
+        _done(label, {"wall_s": res.wall_s})
         u, _ = predicted.sample(SCORE_POINTS)
         pred = predict_specimen(res, predicted.specimen, u, {KEL: var})
         return {"fabric": fabric, "direction": direction, "max_runs": runs, "K_el": K_el, "var_log_K_el": var,
@@ -424,7 +458,8 @@ def plot(data: StudyData) -> list[Path]:
         ax.fill_between(u, Fm - 2 * sd, Fm + 2 * sd, color="tab:orange", alpha=0.25, lw=0)
         ax.plot(u, Fm, "-", color="tab:orange")
         ax.plot(u, [float(p["normalisation_N"]) for p in sel["predicted"]], "--", color="tab:blue")
-        ax.set_title(f"{r['fabric'].replace('_', ' ')}: {r['pair']}\nRMS: fit {100 * r['fitted_rms']:.1f} %, "
+        pair = r["pair"].replace(" x ", " × ")
+        ax.set_title(f"{r['fabric'].replace('_', ' ')}: {pair}\nRMS: fit {100 * r['fitted_rms']:.1f} %, "
                      f"ngbet {100 * r['ngbet_rms']:.1f} %, normalisation {100 * r['normalisation_rms']:.1f} %")
         ax.set_xlabel(FG.U0_LABEL)
         ax.set_ylabel(FG.FORCE_LABEL)
@@ -439,8 +474,8 @@ def plot(data: StudyData) -> list[Path]:
                Patch(color="tab:orange", alpha=0.25, lw=0, label="ngbet ±2 sd"),
                Line2D([], [], color="tab:blue", ls="--", label="normalisation method (Cao Eq. 18)")]
     FG.legend_below(fig, handles, ncol=3 if len(fabrics) > 1 else 2)
-    FG.put_caption(fig, "Twintex fabrics of Cao et al. (2008), yarns ±45°, each on its scene "
-                   "(geometry/twintex_*.toml): tabulated shear law fitted on one specimen size, K_el held, "
+    FG.put_caption(fig, "Twintex fabrics of Cao et al. (2008), yarns ±45°, each on its ngbet scene: "
+                   "tabulated shear law fitted on one specimen size, K_el held, "
                    "α1 and α2 of the scene; the other size predicted (band: parameters, K_el and discretization); "
                    "RMS of (prediction − measured)/measured "
                    "over 10–90 % of the displacement range")
