@@ -98,3 +98,17 @@ def test_a_solver_failure_names_its_cause_and_remedy_on_the_terminal(tmp_path):
     assert line.startswith("ngbet: the solver stopped after u0 = 54.7")
     assert "no physical stable state" in line and "effects.shear_law = 'locking'" in line
     assert json.loads((out / "summary.json").read_text())["status"] == "failed"
+
+
+def test_the_report_line_says_what_a_user_reads_not_the_solvers_counts(tmp_path):
+    """No Newton or chord iteration counts (summary.json has them); a load without its error bar is named."""
+    from ngbet.cli import _report
+
+    (tmp_path / "results.csv").write_text("u0_mm,force_N,force_error_N\n37,61.2855,0.1\n56,107.3735,\n")
+    summary = {"status": "ok", "u0_reached_mm": 56.0, "load_steps": 29, "wall_s": 2.5, "newton_iterations": 2,
+               "chord_iterations": 82, "error_estimate_unreliable": {"56": "the enriched problem ..."}}
+    lines = _report(summary, tmp_path).splitlines()
+    assert lines[0] == f"ngbet: ok: u0 = 56 mm in 29 load steps, 2.50 s; results in {tmp_path}/"
+    assert lines[1].endswith("force =   61.2855 N ± 0.1 N (estimated discretization error)")
+    assert lines[2].endswith("force =  107.3735 N (no error bar: the estimate could not vouch for this force; "
+                             "summary.json says why)")
