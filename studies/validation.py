@@ -77,6 +77,9 @@ FABRICS = {
 QUICK = (("twill_unbalanced", 0),)
 TABLE, KEL = "material.shear_stress_steps_Pa", "material.K_el"
 SCORE_POINTS = 24
+#: points beyond the scored 10–90 % up to the end of the measured curve: the figure draws the
+#: prediction over the whole range, the steep end included; the RMS errors stay on the scored points
+TAIL_POINTS = 4
 MAX_RUNS, QUICK_RUNS = 40, 3
 #: the fits' folder inside the study cache (``--cache``, default out/studies/cache)
 FITS_FOLDER = "validation-fits"
@@ -108,8 +111,17 @@ def _key(fabric: str, max_runs: int, scene_toml: str = "") -> str:
             eb = p.with_name(p.stem + "_errorbars.csv")
             if eb.exists():
                 h.update(eb.read_bytes())
-    h.update(json.dumps([fabric, max_runs, SCORE_POINTS, code_version("continuum")], sort_keys=True).encode())
+    h.update(json.dumps([fabric, max_runs, SCORE_POINTS, TAIL_POINTS, code_version("continuum")],
+                        sort_keys=True).encode())
     return f"{fabric}-{h.hexdigest()[:16]}"
+
+
+def _points(curve: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, F, scored): the scored points over 10–90 % of the curve's range, then TAIL_POINTS to its end."""
+    u, _ = curve.sample(SCORE_POINTS)
+    end = curve.window((0.0, 1.0))[1]
+    u = np.r_[u, np.linspace(u[-1], end, TAIL_POINTS + 1)[1:]]
+    return u, np.interp(u, curve.u_mm, curve.force_N), np.arange(len(u)) < SCORE_POINTS
 
 
 def fits_folder(cache: Path | None = None) -> Path:
@@ -220,7 +232,7 @@ def fit_and_predict(fabric: str, direction: int, quick: bool, start: Scene | Non
         label = f"{fabric} on {fitted_path.stem}"
         res = fit_curves([fitted], scene, params=[TABLE], max_runs=runs, progress=_progress(label))
         _done(label, {"wall_s": res.wall_s})
-        u, _ = predicted.sample(SCORE_POINTS)
+        u, _, _ = _points(predicted)
         pred = predict_specimen(res, predicted.specimen, u, {KEL: var})
         return {"fabric": fabric, "direction": direction, "max_runs": runs, "K_el": K_el, "var_log_K_el": var,
                 "K_el_from": donors,
@@ -264,7 +276,7 @@ def _case(doc: dict[str, Any], which: str) -> dict[str, Any]:
     sc = Scene.from_toml_string(doc["fitted_scene"])
     _, a, b = _files(doc["fabric"], doc["direction"])
     curve = read_measured(a if which == "fitted" else b)
-    u, _ = curve.sample(SCORE_POINTS)
+    u, _, _ = _points(curve)
     m = sc.material
     return {"specimen.name": f"{doc['fabric']}:{doc['direction']}:{which}:{doc['cache_name']}", **curve.specimen,
             "material.K_el": m.K_el, "material.alpha1": m.alpha1, "material.alpha2": m.alpha2,
@@ -318,7 +330,7 @@ def extract(rec: dict, run_dir: Path, out: Path, docs: dict[str, dict[str, Any]]
     _, a, b = _files(fabric, direction)
     fitted, curve = read_measured(a), read_measured(a if which == "fitted" else b)
     pair = f"{fitted.label} → {read_measured(b).label}"
-    u, F = curve.sample(SCORE_POINTS)
+    u, F, scored = _points(curve)
     rows = read_rows(run_dir / "results.csv")
     Fr = np.array([float(r["force_N"]) for r in rows])
     ur = np.array([float(r["u0_mm"]) for r in rows])
@@ -348,8 +360,8 @@ def extract(rec: dict, run_dir: Path, out: Path, docs: dict[str, dict[str, Any]]
         sp = curve.specimen
         norm = force_from_normalised(g, fsh, u, sp["specimen.length_mm"], sp["specimen.width_mm"])
     tables["points"] = [{"fabric": fabric, "pair": pair, "size": which, "u_mm": float(x), "measured_N": float(f),
-                         "ngbet_N": float(m), "ngbet_sd_N": float(d), "normalisation_N": float(n)}
-                        for x, f, m, d, n in zip(u, F, model, sd, norm, strict=True)]
+                         "ngbet_N": float(m), "ngbet_sd_N": float(d), "normalisation_N": float(n), "scored": int(k)}
+                        for x, f, m, d, n, k in zip(u, F, model, sd, norm, scored, strict=True)]
     return tables
 
 
@@ -364,8 +376,8 @@ def summary(data: StudyData) -> list[dict[str, Any]]:
     out = []
     for fabric, pair in dict.fromkeys((str(p["fabric"]), str(p["pair"])) for p in pts):
         def col(which: str, key: str, fabric: str = fabric, pair: str = pair) -> np.ndarray:
-            return np.array([float(p[key]) for p in pts
-                             if p["fabric"] == fabric and p["pair"] == pair and p["size"] == which])
+            return np.array([float(p[key]) for p in pts if p["fabric"] == fabric and p["pair"] == pair
+                             and p["size"] == which and float(p.get("scored", 1)) > 0])
 
         meas, pred = col("predicted", "measured_N"), col("predicted", "ngbet_N")
         norm = col("predicted", "normalisation_N")
