@@ -233,7 +233,11 @@ def _header(card: ShearCard, c: str) -> list[str]:
                      "(nominal stress per nominal strain)")
     lines.append("left out of this card:")
     lines += [f"  - {w}" for w in card.left_out]
-    return [f"{c} {ln}".rstrip() for ln in lines]
+    # at most 80 characters a line (LS-DYNA's keyword format), continuation lines indented
+    import textwrap
+
+    return [f"{c} {part}".rstrip() for ln in lines
+            for part in textwrap.wrap(ln, 78 - len(c), subsequent_indent="    ", break_on_hyphens=False) or [""]]
 
 
 def to_csv(card: ShearCard) -> str:
@@ -248,8 +252,9 @@ def to_abaqus(card: ShearCard) -> str:
     """An Abaqus/Explicit ``*FABRIC`` block: shear loading data (stress, strain) and the yarns' tension."""
     name = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in card.name) or "fabric"
     lines = _header(card, "**") + [
-        "** usage: *INCLUDE, INPUT=shear_law.inp after the fabric's *MATERIAL line (with its *DENSITY);",
-        "** the yarn directions come from the section's *ORIENTATION (fill and warp)",
+        "** usage: *INCLUDE, INPUT=shear_law.inp after the fabric's *MATERIAL line",
+        "** (with its *DENSITY); the yarn directions (fill and warp) come from the",
+        "** section's *ORIENTATION",
         "*FABRIC",
     ]
     if card.K_el_Pa is not None:
@@ -265,8 +270,8 @@ def to_abaqus(card: ShearCard) -> str:
 def to_lsdyna(card: ShearCard, lcid: int = 1) -> str:
     """An LS-DYNA ``*DEFINE_CURVE_TITLE``: shear stress [MPa] against the shear angle [rad], curve ``lcid``."""
     lines = ["*KEYWORD", *_header(card, "$"),
-             "$ usage: *INCLUDE this file; give the curve id to the shear curve of the fabric material",
-             "$ (SFA = 57.29578 makes the abscissa degrees where the material reads its angle in degrees)",
+             "$ usage: *INCLUDE this file; give the curve id to the fabric material's",
+             "$ shear curve (SFA = 57.29578 if the material reads its angle in degrees)",
              "*DEFINE_CURVE_TITLE", f"ngbet shear stress {card.name}"[:80],
              "$     LCID      SIDR       SFA       SFO      OFFA      OFFO    DATTYP",
              f"{lcid:10d}{0:10d}{1.0:10.1f}{1.0:10.1f}{0.0:10.1f}{0.0:10.1f}{0:10d}",
