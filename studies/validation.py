@@ -35,6 +35,7 @@ import json
 import logging
 import os
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -144,30 +145,21 @@ def _cached(folder: Path, name: str, make: Any) -> dict[str, Any]:
 
 
 def _progress(label: str) -> Any:
-    """A fit's progress on stderr (the full study's fits take minutes).
-
-    On a terminal a line that updates itself; otherwise a line at the start and at the end of each fit.
-    """
-    import sys
-    import time
-
-    stream, t0 = sys.stderr, time.perf_counter()
-    tty = hasattr(stream, "isatty") and stream.isatty()
+    """A fit's progress on stderr: a line updating itself on a terminal, else a line at its start (and end)."""
+    t0, tty = time.perf_counter(), sys.stderr.isatty()
     if not tty:
-        print(f"ngbet: study validation: fitting {label}", file=stream, flush=True)
+        print(f"ngbet: study validation: fitting {label}", file=sys.stderr, flush=True)
 
     def show(runs: int, rms: list[float], best: float) -> None:
         if tty:
-            stream.write(f"\rngbet: study validation: fitting {label}: model run {runs}, RMS "
-                         + ", ".join(f"{100 * r:.1f} %" for r in rms) + f", {time.perf_counter() - t0:.0f} s\x1b[K")
-            stream.flush()
+            sys.stderr.write(f"\rngbet: study validation: fitting {label}: model run {runs}, RMS "
+                             + ", ".join(f"{100 * r:.1f} %" for r in rms) + f", {time.perf_counter() - t0:.0f} s\x1b[K")
+            sys.stderr.flush()
 
     return show
 
 
 def _done(label: str, doc: dict[str, Any]) -> None:
-    import sys
-
     print(f"\rngbet: study validation: fitted {label} in {doc.get('wall_s', 0.0):.0f} s\x1b[K"
           if sys.stderr.isatty() else f"ngbet: study validation: fitted {label}", file=sys.stderr, flush=True)
 
