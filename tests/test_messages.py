@@ -125,3 +125,17 @@ def test_a_warning_that_asks_nothing_of_the_user_stays_in_summary_json(tmp_path,
     s = json.loads((tmp_path / "r" / "summary.json").read_text())
     assert s["multiplier_oscillation"] > 0.5 and any("multiplier oscillates" in w for w in s["warnings"])
     assert "oscillates" not in capsys.readouterr().err
+
+
+def test_ngsolves_own_console_messages_are_off():
+    """Some thousand forms in one process (a study's worker) made NGSolve print "no more timer available
+    (biform_from_py), reusing last one"; with ngbet's continuum imported nothing is printed."""
+    code = ("import ngbet.continuum, ngsolve as ngs\n"
+            "from netgen.geom2d import unit_square\n"
+            "V = ngs.H1(ngs.Mesh(unit_square.GenerateMesh(maxh=0.5)))\n"
+            "u, v = V.TnT()\n"
+            "for i in range(9000):\n"
+            "    a = ngs.BilinearForm(V)\n"
+            "    a += u * v * ngs.dx\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert done.stdout == "" and "timer" not in done.stderr, (done.stdout[-300:], done.stderr[-300:])
