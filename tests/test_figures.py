@@ -349,3 +349,21 @@ def test_the_yarn_pictures_of_one_run_share_one_colour_scale():
     assert tops == [100.0, 100.0]
     alone = F.yarn_network_figure(x, beams, family, g1, ends, 37.0)
     assert alone.axes[-1].get_ylim()[1] == 40.0  # without the run's other states: its own round scale
+
+
+@pytest.mark.parametrize("shape", ["softening", "stiffening"])
+def test_the_shear_force_legend_covers_no_point_of_the_curve(shape):
+    """The F_sh curve of the default scene softens (its upper left is empty), a fabric's stiffens
+    (its lower right is empty): the legend goes where it hides no computed point."""
+    from ngbet.scene import default_scene
+
+    g = np.linspace(1.0, 60.0, 30)
+    fsh = 0.5 * np.sin(np.radians(1.5 * g)) if shape == "softening" else 0.3 * (g / 60.0) ** 3
+    data = [{"u0_mm": 2.0 * k, "gamma_kinematic_deg": a, "fsh_N_per_mm": f, "gamma_A_deg": a}
+            for k, (a, f) in enumerate(zip(g, fsh, strict=True), 1)]
+    fig = F.shear_force_figure(data, default_scene())
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    box = ax.get_legend().get_window_extent()
+    pts = ax.transData.transform(np.column_stack([g, fsh]))
+    assert not any(box.contains(x, y) for x, y in pts)
