@@ -22,6 +22,7 @@ where the format has no tension data (only the Abaqus card has).
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from collections.abc import Callable
@@ -33,6 +34,8 @@ import numpy as np
 
 from .run_folder import RUN_MARKER, TMP_PREFIX, _acquire_run_folder, _clear_previous_run, _io, json_text
 from .scene import Scene, SceneError
+
+log = logging.getLogger(__name__)
 
 #: the formats ``ngbet export`` writes and each one's file
 FORMATS = {"csv": "shear_law.csv", "abaqus": "shear_law.inp", "lsdyna": "shear_law.k"}
@@ -280,6 +283,12 @@ def to_lsdyna(card: ShearCard, lcid: int = 1) -> str:
     return "\n".join(lines) + "\n*END\n"
 
 
+def softening_angle_deg(card: ShearCard) -> float | None:
+    """The angle [°] of the card's largest shear stress when the stress falls after it, else None."""
+    k = int(np.argmax(card.stress_Pa))
+    return None if k == len(card.stress_Pa) - 1 else math.degrees(float(card.gamma_rad[k]))
+
+
 WRITERS: dict[str, Callable[[ShearCard], str]] = {"csv": to_csv, "abaqus": to_abaqus, "lsdyna": to_lsdyna}
 
 
@@ -379,7 +388,13 @@ def export(source: str | Path, fmt: str, out: str | Path, max_angle_deg: float |
             else:
                 put("shear_law.png", lambda p: shear_law_figure(card, shear_stress(scene), scene, p))
                 figure = "shear_law.png"
+        falls = softening_angle_deg(card)
+        if falls is not None:
+            log.warning("the exported shear stress falls beyond γ = %.3g° (the law's stiffening there does not make "
+                        "up for cos γ); a forming code may not take a softening shear curve: --max-angle-deg %.3g "
+                        "ends the card before it", falls, math.floor(falls))
         summary = {"status": "ok", "source": str(path), "format": fmt, "card": card_name, "points": len(g_back),
+                   "stress_falls_beyond_deg": falls,
                    "shear_angle_max_deg": math.degrees(float(g_back[-1])), "tolerance": tolerance,
                    "deviation": card.deviation, "thickness_mm": card.thickness_mm, "law": card.law,
                    "bending_t_alpha_Nmm": card.bending, "left_out": card.left_out,

@@ -161,3 +161,13 @@ def test_command_from_a_fit_folder_and_folder_ownership(tmp_path, monkeypatch, c
     assert main(["export", "nowhere", "--out", "x"]) == 2
     assert main(["export", "fit", "--max-angle-deg", "95", "--out", "x"]) == 2
     assert "must lie between 0 and 90" in capsys.readouterr().err
+
+
+def test_a_shear_stress_that_falls_is_said_with_the_angle_to_stop_at(tmp_path, caplog):
+    """The paper's quadratic law: σ_s = K_sh sin γ cos γ peaks at 45° and falls after it (exact)."""
+    src = tmp_path / "s.toml"
+    src.write_text(default_scene().to_toml())
+    s = export(src, "csv", tmp_path / "a", max_angle_deg=60.0, plot=False)
+    assert s["stress_falls_beyond_deg"] == pytest.approx(45.0, abs=0.5)
+    assert "falls beyond γ = 45" in caplog.text and "--max-angle-deg 4" in caplog.text
+    assert export(src, "csv", tmp_path / "b", max_angle_deg=44.0, plot=False)["stress_falls_beyond_deg"] is None

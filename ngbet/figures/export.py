@@ -38,7 +38,8 @@ def shear_law_figure(card: Any, sigma: Callable[[np.ndarray], np.ndarray], scene
         right.set_ylabel(f"shear torque per area C_s = t σ_s [N{NB}mm/mm²]")
         ax.legend(loc="upper left")
         put_caption(fig, f"{caption(scene)}. The card reproduces the model's shear stress within "
-                         f"{card.tolerance:.2g} of the local stress (measured {card.deviation:.2g}); it leaves "
-                         "out the yarns' in-plane bending (second gradient) and the jamming barrier.")
+                         f"{card.tolerance:.2g} of the local stress (of 1 % of the largest where it is smaller; "
+                         f"measured {card.deviation:.2g}); it leaves out the yarns' in-plane bending (second "
+                         "gradient) and the jamming barrier.")
         fig.savefig(path, format="png", dpi=PNG_DPI)
     return path
