@@ -205,7 +205,7 @@ def profile_figure(profiles: dict[float, tuple[list[float], list[float]]], stati
     grey = True
     for u0, (X, uy) in sorted(profiles.items()):
         if not any(abs(u0 - s) < 1e-6 for s in stations):
-            ax.plot(X, uy, "-", color="0.8", lw=0.8, label="other rows" if grey else None)
+            ax.plot(X, uy, "-", color="0.8", lw=0.8, label="the other output loads" if grey else None)
             grey = False
     for k, s in enumerate(stations):
         hit = [u for u in profiles if abs(u - s) < 1e-6]
