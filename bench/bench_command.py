@@ -13,6 +13,7 @@ gives medians and, for a machine that other jobs load, the shortest wall time of
     python bench/bench_command.py                          # all variants, 3 repeats
     python bench/bench_command.py --variants default,no-estimate --repeats 5
     python bench/bench_command.py --list
+    python bench/bench_command.py --variants default,no-bending,accuracy-1e-3,network-17k --repeats 3
     git archive REV | tar -x -C /tmp/before                 # an older tree, for before/after in one sitting
     python bench/bench_command.py --variants default,bare --before /tmp/before
 
@@ -47,8 +48,16 @@ VARIANTS: dict[str, tuple[list[str], str]] = {
              "… and without the plot: start-up, imports, mesh, setup, solve, CSV/JSON"),
     "interpret": (["solver.compile=interpret"], "default with the interpreted energy"),
     "native": (["solver.compile=native"], "default with the native energy (cached objects)"),
+    "no-bending": (["effects.bending=false"], "the first-gradient model (fewer effects: should cost less)"),
+    "accuracy-1e-2": (["discretization.target_error=1e-2"], "ngbet run --accuracy 1e-2 (the accuracy ladder)"),
+    "accuracy-1e-3": (["discretization.target_error=1e-3"], "ngbet run --accuracy 1e-3 (target: 2x default)"),
+    "accuracy-1e-4": (["discretization.target_error=1e-4"], "ngbet run --accuracy 1e-4 (target: 15x default)"),
+    "network-17k": (["model=discrete", "discrete.spacing_mm=2.4"],
+                    "the yarn network of 16 890 unknowns to 56 mm, with its figures (target: 4 s)"),
 }
-DEFAULT_VARIANTS = list(VARIANTS)
+#: the variants run when none are named (the others are the targets' variants, named explicitly)
+DEFAULT_VARIANTS = ["default", "plot-process", "plot-here", "no-estimate", "no-estimate-vtk", "bare", "interpret",
+                    "native"]
 PLOT_PROCESS = {"plot-process": "always", "plot-here": "never"}
 
 
@@ -122,6 +131,17 @@ def _median(recs: list[dict], key: str) -> float:
     return statistics.median(vals) if vals else float("nan")
 
 
+def _ratios_to_default(records: list[dict], names: list[str]) -> None:
+    """Print each variant's median wall and CPU time over the default command's of the same sitting."""
+    if "default" not in names:
+        return
+    base = [r for r in records if r["variant"] == "default"]
+    for name in [n for n in names if n != "default" and not n.startswith("before:")]:
+        a = [r for r in records if r["variant"] == name]
+        print(f"{name} / default: wall {_median(a, 'wall_s') / _median(base, 'wall_s'):.2f}, "
+              f"CPU {_median(a, 'cpu_s') / _median(base, 'cpu_s'):.2f} (exit codes {sorted({r['rc'] for r in a})})")
+
+
 def main() -> None:
     """Run the variants interleaved, print medians, write the records."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -177,6 +197,7 @@ def main() -> None:
             a, b = ([r for r in records if r["variant"] == v] for v in (name, ref))
             print(f"{name} / {ref}: wall {_median(a, 'wall_s') / _median(b, 'wall_s'):.2f}, "
                   f"CPU {_median(a, 'cpu_s') / _median(b, 'cpu_s'):.2f}")
+    _ratios_to_default(records, names)
     imp = [r for r in records if r["variant"] == "imports"]
     print("imports (median wall of a fresh process):",
           {k: round(statistics.median(r[k] for r in imp), 3) for k in imp[0] if k != "variant"})

@@ -229,8 +229,14 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
                     help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
     pr.add_argument("--accuracy", type=float, metavar="REL",
                     help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
-    pr.add_argument("--data", metavar="CSV", help="a measured curve (header displacement_mm,force_N; '#' comment "
-                    "lines allowed) drawn on the force and normalised shear force figures")
+    pr.add_argument("--data", metavar="CSV", help="a measured curve (header displacement_mm,force_N or with other "
+                    "units, e.g. 'Displacement (mm);Force (kN)'; '#' comment lines allowed) drawn on the force and "
+                    "normalised shear force figures; for a picture-frame scene the shear angle and F_s [N] or "
+                    "F_norm [N/mm], e.g. shear_angle_deg,shear_force_N)")
+    pr.add_argument("--specimen", metavar="WxL", help="with --data: the measured specimen, width x clamp-to-clamp "
+                    "length in mm (e.g. 100x250), where the file's header does not give it")
+    pr.add_argument("--columns", metavar="X,Y", help="with --data: the displacement and force columns by header "
+                    "name or number, each with an optional unit (e.g. 'Weg:mm,Kraft:kN')")
     pr.add_argument("--quiet", action="store_true", help="print no progress and no results; warnings and errors "
                     "still go to stderr")
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
@@ -271,6 +277,9 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     pe.add_argument("--tolerance", type=float, default=1e-3, metavar="REL",
                     help="largest deviation of the card's linear interpolation from the model's shear stress, "
                     "relative to the local stress (default: 1e-3)")
+    from . import normalise
+
+    normalise.add_parser(sub)
     return parser
 
 
@@ -287,6 +296,10 @@ def _main(argv: list[str] | None) -> int:
         return fit_command.run_from_args(args)
     if args.command == "export":
         return _export(args)
+    if args.command == "normalise":
+        from . import normalise
+
+        return normalise.run_from_args(args)
 
     try:
         scene = load_scene(args.scene, args.overrides)
@@ -296,19 +309,49 @@ def _main(argv: list[str] | None) -> int:
         _say(f"bad scene: {exc}")
         return EXIT_INPUT
     measured = None
-    if getattr(args, "data", None):
-        from .figures import read_measured
-
-        try:
-            measured = read_measured(args.data)
-        except ValueError as exc:
-            _say(f"bad data: {exc}")
-            return EXIT_INPUT
+    try:
+        measured = _measured(args, scene)
+    except SceneError as exc:
+        _say(f"bad data: {exc}")
+        return EXIT_INPUT
     if args.command == "scene":
         from .scene_doc import commented_toml
 
         return _print(commented_toml(scene), "the scene")
     return _run(scene, Path(args.out), quiet=args.quiet, measured=measured)
+
+
+def _measured(args: argparse.Namespace, scene: Scene) -> Any:
+    """The ``--data`` curve of ``ngbet run`` (read by the one reader of measured curves), its notes said; or None."""
+    if not getattr(args, "data", None):
+        for flag in ("specimen", "columns"):
+            if getattr(args, flag, None):
+                raise SceneError(f"--{flag} goes with --data (the measured curve it describes)")
+        return None
+    if not scene.outputs.plot:
+        raise SceneError(f"--data {args.data} is drawn on the run's figures, and outputs.plot = false draws none: "
+                         "drop --data or set outputs.plot = true")
+    if scene.test == "picture_frame":
+        if args.specimen:
+            raise SceneError("--specimen describes a bias extension specimen; a picture-frame curve's frame is "
+                             "the scene's [picture_frame] section")
+        from .figures.frame import read_frame_measured
+
+        frame = read_frame_measured(args.data, columns=args.columns)
+        if not args.quiet:
+            for note in frame.notes:
+                _say(f"data {args.data}: {note}")
+        return frame
+    from .calibration.data import parse_sizes
+    from .figures import Measured
+
+    spec = (parse_sizes(args.specimen, "--specimen", ("specimen.width_mm", "specimen.length_mm",
+                                                      "specimen.thickness_mm")) if args.specimen else None)
+    measured = Measured.read(args.data, specimen=spec, columns=args.columns)
+    if not args.quiet:
+        for note in measured.notes:
+            _say(f"data {args.data}: {note}")
+    return measured
 
 
 def _run(scene: Scene, out: Path, quiet: bool = False, measured: Any = None) -> int:

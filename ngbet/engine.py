@@ -37,6 +37,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Generator, Iterator, Sequence
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
@@ -153,6 +154,25 @@ class PathResult:
 STOP_REQUESTED = threading.Event()
 
 
+#: the time (``time.perf_counter()``) after which a path stops at its next trial (inf: none); set by :func:`time_budget`
+_DEADLINE: ContextVar[float] = ContextVar("path_deadline", default=math.inf)
+
+
+@contextlib.contextmanager
+def time_budget(seconds: float) -> Iterator[None]:
+    """Inside: a path that is still going ``seconds`` from now stops at its next trial with a ConvergenceError.
+
+    Every converged step has been yielded by then, as for a step cut below the minimum: a bound
+    on the time of a setting that cannot carry the load (each trial is bounded by Newton's
+    iteration limit), for a caller with other settings to try.
+    """
+    token = _DEADLINE.set(min(_DEADLINE.get(), time.perf_counter() + seconds))
+    try:
+        yield
+    finally:
+        _DEADLINE.reset(token)
+
+
 def check_stop() -> None:
     """Raise KeyboardInterrupt if a signal asked the run to stop (:data:`STOP_REQUESTED`)."""
     if STOP_REQUESTED.is_set():
@@ -179,6 +199,10 @@ def path_steps(corrector: Corrector, ctl: PathControl, out: PathResult | None = 
     while out.u0 < ctl.target - eps:
         check_stop()
         lam = out.u0
+        if time.perf_counter() > _DEADLINE.get():
+            text, detail = corrector.diagnose(out.attempts)
+            raise ConvergenceError(f"time budget spent on the way from {lam * 1e3:.6g} mm to {ctl.target * 1e3:.6g} mm",
+                                   lam * 1e3, out.attempts, text, detail)
         nxt, h = _trial_load(lam, step, marks, eps, ctl.land_within)
         t0 = time.perf_counter()
         corrector.predict(lam, h)

@@ -189,3 +189,79 @@ class BetColumns:
         self.F.append(force_N)
         out["fsh_N_per_mm"] = float(normalised_shear_force(self.d, self.F, self.H, self.W)[1][-1])
         return out
+
+
+# --------------------------------------------------------------------------- picture frame
+# A rigid square frame of side L_frame, hinged at its four pins, is pulled along a diagonal: the
+# crosshead travel d opens the pin-to-pin diagonal from √2 L to √2 L + d = 2 L cos θ (Cao et al.
+# 2008, Eq. 1), θ the frame angle between a bar and the loading axis, γ = 90° − 2θ (Eq. 2). With
+# the fixed pin at the origin and the loading axis e1, every point of the frame moves by the affine
+# map X -> F X with F = diag(√2 cos θ, √2 sin θ): the square turned into the rhombus.
+
+
+def frame_angle_rad(d_mm: ArrayLike, frame_mm: float) -> np.ndarray:
+    """The frame angle θ [rad] at crosshead travel d [mm] (Eq. 1): cos θ = (√2 L + d) / (2 L).
+
+    Travels outside [0, (2 − √2) L] (the frame turned the other way, or past flat) are refused.
+    """
+    d = np.asarray(d_mm, dtype=float)
+    c = (math.sqrt(2.0) * frame_mm + d) / (2.0 * frame_mm)
+    if np.any(c > 1.0) or np.any(d < 0):
+        raise ValueError(f"crosshead travels must lie in [0, {(2.0 - math.sqrt(2.0)) * frame_mm:.4g}] mm (a frame "
+                         f"of side {frame_mm:g} mm closes flat at the upper end); got up to {np.max(d):g} mm")
+    return np.arccos(c)
+
+
+def frame_shear_angle_rad(d_mm: ArrayLike, frame_mm: float) -> np.ndarray:
+    """The frame's shear angle γ = π/2 − 2θ [rad] (Eqs. 1–2)."""
+    return np.pi / 2 - 2.0 * frame_angle_rad(d_mm, frame_mm)
+
+
+def frame_stretches(d_m: float, frame_m: float) -> tuple[float, float, float, float]:
+    """F = diag(A, B) of the frame at travel d [m] and dA/dd, dB/dd [1/m]: (A, B, A', B').
+
+    A = √2 cos θ = 1 + d/(√2 L), B = √2 sin θ = √(2 − A²) (any consistent unit of d and L).
+    """
+    A = 1.0 + d_m / (math.sqrt(2.0) * frame_m)
+    B = math.sqrt(max(2.0 - A * A, 0.0))
+    dA = 1.0 / (math.sqrt(2.0) * frame_m)
+    dB = -A * dA / B if B > 0 else -math.inf
+    return A, B, dA, dB
+
+
+def shear_force(force_N: ArrayLike, d_mm: ArrayLike, frame_mm: float) -> np.ndarray:
+    """The total shear force F_s = F / (2 cos θ) [N] (Eq. 3) of crosshead force F at travel d."""
+    return np.asarray(force_N, dtype=float) / (2.0 * np.cos(frame_angle_rad(d_mm, frame_mm)))
+
+
+def frame_normalised_force(shear_force_N: ArrayLike, frame_mm: float, fabric_mm: float) -> np.ndarray:
+    """F_norm = F_s L_frame / L_fabric² [N/mm] (Eq. 10): the shear force of a unit area of fabric.
+
+    The power balance of a homogeneously sheared inner square: F_s L_frame dγ is the work of the
+    bars, L_fabric² the area that shears.
+    """
+    return np.asarray(shear_force_N, dtype=float) * frame_mm / fabric_mm ** 2
+
+
+class PictureFrameColumns:
+    """The picture-frame columns of a run's results.csv, row by row.
+
+    ``shear_angle_deg``: the frame's shear angle γ (Eqs. 1–2); ``shear_force_N``: F_s = F/(2 cos θ)
+    (Eq. 3); ``fnorm_N_per_mm``: F_norm = F_s L_frame / L_fabric² (Eq. 10). The two forces are
+    empty ("") on rows without a force.
+    """
+
+    def __init__(self, frame_mm: float, fabric_mm: float) -> None:
+        self.frame, self.fabric = frame_mm, fabric_mm
+
+    def row(self, u0_mm: float, force_N: float | None) -> dict[str, float | str]:
+        """The three columns of the row at crosshead travel ``u0_mm`` with force ``force_N`` [N]."""
+        out: dict[str, float | str] = {
+            "shear_angle_deg": math.degrees(float(frame_shear_angle_rad(max(u0_mm, 0.0), self.frame))),
+            "shear_force_N": "", "fnorm_N_per_mm": ""}
+        if force_N is None or not math.isfinite(force_N):
+            return out
+        fs = float(shear_force(force_N, max(u0_mm, 0.0), self.frame))
+        out["shear_force_N"] = fs
+        out["fnorm_N_per_mm"] = float(frame_normalised_force(fs, self.frame, self.fabric))
+        return out

@@ -34,6 +34,8 @@ def locking_warning(scene: Scene) -> str | None:
     Inextensible yarns would lock there; the model's yarns stretch, so it runs, with the yarns
     carrying the load by elongation.
     """
+    if scene.test == "picture_frame":  # the frame closes before its yarns lock: the scene refuses that travel
+        return None
     lock = scene.specimen.locking_u0_mm
     if scene.loading.u0_mm < lock:
         return None
@@ -62,10 +64,14 @@ def estimate_size(scene: Scene) -> tuple[int, float]:
     if scene.model == "discrete":
         return estimate_discrete_size(scene)
     sp, d = scene.specimen, scene.discretization
-    ntri = sp.length_mm * sp.width_mm / _TRIANGLE_AREA / d.mesh_size_mm / d.mesh_size_mm  # inf, never 1/0
+    area, corners = sp.length_mm * sp.width_mm, 4
+    if scene.test == "picture_frame":  # the cross, graded at its 12 corners (4 without cuts)
+        pf = scene.picture_frame
+        area, corners = pf.frame_mm ** 2 - 4 * pf.arm_mm ** 2, 12 if pf.arm_mm > 0 else 4
+    ntri = area / _TRIANGLE_AREA / d.mesh_size_mm / d.mesh_size_mm  # inf, never 1/0
     if d.corner_mesh_size_mm > 0:
-        ntri += 4 * 12 * math.log2(d.mesh_size_mm / d.corner_mesh_size_mm)  # measured 9-12 per halving
-    ntri += 4 * 17 * d.corner_bisections  # measured 12-17 per bisection and corner (1 mm corners)
+        ntri += corners * 12 * math.log2(d.mesh_size_mm / d.corner_mesh_size_mm)  # measured 9-12 per halving
+    ntri += corners * 17 * d.corner_bisections  # measured 12-17 per bisection and corner (1 mm corners)
     per_tri: float = d.p_u ** 2
     if scene.effects.bending:
         per_tri += d.p_phi ** 2 / 2 + (d.p_lam + 1) * (d.p_lam + 2) / 2

@@ -19,8 +19,9 @@ import tomli_w
 from . import scene as S
 
 HEADER = """\
-# ngbet scene: a bias extension test (BET) of a woven fabric. Every key is optional; a missing key
-# takes the default value (that of `ngbet run` without a scene file). Run it with `ngbet run this.toml`,
+# ngbet scene: a bias extension test (BET) or a picture-frame test of a woven fabric. Every key is
+# optional; a missing key takes the default value (that of `ngbet run` without a scene file). Run it
+# with `ngbet run this.toml`,
 # or change single values with `ngbet run --set section.key=value`. The model and its conventions: docs/model.md.
 #
 # Units: lengths in mm (keys ending in _mm), angles in degrees (_deg), stiffnesses in SI units as
@@ -48,7 +49,7 @@ _EXTRA = {
     "specimen.name": "a label, recorded with the results",
     "discretization.mesh_size_mm": "element size of the Netgen mesh [mm]",
     "discretization.order_u": "polynomial order p of the displacement",
-    "loading.u0_mm": "final clamp displacement [mm]",
+    "loading.u0_mm": "final clamp displacement [mm] (the picture frame: the crosshead travel)",
     "loading.max_step_mm": "largest load step [mm]",
     "loading.min_step_mm": "smallest load step [mm]: below it the run stops with an error",
     "solver.rtol": "Newton stops when the Newton decrement is below rtol times the total energy",
@@ -59,6 +60,10 @@ _EXTRA = {
 
 _MODEL_DOC = ('"continuum": the constrained micromorphic continuum (finite elements); '
               '"discrete": the yarn network (beams and springs)')
+
+_TEST_DOC = ('"bias_extension": a rectangular specimen clamped at its two ends ([specimen], loading.u0_mm the clamp '
+             'displacement); "picture_frame": a cross clamped in a hinged square frame pulled along its diagonal '
+             '([picture_frame], loading.u0_mm the crosshead travel; continuum model only)')
 
 _KEY = re.compile(r"^\s{4}(\w+)\s*:\s*[^=]+=\s*(?P<default>.*)$")
 
@@ -96,7 +101,8 @@ def commented_toml(scene: S.Scene) -> str:
     """The complete scene as TOML with comments; reading it back gives the same scene."""
     d = scene.to_dict()
     parts = [HEADER, "\n", _comment(f"{_MODEL_DOC}; one of {', '.join(map(repr, S.MODELS))}"),
-             _value("model", d["model"]), "\n"]
+             _value("model", d["model"]), "\n",
+             _comment(f"{_TEST_DOC}; one of {', '.join(map(repr, S.TESTS))}"), _value("test", d["test"]), "\n"]
     for name, cls in S._SECTIONS.items():
         doc = (inspect.getdoc(cls) or "").split("\n\n")[0].replace("\n", " ")
         parts += ["\n", _comment(doc), f"[{name}]\n"]

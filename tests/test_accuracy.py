@@ -402,7 +402,7 @@ def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
     calls = []
 
     def run_one(sc, out):
-        calls.append(sc.discretization.order_u)
+        calls.append((sc.discretization.mesh_size_mm, sc.discretization.order_u))
         if len(calls) == 1:
             raise ConvergenceError("load step cut below the minimum", last_converged_mm=48.0)
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
@@ -410,8 +410,56 @@ def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
     s = estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
                                  tmp_path, run_one)
     a = s["accuracy"]
-    assert calls == [8, 10] and a["met"] and "failed" in a["attempts"][0]
-    assert a["chosen"]["order_u"] == 10 and a["attempts"][0]["discretization"]["order_u"] == 8
+    # p = 10 on the mesh where p = 8 failed is skipped (it fails alike), not run
+    assert calls == [(20.0, 8), (10.0, 8)] and a["met"] and "failed" in a["attempts"][0]
+    assert a["attempts"][1]["failed"].startswith("skipped") and a["attempts"][1]["wall_s"] == 0.0
+    assert a["chosen"]["mesh_size_mm"] == 10.0 and a["attempts"][0]["discretization"]["order_u"] == 8
+
+
+def test_accuracy_ladder_leaves_a_setting_whose_time_budget_is_spent(tmp_path, monkeypatch):
+    """A setting after the first whose path is still going after its budget (RUNG_BUDGET_FACTOR times
+    the wall time of the setting before, at least RUNG_BUDGET_MIN_S) stops at its next trial with
+    a ConvergenceError, and the ladder goes on: a path that would cut its step for ever is left."""
+    from ngbet.continuum import estimate
+    from ngbet.engine import Outcome, PathControl, path_steps, run_to_end
+
+    class Stuck:  # a corrector that never converges and never cuts below the minimum step
+        def predict(self, lam, h):
+            pass
+
+        def correct(self, lam, h):
+            import time
+
+            time.sleep(0.01)
+            return Outcome("retry", 1, [1.0], "stuck", retry_step=h)
+
+        def reject(self, lam, outcome):
+            pass
+
+        def diagnose(self, attempts):
+            return "", None
+
+    monkeypatch.setattr(estimate, "RUNG_BUDGET_MIN_S", 0.1)
+    monkeypatch.setattr(estimate, "RUNG_BUDGET_FACTOR", 2.0)
+    calls = []
+
+    def run_one(sc, out):
+        calls.append((sc.discretization.mesh_size_mm, sc.discretization.order_u))
+        if len(calls) == 1:  # a first setting of 0.05 s that does not meet the target
+            import time
+
+            time.sleep(0.05)
+            return {"force_N": 107.0, "force_error_rel": 3e-4, "solve_s": 0.05, "estimate_s": 0.0}
+        if len(calls) == 2:
+            run_to_end(path_steps(Stuck(), PathControl(target=0.056, first_step=0.002, max_step=0.002,
+                                                       min_step=1e-6, max_attempts=None)))
+        return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
+
+    s = estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
+                                 tmp_path, run_one)
+    a = s["accuracy"]["attempts"]
+    assert a[1]["failed"].startswith("time budget spent on the way from 0 mm to 56 mm")
+    assert 0.1 <= a[1]["wall_s"] < 1.0 and calls[2] == (10.0, 8) and s["accuracy"]["met"]
 
 
 def test_an_unreachable_target_is_refused_before_solving(tmp_path, capsys):
@@ -453,7 +501,7 @@ def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path)
     assert not a["met"] and a["chosen"]["order_u"] == 3
 
     def failing_first(sc, out):
-        if sc.discretization.order_u == 8:
+        if sc.discretization.order_u == 8 and sc.discretization.mesh_size_mm == 20.0:
             import time
 
             time.sleep(0.05)

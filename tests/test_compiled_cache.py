@@ -208,3 +208,41 @@ def test_native_code_from_a_tampered_cache_is_rebuilt(tmp_path):
         mode, native, interpreted, err = _native_energy(k, env)
         assert mode == "native" and native == pytest.approx(interpreted, rel=1e-14)
         assert f"ngbet: native-code cache: {objects / key}.o does not match its checksum; removed" in err
+
+
+def test_a_copied_cache_is_used_where_it_is_copied_to(tmp_path, cache, monkeypatch):
+    """The key is what determines the code (source, NGSolve, compiler), not the cache's path nor the
+    installation's: a cache copied elsewhere, read through wrappers of another installation of the
+    same compiler, hands out its object without compiling."""
+    bins, objects, tools = cache
+    src = _source(tmp_path, "a", 1.0)
+    assert _compile(bins, src, tmp_path / "1.o").returncode == 0
+    import shutil
+
+    shutil.copytree(tmp_path / "cache", tmp_path / "copied")
+    shutil.rmtree(tmp_path / "cache")
+    other = tmp_path / "other-installation"
+    shutil.copytree(tools, other)
+    monkeypatch.setenv("NGBET_CACHE_DIR", str(tmp_path / "copied"))
+    bins2 = compiled._wrappers(str(other / "ngscxx"), str(other / "c++"))
+    assert bins2 != bins
+    p = _compile(bins2, src, tmp_path / "2.o", cached_only=True)
+    assert p.returncode == 0 and p.stderr == ""
+    assert (tmp_path / "2.o").read_bytes() == (tmp_path / "1.o").read_bytes()
+    assert _count(tools, "compiles") == 1 and _count(other, "compiles") == 1  # the copy of the count: none new
+
+
+def test_another_compiler_or_ngsolve_is_another_key(tmp_path, cache, monkeypatch):
+    """Code built by one compiler, or for one NGSolve version, is not handed to another."""
+    _, _, tools = cache
+    real, cxx = str(tools / "ngscxx"), str(tools / "c++")
+    key = compiled.code_key(real, cxx)
+    assert compiled.code_key(real, cxx) == key
+    newer = tmp_path / "c++-newer"
+    newer.write_text((tools / "c++").read_text() + "# another release\n")
+    assert compiled.code_key(real, str(newer)) != key
+    flags = tmp_path / "ngscxx-flags"
+    flags.write_text((tools / "ngscxx").read_text().replace("#!/bin/sh", "#!/bin/sh\n# -O2"))
+    assert compiled.code_key(str(flags), cxx) != key
+    monkeypatch.setattr(compiled.ngs, "__version__", "0.0.0")
+    assert compiled.code_key(real, cxx) != key

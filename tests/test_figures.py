@@ -89,11 +89,11 @@ def test_measured_curve_on_the_force_and_shear_force_figures(tmp_path):
     csv = tmp_path / "m.csv"
     csv.write_text("# a comment\n# specimen.width_mm = 70\n# specimen.length_mm = 220\n"
                    "displacement_mm,force_N\n0,0\n10,12\n10,14\n20,30\n")
-    m = F.read_measured(csv)
-    assert (m.width_mm, m.length_mm) == (70.0, 220.0) and list(m.force_N) == [0.0, 12.0, 14.0, 30.0]
+    m = F.Measured.read(csv)  # the points at 10 mm averaged: a curve increasing in d
+    assert (m.width_mm, m.length_mm) == (70.0, 220.0) and list(m.force_N) == [0.0, 13.0, 30.0]
     fig = F.force_figure(rows(), measured=m)
-    assert any(list(ln.get_ydata()) == [0.0, 12.0, 14.0, 30.0] for ln in lines_of(fig.axes[0]))
-    g, f = F.measured_fsh(m, 70.0, 220.0)  # the points at 10 mm averaged: a curve increasing in d
+    assert any(list(ln.get_ydata()) == [0.0, 13.0, 30.0] for ln in lines_of(fig.axes[0]))
+    g, f = F.measured_fsh(m, 70.0, 220.0)
     # Eq. 13 at 10 and 20 mm (D = 150 mm): 0.138217 and 0.288427 rad
     assert len(g) == 2 and np.allclose(g, np.degrees([0.138217, 0.288427]), rtol=1e-5)
 
@@ -104,7 +104,7 @@ def test_a_measured_curve_of_another_specimen_keeps_the_legend_inside_its_panel(
 
     csv = tmp_path / "cao2008_twill_unbalanced_100x200_UN.csv"
     csv.write_text("# specimen.width_mm = 100\n# specimen.length_mm = 200\ndisplacement_mm,force_N\n0,0\n10,5\n20,20\n")
-    fig = F.force_figure(rows(), default_scene(), measured=F.read_measured(csv))
+    fig = F.force_figure(rows(), default_scene(), measured=F.Measured.read(csv))
     fig.canvas.draw()  # matplotlib's Agg canvas of a Figure made without pyplot
     ax = fig.axes[0]
     legend = ax.get_legend()
@@ -119,7 +119,7 @@ def test_a_bad_measured_file_is_refused_naming_it(tmp_path, text):
     csv = tmp_path / "bad.csv"
     csv.write_text(text)
     with pytest.raises(ValueError, match="bad.csv"):
-        F.read_measured(csv)
+        F.Measured.read(csv)
 
 
 def test_a_colour_scale_with_negative_angles_is_symmetric_and_marks_what_it_clips():

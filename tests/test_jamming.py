@@ -188,3 +188,34 @@ def test_jamming_off_is_accepted_at_any_angle():
     s = Scene().with_changes(**{"specimen.yarn_angle_deg": 84.0, "material.jamming_angle_deg": 15.0,
                                 "effects.jamming": False})
     assert s.effects.jamming is False
+
+
+def test_no_state_of_the_path_has_crossed_yarns_that_the_barrier_missed():
+    """Without bending the shear concentrates at the clamp corners (smallest yarn angle 32° at
+    16 mm on the embedded scene, 77° with bending) and one increment from 16 to 22 mm lands, with
+    the barrier off (its watch switches it on within twice the jamming angle), on a state whose
+    yarns cross (-30°): no equilibrium of the energy. Such a state is solved again with the
+    barrier on: every state kept without the barrier has its yarns more open than the jamming
+    angle, and none has crossed yarns (with the barrier, they may close into it, not past it)."""
+    from ngbet.continuum.numerics import continuum_solver
+    from ngbet.continuum.problem import ContinuumProblem
+    from ngbet.continuum.run import load_path
+    from ngbet.engine import run_to_end
+
+    scene = Scene().with_changes(**{"effects.bending": False, "loading.u0_mm": 22.0, "loading.output_every_mm": 0.0})
+    solver = continuum_solver(ContinuumProblem(scene))
+    jam = solver.problem.jamming
+    sine, points = jam._check
+    smallest = []
+    original = solver.converged
+
+    def watched() -> None:
+        smallest.append((jam.on, float(np.min(np.asarray(sine(points))))))
+        original()
+
+    solver.converged = watched
+    res = run_to_end(load_path(solver, scene))
+    assert res.u0 == pytest.approx(0.022)
+    assert jam.on and any(a.reason == "the yarns close past the jamming angle in the state found without the "
+                          "barrier; solved again with it" for a in res.attempts)
+    assert min(s for on, s in smallest if not on) > S_JAM and min(s for _, s in smallest) > 0.0

@@ -55,6 +55,11 @@ def add_parser(sub: Any) -> None:
                    help="another measured curve to predict with the fitted values (repeatable)")
     p.add_argument("--predict-scene", metavar="OTHER.toml",
                    help="the scene of a --predict curve without specimen keys (default: the fitted one)")
+    p.add_argument("--specimen", action="append", default=[], metavar="WxL[xT]",
+                   help="the measured specimen where a file's header does not give it: width x clamp-to-clamp length "
+                   "[x thickness] in mm, e.g. 100x250; once for every file, or once per file in order")
+    p.add_argument("--columns", metavar="X,Y", help="the displacement and force columns by header name or number, "
+                   "each with an optional unit (e.g. 'Weg:mm,Kraft:kN'); default: by their names")
     p.add_argument("--quiet", action="store_true", help="no progress line")
 
 
@@ -114,8 +119,14 @@ class Inputs:
         if not args.max_runs >= 1:
             raise SceneError(f"--max-runs {args.max_runs}: must be at least 1")
         self.u_range = _range(args.u_range)
-        self.curves = [read_measured(p) for p in self.data]
-        self.predict = [read_measured(p) for p in args.predict]
+        from .data import parse_sizes, read_all
+
+        sizes = ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm")
+        specs = [parse_sizes(t, "--specimen", sizes) for t in getattr(args, "specimen", [])]
+        columns = getattr(args, "columns", None)
+        self.curves = read_all(self.data, columns=columns, specimens=specs)
+        self.predict = [read_measured(p, columns=columns) for p in args.predict]
+        self.notes = [f"{c.source}: {n}" for c in self.curves + self.predict for n in c.notes]
         self.predict_scene = Scene.from_toml(args.predict_scene) if args.predict_scene else None
         self.joint = (len(self.curves) > 1 or bool(self.curves[0].specimen)) and not args.profile
         if args.profile and len(self.curves) > 1:
@@ -129,6 +140,8 @@ class Inputs:
                 raise SceneError(f"--params: {', '.join(bad)} must have a positive start value (the fit works on "
                                  "ln p; give one with --set)")
             for c in self.curves:
+                note = c.check_window(self._fraction(c))
+                self.notes += [note] if note else []
                 curve_scene(self.scene, c, c.sample(fraction=self._fraction(c))[0])
             for c in self.predict:
                 if not c.specimen and self.predict_scene is None:
@@ -140,6 +153,8 @@ class Inputs:
             _start(self.scene, self.params)
             _check_inputs(self.scene, args.noise, args.profile, args.force_sd, args.profile_sd)
             c = self.curves[0]
+            note = c.check_window(self._fraction(c))
+            self.notes += [note] if note else []
             _fitted_points(Curve(c.u_mm, c.force_N, c.source), self.scene, self.u_range, args.noise)
 
     def _fraction(self, c: MeasuredCurve) -> tuple[float, float]:
@@ -164,6 +179,8 @@ def run_from_args(args: argparse.Namespace) -> int:
     try:
         inp = Inputs(args)
         _out_folder(out)
+        for note in inp.notes:
+            print(f"ngbet fit: {note}", file=sys.stderr)
         if not inp.joint:
             return _legacy(args, inp, out)
         from .joint import fit_curves, terminal_progress

@@ -10,9 +10,10 @@ small second source file, so the large file depends on the expression alone.
 
 This module puts a caching ``ngscxx`` and ``ngsld`` in front of NGSolve's (on ``PATH`` while
 compiling): the object file of a source is kept under :func:`cache_dir`, named by a SHA-256 of
-the source (the expression, with its constants as literals), the NGSolve version and the compiler
-wrapper, and copied back when the same source comes again; its shared library (linked against
-NGSolve's libraries, 0.1–0.2 s) is kept beside it. Each kept file has a checksum file beside it
+the source (the expression, with its constants as literals) and what else determines the code
+(:func:`code_key`: NGSolve's version and compiler flags, the compiler; not the cache's path), and
+copied back when the same source comes again; its shared library (linked against NGSolve's
+libraries, 0.1–0.2 s) is kept beside it. Each kept file has a checksum file beside it
 (the SHA-256 of what was built and the key it was built for), checked on the copy that is used: a
 file that does not match (changed bytes, or another source's file under this key) is removed with
 an ``ngbet:`` line on stderr and built again (``"auto"``: interpreted, as for a missing file).
@@ -169,11 +170,29 @@ def _write(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
+def code_key(real: str, cxx: str) -> str:
+    """What determines the code built from a source, as a SHA-256: the key of every cache entry.
+
+    The NGSolve version (its headers and ABI), the text of its ``ngscxx`` (the compiler flags),
+    the bytes of the C++ driver (one per compiler release) and the caching protocol (the wrappers'
+    templates). Not where the cache or the installation lives, nor ngbet's version: a cache
+    copied elsewhere, or used by another environment or a reinstall with the same NGSolve and
+    compiler, hands out the same code.
+    """
+    h = hashlib.sha256()
+    h.update(ngs.__version__.encode())
+    h.update(Path(real).read_bytes())
+    h.update(Path(cxx).resolve().read_bytes())
+    h.update((_NGSCXX + _NGSLD).encode())
+    return h.hexdigest()
+
+
 def _wrappers(real: str, cxx: str) -> Path:
     """The folder with the caching ngscxx and the direct ngsld (created on first use).
 
     One folder per installation (named by a hash of the wrappers' text, which holds its paths):
-    processes of different environments sharing a cache never rewrite each other's wrappers.
+    processes of different environments sharing a cache never rewrite each other's wrappers. The
+    objects they keep are named by :func:`code_key` and the source alone.
     """
     import ngsolve.config as cfg
 
@@ -181,8 +200,8 @@ def _wrappers(real: str, cxx: str) -> Path:
     objects = root / "objects"
     wrapper = _NGSCXX.format(cxx=cxx, objects=objects, real=real)
     ngsld = _NGSLD.format(cxx=cxx, args=cfg.get_link_lib_args(), objects=objects, ld=shutil.which("ld") or "")
-    key = hashlib.sha256((ngs.__version__ + Path(real).read_text() + wrapper).encode()).hexdigest()
-    bins = root / "bin" / hashlib.sha256((key + ngsld).encode()).hexdigest()[:16]
+    key = code_key(real, cxx)
+    bins = root / "bin" / hashlib.sha256((key + wrapper + ngsld).encode()).hexdigest()[:16]
     bins.mkdir(parents=True, exist_ok=True)
     objects.mkdir(parents=True, exist_ok=True)
     _write(bins / "ngscxx.key", key + "\n")

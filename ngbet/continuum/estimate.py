@@ -63,6 +63,7 @@ from typing import Any
 
 import numpy as np
 
+from ..engine import time_budget
 from ..scene import AUTO, Discretization, Scene
 from .newton import NewtonReport, newton, newton_settings
 from .path_spread import RunPathSpread
@@ -172,7 +173,7 @@ class ForceErrorEstimator:
 
     def _build(self, up: int) -> Any:
         """The solver of the problem ``up`` orders above the run's, on the enrichment's mesh (the run's settings)."""
-        from .mesh import corner_refined
+        from .mesh import corner_refined, singular_corners
         from .numerics import ContinuumSolver
         from .problem import ContinuumProblem
 
@@ -180,7 +181,8 @@ class ForceErrorEstimator:
         if up > 1:
             mesh = self._enriched.problem.mesh
         else:
-            mesh = corner_refined(self.problem.mesh, sc.specimen, CORNER_LEVELS) if self.corner else self.problem.mesh
+            mesh = (corner_refined(self.problem.mesh, sc.specimen, CORNER_LEVELS, singular_corners(sc)) if self.corner
+                    else self.problem.mesh)
         disc = sc.discretization
         for _ in range(up):
             disc = enriched_discretization(disc)
@@ -335,6 +337,12 @@ LADDER = tuple(Rung(h, 0.25, p, e) for h, p, e in (
 #: (θ |F_p − F_p+1|, the differences shrinking by 0.5–0.7 per order) is 0.75–1.25 times the error,
 #: so that 0.7 of the target leaves the estimate below it
 EXPECTED_MARGIN = 0.7
+#: a setting after the first may take this many times the wall time of the setting before it (but
+#: at least :data:`RUNG_BUDGET_MIN_S`): one order up costs 1.5-5x (the times above), and a setting
+#: that cuts its step again and again is left when its budget is spent
+RUNG_BUDGET_FACTOR = 10.0
+#: the smallest time budget of a setting after the first [s]
+RUNG_BUDGET_MIN_S = 30.0
 
 
 def first_rung(target: float) -> int:
@@ -361,6 +369,11 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     (the finer rungs would cost more for no gain): then the best rung is run again into ``out``
     (unless it was the last one run) and :class:`ngbet.errors.ConvergenceError` says that the
     target was not reached and what was.
+
+    A setting that cannot carry the load is left for the next (its attempt says why), and so are
+    the higher orders on its mesh, which fail alike; each setting after the first has a time
+    budget, :data:`RUNG_BUDGET_FACTOR` times the last one's wall time (at least
+    :data:`RUNG_BUDGET_MIN_S`), after which its path stops (:func:`ngbet.engine.time_budget`).
 
     ``run_one(scene, out) -> summary`` runs one discretization into ``out`` (the last attempt's
     files stay there). The returned summary (the runner adds it to summary.json) gains
@@ -390,19 +403,32 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     rungs = LADDER[first_rung(target):]
     best: tuple[float, int] | None = None  # (estimated error, index in attempts)
     stalled = ""
+    failed_meshes: set[tuple[float, float]] = set()  # meshes on which a setting did not carry the load
+    last_wall = math.inf  # the wall time of the last setting run (the first is not bounded)
     for k, rung in enumerate(rungs):
+        mesh = (rung.mesh_size_mm, rung.corner_mesh_size_mm)
+        if mesh in failed_meshes and k < len(rungs) - 1:
+            log.warning("%s: skipped (a lower order on the same mesh did not carry the load)", rung)
+            attempts.append({"discretization": dataclasses.asdict(rung), "force_error_rel": math.nan,
+                             "force_N": None, "wall_s": 0.0, "solve_s": 0.0, "estimate_s": None,
+                             "failed": "skipped: a lower order on the same mesh did not carry the load"})
+            continue
         t0 = time.perf_counter()
+        budget = max(RUNG_BUDGET_MIN_S, RUNG_BUDGET_FACTOR * last_wall)
         try:
-            summary = run_one(rung.apply(scene), out)
+            with time_budget(budget):
+                summary = run_one(rung.apply(scene), out)
         except ConvergenceError as e:
             if k == len(rungs) - 1 and best is None:
                 raise
             log.warning("%s: %s; trying the next setting", rung, str(e).splitlines()[0])
-            wall = time.perf_counter() - t0
+            wall = last_wall = time.perf_counter() - t0
+            failed_meshes.add(mesh)
             attempts.append({"discretization": dataclasses.asdict(rung), "force_error_rel": math.nan,
                              "force_N": None, "wall_s": wall, "solve_s": wall, "estimate_s": None,
                              "failed": str(e).splitlines()[0]})
             continue
+        last_wall = time.perf_counter() - t0
         rel = summary.get("force_error_rel")
         rel = math.nan if rel is None else rel
         attempts.append({"discretization": dataclasses.asdict(rung), "force_error_rel": rel,

@@ -84,6 +84,19 @@ class JammingBarrier:
         """Evaluate the barrier on every element from now on."""
         self.elements.Set()
 
+    def missed(self) -> bool:
+        """Whether the state, solved with the barrier off, has yarns closer than the jamming angle.
+
+        There the barrier is not zero: the state is no equilibrium of the energy (past parallel
+        the shear energy falls again, and Newton can land there in one increment, from yarns more
+        open than :data:`JAMMING_MARGIN` s_jam at the last state). False while the barrier is on.
+        """
+        if self._check is None or self.on:
+            return False
+        s, points = self._check
+        smallest = float(np.min(np.asarray(s(points))))
+        return not smallest > self.s_jam  # nan (a degenerate state) counts as missed
+
     def watch(self) -> None:
         """Switch the barrier on for good once the yarns come within :data:`JAMMING_MARGIN` s_jam.
 

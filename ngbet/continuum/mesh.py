@@ -3,6 +3,9 @@
 Boundary names (used for Dirichlet conditions and reactions):
 ``left`` = Σ1 (X = 0, fixed clamp), ``right`` = Σ2 (X = L, moving clamp),
 ``bottom`` = Σ3 (Y = 0) and ``top`` = Σ4 (Y = W), both free. Coordinates in metres.
+
+The picture-frame specimen (:func:`make_cross_mesh`) names its four arm edges, clamped to the bars,
+``clamp`` and the edges of its cut-away corners ``free``.
 """
 
 from __future__ import annotations
@@ -11,9 +14,10 @@ import math
 
 import ngsolve as ngs
 
-from ..scene import Discretization, Specimen
+from ..scene import Discretization, PictureFrame, Scene, Specimen
 
 FIXED, MOVING, FREE = "left", "right", "bottom|top"
+CLAMPED_ARMS = "clamp"
 
 
 def make_mesh(specimen: Specimen, disc: Discretization) -> ngs.Mesh:
@@ -59,14 +63,17 @@ def _netgen_mesh(L: float, W: float, h: float, corner_mesh_size_mm: float) -> ng
     return ngs.Mesh(OCCGeometry(face, dim=2).GenerateMesh(maxh=h))
 
 
-def corner_refined(mesh: ngs.Mesh, specimen: Specimen, levels: int) -> ngs.Mesh:
+def corner_refined(mesh: ngs.Mesh, specimen: Specimen, levels: int,
+                   corners: tuple[tuple[float, float], ...] | None = None) -> ngs.Mesh:
     """A copy of ``mesh`` with the elements at the four clamp corners bisected ``levels`` times.
 
     Each time the elements that touch a corner then are bisected; boundary names are kept.
+    ``corners`` [m]: other points to refine at (default: the specimen's four corners).
     """
     m = ngs.Mesh(mesh.ngmesh.Copy())
-    corners = ((0.0, 0.0), (specimen.L, 0.0), (0.0, specimen.W), (specimen.L, specimen.W))
-    tol = 1e-9 * max(specimen.L, specimen.W)
+    if corners is None:
+        corners = ((0.0, 0.0), (specimen.L, 0.0), (0.0, specimen.W), (specimen.L, specimen.W))
+    tol = 1e-9 * max(max(abs(c) for p in corners for c in p), specimen.L, specimen.W)
     for _ in range(levels):
         for el in m.Elements(ngs.VOL):
             pts = [m.vertices[v.nr].point for v in el.vertices]
@@ -83,3 +90,62 @@ def corner_elements(mesh: ngs.Mesh, corner: tuple[float, float] = (0.0, 0.0)) ->
         if any(math.dist(q, corner) < 1e-12 for q in pts):
             diams.append(max(math.dist(a, b) for a in pts for b in pts))
     return len(diams), 1e3 * max(diams)
+
+
+def cross_outline(frame: PictureFrame) -> list[tuple[tuple[float, float], str]]:
+    """The picture-frame cross [m] as its vertices in order, each with the name of the edge that leaves it.
+
+    In the frame's own coordinates (ξ, η) ∈ [0, L]² along the bars, the cross is the square less
+    its four corner squares of side c = (L_frame − L_fabric)/2; a point sits at X = ξ a1 + η a2 with
+    a1 = (1, 1)/√2, a2 = (1, −1)/√2: the fixed pin at the origin, the crosshead's pin at (√2 L, 0).
+    The edges on the bars (the arms' ends) are ``clamp``, those of the cut corners ``free``;
+    without cut corners (c = 0) the whole square's edge is clamped. Counter-clockwise.
+    """
+    L, c = frame.frame_mm * 1e-3, frame.arm_mm * 1e-3
+    if c > 0:
+        local = [((c, 0.0), "clamp"), ((L - c, 0.0), "free"), ((L - c, c), "free"),
+                 ((L, c), "clamp"), ((L, L - c), "free"), ((L - c, L - c), "free"),
+                 ((L - c, L), "clamp"), ((c, L), "free"), ((c, L - c), "free"),
+                 ((0.0, L - c), "clamp"), ((0.0, c), "free"), ((c, c), "free")]
+    else:
+        local = [((0.0, 0.0), "clamp"), ((L, 0.0), "clamp"), ((L, L), "clamp"), ((0.0, L), "clamp")]
+    r = 1.0 / math.sqrt(2.0)
+    pts = [(((xi + eta) * r, (xi - eta) * r), name) for (xi, eta), name in local]
+    # (ξ, η) -> X turns the orientation over: walk backwards, each edge keeping its name
+    n = len(pts)
+    return [(pts[n - 1 - i][0], pts[(n - 2 - i) % n][1]) for i in range(n)]
+
+
+def make_cross_mesh(frame: PictureFrame, specimen: Specimen, disc: Discretization) -> ngs.Mesh:
+    """Netgen (OCC) triangulation of the picture-frame cross (:func:`cross_outline`), size h [m].
+
+    Graded as the BET mesh: every vertex (the ends of the clamped arms, the re-entrant corners of
+    the cuts, or the pins when nothing is cut) gets ``corner_mesh_size_mm``, and
+    ``corner_bisections`` bisects the elements there. A structured mesh is for the rectangle only
+    (the cross is meshed by Netgen in any case).
+    """
+    from netgen.occ import OCCGeometry, WorkPlane
+
+    outline = cross_outline(frame)
+    wp = WorkPlane()
+    wp.MoveTo(*outline[0][0])
+    for i, (_, name) in enumerate(outline):
+        wp.LineTo(*outline[(i + 1) % len(outline)][0], name=name)
+    face = wp.Face()
+    if disc.corner_mesh_size_mm > 0:
+        for v in face.vertices:
+            v.maxh = disc.corner_mesh_size_mm * 1e-3
+    mesh = ngs.Mesh(OCCGeometry(face, dim=2).GenerateMesh(maxh=disc.mesh_size_mm * 1e-3))
+    if disc.corner_bisections:
+        mesh = corner_refined(mesh, specimen, disc.corner_bisections, tuple(p for p, _ in outline))
+    return mesh
+
+
+def singular_corners(scene: Scene) -> tuple[tuple[float, float], ...] | None:
+    """The corners [m] where the solution is singular, for :func:`corner_refined`: None for the BET's own four.
+
+    The picture frame: every vertex of its cross (:func:`cross_outline`).
+    """
+    if scene.test != "picture_frame":
+        return None
+    return tuple(p for p, _ in cross_outline(scene.picture_frame))

@@ -145,6 +145,19 @@ class ContinuumSolver:
         """The current state is an equilibrium the path keeps (:meth:`ContinuumProblem.converged`)."""
         self.problem.converged()
 
+    def jamming_missed(self) -> bool:
+        """The state was solved without the jamming barrier where it holds: switch it on and say so.
+
+        True when the barrier was off and the yarns are closer than the jamming angle somewhere
+        (:meth:`~ngbet.continuum.jamming.JammingBarrier.missed`): the state is no equilibrium, the
+        barrier is on from now on and the increment is to be solved again.
+        """
+        jam = self.problem.jamming
+        if not jam.missed():
+            return False
+        jam.switch_on()
+        return True
+
     def admissible(self) -> str:
         """Why the current state is not a physical one ("" when it is): :meth:`ContinuumProblem.admissible`."""
         return self.problem.admissible()

@@ -33,8 +33,16 @@ def reaction_double_force(problem: ContinuumProblem, r: np.ndarray) -> float:
 
 
 def midaxis_profile(problem: ContinuumProblem, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Vertical displacement u_y on the mid-axis Y = W/2 at n equispaced X [m]."""
+    """Vertical displacement u_y on the mid-axis Y = W/2 at n equispaced X [m].
+
+    The picture frame: on its loading diagonal Y = 0, across the fabric between the cut corners.
+    """
     sp = problem.scene.specimen
+    if problem.frame:
+        c = math.sqrt(2.0) * problem.scene.picture_frame.arm_mm * 1e-3
+        X = np.linspace(c, problem.length - c, n)
+        pts = problem.mesh(X, np.zeros(n))
+        return X, np.asarray(problem.u(pts)[:, 1])
     X = np.linspace(0.0, sp.L, n)
     pts = problem.mesh(X, np.full(n, 0.5 * sp.W))
     uy = problem.u(pts)[:, 1]
@@ -42,11 +50,12 @@ def midaxis_profile(problem: ContinuumProblem, n: int) -> tuple[np.ndarray, np.n
 
 
 def centre_shear_angle_deg(problem: ContinuumProblem) -> float:
-    """γ at the specimen centre [deg] (zone A of ideal BET kinematics)."""
+    """γ at the specimen centre [deg] (zone A of ideal BET kinematics; the picture frame's centre)."""
     sp = problem.scene.specimen
     inv = problem.invariants()
     g = physics.shear_angle(inv.i4, inv.i6, inv.i8, sp.cos0)
-    return math.degrees(float(g(problem.mesh(0.5 * sp.L, 0.5 * sp.W))))
+    centre = (0.5 * problem.length, 0.0) if problem.frame else (0.5 * sp.L, 0.5 * sp.W)
+    return math.degrees(float(g(problem.mesh(*centre))))
 
 
 def zone_indicators(problem: ContinuumProblem) -> tuple[Any, Any, Any]:
@@ -149,7 +158,7 @@ def multiplier_oscillation(problem: ContinuumProblem, margin: float = 0.18) -> f
     lam = problem.lam_field
     if lam is None:
         return None
-    mesh, L = problem.mesh, problem.scene.specimen.L
+    mesh, L = problem.mesh, problem.length
     V = ngs.H1(mesh, order=max(1, problem.p_lam))
     w, v = V.TnT()
     mass = ngs.BilinearForm(w * v * ngs.dx).Assemble()
@@ -217,3 +226,27 @@ def field_functions(problem: ContinuumProblem, wanted: tuple[str, ...]) -> dict[
         if problem.lam_field is not None:
             out["Lambda"] = problem.lam_field
     return out
+
+
+def frame_fabric_means(problem: ContinuumProblem) -> dict[str, float]:
+    """The picture frame's inner fabric square: mean shear angle [deg] and largest yarn strain there.
+
+    Means over the square of side L_fabric between the arms (the area that F_norm, Eq. 10,
+    divides by), on the reference configuration: ``gamma_fabric_deg`` = ∫ γ / area, and
+    ``elongation_max`` = the largest |√i4 − 1|, |√i6 − 1| at the integration points of order 2p
+    of all elements (the whole cross).
+    """
+    pf, p = problem.scene.picture_frame, problem.scene.discretization.p_u
+    c, L = pf.arm_mm * 1e-3, pf.frame_mm * 1e-3
+    r = 1.0 / math.sqrt(2.0)
+    xi, eta = (ngs.x + ngs.y) * r, (ngs.x - ngs.y) * r  # the frame's coordinates along the bars
+    inside = ngs.IfPos((xi - c) * (L - c - xi), ngs.IfPos((eta - c) * (L - c - eta), 1.0, 0.0), 0.0)
+    inv = problem.invariants()
+    g = physics.shear_angle(inv.i4, inv.i6, inv.i8, problem.scene.specimen.cos0)
+    order = 2 * p + 4
+    area = ngs.Integrate(inside, problem.mesh, order=order)
+    mean = ngs.Integrate(inside * g, problem.mesh, order=order) / area if area > 0 else math.nan
+    ir = ngs.IntegrationRule(ngs.TRIG, 2 * p)
+    pts = problem.mesh.MapToAllElements(ir, ngs.VOL)
+    strain = np.abs(np.asarray(ngs.CF((ngs.sqrt(inv.i4) - 1, ngs.sqrt(inv.i6) - 1))(pts)))
+    return {"gamma_fabric_deg": math.degrees(float(mean)), "elongation_max": float(strain.max())}

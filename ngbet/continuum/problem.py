@@ -49,22 +49,31 @@ matrix, to the same solution (a choice of the solver, not of the problem).
 
 Dirichlet data (docs/model.md, *Boundary conditions*): u = 0, φ = 0 on Σ1 (``left``); u = (u0, 0), φ = 0 on Σ2
 (``right``). The load parameter λ of the solver is u0 in metres.
+
+The picture frame (``test = "picture_frame"``, docs/model.md, *Picture frame*): the arms of the cross
+(``clamp``) move with the bars of the hinged frame, u = (F(λ) − I) X with F = diag(A, B), A = 1 + λ/(√2 L),
+B = √(2 − A²) (:func:`ngbet.kinematics.frame_stretches`), λ the crosshead travel [m], and φ = i8 of that
+F (the yarns clamped in the bars turn with them). The data are not linear in λ: the reaction's test
+field ψ_u = ∂x_D/∂λ (the affine lift (A' X, B' Y) and φ's ∂i8/∂λ) is that of the current load, and
+the load direction with it.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable
 
 import ngsolve as ngs
 import numpy as np
 from ngsolve import CoefficientFunction as CF
 
+from ..kinematics import frame_stretches
 from ..scene import AUTO, Scene, Specimen
 from . import physics
 from .jamming import JammingBarrier
 from .linear import LAGRANGE_AUGMENTATION
-from .mesh import make_mesh
+from .mesh import CLAMPED_ARMS, make_cross_mesh, make_mesh
 from .parameters import material_parameters
 
 log = logging.getLogger(__name__)
@@ -119,6 +128,12 @@ def stabilization_modulus(scene: Scene, mesh: ngs.Mesh, parameters: dict[str, ng
     return ngs.IfPos(k_h - cap, cap, k_h)
 
 
+def _turned(m: tuple[float, float], deg: float) -> tuple[float, float]:
+    """The direction ``m`` turned counter-clockwise by ``deg`` degrees."""
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return (c * m[0] - s * m[1], s * m[0] + c * m[1])
+
+
 def _range_over_elements(k: CF | float, mesh: ngs.Mesh) -> tuple[float, float]:
     if not isinstance(k, CF):
         return (float(k), float(k))
@@ -141,9 +156,20 @@ class ContinuumProblem:
     def __init__(self, scene: Scene, mesh: ngs.Mesh | None = None, dirichlet: str = DIRICHLET) -> None:
         self.scene = scene
         sp, disc = scene.specimen, scene.discretization
-        self.mesh = mesh if mesh is not None else make_mesh(sp, disc)
+        self.frame = scene.test == "picture_frame"
+        if self.frame:
+            pf = scene.picture_frame
+            self.mesh = mesh if mesh is not None else make_cross_mesh(pf, sp, disc)
+            dirichlet = CLAMPED_ARMS if dirichlet == DIRICHLET else dirichlet
+            #: the length scale [m] (the loading diagonal) and the reference area [m²]
+            self.length, self.area = math.sqrt(2.0) * pf.frame_mm * 1e-3, (pf.frame_mm ** 2 - 4 * pf.arm_mm ** 2) * 1e-6
+            self.yarns = _turned(sp.m1, pf.misalignment_deg), _turned(sp.m2, pf.misalignment_deg)
+        else:
+            self.mesh = mesh if mesh is not None else make_mesh(sp, disc)
+            self.length, self.area = sp.L, sp.L * sp.W
+            self.yarns = sp.m1, sp.m2
         self._spaces(scene, dirichlet)
-        self.m1, self.m2 = CF(sp.m1), CF(sp.m2)
+        self.m1, self.m2 = CF(self.yarns[0]), CF(self.yarns[1])
         mat = scene.material
         self.K_ref = mat.K_sh if mat.K_sh > 0 else mat.K_el
         self.dx = ngs.dx(bonus_intorder=disc.quad_bonus)
@@ -229,6 +255,9 @@ class ContinuumProblem:
 
     def _load_fields(self, sp: Specimen) -> None:
         """Reaction test fields (ψ_u = (X/L, 0), ψ_φ = X/L; exact in the spaces) and the load direction."""
+        if self.frame:
+            self._frame_fields()
+            return
         self.psi_u = ngs.GridFunction(self.X)
         self.psi_u.components[0].Set(CF((ngs.x / sp.L, 0)))
         self.psi_phi = None
@@ -238,6 +267,38 @@ class ContinuumProblem:
         #: ψ_D: the Dirichlet entries' change per unit load (0 on the free entries)
         self.load_direction = np.where(self.dirichlet, self.psi_u.vec.FV().NumPy(), 0.0)
         self._clamp_dir = self.psi_u.vec.FV().NumPy().copy()
+
+    def _frame_fields(self) -> None:
+        """The picture frame's lifts (X, 0), (0, Y) and φ = 1 (exact in the spaces); ψ_u follows the load."""
+        lifts = []
+        for i, cf in ((0, CF((ngs.x, 0))), (0, CF((0, ngs.y))), (1, CF(1.0))):
+            g = ngs.GridFunction(self.X)
+            if i < len(g.components) and (i == 0 or "phi" in self.field_names):
+                g.components[i].Set(cf)
+            lifts.append(g.vec.FV().NumPy().copy())
+        self._frame_lifts = lifts
+        self.psi_u = ngs.GridFunction(self.X)
+        self.psi_phi = None  # the frame applies no double force of its own
+        self._set_frame(0.0)
+
+    def frame_data(self, lam: float) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """The frame's prescribed (A − 1, B − 1, φ) at crosshead travel λ [m] and their derivatives in λ."""
+        A, B, dA, dB = frame_stretches(lam, self.scene.picture_frame.frame_mm * 1e-3)
+        (a1, a2), (b1, b2) = self.yarns
+        # i8 = F m1 · F m2 − m1 · m2 with F = diag(A, B)
+        phi = a1 * b1 * A * A + a2 * b2 * B * B - (a1 * b1 + a2 * b2)
+        dphi = 2 * a1 * b1 * A * dA + 2 * a2 * b2 * B * dB
+        return (A - 1.0, B - 1.0, phi), (dA, dB, dphi)
+
+    def _set_frame(self, lam: float) -> None:
+        """The Dirichlet entries of x at the frame's travel λ, and ψ_u and the load direction there."""
+        values, rates = self.frame_data(lam)
+        lx, ly, lp = self._frame_lifts
+        self.x[self.dirichlet] = (values[0] * lx + values[1] * ly + values[2] * lp)[self.dirichlet]
+        psi = rates[0] * lx + rates[1] * ly + rates[2] * lp
+        self.psi_u.vec.FV().NumPy()[:] = psi
+        self.load_direction = np.where(self.dirichlet, psi, 0.0)
+        self._clamp_dir = psi
 
     # --------------------------------------------------------------------------- bookkeeping
     def ndofs(self) -> dict[str, int]:
@@ -249,7 +310,7 @@ class ContinuumProblem:
     def _norm_weights(self) -> np.ndarray:
         """Scale each field to be unit-free: u by 1/L, φ by 1, Λ by 1/K_ref."""
         w = np.zeros(self.X.ndof)
-        scale = {"u": 1.0 / self.scene.specimen.L, "phi": 1.0, "lam": 1.0 / self.K_ref}
+        scale = {"u": 1.0 / self.length, "phi": 1.0, "lam": 1.0 / self.K_ref}
         for i, name in enumerate(self.field_names):
             rng = self.X.Range(i)
             w[rng.start:rng.stop] = scale[name]
@@ -259,6 +320,9 @@ class ContinuumProblem:
     def set_load(self, lam: float) -> None:
         """Set the load λ = u0 [m]: the Dirichlet entries of x follow it."""
         self.lam = lam
+        if self.frame:
+            self._set_frame(lam)
+            return
         self.x[self.dirichlet] = lam * self.load_direction[self.dirichlet]
 
     def converged(self) -> None:
@@ -298,7 +362,7 @@ class ContinuumProblem:
         beyond ``inverted_allowed`` [m²] (what there was where the relaxation began).
         """
         a = self.inverted_area()
-        if a <= self.inverted_allowed + INVERTED_AREA_FRACTION * self.scene.specimen.L * self.scene.specimen.W:
+        if a <= self.inverted_allowed + INVERTED_AREA_FRACTION * self.area:
             return ""
         return f"det F <= 0 on {a * 1e6:.3g} mm² (the material turned inside out)"
 
@@ -327,7 +391,7 @@ class ContinuumProblem:
         return field_location(self, dx)
 
     def clamp_predictor(self, dlam: float) -> np.ndarray:
-        """The clamp's linear field (X/L, 0) dlam."""
+        """The clamp's linear field (X/L, 0) dlam (the picture frame: its affine map's rate ψ_u dlam)."""
         return dlam * self._clamp_dir
 
     def norm(self, dx: np.ndarray) -> float:

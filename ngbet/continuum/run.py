@@ -19,7 +19,7 @@ import ngsolve as ngs
 from ..engine import PathResult, StepRecord, Steps, progress_bar
 from ..errors import ConvergenceError
 from ..figures import map_file_name, save_map, start_plot
-from ..kinematics import BetColumns
+from ..kinematics import BetColumns, PictureFrameColumns
 from ..output import RunWriter
 from ..plot_process import active as plot_service
 from ..scene import Scene
@@ -112,8 +112,10 @@ def load_path(problem: ContinuumSolver, scene: Scene) -> Generator[StepRecord, N
     runner to write.
     """
     arclength = None if scene.solver.path_following == "displacement" else arclength_runner(problem)
+    # the picture frame's reaction test field follows the load (ContinuumProblem): the path gets none
+    psi = None if problem.problem.frame else problem.problem.psi_u.vec.FV().NumPy().copy()
     return load_steps(problem, path_settings(scene), newton_settings(scene), diagnose=lambda: _diagnose(problem),
-                      psi=problem.problem.psi_u.vec.FV().NumPy().copy(), arclength=arclength)
+                      psi=psi, arclength=arclength)
 
 
 def _diagnose(problem: ContinuumSolver) -> Any:
@@ -150,8 +152,10 @@ class _StepWriter:
         self.writer, self.out, self.estimates = writer, out, estimates
         problem = solver.problem
         sp, ld = problem.scene.specimen, problem.scene.loading
-        self.zones = obs.ZoneShearMeans(problem)
-        self.bet = BetColumns(sp.length_mm, sp.width_mm, sp.yarn_angle_deg)
+        pf = problem.scene.picture_frame
+        self.zones = None if problem.frame else obs.ZoneShearMeans(problem)
+        self.bet = (PictureFrameColumns(pf.frame_mm, pf.fabric_mm) if problem.frame
+                    else BetColumns(sp.length_mm, sp.width_mm, sp.yarn_angle_deg))
         # the map's stations: the load stops and the final load
         self.stations = (*ld.stops_mm, ld.u0_mm)
         self.t_prev = time.perf_counter()
@@ -191,7 +195,9 @@ class _StepWriter:
         row: dict[str, Any] = {}
         if o.reaction:
             R = obs.reaction_force(p, r)
-            row.update(force_N_per_m=R, force_N=R * t, dforce_du0_N_per_mm=info.dforce_du0 * t * 1e-3)
+            row.update(force_N_per_m=R, force_N=R * t)
+            if not p.frame:  # the frame's path has no fixed reaction test field to differentiate (load_path)
+                row["dforce_du0_N_per_mm"] = info.dforce_du0 * t * 1e-3
         if o.double_force and p.psi_phi is not None:
             T = obs.reaction_double_force(p, r)
             row.update(double_force_N=T, double_force_Nm=T * t)
@@ -199,7 +205,10 @@ class _StepWriter:
             E = self.solver.energy()
             row.update(energy_J_per_m=E, energy_J=E * t)
         row["gamma_centre_deg"] = obs.centre_shear_angle_deg(p)
-        row.update({f"gamma_{z}_deg": g for z, g in self.zones().items()})
+        if self.zones is not None:
+            row.update({f"gamma_{z}_deg": g for z, g in self.zones().items()})
+        else:
+            row.update(obs.frame_fabric_means(p))
         if "constraint" in o.fields and p.phi is not None:
             row["constraint_rms"] = obs.constraint_l2(p)
         return row

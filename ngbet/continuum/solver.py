@@ -56,6 +56,8 @@ log = logging.getLogger(__name__)
 #: a relaxed step that releases more than this fraction of the clamp's work in it is a snap-through
 #: (the network's threshold with the work by a rule that has the tangents: ``snap_release_hermite``)
 SNAP_RELEASE = 1e-3
+#: why an increment whose state lies past the jamming angle, solved with the barrier off, is solved again
+JAMMING_MISSED = "the yarns close past the jamming angle in the state found without the barrier; solved again with it"
 
 
 @dataclass(frozen=True)
@@ -306,7 +308,7 @@ class SaddlePointNewton:
         self._chorded = False
         if self._factorized and self.chord.due(u0 + h):
             self.report = rep = self.chord.correct(p, self.settings, e_ref)
-            if rep.converged:
+            if rep.converged and not self._jamming_missed():
                 self._chorded = True
                 return Outcome("converged", rep.iterations, list(rep.history), rep.reason)
             log.debug("chord at %.6g mm: %s; Newton takes over", (u0 + h) * 1e3, rep.reason)
@@ -318,7 +320,14 @@ class SaddlePointNewton:
         self.report = rep = newton(p, self.settings, e_ref)
         if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
             return self._relax(u0, h, e_ref, rep)
+        if rep.converged and self._jamming_missed():
+            return Outcome("failed", rep.iterations, list(rep.history), JAMMING_MISSED)
         return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
+
+    def _jamming_missed(self) -> bool:
+        """Whether the state just found lies past the jamming angle with the barrier off (it is on now)."""
+        missed = getattr(self.problem, "jamming_missed", None)
+        return bool(missed is not None and missed())
 
     def _relax(self, u0: float, h: float, e_ref: float, failed: NewtonReport) -> Outcome:
         """After Newton failed on a short increment: a stable equilibrium at u0 + h by :func:`relax`."""

@@ -36,7 +36,6 @@ from .data import (
     load_maps,
     map_file_name,
     measured_fsh,
-    read_measured,
     read_scene,
     save_map,
 )
@@ -76,7 +75,7 @@ __all__ = [
     "check_formats", "colormap", "colour_bar", "colour_scale", "column", "curve_with_jumps", "draw_force",
     "draw_run", "error_bars", "figure", "force_curve", "force_figure", "formats_of", "increasing_curve",
     "legend_below", "load_maps", "map_file_name", "map_panel", "measured_fsh", "nice_ceil", "profile_figure",
-    "put_caption", "read_measured", "read_scene", "round_ticks", "save", "save_map", "shear_force_figure",
+    "put_caption", "read_scene", "round_ticks", "save", "save_map", "shear_force_figure",
     "shear_map_figure", "short_log_axis", "start_plot", "stations_of", "study_caption", "in_style", "subplots",
     "unit_of", "key_label", "key_value", "symbol", "eng", "eng_scale",
     "texts_outside", "tidy_log_axes", "warm_up", "yarn_network_figure",

@@ -71,56 +71,35 @@ def load_maps(run_dir: Path) -> list[MapData]:
 
 @dataclass
 class Measured:
-    """A measured force–displacement curve (``displacement_mm,force_N``) and the specimen its header names."""
+    """A measured force–displacement curve for the figures, and the specimen it was measured on.
+
+    Read by :meth:`read` through :func:`ngbet.calibration.data.read_measured`, the one reader of
+    measured curves (units, columns, separators, the specimen from the header or the command line).
+    """
 
     path: Path
     displacement_mm: np.ndarray
     force_N: np.ndarray
     width_mm: float | None = None
     length_mm: float | None = None
+    notes: tuple[str, ...] = ()
+
+    @classmethod
+    def read(cls, path: str | Path, *, specimen: dict[str, float] | None = None,
+             columns: str | None = None) -> Measured:
+        """Read a measured bias extension curve; a bad file raises :class:`ngbet.scene.SceneError` naming it.
+
+        ``specimen`` (``--specimen``) gives the scene keys of a file whose header has none.
+        """
+        from ..calibration.data import read_measured
+
+        c = read_measured(path, columns=columns, specimen=specimen)
+        return cls(Path(c.source), c.u_mm, c.force_N, c.specimen.get("specimen.width_mm"),
+                   c.specimen.get("specimen.length_mm"), c.notes)
 
     def specimen(self, width_mm: float, length_mm: float) -> tuple[float, float]:
         """(W, H) of the measured specimen: its header's, else the run's."""
         return (self.width_mm or width_mm, self.length_mm or length_mm)
-
-
-def read_measured(path: str | Path) -> Measured:
-    """Read a measured curve: CSV with the header ``displacement_mm,force_N``; ``#`` lines are comments.
-
-    Comment lines ``# specimen.width_mm = 150`` and ``# specimen.length_mm = 300`` name the
-    measured specimen (its F_sh is computed with them).
-
-    Raises
-    ------
-    ValueError
-        naming the file and what is wrong with it.
-    """
-    import csv
-
-    p = Path(path)
-    try:
-        lines = p.read_text().splitlines()
-    except OSError as exc:
-        raise ValueError(f"{p}: cannot read the measured curve ({exc.strerror or exc})") from exc
-    header: dict[str, float] = {}
-    for line in lines:
-        if line.lstrip().startswith("#") and "=" in line:
-            key, _, value = line.lstrip("# ").partition("=")
-            try:
-                header[key.strip()] = float(value.strip())
-            except ValueError:
-                pass
-    data = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
-    rows = list(csv.reader(data))
-    if not rows or [c.strip() for c in rows[0][:2]] != ["displacement_mm", "force_N"]:
-        raise ValueError(f"{p}: the first line that is not a comment must be the header 'displacement_mm,force_N'")
-    try:
-        values = np.array([[float(r[0]), float(r[1])] for r in rows[1:]], dtype=float)
-    except (ValueError, IndexError) as exc:
-        raise ValueError(f"{p}: every data line must hold two numbers, displacement_mm,force_N ({exc})") from exc
-    if len(values) < 2 or not np.all(np.isfinite(values)):
-        raise ValueError(f"{p}: needs at least two finite points (displacement_mm,force_N)")
-    return Measured(p, values[:, 0], values[:, 1], header.get("specimen.width_mm"), header.get("specimen.length_mm"))
 
 
 def increasing_curve(d: ArrayLike, F: ArrayLike) -> tuple[np.ndarray, np.ndarray]:

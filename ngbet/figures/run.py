@@ -5,6 +5,9 @@
 - ``profile``: the S-profile at the stations, the other rows in grey;
 - ``shear_map``: the shear angle on the deformed specimen at the stations, one colour scale.
 
+A picture-frame run draws its own ``force`` and ``shear_force`` (:mod:`ngbet.figures.frame`; a measured curve
+is a :class:`~ngbet.figures.frame.FrameMeasured`) and no profile.
+
 Each is written in the scene's ``outputs.figure_formats`` (default PNG only). In a process without
 threads (the plot process) each figure is drawn by a forked child, all at once.
 """
@@ -65,6 +68,12 @@ def draw_run(run_dir: str | Path, extra: Extra = (), parallel: bool = False, mea
         "profile": lambda: (profile_figure(read_profiles(run_dir / "profile.csv"), stations_of(rows, scene), scene)
                             if (run_dir / "profile.csv").exists() else None),
         "shear_map": lambda: shear_map_figure(load_maps(run_dir), scene)}
+    if getattr(scene, "test", "") == "picture_frame":  # the frame's own curves; its diagonal has no S-profile
+        from .frame import FrameMeasured, frame_force_figure, frame_shear_figure
+
+        frame_measured = measured if isinstance(measured, FrameMeasured) else None
+        makers.update(force=lambda: frame_force_figure(rows, scene),
+                      shear_force=lambda: frame_shear_figure(rows, scene, frame_measured), profile=lambda: None)
     names = [n for n in RUN_FIGURES if n in only]
 
     def draw(name: str) -> None:

@@ -132,6 +132,12 @@ def caption(scene: Any) -> str:
     name = f"{_name_of(sp)}: " if _name_of(sp) else ""
     spec = (f"{name}specimen {sp.width_mm:g}{NB}×{NB}{sp.length_mm:g}{NB}mm (W{NB}×{NB}L), yarns{NB}±"
             f"{sp.yarn_angle_deg:g}°, {_q('t', sp.thickness_mm, 'mm')}")
+    if getattr(scene, "test", "") == "picture_frame":
+        pf = scene.picture_frame
+        turned = f" turned{NB}{pf.misalignment_deg:g}° from the bars" if pf.misalignment_deg else ""
+        spec = (f"{name}picture-frame test, frame{NB}{pf.frame_mm:g}{NB}mm pin to pin, fabric square"
+                f"{NB}{pf.fabric_mm:g}{NB}mm, yarns{NB}±{sp.yarn_angle_deg:g}°{turned}, "
+                f"{_q('t', sp.thickness_mm, 'mm')}")
     if scene.model == "discrete":
         d = scene.discrete
         return (f"{spec}; yarn network: {_qe('EI1', d.EI1, f'N{NB}m²')}, {_qe('EI2', d.EI2, f'N{NB}m²')}, "

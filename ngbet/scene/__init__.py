@@ -30,6 +30,7 @@ from .document import (
     MIN_YARNS_PER_FAMILY,
     MODELS,
     NOT_READ_BY,
+    NOT_READ_BY_TEST,
     Scene,
     SceneNote,
     SceneWarning,
@@ -51,13 +52,23 @@ from .numerical import (
     Outputs,
     Solver,
 )
-from .physical import CONSTRAINTS, MAX_SPECIMEN_MM, PENALTY_FORMS, SHEAR_LAWS, Effects, Material, Specimen
+from .physical import (
+    CONSTRAINTS,
+    MAX_SPECIMEN_MM,
+    PENALTY_FORMS,
+    SHEAR_LAWS,
+    TESTS,
+    Effects,
+    Material,
+    PictureFrame,
+    Specimen,
+)
 from .validate import AUTO, SceneError
 
 __all__ = [
     "AUTO", "CONSTRAINTS", "DEFAULT_DISCRETIZATION", "FIELD_OUTPUTS", "FIGURE_FORMATS", "LINEAR_SOLVERS", "MAX_ORDER",
-    "MAX_SPECIMEN_MM", "MIN_YARNS_PER_FAMILY", "MODELS", "NOT_READ_BY", "PAPER_STOPS_MM", "PENALTY_FORMS",
-    "SHEAR_LAWS", "Calibration", "Discrete", "Discretization", "Effects", "Loading", "Material", "Outputs",
-    "Scene", "SceneError", "SceneNote", "SceneWarning", "Solver", "Specimen", "apply_changes", "default_scene",
-    "read_toml", "yarns_per_family",
+    "MAX_SPECIMEN_MM", "MIN_YARNS_PER_FAMILY", "MODELS", "NOT_READ_BY", "NOT_READ_BY_TEST", "PAPER_STOPS_MM",
+    "PENALTY_FORMS", "SHEAR_LAWS", "TESTS", "Calibration", "Discrete", "Discretization", "Effects", "Loading",
+    "Material", "Outputs", "PictureFrame", "Scene", "SceneError", "SceneNote", "SceneWarning", "Solver", "Specimen",
+    "apply_changes", "default_scene", "read_toml", "yarns_per_family",
 ]

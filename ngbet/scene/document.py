@@ -18,7 +18,7 @@ from typing import Any
 import tomli_w
 
 from .numerical import Calibration, Discrete, Discretization, Loading, Outputs, Solver
-from .physical import Effects, Material, Specimen
+from .physical import TESTS, Effects, Material, PictureFrame, Specimen
 from .validate import SceneError, _check, _choice
 
 MODELS = ("continuum", "discrete")
@@ -28,6 +28,13 @@ MODELS = ("continuum", "discrete")
 NOT_READ_BY: dict[str, dict[str, tuple[str, ...] | None]] = {
     "continuum": {"discrete": None},
     "discrete": {"material": None, "effects": None, "discretization": None, "solver": ("condense",)},
+}
+
+#: what each test does not read, as :data:`NOT_READ_BY` (the picture frame's specimen is the cross
+#: that [picture_frame] describes)
+NOT_READ_BY_TEST: dict[str, dict[str, tuple[str, ...] | None]] = {
+    "bias_extension": {"picture_frame": None},
+    "picture_frame": {"specimen": ("length_mm", "width_mm"), "discretization": ("structured",)},
 }
 
 
@@ -86,6 +93,7 @@ _SECTIONS: dict[str, type] = {
     "outputs": Outputs,
     "discrete": Discrete,
     "calibration": Calibration,
+    "picture_frame": PictureFrame,
 }
 
 
@@ -103,9 +111,12 @@ class Scene:
     outputs: Outputs = field(default_factory=Outputs)
     discrete: Discrete = field(default_factory=Discrete)
     calibration: Calibration = field(default_factory=Calibration)
+    test: str = "bias_extension"
+    picture_frame: PictureFrame = field(default_factory=PictureFrame)
 
     def __post_init__(self) -> None:
         _choice("", self, "model", MODELS)
+        _choice("", self, "test", TESTS)
         for name, cls in _SECTIONS.items():
             _check(isinstance(getattr(self, name), cls), name, getattr(self, name), f"must be a {cls.__name__}")
         # loads past ideal yarn locking are valid: the yarns are extensible (K_el), and the run
@@ -147,15 +158,34 @@ class Scene:
                        "discretization.order_lam", self.discretization.order_lam,
                        "the multiplier order must be below the order of phi, else the constraint locks")
 
+        if self.test == "picture_frame":
+            self._check_picture_frame()
+
         unused = self.unused_keys()
         if unused:
-            warnings.warn(SceneWarning(f"model = {self.model!r} does not read {', '.join(unused)}: "
-                                       "these values have no effect"), stacklevel=3)
+            test = self.test != "bias_extension" or any(k.startswith("picture_frame.") for k in unused)
+            who = f"model = {self.model!r}" + (f" with test = {self.test!r}" if test else "")
+            warnings.warn(SceneWarning(f"{who} does not read {', '.join(unused)}: these values have no effect"),
+                          stacklevel=3)
+
+    def _check_picture_frame(self) -> None:
+        """What a picture-frame test needs of the rest of the scene."""
+        _check(self.model == "continuum", "model", self.model,
+               "the picture-frame test is available for the continuum model only (test = 'picture_frame' "
+               "needs model = 'continuum'): the yarn network has no frame")
+        pf, ld = self.picture_frame, self.loading
+        lock = pf.locking_mm
+        _check(ld.u0_mm < lock, "loading.u0_mm", ld.u0_mm,
+               f"the crosshead travel must stay below {lock:.4g} mm, where the frame of side "
+               f"{pf.frame_mm:g} mm closes flat (shear angle 90 degrees)")
+        _check(self.solver.path_following == "displacement", "solver.path_following", self.solver.path_following,
+               "the picture frame follows the crosshead travel ('displacement'): arc length is available "
+               "for the bias extension test only")
 
     def unused_keys(self) -> list[str]:
-        """The keys with a non-default value that the scene's model does not read ("section.key")."""
+        """The keys with a non-default value that the scene's model or test does not read ("section.key")."""
         out = []
-        for name, keys in NOT_READ_BY[self.model].items():
+        for name, keys in (*NOT_READ_BY[self.model].items(), *NOT_READ_BY_TEST[self.test].items()):
             section, default = getattr(self, name), _SECTIONS[name]()
             for f in fields(section):
                 value = getattr(section, f.name)
@@ -178,27 +208,18 @@ class Scene:
             explicit = {f"{n}.{k}" for n, t in data.items() if isinstance(t, dict) for k in t}
         data = {n: dict(t) if isinstance(t, dict) else t for n, t in data.items()}
         _yield_defaults(data, explicit)
-        known = {"model", *_SECTIONS}
+        known = {"model", "test", *_SECTIONS}
         for key in data:
             if key not in known:
                 raise SceneError(f"unknown scene section '{key}'; known: {', '.join(sorted(known))}")
         kwargs: dict[str, Any] = {}
-        if "model" in data:
-            kwargs["model"] = data["model"]
+        for top in ("model", "test"):
+            if top in data:
+                kwargs[top] = data[top]
         for name, scls in _SECTIONS.items():
             if name not in data:
                 continue
-            table = data[name]
-            if not isinstance(table, dict):
-                raise SceneError(f"scene section '{name}' must be a table, got {table!r}")
-            names = {f.name for f in fields(scls)}
-            for key in table:
-                if key not in names:
-                    raise SceneError(f"unknown scene key '{name}.{key}'; known in [{name}]: {', '.join(sorted(names))}")
-            try:
-                kwargs[name] = scls(**table)
-            except TypeError as exc:  # pragma: no cover - names are checked above
-                raise SceneError(f"scene section '{name}': {exc}") from None
+            kwargs[name] = _section(name, scls, data[name])
         return cls(**kwargs)
 
     @classmethod
@@ -239,6 +260,20 @@ class Scene:
     def digest(self) -> str:
         """A stable hash of the complete scene (for caches)."""
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _section(name: str, scls: type, table: Any) -> Any:
+    """The section ``name`` of class ``scls`` from its TOML table; unknown keys are refused by name."""
+    if not isinstance(table, dict):
+        raise SceneError(f"scene section '{name}' must be a table, got {table!r}")
+    names = {f.name for f in fields(scls)}
+    for key in table:
+        if key not in names:
+            raise SceneError(f"unknown scene key '{name}.{key}'; known in [{name}]: {', '.join(sorted(names))}")
+    try:
+        return scls(**table)
+    except TypeError as exc:  # pragma: no cover - names are checked above
+        raise SceneError(f"scene section '{name}': {exc}") from None
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:

@@ -202,3 +202,49 @@ class Effects:
         if self.constraint == "lagrange" or self.penalty_form == "mixed":
             return ("u", "phi", "lam")
         return ("u", "phi")
+
+
+#: the tests a scene describes (top-level ``test``)
+TESTS = ("bias_extension", "picture_frame")
+
+
+@dataclass(frozen=True)
+class PictureFrame:
+    """The picture-frame test (test = "picture_frame"): a rigid frame of four bars hinged at its corners.
+
+    The crosshead pulls one pin away from the opposite one along e1 (``loading.u0_mm`` is its travel d);
+    the bars rotate about the pins and the frame turns from a square into a rhombus of frame angle θ,
+    cos θ = (√2 L + d) / (2 L), shear angle γ = 90° − 2θ (L = ``frame_mm``). The specimen is a cross:
+    a square of side ``frame_mm`` (pin to pin) whose four corner squares of side
+    (``frame_mm`` − ``fabric_mm``)/2 are cut away; its four arms are clamped to the bars and move with
+    them, so only the inner square of side ``fabric_mm`` shears freely. The yarns run along the bars
+    (at ±``specimen.yarn_angle_deg`` to e1, 45° for a fabric aligned with the frame), turned by
+    ``misalignment_deg`` in the plane.
+    """
+
+    frame_mm: float = 145.0  # L_frame: side of the frame, pin to pin [mm]
+    fabric_mm: float = 120.0  # L_fabric: side of the inner fabric square, between the arms [mm]
+    # deg: both yarn families turned by this angle (counter-clockwise) from the bars: the fabric laid
+    # in the frame out of line, the test's known sensitivity (the yarns are then stretched as the frame shears)
+    misalignment_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        _positive("picture_frame", self, "frame_mm", "fabric_mm")
+        _check(self.frame_mm <= MAX_SPECIMEN_MM, "picture_frame.frame_mm", self.frame_mm,
+               f"must be at most {MAX_SPECIMEN_MM:g} mm (1 km): larger values overflow the computation")
+        _check(self.fabric_mm <= self.frame_mm, "picture_frame.fabric_mm", self.fabric_mm,
+               f"the fabric square must fit in the frame: fabric_mm <= frame_mm = {self.frame_mm:g} mm")
+        m = self.misalignment_deg
+        _check(isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and abs(m) < 45.0,
+               "picture_frame.misalignment_deg", m,
+               "must lie strictly between -45 and 45 degrees (beyond, the yarns run along the other bars)")
+
+    @property
+    def arm_mm(self) -> float:
+        """The side c = (L_frame − L_fabric)/2 of the cut-away corner squares [mm]."""
+        return 0.5 * (self.frame_mm - self.fabric_mm)
+
+    @property
+    def locking_mm(self) -> float:
+        """The crosshead travel (2 − √2) L_frame at which the frame closes flat (θ = 0, γ = 90°) [mm]."""
+        return (2.0 - math.sqrt(2.0)) * self.frame_mm

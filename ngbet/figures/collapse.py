@@ -1,0 +1,59 @@
+"""The collapse figure of ``ngbet normalise``: the measured curves' normalised shear force against the shear angle."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .curves import FSH_GAMMA_MAX_DEG
+from .style import figure, in_style, put_caption
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+
+def _labels(curves: Sequence[Any]) -> list[str]:
+    """Each curve's legend name: its test and size, numbered where two are alike (never a file name)."""
+    base = [("bias extension " if c.test == "bias_extension" else "picture frame, ") + c.label for c in curves]
+    return [b if base.count(b) == 1 else f"{b} ({base[:k + 1].count(b)})" for k, b in enumerate(base)]
+
+
+def collapse_figure(curves: Sequence[Any], spread_text: str) -> Figure:
+    """F_sh (Eq. 18, energy method) and F_norm (Eq. 10) against γ, one colour per curve, the spread in the caption.
+
+    ``curves`` are :class:`ngbet.normalise.Normalised`; drawn up to
+    :data:`~ngbet.figures.curves.FSH_GAMMA_MAX_DEG` (towards yarn locking Eq. 18 divides by cos γ → 0).
+    """
+    with in_style():
+        fig = figure(7.0, 4.8)
+        ax = fig.subplots()
+        colours = [f"C{k % 10}" for k in range(len(curves))]
+        beyond = False
+        for c, lab, col in zip(curves, _labels(curves), colours, strict=True):
+            keep = c.gamma_deg <= FSH_GAMMA_MAX_DEG
+            beyond = beyond or bool(np.any(~keep))
+            g = np.r_[0.0, c.gamma_deg[keep]]
+            if c.test == "bias_extension":
+                ax.plot(g, np.r_[0.0, c.fsh[keep]], "-", color=col, lw=1.4, label=f"{lab}: Eq. 18")
+                ax.plot(g, np.r_[0.0, c.fsh_energy[keep]], "--", color=col, lw=1.0, label=f"{lab}: energy method")
+            else:
+                ax.plot(g, np.r_[0.0, c.fsh[keep]], "-.", color=col, lw=1.4, label=f"{lab}: Eq. 10")
+        ax.set_xlabel("shear angle γ [°]")
+        ax.set_ylabel("normalised shear force [N/mm]")
+        ax.set_xlim(left=0)
+        ax.set_ylim(bottom=min(0.0, ax.get_ylim()[0]))
+        ax.grid(True, lw=0.3, alpha=0.5)
+        ax.legend(loc="upper left", fontsize=7)
+        tests = {c.test for c in curves}
+        how = []
+        if "bias_extension" in tests:
+            how.append("bias extension tests by Cao et al. (2008) Eq. 18 (solid) and by the energy balance of the "
+                       "same ideal zones (dashed), γ from Eq. 13")
+        if "picture_frame" in tests:
+            how.append("picture-frame tests by Eqs. 1–3 and 10 (dash-dotted)")
+        cut = f"; beyond γ = {FSH_GAMMA_MAX_DEG:g}° (near yarn locking) not drawn" if beyond else ""
+        put_caption(fig, f"Measured normalised shear force: {'; '.join(how)}{cut}. {spread_text[0].upper()}"
+                         f"{spread_text[1:]}.")
+    return fig

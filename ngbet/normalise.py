@@ -1,0 +1,498 @@
+r"""``ngbet normalise``: measured shear tests as the normalised shear force against the shear angle.
+
+``ngbet normalise FILE.csv ... [--test bias_extension|picture_frame] [--specimen WxL] [--frame FxL] --out DIR``
+
+Every file is read by the one reader of measured curves (:func:`ngbet.calibration.data.read_table`:
+units, columns by name, separators, the specimen and the frame from the header or the command line).
+A file is a bias extension test when ``--test`` or its header says so, or when it names a specimen;
+a picture-frame test when they say so or it names a frame; otherwise it is refused.
+
+Bias extension (45° yarns, specimen W × H, H the clamp-to-clamp length; Cao et al. 2008):
+
+- the kinematic shear angle γ(d) of the ideal test, Eq. 13 (:func:`ngbet.kinematics.shear_angle_rad`);
+- F_sh(γ) by Eq. 18, the power balance of the ideal zones solved along the curve
+  (:func:`ngbet.kinematics.normalised_shear_force`);
+- the energy method (Harrison et al. 2004 derive Eq. 18 from it): the work of the clamp force,
+  W(d) = ∫ F dd, equals the shear energy of the ideal zones, A_A w(γ) + A_B w(γ/2) with
+  A_A = (2HW − 3W²)/2 and A_B = W²; solved along the curve for the energy per unit area w(γ)
+  [N/mm = mJ/mm²] (w piecewise linear in γ through 0, as F_sh in Eq. 18), and
+  F_sh = (dw/dγ) / cos γ. Both are the same balance: they agree where the measurement is smooth,
+  and their difference shows what the differentiation of a measured curve costs.
+
+Points at or beyond yarn locking, d ≥ (√2 − 1)(H − W), are left out (Eq. 13 has no angle there).
+
+Picture frame (frame side L_frame pin to pin, free fabric square L_fabric; Cao et al. 2008 Eqs. 1–3, 10):
+cos θ = (√2 L_frame + d) / (2 L_frame), γ = 90° − 2θ, F_s = F / (2 cos θ), and the normalised
+shear force F_norm = F_s L_frame / L_fabric², the quantity compared with the bias extension test's
+F_sh. A file may give the crosshead displacement or the shear angle, and the crosshead force, the
+shear force F_s or F_norm itself; the rest follows.
+
+Writes into ``--out`` (a folder it owns as ``ngbet run`` owns its folder: refused when it holds
+files that ngbet did not write there, files written complete under a temporary name first): a
+table per curve (``NAME_normalised.csv``, units in the column names), the collapse figure of the
+measurements (``collapse.png``) and ``normalise.json`` with the spread between the curves.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from .calibration.data import CurveTable, parse_sizes, read_measured, read_table, refuse_duplicates
+from .scene import SceneError
+
+#: the spread between curves is measured from this shear angle [deg] on (below it F_sh is small and
+#: its relative spread says little) to the largest angle every curve reaches
+SPREAD_FROM_DEG = 10.0
+#: ... on this many equally spaced angles
+SPREAD_POINTS = 50
+#: the marker's record of a folder this command owns
+FOLDER_KIND = "normalise folder"
+TABLE_SUFFIX = "_normalised.csv"
+FIGURE = "collapse"
+SUMMARY = "normalise.json"
+
+
+@dataclass
+class Normalised:
+    """One measured curve normalised: its columns (name with unit → values) and the collapse quantity.
+
+    ``fsh`` is F_sh by Eq. 18 (bias extension) or F_norm by Eq. 10 (picture frame) [N/mm] at
+    ``gamma_deg``; ``fsh_energy`` the bias extension's energy method (None for a picture frame).
+    """
+
+    source: str
+    test: str
+    label: str
+    gamma_deg: np.ndarray
+    fsh: np.ndarray
+    fsh_energy: np.ndarray | None
+    columns: dict[str, np.ndarray]
+    header: list[str]
+    notes: list[str] = field(default_factory=list)
+
+
+def _points(n: Any) -> str:
+    return f"{int(n)} point{'' if n == 1 else 's'}"
+
+
+# --- bias extension ------------------------------------------------------------------------------------------------
+
+def _half_angle_solve(gamma: np.ndarray, rhs: np.ndarray, own: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """The f at each γ_i from own_i f(γ_i) + half_i f(γ_i / 2) = rhs_i, f piecewise linear in γ through (0, 0).
+
+    f(γ_i / 2) is interpolated between earlier points (or involves f(γ_i) itself where γ_i / 2
+    lies beyond γ_{i−1}): each equation is linear in its own unknown, solved in order.
+    """
+    g = np.r_[0.0, gamma]
+    f = np.zeros(len(g))
+    for i in range(1, len(g)):
+        h = g[i] / 2
+        j = max(int(np.searchsorted(g[:i + 1], h, side="right")), 1)
+        w = (h - g[j - 1]) / (g[j] - g[j - 1]) if g[j] > g[j - 1] else 0.0
+        known = (1.0 - w) * f[j - 1] + (w * f[j] if j < i else 0.0)
+        share = w if j == i else 0.0
+        f[i] = (rhs[i - 1] - half[i - 1] * known) / (own[i - 1] + half[i - 1] * share)
+    return f[1:]
+
+
+def energy_method(d_mm: np.ndarray, force_N: np.ndarray, H_mm: float, W_mm: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(γ [rad], shear energy per unit area w [N/mm], F_sh = (dw/dγ)/cos γ [N/mm]) of a BET curve (module docstring).
+
+    ``d_mm`` strictly increasing, positive and below yarn locking; the work is integrated by the
+    trapezoidal rule from the unloaded state (0, 0).
+    """
+    from scipy.integrate import cumulative_trapezoid
+
+    from .kinematics import shear_angle_rad
+
+    gamma = shear_angle_rad(d_mm, H_mm, W_mm)
+    work = cumulative_trapezoid(np.r_[0.0, force_N], np.r_[0.0, d_mm])  # N mm at each point
+    A_A, A_B = (2 * H_mm * W_mm - 3 * W_mm ** 2) / 2, W_mm ** 2
+    n = len(gamma)
+    w = _half_angle_solve(gamma, work, np.full(n, A_A), np.full(n, A_B))
+    return gamma, w, np.gradient(w, gamma) / np.cos(gamma)
+
+
+def normalise_bet(path: str | Path, specimen: dict[str, float] | None = None,
+                  columns: str | Sequence[str] | None = None) -> Normalised:
+    """A bias extension curve by Eq. 18 and by the energy method (module docstring)."""
+    from .kinematics import normalised_shear_force
+
+    c = read_measured(path, columns=columns, specimen=specimen)
+    sp = c.specimen
+    if "specimen.width_mm" not in sp:
+        raise SceneError(f"{path}: a bias extension curve needs its specimen: add '# specimen.width_mm = ...' and "
+                         "'# specimen.length_mm = ...' to the header or give --specimen WIDTHxLENGTH (mm)")
+    W, H = sp["specimen.width_mm"], sp["specimen.length_mm"]
+    if sp.get("specimen.yarn_angle_deg", 45.0) != 45.0:
+        raise SceneError(f"{path}: specimen.yarn_angle_deg = {sp['specimen.yarn_angle_deg']:g}: Eqs. 13 and 18 are "
+                         "the ±45° bias extension test's")
+    if not 2 * H > 3 * W:
+        raise SceneError(f"{path}: specimen {W:g} x {H:g} mm: Eq. 18 needs a clamp-to-clamp length above 1.5 times "
+                         "the width (the central zone A has the area (2HW − 3W²)/2)")
+    lock = (math.sqrt(2.0) - 1.0) * (H - W)
+    keep = (c.u_mm > 0) & (c.u_mm < lock * (1 - 1e-9))
+    notes = list(c.notes)
+    if np.count_nonzero(c.u_mm >= lock * (1 - 1e-9)):
+        notes.append(f"{_points(np.count_nonzero(c.u_mm >= lock * (1 - 1e-9)))} at or beyond the ideal yarn locking "
+                     f"({lock:.4g} mm) left out")
+    if np.count_nonzero(c.u_mm <= 0):
+        notes.append(f"{_points(np.count_nonzero(c.u_mm <= 0))} at zero or negative displacement left out (γ = 0)")
+    if keep.sum() < 3:
+        raise SceneError(f"{path}: {int(keep.sum())} points between 0 and the yarn locking ({lock:.4g} mm) of the "
+                         f"{W:g} x {H:g} mm specimen; at least 3 are needed (is the specimen right?)")
+    d, F = c.u_mm[keep], c.force_N[keep]
+    gamma, fsh = normalised_shear_force(d, F, H, W)
+    _, w, fsh_e = energy_method(d, F, H, W)
+    g = np.degrees(gamma)
+    cols = {"displacement_mm": d, "force_N": F, "shear_angle_deg": g, "fsh_eq18_N_per_mm": fsh,
+            "fsh_energy_N_per_mm": fsh_e, "shear_energy_N_per_mm": w}
+    header = [f"bias extension test, specimen {W:g} x {H:g} mm (width x clamp-to-clamp length), 45° yarns",
+              "displacement_mm: clamp displacement; force_N: clamp force (equal displacements averaged)",
+              "shear_angle_deg: kinematic shear angle of the ideal test (Cao et al. 2008, Eq. 13)",
+              "fsh_eq18_N_per_mm: normalised shear force by Eq. 18 (power balance of the ideal zones)",
+              "fsh_energy_N_per_mm: the same by the energy method, (dw/dgamma)/cos(gamma)",
+              "shear_energy_N_per_mm: shear energy per unit area w (N mm / mm^2) of the energy method"]
+    return Normalised(c.source, "bias_extension", f"{W:g} × {H:g} mm", g, fsh, fsh_e, cols, header, notes)
+
+
+# --- picture frame ---------------------------------------------------------------------------------------------------
+
+def normalise_pf(t: CurveTable) -> Normalised:
+    """A picture-frame curve by Eqs. 1–3 and 10 (module docstring)."""
+    fr = t.frame
+    if "picture_frame.frame_mm" not in fr or "picture_frame.fabric_mm" not in fr:
+        lack = [k for k in ("picture_frame.frame_mm", "picture_frame.fabric_mm") if k not in fr]
+        raise SceneError(f"{t.source}: a picture-frame curve needs the frame and the fabric square: add "
+                         f"{', '.join(repr('# ' + k + ' = ...') for k in lack)} to the header or give "
+                         "--frame FRAMExFABRIC (mm, e.g. 145x120)")
+    L, Lf = fr["picture_frame.frame_mm"], fr["picture_frame.fabric_mm"]
+    if Lf > L:
+        raise SceneError(f"{t.source}: the fabric square ({Lf:g} mm) is larger than the frame ({L:g} mm)")
+    order = np.argsort(t.x, kind="stable")
+    x, y = t.x[order], t.y[order]
+    ux, inv = np.unique(x, return_inverse=True)
+    y = np.bincount(inv, weights=y) / np.bincount(inv)
+    cols: dict[str, np.ndarray] = {}
+    notes = list(t.notes)
+    if t.x_quantity == "displacement":
+        c = (math.sqrt(2.0) * L + ux) / (2 * L)
+        ok = (ux >= 0) & (c < 1)
+        ux, y = ux[ok], y[ok]
+        theta = np.arccos((math.sqrt(2.0) * L + ux) / (2 * L))
+        cols["displacement_mm"] = ux
+        domain = f"displacements from 0 to {(2 - math.sqrt(2.0)) * L:.4g} mm (Eq. 1)"
+    else:
+        ok = (ux >= 0) & (ux < 90)
+        ux, y = ux[ok], y[ok]
+        theta = np.radians(90.0 - ux) / 2
+        domain = "shear angles from 0 to 90°"
+    if not ok.all():
+        notes.append(f"{_points(np.count_nonzero(~ok))} outside the frame's {domain} left out")
+    gamma = 90.0 - 2 * np.degrees(theta)
+    cols["shear_angle_deg"] = gamma
+    if t.y_quantity == "force":
+        cols["force_N"] = y
+        fs = y / (2 * np.cos(theta))
+    elif t.y_quantity == "shear_force":
+        fs = y
+    else:
+        fs = y * Lf ** 2 / L
+    cols["shear_force_N"] = fs
+    cols["fnorm_N_per_mm"] = fs * L / Lf ** 2
+    if len(gamma) < 3:
+        raise SceneError(f"{t.source}: {len(gamma)} points with a shear angle between 0 and 90°; at least 3 are needed")
+    header = [f"picture-frame test, frame {L:g} mm (pin to pin), fabric square {Lf:g} mm",
+              "shear_angle_deg: shear angle, 90° - 2 theta (Cao et al. 2008, Eqs. 1-2)",
+              "shear_force_N: shear force F_s = F / (2 cos theta) (Eq. 3)",
+              "fnorm_N_per_mm: normalised shear force F_s L_frame / L_fabric^2 (Eq. 10)"]
+    if "force_N" in cols:
+        header.insert(1, "displacement_mm, force_N: crosshead displacement and force (less the empty frame's)")
+    return Normalised(t.source, "picture_frame", f"frame {L:g} mm, fabric {Lf:g} mm", gamma,
+                      cols["fnorm_N_per_mm"], None, cols, header, notes)
+
+
+# --- the collapse -------------------------------------------------------------------------------------------------
+
+def spread(curves: Sequence[Normalised]) -> dict[str, Any] | None:
+    """The spread between the curves' F_sh: (max − min)/mean [%] over the angles all reach; None for one curve.
+
+    On :data:`SPREAD_POINTS` angles from :data:`SPREAD_FROM_DEG` (or the largest first angle) to the
+    smallest last angle, drawn up to ``FSH_GAMMA_MAX_DEG``; None also when the curves share no range.
+    """
+    from .figures.curves import FSH_GAMMA_MAX_DEG
+
+    if len(curves) < 2:
+        return None
+    a = max(SPREAD_FROM_DEG, *(float(c.gamma_deg.min()) for c in curves))
+    b = min(FSH_GAMMA_MAX_DEG, *(float(c.gamma_deg.max()) for c in curves))
+    if not a < b:
+        return None
+    g = np.linspace(a, b, SPREAD_POINTS)
+    f = np.array([np.interp(g, c.gamma_deg, c.fsh) for c in curves])
+    mean = np.abs(f.mean(axis=0))
+    rel = 100 * (f.max(axis=0) - f.min(axis=0)) / np.where(mean > 0, mean, np.nan)
+    ok = np.isfinite(rel)
+    if not ok.any():
+        return None
+    k = int(np.nanargmax(rel))
+    return {"max_percent": float(np.nanmax(rel)), "median_percent": float(np.nanmedian(rel)),
+            "at_max_deg": float(g[k]), "from_deg": float(a), "to_deg": float(b), "curves": len(curves)}
+
+
+def spreads(curves: Sequence[Normalised]) -> list[tuple[str, dict[str, Any] | None]]:
+    """The spread between the bias extension sizes, between the picture frames, and between the tests where both are.
+
+    Each as (what, :func:`spread`), for every group of at least two curves.
+    """
+    bet = [c for c in curves if c.test == "bias_extension"]
+    pf = [c for c in curves if c.test == "picture_frame"]
+    out = [(what, spread(group)) for what, group in (("the bias extension sizes", bet), ("the picture frames", pf),
+                                                      ("the tests", curves if bet and pf else []))
+           if len(group) > 1]
+    return out
+
+
+def spread_text(curves: Sequence[Normalised], groups: list[tuple[str, dict[str, Any] | None]]) -> str:
+    """One sentence on the spreads (figure caption and terminal)."""
+    if not groups:
+        return "one curve: no spread to state"
+    parts = []
+    for what, s in groups:
+        if s is None:
+            parts.append(f"{what} share no shear angle range above {SPREAD_FROM_DEG:g}°: no spread stated")
+        else:
+            parts.append(f"between {what}, the normalised shear force differs by up to {s['max_percent']:.0f} % "
+                         f"(at γ = {s['at_max_deg']:.0f}°; median {s['median_percent']:.0f} %) over γ = "
+                         f"{s['from_deg']:.0f}–{s['to_deg']:.0f}°")
+    return "; ".join(parts) + "; spread = (max − min)/mean"
+
+
+# --- the folder --------------------------------------------------------------------------------------------------
+
+class NormaliseFolder:
+    """The output folder, owned as ``ngbet run`` owns its own (:mod:`ngbet.run_folder`).
+
+    Refused: a non-empty folder without ngbet's mark, a folder of another ngbet command (a run, a
+    study), a file in it with a name this command would write that no earlier normalise registered.
+    The files an earlier normalise registered are removed (none of an earlier set of curves stays
+    beside the new one); every file is written under a temporary name and renamed when complete.
+    """
+
+    def __init__(self, out: Path, names: Sequence[str]) -> None:
+        from .run_folder import RUN_MARKER, OutputError, _acquire_run_folder, _io, _marker_record
+
+        self.out = out
+        marker = out / RUN_MARKER
+        if marker.is_file():
+            try:
+                kind = _marker_record(marker.read_text()).get("ngbet")
+            except OSError as exc:
+                raise OutputError(marker, exc.strerror or str(exc)) from None
+            if kind != FOLDER_KIND:
+                raise OutputError(out, f"a folder of another ngbet command ({kind or 'an ngbet run'}); ngbet "
+                                       "normalise writes into a folder of its own: choose another --out")
+        self._lock: IO[str] | None
+        self._lock, previous = _acquire_run_folder(out)
+        try:
+            clash = [n for n in names if (out / n).exists() and n not in previous]
+            if clash:
+                raise OutputError(out, f"holds {', '.join(clash)}, which ngbet did not write there; this command "
+                                       "would replace them: move them or choose another --out")
+            for n in previous:
+                _io(out / n, lambda p: p.unlink(missing_ok=True))
+            self.files: list[str] = []
+            self._save()
+        except BaseException:
+            self.close()
+            raise
+
+    def _save(self) -> None:
+        from .run_folder import RUN_MARKER, _io
+
+        fh = self._lock
+        assert fh is not None
+        text = json.dumps({"ngbet": FOLDER_KIND, "pid": os.getpid(), "files": self.files})
+        _io(self.out / RUN_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
+
+    def write(self, name: str, produce: Any) -> Path:
+        """``produce(tmp)`` writes the file complete at a temporary name; then it is renamed to ``name``."""
+        from .run_folder import TMP_PREFIX, _io
+
+        if name not in self.files:
+            self.files.append(name)
+            self._save()
+        tmp = self.out / (TMP_PREFIX + name)
+        try:
+            _io(tmp, produce)
+            _io(self.out / name, lambda p: os.replace(tmp, p))
+        finally:
+            tmp.unlink(missing_ok=True)
+        return self.out / name
+
+    def close(self) -> None:
+        """Unlock the folder."""
+        if self._lock is not None:
+            self._lock.close()
+            self._lock = None
+
+
+def _table_text(n: Normalised) -> str:
+    lines = [f"# {h}" for h in [f"ngbet normalise of {n.source}", *n.header, *n.notes]]
+    names = list(n.columns)
+    lines.append(",".join(names))
+    for i in range(len(n.gamma_deg)):
+        lines.append(",".join("" if not math.isfinite(v) else f"{v:.6g}" for v in (n.columns[k][i] for k in names)))
+    return "\n".join(lines) + "\n"
+
+
+def _names(curves: Sequence[Normalised]) -> list[str]:
+    out, seen = [], set()
+    for c in curves:
+        stem, k = Path(c.source).stem, 2
+        name = stem + TABLE_SUFFIX
+        while name in seen:
+            name, k = f"{stem}_{k}{TABLE_SUFFIX}", k + 1
+        seen.add(name)
+        out.append(name)
+    return out
+
+
+# --- the command ---------------------------------------------------------------------------------------------------
+
+def add_parser(sub: Any) -> None:
+    """The ``ngbet normalise`` subcommand."""
+    p = sub.add_parser("normalise", help="measured bias-extension or picture-frame curves as the normalised shear "
+                       "force against the shear angle: a table per curve and a collapse figure")
+    p.add_argument("inputs", nargs="+", metavar="DATA.csv", help="measured curves (any units and separators the "
+                   "reader understands; see docs/normalise.md)")
+    p.add_argument("--test", choices=("bias_extension", "picture_frame"),
+                   help="the test of every file (default: each file's header, or its specimen or frame keys)")
+    p.add_argument("--specimen", action="append", default=[], metavar="WxL",
+                   help="bias extension: width x clamp-to-clamp length in mm (e.g. 100x250) where a header does "
+                   "not give it; once for every file or once per file in order")
+    p.add_argument("--frame", action="append", default=[], metavar="FRAMExFABRIC",
+                   help="picture frame: frame side and fabric square in mm (e.g. 145x120); once or once per file")
+    p.add_argument("--columns", metavar="X,Y", help="the two columns by header name or number, each with an optional "
+                   "unit (e.g. 'Weg:mm,Kraft:kN')")
+    p.add_argument("--out", default="out/normalise", help="output folder (default: out/normalise)")
+    p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
+
+
+def _per_file(values: list[dict[str, float]], n: int, flag: str) -> list[dict[str, float] | None]:
+    if not values:
+        return [None] * n
+    if len(values) == 1:
+        return [values[0]] * n
+    if len(values) != n:
+        raise SceneError(f"{len(values)} {flag} for {n} data files: give one for all, or one per file in order")
+    return list(values)
+
+
+def read_inputs(args: argparse.Namespace) -> list[Normalised]:
+    """Every file read, checked and normalised (before anything is written)."""
+    sizes = ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm")
+    specs = _per_file([parse_sizes(t, "--specimen", sizes) for t in args.specimen], len(args.inputs), "--specimen")
+    frames = _per_file([parse_sizes(t, "--frame", ("picture_frame.frame_mm", "picture_frame.fabric_mm"))
+                        for t in args.frame], len(args.inputs), "--frame")
+    tables = [read_table(p, test=args.test, columns=args.columns, specimen=s, frame=f)
+              for p, s, f in zip(args.inputs, specs, frames, strict=True)]
+    refuse_duplicates(tables)
+    out = []
+    for t, s in zip(tables, specs, strict=True):
+        test = t.test or _test_of(t)
+        if test == "bias_extension":
+            out.append(normalise_bet(t.source, s, args.columns))
+        else:
+            out.append(normalise_pf(t))
+    return out
+
+
+def _test_of(t: CurveTable) -> str:
+    has_spec, has_frame = bool(t.specimen), bool(t.frame)
+    if has_spec and not has_frame:
+        return "bias_extension"
+    if has_frame and not has_spec:
+        return "picture_frame"
+    why = "names both a specimen and a frame" if has_spec else "names neither a specimen nor a frame"
+    raise SceneError(f"{t.source}: which test? its header {why}: give --test bias_extension or picture_frame "
+                     "(or '# test: bias_extension' in the header)")
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    """``ngbet normalise``: exit 0 done, 2 bad input (nothing written), 3 an unusable output folder."""
+    from .commands import exit_code
+
+    out = Path(args.out)
+    try:
+        curves = read_inputs(args)
+        names = _names(curves)
+        groups = spreads(curves)
+        text = spread_text(curves, groups)
+        folder = NormaliseFolder(out, [*names, FIGURE + ".png", FIGURE + ".pdf", SUMMARY])
+        try:
+            for c, name in zip(curves, names, strict=True):
+                folder.write(name, lambda p, c=c: p.write_text(_table_text(c)))
+            figure = _figure(folder, curves, text)
+            summary = {"curves": [{"source": c.source, "test": c.test, "label": c.label, "table": name,
+                                   "shear_angle_deg": [float(c.gamma_deg.min()), float(c.gamma_deg.max())],
+                                   "notes": c.notes} for c, name in zip(curves, names, strict=True)],
+                       "spread": {what: s for what, s in groups}, "spread_text": text, "figure": figure,
+                       "files": sorted({*folder.files, SUMMARY})}
+            folder.write(SUMMARY, lambda p: p.write_text(json.dumps(summary, indent=2, allow_nan=False)))
+        finally:
+            folder.close()
+    except SceneError as exc:
+        print(f"ngbet normalise: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:
+        code, msg = exit_code(exc, out)
+        print(f"ngbet normalise: {msg}", file=sys.stderr)
+        return code
+    for c in curves:
+        for note in c.notes:
+            print(f"ngbet normalise: {c.source}: {note}", file=sys.stderr)
+    if not args.quiet:
+        print(_report(curves, names, text, out, figure))
+    return 0
+
+
+def _figure(folder: NormaliseFolder, curves: Sequence[Normalised], text: str) -> str | None:
+    """Draw the collapse figure into the folder (PNG and PDF); None (said) without matplotlib."""
+    try:
+        from .figures.collapse import collapse_figure
+        from .figures.style import PNG_DPI, VECTOR_RASTER_DPI
+    except ImportError:
+        print("ngbet normalise: matplotlib is not installed: no collapse figure (the tables are written)",
+              file=sys.stderr)
+        return None
+    fig = collapse_figure(curves, text)
+    for fmt in ("png", "pdf"):
+        dpi = PNG_DPI if fmt == "png" else VECTOR_RASTER_DPI
+        folder.write(f"{FIGURE}.{fmt}", lambda p, fmt=fmt, dpi=dpi: fig.savefig(p, format=fmt, dpi=dpi))
+    return FIGURE + ".png"
+
+
+def _report(curves: Sequence[Normalised], names: Sequence[str], text: str, out: Path, figure: str | None) -> str:
+    lines = [f"ngbet normalise: {len(curves)} curve(s); tables{' and ' + figure if figure else ''} in {out}/"]
+    for c, name in zip(curves, names, strict=True):
+        g = c.gamma_deg
+        at = [x for x in (20.0, 40.0) if g.min() <= x <= g.max()]
+        sym = "F_sh" if c.test == "bias_extension" else "F_norm"
+        vals = ", ".join(f"{sym}({x:g}°) = {np.interp(x, g, c.fsh):.3g} N/mm" for x in at)
+        method = "Eq. 18" if c.test == "bias_extension" else "Eq. 10"
+        lines.append(f"  {c.label:>28s} ({c.test.replace('_', ' ')}): γ {g.min():.3g}–{g.max():.3g}°"
+                     f"{', ' + vals + ' (' + method + ')' if vals else ''} -> {name}")
+    lines.append(f"  {text}")
+    return "\n".join(lines)
