@@ -264,19 +264,9 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     from .calibration import command as fit_command
 
     fit_command.add_parser(sub)
-    pe = sub.add_parser("export", epilog=EPILOG, help="a fit's (or any scene's) shear law as a table or a forming "
-                        "code's card: shear stress and torque per area against the shear angle (docs/export.md)")
-    pe.add_argument("source", help="a fit folder (its fitted_scene.toml) or a scene TOML file")
-    pe.add_argument("--format", dest="fmt", choices=("csv", "abaqus", "lsdyna"), default="csv",
-                    help="csv: a table; abaqus: an Abaqus/Explicit *FABRIC block; lsdyna: an LS-DYNA "
-                    "*DEFINE_CURVE (default: csv)")
-    pe.add_argument("--out", default="out/export", help="output folder (default: out/export); a folder "
-                    "holding files ngbet did not write is refused")
-    pe.add_argument("--max-angle-deg", type=float, default=None, metavar="DEG",
-                    help="the card's last shear angle (default: where the law is defined, at most 70°)")
-    pe.add_argument("--tolerance", type=float, default=1e-3, metavar="REL",
-                    help="largest deviation of the card's linear interpolation from the model's shear stress, "
-                    "relative to the local stress (default: 1e-3)")
+    from . import export
+
+    export.add_parser(sub, EPILOG)
     from . import normalise
 
     normalise.add_parser(sub)
@@ -295,7 +285,9 @@ def _main(argv: list[str] | None) -> int:
 
         return fit_command.run_from_args(args)
     if args.command == "export":
-        return _export(args)
+        from . import export
+
+        return export.run_from_args(args)
     if args.command == "normalise":
         from . import normalise
 
@@ -380,24 +372,6 @@ def _run(scene: Scene, out: Path, quiet: bool = False, measured: Any = None) -> 
     if quiet:
         return EXIT_OK
     return _print(_report(summary, out) + "\n", f"the report (the run is complete in {out}/)")
-
-
-def _export(args: argparse.Namespace) -> int:
-    """``ngbet export SOURCE --format F --out DIR``: one line naming the card, its points and its tolerance."""
-    from .export import export
-
-    try:
-        s = export(args.source, args.fmt, args.out, args.max_angle_deg, args.tolerance)
-    except SceneError as exc:
-        _say(f"export: {exc}")
-        return EXIT_INPUT
-    except Exception as exc:
-        code, msg = exit_code(exc, Path(args.out))
-        _say(f"export: {msg}")
-        return code
-    return _print(f"ngbet: {s['format']} card of {s['source']}: {s['points']} points to "
-                  f"γ = {s['shear_angle_max_deg']:.4g}°, within {s['tolerance']:g} of the model's shear stress "
-                  f"(measured {s['deviation']:.2g}); {args.out}/{s['card']}\n", "the report")
 
 
 def _last_converged_mm(out: Path) -> float:

@@ -404,3 +404,46 @@ def export(source: str | Path, fmt: str, out: str | Path, max_angle_deg: float |
         return summary
     finally:
         fh.close()
+
+
+def add_parser(sub: Any, epilog: str = "") -> None:
+    """The ``ngbet export`` subcommand."""
+    pe = sub.add_parser("export", epilog=epilog, help="a fit's (or any scene's) shear law as a table or a forming "
+                        "code's card: shear stress and torque per area against the shear angle (docs/export.md)")
+    pe.add_argument("source", help="a fit folder (its fitted_scene.toml) or a scene TOML file")
+    pe.add_argument("--format", dest="fmt", choices=tuple(FORMATS), default="csv",
+                    help="csv: a table; abaqus: an Abaqus/Explicit *FABRIC block; lsdyna: an LS-DYNA "
+                    "*DEFINE_CURVE (default: csv)")
+    pe.add_argument("--out", default="out/export", help="output folder (default: out/export); a folder "
+                    "holding files ngbet did not write is refused")
+    pe.add_argument("--max-angle-deg", type=float, default=None, metavar="DEG",
+                    help="the card's last shear angle (default: where the law is defined, at most 70°)")
+    pe.add_argument("--tolerance", type=float, default=TOLERANCE, metavar="REL",
+                    help="largest deviation of the card's linear interpolation from the model's shear stress, "
+                    "relative to the local stress (default: 1e-3)")
+
+
+def run_from_args(args: Any) -> int:
+    """``ngbet export``: one line naming the card, its points and tolerance; exit 0, 2 bad input, 3 unusable folder."""
+    import sys
+
+    from .commands import EXIT_INPUT, EXIT_IO, EXIT_OK, exit_code
+    from .messages import say
+
+    try:
+        s = export(args.source, args.fmt, args.out, args.max_angle_deg, args.tolerance)
+    except SceneError as exc:
+        say(f"export: {exc}")
+        return EXIT_INPUT
+    except Exception as exc:
+        code, msg = exit_code(exc, Path(args.out))
+        say(f"export: {msg}")
+        return code
+    try:
+        print(f"ngbet: {s['format']} card of {s['source']}: {s['points']} points to γ = "
+              f"{s['shear_angle_max_deg']:.4g}°, within {s['tolerance']:g} of the model's shear stress (measured "
+              f"{s['deviation']:.2g}); {args.out}/{s['card']}", file=sys.stdout, flush=True)
+    except OSError as exc:
+        say(f"could not write the report to stdout ({exc.strerror or exc}); the card is in {args.out}/")
+        return EXIT_IO
+    return EXIT_OK
