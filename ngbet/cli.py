@@ -1,4 +1,4 @@
-"""Command line: ``ngbet run [scene.toml]``, ``ngbet scene``, ``ngbet study NAME [scene.toml]``, ``ngbet sweep``.
+"""Command line: ``ngbet run [scene.toml]``, ``ngbet scene``, ``ngbet study NAME``, ``ngbet sweep``, ``ngbet export``.
 
 Exit status (both models, runs and studies):
 
@@ -301,6 +301,9 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     from .calibration import command as fit_command
 
     fit_command.add_parser(sub)
+    from . import export
+
+    export.add_parser(sub, EPILOG)
     from . import normalise
 
     normalise.add_parser(sub)
@@ -319,6 +322,10 @@ def _main(argv: list[str] | None) -> int:
         from .calibration import command as fit_command
 
         return fit_command.run_from_args(args)
+    if args.command == "export":
+        from . import export
+
+        return export.run_from_args(args)
     if args.command == "normalise":
         from . import normalise
 
@@ -513,17 +520,16 @@ def _report(summary: dict, out: Path) -> str:
     from .output import read_rows
 
     rows = read_rows(out / "results.csv")
+    # the solver's iteration counts are in summary.json: nothing on the terminal a user would act on
     lines = [f"ngbet: {summary['status']}: u0 = {summary['u0_reached_mm']:g} mm in "
-             f"{summary.get('load_steps', len(rows))} load steps, "
-             f"{summary.get('newton_iterations', '?')} Newton iterations"
-             + (f" and {summary['chord_iterations']} chord iterations" if summary.get("chord_iterations") else "")
-             + f", {summary['wall_s']:.2f} s; "
-             f"results in {out}/"]
+             f"{summary.get('load_steps', len(rows))} load steps, {summary['wall_s']:.2f} s; results in {out}/"]
     for r in rows:
         if "force_N" in r and (abs(r["u0_mm"] - 37) < 1e-9 or r is rows[-1]):
             err = r.get("force_error_N")
+            failed = f"{r['u0_mm']:g}" in (summary.get("error_estimate_unreliable") or {})
             bar = (f" ± {err:.2g} N (estimated discretization error)" if isinstance(err, float) and err == err
-                   else " (error estimate failed)" if isinstance(err, float) else "")
+                   else " (no error bar: the estimate could not vouch for this force; summary.json says why)"
+                   if failed or isinstance(err, float) else "")
             lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {_force_text(r['force_N'])} N{bar}")
             spread = r.get("force_path_spread_N")
             if isinstance(spread, float) and spread > 0:  # in the bar: another stable state the path left

@@ -44,10 +44,10 @@ from .run_folder import (
     _acquire_run_folder,
     _clear_previous_run,
     _io,
-    _jsonable,
     _link_or_copy,
     _remove,
     check_complete,
+    json_text,
     write_json_atomic,
 )
 from .scene import Scene
@@ -227,7 +227,7 @@ class RunWriter:
 
     def write_json(self, name: str, data: Any) -> None:
         """Write a JSON file (see :meth:`write`)."""
-        self.write_text(name, json.dumps(data, indent=2, default=_jsonable))
+        self.write_text(name, json_text(data))
 
     def write_group(self, stem: str, produce: Callable[[Path], Iterable[Path]]) -> list[Path]:
         """Write files that one writer makes together, ``stem`` + a suffix each (a VTU file and its picture).

@@ -12,6 +12,7 @@ import fcntl
 import fnmatch
 import json
 import logging
+import math
 import os
 import shutil
 from collections.abc import Callable
@@ -67,7 +68,7 @@ def write_json_atomic(path: Path, data: Any) -> None:
     """Write JSON to a temporary file and rename it: a reader sees the old or the new file, never half."""
     tmp = path.with_name(TMP_PREFIX + path.name)
     try:
-        _io(tmp, lambda p: p.write_text(json.dumps(data, indent=2, default=_jsonable)))
+        _io(tmp, lambda p: p.write_text(json_text(data)))
         _io(path, lambda p: os.replace(tmp, p))
     finally:
         tmp.unlink(missing_ok=True)
@@ -261,6 +262,24 @@ def check_complete(path: Path, final: Path) -> None:
     if end not in tail:
         raise OutputError(final, f"written incomplete ({size} bytes, without its ending): the disk is full or "
                                  "a file size limit (ulimit -f) was reached")
+
+
+def strict(o: Any) -> Any:
+    """``o`` with every non-finite float (NaN, ±inf) replaced by None: JSON that every language reads."""
+    if isinstance(o, float):
+        return o if math.isfinite(o) else None
+    if isinstance(o, dict):
+        return {k: strict(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple, set)):
+        return [strict(v) for v in o]
+    if hasattr(o, "tolist") and not isinstance(o, (str, bytes)):
+        return strict(o.tolist())
+    return o
+
+
+def json_text(data: Any) -> str:
+    """Strict JSON of ``data`` (no bare NaN or Infinity: null), indented; numpy values as lists and numbers."""
+    return json.dumps(strict(data), indent=2, default=_jsonable, allow_nan=False)
 
 
 def _jsonable(o: Any) -> Any:

@@ -73,7 +73,7 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     for j, r in enumerate(analyse(data, quick)):
         X, uy = data.profile(r["case"], s2)
         ax.plot(X, uy, color=f"C{j}", lw=2.5 if r["balanced"] else 1.5,
-                label=f"alpha1 = {r['alpha1']:g} Pa m²" + (" = alpha2 (balanced)" if r["balanced"] else ""))
+                label=f"α1 = {FG.eng(r['alpha1'], 'Pa m²')}" + (" = α2 (balanced)" if r["balanced"] else ""))
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
     ax.set_ylabel("vertical displacement u_y [mm]")

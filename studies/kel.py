@@ -91,7 +91,7 @@ def plot(data: StudyData) -> list[Path]:
         pts = [q for q in data.tables.get("outlines", []) if int(q["case"]) == r["case"]]
         if pts:
             ax.plot([q["x_mm"] for q in pts], [q["y_mm"] for q in pts], color=f"C{j}",
-                    label=f"K_el = {r['K_el'] / 1e6:g} MPa (width at centre {r['width_mm']:.1f} mm)")
+                    label=f"K_el = {FG.eng(r['K_el'], 'Pa')} (width at centre {r['width_mm']:.1f} mm)")
     L = data.meta["base_scene"]["specimen"]["length_mm"]
     W = data.meta["base_scene"]["specimen"]["width_mm"]
     ax.plot([0, L, L, 0, 0], [0, 0, W, W, 0], "k:", lw=0.8, label="undeformed specimen")

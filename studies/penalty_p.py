@@ -190,7 +190,7 @@ def _plot_profiles(data: StudyData, g: Grid, a: dict) -> Path:
                   and r["status"] == "ok"), key=lambda r: r["K"])
     for j, r in enumerate(pen):
         X, uy = data.profile(r["case"], s2)
-        ax.plot(X, uy, color=cmap(j / max(len(pen) - 1, 1)), label=f"penalty K = {r['K']:.0e} Pa")
+        ax.plot(X, uy, color=cmap(j / max(len(pen) - 1, 1)), label=f"penalty K = {FG.eng(r['K'], 'Pa')}")
     lag = C.lagrange_case(data, h0, p0)
     if lag is not None:
         ax.plot(*data.profile(lag, s2), "k--", lw=2, label="Lagrange multiplier")

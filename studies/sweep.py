@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ngbet.scene import Scene, SceneError
+from ngbet.scene import Scene, SceneError, default_scene
 from ngbet.study import Study, StudyData, grid, savefig
 
 from . import _common as C
@@ -59,7 +59,9 @@ def parse_items(items: list[str], parse: Callable[[str], Any]) -> tuple[dict[str
 
 def build(axes: dict[str, list[Any]], quick: bool = False, scene: Scene | None = None) -> Study:
     """The sweep as a study; a value the scene refuses is a :class:`SceneError` naming it (before any run)."""
-    base = C.study_scene(scene, quick)
+    # the force figure draws whole curves: the scene's output grid (the other studies report at stops only)
+    every = (scene if scene is not None else default_scene()).loading.output_every_mm
+    base = C.study_scene(scene, quick, {"loading.output_every_mm": every})
     cases = grid(**axes)
     for case in cases:
         try:
@@ -137,7 +139,7 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     axs[0].set_xlabel(FG.U0_LABEL)
     axs[0].set_ylabel(FG.FORCE_LABEL)
     axs[0].set_xlim(left=0)
-    axs[0].set_title("(a) force (points: converged steps)")
+    axs[0].set_title("(a) force (points: the output loads)")
     axs[1].set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
     axs[1].set_ylabel("vertical displacement u_y [mm]")
     axs[1].set_title("(b) mid-axis profile at each case's final load" if U0 in data.meta["params"]

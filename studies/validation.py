@@ -35,6 +35,7 @@ import json
 import logging
 import os
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +78,9 @@ FABRICS = {
 QUICK = (("twill_unbalanced", 0),)
 TABLE, KEL = "material.shear_stress_steps_Pa", "material.K_el"
 SCORE_POINTS = 24
+#: points beyond the scored 10–90 % up to the end of the measured curve: the figure draws the
+#: prediction over the whole range, the steep end included; the RMS errors stay on the scored points
+TAIL_POINTS = 4
 MAX_RUNS, QUICK_RUNS = 40, 3
 #: the fits' folder inside the study cache (``--cache``, default out/studies/cache)
 FITS_FOLDER = "validation-fits"
@@ -108,8 +112,17 @@ def _key(fabric: str, max_runs: int, scene_toml: str = "") -> str:
             eb = p.with_name(p.stem + "_errorbars.csv")
             if eb.exists():
                 h.update(eb.read_bytes())
-    h.update(json.dumps([fabric, max_runs, SCORE_POINTS, code_version("continuum")], sort_keys=True).encode())
+    h.update(json.dumps([fabric, max_runs, SCORE_POINTS, TAIL_POINTS, code_version("continuum")],
+                        sort_keys=True).encode())
     return f"{fabric}-{h.hexdigest()[:16]}"
+
+
+def _points(curve: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, F, scored): the scored points over 10–90 % of the curve's range, then TAIL_POINTS to its end."""
+    u, _ = curve.sample(SCORE_POINTS)
+    end = curve.window((0.0, 1.0))[1]
+    u = np.r_[u, np.linspace(u[-1], end, TAIL_POINTS + 1)[1:]]
+    return u, np.interp(u, curve.u_mm, curve.force_N), np.arange(len(u)) < SCORE_POINTS
 
 
 def fits_folder(cache: Path | None = None) -> Path:
@@ -146,6 +159,26 @@ def _cached(folder: Path, name: str, make: Any) -> dict[str, Any]:
     return doc
 
 
+def _progress(label: str) -> Any:
+    """A fit's progress on stderr: a line updating itself on a terminal, else a line at its start (and end)."""
+    t0, tty = time.perf_counter(), sys.stderr.isatty()
+    if not tty:
+        print(f"ngbet: study validation: fitting {label}", file=sys.stderr, flush=True)
+
+    def show(runs: int, rms: list[float], best: float) -> None:
+        if tty:
+            sys.stderr.write(f"\rngbet: study validation: fitting {label}: model run {runs}, RMS "
+                             + ", ".join(f"{100 * r:.1f} %" for r in rms) + f", {time.perf_counter() - t0:.0f} s\x1b[K")
+            sys.stderr.flush()
+
+    return show
+
+
+def _done(label: str, doc: dict[str, Any]) -> None:
+    print(f"\rngbet: study validation: fitted {label} in {doc.get('wall_s', 0.0):.0f} s\x1b[K"
+          if sys.stderr.isatty() else f"ngbet: study validation: fitted {label}", file=sys.stderr, flush=True)
+
+
 def pair_fit(fabric: str, folder: Path) -> dict[str, Any]:
     """The table and K_el fitted to both sizes of a fabric together (cached): its K_el and se(ln K_el)."""
     from ngbet.calibration.data import read_measured
@@ -154,12 +187,15 @@ def pair_fit(fabric: str, folder: Path) -> dict[str, Any]:
 
     def make() -> dict[str, Any]:
         scene_path, a, b = _paths(fabric)
+        label = f"{fabric}, both sizes (its K_el for the other fabrics)"
         res = fit_curves([read_measured(a), read_measured(b)], Scene.from_toml(scene_path),
-                         params=[TABLE, KEL], max_runs=MAX_RUNS)
+                         params=[TABLE, KEL], max_runs=MAX_RUNS, progress=_progress(label))
         k = res.names.index(KEL)
-        return {"fabric": fabric, "K_el": float(res.values[k]), "se_log_K_el": float(res.se_log[k]),
-                "rms": [c.rms_relative for c in res.curves], "wall_s": res.wall_s, "model_runs": res.model_runs,
-                "converged": res.converged}
+        doc = {"fabric": fabric, "K_el": float(res.values[k]), "se_log_K_el": float(res.se_log[k]),
+               "rms": [c.rms_relative for c in res.curves], "wall_s": res.wall_s, "model_runs": res.model_runs,
+               "converged": res.converged}
+        _done(label, doc)
+        return doc
 
     return _cached(folder, f"pair-{_key(fabric, MAX_RUNS)}", make)
 
@@ -200,8 +236,10 @@ def fit_and_predict(fabric: str, direction: int, quick: bool, start: Scene | Non
         fitted, predicted = read_measured(fitted_path), read_measured(predicted_path)
         K_el, var, donors = elongation_for(fabric, quick, start, folder)
         scene = (start or Scene.from_toml(scene_path)).with_changes(**{KEL: K_el})
-        res = fit_curves([fitted], scene, params=[TABLE], max_runs=runs)
-        u, _ = predicted.sample(SCORE_POINTS)
+        label = f"{fabric} on {fitted_path.stem}"
+        res = fit_curves([fitted], scene, params=[TABLE], max_runs=runs, progress=_progress(label))
+        _done(label, {"wall_s": res.wall_s})
+        u, _, _ = _points(predicted)
         pred = predict_specimen(res, predicted.specimen, u, {KEL: var})
         return {"fabric": fabric, "direction": direction, "max_runs": runs, "K_el": K_el, "var_log_K_el": var,
                 "K_el_from": donors,
@@ -245,7 +283,7 @@ def _case(doc: dict[str, Any], which: str) -> dict[str, Any]:
     sc = Scene.from_toml_string(doc["fitted_scene"])
     _, a, b = _files(doc["fabric"], doc["direction"])
     curve = read_measured(a if which == "fitted" else b)
-    u, _ = curve.sample(SCORE_POINTS)
+    u, _, _ = _points(curve)
     m = sc.material
     return {"specimen.name": f"{doc['fabric']}:{doc['direction']}:{which}:{doc['cache_name']}", **curve.specimen,
             "material.K_el": m.K_el, "material.alpha1": m.alpha1, "material.alpha2": m.alpha2,
@@ -299,7 +337,7 @@ def extract(rec: dict, run_dir: Path, out: Path, docs: dict[str, dict[str, Any]]
     _, a, b = _files(fabric, direction)
     fitted, curve = read_measured(a), read_measured(a if which == "fitted" else b)
     pair = f"{fitted.label} → {read_measured(b).label}"
-    u, F = curve.sample(SCORE_POINTS)
+    u, F, scored = _points(curve)
     rows = read_rows(run_dir / "results.csv")
     Fr = np.array([float(r["force_N"]) for r in rows])
     ur = np.array([float(r["u0_mm"]) for r in rows])
@@ -329,8 +367,8 @@ def extract(rec: dict, run_dir: Path, out: Path, docs: dict[str, dict[str, Any]]
         sp = curve.specimen
         norm = force_from_normalised(g, fsh, u, sp["specimen.length_mm"], sp["specimen.width_mm"])
     tables["points"] = [{"fabric": fabric, "pair": pair, "size": which, "u_mm": float(x), "measured_N": float(f),
-                         "ngbet_N": float(m), "ngbet_sd_N": float(d), "normalisation_N": float(n)}
-                        for x, f, m, d, n in zip(u, F, model, sd, norm, strict=True)]
+                         "ngbet_N": float(m), "ngbet_sd_N": float(d), "normalisation_N": float(n), "scored": int(k)}
+                        for x, f, m, d, n, k in zip(u, F, model, sd, norm, scored, strict=True)]
     return tables
 
 
@@ -345,8 +383,8 @@ def summary(data: StudyData) -> list[dict[str, Any]]:
     out = []
     for fabric, pair in dict.fromkeys((str(p["fabric"]), str(p["pair"])) for p in pts):
         def col(which: str, key: str, fabric: str = fabric, pair: str = pair) -> np.ndarray:
-            return np.array([float(p[key]) for p in pts
-                             if p["fabric"] == fabric and p["pair"] == pair and p["size"] == which])
+            return np.array([float(p[key]) for p in pts if p["fabric"] == fabric and p["pair"] == pair
+                             and p["size"] == which and float(p.get("scored", 1)) > 0])
 
         meas, pred = col("predicted", "measured_N"), col("predicted", "ngbet_N")
         norm = col("predicted", "normalisation_N")
@@ -439,7 +477,8 @@ def plot(data: StudyData) -> list[Path]:
         ax.fill_between(u, Fm - 2 * sd, Fm + 2 * sd, color="tab:orange", alpha=0.25, lw=0)
         ax.plot(u, Fm, "-", color="tab:orange")
         ax.plot(u, [float(p["normalisation_N"]) for p in sel["predicted"]], "--", color="tab:blue")
-        ax.set_title(f"{r['fabric'].replace('_', ' ')}: {r['pair']}\nRMS: fit {100 * r['fitted_rms']:.1f} %, "
+        pair = r["pair"].replace(" x ", " × ")
+        ax.set_title(f"{r['fabric'].replace('_', ' ')}: {pair}\nRMS: fit {100 * r['fitted_rms']:.1f} %, "
                      f"ngbet {100 * r['ngbet_rms']:.1f} %, normalisation {100 * r['normalisation_rms']:.1f} %")
         ax.set_xlabel(FG.U0_LABEL)
         ax.set_ylabel(FG.FORCE_LABEL)
@@ -454,8 +493,8 @@ def plot(data: StudyData) -> list[Path]:
                Patch(color="tab:orange", alpha=0.25, lw=0, label="ngbet ±2 sd"),
                Line2D([], [], color="tab:blue", ls="--", label="normalisation method (Cao Eq. 18)")]
     FG.legend_below(fig, handles, ncol=3 if len(fabrics) > 1 else 2)
-    FG.put_caption(fig, "Twintex fabrics of Cao et al. (2008), yarns ±45°, each on its scene "
-                   "(geometry/twintex_*.toml): tabulated shear law fitted on one specimen size, K_el held, "
+    FG.put_caption(fig, "Twintex fabrics of Cao et al. (2008), yarns ±45°, each on its ngbet scene: "
+                   "tabulated shear law fitted on one specimen size, K_el held, "
                    "α1 and α2 of the scene; the other size predicted (band: parameters, K_el and discretization); "
                    "RMS of (prediction − measured)/measured "
                    "over 10–90 % of the displacement range")

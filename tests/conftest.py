@@ -27,6 +27,42 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.integration)
 
 
+def _listing(folder):
+    """Every path under ``folder`` with its size and modification time (what a test could have written)."""
+    from pathlib import Path
+
+    root = Path(folder)
+    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*")
+            if p.is_file() and ".git" not in p.parts and "__pycache__" not in p.parts
+            and ".pytest_cache" not in p.parts and not p.name.endswith(".pyc")}
+
+
+@pytest.fixture(scope="session", autouse=True)
+def the_working_folder_is_left_as_it_was():
+    """The folder pytest was started in holds the same files, unchanged, after the session.
+
+    A command's default folders (out/run, out/studies/NAME, the study cache out/studies/cache)
+    are relative to the working folder: a test that forgot its --out would write into the
+    checkout. Checked for the out/ folder of the starting folder (the rest of a checkout is the
+    code under test, which an editor may touch while the tests run).
+    """
+    import os
+    from pathlib import Path
+
+    out = Path(os.getcwd()) / "out"
+    before = _listing(out) if out.is_dir() else {}
+    yield
+    after = _listing(out) if out.is_dir() else {}
+    changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+    assert not changed, f"the tests wrote into {out}: {changed[:10]}"
+
+
+@pytest.fixture(autouse=True)
+def in_a_folder_of_its_own(tmp_path_factory, monkeypatch):
+    """Every test runs in an empty working folder of its own: default output folders land there, not in ./out."""
+    monkeypatch.chdir(tmp_path_factory.mktemp("cwd"))
+
+
 def coarse(**changes) -> Scene:
     """The paper's scene on a coarse mesh (10 mm, p = 2): seconds, not minutes."""
     base = {"discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 0.0,

@@ -70,8 +70,7 @@ def test_a_load_whose_estimate_could_not_vouch_is_named_where_its_bar_would_be()
     scene = default_scene().with_changes(**{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0})
     fig = F.force_figure(rows(errors={4.0: 3.0}), scene)
     texts = [t.get_text() for t in fig.axes[0].texts]
-    assert texts == ["no error bar at u₀ = 8 mm:\nthe estimate could not vouch for the force\n"
-                     "(summary.json: error_estimate_unreliable)"]
+    assert texts == ["no error bar at u₀ = 8 mm:\nthe estimate could not vouch for the force"]
     # rows without a due estimate (2, 6, 6.5 mm) are not named; with estimates off, none is
     off = default_scene().with_changes(**{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0,
                                           "outputs.error_estimate": "off"})
@@ -80,7 +79,7 @@ def test_a_load_whose_estimate_could_not_vouch_is_named_where_its_bar_would_be()
     fig = F.force_figure(rows(errors={4.0: 0.05}), scene)
     assert [t.get_text() for t in fig.axes[0].texts] == [
         "error bars shorter than the markers:\n±0.05 N at u₀ = 4 mm\nno error bar at u₀ = 8 mm:\n"
-        "the estimate could not vouch for the force\n(summary.json: error_estimate_unreliable)"]
+        "the estimate could not vouch for the force"]
     # the network estimates no error (its rows have no force_error_N column): nothing is due, nothing named
     network = [{k: v for k, v in r.items() if k != "force_error_N"} for r in rows()]
     assert not F.force_figure(network, scene.with_changes(model="discrete")).axes[0].texts
@@ -100,7 +99,7 @@ def test_measured_curve_on_the_force_and_shear_force_figures(tmp_path):
 
 
 def test_a_measured_curve_of_another_specimen_keeps_the_legend_inside_its_panel(tmp_path):
-    """A long file name and another specimen size: the legend entry takes two lines, inside the axes."""
+    """Another specimen size: the legend entry names it (not the file), inside the axes."""
     from ngbet.scene import default_scene
 
     csv = tmp_path / "cao2008_twill_unbalanced_100x200_UN.csv"
@@ -109,8 +108,8 @@ def test_a_measured_curve_of_another_specimen_keeps_the_legend_inside_its_panel(
     fig.canvas.draw()  # matplotlib's Agg canvas of a Figure made without pyplot
     ax = fig.axes[0]
     legend = ax.get_legend()
-    assert "measured, specimen 100 × 200 mm:\ncao2008_twill_unbalanced_100x200_UN.csv" in [
-        t.get_text() for t in legend.texts]
+    assert "measured, specimen 100 × 200 mm" in [t.get_text() for t in legend.texts]
+    assert not any(".csv" in t.get_text() for t in legend.texts)
     box, panel = legend.get_window_extent(), ax.get_window_extent()
     assert panel.x0 <= box.x0 and box.x1 <= panel.x1, (box, panel)
 
@@ -254,9 +253,19 @@ def test_the_caption_names_specimen_and_material():
     text = F.caption(sc)
     sp = sc.specimen
     assert f"{sp.width_mm:g}\u00a0×\u00a0{sp.length_mm:g}\u00a0mm" in text
-    assert f"K_el\u00a0=\u00a0{sc.material.K_el / 1e6:g}\u00a0MPa" in text
+    assert "K_el\u00a0=\u00a0700\u00a0kPa" in text and "α1\u00a0=\u00a02\u00a0kPa\u00a0m²" in text
+    # engineering notation at any size: no "1e-06 kPa m²", no "3.33e+06 Pa"
+    tiny = F.caption(sc.with_changes(**{"material.alpha1": 1e-3, "material.K_el": 3.33e6}))
+    assert "α1\u00a0=\u00a01\u00a0mPa\u00a0m²" in tiny and "K_el\u00a0=\u00a03.33\u00a0MPa" in tiny
+    assert "e-0" not in tiny and "e+0" not in tiny
     assert "yarn network" in F.caption(sc.with_changes(model="discrete"))
     assert F.caption(sc.to_dict()) == text  # a study's base scene as its dictionary
+    # a scene named after its size, run at another size, is not captioned with the other size
+    named = sc.with_changes(**{"specimen.name": "twill-100x250", "specimen.width_mm": 100.0,
+                               "specimen.length_mm": 250.0})
+    assert F.caption(named).startswith("twill-100x250: specimen 100\u00a0×\u00a0250")
+    other = F.caption(named.with_changes(**{"specimen.length_mm": 300.0}))
+    assert other.startswith("twill: specimen 100\u00a0×\u00a0300")
 
 
 def write_run(folder, formats=None):
@@ -314,3 +323,47 @@ def test_the_package_exports_what_it_lists_without_importing_matplotlib():
     code = ("import sys, ngbet.figures as F; "
             "print([n for n in F.__all__ if not hasattr(F, n)], 'matplotlib' in sys.modules)")
     assert fresh_python(code) == "[] False"
+
+
+def test_a_small_double_force_has_a_prefixed_unit_and_no_offset():
+    """T of order 1e-5 N m is drawn in µN m (values −12..0), not with a '1e−5' offset above the axis."""
+    tiny = [{**r, "double_force_Nm": -1.2e-5 * r["u0_mm"] / 8.0} for r in rows()]
+    fig = F.force_figure(tiny)
+    fig.canvas.draw()
+    ax2 = fig.axes[1]
+    assert ax2.get_ylabel() == "double force on the moving clamp [µN\u00a0m]"
+    assert min(lines_of(ax2)[0].get_ydata()) == pytest.approx(-12.0)
+    assert ax2.yaxis.get_offset_text().get_text() == ""
+
+
+def test_the_yarn_pictures_of_one_run_share_one_colour_scale():
+    """Two states (γ up to 40° and up to 86°) drawn with each other's angles: both colour bars end at 100°."""
+    x = np.array([[0.0, 0.0], [10.0, 10.0], [20.0, 0.0]])
+    beams, family = np.array([[0, 1], [1, 2]]), np.array([1, 2])
+    ends = x[[0, 2]]
+    g1, g2 = np.array([10.0, 40.0]), np.array([20.0, 85.8])
+    tops = []
+    for g in (g1, g2):
+        fig = F.yarn_network_figure(x, beams, family, g, ends, 37.0, scale_over=[g1, g2])
+        tops.append(fig.axes[-1].get_ylim()[1])
+    assert tops == [100.0, 100.0]
+    alone = F.yarn_network_figure(x, beams, family, g1, ends, 37.0)
+    assert alone.axes[-1].get_ylim()[1] == 40.0  # without the run's other states: its own round scale
+
+
+@pytest.mark.parametrize("shape", ["softening", "stiffening"])
+def test_the_shear_force_legend_covers_no_point_of_the_curve(shape):
+    """The F_sh curve of the default scene softens (its upper left is empty), a fabric's stiffens
+    (its lower right is empty): the legend goes where it hides no computed point."""
+    from ngbet.scene import default_scene
+
+    g = np.linspace(1.0, 60.0, 30)
+    fsh = 0.5 * np.sin(np.radians(1.5 * g)) if shape == "softening" else 0.3 * (g / 60.0) ** 3
+    data = [{"u0_mm": 2.0 * k, "gamma_kinematic_deg": a, "fsh_N_per_mm": f, "gamma_A_deg": a}
+            for k, (a, f) in enumerate(zip(g, fsh, strict=True), 1)]
+    fig = F.shear_force_figure(data, default_scene())
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    box = ax.get_legend().get_window_extent()
+    pts = ax.transData.transform(np.column_stack([g, fsh]))
+    assert not any(box.contains(x, y) for x, y in pts)

@@ -98,3 +98,44 @@ def test_a_solver_failure_names_its_cause_and_remedy_on_the_terminal(tmp_path):
     assert line.startswith("ngbet: the solver stopped after u0 = 54.7")
     assert "no physical stable state" in line and "effects.shear_law = 'locking'" in line
     assert json.loads((out / "summary.json").read_text())["status"] == "failed"
+
+
+def test_the_report_line_says_what_a_user_reads_not_the_solvers_counts(tmp_path):
+    """No Newton or chord iteration counts (summary.json has them); a load without its error bar is named."""
+    from ngbet.cli import _report
+
+    (tmp_path / "results.csv").write_text("u0_mm,force_N,force_error_N\n37,61.2855,0.1\n56,107.3735,\n")
+    summary = {"status": "ok", "u0_reached_mm": 56.0, "load_steps": 29, "wall_s": 2.5, "newton_iterations": 2,
+               "chord_iterations": 82, "error_estimate_unreliable": {"56": "the enriched problem ..."}}
+    lines = _report(summary, tmp_path).splitlines()
+    assert lines[0] == f"ngbet: ok: u0 = 56 mm in 29 load steps, 2.50 s; results in {tmp_path}/"
+    assert lines[1].endswith("force =   61.2855 N ± 0.1 N (estimated discretization error)")
+    assert lines[2].endswith("force =  107.3735 N (no error bar: the estimate could not vouch for this force; "
+                             "summary.json says why)")
+
+
+def test_a_warning_that_asks_nothing_of_the_user_stays_in_summary_json(tmp_path, capsys):
+    """The fabric scene's 25 mm mesh: its stable pair's multiplier oscillates (0.71 measured at 49.7 mm),
+    which the force and displacements do not need: summary.json records it, the terminal does not say it."""
+    from pathlib import Path
+
+    scene = Path(__file__).resolve().parents[1] / "geometry" / "twintex_twill_unbalanced.toml"
+    assert main(["run", str(scene), "--set", "outputs.plot=false", "--set", "outputs.error_estimate=off",
+                 "--quiet", "--out", str(tmp_path / "r")]) == 0
+    s = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert s["multiplier_oscillation"] > 0.5 and any("multiplier oscillates" in w for w in s["warnings"])
+    assert "oscillates" not in capsys.readouterr().err
+
+
+def test_ngsolves_own_console_messages_are_off():
+    """Some thousand forms in one process (a study's worker) made NGSolve print "no more timer available
+    (biform_from_py), reusing last one"; with ngbet's continuum imported nothing is printed."""
+    code = ("import ngbet.continuum, ngsolve as ngs\n"
+            "from netgen.geom2d import unit_square\n"
+            "V = ngs.H1(ngs.Mesh(unit_square.GenerateMesh(maxh=0.5)))\n"
+            "u, v = V.TnT()\n"
+            "for i in range(9000):\n"
+            "    a = ngs.BilinearForm(V)\n"
+            "    a += u * v * ngs.dx\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert done.stdout == "" and "timer" not in done.stderr, (done.stdout[-300:], done.stderr[-300:])

@@ -382,6 +382,23 @@ def test_studies_start_from_the_default_scene_and_quick_says_what_it_leaves_out(
 
 
 # --- studies on any scene, sweeps from the command line ------------------------------------------
+def test_a_study_on_another_scene_leaves_the_default_studys_folder(quick_cache, capsys):
+    """Without --out, the study on a changed scene writes into a folder named by the scene's digest."""
+    from pathlib import Path
+
+    from ngbet.cli import main
+    from ngbet.commands import load_scene
+
+    default = Path("out/studies/alpha1-quick")
+    default.mkdir(parents=True)
+    (default / "kept.txt").write_text("the default study's")
+    assert main(["study", "alpha1", "--set", "material.alpha2=30", "--quick", "--quiet",
+                 "--cache", str(quick_cache)]) == 0, capsys.readouterr().err
+    assert [p.name for p in default.iterdir()] == ["kept.txt"]
+    digest = load_scene(None, ["material.alpha2=30"]).digest()[:8]
+    assert (Path("out/studies") / f"alpha1-scene-{digest}-quick" / "report.md").exists()
+
+
 def test_study_on_a_scene_file_with_set(tmp_path, quick_cache, capsys):
     from ngbet.cli import main
 
@@ -398,17 +415,17 @@ def test_study_on_a_scene_file_with_set(tmp_path, quick_cache, capsys):
     assert "study alpha1 --quick leaves out:" in capsys.readouterr().out  # said on the terminal too
 
 
-def test_sweep_is_a_study_with_the_cases_of_the_same_scenes(tmp_path, quick_cache, capsys):
+def test_sweep_is_a_study_with_whole_force_curves(tmp_path, quick_cache, capsys):
     from ngbet.cli import main
 
-    run_quick("alpha1", tmp_path, quick_cache)  # alpha1 = 20 and 2000 on the quick default scene
     out = tmp_path / "sw"
     assert main(["sweep", "material.alpha1=20,2000", "--quick", "--quiet", "--out", str(out),
                  "--cache", str(quick_cache)]) == 0
     d = load(out)
-    # the same scenes as the study's: found in the cache, nothing run
-    assert d.meta["executor"]["cases_run"] == 0 and d.meta["params"] == ["material.alpha1"]
+    assert d.meta["params"] == ["material.alpha1"]
     assert [c["params"]["material.alpha1"] for c in d.cases()] == [20, 2000]
+    # the scene's output grid (every 2 mm to the quick 20 mm), not the stops alone: whole force curves
+    assert [r["u0_mm"] for r in d.case_rows(0)] == [2.0 * k for k in range(1, 11)]
     assert (out / "sweep_force.png").exists() and (out / "sweep_values.png").exists()
     text = (out / "report.md").read_text()
     assert "| material.alpha1 | status |" in text and "- Discretization: Netgen mesh of 20 mm, p = 2." in text

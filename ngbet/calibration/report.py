@@ -74,8 +74,10 @@ def plot_table(result: JointFit, path: Path) -> Path:
     ax.set_ylim(lo, hi)
     ax.set_xlabel("|i8| (= sin γ for inextensible yarns)")
     ax.set_ylabel("shear stress τ = dW/d|i8| [kPa] (log scale)")
+    from ..figures import eng
+
     ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}, t = {t:g} mm; fitted K_el = "
-                 f"{result.scene.material.K_el:.3g} Pa", fontsize=9)
+                 f"{eng(result.scene.material.K_el, 'Pa')}", fontsize=9)
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

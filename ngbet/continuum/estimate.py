@@ -229,7 +229,7 @@ class ForceErrorEstimator:
         if why:
             why = (f"no error bar: {why}; the run may stand near a limit point or a locking discretization, "
                    "where the p-sequence says nothing about the error")
-            log.warning("error estimate at u0 = %.4g mm: %s", lam * 1e3, why)
+            log.info("error estimate at u0 = %.4g mm: %s", lam * 1e3, why)
             return Estimate(force_N, math.nan, F1, prof, self.method, dt, its1 + its2, F2, why)
         err = self.theta * abs(force_N - F1)
         if math.isfinite(F2):

@@ -150,10 +150,18 @@ def save_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None
         crossing_angle_deg=180.0 - 2 * math.degrees(net.angle) + np.degrees(gamma))
 
 
-def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: Any = None) -> None:
+def segment_gamma_deg(net: Network, u: np.ndarray) -> np.ndarray:
+    """The shear angle γ [°] of each beam segment: the mean of its two nodes'."""
+    ang = np.degrees(node_gamma(net, u))
+    return 0.5 * (ang[net.beams[:, 0]] + ang[net.beams[:, 1]])
+
+
+def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: Any = None,
+               scale_over: Any = None) -> None:
     """PNG of the deformed yarns coloured by the shear angle γ (:func:`ngbet.figures.yarn_network_figure`).
 
-    γ is 0 at rest, the convention of the continuum's maps; ``scene`` names specimen and network in the caption.
+    γ is 0 at rest, the convention of the continuum's maps; ``scene`` names specimen and network in the caption;
+    ``scale_over``: the segment angles of every picture of the run, so that all share one colour scale.
     """
     from ..figures import PNG_DPI, in_style, yarn_network_figure
 
@@ -163,8 +171,8 @@ def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: 
         log.warning("no yarn figure: matplotlib is not installed (pip install matplotlib)")
         return
     x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3
-    ang = np.degrees(node_gamma(net, u))
-    seg_ang = 0.5 * (ang[net.beams[:, 0]] + ang[net.beams[:, 1]])
+    seg_ang = segment_gamma_deg(net, u)
     with in_style():
-        fig = yarn_network_figure(x, net.beams, net.beam_family, seg_ang, x[net.node_end > 0], u0 * 1e3, scene)
+        fig = yarn_network_figure(x, net.beams, net.beam_family, seg_ang, x[net.node_end > 0], u0 * 1e3, scene,
+                                  scale_over=scale_over)
         fig.savefig(path, dpi=PNG_DPI)

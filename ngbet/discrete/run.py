@@ -155,6 +155,9 @@ def run(scene: Scene, out: str | Path, progress: bool = True, measured: Any = No
 def _run_info(stats: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The summary's solver statistics and totals over the written rows."""
     info = dict(stats)
+    # the solver's loads are in m; the summary's, like every other load ngbet reports, in mm
+    info["snap_events"] = [{(f"{k}_mm" if k in ("u0", "u0_before") else k): (v * 1e3 if k in ("u0", "u0_before") else v)
+                            for k, v in e.items()} for e in stats.get("snap_events", [])]
     info["snap_event_count"] = len(stats.get("snap_events", []))
     info["newton_iterations_total"] = int(sum(r["newton_iterations"] for r in rows))
     info["max_slip_mm"] = max((r["max_slip_mm"] for r in rows), default=0.0)
@@ -171,6 +174,7 @@ class _Recorder:
         self.last_u0 = 0.0
         sp = scene.specimen
         self.bet = BetColumns(sp.length_mm, sp.width_mm, sp.yarn_angle_deg)
+        self.pictures: list[tuple[str, np.ndarray, float]] = []  # (tag, u, u0) of the states to draw at the end
 
     def on_step(self, info: StepRecord, u: np.ndarray) -> None:
         """One converged step: its row, its profile, its state at a stop."""
@@ -188,13 +192,19 @@ class _Recorder:
         log.debug("step %d u0 = %.4g mm, %d iterations", info.step, info.u0 * 1e3, info.iterations)
 
     def snapshot(self, u: np.ndarray, u0: float) -> None:
-        """The state (``state_XXmm.npz``) and, with ``outputs.plot``, its picture."""
+        """The state (``state_XXmm.npz``); its picture is drawn by :meth:`final_snapshot`, with the others."""
         tag = f"{u0 * 1e3:g}mm"  # 37mm, 0.5mm
         self.writer.write(f"state_{tag}.npz", lambda tmp: ob.save_state(tmp, self.model.net, u, u0))
         if self.scene.outputs.plot:
-            self.writer.write(f"yarns_{tag}.png", lambda tmp: ob.plot_state(tmp, self.model.net, u, u0, self.scene))
+            self.pictures.append((tag, u.copy(), u0))
 
     def final_snapshot(self) -> None:
-        """The last converged state (if any step converged)."""
+        """The last converged state (if any step converged), then the pictures of all states on one colour scale."""
         if self.last_u0 > 0:
             self.snapshot(self.last_u, self.last_u0)
+        net = self.model.net
+        angles = [ob.segment_gamma_deg(net, u) for _, u, _ in self.pictures]
+        for tag, u, u0 in self.pictures:
+            draw = functools.partial(ob.plot_state, net=net, u=u, u0=u0, scene=self.scene, scale_over=angles)
+            self.writer.write(f"yarns_{tag}.png", draw)
+        self.pictures.clear()

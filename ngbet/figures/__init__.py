@@ -41,7 +41,7 @@ from .data import (
 )
 from .maps import ColourScale, colour_bar, colour_scale, map_panel, shear_map_figure, yarn_network_figure
 from .run import NO_MATPLOTLIB, RUN_FIGURES, draw_force, draw_run, formats_of, start_plot, warm_up
-from .study import key_label, key_value, study_caption, unit_of
+from .study import key_label, key_value, study_caption, symbol, unit_of
 from .style import (
     FORCE_LABEL,
     FORMATS,
@@ -54,6 +54,8 @@ from .style import (
     caption,
     check_formats,
     colormap,
+    eng,
+    eng_scale,
     figure,
     in_style,
     legend_below,
@@ -75,6 +77,6 @@ __all__ = [
     "legend_below", "load_maps", "map_file_name", "map_panel", "measured_fsh", "nice_ceil", "profile_figure",
     "put_caption", "read_scene", "round_ticks", "save", "save_map", "shear_force_figure",
     "shear_map_figure", "short_log_axis", "start_plot", "stations_of", "study_caption", "in_style", "subplots",
-    "unit_of", "key_label", "key_value",
+    "unit_of", "key_label", "key_value", "symbol", "eng", "eng_scale",
     "texts_outside", "tidy_log_axes", "warm_up", "yarn_network_figure",
 ]

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .data import Measured, column, measured_fsh
-from .style import FORCE_LABEL, SHEAR_LABEL, U0_LABEL, caption, figure, put_caption
+from .style import FORCE_LABEL, NB, SHEAR_LABEL, U0_LABEL, caption, eng_scale, figure, put_caption
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
@@ -74,7 +74,7 @@ def error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: f
     missing = u0[~ok & due] if due is not None else []
     if len(missing):
         lines += ["no error bar at u₀ = " + ", ".join(f"{u:g}" for u in missing) + " mm:",
-                  "the estimate could not vouch for the force", "(summary.json: error_estimate_unreliable)"]
+                  "the estimate could not vouch for the force"]
     if lines:
         ax.text(0.98, 0.03, "\n".join(lines), transform=ax.transAxes, ha="right", va="bottom", fontsize=7, color="C3")
 
@@ -100,7 +100,7 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
     ax = axes[0]
     u0, F = column(rows, "u0_mm"), column(rows, "force_N")
     snap = column(rows, "snap") if "snap" in rows[0] else None
-    curve_with_jumps(ax, u0, F, snap, label="computed (rows of results.csv), joined by straight lines")
+    curve_with_jumps(ax, u0, F, snap, label="computed at the output loads, joined by straight lines")
     if measured is not None:
         ax.plot(measured.displacement_mm, measured.force_N, "-", color="0.35", lw=1.2,
                 label=_measured_label(measured, scene))
@@ -119,10 +119,12 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
     ax.set_title("(a) force" if has_T else "")
     if has_T:
         ax2 = axes[1]
-        curve_with_jumps(ax2, u0, column(rows, "double_force_Nm"), snap, color="C2", marker="s",
-                         label="computed, joined by straight lines")
+        T = column(rows, "double_force_Nm")
+        # a prefixed unit instead of an offset ("1e−5" above the axis): µN m, mN m, N m, ...
+        k, unit = eng_scale(float(np.nanmax(np.abs(np.r_[T, 0.0]))) or 1.0, "N")
+        curve_with_jumps(ax2, u0, T * k, snap, color="C2", marker="s", label="computed, joined by straight lines")
         ax2.set_xlabel(U0_LABEL)
-        ax2.set_ylabel("double force on the moving clamp [N m]")
+        ax2.set_ylabel(f"double force on the moving clamp [{unit}{NB}m]")
         ax2.set_xlim(left=0)
         ax2.legend(loc="upper left")
         ax2.set_title("(b) double force")
@@ -131,14 +133,9 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
 
 
 def _measured_label(m: Measured, scene: Any) -> str:
-    """The measured curve's legend entry: its file on a line of its own, and its specimen where it is not the run's.
-
-    (A long file name stays inside the axes on its own line.)
-    """
-    other = scene is not None and m.width_mm is not None and m.length_mm is not None and (
-        (m.width_mm, m.length_mm) != (scene.specimen.width_mm, scene.specimen.length_mm))
-    size = f", specimen {m.width_mm:g} × {m.length_mm:g} mm" if other else ""
-    return f"measured{size}:\n{m.path.name}"
+    """The measured curve's legend entry: "measured", with its specimen where the file gives it (no file name)."""
+    known = m.width_mm is not None and m.length_mm is not None
+    return f"measured, specimen {m.width_mm:g} × {m.length_mm:g} mm" if known else "measured"
 
 
 def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
@@ -170,7 +167,7 @@ def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
     if not ok.any():
         ax.text(0.5, 0.5, "F_sh: 45° yarns only (Eq. 18)", transform=ax.transAxes, ha="center")
     else:
-        ax.legend(loc="upper left")
+        ax.legend(loc="best")  # the F_sh curves of fabrics stiffen (upper left free) or soften (lower right free)
     if left_out:
         ax.text(0.98, 0.03, f"beyond γ = {FSH_GAMMA_MAX_DEG:g}° (near yarn locking, where Eq. 18\n"
                 "divides by cos γ → 0): not drawn", transform=ax.transAxes, ha="right", va="bottom", fontsize=7)
@@ -208,7 +205,7 @@ def profile_figure(profiles: dict[float, tuple[list[float], list[float]]], stati
     grey = True
     for u0, (X, uy) in sorted(profiles.items()):
         if not any(abs(u0 - s) < 1e-6 for s in stations):
-            ax.plot(X, uy, "-", color="0.8", lw=0.8, label="other rows" if grey else None)
+            ax.plot(X, uy, "-", color="0.8", lw=0.8, label="the other output loads" if grey else None)
             grey = False
     for k, s in enumerate(stations):
         hit = [u for u in profiles if abs(u - s) < 1e-6]

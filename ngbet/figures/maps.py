@@ -151,17 +151,20 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
 
 
 def yarn_network_figure(x_mm: np.ndarray, beams: np.ndarray, family: np.ndarray, gamma_deg: np.ndarray,
-                        ends_mm: np.ndarray, u0_mm: float, scene: Any = None) -> Figure:
+                        ends_mm: np.ndarray, u0_mm: float, scene: Any = None,
+                        scale_over: Sequence[np.ndarray] | None = None) -> Figure:
     """The deformed yarn network coloured by the shear angle γ of each segment, on a round colour scale.
 
     ``x_mm``: deformed node positions (n, 2); ``beams``: node pairs; ``family``: 1 (thick, drawn
     thick and solid) or 2 (thin, dashed) per beam; ``gamma_deg``: per beam; ``ends_mm``: the
-    clamped yarn ends, marked. Axes in mm, legend below the panel.
+    clamped yarn ends, marked. Axes in mm, legend below the panel. ``scale_over``: the angles of
+    every picture of the run (default: this one's), so that the pictures of one run share one colour scale.
     """
     from matplotlib.collections import LineCollection
     from matplotlib.lines import Line2D
 
-    cs = colour_scale([gamma_deg])
+    # a shared scale covers every picture's whole range: no picture clips what another shows
+    cs = colour_scale([gamma_deg, *scale_over], quantile=1.0) if scale_over else colour_scale([gamma_deg])
     norm = cs.norm()
     span_x = float(np.ptp(x_mm[:, 0])) or 1.0
     span_y = float(np.ptp(x_mm[:, 1])) or 1.0

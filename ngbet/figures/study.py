@@ -20,7 +20,7 @@ def study_caption(meta: dict[str, Any], extra: str = "") -> str:
             continue
         what = ("the discretization" if k.startswith(("discretization.", "solver."))
                 else "the constraint's treatment" if k.startswith(("effects.constraint", "effects.penalty"))
-                else k.split(".", 1)[-1])
+                else symbol(k))
         if what not in varied:
             varied.append(what)
     if varied:
@@ -34,6 +34,18 @@ UNITS = {"K_sh": "Pa", "K_el": "Pa", "alpha1": "Pa m²", "alpha2": "Pa m²", "pe
 _SUFFIXES = {"_mm": "mm", "_deg": "°", "_Pa": "Pa", "_N": "N", "_s": "s"}
 
 
+#: how a figure writes a scene key's name: the symbols of docs/model.md (α1, not alpha1)
+SYMBOLS = {"alpha1": "α1", "alpha2": "α2", "K_phi": "K_φ", "gamma_lock_deg": "γ_lock", "jamming_angle_deg": "θ_jam",
+           "u0_mm": "u₀", "mesh_size_mm": "mesh size h", "order_u": "order p", "thickness_mm": "thickness t",
+           "width_mm": "width W", "length_mm": "length L", "yarn_angle_deg": "yarn angle"}
+
+
+def symbol(key: str) -> str:
+    """The name a figure gives a scene key: ``material.alpha1`` → "α1", ``material.K_el`` → "K_el"."""
+    name = key.rsplit(".", 1)[-1]
+    return SYMBOLS.get(name, name)
+
+
 def unit_of(key: str) -> str:
     """The unit of a scene key ("" when it has none): ``material.alpha1`` → "Pa m²", ``loading.u0_mm`` → "mm"."""
     name = key.rsplit(".", 1)[-1]
@@ -43,13 +55,17 @@ def unit_of(key: str) -> str:
 
 
 def key_value(key: str, value: Any) -> str:
-    """``alpha1 = 200 Pa m²``: a scene key's value with its unit, for a legend."""
+    """``α1 = 200 Pa m²``: a scene key's value with its unit (engineering notation: 3.33 MPa), for a legend."""
+    from .style import eng
+
     unit = unit_of(key)
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and unit and unit not in ("°", "mm"):
+        return f"{symbol(key)} = {eng(value, unit)}".replace("\u00a0", " ")
     v = f"{value:g}" if isinstance(value, float) else str(value)
-    return f"{key.rsplit('.', 1)[-1]} = {v}" + (f" {unit}" if unit and unit != "°" else unit)
+    return f"{symbol(key)} = {v}" + (f" {unit}" if unit and unit != "°" else unit)
 
 
 def key_label(key: str) -> str:
-    """An axis label for a scene key: ``material.alpha1 [Pa m²]``."""
+    """An axis label for a scene key: ``α1 [Pa m²]``."""
     unit = unit_of(key)
-    return f"{key} [{unit}]" if unit else key
+    return f"{symbol(key)} [{unit}]" if unit else symbol(key)

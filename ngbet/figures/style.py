@@ -77,8 +77,39 @@ def subplots(nrows: int = 1, ncols: int = 1, *, size: tuple[float, float] = (6.4
 # ------------------------------------------------------------------------------------------------
 # captions
 # ------------------------------------------------------------------------------------------------
+_PREFIXES = ((1e9, "G"), (1e6, "M"), (1e3, "k"), (1.0, ""), (1e-3, "m"), (1e-6, "µ"), (1e-9, "n"))
+
+
+def eng(value: float, unit: str, digits: int = 3) -> str:
+    """``value`` [``unit``] in engineering notation with an SI prefix on the unit's first symbol.
+
+    3.33e6 Pa → "3.33 MPa", 1e-3 Pa m² → "1 mPa m²", 2000 Pa m² → "2 kPa m²"; ``digits``
+    significant digits, no trailing zeros; 0 and non-finite values without a prefix.
+    """
+    v = float(value)
+    if v == 0 or not math.isfinite(v):
+        return f"{v:g}{NB}{unit}" if unit else f"{v:g}"
+    rounded = float(f"{v:.{digits}g}")
+    scale, prefix = next((p for p in _PREFIXES if abs(rounded) >= p[0] * (1 - 1e-12)), _PREFIXES[-1])
+    return f"{rounded / scale:.{digits}g}{NB}{prefix}{unit}"
+
+
+def eng_scale(largest: float, unit: str) -> tuple[float, str]:
+    """(factor, prefixed unit) showing values up to ``largest`` [``unit``] as numbers of 1 to 1000 (an axis's unit)."""
+    a = abs(float(largest))
+    for scale, prefix in _PREFIXES:
+        if a >= scale:
+            return 1.0 / scale, prefix + unit
+    return 1.0, unit
+
+
 def _q(name: str, value: float, unit: str = "") -> str:
     return f"{name}{NB}={NB}{value:g}" + (f"{NB}{unit}" if unit else "")
+
+
+def _qe(name: str, value: float, unit: str) -> str:
+    """``name = value unit`` with the value in engineering notation (:func:`eng`)."""
+    return f"{name}{NB}={NB}{eng(value, unit)}"
 
 
 def caption(scene: Any) -> str:
@@ -98,7 +129,7 @@ def caption(scene: Any) -> str:
         except SceneError:
             return ""
     sp = scene.specimen
-    name = f"{sp.name}: " if getattr(sp, "name", "") else ""
+    name = f"{_name_of(sp)}: " if _name_of(sp) else ""
     spec = (f"{name}specimen {sp.width_mm:g}{NB}×{NB}{sp.length_mm:g}{NB}mm (W{NB}×{NB}L), yarns{NB}±"
             f"{sp.yarn_angle_deg:g}°, {_q('t', sp.thickness_mm, 'mm')}")
     if getattr(scene, "test", "") == "picture_frame":
@@ -109,14 +140,29 @@ def caption(scene: Any) -> str:
                 f"{_q('t', sp.thickness_mm, 'mm')}")
     if scene.model == "discrete":
         d = scene.discrete
-        return (f"{spec}; yarn network: {_q('EI1', d.EI1, f'N{NB}m²')}, {_q('EI2', d.EI2, f'N{NB}m²')}, "
-                f"{_q('EA', d.EA1, 'N')}, {_q('K_φ', d.K_phi, f'N{NB}m')}, {_q('K_slip', d.K_slip, 'N/m')}, "
+        return (f"{spec}; yarn network: {_qe('EI1', d.EI1, f'N{NB}m²')}, {_qe('EI2', d.EI2, f'N{NB}m²')}, "
+                f"{_qe('EA', d.EA1, 'N')}, {_qe('K_φ', d.K_phi, f'N{NB}m')}, {_qe('K_slip', d.K_slip, 'N/m')}, "
                 f"spacing{NB}{d.spacing_mm:g}{NB}mm")
     m = scene.material
-    shear = (f"tabulated shear law ({len(m.shear_stress_steps_Pa)} steps)"
-             if scene.effects.shear_law == "table" else _q("K_sh", m.K_sh / 1e3, "kPa"))
-    return (f"{spec}; material: {shear}, {_q('α1', m.alpha1 / 1e3, f'kPa{NB}m²')}, "
-            f"{_q('α2', m.alpha2 / 1e3, f'kPa{NB}m²')}, {_q('K_el', m.K_el / 1e6, 'MPa')}")
+    shear = (f"tabulated shear law ({len(m.shear_stress_steps_Pa)} rises)"
+             if scene.effects.shear_law == "table" else _qe("K_sh", m.K_sh, "Pa"))
+    return (f"{spec}; material: {shear}, {_qe('α1', m.alpha1, f'Pa{NB}m²')}, "
+            f"{_qe('α2', m.alpha2, f'Pa{NB}m²')}, {_qe('K_el', m.K_el, 'Pa')}")
+
+
+def _name_of(specimen: Any) -> str:
+    """The specimen's name, without a size suffix ("-100x250") that is not its width × length.
+
+    A fitted scene run at another size keeps the name of the specimen it was fitted on; the caption
+    must not title a 100 × 300 mm run "…-100x250".
+    """
+    import re
+
+    name = str(getattr(specimen, "name", "") or "")
+    m = re.search(r"[-_ ]?(\d+(?:\.\d+)?)\s*[x×]\s*(\d+(?:\.\d+)?)$", name)
+    if m and (float(m.group(1)), float(m.group(2))) != (specimen.width_mm, specimen.length_mm):
+        return name[:m.start()]
+    return name
 
 
 def put_caption(fig: Figure, text: str) -> None:

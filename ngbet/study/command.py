@@ -28,7 +28,8 @@ from .runner import DEFAULT_ROOT, default_out, run_study
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The command-line options every study takes."""
     p.add_argument("--quick", action="store_true", help="a small version of the study (seconds; what the tests run)")
-    p.add_argument("--out", help="study folder (default: out/studies/NAME, or NAME-quick)")
+    p.add_argument("--out", help="study folder (default: out/studies/NAME, or NAME-quick; on a scene file or with "
+                   "--set, NAME-scene-DIGEST, DIGEST the scene's)")
     p.add_argument("--cache", help="case cache folder (default: out/studies/cache)")
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1 = in this process)")
     p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
@@ -137,19 +138,21 @@ def build_study(build: Callable[..., Study], quick: bool, scene: Scene | None = 
     return study
 
 
-def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: Scene | None = None,
-                  source: str = "", name: str | None = None) -> int:
-    """Run (or with ``--plot-only`` redraw) the study ``build`` gives for the options; the exit status.
+def _prepare(build: Callable[..., Study], args: argparse.Namespace, scene: Scene | None, source: str,
+             name: str | None) -> tuple[Study, Path, OwnedFolder | None]:
+    """The study, its folder and (when its name is known before it is built) the folder, owned first.
 
-    scene : the base scene (None: the study's own, on ngbet's default scene); source names it.
-    name : the study's name, when known before it is built: its folder and cache are then checked
-        first (a study may fit before it runs its cases; an unusable folder is refused before that).
+    A study on another scene than its default has a folder of its own (the scene's digest in its
+    name), so the default study's folder stays as it is. The folder and the cache are checked
+    before the study is built: a study may fit before it runs its cases.
     """
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    def folder_name(n: str) -> str:  # a study on another scene has a folder of its own
+        return n if scene is None else f"{n}-scene-{scene.digest()[:8]}"
+
     folder = None
     if name is not None and not args.plot_only:
         _check_working_folder(args)
-        folder = OwnedFolder(Path(args.out) if args.out else default_out(name, args.quick), "study", name)
+        folder = OwnedFolder(Path(args.out) if args.out else default_out(folder_name(name), args.quick), "study", name)
     try:
         if not args.plot_only:
             _probe_cache(Path(args.cache) if args.cache else DEFAULT_ROOT / "cache")
@@ -159,7 +162,20 @@ def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: 
         if folder is not None:
             folder.release()
         raise
-    out = Path(args.out) if args.out else default_out(study.name, args.quick)
+    out = Path(args.out) if args.out else default_out(folder_name(study.name), args.quick)
+    return study, out, folder
+
+
+def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: Scene | None = None,
+                  source: str = "", name: str | None = None) -> int:
+    """Run (or with ``--plot-only`` redraw) the study ``build`` gives for the options; the exit status.
+
+    scene : the base scene (None: the study's own, on ngbet's default scene); source names it.
+    name : the study's name, when known before it is built: its folder and cache are then checked
+        first (a study may fit before it runs its cases; an unusable folder is refused before that).
+    """
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    study, out, folder = _prepare(build, args, scene, source, name)
     if args.plot_only:
         try:
             data = plot_only(study, out)
