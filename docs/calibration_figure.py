@@ -19,8 +19,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ngbet import fit
-from ngbet.calibration.fit_files import plot_fit, summary_text
+from ngbet.calibration.command import summary
+from ngbet.calibration.data import read_measured
+from ngbet.calibration.joint import fit_curves
+from ngbet.calibration.report import plot_fit
 from ngbet.cli import main as ngbet
 from ngbet.scene import Scene
 
@@ -34,12 +36,14 @@ TWILL = ["data/cao2008/cao2008_twill_balanced_150x300_INSA-NU.csv",
 def single_curve() -> None:
     """The locking law fitted to one curve: calibration_fit.png and its record."""
     scene = Scene.from_toml(ROOT / "geometry" / "cao2008_150x450.toml")
-    result = fit.fit(ROOT / "data" / "cao2008_glass_plain_150x450.csv", scene, PARAMS, u_range=(10.0, 106.0))
+    curve = read_measured(ROOT / "data" / "cao2008_glass_plain_150x450.csv")
+    result = fit_curves([curve], scene, PARAMS)
     plot_fit(result, OUT / "calibration_fit.png")
     doc = result.to_json()
-    doc["data"] = "data/cao2008_glass_plain_150x450.csv"
+    for c in doc["curves"]:
+        c["data"] = "data/cao2008_glass_plain_150x450.csv"
     (OUT / "calibration_fit.json").write_text(json.dumps(doc, indent=2) + "\n")
-    print(summary_text(result, OUT))
+    print(summary(result, OUT))
 
 
 def run(argv: list[str]) -> None:

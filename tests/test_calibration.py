@@ -298,7 +298,8 @@ def synthetic_joint(tmp_path_factory):
     folder = tmp_path_factory.mktemp("syn")
     paths = write_synthetic(folder)
     start = synthetic_scene(**{"material.K_sh": 4e4, "material.K_el": 1e6})
-    return folder, paths, joint.fit_curves([read_measured(p) for p in paths], start)
+    # on the truth's own discretization: the misfit is the noise alone
+    return folder, paths, joint.fit_curves([read_measured(p) for p in paths], start, choose_discretization=False)
 
 
 def test_joint_fit_recovers_the_truth_within_two_standard_errors(synthetic_joint):
@@ -411,14 +412,21 @@ def test_progress_line_names_runs_and_each_curves_rms():
     assert len(lines) == 2 and lines[0].startswith("ngbet fit: model run 3, RMS 12.3 %, 4.5 %")
 
 
-def test_python_reader_refuses_a_file_without_header(tmp_path):
-    """ngbet.fit.read_curve, the reader of the single-curve fit, takes the same checks."""
-    from ngbet import fit as F
+def test_shear_angle_file_is_read_and_checked(tmp_path):
+    """Measured centre shear angles: comments skipped, equal displacements averaged, the non-positive
+    displacement (the unloaded state) left out; a missing column and text in a number's place name the line."""
+    from ngbet.calibration.observations import read_angles
 
-    p = tmp_path / "noheader.csv"
-    p.write_text("".join(f"{u},{0.1 * u}\n" for u in range(1, 11)))
-    with pytest.raises(SceneError, match="line 1: a row of numbers where the header should be"):
-        F.read_curve(p)
+    p = tmp_path / "angles.csv"
+    p.write_text("# DIC, centre of the specimen\ndisplacement_mm,shear_angle_deg\n0,0\n10,8\n20,15\n20,17\n")
+    a = read_angles(p)
+    assert a.u_mm.tolist() == [10.0, 20.0] and a.angle_deg.tolist() == [8.0, 16.0]
+    p.write_text("displacement_mm,angle\n10,8\n")
+    with pytest.raises(SceneError, match="line 1: needs the columns displacement_mm, shear_angle_deg"):
+        read_angles(p)
+    p.write_text("displacement_mm,shear_angle_deg\n10,8\n20,x\n")
+    with pytest.raises(SceneError, match="line 3: shear_angle_deg = 'x' is not a number"):
+        read_angles(p)
 
 
 def test_a_held_parameter_widens_the_band_by_its_own_term(synthetic_joint):
@@ -426,7 +434,8 @@ def test_a_held_parameter_widens_the_band_by_its_own_term(synthetic_joint):
     √(sd² + (dF/d ln K_el)² · 0.09), the derivative from central differences of whole runs (to
     2e-3 of the largest value: the two derivatives differ by that much on this 30 mm mesh)."""
     _, paths, _ = synthetic_joint
-    res = joint.fit_curves([read_measured(p) for p in paths], synthetic_scene(), params=["material.K_sh"], max_runs=3)
+    res = joint.fit_curves([read_measured(p) for p in paths], synthetic_scene(), params=["material.K_sh"], max_runs=3,
+                           choose_discretization=False)
     spec = {"specimen.width_mm": 100.0, "specimen.length_mm": 300.0}
     u = np.array([20.0, 50.0])
     plain = joint.predict_specimen(res, spec, u)

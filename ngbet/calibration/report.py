@@ -102,11 +102,12 @@ def table_band(result: JointFit, x: np.ndarray) -> np.ndarray:
 
 
 def plot_fit(result: JointFit, path: Path) -> Path:
-    """Each curve: data with its error bars, the start and the fitted model (±2 sd), relative residuals."""
+    """Each curve: data with its error bars, the start and the fitted model (±2 sd), relative residuals,
+    and the centre shear angle of the fitted model against the ideal test's (and measured angles)."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6.4, 6.2))
-    ax, ar = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1.4))
+    fig = Figure(figsize=(6.4, 8.4))
+    ax, ar, ag = fig.subplots(3, 1, sharex=True, height_ratios=(3, 1.3, 2))
     for k, c in enumerate(result.curves):
         col = f"C{k}"
         ax.plot(c.curve.u_mm, c.curve.force_N, "-", color=col, lw=0.8, alpha=0.5)
@@ -117,6 +118,12 @@ def plot_fit(result: JointFit, path: Path) -> Path:
                 label=f"{c.curve.label}: fitted, RMS {100 * c.rms_relative:.1f} %")
         ax.plot(c.u_mm, c.start_N, ":", color=col, lw=1.0)
         ar.plot(c.u_mm, 100 * (c.model_N - c.measured_N) / c.measured_N, "o-", ms=3, color=col)
+        if len(c.angle_deg):
+            ag.plot(c.u_mm, c.angle_deg, "-", color=col, lw=1.6, label=f"{c.curve.label}: fitted model")
+        ag.plot(c.u_mm, c.ideal_angle_deg(), "--", color=col, lw=1.0, label=f"{c.curve.label}: ideal test")
+        if c.angles is not None:
+            ag.plot(c.angles.u_mm, c.angles.angle_deg, "s", ms=4, color=col, mfc="none",
+                    label=f"{c.curve.label}: measured")
     ax.plot([], [], ":", color="0.4", label="start values")
     ax.set_ylabel("clamp force [N]")
     ax.legend(fontsize=7, loc="upper left")
@@ -124,7 +131,9 @@ def plot_fit(result: JointFit, path: Path) -> Path:
                  f"{result.model_runs} model runs", fontsize=9)
     ar.axhline(0, color="0.5", lw=0.8)
     ar.set_ylabel("model − data [%]")
-    ar.set_xlabel("clamp displacement [mm]")
+    ag.set_ylabel("centre shear angle [°]")
+    ag.set_xlabel("clamp displacement [mm]")
+    ag.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     return path
