@@ -302,6 +302,7 @@ def synthetic_joint(tmp_path_factory):
     return folder, paths, joint.fit_curves([read_measured(p) for p in paths], start, choose_discretization=False)
 
 
+@pytest.mark.integration
 def test_joint_fit_recovers_the_truth_within_two_standard_errors(synthetic_joint):
     """Two sizes, start values off by 1.6 and 0.33: K_sh and K_el within 2 se of the truth, each
     curve at the noise level (2 % noise: RMS 1-3 %)."""
@@ -313,6 +314,7 @@ def test_joint_fit_recovers_the_truth_within_two_standard_errors(synthetic_joint
     assert all(0.01 < c.rms_relative < 0.03 for c in res.curves)
 
 
+@pytest.mark.integration
 def test_prediction_of_a_third_size_lies_in_its_band(synthetic_joint):
     """The fitted model on 100 x 300 mm: |prediction − truth| ≤ 2 sd (parameters and
     discretization) at every point, and the band is not vacuous: the start values miss by more."""
@@ -327,6 +329,7 @@ def test_prediction_of_a_third_size_lies_in_its_band(synthetic_joint):
     assert np.all(np.abs(start - truth) > 2 * pred.sd_N)
 
 
+@pytest.mark.integration
 def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint, tmp_path, capsys):
     """`ngbet fit A.csv B.csv --scene S` without --params (the scene names them) writes fit.json
     with each curve's RMS, fit.png and a fitted scene that `ngbet run` takes on another specimen
@@ -351,6 +354,7 @@ def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint,
     assert json.loads((run / "summary.json").read_text())["u0_reached_mm"] == pytest.approx(80.0)
 
 
+@pytest.mark.integration
 def test_a_failed_prediction_keeps_the_fit(synthetic_joint, tmp_path, capsys, monkeypatch):
     """A prediction whose model run fails exits 1 and leaves fit.json and fitted_scene.toml."""
     from ngbet.errors import ConvergenceError
@@ -429,6 +433,7 @@ def test_shear_angle_file_is_read_and_checked(tmp_path):
         read_angles(p)
 
 
+@pytest.mark.integration
 def test_a_held_parameter_widens_the_band_by_its_own_term(synthetic_joint):
     """K_el held fixed with var(ln K_el) = 0.09: the parameter part of the band becomes
     √(sd² + (dF/d ln K_el)² · 0.09), the derivative from central differences of whole runs (to
@@ -446,3 +451,39 @@ def test_a_held_parameter_widens_the_band_by_its_own_term(synthetic_joint):
     np.testing.assert_allclose(held.sd_param_N, want, rtol=0, atol=2e-3 * want.max())  # measured 2.3e-4 N, band 0.14 N
     assert np.all(held.sd_param_N > 1.5 * plain.sd_param_N)
     np.testing.assert_allclose(held.force_N, plain.force_N, rtol=1e-12)
+
+
+@pytest.mark.integration
+def test_a_refit_on_a_finer_discretization_moves_no_parameter_beyond_its_standard_error(synthetic_joint):
+    """The two sizes fitted on the discretization the fit chooses (its force error estimated below
+    1 % at every fitted point) and again two rungs finer (h = 20 mm graded to 0.25 mm, p = 4): each
+    parameter moves by less than its standard error, so the values belong to the data, not to the mesh."""
+    _, paths, _ = synthetic_joint
+    curves = [read_measured(p) for p in paths]
+    start = synthetic_scene(**{"material.K_sh": 4e4, "material.K_el": 1e6})
+    chosen = joint.fit_curves(curves, start, max_runs=20)
+    assert chosen.accuracy_met and all(c.error_rel_max <= 0.01 for c in chosen.curves)
+    finer = joint.fit_curves(curves, joint.FIT_LADDER[3].apply(start), max_runs=20, choose_discretization=False)
+    assert all(c.level < 3 for c in chosen.curves)  # the finer fit is finer than every curve of the chosen one
+    moved = np.abs(np.log(finer.values / chosen.values))
+    assert np.all(moved <= chosen.se_log), (moved, chosen.se_log)
+
+
+@pytest.mark.integration
+def test_one_size_with_a_fabric_scene_fits_and_holds_the_bending_stiffnesses(tmp_path, capsys):
+    """A single curve with a fabric scene and no --params: the scene's parameters without the
+    bending stiffnesses, which fit.json lists as held with their values and why; the centre
+    shear angle of the fitted model and of the ideal test are recorded at every fitted point."""
+    data = ROOT / "data" / "cao2008" / "cao2008_twill_unbalanced_100x250_UN.csv"
+    out = tmp_path / "fit"
+    code = main(["fit", str(data), "--scene", str(GEO / "twintex_twill_unbalanced.toml"), "--out", str(out),
+                 "--max-runs", "3", "--quiet"])
+    doc = json.loads((out / "fit.json").read_text())
+    assert code == (0 if doc["converged"] else 1)
+    assert set(doc["held"]) == {"material.alpha1", "material.alpha2"}
+    assert doc["held"]["material.alpha1"]["value"] == pytest.approx(10.0)
+    assert "one specimen size" in doc["held"]["material.alpha2"]["why"]
+    assert not any(k.startswith("material.alpha") for k in doc["parameters"])
+    c = doc["curves"][0]
+    assert len(c["shear_angle_deg"]) == len(c["u_mm"]) == len(c["shear_angle_ideal_deg"])
+    assert "held" in capsys.readouterr().out

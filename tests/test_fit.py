@@ -191,6 +191,26 @@ def test_profile_sensitivities_match_finite_differences():
     assert np.all(err < 1e-4), dict(zip(P, err, strict=True))
 
 
+def test_centre_angle_sensitivities_match_finite_differences():
+    """dγ_centre / d ln p at 30 mm of the capped scene agree with central differences of whole runs
+    (step 1e-3) to 1e-3 of the largest; the angle itself is the run's own (ngbet run's gamma_centre_deg)."""
+    from ngbet.continuum.sensitivity import material_value, with_material
+
+    sc, u = capped_scene(), [15.0, 30.0]
+    P = ["material.K_el", "material.K_sh", "material.alpha1", "material.alpha2"]
+    r = force_path(sc, u, P, angles=[30.0])
+    fd = []
+    for p in P:
+        name = p.partition(".")[2]
+        v = material_value(sc, name)
+        up, dn = (force_path(with_material(sc, name, v * math.exp(s)), u, (), angles=[30.0]).angles_deg[30.0]
+                  for s in (1e-3, -1e-3))
+        fd.append((up - dn) / 2e-3)
+    err = np.abs(r.angle_dlogp[30.0] - np.array(fd)) / np.abs(fd).max()
+    assert np.all(err < 1e-3), dict(zip(P, err, strict=True))
+    assert 0 < r.angles_deg[30.0] < 90
+
+
 def test_load_tangent_at_a_converged_state_is_that_of_the_tangent_there(monkeypatch):
     """The load tangent behind dF/dp is that of the tangent at the converged state: refined from
     Newton's last factorization, it agrees with the one of a factorization made there to 1e-7

@@ -23,7 +23,8 @@ the bending stiffnesses, which one size cannot determine (:func:`held_parameters
 
 A prediction of another specimen is the fitted scene run there, with the standard deviation
 √(g Σ gᵀ + δ²): g = dF/dθ from the same run, Σ the covariance of θ, and δ the estimated
-discretization error of that run.
+discretization error of that run (where the estimate cannot vouch, the change of the force when
+the displacement order rises by one).
 """
 
 from __future__ import annotations
@@ -662,4 +663,7 @@ def predict_specimen(result: JointFit, specimen: dict[str, float], u_mm: np.ndar
     n = len(result.names)
     var = band(r.dlogp[:, :n], result.cov_log) ** 2 + (r.dlogp[:, n:] ** 2) @ np.array(list(fixed.values()))
     disc = np.abs(r.force_error_N)
+    if not np.all(np.isfinite(disc)):  # where the estimate cannot vouch: the change one order up
+        finer = sc.with_changes(**{"discretization.order_u": sc.discretization.order_u + 1})
+        disc = np.where(np.isfinite(disc), disc, np.abs(force_path(finer, u_mm).force_N - r.force_N))
     return CurvePrediction(np.asarray(u_mm, float), r.force_N, np.sqrt(var), disc, sc)
