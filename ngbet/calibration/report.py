@@ -102,8 +102,12 @@ def table_band(result: JointFit, x: np.ndarray) -> np.ndarray:
 
 
 def plot_fit(result: JointFit, path: Path) -> Path:
-    """Each curve: data with its error bars, the start and the fitted model (±2 sd), relative residuals,
-    and the centre shear angle of the fitted model against the ideal test's (and measured angles)."""
+    """Each curve's data, start and fitted model (±2 sd), residuals, and centre shear angle.
+
+    The centre shear angle of the fitted model is drawn against the ideal test's (inextensible
+    yarns) and, where given, the measured angles: where the model's falls short, the crosshead
+    travel goes into yarn elongation.
+    """
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6.4, 8.4))
