@@ -487,3 +487,13 @@ def test_one_size_with_a_fabric_scene_fits_and_holds_the_bending_stiffnesses(tmp
     c = doc["curves"][0]
     assert len(c["shear_angle_deg"]) == len(c["u_mm"]) == len(c["shear_angle_ideal_deg"])
     assert "held" in capsys.readouterr().out
+
+
+def test_validation_scores_errors_over_the_curve_s_largest_force():
+    """Beside the relative RMS, the study scores the RMS of the error over the measured curve's largest
+    force: a 10 % miss at the small force (1 N of a curve reaching 2 N) counts 0.1/2 at that point."""
+    from ngbet.studies import validation as V
+
+    pred, meas = np.array([1.1, 2.0]), np.array([1.0, 2.0])
+    assert V._rms_of_max(pred, meas) == pytest.approx(math.sqrt((0.05 ** 2 + 0.0) / 2), rel=1e-12)
+    assert V._rms(pred, meas) == pytest.approx(math.sqrt((0.1 ** 2 + 0.0) / 2), rel=1e-12)
