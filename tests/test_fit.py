@@ -366,7 +366,7 @@ def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
         assert doc["parameters"][p]["standard_error"] == pytest.approx(v * se, rel=1e-12)
     cur = doc["curves"][0]
     assert cur["discretization"]["chosen_by_fit"] is True and cur["discretization"]["corner_mesh_size_mm"] > 0
-    assert cur["force_error_rel_max"] == doc["accuracy"]["force_error_rel_max"]["synthetic"]
+    assert cur["force_error_rel_max"] == doc["accuracy"]["force_error_rel_max"]["150 x 450 mm"]
     assert (out / "fit.png").stat().st_size > 10_000 and (out / "predict_synthetic.png").exists()
     fitted = Scene.from_toml(out / "fitted_scene.toml")
     assert fitted.material.K_sh == pytest.approx(doc["parameters"]["material.K_sh"]["value"])

@@ -223,7 +223,7 @@ def summary(result: Any, out: Path) -> str:
     for c in result.curves:
         err = c.error_rel_max
         est = f"{100 * err:.2g} %" if math.isfinite(err) else "not vouched for"
-        lines.append(f"  {c.curve.label:>16s}: RMS relative error {100 * c.rms_relative:5.1f} % "
+        lines.append(f"  {c.label:>16s}: RMS relative error {100 * c.rms_relative:5.1f} % "
                      f"({len(c.u_mm)} points, {c.u_mm[0]:.3g} to {c.u_mm[-1]:.3g} mm); discretization error {est}")
     if not result.accuracy_met:
         lines.append(f"  the model's discretization error is above --accuracy {result.target_error:g} on some curve "

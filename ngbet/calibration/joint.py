@@ -29,6 +29,7 @@ the displacement order rises by one).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import sys
@@ -180,6 +181,19 @@ class CurveFit:
     angles_model_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
+    def label(self) -> str:
+        """"W x L mm": the specimen the curve runs on (its header's, else the scene's)."""
+        sp = self.scene.specimen
+        return f"{sp.width_mm:g} x {sp.length_mm:g} mm"
+
+    def measured_on_specimen(self) -> MeasuredCurve:
+        """The measured curve with the specimen keys it runs on (the scene's where its header gives none)."""
+        sp = self.scene.specimen
+        keys = {"specimen.width_mm": sp.width_mm, "specimen.length_mm": sp.length_mm,
+                "specimen.thickness_mm": sp.thickness_mm, **self.curve.specimen}
+        return dataclasses.replace(self.curve, specimen=keys)
+
+    @property
     def rms_relative(self) -> float:
         """RMS of (model − measured)/measured over the fitted points."""
         return float(np.sqrt(np.mean(((self.model_N - self.measured_N) / self.measured_N) ** 2)))
@@ -296,7 +310,7 @@ class JointFit:
             "model_runs": self.model_runs, "wall_s": self.wall_s,
             "converged": self.converged, "optimizer_message": self.message,
             "accuracy": {"target_error": self.target_error, "met": self.accuracy_met,
-                         "force_error_rel_max": {c.curve.label: num(c.error_rel_max) for c in self.curves},
+                         "force_error_rel_max": {c.label: num(c.error_rel_max) for c in self.curves},
                          "stages": self.stages},
             "curves": [curve(c) for c in self.curves],
         }
@@ -376,7 +390,7 @@ class _Model:
                 ang = np.array([r.angles_deg[float(u)] for u in c.u_mm]) if check else np.zeros(0)
                 out.append(_Run(r.force_N, r.dlogp, P, GP, A, GA, err, ang))
             except (ConvergenceError, SceneError) as exc:
-                log.info("model run failed on %s: %s", c.curve.label, exc)
+                log.info("model run failed on %s: %s", c.label, exc)
                 out.append(_Run(np.full(m, np.nan), np.zeros((m, n)), np.full(kp, np.nan), np.zeros((kp, n)),
                                 np.full(ka, np.nan), np.zeros((ka, n)), np.full(m if check else 0, np.nan),
                                 np.full(m if check else 0, np.nan)))
@@ -568,7 +582,7 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
         if not up or model.runs >= max_runs:
             break
         for cf in up:
-            log.info("%s: estimated discretization error %.3g above %.3g: one rung up", cf.curve.label,
+            log.info("%s: estimated discretization error %.3g above %.3g: one rung up", cf.label,
                      cf.error_rel_max, target_error)
             cf.level = (cf.level or 0) + 1
     quiet[0] = True
