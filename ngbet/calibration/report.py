@@ -131,8 +131,9 @@ def plot_fit(result: JointFit, path: Path) -> Path:
     ax.plot([], [], ":", color="0.4", label="start values")
     ax.set_ylabel("clamp force [N]")
     ax.legend(fontsize=7, loc="upper left")
+    stopped = "" if result.converged else " (stopped at the run limit, not converged)"
     ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters, "
-                 f"{result.model_runs} model runs", fontsize=9)
+                 f"{result.model_runs} model runs{stopped}", fontsize=9)
     ar.axhline(0, color="0.5", lw=0.8)
     ar.set_ylabel("model − data [%]")
     ag.set_ylabel("centre shear angle [°]")
