@@ -233,6 +233,8 @@ def summary(result: Any, out: Path) -> str:
         flag = ("  at its bound" if n in result.at_bound
                 else "  undetermined" if n in result.undetermined else "")
         lines.append(f"  {n:36s} = {result.values[k]:11.5g}   se(ln p) = {se[k]:.3g}{flag}")
+    for n, why in result.undetermined.items():
+        lines.append(f"  {n} undetermined: {why}")
     for n, why in result.held.items():
         lines.append(f"  {n} held: {why}")
     return "\n".join(lines)

@@ -612,6 +612,19 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
                     profile_sd_mm, angle_sd_deg)
 
 
+#: what data would determine a parameter the fit leaves undetermined (by the start of its name)
+WHAT_FIXES = {
+    "material.shear_stress_steps_Pa": "what would fix it: a law with fewer coefficients (fewer rises, or the locking "
+                                      "law), or data that reach the shear angles of this rise (a larger displacement, "
+                                      "a picture-frame test)",
+    "material.K_el": "what would fix it: measured shear angles (--angles; yarn elongation keeps them below the ideal "
+                     "test's) or a bound on K_el from the yarns",
+    "material.alpha": "what would fix it: a second specimen size or a measured mid-axis profile (--profile)",
+    "material.K_lock": "what would fix it: data further into the stiffening (larger displacements)",
+    "material.gamma_lock_deg": "what would fix it: data further into the stiffening (larger displacements)",
+}
+
+
 def _statistics(e: np.ndarray, J: np.ndarray, names: list[str]) -> dict[str, Any]:
     """Covariance of θ = ln p from the SVD of J, and what the data leave undetermined.
 
@@ -638,6 +651,10 @@ def _statistics(e: np.ndarray, J: np.ndarray, names: list[str]) -> dict[str, Any
         if p not in undetermined and not se[k] <= UNDETERMINED_SE:
             undetermined[p] = (f"standard error of ln p = {se[k]:.3g} > {UNDETERMINED_SE}: its 95 % interval "
                                f"spans more than a factor {math.exp(1.96 * UNDETERMINED_SE):.1f} either way")
+    for p in undetermined:
+        hint = next((h for k, h in WHAT_FIXES.items() if p.startswith(k)), "")
+        if hint:
+            undetermined[p] += f"; {hint}"
     corr = _correlation(cov)
     pairs = [(names[i], names[j], float(corr[i, j])) for i in range(n) for j in range(i + 1, n)
              if abs(corr[i, j]) > STRONG_CORRELATION]
