@@ -388,6 +388,11 @@ def test_cli_fit_refuses_bad_input(tmp_path, capsys, monkeypatch):
     assert "far beyond the ideal yarn locking" in capsys.readouterr().err
     assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--set", "model='discrete'"]) == 2
     assert "calibrates the continuum model" in capsys.readouterr().err
+    assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--accuracy", "2"]) == 2
+    assert "--accuracy 2.0: the largest relative discretization error" in capsys.readouterr().err
+    assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--angles",
+                 str(tmp_path / "none.csv")]) == 2
+    assert "shear angle file not found" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
 
