@@ -10,7 +10,9 @@ import ngsolve as ngs
 import numpy as np
 import pytest
 
-from ngbet import fit as F
+from ngbet.calibration.data import MeasuredCurve, read_measured
+from ngbet.calibration.joint import JointFit, fit_curves, predict_specimen
+from ngbet.calibration.observations import Profile
 from ngbet.cli import main
 from ngbet.continuum import physics
 from ngbet.continuum.sensitivity import finite_difference, force_path
@@ -38,9 +40,15 @@ def truth_curve() -> np.ndarray:
     return force_path(synthetic_scene(), U_SYN).force_N
 
 
-def noisy(clean: np.ndarray, seed: int, rel: float = 0.01) -> F.Curve:
+def noisy(clean: np.ndarray, seed: int, rel: float = 0.01) -> MeasuredCurve:
     rng = np.random.default_rng(seed)
-    return F.Curve(U_SYN, clean * (1 + rel * rng.standard_normal(len(clean))), f"synthetic seed {seed}")
+    return MeasuredCurve(U_SYN, clean * (1 + rel * rng.standard_normal(len(clean))), f"synthetic seed {seed}")
+
+
+def fit_own(curve: MeasuredCurve, scene: Scene, params: list[str], **kw) -> JointFit:
+    """A fit on the scene's own discretization and specimen, at every point of the curve (the synthetic truth's)."""
+    return fit_curves([curve], scene, params, fractions=[(0.0, 1.0)], resample=False, choose_discretization=False,
+                      **kw)
 
 
 def start_scene() -> Scene:
@@ -49,9 +57,9 @@ def start_scene() -> Scene:
 
 
 @pytest.fixture(scope="module")
-def synthetic_fit(truth_curve) -> F.FitResult:
+def synthetic_fit(truth_curve) -> JointFit:
     """K_sh, K_lock fitted to the truth with 1 % noise (seed 1), from start values off by 1.6, 0.6."""
-    return F.fit(noisy(truth_curve, seed=1), start_scene(), list(TRUTH), u_range=(0, 200))
+    return fit_own(noisy(truth_curve, seed=1), start_scene(), list(TRUTH))
 
 
 # ------------------------------------------------------------------------------------------ shear laws
@@ -183,6 +191,26 @@ def test_profile_sensitivities_match_finite_differences():
     assert np.all(err < 1e-4), dict(zip(P, err, strict=True))
 
 
+def test_centre_angle_sensitivities_match_finite_differences():
+    """dγ_centre / d ln p at 30 mm of the capped scene agree with central differences of whole runs
+    (step 1e-3) to 1e-3 of the largest; the angle itself is the run's own (ngbet run's gamma_centre_deg)."""
+    from ngbet.continuum.sensitivity import material_value, with_material
+
+    sc, u = capped_scene(), [15.0, 30.0]
+    P = ["material.K_el", "material.K_sh", "material.alpha1", "material.alpha2"]
+    r = force_path(sc, u, P, angles=[30.0])
+    fd = []
+    for p in P:
+        name = p.partition(".")[2]
+        v = material_value(sc, name)
+        up, dn = (force_path(with_material(sc, name, v * math.exp(s)), u, (), angles=[30.0]).angles_deg[30.0]
+                  for s in (1e-3, -1e-3))
+        fd.append((up - dn) / 2e-3)
+    err = np.abs(r.angle_dlogp[30.0] - np.array(fd)) / np.abs(fd).max()
+    assert np.all(err < 1e-3), dict(zip(P, err, strict=True))
+    assert 0 < r.angles_deg[30.0] < 90
+
+
 def test_load_tangent_at_a_converged_state_is_that_of_the_tangent_there(monkeypatch):
     """The load tangent behind dF/dp is that of the tangent at the converged state: refined from
     Newton's last factorization, it agrees with the one of a factorization made there to 1e-7
@@ -212,29 +240,34 @@ def test_load_tangent_at_a_converged_state_is_that_of_the_tangent_there(monkeypa
 
 
 # ------------------------------------------------------------------------------------------ the fit
+@pytest.mark.integration
 def test_fit_recovers_synthetic_parameters(synthetic_fit):
-    """1 % noise: each parameter within two standard errors of the truth, the noise scale inside
-    the 99 % interval of s/σ for 17 degrees of freedom (√(χ²/17): 0.58 to 1.45), both determined."""
+    """1 % noise: each parameter within two standard errors of the truth, the residual scale (over
+    what 1 % noise gives against the points' standard deviations) below the 99 % bound of s/σ for
+    17 degrees of freedom (√(χ²/17) <= 1.45: the misfit is the noise), both determined."""
     res = synthetic_fit
-    for k, p in enumerate(res.params):
+    for k, p in enumerate(res.names):
         z = abs(math.log(res.values[k] / TRUTH[p])) / res.se_log[k]
         assert z <= 2.0, (p, res.values[k], res.se_log[k])
-    assert 0.57 < res.noise_scale / 0.01 < 1.45
+    c = res.curves[0]  # the points' standard deviations: 1 % of the force, floored by the reading error
+    assert res.residual_scale / np.sqrt(np.mean((0.01 * c.measured_N / c.sd_N) ** 2)) < 1.45
     assert res.undetermined == {}
-    assert res.rms_relative_error < 0.02
+    assert res.curves[0].rms_relative < 0.02
 
 
+@pytest.mark.integration
 def test_invisible_parameter_is_reported_undetermined(truth_curve):
     """alpha1 of a balanced fabric with a 3 mm internal length barely touches the clamp force
     (dF/d ln alpha1 ~ 1e-3 of dF/d ln K_sh): the fit must say so, and still determine K_sh."""
-    res = F.fit(noisy(truth_curve, seed=2), synthetic_scene(),
-                ["material.K_sh", "material.alpha1"], u_range=(0, 200), max_runs=5)
+    res = fit_own(noisy(truth_curve, seed=2), synthetic_scene(), ["material.K_sh", "material.alpha1"], max_runs=5)
     assert "material.alpha1" in res.undetermined
+    assert "another specimen size (another aspect ratio)" in res.undetermined["material.alpha1"]
     assert "material.K_sh" not in res.undetermined
     doc = res.to_json()
     assert doc["parameters"]["material.alpha1"]["determined"] is False
 
 
+@pytest.mark.integration
 def test_fit_on_one_size_predicts_another(synthetic_fit):
     """Fitted on 150 x 450 mm, the 100 x 300 mm test is predicted within the propagated
     uncertainty: |prediction − truth| ≤ 2 sd at every point (the parameter errors are ~1 se)."""
@@ -243,14 +276,15 @@ def test_fit_on_one_size_predicts_another(synthetic_fit):
                                "loading.u0_mm": 70.0, "loading.stops_mm": []})
     u = np.linspace(10.0, 70.0, 7)
     truth = force_path(other, u).force_N
-    pred = F.predict(res, F.Curve(u, truth, "truth 100 x 300"), other, u_range=(0, 200))
-    assert np.all(pred.sd_N > 0)
-    assert np.all(np.abs(pred.force_N - truth) <= 2 * pred.sd_N)
+    pred = predict_specimen(res, {"specimen.length_mm": 300.0, "specimen.width_mm": 100.0}, u)
+    assert np.all(pred.sd_param_N > 0)
+    assert np.all(np.abs(pred.force_N - truth) <= 2 * pred.sd_param_N)
     # the prediction is a real one: the start values miss the truth by far more than that
     start = force_path(other.with_changes(**{"material.K_sh": 4e4, "material.K_lock": 0.9e4}), u).force_N
-    assert np.all(np.abs(start - truth) > 5 * pred.sd_N)
+    assert np.all(np.abs(start - truth) > 5 * pred.sd_param_N)
 
 
+@pytest.mark.integration
 def test_profile_determines_what_the_force_cannot():
     """The paper's unbalanced fabric (10 mm mesh, to 37 mm): from the force alone (1 % noise) the
     fit cannot separate K_sh from alpha2; with the mid-axis profile at 37 mm (10 points, 0.05 mm
@@ -261,25 +295,49 @@ def test_profile_determines_what_the_force_cannot():
     X, u = np.linspace(0.0, 220.0, 12), np.linspace(4.0, 37.0, 12)
     r = force_path(truth, u, (), {37.0: X[1:-1]})
     rng = np.random.default_rng(5)
-    curve = F.Curve(r.u_mm, r.force_N * (1 + 0.01 * rng.standard_normal(len(u))), "synthetic force")
+    curve = MeasuredCurve(r.u_mm, r.force_N * (1 + 0.01 * rng.standard_normal(len(u))), "synthetic force")
     uy = np.concatenate([[0.0], r.profiles[37.0] + 0.05 * rng.standard_normal(10), [0.0]])
-    prof = F.Profile(np.full(12, 37.0), X, uy, "synthetic profile")  # the clamp points are dropped
+    prof = Profile(np.full(12, 37.0), X, uy, "synthetic profile")  # the clamp points are dropped
     start = truth.with_changes(**{"material.K_sh": 3e4, "material.alpha1": 1e3, "material.alpha2": 40.0})
     P = ["material.K_sh", "material.alpha1", "material.alpha2"]
-    alone = F.fit(curve, start, P, u_range=(0, 100), max_runs=4)
+    alone = fit_own(curve, start, P, max_runs=4)
     assert "material.alpha2" in alone.undetermined
-    both = F.fit(curve, start, P, u_range=(0, 100), profile=prof, force_sd=0.01, profile_sd_mm=0.05)
-    assert both.undetermined == {} and both.extra["profile"]["points"] == 10
+    both = fit_own(curve, start, P, profile=prof, profile_sd_mm=0.05)
+    assert both.undetermined == {} and both.to_json()["curves"][0]["profile"]["points"] == 10
     exact = {"material.K_sh": 21e3, "material.alpha1": 2e3, "material.alpha2": 20.0}
     for k, p in enumerate(P):
         assert abs(math.log(both.values[k] / exact[p])) <= 2 * both.se_log[k], (p, both.values[k])
+
+
+@pytest.mark.integration
+def test_measured_shear_angles_are_fitted_with_the_force():
+    """The paper's scene (10 mm mesh, to 37 mm) with a soft K_el: centre shear angles at three loads
+    (0.2° noise) fitted with the force (1 % noise) recover K_sh and K_el within two standard errors;
+    fit.json keeps the angles measured and modelled, and the model's angle is the run's own."""
+    from ngbet.calibration.observations import ShearAngles
+
+    truth = Scene().with_changes(**{"discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 0.0,
+                                    "discretization.order_u": 2, "loading.u0_mm": 37.0, "material.K_el": 2e5})
+    u, ua = np.linspace(4.0, 37.0, 12), np.array([15.0, 25.0, 37.0])
+    r = force_path(truth, u, (), angles=list(ua))
+    rng = np.random.default_rng(3)
+    curve = MeasuredCurve(r.u_mm, r.force_N * (1 + 0.01 * rng.standard_normal(len(u))), "synthetic force")
+    ang = ShearAngles(ua, np.array([r.angles_deg[v] for v in ua]) + 0.2 * rng.standard_normal(3), "synthetic angles")
+    start = truth.with_changes(**{"material.K_sh": 3e4, "material.K_el": 6e5})
+    res = fit_own(curve, start, ["material.K_sh", "material.K_el"], angles=ang, angle_sd_deg=0.2)
+    exact = {"material.K_sh": 21e3, "material.K_el": 2e5}
+    for k, p in enumerate(res.names):
+        assert abs(math.log(res.values[k] / exact[p])) <= 2 * res.se_log[k], (p, res.values[k], res.se_log[k])
+    doc = res.to_json()["curves"][0]["shear_angle_data"]
+    assert doc["points"] == 3 and doc["rms_deg"] < 0.5
+    assert doc["model_deg"][-1] == pytest.approx(res.curves[0].angle_deg[-1], abs=1e-9)
 
 
 @pytest.mark.slow
 def test_standard_errors_agree_with_the_scatter(truth_curve):
     """Over 16 noise draws the spread of the fitted ln p matches the reported standard error
     within a factor 2."""
-    fits = [F.fit(noisy(truth_curve, seed=10 + k), start_scene(), list(TRUTH), u_range=(0, 200)) for k in range(16)]
+    fits = [fit_own(noisy(truth_curve, seed=10 + k), start_scene(), list(TRUTH)) for k in range(16)]
     logs = np.log([r.values for r in fits])
     scatter = logs.std(axis=0, ddof=1)
     reported = np.mean([r.se_log for r in fits], axis=0)
@@ -287,27 +345,33 @@ def test_standard_errors_agree_with_the_scatter(truth_curve):
 
 
 # ------------------------------------------------------------------------------------------ CLI, files
+@pytest.mark.integration
 def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
+    """One curve without specimen keys runs on the scene's specimen; fit.json records each parameter with
+    its standard error, the discretization the fit chose and its largest estimated force error; the
+    fitted scene carries the fitted values and that discretization; --predict writes its files."""
     data = tmp_path / "synthetic.csv"
     c = noisy(truth_curve, seed=4)
     data.write_text("displacement_mm,force_N\n" + "".join(f"{u},{f}\n" for u, f in zip(c.u_mm, c.force_N, strict=True)))
     scene = tmp_path / "start.toml"
     scene.write_text(synthetic_scene().to_toml())  # the CLI's plumbing, not the iteration, is tested here
     out = tmp_path / "fit"
-    assert main(["fit", str(data), str(scene), "--params", "material.K_sh,material.K_lock", "--out", str(out),
-                 "--range", "0:200", "--predict", str(data)]) == 0
+    code = main(["fit", str(data), str(scene), "--params", "material.K_sh,material.K_lock", "--out", str(out),
+                 "--range", "0:200", "--predict", str(data), "--predict-scene", str(scene), "--max-runs", "3",
+                 "--quiet"])
     doc = json.loads((out / "fit.json").read_text())
+    assert code == (0 if doc["converged"] else 1)
     assert set(doc["parameters"]) == set(TRUTH) and doc["model_runs"] >= 2
-    from scipy.stats import t as student
-
-    q = student.ppf(0.975, doc["points"] - len(TRUTH))  # Student t on ln p with n − k degrees of freedom
-    for p in TRUTH:  # the interval is value·exp(∓q·se) on ln p: its width follows the standard error
-        lo, hi = doc["parameters"][p]["interval95"]
-        se = doc["parameters"][p]["standard_error_log"]
-        assert math.log(hi / lo) == pytest.approx(2 * q * se, rel=1e-9)
-    assert (out / "fit.png").stat().st_size > 10_000 and (out / "predict.png").exists()
+    for p in TRUTH:
+        v, se = doc["parameters"][p]["value"], doc["parameters"][p]["standard_error_log"]
+        assert doc["parameters"][p]["standard_error"] == pytest.approx(v * se, rel=1e-12)
+    cur = doc["curves"][0]
+    assert cur["discretization"]["chosen_by_fit"] is True and cur["discretization"]["corner_mesh_size_mm"] > 0
+    assert cur["force_error_rel_max"] == doc["accuracy"]["force_error_rel_max"]["150 x 450 mm"]
+    assert (out / "fit.png").stat().st_size > 10_000 and (out / "predict_synthetic.png").exists()
     fitted = Scene.from_toml(out / "fitted_scene.toml")
     assert fitted.material.K_sh == pytest.approx(doc["parameters"]["material.K_sh"]["value"])
+    assert fitted.discretization.order_u == cur["discretization"]["order_u"]
 
 
 def test_cli_fit_refuses_bad_input(tmp_path, capsys, monkeypatch):
@@ -321,15 +385,20 @@ def test_cli_fit_refuses_bad_input(tmp_path, capsys, monkeypatch):
     assert "data file not found" in capsys.readouterr().err
     # the embedded 70 x 220 mm specimen locks at 62 mm: not the specimen of a 105 mm curve
     assert main(["fit", str(CAO_DATA), "--params", "material.K_sh"]) == 2
-    assert "beyond the specimen's locking load" in capsys.readouterr().err
+    assert "far beyond the ideal yarn locking" in capsys.readouterr().err
     assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--set", "model='discrete'"]) == 2
     assert "calibrates the continuum model" in capsys.readouterr().err
+    assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--accuracy", "2"]) == 2
+    assert "--accuracy 2.0: the largest relative discretization error" in capsys.readouterr().err
+    assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--angles",
+                 str(tmp_path / "none.csv")]) == 2
+    assert "shear angle file not found" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
 
 def test_measured_data_file_is_the_cao_curve():
     """The shipped data: 59 points to 105.6 mm, 22.52 N at the end (data/README.md)."""
-    c = F.read_curve(CAO_DATA)
+    c = read_measured(CAO_DATA)
     assert len(c.u_mm) == 59 and c.u_mm[-1] == pytest.approx(105.6381) and c.force_N[-1] == pytest.approx(22.5202)
 
 
@@ -342,6 +411,7 @@ def test_force_path_answers_every_requested_load_in_order(truth_curve):
     assert F_rep[[0, 1, 3]] == pytest.approx(truth_curve[[3, 7, 12]], rel=1e-9)
 
 
+@pytest.mark.integration
 def test_a_fit_stopped_by_max_runs_says_so(truth_curve, tmp_path):
     """Two model runs cannot converge from start values off by 1.6 and 0.6: fit.json says
     ``converged: false``, the terminal line says NOT CONVERGED and the command exits 1."""

@@ -421,7 +421,7 @@ def test_fit_reads_a_kn_export_with_the_specimen_from_the_command_line(tmp_path)
     inp = Inputs(_parser("fit").parse_args(["fit", str(p), "--specimen", "100x250", "--params", "material.K_sh",
                                             "--out", str(tmp_path / "f")]))  # everything read, no model run
     np.testing.assert_allclose(inp.curves[0].force_N, F, rtol=1e-9)
-    assert inp.joint and inp.curves[0].label == "100 x 250 mm"
+    assert inp.curves[0].label == "100 x 250 mm"
     notes = " ".join(inp.notes)
     assert "converted to N" in notes and "specimen.width_mm = 100 from --specimen" in notes
 

@@ -7,9 +7,9 @@ Every input is checked before the first model run (data files line by line, erro
 folder); a refusal exits with 2 (3 for the output folder) and names the file, line or key. The fit
 is written as soon as it is done, before any prediction, so that a prediction that fails keeps it.
 
-Data files whose header gives their specimen (``# specimen.width_mm = ...``), or several files,
-are fitted together (:func:`ngbet.calibration.joint.fit_curves`); a single file without specimen
-keys, or with ``--profile``, is fitted on the scene's specimen by :func:`ngbet.fit.fit`.
+Every data file is fitted by :func:`ngbet.calibration.joint.fit_curves`, on the specimen its
+header gives (``# specimen.width_mm = ...``), else on the scene's. A measured mid-axis profile
+(``--profile``) and centre shear angles (``--angles``) belong to the first data file's specimen.
 """
 
 from __future__ import annotations
@@ -44,13 +44,17 @@ def add_parser(sub: Any) -> None:
                    help="override one scene value (also the start values), repeatable")
     p.add_argument("--range", dest="u_range", metavar="FROM:TO", help="fit the points between FROM and TO mm "
                    "(default: 10 to 90 %% of each curve's displacement range)")
-    p.add_argument("--noise", choices=("relative", "absolute"), default="relative",
-                   help="error model of a single curve without specimen keys (default: relative)")
     p.add_argument("--max-runs", type=int, default=40, help="at most this many model runs (default 40)")
-    p.add_argument("--profile", metavar="PROFILE.csv", help="a measured mid-axis profile (u0_mm,X_mm,uy_mm) "
-                   "fitted together with the force (one data file)")
-    p.add_argument("--force-sd", type=float, default=0.01, help="with --profile: error scale of the force")
-    p.add_argument("--profile-sd", type=float, default=1.0, help="with --profile: error scale of the profile [mm]")
+    p.add_argument("--accuracy", type=float, default=0.01, metavar="REL",
+                   help="largest estimated discretization error of the model force at a fitted point, relative "
+                   "to it (default 0.01); ngbet chooses each curve's mesh and order to meet it")
+    p.add_argument("--profile", metavar="PROFILE.csv", help="a measured mid-axis profile (u0_mm,X_mm,uy_mm) of the "
+                   "first data file's specimen, fitted together with the force")
+    p.add_argument("--profile-sd", type=float, default=1.0, help="with --profile: its standard deviation [mm]")
+    p.add_argument("--angles", metavar="ANGLES.csv", help="measured centre shear angles (displacement_mm,"
+                   "shear_angle_deg) of the first data file's specimen, fitted together with the force")
+    p.add_argument("--angle-sd", type=float, default=1.0, help="with --angles: their standard deviation [deg] "
+                   "(default 1)")
     p.add_argument("--predict", metavar="OTHER.csv", action="append", default=[],
                    help="another measured curve to predict with the fitted values (repeatable)")
     p.add_argument("--predict-scene", metavar="OTHER.toml",
@@ -125,34 +129,29 @@ class Inputs:
         self.predict = [read_measured(p, columns=columns) for p in args.predict]
         self.notes = [f"{c.source}: {n}" for c in self.curves + self.predict for n in c.notes]
         self.predict_scene = Scene.from_toml(args.predict_scene) if args.predict_scene else None
-        self.joint = (len(self.curves) > 1 or bool(self.curves[0].specimen)) and not args.profile
-        if args.profile and len(self.curves) > 1:
-            raise SceneError("--profile goes with one data file")
-        if self.joint:
-            from .joint import curve_scene, expand_params, value_of
+        from .joint import curve_scene, expand_params, value_of
+        from .observations import read_angles, read_profile
 
-            names = expand_params(self.scene, self.params)
-            bad = [n for n in names if not value_of(self.scene, n) > 0]
-            if bad:
-                raise SceneError(f"--params: {', '.join(bad)} must have a positive start value (the fit works on "
-                                 "ln p; give one with --set)")
-            for c in self.curves:
-                note = c.check_window(self._fraction(c))
-                self.notes += [note] if note else []
-                curve_scene(self.scene, c, c.sample(fraction=self._fraction(c))[0])
-            for c in self.predict:
-                if not c.specimen and self.predict_scene is None:
-                    raise SceneError(f"--predict {c.source}: its header gives no specimen "
-                                     "(# specimen.width_mm = ..., # specimen.length_mm = ...) and no --predict-scene")
-        else:
-            from ..fit import Curve, _check_inputs, _fitted_points, _start
-
-            _start(self.scene, self.params)
-            _check_inputs(self.scene, args.noise, args.profile, args.force_sd, args.profile_sd)
-            c = self.curves[0]
+        self.profile = read_profile(args.profile) if args.profile else None
+        self.angles = read_angles(args.angles) if args.angles else None
+        if not (args.profile_sd > 0 and args.angle_sd > 0):
+            raise SceneError(f"--profile-sd = {args.profile_sd}, --angle-sd = {args.angle_sd}: both must be > 0")
+        if not 0 < args.accuracy < 1:
+            raise SceneError(f"--accuracy {args.accuracy}: the largest relative discretization error of the force, "
+                             "between 0 and 1 (e.g. 0.01)")
+        names = expand_params(self.scene, self.params)
+        bad = [n for n in names if not value_of(self.scene, n) > 0]
+        if bad:
+            raise SceneError(f"--params: {', '.join(bad)} must have a positive start value (the fit works on "
+                             "ln p; give one with --set)")
+        for c in self.curves:
             note = c.check_window(self._fraction(c))
             self.notes += [note] if note else []
-            _fitted_points(Curve(c.u_mm, c.force_N, c.source), self.scene, self.u_range, args.noise)
+            curve_scene(self.scene, c, c.sample(fraction=self._fraction(c))[0])
+        for c in self.predict:
+            if not c.specimen and self.predict_scene is None:
+                raise SceneError(f"--predict {c.source}: its header gives no specimen "
+                                 "(# specimen.width_mm = ..., # specimen.length_mm = ...) and no --predict-scene")
 
     def _fraction(self, c: MeasuredCurve) -> tuple[float, float]:
         from .data import RANGE
@@ -179,15 +178,13 @@ def run_from_args(args: argparse.Namespace) -> int:
         folder = _out_folder(out)
         for note in inp.notes:
             print(f"ngbet fit: {note}", file=sys.stderr)
-        if not inp.joint:
-            code = _legacy(args, inp, out)
-            folder.finish()
-            return code
         from .joint import fit_curves, terminal_progress
 
         fractions = [inp._fraction(c) for c in inp.curves]
-        result = fit_curves(inp.curves, inp.scene, inp.params, args.max_runs,
-                            None if args.quiet else terminal_progress(), fractions=fractions)
+        result = fit_curves(inp.curves, inp.scene, inp.params if args.params is not None else None, args.max_runs,
+                            None if args.quiet else terminal_progress(), fractions=fractions,
+                            target_error=args.accuracy, profile=inp.profile, profile_sd_mm=args.profile_sd,
+                            angles=inp.angles, angle_sd_deg=args.angle_sd)
         if not args.quiet and sys.stderr.isatty():
             sys.stderr.write("\n")
         from .report import write_fit
@@ -241,38 +238,20 @@ def summary(result: Any, out: Path) -> str:
     lines = [f"ngbet fit: {head}{len(result.names)} parameters, {len(result.curves)} curve(s), "
              f"{result.model_runs} model runs, {result.wall_s:.1f} s; results in {out}/"]
     for c in result.curves:
-        lines.append(f"  {c.curve.label:>16s}: RMS relative error {100 * c.rms_relative:5.1f} % "
-                     f"({len(c.u_mm)} points, {c.u_mm[0]:.3g} to {c.u_mm[-1]:.3g} mm)")
+        err = c.error_rel_max
+        est = f"{100 * err:.2g} %" if math.isfinite(err) else "not vouched for"
+        lines.append(f"  {c.label:>16s}: RMS relative error {100 * c.rms_relative:5.1f} % "
+                     f"({len(c.u_mm)} points, {c.u_mm[0]:.3g} to {c.u_mm[-1]:.3g} mm); discretization error {est}")
+    if not result.accuracy_met:
+        lines.append(f"  the model's discretization error is above --accuracy {result.target_error:g} on some curve "
+                     "(raise --max-runs; fit.json: accuracy)")
     se = result.se_log
     for k, n in enumerate(result.names):
         flag = ("  at its bound" if n in result.at_bound
-                else "  undetermined (se of ln p > 0.5)" if se[k] > 0.5 else "")
+                else "  undetermined" if n in result.undetermined else "")
         lines.append(f"  {n:36s} = {result.values[k]:11.5g}   se(ln p) = {se[k]:.3g}{flag}")
+    for n, why in result.undetermined.items():
+        lines.append(f"  {n} undetermined: {why}")
+    for n, why in result.held.items():
+        lines.append(f"  {n} held: {why}")
     return "\n".join(lines)
-
-
-def _legacy(args: argparse.Namespace, inp: Inputs, out: Path) -> int:
-    """One curve on the scene's own specimen (and an optional profile): :func:`ngbet.fit.fit`."""
-    from .. import fit as F
-    from .fit_files import summary_text, write_outputs
-
-    c = inp.curves[0]
-    curve = F.Curve(c.u_mm, c.force_N, c.source)
-    result = F.fit(curve, inp.scene, inp.params, inp.u_range, args.noise, args.max_runs,
-                   args.profile, args.force_sd, args.profile_sd)
-    write_outputs(result, out)  # the fit first: a prediction that fails keeps it
-    print(summary_text(result, out))
-    code = 0 if result.extra.get("converged", True) else 1
-    for p in inp.predict:
-        try:
-            pred = F.predict(result, F.Curve(p.u_mm, p.force_N, p.source), inp.predict_scene, inp.u_range)
-        except Exception as exc:
-            from ..commands import exit_code
-
-            code2, msg = exit_code(exc, out)
-            print(f"ngbet fit: prediction of {p.source} failed (the fit is kept in {out}/): {msg}", file=sys.stderr)
-            code = max(code, code2)
-            continue
-        write_outputs(result, out, pred)
-        print(f"  prediction of {p.source}: RMS relative error {100 * pred.to_json()['rms_relative_error']:.2f} %")
-    return code

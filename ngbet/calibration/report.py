@@ -25,7 +25,7 @@ def write_fit(result: JointFit, out: str | Path) -> list[Path]:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     doc = result.to_json()
-    rms = ", ".join(f"{c.curve.label} {100 * c.rms_relative:.1f} %" for c in result.curves)
+    rms = ", ".join(f"{c.label} {100 * c.rms_relative:.1f} %" for c in result.curves)
     header = (f"# ngbet fit of {', '.join(result.params)} to {len(result.curves)} curve(s): "
               f"{', '.join(Path(c.curve.source).name for c in result.curves)}\n"
               f"# RMS relative error {rms}; fit.json holds the uncertainties. The specimen and load are\n"
@@ -61,8 +61,8 @@ def plot_table(result: JointFit, path: Path) -> Path:
     ax = fig.subplots()
     t = result.scene.specimen.thickness_mm
     for k, c in enumerate(result.curves):
-        xs, tau = shear_stress_points(c.curve, t)
-        ax.plot(xs, tau / 1e3, "o", ms=3, color=f"C{k}", label=f"{c.curve.label}: normalisation method, F_sh / t")
+        xs, tau = shear_stress_points(c.measured_on_specimen(), t)
+        ax.plot(xs, tau / 1e3, "o", ms=3, color=f"C{k}", label=f"{c.label}: normalisation method, F_sh / t")
     ax.plot(x, table_stress_spline(steps0, fitted.shear_table_i8_max)(x) / 1e3, ":", color="0.3", label="start table")
     tau = table_stress_spline(fitted.shear_stress_steps_Pa, fitted.shear_table_i8_max)(x)
     ax.plot(x, tau / 1e3, "-", color="k", lw=1.6, label="fitted table (continuum)")
@@ -104,29 +104,43 @@ def table_band(result: JointFit, x: np.ndarray) -> np.ndarray:
 
 
 def plot_fit(result: JointFit, path: Path) -> Path:
-    """Each curve: data with its error bars, the start and the fitted model (±2 sd), relative residuals."""
+    """Each curve's data, start and fitted model (±2 sd), residuals, and centre shear angle.
+
+    The centre shear angle of the fitted model is drawn against the ideal test's (inextensible
+    yarns) and, where given, the measured angles: where the model's falls short, the crosshead
+    travel goes into yarn elongation.
+    """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6.4, 6.2))
-    ax, ar = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1.4))
+    fig = Figure(figsize=(6.4, 8.4))
+    ax, ar, ag = fig.subplots(3, 1, sharex=True, height_ratios=(3, 1.3, 2))
     for k, c in enumerate(result.curves):
         col = f"C{k}"
         ax.plot(c.curve.u_mm, c.curve.force_N, "-", color=col, lw=0.8, alpha=0.5)
-        ax.errorbar(c.u_mm, c.measured_N, yerr=c.sd_N, fmt="o", ms=3, color=col, label=f"{c.curve.label}: data (±1 sd)")
+        ax.errorbar(c.u_mm, c.measured_N, yerr=c.sd_N, fmt="o", ms=3, color=col, label=f"{c.label}: data (±1 sd)")
         sd = band(c.dlogp, result.cov_log)
         ax.fill_between(c.u_mm, c.model_N - 2 * sd, c.model_N + 2 * sd, color=col, alpha=0.2, lw=0)
         ax.plot(c.u_mm, c.model_N, "-", color=col, lw=1.6,
-                label=f"{c.curve.label}: fitted, RMS {100 * c.rms_relative:.1f} %")
+                label=f"{c.label}: fitted, RMS {100 * c.rms_relative:.1f} %")
         ax.plot(c.u_mm, c.start_N, ":", color=col, lw=1.0)
         ar.plot(c.u_mm, 100 * (c.model_N - c.measured_N) / c.measured_N, "o-", ms=3, color=col)
+        if len(c.angle_deg):
+            ag.plot(c.u_mm, c.angle_deg, "-", color=col, lw=1.6, label=f"{c.label}: fitted model")
+        ag.plot(c.u_mm, c.ideal_angle_deg(), "--", color=col, lw=1.0, label=f"{c.label}: ideal test")
+        if c.angles is not None:
+            ag.plot(c.angles.u_mm, c.angles.angle_deg, "s", ms=4, color=col, mfc="none",
+                    label=f"{c.label}: measured")
     ax.plot([], [], ":", color="0.4", label="start values")
     ax.set_ylabel("clamp force [N]")
     ax.legend(fontsize=7, loc="upper left")
+    stopped = "" if result.converged else " (stopped at the run limit, not converged)"
     ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters, "
-                 f"{result.model_runs} model runs", fontsize=9)
+                 f"{result.model_runs} model runs{stopped}", fontsize=9)
     ar.axhline(0, color="0.5", lw=0.8)
     ar.set_ylabel("model − data [%]")
-    ar.set_xlabel("clamp displacement [mm]")
+    ag.set_ylabel("centre shear angle [°]")
+    ag.set_xlabel("clamp displacement [mm]")
+    ag.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     return path

@@ -45,3 +45,28 @@ def start_table(curve: MeasuredCurve, thickness_mm: float, n_steps: int, x_max: 
     steps, _ = nnls(basis * w[:, None], tau * w)
     # a rise of exactly 0 cannot be fitted in ln p: a small floor
     return np.maximum(steps, 1e-3 * max(float(steps.max()), 1.0))
+
+
+def start_locking(curve: MeasuredCurve, thickness_mm: float) -> tuple[float, float, float]:
+    """(K_sh [Pa], K_lock [Pa], γ_lock [deg]) of the locking law whose stress follows the normalisation method's.
+
+    The locking law's stress τ(i8) = K_sh i8 + K_lock i8 x/(1 − x), x = (i8/sin γ_lock)²
+    (:func:`ngbet.continuum.physics.locking_shear_energy`), fitted to the points of
+    :func:`shear_stress_points` relative to each point's stress; γ_lock is kept beyond the largest
+    shear angle of the points.
+    """
+    from scipy.optimize import least_squares
+
+    x, tau = shear_stress_points(curve, thickness_mm)
+    w = 1.0 / np.maximum(np.abs(tau), 0.05 * np.abs(tau).max())
+    s_min = float(x.max()) * 1.01
+
+    def stress(p: np.ndarray) -> np.ndarray:
+        K_sh, K_lock, s = np.exp(p[0]), np.exp(p[1]), s_min + (1 - s_min) / (1 + np.exp(-p[2]))
+        r = (x / s) ** 2
+        return np.asarray(K_sh * x + K_lock * x * r / (1 - r))
+
+    p0 = np.array([np.log(max(float(tau[0] / x[0]), 1.0)), np.log(max(float(tau.max()), 1.0)), 0.0])
+    sol = least_squares(lambda p: (stress(p) - tau) * w, p0)
+    s = s_min + (1 - s_min) / (1 + np.exp(-sol.x[2]))
+    return float(np.exp(sol.x[0])), float(np.exp(sol.x[1])), float(np.degrees(np.arcsin(min(s, 0.999))))

@@ -85,6 +85,11 @@ class ForcePath:
     reached_mm: float
     profiles: dict[float, np.ndarray] = field(default_factory=dict)
     profile_dlogp: dict[float, np.ndarray] = field(default_factory=dict)
+    #: the estimated discretization error of ``force_N`` [N] (``estimate=True``; nan where it cannot vouch)
+    force_error_N: np.ndarray | None = None
+    #: ``angles``: {u0: centre shear angle [deg]} and {u0: its d/d ln p_k [deg]}
+    angles_deg: dict[float, float] = field(default_factory=dict)
+    angle_dlogp: dict[float, np.ndarray] = field(default_factory=dict)
 
 
 def _energy_derivative(problem: Any, name: str) -> ngs.CoefficientFunction:
@@ -209,9 +214,18 @@ class _Recorder:
     """What :func:`force_path` records at each converged step (called with each step record of the path)."""
 
     def __init__(self, solver: Any, names: list[str], profile: dict[float, np.ndarray],
-                 loads: Sequence[float] = ()) -> None:
+                 loads: Sequence[float] = (), angles: Sequence[float] = (), estimate: bool = False) -> None:
         self.solver, self.problem = solver, solver.problem
         self.names, self.profile = names, profile
+        self.angle_loads = [float(v) for v in angles]
+        self.angles: dict[float, float] = {}
+        self.angle_dlogp: dict[float, np.ndarray] = {}
+        self.errors: dict[float, float] = {}
+        self.estimator = None
+        if estimate:
+            from .estimate import ForceErrorEstimator
+
+            self.estimator = ForceErrorEstimator(solver)
         problem = solver.problem
         self.loads = [float(v) for v in loads]  # [mm]: the loads whose derivatives are wanted
         scene = problem.scene
@@ -239,14 +253,21 @@ class _Recorder:
             X = self.profile[want] * 1e-3
             pts = pb.mesh(X, np.full(len(X), 0.5 * sp.W))
             self.profiles[want] = 1e3 * np.asarray(pb.u(pts))[:, 1]
-        d, dprof = [], []
+        angle = next((u0 for u0 in self.angle_loads if abs(u0 - key) < 1e-6), None)
+        if angle is not None:
+            from .observables import centre_shear_angle_deg
+
+            self.angles[angle] = centre_shear_angle_deg(pb)
+        d, dprof, dang = [], [], []
         psi = None
-        if self.forms and (want is not None or any(abs(v - key) < 1e-6 for v in self.loads)):
+        if self.forms and (want is not None or angle is not None or any(abs(v - key) < 1e-6 for v in self.loads)):
             psi = load_tangent_at_state(solver, r)
         for f, p in zip(self.forms if psi is not None else (), self.values, strict=False):
             f.Apply(pb.gf.vec, self.g)
             gv = self.g.FV().NumPy()
             d.append(p * float(psi @ gv) * t)
+            if angle is not None:  # dγ/dp along dx/dp: a central difference of γ(x), the state put back
+                dang.append(p * _angle_derivative(pb, solver, gv, r))
             if pts is not None:  # dx/dp = −J⁻¹ ∂r/∂p (solve returns −J⁻¹ r), J at this state
                 dx = solve_at_state(solver, solver.solve(gv.copy()), gv, r)
                 if dx is None:
@@ -256,11 +277,36 @@ class _Recorder:
                 dprof.append(1e3 * p * np.asarray(self.dgf.components[0](pts))[:, 1])
         if want is not None and dprof:
             self.profile_dlogp[want] = np.column_stack(dprof)
+        if angle is not None and dang:
+            self.angle_dlogp[angle] = np.array(dang)
+        if self.estimator is not None and any(abs(v - key) < 1e-6 for v in self.loads):
+            self.errors[key] = self.estimator.estimate(info.u0, F).force_error_N
         self.rows[key] = (F, d)
 
 
+def _angle_derivative(problem: Any, solver: Any, gv: np.ndarray, r: np.ndarray) -> float:
+    """dγ_centre/dp [deg] with dx/dp = −J⁻¹ ∂r/∂p (``gv``): a central difference along dx, the state put back."""
+    from .observables import centre_shear_angle_deg
+
+    if not float(np.linalg.norm(gv)) > 0:
+        return 0.0  # the energy does not read p here (a rise of the table beyond the shear reached)
+    dx = solve_at_state(solver, solver.solve(gv.copy()), gv, r)
+    if dx is None:
+        solver.factorize()
+        dx = solver.solve(gv.copy())
+    x0 = solver.x.copy()
+    h = 1e-6 * max(float(np.linalg.norm(x0)), 1e-12) / max(float(np.linalg.norm(dx)), 1e-300)
+    solver.x[:] = x0 + h * dx
+    up = centre_shear_angle_deg(problem)
+    solver.x[:] = x0 - h * dx
+    down = centre_shear_angle_deg(problem)
+    solver.x[:] = x0
+    return (up - down) / (2 * h)
+
+
 def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str] = (),
-               profile: dict[float, np.ndarray] | None = None, mesh: Any = None) -> ForcePath:
+               profile: dict[float, np.ndarray] | None = None, mesh: Any = None,
+               angles: Sequence[float] = (), estimate: bool = False) -> ForcePath:
     """The force at each of ``u_mm`` and its derivatives dF/d ln p for the material keys ``params``.
 
     ``scene`` (continuum) runs with a load step landing on each of ``u_mm``; ``params`` are keys
@@ -269,7 +315,9 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     ``profile``: {u0 [mm]: X [mm]}: also the mid-axis u_y at those X at load u0 (and its
     derivatives, two more back-substitutions and residual evaluations per parameter). ``mesh``: a mesh of the scene's
     specimen made before (:func:`ngbet.continuum.mesh.make_mesh`), reused instead of meshing
-    again. Nothing is written to disk. Raises
+    again. ``angles``: loads u0 [mm] at which the centre shear angle (and its derivatives) is wanted.
+    ``estimate``: the discretization error of the force at each of ``u_mm``
+    (:class:`ngbet.continuum.estimate.ForceErrorEstimator`). Nothing is written to disk. Raises
     :class:`ngbet.errors.ConvergenceError` when the path cannot be followed to the last load.
     """
     from .numerics import ContinuumSolver
@@ -279,7 +327,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
 
     names = _check_params(scene, params)
     profile = {float(k): np.asarray(v, float) for k, v in (profile or {}).items()}
-    u = np.asarray(sorted(set(float(v) for v in u_mm if v > 0) | set(profile)))
+    u = np.asarray(sorted(set(float(v) for v in u_mm if v > 0) | set(profile) | {float(v) for v in angles}))
     scene = scene.with_changes(**{"loading.u0_mm": float(u[-1]), "loading.stops_mm": list(u[:-1])})
     # displacement control landing on each load asked for (no output grid)
     path = dataclasses.replace(path_settings(scene), stops=tuple(s * 1e-3 for s in u), chord_at=(),
@@ -288,7 +336,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
 
     with ngsolve_threads(scene):
         rec = _Recorder(ContinuumSolver(ContinuumProblem(scene, mesh), linear_settings(scene)), names, profile,
-                        [float(v) for v in u])
+                        [float(v) for v in u_mm if v > 0], angles, estimate)
         for step in load_steps(rec.solver, path, newton_settings(scene)):
             rec(step)
     keys = np.array(sorted(rec.rows))
@@ -299,7 +347,14 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     at = [rec.rows[keys[int(np.argmin(np.abs(keys - v)))]] if v > 0 else zero for v in want]
     F = np.array([a[0] for a in at])
     D = np.array([a[1] if len(a[1]) == len(names) else np.full(len(names), np.nan) for a in at]) if names else None
-    return ForcePath(want, F, D, float(keys[-1]) if len(keys) else 0.0, rec.profiles, rec.profile_dlogp)
+    err = None
+    if estimate:
+        ekeys = np.array(sorted(rec.errors)) if rec.errors else np.zeros(1)
+        err = np.array([rec.errors.get(float(ekeys[int(np.argmin(np.abs(ekeys - v)))]), math.nan) if v > 0 else 0.0
+                        for v in want])
+    angles_deg = {float(a): rec.angles[float(a)] for a in angles if float(a) in rec.angles}
+    return ForcePath(want, F, D, float(keys[-1]) if len(keys) else 0.0, rec.profiles, rec.profile_dlogp, err,
+                     angles_deg, rec.angle_dlogp)
 
 
 def with_material(scene: Scene, name: str, value: float) -> Scene:
