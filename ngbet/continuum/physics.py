@@ -154,7 +154,7 @@ def table_shear_energy(i8: CF, steps: Sequence[float] | np.ndarray, x_max: float
     keep = np.r_[np.diff(W.x) > 0, True]  # drop the empty intervals of the clamped knots
     x, c = W.x[keep], W.c[:, keep[:-1]]
     tail = (float(W(x_max)), float(spl_e(x_max)), float(spl_e.derivative()(x_max)))
-    return ngs.IfPos(i8, _piecewise(i8, x, c, tail), _piecewise(-i8, x, c, tail))
+    return _piecewise(ngs.IfPos(i8, i8, -i8), x, c, tail)  # one chain at |i8| (IfPos computes both branches)
 
 
 #: the shear laws a scene can name (``effects.shear_law``) and the material keys each one reads
