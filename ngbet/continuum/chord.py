@@ -62,11 +62,8 @@ CHORD_PREDICTOR_STATES = 5
 #: the default run against Newton to rtol = 1e-14, the grid rows' forces: 1, 0.01, 1e-3, 1e-4 give
 #: 4.8e-7, 4.0e-8, 1.8e-8, 3.3e-9 (Newton's rows: 2e-9) for 122, 143, 161, 168 residuals
 CHORD_MARGIN = 0.01
-#: chord steps allowed for one load. A chord that goes on contracts by θ <= CHORD_CONTRACTION per step
-#: (its decrement by 25x at least), several times cheaper than a Newton step (no linearization); on
-#: the twill of geometry/ the first rows, from Newton's predictor, need 7 and 5 (6 handed both over to
-#: Newton: 23 factorizations against 20)
-CHORD_ITERATIONS = 10
+#: chord steps allowed for one load
+CHORD_ITERATIONS = 6
 #: the step of the differences J t ≈ (r(x + εt) − r(x)) / ε, relative to the problem's length scale
 #: (the tangent moves the clamp by 1 per unit load). Measured on the default scene at 30 mm against
 #: the assembled tangent: ψ·J t to 8.5e-8 at ε = 1e-8 m forward (8.5e-6 at 1e-6 m), to 1e-10
