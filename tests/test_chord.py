@@ -68,6 +68,21 @@ def test_chord_converges_to_newtons_tolerance_with_an_earlier_factorization():
     assert 0 < rep.contraction < C.CHORD_CONTRACTION
 
 
+def test_a_step_that_passes_the_test_is_taken_without_linearizing_again():
+    """With the factorization of λ = 1.9 at λ = 2 the chord contracts by |1 − J/J₀| ≈ 0.05; judged
+    by a bound of 0.02 it would linearize again at its second step, but that step's decrement
+    (θ² times the first, 1e-10 from a state 5e-6 off the path) already passes the test, so it is taken."""
+    toy = Hardening(1.9, _on_path(1.9))
+    toy.factorize()
+    y2 = _on_path(2.0)
+    toy.x[:] = [2.0, y2 + 5e-6]
+    rep = C.chord(toy, SETTINGS, e_ref=1.0, max_contraction=0.02)
+    assert rep.converged and rep.iterations == 2 and toy.factorizations == 1
+    assert 0.02 < rep.contraction < 0.1
+    r = toy.residual()  # Newton's own test, with the true J
+    assert r[1] ** 2 / (3 * toy.x[1] ** 2 + 1) <= SETTINGS.rtol + SETTINGS.atol
+
+
 def test_a_chord_that_does_not_contract_linearizes_again_or_hands_over():
     """With the factorization of λ = 1 at λ = 2 the chord contracts by |1 − J/J₀| ≈ 0.7: it fails
     when it may not linearize again (Newton takes over), and converges after doing so once."""

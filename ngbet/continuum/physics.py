@@ -122,19 +122,38 @@ def table_greville(n_steps: int, x_max: float) -> np.ndarray:
     return np.array([t[j + 1:j + k + 1].mean() for j in range(n_steps + 1)])
 
 
-def _piecewise(x: CF, breaks: np.ndarray, coeffs: np.ndarray, tail: tuple[float, float, float]) -> CF:
-    """Σ_k coeffs[k, i] (x − breaks[i])^(K−k) on [breaks[i], breaks[i+1]] (Horner), by nested IfPos.
+def _truncated_powers(x: CF, breaks: np.ndarray, coeffs: np.ndarray, tail: tuple[float, float, float]) -> CF:
+    """Σ_k coeffs[k, i] (x − breaks[i])^(K−k) on [breaks[i], breaks[i+1]], as P_0(x) + Σ_i Q_i((x − b_i)₊).
 
     Beyond the last break: tail = (W, τ, k) there, continued as W + τ s + ½ k s², s = x − x_end.
+    P_0 is the first piece, Q_i the difference of the pieces meeting at the break b_i (the tail's at the last), a
+    polynomial in x − b_i whose terms below the order of the jump vanish (dropped below 1e-12 of
+    its largest). One ``IfPos`` per break, on x − b_i alone, and one polynomial each: ``IfPos``
+    computes both of its branches, so a nested choice among the pieces would evaluate every piece.
     """
-    s_end = x - float(breaks[-1])
-    expr: CF = tail[0] + s_end * (tail[1] + 0.5 * tail[2] * s_end)
-    for i in range(len(breaks) - 2, -1, -1):
-        s = x - float(breaks[i])
-        poly: CF = float(coeffs[0, i])
-        for a in coeffs[1:, i]:
-            poly = poly * s + float(a)
-        expr = ngs.IfPos(x - float(breaks[i + 1]), expr, poly)
+    from numpy.polynomial import Polynomial as Poly
+
+    K = coeffs.shape[0] - 1
+    pieces = [sum((float(coeffs[K - m, i]) * Poly([-float(b), 1.0]) ** m for m in range(K + 1)), Poly([0.0]))
+              for i, b in enumerate(breaks[:-1])]
+    x_end = float(breaks[-1])
+    pieces.append(Poly([tail[0] - tail[1] * x_end + 0.5 * tail[2] * x_end ** 2, tail[1] - tail[2] * x_end,
+                        0.5 * tail[2]]))
+
+    def horner(q: np.ndarray, t: CF) -> CF:
+        out: CF = float(q[-1])
+        for a in q[-2::-1]:
+            out = out * t + float(a)
+        return out
+
+    expr = horner(pieces[0].coef, x)
+    for b, prev, nxt in zip(breaks[1:], pieces[:-1], pieces[1:], strict=True):
+        q = np.trim_zeros(((nxt - prev)(Poly([float(b), 1.0]))).coef, "b")
+        if not q.size:
+            continue
+        low = int(np.argmax(np.abs(q) > 1e-12 * np.max(np.abs(q))))
+        s = ngs.IfPos(x - float(b), x - float(b), 0.0)
+        expr = expr + horner(q[low:], s) * s ** low if low else expr + horner(q, s)
     return expr
 
 
@@ -154,7 +173,7 @@ def table_shear_energy(i8: CF, steps: Sequence[float] | np.ndarray, x_max: float
     keep = np.r_[np.diff(W.x) > 0, True]  # drop the empty intervals of the clamped knots
     x, c = W.x[keep], W.c[:, keep[:-1]]
     tail = (float(W(x_max)), float(spl_e(x_max)), float(spl_e.derivative()(x_max)))
-    return ngs.IfPos(i8, _piecewise(i8, x, c, tail), _piecewise(-i8, x, c, tail))
+    return _truncated_powers(ngs.IfPos(i8, i8, -i8), x, c, tail)  # at |i8|: IfPos computes both of its branches
 
 
 #: the shear laws a scene can name (``effects.shear_law``) and the material keys each one reads
