@@ -228,17 +228,21 @@ def test_the_shipped_frame_scenes_are_the_benchmarks_frames():
 
 def test_the_frame_figures_are_drawn_inside_their_canvas(tmp_path):
     from ngbet.figures import texts_outside
-    from ngbet.figures.data import read_scene
+    from ngbet.figures.data import load_maps, read_scene
     from ngbet.figures.frame import frame_force_figure, frame_shear_figure
+    from ngbet.figures.maps import shear_map_figure
     from ngbet.figures.style import in_style
     from ngbet.output import read_rows
 
-    sc = frame_scene(**{"picture_frame.fabric_mm": 80.0, "picture_frame.misalignment_deg": 1.0})
+    sc = frame_scene(**{"picture_frame.fabric_mm": 80.0, "picture_frame.misalignment_deg": 1.0, "outputs.plot": True})
     simulate(sc, out=tmp_path / "run")
     rows, scene = read_rows(tmp_path / "run" / "results.csv"), read_scene(tmp_path / "run")
     with in_style():
-        for fig in (frame_force_figure(rows, scene), frame_shear_figure(rows, scene)):
+        maps = shear_map_figure(load_maps(tmp_path / "run"), scene)
+        for fig in (frame_force_figure(rows, scene), frame_shear_figure(rows, scene), maps):
             assert texts_outside(fig) == []
+            words = " ".join(t.get_text() for t in fig.findobj(match=lambda a: hasattr(a, "get_text")))
+            assert not any(f in words for f in (".csv", ".json", "u₀")), words  # no file names; the travel is d
             assert "picture-frame test, frame 100 mm pin to pin, fabric square 80 mm" in fig.get_suptitle().replace(
                 "\u00a0", " ").replace("\n", " ")
 

@@ -56,12 +56,13 @@ def curve_with_jumps(ax: Axes, u0: ArrayLike, y: ArrayLike, snap: ArrayLike | No
 
 
 def error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: float,
-               due: np.ndarray | None = None) -> None:
+               due: np.ndarray | None = None, load: str = "u₀") -> None:
     """The estimated discretization error of the force as error bars (with caps, in red).
 
     One note in the lower right corner of the axes (inside them, off a rising curve) gives the sizes
     of bars too short to see (below 2 % of the axis) and names the loads where an estimate was
-    ``due`` (a mask of the rows) but none vouched for the force (no bar there).
+    ``due`` (a mask of the rows) but none vouched for the force (no bar there). ``load`` is the
+    symbol of the load in the note (the picture frame's crosshead travel is d).
     """
     ok = np.isfinite(err)
     lines = []
@@ -70,10 +71,10 @@ def error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: f
                     zorder=5, label="± estimated discretization error")
         small = [(u, e) for u, f, e in zip(u0[ok], F[ok], err[ok], strict=True) if 2 * e < 0.02 * span]
         if small:
-            lines += ["error bars shorter than the markers:", *(f"±{e:.2g} N at u₀ = {u:g} mm" for u, e in small)]
+            lines += ["error bars shorter than the markers:", *(f"±{e:.2g} N at {load} = {u:g} mm" for u, e in small)]
     missing = u0[~ok & due] if due is not None else []
     if len(missing):
-        lines += ["no error bar at u₀ = " + ", ".join(f"{u:g}" for u in missing) + " mm:",
+        lines += [f"no error bar at {load} = " + ", ".join(f"{u:g}" for u in missing) + " mm:",
                   "the estimate could not vouch for the force"]
     if lines:
         ax.text(0.98, 0.03, "\n".join(lines), transform=ax.transAxes, ha="right", va="bottom", fontsize=7, color="C3")

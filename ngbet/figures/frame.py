@@ -81,10 +81,10 @@ def frame_force_figure(rows: list[dict[str, Any]], scene: Any = None) -> Figure:
     ax, ax2 = fig.subplots(1, 2)
     d, F = column(rows, "u0_mm"), column(rows, "force_N")
     snap = column(rows, "snap") if "snap" in rows[0] else None
-    curve_with_jumps(ax, d, F, snap, label="computed (rows of results.csv), joined by straight lines")
+    curve_with_jumps(ax, d, F, snap, label="computed at the output loads, joined by straight lines")
     if "force_error_N" in rows[0]:
         span = float(np.nanmax(np.abs(np.r_[F, 0.0]))) or 1.0
-        error_bars(ax, d, F, column(rows, "force_error_N"), span)
+        error_bars(ax, d, F, column(rows, "force_error_N"), span, load="d")
     ax.set_xlabel(TRAVEL_LABEL)
     ax.set_ylabel("crosshead force F [N]")
     ax.set_xlim(left=0)

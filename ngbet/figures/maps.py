@@ -136,9 +136,10 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
     fig = figure(7.4, 0.9 + len(maps) * (panel_h + 0.45))
     axes = fig.subplots(len(maps), 1, squeeze=False)[:, 0]
     art = None
+    load = "d" if getattr(scene, "test", "bias_extension") == "picture_frame" else "u₀"  # the crosshead travel
     for ax, m in zip(axes, maps, strict=True):
         art = map_panel(ax, m, cs, norm, (yarns or {}).get(m.u0_mm), lim)
-        ax.set_title(f"u₀ = {m.u0_mm:g} mm: shear angle from {_num(m.gamma_deg.min(), '.1f')}° to "
+        ax.set_title(f"{load} = {m.u0_mm:g} mm: shear angle from {_num(m.gamma_deg.min(), '.1f')}° to "
                      f"{_num(m.gamma_deg.max(), '.1f')}°" + (" (at the crossings)" if m.what == "crossings" else ""))
     axes[-1].set_xlabel("x (deformed) [mm]")
     colour_bar(fig, axes, art, cs)
