@@ -22,9 +22,9 @@ where the format has no tension data (only the Abaqus card has).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from .run_folder import RUN_MARKER, TMP_PREFIX, _acquire_run_folder, _clear_previous_run, _io, json_text
+from .run_folder import OwnedFolder, json_text
 from .scene import Scene, SceneError
 
 log = logging.getLogger(__name__)
@@ -345,40 +345,22 @@ def export(source: str | Path, fmt: str, out: str | Path, max_angle_deg: float |
            tolerance: float = TOLERANCE, plot: bool = True) -> dict[str, Any]:
     """Write the card of ``fmt`` (:data:`FORMATS`) for the scene of ``source`` into the folder ``out``.
 
-    The folder is ngbet's (marked and locked as a run folder; one holding files ngbet did not
-    write is refused, :class:`ngbet.run_folder.OutputError`); every file is written under a
-    temporary name and renamed. Besides the card: export.json (what was written, the tolerance
-    and the deviation measured) and shear_law.png (the card on the law), unless ``plot`` is false
-    or matplotlib is missing. Returns the summary written to export.json.
+    The folder is the export's own (:class:`ngbet.run_folder.OwnedFolder`: a run folder, another
+    command's folder or one holding files ngbet did not write is refused with
+    :class:`ngbet.run_folder.OutputError`; an earlier export's files it does not write again are
+    removed at its successful end); every file is written under a temporary name and renamed.
+    Besides the card: export.json (what was written, the tolerance and the deviation measured) and
+    shear_law.png (the card on the law), unless ``plot`` is false or matplotlib is missing.
+    Returns the summary written to export.json.
     """
-    import json
-
     if fmt not in FORMATS:
         raise SceneError(f"--format {fmt}: must be one of {', '.join(FORMATS)}")
     path, scene = source_scene(source)
     card = shear_card(scene, max_angle_deg, tolerance)
-    out = Path(out)
-    fh, previous = _acquire_run_folder(out)
-    try:
-        _clear_previous_run(out, previous)
-        written: list[str] = []
-
-        def put(name: str, produce: Callable[[Path], Any]) -> None:
-            tmp = out / (TMP_PREFIX + name)
-            try:
-                _io(tmp, produce)
-                if tmp.exists():
-                    _io(out / name, lambda p: os.replace(tmp, p))
-                    written.append(name)
-            finally:
-                tmp.unlink(missing_ok=True)
-            _io(out / RUN_MARKER, lambda p: (fh.seek(0), fh.truncate(),
-                                              fh.write(json.dumps({"ngbet": "export folder", "pid": os.getpid(),
-                                                                   "files": [*written, "export.json"]})), fh.flush()))
-
+    with OwnedFolder(Path(out), "export", "export") as folder:
         card_name = FORMATS[fmt]
-        put(card_name, lambda p: p.write_text(WRITERS[fmt](card)))
-        g_back, s_back = read_card(out / card_name)
+        card_path = folder.write(card_name, functools.partial(Path.write_text, data=WRITERS[fmt](card)))
+        g_back, s_back = read_card(card_path)
         figure = None
         if plot:
             try:
@@ -386,7 +368,7 @@ def export(source: str | Path, fmt: str, out: str | Path, max_angle_deg: float |
             except ImportError:
                 figure = None
             else:
-                put("shear_law.png", lambda p: shear_law_figure(card, shear_stress(scene), scene, p))
+                folder.write("shear_law.png", lambda p: shear_law_figure(card, shear_stress(scene), scene, p))
                 figure = "shear_law.png"
         falls = softening_angle_deg(card)
         if falls is not None:
@@ -398,12 +380,10 @@ def export(source: str | Path, fmt: str, out: str | Path, max_angle_deg: float |
                    "shear_angle_max_deg": math.degrees(float(g_back[-1])), "tolerance": tolerance,
                    "deviation": card.deviation, "thickness_mm": card.thickness_mm, "law": card.law,
                    "bending_t_alpha_Nmm": card.bending, "left_out": card.left_out,
-                   "K_el_MPa": None if card.K_el_Pa is None else card.K_el_Pa * 1e-6, "figure": figure}
-        summary["files"] = sorted([*written, "export.json"])
-        put("export.json", lambda p: p.write_text(json_text(summary)))
+                   "K_el_MPa": None if card.K_el_Pa is None else card.K_el_Pa * 1e-6, "figure": figure,
+                   "files": sorted([card_name, *([figure] if figure else []), "export.json"])}
+        folder.write("export.json", functools.partial(Path.write_text, data=json_text(summary)))
         return summary
-    finally:
-        fh.close()
 
 
 def add_parser(sub: Any, epilog: str = "") -> None:

@@ -36,18 +36,19 @@ measurements (``collapse.png``) and ``normalise.json`` with the spread between t
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
-import os
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 
 from .calibration.data import CurveTable, parse_sizes, read_measured, read_table, refuse_duplicates
+from .run_folder import OwnedFolder
 from .scene import SceneError
 
 #: the spread between curves is measured from this shear angle [deg] on (below it F_sh is small and
@@ -55,8 +56,6 @@ from .scene import SceneError
 SPREAD_FROM_DEG = 10.0
 #: ... on this many equally spaced angles
 SPREAD_POINTS = 50
-#: the marker's record of a folder this command owns
-FOLDER_KIND = "normalise folder"
 TABLE_SUFFIX = "_normalised.csv"
 FIGURE = "collapse"
 SUMMARY = "normalise.json"
@@ -281,73 +280,6 @@ def spread_text(curves: Sequence[Normalised], groups: list[tuple[str, dict[str, 
 
 # --- the folder --------------------------------------------------------------------------------------------------
 
-class NormaliseFolder:
-    """The output folder, owned as ``ngbet run`` owns its own (:mod:`ngbet.run_folder`).
-
-    Refused: a non-empty folder without ngbet's mark, a folder of another ngbet command (a run, a
-    study), a file in it with a name this command would write that no earlier normalise registered.
-    The files an earlier normalise registered are removed (none of an earlier set of curves stays
-    beside the new one); every file is written under a temporary name and renamed when complete.
-    """
-
-    def __init__(self, out: Path, names: Sequence[str]) -> None:
-        from .run_folder import RUN_MARKER, OutputError, _acquire_run_folder, _io, _marker_record
-
-        self.out = out
-        marker = out / RUN_MARKER
-        if marker.is_file():
-            try:
-                kind = _marker_record(marker.read_text()).get("ngbet")
-            except OSError as exc:
-                raise OutputError(marker, exc.strerror or str(exc)) from None
-            if kind != FOLDER_KIND:
-                raise OutputError(out, f"a folder of another ngbet command ({kind or 'an ngbet run'}); ngbet "
-                                       "normalise writes into a folder of its own: choose another --out")
-        self._lock: IO[str] | None
-        self._lock, previous = _acquire_run_folder(out)
-        try:
-            clash = [n for n in names if (out / n).exists() and n not in previous]
-            if clash:
-                raise OutputError(out, f"holds {', '.join(clash)}, which ngbet did not write there; this command "
-                                       "would replace them: move them or choose another --out")
-            for n in previous:
-                _io(out / n, lambda p: p.unlink(missing_ok=True))
-            self.files: list[str] = []
-            self._save()
-        except BaseException:
-            self.close()
-            raise
-
-    def _save(self) -> None:
-        from .run_folder import RUN_MARKER, _io
-
-        fh = self._lock
-        assert fh is not None
-        text = json.dumps({"ngbet": FOLDER_KIND, "pid": os.getpid(), "files": self.files})
-        _io(self.out / RUN_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
-
-    def write(self, name: str, produce: Any) -> Path:
-        """``produce(tmp)`` writes the file complete at a temporary name; then it is renamed to ``name``."""
-        from .run_folder import TMP_PREFIX, _io
-
-        if name not in self.files:
-            self.files.append(name)
-            self._save()
-        tmp = self.out / (TMP_PREFIX + name)
-        try:
-            _io(tmp, produce)
-            _io(self.out / name, lambda p: os.replace(tmp, p))
-        finally:
-            tmp.unlink(missing_ok=True)
-        return self.out / name
-
-    def close(self) -> None:
-        """Unlock the folder."""
-        if self._lock is not None:
-            self._lock.close()
-            self._lock = None
-
-
 def _table_text(n: Normalised) -> str:
     lines = [f"# {h}" for h in [f"ngbet normalise of {n.source}", *n.header, *n.notes]]
     names = list(n.columns)
@@ -440,19 +372,16 @@ def run_from_args(args: argparse.Namespace) -> int:
         names = _names(curves)
         groups = spreads(curves)
         text = spread_text(curves, groups)
-        folder = NormaliseFolder(out, [*names, FIGURE + ".png", FIGURE + ".pdf", SUMMARY])
-        try:
+        with OwnedFolder(out, "normalise", "normalise") as folder:
             for c, name in zip(curves, names, strict=True):
-                folder.write(name, lambda p, c=c: p.write_text(_table_text(c)))
+                folder.write(name, functools.partial(Path.write_text, data=_table_text(c)))
             figure = _figure(folder, curves, text)
             summary = {"curves": [{"source": c.source, "test": c.test, "label": c.label, "table": name,
                                    "shear_angle_deg": [float(c.gamma_deg.min()), float(c.gamma_deg.max())],
                                    "notes": c.notes} for c, name in zip(curves, names, strict=True)],
                        "spread": {what: s for what, s in groups}, "spread_text": text, "figure": figure,
-                       "files": sorted({*folder.files, SUMMARY})}
+                       "files": sorted({*names, *([FIGURE + ".png", FIGURE + ".pdf"] if figure else []), SUMMARY})}
             folder.write(SUMMARY, lambda p: p.write_text(json.dumps(summary, indent=2, allow_nan=False)))
-        finally:
-            folder.close()
     except SceneError as exc:
         print(f"ngbet normalise: {exc}", file=sys.stderr)
         return 2
@@ -468,7 +397,7 @@ def run_from_args(args: argparse.Namespace) -> int:
     return 0
 
 
-def _figure(folder: NormaliseFolder, curves: Sequence[Normalised], text: str) -> str | None:
+def _figure(folder: OwnedFolder, curves: Sequence[Normalised], text: str) -> str | None:
     """Draw the collapse figure into the folder (PNG and PDF); None (said) without matplotlib."""
     try:
         from .figures.collapse import collapse_figure
@@ -479,8 +408,8 @@ def _figure(folder: NormaliseFolder, curves: Sequence[Normalised], text: str) ->
         return None
     fig = collapse_figure(curves, text)
     for fmt in ("png", "pdf"):
-        dpi = PNG_DPI if fmt == "png" else VECTOR_RASTER_DPI
-        folder.write(f"{FIGURE}.{fmt}", lambda p, fmt=fmt, dpi=dpi: fig.savefig(p, format=fmt, dpi=dpi))
+        folder.write(f"{FIGURE}.{fmt}", functools.partial(fig.savefig, format=fmt,
+                                                          dpi=PNG_DPI if fmt == "png" else VECTOR_RASTER_DPI))
     return FIGURE + ".png"
 
 

@@ -375,6 +375,22 @@ class OwnedFolder:
                            "files": sorted(set(files))})
         _io(self.out / FOLDER_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
 
+    def write(self, name: str, produce: Callable[[Path], Any]) -> Path:
+        """Write the file ``name`` complete: ``produce(tmp)`` writes a temporary file, renamed when complete.
+
+        A file its writer left incomplete (:func:`check_complete`) is never renamed into place; the
+        temporary file is removed whatever happens.
+        """
+        final = self.out / name
+        tmp = self.out / (TMP_PREFIX + name)
+        try:
+            _io(tmp, produce)
+            check_complete(tmp, final)
+            _io(final, lambda p: os.replace(tmp, p))
+        finally:
+            tmp.unlink(missing_ok=True)
+        return final
+
     def remove(self, *names: str) -> None:
         """Remove files of ``names`` that a command of this folder wrote (a user's file is never removed)."""
         for n in names:

@@ -156,8 +156,18 @@ def test_command_from_a_fit_folder_and_folder_ownership(tmp_path, monkeypatch, c
     mine.mkdir()
     (mine / "notes.txt").write_text("keep")
     assert main(["export", "fit", "--out", "mine"]) == 3
-    assert "not an ngbet run folder" in capsys.readouterr().err
+    assert "not written by an ngbet export" in capsys.readouterr().err
     assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+    run = tmp_path / "run"  # a run folder is a run's: refused, its files kept
+    run.mkdir()
+    (run / ".ngbet.lock").write_text(json.dumps({"ngbet": "run folder", "pid": 1, "files": ["results.csv"]}))
+    (run / "results.csv").write_text("u0_mm\n1\n")
+    assert main(["export", "fit", "--out", "run"]) == 3
+    assert "an ngbet run folder" in capsys.readouterr().err
+    assert sorted(p.name for p in run.iterdir()) == [".ngbet.lock", "results.csv"]
+    before = sorted(p.name for p in (tmp_path / "card").iterdir())  # and a run into the card's folder is refused
+    assert main(["run", "--set", "loading.u0_mm=1", "--out", "card", "--quiet"]) == 3
+    assert sorted(p.name for p in (tmp_path / "card").iterdir()) == before
     assert main(["export", "nowhere", "--out", "x"]) == 2
     assert main(["export", "fit", "--max-angle-deg", "95", "--out", "x"]) == 2
     assert "must lie between 0 and 90" in capsys.readouterr().err

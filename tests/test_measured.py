@@ -378,7 +378,7 @@ def test_normalise_owns_its_folder(tmp_path, capsys):
     (run / "results.csv").write_text("u0_mm\n1\n")
     assert _normalise(str(a), "--out", str(run)) == 3  # a run's folder: refused, its files kept
     assert (run / "results.csv").read_text() == "u0_mm\n1\n"
-    assert "another ngbet command" in capsys.readouterr().err
+    assert "an ngbet run folder" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("extra, files, match", [
