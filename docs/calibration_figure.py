@@ -22,7 +22,7 @@ from pathlib import Path
 from ngbet import fit
 from ngbet.calibration.fit_files import plot_fit, summary_text
 from ngbet.cli import main as ngbet
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs"

@@ -17,8 +17,8 @@ import numpy as np
 
 import ngbet
 from ngbet import figures as FG
-from ngbet.output import read_rows
 from ngbet.studies.maps import YARN_SPACING_MM, deformed_yarns
+from ngbet.tables import read_rows
 
 HERE = Path(__file__).resolve().parent
 

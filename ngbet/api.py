@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ConvergenceError
-from .scene import Scene
+from .scene.document import Scene
 
 log = logging.getLogger(__name__)
 
@@ -203,7 +203,7 @@ class Result:
         derivative dF/du0 when the run records the derivative (column ``dforce_du0_N_per_mm``),
         else straight lines; the converged steps are marked.
         """
-        from .plotting import force_curve
+        from .figures.curves import force_curve
 
         if ax is None:
             try:
@@ -231,7 +231,7 @@ def _renamed(old: str, new: str) -> None:
 
 def _read_columns(path: Path) -> dict[str, np.ndarray]:
     """results.csv as arrays, one per column (:func:`ngbet.output.read_rows`; an empty cell is nan)."""
-    from .output import read_rows
+    from .tables import read_rows
 
     rows = read_rows(path) if path.exists() else []
     out: dict[str, np.ndarray] = {}
@@ -246,7 +246,7 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
 def _read_profiles(path: Path) -> dict[float, tuple[np.ndarray, np.ndarray]]:
     if not path.exists():
         return {}
-    from .output import read_profiles
+    from .tables import read_profiles
 
     return {u0: (np.asarray(X), np.asarray(uy)) for u0, (X, uy) in read_profiles(path).items()}
 

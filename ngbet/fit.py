@@ -32,7 +32,12 @@ from typing import Any
 
 import numpy as np
 
-from .scene import Scene, SceneError
+from .scene.document import Scene
+from .scene.validate import SceneError
+
+__all__ = ["BOUND_FACTOR", "FLAT_RCOND", "STRONG_CORRELATION", "UNDETERMINED_SE", "Curve", "FitResult", "Prediction",
+           "Profile", "band", "check_inputs", "fit", "fitted_points", "predict", "read_curve", "read_profile",
+           "start_vector"]
 
 log = logging.getLogger(__name__)
 
@@ -240,7 +245,7 @@ def _select(data: Curve, u_range: tuple[float, float] | None) -> np.ndarray:
     return used
 
 
-def _fitted_points(curve: Curve, scene: Scene, u_range: tuple[float, float] | None, noise: str
+def fitted_points(curve: Curve, scene: Scene, u_range: tuple[float, float] | None, noise: str
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The points fitted (mask, displacements, forces) and their weights; refused when the scene cannot carry them."""
     used = _select(curve, u_range)
@@ -254,7 +259,11 @@ def _fitted_points(curve: Curve, scene: Scene, u_range: tuple[float, float] | No
     return used, u, F, w
 
 
-def _start(scene: Scene, params: Sequence[str]) -> np.ndarray:
+def start_vector(scene: Scene, params: Sequence[str]) -> np.ndarray:
+    """The start values of the fitted material keys ``params`` (the fit works on ln p).
+
+    A SceneError names a key that is not a positive material value.
+    """
     vals = []
     for p in params:
         section, _, key = p.partition(".")
@@ -286,9 +295,9 @@ def fit(data: Curve | str | Path, scene: Scene, params: Sequence[str],
 
     t0 = time.perf_counter()
     curve = data if isinstance(data, Curve) else read_curve(data)
-    prof = _check_inputs(scene, noise, profile, force_sd, profile_sd_mm)
-    used, u, F, w = _fitted_points(curve, scene, u_range, noise)
-    start = _start(scene, params)
+    prof = check_inputs(scene, noise, profile, force_sd, profile_sd_mm)
+    used, u, F, w = fitted_points(curve, scene, u_range, noise)
+    start = start_vector(scene, params)
     model = _Model(scene, params, u, prof)
     Pd = prof.measured() if prof is not None else np.zeros(0)
     rho = force_sd / profile_sd_mm
@@ -326,8 +335,9 @@ def fit(data: Curve | str | Path, scene: Scene, params: Sequence[str],
                      rms_relative_error=float(np.sqrt(np.mean(((Fm - F) / F) ** 2))), **res)
 
 
-def _check_inputs(scene: Scene, noise: str, profile: Profile | str | Path | None, force_sd: float,
+def check_inputs(scene: Scene, noise: str, profile: Profile | str | Path | None, force_sd: float,
                   profile_sd_mm: float) -> Profile | None:
+    """Refuse inputs the fit cannot use (a SceneError naming them); returns the profile inside the specimen, or None."""
     if scene.model != "continuum":
         raise SceneError(f"model = {scene.model!r}: ngbet fit calibrates the continuum model (model = 'continuum')")
     if noise not in ("relative", "absolute"):

@@ -11,7 +11,11 @@ from __future__ import annotations
 import logging
 import math
 
-from .scene import Scene, SceneError
+from .scene.document import Scene
+from .scene.validate import SceneError
+
+__all__ = ["SIZE_MARGIN", "available_memory", "check_size", "estimate_discrete_size", "estimate_size",
+           "locking_warning", "preflight"]
 
 log = logging.getLogger(__name__)
 

@@ -7,6 +7,8 @@ import platform
 from pathlib import Path
 from typing import Any
 
+__all__ = ["DISTRIBUTIONS", "git_revision", "machine", "versions"]
+
 #: module -> the distribution that installs it
 DISTRIBUTIONS = {"ngbet": "ngbet", "ngsolve": "ngsolve", "netgen": "netgen-mesher", "numpy": "numpy", "scipy": "scipy"}
 

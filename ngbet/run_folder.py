@@ -1,7 +1,7 @@
 """A run folder on disk: ngbet's mark and lock, what a run may remove or replace, atomic writes.
 
-:class:`ngbet.output.RunWriter` takes a folder through :func:`_acquire_run_folder` and
-:func:`_clear_previous_run` and writes every file with :func:`write_json_atomic` and :func:`_io`;
+:class:`ngbet.output.RunWriter` takes a folder through :func:`acquire_run_folder` and
+:func:`clear_previous_run` and writes every file with :func:`write_json_atomic` and :func:`file_op`;
 nothing else writes into a run folder.
 """
 
@@ -18,6 +18,10 @@ from pathlib import Path
 from typing import IO, Any
 
 from .errors import NgbetError
+
+__all__ = ["FIGURE_SUFFIXES", "RUN_FILE_PATTERNS", "RUN_LOCK", "RUN_MARKER", "TMP_PREFIX", "OutputError",
+           "acquire_run_folder", "clear_previous_run", "file_op", "jsonable", "link_or_copy", "remove_path",
+           "write_json_atomic"]
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +58,7 @@ class OutputError(NgbetError):
         self.path = Path(path)
 
 
-def _link_or_copy(src: Path, dst: Path) -> None:
+def link_or_copy(src: Path, dst: Path) -> None:
     """``dst`` a hard link to ``src`` (a copy where the file system has none)."""
     try:
         os.link(src, dst)
@@ -66,13 +70,13 @@ def write_json_atomic(path: Path, data: Any) -> None:
     """Write JSON to a temporary file and rename it: a reader sees the old or the new file, never half."""
     tmp = path.with_name(TMP_PREFIX + path.name)
     try:
-        _io(tmp, lambda p: p.write_text(json.dumps(data, indent=2, default=_jsonable)))
-        _io(path, lambda p: os.replace(tmp, p))
+        file_op(tmp, lambda p: p.write_text(json.dumps(data, indent=2, default=jsonable)))
+        file_op(path, lambda p: os.replace(tmp, p))
     finally:
         tmp.unlink(missing_ok=True)
 
 
-def _io(path: Path, action: Callable[[Path], Any]) -> Any:
+def file_op(path: Path, action: Callable[[Path], Any]) -> Any:
     """Run a file operation; an OSError becomes an OutputError naming the path."""
     try:
         return action(path)
@@ -80,20 +84,20 @@ def _io(path: Path, action: Callable[[Path], Any]) -> Any:
         raise OutputError(path, exc.strerror or str(exc)) from exc
 
 
-def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
+def acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
     """Create ``out`` if needed, refuse it if it cannot be a run folder, and lock it.
 
     Returns the locked marker and the files the previous runs into the folder registered.
     """
     if out.exists() and not out.is_dir():
         raise OutputError(out, "a file is in the place of the output folder")
-    _io(out, lambda p: p.mkdir(parents=True, exist_ok=True))
-    names = {p.name for p in _io(out, lambda p: list(p.iterdir()))}
+    file_op(out, lambda p: p.mkdir(parents=True, exist_ok=True))
+    names = {p.name for p in file_op(out, lambda p: list(p.iterdir()))}
     if names and RUN_MARKER not in names:
         raise OutputError(out, f"not empty and not an ngbet run folder (it holds {', '.join(sorted(names)[:5])}"
                                f"{', ...' if len(names) > 5 else ''}; ngbet marks its run folders with "
                                f"{RUN_MARKER}); choose another --out")
-    fh = _io(out / RUN_MARKER, lambda p: p.open("a+"))
+    fh = file_op(out / RUN_MARKER, lambda p: p.open("a+"))
     try:
         fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -120,7 +124,7 @@ def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
     return fh, [n for n in previous if isinstance(n, str) and n and "/" not in n and not n.startswith(".")]
 
 
-def _remove(p: Path) -> None:
+def remove_path(p: Path) -> None:
     """Remove a file, or a temporary folder with what is in it."""
     if p.is_dir() and not p.is_symlink():
         shutil.rmtree(p)
@@ -144,7 +148,7 @@ def _summary_files(out: Path) -> list[str]:
     return files if isinstance(files, list) else []
 
 
-def _clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
+def clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
     """Remove the files previous ngbet runs registered in ``out`` (and their temporary files).
 
     Anything else stays (with a warning). A file with the name of one an ngbet run writes
@@ -161,7 +165,7 @@ def _clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
     gone = []
     for p in [*present, *(d for d in out.iterdir() if d.is_dir() and d.name.startswith(TMP_PREFIX))]:
         if p.name in listed or p.name.startswith(TMP_PREFIX):
-            _io(p, _remove)
+            file_op(p, remove_path)
             gone.append(p)
     other = sorted(p.name for p in out.iterdir() if p.name != RUN_MARKER)
     if other:
@@ -169,7 +173,8 @@ def _clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
     return gone
 
 
-def _jsonable(o: Any) -> Any:
+def jsonable(o: Any) -> Any:
+    """A JSON-writable stand-in for ``o`` (``json.dumps(default=...)``): arrays, sets, tuples as lists, else text."""
     if hasattr(o, "tolist"):
         return o.tolist()
     if isinstance(o, (set, tuple)):

@@ -16,7 +16,11 @@ from typing import Any
 
 import tomli_w
 
-from . import scene as S
+from .scene.document import MODELS, SECTIONS, Scene
+from .scene.numerical import FIELD_OUTPUTS, LINEAR_SOLVERS
+from .scene.physical import CONSTRAINTS, PENALTY_FORMS
+
+__all__ = ["HEADER", "commented_toml", "key_comments"]
 
 HEADER = """\
 # ngbet scene: a bias extension test (BET) of a woven fabric. Every key is optional; a missing key
@@ -30,15 +34,15 @@ HEADER = """\
 """
 
 _CHOICES: dict[str, tuple[Any, ...]] = {
-    "model": S.MODELS,
-    "effects.constraint": S.CONSTRAINTS,
-    "effects.penalty_form": S.PENALTY_FORMS,
-    "solver.linear_solver": S.LINEAR_SOLVERS,
+    "model": MODELS,
+    "effects.constraint": CONSTRAINTS,
+    "effects.penalty_form": PENALTY_FORMS,
+    "solver.linear_solver": LINEAR_SOLVERS,
     "solver.predictor": ("tangent", "clamp"),
     "solver.path_following": ("displacement", "arclength", "auto"),
     "solver.compile": ("auto", "interpret", "native"),
     "solver.branch": ("stay", "switch"),
-    "outputs.fields": S.FIELD_OUTPUTS,
+    "outputs.fields": FIELD_OUTPUTS,
     "discrete.inter_layout": ("neighbours", "none"),
     "discrete.end_rotation": ("free", "held"),
 }
@@ -92,12 +96,12 @@ def _value(key: str, value: Any) -> str:
     return tomli_w.dumps({key: value}).strip()
 
 
-def commented_toml(scene: S.Scene) -> str:
+def commented_toml(scene: Scene) -> str:
     """The complete scene as TOML with comments; reading it back gives the same scene."""
     d = scene.to_dict()
-    parts = [HEADER, "\n", _comment(f"{_MODEL_DOC}; one of {', '.join(map(repr, S.MODELS))}"),
+    parts = [HEADER, "\n", _comment(f"{_MODEL_DOC}; one of {', '.join(map(repr, MODELS))}"),
              _value("model", d["model"]), "\n"]
-    for name, cls in S._SECTIONS.items():
+    for name, cls in SECTIONS.items():
         doc = (inspect.getdoc(cls) or "").split("\n\n")[0].replace("\n", " ")
         parts += ["\n", _comment(doc), f"[{name}]\n"]
         notes = key_comments(cls)

@@ -7,15 +7,18 @@ import io
 from pathlib import Path
 from typing import Any
 
+__all__ = ["append_lines", "append_rows", "read_profiles", "read_rows", "write_table"]
 
-def _write_table(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+
+def write_table(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+    """Write a CSV table with the header ``columns`` and the ``rows`` (dicts by column)."""
     with path.open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n")
         w.writeheader()
         w.writerows(rows)
 
 
-def _append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+def append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
     """Append complete rows in one write (a reader never sees half a row unless the disk fails)."""
     buf = io.StringIO()
     csv.DictWriter(buf, fieldnames=columns, lineterminator="\n").writerows(rows)
@@ -23,7 +26,8 @@ def _append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> 
         fh.write(buf.getvalue())
 
 
-def _append_lines(path: Path, lines: list[list[Any]]) -> None:
+def append_lines(path: Path, lines: list[list[Any]]) -> None:
+    """Append complete CSV lines (lists of values) in one write."""
     buf = io.StringIO()
     csv.writer(buf, lineterminator="\n").writerows(lines)
     with path.open("a", newline="") as fh:

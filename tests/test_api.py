@@ -13,10 +13,9 @@ import numpy as np
 import pytest
 
 import ngbet
-from ngbet.output import read_profiles, read_rows
-from ngbet.plotting import dense_force
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 from ngbet.scene_doc import commented_toml
+from ngbet.tables import read_profiles, read_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 SMALL = {"loading.u0_mm": 20.0, "loading.stops_mm": [10.0], "discretization.mesh_size_mm": 20.0}
@@ -109,18 +108,6 @@ def test_plot_draws_the_curve_and_the_steps(small_run):
     curve, steps = ax.lines[:2]
     np.testing.assert_array_equal(steps.get_xdata(), np.r_[0.0, r.u0_mm])
     assert "converged steps" in steps.get_label()
-
-
-def test_dense_force_is_exact_for_a_quadratic():
-    """Hermite on (F, dF/du0) reproduces cubics between steps; the slope at u0 = 0, extrapolated
-    from the first step, is exact for quadratics: so a quadratic force is reproduced everywhere."""
-    u = np.array([3.0, 7.0, 12.0, 20.0])
-    F, dF = 3 * u**2 + 2 * u, 6 * u + 2
-    ud, Fd, how = dense_force(u, F, dF)
-    assert "Hermite" in how and np.max(np.diff(ud)) <= 0.25 + 1e-12
-    np.testing.assert_allclose(Fd, 3 * ud**2 + 2 * ud, rtol=1e-12, atol=1e-12)
-    ul, Fl, how = dense_force(u, F, None)
-    assert "lines" in how and len(ul) == len(u) + 1
 
 
 def test_example_sweep(capsys):

@@ -17,7 +17,7 @@ from scipy.special import ellipe, ellipk
 from ngbet.discrete import elements as el
 from ngbet.discrete.linsolve import FreeBlockSolver
 from ngbet.discrete.model import Pattern
-from ngbet.discrete.solver import StepControl, newton
+from ngbet.discrete.newton import StepControl, newton
 from ngbet.engine import PathControl
 
 

@@ -8,8 +8,8 @@ import scipy.sparse as sp
 
 from ngbet import cholmod
 from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError, resolve_backend
-from ngbet.discrete.newton import _StepFailed
-from ngbet.discrete.solver import StepControl, load_steps, newton, single_threaded_blas, solve_path
+from ngbet.discrete.newton import StepControl, StepFailed, newton
+from ngbet.discrete.solver import load_steps, single_threaded_blas, solve_path
 from ngbet.engine import PathControl, PathResult, Steps
 
 
@@ -95,7 +95,7 @@ def test_no_shift_allowed_stops_at_the_first_indefinite_tangent():
     # a step that will be cut anyway (longer than the snap bracket) gives up at once
     p = DoubleWell()
     lin = solver(p)
-    with pytest.raises(_StepFailed) as exc:
+    with pytest.raises(StepFailed) as exc:
         newton(p, np.array([1e-3, 0.0]), lin, ctl(), allow_shift=False)
     assert exc.value.indefinite and lin.n_factor == 1, \
         f"indefinite {exc.value.indefinite}, {lin.n_factor} factorizations"
@@ -233,7 +233,7 @@ def test_lowest_eigenvalues_match_a_dense_solve_with_a_near_degenerate_pair():
     # lowest to ~tol^2 = 1e-6 relative, from a cold start and from a perturbed warm start
     import scipy.linalg as sla
 
-    from ngbet.discrete.solver import lowest_eigenvalues
+    from ngbet.discrete.eigen import lowest_eigenvalues
 
     p = Convex(60)
     K = p.evaluate(np.linspace(-1, 1, p.n_dofs))[2].toarray()

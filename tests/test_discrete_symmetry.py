@@ -16,13 +16,15 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from ngbet.discrete.eigen import OTHER_BLOCK_TOL, lowest_eigenvalues
 from ngbet.discrete.linsolve import FreeBlockSolver
 from ngbet.discrete.model import NetworkModel
+from ngbet.discrete.newton import newton
 from ngbet.discrete.run import step_control
-from ngbet.discrete.solver import OTHER_BLOCK_TOL, load_steps, lowest_eigenvalues, newton, solve_path
+from ngbet.discrete.solver import load_steps, solve_path
 from ngbet.discrete.symmetry import COUPLING_TOL, Blocks, HalfTurn, half_turn
 from ngbet.engine import Steps
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 
 SCENE = {"model": "discrete", "discrete.spacing_mm": 5.0, "loading.u0_mm": 56.0, "outputs.plot": False}
 

@@ -11,11 +11,12 @@ import warnings
 
 import pytest
 
-from ngbet.cli import exit_code, main
+from ngbet.cli import main
+from ngbet.commands import exit_code
 from ngbet.continuum.stability import EllipticityLoss, StabilityDiagnosis
 from ngbet.errors import ConvergenceError
 from ngbet.messages import messages
-from ngbet.scene import SceneWarning
+from ngbet.scene.document import SceneWarning
 
 SMALL = ["--set", "discretization.mesh_size_mm=20", "--set", "loading.u0_mm=10", "--set", "loading.stops_mm=[]",
          "--set", "outputs.vtk=false", "--set", "outputs.plot=false"]

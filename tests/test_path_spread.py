@@ -7,9 +7,10 @@ import pytest
 from conftest import DoubleWell
 
 from ngbet.continuum.path_spread import PathSpread
-from ngbet.continuum.solver import NewtonSettings, PathSettings, continuation, load_steps
+from ngbet.continuum.settings import NewtonSettings, PathSettings
+from ngbet.continuum.solver import continuation, load_steps
 from ngbet.engine import Steps
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 
 LAM_FOLD = 2 / (3 * math.sqrt(3))  # the left well's branch folds here
 

@@ -7,7 +7,7 @@ import pytest
 
 from ngbet.continuum.settings import PathSettings, newton_settings, path_settings
 from ngbet.continuum.solver import follow
-from ngbet.scene import default_scene
+from ngbet.scene.document import default_scene
 
 
 def test_path_settings_of_the_default_scene():
@@ -71,7 +71,8 @@ def test_the_continuum_path_stops_where_its_caller_stops_and_returns_what_it_yie
     them) bit for bit, and the snap-through's step is the one record that carries the branch left."""
     from conftest import DoubleWell
 
-    from ngbet.continuum.solver import NewtonSettings, load_steps
+    from ngbet.continuum.settings import NewtonSettings
+    from ngbet.continuum.solver import load_steps
     from ngbet.engine import Steps
 
     path, psi = PathSettings(1.0, 0.05, min_step=1e-4), np.array([1.0, 0.0])

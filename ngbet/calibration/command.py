@@ -24,8 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from ..scene import Scene, SceneError
+from ..scene.document import Scene
+from ..scene.validate import SceneError
 from .data import MeasuredCurve, read_measured
+
+__all__ = ["Inputs", "add_parser", "run_from_args", "summary"]
 
 
 def add_parser(sub: Any) -> None:
@@ -73,7 +76,7 @@ def _range(text: str | None) -> tuple[float, float] | None:
 
 def _out_folder(out: Path) -> None:
     """Create the output folder now, so that an unusable one is refused before the fit (exit 3)."""
-    from ..output import OutputError
+    from ..run_folder import OutputError
 
     if out.exists() and not out.is_dir():
         raise OutputError(out, "a file is in its place")
@@ -135,12 +138,12 @@ class Inputs:
                     raise SceneError(f"--predict {c.source}: its header gives no specimen "
                                      "(# specimen.width_mm = ..., # specimen.length_mm = ...) and no --predict-scene")
         else:
-            from ..fit import Curve, _check_inputs, _fitted_points, _start
+            from ..fit import Curve, check_inputs, fitted_points, start_vector
 
-            _start(self.scene, self.params)
-            _check_inputs(self.scene, args.noise, args.profile, args.force_sd, args.profile_sd)
+            start_vector(self.scene, self.params)
+            check_inputs(self.scene, args.noise, args.profile, args.force_sd, args.profile_sd)
             c = self.curves[0]
-            _fitted_points(Curve(c.u_mm, c.force_N, c.source), self.scene, self.u_range, args.noise)
+            fitted_points(Curve(c.u_mm, c.force_N, c.source), self.scene, self.u_range, args.noise)
 
     def _fraction(self, c: MeasuredCurve) -> tuple[float, float]:
         from .data import RANGE

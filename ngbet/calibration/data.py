@@ -8,7 +8,7 @@ A file ``NAME_errorbars.csv`` beside ``NAME.csv`` with the columns ``displacemen
 ``force_low_N``, ``force_high_N`` gives the printed error bars.
 
 Everything is checked before any model run, and a refusal names the file and the line
-(:class:`ngbet.scene.SceneError`, exit status 2): a file without a header (a first line of numbers
+(:class:`ngbet.scene.validate.SceneError`, exit status 2): a file without a header (a first line of numbers
 would otherwise be taken for column names), text in a number's place, NaN or inf, fewer than
 three points, a force or displacement that is not positive in the fitted range.
 
@@ -29,7 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import SceneError
+from ..scene.validate import SceneError
+
+__all__ = ["MIN_RELATIVE_SD", "POINTS_PER_CURVE", "RANGE", "READING_ERROR_N", "MeasuredCurve", "errorbar_path",
+           "read_measured"]
 
 #: the points of a curve that enter a fit
 POINTS_PER_CURVE = 16

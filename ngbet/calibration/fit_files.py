@@ -11,6 +11,8 @@ import numpy as np
 
 from ..fit import FitResult, Prediction, band
 
+__all__ = ["plot_fit", "plot_prediction", "plot_profile", "summary_text", "write_outputs"]
+
 log = logging.getLogger(__name__)
 
 

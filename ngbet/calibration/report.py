@@ -12,6 +12,8 @@ import numpy as np
 from .data import MeasuredCurve
 from .joint import TABLE_KEY, CurvePrediction, JointFit, band
 
+__all__ = ["plot_fit", "plot_table", "prediction_json", "table_band", "write_fit", "write_prediction"]
+
 
 def _atomic(path: Path, text: str) -> Path:
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")

@@ -7,3 +7,5 @@ observables  reactions (volume-integral method), profiles, fields
 solver       damped Newton and load stepping
 run          a continuum scene into a run folder
 """
+
+__all__: list[str] = []

@@ -53,9 +53,9 @@ import numpy as np
 
 from ..engine import PathControl, PathResult, StepRecord, Steps, check_stop
 from ..errors import Attempt, ConvergenceError
-from ..scene import SceneError
-from .newton import NewtonSettings, NonlinearProblem, newton
-from .settings import newton_settings, path_settings
+from ..scene.validate import SceneError
+from .newton import NonlinearProblem, newton
+from .settings import NewtonSettings, newton_settings, path_settings
 
 log = logging.getLogger(__name__)
 

@@ -21,8 +21,10 @@ import ngsolve as ngs
 import numpy as np
 from ngsolve import CoefficientFunction as CF
 
-from ..scene import Scene
+from ..scene.document import Scene
 from . import physics
+
+__all__ = ["JAMMING_MARGIN", "JammingBarrier"]
 
 log = logging.getLogger(__name__)
 

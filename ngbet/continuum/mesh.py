@@ -11,7 +11,10 @@ import math
 
 import ngsolve as ngs
 
-from ..scene import Discretization, Specimen
+from ..scene.numerical import Discretization
+from ..scene.physical import Specimen
+
+__all__ = ["FIXED", "FREE", "MOVING", "corner_elements", "corner_refined", "make_mesh"]
 
 FIXED, MOVING, FREE = "left", "right", "bottom|top"
 

@@ -18,11 +18,12 @@ import ngsolve as ngs
 
 from ..engine import PathResult, StepRecord, Steps, progress_bar
 from ..errors import ConvergenceError
-from ..figures import map_file_name, save_map, start_plot
+from ..figures.data import map_file_name, save_map
+from ..figures.run import start_plot
 from ..kinematics import BetColumns
 from ..output import RunWriter
 from ..plot_process import active as plot_service
-from ..scene import Scene
+from ..scene.document import Scene
 from . import observables as obs
 from .arclength import MODE_KEY, arclength_runner
 from .estimate import RunEstimates, run_to_accuracy
@@ -38,7 +39,7 @@ MAP_SUBDIVISION = 2
 
 log = logging.getLogger(__name__)
 
-__all__ = ["load_path", "newton_settings", "run_continuum", "write_vtk"]  # write_vtk: ngbet.continuum.output
+__all__ = ["load_path", "run_continuum"]
 
 
 def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None) -> dict[str, Any]:

@@ -16,7 +16,9 @@ from typing import TYPE_CHECKING
 from ..engine import PathControl
 
 if TYPE_CHECKING:
-    from ..scene import Scene
+    from ..scene.document import Scene
+
+__all__ = ["LinearSettings", "NewtonSettings", "PathSettings", "linear_settings", "newton_settings", "path_settings"]
 
 
 @dataclass(frozen=True)

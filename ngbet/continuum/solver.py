@@ -44,11 +44,10 @@ from ..engine import Outcome, PathResult, StepRecord, path_steps, run_to_end
 from ..errors import Attempt, ConvergenceError
 from .chord import ChordRows, chord_loads
 from .newton import Diagnosis, NewtonReport, NonlinearProblem, failure_pattern, newton
-from .settings import NewtonSettings, PathSettings, newton_settings, path_settings
+from .settings import NewtonSettings, PathSettings
 
-__all__ = ["ArcLength", "Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "PathSettings",
-           "RelaxReport", "RelaxSettings", "SaddlePointNewton", "continuation", "failure_pattern", "follow",
-           "load_steps", "newton", "newton_settings", "path_settings", "relax"]
+__all__ = ["ArcLength", "RelaxReport", "RelaxSettings", "SaddlePointNewton", "continuation", "follow", "load_steps",
+           "relax"]
 
 log = logging.getLogger(__name__)
 

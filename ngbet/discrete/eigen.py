@@ -17,6 +17,8 @@ import scipy.sparse.linalg as spla
 from .linsolve import EigenBlock, FreeBlockSolver, LinearSolverError
 from .newton import Problem, StepControl
 
+__all__ = ["OTHER_BLOCK_TOL", "check_stability", "lowest_eigenvalues", "lowest_eigenvalues_arpack"]
+
 log = logging.getLogger(__name__)
 
 
@@ -114,7 +116,7 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
             W = _orthonormalize(W, Q)
         Q, AQ = np.column_stack([Q, W]), np.column_stack([AQ, A(W)])
     log.info("block Lanczos did not converge; falling back to ARPACK")
-    return _lowest_eigenvalues_arpack(lin, k)
+    return lowest_eigenvalues_arpack(lin, k)
 
 
 OTHER_BLOCK_TOL = 0.3
@@ -204,10 +206,10 @@ def _lowest_eigenvalues_split(lin: FreeBlockSolver, blocks: list[EigenBlock], s:
             elif not done[i]:
                 bb.expand(pairs[i][1][:, :1])
     log.info("block Lanczos did not converge in the half-turn blocks; falling back to ARPACK")
-    return _lowest_eigenvalues_arpack(lin, k)
+    return lowest_eigenvalues_arpack(lin, k)
 
 
-def _lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray, np.ndarray]:
+def lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray, np.ndarray]:
     """The same eigenpairs by ARPACK in shift-invert mode (20+ solves: the slow reference)."""
     Kff = lin.Kff
     assert Kff is not None
@@ -221,7 +223,7 @@ def _lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray
     return lam[order], V[:, order]
 
 
-def _check_stability(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
+def check_stability(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
                      X0: np.ndarray | None = None) -> tuple[float, np.ndarray | None, np.ndarray | None]:
     """lambda_min, its mode and all computed modes (the start block of the next check)."""
     try:

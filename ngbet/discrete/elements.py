@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["beam", "beam_energy_parts", "beam_local", "rotational_spring", "slip_spring", "truss", "wrap_angle"]
+
 
 def wrap_angle(t: np.ndarray) -> np.ndarray:
     """Map angles to (-pi, pi]: the beam's local rotations are small, the nodal ones need not be."""

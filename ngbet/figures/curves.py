@@ -21,6 +21,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+__all__ = ["FSH_GAMMA_MAX_DEG", "Extra", "curve_with_jumps", "error_bars", "estimate_due", "force_curve",
+           "force_figure", "profile_figure", "shear_force_figure", "stations_of"]
+
 #: F_sh is drawn up to this kinematic shear angle [deg]: towards yarn locking (90°) Eq. 18 divides
 #: by cos γ → 0 and its values say more about the equation than about the fabric
 FSH_GAMMA_MAX_DEG = 70.0

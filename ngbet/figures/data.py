@@ -15,6 +15,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+__all__ = ["MapData", "Measured", "column", "increasing_curve", "load_maps", "map_file_name", "measured_fsh",
+           "read_measured", "read_scene", "save_map"]
+
 log = logging.getLogger(__name__)
 
 
@@ -150,7 +153,8 @@ def column(rows: list[dict[str, Any]], key: str) -> np.ndarray:
 
 def read_scene(run_dir: Path) -> Any:
     """The scene of a run folder (its scene.toml), or None (logged) when it cannot be read."""
-    from ..scene import Scene, SceneError
+    from ..scene.document import Scene
+    from ..scene.validate import SceneError
 
     try:
         return Scene.from_toml(run_dir / "scene.toml")

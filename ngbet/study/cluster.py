@@ -24,6 +24,8 @@ from ..errors import NgbetError
 from .executors import execute_case
 from .model import Case
 
+__all__ = ["POLL_S", "SCHEDULER_TIMEOUT_S", "WORKER_TIMEOUT_S", "SchedulerError", "run_dask", "worker_timeout_s"]
+
 #: seconds to reach the scheduler
 SCHEDULER_TIMEOUT_S = 5.0
 #: seconds a study waits while the scheduler has no worker (NGBET_DASK_WORKER_TIMEOUT_S overrides)
