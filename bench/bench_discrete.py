@@ -118,7 +118,7 @@ def per_iteration(scene: Scene, args: argparse.Namespace, rec: dict) -> None:
 
 
 def full_run(scene: Scene, threads: int, tag: str, linear_solver: str = "auto") -> dict:
-    from ngbet.discrete import run
+    from ngbet.discrete.run import run
 
     folder = Path(__file__).parent / "out" / f"run_{tag}"
     full = scene.with_changes(**{"loading.u0_mm": 56.0, "solver.threads": threads,

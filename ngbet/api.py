@@ -17,7 +17,6 @@ import json
 import logging
 import shutil
 import tempfile
-import warnings
 import weakref
 from pathlib import Path
 from typing import Any
@@ -155,18 +154,6 @@ class Result:
         return self.columns.get("energy_J")
 
     @property
-    def double_force(self) -> np.ndarray | None:
-        """Deprecated name of :attr:`double_force_Nm` (every array's name carries its unit)."""
-        _renamed("double_force", "double_force_Nm")
-        return self.double_force_Nm
-
-    @property
-    def energy(self) -> np.ndarray | None:
-        """Deprecated name of :attr:`energy_J` (every array's name carries its unit)."""
-        _renamed("energy", "energy_J")
-        return self.energy_J
-
-    @property
     def force_error_N(self) -> np.ndarray | None:
         """Estimated discretization error of the force [N], when the run estimates it; else None."""
         return self.columns.get("force_error_N")
@@ -222,11 +209,6 @@ class Result:
         n = len(self.u0_mm)
         last = f", u0 = {self.u0_mm[-1]:g} mm, force = {self.force_N[-1]:.4g} N" if n else ""
         return f"<ngbet.Result {self.scene.model} {self.status}: {n} steps{last}; {self.out}>"
-
-
-def _renamed(old: str, new: str) -> None:
-    warnings.warn(f"Result.{old} is renamed Result.{new} (the unit in the name, as in results.csv); "
-                  f"the old name goes in the next release", DeprecationWarning, stacklevel=3)
 
 
 def _read_columns(path: Path) -> dict[str, np.ndarray]:

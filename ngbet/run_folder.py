@@ -43,8 +43,6 @@ RUN_FILE_PATTERNS = ("scene.toml", "summary.json", "results.csv", "profile.csv",
                      "instability_mode.vtu", "instability_mode.png")
 #: the run's figures: drawn from its files, never read by a figure
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
-# what an ngbet run before the marker listed its files wrote into every folder (the summary lists the rest)
-_OLD_CORE = ("scene.toml", "summary.json", "summary.json.tmp", "results.csv", "profile.csv")
 
 
 class OutputError(NgbetError):
@@ -119,8 +117,8 @@ def acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
                                "choose another --out")
     fh.seek(0)
     previous = _marker_record(fh.read()).get("files")
-    if not isinstance(previous, list):  # a folder of an ngbet that kept the list in summary.json only
-        previous = [*_OLD_CORE, *_summary_files(out)]
+    if not isinstance(previous, list):  # a new folder: its marker is empty
+        previous = []
     return fh, [n for n in previous if isinstance(n, str) and n and "/" not in n and not n.startswith(".")]
 
 
@@ -133,19 +131,12 @@ def remove_path(p: Path) -> None:
 
 
 def _marker_record(text: str) -> dict[str, Any]:
+    """The marker's record (``pid``, ``files``); empty for a new marker or one that is not a JSON object."""
     try:
         rec = json.loads(text)
     except ValueError:
-        return {"pid": text.strip()} if text.strip().isdigit() else {}
+        return {}
     return rec if isinstance(rec, dict) else {}
-
-
-def _summary_files(out: Path) -> list[str]:
-    try:
-        files = json.loads((out / "summary.json").read_text()).get("files", [])
-    except (OSError, ValueError, AttributeError):
-        return []
-    return files if isinstance(files, list) else []
 
 
 def clear_previous_run(out: Path, registered: list[str]) -> list[Path]:

@@ -139,15 +139,6 @@ def test_cli_scene_and_version():
     assert isinstance(ngbet.__revision__, str) and ngbet.__revision__
 
 
-def test_old_array_names_without_a_unit_still_work_with_a_deprecation_warning(small_run):
-    r, _ = small_run
-    for old, new in (("double_force", "double_force_Nm"), ("energy", "energy_J")):
-        with pytest.warns(DeprecationWarning, match=f"Result.{old} is renamed Result.{new}"):
-            value = getattr(r, old)
-        np.testing.assert_array_equal(value, getattr(r, new))
-        assert len(value) == len(r.u0_mm) > 0
-
-
 def test_every_result_array_carries_its_unit(small_run):
     """The arrays a Result offers by name end in a unit, as the columns of results.csv do."""
     r, _ = small_run

@@ -149,7 +149,7 @@ def test_the_lock_is_released_however_the_run_ends(tmp_path):
     """The OS releases the flock when the process ends, SIGKILL included: the marker stays and
     never goes stale; the next run takes the folder and removes only the killed run's files."""
     out = tmp_path / "run"
-    code = ("import sys, time; from ngbet.output import RunWriter; from ngbet.scene import Scene\n"
+    code = ("import sys, time; from ngbet.output import RunWriter; from ngbet.scene.document import Scene\n"
             "w = RunWriter(sys.argv[1], Scene()); w.add_step({'step': 1, 'u0_mm': 1.0, 'force_N': 1.0})\n"
             "print('ready', flush=True); time.sleep(60)\n")
     p = subprocess.Popen([sys.executable, "-c", code, str(out)], stdout=subprocess.PIPE, text=True)
@@ -585,7 +585,7 @@ STUCK = """
 import signal, sys, time
 from ngbet.cli import _interrupts
 from ngbet.output import RunWriter
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 with _interrupts():
     with RunWriter(sys.argv[1], Scene()) as w:
         w.add_step({"step": 1, "u0_mm": 3.0, "force_N": 1.0})

@@ -606,65 +606,7 @@ def wait_until(cond, timeout=60.0):
         time.sleep(0.05)
 
 
-# --- layout ---------------------------------------------------------------------------------------
-def _imports(path, module):
-    """The ngbet modules a file imports, at any depth (function-local imports included; those
-    under ``if TYPE_CHECKING:``, for annotations only, never run)."""
-    import ast
-
-    pkg = module.split(".")
-    if not path.name == "__init__.py":
-        pkg = pkg[:-1]
-    out = set()
-    tree = ast.parse(path.read_text())
-    typing_only = {id(n) for top in ast.walk(tree) if isinstance(top, ast.If)
-                   and getattr(top.test, "id", getattr(top.test, "attr", "")) == "TYPE_CHECKING"
-                   for n in ast.walk(top)}
-    for node in ast.walk(tree):
-        if id(node) in typing_only:
-            continue
-        if isinstance(node, ast.Import):
-            out |= {a.name for a in node.names if a.name.startswith("ngbet")}
-        elif isinstance(node, ast.ImportFrom):
-            base = pkg[: len(pkg) - node.level + 1] if node.level else []
-            mod = ".".join([*base, *(node.module.split(".") if node.module else [])])
-            if mod.startswith("ngbet"):
-                out.add(mod)
-                out |= {f"{mod}.{a.name}" for a in node.names}
-    return out
-
-
-def test_no_import_circle_and_small_modules():
-    import ngbet
-
-    root = Path(ngbet.__file__).parent
-    files = {}
-    for p in root.rglob("*.py"):
-        rel = p.relative_to(root.parent).with_suffix("")
-        name = ".".join(rel.parts[:-1] if p.name == "__init__.py" else rel.parts)
-        files[name] = p
-    import ngbet.studies
-
-    for p in Path(ngbet.studies.__file__).parent.glob("*.py"):  # wherever the studies are installed from
-        files["ngbet.studies" + ("" if p.name == "__init__.py" else f".{p.stem}")] = p
-    graph = {m: {i for i in _imports(p, m) if i in files and i != m} for m, p in files.items()}
-    # every module of ngbet, the studies included; a package's __init__ only gathers names its
-    # modules define, so an import of the package is not an edge back into the package's modules
-    ours = [m for m, p in files.items() if p.name != "__init__.py"]
-    graph = {m: {n for n in graph[m] if n in ours} for m in ours}
-    for start in ours:  # depth-first: no path from a study module back to itself
-        stack, seen = [(start, [start])], set()
-        while stack:
-            m, path = stack.pop()
-            for n in graph[m]:
-                assert n != start, " -> ".join([*path, n])
-                if n not in seen:
-                    seen.add(n)
-                    stack.append((n, [*path, n]))
-    big = {m: n for m in ours if (n := len(files[m].read_text().splitlines())) > 510}  # about 500 lines
-    assert not big, big
-
-
+# --- layout (the import graph: tests/test_layout.py) -------------------------------------------
 def test_every_package_is_installed_and_the_studies_come_from_the_top_level_folder():
     """pyproject.toml lists the packages (discovery does not follow package-dir): a new subpackage
     missing from the list would be left out of a plain ``pip install .`` without a word."""
