@@ -200,7 +200,7 @@ class Result:
                                   "pip install matplotlib") from exc
 
             _, ax = plt.subplots(figsize=(5.5, 4))
-        force_curve(ax, self.u0_mm, self.force_N, self.columns.get("dforce_du0_N_per_mm"), label=label, **kwargs)
+        force_curve(ax, self.u0_mm, self.force_N, label=label, **kwargs)
         ax.set_xlabel("clamp displacement $u_0$ [mm]")
         ax.set_ylabel("force [N]")
         return ax

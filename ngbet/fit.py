@@ -315,7 +315,7 @@ def fit(data: Curve | str | Path, scene: Scene, params: Sequence[str],
     span = math.log(BOUND_FACTOR)
     sol = least_squares(resid, th0, jac=jac, bounds=(th0 - span, th0 + span), method="trf",
                         x_scale=1.0, max_nfev=max_runs, xtol=1e-8, ftol=1e-10, gtol=1e-10)
-    res = _statistics(sol.x, resid(sol.x), jac(sol.x), list(params))
+    res = _statistics(resid(sol.x), jac(sol.x), list(params))
     Fm, G, Pm, _ = model(sol.x)
     extra: dict[str, Any] = {}
     if prof is not None:
@@ -352,7 +352,7 @@ def check_inputs(scene: Scene, noise: str, profile: Profile | str | Path | None,
     return prof
 
 
-def _statistics(theta: np.ndarray, e: np.ndarray, J: np.ndarray, params: list[str]) -> dict[str, Any]:
+def _statistics(e: np.ndarray, J: np.ndarray, params: list[str]) -> dict[str, Any]:
     """Covariance of θ = ln p from the SVD of J, and what the data leave undetermined."""
     m, n = J.shape
     s2 = float(e @ e) / max(m - n, 1)

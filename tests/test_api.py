@@ -144,5 +144,4 @@ def test_every_result_array_carries_its_unit(small_run):
     r, _ = small_run
     units = ("_mm", "_N", "_Nm", "_J", "_deg", "_s", "_N_per_m", "_J_per_m", "_N_per_mm")
     named = [n for n, v in vars(type(r)).items() if isinstance(v, property) and n not in ("status",)]
-    deprecated = {"double_force", "energy"}
-    assert {n for n in named if not n.endswith(units)} == deprecated
+    assert named and {n for n in named if not n.endswith(units)} == set()

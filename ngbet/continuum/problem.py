@@ -97,8 +97,7 @@ STABILIZATION_CAP = 30.0
 INVERTED_AREA_FRACTION = 1e-4
 
 
-def stabilization_modulus(scene: Scene, mesh: ngs.Mesh, parameters: dict[str, ngs.Parameter] | None = None
-                          ) -> CF | float:
+def stabilization_modulus(scene: Scene, parameters: dict[str, ngs.Parameter] | None = None) -> CF | float:
     """K_s of ``effects.stabilization_K``: the constant, or ("auto") c min(α1, α2)/h_T², at most 30 K_el.
 
     The cap is :data:`STABILIZATION_CAP` (none when K_el = 0). ``parameters``: α1, α2 and K_el as
@@ -212,7 +211,7 @@ class ContinuumProblem:
         phi = trial[1]
         bending = physics.bending_energy(ngs.Grad(phi), self.m1, self.m2, par["alpha1"], par["alpha2"])
         if eff.constraint == "lagrange" or eff.penalty_form == "mixed":
-            self.K_s = stabilization_modulus(scene, self.mesh, par)
+            self.K_s = stabilization_modulus(scene, par)
         self.K_s_range = _range_over_elements(self.K_s, self.mesh)
         if self.K_s_range[1] > 0:
             base = base + physics.penalty_constraint(phi, inv.i8, self.K_s)

@@ -88,7 +88,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
                     writer.plot(draw)()
                 raise
         info.update(estimates.summary(time.perf_counter() - t_cont))
-        return _finish(solver, scene, writer, out, res, info, warnings, draw)
+        return _finish(solver, scene, writer, res, info, warnings, draw)
 
 
 def _write_mode(problem: ContinuumSolver, path_info: dict[str, Any], writer: RunWriter) -> None:
@@ -206,7 +206,7 @@ class _StepWriter:
         return row
 
 
-def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
+def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, res: PathResult,
             info: dict[str, Any], warnings: list[str], draw: Callable[[Path], Callable[[], Path | None]]
             ) -> dict[str, Any]:
     """Final fields, statistics, the multiplier check, summary and plot.
@@ -217,7 +217,7 @@ def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: Path,
     """
     plotted = writer.plot(draw) if scene.outputs.plot else None
     try:
-        summary = _final_files(solver, scene, writer, out, res, info, warnings)
+        summary = _final_files(solver, scene, writer, res, info, warnings)
     except BaseException:
         if plotted is not None:
             with contextlib.suppress(Exception):
@@ -228,7 +228,7 @@ def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: Path,
     return summary
 
 
-def _final_files(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
+def _final_files(solver: ContinuumSolver, scene: Scene, writer: RunWriter, res: PathResult,
                  info: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
     """Final fields, statistics, the multiplier check and the summary."""
     problem = solver.problem

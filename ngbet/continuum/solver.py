@@ -117,7 +117,7 @@ def relax(problem: NonlinearProblem, newton_settings: NewtonSettings, e_ref: flo
             kicked = mu if math.isnan(kicked) else kicked
             _kick(problem, mode, weights, settings.kick * 2 ** attempt)
         shift = max(settings.first_shift, -2.0 * mu)
-        done, its, why = _flow(problem, newton_settings, tol, settings, shift, history, its)
+        done, its, why = _flow(problem, tol, settings, shift, history, its)
         if not done:
             return RelaxReport(False, its, history, why, kicked_from=kicked)
         rep = newton(problem, newton_settings, e_ref)
@@ -153,7 +153,7 @@ def _kick(problem: NonlinearProblem, mode: np.ndarray, weights: np.ndarray, size
     problem.x[:] += a * mode
 
 
-def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float, settings: RelaxSettings,
+def _flow(problem: NonlinearProblem, tol: float, settings: RelaxSettings,
           shift: float, history: list[float], its: int) -> tuple[bool, int, str]:
     """Shifted Newton steps with a line search on the merit until the decrement is small (True).
 

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .linsolve import EigenBlock, FreeBlockSolver, LinearSolverError
-from .newton import Problem, StepControl
+from .newton import StepControl
 
 __all__ = ["OTHER_BLOCK_TOL", "check_stability", "lowest_eigenvalues", "lowest_eigenvalues_arpack"]
 
@@ -223,7 +223,7 @@ def lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray,
     return lam[order], V[:, order]
 
 
-def check_stability(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
+def check_stability(lin: FreeBlockSolver, ctl: StepControl,
                      X0: np.ndarray | None = None) -> tuple[float, np.ndarray | None, np.ndarray | None]:
     """lambda_min, its mode and all computed modes (the start block of the next check)."""
     try:

@@ -404,7 +404,7 @@ class ShiftedNewton:
         """
         ts = time.perf_counter()
         mark = self.tally.start(ts)
-        lam, v, V = check_stability(self.problem, self.u, self.lin, self.ctl, self.modes)
+        lam, v, V = check_stability(self.lin, self.ctl, self.modes)
         self.modes = V
         self.tally.add("stability check", mark)
         escaped = lam < -1e-9 and v is not None
@@ -472,5 +472,5 @@ def _escape(problem: Problem, u: np.ndarray, E: float, v: np.ndarray, lin: FreeB
         u = best[0]
     E, g, K = problem.evaluate(u, True)
     lin.factor(K)
-    lam2, _, V = check_stability(problem, u, lin, ctl)
+    lam2, _, V = check_stability(lin, ctl)
     return u, E, g, K, lam2, V

@@ -226,12 +226,9 @@ def profile_figure(profiles: dict[float, tuple[list[float], list[float]]], stati
     return fig
 
 
-def force_curve(ax: Axes, u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None = None,
-                label: str | None = None, color: str | None = None, **kwargs: Any) -> Any:
-    """Draw a force–displacement curve on ``ax`` (:meth:`ngbet.Result.plot`): straight lines from (0, 0), steps marked.
-
-    ``dforce`` is accepted and not drawn (the slopes are not data between the steps).
-    """
+def force_curve(ax: Axes, u0: ArrayLike, force: ArrayLike, label: str | None = None, color: str | None = None,
+                **kwargs: Any) -> Any:
+    """Draw a force–displacement curve on ``ax`` (:meth:`ngbet.Result.plot`): lines from (0, 0), steps marked."""
     u = np.r_[0.0, np.asarray(u0, dtype=float)]
     F = np.r_[0.0, np.asarray(force, dtype=float)]
     (line,) = ax.plot(u, F, "-", color=color, label=f"{label + ': ' if label else ''}straight lines between steps",
