@@ -50,7 +50,7 @@ __all__ = ["Corrector", "Outcome", "PathControl", "PathResult", "StepRecord", "S
            "progress_bar", "run_to_end"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PathControl:
     """Step-length control of a load path; loads in metres of clamp displacement (module docstring).
 

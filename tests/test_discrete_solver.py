@@ -68,7 +68,7 @@ class Pulled:
 
 
 def ctl(**kw) -> StepControl:
-    return StepControl(PathControl(target=1.0, first_step=1.0, max_step=1.0, min_step=1e-3), **kw)
+    return StepControl(path=PathControl(target=1.0, first_step=1.0, max_step=1.0, min_step=1e-3), **kw)
 
 
 def solver(problem):
@@ -160,7 +160,7 @@ def test_energy_balance_by_the_hermite_rule_on_a_smooth_branch():
     # tells a snap-through (a jump releases percents of the step's work) from a long smooth step
     p = Pulled()
     rows = []
-    steps = Steps(load_steps(p, StepControl(PathControl(target=2.0, first_step=0.25, max_step=0.25, min_step=1e-3),
+    steps = Steps(load_steps(p, StepControl(path=PathControl(target=2.0, first_step=0.25, max_step=0.25, min_step=1e-3),
                                             stability=False)))
     for info in steps:
         rows.append((info.u0, float(p.load @ info.residual), info.energy, info.released))
@@ -258,7 +258,7 @@ def test_the_network_path_is_a_generator_that_hands_out_each_state_and_keeps_non
     path moves on; breaking out after k records leaves k steps counted in the statistics, and the
     path carried to the end returns them with ``solve_path``'s numbers."""
     p = Pulled()
-    ctl = StepControl(PathControl(target=1.0, first_step=0.25, max_step=0.25, min_step=1e-3), stability=False)
+    ctl = StepControl(path=PathControl(target=1.0, first_step=0.25, max_step=0.25, min_step=1e-3), stability=False)
     res = PathResult(0.0)
     seen = []
     for rec in load_steps(p, ctl, res):

@@ -79,7 +79,8 @@ def test_the_path_tells_the_branch_it_left_at_a_snap_and_its_forces_stay_the_sam
     states are bit for bit those of :func:`continuation`, which keeps nothing of the records."""
     a, b = DoubleWell(), DoubleWell()
     res_a = continuation(a, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
-    steps = Steps(load_steps(b, PathSettings(1.0, 0.05, min_step=1e-4), NewtonSettings(), psi=np.array([1.0, 0.0])))
+    steps = Steps(load_steps(b, PathSettings(target=1.0, first_step=0.05, min_step=1e-4), NewtonSettings(),
+                             psi=np.array([1.0, 0.0])))
     left = [(rec.left[0], rec.left[1].copy(), rec.snap) for rec in steps if rec.left is not None]
     assert steps.result is not None
     res_b = steps.result

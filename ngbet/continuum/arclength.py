@@ -62,7 +62,7 @@ log = logging.getLogger(__name__)
 __all__ = ["ArcLengthSettings", "Instability", "arclength_steps", "follow_arclength"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ArcLengthSettings(PathControl):
     """Step control of the arc-length continuation (lengths as clamp displacements [m] at the start).
 

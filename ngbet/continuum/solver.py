@@ -57,7 +57,7 @@ log = logging.getLogger(__name__)
 SNAP_RELEASE = 1e-3
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RelaxSettings:
     """Pseudo-transient continuation to a stable equilibrium at a fixed load (:func:`relax`)."""
 
@@ -494,7 +494,8 @@ def continuation(problem: NonlinearProblem, target: float, first_step: float, se
                  psi: np.ndarray | None = None, **path: object) -> PathResult:
     """:func:`follow` with the path given by its fields: ``PathSettings(target, first_step, **path)``."""
     path.update({k: tuple(path[k]) for k in ("stops", "chord_at") if k in path})  # type: ignore[arg-type]
-    return follow(problem, PathSettings(target, first_step, **path), settings, psi=psi)  # type: ignore[arg-type]
+    return follow(problem, PathSettings(target=target, first_step=first_step, **path), settings,  # type: ignore[arg-type]
+                  psi=psi)
 
 
 def _snap_info(corrector: SaddlePointNewton) -> dict[str, object]:

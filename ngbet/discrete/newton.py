@@ -38,7 +38,7 @@ class Problem(Protocol):
         """E(u), dE/du and (with ``hessian``) d2E/du2."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StepControl:
     """Numerics of the network's load path (SI load units); built from the scene by the entry point.
 

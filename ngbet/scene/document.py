@@ -92,7 +92,7 @@ SECTIONS: dict[str, type] = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Scene:
     """A complete, validated simulation description."""
 

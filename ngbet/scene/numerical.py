@@ -19,7 +19,7 @@ __all__ = ["FIELD_OUTPUTS", "FIGURE_FORMATS", "LINEAR_SOLVERS", "MAX_ORDER", "PA
 MAX_ORDER = 16
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Discretization:
     """Mesh and polynomial orders (``order_phi = "auto"``: order_u; ``order_lam = "auto"``: the stable pair).
 
@@ -85,7 +85,7 @@ class Discretization:
 PAPER_STOPS_MM = (37.0,)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Loading:
     """Clamp displacement u0 of X = L along e1, applied in steps."""
 
@@ -131,7 +131,7 @@ class Loading:
 LINEAR_SOLVERS = ("auto", "cholmod", "sparsecholesky", "umfpack", "pardiso")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Solver:
     """Numerics only (kept apart from the problem).
 
@@ -192,7 +192,7 @@ FIELD_OUTPUTS = ("shear_angle", "constraint", "elongation")
 FIGURE_FORMATS = ("png", "pdf", "svg")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Outputs:
     """What is computed and written; what is not asked for is not computed."""
 
@@ -228,7 +228,7 @@ class Outputs:
             check(f in FIELD_OUTPUTS, "outputs.fields", f, f"unknown field, known: {', '.join(FIELD_OUTPUTS)}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Discrete:
     """Parameters of the discrete model (paper section 3, Table 2); the spacing is ours."""
 
@@ -259,7 +259,7 @@ class Discrete:
         positive("discrete", self, "first_step_mm", "max_step_mm")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Calibration:
     """What ``ngbet fit`` adjusts when no ``--params`` are given, and the fabric's yarn families.
 

@@ -16,7 +16,7 @@ __all__ = ["CONSTRAINTS", "MAX_SPECIMEN_MM", "PENALTY_FORMS", "SHEAR_LAWS", "Eff
 MAX_SPECIMEN_MM = 1e6
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Specimen:
     """Rectangular BET specimen B = [0, L] x [0, W]; clamps on X = 0 (fixed) and X = L (moving).
 
@@ -87,7 +87,7 @@ class Specimen:
         return self.zone_a_length_mm * (1.0 / math.cos(math.radians(self.yarn_angle_deg)) - 1.0)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Material:
     """Constitutive parameters of the constrained micromorphic continuum (paper, Table 1)."""
 
@@ -140,7 +140,7 @@ PENALTY_FORMS = ("mixed", "full")
 SHEAR_LAWS = ("quadratic", "polynomial", "locking", "table")  # ngbet.continuum.physics.SHEAR_LAWS
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Effects:
     """The physical effects a scene calls for; only their energy terms and fields are built.
 
