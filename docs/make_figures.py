@@ -1,6 +1,7 @@
 """Regenerate the figures of the documentation (docs/figures/*.png) from fresh runs.
 
-    python docs/make_figures.py          # a few seconds
+    python docs/make_figures.py              # a few seconds
+    python docs/make_figures.py --out DIR    # into DIR instead of docs/figures
 
 bet_default.png: the default scene (the paper's BET to 56 mm): the deformed specimen at the last
 load coloured by the shear angle with the yarns drawn on it, and the force-displacement curve,
@@ -9,6 +10,7 @@ drawn by ngbet's plotting package (ngbet.figures) from the run's files.
 
 from __future__ import annotations
 
+import argparse
 import sys
 import tempfile
 from pathlib import Path
@@ -26,10 +28,12 @@ from ngbet.tables import read_rows
 HERE = Path(__file__).resolve().parent
 
 
-def main() -> int:
-    """Run the default scene and write docs/figures/bet_default.png."""
-    out = HERE / "figures"
-    out.mkdir(exist_ok=True)
+def main(argv: list[str] | None = None) -> int:
+    """Run the default scene and write bet_default.png into docs/figures (or ``--out DIR``)."""
+    args = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    args.add_argument("--out", type=Path, default=HERE / "figures", help="folder of the figure (default docs/figures)")
+    out = args.parse_args(argv).out
+    out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:  # a run folder of its own: it writes the map data
         return _draw(ngbet.simulate(ngbet.default_scene(), out=Path(tmp) / "run"), out)
 

@@ -186,9 +186,8 @@ class Result:
     def plot(self, ax: Any = None, label: str | None = None, **kwargs: Any) -> Any:
         """Draw force against clamp displacement on ``ax`` (a new figure when None); returns ax.
 
-        Between converged steps the curve is the cubic Hermite interpolant of the force and its
-        derivative dF/du0 when the run records the derivative (column ``dforce_du0_N_per_mm``),
-        else straight lines; the converged steps are marked.
+        Straight lines from (0, 0) through the converged steps, which are marked: the curve between
+        them is not computed.
         """
         from .figures.curves import force_curve
 

@@ -382,6 +382,7 @@ def test_every_converged_step_gets_an_error_with_every(tmp_path):
         assert every[u0] == pytest.approx(stops[u0], rel=1e-9)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("target", [1e-2, 1e-3])
 def test_accuracy_on_demand_reaches_the_target(tmp_path, target, capsys):
     out = tmp_path / f"acc{target:g}"
@@ -532,6 +533,7 @@ def test_default_scene_is_within_0p3_percent(tmp_path):
     assert 0 < s["profile_error_mm"]["56"] < 0.03 * PROFILE_56_MAX
 
 
+@pytest.mark.integration
 def test_reference_study_quick(tmp_path):
     """The study's quick mode (20 mm load, 20 mm mesh, corners 0.5 mm, p = 2, 3, 4): a reference
     with a bound below 1 % of the force, the report and the convergence figure."""

@@ -53,6 +53,7 @@ def test_run_csv_files_have_lf_line_endings(small_run):
         assert b"\r" not in text and text.count(b"\n") > 2
 
 
+@pytest.mark.integration
 def test_run_without_matplotlib_writes_everything_but_the_plot(tmp_path):
     """The core needs neither matplotlib nor pyvista: without them the run says so in one line."""
     code = ("import sys\n"

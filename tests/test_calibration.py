@@ -302,6 +302,7 @@ def synthetic_joint(tmp_path_factory):
     return folder, paths, joint.fit_curves([read_measured(p) for p in paths], start)
 
 
+@pytest.mark.integration
 def test_joint_fit_recovers_the_truth_within_two_standard_errors(synthetic_joint):
     """Two sizes, start values off by 1.6 and 0.33: K_sh and K_el within 2 se of the truth, each
     curve at the noise level (2 % noise: RMS 1-3 %)."""
@@ -313,6 +314,7 @@ def test_joint_fit_recovers_the_truth_within_two_standard_errors(synthetic_joint
     assert all(0.01 < c.rms_relative < 0.03 for c in res.curves)
 
 
+@pytest.mark.integration
 def test_prediction_of_a_third_size_lies_in_its_band(synthetic_joint):
     """The fitted model on 100 x 300 mm: |prediction − truth| ≤ 2 sd (parameters and
     discretization) at every point, and the band is not vacuous: the start values miss by more."""
@@ -327,6 +329,7 @@ def test_prediction_of_a_third_size_lies_in_its_band(synthetic_joint):
     assert np.all(np.abs(start - truth) > 2 * pred.sd_N)
 
 
+@pytest.mark.integration
 def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint, tmp_path, capsys):
     """`ngbet fit A.csv B.csv --scene S` without --params (the scene names them) writes fit.json
     with each curve's RMS, fit.png and a fitted scene that `ngbet run` takes on another specimen
@@ -351,6 +354,7 @@ def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint,
     assert json.loads((run / "summary.json").read_text())["u0_reached_mm"] == pytest.approx(80.0)
 
 
+@pytest.mark.integration
 def test_a_failed_prediction_keeps_the_fit(synthetic_joint, tmp_path, capsys, monkeypatch):
     """A prediction whose model run fails exits 1 and leaves fit.json and fitted_scene.toml."""
     from ngbet.errors import ConvergenceError
@@ -422,6 +426,7 @@ def test_python_reader_refuses_a_file_without_header(tmp_path):
         F.read_curve(p)
 
 
+@pytest.mark.integration
 def test_a_held_parameter_widens_the_band_by_its_own_term(synthetic_joint):
     """K_el held fixed with var(ln K_el) = 0.09: the parameter part of the band becomes
     √(sd² + (dF/d ln K_el)² · 0.09), the derivative from central differences of whole runs (to

@@ -301,6 +301,7 @@ def test_shear_angle_is_zero_for_rigid_motion_and_exact_for_a_trellis(angle):
     assert abs(obs.centre_shear_angle_deg(p) - 10.0) < 1e-9
 
 
+@pytest.mark.integration
 def test_stabilization_carries_fine_corner_meshes_and_is_small(tmp_path):
     # Λ ∈ L2(p − 2) leaves the within-element part of φ − i8 free; in the compressed corners the
     # first-gradient energy is not convex there, and with 0.25 mm corner elements (h = 10 mm,

@@ -205,6 +205,7 @@ def test_mirrored_assembly_equals_the_element_by_element_sum(model):
     assert not model._on_symmetric_path(u + 1e-9 * np.abs(u).max() * kick)
 
 
+@pytest.mark.integration
 def test_the_17k_network_keeps_its_forces_and_snaps():
     """The 16 890-dof network (spacing 2.4 mm) with the half-turn blocks, against the whole factorization.
 

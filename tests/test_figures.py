@@ -156,6 +156,7 @@ def test_ngbet_run_imports_no_matplotlib_before_it_solves():
     assert fresh_python(code) == "False"
 
 
+@pytest.mark.integration
 def test_run_figures_and_data_overlay_from_the_command_line(tmp_path):
     out = tmp_path / "run"
     csv = tmp_path / "m.csv"

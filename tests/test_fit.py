@@ -214,6 +214,7 @@ def test_load_tangent_at_a_converged_state_is_that_of_the_tangent_there(monkeypa
 
 
 # ------------------------------------------------------------------------------------------ the fit
+@pytest.mark.integration
 def test_fit_recovers_synthetic_parameters(synthetic_fit):
     """1 % noise: each parameter within two standard errors of the truth, the noise scale inside
     the 99 % interval of s/σ for 17 degrees of freedom (√(χ²/17): 0.58 to 1.45), both determined."""
@@ -226,6 +227,7 @@ def test_fit_recovers_synthetic_parameters(synthetic_fit):
     assert res.rms_relative_error < 0.02
 
 
+@pytest.mark.integration
 def test_invisible_parameter_is_reported_undetermined(truth_curve):
     """alpha1 of a balanced fabric with a 3 mm internal length barely touches the clamp force
     (dF/d ln alpha1 ~ 1e-3 of dF/d ln K_sh): the fit must say so, and still determine K_sh."""
@@ -237,6 +239,7 @@ def test_invisible_parameter_is_reported_undetermined(truth_curve):
     assert doc["parameters"]["material.alpha1"]["determined"] is False
 
 
+@pytest.mark.integration
 def test_fit_on_one_size_predicts_another(synthetic_fit):
     """Fitted on 150 x 450 mm, the 100 x 300 mm test is predicted within the propagated
     uncertainty: |prediction − truth| ≤ 2 sd at every point (the parameter errors are ~1 se)."""
@@ -253,6 +256,7 @@ def test_fit_on_one_size_predicts_another(synthetic_fit):
     assert np.all(np.abs(start - truth) > 5 * pred.sd_N)
 
 
+@pytest.mark.integration
 def test_profile_determines_what_the_force_cannot():
     """The paper's unbalanced fabric (10 mm mesh, to 37 mm): from the force alone (1 % noise) the
     fit cannot separate K_sh from alpha2; with the mid-axis profile at 37 mm (10 points, 0.05 mm
@@ -289,6 +293,7 @@ def test_standard_errors_agree_with_the_scatter(truth_curve):
 
 
 # ------------------------------------------------------------------------------------------ CLI, files
+@pytest.mark.integration
 def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
     data = tmp_path / "synthetic.csv"
     c = noisy(truth_curve, seed=4)
@@ -344,6 +349,7 @@ def test_force_path_answers_every_requested_load_in_order(truth_curve):
     assert F_rep[[0, 1, 3]] == pytest.approx(truth_curve[[3, 7, 12]], rel=1e-9)
 
 
+@pytest.mark.integration
 def test_a_fit_stopped_by_max_runs_says_so(truth_curve, tmp_path):
     """Two model runs cannot converge from start values off by 1.6 and 0.6: fit.json says
     ``converged: false``, the terminal line says NOT CONVERGED and the command exits 1."""

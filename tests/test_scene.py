@@ -173,6 +173,7 @@ def test_a_default_the_user_set_does_not_give_way(tmp_path):
         load_scene(str(f), ["discretization.structured=true"])
 
 
+@pytest.mark.integration
 def test_a_scene_with_only_material_gives_the_default_runs_force(tmp_path):
     """The force of a scene file with only [material] equals that of the same physics by --set
     (38.2693 N against 38.2143 N when a file's missing keys took another mesh)."""
