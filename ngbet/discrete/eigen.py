@@ -210,7 +210,11 @@ def _lowest_eigenvalues_split(lin: FreeBlockSolver, blocks: list[EigenBlock], s:
 
 
 def lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """The same eigenpairs by ARPACK in shift-invert mode (20+ solves: the slow reference)."""
+    """The same eigenpairs by ARPACK in shift-invert mode: the reference of :func:`lowest_eigenvalues`.
+
+    It needs many more solves with the factorization than the block Lanczos started from the
+    previous modes; it is the fallback where that does not converge.
+    """
     Kff = lin.Kff
     assert Kff is not None
     n = Kff.shape[0]
@@ -225,7 +229,11 @@ def lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray,
 
 def check_stability(lin: FreeBlockSolver, ctl: StepControl,
                      X0: np.ndarray | None = None) -> tuple[float, np.ndarray | None, np.ndarray | None]:
-    """lambda_min, its mode and all computed modes (the start block of the next check)."""
+    """The stability check of the current state: (lambda_min, its mode, all computed modes).
+
+    The modes are the start block ``X0`` of the next check. Where the eigensolvers fail the state
+    is not classified: (nan, None, None), with a warning; a failed check never stops the path.
+    """
     try:
         lam, V = lowest_eigenvalues(lin, ctl.n_eigs, X0)
     except (spla.ArpackNoConvergence, spla.ArpackError, LinearSolverError, np.linalg.LinAlgError) as exc:
