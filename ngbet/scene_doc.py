@@ -68,7 +68,12 @@ _KEY = re.compile(r"^\s{4}(\w+)\s*:\s*[^=]+=\s*(?P<default>.*)$")
 
 
 def key_comments(cls: type) -> dict[str, str]:
-    """The comment beside or above each field in the source of a scene section."""
+    """{field name: its comment} of a scene section ``cls``, read from its source.
+
+    A field's comment is the comment lines right above it and the comment beside it, joined; a
+    field without either gets an empty string. Without the source (never installed) the result is
+    empty, and the scene is written without key comments.
+    """
     try:
         lines = inspect.getsource(cls).splitlines()
     except (OSError, TypeError):  # pragma: no cover - sources not installed

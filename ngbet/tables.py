@@ -54,7 +54,10 @@ def _num(v: str) -> Any:
 
 
 def read_profiles(path: str | Path) -> dict[float, tuple[list[float], list[float]]]:
-    """profile.csv -> {u0_mm: (X_mm, uy_mm)}."""
+    """The mid-axis profiles of a profile.csv: {u0 [mm]: (X [mm], u_y [mm])}, in the file's order.
+
+    Read through :func:`read_rows`, so a last line cut short is left out.
+    """
     out: dict[float, tuple[list[float], list[float]]] = {}
     for r in read_rows(path):
         X, uy = out.setdefault(float(r["u0_mm"]), ([], []))
