@@ -47,11 +47,8 @@ def _problem(mode: str, h: float, p: int) -> Any:
     """The problem of the default scene at (h, p), corners 0.25 mm, as ``mode`` builds it."""
     import dataclasses
 
-    try:
-        from ngbet.continuum.problem import ContinuumProblem
-    except ImportError:  # an older tree: the problem at the package's top
-        from ngbet.problem import ContinuumProblem  # type: ignore[no-redef]
-    from ngbet.scene import default_scene
+    from ngbet.continuum.problem import ContinuumProblem
+    from ngbet.scene.document import default_scene
 
     sc = default_scene()
     disc = dataclasses.replace(sc.discretization, mesh_size_mm=h, order_u=p, corner_mesh_size_mm=0.25)

@@ -101,7 +101,7 @@ def _child(case: str, extra: dict) -> dict:
     t_import = time.perf_counter()
     from ngbet.errors import ConvergenceError
     from ngbet.run import run
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     t_import = time.perf_counter() - t_import
     changes = {"outputs.vtk": False, "outputs.plot": False}

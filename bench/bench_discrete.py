@@ -41,10 +41,11 @@ from pathlib import Path
 import ngsolve as ngs
 import numpy as np
 
+from ngbet.discrete.eigen import lowest_eigenvalues, lowest_eigenvalues_arpack
 from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError
 from ngbet.discrete.model import NetworkModel
 from ngbet.discrete.run import step_control
-from ngbet.discrete.solver import _lowest_eigenvalues_arpack, lowest_eigenvalues, solve_path
+from ngbet.discrete.solver import solve_path
 
 try:
     from ngbet.discrete.solver import single_threaded_blas
@@ -53,8 +54,9 @@ except ImportError:  # an older ngbet (PYTHONPATH=<worktree of an earlier commit
 
     def single_threaded_blas():  # type: ignore[no-redef]
         return contextlib.nullcontext()
-from ngbet.output import machine, read_rows, versions
-from ngbet.scene import Scene
+from ngbet.provenance import machine, versions
+from ngbet.scene.document import Scene
+from ngbet.tables import read_rows
 
 
 def median_time(fn, repeats: int) -> float:
@@ -101,8 +103,8 @@ def per_iteration(scene: Scene, args: argparse.Namespace, rec: dict) -> None:
                     rec["t_stability_s"] = median_time(partial(lowest_eigenvalues, lin, 2), max(1, args.repeats // 2))
                     rec["t_stability_warm_s"] = median_time(partial(lowest_eigenvalues, lin, 2, X0),
                                                             max(1, args.repeats // 2))
-                    rec["t_stability_arpack_s"] = median_time(partial(_lowest_eigenvalues_arpack, lin, 2), 1)
-                    lam_ref = _lowest_eigenvalues_arpack(lin, 2)[0]
+                    rec["t_stability_arpack_s"] = median_time(partial(lowest_eigenvalues_arpack, lin, 2), 1)
+                    lam_ref = lowest_eigenvalues_arpack(lin, 2)[0]
                     rec["lambda_min"], rec["lambda_min_arpack"] = float(lam[0]), float(lam_ref[0])
         except (LinearSolverError, Exception) as exc:  # noqa: BLE001 - a backend NGSolve lacks
             rec["backends"][name] = {"error": str(exc)[:200]}
@@ -116,7 +118,7 @@ def per_iteration(scene: Scene, args: argparse.Namespace, rec: dict) -> None:
 
 
 def full_run(scene: Scene, threads: int, tag: str, linear_solver: str = "auto") -> dict:
-    from ngbet.discrete import run
+    from ngbet.discrete.run import run
 
     folder = Path(__file__).parent / "out" / f"run_{tag}"
     full = scene.with_changes(**{"loading.u0_mm": 56.0, "solver.threads": threads,

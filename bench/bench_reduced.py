@@ -45,7 +45,7 @@ def one_run(bending: bool, jamming: bool = True) -> dict:
     from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
     from ngbet.continuum.run import load_path
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     scene = Scene().with_changes(**{"effects.bending": bending, "effects.jamming": jamming})
     t0, c0 = time.perf_counter(), time.process_time()

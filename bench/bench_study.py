@@ -41,8 +41,10 @@ OUT = HERE / "out"
 def one(args: argparse.Namespace) -> dict:
     """One study in this process; its record."""
     os.environ.setdefault("MPLBACKEND", "Agg")
-    from ngbet.scene import SceneError, default_scene
-    from ngbet.study import Study, run_study
+    from ngbet.scene.document import default_scene
+    from ngbet.scene.validate import SceneError
+    from ngbet.study.model import Study
+    from ngbet.study.runner import run_study
 
     changes = {"discretization.mesh_size_mm": 20.0, "discretization.order_u": 2,
                "discretization.corner_mesh_size_mm": 0.0, "loading.u0_mm": 10.0, "loading.stops_mm": [],

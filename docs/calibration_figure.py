@@ -9,13 +9,14 @@
 
     python docs/calibration_figure.py            # all of them (the validation study takes minutes)
     python docs/calibration_figure.py --no-study # the fits only
+    python docs/calibration_figure.py --out DIR  # into DIR instead of docs/
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from ngbet.calibration.data import read_measured
 from ngbet.calibration.joint import fit_curves
 from ngbet.calibration.report import plot_fit
 from ngbet.cli import main as ngbet
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs"
@@ -33,17 +34,17 @@ TWILL = ["data/cao2008/cao2008_twill_balanced_150x300_INSA-NU.csv",
          "data/cao2008/cao2008_twill_balanced_150x450_INSA-NU.csv"]
 
 
-def single_curve() -> None:
-    """The locking law fitted to one curve: calibration_fit.png and its record."""
+def single_curve(out: Path) -> None:
+    """The locking law fitted to one curve: calibration_fit.png and its record, in ``out``."""
     scene = Scene.from_toml(ROOT / "geometry" / "cao2008_150x450.toml")
     curve = read_measured(ROOT / "data" / "cao2008_glass_plain_150x450.csv")
     result = fit_curves([curve], scene, PARAMS)
-    plot_fit(result, OUT / "calibration_fit.png")
+    plot_fit(result, out / "calibration_fit.png")
     doc = result.to_json()
     for c in doc["curves"]:
         c["data"] = "data/cao2008_glass_plain_150x450.csv"
-    (OUT / "calibration_fit.json").write_text(json.dumps(doc, indent=2) + "\n")
-    print(summary(result, OUT))
+    (out / "calibration_fit.json").write_text(json.dumps(doc, indent=2) + "\n")
+    print(summary(result, out))
 
 
 def run(argv: list[str], accept: tuple[int, ...] = (0,)) -> None:
@@ -53,19 +54,25 @@ def run(argv: list[str], accept: tuple[int, ...] = (0,)) -> None:
         raise SystemExit(f"ngbet {' '.join(argv)} exited with status {code}")
 
 
-def main() -> None:
-    """Fit, draw and copy the figures into docs/."""
-    single_curve()
+def main(argv: list[str] | None = None) -> None:
+    """Fit, draw and copy the figures into docs/ (or ``--out DIR``); ``--no-study``: without validation.png."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=OUT, help="folder of the figures (default docs/)")
+    parser.add_argument("--no-study", action="store_true", help="the fits only, not the validation study")
+    args = parser.parse_args(argv)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    single_curve(out)
     with tempfile.TemporaryDirectory() as tmp:
         fitted = Path(tmp) / "fit"
         run(["fit", *(str(ROOT / f) for f in TWILL), "--scene", str(ROOT / "geometry" / "twintex_twill_balanced.toml"),
              "--out", str(fitted)], accept=(0, 1))  # 1: stopped at --max-runs, said in the figure's record
-        shutil.copyfile(fitted / "fit.png", OUT / "calibration_twill_balanced_fit.png")
-        shutil.copyfile(fitted / "shear_table.png", OUT / "calibration_table.png")
-        if "--no-study" not in sys.argv[1:]:
+        shutil.copyfile(fitted / "fit.png", out / "calibration_twill_balanced_fit.png")
+        shutil.copyfile(fitted / "shear_table.png", out / "calibration_table.png")
+        if not args.no_study:
             study = Path(tmp) / "validation"
             run(["study", "validation", "--out", str(study), "--cache", str(Path(tmp) / "cache"), "--quiet"])
-            shutil.copyfile(study / "validation.png", OUT / "validation.png")
+            shutil.copyfile(study / "validation.png", out / "validation.png")
 
 
 if __name__ == "__main__":

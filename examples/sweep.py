@@ -8,7 +8,7 @@ out/examples/sweep. ``quick``: a coarse mesh and 20 mm of clamp displacement, se
 import math
 
 from ngbet.studies import sweep
-from ngbet.study import run_study
+from ngbet.study.runner import run_study
 
 
 def main() -> None:

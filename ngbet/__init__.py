@@ -40,7 +40,8 @@ from typing import TYPE_CHECKING as _TYPE_CHECKING  # noqa: E402
 
 from .errors import ConvergenceError  # noqa: E402
 from .revision import __revision__, __version__  # noqa: E402  (written by setuptools-scm at build time)
-from .scene import Scene, SceneError, default_scene  # noqa: E402
+from .scene.document import Scene, default_scene  # noqa: E402
+from .scene.validate import SceneError  # noqa: E402
 
 __all__ = ["ConvergenceError", "Result", "Scene", "SceneError", "default_scene", "load_result", "simulate",
            "__version__", "__revision__"]

@@ -4,4 +4,6 @@ import sys
 
 from .cli import console
 
+__all__: list[str] = []
+
 sys.exit(console())

@@ -6,6 +6,8 @@ import contextlib
 import os
 from collections.abc import Iterator, Mapping
 
+__all__ = ["environ"]
+
 
 @contextlib.contextmanager
 def environ(changes: Mapping[str, str]) -> Iterator[None]:

@@ -22,7 +22,6 @@ import logging
 import os
 import shutil
 import tempfile
-import warnings
 import weakref
 from pathlib import Path
 from typing import Any
@@ -30,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ConvergenceError
-from .scene import Scene
+from .scene.document import Scene
 
 log = logging.getLogger(__name__)
 
@@ -85,8 +84,8 @@ def simulate(scene: Scene | str | Path, out: str | Path | None = None, progress:
     ngbet.output.OutputError
         An output folder that cannot be used (as ``ngbet run`` refuses it).
     """
-    from .output import OutputError
     from .run import run
+    from .run_folder import OutputError
 
     if isinstance(scene, (str, os.PathLike)):
         scene = Scene.from_toml(scene)
@@ -249,18 +248,6 @@ class Result:
         return self.columns.get("energy_J")
 
     @property
-    def double_force(self) -> np.ndarray | None:
-        """Deprecated name of :attr:`double_force_Nm` (every array's name carries its unit)."""
-        _renamed("double_force", "double_force_Nm")
-        return self.double_force_Nm
-
-    @property
-    def energy(self) -> np.ndarray | None:
-        """Deprecated name of :attr:`energy_J` (every array's name carries its unit)."""
-        _renamed("energy", "energy_J")
-        return self.energy_J
-
-    @property
     def force_error_N(self) -> np.ndarray | None:
         """Estimated discretization error of the force [N], when the run estimates it; else None."""
         return self.columns.get("force_error_N")
@@ -299,11 +286,10 @@ class Result:
     def plot(self, ax: Any = None, label: str | None = None, **kwargs: Any) -> Any:
         """Draw force against clamp displacement on ``ax`` (a new figure when None); returns ax.
 
-        Between converged steps the curve is the cubic Hermite interpolant of the force and its
-        derivative dF/du0 when the run records the derivative (column ``dforce_du0_N_per_mm``),
-        else straight lines; the converged steps are marked.
+        Straight lines from (0, 0) through the converged steps, which are marked: the curve between
+        them is not computed.
         """
-        from .plotting import force_curve
+        from .figures.curves import force_curve
 
         if ax is None:
             try:
@@ -313,7 +299,7 @@ class Result:
                                   "pip install matplotlib") from exc
 
             _, ax = plt.subplots(figsize=(5.5, 4))
-        force_curve(ax, self.u0_mm, self.force_N, self.columns.get("dforce_du0_N_per_mm"), label=label, **kwargs)
+        force_curve(ax, self.u0_mm, self.force_N, label=label, **kwargs)
         ax.set_xlabel("clamp displacement $u_0$ [mm]")
         ax.set_ylabel("force [N]")
         return ax
@@ -324,14 +310,9 @@ class Result:
         return f"<ngbet.Result {self.scene.model} {self.status}: {n} steps{last}; {self.out}>"
 
 
-def _renamed(old: str, new: str) -> None:
-    warnings.warn(f"Result.{old} is renamed Result.{new} (the unit in the name, as in results.csv); "
-                  f"the old name goes in the next release", DeprecationWarning, stacklevel=3)
-
-
 def _read_columns(path: Path) -> dict[str, np.ndarray]:
     """results.csv as arrays, one per column (:func:`ngbet.output.read_rows`; an empty cell is nan)."""
-    from .output import read_rows
+    from .tables import read_rows
 
     rows = read_rows(path) if path.exists() else []
     out: dict[str, np.ndarray] = {}
@@ -346,7 +327,7 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
 def _read_profiles(path: Path) -> dict[float, tuple[np.ndarray, np.ndarray]]:
     if not path.exists():
         return {}
-    from .output import read_profiles
+    from .tables import read_profiles
 
     return {u0: (np.asarray(X), np.asarray(uy)) for u0, (X, uy) in read_profiles(path).items()}
 

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+__all__ = ["CholmodFactor", "available", "free_pattern"]
+
 
 def available() -> bool:
     """Whether CHOLMOD can be used (cvxopt is installed)."""

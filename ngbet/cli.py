@@ -42,7 +42,10 @@ from .commands import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_IO, EXIT
 from .commands import parse_value as _parse_value
 from .errors import NgbetError
 from .messages import messages, say
-from .scene import Scene, SceneError
+from .scene.document import Scene
+from .scene.validate import SceneError
+
+__all__ = ["EPILOG", "GRACE_S", "SUPERVISED", "console", "main"]
 
 EPILOG = ("exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
           "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
@@ -212,7 +215,8 @@ def _die_with_parent() -> None:
 
 def _died(argv: list[str], signum: int) -> int:
     """The run's process ended by signal ``signum`` without recording its end: record it, say it."""
-    from .output import RunWriter, read_rows
+    from .output import RunWriter
+    from .tables import read_rows
 
     name = _signal_name(signum)
     interrupted = signum in STOP_SIGNALS
@@ -283,7 +287,7 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     if command in ("run", "scene"):
         return parser
     from .studies import STUDIES
-    from .study import add_arguments
+    from .study.command import add_arguments
 
     pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them",
                          epilog=EPILOG)
@@ -373,7 +377,7 @@ def _measured(args: argparse.Namespace, scene: Scene) -> Any:
                 _say(f"data {args.data}: {note}")
         return frame
     from .calibration.data import parse_sizes
-    from .figures import Measured
+    from .figures.data import Measured
 
     spec = (parse_sizes(args.specimen, "--specimen", ("specimen.width_mm", "specimen.length_mm",
                                                       "specimen.thickness_mm")) if args.specimen else None)
@@ -477,7 +481,8 @@ LARGE_SWEEP = 100
 
 def _run_study_command(what: str, build: Any, args: argparse.Namespace, name: str | None = None) -> int:
     """Run a study from the command line; every error is one line and its exit status."""
-    from .study import StudyInterrupted, run_from_args
+    from .study.command import run_from_args
+    from .study.executors import StudyInterrupted
 
     try:
         scene, source = _study_scene(args.scene, args.overrides)
@@ -506,7 +511,7 @@ def _takes_scene(build: Any) -> bool:
 
 
 def _version() -> str:
-    from . import __revision__, __version__
+    from .revision import __revision__, __version__
 
     return f"ngbet {__version__} (git revision {__revision__})"
 
@@ -517,7 +522,7 @@ def _force_text(force_N: float) -> str:
 
 
 def _report(summary: dict, out: Path) -> str:
-    from .output import read_rows
+    from .tables import read_rows
 
     rows = read_rows(out / "results.csv")
     # the solver's iteration counts are in summary.json: nothing on the terminal a user would act on

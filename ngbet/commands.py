@@ -14,7 +14,11 @@ import sys
 import warnings
 from pathlib import Path
 
-from .scene import Scene, SceneError, SceneNote, SceneWarning
+from .scene.document import Scene, SceneNote, SceneWarning
+from .scene.validate import SceneError
+
+__all__ = ["EXIT_INPUT", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_IO", "EXIT_OK", "EXIT_SOLVER", "exit_code",
+           "load_scene", "parse_value"]
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_IO, EXIT_INTERNAL, EXIT_INTERRUPTED = 0, 1, 2, 3, 70, 130
 
@@ -37,7 +41,7 @@ def load_scene(path: str | None, overrides: list[str]) -> Scene:
     defaults, and a default that contradicts a key the file or an override sets gives way to it,
     with a note on stderr (``ngbet: note: ...``), as are the scene's warnings.
     """
-    from .scene import apply_changes, read_toml
+    from .scene.document import apply_changes, read_toml
 
     changes = {}
     for item in overrides:
@@ -63,8 +67,8 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
     ``where``: the output folder, named when the OS error names no file (e.g. a full disk on write).
     """
     from .errors import ConvergenceError
-    from .output import OutputError
-    from .study import SchedulerError
+    from .run_folder import OutputError
+    from .study.cluster import SchedulerError
 
     if isinstance(exc, SceneError):
         return EXIT_INPUT, f"bad scene: {exc}"

@@ -47,11 +47,11 @@ from .errors import Attempt, ConvergenceError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Attempt", "ConvergenceError", "Corrector", "Outcome", "PathControl", "PathResult", "StepRecord",
-           "Steps", "follow_path", "path_steps", "progress_bar", "run_to_end"]
+__all__ = ["Corrector", "Outcome", "PathControl", "PathResult", "StepRecord", "Steps", "follow_path", "path_steps",
+           "progress_bar", "run_to_end"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PathControl:
     """Step-length control of a load path; loads in metres of clamp displacement (module docstring).
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+__all__ = ["Attempt", "ConvergenceError", "NgbetError"]
+
 
 class NgbetError(Exception):
     """Base of the errors ngbet raises on purpose."""

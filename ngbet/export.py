@@ -33,7 +33,13 @@ from typing import Any
 import numpy as np
 
 from .run_folder import OwnedFolder, json_text
-from .scene import Scene, SceneError
+from .scene.document import Scene
+from .scene.validate import SceneError
+
+__all__ = ["FLOOR", "FORMATS", "TENSION_STRAIN", "TOLERANCE", "WRITERS", "ShearCard", "add_parser",
+           "default_max_angle_deg", "export", "log", "read_card", "rest_angle", "run_from_args", "sample",
+           "shear_card", "shear_energy_slope", "shear_stress", "softening_angle_deg", "source_scene", "to_abaqus",
+           "to_csv", "to_lsdyna"]
 
 log = logging.getLogger(__name__)
 

@@ -23,7 +23,11 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .scene import Scene, Specimen
+from .scene.document import Scene
+from .scene.physical import Specimen
+
+__all__ = ["CAO_YARN_ANGLE_DEG", "BetColumns", "force_from_normalised", "gamma_a", "ideal_energy", "ideal_force",
+           "normalised_shear_force", "shear_angle_rad", "zone_areas_m2", "zone_index"]
 
 
 def gamma_a(specimen: Specimen, u0_mm: float) -> float:

@@ -1,6 +1,6 @@
 """What ngbet's commands say on the terminal: one ``ngbet: ...`` line per message, on stderr.
 
-Log records of level WARNING and above and Python warnings (a :class:`ngbet.scene.SceneWarning`
+Log records of level WARNING and above and Python warnings (a :class:`ngbet.scene.document.SceneWarning`
 among them) are each written as one line, without the logger's name or the warning's source line;
 a line said once is not repeated within a command. ``-v`` (verbose) keeps the level, the
 logger's name, INFO records and Python's own warning format. The command line installs this for the
@@ -15,6 +15,8 @@ import sys
 import warnings
 from collections.abc import Iterator
 from typing import Any
+
+__all__ = ["OneLine", "install", "messages", "one_line", "say", "show_warning"]
 
 
 def say(msg: str) -> None:
@@ -57,7 +59,7 @@ class OneLine(logging.Formatter):
 def show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
                  file: Any = None, line: str | None = None) -> None:
     """A warning as one ``ngbet: ...`` line on stderr, without Python's source line; each once."""
-    from .scene import SceneNote, SceneWarning
+    from .scene.document import SceneNote, SceneWarning
 
     kind = ("note: " if issubclass(category, SceneNote) else "" if issubclass(category, SceneWarning)
             else f"{category.__name__}: ")

@@ -49,7 +49,11 @@ import numpy as np
 
 from .calibration.data import CurveTable, parse_sizes, read_measured, read_table, refuse_duplicates
 from .run_folder import OwnedFolder
-from .scene import SceneError
+from .scene.validate import SceneError
+
+__all__ = ["FIGURE", "SPREAD_FROM_DEG", "SPREAD_POINTS", "SUMMARY", "TABLE_SUFFIX", "Normalised", "add_parser",
+           "energy_method", "normalise_bet", "normalise_pf", "read_inputs", "run_from_args", "spread", "spread_text",
+           "spreads"]
 
 #: the spread between curves is measured from this shear angle [deg] on (below it F_sh is small and
 #: its relative spread says little) to the largest angle every curve reaches

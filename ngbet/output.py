@@ -33,31 +33,27 @@ from typing import IO, Any
 
 from .errors import NgbetError
 from .preflight import preflight
-from .provenance import DISTRIBUTIONS, git_revision, machine, versions
+from .provenance import git_revision, machine, versions
 from .run_folder import (
     FIGURE_SUFFIXES,
-    RUN_FILE_PATTERNS,
-    RUN_LOCK,
     RUN_MARKER,
     TMP_PREFIX,
     OutputError,
-    _acquire_run_folder,
-    _clear_previous_run,
-    _io,
-    _link_or_copy,
-    _remove,
+    acquire_run_folder,
     check_complete,
+    clear_previous_run,
+    file_op,
     json_text,
+    link_or_copy,
+    remove_path,
     write_json_atomic,
 )
-from .scene import Scene
-from .tables import _append_lines, _append_rows, _write_table, read_profiles, read_rows
+from .scene.document import Scene
+from .tables import append_lines, append_rows, write_table
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DISTRIBUTIONS", "FIGURE_SUFFIXES", "RUN_FILE_PATTERNS", "RUN_LOCK", "RUN_MARKER", "TMP_PREFIX",
-           "OutputError", "RunWriter", "git_revision", "interrupt_active_runs", "machine", "read_profiles",
-           "read_rows", "versions", "write_json_atomic"]
+__all__ = ["RunWriter", "interrupt_active_runs"]
 
 
 class RunWriter:
@@ -97,10 +93,10 @@ class RunWriter:
         self._files: list[str] = []  # registered by this run, in the order written
         self.warnings: list[str] = preflight(scene)  # refuses before the folder is touched
         self._lock: IO[str] | None = None
-        self._lock, previous = _acquire_run_folder(self.out)
+        self._lock, previous = acquire_run_folder(self.out)
         _ACTIVE.add(self)
         try:
-            cleared = _clear_previous_run(self.out, previous)
+            cleared = clear_previous_run(self.out, previous)
             if cleared:
                 log.info("%s: removed %d files of a previous run", self.out, len(cleared))
             self._save_registry()
@@ -134,7 +130,7 @@ class RunWriter:
             if self._lock is not None:  # what a write cut short left behind
                 with contextlib.suppress(OSError):
                     for t in self.out.glob(TMP_PREFIX + "*"):
-                        _remove(t)
+                        remove_path(t)
             self.release()
 
     # registered files ------------------------------------------------------------------------
@@ -155,12 +151,12 @@ class RunWriter:
         if fh is None:
             return
         text = json.dumps({"ngbet": "run folder", "pid": os.getpid(), "files": self._files})
-        _io(self.out / RUN_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
+        file_op(self.out / RUN_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
 
     def plot(self, start: Callable[[Path], Callable[[], Path | None]]) -> Callable[[], Path | None]:
         """Start drawing the run's figures from its finished files; the function returned finishes it.
 
-        ``start(folder)`` (the runner's: :func:`ngbet.figures.start_plot`) starts drawing the figures
+        ``start(folder)`` (the runner's: :func:`ngbet.figures.run.start_plot`) starts drawing the figures
         of the run files in ``folder``, a temporary folder of links to the files this run registered,
         and returns a function that waits for the drawing. The function returned here waits, renames
         every PNG and PDF drawn into the run folder, registered, and returns the force figure's file
@@ -168,10 +164,10 @@ class RunWriter:
         """
         tmp = self.out / (TMP_PREFIX + "plot")
         shutil.rmtree(tmp, ignore_errors=True)
-        _io(tmp, lambda d: d.mkdir())
+        file_op(tmp, lambda d: d.mkdir())
         for name in self.files():
             if not name.endswith(FIGURE_SUFFIXES):
-                _io(tmp / name, functools.partial(_link_or_copy, self.out / name))
+                file_op(tmp / name, functools.partial(link_or_copy, self.out / name))
         drawn = start(tmp)
 
         def finish() -> Path | None:
@@ -182,7 +178,7 @@ class RunWriter:
                     if fig.name.endswith(FIGURE_SUFFIXES) and fig.is_file():
                         final = self._target(fig.name)
                         self._register(fig.name)
-                        _io(final, functools.partial(os.replace, fig))
+                        file_op(final, functools.partial(os.replace, fig))
                         done[fig.name] = final
                 if done and self.status not in ("new", "running"):
                     self._write_summary()
@@ -205,7 +201,7 @@ class RunWriter:
         self._register(name)
         try:
             try:
-                _io(tmp, produce)
+                file_op(tmp, produce)
             except OutputError as exc:  # named as the file it becomes, not its temporary name
                 if exc.path != tmp:
                     raise
@@ -216,7 +212,7 @@ class RunWriter:
             if not tmp.exists():
                 return None
             check_complete(tmp, final)
-            _io(final, lambda p: os.replace(tmp, p))
+            file_op(final, lambda p: os.replace(tmp, p))
         finally:
             tmp.unlink(missing_ok=True)
         return final
@@ -238,7 +234,7 @@ class RunWriter:
         tmp_stem = self.out / (TMP_PREFIX + stem)
         made: list[Path] = []
         try:
-            made = [Path(p) for p in _io(tmp_stem, lambda p: list(produce(p)))]
+            made = [Path(p) for p in file_op(tmp_stem, lambda p: list(produce(p)))]
             done = []
             for m in made:
                 if not m.name.startswith(tmp_stem.name):
@@ -247,7 +243,7 @@ class RunWriter:
                 final = self._target(name)
                 check_complete(m, final)
                 self._register(name)
-                _io(final, functools.partial(os.replace, m))
+                file_op(final, functools.partial(os.replace, m))
                 done.append(final)
             return done
         finally:
@@ -282,18 +278,18 @@ class RunWriter:
         new = [k for k in row if k not in self._columns]
         columns = [*self._columns, *new]
         if new:
-            self.write("results.csv", lambda p: _write_table(p, columns, [*self.rows, row]))
+            self.write("results.csv", lambda p: write_table(p, columns, [*self.rows, row]))
         else:
-            _io(self.out / "results.csv", lambda p: _append_rows(p, columns, [row]))
+            file_op(self.out / "results.csv", lambda p: append_rows(p, columns, [row]))
         # counted once on disk: an interrupt before this line leaves the summary's steps = the file's rows
         self._columns = columns
         self.rows.append(row)
         if profile is not None:
             block = [[row["step"], row["u0_mm"], f"{X_mm:.6g}", f"{uy_mm:.9g}"] for X_mm, uy_mm in profile]
             if "profile.csv" in self._files:
-                _io(self.out / "profile.csv", lambda p: _append_lines(p, block))
+                file_op(self.out / "profile.csv", lambda p: append_lines(p, block))
             else:
-                self.write("profile.csv", lambda p: _append_lines(p, [["step", "u0_mm", "X_mm", "uy_mm"], *block]))
+                self.write("profile.csv", lambda p: append_lines(p, [["step", "u0_mm", "X_mm", "uy_mm"], *block]))
 
     # summary.json ----------------------------------------------------------------------------
     def summary(self, info: dict[str, Any], status: str, error: str | None = None) -> dict[str, Any]:
@@ -336,9 +332,9 @@ class RunWriter:
         ``files`` is taken from the folder's registry, the rest of the summary is kept.
         """
         out = Path(out)
-        fh, registry = _acquire_run_folder(out)
+        fh, registry = acquire_run_folder(out)
         try:
-            s = json.loads(_io(out / "summary.json", lambda p: p.read_text()))
+            s = json.loads(file_op(out / "summary.json", lambda p: p.read_text()))
             s.update(updates)
             s["files"] = sorted(n for n in registry if (out / n).is_file())
             write_json_atomic(out / "summary.json", s)

@@ -6,7 +6,7 @@ the command starts this process before it imports NGSolve: it imports matplotlib
 throw-away figures while the run solves, then waits on its stdin for the run folder, draws the
 run's figures (``force``, ``shear_force``, ``profile``, ``shear_map``, in the scene's
 ``outputs.figure_formats``) with the same function as the run itself
-(:func:`ngbet.figures.draw_force`, so the figures are the same; when a whole core is idle, each
+(:func:`ngbet.figures.run.draw_force`, so the figures are the same; when a whole core is idle, each
 figure drawn by a forked child, all four at once: on a busy machine the children cost about 20 %
 more CPU time and gain nothing) and answers on its stdout with the force figure's file.
 
@@ -38,6 +38,9 @@ from collections.abc import Iterable, Iterator, Sequence
 from importlib.util import find_spec
 from pathlib import Path
 from typing import IO, Any
+
+__all__ = ["CHOICES", "ENV", "SPARE_CORES", "PlotProcess", "PlotProcessError", "active", "plot_process", "serve",
+           "wanted"]
 
 log = logging.getLogger(__name__)
 
@@ -181,7 +184,7 @@ def serve(stdin: IO[bytes] | None = None, stdout: IO[bytes] | None = None) -> No
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides
     stdin = stdin or sys.stdin.buffer
     stdout = stdout or sys.stdout.buffer
-    from .figures import draw_force, warm_up
+    from .figures.run import draw_force, warm_up
 
     try:
         warm_up()

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import os
 import platform
-from pathlib import Path
 from typing import Any
+
+__all__ = ["DISTRIBUTIONS", "git_revision", "machine", "versions"]
 
 #: module -> the distribution that installs it
 DISTRIBUTIONS = {"ngbet": "ngbet", "ngsolve": "ngsolve", "netgen": "netgen-mesher", "numpy": "numpy", "scipy": "scipy"}
@@ -34,7 +35,7 @@ def versions() -> dict[str, str]:
     return out
 
 
-def git_revision(path: Path | None = None) -> str:
+def git_revision() -> str:
     """The git revision of ngbet (the checkout's, or the one recorded at install), or 'unknown'."""
     from .revision import revision
 

@@ -10,6 +10,8 @@ An editable install keeps what it recorded when it was installed. Nothing here a
 
 from __future__ import annotations
 
+__all__ = ["revision"]
+
 
 def _recorded() -> tuple[str, str]:
     try:

@@ -9,7 +9,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from .scene import Scene, SceneError
+from .scene.document import Scene
+from .scene.validate import SceneError
+
+__all__ = ["IDLE_CORES_FOR_THREADS", "ngsolve_threads", "run", "thread_policy"]
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +95,7 @@ def run(scene: Scene, out: str | Path, progress: bool = False, measured: Any = N
     ngbet.errors.ConvergenceError
         when the load cannot be carried to the end; every converged step is on disk by then,
         and summary.json says ``"status": "failed"`` with the error.
-    ngbet.scene.SceneError
+    ngbet.scene.validate.SceneError
         when the scene asks for what this installation lacks (``solver.linear_solver = "cholmod"``
         without cvxopt), before anything is written.
     """
@@ -105,9 +108,9 @@ def run(scene: Scene, out: str | Path, progress: bool = False, measured: Any = N
                              "'sparsecholesky')")
     with ngsolve_threads(scene):
         if scene.model == "discrete":
-            from . import discrete
+            from .discrete.run import run as run_discrete
 
-            return discrete.run(scene, out, progress=progress, measured=measured)
+            return run_discrete(scene, out, progress=progress, measured=measured)
         from .continuum.run import run_continuum
 
         return run_continuum(scene, Path(out), progress, measured)

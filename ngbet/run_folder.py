@@ -1,7 +1,7 @@
 """A run folder on disk: ngbet's mark and lock, what a run may remove or replace, atomic writes.
 
-:class:`ngbet.output.RunWriter` takes a folder through :func:`_acquire_run_folder` and
-:func:`_clear_previous_run` and writes every file with :func:`write_json_atomic` and :func:`_io`;
+:class:`ngbet.output.RunWriter` takes a folder through :func:`acquire_run_folder` and
+:func:`clear_previous_run` and writes every file with :func:`write_json_atomic` and :func:`file_op`;
 nothing else writes into a run folder.
 """
 
@@ -20,6 +20,10 @@ from pathlib import Path
 from typing import IO, Any
 
 from .errors import NgbetError
+
+__all__ = ["FIGURE_SUFFIXES", "RUN_FILE_PATTERNS", "RUN_LOCK", "RUN_MARKER", "TMP_PREFIX", "OutputError",
+           "acquire_run_folder", "clear_previous_run", "file_op", "jsonable", "link_or_copy", "remove_path",
+           "write_json_atomic"]
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +45,6 @@ RUN_FILE_PATTERNS = ("scene.toml", "summary.json", "results.csv", "profile.csv",
                      "instability_mode.vtu", "instability_mode.png")
 #: the run's figures: drawn from its files, never read by a figure
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
-# what an ngbet run before the marker listed its files wrote into every folder (the summary lists the rest)
-_OLD_CORE = ("scene.toml", "summary.json", "summary.json.tmp", "results.csv", "profile.csv")
 
 
 class OutputError(NgbetError):
@@ -56,7 +58,7 @@ class OutputError(NgbetError):
         self.path = Path(path)
 
 
-def _link_or_copy(src: Path, dst: Path) -> None:
+def link_or_copy(src: Path, dst: Path) -> None:
     """``dst`` a hard link to ``src`` (a copy where the file system has none)."""
     try:
         os.link(src, dst)
@@ -68,13 +70,13 @@ def write_json_atomic(path: Path, data: Any) -> None:
     """Write JSON to a temporary file and rename it: a reader sees the old or the new file, never half."""
     tmp = path.with_name(TMP_PREFIX + path.name)
     try:
-        _io(tmp, lambda p: p.write_text(json_text(data)))
-        _io(path, lambda p: os.replace(tmp, p))
+        file_op(tmp, lambda p: p.write_text(json_text(data)))
+        file_op(path, lambda p: os.replace(tmp, p))
     finally:
         tmp.unlink(missing_ok=True)
 
 
-def _io(path: Path, action: Callable[[Path], Any]) -> Any:
+def file_op(path: Path, action: Callable[[Path], Any]) -> Any:
     """Run a file operation; an OSError becomes an OutputError naming the path."""
     try:
         return action(path)
@@ -95,20 +97,20 @@ def _why_not_found(path: Path, exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
-def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
+def acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
     """Create ``out`` if needed, refuse it if it cannot be a run folder, and lock it.
 
     Returns the locked marker and the files the previous runs into the folder registered.
     """
     if out.exists() and not out.is_dir():
         raise OutputError(out, "a file is in the place of the output folder")
-    _io(out, lambda p: p.mkdir(parents=True, exist_ok=True))
-    names = {p.name for p in _io(out, lambda p: list(p.iterdir()))}
+    file_op(out, lambda p: p.mkdir(parents=True, exist_ok=True))
+    names = {p.name for p in file_op(out, lambda p: list(p.iterdir()))}
     if names and RUN_MARKER not in names:
         raise OutputError(out, f"not empty and not an ngbet run folder (it holds {', '.join(sorted(names)[:5])}"
                                f"{', ...' if len(names) > 5 else ''}; ngbet marks its run folders with "
                                f"{RUN_MARKER}); choose another --out")
-    fh = _io(out / RUN_MARKER, lambda p: p.open("a+"))
+    fh = file_op(out / RUN_MARKER, lambda p: p.open("a+"))
     try:
         fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -135,8 +137,8 @@ def _acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
         raise
     fh.seek(0)
     previous = _marker_record(fh.read()).get("files")
-    if not isinstance(previous, list):  # a folder of an ngbet that kept the list in summary.json only
-        previous = [*_OLD_CORE, *_summary_files(out)]
+    if not isinstance(previous, list):  # a new folder: its marker is empty
+        previous = []
     return fh, [n for n in previous if isinstance(n, str) and n and "/" not in n and not n.startswith(".")]
 
 
@@ -162,7 +164,7 @@ def _probe_longest(out: Path) -> None:
         shutil.rmtree(d, ignore_errors=True)
 
 
-def _remove(p: Path) -> None:
+def remove_path(p: Path) -> None:
     """Remove a file, or a temporary folder with what is in it."""
     if p.is_dir() and not p.is_symlink():
         shutil.rmtree(p)
@@ -171,22 +173,15 @@ def _remove(p: Path) -> None:
 
 
 def _marker_record(text: str) -> dict[str, Any]:
+    """The marker's record (``pid``, ``files``); empty for a new marker or one that is not a JSON object."""
     try:
         rec = json.loads(text)
     except ValueError:
-        return {"pid": text.strip()} if text.strip().isdigit() else {}
+        return {}
     return rec if isinstance(rec, dict) else {}
 
 
-def _summary_files(out: Path) -> list[str]:
-    try:
-        files = json.loads((out / "summary.json").read_text()).get("files", [])
-    except (OSError, ValueError, AttributeError):
-        return []
-    return files if isinstance(files, list) else []
-
-
-def _clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
+def clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
     """Remove the files previous ngbet runs registered in ``out`` (and their temporary files).
 
     Anything else stays (with a warning). A file with the name of one an ngbet run writes
@@ -219,7 +214,7 @@ def _remove_all_or_none(out: Path, doomed: list[Path]) -> list[Path]:
     if not doomed:
         return []
     trash = out / f"{TMP_PREFIX}previous.{os.getpid()}"
-    _io(trash, lambda p: p.mkdir(exist_ok=True))
+    file_op(trash, lambda p: p.mkdir(exist_ok=True))
     moved: list[Path] = []
     try:
         for p in doomed:
@@ -279,10 +274,11 @@ def strict(o: Any) -> Any:
 
 def json_text(data: Any) -> str:
     """Strict JSON of ``data`` (no bare NaN or Infinity: null), indented; numpy values as lists and numbers."""
-    return json.dumps(strict(data), indent=2, default=_jsonable, allow_nan=False)
+    return json.dumps(strict(data), indent=2, default=jsonable, allow_nan=False)
 
 
-def _jsonable(o: Any) -> Any:
+def jsonable(o: Any) -> Any:
+    """A JSON-writable stand-in for ``o`` (``json.dumps(default=...)``): arrays, sets, tuples as lists, else text."""
     if hasattr(o, "tolist"):
         return o.tolist()
     if isinstance(o, (set, tuple)):
@@ -317,8 +313,8 @@ class OwnedFolder:
         out = self.out
         if out.exists() and not out.is_dir():
             raise OutputError(out, "a file is in the place of the output folder")
-        _io(out, lambda p: p.mkdir(parents=True, exist_ok=True))
-        names = {p.name for p in _io(out, lambda p: list(p.iterdir()))}
+        file_op(out, lambda p: p.mkdir(parents=True, exist_ok=True))
+        names = {p.name for p in file_op(out, lambda p: list(p.iterdir()))}
         if RUN_MARKER in names:
             raise OutputError(out, f"an ngbet run folder (it holds {RUN_MARKER}); a {kind} writes a folder of its "
                                    "own: choose another --out")
@@ -326,7 +322,7 @@ class OwnedFolder:
             raise OutputError(out, f"not empty and not written by an ngbet {kind} (it holds "
                                    f"{', '.join(sorted(names)[:5])}{', ...' if len(names) > 5 else ''}; ngbet marks "
                                    f"the folders it writes with {FOLDER_MARKER}); choose another --out")
-        self._fh: IO[str] | None = _io(out / FOLDER_MARKER, lambda p: p.open("a+"))
+        self._fh: IO[str] | None = file_op(out / FOLDER_MARKER, lambda p: p.open("a+"))
         self._before: dict[str, tuple[int, int, int]] = {}
         self.previous: list[str] = []
         try:
@@ -350,7 +346,7 @@ class OwnedFolder:
                 raise OutputError(out, f"holds {', '.join(clash)}, which no ngbet {kind} wrote there (this {kind} "
                                        "could replace them): move them or choose another --out")
             probe = out / f"{TMP_PREFIX}probe.{os.getpid()}"
-            _io(probe, lambda p: p.write_bytes(b""))
+            file_op(probe, lambda p: p.write_bytes(b""))
             probe.unlink()
             self._before = self._stat_files()
             self._save(self.previous)
@@ -373,7 +369,7 @@ class OwnedFolder:
             return
         text = json.dumps({"ngbet": "folder", "kind": self.kind, "name": self.name, "pid": os.getpid(),
                            "files": sorted(set(files))})
-        _io(self.out / FOLDER_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
+        file_op(self.out / FOLDER_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
 
     def write(self, name: str, produce: Callable[[Path], Any]) -> Path:
         """Write the file ``name`` complete: ``produce(tmp)`` writes a temporary file, renamed when complete.
@@ -384,9 +380,9 @@ class OwnedFolder:
         final = self.out / name
         tmp = self.out / (TMP_PREFIX + name)
         try:
-            _io(tmp, produce)
+            file_op(tmp, produce)
             check_complete(tmp, final)
-            _io(final, lambda p: os.replace(tmp, p))
+            file_op(final, lambda p: os.replace(tmp, p))
         finally:
             tmp.unlink(missing_ok=True)
         return final
@@ -395,7 +391,7 @@ class OwnedFolder:
         """Remove files of ``names`` that a command of this folder wrote (a user's file is never removed)."""
         for n in names:
             if n in self.previous:
-                _io(self.out / n, lambda p: p.unlink(missing_ok=True))
+                file_op(self.out / n, lambda p: p.unlink(missing_ok=True))
 
     def written(self) -> list[str]:
         """The files created or replaced in the folder since it was taken."""
@@ -411,7 +407,7 @@ class OwnedFolder:
         now = self.written()
         gone = [n for n in self.previous if n not in now and (self.out / n).is_file()] if stale else []
         for n in gone:
-            _io(self.out / n, lambda p: p.unlink(missing_ok=True))
+            file_op(self.out / n, lambda p: p.unlink(missing_ok=True))
         self.previous = sorted({*now, *(n for n in self.previous if n not in gone)}) if not stale else now
         self._save(self.previous)
         self._before = self._stat_files()

@@ -16,7 +16,11 @@ from typing import Any
 
 import tomli_w
 
-from . import scene as S
+from .scene.document import MODELS, SECTIONS, Scene
+from .scene.numerical import FIELD_OUTPUTS, LINEAR_SOLVERS
+from .scene.physical import CONSTRAINTS, PENALTY_FORMS, TESTS
+
+__all__ = ["HEADER", "commented_toml", "key_comments"]
 
 HEADER = """\
 # ngbet scene: a bias extension test (BET) or a picture-frame test of a woven fabric. Every key is
@@ -31,15 +35,15 @@ HEADER = """\
 """
 
 _CHOICES: dict[str, tuple[Any, ...]] = {
-    "model": S.MODELS,
-    "effects.constraint": S.CONSTRAINTS,
-    "effects.penalty_form": S.PENALTY_FORMS,
-    "solver.linear_solver": S.LINEAR_SOLVERS,
+    "model": MODELS,
+    "effects.constraint": CONSTRAINTS,
+    "effects.penalty_form": PENALTY_FORMS,
+    "solver.linear_solver": LINEAR_SOLVERS,
     "solver.predictor": ("tangent", "clamp"),
     "solver.path_following": ("displacement", "arclength", "auto"),
     "solver.compile": ("auto", "interpret", "native"),
     "solver.branch": ("stay", "switch"),
-    "outputs.fields": S.FIELD_OUTPUTS,
+    "outputs.fields": FIELD_OUTPUTS,
     "discrete.inter_layout": ("neighbours", "none"),
     "discrete.end_rotation": ("free", "held"),
 }
@@ -69,7 +73,12 @@ _KEY = re.compile(r"^\s{4}(\w+)\s*:\s*[^=]+=\s*(?P<default>.*)$")
 
 
 def key_comments(cls: type) -> dict[str, str]:
-    """The comment beside or above each field in the source of a scene section."""
+    """{field name: its comment} of a scene section ``cls``, read from its source.
+
+    A field's comment is the comment lines right above it and the comment beside it, joined; a
+    field without either gets an empty string. Without the source (never installed) the result is
+    empty, and the scene is written without key comments.
+    """
     try:
         lines = inspect.getsource(cls).splitlines()
     except (OSError, TypeError):  # pragma: no cover - sources not installed
@@ -97,13 +106,13 @@ def _value(key: str, value: Any) -> str:
     return tomli_w.dumps({key: value}).strip()
 
 
-def commented_toml(scene: S.Scene) -> str:
+def commented_toml(scene: Scene) -> str:
     """The complete scene as TOML with comments; reading it back gives the same scene."""
     d = scene.to_dict()
-    parts = [HEADER, "\n", _comment(f"{_MODEL_DOC}; one of {', '.join(map(repr, S.MODELS))}"),
+    parts = [HEADER, "\n", _comment(f"{_MODEL_DOC}; one of {', '.join(map(repr, MODELS))}"),
              _value("model", d["model"]), "\n",
-             _comment(f"{_TEST_DOC}; one of {', '.join(map(repr, S.TESTS))}"), _value("test", d["test"]), "\n"]
-    for name, cls in S._SECTIONS.items():
+             _comment(f"{_TEST_DOC}; one of {', '.join(map(repr, TESTS))}"), _value("test", d["test"]), "\n"]
+    for name, cls in SECTIONS.items():
         doc = (inspect.getdoc(cls) or "").split("\n\n")[0].replace("\n", " ")
         parts += ["\n", _comment(doc), f"[{name}]\n"]
         notes = key_comments(cls)

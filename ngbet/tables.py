@@ -9,23 +9,26 @@ import os
 from pathlib import Path
 from typing import Any
 
+__all__ = ["append_lines", "append_rows", "read_profiles", "read_rows", "write_table"]
 
-def _write_table(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+
+def write_table(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+    """Write a CSV table with the header ``columns`` and the ``rows`` (dicts by column)."""
     with path.open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n")
         w.writeheader()
         w.writerows(rows)
 
 
-def _append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
-    """Append complete rows in one write (see :func:`_append`)."""
+def append_rows(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+    """Append complete rows in one write (a reader never sees half a row unless the disk fails)."""
     buf = io.StringIO()
     csv.DictWriter(buf, fieldnames=columns, lineterminator="\n").writerows(rows)
     _append(path, buf.getvalue())
 
 
-def _append_lines(path: Path, lines: list[list[Any]]) -> None:
-    """Append complete lines, a step's profile block (see :func:`_append`)."""
+def append_lines(path: Path, lines: list[list[Any]]) -> None:
+    """Append complete CSV lines (lists of values) in one write."""
     buf = io.StringIO()
     csv.writer(buf, lineterminator="\n").writerows(lines)
     _append(path, buf.getvalue())
@@ -73,7 +76,10 @@ def _num(v: str) -> Any:
 
 
 def read_profiles(path: str | Path) -> dict[float, tuple[list[float], list[float]]]:
-    """profile.csv -> {u0_mm: (X_mm, uy_mm)}."""
+    """The mid-axis profiles of a profile.csv: {u0 [mm]: (X [mm], u_y [mm])}, in the file's order.
+
+    Read through :func:`read_rows`, so a last line cut short is left out.
+    """
     out: dict[float, tuple[list[float], list[float]]] = {}
     for r in read_rows(path):
         X, uy = out.setdefault(float(r["u0_mm"]), ([], []))

@@ -2,10 +2,12 @@
 
 This folder is the package ``ngbet.studies`` (installed from the top-level ``studies/`` of the
 repository). Each module defines ``build(quick: bool = False, scene: Scene | None = None) ->
-ngbet.study.Study`` (``scene``: the base scene, default ``ngbet.default_scene()``) and ``main``.
+ngbet.study.model.Study`` (``scene``: the base scene, default ``ngbet.default_scene()``) and ``main``.
 ``ngbet study NAME [scene.toml] [--set ...]`` runs the same thing. A new study is a module here
 and one line in :data:`STUDIES`, the one list of the studies. See docs/studies.md.
 """
+
+__all__ = ["STUDIES"]
 
 STUDIES = {
     "penalty_p": "penalty K x p (and h) convergence against the Lagrange solution and the scene's reference",

@@ -9,8 +9,14 @@ from typing import Any
 
 import numpy as np
 
-from ngbet.scene import Scene, SceneError, SceneWarning, default_scene
-from ngbet.study import MissingValueError, StudyData
+from ngbet.scene.document import Scene, SceneWarning, default_scene
+from ngbet.scene.validate import SceneError
+from ngbet.study.model import MissingValueError, StudyData
+
+__all__ = ["BISECT", "CON", "FORM", "FREE_ORDERS", "GRADE", "H", "K", "P", "QUICK", "base_scene", "colormap",
+           "describe_discretization", "describe_mesh", "dofs", "fmt", "header", "lagrange", "lagrange_case",
+           "loglog_slope", "mesh", "ok", "param", "penalty", "profile_error", "reference", "require_continuum",
+           "short_log_axis", "sorted_values", "stations", "study_scene", "total_iterations", "unique", "wall"]
 
 H = "discretization.mesh_size_mm"
 P = "discretization.order_u"
@@ -212,15 +218,15 @@ def header(data: StudyData, title: str, reference: str) -> list[str]:
 
 
 def short_log_axis(ax: Any, axis: str = "x") -> None:
-    """:func:`ngbet.figures.short_log_axis`."""
-    from ngbet.figures import short_log_axis as sla
+    """:func:`ngbet.figures.style.short_log_axis`."""
+    from ngbet.figures.style import short_log_axis as sla
 
     sla(ax, axis)
 
 
 def colormap(name: str = "viridis") -> Any:
-    """:func:`ngbet.figures.colormap`: a sequential colour map without its palest end."""
-    from ngbet.figures import colormap as cm
+    """:func:`ngbet.figures.style.colormap`: a sequential colour map without its palest end."""
+    from ngbet.figures.style import colormap as cm
 
     return cm(name)
 

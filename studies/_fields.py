@@ -13,6 +13,9 @@ from typing import Any
 
 import numpy as np
 
+__all__ = ["deformed_yarns", "lines_polydata", "midline_field", "outline", "sample_displacement", "warped_mm",
+           "write_yarns_vtp", "yarn_lines_reference"]
+
 os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
 
 

@@ -15,11 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ngbet.scene import Scene
-from ngbet.study import Study, StudyData, main_for, savefig
+from ngbet.figures.style import eng
+from ngbet.scene.document import Scene
+from ngbet.study.command import main_for
+from ngbet.study.figures import savefig
+from ngbet.study.model import Study, StudyData
 
 from . import _common as C
 from . import reference as R
+
+__all__ = ["A1", "FULL", "QUICK", "analyse", "build", "main", "plot", "report"]
 
 A1 = "material.alpha1"
 FULL = (20.0, 200.0, 2000.0, 20000.0)
@@ -66,20 +71,21 @@ def report(data: StudyData, quick: bool) -> str:
 
 
 def plot(data: StudyData, quick: bool) -> list[Path]:
-    from ngbet import figures as FG
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import legend_below, put_caption, subplots
 
     s2 = C.stations(quick, data)[1]
-    fig, ax = FG.subplots(size=(7, 4))
+    fig, ax = subplots(size=(7, 4))
     for j, r in enumerate(analyse(data, quick)):
         X, uy = data.profile(r["case"], s2)
         ax.plot(X, uy, color=f"C{j}", lw=2.5 if r["balanced"] else 1.5,
-                label=f"α1 = {FG.eng(r['alpha1'], 'Pa m²')}" + (" = α2 (balanced)" if r["balanced"] else ""))
+                label=f"α1 = {eng(r['alpha1'], 'Pa m²')}" + (" = α2 (balanced)" if r["balanced"] else ""))
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
     ax.set_ylabel("vertical displacement u_y [mm]")
     ax.set_title(f"mid-axis profile at u₀ = {s2:g} mm")
-    FG.legend_below(fig, ncol=2)
-    FG.put_caption(fig, FG.study_caption(data.meta))
+    legend_below(fig, ncol=2)
+    put_caption(fig, study_caption(data.meta))
     return [savefig(fig, data.out, "alpha1_profiles")]
 
 

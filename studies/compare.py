@@ -24,11 +24,15 @@ from typing import Any
 import numpy as np
 
 from ngbet.kinematics import ideal_force
-from ngbet.scene import Scene, SceneWarning
-from ngbet.study import Study, StudyData, main_for, savefig
+from ngbet.scene.document import Scene, SceneWarning
+from ngbet.study.command import main_for
+from ngbet.study.figures import savefig
+from ngbet.study.model import Study, StudyData
 
 from . import _common as C
 from . import reference as R
+
+__all__ = ["CASES", "EQUIVALENT", "LABELS", "analyse", "build", "extract", "label", "main", "plot", "report"]
 
 CASES: list[dict[str, Any]] = [{"model": "continuum", "outputs.vtk": True, "outputs.vtk_every_step": True},
                                {"model": "discrete"}]
@@ -169,13 +173,14 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
     """Force curves of the three models and their mid-axis profiles at the two stations."""
     from matplotlib.lines import Line2D
 
-    from ngbet import figures as FG
+    from ngbet.figures.curves import curve_with_jumps
+    from ngbet.figures.style import FORCE_LABEL, U0_LABEL, caption, legend_below, put_caption, subplots
 
     s1, s2 = C.stations(quick, data)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
         scene = Scene.from_dict(data.meta["base_scene"])
-    fig, axs = FG.subplots(1, 3, size=(14, 4.6))
+    fig, axs = subplots(1, 3, size=(14, 4.6))
     snapped = False
     for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True):
         i = _case(data, m)
@@ -184,7 +189,7 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
         rows = data.case_rows(i)
         snap = [float(r.get("snap") or 0.0) for r in rows] if rows and "snap" in rows[0] else None
         snapped = snapped or bool(snap and any(snap))
-        FG.curve_with_jumps(axs[0], [r["u0_mm"] for r in rows], [r["force_N"] for r in rows], snap, label=m,
+        curve_with_jumps(axs[0], [r["u0_mm"] for r in rows], [r["force_N"] for r in rows], snap, label=m,
                             color=col, jump_label=None)
         for ax, s in ((axs[1], s1), (axs[2], s2)):
             X, uy = data.profile(i, s)
@@ -192,8 +197,8 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
                 ax.plot(X, uy, color=col, label=m)
     u = np.linspace(0.5, scene.loading.u0_mm, 60)
     axs[0].plot(u, [ideal_force(scene, x) for x in u], "k--", lw=1, label="ideal kinematics (shear only)")
-    axs[0].set_xlabel(FG.U0_LABEL)
-    axs[0].set_ylabel(FG.FORCE_LABEL)
+    axs[0].set_xlabel(U0_LABEL)
+    axs[0].set_ylabel(FORCE_LABEL)
     axs[0].set_xlim(left=0)
     for ax, s in ((axs[1], s1), (axs[2], s2)):
         ax.set_title(f"mid-axis profile at u₀ = {s:g} mm")
@@ -206,29 +211,30 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
     handles.append(Line2D([], [], color="k", ls="--", lw=1, label="ideal kinematics (shear only)"))
     if snapped:
         handles.append(Line2D([], [], color="0.3", ls="--", lw=1.2, label="snap-through (vertical dashed jump)"))
-    FG.legend_below(fig, handles, ncol=len(handles))
-    FG.put_caption(fig, FG.caption(data.meta["base_scene"]) + "; the three models of the legend")
+    legend_below(fig, handles, ncol=len(handles))
+    put_caption(fig, caption(data.meta["base_scene"]) + "; the three models of the legend")
     return savefig(fig, data.out, "compare_curves")
 
 
 def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
     """Shear-angle maps of the continuum beside the deformed network, one row per saved load, one colour scale."""
-    from ngbet import figures as FG
+    from ngbet.figures.maps import colour_bar, colour_scale, map_panel
+    from ngbet.figures.style import caption, put_caption, subplots
 
     sp = data.meta["base_scene"]["specimen"]
     loads = sorted({u for _, u in files})
     cont = {u: _continuum_map(files[("continuum", u)], sp) for u in loads if ("continuum", u) in files}
     disc = {u: _discrete_segments(files[("discrete", u)]) for u in loads if ("discrete", u) in files}
-    cs = FG.colour_scale([m.gamma_deg for m, _ in cont.values()] + [a for _, _, a in disc.values()])
+    cs = colour_scale([m.gamma_deg for m, _ in cont.values()] + [a for _, _, a in disc.values()])
     norm = cs.norm()
     L, W = float(sp["length_mm"]), float(sp["width_mm"])
-    fig, axs = FG.subplots(len(loads), 2, size=(11, 0.7 + len(loads) * (0.85 + 4.2 * min(W / L, 1.0))),
+    fig, axs = subplots(len(loads), 2, size=(11, 0.7 + len(loads) * (0.85 + 4.2 * min(W / L, 1.0))),
                            squeeze=False, layout="compressed")
     art = None
     for row, u0 in enumerate(loads):
         if u0 in cont:
             m, yarns = cont[u0]
-            art = FG.map_panel(axs[row, 0], m, cs, norm, yarns)
+            art = map_panel(axs[row, 0], m, cs, norm, yarns)
         axs[row, 0].set_title(f"continuum, u₀ = {u0:g} mm (thick yarns black, thin grey)")
         if u0 in disc:
             lc = _map_discrete(axs[row, 1], disc[u0], cs, norm)
@@ -244,15 +250,15 @@ def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
     for ax in axs[-1]:
         ax.set_xlabel("x (deformed) [mm]")
     if art is not None:
-        FG.colour_bar(fig, axs, art, cs)
-    FG.put_caption(fig, FG.caption(data.meta["base_scene"]) + " (the continuum's); the network of the same "
+        colour_bar(fig, axs, art, cs)
+    put_caption(fig, caption(data.meta["base_scene"]) + " (the continuum's); the network of the same "
                    "specimen with its own parameters (paper Table 2)" + (f"; {cs.note()}" if cs.note() else ""))
     return savefig(fig, data.out, "compare_maps")
 
 
 def _continuum_map(vtu: Path, sp: dict[str, Any]) -> tuple[Any, dict[int, list[np.ndarray]]]:
     """The continuum's shear angle on the deformed specimen (a triangulated map) and its yarns."""
-    from ngbet.figures import MapData
+    from ngbet.figures.data import MapData
 
     from . import _fields as F
 

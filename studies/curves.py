@@ -16,11 +16,15 @@ from pathlib import Path
 import numpy as np
 
 from ngbet.kinematics import ideal_force
-from ngbet.scene import Scene
-from ngbet.study import Study, StudyData, main_for, savefig
+from ngbet.scene.document import Scene
+from ngbet.study.command import main_for
+from ngbet.study.figures import savefig
+from ngbet.study.model import Study, StudyData
 
 from . import _common as C
 from . import reference as R
+
+__all__ = ["analyse", "build", "main", "plot", "report"]
 
 
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
@@ -58,27 +62,29 @@ def report(data: StudyData, quick: bool = False) -> str:
 
 
 def plot(data: StudyData) -> list[Path]:
-    from ngbet import figures as FG
+    from ngbet.figures.curves import curve_with_jumps
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import FORCE_LABEL, U0_LABEL, put_caption, subplots
 
     a = analyse(data)
-    fig, axs = FG.subplots(1, 2, size=(12, 4.3))
+    fig, axs = subplots(1, 2, size=(12, 4.3))
     ax = axs[0]
-    FG.curve_with_jumps(ax, a["u0"], a["F"], a.get("snap"), label="reaction (volume integral)")
+    curve_with_jumps(ax, a["u0"], a["F"], a.get("snap"), label="reaction (volume integral)")
     inner = slice(1, len(a["u0"]) - 1)  # central differences: the interior steps, as in the report
     ax.plot(a["u0"][inner], a["dE"][inner], "x", ms=5, label="dE/du₀ (envelope theorem, interior steps)")
     ax.plot(np.r_[0, a["u0"]], np.r_[0, a["Fid"]], "k--", label="ideal BET kinematics (shear only)")
-    ax.set_xlabel(FG.U0_LABEL)
-    ax.set_ylabel(FG.FORCE_LABEL)
+    ax.set_xlabel(U0_LABEL)
+    ax.set_ylabel(FORCE_LABEL)
     ax.set_xlim(left=0)
     ax.set_title("(a) force")
     ax.legend(loc="upper left")
     ax = axs[1]
-    FG.curve_with_jumps(ax, a["u0"], a["T"], a.get("snap"), color="C3", marker="s", label="double force")
-    ax.set_xlabel(FG.U0_LABEL)
+    curve_with_jumps(ax, a["u0"], a["T"], a.get("snap"), color="C3", marker="s", label="double force")
+    ax.set_xlabel(U0_LABEL)
     ax.set_ylabel("double force on the moving clamp [N m]")
     ax.set_xlim(left=0)
     ax.set_title("(b) double force (no ideal-kinematics estimate: it has no bending)")
-    FG.put_caption(fig, FG.study_caption(data.meta))
+    put_caption(fig, study_caption(data.meta))
     return [savefig(fig, data.out, "curves")]
 
 

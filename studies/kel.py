@@ -15,11 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ngbet.scene import Scene
-from ngbet.study import Study, StudyData, main_for, savefig
+from ngbet.figures.style import eng
+from ngbet.scene.document import Scene
+from ngbet.study.command import main_for
+from ngbet.study.figures import savefig
+from ngbet.study.model import Study, StudyData
 
 from . import _common as C
 from . import reference as R
+
+__all__ = ["FULL", "KEL", "QUICK", "build", "extract", "main", "plot", "report", "widths"]
 
 KEL = "material.K_el"
 FULL = (0.1e6, 0.3e6, 0.7e6, 2e6, 7e6)
@@ -83,15 +88,16 @@ def report(data: StudyData, quick: bool = False) -> str:
 
 
 def plot(data: StudyData) -> list[Path]:
-    from ngbet import figures as FG
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import legend_below, put_caption, subplots
 
     u0 = data.meta["base_scene"]["loading"]["u0_mm"]
-    fig, ax = FG.subplots(size=(10, 4), layout="compressed")
+    fig, ax = subplots(size=(10, 4), layout="compressed")
     for j, r in enumerate(widths(data)):
         pts = [q for q in data.tables.get("outlines", []) if int(q["case"]) == r["case"]]
         if pts:
             ax.plot([q["x_mm"] for q in pts], [q["y_mm"] for q in pts], color=f"C{j}",
-                    label=f"K_el = {FG.eng(r['K_el'], 'Pa')} (width at centre {r['width_mm']:.1f} mm)")
+                    label=f"K_el = {eng(r['K_el'], 'Pa')} (width at centre {r['width_mm']:.1f} mm)")
     L = data.meta["base_scene"]["specimen"]["length_mm"]
     W = data.meta["base_scene"]["specimen"]["width_mm"]
     ax.plot([0, L, L, 0, 0], [0, 0, W, W, 0], "k:", lw=0.8, label="undeformed specimen")
@@ -99,8 +105,8 @@ def plot(data: StudyData) -> list[Path]:
     ax.set_xlabel("x (deformed) [mm]")
     ax.set_ylabel("y [mm]")
     ax.set_title(f"deformed outlines at u₀ = {u0:g} mm")
-    FG.legend_below(fig, ncol=2)
-    FG.put_caption(fig, FG.study_caption(data.meta))
+    legend_below(fig, ncol=2)
+    put_caption(fig, study_caption(data.meta))
     return [savefig(fig, data.out, "kel_outlines")]
 
 

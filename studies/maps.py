@@ -17,11 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ngbet.scene import Scene
-from ngbet.study import Study, StudyData, main_for, savefig
+from ngbet.scene.document import Scene
+from ngbet.study.command import main_for
+from ngbet.study.figures import savefig
+from ngbet.study.model import Study, StudyData
 
 from . import _common as C
 from . import reference as R
+
+__all__ = ["YARN_SPACING_MM", "build", "deformed_yarns", "extract", "main", "plot", "report", "step_vtu"]
 
 YARN_SPACING_MM = 10.0  # drawn yarns (one line per 10 mm; the fabric's yarns are denser)
 
@@ -34,7 +38,7 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
 
 def step_vtu(run_dir: Path, u0: float) -> Path | None:
     """The fields file of the step at ``u0`` [mm] of a run with ``outputs.vtk_every_step`` (None: no such step)."""
-    from ngbet.output import read_rows
+    from ngbet.tables import read_rows
 
     for r in read_rows(run_dir / "results.csv"):
         if abs(r["u0_mm"] - u0) < 1e-6:
@@ -43,7 +47,7 @@ def step_vtu(run_dir: Path, u0: float) -> Path | None:
 
 
 def extract(rec: dict, run_dir: Path, out: Path) -> dict:
-    from ngbet.figures import map_file_name
+    from ngbet.figures.data import map_file_name
 
     sc = rec["scene"]
     rows = []
@@ -91,18 +95,19 @@ def deformed_yarns(npz: Path, L_mm: float, W_mm: float, angle_deg: float,
 
 
 def plot(data: StudyData) -> list[Path]:
-    from ngbet import figures as FG
+    from ngbet.figures.data import MapData
+    from ngbet.figures.maps import shear_map_figure
 
     sp = data.meta["base_scene"]["specimen"]
     maps, yarns = [], {}
     for r in data.tables.get("maps", []):
         npz = data.out / r["data"]
         with np.load(npz) as z:
-            maps.append(FG.MapData(float(z["u0_mm"]), z["X_mm"] + z["ux_mm"], z["Y_mm"] + z["uy_mm"],
+            maps.append(MapData(float(z["u0_mm"]), z["X_mm"] + z["ux_mm"], z["Y_mm"] + z["uy_mm"],
                                    z["triangles"], z["gamma_deg"]))
         yarns[maps[-1].u0_mm] = deformed_yarns(npz, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"],
                                                YARN_SPACING_MM)
-    fig = FG.shear_map_figure(maps, data.meta["base_scene"], yarns)
+    fig = shear_map_figure(maps, data.meta["base_scene"], yarns)
     return [] if fig is None else [savefig(fig, data.out, "map")]
 
 

@@ -24,11 +24,16 @@ from typing import TypedDict
 
 import numpy as np
 
-from ngbet.scene import Scene
-from ngbet.study import Study, StudyData, main_for, savefig
+from ngbet.figures.style import eng
+from ngbet.scene.document import Scene
+from ngbet.study.command import main_for
+from ngbet.study.figures import savefig
+from ngbet.study.model import Study, StudyData
 
 from . import _common as C
 from . import reference as R
+
+__all__ = ["FIT_K", "FULL", "QUICK", "Grid", "analyse", "build", "main", "own_cases", "plot", "report"]
 
 
 class Grid(TypedDict):
@@ -180,33 +185,35 @@ def plot(data: StudyData, g: Grid, quick: bool) -> list[Path]:
 
 def _plot_profiles(data: StudyData, g: Grid, a: dict) -> Path:
     """Mid-axis u_y at the second station for several K (the paper's figure)."""
-    from ngbet import figures as FG
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import colormap, legend_below, put_caption, subplots
 
     s2 = a["stations"][1]
     h0, p0 = g["profile_case"]
-    fig, ax = FG.subplots(size=(7, 4))
-    cmap = FG.colormap()
+    fig, ax = subplots(size=(7, 4))
+    cmap = colormap()
     pen = sorted((r for r in a["rows"] if r["h"] == h0 and r["p"] == p0 and r["method"] == "penalty"
                   and r["status"] == "ok"), key=lambda r: r["K"])
     for j, r in enumerate(pen):
         X, uy = data.profile(r["case"], s2)
-        ax.plot(X, uy, color=cmap(j / max(len(pen) - 1, 1)), label=f"penalty K = {FG.eng(r['K'], 'Pa')}")
+        ax.plot(X, uy, color=cmap(j / max(len(pen) - 1, 1)), label=f"penalty K = {eng(r['K'], 'Pa')}")
     lag = C.lagrange_case(data, h0, p0)
     if lag is not None:
         ax.plot(*data.profile(lag, s2), "k--", lw=2, label="Lagrange multiplier")
     ax.set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
     ax.set_ylabel("vertical displacement u_y [mm]")
     ax.set_title(f"penalty → Lagrange multiplier: mid-axis profile at u₀ = {s2:g} mm (h = {h0:g} mm, p = {p0})")
-    FG.legend_below(fig, ncol=3)
-    FG.put_caption(fig, FG.study_caption(data.meta))
+    legend_below(fig, ncol=3)
+    put_caption(fig, study_caption(data.meta))
     return savefig(fig, data.out, "penalty_profiles")
 
 
 def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, str]) -> Path:
     """Penalty error, total error and constraint violation against K, one line per (h, p)."""
-    from ngbet import figures as FG
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import legend_below, put_caption, subplots
 
-    fig, axs = FG.subplots(1, 3, size=(15, 4.3))
+    fig, axs = subplots(1, 3, size=(15, 4.3))
     for h in g["h"]:
         for p in g["p"]:
             rs = sorted((r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "penalty"
@@ -232,19 +239,20 @@ def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, s
     axs[0].set_ylabel("relative error of the force")
     axs[1].set_ylabel("relative error of the force")
     axs[2].set_ylabel("RMS of φ − i8 [−]")
-    FG.legend_below(fig, ncol=8)
-    FG.put_caption(fig, FG.study_caption(data.meta))
+    legend_below(fig, ncol=8)
+    put_caption(fig, study_caption(data.meta))
     return savefig(fig, data.out, "penalty_error")
 
 
 def _plot_discretization_error(data: StudyData, g: Grid, a: dict, styles: dict[float, str]) -> Path:
     """Discretization error of the Lagrange solutions against dofs (and against h with two mesh sizes)."""
-    from ngbet import figures as FG
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import put_caption, subplots
 
     s2 = a["stations"][1]
     # the convergence in h needs two mesh sizes (the quick grid has one: a single panel then)
     two = len(g["h"]) > 1
-    fig, axs = FG.subplots(1, 2 if two else 1, size=(11 if two else 5.5, 4.2), squeeze=False)
+    fig, axs = subplots(1, 2 if two else 1, size=(11 if two else 5.5, 4.2), squeeze=False)
     axs = axs[0]
     lag = [r for r in a["rows"] if r["method"] == "lagrange" and r["status"] == "ok"]
     for h in g["h"]:
@@ -264,7 +272,7 @@ def _plot_discretization_error(data: StudyData, g: Grid, a: dict, styles: dict[f
         ax.set_ylabel(f"|F_Lagrange - F_ref| / F_ref at {s2:g} mm")
         ax.grid(alpha=0.3, which="both")
         ax.legend(loc="best")
-    FG.put_caption(fig, FG.study_caption(data.meta, f"discretization error against the reference "
+    put_caption(fig, study_caption(data.meta, f"discretization error against the reference "
                                                     f"{a['ref']['force_N']:.4f} N ± {a['ref']['bound_N']:.2g} N"))
     return savefig(fig, data.out, "discretization_error")
 

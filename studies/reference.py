@@ -59,11 +59,20 @@ from typing import Any
 
 import numpy as np
 
-from ngbet.output import read_rows
-from ngbet.scene import Scene, SceneWarning
-from ngbet.study import CacheError, MissingValueError, Study, StudyData, case_key, main_for, savefig, verify_case
+from ngbet.scene.document import Scene, SceneWarning
+from ngbet.study.cache import CacheError, verify_case
+from ngbet.study.command import main_for
+from ngbet.study.figures import savefig
+from ngbet.study.keys import case_key
+from ngbet.study.model import MissingValueError, Study, StudyData
+from ngbet.tables import read_rows
 
 from . import _common as C
+
+__all__ = ["BISECT", "FINE_BISECTIONS", "FINE_FAMILY", "GRADE", "GRADED_P2", "HP_FAMILY", "OFF", "QUICK_REF",
+           "REF_FAMILY", "REF_H", "UNIFORM_P2", "aitken", "analyse", "build", "extrapolate", "families", "fine_family",
+           "fits", "graded", "main", "of_scene", "orders", "plot", "profile_error_max", "reference", "reference_text",
+           "report"]
 
 GRADE = C.GRADE
 BISECT = C.BISECT
@@ -413,10 +422,11 @@ def report(data: StudyData, quick: bool) -> str:
 
 
 def plot(data: StudyData, quick: bool) -> list[Path]:
-    from ngbet import figures as FG
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import legend_below, put_caption, subplots
 
     a = analyse(data, quick)
-    fig, ax = FG.subplots(size=(6.5, 5.0))
+    fig, ax = subplots(size=(6.5, 5.0))
     r2 = a["ref"][a["s2"]]
     bound = r2["bound_N"] / r2["force_N"]
     names = {"uniform": "uniform mesh, p = 2", "graded": "corner-graded, p = 2", "hp": "hp (corner and p together)"}
@@ -436,8 +446,8 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     ax.set_xlabel("dofs")
     ax.set_ylabel(f"relative error of the force at {a['s2']:g} mm")
     ax.grid(alpha=0.3, which="both")
-    FG.legend_below(fig, ncol=2)
-    FG.put_caption(fig, FG.study_caption(data.meta))
+    legend_below(fig, ncol=2)
+    put_caption(fig, study_caption(data.meta))
     return [savefig(fig, data.out, "reference_convergence")]
 
 

@@ -19,11 +19,17 @@ from typing import Any
 
 import numpy as np
 
-from ngbet.scene import Scene, SceneError, default_scene
-from ngbet.study import Study, StudyData, grid, savefig
+from ngbet.figures.study import key_label
+from ngbet.scene.document import Scene, default_scene
+from ngbet.scene.validate import SceneError
+from ngbet.study.figures import savefig
+from ngbet.study.keys import grid
+from ngbet.study.model import Study, StudyData
 
 from . import _common as C
 from . import reference as R
+
+__all__ = ["build", "parse_items", "plot", "report"]
 
 
 def parse_items(items: list[str], parse: Callable[[str], Any]) -> tuple[dict[str, list[Any]], str | None]:
@@ -91,7 +97,7 @@ def _last(case: dict[str, Any], st: list[float]) -> float:
 
 
 def _name(params: dict[str, Any]) -> str:
-    from ngbet.figures import key_value
+    from ngbet.figures.study import key_value
 
     return ", ".join(key_value(k, v) for k, v in params.items())
 
@@ -121,7 +127,8 @@ def report(data: StudyData, quick: bool) -> str:
 
 
 def plot(data: StudyData, quick: bool) -> list[Path]:
-    from ngbet import figures as FG
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import FORCE_LABEL, U0_LABEL, legend_below, put_caption, subplots
 
     st = _stations(data)
     cases = [c for c in data.cases() if data.case_rows(c["case"])]
@@ -129,15 +136,15 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
         return []
     cmap = C.colormap()
     colours = {c["case"]: cmap(j / max(len(cases) - 1, 1)) for j, c in enumerate(cases)}
-    fig, axs = FG.subplots(1, 2, size=(12, 4.5))
+    fig, axs = subplots(1, 2, size=(12, 4.5))
     for c in cases:
         rows = data.case_rows(c["case"])
         axs[0].plot([0.0] + [r["u0_mm"] for r in rows], [0.0] + [r["force_N"] for r in rows], "o-", ms=2.5,
                     color=colours[c["case"]], label=_name(c["params"]))
         X, uy = data.profile(c["case"], _last(c, st))
         axs[1].plot(X, uy, color=colours[c["case"]])
-    axs[0].set_xlabel(FG.U0_LABEL)
-    axs[0].set_ylabel(FG.FORCE_LABEL)
+    axs[0].set_xlabel(U0_LABEL)
+    axs[0].set_ylabel(FORCE_LABEL)
     axs[0].set_xlim(left=0)
     axs[0].set_title("(a) force (points: the output loads)")
     axs[1].set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
@@ -145,8 +152,8 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     axs[1].set_title("(b) mid-axis profile at each case's final load" if U0 in data.meta["params"]
                      else f"(b) mid-axis profile at u₀ = {st[-1]:g} mm")
     axs[1].axhline(0, color="k", lw=0.5)
-    FG.legend_below(fig, ncol=min(len(cases), 4))
-    FG.put_caption(fig, FG.study_caption(data.meta))
+    legend_below(fig, ncol=min(len(cases), 4))
+    put_caption(fig, study_caption(data.meta))
     out = [savefig(fig, data.out, "sweep_force")]
     keys = data.meta["params"]
     vals = [c["params"][keys[0]] for c in data.cases()]
@@ -157,13 +164,14 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
 
 def _plot_values(data: StudyData, key: str, u0: float) -> Path:
     """The final force against the swept value (log axis when the values span more than a decade)."""
-    from ngbet import figures as FG
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import put_caption, subplots
 
     own = key == U0  # each case's force at its own final load
     pts = sorted((float(c["params"][key]), *(data.at(c["case"], float(c["params"][key]) if own else u0, col)
                                               for col in ("force_N", "force_error_N"))) for c in data.cases())
     pts = [p for p in pts if math.isfinite(p[1])]
-    fig, ax = FG.subplots(size=(6, 4.2))
+    fig, ax = subplots(size=(6, 4.2))
     v, F, e = (np.array(x) for x in zip(*pts, strict=True)) if pts else (np.array([]),) * 3
     if np.isfinite(e).any():
         ax.errorbar(v, F, yerr=np.where(np.isfinite(e), e, 0.0), fmt="o-", capsize=4,
@@ -173,8 +181,8 @@ def _plot_values(data: StudyData, key: str, u0: float) -> Path:
         ax.plot(v, F, "o-")
     if len(v) and v.min() > 0 and v.max() / v.min() > 10:
         ax.set_xscale("log")
-    ax.set_xlabel(FG.key_label(key))
+    ax.set_xlabel(key_label(key))
     ax.set_ylabel("force at the final load [N]" if own else f"force at u₀ = {u0:g} mm [N]")
     ax.grid(alpha=0.3, which="both")
-    FG.put_caption(fig, FG.study_caption(data.meta))
+    put_caption(fig, study_caption(data.meta))
     return savefig(fig, data.out, "sweep_values")

@@ -41,8 +41,15 @@ from typing import Any
 
 import numpy as np
 
-from ngbet.scene import Scene
-from ngbet.study import Study, StudyData, main_for, savefig
+from ngbet.figures.style import legend_below, put_caption
+from ngbet.scene.document import Scene
+from ngbet.study.command import main_for
+from ngbet.study.figures import savefig
+from ngbet.study.model import Study, StudyData
+
+__all__ = ["FABRICS", "FITS_FOLDER", "KEL", "MAX_RUNS", "QUICK", "QUICK_RUNS", "SCORE_POINTS", "TABLE", "build",
+           "elongation_for", "extract", "fabric_of", "fit_and_predict", "fits_folder", "main", "pair_fit", "plot",
+           "report", "summary"]
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +66,7 @@ def _root() -> Path:
     for root in (Path(__file__).resolve().parents[1], Path(ngbet.__file__).resolve().parent, Path.cwd()):
         if (root / "data" / "cao2008").is_dir() and (root / "geometry" / "twintex_plain.toml").is_file():
             return root
-    from ngbet.scene import SceneError
+    from ngbet.scene.validate import SceneError
 
     raise SceneError("study validation reads the fabric scenes geometry/twintex_*.toml and their measured curves "
                      "data/cao2008/, installed with ngbet: not found beside the studies, in the installed package "
@@ -103,7 +110,7 @@ def _key(fabric: str, max_runs: int, scene_toml: str = "") -> str:
 
     ``scene_toml``: the scene the fabric under test starts from when it is not its own scene file.
     """
-    from ngbet.study import code_version
+    from ngbet.study.keys import code_version
 
     h = hashlib.sha256(scene_toml.encode())
     for f in FABRICS:
@@ -127,7 +134,7 @@ def _points(curve: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def fits_folder(cache: Path | None = None) -> Path:
     """Where the fits are kept: ``validation-fits`` in the study cache (None: the default cache)."""
-    from ngbet.study import DEFAULT_ROOT
+    from ngbet.study.runner import DEFAULT_ROOT
 
     return Path(cache if cache is not None else DEFAULT_ROOT / "cache") / FITS_FOLDER
 
@@ -183,7 +190,7 @@ def pair_fit(fabric: str, folder: Path) -> dict[str, Any]:
     """The table and K_el fitted to both sizes of a fabric together (cached): its K_el and se(ln K_el)."""
     from ngbet.calibration.data import read_measured
     from ngbet.calibration.joint import fit_curves
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     def make() -> dict[str, Any]:
         scene_path, a, b = _paths(fabric)
@@ -208,7 +215,7 @@ def elongation_for(fabric: str, quick: bool, scene: Scene | None, folder: Path) 
     of the others', and the variance of ln K_el is their scatter plus their own variances. Quick:
     the scene's start value, with a variance of 1 (a factor e either way).
     """
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     if quick:
         return (scene or Scene.from_toml(_paths(fabric)[0])).material.K_el, 1.0, []
@@ -227,7 +234,7 @@ def fit_and_predict(fabric: str, direction: int, quick: bool, start: Scene | Non
     """
     from ngbet.calibration.data import read_measured
     from ngbet.calibration.joint import fit_curves, predict_specimen
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     runs = QUICK_RUNS if quick else MAX_RUNS
 
@@ -260,7 +267,7 @@ def fabric_of(scene: Scene) -> str:
     SceneError
         naming the key when the scene is for none of them.
     """
-    from ngbet.scene import SceneError
+    from ngbet.scene.validate import SceneError
 
     def stem(name: str) -> str:
         return name.rsplit("-", 1)[0] if "x" in name.rsplit("-", 1)[-1] else name
@@ -278,7 +285,7 @@ def fabric_of(scene: Scene) -> str:
 def _case(doc: dict[str, Any], which: str) -> dict[str, Any]:
     """The fitted scene's material on the fitted or the predicted specimen, stopping at the scored points."""
     from ngbet.calibration.data import read_measured
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     sc = Scene.from_toml_string(doc["fitted_scene"])
     _, a, b = _files(doc["fabric"], doc["direction"])
@@ -299,7 +306,7 @@ def build(quick: bool = False, scene: Scene | None = None, cache: Path | None = 
     """
     import functools
 
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     folder = fits_folder(cache)
     if scene is not None:
@@ -329,7 +336,7 @@ def extract(rec: dict, run_dir: Path, out: Path, docs: dict[str, dict[str, Any]]
     """
     from ngbet.calibration.data import read_measured
     from ngbet.kinematics import force_from_normalised, normalised_shear_force
-    from ngbet.output import read_rows
+    from ngbet.tables import read_rows
 
     fabric, d, which, name = rec["params"]["specimen.name"].split(":")
     direction = int(d)
@@ -453,15 +460,15 @@ def plot(data: StudyData) -> list[Path]:
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    from ngbet import figures as FG
     from ngbet.calibration.data import read_measured
+    from ngbet.figures.style import FORCE_LABEL, U0_LABEL, subplots
 
     rows = summary(data)
     pts = data.tables.get("points", [])
     fabrics = list(dict.fromkeys(r["fabric"] for r in rows))
     ndir = max(sum(r["fabric"] == f for r in rows) for f in fabrics)
     size = (max(6.4, 4.4 * len(fabrics) + 0.6), 3.4 * ndir + 1.5)
-    fig, axes = FG.subplots(ndir, len(fabrics), size=size, squeeze=False)
+    fig, axes = subplots(ndir, len(fabrics), size=size, squeeze=False)
     used = {f: 0 for f in fabrics}
     for r in rows:
         j = fabrics.index(r["fabric"])
@@ -488,8 +495,8 @@ def plot(data: StudyData) -> list[Path]:
         pair = r["pair"].replace(" x ", " × ")
         ax.set_title(f"{r['fabric'].replace('_', ' ')}: {pair}\nRMS: fit {100 * r['fitted_rms']:.1f} %, "
                      f"ngbet {100 * r['ngbet_rms']:.1f} %, normalisation {100 * r['normalisation_rms']:.1f} %")
-        ax.set_xlabel(FG.U0_LABEL)
-        ax.set_ylabel(FG.FORCE_LABEL)
+        ax.set_xlabel(U0_LABEL)
+        ax.set_ylabel(FORCE_LABEL)
         ax.set_xlim(left=0)
         ax.set_ylim(bottom=0)
     for ax in axes.ravel()[len(rows):]:
@@ -500,8 +507,8 @@ def plot(data: StudyData) -> list[Path]:
                Line2D([], [], color="tab:orange", label="ngbet, predicted"),
                Patch(color="tab:orange", alpha=0.25, lw=0, label="ngbet ±2 sd"),
                Line2D([], [], color="tab:blue", ls="--", label="normalisation method (Cao Eq. 18)")]
-    FG.legend_below(fig, handles, ncol=3 if len(fabrics) > 1 else 2)
-    FG.put_caption(fig, "Twintex fabrics of Cao et al. (2008), yarns ±45°, each on its ngbet scene: "
+    legend_below(fig, handles, ncol=3 if len(fabrics) > 1 else 2)
+    put_caption(fig, "Twintex fabrics of Cao et al. (2008), yarns ±45°, each on its ngbet scene: "
                    "tabulated shear law fitted on one specimen size, K_el held, "
                    "α1 and α2 of the scene; the other size predicted (band: parameters, K_el and discretization); "
                    "RMS of (prediction − measured)/measured "

@@ -23,11 +23,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ngbet.scene import Scene
-from ngbet.study import Study, StudyData, main_for, savefig
+from ngbet.scene.document import Scene
+from ngbet.study.command import main_for
+from ngbet.study.figures import savefig
+from ngbet.study.model import Study, StudyData
 
 from . import _common as C
 from . import reference as R
+
+__all__ = ["FULL", "GRADE", "MARKS", "NAMES", "QUICK", "TARGETS", "analyse", "build", "cheapest", "kind", "label",
+           "main", "plot", "report"]
 
 #: the case grids: a list of (h [mm], p[, K or corner size]) per kind
 FULL: dict[str, list[tuple[Any, ...]]] = {
@@ -192,13 +197,14 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
     from matplotlib.colors import LogNorm
     from matplotlib.lines import Line2D
 
-    from ngbet import figures as FG
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import legend_below, put_caption, subplots
 
     a = analyse(data, g, quick)
     good = [p for p in a["pts"] if p["status"] == "ok" and not p["ref_case"]]  # not the reference against itself
     norm = LogNorm(vmin=min(p["dofs"] for p in good), vmax=max(p["dofs"] for p in good) * (1 + 1e-9))
     cmap = C.colormap()
-    fig, axs = FG.subplots(1, 2, size=(13, 5.6))
+    fig, axs = subplots(1, 2, size=(13, 5.6))
     for ax, key, unc, title in ((axs[0], "err_F", a["unc_F"], f"force at {a['s2']:g} mm"),
                                 (axs[1], "err_prof", a["unc_prof"], f"mid-axis profile at {a['s2']:g} mm")):
         floor = min([p[key] for p in good if p[key] > 0] + [unc]) / 3
@@ -237,10 +243,10 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
         ax.set_title(title + "  (labels: h [mm]/p)", fontsize=9)
         ax.grid(alpha=0.3, which="both")
         C.short_log_axis(ax, "x")
-    FG.legend_below(fig, [*handles, line, band], ncol=4)
+    legend_below(fig, [*handles, line, band], ncol=4)
     fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=axs, label="dofs (one colour scale for every marker)",
                  shrink=0.8)
-    FG.put_caption(fig, FG.study_caption(data.meta, f"reference: {a['F_ref']:.4f} N ± {a['unc_F']:.2g} (relative)"))
+    put_caption(fig, study_caption(data.meta, f"reference: {a['F_ref']:.4f} N ± {a['unc_F']:.2g} (relative)"))
     return [savefig(fig, data.out, "work_precision"), _plot_dofs(data, a, quick)]
 
 
@@ -251,9 +257,10 @@ def _plot_dofs(data: StudyData, a: dict, quick: bool) -> Path:
     error (the reference's own last order, when the extrapolation stops there) cannot be drawn on a
     log axis and is left out, which the caption says.
     """
-    from ngbet import figures as FG
+    from ngbet.figures.study import study_caption
+    from ngbet.figures.style import legend_below, put_caption, subplots
 
-    fig, ax = FG.subplots(size=(6.5, 5.0))
+    fig, ax = subplots(size=(6.5, 5.0))
     F_ref, bound = a["F_ref"], a["unc_F"]
     names = {"uniform": "uniform, p = 2", "graded": "graded, p = 2", "hp": "hp (corner and p together)",
              "reference": "p on the graded mesh (the reference's own family)"}
@@ -283,8 +290,8 @@ def _plot_dofs(data: StudyData, a: dict, quick: bool) -> Path:
     if zero:
         ax.set_title(f"{zero} case(s) with zero error against the reference (its own last order) not drawn",
                      fontsize=8)
-    FG.legend_below(fig, ncol=2)
-    FG.put_caption(fig, FG.study_caption(data.meta))
+    legend_below(fig, ncol=2)
+    put_caption(fig, study_caption(data.meta))
     return savefig(fig, data.out, "work_precision_dofs")
 
 

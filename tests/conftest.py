@@ -9,7 +9,7 @@ themselves); ``-m slow`` the long runs. ``-m "integration or slow"`` with the de
 import numpy as np
 import pytest
 
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 
 #: modules that run whole commands, studies, worker processes and the hard cases
 INTEGRATION_MODULES = {"test_command.py", "test_faults.py", "test_hard_cases.py", "test_studies.py",

@@ -52,7 +52,7 @@ import pytest
 
 from ngbet.cli import main
 from ngbet.run import run
-from ngbet.scene import Scene, default_scene
+from ngbet.scene.document import Scene, default_scene
 from ngbet.studies.reference import extrapolate, fits
 
 #: forces [N] at (37, 56) mm for p = 4, 5, 6 on the 10 mm mesh with 0.25 mm corners; the paper's
@@ -321,7 +321,7 @@ def test_effectivity_on_new_scenes_all(tmp_path, base, disc):
 
 def test_profile_estimate_effectivity(tmp_path):
     """Max-norm error of the mid-axis profile at 56 mm (measured 0.59–2.5 on six meshes of this scene)."""
-    from ngbet.output import read_profiles
+    from ngbet.tables import read_profiles
 
     _, s = _effectivity(tmp_path, "default", mesh_size_mm=10.0)
     _, uy = read_profiles(next(tmp_path.glob("default_*")) / "profile.csv")[56.0]
@@ -355,7 +355,7 @@ def test_same_mesh_enrichment_misses_the_ungraded_alpha1_200_error(tmp_path):
 def test_results_csv_has_the_error_at_the_stops(tmp_path):
     sc = _scene("default", mesh_size_mm=20.0).with_changes(**{"outputs.error_estimate": "stops"})
     run(sc, tmp_path / "r")
-    from ngbet.output import read_rows
+    from ngbet.tables import read_rows
 
     rows = read_rows(tmp_path / "r" / "results.csv")
     have = {r["u0_mm"]: r["force_error_N"] for r in rows}
@@ -368,7 +368,7 @@ def test_results_csv_has_the_error_at_the_stops(tmp_path):
 def test_every_converged_step_gets_an_error_with_every(tmp_path):
     """``outputs.error_estimate = "every"``: an estimate at each converged step (the 16 mm step
     included), the same at the stops as ``"stops"`` gives (one enriched step from the same state)."""
-    from ngbet.output import read_rows
+    from ngbet.tables import read_rows
 
     rows = {}
     for mode in ("stops", "every"):
@@ -382,6 +382,7 @@ def test_every_converged_step_gets_an_error_with_every(tmp_path):
         assert every[u0] == pytest.approx(stops[u0], rel=1e-9)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("target", [1e-2, 1e-3])
 def test_accuracy_on_demand_reaches_the_target(tmp_path, target, capsys):
     out = tmp_path / f"acc{target:g}"
@@ -560,7 +561,7 @@ def test_hp_grading_converges_exponentially(tmp_path):
 
 
 def _final_force(out) -> float:
-    from ngbet.output import read_rows
+    from ngbet.tables import read_rows
 
     return float(read_rows(out / "results.csv")[-1]["force_N"])
 
@@ -572,7 +573,7 @@ def test_default_scene_is_within_0p3_percent(tmp_path):
     F_ref, bound = ref("default")
     assert abs(s["force_N"] - F_ref) + bound < 0.003 * F_ref
     assert s["force_error_rel"] < 0.006  # the estimate says so too (effectivity up to ~2)
-    from ngbet.output import read_profiles
+    from ngbet.tables import read_profiles
 
     X, uy = read_profiles(tmp_path / "d" / "profile.csv")[56.0]
     assert np.allclose(X[::11], np.linspace(0, 220, 11))
@@ -580,11 +581,12 @@ def test_default_scene_is_within_0p3_percent(tmp_path):
     assert 0 < s["profile_error_mm"]["56"] < 0.03 * PROFILE_56_MAX
 
 
+@pytest.mark.integration
 def test_reference_study_quick(tmp_path):
     """The study's quick mode (20 mm load, 20 mm mesh, corners 0.5 mm, p = 2, 3, 4): a reference
     with a bound below 1 % of the force, the report and the convergence figure."""
     from ngbet.studies import STUDIES, reference
-    from ngbet.study import run_study
+    from ngbet.study.runner import run_study
 
     assert "reference" in STUDIES
     d = run_study(reference.build(True), tmp_path / "ref", cache=tmp_path / "cache", progress=False)
@@ -598,7 +600,7 @@ def test_reference_study_quick(tmp_path):
 @pytest.mark.parametrize("key,value", [("discretization.target_error", -1e-3), ("discretization.target_error", 2.0),
                                        ("outputs.error_estimate", "always")])
 def test_bad_accuracy_keys_are_refused_by_name(key, value):
-    from ngbet.scene import SceneError
+    from ngbet.scene.validate import SceneError
 
     with pytest.raises(SceneError, match=key):
         Scene().with_changes(**{key: value})
@@ -607,7 +609,7 @@ def test_bad_accuracy_keys_are_refused_by_name(key, value):
 def test_a_target_accuracy_needs_the_force():
     """``target_error`` is a relative error of the clamp force: without the force there is nothing to
     estimate, and the ladder would climb to its end; the scene is refused, naming the key."""
-    from ngbet.scene import SceneError
+    from ngbet.scene.validate import SceneError
 
     with pytest.raises(SceneError, match=r"discretization\.target_error.*outputs\.reaction"):
         Scene().with_changes(**{"discretization.target_error": 1e-3, "outputs.reaction": False})
@@ -624,7 +626,7 @@ def test_the_resolved_corners_snap_back_leaves_the_force_unchanged(tmp_path):
     from scipy.interpolate import CubicHermiteSpline
 
     from ngbet.errors import ConvergenceError
-    from ngbet.output import read_rows
+    from ngbet.tables import read_rows
 
     sc = default_scene().with_changes(**{
         "discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 0.0625,

@@ -13,10 +13,9 @@ import numpy as np
 import pytest
 
 import ngbet
-from ngbet.output import read_profiles, read_rows
-from ngbet.plotting import dense_force
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 from ngbet.scene_doc import commented_toml
+from ngbet.tables import read_profiles, read_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 SMALL = {"loading.u0_mm": 20.0, "loading.stops_mm": [10.0], "discretization.mesh_size_mm": 20.0}
@@ -54,6 +53,7 @@ def test_run_csv_files_have_lf_line_endings(small_run):
         assert b"\r" not in text and text.count(b"\n") > 2
 
 
+@pytest.mark.integration
 def test_run_without_matplotlib_writes_everything_but_the_plot(tmp_path):
     """The core needs neither matplotlib nor pyvista: without them the run says so in one line."""
     code = ("import sys\n"
@@ -111,18 +111,6 @@ def test_plot_draws_the_curve_and_the_steps(small_run):
     assert "converged steps" in steps.get_label()
 
 
-def test_dense_force_is_exact_for_a_quadratic():
-    """Hermite on (F, dF/du0) reproduces cubics between steps; the slope at u0 = 0, extrapolated
-    from the first step, is exact for quadratics: so a quadratic force is reproduced everywhere."""
-    u = np.array([3.0, 7.0, 12.0, 20.0])
-    F, dF = 3 * u**2 + 2 * u, 6 * u + 2
-    ud, Fd, how = dense_force(u, F, dF)
-    assert "Hermite" in how and np.max(np.diff(ud)) <= 0.25 + 1e-12
-    np.testing.assert_allclose(Fd, 3 * ud**2 + 2 * ud, rtol=1e-12, atol=1e-12)
-    ul, Fl, how = dense_force(u, F, None)
-    assert "lines" in how and len(ul) == len(u) + 1
-
-
 def test_example_sweep(capsys):
     """examples/sweep.py: the S-shape grows with alpha1 (alpha2 = 20 Pa m^2: nearly none at alpha1 = alpha2)."""
     runpy.run_path(str(ROOT / "examples" / "sweep.py"), run_name="__main__")
@@ -152,19 +140,9 @@ def test_cli_scene_and_version():
     assert isinstance(ngbet.__revision__, str) and ngbet.__revision__
 
 
-def test_old_array_names_without_a_unit_still_work_with_a_deprecation_warning(small_run):
-    r, _ = small_run
-    for old, new in (("double_force", "double_force_Nm"), ("energy", "energy_J")):
-        with pytest.warns(DeprecationWarning, match=f"Result.{old} is renamed Result.{new}"):
-            value = getattr(r, old)
-        np.testing.assert_array_equal(value, getattr(r, new))
-        assert len(value) == len(r.u0_mm) > 0
-
-
 def test_every_result_array_carries_its_unit(small_run):
     """The arrays a Result offers by name end in a unit, as the columns of results.csv do."""
     r, _ = small_run
     units = ("_mm", "_N", "_Nm", "_J", "_deg", "_s", "_N_per_m", "_J_per_m", "_N_per_mm")
     named = [n for n, v in vars(type(r)).items() if isinstance(v, property) and n not in ("status",)]
-    deprecated = {"double_force", "energy"}
-    assert {n for n in named if not n.endswith(units)} == deprecated
+    assert named and {n for n in named if not n.endswith(units)} == set()

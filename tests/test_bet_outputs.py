@@ -12,9 +12,9 @@ import pytest
 from conftest import coarse
 
 from ngbet.kinematics import normalised_shear_force, shear_angle_rad, zone_index
-from ngbet.output import read_rows
 from ngbet.run import run
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
+from ngbet.tables import read_rows
 
 
 def _columns(rows, *keys):
@@ -136,7 +136,8 @@ def test_discrete_bet_columns(tmp_path):
 
 
 def test_the_path_lands_on_the_output_grid_and_the_stops_below_the_final_load():
-    from ngbet.scene import Loading, SceneError
+    from ngbet.scene.numerical import Loading
+    from ngbet.scene.validate import SceneError
 
     assert Loading(u0_mm=10.0, stops_mm=(5.0,), output_every_mm=3.0).path_stops_mm == (3.0, 5.0, 6.0, 9.0)
     assert Loading(u0_mm=10.0, stops_mm=(5.0,), output_every_mm=0.0).path_stops_mm == (5.0,)

@@ -17,7 +17,8 @@ from ngbet.cli import main
 from ngbet.continuum import physics
 from ngbet.continuum.sensitivity import finite_difference, force_path
 from ngbet.kinematics import ideal_force
-from ngbet.scene import Scene, SceneError
+from ngbet.scene.document import Scene
+from ngbet.scene.validate import SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
 GEO = ROOT / "geometry"
@@ -383,7 +384,7 @@ def test_validation_study_quick(tmp_path, monkeypatch):
     normalisation column equals an independent computation from the measured curves."""
     from ngbet.kinematics import force_from_normalised, normalised_shear_force
     from ngbet.studies import validation as V
-    from ngbet.study import load
+    from ngbet.study.collect import load
 
     out = tmp_path / "study"
     assert main(["study", "validation", "--quick", "--workers", "1", "--quiet", "--out", str(out),

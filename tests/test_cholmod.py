@@ -16,7 +16,8 @@ from ngbet.continuum.mesh import corner_refined
 from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.run import run
-from ngbet.scene import SceneError, default_scene
+from ngbet.scene.document import default_scene
+from ngbet.scene.validate import SceneError
 
 
 def _scene(**changes):

@@ -7,9 +7,9 @@ import pytest
 from conftest import coarse
 
 from ngbet.continuum import chord as C
-from ngbet.continuum.solver import NewtonSettings
-from ngbet.output import read_rows
+from ngbet.continuum.settings import NewtonSettings
 from ngbet.run import run
+from ngbet.tables import read_rows
 
 
 class Hardening:
@@ -173,7 +173,7 @@ def test_rows_between_uneven_stops_keep_the_tangents_prescribed_entries_those_of
     the load derivative: it matches the central differences of the forces."""
     from pathlib import Path
 
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "geometry" / "twintex_plain.toml").with_changes(**{
         "specimen.width_mm": 150.0, "specimen.length_mm": 450.0, "material.K_el": 2.91e6,

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from ngbet import plot_process
-from ngbet.figures import draw_force, start_plot
-from ngbet.output import OutputError
+from ngbet.figures.run import draw_force, start_plot
+from ngbet.run_folder import OutputError
 
 pytest.importorskip("matplotlib")
 ROWS = ("step,u0_mm,force_N,dforce_du0_N_per_mm,double_force_Nm,force_error_N\n"
@@ -115,7 +115,7 @@ def test_the_plot_is_asked_for_first_and_finished_even_when_a_later_file_fails(t
     the plot process before the fields when there is one."""
     from ngbet.continuum import run as crun
     from ngbet.run import run
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     asked: list[str] = []
 

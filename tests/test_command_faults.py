@@ -22,9 +22,9 @@ import pytest
 
 import ngbet
 from ngbet.cli import main
-from ngbet.output import OutputError
 from ngbet.run import run
-from ngbet.scene import Scene
+from ngbet.run_folder import OutputError
+from ngbet.scene.document import Scene
 
 pytestmark = pytest.mark.integration
 

@@ -9,7 +9,7 @@ import pytest
 from ngbet.continuum import compiled
 from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.scene import default_scene
+from ngbet.scene.document import default_scene
 
 HAS_COMPILER = compiled._compiler() is not None
 

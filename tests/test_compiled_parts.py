@@ -8,7 +8,7 @@ import scipy.sparse as sps
 from ngbet.continuum import compiled
 from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.scene import default_scene
+from ngbet.scene.document import default_scene
 
 
 def _problem(p: int) -> ContinuumSolver:

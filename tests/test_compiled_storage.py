@@ -8,7 +8,7 @@ from ngbet.continuum.linear import NewtonLinearSolver
 from ngbet.continuum.mesh import corner_refined
 from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.scene import default_scene
+from ngbet.scene.document import default_scene
 
 
 def _scene(**changes):

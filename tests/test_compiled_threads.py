@@ -8,7 +8,7 @@ from ngbet import run as ngbet_run
 from ngbet.continuum import linear
 from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.scene import default_scene
+from ngbet.scene.document import default_scene
 
 
 @pytest.mark.parametrize(("threads", "model", "load", "expected"), [
@@ -90,7 +90,7 @@ def test_a_run_holds_the_blas_pools_to_one_thread():
     from threadpoolctl import threadpool_info
 
     from ngbet.run import ngsolve_threads
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     before = {i["filepath"]: i["num_threads"] for i in threadpool_info()}
     assert before  # a BLAS library is loaded, so the check below checks something

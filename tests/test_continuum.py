@@ -11,12 +11,13 @@ import pytest
 from conftest import coarse
 
 from ngbet.continuum import observables as obs
+from ngbet.continuum.newton import newton
 from ngbet.continuum.numerics import continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.solver import newton, newton_settings
-from ngbet.output import read_profiles, read_rows
+from ngbet.continuum.settings import newton_settings
 from ngbet.run import run
-from ngbet.scene import Scene, default_scene
+from ngbet.scene.document import Scene, default_scene
+from ngbet.tables import read_profiles, read_rows
 
 
 def _run(tmp_path, tag, **changes):
@@ -300,6 +301,7 @@ def test_shear_angle_is_zero_for_rigid_motion_and_exact_for_a_trellis(angle):
     assert abs(obs.centre_shear_angle_deg(p) - 10.0) < 1e-9
 
 
+@pytest.mark.integration
 def test_stabilization_carries_fine_corner_meshes_and_is_small(tmp_path):
     # Λ ∈ L2(p − 2) leaves the within-element part of φ − i8 free; in the compressed corners the
     # first-gradient energy is not convex there, and with 0.25 mm corner elements (h = 10 mm,
@@ -353,7 +355,7 @@ def test_vtk_output_at_a_high_order_stays_small(tmp_path):
     wrote 4^9 sub-triangles per element and the run was killed out of memory (24 GB)."""
     from ngbet.continuum.output import vtk_subdivision
     from ngbet.run import run
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     assert [vtk_subdivision(p) for p in (1, 2, 3, 4, 5, 8, 9, 16)] == [0, 1, 2, 2, 3, 3, 4, 4]
     sc = Scene().with_changes(**{"discretization.order_u": 10, "discretization.mesh_size_mm": 40.0,

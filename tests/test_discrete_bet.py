@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from ngbet.errors import ConvergenceError
-from ngbet.output import read_profiles, read_rows
 from ngbet.run import run
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
+from ngbet.tables import read_profiles, read_rows
 
 BASE = {"model": "discrete", "loading.u0_mm": 30.0, "loading.first_step_mm": 2.0, "loading.max_step_mm": 4.0}
 
@@ -190,7 +190,7 @@ def test_interrupted_run_keeps_the_solver_statistics(tmp_path, monkeypatch):
     # keeps what the solver counted until then (factorizations, work by cause, the half-turn blocks)
     import importlib
 
-    discrete_run = importlib.import_module("ngbet.discrete.run")  # the module (ngbet.discrete.run is the function)
+    discrete_run = importlib.import_module("ngbet.discrete.run")
     on_step = discrete_run._Recorder.on_step
     calls = []
 

@@ -9,7 +9,7 @@ import pytest
 
 from ngbet.discrete.model import NetworkModel
 from ngbet.discrete.network import build_network
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 
 
 def small_network(**kw):

@@ -8,8 +8,8 @@ import scipy.sparse as sp
 
 from ngbet import cholmod
 from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError, resolve_backend
-from ngbet.discrete.newton import _StepFailed
-from ngbet.discrete.solver import StepControl, load_steps, newton, single_threaded_blas, solve_path
+from ngbet.discrete.newton import StepControl, StepFailed, newton
+from ngbet.discrete.solver import load_steps, single_threaded_blas, solve_path
 from ngbet.engine import PathControl, PathResult, Steps
 
 
@@ -68,7 +68,7 @@ class Pulled:
 
 
 def ctl(**kw) -> StepControl:
-    return StepControl(PathControl(target=1.0, first_step=1.0, max_step=1.0, min_step=1e-3), **kw)
+    return StepControl(path=PathControl(target=1.0, first_step=1.0, max_step=1.0, min_step=1e-3), **kw)
 
 
 def solver(problem):
@@ -95,7 +95,7 @@ def test_no_shift_allowed_stops_at_the_first_indefinite_tangent():
     # a step that will be cut anyway (longer than the snap bracket) gives up at once
     p = DoubleWell()
     lin = solver(p)
-    with pytest.raises(_StepFailed) as exc:
+    with pytest.raises(StepFailed) as exc:
         newton(p, np.array([1e-3, 0.0]), lin, ctl(), allow_shift=False)
     assert exc.value.indefinite and lin.n_factor == 1, \
         f"indefinite {exc.value.indefinite}, {lin.n_factor} factorizations"
@@ -160,7 +160,7 @@ def test_energy_balance_by_the_hermite_rule_on_a_smooth_branch():
     # tells a snap-through (a jump releases percents of the step's work) from a long smooth step
     p = Pulled()
     rows = []
-    steps = Steps(load_steps(p, StepControl(PathControl(target=2.0, first_step=0.25, max_step=0.25, min_step=1e-3),
+    steps = Steps(load_steps(p, StepControl(path=PathControl(target=2.0, first_step=0.25, max_step=0.25, min_step=1e-3),
                                             stability=False)))
     for info in steps:
         rows.append((info.u0, float(p.load @ info.residual), info.energy, info.released))
@@ -233,7 +233,7 @@ def test_lowest_eigenvalues_match_a_dense_solve_with_a_near_degenerate_pair():
     # lowest to ~tol^2 = 1e-6 relative, from a cold start and from a perturbed warm start
     import scipy.linalg as sla
 
-    from ngbet.discrete.solver import lowest_eigenvalues
+    from ngbet.discrete.eigen import lowest_eigenvalues
 
     p = Convex(60)
     K = p.evaluate(np.linspace(-1, 1, p.n_dofs))[2].toarray()
@@ -258,7 +258,7 @@ def test_the_network_path_is_a_generator_that_hands_out_each_state_and_keeps_non
     path moves on; breaking out after k records leaves k steps counted in the statistics, and the
     path carried to the end returns them with ``solve_path``'s numbers."""
     p = Pulled()
-    ctl = StepControl(PathControl(target=1.0, first_step=0.25, max_step=0.25, min_step=1e-3), stability=False)
+    ctl = StepControl(path=PathControl(target=1.0, first_step=0.25, max_step=0.25, min_step=1e-3), stability=False)
     res = PathResult(0.0)
     seen = []
     for rec in load_steps(p, ctl, res):

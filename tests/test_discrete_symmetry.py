@@ -16,13 +16,15 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from ngbet.discrete.eigen import OTHER_BLOCK_TOL, lowest_eigenvalues
 from ngbet.discrete.linsolve import FreeBlockSolver
 from ngbet.discrete.model import NetworkModel
+from ngbet.discrete.newton import newton
 from ngbet.discrete.run import step_control
-from ngbet.discrete.solver import OTHER_BLOCK_TOL, load_steps, lowest_eigenvalues, newton, solve_path
+from ngbet.discrete.solver import load_steps, solve_path
 from ngbet.discrete.symmetry import COUPLING_TOL, Blocks, HalfTurn, half_turn
 from ngbet.engine import Steps
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 
 SCENE = {"model": "discrete", "discrete.spacing_mm": 5.0, "loading.u0_mm": 56.0, "outputs.plot": False}
 
@@ -203,6 +205,7 @@ def test_mirrored_assembly_equals_the_element_by_element_sum(model):
     assert not model._on_symmetric_path(u + 1e-9 * np.abs(u).max() * kick)
 
 
+@pytest.mark.integration
 def test_the_17k_network_keeps_its_forces_and_snaps():
     """The 16 890-dof network (spacing 2.4 mm) with the half-turn blocks, against the whole factorization.
 

@@ -19,9 +19,9 @@ import pytest
 from ngbet.cli import main
 from ngbet.engine import Outcome, PathControl, StepRecord, follow_path
 from ngbet.errors import ConvergenceError
-from ngbet.output import read_rows
 from ngbet.run import run
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
+from ngbet.tables import read_rows
 
 # the scene keys the pinned numbers depend on, spelled out (so that a change of a default does not
 # silently change what is pinned)

@@ -18,7 +18,7 @@ import pytest
 
 from ngbet.cli import main
 from ngbet.export import FORMATS, export, read_card, shear_card, shear_stress
-from ngbet.scene import Scene, default_scene
+from ngbet.scene.document import Scene, default_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 TWILL = ROOT / "geometry" / "twintex_twill_unbalanced.toml"

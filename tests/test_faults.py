@@ -25,11 +25,15 @@ from pathlib import Path
 import pytest
 
 from ngbet.cli import main
-from ngbet.output import OutputError, RunWriter, read_rows
+from ngbet.output import RunWriter
 from ngbet.run import run
-from ngbet.scene import Scene
+from ngbet.run_folder import OutputError
+from ngbet.scene.document import Scene
 from ngbet.studies import _common as C
-from ngbet.study import MissingValueError, Study, run_study, verify_case
+from ngbet.study.cache import verify_case
+from ngbet.study.model import MissingValueError, Study
+from ngbet.study.runner import run_study
+from ngbet.tables import read_rows
 
 TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
         "discretization.corner_mesh_size_mm": 0.0, "discretization.order_u": 2,
@@ -145,7 +149,7 @@ def test_the_lock_is_released_however_the_run_ends(tmp_path):
     """The OS releases the flock when the process ends, SIGKILL included: the marker stays and
     never goes stale; the next run takes the folder and removes only the killed run's files."""
     out = tmp_path / "run"
-    code = ("import sys, time; from ngbet.output import RunWriter; from ngbet.scene import Scene\n"
+    code = ("import sys, time; from ngbet.output import RunWriter; from ngbet.scene.document import Scene\n"
             "w = RunWriter(sys.argv[1], Scene()); w.add_step({'step': 1, 'u0_mm': 1.0, 'force_N': 1.0})\n"
             "print('ready', flush=True); time.sleep(60)\n")
     p = subprocess.Popen([sys.executable, "-c", code, str(out)], stdout=subprocess.PIPE, text=True)
@@ -483,7 +487,8 @@ def test_a_figure_from_a_missing_value_is_recorded_and_fails_the_command(ref_cac
     exits 1 on ``report_error``), as a report from a missing value does."""
     import shutil
 
-    from ngbet.study import finish, load
+    from ngbet.study.collect import load
+    from ngbet.study.figures import finish
 
     _, _, d = ref_cache
     shutil.copytree(d.out, tmp_path / "copy")
@@ -548,8 +553,7 @@ def test_sigint_on_a_study_keeps_finished_cases_and_leaves_no_debris(tmp_path):
 def test_debris_is_removed_only_when_its_study_has_ended(tmp_path):
     # A .run-*/.tmp-* folder carries its study's token; it is debris only when that study's lock
     # (.study-<token>.lock, held by the live study) is free, whatever the folder's age or process.
-    from ngbet.study import clean_debris
-    from ngbet.study.cache import study_lock
+    from ngbet.study.cache import clean_debris, study_lock
 
     ended = "0123456789ab"
     with study_lock(tmp_path) as live:
@@ -571,7 +575,7 @@ def test_workers_exit_when_the_study_is_killed(tmp_path):
     p.communicate(timeout=30)
     wait_for(lambda: not any(alive(w) for w in workers), timeout=10)  # no orphan worker
     # the killed study's unfinished folders are removed by the next one
-    from ngbet.study import clean_debris
+    from ngbet.study.cache import clean_debris
 
     clean_debris(cache)
     assert [d.name for d in cache.iterdir() if d.name.startswith(".")] == []
@@ -581,7 +585,7 @@ STUCK = """
 import signal, sys, time
 from ngbet.cli import _interrupts
 from ngbet.output import RunWriter
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 with _interrupts():
     with RunWriter(sys.argv[1], Scene()) as w:
         w.add_step({"step": 1, "u0_mm": 3.0, "force_N": 1.0})
@@ -733,7 +737,7 @@ def test_reference_from_an_incomplete_family_names_the_missing_cases(tmp_path):
     the study's MissingValueError (report says so, exit 1) names the missing case, never a bare
     ValueError that the command line would show as a traceback."""
     from ngbet.studies import reference as R
-    from ngbet.study import MissingValueError, StudyData
+    from ngbet.study.model import MissingValueError, StudyData
 
     data = StudyData(tmp_path, [], [], {}, {"cases": []})
     with pytest.raises(MissingValueError, match=r"reference cases missing.*discretization\.order_u=4"):

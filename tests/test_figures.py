@@ -11,7 +11,12 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from ngbet import figures as F  # noqa: E402
+from ngbet.figures.curves import force_figure, profile_figure, shear_force_figure
+from ngbet.figures.data import MapData, Measured, measured_fsh
+from ngbet.figures.maps import colour_scale, shear_map_figure, yarn_network_figure
+from ngbet.figures.run import RUN_FIGURES, draw_run
+from ngbet.figures.style import caption as f_caption
+from ngbet.figures.style import texts_outside
 
 
 def rows(snap_at=None, errors=None):
@@ -36,7 +41,7 @@ def lines_of(ax):
 
 
 def test_a_snap_through_is_a_vertical_dashed_jump_and_the_curve_breaks_there():
-    fig = F.force_figure(rows(snap_at=6.5))
+    fig = force_figure(rows(snap_at=6.5))
     ax = fig.axes[0]
     dashed = [ln for ln in lines_of(ax) if ln.get_linestyle() == "--"]
     assert len(dashed) == 1
@@ -47,14 +52,14 @@ def test_a_snap_through_is_a_vertical_dashed_jump_and_the_curve_breaks_there():
 
 
 def test_without_a_snap_the_curve_is_the_computed_points_only():
-    fig = F.force_figure(rows())
+    fig = force_figure(rows())
     (curve,) = lines_of(fig.axes[0])
     assert list(curve.get_xdata()) == [0.0, 2.0, 4.0, 6.0, 6.5, 8.0]  # no points between the rows
     assert list(curve.get_ydata()) == [0.0, 4.0, 16.0, 36.0, 42.25, 64.0]
 
 
 def test_error_bars_where_the_run_estimated_and_their_size_written_when_too_small_to_see():
-    fig = F.force_figure(rows(errors={4.0: 0.05, 8.0: 3.0}))
+    fig = force_figure(rows(errors={4.0: 0.05, 8.0: 3.0}))
     ax = fig.axes[0]
     (bars,) = [c for c in ax.containers if c.__class__.__name__ == "ErrorbarContainer"]
     segments = bars.lines[2][0].get_segments()
@@ -65,46 +70,46 @@ def test_error_bars_where_the_run_estimated_and_their_size_written_when_too_smal
 
 def test_a_load_whose_estimate_could_not_vouch_is_named_where_its_bar_would_be():
     """The scene asks for estimates at its stop (4 mm) and final load (8 mm); 8 mm has none."""
-    from ngbet.scene import default_scene
+    from ngbet.scene.document import default_scene
 
     scene = default_scene().with_changes(**{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0})
-    fig = F.force_figure(rows(errors={4.0: 3.0}), scene)
+    fig = force_figure(rows(errors={4.0: 3.0}), scene)
     texts = [t.get_text() for t in fig.axes[0].texts]
     assert texts == ["no error bar at u₀ = 8 mm:\nthe estimate could not vouch for the force"]
     # rows without a due estimate (2, 6, 6.5 mm) are not named; with estimates off, none is
     off = default_scene().with_changes(**{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0,
                                           "outputs.error_estimate": "off"})
-    assert not F.force_figure(rows(errors={4.0: 3.0}), off).axes[0].texts
+    assert not force_figure(rows(errors={4.0: 3.0}), off).axes[0].texts
     # a bar too short to see and a missing one: one note, the sizes first
-    fig = F.force_figure(rows(errors={4.0: 0.05}), scene)
+    fig = force_figure(rows(errors={4.0: 0.05}), scene)
     assert [t.get_text() for t in fig.axes[0].texts] == [
         "error bars shorter than the markers:\n±0.05 N at u₀ = 4 mm\nno error bar at u₀ = 8 mm:\n"
         "the estimate could not vouch for the force"]
     # the network estimates no error (its rows have no force_error_N column): nothing is due, nothing named
     network = [{k: v for k, v in r.items() if k != "force_error_N"} for r in rows()]
-    assert not F.force_figure(network, scene.with_changes(model="discrete")).axes[0].texts
+    assert not force_figure(network, scene.with_changes(model="discrete")).axes[0].texts
 
 
 def test_measured_curve_on_the_force_and_shear_force_figures(tmp_path):
     csv = tmp_path / "m.csv"
     csv.write_text("# a comment\n# specimen.width_mm = 70\n# specimen.length_mm = 220\n"
                    "displacement_mm,force_N\n0,0\n10,12\n10,14\n20,30\n")
-    m = F.Measured.read(csv)  # the points at 10 mm averaged: a curve increasing in d
+    m = Measured.read(csv)  # the points at 10 mm averaged: a curve increasing in d
     assert (m.width_mm, m.length_mm) == (70.0, 220.0) and list(m.force_N) == [0.0, 13.0, 30.0]
-    fig = F.force_figure(rows(), measured=m)
+    fig = force_figure(rows(), measured=m)
     assert any(list(ln.get_ydata()) == [0.0, 13.0, 30.0] for ln in lines_of(fig.axes[0]))
-    g, f = F.measured_fsh(m, 70.0, 220.0)
+    g, f = measured_fsh(m, 70.0, 220.0)
     # Eq. 13 at 10 and 20 mm (D = 150 mm): 0.138217 and 0.288427 rad
     assert len(g) == 2 and np.allclose(g, np.degrees([0.138217, 0.288427]), rtol=1e-5)
 
 
 def test_a_measured_curve_of_another_specimen_keeps_the_legend_inside_its_panel(tmp_path):
     """Another specimen size: the legend entry names it (not the file), inside the axes."""
-    from ngbet.scene import default_scene
+    from ngbet.scene.document import default_scene
 
     csv = tmp_path / "cao2008_twill_unbalanced_100x200_UN.csv"
     csv.write_text("# specimen.width_mm = 100\n# specimen.length_mm = 200\ndisplacement_mm,force_N\n0,0\n10,5\n20,20\n")
-    fig = F.force_figure(rows(), default_scene(), measured=F.Measured.read(csv))
+    fig = force_figure(rows(), default_scene(), measured=Measured.read(csv))
     fig.canvas.draw()  # matplotlib's Agg canvas of a Figure made without pyplot
     ax = fig.axes[0]
     legend = ax.get_legend()
@@ -119,27 +124,27 @@ def test_a_bad_measured_file_is_refused_naming_it(tmp_path, text):
     csv = tmp_path / "bad.csv"
     csv.write_text(text)
     with pytest.raises(ValueError, match="bad.csv"):
-        F.Measured.read(csv)
+        Measured.read(csv)
 
 
 def test_a_colour_scale_with_negative_angles_is_symmetric_and_marks_what_it_clips():
     # two panels: the scale is shared, round, and the corner spikes (beyond the 99.5 % quantile) are marked
     a = np.r_[np.linspace(-12.0, 30.0, 1000), 80.0]
     b = np.r_[np.linspace(-3.0, 45.0, 1000), -70.0]
-    cs = F.colour_scale([a, b])
+    cs = colour_scale([a, b])
     assert (cs.vmin, cs.vmax, cs.cmap, cs.extend) == (-50.0, 50.0, "RdBu_r", "both")
 
 
 def test_a_colour_scale_without_negative_angles_starts_at_zero():
-    cs = F.colour_scale([np.linspace(0.0, 54.8, 1000)])
+    cs = colour_scale([np.linspace(0.0, 54.8, 1000)])
     assert (cs.vmin, cs.vmax, cs.cmap, cs.extend) == (0.0, 60.0, "viridis", "neither")
 
 
 def test_the_map_panels_share_one_norm():
     tri = np.array([[0, 1, 2]])
-    maps = [F.MapData(u, np.array([0.0, 10.0, 0.0]), np.array([0.0, 0.0, 10.0]), tri, np.array([0.0, g, g / 2]))
+    maps = [MapData(u, np.array([0.0, 10.0, 0.0]), np.array([0.0, 0.0, 10.0]), tri, np.array([0.0, g, g / 2]))
             for u, g in ((10.0, 9.0), (20.0, 18.0))]
-    fig = F.shear_map_figure(maps)
+    fig = shear_map_figure(maps)
     norms = {(c.norm.vmin, c.norm.vmax) for ax in fig.axes[:2] for c in ax.collections}
     assert norms == {(0.0, 20.0)}
 
@@ -150,6 +155,7 @@ def test_ngbet_run_imports_no_matplotlib_before_it_solves():
     assert fresh_python(code) == "False"
 
 
+@pytest.mark.integration
 def test_run_figures_and_data_overlay_from_the_command_line(tmp_path):
     out = tmp_path / "run"
     csv = tmp_path / "m.csv"
@@ -159,7 +165,7 @@ def test_run_figures_and_data_overlay_from_the_command_line(tmp_path):
            "--set", "outputs.error_estimate='off'"]
     p = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "MPLBACKEND": "Agg"})
     assert p.returncode == 0, p.stderr
-    for name in F.RUN_FIGURES:  # PNG only: the scene asks for no other format
+    for name in RUN_FIGURES:  # PNG only: the scene asks for no other format
         assert (out / f"{name}.png").stat().st_size > 10000 and not (out / f"{name}.pdf").exists(), name
     csv.write_text("u,F\n")
     p = subprocess.run(cmd, capture_output=True, text=True)
@@ -170,7 +176,7 @@ def test_fsh_is_drawn_up_to_70_degrees_and_the_panel_says_what_it_leaves_out():
     """Towards yarn locking Eq. 18 divides by cos γ → 0: points beyond 70° are not drawn, and said so."""
     rs = [{"u0_mm": u, "force_N": u, "gamma_kinematic_deg": g, "fsh_N_per_mm": 0.01 * g, "gamma_centre_deg": g}
           for u, g in ((10.0, 30.0), (20.0, 60.0), (30.0, 80.0))]
-    ax = F.shear_force_figure(rs).axes[0]
+    ax = shear_force_figure(rs).axes[0]
     (curve,) = lines_of(ax)
     assert list(curve.get_xdata()) == [0.0, 30.0, 60.0] and "not drawn" in ax.texts[0].get_text()
 
@@ -196,25 +202,25 @@ def sheared_maps(low=-20.0):
     x, y = x.ravel(), y.ravel()
     tri = Triangulation(x, y).triangles
     g = low + (40.0 - low) * x / 220.0
-    return [F.MapData(u, x, y, tri, g * u / 56.0) for u in (28.0, 56.0)]
+    return [MapData(u, x, y, tri, g * u / 56.0) for u in (28.0, 56.0)]
 
 
 def test_every_run_figure_keeps_its_texts_inside_the_canvas():
-    from ngbet.scene import default_scene
+    from ngbet.scene.document import default_scene
 
     scene = default_scene()
     rows = default_rows()
-    figs = {"force": F.force_figure(rows, scene), "shear_force": F.shear_force_figure(rows, scene),
-            "profile": F.profile_figure({56.0: ([0.0, 110.0, 220.0], [0.0, 2.0, 0.0])}, [56.0], scene),
-            "shear_map": F.shear_map_figure(sheared_maps(), scene)}
+    figs = {"force": force_figure(rows, scene), "shear_force": shear_force_figure(rows, scene),
+            "profile": profile_figure({56.0: ([0.0, 110.0, 220.0], [0.0, 2.0, 0.0])}, [56.0], scene),
+            "shear_map": shear_map_figure(sheared_maps(), scene)}
     for name, fig in figs.items():
-        assert F.texts_outside(fig) == [], name
+        assert texts_outside(fig) == [], name
 
 
 def test_the_sizes_of_short_error_bars_are_written_inside_the_axes():
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    fig = F.force_figure(default_rows())
+    fig = force_figure(default_rows())
     ax = fig.axes[0]
     FigureCanvasAgg(fig).draw()
     r = fig.canvas.get_renderer()
@@ -227,16 +233,16 @@ def test_the_sizes_of_short_error_bars_are_written_inside_the_axes():
 
 
 def test_texts_outside_finds_a_label_beyond_the_canvas():
-    fig = F.force_figure(rows())
+    fig = force_figure(rows())
     fig.axes[0].text(1.4, 0.5, "far right", transform=fig.axes[0].transAxes)
     fig.set_layout_engine("none")  # the layout would otherwise not move it back: it is data, not a label
-    assert "far right" in F.texts_outside(fig)
+    assert "far right" in texts_outside(fig)
 
 
 def test_signed_map_panels_share_one_symmetric_diverging_norm_and_say_what_they_clip():
     maps = sheared_maps(low=-20.0)
     maps[1].gamma_deg[0] = 300.0  # a corner spike: beyond the scale, marked by the arrow and the caption
-    fig = F.shear_map_figure(maps)
+    fig = shear_map_figure(maps)
     norms = [c.norm for ax in fig.axes[:2] for c in ax.collections]
     assert len(norms) == 2 and norms[0] is norms[1]  # one norm object for both panels
     assert (norms[0].vmin, norms[0].vmax) == (-40.0, 40.0)
@@ -247,31 +253,31 @@ def test_signed_map_panels_share_one_symmetric_diverging_norm_and_say_what_they_
 
 
 def test_the_caption_names_specimen_and_material():
-    from ngbet.scene import default_scene
+    from ngbet.scene.document import default_scene
 
     sc = default_scene()
-    text = F.caption(sc)
+    text = f_caption(sc)
     sp = sc.specimen
     assert f"{sp.width_mm:g}\u00a0×\u00a0{sp.length_mm:g}\u00a0mm" in text
     assert "K_el\u00a0=\u00a0700\u00a0kPa" in text and "α1\u00a0=\u00a02\u00a0kPa\u00a0m²" in text
     # engineering notation at any size: no "1e-06 kPa m²", no "3.33e+06 Pa"
-    tiny = F.caption(sc.with_changes(**{"material.alpha1": 1e-3, "material.K_el": 3.33e6}))
+    tiny = f_caption(sc.with_changes(**{"material.alpha1": 1e-3, "material.K_el": 3.33e6}))
     assert "α1\u00a0=\u00a01\u00a0mPa\u00a0m²" in tiny and "K_el\u00a0=\u00a03.33\u00a0MPa" in tiny
     assert "e-0" not in tiny and "e+0" not in tiny
-    assert "yarn network" in F.caption(sc.with_changes(model="discrete"))
-    assert F.caption(sc.to_dict()) == text  # a study's base scene as its dictionary
+    assert "yarn network" in f_caption(sc.with_changes(model="discrete"))
+    assert f_caption(sc.to_dict()) == text  # a study's base scene as its dictionary
     # a scene named after its size, run at another size, is not captioned with the other size
     named = sc.with_changes(**{"specimen.name": "twill-100x250", "specimen.width_mm": 100.0,
                                "specimen.length_mm": 250.0})
-    assert F.caption(named).startswith("twill-100x250: specimen 100\u00a0×\u00a0250")
-    other = F.caption(named.with_changes(**{"specimen.length_mm": 300.0}))
+    assert f_caption(named).startswith("twill-100x250: specimen 100\u00a0×\u00a0250")
+    other = f_caption(named.with_changes(**{"specimen.length_mm": 300.0}))
     assert other.startswith("twill: specimen 100\u00a0×\u00a0300")
 
 
 def write_run(folder, formats=None):
     import csv
 
-    from ngbet.scene import default_scene
+    from ngbet.scene.document import default_scene
 
     folder.mkdir()
     rows = default_rows()
@@ -290,17 +296,17 @@ def write_run(folder, formats=None):
                                                  (["svg"], {"svg"})])
 def test_the_figures_are_written_in_the_formats_the_scene_asks_for(tmp_path, formats, files):
     run = write_run(tmp_path / "r", formats)
-    first = F.draw_run(run, only=["force"])
+    first = draw_run(run, only=["force"])
     assert first == run / f"force.{(formats or ['png'])[0]}"
     assert {p.suffix[1:] for p in run.glob("force.*")} == files
 
 
 def test_the_figures_drawn_in_forked_children_are_those_drawn_here(tmp_path):
     here, there = write_run(tmp_path / "here"), write_run(tmp_path / "there")
-    F.draw_run(here, parallel=False)
+    draw_run(here, parallel=False)
     # a fresh interpreter has no other thread: each figure is drawn by a forked child there
-    code = ("import sys, ngbet.figures as F; from ngbet.figures.style import can_fork; assert can_fork(); "
-            f"F.draw_run({str(there)!r}, parallel=True)")
+    code = ("from ngbet.figures.run import draw_run; from ngbet.figures.style import can_fork; assert can_fork(); "
+            f"draw_run({str(there)!r}, parallel=True)")
     subprocess.run([sys.executable, "-c", code], check=True, env={**os.environ, "MPLBACKEND": "Agg"})
     names = sorted(p.name for p in here.glob("*.png"))
     assert names == ["force.png", "shear_force.png"] == sorted(p.name for p in there.glob("*.png"))
@@ -311,7 +317,8 @@ def test_the_figures_drawn_in_forked_children_are_those_drawn_here(tmp_path):
 
 
 def test_an_unknown_figure_format_is_refused_naming_the_key():
-    from ngbet.scene import SceneError, default_scene
+    from ngbet.scene.document import default_scene
+    from ngbet.scene.validate import SceneError
 
     with pytest.raises(SceneError, match="outputs.figure_formats"):
         default_scene().with_changes(**{"outputs.figure_formats": ["png", "jpg"]})
@@ -328,7 +335,7 @@ def test_the_package_exports_what_it_lists_without_importing_matplotlib():
 def test_a_small_double_force_has_a_prefixed_unit_and_no_offset():
     """T of order 1e-5 N m is drawn in µN m (values −12..0), not with a '1e−5' offset above the axis."""
     tiny = [{**r, "double_force_Nm": -1.2e-5 * r["u0_mm"] / 8.0} for r in rows()]
-    fig = F.force_figure(tiny)
+    fig = force_figure(tiny)
     fig.canvas.draw()
     ax2 = fig.axes[1]
     assert ax2.get_ylabel() == "double force on the moving clamp [µN\u00a0m]"
@@ -344,10 +351,10 @@ def test_the_yarn_pictures_of_one_run_share_one_colour_scale():
     g1, g2 = np.array([10.0, 40.0]), np.array([20.0, 85.8])
     tops = []
     for g in (g1, g2):
-        fig = F.yarn_network_figure(x, beams, family, g, ends, 37.0, scale_over=[g1, g2])
+        fig = yarn_network_figure(x, beams, family, g, ends, 37.0, scale_over=[g1, g2])
         tops.append(fig.axes[-1].get_ylim()[1])
     assert tops == [100.0, 100.0]
-    alone = F.yarn_network_figure(x, beams, family, g1, ends, 37.0)
+    alone = yarn_network_figure(x, beams, family, g1, ends, 37.0)
     assert alone.axes[-1].get_ylim()[1] == 40.0  # without the run's other states: its own round scale
 
 
@@ -355,13 +362,13 @@ def test_the_yarn_pictures_of_one_run_share_one_colour_scale():
 def test_the_shear_force_legend_covers_no_point_of_the_curve(shape):
     """The F_sh curve of the default scene softens (its upper left is empty), a fabric's stiffens
     (its lower right is empty): the legend goes where it hides no computed point."""
-    from ngbet.scene import default_scene
+    from ngbet.scene.document import default_scene
 
     g = np.linspace(1.0, 60.0, 30)
     fsh = 0.5 * np.sin(np.radians(1.5 * g)) if shape == "softening" else 0.3 * (g / 60.0) ** 3
     data = [{"u0_mm": 2.0 * k, "gamma_kinematic_deg": a, "fsh_N_per_mm": f, "gamma_A_deg": a}
             for k, (a, f) in enumerate(zip(g, fsh, strict=True), 1)]
-    fig = F.shear_force_figure(data, default_scene())
+    fig = shear_force_figure(data, default_scene())
     fig.canvas.draw()
     ax = fig.axes[0]
     box = ax.get_legend().get_window_extent()

@@ -16,7 +16,8 @@ from ngbet.calibration.observations import Profile
 from ngbet.cli import main
 from ngbet.continuum import physics
 from ngbet.continuum.sensitivity import finite_difference, force_path
-from ngbet.scene import Scene, SceneError
+from ngbet.scene.document import Scene
+from ngbet.scene.validate import SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
 CAO_SCENE = ROOT / "geometry" / "cao2008_150x450.toml"
@@ -219,7 +220,8 @@ def test_load_tangent_at_a_converged_state_is_that_of_the_tangent_there(monkeypa
     from ngbet.continuum import sensitivity as S
     from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
-    from ngbet.continuum.solver import continuation, newton_settings
+    from ngbet.continuum.settings import newton_settings
+    from ngbet.continuum.solver import continuation
 
     sc = Scene().with_changes(**{"discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 2.0,
                                  "discretization.order_u": 2, "loading.u0_mm": 20.0, "effects.constraint": "penalty"})

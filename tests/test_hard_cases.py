@@ -23,9 +23,9 @@ import pytest
 from conftest import OneDofToy, coarse
 
 from ngbet.errors import ConvergenceError
-from ngbet.output import read_profiles, read_rows
 from ngbet.run import run
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
+from ngbet.tables import read_profiles, read_rows
 
 # reference: default scene (Lagrange, Λ ∈ L2(P0)) on the 10 mm mesh, force at 56 mm [N] (measured)
 F56_LAGRANGE_H10 = 111.914  # N, h = 10 mm, p = 2, Lagrange with the default stabilization
@@ -228,7 +228,7 @@ def test_a_yarn_family_without_bending_stiffness_is_refused(key):
     on 683 mm² with α2 = 0, family 1 on 985 mm² with α1 = 0 and α2 = 2000 Pa m²; the default
     stabilization, 0.1 min(α1, α2)/h², vanishes too): the model has no mesh-independent solution.
     The scene is refused before meshing, naming the key and a well-posed alternative."""
-    from ngbet.scene import SceneError
+    from ngbet.scene.validate import SceneError
 
     with pytest.raises(SceneError, match=rf"{key}.*no mesh-independent solution.*1e-3 Pa m\^2"):
         coarse(**{key: 0.0})
@@ -480,7 +480,8 @@ def test_arclength_passes_the_snap_back_of_a_toy_that_displacement_control_canno
     the path round both turning points to λ = g(1.2) = 0.288, every point in equilibrium, and
     reports the snap-back at the fold's load."""
     from ngbet.continuum.arclength import ArcLengthSettings, follow_arclength
-    from ngbet.continuum.solver import NewtonSettings, continuation
+    from ngbet.continuum.settings import NewtonSettings
+    from ngbet.continuum.solver import continuation
 
     lam_fold = _Fold.g((3 - math.sqrt(1.8)) / 6)
     target = _Fold.g(1.2)
@@ -550,7 +551,7 @@ class _Pitchfork:
 
 def _follow_pitchfork(branch, sign=1.0):
     from ngbet.continuum.arclength import ArcLengthSettings, follow_arclength
-    from ngbet.continuum.solver import NewtonSettings
+    from ngbet.continuum.settings import NewtonSettings
 
     toy = _Pitchfork()
     ctl = ArcLengthSettings(target=1.5, first_step=0.07, max_step=0.07, min_step=1e-6)
@@ -601,7 +602,8 @@ def test_arclength_switches_to_the_bifurcated_branch_of_a_pitchfork(sign):
 def test_branch_switching_is_refused_where_it_does_not_apply():
     """``solver.branch = "switch"`` needs arc-length path following of the continuum: with
     displacement control or the discrete model the scene is refused, naming the key."""
-    from ngbet.scene import Scene, SceneError
+    from ngbet.scene.document import Scene
+    from ngbet.scene.validate import SceneError
 
     with pytest.raises(SceneError, match=r"solver\.branch.*path_following = 'arclength' or 'auto'"):
         Scene().with_changes(**{"solver.branch": "switch"})
@@ -619,7 +621,7 @@ def test_no_eigenvalue_of_an_uncondensed_saddle_point_tangent(tmp_path):
     from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
     from ngbet.continuum.stability import diagnose_stability, lowest_eigenpair
-    from ngbet.scene import Scene
+    from ngbet.scene.document import Scene
 
     pb = continuum_solver(ContinuumProblem(Scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
                                                                     "solver.condense": False})))

@@ -20,7 +20,7 @@ from ngbet.cli import _force_text, _parser, main
 from ngbet.commands import parse_value
 from ngbet.commands import positionals_first as _positionals_first
 from ngbet.run_folder import FOLDER_MARKER, OutputError, OwnedFolder, _remove_all_or_none
-from ngbet.scene import Scene, SceneWarning
+from ngbet.scene.document import Scene, SceneWarning
 
 
 # ------------------------------------------------------------------------------------------ scenes

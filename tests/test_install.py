@@ -129,6 +129,7 @@ sys.exit(code)
 """
 
 
+@pytest.mark.integration
 def test_a_run_without_matplotlib_and_pyvista_writes_its_data_and_says_what_it_skipped(tmp_path, bare_env):
     out = tmp_path / "run"
     p = subprocess.run([sys.executable, "-c", RUN_AND_API, str(out)], env=bare_env, capture_output=True, text=True)

@@ -17,7 +17,8 @@ from netgen.geom2d import unit_square
 
 from ngbet.continuum import physics
 from ngbet.run import run
-from ngbet.scene import Scene, SceneError
+from ngbet.scene.document import Scene
+from ngbet.scene.validate import SceneError
 
 K = 7e5  # Pa
 S_JAM = math.sin(math.radians(5.0))
@@ -123,7 +124,7 @@ def test_an_ordinary_run_never_reaches_it(tmp_path, made_problems):
     """The default material to 56 mm (coarse mesh): the yarns never come within twice the jamming
     angle (the smallest angle between them is 35° on the embedded scene, measured), so the barrier is
     never even evaluated, and the forces and Newton iterations are those without it, bit for bit."""
-    from ngbet.output import read_rows
+    from ngbet.tables import read_rows
 
     made = made_problems
     ch = {"solver.threads": 1, "outputs.profile": False, "outputs.error_estimate": "off"}

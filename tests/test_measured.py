@@ -11,10 +11,10 @@ import pytest
 
 from ngbet.calibration.data import parse_sizes, read_all, read_measured, read_table
 from ngbet.cli import main
-from ngbet.figures import Measured
+from ngbet.figures.data import Measured
 from ngbet.kinematics import force_from_normalised, shear_angle_rad
 from ngbet.normalise import energy_method
-from ngbet.scene import SceneError
+from ngbet.scene.validate import SceneError
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 TWINTEX = sorted(p for p in (DATA / "cao2008").glob("cao2008_*.csv") if not p.stem.endswith("_errorbars"))

@@ -11,16 +11,18 @@ import warnings
 
 import pytest
 
-from ngbet.cli import exit_code, main
+from ngbet.cli import main
+from ngbet.commands import exit_code
 from ngbet.continuum.stability import EllipticityLoss, StabilityDiagnosis
 from ngbet.errors import ConvergenceError
 from ngbet.messages import messages
-from ngbet.scene import SceneWarning
+from ngbet.scene.document import SceneWarning
 
 SMALL = ["--set", "discretization.mesh_size_mm=20", "--set", "loading.u0_mm=10", "--set", "loading.stops_mm=[]",
          "--set", "outputs.vtk=false", "--set", "outputs.plot=false"]
 
 
+@pytest.mark.integration
 def test_a_scene_warning_is_one_ngbet_line_and_quiet_prints_nothing_else(tmp_path):
     p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(tmp_path / "run"), *SMALL,
                         "--set", "discrete.spacing_mm=3"], capture_output=True, text=True)

@@ -16,8 +16,8 @@ from __future__ import annotations
 from conftest import coarse
 
 from ngbet.discrete.equivalent import continuum_equivalent
-from ngbet.output import read_rows
 from ngbet.run import run
+from ngbet.tables import read_rows
 
 
 def _forces(tmp_path, K_el):

@@ -11,8 +11,8 @@ from ngbet.continuum.estimate import ForceErrorEstimator
 from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.path_spread import RunPathSpread
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.settings import LinearSettings, linear_settings
-from ngbet.continuum.solver import continuation, newton_settings
+from ngbet.continuum.settings import LinearSettings, linear_settings, newton_settings
+from ngbet.continuum.solver import continuation
 
 
 def _scene(**changes):

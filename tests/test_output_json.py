@@ -9,7 +9,7 @@ import numpy as np
 
 from ngbet.output import RunWriter
 from ngbet.run_folder import json_text, strict
-from ngbet.scene import default_scene
+from ngbet.scene.document import default_scene
 
 
 def _reject(name: str) -> None:

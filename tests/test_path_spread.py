@@ -7,9 +7,10 @@ import pytest
 from conftest import DoubleWell
 
 from ngbet.continuum.path_spread import PathSpread
-from ngbet.continuum.solver import NewtonSettings, PathSettings, continuation, load_steps
+from ngbet.continuum.settings import NewtonSettings, PathSettings
+from ngbet.continuum.solver import continuation, load_steps
 from ngbet.engine import Steps
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 
 LAM_FOLD = 2 / (3 * math.sqrt(3))  # the left well's branch folds here
 
@@ -78,7 +79,8 @@ def test_the_path_tells_the_branch_it_left_at_a_snap_and_its_forces_stay_the_sam
     states are bit for bit those of :func:`continuation`, which keeps nothing of the records."""
     a, b = DoubleWell(), DoubleWell()
     res_a = continuation(a, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
-    steps = Steps(load_steps(b, PathSettings(1.0, 0.05, min_step=1e-4), NewtonSettings(), psi=np.array([1.0, 0.0])))
+    steps = Steps(load_steps(b, PathSettings(target=1.0, first_step=0.05, min_step=1e-4), NewtonSettings(),
+                             psi=np.array([1.0, 0.0])))
     left = [(rec.left[0], rec.left[1].copy(), rec.snap) for rec in steps if rec.left is not None]
     assert steps.result is not None
     res_b = steps.result

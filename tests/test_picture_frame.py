@@ -22,7 +22,10 @@ from ngbet.kinematics import (
     frame_stretches,
     shear_force,
 )
-from ngbet.scene import Discretization, PictureFrame, Scene, SceneError, SceneWarning, Specimen
+from ngbet.scene.document import Scene, SceneWarning
+from ngbet.scene.numerical import Discretization
+from ngbet.scene.physical import PictureFrame, Specimen
+from ngbet.scene.validate import SceneError
 
 
 def frame_scene(**changes) -> Scene:
@@ -227,12 +230,11 @@ def test_the_shipped_frame_scenes_are_the_benchmarks_frames():
 
 
 def test_the_frame_figures_are_drawn_inside_their_canvas(tmp_path):
-    from ngbet.figures import texts_outside
     from ngbet.figures.data import load_maps, read_scene
     from ngbet.figures.frame import frame_force_figure, frame_shear_figure
     from ngbet.figures.maps import shear_map_figure
-    from ngbet.figures.style import in_style
-    from ngbet.output import read_rows
+    from ngbet.figures.style import in_style, texts_outside
+    from ngbet.tables import read_rows
 
     sc = frame_scene(**{"picture_frame.fabric_mm": 80.0, "picture_frame.misalignment_deg": 1.0, "outputs.plot": True})
     simulate(sc, out=tmp_path / "run")

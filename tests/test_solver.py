@@ -10,10 +10,11 @@ from conftest import coarse
 
 from ngbet.continuum.numerics import continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.solver import NewtonSettings, continuation, newton_settings
+from ngbet.continuum.settings import NewtonSettings, newton_settings
+from ngbet.continuum.solver import continuation
 from ngbet.errors import ConvergenceError
-from ngbet.output import read_rows
 from ngbet.run import run
+from ngbet.tables import read_rows
 
 
 def _deformed_problem(**changes):

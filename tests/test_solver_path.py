@@ -7,7 +7,7 @@ import pytest
 
 from ngbet.continuum.settings import PathSettings, newton_settings, path_settings
 from ngbet.continuum.solver import follow
-from ngbet.scene import default_scene
+from ngbet.scene.document import default_scene
 
 
 def test_path_settings_of_the_default_scene():
@@ -24,18 +24,19 @@ def test_path_settings_of_the_default_scene():
 @pytest.mark.parametrize("following", ["arclength", "auto"])
 def test_arc_length_without_a_runner_is_refused(following):
     """Asking for arc length where no arc-length runner is given is an error, not displacement control."""
-    path = PathSettings(0.01, 0.01, path_following=following)
+    path = PathSettings(target=0.01, first_step=0.01, path_following=following)
     with pytest.raises(ValueError, match="needs an arc-length runner"):
         follow(object(), path, newton_settings(default_scene()))  # type: ignore[arg-type]
 
 
 def test_an_unknown_path_following_is_refused():
     with pytest.raises(ValueError, match="path_following = 'arc'"):
-        follow(object(), PathSettings(0.01, 0.01, path_following="arc"), newton_settings(default_scene()))
+        follow(object(), PathSettings(target=0.01, first_step=0.01, path_following="arc"),
+               newton_settings(default_scene()))
 
 
 def test_path_settings_default_bounds():
-    p = PathSettings(0.02, 0.01)
+    p = PathSettings(target=0.02, first_step=0.01)
     assert math.isinf(p.max_step) and p.stops == () and p.snap and p.max_attempts == 500
 
 
@@ -71,10 +72,11 @@ def test_the_continuum_path_stops_where_its_caller_stops_and_returns_what_it_yie
     them) bit for bit, and the snap-through's step is the one record that carries the branch left."""
     from conftest import DoubleWell
 
-    from ngbet.continuum.solver import NewtonSettings, load_steps
+    from ngbet.continuum.settings import NewtonSettings
+    from ngbet.continuum.solver import load_steps
     from ngbet.engine import Steps
 
-    path, psi = PathSettings(1.0, 0.05, min_step=1e-4), np.array([1.0, 0.0])
+    path, psi = PathSettings(target=1.0, first_step=0.05, min_step=1e-4), np.array([1.0, 0.0])
     toy = DoubleWell()
     k, loads = 3, []
     for rec in load_steps(toy, path, NewtonSettings(), psi=psi):

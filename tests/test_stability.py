@@ -36,7 +36,8 @@ def test_displacement_control_snaps_through_a_fold_to_the_other_well_and_goes_on
     """At the fold the step is relaxed to the stable state at the same load (the right well), the
     jump is recorded with the energy it released (0.75 at the fold, the exact value of the toy),
     and the path goes on to λ = 1, where the equilibrium is the real root of y³ − y = 1."""
-    from ngbet.continuum.solver import NewtonSettings, continuation
+    from ngbet.continuum.settings import NewtonSettings
+    from ngbet.continuum.solver import continuation
 
     toy = DoubleWell()
     res = continuation(toy, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
@@ -54,7 +55,8 @@ def test_displacement_control_snaps_through_a_fold_to_the_other_well_and_goes_on
 
 def test_without_relaxation_displacement_control_stops_at_the_fold():
     """The same toy with ``snap = False``: displacement control cannot pass the fold."""
-    from ngbet.continuum.solver import NewtonSettings, continuation
+    from ngbet.continuum.settings import NewtonSettings
+    from ngbet.continuum.solver import continuation
     from ngbet.errors import ConvergenceError
 
     with pytest.raises(ConvergenceError) as info:
@@ -65,7 +67,8 @@ def test_without_relaxation_displacement_control_stops_at_the_fold():
 def test_relaxation_leaves_an_unstable_equilibrium_along_its_mode():
     """Started on the hilltop y = 0 at λ = 0 (an equilibrium, tangent −1), :func:`relax` kicks
     along the unstable mode and finds a well bottom y = ±1, stable, reporting the eigenvalue it left."""
-    from ngbet.continuum.solver import NewtonSettings, relax
+    from ngbet.continuum.settings import NewtonSettings
+    from ngbet.continuum.solver import relax
 
     toy = DoubleWell(0.0)
     rep = relax(toy, NewtonSettings(), 1.0)
@@ -87,7 +90,8 @@ class _WallAtZero(DoubleWell):
 def test_no_snap_into_an_inadmissible_state():
     """The relaxation does not cross into the inadmissible region: the run stops at the fold with
     the reason in the attempts, instead of jumping to the right well."""
-    from ngbet.continuum.solver import NewtonSettings, continuation
+    from ngbet.continuum.settings import NewtonSettings
+    from ngbet.continuum.solver import continuation
     from ngbet.errors import ConvergenceError
 
     with pytest.raises(ConvergenceError) as info:

@@ -16,9 +16,12 @@ from pathlib import Path
 
 import pytest
 
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 from ngbet.studies import _common as C
-from ngbet.study import Study, load, plot_only, run_study
+from ngbet.study.collect import load
+from ngbet.study.figures import plot_only
+from ngbet.study.model import Study
+from ngbet.study.runner import run_study
 
 TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
         "discretization.corner_mesh_size_mm": 0.0, "discretization.order_u": 2,
@@ -34,8 +37,8 @@ def tiny_study(cases):
 
 
 def _force_plot(d):
-    from ngbet.figures import subplots
-    from ngbet.study import savefig
+    from ngbet.figures.style import subplots
+    from ngbet.study.figures import savefig
 
     fig, ax = subplots()
     for c in d.cases():
@@ -123,7 +126,8 @@ def quick_cache(tmp_path_factory):
 def every_figure_inside_its_canvas(monkeypatch):
     """Every figure a study writes in these tests has every text inside its canvas (renderer boxes)."""
     pytest.importorskip("matplotlib")
-    from ngbet.figures import style, texts_outside  # the style module (its context manager is in_style)
+    from ngbet.figures import style  # the style module (its context manager is in_style)
+    from ngbet.figures.style import texts_outside
 
     written = {}
     real = style.FigureWriter.save
@@ -140,7 +144,7 @@ def every_figure_inside_its_canvas(monkeypatch):
 def run_quick(name, tmp_path, quick_cache):
     import importlib
 
-    from ngbet.study import build_study
+    from ngbet.study.command import build_study
 
     mod = importlib.import_module(f"ngbet.studies.{name}")
     return mod, run_study(build_study(mod.build, True, cache=quick_cache), tmp_path / name, cache=quick_cache,
@@ -264,7 +268,7 @@ def test_cli_study(tmp_path, quick_cache, capsys):
 
 # --- study outputs right by construction ---------------------------------------------------------
 def test_find_is_exact_a_case_with_one_more_key_is_another_case(tmp_path):
-    from ngbet.study import StudyData
+    from ngbet.study.model import StudyData
 
     uniform = C.lagrange(20.0, 2)
     graded = C.lagrange(20.0, 2, 0.5)
@@ -284,17 +288,17 @@ def figures():
 
 
 def capture(monkeypatch, mod, figures):
-    from ngbet import study
+    from ngbet.study.figures import savefig
 
     def keep(fig, out, name):
         figures[name] = fig
-        return study.savefig(fig, out, name)
+        return savefig(fig, out, name)
     monkeypatch.setattr(mod, "savefig", keep)
 
 
 def labels_inside(fig):
     """Every text of the figure inside its canvas, measured with the renderer's bounding boxes."""
-    from ngbet.figures import texts_outside
+    from ngbet.figures.style import texts_outside
 
     assert texts_outside(fig) == []
 
@@ -371,7 +375,7 @@ def test_one_reference_per_scene_across_studies(tmp_path, quick_cache):
 def test_studies_start_from_the_default_scene_and_quick_says_what_it_leaves_out():
     from ngbet import default_scene
     from ngbet.studies import alpha1
-    from ngbet.study import build_study
+    from ngbet.study.command import build_study
 
     full = alpha1.build(False)
     assert full.base.discretization == default_scene().discretization
@@ -447,7 +451,7 @@ def test_bad_sweep_or_study_scene_is_exit_2_naming_it(tmp_path, capsys, argv, ne
 
 
 def test_sweep_values_with_brackets():
-    from ngbet.cli import _parse_value
+    from ngbet.commands import parse_value as _parse_value
     from ngbet.studies.sweep import parse_items
 
     axes, scene = parse_items(["loading.stops_mm=[10,20],[37]", "s.toml", "material.K_el=1e6,2e6"], _parse_value)
@@ -477,7 +481,7 @@ def test_a_live_studys_finished_unstored_case_survives_another_studys_start(tmp_
         assert (wd / "results.csv").exists()  # the live study's folder is still there
         c = Case(0, {C.P: 3}, scene, key)
         assert accept(cache, token, c, rec, wd)["status"] == "ok"
-    from ngbet.study import verify_case
+    from ngbet.study.cache import verify_case
 
     assert verify_case(cache / key)["status"] == "ok"
 
@@ -571,7 +575,8 @@ def test_a_scheduler_without_workers_is_an_error_in_bounded_time(tmp_path, monke
 def test_a_killed_dask_worker_ends_the_study_in_bounded_time_keeping_finished_cases(tmp_path, monkeypatch):
     """The scheduler and one worker (no nanny to restart it) as separate processes; the worker is
     SIGKILLed after the first case is stored, during the second, which is slow."""
-    from ngbet.study import SchedulerError, verify_case
+    from ngbet.study.cache import verify_case
+    from ngbet.study.cluster import SchedulerError
 
     monkeypatch.setenv("NGBET_DASK_WORKER_TIMEOUT_S", "3")
     sfile = tmp_path / "scheduler.json"
@@ -618,65 +623,7 @@ def wait_until(cond, timeout=60.0):
         time.sleep(0.05)
 
 
-# --- layout ---------------------------------------------------------------------------------------
-def _imports(path, module):
-    """The ngbet modules a file imports, at any depth (function-local imports included; those
-    under ``if TYPE_CHECKING:``, for annotations only, never run)."""
-    import ast
-
-    pkg = module.split(".")
-    if not path.name == "__init__.py":
-        pkg = pkg[:-1]
-    out = set()
-    tree = ast.parse(path.read_text())
-    typing_only = {id(n) for top in ast.walk(tree) if isinstance(top, ast.If)
-                   and getattr(top.test, "id", getattr(top.test, "attr", "")) == "TYPE_CHECKING"
-                   for n in ast.walk(top)}
-    for node in ast.walk(tree):
-        if id(node) in typing_only:
-            continue
-        if isinstance(node, ast.Import):
-            out |= {a.name for a in node.names if a.name.startswith("ngbet")}
-        elif isinstance(node, ast.ImportFrom):
-            base = pkg[: len(pkg) - node.level + 1] if node.level else []
-            mod = ".".join([*base, *(node.module.split(".") if node.module else [])])
-            if mod.startswith("ngbet"):
-                out.add(mod)
-                out |= {f"{mod}.{a.name}" for a in node.names}
-    return out
-
-
-def test_no_import_circle_and_small_modules():
-    import ngbet
-
-    root = Path(ngbet.__file__).parent
-    files = {}
-    for p in root.rglob("*.py"):
-        rel = p.relative_to(root.parent).with_suffix("")
-        name = ".".join(rel.parts[:-1] if p.name == "__init__.py" else rel.parts)
-        files[name] = p
-    import ngbet.studies
-
-    for p in Path(ngbet.studies.__file__).parent.glob("*.py"):  # wherever the studies are installed from
-        files["ngbet.studies" + ("" if p.name == "__init__.py" else f".{p.stem}")] = p
-    graph = {m: {i for i in _imports(p, m) if i in files and i != m} for m, p in files.items()}
-    # every module of ngbet, the studies included; a package's __init__ only gathers names its
-    # modules define, so an import of the package is not an edge back into the package's modules
-    ours = [m for m, p in files.items() if p.name != "__init__.py"]
-    graph = {m: {n for n in graph[m] if n in ours} for m in ours}
-    for start in ours:  # depth-first: no path from a study module back to itself
-        stack, seen = [(start, [start])], set()
-        while stack:
-            m, path = stack.pop()
-            for n in graph[m]:
-                assert n != start, " -> ".join([*path, n])
-                if n not in seen:
-                    seen.add(n)
-                    stack.append((n, [*path, n]))
-    big = {m: n for m in ours if (n := len(files[m].read_text().splitlines())) > 510}  # about 500 lines
-    assert not big, big
-
-
+# --- layout (the import graph: tests/test_layout.py) -------------------------------------------
 def test_every_package_is_installed_and_the_studies_come_from_the_top_level_folder():
     """pyproject.toml lists the packages (discovery does not follow package-dir): a new subpackage
     missing from the list would be left out of a plain ``pip install .`` without a word."""
@@ -743,7 +690,7 @@ def test_a_stopped_study_keeps_its_cases_when_another_starts_on_the_same_cache(t
         running = [d.name for d in cache.glob(".run-*")]
         # A's workers go on: B starts once they have finished their cases (no run lock held), the
         # moment a study that stores its cases late would have them lying about unstored
-        from ngbet.output import RUN_LOCK
+        from ngbet.run_folder import RUN_LOCK
         from ngbet.study.cache import held
 
         wait_until(lambda: not any(held(d / RUN_LOCK) for d in cache.glob(".run-*")), 300)
@@ -772,7 +719,8 @@ def test_the_studies_draw_through_ngbet_figures_without_pyplot():
 
 
 def test_validation_takes_the_scene_of_a_fabric_and_refuses_another_naming_the_key():
-    from ngbet.scene import SceneError, default_scene
+    from ngbet.scene.document import default_scene
+    from ngbet.scene.validate import SceneError
     from ngbet.studies import validation as V
 
     repo = Path(__file__).resolve().parent.parent

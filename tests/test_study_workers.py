@@ -8,7 +8,7 @@ import os
 
 import pytest
 
-from ngbet.scene import Scene
+from ngbet.scene.document import Scene
 from ngbet.study import executors
 from ngbet.study.model import Case
 

@@ -21,10 +21,11 @@ import ngsolve as ngs
 import numpy as np
 
 from ngbet.continuum import observables as obs
+from ngbet.continuum.newton import newton
 from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
 from ngbet.continuum.run import load_path
-from ngbet.continuum.solver import newton, newton_settings
+from ngbet.continuum.settings import newton_settings
 from ngbet.continuum.stability import diagnose_stability
 from ngbet.engine import run_to_end
 from ngbet.studies import _common as C

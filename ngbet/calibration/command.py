@@ -24,8 +24,11 @@ from typing import Any
 import numpy as np
 
 from ..run_folder import OwnedFolder
-from ..scene import Scene, SceneError
+from ..scene.document import Scene
+from ..scene.validate import SceneError
 from .data import MeasuredCurve, read_measured
+
+__all__ = ["Inputs", "add_parser", "run_from_args", "summary"]
 
 
 def add_parser(sub: Any) -> None:

@@ -28,7 +28,7 @@ rows of numbers. :func:`read_table` understands
   note says so. Falls of that size before the largest displacement (several cycles) are refused.
 
 Everything is checked before any model run, and a refusal names the file and the line and says
-what to write (:class:`ngbet.scene.SceneError`, exit status 2).
+what to write (:class:`ngbet.scene.validate.SceneError`, exit status 2).
 
 :func:`read_measured` reads a bias extension curve (clamp displacement [mm], force [N]) for the
 calibration and the run figures. A file ``NAME_errorbars.csv`` beside ``NAME.csv`` with the
@@ -53,7 +53,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import SceneError
+from ..scene.validate import SceneError
+
+__all__ = ["MIN_RELATIVE_SD", "POINTS_PER_CURVE", "RANGE", "READING_ERROR_N", "MeasuredCurve", "errorbar_path",
+           "read_measured"]
 
 #: the points of a curve that enter a fit
 POINTS_PER_CURVE = 16

@@ -41,9 +41,14 @@ from typing import Any
 import numpy as np
 
 from ..continuum.estimate import Rung
-from ..scene import Scene, SceneError
+from ..scene.document import Scene
+from ..scene.validate import SceneError
 from .data import RANGE, MeasuredCurve
 from .observations import Profile, ShearAngles
+
+__all__ = ["BOUND_FACTOR", "TABLE_KEY", "CurveFit", "CurvePrediction", "JointFit", "Progress", "band", "bounds",
+           "curve_scene", "expand_params", "fit_curves", "portable_scene", "predict_specimen", "terminal_progress",
+           "value_of", "with_values"]
 
 log = logging.getLogger(__name__)
 
@@ -66,11 +71,11 @@ def expand_params(scene: Scene, params: Sequence[str]) -> list[str]:
             out.append(p)
         else:
             raise SceneError(f"parameter '{p}' is not a material key of the scene (e.g. material.K_el)")
-    from ..continuum.sensitivity import DIFFERENTIABLE, _table_index
+    from ..continuum.sensitivity import DIFFERENTIABLE, table_index
 
     for p in out:
         key = p.partition(".")[2]
-        if key not in DIFFERENTIABLE and _table_index(key) is None:
+        if key not in DIFFERENTIABLE and table_index(key) is None:
             raise SceneError(f"parameter '{p}': ngbet cannot differentiate the force with respect to it; known: "
                              f"{', '.join('material.' + k for k in DIFFERENTIABLE)}")
     return out

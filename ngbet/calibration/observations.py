@@ -12,7 +12,7 @@ their derivatives with respect to the parameters coming from the same model run
   clamp displacement [mm].
 
 Lines starting with ``#`` are comments. A refusal names the file and the line
-(:class:`ngbet.scene.SceneError`).
+(:class:`ngbet.scene.validate.SceneError`).
 """
 
 from __future__ import annotations
@@ -23,7 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import SceneError
+from ..scene.validate import SceneError
+
+__all__ = ["Profile", "ShearAngles", "read_angles", "read_profile"]
 
 
 def _columns(path: Path, what: str, need: tuple[str, ...]) -> dict[str, np.ndarray]:

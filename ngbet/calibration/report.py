@@ -12,6 +12,8 @@ import numpy as np
 from .data import MeasuredCurve
 from .joint import TABLE_KEY, CurvePrediction, JointFit, band
 
+__all__ = ["plot_fit", "plot_table", "prediction_json", "table_band", "write_fit", "write_prediction"]
+
 
 def _atomic(path: Path, text: str) -> Path:
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -74,7 +76,7 @@ def plot_table(result: JointFit, path: Path) -> Path:
     ax.set_ylim(lo, hi)
     ax.set_xlabel("|i8| (= sin γ for inextensible yarns)")
     ax.set_ylabel("shear stress τ = dW/d|i8| [kPa] (log scale)")
-    from ..figures import eng
+    from ..figures.style import eng
 
     ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}, t = {t:g} mm; fitted K_el = "
                  f"{eng(result.scene.material.K_el, 'Pa')}", fontsize=9)

@@ -21,6 +21,8 @@ from ..continuum.physics import table_stress_spline
 from ..kinematics import normalised_shear_force
 from .data import MeasuredCurve
 
+__all__ = ["shear_stress_points", "start_table"]
+
 
 def shear_stress_points(curve: MeasuredCurve, thickness_mm: float, n: int = 40,
                         fraction: tuple[float, float] = (0.02, 0.9)) -> tuple[np.ndarray, np.ndarray]:

@@ -13,3 +13,5 @@ import ngsolve as _ngs
 # NGSolve's own console messages ask nothing of a user ("no more timer available (biform_from_py),
 # reusing last one" after some thousand forms in one process, a study's worker): ngbet says what matters
 _ngs.ngsglobals.msg_level = 0
+
+__all__: list[str] = []

@@ -53,16 +53,16 @@ import numpy as np
 
 from ..engine import PathControl, PathResult, StepRecord, Steps, check_stop
 from ..errors import Attempt, ConvergenceError
-from ..scene import SceneError
-from .newton import NewtonSettings, NonlinearProblem, newton
-from .settings import newton_settings, path_settings
+from ..scene.validate import SceneError
+from .newton import NonlinearProblem, newton
+from .settings import NewtonSettings, newton_settings, path_settings
 
 log = logging.getLogger(__name__)
 
 __all__ = ["ArcLengthSettings", "Instability", "arclength_steps", "follow_arclength"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ArcLengthSettings(PathControl):
     """Step control of the arc-length continuation (lengths as clamp displacements [m] at the start).
 
@@ -362,7 +362,7 @@ class _Tracker:
         if self.eig is not None:  # it refactorizes at this same point: the tangent stands
             self.prev.lowest_eigenvalue, self.prev.mode = self.eig()
 
-    def point(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> Instability:
+    def point(self, rec: StepRecord, r: np.ndarray | None) -> Instability:
         """The record of the converged point the path stands at (its eigenpair when watched)."""
         here = Instability("", rec.u0 * 1e3, float(self.psi @ r) if r is not None else math.nan)
         if self.eig is not None:  # it refactorizes at this same point: the tangent stands
@@ -370,7 +370,7 @@ class _Tracker:
         return here
 
     def update(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> list[Instability]:
-        here = self.point(path, rec, r)
+        here = self.point(rec, r)
         prev, out = self.prev, []
         if self.tau_l > 0 >= path.tau_l:
             out.append(dataclasses.replace(prev, kind="snap-back", details={"note": "the path turns back in u0"}))
@@ -385,7 +385,7 @@ class _Tracker:
 
     def restart(self, path: _Path, rec: StepRecord, r: np.ndarray | None) -> None:
         """Watch from the point the path stands at, compared with nothing before it (a new branch)."""
-        self.tau_l, self.dR, self.prev = path.tau_l, rec.dforce_du0, self.point(path, rec, r)
+        self.tau_l, self.dR, self.prev = path.tau_l, rec.dforce_du0, self.point(rec, r)
 
 
 def _bifurcation(prev: Instability, here: Instability) -> Instability:

@@ -45,7 +45,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .newton import NewtonReport, NewtonSettings, NonlinearProblem
+from .newton import NewtonReport, NonlinearProblem
+from .settings import NewtonSettings
+
+__all__ = ["CHORD_CONTRACTION", "CHORD_ITERATIONS", "CHORD_MARGIN", "CHORD_PREDICTOR_STATES", "FD_STEP",
+           "TANGENT_REFINEMENTS", "TANGENT_RTOL", "ChordRows", "chord", "chord_loads", "extrapolate", "jacobian_times",
+           "tangent_at_hand"]
 
 #: a chord correction contracting by more than this (energy norm) linearizes again, once; if it still
 #: does, Newton takes over. Measured on the default run (margin 1): 0.15, 0.2, 0.3, 0.4 give 10, 8, 7,

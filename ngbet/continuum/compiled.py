@@ -83,6 +83,8 @@ from typing import Any
 
 import ngsolve as ngs
 
+__all__ = ["COMPILE_MODES", "NATIVE_COLD", "NATIVE_IF_CACHED", "add_energy", "cache_dir", "compile_energy"]
+
 log = logging.getLogger(__name__)
 
 COMPILE_MODES = ("auto", "interpret", "native")

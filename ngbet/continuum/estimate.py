@@ -8,8 +8,7 @@ The error of the force is estimated by
 .. math::  \eta_F = \max(\theta\,|F_p - F_{p+1}|,\ \theta_2\,|F_p - F_{p+2}|),
            \qquad \theta = 2.5,\ \theta_2 = 1.25
 
-and that of the mid-axis profile by θ max|u_y,p − u_y,p+1|. With ``one_step=False``
-(:data:`METHOD`) Newton is run to convergence at each level instead. Why (measured against
+and that of the mid-axis profile by θ max|u_y,p − u_y,p+1|. Why (measured against
 reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accuracy.py):
 
 * the error lives at the four singular clamp corners, where raising p on a fixed mesh gains
@@ -64,18 +63,23 @@ from typing import Any
 import numpy as np
 
 from ..engine import time_budget
-from ..scene import AUTO, Discretization, Scene
-from .newton import NewtonReport, newton, newton_settings
+from ..scene.document import Scene
+from ..scene.numerical import Discretization
+from ..scene.validate import AUTO
+from .newton import NewtonReport, newton
 from .path_spread import RunPathSpread
+from .settings import newton_settings
+
+__all__ = ["CORNER_LEVELS", "ENRICHED_REUSE", "ENRICHED_RTOL", "EXPECTED_MARGIN", "LADDER", "METHOD_CORNER",
+           "METHOD_ONE_STEP", "PLATEAU_SKIP_CONTRACTION", "STEP_CONTRACTION", "THETA", "THETA_CORNER",
+           "THETA_PLATEAU", "Estimate", "ForceErrorEstimator", "RunEstimates", "Rung", "enriched_discretization",
+           "estimate", "first_rung", "one_newton_step", "reachable_accuracy", "run_to_accuracy"]
 
 log = logging.getLogger(__name__)
 
-METHOD = "p+1 enriched Newton on the same mesh, theta = 2.5"
 #: safety factor θ: the enriched solution's own error is 30–75 % of the original's (measured)
 THETA = 2.5
 METHOD_ONE_STEP = "p+1 enriched, one Newton step on the same mesh, theta = 2.5"
-#: one linearized step at p + 1 instead of the converged enriched Newton (see the module docstring)
-ONE_STEP = True
 METHOD_CORNER = "p+1 enriched, clamp corners bisected 3 times, one Newton step, theta = 2"
 #: on meshes without corner grading: bisections of the corner elements in the enriched space
 #: (0: the same mesh)
@@ -157,13 +161,12 @@ class ForceErrorEstimator:
         Points of the mid-axis profile (0: no profile estimate).
     """
 
-    def __init__(self, solver: Any, profile_points: int = 0, one_step: bool = ONE_STEP) -> None:
+    def __init__(self, solver: Any, profile_points: int = 0) -> None:
         self.solver, self.problem = solver, solver.problem
         self.profile_points = profile_points
-        self.one_step = one_step
         # without corner grading the error does not fall with p alone: enrich at the corners too
-        self.corner = self.problem.scene.discretization.corner_mesh_size_mm <= 0 and one_step and CORNER_LEVELS > 0
-        self.method = METHOD_CORNER if self.corner else METHOD_ONE_STEP if one_step else METHOD
+        self.corner = self.problem.scene.discretization.corner_mesh_size_mm <= 0 and CORNER_LEVELS > 0
+        self.method = METHOD_CORNER if self.corner else METHOD_ONE_STEP
         self.theta = THETA_CORNER if self.corner else THETA
         self._enriched: Any = None  # p + 1
         self._enriched2: Any = None  # p + 2, on the same mesh as p + 1
@@ -250,21 +253,20 @@ class ForceErrorEstimator:
         enr.set_load(lam)
         p_enr = up.scene.discretization.p_u
         x0 = enr.x.copy()
-        r0 = enr.residual() if self.one_step else None
-        report = one_newton_step(enr, r0) if self.one_step else None
-        self.last_contraction = report.contraction if report is not None else math.nan
-        log.debug("enriched step at p = %d: contraction %.3g", p_enr, report.contraction if report else math.nan)
-        if report is None or not report.converged or report.contraction > STEP_CONTRACTION:
-            first = "" if report is None else (
-                f"one Newton step at p = {p_enr} contracts by {report.contraction:.2g}"
-                if report.converged else f"one Newton step at p = {p_enr}: {report.reason}")
-            if not converge and report is not None:
+        r0 = enr.residual()
+        report = one_newton_step(enr, r0)
+        self.last_contraction = report.contraction
+        log.debug("enriched step at p = %d: contraction %.3g", p_enr, report.contraction)
+        if not report.converged or report.contraction > STEP_CONTRACTION:
+            first = (f"one Newton step at p = {p_enr} contracts by {report.contraction:.2g}"
+                     if report.converged else f"one Newton step at p = {p_enr}: {report.reason}")
+            if not converge:
                 return math.nan, report.iterations, f"{first} (not solved further)"
             enr.x[:] = x0
             settings = dataclasses.replace(newton_settings(up.scene), reuse_contraction=ENRICHED_REUSE,
                                            rtol=max(ENRICHED_RTOL, up.scene.solver.rtol))
             # the one step's factorization is that at x0: Newton's first iteration reuses it
-            report = newton(enr, settings, enr.energy(), factorized=r0 is not None, r=r0)
+            report = newton(enr, settings, enr.energy(), factorized=True, r=r0)
             if not report.converged or report.residual is None:
                 return math.nan, report.iterations, (
                     f"the enriched problem (p = {p_enr}) has no equilibrium that Newton reaches from the state "
@@ -381,13 +383,13 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
 
     Raises
     ------
-    ngbet.scene.SceneError
+    ngbet.scene.validate.SceneError
         before solving, when the target is below :func:`reachable_accuracy`.
     ngbet.errors.ConvergenceError
         when the target is not met (the best rung's files are in ``out``).
     """
     from ..errors import ConvergenceError
-    from ..scene import SceneError
+    from ..scene.validate import SceneError
 
     target = scene.discretization.target_error
     best_reachable = reachable_accuracy()
@@ -480,8 +482,7 @@ class RunEstimates:
         self.mode = sc.outputs.error_estimate
         self.final = sc.loading.u0_mm
         self.stops = tuple(sc.loading.stops_mm) if self.mode == "stops" else ()
-        self.estimator = (ForceErrorEstimator(solver, sc.outputs.profile_points if sc.outputs.profile else 0,
-                                              one_step=ONE_STEP)
+        self.estimator = (ForceErrorEstimator(solver, sc.outputs.profile_points if sc.outputs.profile else 0)
                           if self.mode != "off" and sc.outputs.reaction else None)
         self.last: Estimate | None = None
         self.spread = RunPathSpread(solver)  # the path's relaxations tell it the branches they left

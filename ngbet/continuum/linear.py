@@ -28,6 +28,9 @@ from .compiled import add_energy
 if TYPE_CHECKING:
     import scipy.sparse as sps
 
+__all__ = ["CHOLMOD_MIN_DOFS", "LAGRANGE_AUGMENTATION", "NewtonLinearSolver", "assembly_thread_count",
+           "assembly_threads", "energy_form", "pick_inverse"]
+
 #: K_aug / K_ref for the condensed Newton matrix of the exact Lagrange method: large enough that
 #: the Jacobian error (relative size ~ K_sh / K_aug) leaves Newton quadratic to the tolerance,
 #: small enough that the condensed matrix keeps ~8 correct digits.

@@ -14,7 +14,12 @@ import math
 
 import ngsolve as ngs
 
-from ..scene import Discretization, PictureFrame, Scene, Specimen
+from ..scene.document import Scene
+from ..scene.numerical import Discretization
+from ..scene.physical import PictureFrame, Specimen
+
+__all__ = ["CLAMPED_ARMS", "corner_elements", "corner_refined", "cross_outline", "make_cross_mesh", "make_mesh",
+           "singular_corners"]
 
 FIXED, MOVING, FREE = "left", "right", "bottom|top"
 CLAMPED_ARMS = "clamp"

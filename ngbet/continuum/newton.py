@@ -23,10 +23,9 @@ from typing import Protocol
 import numpy as np
 
 from ..errors import Attempt
-from .settings import NewtonSettings, newton_settings
+from .settings import NewtonSettings
 
-__all__ = ["Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "failure_pattern", "newton",
-           "newton_settings"]
+__all__ = ["Diagnosis", "NewtonReport", "NonlinearProblem", "failure_pattern", "newton"]
 
 
 class Diagnosis(Protocol):

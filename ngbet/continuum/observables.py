@@ -20,6 +20,10 @@ from . import physics
 if TYPE_CHECKING:  # for the annotations only: the problem's diagnosis uses these observables
     from .problem import ContinuumProblem
 
+__all__ = ["ZoneShearMeans", "centre_shear_angle_deg", "constraint_l2", "ellipticity_loss_area", "field_functions",
+           "map_samples", "midaxis_profile", "min_at_points", "multiplier_oscillation", "reaction_double_force",
+           "reaction_force", "zone_indicators"]
+
 
 def reaction_force(problem: ContinuumProblem, r: np.ndarray) -> float:
     """R = r·ψ_u [N/m]: reaction force per unit thickness on Σ2 along e1."""

@@ -18,6 +18,8 @@ import numpy as np
 
 from . import observables as obs
 
+__all__ = ["MM", "scale_points", "vtk_subdivision", "write_vtk"]
+
 log = logging.getLogger(__name__)
 
 MM = 1e3  # metres -> millimetres

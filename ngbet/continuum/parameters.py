@@ -23,6 +23,8 @@ from typing import Any
 
 import ngsolve as ngs
 
+__all__ = ["PARAMETERS", "material_parameters"]
+
 #: the material keys the energy reads through a Parameter
 PARAMETERS = ("K_el", "K_sh", "K_sh4", "K_sh6", "K_lock", "gamma_lock_deg", "alpha1", "alpha2")
 

@@ -43,6 +43,8 @@ import numpy as np
 from .newton import NonlinearProblem, newton
 from .settings import NewtonSettings
 
+__all__ = ["BRANCH_MAX_STEP", "SAME_FORCE", "SAME_STATE", "Branch", "PathSpread", "RunPathSpread"]
+
 log = logging.getLogger(__name__)
 
 #: a branch whose state at the load differs from the path's by less than this (the problem's

@@ -32,6 +32,11 @@ import ngsolve as ngs
 import numpy as np
 from ngsolve import CoefficientFunction as CF
 
+__all__ = ["JAMMING_CUTOFF", "LOCKING_CUTOFF", "SHEAR_LAWS", "Invariants", "bending_energy", "elongation_energy",
+           "invariants", "jamming_energy", "lagrange_constraint", "locking_shear_energy", "mixed_penalty_constraint",
+           "penalty_constraint", "polynomial_shear_energy", "shear_angle", "shear_energy", "shear_law_energy",
+           "table_greville", "table_shear_energy", "table_stress_spline", "yarn_angle_sine"]
+
 
 class Invariants(NamedTuple):
     """F = I + ∇u and the yarn invariants i4, i6 (squared stretches) and i8 (angle variation, from rest)."""

@@ -1,6 +1,6 @@
 """The constrained micromorphic BET problem on NGSolve: spaces, forms, boundary conditions, load.
 
-Only the effects the scene asks for are built (:class:`ngbet.scene.Effects`):
+Only the effects the scene asks for are built (:class:`ngbet.scene.physical.Effects`):
 
 =========================  ==================================  ===============================
 effects                    unknowns                            energy
@@ -69,10 +69,11 @@ import numpy as np
 from ngsolve import CoefficientFunction as CF
 
 from ..kinematics import frame_stretches
-from ..scene import AUTO, Scene, Specimen
+from ..scene.document import Scene
+from ..scene.physical import Specimen
+from ..scene.validate import AUTO
 from . import physics
 from .jamming import JammingBarrier
-from .linear import LAGRANGE_AUGMENTATION
 from .mesh import CLAMPED_ARMS, make_cross_mesh, make_mesh
 from .parameters import material_parameters
 
@@ -80,7 +81,7 @@ log = logging.getLogger(__name__)
 
 DIRICHLET = "left|right"
 
-__all__ = ["ContinuumProblem", "LAGRANGE_AUGMENTATION", "STABILIZATION_C", "stabilization_modulus"]
+__all__ = ["ContinuumProblem", "STABILIZATION_C", "stabilization_modulus"]
 
 
 #: c in the default K_s = c min(α1, α2) / h_T². Measured (Table 1, 56 mm): the corner meshes that
@@ -104,8 +105,7 @@ STABILIZATION_CAP = 30.0
 INVERTED_AREA_FRACTION = 1e-4
 
 
-def stabilization_modulus(scene: Scene, mesh: ngs.Mesh, parameters: dict[str, ngs.Parameter] | None = None
-                          ) -> CF | float:
+def stabilization_modulus(scene: Scene, parameters: dict[str, ngs.Parameter] | None = None) -> CF | float:
     """K_s of ``effects.stabilization_K``: the constant, or ("auto") c min(α1, α2)/h_T², at most 30 K_el.
 
     The cap is :data:`STABILIZATION_CAP` (none when K_el = 0). ``parameters``: α1, α2 and K_el as
@@ -236,7 +236,7 @@ class ContinuumProblem:
         phi = trial[1]
         bending = physics.bending_energy(ngs.Grad(phi), self.m1, self.m2, par["alpha1"], par["alpha2"])
         if eff.constraint == "lagrange" or eff.penalty_form == "mixed":
-            self.K_s = stabilization_modulus(scene, self.mesh, par)
+            self.K_s = stabilization_modulus(scene, par)
         self.K_s_range = _range_over_elements(self.K_s, self.mesh)
         if self.K_s_range[1] > 0:
             base = base + physics.penalty_constraint(phi, inv.i8, self.K_s)
@@ -385,10 +385,25 @@ class ContinuumProblem:
         self.jamming.switch_on()
 
     def locate(self, dx: np.ndarray) -> dict[str, object]:
-        """Where a change of state ``dx`` (full length) lives: the centroid and extent of |∇δu|² [mm]."""
-        from .stability import field_location
+        """Where a change of state ``dx`` (full length) lives: centroid and spread of |∇δu|², and its size.
 
-        return field_location(self, dx)
+        Returns ``location_mm`` (X, Y), ``spread_mm`` (the root-mean-square distance from the centroid,
+        weighted by |∇δu|²: small for a local jump, about the specimen's size for a global one) and
+        ``max_du_mm`` (the largest nodal |δu|).
+        """
+        gf = ngs.GridFunction(self.X)
+        gf.vec.FV().NumPy()[:] = dx
+        du = gf.components[0]
+        G = ngs.Grad(du)
+        mesh = self.mesh
+        dens = ngs.InnerProduct(G, G)
+        tot = max(ngs.Integrate(dens, mesh), 1e-300)
+        cx = ngs.Integrate(dens * ngs.x, mesh) / tot
+        cy = ngs.Integrate(dens * ngs.y, mesh) / tot
+        spread = math.sqrt(max(ngs.Integrate(dens * ((ngs.x - cx) ** 2 + (ngs.y - cy) ** 2), mesh) / tot, 0.0))
+        vals = [du(mesh(*v.point[:2])) for v in mesh.vertices]
+        big = max((math.hypot(*v) for v in vals), default=0.0)
+        return {"location_mm": [1e3 * cx, 1e3 * cy], "spread_mm": 1e3 * spread, "max_du_mm": 1e3 * big}
 
     def clamp_predictor(self, dlam: float) -> np.ndarray:
         """The clamp's linear field (X/L, 0) dlam (the picture frame: its affine map's rate ψ_u dlam)."""

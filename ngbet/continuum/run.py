@@ -18,11 +18,12 @@ import ngsolve as ngs
 
 from ..engine import PathResult, StepRecord, Steps, progress_bar
 from ..errors import ConvergenceError
-from ..figures import map_file_name, save_map, start_plot
+from ..figures.data import map_file_name, save_map
+from ..figures.run import start_plot
 from ..kinematics import BetColumns, PictureFrameColumns
 from ..output import RunWriter
 from ..plot_process import active as plot_service
-from ..scene import Scene
+from ..scene.document import Scene
 from . import observables as obs
 from .arclength import MODE_KEY, arclength_runner
 from .estimate import RunEstimates, run_to_accuracy
@@ -38,7 +39,7 @@ MAP_SUBDIVISION = 2
 
 log = logging.getLogger(__name__)
 
-__all__ = ["load_path", "newton_settings", "run_continuum", "write_vtk"]  # write_vtk: ngbet.continuum.output
+__all__ = ["load_path", "run_continuum"]
 
 
 def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None) -> dict[str, Any]:
@@ -96,7 +97,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
                     writer.plot(draw)()
                 raise
         info.update(estimates.summary(time.perf_counter() - t_cont))
-        return _finish(solver, scene, writer, out, res, info, warnings, draw)
+        return _finish(solver, scene, writer, res, info, warnings, draw)
 
 
 def _write_mode(problem: ContinuumSolver, path_info: dict[str, Any], writer: RunWriter) -> None:
@@ -223,7 +224,7 @@ class _StepWriter:
         return row
 
 
-def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
+def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, res: PathResult,
             info: dict[str, Any], warnings: list[str], draw: Callable[[Path], Callable[[], Path | None]]
             ) -> dict[str, Any]:
     """Final fields, statistics, the multiplier check, summary and plot.
@@ -234,7 +235,7 @@ def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: Path,
     """
     plotted = writer.plot(draw) if scene.outputs.plot else None
     try:
-        summary = _final_files(solver, scene, writer, out, res, info, warnings)
+        summary = _final_files(solver, scene, writer, res, info, warnings)
     except BaseException:
         if plotted is not None:
             with contextlib.suppress(Exception):
@@ -245,7 +246,7 @@ def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: Path,
     return summary
 
 
-def _final_files(solver: ContinuumSolver, scene: Scene, writer: RunWriter, out: Path, res: PathResult,
+def _final_files(solver: ContinuumSolver, scene: Scene, writer: RunWriter, res: PathResult,
                  info: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
     """Final fields, statistics, the multiplier check and the summary."""
     problem = solver.problem

@@ -44,9 +44,13 @@ from typing import Any
 import ngsolve as ngs
 import numpy as np
 
-from ..scene import Scene, SceneError
+from ..scene.document import Scene
+from ..scene.validate import SceneError
 from . import physics
 from .parameters import PARAMETERS
+
+__all__ = ["DIFFERENTIABLE", "TABLE", "TANGENT_CONTRACTION", "TANGENT_REFINEMENTS", "ForcePath", "finite_difference",
+           "force_path", "load_tangent_at_state", "material_value", "solve_at_state", "table_index", "with_material"]
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +60,7 @@ DIFFERENTIABLE = (*PARAMETERS, "shear_stress_steps_Pa[j]")
 TABLE = "shear_stress_steps_Pa"
 
 
-def _table_index(name: str) -> int | None:
+def table_index(name: str) -> int | None:
     """The index of a rise "shear_stress_steps_Pa[j]", else None."""
     if name.startswith(TABLE + "[") and name.endswith("]") and name[len(TABLE) + 1:-1].isdigit():
         return int(name[len(TABLE) + 1:-1])
@@ -65,7 +69,7 @@ def _table_index(name: str) -> int | None:
 
 def material_value(scene: Scene, name: str) -> float:
     """The value of a material key, or of one rise of the tabulated law ("shear_stress_steps_Pa[j]")."""
-    j = _table_index(name)
+    j = table_index(name)
     if j is None:
         return float(getattr(scene.material, name))
     return float(scene.material.shear_stress_steps_Pa[j])
@@ -102,7 +106,7 @@ def _energy_derivative(problem: Any, name: str) -> ngs.CoefficientFunction:
     """
     scene: Scene = problem.scene
     trial = problem.X.TrialFunction()
-    j = _table_index(name)
+    j = table_index(name)
     if j is not None:
         eff = scene.effects
         if not eff.shear or eff.shear_law != "table":
@@ -132,7 +136,7 @@ def _check_params(scene: Scene, params: Sequence[str]) -> list[str]:
     names = []
     for p in params:
         section, _, key = p.partition(".")
-        j = _table_index(key)
+        j = table_index(key)
         if j is not None and j < len(scene.material.shear_stress_steps_Pa):
             names.append(key)
             continue
@@ -322,8 +326,8 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     """
     from .numerics import ContinuumSolver
     from .problem import ContinuumProblem
-    from .settings import linear_settings
-    from .solver import load_steps, newton_settings, path_settings
+    from .settings import linear_settings, newton_settings, path_settings
+    from .solver import load_steps
 
     names = _check_params(scene, params)
     profile = {float(k): np.asarray(v, float) for k, v in (profile or {}).items()}
@@ -359,7 +363,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
 
 def with_material(scene: Scene, name: str, value: float) -> Scene:
     """``scene`` with one material key (or one rise "shear_stress_steps_Pa[j]") set to ``value``."""
-    j = _table_index(name)
+    j = table_index(name)
     if j is None:
         return scene.with_changes(**{f"material.{name}": value})
     steps = list(scene.material.shear_stress_steps_Pa)

@@ -16,10 +16,12 @@ from typing import TYPE_CHECKING
 from ..engine import PathControl
 
 if TYPE_CHECKING:
-    from ..scene import Scene
+    from ..scene.document import Scene
+
+__all__ = ["LinearSettings", "NewtonSettings", "PathSettings", "linear_settings", "newton_settings", "path_settings"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class NewtonSettings:
     """Tolerances, damping and predictor of the continuum's Newton (from ``scene.solver``)."""
 
@@ -43,7 +45,7 @@ def newton_settings(scene: Scene) -> NewtonSettings:
     return NewtonSettings(rtol=s.rtol, atol=s.atol_energy, max_iterations=s.max_iterations, predictor=s.predictor)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class LinearSettings:
     """The linear algebra of the continuum's Newton (from ``scene.solver``).
 
@@ -67,7 +69,7 @@ def linear_settings(scene: Scene) -> LinearSettings:
     return LinearSettings(linear_solver=s.linear_solver, condense=s.condense, compile=s.compile)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PathSettings(PathControl):
     """How a continuum load path is carried (from ``scene.loading`` and ``scene.solver``); loads in m.
 

@@ -44,11 +44,10 @@ from ..engine import Outcome, PathResult, StepRecord, path_steps, run_to_end
 from ..errors import Attempt, ConvergenceError
 from .chord import ChordRows, chord_loads
 from .newton import Diagnosis, NewtonReport, NonlinearProblem, failure_pattern, newton
-from .settings import NewtonSettings, PathSettings, newton_settings, path_settings
+from .settings import NewtonSettings, PathSettings
 
-__all__ = ["ArcLength", "Diagnosis", "NewtonReport", "NewtonSettings", "NonlinearProblem", "PathSettings",
-           "RelaxReport", "RelaxSettings", "SaddlePointNewton", "continuation", "failure_pattern", "follow",
-           "load_steps", "newton", "newton_settings", "path_settings", "relax"]
+__all__ = ["ArcLength", "RelaxReport", "RelaxSettings", "SaddlePointNewton", "continuation", "follow", "load_steps",
+           "relax"]
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +59,7 @@ SNAP_RELEASE = 1e-3
 JAMMING_MISSED = "the yarns close past the jamming angle in the state found without the barrier; solved again with it"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RelaxSettings:
     """Pseudo-transient continuation to a stable equilibrium at a fixed load (:func:`relax`)."""
 
@@ -120,7 +119,7 @@ def relax(problem: NonlinearProblem, newton_settings: NewtonSettings, e_ref: flo
             kicked = mu if math.isnan(kicked) else kicked
             _kick(problem, mode, weights, settings.kick * 2 ** attempt)
         shift = max(settings.first_shift, -2.0 * mu)
-        done, its, why = _flow(problem, newton_settings, tol, settings, shift, history, its)
+        done, its, why = _flow(problem, tol, settings, shift, history, its)
         if not done:
             return RelaxReport(False, its, history, why, kicked_from=kicked)
         rep = newton(problem, newton_settings, e_ref)
@@ -156,7 +155,7 @@ def _kick(problem: NonlinearProblem, mode: np.ndarray, weights: np.ndarray, size
     problem.x[:] += a * mode
 
 
-def _flow(problem: NonlinearProblem, newton_settings: NewtonSettings, tol: float, settings: RelaxSettings,
+def _flow(problem: NonlinearProblem, tol: float, settings: RelaxSettings,
           shift: float, history: list[float], its: int) -> tuple[bool, int, str]:
     """Shifted Newton steps with a line search on the merit until the decrement is small (True).
 
@@ -505,7 +504,8 @@ def continuation(problem: NonlinearProblem, target: float, first_step: float, se
                  psi: np.ndarray | None = None, **path: object) -> PathResult:
     """:func:`follow` with the path given by its fields: ``PathSettings(target, first_step, **path)``."""
     path.update({k: tuple(path[k]) for k in ("stops", "chord_at") if k in path})  # type: ignore[arg-type]
-    return follow(problem, PathSettings(target, first_step, **path), settings, psi=psi)  # type: ignore[arg-type]
+    return follow(problem, PathSettings(target=target, first_step=first_step, **path), settings,  # type: ignore[arg-type]
+                  psi=psi)
 
 
 def _snap_info(corrector: SaddlePointNewton) -> dict[str, object]:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, Protocol
 
 import ngsolve as ngs
 import numpy as np
@@ -30,13 +30,31 @@ from . import observables as obs
 from . import physics
 
 if TYPE_CHECKING:
-    from .numerics import ContinuumSolver
+    from .linear import NewtonLinearSolver
     from .problem import ContinuumProblem
+
+__all__ = ["DISCRETIZATION_MODE_RATIO", "EllipticityLoss", "ModeClass", "StabilityDiagnosis", "TangentSolver",
+           "diagnose_stability",
+           "indefinite_by_construction", "lowest_eigenpair", "mode_constraint_ratio", "write_mode"]
 
 #: r above which the lowest mode is one of the discretization (φ does not follow i8)
 DISCRETIZATION_MODE_RATIO = 0.5
 
 ModeClass = Literal["discretization", "continuum", "none"]
+
+
+class TangentSolver(Protocol):
+    """What the diagnosis reads of a solver (:class:`~ngbet.continuum.numerics.ContinuumSolver`).
+
+    Its problem, its linear solver and the factorization of the tangent at the current state.
+    """
+
+    problem: ContinuumProblem
+    linear: NewtonLinearSolver
+
+    def factorize(self, shift: float = 0.0) -> float:
+        """Linearize at the current state and factorize, the diagonal raised by >= ``shift``; returns the shift."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -135,7 +153,7 @@ class StabilityDiagnosis:
                 f"{self.ratio:.2f}: {kind}{ill}")
 
 
-def diagnose_stability(solver: ContinuumSolver, k: int = 3) -> StabilityDiagnosis:
+def diagnose_stability(solver: TangentSolver, k: int = 3) -> StabilityDiagnosis:
     """The lowest eigenvalues of the (condensed) tangent at the current state and what its lowest mode is.
 
     ``solver``: the problem's (:class:`~ngbet.continuum.numerics.ContinuumSolver`), whose tangent is
@@ -164,7 +182,7 @@ def diagnose_stability(solver: ContinuumSolver, k: int = 3) -> StabilityDiagnosi
         return StabilityDiagnosis(u0_mm, skipped=f"stability check failed: {exc}")
 
 
-def lowest_eigenpair(solver: ContinuumSolver) -> tuple[float, np.ndarray]:
+def lowest_eigenpair(solver: TangentSolver) -> tuple[float, np.ndarray]:
     """The lowest eigenvalue of the diagonally scaled tangent at the current state and its mode (full length).
 
     The mode holds the free dofs of the (condensed) tangent, scaled to unit maximum norm (the
@@ -178,12 +196,12 @@ def lowest_eigenpair(solver: ContinuumSolver) -> tuple[float, np.ndarray]:
     return float(ev[0]), x / max(float(np.max(np.abs(x))), 1e-300)
 
 
-def indefinite_by_construction(solver: ContinuumSolver) -> bool:
+def indefinite_by_construction(solver: TangentSolver) -> bool:
     """True when the tangent keeps the multiplier Λ (uncondensed): a saddle point, no stability test."""
     return not solver.linear.condensed and "lam" in solver.problem.field_names
 
 
-def _lowest_scaled(solver: ContinuumSolver, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _lowest_scaled(solver: TangentSolver, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The k lowest eigenpairs of the diagonally scaled (unit-free) tangent at the current state.
 
     Returns (eigenvalues, eigenvectors of the scaled matrix, the scaling d, the free dofs).
@@ -208,7 +226,7 @@ def _ellipticity_losses(problem: ContinuumProblem) -> tuple[EllipticityLoss, ...
     return tuple(out)
 
 
-def mode_constraint_ratio(solver: ContinuumSolver, x: np.ndarray) -> tuple[float, tuple[float, float]]:
+def mode_constraint_ratio(solver: TangentSolver, x: np.ndarray) -> tuple[float, tuple[float, float]]:
     """R = ‖δφ − δi8‖ / ‖δi8‖ of a mode x, and the centroid [mm] of |∇δu|².
 
     ``x`` holds the free dofs of the (condensed) tangent; the condensed local dofs are recovered by
@@ -231,29 +249,7 @@ def mode_constraint_ratio(solver: ContinuumSolver, x: np.ndarray) -> tuple[float
     return float(np.sqrt(num / max(den, 1e-300))), where
 
 
-def field_location(problem: ContinuumProblem, dx: np.ndarray) -> dict[str, object]:
-    """Where a change of state ``dx`` (full length) lives: centroid and spread of |∇δu|², and its size.
-
-    Returns ``location_mm`` (X, Y), ``spread_mm`` (the root-mean-square distance from the centroid,
-    weighted by |∇δu|²: small for a local jump, about the specimen's size for a global one) and
-    ``max_du_mm`` (the largest nodal |δu|).
-    """
-    gf = ngs.GridFunction(problem.X)
-    gf.vec.FV().NumPy()[:] = dx
-    du = gf.components[0]
-    G = ngs.Grad(du)
-    mesh = problem.mesh
-    dens = ngs.InnerProduct(G, G)
-    tot = max(ngs.Integrate(dens, mesh), 1e-300)
-    cx = ngs.Integrate(dens * ngs.x, mesh) / tot
-    cy = ngs.Integrate(dens * ngs.y, mesh) / tot
-    spread = math.sqrt(max(ngs.Integrate(dens * ((ngs.x - cx) ** 2 + (ngs.y - cy) ** 2), mesh) / tot, 0.0))
-    vals = [du(mesh(*v.point[:2])) for v in mesh.vertices]
-    big = max((math.hypot(*v) for v in vals), default=0.0)
-    return {"location_mm": [1e3 * cx, 1e3 * cy], "spread_mm": 1e3 * spread, "max_du_mm": 1e3 * big}
-
-
-def write_mode(solver: ContinuumSolver, mode: np.ndarray, path: Path, title: str = "") -> list[Path]:
+def write_mode(solver: TangentSolver, mode: np.ndarray, path: Path, title: str = "") -> list[Path]:
     """The mode (δu, δφ) of an instability as ``path``.vtu and ``path``.png, δu scaled to 1 mm at most.
 
     ``mode`` holds the free dofs of the (condensed) tangent (:func:`lowest_eigenpair`).

@@ -15,11 +15,4 @@ Modules: :mod:`.network` (geometry), :mod:`.elements` (element energies), :mod:`
 :mod:`.observables` (slip, angles, profile, pictures), :mod:`.run` (entry point).
 """
 
-from ..errors import ConvergenceError
-from .model import NetworkModel
-from .network import Network, build_network, network_from_scene
-from .run import run
-from .solver import StepControl, solve_path
-
-__all__ = ["run", "Network", "build_network", "network_from_scene", "NetworkModel", "StepControl",
-           "solve_path", "ConvergenceError"]
+__all__: list[str] = []

@@ -15,7 +15,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .linsolve import EigenBlock, FreeBlockSolver, LinearSolverError
-from .newton import Problem, StepControl
+from .newton import StepControl
+
+__all__ = ["OTHER_BLOCK_TOL", "check_stability", "lowest_eigenvalues", "lowest_eigenvalues_arpack"]
 
 log = logging.getLogger(__name__)
 
@@ -114,7 +116,7 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
             W = _orthonormalize(W, Q)
         Q, AQ = np.column_stack([Q, W]), np.column_stack([AQ, A(W)])
     log.info("block Lanczos did not converge; falling back to ARPACK")
-    return _lowest_eigenvalues_arpack(lin, k)
+    return lowest_eigenvalues_arpack(lin, k)
 
 
 OTHER_BLOCK_TOL = 0.3
@@ -204,11 +206,15 @@ def _lowest_eigenvalues_split(lin: FreeBlockSolver, blocks: list[EigenBlock], s:
             elif not done[i]:
                 bb.expand(pairs[i][1][:, :1])
     log.info("block Lanczos did not converge in the half-turn blocks; falling back to ARPACK")
-    return _lowest_eigenvalues_arpack(lin, k)
+    return lowest_eigenvalues_arpack(lin, k)
 
 
-def _lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """The same eigenpairs by ARPACK in shift-invert mode (20+ solves: the slow reference)."""
+def lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The same eigenpairs by ARPACK in shift-invert mode: the reference of :func:`lowest_eigenvalues`.
+
+    It needs many more solves with the factorization than the block Lanczos started from the
+    previous modes; it is the fallback where that does not converge.
+    """
     Kff = lin.Kff
     assert Kff is not None
     n = Kff.shape[0]
@@ -221,9 +227,13 @@ def _lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray
     return lam[order], V[:, order]
 
 
-def _check_stability(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
+def check_stability(lin: FreeBlockSolver, ctl: StepControl,
                      X0: np.ndarray | None = None) -> tuple[float, np.ndarray | None, np.ndarray | None]:
-    """lambda_min, its mode and all computed modes (the start block of the next check)."""
+    """The stability check of the current state: (lambda_min, its mode, all computed modes).
+
+    The modes are the start block ``X0`` of the next check. Where the eigensolvers fail the state
+    is not classified: (nan, None, None), with a warning; a failed check never stops the path.
+    """
     try:
         lam, V = lowest_eigenvalues(lin, ctl.n_eigs, X0)
     except (spla.ArpackNoConvergence, spla.ArpackError, LinearSolverError, np.linalg.LinAlgError) as exc:

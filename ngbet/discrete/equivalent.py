@@ -19,6 +19,8 @@ from __future__ import annotations
 
 from typing import Any
 
+__all__ = ["continuum_equivalent"]
+
 
 def continuum_equivalent(scene: Any) -> dict[str, float]:
     """``with_changes`` keys that turn ``scene.discrete`` into the network equivalent to ``scene.material``."""

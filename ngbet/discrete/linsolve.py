@@ -44,6 +44,8 @@ from ..cholmod import free_pattern
 if TYPE_CHECKING:
     from .symmetry import HalfTurn
 
+__all__ = ["BACKENDS", "EigenBlock", "FreeBlockSolver", "LinearSolverError", "resolve_backend"]
+
 log = logging.getLogger(__name__)
 
 BACKENDS = ("cholmod", "sparsecholesky", "umfpack", "pardiso", "splu")

@@ -24,7 +24,9 @@ from .network import CLAMP_FIXED, CLAMP_MOVING, Network
 from .symmetry import HalfTurn, half_turn
 
 if TYPE_CHECKING:
-    from ..scene import Scene
+    from ..scene.document import Scene
+
+__all__ = ["ENERGY_PARTS", "MIRROR_TOL", "Group", "Kernel", "NetworkModel", "Pattern"]
 
 ENERGY_PARTS = ("axial", "bending1", "bending2", "slip", "shear_springs", "inter")
 

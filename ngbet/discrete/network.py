@@ -38,7 +38,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..scene import Scene
+    from ..scene.document import Scene
+
+__all__ = ["CLAMP_FIXED", "CLAMP_MOVING", "FREE", "ZONE_NAMES", "Network", "NetworkError", "build_network", "clip_line",
+           "crossing_zone", "end_kind", "family_frames", "network_from_scene"]
 
 log = logging.getLogger(__name__)
 

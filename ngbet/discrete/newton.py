@@ -21,6 +21,8 @@ import scipy.sparse as sp
 from ..engine import PathControl
 from .linsolve import FreeBlockSolver, LinearSolverError
 
+__all__ = ["Problem", "StepControl", "StepFailed", "Tally", "TimedProblem", "newton"]
+
 log = logging.getLogger(__name__)
 
 
@@ -36,7 +38,7 @@ class Problem(Protocol):
         """E(u), dE/du and (with ``hessian``) d2E/du2."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StepControl:
     """Numerics of the network's load path (SI load units); built from the scene by the entry point.
 
@@ -62,7 +64,7 @@ class StepControl:
     half_turn: bool = True  # factorize the tangents of symmetric states in their half-turn blocks (.symmetry)
 
 
-class _TimedProblem:
+class TimedProblem:
     """The problem with its evaluations timed (assembly with and without the Hessian)."""
 
     def __init__(self, problem: Problem) -> None:
@@ -75,6 +77,7 @@ class _TimedProblem:
         self.n_hessian = self.n_gradient = 0
 
     def evaluate(self, u: np.ndarray, hessian: bool = True) -> tuple[float, np.ndarray, sp.csr_matrix | None]:
+        """The wrapped problem's energy, gradient and (with ``hessian``) Hessian at ``u``, timed by kind."""
         t = time.perf_counter()
         res = self._p.evaluate(u, hessian)
         if hessian:
@@ -86,7 +89,7 @@ class _TimedProblem:
         return res
 
 
-class _Tally:
+class Tally:
     """Factorizations, solves, Newton iterations and wall time of the load path by cause (bench_discrete)."""
 
     def __init__(self, solvers: tuple[FreeBlockSolver, ...]) -> None:
@@ -94,10 +97,12 @@ class _Tally:
         self.rows: dict[str, dict[str, float]] = {}
 
     def start(self, t: float | None = None) -> tuple[int, int, float]:
+        """A mark: the factorizations and solves so far and the time (``t`` or now), for :meth:`add`."""
         return (sum(s.n_factor for s in self.solvers), sum(s.n_solve for s in self.solvers),
                 time.perf_counter() if t is None else t)
 
     def add(self, cause: str, mark: tuple[int, int, float], nout: dict[str, Any] | None = None) -> None:
+        """Add the work since ``mark`` to the row of ``cause``; ``nout``: a Newton report's counts."""
         row = self.rows.setdefault(cause, {"calls": 0, "factorizations": 0, "shift_factorizations": 0,
                                            "solves": 0, "iterations": 0, "time_s": 0.0})
         row["calls"] += 1
@@ -109,7 +114,7 @@ class _Tally:
             row["shift_factorizations"] += nout.get("shift_factorizations", 0)
 
 
-class _StepFailed(Exception):
+class StepFailed(Exception):
     """Newton gave up.
 
     ``u`` is its last iterate (None where it is of no use), ``indefinite`` says that it gave up at
@@ -191,7 +196,7 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
             continue
         confirm = False  # (the full iteration after CG did not meet the tolerance: Newton goes on)
         if dec <= 0:
-            raise _StepFailed("no descent direction even with a shifted tangent", hist)
+            raise StepFailed("no descent direction even with a shifted tangent", hist)
         if fail_fast and not line_search:
             _check_contraction(hist, it, E, u)
         alpha = 1.0
@@ -201,7 +206,7 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
             log.debug("newton it %d: E %.10g, |r| %.3g, decrement %.3g, shift mu %.0e, step x%g%s", it, E,
                       hist[-1][1], dec, mu_prev if n_shift else 0.0, alpha, " (CG)" if step else "")
         u[free] += alpha * du
-    raise _StepFailed(f"no convergence in {n_max} iterations", hist, u)
+    raise StepFailed(f"no convergence in {n_max} iterations", hist, u)
 
 
 def _residual(problem: Problem, u: np.ndarray, free: np.ndarray, hist: list[tuple[float, float, float]],
@@ -212,7 +217,7 @@ def _residual(problem: Problem, u: np.ndarray, free: np.ndarray, hist: list[tupl
         out["iterations"] = it
     r = g[free]
     if not (np.isfinite(E) and np.all(np.isfinite(r))):
-        raise _StepFailed("energy or residual not finite", hist)
+        raise StepFailed("energy or residual not finite", hist)
     assert K is not None
     return E, r, K
 
@@ -281,7 +286,7 @@ def _descent_direction(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, mu
         mu = max(mu_prev / 10, 1e-10) if mu_prev else 1e-6
         if dec <= 0 and not allow_shift:
             hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
-            raise _StepFailed("tangent not a descent direction (indefinite)", hist, indefinite=True)
+            raise StepFailed("tangent not a descent direction (indefinite)", hist, indefinite=True)
         assert lin.Kff is not None
         diag = np.abs(lin.Kff.diagonal())  # of the unshifted K_ff (lin.Kff holds the last shifted one)
         n_shift = 0
@@ -298,7 +303,7 @@ def _descent_direction(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, mu
             if out is not None:
                 out["shift_factorizations"] = out.get("shift_factorizations", 0) + 1
     except LinearSolverError as exc:
-        raise _StepFailed(str(exc), hist) from None
+        raise StepFailed(str(exc), hist) from None
     return du, dec, mu_prev, n_shift
 
 
@@ -308,15 +313,15 @@ def _check_contraction(hist: list[tuple[float, float, float]], it: int, E: float
     if it >= 2 and dec > 2 * abs(E):
         # the quadratic model predicts an energy drop (dec / 2) larger than the energy itself
         # (E >= 0 for the network): the iterate has left the region where Newton can converge
-        raise _StepFailed(f"Newton diverging (decrement {dec:.3g} > 2 |E| = {2 * abs(E):.3g})", hist, u)
+        raise StepFailed(f"Newton diverging (decrement {dec:.3g} > 2 |E| = {2 * abs(E):.3g})", hist, u)
     if it >= 3 and dec > hist[0][2]:
         # from a predictor the decrement falls, at first perhaps slowly: one above the
         # predictor's own, two iterations on, is Newton bouncing in a soft mode or leaving (in
         # the runs measured the one such step that still converged had snapped: cut anyway)
-        raise _StepFailed(f"Newton decrement rose above the predictor's ({hist[0][2]:.3g} -> {dec:.3g})", hist, u)
+        raise StepFailed(f"Newton decrement rose above the predictor's ({hist[0][2]:.3g} -> {dec:.3g})", hist, u)
     if it >= 6 and dec > 0.5 * hist[-2][2]:
         # Newton converges quadratically near a solution or not at all: stop wasting factorizations
-        raise _StepFailed(f"Newton decrement not contracting ({hist[-2][2]:.3g} -> {dec:.3g})", hist, u)
+        raise StepFailed(f"Newton decrement not contracting ({hist[-2][2]:.3g} -> {dec:.3g})", hist, u)
 
 
 def _line_search(problem: Problem, u: np.ndarray, free: np.ndarray, du: np.ndarray, E: float, dec: float,
@@ -331,7 +336,7 @@ def _line_search(problem: Problem, u: np.ndarray, free: np.ndarray, du: np.ndarr
             break
         alpha *= 0.5
     else:
-        raise _StepFailed("line search found no energy decrease", hist)
+        raise StepFailed("line search found no energy decrease", hist)
     if alpha == 1.0 and extend:
         # extend a shifted step while the energy falls along it (doubling, at most 2^12)
         for _ in range(12):

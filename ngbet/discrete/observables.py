@@ -25,6 +25,10 @@ import numpy as np
 
 from .network import Network
 
+__all__ = ["centre_mean", "chain_neighbours", "crossing_gamma", "crossing_slip", "crossing_spring_angle",
+           "midline_points", "midline_profile", "node_gamma", "plot_state", "save_state", "yarn_polylines",
+           "yarn_rotation", "zone_means"]
+
 log = logging.getLogger(__name__)
 
 
@@ -158,12 +162,13 @@ def segment_gamma_deg(net: Network, u: np.ndarray) -> np.ndarray:
 
 def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: Any = None,
                scale_over: Any = None) -> None:
-    """PNG of the deformed yarns coloured by the shear angle γ (:func:`ngbet.figures.yarn_network_figure`).
+    """PNG of the deformed yarns coloured by the shear angle γ (:func:`ngbet.figures.maps.yarn_network_figure`).
 
     γ is 0 at rest, the convention of the continuum's maps; ``scene`` names specimen and network in the caption;
     ``scale_over``: the segment angles of every picture of the run, so that all share one colour scale.
     """
-    from ..figures import PNG_DPI, in_style, yarn_network_figure
+    from ..figures.maps import yarn_network_figure
+    from ..figures.style import PNG_DPI, in_style
 
     try:
         import matplotlib  # noqa: F401

@@ -24,14 +24,17 @@ import numpy as np
 
 from ..engine import PathControl, PathResult, StepRecord, progress_bar
 from ..errors import ConvergenceError
-from ..figures import start_plot
+from ..figures.run import start_plot
 from ..kinematics import BetColumns, gamma_a
 from ..output import RunWriter
-from ..scene import Scene
+from ..scene.document import Scene
 from . import observables as ob
 from .model import ENERGY_PARTS, NetworkModel
 from .network import network_from_scene
-from .solver import StepControl, load_steps
+from .newton import StepControl
+from .solver import load_steps
+
+__all__ = ["run", "step_control", "step_row"]
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +96,7 @@ def run(scene: Scene, out: str | Path, progress: bool = True, measured: Any = No
         Run folder (created).
     progress : bool
         Show a tqdm bar over the clamp displacement.
-    measured : ngbet.figures.Measured, optional
+    measured : ngbet.figures.data.Measured, optional
         A measured curve drawn on the force and normalised-shear-force figures.
 
     Returns

@@ -63,18 +63,15 @@ from .. import cholmod, engine
 from ..engine import Outcome, PathResult, StepRecord, Steps
 from ..errors import Attempt, ConvergenceError
 from .eigen import (
-    OTHER_BLOCK_TOL,
-    _check_stability,
-    _lowest_eigenvalues_arpack,  # noqa: F401  (bench/bench_discrete.py imports it from here)
-    lowest_eigenvalues,
+    check_stability,
+    lowest_eigenvalues_arpack,  # noqa: F401  (bench/bench_discrete.py imports it from here)
 )
 from .linsolve import FreeBlockSolver
-from .newton import Problem, StepControl, _StepFailed, _Tally, _TimedProblem, newton
+from .newton import Problem, StepControl, StepFailed, Tally, TimedProblem, newton
 
 log = logging.getLogger(__name__)
 
-__all__ = ["OTHER_BLOCK_TOL", "Problem", "ShiftedNewton", "StepControl", "load_steps", "lowest_eigenvalues",
-           "newton", "single_threaded_blas", "solve_path"]
+__all__ = ["ShiftedNewton", "load_steps", "single_threaded_blas", "solve_path"]
 
 
 def single_threaded_blas() -> Any:
@@ -176,7 +173,7 @@ class ShiftedNewton:
     """
 
     def __init__(self, problem: Problem, ctl: StepControl) -> None:
-        self.problem = self._timed = _TimedProblem(problem)
+        self.problem = self._timed = TimedProblem(problem)
         self.ctl = ctl
         self.u = np.zeros(problem.n_dofs)
         self.E, self.g, K = self.problem.evaluate(self.u, True)
@@ -189,7 +186,7 @@ class ShiftedNewton:
         self.lin = FreeBlockSolver(K, free_mask, ctl.backend, ht)
         self.work = self.lin.twin()
         self.free = self.lin.free
-        self.tally = _Tally((self.lin, self.work))
+        self.tally = Tally((self.lin, self.work))
         mark = self.tally.start()
         self.lin.factor(K)
         self.tally.add("initial tangent", mark)
@@ -259,7 +256,7 @@ class ShiftedNewton:
             unew, its, hist, shifted = newton(self.problem, self._predicted, self.work, ctl, out=nout,
                                               allow_shift=not bracketing, inexact=True)
             trial = _Trial(unew, its, hist, shifted, False, nout, mark)
-        except _StepFailed as exc:
+        except StepFailed as exc:
             if exc.indefinite:
                 self.tally.add("indefinite tangent (step cut to bracket a snap)", mark, nout)
                 log.info("step u0 %.5g -> %.5g mm met an indefinite tangent: cutting to bracket a snap",
@@ -282,7 +279,7 @@ class ShiftedNewton:
         step = max(h * self.ctl.path.cut, self.ctl.snap_bracket)
         return Outcome("retry", iterations, history, reason, retry_step=step)
 
-    def _relax(self, exc: _StepFailed, u0: float, h: float) -> _Trial | None:
+    def _relax(self, exc: StepFailed, u0: float, h: float) -> _Trial | None:
         """After a short step failed: no equilibrium near the predictor, the branch ends (limit point).
 
         A damped Newton (shifted where indefinite) runs long enough to reach the branch the state
@@ -303,7 +300,7 @@ class ShiftedNewton:
                                               line_search=True, fail_fast=False, out=nout, inexact=True)
             # the state left its branch
             trial = _Trial(unew, its + len(exc.history), hist, max(shifted, 1), True, nout, mark)
-        except _StepFailed as exc2:
+        except StepFailed as exc2:
             log.info("relaxation u0 %.5g -> %.5g mm failed (%s)", u0 * 1e3, (u0 + h) * 1e3, exc2)
         self.tally.add("relaxation", mark, nout)
         return trial
@@ -407,7 +404,7 @@ class ShiftedNewton:
         """
         ts = time.perf_counter()
         mark = self.tally.start(ts)
-        lam, v, V = _check_stability(self.problem, self.u, self.lin, self.ctl, self.modes)
+        lam, v, V = check_stability(self.lin, self.ctl, self.modes)
         self.modes = V
         self.tally.add("stability check", mark)
         escaped = lam < -1e-9 and v is not None
@@ -466,7 +463,7 @@ def _escape(problem: Problem, u: np.ndarray, E: float, v: np.ndarray, lin: FreeB
         w[free] += sgn * amp * v
         try:
             w, _, _, _ = newton(problem, w, lin, ctl, max_iterations=20 * ctl.max_iterations, line_search=True)
-        except _StepFailed:
+        except StepFailed:
             continue
         Ew = problem.evaluate(w, False)[0]
         if best is None or Ew < best[1]:
@@ -475,5 +472,5 @@ def _escape(problem: Problem, u: np.ndarray, E: float, v: np.ndarray, lin: FreeB
         u = best[0]
     E, g, K = problem.evaluate(u, True)
     lin.factor(K)
-    lam2, _, V = _check_stability(problem, u, lin, ctl)
+    lam2, _, V = check_stability(lin, ctl)
     return u, E, g, K, lam2, V

@@ -37,6 +37,8 @@ from typing import Any, Protocol
 import numpy as np
 import scipy.sparse as sp
 
+__all__ = ["COUPLING_TOL", "STATE_TOL", "Blocks", "HalfTurn", "Symmetric", "half_turn"]
+
 log = logging.getLogger(__name__)
 
 COUPLING_TOL = 1e-9

@@ -10,6 +10,8 @@ import numpy as np
 from .curves import FSH_GAMMA_MAX_DEG
 from .style import figure, in_style, put_caption
 
+__all__ = ["collapse_figure"]
+
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 

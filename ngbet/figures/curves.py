@@ -21,6 +21,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+__all__ = ["FSH_GAMMA_MAX_DEG", "Extra", "curve_with_jumps", "error_bars", "estimate_due", "force_curve",
+           "force_figure", "profile_figure", "shear_force_figure", "stations_of"]
+
 #: F_sh is drawn up to this kinematic shear angle [deg]: towards yarn locking (90°) Eq. 18 divides
 #: by cos γ → 0 and its values say more about the equation than about the fabric
 FSH_GAMMA_MAX_DEG = 70.0
@@ -221,12 +224,9 @@ def profile_figure(profiles: dict[float, tuple[list[float], list[float]]], stati
     return fig
 
 
-def force_curve(ax: Axes, u0: ArrayLike, force: ArrayLike, dforce: ArrayLike | None = None,
-                label: str | None = None, color: str | None = None, **kwargs: Any) -> Any:
-    """Draw a force–displacement curve on ``ax`` (:meth:`ngbet.Result.plot`): straight lines from (0, 0), steps marked.
-
-    ``dforce`` is accepted and not drawn (the slopes are not data between the steps).
-    """
+def force_curve(ax: Axes, u0: ArrayLike, force: ArrayLike, label: str | None = None, color: str | None = None,
+                **kwargs: Any) -> Any:
+    """Draw a force–displacement curve on ``ax`` (:meth:`ngbet.Result.plot`): lines from (0, 0), steps marked."""
     u = np.r_[0.0, np.asarray(u0, dtype=float)]
     F = np.r_[0.0, np.asarray(force, dtype=float)]
     (line,) = ax.plot(u, F, "-", color=color, label=f"{label + ': ' if label else ''}straight lines between steps",

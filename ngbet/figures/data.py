@@ -15,6 +15,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+__all__ = ["MapData", "Measured", "column", "increasing_curve", "load_maps", "map_file_name", "measured_fsh",
+           "read_scene", "save_map"]
+
 log = logging.getLogger(__name__)
 
 
@@ -87,7 +90,7 @@ class Measured:
     @classmethod
     def read(cls, path: str | Path, *, specimen: dict[str, float] | None = None,
              columns: str | None = None) -> Measured:
-        """Read a measured bias extension curve; a bad file raises :class:`ngbet.scene.SceneError` naming it.
+        """Read a measured bias extension curve; a bad file raises :class:`ngbet.scene.validate.SceneError` naming it.
 
         ``specimen`` (``--specimen``) gives the scene keys of a file whose header has none.
         """
@@ -129,7 +132,8 @@ def column(rows: list[dict[str, Any]], key: str) -> np.ndarray:
 
 def read_scene(run_dir: Path) -> Any:
     """The scene of a run folder (its scene.toml), or None (logged) when it cannot be read."""
-    from ..scene import Scene, SceneError
+    from ..scene.document import Scene
+    from ..scene.validate import SceneError
 
     try:
         return Scene.from_toml(run_dir / "scene.toml")

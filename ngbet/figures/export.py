@@ -11,6 +11,8 @@ import numpy as np
 
 from .style import NB, PNG_DPI, SHEAR_LABEL, caption, eng_scale, in_style, put_caption, round_ticks, subplots
 
+__all__ = ["shear_law_figure"]
+
 
 def shear_law_figure(card: Any, sigma: Callable[[np.ndarray], np.ndarray], scene: Any, path: Path) -> Path:
     """shear_law.png at ``path``: σ_s(γ) of the model (line) and the card's points, C_s on the right axis.

@@ -22,6 +22,9 @@ from .curves import curve_with_jumps, error_bars
 from .data import column
 from .style import SHEAR_LABEL, caption, figure, put_caption
 
+__all__ = ["FRAME_ANGLE_LABEL", "FRAME_DATA_COLUMNS", "TRAVEL_LABEL", "FrameMeasured", "frame_force_figure",
+           "frame_shear_figure", "read_frame_measured"]
+
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
@@ -55,11 +58,11 @@ def read_frame_measured(path: str | Path, *, columns: str | None = None) -> Fram
 
     Raises
     ------
-    ngbet.scene.SceneError
+    ngbet.scene.validate.SceneError
         naming the file and what is wrong with it (as :func:`ngbet.calibration.data.read_table`).
     """
     from ..calibration.data import read_table
-    from ..scene import SceneError
+    from ..scene.validate import SceneError
 
     t = read_table(path, test="picture_frame", columns=columns)
     if t.x_quantity != "shear_angle" or t.y_quantity not in ("shear_force", "normalised_shear_force"):

@@ -21,6 +21,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+__all__ = ["ColourScale", "colour_bar", "colour_scale", "limits_of", "map_panel", "shear_map_figure",
+           "yarn_network_figure"]
+
 
 @dataclass(frozen=True)
 class ColourScale:

@@ -27,6 +27,8 @@ from .data import MapData, Measured, load_maps, read_scene
 from .maps import shear_map_figure
 from .style import PNG_COMPRESSION, PNG_DPI, FigureWriter, can_fork, in_style
 
+__all__ = ["NO_MATPLOTLIB", "RUN_FIGURES", "draw_force", "draw_run", "formats_of", "start_plot", "warm_up"]
+
 log = logging.getLogger(__name__)
 
 #: figure files of a run
@@ -54,7 +56,7 @@ def draw_run(run_dir: str | Path, extra: Extra = (), parallel: bool = False, mea
     OSError
         when results.csv cannot be read.
     """
-    from ..output import read_profiles, read_rows
+    from ..tables import read_profiles, read_rows
 
     run_dir = Path(run_dir)
     rows = read_rows(run_dir / "results.csv")

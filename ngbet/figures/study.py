@@ -6,6 +6,8 @@ from typing import Any
 
 from .style import caption
 
+__all__ = ["UNITS", "key_label", "key_value", "study_caption", "unit_of"]
+
 
 def study_caption(meta: dict[str, Any], extra: str = "") -> str:
     """The caption line of a study's figure: specimen and material of its base scene, what the cases vary.

@@ -22,6 +22,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+__all__ = ["FORCE_LABEL", "FORMATS", "NB", "PNG_COMPRESSION", "PNG_DPI", "SHEAR_LABEL", "STUDY_FORMATS", "STYLE",
+           "U0_LABEL", "VECTOR_RASTER_DPI", "FigureWriter", "can_fork", "caption", "check_formats", "colormap",
+           "figure", "in_style", "legend_below", "nice_ceil", "put_caption", "round_ticks", "save", "short_log_axis",
+           "subplots", "texts_outside", "tidy_log_axes"]
+
 PNG_DPI = 130
 #: resolution of the rasterized parts of a PDF or SVG (a map's colour field; lines and text stay vector)
 VECTOR_RASTER_DPI = 200
@@ -115,12 +120,13 @@ def _qe(name: str, value: float, unit: str) -> str:
 def caption(scene: Any) -> str:
     """One line naming the specimen (W × L mm, yarn angle, thickness) and the material of a scene.
 
-    ``scene``: a :class:`ngbet.scene.Scene`, its dictionary (a study's ``base_scene``), or None ("").
+    ``scene``: a :class:`ngbet.scene.document.Scene`, its dictionary (a study's ``base_scene``), or None ("").
     """
     if scene is None:
         return ""
     if isinstance(scene, dict):
-        from ..scene import Scene, SceneError, SceneWarning
+        from ..scene.document import Scene, SceneWarning
+        from ..scene.validate import SceneError
 
         try:
             with warnings.catch_warnings():

@@ -21,54 +21,7 @@ to u0 = 56 mm. Variants come from :func:`dataclasses.replace` or :meth:`Scene.wi
 The sections are defined in :mod:`ngbet.scene.physical` (specimen, material, effects) and
 :mod:`ngbet.scene.numerical` (discretization, loading, solver, outputs, discrete, calibration), the
 checks they run in :mod:`ngbet.scene.validate`, the whole scene with its TOML reading and writing
-in :mod:`ngbet.scene.document`; every public name is importable from ``ngbet.scene``.
+in :mod:`ngbet.scene.document`. Each name is imported from the module that defines it.
 """
 
-from .document import _SECTIONS as _SECTIONS  # the section table, read by ngbet.scene_doc
-from .document import (
-    DEFAULT_DISCRETIZATION,
-    MIN_YARNS_PER_FAMILY,
-    MODELS,
-    NOT_READ_BY,
-    NOT_READ_BY_TEST,
-    Scene,
-    SceneNote,
-    SceneWarning,
-    apply_changes,
-    default_scene,
-    read_toml,
-    yarns_per_family,
-)
-from .numerical import (
-    FIELD_OUTPUTS,
-    FIGURE_FORMATS,
-    LINEAR_SOLVERS,
-    MAX_ORDER,
-    PAPER_STOPS_MM,
-    Calibration,
-    Discrete,
-    Discretization,
-    Loading,
-    Outputs,
-    Solver,
-)
-from .physical import (
-    CONSTRAINTS,
-    MAX_SPECIMEN_MM,
-    PENALTY_FORMS,
-    SHEAR_LAWS,
-    TESTS,
-    Effects,
-    Material,
-    PictureFrame,
-    Specimen,
-)
-from .validate import AUTO, SceneError
-
-__all__ = [
-    "AUTO", "CONSTRAINTS", "DEFAULT_DISCRETIZATION", "FIELD_OUTPUTS", "FIGURE_FORMATS", "LINEAR_SOLVERS", "MAX_ORDER",
-    "MAX_SPECIMEN_MM", "MIN_YARNS_PER_FAMILY", "MODELS", "NOT_READ_BY", "NOT_READ_BY_TEST", "PAPER_STOPS_MM",
-    "PENALTY_FORMS", "SHEAR_LAWS", "TESTS", "Calibration", "Discrete", "Discretization", "Effects", "Loading",
-    "Material", "Outputs", "PictureFrame", "Scene", "SceneError", "SceneNote", "SceneWarning", "Solver", "Specimen",
-    "apply_changes", "default_scene", "read_toml", "yarns_per_family",
-]
+__all__: list[str] = []

@@ -19,7 +19,10 @@ import tomli_w
 
 from .numerical import Calibration, Discrete, Discretization, Loading, Outputs, Solver
 from .physical import TESTS, Effects, Material, PictureFrame, Specimen
-from .validate import SceneError, _check, _choice
+from .validate import SceneError, check, choice
+
+__all__ = ["DEFAULT_DISCRETIZATION", "MIN_YARNS_PER_FAMILY", "MODELS", "NOT_READ_BY", "NOT_READ_BY_TEST", "SECTIONS",
+           "Scene", "SceneNote", "SceneWarning", "apply_changes", "default_scene", "read_toml", "yarns_per_family"]
 
 MODELS = ("continuum", "discrete")
 
@@ -83,7 +86,7 @@ def _number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-_SECTIONS: dict[str, type] = {
+SECTIONS: dict[str, type] = {
     "specimen": Specimen,
     "material": Material,
     "effects": Effects,
@@ -97,7 +100,7 @@ _SECTIONS: dict[str, type] = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Scene:
     """A complete, validated simulation description."""
 
@@ -115,46 +118,46 @@ class Scene:
     picture_frame: PictureFrame = field(default_factory=PictureFrame)
 
     def __post_init__(self) -> None:
-        _choice("", self, "model", MODELS)
-        _choice("", self, "test", TESTS)
-        for name, cls in _SECTIONS.items():
-            _check(isinstance(getattr(self, name), cls), name, getattr(self, name), f"must be a {cls.__name__}")
+        choice("", self, "model", MODELS)
+        choice("", self, "test", TESTS)
+        for name, cls in SECTIONS.items():
+            check(isinstance(getattr(self, name), cls), name, getattr(self, name), f"must be a {cls.__name__}")
         # loads past ideal yarn locking are valid: the yarns are extensible (K_el), and the run
         # warns (locking_warning); ideal locking belongs to inextensible yarns
-        _check(self.discretization.target_error == 0 or self.outputs.reaction, "discretization.target_error",
+        check(self.discretization.target_error == 0 or self.outputs.reaction, "discretization.target_error",
                self.discretization.target_error, "is an accuracy of the clamp force: it needs outputs.reaction = true")
         if self.model == "discrete":
-            _check(self.solver.branch == "stay", "solver.branch", self.solver.branch,
+            check(self.solver.branch == "stay", "solver.branch", self.solver.branch,
                    "branch switching is for the continuum model (the discrete model follows the load)")
             n = yarns_per_family(self.specimen, self.discrete.spacing_mm)
-            _check(n >= MIN_YARNS_PER_FAMILY, "discrete.spacing_mm", self.discrete.spacing_mm,
+            check(n >= MIN_YARNS_PER_FAMILY, "discrete.spacing_mm", self.discrete.spacing_mm,
                    f"leaves about {n} yarns per family across the {self.specimen.length_mm:g} x "
                    f"{self.specimen.width_mm:g} mm specimen; a yarn network needs at least "
                    f"{MIN_YARNS_PER_FAMILY} (spacing <= {_max_spacing(self.specimen):.3g} mm)")
         if self.model == "continuum":
-            _check(self.solver.linear_solver != "cholmod" or self.solver.condense, "solver.linear_solver",
+            check(self.solver.linear_solver != "cholmod" or self.solver.condense, "solver.linear_solver",
                    self.solver.linear_solver, "needs solver.condense = true: the uncondensed Newton matrix holds "
                    "the multiplier's block and is indefinite, which a Cholesky LL^T cannot factorize")
             m, e = self.material, self.effects
             if e.shear and e.shear_law == "table":
-                _check(len(m.shear_stress_steps_Pa) >= 2 and sum(m.shear_stress_steps_Pa) > 0,
+                check(len(m.shear_stress_steps_Pa) >= 2 and sum(m.shear_stress_steps_Pa) > 0,
                        "material.shear_stress_steps_Pa", list(m.shear_stress_steps_Pa),
                        "effects.shear_law = 'table' needs at least 2 rises, not all 0")
             elif e.shear:
-                _check(m.K_sh > 0, "material.K_sh", m.K_sh, "must be > 0 when effects.shear is on")
-            _check(m.K_el > 0, "material.K_el", m.K_el, "must be > 0 (effects.elongation is on)")
+                check(m.K_sh > 0, "material.K_sh", m.K_sh, "must be > 0 when effects.shear is on")
+            check(m.K_el > 0, "material.K_el", m.K_el, "must be > 0 (effects.elongation is on)")
             rest = min(2 * self.specimen.yarn_angle_deg, 180 - 2 * self.specimen.yarn_angle_deg)
-            _check(not e.jamming or m.jamming_angle_deg < rest, "material.jamming_angle_deg", m.jamming_angle_deg,
+            check(not e.jamming or m.jamming_angle_deg < rest, "material.jamming_angle_deg", m.jamming_angle_deg,
                    f"must be below the angle between the yarns at rest ({rest:g} degrees), else they jam at rest")
             if e.bending:
-                _check(m.alpha1 + m.alpha2 > 0, "material.alpha1", m.alpha1,
+                check(m.alpha1 + m.alpha2 > 0, "material.alpha1", m.alpha1,
                        "alpha1 + alpha2 must be > 0 when effects.bending is on (else turn bending off)")
                 for fam, a in ((1, m.alpha1), (2, m.alpha2)):
-                    _check(a > 0, f"material.alpha{fam}", a,
+                    check(a > 0, f"material.alpha{fam}", a,
                            f"must be > 0 when effects.bending is on: without bending stiffness the yarns of family "
                            f"{fam} lose ellipticity where they are compressed, and the model has no mesh-independent "
                            "solution there (a small value, e.g. 1e-3 Pa m^2, keeps it well posed; or turn bending off)")
-                _check(self.discretization.p_lam < self.discretization.p_phi or e.fields == ("u", "phi"),
+                check(self.discretization.p_lam < self.discretization.p_phi or e.fields == ("u", "phi"),
                        "discretization.order_lam", self.discretization.order_lam,
                        "the multiplier order must be below the order of phi, else the constraint locks")
 
@@ -176,15 +179,15 @@ class Scene:
 
     def _check_picture_frame(self) -> None:
         """What a picture-frame test needs of the rest of the scene."""
-        _check(self.model == "continuum", "model", self.model,
+        check(self.model == "continuum", "model", self.model,
                "the picture-frame test is available for the continuum model only (test = 'picture_frame' "
                "needs model = 'continuum'): the yarn network has no frame")
         pf, ld = self.picture_frame, self.loading
         lock = pf.locking_mm
-        _check(ld.u0_mm < lock, "loading.u0_mm", ld.u0_mm,
+        check(ld.u0_mm < lock, "loading.u0_mm", ld.u0_mm,
                f"the crosshead travel must stay below {lock:.4g} mm, where the frame of side "
                f"{pf.frame_mm:g} mm closes flat (shear angle 90 degrees)")
-        _check(self.solver.path_following == "displacement", "solver.path_following", self.solver.path_following,
+        check(self.solver.path_following == "displacement", "solver.path_following", self.solver.path_following,
                "the picture frame follows the crosshead travel ('displacement'): arc length is available "
                "for the bias extension test only")
 
@@ -192,7 +195,7 @@ class Scene:
         """The keys with a non-default value that the scene's model or test does not read ("section.key")."""
         out = []
         for name, keys in (*NOT_READ_BY[self.model].items(), *NOT_READ_BY_TEST[self.test].items()):
-            section, default = getattr(self, name), _SECTIONS[name]()
+            section, default = getattr(self, name), SECTIONS[name]()
             for f in fields(section):
                 value = getattr(section, f.name)
                 if (keys is None or f.name in keys) and value != getattr(default, f.name):
@@ -214,7 +217,7 @@ class Scene:
             explicit = {f"{n}.{k}" for n, t in data.items() if isinstance(t, dict) for k in t}
         data = {n: dict(t) if isinstance(t, dict) else t for n, t in data.items()}
         _yield_defaults(data, explicit)
-        known = {"model", "test", *_SECTIONS}
+        known = {"model", "test", *SECTIONS}
         for key in data:
             if key not in known:
                 raise SceneError(f"unknown scene section '{key}'; known: {', '.join(sorted(known))}")
@@ -222,7 +225,7 @@ class Scene:
         for top in ("model", "test"):
             if top in data:
                 kwargs[top] = data[top]
-        for name, scls in _SECTIONS.items():
+        for name, scls in SECTIONS.items():
             if name not in data:
                 continue
             kwargs[name] = _section(name, scls, data[name])
@@ -315,7 +318,7 @@ def apply_changes(data: dict[str, Any], dotted: dict[str, Any]) -> dict[str, Any
         if not name:
             d[section] = value
             continue
-        if section not in _SECTIONS:
+        if section not in SECTIONS:
             raise SceneError(f"unknown scene section '{section}' in '{key}'")
         table = d.setdefault(section, {})
         if not isinstance(table, dict):

@@ -9,14 +9,17 @@ import math
 from dataclasses import dataclass, fields
 
 from .physical import Material
-from .validate import AUTO, _auto_or, _boolean, _check, _choice, _integer, _nonnegative, _positive
+from .validate import AUTO, auto_or, boolean, check, choice, integer, nonnegative, positive
+
+__all__ = ["FIELD_OUTPUTS", "FIGURE_FORMATS", "LINEAR_SOLVERS", "MAX_ORDER", "PAPER_STOPS_MM", "Calibration",
+           "Discrete", "Discretization", "Loading", "Outputs", "Solver"]
 
 #: the highest polynomial order a scene may ask for: the reference at 37 mm uses p = 14 (135 873
 #: dofs on its split-corner mesh); the memory check before meshing refuses what this machine cannot hold
 MAX_ORDER = 16
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Discretization:
     """Mesh and polynomial orders (``order_phi = "auto"``: order_u; ``order_lam = "auto"``: the stable pair).
 
@@ -45,22 +48,22 @@ class Discretization:
     target_error: float = 0.0
 
     def __post_init__(self) -> None:
-        _positive("discretization", self, "mesh_size_mm")
-        _integer("discretization", self, "order_u", 1, MAX_ORDER)
-        _auto_or("discretization", self, "order_phi", lambda v: isinstance(v, int) and 1 <= v <= MAX_ORDER,
-                 f"an integer from 1 to {MAX_ORDER}", old=(0,))
-        _auto_or("discretization", self, "order_lam", lambda v: isinstance(v, int) and 0 <= v <= MAX_ORDER - 1,
-                 f"an integer from 0 to {MAX_ORDER - 1}", old=(-1,))
-        _integer("discretization", self, "quad_bonus", 0, 10)
-        _boolean("discretization", self, "structured")
-        _nonnegative("discretization", self, "corner_mesh_size_mm")
-        _integer("discretization", self, "corner_bisections", 0, 10)
-        _check(isinstance(self.target_error, (int, float)) and not isinstance(self.target_error, bool)
+        positive("discretization", self, "mesh_size_mm")
+        integer("discretization", self, "order_u", 1, MAX_ORDER)
+        auto_or("discretization", self, "order_phi", lambda v: isinstance(v, int) and 1 <= v <= MAX_ORDER,
+                 f"an integer from 1 to {MAX_ORDER}")
+        auto_or("discretization", self, "order_lam", lambda v: isinstance(v, int) and 0 <= v <= MAX_ORDER - 1,
+                 f"an integer from 0 to {MAX_ORDER - 1}")
+        integer("discretization", self, "quad_bonus", 0, 10)
+        boolean("discretization", self, "structured")
+        nonnegative("discretization", self, "corner_mesh_size_mm")
+        integer("discretization", self, "corner_bisections", 0, 10)
+        check(isinstance(self.target_error, (int, float)) and not isinstance(self.target_error, bool)
                and (self.target_error == 0 or 1e-6 <= self.target_error < 1), "discretization.target_error",
                self.target_error, "must be 0 (off) or a relative error from 1e-6 to below 1")
-        _check(self.corner_mesh_size_mm <= self.mesh_size_mm, "discretization.corner_mesh_size_mm",
+        check(self.corner_mesh_size_mm <= self.mesh_size_mm, "discretization.corner_mesh_size_mm",
                self.corner_mesh_size_mm, "must not exceed discretization.mesh_size_mm")
-        _check(not (self.structured and self.corner_mesh_size_mm > 0), "discretization.corner_mesh_size_mm",
+        check(not (self.structured and self.corner_mesh_size_mm > 0), "discretization.corner_mesh_size_mm",
                self.corner_mesh_size_mm, "a structured mesh cannot be graded (set structured = false)")
 
     @property
@@ -82,7 +85,7 @@ class Discretization:
 PAPER_STOPS_MM = (37.0,)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Loading:
     """Clamp displacement u0 of X = L along e1, applied in steps."""
 
@@ -101,18 +104,18 @@ class Loading:
     output_every_mm: float = 2.0
 
     def __post_init__(self) -> None:
-        _positive("loading", self, "u0_mm", "first_step_mm", "max_step_mm", "min_step_mm")
-        _nonnegative("loading", self, "output_every_mm")
+        positive("loading", self, "u0_mm", "first_step_mm", "max_step_mm", "min_step_mm")
+        nonnegative("loading", self, "output_every_mm")
         object.__setattr__(self, "stops_mm", tuple(self.stops_mm))
         for s in self.stops_mm:
-            _check(isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0, "loading.stops_mm", s,
+            check(isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0, "loading.stops_mm", s,
                    "each stop must be a number > 0")
             # the default stop (the paper's shape station) applies only when u0 passes it
-            _check(s <= self.u0_mm or self.stops_mm == PAPER_STOPS_MM, "loading.stops_mm", s,
+            check(s <= self.u0_mm or self.stops_mm == PAPER_STOPS_MM, "loading.stops_mm", s,
                    f"a stop beyond the final load loading.u0_mm = {self.u0_mm:g} mm would never be reached")
-        _check(self.min_step_mm <= self.first_step_mm, "loading.min_step_mm", self.min_step_mm,
+        check(self.min_step_mm <= self.first_step_mm, "loading.min_step_mm", self.min_step_mm,
                "must not exceed loading.first_step_mm")
-        _check(self.min_step_mm <= self.max_step_mm, "loading.min_step_mm", self.min_step_mm,
+        check(self.min_step_mm <= self.max_step_mm, "loading.min_step_mm", self.min_step_mm,
                "must not exceed loading.max_step_mm")
 
     @property
@@ -128,7 +131,7 @@ class Loading:
 LINEAR_SOLVERS = ("auto", "cholmod", "sparsecholesky", "umfpack", "pardiso")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Solver:
     """Numerics only (kept apart from the problem).
 
@@ -165,31 +168,31 @@ class Solver:
     branch: str = "stay"
 
     def __post_init__(self) -> None:
-        _positive("solver", self, "rtol", "atol_energy", "growth")
-        _integer("solver", self, "max_iterations", 1, 1000)
-        _integer("solver", self, "grow_after", 0, 1000)
-        _auto_or("solver", self, "threads", lambda v: isinstance(v, int) and 1 <= v <= 1024,
-                 "an integer from 1 to 1024", old=(0,))
-        _check(0 < self.cut < 1, "solver.cut", self.cut, "must lie strictly between 0 and 1")
-        _check(self.growth >= 1, "solver.growth", self.growth, "must be >= 1")
-        _choice("solver", self, "linear_solver", LINEAR_SOLVERS)
-        _choice("solver", self, "predictor", ("tangent", "clamp"))
-        _choice("solver", self, "path_following", ("displacement", "arclength", "auto"))
-        _choice("solver", self, "compile", ("auto", "interpret", "native"))
-        _choice("solver", self, "branch", ("stay", "switch"))
-        _check(self.branch == "stay" or self.path_following != "displacement", "solver.branch", self.branch,
+        positive("solver", self, "rtol", "atol_energy", "growth")
+        integer("solver", self, "max_iterations", 1, 1000)
+        integer("solver", self, "grow_after", 0, 1000)
+        auto_or("solver", self, "threads", lambda v: isinstance(v, int) and 1 <= v <= 1024,
+                 "an integer from 1 to 1024")
+        check(0 < self.cut < 1, "solver.cut", self.cut, "must lie strictly between 0 and 1")
+        check(self.growth >= 1, "solver.growth", self.growth, "must be >= 1")
+        choice("solver", self, "linear_solver", LINEAR_SOLVERS)
+        choice("solver", self, "predictor", ("tangent", "clamp"))
+        choice("solver", self, "path_following", ("displacement", "arclength", "auto"))
+        choice("solver", self, "compile", ("auto", "interpret", "native"))
+        choice("solver", self, "branch", ("stay", "switch"))
+        check(self.branch == "stay" or self.path_following != "displacement", "solver.branch", self.branch,
                "needs solver.path_following = 'arclength' or 'auto' (displacement control stays on its branch)")
-        _check(self.branch == "stay" or self.condense, "solver.branch", self.branch,
+        check(self.branch == "stay" or self.condense, "solver.branch", self.branch,
                "needs solver.condense = true (the uncondensed saddle-point tangent has no stability test, so no "
                "critical mode to switch along)")
-        _boolean("solver", self, "condense")
+        boolean("solver", self, "condense")
 
 
 FIELD_OUTPUTS = ("shear_angle", "constraint", "elongation")
 FIGURE_FORMATS = ("png", "pdf", "svg")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Outputs:
     """What is computed and written; what is not asked for is not computed."""
 
@@ -208,24 +211,24 @@ class Outputs:
     figure_formats: tuple[str, ...] = ("png",)  # files of each figure: any of "png", "pdf", "svg"
 
     def __post_init__(self) -> None:
-        _boolean("outputs", self, "reaction", "double_force", "energy", "profile", "vtk",
+        boolean("outputs", self, "reaction", "double_force", "energy", "profile", "vtk",
                  "vtk_every_step", "plot")
-        _check(isinstance(self.figure_formats, (list, tuple)) and len(self.figure_formats) > 0,
+        check(isinstance(self.figure_formats, (list, tuple)) and len(self.figure_formats) > 0,
                "outputs.figure_formats", self.figure_formats, 'must be a non-empty list such as ["png", "pdf"]')
         object.__setattr__(self, "figure_formats", tuple(self.figure_formats))
         for f in self.figure_formats:
-            _check(f in FIGURE_FORMATS, "outputs.figure_formats", f,
+            check(f in FIGURE_FORMATS, "outputs.figure_formats", f,
                    f"unknown figure format, known: {', '.join(FIGURE_FORMATS)}")
-        _check(len(set(self.figure_formats)) == len(self.figure_formats), "outputs.figure_formats",
+        check(len(set(self.figure_formats)) == len(self.figure_formats), "outputs.figure_formats",
                list(self.figure_formats), "names a format twice")
-        _integer("outputs", self, "profile_points", 3, 100000)
-        _choice("outputs", self, "error_estimate", ("stops", "every", "final", "off"))
+        integer("outputs", self, "profile_points", 3, 100000)
+        choice("outputs", self, "error_estimate", ("stops", "every", "final", "off"))
         object.__setattr__(self, "fields", tuple(self.fields))
         for f in self.fields:
-            _check(f in FIELD_OUTPUTS, "outputs.fields", f, f"unknown field, known: {', '.join(FIELD_OUTPUTS)}")
+            check(f in FIELD_OUTPUTS, "outputs.fields", f, f"unknown field, known: {', '.join(FIELD_OUTPUTS)}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Discrete:
     """Parameters of the discrete model (paper section 3, Table 2); the spacing is ours."""
 
@@ -248,15 +251,15 @@ class Discrete:
     max_step_mm: float = 8.0
 
     def __post_init__(self) -> None:
-        _positive("discrete", self, "EA1", "EA2", "spacing_mm")
-        _nonnegative("discrete", self, "EI1", "EI2", "K_phi", "K_slip", "K_inter")
-        _integer("discrete", self, "elements_per_segment", 1, 64)
-        _choice("discrete", self, "inter_layout", ("neighbours", "none"))
-        _choice("discrete", self, "end_rotation", ("free", "held"))
-        _positive("discrete", self, "first_step_mm", "max_step_mm")
+        positive("discrete", self, "EA1", "EA2", "spacing_mm")
+        nonnegative("discrete", self, "EI1", "EI2", "K_phi", "K_slip", "K_inter")
+        integer("discrete", self, "elements_per_segment", 1, 64)
+        choice("discrete", self, "inter_layout", ("neighbours", "none"))
+        choice("discrete", self, "end_rotation", ("free", "held"))
+        positive("discrete", self, "first_step_mm", "max_step_mm")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Calibration:
     """What ``ngbet fit`` adjusts when no ``--params`` are given, and the fabric's yarn families.
 
@@ -275,24 +278,24 @@ class Calibration:
     def __post_init__(self) -> None:
         for name in ("params", "lower", "upper"):
             v = getattr(self, name)
-            _check(isinstance(v, (list, tuple)), f"calibration.{name}", v, "must be a list")
+            check(isinstance(v, (list, tuple)), f"calibration.{name}", v, "must be a list")
             object.__setattr__(self, name, tuple(v))
         known = {f.name for f in fields(Material)}
         for p in self.params:
             section, _, key = p.partition(".") if isinstance(p, str) else ("", "", "")
-            _check(section == "material" and key in known, "calibration.params", p,
+            check(section == "material" and key in known, "calibration.params", p,
                    f"must name a material key (material.{', material.'.join(sorted(known))})")
-        _check(len(set(self.params)) == len(self.params), "calibration.params", list(self.params),
+        check(len(set(self.params)) == len(self.params), "calibration.params", list(self.params),
                "names a key twice")
         for name in ("lower", "upper"):
             v = getattr(self, name)
-            _check(len(v) in (0, len(self.params)), f"calibration.{name}", list(v),
+            check(len(v) in (0, len(self.params)), f"calibration.{name}", list(v),
                    f"needs one bound per entry of calibration.params ({len(self.params)}) or none")
             for b in v:
-                _check(isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b) and b > 0,
+                check(isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b) and b > 0,
                        f"calibration.{name}", b, "each bound must be a finite number > 0 (the fit works on ln p)")
         if self.lower and self.upper:
             for p, lo, hi in zip(self.params, self.lower, self.upper, strict=True):
-                _check(lo < hi, "calibration.lower", lo, f"must lie below calibration.upper ({hi}) for {p}")
-        _check(isinstance(self.yarns_m1, str) and isinstance(self.yarns_m2, str), "calibration.yarns_m1",
+                check(lo < hi, "calibration.lower", lo, f"must lie below calibration.upper ({hi}) for {p}")
+        check(isinstance(self.yarns_m1, str) and isinstance(self.yarns_m2, str), "calibration.yarns_m1",
                self.yarns_m1, "must be text")

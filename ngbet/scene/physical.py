@@ -8,13 +8,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .validate import AUTO, _auto_or, _boolean, _check, _choice, _nonnegative, _positive
+from .validate import AUTO, auto_or, boolean, check, choice, nonnegative, positive
+
+__all__ = ["CONSTRAINTS", "MAX_SPECIMEN_MM", "PENALTY_FORMS", "SHEAR_LAWS", "Effects", "Material", "Specimen"]
 
 #: the largest specimen dimension accepted [mm]: forces and sizes of larger ones overflow (1e308 did)
 MAX_SPECIMEN_MM = 1e6
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Specimen:
     """Rectangular BET specimen B = [0, L] x [0, W]; clamps on X = 0 (fixed) and X = L (moving).
 
@@ -29,14 +31,14 @@ class Specimen:
     name: str = "madeo2016-70x220"
 
     def __post_init__(self) -> None:
-        _positive("specimen", self, "length_mm", "width_mm", "thickness_mm")
+        positive("specimen", self, "length_mm", "width_mm", "thickness_mm")
         for n in ("length_mm", "width_mm", "thickness_mm"):
-            _check(getattr(self, n) <= MAX_SPECIMEN_MM, f"specimen.{n}", getattr(self, n),
+            check(getattr(self, n) <= MAX_SPECIMEN_MM, f"specimen.{n}", getattr(self, n),
                    f"must be at most {MAX_SPECIMEN_MM:g} mm (1 km): larger values overflow the computation")
         a = self.yarn_angle_deg
-        _check(isinstance(a, (int, float)) and 5.0 <= a <= 85.0, "specimen.yarn_angle_deg", a,
+        check(isinstance(a, (int, float)) and 5.0 <= a <= 85.0, "specimen.yarn_angle_deg", a,
                "must lie between 5 and 85 degrees")
-        _check(self.zone_a_length_mm > 0, "specimen.width_mm", self.width_mm,
+        check(self.zone_a_length_mm > 0, "specimen.width_mm", self.width_mm,
                f"the central zone A vanishes: a BET specimen needs L > W/tan(a) "
                f"(L = {self.length_mm} mm, W/tan(a) = {self.width_mm / math.tan(math.radians(a)):.1f} mm)")
 
@@ -85,7 +87,7 @@ class Specimen:
         return self.zone_a_length_mm * (1.0 / math.cos(math.radians(self.yarn_angle_deg)) - 1.0)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Material:
     """Constitutive parameters of the constrained micromorphic continuum (paper, Table 1)."""
 
@@ -109,22 +111,22 @@ class Material:
     jamming_angle_deg: float = 5.0
 
     def __post_init__(self) -> None:
-        _nonnegative("material", self, "K_el", "K_sh", "alpha1", "alpha2", "K_sh4", "K_sh6", "K_lock")
+        nonnegative("material", self, "K_el", "K_sh", "alpha1", "alpha2", "K_sh4", "K_sh6", "K_lock")
         g = self.gamma_lock_deg
-        _check(isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g < 90, "material.gamma_lock_deg",
+        check(isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g < 90, "material.gamma_lock_deg",
                g, "must lie strictly between 0 and 90 degrees")
         j = self.jamming_angle_deg
-        _check(isinstance(j, (int, float)) and not isinstance(j, bool) and 0 < j < 90, "material.jamming_angle_deg",
+        check(isinstance(j, (int, float)) and not isinstance(j, bool) and 0 < j < 90, "material.jamming_angle_deg",
                j, "must lie strictly between 0 and 90 degrees")
         steps = self.shear_stress_steps_Pa
-        _check(isinstance(steps, (list, tuple)), "material.shear_stress_steps_Pa", steps, "must be a list of numbers")
+        check(isinstance(steps, (list, tuple)), "material.shear_stress_steps_Pa", steps, "must be a list of numbers")
         object.__setattr__(self, "shear_stress_steps_Pa", tuple(steps))
         for v in self.shear_stress_steps_Pa:
-            _check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
+            check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
                    "material.shear_stress_steps_Pa", v, "each rise must be a finite number >= 0 (a monotone table)")
-        _check(len(self.shear_stress_steps_Pa) <= 40, "material.shear_stress_steps_Pa", len(steps),
+        check(len(self.shear_stress_steps_Pa) <= 40, "material.shear_stress_steps_Pa", len(steps),
                "at most 40 control points")
-        _positive("material", self, "shear_table_i8_max")
+        positive("material", self, "shear_table_i8_max")
 
     def internal_lengths_mm(self) -> tuple[float, float]:
         """l_i = sqrt(alpha_i / K_sh) [mm]: 309 mm and 31 mm for Table 1."""
@@ -138,7 +140,7 @@ PENALTY_FORMS = ("mixed", "full")
 SHEAR_LAWS = ("quadratic", "polynomial", "locking", "table")  # ngbet.continuum.physics.SHEAR_LAWS
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Effects:
     """The physical effects a scene calls for; only their energy terms and fields are built.
 
@@ -178,20 +180,20 @@ class Effects:
     jamming: bool = True
 
     def __post_init__(self) -> None:
-        _boolean("effects", self, "shear", "elongation", "bending", "jamming")
-        _choice("effects", self, "constraint", CONSTRAINTS)
-        _choice("effects", self, "penalty_form", PENALTY_FORMS)
-        _choice("effects", self, "shear_law", SHEAR_LAWS)
-        _check(self.shear or self.shear_law == "quadratic", "effects.shear_law", self.shear_law,
+        boolean("effects", self, "shear", "elongation", "bending", "jamming")
+        choice("effects", self, "constraint", CONSTRAINTS)
+        choice("effects", self, "penalty_form", PENALTY_FORMS)
+        choice("effects", self, "shear_law", SHEAR_LAWS)
+        check(self.shear or self.shear_law == "quadratic", "effects.shear_law", self.shear_law,
                "a shear law needs effects.shear = true")
-        _auto_or("effects", self, "stabilization_K",
+        auto_or("effects", self, "stabilization_K",
                  lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v >= 0,
-                 "a number >= 0 [Pa] (0: off); \"auto\" is K_s = 0.1 min(alpha1, alpha2) / h_T^2", old=(-1,))
-        _positive("effects", self, "penalty_K")
-        _check(self.elongation, "effects.elongation", self.elongation,
+                 "a number >= 0 [Pa] (0: off); \"auto\" is K_s = 0.1 min(alpha1, alpha2) / h_T^2")
+        positive("effects", self, "penalty_K")
+        check(self.elongation, "effects.elongation", self.elongation,
                "the yarn elongation term is what makes the yarns resist stretching; without it the "
                "tangent is singular (inextensible yarns would need a constraint ngbet does not model)")
-        _check(self.shear or self.bending, "effects.shear", self.shear,
+        check(self.shear or self.bending, "effects.shear", self.shear,
                "with neither shear nor bending nothing resists the shear of the yarn network")
 
     @property
@@ -229,13 +231,13 @@ class PictureFrame:
     misalignment_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        _positive("picture_frame", self, "frame_mm", "fabric_mm")
-        _check(self.frame_mm <= MAX_SPECIMEN_MM, "picture_frame.frame_mm", self.frame_mm,
+        positive("picture_frame", self, "frame_mm", "fabric_mm")
+        check(self.frame_mm <= MAX_SPECIMEN_MM, "picture_frame.frame_mm", self.frame_mm,
                f"must be at most {MAX_SPECIMEN_MM:g} mm (1 km): larger values overflow the computation")
-        _check(self.fabric_mm <= self.frame_mm, "picture_frame.fabric_mm", self.fabric_mm,
+        check(self.fabric_mm <= self.frame_mm, "picture_frame.fabric_mm", self.fabric_mm,
                f"the fabric square must fit in the frame: fabric_mm <= frame_mm = {self.frame_mm:g} mm")
         m = self.misalignment_deg
-        _check(isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and abs(m) < 45.0,
+        check(isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and abs(m) < 45.0,
                "picture_frame.misalignment_deg", m,
                "must lie strictly between -45 and 45 degrees (beyond, the yarns run along the other bars)")
 

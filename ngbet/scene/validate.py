@@ -5,56 +5,61 @@ from __future__ import annotations
 import math
 from typing import Any
 
+__all__ = ["AUTO", "SceneError", "auto_or", "boolean", "check", "choice", "integer", "nonnegative", "positive"]
+
 
 class SceneError(ValueError):
     """A scene value is missing, unknown or out of range; the message names the key."""
 
 
-def _check(cond: bool, key: str, value: Any, why: str) -> None:
+def check(cond: bool, key: str, value: Any, why: str) -> None:
+    """Raise a :class:`SceneError` naming ``key``, ``value`` and ``why`` unless ``cond`` holds."""
     if not cond:
         raise SceneError(f"scene key '{key}' = {value!r}: {why}")
 
 
-def _positive(section: str, obj: Any, *names: str) -> None:
+def positive(section: str, obj: Any, *names: str) -> None:
+    """Require each ``obj.<name>`` to be a finite number > 0 (a bool is not a number here)."""
     for n in names:
         v = getattr(obj, n)
-        _check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0,
+        check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0,
                f"{section}.{n}", v, "must be a finite number > 0")
 
 
-def _nonnegative(section: str, obj: Any, *names: str) -> None:
+def nonnegative(section: str, obj: Any, *names: str) -> None:
+    """Require each ``obj.<name>`` to be a finite number >= 0 (a bool is not a number here)."""
     for n in names:
         v = getattr(obj, n)
-        _check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
+        check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
                f"{section}.{n}", v, "must be a finite number >= 0")
 
 
-def _boolean(section: str, obj: Any, *names: str) -> None:
+def boolean(section: str, obj: Any, *names: str) -> None:
+    """Require each ``obj.<name>`` to be ``True`` or ``False``."""
     for n in names:
         v = getattr(obj, n)
-        _check(isinstance(v, bool), f"{section}.{n}", v, "must be true or false")
+        check(isinstance(v, bool), f"{section}.{n}", v, "must be true or false")
 
 
-def _integer(section: str, obj: Any, name: str, lo: int, hi: int) -> None:
+def integer(section: str, obj: Any, name: str, lo: int, hi: int) -> None:
+    """Require ``obj.name`` to be an integer (not a bool) from ``lo`` to ``hi``, both included."""
     v = getattr(obj, name)
-    _check(isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi,
+    check(isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi,
            f"{section}.{name}", v, f"must be an integer from {lo} to {hi}")
 
 
 AUTO = "auto"
 
 
-def _auto_or(section: str, obj: Any, name: str, check: Any, what: str, old: tuple[Any, ...]) -> None:
-    """``"auto"`` or a value passing ``check``; the former numeric sentinels ``old`` get a clear error."""
+def auto_or(section: str, obj: Any, name: str, accept: Any, what: str) -> None:
+    """Require ``obj.name`` to be ``"auto"`` or a value ``accept`` takes, described by ``what``."""
     v = getattr(obj, name)
     if v == AUTO:
         return
-    if not isinstance(v, bool) and v in old:
-        raise SceneError(f"scene key '{section}.{name}' = {v!r}: for the automatic value write "
-                         f"{name} = \"auto\"; otherwise give {what}")
-    _check(not isinstance(v, (bool, str)) and check(v), f"{section}.{name}", v, f"must be \"auto\" or {what}")
+    check(not isinstance(v, (bool, str)) and accept(v), f"{section}.{name}", v, f"must be \"auto\" or {what}")
 
 
-def _choice(section: str, obj: Any, name: str, choices: tuple[str, ...]) -> None:
+def choice(section: str, obj: Any, name: str, choices: tuple[str, ...]) -> None:
+    """Require ``obj.name`` to be one of ``choices``; the message lists them."""
     v = getattr(obj, name)
-    _check(v in choices, f"{section}.{name}" if section else name, v, f"must be one of {', '.join(map(repr, choices))}")
+    check(v in choices, f"{section}.{name}" if section else name, v, f"must be one of {', '.join(map(repr, choices))}")

@@ -33,9 +33,14 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from ..output import RUN_LOCK, read_rows
-from ..scene import Scene, SceneError, SceneWarning
+from ..run_folder import RUN_LOCK
+from ..scene.document import Scene, SceneWarning
+from ..scene.validate import SceneError
+from ..tables import read_rows
 from .keys import key_of_scene_dict
+
+__all__ = ["CacheError", "cached", "clean_debris", "held", "reached", "run_dir", "sha256", "store", "study_lock",
+           "verify_case"]
 
 log = logging.getLogger(__name__)
 

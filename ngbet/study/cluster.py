@@ -24,6 +24,8 @@ from ..errors import NgbetError
 from .executors import execute_case
 from .model import Case
 
+__all__ = ["POLL_S", "SCHEDULER_TIMEOUT_S", "WORKER_TIMEOUT_S", "SchedulerError", "run_dask", "worker_timeout_s"]
+
 #: seconds to reach the scheduler
 SCHEDULER_TIMEOUT_S = 5.0
 #: seconds a study waits while the scheduler has no worker (NGBET_DASK_WORKER_TIMEOUT_S overrides)
@@ -49,7 +51,14 @@ def worker_timeout_s() -> float:
 
 def run_dask(todo: list[Case], scheduler: str, threads: int,
              finished: Callable[[Case, dict[str, Any], Path | None], None]) -> None:
-    """Run the cases on the cluster; each is handed to ``finished`` as it completes."""
+    """Run the cases ``todo`` on the cluster at ``scheduler``, each handed to ``finished`` as it completes.
+
+    ``finished(case, record, None)`` gets the case's record, which carries the run folder's files
+    (no folder on this machine); a case whose task failed gets a record of status ``"error"``.
+    Raises :class:`SchedulerError` when the scheduler cannot be reached within
+    :data:`SCHEDULER_TIMEOUT_S` or has no worker for :func:`worker_timeout_s`; the cases finished
+    by then have been handed on, the others are cancelled.
+    """
     from distributed import Client
 
     try:

@@ -18,9 +18,12 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import NgbetError
-from ..output import git_revision, machine, read_profiles, read_rows, versions
+from ..provenance import git_revision, machine, versions
+from ..tables import read_profiles, read_rows
 from .keys import code_version
 from .model import Case, Study, StudyData
+
+__all__ = ["CASE_COLUMNS", "TAIL_COLUMNS", "StudyFolderError", "collect", "load", "write_text"]
 
 log = logging.getLogger(__name__)
 

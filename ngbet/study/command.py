@@ -17,12 +17,14 @@ from pathlib import Path
 from typing import Any
 
 from ..run_folder import OutputError, OwnedFolder
-from ..scene import Scene
+from ..scene.document import Scene
 from .collect import StudyFolderError
 from .figures import plot_only
-from .keys import _floats
-from .model import Study, _same
+from .keys import as_floats
+from .model import Study, same_value
 from .runner import DEFAULT_ROOT, default_out, run_study
+
+__all__ = ["add_arguments", "build_study", "left_out", "main_for", "run_from_args"]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -49,7 +51,7 @@ def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog
 
 def _refuse_set_of_varied_keys(study: Study, overrides: list[str]) -> None:
     """A ``--set`` of a key the study's cases set themselves would be overridden by every case: refused."""
-    from ..scene import SceneError
+    from ..scene.validate import SceneError
 
     varied = set(study.params_columns())
     for item in overrides:
@@ -100,12 +102,12 @@ def left_out(full: Study, quick: Study) -> list[str]:
     A base value the cases set themselves is not named (the cases say what runs).
     """
     varied = {k for k in full.params_columns() if all(k in c for c in full.cases)}
-    fb, qb = _flat(_floats(full.base.to_dict())), _flat(_floats(quick.base.to_dict()))
+    fb, qb = _flat(as_floats(full.base.to_dict())), _flat(as_floats(quick.base.to_dict()))
     notes = [f"{k} = {_words(fb[k])} (runs {_words(qb.get(k))})" for k in fb
              if fb[k] != qb.get(k) and k not in varied and k != "solver.threads"]
     for k in full.params_columns():
         ran = [c[k] for c in quick.cases if k in c]
-        gone = [c[k] for c in full.cases if k in c and not any(_same(c[k], v) for v in ran)]
+        gone = [c[k] for c in full.cases if k in c and not any(same_value(c[k], v) for v in ran)]
         with contextlib.suppress(TypeError):  # numbers in order; other values as they come
             gone.sort()
         if gone:

@@ -33,10 +33,13 @@ from typing import Any
 
 from .._env import environ
 from ..errors import ConvergenceError
-from ..output import machine
-from ..scene import Scene
+from ..provenance import machine
+from ..scene.document import Scene
 from .cache import CacheError, reached, store, verify_case
 from .model import Case
+
+__all__ = ["PRELOAD", "Bar", "Finished", "StudyInterrupted", "accept", "execute_case", "run_processes",
+           "worker_context", "worker_init"]
 
 
 class StudyInterrupted(KeyboardInterrupt):
@@ -254,7 +257,7 @@ def _submit_and_collect(ex: Any, todo: list[Case], wds: dict[Any, Path], threads
 #: what the fork server imports, once for all its workers, by the model of the cases ("plot": cases
 #: that draw their figures)
 PRELOAD = {"continuum": ["ngbet.study.executors", "ngbet.run", "ngbet.continuum.run"],
-           "discrete": ["ngbet.study.executors", "ngbet.run", "ngbet.discrete"],
+           "discrete": ["ngbet.study.executors", "ngbet.run", "ngbet.discrete.run"],
            "plot": ["matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.backends.backend_pdf"]}
 
 

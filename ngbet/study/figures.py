@@ -11,6 +11,8 @@ from typing import Any
 from .collect import load, write_text
 from .model import MissingValueError, Study, StudyData
 
+__all__ = ["finish", "plot_only", "savefig"]
+
 log = logging.getLogger(__name__)
 
 
@@ -25,7 +27,7 @@ def finish(study: Study, data: StudyData) -> list[Path]:
         data.meta["figures_skipped"] = "matplotlib is not installed (pip install matplotlib)"
         log.info("study %s: figures skipped: %s", study.name, data.meta["figures_skipped"])
     elif study.plot is not None:
-        from ..figures import in_style
+        from ..figures.style import in_style
 
         try:
             with in_style():  # the one style of ngbet's figures
@@ -67,7 +69,7 @@ def plot_only(study: Study, out: str | Path) -> StudyData:
 
 
 def savefig(fig: Any, out: Path, name: str) -> Path:
-    """Write a study's figure as PNG and PDF (:func:`ngbet.figures.save`); returns the PNG path."""
-    from ..figures import STUDY_FORMATS, save
+    """Write a study's figure as PNG and PDF (:func:`ngbet.figures.style.save`); returns the PNG path."""
+    from ..figures.style import STUDY_FORMATS, save
 
     return save(fig, out, name, STUDY_FORMATS)

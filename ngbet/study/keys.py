@@ -21,8 +21,10 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from ..output import versions
-from ..scene import Scene
+from ..provenance import versions
+from ..scene.document import Scene
+
+__all__ = ["as_floats", "case_key", "code_version", "grid", "key_of_scene_dict"]
 
 _CODE_VERSION: dict[str, dict[str, str]] = {}
 # modules a case's run does not execute: the runner and entry points, and the build-time revision
@@ -56,7 +58,7 @@ def case_key(scene: Scene) -> str:
     """Cache key of a case: the complete scene (threads aside) and the code version."""
     d = scene.to_dict()
     d["solver"]["threads"] = 0
-    blob = json.dumps({"scene": _floats(d), "code": code_version(scene.model)}, sort_keys=True, default=str)
+    blob = json.dumps({"scene": as_floats(d), "code": code_version(scene.model)}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:20]
 
 
@@ -67,12 +69,12 @@ def key_of_scene_dict(d: dict[str, Any]) -> str:
         return case_key(Scene.from_dict(d))
 
 
-def _floats(v: Any) -> Any:
+def as_floats(v: Any) -> Any:
     """10 and 10.0 are the same scene value: hash every number as a float."""
     if isinstance(v, dict):
-        return {k: _floats(x) for k, x in v.items()}
+        return {k: as_floats(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
-        return [_floats(x) for x in v]
+        return [as_floats(x) for x in v]
     if isinstance(v, int) and not isinstance(v, bool):
         return float(v)
     return v

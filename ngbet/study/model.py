@@ -12,7 +12,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..scene import Scene
+from ..scene.document import Scene
+
+__all__ = ["Case", "Extract", "MissingValueError", "Study", "StudyData", "same_value"]
 
 
 class MissingValueError(ValueError):
@@ -65,7 +67,7 @@ class StudyData:
         """
         want = {k.replace("__", "."): v for k, v in params.items()}
         return [c["case"] for c in self.cases()
-                if set(c["params"]) == set(want) and all(_same(c["params"][k], v) for k, v in want.items())]
+                if set(c["params"]) == set(want) and all(same_value(c["params"][k], v) for k, v in want.items())]
 
     def case(self, params: dict[str, Any]) -> int | None:
         """The index of the case whose parameters are exactly ``params`` (None when the study has none)."""
@@ -73,7 +75,8 @@ class StudyData:
         return found[0] if found else None
 
 
-def _same(a: Any, b: Any) -> bool:
+def same_value(a: Any, b: Any) -> bool:
+    """Whether two scene values are the same: numbers equal to 1e-12 relative (10 and 10.0 alike), others by ``==``."""
     if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
         return math.isclose(float(a), float(b), rel_tol=1e-12, abs_tol=0.0) or a == b
     return a == b

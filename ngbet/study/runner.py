@@ -22,7 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from ..run_folder import OwnedFolder
-from ..scene import SceneError, SceneWarning
+from ..scene.document import SceneWarning
+from ..scene.validate import SceneError
 from .cache import cached, clean_debris, run_dir, study_lock
 from .cluster import run_dask
 from .collect import collect
@@ -30,6 +31,8 @@ from .executors import Bar, StudyInterrupted, accept, execute_case, run_processe
 from .figures import finish
 from .keys import case_key
 from .model import Case, Study, StudyData
+
+__all__ = ["DEFAULT_ROOT", "default_out", "execute", "run_study"]
 
 log = logging.getLogger(__name__)
 

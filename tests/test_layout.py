@@ -1,0 +1,205 @@
+"""The layout of the package: every name is imported from the module that defines it.
+
+Read from the source (``ast``), nothing imported: every module of ``ngbet`` and of the studies
+declares ``__all__`` with the names it defines; an import names the module that defines the name
+(no module hands on a name it imported: a re-export), except the public API of the top-level
+package ``ngbet``; no private name (``_x``) is imported from another module; the modules import
+each other without a circle, imports for type checking included; no module is much longer than
+500 lines.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+#: the public API of ``import ngbet``: gathered there from the modules that define it
+PUBLIC_API = {"ConvergenceError", "Result", "Scene", "SceneError", "default_scene", "load_result", "simulate",
+              "__version__", "__revision__"}
+
+
+def _modules() -> dict[str, Path]:
+    """Every module of the package by its dotted name; the studies are installed as ``ngbet.studies``."""
+    out = {}
+    for prefix, folder in (("ngbet", ROOT / "ngbet"), ("ngbet.studies", ROOT / "studies")):
+        for p in sorted(folder.rglob("*.py")):
+            parts = list(p.relative_to(folder).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join([prefix, *parts])] = p
+    return out
+
+
+MODULES = _modules()
+
+
+def _target(module: str, path: Path, node: ast.ImportFrom) -> str:
+    """The dotted name of the module an ``from ... import`` statement reads from."""
+    if not node.level:
+        return node.module or ""
+    pkg = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
+    base = pkg[: len(pkg) - node.level + 1]
+    return ".".join([*base, *([node.module] if node.module else [])])
+
+
+def _top_level(tree: ast.Module) -> list[ast.stmt]:
+    """The statements run at import, those under top-level ``if`` and ``try`` included."""
+    out: list[ast.stmt] = []
+    stack = list(tree.body)
+    while stack:
+        node = stack.pop(0)
+        out.append(node)
+        if isinstance(node, ast.If | ast.Try):
+            stack += node.body + node.orelse + [s for h in getattr(node, "handlers", []) for s in h.body]
+    return out
+
+
+def _defined(tree: ast.Module) -> set[str]:
+    """The names a module binds itself (functions, classes, assignments, plain ``import x``)."""
+    names = set()
+    for node in _top_level(tree):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            names.add(node.name)
+        elif isinstance(node, ast.Assign | ast.AnnAssign | ast.AugAssign):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names |= {n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)}
+        elif isinstance(node, ast.Import):
+            names |= {(a.asname or a.name).split(".")[0] for a in node.names}
+    return names
+
+
+def _all(tree: ast.Module) -> list[str] | None:
+    for node in tree.body:
+        targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(
+            node, ast.AnnAssign) else []
+        if any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets):
+            assert isinstance(node.value, ast.List | ast.Tuple), "__all__ is a literal list"
+            return [e.value for e in node.value.elts if isinstance(e, ast.Constant)]
+    return None
+
+
+TREES = {m: ast.parse(p.read_text()) for m, p in MODULES.items()}
+DEFINED = {m: _defined(t) for m, t in TREES.items()}
+
+
+def _imports_from(files: dict[str, Path]):
+    """(file, line, module imported from, name) of every ``from ngbet... import name``."""
+    for module, path in files.items():
+        tree = TREES.get(module) or ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                target = _target(module, path, node)
+                if target == "ngbet" or target.startswith("ngbet."):
+                    for a in node.names:
+                        yield path, node.lineno, target, a.name
+
+
+def _outside_files() -> dict[str, Path]:
+    """The tests, docs scripts, benchmarks and examples, which import ngbet by absolute names."""
+    return {f"<{p.relative_to(ROOT)}>": p for d in ("tests", "docs", "bench", "examples")
+            for p in sorted((ROOT / d).rglob("*.py"))}
+
+
+def test_every_module_declares_what_it_defines_in_all():
+    missing = [m for m, t in TREES.items() if _all(t) is None]
+    assert not missing, f"modules without __all__: {missing}"
+    for m, t in TREES.items():
+        foreign = set(_all(t) or ()) - DEFINED[m] - (PUBLIC_API if m == "ngbet" else set())
+        assert not foreign, f"{m}.__all__ lists names it does not define (a re-export): {sorted(foreign)}"
+
+
+def test_every_import_names_the_module_that_defines_the_name():
+    wrong = []
+    for path, line, target, name in _imports_from({**MODULES, **_outside_files()}):
+        if target == "ngbet" and (name in PUBLIC_API and not path.is_relative_to(ROOT / "ngbet")
+                                  or f"ngbet.{name}" in MODULES):
+            continue  # the public API, for users, tests and scripts; or a subpackage
+        if f"{target}.{name}" in MODULES:
+            continue  # a submodule
+        if target not in MODULES:
+            wrong.append(f"{path.relative_to(ROOT)}:{line}: no module {target}")
+        elif name not in DEFINED[target]:
+            wrong.append(f"{path.relative_to(ROOT)}:{line}: {name} from {target}, which does not define it")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_no_private_name_is_imported_from_another_module():
+    wrong = []
+    for path, line, target, name in _imports_from(MODULES):
+        private = name.startswith("_") and not name.startswith("__")
+        own_package = f"{target}.{name}" in MODULES  # a package's private module, from inside the package
+        if private and not own_package:
+            wrong.append(f"{path.relative_to(ROOT)}:{line}: {name} from {target}")
+    assert not wrong, "\n".join(wrong)
+
+
+def _edges(module: str) -> set[str]:
+    """The modules of ngbet a module imports, at any depth: function-local and type-checking imports included."""
+    out = set()
+    path = MODULES[module]
+    for node in ast.walk(TREES[module]):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            target = _target(module, path, node)
+            out |= {target} | {f"{target}.{a.name}" for a in node.names}
+    return {m for m in out if m in MODULES and m != module}
+
+
+def test_no_import_circle():
+    """A depth-first walk from every module never comes back to it; a package's ``__init__`` is left
+    out (importing a module runs its package's ``__init__``, which then would close every circle)."""
+    ours = [m for m, p in MODULES.items() if p.name != "__init__.py"]
+    graph = {m: _edges(m) & set(ours) for m in ours}
+    for start in ours:
+        stack, seen = [(start, [start])], set()
+        while stack:
+            m, path = stack.pop()
+            for n in graph[m]:
+                assert n != start, "import circle: " + " -> ".join([*path, n])
+                if n not in seen:
+                    seen.add(n)
+                    stack.append((n, [*path, n]))
+
+
+def test_modules_stay_small():
+    big = {m: n for m, p in MODULES.items() if (n := len(p.read_text().splitlines())) > 510}  # about 500 lines
+    assert not big, big
+
+
+@pytest.mark.parametrize("source, check, message", [
+    ("from .a import helper\n__all__ = ['helper']\n", "test_every_module_declares_what_it_defines_in_all",
+     r"ngbet.b.__all__ lists names it does not define \(a re-export\): \['helper'\]"),
+    ("from .a import helper\n__all__ = []\n", "test_every_import_names_the_module_that_defines_the_name",
+     "c.py:1: helper from ngbet.b, which does not define it"),
+    ("from .a import _helper\n__all__ = []\n", "test_no_private_name_is_imported_from_another_module",
+     "b.py:1: _helper from ngbet.a"),
+])
+def test_the_checks_see_a_re_export_and_a_private_import(tmp_path, monkeypatch, source, check, message):
+    """The checks fail on what they are there to catch: a module ``b`` handing on ``a``'s name,
+    a module importing ``a``'s private name."""
+    (tmp_path / "a.py").write_text("__all__ = ['helper']\n\ndef helper(): ...\n\ndef _helper(): ...\n")
+    (tmp_path / "b.py").write_text(source)
+    (tmp_path / "c.py").write_text("from .b import helper\n__all__ = []\n")
+    files = {f"ngbet.{n}": tmp_path / f"{n}.py" for n in "abc"}
+    trees = {m: ast.parse(p.read_text()) for m, p in files.items()}
+    monkeypatch.setitem(globals(), "MODULES", files)
+    monkeypatch.setitem(globals(), "TREES", trees)
+    monkeypatch.setitem(globals(), "DEFINED", {m: _defined(t) for m, t in trees.items()})
+    monkeypatch.setitem(globals(), "_outside_files", dict)
+    monkeypatch.setattr("pathlib.Path.relative_to", lambda self, other: Path(self.name))
+    with pytest.raises(AssertionError, match=message):
+        globals()[check]()
+
+
+def test_the_circle_check_sees_a_circle(monkeypatch, tmp_path):
+    (tmp_path / "a.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .b import B\n")
+    (tmp_path / "b.py").write_text("def f():\n    from .a import A\n")
+    files = {f"ngbet.{n}": tmp_path / f"{n}.py" for n in "ab"}
+    monkeypatch.setitem(globals(), "MODULES", files)
+    monkeypatch.setitem(globals(), "TREES", {m: ast.parse(p.read_text()) for m, p in files.items()})
+    with pytest.raises(AssertionError, match="import circle: ngbet.a -> ngbet.b -> ngbet.a"):
+        test_no_import_circle()
