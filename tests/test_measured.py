@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ngbet.calibration.data import parse_sizes, read_all, read_measured, read_table
+from ngbet.calibration.curve_table import parse_sizes, read_table
+from ngbet.calibration.data import read_all, read_measured
 from ngbet.cli import main
 from ngbet.figures.data import Measured
 from ngbet.kinematics import force_from_normalised, shear_angle_rad

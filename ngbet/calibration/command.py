@@ -123,7 +123,8 @@ class Inputs:
         if not args.max_runs >= 1:
             raise SceneError(f"--max-runs {args.max_runs}: must be at least 1")
         self.u_range = _range(args.u_range)
-        from .data import parse_sizes, read_all
+        from .curve_table import parse_sizes
+        from .data import read_all
 
         sizes = ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm")
         specs = [parse_sizes(t, "--specimen", sizes) for t in getattr(args, "specimen", [])]

@@ -1,0 +1,469 @@
+"""Measured curves as laboratories write them: the table reader of every command (fit, run --data, normalise).
+
+A data file is a table of text: ``#`` comment lines, then a header line naming the columns, then
+rows of numbers. :func:`read_table` understands
+
+- **columns by name**, in any order: the displacement (``displacement``, ``extension``,
+  ``crosshead``, ``stroke``, ...), the force (``force``, ``load``), for the picture frame also the
+  shear angle, the shear force and the normalised shear force; other columns (``time_s``) are
+  ignored. Or chosen with ``columns`` (``--columns``): two header names or 1-based numbers, each
+  with an optional unit, ``"Weg:mm,Kraft:kN"``. Two columns without names it understands are
+  refused, never taken by position.
+- **units in the header**: ``force_kN``, ``Force (kN)``, ``Force [kN]``, a row of units under the
+  header; lengths mm, cm, m; forces N, kN; angles deg, rad; normalised forces N/mm, N/m. Values
+  are converted to mm, N, degrees and N/mm, and every conversion is said (:attr:`CurveTable.notes`).
+  A column it needs without a unit is refused.
+- **separators**: commas; semicolons or tabs, then with decimal commas (``0,5``) as Excel writes
+  them; quoted cells; a UTF-8 byte order mark; Windows-1252 text.
+- **the specimen** from comment lines ``# specimen.width_mm = 100`` (also ``= 100 mm``,
+  ``# width_mm = 100``, ``# specimen.width = 0.1 m``; ``thickness_mm`` and ``yarn_angle_deg``
+  too) or from the command line (``--specimen 100x250``, width x clamp-to-clamp length [x
+  thickness] in mm). Both given and different, only one of width and length, a width or length
+  not > 0, a length not above the width: refused.
+- **the test**: ``# test: picture-frame`` or ``bias_extension`` (or ``--test``), and the picture
+  frame's sizes from ``# Table 3 (UN): frame 145 mm, fabric 120 mm`` or
+  ``# picture_frame.frame_mm = 145`` and ``# picture_frame.fabric_mm = 120`` (or ``--frame 145x120``).
+- **a loading–unloading cycle**: the rows after the largest displacement that fall back by more
+  than :data:`CYCLE_TOLERANCE` of the range are the unloading; the loading branch is kept and the
+  note says so. Falls of that size before the largest displacement (several cycles) are refused.
+
+Everything is checked before any model run, and a refusal names the file and the line and says
+what to write (:class:`ngbet.scene.validate.SceneError`, exit status 2).
+
+
+A file ``NAME_errorbars.csv`` beside ``NAME.csv`` with the columns ``displacement_mm``,
+``force_low_N``, ``force_high_N`` gives the printed error bars (:func:`read_errorbars`).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..scene.validate import SceneError
+from .curve_columns import (
+    CANONICAL,
+    PRETTY,
+    UNITS,
+    WORDS,
+    Column,
+    check_unit,
+    choose_columns,
+    header_columns,
+    is_units_row,
+    unit_key,
+)
+
+__all__ = ["CYCLE_TOLERANCE", "TESTS", "CurveTable", "errorbar_path", "parse_sizes", "read_errorbars", "read_table"]
+
+#: a fall of the displacement by more than this fraction of its range is an unloading (the vertices of
+#: a digitised curve step back by up to 2.5 % of the range: data/cao2008_pf)
+CYCLE_TOLERANCE = 0.05
+
+TESTS = ("bias_extension", "picture_frame")
+_SPECIMEN_KEYS = {"width": "specimen.width_mm", "length": "specimen.length_mm",
+                  "thickness": "specimen.thickness_mm", "yarn_angle": "specimen.yarn_angle_deg"}
+_FRAME_KEYS = {"frame": "picture_frame.frame_mm", "fabric": "picture_frame.fabric_mm"}
+_KEY_LINE = re.compile(r"^#\s*((?:specimen|picture_frame)\.[\w.]+|width_mm|length_mm|thickness_mm|yarn_angle_deg)"
+                       r"\s*=\s*(.*?)\s*$")
+_TEST_LINE = re.compile(r"^#\s*test\s*[:=]\s*[\"']?([^;,\"']*)", re.IGNORECASE)
+_TABLE3 = re.compile(r"frame\s+([0-9.]+)\s*mm\s*,\s*fabric\s+([0-9.]+)\s*mm", re.IGNORECASE)
+_VALUE = re.compile(r"^([+-]?[0-9.]+(?:[eE][+-]?\d+)?)\s*([A-Za-z°]*)$")
+_DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
+
+
+@dataclass(frozen=True)
+class CurveTable:
+    """A measured curve as read, in file order, converted to mm, N, degrees and N/mm.
+
+    ``x`` is the displacement [mm] or the shear angle [deg] (``x_quantity``), ``y`` the force or
+    shear force [N] or the normalised shear force [N/mm] (``y_quantity``); ``lines`` the file
+    line of each row; ``specimen`` the scene keys of the specimen, ``frame`` the picture frame's
+    ``picture_frame.frame_mm`` and ``picture_frame.fabric_mm``; ``test`` one of :data:`TESTS` or
+    "" when neither the file nor the caller names it.
+    """
+
+    source: str
+    x_quantity: str
+    y_quantity: str
+    x: np.ndarray
+    y: np.ndarray
+    lines: np.ndarray
+    specimen: dict[str, float]
+    frame: dict[str, float]
+    test: str
+    notes: tuple[str, ...]
+
+
+# --- text ---------------------------------------------------------------------------------------------------------
+
+def _text(path: Path, what: str) -> tuple[str, list[str]]:
+    if path.is_dir():
+        raise SceneError(f"{what} file {path} is a directory")
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise SceneError(f"{what} file not found: {path}") from None
+    except OSError as exc:
+        raise SceneError(f"{what} file {path} cannot be read: {exc.strerror or exc}") from None
+    if b"\x00" in raw:
+        raise SceneError(f"{what} file {path} is not a text file (holds NUL bytes)")
+    notes = []
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        try:
+            text = raw.decode("cp1252")
+        except UnicodeDecodeError:
+            raise SceneError(f"{what} file {path} is not a text file (neither UTF-8 nor Windows-1252)") from None
+        notes.append("read as Windows-1252 text (not UTF-8)")
+    return text, notes
+
+
+def _number(text: str, path: Path | str, line: int, column: str, comma: bool) -> float:
+    t = text.strip()
+    if comma and _DECIMAL_COMMA.match(t):
+        t = t.replace(",", ".")
+    elif "," in t:
+        raise SceneError(f"{path}, line {line}: {column} = {text!r} is ambiguous (a thousands separator or a decimal "
+                         "comma?): write numbers without thousands separators, with a decimal point, or with "
+                         "decimal commas and semicolons between the columns")
+    try:
+        v = float(t)
+    except ValueError:
+        raise SceneError(f"{path}, line {line}: {column} = {text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise SceneError(f"{path}, line {line}: {column} = {text!r} is not a finite number")
+    return v
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text.strip().replace(",", ".", 1) if _DECIMAL_COMMA.match(text.strip()) else text)
+    except ValueError:
+        return False
+    return True
+
+
+def _key_value(key: str, value: str, path: Path, line: int) -> tuple[str, float, str | None]:
+    """(scene key, value in mm or deg, a note on a converted unit) of a ``# key = value [unit]`` line."""
+    bare = key.split(".", 1)[1] if "." in key else key
+    section = "picture_frame" if key.startswith("picture_frame.") else "specimen"
+    table = _FRAME_KEYS if section == "picture_frame" else _SPECIMEN_KEYS
+    stem, _, suffix = bare.rpartition("_")
+    if suffix not in ("mm", "deg"):
+        stem, suffix = bare, ""
+    if stem not in table:
+        raise SceneError(f"{path}, line {line}: unknown key {key!r}; the {section} keys are "
+                         f"{', '.join(table.values())}")
+    full = table[stem]
+    m = _VALUE.match(value)
+    if not m:
+        raise SceneError(f"{path}, line {line}: {key} = {value!r} is not a number (with an optional unit: = 100 mm)")
+    v = _number(m.group(1), path, line, key, False)
+    unit = unit_key(m.group(2)) if m.group(2) else (suffix or None)
+    want = "angle" if full.endswith("_deg") else "length"
+    if unit is None:
+        raise SceneError(f"{path}, line {line}: {key} = {value!r} gives no unit: write {full} = {value} "
+                         f"{'deg' if want == 'angle' else 'mm'}")
+    if unit not in UNITS or UNITS[unit][0] != want:
+        raise SceneError(f"{path}, line {line}: {key} = {value!r}: {m.group(2) or suffix!r} is not a unit of "
+                         f"{'an angle' if want == 'angle' else 'a length'}")
+    note = None
+    if UNITS[unit][1] != 1.0:
+        v *= UNITS[unit][1]
+        note = f"{key} = {value} read as {full} = {v:g}"
+    return full, v, note
+
+
+def _test_name(text: str, where: str) -> str:
+    t = re.sub(r"[\s\-]+", "_", text.strip().lower())
+    t = {"bet": "bias_extension", "bias_extension_test": "bias_extension", "pf": "picture_frame",
+         "picture_frame_test": "picture_frame"}.get(t, t)
+    if t not in TESTS:
+        raise SceneError(f"{where}: unknown test {text.strip()!r}; write bias_extension or picture_frame")
+    return t
+
+
+class _Header:
+    """What the comment lines say: specimen and frame keys, the test."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.keys: dict[str, float] = {}
+        self.where: dict[str, int] = {}
+        self.test = ""
+        self.notes: list[str] = []
+
+    def _set(self, key: str, v: float, line: int) -> None:
+        if key in self.keys and self.keys[key] != v:
+            raise SceneError(f"{self.path}, line {line}: {key} = {v:g}, but line {self.where[key]} says "
+                             f"{self.keys[key]:g}: give it once")
+        self.keys[key], self.where[key] = v, line
+
+    def comment(self, text: str, line: int) -> None:
+        m = _KEY_LINE.match(text)
+        if m:
+            key, v, note = _key_value(m.group(1), m.group(2), self.path, line)
+            self._set(key, v, line)
+            if note:
+                self.notes.append(note)
+            return
+        t = _TEST_LINE.match(text)
+        if t:
+            name = _test_name(t.group(1), f"{self.path}, line {line}")
+            if self.test and self.test != name:
+                raise SceneError(f"{self.path}, line {line}: test {name}, but an earlier line says {self.test}")
+            self.test = name
+        f = _TABLE3.search(text)
+        if f:
+            self._set("picture_frame.frame_mm", float(f.group(1)), line)
+            self._set("picture_frame.fabric_mm", float(f.group(2)), line)
+
+
+# --- the table ------------------------------------------------------------------------------------------------------
+
+def parse_sizes(text: str, what: str, names: Sequence[str]) -> dict[str, float]:
+    """``"100x250"`` (or ``100 x 250 x 3.3``, ``100×250``, mm) as the scene keys ``names``, each > 0.
+
+    At least two values; the third of ``names`` is optional.
+    """
+    parts = [p.strip() for p in re.split(r"[x×X*]", text.strip().removesuffix("mm"))]
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        vals = []
+    if not 2 <= len(vals) <= len(names) or not all(math.isfinite(v) for v in vals):
+        example = "x".join(("100", "250", "3.3")[:len(names)])
+        raise SceneError(f"{what} {text!r}: write sizes in mm joined by x, e.g. {what} {example} "
+                         f"({' x '.join(n.split('.')[-1].removesuffix('_mm') for n in names)})")
+    bad = [f"{n.split('.')[-1].removesuffix('_mm')} {v:g}" for n, v in zip(names, vals, strict=False) if not v > 0]
+    if bad:
+        raise SceneError(f"{what} {text!r}: {', '.join(bad)}: sizes must be > 0 mm")
+    return dict(zip(names, vals, strict=False))
+
+
+def _merge(path: Path, header: dict[str, float], given: dict[str, float] | None, what: str, flag: str
+           ) -> tuple[dict[str, float], list[str]]:
+    out, notes = dict(header), []
+    for k, v in (given or {}).items():
+        if k in header and not math.isclose(header[k], v, rel_tol=1e-9):
+            raise SceneError(f"{path}: its header says {k} = {header[k]:g}, {flag} says {v:g}: drop one")
+        if k not in header:
+            out[k] = v
+            notes.append(f"{k} = {v:g} from {flag}")
+    return out, notes
+
+
+def _specimen(path: Path, keys: dict[str, float], given: dict[str, float] | None) -> tuple[dict[str, float], list[str]]:
+    header = {k: v for k, v in keys.items() if k.startswith("specimen.")}
+    spec, notes = _merge(path, header, given, "specimen", "--specimen")
+    for k in ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm"):
+        if k in spec and not spec[k] > 0:
+            raise SceneError(f"{path}: {k} = {spec[k]:g} must be > 0")
+    has = [k for k in ("specimen.width_mm", "specimen.length_mm") if k in spec]
+    if spec and len(has) < 2:
+        lack = ({"specimen.width_mm", "specimen.length_mm"} - set(has)).pop()
+        raise SceneError(f"{path}: an incomplete specimen: {', '.join(sorted(spec))} but no {lack}; add "
+                         f"'# {lack} = ...' to the header or give --specimen WIDTHxLENGTH (mm)")
+    if len(has) == 2 and not spec["specimen.length_mm"] > spec["specimen.width_mm"]:
+        raise SceneError(f"{path}: specimen {spec['specimen.width_mm']:g} x {spec['specimen.length_mm']:g} mm: the "
+                         "clamp-to-clamp length must exceed the width (--specimen and the header give width x length)")
+    return spec, notes
+
+
+def _frame(path: Path, keys: dict[str, float], given: dict[str, float] | None) -> tuple[dict[str, float], list[str]]:
+    header = {k: v for k, v in keys.items() if k.startswith("picture_frame.")}
+    frame, notes = _merge(path, header, given, "picture_frame", "--frame")
+    for k, v in frame.items():
+        if not v > 0:
+            raise SceneError(f"{path}: {k} = {v:g} must be > 0")
+    return frame, notes
+
+
+def _rows(text: str, path: Path, header: _Header) -> tuple[list[str], int, list[tuple[int, list[str]]], str]:
+    """The header cells and line, the data rows (line, cells) and the column separator."""
+    head: list[str] | None = None
+    head_line, sep = 0, ","
+    rows: list[tuple[int, list[str]]] = []
+    for k, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if not line:
+            continue
+        if line.startswith("#"):
+            if head is None:
+                header.comment(line, k)
+            continue
+        if head is None:
+            sep = ";" if ";" in line else "\t" if "\t" in line else ","
+            head = next(csv.reader([line], delimiter=sep))
+            if all(_is_number(c) for c in head if c.strip()):
+                raise SceneError(f"{path}, line {k}: a row of numbers where the header should be: the first line "
+                                 "that is not a # comment must name the columns (displacement_mm,force_N)")
+            head_line = k
+            continue
+        rows.append((k, next(csv.reader([line], delimiter=sep))))
+    if head is None:
+        raise SceneError(f"data file {path}: no header line and no data")
+    return head, head_line, rows, sep
+
+
+def read_table(path: str | Path, *, test: str | None = None, columns: str | Sequence[str] | None = None,
+               specimen: dict[str, float] | None = None, frame: dict[str, float] | None = None) -> CurveTable:
+    """Read a measured curve as laboratories write it (module docstring): the one reader of measured curves.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file.
+    test : str, optional
+        "bias_extension" or "picture_frame" (``--test``); refused where the file's header names the other.
+    columns : str or sequence of str, optional
+        ``--columns``: the x and y columns by header name or 1-based number, ``NAME[:UNIT]``.
+    specimen, frame : dict, optional
+        Scene keys from the command line (``--specimen``, ``--frame``); refused where the header differs.
+
+    Returns
+    -------
+    CurveTable
+        The rows in file order up to the largest x (the unloading branch of a cycle left out), converted.
+    """
+    path = Path(path)
+    text, notes = _text(path, "data")
+    header = _Header(path)
+    head, head_line, rows, sep = _rows(text, path, header)
+    cols = header_columns(head)
+    if rows and is_units_row(rows[0][1]):  # a row of units under the names (testing machines write one)
+        for c, u in zip(cols, rows[0][1], strict=False):
+            if u.strip() and c.unit is None:
+                c.unit = unit_key(u.strip("()[] "))
+        rows = rows[1:]
+    x, y = choose_columns(cols, columns, path, head_line)
+    fx, fy = check_unit(x, path, head_line), check_unit(y, path, head_line)
+    comma = sep != ","
+    data, lines = [], []
+    for k, cells in rows:
+        if len(cells) <= max(x.index, y.index):
+            hint = " (decimal commas need semicolons or tabs between the columns)" if not comma and "," in "".join(
+                cells) else ""
+            raise SceneError(f"{path}, line {k}: {len(cells)} cells, the header (line {head_line}) has {len(head)}"
+                             + hint)
+        data.append((_number(cells[x.index], path, k, x.name, comma),
+                     _number(cells[y.index], path, k, y.name, comma)))
+        lines.append(k)
+    arr = np.array(data, dtype=float).reshape(-1, 2)
+    xs, ys, ls = fx * arr[:, 0], fy * arr[:, 1], np.array(lines, dtype=int)
+    if sep != ",":
+        notes.append(f"columns separated by {'semicolons' if sep == ';' else 'tabs'}"
+                     + (", decimal commas" if any("," in c for _, r in rows for c in r) else ""))
+    notes += [f"column {c.name!r} read as the {WORDS[c.quantity or '']} in {PRETTY.get(c.unit, c.unit)}, converted to "
+              f"{CANONICAL[UNITS[c.unit][0]]} (x {f:g})" for c, f in ((x, fx), (y, fy))
+              if c.unit is not None and f != 1.0]
+    ignored = [c.name for c in cols if c.index not in (x.index, y.index)]
+    if ignored or columns:
+        notes.append(f"columns: {x.name!r} as the {WORDS[x.quantity or '']}, {y.name!r} as the "
+                     f"{WORDS[y.quantity or '']}" + (f"; ignored: {', '.join(map(repr, ignored))}" if ignored else ""))
+    beyond = _clipped(cols, rows)
+    if beyond.any():
+        notes.append(f"{int(beyond.sum())} point(s) marked on_frame_edge top or right left out (the chart "
+                     "clipped them: their true value lies beyond its axis)")
+        xs, ys, ls = xs[~beyond], ys[~beyond], ls[~beyond]
+    xs, ys, ls, cut = _loading_branch(xs, ys, ls, path, x.quantity or "")
+    if cut:
+        notes.append(cut)
+    ftest = header.test
+    if test is not None:
+        given = _test_name(test, "--test")
+        if ftest and ftest != given:
+            raise SceneError(f"{path}: its header says test {ftest}, --test says {given}: drop one")
+        ftest = given
+    spec, n1 = _specimen(path, header.keys, specimen)
+    frm, n2 = _frame(path, header.keys, frame)
+    return CurveTable(str(path), x.quantity or "", y.quantity or "", xs, ys, ls, spec, frm, ftest,
+                      tuple(notes + header.notes + n1 + n2))
+
+
+def _clipped(cols: list[Column], rows: list[tuple[int, list[str]]]) -> np.ndarray:
+    """Rows an ``on_frame_edge`` column marks "top" or "right": a printed chart clipped them there."""
+    clip = next((c for c in cols if c.name.lower() == "on_frame_edge"), None)
+    if clip is None:
+        return np.zeros(len(rows), dtype=bool)
+    return np.array([len(cells) > clip.index and bool({"top", "right"} & set(cells[clip.index].strip().lower()
+                                                                          .split("+"))) for _, cells in rows],
+                    dtype=bool)
+
+
+def _loading_branch(x: np.ndarray, y: np.ndarray, lines: np.ndarray, path: Path, quantity: str
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """The rows up to the largest x when the rows after it fall back (an unloading); several cycles refused."""
+    if len(x) < 2:
+        return x, y, lines, ""
+    i = int(np.argmax(x))
+    tol = CYCLE_TOLERANCE * float(x.max() - x.min())
+    unit = "°" if quantity == "shear_angle" else " mm"
+    fall = np.maximum.accumulate(x[:i + 1]) - x[:i + 1]
+    if fall.max() > tol:
+        j = int(np.argmax(fall > tol))
+        raise SceneError(f"{path}, line {int(lines[j])}: the {WORDS.get(quantity, quantity)} falls back to "
+                         f"{x[j]:g}{unit} before its largest value ({x[i]:g}{unit}, line {int(lines[i])}): several "
+                         "load cycles; keep one loading branch in the file")
+    if i < len(x) - 1 and float(x[i] - x[i + 1:].min()) > tol:
+        what = WORDS.get(quantity, quantity)
+        note = (f"a loading-unloading cycle: kept the loading branch up to the largest {what}, "
+                f"{x[i]:g}{unit} (line {int(lines[i])}); the {len(x) - 1 - i} rows after it are left out")
+        return x[:i + 1], y[:i + 1], lines[:i + 1], note
+    return x, y, lines, ""
+
+
+# --- bias extension curves -----------------------------------------------------------------------------------------
+
+def errorbar_path(path: str | Path) -> Path:
+    """``NAME_errorbars.csv`` beside ``NAME.csv``."""
+    p = Path(path)
+    return p.with_name(p.stem + "_errorbars" + p.suffix)
+
+
+def read_errorbars(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The error bars of the curve in ``path`` (u [mm], low [N], high [N], sorted by u), or None.
+
+    Read from ``NAME_errorbars.csv`` beside it (:func:`errorbar_path`); None when that file is
+    missing or holds fewer than two complete bars. Refused (SceneError): a missing column, a
+    short row, text in a number's place, a high force below the low one.
+    """
+    ep = errorbar_path(path)
+    if not ep.exists():
+        return None
+    text, _ = _text(ep, "error bar")
+    head, head_line, rows, sep = _rows(text, ep, _Header(ep))
+    names = [h.strip().strip("\"'") for h in head]
+    need = ("displacement_mm", "force_low_N", "force_high_N")
+    missing = [n for n in need if n not in names]
+    if missing:
+        raise SceneError(f"{ep}, line {head_line}: the header lacks the column(s) {', '.join(missing)}")
+    idx = [names.index(n) for n in need]
+    vals, lines = [], []
+    for k, cells in rows:
+        if len(cells) <= max(idx):
+            raise SceneError(f"{ep}, line {k}: {len(cells)} cells, the header (line {head_line}) has {len(head)}")
+        vals.append([math.nan if cells[j].strip() == "" and n != "displacement_mm"
+                     else _number(cells[j], ep, k, n, sep != ",") for j, n in zip(idx, need, strict=True)])
+        lines.append(k)
+    e = np.array(vals, dtype=float).reshape(-1, 3)
+    ok = np.isfinite(e[:, 1]) & np.isfinite(e[:, 2])
+    if ok.sum() < 2:
+        return None
+    bu, bl, bh = e[ok, 0], e[ok, 1], e[ok, 2]
+    wrong = bh < bl
+    if wrong.any():
+        j = int(np.argmax(wrong))
+        raise SceneError(f"{ep}, line {np.array(lines)[ok][j]}: force_high_N {bh[j]:g} is below force_low_N {bl[j]:g}")
+    o = np.argsort(bu)
+    return bu[o], bl[o], bh[o]
+
+
