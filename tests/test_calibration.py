@@ -10,7 +10,7 @@ import ngsolve as ngs
 import numpy as np
 import pytest
 
-from ngbet.calibration import joint
+from ngbet.calibration import fit_params, joint
 from ngbet.calibration.data import read_measured
 from ngbet.calibration.table import shear_stress_points, start_table
 from ngbet.cli import main
@@ -41,9 +41,9 @@ def test_fabric_scene_is_the_data_specimen(fabric):
     assert sc.effects.shear_law == "table"
     cal = sc.calibration
     assert len(cal.lower) == len(cal.upper) == len(cal.params) >= 2
-    names = joint.expand_params(sc, cal.params)
-    start = np.array([joint.value_of(sc, n) for n in names])
-    lo, hi = joint.bounds(sc, cal.params, names, start)
+    names = fit_params.expand_params(sc, cal.params)
+    start = np.array([fit_params.value_of(sc, n) for n in names])
+    lo, hi = fit_params.bounds(sc, cal.params, names, start)
     assert np.all((lo < start) & (start < hi))
     assert "warp" in cal.yarns_m1 and "weft" in cal.yarns_m2
 
@@ -465,7 +465,7 @@ def test_a_refit_on_a_finer_discretization_moves_no_parameter_beyond_its_standar
     start = synthetic_scene(**{"material.K_sh": 4e4, "material.K_el": 1e6})
     chosen = joint.fit_curves(curves, start, max_runs=20)
     assert chosen.accuracy_met and all(c.error_rel_max <= 0.01 for c in chosen.curves)
-    finer = joint.fit_curves(curves, joint.FIT_LADDER[3].apply(start), max_runs=20, choose_discretization=False)
+    finer = joint.fit_curves(curves, fit_params.FIT_LADDER[3].apply(start), max_runs=20, choose_discretization=False)
     assert all(c.level < 3 for c in chosen.curves)  # the finer fit is finer than every curve of the chosen one
     moved = np.abs(np.log(finer.values / chosen.values))
     assert np.all(moved <= chosen.se_log), (moved, chosen.se_log)

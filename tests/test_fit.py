@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from ngbet.calibration.data import MeasuredCurve, read_measured
-from ngbet.calibration.joint import JointFit, fit_curves, predict_specimen
+from ngbet.calibration.fit_params import JointFit
+from ngbet.calibration.joint import fit_curves, predict_specimen
 from ngbet.calibration.observations import Profile
 from ngbet.cli import main
 from ngbet.continuum import physics

@@ -16,7 +16,7 @@ first curve's specimen (:mod:`ngbet.calibration.observations`) add their residua
 standard deviations.
 
 Every model run is within a stated discretization error: the fit chooses each curve's mesh and
-order from :data:`FIT_LADDER` (graded towards the clamp corners), coarse to fine, by the estimated
+order from :data:`~ngbet.calibration.fit_params.FIT_LADDER` (graded towards the clamp corners), coarse to fine, by the estimated
 force error at the fitted points (:mod:`ngbet.continuum.estimate`); fit.json records the largest
 estimate per curve. A single curve (one specimen size) fitted with the scene's own parameters holds
 the bending stiffnesses, which one size cannot determine (:func:`held_parameters`).
@@ -29,315 +29,46 @@ the displacement order rises by one).
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ..continuum.estimate import Rung
 from ..scene.document import Scene
 from ..scene.validate import SceneError
 from .data import RANGE, MeasuredCurve
+from .fit_params import (
+    COARSE_LEVEL,
+    FINE_TOL,
+    FIRST_CHECKED,
+    FIT_LADDER,
+    FLAT_RCOND,
+    SIZE_PARAMS,
+    STRONG_CORRELATION,
+    TARGET_ERROR,
+    UNDETERMINED_SE,
+    CurveFit,
+    JointFit,
+    band,
+    bounds,
+    correlation,
+    curve_scene,
+    expand_params,
+    portable_scene,
+    value_of,
+    with_values,
+)
 from .observations import Profile, ShearAngles
 
-__all__ = ["BOUND_FACTOR", "TABLE_KEY", "CurveFit", "CurvePrediction", "JointFit", "Progress", "band", "bounds",
-           "curve_scene", "expand_params", "fit_curves", "portable_scene", "predict_specimen", "terminal_progress",
-           "value_of", "with_values"]
+__all__ = ["WHAT_FIXES", "CurvePrediction", "Progress", "fit_curves", "held_parameters", "predict_specimen",
+           "terminal_progress"]
 
 log = logging.getLogger(__name__)
-
-TABLE_KEY = "material.shear_stress_steps_Pa"
-#: without bounds in the scene, each parameter stays within this factor of its start value
-BOUND_FACTOR = 1e4
-
-
-def expand_params(scene: Scene, params: Sequence[str]) -> list[str]:
-    """The scalar parameters: a list key such as the table's rises stands for each entry."""
-    out: list[str] = []
-    for p in params:
-        section, _, key = p.partition(".")
-        v = getattr(scene.material, key, None) if section == "material" else None
-        if isinstance(v, tuple):
-            if not v:
-                raise SceneError(f"parameter '{p}' is an empty list in the scene: nothing to fit")
-            out += [f"{p}[{j}]" for j in range(len(v))]
-        elif isinstance(v, (int, float)) and not isinstance(v, bool):
-            out.append(p)
-        else:
-            raise SceneError(f"parameter '{p}' is not a material key of the scene (e.g. material.K_el)")
-    from ..continuum.sensitivity import DIFFERENTIABLE, table_index
-
-    for p in out:
-        key = p.partition(".")[2]
-        if key not in DIFFERENTIABLE and table_index(key) is None:
-            raise SceneError(f"parameter '{p}': ngbet cannot differentiate the force with respect to it; known: "
-                             f"{', '.join('material.' + k for k in DIFFERENTIABLE)}")
-    return out
-
-
-def value_of(scene: Scene, name: str) -> float:
-    """The start value of a scalar parameter (a table entry too)."""
-    from ..continuum.sensitivity import material_value
-
-    return material_value(scene, name.partition(".")[2])
-
-
-def with_values(scene: Scene, names: Sequence[str], values: Sequence[float]) -> Scene:
-    """``scene`` with the scalar parameters ``names`` set (table entries written back as one list)."""
-    steps = list(scene.material.shear_stress_steps_Pa)
-    changes: dict[str, Any] = {}
-    for n, v in zip(names, values, strict=True):
-        if n.startswith(TABLE_KEY + "["):
-            steps[int(n[len(TABLE_KEY) + 1:-1])] = float(v)
-            changes[TABLE_KEY] = steps
-        else:
-            changes[n] = float(v)
-    return scene.with_changes(**changes)
-
-
-def bounds(scene: Scene, params: Sequence[str], names: Sequence[str],
-           start: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of each scalar parameter: the scene's [calibration] lower/upper, else start x 1e∓4."""
-    cal = scene.calibration
-    lo, hi = start / BOUND_FACTOR, start * BOUND_FACTOR
-    for k, n in enumerate(names):
-        base = n.partition("[")[0]
-        if base in params and base in cal.params:
-            j = cal.params.index(base)
-            if cal.lower:
-                lo[k] = cal.lower[j]
-            if cal.upper:
-                hi[k] = cal.upper[j]
-    return lo, hi
-
-
-def curve_scene(scene: Scene, curve: MeasuredCurve, u_mm: np.ndarray) -> Scene:
-    """The scene on the curve's specimen (its header keys), loaded to its last fitted displacement."""
-    changes: dict[str, Any] = dict(curve.specimen)
-    changes.update({"loading.u0_mm": float(u_mm.max()), "loading.stops_mm": []})
-    try:
-        sc = scene.with_changes(**changes)
-    except SceneError as exc:
-        raise SceneError(f"{curve.source}: its specimen keys do not make a valid scene: {exc}") from None
-    if u_mm.max() >= sc.specimen.locking_u0_mm * 1.2:
-        raise SceneError(f"{curve.source}: the fitted points reach {u_mm.max():g} mm, far beyond the ideal yarn "
-                         f"locking of its {sc.specimen.width_mm:g} x {sc.specimen.length_mm:g} mm specimen "
-                         f"({sc.specimen.locking_u0_mm:.1f} mm): are the header's specimen keys right?")
-    return sc
-
-
-def portable_scene(scene: Scene) -> Scene:
-    """The fitted scene without the load of one specimen: it runs on any other as it is."""
-    return scene.with_changes(**{"loading.stops_mm": [], "loading.u0_mm": 0.8 * scene.specimen.locking_u0_mm})
-
-
-#: the discretizations of a fit's model runs, cheapest first, all graded towards the clamp corners
-#: (:class:`ngbet.continuum.estimate.Rung`: mesh size, corner mesh size [mm], order p). Measured on
-#: the unbalanced twill 100 x 250 mm to 49.7 mm with its start values (16 loads): the estimated force
-#: error is at most 1.2 % on the first rung (1.4 s a run), 0.2 % on the second (1.2-1.6 s), 0.07 %
-#: on the third (2.6 s), against 17.5 % on the scene's uniform 25 mm mesh at p = 2 (0.9 s)
-FIT_LADDER = tuple(Rung(h, c, p, math.nan) for h, c, p in (
-    (40.0, 1.0, 2), (40.0, 1.0, 3), (20.0, 0.25, 3), (20.0, 0.25, 4), (20.0, 0.25, 5), (20.0, 0.25, 6)))
-#: the coarse stage's rung: the search gets near the optimum there, unchecked
-COARSE_LEVEL = 0
-#: the first rung whose estimated error is checked against the target
-FIRST_CHECKED = 1
-#: tolerance (xtol, ftol) of the search on the checked rungs: a relative change of the cost Σe² below
-#: 1e-4 changes it by far less than 1 (the change that moves a parameter by one standard error) on
-#: the costs of the shipped fits (50–250), and steps below 1e-4 of |ln p| move no parameter by a
-#: visible amount. Measured on the unbalanced twill's two sizes: with 1e-6 the fit stopped at its 40
-#: runs (31 on the checked rung) without converging; with 1e-4 it converged in 25 (13 on it) to the
-#: same values (K_el 3.86 MPa both, RMS 3.9 % and 5.1 % both)
-FINE_TOL = 1e-4
-#: default largest estimated discretization error of the force at a fitted point, relative to it
-TARGET_ERROR = 0.01
-#: standard error of ln p above which a parameter is reported as undetermined (its 95 % interval
-#: then spans more than a factor e^(1.96·0.5) ≈ 2.7 either way)
-UNDETERMINED_SE = 0.5
-#: singular values of J below this fraction of the largest are flat directions
-FLAT_RCOND = 1e-3
-#: |correlation| above which a pair of parameters is reported as strongly correlated
-STRONG_CORRELATION = 0.95
-#: what one specimen size cannot determine: held at the scene's values when the parameters are
-#: the scene's own and every curve has the same specimen (the size effect needs two sizes)
-SIZE_PARAMS = ("material.alpha1", "material.alpha2")
-
-
-@dataclass
-class CurveFit:
-    """One curve of a fit: the fitted points, the model on them and its discretization.
-
-    ``profile`` and ``angles``: observations of the same specimen fitted with its force.
-    """
-
-    curve: MeasuredCurve
-    scene: Scene
-    u_mm: np.ndarray
-    measured_N: np.ndarray
-    sd_N: np.ndarray
-    profile: Profile | None = None
-    angles: ShearAngles | None = None
-    level: int | None = FIRST_CHECKED  # the rung of FIT_LADDER; None: the scene's own discretization
-    model_N: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    start_N: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    dlogp: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
-    force_error_N: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    angle_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    profile_mm: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    angles_model_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    @property
-    def label(self) -> str:
-        """"W x L mm": the specimen the curve runs on (its header's, else the scene's)."""
-        sp = self.scene.specimen
-        return f"{sp.width_mm:g} x {sp.length_mm:g} mm"
-
-    def measured_on_specimen(self) -> MeasuredCurve:
-        """The measured curve with the specimen keys it runs on (the scene's where its header gives none)."""
-        sp = self.scene.specimen
-        keys = {"specimen.width_mm": sp.width_mm, "specimen.length_mm": sp.length_mm,
-                "specimen.thickness_mm": sp.thickness_mm, **self.curve.specimen}
-        return dataclasses.replace(self.curve, specimen=keys)
-
-    @property
-    def rms_relative(self) -> float:
-        """RMS of (model − measured)/measured over the fitted points."""
-        return float(np.sqrt(np.mean(((self.model_N - self.measured_N) / self.measured_N) ** 2)))
-
-    @property
-    def error_rel_max(self) -> float:
-        """The largest estimated discretization error of the model force relative to it (nan: not vouched)."""
-        if len(self.force_error_N) == 0 or not np.all(np.isfinite(self.force_error_N)):
-            return math.nan
-        return float(np.max(self.force_error_N / np.abs(self.model_N)))
-
-    def run_scene(self) -> Scene:
-        """The curve's scene on its rung of :data:`FIT_LADDER` (level None: on the scene's discretization)."""
-        return self.scene if self.level is None else FIT_LADDER[self.level].apply(self.scene)
-
-    def ideal_angle_deg(self) -> np.ndarray:
-        """The centre shear angle of the ideal test (inextensible yarns, pin-jointed) at the fitted points [deg]."""
-        from ..kinematics import shear_angle_rad
-
-        sp = self.scene.specimen
-        return np.degrees(shear_angle_rad(self.u_mm, sp.length_mm, sp.width_mm))
-
-
-@dataclass
-class JointFit:
-    """What :func:`fit_curves` found; :meth:`to_json` is the content of fit.json."""
-
-    params: list[str]
-    names: list[str]
-    values: np.ndarray
-    start: np.ndarray
-    lower: np.ndarray
-    upper: np.ndarray
-    cov_log: np.ndarray
-    curves: list[CurveFit]
-    scene: Scene
-    noise_scale: float
-    model_runs: int
-    wall_s: float
-    converged: bool
-    message: str
-    at_bound: list[str]
-    held: dict[str, str] = field(default_factory=dict)
-    undetermined: dict[str, str] = field(default_factory=dict)
-    correlated: list[tuple[str, str, float]] = field(default_factory=list)
-    flat_directions: list[dict[str, float]] = field(default_factory=list)
-    residual_scale: float = math.nan
-    target_error: float = TARGET_ERROR
-    stages: list[dict[str, Any]] = field(default_factory=list)
-    profile_sd_mm: float = 1.0
-    angle_sd_deg: float = 1.0
-
-    @property
-    def se_log(self) -> np.ndarray:
-        """Standard errors of ln p."""
-        return np.sqrt(np.abs(np.diag(self.cov_log)))
-
-    @property
-    def accuracy_met(self) -> bool:
-        """Every curve's largest estimated discretization error is within the target."""
-        return all(c.error_rel_max <= self.target_error for c in self.curves)
-
-    def to_json(self) -> dict[str, Any]:  # noqa: C901 - one record after the other
-        """The content of fit.json."""
-        se = self.se_log
-        n = len(self.names)
-        corr = _correlation(self.cov_log)
-
-        def num(v: float) -> float | None:
-            return float(v) if math.isfinite(v) else None
-
-        def curve(c: CurveFit) -> dict[str, Any]:
-            d = c.run_scene().discretization
-            doc = {"data": c.curve.source, "specimen": c.curve.specimen, "points": len(c.u_mm),
-                   "range_mm": [float(c.u_mm.min()), float(c.u_mm.max())],
-                   "rms_relative_error": c.rms_relative, "u_mm": c.u_mm.tolist(),
-                   "measured_N": c.measured_N.tolist(), "sd_N": c.sd_N.tolist(), "model_N": c.model_N.tolist(),
-                   "start_N": c.start_N.tolist(), "band_N": band(c.dlogp, self.cov_log).tolist(),
-                   "discretization": {"mesh_size_mm": d.mesh_size_mm, "corner_mesh_size_mm": d.corner_mesh_size_mm,
-                                      "order_u": d.order_u, "chosen_by_fit": c.level is not None},
-                   "force_error_rel_max": num(c.error_rel_max),
-                   "force_error_N": [num(v) for v in c.force_error_N],
-                   "shear_angle_deg": c.angle_deg.tolist(), "shear_angle_ideal_deg": c.ideal_angle_deg().tolist()}
-            if c.profile is not None:
-                Pd = c.profile.measured()
-                doc["profile"] = {"data": c.profile.source, "points": len(Pd), "sd_mm": self.profile_sd_mm,
-                                  "rms_mm": float(np.sqrt(np.mean((c.profile_mm - Pd) ** 2))),
-                                  "u0_mm": np.concatenate([[u0] * len(x) for u0, x in c.profile.points().items()]
-                                                          ).tolist(),
-                                  "X_mm": np.concatenate(list(c.profile.points().values())).tolist(),
-                                  "measured_mm": Pd.tolist(), "model_mm": c.profile_mm.tolist()}
-            if c.angles is not None:
-                a = c.angles
-                doc["shear_angle_data"] = {
-                    "data": a.source, "points": len(a.u_mm), "sd_deg": self.angle_sd_deg,
-                    "rms_deg": float(np.sqrt(np.mean((c.angles_model_deg - a.angle_deg) ** 2))),
-                    "u_mm": a.u_mm.tolist(), "measured_deg": a.angle_deg.tolist(),
-                    "model_deg": c.angles_model_deg.tolist()}
-            return doc
-
-        return {
-            "parameters": {nm: {"value": float(self.values[k]), "start": float(self.start[k]),
-                                "standard_error": num(self.values[k] * se[k]), "standard_error_log": num(se[k]),
-                                "bounds": [float(self.lower[k]), float(self.upper[k])],
-                                "at_bound": nm in self.at_bound, "determined": nm not in self.undetermined}
-                           for k, nm in enumerate(self.names)},
-            "held": {p: {"value": value_of(self.scene, p), "why": why} for p, why in self.held.items()},
-            "undetermined": self.undetermined,
-            "strongly_correlated": [{"params": [a, b], "correlation": c} for a, b, c in self.correlated],
-            "flat_directions": self.flat_directions,
-            "correlation": [[num(corr[i, j]) for j in range(n)] for i in range(n)],
-            "covariance_log": [[float(x) for x in row] for row in self.cov_log],
-            "noise_scale": self.noise_scale, "residual_scale": self.residual_scale,
-            "model_runs": self.model_runs, "wall_s": self.wall_s,
-            "converged": self.converged, "optimizer_message": self.message,
-            "accuracy": {"target_error": self.target_error, "met": self.accuracy_met,
-                         "force_error_rel_max": {c.label: num(c.error_rel_max) for c in self.curves},
-                         "stages": self.stages},
-            "curves": [curve(c) for c in self.curves],
-        }
-
-
-def band(dlogp: np.ndarray, cov_log: np.ndarray) -> np.ndarray:
-    """√diag(G Σ Gᵀ) [N]: the force's standard deviation from the parameters."""
-    return np.sqrt(np.maximum(np.einsum("ik,kl,il->i", dlogp, cov_log, dlogp), 0.0))
-
-
-def _correlation(cov: np.ndarray) -> np.ndarray:
-    d = np.sqrt(np.abs(np.diag(cov)))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        c = cov / np.outer(d, d)
-    return np.where(np.isfinite(c), c, np.nan)
 
 
 @dataclass
@@ -668,7 +399,7 @@ def _statistics(e: np.ndarray, J: np.ndarray, names: list[str]) -> dict[str, Any
         hint = next((h for k, h in WHAT_FIXES.items() if p.startswith(k)), "")
         if hint:
             undetermined[p] += f"; {hint}"
-    corr = _correlation(cov)
+    corr = correlation(cov)
     pairs = [(names[i], names[j], float(corr[i, j])) for i in range(n) for j in range(i + 1, n)
              if abs(corr[i, j]) > STRONG_CORRELATION]
     return {"cov": cov, "undetermined": undetermined, "flat": flat, "correlated": pairs,

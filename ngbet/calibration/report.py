@@ -10,7 +10,8 @@ from typing import Any
 import numpy as np
 
 from .data import MeasuredCurve
-from .joint import TABLE_KEY, CurvePrediction, JointFit, band
+from .fit_params import TABLE_KEY, JointFit, band
+from .joint import CurvePrediction
 
 __all__ = ["plot_fit", "plot_table", "prediction_json", "table_band", "write_fit", "write_prediction"]
 
