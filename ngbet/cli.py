@@ -30,10 +30,7 @@ import logging
 import math
 import os
 import signal
-import socket
 import sys
-import threading
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -41,11 +38,12 @@ from . import commands as _commands
 from .commands import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_IO, EXIT_OK, EXIT_SOLVER, exit_code, load_scene
 from .commands import parse_value as _parse_value
 from .errors import NgbetError
+from .interrupts import STOP_SIGNALS, interrupts, signal_name, stop_signals
 from .messages import messages, say
 from .scene.document import Scene
 from .scene.validate import SceneError
 
-__all__ = ["EPILOG", "GRACE_S", "SUPERVISED", "console", "main"]
+__all__ = ["EPILOG", "SUPERVISED", "console", "main"]
 
 EPILOG = ("exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
           "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
@@ -88,89 +86,6 @@ def _print(text: str, what: str, utf8: bool = False) -> int:
         return EXIT_IO
 
 
-GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the watchdog does
-#: the signals that end a command as an interruption (summary.json "interrupted", exit 130): Ctrl-C,
-#: SIGTERM, the terminal closed (SIGHUP) and the user signals, whose default would kill the run silently
-STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2")
-                     if hasattr(signal, n))
-
-
-def _stop_signals() -> list[int]:
-    """:data:`STOP_SIGNALS` but those this process ignores (``nohup`` ignores SIGHUP: the run goes on)."""
-    return [sig for sig in STOP_SIGNALS if signal.getsignal(sig) is not signal.SIG_IGN]
-
-
-def _signal_name(signum: int) -> str:
-    try:
-        return signal.Signals(signum).name
-    except ValueError:
-        return f"signal {signum}"
-
-
-@contextlib.contextmanager
-def _interrupts() -> Iterator[None]:
-    """Ctrl-C, SIGTERM, SIGHUP and SIGUSR1/2 raise KeyboardInterrupt in the main thread (recorded as "interrupted").
-
-    The run folder's summary names the signal.
-
-    The main thread can be inside one NGSolve call for a long time (assembly or
-    factorization at high order: tens of seconds) and only acts when it returns; a watchdog thread
-    woken by the signal (``signal.set_wakeup_fd``) then records the interruption in the active run
-    folders itself and exits with 130 after GRACE_S.
-    """
-    from .engine import STOP_REQUESTED
-
-    acted = threading.Event()
-
-    def handler(signum: int, frame: Any) -> None:
-        acted.set()
-        STOP_REQUESTED.set()  # in case the exception is lost (engine.STOP_REQUESTED): the next step raises
-        raise KeyboardInterrupt(_signal_name(signum))
-
-    try:
-        previous = {sig: signal.signal(sig, handler) for sig in _stop_signals()}
-    except ValueError:  # not the main thread: leave the signals alone
-        yield
-        return
-    r, w = socket.socketpair()
-    w.setblocking(False)
-    old_fd = signal.set_wakeup_fd(w.fileno(), warn_on_full_buffer=False)
-    watchdog = threading.Thread(target=_watch, args=(r, acted), daemon=True, name="ngbet-interrupt-watchdog")
-    watchdog.start()
-    STOP_REQUESTED.clear()
-    try:
-        yield
-    finally:
-        STOP_REQUESTED.clear()
-        signal.set_wakeup_fd(old_fd)
-        for sig, h in previous.items():
-            signal.signal(sig, h)
-        w.close()  # ends the watchdog
-        watchdog.join(timeout=1)
-        r.close()
-
-
-def _watch(r: socket.socket, acted: threading.Event) -> None:
-    while True:
-        try:
-            data = r.recv(64)
-        except OSError:
-            return
-        if not data:
-            return
-        got = [s for s in data if s in STOP_SIGNALS]
-        if not got:  # another library's signal
-            continue
-        if not acted.wait(GRACE_S):
-            from .output import interrupt_active_runs
-
-            folders = interrupt_active_runs(f"interrupted ({_signal_name(got[0])}) inside a computation; "
-                                            f"stopped after {GRACE_S:g} s")
-            _say(f"interrupted; converged steps and summary.json (status interrupted) are in "
-                 f"{', '.join(map(str, folders)) or 'no run folder'}")
-            sys.stderr.flush()
-            os._exit(EXIT_INTERRUPTED)
-        acted.clear()
 
 
 #: set in the environment of the process that ``ngbet run`` runs in (:func:`console`)
@@ -199,7 +114,7 @@ def console() -> int:
         with contextlib.suppress(ProcessLookupError):
             child.send_signal(signum)
 
-    for sig in _stop_signals():
+    for sig in stop_signals():
         signal.signal(sig, forward)
     code = child.wait()
     return code if code >= 0 else _died(argv, -code)
@@ -218,7 +133,7 @@ def _died(argv: list[str], signum: int) -> int:
     from .output import RunWriter
     from .tables import read_rows
 
-    name = _signal_name(signum)
+    name = signal_name(signum)
     interrupted = signum in STOP_SIGNALS
     status = "interrupted" if interrupted else "crashed"
     msg = (f"the run was interrupted by {name}" if interrupted else
@@ -242,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     """The ``ngbet`` command (see the module docstring for the exit status)."""
     _commands.tolerant_streams()
     words = sys.argv[1:] if argv is None else argv
-    with _interrupts(), messages("-v" in words or "--verbose" in words):
+    with interrupts(), messages("-v" in words or "--verbose" in words):
         try:
             return _main(argv)
         except KeyboardInterrupt:

@@ -583,10 +583,10 @@ def test_workers_exit_when_the_study_is_killed(tmp_path):
 
 STUCK = """
 import signal, sys, time
-from ngbet.cli import _interrupts
+from ngbet.interrupts import interrupts
 from ngbet.output import RunWriter
 from ngbet.scene.document import Scene
-with _interrupts():
+with interrupts():
     with RunWriter(sys.argv[1], Scene()) as w:
         w.add_step({"step": 1, "u0_mm": 3.0, "force_N": 1.0})
         signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT])  # the main thread cannot act, as

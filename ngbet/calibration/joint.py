@@ -16,10 +16,11 @@ first curve's specimen (:mod:`ngbet.calibration.observations`) add their residua
 standard deviations.
 
 Every model run is within a stated discretization error: the fit chooses each curve's mesh and
-order from :data:`~ngbet.calibration.fit_params.FIT_LADDER` (graded towards the clamp corners), coarse to fine, by the estimated
-force error at the fitted points (:mod:`ngbet.continuum.estimate`); fit.json records the largest
-estimate per curve. A single curve (one specimen size) fitted with the scene's own parameters holds
-the bending stiffnesses, which one size cannot determine (:func:`held_parameters`).
+order from :data:`~ngbet.calibration.fit_params.FIT_LADDER` (graded towards the clamp
+corners), coarse to fine, by the estimated force error at the fitted points
+(:mod:`ngbet.continuum.estimate`); fit.json records the largest estimate per curve. A single
+curve (one specimen size) fitted with the scene's own parameters holds the bending stiffnesses,
+which one size cannot determine (:func:`held_parameters`).
 
 A prediction of another specimen is the fitted scene run there, with the standard deviation
 √(g Σ gᵀ + δ²): g = dF/dθ from the same run, Σ the covariance of θ, and δ the estimated
