@@ -397,7 +397,7 @@ def test_accuracy_on_demand_reaches_the_target(tmp_path, target, capsys):
 
 
 def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
-    from ngbet.continuum import estimate
+    from ngbet.continuum import ladder
     from ngbet.errors import ConvergenceError
 
     calls = []
@@ -408,7 +408,7 @@ def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
             raise ConvergenceError("load step cut below the minimum", last_converged_mm=48.0)
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
 
-    s = estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
+    s = ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
                                  tmp_path, run_one)
     a = s["accuracy"]
     # p = 10 on the mesh where p = 8 failed is skipped (it fails alike), not run
@@ -421,7 +421,7 @@ def test_accuracy_ladder_leaves_a_setting_whose_time_budget_is_spent(tmp_path, m
     """A setting after the first whose path is still going after its budget (RUNG_BUDGET_FACTOR times
     the wall time of the setting before, at least RUNG_BUDGET_MIN_S) stops at its next trial with
     a ConvergenceError, and the ladder goes on: a path that would cut its step for ever is left."""
-    from ngbet.continuum import estimate
+    from ngbet.continuum import ladder
     from ngbet.engine import Outcome, PathControl, path_steps, run_to_end
 
     class Stuck:  # a corrector that never converges and never cuts below the minimum step
@@ -440,8 +440,8 @@ def test_accuracy_ladder_leaves_a_setting_whose_time_budget_is_spent(tmp_path, m
         def diagnose(self, attempts):
             return "", None
 
-    monkeypatch.setattr(estimate, "RUNG_BUDGET_MIN_S", 0.1)
-    monkeypatch.setattr(estimate, "RUNG_BUDGET_FACTOR", 2.0)
+    monkeypatch.setattr(ladder, "RUNG_BUDGET_MIN_S", 0.1)
+    monkeypatch.setattr(ladder, "RUNG_BUDGET_FACTOR", 2.0)
     calls = []
 
     def run_one(sc, out):
@@ -456,7 +456,7 @@ def test_accuracy_ladder_leaves_a_setting_whose_time_budget_is_spent(tmp_path, m
                                                        min_step=1e-6, max_attempts=None)))
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
 
-    s = estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
+    s = ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
                                  tmp_path, run_one)
     a = s["accuracy"]["attempts"]
     assert a[1]["failed"].startswith("time budget spent on the way from 0 mm to 56 mm")
@@ -466,13 +466,13 @@ def test_accuracy_ladder_leaves_a_setting_whose_time_budget_is_spent(tmp_path, m
 def test_an_unreachable_target_is_refused_before_solving(tmp_path, capsys):
     """Below the finest rung's expected error (2.5e-5) no setting can be expected to meet the target:
     exit 2 at once, naming the best reachable accuracy, and nothing is solved."""
-    from ngbet.continuum import estimate
+    from ngbet.continuum import ladder
 
     out = tmp_path / "acc1e-6"
     assert main(["run", "--quiet", "--accuracy", "1e-6", "--out", str(out)]) == 2
     msg = capsys.readouterr().err
     assert "discretization.target_error = 1e-06" in msg and "best reachable accuracy is about 2.5e-05" in msg
-    assert estimate.reachable_accuracy() == 2.5e-5
+    assert ladder.reachable_accuracy() == 2.5e-5
     assert not (out / "results.csv").exists()
 
 
@@ -480,7 +480,7 @@ def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path)
     """A finer rung whose estimate is no better than the best so far ends the climb (exit 1, not met);
     the best rung is run again so that its files are the ones left, and a failed rung's solve time
     is its wall time, not zero."""
-    from ngbet.continuum import estimate
+    from ngbet.continuum import ladder
     from ngbet.errors import ConvergenceError
 
     calls = []
@@ -495,7 +495,7 @@ def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path)
                 "u0_reached_mm": 56.0}
 
     with pytest.raises(ConvergenceError, match="not reached: p = 4 .* no better than 0.003 at p = 3") as info:
-        estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 2.5e-3}),
+        ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 2.5e-3}),
                                  tmp_path, run_one)
     assert calls == [2, 3, 4, 3]  # the best rung (p = 3) again, last
     a = info.value.path_info["accuracy"]  # the runner adds it to the run's summary.json
@@ -509,7 +509,7 @@ def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path)
             raise ConvergenceError("load step cut below the minimum", last_converged_mm=48.0)
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
 
-    s = estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
+    s = ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
                                  tmp_path, failing_first)
     a = s["accuracy"]
     assert a["attempts"][0]["solve_s"] >= 0.05 and a["solve_s"] >= 1.05
@@ -518,7 +518,7 @@ def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path)
 def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
     """The rungs' expected errors were measured on Netgen's meshes: a scene's corner_bisections
     does not leak into the discretizations the ladder tries."""
-    from ngbet.continuum import estimate
+    from ngbet.continuum import ladder
 
     seen = []
 
@@ -526,7 +526,7 @@ def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
         seen.append(sc.discretization.corner_bisections)
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
 
-    estimate.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-3,
+    ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-3,
                                                               "discretization.corner_bisections": 2}),
                              tmp_path, run_one)
     assert seen and set(seen) == {0}

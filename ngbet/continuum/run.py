@@ -26,7 +26,8 @@ from ..plot_process import active as plot_service
 from ..scene.document import Scene
 from . import observables as obs
 from .arclength import MODE_KEY, arclength_runner
-from .estimate import RunEstimates, run_to_accuracy
+from .estimate import RunEstimates
+from .ladder import run_to_accuracy
 from .linear import assembly_thread_count
 from .numerics import ContinuumSolver
 from .output import write_vtk

@@ -1,0 +1,189 @@
+"""Accuracy on demand: a continuum scene run on finer settings until its force error meets the target.
+
+:data:`LADDER` holds the settings (mesh size, order), coarse to fine; :func:`run_to_accuracy` climbs
+it towards ``discretization.target_error``, each run's error estimated by
+:mod:`ngbet.continuum.estimate`, each setting within a time budget.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from ..engine import time_budget
+from ..scene.document import Scene
+from ..scene.validate import AUTO
+
+__all__ = ["EXPECTED_MARGIN", "LADDER", "RUNG_BUDGET_FACTOR", "RUNG_BUDGET_MIN_S", "Rung", "first_rung",
+           "reachable_accuracy", "run_to_accuracy"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Rung:
+    """One candidate discretization of :data:`LADDER`."""
+
+    mesh_size_mm: float
+    corner_mesh_size_mm: float
+    order_u: int
+    #: relative force error at 56 mm on the paper's scene against the reference (measured)
+    expected_error: float
+
+    def apply(self, scene: Scene) -> Scene:
+        """``scene`` on this rung's discretization, with the estimate at the final load."""
+        d = dataclasses.replace(scene.discretization, mesh_size_mm=self.mesh_size_mm, order_u=self.order_u,
+                                order_phi=AUTO, order_lam=AUTO, corner_mesh_size_mm=self.corner_mesh_size_mm,
+                                corner_bisections=0, structured=False, target_error=0.0)
+        return dataclasses.replace(scene, discretization=d,
+                                   outputs=dataclasses.replace(scene.outputs, error_estimate="final"))
+
+
+#: Candidate discretizations, cheapest first, all graded to 0.25 mm at the clamp corners: h = 10 mm
+#: at p = 2 and 3, then h = 20 mm at p = 4, 5, 6, 8 and 10 (at p >= 4 the bulk error of the 20 mm
+#: mesh is negligible: 107.24349 N against 107.24387 N on the 10 mm mesh at p = 8, at a quarter of
+#: the time), then h = 10 mm at p = 8 should those not converge (h = 20 mm, p = 7 stops at 55.7 mm).
+#: Expected errors: the paper's scene at 56 mm against the reference 107.2365 N
+#: (ngbet.studies.reference). Whole-run times there (2-core machine, loaded): 0.3, 0.5, 0.4–0.7,
+#: 0.8–1.4, 1.4, 6–8, 34, 56–70 s. Finer corners reach 56 mm but cost more for the same accuracy:
+#: 0.1 mm at p = 5 gives 107.24398 N in 46 s, 0.0625 mm at p = 5 107.24389 N in 126 s (loaded), both
+#: 7e-5 from the reference like h = 20 mm at p = 8; 0.0625 mm at p = 4 gives 107.26134 N (2.3e-4).
+LADDER = tuple(Rung(h, 0.25, p, e) for h, p, e in (
+    (10.0, 2, 1.6e-3), (10.0, 3, 1.3e-3), (20.0, 4, 6.7e-4), (20.0, 5, 3.5e-4), (20.0, 6, 1.8e-4),
+    (20.0, 8, 6.5e-5), (20.0, 10, 2.5e-5), (10.0, 8, 6.9e-5)))
+#: a rung is expected to meet a target if its error is below this fraction of it: the estimate
+#: (θ |F_p − F_p+1|, the differences shrinking by 0.5–0.7 per order) is 0.75–1.25 times the error,
+#: so that 0.7 of the target leaves the estimate below it
+EXPECTED_MARGIN = 0.7
+#: a setting after the first may take this many times the wall time of the setting before it (but
+#: at least :data:`RUNG_BUDGET_MIN_S`): one order up costs 1.5-5x (the times above), and a setting
+#: that cuts its step again and again is left when its budget is spent
+RUNG_BUDGET_FACTOR = 10.0
+#: the smallest time budget of a setting after the first [s]
+RUNG_BUDGET_MIN_S = 30.0
+
+
+def first_rung(target: float) -> int:
+    """The cheapest rung whose expected error is below :data:`EXPECTED_MARGIN` times the target.
+
+    The last rung when none is.
+    """
+    for i, r in enumerate(LADDER):
+        if r.expected_error <= EXPECTED_MARGIN * target:
+            return i
+    return len(LADDER) - 1
+
+
+def reachable_accuracy() -> float:
+    """The smallest relative force error the ladder expects to reach (its finest rung, the paper's scene)."""
+    return min(r.expected_error for r in LADDER)
+
+
+def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
+    """Run ``scene`` on the cheapest rung of :data:`LADDER` that meets ``discretization.target_error``.
+
+    The estimated force error at the final load decides; the run climbs the ladder while it is above
+    the target, and stops at the first rung that does not improve on the best estimate so far
+    (the finer rungs would cost more for no gain): then the best rung is run again into ``out``
+    (unless it was the last one run) and :class:`ngbet.errors.ConvergenceError` says that the
+    target was not reached and what was.
+
+    A setting that cannot carry the load is left for the next (its attempt says why), and so are
+    the higher orders on its mesh, which fail alike; each setting after the first has a time
+    budget, :data:`RUNG_BUDGET_FACTOR` times the last one's wall time (at least
+    :data:`RUNG_BUDGET_MIN_S`), after which its path stops (:func:`ngbet.engine.time_budget`).
+
+    ``run_one(scene, out) -> summary`` runs one discretization into ``out`` (the last attempt's
+    files stay there). The returned summary (the runner adds it to summary.json) gains
+    ``accuracy``: the target, the chosen discretization, whether it was met, and every attempt
+    with its estimate and times (a failed attempt's solve time is its wall time).
+
+    Raises
+    ------
+    ngbet.scene.validate.SceneError
+        before solving, when the target is below :func:`reachable_accuracy`.
+    ngbet.errors.ConvergenceError
+        when the target is not met (the best rung's files are in ``out``).
+    """
+    from ..errors import ConvergenceError
+    from ..scene.validate import SceneError
+
+    target = scene.discretization.target_error
+    best_reachable = reachable_accuracy()
+    if target < best_reachable:
+        finest = min(LADDER, key=lambda r: r.expected_error)
+        raise SceneError(f"discretization.target_error = {target:g} is below what ngbet can reach: the best "
+                         f"reachable accuracy is about {best_reachable:.2g} (h = {finest.mesh_size_mm:g} mm, "
+                         f"corners {finest.corner_mesh_size_mm:g} mm, p = {finest.order_u}, measured on the "
+                         f"paper's scene); ask for {best_reachable:.1g} or more")
+    attempts: list[dict[str, Any]] = []
+    summary: dict[str, Any] = {}
+    rungs = LADDER[first_rung(target):]
+    best: tuple[float, int] | None = None  # (estimated error, index in attempts)
+    stalled = ""
+    failed_meshes: set[tuple[float, float]] = set()  # meshes on which a setting did not carry the load
+    last_wall = math.inf  # the wall time of the last setting run (the first is not bounded)
+    for k, rung in enumerate(rungs):
+        mesh = (rung.mesh_size_mm, rung.corner_mesh_size_mm)
+        if mesh in failed_meshes and k < len(rungs) - 1:
+            log.warning("%s: skipped (a lower order on the same mesh did not carry the load)", rung)
+            attempts.append({"discretization": dataclasses.asdict(rung), "force_error_rel": math.nan,
+                             "force_N": None, "wall_s": 0.0, "solve_s": 0.0, "estimate_s": None,
+                             "failed": "skipped: a lower order on the same mesh did not carry the load"})
+            continue
+        t0 = time.perf_counter()
+        budget = max(RUNG_BUDGET_MIN_S, RUNG_BUDGET_FACTOR * last_wall)
+        try:
+            with time_budget(budget):
+                summary = run_one(rung.apply(scene), out)
+        except ConvergenceError as e:
+            if k == len(rungs) - 1 and best is None:
+                raise
+            log.warning("%s: %s; trying the next setting", rung, str(e).splitlines()[0])
+            wall = last_wall = time.perf_counter() - t0
+            failed_meshes.add(mesh)
+            attempts.append({"discretization": dataclasses.asdict(rung), "force_error_rel": math.nan,
+                             "force_N": None, "wall_s": wall, "solve_s": wall, "estimate_s": None,
+                             "failed": str(e).splitlines()[0]})
+            continue
+        last_wall = time.perf_counter() - t0
+        rel = summary.get("force_error_rel")
+        rel = math.nan if rel is None else rel
+        attempts.append({"discretization": dataclasses.asdict(rung), "force_error_rel": rel,
+                         "force_N": summary.get("force_N"), "wall_s": time.perf_counter() - t0,
+                         "solve_s": summary.get("solve_s"), "estimate_s": summary.get("estimate_s")})
+        if math.isfinite(rel) and rel <= target:
+            best = (rel, len(attempts) - 1)
+            break
+        if best is not None and not (math.isfinite(rel) and rel < best[0]):
+            prev = attempts[best[1]]["discretization"]
+            stalled = (f"p = {rung.order_u} (h = {rung.mesh_size_mm:g} mm) estimates {rel:.2g}, no better than "
+                       f"{best[0]:.2g} at p = {prev['order_u']} (h = {prev['mesh_size_mm']:g} mm)")
+            break
+        if math.isfinite(rel) and (best is None or rel < best[0]):
+            best = (rel, len(attempts) - 1)
+        log.info("estimated error %.3g above the target %.3g: refining", rel, target)
+    if best is not None and best[1] != len(attempts) - 1:  # the best setting's files in out
+        t0 = time.perf_counter()
+        rung = rungs[[dataclasses.asdict(r) for r in rungs].index(attempts[best[1]]["discretization"])]
+        summary = run_one(rung.apply(scene), out)
+        attempts[best[1]]["rerun_s"] = time.perf_counter() - t0
+    chosen = attempts[best[1]] if best is not None else attempts[-1]
+    met = bool(best is not None and best[0] <= target)
+    summary["accuracy"] = {"target_error": target, "met": met, "chosen": chosen["discretization"],
+                           "attempts": attempts, "wall_s": sum(a["wall_s"] + a.get("rerun_s", 0.0) for a in attempts),
+                           "solve_s": sum(a["solve_s"] or 0.0 for a in attempts)}
+    msg = ""
+    if not met:
+        why = stalled or (f"the finest setting ngbet offers estimates {chosen['force_error_rel']:.2g}"
+                          if math.isfinite(chosen["force_error_rel"]) else "no setting gave an error estimate")
+        msg = f"discretization.target_error = {target:g} not reached: {why}"
+        summary["status"], summary["error"] = "failed", msg
+        log.warning("%s", msg)
+        raise ConvergenceError(msg, float(summary.get("u0_reached_mm", scene.loading.u0_mm)),
+                               path_info={"accuracy": summary["accuracy"]})
+    return summary
