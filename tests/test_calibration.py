@@ -383,6 +383,7 @@ def test_validation_study_quick(tmp_path, monkeypatch):
     predicted; the report holds the table with ngbet's and the normalisation method's RMS, and the
     normalisation column equals an independent computation from the measured curves."""
     from ngbet.kinematics import force_from_normalised, normalised_shear_force
+    from ngbet.studies import _validation_fits as VF
     from ngbet.studies import validation as V
     from ngbet.study.collect import load
 
@@ -390,7 +391,7 @@ def test_validation_study_quick(tmp_path, monkeypatch):
     assert main(["study", "validation", "--quick", "--workers", "1", "--quiet", "--out", str(out),
                  "--cache", str(tmp_path / "cache")]) == 0
     # the fit is kept in the study cache that --cache names
-    assert [f.name[:len("quick0-twill_unbalanced")] for f in (tmp_path / "cache" / V.FITS_FOLDER).glob("*.json")] \
+    assert [f.name[:len("quick0-twill_unbalanced")] for f in (tmp_path / "cache" / VF.FITS_FOLDER).glob("*.json")] \
         == ["quick0-twill_unbalanced"]
     text = (out / "report.md").read_text()
     assert "| twill_unbalanced |" in text and (out / "validation.png").exists()

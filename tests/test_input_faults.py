@@ -199,20 +199,20 @@ def test_an_interrupted_import_of_an_installed_matplotlib_is_not_called_missing(
 
 # ------------------------------------------------------------------------- the validation fits
 def test_a_truncated_validation_fit_is_named_and_made_again(tmp_path, caplog):
-    from ngbet.studies import validation as V
+    from ngbet.studies import _validation_fits as VF
 
     (tmp_path / "pair-x.json").write_text('{"fabric": "plain", "K_el": 2.9')  # cut short
     with caplog.at_level("WARNING"):
-        doc = V._cached(tmp_path, "pair-x", lambda: {"fabric": "plain", "K_el": 3.0})
+        doc = VF.cached(tmp_path, "pair-x", lambda: {"fabric": "plain", "K_el": 3.0})
     assert doc["K_el"] == 3.0 and str(tmp_path / "pair-x.json") in caplog.text and "made again" in caplog.text
     assert json.loads((tmp_path / "pair-x.json").read_text())["K_el"] == 3.0
 
 
 def test_an_unusable_fit_cache_is_found_before_the_fit(tmp_path):
-    from ngbet.studies import validation as V
+    from ngbet.studies import _validation_fits as VF
 
     (tmp_path / "cache").write_text("a file where the cache folder should be")
     made = []
     with pytest.raises(OSError):
-        V._cached(tmp_path / "cache" / "validation-fits", "pair-x", lambda: made.append(1) or {})
+        VF.cached(tmp_path / "cache" / "validation-fits", "pair-x", lambda: made.append(1) or {})
     assert made == []

@@ -67,8 +67,8 @@ def test_without_relaxation_displacement_control_stops_at_the_fold():
 def test_relaxation_leaves_an_unstable_equilibrium_along_its_mode():
     """Started on the hilltop y = 0 at λ = 0 (an equilibrium, tangent −1), :func:`relax` kicks
     along the unstable mode and finds a well bottom y = ±1, stable, reporting the eigenvalue it left."""
+    from ngbet.continuum.relax import relax
     from ngbet.continuum.settings import NewtonSettings
-    from ngbet.continuum.solver import relax
 
     toy = DoubleWell(0.0)
     rep = relax(toy, NewtonSettings(), 1.0)

@@ -721,10 +721,11 @@ def test_the_studies_draw_through_ngbet_figures_without_pyplot():
 def test_validation_takes_the_scene_of_a_fabric_and_refuses_another_naming_the_key():
     from ngbet.scene.document import default_scene
     from ngbet.scene.validate import SceneError
+    from ngbet.studies import _validation_fits as VF
     from ngbet.studies import validation as V
 
     repo = Path(__file__).resolve().parent.parent
-    for fabric, (scene, _, _) in V.FABRICS.items():
+    for fabric, (scene, _, _) in VF.FABRICS.items():
         sc = Scene.from_toml(repo / "geometry" / scene)
         assert V.fabric_of(sc) == fabric
         # another specimen size of the same fabric is the same fabric
@@ -737,6 +738,7 @@ def test_validation_takes_the_scene_of_a_fabric_and_refuses_another_naming_the_k
 def test_quick_validation_makes_only_its_own_fit_and_says_what_it_leaves_out(monkeypatch):
     """The quick study fits one fabric in one direction; what it leaves out of the full study is said
     by the study itself, without building the full one (whose six fits take minutes)."""
+    from ngbet.studies import _validation_fits as VF
     from ngbet.studies import validation as V
     from ngbet.study.command import build_study
 
@@ -749,7 +751,7 @@ def test_quick_validation_makes_only_its_own_fit_and_says_what_it_leaves_out(mon
     monkeypatch.setattr(V, "fit_and_predict", fit_stub)
     monkeypatch.setattr(V, "_case", lambda doc, which: {"specimen.name": which})
     study = build_study(V.build, True)
-    assert made == [(*V.QUICK[0], True)]
+    assert made == [(*VF.QUICK[0], True)]
     assert study.left_out == ["5 of the full study's 6 fits (each fabric in both directions)",
                               "K_el from the other fabrics' two-size fits (the scene's value instead)",
-                              f"{V.MAX_RUNS} model runs per fit ({V.QUICK_RUNS} instead)"]
+                              f"{VF.MAX_RUNS} model runs per fit ({VF.QUICK_RUNS} instead)"]

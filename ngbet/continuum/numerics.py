@@ -54,7 +54,7 @@ class ContinuumSolver:
     """The energy forms and linear algebra of a :class:`~ngbet.continuum.problem.ContinuumProblem`.
 
     Implements :class:`ngbet.continuum.newton.NonlinearProblem` (and what the relaxation of
-    :func:`ngbet.continuum.solver.relax` asks besides: ``merit``, ``lowest_mode``, ...).
+    :func:`ngbet.continuum.relax.relax` asks besides: ``merit``, ``lowest_mode``, ...).
 
     Parameters
     ----------
@@ -246,7 +246,7 @@ class ContinuumSolver:
     def can_relax(self) -> bool:
         """Whether the Newton matrix is a Hessian (condensed, or no multiplier).
 
-        Then energy descent and the stability test work (:func:`ngbet.continuum.solver.relax`).
+        Then energy descent and the stability test work (:func:`ngbet.continuum.relax.relax`).
         """
         return self.linear.condensed or "lam" not in self.problem.field_names
 

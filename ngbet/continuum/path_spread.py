@@ -1,7 +1,7 @@
 r"""The force's dependence on the path: its spread over the branches a run's path left at its relaxations.
 
 Where displacement control relaxes to a stable state (a snap-through at a fold, or a relaxation
-after Newton failed on a short increment: :func:`ngbet.continuum.solver.relax`), the path leaves
+after Newton failed on a short increment: :func:`ngbet.continuum.relax.relax`), the path leaves
 the branch it was on. Where that branch goes on existing, the model has two (or more) stable
 equilibria at the same clamp displacement, and which one a run reports depends on its path
 (the step sizes, the barrier, the kick's sign). The spread of the force over them is an
