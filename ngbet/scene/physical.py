@@ -210,7 +210,7 @@ class Effects:
 TESTS = ("bias_extension", "picture_frame")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PictureFrame:
     """The picture-frame test (test = "picture_frame"): a rigid frame of four bars hinged at its corners.
 
