@@ -5,6 +5,9 @@ numerics     the problem's solver: energy forms, linear solver, native code, tim
 physics      the energy terms, each written once
 observables  reactions (volume-integral method), profiles, fields
 solver       damped Newton and load stepping
+relax        a stable equilibrium at a fixed clamp displacement where Newton failed
+estimate     the estimated discretization error of the force
+ladder       finer settings until that error meets the target
 run          a continuum scene into a run folder
 """
 
