@@ -42,6 +42,7 @@ import numpy as np
 
 from ..continuum.estimate import Rung
 from ..scene import Scene, SceneError
+from ..scene.physical import Specimen
 from .data import RANGE, MeasuredCurve
 from .observations import Profile, ShearAngles
 
@@ -113,13 +114,24 @@ def bounds(scene: Scene, params: Sequence[str], names: Sequence[str],
 
 
 def curve_scene(scene: Scene, curve: MeasuredCurve, u_mm: np.ndarray) -> Scene:
-    """The scene on the curve's specimen (its header keys), loaded to its last fitted displacement."""
+    """The scene on the curve's specimen (its header keys), loaded to its last fitted displacement.
+
+    A picture-frame curve: the same material in the picture-frame test (``test = "picture_frame"``)
+    with the frame of the file's header, loaded to its last fitted crosshead travel.
+    """
     changes: dict[str, Any] = dict(curve.specimen)
     changes.update({"loading.u0_mm": float(u_mm.max()), "loading.stops_mm": []})
+    frame = curve.test == "picture_frame"
+    if frame:  # the specimen's length and width, unread by the frame, at their defaults (no warning)
+        sp = Specimen()
+        changes.update({"test": "picture_frame", **curve.frame, "specimen.length_mm": sp.length_mm,
+                        "specimen.width_mm": sp.width_mm})
     try:
         sc = scene.with_changes(**changes)
     except SceneError as exc:
         raise SceneError(f"{curve.source}: its specimen keys do not make a valid scene: {exc}") from None
+    if frame:
+        return sc
     if u_mm.max() >= sc.specimen.locking_u0_mm * 1.2:
         raise SceneError(f"{curve.source}: the fitted points reach {u_mm.max():g} mm, far beyond the ideal yarn "
                          f"locking of its {sc.specimen.width_mm:g} x {sc.specimen.length_mm:g} mm specimen "
@@ -189,12 +201,16 @@ class CurveFit:
 
     @property
     def label(self) -> str:
-        """"W x L mm": the specimen the curve runs on (its header's, else the scene's)."""
+        """"W x L mm": the specimen the curve runs on (its header's, else the scene's); "frame F/f mm"."""
+        if self.curve.test == "picture_frame":
+            return self.curve.label
         sp = self.scene.specimen
         return f"{sp.width_mm:g} x {sp.length_mm:g} mm"
 
     def measured_on_specimen(self) -> MeasuredCurve:
         """The measured curve with the specimen keys it runs on (the scene's where its header gives none)."""
+        if self.curve.test == "picture_frame":
+            return self.curve
         sp = self.scene.specimen
         keys = {"specimen.width_mm": sp.width_mm, "specimen.length_mm": sp.length_mm,
                 "specimen.thickness_mm": sp.thickness_mm, **self.curve.specimen}
@@ -218,8 +234,10 @@ class CurveFit:
 
     def ideal_angle_deg(self) -> np.ndarray:
         """The centre shear angle of the ideal test (inextensible yarns, pin-jointed) at the fitted points [deg]."""
-        from ..kinematics import shear_angle_rad
+        from ..kinematics import frame_shear_angle_rad, shear_angle_rad
 
+        if self.curve.test == "picture_frame":
+            return np.degrees(frame_shear_angle_rad(self.u_mm, self.scene.picture_frame.frame_mm))
         sp = self.scene.specimen
         return np.degrees(shear_angle_rad(self.u_mm, sp.length_mm, sp.width_mm))
 
@@ -274,7 +292,14 @@ class JointFit:
 
         def curve(c: CurveFit) -> dict[str, Any]:
             d = c.run_scene().discretization
-            doc = {"data": c.curve.source, "specimen": c.curve.specimen, "points": len(c.u_mm),
+            doc: dict[str, Any] = {"data": c.curve.source, "test": c.curve.test}
+            if c.curve.test == "picture_frame":  # the fit in the file's own quantities too
+                x, y = c.curve.in_file_units(c.u_mm, c.measured_N)
+                doc["frame"] = c.curve.frame
+                doc["file_quantities"] = {"shear_angle_deg": x.tolist(), "quantity": c.curve.quantity,
+                                          "measured": y.tolist(),
+                                          "model": c.curve.in_file_units(c.u_mm, c.model_N)[1].tolist()}
+            doc |= {"specimen": c.curve.specimen, "points": len(c.u_mm),
                    "range_mm": [float(c.u_mm.min()), float(c.u_mm.max())],
                    "rms_relative_error": c.rms_relative, "u_mm": c.u_mm.tolist(),
                    "measured_N": c.measured_N.tolist(), "sd_N": c.sd_N.tolist(), "model_N": c.model_N.tolist(),
@@ -370,7 +395,7 @@ class _Model:
             hit = self._cache.get((key[0], key[1], True))
             if hit is not None:
                 return hit
-        from ..continuum.mesh import make_mesh
+        from ..continuum.mesh import make_cross_mesh, make_mesh
         from ..continuum.sensitivity import force_path
         from ..errors import ConvergenceError
 
@@ -380,7 +405,8 @@ class _Model:
         for k, c in enumerate(self.curves):
             sc = with_values(c.run_scene(), self.names, np.exp(theta))
             if (k, c.level) not in self.meshes:
-                self.meshes[k, c.level] = make_mesh(sc.specimen, sc.discretization)
+                self.meshes[k, c.level] = (make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
+                                           if sc.test == "picture_frame" else make_mesh(sc.specimen, sc.discretization))
             pts = c.profile.points() if c.profile is not None else {}
             a_u = list(c.angles.u_mm) if c.angles is not None else []
             m, kp, ka = len(c.u_mm), sum(len(x) for x in pts.values()), len(a_u)
@@ -431,7 +457,8 @@ def held_parameters(curves: Sequence[MeasuredCurve], scene: Scene, params: Seque
     stiffnesses (:data:`SIZE_PARAMS`) set the size effect, which one size does not show.
     """
     sizes = {(c.specimen.get("specimen.width_mm", scene.specimen.width_mm),
-              c.specimen.get("specimen.length_mm", scene.specimen.length_mm)) for c in curves}
+              c.specimen.get("specimen.length_mm", scene.specimen.length_mm)) if c.test != "picture_frame"
+             else tuple(c.frame.values()) for c in curves}
     if len(sizes) > 1 or profile is not None:
         return {}
     return {p: ("one specimen size: the bending stiffnesses set the size effect, which one size does not show "
@@ -538,7 +565,7 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
         cost = float(e @ e)
         best[0] = min(best[0], cost)
         if progress is not None and not quiet[0]:
-            progress(model.runs, [float(np.sqrt(np.nanmean(((r.F - c.measured_N) / c.measured_N) ** 2)))
+            progress(model.runs, [float(np.sqrt(np.mean(((r.F - c.measured_N) / c.measured_N) ** 2)))
                                   for r, c in zip(res, cfs, strict=True)], best[0])
         return e
 
