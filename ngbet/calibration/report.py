@@ -137,7 +137,7 @@ def plot_fit(result: JointFit, path: Path) -> Path:
     frame = any(c.curve.test == "picture_frame" for c in result.curves)
     ax.set_ylabel("clamp or crosshead force [N]" if frame else "clamp force [N]")
     ax.legend(fontsize=7, loc="upper left")
-    stopped = "" if result.converged else " (stopped at the run limit, not converged)"
+    stopped = "" if result.converged else "\n(stopped at the run limit, not converged)"
     ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters, "
                  f"{result.model_runs} model runs{stopped}", fontsize=9)
     ar.axhline(0, color="0.5", lw=0.8)
