@@ -25,7 +25,7 @@ import numpy as np
 
 from ..run_folder import OwnedFolder
 from ..scene import Scene, SceneError
-from .data import MeasuredCurve, read_measured
+from .data import MeasuredCurve
 
 
 def add_parser(sub: Any) -> None:
@@ -126,7 +126,9 @@ class Inputs:
         specs = [parse_sizes(t, "--specimen", sizes) for t in getattr(args, "specimen", [])]
         columns = getattr(args, "columns", None)
         self.curves = read_all(self.data, columns=columns, specimens=specs)
-        self.predict = [read_measured(p, columns=columns) for p in args.predict]
+        from .data import read_any
+
+        self.predict = [read_any(p, columns=columns) for p in args.predict]
         self.notes = [f"{c.source}: {n}" for c in self.curves + self.predict for n in c.notes]
         self.predict_scene = Scene.from_toml(args.predict_scene) if args.predict_scene else None
         from .joint import curve_scene, expand_params, value_of
@@ -149,7 +151,7 @@ class Inputs:
             self.notes += [note] if note else []
             curve_scene(self.scene, c, c.sample(fraction=self._fraction(c))[0])
         for c in self.predict:
-            if not c.specimen and self.predict_scene is None:
+            if not c.specimen and c.test != "picture_frame" and self.predict_scene is None:
                 raise SceneError(f"--predict {c.source}: its header gives no specimen "
                                  "(# specimen.width_mm = ..., # specimen.length_mm = ...) and no --predict-scene")
 
@@ -211,11 +213,11 @@ def run_from_args(args: argparse.Namespace) -> int:
 def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) -> int:
     """Predict one curve; a solver failure is reported and leaves the fit's files in place."""
     from ..errors import ConvergenceError
-    from .joint import predict_specimen
+    from .joint import predict_specimen, test_changes
     from .report import write_prediction
 
     u, F = c.sample(24)
-    spec = dict(c.specimen)
+    spec = test_changes(c)
     if scene is not None and not spec:
         sp = scene.specimen
         spec = {"specimen.width_mm": sp.width_mm, "specimen.length_mm": sp.length_mm,
@@ -226,7 +228,7 @@ def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) 
         print(f"ngbet fit: prediction of {c.source} failed (the fit is kept in {out}/): {exc}", file=sys.stderr)
         return 1
     path = write_prediction(pred, c, F, out)
-    rms = float(np.sqrt(np.mean(((pred.force_N - F) / F) ** 2)))
+    rms = float(np.sqrt(np.mean(((pred.force_N - F) / F) ** 2)))  # the same in F_s or F_norm (linear at each point)
     print(f"  prediction of {c.source}: RMS relative error {100 * rms:.1f} % over {u[0]:.3g} to {u[-1]:.3g} mm "
           f"-> {path.name}")
     return 0

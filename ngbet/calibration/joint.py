@@ -113,19 +113,30 @@ def bounds(scene: Scene, params: Sequence[str], names: Sequence[str],
     return lo, hi
 
 
+def test_changes(curve: MeasuredCurve) -> dict[str, Any]:
+    """The scene keys of the curve's test and specimen.
+
+    Its header's specimen keys; for a picture-frame curve ``test = "picture_frame"`` and its frame
+    (the specimen's length and width, which the frame does not read, at their defaults so that no
+    warning names them).
+    """
+    changes: dict[str, Any] = dict(curve.specimen)
+    if curve.test == "picture_frame":
+        sp = Specimen()
+        changes.update({"test": "picture_frame", **curve.frame, "specimen.length_mm": sp.length_mm,
+                        "specimen.width_mm": sp.width_mm})
+    return changes
+
+
 def curve_scene(scene: Scene, curve: MeasuredCurve, u_mm: np.ndarray) -> Scene:
     """The scene on the curve's specimen (its header keys), loaded to its last fitted displacement.
 
     A picture-frame curve: the same material in the picture-frame test (``test = "picture_frame"``)
     with the frame of the file's header, loaded to its last fitted crosshead travel.
     """
-    changes: dict[str, Any] = dict(curve.specimen)
+    changes = test_changes(curve)
     changes.update({"loading.u0_mm": float(u_mm.max()), "loading.stops_mm": []})
     frame = curve.test == "picture_frame"
-    if frame:  # the specimen's length and width, unread by the frame, at their defaults (no warning)
-        sp = Specimen()
-        changes.update({"test": "picture_frame", **curve.frame, "specimen.length_mm": sp.length_mm,
-                        "specimen.width_mm": sp.width_mm})
     try:
         sc = scene.with_changes(**changes)
     except SceneError as exc:

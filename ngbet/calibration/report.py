@@ -172,9 +172,9 @@ def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.n
     ax.fill_between(pred.u_mm, pred.force_N - 2 * pred.sd_N, pred.force_N + 2 * pred.sd_N, color="tab:orange",
                     alpha=0.3, lw=0, label="±2 sd (parameters and discretization)")
     ax.plot(pred.u_mm, pred.force_N, "-", color="tab:orange", label="ngbet prediction")
-    ax.set_xlabel("clamp displacement [mm]")
-    frame = any(c.curve.test == "picture_frame" for c in result.curves)
-    ax.set_ylabel("clamp or crosshead force [N]" if frame else "clamp force [N]")
+    frame = curve.test == "picture_frame"
+    ax.set_xlabel("frame crosshead travel [mm]" if frame else "clamp displacement [mm]")
+    ax.set_ylabel("crosshead force [N]" if frame else "clamp force [N]")
     ax.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
     png = out / f"predict_{stem}.png"
