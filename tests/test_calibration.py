@@ -543,3 +543,26 @@ def test_frame_curve_scene_is_the_picture_frame_of_its_header():
     bet = read_measured(DATA / "cao2008_twill_unbalanced_100x250_UN.csv")
     assert joint.held_parameters([bet, c], sc, list(sc.calibration.params), None) == {}
     assert set(joint.held_parameters([bet], sc, list(sc.calibration.params), None)) == set(joint.SIZE_PARAMS)
+
+
+@pytest.mark.integration
+def test_frame_fit_reports_the_file_quantities_and_the_frame_s_shear(tmp_path):
+    """A picture-frame curve fitted by ``ngbet fit``: fit.json gives it in the file's quantities
+    (F_norm against γ, as measured: the interpolated file values) and the fabric shears with the
+    frame (the model's centre shear angle is the frame's, Eqs. 1–2, within 0.1°)."""
+    out = tmp_path / "fit"
+    code = main(["fit", str(PF_UN), "--scene", str(GEO / "twintex_twill_unbalanced.toml"), "--out", str(out),
+                 "--max-runs", "2", "--quiet"])
+    doc = json.loads((out / "fit.json").read_text())
+    assert code == (0 if doc["converged"] else 1)
+    c = doc["curves"][0]
+    assert c["test"] == "picture_frame" and c["frame"]["picture_frame.frame_mm"] == 145.0
+    fq = c["file_quantities"]
+    assert fq["quantity"] == "normalised_shear_force"
+    from ngbet.calibration.data import read_table
+
+    t = read_table(PF_UN)
+    order = np.argsort(t.x)
+    np.testing.assert_allclose(fq["measured"], np.interp(fq["shear_angle_deg"], t.x[order], t.y[order]), rtol=0.05)
+    np.testing.assert_allclose(c["shear_angle_deg"], fq["shear_angle_deg"], atol=0.1)
+    np.testing.assert_allclose(c["shear_angle_ideal_deg"], fq["shear_angle_deg"], rtol=1e-9)
