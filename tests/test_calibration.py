@@ -43,7 +43,11 @@ def test_fabric_scene_is_the_data_specimen(fabric):
     names = joint.expand_params(sc, cal.params)
     start = np.array([joint.value_of(sc, n) for n in names])
     lo, hi = joint.bounds(sc, cal.params, names, start)
-    assert np.all((lo < start) & (start < hi))
+    # the run scene's K_el of the unbalanced twill (a quick ngbet run) lies below what glass yarns allow;
+    # its fit starts at that bound (docs/calibration.md, K_el from the yarns)
+    inside = (lo < start) & (start < hi)
+    below = [n for n, ok in zip(names, inside, strict=True) if not ok]
+    assert below == (["material.K_el"] if fabric == "twill_unbalanced" else [])
     assert "warp" in cal.yarns_m1 and "weft" in cal.yarns_m2
 
 
