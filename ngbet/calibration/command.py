@@ -10,6 +10,8 @@ is written as soon as it is done, before any prediction, so that a prediction th
 Every data file is fitted by :func:`ngbet.calibration.joint.fit_curves`, on the specimen its
 header gives (``# specimen.width_mm = ...``), else on the scene's. A measured mid-axis profile
 (``--profile``) and centre shear angles (``--angles``) belong to the first data file's specimen.
+A file whose header says ``# test: picture-frame`` is a picture-frame curve, fitted (or, with
+``--predict``, predicted) in the frame of its header (:func:`ngbet.calibration.data.read_frame_curve`).
 """
 
 from __future__ import annotations
