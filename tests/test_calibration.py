@@ -500,3 +500,72 @@ def test_validation_scores_errors_over_the_curve_s_largest_force():
     pred, meas = np.array([1.1, 2.0]), np.array([1.0, 2.0])
     assert V._rms_of_max(pred, meas) == pytest.approx(math.sqrt((0.05 ** 2 + 0.0) / 2), rel=1e-12)
     assert V._rms(pred, meas) == pytest.approx(math.sqrt((0.1 ** 2 + 0.0) / 2), rel=1e-12)
+
+
+# ------------------------------------------------------------------------------------------ picture frame
+PF_UN = ROOT / "data" / "cao2008_pf" / "cao2008_pf_twill_unbalanced_UN_fig30_normalized_energy.csv"
+
+
+def test_frame_curve_converts_exactly_to_crosshead_travel_and_force():
+    """A picture-frame file's F_norm against γ becomes crosshead force against travel by Eqs. 1–3, 10, and back.
+
+    At γ = 0 the travel is 0; the travel is (2 − √2) L at γ = 90°; converting back reproduces the
+    file's angles and F_norm (the residual of a fit is then the same in either quantity)."""
+    from ngbet.calibration.curve_table import read_table
+    from ngbet.calibration.data import frame_travel_mm, read_any, read_frame_curve
+
+    assert frame_travel_mm(np.array([0.0]), 145.0)[0] == pytest.approx(0.0, abs=1e-12)
+    assert frame_travel_mm(np.array([90.0]), 145.0)[0] == pytest.approx((2 - math.sqrt(2)) * 145.0)
+    c = read_frame_curve(PF_UN)
+    assert c.test == "picture_frame" and c.quantity == "normalised_shear_force"
+    assert c.frame == {"picture_frame.frame_mm": 145.0, "picture_frame.fabric_mm": 120.0}
+    assert read_any(PF_UN).frame == c.frame and c.label == "frame 145/120 mm"
+    g, fn = c.in_file_units(c.u_mm, c.force_N)
+    t = read_table(PF_UN)
+    inside = (t.x > 0) & (t.x < 90)
+    gg = np.unique(t.x[inside])
+    np.testing.assert_allclose(g, gg, rtol=1e-12, atol=1e-12)
+    # F = 2 cos θ F_s, F_s = F_norm L_fabric²/L_frame: at 45° frame angle (γ = 0) F = √2 F_norm 120²/145
+    k = int(np.argmin(gg))
+    expect = np.mean(t.y[inside][t.x[inside] == gg[k]])
+    assert fn[k] == pytest.approx(expect, rel=1e-12)
+
+
+def test_frame_curve_scene_is_the_picture_frame_of_its_header():
+    """A picture-frame curve runs the fabric's material in the picture-frame test with its header's frame."""
+    from ngbet.calibration.data import read_frame_curve
+
+    sc = Scene.from_toml(GEO / "twintex_twill_unbalanced.toml")
+    c = read_frame_curve(PF_UN)
+    u, _ = c.sample()
+    s = joint.curve_scene(sc, c, u)
+    assert s.test == "picture_frame"
+    assert (s.picture_frame.frame_mm, s.picture_frame.fabric_mm) == (145.0, 120.0)
+    assert s.material == sc.material and s.loading.u0_mm == pytest.approx(u.max())
+    # a frame and one bias-extension size are two tests: the bending stiffnesses are fitted
+    bet = read_measured(DATA / "cao2008_twill_unbalanced_100x250_UN.csv")
+    assert joint.held_parameters([bet, c], sc, list(sc.calibration.params), None) == {}
+    assert set(joint.held_parameters([bet], sc, list(sc.calibration.params), None)) == set(joint.SIZE_PARAMS)
+
+
+@pytest.mark.integration
+def test_frame_fit_reports_the_file_quantities_and_the_frame_s_shear(tmp_path):
+    """A picture-frame curve fitted by ``ngbet fit``: fit.json gives it in the file's quantities
+    (F_norm against γ, as measured: the interpolated file values) and the fabric shears with the
+    frame (the model's centre shear angle is the frame's, Eqs. 1–2, within 0.1°)."""
+    out = tmp_path / "fit"
+    code = main(["fit", str(PF_UN), "--scene", str(GEO / "twintex_twill_unbalanced.toml"), "--out", str(out),
+                 "--max-runs", "2", "--quiet"])
+    doc = json.loads((out / "fit.json").read_text())
+    assert code == (0 if doc["converged"] else 1)
+    c = doc["curves"][0]
+    assert c["test"] == "picture_frame" and c["frame"]["picture_frame.frame_mm"] == 145.0
+    fq = c["file_quantities"]
+    assert fq["quantity"] == "normalised_shear_force"
+    from ngbet.calibration.curve_table import read_table
+
+    t = read_table(PF_UN)
+    order = np.argsort(t.x)
+    np.testing.assert_allclose(fq["measured"], np.interp(fq["shear_angle_deg"], t.x[order], t.y[order]), rtol=0.05)
+    np.testing.assert_allclose(c["shear_angle_deg"], fq["shear_angle_deg"], atol=0.1)
+    np.testing.assert_allclose(c["shear_angle_ideal_deg"], fq["shear_angle_deg"], rtol=1e-9)

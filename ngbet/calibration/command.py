@@ -10,6 +10,8 @@ is written as soon as it is done, before any prediction, so that a prediction th
 Every data file is fitted by :func:`ngbet.calibration.joint.fit_curves`, on the specimen its
 header gives (``# specimen.width_mm = ...``), else on the scene's. A measured mid-axis profile
 (``--profile``) and centre shear angles (``--angles``) belong to the first data file's specimen.
+A file whose header says ``# test: picture-frame`` is a picture-frame curve, fitted (or, with
+``--predict``, predicted) in the frame of its header (:func:`ngbet.calibration.data.read_frame_curve`).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import numpy as np
 from ..run_folder import OwnedFolder
 from ..scene.document import Scene
 from ..scene.validate import SceneError
-from .data import MeasuredCurve, read_measured
+from .data import MeasuredCurve
 
 __all__ = ["Inputs", "add_parser", "run_from_args", "summary"]
 
@@ -130,7 +132,9 @@ class Inputs:
         specs = [parse_sizes(t, "--specimen", sizes) for t in getattr(args, "specimen", [])]
         columns = getattr(args, "columns", None)
         self.curves = read_all(self.data, columns=columns, specimens=specs)
-        self.predict = [read_measured(p, columns=columns) for p in args.predict]
+        from .data import read_any
+
+        self.predict = [read_any(p, columns=columns) for p in args.predict]
         self.notes = [f"{c.source}: {n}" for c in self.curves + self.predict for n in c.notes]
         self.predict_scene = Scene.from_toml(args.predict_scene) if args.predict_scene else None
         from .fit_params import curve_scene, expand_params, value_of
@@ -153,7 +157,7 @@ class Inputs:
             self.notes += [note] if note else []
             curve_scene(self.scene, c, c.sample(fraction=self._fraction(c))[0])
         for c in self.predict:
-            if not c.specimen and self.predict_scene is None:
+            if not c.specimen and c.test != "picture_frame" and self.predict_scene is None:
                 raise SceneError(f"--predict {c.source}: its header gives no specimen "
                                  "(# specimen.width_mm = ..., # specimen.length_mm = ...) and no --predict-scene")
 
@@ -215,11 +219,12 @@ def run_from_args(args: argparse.Namespace) -> int:
 def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) -> int:
     """Predict one curve; a solver failure is reported and leaves the fit's files in place."""
     from ..errors import ConvergenceError
+    from .fit_params import test_changes
     from .joint import predict_specimen
     from .report import write_prediction
 
     u, F = c.sample(24)
-    spec = dict(c.specimen)
+    spec = test_changes(c)
     if scene is not None and not spec:
         sp = scene.specimen
         spec = {"specimen.width_mm": sp.width_mm, "specimen.length_mm": sp.length_mm,
@@ -230,7 +235,7 @@ def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) 
         print(f"ngbet fit: prediction of {c.source} failed (the fit is kept in {out}/): {exc}", file=sys.stderr)
         return 1
     path = write_prediction(pred, c, F, out)
-    rms = float(np.sqrt(np.mean(((pred.force_N - F) / F) ** 2)))
+    rms = float(np.sqrt(np.mean(((pred.force_N - F) / F) ** 2)))  # the same in F_s or F_norm (linear at each point)
     print(f"  prediction of {c.source}: RMS relative error {100 * rms:.1f} % over {u[0]:.3g} to {u[-1]:.3g} mm "
           f"-> {path.name}")
     return 0

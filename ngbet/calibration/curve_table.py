@@ -60,7 +60,8 @@ from .curve_columns import (
     unit_key,
 )
 
-__all__ = ["CYCLE_TOLERANCE", "TESTS", "CurveTable", "errorbar_path", "parse_sizes", "read_errorbars", "read_table"]
+__all__ = ["CYCLE_TOLERANCE", "FRAME_KEYS", "TESTS", "CurveTable", "errorbar_path", "parse_sizes", "read_errorbars",
+           "read_table"]
 
 #: a fall of the displacement by more than this fraction of its range is an unloading (the vertices of
 #: a digitised curve step back by up to 2.5 % of the range: data/cao2008_pf)
@@ -69,7 +70,7 @@ CYCLE_TOLERANCE = 0.05
 TESTS = ("bias_extension", "picture_frame")
 _SPECIMEN_KEYS = {"width": "specimen.width_mm", "length": "specimen.length_mm",
                   "thickness": "specimen.thickness_mm", "yarn_angle": "specimen.yarn_angle_deg"}
-_FRAME_KEYS = {"frame": "picture_frame.frame_mm", "fabric": "picture_frame.fabric_mm"}
+FRAME_KEYS = {"frame": "picture_frame.frame_mm", "fabric": "picture_frame.fabric_mm"}
 _KEY_LINE = re.compile(r"^#\s*((?:specimen|picture_frame)\.[\w.]+|width_mm|length_mm|thickness_mm|yarn_angle_deg)"
                        r"\s*=\s*(.*?)\s*$")
 _TEST_LINE = re.compile(r"^#\s*test\s*[:=]\s*[\"']?([^;,\"']*)", re.IGNORECASE)
@@ -155,7 +156,7 @@ def _key_value(key: str, value: str, path: Path, line: int) -> tuple[str, float,
     """(scene key, value in mm or deg, a note on a converted unit) of a ``# key = value [unit]`` line."""
     bare = key.split(".", 1)[1] if "." in key else key
     section = "picture_frame" if key.startswith("picture_frame.") else "specimen"
-    table = _FRAME_KEYS if section == "picture_frame" else _SPECIMEN_KEYS
+    table = FRAME_KEYS if section == "picture_frame" else _SPECIMEN_KEYS
     stem, _, suffix = bare.rpartition("_")
     if suffix not in ("mm", "deg"):
         stem, suffix = bare, ""

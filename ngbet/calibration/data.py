@@ -24,7 +24,7 @@ import numpy as np
 
 from ..scene.validate import SceneError
 from .curve_columns import WORDS
-from .curve_table import CurveTable, read_errorbars, read_table
+from .curve_table import FRAME_KEYS, CurveTable, read_errorbars, read_table
 
 __all__ = ["MIN_RELATIVE_SD", "POINTS_PER_CURVE", "RANGE", "READING_ERROR_N", "MeasuredCurve", "read_all",
            "read_measured", "refuse_duplicates"]
@@ -56,10 +56,16 @@ class MeasuredCurve:
     bars: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # u [mm], low [N], high [N]
     notes: tuple[str, ...] = ()
     test: str = "bias_extension"
+    #: the picture frame's keys (``picture_frame.frame_mm``, ``picture_frame.fabric_mm``) of a picture-frame curve
+    frame: dict[str, float] = field(default_factory=dict)
+    #: the quantity the file holds: "force" (BET), "shear_force" or "normalised_shear_force" (picture frame)
+    quantity: str = "force"
 
     @property
     def label(self) -> str:
-        """"W x L mm" from the header, else the file name."""
+        """"W x L mm" from the header (a picture frame: "frame F/f mm"), else the file name."""
+        if self.test == "picture_frame":
+            return (f"frame {self.frame['picture_frame.frame_mm']:g}/{self.frame['picture_frame.fabric_mm']:g} mm")
         w, L = self.specimen.get("specimen.width_mm"), self.specimen.get("specimen.length_mm")
         return f"{w:g} x {L:g} mm" if w and L else Path(self.source).stem
 
@@ -70,6 +76,21 @@ class MeasuredCurve:
         if not (w and L) or self.specimen.get("specimen.yarn_angle_deg", 45.0) != 45.0:
             return None
         return (math.sqrt(2.0) - 1.0) * (L - w)
+
+    def in_file_units(self, u_mm: np.ndarray, force_N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(x, y) of crosshead travels and forces in the file's own quantities.
+
+        Bias extension: unchanged. Picture frame: the frame's shear angle [deg] (Eqs. 1–2) and the
+        shear force F_s [N] (Eq. 3) or the normalised shear force F_norm [N/mm] (Eq. 10), as the file holds.
+        """
+        if self.test != "picture_frame":
+            return np.asarray(u_mm, float), np.asarray(force_N, float)
+        from ..kinematics import frame_normalised_force, frame_shear_angle_rad, shear_force
+
+        L, Lf = self.frame["picture_frame.frame_mm"], self.frame["picture_frame.fabric_mm"]
+        fs = shear_force(force_N, u_mm, L)
+        y = frame_normalised_force(fs, L, Lf) if self.quantity == "normalised_shear_force" else fs
+        return np.degrees(frame_shear_angle_rad(u_mm, L)), y
 
     def window(self, fraction: tuple[float, float] = RANGE) -> tuple[float, float]:
         """The displacements [mm] between the fractions of the curve's displacement range."""
@@ -162,15 +183,76 @@ def read_measured(path: str | Path, fraction: tuple[float, float] = RANGE, *,
     return MeasuredCurve(uu, FF, str(path), t.specimen, read_errorbars(path), t.notes, "bias_extension")
 
 
+def frame_travel_mm(gamma_deg: np.ndarray, frame_mm: float) -> np.ndarray:
+    """The crosshead travel d [mm] at which the frame's shear angle is γ: Eqs. 1–2 inverted.
+
+    γ = π/2 − 2θ and cos θ = (√2 L + d)/(2 L), so d = 2 L cos((π/2 − γ)/2) − √2 L.
+    """
+    theta = 0.5 * (np.pi / 2 - np.radians(np.asarray(gamma_deg, float)))
+    return 2.0 * frame_mm * np.cos(theta) - math.sqrt(2.0) * frame_mm
+
+
+def read_frame_curve(path: str | Path, *, columns: str | Sequence[str] | None = None,
+                     frame: dict[str, float] | None = None) -> MeasuredCurve:
+    """Read a picture-frame curve for the fit: as a crosshead travel [mm] and crosshead force [N].
+
+    The file holds the shear force F_s [N] or the normalised shear force F_norm [N/mm] against the
+    frame's shear angle [deg] (its header names the test and the frame). Each point is converted
+    exactly: d from γ (:func:`frame_travel_mm`), F = 2 cos θ F_s (Eq. 3) with F_s = F_norm L_fabric²/L_frame
+    (Eq. 10). A residual (model − measured)/sd is the same in either quantity, as the conversion is
+    linear at each point. :meth:`MeasuredCurve.in_file_units` converts back. Refused: a file without
+    frame sizes, a curve of the displacement or of the crosshead force, fewer than 3 distinct angles.
+    """
+    path = Path(path)
+    t = read_table(path, test="picture_frame", columns=columns, frame=frame)
+    if t.x_quantity != "shear_angle" or t.y_quantity not in ("shear_force", "normalised_shear_force"):
+        raise SceneError(f"{path}: a picture-frame curve of the {WORDS[t.y_quantity]} against the "
+                         f"{WORDS[t.x_quantity]}; ngbet fit takes the shear force [N] or the normalised shear "
+                         "force [N/mm] against the frame's shear angle [deg]")
+    lack = [k for k in FRAME_KEYS.values() if k not in t.frame]
+    if lack:
+        raise SceneError(f"{path}: the picture frame's {' and '.join(lack)} are not in its header "
+                         "(# picture_frame.frame_mm = 145, # picture_frame.fabric_mm = 120)")
+    L, Lf = t.frame["picture_frame.frame_mm"], t.frame["picture_frame.fabric_mm"]
+    g, y = t.x, t.y
+    keep = (g > 0) & (g < 90)
+    g, y = g[keep], y[keep]
+    gg, inv = np.unique(g, return_inverse=True)
+    yy = np.bincount(inv, weights=y) / np.bincount(inv)
+    if len(gg) < 3:
+        raise SceneError(f"data file {path}: fewer than 3 distinct shear angles between 0 and 90 deg")
+    from ..kinematics import frame_angle_rad
+
+    d = frame_travel_mm(gg, L)
+    fs = yy * Lf ** 2 / L if t.y_quantity == "normalised_shear_force" else yy
+    F = 2.0 * np.cos(frame_angle_rad(d, L)) * fs
+    note = (f"picture frame {L:g}/{Lf:g} mm: its {WORDS[t.y_quantity]} against the shear angle fitted as the "
+            "crosshead force against the travel (Eqs. 1-3, 10; exact at each point)")
+    return MeasuredCurve(d, F, str(path), {}, None, (*t.notes, note), "picture_frame", dict(t.frame), t.y_quantity)
+
+
+def read_any(path: str | Path, fraction: tuple[float, float] = RANGE, *, columns: str | Sequence[str] | None = None,
+             specimen: dict[str, float] | None = None) -> MeasuredCurve:
+    """A bias-extension curve (:func:`read_measured`), or a picture-frame curve (:func:`read_frame_curve`).
+
+    The file's header (``# test: picture-frame``) decides.
+    """
+    if read_table(path, columns=columns).test == "picture_frame":
+        if specimen:
+            raise SceneError(f"{path}: a picture-frame curve (its header says so); --specimen does not apply to it")
+        return read_frame_curve(path, columns=columns)
+    return read_measured(path, fraction, columns=columns, specimen=specimen)
+
+
 def read_all(paths: Sequence[str | Path], fraction: tuple[float, float] = RANGE, *,
              columns: str | Sequence[str] | None = None,
              specimens: Sequence[dict[str, float]] | None = None) -> list[MeasuredCurve]:
-    """:func:`read_measured` for several files; the same file (or the same numbers) given twice is refused.
+    """:func:`read_any` for several files; the same file (or the same numbers) given twice is refused.
 
     ``specimens``: one ``--specimen`` for every file, or one per file in order.
     """
     specs = _per_file(paths, specimens, "--specimen")
-    curves = [read_measured(p, fraction, columns=columns, specimen=s) for p, s in zip(paths, specs, strict=True)]
+    curves = [read_any(p, fraction, columns=columns, specimen=s) for p, s in zip(paths, specs, strict=True)]
     refuse_duplicates(curves)
     return curves
 

@@ -18,13 +18,15 @@ import numpy as np
 
 from ..continuum.ladder import Rung
 from ..scene.document import Scene
+from ..scene.physical import Specimen
 from ..scene.validate import SceneError
 from .data import MeasuredCurve
 from .observations import Profile, ShearAngles
 
 __all__ = ["BOUND_FACTOR", "COARSE_LEVEL", "FINE_TOL", "FIRST_CHECKED", "FIT_LADDER", "FLAT_RCOND", "SIZE_PARAMS",
            "STRONG_CORRELATION", "TABLE_KEY", "TARGET_ERROR", "UNDETERMINED_SE", "CurveFit", "JointFit", "band",
-           "bounds", "correlation", "curve_scene", "expand_params", "portable_scene", "value_of", "with_values"]
+           "bounds", "correlation", "curve_scene", "expand_params", "portable_scene", "test_changes", "value_of",
+           "with_values"]
 
 TABLE_KEY = "material.shear_stress_steps_Pa"
 #: without bounds in the scene, each parameter stays within this factor of its start value
@@ -91,14 +93,35 @@ def bounds(scene: Scene, params: Sequence[str], names: Sequence[str],
     return lo, hi
 
 
-def curve_scene(scene: Scene, curve: MeasuredCurve, u_mm: np.ndarray) -> Scene:
-    """The scene on the curve's specimen (its header keys), loaded to its last fitted displacement."""
+def test_changes(curve: MeasuredCurve) -> dict[str, Any]:
+    """The scene keys of the curve's test and specimen.
+
+    Its header's specimen keys; for a picture-frame curve ``test = "picture_frame"`` and its frame
+    (the specimen's length and width, which the frame does not read, at their defaults so that no
+    warning names them).
+    """
     changes: dict[str, Any] = dict(curve.specimen)
+    if curve.test == "picture_frame":
+        sp = Specimen()
+        changes.update({"test": "picture_frame", **curve.frame, "specimen.length_mm": sp.length_mm,
+                        "specimen.width_mm": sp.width_mm})
+    return changes
+
+
+def curve_scene(scene: Scene, curve: MeasuredCurve, u_mm: np.ndarray) -> Scene:
+    """The scene on the curve's specimen (its header keys), loaded to its last fitted displacement.
+
+    A picture-frame curve: the same material in the picture-frame test (``test = "picture_frame"``)
+    with the frame of the file's header, loaded to its last fitted crosshead travel.
+    """
+    changes = test_changes(curve)
     changes.update({"loading.u0_mm": float(u_mm.max()), "loading.stops_mm": []})
     try:
         sc = scene.with_changes(**changes)
     except SceneError as exc:
         raise SceneError(f"{curve.source}: its specimen keys do not make a valid scene: {exc}") from None
+    if curve.test == "picture_frame":
+        return sc
     if u_mm.max() >= sc.specimen.locking_u0_mm * 1.2:
         raise SceneError(f"{curve.source}: the fitted points reach {u_mm.max():g} mm, far beyond the ideal yarn "
                          f"locking of its {sc.specimen.width_mm:g} x {sc.specimen.length_mm:g} mm specimen "
@@ -168,12 +191,16 @@ class CurveFit:
 
     @property
     def label(self) -> str:
-        """"W x L mm": the specimen the curve runs on (its header's, else the scene's)."""
+        """"W x L mm": the specimen the curve runs on (its header's, else the scene's); "frame F/f mm"."""
+        if self.curve.test == "picture_frame":
+            return self.curve.label
         sp = self.scene.specimen
         return f"{sp.width_mm:g} x {sp.length_mm:g} mm"
 
     def measured_on_specimen(self) -> MeasuredCurve:
         """The measured curve with the specimen keys it runs on (the scene's where its header gives none)."""
+        if self.curve.test == "picture_frame":
+            return self.curve
         sp = self.scene.specimen
         keys = {"specimen.width_mm": sp.width_mm, "specimen.length_mm": sp.length_mm,
                 "specimen.thickness_mm": sp.thickness_mm, **self.curve.specimen}
@@ -197,8 +224,10 @@ class CurveFit:
 
     def ideal_angle_deg(self) -> np.ndarray:
         """The centre shear angle of the ideal test (inextensible yarns, pin-jointed) at the fitted points [deg]."""
-        from ..kinematics import shear_angle_rad
+        from ..kinematics import frame_shear_angle_rad, shear_angle_rad
 
+        if self.curve.test == "picture_frame":
+            return np.degrees(frame_shear_angle_rad(self.u_mm, self.scene.picture_frame.frame_mm))
         sp = self.scene.specimen
         return np.degrees(shear_angle_rad(self.u_mm, sp.length_mm, sp.width_mm))
 
@@ -253,7 +282,14 @@ class JointFit:
 
         def curve(c: CurveFit) -> dict[str, Any]:
             d = c.run_scene().discretization
-            doc = {"data": c.curve.source, "specimen": c.curve.specimen, "points": len(c.u_mm),
+            doc: dict[str, Any] = {"data": c.curve.source, "test": c.curve.test}
+            if c.curve.test == "picture_frame":  # the fit in the file's own quantities too
+                x, y = c.curve.in_file_units(c.u_mm, c.measured_N)
+                doc["frame"] = c.curve.frame
+                doc["file_quantities"] = {"shear_angle_deg": x.tolist(), "quantity": c.curve.quantity,
+                                          "measured": y.tolist(),
+                                          "model": c.curve.in_file_units(c.u_mm, c.model_N)[1].tolist()}
+            doc |= {"specimen": c.curve.specimen, "points": len(c.u_mm),
                    "range_mm": [float(c.u_mm.min()), float(c.u_mm.max())],
                    "rms_relative_error": c.rms_relative, "u_mm": c.u_mm.tolist(),
                    "measured_N": c.measured_N.tolist(), "sd_N": c.sd_N.tolist(), "model_N": c.model_N.tolist(),

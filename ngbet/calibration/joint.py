@@ -107,7 +107,7 @@ class _Model:
             hit = self._cache.get((key[0], key[1], True))
             if hit is not None:
                 return hit
-        from ..continuum.mesh import make_mesh
+        from ..continuum.mesh import make_cross_mesh, make_mesh
         from ..continuum.sensitivity import force_path
         from ..errors import ConvergenceError
 
@@ -117,7 +117,8 @@ class _Model:
         for k, c in enumerate(self.curves):
             sc = with_values(c.run_scene(), self.names, np.exp(theta))
             if (k, c.level) not in self.meshes:
-                self.meshes[k, c.level] = make_mesh(sc.specimen, sc.discretization)
+                self.meshes[k, c.level] = (make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
+                                           if sc.test == "picture_frame" else make_mesh(sc.specimen, sc.discretization))
             pts = c.profile.points() if c.profile is not None else {}
             a_u = list(c.angles.u_mm) if c.angles is not None else []
             m, kp, ka = len(c.u_mm), sum(len(x) for x in pts.values()), len(a_u)
@@ -168,7 +169,8 @@ def held_parameters(curves: Sequence[MeasuredCurve], scene: Scene, params: Seque
     stiffnesses (:data:`SIZE_PARAMS`) set the size effect, which one size does not show.
     """
     sizes = {(c.specimen.get("specimen.width_mm", scene.specimen.width_mm),
-              c.specimen.get("specimen.length_mm", scene.specimen.length_mm)) for c in curves}
+              c.specimen.get("specimen.length_mm", scene.specimen.length_mm)) if c.test != "picture_frame"
+             else tuple(c.frame.values()) for c in curves}
     if len(sizes) > 1 or profile is not None:
         return {}
     return {p: ("one specimen size: the bending stiffnesses set the size effect, which one size does not show "
@@ -275,7 +277,7 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
         cost = float(e @ e)
         best[0] = min(best[0], cost)
         if progress is not None and not quiet[0]:
-            progress(model.runs, [float(np.sqrt(np.nanmean(((r.F - c.measured_N) / c.measured_N) ** 2)))
+            progress(model.runs, [float(np.sqrt(np.mean(((r.F - c.measured_N) / c.measured_N) ** 2)))
                                   for r, c in zip(res, cfs, strict=True)], best[0])
         return e
 

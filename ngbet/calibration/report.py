@@ -109,6 +109,9 @@ def table_band(result: JointFit, x: np.ndarray) -> np.ndarray:
 def plot_fit(result: JointFit, path: Path) -> Path:
     """Each curve's data, start and fitted model (±2 sd), residuals, and centre shear angle.
 
+    A picture-frame curve is drawn as the crosshead force against the crosshead travel (the
+    quantities it is fitted in; fit.json holds it in the file's own) and its ideal angle is the frame's.
+
     The centre shear angle of the fitted model is drawn against the ideal test's (inextensible
     yarns) and, where given, the measured angles: where the model's falls short, the crosshead
     travel goes into yarn elongation.
@@ -134,15 +137,16 @@ def plot_fit(result: JointFit, path: Path) -> Path:
             ag.plot(c.angles.u_mm, c.angles.angle_deg, "s", ms=4, color=col, mfc="none",
                     label=f"{c.label}: measured")
     ax.plot([], [], ":", color="0.4", label="start values")
-    ax.set_ylabel("clamp force [N]")
+    frame = any(c.curve.test == "picture_frame" for c in result.curves)
+    ax.set_ylabel("clamp or crosshead force [N]" if frame else "clamp force [N]")
     ax.legend(fontsize=7, loc="upper left")
-    stopped = "" if result.converged else " (stopped at the run limit, not converged)"
+    stopped = "" if result.converged else "\n(stopped at the run limit, not converged)"
     ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters, "
                  f"{result.model_runs} model runs{stopped}", fontsize=9)
     ar.axhline(0, color="0.5", lw=0.8)
     ar.set_ylabel("model − data [%]")
     ag.set_ylabel("centre shear angle [°]")
-    ag.set_xlabel("clamp displacement [mm]")
+    ag.set_xlabel("clamp displacement or frame crosshead travel [mm]" if frame else "clamp displacement [mm]")
     ag.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -171,8 +175,9 @@ def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.n
     ax.fill_between(pred.u_mm, pred.force_N - 2 * pred.sd_N, pred.force_N + 2 * pred.sd_N, color="tab:orange",
                     alpha=0.3, lw=0, label="±2 sd (parameters and discretization)")
     ax.plot(pred.u_mm, pred.force_N, "-", color="tab:orange", label="ngbet prediction")
-    ax.set_xlabel("clamp displacement [mm]")
-    ax.set_ylabel("clamp force [N]")
+    frame = curve.test == "picture_frame"
+    ax.set_xlabel("frame crosshead travel [mm]" if frame else "clamp displacement [mm]")
+    ax.set_ylabel("crosshead force [N]" if frame else "clamp force [N]")
     ax.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
     png = out / f"predict_{stem}.png"

@@ -26,7 +26,20 @@ __all__ = ["shear_stress_points", "start_table"]
 
 def shear_stress_points(curve: MeasuredCurve, thickness_mm: float, n: int = 40,
                         fraction: tuple[float, float] = (0.02, 0.9)) -> tuple[np.ndarray, np.ndarray]:
-    """(|i8| = sin γ, τ [Pa]) from the curve by the normalisation method, at n displacements."""
+    """(|i8| = sin γ, τ [Pa]) from the curve by the normalisation method, at n displacements.
+
+    A picture-frame curve: γ the frame's shear angle and τ = F_norm / t (Eq. 10, the shear force of
+    a unit area of fabric over its thickness).
+    """
+    if curve.test == "picture_frame":
+        from ..kinematics import frame_normalised_force, frame_shear_angle_rad, shear_force
+
+        L, Lf = curve.frame["picture_frame.frame_mm"], curve.frame["picture_frame.fabric_mm"]
+        a, b = curve.window(fraction)
+        u = np.linspace(max(a, 1e-3), b, n)
+        F = np.interp(u, curve.u_mm, curve.force_N)
+        fn = frame_normalised_force(shear_force(np.maximum(F, 0.0), u, L), L, Lf)
+        return np.sin(frame_shear_angle_rad(u, L)), fn * 1e3 / (thickness_mm * 1e-3)
     H = curve.specimen["specimen.length_mm"]
     W = curve.specimen["specimen.width_mm"]
     a, b = curve.window(fraction)
