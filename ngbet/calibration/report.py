@@ -137,12 +137,18 @@ def plot_fit(result: JointFit, path: Path) -> Path:
             ag.plot(c.angles.u_mm, c.angles.angle_deg, "s", ms=4, color=col, mfc="none",
                     label=f"{c.label}: measured")
     ax.plot([], [], ":", color="0.4", label="start values")
+    ax.fill_between([], [], [], color="0.4", alpha=0.2, lw=0, label="fitted ± 2 sd (from the parameters)")
+    ax.plot([], [], "-", color="0.4", lw=0.8, alpha=0.5, label="measured curve, whole")
     frame = any(c.curve.test == "picture_frame" for c in result.curves)
     ax.set_ylabel("clamp or crosshead force [N]" if frame else "clamp force [N]")
     ax.legend(fontsize=7, loc="upper left")
-    stopped = "" if result.converged else "\n(stopped at the run limit, not converged)"
-    ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters, "
-                 f"{result.model_runs} model runs{stopped}", fontsize=9)
+    stopped = "" if result.converged else " (stopped at the run limit, not converged)"
+    from ..figures.style import caption, put_caption
+
+    material = caption(result.scene).partition("; material: ")[2]
+    put_caption(fig, f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters fitted to "
+                     f"{len(result.curves)} curve(s), {result.model_runs} model runs{stopped}; fitted material: "
+                     f"{material}")
     ar.axhline(0, color="0.5", lw=0.8)
     ar.set_ylabel("model − data [%]")
     ag.set_ylabel("centre shear angle [°]")
