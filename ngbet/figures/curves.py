@@ -22,7 +22,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
 __all__ = ["FSH_GAMMA_MAX_DEG", "Extra", "curve_with_jumps", "error_bars", "estimate_due", "force_curve",
-           "force_figure", "profile_figure", "shear_force_figure", "stations_of"]
+           "force_figure", "profile_figure", "shear_angle_panel", "shear_force_figure", "stations_of"]
 
 #: F_sh is drawn up to this kinematic shear angle [deg]: towards yarn locking (90°) Eq. 18 divides
 #: by cos γ → 0 and its values say more about the equation than about the fabric
@@ -177,18 +177,27 @@ def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
                 "divides by cos γ → 0): not drawn", transform=ax.transAxes, ha="right", va="bottom", fontsize=7)
     ax2.plot(np.r_[0.0, u0], np.r_[0.0, g_kin], "-", color="k", label="ideal test, zone A: γ (Eq. 13)")
     ax2.plot(np.r_[0.0, u0], np.r_[0.0, g_kin / 2], ":", color="k", label="ideal test, zones B: γ/2")
-    for key, style, label in (("gamma_centre_deg", "o", "computed, centre"),
-                              ("gamma_A_deg", "s", "computed, mean over zone A"),
-                              ("gamma_B_deg", "^", "computed, mean over zones B")):
-        if key in rows[0]:
-            ax2.plot(np.r_[0.0, u0], np.r_[0.0, column(rows, key)], style, ms=3.5, mfc="none", label=label)
-    ax2.set_xlabel(U0_LABEL)
-    ax2.set_ylabel(SHEAR_LABEL)
-    ax2.set_xlim(left=0)
-    ax2.legend(loc="upper left")
-    ax2.set_title("(b) shear angles")
+    shear_angle_panel(ax2, u0, rows, (("gamma_centre_deg", "o", "computed, centre"),
+                                      ("gamma_A_deg", "s", "computed, mean over zone A"),
+                                      ("gamma_B_deg", "^", "computed, mean over zones B")), U0_LABEL)
     put_caption(fig, caption(scene))
     return fig
+
+
+def shear_angle_panel(ax: Axes, x: np.ndarray, rows: list[dict[str, Any]],
+                      series: tuple[tuple[str, str, str], ...], xlabel: str) -> None:
+    """Panel (b) of a shear-force figure: the computed shear angles (column, marker, label) against ``x``.
+
+    The ideal test's curves are drawn by the caller; the rows' columns that a run lacks are skipped.
+    """
+    for key, style, label in series:
+        if key in rows[0]:
+            ax.plot(np.r_[0.0, x], np.r_[0.0, column(rows, key)], style, ms=3.5, mfc="none", label=label)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(SHEAR_LABEL)
+    ax.set_xlim(left=0)
+    ax.legend(loc="upper left")
+    ax.set_title("(b) shear angles")
 
 
 def stations_of(rows: list[dict[str, Any]], scene: Any) -> list[float]:

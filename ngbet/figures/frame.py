@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .curves import curve_with_jumps, error_bars
+from .curves import curve_with_jumps, error_bars, shear_angle_panel
 from .data import column
-from .style import SHEAR_LABEL, caption, figure, put_caption
+from .style import caption, figure, put_caption
 
 __all__ = ["FRAME_ANGLE_LABEL", "FRAME_DATA_COLUMNS", "TRAVEL_LABEL", "FrameMeasured", "frame_force_figure",
            "frame_shear_figure", "read_frame_measured"]
@@ -128,14 +128,7 @@ def frame_shear_figure(rows: list[dict[str, Any]], scene: Any = None, measured: 
     ax.legend(loc="upper left")
     ax.set_title("(a) normalised shear force")
     ax2.plot(np.r_[0.0, d], np.r_[0.0, g], "-", color="k", label="frame (Eqs. 1–2): the ideal test")
-    for key, style, label in (("gamma_centre_deg", "o", "computed, centre"),
-                              ("gamma_fabric_deg", "s", "computed, mean over the fabric square")):
-        if key in rows[0]:
-            ax2.plot(np.r_[0.0, d], np.r_[0.0, column(rows, key)], style, ms=3.5, mfc="none", label=label)
-    ax2.set_xlabel(TRAVEL_LABEL)
-    ax2.set_ylabel(SHEAR_LABEL)
-    ax2.set_xlim(left=0)
-    ax2.legend(loc="upper left")
-    ax2.set_title("(b) shear angles")
+    shear_angle_panel(ax2, d, rows, (("gamma_centre_deg", "o", "computed, centre"),
+                                     ("gamma_fabric_deg", "s", "computed, mean over the fabric square")), TRAVEL_LABEL)
     put_caption(fig, caption(scene))
     return fig
