@@ -30,7 +30,7 @@ def rows(snap_at=None, errors=None):
 
 
 def fresh_python(code):
-    """What ``code`` prints in a new interpreter (without the test session's MPLBACKEND)."""
+    """What ``code`` prints in a new interpreter (without the MPLBACKEND the tests set)."""
     env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                           check=True).stdout.strip()
