@@ -48,12 +48,13 @@ from typing import Any
 import numpy as np
 
 from .calibration.curve_table import CurveTable, parse_sizes, read_table
-from .calibration.data import read_measured, refuse_duplicates
+from .calibration.data import MeasuredCurve, read_measured, refuse_duplicates
 from .run_folder import OwnedFolder
 from .scene.validate import SceneError
 
 __all__ = ["FIGURE", "SPREAD_FROM_DEG", "SPREAD_POINTS", "SUMMARY", "TABLE_SUFFIX", "Normalised", "add_parser",
-           "energy_method", "normalise_bet", "normalise_pf", "read_inputs", "run_from_args", "spread", "spread_text",
+           "energy_method", "force_by_normalisation", "normalise_bet", "normalised_curve", "normalise_pf",
+           "read_inputs", "run_from_args", "spread", "spread_text",
            "spreads"]
 
 #: the spread between curves is measured from this shear angle [deg] on (below it F_sh is small and
@@ -126,6 +127,50 @@ def energy_method(d_mm: np.ndarray, force_N: np.ndarray, H_mm: float, W_mm: floa
     n = len(gamma)
     w = _half_angle_solve(gamma, work, np.full(n, A_A), np.full(n, A_B))
     return gamma, w, np.gradient(w, gamma) / np.cos(gamma)
+
+
+def normalised_curve(curve: MeasuredCurve) -> tuple[np.ndarray, np.ndarray]:
+    """(γ [rad], normalised shear force [N/mm]) along a measured curve of either test.
+
+    Bias extension: F_sh by Eq. 18 at its points of positive displacement below yarn locking.
+    Picture frame: F_norm by Eqs. 1–3 and 10 at its points of positive travel. The two are the
+    quantities the normalisation methods carry from one specimen or test to another
+    (:func:`force_by_normalisation`).
+    """
+    from .kinematics import frame_normalised_force, frame_shear_angle_rad, normalised_shear_force, shear_force
+
+    ok = curve.u_mm > 0
+    d, F = curve.u_mm[ok], np.maximum(curve.force_N[ok], 0.0)
+    if curve.test == "picture_frame":
+        L, Lf = curve.frame["picture_frame.frame_mm"], curve.frame["picture_frame.fabric_mm"]
+        return frame_shear_angle_rad(d, L), frame_normalised_force(shear_force(F, d, L), L, Lf)
+    H, W = curve.specimen["specimen.length_mm"], curve.specimen["specimen.width_mm"]
+    lock = curve.locking_mm
+    if lock is not None:
+        d, F = d[d < lock], F[d < lock]
+    return normalised_shear_force(d, F, H, W)
+
+
+def force_by_normalisation(gamma_rad: np.ndarray, fn_N_per_mm: np.ndarray, target: MeasuredCurve,
+                           u_mm: np.ndarray) -> np.ndarray:
+    """The force [N] at ``u_mm`` of the target's test that a normalised shear force curve predicts.
+
+    Bias extension: Eq. 18 solved for the clamp force of the target's specimen
+    (:func:`ngbet.kinematics.force_from_normalised`). Picture frame: the crosshead force
+    F = 2 cos θ F_s, F_s = F_norm L_fabric² / L_frame at the frame's shear angle (Eqs. 1–3, 10).
+    Across tests the bias extension's F_sh is read as the frame's F_norm, the paper's comparison.
+    F_n is interpolated linearly in γ through (0, 0); beyond its last angle the force is NaN.
+    """
+    from .kinematics import force_from_normalised, frame_angle_rad
+
+    u = np.asarray(u_mm, dtype=float)
+    if target.test == "picture_frame":
+        L, Lf = target.frame["picture_frame.frame_mm"], target.frame["picture_frame.fabric_mm"]
+        theta = frame_angle_rad(u, L)
+        fn = np.interp(np.pi / 2 - 2 * theta, np.r_[0.0, gamma_rad], np.r_[0.0, fn_N_per_mm], right=np.nan)
+        return 2.0 * np.cos(theta) * fn * Lf ** 2 / L  # type: ignore[no-any-return]
+    return force_from_normalised(gamma_rad, fn_N_per_mm, u, target.specimen["specimen.length_mm"],
+                                 target.specimen["specimen.width_mm"])
 
 
 def normalise_bet(path: str | Path, specimen: dict[str, float] | None = None,

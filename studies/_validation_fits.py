@@ -1,9 +1,14 @@
 """The fits and predictions of the validation study (:mod:`ngbet.studies.validation`), kept in the study cache.
 
-Each fabric's scene and its two measured curves (:data:`FABRICS`), the leave-one-fabric-out K_el
-(:func:`pair_fit`, :func:`elongation_for`), and one fabric fitted on one size and predicted on the
-other (:func:`fit_and_predict`); each result is a JSON file in ``validation-fits/`` of the study
-cache, keyed by the scenes, the data and the code (:func:`fits_key`).
+Each fabric's scene and its measured curves, bias extension and picture frame (:data:`FABRICS`);
+the fits of a fabric (:func:`fits_of`: each bias-extension size alone, both sizes together, each
+laboratory's picture frame alone) and the curves each does not use (its targets); one fit with the
+fitted scene's predictions of its targets (:func:`fit_and_predict`), a JSON file in
+``validation-fits/`` of the study cache, keyed by the scene, the data and the code (:func:`fits_key`).
+
+The fits are ``ngbet fit``'s own (:func:`ngbet.calibration.joint.fit_curves` with the scene's
+``[calibration]`` parameters, bounds and rules: one size holds the bending stiffnesses): the study
+validates what a user of the command gets.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ import logging
 import os
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,15 +27,15 @@ import numpy as np
 
 from ngbet.scene.document import Scene
 
-__all__ = ["FABRICS", "FITS_FOLDER", "KEL", "MAX_RUNS", "QUICK", "QUICK_RUNS", "SCORE_POINTS", "TABLE", "TAIL_POINTS",
-           "cached", "data_root", "elongation_for", "files_of", "fit_and_predict", "fits_folder", "fits_key",
-           "pair_fit", "paths_of", "points_of"]
+__all__ = ["FABRICS", "FITS_FOLDER", "MAX_RUNS", "QUICK", "QUICK_RUNS", "SCORE_POINTS", "FitSpec", "cached",
+           "data_root", "fit_and_predict", "fits_folder", "fits_key", "fits_of", "lab_of", "points_of",
+           "read_curve"]
 
 log = logging.getLogger(__name__)
 
 
 def data_root() -> Path:
-    """The source tree holding the fabric scenes (geometry/) and their measured curves (data/cao2008/).
+    """The source tree holding the fabric scenes (geometry/) and their measured curves (data/).
 
     The clone this module is in (``studies/`` of the source tree, an editable install), else the
     copies installed with ngbet (``ngbet/geometry``, ``ngbet/data``), else the current directory.
@@ -42,67 +48,117 @@ def data_root() -> Path:
     from ngbet.scene.validate import SceneError
 
     raise SceneError("study validation reads the fabric scenes geometry/twintex_*.toml and their measured curves "
-                     "data/cao2008/, installed with ngbet: not found beside the studies, in the installed package "
-                     f"{Path(ngbet.__file__).resolve().parent} nor in the current directory {Path.cwd()} "
-                     "(reinstall ngbet)")
+                     "data/cao2008/ and data/cao2008_pf/, installed with ngbet: not found beside the studies, in the "
+                     f"installed package {Path(ngbet.__file__).resolve().parent} nor in the current directory "
+                     f"{Path.cwd()} (reinstall ngbet)")
 
 
-#: fabric: (scene, curve A, curve B); direction 0 fits A and predicts B, direction 1 the reverse
-FABRICS = {
-    "plain": ("twintex_plain.toml", "cao2008_plain_150x300_INSA-NU.csv", "cao2008_plain_150x450_INSA-NU.csv"),
-    "twill_balanced": ("twintex_twill_balanced.toml", "cao2008_twill_balanced_150x300_INSA-NU.csv",
-                       "cao2008_twill_balanced_150x450_INSA-NU.csv"),
-    "twill_unbalanced": ("twintex_twill_unbalanced.toml", "cao2008_twill_unbalanced_100x250_UN.csv",
-                         "cao2008_twill_unbalanced_100x200_UN.csv"),
+#: fabric: (scene, bias-extension curves (data/cao2008/), picture-frame curves (data/cao2008_pf/))
+FABRICS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
+    "plain": ("twintex_plain.toml",
+              ("cao2008_plain_150x300_INSA-NU.csv", "cao2008_plain_150x450_INSA-NU.csv"),
+              ("cao2008_pf_plain_UML_fig28_normalized_energy.csv", "cao2008_pf_plain_UN_fig28_normalized_energy.csv",
+               "cao2008_pf_plain_UML_fig22_shear_force.csv", "cao2008_pf_plain_UN_fig22_shear_force.csv")),
+    "twill_balanced": ("twintex_twill_balanced.toml",
+                       ("cao2008_twill_balanced_150x300_INSA-NU.csv", "cao2008_twill_balanced_150x450_INSA-NU.csv"),
+                       ("cao2008_pf_twill_balanced_UML_fig29_normalized_energy.csv",)),
+    "twill_unbalanced": ("twintex_twill_unbalanced.toml",
+                         ("cao2008_twill_unbalanced_100x250_UN.csv", "cao2008_twill_unbalanced_100x200_UN.csv"),
+                         ("cao2008_pf_twill_unbalanced_UN_fig30_normalized_energy.csv",)),
 }
-QUICK = (("twill_unbalanced", 0),)
-TABLE, KEL = "material.shear_stress_steps_Pa", "material.K_el"
+#: the quick study: the unbalanced twill fitted on its 100 x 250 mm curve
+QUICK = ("twill_unbalanced", "100 x 250 mm")
+#: scored points per predicted curve, equally spaced over 10-90 % of its displacement (travel) range
 SCORE_POINTS = 24
-#: points beyond the scored 10–90 % up to the end of the measured curve: the figure draws the
-#: prediction over the whole range, the steep end included; the RMS errors stay on the scored points
-TAIL_POINTS = 4
 MAX_RUNS, QUICK_RUNS = 40, 3
 #: the fits' folder inside the study cache (``--cache``, default out/studies/cache)
 FITS_FOLDER = "validation-fits"
 
 
-def paths_of(fabric: str) -> tuple[Path, Path, Path]:
-    s, a, b = FABRICS[fabric]
-    root = data_root()
-    return root / "geometry" / s, root / "data" / "cao2008" / a, root / "data" / "cao2008" / b
+def lab_of(name: str) -> str:
+    """The laboratory of a data file, from its name (``..._UN.csv``, ``cao2008_pf_plain_UML_fig28...``)."""
+    for token in Path(name).stem.split("_"):
+        if token in ("UN", "UML", "INSA-NU"):
+            return token
+    return "?"
 
 
-def files_of(fabric: str, direction: int) -> tuple[Path, Path, Path]:
-    """(scene, fitted curve, predicted curve) of a fabric in one direction."""
-    s, a, b = paths_of(fabric)
-    return (s, a, b) if direction == 0 else (s, b, a)
+def read_curve(name: str) -> Any:
+    """The measured curve of a data file of :data:`FABRICS` (bias extension or picture frame)."""
+    from ngbet.calibration.data import read_any
+
+    folder = "cao2008_pf" if name.startswith("cao2008_pf_") else "cao2008"
+    return read_any(data_root() / "data" / folder / name)
 
 
-def fits_key(fabric: str, max_runs: int, scene_toml: str = "") -> str:
-    """A key of everything a fabric's fits read: every fabric's scene and data, the settings, the code.
+@dataclass(frozen=True)
+class FitSpec:
+    """One fit of a fabric: its name, the files it fits, the files it predicts (every other test)."""
 
-    ``scene_toml``: the scene the fabric under test starts from when it is not its own scene file.
+    fabric: str
+    name: str
+    fitted: tuple[str, ...]
+    targets: tuple[str, ...]
+
+    @property
+    def kind(self) -> str:
+        """"one size", "two sizes" or "frame": what the fit used."""
+        if self.fitted[0].startswith("cao2008_pf_"):
+            return "frame"
+        return "two sizes" if len(self.fitted) > 1 else "one size"
+
+
+def fits_of(fabric: str) -> list[FitSpec]:
+    """The fits of a fabric and their targets.
+
+    Each bias-extension size alone, both together, and each laboratory's picture frame alone (its
+    normalised-force figure). A fit predicts every curve of the fabric it does not use, except the
+    same test shown in another figure (a laboratory's frame as F_s and as F_norm is one test).
     """
+    from ngbet.calibration.data import read_any
+
+    _, bet, pf = FABRICS[fabric]
+    root = data_root() / "data"
+
+    def label(name: str) -> str:
+        return str(read_any(root / ("cao2008_pf" if name.startswith("cao2008_pf_") else "cao2008") / name).label)
+
+    def spec(name: str, fitted: tuple[str, ...]) -> FitSpec:
+        labs = {lab_of(f) for f in fitted if f.startswith("cao2008_pf_")}
+        targets = tuple(f for f in (*bet, *pf) if f not in fitted
+                        and not (f.startswith("cao2008_pf_") and lab_of(f) in labs))
+        return FitSpec(fabric, name, fitted, targets)
+
+    out = [spec(label(b), (b,)) for b in bet]
+    out.append(spec(" + ".join(label(b) for b in bet), tuple(bet)))
+    seen: set[str] = set()
+    for f in pf:
+        if "normalized" in f and lab_of(f) not in seen:
+            seen.add(lab_of(f))
+            out.append(spec(f"frame {lab_of(f)}", (f,)))
+    return out
+
+
+def fits_key(spec: FitSpec, max_runs: int, scene_toml: str) -> str:
+    """A key of everything a fit reads: the scene, the fabric's data, the fit, the settings, the code."""
     from ngbet.study.keys import code_version
 
     h = hashlib.sha256(scene_toml.encode())
-    for f in FABRICS:
-        for p in paths_of(f):
-            h.update(p.read_bytes())
-            eb = p.with_name(p.stem + "_errorbars.csv")
-            if eb.exists():
-                h.update(eb.read_bytes())
-    h.update(json.dumps([fabric, max_runs, SCORE_POINTS, TAIL_POINTS, code_version("continuum")],
-                        sort_keys=True).encode())
-    return f"{fabric}-{h.hexdigest()[:16]}"
+    _, bet, pf = FABRICS[spec.fabric]
+    for name in (*bet, *pf):
+        p = data_root() / "data" / ("cao2008_pf" if name.startswith("cao2008_pf_") else "cao2008") / name
+        h.update(p.read_bytes())
+        eb = p.with_name(p.stem + "_errorbars.csv")
+        if eb.exists():
+            h.update(eb.read_bytes())
+    h.update(json.dumps([spec.fabric, spec.fitted, spec.targets, max_runs, SCORE_POINTS,
+                         code_version("continuum")], sort_keys=True).encode())
+    return h.hexdigest()[:16]
 
 
-def points_of(curve: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(u, F, scored): the scored points over 10–90 % of the curve's range, then TAIL_POINTS to its end."""
-    u, _ = curve.sample(SCORE_POINTS)
-    end = curve.window((0.0, 1.0))[1]
-    u = np.r_[u, np.linspace(u[-1], end, TAIL_POINTS + 1)[1:]]
-    return u, np.interp(u, curve.u_mm, curve.force_N), np.arange(len(u)) < SCORE_POINTS
+def points_of(curve: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(u, F): the scored points, :data:`SCORE_POINTS` over 10–90 % of the curve's displacement (travel) range."""
+    return curve.sample(SCORE_POINTS)  # type: ignore[no-any-return]
 
 
 def fits_folder(cache: Path | None = None) -> Path:
@@ -134,13 +190,13 @@ def cached(folder: Path, name: str, make: Any) -> dict[str, Any]:
     probe.unlink()
     doc = make()
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(doc))
+    tmp.write_text(json.dumps(doc, allow_nan=False))
     tmp.replace(path)
-    return doc
+    return doc  # type: ignore[no-any-return]
 
 
 def _progress(label: str) -> Any:
-    """A fit's progress on stderr: a line updating itself on a terminal, else a line at its start (and end)."""
+    """A fit's progress on stderr: a line updating itself on a terminal, else a line at its start."""
     t0, tty = time.perf_counter(), sys.stderr.isatty()
     if not tty:
         print(f"ngbet: study validation: fitting {label}", file=sys.stderr, flush=True)
@@ -154,79 +210,41 @@ def _progress(label: str) -> Any:
     return show
 
 
-def _done(label: str, doc: dict[str, Any]) -> None:
-    print(f"\rngbet: study validation: fitted {label} in {doc.get('wall_s', 0.0):.0f} s\x1b[K"
-          if sys.stderr.isatty() else f"ngbet: study validation: fitted {label}", file=sys.stderr, flush=True)
+def _finite(a: np.ndarray) -> list[float | None]:
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(a, float)]
 
 
-def pair_fit(fabric: str, folder: Path) -> dict[str, Any]:
-    """The table and K_el fitted to both sizes of a fabric together (cached): its K_el and se(ln K_el)."""
-    from ngbet.calibration.data import read_measured
-    from ngbet.calibration.joint import fit_curves
-    from ngbet.scene.document import Scene
+def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Path) -> dict[str, Any]:
+    """``spec`` fitted as ``ngbet fit`` fits it, and each of its targets predicted with its band (cached).
 
-    def make() -> dict[str, Any]:
-        scene_path, a, b = paths_of(fabric)
-        label = f"{fabric}, both sizes (its K_el for the other fabrics)"
-        res = fit_curves([read_measured(a), read_measured(b)], Scene.from_toml(scene_path),
-                         params=[TABLE, KEL], max_runs=MAX_RUNS, progress=_progress(label))
-        k = res.names.index(KEL)
-        doc = {"fabric": fabric, "K_el": float(res.values[k]), "se_log_K_el": float(res.se_log[k]),
-               "rms": [c.rms_relative for c in res.curves], "wall_s": res.wall_s, "model_runs": res.model_runs,
-               "converged": res.converged}
-        _done(label, doc)
-        return doc
-
-    return cached(folder, f"pair-{fits_key(fabric, MAX_RUNS)}", make)
-
-
-def elongation_for(fabric: str, quick: bool, scene: Scene | None, folder: Path) -> tuple[float, float, list[str]]:
-    """K_el and the variance of its ln for ``fabric`` from the two-size fits of the other fabrics.
-
-    One size's curve does not determine K_el (it trades against the shear table); the two sizes
-    of a fabric do. The fabric under test lends none of its data: its K_el is the geometric mean
-    of the others', and the variance of ln K_el is their scatter plus their own variances. Quick:
-    the scene's start value, with a variance of 1 (a factor e either way).
+    ``start``: the scene the fit starts from (None: the fabric's scene file). The record holds the
+    fit (fit.json's content), the fitted scene and per target the scored points, the predicted
+    force and its standard deviation from the parameters and from the discretization.
     """
-    from ngbet.scene.document import Scene
-
-    if quick:
-        return (scene or Scene.from_toml(paths_of(fabric)[0])).material.K_el, 1.0, []
-    others = [f for f in FABRICS if f != fabric]
-    fits = [pair_fit(f, folder) for f in others]
-    ln = np.log([f["K_el"] for f in fits])
-    var = float(np.var(ln, ddof=1) + np.mean([f["se_log_K_el"] ** 2 for f in fits]))
-    return float(np.exp(ln.mean())), var, others
-
-
-def fit_and_predict(fabric: str, direction: int, quick: bool, start: Scene | None, folder: Path) -> dict[str, Any]:
-    """The table fitted on one size (K_el from the other fabrics) and the other size predicted (cached).
-
-    ``start``: the scene the fit starts from (None: the fabric's scene file); its shear table,
-    bending stiffnesses, discretization and solver settings are used, the specimen is each curve's.
-    """
-    from ngbet.calibration.data import read_measured
+    from ngbet.calibration.fit_params import test_changes
     from ngbet.calibration.joint import fit_curves, predict_specimen
-    from ngbet.scene.document import Scene
 
     runs = QUICK_RUNS if quick else MAX_RUNS
+    scene = start or Scene.from_toml(data_root() / "geometry" / FABRICS[spec.fabric][0])
 
     def make() -> dict[str, Any]:
-        scene_path, fitted_path, predicted_path = files_of(fabric, direction)
-        fitted, predicted = read_measured(fitted_path), read_measured(predicted_path)
-        K_el, var, donors = elongation_for(fabric, quick, start, folder)
-        scene = (start or Scene.from_toml(scene_path)).with_changes(**{KEL: K_el})
-        label = f"{fabric} on {fitted_path.stem}"
-        res = fit_curves([fitted], scene, params=[TABLE], max_runs=runs, progress=_progress(label))
-        _done(label, {"wall_s": res.wall_s})
-        u, _, _ = points_of(predicted)
-        pred = predict_specimen(res, predicted.specimen, u, {KEL: var})
-        return {"fabric": fabric, "direction": direction, "max_runs": runs, "K_el": K_el, "var_log_K_el": var,
-                "K_el_from": donors,
-                "fit": res.to_json(), "fitted_scene": res.scene.to_toml(),
-                "prediction": {"u_mm": u.tolist(), "force_N": pred.force_N.tolist(),
-                               "sd_parameters_N": pred.sd_param_N.tolist(),
-                               "sd_discretization_N": pred.sd_disc_N.tolist()}}
+        label = f"{spec.fabric.replace('_', ' ')}, {spec.name}"
+        res = fit_curves([read_curve(f) for f in spec.fitted], scene, max_runs=runs, progress=_progress(label))
+        if sys.stderr.isatty():
+            sys.stderr.write(f"\rngbet: study validation: fitted {label} in {res.wall_s:.0f} s\x1b[K\n")
+        preds = {}
+        for name in spec.targets:
+            curve = read_curve(name)
+            u, _ = points_of(curve)
+            try:
+                p = predict_specimen(res, test_changes(curve), u)
+            except Exception as exc:  # noqa: BLE001 - a failed prediction is a row of the report, not the end
+                preds[name] = {"u_mm": u.tolist(), "failed": f"{type(exc).__name__}: {exc}"}
+                continue
+            preds[name] = {"u_mm": u.tolist(), "force_N": _finite(p.force_N), "sd_parameters_N": _finite(p.sd_param_N),
+                           "sd_discretization_N": _finite(p.sd_disc_N)}
+        return {"fabric": spec.fabric, "fit_name": spec.name, "fitted": list(spec.fitted), "max_runs": runs,
+                "fit": res.to_json(), "fitted_scene": res.scene.to_toml(), "predictions": preds}
 
-    name = f"{'quick' if quick else 'full'}{direction}-{fits_key(fabric, runs, start.to_toml() if start else '')}"
+    name = f"{'quick' if quick else 'full'}-{spec.fabric}-{fits_key(spec, runs, scene.to_toml())}"
     return {**cached(folder, name, make), "cache_name": name}

@@ -23,14 +23,17 @@ from ..scene.validate import SceneError
 from .data import MeasuredCurve
 from .observations import Profile, ShearAngles
 
-__all__ = ["BOUND_FACTOR", "COARSE_LEVEL", "FINE_TOL", "FIRST_CHECKED", "FIT_LADDER", "FLAT_RCOND", "SIZE_PARAMS",
-           "STRONG_CORRELATION", "TABLE_KEY", "TARGET_ERROR", "UNDETERMINED_SE", "CurveFit", "JointFit", "band",
-           "bounds", "correlation", "curve_scene", "expand_params", "portable_scene", "test_changes", "value_of",
-           "with_values"]
+__all__ = ["BOUND_FACTOR", "COARSE_LEVEL", "DOMAINS", "FINE_TOL", "FIRST_CHECKED", "FIT_LADDER", "FLAT_RCOND",
+           "SIZE_PARAMS", "STRONG_CORRELATION", "TABLE_KEY", "TARGET_ERROR", "UNDETERMINED_SE", "CurveFit", "JointFit",
+           "band", "bounds", "correlation", "curve_scene", "expand_params", "portable_scene", "test_changes",
+           "value_of", "with_values"]
 
 TABLE_KEY = "material.shear_stress_steps_Pa"
 #: without bounds in the scene, each parameter stays within this factor of its start value
 BOUND_FACTOR = 1e4
+#: parameters whose scene key has a bounded domain: the default bounds stay inside it (an angle
+#: of 0 or 90 degrees is refused by the scene)
+DOMAINS = {"material.gamma_lock_deg": (1.0, 89.0)}
 
 
 def expand_params(scene: Scene, params: Sequence[str]) -> list[str]:
@@ -79,11 +82,17 @@ def with_values(scene: Scene, names: Sequence[str], values: Sequence[float]) -> 
 
 def bounds(scene: Scene, params: Sequence[str], names: Sequence[str],
            start: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of each scalar parameter: the scene's [calibration] lower/upper, else start x 1e∓4."""
+    """Bounds of each scalar parameter: the scene's [calibration] lower/upper, else start x 1e∓4 within its domain.
+
+    The domain (:data:`DOMAINS`) holds for the default bounds only: bounds the scene gives outside it
+    are the scene's to answer for (the scene refuses the value when the fit reaches it).
+    """
     cal = scene.calibration
     lo, hi = start / BOUND_FACTOR, start * BOUND_FACTOR
     for k, n in enumerate(names):
         base = n.partition("[")[0]
+        if base in DOMAINS:
+            lo[k], hi[k] = max(lo[k], DOMAINS[base][0]), min(hi[k], DOMAINS[base][1])
         if base in params and base in cal.params:
             j = cal.params.index(base)
             if cal.lower:
