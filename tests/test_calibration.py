@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ngbet.calibration import fit_params, joint
-from ngbet.calibration.data import read_measured
+from ngbet.calibration.data import read_any, read_measured
 from ngbet.calibration.table import shear_stress_points, start_table
 from ngbet.cli import main
 from ngbet.continuum import physics
@@ -379,10 +379,10 @@ def test_a_failed_prediction_keeps_the_fit(synthetic_joint, tmp_path, capsys, mo
 # ------------------------------------------------------------------------------------------ the study
 @pytest.mark.slow
 def test_validation_study_quick(tmp_path, monkeypatch):
-    """`ngbet study validation --quick`: one fabric fitted (3 model runs), its other size
-    predicted; the report holds the table with ngbet's and the normalisation method's RMS, and the
-    normalisation column equals an independent computation from the measured curves."""
-    from ngbet.kinematics import force_from_normalised, normalised_shear_force
+    """`ngbet study validation --quick`: one fabric fitted on one size (3 model runs), the other size
+    and the frame predicted; the normalisation column equals an independent computation from the
+    measured curves (Eq. 18 between the sizes; across tests F_sh read as F_norm, Eqs. 1–3, 10)."""
+    from ngbet.kinematics import force_from_normalised, frame_angle_rad, normalised_shear_force
     from ngbet.studies import _validation_fits as VF
     from ngbet.studies import validation as V
     from ngbet.study.collect import load
@@ -391,20 +391,29 @@ def test_validation_study_quick(tmp_path, monkeypatch):
     assert main(["study", "validation", "--quick", "--workers", "1", "--quiet", "--out", str(out),
                  "--cache", str(tmp_path / "cache")]) == 0
     # the fit is kept in the study cache that --cache names
-    assert [f.name[:len("quick0-twill_unbalanced")] for f in (tmp_path / "cache" / VF.FITS_FOLDER).glob("*.json")] \
-        == ["quick0-twill_unbalanced"]
+    assert [f.name[:len("quick-twill_unbalanced")] for f in (tmp_path / "cache" / VF.FITS_FOLDER).glob("*.json")] \
+        == ["quick-twill_unbalanced"]
     text = (out / "report.md").read_text()
-    assert "| twill_unbalanced |" in text and (out / "validation.png").exists()
+    assert "| twill unbalanced | 100 x 250 mm | 100 x 200 mm | other size |" in text
+    assert (out / "validation.png").exists()
     fitted = read_measured(DATA / "cao2008_twill_unbalanced_100x250_UN.csv")
     other = read_measured(DATA / "cao2008_twill_unbalanced_100x200_UN.csv")
-    u, F = other.sample(24)
     uf = fitted.u_mm[fitted.u_mm > 0]
     # the slack's negative forces (−0.0065 N at 0.0085 mm) count as 0, as in the study
     g, f = normalised_shear_force(uf, np.maximum(np.interp(uf, fitted.u_mm, fitted.force_N), 0.0), 250.0, 100.0)
+    u, F = other.sample(24)
     rms = float(np.sqrt(np.mean(((force_from_normalised(g, f, u, 200.0, 100.0) - F) / F) ** 2)))
-    row = V.summary(load(out))[0]
-    assert row["normalisation_rms"] == pytest.approx(rms, rel=1e-9)
+    rows = {r["what"]: r for r in V.summary(load(out))}
+    assert rows["other size"]["normalisation_rms"] == pytest.approx(rms, rel=1e-9)
     assert f"{100 * rms:.1f} %" in text
+    # across tests: F_sh(γ) read as the frame's F_norm(γ), the frame 145/120 mm of the file's header
+    frame = read_any(PF_UN)
+    u, F = frame.sample(24)
+    gam = np.pi / 2 - 2 * frame_angle_rad(u, 145.0)
+    Fn_meas = frame.in_file_units(u, F)[1]
+    Fn_norm = np.interp(gam, np.r_[0.0, g], np.r_[0.0, f])
+    rms = float(np.sqrt(np.mean(((Fn_norm - Fn_meas) / Fn_meas) ** 2)))
+    assert rows["other test"]["normalisation_rms"] == pytest.approx(rms, rel=1e-9)
 
 
 def test_progress_line_names_runs_and_each_curves_rms():
@@ -498,8 +507,8 @@ def test_validation_scores_errors_over_the_curve_s_largest_force():
     from ngbet.studies import validation as V
 
     pred, meas = np.array([1.1, 2.0]), np.array([1.0, 2.0])
-    assert V._rms_of_max(pred, meas) == pytest.approx(math.sqrt((0.05 ** 2 + 0.0) / 2), rel=1e-12)
-    assert V._rms(pred, meas) == pytest.approx(math.sqrt((0.1 ** 2 + 0.0) / 2), rel=1e-12)
+    assert V.rms_of_max(pred, meas) == pytest.approx(math.sqrt((0.05 ** 2 + 0.0) / 2), rel=1e-12)
+    assert V.rms(pred, meas) == pytest.approx(math.sqrt((0.1 ** 2 + 0.0) / 2), rel=1e-12)
 
 
 # ------------------------------------------------------------------------------------------ picture frame

@@ -736,22 +736,36 @@ def test_validation_takes_the_scene_of_a_fabric_and_refuses_another_naming_the_k
 
 
 def test_quick_validation_makes_only_its_own_fit_and_says_what_it_leaves_out(monkeypatch):
-    """The quick study fits one fabric in one direction; what it leaves out of the full study is said
-    by the study itself, without building the full one (whose six fits take minutes)."""
+    """The quick study fits one fabric on one size; what it leaves out of the full study is said
+    by the study itself, without building the full one (whose thirteen fits take minutes)."""
     from ngbet.studies import _validation_fits as VF
     from ngbet.studies import validation as V
     from ngbet.study.command import build_study
 
     made = []
 
-    def fit_stub(fabric, direction, quick, start, folder):
-        made.append((fabric, direction, quick))
-        return {"fitted_scene": Scene().to_toml(), "cache_name": f"{fabric}{direction}"}
+    def fit_stub(spec, quick, start, folder):
+        made.append((spec.fabric, spec.name, quick))
+        return {"fitted_scene": Scene().to_toml(), "cache_name": spec.name, "predictions": {}}
 
     monkeypatch.setattr(V, "fit_and_predict", fit_stub)
-    monkeypatch.setattr(V, "_case", lambda doc, which: {"specimen.name": which})
+    monkeypatch.setattr(V, "_case", lambda doc, target: {"specimen.name": target})
     study = build_study(V.build, True)
-    assert made == [(*VF.QUICK[0], True)]
-    assert study.left_out == ["5 of the full study's 6 fits (each fabric in both directions)",
-                              "K_el from the other fabrics' two-size fits (the scene's value instead)",
-                              f"{VF.MAX_RUNS} model runs per fit ({VF.QUICK_RUNS} instead)"]
+    assert made == [(*VF.QUICK, True)]
+    assert study.left_out == ["12 of the full study's 13 fits (each size alone, both sizes, each laboratory's "
+                              "frame)", f"{VF.MAX_RUNS} model runs per fit ({VF.QUICK_RUNS} instead)"]
+
+
+def test_validation_fits_predict_every_curve_they_do_not_use():
+    """Each fit's targets are every curve of its fabric in data/ that it does not fit, except the same
+    frame test in another figure; each data file is a target of some fit."""
+    from ngbet.studies import _validation_fits as VF
+
+    for fabric, (_, bet, pf) in VF.FABRICS.items():
+        specs = VF.fits_of(fabric)
+        assert {s.kind for s in specs} == {"one size", "two sizes", "frame"}
+        for s in specs:
+            assert not set(s.fitted) & set(s.targets)
+            same_test = {f for f in pf if VF.lab_of(f) in {VF.lab_of(g) for g in s.fitted if g in pf}}
+            assert set(s.fitted) | set(s.targets) | same_test == {*bet, *pf}
+        assert set().union(*(s.targets for s in specs)) == {*bet, *pf}

@@ -10,10 +10,11 @@ from typing import Any
 import numpy as np
 
 from .data import MeasuredCurve
-from .fit_params import TABLE_KEY, JointFit, band
+from .fit_params import TABLE_KEY, CurveFit, JointFit, band
 from .joint import CurvePrediction
 
-__all__ = ["plot_fit", "plot_table", "prediction_json", "table_band", "write_fit", "write_prediction"]
+__all__ = ["FRAME_X_LABEL", "QUANTITY_LABEL",
+           "plot_fit", "plot_table", "prediction_json", "table_band", "write_fit", "write_prediction"]
 
 
 def _atomic(path: Path, text: str) -> Path:
@@ -43,7 +44,10 @@ def write_fit(result: JointFit, out: str | Path) -> list[Path]:
 
 
 def plot_table(result: JointFit, path: Path) -> Path:
-    """The tabulated shear stress against |i8|: start, fitted, and each curve by the normalisation method.
+    """The tabulated shear stress against the shear angle: start, fitted, and each curve by the normalisation method.
+
+    The table is a law in |i8|; it is drawn against γ = arcsin |i8|, the shear angle of
+    inextensible yarns, the axis of the measured curves and of the normalisation method.
 
     The normalisation method's points are τ(sin γ) = F_sh(γ)/t along each measured curve
     (:func:`ngbet.calibration.table.shear_stress_points`): what the fitted table differs from them
@@ -59,23 +63,28 @@ def plot_table(result: JointFit, path: Path) -> Path:
     for k, n in enumerate(result.names):  # the start table: the fitted one with the start values put back
         if n.startswith(TABLE_KEY):
             steps0[int(n[len(TABLE_KEY) + 1:-1])] = result.start[k]
-    x = np.linspace(0.01 * fitted.shear_table_i8_max, fitted.shear_table_i8_max, 200)
+    x = np.linspace(0.01 * fitted.shear_table_i8_max, min(fitted.shear_table_i8_max, 0.999), 200)
+
+    def deg(i8: np.ndarray) -> np.ndarray:
+        return np.degrees(np.arcsin(np.clip(i8, 0.0, 1.0)))
+
     fig = Figure(figsize=(6.0, 4.2))
     ax = fig.subplots()
     t = result.scene.specimen.thickness_mm
     for k, c in enumerate(result.curves):
         xs, tau = shear_stress_points(c.measured_on_specimen(), t)
-        ax.plot(xs, tau / 1e3, "o", ms=3, color=f"C{k}", label=f"{c.label}: normalisation method, F_sh / t")
-    ax.plot(x, table_stress_spline(steps0, fitted.shear_table_i8_max)(x) / 1e3, ":", color="0.3", label="start table")
+        ax.plot(deg(xs), tau / 1e3, "o", ms=3, color=f"C{k}", label=f"{c.label}: normalisation method, F_sh / t")
+    ax.plot(deg(x), table_stress_spline(steps0, fitted.shear_table_i8_max)(x) / 1e3, ":", color="0.3",
+            label="start table")
     tau = table_stress_spline(fitted.shear_stress_steps_Pa, fitted.shear_table_i8_max)(x)
-    ax.plot(x, tau / 1e3, "-", color="k", lw=1.6, label="fitted table (continuum)")
+    ax.plot(deg(x), tau / 1e3, "-", color="k", lw=1.6, label="fitted table (continuum)")
     ax.set_yscale("log")
     lo, hi = ax.get_ylim()  # the band does not set the scale: where a rise is undetermined it spans decades
     rel = table_band(result, x) / np.maximum(tau, 1e-300)
-    ax.fill_between(x, tau * np.exp(-np.minimum(2 * rel, 50)) / 1e3, tau * np.exp(np.minimum(2 * rel, 50)) / 1e3,
+    ax.fill_between(deg(x), tau * np.exp(-np.minimum(2 * rel, 50)) / 1e3, tau * np.exp(np.minimum(2 * rel, 50)) / 1e3,
                     color="k", alpha=0.12, lw=0, label="fitted table ± 2 sd (first order in ln τ)")
     ax.set_ylim(lo, hi)
-    ax.set_xlabel("|i8| (= sin γ for inextensible yarns)")
+    ax.set_xlabel("shear angle γ = arcsin |i8| [°] (inextensible yarns)")
     ax.set_ylabel("shear stress τ = dW/d|i8| [kPa] (log scale)")
     from ..figures.style import eng
 
@@ -106,42 +115,67 @@ def table_band(result: JointFit, x: np.ndarray) -> np.ndarray:
     return band(G, result.cov_log[np.ix_(rows, rows)])
 
 
-def plot_fit(result: JointFit, path: Path) -> Path:
+#: the axis quantity of a file's force column (a picture frame: as its file holds it)
+QUANTITY_LABEL = {"force": "clamp force [N]", "shear_force": "shear force F_s [N] (Eq. 3)",
+                  "normalised_shear_force": "normalised shear force F_norm [N/mm] (Eq. 10)"}
+FRAME_X_LABEL = "shear angle of the frame γ [°] (Eqs. 1–2)"
+
+
+def plot_fit(result: JointFit, path: Path) -> Path:  # noqa: C901 - one panel after the other
     """Each curve's data, start and fitted model (±2 sd), residuals, and centre shear angle.
 
-    A picture-frame curve is drawn as the crosshead force against the crosshead travel (the
-    quantities it is fitted in; fit.json holds it in the file's own) and its ideal angle is the frame's.
+    One column per test: bias-extension curves as the clamp force against the clamp displacement,
+    picture-frame curves in the quantities of their files (F_norm or F_s against the frame's shear
+    angle, the paper's), converted exactly from the crosshead force and travel they are fitted in.
 
     The centre shear angle of the fitted model is drawn against the ideal test's (inextensible
-    yarns) and, where given, the measured angles: where the model's falls short, the crosshead
-    travel goes into yarn elongation.
+    yarns; for a frame, the frame's angle) and, where given, the measured angles: where the model's
+    falls short, the crosshead travel goes into yarn elongation.
     """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6.4, 8.4))
-    ax, ar, ag = fig.subplots(3, 1, sharex=True, height_ratios=(3, 1.3, 2))
+    tests = list(dict.fromkeys(c.curve.test for c in result.curves))
+    fig = Figure(figsize=(6.4 * len(tests), 8.6))
+    axes = fig.subplots(3, len(tests), sharex="col", height_ratios=(3, 1.3, 2), squeeze=False)
     for k, c in enumerate(result.curves):
         col = f"C{k}"
-        ax.plot(c.curve.u_mm, c.curve.force_N, "-", color=col, lw=0.8, alpha=0.5)
-        ax.errorbar(c.u_mm, c.measured_N, yerr=c.sd_N, fmt="o", ms=3, color=col, label=f"{c.label}: data (±1 sd)")
-        sd = band(c.dlogp, result.cov_log)
-        ax.fill_between(c.u_mm, c.model_N - 2 * sd, c.model_N + 2 * sd, color=col, alpha=0.2, lw=0)
-        ax.plot(c.u_mm, c.model_N, "-", color=col, lw=1.6,
+        ax, ar, ag = axes[:, tests.index(c.curve.test)]
+
+        def file(v: np.ndarray, c: CurveFit = c) -> np.ndarray:
+            return c.curve.in_file_units(c.u_mm, v)[1]
+
+        x = c.curve.in_file_units(c.u_mm, c.measured_N)[0]
+        ok = c.curve.u_mm >= 0
+        ax.plot(*c.curve.in_file_units(c.curve.u_mm[ok], c.curve.force_N[ok]), "-", color=col, lw=0.8, alpha=0.5)
+        ax.errorbar(x, file(c.measured_N), yerr=file(c.sd_N), fmt="o", ms=3, color=col,
+                    label=f"{c.label}: data (±1 sd)")
+        sd = file(band(c.dlogp, result.cov_log))
+        ax.fill_between(x, file(c.model_N) - 2 * sd, file(c.model_N) + 2 * sd, color=col, alpha=0.2, lw=0)
+        ax.plot(x, file(c.model_N), "-", color=col, lw=1.6,
                 label=f"{c.label}: fitted, RMS {100 * c.rms_relative:.1f} %")
-        ax.plot(c.u_mm, c.start_N, ":", color=col, lw=1.0)
-        ar.plot(c.u_mm, 100 * (c.model_N - c.measured_N) / c.measured_N, "o-", ms=3, color=col)
+        ax.plot(x, file(c.start_N), ":", color=col, lw=1.0)
+        ar.plot(x, 100 * (c.model_N - c.measured_N) / c.measured_N, "o-", ms=3, color=col)
         if len(c.angle_deg):
-            ag.plot(c.u_mm, c.angle_deg, "-", color=col, lw=1.6, label=f"{c.label}: fitted model")
-        ag.plot(c.u_mm, c.ideal_angle_deg(), "--", color=col, lw=1.0, label=f"{c.label}: ideal test")
+            ag.plot(x, c.angle_deg, "-", color=col, lw=1.6, label=f"{c.label}: fitted model")
+        ag.plot(x, c.ideal_angle_deg(), "--", color=col, lw=1.0, label=f"{c.label}: ideal test")
         if c.angles is not None:
             ag.plot(c.angles.u_mm, c.angles.angle_deg, "s", ms=4, color=col, mfc="none",
                     label=f"{c.label}: measured")
-    ax.plot([], [], ":", color="0.4", label="start values")
-    ax.fill_between([], [], [], color="0.4", alpha=0.2, lw=0, label="fitted ± 2 sd (from the parameters)")
-    ax.plot([], [], "-", color="0.4", lw=0.8, alpha=0.5, label="measured curve, whole")
-    frame = any(c.curve.test == "picture_frame" for c in result.curves)
-    ax.set_ylabel("clamp or crosshead force [N]" if frame else "clamp force [N]")
-    ax.legend(fontsize=7, loc="upper left")
+    for j, test in enumerate(tests):
+        ax, ar, ag = axes[:, j]
+        frame = test == "picture_frame"
+        ax.plot([], [], ":", color="0.4", label="start values")
+        ax.fill_between([], [], [], color="0.4", alpha=0.2, lw=0, label="fitted ± 2 sd (from the parameters)")
+        ax.plot([], [], "-", color="0.4", lw=0.8, alpha=0.5, label="measured curve, whole")
+        quantities = {c.curve.quantity for c in result.curves if c.curve.test == test}
+        ax.set_ylabel(" or ".join(QUANTITY_LABEL[q] for q in sorted(quantities)))
+        ax.set_title("picture frame" if frame else "bias extension", fontsize=10)
+        ax.legend(fontsize=7, loc="upper left")
+        ar.axhline(0, color="0.5", lw=0.8)
+        ar.set_ylabel("model − data [%]")
+        ag.set_ylabel("centre shear angle [°]")
+        ag.set_xlabel(FRAME_X_LABEL if frame else "clamp displacement [mm]")
+        ag.legend(fontsize=7, loc="upper left")
     stopped = "" if result.converged else " (stopped at the run limit, not converged)"
     from ..figures.style import caption, put_caption
 
@@ -149,11 +183,6 @@ def plot_fit(result: JointFit, path: Path) -> Path:
     put_caption(fig, f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters fitted to "
                      f"{len(result.curves)} curve(s), {result.model_runs} model runs{stopped}; fitted material: "
                      f"{material}")
-    ar.axhline(0, color="0.5", lw=0.8)
-    ar.set_ylabel("model − data [%]")
-    ag.set_ylabel("centre shear angle [°]")
-    ag.set_xlabel("clamp displacement or frame crosshead travel [mm]" if frame else "clamp displacement [mm]")
-    ag.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     return path
@@ -177,13 +206,17 @@ def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.n
 
     fig = Figure(figsize=(6.4, 4.2))
     ax = fig.subplots()
-    ax.plot(curve.u_mm, curve.force_N, "-", color="k", lw=1.0, label=f"measured, {curve.label}")
-    ax.fill_between(pred.u_mm, pred.force_N - 2 * pred.sd_N, pred.force_N + 2 * pred.sd_N, color="tab:orange",
-                    alpha=0.3, lw=0, label="±2 sd (parameters and discretization)")
-    ax.plot(pred.u_mm, pred.force_N, "-", color="tab:orange", label="ngbet prediction")
+    ok = curve.u_mm >= 0
+    ax.plot(*curve.in_file_units(curve.u_mm[ok], curve.force_N[ok]), "-", color="k", lw=1.0,
+            label=f"measured, {curve.label}")
+    x, F = curve.in_file_units(pred.u_mm, pred.force_N)  # a frame in its file's quantities (linear in the force)
+    sd = curve.in_file_units(pred.u_mm, pred.sd_N)[1]
+    ax.fill_between(x, F - 2 * sd, F + 2 * sd, color="tab:orange", alpha=0.3, lw=0,
+                    label="±2 sd (parameters and discretization)")
+    ax.plot(x, F, "-", color="tab:orange", label="ngbet prediction")
     frame = curve.test == "picture_frame"
-    ax.set_xlabel("frame crosshead travel [mm]" if frame else "clamp displacement [mm]")
-    ax.set_ylabel("crosshead force [N]" if frame else "clamp force [N]")
+    ax.set_xlabel(FRAME_X_LABEL if frame else "clamp displacement [mm]")
+    ax.set_ylabel(QUANTITY_LABEL[curve.quantity])
     ax.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
     png = out / f"predict_{stem}.png"
