@@ -97,50 +97,54 @@ class _Model:
         self.curves, self.names = curves, names
         self.meshes: dict[tuple[int, int | None], Any] = {}
         self.runs = 0
-        self._cache: dict[tuple[bytes, tuple[int | None, ...], bool], list[_Run]] = {}
+        self._cache: dict[tuple[int, bytes, int | None, bool], _Run] = {}
 
     def __call__(self, theta: np.ndarray, check: bool = False) -> list[_Run]:
-        key = (np.asarray(theta, float).tobytes(), tuple(c.level for c in self.curves), check)
-        if key in self._cache:
-            return self._cache[key]
-        if not check:  # a checked run answers an unchecked question too
-            hit = self._cache.get((key[0], key[1], True))
-            if hit is not None:
-                return hit
+        """Each curve's run at θ on its current rung; a curve already run there (checked or as asked) is not rerun.
+
+        ``runs`` counts the calls that ran at least one curve.
+        """
+        t = np.asarray(theta, float).tobytes()
+        todo = [k for k, c in enumerate(self.curves)
+                if (k, t, c.level, check) not in self._cache and (k, t, c.level, True) not in self._cache]
+        if todo:
+            self.runs += 1
+        for k in todo:
+            self._cache[k, t, self.curves[k].level, check] = self._run(k, theta, check)
+        return [self._cache.get((k, t, c.level, check)) or self._cache[k, t, c.level, True]
+                for k, c in enumerate(self.curves)]
+
+    def _run(self, k: int, theta: np.ndarray, check: bool) -> _Run:
         from ..continuum.mesh import make_cross_mesh, make_mesh
         from ..continuum.sensitivity import force_path
         from ..errors import ConvergenceError
 
-        self.runs += 1
-        out = []
         n = len(self.names)
-        for k, c in enumerate(self.curves):
-            sc = with_values(c.run_scene(), self.names, np.exp(theta))
-            if (k, c.level) not in self.meshes:
-                self.meshes[k, c.level] = (make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
-                                           if sc.test == "picture_frame" else make_mesh(sc.specimen, sc.discretization))
-            pts = c.profile.points() if c.profile is not None else {}
-            a_u = list(c.angles.u_mm) if c.angles is not None else []
-            m, kp, ka = len(c.u_mm), sum(len(x) for x in pts.values()), len(a_u)
-            try:
-                r = force_path(sc, c.u_mm, self.names, pts, mesh=self.meshes[k, c.level],
-                               angles=sorted(set(a_u) | (set(map(float, c.u_mm)) if check else set())),
-                               estimate=check)
-                assert r.dlogp is not None
-                P = np.concatenate([r.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
-                GP = np.vstack([r.profile_dlogp[u0] for u0 in pts]) if pts else np.zeros((0, n))
-                A = np.array([r.angles_deg[float(u)] for u in a_u])
-                GA = np.vstack([r.angle_dlogp[float(u)] for u in a_u]) if a_u else np.zeros((0, n))
-                err = r.force_error_N if r.force_error_N is not None else np.zeros(0)
-                ang = np.array([r.angles_deg[float(u)] for u in c.u_mm]) if check else np.zeros(0)
-                out.append(_Run(r.force_N, r.dlogp, P, GP, A, GA, err, ang))
-            except (ConvergenceError, SceneError) as exc:
-                log.info("model run failed on %s: %s", c.label, exc)
-                out.append(_Run(np.full(m, np.nan), np.zeros((m, n)), np.full(kp, np.nan), np.zeros((kp, n)),
-                                np.full(ka, np.nan), np.zeros((ka, n)), np.full(m if check else 0, np.nan),
-                                np.full(m if check else 0, np.nan)))
-        self._cache[key] = out
-        return out
+        c = self.curves[k]
+        sc = with_values(c.run_scene(), self.names, np.exp(theta))
+        if (k, c.level) not in self.meshes:
+            self.meshes[k, c.level] = (make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
+                                       if sc.test == "picture_frame" else make_mesh(sc.specimen, sc.discretization))
+        pts = c.profile.points() if c.profile is not None else {}
+        a_u = list(c.angles.u_mm) if c.angles is not None else []
+        m, kp, ka = len(c.u_mm), sum(len(x) for x in pts.values()), len(a_u)
+        try:
+            r = force_path(sc, c.u_mm, self.names, pts, mesh=self.meshes[k, c.level],
+                           angles=sorted(set(a_u) | (set(map(float, c.u_mm)) if check else set())),
+                           estimate=check)
+            assert r.dlogp is not None
+            P = np.concatenate([r.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
+            GP = np.vstack([r.profile_dlogp[u0] for u0 in pts]) if pts else np.zeros((0, n))
+            A = np.array([r.angles_deg[float(u)] for u in a_u])
+            GA = np.vstack([r.angle_dlogp[float(u)] for u in a_u]) if a_u else np.zeros((0, n))
+            err = r.force_error_N if r.force_error_N is not None else np.zeros(0)
+            ang = np.array([r.angles_deg[float(u)] for u in c.u_mm]) if check else np.zeros(0)
+            return _Run(r.force_N, r.dlogp, P, GP, A, GA, err, ang)
+        except (ConvergenceError, SceneError) as exc:
+            log.info("model run failed on %s: %s", c.label, exc)
+            return _Run(np.full(m, np.nan), np.zeros((m, n)), np.full(kp, np.nan), np.zeros((kp, n)),
+                        np.full(ka, np.nan), np.zeros((ka, n)), np.full(m if check else 0, np.nan),
+                        np.full(m if check else 0, np.nan))
 
 
 Progress = Callable[[int, list[float], float], None]
@@ -299,16 +303,24 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
     th = th0
     stages: list[dict[str, Any]] = []
     sol = None
+    checked_levels = [cf.level for cf in cfs]
+    if choose_discretization:
+        r0, ts = model.runs, time.perf_counter()
+        checked_levels = _first_levels(model, cfs, th0, target_error)
+        stages.append({"rungs": checked_levels, "model_runs": model.runs - r0, "checked": True, "probe": True,
+                       "wall_s": time.perf_counter() - ts})
     if coarse and choose_discretization and max_runs > 2:
-        for cf in cfs:
-            cf.level = COARSE_LEVEL
+        # the search gets near the optimum one rung below the first that met the target at the start
+        coarse_levels = [max(COARSE_LEVEL, (lv or 0) - 1) for lv in checked_levels]
+        for cf, lv in zip(cfs, coarse_levels, strict=True):
+            cf.level = lv
         r0, ts = model.runs, time.perf_counter()
         sol = search(th, max_runs // 2, 1e-3)
         th = sol.x
-        stages.append({"rungs": [COARSE_LEVEL] * len(cfs), "model_runs": model.runs - r0, "checked": False,
+        stages.append({"rungs": coarse_levels, "model_runs": model.runs - r0, "checked": False,
                        "wall_s": time.perf_counter() - ts})
-        for cf in cfs:
-            cf.level = FIRST_CHECKED
+    for cf, level in zip(cfs, checked_levels, strict=True):
+        cf.level = level
     while True:
         r0, ts = model.runs, time.perf_counter()
         left = max_runs - model.runs
@@ -356,6 +368,35 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
                     model.runs, time.perf_counter() - t0, ok, str(sol.message), at_bound, held,
                     st["undetermined"], st["correlated"], st["flat"], st["residual_scale"], target_error, stages,
                     profile_sd_mm, angle_sd_deg)
+
+
+def _first_levels(model: _Model, cfs: list[CurveFit], theta: np.ndarray, target_error: float) -> list[int | None]:
+    """Each curve's first rung from :data:`FIRST_CHECKED` up whose estimated error meets the target at ``theta``.
+
+    Probed with the start values before the search, one checked run per rung tried: stiff yarns
+    lock the cheap rungs (errors of tens of per cent), where a search would only chase the
+    discretization; a curve that no rung vouches for starts on the last.
+    """
+    levels: list[int | None] = []
+    for cf in cfs:
+        cf.level = FIRST_CHECKED
+    pending = list(range(len(cfs)))
+    found: dict[int, int] = {}
+    while pending:
+        runs = model(theta, check=True)
+        for i in list(pending):
+            cf = cfs[i]
+            e = runs[i].err
+            rel = float(np.max(e / np.abs(runs[i].F))) if len(e) and np.all(np.isfinite(e)) else math.inf
+            if rel <= target_error or cf.level is None or cf.level >= len(FIT_LADDER) - 1:
+                found[i] = cf.level if cf.level is not None else FIRST_CHECKED
+                pending.remove(i)
+            else:
+                log.info("%s: estimated discretization error %.3g at the start values on rung %d: one rung up",
+                         cf.label, rel, cf.level)
+                cf.level += 1
+    levels = [found[i] for i in range(len(cfs))]
+    return levels
 
 
 #: what data would determine a parameter the fit leaves undetermined (by the start of its name)
