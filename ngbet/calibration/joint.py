@@ -66,8 +66,8 @@ from .fit_params import (
 )
 from .observations import Profile, ShearAngles
 
-__all__ = ["WHAT_FIXES", "CurvePrediction", "Progress", "fit_curves", "held_parameters", "predict_specimen",
-           "terminal_progress"]
+__all__ = ["ELONGATION_KEY", "WHAT_FIXES", "CurvePrediction", "Progress", "fit_curves", "held_parameters",
+           "predict_specimen", "terminal_progress"]
 
 log = logging.getLogger(__name__)
 
@@ -232,6 +232,10 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
     if not (profile_sd_mm > 0 and angle_sd_deg > 0):
         raise SceneError(f"--profile-sd = {profile_sd_mm}, --angle-sd = {angle_sd_deg}: both must be > 0")
     held = held_parameters(curves, scene, params, profile) if own else {}
+    if own and ELONGATION_KEY not in params and scene.effects.elongation:
+        held[ELONGATION_KEY] = ("not among the scene's [calibration] params: held at the scene's value (for glass "
+                                "yarns the lower bound their stiffness allows). Measured shear angles (--angles) "
+                                "would determine it; name it in --params to fit it")
     fitted_params = [p for p in params if p not in held]
     names = expand_params(scene, fitted_params)
     start = np.array([value_of(scene, n) for n in names])
@@ -398,6 +402,9 @@ def _first_levels(model: _Model, cfs: list[CurveFit], theta: np.ndarray, target_
     levels = [found[i] for i in range(len(cfs))]
     return levels
 
+
+#: the yarn elongation modulus: held at the scene's value when the scene's [calibration] does not name it
+ELONGATION_KEY = "material.K_el"
 
 #: what data would determine a parameter the fit leaves undetermined (by the start of its name)
 WHAT_FIXES = {
