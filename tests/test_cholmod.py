@@ -1,4 +1,4 @@
-"""CHOLMOD's LLᵀ for the continuum's Newton matrix (ngbet.cholmod, ngbet.continuum.linear).
+"""CHOLMOD's LLᵀ for the continuum's Newton matrix (ngbet.cholmod, ngbet.numerics.linear).
 
 The LLᵀ must give the sparse LDLᵀ's solutions, hand a matrix that is not positive definite to the
 LDLᵀ, and leave a run's answers where they were. (The discrete model's use: test_discrete_solver
@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 
 from ngbet import cholmod
-from ngbet.continuum.linear import CHOLMOD_MIN_DOFS, pick_inverse
 from ngbet.continuum.mesh import corner_refined
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.solver import ContinuumSolver
+from ngbet.numerics.linear import CHOLMOD_MIN_DOFS, pick_inverse
 from ngbet.run import run
+from ngbet.runner.settings import continuum_solver
 from ngbet.scene.document import default_scene
 from ngbet.scene.validate import SceneError
 

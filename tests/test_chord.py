@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import coarse
 
-from ngbet.continuum import chord as C
-from ngbet.continuum.settings import NewtonSettings
+from ngbet.numerics import chord as C
+from ngbet.numerics.settings import NewtonSettings
 from ngbet.run import run
 from ngbet.tables import read_rows
 

@@ -6,9 +6,10 @@ import ngsolve as ngs
 import numpy as np
 import pytest
 
-from ngbet.continuum import compiled
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.solver import ContinuumSolver
+from ngbet.numerics import compiled
+from ngbet.runner.settings import continuum_solver
 from ngbet.scene.document import default_scene
 
 HAS_COMPILER = compiled._compiler() is not None
@@ -27,7 +28,7 @@ def test_auto_interprets_below_the_size_where_native_code_pays():
 
 def test_native_without_a_compiler_interprets_and_says_so(monkeypatch, caplog):
     monkeypatch.setattr(compiled, "_compiler", lambda: None)
-    with caplog.at_level(logging.WARNING, logger="ngbet.continuum.compiled"):
+    with caplog.at_level(logging.WARNING, logger="ngbet.numerics.compiled"):
         _, mode = compiled.compile_energy(_cf(), "native", 10)
     assert mode == "interpret"
     assert "no C++ compiler" in caplog.text

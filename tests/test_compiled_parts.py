@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sps
 
-from ngbet.continuum import compiled
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.solver import ContinuumSolver
+from ngbet.numerics import compiled
+from ngbet.runner.settings import continuum_solver
 from ngbet.scene.document import default_scene
 
 

@@ -4,10 +4,11 @@ import ngsolve as ngs
 import numpy as np
 import scipy.sparse as sps
 
-from ngbet.continuum.linear import NewtonLinearSolver
 from ngbet.continuum.mesh import corner_refined
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.solver import ContinuumSolver
+from ngbet.numerics.linear import NewtonLinearSolver
+from ngbet.runner.settings import continuum_solver
 from ngbet.scene.document import default_scene
 
 

@@ -139,8 +139,8 @@ def test_an_ordinary_run_never_reaches_it(tmp_path, made_problems):
 def _sheared_problem(gamma_deg):
     """The solver of a coarse problem (p = 2, no Dirichlet data) in the homogeneous state of inextensible ±45°
     yarns sheared by γ."""
-    from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
+    from ngbet.runner.settings import continuum_solver
 
     pb = ContinuumProblem(coarse(**{"discretization.mesh_size_mm": 20.0}), dirichlet="")
     m1, m2 = np.array(pb.scene.specimen.m1), np.array(pb.scene.specimen.m2)
@@ -198,10 +198,10 @@ def test_no_state_of_the_path_has_crossed_yarns_that_the_barrier_missed():
     yarns cross (-30°): no equilibrium of the energy. Such a state is solved again with the
     barrier on: every state kept without the barrier has its yarns more open than the jamming
     angle, and none has crossed yarns (with the barrier, they may close into it, not past it)."""
-    from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
-    from ngbet.continuum.run import load_path
-    from ngbet.engine import run_to_end
+    from ngbet.numerics.engine import Steps
+    from ngbet.runner.continuum import load_path
+    from ngbet.runner.settings import continuum_solver
 
     scene = Scene().with_changes(**{"effects.bending": False, "loading.u0_mm": 22.0, "loading.output_every_mm": 0.0})
     solver = continuum_solver(ContinuumProblem(scene))
@@ -215,7 +215,11 @@ def test_no_state_of_the_path_has_crossed_yarns_that_the_barrier_missed():
         original()
 
     solver.converged = watched
-    res = run_to_end(load_path(solver, scene))
+    steps = Steps(load_path(solver, scene))
+    for _ in steps:
+        pass
+    res = steps.result
+    assert res is not None
     assert res.u0 == pytest.approx(0.022)
     assert jam.on and any(a.reason == "the yarns close past the jamming angle in the state found without the "
                           "barrier; solved again with it" for a in res.attempts)

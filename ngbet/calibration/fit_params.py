@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..continuum.ladder import Rung
+from ..runner.ladder import Rung
 from ..scene.document import Scene
 from ..scene.physical import Specimen
 from ..scene.validate import SceneError
@@ -135,7 +135,7 @@ def portable_scene(scene: Scene) -> Scene:
 
 
 #: the discretizations of a fit's model runs, cheapest first, all graded towards the clamp corners
-#: (:class:`ngbet.continuum.ladder.Rung`: mesh size, corner mesh size [mm], order p). Measured on
+#: (:class:`ngbet.runner.ladder.Rung`: mesh size, corner mesh size [mm], order p). Measured on
 #: the unbalanced twill 100 x 250 mm to 49.7 mm with its start values (16 loads): the estimated force
 #: error is at most 1.2 % on the first rung (1.4 s a run), 0.2 % on the second (1.2-1.6 s), 0.07 %
 #: on the third (2.6 s), against 17.5 % on the scene's uniform 25 mm mesh at p = 2 (0.9 s)

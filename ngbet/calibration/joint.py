@@ -3,7 +3,7 @@ r"""One parameter set fitted to several measured curves (specimen sizes) of one 
 Each curve runs on its own specimen (the keys of its data file's header applied to the scene)
 with load steps landing on its fitted displacements (:mod:`ngbet.calibration.data`); the force and
 its derivatives with respect to the parameters come from the same run
-(:func:`ngbet.continuum.sensitivity.force_path`). Each curve's mesh is made once and reused by
+(:func:`ngbet.runner.sensitivity.force_path`). Each curve's mesh is made once and reused by
 every model run of the fit.
 
 Least squares on the residuals e_i = (F_model(u_i) − F_i)/s_i, s_i the point's standard deviation
@@ -108,8 +108,8 @@ class _Model:
             if hit is not None:
                 return hit
         from ..continuum.mesh import make_cross_mesh, make_mesh
-        from ..continuum.sensitivity import force_path
         from ..errors import ConvergenceError
+        from ..runner.sensitivity import force_path
 
         self.runs += 1
         out = []
@@ -432,7 +432,7 @@ def predict_specimen(result: JointFit, specimen: dict[str, float], u_mm: np.ndar
     ``fixed_var_log``: parameters held fixed in the fit whose value is uncertain, with the
     variance of their ln p (independent of the fitted ones); they widen the band by g_k² var_k.
     """
-    from ..continuum.sensitivity import force_path
+    from ..runner.sensitivity import force_path
 
     fixed = dict(fixed_var_log or {})
     sc = result.scene.with_changes(**specimen, **{"loading.u0_mm": float(np.max(u_mm)), "loading.stops_mm": []})

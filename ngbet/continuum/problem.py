@@ -12,7 +12,7 @@ shear (+ elongation)       u ∈ VectorH1(p)                      W_sh + W_el (f
 =========================  ==================================  ===============================
 
 The energy is written once as an integrand in parts (the bending energy and the rest:
-:meth:`ContinuumProblem._energy` says why); its solver (:class:`ngbet.continuum.numerics.ContinuumSolver`)
+:meth:`ContinuumProblem._energy` says why); its solver (:class:`ngbet.continuum.solver.ContinuumSolver`)
 hands it to ``Variation`` and compiles it, and NGSolve differentiates it for the residual and the
 linearization. The problem holds no form, inverse or timer: those are numerics, the solver's.
 
@@ -25,7 +25,7 @@ from element to element and does not converge, though u, φ and the force do; wi
 it falls as O(h) for p = 2 (0.093, 0.048, 0.025) and as O(h²) for p = 3 (0.0061, 0.0015), with
 the same force (Richardson limit 61.2 N for both pairs at p = 2). p = 1 locks (84 N against
 62 N at h = 10 mm with Λ ∈ L2(0)); use p ≥ 2. For the exact Lagrange method with ``condense`` the
-Newton matrix is augmented (:mod:`ngbet.continuum.linear`, which owns condensation and the sparse
+Newton matrix is augmented (:mod:`ngbet.numerics.linear`, which owns condensation and the sparse
 inverse): the problem gives the augmented integrand (``augmented_energy``) for it.
 
 Stabilization. Λ ∈ L2(p − 2) ties φ to i8 only in the element moments of degree p − 2; the rest
@@ -149,8 +149,8 @@ class ContinuumProblem:
     The energy integrand is ``energy_parts`` (and ``augmented_energy`` for the Newton matrix of the
     condensed exact Lagrangian); the state is ``gf`` with its numpy view ``x``; the load λ = u0 [m]
     moves the Dirichlet entries (:meth:`set_load`). Newton, the path and the estimates drive it
-    through its solver (:class:`ngbet.continuum.numerics.ContinuumSolver`, the
-    :class:`~ngbet.continuum.newton.NonlinearProblem`), which owns the forms and linear algebra.
+    through its solver (:class:`ngbet.continuum.solver.ContinuumSolver`, the
+    :class:`~ngbet.numerics.newton.Problem`), which owns the forms and linear algebra.
     """
 
     def __init__(self, scene: Scene, mesh: ngs.Mesh | None = None, dirichlet: str = DIRICHLET) -> None:
@@ -183,7 +183,7 @@ class ContinuumProblem:
         self.free_all = np.array(list(self.X.FreeDofs()), dtype=bool)
         self.dirichlet = ~self.free_all
         self._load_fields(sp)
-        self._weights = self._norm_weights()
+        self.weights = self._norm_weights()
         self.lam = 0.0
         self._lam_mass: tuple[slice, np.ndarray] | None = None  # Λ's rows and the diagonal of its mass matrix
         self._det_F: ngs.CoefficientFunction | None = None
@@ -411,7 +411,7 @@ class ContinuumProblem:
 
     def norm(self, dx: np.ndarray) -> float:
         """A unit-free norm of a correction (u by 1/L, φ by 1, Λ by 1/K_ref)."""
-        return float(np.linalg.norm(self._weights * dx))
+        return float(np.linalg.norm(self.weights * dx))
 
     # --------------------------------------------------------------------------- fields
     @property

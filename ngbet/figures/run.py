@@ -132,7 +132,7 @@ def _not_installed(exc: ImportError) -> None:
     if not installed:
         log.warning(NO_MATPLOTLIB)
         return
-    from ..engine import STOP_REQUESTED
+    from ..numerics.engine import STOP_REQUESTED
 
     if STOP_REQUESTED.is_set():
         raise KeyboardInterrupt("stop requested by a signal") from exc

@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from ..engine import time_budget
+from ..numerics.engine import time_budget
 from ..scene.document import Scene
 from ..scene.validate import AUTO
 
@@ -95,7 +95,7 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     A setting that cannot carry the load is left for the next (its attempt says why), and so are
     the higher orders on its mesh, which fail alike; each setting after the first has a time
     budget, :data:`RUNG_BUDGET_FACTOR` times the last one's wall time (at least
-    :data:`RUNG_BUDGET_MIN_S`), after which its path stops (:func:`ngbet.engine.time_budget`).
+    :data:`RUNG_BUDGET_MIN_S`), after which its path stops (:func:`ngbet.numerics.engine.time_budget`).
 
     ``run_one(scene, out) -> summary`` runs one discretization into ``out`` (the last attempt's
     files stay there). The returned summary (the runner adds it to summary.json) gains

@@ -3,7 +3,7 @@
 :class:`NewtonLinearSolver` owns what is numerics, not formulation: whether element-local dofs (Λ)
 are condensed out before factorizing, the sparse inverse, the augmented Newton matrix of the exact
 Lagrange method, and the time and count of every assembly, factorization and solve. It is the
-linear algebra of a problem's :class:`~ngbet.continuum.numerics.ContinuumSolver`.
+linear algebra of a problem's :class:`~ngbet.continuum.solver.ContinuumSolver`.
 
 Augmentation. The exact Lagrangian's Λ-Λ block is zero, so Λ cannot be condensed from it. With
 condensation the Newton matrix is therefore that of the mixed penalty with a very large
@@ -117,14 +117,14 @@ class NewtonLinearSolver:
         ``solver.linear_solver`` ("auto" picks by definiteness).
     saddle_energy : callable, optional
         For an exact saddle point (zero Λ-Λ block): K_aug -> the integrand of the augmented
-        energy (in parts, as :func:`ngbet.continuum.compiled.add_energy` takes it) whose Hessian
+        energy (in parts, as :func:`ngbet.numerics.compiled.add_energy` takes it) whose Hessian
         serves as the condensed Newton matrix.
     K_ref : float
         The stiffness that scales K_aug [Pa].
     dx : ngsolve measure
         The integration measure of the energy.
     compile_mode : str
-        How the augmented integrand is compiled (:func:`ngbet.continuum.compiled.compile_energy`):
+        How the augmented integrand is compiled (:func:`ngbet.numerics.compiled.compile_energy`):
         the mode the energy got, so that "auto" does not mix.
     """
 

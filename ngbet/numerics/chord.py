@@ -45,11 +45,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .newton import NewtonReport, NonlinearProblem
+from .newton import NewtonReport, Problem
 from .settings import NewtonSettings
 
 __all__ = ["CHORD_CONTRACTION", "CHORD_ITERATIONS", "CHORD_MARGIN", "CHORD_PREDICTOR_STATES", "FD_STEP",
-           "TANGENT_REFINEMENTS", "TANGENT_RTOL", "ChordRows", "chord", "chord_loads", "extrapolate", "jacobian_times",
+           "TANGENT_REFINEMENTS", "TANGENT_RTOL", "ChordRows", "chord", "extrapolate", "jacobian_times",
            "tangent_at_hand"]
 
 #: a chord correction contracting by more than this (energy norm) linearizes again, once; if it still
@@ -80,7 +80,7 @@ TANGENT_RTOL = 1e-3
 TANGENT_REFINEMENTS = 3
 
 
-def chord(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float,
+def chord(problem: Problem, settings: NewtonSettings, e_ref: float,
           max_iterations: int = CHORD_ITERATIONS, max_contraction: float = CHORD_CONTRACTION,
           refactorizations: int = 1, prior: float = math.nan) -> NewtonReport:
     """Modified Newton from the current x with the factorization at hand (module docstring).
@@ -132,7 +132,7 @@ def extrapolate(states: list[tuple[float, np.ndarray]], lam: float) -> np.ndarra
     return out
 
 
-def jacobian_times(problem: NonlinearProblem, v: np.ndarray, eps: float, r: np.ndarray | None = None) -> np.ndarray:
+def jacobian_times(problem: Problem, v: np.ndarray, eps: float, r: np.ndarray | None = None) -> np.ndarray:
     """J(x) v by differences of the residual (full length): central, or forward from ``r`` = r(x); x is restored."""
     x0 = problem.x.copy()
     try:
@@ -146,7 +146,7 @@ def jacobian_times(problem: NonlinearProblem, v: np.ndarray, eps: float, r: np.n
     return (rp - r) / eps
 
 
-def tangent_at_hand(problem: NonlinearProblem, psi: np.ndarray | None, eps: float, r: np.ndarray | None = None,
+def tangent_at_hand(problem: Problem, psi: np.ndarray | None, eps: float, r: np.ndarray | None = None,
                     rel: float = TANGENT_RTOL, max_refinements: int = TANGENT_REFINEMENTS,
                     start: np.ndarray | None = None) -> tuple[np.ndarray, float] | None:
     """The load tangent at the current (converged) state and dR/dλ (nan without ``psi``), without a linearization.
@@ -159,8 +159,8 @@ def tangent_at_hand(problem: NonlinearProblem, psi: np.ndarray | None, eps: floa
     entries those of the load), else the factorization's own.
     """
     t = problem.load_tangent(1.0) if start is None else start
-    prescribed = getattr(problem, "dirichlet", None)
-    if psi is not None and (prescribed is None or not np.allclose(psi[prescribed], t[prescribed])):
+    prescribed = problem.dirichlet
+    if psi is not None and not np.allclose(psi[prescribed], t[prescribed]):
         raise ValueError("dR/dλ = t·J t needs the reaction's test vector equal to the load tangent on the "
                          "prescribed entries")
     for _ in range(max_refinements):
@@ -171,15 +171,6 @@ def tangent_at_hand(problem: NonlinearProblem, psi: np.ndarray | None, eps: floa
         if abs(term) <= rel * abs(dR):
             return t, dR if psi is not None else math.nan
     return None
-
-
-def chord_loads(problem: NonlinearProblem, grid: tuple[float, ...]) -> tuple[float, ...]:
-    """The loads of the output ``grid`` where the chord is tried: all where the Newton matrix is a Hessian.
-
-    The chord's decrements measure its contraction in the matrix's energy norm; an indefinite
-    (uncondensed saddle-point) matrix has none, and its rows are left to Newton.
-    """
-    return grid if getattr(problem, "can_relax", False) else ()
 
 
 class ChordRows:
@@ -224,7 +215,7 @@ class ChordRows:
             return None
         return extrapolate(s, u0 + h)
 
-    def correct(self, problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
+    def correct(self, problem: Problem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
         """:func:`chord` from the predicted state, judged by the contraction at hand; counts a hand-over."""
         rep = chord(problem, settings, e_ref, prior=self.contraction)
         self.contraction = rep.contraction if rep.converged else math.nan
@@ -248,7 +239,7 @@ class ChordRows:
         """A jump (snap-through): no extrapolation across it."""
         self.states, self.tangents = [], []
 
-    def tangent(self, problem: NonlinearProblem, psi: np.ndarray | None, lam: float, r: np.ndarray | None
+    def tangent(self, problem: Problem, psi: np.ndarray | None, lam: float, r: np.ndarray | None
                 ) -> tuple[np.ndarray, float] | None:
         """:func:`tangent_at_hand` at a chord row at ``lam``, from the extrapolation of the last two tangents.
 
@@ -262,7 +253,6 @@ class ChordRows:
         start = None
         if len(self.tangents) == 2:
             start = extrapolate(self.tangents, lam)
-            prescribed = getattr(problem, "dirichlet", None)
-            if prescribed is not None:
-                start[prescribed] = self.tangents[-1][1][prescribed]
+            prescribed = problem.dirichlet
+            start[prescribed] = self.tangents[-1][1][prescribed]
         return tangent_at_hand(problem, psi, self.fd_step, r, start=start)
