@@ -14,6 +14,7 @@ import logging
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -112,7 +113,7 @@ def fits_folder(cache: Path | None = None) -> Path:
     return Path(cache if cache is not None else DEFAULT_ROOT / "cache") / FITS_FOLDER
 
 
-def cached(folder: Path, name: str, make: Any) -> dict[str, Any]:
+def cached(folder: Path, name: str, make: Callable[[], dict[str, Any]]) -> dict[str, Any]:
     """The fit ``name`` kept in ``folder``, or ``make()`` kept there.
 
     A kept file that cannot be read (truncated, not a JSON object) is named in a warning and made

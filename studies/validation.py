@@ -134,7 +134,8 @@ def build(quick: bool = False, scene: Scene | None = None, cache: Path | None = 
     return study
 
 
-def extract(rec: dict, run_dir: Path, out: Path, docs: dict[str, dict[str, Any]], folder: Path) -> dict:
+def extract(rec: dict[str, Any], run_dir: Path, out: Path, docs: dict[str, dict[str, Any]],
+            folder: Path) -> dict[str, Any]:
     """Measured, ngbet and (for the predicted size) the normalisation method's force at the scored points.
 
     ``docs``: the study's fits and predictions by name; ``folder``: where the two-size fits are kept.

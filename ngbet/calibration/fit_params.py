@@ -12,7 +12,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -227,9 +227,9 @@ class CurveFit:
         from ..kinematics import frame_shear_angle_rad, shear_angle_rad
 
         if self.curve.test == "picture_frame":
-            return np.degrees(frame_shear_angle_rad(self.u_mm, self.scene.picture_frame.frame_mm))
+            return cast(np.ndarray, np.degrees(frame_shear_angle_rad(self.u_mm, self.scene.picture_frame.frame_mm)))
         sp = self.scene.specimen
-        return np.degrees(shear_angle_rad(self.u_mm, sp.length_mm, sp.width_mm))
+        return cast(np.ndarray, np.degrees(shear_angle_rad(self.u_mm, sp.length_mm, sp.width_mm)))
 
 
 @dataclass
@@ -340,7 +340,7 @@ class JointFit:
 
 def band(dlogp: np.ndarray, cov_log: np.ndarray) -> np.ndarray:
     """√diag(G Σ Gᵀ) [N]: the force's standard deviation from the parameters."""
-    return np.sqrt(np.maximum(np.einsum("ik,kl,il->i", dlogp, cov_log, dlogp), 0.0))
+    return cast(np.ndarray, np.sqrt(np.maximum(np.einsum("ik,kl,il->i", dlogp, cov_log, dlogp), 0.0)))
 
 
 def correlation(cov: np.ndarray) -> np.ndarray:

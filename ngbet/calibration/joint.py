@@ -36,7 +36,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -422,7 +422,7 @@ class CurvePrediction:
     @property
     def sd_N(self) -> np.ndarray:
         """The whole standard deviation [N]: parameters and discretization."""
-        return np.sqrt(self.sd_param_N ** 2 + self.sd_disc_N ** 2)
+        return cast(np.ndarray, np.sqrt(self.sd_param_N ** 2 + self.sd_disc_N ** 2))
 
 
 def predict_specimen(result: JointFit, specimen: dict[str, float], u_mm: np.ndarray,

@@ -36,7 +36,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -219,7 +219,7 @@ class RunPathSpread:
     def _force(self, solver: Any, r: np.ndarray) -> float:
         from .observables import reaction_force
 
-        return float(reaction_force(solver.problem, r)) * solver.problem.scene.specimen.t
+        return cast(float, float(reaction_force(solver.problem, r)) * solver.problem.scene.specimen.t)
 
     def fold(self, lam: float, e: Any) -> Any:
         """The estimate ``e`` at ``lam`` [m] with the spread added to its bar (``e`` itself before any relaxation).

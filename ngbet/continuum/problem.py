@@ -63,6 +63,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
+from typing import cast
 
 import ngsolve as ngs
 import numpy as np
@@ -314,7 +315,7 @@ class ContinuumProblem:
         for i, name in enumerate(self.field_names):
             rng = self.X.Range(i)
             w[rng.start:rng.stop] = scale[name]
-        return w * self.free_all
+        return cast(np.ndarray, w * self.free_all)
 
     # --------------------------------------------------------------------------- load, state, admissibility
     def set_load(self, lam: float) -> None:
@@ -407,7 +408,7 @@ class ContinuumProblem:
 
     def clamp_predictor(self, dlam: float) -> np.ndarray:
         """The clamp's linear field (X/L, 0) dlam (the picture frame: its affine map's rate ψ_u dlam)."""
-        return dlam * self._clamp_dir
+        return cast(np.ndarray, dlam * self._clamp_dir)
 
     def norm(self, dx: np.ndarray) -> float:
         """A unit-free norm of a correction (u by 1/L, φ by 1, Λ by 1/K_ref)."""

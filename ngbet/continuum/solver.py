@@ -38,6 +38,7 @@ their own with the same settings.
 from __future__ import annotations
 
 import time
+from typing import cast
 
 import ngsolve as ngs
 import numpy as np
@@ -181,7 +182,7 @@ class ContinuumSolver:
         self.a.Apply(self._vec, self._r)
         self._t_residual += time.perf_counter() - t0
         self._n_residual += 1
-        return self._r.FV().NumPy().copy()
+        return cast(np.ndarray, self._r.FV().NumPy().copy())
 
     def energy(self) -> float:
         """The total energy (Lagrangian) per unit thickness at x [J/m]."""
@@ -219,7 +220,7 @@ class ContinuumSolver:
         self.linear.solve_into(self._w, self._w2)
         dx = -self._w2.FV().NumPy()
         dx[self.dirichlet] = 0.0
-        return dx
+        return cast(np.ndarray, dx)
 
     def load_tangent(self, dlam: float) -> np.ndarray:
         """The load tangent times dlam: Dirichlet entries moved by dlam, the others −J⁻¹ J_fd dlam."""

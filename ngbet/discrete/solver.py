@@ -54,7 +54,7 @@ import math
 import time
 from collections.abc import Generator, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import scipy.sparse as sp
@@ -219,7 +219,7 @@ class ShiftedNewton:
         w = np.where(self.problem.fixed, load - 0.5 * ht.shift, 0.0)
         t = 0.5 * ht.shift + w
         t[free] += -lin.solve((K @ w)[free], symmetric_rhs=True)
-        return t
+        return cast(np.ndarray, t)
 
     def predict(self, u0: float, h: float) -> None:
         """Tangent predictor with the second-order (Hermite) term, or the clamp's ramp."""

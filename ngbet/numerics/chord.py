@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import cast
 
 import numpy as np
 
@@ -140,10 +141,10 @@ def jacobian_times(problem: Problem, v: np.ndarray, eps: float, r: np.ndarray | 
         rp = problem.residual()
         if r is None:
             problem.x[:] = x0 - eps * v
-            return (rp - problem.residual()) / (2.0 * eps)
+            return cast(np.ndarray, (rp - problem.residual()) / (2.0 * eps))
     finally:
         problem.x[:] = x0
-    return (rp - r) / eps
+    return cast(np.ndarray, (rp - r) / eps)
 
 
 def tangent_at_hand(problem: Problem, psi: np.ndarray | None, eps: float, r: np.ndarray | None = None,
