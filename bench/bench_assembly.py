@@ -115,7 +115,7 @@ def child(mode: str, h: float, p: int, threads: int, repeats: int, save: str) ->
     if mode == "bfi":
         form = _plain_form(pb.X)
     assemble = form.Assemble if mode == "bfi" else (lambda: form.AssembleLinearization(pb.gf.vec))
-    pr.set_load(0.03)
+    pr.state.set_load(0.03)
     pr.x[pb.free_all] += 1e-4 * np.random.default_rng(0).standard_normal(int(pb.free_all.sum()))
     ngs.SetNumThreads(threads)
     ta, tr = [], []

@@ -96,7 +96,7 @@ def carry(problem, target, first_step, settings, *, psi=None, hessian=None, watc
 
 def capabilities(solver):
     """What a continuum solver can do beyond the Problem protocol, as ``ngbet run`` hands it to the path."""
-    return {"hessian": solver if solver.can_relax else None, "watch": solver, "locate": solver.problem}
+    return {"hessian": solver if solver.can_relax else None, "watch": solver.problem, "locate": solver.problem}
 
 
 class OneDofToy:
@@ -112,6 +112,10 @@ class OneDofToy:
     @property
     def lam(self):
         return float(self.x[0])
+
+    @property
+    def state(self):
+        return self
 
     def solve(self, r):
         return np.array([0.0, -r[1] / self.J])

@@ -22,6 +22,7 @@ class Hardening:
     dirichlet = np.array([True, False])
 
     def __init__(self, lam: float, y: float) -> None:
+        self.state = self
         self.x = np.array([lam, y])
         self.J0 = 1.0
         self.factorizations = 0

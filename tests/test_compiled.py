@@ -52,7 +52,7 @@ def test_the_interpreted_linearization_is_the_hessian():
         "discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 0.0,
         "solver.compile": "interpret"})))
     assert pr.compile_mode == "interpret"
-    pr.set_load(0.02)
+    pr.state.set_load(0.02)
     rng = np.random.default_rng(0)
     free = pr.problem.free_all
     pr.x[free] += 1e-4 * rng.standard_normal(int(free.sum()))
@@ -74,7 +74,7 @@ def _state(h_mm: float, mode: str) -> ContinuumSolver:
     pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{
         "discretization.mesh_size_mm": h_mm, "discretization.corner_mesh_size_mm": 0.0, "solver.compile": mode})))
     assert pr.compile_mode == mode
-    pr.set_load(0.02)
+    pr.state.set_load(0.02)
     free = pr.problem.free_all
     pr.x[free] += 1e-4 * np.random.default_rng(0).standard_normal(int(free.sum()))
     return pr

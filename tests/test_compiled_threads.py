@@ -39,7 +39,7 @@ def test_auto_threads_run_serial_and_assemble_in_their_own_task_manager(monkeypa
 def _problem() -> ContinuumSolver:
     pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
                                                                            "solver.compile": "interpret"})))
-    pr.set_load(0.02)
+    pr.state.set_load(0.02)
     free = pr.problem.free_all
     pr.x[free] += 1e-4 * np.random.default_rng(0).standard_normal(int(free.sum()))
     return pr

@@ -519,6 +519,7 @@ class _Pitchfork:
     def __init__(self):
         self.x = np.zeros(3)
         self.lam = 0.0
+        self.state = self
 
     def set_load(self, lam):
         self.lam = lam

@@ -158,14 +158,14 @@ def test_the_barrier_is_switched_on_where_the_yarns_come_near():
     order 2p."""
     K, s_jam = 7e5, S_JAM
     pb, _ = _sheared_problem(60.0)
-    pb.converged()
+    pb.problem.converged()
     assert not pb.problem.jamming_on
     pb, _ = _sheared_problem(84.0)
     E_before = pb.energy()
-    pb.converged()
+    pb.problem.converged()
     assert pb.problem.jamming_on and pb.energy() == E_before
     pb, F = _sheared_problem(86.0)
-    pb.converged()
+    pb.problem.converged()
     assert pb.problem.jamming_on
     E_on = pb.energy()
     pb.problem.jamming.elements.Clear()
@@ -208,13 +208,13 @@ def test_no_state_of_the_path_has_crossed_yarns_that_the_barrier_missed():
     jam = solver.problem.jamming
     sine, points = jam._check
     smallest = []
-    original = solver.converged
+    original = solver.problem.converged
 
     def watched() -> None:
         smallest.append((jam.on, float(np.min(np.asarray(sine(points))))))
         original()
 
-    solver.converged = watched
+    solver.problem.converged = watched
     steps = Steps(load_path(solver, scene))
     for _ in steps:
         pass

@@ -33,7 +33,7 @@ def test_the_solver_counts_what_it_does_and_the_problem_nothing():
     with the summary's keys (timers in seconds, never negative)."""
     solver = continuum_solver(ContinuumProblem(_scene()))
     assert solver.counts == {"factorizations": 0, "solves": 0, "residuals": 0}
-    solver.set_load(0.01)
+    solver.state.set_load(0.01)
     r = solver.residual()
     solver.factorize()
     solver.solve(r)
@@ -63,7 +63,7 @@ def test_the_enriched_problems_and_branch_copies_get_solvers_of_the_runs_setting
         if settings is mine:
             enriched = [est._enriched, est._enriched2]
             assert [e.settings for e in enriched] == [mine, mine]
-            assert [e.inverse_type for e in enriched] == ["umfpack", "umfpack"]
+            assert [e.linear.inverse_type for e in enriched] == ["umfpack", "umfpack"]
             assert [e.problem.scene.discretization.p_u for e in enriched] == [3, 4]
             spread = RunPathSpread(solver)
             spread.left(0.005, solver.x, snap=True)

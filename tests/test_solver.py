@@ -102,7 +102,7 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
             + physics.penalty_constraint(phi, inv.i8, problem.K_s))  # the default stabilization
     assert problem.K_s_range[0] > 0
     aug = ngs.BilinearForm(X, symmetric=True)
-    aug += ngs.Variation((base + physics.mixed_penalty_constraint(phi, inv.i8, lam, solver.K_aug)) * problem.dx)
+    aug += ngs.Variation((base + physics.mixed_penalty_constraint(phi, inv.i8, lam, solver.linear.K_aug)) * problem.dx)
     with ngs.TaskManager():
         solver.a.AssembleLinearization(problem.gf.vec)
         aug.AssembleLinearization(problem.gf.vec)

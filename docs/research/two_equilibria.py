@@ -71,7 +71,7 @@ def main() -> None:
         B = continuum_solver(ContinuumProblem(scene(p)))
         for k in range(len(B.problem.field_names)):
             B.problem.gf.components[k].Set(A.problem.gf.components[k])
-        B.set_load(U0_MM * 1e-3)
+        B.state.set_load(U0_MM * 1e-3)
         st = dataclasses.replace(newton_settings(scene(p)), max_iterations=60, min_damping=1 / 1024)
         rep = newton(B, st, B.energy())
         if not rep.converged:

@@ -247,7 +247,7 @@ class ForceErrorEstimator:
         up = enr.problem
         for i in range(len(src.field_names)):
             up.gf.components[i].Set(src.gf.components[i])
-        enr.set_load(lam)
+        enr.state.set_load(lam)
         p_enr = up.scene.discretization.p_u
         x0 = enr.x.copy()
         r0 = enr.residual()
@@ -287,8 +287,8 @@ def one_newton_step(problem: Any, r: np.ndarray | None = None) -> Any:
     rep = NewtonReport(ok, 1, [abs(float(dx @ r))], [1.0], "one step" if ok else "not finite",
                        residual=r if ok else None)
     if ok:  # the next (simplified) correction, from the same factorization: how far the step is from converged
-        n = problem.norm(dx)
-        rep.contraction = problem.norm(problem.solve(r)) / n if n > 0 else 0.0
+        n = problem.state.norm(dx)
+        rep.contraction = problem.state.norm(problem.solve(r)) / n if n > 0 else 0.0
     return rep
 
 

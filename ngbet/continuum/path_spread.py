@@ -142,10 +142,10 @@ class PathSpread:
         while b.lam < lam:
             h = min(h, lam - b.lam)
             p.x[:] = b.x
-            p.set_load(b.lam)
+            p.state.set_load(b.lam)
             p.factorize()
             p.x[:] += p.load_tangent(h)
-            p.set_load(b.lam + h)
+            p.state.set_load(b.lam + h)
             e_ref = p.energy()
             rep = newton(p, self.settings, e_ref if math.isfinite(e_ref) else 0.0)
             its += rep.iterations
@@ -161,9 +161,9 @@ class PathSpread:
                 log.info("path spread: the branch left at %.6g mm %s", b.left_mm, b.ended)
                 return {"stable": False, "ended": b.ended, "newton_iterations": its}
         p.x[:] = b.x
-        p.set_load(lam)
+        p.state.set_load(lam)
         F = float(self.force(p, p.residual()))
-        dist = float(p.norm(p.x - x_path)) if x_path is not None else math.inf  # unit-free
+        dist = float(p.state.norm(p.x - x_path)) if x_path is not None else math.inf  # unit-free
         if dist <= SAME_STATE or abs(F - force_N) <= SAME_FORCE * abs(force_N):
             b.ended = f"rejoined the path at {lam * 1e3:.6g} mm"
             return {"stable": False, "ended": b.ended, "force_N": F, "distance_to_path": dist,

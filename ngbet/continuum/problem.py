@@ -334,6 +334,19 @@ class ContinuumProblem:
         """
         self.jamming.watch()
 
+    def jamming_missed(self) -> bool:
+        """The state was solved without the jamming barrier where it holds: switch it on and say so.
+
+        True when the barrier was off and the yarns are closer than the jamming angle somewhere
+        (:meth:`~ngbet.continuum.jamming.JammingBarrier.missed`): the state is no equilibrium, the
+        barrier is on from now on and the increment is to be solved again
+        (:class:`~ngbet.numerics.newton.JammingWatch`).
+        """
+        if not self.jamming.missed():
+            return False
+        self.jamming.switch_on()
+        return True
+
     def constraint_moments(self, r: np.ndarray) -> float:
         """‖Π(φ − i8)‖²: the squared element moments of the constraint at the state whose residual is ``r``.
 

@@ -28,9 +28,11 @@ serve, and those modules talk to the protocol alone, as NGSolve's Newton to a fo
            dx = -J^{-1} r \text{ on the free dofs},\quad
            \partial x/\partial\lambda = (\psi_D, -J_{ff}^{-1} J_{fD}\,\psi_D)
 
-The state x, the load λ (``set_load``), the unit-free norm, the clamp predictor and the watch of
-a converged state are the problem's, reached through the solver (the same numpy view ``x``);
-physical queries (forces, observables, fields) go to the problem itself (``solver.problem``). An
+The state x, the load λ (``set_load``), the unit-free norm, the clamp predictor, the watch of a
+converged state and what is admissible are the problem's: the numerics reach them as
+``solver.state`` (the problem itself, an :class:`~ngbet.numerics.newton.AdmissibleState`), and
+``x`` is the same numpy view in both; physical queries (forces, observables, fields) go to the
+problem too (``solver.problem``). An
 enriched problem of the error estimate and a branch copy of the path spread get a solver of
 their own with the same settings.
 """
@@ -40,11 +42,10 @@ from __future__ import annotations
 import time
 from typing import cast
 
-import ngsolve as ngs
 import numpy as np
 
 from ..numerics.compiled import add_energy
-from ..numerics.linear import NewtonLinearSolver, energy_form, pick_inverse
+from ..numerics.linear import LinearSolver, NewtonLinearSolver, energy_form, pick_inverse
 from ..numerics.settings import SolverSettings
 from .problem import ContinuumProblem
 
@@ -54,9 +55,8 @@ __all__ = ["ContinuumSolver"]
 class ContinuumSolver:
     """The energy forms and linear algebra of a :class:`~ngbet.continuum.problem.ContinuumProblem`.
 
-    Implements :class:`ngbet.numerics.newton.Problem` and :class:`~ngbet.numerics.newton.JammingWatch`;
-    where :attr:`can_relax` (its Newton matrix is a Hessian) also
-    :class:`~ngbet.numerics.newton.Relaxable`.
+    Implements :class:`ngbet.numerics.newton.Problem`; where :attr:`can_relax` (its Newton matrix
+    is a Hessian) also :class:`~ngbet.numerics.newton.Relaxable`.
 
     Parameters
     ----------
@@ -79,12 +79,16 @@ class ContinuumSolver:
         # the energy form is linearized unless the augmented Newton matrix of linear.py replaces it
         linearized = not (condense and saddle is not None)
         self.compile_mode = add_energy(self.a, problem.energy_parts, problem.dx, lin.compile, X.ndof, linearized)
-        self.linear = NewtonLinearSolver(self.a, condense, lin.linear_solver, saddle, problem.K_ref, problem.dx,
-                                         lin.compile if self.compile_mode == "native" else "interpret")
+        self.linear: LinearSolver = NewtonLinearSolver(
+            self.a, condense, lin.linear_solver, saddle, problem.K_ref, problem.dx,
+            lin.compile if self.compile_mode == "native" else "interpret")
         forms = [(self.a, linearized)] if self.linear.form is self.a else [(self.a, False), (self.linear.form, True)]
         problem.jamming.add_to(forms)
+        #: the problem as the numerics see it (:class:`~ngbet.numerics.newton.AdmissibleState`): the
+        #: load, the Dirichlet entries, the norm, what is admissible
+        self.state = problem
         self.x = problem.x  # the problem's state (a view of its GridFunction)
-        self.dirichlet = problem.dirichlet  # its Dirichlet entries (the chord's check of the reaction's test vector)
+        self.dirichlet = problem.dirichlet  # its Dirichlet entries
         self._vec = problem.gf.vec
         self._r = self._vec.CreateVector()
         self._w = self._vec.CreateVector()
@@ -93,21 +97,6 @@ class ContinuumSolver:
         self._n_residual = 0
 
     # --------------------------------------------------------------------------- what the run reports
-    @property
-    def K_aug(self) -> float:
-        """K_aug of the augmented Newton matrix (0 when not augmented) [Pa]."""
-        return self.linear.K_aug
-
-    @property
-    def inverse_type(self) -> str:
-        """The sparse inverse in use."""
-        return self.linear.inverse_type
-
-    @property
-    def freedofs(self) -> ngs.BitArray:
-        """The dofs the Newton matrix is factorized on (after condensation)."""
-        return self.linear.freedofs
-
     @property
     def timers(self) -> dict[str, float]:
         """Wall time [s] by kind: assembly, factorization, solve, residual."""
@@ -121,59 +110,6 @@ class ContinuumSolver:
     def ndofs(self) -> dict[str, int]:
         """Degrees of freedom per field, in all, and those left after condensation ("factorized")."""
         return {**self.problem.ndofs(), "factorized": int(sum(self.linear.freedofs))}
-
-    # --------------------------------------------------------------------------- the problem's load and state
-    @property
-    def lam(self) -> float:
-        """The load λ = u0 [m] of the state."""
-        return self.problem.lam
-
-    @property
-    def weights(self) -> np.ndarray:
-        """The weights of :meth:`norm` (read by the relaxation's kick and the arc length's inner product)."""
-        return self.problem.weights
-
-    def set_load(self, lam: float) -> None:
-        """Set the load λ = u0 [m]: the Dirichlet entries of x follow it."""
-        self.problem.set_load(lam)
-
-    def clamp_predictor(self, dlam: float) -> np.ndarray:
-        """The clamp's linear field (X/L, 0) dlam."""
-        return self.problem.clamp_predictor(dlam)
-
-    def norm(self, dx: np.ndarray) -> float:
-        """A unit-free norm of a correction (u by 1/L, φ by 1, Λ by 1/K_ref)."""
-        return self.problem.norm(dx)
-
-    def converged(self) -> None:
-        """The current state is an equilibrium the path keeps (:meth:`ContinuumProblem.converged`)."""
-        self.problem.converged()
-
-    def jamming_missed(self) -> bool:
-        """The state was solved without the jamming barrier where it holds: switch it on and say so.
-
-        True when the barrier was off and the yarns are closer than the jamming angle somewhere
-        (:meth:`~ngbet.continuum.jamming.JammingBarrier.missed`): the state is no equilibrium, the
-        barrier is on from now on and the increment is to be solved again.
-        """
-        jam = self.problem.jamming
-        if not jam.missed():
-            return False
-        jam.switch_on()
-        return True
-
-    def admissible(self) -> str:
-        """Why the current state is not a physical one ("" when it is): :meth:`ContinuumProblem.admissible`."""
-        return self.problem.admissible()
-
-    def begin_relaxation(self) -> None:
-        """A relaxation starts from the current state (:meth:`ContinuumProblem.begin_relaxation`)."""
-        self.problem.begin_relaxation()
-
-    @property
-    def inadmissible_hint(self) -> str:
-        """What keeps the specimen out of inverted states (:attr:`ContinuumProblem.inadmissible_hint`)."""
-        return self.problem.inadmissible_hint
 
     # --------------------------------------------------------------------------- the forms
     def residual(self) -> np.ndarray:

@@ -29,7 +29,7 @@ from . import observables as obs
 from . import physics
 
 if TYPE_CHECKING:
-    from ..numerics.linear import NewtonLinearSolver
+    from ..numerics.linear import LinearSolver
     from .problem import ContinuumProblem
 
 __all__ = ["DISCRETIZATION_MODE_RATIO", "EllipticityLoss", "ModeClass", "StabilityDiagnosis", "TangentSolver",
@@ -49,7 +49,7 @@ class TangentSolver(Protocol):
     """
 
     problem: ContinuumProblem
-    linear: NewtonLinearSolver
+    linear: LinearSolver
 
     def factorize(self, shift: float = 0.0) -> float:
         """Linearize at the current state and factorize, the diagonal raised by >= ``shift``; returns the shift."""

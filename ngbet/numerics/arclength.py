@@ -100,7 +100,7 @@ class _Path:
     def __init__(self, problem: Problem, weights: np.ndarray, L: float, settings: NewtonSettings) -> None:
         self.p, self.w, self.L, self.settings = problem, weights, L, settings
         self.x0 = problem.x.copy()
-        self.lam0 = problem.lam
+        self.lam0 = problem.state.lam
         self.tau_x = np.zeros_like(self.x0)
         self.tau_l = 1.0
 
@@ -125,7 +125,7 @@ class _Path:
         """
         p = self.p
         p.x[:] = self.x0 + ds * self.tau_x
-        p.set_load(self.lam0 + ds * self.tau_l if land is None else land)
+        p.state.set_load(self.lam0 + ds * self.tau_l if land is None else land)
         if land is not None:
             e = p.energy()
             rep = newton(p, self.settings, e if math.isfinite(e) else 0.0)
@@ -146,14 +146,14 @@ class _Path:
                 return False, it, history, "diverged", None
             T = p.load_tangent(1.0)
             dlam = -self.inner(self.tau_x, 0.0, dx, 0.0) / self.inner(self.tau_x, self.tau_l, T, 1.0)
-            lam = p.lam + dlam
+            lam = p.state.lam + dlam
             p.x[:] += dx + dlam * np.where(self.w > 0, T, 0.0)
-            p.set_load(lam)
+            p.state.set_load(lam)
         return False, self.settings.max_iterations, history, "iteration limit", None
 
     def commit(self) -> None:
         self.x0 = self.p.x.copy()
-        self.lam0 = self.p.lam
+        self.lam0 = self.p.state.lam
 
     def snapshot(self) -> tuple[np.ndarray, float, np.ndarray, float]:
         """The converged point and its tangent."""
@@ -166,7 +166,7 @@ class _Path:
 
     def restore(self) -> None:
         self.p.x[:] = self.x0
-        self.p.set_load(self.lam0)
+        self.p.state.set_load(self.lam0)
 
 
 def arclength_steps(problem: Problem, ctl: ArcLengthSettings, settings: NewtonSettings, *,
@@ -204,7 +204,7 @@ def _arclength_steps(problem: Problem, ctl: ArcLengthSettings, settings: NewtonS
                      lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None, result: PathResult | None,
                      branch: str, branch_sign: float) -> Generator[StepRecord, None, PathResult]:
     """The generator of :func:`arclength_steps` (its arguments checked)."""
-    res = result if result is not None else PathResult(problem.lam)
+    res = result if result is not None else PathResult(problem.state.lam)
     path = _Path(problem, weights, length, settings)
     n = path.tangent(orient=False)
     # the first step moves the state as a load step of first_step would (Δx ≈ T Δu0)
@@ -223,7 +223,7 @@ def _arclength_steps(problem: Problem, ctl: ArcLengthSettings, settings: NewtonS
         to_target = _distance_to(path, land, ds)
         ds = min(ds, to_target)
         ok, its, hist, why, r = path.step(ds, land if ds == to_target < math.inf else None)
-        lam_to = problem.lam
+        lam_to = problem.state.lam
         res.attempts.append(Attempt(path.lam0, lam_to, ok, its, why, hist))
         if not ok:
             path.restore()
@@ -253,7 +253,7 @@ def _arclength_steps(problem: Problem, ctl: ArcLengthSettings, settings: NewtonS
 def _step_record(problem: Problem, psi: np.ndarray, number: int, its: int, hist: list[float],
                  r: np.ndarray | None, reason: str) -> StepRecord:
     """The record of the converged point the problem is at (its tangent factorized)."""
-    rec = StepRecord(number, problem.lam, its, residual=r, history=hist, reason=reason)
+    rec = StepRecord(number, problem.state.lam, its, residual=r, history=hist, reason=reason)
     rec.dforce_du0 = problem.load_derivative(psi, problem.load_tangent(1.0))
     return rec
 
@@ -295,7 +295,7 @@ class _Switch:
         path.x0, path.lam0 = x_c, lam_c
         while ds >= ds_min:
             ok, its, hist, why, r = path.step(ds)
-            lam_to = self.p.lam
+            lam_to = self.p.state.lam
             self.res.attempts.append(Attempt(lam_c, lam_to, ok, its, why, hist))
             if ok:
                 path.commit()

@@ -160,7 +160,7 @@ def tangent_at_hand(problem: Problem, psi: np.ndarray | None, eps: float, r: np.
     entries those of the load), else the factorization's own.
     """
     t = problem.load_tangent(1.0) if start is None else start
-    prescribed = problem.dirichlet
+    prescribed = problem.state.dirichlet
     if psi is not None and not np.allclose(psi[prescribed], t[prescribed]):
         raise ValueError("dR/dλ = t·J t needs the reaction's test vector equal to the load tangent on the "
                          "prescribed entries")
@@ -254,6 +254,6 @@ class ChordRows:
         start = None
         if len(self.tangents) == 2:
             start = extrapolate(self.tangents, lam)
-            prescribed = problem.dirichlet
+            prescribed = problem.state.dirichlet
             start[prescribed] = self.tangents[-1][1][prescribed]
         return tangent_at_hand(problem, psi, self.fd_step, r, start=start)

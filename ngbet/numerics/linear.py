@@ -18,7 +18,7 @@ import contextlib
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextvars import ContextVar
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import ngsolve as ngs
 import numpy as np
@@ -28,7 +28,7 @@ from .compiled import add_energy
 if TYPE_CHECKING:
     import scipy.sparse as sps
 
-__all__ = ["CHOLMOD_MIN_DOFS", "LAGRANGE_AUGMENTATION", "NewtonLinearSolver", "assembly_thread_count",
+__all__ = ["CHOLMOD_MIN_DOFS", "LAGRANGE_AUGMENTATION", "LinearSolver", "NewtonLinearSolver", "assembly_thread_count",
            "assembly_threads", "energy_form", "pick_inverse"]
 
 #: K_aug / K_ref for the condensed Newton matrix of the exact Lagrange method: large enough that
@@ -102,6 +102,44 @@ def energy_form(X: ngs.FESpace, inverse: str, condense: bool) -> ngs.BilinearFor
     """
     lower = inverse in ("sparsecholesky", "cholmod") and X.mesh.levels == 1
     return ngs.BilinearForm(X, symmetric=True, symmetric_storage=lower, condense=condense)
+
+
+class LinearSolver(Protocol):
+    """The linear algebra of a Newton matrix: linearize at a state, factorize, solve (NGSolve's ``inverse=``).
+
+    What a problem's solver (:class:`ngbet.continuum.solver.ContinuumSolver`) and the stability
+    test (:mod:`ngbet.continuum.stability`) ask of it; :class:`NewtonLinearSolver` is the one there is.
+    """
+
+    #: whether element-local dofs are condensed out before factorizing
+    condensed: bool
+    #: the sparse inverse in use ("sparsecholesky", "umfpack", "cholmod", ...)
+    inverse_type: str
+    #: K_aug of the augmented Newton matrix (0 when not augmented) [Pa]
+    K_aug: float
+    #: the form whose matrix is factorized (its harmonic extension carries the condensed dofs)
+    form: ngs.BilinearForm
+    #: the dofs the Newton matrix is factorized on (after condensation)
+    freedofs: ngs.BitArray
+    #: wall time [s] of the assemblies, factorizations and solves, and their counts
+    timers: dict[str, float]
+    counts: dict[str, int]
+
+    @property
+    def mat(self) -> ngs.BaseMatrix:
+        """The assembled Newton matrix (condensed: the Schur complement on the coupling dofs)."""
+
+    def factorize(self, state: ngs.BaseVector, shift: float = 0.0) -> float:
+        """Linearize at ``state`` and factorize (shifted by s|diag| with s ≥ ``shift`` > 0); returns s."""
+
+    def solve_into(self, r: ngs.BaseVector, out: ngs.BaseVector) -> None:
+        """Out = J⁻¹ r (free dofs), condensation handled; r is overwritten."""
+
+    def extend(self, vec: ngs.BaseVector) -> None:
+        """Add the condensed local dofs that follow the coupling dofs of ``vec``."""
+
+    def free_matrix(self) -> tuple[sps.csr_matrix, np.ndarray]:
+        """The free block of the Newton matrix as a full symmetric scipy matrix, and the free dofs."""
 
 
 class NewtonLinearSolver:

@@ -25,7 +25,8 @@ import numpy as np
 from ..errors import Attempt
 from .settings import NewtonSettings
 
-__all__ = ["Diagnosis", "JammingWatch", "Locating", "NewtonReport", "Problem", "Relaxable", "failure_pattern", "newton"]
+__all__ = ["AdmissibleState", "Diagnosis", "JammingWatch", "Locating", "NewtonReport", "Problem", "Relaxable", "State",
+           "failure_pattern", "newton"]
 
 
 class Diagnosis(Protocol):
@@ -35,14 +36,11 @@ class Diagnosis(Protocol):
         """The diagnosis for the error message."""
 
 
-class Problem(Protocol):
-    """What the numerics need from a problem: a state, its load, residual, energy and linear algebra.
+class State(Protocol):
+    """The state side of a problem: the unknowns, the load they carry and how a correction is measured.
 
     All vectors are numpy arrays of full length, Dirichlet entries included. The continuum's is
-    :class:`ngbet.continuum.solver.ContinuumSolver` (a problem bound to its energy forms and linear
-    solver), as NGSolve's ``NewtonSolver(a, u, inverse=...)`` is bound to a form, a state and an
-    inverse. What only some problems can do is asked for by the capability protocols below and
-    handed to the numerics explicitly (``hessian=``, ``watch=``, ``locate=``), never probed.
+    :class:`ngbet.continuum.problem.ContinuumProblem`.
     """
 
     x: np.ndarray  # the state, including Dirichlet entries
@@ -61,6 +59,47 @@ class Problem(Protocol):
 
     def set_load(self, lam: float) -> None:
         """Set the Dirichlet entries of ``x`` for load λ (free entries untouched)."""
+
+    def clamp_predictor(self, dlam: float) -> np.ndarray:
+        """A cheap load-following guess (for the problem to define)."""
+
+    def norm(self, dx: np.ndarray) -> float:
+        """A unit-free norm of a correction."""
+
+    def converged(self) -> None:
+        """The current x is an equilibrium the path keeps (the continuum's jamming barrier watches it)."""
+
+
+class AdmissibleState(State, Protocol):
+    """A state that can be outside the energy's domain (the continuum's inverted material)."""
+
+    def admissible(self) -> str:
+        """Why the current state is not a physical one ("" when it is)."""
+
+    def begin_relaxation(self) -> None:
+        """A relaxation starts from the current state (what is admissible is judged against it)."""
+
+    @property
+    def inadmissible_hint(self) -> str:
+        """What keeps the problem out of its inadmissible states, for a message ("" if nothing)."""
+
+
+class Problem(Protocol):
+    """What the numerics drive: a :class:`State` bound to its residual, energy and linear algebra.
+
+    As NGSolve's ``NewtonSolver(a, u, inverse=...)`` is bound to a form, a state and an inverse:
+    the continuum's is :class:`ngbet.continuum.solver.ContinuumSolver` (a problem bound to its
+    energy forms and linear solver). ``x`` is the state's vector (the same array as ``state.x``),
+    which the residual and the linearization read. What only some problems can do is asked for by
+    the capability protocols below and handed to the numerics explicitly (``hessian=``,
+    ``watch=``, ``locate=``), never probed.
+    """
+
+    x: np.ndarray
+
+    @property
+    def state(self) -> State:
+        """The state: load, Dirichlet entries, norm."""
 
     def residual(self) -> np.ndarray:
         """r(x), full length (Dirichlet rows hold the reactions)."""
@@ -81,17 +120,8 @@ class Problem(Protocol):
     def load_tangent(self, dlam: float) -> np.ndarray:
         """Dx with Dirichlet entries moved by dlam and free entries from −J⁻¹ J_fd dlam."""
 
-    def clamp_predictor(self, dlam: float) -> np.ndarray:
-        """A cheap load-following guess (for the problem to define)."""
-
-    def norm(self, dx: np.ndarray) -> float:
-        """A unit-free norm of a correction."""
-
     def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
         """psi·(J tangent): the load derivative of the reaction psi·r along the tangent."""
-
-    def converged(self) -> None:
-        """The current x is an equilibrium the path keeps (the continuum's jamming barrier watches it)."""
 
 
 class Relaxable(Problem, Protocol):
@@ -101,21 +131,15 @@ class Relaxable(Problem, Protocol):
     contraction is measured in the matrix's energy norm) need beyond :class:`Problem`.
     """
 
+    @property
+    def state(self) -> AdmissibleState:
+        """The state, with what is admissible."""
+
     def lowest_mode(self) -> tuple[float, np.ndarray]:
         """The lowest eigenvalue of the scaled tangent at the current state and its mode (full length)."""
 
     def merit(self, r: np.ndarray) -> float:
         """A merit for descent at the state whose residual is ``r`` (infinite outside the energy's domain)."""
-
-    def admissible(self) -> str:
-        """Why the current state is not a physical one ("" when it is)."""
-
-    def begin_relaxation(self) -> None:
-        """A relaxation starts from the current state (what is admissible is judged against it)."""
-
-    @property
-    def inadmissible_hint(self) -> str:
-        """What keeps the problem out of its inadmissible states, for a message ("" if nothing)."""
 
 
 class JammingWatch(Protocol):
@@ -196,7 +220,7 @@ def _damped_step(problem: Problem, dx: np.ndarray, last: bool, min_damping: floa
     None (x restored) when λ fell below ``min_damping``.
     """
     x0 = problem.x.copy()
-    ndx = problem.norm(dx)
+    ndx = problem.state.norm(dx)
     lam = 1.0
     while True:
         problem.x[:] = x0 + lam * dx
@@ -205,7 +229,7 @@ def _damped_step(problem: Problem, dx: np.ndarray, last: bool, min_damping: floa
             if last:  # quadratic convergence: the last step needs no test
                 return lam, r_trial, None, 0.0
             dx_bar = problem.solve(r_trial)
-            theta = problem.norm(dx_bar) / ndx if ndx > 0 else 0.0
+            theta = problem.state.norm(dx_bar) / ndx if ndx > 0 else 0.0
             if theta <= 1.0 - lam / 4.0:
                 return lam, r_trial, dx_bar, theta
         lam *= 0.5

@@ -133,7 +133,7 @@ class SaddlePointNewton:
         if self.settings.predictor == "tangent":
             p.x[:] += h * self._load_tangent()
         else:
-            p.x[:] += p.clamp_predictor(h)
+            p.x[:] += p.state.clamp_predictor(h)
         self._predicted = p.x.copy() if self.relax_below > 0 else None
 
     def _load_tangent(self) -> np.ndarray:
@@ -148,7 +148,7 @@ class SaddlePointNewton:
     def correct(self, u0: float, h: float) -> Outcome:
         """Newton at the load u0 + h from the predicted state."""
         p = self.problem
-        p.set_load(u0 + h)
+        p.state.set_load(u0 + h)
         e_ref = p.energy()
         e_ref = e_ref if math.isfinite(e_ref) else 0.0
         self._jump = self._left = None
@@ -160,7 +160,7 @@ class SaddlePointNewton:
                 return Outcome("converged", rep.iterations, list(rep.history), rep.reason)
             log.debug("chord at %.6g mm: %s; Newton takes over", (u0 + h) * 1e3, rep.reason)
             self._predict_newton(h)  # from Newton's own predictor
-            p.set_load(u0 + h)
+            p.state.set_load(u0 + h)
             e_ref = p.energy()
             e_ref = e_ref if math.isfinite(e_ref) else 0.0
         self.chord.refactorized()  # Newton factorizes anew
@@ -182,7 +182,7 @@ class SaddlePointNewton:
         self.relaxations += 1
         before = self._state_at(self._saved, u0)
         p.x[:] = self._predicted
-        p.set_load(u0 + h)
+        p.state.set_load(u0 + h)
         log.info("Newton failed on %.6g -> %.6g mm (%s): relaxing to a stable state", u0 * 1e3, (u0 + h) * 1e3,
                  failed.reason)
         rel = relax(self.hessian, self.settings, e_ref, self.relax_settings)
@@ -212,14 +212,14 @@ class SaddlePointNewton:
         """Energy and reaction psi·r of the state x at load u0 (the problem's state is left at x)."""
         p = self.problem
         p.x[:] = x
-        p.set_load(u0)
+        p.state.set_load(u0)
         r = p.residual()
         return p.energy(), float(self._psi @ r) if self._psi is not None else math.nan
 
     def accept(self, u0: float, h: float, outcome: Outcome) -> StepRecord:
         """The state is converged: its residual, and the load tangent for dR/du0 and the next predictor."""
         assert self.report is not None
-        self.problem.converged()
+        self.problem.state.converged()
         self._factorized = True  # Newton factorized at its iterates
         self.chord.converged(u0 + h, self.problem.x, None if self._tangent is None else (u0, self._tangent))
         self._tangent = None
@@ -255,7 +255,7 @@ class SaddlePointNewton:
         """Back to the converged state; the factorization now belongs to a rejected state: rebuild it."""
         p = self.problem
         p.x[:] = self._saved
-        p.set_load(u0)
+        p.state.set_load(u0)
         self._tangent = None
         if self.settings.predictor == "tangent":
             p.factorize()

@@ -71,8 +71,8 @@ def relax(problem: Relaxable, newton_settings: NewtonSettings, e_ref: float,
     """
     history: list[float] = []
     tol = newton_settings.rtol * abs(e_ref) + newton_settings.atol
-    weights = problem.weights
-    problem.begin_relaxation()  # what the problem counts as admissible is judged against the start
+    weights = problem.state.weights
+    problem.state.begin_relaxation()  # what the problem counts as admissible is judged against the start
     mu, mode = start_eigen if start_eigen is not None else problem.lowest_mode()
     kicked = math.nan
     its = 0
@@ -87,7 +87,7 @@ def relax(problem: Relaxable, newton_settings: NewtonSettings, e_ref: float,
         rep = newton(problem, newton_settings, e_ref)
         its += rep.iterations
         history.extend(rep.history)
-        bad = problem.admissible() if rep.converged else ""
+        bad = problem.state.admissible() if rep.converged else ""
         if bad:
             return RelaxReport(False, its, history, f"the equilibrium found is not physical: {bad}",
                                kicked_from=kicked)
@@ -172,4 +172,4 @@ def _flow(problem: Relaxable, tol: float, settings: RelaxSettings,
 
 def _hint(problem: Relaxable) -> str:
     """The problem's advice for a relaxation that meets its inadmissible states ("; ..." or "")."""
-    return f"; {hint}" if (hint := problem.inadmissible_hint) else ""
+    return f"; {hint}" if (hint := problem.state.inadmissible_hint) else ""

@@ -46,14 +46,14 @@ def arclength_runner(problem: ContinuumSolver) -> Callable[[PathResult], Generat
                          "tangent (solver.condense = false) has no stability test: set solver.condense = true")
 
     def run(res: PathResult) -> Generator[StepRecord, None, PathResult]:
-        start_mm = problem.lam * 1e3
+        start_mm = problem.problem.lam * 1e3
         c = ctl
         if len(res.steps) >= 2:  # after displacement control: start with its last step
             h = res.steps[-1].u0 - res.steps[-2].u0
             c = dataclasses.replace(ctl, first_step=h, max_step=min(ctl.max_step, 8 * h),
                                     min_step=min(ctl.min_step, h / 64))
         found: list[Instability] = []
-        steps = Steps(arclength_steps(problem, c, problem.settings.newton, weights=problem.weights,
+        steps = Steps(arclength_steps(problem, c, problem.settings.newton, weights=problem.problem.weights,
                                       length=scene.specimen.L, psi=psi,
                                       lowest_eigenpair=None if indefinite else lambda: lowest_eigenpair(problem),
                                       result=res, branch=scene.solver.branch))

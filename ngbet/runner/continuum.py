@@ -126,7 +126,7 @@ def load_path(problem: ContinuumSolver, scene: Scene) -> Generator[StepRecord, N
     # the picture frame's reaction test field follows the load (ContinuumProblem): the path gets none
     psi = None if problem.problem.frame else problem.problem.psi_u.vec.FV().NumPy().copy()
     return load_steps(problem, problem.settings.path, problem.settings.newton,
-                      hessian=problem if problem.can_relax else None, watch=problem, locate=problem.problem,
+                      hessian=problem if problem.can_relax else None, watch=problem.problem, locate=problem.problem,
                       diagnose=lambda: _diagnose(problem), psi=psi, arclength=arclength)
 
 
@@ -137,7 +137,7 @@ def _diagnose(problem: ContinuumSolver) -> Any:
 
 
 def _setup_info(solver: ContinuumSolver, t_setup: float) -> dict[str, Any]:
-    return {"model": "continuum", "dofs": solver.ndofs(), "linear_solver": solver.inverse_type,
+    return {"model": "continuum", "dofs": solver.ndofs(), "linear_solver": solver.linear.inverse_type,
             "stabilization_K_Pa": list(solver.problem.K_s_range), "condensed": solver.linear.condensed,
             "setup_s": t_setup, "compile_mode": solver.compile_mode,
             "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None,

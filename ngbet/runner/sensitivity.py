@@ -54,7 +54,7 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
         solver = ContinuumSolver(ContinuumProblem(scene, mesh), settings)
         rec = Recorder(solver, names, profile, [float(v) for v in u_mm if v > 0], angles, estimate)
         for step in load_steps(solver, path, settings.newton, hessian=solver if solver.can_relax else None,
-                               watch=solver, locate=solver.problem):
+                               watch=solver.problem, locate=solver.problem):
             rec(step)
     keys = np.array(sorted(rec.rows))
     # the force (and its derivatives) at each requested load, in the caller's order, repeats
