@@ -19,8 +19,7 @@ Convergence:      |dx_k·r_k| ≤ (1 − θ_k) · m · tol, tol = rtol · E_ref 
                   :data:`CHORD_MARGIN`); then
                   x += dx_k. With ‖J₀⁻¹J − I‖ ≤ θ the Newton decrement r·J⁻¹r is at most
                   |dx_k·r_k| / (1 − θ): the state passes Newton's own test, and the step
-                  taken after it leaves an error θ times smaller still. Measured on the default
-                  run against Newton to rtol = 1e-14: forces to 1e-8 of the largest (Newton's rows: 2e-9).
+                  taken after it leaves an error θ times smaller still.
 
 The load tangent at such a state, t = ∂x/∂λ (prescribed entries d, free ones from
 J_ff t_f = −J_fd d), and the load derivative of the reaction dR/dλ = ψ·J t, are computed without
@@ -33,9 +32,8 @@ J t₀ by forward differences of the residual (the residual at the state is at h
 because t·J t = ψ·J t (ψ = d on the prescribed entries, J t = 0 on the free ones) and
 t₀·J t₀ = t·J t + e·J e with e·J e = g·J_ff⁻¹ g. The refined tangent t₀ − J₀⁻¹ g (one chord
 step on the tangent's equation) is refined again until the correction term g·J₀⁻¹g is below
-:data:`TANGENT_RTOL` of dR/dλ, else the problem is linearized anew. Measured on the default run:
-dR/dλ to 1e-4 of a tight Newton reference (6e-6 on 26 of the 27 rows), Newton's own, whose
-tangent is that of its last iterate, to 5e-4.
+:data:`TANGENT_RTOL` of dR/dλ, else the problem is linearized anew. The accuracy of the rows and
+of dR/dλ, and the measurements behind the constants below, are in docs/numerics.md.
 """
 
 from __future__ import annotations
@@ -54,26 +52,20 @@ __all__ = ["CHORD_CONTRACTION", "CHORD_ITERATIONS", "CHORD_MARGIN", "CHORD_PREDI
            "tangent_at_hand"]
 
 #: a chord correction contracting by more than this (energy norm) linearizes again, once; if it still
-#: does, Newton takes over. Measured on the default run (margin 1): 0.15, 0.2, 0.3, 0.4 give 10, 8, 7,
-#: 7 factorizations and 124, 122, 124, 124 residuals
+#: does, Newton takes over (the fewest factorizations at no more residuals)
 CHORD_CONTRACTION = 0.2
-#: the chord's predictor is the polynomial through this many last converged states (a quartic).
-#: Measured on the default run, the first decrement of a row: 3, 4, 5 states give 6e-7, 2e-9,
-#: 1e-11 to 2e-9; 6 states no better (1e-11 to 2e-9) and more refactorizations (13 against 9).
-#: A cubic Hermite predictor with the rows' tangents (2e-8) is worse: the tangents are accurate
-#: to TANGENT_RTOL only
+#: the chord's predictor is the polynomial through this many last converged states (a quartic:
+#: fewer states leave a larger first decrement, more refactorize more often; a cubic Hermite
+#: predictor with the rows' tangents is worse, the tangents being accurate to TANGENT_RTOL only)
 CHORD_PREDICTOR_STATES = 5
 #: the chord's decrement must be below this fraction of Newton's tolerance: Newton's last step,
-#: quadratic, leaves its rows far inside the tolerance, the chord's linear one does not. Measured on
-#: the default run against Newton to rtol = 1e-14, the grid rows' forces: 1, 0.01, 1e-3, 1e-4 give
-#: 4.8e-7, 4.0e-8, 1.8e-8, 3.3e-9 (Newton's rows: 2e-9) for 122, 143, 161, 168 residuals
+#: quadratic, leaves its rows far inside the tolerance, the chord's linear one does not
 CHORD_MARGIN = 0.01
 #: chord steps allowed for one load
 CHORD_ITERATIONS = 6
 #: the step of the differences J t ≈ (r(x + εt) − r(x)) / ε, relative to the problem's length scale
-#: (the tangent moves the clamp by 1 per unit load). Measured on the default scene at 30 mm against
-#: the assembled tangent: ψ·J t to 8.5e-8 at ε = 1e-8 m forward (8.5e-6 at 1e-6 m), to 1e-10
-#: centred, round-off 1e-9 at 1e-9 m
+#: (the tangent moves the clamp by 1 per unit load): between the truncation error of a larger step
+#: and the round-off of a smaller one
 FD_STEP = 1e-8
 #: the tangent is refined until the correction of dR/dλ is below this fraction of it
 TANGENT_RTOL = 1e-3
@@ -246,9 +238,8 @@ class ChordRows:
 
         The extrapolation is of the free entries only: the prescribed ones are the load's at every
         load and are copied from the last tangent. Extrapolated, their round-off would grow from row to
-        row by the ratio of the steps (e_n+1 = e_n + a (e_n − e_n−1)): measured, 1.9e-5 after the
-        rows between unevenly spaced stops of a 95 mm path, where the reaction's test vector no
-        longer matched the tangent.
+        row by the ratio of the steps (e_n+1 = e_n + a (e_n − e_n−1)) until the reaction's test vector
+        no longer matched the tangent.
         """
         self.rows += 1
         start = None

@@ -148,9 +148,9 @@ class PathResult:
 
 #: Set by the command line's signal handler (Ctrl-C, SIGTERM) when it raises KeyboardInterrupt.
 #: That exception can be lost: raised while pybind11 converts the arguments of an NGSolve call
-#: (measured: in ``ngs.IfPos(...)`` while an observable is evaluated, about 1 run in 80 under
-#: load), it is cleared as a failed conversion and the run went on to the end. The load loops
-#: check this flag between steps, so that such a run stops at its next step.
+#: (e.g. in ``ngs.IfPos(...)`` while an observable is evaluated), it is cleared as a failed
+#: conversion and the run would go on to the end. The load loops check this flag between steps,
+#: so that such a run stops at its next step.
 STOP_REQUESTED = threading.Event()
 
 

@@ -48,8 +48,7 @@ def assembly_threads(n: int) -> Iterator[None]:
 
     The caller sets NGSolve's thread count (``ngsolve.SetNumThreads(n)``); everything else (solves,
     residuals) runs where it is called, serial outside a TaskManager. The threaded tangent equals
-    the serial one to round-off (the order of the sparse adds). Measured at load 0.8 on 2 cores:
-    assembly and factorization each 1.8–1.9x faster on two threads (9.5k and 53k dofs).
+    the serial one to round-off (the order of the sparse adds).
     """
     token = _ASSEMBLY_THREADS.set(n)
     try:
@@ -63,10 +62,8 @@ def assembly_thread_count() -> int:
     return _ASSEMBLY_THREADS.get() or ngs.GetNumThreads()
 
 
-#: "auto" factorizes with CHOLMOD from this many factorized dofs on (where cvxopt is installed).
-#: Measured on one thread: at 53 571 dofs (h = 2 mm, p = 2) a run's 8 factorizations took 0.84–1.0 s
-#: against 1.37–1.41 s, its solve 0.82x; at 5 841 (the default scene) the LLᵀ's symbolic analysis
-#: and cvxopt's import (27 ms) ate the gain: 0.057 against 0.064 s of factorization, the run no faster.
+#: "auto" factorizes with CHOLMOD from this many factorized dofs on (where cvxopt is installed):
+#: below it the LLᵀ's symbolic analysis and cvxopt's import eat the gain (docs/numerics.md)
 CHOLMOD_MIN_DOFS = 20_000
 
 
@@ -94,8 +91,7 @@ def energy_form(X: ngs.FESpace, inverse: str, condense: bool) -> ngs.BilinearFor
 
     NGSolve stores a symmetric form's matrix in full unless asked; for the sparse LDLᵀ
     ("sparsecholesky"), which reads the lower triangle only, the form stores just that: half
-    the sparse adds of each assembly and half the memory (measured, native, one thread, load
-    0.5: 9 495 dofs 10.1 → 8.9 ms, 63 267 dofs 111 → 94 ms per linearization). UMFPACK gets the full matrix
+    the sparse adds of each assembly and half the memory. UMFPACK gets the full matrix
     (given the lower triangle of the uncondensed saddle point it reports it singular), and so
     does a mesh with levels (refined): there NGSolve's symmetric storage allocates a new matrix
     at each assembly until it holds one per level, each to be factorized anew.

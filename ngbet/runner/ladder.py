@@ -48,10 +48,8 @@ class Rung:
 #: mesh is negligible: 107.24349 N against 107.24387 N on the 10 mm mesh at p = 8, at a quarter of
 #: the time), then h = 10 mm at p = 8 should those not converge (h = 20 mm, p = 7 stops at 55.7 mm).
 #: Expected errors: the paper's scene at 56 mm against the reference 107.2365 N
-#: (ngbet.studies.reference). Whole-run times there (2-core machine, loaded): 0.3, 0.5, 0.4–0.7,
-#: 0.8–1.4, 1.4, 6–8, 34, 56–70 s. Finer corners reach 56 mm but cost more for the same accuracy:
-#: 0.1 mm at p = 5 gives 107.24398 N in 46 s, 0.0625 mm at p = 5 107.24389 N in 126 s (loaded), both
-#: 7e-5 from the reference like h = 20 mm at p = 8; 0.0625 mm at p = 4 gives 107.26134 N (2.3e-4).
+#: (ngbet.studies.reference). Finer corners reach 56 mm but cost more for the same accuracy (the
+#: rungs' times and the finer corners' results: docs/numerics.md).
 LADDER = tuple(Rung(h, 0.25, p, e) for h, p, e in (
     (10.0, 2, 1.6e-3), (10.0, 3, 1.3e-3), (20.0, 4, 6.7e-4), (20.0, 5, 3.5e-4), (20.0, 6, 1.8e-4),
     (20.0, 8, 6.5e-5), (20.0, 10, 2.5e-5), (10.0, 8, 6.9e-5)))

@@ -67,8 +67,7 @@ def ngsolve_threads(scene: Scene) -> Iterator[None]:
     The BLAS pools of the process (numpy's and NGSolve's OpenBLAS, each with a thread per core by
     default) are held to one thread meanwhile: the run's dense operations are vector-sized, and
     idle BLAS threads that spin between them, or on top of NGSolve's own threads, take the cores
-    the run needs (measured, ``--accuracy 1e-3`` at load 4.5: 1.3–1.8 s of solve free, 0.64–0.72 s
-    held).
+    the run needs (docs/numerics.md).
     """
     import ngsolve as ngs
     from threadpoolctl import threadpool_limits
