@@ -48,10 +48,10 @@ def force(corner_mm: float, p: int) -> tuple[float | None, int, float]:
     prob = continuum_solver(ContinuumProblem(sc))
     for _ in Steps(load_path(prob, sc)):
         pass
-    reached = abs(prob.lam * 1e3 - U0_MM) < 1e-9
+    reached = abs(prob.state.lam * 1e3 - U0_MM) < 1e-9
     F = obs.reaction_force(prob.problem, prob.residual()) * sc.specimen.t if reached else None
     if F is None:
-        print(f"  the load path stops at {prob.lam * 1e3:.2f} mm")
+        print(f"  the load path stops at {prob.state.lam * 1e3:.2f} mm")
     return F, prob.problem.X.ndof, time.perf_counter() - t0
 
 

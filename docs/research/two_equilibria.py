@@ -48,8 +48,8 @@ def loaded(p: int) -> ContinuumSolver:
     prob = continuum_solver(ContinuumProblem(sc))
     for _ in Steps(load_path(prob, sc)):
         pass
-    if abs(prob.lam * 1e3 - U0_MM) > 1e-9:
-        sys.exit(f"p = {p}: the load path stops at {prob.lam * 1e3:.3f} mm")
+    if abs(prob.state.lam * 1e3 - U0_MM) > 1e-9:
+        sys.exit(f"p = {p}: the load path stops at {prob.state.lam * 1e3:.3f} mm")
     return prob
 
 

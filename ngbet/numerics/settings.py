@@ -18,7 +18,7 @@ __all__ = ["LinearSettings", "NewtonSettings", "PathSettings", "SolverSettings"]
 
 @dataclass(frozen=True, kw_only=True)
 class NewtonSettings:
-    """Tolerances, damping and predictor of the continuum's Newton (from ``scene.solver``)."""
+    """Tolerances, damping and predictor of Newton (:func:`ngbet.numerics.newton.newton`; ``scene.solver``)."""
 
     rtol: float = 1e-10
     atol: float = 1e-14
@@ -36,7 +36,7 @@ class NewtonSettings:
 
 @dataclass(frozen=True, kw_only=True)
 class LinearSettings:
-    """The linear algebra of the continuum's Newton (from ``scene.solver``).
+    """The linear algebra of Newton on an NGSolve energy form (``scene.solver``).
 
     What :class:`ngbet.continuum.solver.ContinuumSolver` is built with. The choices are the
     user's; "auto" is resolved by each solver for its own problem (the inverse by definiteness and
@@ -54,12 +54,12 @@ class LinearSettings:
 
 @dataclass(frozen=True, kw_only=True)
 class PathSettings(PathControl):
-    """How a continuum load path is carried (from ``scene.loading`` and ``scene.solver``); loads in m.
+    """How a saddle-point load path is carried (``scene.loading``, ``scene.solver``); loads in m.
 
     The engine's step control (:class:`~ngbet.numerics.engine.PathControl`: target, first, largest and
-    shortest step, growth, cut, the loads landed on) with the continuum's defaults (a stop within
-    a fifth of a step beyond a trial load is landed on; at most 500 trials) and what only the
-    continuum has.
+    shortest step, growth, cut, the loads landed on) with the defaults of :func:`ngbet.numerics.path.load_steps`
+    (a stop within a fifth of a step beyond a trial load is landed on; at most 500 trials) and what
+    only that path has.
     """
 
     land_within: float = 0.2
