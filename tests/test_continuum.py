@@ -351,8 +351,8 @@ def test_ellipticity_loss_of_a_homogeneous_compression_of_the_thin_yarns(s):
 def test_vtk_output_at_a_high_order_stays_small(tmp_path):
     """The VTK subdivision grows with log2 p, not with p: at p = 10 a linear rule (s = p − 1)
     wrote 4^9 sub-triangles per element and the run was killed out of memory (24 GB)."""
-    from ngbet.continuum.output import vtk_subdivision
     from ngbet.run import run
+    from ngbet.runner.fields import vtk_subdivision
     from ngbet.scene.document import Scene
 
     assert [vtk_subdivision(p) for p in (1, 2, 3, 4, 5, 8, 9, 16)] == [0, 1, 2, 2, 3, 3, 4, 4]

@@ -689,7 +689,7 @@ def test_fields_file_appears_only_complete_and_in_mm(tmp_path, monkeypatch):
     """The fields file is written and rescaled to mm under a temporary name, then renamed: an
     interrupt between NGSolve's write (coordinates in metres) and the rescale leaves no fields.vtu."""
     pytest.importorskip("pyvista")
-    import ngbet.continuum.output as co
+    import ngbet.runner.fields as co
 
     scene = Scene().with_changes(**{**TINY, "outputs.vtk": True, "loading.stops_mm": []})
     run(scene, tmp_path / "ok")

@@ -185,7 +185,7 @@ def lowest_eigenpair(solver: TangentSolver) -> tuple[float, np.ndarray]:
     """The lowest eigenvalue of the diagonally scaled tangent at the current state and its mode (full length).
 
     The mode holds the free dofs of the (condensed) tangent, scaled to unit maximum norm (the
-    condensed local dofs are 0: :func:`mode_constraint_ratio` and :func:`ngbet.continuum.output.write_mode` extend it).
+    condensed local dofs are 0: :func:`mode_constraint_ratio` and :func:`ngbet.runner.fields.write_mode` extend it).
     """
     if indefinite_by_construction(solver):
         raise ValueError("the uncondensed saddle-point tangent is indefinite by construction: no stability test")

@@ -18,7 +18,6 @@ import ngsolve as ngs
 
 from ..continuum import observables as obs
 from ..continuum.estimate import RunEstimates
-from ..continuum.output import write_vtk
 from ..continuum.problem import ContinuumProblem
 from ..continuum.solver import ContinuumSolver
 from ..errors import ConvergenceError
@@ -32,6 +31,7 @@ from ..output import RunWriter
 from ..plot_process import active as plot_service
 from ..scene.document import Scene
 from .arclength import MODE_KEY, arclength_runner
+from .fields import write_vtk
 from .ladder import run_to_accuracy
 from .settings import solver_settings
 
@@ -106,7 +106,7 @@ def _write_mode(problem: ContinuumSolver, path_info: dict[str, Any], writer: Run
     found = path_info.pop(MODE_KEY, None)
     if found is None:
         return
-    from ..continuum.output import write_mode
+    from .fields import write_mode
 
     mode, name, title = found
     saved = problem.x.copy()

@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING, Any
 import ngsolve as ngs
 import numpy as np
 
-from . import observables as obs
+from ..continuum import observables as obs
 
 if TYPE_CHECKING:
-    from .stability import TangentSolver
+    from ..continuum.stability import TangentSolver
 
 __all__ = ["MM", "scale_points", "vtk_subdivision", "write_mode", "write_vtk"]
 
