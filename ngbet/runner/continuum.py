@@ -140,7 +140,7 @@ def _setup_info(solver: ContinuumSolver, t_setup: float) -> dict[str, Any]:
     return {"model": "continuum", "dofs": solver.ndofs(), "linear_solver": solver.linear.inverse_type,
             "stabilization_K_Pa": list(solver.problem.K_s_range), "condensed": solver.linear.condensed,
             "setup_s": t_setup, "compile_mode": solver.compile_mode,
-            "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None,
+            "threads": ngs.GetNumThreads(),
             "assembly_threads": assembly_thread_count()}
 
 
