@@ -56,13 +56,13 @@ def _problem(mode: str, h: float, p: int) -> Any:
         sc = dataclasses.replace(sc, solver=dataclasses.replace(sc.solver, compile="native" if mode == "native"
                                                                 else "interpret"))
     if mode == "ad":  # NGSolve's default linearization of the interpreted integrand
-        from ngbet.continuum import compiled
+        from ngbet.numerics import compiled
 
         plain = compiled._add_variation
         compiled._add_variation = lambda form, cf, dx, symbolic: plain(form, cf, dx, False)  # type: ignore
     pr = ContinuumProblem(dataclasses.replace(sc, discretization=disc))
     try:
-        from ngbet.continuum.numerics import continuum_solver
+        from ngbet.runner.settings import continuum_solver
     except ImportError:  # an older tree: the problem holds its forms and linear algebra
         return pr
     return continuum_solver(pr)
@@ -115,7 +115,7 @@ def child(mode: str, h: float, p: int, threads: int, repeats: int, save: str) ->
     if mode == "bfi":
         form = _plain_form(pb.X)
     assemble = form.Assemble if mode == "bfi" else (lambda: form.AssembleLinearization(pb.gf.vec))
-    pr.set_load(0.03)
+    pr.state.set_load(0.03)
     pr.x[pb.free_all] += 1e-4 * np.random.default_rng(0).standard_normal(int(pb.free_all.sum()))
     ngs.SetNumThreads(threads)
     ta, tr = [], []
@@ -228,7 +228,7 @@ def main() -> None:
         for run in range(args.runs):
             for h, p in cases:
                 for mode, nt in variants:
-                    # BLAS pools at one thread, as in a run (ngbet.run.ngsolve_threads); --blas-free leaves them
+                    # BLAS pools at one thread, as in a run (runner.threads.ngsolve_threads); --blas-free leaves them
                     env = dict(os.environ) if args.blas_free else {**os.environ, "OPENBLAS_NUM_THREADS": "1",
                                                                    "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
                     if mode == "before":

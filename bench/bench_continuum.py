@@ -111,13 +111,13 @@ def _child(case: str, extra: dict) -> dict:
     newton = {k.partition(".")[2]: changes.pop(k) for k in list(changes) if k.startswith("newton.")}
     split = changes.pop("bench.assembly_threads", None)
     if split:  # the run serial, each linearization on `split` threads, whatever the load
-        import ngbet.run as ngbet_run_module
+        import ngbet.runner.threads as ngbet_run_module
 
         ngbet_run_module.thread_policy = lambda threads, model: (1, int(split))
     if newton:
         import dataclasses
 
-        import ngbet.continuum.run as ngbet_run
+        import ngbet.runner.settings as ngbet_run
 
         plain = ngbet_run.newton_settings
         ngbet_run.newton_settings = lambda sc: dataclasses.replace(plain(sc), **newton)

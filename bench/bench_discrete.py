@@ -44,8 +44,8 @@ import numpy as np
 from ngbet.discrete.eigen import lowest_eigenvalues, lowest_eigenvalues_arpack
 from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError
 from ngbet.discrete.model import NetworkModel
-from ngbet.discrete.run import step_control
 from ngbet.discrete.solver import solve_path
+from ngbet.runner.settings import step_control
 
 try:
     from ngbet.discrete.solver import single_threaded_blas

@@ -42,9 +42,9 @@ def _yarn_sine(problem, scene):  # the barrier's own check, built also where jam
 
 def one_run(bending: bool, jamming: bool = True) -> dict:
     """The path of the embedded scene (``effects.bending``, ``effects.jamming``): per state the smallest yarn angle."""
-    from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
-    from ngbet.continuum.run import load_path
+    from ngbet.runner.continuum import load_path
+    from ngbet.runner.settings import continuum_solver
     from ngbet.scene.document import Scene
 
     scene = Scene().with_changes(**{"effects.bending": bending, "effects.jamming": jamming})

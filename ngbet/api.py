@@ -24,7 +24,7 @@ import shutil
 import tempfile
 import weakref
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -216,7 +216,7 @@ class Result:
     def __getattr__(self, name: str) -> np.ndarray:
         columns = self.__dict__.get("columns", {})
         if name in columns:
-            return columns[name]
+            return cast(np.ndarray, columns[name])
         raise AttributeError(f"Result has no attribute or results.csv column {name!r}; columns: {', '.join(columns)}")
 
     @property

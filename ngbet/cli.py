@@ -436,7 +436,7 @@ def _force_text(force_N: float) -> str:
     return f"{force_N:9.7g}"
 
 
-def _report(summary: dict, out: Path) -> str:
+def _report(summary: dict[str, Any], out: Path) -> str:
     from .tables import read_rows
 
     rows = read_rows(out / "results.csv")

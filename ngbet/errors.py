@@ -2,7 +2,7 @@
 
 ``SceneError`` (ngbet.scene) is a bad scene; :class:`ConvergenceError` is a load that could not be
 carried to the end. Both models raise the same :class:`ConvergenceError` (from the one
-continuation engine, :mod:`ngbet.engine`), after the run folder has recorded every converged step
+continuation engine, :mod:`ngbet.numerics.engine`), after the run folder has recorded every converged step
 and ``summary.json`` says ``"status": "failed"``.
 """
 
@@ -54,7 +54,7 @@ class ConvergenceError(NgbetError, RuntimeError):
         :class:`ngbet.continuum.stability.StabilityDiagnosis`.
     path_info : dict, optional
         What the path met before it stopped, for ``summary.json`` (e.g. the instabilities an
-        arc-length continuation passed, :attr:`ngbet.engine.PathResult.path_info`).
+        arc-length continuation passed, :attr:`ngbet.numerics.engine.PathResult.path_info`).
 
     Attributes
     ----------

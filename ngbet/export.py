@@ -28,7 +28,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -106,7 +106,7 @@ def shear_energy_slope(scene: Scene) -> Callable[[np.ndarray], np.ndarray]:
             x = i8 * i8 / s2
             inside = x / (1.0 - np.minimum(x, xc))  # −(ln(1 − x))' − 1 = x/(1 − x)
             beyond = 1.0 / (1.0 - xc) + (x - xc) / (1.0 - xc) ** 2 - 1.0  # the same of the Taylor polynomial
-            return m.K_sh * i8 + m.K_lock * i8 * np.where(x < xc, inside, beyond)
+            return cast(np.ndarray, m.K_sh * i8 + m.K_lock * i8 * np.where(x < xc, inside, beyond))
 
         return locking
     if law == "table":
@@ -152,7 +152,7 @@ def default_max_angle_deg(scene: Scene) -> float:
 
 
 def _reference(sig: np.ndarray, floor: float) -> np.ndarray:
-    return np.maximum(np.abs(sig), floor)
+    return cast(np.ndarray, np.maximum(np.abs(sig), floor))
 
 
 def sample(sigma: Callable[[np.ndarray], np.ndarray], gamma_max: float, tolerance: float = TOLERANCE,

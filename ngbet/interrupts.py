@@ -53,7 +53,7 @@ def interrupts() -> Iterator[None]:
     woken by the signal (``signal.set_wakeup_fd``) then records the interruption in the active run
     folders itself and exits with 130 after GRACE_S.
     """
-    from .engine import STOP_REQUESTED
+    from .numerics.engine import STOP_REQUESTED
 
     acted = threading.Event()
 

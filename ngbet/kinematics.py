@@ -19,6 +19,7 @@ F_sh(γ/2) comes from the smaller angles reached earlier on the same curve.
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -160,7 +161,7 @@ def zone_index(X_mm: ArrayLike, Y_mm: ArrayLike, L_mm: float, W_mm: float, yarn_
     t = math.tan(math.radians(yarn_angle_deg))
     held_1 = (Y - X * t >= 0) | (Y + (L_mm - X) * t <= W_mm)
     held_2 = (Y + X * t <= W_mm) | (Y - (L_mm - X) * t >= 0)
-    return held_1.astype(int) + held_2.astype(int)
+    return cast(np.ndarray, held_1.astype(int) + held_2.astype(int))
 
 
 class BetColumns:
@@ -235,7 +236,7 @@ def frame_stretches(d_m: float, frame_m: float) -> tuple[float, float, float, fl
 
 def shear_force(force_N: ArrayLike, d_mm: ArrayLike, frame_mm: float) -> np.ndarray:
     """The total shear force F_s = F / (2 cos θ) [N] (Eq. 3) of crosshead force F at travel d."""
-    return np.asarray(force_N, dtype=float) / (2.0 * np.cos(frame_angle_rad(d_mm, frame_mm)))
+    return cast(np.ndarray, np.asarray(force_N, dtype=float) / (2.0 * np.cos(frame_angle_rad(d_mm, frame_mm))))
 
 
 def frame_normalised_force(shear_force_N: ArrayLike, frame_mm: float, fabric_mm: float) -> np.ndarray:

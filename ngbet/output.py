@@ -29,7 +29,7 @@ import shutil
 import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, cast
 
 from .errors import NgbetError
 from .preflight import preflight
@@ -338,7 +338,7 @@ class RunWriter:
             s.update(updates)
             s["files"] = sorted(n for n in registry if (out / n).is_file())
             write_json_atomic(out / "summary.json", s)
-            return s
+            return cast("dict[str, Any]", s)
         finally:
             fh.close()
 

@@ -100,7 +100,7 @@ def param(data: StudyData, case: int, key: str) -> Any:
 
 
 def ok(data: StudyData, case: int) -> bool:
-    return data.meta["cases"][case]["status"] == "ok"
+    return bool(data.meta["cases"][case]["status"] == "ok")
 
 
 def lagrange_case(data: StudyData, h: float, p: int) -> int | None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +39,7 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
                  report=lambda d: report(d, quick), profile_stations=C.stations(quick, base))
 
 
-def analyse(data: StudyData, quick: bool) -> list[dict]:
+def analyse(data: StudyData, quick: bool) -> list[dict[str, Any]]:
     s2 = C.stations(quick, data)[1]
     a2 = data.meta["base_scene"]["material"]["alpha2"]
     out = []

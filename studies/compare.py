@@ -42,7 +42,7 @@ EQUIVALENT = "discrete, continuum-equivalent"
 LABELS = ("continuum", "discrete", EQUIVALENT)
 
 
-def label(params: dict) -> str:
+def label(params: dict[str, Any]) -> str:
     """Which of the three models a case is (its changes over the base scene)."""
     if params.get("model") == "continuum":
         return "continuum"
@@ -61,7 +61,7 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
                  profile_stations=C.stations(quick, base))
 
 
-def extract(rec: dict, run_dir: Path, out: Path) -> dict:
+def extract(rec: dict[str, Any], run_dir: Path, out: Path) -> dict[str, Any]:
     sc = rec["scene"]
     rows = []
     for u0 in (*sc["loading"]["stops_mm"], sc["loading"]["u0_mm"]):
@@ -83,11 +83,11 @@ def extract(rec: dict, run_dir: Path, out: Path) -> dict:
 def _case(data: StudyData, model: str) -> int | None:
     for c in data.meta["cases"]:
         if label(c["params"]) == model:
-            return c["case"]
+            return int(c["case"])
     return None
 
 
-def analyse(data: StudyData, quick: bool) -> dict:
+def analyse(data: StudyData, quick: bool) -> dict[str, Any]:
     s1, s2 = C.stations(quick, data)
     L = data.meta["base_scene"]["specimen"]["length_mm"]
     res = {}

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +34,7 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
     return Study("curves", base, [{}], description=__doc__ or "", plot=plot, report=lambda d: report(d, quick))
 
 
-def analyse(data: StudyData) -> dict:
+def analyse(data: StudyData) -> dict[str, Any]:
     rows = data.case_rows(0)
     u0 = np.array([r["u0_mm"] for r in rows])
     F = np.array([r["force_N"] for r in rows])

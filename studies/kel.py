@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +39,7 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
                  extract=extract, plot=plot, report=lambda d: report(d, quick), profile_stations=(u0,))
 
 
-def extract(rec: dict, run_dir: Path, out: Path) -> dict:
+def extract(rec: dict[str, Any], run_dir: Path, out: Path) -> dict[str, Any]:
     sp = rec["scene"]["specimen"]
     F = _fields()
     ref, xy = F.outline(run_dir / "fields.vtu", sp["length_mm"], sp["width_mm"])
@@ -48,13 +49,13 @@ def extract(rec: dict, run_dir: Path, out: Path) -> dict:
             "midline_shear": [{"X_mm": x, "gamma_deg": v} for x, v in zip(X, g, strict=True)]}
 
 
-def _fields():  # imported lazily: pyvista is only needed to extract
+def _fields() -> Any:  # imported lazily: pyvista is only needed to extract
     from . import _fields as F
 
     return F
 
 
-def widths(data: StudyData) -> list[dict]:
+def widths(data: StudyData) -> list[dict[str, Any]]:
     L = data.meta["base_scene"]["specimen"]["length_mm"]
     W = data.meta["base_scene"]["specimen"]["width_mm"]
     u0 = data.meta["base_scene"]["loading"]["u0_mm"]

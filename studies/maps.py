@@ -14,6 +14,7 @@ from __future__ import annotations
 import shutil
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -46,7 +47,7 @@ def step_vtu(run_dir: Path, u0: float) -> Path | None:
     return None
 
 
-def extract(rec: dict, run_dir: Path, out: Path) -> dict:
+def extract(rec: dict[str, Any], run_dir: Path, out: Path) -> dict[str, Any]:
     from ngbet.figures.data import map_file_name
 
     sc = rec["scene"]

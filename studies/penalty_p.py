@@ -20,7 +20,7 @@ import itertools
 import math
 import sys
 from pathlib import Path
-from typing import TypedDict
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -52,7 +52,7 @@ QUICK: Grid = {"h": (20.0,), "p": (1, 2), "K": (1e6, 1e8, 1e9, 1e10), "profile_c
 FIT_K = (1e8, 1e11)
 
 
-def own_cases(g: Grid) -> list[dict]:
+def own_cases(g: Grid) -> list[dict[str, Any]]:
     """The study's own cases: Lagrange and penalty on each (h, p)."""
     cases = []
     for h in g["h"]:
@@ -71,7 +71,7 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
                  profile_stations=C.stations(quick, base))
 
 
-def analyse(data: StudyData, g: Grid, quick: bool) -> dict:
+def analyse(data: StudyData, g: Grid, quick: bool) -> dict[str, Any]:
     s1, s2 = C.stations(quick, data)
     R_ = R.reference(data, quick)
     ref = {**R_[s2], "uy_mm": R_["uy_mm"]}
@@ -183,7 +183,7 @@ def plot(data: StudyData, g: Grid, quick: bool) -> list[Path]:
             _plot_discretization_error(data, g, a, styles)]
 
 
-def _plot_profiles(data: StudyData, g: Grid, a: dict) -> Path:
+def _plot_profiles(data: StudyData, g: Grid, a: dict[str, Any]) -> Path:
     """Mid-axis u_y at the second station for several K (the paper's figure)."""
     from ngbet.figures.study import study_caption
     from ngbet.figures.style import colormap, legend_below, put_caption, subplots
@@ -208,7 +208,7 @@ def _plot_profiles(data: StudyData, g: Grid, a: dict) -> Path:
     return savefig(fig, data.out, "penalty_profiles")
 
 
-def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, str]) -> Path:
+def _plot_penalty_error(data: StudyData, g: Grid, a: dict[str, Any], styles: dict[float, str]) -> Path:
     """Penalty error, total error and constraint violation against K, one line per (h, p)."""
     from ngbet.figures.study import study_caption
     from ngbet.figures.style import legend_below, put_caption, subplots
@@ -244,7 +244,7 @@ def _plot_penalty_error(data: StudyData, g: Grid, a: dict, styles: dict[float, s
     return savefig(fig, data.out, "penalty_error")
 
 
-def _plot_discretization_error(data: StudyData, g: Grid, a: dict, styles: dict[float, str]) -> Path:
+def _plot_discretization_error(data: StudyData, g: Grid, a: dict[str, Any], styles: dict[float, str]) -> Path:
     """Discretization error of the Lagrange solutions against dofs (and against h with two mesh sizes)."""
     from ngbet.figures.study import study_caption
     from ngbet.figures.style import put_caption, subplots

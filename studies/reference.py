@@ -53,7 +53,7 @@ from __future__ import annotations
 import math
 import sys
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -178,8 +178,9 @@ def _fits(p: np.ndarray, F: Sequence[float]) -> list[tuple[float, float]]:
 
     y = np.asarray(F, float)
     out = []
-    models = ((lambda q, a, c, r: a + c * r ** q, (0.3, 0.5, 0.7)),
-              (lambda q, a, c, b: a + c * q ** (-b), (1.0, 2.0, 3.0, 4.0)))
+    models: tuple[tuple[Callable[..., Any], tuple[float, ...]], ...] = (
+        (lambda q, a, c, r: a + c * r ** q, (0.3, 0.5, 0.7)),
+        (lambda q, a, c, b: a + c * q ** (-b), (1.0, 2.0, 3.0, 4.0)))
     for f, rates in models:
         best: tuple[float, float] | None = None
         for rate in rates:
@@ -242,7 +243,7 @@ def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
     return out
 
 
-def _cached_forces(data: StudyData, cases: list[dict[str, Any]], stations: Sequence[float]) -> dict[float, list]:
+def _cached_forces(data: StudyData, cases: list[dict[str, Any]], stations: Sequence[float]) -> dict[float, list[Any]]:
     """The forces of ``cases`` over the study's base scene at ``stations``, from the cache; {} if one is missing.
 
     Found by their cache keys and verified like any cached case: a reference is never computed

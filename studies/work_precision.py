@@ -73,7 +73,7 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
                  profile_stations=C.stations(quick, base))
 
 
-def label(prm: dict) -> str:
+def label(prm: dict[str, Any]) -> str:
     s = f"h={prm[C.H]:g} p={int(prm[C.P])} "
     if prm.get(C.CON) == "penalty":
         s += f"penalty-{prm.get(C.FORM, 'mixed')} K={prm[C.K]:.0e}"
@@ -84,7 +84,7 @@ def label(prm: dict) -> str:
     return s
 
 
-def kind(prm: dict) -> str:
+def kind(prm: dict[str, Any]) -> str:
     """The marker family of a case: the formulation, or the mesh for Lagrange."""
     if prm.get(C.CON) == "penalty":
         return str(prm.get(C.FORM, "mixed"))
@@ -93,7 +93,7 @@ def kind(prm: dict) -> str:
     return "graded" if prm.get(GRADE) else "lagrange"
 
 
-def analyse(data: StudyData, g: dict, quick: bool) -> dict:
+def analyse(data: StudyData, g: dict[str, Any], quick: bool) -> dict[str, Any]:
     """Error and time of every case; the reference family's cases are marked and kept off the front."""
     s2 = C.stations(quick, data)[1]
     ref = R.reference(data, quick)
@@ -125,12 +125,12 @@ def analyse(data: StudyData, g: dict, quick: bool) -> dict:
     return {"ref": ref, "pts": pts, "s2": s2, "F_ref": F_ref, "unc_F": unc["err_F"], "unc_prof": unc["err_prof"]}
 
 
-def cheapest(a: dict, key: str, target: float) -> dict | None:
+def cheapest(a: dict[str, Any], key: str, target: float) -> dict[str, Any] | None:
     ok = [p for p in a["pts"] if p["status"] == "ok" and p[key] <= target and not p["ref_case"]]
     return min(ok, key=lambda p: p["time"]) if ok else None
 
 
-def _target_rows(a: dict) -> list[str]:
+def _target_rows(a: dict[str, Any]) -> list[str]:
     L = []
     s2 = a["s2"]
     for key, name, unc in (("err_F", f"force at {s2:g} mm", a["unc_F"]),
@@ -150,11 +150,11 @@ def _target_rows(a: dict) -> list[str]:
     return L
 
 
-def _err(p: dict, key: str) -> str:
+def _err(p: dict[str, Any], key: str) -> str:
     return f"{100 * p[key]:.3g} %" + (" (below the bound)" if p.get(f"below_{key}") else "")
 
 
-def report(data: StudyData, g: dict, quick: bool) -> str:
+def report(data: StudyData, g: dict[str, Any], quick: bool) -> str:
     a = analyse(data, g, quick)
     s2 = a["s2"]
     ref_text = (f"`ngbet study reference` of this scene (p = {', '.join(map(str, R.orders(quick)))} on the "
@@ -187,7 +187,7 @@ NAMES = {"lagrange": "Lagrange", "mixed": "mixed penalty", "full": "pointwise pe
          "uncondensed": "Lagrange, uncondensed", "graded": "Lagrange, corner-graded mesh"}
 
 
-def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
+def plot(data: StudyData, g: dict[str, Any], quick: bool) -> list[Path]:
     """Error against wall time, one colour scale (dofs) for every marker family and the colour bar.
 
     A point below the reference's bound is drawn at its value as an open marker inside the shaded
@@ -250,7 +250,7 @@ def plot(data: StudyData, g: dict, quick: bool) -> list[Path]:
     return [savefig(fig, data.out, "work_precision"), _plot_dofs(data, a, quick)]
 
 
-def _plot_dofs(data: StudyData, a: dict, quick: bool) -> Path:
+def _plot_dofs(data: StudyData, a: dict[str, Any], quick: bool) -> Path:
     """Error of the force against the dofs: uniform (algebraic), corner-graded and hp (exponential).
 
     Below the reference's bound (shaded) a point is drawn at its value as an open marker; a zero

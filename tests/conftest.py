@@ -76,12 +76,46 @@ def coarse_scene():
     return coarse
 
 
+def carry(problem, target, first_step, settings, *, psi=None, hessian=None, watch=None, locate=None, **path):
+    """The load path of ``problem`` to ``target`` carried to its end, its steps kept: the PathResult.
+
+    ``path`` holds the other fields of the path settings; ``hessian``, ``watch`` and ``locate``
+    the problem's capabilities (:func:`ngbet.numerics.path.load_steps`).
+    """
+    from ngbet.numerics.engine import Steps
+    from ngbet.numerics.path import load_steps
+    from ngbet.numerics.settings import PathSettings
+
+    path.update({k: tuple(path[k]) for k in ("stops", "chord_at") if k in path})
+    steps = Steps(load_steps(problem, PathSettings(target=target, first_step=first_step, **path), settings,
+                             psi=psi, hessian=hessian, watch=watch, locate=locate))
+    for _ in steps:
+        pass
+    return steps.result
+
+
+def capabilities(solver):
+    """What a continuum solver can do beyond the Problem protocol, as ``ngbet run`` hands it to the path."""
+    return {"hessian": solver if solver.can_relax else None, "watch": solver.problem, "locate": solver.problem}
+
+
 class OneDofToy:
     """The linear algebra of a one-dof toy problem x = (λ, y) with λ the Dirichlet entry and the
     tangent J = dr_y/dy, as the continuation engines see a problem; subclasses give the residual,
     the energy and ``factorize`` (which sets J)."""
 
     J: float
+    x: np.ndarray
+    dirichlet = np.array([True, False])
+    weights = np.array([0.0, 1.0])
+
+    @property
+    def lam(self):
+        return float(self.x[0])
+
+    @property
+    def state(self):
+        return self
 
     def solve(self, r):
         return np.array([0.0, -r[1] / self.J])
@@ -109,10 +143,10 @@ class DoubleWell(OneDofToy):
     equilibrium is in the right well, where y = 2/√3 at λ_f: a jump that releases
     E(−1/√3) − E(2/√3) = 1/12 + 2/3 = 0.75 at λ_f."""
 
+    inadmissible_hint = ""
+
     def __init__(self, y0: float = -1.0) -> None:
         self.x = np.array([0.0, y0])
-        self._weights = np.array([0.0, 1.0])
-        self.can_relax = True
 
     def set_load(self, lam):
         self.x[0] = lam
@@ -135,6 +169,15 @@ class DoubleWell(OneDofToy):
     def lowest_mode(self):
         J = 3 * self.x[1] ** 2 - 1
         return J / max(abs(J), 1e-300), np.array([0.0, 1.0])
+
+    def merit(self, r):
+        return self.energy()
+
+    def admissible(self):
+        return ""
+
+    def begin_relaxation(self):
+        pass
 
 
 @pytest.fixture

@@ -397,8 +397,8 @@ def test_accuracy_on_demand_reaches_the_target(tmp_path, target, capsys):
 
 
 def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
-    from ngbet.continuum import ladder
     from ngbet.errors import ConvergenceError
+    from ngbet.runner import ladder
 
     calls = []
 
@@ -421,8 +421,8 @@ def test_accuracy_ladder_leaves_a_setting_whose_time_budget_is_spent(tmp_path, m
     """A setting after the first whose path is still going after its budget (RUNG_BUDGET_FACTOR times
     the wall time of the setting before, at least RUNG_BUDGET_MIN_S) stops at its next trial with
     a ConvergenceError, and the ladder goes on: a path that would cut its step for ever is left."""
-    from ngbet.continuum import ladder
-    from ngbet.engine import Outcome, PathControl, path_steps, run_to_end
+    from ngbet.numerics.engine import Outcome, PathControl, path_steps
+    from ngbet.runner import ladder
 
     class Stuck:  # a corrector that never converges and never cuts below the minimum step
         def predict(self, lam, h):
@@ -452,8 +452,9 @@ def test_accuracy_ladder_leaves_a_setting_whose_time_budget_is_spent(tmp_path, m
             time.sleep(0.05)
             return {"force_N": 107.0, "force_error_rel": 3e-4, "solve_s": 0.05, "estimate_s": 0.0}
         if len(calls) == 2:
-            run_to_end(path_steps(Stuck(), PathControl(target=0.056, first_step=0.002, max_step=0.002,
-                                                       min_step=1e-6, max_attempts=None)))
+            for _ in path_steps(Stuck(), PathControl(target=0.056, first_step=0.002, max_step=0.002, min_step=1e-6,
+                                                     max_attempts=None)):
+                pass
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
 
     s = ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
@@ -466,7 +467,7 @@ def test_accuracy_ladder_leaves_a_setting_whose_time_budget_is_spent(tmp_path, m
 def test_an_unreachable_target_is_refused_before_solving(tmp_path, capsys):
     """Below the finest rung's expected error (2.5e-5) no setting can be expected to meet the target:
     exit 2 at once, naming the best reachable accuracy, and nothing is solved."""
-    from ngbet.continuum import ladder
+    from ngbet.runner import ladder
 
     out = tmp_path / "acc1e-6"
     assert main(["run", "--quiet", "--accuracy", "1e-6", "--out", str(out)]) == 2
@@ -480,8 +481,8 @@ def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path)
     """A finer rung whose estimate is no better than the best so far ends the climb (exit 1, not met);
     the best rung is run again so that its files are the ones left, and a failed rung's solve time
     is its wall time, not zero."""
-    from ngbet.continuum import ladder
     from ngbet.errors import ConvergenceError
+    from ngbet.runner import ladder
 
     calls = []
     errors = {2: 4e-3, 3: 3e-3, 4: 3.2e-3}
@@ -518,7 +519,7 @@ def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path)
 def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
     """The rungs' expected errors were measured on Netgen's meshes: a scene's corner_bisections
     does not leak into the discretizations the ladder tries."""
-    from ngbet.continuum import ladder
+    from ngbet.runner import ladder
 
     seen = []
 

@@ -15,8 +15,8 @@ from ngbet.calibration.data import read_any, read_measured
 from ngbet.calibration.table import shear_stress_points, start_table
 from ngbet.cli import main
 from ngbet.continuum import physics
-from ngbet.continuum.sensitivity import finite_difference, force_path
 from ngbet.kinematics import ideal_force
+from ngbet.runner.sensitivity import finite_difference, force_path
 from ngbet.scene.document import Scene
 from ngbet.scene.validate import SceneError
 

@@ -1,4 +1,4 @@
-"""CHOLMOD's LLᵀ for the continuum's Newton matrix (ngbet.cholmod, ngbet.continuum.linear).
+"""CHOLMOD's LLᵀ for the continuum's Newton matrix (ngbet.cholmod, ngbet.numerics.linear).
 
 The LLᵀ must give the sparse LDLᵀ's solutions, hand a matrix that is not positive definite to the
 LDLᵀ, and leave a run's answers where they were. (The discrete model's use: test_discrete_solver
@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 
 from ngbet import cholmod
-from ngbet.continuum.linear import CHOLMOD_MIN_DOFS, pick_inverse
 from ngbet.continuum.mesh import corner_refined
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.solver import ContinuumSolver
+from ngbet.numerics.linear import CHOLMOD_MIN_DOFS, pick_inverse
 from ngbet.run import run
+from ngbet.runner.settings import continuum_solver
 from ngbet.scene.document import default_scene
 from ngbet.scene.validate import SceneError
 
@@ -38,10 +39,10 @@ def test_the_llt_solves_as_the_ldlt(refined):
     UMFPACK). The refined mesh stores the whole matrix, the other its lower triangle."""
     pr = {ls: _problem(ls, refined) for ls in ("cholmod", "sparsecholesky")}
     for p in pr.values():
-        p.set_load(0.0)
+        p.state.set_load(0.0)
         p.factorize()
     ch, ld = pr["cholmod"], pr["sparsecholesky"]
-    assert ch.inverse_type == "cholmod" and ch.counts["factorizations_ldlt"] == 0 and ch.linear._use_llt
+    assert ch.linear.inverse_type == "cholmod" and ch.counts["factorizations_ldlt"] == 0 and ch.linear._use_llt
     A, _ = ld.linear.free_matrix()
     assert np.linalg.eigvalsh(A.toarray()).min() > 0
     r = np.zeros_like(ld.x)
@@ -56,7 +57,7 @@ def test_a_matrix_that_is_not_positive_definite_goes_to_the_ldlt():
     has negative eigenvalues (checked densely), the LLᵀ stops, and the LDLᵀ gives the solve."""
     pr = {ls: _problem(ls, False) for ls in ("cholmod", "sparsecholesky")}
     for p in pr.values():
-        p.set_load(0.3)
+        p.state.set_load(0.3)
         p.factorize()
     ch, ld = pr["cholmod"], pr["sparsecholesky"]
     A, _ = ld.linear.free_matrix()
@@ -66,7 +67,7 @@ def test_a_matrix_that_is_not_positive_definite_goes_to_the_ldlt():
     dx_ch, dx_ld = ch.solve(r), ld.solve(r)
     assert np.abs(dx_ch - dx_ld).max() <= 1e-8 * np.abs(dx_ld).max()
     # and back to the LLᵀ at a positive definite state
-    ch.set_load(0.0)
+    ch.state.set_load(0.0)
     ch.x[:] = 0.0
     ch.factorize()
     assert ch.counts["factorizations_ldlt"] == 1 and ch.linear._use_llt

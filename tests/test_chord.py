@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import coarse
 
-from ngbet.continuum import chord as C
-from ngbet.continuum.settings import NewtonSettings
+from ngbet.numerics import chord as C
+from ngbet.numerics.settings import NewtonSettings
 from ngbet.run import run
 from ngbet.tables import read_rows
 
@@ -22,6 +22,7 @@ class Hardening:
     dirichlet = np.array([True, False])
 
     def __init__(self, lam: float, y: float) -> None:
+        self.state = self
         self.x = np.array([lam, y])
         self.J0 = 1.0
         self.factorizations = 0

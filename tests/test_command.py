@@ -113,8 +113,8 @@ def test_the_plot_is_asked_for_first_and_finished_even_when_a_later_file_fails(t
     plot process draws; when the fields' file fails (here: a full disk) the error, naming the file,
     still reaches the caller, and the figure is waited for: complete, never half-written, asked of
     the plot process before the fields when there is one."""
-    from ngbet.continuum import run as crun
     from ngbet.run import run
+    from ngbet.runner import continuum as crun
     from ngbet.scene.document import Scene
 
     asked: list[str] = []

@@ -229,7 +229,7 @@ def test_a_run_under_nohup_goes_on_when_the_terminal_closes(tmp_path):
 
 def test_ctrl_c_right_after_a_snap_through_keeps_the_snap_in_the_summary(tmp_path, monkeypatch):
     """K_el = 1e7 Pa on a 10 mm mesh snaps at 53.0 mm; an interrupt while that row is written keeps it."""
-    from ngbet.continuum import run as continuum_run
+    from ngbet.runner import continuum as continuum_run
 
     write = continuum_run._StepWriter.on_step
 

@@ -6,9 +6,10 @@ import ngsolve as ngs
 import numpy as np
 import pytest
 
-from ngbet.continuum import compiled
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.solver import ContinuumSolver
+from ngbet.numerics import compiled
+from ngbet.runner.settings import continuum_solver
 from ngbet.scene.document import default_scene
 
 HAS_COMPILER = compiled._compiler() is not None
@@ -27,7 +28,7 @@ def test_auto_interprets_below_the_size_where_native_code_pays():
 
 def test_native_without_a_compiler_interprets_and_says_so(monkeypatch, caplog):
     monkeypatch.setattr(compiled, "_compiler", lambda: None)
-    with caplog.at_level(logging.WARNING, logger="ngbet.continuum.compiled"):
+    with caplog.at_level(logging.WARNING, logger="ngbet.numerics.compiled"):
         _, mode = compiled.compile_energy(_cf(), "native", 10)
     assert mode == "interpret"
     assert "no C++ compiler" in caplog.text
@@ -51,7 +52,7 @@ def test_the_interpreted_linearization_is_the_hessian():
         "discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 0.0,
         "solver.compile": "interpret"})))
     assert pr.compile_mode == "interpret"
-    pr.set_load(0.02)
+    pr.state.set_load(0.02)
     rng = np.random.default_rng(0)
     free = pr.problem.free_all
     pr.x[free] += 1e-4 * rng.standard_normal(int(free.sum()))
@@ -73,7 +74,7 @@ def _state(h_mm: float, mode: str) -> ContinuumSolver:
     pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{
         "discretization.mesh_size_mm": h_mm, "discretization.corner_mesh_size_mm": 0.0, "solver.compile": mode})))
     assert pr.compile_mode == mode
-    pr.set_load(0.02)
+    pr.state.set_load(0.02)
     free = pr.problem.free_all
     pr.x[free] += 1e-4 * np.random.default_rng(0).standard_normal(int(free.sum()))
     return pr

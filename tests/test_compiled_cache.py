@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from ngbet.continuum import compiled
+from ngbet.numerics import compiled
 
 FAKE_NGSCXX = """#!/bin/sh
 # stand-in for NGSolve's ngscxx -c SOURCE -o OBJECT: the object names its source's text
@@ -160,7 +160,7 @@ def test_a_kept_library_with_changed_bytes_is_linked_again(tmp_path, cache):
 ENERGY = """
 import sys
 import ngsolve as ngs
-from ngbet.continuum import compiled
+from ngbet.numerics import compiled
 k = float(sys.argv[1])
 fes = ngs.H1(ngs.Mesh(ngs.unit_square.GenerateMesh(maxh=0.5)), order=1)
 u = fes.TrialFunction()

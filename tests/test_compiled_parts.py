@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sps
 
-from ngbet.continuum import compiled
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.solver import ContinuumSolver
+from ngbet.numerics import compiled
+from ngbet.runner.settings import continuum_solver
 from ngbet.scene.document import default_scene
 
 
@@ -18,7 +19,7 @@ def _problem(p: int) -> ContinuumSolver:
                                                           # the parts of the energy alone (the jamming
                                                           # barrier is an integrator of its own)
                                                           "effects.jamming": False})))
-    pr.set_load(0.02)
+    pr.state.set_load(0.02)
     free = pr.problem.free_all
     pr.x[free] += 1e-4 * np.random.default_rng(0).standard_normal(int(free.sum()))
     return pr
@@ -47,7 +48,7 @@ def test_the_energy_in_parts_is_the_whole_energy(p):
     r = vec.CreateVector()
     whole.Apply(vec, r)
     assert np.abs(pr.residual() - r.FV().NumPy()).max() <= 1e-13 * np.abs(r.FV().NumPy()).max()
-    for mine, theirs in ((pr.a, whole), (pr.linear.form, _whole(pr, saddle(pr.K_aug), condense=True))):
+    for mine, theirs in ((pr.a, whole), (pr.linear.form, _whole(pr, saddle(pr.linear.K_aug), condense=True))):
         mine.AssembleLinearization(vec)
         theirs.AssembleLinearization(vec)
         fd = np.flatnonzero(np.array(list(pr.problem.X.FreeDofs(mine.condense)), dtype=bool))

@@ -4,10 +4,11 @@ import ngsolve as ngs
 import numpy as np
 import scipy.sparse as sps
 
-from ngbet.continuum.linear import NewtonLinearSolver
 from ngbet.continuum.mesh import corner_refined
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.solver import ContinuumSolver
+from ngbet.numerics.linear import NewtonLinearSolver
+from ngbet.runner.settings import continuum_solver
 from ngbet.scene.document import default_scene
 
 
@@ -21,7 +22,7 @@ def _solver(scene, mesh=None) -> ContinuumSolver:
 
 
 def _perturb(pr: ContinuumSolver, seed: int) -> None:
-    pr.set_load(0.02)
+    pr.state.set_load(0.02)
     free = pr.problem.free_all
     pr.x[free] += 1e-4 * np.random.default_rng(seed).standard_normal(int(free.sum()))
 
@@ -41,7 +42,7 @@ def test_the_lower_triangle_is_the_full_newton_matrix():
     for pr in (lower, full):
         _perturb(pr, 0)
         pr.factorize()
-    assert (lower.inverse_type, full.inverse_type) == ("sparsecholesky", "umfpack")
+    assert (lower.linear.inverse_type, full.linear.inverse_type) == ("sparsecholesky", "umfpack")
     stored = _stored(lower)
     assert sps.triu(stored, 1).nnz == 0
     assert stored.nnz < 0.52 * _stored(full).nnz  # half the off-diagonal entries

@@ -5,13 +5,15 @@ import numpy as np
 import pytest
 
 from ngbet import run as ngbet_run
-from ngbet.continuum import linear
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
+from ngbet.continuum.solver import ContinuumSolver
+from ngbet.numerics import linear
+from ngbet.runner import threads
+from ngbet.runner.settings import continuum_solver
 from ngbet.scene.document import default_scene
 
 
-@pytest.mark.parametrize(("threads", "model", "load", "expected"), [
+@pytest.mark.parametrize(("n", "model", "load", "expected"), [
     (3, "continuum", 0.0, (3, 3)),           # an integer: the run and its assemblies alike
     (1, "continuum", 0.0, (1, 1)),
     ("auto", "continuum", 0.2, (1, 2)),      # 1.8 idle cores: the assembly on both
@@ -19,16 +21,16 @@ from ngbet.scene.document import default_scene
     ("auto", "continuum", 3.0, (1, 1)),      # a busy machine
     ("auto", "discrete", 3.0, (2, 2)),       # the network: all cores
 ])
-def test_thread_policy(threads, model, load, expected):
-    assert ngbet_run.thread_policy(threads, model, cores=2, load=load) == expected
+def test_thread_policy(n, model, load, expected):
+    assert threads.thread_policy(n, model, cores=2, load=load) == expected
 
 
 def test_auto_threads_run_serial_and_assemble_in_their_own_task_manager(monkeypatch):
     """With fewer run threads than assembly threads no TaskManager is held for the run (NGSolve's
     parallel loops then run in the calling thread), and the assembly is told its thread count."""
-    monkeypatch.setattr(ngbet_run, "thread_policy", lambda threads, model: (1, 2))
+    monkeypatch.setattr(threads, "thread_policy", lambda n, model: (1, 2))
     seen = []
-    with ngbet_run.ngsolve_threads(default_scene()):
+    with threads.ngsolve_threads(default_scene()):
         seen.append(linear._ASSEMBLY_THREADS.get())
     assert seen == [2]
     assert linear._ASSEMBLY_THREADS.get() == 0
@@ -37,7 +39,7 @@ def test_auto_threads_run_serial_and_assemble_in_their_own_task_manager(monkeypa
 def _problem() -> ContinuumSolver:
     pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
                                                                            "solver.compile": "interpret"})))
-    pr.set_load(0.02)
+    pr.state.set_load(0.02)
     free = pr.problem.free_all
     pr.x[free] += 1e-4 * np.random.default_rng(0).standard_normal(int(free.sum()))
     return pr
@@ -69,7 +71,7 @@ def test_a_run_with_threaded_assembly_gives_the_serial_forces(monkeypatch, tmp_p
     tolerance), and summary.json says how the threads were used."""
     scene = coarse_scene(**{"discretization.mesh_size_mm": 20.0, "outputs.error_estimate": "off"})
     serial = ngbet_run.run(scene, tmp_path / "serial")
-    monkeypatch.setattr(ngbet_run, "thread_policy", lambda threads, model: (1, 2))
+    monkeypatch.setattr(threads, "thread_policy", lambda n, model: (1, 2))
     split = ngbet_run.run(scene.with_changes(**{"solver.threads": "auto"}), tmp_path / "split")
     assert (serial["threads"], serial["assembly_threads"]) == (1, 1)
     assert (split["threads"], split["assembly_threads"]) == (1, 2)
@@ -89,7 +91,7 @@ def test_a_run_holds_the_blas_pools_to_one_thread():
     import numpy  # noqa: F401  (numpy's BLAS is loaded)
     from threadpoolctl import threadpool_info
 
-    from ngbet.run import ngsolve_threads
+    from ngbet.runner.threads import ngsolve_threads
     from ngbet.scene.document import Scene
 
     before = {i["filepath"]: i["num_threads"] for i in threadpool_info()}

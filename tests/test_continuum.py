@@ -8,14 +8,13 @@ import math
 import ngsolve as ngs
 import numpy as np
 import pytest
-from conftest import coarse
+from conftest import capabilities, carry, coarse
 
 from ngbet.continuum import observables as obs
-from ngbet.continuum.newton import newton
-from ngbet.continuum.numerics import continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.settings import newton_settings
+from ngbet.numerics.newton import newton
 from ngbet.run import run
+from ngbet.runner.settings import continuum_solver, newton_settings
 from ngbet.scene.document import Scene, default_scene
 from ngbet.tables import read_profiles, read_rows
 
@@ -114,11 +113,10 @@ def test_reaction_does_not_depend_on_the_test_field(tmp_path):
     """At equilibrium ψ = ((X/L)², 0) (also 1 on Σ2, 0 on Σ1) gives the same force as X/L."""
     scene = coarse(**{"loading.u0_mm": 20.0})
     problem = ContinuumProblem(scene)
-    from ngbet.continuum.solver import continuation
 
     solver = continuum_solver(problem)
     with ngs.TaskManager():
-        continuation(solver, 0.02, 0.008, newton_settings(scene))
+        carry(solver, 0.02, 0.008, newton_settings(scene), **capabilities(solver))
         r = solver.residual()
         psi2 = ngs.GridFunction(problem.X)
         psi2.components[0].Set(ngs.CF(((ngs.x / scene.specimen.L) ** 2, 0)))
@@ -185,7 +183,6 @@ def test_ideal_kinematics_shear_angle_follows_the_table(u0):
     37 mm), which is how the energy gets below E_id (test above). The centre value is therefore
     asserted between 0.75 γ_A and γ_A, not equal to it."""
     from ngbet.continuum import physics
-    from ngbet.continuum.solver import continuation
     from ngbet.kinematics import gamma_a
 
     scene = coarse(**{"material.K_el": 1e8, "effects.bending": False, "loading.u0_mm": u0, "loading.stops_mm": (),
@@ -193,8 +190,9 @@ def test_ideal_kinematics_shear_angle_follows_the_table(u0):
                       "discretization.structured": True})
     with ngs.TaskManager():
         problem = ContinuumProblem(scene)
-        continuation(continuum_solver(problem), u0 * 1e-3, 4e-3, newton_settings(scene), max_step=14e-3,
-                     min_step=5e-5)
+        solver = continuum_solver(problem)
+        carry(solver, u0 * 1e-3, 4e-3, newton_settings(scene), **capabilities(solver), max_step=14e-3,
+              min_step=5e-5)
         inv = problem.invariants()
         gamma = physics.shear_angle(inv.i4, inv.i6, inv.i8)
         W, L = scene.specimen.W, scene.specimen.L
@@ -353,8 +351,8 @@ def test_ellipticity_loss_of_a_homogeneous_compression_of_the_thin_yarns(s):
 def test_vtk_output_at_a_high_order_stays_small(tmp_path):
     """The VTK subdivision grows with log2 p, not with p: at p = 10 a linear rule (s = p − 1)
     wrote 4^9 sub-triangles per element and the run was killed out of memory (24 GB)."""
-    from ngbet.continuum.output import vtk_subdivision
     from ngbet.run import run
+    from ngbet.runner.fields import vtk_subdivision
     from ngbet.scene.document import Scene
 
     assert [vtk_subdivision(p) for p in (1, 2, 3, 4, 5, 8, 9, 16)] == [0, 1, 2, 2, 3, 3, 4, 4]

@@ -18,7 +18,7 @@ from ngbet.discrete import elements as el
 from ngbet.discrete.linsolve import FreeBlockSolver
 from ngbet.discrete.model import Pattern
 from ngbet.discrete.newton import StepControl, newton
-from ngbet.engine import PathControl
+from ngbet.numerics.engine import PathControl
 
 
 class Chain:

@@ -10,7 +10,7 @@ from ngbet import cholmod
 from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError, resolve_backend
 from ngbet.discrete.newton import StepControl, StepFailed, newton
 from ngbet.discrete.solver import load_steps, single_threaded_blas, solve_path
-from ngbet.engine import PathControl, PathResult, Steps
+from ngbet.numerics.engine import PathControl, PathResult, Steps
 
 
 class DoubleWell:

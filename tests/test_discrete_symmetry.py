@@ -20,10 +20,10 @@ from ngbet.discrete.eigen import OTHER_BLOCK_TOL, lowest_eigenvalues
 from ngbet.discrete.linsolve import FreeBlockSolver
 from ngbet.discrete.model import NetworkModel
 from ngbet.discrete.newton import newton
-from ngbet.discrete.run import step_control
 from ngbet.discrete.solver import load_steps, solve_path
 from ngbet.discrete.symmetry import COUPLING_TOL, Blocks, HalfTurn, half_turn
-from ngbet.engine import Steps
+from ngbet.numerics.engine import Steps
+from ngbet.runner.settings import step_control
 from ngbet.scene.document import Scene
 
 SCENE = {"model": "discrete", "discrete.spacing_mm": 5.0, "loading.u0_mm": 56.0, "outputs.plot": False}

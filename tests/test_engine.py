@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from ngbet.cli import main
-from ngbet.engine import Outcome, PathControl, StepRecord, follow_path
 from ngbet.errors import ConvergenceError
+from ngbet.numerics.engine import Outcome, PathControl, StepRecord, Steps, path_steps
 from ngbet.run import run
 from ngbet.scene.document import Scene
 from ngbet.tables import read_rows
@@ -122,9 +122,17 @@ class Toy:
         return "toy diagnosis", None
 
 
+def _to_end(corrector, ctl):
+    """The engine's path carried to its end, its records kept: the PathResult."""
+    steps = Steps(path_steps(corrector, ctl))
+    for _ in steps:
+        pass
+    return steps.result
+
+
 def test_steps_grow_land_on_stops_and_resume_their_length():
     ctl = PathControl(target=0.010, first_step=0.001, max_step=0.004, growth=2.0, stops=(0.0035,))
-    res = follow_path(Toy(), ctl)
+    res = _to_end(Toy(), ctl)
     loads = [round(s.u0 * 1e3, 9) for s in res.steps]
     # 1, 2 (x2), then 4 would pass the stop at 3.5: land on it; the stop does not shorten the next
     # step (4, capped by max_step), then the target
@@ -133,13 +141,13 @@ def test_steps_grow_land_on_stops_and_resume_their_length():
 
 def test_a_stop_just_beyond_a_trial_is_landed_on():
     ctl = PathControl(target=0.010, first_step=0.003, max_step=0.003, growth=1.0, stops=(0.0032,), land_within=0.2)
-    loads = [round(s.u0 * 1e3, 9) for s in follow_path(Toy(), ctl).steps]
+    loads = [round(s.u0 * 1e3, 9) for s in _to_end(Toy(), ctl).steps]
     assert loads[0] == 3.2  # 3.2 - 3.0 = 0.2 mm < 0.2 x 3 mm
 
 
 def test_failures_cut_the_step_and_retries_take_the_correctors_length():
     toy = Toy(max_h=0.0015, retry_at=0.0055)
-    res = follow_path(toy, PathControl(target=0.008, first_step=0.004, cut=0.5, growth=1.0))
+    res = _to_end(toy, PathControl(target=0.008, first_step=0.004, cut=0.5, growth=1.0))
     assert res.cuts == 2 and [round(h * 1e3, 9) for _, h in toy.trials[:3]] == [4.0, 2.0, 1.0]
     # 5 -> 6 mm crosses the retry point at 5.5 mm: the corrector's 0.5 mm, then on at 0.5 mm
     assert res.retries == 1 and (0.005, 0.0005) in [(round(u, 9), round(h, 9)) for u, h in toy.trials]
@@ -150,7 +158,7 @@ def test_convergence_error_names_the_last_load_in_mm_and_keeps_the_attempts():
     toy = Toy(wall=0.00481)
     ctl = PathControl(target=0.010, first_step=0.002, min_step=1e-4, growth=1.0)
     with pytest.raises(ConvergenceError) as info:
-        follow_path(toy, ctl)
+        _to_end(toy, ctl)
     err = info.value
     # halving the step creeps up to the wall at 4.81 mm until the step is below 0.1 mm
     assert 4.81 - 0.1 <= err.last_converged_mm <= 4.81

@@ -244,8 +244,8 @@ def test_an_interrupt_lost_inside_a_library_still_stops_the_run(tmp_path, monkey
     a failed conversion, and 2 runs in 150 under load went on to the end with exit status 0. The
     handler also sets engine.STOP_REQUESTED, and the load loop raises at the next step. Here the
     handler's effect is imitated at the third step: the flag set, the exception lost."""
-    from ngbet import engine
     from ngbet.continuum import observables as obs
+    from ngbet.numerics import engine
 
     calls = []
     angle = obs.centre_shear_angle_deg
@@ -689,7 +689,7 @@ def test_fields_file_appears_only_complete_and_in_mm(tmp_path, monkeypatch):
     """The fields file is written and rescaled to mm under a temporary name, then renamed: an
     interrupt between NGSolve's write (coordinates in metres) and the rescale leaves no fields.vtu."""
     pytest.importorskip("pyvista")
-    import ngbet.continuum.output as co
+    import ngbet.runner.fields as co
 
     scene = Scene().with_changes(**{**TINY, "outputs.vtk": True, "loading.stops_mm": []})
     run(scene, tmp_path / "ok")

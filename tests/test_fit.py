@@ -9,6 +9,7 @@ from pathlib import Path
 import ngsolve as ngs
 import numpy as np
 import pytest
+from conftest import capabilities, carry
 
 from ngbet.calibration.data import MeasuredCurve, read_measured
 from ngbet.calibration.fit_params import JointFit
@@ -16,7 +17,7 @@ from ngbet.calibration.joint import fit_curves, predict_specimen
 from ngbet.calibration.observations import Profile
 from ngbet.cli import main
 from ngbet.continuum import physics
-from ngbet.continuum.sensitivity import finite_difference, force_path
+from ngbet.runner.sensitivity import finite_difference, force_path
 from ngbet.scene.document import Scene
 from ngbet.scene.validate import SceneError
 
@@ -219,15 +220,13 @@ def test_load_tangent_at_a_converged_state_is_that_of_the_tangent_there(monkeypa
     (measured 2.6e-8; Newton's own was 2.2e-6 off); when the refinement cannot reach its
     tolerance, it is that of a factorization made there."""
     from ngbet.continuum import sensitivity as S
-    from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
-    from ngbet.continuum.settings import newton_settings
-    from ngbet.continuum.solver import continuation
+    from ngbet.runner.settings import continuum_solver, newton_settings
 
     sc = Scene().with_changes(**{"discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 2.0,
                                  "discretization.order_u": 2, "loading.u0_mm": 20.0, "effects.constraint": "penalty"})
     pb = continuum_solver(ContinuumProblem(sc))
-    continuation(pb, 20e-3, 2e-3, newton_settings(sc), max_step=5e-3, min_step=1e-5)
+    carry(pb, 20e-3, 2e-3, newton_settings(sc), max_step=5e-3, min_step=1e-5, **capabilities(pb))
     x = pb.x.copy()
     stale = pb.load_tangent(1.0)
     refined = S.load_tangent_at_state(pb)

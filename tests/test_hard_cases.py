@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import OneDofToy, coarse
+from conftest import OneDofToy, carry, coarse
 
 from ngbet.errors import ConvergenceError
 from ngbet.run import run
@@ -452,14 +452,12 @@ class _Fold(OneDofToy):
 
     def __init__(self):
         self.x = np.zeros(2)
-        self.lam = 0.0
 
     @staticmethod
     def g(y):
         return y ** 3 - 1.5 * y ** 2 + 0.6 * y
 
     def set_load(self, lam):
-        self.lam = lam
         self.x[0] = lam
 
     def residual(self):
@@ -475,23 +473,34 @@ class _Fold(OneDofToy):
         self.J = 3 * y ** 2 - 3 * y + 0.6
 
 
+def _arclength_to_end(problem, ctl, settings, **kwargs):
+    """The arc-length path carried to its end: the result and the instabilities its records carry."""
+    from ngbet.numerics.arclength import arclength_steps
+    from ngbet.numerics.engine import Steps
+
+    found = []
+    steps = Steps(arclength_steps(problem, ctl, settings, **kwargs))
+    for rec in steps:
+        found += rec.instabilities
+    return steps.result, found
+
+
 def test_arclength_passes_the_snap_back_of_a_toy_that_displacement_control_cannot():
     """Displacement control of the toy stops at its fold (λ = 0.0726); pseudo-arclength follows
     the path round both turning points to λ = g(1.2) = 0.288, every point in equilibrium, and
     reports the snap-back at the fold's load."""
-    from ngbet.continuum.arclength import ArcLengthSettings, follow_arclength
-    from ngbet.continuum.settings import NewtonSettings
-    from ngbet.continuum.solver import continuation
+    from ngbet.numerics.arclength import ArcLengthSettings
+    from ngbet.numerics.settings import NewtonSettings
 
     lam_fold = _Fold.g((3 - math.sqrt(1.8)) / 6)
     target = _Fold.g(1.2)
     with pytest.raises(ConvergenceError) as info:
-        continuation(_Fold(), target, 0.01, NewtonSettings(), min_step=1e-6)
+        carry(_Fold(), target, 0.01, NewtonSettings(), min_step=1e-6)
     assert info.value.last_converged_mm * 1e-3 <= lam_fold
     toy = _Fold()
     ctl = ArcLengthSettings(target=target, first_step=0.01, max_step=0.05, min_step=1e-6)
-    res, found = follow_arclength(toy, ctl, NewtonSettings(), weights=np.array([0.0, 1.0]), length=1.0,
-                                  psi=np.array([1.0, 0.0]))
+    res, found = _arclength_to_end(toy, ctl, NewtonSettings(), weights=np.array([0.0, 1.0]), length=1.0,
+                                   psi=np.array([1.0, 0.0]))
     assert res.u0 == target and toy.x[1] == pytest.approx(1.2, rel=1e-6)  # the unique equilibrium there
     lam = np.array([s.u0 for s in res.steps])
     assert np.any(np.diff(lam) < 0)  # the path went back in λ
@@ -510,6 +519,7 @@ class _Pitchfork:
     def __init__(self):
         self.x = np.zeros(3)
         self.lam = 0.0
+        self.state = self
 
     def set_load(self, lam):
         self.lam = lam
@@ -550,14 +560,14 @@ class _Pitchfork:
 
 
 def _follow_pitchfork(branch, sign=1.0):
-    from ngbet.continuum.arclength import ArcLengthSettings, follow_arclength
-    from ngbet.continuum.settings import NewtonSettings
+    from ngbet.numerics.arclength import ArcLengthSettings
+    from ngbet.numerics.settings import NewtonSettings
 
     toy = _Pitchfork()
     ctl = ArcLengthSettings(target=1.5, first_step=0.07, max_step=0.07, min_step=1e-6)
-    res, found = follow_arclength(toy, ctl, NewtonSettings(), weights=np.array([0.0, 1.0, 1.0]), length=1.0,
-                                  psi=np.array([1.0, 0.0, 0.0]), lowest_eigenpair=toy.lowest_eigenpair,
-                                  branch=branch, branch_sign=sign)
+    res, found = _arclength_to_end(toy, ctl, NewtonSettings(), weights=np.array([0.0, 1.0, 1.0]), length=1.0,
+                                   psi=np.array([1.0, 0.0, 0.0]), lowest_eigenpair=toy.lowest_eigenpair,
+                                   branch=branch, branch_sign=sign)
     return toy, res, found
 
 
@@ -618,9 +628,9 @@ def test_branch_switching_is_refused_where_it_does_not_apply():
 def test_no_eigenvalue_of_an_uncondensed_saddle_point_tangent(tmp_path):
     """With Λ kept in the matrix the tangent is indefinite by construction: the lowest eigenpair is
     refused (it would report a negative eigenvalue at the unloaded state) and the diagnosis skips."""
-    from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
     from ngbet.continuum.stability import diagnose_stability, lowest_eigenpair
+    from ngbet.runner.settings import continuum_solver
     from ngbet.scene.document import Scene
 
     pb = continuum_solver(ContinuumProblem(Scene().with_changes(**{"discretization.mesh_size_mm": 20.0,

@@ -179,8 +179,8 @@ def test_removing_the_previous_runs_files_is_all_or_none(tmp_path, monkeypatch):
 
 # --------------------------------------------------------------------------------- figures
 def test_an_interrupted_import_of_an_installed_matplotlib_is_not_called_missing(monkeypatch, caplog):
-    from ngbet.engine import STOP_REQUESTED
     from ngbet.figures import run as fr
+    from ngbet.numerics.engine import STOP_REQUESTED
 
     cut = ImportError("cannot import name 'pyplot' from partially initialized module 'matplotlib'")
     STOP_REQUESTED.set()

@@ -139,8 +139,8 @@ def test_an_ordinary_run_never_reaches_it(tmp_path, made_problems):
 def _sheared_problem(gamma_deg):
     """The solver of a coarse problem (p = 2, no Dirichlet data) in the homogeneous state of inextensible ±45°
     yarns sheared by γ."""
-    from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
+    from ngbet.runner.settings import continuum_solver
 
     pb = ContinuumProblem(coarse(**{"discretization.mesh_size_mm": 20.0}), dirichlet="")
     m1, m2 = np.array(pb.scene.specimen.m1), np.array(pb.scene.specimen.m2)
@@ -158,14 +158,14 @@ def test_the_barrier_is_switched_on_where_the_yarns_come_near():
     order 2p."""
     K, s_jam = 7e5, S_JAM
     pb, _ = _sheared_problem(60.0)
-    pb.converged()
+    pb.problem.converged()
     assert not pb.problem.jamming_on
     pb, _ = _sheared_problem(84.0)
     E_before = pb.energy()
-    pb.converged()
+    pb.problem.converged()
     assert pb.problem.jamming_on and pb.energy() == E_before
     pb, F = _sheared_problem(86.0)
-    pb.converged()
+    pb.problem.converged()
     assert pb.problem.jamming_on
     E_on = pb.energy()
     pb.problem.jamming.elements.Clear()
@@ -198,24 +198,28 @@ def test_no_state_of_the_path_has_crossed_yarns_that_the_barrier_missed():
     yarns cross (-30°): no equilibrium of the energy. Such a state is solved again with the
     barrier on: every state kept without the barrier has its yarns more open than the jamming
     angle, and none has crossed yarns (with the barrier, they may close into it, not past it)."""
-    from ngbet.continuum.numerics import continuum_solver
     from ngbet.continuum.problem import ContinuumProblem
-    from ngbet.continuum.run import load_path
-    from ngbet.engine import run_to_end
+    from ngbet.numerics.engine import Steps
+    from ngbet.runner.continuum import load_path
+    from ngbet.runner.settings import continuum_solver
 
     scene = Scene().with_changes(**{"effects.bending": False, "loading.u0_mm": 22.0, "loading.output_every_mm": 0.0})
     solver = continuum_solver(ContinuumProblem(scene))
     jam = solver.problem.jamming
     sine, points = jam._check
     smallest = []
-    original = solver.converged
+    original = solver.problem.converged
 
     def watched() -> None:
         smallest.append((jam.on, float(np.min(np.asarray(sine(points))))))
         original()
 
-    solver.converged = watched
-    res = run_to_end(load_path(solver, scene))
+    solver.problem.converged = watched
+    steps = Steps(load_path(solver, scene))
+    for _ in steps:
+        pass
+    res = steps.result
+    assert res is not None
     assert res.u0 == pytest.approx(0.022)
     assert jam.on and any(a.reason == "the yarns close past the jamming angle in the state found without the "
                           "barrier; solved again with it" for a in res.attempts)

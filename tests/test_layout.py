@@ -4,8 +4,8 @@ Read from the source (``ast``), nothing imported: every module of ``ngbet`` and 
 declares ``__all__`` with the names it defines; an import names the module that defines the name
 (no module hands on a name it imported: a re-export), except the public API of the top-level
 package ``ngbet``; no private name (``_x``) is imported from another module; the modules import
-each other without a circle, imports for type checking included; no module is much longer than
-500 lines.
+each other without a circle, imports for type checking included; the layers import downwards
+only (:data:`LAYERS`); no module is much longer than 500 lines.
 """
 
 from __future__ import annotations
@@ -170,6 +170,27 @@ def test_no_import_circle():
                     stack.append((n, [*path, n]))
 
 
+#: the run folder, its writers and figures, and what runs them: the top of the import graph
+OUTPUTS = ("ngbet.runner", "ngbet.run", "ngbet.run_folder", "ngbet.output", "ngbet.plot_process", "ngbet.figures",
+           "ngbet.study", "ngbet.studies", "ngbet.calibration", "ngbet.api", "ngbet.cli", "ngbet.commands")
+#: what the modules of a package may not import (at any depth, type-only imports included): the
+#: numerics are model-free (no scene, no model), and neither they nor the continuum reach up to the
+#: runner, the run folder or the figures
+LAYERS = {"ngbet.numerics": ("ngbet.scene", "ngbet.continuum", "ngbet.discrete", *OUTPUTS),
+          "ngbet.continuum": OUTPUTS}
+
+
+def _inside(module: str, packages: tuple[str, ...] | str) -> bool:
+    packages = (packages,) if isinstance(packages, str) else packages
+    return any(module == p or module.startswith(p + ".") for p in packages)
+
+
+def test_the_layers_import_downwards_only():
+    wrong = [f"{m} imports {n}" for layer, banned in LAYERS.items() for m in MODULES if _inside(m, layer)
+             for n in sorted(_edges(m)) if _inside(n, banned)]
+    assert not wrong, "\n".join(wrong)
+
+
 def test_modules_stay_small():
     big = {m: n for m, p in MODULES.items() if (n := len(p.read_text().splitlines())) > 510}  # about 500 lines
     assert not big, big
@@ -208,3 +229,23 @@ def test_the_circle_check_sees_a_circle(monkeypatch, tmp_path):
     monkeypatch.setitem(globals(), "TREES", {m: ast.parse(p.read_text()) for m, p in files.items()})
     with pytest.raises(AssertionError, match="import circle: ngbet.a -> ngbet.b -> ngbet.a"):
         test_no_import_circle()
+
+
+@pytest.mark.parametrize("layer, source", [
+    ("numerics", "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from ..scene.document import Scene\n"),
+    ("numerics", "def f():\n    from ..continuum.problem import ContinuumProblem\n"),
+    ("continuum", "from ..figures import run\n"),
+    ("continuum", "from ..runner.settings import newton_settings\n"),
+])
+def test_the_layer_check_sees_an_import_that_climbs(monkeypatch, tmp_path, layer, source):
+    """A numerics module that reads the scene (for type checking only) or a model, a continuum module
+    that reaches for the figures or the runner: each is named."""
+    files = {f"ngbet.{layer}.a": tmp_path / "a.py", "ngbet.scene.document": tmp_path / "document.py",
+             "ngbet.continuum.problem": tmp_path / "problem.py", "ngbet.figures.run": tmp_path / "run.py",
+             "ngbet.runner.settings": tmp_path / "settings.py"}
+    for m, p in files.items():
+        p.write_text(source if m == f"ngbet.{layer}.a" else "")
+    monkeypatch.setitem(globals(), "MODULES", files)
+    monkeypatch.setitem(globals(), "TREES", {m: ast.parse(p.read_text()) for m, p in files.items()})
+    with pytest.raises(AssertionError, match=f"ngbet.{layer}.a imports ngbet"):
+        test_the_layers_import_downwards_only()

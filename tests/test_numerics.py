@@ -1,18 +1,18 @@
-"""The continuum problem apart from its solver (ngbet.continuum.numerics): one translation of the
+"""The continuum problem apart from its solver (ngbet.continuum.solver): one translation of the
 scene's linear algebra, reused by the error estimate's enriched problems and the path spread's copies."""
 
 import dataclasses
 
 import numpy as np
 import pytest
-from conftest import coarse
+from conftest import capabilities, carry, coarse
 
 from ngbet.continuum.estimate import ForceErrorEstimator
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.path_spread import RunPathSpread
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.settings import LinearSettings, linear_settings, newton_settings
-from ngbet.continuum.solver import continuation
+from ngbet.continuum.solver import ContinuumSolver
+from ngbet.numerics.settings import LinearSettings
+from ngbet.runner.settings import continuum_solver, linear_settings, newton_settings, solver_settings
 
 
 def _scene(**changes):
@@ -25,7 +25,7 @@ def test_the_scene_is_translated_once_into_frozen_settings():
     assert s == LinearSettings(linear_solver="umfpack", condense=False, compile="interpret")
     with pytest.raises(dataclasses.FrozenInstanceError):
         s.condense = True  # type: ignore[misc]
-    assert continuum_solver(ContinuumProblem(sc)).settings == s
+    assert continuum_solver(ContinuumProblem(sc)).settings.linear == s
 
 
 def test_the_solver_counts_what_it_does_and_the_problem_nothing():
@@ -33,7 +33,7 @@ def test_the_solver_counts_what_it_does_and_the_problem_nothing():
     with the summary's keys (timers in seconds, never negative)."""
     solver = continuum_solver(ContinuumProblem(_scene()))
     assert solver.counts == {"factorizations": 0, "solves": 0, "residuals": 0}
-    solver.set_load(0.01)
+    solver.state.set_load(0.01)
     r = solver.residual()
     solver.factorize()
     solver.solve(r)
@@ -51,18 +51,19 @@ def test_the_enriched_problems_and_branch_copies_get_solvers_of_the_runs_setting
     translation of the scene. The estimate is that of the run with the scene's own settings, since
     both inverses solve the same systems (to the round-off the augmented matrix amplifies)."""
     sc = _scene(**{"loading.u0_mm": 10.0})
-    mine = LinearSettings(linear_solver="umfpack", condense=True, compile="interpret")
+    mine = dataclasses.replace(solver_settings(sc), linear=LinearSettings(linear_solver="umfpack", condense=True,
+                                                                         compile="interpret"))
     forces = []
-    for settings in (mine, linear_settings(sc)):
+    for settings in (mine, solver_settings(sc)):
         solver = ContinuumSolver(ContinuumProblem(sc), settings)
-        res = continuation(solver, 0.01, 0.005, newton_settings(sc))
+        res = carry(solver, 0.01, 0.005, newton_settings(sc), **capabilities(solver))
         est = ForceErrorEstimator(solver)
         F = float(solver.problem.psi_u.vec.FV().NumPy() @ res.steps[-1].residual) * sc.specimen.t
         forces.append((F, est.estimate(0.01, F).force_enriched_N))
         if settings is mine:
             enriched = [est._enriched, est._enriched2]
             assert [e.settings for e in enriched] == [mine, mine]
-            assert [e.inverse_type for e in enriched] == ["umfpack", "umfpack"]
+            assert [e.linear.inverse_type for e in enriched] == ["umfpack", "umfpack"]
             assert [e.problem.scene.discretization.p_u for e in enriched] == [3, 4]
             spread = RunPathSpread(solver)
             spread.left(0.005, solver.x, snap=True)

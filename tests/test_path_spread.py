@@ -4,12 +4,12 @@ import math
 
 import numpy as np
 import pytest
-from conftest import DoubleWell
+from conftest import DoubleWell, carry
 
 from ngbet.continuum.path_spread import PathSpread
-from ngbet.continuum.settings import NewtonSettings, PathSettings
-from ngbet.continuum.solver import continuation, load_steps
-from ngbet.engine import Steps
+from ngbet.numerics.engine import Steps
+from ngbet.numerics.path import load_steps
+from ngbet.numerics.settings import NewtonSettings, PathSettings
 from ngbet.scene.document import Scene
 
 LAM_FOLD = 2 / (3 * math.sqrt(3))  # the left well's branch folds here
@@ -76,11 +76,11 @@ def test_a_branch_that_is_the_path_itself_gives_no_spread_and_ends():
 def test_the_path_tells_the_branch_it_left_at_a_snap_and_its_forces_stay_the_same():
     """Displacement control snaps from the left well to the right at the fold; the record of that
     step carries the state it left (the left well just before λ_f), the others none; the path's
-    states are bit for bit those of :func:`continuation`, which keeps nothing of the records."""
+    states are bit for bit those of a path whose records were not kept."""
     a, b = DoubleWell(), DoubleWell()
-    res_a = continuation(a, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
+    res_a = carry(a, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]), hessian=a)
     steps = Steps(load_steps(b, PathSettings(target=1.0, first_step=0.05, min_step=1e-4), NewtonSettings(),
-                             psi=np.array([1.0, 0.0])))
+                             psi=np.array([1.0, 0.0]), hessian=b))
     left = [(rec.left[0], rec.left[1].copy(), rec.snap) for rec in steps if rec.left is not None]
     assert steps.result is not None
     res_b = steps.result

@@ -11,10 +11,8 @@ import pytest
 from ngbet.api import simulate
 from ngbet.continuum import physics
 from ngbet.continuum.mesh import CLAMPED_ARMS, cross_outline, make_cross_mesh
-from ngbet.continuum.numerics import ContinuumSolver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.run import load_path
-from ngbet.continuum.settings import linear_settings
+from ngbet.continuum.solver import ContinuumSolver
 from ngbet.kinematics import (
     PictureFrameColumns,
     frame_normalised_force,
@@ -22,6 +20,8 @@ from ngbet.kinematics import (
     frame_stretches,
     shear_force,
 )
+from ngbet.runner.continuum import load_path
+from ngbet.runner.settings import solver_settings
 from ngbet.scene.document import Scene, SceneWarning
 from ngbet.scene.numerical import Discretization
 from ngbet.scene.physical import PictureFrame, Specimen
@@ -176,7 +176,7 @@ def test_the_clamped_square_shears_homogeneously_with_the_force_of_its_energy(be
 
 def test_the_shear_angle_field_of_the_clamped_square_is_the_frames_everywhere():
     sc = frame_scene(**{"loading.u0_mm": 40.0, "loading.stops_mm": []})
-    solver = ContinuumSolver(ContinuumProblem(sc), linear_settings(sc))
+    solver = ContinuumSolver(ContinuumProblem(sc), solver_settings(sc))
     for _ in load_path(solver, sc):
         pass
     p = solver.problem

@@ -6,14 +6,13 @@ import math
 import ngsolve as ngs
 import numpy as np
 import pytest
-from conftest import coarse
+from conftest import capabilities, carry, coarse
 
-from ngbet.continuum.numerics import continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.settings import NewtonSettings, newton_settings
-from ngbet.continuum.solver import continuation
 from ngbet.errors import ConvergenceError
+from ngbet.numerics.settings import NewtonSettings
 from ngbet.run import run
+from ngbet.runner.settings import continuum_solver, newton_settings
 from ngbet.tables import read_rows
 
 
@@ -24,7 +23,7 @@ def _deformed_problem(**changes):
                       "solver.linear_solver": "umfpack", **changes})
     solver = continuum_solver(ContinuumProblem(scene))
     with ngs.TaskManager():
-        continuation(solver, 0.02, 0.01, newton_settings(scene))
+        carry(solver, 0.02, 0.01, newton_settings(scene), **capabilities(solver))
     rng = np.random.default_rng(1)
     free = solver.problem.free_all
     scale = _field_scales(solver.problem)
@@ -103,7 +102,7 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
             + physics.penalty_constraint(phi, inv.i8, problem.K_s))  # the default stabilization
     assert problem.K_s_range[0] > 0
     aug = ngs.BilinearForm(X, symmetric=True)
-    aug += ngs.Variation((base + physics.mixed_penalty_constraint(phi, inv.i8, lam, solver.K_aug)) * problem.dx)
+    aug += ngs.Variation((base + physics.mixed_penalty_constraint(phi, inv.i8, lam, solver.linear.K_aug)) * problem.dx)
     with ngs.TaskManager():
         solver.a.AssembleLinearization(problem.gf.vec)
         aug.AssembleLinearization(problem.gf.vec)
@@ -136,7 +135,7 @@ def test_newton_converges_quadratically_on_a_load_step():
     problem = continuum_solver(ContinuumProblem(scene))
     settings = NewtonSettings(rtol=1e-14, atol=1e-20, max_iterations=12, simplified_theta=0.0)
     with ngs.TaskManager():
-        res = continuation(problem, 0.02, 0.02, settings)
+        res = carry(problem, 0.02, 0.02, settings, **capabilities(problem))
     h = res.steps[0].history
     assert len(h) >= 3
     # the decrement is an energy ~ |dx|², so quadratic convergence of dx means δ_k+1 ~ δ_k²/δ_0
@@ -151,7 +150,7 @@ def test_simplified_exit_saves_a_linearization_without_changing_the_answer():
         problem = continuum_solver(ContinuumProblem(scene))
         s = NewtonSettings(rtol=scene.solver.rtol, atol=scene.solver.atol_energy, simplified_theta=theta)
         with ngs.TaskManager():
-            res = continuation(problem, 0.037, 0.008, s, max_step=0.014, stops=[0.037])
+            res = carry(problem, 0.037, 0.008, s, max_step=0.014, stops=[0.037], **capabilities(problem))
             forces.append(float(problem.residual() @ problem.problem.psi_u.vec.FV().NumPy()))
         facts.append(problem.counts["factorizations"])
         assert len(res.steps) >= 3

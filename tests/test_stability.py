@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import DoubleWell
+from conftest import DoubleWell, carry
 
 from ngbet.continuum.stability import EllipticityLoss, StabilityDiagnosis
 
@@ -36,11 +36,10 @@ def test_displacement_control_snaps_through_a_fold_to_the_other_well_and_goes_on
     """At the fold the step is relaxed to the stable state at the same load (the right well), the
     jump is recorded with the energy it released (0.75 at the fold, the exact value of the toy),
     and the path goes on to λ = 1, where the equilibrium is the real root of y³ − y = 1."""
-    from ngbet.continuum.settings import NewtonSettings
-    from ngbet.continuum.solver import continuation
+    from ngbet.numerics.settings import NewtonSettings
 
     toy = DoubleWell()
-    res = continuation(toy, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
+    res = carry(toy, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]), hessian=toy)
     lam_f = 2 / (3 * math.sqrt(3))
     assert res.u0 == 1.0
     assert toy.x[1] == pytest.approx(1.3247179572, rel=1e-8)  # the plastic number
@@ -55,20 +54,20 @@ def test_displacement_control_snaps_through_a_fold_to_the_other_well_and_goes_on
 
 def test_without_relaxation_displacement_control_stops_at_the_fold():
     """The same toy with ``snap = False``: displacement control cannot pass the fold."""
-    from ngbet.continuum.settings import NewtonSettings
-    from ngbet.continuum.solver import continuation
     from ngbet.errors import ConvergenceError
+    from ngbet.numerics.settings import NewtonSettings
 
     with pytest.raises(ConvergenceError) as info:
-        continuation(DoubleWell(), 1.0, 0.05, NewtonSettings(), min_step=1e-4, snap=False)
+        toy = DoubleWell()
+        carry(toy, 1.0, 0.05, NewtonSettings(), min_step=1e-4, snap=False, hessian=toy)
     assert info.value.last_converged_mm * 1e-3 < 2 / (3 * math.sqrt(3))
 
 
 def test_relaxation_leaves_an_unstable_equilibrium_along_its_mode():
     """Started on the hilltop y = 0 at λ = 0 (an equilibrium, tangent −1), :func:`relax` kicks
     along the unstable mode and finds a well bottom y = ±1, stable, reporting the eigenvalue it left."""
-    from ngbet.continuum.relax import relax
-    from ngbet.continuum.settings import NewtonSettings
+    from ngbet.numerics.relax import relax
+    from ngbet.numerics.settings import NewtonSettings
 
     toy = DoubleWell(0.0)
     rep = relax(toy, NewtonSettings(), 1.0)
@@ -90,12 +89,12 @@ class _WallAtZero(DoubleWell):
 def test_no_snap_into_an_inadmissible_state():
     """The relaxation does not cross into the inadmissible region: the run stops at the fold with
     the reason in the attempts, instead of jumping to the right well."""
-    from ngbet.continuum.settings import NewtonSettings
-    from ngbet.continuum.solver import continuation
     from ngbet.errors import ConvergenceError
+    from ngbet.numerics.settings import NewtonSettings
 
     with pytest.raises(ConvergenceError) as info:
-        continuation(_WallAtZero(), 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]))
+        toy = _WallAtZero()
+        carry(toy, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]), hessian=toy)
     assert info.value.last_converged_mm * 1e-3 < 2 / (3 * math.sqrt(3))
     assert "no physical stable state" in info.value.attempts[-1].reason
     assert info.value.path_info["relaxations"] == 1 and info.value.path_info["snaps"] == []

@@ -23,10 +23,10 @@ import ngsolve as ngs
 
 from ngbet.continuum import observables as obs
 from ngbet.continuum.mesh import corner_elements, make_mesh
-from ngbet.continuum.numerics import continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.run import load_path
-from ngbet.engine import run_to_end
+from ngbet.numerics.engine import Steps
+from ngbet.runner.continuum import load_path
+from ngbet.runner.settings import continuum_solver
 from ngbet.studies import _common as C
 from ngbet.studies.reference import extrapolate
 
@@ -46,11 +46,12 @@ def force(corner_mm: float, p: int) -> tuple[float | None, int, float]:
     t0 = time.perf_counter()
     sc = scene(corner_mm, p)
     prob = continuum_solver(ContinuumProblem(sc))
-    run_to_end(load_path(prob, sc))
-    reached = abs(prob.lam * 1e3 - U0_MM) < 1e-9
+    for _ in Steps(load_path(prob, sc)):
+        pass
+    reached = abs(prob.state.lam * 1e3 - U0_MM) < 1e-9
     F = obs.reaction_force(prob.problem, prob.residual()) * sc.specimen.t if reached else None
     if F is None:
-        print(f"  the load path stops at {prob.lam * 1e3:.2f} mm")
+        print(f"  the load path stops at {prob.state.lam * 1e3:.2f} mm")
     return F, prob.problem.X.ndof, time.perf_counter() - t0
 
 

@@ -21,13 +21,13 @@ import ngsolve as ngs
 import numpy as np
 
 from ngbet.continuum import observables as obs
-from ngbet.continuum.newton import newton
-from ngbet.continuum.numerics import ContinuumSolver, continuum_solver
 from ngbet.continuum.problem import ContinuumProblem
-from ngbet.continuum.run import load_path
-from ngbet.continuum.settings import newton_settings
+from ngbet.continuum.solver import ContinuumSolver
 from ngbet.continuum.stability import diagnose_stability
-from ngbet.engine import run_to_end
+from ngbet.numerics.engine import Steps
+from ngbet.numerics.newton import newton
+from ngbet.runner.continuum import load_path
+from ngbet.runner.settings import continuum_solver, newton_settings
 from ngbet.studies import _common as C
 
 ARGS = sys.argv[1:]
@@ -46,9 +46,10 @@ def scene(p: int):  # noqa: ANN201 - a Scene
 def loaded(p: int) -> ContinuumSolver:
     sc = scene(p)
     prob = continuum_solver(ContinuumProblem(sc))
-    run_to_end(load_path(prob, sc))
-    if abs(prob.lam * 1e3 - U0_MM) > 1e-9:
-        sys.exit(f"p = {p}: the load path stops at {prob.lam * 1e3:.3f} mm")
+    for _ in Steps(load_path(prob, sc)):
+        pass
+    if abs(prob.state.lam * 1e3 - U0_MM) > 1e-9:
+        sys.exit(f"p = {p}: the load path stops at {prob.state.lam * 1e3:.3f} mm")
     return prob
 
 
@@ -70,7 +71,7 @@ def main() -> None:
         B = continuum_solver(ContinuumProblem(scene(p)))
         for k in range(len(B.problem.field_names)):
             B.problem.gf.components[k].Set(A.problem.gf.components[k])
-        B.set_load(U0_MM * 1e-3)
+        B.state.set_load(U0_MM * 1e-3)
         st = dataclasses.replace(newton_settings(scene(p)), max_iterations=60, min_damping=1 / 1024)
         rep = newton(B, st, B.energy())
         if not rep.converged:

@@ -19,6 +19,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -134,10 +135,10 @@ class MeasuredCurve:
         """
         floor = np.maximum(READING_ERROR_N, MIN_RELATIVE_SD * np.abs(F))
         if self.bars is None:
-            return floor
+            return cast(np.ndarray, floor)
         bu, lo, hi = self.bars
         half = np.interp(u, bu, 0.5 * (hi - lo))
-        return np.maximum(half, floor)
+        return cast(np.ndarray, np.maximum(half, floor))
 
 
 
@@ -189,7 +190,7 @@ def frame_travel_mm(gamma_deg: np.ndarray, frame_mm: float) -> np.ndarray:
     γ = π/2 − 2θ and cos θ = (√2 L + d)/(2 L), so d = 2 L cos((π/2 − γ)/2) − √2 L.
     """
     theta = 0.5 * (np.pi / 2 - np.radians(np.asarray(gamma_deg, float)))
-    return 2.0 * frame_mm * np.cos(theta) - math.sqrt(2.0) * frame_mm
+    return cast(np.ndarray, 2.0 * frame_mm * np.cos(theta) - math.sqrt(2.0) * frame_mm)
 
 
 def read_frame_curve(path: str | Path, *, columns: str | Sequence[str] | None = None,

@@ -12,11 +12,11 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
-from ..continuum.ladder import Rung
+from ..runner.ladder import Rung
 from ..scene.document import Scene
 from ..scene.physical import Specimen
 from ..scene.validate import SceneError
@@ -144,7 +144,7 @@ def portable_scene(scene: Scene) -> Scene:
 
 
 #: the discretizations of a fit's model runs, cheapest first, all graded towards the clamp corners
-#: (:class:`ngbet.continuum.ladder.Rung`: mesh size, corner mesh size [mm], order p). Measured on
+#: (:class:`ngbet.runner.ladder.Rung`: mesh size, corner mesh size [mm], order p). Measured on
 #: the unbalanced twill 100 x 250 mm to 49.7 mm with its start values (16 loads): the estimated force
 #: error is at most 1.2 % on the first rung (1.4 s a run), 0.2 % on the second (1.2-1.6 s), 0.07 %
 #: on the third (2.6 s), against 17.5 % on the scene's uniform 25 mm mesh at p = 2 (0.9 s)
@@ -236,9 +236,9 @@ class CurveFit:
         from ..kinematics import frame_shear_angle_rad, shear_angle_rad
 
         if self.curve.test == "picture_frame":
-            return np.degrees(frame_shear_angle_rad(self.u_mm, self.scene.picture_frame.frame_mm))
+            return cast(np.ndarray, np.degrees(frame_shear_angle_rad(self.u_mm, self.scene.picture_frame.frame_mm)))
         sp = self.scene.specimen
-        return np.degrees(shear_angle_rad(self.u_mm, sp.length_mm, sp.width_mm))
+        return cast(np.ndarray, np.degrees(shear_angle_rad(self.u_mm, sp.length_mm, sp.width_mm)))
 
 
 @dataclass
@@ -349,7 +349,7 @@ class JointFit:
 
 def band(dlogp: np.ndarray, cov_log: np.ndarray) -> np.ndarray:
     """√diag(G Σ Gᵀ) [N]: the force's standard deviation from the parameters."""
-    return np.sqrt(np.maximum(np.einsum("ik,kl,il->i", dlogp, cov_log, dlogp), 0.0))
+    return cast(np.ndarray, np.sqrt(np.maximum(np.einsum("ik,kl,il->i", dlogp, cov_log, dlogp), 0.0)))
 
 
 def correlation(cov: np.ndarray) -> np.ndarray:

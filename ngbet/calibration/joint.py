@@ -3,7 +3,7 @@ r"""One parameter set fitted to several measured curves (specimen sizes) of one 
 Each curve runs on its own specimen (the keys of its data file's header applied to the scene)
 with load steps landing on its fitted displacements (:mod:`ngbet.calibration.data`); the force and
 its derivatives with respect to the parameters come from the same run
-(:func:`ngbet.continuum.sensitivity.force_path`). Each curve's mesh is made once and reused by
+(:func:`ngbet.runner.sensitivity.force_path`). Each curve's mesh is made once and reused by
 every model run of the fit.
 
 Least squares on the residuals e_i = (F_model(u_i) − F_i)/s_i, s_i the point's standard deviation
@@ -36,7 +36,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -116,8 +116,8 @@ class _Model:
 
     def _run(self, k: int, theta: np.ndarray, check: bool) -> _Run:
         from ..continuum.mesh import make_cross_mesh, make_mesh
-        from ..continuum.sensitivity import force_path
         from ..errors import ConvergenceError
+        from ..runner.sensitivity import force_path
 
         n = len(self.names)
         c = self.curves[k]
@@ -470,7 +470,7 @@ class CurvePrediction:
     @property
     def sd_N(self) -> np.ndarray:
         """The whole standard deviation [N]: parameters and discretization."""
-        return np.sqrt(self.sd_param_N ** 2 + self.sd_disc_N ** 2)
+        return cast(np.ndarray, np.sqrt(self.sd_param_N ** 2 + self.sd_disc_N ** 2))
 
 
 def predict_specimen(result: JointFit, specimen: dict[str, float], u_mm: np.ndarray,
@@ -480,7 +480,7 @@ def predict_specimen(result: JointFit, specimen: dict[str, float], u_mm: np.ndar
     ``fixed_var_log``: parameters held fixed in the fit whose value is uncertain, with the
     variance of their ln p (independent of the fitted ones); they widen the band by g_k² var_k.
     """
-    from ..continuum.sensitivity import force_path
+    from ..runner.sensitivity import force_path
 
     fixed = dict(fixed_var_log or {})
     sc = result.scene.with_changes(**specimen, **{"loading.u0_mm": float(np.max(u_mm)), "loading.stops_mm": []})

@@ -2,7 +2,7 @@
 
 Both are fitted together with the force of one specimen (:func:`ngbet.calibration.joint.fit_curves`),
 their derivatives with respect to the parameters coming from the same model run
-(:func:`ngbet.continuum.sensitivity.force_path`).
+(:func:`ngbet.runner.sensitivity.force_path`).
 
 - A profile file has the columns ``u0_mm``, ``X_mm``, ``uy_mm``: the displacement u_y [mm] of the
   mid-axis Y = W/2 at X [mm] (0 at one clamp) at the clamp displacement u0 [mm]; other columns,

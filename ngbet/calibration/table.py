@@ -15,6 +15,8 @@ least squares, relative to each point's stress.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from ..continuum.physics import table_stress_spline
@@ -59,7 +61,7 @@ def start_table(curve: MeasuredCurve, thickness_mm: float, n_steps: int, x_max: 
     w = 1.0 / np.maximum(np.abs(tau), 0.05 * np.abs(tau).max())
     steps, _ = nnls(basis * w[:, None], tau * w)
     # a rise of exactly 0 cannot be fitted in ln p: a small floor
-    return np.maximum(steps, 1e-3 * max(float(steps.max()), 1.0))
+    return cast(np.ndarray, np.maximum(steps, 1e-3 * max(float(steps.max()), 1.0)))
 
 
 def start_locking(curve: MeasuredCurve, thickness_mm: float) -> tuple[float, float, float]:

@@ -1,14 +1,16 @@
 """The constrained micromorphic continuum (second gradient through the micro-variable φ = i8) on NGSolve.
 
 problem      spaces, energy, boundary conditions, load and state of one scene
-numerics     the problem's solver: energy forms, linear solver, native code, timers
+solver       the problem's energy forms and linear algebra (on :mod:`ngbet.numerics`), timers
 physics      the energy terms, each written once
 observables  reactions (volume-integral method), profiles, fields
-solver       damped Newton and load stepping
-relax        a stable equilibrium at a fixed clamp displacement where Newton failed
+stability    the lowest modes of the tangent and what they say about a failure (writes no files)
 estimate     the estimated discretization error of the force
-ladder       finer settings until that error meets the target
-run          a continuum scene into a run folder
+sensitivity  derivatives of the force with respect to the material parameters
+path_spread  the path's own spread where two equilibria compete
+
+The numerics (Newton, load stepping, arc length) are model-free: :mod:`ngbet.numerics`; running
+a scene into a run folder is the runner's: :mod:`ngbet.runner`.
 """
 
 import ngsolve as _ngs

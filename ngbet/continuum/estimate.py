@@ -32,7 +32,7 @@ reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accu
   graded meshes it is not tried after a p + 1 step that contracted by more than
   :data:`PLATEAU_SKIP_CONTRACTION` (measured: the p + 2 step then never contracted). The
   Newton at p + 1 starts from the one step's factorization and keeps a factorization while its
-  steps contract by :data:`ENRICHED_REUSE` (chord steps: :mod:`ngbet.continuum.chord`);
+  steps contract by :data:`ENRICHED_REUSE` (chord steps: :mod:`ngbet.numerics.chord`);
 * an enriched solve on a mesh refined at the corners sees the corner error better, but Newton
   from the carried-over state does not converge there (the corner solution of the finer mesh is
   too far from the coarse one at 37–56 mm); only a full load continuation would do, at 2–4
@@ -62,12 +62,11 @@ from typing import Any
 
 import numpy as np
 
+from ..numerics.newton import NewtonReport, newton
 from ..scene.document import Scene
 from ..scene.numerical import Discretization
 from ..scene.validate import AUTO
-from .newton import NewtonReport, newton
 from .path_spread import RunPathSpread
-from .settings import newton_settings
 
 __all__ = ["CORNER_LEVELS", "ENRICHED_REUSE", "ENRICHED_RTOL", "METHOD_CORNER", "METHOD_ONE_STEP",
            "PLATEAU_SKIP_CONTRACTION", "STEP_CONTRACTION", "THETA", "THETA_CORNER", "THETA_PLATEAU", "Estimate",
@@ -87,7 +86,7 @@ THETA_CORNER = 2.0
 #: Newton tolerance of the enriched solve (relative energy): the force to ~1e-7 relative
 ENRICHED_RTOL = 1e-8
 #: the enriched Newton keeps its factorization after a step that contracted by at most this
-#: (:attr:`ngbet.continuum.newton.NewtonSettings.reuse_contraction`)
+#: (:attr:`ngbet.numerics.newton.NewtonSettings.reuse_contraction`)
 ENRICHED_REUSE = 0.25
 
 
@@ -152,7 +151,7 @@ class ForceErrorEstimator:
 
     Parameters
     ----------
-    solver : ngbet.continuum.numerics.ContinuumSolver
+    solver : ngbet.continuum.solver.ContinuumSolver
         The run's solver; its problem's state is read, never changed. The enriched problems get
         solvers of their own with its settings.
     profile_points : int
@@ -175,8 +174,8 @@ class ForceErrorEstimator:
     def _build(self, up: int) -> Any:
         """The solver of the problem ``up`` orders above the run's, on the enrichment's mesh (the run's settings)."""
         from .mesh import corner_refined, singular_corners
-        from .numerics import ContinuumSolver
         from .problem import ContinuumProblem
+        from .solver import ContinuumSolver
 
         sc: Scene = self.problem.scene
         if up > 1:
@@ -248,7 +247,7 @@ class ForceErrorEstimator:
         up = enr.problem
         for i in range(len(src.field_names)):
             up.gf.components[i].Set(src.gf.components[i])
-        enr.set_load(lam)
+        enr.state.set_load(lam)
         p_enr = up.scene.discretization.p_u
         x0 = enr.x.copy()
         r0 = enr.residual()
@@ -261,7 +260,7 @@ class ForceErrorEstimator:
             if not converge:
                 return math.nan, report.iterations, f"{first} (not solved further)"
             enr.x[:] = x0
-            settings = dataclasses.replace(newton_settings(up.scene), reuse_contraction=ENRICHED_REUSE,
+            settings = dataclasses.replace(self.solver.settings.newton, reuse_contraction=ENRICHED_REUSE,
                                            rtol=max(ENRICHED_RTOL, up.scene.solver.rtol))
             # the one step's factorization is that at x0: Newton's first iteration reuses it
             report = newton(enr, settings, enr.energy(), factorized=True, r=r0)
@@ -274,7 +273,7 @@ class ForceErrorEstimator:
 
 
 def one_newton_step(problem: Any, r: np.ndarray | None = None) -> Any:
-    """One full Newton step of ``problem`` (a NonlinearProblem) from its state (whose residual is ``r`` when given).
+    """One full Newton step of ``problem`` (a Problem) from its state (whose residual is ``r`` when given).
 
     The report carries the new residual; ``converged`` means only that the step and the residual
     are finite. The problem's factorization is left at the starting state.
@@ -288,8 +287,8 @@ def one_newton_step(problem: Any, r: np.ndarray | None = None) -> Any:
     rep = NewtonReport(ok, 1, [abs(float(dx @ r))], [1.0], "one step" if ok else "not finite",
                        residual=r if ok else None)
     if ok:  # the next (simplified) correction, from the same factorization: how far the step is from converged
-        n = problem.norm(dx)
-        rep.contraction = problem.norm(problem.solve(r)) / n if n > 0 else 0.0
+        n = problem.state.norm(dx)
+        rep.contraction = problem.state.norm(problem.solve(r)) / n if n > 0 else 0.0
     return rep
 
 

@@ -1,7 +1,7 @@
 r"""The force's dependence on the path: its spread over the branches a run's path left at its relaxations.
 
 Where displacement control relaxes to a stable state (a snap-through at a fold, or a relaxation
-after Newton failed on a short increment: :func:`ngbet.continuum.relax.relax`), the path leaves
+after Newton failed on a short increment: :func:`ngbet.numerics.relax.relax`), the path leaves
 the branch it was on. Where that branch goes on existing, the model has two (or more) stable
 equilibria at the same clamp displacement, and which one a run reports depends on its path
 (the step sizes, the barrier, the kick's sign). The spread of the force over them is an
@@ -11,7 +11,7 @@ Method: the state just before each relaxation (at its load λ_b, on the branch t
 kept. At every load λ > λ_b where the error is estimated, that branch is continued from its last
 state to λ on a copy of the problem (the run's own is not touched: its state and factorization
 stay the path's, and its forces are the same bit for bit): tangent predictor and Newton
-(:func:`ngbet.continuum.newton.newton`), the first increment twice the path's shortest step (the
+(:func:`ngbet.numerics.newton.newton`), the first increment twice the path's shortest step (the
 branch stands next to its fold), doubled after each success up to :data:`BRANCH_MAX_STEP`,
 halved on failure down to the shortest step. If it reaches λ and the condensed tangent is
 positive definite there (``problem.lowest_mode()``), the branch is a stable equilibrium at λ and
@@ -36,12 +36,12 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
-from .newton import NonlinearProblem, newton
-from .settings import NewtonSettings
+from ..numerics.newton import Problem, newton
+from ..numerics.settings import NewtonSettings
 
 __all__ = ["BRANCH_MAX_STEP", "SAME_FORCE", "SAME_STATE", "Branch", "PathSpread", "RunPathSpread"]
 
@@ -91,7 +91,7 @@ class PathSpread:
         ended, the longest.
     """
 
-    def __init__(self, make_problem: Callable[[], NonlinearProblem], force: Callable[[Any, np.ndarray], float],
+    def __init__(self, make_problem: Callable[[], Problem], force: Callable[[Any, np.ndarray], float],
                  settings: NewtonSettings, first_step: float, min_step: float, max_step: float = math.inf) -> None:
         self._make = make_problem
         self.problem: Any = None
@@ -142,10 +142,10 @@ class PathSpread:
         while b.lam < lam:
             h = min(h, lam - b.lam)
             p.x[:] = b.x
-            p.set_load(b.lam)
+            p.state.set_load(b.lam)
             p.factorize()
             p.x[:] += p.load_tangent(h)
-            p.set_load(b.lam + h)
+            p.state.set_load(b.lam + h)
             e_ref = p.energy()
             rep = newton(p, self.settings, e_ref if math.isfinite(e_ref) else 0.0)
             its += rep.iterations
@@ -161,9 +161,9 @@ class PathSpread:
                 log.info("path spread: the branch left at %.6g mm %s", b.left_mm, b.ended)
                 return {"stable": False, "ended": b.ended, "newton_iterations": its}
         p.x[:] = b.x
-        p.set_load(lam)
+        p.state.set_load(lam)
         F = float(self.force(p, p.residual()))
-        dist = float(p.norm(p.x - x_path)) if x_path is not None else math.inf  # unit-free
+        dist = float(p.state.norm(p.x - x_path)) if x_path is not None else math.inf  # unit-free
         if dist <= SAME_STATE or abs(F - force_N) <= SAME_FORCE * abs(force_N):
             b.ended = f"rejoined the path at {lam * 1e3:.6g} mm"
             return {"stable": False, "ended": b.ended, "force_N": F, "distance_to_path": dist,
@@ -187,7 +187,7 @@ class RunPathSpread:
 
     Costs nothing until the path relaxes (:meth:`left`); from then on, at each estimated load, the
     branches left are continued on a copy of the problem (built once) with a solver of its own,
-    of the run's settings. ``solver``: the run's (:class:`~ngbet.continuum.numerics.ContinuumSolver`).
+    of the run's settings. ``solver``: the run's (:class:`~ngbet.continuum.solver.ContinuumSolver`).
     """
 
     def __init__(self, solver: Any) -> None:
@@ -203,17 +203,15 @@ class RunPathSpread:
     def left(self, lam: float, x: np.ndarray, snap: bool) -> None:
         """The path relaxed after load ``lam`` [m], leaving the branch whose state there is ``x``."""
         if self.spread is None:
-            from .settings import newton_settings, path_settings
-
-            sc = self.solver.problem.scene
-            path = path_settings(sc)
-            self.spread = PathSpread(self._copy, self._force, newton_settings(sc), path.first_step, path.min_step,
+            settings = self.solver.settings
+            path = settings.path
+            self.spread = PathSpread(self._copy, self._force, settings.newton, path.first_step, path.min_step,
                                      min(path.max_step, BRANCH_MAX_STEP))
         self.spread.left(lam, x, snap)
 
     def _copy(self) -> Any:
-        from .numerics import ContinuumSolver
         from .problem import ContinuumProblem
+        from .solver import ContinuumSolver
 
         run = self.solver.problem
         return ContinuumSolver(ContinuumProblem(run.scene, mesh=run.mesh), self.solver.settings)
@@ -221,7 +219,7 @@ class RunPathSpread:
     def _force(self, solver: Any, r: np.ndarray) -> float:
         from .observables import reaction_force
 
-        return float(reaction_force(solver.problem, r)) * solver.problem.scene.specimen.t
+        return cast(float, float(reaction_force(solver.problem, r)) * solver.problem.scene.specimen.t)
 
     def fold(self, lam: float, e: Any) -> Any:
         """The estimate ``e`` at ``lam`` [m] with the spread added to its bar (``e`` itself before any relaxation).

@@ -12,7 +12,7 @@ shear (+ elongation)       u ∈ VectorH1(p)                      W_sh + W_el (f
 =========================  ==================================  ===============================
 
 The energy is written once as an integrand in parts (the bending energy and the rest:
-:meth:`ContinuumProblem._energy` says why); its solver (:class:`ngbet.continuum.numerics.ContinuumSolver`)
+:meth:`ContinuumProblem._energy` says why); its solver (:class:`ngbet.continuum.solver.ContinuumSolver`)
 hands it to ``Variation`` and compiles it, and NGSolve differentiates it for the residual and the
 linearization. The problem holds no form, inverse or timer: those are numerics, the solver's.
 
@@ -25,7 +25,7 @@ from element to element and does not converge, though u, φ and the force do; wi
 it falls as O(h) for p = 2 (0.093, 0.048, 0.025) and as O(h²) for p = 3 (0.0061, 0.0015), with
 the same force (Richardson limit 61.2 N for both pairs at p = 2). p = 1 locks (84 N against
 62 N at h = 10 mm with Λ ∈ L2(0)); use p ≥ 2. For the exact Lagrange method with ``condense`` the
-Newton matrix is augmented (:mod:`ngbet.continuum.linear`, which owns condensation and the sparse
+Newton matrix is augmented (:mod:`ngbet.numerics.linear`, which owns condensation and the sparse
 inverse): the problem gives the augmented integrand (``augmented_energy``) for it.
 
 Stabilization. Λ ∈ L2(p − 2) ties φ to i8 only in the element moments of degree p − 2; the rest
@@ -63,6 +63,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
+from typing import cast
 
 import ngsolve as ngs
 import numpy as np
@@ -149,8 +150,8 @@ class ContinuumProblem:
     The energy integrand is ``energy_parts`` (and ``augmented_energy`` for the Newton matrix of the
     condensed exact Lagrangian); the state is ``gf`` with its numpy view ``x``; the load λ = u0 [m]
     moves the Dirichlet entries (:meth:`set_load`). Newton, the path and the estimates drive it
-    through its solver (:class:`ngbet.continuum.numerics.ContinuumSolver`, the
-    :class:`~ngbet.continuum.newton.NonlinearProblem`), which owns the forms and linear algebra.
+    through its solver (:class:`ngbet.continuum.solver.ContinuumSolver`, the
+    :class:`~ngbet.numerics.newton.Problem`), which owns the forms and linear algebra.
     """
 
     def __init__(self, scene: Scene, mesh: ngs.Mesh | None = None, dirichlet: str = DIRICHLET) -> None:
@@ -183,7 +184,7 @@ class ContinuumProblem:
         self.free_all = np.array(list(self.X.FreeDofs()), dtype=bool)
         self.dirichlet = ~self.free_all
         self._load_fields(sp)
-        self._weights = self._norm_weights()
+        self.weights = self._norm_weights()
         self.lam = 0.0
         self._lam_mass: tuple[slice, np.ndarray] | None = None  # Λ's rows and the diagonal of its mass matrix
         self._det_F: ngs.CoefficientFunction | None = None
@@ -314,7 +315,7 @@ class ContinuumProblem:
         for i, name in enumerate(self.field_names):
             rng = self.X.Range(i)
             w[rng.start:rng.stop] = scale[name]
-        return w * self.free_all
+        return cast(np.ndarray, w * self.free_all)
 
     # --------------------------------------------------------------------------- load, state, admissibility
     def set_load(self, lam: float) -> None:
@@ -332,6 +333,19 @@ class ContinuumProblem:
         at a clamp for a moment without meaning anything (:meth:`JammingBarrier.watch`).
         """
         self.jamming.watch()
+
+    def jamming_missed(self) -> bool:
+        """The state was solved without the jamming barrier where it holds: switch it on and say so.
+
+        True when the barrier was off and the yarns are closer than the jamming angle somewhere
+        (:meth:`~ngbet.continuum.jamming.JammingBarrier.missed`): the state is no equilibrium, the
+        barrier is on from now on and the increment is to be solved again
+        (:class:`~ngbet.numerics.newton.JammingWatch`).
+        """
+        if not self.jamming.missed():
+            return False
+        self.jamming.switch_on()
+        return True
 
     def constraint_moments(self, r: np.ndarray) -> float:
         """‖Π(φ − i8)‖²: the squared element moments of the constraint at the state whose residual is ``r``.
@@ -407,11 +421,11 @@ class ContinuumProblem:
 
     def clamp_predictor(self, dlam: float) -> np.ndarray:
         """The clamp's linear field (X/L, 0) dlam (the picture frame: its affine map's rate ψ_u dlam)."""
-        return dlam * self._clamp_dir
+        return cast(np.ndarray, dlam * self._clamp_dir)
 
     def norm(self, dx: np.ndarray) -> float:
         """A unit-free norm of a correction (u by 1/L, φ by 1, Λ by 1/K_ref)."""
-        return float(np.linalg.norm(self._weights * dx))
+        return float(np.linalg.norm(self.weights * dx))
 
     # --------------------------------------------------------------------------- fields
     @property

@@ -34,7 +34,6 @@ min(α1, α2) has a kink at α1 = α2: there the derivative is the one-sided one
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from collections.abc import Sequence
@@ -49,8 +48,8 @@ from ..scene.validate import SceneError
 from . import physics
 from .parameters import PARAMETERS
 
-__all__ = ["DIFFERENTIABLE", "TABLE", "TANGENT_CONTRACTION", "TANGENT_REFINEMENTS", "ForcePath", "finite_difference",
-           "force_path", "load_tangent_at_state", "material_value", "solve_at_state", "table_index", "with_material"]
+__all__ = ["DIFFERENTIABLE", "TABLE", "TANGENT_CONTRACTION", "TANGENT_REFINEMENTS", "ForcePath", "Recorder",
+           "check_params", "load_tangent_at_state", "material_value", "solve_at_state", "table_index", "with_material"]
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +131,11 @@ def _same_rule(trial: Any) -> ngs.CoefficientFunction:
     return _SAME_RULE * sum((ngs.InnerProduct(t, t) for t in list(trial)[1:]), ngs.InnerProduct(g, g))
 
 
-def _check_params(scene: Scene, params: Sequence[str]) -> list[str]:
+def check_params(scene: Scene, params: Sequence[str]) -> list[str]:
+    """The material names of the scene keys ``params`` ("material.K_sh" -> "K_sh").
+
+    Raises SceneError for a key that cannot be differentiated.
+    """
     names = []
     for p in params:
         section, _, key = p.partition(".")
@@ -155,7 +158,7 @@ TANGENT_CONTRACTION = 0.5
 def load_tangent_at_state(solver: Any, residual: np.ndarray | None = None, rtol: float = 1e-5) -> np.ndarray:
     """ψ* = ∂x/∂u0 at the current, converged state: ψ on the clamps, (H ψ*)_f = 0 with H the tangent here.
 
-    ``solver``: the problem's :class:`~ngbet.continuum.numerics.ContinuumSolver`.
+    ``solver``: the problem's :class:`~ngbet.continuum.solver.ContinuumSolver`.
 
     Newton's last factorization belongs to the iterate before its last correction (or an earlier
     one, after a simplified Newton step); its load tangent made dF/dp differ from central
@@ -163,7 +166,7 @@ def load_tangent_at_state(solver: Any, residual: np.ndarray | None = None, rtol:
     :func:`solve_at_state`; ``residual``: r at this state, when at hand.
 
     H is the Jacobian of the residual itself, also for the exact Lagrangian, whose Newton matrix
-    is augmented (K_aug, :mod:`ngbet.continuum.linear`): a load tangent of the augmented matrix
+    is augmented (K_aug, :mod:`ngbet.numerics.linear`): a load tangent of the augmented matrix
     leaves an O(1/K_aug) error (measured 1e-5 of dF/dK_sh).
     """
     r0 = residual if residual is not None else solver.residual()
@@ -214,7 +217,7 @@ def solve_at_state(solver: Any, y: np.ndarray, g: np.ndarray | None, residual: n
     return None
 
 
-class _Recorder:
+class Recorder:
     """What :func:`force_path` records at each converged step (called with each step record of the path)."""
 
     def __init__(self, solver: Any, names: list[str], profile: dict[float, np.ndarray],
@@ -246,6 +249,7 @@ class _Recorder:
         self.profile_dlogp: dict[float, np.ndarray] = {}
 
     def __call__(self, info: Any) -> None:
+        """Record the force (and what else is asked) at the converged step ``info``."""
         pb, solver, t = self.problem, self.solver, self.problem.scene.specimen.t
         key = round(info.u0 * 1e3, 9)
         r = info.residual if info.residual is not None else solver.residual()
@@ -308,59 +312,6 @@ def _angle_derivative(problem: Any, solver: Any, gv: np.ndarray, r: np.ndarray) 
     return (up - down) / (2 * h)
 
 
-def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str] = (),
-               profile: dict[float, np.ndarray] | None = None, mesh: Any = None,
-               angles: Sequence[float] = (), estimate: bool = False) -> ForcePath:
-    """The force at each of ``u_mm`` and its derivatives dF/d ln p for the material keys ``params``.
-
-    ``scene`` (continuum) runs with a load step landing on each of ``u_mm``; ``params`` are keys
-    such as ``"material.K_sh"``.
-
-    ``profile``: {u0 [mm]: X [mm]}: also the mid-axis u_y at those X at load u0 (and its
-    derivatives, two more back-substitutions and residual evaluations per parameter). ``mesh``: a mesh of the scene's
-    specimen made before (:func:`ngbet.continuum.mesh.make_mesh`), reused instead of meshing
-    again. ``angles``: loads u0 [mm] at which the centre shear angle (and its derivatives) is wanted.
-    ``estimate``: the discretization error of the force at each of ``u_mm``
-    (:class:`ngbet.continuum.estimate.ForceErrorEstimator`). Nothing is written to disk. Raises
-    :class:`ngbet.errors.ConvergenceError` when the path cannot be followed to the last load.
-    """
-    from .numerics import ContinuumSolver
-    from .problem import ContinuumProblem
-    from .settings import linear_settings, newton_settings, path_settings
-    from .solver import load_steps
-
-    names = _check_params(scene, params)
-    profile = {float(k): np.asarray(v, float) for k, v in (profile or {}).items()}
-    u = np.asarray(sorted(set(float(v) for v in u_mm if v > 0) | set(profile) | {float(v) for v in angles}))
-    scene = scene.with_changes(**{"loading.u0_mm": float(u[-1]), "loading.stops_mm": list(u[:-1])})
-    # displacement control landing on each load asked for (no output grid)
-    path = dataclasses.replace(path_settings(scene), stops=tuple(s * 1e-3 for s in u), chord_at=(),
-                               path_following="displacement")
-    from ..run import ngsolve_threads
-
-    with ngsolve_threads(scene):
-        rec = _Recorder(ContinuumSolver(ContinuumProblem(scene, mesh), linear_settings(scene)), names, profile,
-                        [float(v) for v in u_mm if v > 0], angles, estimate)
-        for step in load_steps(rec.solver, path, newton_settings(scene)):
-            rec(step)
-    keys = np.array(sorted(rec.rows))
-    # the force (and its derivatives) at each requested load, in the caller's order, repeats
-    # included; the unloaded state carries none; loads only asked for by the profile are left out
-    want = np.asarray(u_mm, dtype=float)
-    zero = (0.0, np.zeros(len(names)))
-    at = [rec.rows[keys[int(np.argmin(np.abs(keys - v)))]] if v > 0 else zero for v in want]
-    F = np.array([a[0] for a in at])
-    D = np.array([a[1] if len(a[1]) == len(names) else np.full(len(names), np.nan) for a in at]) if names else None
-    err = None
-    if estimate:
-        ekeys = np.array(sorted(rec.errors)) if rec.errors else np.zeros(1)
-        err = np.array([rec.errors.get(float(ekeys[int(np.argmin(np.abs(ekeys - v)))]), math.nan) if v > 0 else 0.0
-                        for v in want])
-    angles_deg = {float(a): rec.angles[float(a)] for a in angles if float(a) in rec.angles}
-    return ForcePath(want, F, D, float(keys[-1]) if len(keys) else 0.0, rec.profiles, rec.profile_dlogp, err,
-                     angles_deg, rec.angle_dlogp)
-
-
 def with_material(scene: Scene, name: str, value: float) -> Scene:
     """``scene`` with one material key (or one rise "shear_stress_steps_Pa[j]") set to ``value``."""
     j = table_index(name)
@@ -369,19 +320,3 @@ def with_material(scene: Scene, name: str, value: float) -> Scene:
     steps = list(scene.material.shear_stress_steps_Pa)
     steps[j] = value
     return scene.with_changes(**{f"material.{TABLE}": steps})
-
-
-def finite_difference(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str],
-                      rel_step: float = 1e-4) -> np.ndarray:
-    """The derivatives dF/d ln p by central differences of :func:`force_path` (2 runs per parameter).
-
-    The check of the implicit derivative, and its cost to compare with.
-    """
-    cols = []
-    for p in params:
-        name = p.partition(".")[2]
-        value = material_value(scene, name)
-        up = force_path(with_material(scene, name, value * math.exp(rel_step)), u_mm).force_N
-        dn = force_path(with_material(scene, name, value * math.exp(-rel_step)), u_mm).force_N
-        cols.append((up - dn) / (2 * rel_step))
-    return np.column_stack(cols)

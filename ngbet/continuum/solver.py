@@ -1,362 +1,199 @@
-r"""The continuum's corrector on the engine's load stepping: predictor, Newton, chord rows, relaxation.
+r"""The numerics of a continuum problem: its energy forms, linear solver, native code and timers.
 
-The solver knows nothing of fabrics (as NGSolve's ``nonlinearsolvers.py``): it talks to a
-:class:`~ngbet.continuum.newton.NonlinearProblem` through numpy views of the state and residual,
-a factorization of the linearization, and the load parameter λ that the Dirichlet data follow.
-Newton at a fixed load is :mod:`ngbet.continuum.newton`; the rows of an output grid between the
-load steps are corrected by :mod:`ngbet.continuum.chord`.
+A :class:`~ngbet.continuum.problem.ContinuumProblem` is the mathematics of one scene: the spaces,
+the energy integrand E(x) (in parts), the Dirichlet data x_D = λ ψ_D on the clamps with the load λ
+(u0 [m]), the state x and what a state means physically (reactions, admissibility). A
+:class:`ContinuumSolver` is built from a problem and its :class:`~ngbet.numerics.settings.SolverSettings`
+(made from the scene by :func:`ngbet.runner.settings.solver_settings`, the one translation) and
+owns everything that is numerics, as NGSolve's ``NewtonSolver`` owns its inverse and Firedrake's
+``NonlinearVariationalSolver(problem, solver_parameters=...)`` its linear algebra:
 
-Predictor:        tangent (Euler): x += ∂x/∂λ Δλ from the last factorization, or the clamp one;
-                  at the loads of an output grid (``chord_at``) the polynomial through the last
-                  converged states (:func:`ngbet.continuum.chord.extrapolate`).
-Stepping:         :func:`ngbet.engine.path_steps`: cut by ``cut`` on failure, grow by ``growth``
-                  after easy increments, land on stops (:func:`load_steps` puts it together, with
-                  the settings of :mod:`ngbet.continuum.settings`: a generator of step records
-                  that the runner iterates; :func:`follow` carries it to the end).
+* the energy forms. NGSolve's ``BilinearForm`` is the owner of the Newton matrix: whether it
+  condenses the element-local dofs (Λ), whether it stores the lower triangle only (for the sparse
+  LDLᵀ, :func:`~ngbet.numerics.linear.energy_form`) and whether its integrand runs as native code
+  (:mod:`ngbet.numerics.compiled`) are fixed when it is built, and all three are numerics. The
+  problem hands over the integrand; the solver builds the form a(x; ·) = δE(x)[·] from it (and for
+  the condensed exact Lagrangian the augmented form of the Newton matrix,
+  :mod:`ngbet.numerics.linear`), and adds the problem's jamming barrier to them;
+* the linear solver (:class:`~ngbet.numerics.linear.NewtonLinearSolver`: condensation, the sparse
+  inverse, factorizations and solves) and the wall time and count of every assembly,
+  factorization, solve and residual (``timers``, ``counts``).
 
-Snap-through:     under displacement control, when an increment no longer than ``relax_below``
-                  fails (the path folds or branches: past the fold there is no equilibrium
-                  near the predicted state), :func:`ngbet.continuum.relax.relax` looks for a stable equilibrium at
-                  the same clamp displacement by pseudo-transient continuation from the predicted
-                  state, kicked along the lowest mode of the tangent if that is unstable: shifted
-                  Newton steps (J + s |diag J|) dx = −r, s raised until the matrix is positive
-                  definite, with a line search on the problem's merit (infinite outside the energy's
-                  domain: inverted material). The state found is accepted only if it is admissible
-                  and the tangent positive definite there; if the step released energy beyond the
-                  clamp's work, it is a snap-through (load, energy released, force before and after,
-                  where the jump lives); the branch left rides on the step's record (``left``).
+The solver, not the problem, is the :class:`~ngbet.numerics.newton.Problem` that Newton
+(:mod:`ngbet.numerics.newton`), the chord rows, the relaxation, the arc length and the
+estimates drive: the protocol asks for factorizations and solves, which the problem does not
+serve, and those modules talk to the protocol alone, as NGSolve's Newton to a form:
 
-A load that cannot be reached raises :class:`ngbet.errors.ConvergenceError` carrying every
-attempt's decrements, the last converged load [mm] and the diagnosis; each converged step has
-been yielded to the caller by then.
+.. math::  r(x) = a(x; \cdot),\quad E(x),\quad J(x) = \partial r/\partial x,\quad
+           dx = -J^{-1} r \text{ on the free dofs},\quad
+           \partial x/\partial\lambda = (\psi_D, -J_{ff}^{-1} J_{fD}\,\psi_D)
+
+The state x, the load λ (``set_load``), the unit-free norm, the clamp predictor, the watch of a
+converged state and what is admissible are the problem's: the numerics reach them as
+``solver.state`` (the problem itself, an :class:`~ngbet.numerics.newton.AdmissibleState`), and
+``x`` is the same numpy view in both; physical queries (forces, observables, fields) go to the
+problem too (``solver.problem``). An
+enriched problem of the error estimate and a branch copy of the path spread get a solver of
+their own with the same settings.
 """
 
 from __future__ import annotations
 
-import logging
-import math
-from collections.abc import Callable, Generator, Sequence
+import time
+from typing import cast
 
 import numpy as np
 
-from ..engine import Outcome, PathResult, StepRecord, path_steps, run_to_end
-from ..errors import Attempt, ConvergenceError
-from .chord import ChordRows, chord_loads
-from .newton import Diagnosis, NewtonReport, NonlinearProblem, failure_pattern, newton
-from .relax import RelaxSettings, relax
-from .settings import NewtonSettings, PathSettings
+from ..numerics.compiled import add_energy
+from ..numerics.linear import LinearSolver, NewtonLinearSolver, energy_form, pick_inverse
+from ..numerics.settings import SolverSettings
+from .problem import ContinuumProblem
 
-__all__ = ["JAMMING_MISSED", "RELAX_DEFAULTS", "SNAP_RELEASE", "ArcLength", "SaddlePointNewton", "continuation",
-           "follow", "load_steps"]
-
-log = logging.getLogger(__name__)
+__all__ = ["ContinuumSolver"]
 
 
-#: a relaxed step that releases more than this fraction of the clamp's work in it is a snap-through
-#: (the network's threshold with the work by a rule that has the tangents: ``snap_release_hermite``)
-SNAP_RELEASE = 1e-3
-#: the relaxation's settings unless a caller gives others
-RELAX_DEFAULTS = RelaxSettings()
-#: why an increment whose state lies past the jamming angle, solved with the barrier off, is solved again
-JAMMING_MISSED = "the yarns close past the jamming angle in the state found without the barrier; solved again with it"
+class ContinuumSolver:
+    """The energy forms and linear algebra of a :class:`~ngbet.continuum.problem.ContinuumProblem`.
 
+    Implements :class:`ngbet.numerics.newton.Problem`; where :attr:`can_relax` (its Newton matrix
+    is a Hessian) also :class:`~ngbet.numerics.newton.Relaxable`.
 
-
-
-def _stalled(rep: NewtonReport) -> bool:
-    """Whether a failed Newton run stalled (no damping helped, or the decrement stopped falling).
-
-    A run that only ran out of iterations while its decrement kept falling was converging: a
-    shorter step, not a relaxation, is the answer (and ``solver.max_iterations`` stays the user's bound).
-    """
-    if rep.reason != "iteration limit":
-        return True
-    h = rep.history
-    return len(h) >= 2 and h[-1] >= h[-2]
-
-
-class SaddlePointNewton:
-    """The continuum's corrector for :func:`ngbet.engine.follow_path`.
-
-    A tangent (or clamp) predictor and the damped Newton :func:`newton` on a
-    :class:`NonlinearProblem`.
-
-    The load tangent ∂x/∂λ comes from the factorization at hand (that of the last Newton
-    iteration of the accepted step, or a fresh one after a rejected trial); it is computed when a
-    step is accepted, so that the step record carries dR/du0 = ψ·(J ∂x/∂λ) at no extra solve
-    when ``psi`` (the reaction's test vector) is given, and the next predictor reuses it.
+    Parameters
+    ----------
+    problem : ContinuumProblem
+        Spaces, energy, boundary conditions, load and state.
+    settings : SolverSettings
+        Its numerics (:func:`ngbet.runner.settings.solver_settings`); the linear algebra is read here,
+        Newton's and the path's are kept for the problems derived from this one.
     """
 
-    def __init__(self, problem: NonlinearProblem, settings: NewtonSettings,
-                 diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
-                 relax_below: float = 0.0, relax_settings: RelaxSettings = RELAX_DEFAULTS,
-                 chord_at: Sequence[float] = (), length: float = 1.0,
-                 on_relax: Callable[[float, np.ndarray, bool], None] | None = None) -> None:
-        self.problem = problem
-        self.on_relax = on_relax  # told of each relaxation: (load [m], the branch left, snap?)
-        self._left: tuple[float, np.ndarray, bool] | None = None
-        #: the loads where a chord correction with the factorization at hand is tried first
-        #: (:mod:`ngbet.continuum.chord`); ``length`` scales its difference step
-        self.chord = ChordRows(chord_at, length)
-        self._chorded = False
-        self.settings, self._diagnose, self._psi = settings, diagnose, psi
-        #: an increment shorter than this that fails is relaxed to a stable state (0: never)
-        self.relax_below, self.relax_settings = relax_below, relax_settings
-        #: the snap-throughs met, as the summary records them
-        self.snaps: list[dict[str, object]] = []
-        self.relaxations = 0
-        self._predicted: np.ndarray | None = None
-        self._jump: dict[str, object] | None = None  # the snap of the trial being corrected
-        self._tangent: np.ndarray | None = None  # ∂x/∂λ at the converged state
-        self._factorized = False
-        self._saved = problem.x.copy()
-        self.report: NewtonReport | None = None  # of the last correction
+    def __init__(self, problem: ContinuumProblem, settings: SolverSettings) -> None:
+        self.problem, self.settings = problem, settings
+        X, saddle = problem.X, problem.augmented_energy
+        lin = settings.linear
+        condense = lin.condense
+        inverse = pick_inverse(lin.linear_solver, saddle is not None and not condense, condense,
+                               X.FreeDofs(condense).NumSet())
+        # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
+        self.a = energy_form(X, inverse, condense=condense and saddle is None)
+        # the energy form is linearized unless the augmented Newton matrix of linear.py replaces it
+        linearized = not (condense and saddle is not None)
+        self.compile_mode = add_energy(self.a, problem.energy_parts, problem.dx, lin.compile, X.ndof, linearized)
+        self.linear: LinearSolver = NewtonLinearSolver(
+            self.a, condense, lin.linear_solver, saddle, problem.K_ref, problem.dx,
+            lin.compile if self.compile_mode == "native" else "interpret")
+        forms = [(self.a, linearized)] if self.linear.form is self.a else [(self.a, False), (self.linear.form, True)]
+        problem.jamming.add_to(forms)
+        #: the problem as the numerics see it (:class:`~ngbet.numerics.newton.AdmissibleState`): the
+        #: load, the Dirichlet entries, the norm, what is admissible
+        self.state = problem
+        self.x = problem.x  # the problem's state (a view of its GridFunction)
+        self.dirichlet = problem.dirichlet  # its Dirichlet entries
+        self._vec = problem.gf.vec
+        self._r = self._vec.CreateVector()
+        self._w = self._vec.CreateVector()
+        self._w2 = self._vec.CreateVector()
+        self._t_residual = 0.0
+        self._n_residual = 0
 
-    def predict(self, u0: float, h: float) -> None:
-        """X += ∂x/∂λ h (tangent) or the clamp's linear field; at a chord row the polynomial through the last states."""
-        p = self.problem
-        self._saved = p.x.copy()
-        guess = self.chord.predictor(p.x, u0, h)
-        if guess is not None:
-            p.x[:] = guess
-        else:
-            self._predict_newton(h)
+    # --------------------------------------------------------------------------- what the run reports
+    @property
+    def timers(self) -> dict[str, float]:
+        """Wall time [s] by kind: assembly, factorization, solve, residual."""
+        return {**self.linear.timers, "residual_s": self._t_residual}
 
-    def _predict_newton(self, h: float) -> None:
-        """X = the converged state + ∂x/∂λ h (tangent) or the clamp's linear field."""
-        p = self.problem
-        p.x[:] = self._saved
-        if self.settings.predictor == "tangent":
-            p.x[:] += h * self._load_tangent()
-        else:
-            p.x[:] += p.clamp_predictor(h)
-        self._predicted = p.x.copy() if self.relax_below > 0 else None
+    @property
+    def counts(self) -> dict[str, int]:
+        """Factorizations, solves, residual evaluations."""
+        return {**self.linear.counts, "residuals": self._n_residual}
 
-    def _load_tangent(self) -> np.ndarray:
-        if self._tangent is None:
-            if not self._factorized:
-                self.problem.factorize()
-                self.chord.refactorized()
-                self._factorized = True
-            self._tangent = self.problem.load_tangent(1.0)
-        return self._tangent
+    def ndofs(self) -> dict[str, int]:
+        """Degrees of freedom per field, in all, and those left after condensation ("factorized")."""
+        return {**self.problem.ndofs(), "factorized": int(sum(self.linear.freedofs))}
 
-    def correct(self, u0: float, h: float) -> Outcome:
-        """Newton at the load u0 + h from the predicted state."""
-        p = self.problem
-        p.set_load(u0 + h)
-        e_ref = p.energy()
-        e_ref = e_ref if math.isfinite(e_ref) else 0.0
-        self._jump = self._left = None
-        self._chorded = False
-        if self._factorized and self.chord.due(u0 + h):
-            self.report = rep = self.chord.correct(p, self.settings, e_ref)
-            if rep.converged and not self._jamming_missed():
-                self._chorded = True
-                return Outcome("converged", rep.iterations, list(rep.history), rep.reason)
-            log.debug("chord at %.6g mm: %s; Newton takes over", (u0 + h) * 1e3, rep.reason)
-            self._predict_newton(h)  # from Newton's own predictor
-            p.set_load(u0 + h)
-            e_ref = p.energy()
-            e_ref = e_ref if math.isfinite(e_ref) else 0.0
-        self.chord.refactorized()  # Newton factorizes anew
-        self.report = rep = newton(p, self.settings, e_ref)
-        if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
-            return self._relax(u0, h, e_ref, rep)
-        if rep.converged and self._jamming_missed():
-            return Outcome("failed", rep.iterations, list(rep.history), JAMMING_MISSED)
-        return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
+    # --------------------------------------------------------------------------- the forms
+    def residual(self) -> np.ndarray:
+        """r(x), full length (Dirichlet rows hold the reactions)."""
+        t0 = time.perf_counter()
+        self.a.Apply(self._vec, self._r)
+        self._t_residual += time.perf_counter() - t0
+        self._n_residual += 1
+        return cast(np.ndarray, self._r.FV().NumPy().copy())
 
-    def _jamming_missed(self) -> bool:
-        """Whether the state just found lies past the jamming angle with the barrier off (it is on now)."""
-        missed = getattr(self.problem, "jamming_missed", None)
-        return bool(missed is not None and missed())
+    def energy(self) -> float:
+        """The total energy (Lagrangian) per unit thickness at x [J/m]."""
+        return float(self.a.Energy(self._vec))
 
-    def _relax(self, u0: float, h: float, e_ref: float, failed: NewtonReport) -> Outcome:
-        """After Newton failed on a short increment: a stable equilibrium at u0 + h by :func:`relax`."""
-        p = self.problem
-        assert self._predicted is not None
-        self.relaxations += 1
-        before = self._state_at(self._saved, u0)
-        p.x[:] = self._predicted
-        p.set_load(u0 + h)
-        log.info("Newton failed on %.6g -> %.6g mm (%s): relaxing to a stable state", u0 * 1e3, (u0 + h) * 1e3,
-                 failed.reason)
-        rel = relax(p, self.settings, e_ref, self.relax_settings)
-        its = failed.iterations + rel.iterations
-        history = [*failed.history, *rel.history]
-        if not rel.converged:
-            return Outcome("failed", its, history, f"{failed.reason}; relaxation: {rel.reason}")
-        self.report = NewtonReport(True, its, history, [], rel.reason, rel.residual)
-        E1 = p.energy()
-        R1 = float(self._psi @ rel.residual) if self._psi is not None and rel.residual is not None else math.nan
-        E0, R0 = before
-        work = 0.5 * h * (R0 + R1) if math.isfinite(R0 + R1) else math.nan
-        released = E0 + work - E1 if math.isfinite(work) else math.nan
-        # a jump to another state: energy released beyond the clamp's work (the network's criterion)
-        jumped = math.isfinite(released) and released > SNAP_RELEASE * abs(work)
-        if jumped:
-            self._jump = {"u0_mm": (u0 + h) * 1e3, "u0_before_mm": u0 * 1e3, "energy_before": E0, "energy_after": E1,
-                          "released": released, "work": work, "reaction_before": R0, "reaction_after": R1,
-                          "lowest_eigenvalue_after": rel.lowest_eigenvalue,
-                          "lowest_eigenvalue_before": rel.kicked_from, "relaxation_iterations": rel.iterations}
-            locate = getattr(p, "locate", None)
-            if locate is not None:
-                self._jump.update(locate(p.x - self._predicted))
-        self._left = (u0, self._saved.copy(), jumped) if self.on_relax is not None else None
-        return Outcome("converged", its, history, rel.reason + (" (snap-through)" if jumped else ""))
+    def merit(self, r: np.ndarray) -> float:
+        """The energy plus ½ρ‖Π(φ − i8)‖² at the state whose residual is ``r``: a merit for descent.
 
-    def _state_at(self, x: np.ndarray, u0: float) -> tuple[float, float]:
-        """Energy and reaction psi·r of the state x at load u0 (the problem's state is left at x)."""
-        p = self.problem
-        p.x[:] = x
-        p.set_load(u0)
-        r = p.residual()
-        return p.energy(), float(self._psi @ r) if self._psi is not None else math.nan
+        Infinite where the material is inverted somewhere (det F ≤ 0): the descent stays among
+        physical states. The Lagrangian alone is no merit off the constraint (Λ(φ − i8) can fall
+        without bound); ‖Π(φ − i8)‖² is :meth:`ContinuumProblem.constraint_moments`, ρ the
+        augmentation of the Newton matrix (or the penalty K).
+        """
+        pb = self.problem
+        if pb.admissible():  # outside the energy's domain: the material would turn inside out
+            return float("inf")
+        E = self.energy()
+        if "lam" not in pb.field_names:
+            return E
+        rho = self.linear.K_aug or pb.scene.effects.penalty_K
+        return E + 0.5 * rho * pb.constraint_moments(r)
 
-    def accept(self, u0: float, h: float, outcome: Outcome) -> StepRecord:
-        """The state is converged: its residual, and the load tangent for dR/du0 and the next predictor."""
-        assert self.report is not None
-        self.problem.converged()
-        self._factorized = True  # Newton factorized at its iterates
-        self.chord.converged(u0 + h, self.problem.x, None if self._tangent is None else (u0, self._tangent))
-        self._tangent = None
-        dR = math.nan
-        if self._chorded:  # the factorization is an earlier state's: the tangent refined (chord module)
-            if self.settings.predictor == "tangent" or self._psi is not None:
-                found = self.chord.tangent(self.problem, self._psi, u0 + h, self.report.residual)
-                if found is None:  # too far from the factorization: the tangent of a new one
-                    self.problem.factorize()
-                    self.chord.refactorized()
-                    self._chorded = False
-                else:
-                    self._tangent, dR = found
-        rec = StepRecord(0, u0 + h, outcome.iterations, residual=self.report.residual,
-                         history=list(outcome.history), reason=outcome.reason)
-        if self._jump is not None:
-            rec.snap = True
-            rec.released = float(self._jump["released"])  # type: ignore[arg-type]
-            self.snaps.append(self._jump)
-            log.warning("snap-through at u0 = %.6g mm: the state jumped to a stable one (energy released %.3g "
-                        "J per metre of thickness)", (u0 + h) * 1e3, rec.released)
-            self._jump = None
-            self.chord.forget()  # a jump: no extrapolation across it
-        if self._left is not None and self.on_relax is not None:
-            self.on_relax(*self._left)
-        if self._chorded:
-            rec.dforce_du0 = dR
-        elif self.settings.predictor == "tangent" and self._psi is not None:
-            rec.dforce_du0 = self.problem.load_derivative(self._psi, self._load_tangent())
-        return rec
+    # --------------------------------------------------------------------------- linear algebra
+    def factorize(self, shift: float = 0.0) -> float:
+        """Linearize at the current state and factorize.
 
-    def reject(self, u0: float, outcome: Outcome) -> None:
-        """Back to the converged state; the factorization now belongs to a rejected state: rebuild it."""
-        p = self.problem
-        p.x[:] = self._saved
-        p.set_load(u0)
-        self._tangent = None
-        if self.settings.predictor == "tangent":
-            p.factorize()
-            self._factorized = True
-            self.chord.refactorized()
+        ``shift`` > 0: the diagonal raised by s |diag|, s ≥ shift enough for a positive definite
+        matrix where that can be tested (:meth:`NewtonLinearSolver.factorize`); returns s.
+        """
+        return self.linear.factorize(self._vec, shift)
 
-    def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
-        """The failure pattern of the last attempts and the problem's own diagnosis (text and object)."""
-        detail = self._diagnose() if self._diagnose is not None else None
-        texts = (failure_pattern(attempts), detail.message() if detail is not None else "")
-        return "; ".join(t for t in texts if t), detail
+    def solve(self, r: np.ndarray) -> np.ndarray:
+        """The correction −J⁻¹ r on the free entries, 0 on Dirichlet entries (last factorization)."""
+        self._w.FV().NumPy()[:] = r
+        self.linear.solve_into(self._w, self._w2)
+        dx = -self._w2.FV().NumPy()
+        dx[self.dirichlet] = 0.0
+        return cast(np.ndarray, dx)
 
+    def load_tangent(self, dlam: float) -> np.ndarray:
+        """The load tangent times dlam: Dirichlet entries moved by dlam, the others −J⁻¹ J_fd dlam."""
+        dirichlet = self.dirichlet
+        d = dlam * self.problem.load_direction
+        self._w2.FV().NumPy()[:] = d
+        self._w.data = self.linear.mat * self._w2
+        dx = self.solve(self._w.FV().NumPy())
+        dx[dirichlet] = d[dirichlet]
+        if self.linear.condensed:  # local dofs follow the Dirichlet move through the extension
+            self._w2.FV().NumPy()[:] = np.where(dirichlet, d, 0.0)
+            self._w.data = self.linear.form.harmonic_extension * self._w2
+            dx += self._w.FV().NumPy() * ~dirichlet
+        return dx
 
-#: an arc-length continuation that goes on from a result (its steps appended): a generator of step records
-ArcLength = Callable[[PathResult], Generator[StepRecord, None, PathResult]]
+    def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
+        """psi·(J tangent) with the Jacobian at hand: dR/dλ of the reaction R = psi·r along ∂x/∂λ."""
+        self._w2.FV().NumPy()[:] = tangent
+        self._w.data = self.linear.mat * self._w2
+        return float(psi @ self._w.FV().NumPy())
 
+    @property
+    def can_relax(self) -> bool:
+        """Whether the Newton matrix is a Hessian (condensed, or no multiplier).
 
-def load_steps(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, *,
-               diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
-               arclength: ArcLength | None = None) -> Generator[StepRecord, None, PathResult]:
-    """Carry the load from 0 to ``path.target``: a generator of the converged increments' records.
+        Then energy descent and the stability test work (:func:`ngbet.numerics.relax.relax`).
+        """
+        return self.linear.condensed or "lam" not in self.problem.field_names
 
-    The caller decides what to keep and write; the return value is the
-    :class:`~ngbet.engine.PathResult`. ``path.path_following``: "displacement" control
-    (:class:`SaddlePointNewton` on the engine; with ``path.snap``, an increment that fails at the
-    shortest length is relaxed to a stable state, :func:`relax`, and its record carries the branch
-    left in ``left``); "arclength": ``arclength(result)`` from the start; "auto": displacement
-    control, and where it fails ``arclength(result)`` goes on (its steps appended). Raises
-    ValueError at once for an unknown ``path_following`` or arc length without ``arclength``;
-    :class:`~ngbet.errors.ConvergenceError` while iterating, below ``min_step`` or after
-    ``max_attempts`` increments, with the failures' pattern and what ``diagnose()`` finds.
-    """
-    if path.path_following not in ("displacement", "arclength", "auto"):
-        raise ValueError(f"path_following = {path.path_following!r}: not 'displacement', 'arclength' or 'auto'")
-    if path.path_following == "displacement":
-        return _displacement_steps(problem, path, settings, diagnose, psi)
-    if arclength is None:
-        raise ValueError(f"path_following = {path.path_following!r} needs an arc-length runner; none was given")
-    if path.path_following == "arclength":
-        return arclength(PathResult(0.0))
-    return _auto_steps(problem, path, settings, psi, arclength)
+    def lowest_mode(self) -> tuple[float, np.ndarray]:
+        """The lowest eigenvalue of the scaled tangent at the current state and its mode (full length)."""
+        from .stability import lowest_eigenpair
 
+        mu, mode = lowest_eigenpair(self)
+        self._w.FV().NumPy()[:] = mode
+        self.linear.extend(self._w)  # the condensed local dofs follow
+        full = self._w.FV().NumPy().copy()
+        full[self.dirichlet] = 0.0
+        return mu, full
 
-def _displacement_steps(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings,
-                        diagnose: Callable[[], Diagnosis] | None, psi: np.ndarray | None
-                        ) -> Generator[StepRecord, None, PathResult]:
-    """Displacement control, relaxing where the path folds (not without a Hessian tangent)."""
-    # the last increment before the minimum, if within twice it: a snap bracketed as closely as the steps go
-    can = path.snap and getattr(problem, "can_relax", False)
-    below = min(path.min_step / path.cut, 2 * path.min_step) if can else 0.0
-    left: list[tuple[float, np.ndarray]] = []  # the branch left by the step being accepted
-    corrector = SaddlePointNewton(problem, settings, diagnose, psi, relax_below=below,
-                                  chord_at=chord_loads(problem, path.chord_at), length=path.length,
-                                  on_relax=lambda lam, x, _snap: left.append((lam, x)))
-    out = PathResult(0.0)
-    try:
-        for rec in path_steps(corrector, path, out):
-            rec.left = left.pop() if left else None
-            yield rec
-    except (ConvergenceError, KeyboardInterrupt) as err:  # a signal's summary keeps the snaps so far too
-        err.path_info = getattr(err, "path_info", {})  # type: ignore[union-attr]
-        err.path_info.update(_snap_info(corrector))  # type: ignore[union-attr]
-        raise
-    out.path_info.update(_snap_info(corrector))
-    return out
-
-
-def _auto_steps(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, psi: np.ndarray | None,
-                arclength: ArcLength) -> Generator[StepRecord, None, PathResult]:
-    """Displacement control, then arc length where it fails (which diagnoses: no eigen-solve here)."""
-    corrector = SaddlePointNewton(problem, settings, None, psi, chord_at=chord_loads(problem, path.chord_at),
-                                  length=path.length)
-    partial = PathResult(0.0)
-    try:
-        return (yield from path_steps(corrector, path, partial))
-    except ConvergenceError as err:
-        log.warning("displacement control stops at %.6g mm; following the path by arc length", err.last_converged_mm)
-        partial.u0 = err.last_converged_mm * 1e-3
-        partial.attempts = list(err.attempts)
-        partial.cuts = sum(not a.converged for a in err.attempts)
-    return (yield from arclength(partial))
-
-
-def follow(problem: NonlinearProblem, path: PathSettings, settings: NewtonSettings, *,
-           diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
-           arclength: ArcLength | None = None) -> PathResult:
-    """:func:`load_steps` carried to the end (nothing kept but the result)."""
-    return run_to_end(load_steps(problem, path, settings, diagnose=diagnose, psi=psi, arclength=arclength))
-
-
-def continuation(problem: NonlinearProblem, target: float, first_step: float, settings: NewtonSettings, *,
-                 psi: np.ndarray | None = None, **path: object) -> PathResult:
-    """:func:`follow` with the path given by its fields: ``PathSettings(target, first_step, **path)``."""
-    path.update({k: tuple(path[k]) for k in ("stops", "chord_at") if k in path})  # type: ignore[arg-type]
-    return follow(problem, PathSettings(target=target, first_step=first_step, **path), settings,  # type: ignore[arg-type]
-                  psi=psi)
-
-
-def _snap_info(corrector: SaddlePointNewton) -> dict[str, object]:
-    """The snap-throughs and relaxations of a displacement-controlled path, and its chord rows, for the summary."""
-    info: dict[str, object] = {}
-    if corrector.chord.loads.size:
-        info.update(chord_rows=corrector.chord.rows, chord_handovers=corrector.chord.handovers)
-    if corrector.relaxations:
-        info.update(snaps=list(corrector.snaps), relaxations=corrector.relaxations)
-    return info

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Literal, Protocol
 
 import ngsolve as ngs
@@ -30,12 +29,12 @@ from . import observables as obs
 from . import physics
 
 if TYPE_CHECKING:
-    from .linear import NewtonLinearSolver
+    from ..numerics.linear import LinearSolver
     from .problem import ContinuumProblem
 
 __all__ = ["DISCRETIZATION_MODE_RATIO", "EllipticityLoss", "ModeClass", "StabilityDiagnosis", "TangentSolver",
            "diagnose_stability",
-           "indefinite_by_construction", "lowest_eigenpair", "mode_constraint_ratio", "write_mode"]
+           "indefinite_by_construction", "lowest_eigenpair", "mode_constraint_ratio"]
 
 #: r above which the lowest mode is one of the discretization (φ does not follow i8)
 DISCRETIZATION_MODE_RATIO = 0.5
@@ -44,13 +43,13 @@ ModeClass = Literal["discretization", "continuum", "none"]
 
 
 class TangentSolver(Protocol):
-    """What the diagnosis reads of a solver (:class:`~ngbet.continuum.numerics.ContinuumSolver`).
+    """What the diagnosis reads of a solver (:class:`~ngbet.continuum.solver.ContinuumSolver`).
 
     Its problem, its linear solver and the factorization of the tangent at the current state.
     """
 
     problem: ContinuumProblem
-    linear: NewtonLinearSolver
+    linear: LinearSolver
 
     def factorize(self, shift: float = 0.0) -> float:
         """Linearize at the current state and factorize, the diagonal raised by >= ``shift``; returns the shift."""
@@ -156,7 +155,7 @@ class StabilityDiagnosis:
 def diagnose_stability(solver: TangentSolver, k: int = 3) -> StabilityDiagnosis:
     """The lowest eigenvalues of the (condensed) tangent at the current state and what its lowest mode is.
 
-    ``solver``: the problem's (:class:`~ngbet.continuum.numerics.ContinuumSolver`), whose tangent is
+    ``solver``: the problem's (:class:`~ngbet.continuum.solver.ContinuumSolver`), whose tangent is
     analysed. Never raises: a failed eigenvalue computation is reported in ``skipped`` (the diagnosis
     must not hide the error it explains).
     """
@@ -186,7 +185,7 @@ def lowest_eigenpair(solver: TangentSolver) -> tuple[float, np.ndarray]:
     """The lowest eigenvalue of the diagonally scaled tangent at the current state and its mode (full length).
 
     The mode holds the free dofs of the (condensed) tangent, scaled to unit maximum norm (the
-    condensed local dofs are 0: :func:`mode_constraint_ratio` and :func:`write_mode` extend it).
+    condensed local dofs are 0: :func:`mode_constraint_ratio` and :func:`ngbet.runner.fields.write_mode` extend it).
     """
     if indefinite_by_construction(solver):
         raise ValueError("the uncondensed saddle-point tangent is indefinite by construction: no stability test")
@@ -247,49 +246,3 @@ def mode_constraint_ratio(solver: TangentSolver, x: np.ndarray) -> tuple[float, 
     tot = ngs.Integrate(dens, mesh)
     where = (1e3 * ngs.Integrate(dens * ngs.x, mesh) / tot, 1e3 * ngs.Integrate(dens * ngs.y, mesh) / tot)
     return float(np.sqrt(num / max(den, 1e-300))), where
-
-
-def write_mode(solver: TangentSolver, mode: np.ndarray, path: Path, title: str = "") -> list[Path]:
-    """The mode (δu, δφ) of an instability as ``path``.vtu and ``path``.png, δu scaled to 1 mm at most.
-
-    ``mode`` holds the free dofs of the (condensed) tangent (:func:`lowest_eigenpair`).
-
-    The VTU holds ``mode_displacement`` [mm] (3 components, for "warp by vector") and ``mode_phi``
-    on the reference specimen [mm]; the picture shows |δu| on the specimen with the arrows of δu
-    (drawn 10 times longer).
-    Returns the files written (the picture is left out without matplotlib).
-    """
-    from .output import MM, scale_points, vtk_subdivision
-
-    problem = solver.problem
-    gf = ngs.GridFunction(problem.X)
-    gf.vec.FV().NumPy()[:] = mode
-    solver.linear.extend(gf.vec)
-    du = gf.components[0]
-    pts = np.array([p.point[:2] for p in problem.mesh.vertices])
-    vals = np.array([du(problem.mesh(*p)) for p in pts])
-    scale = 1e-3 / max(float(np.max(np.hypot(vals[:, 0], vals[:, 1]))), 1e-300)  # 1 mm at most
-    coefs = {"mode_displacement": ngs.CF((MM * scale * du[0], MM * scale * du[1], 0.0))}
-    if problem.phi is not None:
-        coefs["mode_phi"] = scale * gf.components[1]
-    ngs.VTKOutput(problem.mesh, coefs=list(coefs.values()), names=list(coefs), filename=str(path),
-                  subdivision=vtk_subdivision(problem.scene.discretization.p_u), legacy=False).Do()
-    vtu = Path(str(path) + ".vtu")
-    scale_points(vtu, MM)
-    written = [vtu]
-    try:
-        import matplotlib.pyplot as plt
-        from matplotlib.tri import Triangulation
-    except ImportError:  # pragma: no cover - matplotlib is a dependency of the plots
-        return written
-    tris = np.array([[v.nr for v in el.vertices] for el in problem.mesh.Elements(ngs.VOL)])
-    X, Y, U = pts[:, 0] * MM, pts[:, 1] * MM, vals * scale * MM
-    fig, ax = plt.subplots(figsize=(9, 4))
-    c = ax.tripcolor(Triangulation(X, Y, tris), np.hypot(U[:, 0], U[:, 1]), shading="gouraud", cmap="viridis")
-    ax.quiver(X, Y, U[:, 0], U[:, 1], color="w", width=0.002, angles="xy", scale_units="xy", scale=0.1)
-    fig.colorbar(c, ax=ax, label="|δu| [mm] (mode scaled to 1 mm)")
-    ax.set(aspect="equal", xlabel="X [mm]", ylabel="Y [mm]", title=title)
-    png = Path(str(path) + ".png")
-    fig.savefig(png, dpi=120, bbox_inches="tight")
-    plt.close(fig)
-    return [*written, png]

@@ -9,6 +9,7 @@ states each of the two half-size blocks apart (:mod:`ngbet.discrete.symmetry`).
 from __future__ import annotations
 
 import logging
+from typing import cast
 
 import numpy as np
 import scipy.sparse as sp
@@ -43,7 +44,7 @@ def _start_block(X0: np.ndarray | None, s: np.ndarray, k: int) -> np.ndarray:
         Y = X0[:, :k] * s[:, None]
         if Y.shape[1] < k:
             Y = np.column_stack([Y, np.random.default_rng(0).standard_normal((n, k - Y.shape[1]))])
-        return Y
+        return cast(np.ndarray, Y)
     return np.column_stack([np.ones(n)] + [np.random.default_rng(j).standard_normal(n) for j in range(k - 1)])
 
 
@@ -93,10 +94,10 @@ def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = Non
         return _lowest_eigenvalues_split(lin, blocks, s, k, X0, tol, max_expansions)
 
     def A(Y: np.ndarray) -> np.ndarray:
-        return (Kff @ (Y / s[:, None])) / s[:, None]
+        return cast(np.ndarray, (Kff @ (Y / s[:, None])) / s[:, None])
 
     def Ainv(Y: np.ndarray) -> np.ndarray:
-        return s[:, None] * lin.solve_many(s[:, None] * Y)
+        return cast(np.ndarray, s[:, None] * lin.solve_many(s[:, None] * Y))
 
     Q = _orthonormalize(_start_block(X0, s, k), np.zeros((n, 0)))
     AQ = A(Q)
@@ -141,7 +142,7 @@ class _SplitBasis:
         self.AQ = self.A(self.Q)
 
     def A(self, Y: np.ndarray) -> np.ndarray:
-        return (self.block.K @ (Y / self.s[:, None])) / self.s[:, None]
+        return cast(np.ndarray, (self.block.K @ (Y / self.s[:, None])) / self.s[:, None])
 
     def ritz(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """The k Ritz pairs nearest 0 (values, vectors, A times them) and the nearest one's residual."""

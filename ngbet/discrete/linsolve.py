@@ -32,7 +32,7 @@ from __future__ import annotations
 import copy
 import logging
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import scipy.sparse as sp
@@ -407,8 +407,8 @@ class _HalfTurnFactor:
         """K_ff^-1 B (``symmetric_rhs``: B's antisymmetric part left out)."""
         X = self.maps.B_s @ self.sym.solve(self.maps.Bt_s @ B)
         if symmetric_rhs:
-            return X
+            return cast(np.ndarray, X)
         B_a = self.maps.Bt_a @ B
         if not np.any(B_a):
-            return X
-        return X + self.maps.B_a @ self.anti.solve(B_a)
+            return cast(np.ndarray, X)
+        return cast(np.ndarray, X + self.maps.B_a @ self.anti.solve(B_a))

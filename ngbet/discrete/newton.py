@@ -18,7 +18,7 @@ from typing import Any, Protocol
 import numpy as np
 import scipy.sparse as sp
 
-from ..engine import PathControl
+from ..numerics.engine import PathControl
 from .linsolve import FreeBlockSolver, LinearSolverError
 
 __all__ = ["Problem", "StepControl", "StepFailed", "Tally", "TimedProblem", "newton"]

@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -35,7 +35,7 @@ log = logging.getLogger(__name__)
 def crossing_slip(net: Network, u: np.ndarray) -> np.ndarray:
     """|u_a - u_b| [m] at each crossing."""
     a, b = net.crossings[:, 0], net.crossings[:, 1]
-    return np.hypot(u[3 * a] - u[3 * b], u[3 * a + 1] - u[3 * b + 1])
+    return cast(np.ndarray, np.hypot(u[3 * a] - u[3 * b], u[3 * a + 1] - u[3 * b + 1]))
 
 
 def chain_neighbours(net: Network) -> tuple[np.ndarray, np.ndarray]:
@@ -68,12 +68,12 @@ def crossing_gamma(net: Network, u: np.ndarray) -> np.ndarray:
     The chords, not the nodal rotations, measure the yarn directions: with a bending stiffness
     small against K_phi the nodal rotations follow the crossing spring, not the yarn.
     """
-    return (yarn_rotation(net, u, net.crossings[:, 1]) - yarn_rotation(net, u, net.crossings[:, 0]))
+    return cast(np.ndarray, (yarn_rotation(net, u, net.crossings[:, 1]) - yarn_rotation(net, u, net.crossings[:, 0])))
 
 
 def crossing_spring_angle(net: Network, u: np.ndarray) -> np.ndarray:
     """theta_2 - theta_1 [rad]: the angle change seen by the rotational springs K_phi (nodal rotations)."""
-    return u[3 * net.crossings[:, 1] + 2] - u[3 * net.crossings[:, 0] + 2]
+    return cast(np.ndarray, u[3 * net.crossings[:, 1] + 2] - u[3 * net.crossings[:, 0] + 2])
 
 
 def zone_means(net: Network, values: np.ndarray) -> dict[str, float]:
@@ -136,7 +136,7 @@ def node_gamma(net: Network, u: np.ndarray) -> np.ndarray:
         if known.any():
             idx = np.arange(len(chain))
             g[chain] = np.interp(idx, idx[known], g[chain][known])
-    return np.nan_to_num(g)
+    return cast(np.ndarray, np.nan_to_num(g))
 
 
 def save_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None:
@@ -157,7 +157,7 @@ def save_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None
 def segment_gamma_deg(net: Network, u: np.ndarray) -> np.ndarray:
     """The shear angle γ [°] of each beam segment: the mean of its two nodes'."""
     ang = np.degrees(node_gamma(net, u))
-    return 0.5 * (ang[net.beams[:, 0]] + ang[net.beams[:, 1]])
+    return cast(np.ndarray, 0.5 * (ang[net.beams[:, 0]] + ang[net.beams[:, 1]]))
 
 
 def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: Any = None,

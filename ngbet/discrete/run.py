@@ -22,37 +22,21 @@ from typing import Any
 
 import numpy as np
 
-from ..engine import PathControl, PathResult, StepRecord, progress_bar
 from ..errors import ConvergenceError
 from ..figures.run import start_plot
 from ..kinematics import BetColumns, gamma_a
+from ..numerics.engine import PathResult, StepRecord, progress_bar
 from ..output import RunWriter
+from ..runner.settings import step_control
 from ..scene.document import Scene
 from . import observables as ob
 from .model import ENERGY_PARTS, NetworkModel
 from .network import network_from_scene
-from .newton import StepControl
 from .solver import load_steps
 
-__all__ = ["run", "step_control", "step_row"]
+__all__ = ["run", "step_row"]
 
 log = logging.getLogger(__name__)
-
-
-def step_control(scene: Scene) -> StepControl:
-    """The network's numerics of a scene in SI units (the one translation of the scene into them).
-
-    The steps are the smaller of [loading] and [discrete]; the path lands on the stops and the
-    output grid.
-    """
-    ld, so, d = scene.loading, scene.solver, scene.discrete
-    max_step = min(ld.max_step_mm, d.max_step_mm)
-    path = PathControl(target=ld.u0_mm * 1e-3, first_step=min(ld.first_step_mm, d.first_step_mm) * 1e-3,
-                       max_step=max_step * 1e-3, min_step=ld.min_step_mm * 1e-3, growth=so.growth, cut=so.cut,
-                       grow_after=so.grow_after, stops=tuple(s * 1e-3 for s in ld.path_stops_mm))
-    return StepControl(path=path, rtol=so.rtol, atol=so.atol_energy, max_iterations=so.max_iterations,
-                       predictor=so.predictor, backend=so.linear_solver,
-                       snap_bracket=min(max(4 * ld.min_step_mm, 1.0), max_step) * 1e-3)
 
 
 def step_row(model: NetworkModel, info: StepRecord, u: np.ndarray, scene: Scene) -> dict[str, Any]:

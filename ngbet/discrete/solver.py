@@ -1,6 +1,6 @@
 """The network's corrector: shifted minimizing Newton with stability check and snap handling.
 
-:class:`ShiftedNewton` runs on the engine's load stepping (:func:`ngbet.engine.path_steps`);
+:class:`ShiftedNewton` runs on the engine's load stepping (:func:`ngbet.numerics.engine.path_steps`);
 :func:`load_steps` puts the two together: a generator of the step records (each with its state),
 which the runner iterates and writes from. Newton at a fixed load is :func:`ngbet.discrete.newton.newton`,
 the stability check :func:`ngbet.discrete.eigen.lowest_eigenvalues`; both are described below.
@@ -54,14 +54,15 @@ import math
 import time
 from collections.abc import Generator, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import scipy.sparse as sp
 
-from .. import cholmod, engine
-from ..engine import Outcome, PathResult, StepRecord, Steps
+from .. import cholmod
 from ..errors import Attempt, ConvergenceError
+from ..numerics import engine
+from ..numerics.engine import Outcome, PathResult, StepRecord, Steps
 from .eigen import (
     check_stability,
     lowest_eigenvalues_arpack,  # noqa: F401  (bench/bench_discrete.py imports it from here)
@@ -94,7 +95,7 @@ def load_steps(problem: Problem, ctl: StepControl, out: PathResult | None = None
     """Follow the load path u0 = 0 -> ``ctl.path.target`` with :class:`ShiftedNewton` on the engine.
 
     Yields the record of each converged step, its state in ``state`` (dropped when the path moves
-    on: the result keeps no states); returns the :class:`~ngbet.engine.PathResult` (``out`` if
+    on: the result keeps no states); returns the :class:`~ngbet.numerics.engine.PathResult` (``out`` if
     given), whose ``path_info`` holds the iteration and time statistics and the snap events, as of
     the last step yielded while the path goes on. The BLAS libraries in the process (numpy's and
     scipy's OpenBLAS, NGSolve's OpenBLAS and MKL) are held to one thread meanwhile: the solver's
@@ -165,7 +166,7 @@ def _decrements(history: list[tuple[float, float, float]]) -> list[float]:
 
 
 class ShiftedNewton:
-    """The network's corrector for :func:`ngbet.engine.path_steps` (see the module docstring).
+    """The network's corrector for :func:`ngbet.numerics.engine.path_steps` (see the module docstring).
 
     Two factorizations of the same pattern: ``lin`` holds the tangent at the converged state
     (predictor, stability check, restart after a failed or cut step: no refactorization),
@@ -218,7 +219,7 @@ class ShiftedNewton:
         w = np.where(self.problem.fixed, load - 0.5 * ht.shift, 0.0)
         t = 0.5 * ht.shift + w
         t[free] += -lin.solve((K @ w)[free], symmetric_rhs=True)
-        return t
+        return cast(np.ndarray, t)
 
     def predict(self, u0: float, h: float) -> None:
         """Tangent predictor with the second-order (Hermite) term, or the clamp's ramp."""

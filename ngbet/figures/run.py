@@ -18,7 +18,7 @@ import logging
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -132,7 +132,7 @@ def _not_installed(exc: ImportError) -> None:
     if not installed:
         log.warning(NO_MATPLOTLIB)
         return
-    from ..engine import STOP_REQUESTED
+    from ..numerics.engine import STOP_REQUESTED
 
     if STOP_REQUESTED.is_set():
         raise KeyboardInterrupt("stop requested by a signal") from exc
@@ -159,7 +159,7 @@ def start_plot(run_dir: str | Path, extra: Extra = (), service: Any = None,
     def finish() -> Path | None:
         if proc is not None:
             try:
-                return proc.answer()
+                return cast("Path | None", proc.answer())
             except RuntimeError as exc:
                 log.info("the plot process did not draw %s (%s): drawing it here", run_dir, exc)
         if measured is not None:

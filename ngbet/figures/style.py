@@ -14,7 +14,7 @@ import textwrap
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -191,7 +191,7 @@ def nice_ceil(x: float) -> float:
     k = math.floor(math.log10(x))
     for m in (1.0, 1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0):
         if m * 10**k >= x * (1 - 1e-12):
-            return m * 10**k
+            return cast(float, m * 10**k)
     return 10.0 ** (k + 1)  # pragma: no cover
 
 
@@ -264,8 +264,8 @@ def texts_outside(fig: Figure) -> list[str]:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    renderer = canvas.get_renderer()
+    canvas.draw()  # type: ignore[no-untyped-call]
+    renderer = canvas.get_renderer()  # type: ignore[no-untyped-call]
     box = fig.bbox
 
     def outside(bb: Any) -> bool:

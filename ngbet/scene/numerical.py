@@ -153,7 +153,7 @@ class Solver:
     # matrix (slower): a numerics choice, the same discrete solution for every formulation
     condense: bool = True
     # NGSolve threads; "auto": continuum on one thread with each assembly on the idle cores,
-    # discrete on all cores (ngbet.run.thread_policy). One by default: on the 2-core machines
+    # discrete on all cores (ngbet.runner.threads.thread_policy). One by default: on the 2-core machines
     # measured, two threads were slower in wall time (solves and residuals wait for a core)
     threads: int | str = 1
     predictor: str = "tangent"  # "tangent" (Euler) or "clamp" (u += du0 X/L)

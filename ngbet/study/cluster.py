@@ -18,7 +18,7 @@ import time
 import uuid
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from ..errors import NgbetError
 from .executors import execute_case
@@ -62,7 +62,7 @@ def run_dask(todo: list[Case], scheduler: str, threads: int,
     from distributed import Client
 
     try:
-        client = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S:g}s")
+        client = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S:g}s")  # type: ignore[no-untyped-call, unused-ignore]
     except Exception as exc:  # refused, timed out, or something that does not speak dask answered
         raise SchedulerError(scheduler, f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}") from None
     with client:
@@ -87,7 +87,7 @@ def _collect(client: Any, futs: dict[Any, Case], scheduler: str, wait_s: float,
     try:
         while pending:
             try:
-                done, pending = wait(list(pending), timeout=POLL_S, return_when="FIRST_COMPLETED")
+                done, pending = wait(list(pending), timeout=POLL_S, return_when="FIRST_COMPLETED")  # type: ignore[no-untyped-call, unused-ignore]
             except Exception:  # nothing finished within the poll (dask's TimeoutError)
                 done, pending = set(), set(pending)
             pending = set(pending)
@@ -114,7 +114,7 @@ def _collect(client: Any, futs: dict[Any, Case], scheduler: str, wait_s: float,
 
 def _result(fut: Any) -> dict[str, Any]:
     try:
-        return fut.result()
+        return cast("dict[str, Any]", fut.result())
     except Exception as exc:  # the case's worker died (KilledWorker) or the task failed
         return {"status": "error", "error": f"{type(exc).__name__}: {exc}", "error_type": type(exc).__name__,
                 "wall_s": math.nan}

@@ -10,7 +10,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from ..scene.document import Scene
 
@@ -40,7 +40,7 @@ class StudyData:
 
     def cases(self) -> list[dict[str, Any]]:
         """The case records of meta.json (index, parameters, key, status)."""
-        return self.meta["cases"]
+        return cast("list[dict[str, Any]]", self.meta["cases"])
 
     def at(self, case: int, u0_mm: float, col: str) -> float:
         """Value of ``col`` of a case at the load step u0 (nan when not reached)."""
@@ -79,7 +79,7 @@ def same_value(a: Any, b: Any) -> bool:
     """Whether two scene values are the same: numbers equal to 1e-12 relative (10 and 10.0 alike), others by ``==``."""
     if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
         return math.isclose(float(a), float(b), rel_tol=1e-12, abs_tol=0.0) or a == b
-    return a == b
+    return cast(bool, a == b)
 
 
 Extract = Callable[[dict[str, Any], Path, Path], dict[str, list[dict[str, Any]]]]

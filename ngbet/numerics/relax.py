@@ -4,7 +4,7 @@ r"""Relaxation at a fixed clamp displacement: a stable equilibrium where Newton 
 mode of the tangent if that is unstable: shifted Newton steps (J + s |diag J|) dx = −r, s raised
 until the matrix is positive definite, with a line search on the problem's merit (infinite outside
 the energy's domain: inverted material). The state found is accepted only if it is admissible and
-the tangent positive definite there. Called by :class:`ngbet.continuum.solver.SaddlePointNewton`.
+the tangent positive definite there. Called by :class:`ngbet.numerics.path.SaddlePointNewton`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .newton import NonlinearProblem, newton
+from .newton import Relaxable, newton
 from .settings import NewtonSettings
 
 __all__ = ["RelaxReport", "RelaxSettings", "relax"]
@@ -54,28 +54,26 @@ class RelaxReport:
     kicked_from: float = math.nan  # the lowest eigenvalue at the start when it was kicked along its mode
 
 
-def relax(problem: NonlinearProblem, newton_settings: NewtonSettings, e_ref: float,
+def relax(problem: Relaxable, newton_settings: NewtonSettings, e_ref: float,
           settings: RelaxSettings = RelaxSettings(), start_eigen: tuple[float, np.ndarray] | None = None
           ) -> RelaxReport:
     """A stable equilibrium at the current load from the current state, by a shifted descent.
 
-    Needs ``problem.factorize(shift)`` and ``problem.lowest_mode()`` (a Hessian tangent); uses
-    ``problem.merit(r)``, ``problem.begin_relaxation()`` and ``problem.admissible()`` where the
-    problem has them. The state is first moved along the lowest mode when that eigenvalue is not
-    positive (the sign that lowers the energy to first order). Then :func:`_flow`: shifted Newton
-    steps (J + s|diag J|) dx = −r with s at least what makes the matrix positive definite and a
-    line search on the merit, s falling as full steps are taken (a pseudo-transient continuation
-    that becomes Newton as it settles). Newton (:func:`newton`) finishes; the state is accepted if
-    admissible and the tangent's lowest eigenvalue is positive; an unstable one is kicked along
-    its mode (twice as far each time) and the descent goes on. On failure x is left where it stopped.
+    ``problem`` has a Hessian tangent (:class:`~ngbet.numerics.newton.Relaxable`): shifted
+    factorizations, its lowest mode, a merit and what is admissible. The state is first moved
+    along the lowest mode when that eigenvalue is not positive (the sign that lowers the energy
+    to first order). Then :func:`_flow`: shifted Newton steps (J + s|diag J|) dx = −r with s at
+    least what makes the matrix positive definite and a line search on the merit, s falling as
+    full steps are taken (a pseudo-transient continuation that becomes Newton as it settles).
+    Newton (:func:`newton`) finishes; the state is accepted if admissible and the tangent's
+    lowest eigenvalue is positive; an unstable one is kicked along its mode (twice as far each
+    time) and the descent goes on. On failure x is left where it stopped.
     """
     history: list[float] = []
     tol = newton_settings.rtol * abs(e_ref) + newton_settings.atol
-    weights = _weights_of(problem)
-    begin = getattr(problem, "begin_relaxation", None)
-    if begin is not None:  # what the problem counts as admissible is judged against the start
-        begin()
-    mu, mode = start_eigen if start_eigen is not None else problem.lowest_mode()  # type: ignore[attr-defined]
+    weights = problem.state.weights
+    problem.state.begin_relaxation()  # what the problem counts as admissible is judged against the start
+    mu, mode = start_eigen if start_eigen is not None else problem.lowest_mode()
     kicked = math.nan
     its = 0
     for attempt in range(settings.kicks + 1):
@@ -89,11 +87,11 @@ def relax(problem: NonlinearProblem, newton_settings: NewtonSettings, e_ref: flo
         rep = newton(problem, newton_settings, e_ref)
         its += rep.iterations
         history.extend(rep.history)
-        bad = problem.admissible() if rep.converged and hasattr(problem, "admissible") else ""
+        bad = problem.state.admissible() if rep.converged else ""
         if bad:
             return RelaxReport(False, its, history, f"the equilibrium found is not physical: {bad}",
                                kicked_from=kicked)
-        mu, mode = problem.lowest_mode()  # type: ignore[attr-defined]
+        mu, mode = problem.lowest_mode()
         if rep.converged and mu > 0:
             return RelaxReport(True, its, history, "relaxed to a stable equilibrium", rep.residual, mu, kicked)
         why = (f"the equilibria found are unstable (lowest scaled eigenvalue {mu:.3g})" if rep.converged
@@ -101,13 +99,7 @@ def relax(problem: NonlinearProblem, newton_settings: NewtonSettings, e_ref: flo
     return RelaxReport(False, its, history, why, lowest_eigenvalue=mu, kicked_from=kicked)
 
 
-def _weights_of(problem: NonlinearProblem) -> np.ndarray:
-    """Weights that make the entries of a correction unit-free (those of ``problem.norm``), or ones."""
-    w = getattr(problem, "_weights", None)
-    return np.asarray(w) if w is not None else np.ones_like(problem.x)
-
-
-def _kick(problem: NonlinearProblem, mode: np.ndarray, weights: np.ndarray, size: float) -> None:
+def _kick(problem: Relaxable, mode: np.ndarray, weights: np.ndarray, size: float) -> None:
     """X += a mode, its largest weighted entry ``size``, the sign lowering the energy to first order."""
     big = float(np.max(np.abs(weights * mode)))
     if big <= 0:
@@ -119,7 +111,7 @@ def _kick(problem: NonlinearProblem, mode: np.ndarray, weights: np.ndarray, size
     problem.x[:] += a * mode
 
 
-def _flow(problem: NonlinearProblem, tol: float, settings: RelaxSettings,
+def _flow(problem: Relaxable, tol: float, settings: RelaxSettings,
           shift: float, history: list[float], its: int) -> tuple[bool, int, str]:
     """Shifted Newton steps with a line search on the merit until the decrement is small (True).
 
@@ -129,7 +121,7 @@ def _flow(problem: NonlinearProblem, tol: float, settings: RelaxSettings,
     least 1e-4 of the decrement; a full step lowers s by 4, a shortened one doubles it, no
     descent at all raises it tenfold.
     """
-    merit = getattr(problem, "merit", lambda _r: problem.energy())
+    merit = problem.merit
     r = problem.residual()
     E = merit(r)
     if not (np.all(np.isfinite(r)) and math.isfinite(E)):
@@ -178,6 +170,6 @@ def _flow(problem: NonlinearProblem, tol: float, settings: RelaxSettings,
     return False, its, f"no equilibrium within {settings.max_iterations} relaxation iterations"
 
 
-def _hint(problem: NonlinearProblem) -> str:
+def _hint(problem: Relaxable) -> str:
     """The problem's advice for a relaxation that meets its inadmissible states ("; ..." or "")."""
-    return f"; {hint}" if (hint := getattr(problem, "inadmissible_hint", "")) else ""
+    return f"; {hint}" if (hint := problem.state.inadmissible_hint) else ""

@@ -4,24 +4,21 @@
 interprets; ``Compile(realcompile=True)`` generates C++ for it and its first and second
 derivatives, compiles it with NGSolve's ``ngscxx`` into a temporary folder, links it with
 ``ngsld`` and loads it. NGSolve keeps no such library after the process ends and caches nothing:
-each process pays the C++ compilation again (15–30 s per integrand with two derivatives on the
-2-core machine measured). The generated code keeps the addresses of live objects apart, in a
-small second source file, so the large file depends on the expression alone.
+each process would pay the C++ compilation again. The generated code keeps the addresses of live
+objects apart, in a small second source file, so the large file depends on the expression alone.
 
 This module puts a caching ``ngscxx`` and ``ngsld`` in front of NGSolve's (on ``PATH`` while
 compiling): the object file of a source is kept under :func:`cache_dir`, named by a SHA-256 of
 the source (the expression, with its constants as literals) and what else determines the code
 (:func:`code_key`: NGSolve's version and compiler flags, the compiler; not the cache's path), and
 copied back when the same source comes again; its shared library (linked against NGSolve's
-libraries, 0.1–0.2 s) is kept beside it. Each kept file has a checksum file beside it
-(the SHA-256 of what was built and the key it was built for), checked on the copy that is used: a
-file that does not match (changed bytes, or another source's file under this key) is removed with
-an ``ngbet:`` line on stderr and built again (``"auto"``: interpreted, as for a missing file).
-The address table is compiled directly (no NGSolve headers) and linked alone, by ``ld`` without
-the C++ driver, against a private copy of the cached library, whose address symbols bind to that
-table when NGSolve loads it (two compiles of one source in a process keep apart). A warm compile
-then costs ~50 ms per library (0.3 s for the six of the default scene, measured under
-load 2–4; 1.2 s when each was linked against NGSolve's libraries).
+libraries) is kept beside it. Each kept file has a checksum file beside it (the SHA-256 of what
+was built and the key it was built for), checked on the copy that is used: a file that does not
+match (changed bytes, or another source's file under this key) is removed with an ``ngbet:`` line
+on stderr and built again (``"auto"``: interpreted, as for a missing file). The address table is
+compiled directly (no NGSolve headers) and linked alone, by ``ld`` without the C++ driver,
+against a private copy of the cached library, whose address symbols bind to that table when
+NGSolve loads it (two compiles of one source in a process keep apart).
 
 ``solver.compile``:
 
@@ -29,37 +26,28 @@ load 2–4; 1.2 s when each was linked against NGSolve's libraries).
 * ``"native"``: ``Compile(realcompile=True, wait=True)`` through the cache (cold: the full C++
   compilation, once per integrand and NGSolve version); without a C++ compiler, or when it fails,
   the interpreted form with a warning.
-* ``"auto"`` (default): by the size of the problem. Native code saves per linearization and
-  residual about 4 µs and 1 µs per dof (measured, one thread, load 4–5, fastest of three
-  processes: assembly 0.34 → 0.11 s at 63k dofs with p = 2, 0.041 → 0.018 s at 9.5k dofs with
-  p = 3), and a warm setup costs 0.3–1 s more than interpreting (code generation, loading, a
-  ~50 ms link per library), a cold one 15–60 s (the integrand and its derivatives). So:
-  interpreted below :data:`NATIVE_IF_CACHED` dofs (the default scene's 8 linearizations and 13 residuals would
-  save ~0.1 s); native from the cache (nothing compiled) up to :data:`NATIVE_COLD`; native,
-  compiling if needed, above. Run once with ``"native"`` to fill the cache for a family of scenes.
+* ``"auto"`` (default): by the size of the problem, since native code saves a time per dof in each
+  linearization and residual and costs a setup (warm: code generation, loading, a link per
+  library; cold: the compilation): interpreted below :data:`NATIVE_IF_CACHED` dofs; native from
+  the cache (nothing compiled) up to :data:`NATIVE_COLD`; native, compiling if needed, above. Run
+  once with ``"native"`` to fill the cache for a family of scenes. The measurements behind the two
+  thresholds are in docs/numerics.md.
 
 The constants of the energy (K_aug, the penalty K, the tabulated law's rises) are literals in the
 generated code, so each set of them is its own source; the material values of
 :mod:`ngbet.continuum.parameters` are Parameters, read at run time (a run with other K_el and α1
-reused the cached code: setup 0.8 s). The tangent is the same either way: uncondensed to 2e-16
-of its largest entry, the residual to 4e-18 (measured; after the element-wise condensation of
-the exact Lagrangian's Newton matrix, whose local blocks carry K_aug, the corner entries differ by
-the round-off that elimination amplifies, 2.5e-2 at p = 3 with 0.25 mm corners, and the condensed
-systems' solutions agree to 1e-8, as between the interpreted symbolic and automatic derivatives).
+reuses the cached code). The tangent and the residual are the same either way to round-off (after
+the element-wise condensation of the exact Lagrangian's Newton matrix, whose local blocks carry
+K_aug, to the round-off that elimination amplifies).
 
 Linearization (:func:`add_energy`). By default NGSolve's energy integrator gets the Hessian by
 evaluating the integrand in second-order automatic differentiation, pair of trial components by
 pair; with ``ngsglobals.symbolic_integrator_uses_diff`` it differentiates the expression once
 per trial function, symbolically, when the integrator is built (read then only), and gets the
-Hessian from first-order automatic differentiation of those derivatives. Interpreted, that is
-1.2–1.4x faster assembly (default scene, 7 linearizations: 0.47 → 0.34–0.40 s); the uncondensed
-Hessian matches a central difference of the residual to 4e-11 either way, and the forces of a run
-agree to 1e-16 with the same Newton iterations. Native, the derivatives of a compiled integrand
-are compiled too (one more object per trial function: u's gradient, φ, ∇φ, Λ), through the same
-cache while the integrator is built; measured on the default scene (9 495 dofs, one thread) the
-element matrices' second derivatives take 1.4 ms per linearization instead of 4.6 ms, and at
-63k dofs the assembly falls from ~0.23 to ~0.16 s. Cold, each derivative is a C++ compilation
-of its own.
+Hessian from first-order automatic differentiation of those derivatives: a faster assembly with
+the same Hessian to round-off. Native, the derivatives of a compiled integrand are compiled too
+(one more object per trial function: u's gradient, φ, ∇φ, Λ), through the same cache while the
+integrator is built; cold, each derivative is a C++ compilation of its own.
 
 The energy may come in parts, one integrator each (:func:`add_energy`). NGSolve's integrator
 computes a block of the element matrix for every pair of trial functions its nonzero pattern

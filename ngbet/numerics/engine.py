@@ -4,7 +4,7 @@ The engine carries the clamp displacement u0 [m] from 0 to a target in increment
 nothing of the model: a :class:`Corrector` moves the state along the load (``predict``), brings
 it back to equilibrium (``correct``), and commits or discards the result (``accept``,
 ``reject``). Two correctors exist: the continuum's damped Newton for the saddle point
-(:class:`ngbet.continuum.solver.SaddlePointNewton`) and the network's shifted minimizing Newton
+(:class:`ngbet.numerics.path.SaddlePointNewton`) and the network's shifted minimizing Newton
 with its stability check and snap handling (:class:`ngbet.discrete.solver.ShiftedNewton`).
 
 Step length
@@ -22,11 +22,11 @@ Outcomes
 Consumers
     :func:`path_steps` is a generator (as scikit-fem's continuation): it yields the record of each
     converged step and returns the :class:`PathResult`. The runner iterates it and alone decides
-    what to write (:class:`Steps` keeps the return value of a ``for`` loop over it);
-    :func:`run_to_end` and :func:`follow_path` only carry the path to its end.
+    what to write (:class:`Steps` keeps the return value of a ``for`` loop over it); it is the one
+    way a load path is consumed.
 
 :class:`PathControl` is the one class of the step fields; the models' settings hold or extend it
-(:class:`ngbet.continuum.settings.PathSettings`, :class:`ngbet.discrete.newton.StepControl`).
+(:class:`ngbet.numerics.settings.PathSettings`, :class:`ngbet.discrete.newton.StepControl`).
 """
 
 from __future__ import annotations
@@ -43,12 +43,12 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
-from .errors import Attempt, ConvergenceError
+from ..errors import Attempt, ConvergenceError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Corrector", "Outcome", "PathControl", "PathResult", "StepRecord", "Steps", "follow_path", "path_steps",
-           "progress_bar", "run_to_end"]
+__all__ = ["STOP_REQUESTED", "Corrector", "Outcome", "PathControl", "PathResult", "StepRecord", "Steps", "check_stop",
+           "path_steps", "progress_bar", "time_budget"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -148,9 +148,9 @@ class PathResult:
 
 #: Set by the command line's signal handler (Ctrl-C, SIGTERM) when it raises KeyboardInterrupt.
 #: That exception can be lost: raised while pybind11 converts the arguments of an NGSolve call
-#: (measured: in ``ngs.IfPos(...)`` while an observable is evaluated, about 1 run in 80 under
-#: load), it is cleared as a failed conversion and the run went on to the end. The load loops
-#: check this flag between steps, so that such a run stops at its next step.
+#: (e.g. in ``ngs.IfPos(...)`` while an observable is evaluated), it is cleared as a failed
+#: conversion and the run would go on to the end. The load loops check this flag between steps,
+#: so that such a run stops at its next step.
 STOP_REQUESTED = threading.Event()
 
 
@@ -218,26 +218,6 @@ def path_steps(corrector: Corrector, ctl: PathControl, out: PathResult | None = 
         corrector.reject(lam, outcome)
         step = _after_rejection(corrector, ctl, out, lam, nxt, h, outcome)
     return out
-
-
-def run_to_end(steps: Generator[StepRecord, None, PathResult]) -> PathResult:
-    """Carry a path generator to its end, keeping nothing but its return value."""
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            return done.value
-
-
-def follow_path(corrector: Corrector, ctl: PathControl) -> PathResult:
-    """:func:`path_steps` carried to the end: the path (its records in ``steps``).
-
-    Raises
-    ------
-    ConvergenceError
-        when a failed increment is cut below ``ctl.min_step`` or after ``ctl.max_attempts`` trials.
-    """
-    return run_to_end(path_steps(corrector, ctl))
 
 
 class Steps:

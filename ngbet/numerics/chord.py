@@ -19,8 +19,7 @@ Convergence:      |dx_k·r_k| ≤ (1 − θ_k) · m · tol, tol = rtol · E_ref 
                   :data:`CHORD_MARGIN`); then
                   x += dx_k. With ‖J₀⁻¹J − I‖ ≤ θ the Newton decrement r·J⁻¹r is at most
                   |dx_k·r_k| / (1 − θ): the state passes Newton's own test, and the step
-                  taken after it leaves an error θ times smaller still. Measured on the default
-                  run against Newton to rtol = 1e-14: forces to 1e-8 of the largest (Newton's rows: 2e-9).
+                  taken after it leaves an error θ times smaller still.
 
 The load tangent at such a state, t = ∂x/∂λ (prescribed entries d, free ones from
 J_ff t_f = −J_fd d), and the load derivative of the reaction dR/dλ = ψ·J t, are computed without
@@ -33,46 +32,40 @@ J t₀ by forward differences of the residual (the residual at the state is at h
 because t·J t = ψ·J t (ψ = d on the prescribed entries, J t = 0 on the free ones) and
 t₀·J t₀ = t·J t + e·J e with e·J e = g·J_ff⁻¹ g. The refined tangent t₀ − J₀⁻¹ g (one chord
 step on the tangent's equation) is refined again until the correction term g·J₀⁻¹g is below
-:data:`TANGENT_RTOL` of dR/dλ, else the problem is linearized anew. Measured on the default run:
-dR/dλ to 1e-4 of a tight Newton reference (6e-6 on 26 of the 27 rows), Newton's own, whose
-tangent is that of its last iterate, to 5e-4.
+:data:`TANGENT_RTOL` of dR/dλ, else the problem is linearized anew. The accuracy of the rows and
+of dR/dλ, and the measurements behind the constants below, are in docs/numerics.md.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import cast
 
 import numpy as np
 
-from .newton import NewtonReport, NonlinearProblem
+from .newton import NewtonReport, Problem
 from .settings import NewtonSettings
 
 __all__ = ["CHORD_CONTRACTION", "CHORD_ITERATIONS", "CHORD_MARGIN", "CHORD_PREDICTOR_STATES", "FD_STEP",
-           "TANGENT_REFINEMENTS", "TANGENT_RTOL", "ChordRows", "chord", "chord_loads", "extrapolate", "jacobian_times",
+           "TANGENT_REFINEMENTS", "TANGENT_RTOL", "ChordRows", "chord", "extrapolate", "jacobian_times",
            "tangent_at_hand"]
 
 #: a chord correction contracting by more than this (energy norm) linearizes again, once; if it still
-#: does, Newton takes over. Measured on the default run (margin 1): 0.15, 0.2, 0.3, 0.4 give 10, 8, 7,
-#: 7 factorizations and 124, 122, 124, 124 residuals
+#: does, Newton takes over (the fewest factorizations at no more residuals)
 CHORD_CONTRACTION = 0.2
-#: the chord's predictor is the polynomial through this many last converged states (a quartic).
-#: Measured on the default run, the first decrement of a row: 3, 4, 5 states give 6e-7, 2e-9,
-#: 1e-11 to 2e-9; 6 states no better (1e-11 to 2e-9) and more refactorizations (13 against 9).
-#: A cubic Hermite predictor with the rows' tangents (2e-8) is worse: the tangents are accurate
-#: to TANGENT_RTOL only
+#: the chord's predictor is the polynomial through this many last converged states (a quartic:
+#: fewer states leave a larger first decrement, more refactorize more often; a cubic Hermite
+#: predictor with the rows' tangents is worse, the tangents being accurate to TANGENT_RTOL only)
 CHORD_PREDICTOR_STATES = 5
 #: the chord's decrement must be below this fraction of Newton's tolerance: Newton's last step,
-#: quadratic, leaves its rows far inside the tolerance, the chord's linear one does not. Measured on
-#: the default run against Newton to rtol = 1e-14, the grid rows' forces: 1, 0.01, 1e-3, 1e-4 give
-#: 4.8e-7, 4.0e-8, 1.8e-8, 3.3e-9 (Newton's rows: 2e-9) for 122, 143, 161, 168 residuals
+#: quadratic, leaves its rows far inside the tolerance, the chord's linear one does not
 CHORD_MARGIN = 0.01
 #: chord steps allowed for one load
 CHORD_ITERATIONS = 6
 #: the step of the differences J t ≈ (r(x + εt) − r(x)) / ε, relative to the problem's length scale
-#: (the tangent moves the clamp by 1 per unit load). Measured on the default scene at 30 mm against
-#: the assembled tangent: ψ·J t to 8.5e-8 at ε = 1e-8 m forward (8.5e-6 at 1e-6 m), to 1e-10
-#: centred, round-off 1e-9 at 1e-9 m
+#: (the tangent moves the clamp by 1 per unit load): between the truncation error of a larger step
+#: and the round-off of a smaller one
 FD_STEP = 1e-8
 #: the tangent is refined until the correction of dR/dλ is below this fraction of it
 TANGENT_RTOL = 1e-3
@@ -80,7 +73,7 @@ TANGENT_RTOL = 1e-3
 TANGENT_REFINEMENTS = 3
 
 
-def chord(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float,
+def chord(problem: Problem, settings: NewtonSettings, e_ref: float,
           max_iterations: int = CHORD_ITERATIONS, max_contraction: float = CHORD_CONTRACTION,
           refactorizations: int = 1, prior: float = math.nan) -> NewtonReport:
     """Modified Newton from the current x with the factorization at hand (module docstring).
@@ -132,7 +125,7 @@ def extrapolate(states: list[tuple[float, np.ndarray]], lam: float) -> np.ndarra
     return out
 
 
-def jacobian_times(problem: NonlinearProblem, v: np.ndarray, eps: float, r: np.ndarray | None = None) -> np.ndarray:
+def jacobian_times(problem: Problem, v: np.ndarray, eps: float, r: np.ndarray | None = None) -> np.ndarray:
     """J(x) v by differences of the residual (full length): central, or forward from ``r`` = r(x); x is restored."""
     x0 = problem.x.copy()
     try:
@@ -140,13 +133,13 @@ def jacobian_times(problem: NonlinearProblem, v: np.ndarray, eps: float, r: np.n
         rp = problem.residual()
         if r is None:
             problem.x[:] = x0 - eps * v
-            return (rp - problem.residual()) / (2.0 * eps)
+            return cast(np.ndarray, (rp - problem.residual()) / (2.0 * eps))
     finally:
         problem.x[:] = x0
-    return (rp - r) / eps
+    return cast(np.ndarray, (rp - r) / eps)
 
 
-def tangent_at_hand(problem: NonlinearProblem, psi: np.ndarray | None, eps: float, r: np.ndarray | None = None,
+def tangent_at_hand(problem: Problem, psi: np.ndarray | None, eps: float, r: np.ndarray | None = None,
                     rel: float = TANGENT_RTOL, max_refinements: int = TANGENT_REFINEMENTS,
                     start: np.ndarray | None = None) -> tuple[np.ndarray, float] | None:
     """The load tangent at the current (converged) state and dR/dλ (nan without ``psi``), without a linearization.
@@ -159,8 +152,8 @@ def tangent_at_hand(problem: NonlinearProblem, psi: np.ndarray | None, eps: floa
     entries those of the load), else the factorization's own.
     """
     t = problem.load_tangent(1.0) if start is None else start
-    prescribed = getattr(problem, "dirichlet", None)
-    if psi is not None and (prescribed is None or not np.allclose(psi[prescribed], t[prescribed])):
+    prescribed = problem.state.dirichlet
+    if psi is not None and not np.allclose(psi[prescribed], t[prescribed]):
         raise ValueError("dR/dλ = t·J t needs the reaction's test vector equal to the load tangent on the "
                          "prescribed entries")
     for _ in range(max_refinements):
@@ -171,15 +164,6 @@ def tangent_at_hand(problem: NonlinearProblem, psi: np.ndarray | None, eps: floa
         if abs(term) <= rel * abs(dR):
             return t, dR if psi is not None else math.nan
     return None
-
-
-def chord_loads(problem: NonlinearProblem, grid: tuple[float, ...]) -> tuple[float, ...]:
-    """The loads of the output ``grid`` where the chord is tried: all where the Newton matrix is a Hessian.
-
-    The chord's decrements measure its contraction in the matrix's energy norm; an indefinite
-    (uncondensed saddle-point) matrix has none, and its rows are left to Newton.
-    """
-    return grid if getattr(problem, "can_relax", False) else ()
 
 
 class ChordRows:
@@ -224,7 +208,7 @@ class ChordRows:
             return None
         return extrapolate(s, u0 + h)
 
-    def correct(self, problem: NonlinearProblem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
+    def correct(self, problem: Problem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
         """:func:`chord` from the predicted state, judged by the contraction at hand; counts a hand-over."""
         rep = chord(problem, settings, e_ref, prior=self.contraction)
         self.contraction = rep.contraction if rep.converged else math.nan
@@ -248,21 +232,19 @@ class ChordRows:
         """A jump (snap-through): no extrapolation across it."""
         self.states, self.tangents = [], []
 
-    def tangent(self, problem: NonlinearProblem, psi: np.ndarray | None, lam: float, r: np.ndarray | None
+    def tangent(self, problem: Problem, psi: np.ndarray | None, lam: float, r: np.ndarray | None
                 ) -> tuple[np.ndarray, float] | None:
         """:func:`tangent_at_hand` at a chord row at ``lam``, from the extrapolation of the last two tangents.
 
         The extrapolation is of the free entries only: the prescribed ones are the load's at every
         load and are copied from the last tangent. Extrapolated, their round-off would grow from row to
-        row by the ratio of the steps (e_n+1 = e_n + a (e_n − e_n−1)): measured, 1.9e-5 after the
-        rows between unevenly spaced stops of a 95 mm path, where the reaction's test vector no
-        longer matched the tangent.
+        row by the ratio of the steps (e_n+1 = e_n + a (e_n − e_n−1)) until the reaction's test vector
+        no longer matched the tangent.
         """
         self.rows += 1
         start = None
         if len(self.tangents) == 2:
             start = extrapolate(self.tangents, lam)
-            prescribed = getattr(problem, "dirichlet", None)
-            if prescribed is not None:
-                start[prescribed] = self.tangents[-1][1][prescribed]
+            prescribed = problem.state.dirichlet
+            start[prescribed] = self.tangents[-1][1][prescribed]
         return tangent_at_hand(problem, psi, self.fd_step, r, start=start)

@@ -3,7 +3,7 @@
 :class:`NewtonLinearSolver` owns what is numerics, not formulation: whether element-local dofs (Λ)
 are condensed out before factorizing, the sparse inverse, the augmented Newton matrix of the exact
 Lagrange method, and the time and count of every assembly, factorization and solve. It is the
-linear algebra of a problem's :class:`~ngbet.continuum.numerics.ContinuumSolver`.
+linear algebra of a problem's :class:`~ngbet.continuum.solver.ContinuumSolver`.
 
 Augmentation. The exact Lagrangian's Λ-Λ block is zero, so Λ cannot be condensed from it. With
 condensation the Newton matrix is therefore that of the mixed penalty with a very large
@@ -18,7 +18,7 @@ import contextlib
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextvars import ContextVar
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import ngsolve as ngs
 import numpy as np
@@ -28,7 +28,7 @@ from .compiled import add_energy
 if TYPE_CHECKING:
     import scipy.sparse as sps
 
-__all__ = ["CHOLMOD_MIN_DOFS", "LAGRANGE_AUGMENTATION", "NewtonLinearSolver", "assembly_thread_count",
+__all__ = ["CHOLMOD_MIN_DOFS", "LAGRANGE_AUGMENTATION", "LinearSolver", "NewtonLinearSolver", "assembly_thread_count",
            "assembly_threads", "energy_form", "pick_inverse"]
 
 #: K_aug / K_ref for the condensed Newton matrix of the exact Lagrange method: large enough that
@@ -48,8 +48,7 @@ def assembly_threads(n: int) -> Iterator[None]:
 
     The caller sets NGSolve's thread count (``ngsolve.SetNumThreads(n)``); everything else (solves,
     residuals) runs where it is called, serial outside a TaskManager. The threaded tangent equals
-    the serial one to round-off (the order of the sparse adds). Measured at load 0.8 on 2 cores:
-    assembly and factorization each 1.8–1.9x faster on two threads (9.5k and 53k dofs).
+    the serial one to round-off (the order of the sparse adds).
     """
     token = _ASSEMBLY_THREADS.set(n)
     try:
@@ -63,10 +62,8 @@ def assembly_thread_count() -> int:
     return _ASSEMBLY_THREADS.get() or ngs.GetNumThreads()
 
 
-#: "auto" factorizes with CHOLMOD from this many factorized dofs on (where cvxopt is installed).
-#: Measured on one thread: at 53 571 dofs (h = 2 mm, p = 2) a run's 8 factorizations took 0.84–1.0 s
-#: against 1.37–1.41 s, its solve 0.82x; at 5 841 (the default scene) the LLᵀ's symbolic analysis
-#: and cvxopt's import (27 ms) ate the gain: 0.057 against 0.064 s of factorization, the run no faster.
+#: "auto" factorizes with CHOLMOD from this many factorized dofs on (where cvxopt is installed):
+#: below it the LLᵀ's symbolic analysis and cvxopt's import eat the gain (docs/numerics.md)
 CHOLMOD_MIN_DOFS = 20_000
 
 
@@ -94,14 +91,51 @@ def energy_form(X: ngs.FESpace, inverse: str, condense: bool) -> ngs.BilinearFor
 
     NGSolve stores a symmetric form's matrix in full unless asked; for the sparse LDLᵀ
     ("sparsecholesky"), which reads the lower triangle only, the form stores just that: half
-    the sparse adds of each assembly and half the memory (measured, native, one thread, load
-    0.5: 9 495 dofs 10.1 → 8.9 ms, 63 267 dofs 111 → 94 ms per linearization). UMFPACK gets the full matrix
+    the sparse adds of each assembly and half the memory. UMFPACK gets the full matrix
     (given the lower triangle of the uncondensed saddle point it reports it singular), and so
     does a mesh with levels (refined): there NGSolve's symmetric storage allocates a new matrix
     at each assembly until it holds one per level, each to be factorized anew.
     """
     lower = inverse in ("sparsecholesky", "cholmod") and X.mesh.levels == 1
     return ngs.BilinearForm(X, symmetric=True, symmetric_storage=lower, condense=condense)
+
+
+class LinearSolver(Protocol):
+    """The linear algebra of a Newton matrix: linearize at a state, factorize, solve (NGSolve's ``inverse=``).
+
+    What a problem's solver (:class:`ngbet.continuum.solver.ContinuumSolver`) and the stability
+    test (:mod:`ngbet.continuum.stability`) ask of it; :class:`NewtonLinearSolver` is the one there is.
+    """
+
+    #: whether element-local dofs are condensed out before factorizing
+    condensed: bool
+    #: the sparse inverse in use ("sparsecholesky", "umfpack", "cholmod", ...)
+    inverse_type: str
+    #: K_aug of the augmented Newton matrix (0 when not augmented) [Pa]
+    K_aug: float
+    #: the form whose matrix is factorized (its harmonic extension carries the condensed dofs)
+    form: ngs.BilinearForm
+    #: the dofs the Newton matrix is factorized on (after condensation)
+    freedofs: ngs.BitArray
+    #: wall time [s] of the assemblies, factorizations and solves, and their counts
+    timers: dict[str, float]
+    counts: dict[str, int]
+
+    @property
+    def mat(self) -> ngs.BaseMatrix:
+        """The assembled Newton matrix (condensed: the Schur complement on the coupling dofs)."""
+
+    def factorize(self, state: ngs.BaseVector, shift: float = 0.0) -> float:
+        """Linearize at ``state`` and factorize (shifted by s|diag| with s ≥ ``shift`` > 0); returns s."""
+
+    def solve_into(self, r: ngs.BaseVector, out: ngs.BaseVector) -> None:
+        """Out = J⁻¹ r (free dofs), condensation handled; r is overwritten."""
+
+    def extend(self, vec: ngs.BaseVector) -> None:
+        """Add the condensed local dofs that follow the coupling dofs of ``vec``."""
+
+    def free_matrix(self) -> tuple[sps.csr_matrix, np.ndarray]:
+        """The free block of the Newton matrix as a full symmetric scipy matrix, and the free dofs."""
 
 
 class NewtonLinearSolver:
@@ -117,14 +151,14 @@ class NewtonLinearSolver:
         ``solver.linear_solver`` ("auto" picks by definiteness).
     saddle_energy : callable, optional
         For an exact saddle point (zero Λ-Λ block): K_aug -> the integrand of the augmented
-        energy (in parts, as :func:`ngbet.continuum.compiled.add_energy` takes it) whose Hessian
+        energy (in parts, as :func:`ngbet.numerics.compiled.add_energy` takes it) whose Hessian
         serves as the condensed Newton matrix.
     K_ref : float
         The stiffness that scales K_aug [Pa].
     dx : ngsolve measure
         The integration measure of the energy.
     compile_mode : str
-        How the augmented integrand is compiled (:func:`ngbet.continuum.compiled.compile_energy`):
+        How the augmented integrand is compiled (:func:`ngbet.numerics.compiled.compile_energy`):
         the mode the energy got, so that "auto" does not mix.
     """
 

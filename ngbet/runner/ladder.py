@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from ..engine import time_budget
+from ..numerics.engine import time_budget
 from ..scene.document import Scene
 from ..scene.validate import AUTO
 
@@ -48,10 +48,8 @@ class Rung:
 #: mesh is negligible: 107.24349 N against 107.24387 N on the 10 mm mesh at p = 8, at a quarter of
 #: the time), then h = 10 mm at p = 8 should those not converge (h = 20 mm, p = 7 stops at 55.7 mm).
 #: Expected errors: the paper's scene at 56 mm against the reference 107.2365 N
-#: (ngbet.studies.reference). Whole-run times there (2-core machine, loaded): 0.3, 0.5, 0.4–0.7,
-#: 0.8–1.4, 1.4, 6–8, 34, 56–70 s. Finer corners reach 56 mm but cost more for the same accuracy:
-#: 0.1 mm at p = 5 gives 107.24398 N in 46 s, 0.0625 mm at p = 5 107.24389 N in 126 s (loaded), both
-#: 7e-5 from the reference like h = 20 mm at p = 8; 0.0625 mm at p = 4 gives 107.26134 N (2.3e-4).
+#: (ngbet.studies.reference). Finer corners reach 56 mm but cost more for the same accuracy (the
+#: rungs' times and the finer corners' results: docs/numerics.md).
 LADDER = tuple(Rung(h, 0.25, p, e) for h, p, e in (
     (10.0, 2, 1.6e-3), (10.0, 3, 1.3e-3), (20.0, 4, 6.7e-4), (20.0, 5, 3.5e-4), (20.0, 6, 1.8e-4),
     (20.0, 8, 6.5e-5), (20.0, 10, 2.5e-5), (10.0, 8, 6.9e-5)))
@@ -95,7 +93,7 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     A setting that cannot carry the load is left for the next (its attempt says why), and so are
     the higher orders on its mesh, which fail alike; each setting after the first has a time
     budget, :data:`RUNG_BUDGET_FACTOR` times the last one's wall time (at least
-    :data:`RUNG_BUDGET_MIN_S`), after which its path stops (:func:`ngbet.engine.time_budget`).
+    :data:`RUNG_BUDGET_MIN_S`), after which its path stops (:func:`ngbet.numerics.engine.time_budget`).
 
     ``run_one(scene, out) -> summary`` runs one discretization into ``out`` (the last attempt's
     files stay there). The returned summary (the runner adds it to summary.json) gains

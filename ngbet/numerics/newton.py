@@ -1,7 +1,7 @@
 r"""Damped Newton for a saddle point at a fixed load, and what its failures say.
 
 The solver knows nothing of fabrics (as NGSolve's ``nonlinearsolvers.py``): it talks to a
-:class:`NonlinearProblem` through numpy views of the state and residual, a factorization of the
+:class:`Problem` through numpy views of the state and residual, a factorization of the
 linearization, and the load parameter λ that the Dirichlet data follow.
 
 Newton step:      J(x) dx = −r(x)
@@ -25,7 +25,8 @@ import numpy as np
 from ..errors import Attempt
 from .settings import NewtonSettings
 
-__all__ = ["Diagnosis", "NewtonReport", "NonlinearProblem", "failure_pattern", "newton"]
+__all__ = ["AdmissibleState", "Diagnosis", "JammingWatch", "Locating", "NewtonReport", "Problem", "Relaxable", "State",
+           "failure_pattern", "newton"]
 
 
 class Diagnosis(Protocol):
@@ -35,18 +36,70 @@ class Diagnosis(Protocol):
         """The diagnosis for the error message."""
 
 
-class NonlinearProblem(Protocol):
-    """What the solver needs from a problem. All vectors are numpy views of full length.
+class State(Protocol):
+    """The state side of a problem: the unknowns, the load they carry and how a correction is measured.
 
-    The continuum's is :class:`ngbet.continuum.numerics.ContinuumSolver`: a
-    :class:`~ngbet.continuum.problem.ContinuumProblem` (state, load, norm) bound to its forms and
-    linear solver (residual, energy, factorizations and solves).
+    All vectors are numpy arrays of full length, Dirichlet entries included. The continuum's is
+    :class:`ngbet.continuum.problem.ContinuumProblem`.
     """
 
     x: np.ndarray  # the state, including Dirichlet entries
 
+    @property
+    def lam(self) -> float:
+        """The load λ of the state (the clamp displacement [m])."""
+
+    @property
+    def dirichlet(self) -> np.ndarray:
+        """The prescribed entries of ``x`` (a boolean mask)."""
+
+    @property
+    def weights(self) -> np.ndarray:
+        """The weights that make a correction unit-free: :meth:`norm` is ‖weights · dx‖."""
+
     def set_load(self, lam: float) -> None:
         """Set the Dirichlet entries of ``x`` for load λ (free entries untouched)."""
+
+    def clamp_predictor(self, dlam: float) -> np.ndarray:
+        """A cheap load-following guess (for the problem to define)."""
+
+    def norm(self, dx: np.ndarray) -> float:
+        """A unit-free norm of a correction."""
+
+    def converged(self) -> None:
+        """The current x is an equilibrium the path keeps (the continuum's jamming barrier watches it)."""
+
+
+class AdmissibleState(State, Protocol):
+    """A state that can be outside the energy's domain (the continuum's inverted material)."""
+
+    def admissible(self) -> str:
+        """Why the current state is not a physical one ("" when it is)."""
+
+    def begin_relaxation(self) -> None:
+        """A relaxation starts from the current state (what is admissible is judged against it)."""
+
+    @property
+    def inadmissible_hint(self) -> str:
+        """What keeps the problem out of its inadmissible states, for a message ("" if nothing)."""
+
+
+class Problem(Protocol):
+    """What the numerics drive: a :class:`State` bound to its residual, energy and linear algebra.
+
+    As NGSolve's ``NewtonSolver(a, u, inverse=...)`` is bound to a form, a state and an inverse:
+    the continuum's is :class:`ngbet.continuum.solver.ContinuumSolver` (a problem bound to its
+    energy forms and linear solver). ``x`` is the state's vector (the same array as ``state.x``),
+    which the residual and the linearization read. What only some problems can do is asked for by
+    the capability protocols below and handed to the numerics explicitly (``hessian=``,
+    ``watch=``, ``locate=``), never probed.
+    """
+
+    x: np.ndarray
+
+    @property
+    def state(self) -> State:
+        """The state: load, Dirichlet entries, norm."""
 
     def residual(self) -> np.ndarray:
         """r(x), full length (Dirichlet rows hold the reactions)."""
@@ -58,7 +111,7 @@ class NonlinearProblem(Protocol):
         """Linearize at x and factorize the free block (reusing the symbolic factorization).
 
         ``shift`` > 0: J + s|diag J| with s ≥ shift raised until positive definite where that can
-        be tested; returns s (for :func:`relax`; 0 without a shift).
+        be tested; returns s (for :func:`ngbet.numerics.relax.relax`; 0 without a shift).
         """
 
     def solve(self, r: np.ndarray) -> np.ndarray:
@@ -67,17 +120,40 @@ class NonlinearProblem(Protocol):
     def load_tangent(self, dlam: float) -> np.ndarray:
         """Dx with Dirichlet entries moved by dlam and free entries from −J⁻¹ J_fd dlam."""
 
-    def clamp_predictor(self, dlam: float) -> np.ndarray:
-        """A cheap load-following guess (for the problem to define)."""
-
-    def norm(self, dx: np.ndarray) -> float:
-        """A unit-free norm of a correction."""
-
     def load_derivative(self, psi: np.ndarray, tangent: np.ndarray) -> float:
         """psi·(J tangent): the load derivative of the reaction psi·r along the tangent."""
 
-    def converged(self) -> None:
-        """The current x is an equilibrium the path keeps (the continuum's jamming barrier watches it)."""
+
+class Relaxable(Problem, Protocol):
+    """A problem whose Newton matrix is a Hessian: energy descent, a stability test, relaxation.
+
+    What :func:`ngbet.numerics.relax.relax` and the chord rows (:mod:`ngbet.numerics.chord`, whose
+    contraction is measured in the matrix's energy norm) need beyond :class:`Problem`.
+    """
+
+    @property
+    def state(self) -> AdmissibleState:
+        """The state, with what is admissible."""
+
+    def lowest_mode(self) -> tuple[float, np.ndarray]:
+        """The lowest eigenvalue of the scaled tangent at the current state and its mode (full length)."""
+
+    def merit(self, r: np.ndarray) -> float:
+        """A merit for descent at the state whose residual is ``r`` (infinite outside the energy's domain)."""
+
+
+class JammingWatch(Protocol):
+    """A problem with a barrier that is off until a converged state crosses it."""
+
+    def jamming_missed(self) -> bool:
+        """Whether the state just found lies past the barrier while it was off (it is on now: solve again)."""
+
+
+class Locating(Protocol):
+    """A problem that can say where a change of state lives (a snap-through's place)."""
+
+    def locate(self, dx: np.ndarray) -> dict[str, object]:
+        """Where the change of state ``dx`` lives (fields for the summary)."""
 
 
 @dataclass
@@ -94,7 +170,7 @@ class NewtonReport:
     contraction: float = math.nan
 
 
-def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float, factorized: bool = False,
+def newton(problem: Problem, settings: NewtonSettings, e_ref: float, factorized: bool = False,
            r: np.ndarray | None = None) -> NewtonReport:
     """Damped Newton from the current x at fixed load; on failure x is left where it stopped.
 
@@ -135,7 +211,7 @@ def newton(problem: NonlinearProblem, settings: NewtonSettings, e_ref: float, fa
     return NewtonReport(False, settings.max_iterations, history, damping, "iteration limit")
 
 
-def _damped_step(problem: NonlinearProblem, dx: np.ndarray, last: bool, min_damping: float
+def _damped_step(problem: Problem, dx: np.ndarray, last: bool, min_damping: float
                  ) -> tuple[float, np.ndarray, np.ndarray | None, float] | None:
     """X += λ dx with the largest λ = 1, 1/2, ... that passes the natural monotonicity test.
 
@@ -144,7 +220,7 @@ def _damped_step(problem: NonlinearProblem, dx: np.ndarray, last: bool, min_damp
     None (x restored) when λ fell below ``min_damping``.
     """
     x0 = problem.x.copy()
-    ndx = problem.norm(dx)
+    ndx = problem.state.norm(dx)
     lam = 1.0
     while True:
         problem.x[:] = x0 + lam * dx
@@ -153,7 +229,7 @@ def _damped_step(problem: NonlinearProblem, dx: np.ndarray, last: bool, min_damp
             if last:  # quadratic convergence: the last step needs no test
                 return lam, r_trial, None, 0.0
             dx_bar = problem.solve(r_trial)
-            theta = problem.norm(dx_bar) / ndx if ndx > 0 else 0.0
+            theta = problem.state.norm(dx_bar) / ndx if ndx > 0 else 0.0
             if theta <= 1.0 - lam / 4.0:
                 return lam, r_trial, dx_bar, theta
         lam *= 0.5
@@ -162,7 +238,7 @@ def _damped_step(problem: NonlinearProblem, dx: np.ndarray, last: bool, min_damp
             return None
 
 
-def _simplified_exit(problem: NonlinearProblem, dx_bar: np.ndarray, r: np.ndarray, tol: float
+def _simplified_exit(problem: Problem, dx_bar: np.ndarray, r: np.ndarray, tol: float
                      ) -> tuple[float, np.ndarray] | None:
     """End Newton with the simplified correction when its decrement is below the tolerance.
 

@@ -51,22 +51,21 @@ from typing import Any
 
 import numpy as np
 
-from ..engine import PathControl, PathResult, StepRecord, Steps, check_stop
-from ..errors import Attempt, ConvergenceError
-from ..scene.validate import SceneError
-from .newton import NonlinearProblem, newton
-from .settings import NewtonSettings, newton_settings, path_settings
+from ..errors import Attempt
+from .engine import PathControl, PathResult, StepRecord, check_stop
+from .newton import Problem, newton
+from .settings import NewtonSettings
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ArcLengthSettings", "Instability", "arclength_steps", "follow_arclength"]
+__all__ = ["ArcLengthSettings", "Instability", "arclength_steps"]
 
 
 @dataclass(frozen=True, kw_only=True)
 class ArcLengthSettings(PathControl):
     """Step control of the arc-length continuation (lengths as clamp displacements [m] at the start).
 
-    The engine's (:class:`~ngbet.engine.PathControl`): ``stops`` are the loads the path lands on
+    The engine's (:class:`~ngbet.numerics.engine.PathControl`): ``stops`` are the loads the path lands on
     the first time it reaches them (output stops), besides the target; ``growth``, ``cut`` and
     ``grow_after`` act on the arc length; ``land_within`` and ``max_attempts`` are not read.
     """
@@ -98,10 +97,10 @@ class Instability:
 class _Path:
     """The state of the continuation: the converged point, its unit tangent, and the bordered Newton."""
 
-    def __init__(self, problem: NonlinearProblem, weights: np.ndarray, L: float, settings: NewtonSettings) -> None:
+    def __init__(self, problem: Problem, weights: np.ndarray, L: float, settings: NewtonSettings) -> None:
         self.p, self.w, self.L, self.settings = problem, weights, L, settings
         self.x0 = problem.x.copy()
-        self.lam0 = float(getattr(problem, "lam", 0.0))
+        self.lam0 = problem.state.lam
         self.tau_x = np.zeros_like(self.x0)
         self.tau_l = 1.0
 
@@ -126,7 +125,7 @@ class _Path:
         """
         p = self.p
         p.x[:] = self.x0 + ds * self.tau_x
-        p.set_load(self.lam0 + ds * self.tau_l if land is None else land)
+        p.state.set_load(self.lam0 + ds * self.tau_l if land is None else land)
         if land is not None:
             e = p.energy()
             rep = newton(p, self.settings, e if math.isfinite(e) else 0.0)
@@ -147,14 +146,14 @@ class _Path:
                 return False, it, history, "diverged", None
             T = p.load_tangent(1.0)
             dlam = -self.inner(self.tau_x, 0.0, dx, 0.0) / self.inner(self.tau_x, self.tau_l, T, 1.0)
-            lam = float(getattr(p, "lam", 0.0)) + dlam
+            lam = p.state.lam + dlam
             p.x[:] += dx + dlam * np.where(self.w > 0, T, 0.0)
-            p.set_load(lam)
+            p.state.set_load(lam)
         return False, self.settings.max_iterations, history, "iteration limit", None
 
     def commit(self) -> None:
         self.x0 = self.p.x.copy()
-        self.lam0 = float(getattr(self.p, "lam", 0.0))
+        self.lam0 = self.p.state.lam
 
     def snapshot(self) -> tuple[np.ndarray, float, np.ndarray, float]:
         """The converged point and its tangent."""
@@ -167,10 +166,10 @@ class _Path:
 
     def restore(self) -> None:
         self.p.x[:] = self.x0
-        self.p.set_load(self.lam0)
+        self.p.state.set_load(self.lam0)
 
 
-def arclength_steps(problem: NonlinearProblem, ctl: ArcLengthSettings, settings: NewtonSettings, *,
+def arclength_steps(problem: Problem, ctl: ArcLengthSettings, settings: NewtonSettings, *,
                     weights: np.ndarray, length: float, psi: np.ndarray,
                     lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None = None,
                     result: PathResult | None = None, branch: str = "stay",
@@ -200,12 +199,12 @@ def arclength_steps(problem: NonlinearProblem, ctl: ArcLengthSettings, settings:
                             branch_sign)
 
 
-def _arclength_steps(problem: NonlinearProblem, ctl: ArcLengthSettings, settings: NewtonSettings,
+def _arclength_steps(problem: Problem, ctl: ArcLengthSettings, settings: NewtonSettings,
                      weights: np.ndarray, length: float, psi: np.ndarray,
                      lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None, result: PathResult | None,
                      branch: str, branch_sign: float) -> Generator[StepRecord, None, PathResult]:
     """The generator of :func:`arclength_steps` (its arguments checked)."""
-    res = result if result is not None else PathResult(float(getattr(problem, "lam", 0.0)))
+    res = result if result is not None else PathResult(problem.state.lam)
     path = _Path(problem, weights, length, settings)
     n = path.tangent(orient=False)
     # the first step moves the state as a load step of first_step would (Δx ≈ T Δu0)
@@ -224,7 +223,7 @@ def _arclength_steps(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
         to_target = _distance_to(path, land, ds)
         ds = min(ds, to_target)
         ok, its, hist, why, r = path.step(ds, land if ds == to_target < math.inf else None)
-        lam_to = float(getattr(problem, "lam", 0.0))
+        lam_to = problem.state.lam
         res.attempts.append(Attempt(path.lam0, lam_to, ok, its, why, hist))
         if not ok:
             path.restore()
@@ -251,21 +250,10 @@ def _arclength_steps(problem: NonlinearProblem, ctl: ArcLengthSettings, settings
     return res
 
 
-def follow_arclength(problem: NonlinearProblem, ctl: ArcLengthSettings, settings: NewtonSettings,
-                     **kwargs: Any) -> tuple[PathResult, list[Instability]]:
-    """:func:`arclength_steps` carried to the end: the result and the instabilities passed or met."""
-    found: list[Instability] = []
-    steps = Steps(arclength_steps(problem, ctl, settings, **kwargs))
-    for rec in steps:
-        found += rec.instabilities
-    assert steps.result is not None
-    return steps.result, found
-
-
-def _step_record(problem: NonlinearProblem, psi: np.ndarray, number: int, its: int, hist: list[float],
+def _step_record(problem: Problem, psi: np.ndarray, number: int, its: int, hist: list[float],
                  r: np.ndarray | None, reason: str) -> StepRecord:
     """The record of the converged point the problem is at (its tangent factorized)."""
-    rec = StepRecord(number, float(getattr(problem, "lam", 0.0)), its, residual=r, history=hist, reason=reason)
+    rec = StepRecord(number, problem.state.lam, its, residual=r, history=hist, reason=reason)
     rec.dforce_du0 = problem.load_derivative(psi, problem.load_tangent(1.0))
     return rec
 
@@ -273,7 +261,7 @@ def _step_record(problem: NonlinearProblem, psi: np.ndarray, number: int, its: i
 class _Switch:
     """Branch switching at a bifurcation (module docstring): from the located point along the critical mode."""
 
-    def __init__(self, problem: NonlinearProblem, path: _Path, psi: np.ndarray, cut: float, res: PathResult,
+    def __init__(self, problem: Problem, path: _Path, psi: np.ndarray, cut: float, res: PathResult,
                  sign: float) -> None:
         self.p, self.path, self.psi, self.cut, self.res = problem, path, psi, cut, res
         self.sign = 1.0 if sign >= 0 else -1.0
@@ -307,7 +295,7 @@ class _Switch:
         path.x0, path.lam0 = x_c, lam_c
         while ds >= ds_min:
             ok, its, hist, why, r = path.step(ds)
-            lam_to = float(getattr(self.p, "lam", 0.0))
+            lam_to = self.p.state.lam
             self.res.attempts.append(Attempt(lam_c, lam_to, ok, its, why, hist))
             if ok:
                 path.commit()
@@ -355,7 +343,7 @@ class _Tracker:
         self.dR = math.nan
         self.prev = Instability("", 0.0, math.nan)  # the last point: load, reaction, eigenvalue, mode
 
-    def start(self, problem: NonlinearProblem, path: _Path) -> None:
+    def start(self, problem: Problem, path: _Path) -> None:
         self.lam_start = path.lam0
         self.tau_l = path.tau_l
         self.prev = Instability("", path.lam0 * 1e3, float(self.psi @ problem.residual()))
@@ -400,91 +388,3 @@ def _bifurcation(prev: Instability, here: Instability) -> Instability:
                        prev.reaction + t * (here.reaction - prev.reaction), near.lowest_eigenvalue,
                        {"bracket_mm": [prev.u0_mm, here.u0_mm], "eigenvalues": [mu_a, mu_b], "branch": "stayed"},
                        near.mode, t)
-
-
-def arclength_runner(problem: Any) -> Callable[[PathResult], Generator[StepRecord, None, PathResult]]:
-    """The continuation the continuum's run hands to :func:`ngbet.continuum.solver.load_steps`.
-
-    Follows the path of ``problem`` (a :class:`~ngbet.continuum.numerics.ContinuumSolver`) from
-    its converged state to ``loading.u0_mm``, yielding each step's record and appending it to the
-    result it is given; fills ``path_info`` (instabilities with kind, load, force and mode class;
-    the first one's mode as mode to picture under :data:`MODE_KEY`, for the runner to write and
-    pop) and raises :class:`~ngbet.errors.ConvergenceError` with it when the target is not reached.
-    """
-    from .stability import diagnose_stability, indefinite_by_construction, lowest_eigenpair
-
-    scene = problem.problem.scene
-    path = path_settings(scene)  # arc length lands on the stops, not on the output grid
-    ctl = ArcLengthSettings(target=path.target, first_step=path.first_step, max_step=path.max_step,
-                            min_step=path.min_step, growth=path.growth, cut=path.cut, grow_after=path.grow_after,
-                            stops=tuple(s * 1e-3 for s in scene.loading.stops_mm))
-    psi = problem.problem.psi_u.vec.FV().NumPy().copy()
-    # an uncondensed saddle-point tangent has no stability test: no instability by eigenvalue then
-    indefinite = indefinite_by_construction(problem)
-    if indefinite and scene.solver.branch == "switch":
-        raise SceneError("solver.branch = 'switch' needs the critical mode, and the uncondensed saddle-point "
-                         "tangent (solver.condense = false) has no stability test: set solver.condense = true")
-
-    def run(res: PathResult) -> Generator[StepRecord, None, PathResult]:
-        start_mm = problem.lam * 1e3
-        c = ctl
-        if len(res.steps) >= 2:  # after displacement control: start with its last step
-            h = res.steps[-1].u0 - res.steps[-2].u0
-            c = dataclasses.replace(ctl, first_step=h, max_step=min(ctl.max_step, 8 * h),
-                                    min_step=min(ctl.min_step, h / 64))
-        found: list[Instability] = []
-        steps = Steps(arclength_steps(problem, c, newton_settings(scene), weights=problem._weights,
-                                      length=scene.specimen.L, psi=psi,
-                                      lowest_eigenpair=None if indefinite else lambda: lowest_eigenpair(problem),
-                                      result=res, branch=scene.solver.branch))
-        for rec in steps:
-            found += rec.instabilities
-            yield rec
-        assert steps.result is not None
-        res = steps.result
-        res.path_info = _path_info(problem, found, start_mm)
-        if res.steps:
-            t = scene.specimen.t
-            F = [float(psi @ s.residual) * t if s.residual is not None else math.nan for s in res.steps]
-            k = int(np.nanargmax(F))
-            res.path_info["force_maximum"] = {"u0_mm": res.steps[k].u0 * 1e3, "force_N": F[k]}
-        if res.u0 < ctl.target * (1 - 1e-9):
-            d = diagnose_stability(problem)
-            kinds = ", ".join(f"{i.kind} at {i.u0_mm:.4g} mm" for i in found) or "none detected"
-            raise ConvergenceError(
-                f"arc-length continuation from {start_mm:.6g} mm did not reach {ctl.target * 1e3:.6g} mm "
-                f"(instabilities passed: {kinds})", res.u0 * 1e3, res.attempts, d.message(), d,
-                path_info=res.path_info)
-        return res
-
-    return run
-
-
-#: the key of ``path_info`` that holds the mode to picture, (mode, name, title), not for the summary:
-#: the runner writes the files and pops it (numerics write no files)
-MODE_KEY = "_instability_mode"
-
-
-def _path_info(problem: Any, found: list[Instability], start_mm: float) -> dict[str, Any]:
-    """The summary's record of the path: each instability with its mode's class and place; the first mode."""
-    from .stability import DISCRETIZATION_MODE_RATIO, mode_constraint_ratio
-
-    saved = problem.x.copy()
-    for ins in found:
-        if ins.mode is not None and problem.problem.phi is not None:
-            r, where = mode_constraint_ratio(problem, ins.mode)
-            ins.details.update(mode_ratio=r, mode_class="discretization" if r > DISCRETIZATION_MODE_RATIO
-                               else "continuum", mode_location_mm=list(where))
-    scene = problem.problem.scene
-    info: dict[str, Any] = {"path_following": scene.solver.path_following, "arclength_from_mm": start_mm,
-                            "branch": scene.solver.branch,
-                            "instabilities": [i.as_dict(scene.specimen.t) for i in found]}
-    # the mode pictured: that of the first switch to a bifurcated branch, else of the first instability
-    switched = [i for i in found if i.details.get("branch") == "switched"]
-    first = next((i for i in switched + found if i.mode is not None), None)
-    if first is not None and first.mode is not None:
-        info[MODE_KEY] = (first.mode, "instability_mode",
-                          f"{first.kind} at u0 = {first.u0_mm:.4g} mm: lowest mode of the tangent")
-        info["instability_mode_of"] = {"kind": first.kind, "u0_mm": first.u0_mm}
-    problem.x[:] = saved
-    return info

@@ -16,24 +16,24 @@ from typing import Any
 
 import ngsolve as ngs
 
-from ..engine import PathResult, StepRecord, Steps, progress_bar
+from ..continuum import observables as obs
+from ..continuum.estimate import RunEstimates
+from ..continuum.problem import ContinuumProblem
+from ..continuum.solver import ContinuumSolver
 from ..errors import ConvergenceError
 from ..figures.data import map_file_name, save_map
 from ..figures.run import start_plot
 from ..kinematics import BetColumns, PictureFrameColumns
+from ..numerics.engine import PathResult, StepRecord, Steps, progress_bar
+from ..numerics.linear import assembly_thread_count
+from ..numerics.path import load_steps
 from ..output import RunWriter
 from ..plot_process import active as plot_service
 from ..scene.document import Scene
-from . import observables as obs
 from .arclength import MODE_KEY, arclength_runner
-from .estimate import RunEstimates
+from .fields import write_vtk
 from .ladder import run_to_accuracy
-from .linear import assembly_thread_count
-from .numerics import ContinuumSolver
-from .output import write_vtk
-from .problem import ContinuumProblem
-from .settings import linear_settings, newton_settings, path_settings
-from .solver import load_steps
+from .settings import solver_settings
 
 #: each element of the shear-angle map is split into this many² triangles (p = 2 fields: enough)
 MAP_SUBDIVISION = 2
@@ -62,7 +62,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
     t0 = time.perf_counter()
     draw = functools.partial(start_plot, service=plot_service(), measured=measured)
     with RunWriter(out, scene) as writer:
-        solver = ContinuumSolver(ContinuumProblem(scene), linear_settings(scene))
+        solver = ContinuumSolver(ContinuumProblem(scene), solver_settings(scene))
         estimates = RunEstimates(solver)
         info = _setup_info(solver, time.perf_counter() - t0)
         warnings = _order_warnings(scene)
@@ -106,7 +106,7 @@ def _write_mode(problem: ContinuumSolver, path_info: dict[str, Any], writer: Run
     found = path_info.pop(MODE_KEY, None)
     if found is None:
         return
-    from .stability import write_mode
+    from .fields import write_mode
 
     mode, name, title = found
     saved = problem.x.copy()
@@ -119,27 +119,28 @@ def load_path(problem: ContinuumSolver, scene: Scene) -> Generator[StepRecord, N
     """The load path of the scene: a generator of its step records (nothing written; the caller decides).
 
     Arc length follows where ``solver.path_following`` asks for it; the mode of an instability it
-    found is left in ``path_info`` (under :data:`~ngbet.continuum.arclength.MODE_KEY`) for the
+    found is left in ``path_info`` (under :data:`~ngbet.numerics.arclength.MODE_KEY`) for the
     runner to write.
     """
     arclength = None if scene.solver.path_following == "displacement" else arclength_runner(problem)
     # the picture frame's reaction test field follows the load (ContinuumProblem): the path gets none
     psi = None if problem.problem.frame else problem.problem.psi_u.vec.FV().NumPy().copy()
-    return load_steps(problem, path_settings(scene), newton_settings(scene), diagnose=lambda: _diagnose(problem),
-                      psi=psi, arclength=arclength)
+    return load_steps(problem, problem.settings.path, problem.settings.newton,
+                      hessian=problem if problem.can_relax else None, watch=problem.problem, locate=problem.problem,
+                      diagnose=lambda: _diagnose(problem), psi=psi, arclength=arclength)
 
 
 def _diagnose(problem: ContinuumSolver) -> Any:
-    from .stability import diagnose_stability  # scipy's eigensolver: imported when a run fails
+    from ..continuum.stability import diagnose_stability  # scipy's eigensolver: imported when a run fails
 
     return diagnose_stability(problem)
 
 
 def _setup_info(solver: ContinuumSolver, t_setup: float) -> dict[str, Any]:
-    return {"model": "continuum", "dofs": solver.ndofs(), "linear_solver": solver.inverse_type,
+    return {"model": "continuum", "dofs": solver.ndofs(), "linear_solver": solver.linear.inverse_type,
             "stabilization_K_Pa": list(solver.problem.K_s_range), "condensed": solver.linear.condensed,
             "setup_s": t_setup, "compile_mode": solver.compile_mode,
-            "threads": ngs.GetNumThreads() if hasattr(ngs, "GetNumThreads") else None,
+            "threads": ngs.GetNumThreads(),
             "assembly_threads": assembly_thread_count()}
 
 
