@@ -52,6 +52,10 @@ class JammingBarrier:
         self._ne = mesh.ne
         self._where = np.zeros(mesh.ne, bool)  # ``elements`` as a mask
         self._check: tuple[CF, object] | None = None
+        # u's coefficients (a view) and the last state checked with its smallest sines: the check
+        # after a solve (missed) and the watch of the same state (converged) evaluate once
+        self._u = u.vec.FV().NumPy() if hasattr(u, "vec") else None
+        self._checked: tuple[np.ndarray, np.ndarray] | None = None
         self._energy: tuple[CF, int] | None = None  # the integrand and its bonus integration order
         self.s_jam = math.nan
         if not scene.effects.jamming:
@@ -98,8 +102,13 @@ class JammingBarrier:
     def _smallest(self) -> np.ndarray:
         """The smallest sine of the yarn angle in each element, at the barrier's integration points (nan kept)."""
         assert self._check is not None
+        if self._u is not None and self._checked is not None and np.array_equal(self._checked[0], self._u):
+            return self._checked[1]
         s, points = self._check
-        return np.asarray(s(points)).reshape(self._ne, -1).min(axis=1)
+        smallest = np.asarray(s(points)).reshape(self._ne, -1).min(axis=1)
+        if self._u is not None:
+            self._checked = (self._u.copy(), smallest)
+        return smallest
 
     def missed(self) -> bool:
         """Whether the state has yarns closer than the jamming angle on an element the barrier is off on.
