@@ -176,7 +176,7 @@ def test_the_barrier_is_switched_on_where_the_yarns_come_near():
 def test_the_barrier_is_on_only_where_the_yarns_come_near_and_the_energy_is_the_same():
     """A state sheared by 60° at one end of the specimen and by 86° at the other (yarns 4° apart,
     past the 5° threshold): the watch puts the barrier on the elements whose yarns come within
-    twice the threshold's sine and on no other; energy and residual are those of the barrier on
+    four times the threshold's sine and on no other; energy and residual are those of the barrier on
     every element, bit for bit (elsewhere it is exactly 0). With the barrier off where the yarns
     close past the threshold the state is a miss."""
     pb, _ = _sheared_problem(60.0)
@@ -189,6 +189,7 @@ def test_the_barrier_is_on_only_where_the_yarns_come_near_and_the_energy_is_the_
     jam = pb.problem.jamming
     pb.converged()
     assert 0 < jam.elements.NumSet() < pb.problem.mesh.ne and not jam.missed()
+    assert np.array_equal(jam._where, jam._smallest() < 4 * S_JAM)
     E_near, r_near = pb.energy(), pb.residual()
     jam.switch_on()
     assert pb.energy() == E_near and np.array_equal(pb.residual(), r_near)

@@ -27,7 +27,7 @@ from ngsolve import CoefficientFunction as CF
 from ..scene.document import Scene
 from . import physics
 
-__all__ = ["JAMMING_MARGIN", "JammingBarrier"]
+__all__ = ["JAMMING_MARGIN", "JAMMING_SET_MARGIN", "JammingBarrier"]
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +35,11 @@ log = logging.getLogger(__name__)
 #: jamming angle's sine (before, it is zero): twice, i.e. about 10° for the default 5°, which no
 #: ordinary state reaches (smallest angle 35° on the embedded scene at 56 mm, 18° at 66 mm)
 JAMMING_MARGIN = 2.0
+#: once on, the barrier is evaluated on every element whose yarns a solved state brought closer than
+#: this multiple of the threshold's sine (about 20° for the default 5°), for the rest of the run: an
+#: element that comes near stays in, and one increment rarely closes yarns from there past the
+#: threshold on an element not yet in (a miss, solved again with the barrier everywhere)
+JAMMING_SET_MARGIN = 4.0
 
 
 class JammingBarrier:
@@ -51,6 +56,7 @@ class JammingBarrier:
         self.elements.Clear()
         self._ne = mesh.ne
         self._where = np.zeros(mesh.ne, bool)  # ``elements`` as a mask
+        self._near = np.zeros(mesh.ne, bool)  # the elements solved states brought within the set's margin
         self._check: tuple[CF, object] | None = None
         # u's coefficients (a view) and the last state checked with its smallest sines: the check
         # after a solve (missed) and the watch of the same state (converged) evaluate once
@@ -123,26 +129,30 @@ class JammingBarrier:
         return not bool(np.all(off > self.s_jam))  # nan (a degenerate state) counts as missed
 
     def watch(self) -> None:
-        """From the next load on, evaluate the barrier where this state comes within :data:`JAMMING_MARGIN` s_jam.
+        """Switch the barrier on once a solved state comes within :data:`JAMMING_MARGIN` s_jam, on the elements near.
 
+        From then on it is evaluated on every element a solved state brought within
+        :data:`JAMMING_SET_MARGIN` s_jam.
         Called at each converged state of the path (:meth:`ContinuumProblem.converged`): one
         evaluation of the yarn angle's sine at the integration points, no assembly. The state is
-        exact either way (the barrier is zero above s_jam); the elements it is on follow the
-        states, so that its cost is that of the few elements near the threshold. A relaxation
-        switches it on everywhere before it starts (:meth:`switch_on`).
+        exact either way (the barrier is zero above s_jam); the elements it is on are those the
+        states brought near the threshold, so that its cost is that of the few elements there. A
+        relaxation (or a miss) switches it on everywhere until the next solved state (:meth:`switch_on`).
         """
         if self._check is None:
             return
         smallest = self._smallest()
-        near = ~(smallest >= JAMMING_MARGIN * self.s_jam)  # nan (a degenerate state) counts as near
-        if not self.on and near.any():
+        if not self.on:
+            if bool(np.all(smallest >= JAMMING_MARGIN * self.s_jam)):  # nan (a degenerate state) counts as near
+                return
             low = float(np.nanmin(smallest)) if np.isfinite(smallest).any() else math.nan
             angle = math.degrees(math.asin(max(-1.0, min(1.0, low)))) if math.isfinite(low) else math.nan
             log.info("the jamming barrier is on: %s", f"the yarns close to {angle:.3g} degrees" if angle > 0
                      else "the yarns of a solved state cross")
-        if np.array_equal(near, self._where):
+        self._near |= ~(smallest >= JAMMING_SET_MARGIN * self.s_jam)
+        if np.array_equal(self._near, self._where):
             return
-        self._where = near
+        self._where = self._near.copy()
         self.elements.Clear()
-        for i in np.flatnonzero(near):
+        for i in np.flatnonzero(self._where):
             self.elements[int(i)] = True
