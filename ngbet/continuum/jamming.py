@@ -3,10 +3,11 @@
 The barrier (:func:`ngbet.continuum.physics.jamming_energy`, K_jam = max(K_el, K_sh)) is an energy
 term like the others, but it is zero wherever the yarns are more open than the jamming angle, which
 is everywhere in ordinary states, and evaluating it on every element is a large part of each
-assembly. It is therefore an integrator of its own, defined on the elements of ``elements``: at
-each solved state (:meth:`JammingBarrier.watch`) those where the yarns come closer than
+assembly. It is therefore an integrator of its own, defined on the elements of ``elements``: none
+until a solved state (:meth:`JammingBarrier.watch`) brings the yarns closer than
 :data:`JAMMING_MARGIN` times the threshold's sine at some integration point of the barrier's own
-rule (none in ordinary states), all of them while a relaxation runs
+rule (none in ordinary states); from then on every element a solved state brought within
+:data:`JAMMING_SET_MARGIN` times it, and all of them while a relaxation runs
 (:meth:`JammingBarrier.switch_on`). On every other element the barrier and its derivatives are
 exactly 0 at that state, so the energy and its equilibria are the same either way; a state
 solved with the barrier off on an element whose yarns then close past the threshold is no
