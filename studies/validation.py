@@ -149,7 +149,7 @@ def _normalisation(fitted: list[str], target: Any, u: np.ndarray) -> np.ndarray:
     P = np.array(preds)
     with np.errstate(invalid="ignore"):
         n = np.sum(np.isfinite(P), axis=0)
-        return np.where(n > 0, np.nansum(P, axis=0) / np.maximum(n, 1), np.nan)  # type: ignore[no-any-return]
+        return np.where(n > 0, np.nansum(P, axis=0) / np.maximum(n, 1), np.nan)
 
 
 def _other_lab(fabric: str, target_name: str, target: Any, u: np.ndarray) -> np.ndarray:
@@ -160,7 +160,8 @@ def _other_lab(fabric: str, target_name: str, target: Any, u: np.ndarray) -> np.
     return _normalisation(others[:1], target, u)
 
 
-def extract(rec: dict, run_dir: Path, out: Path, docs: dict[str, dict[str, Any]]) -> dict:
+def extract(rec: dict[str, Any], run_dir: Path, out: Path, docs: dict[str, dict[str, Any]]
+            ) -> dict[str, list[dict[str, Any]]]:
     """Measured, ngbet's and the normalisation method's value at the scored points of one prediction."""
     from ngbet.tables import read_rows
 

@@ -66,7 +66,7 @@ def plot_table(result: JointFit, path: Path) -> Path:
     x = np.linspace(0.01 * fitted.shear_table_i8_max, min(fitted.shear_table_i8_max, 0.999), 200)
 
     def deg(i8: np.ndarray) -> np.ndarray:
-        return np.degrees(np.arcsin(np.clip(i8, 0.0, 1.0)))
+        return np.asarray(np.degrees(np.arcsin(np.clip(i8, 0.0, 1.0))))
 
     fig = Figure(figsize=(6.0, 4.2))
     ax = fig.subplots()

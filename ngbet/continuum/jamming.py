@@ -4,10 +4,14 @@ The barrier (:func:`ngbet.continuum.physics.jamming_energy`, K_jam = max(K_el, K
 term like the others, but it is zero wherever the yarns are more open than the jamming angle, which
 is everywhere in ordinary states, and evaluating it on every element is a large part of each
 assembly. It is therefore an integrator of its own, defined on the elements of ``elements``: none
-until a solved state brings the yarns within :data:`JAMMING_MARGIN` times the threshold's sine
-somewhere (:meth:`JammingBarrier.watch`) or a relaxation begins (:meth:`JammingBarrier.switch_on`),
-all from then on. Until then it is exactly 0 with its
-derivatives, so the energy is the same either way.
+until a solved state (:meth:`JammingBarrier.watch`) brings the yarns closer than
+:data:`JAMMING_MARGIN` times the threshold's sine at some integration point of the barrier's own
+rule (none in ordinary states); from then on every element a solved state brought within
+:data:`JAMMING_SET_MARGIN` times it, and all of them while a relaxation runs
+(:meth:`JammingBarrier.switch_on`). On every other element the barrier and its derivatives are
+exactly 0 at that state, so the energy and its equilibria are the same either way; a state
+solved with the barrier off on an element whose yarns then close past the threshold is no
+equilibrium (:meth:`JammingBarrier.missed`): it is solved again with the barrier on everywhere.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from ngsolve import CoefficientFunction as CF
 from ..scene.document import Scene
 from . import physics
 
-__all__ = ["JAMMING_MARGIN", "JammingBarrier"]
+__all__ = ["JAMMING_MARGIN", "JAMMING_SET_MARGIN", "JammingBarrier"]
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +36,12 @@ log = logging.getLogger(__name__)
 #: jamming angle's sine (before, it is zero): twice, i.e. about 10° for the default 5°, which no
 #: ordinary state reaches (smallest angle 35° on the embedded scene at 56 mm, 18° at 66 mm)
 JAMMING_MARGIN = 2.0
+#: once on, the barrier is evaluated on every element whose yarns a solved state brought closer than
+#: this multiple of the threshold's sine (about 20° for the default 5°), for the rest of the run: an
+#: element that comes near stays in, and one increment rarely closes yarns from there past the
+#: threshold on an element not yet in (a miss, solved again with the barrier everywhere)
+JAMMING_SET_MARGIN = 4.0
+
 
 class JammingBarrier:
     """The barrier's integrator on the forms of a problem, and the watch that switches it on.
@@ -45,7 +55,14 @@ class JammingBarrier:
                  forms: Sequence[tuple[ngs.BilinearForm, bool]] = ()) -> None:
         self.elements = ngs.BitArray(mesh.ne)
         self.elements.Clear()
+        self._ne = mesh.ne
+        self._where = np.zeros(mesh.ne, bool)  # ``elements`` as a mask
+        self._near = np.zeros(mesh.ne, bool)  # the elements solved states brought within the set's margin
         self._check: tuple[CF, object] | None = None
+        # u's coefficients (a view) and the last state checked with its smallest sines: the check
+        # after a solve (missed) and the watch of the same state (converged) evaluate once
+        self._u = u.vec.FV().NumPy() if hasattr(u, "vec") else None
+        self._checked: tuple[np.ndarray, np.ndarray] | None = None
         self._energy: tuple[CF, int] | None = None  # the integrand and its bonus integration order
         self.s_jam = math.nan
         if not scene.effects.jamming:
@@ -61,7 +78,9 @@ class JammingBarrier:
                                    self.s_jam).Compile()
         self._energy = (W, 2 + disc.quad_bonus)
         self.add_to(forms)
-        rule = ngs.IntegrationRule(ngs.TRIG, 2 * max(disc.p_u, 1) + disc.quad_bonus)
+        # the integrator's own rule: order 2 max(p) + bonus over the compound element (NGSolve's SymbolicEnergy)
+        order = 2 * max(c.globalorder for c in X.components) + 2 + disc.quad_bonus
+        rule = ngs.IntegrationRule(ngs.TRIG, order)
         self._check = (sine(ngs.Grad(u)).Compile(), mesh.MapToAllElements(rule, ngs.VOL))
 
     def add_to(self, forms: Sequence[tuple[ngs.BilinearForm, bool]]) -> None:
@@ -79,40 +98,62 @@ class JammingBarrier:
 
     @property
     def on(self) -> bool:
-        """Whether the barrier is evaluated (a state came near it, or a relaxation began)."""
-        return bool(self.elements.NumSet())
+        """Whether the barrier is evaluated on some element (a state came near it, or a relaxation runs)."""
+        return bool(self._where.any())
 
     def switch_on(self) -> None:
-        """Evaluate the barrier on every element from now on."""
+        """Evaluate the barrier on every element until the next solved state (:meth:`watch`)."""
         self.elements.Set()
+        self._where[:] = True
+
+    def _smallest(self) -> np.ndarray:
+        """The smallest sine of the yarn angle in each element, at the barrier's integration points (nan kept)."""
+        assert self._check is not None
+        if self._u is not None and self._checked is not None and np.array_equal(self._checked[0], self._u):
+            return self._checked[1]
+        s, points = self._check
+        smallest = np.asarray(s(points)).reshape(self._ne, -1).min(axis=1)
+        if self._u is not None:
+            self._checked = (self._u.copy(), smallest)
+        return smallest
 
     def missed(self) -> bool:
-        """Whether the state, solved with the barrier off, has yarns closer than the jamming angle.
+        """Whether the state has yarns closer than the jamming angle on an element the barrier is off on.
 
         There the barrier is not zero: the state is no equilibrium of the energy (past parallel
         the shear energy falls again, and Newton can land there in one increment, from yarns more
-        open than :data:`JAMMING_MARGIN` s_jam at the last state). False while the barrier is on.
+        open than :data:`JAMMING_MARGIN` s_jam at the last state). False while the barrier is on everywhere.
         """
-        if self._check is None or self.on:
+        if self._check is None or self._where.all():
             return False
-        s, points = self._check
-        smallest = float(np.min(np.asarray(s(points))))
-        return not smallest > self.s_jam  # nan (a degenerate state) counts as missed
+        off = self._smallest()[~self._where]
+        return not bool(np.all(off > self.s_jam))  # nan (a degenerate state) counts as missed
 
     def watch(self) -> None:
-        """Switch the barrier on for good once the yarns come within :data:`JAMMING_MARGIN` s_jam.
+        """Switch the barrier on once a solved state comes within :data:`JAMMING_MARGIN` s_jam, on the elements near.
 
+        From then on it is evaluated on every element a solved state brought within
+        :data:`JAMMING_SET_MARGIN` s_jam.
         Called at each converged state of the path (:meth:`ContinuumProblem.converged`): one
-        evaluation of the yarn angle's sine at the integration points, no assembly. A state that comes
-        within the margin is still exact (the barrier is zero above s_jam); the barrier holds from
-        the next load on. A relaxation switches it on before it starts (:meth:`switch_on`).
+        evaluation of the yarn angle's sine at the integration points, no assembly. The state is
+        exact either way (the barrier is zero above s_jam); the elements it is on are those the
+        states brought near the threshold, so that its cost is that of the few elements there. A
+        relaxation (or a miss) switches it on everywhere until the next solved state (:meth:`switch_on`).
         """
-        if self._check is None or self.on:
+        if self._check is None:
             return
-        s, points = self._check
-        smallest = float(np.min(np.asarray(s(points))))
-        if not smallest >= JAMMING_MARGIN * self.s_jam:  # nan (a degenerate state) counts as near
-            angle = math.degrees(math.asin(max(-1.0, min(1.0, smallest)))) if math.isfinite(smallest) else math.nan
+        smallest = self._smallest()
+        if not self.on:
+            if bool(np.all(smallest >= JAMMING_MARGIN * self.s_jam)):  # nan (a degenerate state) counts as near
+                return
+            low = float(np.nanmin(smallest)) if np.isfinite(smallest).any() else math.nan
+            angle = math.degrees(math.asin(max(-1.0, min(1.0, low)))) if math.isfinite(low) else math.nan
             log.info("the jamming barrier is on: %s", f"the yarns close to {angle:.3g} degrees" if angle > 0
                      else "the yarns of a solved state cross")
-            self.switch_on()
+        self._near |= ~(smallest >= JAMMING_SET_MARGIN * self.s_jam)
+        if np.array_equal(self._near, self._where):
+            return
+        self._where = self._near.copy()
+        self.elements.Clear()
+        for i in np.flatnonzero(self._where):
+            self.elements[int(i)] = True

@@ -337,7 +337,7 @@ class ContinuumProblem:
     def jamming_missed(self) -> bool:
         """The state was solved without the jamming barrier where it holds: switch it on and say so.
 
-        True when the barrier was off and the yarns are closer than the jamming angle somewhere
+        True when the yarns are closer than the jamming angle on an element the barrier was off on
         (:meth:`~ngbet.continuum.jamming.JammingBarrier.missed`): the state is no equilibrium, the
         barrier is on from now on and the increment is to be solved again
         (:class:`~ngbet.numerics.newton.JammingWatch`).

@@ -168,7 +168,16 @@ class SaddlePointNewton:
         if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
             return self._relax(u0, h, e_ref, rep)
         if rep.converged and self._jamming_missed():
-            return Outcome("failed", rep.iterations, list(rep.history), JAMMING_MISSED)
+            if h >= self.relax_below or self._predicted is None:
+                return Outcome("failed", rep.iterations, list(rep.history), JAMMING_MISSED)
+            # too short to cut: the same increment again with the barrier everywhere, relaxed where Newton fails
+            first = rep
+            p.x[:] = self._predicted
+            self.report = rep = newton(p, self.settings, e_ref)
+            if not rep.converged and _stalled(rep):
+                return self._relax(u0, h, e_ref, rep)
+            return Outcome("converged" if rep.converged else "failed", first.iterations + rep.iterations,
+                           [*first.history, *rep.history], rep.reason if rep.converged else JAMMING_MISSED)
         return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
 
     def _jamming_missed(self) -> bool:
