@@ -187,7 +187,7 @@ def test_the_barrier_is_on_only_where_the_yarns_come_near_and_the_energy_is_the_
     G = [(1 - xi) * a + xi * b for a, b in zip(G60, G86, strict=True)]  # row-major 2x2
     pb.problem.u.Set(ngs.CF((G[0] * ngs.x + G[1] * ngs.y, G[2] * ngs.x + G[3] * ngs.y)))
     jam = pb.problem.jamming
-    pb.converged()
+    pb.problem.converged()
     assert 0 < jam.elements.NumSet() < pb.problem.mesh.ne and not jam.missed()
     assert np.array_equal(jam._where, jam._smallest() < 4 * S_JAM)
     E_near, r_near = pb.energy(), pb.residual()

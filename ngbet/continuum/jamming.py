@@ -112,7 +112,7 @@ class JammingBarrier:
         if self._u is not None and self._checked is not None and np.array_equal(self._checked[0], self._u):
             return self._checked[1]
         s, points = self._check
-        smallest = np.asarray(s(points)).reshape(self._ne, -1).min(axis=1)
+        smallest: np.ndarray = np.asarray(s(points)).reshape(self._ne, -1).min(axis=1)
         if self._u is not None:
             self._checked = (self._u.copy(), smallest)
         return smallest
