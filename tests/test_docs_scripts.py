@@ -63,7 +63,7 @@ def test_calibration_figure_fits_and_draws_into_its_out_folder(tmp_path):
     before = digests(DOCS)
     run_script("calibration_figure.py", "--no-study", "--out", str(tmp_path / "docs"), cwd=tmp_path, timeout=3600)
     made = {p.name for p in (tmp_path / "docs").iterdir()}
-    assert made == {"calibration_fit.png", "calibration_fit.json", "calibration_twill_balanced_fit.png",
+    assert made == {"calibration_fit.png", "calibration_fit.json", "calibration_twill_unbalanced_fit.png",
                     "calibration_table.png"}
     record = json.loads((tmp_path / "docs" / "calibration_fit.json").read_text())
     assert record["data"] == "data/cao2008_glass_plain_150x450.csv"
