@@ -307,6 +307,7 @@ def plot(data: StudyData) -> list[Path]:
         frame = curve.test == "picture_frame"
         x, y = curve.in_file_units(curve.u_mm, curve.force_N)
         ax.plot(x, y, "-", color="k", lw=1.2)
+        top = float(np.nanmax(y))  # the band does not set the scale: where a parameter is open it spans decades
         title = (f"{fabric.replace('_', ' ')}: {lab_of(target)} frame {curve.label.split(' ', 1)[1]}" if frame
                  else f"{fabric.replace('_', ' ')}: {curve.label.replace(' x ', ' × ')}")
         for r in (r for r in rows if r["fabric"] == fabric and r["target"] == target):
@@ -316,7 +317,9 @@ def plot(data: StudyData) -> list[Path]:
             c = colours[r["fit_kind"]]
             ax.fill_between(xs, m - 2 * sd, m + 2 * sd, color=c, alpha=0.12, lw=0)
             ax.plot(xs, m, "-", color=c, lw=1.0)
-            ax.plot(xs, [float(q["normalisation"]) for q in sel], "--", color=c, lw=0.9)
+            nm = np.array([float(q["normalisation"]) for q in sel])
+            ax.plot(xs, nm, "--", color=c, lw=0.9)
+            top = max(top, float(np.nanmax(m)), float(np.nanmax(nm)) if np.isfinite(nm).any() else 0.0)
         if frame:
             ax.set_xlabel("shear angle γ [°]")
             ax.set_ylabel("F_norm [N/mm]" if curve.quantity == "normalised_shear_force" else "shear force F_s [N]")
@@ -325,7 +328,7 @@ def plot(data: StudyData) -> list[Path]:
             ax.set_ylabel(FORCE_LABEL)
         ax.set_title(title, fontsize=9)
         ax.set_xlim(left=0)
-        ax.set_ylim(bottom=0)
+        ax.set_ylim(0, 1.1 * top)
     for ax in axes.ravel()[len(targets):]:
         ax.set_visible(False)
     names = {"one size": "fitted on one bias-extension size", "two sizes": "fitted on both sizes",
@@ -336,7 +339,8 @@ def plot(data: StudyData) -> list[Path]:
     legend_below(fig, handles, ncol=3)
     put_caption(fig, "Twintex fabrics of Cao et al. (2008): each measured curve predicted by every fit that did not "
                      "use it (ngbet fit with the fabric's scene) and by the normalisation method from the fitted "
-                     "curves (Eq. 18 between sizes, Eq. 10 between frames, F_sh read as F_norm across tests)")
+                     "curves (Eq. 18 between sizes, Eq. 10 between frames, F_sh read as F_norm across tests); "
+                     "a band wider than the axes is cut")
     return [savefig(fig, data.out, "validation")]
 
 
