@@ -233,9 +233,9 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
         raise SceneError(f"--profile-sd = {profile_sd_mm}, --angle-sd = {angle_sd_deg}: both must be > 0")
     held = held_parameters(curves, scene, params, profile) if own else {}
     if own and ELONGATION_KEY not in params and scene.effects.elongation:
-        held[ELONGATION_KEY] = ("not among the scene's [calibration] params: held at the scene's value (for glass "
-                                "yarns the lower bound their stiffness allows). Measured shear angles (--angles) "
-                                "would determine it; name it in --params to fit it")
+        held[ELONGATION_KEY] = ("not among the scene's [calibration] params: held at the scene's value (the fabric "
+                                "scenes: glass yarns after decrimping). Measured shear angles (--angles) would "
+                                "determine it; name it in --params to fit it")
     fitted_params = [p for p in params if p not in held]
     names = expand_params(scene, fitted_params)
     start = np.array([value_of(scene, n) for n in names])
