@@ -44,17 +44,10 @@ import numpy as np
 from ngbet.discrete.eigen import lowest_eigenvalues, lowest_eigenvalues_arpack
 from ngbet.discrete.linsolve import FreeBlockSolver, LinearSolverError
 from ngbet.discrete.model import NetworkModel
-from ngbet.discrete.solver import solve_path
-from ngbet.runner.settings import step_control
-
-try:
-    from ngbet.discrete.solver import single_threaded_blas
-except ImportError:  # an older ngbet (PYTHONPATH=<worktree of an earlier commit>: before/after tables)
-    import contextlib
-
-    def single_threaded_blas():  # type: ignore[no-redef]
-        return contextlib.nullcontext()
+from ngbet.discrete.solver import load_steps
 from ngbet.provenance import machine, versions
+from ngbet.runner.settings import step_control
+from ngbet.runner.threads import single_threaded_blas
 from ngbet.scene.document import Scene
 from ngbet.tables import read_rows
 
@@ -75,7 +68,7 @@ def per_iteration(scene: Scene, args: argparse.Namespace, rec: dict) -> None:
     rec["t_build_s"] = time.perf_counter() - t
     ngs.SetNumThreads(1)
     with ngs.TaskManager():
-        u = solve_path(model, step_control(scene))["u"]
+        u = [rec.state.copy() for rec in load_steps(model, step_control(scene))][-1]
     rec.update({"dofs": model.n_dofs, "free_dofs": int((~model.fixed).sum()), "nnz": model.pattern.nnz})
     rec["t_assembly_s"] = median_time(lambda: model.evaluate(u, True), args.repeats)
     rec["t_gradient_only_s"] = median_time(lambda: model.evaluate(u, False), args.repeats)
@@ -118,7 +111,7 @@ def per_iteration(scene: Scene, args: argparse.Namespace, rec: dict) -> None:
 
 
 def full_run(scene: Scene, threads: int, tag: str, linear_solver: str = "auto") -> dict:
-    from ngbet.discrete.run import run
+    from ngbet.runner.discrete import run_discrete as run
 
     folder = Path(__file__).parent / "out" / f"run_{tag}"
     full = scene.with_changes(**{"loading.u0_mm": 56.0, "solver.threads": threads,

@@ -36,7 +36,7 @@ def run(scene: Scene, out: str | Path, progress: bool = False, measured: Any = N
                              "'sparsecholesky')")
     with ngsolve_threads(scene):
         if scene.model == "discrete":
-            from .discrete.run import run as run_discrete
+            from .runner.discrete import run_discrete
 
             return run_discrete(scene, out, progress=progress, measured=measured)
         from .runner.continuum import run_continuum

@@ -190,7 +190,7 @@ def test_interrupted_run_keeps_the_solver_statistics(tmp_path, monkeypatch):
     # keeps what the solver counted until then (factorizations, work by cause, the half-turn blocks)
     import importlib
 
-    discrete_run = importlib.import_module("ngbet.discrete.run")
+    discrete_run = importlib.import_module("ngbet.runner.discrete")
     on_step = discrete_run._Recorder.on_step
     calls = []
 

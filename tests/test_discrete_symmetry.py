@@ -20,7 +20,7 @@ from ngbet.discrete.eigen import OTHER_BLOCK_TOL, lowest_eigenvalues
 from ngbet.discrete.linsolve import FreeBlockSolver
 from ngbet.discrete.model import NetworkModel
 from ngbet.discrete.newton import newton
-from ngbet.discrete.solver import load_steps, solve_path
+from ngbet.discrete.solver import load_steps
 from ngbet.discrete.symmetry import COUPLING_TOL, Blocks, HalfTurn, half_turn
 from ngbet.numerics.engine import Steps
 from ngbet.runner.settings import step_control
@@ -226,7 +226,7 @@ def test_the_17k_network_keeps_its_forces_and_snaps():
 def test_a_state_off_the_symmetric_path_is_solved_whole(model):
     """Newton from a state kicked along an antisymmetric field: whole factorizations, the whole solver's answer."""
     sc = Scene().with_changes(**{**SCENE, "loading.u0_mm": 10.0})
-    u = solve_path(model, step_control(sc))["u"]
+    u = [rec.state.copy() for rec in load_steps(model, step_control(sc))][-1]
     ht = model.half_turn()
     kick = np.random.default_rng(6).standard_normal(model.n_dofs)
     kick[model.fixed] = 0.0

@@ -150,7 +150,7 @@ def test_the_map_panels_share_one_norm():
 
 
 def test_ngbet_run_imports_no_matplotlib_before_it_solves():
-    code = ("import sys, ngbet.cli, ngbet.run, ngbet.figures, ngbet.runner.continuum, ngbet.discrete.run; "
+    code = ("import sys, ngbet.cli, ngbet.run, ngbet.figures, ngbet.runner.continuum, ngbet.runner.discrete; "
             "print('matplotlib' in sys.modules)")
     assert fresh_python(code) == "False"
 

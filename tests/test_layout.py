@@ -174,10 +174,10 @@ def test_no_import_circle():
 OUTPUTS = ("ngbet.runner", "ngbet.run", "ngbet.run_folder", "ngbet.output", "ngbet.plot_process", "ngbet.figures",
            "ngbet.study", "ngbet.studies", "ngbet.calibration", "ngbet.api", "ngbet.cli", "ngbet.commands")
 #: what the modules of a package may not import (at any depth, type-only imports included): the
-#: numerics are model-free (no scene, no model), and neither they nor the continuum reach up to the
-#: runner, the run folder or the figures
+#: numerics are model-free (no scene, no model), and neither they nor the two models (continuum,
+#: network) reach up to the runner, the run folder or the figures
 LAYERS = {"ngbet.numerics": ("ngbet.scene", "ngbet.continuum", "ngbet.discrete", *OUTPUTS),
-          "ngbet.continuum": OUTPUTS}
+          "ngbet.continuum": OUTPUTS, "ngbet.discrete": OUTPUTS}
 
 
 def _inside(module: str, packages: tuple[str, ...] | str) -> bool:
@@ -236,10 +236,12 @@ def test_the_circle_check_sees_a_circle(monkeypatch, tmp_path):
     ("numerics", "def f():\n    from ..continuum.problem import ContinuumProblem\n"),
     ("continuum", "from ..figures import run\n"),
     ("continuum", "from ..runner.settings import newton_settings\n"),
+    ("discrete", "def f():\n    from ..figures.run import start_plot\n"),
+    ("discrete", "from ..runner.settings import step_control\n"),
 ])
 def test_the_layer_check_sees_an_import_that_climbs(monkeypatch, tmp_path, layer, source):
-    """A numerics module that reads the scene (for type checking only) or a model, a continuum module
-    that reaches for the figures or the runner: each is named."""
+    """A numerics module that reads the scene (for type checking only) or a model, a continuum or
+    network module that reaches for the figures or the runner: each is named."""
     files = {f"ngbet.{layer}.a": tmp_path / "a.py", "ngbet.scene.document": tmp_path / "document.py",
              "ngbet.continuum.problem": tmp_path / "problem.py", "ngbet.figures.run": tmp_path / "run.py",
              "ngbet.runner.settings": tmp_path / "settings.py"}

@@ -19,15 +19,15 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Any, cast
+from typing import cast
 
 import numpy as np
 
 from .network import Network
 
 __all__ = ["centre_mean", "chain_neighbours", "crossing_gamma", "crossing_slip", "crossing_spring_angle",
-           "midline_points", "midline_profile", "node_gamma", "plot_state", "save_state", "yarn_polylines",
-           "yarn_rotation", "zone_means"]
+           "midline_points", "midline_profile", "node_gamma", "save_state", "segment_gamma_deg",
+           "yarn_polylines", "yarn_rotation", "zone_means"]
 
 log = logging.getLogger(__name__)
 
@@ -158,26 +158,3 @@ def segment_gamma_deg(net: Network, u: np.ndarray) -> np.ndarray:
     """The shear angle γ [°] of each beam segment: the mean of its two nodes'."""
     ang = np.degrees(node_gamma(net, u))
     return cast(np.ndarray, 0.5 * (ang[net.beams[:, 0]] + ang[net.beams[:, 1]]))
-
-
-def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: Any = None,
-               scale_over: Any = None) -> None:
-    """PNG of the deformed yarns coloured by the shear angle γ (:func:`ngbet.figures.maps.yarn_network_figure`).
-
-    γ is 0 at rest, the convention of the continuum's maps; ``scene`` names specimen and network in the caption;
-    ``scale_over``: the segment angles of every picture of the run, so that all share one colour scale.
-    """
-    from ..figures.maps import yarn_network_figure
-    from ..figures.style import PNG_DPI, in_style
-
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        log.warning("no yarn figure: matplotlib is not installed (pip install matplotlib)")
-        return
-    x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3
-    seg_ang = segment_gamma_deg(net, u)
-    with in_style():
-        fig = yarn_network_figure(x, net.beams, net.beam_family, seg_ang, x[net.node_end > 0], u0 * 1e3, scene,
-                                  scale_over=scale_over)
-        fig.savefig(path, dpi=PNG_DPI)

@@ -2,8 +2,9 @@
 
 :class:`ShiftedNewton` runs on the engine's load stepping (:func:`ngbet.numerics.engine.path_steps`);
 :func:`load_steps` puts the two together: a generator of the step records (each with its state),
-which the runner iterates and writes from. Newton at a fixed load is :func:`ngbet.discrete.newton.newton`,
-the stability check :func:`ngbet.discrete.eigen.lowest_eigenvalues`; both are described below.
+which the runner (:mod:`ngbet.runner.discrete`) iterates and writes from. Newton at a fixed load is
+:func:`ngbet.discrete.newton.newton`, the stability check :func:`ngbet.discrete.eigen.lowest_eigenvalues`;
+both are described below.
 
 The solver knows nothing of yarns. A problem provides ``n_dofs``, ``fixed`` (bool mask of
 prescribed dofs), ``load`` (prescribed values per unit load parameter u0), ``ramp`` (a field for
@@ -48,7 +49,6 @@ Step from u0 to u0 + h:
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import time
@@ -59,35 +59,16 @@ from typing import Any, cast
 import numpy as np
 import scipy.sparse as sp
 
-from .. import cholmod
 from ..errors import Attempt, ConvergenceError
 from ..numerics import engine
-from ..numerics.engine import Outcome, PathResult, StepRecord, Steps
-from .eigen import (
-    check_stability,
-    lowest_eigenvalues_arpack,  # noqa: F401  (bench/bench_discrete.py imports it from here)
-)
+from ..numerics.engine import Outcome, PathResult, StepRecord
+from .eigen import check_stability
 from .linsolve import FreeBlockSolver
 from .newton import Problem, StepControl, StepFailed, Tally, TimedProblem, newton
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ShiftedNewton", "load_steps", "single_threaded_blas", "solve_path"]
-
-
-def single_threaded_blas() -> Any:
-    """Context holding every BLAS/OpenMP pool of the process to one thread (threadpoolctl)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - a dependency; without it the pools keep their threads
-        return contextlib.nullcontext()
-    try:  # NGSolve's BLAS and MKL are loaded with it: load them first, so that the limit reaches them
-        import ngsolve.la  # noqa: F401
-    except ImportError:  # pragma: no cover
-        pass
-    if cholmod.available():  # cvxopt brings its own OpenBLAS (CHOLMOD's supernodes)
-        import cvxopt.cholmod  # noqa: F401
-    return threadpool_limits(limits=1)
+__all__ = ["ShiftedNewton", "load_steps"]
 
 
 def load_steps(problem: Problem, ctl: StepControl, out: PathResult | None = None
@@ -97,11 +78,10 @@ def load_steps(problem: Problem, ctl: StepControl, out: PathResult | None = None
     Yields the record of each converged step, its state in ``state`` (dropped when the path moves
     on: the result keeps no states); returns the :class:`~ngbet.numerics.engine.PathResult` (``out`` if
     given), whose ``path_info`` holds the iteration and time statistics and the snap events, as of
-    the last step yielded while the path goes on. The BLAS libraries in the process (numpy's and
-    scipy's OpenBLAS, NGSolve's OpenBLAS and MKL) are held to one thread meanwhile: the solver's
-    dense operations are vector-sized (dot products, the Lanczos block of a few columns), where a
-    second BLAS thread saves nothing and, spinning between calls, kept a second core busy for the
-    whole run (CPU time = 2x wall time).
+    the last step yielded while the path goes on. The caller holds the BLAS pools to one thread
+    (:func:`ngbet.runner.threads.single_threaded_blas`, within every run): the solver's dense
+    operations are vector-sized (dot products, the Lanczos block of a few columns), where a
+    second BLAS thread saves nothing and, spinning between calls, keeps a second core busy.
 
     Raises
     ------
@@ -112,33 +92,21 @@ def load_steps(problem: Problem, ctl: StepControl, out: PathResult | None = None
         passed on with the same ``path_info`` attached (Ctrl-C, SIGTERM).
     """
     out = PathResult(0.0) if out is None else out
-    with single_threaded_blas():
-        corrector = ShiftedNewton(problem, ctl)
-        try:
-            for rec in engine.path_steps(corrector, ctl.path, out):
-                out.path_info = corrector.statistics()
-                yield rec
-                rec.state = None
-        except (ConvergenceError, KeyboardInterrupt) as exc:  # Ctrl-C / SIGTERM too: the statistics so far
-            out.path_info = info = corrector.statistics()
-            if isinstance(exc, ConvergenceError):
-                exc.path_info.update(info)
-            else:
-                exc.path_info = info  # type: ignore[attr-defined]
-            raise
-        out.path_info = corrector.statistics()
+    corrector = ShiftedNewton(problem, ctl)
+    try:
+        for rec in engine.path_steps(corrector, ctl.path, out):
+            out.path_info = corrector.statistics()
+            yield rec
+            rec.state = None
+    except (ConvergenceError, KeyboardInterrupt) as exc:  # Ctrl-C / SIGTERM too: the statistics so far
+        out.path_info = info = corrector.statistics()
+        if isinstance(exc, ConvergenceError):
+            exc.path_info.update(info)
+        else:
+            exc.path_info = info  # type: ignore[attr-defined]
+        raise
+    out.path_info = corrector.statistics()
     return out
-
-
-def solve_path(problem: Problem, ctl: StepControl) -> dict[str, Any]:
-    """:func:`load_steps` carried to the end: its statistics and the final state ``u``."""
-    u = np.zeros(problem.n_dofs)
-    steps = Steps(load_steps(problem, ctl))
-    for rec in steps:
-        assert rec.state is not None
-        u = rec.state
-    assert steps.result is not None
-    return {**steps.result.path_info, "u": u}
 
 
 @dataclass

@@ -13,7 +13,7 @@ from collections.abc import Iterator
 
 from ..scene.document import Scene
 
-__all__ = ["IDLE_CORES_FOR_THREADS", "ngsolve_threads", "thread_policy"]
+__all__ = ["IDLE_CORES_FOR_THREADS", "ngsolve_threads", "single_threaded_blas", "thread_policy"]
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +56,25 @@ def thread_policy(threads: int | str, model: str = "continuum", cores: int | Non
 
 
 @contextlib.contextmanager
+def single_threaded_blas() -> Iterator[None]:
+    """Context holding every BLAS/OpenMP pool of the process to one thread (threadpoolctl).
+
+    A limit reaches only the libraries loaded when it is set: NGSolve's BLAS and MKL and, where
+    CHOLMOD is used, cvxopt's own OpenBLAS are loaded first. Used by :func:`ngsolve_threads` for
+    every run; benchmarks and tests that drive a solver directly enter it themselves.
+    """
+    import ngsolve.la  # noqa: F401
+    from threadpoolctl import threadpool_limits
+
+    from .. import cholmod
+
+    if cholmod.available():
+        import cvxopt.cholmod  # noqa: F401
+    with threadpool_limits(limits=1):
+        yield
+
+
+@contextlib.contextmanager
 def ngsolve_threads(scene: Scene) -> Iterator[None]:
     """NGSolve's threads as ``scene.solver.threads`` asks (:func:`thread_policy`).
 
@@ -70,11 +89,10 @@ def ngsolve_threads(scene: Scene) -> Iterator[None]:
     the run needs (docs/numerics.md).
     """
     import ngsolve as ngs
-    from threadpoolctl import threadpool_limits
 
     run_threads, asm_threads = thread_policy(scene.solver.threads, scene.model)
     log.debug("NGSolve threads: %d for the run, %d for the assembly", run_threads, asm_threads)
-    with threadpool_limits(limits=1):
+    with single_threaded_blas():
         if run_threads == asm_threads:
             ngs.SetNumThreads(run_threads)
             with ngs.TaskManager():  # NGSolve's assembly and sparse factorizations run in its threads

@@ -257,7 +257,7 @@ def _submit_and_collect(ex: Any, todo: list[Case], wds: dict[Any, Path], threads
 #: what the fork server imports, once for all its workers, by the model of the cases ("plot": cases
 #: that draw their figures)
 PRELOAD = {"continuum": ["ngbet.study.executors", "ngbet.run", "ngbet.runner.continuum"],
-           "discrete": ["ngbet.study.executors", "ngbet.run", "ngbet.discrete.run"],
+           "discrete": ["ngbet.study.executors", "ngbet.run", "ngbet.runner.discrete"],
            "plot": ["matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.backends.backend_pdf"]}
 
 

@@ -1,4 +1,9 @@
-"""Entry point of the discrete model: scene -> network -> load path -> run folder.
+"""A discrete scene into a run folder: network, load path, one loop writing each converged step.
+
+The network (:mod:`ngbet.discrete`) yields its converged steps
+(:func:`ngbet.discrete.solver.load_steps`); the one ``for`` loop of :func:`run_discrete`
+consumes them, as :mod:`ngbet.runner.continuum` does the continuum's. The threads (NGSolve's and
+the BLAS pools') are those of :func:`ngbet.runner.threads.ngsolve_threads`, around the run.
 
 Per converged step a row of results.csv (force on the moving clamp and its slope dF/du0, energies
 per term, centre and zone shear angles, the kinematic shear angle and the normalised shear force
@@ -22,19 +27,19 @@ from typing import Any
 
 import numpy as np
 
+from ..discrete import observables as ob
+from ..discrete.model import ENERGY_PARTS, NetworkModel
+from ..discrete.network import Network, network_from_scene
+from ..discrete.solver import load_steps
 from ..errors import ConvergenceError
 from ..figures.run import start_plot
 from ..kinematics import BetColumns, gamma_a
 from ..numerics.engine import PathResult, StepRecord, progress_bar
 from ..output import RunWriter
-from ..runner.settings import step_control
 from ..scene.document import Scene
-from . import observables as ob
-from .model import ENERGY_PARTS, NetworkModel
-from .network import network_from_scene
-from .solver import load_steps
+from .settings import step_control
 
-__all__ = ["run", "step_row"]
+__all__ = ["plot_state", "run_discrete", "step_row"]
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +73,7 @@ def step_row(model: NetworkModel, info: StepRecord, u: np.ndarray, scene: Scene)
     return row
 
 
-def run(scene: Scene, out: str | Path, progress: bool = True, measured: Any = None) -> dict[str, Any]:
+def run_discrete(scene: Scene, out: str | Path, progress: bool = True, measured: Any = None) -> dict[str, Any]:
     """Run the discrete BET model of ``scene`` and write its run folder.
 
     Parameters
@@ -192,6 +197,29 @@ class _Recorder:
         net = self.model.net
         angles = [ob.segment_gamma_deg(net, u) for _, u, _ in self.pictures]
         for tag, u, u0 in self.pictures:
-            draw = functools.partial(ob.plot_state, net=net, u=u, u0=u0, scene=self.scene, scale_over=angles)
+            draw = functools.partial(plot_state, net=net, u=u, u0=u0, scene=self.scene, scale_over=angles)
             self.writer.write(f"yarns_{tag}.png", draw)
         self.pictures.clear()
+
+
+def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: Any = None,
+               scale_over: Any = None) -> None:
+    """PNG of the deformed yarns coloured by the shear angle γ (:func:`ngbet.figures.maps.yarn_network_figure`).
+
+    γ is 0 at rest, the convention of the continuum's maps; ``scene`` names specimen and network in the caption;
+    ``scale_over``: the segment angles of every picture of the run, so that all share one colour scale.
+    """
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        log.warning("no yarn figure: matplotlib is not installed (pip install matplotlib)")
+        return
+    from ..figures.maps import yarn_network_figure
+    from ..figures.style import PNG_DPI, in_style
+
+    x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3
+    seg_ang = ob.segment_gamma_deg(net, u)
+    with in_style():
+        fig = yarn_network_figure(x, net.beams, net.beam_family, seg_ang, x[net.node_end > 0], u0 * 1e3, scene,
+                                  scale_over=scale_over)
+        fig.savefig(path, dpi=PNG_DPI)
