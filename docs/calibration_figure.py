@@ -65,8 +65,9 @@ def main(argv: list[str] | None = None) -> None:
     single_curve(out)
     with tempfile.TemporaryDirectory() as tmp:
         fitted = Path(tmp) / "fit"
-        run(["fit", *(str(ROOT / f) for f in TWILL), "--scene", str(ROOT / "geometry" / "twintex_twill_unbalanced.toml"),
-             "--out", str(fitted)], accept=(0, 1))  # 1: stopped at --max-runs, said in the figure's record
+        scene = ROOT / "geometry" / "twintex_twill_unbalanced.toml"
+        run(["fit", *(str(ROOT / f) for f in TWILL), "--scene", str(scene), "--out", str(fitted)],
+            accept=(0, 1))  # 1: stopped at --max-runs, said in the figure's record
         shutil.copyfile(fitted / "fit.png", out / "calibration_twill_unbalanced_fit.png")
         shutil.copyfile(fitted / "shear_table.png", out / "calibration_table.png")
         if not args.no_study:
