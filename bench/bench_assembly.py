@@ -53,8 +53,9 @@ def _problem(mode: str, h: float, p: int) -> Any:
     sc = default_scene()
     disc = dataclasses.replace(sc.discretization, mesh_size_mm=h, order_u=p, corner_mesh_size_mm=0.25)
     if mode != "before":
-        sc = dataclasses.replace(sc, solver=dataclasses.replace(sc.solver, compile="native" if mode == "native"
-                                                                else "interpret"))
+        sc = dataclasses.replace(
+            sc, solver=dataclasses.replace(sc.solver, compile="native" if mode == "native" else "interpret")
+        )
     if mode == "ad":  # NGSolve's default linearization of the interpreted integrand
         from ngbet.numerics import compiled
 
@@ -94,9 +95,17 @@ def _plain_form(X: Any) -> Any:
     G, Gv = ngs.Grad(u), ngs.Grad(v)
     m = ngs.CF((1, 0.3, 0.2, 1), dims=(2, 2))
     bf = ngs.BilinearForm(X, symmetric=True, symmetric_storage=True, condense=True)
-    bf += (ngs.InnerProduct(G, Gv) + ngs.InnerProduct(m * G, Gv) + phi * psi
-           + phi * ngs.Trace(Gv) + psi * ngs.Trace(G) + ngs.Grad(phi) * ngs.Grad(psi)
-           + lam * (psi - ngs.Trace(Gv)) + mu * (phi - ngs.Trace(G)) - 1e-3 * lam * mu) * ngs.dx
+    bf += (
+        ngs.InnerProduct(G, Gv)
+        + ngs.InnerProduct(m * G, Gv)
+        + phi * psi
+        + phi * ngs.Trace(Gv)
+        + psi * ngs.Trace(G)
+        + ngs.Grad(phi) * ngs.Grad(psi)
+        + lam * (psi - ngs.Trace(Gv))
+        + mu * (phi - ngs.Trace(G))
+        - 1e-3 * lam * mu
+    ) * ngs.dx
     return bf
 
 
@@ -129,19 +138,36 @@ def child(mode: str, h: float, p: int, threads: int, repeats: int, save: str) ->
         tr.append(time.perf_counter() - t)
     np.save(save + ".npy", r)
     if mode == "bfi":  # another matrix: nothing to compare
-        return {"mode": mode, "used": "interpret", "h_mm": h, "p": p, "threads": threads, "dofs": int(pb.X.ndof),
-                "setup_s": setup, "assembly_s": statistics.median(ta), "residual_s": statistics.median(tr),
-                "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+        return {
+            "mode": mode,
+            "used": "interpret",
+            "h_mm": h,
+            "p": p,
+            "threads": threads,
+            "dofs": int(pb.X.ndof),
+            "setup_s": setup,
+            "assembly_s": statistics.median(ta),
+            "residual_s": statistics.median(tr),
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        }
     sps.save_npz(save + ".npz", _free_block(form))
     plain = ngs.BilinearForm(form.space, symmetric=True)  # the same integrators, nothing condensed
     for integrator in form.integrators:
         plain += integrator
     plain.AssembleLinearization(pb.gf.vec)
     sps.save_npz(save + "_plain.npz", _free_block(plain))
-    return {"mode": mode, "used": getattr(pr, "compile_mode", "interpret"), "h_mm": h, "p": p, "threads": threads,
-            "dofs": int(pb.X.ndof), "setup_s": setup, "assembly_s": statistics.median(ta),
-            "residual_s": statistics.median(tr),
-            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    return {
+        "mode": mode,
+        "used": getattr(pr, "compile_mode", "interpret"),
+        "h_mm": h,
+        "p": p,
+        "threads": threads,
+        "dofs": int(pb.X.ndof),
+        "setup_s": setup,
+        "assembly_s": statistics.median(ta),
+        "residual_s": statistics.median(tr),
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
 
 
 def _solve(A: Any, b: Any) -> Any:
@@ -181,26 +207,40 @@ nan = float("nan")
 def _table(recs: list[dict], cases: list[tuple[float, int]], variants: list[tuple[str, int]]) -> None:
     """Medians per case and variant, ratios to the first variant, differences to its matrix."""
     ref = variants[0]
-    print(f"\n| h [mm] | p | dofs | mode (used) | threads | assembly [s] | ratio to {ref[0]} | residual [s] | ratio | "
-          "max dA/A | (not condensed) | dx/x | max dr/r | peak RSS [MB] |")
+    print(
+        f"\n| h [mm] | p | dofs | mode (used) | threads | assembly [s] | ratio to {ref[0]} | residual [s] | ratio | "
+        "max dA/A | (not condensed) | dx/x | max dr/r | peak RSS [MB] |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for h, p in cases:
         rs = [r for r in recs if (r["h_mm"], r["p"]) == (h, p)]
-        med = {v: {k: statistics.median(r[k] for r in rs if (r["mode"], r["threads"]) == v)
-                   for k in ("assembly_s", "residual_s", "peak_rss_mb")}
-               for v in variants if any((r["mode"], r["threads"]) == v for r in rs)}
+        med = {
+            v: {
+                k: statistics.median(r[k] for r in rs if (r["mode"], r["threads"]) == v)
+                for k in ("assembly_s", "residual_s", "peak_rss_mb")
+            }
+            for v in variants
+            if any((r["mode"], r["threads"]) == v for r in rs)
+        }
         if ref not in med:
             continue
         r0 = med[ref]
         for v, m in med.items():
-            last = {"dA_rel": nan, "dA_plain_rel": nan, "dx_rel": nan, "dr_rel": nan,
-                    **[r for r in rs if (r["mode"], r["threads"]) == v][-1]}
-            print(f"| {h:g} | {p} | {last['dofs']} | {v[0]} ({last['used']}) | {v[1]} | {m['assembly_s']:.4f} | "
-                  f"{r0['assembly_s'] / m['assembly_s']:.2f} | {m['residual_s']:.4f} | "
-                  f"{r0['residual_s'] / m['residual_s']:.2f} | {last['dA_rel']:.1e} | {last['dA_plain_rel']:.1e} | "
-                  f"{last['dx_rel']:.1e} | "
-                  f"{last['dr_rel']:.1e} | "
-                  f"{m['peak_rss_mb']:.0f} |")
+            last = {
+                "dA_rel": nan,
+                "dA_plain_rel": nan,
+                "dx_rel": nan,
+                "dr_rel": nan,
+                **[r for r in rs if (r["mode"], r["threads"]) == v][-1],
+            }
+            print(
+                f"| {h:g} | {p} | {last['dofs']} | {v[0]} ({last['used']}) | {v[1]} | {m['assembly_s']:.4f} | "
+                f"{r0['assembly_s'] / m['assembly_s']:.2f} | {m['residual_s']:.4f} | "
+                f"{r0['residual_s'] / m['residual_s']:.2f} | {last['dA_rel']:.1e} | {last['dA_plain_rel']:.1e} | "
+                f"{last['dx_rel']:.1e} | "
+                f"{last['dr_rel']:.1e} | "
+                f"{m['peak_rss_mb']:.0f} |"
+            )
 
 
 def main() -> None:
@@ -212,8 +252,11 @@ def main() -> None:
     ap.add_argument("--before", help="an older source tree: its problem as a mode 'before' (first)")
     ap.add_argument("--repeats", type=int, default=5, help="linearizations per process")
     ap.add_argument("--runs", type=int, default=2, help="processes per variant and case")
-    ap.add_argument("--blas-free", action="store_true",
-                    help="leave the BLAS pools at their default thread counts (a run holds them to one)")
+    ap.add_argument(
+        "--blas-free",
+        action="store_true",
+        help="leave the BLAS pools at their default thread counts (a run holds them to one)",
+    )
     ap.add_argument("--child", nargs=6, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -229,14 +272,21 @@ def main() -> None:
             for h, p in cases:
                 for mode, nt in variants:
                     # BLAS pools at one thread, as in a run (runner.threads.ngsolve_threads); --blas-free leaves them
-                    env = dict(os.environ) if args.blas_free else {**os.environ, "OPENBLAS_NUM_THREADS": "1",
-                                                                   "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+                    env = (
+                        dict(os.environ)
+                        if args.blas_free
+                        else {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+                    )
                     if mode == "before":
                         env["PYTHONPATH"] = args.before
                     save = f"{tmp}/{mode}_{nt}_{h}_{p}_{run}"
                     load = os.getloadavg()[0]
-                    proc = subprocess.run([sys.executable, __file__, "--child", mode, str(h), str(p), str(nt),
-                                           str(args.repeats), save], capture_output=True, text=True, env=env)
+                    proc = subprocess.run(
+                        [sys.executable, __file__, "--child", mode, str(h), str(p), str(nt), str(args.repeats), save],
+                        capture_output=True,
+                        text=True,
+                        env=env,
+                    )
                     line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("BENCH ")), None)
                     if line is None:
                         sys.stderr.write(proc.stderr[-2000:])

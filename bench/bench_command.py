@@ -44,20 +44,32 @@ VARIANTS: dict[str, tuple[list[str], str]] = {
     "plot-here": ([], "default, the plot drawn in the run's process (NGBET_PLOT_PROCESS=never)"),
     "no-estimate": (["outputs.error_estimate=off"], "without the error estimate"),
     "no-estimate-vtk": (["outputs.error_estimate=off", "outputs.vtk=false"], "… and without the VTK file"),
-    "bare": (["outputs.error_estimate=off", "outputs.vtk=false", "outputs.plot=false"],
-             "… and without the plot: start-up, imports, mesh, setup, solve, CSV/JSON"),
+    "bare": (
+        ["outputs.error_estimate=off", "outputs.vtk=false", "outputs.plot=false"],
+        "… and without the plot: start-up, imports, mesh, setup, solve, CSV/JSON",
+    ),
     "interpret": (["solver.compile=interpret"], "default with the interpreted energy"),
     "native": (["solver.compile=native"], "default with the native energy (cached objects)"),
     "no-bending": (["effects.bending=false"], "the first-gradient model (fewer effects: should cost less)"),
     "accuracy-1e-2": (["discretization.target_error=1e-2"], "ngbet run --accuracy 1e-2 (the accuracy ladder)"),
     "accuracy-1e-3": (["discretization.target_error=1e-3"], "ngbet run --accuracy 1e-3 (target: 2x default)"),
     "accuracy-1e-4": (["discretization.target_error=1e-4"], "ngbet run --accuracy 1e-4 (target: 15x default)"),
-    "network-17k": (["model=discrete", "discrete.spacing_mm=2.4"],
-                    "the yarn network of 16 890 unknowns to 56 mm, with its figures (target: 4 s)"),
+    "network-17k": (
+        ["model=discrete", "discrete.spacing_mm=2.4"],
+        "the yarn network of 16 890 unknowns to 56 mm, with its figures (target: 4 s)",
+    ),
 }
 #: the variants run when none are named (the others are the targets' variants, named explicitly)
-DEFAULT_VARIANTS = ["default", "plot-process", "plot-here", "no-estimate", "no-estimate-vtk", "bare", "interpret",
-                    "native"]
+DEFAULT_VARIANTS = [
+    "default",
+    "plot-process",
+    "plot-here",
+    "no-estimate",
+    "no-estimate-vtk",
+    "bare",
+    "interpret",
+    "native",
+]
 PLOT_PROCESS = {"plot-process": "always", "plot-here": "never"}
 
 
@@ -99,8 +111,23 @@ def run_variant(name: str, env: dict[str, str], python: str = sys.executable) ->
         summary = Path(tmp) / "run" / "summary.json"
         if summary.exists():
             s = json.loads(summary.read_text())
-            rec.update({k: s.get(k) for k in ("setup_s", "solve_s", "estimate_s", "wall_s", "timers", "counts",
-                                              "newton_iterations", "dofs", "force_N", "compile_mode")})
+            rec.update(
+                {
+                    k: s.get(k)
+                    for k in (
+                        "setup_s",
+                        "solve_s",
+                        "estimate_s",
+                        "wall_s",
+                        "timers",
+                        "counts",
+                        "newton_iterations",
+                        "dofs",
+                        "force_N",
+                        "compile_mode",
+                    )
+                }
+            )
             rec["run_wall_s"] = rec.pop("wall_s")
             rec["wall_s"] = wall
             rec["forces"] = _forces(Path(tmp) / "run" / "results.csv")
@@ -119,8 +146,12 @@ def _forces(path: Path) -> list[float]:
 def imports(env: dict[str, str]) -> dict:
     """Wall time of ``python -c 'import ngbet.cli'`` and ``'import ngsolve'`` (fresh processes)."""
     out = {}
-    for label, code in (("python", "pass"), ("ngbet.cli", "import ngbet.cli"), ("ngsolve", "import ngsolve"),
-                        ("matplotlib.pyplot", "import matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot")):
+    for label, code in (
+        ("python", "pass"),
+        ("ngbet.cli", "import ngbet.cli"),
+        ("ngsolve", "import ngsolve"),
+        ("matplotlib.pyplot", "import matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot"),
+    ):
         with tempfile.TemporaryDirectory() as tmp:
             out[label] = _child([sys.executable, "-c", code], env, tmp)[0]
     return out
@@ -138,8 +169,10 @@ def _ratios_to_default(records: list[dict], names: list[str]) -> None:
     base = [r for r in records if r["variant"] == "default"]
     for name in [n for n in names if n != "default" and not n.startswith("before:")]:
         a = [r for r in records if r["variant"] == name]
-        print(f"{name} / default: wall {_median(a, 'wall_s') / _median(base, 'wall_s'):.2f}, "
-              f"CPU {_median(a, 'cpu_s') / _median(base, 'cpu_s'):.2f} (exit codes {sorted({r['rc'] for r in a})})")
+        print(
+            f"{name} / default: wall {_median(a, 'wall_s') / _median(base, 'wall_s'):.2f}, "
+            f"CPU {_median(a, 'cpu_s') / _median(base, 'cpu_s'):.2f} (exit codes {sorted({r['rc'] for r in a})})"
+        )
 
 
 def main() -> None:
@@ -148,8 +181,11 @@ def main() -> None:
     ap.add_argument("--variants", default=",".join(DEFAULT_VARIANTS))
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--cache", help="NGBET_CACHE_DIR for the runs (default: as set, else ngbet's)")
-    ap.add_argument("--before", help="a source tree of ngbet: each variant also runs with it (PYTHONPATH; "
-                    "with the tree's own .venv/bin/python when it has one)")
+    ap.add_argument(
+        "--before",
+        help="a source tree of ngbet: each variant also runs with it (PYTHONPATH; "
+        "with the tree's own .venv/bin/python when it has one)",
+    )
     ap.add_argument("--list", action="store_true")
     args = ap.parse_args()
     if args.list:
@@ -163,12 +199,16 @@ def main() -> None:
     envs = {name: env for name in names}
     pythons = dict.fromkeys(names, sys.executable)
     if args.before:
-        envs.update({f"before:{n}": {**env, "PYTHONPATH": args.before} for n in names
-                     if n != "native" and n not in PLOT_PROCESS})  # the older tree has neither
+        envs.update(
+            {
+                f"before:{n}": {**env, "PYTHONPATH": args.before}
+                for n in names
+                if n != "native" and n not in PLOT_PROCESS
+            }
+        )  # the older tree has neither
         venv = Path(args.before) / ".venv" / "bin" / "python"
         pythons.update({f"before:{n}": str(venv) if venv.exists() else sys.executable for n in names})
-        names = [n for pair in zip(names, [f"before:{n}" for n in names], strict=True) for n in pair
-                 if n in envs]
+        names = [n for pair in zip(names, [f"before:{n}" for n in names], strict=True) for n in pair if n in envs]
     records: list[dict] = []
     if "native" in names:  # the first native run may compile: reported apart
         records.append({**run_variant("native", env), "variant": "native-first"})
@@ -180,27 +220,35 @@ def main() -> None:
     OUT.mkdir(exist_ok=True)
     stamp = time.strftime("%Y%m%dT%H%M%S")
     (OUT / f"bench_command_{stamp}.json").write_text(json.dumps(records, indent=1))
-    print("\n| variant | wall [s] | min wall [s] | CPU [s] | setup [s] | solve [s] | estimate [s] | assembly [s] "
-          "| peak RSS [MB] | load | F(56) [N] |")
+    print(
+        "\n| variant | wall [s] | min wall [s] | CPU [s] | setup [s] | solve [s] | estimate [s] | assembly [s] "
+        "| peak RSS [MB] | load | F(56) [N] |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in names + (["native-first"] if "native" in names else []):
         rs = [r for r in records if r["variant"] == name]
         asm = statistics.median([r["timers"]["assembly_s"] for r in rs if r.get("timers")] or [float("nan")])
         f = rs[-1].get("force_N")
-        print(f"| {name} | {_median(rs, 'wall_s'):.2f} | {min(r['wall_s'] for r in rs):.2f} | "
-              f"{_median(rs, 'cpu_s'):.2f} | {_median(rs, 'setup_s'):.2f} | "
-              f"{_median(rs, 'solve_s'):.2f} | {_median(rs, 'estimate_s'):.2f} | {asm:.3f} | "
-              f"{_median(rs, 'peak_rss_mb'):.0f} | {_median(rs, 'load'):.1f} | {f} |")
+        print(
+            f"| {name} | {_median(rs, 'wall_s'):.2f} | {min(r['wall_s'] for r in rs):.2f} | "
+            f"{_median(rs, 'cpu_s'):.2f} | {_median(rs, 'setup_s'):.2f} | "
+            f"{_median(rs, 'solve_s'):.2f} | {_median(rs, 'estimate_s'):.2f} | {asm:.3f} | "
+            f"{_median(rs, 'peak_rss_mb'):.0f} | {_median(rs, 'load'):.1f} | {f} |"
+        )
     for name in [n for n in names if f"before:{n}" in names] + [n for n in PLOT_PROCESS if n in names]:
         ref = f"before:{name}" if f"before:{name}" in names else "before:default"
         if ref in names:
             a, b = ([r for r in records if r["variant"] == v] for v in (name, ref))
-            print(f"{name} / {ref}: wall {_median(a, 'wall_s') / _median(b, 'wall_s'):.2f}, "
-                  f"CPU {_median(a, 'cpu_s') / _median(b, 'cpu_s'):.2f}")
+            print(
+                f"{name} / {ref}: wall {_median(a, 'wall_s') / _median(b, 'wall_s'):.2f}, "
+                f"CPU {_median(a, 'cpu_s') / _median(b, 'cpu_s'):.2f}"
+            )
     _ratios_to_default(records, names)
     imp = [r for r in records if r["variant"] == "imports"]
-    print("imports (median wall of a fresh process):",
-          {k: round(statistics.median(r[k] for r in imp), 3) for k in imp[0] if k != "variant"})
+    print(
+        "imports (median wall of a fresh process):",
+        {k: round(statistics.median(r[k] for r in imp), 3) for k in imp[0] if k != "variant"},
+    )
 
 
 if __name__ == "__main__":

@@ -46,50 +46,93 @@ OUT = HERE / "out"
 #: name -> (scene changes, what it shows)
 CASES: dict[str, tuple[dict, str]] = {
     "default": ({}, "paper scene: Lagrange (condensed), h = 5 mm, p = 2, u0 = 56 mm"),
-    "penalty-mixed": ({"effects.constraint": "penalty", "effects.penalty_K": 1e8, "effects.penalty_form": "mixed"},
-                      "mixed penalty K = 1e8 Pa (Λ condensed)"),
-    "penalty-full": ({"effects.constraint": "penalty", "effects.penalty_K": 1e8, "effects.penalty_form": "full"},
-                     "full penalty K = 1e8 Pa (solved in its mixed form, Λ condensed)"),
-    "penalty-full-1e7": ({"effects.constraint": "penalty", "effects.penalty_K": 1e7, "effects.penalty_form": "full"},
-                         "K = 1e7 Pa, full penalty"),
+    "penalty-mixed": (
+        {"effects.constraint": "penalty", "effects.penalty_K": 1e8, "effects.penalty_form": "mixed"},
+        "mixed penalty K = 1e8 Pa (Λ condensed)",
+    ),
+    "penalty-full": (
+        {"effects.constraint": "penalty", "effects.penalty_K": 1e8, "effects.penalty_form": "full"},
+        "full penalty K = 1e8 Pa (solved in its mixed form, Λ condensed)",
+    ),
+    "penalty-full-1e7": (
+        {"effects.constraint": "penalty", "effects.penalty_K": 1e7, "effects.penalty_form": "full"},
+        "K = 1e7 Pa, full penalty",
+    ),
     "h10": ({"discretization.mesh_size_mm": 10.0}, "coarse mesh 10 mm"),
     "h2.5": ({"discretization.mesh_size_mm": 2.5}, "fine mesh 2.5 mm"),
     "h2": ({"discretization.mesh_size_mm": 2.0}, "fine mesh 2 mm (62 851 dofs; native code from the cache)"),
-    "h2-interpret": ({"discretization.mesh_size_mm": 2.0, "solver.compile": "interpret"},
-                     "fine mesh 2 mm, interpreted"),
-    "h2-no-estimate": ({"discretization.mesh_size_mm": 2.0, "outputs.error_estimate": "off"},
-                       "fine mesh 2 mm without the error estimate (the solve alone)"),
-    "h2-auto-threads": ({"discretization.mesh_size_mm": 2.0, "solver.threads": "auto"},
-                        "fine mesh 2 mm, solver.threads = auto (assembly threads on idle cores)"),
-    "h2-threads2": ({"discretization.mesh_size_mm": 2.0, "solver.threads": 2, "outputs.error_estimate": "off"},
-                    "fine mesh 2 mm, two threads throughout, no estimate"),
-    "h2-split": ({"discretization.mesh_size_mm": 2.0, "bench.assembly_threads": 2, "outputs.error_estimate": "off"},
-                 "fine mesh 2 mm, no estimate, the run serial and each linearization on two threads "
-                 "(what solver.threads = auto does on an idle machine)"),
+    "h2-interpret": (
+        {"discretization.mesh_size_mm": 2.0, "solver.compile": "interpret"},
+        "fine mesh 2 mm, interpreted",
+    ),
+    "h2-no-estimate": (
+        {"discretization.mesh_size_mm": 2.0, "outputs.error_estimate": "off"},
+        "fine mesh 2 mm without the error estimate (the solve alone)",
+    ),
+    "h2-auto-threads": (
+        {"discretization.mesh_size_mm": 2.0, "solver.threads": "auto"},
+        "fine mesh 2 mm, solver.threads = auto (assembly threads on idle cores)",
+    ),
+    "h2-threads2": (
+        {"discretization.mesh_size_mm": 2.0, "solver.threads": 2, "outputs.error_estimate": "off"},
+        "fine mesh 2 mm, two threads throughout, no estimate",
+    ),
+    "h2-split": (
+        {"discretization.mesh_size_mm": 2.0, "bench.assembly_threads": 2, "outputs.error_estimate": "off"},
+        "fine mesh 2 mm, no estimate, the run serial and each linearization on two threads "
+        "(what solver.threads = auto does on an idle machine)",
+    ),
     "p1": ({"discretization.order_u": 1}, "p = 1 (Λ order 0)"),
     "p3": ({"discretization.order_u": 3}, "p = 3"),
     "p4": ({"discretization.order_u": 4}, "p = 4"),
     "umfpack": ({"solver.linear_solver": "umfpack"}, "default scene, UMFPACK (LU) on the condensed matrix"),
     "pardiso": ({"solver.linear_solver": "pardiso"}, "default scene, PARDISO (MKL) on the condensed matrix"),
-    "uncondensed": ({"solver.condense": False, "solver.linear_solver": "umfpack"},
-                    "exact saddle point, Λ not condensed, UMFPACK"),
+    "uncondensed": (
+        {"solver.condense": False, "solver.linear_solver": "umfpack"},
+        "exact saddle point, Λ not condensed, UMFPACK",
+    ),
     "threads1": ({"solver.threads": 1}, "default scene on one thread"),
-    "no-simplified-exit": ({"newton.simplified_theta": 0.0},
-                           "default scene without the simplified-Newton exit (a last linearization per step)"),
-    "steps28": ({"loading.first_step_mm": 16.0, "loading.max_step_mm": 28.0},
-                "default scene, first step 16 mm, steps up to 28 mm (3 load steps: 16, 37, 56)"),
-    "recommended": ({"loading.first_step_mm": 16.0, "loading.max_step_mm": 28.0, "solver.threads": 1},
-                    "default scene with the proposed settings: steps28 on one thread"),
-    "recommended-penalty": ({"loading.first_step_mm": 16.0, "loading.max_step_mm": 28.0, "solver.threads": 1,
-                             "effects.constraint": "penalty", "effects.penalty_K": 1e8},
-                            "mixed penalty K = 1e8 Pa with the proposed settings"),
-    "penalty-full-1e10-h10": ({"effects.constraint": "penalty", "effects.penalty_K": 1e10,
-                               "effects.penalty_form": "full", "discretization.mesh_size_mm": 10.0},
-                              "full penalty K = 1e10 Pa, h = 10 mm (solved in its mixed form)"),
-    "penalty-full-1e10-h10-uncondensed": ({"effects.constraint": "penalty", "effects.penalty_K": 1e10,
-                                           "effects.penalty_form": "full", "solver.condense": False,
-                                           "discretization.mesh_size_mm": 10.0},
-                                          "full penalty K = 1e10 Pa, h = 10 mm, Λ not condensed (same solution)"),
+    "no-simplified-exit": (
+        {"newton.simplified_theta": 0.0},
+        "default scene without the simplified-Newton exit (a last linearization per step)",
+    ),
+    "steps28": (
+        {"loading.first_step_mm": 16.0, "loading.max_step_mm": 28.0},
+        "default scene, first step 16 mm, steps up to 28 mm (3 load steps: 16, 37, 56)",
+    ),
+    "recommended": (
+        {"loading.first_step_mm": 16.0, "loading.max_step_mm": 28.0, "solver.threads": 1},
+        "default scene with the proposed settings: steps28 on one thread",
+    ),
+    "recommended-penalty": (
+        {
+            "loading.first_step_mm": 16.0,
+            "loading.max_step_mm": 28.0,
+            "solver.threads": 1,
+            "effects.constraint": "penalty",
+            "effects.penalty_K": 1e8,
+        },
+        "mixed penalty K = 1e8 Pa with the proposed settings",
+    ),
+    "penalty-full-1e10-h10": (
+        {
+            "effects.constraint": "penalty",
+            "effects.penalty_K": 1e10,
+            "effects.penalty_form": "full",
+            "discretization.mesh_size_mm": 10.0,
+        },
+        "full penalty K = 1e10 Pa, h = 10 mm (solved in its mixed form)",
+    ),
+    "penalty-full-1e10-h10-uncondensed": (
+        {
+            "effects.constraint": "penalty",
+            "effects.penalty_K": 1e10,
+            "effects.penalty_form": "full",
+            "solver.condense": False,
+            "discretization.mesh_size_mm": 10.0,
+        },
+        "full penalty K = 1e10 Pa, h = 10 mm, Λ not condensed (same solution)",
+    ),
 }
 DEFAULT_CASES = ["default"]
 
@@ -145,21 +188,35 @@ def _child(case: str, extra: dict) -> dict:
     per_lin = (tm.get("assembly_s", 0) + tm.get("factorization_s", 0)) / nfac
     newton_s = sum(tm.get(k, 0.0) for k in ("assembly_s", "factorization_s", "solve_s", "residual_s"))
     return {
-        "case": case, "changes": {**changes, **{f"newton.{k}": v for k, v in newton.items()}},
-        "status": status, "error": error,
-        "wall_s": wall, "cpu_s": cpu, "import_s": t_import, "setup_s": s.get("setup_s"),
-        "load_steps": s.get("load_steps", s.get("steps")), "newton_iterations": s.get("newton_iterations"),
-        "step_cuts": s.get("step_cuts"), "u0_reached_mm": s.get("u0_reached_mm"), "force_N": force,
-        "dofs": s.get("dofs", {}).get("total"), "dofs_factorized": s.get("dofs", {}).get("factorized"),
-        "linear_solver": s.get("linear_solver"), "threads": s.get("threads"),
-        "newton_s": newton_s, "timers": tm, "counts": cn,
+        "case": case,
+        "changes": {**changes, **{f"newton.{k}": v for k, v in newton.items()}},
+        "status": status,
+        "error": error,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "import_s": t_import,
+        "setup_s": s.get("setup_s"),
+        "load_steps": s.get("load_steps", s.get("steps")),
+        "newton_iterations": s.get("newton_iterations"),
+        "step_cuts": s.get("step_cuts"),
+        "u0_reached_mm": s.get("u0_reached_mm"),
+        "force_N": force,
+        "dofs": s.get("dofs", {}).get("total"),
+        "dofs_factorized": s.get("dofs", {}).get("factorized"),
+        "linear_solver": s.get("linear_solver"),
+        "threads": s.get("threads"),
+        "newton_s": newton_s,
+        "timers": tm,
+        "counts": cn,
         "per_iteration_s": {k.removesuffix("_s"): v / its for k, v in tm.items()},
         "assembly_per_linearization_s": tm.get("assembly_s", 0) / nfac,
         "factorization_per_linearization_s": tm.get("factorization_s", 0) / nfac,
         "iteration_over_linearization": (newton_s / its) / per_lin if per_lin > 0 else None,
         "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-        "load_avg_1min": load, "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
-        "git": s.get("git_revision"), "versions": s.get("versions"),
+        "load_avg_1min": load,
+        "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        "git": s.get("git_revision"),
+        "versions": s.get("versions"),
     }
 
 
@@ -184,8 +241,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cases", default=",".join(DEFAULT_CASES), help="comma-separated case names, or 'all'")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="extra scene change applied to every case (e.g. solver.threads=1)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="extra scene change applied to every case (e.g. solver.threads=1)",
+    )
     ap.add_argument("--list", action="store_true", help="list the cases and exit")
     ap.add_argument("--before", metavar="DIR", help="also run each case in an older source tree (case 'before:NAME')")
     ap.add_argument("--child", help=argparse.SUPPRESS)
@@ -224,16 +286,22 @@ def main() -> None:
             records.append(rec)
             with (OUT / "bench_continuum.jsonl").open("a") as fh:
                 fh.write(json.dumps(rec) + "\n")
-            print(f"  [{rep + 1}/{args.repeats}] {name}: {rec['status']} wall {rec['wall_s']:.2f} s, "
-                  f"newton {rec['newton_s']:.2f} s, load {rec['load_avg_1min']:.1f}", file=sys.stderr, flush=True)
+            print(
+                f"  [{rep + 1}/{args.repeats}] {name}: {rec['status']} wall {rec['wall_s']:.2f} s, "
+                f"newton {rec['newton_s']:.2f} s, load {rec['load_avg_1min']:.1f}",
+                file=sys.stderr,
+                flush=True,
+            )
     (OUT / f"bench_continuum_{stamp}.json").write_text(json.dumps(records, indent=1))
     print(table(records, names + [f"before:{n}" for n in names if args.before]))
 
 
 def table(records: list[dict], names: list[str]) -> str:
-    head = ("| case | status | wall [s] | CPU [s] | Newton [s] | steps | its | it/step | dofs (fact.) | "
-            "assembly/it [ms] | factor/it [ms] | solve/it [ms] | residual/it [ms] | it / (asm+fact) | "
-            "peak RSS [MB] | F(u0) [N] | load |")
+    head = (
+        "| case | status | wall [s] | CPU [s] | Newton [s] | steps | its | it/step | dofs (fact.) | "
+        "assembly/it [ms] | factor/it [ms] | solve/it [ms] | residual/it [ms] | it / (asm+fact) | "
+        "peak RSS [MB] | F(u0) [N] | load |"
+    )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for n in names:
         rs = [r for r in records if r["case"] == n]
@@ -248,7 +316,8 @@ def table(records: list[dict], names: list[str]) -> str:
             f"{1e3 * _med(rs, 'per_iteration_s', 'factorization'):.0f} | "
             f"{1e3 * _med(rs, 'per_iteration_s', 'solve'):.0f} | {1e3 * _med(rs, 'per_iteration_s', 'residual'):.0f} | "
             f"{_med(rs, 'iteration_over_linearization'):.2f} | {_med(rs, 'peak_rss_MB'):.0f} | "
-            f"{_med(rs, 'force_N'):.3f} | {_med(rs, 'load_avg_1min'):.1f} |")
+            f"{_med(rs, 'force_N'):.3f} | {_med(rs, 'load_avg_1min'):.1f} |"
+        )
     return "\n".join(lines)
 
 

@@ -94,8 +94,9 @@ def per_iteration(scene: Scene, args: argparse.Namespace, rec: dict) -> None:
                     # warm start as in the run: the modes of the previous step, here perturbed by 1 %
                     X0 = V + 1e-2 * np.abs(V).max() * np.random.default_rng(1).standard_normal(V.shape)
                     rec["t_stability_s"] = median_time(partial(lowest_eigenvalues, lin, 2), max(1, args.repeats // 2))
-                    rec["t_stability_warm_s"] = median_time(partial(lowest_eigenvalues, lin, 2, X0),
-                                                            max(1, args.repeats // 2))
+                    rec["t_stability_warm_s"] = median_time(
+                        partial(lowest_eigenvalues, lin, 2, X0), max(1, args.repeats // 2)
+                    )
                     rec["t_stability_arpack_s"] = median_time(partial(lowest_eigenvalues_arpack, lin, 2), 1)
                     lam_ref = lowest_eigenvalues_arpack(lin, 2)[0]
                     rec["lambda_min"], rec["lambda_min_arpack"] = float(lam[0]), float(lam_ref[0])
@@ -103,8 +104,12 @@ def per_iteration(scene: Scene, args: argparse.Namespace, rec: dict) -> None:
             rec["backends"][name] = {"error": str(exc)[:200]}
             continue
         ref = x if ref is None else ref
-        rec["backends"][name] = {"t_first_factor_s": t_first, "t_factor_s": t_fac, "t_solve_s": t_sol,
-                                 "rel_diff_to_first": float(np.linalg.norm(x - ref) / np.linalg.norm(ref))}
+        rec["backends"][name] = {
+            "t_first_factor_s": t_first,
+            "t_factor_s": t_fac,
+            "t_solve_s": t_sol,
+            "rel_diff_to_first": float(np.linalg.norm(x - ref) / np.linalg.norm(ref)),
+        }
         if backend == "sparsecholesky":
             rec[f"t_iteration_{threads}thread_s"] = rec["t_assembly_s"] + t_fac + t_sol
     ngs.SetNumThreads(1)
@@ -114,8 +119,9 @@ def full_run(scene: Scene, threads: int, tag: str, linear_solver: str = "auto") 
     from ngbet.runner.discrete import run_discrete as run
 
     folder = Path(__file__).parent / "out" / f"run_{tag}"
-    full = scene.with_changes(**{"loading.u0_mm": 56.0, "solver.threads": threads,
-                                 "solver.linear_solver": linear_solver})
+    full = scene.with_changes(
+        **{"loading.u0_mm": 56.0, "solver.threads": threads, "solver.linear_solver": linear_solver}
+    )
     load = os.getloadavg()[0]
     t = time.perf_counter()
     c = time.process_time()
@@ -124,37 +130,58 @@ def full_run(scene: Scene, threads: int, tag: str, linear_solver: str = "auto") 
         s = run(full, folder, progress=False)
     wall, cpu = time.perf_counter() - t, time.process_time() - c
     F = {round(r["u0_mm"], 6): r["force_N"] for r in read_rows(folder / "results.csv")}
-    return {"threads": threads, "wall_s": wall, "cpu_s": cpu, "load": load, "status": s["status"],
-            "steps": s.get("steps"), "newton_iterations": s["newton_iterations_total"],
-            "snap_events": s["snap_event_count"], "t_stability_s": s.get("t_stability_s"),
-            "factorizations": s.get("factorizations"), "failed_steps": s.get("failed_steps"),
-            "backend": s.get("backend"), "factorizations_ldlt": s.get("factorizations_ldlt"),
-            "work_by_cause": s.get("work_by_cause"), "timers": s.get("timers"),
-            "snap_events_list": s.get("snap_events"), "max_slip_mm": s.get("max_slip_mm"),
-            "F37_N": F.get(37.0), "F56_N": F.get(56.0)}
+    return {
+        "threads": threads,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "load": load,
+        "status": s["status"],
+        "steps": s.get("steps"),
+        "newton_iterations": s["newton_iterations_total"],
+        "snap_events": s["snap_event_count"],
+        "t_stability_s": s.get("t_stability_s"),
+        "factorizations": s.get("factorizations"),
+        "failed_steps": s.get("failed_steps"),
+        "backend": s.get("backend"),
+        "factorizations_ldlt": s.get("factorizations_ldlt"),
+        "work_by_cause": s.get("work_by_cause"),
+        "timers": s.get("timers"),
+        "snap_events_list": s.get("snap_events"),
+        "max_slip_mm": s.get("max_slip_mm"),
+        "F37_N": F.get(37.0),
+        "F56_N": F.get(56.0),
+    }
 
 
 def print_run(fr: dict) -> None:
-    print(f"full run to 56 mm, {fr['threads']} thread(s), load {fr['load']:.2f}: wall {fr['wall_s']:.1f} s "
-          f"(CPU {fr['cpu_s']:.1f} s), {fr['status']}, steps {fr['steps']}, Newton iterations "
-          f"{fr['newton_iterations']}, factorizations {fr['factorizations']} ({fr.get('backend')}; "
-          f"{fr.get('factorizations_ldlt')} by the LDL^T), failed steps {fr['failed_steps']}, "
-          f"snap events {fr['snap_events']}, largest slip {fr['max_slip_mm']:.3f} mm, "
-          f"F(37) {fr['F37_N']:.6f} N, F(56) {fr['F56_N']:.6f} N")
+    print(
+        f"full run to 56 mm, {fr['threads']} thread(s), load {fr['load']:.2f}: wall {fr['wall_s']:.1f} s "
+        f"(CPU {fr['cpu_s']:.1f} s), {fr['status']}, steps {fr['steps']}, Newton iterations "
+        f"{fr['newton_iterations']}, factorizations {fr['factorizations']} ({fr.get('backend')}; "
+        f"{fr.get('factorizations_ldlt')} by the LDL^T), failed steps {fr['failed_steps']}, "
+        f"snap events {fr['snap_events']}, largest slip {fr['max_slip_mm']:.3f} mm, "
+        f"F(37) {fr['F37_N']:.6f} N, F(56) {fr['F56_N']:.6f} N"
+    )
     for ev in fr.get("snap_events_list") or []:
-        print(f"  snap: {ev.get('u0_before', float('nan')) * 1e3:.3f} -> {ev['u0'] * 1e3:.3f} mm, {ev['kind']}, "
-              f"released {ev.get('released_J', float('nan')):.3g} J")
+        print(
+            f"  snap: {ev.get('u0_before', float('nan')) * 1e3:.3f} -> {ev['u0'] * 1e3:.3f} mm, {ev['kind']}, "
+            f"released {ev.get('released_J', float('nan')):.3g} J"
+        )
     print(f"  {'cause':50s} {'calls':>5s} {'fact':>5s} {'shift':>5s} {'solves':>6s} {'its':>5s} {'time [s]':>8s}")
     for cause, r in (fr.get("work_by_cause") or {}).items():
-        print(f"  {cause:50s} {r['calls']:5d} {r['factorizations']:5d} {r['shift_factorizations']:5d} "
-              f"{r.get('solves', -1):6d} {r['iterations']:5d} {r['time_s']:8.2f}")
+        print(
+            f"  {cause:50s} {r['calls']:5d} {r['factorizations']:5d} {r['shift_factorizations']:5d} "
+            f"{r.get('solves', -1):6d} {r['iterations']:5d} {r['time_s']:8.2f}"
+        )
     t = fr.get("timers") or {}
     if t:
-        print(f"  timers: assembly {t['assembly_s']:.2f} s / {t['assemblies']} "
-              f"({1e3 * t['assembly_s'] / max(t['assemblies'], 1):.1f} ms), "
-              f"gradient only {t['gradient_only_s']:.2f} s, "
-              f"factorization {t['factor_s']:.2f} s ({1e3 * t['factor_s'] / max(fr['factorizations'], 1):.1f} ms), "
-              f"solve {t['solve_s']:.2f} s / {t['solves']} ({1e3 * t['solve_s'] / max(t['solves'], 1):.1f} ms)")
+        print(
+            f"  timers: assembly {t['assembly_s']:.2f} s / {t['assemblies']} "
+            f"({1e3 * t['assembly_s'] / max(t['assemblies'], 1):.1f} ms), "
+            f"gradient only {t['gradient_only_s']:.2f} s, "
+            f"factorization {t['factor_s']:.2f} s ({1e3 * t['factor_s'] / max(fr['factorizations'], 1):.1f} ms), "
+            f"solve {t['solve_s']:.2f} s / {t['solves']} ({1e3 * t['solve_s'] / max(t['solves'], 1):.1f} ms)"
+        )
 
 
 def main() -> None:
@@ -169,8 +196,9 @@ def main() -> None:
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
 
-    scene = Scene().with_changes(**{"model": "discrete", "discrete.spacing_mm": args.spacing, "loading.u0_mm": 20.0,
-                                    "outputs.plot": False})
+    scene = Scene().with_changes(
+        **{"model": "discrete", "discrete.spacing_mm": args.spacing, "loading.u0_mm": 20.0, "outputs.plot": False}
+    )
     rec: dict = {"spacing_mm": args.spacing, "repeats": args.repeats}
     if not args.run_only:
         per_iteration(scene, args, rec)
@@ -188,25 +216,33 @@ def main() -> None:
     path.write_text(json.dumps(rec, indent=2))
     if "dofs" in rec:
         print(f"{rec['dofs']} dofs ({rec['free_dofs']} free), nnz {rec['nnz']}")
-        print(f"assembly (E, g, K): {rec['t_assembly_s'] * 1e3:.1f} ms   "
-              f"(E, g only: {rec['t_gradient_only_s'] * 1e3:.1f} ms)")
+        print(
+            f"assembly (E, g, K): {rec['t_assembly_s'] * 1e3:.1f} ms   "
+            f"(E, g only: {rec['t_gradient_only_s'] * 1e3:.1f} ms)"
+        )
         for name, r in rec["backends"].items():
             if "error" in r:
                 print(f"{name:28s} unavailable: {r['error'][:80]}")
             else:
-                print(f"{name:28s} factor {r['t_factor_s'] * 1e3:7.1f} ms (first {r['t_first_factor_s'] * 1e3:7.1f}) "
-                      f"solve {r['t_solve_s'] * 1e3:6.2f} ms  rel.diff {r['rel_diff_to_first']:.1e}")
+                print(
+                    f"{name:28s} factor {r['t_factor_s'] * 1e3:7.1f} ms (first {r['t_first_factor_s'] * 1e3:7.1f}) "
+                    f"solve {r['t_solve_s'] * 1e3:6.2f} ms  rel.diff {r['rel_diff_to_first']:.1e}"
+                )
         for th in (1, 2):
             b = rec["backends"].get(f"sparsecholesky ({th} thread{'s' if th > 1 else ''})", {})
             if f"t_iteration_{th}thread_s" in rec:
-                print(f"Newton iteration (sparsecholesky, {th} thread{'s' if th > 1 else ''}): "
-                      f"{rec[f't_iteration_{th}thread_s'] * 1e3:.1f} ms = assembly {rec['t_assembly_s'] * 1e3:.1f} "
-                      f"+ factorization {b['t_factor_s'] * 1e3:.1f} + solve {b['t_solve_s'] * 1e3:.1f}")
+                print(
+                    f"Newton iteration (sparsecholesky, {th} thread{'s' if th > 1 else ''}): "
+                    f"{rec[f't_iteration_{th}thread_s'] * 1e3:.1f} ms = assembly {rec['t_assembly_s'] * 1e3:.1f} "
+                    f"+ factorization {b['t_factor_s'] * 1e3:.1f} + solve {b['t_solve_s'] * 1e3:.1f}"
+                )
         if "t_stability_s" in rec:
-            print(f"stability check: {rec['t_stability_s'] * 1e3:.1f} ms cold, "
-                  f"{rec['t_stability_warm_s'] * 1e3:.1f} ms warm, ARPACK {rec['t_stability_arpack_s'] * 1e3:.1f} ms; "
-                  f"lambda_min {rec['lambda_min']:.6g} "
-                  f"(ARPACK {rec['lambda_min_arpack']:.6g})")
+            print(
+                f"stability check: {rec['t_stability_s'] * 1e3:.1f} ms cold, "
+                f"{rec['t_stability_warm_s'] * 1e3:.1f} ms warm, ARPACK {rec['t_stability_arpack_s'] * 1e3:.1f} ms; "
+                f"lambda_min {rec['lambda_min']:.6g} "
+                f"(ARPACK {rec['lambda_min_arpack']:.6g})"
+            )
     print(f"record: {path}")
 
 

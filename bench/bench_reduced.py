@@ -73,8 +73,16 @@ def one_run(bending: bool, jamming: bool = True, everywhere: bool = False) -> di
     def watched() -> None:
         s = float(np.min(np.asarray(sine(points))))
         angle = math.degrees(math.asin(max(-1.0, min(1.0, s))))
-        angles.append((solver.lam * 1e3, angle, jam.on, solver.counts["factorizations"],
-                       time.process_time() - c0, int(jam.elements.NumSet())))
+        angles.append(
+            (
+                solver.lam * 1e3,
+                angle,
+                jam.on,
+                solver.counts["factorizations"],
+                time.process_time() - c0,
+                int(jam.elements.NumSet()),
+            )
+        )
         original()
 
     solver.converged = watched  # type: ignore[method-assign]
@@ -86,12 +94,20 @@ def one_run(bending: bool, jamming: bool = True, everywhere: bool = False) -> di
             steps.append((rec.u0 * 1e3, rec.iterations, rec.reason))
     except StopIteration as done:
         res = done.value
-    return {"bending": bending, "jamming": jamming, "everywhere": everywhere, "angles": angles,
-            "relaxed_mm": [u for u, _, why in steps if why.startswith("relaxed")], "steps": steps,
-            "u0_mm": res.u0 * 1e3,
-            "cuts": res.cuts, "counts": solver.counts, "cpu_s": time.process_time() - c0,
-            "wall_s": time.perf_counter() - t0,
-            "jamming_angle_deg": scene.material.jamming_angle_deg}
+    return {
+        "bending": bending,
+        "jamming": jamming,
+        "everywhere": everywhere,
+        "angles": angles,
+        "relaxed_mm": [u for u, _, why in steps if why.startswith("relaxed")],
+        "steps": steps,
+        "u0_mm": res.u0 * 1e3,
+        "cuts": res.cuts,
+        "counts": solver.counts,
+        "cpu_s": time.process_time() - c0,
+        "wall_s": time.perf_counter() - t0,
+        "jamming_angle_deg": scene.material.jamming_angle_deg,
+    }
 
 
 def _label(r: dict) -> str:
@@ -116,14 +132,26 @@ def figure(runs: list[dict], path: Path) -> None:
         style = "--" if r.get("everywhere") else "-"
         if not r.get("everywhere"):
             ax.plot(a[:, 0], a[:, 1], "o-", ms=3, color=color, label=label)
-        bx.step(a[:, 0], a[:, 3], style, where="post", color=color,
-                label=f"{len(r['steps'])} steps, {r['cuts']} cut{'' if r['cuts'] == 1 else 's'}, "
-                      f"{r['counts']['factorizations']} factorizations")
+        bx.step(
+            a[:, 0],
+            a[:, 3],
+            style,
+            where="post",
+            color=color,
+            label=f"{len(r['steps'])} steps, {r['cuts']} cut{'' if r['cuts'] == 1 else 's'}, "
+            f"{r['counts']['factorizations']} factorizations",
+        )
         cx.step(a[:, 0], a[:, 4], style, where="post", color=color, label=f"{label}: {r['cpu_s']:.2f} s")
         for u in r.get("relaxed_mm", []) if not r.get("everywhere") else []:
-            ax.annotate(f"corner snaps shut at {u:.3g} mm\n(relaxed to a stable state)", (u, 4.0),
-                        xytext=(1.0, -62.0), textcoords="data", fontsize=8, color=color,
-                        arrowprops={"arrowstyle": "->", "color": color, "lw": 0.8})
+            ax.annotate(
+                f"corner snaps shut at {u:.3g} mm\n(relaxed to a stable state)",
+                (u, 4.0),
+                xytext=(1.0, -62.0),
+                textcoords="data",
+                fontsize=8,
+                color=color,
+                arrowprops={"arrowstyle": "->", "color": color, "lw": 0.8},
+            )
     ax.axhline(runs[0]["jamming_angle_deg"], color="k", lw=0.8, ls="--")
     ax.text(30.0, runs[0]["jamming_angle_deg"] + 2, "jamming angle", fontsize=8)
     ax.axhline(45.0, color="k", lw=0.6, ls=":")
@@ -152,10 +180,12 @@ def main() -> None:
     (OUT / f"bench_reduced_{stamp}.json").write_text(json.dumps(runs, indent=1))
     figure(runs, OUT / "reduced_scene.png")
     for r in runs:
-        print(f"{_label(r)}: {len(r['steps'])} steps to {r['u0_mm']:.4g} mm, "
-              f"{r['cuts']} cuts, "
-              f"{r['counts']}, CPU {r['cpu_s']:.2f} s, wall {r['wall_s']:.2f} s; smallest yarn angle "
-              f"{min(a[1] for a in r['angles']):.3g}°")
+        print(
+            f"{_label(r)}: {len(r['steps'])} steps to {r['u0_mm']:.4g} mm, "
+            f"{r['cuts']} cuts, "
+            f"{r['counts']}, CPU {r['cpu_s']:.2f} s, wall {r['wall_s']:.2f} s; smallest yarn angle "
+            f"{min(a[1] for a in r['angles']):.3g}°"
+        )
     print(f"figure: {OUT / 'reduced_scene.png'}")
 
 

@@ -46,9 +46,15 @@ def one(args: argparse.Namespace) -> dict:
     from ngbet.study.model import Study
     from ngbet.study.runner import run_study
 
-    changes = {"discretization.mesh_size_mm": 20.0, "discretization.order_u": 2,
-               "discretization.corner_mesh_size_mm": 0.0, "loading.u0_mm": 10.0, "loading.stops_mm": [],
-               "outputs.vtk": args.outputs, "outputs.plot": args.outputs}
+    changes = {
+        "discretization.mesh_size_mm": 20.0,
+        "discretization.order_u": 2,
+        "discretization.corner_mesh_size_mm": 0.0,
+        "loading.u0_mm": 10.0,
+        "loading.stops_mm": [],
+        "outputs.vtk": args.outputs,
+        "outputs.plot": args.outputs,
+    }
     try:
         base = default_scene().with_changes(**changes, **{"outputs.error_estimate": "off"})
     except SceneError:  # an older tree, without the error estimate
@@ -57,15 +63,29 @@ def one(args: argparse.Namespace) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         load = os.getloadavg()[0]
         t0 = time.perf_counter()
-        data = run_study(Study("bench", base, cases), out=Path(tmp) / "out", cache=Path(tmp) / "cache",
-                         workers=args.workers, progress=False)
+        data = run_study(
+            Study("bench", base, cases),
+            out=Path(tmp) / "out",
+            cache=Path(tmp) / "cache",
+            workers=args.workers,
+            progress=False,
+        )
         wall = time.perf_counter() - t0
-        runs = [json.loads((Path(tmp) / "cache" / c["key"] / "summary.json").read_text())["wall_s"]
-                for c in data.meta["cases"]]
-    return {"cases": args.cases, "workers": args.workers, "outputs": args.outputs, "study_wall_s": wall,
-            "case_run_s_median": statistics.median(runs), "case_run_s_sum": sum(runs),
-            "overhead_per_case_s": (wall * args.workers - sum(runs)) / args.cases,
-            "load": load, "mode": data.meta.get("executor", {}).get("mode")}
+        runs = [
+            json.loads((Path(tmp) / "cache" / c["key"] / "summary.json").read_text())["wall_s"]
+            for c in data.meta["cases"]
+        ]
+    return {
+        "cases": args.cases,
+        "workers": args.workers,
+        "outputs": args.outputs,
+        "study_wall_s": wall,
+        "case_run_s_median": statistics.median(runs),
+        "case_run_s_sum": sum(runs),
+        "overhead_per_case_s": (wall * args.workers - sum(runs)) / args.cases,
+        "load": load,
+        "mode": data.meta.get("executor", {}).get("mode"),
+    }
 
 
 def main() -> None:
@@ -75,8 +95,13 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--outputs", action="store_true", help="cases write their VTK file and plot too")
-    ap.add_argument("--tree", action="append", default=[], metavar="NAME=PATH",
-                    help="also run the study with the ngbet of this source tree (repeatable)")
+    ap.add_argument(
+        "--tree",
+        action="append",
+        default=[],
+        metavar="NAME=PATH",
+        help="also run the study with the ngbet of this source tree (repeatable)",
+    )
     ap.add_argument("--one", action="store_true", help=argparse.SUPPRESS)  # a child: one study, a JSON line
     ap.add_argument("--seed", type=float, default=0.0, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -94,8 +119,9 @@ def main() -> None:
     for rep in range(args.repeats):
         for name, (python, path) in trees.items():
             env = {**os.environ, **({"PYTHONPATH": path} if path else {})}
-            out = subprocess.run([python, *argv, "--seed", str(rep)], env=env, capture_output=True, text=True,
-                                 check=True).stdout
+            out = subprocess.run(
+                [python, *argv, "--seed", str(rep)], env=env, capture_output=True, text=True, check=True
+            ).stdout
             records.append({"tree": name, **json.loads(out.strip().splitlines()[-1])})
             print(json.dumps(records[-1]), flush=True)
     OUT.mkdir(exist_ok=True)
@@ -103,10 +129,14 @@ def main() -> None:
     print("\n| tree | study wall [s] | case run [s] | overhead per case [s] | load |\n|---|---|---|---|---|")
     for name in trees:
         rs = [r for r in records if r["tree"] == name]
-        med = {k: statistics.median(r[k] for r in rs) for k in ("study_wall_s", "case_run_s_median",
-                                                                 "overhead_per_case_s", "load")}
-        print(f"| {name} | {med['study_wall_s']:.2f} | {med['case_run_s_median']:.3f} | "
-              f"{med['overhead_per_case_s']:.3f} | {med['load']:.1f} |")
+        med = {
+            k: statistics.median(r[k] for r in rs)
+            for k in ("study_wall_s", "case_run_s_median", "overhead_per_case_s", "load")
+        }
+        print(
+            f"| {name} | {med['study_wall_s']:.2f} | {med['case_run_s_median']:.3f} | "
+            f"{med['overhead_per_case_s']:.3f} | {med['load']:.1f} |"
+        )
 
 
 if __name__ == "__main__":

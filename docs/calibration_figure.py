@@ -30,8 +30,7 @@ from ngbet.scene.document import Scene
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs"
 PARAMS = ["material.K_sh", "material.K_lock", "material.gamma_lock_deg"]
-TWILL = ["data/cao2008/cao2008_twill_unbalanced_100x250_UN.csv",
-         "data/cao2008/cao2008_twill_unbalanced_100x200_UN.csv"]
+TWILL = ["data/cao2008/cao2008_twill_unbalanced_100x250_UN.csv", "data/cao2008/cao2008_twill_unbalanced_100x200_UN.csv"]
 
 
 def single_curve(out: Path) -> None:
@@ -66,8 +65,9 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         fitted = Path(tmp) / "fit"
         scene = ROOT / "geometry" / "twintex_twill_unbalanced.toml"
-        run(["fit", *(str(ROOT / f) for f in TWILL), "--scene", str(scene), "--out", str(fitted)],
-            accept=(0, 1))  # 1: stopped at --max-runs, said in the figure's record
+        run(
+            ["fit", *(str(ROOT / f) for f in TWILL), "--scene", str(scene), "--out", str(fitted)], accept=(0, 1)
+        )  # 1: stopped at --max-runs, said in the figure's record
         shutil.copyfile(fitted / "fit.png", out / "calibration_twill_unbalanced_fit.png")
         shutil.copyfile(fitted / "shear_table.png", out / "calibration_table.png")
         if not args.no_study:

@@ -20,8 +20,10 @@ def main() -> None:
         i = case["case"]
         _, uy_mm = data.profile(i, u0)
         amp = max((abs(u) for u in uy_mm), default=math.nan)
-        print(f"alpha1 = {case['params']['material.alpha1']:6g} Pa m^2: force {data.at(i, u0, 'force_N'):6.2f} N, "
-              f"max |u_y| on the mid-axis {amp:.3f} mm")
+        print(
+            f"alpha1 = {case['params']['material.alpha1']:6g} Pa m^2: force {data.at(i, u0, 'force_N'):6.2f} N, "
+            f"max |u_y| on the mid-axis {amp:.3f} mm"
+        )
     print(f"table, figures and report: {data.out}/")
 
 

@@ -24,8 +24,9 @@ def _studies_of_a_source_checkout() -> None:
     src = here.parent / "studies"
     if (here / "studies").exists() or not (src / "__init__.py").is_file() or "ngbet.studies" in _sys.modules:
         return
-    spec = _importlib_util.spec_from_file_location(__name__ + ".studies", src / "__init__.py",
-                                                    submodule_search_locations=[str(src)])
+    spec = _importlib_util.spec_from_file_location(
+        __name__ + ".studies", src / "__init__.py", submodule_search_locations=[str(src)]
+    )
     if spec is None or spec.loader is None:
         return
     module = _importlib_util.module_from_spec(spec)
@@ -43,8 +44,17 @@ from .revision import __revision__, __version__  # noqa: E402  (written by setup
 from .scene.document import Scene, default_scene  # noqa: E402
 from .scene.validate import SceneError  # noqa: E402
 
-__all__ = ["ConvergenceError", "Result", "Scene", "SceneError", "default_scene", "load_result", "simulate",
-           "__version__", "__revision__"]
+__all__ = [
+    "ConvergenceError",
+    "Result",
+    "Scene",
+    "SceneError",
+    "default_scene",
+    "load_result",
+    "simulate",
+    "__version__",
+    "__revision__",
+]
 
 
 if _TYPE_CHECKING:

@@ -94,8 +94,10 @@ def simulate(scene: Scene | str | Path, out: str | Path | None = None, progress:
     if _RAN_IN[0] not in (None, os.getpid()):  # forked from a process that ran one: Netgen's mesher hangs here
         return _in_a_fresh_process(scene, out, progress)
     if out is not None and _real(out) in _OWNED:
-        raise OutputError(out, "the temporary folder of a live Result (its fields() are read from it); "
-                               "choose another out= (or out=None)")
+        raise OutputError(
+            out,
+            "the temporary folder of a live Result (its fields() are read from it); choose another out= (or out=None)",
+        )
     tmp = None
     if out is None:
         tmp = Path(tempfile.mkdtemp(prefix="ngbet-"))
@@ -131,10 +133,12 @@ def _in_a_fresh_process(scene: Scene, out: str | Path | None, progress: bool) ->
     from concurrent.futures import ProcessPoolExecutor
 
     if mp.current_process().daemon:  # multiprocessing.Pool's workers may not start processes
-        raise RuntimeError("ngbet.simulate() cannot run in a daemonic worker forked from a process that already "
-                           "ran a scene (Netgen's mesher does not survive the fork, and the worker may not start a "
-                           "fresh process): give the pool a 'spawn' or 'forkserver' context, e.g. "
-                           "multiprocessing.get_context('forkserver').Pool()")
+        raise RuntimeError(
+            "ngbet.simulate() cannot run in a daemonic worker forked from a process that already "
+            "ran a scene (Netgen's mesher does not survive the fork, and the worker may not start a "
+            "fresh process): give the pool a 'spawn' or 'forkserver' context, e.g. "
+            "multiprocessing.get_context('forkserver').Pool()"
+        )
     with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as ex:
         return ex.submit(simulate, scene, out, progress).result()
 
@@ -170,8 +174,14 @@ class Result:
         Mid-axis profile per converged step: ``{u0_mm: (X_mm, uy_mm)}``.
     """
 
-    def __init__(self, out: Path, scene: Scene, summary: dict[str, Any], columns: dict[str, np.ndarray],
-                 profiles: dict[float, tuple[np.ndarray, np.ndarray]]) -> None:
+    def __init__(
+        self,
+        out: Path,
+        scene: Scene,
+        summary: dict[str, Any],
+        columns: dict[str, np.ndarray],
+        profiles: dict[float, tuple[np.ndarray, np.ndarray]],
+    ) -> None:
         self.out = out
         self.scene = scene
         self.summary = summary
@@ -262,16 +272,21 @@ class Result:
         """
         path = self.out / ("fields.vtu" if step is None else f"fields_{step:03d}.vtu")
         if not self.out.is_dir():
-            raise FileNotFoundError(f"{self.out}: the run folder no longer exists (removed after this Result "
-                                    "was read); its tables are in memory, its fields were in the folder")
+            raise FileNotFoundError(
+                f"{self.out}: the run folder no longer exists (removed after this Result "
+                "was read); its tables are in memory, its fields were in the folder"
+            )
         if not path.exists():
-            raise FileNotFoundError(f"{path} does not exist: the continuum model writes it when outputs.vtk is true"
-                                    + ("" if step is None else " and outputs.vtk_every_step is true"))
+            raise FileNotFoundError(
+                f"{path} does not exist: the continuum model writes it when outputs.vtk is true"
+                + ("" if step is None else " and outputs.vtk_every_step is true")
+            )
         try:
             import pyvista as pv
         except ImportError as exc:
-            raise ImportError("Result.fields() reads the VTU file with pyvista, which is not installed: "
-                              "pip install pyvista") from exc
+            raise ImportError(
+                "Result.fields() reads the VTU file with pyvista, which is not installed: pip install pyvista"
+            ) from exc
         return pv.read(str(path))
 
     def to_csv(self, path: str | Path) -> Path:
@@ -295,8 +310,9 @@ class Result:
             try:
                 import matplotlib.pyplot as plt
             except ImportError as exc:
-                raise ImportError("Result.plot() draws with matplotlib, which is not installed: "
-                                  "pip install matplotlib") from exc
+                raise ImportError(
+                    "Result.plot() draws with matplotlib, which is not installed: pip install matplotlib"
+                ) from exc
 
             _, ax = plt.subplots(figsize=(5.5, 4))
         force_curve(ax, self.u0_mm, self.force_N, label=label, **kwargs)
@@ -330,4 +346,3 @@ def _read_profiles(path: Path) -> dict[float, tuple[np.ndarray, np.ndarray]]:
     from .tables import read_profiles
 
     return {u0: (np.asarray(X), np.asarray(uy)) for u0, (X, uy) in read_profiles(path).items()}
-

@@ -25,8 +25,9 @@ def available() -> bool:
     return importlib.util.find_spec("cvxopt") is not None
 
 
-def free_pattern(indptr: np.ndarray, indices: np.ndarray, free: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def free_pattern(
+    indptr: np.ndarray, indices: np.ndarray, free: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The free-free entries of a CSR pattern: (their positions in the value array, rows, cols).
 
     Rows and columns are numbered among the free dofs (``free``: bool mask, ascending order kept),
@@ -60,8 +61,9 @@ class CholmodFactor:
         upper = bool(np.any(cols > rows))
         self._entries = np.flatnonzero(cols >= rows) if upper else np.arange(len(rows))
         self._uplo = "L" if upper else "U"
-        self.mat = spmatrix(np.ones(len(self._entries)).tolist(), cols[self._entries].tolist(),
-                            rows[self._entries].tolist(), (n, n))
+        self.mat = spmatrix(
+            np.ones(len(self._entries)).tolist(), cols[self._entries].tolist(), rows[self._entries].tolist(), (n, n)
+        )
         if not np.array_equal(np.asarray(self.mat.CCS[1]).ravel(), cols[self._entries]):
             raise RuntimeError("cvxopt reordered the pattern; in-place update impossible")
         self._F: Any = None

@@ -45,11 +45,13 @@ from .scene.validate import SceneError
 
 __all__ = ["EPILOG", "SUPERVISED", "console", "main"]
 
-EPILOG = ("exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
-          "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
-          "busy with another run; scheduler unreachable; stdout not writable); 70 internal error of ngbet; "
-          "130 interrupted (SIGINT/SIGTERM/SIGHUP/SIGUSR1; summary.json says interrupted, with the last converged "
-          "load in mm)")
+EPILOG = (
+    "exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
+    "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
+    "busy with another run; scheduler unreachable; stdout not writable); 70 internal error of ngbet; "
+    "130 interrupted (SIGINT/SIGTERM/SIGHUP/SIGUSR1; summary.json says interrupted, with the last converged "
+    "load in mm)"
+)
 
 
 _say = say  # one `ngbet: ...` line on stderr (stderr itself may be gone: the exit status still says it)
@@ -77,15 +79,13 @@ def _print(text: str, what: str, utf8: bool = False) -> int:
         sys.stdout.flush()
         data = text.encode("utf-8" if utf8 else (sys.stdout.encoding or "utf-8"), errors="backslashreplace")
         while data:
-            data = data[os.write(fd, data):]
+            data = data[os.write(fd, data) :]
         return EXIT_OK
     except OSError as exc:
         with contextlib.suppress(OSError, ValueError, AttributeError):
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         _say(f"could not write {what} to stdout: {exc.strerror or exc}")
         return EXIT_IO
-
-
 
 
 #: set in the environment of the process that ``ngbet run`` runs in (:func:`console`)
@@ -107,8 +107,12 @@ def console() -> int:
         return main(argv)
     import subprocess
 
-    child = subprocess.Popen([sys.executable, "-m", "ngbet", *argv], env={**os.environ, SUPERVISED: "1"},
-                             start_new_session=True, preexec_fn=_die_with_parent)
+    child = subprocess.Popen(
+        [sys.executable, "-m", "ngbet", *argv],
+        env={**os.environ, SUPERVISED: "1"},
+        start_new_session=True,
+        preexec_fn=_die_with_parent,
+    )
 
     def forward(signum: int, frame: Any) -> None:
         with contextlib.suppress(ProcessLookupError):
@@ -136,16 +140,21 @@ def _died(argv: list[str], signum: int) -> int:
     name = signal_name(signum)
     interrupted = signum in STOP_SIGNALS
     status = "interrupted" if interrupted else "crashed"
-    msg = (f"the run was interrupted by {name}" if interrupted else
-           f"the run's process died by {name} (a crash in compiled code, or killed from outside)")
+    msg = (
+        f"the run was interrupted by {name}"
+        if interrupted
+        else f"the run's process died by {name} (a crash in compiled code, or killed from outside)"
+    )
     with contextlib.suppress(SystemExit):  # an unreadable command line was the child's to report
         out = Path(_parser("run").parse_args(argv).out)
         try:
             if json.loads((out / "summary.json").read_text()).get("status") == "running":
                 rows = read_rows(out / "results.csv") if (out / "results.csv").exists() else []
                 u0 = float(rows[-1]["u0_mm"]) if rows else 0.0
-                RunWriter.amend(out, {"status": status, "error": msg, "steps": len(rows), "u0_reached_mm": u0,
-                                      "last_converged_mm": u0})
+                RunWriter.amend(
+                    out,
+                    {"status": status, "error": msg, "steps": len(rows), "u0_reached_mm": u0, "last_converged_mm": u0},
+                )
                 msg += f" after u0 = {u0:g} mm; converged steps and summary.json (status {status}) are in {out}/"
         except (OSError, ValueError, NgbetError) as exc:
             msg += f"; its folder {out} could not record it ({exc})"
@@ -173,28 +182,56 @@ def main(argv: list[str] | None = None) -> int:
 
 def _parser(command: str | None = None) -> argparse.ArgumentParser:
     """The command line; for ``command`` "run" or "scene" without the study and fit commands (not imported)."""
-    parser = argparse.ArgumentParser(prog="ngbet", description="Bias extension tests of woven fabrics (NGSolve).",
-                                     epilog=EPILOG)
+    parser = argparse.ArgumentParser(
+        prog="ngbet", description="Bias extension tests of woven fabrics (NGSolve).", epilog=EPILOG
+    )
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", required=True)
     pr = sub.add_parser("run", help="run a scene (default: the paper's BET to 56 mm)", epilog=EPILOG)
     pr.add_argument("scene", nargs="?", help="scene TOML file (default: the embedded scene)")
-    pr.add_argument("--out", default="out/run", help="output folder (default: out/run); the files of a previous "
-                    "run in it are removed, a folder that is not an ngbet run folder is refused")
-    pr.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                    help="override one scene value, e.g. --set material.alpha1=20 (repeatable)")
-    pr.add_argument("--accuracy", type=float, metavar="REL",
-                    help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)")
-    pr.add_argument("--data", metavar="CSV", help="a measured curve (header displacement_mm,force_N or with other "
-                    "units, e.g. 'Displacement (mm);Force (kN)'; '#' comment lines allowed) drawn on the force and "
-                    "normalised shear force figures; for a picture-frame scene the shear angle and F_s [N] or "
-                    "F_norm [N/mm], e.g. shear_angle_deg,shear_force_N)")
-    pr.add_argument("--specimen", metavar="WxL", help="with --data: the measured specimen, width x clamp-to-clamp "
-                    "length in mm (e.g. 100x250), where the file's header does not give it")
-    pr.add_argument("--columns", metavar="X,Y", help="with --data: the displacement and force columns by header "
-                    "name or number, each with an optional unit (e.g. 'Weg:mm,Kraft:kN')")
-    pr.add_argument("--quiet", action="store_true", help="print no progress and no results; warnings and errors "
-                    "still go to stderr")
+    pr.add_argument(
+        "--out",
+        default="out/run",
+        help="output folder (default: out/run); the files of a previous "
+        "run in it are removed, a folder that is not an ngbet run folder is refused",
+    )
+    pr.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override one scene value, e.g. --set material.alpha1=20 (repeatable)",
+    )
+    pr.add_argument(
+        "--accuracy",
+        type=float,
+        metavar="REL",
+        help="relative error of the final force to reach, e.g. 1e-3 (sets discretization.target_error)",
+    )
+    pr.add_argument(
+        "--data",
+        metavar="CSV",
+        help="a measured curve (header displacement_mm,force_N or with other "
+        "units, e.g. 'Displacement (mm);Force (kN)'; '#' comment lines allowed) drawn on the force and "
+        "normalised shear force figures; for a picture-frame scene the shear angle and F_s [N] or "
+        "F_norm [N/mm], e.g. shear_angle_deg,shear_force_N)",
+    )
+    pr.add_argument(
+        "--specimen",
+        metavar="WxL",
+        help="with --data: the measured specimen, width x clamp-to-clamp "
+        "length in mm (e.g. 100x250), where the file's header does not give it",
+    )
+    pr.add_argument(
+        "--columns",
+        metavar="X,Y",
+        help="with --data: the displacement and force columns by header "
+        "name or number, each with an optional unit (e.g. 'Weg:mm,Kraft:kN')",
+    )
+    pr.add_argument(
+        "--quiet", action="store_true", help="print no progress and no results; warnings and errors still go to stderr"
+    )
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
     ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
@@ -204,18 +241,33 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     from .studies import STUDIES
     from .study.command import add_arguments
 
-    pst = sub.add_parser("study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them",
-                         epilog=EPILOG)
+    pst = sub.add_parser(
+        "study", help="run a parameter study (see docs/studies.md); 'ngbet study list' lists them", epilog=EPILOG
+    )
     pst.add_argument("name", help=f"study name ({', '.join(STUDIES)}) or 'list'")
     _scene_arguments(pst)
     add_arguments(pst)
-    psw = sub.add_parser("sweep", epilog=EPILOG, help="run a scene for every value of one or more keys (a study: "
-                         "table, figures, report), e.g. ngbet sweep material.alpha1=20,200,2000")
-    psw.add_argument("items", nargs="+", metavar="ITEM",
-                     help="SECTION.KEY=V1,V2,... (one or more swept keys; the cases are every combination of "
-                     "their values) and at most one scene TOML file (default: ngbet's default scene)")
-    psw.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                     help="override one value of the base scene (repeatable)")
+    psw = sub.add_parser(
+        "sweep",
+        epilog=EPILOG,
+        help="run a scene for every value of one or more keys (a study: "
+        "table, figures, report), e.g. ngbet sweep material.alpha1=20,200,2000",
+    )
+    psw.add_argument(
+        "items",
+        nargs="+",
+        metavar="ITEM",
+        help="SECTION.KEY=V1,V2,... (one or more swept keys; the cases are every combination of "
+        "their values) and at most one scene TOML file (default: ngbet's default scene)",
+    )
+    psw.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override one value of the base scene (repeatable)",
+    )
     add_arguments(psw)
     from .calibration import command as fit_command
 
@@ -278,12 +330,16 @@ def _measured(args: argparse.Namespace, scene: Scene) -> Any:
                 raise SceneError(f"--{flag} goes with --data (the measured curve it describes)")
         return None
     if not scene.outputs.plot:
-        raise SceneError(f"--data {args.data} is drawn on the run's figures, and outputs.plot = false draws none: "
-                         "drop --data or set outputs.plot = true")
+        raise SceneError(
+            f"--data {args.data} is drawn on the run's figures, and outputs.plot = false draws none: "
+            "drop --data or set outputs.plot = true"
+        )
     if scene.test == "picture_frame":
         if args.specimen:
-            raise SceneError("--specimen describes a bias extension specimen; a picture-frame curve's frame is "
-                             "the scene's [picture_frame] section")
+            raise SceneError(
+                "--specimen describes a bias extension specimen; a picture-frame curve's frame is "
+                "the scene's [picture_frame] section"
+            )
         from .figures.frame import read_frame_measured
 
         frame = read_frame_measured(args.data, columns=args.columns)
@@ -294,8 +350,11 @@ def _measured(args: argparse.Namespace, scene: Scene) -> Any:
     from .calibration.curve_table import parse_sizes
     from .figures.data import Measured
 
-    spec = (parse_sizes(args.specimen, "--specimen", ("specimen.width_mm", "specimen.length_mm",
-                                                      "specimen.thickness_mm")) if args.specimen else None)
+    spec = (
+        parse_sizes(args.specimen, "--specimen", ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm"))
+        if args.specimen
+        else None
+    )
     measured = Measured.read(args.data, specimen=spec, columns=args.columns)
     if not args.quiet:
         for note in measured.notes:
@@ -315,8 +374,10 @@ def _run(scene: Scene, out: Path, quiet: bool = False, measured: Any = None) -> 
 
             summary = run(scene, out, progress=not quiet, measured=measured)
     except KeyboardInterrupt:
-        _say(f"interrupted after u0 = {_last_converged_mm(out):g} mm; converged steps and "
-             f"summary.json (status interrupted) are in {out}/")
+        _say(
+            f"interrupted after u0 = {_last_converged_mm(out):g} mm; converged steps and "
+            f"summary.json (status interrupted) are in {out}/"
+        )
         return EXIT_INTERRUPTED
     except Exception as exc:
         code, msg = exit_code(exc, out)
@@ -340,8 +401,14 @@ def _last_converged_mm(out: Path) -> float:
 
 def _scene_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", nargs="?", help="scene TOML file the study starts from (default: ngbet's default scene)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="override one value of the study's base scene, e.g. --set material.alpha1=20 (repeatable)")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override one value of the study's base scene, e.g. --set material.alpha1=20 (repeatable)",
+    )
 
 
 def _study_scene(path: str | None, overrides: list[str]) -> tuple[Scene | None, str]:
@@ -385,8 +452,10 @@ def _sweep(args: argparse.Namespace) -> int:
     args.scene = path
     n = math.prod(len(v) for v in axes.values())
     if n >= LARGE_SWEEP and not args.quiet:  # its scenes are checked before the first case runs: say so first
-        _say(f"sweep: {n} cases ({' x '.join(f'{len(v)} values of {k}' for k, v in axes.items())}), each a run of "
-             "the scene; checking their scenes, then running the cases not in the cache")
+        _say(
+            f"sweep: {n} cases ({' x '.join(f'{len(v)} values of {k}' for k, v in axes.items())}), each a run of "
+            "the scene; checking their scenes, then running the cases not in the cache"
+        )
     return _run_study_command("sweep", lambda quick, scene=None: sweep.build(axes, quick, scene), args, "sweep")
 
 
@@ -407,8 +476,10 @@ def _run_study_command(what: str, build: Any, args: argparse.Namespace, name: st
         _say(f"{what}: bad scene: {exc}")
         return EXIT_INPUT
     try:
-        with open(os.devnull, "w") if args.quiet else contextlib.nullcontext(sys.stdout) as stdout, \
-                contextlib.redirect_stdout(stdout):  # --quiet: no table, no report (both are in the folder)
+        with (
+            open(os.devnull, "w") if args.quiet else contextlib.nullcontext(sys.stdout) as stdout,
+            contextlib.redirect_stdout(stdout),
+        ):  # --quiet: no table, no report (both are in the folder)
             return run_from_args(build, args, scene, source, name)
     except StudyInterrupted as exc:
         _say(str(exc))
@@ -441,26 +512,34 @@ def _report(summary: dict[str, Any], out: Path) -> str:
 
     rows = read_rows(out / "results.csv")
     # the solver's iteration counts are in summary.json: nothing on the terminal a user would act on
-    lines = [f"ngbet: {summary['status']}: u0 = {summary['u0_reached_mm']:g} mm in "
-             f"{summary.get('load_steps', len(rows))} load steps, {summary['wall_s']:.2f} s; results in {out}/"]
+    lines = [
+        f"ngbet: {summary['status']}: u0 = {summary['u0_reached_mm']:g} mm in "
+        f"{summary.get('load_steps', len(rows))} load steps, {summary['wall_s']:.2f} s; results in {out}/"
+    ]
     for r in rows:
         if "force_N" in r and (abs(r["u0_mm"] - 37) < 1e-9 or r is rows[-1]):
             err = r.get("force_error_N")
             failed = f"{r['u0_mm']:g}" in (summary.get("error_estimate_unreliable") or {})
-            bar = (f" ± {err:.2g} N (estimated discretization error)" if isinstance(err, float) and err == err
-                   else " (no error bar: the estimate could not vouch for this force; summary.json says why)"
-                   if failed or isinstance(err, float) else "")
+            bar = (
+                f" ± {err:.2g} N (estimated discretization error)"
+                if isinstance(err, float) and err == err
+                else " (no error bar: the estimate could not vouch for this force; summary.json says why)"
+                if failed or isinstance(err, float)
+                else ""
+            )
             lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {_force_text(r['force_N'])} N{bar}")
             spread = r.get("force_path_spread_N")
             if isinstance(spread, float) and spread > 0:  # in the bar: another stable state the path left
                 lines.append(f"{'':26}of which {spread:.2g} N the force's spread over the path's snaps")
     if "accuracy" in summary:
         a, d = summary["accuracy"], summary["accuracy"]["chosen"]
-        lines.append(f"  accuracy {a['target_error']:g} {'met' if a['met'] else 'NOT met'}: "
-                     f"h = {d['mesh_size_mm']:g} mm, corners {d['corner_mesh_size_mm']:g} mm, "
-                     f"p = {d['order_u']} after {len(a['attempts'])} "
-                     f"attempt(s), solve {a['solve_s']:.2f} s; {a['wall_s']:.2f} s for all attempts with their "
-                     "estimates and files")
+        lines.append(
+            f"  accuracy {a['target_error']:g} {'met' if a['met'] else 'NOT met'}: "
+            f"h = {d['mesh_size_mm']:g} mm, corners {d['corner_mesh_size_mm']:g} mm, "
+            f"p = {d['order_u']} after {len(a['attempts'])} "
+            f"attempt(s), solve {a['solve_s']:.2f} s; {a['wall_s']:.2f} s for all attempts with their "
+            "estimates and files"
+        )
     return "\n".join(lines)
 
 

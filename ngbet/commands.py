@@ -17,8 +17,17 @@ from pathlib import Path
 from .scene.document import Scene, SceneNote, SceneWarning
 from .scene.validate import SceneError
 
-__all__ = ["EXIT_INPUT", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_IO", "EXIT_OK", "EXIT_SOLVER", "exit_code",
-           "load_scene", "parse_value"]
+__all__ = [
+    "EXIT_INPUT",
+    "EXIT_INTERNAL",
+    "EXIT_INTERRUPTED",
+    "EXIT_IO",
+    "EXIT_OK",
+    "EXIT_SOLVER",
+    "exit_code",
+    "load_scene",
+    "parse_value",
+]
 
 EXIT_OK, EXIT_SOLVER, EXIT_INPUT, EXIT_IO, EXIT_INTERNAL, EXIT_INTERRUPTED = 0, 1, 2, 3, 70, 130
 
@@ -78,8 +87,9 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
         reason = exc.attempts[-1].reason if exc.attempts else ""
         if not advice and "relaxation:" in reason:  # why no stable state was found at the load
             advice = reason.split("relaxation:", 1)[1].strip().removesuffix(")")
-        return EXIT_SOLVER, (f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}"
-                             + (f"; {advice}" if advice else ""))
+        return EXIT_SOLVER, (
+            f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}" + (f"; {advice}" if advice else "")
+        )
     if isinstance(exc, OutputError):
         return EXIT_IO, f"cannot use the output folder {exc}"
     if isinstance(exc, SchedulerError):
@@ -88,12 +98,17 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
         path = exc.filename if exc.filename is not None else where
         return EXIT_IO, f"I/O error on {path if path is not None else 'an unnamed file'}: {exc.strerror or exc}"
     if isinstance(exc, MemoryError):  # the size check before the run should have refused it
-        return EXIT_INTERNAL, ("out of memory" + (f" (converged steps and summary.json are in {where}/)" if where
-                                                  else "") + ": the estimate of the problem's size missed it; "
-                               "please report it")
+        return EXIT_INTERNAL, (
+            "out of memory"
+            + (f" (converged steps and summary.json are in {where}/)" if where else "")
+            + ": the estimate of the problem's size missed it; "
+            "please report it"
+        )
     first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-    return EXIT_INTERNAL, (f"internal error ({type(exc).__name__}{': ' + first if first else ''}); this is a bug in "
-                           "ngbet: please report it (-v shows the traceback)")
+    return EXIT_INTERNAL, (
+        f"internal error ({type(exc).__name__}{': ' + first if first else ''}); this is a bug in "
+        "ngbet: please report it (-v shows the traceback)"
+    )
 
 
 def tolerant_streams() -> None:
@@ -125,7 +140,7 @@ def positionals_first(parser: argparse.ArgumentParser, words: list[str]) -> list
     while i < len(rest):
         w = rest[i]
         if w == "--":
-            pos += rest[i + 1:]
+            pos += rest[i + 1 :]
             break
         if w.startswith("-") and len(w) > 1 and not _number(w):
             opts.append(w)

@@ -31,9 +31,11 @@ class Attempt:
 
     def describe(self) -> str:
         """One line: loads in mm, verdict, iterations, reason and decrements."""
-        return (f"{self.u0_from * 1e3:.6g} -> {self.u0_to * 1e3:.6g} mm: {'ok' if self.converged else 'FAILED'} "
-                f"after {self.iterations} it ({self.reason}); decrements "
-                + ", ".join(f"{h:.2e}" for h in self.history[:12]))
+        return (
+            f"{self.u0_from * 1e3:.6g} -> {self.u0_to * 1e3:.6g} mm: {'ok' if self.converged else 'FAILED'} "
+            f"after {self.iterations} it ({self.reason}); decrements "
+            + ", ".join(f"{h:.2e}" for h in self.history[:12])
+        )
 
 
 class ConvergenceError(NgbetError, RuntimeError):
@@ -62,15 +64,23 @@ class ConvergenceError(NgbetError, RuntimeError):
         As given.
     """
 
-    def __init__(self, message: str, last_converged_mm: float, attempts: Sequence[Attempt] = (),
-                 diagnosis: str = "", detail: object | None = None,
-                 path_info: dict[str, object] | None = None) -> None:
+    def __init__(
+        self,
+        message: str,
+        last_converged_mm: float,
+        attempts: Sequence[Attempt] = (),
+        diagnosis: str = "",
+        detail: object | None = None,
+        path_info: dict[str, object] | None = None,
+    ) -> None:
         self.last_converged_mm = float(last_converged_mm)
         self.attempts = list(attempts)
         self.diagnosis = diagnosis
         self.detail = detail
         self.path_info: dict[str, object] = dict(path_info or {})
         tail = "\n".join("  " + a.describe() for a in self.attempts[-8:])
-        super().__init__(f"{message}\nlast converged load: {self.last_converged_mm:.6g} mm"
-                         + (f"\ndiagnosis: {diagnosis}" if diagnosis else "")
-                         + (f"\nlast attempts:\n{tail}" if tail else ""))
+        super().__init__(
+            f"{message}\nlast converged load: {self.last_converged_mm:.6g} mm"
+            + (f"\ndiagnosis: {diagnosis}" if diagnosis else "")
+            + (f"\nlast attempts:\n{tail}" if tail else "")
+        )

@@ -36,10 +36,30 @@ from .run_folder import OwnedFolder, json_text
 from .scene.document import Scene
 from .scene.validate import SceneError
 
-__all__ = ["FLOOR", "FORMATS", "TENSION_STRAIN", "TOLERANCE", "WRITERS", "ShearCard", "add_parser",
-           "default_max_angle_deg", "export", "log", "read_card", "rest_angle", "run_from_args", "sample",
-           "shear_card", "shear_energy_slope", "shear_stress", "softening_angle_deg", "source_scene", "to_abaqus",
-           "to_csv", "to_lsdyna"]
+__all__ = [
+    "FLOOR",
+    "FORMATS",
+    "TENSION_STRAIN",
+    "TOLERANCE",
+    "WRITERS",
+    "ShearCard",
+    "add_parser",
+    "default_max_angle_deg",
+    "export",
+    "log",
+    "read_card",
+    "rest_angle",
+    "run_from_args",
+    "sample",
+    "shear_card",
+    "shear_energy_slope",
+    "shear_stress",
+    "softening_angle_deg",
+    "source_scene",
+    "to_abaqus",
+    "to_csv",
+    "to_lsdyna",
+]
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +117,7 @@ def shear_energy_slope(scene: Scene) -> Callable[[np.ndarray], np.ndarray]:
 
     m, law = scene.material, scene.effects.shear_law
     if law == "polynomial":
-        return lambda i8: m.K_sh * i8 + m.K_sh4 * i8 ** 3 + m.K_sh6 * i8 ** 5
+        return lambda i8: m.K_sh * i8 + m.K_sh4 * i8**3 + m.K_sh6 * i8**5
     if law == "locking":
         s2 = math.sin(math.radians(m.gamma_lock_deg)) ** 2
         xc = LOCKING_CUTOFF
@@ -122,8 +142,10 @@ def shear_stress(scene: Scene) -> Callable[[np.ndarray], np.ndarray]:
         per_area = d.K_phi / (scene.specimen.thickness_mm * 1e-3 * (d.spacing_mm * 1e-3) ** 2)
         return lambda g: per_area * np.asarray(g, dtype=float)
     if not scene.effects.shear:
-        raise SceneError("effects.shear = false: the scene has no shear energy, its pure-shear stress is 0 "
-                         "and there is no shear law to export; set effects.shear = true")
+        raise SceneError(
+            "effects.shear = false: the scene has no shear energy, its pure-shear stress is 0 "
+            "and there is no shear law to export; set effects.shear = true"
+        )
     slope, th0 = shear_energy_slope(scene), rest_angle(scene)
 
     def sigma(g: np.ndarray) -> np.ndarray:
@@ -155,8 +177,9 @@ def _reference(sig: np.ndarray, floor: float) -> np.ndarray:
     return cast(np.ndarray, np.maximum(np.abs(sig), floor))
 
 
-def sample(sigma: Callable[[np.ndarray], np.ndarray], gamma_max: float, tolerance: float = TOLERANCE,
-           max_points: int = 2000) -> tuple[np.ndarray, float]:
+def sample(
+    sigma: Callable[[np.ndarray], np.ndarray], gamma_max: float, tolerance: float = TOLERANCE, max_points: int = 2000
+) -> tuple[np.ndarray, float]:
     """Angles in [0, gamma_max] [rad] at which a linear interpolation of σ_s meets ``tolerance``.
 
     Intervals are halved where the interpolation misses σ_s at any of 7 inner points by more than
@@ -182,8 +205,10 @@ def sample(sigma: Callable[[np.ndarray], np.ndarray], gamma_max: float, toleranc
     gam = np.array(g)
     dev = float(np.max(np.abs(np.interp(dense, gam, sigma(gam)) - sd) / _reference(sd, floor)))
     if dev > tolerance:
-        raise SceneError(f"the shear law could not be tabulated to {tolerance:g} with {max_points} points "
-                         f"(measured deviation {dev:.2g}); ask for a larger tolerance or a smaller angle")
+        raise SceneError(
+            f"the shear law could not be tabulated to {tolerance:g} with {max_points} points "
+            f"(measured deviation {dev:.2g}); ask for a larger tolerance or a smaller angle"
+        )
     return gam, dev
 
 
@@ -199,9 +224,12 @@ def shear_card(scene: Scene, max_angle_deg: float | None = None, tolerance: floa
     gam, dev = sample(sigma, math.radians(gmax), 0.5 * tolerance)  # half: a margin for the check of the card read back
     sig = sigma(gam) + 0.0  # no −0
     t = scene.specimen.thickness_mm
-    left = ["the second gradient: in-plane bending of the yarns (alpha1, alpha2; their t*alpha is given above)",
-            "the jamming barrier (effects.jamming)", "the constraint phi = i8 and its multiplier",
-            "the coupling of shear and yarn tension (the stress is that of a pure shear with inextensible yarns)"]
+    left = [
+        "the second gradient: in-plane bending of the yarns (alpha1, alpha2; their t*alpha is given above)",
+        "the jamming barrier (effects.jamming)",
+        "the constraint phi = i8 and its multiplier",
+        "the coupling of shear and yarn tension (the stress is that of a pure shear with inextensible yarns)",
+    ]
     if scene.model == "discrete":
         d = scene.discrete
         s = d.spacing_mm * 1e-3
@@ -213,12 +241,25 @@ def shear_card(scene: Scene, max_angle_deg: float | None = None, tolerance: floa
         m = scene.material
         bending = {"alpha1": m.alpha1, "alpha2": m.alpha2}
         K_el = m.K_el if scene.effects.elongation else None
-        law = {"quadratic": "quadratic 1/2 K_sh i8^2", "polynomial": "polynomial in i8",
-               "locking": "locking (limiting angle)",
-               "table": "tabulated B-spline of dW/d|i8|"}[scene.effects.shear_law]
-    return ShearCard(gamma_rad=gam, stress_Pa=sig, torque_N_per_mm=sig * 1e-6 * t, tolerance=tolerance,
-                     deviation=dev, thickness_mm=t, law=law, name=scene.specimen.name,
-                     bending={k: v * t * 1e-3 * 1e3 for k, v in bending.items()}, K_el_Pa=K_el, left_out=left)
+        law = {
+            "quadratic": "quadratic 1/2 K_sh i8^2",
+            "polynomial": "polynomial in i8",
+            "locking": "locking (limiting angle)",
+            "table": "tabulated B-spline of dW/d|i8|",
+        }[scene.effects.shear_law]
+    return ShearCard(
+        gamma_rad=gam,
+        stress_Pa=sig,
+        torque_N_per_mm=sig * 1e-6 * t,
+        tolerance=tolerance,
+        deviation=dev,
+        thickness_mm=t,
+        law=law,
+        name=scene.specimen.name,
+        bending={k: v * t * 1e-3 * 1e3 for k, v in bending.items()},
+        K_el_Pa=K_el,
+        left_out=left,
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -238,22 +279,28 @@ def _header(card: ShearCard, c: str) -> list[str]:
         + ", ".join(f"{k} -> {v:.6g}" for k, v in card.bending.items()),
     ]
     if card.K_el_Pa is not None:
-        lines.append(f"yarn elongation modulus K_el = {card.K_el_Pa * 1e-6:.6g} MPa "
-                     "(nominal stress per nominal strain)")
+        lines.append(
+            f"yarn elongation modulus K_el = {card.K_el_Pa * 1e-6:.6g} MPa (nominal stress per nominal strain)"
+        )
     lines.append("left out of this card:")
     lines += [f"  - {w}" for w in card.left_out]
     # at most 80 characters a line (LS-DYNA's keyword format), continuation lines indented
     import textwrap
 
-    return [f"{c} {part}".rstrip() for ln in lines
-            for part in textwrap.wrap(ln, 78 - len(c), subsequent_indent="    ", break_on_hyphens=False) or [""]]
+    return [
+        f"{c} {part}".rstrip()
+        for ln in lines
+        for part in textwrap.wrap(ln, 78 - len(c), subsequent_indent="    ", break_on_hyphens=False) or [""]
+    ]
 
 
 def to_csv(card: ShearCard) -> str:
     """The table: comment lines, then shear_angle_deg, shear_angle_rad, shear_stress_MPa, torque_per_area_N_per_mm."""
     rows = ["shear_angle_deg,shear_angle_rad,shear_stress_MPa,torque_per_area_N_per_mm"]
-    rows += [f"{math.degrees(g):.8g},{g:.10e},{s * 1e-6:.10e},{c:.10e}"
-             for g, s, c in zip(card.gamma_rad, card.stress_Pa, card.torque_N_per_mm, strict=True)]
+    rows += [
+        f"{math.degrees(g):.8g},{g:.10e},{s * 1e-6:.10e},{c:.10e}"
+        for g, s, c in zip(card.gamma_rad, card.stress_Pa, card.torque_N_per_mm, strict=True)
+    ]
     return "\n".join(_header(card, "#") + rows) + "\n"
 
 
@@ -268,23 +315,34 @@ def to_abaqus(card: ShearCard) -> str:
     ]
     if card.K_el_Pa is not None:
         for comp in (1, 2):
-            lines += [f"*UNIAXIAL, COMPONENT={comp}", "*LOADING DATA, DIRECTION=TENSION, TYPE=ELASTIC",
-                      "0., 0.", f"{card.K_el_Pa * 1e-6 * TENSION_STRAIN:.8e}, {TENSION_STRAIN:g}"]
-    lines += ["*UNIAXIAL, COMPONENT=SHEAR", "*LOADING DATA, TYPE=ELASTIC",
-              "** shear stress [MPa], shear strain gamma [rad]"]
+            lines += [
+                f"*UNIAXIAL, COMPONENT={comp}",
+                "*LOADING DATA, DIRECTION=TENSION, TYPE=ELASTIC",
+                "0., 0.",
+                f"{card.K_el_Pa * 1e-6 * TENSION_STRAIN:.8e}, {TENSION_STRAIN:g}",
+            ]
+    lines += [
+        "*UNIAXIAL, COMPONENT=SHEAR",
+        "*LOADING DATA, TYPE=ELASTIC",
+        "** shear stress [MPa], shear strain gamma [rad]",
+    ]
     lines += [f"{s * 1e-6:.10e}, {g:.10e}" for g, s in zip(card.gamma_rad, card.stress_Pa, strict=True)]
     return f"** material {name}\n" + "\n".join(lines) + "\n"
 
 
 def to_lsdyna(card: ShearCard, lcid: int = 1) -> str:
     """An LS-DYNA ``*DEFINE_CURVE_TITLE``: shear stress [MPa] against the shear angle [rad], curve ``lcid``."""
-    lines = ["*KEYWORD", *_header(card, "$"),
-             "$ usage: *INCLUDE this file; give the curve id to the fabric material's",
-             "$ shear curve (SFA = 57.29578 if the material reads its angle in degrees)",
-             "*DEFINE_CURVE_TITLE", f"ngbet shear stress {card.name}"[:80],
-             "$     LCID      SIDR       SFA       SFO      OFFA      OFFO    DATTYP",
-             f"{lcid:10d}{0:10d}{1.0:10.1f}{1.0:10.1f}{0.0:10.1f}{0.0:10.1f}{0:10d}",
-             "$               gamma [rad]     shear stress [MPa]"]
+    lines = [
+        "*KEYWORD",
+        *_header(card, "$"),
+        "$ usage: *INCLUDE this file; give the curve id to the fabric material's",
+        "$ shear curve (SFA = 57.29578 if the material reads its angle in degrees)",
+        "*DEFINE_CURVE_TITLE",
+        f"ngbet shear stress {card.name}"[:80],
+        "$     LCID      SIDR       SFA       SFO      OFFA      OFFO    DATTYP",
+        f"{lcid:10d}{0:10d}{1.0:10.1f}{1.0:10.1f}{0.0:10.1f}{0.0:10.1f}{0:10d}",
+        "$               gamma [rad]     shear stress [MPa]",
+    ]
     lines += [f"{g:20.12e}{s * 1e-6:20.12e}" for g, s in zip(card.gamma_rad, card.stress_Pa, strict=True)]
     return "\n".join(lines) + "\n*END\n"
 
@@ -308,7 +366,7 @@ def read_card(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         pairs = [(float(r.split(",")[1]), float(r.split(",")[2])) for r in rows]
     elif p.suffix == ".inp":
         at = next(i for i, ln in enumerate(text) if ln.upper().startswith("*UNIAXIAL, COMPONENT=SHEAR"))
-        for ln in text[at + 2:]:
+        for ln in text[at + 2 :]:
             if ln.startswith("*") and not ln.startswith("**"):
                 break
             if ln and not ln.startswith("**"):
@@ -316,7 +374,7 @@ def read_card(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                 pairs.append((g, s))
     elif p.suffix == ".k":
         at = next(i for i, ln in enumerate(text) if ln.upper().startswith("*DEFINE_CURVE"))
-        body = [ln for ln in text[at + 1:] if not ln.startswith("$")]
+        body = [ln for ln in text[at + 1 :] if not ln.startswith("$")]
         sfa, sfo = float(body[1][20:30]), float(body[1][30:40])
         for ln in body[2:]:
             if ln.startswith("*"):
@@ -339,16 +397,24 @@ def source_scene(source: str | Path) -> tuple[Path, Scene]:
     if p.is_dir():
         found = [p / n for n in ("fitted_scene.toml", "scene.toml") if (p / n).is_file()]
         if not found:
-            raise SceneError(f"{p}: a folder without fitted_scene.toml (a fit's folder) or scene.toml (a run's); "
-                             "give a fit folder or a scene file")
+            raise SceneError(
+                f"{p}: a folder without fitted_scene.toml (a fit's folder) or scene.toml (a run's); "
+                "give a fit folder or a scene file"
+            )
         p = found[0]
     elif not p.is_file():
         raise SceneError(f"{p}: no such file or folder; give a fit folder or a scene file")
     return p, load_scene(str(p), [])
 
 
-def export(source: str | Path, fmt: str, out: str | Path, max_angle_deg: float | None = None,
-           tolerance: float = TOLERANCE, plot: bool = True) -> dict[str, Any]:
+def export(
+    source: str | Path,
+    fmt: str,
+    out: str | Path,
+    max_angle_deg: float | None = None,
+    tolerance: float = TOLERANCE,
+    plot: bool = True,
+) -> dict[str, Any]:
     """Write the card of ``fmt`` (:data:`FORMATS`) for the scene of ``source`` into the folder ``out``.
 
     The folder is the export's own (:class:`ngbet.run_folder.OwnedFolder`: a run folder, another
@@ -378,35 +444,71 @@ def export(source: str | Path, fmt: str, out: str | Path, max_angle_deg: float |
                 figure = "shear_law.png"
         falls = softening_angle_deg(card)
         if falls is not None:
-            log.warning("the exported shear stress falls beyond γ = %.3g° (the law's stiffening there does not make "
-                        "up for cos γ); a forming code may not take a softening shear curve: --max-angle-deg %.3g "
-                        "ends the card before it", falls, math.floor(falls))
-        summary = {"status": "ok", "source": str(path), "format": fmt, "card": card_name, "points": len(g_back),
-                   "stress_falls_beyond_deg": falls,
-                   "shear_angle_max_deg": math.degrees(float(g_back[-1])), "tolerance": tolerance,
-                   "deviation": card.deviation, "thickness_mm": card.thickness_mm, "law": card.law,
-                   "bending_t_alpha_Nmm": card.bending, "left_out": card.left_out,
-                   "K_el_MPa": None if card.K_el_Pa is None else card.K_el_Pa * 1e-6, "figure": figure,
-                   "files": sorted([card_name, *([figure] if figure else []), "export.json"])}
+            log.warning(
+                "the exported shear stress falls beyond γ = %.3g° (the law's stiffening there does not make "
+                "up for cos γ); a forming code may not take a softening shear curve: --max-angle-deg %.3g "
+                "ends the card before it",
+                falls,
+                math.floor(falls),
+            )
+        summary = {
+            "status": "ok",
+            "source": str(path),
+            "format": fmt,
+            "card": card_name,
+            "points": len(g_back),
+            "stress_falls_beyond_deg": falls,
+            "shear_angle_max_deg": math.degrees(float(g_back[-1])),
+            "tolerance": tolerance,
+            "deviation": card.deviation,
+            "thickness_mm": card.thickness_mm,
+            "law": card.law,
+            "bending_t_alpha_Nmm": card.bending,
+            "left_out": card.left_out,
+            "K_el_MPa": None if card.K_el_Pa is None else card.K_el_Pa * 1e-6,
+            "figure": figure,
+            "files": sorted([card_name, *([figure] if figure else []), "export.json"]),
+        }
         folder.write("export.json", functools.partial(Path.write_text, data=json_text(summary)))
         return summary
 
 
 def add_parser(sub: Any, epilog: str = "") -> None:
     """The ``ngbet export`` subcommand."""
-    pe = sub.add_parser("export", epilog=epilog, help="a fit's (or any scene's) shear law as a table or a forming "
-                        "code's card: shear stress and torque per area against the shear angle (docs/export.md)")
+    pe = sub.add_parser(
+        "export",
+        epilog=epilog,
+        help="a fit's (or any scene's) shear law as a table or a forming "
+        "code's card: shear stress and torque per area against the shear angle (docs/export.md)",
+    )
     pe.add_argument("source", help="a fit folder (its fitted_scene.toml) or a scene TOML file")
-    pe.add_argument("--format", dest="fmt", choices=tuple(FORMATS), default="csv",
-                    help="csv: a table; abaqus: an Abaqus/Explicit *FABRIC block; lsdyna: an LS-DYNA "
-                    "*DEFINE_CURVE (default: csv)")
-    pe.add_argument("--out", default="out/export", help="output folder (default: out/export); a folder "
-                    "holding files ngbet did not write is refused")
-    pe.add_argument("--max-angle-deg", type=float, default=None, metavar="DEG",
-                    help="the card's last shear angle (default: where the law is defined, at most 70°)")
-    pe.add_argument("--tolerance", type=float, default=TOLERANCE, metavar="REL",
-                    help="largest deviation of the card's linear interpolation from the model's shear stress, "
-                    "relative to the local stress (default: 1e-3)")
+    pe.add_argument(
+        "--format",
+        dest="fmt",
+        choices=tuple(FORMATS),
+        default="csv",
+        help="csv: a table; abaqus: an Abaqus/Explicit *FABRIC block; lsdyna: an LS-DYNA *DEFINE_CURVE (default: csv)",
+    )
+    pe.add_argument(
+        "--out",
+        default="out/export",
+        help="output folder (default: out/export); a folder holding files ngbet did not write is refused",
+    )
+    pe.add_argument(
+        "--max-angle-deg",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="the card's last shear angle (default: where the law is defined, at most 70°)",
+    )
+    pe.add_argument(
+        "--tolerance",
+        type=float,
+        default=TOLERANCE,
+        metavar="REL",
+        help="largest deviation of the card's linear interpolation from the model's shear stress, "
+        "relative to the local stress (default: 1e-3)",
+    )
 
 
 def run_from_args(args: Any) -> int:
@@ -426,9 +528,13 @@ def run_from_args(args: Any) -> int:
         say(f"export: {msg}")
         return code
     try:
-        print(f"ngbet: {s['format']} card of {s['source']}: {s['points']} points to γ = "
-              f"{s['shear_angle_max_deg']:.4g}°, within {s['tolerance']:g} of the model's shear stress (measured "
-              f"{s['deviation']:.2g}); {args.out}/{s['card']}", file=sys.stdout, flush=True)
+        print(
+            f"ngbet: {s['format']} card of {s['source']}: {s['points']} points to γ = "
+            f"{s['shear_angle_max_deg']:.4g}°, within {s['tolerance']:g} of the model's shear stress (measured "
+            f"{s['deviation']:.2g}); {args.out}/{s['card']}",
+            file=sys.stdout,
+            flush=True,
+        )
     except OSError as exc:
         say(f"could not write the report to stdout ({exc.strerror or exc}); the card is in {args.out}/")
         return EXIT_IO

@@ -25,8 +25,9 @@ __all__ = ["GRACE_S", "STOP_SIGNALS", "interrupts", "signal_name", "stop_signals
 GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the watchdog does
 #: the signals that end a command as an interruption (summary.json "interrupted", exit 130): Ctrl-C,
 #: SIGTERM, the terminal closed (SIGHUP) and the user signals, whose default would kill the run silently
-STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2")
-                     if hasattr(signal, n))
+STOP_SIGNALS = tuple(
+    getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2") if hasattr(signal, n)
+)
 
 
 def stop_signals() -> list[int]:
@@ -99,10 +100,13 @@ def _watch(r: socket.socket, acted: threading.Event) -> None:
         if not acted.wait(GRACE_S):
             from .output import interrupt_active_runs
 
-            folders = interrupt_active_runs(f"interrupted ({signal_name(got[0])}) inside a computation; "
-                                            f"stopped after {GRACE_S:g} s")
-            say(f"interrupted; converged steps and summary.json (status interrupted) are in "
-                 f"{', '.join(map(str, folders)) or 'no run folder'}")
+            folders = interrupt_active_runs(
+                f"interrupted ({signal_name(got[0])}) inside a computation; stopped after {GRACE_S:g} s"
+            )
+            say(
+                f"interrupted; converged steps and summary.json (status interrupted) are in "
+                f"{', '.join(map(str, folders)) or 'no run folder'}"
+            )
             sys.stderr.flush()
             os._exit(EXIT_INTERRUPTED)
         acted.clear()

@@ -27,8 +27,18 @@ from numpy.typing import ArrayLike
 from .scene.document import Scene
 from .scene.physical import Specimen
 
-__all__ = ["CAO_YARN_ANGLE_DEG", "BetColumns", "force_from_normalised", "gamma_a", "ideal_energy", "ideal_force",
-           "normalised_shear_force", "shear_angle_rad", "zone_areas_m2", "zone_index"]
+__all__ = [
+    "CAO_YARN_ANGLE_DEG",
+    "BetColumns",
+    "force_from_normalised",
+    "gamma_a",
+    "ideal_energy",
+    "ideal_force",
+    "normalised_shear_force",
+    "shear_angle_rad",
+    "zone_areas_m2",
+    "zone_index",
+]
 
 
 def gamma_a(specimen: Specimen, u0_mm: float) -> float:
@@ -72,8 +82,10 @@ def shear_angle_rad(d_mm: ArrayLike, H_mm: float, W_mm: float) -> np.ndarray:
         raise ValueError(f"the clamp-to-clamp length {H_mm:g} mm must exceed the width {W_mm:g} mm")
     c = (D + d) / (math.sqrt(2.0) * D)
     if np.any(c >= 1.0) or np.any(d < 0):
-        raise ValueError(f"displacements must lie in [0, {(math.sqrt(2.0) - 1.0) * D:.2f}) mm "
-                         f"(yarn locking of a {W_mm:g} x {H_mm:g} mm specimen); got up to {np.max(d):g} mm")
+        raise ValueError(
+            f"displacements must lie in [0, {(math.sqrt(2.0) - 1.0) * D:.2f}) mm "
+            f"(yarn locking of a {W_mm:g} x {H_mm:g} mm specimen); got up to {np.max(d):g} mm"
+        )
     return np.pi / 2 - 2.0 * np.arccos(c)
 
 
@@ -85,8 +97,9 @@ def _eq18(gamma: np.ndarray, H_mm: float, W_mm: float) -> tuple[np.ndarray, np.n
     return a, b, c
 
 
-def normalised_shear_force(d_mm: ArrayLike, force_N: ArrayLike, H_mm: float, W_mm: float
-                           ) -> tuple[np.ndarray, np.ndarray]:
+def normalised_shear_force(
+    d_mm: ArrayLike, force_N: ArrayLike, H_mm: float, W_mm: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The normalised shear force F_sh [N/mm] along a measured or computed BET curve.
 
     Solves Eq. 18 (module docstring) along the curve: F_sh is taken piecewise linear in γ through
@@ -114,20 +127,21 @@ def normalised_shear_force(d_mm: ArrayLike, force_N: ArrayLike, H_mm: float, W_m
         raise ValueError("displacements must increase strictly along the curve")
     gamma = shear_angle_rad(d, H_mm, W_mm)
     a, b, c = _eq18(gamma, H_mm, W_mm)
-    g = np.r_[0.0, gamma]          # the grid with the unloaded state
-    f = np.zeros(len(g))           # F_sh on it, filled point by point
+    g = np.r_[0.0, gamma]  # the grid with the unloaded state
+    f = np.zeros(len(g))  # F_sh on it, filled point by point
     for i in range(1, len(g)):
         half = g[i] / 2
-        j = max(int(np.searchsorted(g[:i + 1], half, side="right")), 1)  # g[j-1] <= half < g[j]
+        j = max(int(np.searchsorted(g[: i + 1], half, side="right")), 1)  # g[j-1] <= half < g[j]
         w = (half - g[j - 1]) / (g[j] - g[j - 1]) if g[j] > g[j - 1] else 0.0
         known = (1.0 - w) * f[j - 1] + (w * f[j] if j < i else 0.0)
-        own = w if j == i else 0.0                      # the share of F_sh(γ_i) in F_sh(γ_i / 2)
+        own = w if j == i else 0.0  # the share of F_sh(γ_i) in F_sh(γ_i / 2)
         f[i] = (a[i - 1] * F[i - 1] - c[i - 1] * known) / (b[i - 1] + c[i - 1] * own)
     return gamma, f[1:]
 
 
-def force_from_normalised(gamma_rad: ArrayLike, fsh_N_per_mm: ArrayLike, d_mm: ArrayLike,
-                          H_mm: float, W_mm: float) -> np.ndarray:
+def force_from_normalised(
+    gamma_rad: ArrayLike, fsh_N_per_mm: ArrayLike, d_mm: ArrayLike, H_mm: float, W_mm: float
+) -> np.ndarray:
     """The clamp force [N] that a normalised shear force curve predicts for a specimen H x W.
 
     Eq. 18 solved for F: the normalisation method's prediction of another specimen size, with
@@ -148,8 +162,7 @@ def force_from_normalised(gamma_rad: ArrayLike, fsh_N_per_mm: ArrayLike, d_mm: A
 CAO_YARN_ANGLE_DEG = 45.0
 
 
-def zone_index(X_mm: ArrayLike, Y_mm: ArrayLike, L_mm: float, W_mm: float, yarn_angle_deg: float = 45.0
-               ) -> np.ndarray:
+def zone_index(X_mm: ArrayLike, Y_mm: ArrayLike, L_mm: float, W_mm: float, yarn_angle_deg: float = 45.0) -> np.ndarray:
     """The ideal BET zone of reference points: 0 = A (central), 1 = B, 2 = C (clamp triangles).
 
     A point's two yarns (along m1 = (cos a, sin a) and m2 = (−cos a, sin a)) each end either on a
@@ -212,8 +225,10 @@ def frame_angle_rad(d_mm: ArrayLike, frame_mm: float) -> np.ndarray:
     d = np.asarray(d_mm, dtype=float)
     c = (math.sqrt(2.0) * frame_mm + d) / (2.0 * frame_mm)
     if np.any(c > 1.0) or np.any(d < 0):
-        raise ValueError(f"crosshead travels must lie in [0, {(2.0 - math.sqrt(2.0)) * frame_mm:.4g}] mm (a frame "
-                         f"of side {frame_mm:g} mm closes flat at the upper end); got up to {np.max(d):g} mm")
+        raise ValueError(
+            f"crosshead travels must lie in [0, {(2.0 - math.sqrt(2.0)) * frame_mm:.4g}] mm (a frame "
+            f"of side {frame_mm:g} mm closes flat at the upper end); got up to {np.max(d):g} mm"
+        )
     return np.arccos(c)
 
 
@@ -245,7 +260,7 @@ def frame_normalised_force(shear_force_N: ArrayLike, frame_mm: float, fabric_mm:
     The power balance of a homogeneously sheared inner square: F_s L_frame dγ is the work of the
     bars, L_fabric² the area that shears.
     """
-    return np.asarray(shear_force_N, dtype=float) * frame_mm / fabric_mm ** 2
+    return np.asarray(shear_force_N, dtype=float) * frame_mm / fabric_mm**2
 
 
 class PictureFrameColumns:
@@ -263,7 +278,9 @@ class PictureFrameColumns:
         """The three columns of the row at crosshead travel ``u0_mm`` with force ``force_N`` [N]."""
         out: dict[str, float | str] = {
             "shear_angle_deg": math.degrees(float(frame_shear_angle_rad(max(u0_mm, 0.0), self.frame))),
-            "shear_force_N": "", "fnorm_N_per_mm": ""}
+            "shear_force_N": "",
+            "fnorm_N_per_mm": "",
+        }
         if force_N is None or not math.isfinite(force_N):
             return out
         fs = float(shear_force(force_N, max(u0_mm, 0.0), self.frame))

@@ -56,13 +56,24 @@ class OneLine(logging.Formatter):
         return super().format(record) if self.verbose else one_line(record.getMessage())
 
 
-def show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-                 file: Any = None, line: str | None = None) -> None:
+def show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: Any = None,
+    line: str | None = None,
+) -> None:
     """A warning as one ``ngbet: ...`` line on stderr, without Python's source line; each once."""
     from .scene.document import SceneNote, SceneWarning
 
-    kind = ("note: " if issubclass(category, SceneNote) else "" if issubclass(category, SceneWarning)
-            else f"{category.__name__}: ")
+    kind = (
+        "note: "
+        if issubclass(category, SceneNote)
+        else ""
+        if issubclass(category, SceneWarning)
+        else f"{category.__name__}: "
+    )
     text = one_line(f"{kind}{message}")
     if text not in _SHOWN:
         _SHOWN.add(text)

@@ -52,10 +52,25 @@ from .calibration.data import MeasuredCurve, read_measured, refuse_duplicates
 from .run_folder import OwnedFolder
 from .scene.validate import SceneError
 
-__all__ = ["FIGURE", "SPREAD_FROM_DEG", "SPREAD_POINTS", "SUMMARY", "TABLE_SUFFIX", "Normalised", "add_parser",
-           "energy_method", "force_by_normalisation", "normalise_bet", "normalised_curve", "normalise_pf",
-           "read_inputs", "run_from_args", "spread", "spread_text",
-           "spreads"]
+__all__ = [
+    "FIGURE",
+    "SPREAD_FROM_DEG",
+    "SPREAD_POINTS",
+    "SUMMARY",
+    "TABLE_SUFFIX",
+    "Normalised",
+    "add_parser",
+    "energy_method",
+    "force_by_normalisation",
+    "normalise_bet",
+    "normalised_curve",
+    "normalise_pf",
+    "read_inputs",
+    "run_from_args",
+    "spread",
+    "spread_text",
+    "spreads",
+]
 
 #: the spread between curves is measured from this shear angle [deg] on (below it F_sh is small and
 #: its relative spread says little) to the largest angle every curve reaches
@@ -92,6 +107,7 @@ def _points(n: Any) -> str:
 
 # --- bias extension ------------------------------------------------------------------------------------------------
 
+
 def _half_angle_solve(gamma: np.ndarray, rhs: np.ndarray, own: np.ndarray, half: np.ndarray) -> np.ndarray:
     """The f at each γ_i from own_i f(γ_i) + half_i f(γ_i / 2) = rhs_i, f piecewise linear in γ through (0, 0).
 
@@ -102,7 +118,7 @@ def _half_angle_solve(gamma: np.ndarray, rhs: np.ndarray, own: np.ndarray, half:
     f = np.zeros(len(g))
     for i in range(1, len(g)):
         h = g[i] / 2
-        j = max(int(np.searchsorted(g[:i + 1], h, side="right")), 1)
+        j = max(int(np.searchsorted(g[: i + 1], h, side="right")), 1)
         w = (h - g[j - 1]) / (g[j] - g[j - 1]) if g[j] > g[j - 1] else 0.0
         known = (1.0 - w) * f[j - 1] + (w * f[j] if j < i else 0.0)
         share = w if j == i else 0.0
@@ -110,8 +126,9 @@ def _half_angle_solve(gamma: np.ndarray, rhs: np.ndarray, own: np.ndarray, half:
     return f[1:]
 
 
-def energy_method(d_mm: np.ndarray, force_N: np.ndarray, H_mm: float, W_mm: float
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def energy_method(
+    d_mm: np.ndarray, force_N: np.ndarray, H_mm: float, W_mm: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(γ [rad], shear energy per unit area w [N/mm], F_sh = (dw/dγ)/cos γ [N/mm]) of a BET curve (module docstring).
 
     ``d_mm`` strictly increasing, positive and below yarn locking; the work is integrated by the
@@ -123,7 +140,7 @@ def energy_method(d_mm: np.ndarray, force_N: np.ndarray, H_mm: float, W_mm: floa
 
     gamma = shear_angle_rad(d_mm, H_mm, W_mm)
     work = cumulative_trapezoid(np.r_[0.0, force_N], np.r_[0.0, d_mm])  # N mm at each point
-    A_A, A_B = (2 * H_mm * W_mm - 3 * W_mm ** 2) / 2, W_mm ** 2
+    A_A, A_B = (2 * H_mm * W_mm - 3 * W_mm**2) / 2, W_mm**2
     n = len(gamma)
     w = _half_angle_solve(gamma, work, np.full(n, A_A), np.full(n, A_B))
     return gamma, w, np.gradient(w, gamma) / np.cos(gamma)
@@ -151,8 +168,9 @@ def normalised_curve(curve: MeasuredCurve) -> tuple[np.ndarray, np.ndarray]:
     return normalised_shear_force(d, F, H, W)
 
 
-def force_by_normalisation(gamma_rad: np.ndarray, fn_N_per_mm: np.ndarray, target: MeasuredCurve,
-                           u_mm: np.ndarray) -> np.ndarray:
+def force_by_normalisation(
+    gamma_rad: np.ndarray, fn_N_per_mm: np.ndarray, target: MeasuredCurve, u_mm: np.ndarray
+) -> np.ndarray:
     """The force [N] at ``u_mm`` of the target's test that a normalised shear force curve predicts.
 
     Bias extension: Eq. 18 solved for the clamp force of the target's specimen
@@ -168,64 +186,87 @@ def force_by_normalisation(gamma_rad: np.ndarray, fn_N_per_mm: np.ndarray, targe
         L, Lf = target.frame["picture_frame.frame_mm"], target.frame["picture_frame.fabric_mm"]
         theta = frame_angle_rad(u, L)
         fn = np.interp(np.pi / 2 - 2 * theta, np.r_[0.0, gamma_rad], np.r_[0.0, fn_N_per_mm], right=np.nan)
-        return 2.0 * np.cos(theta) * fn * Lf ** 2 / L  # type: ignore[no-any-return]
-    return force_from_normalised(gamma_rad, fn_N_per_mm, u, target.specimen["specimen.length_mm"],
-                                 target.specimen["specimen.width_mm"])
+        return 2.0 * np.cos(theta) * fn * Lf**2 / L  # type: ignore[no-any-return]
+    return force_from_normalised(
+        gamma_rad, fn_N_per_mm, u, target.specimen["specimen.length_mm"], target.specimen["specimen.width_mm"]
+    )
 
 
-def normalise_bet(path: str | Path, specimen: dict[str, float] | None = None,
-                  columns: str | Sequence[str] | None = None) -> Normalised:
+def normalise_bet(
+    path: str | Path, specimen: dict[str, float] | None = None, columns: str | Sequence[str] | None = None
+) -> Normalised:
     """A bias extension curve by Eq. 18 and by the energy method (module docstring)."""
     from .kinematics import normalised_shear_force
 
     c = read_measured(path, columns=columns, specimen=specimen)
     sp = c.specimen
     if "specimen.width_mm" not in sp:
-        raise SceneError(f"{path}: a bias extension curve needs its specimen: add '# specimen.width_mm = ...' and "
-                         "'# specimen.length_mm = ...' to the header or give --specimen WIDTHxLENGTH (mm)")
+        raise SceneError(
+            f"{path}: a bias extension curve needs its specimen: add '# specimen.width_mm = ...' and "
+            "'# specimen.length_mm = ...' to the header or give --specimen WIDTHxLENGTH (mm)"
+        )
     W, H = sp["specimen.width_mm"], sp["specimen.length_mm"]
     if sp.get("specimen.yarn_angle_deg", 45.0) != 45.0:
-        raise SceneError(f"{path}: specimen.yarn_angle_deg = {sp['specimen.yarn_angle_deg']:g}: Eqs. 13 and 18 are "
-                         "the ±45° bias extension test's")
+        raise SceneError(
+            f"{path}: specimen.yarn_angle_deg = {sp['specimen.yarn_angle_deg']:g}: Eqs. 13 and 18 are "
+            "the ±45° bias extension test's"
+        )
     if not 2 * H > 3 * W:
-        raise SceneError(f"{path}: specimen {W:g} x {H:g} mm: Eq. 18 needs a clamp-to-clamp length above 1.5 times "
-                         "the width (the central zone A has the area (2HW − 3W²)/2)")
+        raise SceneError(
+            f"{path}: specimen {W:g} x {H:g} mm: Eq. 18 needs a clamp-to-clamp length above 1.5 times "
+            "the width (the central zone A has the area (2HW − 3W²)/2)"
+        )
     lock = (math.sqrt(2.0) - 1.0) * (H - W)
     keep = (c.u_mm > 0) & (c.u_mm < lock * (1 - 1e-9))
     notes = list(c.notes)
     if np.count_nonzero(c.u_mm >= lock * (1 - 1e-9)):
-        notes.append(f"{_points(np.count_nonzero(c.u_mm >= lock * (1 - 1e-9)))} at or beyond the ideal yarn locking "
-                     f"({lock:.4g} mm) left out")
+        notes.append(
+            f"{_points(np.count_nonzero(c.u_mm >= lock * (1 - 1e-9)))} at or beyond the ideal yarn locking "
+            f"({lock:.4g} mm) left out"
+        )
     if np.count_nonzero(c.u_mm <= 0):
         notes.append(f"{_points(np.count_nonzero(c.u_mm <= 0))} at zero or negative displacement left out (γ = 0)")
     if keep.sum() < 3:
-        raise SceneError(f"{path}: {int(keep.sum())} points between 0 and the yarn locking ({lock:.4g} mm) of the "
-                         f"{W:g} x {H:g} mm specimen; at least 3 are needed (is the specimen right?)")
+        raise SceneError(
+            f"{path}: {int(keep.sum())} points between 0 and the yarn locking ({lock:.4g} mm) of the "
+            f"{W:g} x {H:g} mm specimen; at least 3 are needed (is the specimen right?)"
+        )
     d, F = c.u_mm[keep], c.force_N[keep]
     gamma, fsh = normalised_shear_force(d, F, H, W)
     _, w, fsh_e = energy_method(d, F, H, W)
     g = np.degrees(gamma)
-    cols = {"displacement_mm": d, "force_N": F, "shear_angle_deg": g, "fsh_eq18_N_per_mm": fsh,
-            "fsh_energy_N_per_mm": fsh_e, "shear_energy_N_per_mm": w}
-    header = [f"bias extension test, specimen {W:g} x {H:g} mm (width x clamp-to-clamp length), 45° yarns",
-              "displacement_mm: clamp displacement; force_N: clamp force (equal displacements averaged)",
-              "shear_angle_deg: kinematic shear angle of the ideal test (Cao et al. 2008, Eq. 13)",
-              "fsh_eq18_N_per_mm: normalised shear force by Eq. 18 (power balance of the ideal zones)",
-              "fsh_energy_N_per_mm: the same by the energy method, (dw/dgamma)/cos(gamma)",
-              "shear_energy_N_per_mm: shear energy per unit area w (N mm / mm^2) of the energy method"]
+    cols = {
+        "displacement_mm": d,
+        "force_N": F,
+        "shear_angle_deg": g,
+        "fsh_eq18_N_per_mm": fsh,
+        "fsh_energy_N_per_mm": fsh_e,
+        "shear_energy_N_per_mm": w,
+    }
+    header = [
+        f"bias extension test, specimen {W:g} x {H:g} mm (width x clamp-to-clamp length), 45° yarns",
+        "displacement_mm: clamp displacement; force_N: clamp force (equal displacements averaged)",
+        "shear_angle_deg: kinematic shear angle of the ideal test (Cao et al. 2008, Eq. 13)",
+        "fsh_eq18_N_per_mm: normalised shear force by Eq. 18 (power balance of the ideal zones)",
+        "fsh_energy_N_per_mm: the same by the energy method, (dw/dgamma)/cos(gamma)",
+        "shear_energy_N_per_mm: shear energy per unit area w (N mm / mm^2) of the energy method",
+    ]
     return Normalised(c.source, "bias_extension", f"{W:g} × {H:g} mm", g, fsh, fsh_e, cols, header, notes)
 
 
 # --- picture frame ---------------------------------------------------------------------------------------------------
+
 
 def normalise_pf(t: CurveTable) -> Normalised:
     """A picture-frame curve by Eqs. 1–3 and 10 (module docstring)."""
     fr = t.frame
     if "picture_frame.frame_mm" not in fr or "picture_frame.fabric_mm" not in fr:
         lack = [k for k in ("picture_frame.frame_mm", "picture_frame.fabric_mm") if k not in fr]
-        raise SceneError(f"{t.source}: a picture-frame curve needs the frame and the fabric square: add "
-                         f"{', '.join(repr('# ' + k + ' = ...') for k in lack)} to the header or give "
-                         "--frame FRAMExFABRIC (mm, e.g. 145x120)")
+        raise SceneError(
+            f"{t.source}: a picture-frame curve needs the frame and the fabric square: add "
+            f"{', '.join(repr('# ' + k + ' = ...') for k in lack)} to the header or give "
+            "--frame FRAMExFABRIC (mm, e.g. 145x120)"
+        )
     L, Lf = fr["picture_frame.frame_mm"], fr["picture_frame.fabric_mm"]
     if Lf > L:
         raise SceneError(f"{t.source}: the fabric square ({Lf:g} mm) is larger than the frame ({L:g} mm)")
@@ -257,22 +298,34 @@ def normalise_pf(t: CurveTable) -> Normalised:
     elif t.y_quantity == "shear_force":
         fs = y
     else:
-        fs = y * Lf ** 2 / L
+        fs = y * Lf**2 / L
     cols["shear_force_N"] = fs
-    cols["fnorm_N_per_mm"] = fs * L / Lf ** 2
+    cols["fnorm_N_per_mm"] = fs * L / Lf**2
     if len(gamma) < 3:
         raise SceneError(f"{t.source}: {len(gamma)} points with a shear angle between 0 and 90°; at least 3 are needed")
-    header = [f"picture-frame test, frame {L:g} mm (pin to pin), fabric square {Lf:g} mm",
-              "shear_angle_deg: shear angle, 90° - 2 theta (Cao et al. 2008, Eqs. 1-2)",
-              "shear_force_N: shear force F_s = F / (2 cos theta) (Eq. 3)",
-              "fnorm_N_per_mm: normalised shear force F_s L_frame / L_fabric^2 (Eq. 10)"]
+    header = [
+        f"picture-frame test, frame {L:g} mm (pin to pin), fabric square {Lf:g} mm",
+        "shear_angle_deg: shear angle, 90° - 2 theta (Cao et al. 2008, Eqs. 1-2)",
+        "shear_force_N: shear force F_s = F / (2 cos theta) (Eq. 3)",
+        "fnorm_N_per_mm: normalised shear force F_s L_frame / L_fabric^2 (Eq. 10)",
+    ]
     if "force_N" in cols:
         header.insert(1, "displacement_mm, force_N: crosshead displacement and force (less the empty frame's)")
-    return Normalised(t.source, "picture_frame", f"frame {L:g} mm, fabric {Lf:g} mm", gamma,
-                      cols["fnorm_N_per_mm"], None, cols, header, notes)
+    return Normalised(
+        t.source,
+        "picture_frame",
+        f"frame {L:g} mm, fabric {Lf:g} mm",
+        gamma,
+        cols["fnorm_N_per_mm"],
+        None,
+        cols,
+        header,
+        notes,
+    )
 
 
 # --- the collapse -------------------------------------------------------------------------------------------------
+
 
 def spread(curves: Sequence[Normalised]) -> dict[str, Any] | None:
     """The spread between the curves' F_sh: (max − min)/mean [%] over the angles all reach; None for one curve.
@@ -296,8 +349,14 @@ def spread(curves: Sequence[Normalised]) -> dict[str, Any] | None:
     if not ok.any():
         return None
     k = int(np.nanargmax(rel))
-    return {"max_percent": float(np.nanmax(rel)), "median_percent": float(np.nanmedian(rel)),
-            "at_max_deg": float(g[k]), "from_deg": float(a), "to_deg": float(b), "curves": len(curves)}
+    return {
+        "max_percent": float(np.nanmax(rel)),
+        "median_percent": float(np.nanmedian(rel)),
+        "at_max_deg": float(g[k]),
+        "from_deg": float(a),
+        "to_deg": float(b),
+        "curves": len(curves),
+    }
 
 
 def spreads(curves: Sequence[Normalised]) -> list[tuple[str, dict[str, Any] | None]]:
@@ -307,9 +366,15 @@ def spreads(curves: Sequence[Normalised]) -> list[tuple[str, dict[str, Any] | No
     """
     bet = [c for c in curves if c.test == "bias_extension"]
     pf = [c for c in curves if c.test == "picture_frame"]
-    out = [(what, spread(group)) for what, group in (("the bias extension sizes", bet), ("the picture frames", pf),
-                                                      ("the tests", curves if bet and pf else []))
-           if len(group) > 1]
+    out = [
+        (what, spread(group))
+        for what, group in (
+            ("the bias extension sizes", bet),
+            ("the picture frames", pf),
+            ("the tests", curves if bet and pf else []),
+        )
+        if len(group) > 1
+    ]
     return out
 
 
@@ -322,13 +387,16 @@ def spread_text(curves: Sequence[Normalised], groups: list[tuple[str, dict[str, 
         if s is None:
             parts.append(f"{what} share no shear angle range above {SPREAD_FROM_DEG:g}°: no spread stated")
         else:
-            parts.append(f"between {what}, the normalised shear force differs by up to {s['max_percent']:.0f} % "
-                         f"(at γ = {s['at_max_deg']:.0f}°; median {s['median_percent']:.0f} %) over γ = "
-                         f"{s['from_deg']:.0f}–{s['to_deg']:.0f}°")
+            parts.append(
+                f"between {what}, the normalised shear force differs by up to {s['max_percent']:.0f} % "
+                f"(at γ = {s['at_max_deg']:.0f}°; median {s['median_percent']:.0f} %) over γ = "
+                f"{s['from_deg']:.0f}–{s['to_deg']:.0f}°"
+            )
     return "; ".join(parts) + "; spread = (max − min)/mean"
 
 
 # --- the folder --------------------------------------------------------------------------------------------------
+
 
 def _table_text(n: Normalised) -> str:
     lines = [f"# {h}" for h in [f"ngbet normalise of {n.source}", *n.header, *n.notes]]
@@ -353,21 +421,45 @@ def _names(curves: Sequence[Normalised]) -> list[str]:
 
 # --- the command ---------------------------------------------------------------------------------------------------
 
+
 def add_parser(sub: Any) -> None:
     """The ``ngbet normalise`` subcommand."""
-    p = sub.add_parser("normalise", help="measured bias-extension or picture-frame curves as the normalised shear "
-                       "force against the shear angle: a table per curve and a collapse figure")
-    p.add_argument("inputs", nargs="+", metavar="DATA.csv", help="measured curves (any units and separators the "
-                   "reader understands; see docs/normalise.md)")
-    p.add_argument("--test", choices=("bias_extension", "picture_frame"),
-                   help="the test of every file (default: each file's header, or its specimen or frame keys)")
-    p.add_argument("--specimen", action="append", default=[], metavar="WxL",
-                   help="bias extension: width x clamp-to-clamp length in mm (e.g. 100x250) where a header does "
-                   "not give it; once for every file or once per file in order")
-    p.add_argument("--frame", action="append", default=[], metavar="FRAMExFABRIC",
-                   help="picture frame: frame side and fabric square in mm (e.g. 145x120); once or once per file")
-    p.add_argument("--columns", metavar="X,Y", help="the two columns by header name or number, each with an optional "
-                   "unit (e.g. 'Weg:mm,Kraft:kN')")
+    p = sub.add_parser(
+        "normalise",
+        help="measured bias-extension or picture-frame curves as the normalised shear "
+        "force against the shear angle: a table per curve and a collapse figure",
+    )
+    p.add_argument(
+        "inputs",
+        nargs="+",
+        metavar="DATA.csv",
+        help="measured curves (any units and separators the reader understands; see docs/normalise.md)",
+    )
+    p.add_argument(
+        "--test",
+        choices=("bias_extension", "picture_frame"),
+        help="the test of every file (default: each file's header, or its specimen or frame keys)",
+    )
+    p.add_argument(
+        "--specimen",
+        action="append",
+        default=[],
+        metavar="WxL",
+        help="bias extension: width x clamp-to-clamp length in mm (e.g. 100x250) where a header does "
+        "not give it; once for every file or once per file in order",
+    )
+    p.add_argument(
+        "--frame",
+        action="append",
+        default=[],
+        metavar="FRAMExFABRIC",
+        help="picture frame: frame side and fabric square in mm (e.g. 145x120); once or once per file",
+    )
+    p.add_argument(
+        "--columns",
+        metavar="X,Y",
+        help="the two columns by header name or number, each with an optional unit (e.g. 'Weg:mm,Kraft:kN')",
+    )
     p.add_argument("--out", default="out/normalise", help="output folder (default: out/normalise)")
     p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
 
@@ -386,10 +478,15 @@ def read_inputs(args: argparse.Namespace) -> list[Normalised]:
     """Every file read, checked and normalised (before anything is written)."""
     sizes = ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm")
     specs = _per_file([parse_sizes(t, "--specimen", sizes) for t in args.specimen], len(args.inputs), "--specimen")
-    frames = _per_file([parse_sizes(t, "--frame", ("picture_frame.frame_mm", "picture_frame.fabric_mm"))
-                        for t in args.frame], len(args.inputs), "--frame")
-    tables = [read_table(p, test=args.test, columns=args.columns, specimen=s, frame=f)
-              for p, s, f in zip(args.inputs, specs, frames, strict=True)]
+    frames = _per_file(
+        [parse_sizes(t, "--frame", ("picture_frame.frame_mm", "picture_frame.fabric_mm")) for t in args.frame],
+        len(args.inputs),
+        "--frame",
+    )
+    tables = [
+        read_table(p, test=args.test, columns=args.columns, specimen=s, frame=f)
+        for p, s, f in zip(args.inputs, specs, frames, strict=True)
+    ]
     refuse_duplicates(tables)
     out = []
     for t, s in zip(tables, specs, strict=True):
@@ -408,8 +505,10 @@ def _test_of(t: CurveTable) -> str:
     if has_frame and not has_spec:
         return "picture_frame"
     why = "names both a specimen and a frame" if has_spec else "names neither a specimen nor a frame"
-    raise SceneError(f"{t.source}: which test? its header {why}: give --test bias_extension or picture_frame "
-                     "(or '# test: bias_extension' in the header)")
+    raise SceneError(
+        f"{t.source}: which test? its header {why}: give --test bias_extension or picture_frame "
+        "(or '# test: bias_extension' in the header)"
+    )
 
 
 def run_from_args(args: argparse.Namespace) -> int:
@@ -426,11 +525,23 @@ def run_from_args(args: argparse.Namespace) -> int:
             for c, name in zip(curves, names, strict=True):
                 folder.write(name, functools.partial(Path.write_text, data=_table_text(c)))
             figure = _figure(folder, curves, text)
-            summary = {"curves": [{"source": c.source, "test": c.test, "label": c.label, "table": name,
-                                   "shear_angle_deg": [float(c.gamma_deg.min()), float(c.gamma_deg.max())],
-                                   "notes": c.notes} for c, name in zip(curves, names, strict=True)],
-                       "spread": {what: s for what, s in groups}, "spread_text": text, "figure": figure,
-                       "files": sorted({*names, *([FIGURE + ".png", FIGURE + ".pdf"] if figure else []), SUMMARY})}
+            summary = {
+                "curves": [
+                    {
+                        "source": c.source,
+                        "test": c.test,
+                        "label": c.label,
+                        "table": name,
+                        "shear_angle_deg": [float(c.gamma_deg.min()), float(c.gamma_deg.max())],
+                        "notes": c.notes,
+                    }
+                    for c, name in zip(curves, names, strict=True)
+                ],
+                "spread": {what: s for what, s in groups},
+                "spread_text": text,
+                "figure": figure,
+                "files": sorted({*names, *([FIGURE + ".png", FIGURE + ".pdf"] if figure else []), SUMMARY}),
+            }
             folder.write(SUMMARY, lambda p: p.write_text(json.dumps(summary, indent=2, allow_nan=False)))
     except SceneError as exc:
         print(f"ngbet normalise: {exc}", file=sys.stderr)
@@ -453,13 +564,16 @@ def _figure(folder: OwnedFolder, curves: Sequence[Normalised], text: str) -> str
         from .figures.collapse import collapse_figure
         from .figures.style import PNG_DPI, VECTOR_RASTER_DPI
     except ImportError:
-        print("ngbet normalise: matplotlib is not installed: no collapse figure (the tables are written)",
-              file=sys.stderr)
+        print(
+            "ngbet normalise: matplotlib is not installed: no collapse figure (the tables are written)", file=sys.stderr
+        )
         return None
     fig = collapse_figure(curves, text)
     for fmt in ("png", "pdf"):
-        folder.write(f"{FIGURE}.{fmt}", functools.partial(fig.savefig, format=fmt,
-                                                          dpi=PNG_DPI if fmt == "png" else VECTOR_RASTER_DPI))
+        folder.write(
+            f"{FIGURE}.{fmt}",
+            functools.partial(fig.savefig, format=fmt, dpi=PNG_DPI if fmt == "png" else VECTOR_RASTER_DPI),
+        )
     return FIGURE + ".png"
 
 
@@ -471,7 +585,9 @@ def _report(curves: Sequence[Normalised], names: Sequence[str], text: str, out: 
         sym = "F_sh" if c.test == "bias_extension" else "F_norm"
         vals = ", ".join(f"{sym}({x:g}°) = {np.interp(x, g, c.fsh):.3g} N/mm" for x in at)
         method = "Eq. 18" if c.test == "bias_extension" else "Eq. 10"
-        lines.append(f"  {c.label:>28s} ({c.test.replace('_', ' ')}): γ {g.min():.3g}–{g.max():.3g}°"
-                     f"{', ' + vals + ' (' + method + ')' if vals else ''} -> {name}")
+        lines.append(
+            f"  {c.label:>28s} ({c.test.replace('_', ' ')}): γ {g.min():.3g}–{g.max():.3g}°"
+            f"{', ' + vals + ' (' + method + ')' if vals else ''} -> {name}"
+        )
     lines.append(f"  {text}")
     return "\n".join(lines)

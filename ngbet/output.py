@@ -118,8 +118,11 @@ class RunWriter:
             if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
                 # the solver's statistics until then, where it attached them (the network's)
                 why = str(exc) if str(exc).startswith("SIG") else "SIGINT/SIGTERM"  # the CLI's handler names it
-                self.summary(dict(getattr(exc, "path_info", {})), "interrupted",
-                             f"interrupted ({why}) after u0 = {self.last_converged_mm:g} mm")
+                self.summary(
+                    dict(getattr(exc, "path_info", {})),
+                    "interrupted",
+                    f"interrupted ({why}) after u0 = {self.last_converged_mm:g} mm",
+                )
             elif exc_type is not None and self.status == "running":
                 self.summary({"error_type": exc_type.__name__}, "failed", f"{exc_type.__name__}: {exc}")
             elif self._summary and self._summary.get("files") != self.files():
@@ -205,7 +208,7 @@ class RunWriter:
             except OutputError as exc:  # named as the file it becomes, not its temporary name
                 if exc.path != tmp:
                     raise
-                raise OutputError(final, str(exc)[len(str(tmp)) + 2:]) from exc
+                raise OutputError(final, str(exc)[len(str(tmp)) + 2 :]) from exc
             except Exception:  # a reader of a cut file (the VTU's rescaling) fails: the cut is the cause
                 check_complete(tmp, final)
                 raise
@@ -239,7 +242,7 @@ class RunWriter:
             for m in made:
                 if not m.name.startswith(tmp_stem.name):
                     raise ValueError(f"{m}: not a file of the group {tmp_stem}")
-                name = stem + m.name[len(tmp_stem.name):]
+                name = stem + m.name[len(tmp_stem.name) :]
                 final = self._target(name)
                 check_complete(m, final)
                 self._register(name)

@@ -39,8 +39,17 @@ from importlib.util import find_spec
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["CHOICES", "ENV", "SPARE_CORES", "PlotProcess", "PlotProcessError", "active", "plot_process", "serve",
-           "wanted"]
+__all__ = [
+    "CHOICES",
+    "ENV",
+    "SPARE_CORES",
+    "PlotProcess",
+    "PlotProcessError",
+    "active",
+    "plot_process",
+    "serve",
+    "wanted",
+]
 
 log = logging.getLogger(__name__)
 
@@ -58,11 +67,13 @@ class PlotProcess:
     def __init__(self) -> None:
         root = str(Path(__file__).resolve().parent.parent)  # this ngbet, however it was found
         code = f"import sys; sys.path.insert(0, {root!r}); from ngbet.plot_process import serve; serve()"
-        self.proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     start_new_session=True)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True
+        )
 
-    def plot(self, run_dir: str | Path,
-             extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> Path | None:
+    def plot(
+        self, run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()
+    ) -> Path | None:
         """Draw the figures of ``run_dir`` in the process; returns force.png (None: nothing to draw).
 
         Raises
@@ -73,8 +84,7 @@ class PlotProcess:
         self.request(run_dir, extra)
         return self.answer()
 
-    def request(self, run_dir: str | Path,
-                extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> None:
+    def request(self, run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()) -> None:
         """Ask for the figures of ``run_dir`` without waiting (:meth:`answer` waits).
 
         Raises
@@ -193,8 +203,11 @@ def serve(stdin: IO[bytes] | None = None, stdout: IO[bytes] | None = None) -> No
     for line in stdin:
         try:
             req = json.loads(line)
-            png = draw_force(Path(req["run_dir"]), [(lab, x, y) for lab, x, y in req.get("extra", [])],
-                             parallel=_spare_cores() >= 1.0)
+            png = draw_force(
+                Path(req["run_dir"]),
+                [(lab, x, y) for lab, x, y in req.get("extra", [])],
+                parallel=_spare_cores() >= 1.0,
+            )
             answer: dict[str, Any] = {"png": str(png) if png is not None else None}
         except Exception as exc:  # reported to the run, which draws the figure itself
             answer = {"error": f"{type(exc).__name__}: {exc}"}

@@ -14,8 +14,15 @@ import math
 from .scene.document import Scene
 from .scene.validate import SceneError
 
-__all__ = ["SIZE_MARGIN", "available_memory", "check_size", "estimate_discrete_size", "estimate_size",
-           "locking_warning", "preflight"]
+__all__ = [
+    "SIZE_MARGIN",
+    "available_memory",
+    "check_size",
+    "estimate_discrete_size",
+    "estimate_size",
+    "locking_warning",
+    "preflight",
+]
 
 log = logging.getLogger(__name__)
 
@@ -43,9 +50,11 @@ def locking_warning(scene: Scene) -> str | None:
     lock = scene.specimen.locking_u0_mm
     if scene.loading.u0_mm < lock:
         return None
-    return (f"loading.u0_mm = {scene.loading.u0_mm:g} mm is past ideal yarn locking (u0 = {lock:.1f} mm for "
-            f"this specimen): beyond it the yarns must stretch (K_el = {scene.material.K_el:.3g} Pa) and the "
-            "force rises steeply")
+    return (
+        f"loading.u0_mm = {scene.loading.u0_mm:g} mm is past ideal yarn locking (u0 = {lock:.1f} mm for "
+        f"this specimen): beyond it the yarns must stretch (K_el = {scene.material.K_el:.3g} Pa) and the "
+        "force rises steeply"
+    )
 
 
 # fitted to the default specimen (70 x 220 mm): Netgen's triangles have about 0.42 h² each, and the
@@ -71,14 +80,14 @@ def estimate_size(scene: Scene) -> tuple[int, float]:
     area, corners = sp.length_mm * sp.width_mm, 4
     if scene.test == "picture_frame":  # the cross, graded at its 12 corners (4 without cuts)
         pf = scene.picture_frame
-        area, corners = pf.frame_mm ** 2 - 4 * pf.arm_mm ** 2, 12 if pf.arm_mm > 0 else 4
+        area, corners = pf.frame_mm**2 - 4 * pf.arm_mm**2, 12 if pf.arm_mm > 0 else 4
     ntri = area / _TRIANGLE_AREA / d.mesh_size_mm / d.mesh_size_mm  # inf, never 1/0
     if d.corner_mesh_size_mm > 0:
         ntri += corners * 12 * math.log2(d.mesh_size_mm / d.corner_mesh_size_mm)  # measured 9-12 per halving
     ntri += corners * 17 * d.corner_bisections  # measured 12-17 per bisection and corner (1 mm corners)
-    per_tri: float = d.p_u ** 2
+    per_tri: float = d.p_u**2
     if scene.effects.bending:
-        per_tri += d.p_phi ** 2 / 2 + (d.p_lam + 1) * (d.p_lam + 2) / 2
+        per_tri += d.p_phi**2 / 2 + (d.p_lam + 1) * (d.p_lam + 2) / 2
     dofs = min(ntri * per_tri, _MAX_DOFS)
     return int(dofs), _BASE_BYTES + _BYTES_PER_DOF_ORDER * dofs * (max(d.p_u, d.p_phi) + 2)
 
@@ -100,7 +109,7 @@ def estimate_discrete_size(scene: Scene) -> tuple[int, float]:
     estimate is a little low (about 12 % at the 5 mm spacing of the default network).
     """
     sp, dd = scene.specimen, scene.discrete
-    crossings = sp.length_mm * sp.width_mm * math.sin(2 * math.radians(sp.yarn_angle_deg)) / dd.spacing_mm ** 2
+    crossings = sp.length_mm * sp.width_mm * math.sin(2 * math.radians(sp.yarn_angle_deg)) / dd.spacing_mm**2
     dofs = min(3 * 2 * crossings * dd.elements_per_segment, _MAX_DOFS)
     return int(dofs), _BASE_BYTES + _DISCRETE_BYTES_PER_DOF_LOG * dofs * math.log2(max(dofs, 2.0))
 
@@ -134,17 +143,23 @@ def check_size(scene: Scene) -> str | None:
     if scene.model == "discrete":
         dd = scene.discrete
         key, value = "discrete.spacing_mm", dd.spacing_mm
-        what = (f"discrete.spacing_mm = {dd.spacing_mm:g}, elements_per_segment = {dd.elements_per_segment}: "
-                f"about {dofs:,} dofs and {mem / 1e9:.3g} GB (estimated before building the network)")
+        what = (
+            f"discrete.spacing_mm = {dd.spacing_mm:g}, elements_per_segment = {dd.elements_per_segment}: "
+            f"about {dofs:,} dofs and {mem / 1e9:.3g} GB (estimated before building the network)"
+        )
         fix = "widen the spacing"
     else:
         d = scene.discretization
         key, value = "discretization.order_u", d.order_u
-        what = (f"discretization.mesh_size_mm = {d.mesh_size_mm:g}, order_u = {d.order_u}: about {dofs:,} dofs "
-                f"and {mem / 1e9:.3g} GB (estimated before meshing)")
+        what = (
+            f"discretization.mesh_size_mm = {d.mesh_size_mm:g}, order_u = {d.order_u}: about {dofs:,} dofs "
+            f"and {mem / 1e9:.3g} GB (estimated before meshing)"
+        )
         fix = "coarsen the mesh or lower the order"
     avail = available_memory()
     if avail is not None and SIZE_MARGIN * mem >= avail:
-        raise SceneError(f"scene key '{key}' = {value!r}: {what}; only {avail / 1e9:.1f} GB are available, and "
-                         f"ngbet asks for {SIZE_MARGIN:g} times its estimate: {fix}")
+        raise SceneError(
+            f"scene key '{key}' = {value!r}: {what}; only {avail / 1e9:.1f} GB are available, and "
+            f"ngbet asks for {SIZE_MARGIN:g} times its estimate: {fix}"
+        )
     return f"a large problem: {what}" if mem > _WARN_BYTES else None

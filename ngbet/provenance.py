@@ -44,5 +44,9 @@ def git_revision() -> str:
 
 def machine() -> dict[str, Any]:
     """The machine a run ran on (node, architecture, CPUs, system), for summary.json."""
-    return {"node": platform.node(), "machine": platform.machine(), "cpus": os.cpu_count(),
-            "system": platform.platform()}
+    return {
+        "node": platform.node(),
+        "machine": platform.machine(),
+        "cpus": os.cpu_count(),
+        "system": platform.platform(),
+    }

@@ -31,9 +31,11 @@ def run(scene: Scene, out: str | Path, progress: bool = False, measured: Any = N
         from . import cholmod
 
         if not cholmod.available():
-            raise SceneError("scene key 'solver.linear_solver' = 'cholmod': needs cvxopt, which is not installed "
-                             "here: pip install \"ngbet[cholmod]\" (or choose 'auto', which falls back to "
-                             "'sparsecholesky')")
+            raise SceneError(
+                "scene key 'solver.linear_solver' = 'cholmod': needs cvxopt, which is not installed "
+                "here: pip install \"ngbet[cholmod]\" (or choose 'auto', which falls back to "
+                "'sparsecholesky')"
+            )
     with ngsolve_threads(scene):
         if scene.model == "discrete":
             from .runner.discrete import run_discrete

@@ -21,9 +21,21 @@ from typing import IO, Any
 
 from .errors import NgbetError
 
-__all__ = ["FIGURE_SUFFIXES", "RUN_FILE_PATTERNS", "RUN_LOCK", "RUN_MARKER", "TMP_PREFIX", "OutputError",
-           "acquire_run_folder", "clear_previous_run", "file_op", "jsonable", "link_or_copy", "remove_path",
-           "write_json_atomic"]
+__all__ = [
+    "FIGURE_SUFFIXES",
+    "RUN_FILE_PATTERNS",
+    "RUN_LOCK",
+    "RUN_MARKER",
+    "TMP_PREFIX",
+    "OutputError",
+    "acquire_run_folder",
+    "clear_previous_run",
+    "file_op",
+    "jsonable",
+    "link_or_copy",
+    "remove_path",
+    "write_json_atomic",
+]
 
 log = logging.getLogger(__name__)
 
@@ -39,10 +51,26 @@ RUN_LOCK = RUN_MARKER
 TMP_PREFIX = ".ngbet-tmp."
 #: names an ngbet run writes: one of these in a run folder that no run registered is refused before
 #: anything is written (it is the user's; the run would replace it)
-RUN_FILE_PATTERNS = ("scene.toml", "summary.json", "results.csv", "profile.csv", "fields*.vtu", "force.png",
-                     "force.pdf", "shear_force.png", "shear_force.pdf", "profile.png", "profile.pdf",
-                     "shear_map.png", "shear_map.pdf", "map_*.npz", "state_*.npz", "yarns_*.png",
-                     "instability_mode.vtu", "instability_mode.png")
+RUN_FILE_PATTERNS = (
+    "scene.toml",
+    "summary.json",
+    "results.csv",
+    "profile.csv",
+    "fields*.vtu",
+    "force.png",
+    "force.pdf",
+    "shear_force.png",
+    "shear_force.pdf",
+    "profile.png",
+    "profile.pdf",
+    "shear_map.png",
+    "shear_map.pdf",
+    "map_*.npz",
+    "state_*.npz",
+    "yarns_*.png",
+    "instability_mode.vtu",
+    "instability_mode.png",
+)
 #: the run's figures: drawn from its files, never read by a figure
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
@@ -92,8 +120,10 @@ def _why_not_found(path: Path, exc: OSError) -> str:
         try:
             os.getcwd()
         except FileNotFoundError:
-            return ("the current folder no longer exists (deleted or moved), and this path is relative to it: "
-                    "change to a folder that exists, or give an absolute path")
+            return (
+                "the current folder no longer exists (deleted or moved), and this path is relative to it: "
+                "change to a folder that exists, or give an absolute path"
+            )
     return exc.strerror or str(exc)
 
 
@@ -107,9 +137,12 @@ def acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
     file_op(out, lambda p: p.mkdir(parents=True, exist_ok=True))
     names = {p.name for p in file_op(out, lambda p: list(p.iterdir()))}
     if names and RUN_MARKER not in names:
-        raise OutputError(out, f"not empty and not an ngbet run folder (it holds {', '.join(sorted(names)[:5])}"
-                               f"{', ...' if len(names) > 5 else ''}; ngbet marks its run folders with "
-                               f"{RUN_MARKER}); choose another --out")
+        raise OutputError(
+            out,
+            f"not empty and not an ngbet run folder (it holds {', '.join(sorted(names)[:5])}"
+            f"{', ...' if len(names) > 5 else ''}; ngbet marks its run folders with "
+            f"{RUN_MARKER}); choose another --out",
+        )
     fh = file_op(out / RUN_MARKER, lambda p: p.open("a+"))
     try:
         fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -117,8 +150,11 @@ def acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
         fh.seek(0)
         who = _marker_record(fh.read()).get("pid")
         fh.close()
-        raise OutputError(out, f"busy: another ngbet run{f' (pid {who})' if who else ''} is writing into "
-                               "it; wait for it or choose another --out") from None
+        raise OutputError(
+            out,
+            f"busy: another ngbet run{f' (pid {who})' if who else ''} is writing into "
+            "it; wait for it or choose another --out",
+        ) from None
     except OSError as exc:
         fh.close()
         raise OutputError(out / RUN_MARKER, exc.strerror or str(exc)) from exc
@@ -128,8 +164,9 @@ def acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
         same = False
     if not same:  # removed or replaced between opening and locking: another process is at work here
         fh.close()
-        raise OutputError(out, f"its {RUN_MARKER} was removed or replaced while this run took the folder; "
-                               "choose another --out")
+        raise OutputError(
+            out, f"its {RUN_MARKER} was removed or replaced while this run took the folder; choose another --out"
+        )
     try:
         _probe_longest(out)
     except OutputError:
@@ -157,9 +194,12 @@ def _probe_longest(out: Path) -> None:
         d.mkdir(exist_ok=True)
         (d / _LONGEST[1]).write_bytes(b"")
     except OSError as exc:
-        raise OutputError(out, f"cannot hold the files of a run ({exc.strerror or exc} for a file "
-                               f"{len(str(d / _LONGEST[1])) - len(str(out))} characters deeper); choose a shorter "
-                               "--out") from None
+        raise OutputError(
+            out,
+            f"cannot hold the files of a run ({exc.strerror or exc} for a file "
+            f"{len(str(d / _LONGEST[1])) - len(str(out))} characters deeper); choose a shorter "
+            "--out",
+        ) from None
     finally:
         shutil.rmtree(d, ignore_errors=True)
 
@@ -190,13 +230,24 @@ def clear_previous_run(out: Path, registered: list[str]) -> list[Path]:
     """
     listed = set(registered)
     present = sorted(p for p in out.iterdir() if p.is_file() and p.name != RUN_MARKER)
-    clash = [p.name for p in present if p.name not in listed and not p.name.startswith(TMP_PREFIX)
-             and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_FILE_PATTERNS)]
+    clash = [
+        p.name
+        for p in present
+        if p.name not in listed
+        and not p.name.startswith(TMP_PREFIX)
+        and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_FILE_PATTERNS)
+    ]
     if clash:
-        raise OutputError(out, f"holds {', '.join(clash)}, which no ngbet run registered there (they are not "
-                               "ngbet's; this run would replace them): move them or choose another --out")
-    doomed = [p for p in [*present, *(d for d in out.iterdir() if d.is_dir() and d.name.startswith(TMP_PREFIX))]
-              if p.name in listed or p.name.startswith(TMP_PREFIX)]
+        raise OutputError(
+            out,
+            f"holds {', '.join(clash)}, which no ngbet run registered there (they are not "
+            "ngbet's; this run would replace them): move them or choose another --out",
+        )
+    doomed = [
+        p
+        for p in [*present, *(d for d in out.iterdir() if d.is_dir() and d.name.startswith(TMP_PREFIX))]
+        if p.name in listed or p.name.startswith(TMP_PREFIX)
+    ]
     gone = _remove_all_or_none(out, doomed)
     other = sorted(p.name for p in out.iterdir() if p.name != RUN_MARKER)
     if other:
@@ -227,8 +278,11 @@ def _remove_all_or_none(out: Path, doomed: list[Path]) -> list[Path]:
         with contextlib.suppress(OSError):
             trash.rmdir()
         bad = doomed[len(moved)]
-        raise OutputError(bad, f"cannot be removed ({exc.strerror or exc}), so the previous run's files cannot be "
-                               "replaced; nothing was removed: make it writable or choose another --out") from None
+        raise OutputError(
+            bad,
+            f"cannot be removed ({exc.strerror or exc}), so the previous run's files cannot be "
+            "replaced; nothing was removed: make it writable or choose another --out",
+        ) from None
     shutil.rmtree(trash, ignore_errors=True)
     return doomed
 
@@ -255,8 +309,11 @@ def check_complete(path: Path, final: Path) -> None:
     except OSError as exc:
         raise OutputError(final, exc.strerror or str(exc)) from exc
     if end not in tail:
-        raise OutputError(final, f"written incomplete ({size} bytes, without its ending): the disk is full or "
-                                 "a file size limit (ulimit -f) was reached")
+        raise OutputError(
+            final,
+            f"written incomplete ({size} bytes, without its ending): the disk is full or "
+            "a file size limit (ulimit -f) was reached",
+        )
 
 
 def strict(o: Any) -> Any:
@@ -316,12 +373,18 @@ class OwnedFolder:
         file_op(out, lambda p: p.mkdir(parents=True, exist_ok=True))
         names = {p.name for p in file_op(out, lambda p: list(p.iterdir()))}
         if RUN_MARKER in names:
-            raise OutputError(out, f"an ngbet run folder (it holds {RUN_MARKER}); a {kind} writes a folder of its "
-                                   "own: choose another --out")
+            raise OutputError(
+                out,
+                f"an ngbet run folder (it holds {RUN_MARKER}); a {kind} writes a folder of its "
+                "own: choose another --out",
+            )
         if names and FOLDER_MARKER not in names:
-            raise OutputError(out, f"not empty and not written by an ngbet {kind} (it holds "
-                                   f"{', '.join(sorted(names)[:5])}{', ...' if len(names) > 5 else ''}; ngbet marks "
-                                   f"the folders it writes with {FOLDER_MARKER}); choose another --out")
+            raise OutputError(
+                out,
+                f"not empty and not written by an ngbet {kind} (it holds "
+                f"{', '.join(sorted(names)[:5])}{', ...' if len(names) > 5 else ''}; ngbet marks "
+                f"the folders it writes with {FOLDER_MARKER}); choose another --out",
+            )
         self._fh: IO[str] | None = file_op(out / FOLDER_MARKER, lambda p: p.open("a+"))
         self._before: dict[str, tuple[int, int, int]] = {}
         self.previous: list[str] = []
@@ -330,21 +393,31 @@ class OwnedFolder:
         except BlockingIOError:
             self._fh.close()
             self._fh = None
-            raise OutputError(out, "busy: another ngbet command is writing into it; wait for it or choose "
-                                   "another --out") from None
+            raise OutputError(
+                out, "busy: another ngbet command is writing into it; wait for it or choose another --out"
+            ) from None
         try:
             self._fh.seek(0)
             rec = _marker_record(self._fh.read())
             if rec and (rec.get("kind"), rec.get("name")) != (kind, name):
-                raise OutputError(out, f"the folder of the {rec.get('kind')} {rec.get('name')!r}, not of the {kind} "
-                                       f"{name!r}: choose another --out")
+                raise OutputError(
+                    out,
+                    f"the folder of the {rec.get('kind')} {rec.get('name')!r}, not of the {kind} "
+                    f"{name!r}: choose another --out",
+                )
             files = rec.get("files")
             self.previous = [n for n in files if isinstance(n, str) and "/" not in n] if isinstance(files, list) else []
-            clash = sorted(n for n in names - {*self.previous, FOLDER_MARKER}
-                           if (out / n).is_file() and any(fnmatch.fnmatchcase(n, pat) for pat in FOLDER_FILE_PATTERNS))
+            clash = sorted(
+                n
+                for n in names - {*self.previous, FOLDER_MARKER}
+                if (out / n).is_file() and any(fnmatch.fnmatchcase(n, pat) for pat in FOLDER_FILE_PATTERNS)
+            )
             if clash:
-                raise OutputError(out, f"holds {', '.join(clash)}, which no ngbet {kind} wrote there (this {kind} "
-                                       "could replace them): move them or choose another --out")
+                raise OutputError(
+                    out,
+                    f"holds {', '.join(clash)}, which no ngbet {kind} wrote there (this {kind} "
+                    "could replace them): move them or choose another --out",
+                )
             probe = out / f"{TMP_PREFIX}probe.{os.getpid()}"
             file_op(probe, lambda p: p.write_bytes(b""))
             probe.unlink()
@@ -367,8 +440,9 @@ class OwnedFolder:
         fh = self._fh
         if fh is None:
             return
-        text = json.dumps({"ngbet": "folder", "kind": self.kind, "name": self.name, "pid": os.getpid(),
-                           "files": sorted(set(files))})
+        text = json.dumps(
+            {"ngbet": "folder", "kind": self.kind, "name": self.name, "pid": os.getpid(), "files": sorted(set(files))}
+        )
         file_op(self.out / FOLDER_MARKER, lambda p: (fh.seek(0), fh.truncate(), fh.write(text), fh.flush()))
 
     def write(self, name: str, produce: Callable[[Path], Any]) -> Path:

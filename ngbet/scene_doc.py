@@ -62,12 +62,16 @@ _EXTRA = {
     "solver.cut": "factor of the load step after a failed attempt",
 }
 
-_MODEL_DOC = ('"continuum": the constrained micromorphic continuum (finite elements); '
-              '"discrete": the yarn network (beams and springs)')
+_MODEL_DOC = (
+    '"continuum": the constrained micromorphic continuum (finite elements); '
+    '"discrete": the yarn network (beams and springs)'
+)
 
-_TEST_DOC = ('"bias_extension": a rectangular specimen clamped at its two ends ([specimen], loading.u0_mm the clamp '
-             'displacement); "picture_frame": a cross clamped in a hinged square frame pulled along its diagonal '
-             '([picture_frame], loading.u0_mm the crosshead travel; continuum model only)')
+_TEST_DOC = (
+    '"bias_extension": a rectangular specimen clamped at its two ends ([specimen], loading.u0_mm the clamp '
+    'displacement); "picture_frame": a cross clamped in a hinged square frame pulled along its diagonal '
+    "([picture_frame], loading.u0_mm the crosshead travel; continuum model only)"
+)
 
 _KEY = re.compile(r"^\s{4}(\w+)\s*:\s*[^=]+=\s*(?P<default>.*)$")
 
@@ -109,9 +113,16 @@ def _value(key: str, value: Any) -> str:
 def commented_toml(scene: Scene) -> str:
     """The complete scene as TOML with comments; reading it back gives the same scene."""
     d = scene.to_dict()
-    parts = [HEADER, "\n", _comment(f"{_MODEL_DOC}; one of {', '.join(map(repr, MODELS))}"),
-             _value("model", d["model"]), "\n",
-             _comment(f"{_TEST_DOC}; one of {', '.join(map(repr, TESTS))}"), _value("test", d["test"]), "\n"]
+    parts = [
+        HEADER,
+        "\n",
+        _comment(f"{_MODEL_DOC}; one of {', '.join(map(repr, MODELS))}"),
+        _value("model", d["model"]),
+        "\n",
+        _comment(f"{_TEST_DOC}; one of {', '.join(map(repr, TESTS))}"),
+        _value("test", d["test"]),
+        "\n",
+    ]
     for name, cls in SECTIONS.items():
         doc = (inspect.getdoc(cls) or "").split("\n\n")[0].replace("\n", " ")
         parts += ["\n", _comment(doc), f"[{name}]\n"]

@@ -47,7 +47,7 @@ def _append(path: Path, text: str) -> None:
         size = os.fstat(fd).st_size
         try:
             while data:
-                data = data[os.write(fd, data):]
+                data = data[os.write(fd, data) :]
         except OSError:
             with contextlib.suppress(OSError):
                 os.ftruncate(fd, size)

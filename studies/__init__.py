@@ -18,6 +18,7 @@ STUDIES = {
     "maps": "deformed specimen coloured by the shear angle, yarns drawn on it (37 and 56 mm)",
     "compare": "continuum and discrete model side by side",
     "validation": "Twintex fabrics of Cao et al. 2008: every measured curve a fit did not use, predicted",
-    "reference": ("reference-grade force (37, 56 mm) and profile by hp extrapolation, with its bound; "
-                  "hp vs uniform convergence"),
+    "reference": (
+        "reference-grade force (37, 56 mm) and profile by hp extrapolation, with its bound; hp vs uniform convergence"
+    ),
 }

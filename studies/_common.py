@@ -13,10 +13,41 @@ from ngbet.scene.document import Scene, SceneWarning, default_scene
 from ngbet.scene.validate import SceneError
 from ngbet.study.model import MissingValueError, StudyData
 
-__all__ = ["BISECT", "CON", "FORM", "FREE_ORDERS", "GRADE", "H", "K", "P", "QUICK", "base_scene", "colormap",
-           "describe_discretization", "describe_mesh", "dofs", "fmt", "header", "lagrange", "lagrange_case",
-           "loglog_slope", "mesh", "ok", "param", "penalty", "profile_error", "reference", "require_continuum",
-           "short_log_axis", "sorted_values", "stations", "study_scene", "total_iterations", "unique", "wall"]
+__all__ = [
+    "BISECT",
+    "CON",
+    "FORM",
+    "FREE_ORDERS",
+    "GRADE",
+    "H",
+    "K",
+    "P",
+    "QUICK",
+    "base_scene",
+    "colormap",
+    "describe_discretization",
+    "describe_mesh",
+    "dofs",
+    "fmt",
+    "header",
+    "lagrange",
+    "lagrange_case",
+    "loglog_slope",
+    "mesh",
+    "ok",
+    "param",
+    "penalty",
+    "profile_error",
+    "reference",
+    "require_continuum",
+    "short_log_axis",
+    "sorted_values",
+    "stations",
+    "study_scene",
+    "total_iterations",
+    "unique",
+    "wall",
+]
 
 H = "discretization.mesh_size_mm"
 P = "discretization.order_u"
@@ -31,8 +62,12 @@ FORM = "effects.penalty_form"
 QUICK: dict[str, Any] = {"loading.u0_mm": 20.0, "loading.stops_mm": [10.0], H: 20.0, P: 2, GRADE: 0.0, BISECT: 0}
 #: the discretization keys a study that varies the discretization sets in its base scene, so that
 #: its cases (which set h, p, the corner size and bisections) are the same on any scene
-FREE_ORDERS: dict[str, Any] = {"discretization.order_phi": "auto", "discretization.order_lam": "auto",
-                               "discretization.structured": False, "discretization.target_error": 0.0}
+FREE_ORDERS: dict[str, Any] = {
+    "discretization.order_phi": "auto",
+    "discretization.order_lam": "auto",
+    "discretization.structured": False,
+    "discretization.target_error": 0.0,
+}
 
 
 def base_scene(quick: bool = False, **changes: Any) -> Scene:
@@ -137,8 +172,9 @@ def reference(data: StudyData, u0: float, p: int, hs: Sequence[float]) -> dict[s
         raise MissingValueError(f"reference cases missing or failed: p = {p}, h = {list(hs)}")
     F = [data.at(c, u0, "force_N") for c in cs]  # type: ignore[arg-type]
     if not all(math.isfinite(f) for f in F):
-        raise MissingValueError(f"no reference: the force at u0 = {u0:g} mm of the reference cases {cs} "
-                                f"(p = {p}, h = {list(hs)} mm) is {F}")
+        raise MissingValueError(
+            f"no reference: the force at u0 = {u0:g} mm of the reference cases {cs} (p = {p}, h = {list(hs)} mm) is {F}"
+        )
     d1, d2 = F[0] - F[1], F[1] - F[2]
     q = math.log2(d1 / d2) if d1 * d2 > 0 and abs(d2) > 0 else math.nan
     if math.isfinite(q) and q > 0.2:
@@ -149,9 +185,18 @@ def reference(data: StudyData, u0: float, p: int, hs: Sequence[float]) -> dict[s
     X1, uy1 = data.profile(cs[1], u0)  # type: ignore[arg-type]
     fac = 1 / (2**q - 1) if math.isfinite(q) and q > 0.2 else 1.0
     prof_unc = fac * float(np.linalg.norm(np.subtract(uy, uy1)) / max(float(np.linalg.norm(uy)), 1e-300))
-    return {"force_N": Fref, "forces_N": F, "hs": list(hs), "p": p, "order": q,
-            "uncertainty_N": abs(Fref - F[2]), "X_mm": X, "uy_mm": uy, "profile_uncertainty": prof_unc,
-            "cases": cs}
+    return {
+        "force_N": Fref,
+        "forces_N": F,
+        "hs": list(hs),
+        "p": p,
+        "order": q,
+        "uncertainty_N": abs(Fref - F[2]),
+        "X_mm": X,
+        "uy_mm": uy,
+        "profile_uncertainty": prof_unc,
+        "cases": cs,
+    }
 
 
 def profile_error(X: Sequence[float], uy: Sequence[float], ref_uy: Sequence[float]) -> float:
@@ -200,8 +245,11 @@ def describe_discretization(scene: dict[str, Any], varied: Sequence[str] = ()) -
         return f"yarn network, spacing {scene['discrete']['spacing_mm']:g} mm"
     mine = [k for k in varied if k.startswith("discretization.")]
     if mine:
-        return ("varied by the cases (" + ", ".join(k.split(".", 1)[1] for k in mine)
-                + "; each row of the tables names its own)")
+        return (
+            "varied by the cases ("
+            + ", ".join(k.split(".", 1)[1] for k in mine)
+            + "; each row of the tables names its own)"
+        )
     return describe_mesh(scene["discretization"])
 
 
@@ -209,9 +257,13 @@ def header(data: StudyData, title: str, reference: str) -> list[str]:
     """The first lines of every report: title, scene, discretization, reference value."""
     m = data.meta
     src = m.get("scene_source") or "ngbet's default scene (the paper's BET)"
-    L = [f"# {title}", "", f"- Scene: {src}; loaded to {m['base_scene']['loading']['u0_mm']:g} mm.",
-         f"- Discretization: {describe_discretization(m['base_scene'], m.get('params', []))}.",
-         f"- Reference: {reference}"]
+    L = [
+        f"# {title}",
+        "",
+        f"- Scene: {src}; loaded to {m['base_scene']['loading']['u0_mm']:g} mm.",
+        f"- Discretization: {describe_discretization(m['base_scene'], m.get('params', []))}.",
+        f"- Reference: {reference}",
+    ]
     if m.get("quick_left_out"):
         L.append("- Quick mode, leaves out: " + "; ".join(m["quick_left_out"]) + ".")
     return [*L, ""]
@@ -237,6 +289,8 @@ def require_continuum(base: Scene, study: str) -> Scene:
     The studies that vary the mesh and the orders have nothing to vary in the yarn network.
     """
     if base.model != "continuum":
-        raise SceneError(f"model = {base.model!r}: study {study} varies the continuum's discretization "
-                         "(mesh size, orders, corner grading); give model = 'continuum'")
+        raise SceneError(
+            f"model = {base.model!r}: study {study} varies the continuum's discretization "
+            "(mesh size, orders, corner grading); give model = 'continuum'"
+        )
     return base

@@ -13,8 +13,16 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["deformed_yarns", "lines_polydata", "midline_field", "outline", "sample_displacement", "warped_mm",
-           "write_yarns_vtp", "yarn_lines_reference"]
+__all__ = [
+    "deformed_yarns",
+    "lines_polydata",
+    "midline_field",
+    "outline",
+    "sample_displacement",
+    "warped_mm",
+    "write_yarns_vtp",
+    "yarn_lines_reference",
+]
 
 os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
 
@@ -46,8 +54,13 @@ def outline(vtu: str | Path, L_mm: float, W_mm: float, n: int = 120) -> tuple[np
     t = np.linspace(0, 1, n, endpoint=False)
     nw = max(n * W_mm // L_mm, 8)
     s = np.linspace(0, 1, int(nw), endpoint=False)
-    ref = np.r_[np.c_[t * L_mm, 0 * t], np.c_[L_mm + 0 * s, s * W_mm], np.c_[L_mm - t * L_mm, W_mm + 0 * t],
-                np.c_[0 * s, W_mm - s * W_mm], [[0.0, 0.0]]]
+    ref = np.r_[
+        np.c_[t * L_mm, 0 * t],
+        np.c_[L_mm + 0 * s, s * W_mm],
+        np.c_[L_mm - t * L_mm, W_mm + 0 * t],
+        np.c_[0 * s, W_mm - s * W_mm],
+        [[0.0, 0.0]],
+    ]
     u = sample_displacement(mesh, ref)
     return ref, ref + u
 
@@ -90,8 +103,9 @@ def yarn_lines_reference(L: float, W: float, angle_deg: float, spacing: float) -
     return out
 
 
-def deformed_yarns(vtu: str | Path, L_mm: float, W_mm: float, angle_deg: float,
-                   spacing_mm: float) -> dict[int, list[np.ndarray]]:
+def deformed_yarns(
+    vtu: str | Path, L_mm: float, W_mm: float, angle_deg: float, spacing_mm: float
+) -> dict[int, list[np.ndarray]]:
     """Yarn polylines of both families in the deformed configuration [mm]."""
     pv = _pv()
     mesh = pv.read(str(vtu))

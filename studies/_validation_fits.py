@@ -27,9 +27,24 @@ import numpy as np
 
 from ngbet.scene.document import Scene
 
-__all__ = ["FABRICS", "FITS_FOLDER", "MAX_RUNS", "QUICK", "QUICK_RUNS", "SCORE_POINTS", "FitSpec", "cached",
-           "data_root", "fit_and_predict", "fits_folder", "fits_key", "fits_of", "lab_of", "points_of",
-           "read_curve"]
+__all__ = [
+    "FABRICS",
+    "FITS_FOLDER",
+    "MAX_RUNS",
+    "QUICK",
+    "QUICK_RUNS",
+    "SCORE_POINTS",
+    "FitSpec",
+    "cached",
+    "data_root",
+    "fit_and_predict",
+    "fits_folder",
+    "fits_key",
+    "fits_of",
+    "lab_of",
+    "points_of",
+    "read_curve",
+]
 
 log = logging.getLogger(__name__)
 
@@ -47,24 +62,36 @@ def data_root() -> Path:
             return root
     from ngbet.scene.validate import SceneError
 
-    raise SceneError("study validation reads the fabric scenes geometry/twintex_*.toml and their measured curves "
-                     "data/cao2008/ and data/cao2008_pf/, installed with ngbet: not found beside the studies, in the "
-                     f"installed package {Path(ngbet.__file__).resolve().parent} nor in the current directory "
-                     f"{Path.cwd()} (reinstall ngbet)")
+    raise SceneError(
+        "study validation reads the fabric scenes geometry/twintex_*.toml and their measured curves "
+        "data/cao2008/ and data/cao2008_pf/, installed with ngbet: not found beside the studies, in the "
+        f"installed package {Path(ngbet.__file__).resolve().parent} nor in the current directory "
+        f"{Path.cwd()} (reinstall ngbet)"
+    )
 
 
 #: fabric: (scene, bias-extension curves (data/cao2008/), picture-frame curves (data/cao2008_pf/))
 FABRICS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
-    "plain": ("twintex_plain.toml",
-              ("cao2008_plain_150x300_INSA-NU.csv", "cao2008_plain_150x450_INSA-NU.csv"),
-              ("cao2008_pf_plain_UML_fig28_normalized_energy.csv", "cao2008_pf_plain_UN_fig28_normalized_energy.csv",
-               "cao2008_pf_plain_UML_fig22_shear_force.csv", "cao2008_pf_plain_UN_fig22_shear_force.csv")),
-    "twill_balanced": ("twintex_twill_balanced.toml",
-                       ("cao2008_twill_balanced_150x300_INSA-NU.csv", "cao2008_twill_balanced_150x450_INSA-NU.csv"),
-                       ("cao2008_pf_twill_balanced_UML_fig29_normalized_energy.csv",)),
-    "twill_unbalanced": ("twintex_twill_unbalanced.toml",
-                         ("cao2008_twill_unbalanced_100x250_UN.csv", "cao2008_twill_unbalanced_100x200_UN.csv"),
-                         ("cao2008_pf_twill_unbalanced_UN_fig30_normalized_energy.csv",)),
+    "plain": (
+        "twintex_plain.toml",
+        ("cao2008_plain_150x300_INSA-NU.csv", "cao2008_plain_150x450_INSA-NU.csv"),
+        (
+            "cao2008_pf_plain_UML_fig28_normalized_energy.csv",
+            "cao2008_pf_plain_UN_fig28_normalized_energy.csv",
+            "cao2008_pf_plain_UML_fig22_shear_force.csv",
+            "cao2008_pf_plain_UN_fig22_shear_force.csv",
+        ),
+    ),
+    "twill_balanced": (
+        "twintex_twill_balanced.toml",
+        ("cao2008_twill_balanced_150x300_INSA-NU.csv", "cao2008_twill_balanced_150x450_INSA-NU.csv"),
+        ("cao2008_pf_twill_balanced_UML_fig29_normalized_energy.csv",),
+    ),
+    "twill_unbalanced": (
+        "twintex_twill_unbalanced.toml",
+        ("cao2008_twill_unbalanced_100x250_UN.csv", "cao2008_twill_unbalanced_100x200_UN.csv"),
+        ("cao2008_pf_twill_unbalanced_UN_fig30_normalized_energy.csv",),
+    ),
 }
 #: the quick study: the unbalanced twill fitted on its 100 x 250 mm curve
 QUICK = ("twill_unbalanced", "100 x 250 mm")
@@ -102,7 +129,7 @@ class FitSpec:
 
     @property
     def kind(self) -> str:
-        """"one size", "two sizes" or "frame": what the fit used."""
+        """What the fit used: "one size", "two sizes" or "frame"."""
         if self.fitted[0].startswith("cao2008_pf_"):
             return "frame"
         return "two sizes" if len(self.fitted) > 1 else "one size"
@@ -125,8 +152,9 @@ def fits_of(fabric: str) -> list[FitSpec]:
 
     def spec(name: str, fitted: tuple[str, ...]) -> FitSpec:
         labs = {lab_of(f) for f in fitted if f.startswith("cao2008_pf_")}
-        targets = tuple(f for f in (*bet, *pf) if f not in fitted
-                        and not (f.startswith("cao2008_pf_") and lab_of(f) in labs))
+        targets = tuple(
+            f for f in (*bet, *pf) if f not in fitted and not (f.startswith("cao2008_pf_") and lab_of(f) in labs)
+        )
         return FitSpec(fabric, name, fitted, targets)
 
     out = [spec(label(b), (b,)) for b in bet]
@@ -151,8 +179,11 @@ def fits_key(spec: FitSpec, max_runs: int, scene_toml: str) -> str:
         eb = p.with_name(p.stem + "_errorbars.csv")
         if eb.exists():
             h.update(eb.read_bytes())
-    h.update(json.dumps([spec.fabric, spec.fitted, spec.targets, max_runs, SCORE_POINTS,
-                         code_version("continuum")], sort_keys=True).encode())
+    h.update(
+        json.dumps(
+            [spec.fabric, spec.fitted, spec.targets, max_runs, SCORE_POINTS, code_version("continuum")], sort_keys=True
+        ).encode()
+    )
     return h.hexdigest()[:16]
 
 
@@ -203,8 +234,11 @@ def _progress(label: str) -> Any:
 
     def show(runs: int, rms: list[float], best: float) -> None:
         if tty:
-            sys.stderr.write(f"\rngbet: study validation: fitting {label}: model run {runs}, RMS "
-                             + ", ".join(f"{100 * r:.1f} %" for r in rms) + f", {time.perf_counter() - t0:.0f} s\x1b[K")
+            sys.stderr.write(
+                f"\rngbet: study validation: fitting {label}: model run {runs}, RMS "
+                + ", ".join(f"{100 * r:.1f} %" for r in rms)
+                + f", {time.perf_counter() - t0:.0f} s\x1b[K"
+            )
             sys.stderr.flush()
 
     return show
@@ -241,10 +275,21 @@ def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Pat
             except Exception as exc:  # noqa: BLE001 - a failed prediction is a row of the report, not the end
                 preds[name] = {"u_mm": u.tolist(), "failed": f"{type(exc).__name__}: {exc}"}
                 continue
-            preds[name] = {"u_mm": u.tolist(), "force_N": _finite(p.force_N), "sd_parameters_N": _finite(p.sd_param_N),
-                           "sd_discretization_N": _finite(p.sd_disc_N)}
-        return {"fabric": spec.fabric, "fit_name": spec.name, "fitted": list(spec.fitted), "max_runs": runs,
-                "fit": res.to_json(), "fitted_scene": res.scene.to_toml(), "predictions": preds}
+            preds[name] = {
+                "u_mm": u.tolist(),
+                "force_N": _finite(p.force_N),
+                "sd_parameters_N": _finite(p.sd_param_N),
+                "sd_discretization_N": _finite(p.sd_disc_N),
+            }
+        return {
+            "fabric": spec.fabric,
+            "fit_name": spec.name,
+            "fitted": list(spec.fitted),
+            "max_runs": runs,
+            "fit": res.to_json(),
+            "fitted_scene": res.scene.to_toml(),
+            "predictions": preds,
+        }
 
     name = f"{'quick' if quick else 'full'}-{spec.fabric}-{fits_key(spec, runs, scene.to_toml())}"
     return {**cached(folder, name, make), "cache_name": name}

@@ -34,8 +34,10 @@ from . import reference as R
 
 __all__ = ["CASES", "EQUIVALENT", "LABELS", "analyse", "build", "extract", "label", "main", "plot", "report"]
 
-CASES: list[dict[str, Any]] = [{"model": "continuum", "outputs.vtk": True, "outputs.vtk_every_step": True},
-                               {"model": "discrete"}]
+CASES: list[dict[str, Any]] = [
+    {"model": "continuum", "outputs.vtk": True, "outputs.vtk_every_step": True},
+    {"model": "discrete"},
+]
 # the network with the continuum's energy per unit area (ngbet.discrete.equivalent): the check
 # that the two models agree where their physics is the same
 EQUIVALENT = "discrete, continuum-equivalent"
@@ -56,9 +58,16 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
         warnings.simplefilter("ignore", SceneWarning)
         base = C.study_scene(scene, quick, {"discrete.spacing_mm": 10.0} if quick else {})
     equivalent = {"model": "discrete", **continuum_equivalent(base)}
-    return Study("compare", base, [*CASES, equivalent], description=__doc__ or "", extract=extract,
-                 plot=lambda d: plot(d, quick), report=lambda d: report(d, quick),
-                 profile_stations=C.stations(quick, base))
+    return Study(
+        "compare",
+        base,
+        [*CASES, equivalent],
+        description=__doc__ or "",
+        extract=extract,
+        plot=lambda d: plot(d, quick),
+        report=lambda d: report(d, quick),
+        profile_stations=C.stations(quick, base),
+    )
 
 
 def extract(rec: dict[str, Any], run_dir: Path, out: Path) -> dict[str, Any]:
@@ -95,8 +104,12 @@ def analyse(data: StudyData, quick: bool) -> dict[str, Any]:
         i = _case(data, m)
         if i is None:
             continue
-        r = {"case": i, "status": data.meta["cases"][i]["status"], "wall_s": C.wall(data, i),
-             "u0_reached": data.meta["cases"][i].get("u0_reached_mm")}
+        r = {
+            "case": i,
+            "status": data.meta["cases"][i]["status"],
+            "wall_s": C.wall(data, i),
+            "u0_reached": data.meta["cases"][i].get("u0_reached_mm"),
+        }
         for s in (s1, s2):
             X, uy = data.profile(i, s)
             r[f"F{s:g}"] = data.at(i, s, "force_N")
@@ -113,25 +126,35 @@ def analyse(data: StudyData, quick: bool) -> dict[str, Any]:
 def report(data: StudyData, quick: bool) -> str:
     s1, s2 = C.stations(quick, data)
     a = analyse(data, quick)
-    L = [*C.header(data, "Continuum and discrete model side by side", R.reference_text(data, quick)),
-         f"| model | status | F({s1:g}) [N] | F({s2:g}) [N] | u_y(L/4) at {s1:g} mm [mm] "
-         f"| u_y(L/4) at {s2:g} mm [mm] | max abs(u_y) at {s2:g} mm [mm] | largest slip [mm] | wall time [s] |",
-         "|---|---|---|---|---|---|---|---|---|"]
+    L = [
+        *C.header(data, "Continuum and discrete model side by side", R.reference_text(data, quick)),
+        f"| model | status | F({s1:g}) [N] | F({s2:g}) [N] | u_y(L/4) at {s1:g} mm [mm] "
+        f"| u_y(L/4) at {s2:g} mm [mm] | max abs(u_y) at {s2:g} mm [mm] | largest slip [mm] | wall time [s] |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for m, r in a.items():
-        L.append(f"| {m} | {r['status']} (to {C.fmt(r['u0_reached'], 'g')} mm) | {C.fmt(r[f'F{s1:g}'], '.3f')} | "
-                 f"{C.fmt(r[f'F{s2:g}'], '.3f')} | {C.fmt(r[f'uyq{s1:g}'], '.3f')} | {C.fmt(r[f'uyq{s2:g}'], '.3f')} | "
-                 f"{C.fmt(r[f'maxuy{s2:g}'], '.3f')} | "
-                 f"{C.fmt(r.get('max_slip_mm', math.nan), '.3f')} | {r['wall_s']:.1f} |")
+        L.append(
+            f"| {m} | {r['status']} (to {C.fmt(r['u0_reached'], 'g')} mm) | {C.fmt(r[f'F{s1:g}'], '.3f')} | "
+            f"{C.fmt(r[f'F{s2:g}'], '.3f')} | {C.fmt(r[f'uyq{s1:g}'], '.3f')} | {C.fmt(r[f'uyq{s2:g}'], '.3f')} | "
+            f"{C.fmt(r[f'maxuy{s2:g}'], '.3f')} | "
+            f"{C.fmt(r.get('max_slip_mm', math.nan), '.3f')} | {r['wall_s']:.1f} |"
+        )
     if "continuum" in a:
         q0 = a["continuum"][f"uyq{s2:g}"]
         for m in ("discrete", EQUIVALENT):
             if m in a:
                 same = np.sign(q0) == np.sign(a[m][f"uyq{s2:g}"])
-                L += ["", f"Bending direction at {s2:g} mm (sign of u_y at X = L/4 on the mid-axis), "
-                      f"continuum and {m}: "
-                      + ("the same." if same else "OPPOSITE: the two models bend the specimen in opposite directions.")]
-    L += ["", f"'{EQUIVALENT}': the network whose stiffnesses give the continuum's energy per unit area "
-          "(EA = t K_el s, EI_k = t alpha_k s, K_phi = t K_sh s^2, no slip, no trusses; ngbet.discrete.equivalent)."]
+                L += [
+                    "",
+                    f"Bending direction at {s2:g} mm (sign of u_y at X = L/4 on the mid-axis), "
+                    f"continuum and {m}: "
+                    + ("the same." if same else "OPPOSITE: the two models bend the specimen in opposite directions."),
+                ]
+    L += [
+        "",
+        f"'{EQUIVALENT}': the network whose stiffnesses give the continuum's energy per unit area "
+        "(EA = t K_el s, EI_k = t alpha_k s, K_phi = t K_sh s^2, no slip, no trusses; ngbet.discrete.equivalent).",
+    ]
     return "\n".join(L) + "\n"
 
 
@@ -146,7 +169,7 @@ def _discrete_segments(npz: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndar
     ptr, nodes = d["yarn_ptr"], d["yarn_nodes"]
     segs, fam, ang = [], [], []
     for k in range(len(ptr) - 1):
-        ch = nodes[ptr[k]:ptr[k + 1]]
+        ch = nodes[ptr[k] : ptr[k + 1]]
         gk = g[ch]
         ok = np.isfinite(gk)
         if ok.any():
@@ -189,8 +212,9 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
         rows = data.case_rows(i)
         snap = [float(r.get("snap") or 0.0) for r in rows] if rows and "snap" in rows[0] else None
         snapped = snapped or bool(snap and any(snap))
-        curve_with_jumps(axs[0], [r["u0_mm"] for r in rows], [r["force_N"] for r in rows], snap, label=m,
-                            color=col, jump_label=None)
+        curve_with_jumps(
+            axs[0], [r["u0_mm"] for r in rows], [r["force_N"] for r in rows], snap, label=m, color=col, jump_label=None
+        )
         for ax, s in ((axs[1], s1), (axs[2], s2)):
             X, uy = data.profile(i, s)
             if X:
@@ -206,8 +230,11 @@ def _plot_curves(data: StudyData, quick: bool) -> Path:
         ax.set_ylabel("vertical displacement u_y [mm]")
         ax.axhline(0, color="k", lw=0.5)
     axs[0].set_title("force (points: converged steps, joined by straight lines)")
-    handles = [Line2D([], [], color=col, marker="o", ms=3.5, label=m)
-               for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True) if _case(data, m) is not None]
+    handles = [
+        Line2D([], [], color=col, marker="o", ms=3.5, label=m)
+        for m, col in zip(LABELS, ("C0", "C1", "C2"), strict=True)
+        if _case(data, m) is not None
+    ]
     handles.append(Line2D([], [], color="k", ls="--", lw=1, label="ideal kinematics (shear only)"))
     if snapped:
         handles.append(Line2D([], [], color="0.3", ls="--", lw=1.2, label="snap-through (vertical dashed jump)"))
@@ -228,8 +255,9 @@ def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
     cs = colour_scale([m.gamma_deg for m, _ in cont.values()] + [a for _, _, a in disc.values()])
     norm = cs.norm()
     L, W = float(sp["length_mm"]), float(sp["width_mm"])
-    fig, axs = subplots(len(loads), 2, size=(11, 0.7 + len(loads) * (0.85 + 4.2 * min(W / L, 1.0))),
-                           squeeze=False, layout="compressed")
+    fig, axs = subplots(
+        len(loads), 2, size=(11, 0.7 + len(loads) * (0.85 + 4.2 * min(W / L, 1.0))), squeeze=False, layout="compressed"
+    )
     art = None
     for row, u0 in enumerate(loads):
         if u0 in cont:
@@ -240,8 +268,15 @@ def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
             lc = _map_discrete(axs[row, 1], disc[u0], cs, norm)
             art = art if art is not None else lc
         else:
-            axs[row, 1].text(0.5, 0.5, "no state of the network saved at this load\n(states: the load stops and "
-                             "the last load)", ha="center", va="center", transform=axs[row, 1].transAxes, fontsize=8)
+            axs[row, 1].text(
+                0.5,
+                0.5,
+                "no state of the network saved at this load\n(states: the load stops and the last load)",
+                ha="center",
+                va="center",
+                transform=axs[row, 1].transAxes,
+                fontsize=8,
+            )
         axs[row, 1].set_title(f"yarn network, u₀ = {u0:g} mm (thick yarns solid, thin dashed)")
         for ax in axs[row]:
             ax.set_aspect("equal")
@@ -251,8 +286,11 @@ def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
         ax.set_xlabel("x (deformed) [mm]")
     if art is not None:
         colour_bar(fig, axs, art, cs)
-    put_caption(fig, caption(data.meta["base_scene"]) + " (the continuum's); the network of the same "
-                   "specimen with its own parameters (paper Table 2)" + (f"; {cs.note()}" if cs.note() else ""))
+    put_caption(
+        fig,
+        caption(data.meta["base_scene"]) + " (the continuum's); the network of the same "
+        "specimen with its own parameters (paper Table 2)" + (f"; {cs.note()}" if cs.note() else ""),
+    )
     return savefig(fig, data.out, "compare_maps")
 
 
@@ -264,8 +302,9 @@ def _continuum_map(vtu: Path, sp: dict[str, Any]) -> tuple[Any, dict[int, list[n
 
     surf = F.warped_mm(vtu).extract_surface(algorithm="dataset_surface").triangulate()
     tri = np.asarray(surf.faces).reshape(-1, 4)[:, 1:]
-    m = MapData(0.0, np.asarray(surf.points[:, 0]), np.asarray(surf.points[:, 1]), tri,
-                np.asarray(surf["shear_angle_deg"]))
+    m = MapData(
+        0.0, np.asarray(surf.points[:, 0]), np.asarray(surf.points[:, 1]), tri, np.asarray(surf["shear_angle_deg"])
+    )
     return m, F.deformed_yarns(vtu, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"], 10.0)
 
 
@@ -277,8 +316,9 @@ def _map_discrete(ax: Any, network: tuple[list[np.ndarray], np.ndarray, np.ndarr
     lc = None
     for fm, lw, ls in ((2, 0.6, (0, (3, 1))), (1, 1.8, "solid")):
         sel = fam == fm
-        lc = LineCollection([segs[k] for k in np.flatnonzero(sel)], linewidths=lw, linestyles=ls,
-                            cmap=cs.cmap, norm=norm)
+        lc = LineCollection(
+            [segs[k] for k in np.flatnonzero(sel)], linewidths=lw, linestyles=ls, cmap=cs.cmap, norm=norm
+        )
         lc.set_array(ang[sel])
         ax.add_collection(lc)
     ax.autoscale()

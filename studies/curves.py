@@ -53,10 +53,14 @@ def analyse(data: StudyData) -> dict[str, Any]:
 
 def report(data: StudyData, quick: bool = False) -> str:
     a = analyse(data)
-    L = [*C.header(data, "Load-displacement and double-force-displacement curves", R.reference_text(data, quick)),
-         f"Envelope check: max |dE/du0 - F| / F over the interior steps (central differences, "
-         f"O(step^2)) = {a['envelope_max_rel']:.2g}", "",
-         "| u0 [mm] | force [N] | ideal kinematics [N] | dE/du0 [N] | double force [N m] |", "|---|---|---|---|---|"]
+    L = [
+        *C.header(data, "Load-displacement and double-force-displacement curves", R.reference_text(data, quick)),
+        f"Envelope check: max |dE/du0 - F| / F over the interior steps (central differences, "
+        f"O(step^2)) = {a['envelope_max_rel']:.2g}",
+        "",
+        "| u0 [mm] | force [N] | ideal kinematics [N] | dE/du0 [N] | double force [N m] |",
+        "|---|---|---|---|---|",
+    ]
     for u, f, fi, de, t in zip(a["u0"], a["F"], a["Fid"], a["dE"], a["T"], strict=True):
         L.append(f"| {u:g} | {f:.4f} | {fi:.4f} | {de:.4f} | {t:.5g} |")
     return "\n".join(L) + "\n"

@@ -35,8 +35,16 @@ QUICK = (0.2e6, 2e6)
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
     u0 = 20.0 if quick else 37.0
     base = C.study_scene(scene, quick, {"loading.u0_mm": u0, "loading.stops_mm": [], "outputs.vtk": True})
-    return Study("kel", base, [{KEL: k} for k in (QUICK if quick else FULL)], description=__doc__ or "",
-                 extract=extract, plot=plot, report=lambda d: report(d, quick), profile_stations=(u0,))
+    return Study(
+        "kel",
+        base,
+        [{KEL: k} for k in (QUICK if quick else FULL)],
+        description=__doc__ or "",
+        extract=extract,
+        plot=plot,
+        report=lambda d: report(d, quick),
+        profile_stations=(u0,),
+    )
 
 
 def extract(rec: dict[str, Any], run_dir: Path, out: Path) -> dict[str, Any]:
@@ -44,9 +52,10 @@ def extract(rec: dict[str, Any], run_dir: Path, out: Path) -> dict[str, Any]:
     F = _fields()
     ref, xy = F.outline(run_dir / "fields.vtu", sp["length_mm"], sp["width_mm"])
     X, g = F.midline_field(run_dir / "fields.vtu", sp["length_mm"], sp["width_mm"], "shear_angle_deg")
-    return {"outlines": [{"X_mm": a[0], "Y_mm": a[1], "x_mm": b[0], "y_mm": b[1]}
-                         for a, b in zip(ref, xy, strict=True)],
-            "midline_shear": [{"X_mm": x, "gamma_deg": v} for x, v in zip(X, g, strict=True)]}
+    return {
+        "outlines": [{"X_mm": a[0], "Y_mm": a[1], "x_mm": b[0], "y_mm": b[1]} for a, b in zip(ref, xy, strict=True)],
+        "midline_shear": [{"X_mm": x, "gamma_deg": v} for x, v in zip(X, g, strict=True)],
+    }
 
 
 def _fields() -> Any:  # imported lazily: pyvista is only needed to extract
@@ -70,21 +79,33 @@ def widths(data: StudyData) -> list[dict[str, Any]]:
         gs = np.array([r["gamma_deg"] for r in mid])
         g_c = float(np.interp(L / 2, Xs, gs)) if len(mid) else float("nan")
         zone = Xs[gs >= 0.9 * g_c] if len(mid) else np.array([])
-        out.append({"case": c["case"], "K_el": c["params"][KEL], "width_mm": w, "gamma_c": g_c,
-                    "zone_mm": float(zone.max() - zone.min()) if len(zone) else float("nan"),
-                    "F": data.at(c["case"], u0, "force_N"),
-                    "status": c["status"]})
+        out.append(
+            {
+                "case": c["case"],
+                "K_el": c["params"][KEL],
+                "width_mm": w,
+                "gamma_c": g_c,
+                "zone_mm": float(zone.max() - zone.min()) if len(zone) else float("nan"),
+                "F": data.at(c["case"], u0, "force_N"),
+                "status": c["status"],
+            }
+        )
     return out
 
 
 def report(data: StudyData, quick: bool = False) -> str:
     u0 = data.meta["base_scene"]["loading"]["u0_mm"]
-    L = [*C.header(data, f"K_el sweep at u0 = {u0:g} mm", R.reference_text(data, quick)),
-         "| K_el [MPa] | width at X = L/2 [mm] | shear angle at the centre [deg] | "
-         "length of the central zone, shear >= 90 % of the centre's [mm] | F [N] |", "|---|---|---|---|---|"]
+    L = [
+        *C.header(data, f"K_el sweep at u0 = {u0:g} mm", R.reference_text(data, quick)),
+        "| K_el [MPa] | width at X = L/2 [mm] | shear angle at the centre [deg] | "
+        "length of the central zone, shear >= 90 % of the centre's [mm] | F [N] |",
+        "|---|---|---|---|---|",
+    ]
     for r in widths(data):
-        L.append(f"| {r['K_el'] / 1e6:g} | {r['width_mm']:.3f} | {r['gamma_c']:.2f} | {r['zone_mm']:.1f} "
-                 f"| {C.fmt(r['F'], '.4f')} |")
+        L.append(
+            f"| {r['K_el'] / 1e6:g} | {r['width_mm']:.3f} | {r['gamma_c']:.2f} | {r['zone_mm']:.1f} "
+            f"| {C.fmt(r['F'], '.4f')} |"
+        )
     return "\n".join(L) + "\n"
 
 
@@ -97,8 +118,12 @@ def plot(data: StudyData) -> list[Path]:
     for j, r in enumerate(widths(data)):
         pts = [q for q in data.tables.get("outlines", []) if int(q["case"]) == r["case"]]
         if pts:
-            ax.plot([q["x_mm"] for q in pts], [q["y_mm"] for q in pts], color=f"C{j}",
-                    label=f"K_el = {eng(r['K_el'], 'Pa')} (width at centre {r['width_mm']:.1f} mm)")
+            ax.plot(
+                [q["x_mm"] for q in pts],
+                [q["y_mm"] for q in pts],
+                color=f"C{j}",
+                label=f"K_el = {eng(r['K_el'], 'Pa')} (width at centre {r['width_mm']:.1f} mm)",
+            )
     L = data.meta["base_scene"]["specimen"]["length_mm"]
     W = data.meta["base_scene"]["specimen"]["width_mm"]
     ax.plot([0, L, L, 0, 0], [0, 0, W, W, 0], "k:", lw=0.8, label="undeformed specimen")

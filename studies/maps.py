@@ -33,8 +33,16 @@ YARN_SPACING_MM = 10.0  # drawn yarns (one line per 10 mm; the fabric's yarns ar
 
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
     base = C.study_scene(scene, quick, {"outputs.plot": True, **({C.H: 20.0} if quick else {})})
-    return Study("maps", base, [{}], description=__doc__ or "", extract=extract, plot=plot,
-                 report=lambda d: report(d, quick), profile_stations=C.stations(quick, base))
+    return Study(
+        "maps",
+        base,
+        [{}],
+        description=__doc__ or "",
+        extract=extract,
+        plot=plot,
+        report=lambda d: report(d, quick),
+        profile_stations=C.stations(quick, base),
+    )
 
 
 def step_vtu(run_dir: Path, u0: float) -> Path | None:
@@ -59,13 +67,15 @@ def extract(rec: dict[str, Any], run_dir: Path, out: Path) -> dict[str, Any]:
         shutil.copyfile(src, out / src.name)
         with np.load(src) as z:
             g = z["gamma_deg"]
-            rows.append({"u0_mm": u0, "data": src.name, "gamma_min_deg": float(g.min()),
-                         "gamma_max_deg": float(g.max())})
+            rows.append(
+                {"u0_mm": u0, "data": src.name, "gamma_min_deg": float(g.min()), "gamma_max_deg": float(g.max())}
+            )
     return {"maps": rows}
 
 
-def deformed_yarns(npz: Path, L_mm: float, W_mm: float, angle_deg: float,
-                   spacing_mm: float) -> dict[int, list[np.ndarray]]:
+def deformed_yarns(
+    npz: Path, L_mm: float, W_mm: float, angle_deg: float, spacing_mm: float
+) -> dict[int, list[np.ndarray]]:
     """Yarn polylines of both families [mm] in the deformed configuration of a map file.
 
     The straight reference yarns (:func:`ngbet.studies._fields.yarn_lines_reference`) moved by the
@@ -78,8 +88,9 @@ def deformed_yarns(npz: Path, L_mm: float, W_mm: float, angle_deg: float,
     with np.load(npz) as z:
         # each element carries its own copy of its points (the shear angle jumps between elements);
         # the displacement is continuous: one point per position for the interpolation
-        _, first, index = np.unique(np.round(np.c_[z["X_mm"], z["Y_mm"]], 9), axis=0, return_index=True,
-                                    return_inverse=True)
+        _, first, index = np.unique(
+            np.round(np.c_[z["X_mm"], z["Y_mm"]], 9), axis=0, return_index=True, return_inverse=True
+        )
         tri = mtri.Triangulation(z["X_mm"][first], z["Y_mm"][first], index.ravel()[z["triangles"]])
         interp = [mtri.LinearTriInterpolator(tri, z[k][first]) for k in ("ux_mm", "uy_mm")]
     out: dict[int, list[np.ndarray]] = {}
@@ -87,8 +98,9 @@ def deformed_yarns(npz: Path, L_mm: float, W_mm: float, angle_deg: float,
         out[fam] = []
         for pl in lines:
             # a hair inside the specimen, so that no point falls between the triangles of its border
-            p = np.c_[np.clip(pl[:, 0], 1e-6 * L_mm, L_mm * (1 - 1e-6)),
-                      np.clip(pl[:, 1], 1e-6 * W_mm, W_mm * (1 - 1e-6))]
+            p = np.c_[
+                np.clip(pl[:, 0], 1e-6 * L_mm, L_mm * (1 - 1e-6)), np.clip(pl[:, 1], 1e-6 * W_mm, W_mm * (1 - 1e-6))
+            ]
             u = np.c_[[np.ma.filled(f(p[:, 0], p[:, 1]), np.nan) for f in interp]].T
             ok = np.all(np.isfinite(u), axis=1)
             out[fam].append(p[ok] + u[ok])
@@ -104,18 +116,26 @@ def plot(data: StudyData) -> list[Path]:
     for r in data.tables.get("maps", []):
         npz = data.out / r["data"]
         with np.load(npz) as z:
-            maps.append(MapData(float(z["u0_mm"]), z["X_mm"] + z["ux_mm"], z["Y_mm"] + z["uy_mm"],
-                                   z["triangles"], z["gamma_deg"]))
-        yarns[maps[-1].u0_mm] = deformed_yarns(npz, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"],
-                                               YARN_SPACING_MM)
+            maps.append(
+                MapData(
+                    float(z["u0_mm"]), z["X_mm"] + z["ux_mm"], z["Y_mm"] + z["uy_mm"], z["triangles"], z["gamma_deg"]
+                )
+            )
+        yarns[maps[-1].u0_mm] = deformed_yarns(
+            npz, sp["length_mm"], sp["width_mm"], sp["yarn_angle_deg"], YARN_SPACING_MM
+        )
     fig = shear_map_figure(maps, data.meta["base_scene"], yarns)
     return [] if fig is None else [savefig(fig, data.out, "map")]
 
 
 def report(data: StudyData, quick: bool = False) -> str:
-    L = [*C.header(data, "Angle maps", R.reference_text(data, quick)),
-         "One colour scale for both loads: `map.png`, `map.pdf`.", "",
-         "| u0 [mm] | smallest shear angle γ [deg] | largest [deg] | data |", "|---|---|---|---|"]
+    L = [
+        *C.header(data, "Angle maps", R.reference_text(data, quick)),
+        "One colour scale for both loads: `map.png`, `map.pdf`.",
+        "",
+        "| u0 [mm] | smallest shear angle γ [deg] | largest [deg] | data |",
+        "|---|---|---|---|",
+    ]
     for r in data.tables.get("maps", []):
         L.append(f"| {r['u0_mm']:g} | {r['gamma_min_deg']:.2f} | {r['gamma_max_deg']:.2f} | {r['data']} |")
     return "\n".join(L) + "\n"

@@ -45,8 +45,12 @@ class Grid(TypedDict):
     profile_case: tuple[float, int]
 
 
-FULL: Grid = {"h": (10.0, 5.0), "p": (1, 2, 3, 4, 5), "K": (2e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12),
-              "profile_case": (5.0, 2)}
+FULL: Grid = {
+    "h": (10.0, 5.0),
+    "p": (1, 2, 3, 4, 5),
+    "K": (2e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12),
+    "profile_case": (5.0, 2),
+}
 QUICK: Grid = {"h": (20.0,), "p": (1, 2), "K": (1e6, 1e8, 1e9, 1e10), "profile_case": (20.0, 2)}
 # penalty slopes are fitted where the penalty error is asymptotic and above round-off
 FIT_K = (1e8, 1e11)
@@ -66,9 +70,15 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
     g = QUICK if quick else FULL
     cases = own_cases(g) + R.families(quick)["reference"]
     base = C.require_continuum(C.study_scene(scene, quick, C.FREE_ORDERS), "penalty_p")
-    return Study("penalty_p", base, C.unique(cases),
-                 description=__doc__ or "", plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
-                 profile_stations=C.stations(quick, base))
+    return Study(
+        "penalty_p",
+        base,
+        C.unique(cases),
+        description=__doc__ or "",
+        plot=lambda d: plot(d, g, quick),
+        report=lambda d: report(d, g, quick),
+        profile_stations=C.stations(quick, base),
+    )
 
 
 def analyse(data: StudyData, g: Grid, quick: bool) -> dict[str, Any]:
@@ -86,10 +96,21 @@ def analyse(data: StudyData, g: Grid, quick: bool) -> dict[str, Any]:
         lag_i = C.lagrange_case(data, h, p)
         F1, F2 = data.at(i, s1, "force_N"), data.at(i, s2, "force_N")
         K = prm.get(C.K, math.inf) if prm[C.CON] == "penalty" else math.inf
-        r = {"case": i, "h": h, "p": p, "method": prm[C.CON], "K": K,
-             "status": c["status"], "F1": F1, "F2": F2, "dofs": C.dofs(data, i), "its": C.total_iterations(data, i),
-             "time": C.wall(data, i), "constraint": data.at(i, s2, "constraint_rms"),
-             "err_ref": abs(F2 - ref["force_N"]) / ref["force_N"]}
+        r = {
+            "case": i,
+            "h": h,
+            "p": p,
+            "method": prm[C.CON],
+            "K": K,
+            "status": c["status"],
+            "F1": F1,
+            "F2": F2,
+            "dofs": C.dofs(data, i),
+            "its": C.total_iterations(data, i),
+            "time": C.wall(data, i),
+            "constraint": data.at(i, s2, "constraint_rms"),
+            "err_ref": abs(F2 - ref["force_N"]) / ref["force_N"],
+        }
         if lag_i is not None:
             FL = data.at(lag_i, s2, "force_N")
             r["err_pen"] = abs(F2 - FL) / FL
@@ -100,15 +121,13 @@ def analyse(data: StudyData, g: Grid, quick: bool) -> dict[str, Any]:
     slopes, orders_h, rates_p, kstar = {}, {}, {}, {}
     for h in g["h"]:
         for p in g["p"]:
-            pen = [r for r in rows if r["h"] == h and r["p"] == p and r["method"] == "penalty"
-                   and r["status"] == "ok"]
+            pen = [r for r in rows if r["h"] == h and r["p"] == p and r["method"] == "penalty" and r["status"] == "ok"]
             fit = [r for r in pen if FIT_K[0] <= r["K"] <= FIT_K[1] and r.get("err_pen", 0) > 1e-10]
             slopes[(h, p)] = C.loglog_slope([r["K"] for r in fit], [r["err_pen"] for r in fit])
             lag_hp = [r for r in rows if r["h"] == h and r["p"] == p and r["method"] == "lagrange"]
             if lag_hp:
                 disc = lag_hp[0]["err_ref"]
-                hidden = [r["K"] for r in sorted(pen, key=lambda r: r["K"])
-                          if r.get("err_pen", math.inf) <= 0.1 * disc]
+                hidden = [r["K"] for r in sorted(pen, key=lambda r: r["K"]) if r.get("err_pen", math.inf) <= 0.1 * disc]
                 kstar[(h, p)] = hidden[0] if hidden else math.nan
     lag = {(r["h"], r["p"]): r for r in rows if r["method"] == "lagrange"}
     for p in g["p"]:
@@ -117,43 +136,75 @@ def analyse(data: StudyData, g: Grid, quick: bool) -> dict[str, Any]:
             orders_h[p] = C.loglog_slope(hs, [lag[(h, p)]["err_ref"] for h in hs])
     for h in g["h"]:
         ps = [p for p in g["p"] if (h, p) in lag]
-        rates_p[h] = {"dofs_slope": C.loglog_slope([lag[(h, p)]["dofs"] for p in ps],
-                                                   [lag[(h, p)]["err_ref"] for p in ps]),
-                      "successive": [math.log(lag[(h, a)]["err_ref"] / lag[(h, b)]["err_ref"]) / math.log(b / a)
-                                     if lag[(h, b)]["err_ref"] > 0 else math.nan for a, b in itertools.pairwise(ps)]}
-    return {"ref": ref, "ref1": ref1, "ref1_split": "fine" in R_, "ref_cases": R_["cases"], "rows": rows,
-            "slopes": slopes, "orders_h": orders_h, "rates_p": rates_p, "kstar": kstar, "stations": (s1, s2)}
+        rates_p[h] = {
+            "dofs_slope": C.loglog_slope([lag[(h, p)]["dofs"] for p in ps], [lag[(h, p)]["err_ref"] for p in ps]),
+            "successive": [
+                math.log(lag[(h, a)]["err_ref"] / lag[(h, b)]["err_ref"]) / math.log(b / a)
+                if lag[(h, b)]["err_ref"] > 0
+                else math.nan
+                for a, b in itertools.pairwise(ps)
+            ],
+        }
+    return {
+        "ref": ref,
+        "ref1": ref1,
+        "ref1_split": "fine" in R_,
+        "ref_cases": R_["cases"],
+        "rows": rows,
+        "slopes": slopes,
+        "orders_h": orders_h,
+        "rates_p": rates_p,
+        "kstar": kstar,
+        "stations": (s1, s2),
+    }
 
 
 def report(data: StudyData, g: Grid, quick: bool) -> str:
     a = analyse(data, g, quick)
     s1, s2 = a["stations"]
     ref = a["ref"]
-    text = (f"`ngbet study reference` of this scene (p = {', '.join(map(str, R.orders(quick)))} on the "
-            f"corner-graded mesh, run as part of this study): F({s1:g}) = {a['ref1']['force_N']:.4f} N "
-            f"± {a['ref1']['bound_N']:.2g} N"
-            + (" (the split-corner family's, from the cache)" if a["ref1_split"] else "")
-            + f", F({s2:g}) = {ref['force_N']:.4f} N ± {ref['bound_N']:.2g} N.")
-    L = [*C.header(data, f"Penalty K x p (x h) at u0 = {s1:g} and {s2:g} mm", text),
-         "## Lagrange solutions (discretization error)", "",
-         f"| h [mm] | p | dofs | F({s1:g}) [N] | F({s2:g}) [N] | error vs ref | profile error vs ref "
-         "| Newton its | time [s] |",
-         "|---|---|---|---|---|---|---|---|---|"]
+    text = (
+        f"`ngbet study reference` of this scene (p = {', '.join(map(str, R.orders(quick)))} on the "
+        f"corner-graded mesh, run as part of this study): F({s1:g}) = {a['ref1']['force_N']:.4f} N "
+        f"± {a['ref1']['bound_N']:.2g} N"
+        + (" (the split-corner family's, from the cache)" if a["ref1_split"] else "")
+        + f", F({s2:g}) = {ref['force_N']:.4f} N ± {ref['bound_N']:.2g} N."
+    )
+    L = [
+        *C.header(data, f"Penalty K x p (x h) at u0 = {s1:g} and {s2:g} mm", text),
+        "## Lagrange solutions (discretization error)",
+        "",
+        f"| h [mm] | p | dofs | F({s1:g}) [N] | F({s2:g}) [N] | error vs ref | profile error vs ref "
+        "| Newton its | time [s] |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in sorted((r for r in a["rows"] if r["method"] == "lagrange"), key=lambda r: (-r["h"], r["p"])):
-        L.append(f"| {r['h']:g} | {r['p']} | {r['dofs']:.0f} | {C.fmt(r['F1'], '.4f')} | "
-                 f"{C.fmt(r['F2'], '.4f')} | "
-                 f"{100 * r['err_ref']:.3g} % | {100 * r['prof_ref']:.3g} % | {r['its']} | {r['time']:.2f} |")
-    L += ["", ("Observed order of the force error in h (slope of log error vs log h, per p): "
-               + ", ".join(f"p={p}: {C.fmt(q, '.2f')}" for p, q in a["orders_h"].items()) + "."
-               if a["orders_h"] else
-               "Observed order in h: none, the grid has one mesh size "
-               f"(h = {', '.join(f'{h:g}' for h in g['h'])} mm)."),
-          "", "Rate in p (slope of log error vs log dofs at fixed h; "
-          "successive p-orders log(e_p/e_p+1)/log((p+1)/p)): "
-          + "; ".join(f"h={h:g}: {C.fmt(v['dofs_slope'], '.2f')} "
-                      f"({', '.join(C.fmt(x, '.2f') for x in v['successive'])})"
-                      for h, v in a["rates_p"].items()),
-          "", f"## Penalty error |F_K - F_Lagrange| / F_Lagrange at {s2:g} mm (same mesh and order)", ""]
+        L.append(
+            f"| {r['h']:g} | {r['p']} | {r['dofs']:.0f} | {C.fmt(r['F1'], '.4f')} | "
+            f"{C.fmt(r['F2'], '.4f')} | "
+            f"{100 * r['err_ref']:.3g} % | {100 * r['prof_ref']:.3g} % | {r['its']} | {r['time']:.2f} |"
+        )
+    L += [
+        "",
+        (
+            "Observed order of the force error in h (slope of log error vs log h, per p): "
+            + ", ".join(f"p={p}: {C.fmt(q, '.2f')}" for p, q in a["orders_h"].items())
+            + "."
+            if a["orders_h"]
+            else "Observed order in h: none, the grid has one mesh size "
+            f"(h = {', '.join(f'{h:g}' for h in g['h'])} mm)."
+        ),
+        "",
+        "Rate in p (slope of log error vs log dofs at fixed h; "
+        "successive p-orders log(e_p/e_p+1)/log((p+1)/p)): "
+        + "; ".join(
+            f"h={h:g}: {C.fmt(v['dofs_slope'], '.2f')} ({', '.join(C.fmt(x, '.2f') for x in v['successive'])})"
+            for h, v in a["rates_p"].items()
+        ),
+        "",
+        f"## Penalty error |F_K - F_Lagrange| / F_Lagrange at {s2:g} mm (same mesh and order)",
+        "",
+    ]
     keys = [(h, p) for h in g["h"] for p in g["p"]]
     L.append("| K [Pa] | " + " | ".join(f"h={h:g} p={p}" for h, p in keys) + " |")
     L.append("|---|" + "---|" * len(keys))
@@ -164,23 +215,35 @@ def report(data: StudyData, g: Grid, quick: bool) -> str:
             cells.append("failed" if r is None or r["status"] != "ok" else f"{r.get('err_pen', math.nan):.2e}")
         L.append(f"| {k:.0e} | " + " | ".join(cells) + " |")
     L.append("| slope (K in [1e8, 1e11]) | " + " | ".join(C.fmt(a["slopes"][hp], ".3f") for hp in keys) + " |")
-    L.append("| K beyond which the penalty error < 1/10 of the discretization error | "
-             + " | ".join(C.fmt(a["kstar"].get(hp, math.nan), ".0e") for hp in keys) + " |")
-    L += ["", f"## Constraint violation ||phi - i8|| (RMS) at {s2:g} mm, Newton iterations, time", "",
-          "| h | p | K | ||phi-i8|| | profile err vs Lagrange | Newton its | time [s] |",
-          "|---|---|---|---|---|---|---|"]
+    L.append(
+        "| K beyond which the penalty error < 1/10 of the discretization error | "
+        + " | ".join(C.fmt(a["kstar"].get(hp, math.nan), ".0e") for hp in keys)
+        + " |"
+    )
+    L += [
+        "",
+        f"## Constraint violation ||phi - i8|| (RMS) at {s2:g} mm, Newton iterations, time",
+        "",
+        "| h | p | K | ||phi-i8|| | profile err vs Lagrange | Newton its | time [s] |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in sorted(a["rows"], key=lambda r: (-r["h"], r["p"], r["K"])):
-        L.append(f"| {r['h']:g} | {r['p']} | {'Lagrange' if r['method'] == 'lagrange' else format(r['K'], '.0e')} | "
-                 f"{C.fmt(r['constraint'], '.2e')} | {C.fmt(r.get('prof_pen', math.nan), '.2e')} | {r['its']} | "
-                 f"{r['time']:.2f} |")
+        L.append(
+            f"| {r['h']:g} | {r['p']} | {'Lagrange' if r['method'] == 'lagrange' else format(r['K'], '.0e')} | "
+            f"{C.fmt(r['constraint'], '.2e')} | {C.fmt(r.get('prof_pen', math.nan), '.2e')} | {r['its']} | "
+            f"{r['time']:.2f} |"
+        )
     return "\n".join(L) + "\n"
 
 
 def plot(data: StudyData, g: Grid, quick: bool) -> list[Path]:
     a = analyse(data, g, quick)
     styles = {h: ls for h, ls in zip(g["h"], ("-", "--", ":"), strict=False)}
-    return [_plot_profiles(data, g, a), _plot_penalty_error(data, g, a, styles),
-            _plot_discretization_error(data, g, a, styles)]
+    return [
+        _plot_profiles(data, g, a),
+        _plot_penalty_error(data, g, a, styles),
+        _plot_discretization_error(data, g, a, styles),
+    ]
 
 
 def _plot_profiles(data: StudyData, g: Grid, a: dict[str, Any]) -> Path:
@@ -192,8 +255,10 @@ def _plot_profiles(data: StudyData, g: Grid, a: dict[str, Any]) -> Path:
     h0, p0 = g["profile_case"]
     fig, ax = subplots(size=(7, 4))
     cmap = colormap()
-    pen = sorted((r for r in a["rows"] if r["h"] == h0 and r["p"] == p0 and r["method"] == "penalty"
-                  and r["status"] == "ok"), key=lambda r: r["K"])
+    pen = sorted(
+        (r for r in a["rows"] if r["h"] == h0 and r["p"] == p0 and r["method"] == "penalty" and r["status"] == "ok"),
+        key=lambda r: r["K"],
+    )
     for j, r in enumerate(pen):
         X, uy = data.profile(r["case"], s2)
         ax.plot(X, uy, color=cmap(j / max(len(pen) - 1, 1)), label=f"penalty K = {eng(r['K'], 'Pa')}")
@@ -216,8 +281,14 @@ def _plot_penalty_error(data: StudyData, g: Grid, a: dict[str, Any], styles: dic
     fig, axs = subplots(1, 3, size=(15, 4.3))
     for h in g["h"]:
         for p in g["p"]:
-            rs = sorted((r for r in a["rows"] if r["h"] == h and r["p"] == p and r["method"] == "penalty"
-                         and r["status"] == "ok"), key=lambda r: r["K"])
+            rs = sorted(
+                (
+                    r
+                    for r in a["rows"]
+                    if r["h"] == h and r["p"] == p and r["method"] == "penalty" and r["status"] == "ok"
+                ),
+                key=lambda r: r["K"],
+            )
             if not rs:
                 continue
             K = [r["K"] for r in rs]
@@ -257,23 +328,37 @@ def _plot_discretization_error(data: StudyData, g: Grid, a: dict[str, Any], styl
     lag = [r for r in a["rows"] if r["method"] == "lagrange" and r["status"] == "ok"]
     for h in g["h"]:
         rs = sorted((r for r in lag if r["h"] == h), key=lambda r: r["p"])
-        axs[0].loglog([r["dofs"] for r in rs], [r["err_ref"] for r in rs], "o" + styles[h],
-                      label=f"h = {h:g} mm, p = " + ", ".join(str(r["p"]) for r in rs))
+        axs[0].loglog(
+            [r["dofs"] for r in rs],
+            [r["err_ref"] for r in rs],
+            "o" + styles[h],
+            label=f"h = {h:g} mm, p = " + ", ".join(str(r["p"]) for r in rs),
+        )
         for r in rs:
             axs[0].annotate(f"p{r['p']}", (r["dofs"], r["err_ref"]), fontsize=7)
     for p in g["p"] if two else ():
         rs = sorted((r for r in lag if r["p"] == p), key=lambda r: r["h"])
         if len(rs) > 1:
-            axs[1].loglog([r["h"] for r in rs], [r["err_ref"] for r in rs], "o-", color=f"C{p - 1}",
-                          label=f"p = {p}: order {C.fmt(a['orders_h'].get(p, math.nan), '.2f')}")
+            axs[1].loglog(
+                [r["h"] for r in rs],
+                [r["err_ref"] for r in rs],
+                "o-",
+                color=f"C{p - 1}",
+                label=f"p = {p}: order {C.fmt(a['orders_h'].get(p, math.nan), '.2f')}",
+            )
     axs[0].set_xlabel("dofs")
     axs[-1].set_xlabel("h [mm]" if two else "dofs")
     for ax in axs:
         ax.set_ylabel(f"|F_Lagrange - F_ref| / F_ref at {s2:g} mm")
         ax.grid(alpha=0.3, which="both")
         ax.legend(loc="best")
-    put_caption(fig, study_caption(data.meta, f"discretization error against the reference "
-                                                    f"{a['ref']['force_N']:.4f} N ± {a['ref']['bound_N']:.2g} N"))
+    put_caption(
+        fig,
+        study_caption(
+            data.meta,
+            f"discretization error against the reference {a['ref']['force_N']:.4f} N ± {a['ref']['bound_N']:.2g} N",
+        ),
+    )
     return savefig(fig, data.out, "discretization_error")
 
 

@@ -69,10 +69,35 @@ from ngbet.tables import read_rows
 
 from . import _common as C
 
-__all__ = ["BISECT", "FINE_BISECTIONS", "FINE_FAMILY", "GRADE", "GRADED_P2", "HP_FAMILY", "OFF", "QUICK_REF",
-           "REF_FAMILY", "REF_H", "UNIFORM_P2", "aitken", "analyse", "build", "extrapolate", "families", "fine_family",
-           "fits", "graded", "main", "of_scene", "orders", "plot", "profile_error_max", "reference", "reference_text",
-           "report"]
+__all__ = [
+    "BISECT",
+    "FINE_BISECTIONS",
+    "FINE_FAMILY",
+    "GRADE",
+    "GRADED_P2",
+    "HP_FAMILY",
+    "OFF",
+    "QUICK_REF",
+    "REF_FAMILY",
+    "REF_H",
+    "UNIFORM_P2",
+    "aitken",
+    "analyse",
+    "build",
+    "extrapolate",
+    "families",
+    "fine_family",
+    "fits",
+    "graded",
+    "main",
+    "of_scene",
+    "orders",
+    "plot",
+    "profile_error_max",
+    "reference",
+    "reference_text",
+    "report",
+]
 
 GRADE = C.GRADE
 BISECT = C.BISECT
@@ -96,19 +121,24 @@ def graded(c: float, p: int, h: float = 10.0) -> dict[str, Any]:
 
 def families(quick: bool) -> dict[str, list[dict[str, Any]]]:
     if quick:
-        return {"reference": [graded(c, p, 20.0) for c, p in QUICK_REF],
-                "uniform": [{**C.lagrange(20.0, 2), **OFF}], "graded": [], "hp": [graded(2.5, 2, 20.0)]}
-    return {"reference": [graded(c, p, REF_H) for c, p in REF_FAMILY],
-            "uniform": [{**C.lagrange(h, 2), **OFF} for h in UNIFORM_P2],
-            "graded": [graded(c, p) for c, p in GRADED_P2],
-            "hp": [graded(c, p) for c, p in HP_FAMILY]}
+        return {
+            "reference": [graded(c, p, 20.0) for c, p in QUICK_REF],
+            "uniform": [{**C.lagrange(20.0, 2), **OFF}],
+            "graded": [],
+            "hp": [graded(2.5, 2, 20.0)],
+        }
+    return {
+        "reference": [graded(c, p, REF_H) for c, p in REF_FAMILY],
+        "uniform": [{**C.lagrange(h, 2), **OFF} for h in UNIFORM_P2],
+        "graded": [graded(c, p) for c, p in GRADED_P2],
+        "hp": [graded(c, p) for c, p in HP_FAMILY],
+    }
 
 
 def fine_family(quick: bool, s1: float = 37.0) -> list[dict[str, Any]]:
     """The cases of :data:`FINE_FAMILY`, loaded to the first station ``s1`` only (none in quick mode)."""
     to_s1 = {"loading.u0_mm": float(s1), "loading.stops_mm": []}
     return [] if quick else [{**graded(c, p, REF_H), BISECT: FINE_BISECTIONS, **to_s1} for c, p in FINE_FAMILY]
-
 
 
 def orders(quick: bool) -> list[int]:
@@ -120,9 +150,15 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
     base = C.require_continuum(C.study_scene(scene, quick, C.FREE_ORDERS), "reference")
     fam = families(quick)
     cases = C.unique([c for cs in fam.values() for c in cs] + fine_family(quick, C.stations(quick, base)[0]))
-    return Study("reference", base, cases, description=__doc__ or "",
-                 plot=lambda d: plot(d, quick), report=lambda d: report(d, quick),
-                 profile_stations=C.stations(quick, base))
+    return Study(
+        "reference",
+        base,
+        cases,
+        description=__doc__ or "",
+        plot=lambda d: plot(d, quick),
+        report=lambda d: report(d, quick),
+        profile_stations=C.stations(quick, base),
+    )
 
 
 def aitken(F: Sequence[float]) -> tuple[float, float]:
@@ -179,8 +215,9 @@ def _fits(p: np.ndarray, F: Sequence[float]) -> list[tuple[float, float]]:
     y = np.asarray(F, float)
     out = []
     models: tuple[tuple[Callable[..., Any], tuple[float, ...]], ...] = (
-        (lambda q, a, c, r: a + c * r ** q, (0.3, 0.5, 0.7)),
-        (lambda q, a, c, b: a + c * q ** (-b), (1.0, 2.0, 3.0, 4.0)))
+        (lambda q, a, c, r: a + c * r**q, (0.3, 0.5, 0.7)),
+        (lambda q, a, c, b: a + c * q ** (-b), (1.0, 2.0, 3.0, 4.0)),
+    )
     for f, rates in models:
         best: tuple[float, float] | None = None
         for rate in rates:
@@ -217,14 +254,18 @@ def reference(data: StudyData, quick: bool = False) -> dict[Any, Any]:
     cs = [_case(data, p) for p in fam]
     missing = [p for p, c in zip(fam, cs, strict=True) if c is None]
     if missing:
-        raise MissingValueError("reference cases missing or failed (no reference from an incomplete family): "
-                                + "; ".join(", ".join(f"{k}={v}" for k, v in p.items()) for p in missing))
+        raise MissingValueError(
+            "reference cases missing or failed (no reference from an incomplete family): "
+            + "; ".join(", ".join(f"{k}={v}" for k, v in p.items()) for p in missing)
+        )
     out: dict[Any, Any] = {"cases": cs, "family": {}}
     for s in C.stations(quick, data):
         forces = [data.at(c, s, "force_N") for c in cs]  # type: ignore[arg-type]
         if not all(math.isfinite(f) for f in forces):
-            raise MissingValueError(f"no reference: the force at u0 = {s:g} mm of the reference cases {cs} is "
-                                    f"{forces} (a case stopped before that load)")
+            raise MissingValueError(
+                f"no reference: the force at u0 = {s:g} mm of the reference cases {cs} is "
+                f"{forces} (a case stopped before that load)"
+            )
         F, bound = extrapolate(forces, orders(quick))
         out["family"][s] = out[s] = {"force_N": F, "bound_N": bound, "forces_N": forces}
     s1, s2 = C.stations(quick, data)
@@ -301,11 +342,16 @@ def reference_text(data: StudyData, quick: bool) -> str:
     if ref is None:
         lo = data.meta["base_scene"]["loading"]
         stops = ", ".join(f"{x:g}" for x in lo["stops_mm"]) or "none"
-        return (f"none in the cache for this study's base scene as loaded here (to {lo['u0_mm']:g} mm, stops: "
-                f"{stops} mm); `ngbet study reference` on that scene, with the same `--quick` and `--cache`, "
-                "computes it, and this report then names it.")
-    text = ("`ngbet study reference` of this scene (from the cache): "
-            + ", ".join(f"F({s:g} mm) = {r['force_N']:.4f} N ± {r['bound_N']:.2g} N" for s, r in ref.items()) + ".")
+        return (
+            f"none in the cache for this study's base scene as loaded here (to {lo['u0_mm']:g} mm, stops: "
+            f"{stops} mm); `ngbet study reference` on that scene, with the same `--quick` and `--cache`, "
+            "computes it, and this report then names it."
+        )
+    text = (
+        "`ngbet study reference` of this scene (from the cache): "
+        + ", ".join(f"F({s:g} mm) = {r['force_N']:.4f} N ± {r['bound_N']:.2g} N" for s, r in ref.items())
+        + "."
+    )
     if data.meta["base_scene"].get("effects", {}).get("constraint") != "lagrange":
         text += " It is the limit of the exact constraint (Lagrange multiplier), which the reference family uses."
     base = _base_case(data)
@@ -313,8 +359,11 @@ def reference_text(data: StudyData, quick: bool) -> str:
         devs = [(s, data.at(base, s, "force_N"), r["force_N"]) for s, r in ref.items()]
         devs = [(s, F, R0) for s, F, R0 in devs if math.isfinite(F)]
         if devs:
-            text += (f" The base scene's case of this study (case {base}) is off by "
-                     + ", ".join(f"{100 * (F - R0) / R0:+.2g} % at {s:g} mm" for s, F, R0 in devs) + ".")
+            text += (
+                f" The base scene's case of this study (case {base}) is off by "
+                + ", ".join(f"{100 * (F - R0) / R0:+.2g} % at {s:g} mm" for s, F, R0 in devs)
+                + "."
+            )
     return text
 
 
@@ -328,8 +377,19 @@ def _base_case(data: StudyData) -> int | None:
         for key, v in c["params"].items():
             section, _, name = key.partition(".")
             have = base.get(section, {}).get(name) if name else base.get(section)
-            same = same and have is not None and (have == v or (isinstance(v, (int, float)) and not isinstance(
-                v, bool) and isinstance(have, (int, float)) and math.isclose(float(have), float(v), rel_tol=1e-12)))
+            same = (
+                same
+                and have is not None
+                and (
+                    have == v
+                    or (
+                        isinstance(v, (int, float))
+                        and not isinstance(v, bool)
+                        and isinstance(have, (int, float))
+                        and math.isclose(float(have), float(v), rel_tol=1e-12)
+                    )
+                )
+            )
         if same:
             return int(c["case"])
     return None
@@ -368,57 +428,96 @@ def analyse(data: StudyData, quick: bool) -> dict[str, Any]:
                 continue
             F = data.at(c, s2, "force_N")
             _, uy = data.profile(c, s2)
-            pts.append({"case": c, "dofs": C.dofs(data, c), "F": F, "err": abs(F - F0) / F0, "time": C.wall(data, c),
-                        "err_prof": profile_error_max(uy, ref["uy_mm"]), "corner": prm.get(GRADE, 0.0),
-                        "h": prm[C.H], "p": prm[C.P]})
+            pts.append(
+                {
+                    "case": c,
+                    "dofs": C.dofs(data, c),
+                    "F": F,
+                    "err": abs(F - F0) / F0,
+                    "time": C.wall(data, c),
+                    "err_prof": profile_error_max(uy, ref["uy_mm"]),
+                    "corner": prm.get(GRADE, 0.0),
+                    "h": prm[C.H],
+                    "p": prm[C.P],
+                }
+            )
         fam[name] = pts
     hp = [p for p in fam["hp"] if p["case"] not in ref["cases"]]
-    return {"ref": ref, "fam": fam, "s2": s2,
-            "hp_fit": fits([p["dofs"] for p in hp], [p["err"] for p in hp]) if len(hp) >= 3 else {}}
+    return {
+        "ref": ref,
+        "fam": fam,
+        "s2": s2,
+        "hp_fit": fits([p["dofs"] for p in hp], [p["err"] for p in hp]) if len(hp) >= 3 else {},
+    }
 
 
 def report(data: StudyData, quick: bool) -> str:
     a = analyse(data, quick)
     ref = a["ref"]
     orders = [p for _, p in (QUICK_REF if quick else REF_FAMILY)]
-    L = [*C.header(data, "Reference-grade solution of the scene", "computed here (below): "
-                   + ", ".join(f"F({s:g} mm) = {ref[s]['force_N']:.4f} N ± {ref[s]['bound_N']:.2g} N"
-                               for s in C.stations(quick, data)) + "."),
-         f"The {REF_H if not quick else 20.0:g} mm mesh graded at the clamp corners, "
-         f"p = {', '.join(map(str, orders))}: the middle of the "
-         "range of the extrapolations (geometric and algebraic fits in p to the sequence and its tails); "
-         "bound = half that range plus the largest fit residual.", "",
-         "| u0 [mm] | " + " | ".join(f"F(p={p}) [N]" for p in orders) + " | reference [N] | bound [N] | bound [%] |",
-         "|---|" + "---|" * len(orders) + "---|---|---|"]
+    L = [
+        *C.header(
+            data,
+            "Reference-grade solution of the scene",
+            "computed here (below): "
+            + ", ".join(
+                f"F({s:g} mm) = {ref[s]['force_N']:.4f} N ± {ref[s]['bound_N']:.2g} N" for s in C.stations(quick, data)
+            )
+            + ".",
+        ),
+        f"The {REF_H if not quick else 20.0:g} mm mesh graded at the clamp corners, "
+        f"p = {', '.join(map(str, orders))}: the middle of the "
+        "range of the extrapolations (geometric and algebraic fits in p to the sequence and its tails); "
+        "bound = half that range plus the largest fit residual.",
+        "",
+        "| u0 [mm] | " + " | ".join(f"F(p={p}) [N]" for p in orders) + " | reference [N] | bound [N] | bound [%] |",
+        "|---|" + "---|" * len(orders) + "---|---|---|",
+    ]
     for s in C.stations(quick, data):
         r = ref["family"][s]
-        L.append(f"| {s:g} | " + " | ".join(f"{f:.5f}" for f in r["forces_N"])
-                 + f" | {r['force_N']:.5f} | {r['bound_N']:.2g} | {100 * r['bound_N'] / r['force_N']:.2g} |")
+        L.append(
+            f"| {s:g} | "
+            + " | ".join(f"{f:.5f}" for f in r["forces_N"])
+            + f" | {r['force_N']:.5f} | {r['bound_N']:.2g} | {100 * r['bound_N'] / r['force_N']:.2g} |"
+        )
     fine = ref.get("fine")
     if fine:
-        L += ["", f"At {fine['station']:g} mm the reference is that of 1 mm corners bisected {FINE_BISECTIONS} "
-              f"times (two elements share each corner), loaded to {fine['station']:g} mm only, p = "
-              f"{', '.join(str(p) for _, p in FINE_FAMILY)}: "
-              + ", ".join(f"{f:.5f}" for f in fine["forces_N"])
-              + f" N: **{fine['force_N']:.5f} N ± {fine['bound_N']:.2g} N** "
-              f"(the 0.25 mm family above: {ref['family'][fine['station']]['force_N']:.5f} N ± "
-              f"{ref['family'][fine['station']]['bound_N']:.2g} N)."]
-    L += ["", f"Reference profile (p = {orders[-1]}) at {a['s2']:g} mm: "
-          f"max |u_y| = {np.max(np.abs(ref['uy_mm'])):.4f} mm, bound {ref['profile_bound_mm']:.2g} mm.", "",
-          "## Convergence at the second station", "",
-          "| family | h [mm] | corner [mm] | p | dofs | F [N] | force error | profile error (max) | wall [s] |",
-          "|---|---|---|---|---|---|---|---|---|"]
+        L += [
+            "",
+            f"At {fine['station']:g} mm the reference is that of 1 mm corners bisected {FINE_BISECTIONS} "
+            f"times (two elements share each corner), loaded to {fine['station']:g} mm only, p = "
+            f"{', '.join(str(p) for _, p in FINE_FAMILY)}: "
+            + ", ".join(f"{f:.5f}" for f in fine["forces_N"])
+            + f" N: **{fine['force_N']:.5f} N ± {fine['bound_N']:.2g} N** "
+            f"(the 0.25 mm family above: {ref['family'][fine['station']]['force_N']:.5f} N ± "
+            f"{ref['family'][fine['station']]['bound_N']:.2g} N).",
+        ]
+    L += [
+        "",
+        f"Reference profile (p = {orders[-1]}) at {a['s2']:g} mm: "
+        f"max |u_y| = {np.max(np.abs(ref['uy_mm'])):.4f} mm, bound {ref['profile_bound_mm']:.2g} mm.",
+        "",
+        "## Convergence at the second station",
+        "",
+        "| family | h [mm] | corner [mm] | p | dofs | F [N] | force error | profile error (max) | wall [s] |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for name, pts in a["fam"].items():
         for p in pts:
-            L.append(f"| {name} | {p['h']:g} | {p['corner']:g} | {p['p']} | {p['dofs']:.0f} | {p['F']:.4f} | "
-                     f"{100 * p['err']:.3g} % | {100 * p['err_prof']:.3g} % | {p['time']:.2f} |")
+            L.append(
+                f"| {name} | {p['h']:g} | {p['corner']:g} | {p['p']} | {p['dofs']:.0f} | {p['F']:.4f} | "
+                f"{100 * p['err']:.3g} % | {100 * p['err_prof']:.3g} % | {p['time']:.2f} |"
+            )
     f = a["hp_fit"]
     if f:
         better = "N^(1/3) (exponential)" if f["root_rms"] < f["log_rms"] else "log N (algebraic)"
-        L += ["", f"hp family (reference cases excluded): log e against N^(1/3): rate {f['root_rate']:.3f}, "
-              f"RMS residual "
-              f"{f['root_rms']:.3f}; against log N: rate {f['log_rate']:.2f}, RMS residual {f['log_rms']:.3f}. "
-              f"Better fit: {better}."]
+        L += [
+            "",
+            f"hp family (reference cases excluded): log e against N^(1/3): rate {f['root_rate']:.3f}, "
+            f"RMS residual "
+            f"{f['root_rms']:.3f}; against log N: rate {f['log_rate']:.2f}, RMS residual {f['log_rms']:.3f}. "
+            f"Better fit: {better}.",
+        ]
     return "\n".join(L) + "\n"
 
 
@@ -438,8 +537,15 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
         ax.loglog([p["dofs"] for p in pts], [p["err"] for p in pts], "-", color=f"C{j}", lw=1)
         for below in (False, True):  # below the bound: open markers, the error is not resolved there
             sel = [p for p in pts if (p["err"] < bound) == below]
-            ax.plot([p["dofs"] for p in sel], [p["err"] for p in sel], m, color=f"C{j}", ls="",
-                    mfc="none" if below else f"C{j}", label=None if below else names[name])
+            ax.plot(
+                [p["dofs"] for p in sel],
+                [p["err"] for p in sel],
+                m,
+                color=f"C{j}",
+                ls="",
+                mfc="none" if below else f"C{j}",
+                label=None if below else names[name],
+            )
     low = min([p["err"] for name in names for p in a["fam"][name] if p["err"] > 0] + [bound]) / 3
     ax.axhspan(low, bound, color="grey", alpha=0.15, label="below the reference's bound (open markers: not resolved)")
     ax.set_ylim(low, None)

@@ -77,8 +77,15 @@ def build(axes: dict[str, list[Any]], quick: bool = False, scene: Scene | None =
     # the load stops and the final load: each case's own where the sweep varies it
     finals = [float(c[U0]) for c in cases if U0 in c] or [base.loading.u0_mm]
     stations = tuple(dict.fromkeys((*base.loading.stops_mm, *finals)))
-    return Study("sweep", base, cases, description=__doc__ or "", plot=lambda d: plot(d, quick),
-                 report=lambda d: report(d, quick), profile_stations=stations)
+    return Study(
+        "sweep",
+        base,
+        cases,
+        description=__doc__ or "",
+        plot=lambda d: plot(d, quick),
+        report=lambda d: report(d, quick),
+        profile_stations=stations,
+    )
 
 
 U0 = "loading.u0_mm"
@@ -105,10 +112,15 @@ def _name(params: dict[str, Any]) -> str:
 def report(data: StudyData, quick: bool) -> str:
     keys = data.meta["params"]
     st = _stations(data)
-    L = [*C.header(data, "Sweep of " + ", ".join(keys), R.reference_text(data, quick)),
-         "| " + " | ".join(keys) + " | status | " + " | ".join(f"F({s:g} mm) [N]" for s in st)
-         + " | max abs(u_y) at the last load [mm] | dofs | wall time [s] |",
-         "|" + "---|" * (len(keys) + len(st) + 4)]
+    L = [
+        *C.header(data, "Sweep of " + ", ".join(keys), R.reference_text(data, quick)),
+        "| "
+        + " | ".join(keys)
+        + " | status | "
+        + " | ".join(f"F({s:g} mm) [N]" for s in st)
+        + " | max abs(u_y) at the last load [mm] | dofs | wall time [s] |",
+        "|" + "---|" * (len(keys) + len(st) + 4),
+    ]
     for c in data.cases():
         i = c["case"]
         cells = []
@@ -117,10 +129,16 @@ def report(data: StudyData, quick: bool) -> str:
             cells.append(C.fmt(F, ".4f") + (f" ± {err:.2g}" if math.isfinite(err) else ""))
         _, uy = data.profile(i, _last(c, st))
         amp = float(np.max(np.abs(uy))) if uy else math.nan
-        L.append("| " + " | ".join(C.fmt(c["params"][k], "g") if isinstance(c["params"][k], float)
-                                   else str(c["params"][k]) for k in keys)
-                 + f" | {c['status']} | " + " | ".join(cells) + f" | {C.fmt(amp, '.4g')} | "
-                 f"{C.fmt(C.dofs(data, i), '.0f')} | {C.fmt(C.wall(data, i), '.2f')} |")
+        L.append(
+            "| "
+            + " | ".join(
+                C.fmt(c["params"][k], "g") if isinstance(c["params"][k], float) else str(c["params"][k]) for k in keys
+            )
+            + f" | {c['status']} | "
+            + " | ".join(cells)
+            + f" | {C.fmt(amp, '.4g')} | "
+            f"{C.fmt(C.dofs(data, i), '.0f')} | {C.fmt(C.wall(data, i), '.2f')} |"
+        )
     if any(math.isfinite(data.at(c["case"], s, "force_error_N")) for c in data.cases() for s in st):
         L += ["", "± : the run's estimate of its discretization error (outputs.error_estimate)."]
     return "\n".join(L) + "\n"
@@ -139,8 +157,14 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     fig, axs = subplots(1, 2, size=(12, 4.5))
     for c in cases:
         rows = data.case_rows(c["case"])
-        axs[0].plot([0.0] + [r["u0_mm"] for r in rows], [0.0] + [r["force_N"] for r in rows], "o-", ms=2.5,
-                    color=colours[c["case"]], label=_name(c["params"]))
+        axs[0].plot(
+            [0.0] + [r["u0_mm"] for r in rows],
+            [0.0] + [r["force_N"] for r in rows],
+            "o-",
+            ms=2.5,
+            color=colours[c["case"]],
+            label=_name(c["params"]),
+        )
         X, uy = data.profile(c["case"], _last(c, st))
         axs[1].plot(X, uy, color=colours[c["case"]])
     axs[0].set_xlabel(U0_LABEL)
@@ -149,8 +173,11 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     axs[0].set_title("(a) force (points: the output loads)")
     axs[1].set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
     axs[1].set_ylabel("vertical displacement u_y [mm]")
-    axs[1].set_title("(b) mid-axis profile at each case's final load" if U0 in data.meta["params"]
-                     else f"(b) mid-axis profile at u₀ = {st[-1]:g} mm")
+    axs[1].set_title(
+        "(b) mid-axis profile at each case's final load"
+        if U0 in data.meta["params"]
+        else f"(b) mid-axis profile at u₀ = {st[-1]:g} mm"
+    )
     axs[1].axhline(0, color="k", lw=0.5)
     legend_below(fig, ncol=min(len(cases), 4))
     put_caption(fig, study_caption(data.meta))
@@ -168,14 +195,20 @@ def _plot_values(data: StudyData, key: str, u0: float) -> Path:
     from ngbet.figures.style import put_caption, subplots
 
     own = key == U0  # each case's force at its own final load
-    pts = sorted((float(c["params"][key]), *(data.at(c["case"], float(c["params"][key]) if own else u0, col)
-                                              for col in ("force_N", "force_error_N"))) for c in data.cases())
+    pts = sorted(
+        (
+            float(c["params"][key]),
+            *(data.at(c["case"], float(c["params"][key]) if own else u0, col) for col in ("force_N", "force_error_N")),
+        )
+        for c in data.cases()
+    )
     pts = [p for p in pts if math.isfinite(p[1])]
     fig, ax = subplots(size=(6, 4.2))
     v, F, e = (np.array(x) for x in zip(*pts, strict=True)) if pts else (np.array([]),) * 3
     if np.isfinite(e).any():
-        ax.errorbar(v, F, yerr=np.where(np.isfinite(e), e, 0.0), fmt="o-", capsize=4,
-                    label="force ± the run's error estimate")
+        ax.errorbar(
+            v, F, yerr=np.where(np.isfinite(e), e, 0.0), fmt="o-", capsize=4, label="force ± the run's error estimate"
+        )
         ax.legend(fontsize=8)
     else:
         ax.plot(v, F, "o-")

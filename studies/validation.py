@@ -89,10 +89,12 @@ def fabric_of(scene: Scene) -> str:
     known = {stem(Scene.from_toml(data_root() / "geometry" / FABRICS[f][0]).specimen.name): f for f in FABRICS}
     fabric = known.get(stem(scene.specimen.name))
     if fabric is None:
-        raise SceneError(f"scene key 'specimen.name' = {scene.specimen.name!r}: study validation needs measured "
-                         f"curves of the fabric, which ngbet has for {', '.join(known)} "
-                         "(geometry/twintex_*.toml, data/cao2008/, data/cao2008_pf/); for another fabric fit its "
-                         "curves with ngbet fit A.csv B.csv --scene S.toml --predict C.csv")
+        raise SceneError(
+            f"scene key 'specimen.name' = {scene.specimen.name!r}: study validation needs measured "
+            f"curves of the fabric, which ngbet has for {', '.join(known)} "
+            "(geometry/twintex_*.toml, data/cao2008/, data/cao2008_pf/); for another fabric fit its "
+            "curves with ngbet fit A.csv B.csv --scene S.toml --predict C.csv"
+        )
     return fabric
 
 
@@ -106,8 +108,13 @@ def _case(doc: dict[str, Any], target: str) -> dict[str, Any]:
     d = sc.to_dict()
     keys = {f"{s}.{k}": v for s in CASE_SECTIONS for k, v in d.get(s, {}).items()}
     keys["specimen.thickness_mm"] = sc.specimen.thickness_mm
-    return {"specimen.name": SEP.join((doc["fabric"], doc["fit_name"], target, doc["cache_name"])), **keys,
-            **test_changes(curve), "loading.u0_mm": float(u[-1]), "loading.stops_mm": [float(x) for x in u[:-1]]}
+    return {
+        "specimen.name": SEP.join((doc["fabric"], doc["fit_name"], target, doc["cache_name"])),
+        **keys,
+        **test_changes(curve),
+        "loading.u0_mm": float(u[-1]),
+        "loading.stops_mm": [float(x) for x in u[:-1]],
+    }
 
 
 def build(quick: bool = False, scene: Scene | None = None, cache: Path | None = None) -> Study:
@@ -118,23 +125,41 @@ def build(quick: bool = False, scene: Scene | None = None, cache: Path | None = 
     folder = fits_folder(cache)
     if quick:
         fabric = fabric_of(scene) if scene is not None else QUICK[0]
-        specs = [s for s in fits_of(fabric) if s.kind == "one size"][:1] if scene is not None else \
-            [s for s in fits_of(fabric) if s.name == QUICK[1]]
+        specs = (
+            [s for s in fits_of(fabric) if s.kind == "one size"][:1]
+            if scene is not None
+            else [s for s in fits_of(fabric) if s.name == QUICK[1]]
+        )
     else:
         fabrics = [fabric_of(scene)] if scene is not None else list(FABRICS)
         specs = [s for f in fabrics for s in fits_of(f)]
     docs = [fit_and_predict(s, quick, scene, folder) for s in specs]
     base = Scene.from_toml_string(docs[0]["fitted_scene"]).with_changes(
-        **{"outputs.vtk": False, "outputs.plot": False, "outputs.profile": False, "outputs.error_estimate": "off"})
-    cases = [_case(d, t) for d, s in zip(docs, specs, strict=True) for t in s.targets
-             if "failed" not in d["predictions"].get(t, {"failed": ""})]
+        **{"outputs.vtk": False, "outputs.plot": False, "outputs.profile": False, "outputs.error_estimate": "off"}
+    )
+    cases = [
+        _case(d, t)
+        for d, s in zip(docs, specs, strict=True)
+        for t in s.targets
+        if "failed" not in d["predictions"].get(t, {"failed": ""})
+    ]
     kept = {d["cache_name"]: d for d in docs}
-    study = Study("validation", base, cases, description=__doc__ or "",
-                  extract=functools.partial(extract, docs=kept), plot=plot, report=report)
+    study = Study(
+        "validation",
+        base,
+        cases,
+        description=__doc__ or "",
+        extract=functools.partial(extract, docs=kept),
+        plot=plot,
+        report=report,
+    )
     if quick:  # said here: comparing with the full study would make its fits (minutes)
         full = sum(len(fits_of(f)) for f in ([fabric_of(scene)] if scene is not None else FABRICS))
-        study.left_out = [f"{full - len(specs)} of the full study's {full} fits (each size alone, both sizes, "
-                          "each laboratory's frame)", f"{MAX_RUNS} model runs per fit ({QUICK_RUNS} instead)"]
+        study.left_out = [
+            f"{full - len(specs)} of the full study's {full} fits (each size alone, both sizes, "
+            "each laboratory's frame)",
+            f"{MAX_RUNS} model runs per fit ({QUICK_RUNS} instead)",
+        ]
     return study
 
 
@@ -160,8 +185,9 @@ def _other_lab(fabric: str, target_name: str, target: Any, u: np.ndarray) -> np.
     return _normalisation(others[:1], target, u)
 
 
-def extract(rec: dict[str, Any], run_dir: Path, out: Path, docs: dict[str, dict[str, Any]]
-            ) -> dict[str, list[dict[str, Any]]]:
+def extract(
+    rec: dict[str, Any], run_dir: Path, out: Path, docs: dict[str, dict[str, Any]]
+) -> dict[str, list[dict[str, Any]]]:
     """Measured, ngbet's and the normalisation method's value at the scored points of one prediction."""
     from ngbet.tables import read_rows
 
@@ -177,26 +203,51 @@ def extract(rec: dict[str, Any], run_dir: Path, out: Path, docs: dict[str, dict[
     sd = np.hypot(np.array(pr["sd_parameters_N"], float), np.array(pr["sd_discretization_N"], float))
     norm = _normalisation(doc["fitted"], curve, u)
     lab = _other_lab(fabric, target, curve, u)
+
     def file(v: np.ndarray) -> np.ndarray:  # a frame in its file's quantity (F_s or F_norm), linear in the force
         return curve.in_file_units(u, v)[1]  # type: ignore[no-any-return]
 
     x, meas = curve.in_file_units(u, F)
     fit = doc["fit"]
     kind = FitSpec(fabric, fit_name, tuple(doc["fitted"]), ()).kind
-    what = ("other size" if curve.test == "bias_extension" and kind != "frame" else
-            "other laboratory" if curve.test == "picture_frame" and kind == "frame" else "other test")
+    what = (
+        "other size"
+        if curve.test == "bias_extension" and kind != "frame"
+        else "other laboratory"
+        if curve.test == "picture_frame" and kind == "frame"
+        else "other test"
+    )
     tables: dict[str, list[dict[str, Any]]] = {}
-    tables["points"] = [{"fabric": fabric, "fit": fit_name, "target": target, "x": float(a), "measured": float(m),
-                         "ngbet": float(p), "ngbet_sd": float(d), "normalisation": float(n), "other_lab": float(o)}
-                        for a, m, p, d, n, o in zip(x, meas, file(model), file(sd), file(norm), file(lab),
-                                                    strict=True)]
-    tables["predictions"] = [{"fabric": fabric, "fit": fit_name, "fit_kind": kind, "target": target,
-                              "predicted": curve.label + ("" if curve.test == "bias_extension"
-                                                          else f" ({lab_of(target)}, {QUANTITY[curve.quantity]})"),
-                              "what": what,
-                              "fit_rms": " ".join(f"{c['rms_relative_error']:.4f}" for c in fit["curves"]),
-                              "fit_runs": int(fit["model_runs"]), "fit_wall_s": float(fit["wall_s"]),
-                              "fit_converged": bool(fit["converged"]), "accuracy_met": bool(fit["accuracy"]["met"])}]
+    tables["points"] = [
+        {
+            "fabric": fabric,
+            "fit": fit_name,
+            "target": target,
+            "x": float(a),
+            "measured": float(m),
+            "ngbet": float(p),
+            "ngbet_sd": float(d),
+            "normalisation": float(n),
+            "other_lab": float(o),
+        }
+        for a, m, p, d, n, o in zip(x, meas, file(model), file(sd), file(norm), file(lab), strict=True)
+    ]
+    tables["predictions"] = [
+        {
+            "fabric": fabric,
+            "fit": fit_name,
+            "fit_kind": kind,
+            "target": target,
+            "predicted": curve.label
+            + ("" if curve.test == "bias_extension" else f" ({lab_of(target)}, {QUANTITY[curve.quantity]})"),
+            "what": what,
+            "fit_rms": " ".join(f"{c['rms_relative_error']:.4f}" for c in fit["curves"]),
+            "fit_runs": int(fit["model_runs"]),
+            "fit_wall_s": float(fit["wall_s"]),
+            "fit_converged": bool(fit["converged"]),
+            "accuracy_met": bool(fit["accuracy"]["met"]),
+        }
+    ]
     return tables
 
 
@@ -222,17 +273,32 @@ def summary(data: StudyData) -> list[dict[str, Any]]:
         def col(key: str, sel: list[dict[str, Any]] = sel) -> np.ndarray:
             return np.array([float(q[key]) for q in sel])
 
-        meas, pred, norm, lab, sd = col("measured"), col("ngbet"), col("normalisation"), col("other_lab"), \
-            col("ngbet_sd")
+        meas, pred, norm, lab, sd = (
+            col("measured"),
+            col("ngbet"),
+            col("normalisation"),
+            col("other_lab"),
+            col("ngbet_sd"),
+        )
         common = np.isfinite(norm)
         on = np.where(common, pred, np.nan)
-        out.append({**p, "points": len(meas), "normalisation_points": int(common.sum()),
-                    "ngbet_rms": rms(pred, meas), "ngbet_rms_of_max": rms_of_max(pred, meas),
-                    "ngbet_rms_common": rms(on, meas), "ngbet_rms_of_max_common": rms_of_max(on, meas),
-                    "normalisation_rms": rms(norm, meas), "normalisation_rms_of_max": rms_of_max(norm, meas),
-                    "lab_rms": rms(lab, meas), "lab_rms_of_max": rms_of_max(lab, meas),
-                    "within_2sd": float(np.mean(np.abs(pred - meas) <= 2 * sd)) if len(meas) else float("nan"),
-                    "end_ratio": float(pred[-1] / meas[-1]) if len(meas) else float("nan")})
+        out.append(
+            {
+                **p,
+                "points": len(meas),
+                "normalisation_points": int(common.sum()),
+                "ngbet_rms": rms(pred, meas),
+                "ngbet_rms_of_max": rms_of_max(pred, meas),
+                "ngbet_rms_common": rms(on, meas),
+                "ngbet_rms_of_max_common": rms_of_max(on, meas),
+                "normalisation_rms": rms(norm, meas),
+                "normalisation_rms_of_max": rms_of_max(norm, meas),
+                "lab_rms": rms(lab, meas),
+                "lab_rms_of_max": rms_of_max(lab, meas),
+                "within_2sd": float(np.mean(np.abs(pred - meas) <= 2 * sd)) if len(meas) else float("nan"),
+                "end_ratio": float(pred[-1] / meas[-1]) if len(meas) else float("nan"),
+            }
+        )
     return out
 
 
@@ -243,24 +309,36 @@ def _pct(v: float) -> str:
 def report(data: StudyData) -> str:
     """The validation table (every prediction), the means by kind, and the fits' records."""
     rows = summary(data)
-    L = ["# Validation: every curve a fit did not use, predicted", "",
-         "Errors at 24 points over 10–90 % of the predicted curve's range: RMS of (prediction − measured)/measured, "
-         "in brackets the RMS of (prediction − measured) over the curve's largest value; both methods on the points "
-         "where the normalisation method has a value (ngbet on all points in the last column but two). "
-         "A frame is scored in its file's quantity.", "",
-         "| fabric | fitted | predicted | what | ngbet | normalisation method | other laboratory | ngbet, all points "
-         "| inside ±2 sd | ngbet/measured at 90 % |", "|---|---|---|---|---|---|---|---|---|---|"]
+    L = [
+        "# Validation: every curve a fit did not use, predicted",
+        "",
+        "Errors at 24 points over 10–90 % of the predicted curve's range: RMS of (prediction − measured)/measured, "
+        "in brackets the RMS of (prediction − measured) over the curve's largest value; both methods on the points "
+        "where the normalisation method has a value (ngbet on all points in the last column but two). "
+        "A frame is scored in its file's quantity.",
+        "",
+        "| fabric | fitted | predicted | what | ngbet | normalisation method | other laboratory | ngbet, all points "
+        "| inside ±2 sd | ngbet/measured at 90 % |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         n, m = r["normalisation_points"], r["points"]
-        L.append(f"| {r['fabric'].replace('_', ' ')} | {r['fit']} | {r['predicted']} | {r['what']} | "
-                 f"{_pct(r['ngbet_rms_common'])} ({_pct(r['ngbet_rms_of_max_common'])}) | "
-                 f"{_pct(r['normalisation_rms'])} ({_pct(r['normalisation_rms_of_max'])})"
-                 f"{'' if n == m else f' on {n} of {m} points'} | "
-                 f"{_pct(r['lab_rms'])} ({_pct(r['lab_rms_of_max'])}) | "
-                 f"{_pct(r['ngbet_rms'])} ({_pct(r['ngbet_rms_of_max'])}) | {100 * r['within_2sd']:.0f} % | "
-                 f"{r['end_ratio']:.2f} |")
-    L += ["", "Means over the predictions (the normalisation method's points):", "",
-          "| predictions | count | ngbet | normalisation method | ngbet better on |", "|---|---|---|---|---|"]
+        L.append(
+            f"| {r['fabric'].replace('_', ' ')} | {r['fit']} | {r['predicted']} | {r['what']} | "
+            f"{_pct(r['ngbet_rms_common'])} ({_pct(r['ngbet_rms_of_max_common'])}) | "
+            f"{_pct(r['normalisation_rms'])} ({_pct(r['normalisation_rms_of_max'])})"
+            f"{'' if n == m else f' on {n} of {m} points'} | "
+            f"{_pct(r['lab_rms'])} ({_pct(r['lab_rms_of_max'])}) | "
+            f"{_pct(r['ngbet_rms'])} ({_pct(r['ngbet_rms_of_max'])}) | {100 * r['within_2sd']:.0f} % | "
+            f"{r['end_ratio']:.2f} |"
+        )
+    L += [
+        "",
+        "Means over the predictions (the normalisation method's points):",
+        "",
+        "| predictions | count | ngbet | normalisation method | ngbet better on |",
+        "|---|---|---|---|---|",
+    ]
     for what in ("other size", "other test", "other laboratory", "all"):
         sel = [r for r in rows if what == "all" or r["what"] == what]
         if not sel:
@@ -271,15 +349,25 @@ def report(data: StudyData) -> str:
             return float(np.nanmean(v)) if np.isfinite(v).any() else float("nan")
 
         better = sum(r["ngbet_rms_of_max_common"] <= r["normalisation_rms_of_max"] for r in sel)
-        L.append(f"| {what} | {len(sel)} | {_pct(mean('ngbet_rms_common'))} ({_pct(mean('ngbet_rms_of_max_common'))})"
-                 f" | {_pct(mean('normalisation_rms'))} ({_pct(mean('normalisation_rms_of_max'))}) | "
-                 f"{better} of {len(sel)} (error over the largest value) |")
-    L += ["", "The fits:", "", "| fabric | fitted | RMS per fitted curve | model runs | wall time [s] | converged | "
-          "discretization error within the target |", "|---|---|---|---|---|---|---|"]
+        L.append(
+            f"| {what} | {len(sel)} | {_pct(mean('ngbet_rms_common'))} ({_pct(mean('ngbet_rms_of_max_common'))})"
+            f" | {_pct(mean('normalisation_rms'))} ({_pct(mean('normalisation_rms_of_max'))}) | "
+            f"{better} of {len(sel)} (error over the largest value) |"
+        )
+    L += [
+        "",
+        "The fits:",
+        "",
+        "| fabric | fitted | RMS per fitted curve | model runs | wall time [s] | converged | "
+        "discretization error within the target |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in {(r["fabric"], r["fit"]): r for r in rows}.values():
-        L.append(f"| {r['fabric'].replace('_', ' ')} | {r['fit']} | "
-                 f"{', '.join(_pct(float(x)) for x in str(r['fit_rms']).split())} | {int(float(r['fit_runs']))} | "
-                 f"{float(r['fit_wall_s']):.0f} | {r['fit_converged']} | {r['accuracy_met']} |")
+        L.append(
+            f"| {r['fabric'].replace('_', ' ')} | {r['fit']} | "
+            f"{', '.join(_pct(float(x)) for x in str(r['fit_rms']).split())} | {int(float(r['fit_runs']))} | "
+            f"{float(r['fit_wall_s']):.0f} | {r['fit_converged']} | {r['accuracy_met']} |"
+        )
     return "\n".join(L) + "\n"
 
 
@@ -308,8 +396,11 @@ def plot(data: StudyData) -> list[Path]:
         x, y = curve.in_file_units(curve.u_mm, curve.force_N)
         ax.plot(x, y, "-", color="k", lw=1.2)
         top = float(np.nanmax(y))  # the band does not set the scale: where a parameter is open it spans decades
-        title = (f"{fabric.replace('_', ' ')}: {lab_of(target)} frame {curve.label.split(' ', 1)[1]}" if frame
-                 else f"{fabric.replace('_', ' ')}: {curve.label.replace(' x ', ' × ')}")
+        title = (
+            f"{fabric.replace('_', ' ')}: {lab_of(target)} frame {curve.label.split(' ', 1)[1]}"
+            if frame
+            else f"{fabric.replace('_', ' ')}: {curve.label.replace(' x ', ' × ')}"
+        )
         for r in (r for r in rows if r["fabric"] == fabric and r["target"] == target):
             sel = [q for q in pts if q["fit"] == r["fit"] and q["target"] == target and q["fabric"] == fabric]
             xs = np.array([float(q["x"]) for q in sel])
@@ -329,18 +420,24 @@ def plot(data: StudyData) -> list[Path]:
         ax.set_title(title, fontsize=9)
         ax.set_xlim(left=0)
         ax.set_ylim(0, 1.1 * top)
-    for ax in axes.ravel()[len(targets):]:
+    for ax in axes.ravel()[len(targets) :]:
         ax.set_visible(False)
-    names = {"one size": "fitted on one bias-extension size", "two sizes": "fitted on both sizes",
-             "frame": "fitted on a picture frame"}
+    names = {
+        "one size": "fitted on one bias-extension size",
+        "two sizes": "fitted on both sizes",
+        "frame": "fitted on a picture frame",
+    }
     handles = [Line2D([], [], color="k", lw=1.2, label="measured")]
     handles += [Line2D([], [], color=colours[k], label=f"ngbet, {names[k]} (±2 sd shaded)") for k in fits]
     handles += [Line2D([], [], color="0.4", ls="--", label="normalisation method from the same curves")]
     legend_below(fig, handles, ncol=3)
-    put_caption(fig, "Twintex fabrics of Cao et al. (2008): each measured curve predicted by every fit that did not "
-                     "use it (ngbet fit with the fabric's scene) and by the normalisation method from the fitted "
-                     "curves (Eq. 18 between sizes, Eq. 10 between frames, F_sh read as F_norm across tests); "
-                     "a band wider than the axes is cut")
+    put_caption(
+        fig,
+        "Twintex fabrics of Cao et al. (2008): each measured curve predicted by every fit that did not "
+        "use it (ngbet fit with the fabric's scene) and by the normalisation method from the fitted "
+        "curves (Eq. 18 between sizes, Eq. 10 between frames, F_sh read as F_norm across tests); "
+        "a band wider than the axes is cut",
+    )
     return [savefig(fig, data.out, "validation")]
 
 

@@ -31,8 +31,22 @@ from ngbet.study.model import Study, StudyData
 from . import _common as C
 from . import reference as R
 
-__all__ = ["FULL", "GRADE", "MARKS", "NAMES", "QUICK", "TARGETS", "analyse", "build", "cheapest", "kind", "label",
-           "main", "plot", "report"]
+__all__ = [
+    "FULL",
+    "GRADE",
+    "MARKS",
+    "NAMES",
+    "QUICK",
+    "TARGETS",
+    "analyse",
+    "build",
+    "cheapest",
+    "kind",
+    "label",
+    "main",
+    "plot",
+    "report",
+]
 
 #: the case grids: a list of (h [mm], p[, K or corner size]) per kind
 FULL: dict[str, list[tuple[Any, ...]]] = {
@@ -68,9 +82,15 @@ def build(quick: bool = False, scene: Scene | None = None) -> Study:
     cases = [{**c, **R.OFF} for c in cases]
     cases += [c for cs in R.families(quick).values() for c in cs]
     base = C.require_continuum(C.study_scene(scene, quick, C.FREE_ORDERS), "work_precision")
-    return Study("work_precision", base, C.unique(cases),
-                 description=__doc__ or "", plot=lambda d: plot(d, g, quick), report=lambda d: report(d, g, quick),
-                 profile_stations=C.stations(quick, base))
+    return Study(
+        "work_precision",
+        base,
+        C.unique(cases),
+        description=__doc__ or "",
+        plot=lambda d: plot(d, g, quick),
+        report=lambda d: report(d, g, quick),
+        profile_stations=C.stations(quick, base),
+    )
 
 
 def label(prm: dict[str, Any]) -> str:
@@ -110,9 +130,18 @@ def analyse(data: StudyData, g: dict[str, Any], quick: bool) -> dict[str, Any]:
         if not math.isfinite(F) or not uy:  # never an error or a front point from a missing value
             pts.append({**base, "status": f"no value at {s2:g} mm"})
             continue
-        pts.append({**base, "status": "ok", "kind": kind(c["params"]), "time": C.wall(data, i),
-                    "dofs": C.dofs(data, i), "F": F, "err_F": abs(F - F_ref) / F_ref,
-                    "err_prof": R.profile_error_max(uy, uy_ref)})
+        pts.append(
+            {
+                **base,
+                "status": "ok",
+                "kind": kind(c["params"]),
+                "time": C.wall(data, i),
+                "dofs": C.dofs(data, i),
+                "F": F,
+                "err_F": abs(F - F_ref) / F_ref,
+                "err_prof": R.profile_error_max(uy, uy_ref),
+            }
+        )
     unc = {"err_F": ref[s2]["bound_N"] / F_ref, "err_prof": ref["profile_bound_mm"] / max(abs(u) for u in uy_ref)}
     good = [p for p in pts if p["status"] == "ok" and not p["ref_case"]]
     for key in ("err_F", "err_prof"):
@@ -133,20 +162,28 @@ def cheapest(a: dict[str, Any], key: str, target: float) -> dict[str, Any] | Non
 def _target_rows(a: dict[str, Any]) -> list[str]:
     L = []
     s2 = a["s2"]
-    for key, name, unc in (("err_F", f"force at {s2:g} mm", a["unc_F"]),
-                           ("err_prof", f"mid-axis profile at {s2:g} mm", a["unc_prof"])):
+    for key, name, unc in (
+        ("err_F", f"force at {s2:g} mm", a["unc_F"]),
+        ("err_prof", f"mid-axis profile at {s2:g} mm", a["unc_prof"]),
+    ):
         for t in TARGETS:
             p = cheapest(a, key, t)
             flag = " (below the reference's uncertainty: not resolved)" if t < 2 * unc else ""
             if p is not None:
-                L.append(f"| {name} | {100 * t:g} %{flag} | {p['label']} | {100 * p[key]:.3g} % | "
-                         f"{p['time']:.2f} | {p['dofs']:.0f} |")
+                L.append(
+                    f"| {name} | {100 * t:g} %{flag} | {p['label']} | {100 * p[key]:.3g} % | "
+                    f"{p['time']:.2f} | {p['dofs']:.0f} |"
+                )
                 continue
-            best = min((q for q in a["pts"] if q["status"] == "ok" and not q["ref_case"]),
-                       key=lambda q: q[key], default=None)
-            L.append(f"| {name} | {100 * t:g} %{flag} | not reached | best {100 * best[key]:.3g} % "
-                     f"({best['label']}, {best['time']:.1f} s) | | |" if best
-                     else f"| {name} | {100 * t:g} %{flag} | not reached | | | |")
+            best = min(
+                (q for q in a["pts"] if q["status"] == "ok" and not q["ref_case"]), key=lambda q: q[key], default=None
+            )
+            L.append(
+                f"| {name} | {100 * t:g} %{flag} | not reached | best {100 * best[key]:.3g} % "
+                f"({best['label']}, {best['time']:.1f} s) | | |"
+                if best
+                else f"| {name} | {100 * t:g} %{flag} | not reached | | | |"
+            )
     return L
 
 
@@ -157,34 +194,57 @@ def _err(p: dict[str, Any], key: str) -> str:
 def report(data: StudyData, g: dict[str, Any], quick: bool) -> str:
     a = analyse(data, g, quick)
     s2 = a["s2"]
-    ref_text = (f"`ngbet study reference` of this scene (p = {', '.join(map(str, R.orders(quick)))} on the "
-                f"corner-graded mesh, run as part of this study): F({s2:g}) = {a['F_ref']:.4f} N, bound "
-                f"{100 * a['unc_F']:.2g} %; profile: the family's highest order, bound {100 * a['unc_prof']:.2g} % "
-                "of max |u_y|.")
-    L = [*C.header(data, f"Work-precision at u0 = {s2:g} mm", ref_text),
-         "## Cheapest settings reaching a target error", "",
-         "| quantity | target | cheapest setting | error | wall time [s] | dofs |", "|---|---|---|---|---|---|",
-         *_target_rows(a), "", "## All cases (the reference family apart, below)", "",
-         "| setting | dofs | F [N] | force error | profile error | wall time [s] | Pareto (force) |",
-         "|---|---|---|---|---|---|---|"]
+    ref_text = (
+        f"`ngbet study reference` of this scene (p = {', '.join(map(str, R.orders(quick)))} on the "
+        f"corner-graded mesh, run as part of this study): F({s2:g}) = {a['F_ref']:.4f} N, bound "
+        f"{100 * a['unc_F']:.2g} %; profile: the family's highest order, bound {100 * a['unc_prof']:.2g} % "
+        "of max |u_y|."
+    )
+    L = [
+        *C.header(data, f"Work-precision at u0 = {s2:g} mm", ref_text),
+        "## Cheapest settings reaching a target error",
+        "",
+        "| quantity | target | cheapest setting | error | wall time [s] | dofs |",
+        "|---|---|---|---|---|---|",
+        *_target_rows(a),
+        "",
+        "## All cases (the reference family apart, below)",
+        "",
+        "| setting | dofs | F [N] | force error | profile error | wall time [s] | Pareto (force) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     mine = [p for p in a["pts"] if not p["ref_case"]]
     for p in sorted(mine, key=lambda p: p.get("time", math.inf)):
         if p["status"] != "ok":
             L.append(f"| {p['label']} | | {p['status']} | | | | |")
             continue
-        L.append(f"| {p['label']} | {p['dofs']:.0f} | {p['F']:.4f} | {_err(p, 'err_F')} | {_err(p, 'err_prof')} | "
-                 f"{p['time']:.2f} | {'*' if p['pareto_err_F'] else ''} |")
-    L += ["", "## The reference family (what the reference is extrapolated from; no error against itself)", "",
-          "| setting | dofs | F [N] | wall time [s] |", "|---|---|---|---|"]
+        L.append(
+            f"| {p['label']} | {p['dofs']:.0f} | {p['F']:.4f} | {_err(p, 'err_F')} | {_err(p, 'err_prof')} | "
+            f"{p['time']:.2f} | {'*' if p['pareto_err_F'] else ''} |"
+        )
+    L += [
+        "",
+        "## The reference family (what the reference is extrapolated from; no error against itself)",
+        "",
+        "| setting | dofs | F [N] | wall time [s] |",
+        "|---|---|---|---|",
+    ]
     for p in (p for p in a["pts"] if p["ref_case"]):
-        L.append(f"| {p['label']} | {p.get('dofs', math.nan):.0f} | {C.fmt(p.get('F', math.nan), '.5f')} | "
-                 f"{C.fmt(p.get('time', math.nan), '.2f')} |")
+        L.append(
+            f"| {p['label']} | {p.get('dofs', math.nan):.0f} | {C.fmt(p.get('F', math.nan), '.5f')} | "
+            f"{C.fmt(p.get('time', math.nan), '.2f')} |"
+        )
     return "\n".join(L) + "\n"
 
 
 MARKS = {"lagrange": "o", "mixed": "s", "full": "^", "uncondensed": "D", "graded": "*"}
-NAMES = {"lagrange": "Lagrange", "mixed": "mixed penalty", "full": "pointwise penalty",
-         "uncondensed": "Lagrange, uncondensed", "graded": "Lagrange, corner-graded mesh"}
+NAMES = {
+    "lagrange": "Lagrange",
+    "mixed": "mixed penalty",
+    "full": "pointwise penalty",
+    "uncondensed": "Lagrange, uncondensed",
+    "graded": "Lagrange, corner-graded mesh",
+}
 
 
 def plot(data: StudyData, g: dict[str, Any], quick: bool) -> list[Path]:
@@ -205,8 +265,10 @@ def plot(data: StudyData, g: dict[str, Any], quick: bool) -> list[Path]:
     norm = LogNorm(vmin=min(p["dofs"] for p in good), vmax=max(p["dofs"] for p in good) * (1 + 1e-9))
     cmap = C.colormap()
     fig, axs = subplots(1, 2, size=(13, 5.6))
-    for ax, key, unc, title in ((axs[0], "err_F", a["unc_F"], f"force at {a['s2']:g} mm"),
-                                (axs[1], "err_prof", a["unc_prof"], f"mid-axis profile at {a['s2']:g} mm")):
+    for ax, key, unc, title in (
+        (axs[0], "err_F", a["unc_F"], f"force at {a['s2']:g} mm"),
+        (axs[1], "err_prof", a["unc_prof"], f"mid-axis profile at {a['s2']:g} mm"),
+    ):
         floor = min([p[key] for p in good if p[key] > 0] + [unc]) / 3
         handles = []
         for kind_, m in MARKS.items():
@@ -219,22 +281,41 @@ def plot(data: StudyData, g: dict[str, Any], quick: bool) -> list[Path]:
                     continue
                 y = [max(p[key], floor) for p in sel]
                 colours = cmap(norm([p["dofs"] for p in sel]))
-                ax.scatter([p["time"] for p in sel], y, marker=m, s=40, zorder=3,
-                           facecolors="none" if below else colours, edgecolors=colours if below else "k",
-                           linewidths=1.5 if below else 0.3)
+                ax.scatter(
+                    [p["time"] for p in sel],
+                    y,
+                    marker=m,
+                    s=40,
+                    zorder=3,
+                    facecolors="none" if below else colours,
+                    edgecolors=colours if below else "k",
+                    linewidths=1.5 if below else 0.3,
+                )
             handles.append(Line2D([], [], ls="", marker=m, color="grey", markeredgecolor="k", label=NAMES[kind_]))
             for p in ps:
                 if kind_ in ("lagrange", "uncondensed", "graded"):
                     prm = data.meta["cases"][p["case"]]["params"]
-                    ax.annotate(f"{prm[C.H]:g}/{int(prm[C.P])}", (p["time"], max(p[key], floor)), fontsize=6,
-                                xytext=(3, 2), textcoords="offset points")
+                    ax.annotate(
+                        f"{prm[C.H]:g}/{int(prm[C.P])}",
+                        (p["time"], max(p[key], floor)),
+                        fontsize=6,
+                        xytext=(3, 2),
+                        textcoords="offset points",
+                    )
         front = sorted((p for p in good if p[f"pareto_{key}"]), key=lambda p: p["time"])
-        (line,) = ax.step([p["time"] for p in front], [max(p[key], floor) for p in front], "r-", where="post",
-                          lw=1.2, label="Pareto front")
+        (line,) = ax.step(
+            [p["time"] for p in front],
+            [max(p[key], floor) for p in front],
+            "r-",
+            where="post",
+            lw=1.2,
+            label="Pareto front",
+        )
         for t in TARGETS:
             ax.axhline(t, color="grey", lw=0.6, ls=":")
-        band = ax.axhspan(floor / 3, unc, color="grey", alpha=0.15,
-                          label="below the reference's bound: not resolved (open markers)")
+        band = ax.axhspan(
+            floor / 3, unc, color="grey", alpha=0.15, label="below the reference's bound: not resolved (open markers)"
+        )
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_ylim(floor / 3, None)
@@ -244,8 +325,9 @@ def plot(data: StudyData, g: dict[str, Any], quick: bool) -> list[Path]:
         ax.grid(alpha=0.3, which="both")
         C.short_log_axis(ax, "x")
     legend_below(fig, [*handles, line, band], ncol=4)
-    fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=axs, label="dofs (one colour scale for every marker)",
-                 shrink=0.8)
+    fig.colorbar(
+        ScalarMappable(norm=norm, cmap=cmap), ax=axs, label="dofs (one colour scale for every marker)", shrink=0.8
+    )
     put_caption(fig, study_caption(data.meta, f"reference: {a['F_ref']:.4f} N ± {a['unc_F']:.2g} (relative)"))
     return [savefig(fig, data.out, "work_precision"), _plot_dofs(data, a, quick)]
 
@@ -262,11 +344,16 @@ def _plot_dofs(data: StudyData, a: dict[str, Any], quick: bool) -> Path:
 
     fig, ax = subplots(size=(6.5, 5.0))
     F_ref, bound = a["F_ref"], a["unc_F"]
-    names = {"uniform": "uniform, p = 2", "graded": "graded, p = 2", "hp": "hp (corner and p together)",
-             "reference": "p on the graded mesh (the reference's own family)"}
+    names = {
+        "uniform": "uniform, p = 2",
+        "graded": "graded, p = 2",
+        "hp": "hp (corner and p together)",
+        "reference": "p on the graded mesh (the reference's own family)",
+    }
     errs, zero = [], 0
-    for j, (name, m, ls) in enumerate((("uniform", "o", "-"), ("graded", "s", "-"), ("hp", "*", "-"),
-                                       ("reference", "d", ":"))):
+    for j, (name, m, ls) in enumerate(
+        (("uniform", "o", "-"), ("graded", "s", "-"), ("hp", "*", "-"), ("reference", "d", ":"))
+    ):
         cs = [R._case(data, prm) for prm in R.families(quick)[name]]
         pts = [(C.dofs(data, c), abs(data.at(c, a["s2"], "force_N") - F_ref) / F_ref) for c in cs if c is not None]
         zero += sum(1 for _, e in pts if e == 0)
@@ -278,8 +365,14 @@ def _plot_dofs(data: StudyData, a: dict[str, Any], quick: bool) -> Path:
         for below in (False, True):
             sel = [(n, e) for n, e in pts if (e < bound) == below]
             if sel:
-                ax.plot(*zip(*sel, strict=True), m, color=f"C{j}", ls="", mfc="none" if below else f"C{j}",
-                        label=None if below else names[name])
+                ax.plot(
+                    *zip(*sel, strict=True),
+                    m,
+                    color=f"C{j}",
+                    ls="",
+                    mfc="none" if below else f"C{j}",
+                    label=None if below else names[name],
+                )
     low = min([*errs, bound]) / 3
     ax.axhspan(low, bound, color="grey", alpha=0.15, label="below the reference's bound (open markers)")
     ax.set_ylim(low, None)
@@ -288,8 +381,7 @@ def _plot_dofs(data: StudyData, a: dict[str, Any], quick: bool) -> Path:
     ax.grid(alpha=0.3, which="both")
     C.short_log_axis(ax, "x")
     if zero:
-        ax.set_title(f"{zero} case(s) with zero error against the reference (its own last order) not drawn",
-                     fontsize=8)
+        ax.set_title(f"{zero} case(s) with zero error against the reference (its own last order) not drawn", fontsize=8)
     legend_below(fig, ncol=2)
     put_caption(fig, study_caption(data.meta))
     return savefig(fig, data.out, "work_precision_dofs")

@@ -12,13 +12,20 @@ import pytest
 from ngbet.scene.document import Scene
 
 #: modules that run whole commands, studies, worker processes and the hard cases
-INTEGRATION_MODULES = {"test_command.py", "test_faults.py", "test_hard_cases.py", "test_studies.py",
-                       "test_study_workers.py"}
+INTEGRATION_MODULES = {
+    "test_command.py",
+    "test_faults.py",
+    "test_hard_cases.py",
+    "test_studies.py",
+    "test_study_workers.py",
+}
 #: long finite-element checks of other modules (15-40 s each on the 2-core machine at load 6,
 #: together more than a third of the default tier): with the integration tier
-LONG_CHECKS = {("test_cholmod.py", "test_the_llt_solves_as_the_ldlt"),
-               ("test_cholmod.py", "test_a_matrix_that_is_not_positive_definite_goes_to_the_ldlt"),
-               ("test_discrete_symmetry.py", "test_stability_check_of_the_network_reports_both_blocks")}
+LONG_CHECKS = {
+    ("test_cholmod.py", "test_the_llt_solves_as_the_ldlt"),
+    ("test_cholmod.py", "test_a_matrix_that_is_not_positive_definite_goes_to_the_ldlt"),
+    ("test_discrete_symmetry.py", "test_stability_check_of_the_network_reports_both_blocks"),
+}
 
 
 def pytest_collection_modifyitems(config, items):
@@ -32,9 +39,15 @@ def _listing(folder):
     from pathlib import Path
 
     root = Path(folder)
-    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*")
-            if p.is_file() and ".git" not in p.parts and "__pycache__" not in p.parts
-            and ".pytest_cache" not in p.parts and not p.name.endswith(".pyc")}
+    return {
+        str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns)
+        for p in root.rglob("*")
+        if p.is_file()
+        and ".git" not in p.parts
+        and "__pycache__" not in p.parts
+        and ".pytest_cache" not in p.parts
+        and not p.name.endswith(".pyc")
+    }
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -65,8 +78,13 @@ def in_a_folder_of_its_own(tmp_path_factory, monkeypatch):
 
 def coarse(**changes) -> Scene:
     """The paper's scene on a coarse mesh (10 mm, p = 2): seconds, not minutes."""
-    base = {"discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 0.0,
-            "discretization.order_u": 2, "outputs.vtk": False, "outputs.plot": False}
+    base = {
+        "discretization.mesh_size_mm": 10.0,
+        "discretization.corner_mesh_size_mm": 0.0,
+        "discretization.order_u": 2,
+        "outputs.vtk": False,
+        "outputs.plot": False,
+    }
     base.update(changes)
     return Scene().with_changes(**base)
 
@@ -87,8 +105,17 @@ def carry(problem, target, first_step, settings, *, psi=None, hessian=None, watc
     from ngbet.numerics.settings import PathSettings
 
     path.update({k: tuple(path[k]) for k in ("stops", "chord_at") if k in path})
-    steps = Steps(load_steps(problem, PathSettings(target=target, first_step=first_step, **path), settings,
-                             psi=psi, hessian=hessian, watch=watch, locate=locate))
+    steps = Steps(
+        load_steps(
+            problem,
+            PathSettings(target=target, first_step=first_step, **path),
+            settings,
+            psi=psi,
+            hessian=hessian,
+            watch=watch,
+            locate=locate,
+        )
+    )
     for _ in steps:
         pass
     return steps.result
@@ -153,11 +180,11 @@ class DoubleWell(OneDofToy):
 
     def residual(self):
         lam, y = self.x
-        return np.array([-y, y ** 3 - y - lam])
+        return np.array([-y, y**3 - y - lam])
 
     def energy(self):
         lam, y = self.x
-        return y ** 4 / 4 - y ** 2 / 2 - lam * y
+        return y**4 / 4 - y**2 / 2 - lam * y
 
     def factorize(self, shift=0.0):
         J = 3 * self.x[1] ** 2 - 1

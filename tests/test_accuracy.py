@@ -58,18 +58,28 @@ from ngbet.studies.reference import extrapolate, fits
 #: forces [N] at (37, 56) mm for p = 4, 5, 6 on the 10 mm mesh with 0.25 mm corners; the paper's
 #: scene: :data:`ORDERS` on the 20 mm mesh with 0.25 mm corners (the reference study's family)
 FAMILY = {
-    "default": ((61.252040, 107.308761), (61.233586, 107.273507), (61.224343, 107.255644),
-                (61.218623, 107.243493), (61.217255, 107.241330), (61.216023, 107.239186)),
+    "default": (
+        (61.252040, 107.308761),
+        (61.233586, 107.273507),
+        (61.224343, 107.255644),
+        (61.218623, 107.243493),
+        (61.217255, 107.241330),
+        (61.216023, 107.239186),
+    ),
     "penalty": ((61.16516, 107.15289), (61.15179, 107.12733), (61.14516, 107.11399)),
     "alpha1_200": ((38.21391, 66.57898), (38.21359, 66.57839), (38.21340, 66.57801)),
     "alpha1_20000": ((74.12784, 130.97402), (73.89774, 130.53226), (73.82292, 130.38890)),
     "bet_100x300": ((50.92764, 86.38635), (50.91921, 86.37067), (50.91490, 86.36257)),
     "yarn_50": ((35.06640, 60.59525), (35.06008, 60.58349), (35.05640, 60.57668)),
 }
-BASES = {"default": {}, "penalty": {"effects.constraint": "penalty", "effects.penalty_K": 1e8},
-         "alpha1_200": {"material.alpha1": 200.0}, "alpha1_20000": {"material.alpha1": 20000.0},
-         "bet_100x300": {"specimen.length_mm": 300.0, "specimen.width_mm": 100.0},
-         "yarn_50": {"specimen.yarn_angle_deg": 50.0}}
+BASES = {
+    "default": {},
+    "penalty": {"effects.constraint": "penalty", "effects.penalty_K": 1e8},
+    "alpha1_200": {"material.alpha1": 200.0},
+    "alpha1_20000": {"material.alpha1": 20000.0},
+    "bet_100x300": {"specimen.length_mm": 300.0, "specimen.width_mm": 100.0},
+    "yarn_50": {"specimen.yarn_angle_deg": 50.0},
+}
 #: the reference profile u_y [mm] at 56 mm (p = 8 above) at X = 0, 22, 44, ..., 220 mm (every 11th
 #: of the 111 points); max |u_y| = 2.8252 mm, bound max|u_y,8 − u_y,7| = 0.0003 mm
 PROFILE_56 = (0.0, -1.87054, -2.8078, -1.76807, -0.64915, 0.0001, 0.64935, 1.76827, 2.80799, 1.8707, 0.0)
@@ -80,8 +90,7 @@ ORDERS = {"default": (4, 5, 6, 8, 9, 10)}
 
 #: forces [N] at 37 mm on the 20 mm mesh graded to 1 mm with the corners bisected twice, p = 6 … 14,
 #: loaded to 37 mm only (the reference study's fine family)
-SPLIT_37 = (61.2191394, 61.2160702, 61.2143848, 61.2134368, 61.2129213, 61.2122949, 61.2121255, 61.2120350,
-            61.2121411)
+SPLIT_37 = (61.2191394, 61.2160702, 61.2143848, 61.2134368, 61.2129213, 61.2122949, 61.2121255, 61.2120350, 61.2121411)
 SPLIT_ORDERS = tuple(range(6, 15))
 #: p = 14 of that family loaded in 2 mm steps (another corner state; p = 12, 13 agree to 2e-7 N)
 SPLIT_14_SMALL_STEPS = 61.2119881
@@ -91,8 +100,7 @@ SPLIT_05_ONCE = (61.2141105, 61.2129378, 61.2125014, 61.2121888, 61.2122300, 61.
 SPLIT_2_TWICE = (61.2162317, 61.2151166, 61.2142645, 61.2135503, 61.2128877, 61.2125283, 61.2123419)
 #: forces [N] at 37 mm on the same mesh graded to 0.125 mm, not bisected, p = 4 … 10, 12, 14 (the
 #: previous fine family; p = 11 and 13 stop at 35.7 and 35.3 mm)
-FINE_37 = (61.252553, 61.231165, 61.221843, 61.217845, 61.216159, 61.214853, 61.214104, 61.213184,
-           61.212608)
+FINE_37 = (61.252553, 61.231165, 61.221843, 61.217845, 61.216159, 61.214853, 61.214104, 61.213184, 61.212608)
 FINE_ORDERS = (4, 5, 6, 7, 8, 9, 10, 12, 14)
 
 
@@ -106,12 +114,18 @@ FINE_ORDERS = (4, 5, 6, 7, 8, 9, 10, 12, 14)
 #: to 8° between them at 16 mm on the h-check mesh (the first load), within the jamming barrier's watch: its
 #: families are of the model without the barrier (with it the h-check's p = 4 gives 36.7103101 N, not
 #: 36.7102665 N, a change within its error bar)
-NEW_BASES = {"bending_off": {"effects.bending": False, "effects.jamming": False},
-             "yarn_60": {"specimen.yarn_angle_deg": 60.0},
-             "bet_50x150": {"specimen.width_mm": 50.0, "specimen.length_mm": 150.0, "loading.u0_mm": 37.0,
-                            "loading.stops_mm": []},
-             "polynomial": {"effects.shear_law": "polynomial", "material.K_sh4": 50000.0},
-             "short_20": {"loading.u0_mm": 20.0, "loading.stops_mm": []}}
+NEW_BASES = {
+    "bending_off": {"effects.bending": False, "effects.jamming": False},
+    "yarn_60": {"specimen.yarn_angle_deg": 60.0},
+    "bet_50x150": {
+        "specimen.width_mm": 50.0,
+        "specimen.length_mm": 150.0,
+        "loading.u0_mm": 37.0,
+        "loading.stops_mm": [],
+    },
+    "polynomial": {"effects.shear_law": "polynomial", "material.K_sh4": 50000.0},
+    "short_20": {"loading.u0_mm": 20.0, "loading.stops_mm": []},
+}
 SPLIT_NEW = {
     "bending_off": (36.7102760, 36.7102559, 36.7102511, 36.7102507, 36.7102500, 36.7102496, 36.7102493),
     "yarn_60": (15.9972775, 15.9921875, 15.9904697, 15.9898378, 15.9896129, 15.9894853, 15.9894222),
@@ -146,23 +160,64 @@ UNIFORM = {"discretization.mesh_size_mm": 5.0, "discretization.corner_mesh_size_
 
 
 def _scene(base: str, **disc) -> Scene:
-    ch = {"outputs.vtk": False, "outputs.plot": False, "outputs.error_estimate": "final",
-          **(BASES[base] if base in BASES else NEW_BASES[base]), **UNIFORM}
+    ch = {
+        "outputs.vtk": False,
+        "outputs.plot": False,
+        "outputs.error_estimate": "final",
+        **(BASES[base] if base in BASES else NEW_BASES[base]),
+        **UNIFORM,
+    }
     ch.update({f"discretization.{k}": v for k, v in disc.items()})
     return Scene().with_changes(**ch)
 
 
-@pytest.mark.parametrize("changes,stored", [
-    ({"discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 0.25, "discretization.order_u": 4,
-      "loading.u0_mm": 37.0, "loading.stops_mm": []}, {37.0: FAMILY["default"][0][0]}),
-    ({**NEW_BASES["bending_off"], "discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 0.5,
-      "discretization.corner_bisections": 1, "discretization.order_u": 4}, {56.0: CHECK_NEW["bending_off"][0]}),
-    ({"discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 1.0,
-      "discretization.corner_bisections": 2, "discretization.order_u": 6, "loading.u0_mm": 37.0,
-      "loading.stops_mm": []}, {37.0: SPLIT_37[0]}),
-    ({"discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 0.125, "discretization.order_u": 4,
-      "loading.u0_mm": 37.0, "loading.stops_mm": []}, {37.0: FINE_37[0]}),
-], ids=["reference_family_p4", "bending_off_check_p4", "split_37_p6", "fine_37_p4"])
+@pytest.mark.parametrize(
+    "changes,stored",
+    [
+        (
+            {
+                "discretization.mesh_size_mm": 20.0,
+                "discretization.corner_mesh_size_mm": 0.25,
+                "discretization.order_u": 4,
+                "loading.u0_mm": 37.0,
+                "loading.stops_mm": [],
+            },
+            {37.0: FAMILY["default"][0][0]},
+        ),
+        (
+            {
+                **NEW_BASES["bending_off"],
+                "discretization.mesh_size_mm": 10.0,
+                "discretization.corner_mesh_size_mm": 0.5,
+                "discretization.corner_bisections": 1,
+                "discretization.order_u": 4,
+            },
+            {56.0: CHECK_NEW["bending_off"][0]},
+        ),
+        (
+            {
+                "discretization.mesh_size_mm": 20.0,
+                "discretization.corner_mesh_size_mm": 1.0,
+                "discretization.corner_bisections": 2,
+                "discretization.order_u": 6,
+                "loading.u0_mm": 37.0,
+                "loading.stops_mm": [],
+            },
+            {37.0: SPLIT_37[0]},
+        ),
+        (
+            {
+                "discretization.mesh_size_mm": 20.0,
+                "discretization.corner_mesh_size_mm": 0.125,
+                "discretization.order_u": 4,
+                "loading.u0_mm": 37.0,
+                "loading.stops_mm": [],
+            },
+            {37.0: FINE_37[0]},
+        ),
+    ],
+    ids=["reference_family_p4", "bending_off_check_p4", "split_37_p6", "fine_37_p4"],
+)
 def test_stored_families_are_this_codes_forces(changes, stored):
     """The stored families are forces of this code: the cheapest member of the reference family
     (20 mm mesh, 0.25 mm corners, p = 4, here loaded to 37 mm only), of a new base's h-check
@@ -173,8 +228,17 @@ def test_stored_families_are_this_codes_forces(changes, stored):
     references below stale; this test says so."""
     from ngbet.api import simulate
 
-    r = simulate(Scene().with_changes(**{**changes, "outputs.error_estimate": "off", "outputs.vtk": False,
-                                         "outputs.plot": False, "loading.output_every_mm": 0}))
+    r = simulate(
+        Scene().with_changes(
+            **{
+                **changes,
+                "outputs.error_estimate": "off",
+                "outputs.vtk": False,
+                "outputs.plot": False,
+                "loading.output_every_mm": 0,
+            }
+        )
+    )
     for u0, F in stored.items():
         k = int(np.argmin(np.abs(r.u0_mm - u0)))
         assert r.u0_mm[k] == pytest.approx(u0, abs=1e-9)
@@ -208,8 +272,7 @@ def test_reference_at_37_mm_from_the_split_corners():
     for n in (5, 7, 8):  # ending at p = 10, 12 and 13
         Fn, bound_n = extrapolate(SPLIT_37[:n], SPLIT_ORDERS[:n])
         assert abs(Fn - F) <= bound_n
-    for other in (ref("default", 0), extrapolate(FINE_37, FINE_ORDERS),
-                  extrapolate(SPLIT_2_TWICE, range(8, 15))):
+    for other in (ref("default", 0), extrapolate(FINE_37, FINE_ORDERS), extrapolate(SPLIT_2_TWICE, range(8, 15))):
         assert abs(F - other[0]) <= other[1]
     # the other corner state at p = 14 moves the limit by 1e-4 N, well inside both bounds
     F2, bound2 = extrapolate(SPLIT_37[:-1] + (SPLIT_14_SMALL_STEPS,), SPLIT_ORDERS)
@@ -238,7 +301,7 @@ def test_reference_at_37_mm_of_the_unsplit_corners():
     assert min(lims) == pytest.approx(61.2111, abs=1e-4) and F - bound < min(lims)
 
 
-@pytest.mark.parametrize("tail", [lambda p: 3.0 * 0.5 ** p, lambda p: 3.0 * p ** -2.5])
+@pytest.mark.parametrize("tail", [lambda p: 3.0 * 0.5**p, lambda p: 3.0 * p**-2.5])
 def test_extrapolation_bound_covers_geometric_and_algebraic_sequences(tail):
     """Whichever way the sequence converges, the limit lies within the bound, which is no larger
     than the highest order's own error."""
@@ -255,19 +318,27 @@ def _effectivity(tmp_path, base: str, **disc) -> tuple[float, dict]:
     return s["force_error_N"] / err, s
 
 
-FAST = [("default", {"mesh_size_mm": 10.0}), ("penalty", {"mesh_size_mm": 10.0}),
-        ("yarn_50", {"mesh_size_mm": 10.0}), ("alpha1_200", {"mesh_size_mm": 10.0}),
-        ("default", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}),
-        ("default", {"mesh_size_mm": 20.0, "corner_mesh_size_mm": 0.25, "order_u": 4})]
-SLOW = [("default", {"mesh_size_mm": 20.0, "corner_mesh_size_mm": 0.25, "order_u": 6}),
-        ("default", {"mesh_size_mm": 5.0}), ("default", {"mesh_size_mm": 10.0, "order_u": 3}),
-        ("default", {"mesh_size_mm": 10.0, "order_u": 4}),
-        ("default", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5}),
-        ("default", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25}),
-        ("penalty", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}),
-        ("alpha1_20000", {"mesh_size_mm": 10.0}), ("bet_100x300", {"mesh_size_mm": 10.0}),
-        ("alpha1_200", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5}),
-        ("yarn_50", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5, "order_u": 3})]
+FAST = [
+    ("default", {"mesh_size_mm": 10.0}),
+    ("penalty", {"mesh_size_mm": 10.0}),
+    ("yarn_50", {"mesh_size_mm": 10.0}),
+    ("alpha1_200", {"mesh_size_mm": 10.0}),
+    ("default", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}),
+    ("default", {"mesh_size_mm": 20.0, "corner_mesh_size_mm": 0.25, "order_u": 4}),
+]
+SLOW = [
+    ("default", {"mesh_size_mm": 20.0, "corner_mesh_size_mm": 0.25, "order_u": 6}),
+    ("default", {"mesh_size_mm": 5.0}),
+    ("default", {"mesh_size_mm": 10.0, "order_u": 3}),
+    ("default", {"mesh_size_mm": 10.0, "order_u": 4}),
+    ("default", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5}),
+    ("default", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25}),
+    ("penalty", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}),
+    ("alpha1_20000", {"mesh_size_mm": 10.0}),
+    ("bet_100x300", {"mesh_size_mm": 10.0}),
+    ("alpha1_200", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5}),
+    ("yarn_50", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.5, "order_u": 3}),
+]
 
 
 @pytest.mark.parametrize("base,disc", FAST)
@@ -290,13 +361,21 @@ def test_new_references_agree_across_meshes():
         assert ref_new(base)[1] < 3e-4 * F, base
 
 
-NEW_FAST = [("bending_off", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}),
-            ("short_20", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3})]
-NEW_SLOW = [*((b, {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3})
-              for b in ("yarn_60", "bet_50x150", "polynomial")),
-            *((b, {"mesh_size_mm": 10.0}) for b in NEW_BASES),
-            *((b, {"mesh_size_mm": 20.0, "corner_mesh_size_mm": 0.25, "order_u": 4})
-              for b in ("bending_off", "yarn_60", "bet_50x150", "polynomial", "short_20"))]
+NEW_FAST = [
+    ("bending_off", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}),
+    ("short_20", {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3}),
+]
+NEW_SLOW = [
+    *(
+        (b, {"mesh_size_mm": 10.0, "corner_mesh_size_mm": 0.25, "order_u": 3})
+        for b in ("yarn_60", "bet_50x150", "polynomial")
+    ),
+    *((b, {"mesh_size_mm": 10.0}) for b in NEW_BASES),
+    *(
+        (b, {"mesh_size_mm": 20.0, "corner_mesh_size_mm": 0.25, "order_u": 4})
+        for b in ("bending_off", "yarn_60", "bet_50x150", "polynomial", "short_20")
+    ),
+]
 
 
 @pytest.mark.parametrize("base,disc", NEW_FAST)
@@ -386,8 +465,22 @@ def test_every_converged_step_gets_an_error_with_every(tmp_path):
 @pytest.mark.parametrize("target", [1e-2, 1e-3])
 def test_accuracy_on_demand_reaches_the_target(tmp_path, target, capsys):
     out = tmp_path / f"acc{target:g}"
-    assert main(["run", "--accuracy", str(target), "--out", str(out),
-                 "--set", "outputs.vtk=false", "--set", "outputs.plot=false"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--accuracy",
+                str(target),
+                "--out",
+                str(out),
+                "--set",
+                "outputs.vtk=false",
+                "--set",
+                "outputs.plot=false",
+            ]
+        )
+        == 0
+    )
     s = json.loads((out / "summary.json").read_text())
     a = s["accuracy"]
     F_ref, bound = ref("default")
@@ -408,8 +501,7 @@ def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
             raise ConvergenceError("load step cut below the minimum", last_converged_mm=48.0)
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
 
-    s = ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
-                                 tmp_path, run_one)
+    s = ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}), tmp_path, run_one)
     a = s["accuracy"]
     # p = 10 on the mesh where p = 8 failed is skipped (it fails alike), not run
     assert calls == [(20.0, 8), (10.0, 8)] and a["met"] and "failed" in a["attempts"][0]
@@ -452,13 +544,13 @@ def test_accuracy_ladder_leaves_a_setting_whose_time_budget_is_spent(tmp_path, m
             time.sleep(0.05)
             return {"force_N": 107.0, "force_error_rel": 3e-4, "solve_s": 0.05, "estimate_s": 0.0}
         if len(calls) == 2:
-            for _ in path_steps(Stuck(), PathControl(target=0.056, first_step=0.002, max_step=0.002, min_step=1e-6,
-                                                     max_attempts=None)):
+            for _ in path_steps(
+                Stuck(), PathControl(target=0.056, first_step=0.002, max_step=0.002, min_step=1e-6, max_attempts=None)
+            ):
                 pass
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
 
-    s = ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
-                                 tmp_path, run_one)
+    s = ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}), tmp_path, run_one)
     a = s["accuracy"]["attempts"]
     assert a[1]["failed"].startswith("time budget spent on the way from 0 mm to 56 mm")
     assert 0.1 <= a[1]["wall_s"] < 1.0 and calls[2] == (10.0, 8) and s["accuracy"]["met"]
@@ -492,12 +584,18 @@ def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path)
         calls.append(p)
         if p == 5:
             raise AssertionError("the ladder went past a rung that did not improve")
-        return {"force_N": 107.0, "force_error_rel": errors[p], "solve_s": 1.0, "estimate_s": 0.1,
-                "u0_reached_mm": 56.0}
+        return {
+            "force_N": 107.0,
+            "force_error_rel": errors[p],
+            "solve_s": 1.0,
+            "estimate_s": 0.1,
+            "u0_reached_mm": 56.0,
+        }
 
     with pytest.raises(ConvergenceError, match="not reached: p = 4 .* no better than 0.003 at p = 3") as info:
-        ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 2.5e-3}),
-                                 tmp_path, run_one)
+        ladder.run_to_accuracy(
+            default_scene().with_changes(**{"discretization.target_error": 2.5e-3}), tmp_path, run_one
+        )
     assert calls == [2, 3, 4, 3]  # the best rung (p = 3) again, last
     a = info.value.path_info["accuracy"]  # the runner adds it to the run's summary.json
     assert not a["met"] and a["chosen"]["order_u"] == 3
@@ -510,8 +608,9 @@ def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path)
             raise ConvergenceError("load step cut below the minimum", last_converged_mm=48.0)
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
 
-    s = ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-4}),
-                                 tmp_path, failing_first)
+    s = ladder.run_to_accuracy(
+        default_scene().with_changes(**{"discretization.target_error": 1e-4}), tmp_path, failing_first
+    )
     a = s["accuracy"]
     assert a["attempts"][0]["solve_s"] >= 0.05 and a["solve_s"] >= 1.05
 
@@ -527,9 +626,11 @@ def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
         seen.append(sc.discretization.corner_bisections)
         return {"force_N": 107.24, "force_error_rel": 5e-5, "solve_s": 1.0, "estimate_s": 0.1}
 
-    ladder.run_to_accuracy(default_scene().with_changes(**{"discretization.target_error": 1e-3,
-                                                              "discretization.corner_bisections": 2}),
-                             tmp_path, run_one)
+    ladder.run_to_accuracy(
+        default_scene().with_changes(**{"discretization.target_error": 1e-3, "discretization.corner_bisections": 2}),
+        tmp_path,
+        run_one,
+    )
     assert seen and set(seen) == {0}
 
 
@@ -538,8 +639,23 @@ def test_accuracy_on_demand_reaches_1e_4(tmp_path):
     """h = 20 mm, p = 8 on the 0.25 mm-corner mesh, verified against the reference with its bound
     (measured: 0.0065 % off the reference, 0.0095 % with its bound; solve 6–8 s, loaded machine)."""
     out = tmp_path / "acc1e-4"
-    assert main(["run", "--quiet", "--accuracy", "1e-4", "--out", str(out),
-                 "--set", "outputs.vtk=false", "--set", "outputs.plot=false"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--quiet",
+                "--accuracy",
+                "1e-4",
+                "--out",
+                str(out),
+                "--set",
+                "outputs.vtk=false",
+                "--set",
+                "outputs.plot=false",
+            ]
+        )
+        == 0
+    )
     s = json.loads((out / "summary.json").read_text())
     F_ref, bound = ref("default")
     assert s["accuracy"]["met"] and s["force_error_rel"] <= 1e-4
@@ -552,7 +668,8 @@ def test_hp_grading_converges_exponentially(tmp_path):
     dofs, err = [], []
     for c, p in ((2.5, 2), (1.0, 3), (0.5, 4)):
         sc = _scene("default", mesh_size_mm=10.0, corner_mesh_size_mm=c, order_u=p).with_changes(
-            **{"outputs.error_estimate": "off"})
+            **{"outputs.error_estimate": "off"}
+        )
         s = run(sc, tmp_path / f"hp{p}")
         dofs.append(s["dofs"]["total"])
         err.append(abs(_final_force(tmp_path / f"hp{p}") - F_ref) / F_ref)
@@ -568,8 +685,9 @@ def _final_force(out) -> float:
 
 
 def test_default_scene_is_within_0p3_percent(tmp_path):
-    sc = default_scene().with_changes(**{"outputs.vtk": False, "outputs.plot": False,
-                                         "outputs.error_estimate": "final"})
+    sc = default_scene().with_changes(
+        **{"outputs.vtk": False, "outputs.plot": False, "outputs.error_estimate": "final"}
+    )
     s = run(sc, tmp_path / "d")
     F_ref, bound = ref("default")
     assert abs(s["force_N"] - F_ref) + bound < 0.003 * F_ref
@@ -598,8 +716,14 @@ def test_reference_study_quick(tmp_path):
     assert (d.out / "reference_convergence.png").exists()
 
 
-@pytest.mark.parametrize("key,value", [("discretization.target_error", -1e-3), ("discretization.target_error", 2.0),
-                                       ("outputs.error_estimate", "always")])
+@pytest.mark.parametrize(
+    "key,value",
+    [
+        ("discretization.target_error", -1e-3),
+        ("discretization.target_error", 2.0),
+        ("outputs.error_estimate", "always"),
+    ],
+)
 def test_bad_accuracy_keys_are_refused_by_name(key, value):
     from ngbet.scene.validate import SceneError
 
@@ -629,11 +753,19 @@ def test_the_resolved_corners_snap_back_leaves_the_force_unchanged(tmp_path):
     from ngbet.errors import ConvergenceError
     from ngbet.tables import read_rows
 
-    sc = default_scene().with_changes(**{
-        "discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 0.0625,
-        "discretization.order_u": 5, "loading.u0_mm": 37.0, "loading.stops_mm": [],
-        "solver.path_following": "auto", "outputs.error_estimate": "off",
-        "outputs.vtk": False, "outputs.plot": False})
+    sc = default_scene().with_changes(
+        **{
+            "discretization.mesh_size_mm": 20.0,
+            "discretization.corner_mesh_size_mm": 0.0625,
+            "discretization.order_u": 5,
+            "loading.u0_mm": 37.0,
+            "loading.stops_mm": [],
+            "solver.path_following": "auto",
+            "outputs.error_estimate": "off",
+            "outputs.vtk": False,
+            "outputs.plot": False,
+        }
+    )
     with pytest.raises(ConvergenceError, match="instabilities passed: snap-back at"):
         run(sc, tmp_path)
     rows = read_rows(tmp_path / "results.csv")
@@ -641,7 +773,7 @@ def test_the_resolved_corners_snap_back_leaves_the_force_unchanged(tmp_path):
     turn = int(np.argmax(u))  # the snap-back: u0 decreases after it
     assert u[turn] == pytest.approx(33.69, abs=0.01) and np.all(np.diff(u[turn:]) < 0)
     assert u[-1] < 30.0
-    up = CubicHermiteSpline(u[:turn + 1], F[:turn + 1], dF[:turn + 1])
+    up = CubicHermiteSpline(u[: turn + 1], F[: turn + 1], dF[: turn + 1])
     down = CubicHermiteSpline(u[turn:][::-1], F[turn:][::-1], dF[turn:][::-1])
     loads = np.linspace(31.75, 33.6, 8)  # where the first branch has steps of 1.3 mm or less
     assert np.max(np.abs(up(loads) - down(loads))) < 1e-4

@@ -56,11 +56,13 @@ def test_run_csv_files_have_lf_line_endings(small_run):
 @pytest.mark.integration
 def test_run_without_matplotlib_writes_everything_but_the_plot(tmp_path):
     """The core needs neither matplotlib nor pyvista: without them the run says so in one line."""
-    code = ("import sys\n"
-            "for m in ('matplotlib', 'pyvista'): sys.modules[m] = None\n"
-            "from ngbet.cli import main\n"
-            f"sys.exit(main(['run', '--quiet', '--out', {str(tmp_path / 'run')!r}, '--set', 'loading.u0_mm=10', "
-            "'--set', 'loading.stops_mm=[]', '--set', 'discretization.mesh_size_mm=20']))")
+    code = (
+        "import sys\n"
+        "for m in ('matplotlib', 'pyvista'): sys.modules[m] = None\n"
+        "from ngbet.cli import main\n"
+        f"sys.exit(main(['run', '--quiet', '--out', {str(tmp_path / 'run')!r}, '--set', 'loading.u0_mm=10', "
+        "'--set', 'loading.stops_mm=[]', '--set', 'discretization.mesh_size_mm=20']))"
+    )
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0
     assert "no figures: matplotlib is not installed" in p.stderr and len(p.stderr.strip().splitlines()) == 1
@@ -115,8 +117,10 @@ def test_example_sweep(capsys):
     """examples/sweep.py: the S-shape grows with alpha1 (alpha2 = 20 Pa m^2: nearly none at alpha1 = alpha2)."""
     runpy.run_path(str(ROOT / "examples" / "sweep.py"), run_name="__main__")
     lines = capsys.readouterr().out.splitlines()
-    cases = [re.match(r"alpha1 = +(\S+) Pa m\^2: force +(\S+) N, max \|u_y\| on the mid-axis (\S+) mm", x)
-             for x in lines[:-1]]
+    cases = [
+        re.match(r"alpha1 = +(\S+) Pa m\^2: force +(\S+) N, max \|u_y\| on the mid-axis (\S+) mm", x)
+        for x in lines[:-1]
+    ]
     assert all(cases) and len(cases) == 3
     assert [float(m.group(1)) for m in cases] == [20.0, 200.0, 2000.0]
     amp = [float(m.group(3)) for m in cases]

@@ -39,8 +39,9 @@ def eq18_by_fixed_point(d, F, H, W):
     f = np.zeros_like(g)
     for _ in range(200):
         half = np.interp(g / 2, np.r_[0.0, g], np.r_[0.0, f])
-        f = (((H / W - 1) * F * (np.cos(g / 2) - np.sin(g / 2)) - W * half * np.cos(g / 2))
-             / ((2 * H - 3 * W) * np.cos(g)))
+        f = ((H / W - 1) * F * (np.cos(g / 2) - np.sin(g / 2)) - W * half * np.cos(g / 2)) / (
+            (2 * H - 3 * W) * np.cos(g)
+        )
     return g, f
 
 
@@ -92,8 +93,17 @@ def test_zone_quadrature_integrates_the_ideal_areas():
 
 def test_other_yarn_angles_leave_the_bet_columns_empty(tmp_path):
     """Eqs. 13 and 18 are those of the ±45° bias test: at 40° both columns are empty, the zone means are not."""
-    run(coarse(**{"specimen.yarn_angle_deg": 40.0, "loading.u0_mm": 6.0, "loading.stops_mm": [],
-                  "outputs.error_estimate": "off"}), tmp_path)
+    run(
+        coarse(
+            **{
+                "specimen.yarn_angle_deg": 40.0,
+                "loading.u0_mm": 6.0,
+                "loading.stops_mm": [],
+                "outputs.error_estimate": "off",
+            }
+        ),
+        tmp_path,
+    )
     rows = read_rows(tmp_path / "results.csv")
     assert len(rows) == 3 and all(r["gamma_kinematic_deg"] == "" and r["fsh_N_per_mm"] == "" for r in rows)
     assert all(isinstance(r["gamma_A_deg"], float) and r["gamma_A_deg"] > 0 for r in rows)
@@ -110,13 +120,32 @@ def test_centre_and_zone_shear_tend_to_the_ideal_test_as_the_yarns_stiffen(tmp_p
     err = []
     for K_el in (1e6, 1e7, 1e8):
         out = tmp_path / f"{K_el:g}"
-        run(coarse(**{"material.K_el": K_el, "material.alpha1": 0.2, "material.alpha2": 0.2, "loading.u0_mm": 20.0,
-                      "loading.stops_mm": [], "loading.output_every_mm": 10.0, "loading.first_step_mm": 10.0,
-                      "outputs.error_estimate": "off", "discretization.order_u": 3}), out)
+        run(
+            coarse(
+                **{
+                    "material.K_el": K_el,
+                    "material.alpha1": 0.2,
+                    "material.alpha2": 0.2,
+                    "loading.u0_mm": 20.0,
+                    "loading.stops_mm": [],
+                    "loading.output_every_mm": 10.0,
+                    "loading.first_step_mm": 10.0,
+                    "outputs.error_estimate": "off",
+                    "discretization.order_u": 3,
+                }
+            ),
+            out,
+        )
         r = read_rows(out / "results.csv")[-1]
         g = r["gamma_kinematic_deg"]
-        err.append((abs(r["gamma_centre_deg"] / g - 1), abs(r["gamma_A_deg"] / g - 1),
-                    abs(r["gamma_B_deg"] / (g / 2) - 1), abs(r["gamma_C_deg"] / g)))
+        err.append(
+            (
+                abs(r["gamma_centre_deg"] / g - 1),
+                abs(r["gamma_A_deg"] / g - 1),
+                abs(r["gamma_B_deg"] / (g / 2) - 1),
+                abs(r["gamma_C_deg"] / g),
+            )
+        )
     e = np.array(err)
     assert np.all(np.diff(e, axis=0) < 0), f"deviations from the ideal test do not all fall with K_el:\n{e}"
     assert np.all(e[-1] < [0.15, 0.03, 0.05, 0.03]), f"at K_el/K_sh = 4800: {e[-1]}"
@@ -124,11 +153,23 @@ def test_centre_and_zone_shear_tend_to_the_ideal_test_as_the_yarns_stiffen(tmp_p
 
 def test_discrete_bet_columns(tmp_path):
     """The network writes the same columns: F_sh from its own force by Eq. 18, γ by Eq. 13, the centre angle."""
-    run(Scene().with_changes(**{"model": "discrete", "loading.u0_mm": 8.0, "loading.stops_mm": [],
-                                "outputs.plot": False, "discrete.spacing_mm": 10.0}), tmp_path, progress=False)
+    run(
+        Scene().with_changes(
+            **{
+                "model": "discrete",
+                "loading.u0_mm": 8.0,
+                "loading.stops_mm": [],
+                "outputs.plot": False,
+                "discrete.spacing_mm": 10.0,
+            }
+        ),
+        tmp_path,
+        progress=False,
+    )
     rows = read_rows(tmp_path / "results.csv")
-    u0, F, g, fsh, centre = _columns(rows, "u0_mm", "force_N", "gamma_kinematic_deg", "fsh_N_per_mm",
-                                     "gamma_centre_deg")
+    u0, F, g, fsh, centre = _columns(
+        rows, "u0_mm", "force_N", "gamma_kinematic_deg", "fsh_N_per_mm", "gamma_centre_deg"
+    )
     assert list(u0) == [2.0, 4.0, 6.0, 8.0]
     assert np.allclose(g, np.degrees(shear_angle_rad(u0, 220.0, 70.0)), rtol=1e-12, atol=0)
     assert np.allclose(fsh, eq18_by_fixed_point(u0, F, 220.0, 70.0)[1], rtol=1e-10, atol=0)

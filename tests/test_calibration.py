@@ -23,8 +23,11 @@ from ngbet.scene.validate import SceneError
 ROOT = Path(__file__).resolve().parents[1]
 GEO = ROOT / "geometry"
 DATA = ROOT / "data" / "cao2008"
-FABRICS = {"plain": ("plain_150x300_INSA-NU", 1.2), "twill_balanced": ("twill_balanced_150x300_INSA-NU", 2.0),
-           "twill_unbalanced": ("twill_unbalanced_100x250_UN", 3.3)}
+FABRICS = {
+    "plain": ("plain_150x300_INSA-NU", 1.2),
+    "twill_balanced": ("twill_balanced_150x300_INSA-NU", 2.0),
+    "twill_unbalanced": ("twill_unbalanced_100x250_UN", 3.3),
+}
 
 
 # ------------------------------------------------------------------------------------------ fabric scenes
@@ -63,8 +66,9 @@ def test_calibration_section_is_validated():
     with pytest.raises(SceneError, match="calibration.lower"):
         Scene().with_changes(**{"calibration.params": ["material.K_sh"], "calibration.lower": [1.0, 2.0]})
     with pytest.raises(SceneError, match="calibration.lower"):
-        Scene().with_changes(**{"calibration.params": ["material.K_sh"], "calibration.lower": [5.0],
-                                "calibration.upper": [1.0]})
+        Scene().with_changes(
+            **{"calibration.params": ["material.K_sh"], "calibration.lower": [5.0], "calibration.upper": [1.0]}
+        )
     sc = Scene.from_toml(GEO / "twintex_plain.toml")
     assert Scene.from_toml_string(sc.to_toml()) == sc
 
@@ -90,7 +94,7 @@ def test_table_of_the_quadratic_law_is_the_quadratic_law(i8v):
     stress and stiffness equal ½K i8², K i8, K to round-off, inside the table and beyond it."""
     K, i8 = 2.1e4, ngs.Parameter(i8v)
     W = physics.table_shear_energy(i8, quadratic_table(K, 6, 0.95), 0.95)
-    assert _at(W) == pytest.approx(0.5 * K * i8v ** 2, rel=1e-12)
+    assert _at(W) == pytest.approx(0.5 * K * i8v**2, rel=1e-12)
     assert _at(W.Diff(i8)) == pytest.approx(K * i8v, rel=1e-12)
     assert _at(W.Diff(i8).Diff(i8)) == pytest.approx(K, rel=1e-10)
 
@@ -98,12 +102,17 @@ def test_table_of_the_quadratic_law_is_the_quadratic_law(i8v):
 def test_tabulated_law_reproduces_the_quadratic_run():
     """On a coarse mesh (25 mm, p = 2, the plain-weave specimen to 50 mm), the table of the
     quadratic law gives the quadratic law's forces to 1e-8 (the energies agree to round-off)."""
-    sc = Scene.from_toml(GEO / "twintex_plain.toml").with_changes(**{
-        "effects.shear_law": "quadratic", "material.K_sh": 2e4, "loading.u0_mm": 50.0})
+    sc = Scene.from_toml(GEO / "twintex_plain.toml").with_changes(
+        **{"effects.shear_law": "quadratic", "material.K_sh": 2e4, "loading.u0_mm": 50.0}
+    )
     u = [10.0, 30.0, 50.0]
     quad = force_path(sc, u).force_N
-    tab = force_path(sc.with_changes(**{"effects.shear_law": "table",
-                                        "material.shear_stress_steps_Pa": quadratic_table(2e4, 6, 0.95)}), u).force_N
+    tab = force_path(
+        sc.with_changes(
+            **{"effects.shear_law": "table", "material.shear_stress_steps_Pa": quadratic_table(2e4, 6, 0.95)}
+        ),
+        u,
+    ).force_N
     np.testing.assert_allclose(tab, quad, rtol=1e-8)
 
 
@@ -154,8 +163,7 @@ def test_table_sensitivities_match_finite_differences():
     sum of the alpha1 and alpha2 derivatives agrees to 2e-6)."""
     sc = Scene.from_toml(GEO / "twintex_plain.toml").with_changes(**{"loading.u0_mm": 45.0})
     u = [15.0, 30.0, 45.0]
-    P = ["material.shear_stress_steps_Pa[0]", "material.shear_stress_steps_Pa[3]", "material.K_el",
-         "material.alpha1"]
+    P = ["material.shear_stress_steps_Pa[0]", "material.shear_stress_steps_Pa[3]", "material.K_el", "material.alpha1"]
     impl = force_path(sc, u, P).dlogp
     fd = finite_difference(sc, u, P, rel_step=1e-3)
     err = np.abs(impl - fd).max(axis=0) / np.abs(fd).max(axis=0)
@@ -185,13 +193,16 @@ def test_start_table_from_the_ideal_quadratic_curve(tmp_path):
     """The ideal-kinematics force of the quadratic law (K = 2e4 Pa, 150 x 300 mm, t = 1.2 mm),
     normalised by Cao's Eq. 18 and turned into a stress, is τ = K sin γ = K |i8|: the points agree
     to 1 % and the fitted table's rises to 3 % of the quadratic law's."""
-    sc = Scene().with_changes(**{"specimen.width_mm": 150.0, "specimen.length_mm": 300.0,
-                                 "specimen.thickness_mm": 1.2, "material.K_sh": 2e4})
+    sc = Scene().with_changes(
+        **{"specimen.width_mm": 150.0, "specimen.length_mm": 300.0, "specimen.thickness_mm": 1.2, "material.K_sh": 2e4}
+    )
     u = np.linspace(0.5, 56.0, 200)
     F = np.array([ideal_force(sc, v) for v in u])
     path = tmp_path / "ideal.csv"
-    path.write_text("# specimen.width_mm = 150\n# specimen.length_mm = 300\ndisplacement_mm,force_N\n"
-                    + "".join(f"{a},{b}\n" for a, b in zip(u, F, strict=True)))
+    path.write_text(
+        "# specimen.width_mm = 150\n# specimen.length_mm = 300\ndisplacement_mm,force_N\n"
+        + "".join(f"{a},{b}\n" for a, b in zip(u, F, strict=True))
+    )
     c = read_measured(path)
     x, tau = shear_stress_points(c, 1.2)
     np.testing.assert_allclose(tau, 2e4 * x, rtol=0.01)
@@ -208,14 +219,17 @@ def _csv(path: Path, body: str, header: str = "# specimen.width_mm = 150\n# spec
 GOOD = "displacement_mm,force_N\n" + "".join(f"{u},{0.02 * u + 0.001 * u * u}\n" for u in range(1, 41))
 
 
-@pytest.mark.parametrize("body, message", [
-    ("".join(f"{u},{u * 0.1}\n" for u in range(1, 20)), "line 3: a row of numbers where the header should be"),
-    (GOOD.replace("20,0.8", "20,nan"), "line 23: force_N = 'nan' is not a finite number"),
-    (GOOD.replace("20,0.8", "20,inf"), "line 23: force_N = 'inf' is not a finite number"),
-    (GOOD.replace("20,0.8", "20,0.8x"), "line 23: force_N = '0.8x' is not a number"),
-    (GOOD.replace("20,0.8", "20,-0.8"), "line 23: displacement 20 mm, force -0.8 N"),
-    ("displacement_mm,force_N\n1,2\n", "at least 3 are needed"),
-])
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        ("".join(f"{u},{u * 0.1}\n" for u in range(1, 20)), "line 3: a row of numbers where the header should be"),
+        (GOOD.replace("20,0.8", "20,nan"), "line 23: force_N = 'nan' is not a finite number"),
+        (GOOD.replace("20,0.8", "20,inf"), "line 23: force_N = 'inf' is not a finite number"),
+        (GOOD.replace("20,0.8", "20,0.8x"), "line 23: force_N = '0.8x' is not a number"),
+        (GOOD.replace("20,0.8", "20,-0.8"), "line 23: displacement 20 mm, force -0.8 N"),
+        ("displacement_mm,force_N\n1,2\n", "at least 3 are needed"),
+    ],
+)
 def test_bad_data_is_refused_before_any_model_run(tmp_path, capsys, body, message):
     """Each fault of a data file ends with exit 2 and a message naming the file and the line;
     nothing is fitted (no fit.json)."""
@@ -268,9 +282,16 @@ SYN_SIZES = [(150.0, 300.0), (150.0, 450.0)]
 
 def synthetic_scene(**changes) -> Scene:
     """The plain-weave scene, quadratic law, bending too weak to see, a 30 mm mesh."""
-    base = {"effects.shear_law": "quadratic", "material.alpha1": 0.05, "material.alpha2": 0.05,
-            "discretization.mesh_size_mm": 30.0, "calibration.params": list(SYN_TRUTH),
-            "calibration.lower": [1e3, 1e5], "calibration.upper": [1e6, 1e9], **SYN_TRUTH}
+    base = {
+        "effects.shear_law": "quadratic",
+        "material.alpha1": 0.05,
+        "material.alpha2": 0.05,
+        "discretization.mesh_size_mm": 30.0,
+        "calibration.params": list(SYN_TRUTH),
+        "calibration.lower": [1e3, 1e5],
+        "calibration.upper": [1e6, 1e9],
+        **SYN_TRUTH,
+    }
     base.update(changes)
     return Scene.from_toml(GEO / "twintex_plain.toml").with_changes(**base)
 
@@ -288,8 +309,10 @@ def write_synthetic(folder: Path, seed: int = 7, rel: float = 0.02) -> list[Path
         p = folder / f"syn_{W:g}x{L:g}.csv"
         p.write_text(head + "displacement_mm,force_N\n" + "".join(f"{a},{b}\n" for a, b in zip(u, F, strict=True)))
         p.with_name(p.stem + "_errorbars.csv").write_text(
-            head + "displacement_mm,force_N,force_low_N,force_high_N\n"
-            + "".join(f"{a},{b},{b * (1 - rel)},{b * (1 + rel)}\n" for a, b in zip(u, F, strict=True)))
+            head
+            + "displacement_mm,force_N,force_low_N,force_high_N\n"
+            + "".join(f"{a},{b},{b * (1 - rel)},{b * (1 + rel)}\n" for a, b in zip(u, F, strict=True))
+        )
         paths.append(p)
     return paths
 
@@ -340,8 +363,21 @@ def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint,
     scene = tmp_path / "syn.toml"
     scene.write_text(synthetic_scene().to_toml())
     out = tmp_path / "fit"
-    code = main(["fit", *map(str, paths), "--scene", str(scene), "--out", str(out), "--max-runs", "3", "--quiet",
-                 "--predict", str(paths[0])])
+    code = main(
+        [
+            "fit",
+            *map(str, paths),
+            "--scene",
+            str(scene),
+            "--out",
+            str(out),
+            "--max-runs",
+            "3",
+            "--quiet",
+            "--predict",
+            str(paths[0]),
+        ]
+    )
     assert code in (0, 1)  # 3 runs may stop the search early; the files are what is tested here
     text = capsys.readouterr().out
     assert "150 x 300 mm: RMS relative error" in text and "150 x 450 mm: RMS relative error" in text
@@ -350,9 +386,26 @@ def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint,
     assert set(doc["parameters"]) == set(SYN_TRUTH) and doc["model_runs"] <= 4
     assert (out / "fit.png").stat().st_size > 10_000 and (out / f"predict_{paths[0].stem}.json").exists()
     run = tmp_path / "run"
-    assert main(["run", str(out / "fitted_scene.toml"), "--set", "specimen.width_mm=100", "--set",
-                 "specimen.length_mm=300", "--set", "loading.u0_mm=80", "--set", "outputs.plot=false",
-                 "--out", str(run), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                str(out / "fitted_scene.toml"),
+                "--set",
+                "specimen.width_mm=100",
+                "--set",
+                "specimen.length_mm=300",
+                "--set",
+                "loading.u0_mm=80",
+                "--set",
+                "outputs.plot=false",
+                "--out",
+                str(run),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     assert json.loads((run / "summary.json").read_text())["u0_reached_mm"] == pytest.approx(80.0)
 
 
@@ -370,8 +423,24 @@ def test_a_failed_prediction_keeps_the_fit(synthetic_joint, tmp_path, capsys, mo
     out = tmp_path / "fit"
     scene = tmp_path / "syn.toml"
     scene.write_text(synthetic_scene().to_toml())
-    assert main(["fit", str(paths[0]), "--scene", str(scene), "--out", str(out), "--max-runs", "1", "--quiet",
-                 "--predict", str(paths[1])]) == 1
+    assert (
+        main(
+            [
+                "fit",
+                str(paths[0]),
+                "--scene",
+                str(scene),
+                "--out",
+                str(out),
+                "--max-runs",
+                "1",
+                "--quiet",
+                "--predict",
+                str(paths[1]),
+            ]
+        )
+        == 1
+    )
     assert "the fit is kept" in capsys.readouterr().err
     assert (out / "fit.json").exists() and (out / "fitted_scene.toml").exists()
 
@@ -388,11 +457,27 @@ def test_validation_study_quick(tmp_path, monkeypatch):
     from ngbet.study.collect import load
 
     out = tmp_path / "study"
-    assert main(["study", "validation", "--quick", "--workers", "1", "--quiet", "--out", str(out),
-                 "--cache", str(tmp_path / "cache")]) == 0
+    assert (
+        main(
+            [
+                "study",
+                "validation",
+                "--quick",
+                "--workers",
+                "1",
+                "--quiet",
+                "--out",
+                str(out),
+                "--cache",
+                str(tmp_path / "cache"),
+            ]
+        )
+        == 0
+    )
     # the fit is kept in the study cache that --cache names
-    assert [f.name[:len("quick-twill_unbalanced")] for f in (tmp_path / "cache" / VF.FITS_FOLDER).glob("*.json")] \
-        == ["quick-twill_unbalanced"]
+    assert [f.name[: len("quick-twill_unbalanced")] for f in (tmp_path / "cache" / VF.FITS_FOLDER).glob("*.json")] == [
+        "quick-twill_unbalanced"
+    ]
     text = (out / "report.md").read_text()
     assert "| twill unbalanced | 100 x 250 mm | 100 x 200 mm | other size |" in text
     assert (out / "validation.png").exists()
@@ -451,15 +536,20 @@ def test_a_held_parameter_widens_the_band_by_its_own_term(synthetic_joint):
     √(sd² + (dF/d ln K_el)² · 0.09), the derivative from central differences of whole runs (to
     2e-3 of the largest value: the two derivatives differ by that much on this 30 mm mesh)."""
     _, paths, _ = synthetic_joint
-    res = joint.fit_curves([read_measured(p) for p in paths], synthetic_scene(), params=["material.K_sh"], max_runs=3,
-                           choose_discretization=False)
+    res = joint.fit_curves(
+        [read_measured(p) for p in paths],
+        synthetic_scene(),
+        params=["material.K_sh"],
+        max_runs=3,
+        choose_discretization=False,
+    )
     spec = {"specimen.width_mm": 100.0, "specimen.length_mm": 300.0}
     u = np.array([20.0, 50.0])
     plain = joint.predict_specimen(res, spec, u)
     held = joint.predict_specimen(res, spec, u, {"material.K_el": 0.09})
     sc = res.scene.with_changes(**spec, **{"loading.u0_mm": 50.0})
     g = finite_difference(sc, u, ["material.K_el"], rel_step=1e-3)[:, 0]
-    want = np.sqrt(plain.sd_param_N ** 2 + 0.09 * g ** 2)
+    want = np.sqrt(plain.sd_param_N**2 + 0.09 * g**2)
     np.testing.assert_allclose(held.sd_param_N, want, rtol=0, atol=2e-3 * want.max())  # measured 2.3e-4 N, band 0.14 N
     assert np.all(held.sd_param_N > 1.5 * plain.sd_param_N)
     np.testing.assert_allclose(held.force_N, plain.force_N, rtol=1e-12)
@@ -488,8 +578,19 @@ def test_one_size_with_a_fabric_scene_fits_and_holds_the_bending_stiffnesses(tmp
     shear angle of the fitted model and of the ideal test are recorded at every fitted point."""
     data = ROOT / "data" / "cao2008" / "cao2008_twill_unbalanced_100x250_UN.csv"
     out = tmp_path / "fit"
-    code = main(["fit", str(data), "--scene", str(GEO / "twintex_twill_unbalanced.toml"), "--out", str(out),
-                 "--max-runs", "3", "--quiet"])
+    code = main(
+        [
+            "fit",
+            str(data),
+            "--scene",
+            str(GEO / "twintex_twill_unbalanced.toml"),
+            "--out",
+            str(out),
+            "--max-runs",
+            "3",
+            "--quiet",
+        ]
+    )
     doc = json.loads((out / "fit.json").read_text())
     assert code == (0 if doc["converged"] else 1)
     # the bending stiffnesses by the one size, K_el by the scene (not among its [calibration] params)
@@ -510,8 +611,8 @@ def test_validation_scores_errors_over_the_curve_s_largest_force():
     from ngbet.studies import validation as V
 
     pred, meas = np.array([1.1, 2.0]), np.array([1.0, 2.0])
-    assert V.rms_of_max(pred, meas) == pytest.approx(math.sqrt((0.05 ** 2 + 0.0) / 2), rel=1e-12)
-    assert V.rms(pred, meas) == pytest.approx(math.sqrt((0.1 ** 2 + 0.0) / 2), rel=1e-12)
+    assert V.rms_of_max(pred, meas) == pytest.approx(math.sqrt((0.05**2 + 0.0) / 2), rel=1e-12)
+    assert V.rms(pred, meas) == pytest.approx(math.sqrt((0.1**2 + 0.0) / 2), rel=1e-12)
 
 
 # ------------------------------------------------------------------------------------------ picture frame
@@ -566,8 +667,19 @@ def test_frame_fit_reports_the_file_quantities_and_the_frame_s_shear(tmp_path):
     (F_norm against γ, as measured: the interpolated file values) and the fabric shears with the
     frame (the model's centre shear angle is the frame's, Eqs. 1–2, within 0.1°)."""
     out = tmp_path / "fit"
-    code = main(["fit", str(PF_UN), "--scene", str(GEO / "twintex_twill_unbalanced.toml"), "--out", str(out),
-                 "--max-runs", "2", "--quiet"])
+    code = main(
+        [
+            "fit",
+            str(PF_UN),
+            "--scene",
+            str(GEO / "twintex_twill_unbalanced.toml"),
+            "--out",
+            str(out),
+            "--max-runs",
+            "2",
+            "--quiet",
+        ]
+    )
     doc = json.loads((out / "fit.json").read_text())
     assert code == (0 if doc["converged"] else 1)
     c = doc["curves"][0]

@@ -22,8 +22,9 @@ from ngbet.scene.validate import SceneError
 
 
 def _scene(**changes):
-    return default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0, "solver.compile": "interpret",
-                                           **changes})
+    return default_scene().with_changes(
+        **{"discretization.mesh_size_mm": 20.0, "solver.compile": "interpret", **changes}
+    )
 
 
 def _problem(linear_solver: str, refined: bool) -> ContinuumSolver:
@@ -97,8 +98,9 @@ def test_the_default_scene_keeps_its_forces_with_the_llt(tmp_path):
     (measured: identical to 12 digits)."""
     forces = {}
     for ls in ("cholmod", "sparsecholesky"):
-        sc = default_scene().with_changes(**{"solver.linear_solver": ls, "outputs.vtk": False, "outputs.plot": False,
-                                             "outputs.error_estimate": "off"})
+        sc = default_scene().with_changes(
+            **{"solver.linear_solver": ls, "outputs.vtk": False, "outputs.plot": False, "outputs.error_estimate": "off"}
+        )
         s = run(sc, tmp_path / ls)
         assert s["linear_solver"] == ls
         with open(tmp_path / ls / "results.csv") as f:

@@ -29,7 +29,7 @@ class Hardening:
 
     def residual(self):
         lam, y = self.x
-        return np.array([lam - y, y ** 3 + y - lam])
+        return np.array([lam - y, y**3 + y - lam])
 
     def factorize(self, shift: float = 0.0) -> float:
         self.J0 = 3 * self.x[1] ** 2 + 1
@@ -127,7 +127,7 @@ def test_the_load_derivative_needs_the_reaction_conjugate_to_the_load():
 
 def test_extrapolation_is_exact_for_a_cubic():
     loads = [0.0, 2.0, 3.0, 5.0]
-    f = lambda s: np.array([s ** 3 - 2 * s, 1.0 + s * s])  # noqa: E731
+    f = lambda s: np.array([s**3 - 2 * s, 1.0 + s * s])  # noqa: E731
     states = [(s, f(s)) for s in loads]
     np.testing.assert_allclose(C.extrapolate(states, 7.0), f(7.0), rtol=1e-12)
 
@@ -137,8 +137,14 @@ def test_output_rows_by_chord_match_newton_and_save_linearizations(tmp_path, mon
     (force to 1e-7, dF/du0 to 2e-3, Newton's own being taken with the matrix of the predicted
     state), the stop and the final load to 1e-9, with fewer linearizations than rows; the chord's
     slopes satisfy the trapezoid rule over each 2 mm step, (F1 − F0)/h = (F0' + F1')/2 + O(h²)."""
-    scene = coarse(**{"loading.u0_mm": 20.0, "loading.stops_mm": [11.0], "loading.output_every_mm": 2.0,
-                      "outputs.error_estimate": "off"})
+    scene = coarse(
+        **{
+            "loading.u0_mm": 20.0,
+            "loading.stops_mm": [11.0],
+            "loading.output_every_mm": 2.0,
+            "outputs.error_estimate": "off",
+        }
+    )
     s = run(scene, tmp_path / "chord", progress=False)
     monkeypatch.setattr(C.ChordRows, "due", lambda self, lam: False)  # Newton on every row
     n = run(scene, tmp_path / "newton", progress=False)
@@ -176,12 +182,20 @@ def test_rows_between_uneven_stops_keep_the_tangents_prescribed_entries_those_of
 
     from ngbet.scene.document import Scene
 
-    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "geometry" / "twintex_plain.toml").with_changes(**{
-        "specimen.width_mm": 150.0, "specimen.length_mm": 450.0, "material.K_el": 2.91e6,
-        "material.shear_stress_steps_Pa": [2341.5, 1085.4, 7799.9, 31360.0, 598807.0, 346423.0],
-        "loading.u0_mm": 95.27, "loading.stops_mm": [round(10.68373 + 3.67775 * k, 5) for k in range(23)],
-        "loading.output_every_mm": 2.0, "outputs.plot": False, "outputs.vtk": False,
-        "outputs.error_estimate": "off"})
+    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "geometry" / "twintex_plain.toml").with_changes(
+        **{
+            "specimen.width_mm": 150.0,
+            "specimen.length_mm": 450.0,
+            "material.K_el": 2.91e6,
+            "material.shear_stress_steps_Pa": [2341.5, 1085.4, 7799.9, 31360.0, 598807.0, 346423.0],
+            "loading.u0_mm": 95.27,
+            "loading.stops_mm": [round(10.68373 + 3.67775 * k, 5) for k in range(23)],
+            "loading.output_every_mm": 2.0,
+            "outputs.plot": False,
+            "outputs.vtk": False,
+            "outputs.error_estimate": "off",
+        }
+    )
     s = run(scene, tmp_path / "r")
     rows = read_rows(tmp_path / "r" / "results.csv")
     assert s["status"] == "ok" and rows[-1]["u0_mm"] == pytest.approx(95.27) and s["chord_rows"] > 20

@@ -16,8 +16,10 @@ from ngbet.figures.run import draw_force, start_plot
 from ngbet.run_folder import OutputError
 
 pytest.importorskip("matplotlib")
-ROWS = ("step,u0_mm,force_N,dforce_du0_N_per_mm,double_force_Nm,force_error_N\n"
-        "1,16.0,22.15,1.589,0.908,0.05\n2,37.0,61.28,2.110,2.313,0.1\n3,56.0,107.37,2.813,4.016,0.14\n")
+ROWS = (
+    "step,u0_mm,force_N,dforce_du0_N_per_mm,double_force_Nm,force_error_N\n"
+    "1,16.0,22.15,1.589,0.908,0.05\n2,37.0,61.28,2.110,2.313,0.1\n3,56.0,107.37,2.813,4.016,0.14\n"
+)
 
 
 def run_folder(path: Path, scene: str = "") -> Path:
@@ -74,9 +76,17 @@ def test_a_failed_drawing_is_reported_by_the_plot_process(tmp_path):
         proc.close()
 
 
-@pytest.mark.parametrize(("choice", "load", "expected"), [
-    ("never", 0.0, False), ("always", 99.0, True), ("auto", 0.0, True), ("auto", 1.5, True), ("auto", 1.6, False),
-    ("sometimes", 0.0, True)])  # 2 cores: auto while half a core is idle; an unknown choice is auto
+@pytest.mark.parametrize(
+    ("choice", "load", "expected"),
+    [
+        ("never", 0.0, False),
+        ("always", 99.0, True),
+        ("auto", 0.0, True),
+        ("auto", 1.5, True),
+        ("auto", 1.6, False),
+        ("sometimes", 0.0, True),
+    ],
+)  # 2 cores: auto while half a core is idle; an unknown choice is auto
 def test_the_plot_process_runs_as_asked_and_in_auto_only_on_an_idle_core(monkeypatch, choice, load, expected):
     monkeypatch.setenv(plot_process.ENV, choice)
     monkeypatch.delitem(sys.modules, "ngsolve", raising=False)
@@ -98,9 +108,28 @@ def test_no_plot_process_once_ngsolve_is_imported(monkeypatch):
 def test_ngbet_run_writes_the_same_files_with_and_without_the_plot_process(tmp_path, choice):
     out = tmp_path / "run"
     env = {**os.environ, plot_process.ENV: choice, "MPLBACKEND": "Agg"}
-    p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(out), "--set",
-                        "loading.u0_mm=10", "--set", "loading.stops_mm=[]", "--set", "discretization.mesh_size_mm=20",
-                        "--set", "outputs.error_estimate='off'"], capture_output=True, text=True, env=env)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ngbet",
+            "run",
+            "--quiet",
+            "--out",
+            str(out),
+            "--set",
+            "loading.u0_mm=10",
+            "--set",
+            "loading.stops_mm=[]",
+            "--set",
+            "discretization.mesh_size_mm=20",
+            "--set",
+            "outputs.error_estimate='off'",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     assert p.returncode == 0, p.stderr
     files = set(json.loads((out / "summary.json").read_text())["files"])
     assert {"force.png", "fields.vtu", "results.csv"} <= files and "force.pdf" not in files  # PNG by default
@@ -125,8 +154,14 @@ def test_the_plot_is_asked_for_first_and_finished_even_when_a_later_file_fails(t
 
     monkeypatch.setattr(crun, "write_vtk", vtk_fails)
     monkeypatch.setenv(plot_process.ENV, "always")
-    sc = Scene().with_changes(**{"discretization.mesh_size_mm": 20.0, "outputs.error_estimate": "off",
-                                 "loading.u0_mm": 20.0, "loading.stops_mm": []})
+    sc = Scene().with_changes(
+        **{
+            "discretization.mesh_size_mm": 20.0,
+            "outputs.error_estimate": "off",
+            "loading.u0_mm": 20.0,
+            "loading.stops_mm": [],
+        }
+    )
     out = tmp_path / "r"
     if with_process:  # the run's plot process, as ngbet run starts it (before NGSolve is imported)
         proc = plot_process.PlotProcess()

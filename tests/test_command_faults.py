@@ -28,13 +28,26 @@ from ngbet.scene.document import Scene
 
 pytestmark = pytest.mark.integration
 
-TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
-        "discretization.corner_mesh_size_mm": 0.0, "discretization.order_u": 2,
-        "loading.u0_mm": 10.0, "loading.stops_mm": [5.0]}
+TINY = {
+    "outputs.vtk": False,
+    "outputs.plot": False,
+    "discretization.mesh_size_mm": 20.0,
+    "discretization.corner_mesh_size_mm": 0.0,
+    "discretization.order_u": 2,
+    "loading.u0_mm": 10.0,
+    "loading.stops_mm": [5.0],
+}
 TINY_SET = [f"--set={k}={v}" for k, v in TINY.items()]
-SLOW_SET = ["--set=discretization.mesh_size_mm=20", "--set=discretization.corner_mesh_size_mm=0",
-            "--set=discretization.order_u=2", "--set=outputs.vtk=false", "--set=outputs.plot=false",
-            "--set=loading.first_step_mm=0.2", "--set=loading.max_step_mm=0.2", "--set=solver.grow_after=0"]
+SLOW_SET = [
+    "--set=discretization.mesh_size_mm=20",
+    "--set=discretization.corner_mesh_size_mm=0",
+    "--set=discretization.order_u=2",
+    "--set=outputs.vtk=false",
+    "--set=outputs.plot=false",
+    "--set=loading.first_step_mm=0.2",
+    "--set=loading.max_step_mm=0.2",
+    "--set=solver.grow_after=0",
+]
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
 
@@ -48,8 +61,14 @@ def summary(out: Path) -> dict:
 
 
 def ngbet_cli(*args: str, env: dict[str, str] | None = None, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "ngbet", *args], capture_output=True, text=True,
-                          env={**ENV, **(env or {})}, timeout=300, **kw)
+    return subprocess.run(
+        [sys.executable, "-m", "ngbet", *args],
+        capture_output=True,
+        text=True,
+        env={**ENV, **(env or {})},
+        timeout=300,
+        **kw,
+    )
 
 
 # ------------------------------------------------------------------------- folders of commands
@@ -70,8 +89,10 @@ def test_a_sweep_into_a_run_folder_is_refused_and_the_run_reads_back_whole(tmp_p
     out = tmp_path / "run"
     run(Scene().with_changes(**TINY), out)
     before = files(out)
-    assert main(["sweep", "material.alpha1=20", "--quick", "--quiet", "--out", str(out),
-                 "--cache", str(tmp_path / "c")]) == 3
+    assert (
+        main(["sweep", "material.alpha1=20", "--quick", "--quiet", "--out", str(out), "--cache", str(tmp_path / "c")])
+        == 3
+    )
     assert "an ngbet run folder" in capsys.readouterr().err
     assert files(out) == before
     r = ngbet.load_result(out)
@@ -113,17 +134,52 @@ def test_a_fit_again_into_its_folder_removes_only_the_earlier_fits_figures(tmp_p
     main(["fit", data, "--scene", scene, "--out", str(d), "--max-runs", "1", "--quiet"])
     assert (d / "shear_table.png").exists()
     (d / "notes.md~").write_text("mine")
-    main(["fit", data, "--scene", scene, "--set", "effects.shear_law=quadratic", "--params", "material.K_sh",
-          "--out", str(d), "--max-runs", "1", "--quiet"])
+    main(
+        [
+            "fit",
+            data,
+            "--scene",
+            scene,
+            "--set",
+            "effects.shear_law=quadratic",
+            "--params",
+            "material.K_sh",
+            "--out",
+            str(d),
+            "--max-runs",
+            "1",
+            "--quiet",
+        ]
+    )
     assert "cannot use the output folder" not in capsys.readouterr().err  # its own folder: taken again
-    assert sorted(p.name for p in d.iterdir()) == [".ngbet-folder.json", "fit.json", "fit.png", "fitted_scene.toml",
-                                                   "notes.md~"]
+    assert sorted(p.name for p in d.iterdir()) == [
+        ".ngbet-folder.json",
+        "fit.json",
+        "fit.png",
+        "fitted_scene.toml",
+        "notes.md~",
+    ]
     assert Scene.from_toml(d / "fitted_scene.toml").effects.shear_law == "quadratic"
 
 
 def test_a_set_of_the_key_a_study_varies_is_refused_before_any_case(tmp_path, capsys):
-    assert main(["study", "alpha1", "--quick", "--quiet", "--set", "material.alpha1=5", "--out", str(tmp_path / "o"),
-                 "--cache", str(tmp_path / "c")]) == 2
+    assert (
+        main(
+            [
+                "study",
+                "alpha1",
+                "--quick",
+                "--quiet",
+                "--set",
+                "material.alpha1=5",
+                "--out",
+                str(tmp_path / "o"),
+                "--cache",
+                str(tmp_path / "c"),
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "material.alpha1 is what the alpha1 study varies (its cases set it to 20, 2000)" in err
     assert not list((tmp_path / "c").glob("*/case.json"))
@@ -132,8 +188,10 @@ def test_a_set_of_the_key_a_study_varies_is_refused_before_any_case(tmp_path, ca
 def test_a_study_from_a_deleted_working_folder_names_it(tmp_path):
     gone = tmp_path / "gone"
     gone.mkdir()
-    code = ("import os, sys\nos.chdir(sys.argv[1]); os.rmdir(sys.argv[1])\nfrom ngbet.cli import main\n"
-            "sys.exit(main(['study', 'alpha1', '--quick', '--quiet']))")
+    code = (
+        "import os, sys\nos.chdir(sys.argv[1]); os.rmdir(sys.argv[1])\nfrom ngbet.cli import main\n"
+        "sys.exit(main(['study', 'alpha1', '--quick', '--quiet']))"
+    )
     p = subprocess.run([sys.executable, "-c", code, str(gone)], capture_output=True, text=True, env=ENV, timeout=120)
     assert p.returncode == 3, p.stderr
     assert "the current folder no longer exists" in p.stderr and p.stderr.count("\n") == 1
@@ -175,8 +233,14 @@ def test_a_file_size_limit_leaves_no_cut_file_and_says_failed(tmp_path):
     def limit() -> None:
         resource.setrlimit(resource.RLIMIT_FSIZE, (40 * 1024, resource.RLIM_INFINITY))
 
-    p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--out", str(out), *TINY_SET, "--set=outputs.vtk=true",
-                        "--quiet"], capture_output=True, text=True, env=ENV, preexec_fn=limit, timeout=300)
+    p = subprocess.run(
+        [sys.executable, "-m", "ngbet", "run", "--out", str(out), *TINY_SET, "--set=outputs.vtk=true", "--quiet"],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        preexec_fn=limit,
+        timeout=300,
+    )
     assert p.returncode == 3, p.stderr
     assert "fields.vtu: written incomplete" in p.stderr and "ulimit -f" in p.stderr
     s = summary(out)
@@ -189,8 +253,14 @@ def test_a_file_size_limit_leaves_no_cut_file_and_says_failed(tmp_path):
 @pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGUSR1])
 def test_a_closed_terminal_or_a_user_signal_leaves_a_true_summary(tmp_path, sig):
     out = tmp_path / "run"
-    p = subprocess.Popen([sys.executable, "-m", "ngbet", "run", "--out", str(out), "--quiet", *SLOW_SET],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, start_new_session=True)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "ngbet", "run", "--out", str(out), "--quiet", *SLOW_SET],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+        start_new_session=True,
+    )
     try:
         t = 0.0
         while not (out / "results.csv").exists() or len((out / "results.csv").read_text().splitlines()) < 4:
@@ -211,10 +281,15 @@ def test_a_closed_terminal_or_a_user_signal_leaves_a_true_summary(tmp_path, sig)
 def test_a_run_under_nohup_goes_on_when_the_terminal_closes(tmp_path):
     """nohup ignores SIGHUP for the run it starts: the run keeps ignoring it (no interruption)."""
     out = tmp_path / "run"
-    p = subprocess.Popen([sys.executable, "-m", "ngbet", "run", "--out", str(out), "--quiet", *SLOW_SET,
-                          "--set=loading.u0_mm=10"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         env=ENV, start_new_session=True,
-                         preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
+    p = subprocess.Popen(
+        [sys.executable, "-m", "ngbet", "run", "--out", str(out), "--quiet", *SLOW_SET, "--set=loading.u0_mm=10"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN),
+    )
     try:
         while not (out / "results.csv").exists() or len((out / "results.csv").read_text().splitlines()) < 4:
             assert p.poll() is None
@@ -239,9 +314,18 @@ def test_ctrl_c_right_after_a_snap_through_keeps_the_snap_in_the_summary(tmp_pat
             raise KeyboardInterrupt("SIGINT")
 
     monkeypatch.setattr(continuum_run._StepWriter, "on_step", then_interrupt)
-    scene = Scene().with_changes(**{**TINY, "discretization.mesh_size_mm": 10.0, "loading.stops_mm": [],
-                                    "material.K_el": 1e7, "outputs.error_estimate": "off", "outputs.profile": False,
-                                    "loading.u0_mm": 54.0, "solver.threads": 1})
+    scene = Scene().with_changes(
+        **{
+            **TINY,
+            "discretization.mesh_size_mm": 10.0,
+            "loading.stops_mm": [],
+            "material.K_el": 1e7,
+            "outputs.error_estimate": "off",
+            "outputs.profile": False,
+            "loading.u0_mm": 54.0,
+            "solver.threads": 1,
+        }
+    )
     with pytest.raises(KeyboardInterrupt):
         run(scene, tmp_path / "r")
     s = summary(tmp_path / "r")
@@ -257,8 +341,14 @@ def test_an_ascii_terminal_never_fails_a_run_and_the_scene_goes_to_its_file(tmp_
         assert p.returncode == 0, p.stderr
         assert "force =" in p.stdout and "\\xb1" in p.stdout  # the ± as its escape
         with (tmp_path / "scene.toml").open("w") as fh:
-            p = subprocess.run([sys.executable, "-m", "ngbet", "scene"], stdout=fh, stderr=subprocess.PIPE, text=True,
-                               env={**ENV, **env}, timeout=120)
+            p = subprocess.run(
+                [sys.executable, "-m", "ngbet", "scene"],
+                stdout=fh,
+                stderr=subprocess.PIPE,
+                text=True,
+                env={**ENV, **env},
+                timeout=120,
+            )
         assert p.returncode == 0, p.stderr
         text = (tmp_path / "scene.toml").read_text(encoding="utf-8")
         assert "½ K_s" in text and Scene.from_toml(tmp_path / "scene.toml") == Scene()

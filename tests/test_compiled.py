@@ -48,9 +48,17 @@ def test_auto_compiles_nothing_when_the_cache_is_empty(monkeypatch, tmp_path):
 def test_the_interpreted_linearization_is_the_hessian():
     """Symbolic derivatives (the interpreted default) give the tangent of the residual: a central
     difference of the residual agrees to the difference's own error (~1e-10)."""
-    pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{
-        "discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 0.0,
-        "solver.compile": "interpret"})))
+    pr = continuum_solver(
+        ContinuumProblem(
+            default_scene().with_changes(
+                **{
+                    "discretization.mesh_size_mm": 20.0,
+                    "discretization.corner_mesh_size_mm": 0.0,
+                    "solver.compile": "interpret",
+                }
+            )
+        )
+    )
     assert pr.compile_mode == "interpret"
     pr.state.set_load(0.02)
     rng = np.random.default_rng(0)
@@ -71,8 +79,17 @@ def test_the_interpreted_linearization_is_the_hessian():
 
 
 def _state(h_mm: float, mode: str) -> ContinuumSolver:
-    pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{
-        "discretization.mesh_size_mm": h_mm, "discretization.corner_mesh_size_mm": 0.0, "solver.compile": mode})))
+    pr = continuum_solver(
+        ContinuumProblem(
+            default_scene().with_changes(
+                **{
+                    "discretization.mesh_size_mm": h_mm,
+                    "discretization.corner_mesh_size_mm": 0.0,
+                    "solver.compile": mode,
+                }
+            )
+        )
+    )
     assert pr.compile_mode == mode
     pr.state.set_load(0.02)
     free = pr.problem.free_all

@@ -59,8 +59,9 @@ def _compile(bins: Path, source: Path, obj: Path, cached_only: bool = False) -> 
     env = {k: v for k, v in os.environ.items() if k != "NGBET_CACHED_ONLY"}
     if cached_only:
         env["NGBET_CACHED_ONLY"] = "1"
-    return subprocess.run(["sh", str(bins / "ngscxx"), "-c", str(source), "-o", str(obj)], env=env,
-                          capture_output=True, text=True)
+    return subprocess.run(
+        ["sh", str(bins / "ngscxx"), "-c", str(source), "-o", str(obj)], env=env, capture_output=True, text=True
+    )
 
 
 def _source(tmp_path: Path, name: str, constant: float) -> Path:
@@ -133,8 +134,11 @@ def _link(bins: Path, code: Path, tmp_path: Path, name: str) -> subprocess.Compl
     out.mkdir()
     table = tmp_path / "table.o"
     table.write_text("addresses\n")
-    return subprocess.run(["sh", str(bins / "ngsld"), "-shared", str(code), str(table), "-o", str(out / "lib.so"),
-                           "-lngsolve"], capture_output=True, text=True)
+    return subprocess.run(
+        ["sh", str(bins / "ngsld"), "-shared", str(code), str(table), "-o", str(out / "lib.so"), "-lngsolve"],
+        capture_output=True,
+        text=True,
+    )
 
 
 def test_a_kept_library_with_changed_bytes_is_linked_again(tmp_path, cache):

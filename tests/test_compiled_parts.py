@@ -13,12 +13,20 @@ from ngbet.scene.document import default_scene
 
 
 def _problem(p: int) -> ContinuumSolver:
-    pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
-                                                          "discretization.order_u": p,
-                                                          "solver.compile": "interpret",
-                                                          # the parts of the energy alone (the jamming
-                                                          # barrier is an integrator of its own)
-                                                          "effects.jamming": False})))
+    pr = continuum_solver(
+        ContinuumProblem(
+            default_scene().with_changes(
+                **{
+                    "discretization.mesh_size_mm": 20.0,
+                    "discretization.order_u": p,
+                    "solver.compile": "interpret",
+                    # the parts of the energy alone (the jamming
+                    # barrier is an integrator of its own)
+                    "effects.jamming": False,
+                }
+            )
+        )
+    )
     pr.state.set_load(0.02)
     free = pr.problem.free_all
     pr.x[free] += 1e-4 * np.random.default_rng(0).standard_normal(int(free.sum()))

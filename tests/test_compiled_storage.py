@@ -13,8 +13,9 @@ from ngbet.scene.document import default_scene
 
 
 def _scene(**changes):
-    return default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0, "solver.compile": "interpret",
-                                           **changes})
+    return default_scene().with_changes(
+        **{"discretization.mesh_size_mm": 20.0, "solver.compile": "interpret", **changes}
+    )
 
 
 def _solver(scene, mesh=None) -> ContinuumSolver:

@@ -13,14 +13,17 @@ from ngbet.runner.settings import continuum_solver
 from ngbet.scene.document import default_scene
 
 
-@pytest.mark.parametrize(("n", "model", "load", "expected"), [
-    (3, "continuum", 0.0, (3, 3)),           # an integer: the run and its assemblies alike
-    (1, "continuum", 0.0, (1, 1)),
-    ("auto", "continuum", 0.2, (1, 2)),      # 1.8 idle cores: the assembly on both
-    ("auto", "continuum", 0.6, (1, 1)),      # 1.4 idle cores: below IDLE_CORES_FOR_THREADS
-    ("auto", "continuum", 3.0, (1, 1)),      # a busy machine
-    ("auto", "discrete", 3.0, (2, 2)),       # the network: all cores
-])
+@pytest.mark.parametrize(
+    ("n", "model", "load", "expected"),
+    [
+        (3, "continuum", 0.0, (3, 3)),  # an integer: the run and its assemblies alike
+        (1, "continuum", 0.0, (1, 1)),
+        ("auto", "continuum", 0.2, (1, 2)),  # 1.8 idle cores: the assembly on both
+        ("auto", "continuum", 0.6, (1, 1)),  # 1.4 idle cores: below IDLE_CORES_FOR_THREADS
+        ("auto", "continuum", 3.0, (1, 1)),  # a busy machine
+        ("auto", "discrete", 3.0, (2, 2)),  # the network: all cores
+    ],
+)
 def test_thread_policy(n, model, load, expected):
     assert threads.thread_policy(n, model, cores=2, load=load) == expected
 
@@ -37,8 +40,11 @@ def test_auto_threads_run_serial_and_assemble_in_their_own_task_manager(monkeypa
 
 
 def _problem() -> ContinuumSolver:
-    pr = continuum_solver(ContinuumProblem(default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
-                                                                           "solver.compile": "interpret"})))
+    pr = continuum_solver(
+        ContinuumProblem(
+            default_scene().with_changes(**{"discretization.mesh_size_mm": 20.0, "solver.compile": "interpret"})
+        )
+    )
     pr.state.set_load(0.02)
     free = pr.problem.free_all
     pr.x[free] += 1e-4 * np.random.default_rng(0).standard_normal(int(free.sum()))

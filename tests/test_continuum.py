@@ -71,7 +71,7 @@ def test_homogeneous_deformation_has_phi_equal_to_i8_and_no_multiplier():
     problem, scene, _, i8 = _homogeneous(True)
     assert abs(problem.phi(problem.mesh(0.1, 0.03)) - i8) < 1e-8 * abs(i8)
     # Λ = 0: its RMS against the stress scale K_sh |i8| (Λ converges last: ~1e-4 at rtol 1e-10)
-    rms = (ngs.Integrate(problem.lam_field ** 2, problem.mesh) / (scene.specimen.L * scene.specimen.W)) ** 0.5
+    rms = (ngs.Integrate(problem.lam_field**2, problem.mesh) / (scene.specimen.L * scene.specimen.W)) ** 0.5
     assert rms < 1e-3 * scene.material.K_sh * abs(i8)
 
 
@@ -91,7 +91,7 @@ def test_small_stretch_reaction_matches_the_linearized_value():
             R = obs.reaction_force(problem, solver.residual())
         assert rep.converged
         lam = 1 + eps
-        i4, i8 = (lam ** 2 + 1) / 2, (1 - lam ** 2) / 2
+        i4, i8 = (lam**2 + 1) / 2, (1 - lam**2) / 2
         exact = W * lam * (m.K_el * (1 - 1 / math.sqrt(i4)) - m.K_sh * i8)
         assert abs(R - exact) < 1e-10 * abs(exact)
         R_small = R if eps < 1e-3 else R_small
@@ -161,8 +161,14 @@ def test_ideal_kinematics_energy_is_approached_from_below(tmp_path):
     fibre families."""
     from ngbet.kinematics import ideal_energy
 
-    ch = {"material.K_el": 1e8, "effects.bending": False, "loading.u0_mm": 20.0, "loading.stops_mm": [10.0],
-          "discretization.mesh_size_mm": 5.0, "discretization.order_u": 3}
+    ch = {
+        "material.K_el": 1e8,
+        "effects.bending": False,
+        "loading.u0_mm": 20.0,
+        "loading.stops_mm": [10.0],
+        "discretization.mesh_size_mm": 5.0,
+        "discretization.order_u": 3,
+    }
     _, rows, _ = _run(tmp_path, "ideal", **ch)
     scene = coarse(**ch)
     at = {r["u0_mm"]: r for r in rows if r["u0_mm"] in (10.0, 20.0)}
@@ -185,14 +191,21 @@ def test_ideal_kinematics_shear_angle_follows_the_table(u0):
     from ngbet.continuum import physics
     from ngbet.kinematics import gamma_a
 
-    scene = coarse(**{"material.K_el": 1e8, "effects.bending": False, "loading.u0_mm": u0, "loading.stops_mm": (),
-                      "loading.first_step_mm": 4.0, "discretization.mesh_size_mm": 2.5,
-                      "discretization.structured": True})
+    scene = coarse(
+        **{
+            "material.K_el": 1e8,
+            "effects.bending": False,
+            "loading.u0_mm": u0,
+            "loading.stops_mm": (),
+            "loading.first_step_mm": 4.0,
+            "discretization.mesh_size_mm": 2.5,
+            "discretization.structured": True,
+        }
+    )
     with ngs.TaskManager():
         problem = ContinuumProblem(scene)
         solver = continuum_solver(problem)
-        carry(solver, u0 * 1e-3, 4e-3, newton_settings(scene), **capabilities(solver), max_step=14e-3,
-              min_step=5e-5)
+        carry(solver, u0 * 1e-3, 4e-3, newton_settings(scene), **capabilities(solver), max_step=14e-3, min_step=5e-5)
         inv = problem.invariants()
         gamma = physics.shear_angle(inv.i4, inv.i6, inv.i8)
         W, L = scene.specimen.W, scene.specimen.L
@@ -225,8 +238,11 @@ def test_default_multiplier_is_smooth_and_converges(tmp_path):
     # as O(h) away from the clamps (measured 0.093 -> 0.048 for h = 10 -> 5 mm at 37 mm);
     # Λ ∈ L2(P1) on the same meshes oscillates from element to element (0.84, not falling)
     osc, warned = {}, {}
-    for tag, changes in (("h10", {}), ("h5", {"discretization.mesh_size_mm": 5.0}),
-                         ("p1", {"discretization.order_lam": 1})):
+    for tag, changes in (
+        ("h10", {}),
+        ("h5", {"discretization.mesh_size_mm": 5.0}),
+        ("p1", {"discretization.order_lam": 1}),
+    ):
         s, _, _ = _run(tmp_path, tag, **{"loading.u0_mm": 37.0, "loading.stops_mm": (), **changes})
         osc[tag] = s["multiplier_oscillation"]
         warned[tag] = [w for w in s["warnings"] if "multiplier oscillates" in w]
@@ -245,10 +261,15 @@ def test_corner_grading_removes_most_of_the_discretization_error(tmp_path):
     ch = {"loading.u0_mm": 20.0, "loading.stops_mm": ()}
     uniform = _run(tmp_path, "uniform", **ch)[1][-1]["force_N"]
     graded = _run(tmp_path, "graded", **ch, **{"discretization.corner_mesh_size_mm": 0.5})[1][-1]["force_N"]
-    ref = _run(tmp_path, "ref", **ch, **{"discretization.corner_mesh_size_mm": 0.5, "discretization.mesh_size_mm": 5.0,
-                                           "discretization.order_u": 3})[1][-1]["force_N"]
-    assert abs(graded - ref) < abs(uniform - ref) / 5 and abs(uniform - ref) > 0.02 * ref, \
+    ref = _run(
+        tmp_path,
+        "ref",
+        **ch,
+        **{"discretization.corner_mesh_size_mm": 0.5, "discretization.mesh_size_mm": 5.0, "discretization.order_u": 3},
+    )[1][-1]["force_N"]
+    assert abs(graded - ref) < abs(uniform - ref) / 5 and abs(uniform - ref) > 0.02 * ref, (
         f"uniform {uniform:.4f} N, graded {graded:.4f} N, reference {ref:.4f} N"
+    )
 
 
 def test_corner_bisections_split_the_corner_and_halve_it():
@@ -258,8 +279,13 @@ def test_corner_bisections_split_the_corner_and_halve_it():
 
     sizes = []
     for n in range(4):
-        sc = Scene().with_changes(**{"discretization.mesh_size_mm": 20.0, "discretization.corner_mesh_size_mm": 1.0,
-                                     "discretization.corner_bisections": n})
+        sc = Scene().with_changes(
+            **{
+                "discretization.mesh_size_mm": 20.0,
+                "discretization.corner_mesh_size_mm": 1.0,
+                "discretization.corner_bisections": n,
+            }
+        )
         count, diam = corner_elements(make_mesh(sc.specimen, sc.discretization))
         assert count == (1 if n == 0 else 2)
         sizes.append(diam)
@@ -285,8 +311,14 @@ def test_a_split_corner_halves_the_error_of_the_default(tmp_path):
 def test_shear_angle_is_zero_for_rigid_motion_and_exact_for_a_trellis(angle):
     # rest state, rigid rotation: no shear; the homogeneous trellis that turns m1 by −5° and m2 by
     # +5° shears by exactly 10° for any yarn angle (i8 is measured from the rest state)
-    scene = coarse(**{"specimen.yarn_angle_deg": angle, "discretization.mesh_size_mm": 20.0, "loading.u0_mm": 10.0,
-                      "loading.stops_mm": ()})
+    scene = coarse(
+        **{
+            "specimen.yarn_angle_deg": angle,
+            "discretization.mesh_size_mm": 20.0,
+            "loading.u0_mm": 10.0,
+            "loading.stops_mm": (),
+        }
+    )
     p = ContinuumProblem(scene)
     c, s = math.cos(math.radians(10)), math.sin(math.radians(10))
     p.u.Set(ngs.CF(((c - 1) * ngs.x - s * ngs.y, s * ngs.x + (c - 1) * ngs.y)))
@@ -313,8 +345,12 @@ def test_stabilization_carries_fine_corner_meshes_and_is_small(tmp_path):
     # a clamp corner, spread 0.85 mm, 1.6e-5 J released)
     graded = {"discretization.corner_mesh_size_mm": 0.25}
     # without the jamming barrier, which holds that corner mode once its yarns close to 5°
-    s_off, _, _ = _run(tmp_path, "graded_off", **graded, **{"effects.stabilization_K": 0.0, "effects.jamming": False,
-                                                                "loading.output_every_mm": 0.0})
+    s_off, _, _ = _run(
+        tmp_path,
+        "graded_off",
+        **graded,
+        **{"effects.stabilization_K": 0.0, "effects.jamming": False, "loading.output_every_mm": 0.0},
+    )
     (jump,) = s_off["snaps"]
     X, Y = jump["location_mm"]
     assert 52.0 < jump["u0_mm"] < 53.5 and jump["spread_mm"] < 2.0 and min(X, 220 - X) < 2 and min(Y, 70 - Y) < 2
@@ -325,8 +361,10 @@ def test_stabilization_carries_fine_corner_meshes_and_is_small(tmp_path):
     lo, hi = s["stabilization_K_Pa"]
     assert math.isclose(hi / lo, (10 / 0.25) ** 2, rel_tol=0.5)  # K_s follows 1 / h_T²
     for p, limit in ((2, 0.03), (3, 0.002)):  # the shift relative to the discretization error (4.6 N)
-        F = [_run(tmp_path, f"p{p}_{k}", **{"discretization.order_u": p, "effects.stabilization_K": k}
-                  )[1][-1]["force_N"] for k in (0.0, "auto")]
+        F = [
+            _run(tmp_path, f"p{p}_{k}", **{"discretization.order_u": p, "effects.stabilization_K": k})[1][-1]["force_N"]
+            for k in (0.0, "auto")
+        ]
         assert 0 < F[1] - F[0] < limit * 4.6, (p, F)
 
 
@@ -356,10 +394,18 @@ def test_vtk_output_at_a_high_order_stays_small(tmp_path):
     from ngbet.scene.document import Scene
 
     assert [vtk_subdivision(p) for p in (1, 2, 3, 4, 5, 8, 9, 16)] == [0, 1, 2, 2, 3, 3, 4, 4]
-    sc = Scene().with_changes(**{"discretization.order_u": 10, "discretization.mesh_size_mm": 40.0,
-                                 "discretization.corner_mesh_size_mm": 0.0, "loading.u0_mm": 1.0,
-                                 "loading.first_step_mm": 1.0, "loading.stops_mm": [],
-                                 "outputs.error_estimate": "off", "outputs.plot": False})
+    sc = Scene().with_changes(
+        **{
+            "discretization.order_u": 10,
+            "discretization.mesh_size_mm": 40.0,
+            "discretization.corner_mesh_size_mm": 0.0,
+            "loading.u0_mm": 1.0,
+            "loading.first_step_mm": 1.0,
+            "loading.stops_mm": [],
+            "outputs.error_estimate": "off",
+            "outputs.plot": False,
+        }
+    )
     run(sc, tmp_path)
     vtu = tmp_path / "fields.vtu"
     assert 0 < vtu.stat().st_size < 2_000_000  # 0.39 MB measured

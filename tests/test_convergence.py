@@ -32,9 +32,16 @@ RATE_MARGIN = 0.15
 
 def manufactured_errors(h_mm: float, p: int) -> tuple[float, float, float]:
     """(h, L2 error, H1 seminorm error) [m] of the first-gradient problem with the manufactured solution."""
-    sc = default_scene().with_changes(**{
-        "effects.bending": False, "discretization.mesh_size_mm": h_mm, "discretization.corner_mesh_size_mm": 0.0,
-        "discretization.structured": True, "discretization.order_u": p, "outputs.vtk": False})
+    sc = default_scene().with_changes(
+        **{
+            "effects.bending": False,
+            "discretization.mesh_size_mm": h_mm,
+            "discretization.corner_mesh_size_mm": 0.0,
+            "discretization.structured": True,
+            "discretization.order_u": p,
+            "outputs.vtk": False,
+        }
+    )
     pb = ContinuumProblem(sc)
     L, W = sc.specimen.length_mm * 1e-3, sc.specimen.width_mm * 1e-3
     A, eps = 0.5e-3, 0.1
@@ -42,8 +49,9 @@ def manufactured_errors(h_mm: float, p: int) -> tuple[float, float, float]:
     G = ngs.CF((exact[0].Diff(x), exact[0].Diff(y), exact[1].Diff(x), exact[1].Diff(y)), dims=(2, 2))
     inv = physics.invariants(G, pb.m1, pb.m2)
     par = pb.parameters
-    W_exact = (physics.elongation_energy(inv.i4, inv.i6, par["K_el"])
-               + physics.shear_law_energy(inv.i8, sc.effects.shear_law, {**vars(sc.material), **par}))
+    W_exact = physics.elongation_energy(inv.i4, inv.i6, par["K_el"]) + physics.shear_law_energy(
+        inv.i8, sc.effects.shear_law, {**vars(sc.material), **par}
+    )
     assert len(pb.energy_parts) == 1  # only u: the energy density is W(∇u)
     u = pb.X.TrialFunction()[0]
     a = ngs.BilinearForm(pb.X)

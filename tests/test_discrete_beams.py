@@ -47,8 +47,9 @@ class Chain:
 
 def solve_chain(chain: Chain, forces: list[np.ndarray], u: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Newton under a sequence of tip forces (a force-controlled load path); returns u, max iterations."""
-    ctl = StepControl(path=PathControl(target=1.0, first_step=1.0, max_step=1.0, min_step=1.0), rtol=1e-13,
-                      max_iterations=40)
+    ctl = StepControl(
+        path=PathControl(target=1.0, first_step=1.0, max_step=1.0, min_step=1.0), rtol=1e-13, max_iterations=40
+    )
     u = np.zeros(chain.n_dofs) if u is None else u
     lin = FreeBlockSolver(chain.evaluate(u)[2], ~chain.fixed)
     worst = 0

@@ -70,19 +70,22 @@ def test_s_shape_sign_matches_continuum(unbalanced):
     # (continuum, Table 1, h = 5 mm, 56 mm: u_y = -2.9 mm at X = 40 mm)
     _, out, _ = unbalanced
     left, right = _halves(out, 30.0)
-    assert left.max() < 0 < right.min(), \
+    assert left.max() < 0 < right.min(), (
         f"left {left.min():.3g}..{left.max():.3g}, right {right.min():.3g}..{right.max():.3g}"
+    )
 
 
 def test_built_in_yarn_ends_turn_the_s_over(tmp_path):
     # the sense of the S is decided at the clamps: built-in ends hold the rotation of the stiff
     # thick yarns there, and the same network bends the other way (left half rises)
-    scene = Scene().with_changes(**{**BASE, "loading.u0_mm": 20.0, "discrete.end_rotation": "held",
-                                            "outputs.plot": False})
+    scene = Scene().with_changes(
+        **{**BASE, "loading.u0_mm": 20.0, "discrete.end_rotation": "held", "outputs.plot": False}
+    )
     run(scene, tmp_path, progress=False)
     left, right = _halves(tmp_path, 20.0)
-    assert left.min() > 0 > right.max(), \
+    assert left.min() > 0 > right.max(), (
         f"left {left.min():.3g}..{left.max():.3g}, right {right.min():.3g}..{right.max():.3g}"
+    )
 
 
 def test_reaction_is_energy_derivative(unbalanced):
@@ -95,8 +98,9 @@ def test_reaction_is_energy_derivative(unbalanced):
     work = float(np.sum(0.5 * (F[1:] + F[:-1]) * np.diff(u0)))
     released = sum(ev.get("released_J", 0.0) for ev in summary["snap_events"])
     E = rows[-1]["energy_J"]
-    assert released < 1e-3 * E and abs(work - released - E) < 2e-3 * E, \
+    assert released < 1e-3 * E and abs(work - released - E) < 2e-3 * E, (
         f"work {work:.6g} J, released {released:.3g} J, energy {E:.6g} J"
+    )
 
 
 def test_energy_parts_sum_to_total(unbalanced):
@@ -109,13 +113,29 @@ def test_energy_parts_sum_to_total(unbalanced):
 def test_outputs_written(unbalanced):
     _, out, summary = unbalanced
     cols = set(read_rows(out / "results.csv")[0])
-    need = {"step", "u0_mm", "force_N", "energy_J", "energy_bending1_J", "energy_bending2_J", "energy_slip_J",
-            "energy_shear_springs_J", "energy_inter_J", "energy_axial_J", "newton_iterations", "step_wall_s",
-            "max_slip_mm", "gamma_A_deg", "gamma_B_deg", "gamma_C_deg"}
+    need = {
+        "step",
+        "u0_mm",
+        "force_N",
+        "energy_J",
+        "energy_bending1_J",
+        "energy_bending2_J",
+        "energy_slip_J",
+        "energy_shear_springs_J",
+        "energy_inter_J",
+        "energy_axial_J",
+        "newton_iterations",
+        "step_wall_s",
+        "max_slip_mm",
+        "gamma_A_deg",
+        "gamma_B_deg",
+        "gamma_C_deg",
+    }
     files = [out / n for n in ("summary.json", "profile.csv", "state_30mm.npz", "yarns_30mm.png")]
     missing = need - cols
-    assert not missing and all(f.exists() for f in files), \
+    assert not missing and all(f.exists() for f in files), (
         f"missing columns {missing}, files {[f.name for f in files if not f.exists()]}"
+    )
     with np.load(out / "state_30mm.npz") as d:
         assert d["crossing_slip_mm"].shape == (summary["network"]["crossings"],)
 
@@ -123,8 +143,9 @@ def test_outputs_written(unbalanced):
 def test_balanced_network_has_straight_mid_axis(tmp_path):
     # EI1 = EI2, EA1 = EA2: the mirror Y -> W - Y maps m1 onto m2 and the network onto itself,
     # so the mid-axis stays straight (no S-shape)
-    scene = Scene().with_changes(**{**BASE, "discrete.EI2": 0.4, "discrete.EA2": 5e4, "loading.u0_mm": 20.0,
-                                            "outputs.plot": False})
+    scene = Scene().with_changes(
+        **{**BASE, "discrete.EI2": 0.4, "discrete.EA2": 5e4, "loading.u0_mm": 20.0, "outputs.plot": False}
+    )
     run(scene, tmp_path, progress=False)
     uy = np.asarray(read_profiles(tmp_path / "profile.csv")[20.0][1])
     assert np.abs(uy).max() < 1e-6, f"max |u_y| on the mid-axis: {np.abs(uy).max():.3g} mm"
@@ -136,8 +157,16 @@ def test_ideal_kinematics_limit(tmp_path):
     # Zone means include crossings next to the zone borders (transition layers one or two yarn
     # spacings wide), which bias A down and B, C up by a few percent at spacing 5 mm.
     u0 = 20.0
-    scene = Scene().with_changes(**{**BASE, "loading.u0_mm": u0, "discrete.K_slip": 1e6, "discrete.EI1": 1e-6,
-                                            "discrete.EI2": 1e-6, "outputs.plot": False})
+    scene = Scene().with_changes(
+        **{
+            **BASE,
+            "loading.u0_mm": u0,
+            "discrete.K_slip": 1e6,
+            "discrete.EI1": 1e-6,
+            "discrete.EI2": 1e-6,
+            "outputs.plot": False,
+        }
+    )
     run(scene, tmp_path, progress=False)
     r = read_rows(tmp_path / "results.csv")[-1]
     D = scene.specimen.zone_a_length_mm
@@ -151,15 +180,23 @@ def test_ideal_kinematics_limit(tmp_path):
 def test_failed_step_reports_history(tmp_path):
     # a tolerance below round-off cannot be met: the run stops with status "failed", the last
     # converged load and the residual history in the summary
-    scene = Scene().with_changes(**{**BASE, "solver.rtol": 1e-300, "solver.atol_energy": 1e-300,
-                                            "solver.max_iterations": 2, "loading.min_step_mm": 1.0,
-                                            "outputs.plot": False})
+    scene = Scene().with_changes(
+        **{
+            **BASE,
+            "solver.rtol": 1e-300,
+            "solver.atol_energy": 1e-300,
+            "solver.max_iterations": 2,
+            "loading.min_step_mm": 1.0,
+            "outputs.plot": False,
+        }
+    )
     with pytest.raises(ConvergenceError) as err:
         run(scene, tmp_path, progress=False)
     assert err.value.last_converged_mm == 0.0
     s = json.loads((tmp_path / "summary.json").read_text())
-    assert s["status"] == "failed" and s["last_converged_u0_mm"] == 0.0 and len(s["residual_history"]) > 0, \
+    assert s["status"] == "failed" and s["last_converged_u0_mm"] == 0.0 and len(s["residual_history"]) > 0, (
         f"status {s['status']}, error {s['error']}"
+    )
 
 
 def test_equivalent_network_bends_like_the_continuum(tmp_path):
@@ -170,8 +207,13 @@ def test_equivalent_network_bends_like_the_continuum(tmp_path):
     from ngbet.discrete.equivalent import continuum_equivalent
     from ngbet.run import run as run_any
 
-    base = {"loading.u0_mm": 56.0, "loading.stops_mm": (), "outputs.plot": False, "outputs.vtk": False,
-            "discretization.mesh_size_mm": 10.0}
+    base = {
+        "loading.u0_mm": 56.0,
+        "loading.stops_mm": (),
+        "outputs.plot": False,
+        "outputs.vtk": False,
+        "discretization.mesh_size_mm": 10.0,
+    }
     cont = Scene().with_changes(**base)
     disc = Scene().with_changes(model="discrete", **base)
     disc = disc.with_changes(**continuum_equivalent(disc))

@@ -62,8 +62,11 @@ class Pulled:
         x, c = u
         E = 0.5 * self.k * (c - x) ** 2 + 0.5 * self.m * x**2 + 0.25 * self.b * x**4
         g = np.array([-self.k * (c - x) + self.m * x + self.b * x**3, self.k * (c - x)])
-        K = (sp.csr_matrix(np.array([[self.k + self.m + 3 * self.b * x**2, -self.k], [-self.k, self.k]]))
-             if hessian else None)
+        K = (
+            sp.csr_matrix(np.array([[self.k + self.m + 3 * self.b * x**2, -self.k], [-self.k, self.k]]))
+            if hessian
+            else None
+        )
         return E, g, K
 
 
@@ -85,8 +88,9 @@ def test_relaxation_leaves_a_saddle_in_few_factorizations():
     # the first ladder).
     p = DoubleWell()
     lin = solver(p)
-    u, its, hist, shifted = newton(p, np.array([1e-3, 0.0]), lin, ctl(), max_iterations=48, line_search=True,
-                                   fail_fast=False)
+    u, its, hist, shifted = newton(
+        p, np.array([1e-3, 0.0]), lin, ctl(), max_iterations=48, line_search=True, fail_fast=False
+    )
     assert abs(u[0] - 1.0) < 1e-8 and abs(u[1]) < 1e-8, f"relaxed to {u}"
     assert its <= 12 and lin.n_factor <= 30, f"{its} iterations, {lin.n_factor} factorizations"
 
@@ -97,8 +101,9 @@ def test_no_shift_allowed_stops_at_the_first_indefinite_tangent():
     lin = solver(p)
     with pytest.raises(StepFailed) as exc:
         newton(p, np.array([1e-3, 0.0]), lin, ctl(), allow_shift=False)
-    assert exc.value.indefinite and lin.n_factor == 1, \
+    assert exc.value.indefinite and lin.n_factor == 1, (
         f"indefinite {exc.value.indefinite}, {lin.n_factor} factorizations"
+    )
 
 
 def test_solve_many_equals_column_solves():
@@ -151,21 +156,26 @@ def test_energy_balance_by_the_hermite_rule_on_a_smooth_branch():
     # tells a snap-through (a jump releases percents of the step's work) from a long smooth step
     p = Pulled()
     rows = []
-    steps = Steps(load_steps(p, StepControl(path=PathControl(target=2.0, first_step=0.25, max_step=0.25, min_step=1e-3),
-                                            stability=False)))
+    steps = Steps(
+        load_steps(
+            p, StepControl(path=PathControl(target=2.0, first_step=0.25, max_step=0.25, min_step=1e-3), stability=False)
+        )
+    )
     for info in steps:
         rows.append((info.u0, float(p.load @ info.residual), info.energy, info.released))
     assert steps.result is not None
     res = steps.result.path_info
-    assert not res["snap_events"] and res["failed_steps"] == 0, \
+    assert not res["snap_events"] and res["failed_steps"] == 0, (
         f"snaps {res['snap_events']}, failed {res['failed_steps']}"
+    )
     prev = (0.0, 0.0, 0.0)
     for u0, F, E, released in rows:
         h = u0 - prev[0]
         work = 0.5 * h * (F + prev[1])
         trap = work - (E - prev[2])
-        assert abs(released) <= 1e-4 * work and abs(released) <= 1e-2 * abs(trap), \
+        assert abs(released) <= 1e-4 * work and abs(released) <= 1e-2 * abs(trap), (
             f"u0 {u0}: Hermite {released:.2e}, trapezoid {trap:.2e}, work {work:.3e}"
+        )
         prev = (u0, F, E)
 
 

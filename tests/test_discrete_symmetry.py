@@ -99,10 +99,14 @@ def test_blocks_are_orthonormal_and_reproduce_the_free_block(model):
     assert abs(maps.B_s @ Ks @ maps.B_s.T + maps.B_a @ Ka @ maps.B_a.T - Kff).max() <= 1e-12 * abs(Kff).max()
     # the blocks' values come from K_ff's by the precomputed maps
     vals = Kff.data
-    assert abs(sp.csr_matrix((maps.M_s @ vals, (maps.rows_s, maps.cols_s)), shape=Ks.shape) - Ks).max() \
+    assert (
+        abs(sp.csr_matrix((maps.M_s @ vals, (maps.rows_s, maps.cols_s)), shape=Ks.shape) - Ks).max()
         <= 1e-12 * abs(Kff).max()
-    assert abs(sp.csr_matrix((maps.M_a @ vals, (maps.rows_a, maps.cols_a)), shape=Ka.shape) - Ka).max() \
+    )
+    assert (
+        abs(sp.csr_matrix((maps.M_a @ vals, (maps.rows_a, maps.cols_a)), shape=Ka.shape) - Ka).max()
         <= 1e-12 * abs(Kff).max()
+    )
 
 
 @pytest.mark.parametrize("symmetric", [True, False])
@@ -128,8 +132,7 @@ def test_block_solves_equal_the_whole_factorization(model, symmetric):
     assert blocks.n_factor_antisymmetric == int(symmetric)  # factorized on demand, once
     r = g[blocks.free]  # a residual: symmetric on the path, its solve needs the symmetric block only
     x_whole = whole.solve(r)
-    np.testing.assert_allclose(blocks.solve(r, symmetric_rhs=True), x_whole, rtol=0,
-                               atol=1e-9 * np.abs(x_whole).max())
+    np.testing.assert_allclose(blocks.solve(r, symmetric_rhs=True), x_whole, rtol=0, atol=1e-9 * np.abs(x_whole).max())
 
 
 def forces_on_the_path(model: NetworkModel, ctl) -> tuple[dict, dict[float, float]]:
@@ -172,14 +175,16 @@ def test_path_with_cholmod_is_the_path_with_the_ldlt(model):
     sc = Scene().with_changes(**SCENE)
     forces, stats = {}, {}
     for backend in ("cholmod", "sparsecholesky"):
-        stats[backend], forces[backend] = forces_on_the_path(model, dataclasses.replace(step_control(sc),
-                                                                                         backend=backend))
+        stats[backend], forces[backend] = forces_on_the_path(
+            model, dataclasses.replace(step_control(sc), backend=backend)
+        )
     ch, ld = stats["cholmod"], stats["sparsecholesky"]
     assert ch["backend"] == "cholmod" and ld["backend"] == "sparsecholesky"
     for key in ("steps", "newton_iterations", "factorizations", "factorizations_antisymmetric"):
         assert ch[key] == ld[key], key
-    assert [(e["u0_before"], e["u0"]) for e in ch["snap_events"]] == \
-        [(e["u0_before"], e["u0"]) for e in ld["snap_events"]]
+    assert [(e["u0_before"], e["u0"]) for e in ch["snap_events"]] == [
+        (e["u0_before"], e["u0"]) for e in ld["snap_events"]
+    ]
     assert forces["cholmod"].keys() == forces["sparsecholesky"].keys()
     peak = max(abs(f) for f in forces["sparsecholesky"].values())
     for u0, f in forces["sparsecholesky"].items():
@@ -234,8 +239,10 @@ def test_a_state_off_the_symmetric_path_is_solved_whole(model):
     assert ht.project(start, 0.01) is None and not model._on_symmetric_path(start)
     K = model.evaluate(start, True)[2]
     ctl = step_control(sc)
-    lins = {"blocks": FreeBlockSolver(K, ~model.fixed, "auto", ht),
-            "whole": FreeBlockSolver(K, ~model.fixed, "auto", None)}
+    lins = {
+        "blocks": FreeBlockSolver(K, ~model.fixed, "auto", ht),
+        "whole": FreeBlockSolver(K, ~model.fixed, "auto", None),
+    }
     ends = {name: newton(model, start, lin, ctl, max_iterations=40, line_search=True)[0] for name, lin in lins.items()}
     blocks = lins["blocks"]  # every tangent met has a coupling block: factorized whole
     assert blocks.n_factor_whole == blocks.n_factor > 0 and not blocks.in_blocks
@@ -279,6 +286,7 @@ def test_stability_check_sees_the_symmetric_block_from_antisymmetric_modes():
     assert sym[0] < anti[0]  # the setting: the softest mode is symmetric
     Ba = lin._blocks.maps.B_a.toarray()
     import scipy.linalg as sla
+
     d = np.abs(K.diagonal())
     _, Ya = sla.eigh(Ba.T @ K.toarray() @ Ba, Ba.T @ (d[:, None] * Ba))
     X0 = Ba @ Ya[:, :2]  # the two softest antisymmetric modes, as from the last check

@@ -20,25 +20,31 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
 #: the scripts of docs/ and the test that runs each
-SCRIPTS = {"make_figures.py": "test_make_figures_draws_the_default_scene_into_its_out_folder",
-           "calibration_figure.py": "test_calibration_figure_fits_and_draws_into_its_out_folder",
-           "research/hp_prototype.py": "test_hp_prototype_with_one_order_is_the_uniform_order_load_path",
-           "research/two_equilibria.py": "test_two_equilibria_at_low_order_finds_one_equilibrium",
-           "research/split_corners.py": "test_split_corners_prints_the_corner_elements_and_a_converging_sequence"}
+SCRIPTS = {
+    "make_figures.py": "test_make_figures_draws_the_default_scene_into_its_out_folder",
+    "calibration_figure.py": "test_calibration_figure_fits_and_draws_into_its_out_folder",
+    "research/hp_prototype.py": "test_hp_prototype_with_one_order_is_the_uniform_order_load_path",
+    "research/two_equilibria.py": "test_two_equilibria_at_low_order_finds_one_equilibrium",
+    "research/split_corners.py": "test_split_corners_prints_the_corner_elements_and_a_converging_sequence",
+}
 
 
 def run_script(script: str, *args: str, cwd: Path, timeout: float) -> str:
     """Run ``docs/<script>`` in a fresh interpreter in ``cwd``; its stdout (the test fails on a non-zero exit)."""
     env = {**os.environ, "MPLBACKEND": "Agg", "PYVISTA_OFF_SCREEN": "true"}
-    p = subprocess.run([sys.executable, str(DOCS / script), *args], cwd=cwd, env=env, capture_output=True,
-                       text=True, timeout=timeout)
+    p = subprocess.run(
+        [sys.executable, str(DOCS / script), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
+    )
     assert p.returncode == 0, f"{script} exited with {p.returncode}:\n{p.stderr[-3000:]}"
     return p.stdout
 
 
 def digests(folder: Path) -> dict[str, str]:
-    return {str(f.relative_to(folder)): hashlib.sha256(f.read_bytes()).hexdigest()
-            for f in sorted(folder.rglob("*")) if f.is_file() and "__pycache__" not in f.parts}
+    return {
+        str(f.relative_to(folder)): hashlib.sha256(f.read_bytes()).hexdigest()
+        for f in sorted(folder.rglob("*"))
+        if f.is_file() and "__pycache__" not in f.parts
+    }
 
 
 def test_every_docs_script_has_its_test():
@@ -63,8 +69,12 @@ def test_calibration_figure_fits_and_draws_into_its_out_folder(tmp_path):
     before = digests(DOCS)
     run_script("calibration_figure.py", "--no-study", "--out", str(tmp_path / "docs"), cwd=tmp_path, timeout=3600)
     made = {p.name for p in (tmp_path / "docs").iterdir()}
-    assert made == {"calibration_fit.png", "calibration_fit.json", "calibration_twill_unbalanced_fit.png",
-                    "calibration_table.png"}
+    assert made == {
+        "calibration_fit.png",
+        "calibration_fit.json",
+        "calibration_twill_unbalanced_fit.png",
+        "calibration_table.png",
+    }
     record = json.loads((tmp_path / "docs" / "calibration_fit.json").read_text())
     assert record["data"] == "data/cao2008_glass_plain_150x450.csv"
     assert digests(DOCS) == before

@@ -25,17 +25,37 @@ from ngbet.tables import read_rows
 
 # the scene keys the pinned numbers depend on, spelled out (so that a change of a default does not
 # silently change what is pinned)
-PINNED_CONTINUUM = {"discretization.mesh_size_mm": 5.0, "discretization.order_u": 2,
-                    "discretization.corner_mesh_size_mm": 0.0, "discretization.structured": False,
-                    "material.K_el": 0.7e6, "material.K_sh": 21e3, "material.alpha1": 2e3, "material.alpha2": 20.0,
-                    "loading.u0_mm": 56.0, "loading.stops_mm": [37.0], "loading.first_step_mm": 16.0,
-                    "loading.max_step_mm": 28.0, "loading.output_every_mm": 0.0, "outputs.vtk": False,
-                    "outputs.plot": False}
-PINNED_DISCRETE = {"model": "discrete", "discrete.spacing_mm": 5.0, "loading.u0_mm": 56.0,
-                   "loading.stops_mm": [37.0], "discrete.first_step_mm": 2.0, "discrete.max_step_mm": 8.0,
-                   "loading.output_every_mm": 0.0, "outputs.plot": False}
-PINNED = {"continuum": {37.0: 62.40407179415401, 56.0: 109.53820079805064},
-          "discrete": {37.0: 5.711766584489289, 56.0: 10.285809592037236}}
+PINNED_CONTINUUM = {
+    "discretization.mesh_size_mm": 5.0,
+    "discretization.order_u": 2,
+    "discretization.corner_mesh_size_mm": 0.0,
+    "discretization.structured": False,
+    "material.K_el": 0.7e6,
+    "material.K_sh": 21e3,
+    "material.alpha1": 2e3,
+    "material.alpha2": 20.0,
+    "loading.u0_mm": 56.0,
+    "loading.stops_mm": [37.0],
+    "loading.first_step_mm": 16.0,
+    "loading.max_step_mm": 28.0,
+    "loading.output_every_mm": 0.0,
+    "outputs.vtk": False,
+    "outputs.plot": False,
+}
+PINNED_DISCRETE = {
+    "model": "discrete",
+    "discrete.spacing_mm": 5.0,
+    "loading.u0_mm": 56.0,
+    "loading.stops_mm": [37.0],
+    "discrete.first_step_mm": 2.0,
+    "discrete.max_step_mm": 8.0,
+    "loading.output_every_mm": 0.0,
+    "outputs.plot": False,
+}
+PINNED = {
+    "continuum": {37.0: 62.40407179415401, 56.0: 109.53820079805064},
+    "discrete": {37.0: 5.711766584489289, 56.0: 10.285809592037236},
+}
 
 
 def _forces(out) -> tuple[dict[float, float], list[dict]]:
@@ -171,10 +191,20 @@ def test_convergence_error_names_the_last_load_in_mm_and_keeps_the_attempts():
 def _failed_run(tmp_path, capsys, model: str) -> tuple[int, str, dict]:
     """``ngbet run`` with one Newton iteration to a tolerance no single iteration meets: the first
     increment and its one cut fail, the next cut would be below min_step. Exit code, stderr, summary."""
-    sets = {"model": model, "loading.u0_mm": 4, "loading.first_step_mm": 4, "loading.min_step_mm": 2,
-            "discrete.first_step_mm": 4, "solver.max_iterations": 1, "solver.rtol": 1e-30,
-            "solver.atol_energy": 1e-40, "discretization.mesh_size_mm": 20, "outputs.vtk": "false",
-            "outputs.plot": "false", "loading.output_every_mm": 0}
+    sets = {
+        "model": model,
+        "loading.u0_mm": 4,
+        "loading.first_step_mm": 4,
+        "loading.min_step_mm": 2,
+        "discrete.first_step_mm": 4,
+        "solver.max_iterations": 1,
+        "solver.rtol": 1e-30,
+        "solver.atol_energy": 1e-40,
+        "discretization.mesh_size_mm": 20,
+        "outputs.vtk": "false",
+        "outputs.plot": "false",
+        "loading.output_every_mm": 0,
+    }
     del sets["discrete.first_step_mm" if model == "continuum" else "discretization.mesh_size_mm"]
     args = ["run", "--quiet", "--out", str(tmp_path / "run")]
     for k, v in sets.items():
@@ -206,9 +236,18 @@ def test_a_failed_network_run_keeps_its_solver_statistics(tmp_path, capsys):
 
 
 def test_the_discrete_model_honours_stops_and_output_flags(tmp_path):
-    scene = Scene().with_changes(**{"model": "discrete", "loading.u0_mm": 2.0, "loading.stops_mm": [0.5],
-                                    "discrete.first_step_mm": 1.0, "outputs.reaction": False,
-                                    "outputs.energy": False, "outputs.profile": False, "outputs.plot": False})
+    scene = Scene().with_changes(
+        **{
+            "model": "discrete",
+            "loading.u0_mm": 2.0,
+            "loading.stops_mm": [0.5],
+            "discrete.first_step_mm": 1.0,
+            "outputs.reaction": False,
+            "outputs.energy": False,
+            "outputs.profile": False,
+            "outputs.plot": False,
+        }
+    )
     run(scene, tmp_path)
     rows = read_rows(tmp_path / "results.csv")
     # the stop shortens one step, not the next: 1 mm grown by 1.5 after an easy step

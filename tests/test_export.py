@@ -60,10 +60,12 @@ def _reference_stress(scene: Scene, gamma: np.ndarray, h: float = 1e-5) -> np.nd
 SCENES = {
     "table": Scene.from_dict(__import__("tomllib").loads(TWILL.read_text())),
     "quadratic": default_scene(),
-    "polynomial": default_scene().with_changes(**{"effects.shear_law": "polynomial", "material.K_sh4": 2e5,
-                                                  "material.K_sh6": 1e6}),
-    "locking": default_scene().with_changes(**{"effects.shear_law": "locking", "material.K_lock": 5e4,
-                                               "material.gamma_lock_deg": 65.0}),
+    "polynomial": default_scene().with_changes(
+        **{"effects.shear_law": "polynomial", "material.K_sh4": 2e5, "material.K_sh6": 1e6}
+    ),
+    "locking": default_scene().with_changes(
+        **{"effects.shear_law": "locking", "material.K_lock": 5e4, "material.gamma_lock_deg": 65.0}
+    ),
 }
 
 
@@ -119,8 +121,13 @@ def test_units_and_what_is_left_out_are_in_the_header(tmp_path):
     src.write_text(sc.to_toml())
     export(src, "csv", export_dir, max_angle_deg=45.0, plot=False)
     text = (export_dir / "shear_law.csv").read_text()
-    rows = np.array([[float(v) for v in ln.split(",")] for ln in text.splitlines()
-                     if ln and not ln.startswith(("#", "shear_angle_deg"))])
+    rows = np.array(
+        [
+            [float(v) for v in ln.split(",")]
+            for ln in text.splitlines()
+            if ln and not ln.startswith(("#", "shear_angle_deg"))
+        ]
+    )
     g = rows[:, 1]
     np.testing.assert_allclose(rows[:, 2], sc.material.K_sh * np.sin(g) * np.cos(g) * 1e-6, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(rows[:, 3], rows[:, 2] * sc.specimen.thickness_mm, rtol=1e-9)

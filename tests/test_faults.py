@@ -35,25 +35,50 @@ from ngbet.study.model import MissingValueError, Study
 from ngbet.study.runner import run_study
 from ngbet.tables import read_rows
 
-TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
-        "discretization.corner_mesh_size_mm": 0.0, "discretization.order_u": 2,
-        "loading.u0_mm": 10.0, "loading.stops_mm": [5.0]}
+TINY = {
+    "outputs.vtk": False,
+    "outputs.plot": False,
+    "discretization.mesh_size_mm": 20.0,
+    "discretization.corner_mesh_size_mm": 0.0,
+    "discretization.order_u": 2,
+    "loading.u0_mm": 10.0,
+    "loading.stops_mm": [5.0],
+}
 TINY_SET = [f"--set={k}={v}" for k, v in TINY.items()]
 DISCRETE = {"model": "discrete", "discrete.spacing_mm": 10.0, "loading.u0_mm": 10.0, "outputs.plot": False}
 # a discrete run whose very first step cannot converge (a tolerance below round-off)
-DISCRETE_FAILING = {**DISCRETE, "solver.rtol": 1e-300, "solver.atol_energy": 1e-300, "solver.max_iterations": 2,
-                    "loading.min_step_mm": 1.0}
+DISCRETE_FAILING = {
+    **DISCRETE,
+    "solver.rtol": 1e-300,
+    "solver.atol_energy": 1e-300,
+    "solver.max_iterations": 2,
+    "loading.min_step_mm": 1.0,
+}
 # many short steps: a run that lasts long enough to be interrupted between steps
-SLOW_SET = ["--set=discretization.mesh_size_mm=20", "--set=discretization.corner_mesh_size_mm=0",
-            "--set=discretization.order_u=2", "--set=outputs.vtk=false", "--set=outputs.plot=false",
-            "--set=loading.first_step_mm=0.2", "--set=loading.max_step_mm=0.2", "--set=solver.grow_after=0"]
+SLOW_SET = [
+    "--set=discretization.mesh_size_mm=20",
+    "--set=discretization.corner_mesh_size_mm=0",
+    "--set=discretization.order_u=2",
+    "--set=outputs.vtk=false",
+    "--set=outputs.plot=false",
+    "--set=loading.first_step_mm=0.2",
+    "--set=loading.max_step_mm=0.2",
+    "--set=solver.grow_after=0",
+]
 
 
 def ngbet(*args: str, env: dict[str, str] | None = None, **kw) -> subprocess.Popen:
     """``ngbet ARGS`` in a new process group (as a terminal runs it: Ctrl-C reaches the group)."""
     env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg", **(env or {})}
-    return subprocess.Popen([sys.executable, "-m", "ngbet", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env, start_new_session=True, **kw)
+    return subprocess.Popen(
+        [sys.executable, "-m", "ngbet", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        start_new_session=True,
+        **kw,
+    )
 
 
 def wait_for(cond, timeout: float = 60.0) -> None:
@@ -105,8 +130,10 @@ def test_a_project_folder_with_a_scene_and_a_csv_is_not_a_run_folder(tmp_path, m
     commented scene.toml and measured results.csv is refused (exit 3), nothing in it touched."""
     proj = tmp_path / "proj"
     proj.mkdir()
-    files = {"scene.toml": "# my fabric, measured 2024\n[material]\nalpha1 = 20.0\n",
-             "results.csv": "u0_mm,force_N\n10,3.1\n20,9.4\n"}
+    files = {
+        "scene.toml": "# my fabric, measured 2024\n[material]\nalpha1 = 20.0\n",
+        "results.csv": "u0_mm,force_N\n10,3.1\n20,9.4\n",
+    }
     for name, text in files.items():
         (proj / name).write_text(text)
     monkeypatch.chdir(proj)
@@ -149,9 +176,11 @@ def test_the_lock_is_released_however_the_run_ends(tmp_path):
     """The OS releases the flock when the process ends, SIGKILL included: the marker stays and
     never goes stale; the next run takes the folder and removes only the killed run's files."""
     out = tmp_path / "run"
-    code = ("import sys, time; from ngbet.output import RunWriter; from ngbet.scene.document import Scene\n"
-            "w = RunWriter(sys.argv[1], Scene()); w.add_step({'step': 1, 'u0_mm': 1.0, 'force_N': 1.0})\n"
-            "print('ready', flush=True); time.sleep(60)\n")
+    code = (
+        "import sys, time; from ngbet.output import RunWriter; from ngbet.scene.document import Scene\n"
+        "w = RunWriter(sys.argv[1], Scene()); w.add_step({'step': 1, 'u0_mm': 1.0, 'force_N': 1.0})\n"
+        "print('ready', flush=True); time.sleep(60)\n"
+    )
     p = subprocess.Popen([sys.executable, "-c", code, str(out)], stdout=subprocess.PIPE, text=True)
     assert p.stdout.readline().strip() == "ready"
     (out / "mine.txt").write_text("the user's")
@@ -316,13 +345,18 @@ def test_failed_discrete_run_exits_1_with_summary_failed(tmp_path):
 
 
 # ------------------------------------------------------------------------------------ bad input
-@pytest.mark.parametrize("sets,key", [
-    (["model=discrete", "discrete.spacing_mm=100"], "discrete.spacing_mm"),  # a 1-yarn network
-    (["loading.stops_mm=[100]"], "loading.stops_mm"),
-    (["solver.threads=-1"], "solver.threads"),
-    (["discretization.mesh_size_mm=0.3", "discretization.corner_mesh_size_mm=0", "discretization.order_u=10"],
-     "discretization.order_u"),  # about 200 GB
-])
+@pytest.mark.parametrize(
+    "sets,key",
+    [
+        (["model=discrete", "discrete.spacing_mm=100"], "discrete.spacing_mm"),  # a 1-yarn network
+        (["loading.stops_mm=[100]"], "loading.stops_mm"),
+        (["solver.threads=-1"], "solver.threads"),
+        (
+            ["discretization.mesh_size_mm=0.3", "discretization.corner_mesh_size_mm=0", "discretization.order_u=10"],
+            "discretization.order_u",
+        ),  # about 200 GB
+    ],
+)
 def test_degenerate_input_exits_2_naming_the_key(tmp_path, capsys, sets, key):
     out = tmp_path / "never"
     assert main(["run", "--out", str(out), "--quiet", *[f"--set={s}" for s in sets]]) == 2
@@ -358,8 +392,10 @@ def test_a_discrete_network_too_large_for_memory_is_refused_before_building(tmp_
 
     monkeypatch.setattr(ngbet.preflight, "available_memory", lambda: 8e9)
     t0 = time.monotonic()
-    assert main(["run", "--out", str(tmp_path / "o"), "--set=model=discrete", "--set=discrete.spacing_mm=0.1",
-                 "--quiet"]) == 2
+    assert (
+        main(["run", "--out", str(tmp_path / "o"), "--set=model=discrete", "--set=discrete.spacing_mm=0.1", "--quiet"])
+        == 2
+    )
     err = capsys.readouterr().err
     assert "discrete.spacing_mm" in err and "9,239,999 dofs" in err and "80.3 GB" in err
     assert not (tmp_path / "o").exists() and time.monotonic() - t0 < 30
@@ -382,8 +418,13 @@ def test_a_full_stdout_ends_in_a_message_and_exit_3_with_the_run_intact(tmp_path
         pytest.skip("no /dev/full on this system")
     out = tmp_path / "r"
     with open("/dev/full", "w") as full:
-        p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--out", str(out), *TINY_SET],
-                           stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+        p = subprocess.run(
+            [sys.executable, "-m", "ngbet", "run", "--out", str(out), *TINY_SET],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,
+        )
     assert p.returncode == 3, p.stderr
     assert "Traceback" not in p.stderr and "No space left" in p.stderr and str(out) in p.stderr
     assert len([x for x in p.stderr.splitlines() if x.startswith("ngbet:")]) == 1  # besides the progress bar
@@ -417,10 +458,13 @@ def test_large_problem_is_warned_about_before_meshing(caplog):
     assert preflight(Scene()) == []  # the default scene: nothing to say
 
 
-@pytest.mark.parametrize("changes,lock_mm", [
-    ({"loading.u0_mm": 66.0}, 62.1),  # the paper's specimen
-    ({"specimen.yarn_angle_deg": 30.0, "loading.u0_mm": 20.0}, 15.3),
-])
+@pytest.mark.parametrize(
+    "changes,lock_mm",
+    [
+        ({"loading.u0_mm": 66.0}, 62.1),  # the paper's specimen
+        ({"specimen.yarn_angle_deg": 30.0, "loading.u0_mm": 20.0}, 15.3),
+    ],
+)
 def test_load_past_ideal_locking_runs_with_a_warning(tmp_path, caplog, changes, lock_mm):
     scene = Scene().with_changes(**{**TINY, "loading.stops_mm": [], **changes})
     with caplog.at_level(logging.WARNING):
@@ -439,6 +483,7 @@ def ref_study() -> Study:
 
     def report(d):
         return json.dumps(C.reference(d, 10.0, 2, (20.0, 10.0, 5.0)), default=float)
+
     return Study("ref", Scene().with_changes(**TINY), cases, report=report)
 
 
@@ -451,13 +496,16 @@ def ref_cache(tmp_path_factory):
     return cache, json.loads((out / "report.md").read_text()), d
 
 
-@pytest.mark.parametrize("name,damage", [
-    ("results.csv", lambda b: b[: len(b) // 2]),  # truncated
-    ("results.csv", lambda b: b""),  # emptied
-    ("case.json", lambda b: b[:100]),
-    ("summary.json", lambda b: b[:-20]),
-    ("profile.csv", lambda b: b.replace(b"\n", b"\n0,", 1)),
-])
+@pytest.mark.parametrize(
+    "name,damage",
+    [
+        ("results.csv", lambda b: b[: len(b) // 2]),  # truncated
+        ("results.csv", lambda b: b""),  # emptied
+        ("case.json", lambda b: b[:100]),
+        ("summary.json", lambda b: b[:-20]),
+        ("profile.csv", lambda b: b.replace(b"\n", b"\n0,", 1)),
+    ],
+)
 def test_corrupt_cache_file_is_recomputed_with_a_warning(tmp_path, caplog, ref_cache, name, damage):
     cache, ref, first = ref_cache
     key = first.cases()[1]["key"]  # the middle mesh: it moves the extrapolated reference
@@ -504,8 +552,20 @@ def test_a_figure_from_a_missing_value_is_recorded_and_fails_the_command(ref_cac
 
 def test_unreachable_scheduler_is_one_line_exit_3(tmp_path, capsys):
     t0 = time.monotonic()
-    rc = main(["study", "alpha1", "--quick", "--quiet", "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c"),
-               "--scheduler", "tcp://127.0.0.1:9"])
+    rc = main(
+        [
+            "study",
+            "alpha1",
+            "--quick",
+            "--quiet",
+            "--out",
+            str(tmp_path / "o"),
+            "--cache",
+            str(tmp_path / "c"),
+            "--scheduler",
+            "tcp://127.0.0.1:9",
+        ]
+    )
     assert rc == 3 and time.monotonic() - t0 < 15
     err = capsys.readouterr().err
     assert "tcp://127.0.0.1:9" in err and err.count("\n") == 1
@@ -529,8 +589,18 @@ def alive(pid: int) -> bool:
 
 def start_study(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     cache = tmp_path / "cache"
-    p = ngbet("study", "work_precision", "--quick", "--quiet", "--workers", "2", "--out", str(tmp_path / "o"),
-              "--cache", str(cache))
+    p = ngbet(
+        "study",
+        "work_precision",
+        "--quick",
+        "--quiet",
+        "--workers",
+        "2",
+        "--out",
+        str(tmp_path / "o"),
+        "--cache",
+        str(cache),
+    )
     wait_for(lambda: cache.exists() and any(not d.name.startswith(".") for d in cache.iterdir()))
     return p, cache
 
@@ -557,8 +627,13 @@ def test_debris_is_removed_only_when_its_study_has_ended(tmp_path):
 
     ended = "0123456789ab"
     with study_lock(tmp_path) as live:
-        names = [f".run-k1-{live}", f".tmp-k2-{live}-0a1b2c3d", f".run-k3-{ended}", f".tmp-k4-{ended}-0a1b2c3d",
-                 ".tmp-k5"]
+        names = [
+            f".run-k1-{live}",
+            f".tmp-k2-{live}-0a1b2c3d",
+            f".run-k3-{ended}",
+            f".tmp-k4-{ended}-0a1b2c3d",
+            ".tmp-k5",
+        ]
         for n in names:
             (tmp_path / n).mkdir()
             (tmp_path / n / "case.json").write_text("{}")
@@ -598,8 +673,9 @@ with interrupts():
 def test_ctrl_c_acts_within_seconds_when_the_main_thread_is_stuck(tmp_path):
     # measured before the watchdog: 80 s from SIGINT to exit at order_u = 10 (first assembly)
     out = tmp_path / "stuck"
-    p = subprocess.Popen([sys.executable, "-c", STUCK, str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         text=True)
+    p = subprocess.Popen(
+        [sys.executable, "-c", STUCK, str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     assert p.stdout.readline().strip() == "ready"
     time.sleep(0.5)  # let the main thread enter its sleep: before it, it would still act on the signal
     p.send_signal(signal.SIGINT)
@@ -633,7 +709,11 @@ def test_a_column_that_first_appears_at_a_later_step_is_kept(tmp_path):
         w.add_step({"step": 3, "u0_mm": 3.0, "force_N": 4.0})
         w.summary({}, "ok")
     assert (tmp_path / "results.csv").read_text().splitlines() == [
-        "step,u0_mm,force_N,force_error_N", "1,1.0,2.0,", "2,2.0,3.0,0.5", "3,3.0,4.0,"]
+        "step,u0_mm,force_N,force_error_N",
+        "1,1.0,2.0,",
+        "2,2.0,3.0,0.5",
+        "3,3.0,4.0,",
+    ]
     assert [r["force_error_N"] for r in read_rows(tmp_path / "results.csv")] == ["", 0.5, ""]
 
 
@@ -647,13 +727,29 @@ def test_accuracy_run_lists_every_file_it_wrote(tmp_path, capsys):
     """``--accuracy`` runs the chosen discretization and then adds its record to summary.json; the
     force plot, drawn after the run's last summary, is listed too (it was missing)."""
     out = tmp_path / "acc"
-    assert main(["run", "--out", str(out), "--quiet", "--accuracy", "1e-2", "--set=loading.u0_mm=20",
-                 "--set=outputs.vtk=false"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--out",
+                str(out),
+                "--quiet",
+                "--accuracy",
+                "1e-2",
+                "--set=loading.u0_mm=20",
+                "--set=outputs.vtk=false",
+            ]
+        )
+        == 0
+    )
     s = summary(out)
     on_disk = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
     figures = [f"{name}.{ext}" for name in ("force", "profile", "shear_force", "shear_map") for ext in ("png",)]
-    assert s["files"] == on_disk == sorted([*figures, "map_20mm.npz", "profile.csv", "results.csv", "scene.toml",
-                                            "summary.json"])
+    assert (
+        s["files"]
+        == on_disk
+        == sorted([*figures, "map_20mm.npz", "profile.csv", "results.csv", "scene.toml", "summary.json"])
+    )
     assert s["accuracy"]["met"] and s["status"] == "ok"
 
 
@@ -671,8 +767,15 @@ def test_a_force_plot_cut_short_leaves_no_figure_and_the_folder_reusable(tmp_pat
     monkeypatch.setattr(ngbet.figures.run, "draw_force", cut)
     with pytest.raises(KeyboardInterrupt):
         run(scene, out)
-    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "map_10mm.npz", "map_5mm.npz", "profile.csv",
-                                                     "results.csv", "scene.toml", "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        ".ngbet.lock",
+        "map_10mm.npz",
+        "map_5mm.npz",
+        "profile.csv",
+        "results.csv",
+        "scene.toml",
+        "summary.json",
+    ]
     monkeypatch.undo()
     run(scene, out)
     assert "force.png" in summary(out)["files"] and (out / "force.png").stat().st_size > 1000
@@ -704,8 +807,13 @@ def test_fields_file_appears_only_complete_and_in_mm(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         run(scene, out)
     assert summary(out)["status"] == "interrupted"
-    assert sorted(p.name for p in out.iterdir()) == [".ngbet.lock", "profile.csv", "results.csv", "scene.toml",
-                                                     "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        ".ngbet.lock",
+        "profile.csv",
+        "results.csv",
+        "scene.toml",
+        "summary.json",
+    ]
     assert "fields.vtu" not in summary(out)["files"]
 
 
@@ -744,7 +852,7 @@ def test_reference_from_an_incomplete_family_names_the_missing_cases(tmp_path):
         R.reference(data, quick=True)
 
 
-CRASH_SITE = '''
+CRASH_SITE = """
 import os, pathlib, signal, threading, time
 if os.environ.get("NGBET_SUPERVISED") and os.environ.get("CRASH_AFTER_ROWS_IN"):
     rows = pathlib.Path(os.environ["CRASH_AFTER_ROWS_IN"]) / "results.csv"
@@ -759,7 +867,7 @@ if os.environ.get("NGBET_SUPERVISED") and os.environ.get("CRASH_AFTER_ROWS_IN"):
             time.sleep(0.02)
 
     threading.Thread(target=crash, daemon=True).start()
-'''
+"""
 
 
 def test_a_run_that_dies_without_a_word_is_recorded_as_crashed(tmp_path):
@@ -770,8 +878,9 @@ def test_a_run_that_dies_without_a_word_is_recorded_as_crashed(tmp_path):
     site.mkdir()
     (site / "sitecustomize.py").write_text(CRASH_SITE)
     out = tmp_path / "run"
-    p = ngbet("run", "--out", str(out), "--quiet", *SLOW_SET,
-              env={"PYTHONPATH": str(site), "CRASH_AFTER_ROWS_IN": str(out)})
+    p = ngbet(
+        "run", "--out", str(out), "--quiet", *SLOW_SET, env={"PYTHONPATH": str(site), "CRASH_AFTER_ROWS_IN": str(out)}
+    )
     _, err = p.communicate(timeout=120)
     assert p.returncode == 70, err
     assert "died by SIGILL" in err and "Traceback" not in err and str(out) in err

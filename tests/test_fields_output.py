@@ -17,8 +17,16 @@ pytest.importorskip("pyvista")
 
 @pytest.fixture(scope="module")
 def every_step(tmp_path_factory):
-    scene = coarse(**{"outputs.vtk": True, "outputs.vtk_every_step": True, "loading.u0_mm": 6.0,
-                      "loading.output_every_mm": 2.0, "loading.stops_mm": [], "outputs.error_estimate": "off"})
+    scene = coarse(
+        **{
+            "outputs.vtk": True,
+            "outputs.vtk_every_step": True,
+            "loading.u0_mm": 6.0,
+            "loading.output_every_mm": 2.0,
+            "loading.stops_mm": [],
+            "outputs.error_estimate": "off",
+        }
+    )
     return ngbet.simulate(scene, tmp_path_factory.mktemp("fields") / "run")
 
 
@@ -47,8 +55,9 @@ def test_a_step_without_its_file_names_the_key_that_writes_it(every_step):
 
 
 def test_without_vtk_every_step_only_the_final_fields_are_written(tmp_path):
-    r = ngbet.simulate(coarse(**{"outputs.vtk": True, "loading.u0_mm": 2.0, "outputs.error_estimate": "off"}),
-                       tmp_path / "run")
+    r = ngbet.simulate(
+        coarse(**{"outputs.vtk": True, "loading.u0_mm": 2.0, "outputs.error_estimate": "off"}), tmp_path / "run"
+    )
     assert (r.out / "fields.vtu").exists() and not list(r.out.glob("fields_*.vtu"))
     with pytest.raises(FileNotFoundError, match="outputs.vtk_every_step"):
         r.fields(1)

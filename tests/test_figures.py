@@ -24,16 +24,23 @@ def rows(snap_at=None, errors=None):
     out = []
     for u in (2.0, 4.0, 6.0, 6.5, 8.0):
         jump = 30.0 if snap_at is not None and u >= snap_at else 0.0
-        out.append({"u0_mm": u, "force_N": u * u + jump, "snap": float(u == snap_at),
-                    "force_error_N": (errors or {}).get(u, "")})
+        out.append(
+            {
+                "u0_mm": u,
+                "force_N": u * u + jump,
+                "snap": float(u == snap_at),
+                "force_error_N": (errors or {}).get(u, ""),
+            }
+        )
     return out
 
 
 def fresh_python(code):
     """What ``code`` prints in a new interpreter (without the MPLBACKEND the tests set)."""
     env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
-                          check=True).stdout.strip()
+    return subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True
+    ).stdout.strip()
 
 
 def lines_of(ax):
@@ -77,14 +84,16 @@ def test_a_load_whose_estimate_could_not_vouch_is_named_where_its_bar_would_be()
     texts = [t.get_text() for t in fig.axes[0].texts]
     assert texts == ["no error bar at u₀ = 8 mm:\nthe estimate could not vouch for the force"]
     # rows without a due estimate (2, 6, 6.5 mm) are not named; with estimates off, none is
-    off = default_scene().with_changes(**{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0,
-                                          "outputs.error_estimate": "off"})
+    off = default_scene().with_changes(
+        **{"loading.stops_mm": [4.0], "loading.u0_mm": 8.0, "outputs.error_estimate": "off"}
+    )
     assert not force_figure(rows(errors={4.0: 3.0}), off).axes[0].texts
     # a bar too short to see and a missing one: one note, the sizes first
     fig = force_figure(rows(errors={4.0: 0.05}), scene)
     assert [t.get_text() for t in fig.axes[0].texts] == [
         "error bars shorter than the markers:\n±0.05 N at u₀ = 4 mm\nno error bar at u₀ = 8 mm:\n"
-        "the estimate could not vouch for the force"]
+        "the estimate could not vouch for the force"
+    ]
     # the network estimates no error (its rows have no force_error_N column): nothing is due, nothing named
     network = [{k: v for k, v in r.items() if k != "force_error_N"} for r in rows()]
     assert not force_figure(network, scene.with_changes(model="discrete")).axes[0].texts
@@ -92,8 +101,10 @@ def test_a_load_whose_estimate_could_not_vouch_is_named_where_its_bar_would_be()
 
 def test_measured_curve_on_the_force_and_shear_force_figures(tmp_path):
     csv = tmp_path / "m.csv"
-    csv.write_text("# a comment\n# specimen.width_mm = 70\n# specimen.length_mm = 220\n"
-                   "displacement_mm,force_N\n0,0\n10,12\n10,14\n20,30\n")
+    csv.write_text(
+        "# a comment\n# specimen.width_mm = 70\n# specimen.length_mm = 220\n"
+        "displacement_mm,force_N\n0,0\n10,12\n10,14\n20,30\n"
+    )
     m = Measured.read(csv)  # the points at 10 mm averaged: a curve increasing in d
     assert (m.width_mm, m.length_mm) == (70.0, 220.0) and list(m.force_N) == [0.0, 13.0, 30.0]
     fig = force_figure(rows(), measured=m)
@@ -142,16 +153,20 @@ def test_a_colour_scale_without_negative_angles_starts_at_zero():
 
 def test_the_map_panels_share_one_norm():
     tri = np.array([[0, 1, 2]])
-    maps = [MapData(u, np.array([0.0, 10.0, 0.0]), np.array([0.0, 0.0, 10.0]), tri, np.array([0.0, g, g / 2]))
-            for u, g in ((10.0, 9.0), (20.0, 18.0))]
+    maps = [
+        MapData(u, np.array([0.0, 10.0, 0.0]), np.array([0.0, 0.0, 10.0]), tri, np.array([0.0, g, g / 2]))
+        for u, g in ((10.0, 9.0), (20.0, 18.0))
+    ]
     fig = shear_map_figure(maps)
     norms = {(c.norm.vmin, c.norm.vmax) for ax in fig.axes[:2] for c in ax.collections}
     assert norms == {(0.0, 20.0)}
 
 
 def test_ngbet_run_imports_no_matplotlib_before_it_solves():
-    code = ("import sys, ngbet.cli, ngbet.run, ngbet.figures, ngbet.runner.continuum, ngbet.runner.discrete; "
-            "print('matplotlib' in sys.modules)")
+    code = (
+        "import sys, ngbet.cli, ngbet.run, ngbet.figures, ngbet.runner.continuum, ngbet.runner.discrete; "
+        "print('matplotlib' in sys.modules)"
+    )
     assert fresh_python(code) == "False"
 
 
@@ -160,9 +175,25 @@ def test_run_figures_and_data_overlay_from_the_command_line(tmp_path):
     out = tmp_path / "run"
     csv = tmp_path / "m.csv"
     csv.write_text("displacement_mm,force_N\n0,0\n2,3\n4,6.5\n")
-    cmd = [sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(out), "--data", str(csv), "--set",
-           "loading.u0_mm=4", "--set", "loading.stops_mm=[]", "--set", "discretization.mesh_size_mm=20",
-           "--set", "outputs.error_estimate='off'"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ngbet",
+        "run",
+        "--quiet",
+        "--out",
+        str(out),
+        "--data",
+        str(csv),
+        "--set",
+        "loading.u0_mm=4",
+        "--set",
+        "loading.stops_mm=[]",
+        "--set",
+        "discretization.mesh_size_mm=20",
+        "--set",
+        "outputs.error_estimate='off'",
+    ]
     p = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "MPLBACKEND": "Agg"})
     assert p.returncode == 0, p.stderr
     for name in RUN_FIGURES:  # PNG only: the scene asks for no other format
@@ -174,8 +205,10 @@ def test_run_figures_and_data_overlay_from_the_command_line(tmp_path):
 
 def test_fsh_is_drawn_up_to_70_degrees_and_the_panel_says_what_it_leaves_out():
     """Towards yarn locking Eq. 18 divides by cos γ → 0: points beyond 70° are not drawn, and said so."""
-    rs = [{"u0_mm": u, "force_N": u, "gamma_kinematic_deg": g, "fsh_N_per_mm": 0.01 * g, "gamma_centre_deg": g}
-          for u, g in ((10.0, 30.0), (20.0, 60.0), (30.0, 80.0))]
+    rs = [
+        {"u0_mm": u, "force_N": u, "gamma_kinematic_deg": g, "fsh_N_per_mm": 0.01 * g, "gamma_centre_deg": g}
+        for u, g in ((10.0, 30.0), (20.0, 60.0), (30.0, 80.0))
+    ]
     ax = shear_force_figure(rs).axes[0]
     (curve,) = lines_of(ax)
     assert list(curve.get_xdata()) == [0.0, 30.0, 60.0] and "not drawn" in ax.texts[0].get_text()
@@ -188,9 +221,18 @@ def default_rows():
     """Rows like the default run's: a rising force, small error bars at the stations (the last one at the top)."""
     out = []
     for u in np.arange(2.0, 57.0, 2.0):
-        out.append({"u0_mm": float(u), "force_N": 0.034 * u * u + 0.1 * u, "snap": 0.0,
-                    "force_error_N": 0.14 if u in (36.0, 56.0) else "", "double_force_Nm": 0.07 * u,
-                    "gamma_kinematic_deg": 1.1 * u, "fsh_N_per_mm": 0.01 * u, "gamma_centre_deg": 0.8 * u})
+        out.append(
+            {
+                "u0_mm": float(u),
+                "force_N": 0.034 * u * u + 0.1 * u,
+                "snap": 0.0,
+                "force_error_N": 0.14 if u in (36.0, 56.0) else "",
+                "double_force_Nm": 0.07 * u,
+                "gamma_kinematic_deg": 1.1 * u,
+                "fsh_N_per_mm": 0.01 * u,
+                "gamma_centre_deg": 0.8 * u,
+            }
+        )
     return out
 
 
@@ -210,9 +252,12 @@ def test_every_run_figure_keeps_its_texts_inside_the_canvas():
 
     scene = default_scene()
     rows = default_rows()
-    figs = {"force": force_figure(rows, scene), "shear_force": shear_force_figure(rows, scene),
-            "profile": profile_figure({56.0: ([0.0, 110.0, 220.0], [0.0, 2.0, 0.0])}, [56.0], scene),
-            "shear_map": shear_map_figure(sheared_maps(), scene)}
+    figs = {
+        "force": force_figure(rows, scene),
+        "shear_force": shear_force_figure(rows, scene),
+        "profile": profile_figure({56.0: ([0.0, 110.0, 220.0], [0.0, 2.0, 0.0])}, [56.0], scene),
+        "shear_map": shear_map_figure(sheared_maps(), scene),
+    }
     for name, fig in figs.items():
         assert texts_outside(fig) == [], name
 
@@ -267,8 +312,9 @@ def test_the_caption_names_specimen_and_material():
     assert "yarn network" in f_caption(sc.with_changes(model="discrete"))
     assert f_caption(sc.to_dict()) == text  # a study's base scene as its dictionary
     # a scene named after its size, run at another size, is not captioned with the other size
-    named = sc.with_changes(**{"specimen.name": "twill-100x250", "specimen.width_mm": 100.0,
-                               "specimen.length_mm": 250.0})
+    named = sc.with_changes(
+        **{"specimen.name": "twill-100x250", "specimen.width_mm": 100.0, "specimen.length_mm": 250.0}
+    )
     assert f_caption(named).startswith("twill-100x250: specimen 100\u00a0×\u00a0250")
     other = f_caption(named.with_changes(**{"specimen.length_mm": 300.0}))
     assert other.startswith("twill: specimen 100\u00a0×\u00a0300")
@@ -292,8 +338,7 @@ def write_run(folder, formats=None):
     return folder
 
 
-@pytest.mark.parametrize(("formats", "files"), [(None, {"png"}), (["png", "pdf"], {"png", "pdf"}),
-                                                 (["svg"], {"svg"})])
+@pytest.mark.parametrize(("formats", "files"), [(None, {"png"}), (["png", "pdf"], {"png", "pdf"}), (["svg"], {"svg"})])
 def test_the_figures_are_written_in_the_formats_the_scene_asks_for(tmp_path, formats, files):
     run = write_run(tmp_path / "r", formats)
     first = draw_run(run, only=["force"])
@@ -305,8 +350,10 @@ def test_the_figures_drawn_in_forked_children_are_those_drawn_here(tmp_path):
     here, there = write_run(tmp_path / "here"), write_run(tmp_path / "there")
     draw_run(here, parallel=False)
     # a fresh interpreter has no other thread: each figure is drawn by a forked child there
-    code = ("from ngbet.figures.run import draw_run; from ngbet.figures.style import can_fork; assert can_fork(); "
-            f"draw_run({str(there)!r}, parallel=True)")
+    code = (
+        "from ngbet.figures.run import draw_run; from ngbet.figures.style import can_fork; assert can_fork(); "
+        f"draw_run({str(there)!r}, parallel=True)"
+    )
     subprocess.run([sys.executable, "-c", code], check=True, env={**os.environ, "MPLBACKEND": "Agg"})
     names = sorted(p.name for p in here.glob("*.png"))
     assert names == ["force.png", "shear_force.png"] == sorted(p.name for p in there.glob("*.png"))
@@ -327,8 +374,10 @@ def test_an_unknown_figure_format_is_refused_naming_the_key():
 
 
 def test_the_package_exports_what_it_lists_without_importing_matplotlib():
-    code = ("import sys, ngbet.figures as F; "
-            "print([n for n in F.__all__ if not hasattr(F, n)], 'matplotlib' in sys.modules)")
+    code = (
+        "import sys, ngbet.figures as F; "
+        "print([n for n in F.__all__ if not hasattr(F, n)], 'matplotlib' in sys.modules)"
+    )
     assert fresh_python(code) == "[] False"
 
 
@@ -366,8 +415,10 @@ def test_the_shear_force_legend_covers_no_point_of_the_curve(shape):
 
     g = np.linspace(1.0, 60.0, 30)
     fsh = 0.5 * np.sin(np.radians(1.5 * g)) if shape == "softening" else 0.3 * (g / 60.0) ** 3
-    data = [{"u0_mm": 2.0 * k, "gamma_kinematic_deg": a, "fsh_N_per_mm": f, "gamma_A_deg": a}
-            for k, (a, f) in enumerate(zip(g, fsh, strict=True), 1)]
+    data = [
+        {"u0_mm": 2.0 * k, "gamma_kinematic_deg": a, "fsh_N_per_mm": f, "gamma_A_deg": a}
+        for k, (a, f) in enumerate(zip(g, fsh, strict=True), 1)
+    ]
     fig = shear_force_figure(data, default_scene())
     fig.canvas.draw()
     ax = fig.axes[0]

@@ -32,8 +32,14 @@ U_SYN = np.linspace(10.0, 100.0, 19)
 
 
 def synthetic_scene(**changes) -> Scene:
-    base = {"discretization.mesh_size_mm": 30.0, "material.alpha1": 0.2, "material.alpha2": 0.2,
-            "outputs.vtk": False, "outputs.plot": False, **TRUTH}
+    base = {
+        "discretization.mesh_size_mm": 30.0,
+        "material.alpha1": 0.2,
+        "material.alpha2": 0.2,
+        "outputs.vtk": False,
+        "outputs.plot": False,
+        **TRUTH,
+    }
     base.update(changes)
     return Scene.from_toml(CAO_SCENE).with_changes(**base)
 
@@ -50,8 +56,7 @@ def noisy(clean: np.ndarray, seed: int, rel: float = 0.01) -> MeasuredCurve:
 
 def fit_own(curve: MeasuredCurve, scene: Scene, params: list[str], **kw) -> JointFit:
     """A fit on the scene's own discretization and specimen, at every point of the curve (the synthetic truth's)."""
-    return fit_curves([curve], scene, params, fractions=[(0.0, 1.0)], resample=False, choose_discretization=False,
-                      **kw)
+    return fit_curves([curve], scene, params, fractions=[(0.0, 1.0)], resample=False, choose_discretization=False, **kw)
 
 
 def start_scene() -> Scene:
@@ -78,9 +83,9 @@ def test_shear_laws_stress_and_reduction(i8v):
     i8 = ngs.Parameter(i8v)
     Ksh, K4, K6, Kl, g = 2e4, 3e4, 5e4, 1e4, 60.0
     poly = physics.polynomial_shear_energy(i8, Ksh, K4, K6)
-    assert _at(poly.Diff(i8)) == pytest.approx(Ksh * i8v + K4 * i8v ** 3 + K6 * i8v ** 5, rel=1e-12)
+    assert _at(poly.Diff(i8)) == pytest.approx(Ksh * i8v + K4 * i8v**3 + K6 * i8v**5, rel=1e-12)
     lock = physics.locking_shear_energy(i8, Ksh, Kl, g)
-    x = i8v ** 2 / math.sin(math.radians(g)) ** 2
+    x = i8v**2 / math.sin(math.radians(g)) ** 2
     assert _at(lock.Diff(i8)) == pytest.approx(Ksh * i8v + Kl * i8v * x / (1 - x), rel=1e-10)
     quad = _at(physics.shear_energy(i8, Ksh))
     assert _at(physics.polynomial_shear_energy(i8, Ksh, 0.0, 0.0)) == pytest.approx(quad, rel=1e-14)
@@ -141,9 +146,17 @@ def test_implicit_sensitivities_match_finite_differences():
 
 def capped_scene() -> Scene:
     """A scene whose stabilization cap 30 K_el holds on the elements below 6 mm (corners graded to 2 mm)."""
-    return Scene().with_changes(**{"discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 2.0,
-                                   "discretization.order_u": 2, "loading.u0_mm": 30.0, "material.alpha1": 2000.0,
-                                   "material.alpha2": 1500.0, "material.K_el": 138890.0})
+    return Scene().with_changes(
+        **{
+            "discretization.mesh_size_mm": 10.0,
+            "discretization.corner_mesh_size_mm": 2.0,
+            "discretization.order_u": 2,
+            "loading.u0_mm": 30.0,
+            "material.alpha1": 2000.0,
+            "material.alpha2": 1500.0,
+            "material.K_el": 138890.0,
+        }
+    )
 
 
 def test_sensitivities_differentiate_the_energy_that_is_solved():
@@ -186,8 +199,9 @@ def test_profile_sensitivities_match_finite_differences():
     for p in P:
         name = p.partition(".")[2]
         v = material_value(sc, name)
-        up, dn = (force_path(with_material(sc, name, v * math.exp(s)), u, (), {30.0: X}).profiles[30.0]
-                  for s in (1e-3, -1e-3))
+        up, dn = (
+            force_path(with_material(sc, name, v * math.exp(s)), u, (), {30.0: X}).profiles[30.0] for s in (1e-3, -1e-3)
+        )
         cols.append((up - dn) / 2e-3)
     fd = np.column_stack(cols)
     err = np.abs(impl - fd).max(axis=0) / np.abs(fd).max(axis=0)
@@ -206,8 +220,10 @@ def test_centre_angle_sensitivities_match_finite_differences():
     for p in P:
         name = p.partition(".")[2]
         v = material_value(sc, name)
-        up, dn = (force_path(with_material(sc, name, v * math.exp(s)), u, (), angles=[30.0]).angles_deg[30.0]
-                  for s in (1e-3, -1e-3))
+        up, dn = (
+            force_path(with_material(sc, name, v * math.exp(s)), u, (), angles=[30.0]).angles_deg[30.0]
+            for s in (1e-3, -1e-3)
+        )
         fd.append((up - dn) / 2e-3)
     err = np.abs(r.angle_dlogp[30.0] - np.array(fd)) / np.abs(fd).max()
     assert np.all(err < 1e-3), dict(zip(P, err, strict=True))
@@ -223,8 +239,15 @@ def test_load_tangent_at_a_converged_state_is_that_of_the_tangent_there(monkeypa
     from ngbet.continuum.problem import ContinuumProblem
     from ngbet.runner.settings import continuum_solver, newton_settings
 
-    sc = Scene().with_changes(**{"discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 2.0,
-                                 "discretization.order_u": 2, "loading.u0_mm": 20.0, "effects.constraint": "penalty"})
+    sc = Scene().with_changes(
+        **{
+            "discretization.mesh_size_mm": 10.0,
+            "discretization.corner_mesh_size_mm": 2.0,
+            "discretization.order_u": 2,
+            "loading.u0_mm": 20.0,
+            "effects.constraint": "penalty",
+        }
+    )
     pb = continuum_solver(ContinuumProblem(sc))
     carry(pb, 20e-3, 2e-3, newton_settings(sc), max_step=5e-3, min_step=1e-5, **capabilities(pb))
     x = pb.x.copy()
@@ -274,8 +297,9 @@ def test_fit_on_one_size_predicts_another(synthetic_fit):
     """Fitted on 150 x 450 mm, the 100 x 300 mm test is predicted within the propagated
     uncertainty: |prediction − truth| ≤ 2 sd at every point (the parameter errors are ~1 se)."""
     res = synthetic_fit
-    other = synthetic_scene(**{"specimen.length_mm": 300.0, "specimen.width_mm": 100.0,
-                               "loading.u0_mm": 70.0, "loading.stops_mm": []})
+    other = synthetic_scene(
+        **{"specimen.length_mm": 300.0, "specimen.width_mm": 100.0, "loading.u0_mm": 70.0, "loading.stops_mm": []}
+    )
     u = np.linspace(10.0, 70.0, 7)
     truth = force_path(other, u).force_N
     pred = predict_specimen(res, {"specimen.length_mm": 300.0, "specimen.width_mm": 100.0}, u)
@@ -292,8 +316,14 @@ def test_profile_determines_what_the_force_cannot():
     fit cannot separate K_sh from alpha2; with the mid-axis profile at 37 mm (10 points, 0.05 mm
     noise) all three parameters are determined, each within two standard errors of the truth,
     and the profile's sensitivities come from the same single run per iteration."""
-    truth = Scene().with_changes(**{"discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 0.0,
-                                    "discretization.order_u": 2, "loading.u0_mm": 37.0})
+    truth = Scene().with_changes(
+        **{
+            "discretization.mesh_size_mm": 10.0,
+            "discretization.corner_mesh_size_mm": 0.0,
+            "discretization.order_u": 2,
+            "loading.u0_mm": 37.0,
+        }
+    )
     X, u = np.linspace(0.0, 220.0, 12), np.linspace(4.0, 37.0, 12)
     r = force_path(truth, u, (), {37.0: X[1:-1]})
     rng = np.random.default_rng(5)
@@ -318,8 +348,15 @@ def test_measured_shear_angles_are_fitted_with_the_force():
     fit.json keeps the angles measured and modelled, and the model's angle is the run's own."""
     from ngbet.calibration.observations import ShearAngles
 
-    truth = Scene().with_changes(**{"discretization.mesh_size_mm": 10.0, "discretization.corner_mesh_size_mm": 0.0,
-                                    "discretization.order_u": 2, "loading.u0_mm": 37.0, "material.K_el": 2e5})
+    truth = Scene().with_changes(
+        **{
+            "discretization.mesh_size_mm": 10.0,
+            "discretization.corner_mesh_size_mm": 0.0,
+            "discretization.order_u": 2,
+            "loading.u0_mm": 37.0,
+            "material.K_el": 2e5,
+        }
+    )
     u, ua = np.linspace(4.0, 37.0, 12), np.array([15.0, 25.0, 37.0])
     r = force_path(truth, u, (), angles=list(ua))
     rng = np.random.default_rng(3)
@@ -358,9 +395,26 @@ def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
     scene = tmp_path / "start.toml"
     scene.write_text(synthetic_scene().to_toml())  # the CLI's plumbing, not the iteration, is tested here
     out = tmp_path / "fit"
-    code = main(["fit", str(data), str(scene), "--params", "material.K_sh,material.K_lock", "--out", str(out),
-                 "--range", "0:200", "--predict", str(data), "--predict-scene", str(scene), "--max-runs", "3",
-                 "--quiet"])
+    code = main(
+        [
+            "fit",
+            str(data),
+            str(scene),
+            "--params",
+            "material.K_sh,material.K_lock",
+            "--out",
+            str(out),
+            "--range",
+            "0:200",
+            "--predict",
+            str(data),
+            "--predict-scene",
+            str(scene),
+            "--max-runs",
+            "3",
+            "--quiet",
+        ]
+    )
     doc = json.loads((out / "fit.json").read_text())
     assert code == (0 if doc["converged"] else 1)
     assert set(doc["parameters"]) == set(TRUTH) and doc["model_runs"] >= 2
@@ -392,8 +446,12 @@ def test_cli_fit_refuses_bad_input(tmp_path, capsys, monkeypatch):
     assert "calibrates the continuum model" in capsys.readouterr().err
     assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--accuracy", "2"]) == 2
     assert "--accuracy 2.0: the largest relative discretization error" in capsys.readouterr().err
-    assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--angles",
-                 str(tmp_path / "none.csv")]) == 2
+    assert (
+        main(
+            ["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh", "--angles", str(tmp_path / "none.csv")]
+        )
+        == 2
+    )
     assert "shear angle file not found" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
@@ -423,7 +481,23 @@ def test_a_fit_stopped_by_max_runs_says_so(truth_curve, tmp_path):
     scene = tmp_path / "start.toml"
     scene.write_text(start_scene().to_toml())
     out = tmp_path / "fit"
-    assert main(["fit", str(data), str(scene), "--params", "material.K_sh,material.K_lock", "--out", str(out),
-                 "--range", "0:200", "--max-runs", "2"]) == 1
+    assert (
+        main(
+            [
+                "fit",
+                str(data),
+                str(scene),
+                "--params",
+                "material.K_sh,material.K_lock",
+                "--out",
+                str(out),
+                "--range",
+                "0:200",
+                "--max-runs",
+                "2",
+            ]
+        )
+        == 1
+    )
     doc = json.loads((out / "fit.json").read_text())
     assert doc["converged"] is False and doc["model_runs"] <= 3

@@ -99,8 +99,11 @@ def test_first_step_asks_for_the_whole_load(tmp_path):
     """A first step of 56 mm (max step 56 mm): the stepping recovers by itself (here it lands on
     the 37 mm stop, then 56 mm) and gives the force of the default stepping to 1e-8 (relative:
     both converged to Newton's energy tolerance)."""
-    s, rows, _ = _run(tmp_path, "first56", **{"loading.first_step_mm": 56.0, "loading.max_step_mm": 56.0,
-                                                        "loading.output_every_mm": 0.0})
+    s, rows, _ = _run(
+        tmp_path,
+        "first56",
+        **{"loading.first_step_mm": 56.0, "loading.max_step_mm": 56.0, "loading.output_every_mm": 0.0},
+    )
     _assert_sane(s, rows, 56.0)
     assert s["load_steps"] <= 4
     _, default, _ = _run(tmp_path, "default", **{"loading.output_every_mm": 0.0})
@@ -129,8 +132,9 @@ def test_mixed_penalty_from_soft_to_huge_K_converges_to_lagrange(tmp_path):
 @pytest.mark.parametrize("K", [1e5, 1e8])
 def test_full_penalty_moderate_K(tmp_path, K):
     """Full (pointwise) penalty up to K = 1e8 Pa: converges (a few cuts at 1e8), sane."""
-    s, rows, _ = _run(tmp_path, "full", **{"effects.constraint": "penalty", "effects.penalty_form": "full",
-                                            "effects.penalty_K": K})
+    s, rows, _ = _run(
+        tmp_path, "full", **{"effects.constraint": "penalty", "effects.penalty_form": "full", "effects.penalty_K": K}
+    )
     # its multiplier K(φ − i8) is that of the pointwise constraint, an unstable pair: it oscillates
     # (indicator 0.95 at K = 1e8, measured), the force does not; prefer the mixed form
     _assert_sane(s, rows, 56.0, constraint_rms=0.5 if K < 1e6 else 0.05, its_per_step=6.0, oscillation=None)
@@ -142,18 +146,23 @@ def test_full_penalty_huge_K_converges_without_cuts(tmp_path):
     its exactly equivalent mixed form (Λ ∈ L2 of the degree of φ − i8, condensed) it needs no cut.
     The pointwise constraint (φ = i8 in P2) is stiffer than the L2(P0) multiplier: the force lies
     above the Lagrange one (measured 123.0 N, +10 %: locking that grows with K)."""
-    s, rows, _ = _run(tmp_path, "full", **{"effects.constraint": "penalty", "effects.penalty_form": "full",
-                                            "effects.penalty_K": 1e10})
+    s, rows, _ = _run(
+        tmp_path, "full", **{"effects.constraint": "penalty", "effects.penalty_form": "full", "effects.penalty_K": 1e10}
+    )
     F = _assert_sane(s, rows, 56.0, oscillation=None)  # pointwise multiplier oscillates (1.0 measured)
     assert s["step_cuts"] == 0
     assert F56_LAGRANGE_H10 < F[-1] < 1.2 * F56_LAGRANGE_H10
 
 
-@pytest.mark.parametrize("constraint", [
-    {"effects.constraint": "lagrange"},
-    {"effects.constraint": "penalty", "effects.penalty_form": "mixed", "effects.penalty_K": 1e7},
-    {"effects.constraint": "penalty", "effects.penalty_form": "full", "effects.penalty_K": 1e7},
-], ids=["lagrange", "penalty-mixed", "penalty-full"])
+@pytest.mark.parametrize(
+    "constraint",
+    [
+        {"effects.constraint": "lagrange"},
+        {"effects.constraint": "penalty", "effects.penalty_form": "mixed", "effects.penalty_K": 1e7},
+        {"effects.constraint": "penalty", "effects.penalty_form": "full", "effects.penalty_K": 1e7},
+    ],
+    ids=["lagrange", "penalty-mixed", "penalty-full"],
+)
 def test_condense_is_numerics_the_same_forces_with_and_without(tmp_path, constraint):
     """``solver.condense`` changes no solution: with Λ eliminated before factorizing and with Λ
     kept in the factorized matrix a run has the same unknowns and the same forces to Newton's
@@ -185,8 +194,14 @@ def test_full_penalty_mixed_form_is_the_pointwise_penalty(order_u):
     from ngbet.continuum import physics
     from ngbet.continuum.problem import ContinuumProblem
 
-    scene = coarse(**{"effects.constraint": "penalty", "effects.penalty_form": "full",
-                      "discretization.mesh_size_mm": 20.0, "discretization.order_u": order_u})
+    scene = coarse(
+        **{
+            "effects.constraint": "penalty",
+            "effects.penalty_form": "full",
+            "discretization.mesh_size_mm": 20.0,
+            "discretization.order_u": order_u,
+        }
+    )
     pb = ContinuumProblem(scene)
     assert pb.field_names == ("u", "phi", "lam")
     assert pb.p_lam == max(scene.discretization.p_phi, 2 * order_u - 2)
@@ -199,7 +214,7 @@ def test_full_penalty_mixed_form_is_the_pointwise_penalty(order_u):
         g = ngs.GridFunction(ngs.L2(pb.mesh, order=q))
         g.Set(d, bonus_intorder=4)
         err2 = ngs.Integrate((g - d) ** 2, pb.mesh, order=order)
-        return math.sqrt(err2 / ngs.Integrate(d ** 2, pb.mesh, order=order))
+        return math.sqrt(err2 / ngs.Integrate(d**2, pb.mesh, order=order))
 
     assert projection_error(pb.p_lam) < 1e-10  # measured: 3e-14 (p = 2), 5e-14 (p = 3)
     assert projection_error(pb.p_lam - 1) > 1e-3  # measured: 0.026 (p = 2), 0.012 (p = 3)
@@ -212,11 +227,21 @@ def test_full_penalty_K_1e12_locks_and_says_so(tmp_path):
     to a locked state (measured: 128.7 N at 56 mm against the Lagrange solution's 109.5 N on this
     mesh) whose multiplier oscillates wholly: the run says it locks and names the remedy, and gives
     no error bar (the enriched problems have no equilibrium)."""
-    s, rows, _ = _run(tmp_path, "full", **{"effects.constraint": "penalty", "effects.penalty_form": "full",
-                                           "effects.penalty_K": 1e12, "loading.output_every_mm": 0.0})
+    s, rows, _ = _run(
+        tmp_path,
+        "full",
+        **{
+            "effects.constraint": "penalty",
+            "effects.penalty_form": "full",
+            "effects.penalty_K": 1e12,
+            "loading.output_every_mm": 0.0,
+        },
+    )
     assert s["multiplier_oscillation"] > 0.9
-    assert any("the pointwise penalty locks (use effects.constraint = 'lagrange' or penalty_form = 'mixed')" in w
-               for w in s["warnings"])
+    assert any(
+        "the pointwise penalty locks (use effects.constraint = 'lagrange' or penalty_form = 'mixed')" in w
+        for w in s["warnings"]
+    )
     assert rows[-1]["force_N"] > 1.1 * 109.5 and rows[-1]["force_error_N"] == ""
 
 
@@ -238,8 +263,9 @@ def test_balanced_bending_has_no_s_shape_and_is_softer(tmp_path):
     """α1 = α2 = 20 Pa m²: mirror symmetry, the S-shape vanishes (|u_y| on the mid-axis is a small
     fraction of the unbalanced one) and the force drops (thick yarns no longer resist)."""
     _, _, prof_unbal = _run(tmp_path, "unbal", **{"loading.u0_mm": 37.0, "discretization.structured": True})
-    s, rows, prof = _run(tmp_path, "bal", **{"material.alpha1": 20.0, "loading.u0_mm": 37.0,
-                                              "discretization.structured": True})
+    s, rows, prof = _run(
+        tmp_path, "bal", **{"material.alpha1": 20.0, "loading.u0_mm": 37.0, "discretization.structured": True}
+    )
     _assert_sane(s, rows, 37.0)
     uy_bal = np.max(np.abs(prof[37.0][1]))
     uy_unbal = np.max(np.abs(prof_unbal[37.0][1]))
@@ -281,8 +307,12 @@ def test_a_local_corner_snap_is_recorded_and_the_run_goes_on(tmp_path):
     With the barrier (the default) the yarns of that corner stop at 3.1° from each other: the path
     has no instability, and the force at 56 mm is within 0.01 N of the one after the jump (measured
     107.3059 and 107.3029 N)."""
-    ch = {"discretization.corner_mesh_size_mm": 0.25, "effects.stabilization_K": 0.0,
-          "outputs.error_estimate": "off", "outputs.profile": False}
+    ch = {
+        "discretization.corner_mesh_size_mm": 0.25,
+        "effects.stabilization_K": 0.0,
+        "outputs.error_estimate": "off",
+        "outputs.profile": False,
+    }
     s, rows, _ = _run(tmp_path, "corner", **ch, **{"effects.jamming": False})
     assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
     (jump,) = _assert_snaps(s, rows, 1)
@@ -303,8 +333,9 @@ def test_stiff_yarns_K_el_1e7_fold_without_jamming_has_no_physical_state_beyond(
     relaxation, 310.65 N (measured; Λ ∈ L2(P1), next test: 316 N), no inverted material."""
     off = {"outputs.error_estimate": "off", "outputs.profile": False}
     with pytest.raises(ConvergenceError) as info:
-        _run(tmp_path, "kel7", **{"material.K_el": 1e7, "effects.jamming": False, "loading.output_every_mm": 0.0,
-                                  **off})
+        _run(
+            tmp_path, "kel7", **{"material.K_el": 1e7, "effects.jamming": False, "loading.output_every_mm": 0.0, **off}
+        )
     err = info.value
     assert 53.5 < err.last_converged_mm < 54.5  # measured: 53.96 mm
     reason = err.attempts[-1].reason
@@ -312,8 +343,11 @@ def test_stiff_yarns_K_el_1e7_fold_without_jamming_has_no_physical_state_beyond(
     assert err.path_info["relaxations"] >= 1 and err.path_info["snaps"] == []
     rows = read_rows(tmp_path / "kel7" / "results.csv")
     assert math.isclose(rows[-1]["u0_mm"], err.last_converged_mm, rel_tol=1e-9)
-    s, rows, _ = _run(tmp_path, "kel7s", **{"material.K_el": 1e7, "effects.stabilization_K": 1e7,
-                                           "loading.output_every_mm": 0.0, **off})
+    s, rows, _ = _run(
+        tmp_path,
+        "kel7s",
+        **{"material.K_el": 1e7, "effects.stabilization_K": 1e7, "loading.output_every_mm": 0.0, **off},
+    )
     F = _assert_sane(s, rows, 56.0)
     assert "snaps" not in s and not any("inside out" in w for w in s["warnings"])
     assert abs(F[-1] - 310.65) < 0.05 * 310.65
@@ -337,8 +371,9 @@ def test_stiff_yarns_jump_past_the_fold_to_56mm(tmp_path, made_problems, K_el, j
     (measured 50, 51, 31 mm), the force falling; the run reaches 56 mm with no material inverted.
     The load of that jump and the force at 56 mm as measured (the path past a jump depends on
     round-off-sized differences of the descent: the force is asserted to 1 %)."""
-    scene = coarse(**{"solver.threads": 1, "material.K_el": K_el, "outputs.error_estimate": "off",
-                      "outputs.profile": False})
+    scene = coarse(
+        **{"solver.threads": 1, "material.K_el": K_el, "outputs.error_estimate": "off", "outputs.profile": False}
+    )
     s, rows, pb = _run_keeping_problem(tmp_path, "kel", made_problems, scene)
     assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
     # the yarns closed on each other in the band (below the 5° threshold: the barrier holds them), not crossed
@@ -355,10 +390,16 @@ def test_stiff_yarns_jump_past_the_fold_to_56mm(tmp_path, made_problems, K_el, j
 #: (u0 [mm], energy released [J]) as measured, and whether the barrier is active at 56 mm
 HARD_SCENES = {
     "K_el=1e8": ({"material.K_el": 1e8}, 582.58, [(54.81, 2.659), (55.41, 5.8e-3), (55.67, 4.8e-4)]),
-    "K_el=1e9": ({"material.K_el": 1e9}, 1169.73, [(52.22, 0.0884), (52.74, 4.0e-4), (54.51, 0.0139),
-                                                   (54.94, 7.6e-3), (55.15, 0.0281), (55.95, 8.8e-3)]),
-    "K_sh=2100": ({"material.K_sh": 2100.0}, 77.571, [(50.47, 1.73e-3), (53.46, 3.2e-5), (54.68, 4.6e-5),
-                                                      (55.62, 1.7e-5)]),
+    "K_el=1e9": (
+        {"material.K_el": 1e9},
+        1169.73,
+        [(52.22, 0.0884), (52.74, 4.0e-4), (54.51, 0.0139), (54.94, 7.6e-3), (55.15, 0.0281), (55.95, 8.8e-3)],
+    ),
+    "K_sh=2100": (
+        {"material.K_sh": 2100.0},
+        77.571,
+        [(50.47, 1.73e-3), (53.46, 3.2e-5), (54.68, 4.6e-5), (55.62, 1.7e-5)],
+    ),
     "yarns_35": ({"specimen.yarn_angle_deg": 35.0}, 301.74, []),
 }
 
@@ -374,8 +415,9 @@ def test_hard_scenes_reach_56mm_through_their_jumps(tmp_path, made_problems, nam
     load to 0.05 mm and energy to 5 %, the force at 56 mm to 1 % (measured; the later, smaller jumps,
     listed, depend on round-off-sized differences of the descent and are not asserted one by one)."""
     changes, F56, jumps = HARD_SCENES[name]
-    scene = Scene().with_changes(**{"solver.threads": 1, "outputs.error_estimate": "off", "outputs.vtk": False,
-                                    "outputs.plot": False, **changes})
+    scene = Scene().with_changes(
+        **{"solver.threads": 1, "outputs.error_estimate": "off", "outputs.vtk": False, "outputs.plot": False, **changes}
+    )
     s, rows, pb = _run_keeping_problem(tmp_path, name, made_problems, scene)
     assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
     assert s["relaxations"] >= max(len(jumps), 1)
@@ -393,9 +435,17 @@ def test_a_locking_shear_law_keeps_nearly_inextensible_yarns_from_crossing(tmp_p
     energy no longer falls as the yarns turn towards parallel, the path does not fold, and the run
     reaches 56 mm without a relaxation and without inverted material (the remedy the relaxation
     names when it meets inverted states)."""
-    s, rows, _ = _run(tmp_path, "lock", **{"material.K_el": 1e8, "effects.shear_law": "locking",
-                                           "material.K_lock": 21000.0, "outputs.error_estimate": "off",
-                                           "outputs.profile": False})
+    s, rows, _ = _run(
+        tmp_path,
+        "lock",
+        **{
+            "material.K_el": 1e8,
+            "effects.shear_law": "locking",
+            "material.K_lock": 21000.0,
+            "outputs.error_estimate": "off",
+            "outputs.profile": False,
+        },
+    )
     assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
     assert "relaxations" not in s and not any("inside out" in w for w in s["warnings"])
     assert np.all(np.diff([r["force_N"] for r in rows]) > 0)
@@ -437,8 +487,16 @@ def test_fine_meshes(tmp_path, h):
 def test_other_yarn_angles(tmp_path, angle, u0):
     """Yarns at ±30° (lock at 15.3 mm) and ±60° (lock at 180 mm) to the load: the rest state is
     stress free (i8 is measured from the rest angle), the force starts linear and grows."""
-    s, rows, _ = _run(tmp_path, f"a{angle}", **{"specimen.yarn_angle_deg": angle, "loading.u0_mm": u0,
-                                                 "loading.stops_mm": [1.0], "loading.first_step_mm": 1.0})
+    s, rows, _ = _run(
+        tmp_path,
+        f"a{angle}",
+        **{
+            "specimen.yarn_angle_deg": angle,
+            "loading.u0_mm": u0,
+            "loading.stops_mm": [1.0],
+            "loading.first_step_mm": 1.0,
+        },
+    )
     F = _assert_sane(s, rows, u0)
     # at 1 mm the force is the small-strain one: positive and small against the final one
     assert rows[0]["u0_mm"] == 1.0 and 0 < F[0] < 0.2 * F[-1]
@@ -455,7 +513,7 @@ class _Fold(OneDofToy):
 
     @staticmethod
     def g(y):
-        return y ** 3 - 1.5 * y ** 2 + 0.6 * y
+        return y**3 - 1.5 * y**2 + 0.6 * y
 
     def set_load(self, lam):
         self.x[0] = lam
@@ -466,11 +524,11 @@ class _Fold(OneDofToy):
 
     def energy(self):
         y = self.x[1]
-        return y ** 4 / 4 - y ** 3 / 2 + 0.3 * y ** 2 - self.x[0] * y
+        return y**4 / 4 - y**3 / 2 + 0.3 * y**2 - self.x[0] * y
 
     def factorize(self):
         y = self.x[1]
-        self.J = 3 * y ** 2 - 3 * y + 0.6
+        self.J = 3 * y**2 - 3 * y + 0.6
 
 
 def _arclength_to_end(problem, ctl, settings, **kwargs):
@@ -499,8 +557,9 @@ def test_arclength_passes_the_snap_back_of_a_toy_that_displacement_control_canno
     assert info.value.last_converged_mm * 1e-3 <= lam_fold
     toy = _Fold()
     ctl = ArcLengthSettings(target=target, first_step=0.01, max_step=0.05, min_step=1e-6)
-    res, found = _arclength_to_end(toy, ctl, NewtonSettings(), weights=np.array([0.0, 1.0]), length=1.0,
-                                   psi=np.array([1.0, 0.0]))
+    res, found = _arclength_to_end(
+        toy, ctl, NewtonSettings(), weights=np.array([0.0, 1.0]), length=1.0, psi=np.array([1.0, 0.0])
+    )
     assert res.u0 == target and toy.x[1] == pytest.approx(1.2, rel=1e-6)  # the unique equilibrium there
     lam = np.array([s.u0 for s in res.steps])
     assert np.any(np.diff(lam) < 0)  # the path went back in λ
@@ -527,15 +586,15 @@ class _Pitchfork:
 
     def residual(self):
         lam, y, z = self.x
-        return np.array([lam - y, y - lam - z ** 2 / 2, (1 - y) * z + z ** 3])
+        return np.array([lam - y, y - lam - z**2 / 2, (1 - y) * z + z**3])
 
     def energy(self):
         lam, y, z = self.x
-        return (y - lam) ** 2 / 2 + (1 - y) * z ** 2 / 2 + z ** 4 / 4
+        return (y - lam) ** 2 / 2 + (1 - y) * z**2 / 2 + z**4 / 4
 
     def factorize(self):
         _, y, z = self.x
-        self.J = np.array([[1.0, -z], [-z, 1 - y + 3 * z ** 2]])
+        self.J = np.array([[1.0, -z], [-z, 1 - y + 3 * z**2]])
 
     def solve(self, r):
         return np.concatenate([[0.0], -np.linalg.solve(self.J, r[1:])])
@@ -550,8 +609,16 @@ class _Pitchfork:
         return float(np.linalg.norm(dx[1:]))
 
     def load_derivative(self, psi, tangent):
-        return float(psi @ np.array([tangent[0] - tangent[1], tangent[1] - tangent[0] - self.x[2] * tangent[2],
-                                     (1 - self.x[1] + 3 * self.x[2] ** 2) * tangent[2] - self.x[2] * tangent[1]]))
+        return float(
+            psi
+            @ np.array(
+                [
+                    tangent[0] - tangent[1],
+                    tangent[1] - tangent[0] - self.x[2] * tangent[2],
+                    (1 - self.x[1] + 3 * self.x[2] ** 2) * tangent[2] - self.x[2] * tangent[1],
+                ]
+            )
+        )
 
     def lowest_eigenpair(self):
         self.factorize()
@@ -565,9 +632,17 @@ def _follow_pitchfork(branch, sign=1.0):
 
     toy = _Pitchfork()
     ctl = ArcLengthSettings(target=1.5, first_step=0.07, max_step=0.07, min_step=1e-6)
-    res, found = _arclength_to_end(toy, ctl, NewtonSettings(), weights=np.array([0.0, 1.0, 1.0]), length=1.0,
-                                   psi=np.array([1.0, 0.0, 0.0]), lowest_eigenpair=toy.lowest_eigenpair,
-                                   branch=branch, branch_sign=sign)
+    res, found = _arclength_to_end(
+        toy,
+        ctl,
+        NewtonSettings(),
+        weights=np.array([0.0, 1.0, 1.0]),
+        length=1.0,
+        psi=np.array([1.0, 0.0, 0.0]),
+        lowest_eigenpair=toy.lowest_eigenpair,
+        branch=branch,
+        branch_sign=sign,
+    )
     return toy, res, found
 
 
@@ -633,8 +708,9 @@ def test_no_eigenvalue_of_an_uncondensed_saddle_point_tangent(tmp_path):
     from ngbet.runner.settings import continuum_solver
     from ngbet.scene.document import Scene
 
-    pb = continuum_solver(ContinuumProblem(Scene().with_changes(**{"discretization.mesh_size_mm": 20.0,
-                                                                    "solver.condense": False})))
+    pb = continuum_solver(
+        ContinuumProblem(Scene().with_changes(**{"discretization.mesh_size_mm": 20.0, "solver.condense": False}))
+    )
     with pytest.raises(ValueError, match="indefinite by construction"):
         lowest_eigenpair(pb)
     assert "indefinite by construction" in diagnose_stability(pb).skipped
@@ -647,8 +723,12 @@ def test_arclength_reproduces_displacement_control_on_a_smooth_path(tmp_path):
     on the output stop and the final load with the forces of displacement control to Newton's
     tolerance, each with its error estimate; with no bifurcation on the way, ``branch = "switch"``
     changes nothing and is recorded."""
-    h20 = {"discretization.mesh_size_mm": 20.0, "outputs.profile": False, "loading.u0_mm": 37.0,
-           "loading.stops_mm": [23.0]}
+    h20 = {
+        "discretization.mesh_size_mm": 20.0,
+        "outputs.profile": False,
+        "loading.u0_mm": 37.0,
+        "loading.stops_mm": [23.0],
+    }
     _, disp, _ = _run(tmp_path, "disp", **h20)
     s, arc, _ = _run(tmp_path, "arc", **h20, **{"solver.path_following": "arclength", "solver.branch": "switch"})
     assert s["status"] == "ok" and s["instabilities"] == [] and s["branch"] == "switch"
@@ -668,10 +748,19 @@ def test_nearly_inextensible_yarns_snap_back_is_reported(tmp_path):
     With ``path_following = "auto"`` arc length follows the path past the fold and back; the run
     fails with the snap-back's kind and load in summary.json, the rows past the maximum on disk."""
     with pytest.raises(ConvergenceError) as info:
-        _run(tmp_path, "kel", **{"material.K_el": 1e8, "solver.path_following": "auto",
-                                 "loading.first_step_mm": 2.0, "loading.max_step_mm": 2.0,
-                                 "loading.output_every_mm": 0.0, "outputs.error_estimate": "off",
-                                 "outputs.profile": False})
+        _run(
+            tmp_path,
+            "kel",
+            **{
+                "material.K_el": 1e8,
+                "solver.path_following": "auto",
+                "loading.first_step_mm": 2.0,
+                "loading.max_step_mm": 2.0,
+                "loading.output_every_mm": 0.0,
+                "outputs.error_estimate": "off",
+                "outputs.profile": False,
+            },
+        )
     assert "snap-back" in str(info.value)
     s = json.loads((tmp_path / "kel" / "summary.json").read_text())
     snap = s["instabilities"][0]
@@ -693,9 +782,18 @@ def test_stiff_bending_on_a_graded_mesh_needs_no_step_cut(tmp_path):
     c min(α)/h_T² would reach 5.7e8 Pa on the corner elements (9 steps, 5 cuts, measured); capped
     at 30 K_el it takes the default 3 steps without a cut, and the force (294.771 N) is within
     0.02 N of the uncapped one (294.791 N, measured), below the estimated discretization error."""
-    s, rows, _ = _run(tmp_path, "a2000", **{"material.alpha1": 2000.0, "material.alpha2": 2000.0,
-                                            "discretization.corner_mesh_size_mm": 0.5, "discretization.order_u": 3,
-                                            "outputs.profile": False, "loading.output_every_mm": 0.0})
+    s, rows, _ = _run(
+        tmp_path,
+        "a2000",
+        **{
+            "material.alpha1": 2000.0,
+            "material.alpha2": 2000.0,
+            "discretization.corner_mesh_size_mm": 0.5,
+            "discretization.order_u": 3,
+            "outputs.profile": False,
+            "loading.output_every_mm": 0.0,
+        },
+    )
     _assert_sane(s, rows, 56.0)
     assert s["step_cuts"] == 0 and s["load_steps"] == 3
     assert s["stabilization_K_Pa"][1] == pytest.approx(30 * 0.7e6)

@@ -36,8 +36,14 @@ def test_a_scene_saved_with_a_bom_and_crlf_is_read(tmp_path):
 
 def test_numpy_scalars_and_arrays_are_accepted_as_their_values():
     """np.int64, np.float32, np.bool_ and arrays: the values they hold, as Python numbers and lists."""
-    s = ngbet.default_scene().with_changes(**{"loading.u0_mm": np.int64(20), "material.alpha1": np.float32(200.0),
-                                              "loading.stops_mm": np.array([10.0]), "outputs.vtk": np.bool_(False)})
+    s = ngbet.default_scene().with_changes(
+        **{
+            "loading.u0_mm": np.int64(20),
+            "material.alpha1": np.float32(200.0),
+            "loading.stops_mm": np.array([10.0]),
+            "outputs.vtk": np.bool_(False),
+        }
+    )
     assert s.loading.u0_mm == 20 and type(s.loading.u0_mm) is int
     assert s.material.alpha1 == 200.0 and type(s.material.alpha1) is float
     assert s.loading.stops_mm == (10.0,) and s.outputs.vtk is False
@@ -53,8 +59,9 @@ def test_a_shear_table_without_the_table_law_is_warned_about():
         Scene().with_changes(**{"material.shear_stress_steps_Pa": [1e3, 2e3, 4e3], "effects.shear_law": "table"})
 
 
-@pytest.mark.parametrize("force, text", [(107.37351234, "107.3735"), (61.2118, "61.2118"),
-                                         (2.3456789e-7, "2.345679e-07"), (0.0, "0")])
+@pytest.mark.parametrize(
+    "force, text", [(107.37351234, "107.3735"), (61.2118, "61.2118"), (2.3456789e-7, "2.345679e-07"), (0.0, "0")]
+)
 def test_the_printed_force_has_seven_significant_digits(force, text):
     """A 1e-6 mm thick specimen printed "force = 0.0000 N"; its digits are kept."""
     assert _force_text(force).strip() == text

@@ -28,14 +28,17 @@ def _recorded(monkeypatch, version: str | None, commit: str | None) -> tuple[str
     return revision._recorded()
 
 
-@pytest.mark.parametrize(("version", "commit", "expected"), [
-    ("0.1.dev296+gbc21ef198", "gbc21ef198", ("0.1.dev296+gbc21ef198", "bc21ef198")),
-    ("0.1.dev296+gbc21ef198.d20261125", "gbc21ef198", ("0.1.dev296+gbc21ef198.d20261125", "bc21ef198-dirty")),
-    ("0.2.0", "g0123abcd", ("0.2.0", "0123abcd")),  # a tagged release: the commit still named
-    ("0.1.dev0+gabc1234", None, ("0.1.dev0+gabc1234", "abc1234")),  # SETUPTOOLS_SCM_PRETEND_VERSION
-    ("0.1.dev0", None, ("0.1.dev0", "unknown")),  # no git metadata: the fallback version
-    (None, None, ("unknown", "unknown")),  # sources never built
-])
+@pytest.mark.parametrize(
+    ("version", "commit", "expected"),
+    [
+        ("0.1.dev296+gbc21ef198", "gbc21ef198", ("0.1.dev296+gbc21ef198", "bc21ef198")),
+        ("0.1.dev296+gbc21ef198.d20261125", "gbc21ef198", ("0.1.dev296+gbc21ef198.d20261125", "bc21ef198-dirty")),
+        ("0.2.0", "g0123abcd", ("0.2.0", "0123abcd")),  # a tagged release: the commit still named
+        ("0.1.dev0+gabc1234", None, ("0.1.dev0+gabc1234", "abc1234")),  # SETUPTOOLS_SCM_PRETEND_VERSION
+        ("0.1.dev0", None, ("0.1.dev0", "unknown")),  # no git metadata: the fallback version
+        (None, None, ("unknown", "unknown")),  # sources never built
+    ],
+)
 def test_the_revision_is_read_from_what_setuptools_scm_wrote(monkeypatch, version, commit, expected):
     assert _recorded(monkeypatch, version, commit) == expected
 
@@ -64,8 +67,12 @@ def _wheel(src: Path, out: Path, **env: str) -> tuple[str, dict[str, object]]:
     """Build a wheel of ``src`` (no isolation: setuptools-scm is in the test extra); its version and _version.py."""
     clean = {k: v for k, v in os.environ.items() if not k.startswith("SETUPTOOLS_SCM_")}
     env = {**clean, "SETUPTOOLS_SCM_WRITE_TO_SOURCE": "0", **env}
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(out),
-                    str(src)], check=True, capture_output=True, env=env)
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(out), str(src)],
+        check=True,
+        capture_output=True,
+        env=env,
+    )
     (wheel,) = out.glob("ngbet-*.whl")
     ns: dict[str, object] = {}
     with zipfile.ZipFile(wheel) as z:
@@ -139,17 +146,36 @@ def test_a_run_without_matplotlib_and_pyvista_writes_its_data_and_says_what_it_s
     assert not (out / "force.png").exists()
     assert p.stdout.splitlines() == [  # nothing from the quiet run; clear errors from the API
         "ImportError: Result.plot() draws with matplotlib, which is not installed: pip install matplotlib",
-        "ImportError: Result.fields() reads the VTU file with pyvista, which is not installed: pip install pyvista"]
+        "ImportError: Result.fields() reads the VTU file with pyvista, which is not installed: pip install pyvista",
+    ]
 
 
 @pytest.mark.integration
 def test_a_study_without_matplotlib_and_pyvista_writes_its_tables_and_report(tmp_path, bare_env):
     out = tmp_path / "alpha1"
-    p = subprocess.run([sys.executable, "-m", "ngbet", "study", "alpha1", "--quick", "--quiet", "--out", str(out),
-                        "--cache", str(tmp_path / "cache")], env=bare_env, capture_output=True, text=True)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ngbet",
+            "study",
+            "alpha1",
+            "--quick",
+            "--quiet",
+            "--out",
+            str(out),
+            "--cache",
+            str(tmp_path / "cache"),
+        ],
+        env=bare_env,
+        capture_output=True,
+        text=True,
+    )
     assert p.returncode == 0, p.stderr
-    assert p.stderr.splitlines() == ["ngbet: study alpha1: figures skipped: matplotlib is not installed "
-                                     "(pip install matplotlib); the tables and the report are written"]
+    assert p.stderr.splitlines() == [
+        "ngbet: study alpha1: figures skipped: matplotlib is not installed "
+        "(pip install matplotlib); the tables and the report are written"
+    ]
     assert p.stdout == ""  # --quiet
     assert {"results.csv", "report.md", "meta.json"} <= {f.name for f in out.iterdir()}
     assert not list(out.glob("*.png"))

@@ -47,7 +47,7 @@ def test_zero_above_the_threshold_and_c2_at_it_exactly():
     assert _energy_and_derivatives(S_JAM) == (0.0, 0.0, 0.0)
     W, dW, d2W = _energy_and_derivatives(0.9 * S_JAM)
     # t = 0.9: K s_jam² (0.1)³/0.9, dW/ds = K s_jam (−3 (0.1)²/0.9 − (0.1)³/0.81) < 0
-    assert W == pytest.approx(K * S_JAM ** 2 * 1e-3 / 0.9, rel=1e-12)
+    assert W == pytest.approx(K * S_JAM**2 * 1e-3 / 0.9, rel=1e-12)
     assert dW == pytest.approx(K * S_JAM * (-3e-2 / 0.9 - 1e-3 / 0.81), rel=1e-12) and dW < 0 < d2W
 
 
@@ -116,8 +116,10 @@ def test_it_forbids_inversion():
     # 67 times ½K_sh here
     assert np.min(W[J <= 0]) > 50 * 0.5 * 21e3
     ordinary = [_homogeneous_energy(g, jamming=True) for g in np.linspace(0.0, 84.9, 50)]
-    assert all(w == _homogeneous_energy(g, jamming=False)[0]
-               for (w, _), g in zip(ordinary, np.linspace(0.0, 84.9, 50), strict=True))
+    assert all(
+        w == _homogeneous_energy(g, jamming=False)[0]
+        for (w, _), g in zip(ordinary, np.linspace(0.0, 84.9, 50), strict=True)
+    )
 
 
 def test_an_ordinary_run_never_reaches_it(tmp_path, made_problems):
@@ -198,21 +200,25 @@ def test_the_barrier_is_on_only_where_the_yarns_come_near_and_the_energy_is_the_
     assert jam.missed()
 
 
-@pytest.mark.parametrize("changes, key", [
-    ({"material.jamming_angle_deg": 0.0}, "material.jamming_angle_deg"),
-    ({"material.jamming_angle_deg": 90.0}, "material.jamming_angle_deg"),
-    ({"effects.jamming": "yes"}, "effects.jamming"),
-    # ±84° yarns are 12° apart at rest (as lines): a jamming angle of 15° would jam them at rest
-    ({"specimen.yarn_angle_deg": 84.0, "material.jamming_angle_deg": 15.0}, "material.jamming_angle_deg"),
-])
+@pytest.mark.parametrize(
+    "changes, key",
+    [
+        ({"material.jamming_angle_deg": 0.0}, "material.jamming_angle_deg"),
+        ({"material.jamming_angle_deg": 90.0}, "material.jamming_angle_deg"),
+        ({"effects.jamming": "yes"}, "effects.jamming"),
+        # ±84° yarns are 12° apart at rest (as lines): a jamming angle of 15° would jam them at rest
+        ({"specimen.yarn_angle_deg": 84.0, "material.jamming_angle_deg": 15.0}, "material.jamming_angle_deg"),
+    ],
+)
 def test_bad_jamming_keys_are_refused_by_name(changes, key):
     with pytest.raises(SceneError, match=key.replace(".", r"\.")):
         Scene().with_changes(**changes)
 
 
 def test_jamming_off_is_accepted_at_any_angle():
-    s = Scene().with_changes(**{"specimen.yarn_angle_deg": 84.0, "material.jamming_angle_deg": 15.0,
-                                "effects.jamming": False})
+    s = Scene().with_changes(
+        **{"specimen.yarn_angle_deg": 84.0, "material.jamming_angle_deg": 15.0, "effects.jamming": False}
+    )
     assert s.effects.jamming is False
 
 
@@ -254,7 +260,10 @@ def test_no_state_of_the_path_has_crossed_yarns_that_the_barrier_missed():
     res = steps.result
     assert res is not None
     assert res.u0 == pytest.approx(0.022)
-    assert jam.on and any(a.reason == "the yarns close past the jamming angle in the state found without the "
-                          "barrier; solved again with it" for a in res.attempts)
+    assert jam.on and any(
+        a.reason == "the yarns close past the jamming angle in the state found without the "
+        "barrier; solved again with it"
+        for a in res.attempts
+    )
     off, fine, order_2p = np.array(kept).T
     assert off.min() > S_JAM and order_2p.min() > 0.0 and fine.min() > -0.01 * S_JAM

@@ -16,7 +16,7 @@ def test_shear_angle_matches_the_tabulated_ideal_test():
 
 def test_shear_angle_refuses_locked_displacements():
     with pytest.raises(ValueError, match="locking"):
-        shear_angle_rad([70.0], 220.0, 70.0)   # locking at (sqrt 2 - 1) 150 = 62.1 mm
+        shear_angle_rad([70.0], 220.0, 70.0)  # locking at (sqrt 2 - 1) 150 = 62.1 mm
 
 
 def test_a_linear_shear_law_is_recovered_exactly():

@@ -17,8 +17,17 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the public API of ``import ngbet``: gathered there from the modules that define it
-PUBLIC_API = {"ConvergenceError", "Result", "Scene", "SceneError", "default_scene", "load_result", "simulate",
-              "__version__", "__revision__"}
+PUBLIC_API = {
+    "ConvergenceError",
+    "Result",
+    "Scene",
+    "SceneError",
+    "default_scene",
+    "load_result",
+    "simulate",
+    "__version__",
+    "__revision__",
+}
 
 
 #: written by setuptools-scm when the package is built (ignored by git): absent from a clone never built
@@ -78,8 +87,9 @@ def _defined(tree: ast.Module) -> set[str]:
 
 def _all(tree: ast.Module) -> list[str] | None:
     for node in tree.body:
-        targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(
-            node, ast.AnnAssign) else []
+        targets = (
+            node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+        )
         if any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets):
             assert isinstance(node.value, ast.List | ast.Tuple), "__all__ is a literal list"
             return [e.value for e in node.value.elts if isinstance(e, ast.Constant)]
@@ -104,8 +114,11 @@ def _imports_from(files: dict[str, Path]):
 
 def _outside_files() -> dict[str, Path]:
     """The tests, docs scripts, benchmarks and examples, which import ngbet by absolute names."""
-    return {f"<{p.relative_to(ROOT)}>": p for d in ("tests", "docs", "bench", "examples")
-            for p in sorted((ROOT / d).rglob("*.py"))}
+    return {
+        f"<{p.relative_to(ROOT)}>": p
+        for d in ("tests", "docs", "bench", "examples")
+        for p in sorted((ROOT / d).rglob("*.py"))
+    }
 
 
 def test_every_module_declares_what_it_defines_in_all():
@@ -119,8 +132,9 @@ def test_every_module_declares_what_it_defines_in_all():
 def test_every_import_names_the_module_that_defines_the_name():
     wrong = []
     for path, line, target, name in _imports_from({**MODULES, **_outside_files()}):
-        if target == "ngbet" and (name in PUBLIC_API and not path.is_relative_to(ROOT / "ngbet")
-                                  or f"ngbet.{name}" in MODULES):
+        if target == "ngbet" and (
+            name in PUBLIC_API and not path.is_relative_to(ROOT / "ngbet") or f"ngbet.{name}" in MODULES
+        ):
             continue  # the public API, for users, tests and scripts; or a subpackage
         if f"{target}.{name}" in MODULES or target == GENERATED:
             continue  # a submodule; the build's version record
@@ -171,13 +185,28 @@ def test_no_import_circle():
 
 
 #: the run folder, its writers and figures, and what runs them: the top of the import graph
-OUTPUTS = ("ngbet.runner", "ngbet.run", "ngbet.run_folder", "ngbet.output", "ngbet.plot_process", "ngbet.figures",
-           "ngbet.study", "ngbet.studies", "ngbet.calibration", "ngbet.api", "ngbet.cli", "ngbet.commands")
+OUTPUTS = (
+    "ngbet.runner",
+    "ngbet.run",
+    "ngbet.run_folder",
+    "ngbet.output",
+    "ngbet.plot_process",
+    "ngbet.figures",
+    "ngbet.study",
+    "ngbet.studies",
+    "ngbet.calibration",
+    "ngbet.api",
+    "ngbet.cli",
+    "ngbet.commands",
+)
 #: what the modules of a package may not import (at any depth, type-only imports included): the
 #: numerics are model-free (no scene, no model), and neither they nor the two models (continuum,
 #: network) reach up to the runner, the run folder or the figures
-LAYERS = {"ngbet.numerics": ("ngbet.scene", "ngbet.continuum", "ngbet.discrete", *OUTPUTS),
-          "ngbet.continuum": OUTPUTS, "ngbet.discrete": OUTPUTS}
+LAYERS = {
+    "ngbet.numerics": ("ngbet.scene", "ngbet.continuum", "ngbet.discrete", *OUTPUTS),
+    "ngbet.continuum": OUTPUTS,
+    "ngbet.discrete": OUTPUTS,
+}
 
 
 def _inside(module: str, packages: tuple[str, ...] | str) -> bool:
@@ -186,8 +215,14 @@ def _inside(module: str, packages: tuple[str, ...] | str) -> bool:
 
 
 def test_the_layers_import_downwards_only():
-    wrong = [f"{m} imports {n}" for layer, banned in LAYERS.items() for m in MODULES if _inside(m, layer)
-             for n in sorted(_edges(m)) if _inside(n, banned)]
+    wrong = [
+        f"{m} imports {n}"
+        for layer, banned in LAYERS.items()
+        for m in MODULES
+        if _inside(m, layer)
+        for n in sorted(_edges(m))
+        if _inside(n, banned)
+    ]
     assert not wrong, "\n".join(wrong)
 
 
@@ -196,14 +231,26 @@ def test_modules_stay_small():
     assert not big, big
 
 
-@pytest.mark.parametrize("source, check, message", [
-    ("from .a import helper\n__all__ = ['helper']\n", "test_every_module_declares_what_it_defines_in_all",
-     r"ngbet.b.__all__ lists names it does not define \(a re-export\): \['helper'\]"),
-    ("from .a import helper\n__all__ = []\n", "test_every_import_names_the_module_that_defines_the_name",
-     "c.py:1: helper from ngbet.b, which does not define it"),
-    ("from .a import _helper\n__all__ = []\n", "test_no_private_name_is_imported_from_another_module",
-     "b.py:1: _helper from ngbet.a"),
-])
+@pytest.mark.parametrize(
+    "source, check, message",
+    [
+        (
+            "from .a import helper\n__all__ = ['helper']\n",
+            "test_every_module_declares_what_it_defines_in_all",
+            r"ngbet.b.__all__ lists names it does not define \(a re-export\): \['helper'\]",
+        ),
+        (
+            "from .a import helper\n__all__ = []\n",
+            "test_every_import_names_the_module_that_defines_the_name",
+            "c.py:1: helper from ngbet.b, which does not define it",
+        ),
+        (
+            "from .a import _helper\n__all__ = []\n",
+            "test_no_private_name_is_imported_from_another_module",
+            "b.py:1: _helper from ngbet.a",
+        ),
+    ],
+)
 def test_the_checks_see_a_re_export_and_a_private_import(tmp_path, monkeypatch, source, check, message):
     """The checks fail on what they are there to catch: a module ``b`` handing on ``a``'s name,
     a module importing ``a``'s private name."""
@@ -231,20 +278,27 @@ def test_the_circle_check_sees_a_circle(monkeypatch, tmp_path):
         test_no_import_circle()
 
 
-@pytest.mark.parametrize("layer, source", [
-    ("numerics", "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from ..scene.document import Scene\n"),
-    ("numerics", "def f():\n    from ..continuum.problem import ContinuumProblem\n"),
-    ("continuum", "from ..figures import run\n"),
-    ("continuum", "from ..runner.settings import newton_settings\n"),
-    ("discrete", "def f():\n    from ..figures.run import start_plot\n"),
-    ("discrete", "from ..runner.settings import step_control\n"),
-])
+@pytest.mark.parametrize(
+    "layer, source",
+    [
+        ("numerics", "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from ..scene.document import Scene\n"),
+        ("numerics", "def f():\n    from ..continuum.problem import ContinuumProblem\n"),
+        ("continuum", "from ..figures import run\n"),
+        ("continuum", "from ..runner.settings import newton_settings\n"),
+        ("discrete", "def f():\n    from ..figures.run import start_plot\n"),
+        ("discrete", "from ..runner.settings import step_control\n"),
+    ],
+)
 def test_the_layer_check_sees_an_import_that_climbs(monkeypatch, tmp_path, layer, source):
     """A numerics module that reads the scene (for type checking only) or a model, a continuum or
     network module that reaches for the figures or the runner: each is named."""
-    files = {f"ngbet.{layer}.a": tmp_path / "a.py", "ngbet.scene.document": tmp_path / "document.py",
-             "ngbet.continuum.problem": tmp_path / "problem.py", "ngbet.figures.run": tmp_path / "run.py",
-             "ngbet.runner.settings": tmp_path / "settings.py"}
+    files = {
+        f"ngbet.{layer}.a": tmp_path / "a.py",
+        "ngbet.scene.document": tmp_path / "document.py",
+        "ngbet.continuum.problem": tmp_path / "problem.py",
+        "ngbet.figures.run": tmp_path / "run.py",
+        "ngbet.runner.settings": tmp_path / "settings.py",
+    }
     for m, p in files.items():
         p.write_text(source if m == f"ngbet.{layer}.a" else "")
     monkeypatch.setitem(globals(), "MODULES", files)

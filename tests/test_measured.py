@@ -42,6 +42,7 @@ F = np.array([r[1] for r in ROWS])
 
 # --- units and columns by name --------------------------------------------------------------------------------------
 
+
 def test_a_force_in_kN_is_converted_to_newtons_and_said(tmp_path):
     c = read_measured(_csv(tmp_path / "a.csv", "displacement_mm,force_kN\n" + _body(scale=(1, 1e-3))))
     np.testing.assert_allclose(c.force_N, F, rtol=1e-12)
@@ -76,15 +77,22 @@ def test_an_excel_export_with_semicolons_and_decimal_commas_is_read(tmp_path):
 
 
 def test_a_row_of_units_under_the_names_is_read(tmp_path):
-    c = read_measured(_csv(tmp_path / "a.csv", "Standard force;Crosshead\nkN;mm\n" +
-                           "".join(f"{f / 1000:.9g};{u:g}\n".replace(".", ",") for u, f in ROWS)))
+    c = read_measured(
+        _csv(
+            tmp_path / "a.csv",
+            "Standard force;Crosshead\nkN;mm\n" + "".join(f"{f / 1000:.9g};{u:g}\n".replace(".", ",") for u, f in ROWS),
+        )
+    )
     np.testing.assert_allclose(c.force_N, F, rtol=1e-9)
     np.testing.assert_allclose(c.u_mm, U)
 
 
 def test_columns_are_chosen_on_the_command_line_by_name_or_number_with_units(tmp_path):
-    p = _csv(tmp_path / "a.csv", "Zeitpunkt;Weg;Kraft\n" + "".join(f"{k};{u:g};{f / 1000:.9g}\n".replace(".", ",")
-                                                                 for k, (u, f) in enumerate(ROWS)))
+    p = _csv(
+        tmp_path / "a.csv",
+        "Zeitpunkt;Weg;Kraft\n"
+        + "".join(f"{k};{u:g};{f / 1000:.9g}\n".replace(".", ",") for k, (u, f) in enumerate(ROWS)),
+    )
     with pytest.raises(SceneError, match="--columns"):
         read_measured(p)  # 'Weg' and 'Kraft' carry no unit: refused, not guessed
     c = read_measured(p, columns="Weg:mm,Kraft:kN")
@@ -93,12 +101,15 @@ def test_columns_are_chosen_on_the_command_line_by_name_or_number_with_units(tmp
     np.testing.assert_allclose(c.u_mm, U)
 
 
-@pytest.mark.parametrize("head, match", [
-    ("x,y", "none of which is a displacement and a force"),
-    ("displacement,force_N", "gives no unit"),
-    ("displacement_mm,force_lbf", "force_lbf"),  # an unknown unit is named, not read as N
-    ("displacement_mm,force_N,load_kN", "2 columns could be the force"),
-])
+@pytest.mark.parametrize(
+    "head, match",
+    [
+        ("x,y", "none of which is a displacement and a force"),
+        ("displacement,force_N", "gives no unit"),
+        ("displacement_mm,force_lbf", "force_lbf"),  # an unknown unit is named, not read as N
+        ("displacement_mm,force_N,load_kN", "2 columns could be the force"),
+    ],
+)
 def test_ambiguous_or_unitless_columns_are_refused_saying_what_to_write(tmp_path, head, match):
     extra = ",1" if head.count(",") == 2 else ""
     text = head + "\n" + "".join(f"{u:g},{f:g}{extra}\n" for u, f in ROWS)
@@ -113,10 +124,13 @@ def test_a_thousands_separator_is_refused_as_ambiguous(tmp_path):
 
 # --- text forms ------------------------------------------------------------------------------------------------------
 
+
 def test_quoted_cells_and_a_bom_are_read_by_fit_and_by_run_data_alike(tmp_path):
     quoted = '"displacement_mm","force_N"\n' + "".join(f'"{u:g}","{f:g}"\n' for u, f in ROWS)
-    for p in (_csv(tmp_path / "q.csv", quoted), _csv(tmp_path / "bom.csv", "displacement_mm,force_N\n" + _body(),
-                                                      "utf-8-sig")):
+    for p in (
+        _csv(tmp_path / "q.csv", quoted),
+        _csv(tmp_path / "bom.csv", "displacement_mm,force_N\n" + _body(), "utf-8-sig"),
+    ):
         c = read_measured(p)
         m = Measured.read(p)
         np.testing.assert_allclose(c.force_N, F)
@@ -130,9 +144,13 @@ def test_a_windows_1252_file_is_read_and_said(tmp_path):
 
 # --- the specimen ----------------------------------------------------------------------------------------------------
 
+
 def test_specimen_keys_written_with_a_unit_are_read_not_dropped(tmp_path):
-    p = _csv(tmp_path / "a.csv", "# specimen.width_mm = 100 mm\n# specimen.length = 0.25 m\n# thickness_mm = 3.3\n"
-             "displacement_mm,force_N\n" + _body())
+    p = _csv(
+        tmp_path / "a.csv",
+        "# specimen.width_mm = 100 mm\n# specimen.length = 0.25 m\n# thickness_mm = 3.3\n"
+        "displacement_mm,force_N\n" + _body(),
+    )
     c = read_measured(p)
     assert c.specimen == {"specimen.width_mm": 100.0, "specimen.length_mm": 250.0, "specimen.thickness_mm": 3.3}
     m = Measured.read(p)
@@ -149,31 +167,38 @@ def test_the_specimen_from_the_command_line_and_its_conflict_with_the_header(tmp
         read_measured(with_header, specimen={"specimen.width_mm": 100.0, "specimen.length_mm": 300.0})
 
 
-@pytest.mark.parametrize("text, match", [
-    ("-100x250", "width -100: sizes must be > 0"),
-    ("0x250", "width 0: sizes must be > 0"),
-    ("100", "write sizes in mm joined by x"),
-    ("100xabc", "write sizes in mm joined by x"),
-])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("-100x250", "width -100: sizes must be > 0"),
+        ("0x250", "width 0: sizes must be > 0"),
+        ("100", "write sizes in mm joined by x"),
+        ("100xabc", "write sizes in mm joined by x"),
+    ],
+)
 def test_a_bad_specimen_on_the_command_line_is_refused(text, match):
     with pytest.raises(SceneError, match=match):
         parse_sizes(text, "--specimen", ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm"))
 
 
-@pytest.mark.parametrize("header, match", [
-    ("# specimen.width_mm = 100\n", "incomplete specimen.*no specimen.length_mm"),
-    ("# specimen.width_mm = -100\n# specimen.length_mm = 250\n", "width_mm = -100 must be > 0"),
-    ("# specimen.width_mm = 250\n# specimen.length_mm = 100\n", "length must exceed the width"),
-    ("# specimen.width_mm = 100 s\n# specimen.length_mm = 250\n", "not a unit of a length"),
-    ("# specimen.widht_mm = 100\n", "unknown key 'specimen.widht_mm'"),
-    ("# specimen.width = 100\n# specimen.length_mm = 250\n", "gives no unit"),
-])
+@pytest.mark.parametrize(
+    "header, match",
+    [
+        ("# specimen.width_mm = 100\n", "incomplete specimen.*no specimen.length_mm"),
+        ("# specimen.width_mm = -100\n# specimen.length_mm = 250\n", "width_mm = -100 must be > 0"),
+        ("# specimen.width_mm = 250\n# specimen.length_mm = 100\n", "length must exceed the width"),
+        ("# specimen.width_mm = 100 s\n# specimen.length_mm = 250\n", "not a unit of a length"),
+        ("# specimen.widht_mm = 100\n", "unknown key 'specimen.widht_mm'"),
+        ("# specimen.width = 100\n# specimen.length_mm = 250\n", "gives no unit"),
+    ],
+)
 def test_a_bad_or_incomplete_specimen_header_is_refused(tmp_path, header, match):
     with pytest.raises(SceneError, match=match):
         read_measured(_csv(tmp_path / "a.csv", header + "displacement_mm,force_N\n" + _body()))
 
 
 # --- the shape of the curve ----------------------------------------------------------------------------------------
+
 
 def test_a_loading_unloading_cycle_keeps_the_loading_branch_and_says_so(tmp_path):
     unloading = [(U[-1] - 3.0 * k, F[-1] * (1 - 0.2 * k)) for k in range(1, 5)]
@@ -204,8 +229,12 @@ def test_a_fitted_window_of_too_few_measured_points_or_past_yarn_locking_is_refu
         c.check_window((0.0, 0.05))  # 2.0 to 3.9 mm: the row at 2 mm only
     assert "holds 10 measured points" in c.check_window((0.0, 0.5))  # the fit samples 16: said
     assert c.check_window((0.1, 0.9)) is None
-    narrow = read_measured(_csv(tmp_path / "b.csv", "# specimen.width_mm = 100\n# specimen.length_mm = 150\n"
-                                "displacement_mm,force_N\n" + _body()))  # locks at 20.7 mm; data to 40 mm
+    narrow = read_measured(
+        _csv(
+            tmp_path / "b.csv",
+            "# specimen.width_mm = 100\n# specimen.length_mm = 150\ndisplacement_mm,force_N\n" + _body(),
+        )
+    )  # locks at 20.7 mm; data to 40 mm
     with pytest.raises(SceneError, match="beyond the ideal yarn locking"):
         narrow.check_window((0.1, 0.9))
 
@@ -219,8 +248,11 @@ def test_the_test_and_the_frame_are_read_from_the_header(tmp_path):
     t = read_table(DATA / "cao2008_pf" / "cao2008_pf_plain_UN_fig22_shear_force.csv")
     assert (t.test, t.x_quantity, t.y_quantity) == ("picture_frame", "shear_angle", "shear_force")
     assert t.frame == {"picture_frame.frame_mm": 145.0, "picture_frame.fabric_mm": 120.0}  # Table 3 (UN)
-    p = _csv(tmp_path / "a.csv", "# test: picture_frame\n# picture_frame.frame_mm = 145\n"
-             "# picture_frame.fabric_mm = 12 cm\ndisplacement_mm,force_N\n" + _body())
+    p = _csv(
+        tmp_path / "a.csv",
+        "# test: picture_frame\n# picture_frame.frame_mm = 145\n"
+        "# picture_frame.fabric_mm = 12 cm\ndisplacement_mm,force_N\n" + _body(),
+    )
     assert read_table(p).frame == {"picture_frame.frame_mm": 145.0, "picture_frame.fabric_mm": 120.0}
     with pytest.raises(SceneError, match="header says test picture_frame, --test says bias_extension"):
         read_table(p, test="bias_extension")
@@ -228,14 +260,20 @@ def test_the_test_and_the_frame_are_read_from_the_header(tmp_path):
 
 # --- a machine export of every shipped Twintex curve ------------------------------------------------------------------
 
+
 def _machine_export(src: Path, dst: Path) -> Path:
     """The curve as a testing machine's Excel export: semicolons, decimal commas, kN, the specimen with units."""
     c = read_measured(src)
     w, L = c.specimen["specimen.width_mm"], c.specimen["specimen.length_mm"]
-    rows = "".join(f"{k * 0.1:.1f};{u:.6f};{f / 1000:.9f}\n".replace(".", ",")
-                   for k, (u, f) in enumerate(zip(c.u_mm, c.force_N, strict=True)))
-    dst.write_text(f"# specimen.width_mm = {w:g} mm\n# specimen.length_mm = {L:g} mm\n"
-                   f"\"Time (s)\";\"Displacement (mm)\";\"Standard force (kN)\"\n{rows}", encoding="utf-8-sig")
+    rows = "".join(
+        f"{k * 0.1:.1f};{u:.6f};{f / 1000:.9f}\n".replace(".", ",")
+        for k, (u, f) in enumerate(zip(c.u_mm, c.force_N, strict=True))
+    )
+    dst.write_text(
+        f"# specimen.width_mm = {w:g} mm\n# specimen.length_mm = {L:g} mm\n"
+        f'"Time (s)";"Displacement (mm)";"Standard force (kN)"\n{rows}',
+        encoding="utf-8-sig",
+    )
     return dst
 
 
@@ -249,6 +287,7 @@ def test_a_machine_export_of_each_shipped_twintex_curve_reads_back_to_the_same_n
 
 
 # --- ngbet normalise ---------------------------------------------------------------------------------------------
+
 
 def test_eq18_and_the_energy_method_recover_a_known_normalised_shear_force():
     """A curve made from F_sh(γ) = a tan γ + b γ by Eq. 18 inverted: both methods give the law back.
@@ -276,7 +315,7 @@ def test_the_energy_method_is_the_work_of_the_clamp_force():
     """The zones' energy A_A w(γ) + A_B w(γ/2) equals ∫F dd at every point (the equation it solves)."""
     H, W = 200.0, 100.0
     d = np.linspace(0.5, 35.0, 300)
-    force = 3.0 * d + 0.05 * d ** 2
+    force = 3.0 * d + 0.05 * d**2
     gamma, w, _ = energy_method(d, force, H, W)
     half = np.interp(gamma / 2, np.r_[0.0, gamma], np.r_[0.0, w])
     work = np.r_[0.0, np.cumsum(np.diff(d) * 0.5 * (force[1:] + force[:-1]))] + 0.5 * d[0] * force[0]
@@ -301,8 +340,15 @@ def test_normalise_picture_frame_eq10_of_the_shear_force_gives_the_papers_normal
     """
     pf = DATA / "cao2008_pf"
     out = tmp_path / "pf"
-    assert _normalise(str(pf / "cao2008_pf_plain_UN_fig22_shear_force.csv"),
-                      str(pf / "cao2008_pf_plain_UN_fig28_normalized_energy.csv"), "--out", str(out)) == 0
+    assert (
+        _normalise(
+            str(pf / "cao2008_pf_plain_UN_fig22_shear_force.csv"),
+            str(pf / "cao2008_pf_plain_UN_fig28_normalized_energy.csv"),
+            "--out",
+            str(out),
+        )
+        == 0
+    )
     summary = json.loads((out / "normalise.json").read_text())
     s = summary["spread"]["the picture frames"]
     assert s["max_percent"] < 5.0 and s["median_percent"] < 0.5
@@ -315,18 +361,22 @@ def test_normalise_picture_frame_from_crosshead_displacement_and_force(tmp_path)
     d = np.linspace(1.0, 60.0, 40)
     theta = np.arccos((math.sqrt(2) * L + d) / (2 * L))
     gamma = 90 - 2 * np.degrees(theta)
-    fs = 5.0 * gamma + 0.02 * gamma ** 2
-    p = _csv(tmp_path / "raw.csv", "# test: picture-frame\ncrosshead_mm;load_kN\n" +
-             "".join(f"{a:.9g};{b / 1000:.12g}\n" for a, b in zip(d, 2 * np.cos(theta) * fs, strict=True))
-             + "90;0,5\n")  # beyond (2 - √2) L = 84.94 mm the frame is folded (Eq. 1): left out and said
+    fs = 5.0 * gamma + 0.02 * gamma**2
+    p = _csv(
+        tmp_path / "raw.csv",
+        "# test: picture-frame\ncrosshead_mm;load_kN\n"
+        + "".join(f"{a:.9g};{b / 1000:.12g}\n" for a, b in zip(d, 2 * np.cos(theta) * fs, strict=True))
+        + "90;0,5\n",
+    )  # beyond (2 - √2) L = 84.94 mm the frame is folded (Eq. 1): left out and said
     out = tmp_path / "o"
     assert _normalise(str(p), "--frame", "145x120", "--out", str(out)) == 0
     assert json.loads((out / "normalise.json").read_text())["curves"][0]["notes"][-1] == (
-        "1 point outside the frame's displacements from 0 to 84.94 mm (Eq. 1) left out")
+        "1 point outside the frame's displacements from 0 to 84.94 mm (Eq. 1) left out"
+    )
     rows = _table(out / "raw_normalised.csv")
     np.testing.assert_allclose(rows["shear_angle_deg"], gamma, rtol=1e-5)
     np.testing.assert_allclose(rows["shear_force_N"], fs, rtol=1e-5)
-    np.testing.assert_allclose(rows["fnorm_N_per_mm"], fs * L / Lf ** 2, rtol=1e-5)
+    np.testing.assert_allclose(rows["fnorm_N_per_mm"], fs * L / Lf**2, rtol=1e-5)
 
 
 def test_normalise_the_twintex_sizes_states_their_spread(tmp_path, capsys):
@@ -358,8 +408,11 @@ def test_normalise_a_machine_export_needs_no_more_than_the_file(tmp_path):
 
 def test_normalise_owns_its_folder(tmp_path, capsys):
     a = _csv(tmp_path / "a.csv", SPEC + "displacement_mm,force_N\n" + _body())
-    b = _csv(tmp_path / "b.csv", "# specimen.width_mm = 100\n# specimen.length_mm = 300\ndisplacement_mm,force_N\n"
-             + _body([(u, 1.1 * f) for u, f in ROWS]))
+    b = _csv(
+        tmp_path / "b.csv",
+        "# specimen.width_mm = 100\n# specimen.length_mm = 300\ndisplacement_mm,force_N\n"
+        + _body([(u, 1.1 * f) for u, f in ROWS]),
+    )
     user = tmp_path / "user"
     user.mkdir()
     (user / "notes.txt").write_text("mine")
@@ -382,13 +435,16 @@ def test_normalise_owns_its_folder(tmp_path, capsys):
     assert "an ngbet run folder" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("extra, files, match", [
-    ([], ["a"], "which test"),  # neither a specimen nor a frame
-    (["--specimen", "100x250", "--specimen", "100x300"], ["a"], "2 --specimen for 1 data files"),
-    (["--specimen", "100x140"], ["a"], "Eq. 18 needs a clamp-to-clamp length above 1.5 times the width"),
-    (["--test", "picture_frame"], ["a"], "needs the frame and the fabric square"),
-    (["--specimen", "100x250"], ["a", "a"], "the same file twice"),
-])
+@pytest.mark.parametrize(
+    "extra, files, match",
+    [
+        ([], ["a"], "which test"),  # neither a specimen nor a frame
+        (["--specimen", "100x250", "--specimen", "100x300"], ["a"], "2 --specimen for 1 data files"),
+        (["--specimen", "100x140"], ["a"], "Eq. 18 needs a clamp-to-clamp length above 1.5 times the width"),
+        (["--test", "picture_frame"], ["a"], "needs the frame and the fabric square"),
+        (["--specimen", "100x250"], ["a", "a"], "the same file twice"),
+    ],
+)
 def test_normalise_refuses_what_it_cannot_normalise_before_writing(tmp_path, capsys, extra, files, match):
     _csv(tmp_path / "a.csv", "displacement_mm,force_N\n" + _body())
     out = tmp_path / "o"
@@ -398,6 +454,7 @@ def test_normalise_refuses_what_it_cannot_normalise_before_writing(tmp_path, cap
 
 
 # --- the commands: refused before any model run ----------------------------------------------------------------------
+
 
 def test_fit_refuses_an_incomplete_specimen_or_a_curve_twice_before_any_model_run(tmp_path, capsys):
     half = _csv(tmp_path / "half.csv", "# specimen.width_mm = 100\ndisplacement_mm,force_N\n" + _body())
@@ -417,21 +474,28 @@ def test_fit_reads_a_kn_export_with_the_specimen_from_the_command_line(tmp_path)
     from ngbet.calibration.command import Inputs
     from ngbet.cli import _parser
 
-    p = _csv(tmp_path / "a.csv", "Displacement (mm);Force (kN)\n" + _body(sep=";", scale=(1, 1e-3), comma=True,
-                                                                            fmt="{:.9g}"))
-    inp = Inputs(_parser("fit").parse_args(["fit", str(p), "--specimen", "100x250", "--params", "material.K_sh",
-                                            "--out", str(tmp_path / "f")]))  # everything read, no model run
+    p = _csv(
+        tmp_path / "a.csv", "Displacement (mm);Force (kN)\n" + _body(sep=";", scale=(1, 1e-3), comma=True, fmt="{:.9g}")
+    )
+    inp = Inputs(
+        _parser("fit").parse_args(
+            ["fit", str(p), "--specimen", "100x250", "--params", "material.K_sh", "--out", str(tmp_path / "f")]
+        )
+    )  # everything read, no model run
     np.testing.assert_allclose(inp.curves[0].force_N, F, rtol=1e-9)
     assert inp.curves[0].label == "100 x 250 mm"
     notes = " ".join(inp.notes)
     assert "converted to N" in notes and "specimen.width_mm = 100 from --specimen" in notes
 
 
-@pytest.mark.parametrize("header, extra, match", [
-    ("# specimen.width_mm = -100\n# specimen.length_mm = 250\n", [], "width_mm = -100 must be > 0"),
-    ("", ["--specimen=-100x250"], "sizes must be > 0"),
-    (SPEC, ["--set", "outputs.plot=false"], "outputs.plot = false draws none"),
-])
+@pytest.mark.parametrize(
+    "header, extra, match",
+    [
+        ("# specimen.width_mm = -100\n# specimen.length_mm = 250\n", [], "width_mm = -100 must be > 0"),
+        ("", ["--specimen=-100x250"], "sizes must be > 0"),
+        (SPEC, ["--set", "outputs.plot=false"], "outputs.plot = false draws none"),
+    ],
+)
 def test_run_data_refuses_a_bad_specimen_or_figures_that_are_not_drawn(tmp_path, capsys, header, extra, match):
     p = _csv(tmp_path / "m.csv", header + "displacement_mm,force_N\n" + _body())
     out = tmp_path / "run"

@@ -18,19 +18,44 @@ from ngbet.errors import ConvergenceError
 from ngbet.messages import messages
 from ngbet.scene.document import SceneWarning
 
-SMALL = ["--set", "discretization.mesh_size_mm=20", "--set", "loading.u0_mm=10", "--set", "loading.stops_mm=[]",
-         "--set", "outputs.vtk=false", "--set", "outputs.plot=false"]
+SMALL = [
+    "--set",
+    "discretization.mesh_size_mm=20",
+    "--set",
+    "loading.u0_mm=10",
+    "--set",
+    "loading.stops_mm=[]",
+    "--set",
+    "outputs.vtk=false",
+    "--set",
+    "outputs.plot=false",
+]
 
 
 @pytest.mark.integration
 def test_a_scene_warning_is_one_ngbet_line_and_quiet_prints_nothing_else(tmp_path):
-    p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(tmp_path / "run"), *SMALL,
-                        "--set", "discrete.spacing_mm=3"], capture_output=True, text=True)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ngbet",
+            "run",
+            "--quiet",
+            "--out",
+            str(tmp_path / "run"),
+            *SMALL,
+            "--set",
+            "discrete.spacing_mm=3",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert p.returncode == 0, p.stderr
     assert p.stdout == ""
     # said once, although the scene is built more than once; no Python source line
-    assert p.stderr.splitlines() == ["ngbet: model = 'continuum' does not read discrete.spacing_mm: "
-                                     "these values have no effect"]
+    assert p.stderr.splitlines() == [
+        "ngbet: model = 'continuum' does not read discrete.spacing_mm: these values have no effect"
+    ]
 
 
 def test_without_quiet_the_results_go_to_stdout(tmp_path, capsys):
@@ -51,35 +76,58 @@ def test_log_records_and_warnings_are_one_line_each_and_restored_after(capsys):
                 warnings.warn(SceneWarning("a key\nwithout effect"), stacklevel=1)
             warnings.warn("a library's warning", RuntimeWarning, stacklevel=1)
     assert warnings.showwarning is before
-    assert capsys.readouterr().err.splitlines() == ["ngbet: first line second line", "ngbet: a key without effect",
-                                                    "ngbet: RuntimeWarning: a library's warning"]
+    assert capsys.readouterr().err.splitlines() == [
+        "ngbet: first line second line",
+        "ngbet: a key without effect",
+        "ngbet: RuntimeWarning: a library's warning",
+    ]
 
 
 def _ill_posed() -> ConvergenceError:
     """The failure of the paper's scene with alpha2 = 0 on a 10 mm mesh, as the diagnosis describes it."""
     loss = EllipticityLoss(family=2, area_mm2=1097.0, min_eigenvalue_Ksh=-29.75)
-    detail = StabilityDiagnosis(u0_mm=48.1377, eigenvalues=(-1.2e-4, 8e-7, 2.2e-6), mode_class="discretization",
-                                ratio=1.0, location_mm=(195.0, 66.0), ellipticity_loss=(loss,))
-    return ConvergenceError("load step cut below the minimum 0.05 mm on the way from 48.1377 mm to 56 mm",
-                            48.1377, diagnosis=detail.message(), detail=detail)
+    detail = StabilityDiagnosis(
+        u0_mm=48.1377,
+        eigenvalues=(-1.2e-4, 8e-7, 2.2e-6),
+        mode_class="discretization",
+        ratio=1.0,
+        location_mm=(195.0, 66.0),
+        ellipticity_loss=(loss,),
+    )
+    return ConvergenceError(
+        "load step cut below the minimum 0.05 mm on the way from 48.1377 mm to 56 mm",
+        48.1377,
+        diagnosis=detail.message(),
+        detail=detail,
+    )
 
 
 def test_a_solver_failure_says_its_cause_and_remedy():
     code, msg = exit_code(_ill_posed())
     assert code == 1
-    assert msg == ("the solver stopped after u0 = 48.1377 mm: load step cut below the minimum 0.05 mm on the way "
-                   "from 48.1377 mm to 56 mm; alpha2 = 0 leaves the model ill-posed for the compressed yarns of "
-                   "family 2 (1097 mm² lost ellipticity): give alpha2 > 0")
+    assert msg == (
+        "the solver stopped after u0 = 48.1377 mm: load step cut below the minimum 0.05 mm on the way "
+        "from 48.1377 mm to 56 mm; alpha2 = 0 leaves the model ill-posed for the compressed yarns of "
+        "family 2 (1097 mm² lost ellipticity): give alpha2 > 0"
+    )
 
 
-@pytest.mark.parametrize(("detail", "remedy"), [
-    (StabilityDiagnosis(u0_mm=30.0, eigenvalues=(-1e-3,), mode_class="discretization",
-                        stabilization_K_Pa=(10.0, 20.0), K_el=2e6),
-     "raise effects.stabilization_K (now 10 to 20 Pa), e.g. to material.K_el = 2e+06 Pa"),
-    (StabilityDiagnosis(u0_mm=30.0, eigenvalues=(-1e-3,), mode_class="continuum"),
-     "solver.path_following = 'auto' follows the path through it"),
-    (StabilityDiagnosis(u0_mm=30.0, eigenvalues=(1e-3,), mode_class="none"), None),
-])
+@pytest.mark.parametrize(
+    ("detail", "remedy"),
+    [
+        (
+            StabilityDiagnosis(
+                u0_mm=30.0, eigenvalues=(-1e-3,), mode_class="discretization", stabilization_K_Pa=(10.0, 20.0), K_el=2e6
+            ),
+            "raise effects.stabilization_K (now 10 to 20 Pa), e.g. to material.K_el = 2e+06 Pa",
+        ),
+        (
+            StabilityDiagnosis(u0_mm=30.0, eigenvalues=(-1e-3,), mode_class="continuum"),
+            "solver.path_following = 'auto' follows the path through it",
+        ),
+        (StabilityDiagnosis(u0_mm=30.0, eigenvalues=(1e-3,), mode_class="none"), None),
+    ],
+)
 def test_each_diagnosis_names_its_remedy(detail, remedy):
     advice = detail.advice()
     assert advice.endswith(remedy) if remedy else advice == ""
@@ -91,10 +139,29 @@ def test_a_solver_failure_names_its_cause_and_remedy_on_the_terminal(tmp_path):
     stable state lies past the fold (the descent would turn material inside out); the one line says so
     and names the remedy."""
     out = tmp_path / "run"
-    p = subprocess.run([sys.executable, "-m", "ngbet", "run", "--quiet", "--out", str(out), "--set",
-                        "material.K_el=1e8", "--set", "effects.jamming=false",
-                        "--set", "discretization.mesh_size_mm=10", "--set", "outputs.vtk=false",
-                        "--set", "outputs.plot=false"], capture_output=True, text=True)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ngbet",
+            "run",
+            "--quiet",
+            "--out",
+            str(out),
+            "--set",
+            "material.K_el=1e8",
+            "--set",
+            "effects.jamming=false",
+            "--set",
+            "discretization.mesh_size_mm=10",
+            "--set",
+            "outputs.vtk=false",
+            "--set",
+            "outputs.plot=false",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert p.returncode == 1 and p.stdout == ""
     (line,) = p.stderr.splitlines()
     assert line.startswith("ngbet: the solver stopped after u0 = 54.7")
@@ -107,13 +174,21 @@ def test_the_report_line_says_what_a_user_reads_not_the_solvers_counts(tmp_path)
     from ngbet.cli import _report
 
     (tmp_path / "results.csv").write_text("u0_mm,force_N,force_error_N\n37,61.2855,0.1\n56,107.3735,\n")
-    summary = {"status": "ok", "u0_reached_mm": 56.0, "load_steps": 29, "wall_s": 2.5, "newton_iterations": 2,
-               "chord_iterations": 82, "error_estimate_unreliable": {"56": "the enriched problem ..."}}
+    summary = {
+        "status": "ok",
+        "u0_reached_mm": 56.0,
+        "load_steps": 29,
+        "wall_s": 2.5,
+        "newton_iterations": 2,
+        "chord_iterations": 82,
+        "error_estimate_unreliable": {"56": "the enriched problem ..."},
+    }
     lines = _report(summary, tmp_path).splitlines()
     assert lines[0] == f"ngbet: ok: u0 = 56 mm in 29 load steps, 2.50 s; results in {tmp_path}/"
     assert lines[1].endswith("force =   61.2855 N ± 0.1 N (estimated discretization error)")
-    assert lines[2].endswith("force =  107.3735 N (no error bar: the estimate could not vouch for this force; "
-                             "summary.json says why)")
+    assert lines[2].endswith(
+        "force =  107.3735 N (no error bar: the estimate could not vouch for this force; summary.json says why)"
+    )
 
 
 def test_a_warning_that_asks_nothing_of_the_user_stays_in_summary_json(tmp_path, capsys):
@@ -122,8 +197,22 @@ def test_a_warning_that_asks_nothing_of_the_user_stays_in_summary_json(tmp_path,
     from pathlib import Path
 
     scene = Path(__file__).resolve().parents[1] / "geometry" / "twintex_twill_unbalanced.toml"
-    assert main(["run", str(scene), "--set", "outputs.plot=false", "--set", "outputs.error_estimate=off",
-                 "--quiet", "--out", str(tmp_path / "r")]) == 0
+    assert (
+        main(
+            [
+                "run",
+                str(scene),
+                "--set",
+                "outputs.plot=false",
+                "--set",
+                "outputs.error_estimate=off",
+                "--quiet",
+                "--out",
+                str(tmp_path / "r"),
+            ]
+        )
+        == 0
+    )
     s = json.loads((tmp_path / "r" / "summary.json").read_text())
     assert s["multiplier_oscillation"] > 0.5 and any("multiplier oscillates" in w for w in s["warnings"])
     assert "oscillates" not in capsys.readouterr().err
@@ -132,12 +221,14 @@ def test_a_warning_that_asks_nothing_of_the_user_stays_in_summary_json(tmp_path,
 def test_ngsolves_own_console_messages_are_off():
     """Some thousand forms in one process (a study's worker) made NGSolve print "no more timer available
     (biform_from_py), reusing last one"; with ngbet's continuum imported nothing is printed."""
-    code = ("import ngbet.continuum, ngsolve as ngs\n"
-            "from netgen.geom2d import unit_square\n"
-            "V = ngs.H1(ngs.Mesh(unit_square.GenerateMesh(maxh=0.5)))\n"
-            "u, v = V.TnT()\n"
-            "for i in range(9000):\n"
-            "    a = ngs.BilinearForm(V)\n"
-            "    a += u * v * ngs.dx\n")
+    code = (
+        "import ngbet.continuum, ngsolve as ngs\n"
+        "from netgen.geom2d import unit_square\n"
+        "V = ngs.H1(ngs.Mesh(unit_square.GenerateMesh(maxh=0.5)))\n"
+        "u, v = V.TnT()\n"
+        "for i in range(9000):\n"
+        "    a = ngs.BilinearForm(V)\n"
+        "    a += u * v * ngs.dx\n"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert done.stdout == "" and "timer" not in done.stderr, (done.stdout[-300:], done.stderr[-300:])

@@ -51,8 +51,9 @@ def test_the_enriched_problems_and_branch_copies_get_solvers_of_the_runs_setting
     translation of the scene. The estimate is that of the run with the scene's own settings, since
     both inverses solve the same systems (to the round-off the augmented matrix amplifies)."""
     sc = _scene(**{"loading.u0_mm": 10.0})
-    mine = dataclasses.replace(solver_settings(sc), linear=LinearSettings(linear_solver="umfpack", condense=True,
-                                                                         compile="interpret"))
+    mine = dataclasses.replace(
+        solver_settings(sc), linear=LinearSettings(linear_solver="umfpack", condense=True, compile="interpret")
+    )
     forces = []
     for settings in (mine, solver_settings(sc)):
         solver = ContinuumSolver(ContinuumProblem(sc), settings)

@@ -22,8 +22,13 @@ def _roots(lam: float) -> np.ndarray:
 
 
 def _spread(first_step: float = 0.05) -> PathSpread:
-    return PathSpread(DoubleWell, lambda p, r: float(r[0]), NewtonSettings(rtol=1e-14, atol=1e-14),
-                      first_step=first_step, min_step=1e-4)
+    return PathSpread(
+        DoubleWell,
+        lambda p, r: float(r[0]),
+        NewtonSettings(rtol=1e-14, atol=1e-14),
+        first_step=first_step,
+        min_step=1e-4,
+    )
 
 
 def test_the_spread_between_two_stable_wells_is_their_force_difference():
@@ -79,8 +84,15 @@ def test_the_path_tells_the_branch_it_left_at_a_snap_and_its_forces_stay_the_sam
     states are bit for bit those of a path whose records were not kept."""
     a, b = DoubleWell(), DoubleWell()
     res_a = carry(a, 1.0, 0.05, NewtonSettings(), min_step=1e-4, psi=np.array([1.0, 0.0]), hessian=a)
-    steps = Steps(load_steps(b, PathSettings(target=1.0, first_step=0.05, min_step=1e-4), NewtonSettings(),
-                             psi=np.array([1.0, 0.0]), hessian=b))
+    steps = Steps(
+        load_steps(
+            b,
+            PathSettings(target=1.0, first_step=0.05, min_step=1e-4),
+            NewtonSettings(),
+            psi=np.array([1.0, 0.0]),
+            hessian=b,
+        )
+    )
     left = [(rec.left[0], rec.left[1].copy(), rec.snap) for rec in steps if rec.left is not None]
     assert steps.result is not None
     res_b = steps.result

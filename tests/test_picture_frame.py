@@ -30,11 +30,21 @@ from ngbet.scene.validate import SceneError
 
 def frame_scene(**changes) -> Scene:
     """A picture frame of side 100 mm on a coarse mesh (25 mm, p = 2): a second or two."""
-    base = {"test": "picture_frame", "picture_frame.frame_mm": 100.0, "picture_frame.fabric_mm": 100.0,
-            "discretization.mesh_size_mm": 25.0, "discretization.corner_mesh_size_mm": 0.0,
-            "discretization.order_u": 2, "loading.u0_mm": 30.0, "loading.stops_mm": [20.0],
-            "loading.first_step_mm": 5.0, "loading.max_step_mm": 10.0, "loading.output_every_mm": 10.0,
-            "outputs.vtk": False, "outputs.plot": False}
+    base = {
+        "test": "picture_frame",
+        "picture_frame.frame_mm": 100.0,
+        "picture_frame.fabric_mm": 100.0,
+        "discretization.mesh_size_mm": 25.0,
+        "discretization.corner_mesh_size_mm": 0.0,
+        "discretization.order_u": 2,
+        "loading.u0_mm": 30.0,
+        "loading.stops_mm": [20.0],
+        "loading.first_step_mm": 5.0,
+        "loading.max_step_mm": 10.0,
+        "loading.output_every_mm": 10.0,
+        "outputs.vtk": False,
+        "outputs.plot": False,
+    }
     base.update(changes)
     return Scene().with_changes(**base)
 
@@ -56,7 +66,7 @@ def homogeneous_energy(scene: Scene, d_mm: float) -> float:
     """
     i4, i6, i8 = homogeneous_invariants(scene, d_mm)
     mat = scene.material
-    return 0.5 * mat.K_el * ((math.sqrt(i4) - 1) ** 2 + (math.sqrt(i6) - 1) ** 2) + 0.5 * mat.K_sh * i8 ** 2
+    return 0.5 * mat.K_el * ((math.sqrt(i4) - 1) ** 2 + (math.sqrt(i6) - 1) ** 2) + 0.5 * mat.K_sh * i8**2
 
 
 def homogeneous_elongation(scene: Scene, d_mm: float) -> float:
@@ -88,7 +98,7 @@ def test_frame_stretches_are_the_rhombus_and_their_rates_the_derivatives():
     A, B, dA, dB = frame_stretches(d, L)
     theta = math.acos((math.sqrt(2) * L + d) / (2 * L))
     assert (A, B) == pytest.approx((math.sqrt(2) * math.cos(theta), math.sqrt(2) * math.sin(theta)), rel=1e-14)
-    assert (A / math.sqrt(2)) ** 2 + (B / math.sqrt(2)) ** 2 == pytest.approx(1.0, rel=1e-14)   # bars keep their length
+    assert (A / math.sqrt(2)) ** 2 + (B / math.sqrt(2)) ** 2 == pytest.approx(1.0, rel=1e-14)  # bars keep their length
     up, down = frame_stretches(d + h, L), frame_stretches(d - h, L)
     assert (dA, dB) == pytest.approx(((up[0] - down[0]) / (2 * h), (up[1] - down[1]) / (2 * h)), rel=1e-7)
 
@@ -99,11 +109,11 @@ def test_shear_force_and_normalised_force_by_hand():
     d = (math.sqrt(3) - math.sqrt(2)) * 145.0
     fs = float(shear_force(10.0, d, 145.0))
     assert fs == pytest.approx(10 / math.sqrt(3), rel=1e-12)
-    assert float(frame_normalised_force(fs, 145.0, 120.0)) == pytest.approx(5.773503 * 145 / 120 ** 2, rel=1e-6)
+    assert float(frame_normalised_force(fs, 145.0, 120.0)) == pytest.approx(5.773503 * 145 / 120**2, rel=1e-6)
     row = PictureFrameColumns(145.0, 120.0).row(d, 10.0)
     assert row["shear_angle_deg"] == pytest.approx(30.0, abs=1e-9)
     assert row["shear_force_N"] == pytest.approx(fs, rel=1e-14)
-    assert row["fnorm_N_per_mm"] == pytest.approx(fs * 145 / 120 ** 2, rel=1e-14)
+    assert row["fnorm_N_per_mm"] == pytest.approx(fs * 145 / 120**2, rel=1e-14)
     assert PictureFrameColumns(145.0, 120.0).row(d, None)["fnorm_N_per_mm"] == ""
 
 
@@ -112,7 +122,7 @@ def test_the_scene_refuses_what_a_frame_cannot_do():
     with pytest.raises(SceneError, match="picture_frame.fabric_mm.*fit in the frame"):
         frame_scene(**{"picture_frame.fabric_mm": 120.0})
     with pytest.raises(SceneError, match="loading.u0_mm.*closes flat"):
-        frame_scene(**{"loading.u0_mm": 60.0})          # (2 − √2) 100 = 58.6 mm
+        frame_scene(**{"loading.u0_mm": 60.0})  # (2 − √2) 100 = 58.6 mm
     with pytest.raises(SceneError, match="model.*continuum model only"):
         frame_scene(model="discrete")
     with pytest.raises(SceneError, match="misalignment_deg"):
@@ -124,7 +134,7 @@ def test_the_scene_refuses_what_a_frame_cannot_do():
 def test_keys_the_test_does_not_read_are_named():
     with pytest.warns(SceneWarning, match="test = 'picture_frame' does not read specimen.length_mm"):
         frame_scene(**{"specimen.length_mm": 300.0})
-    with pytest.warns(SceneWarning, match="discretization.structured"):   # Netgen meshes the cross
+    with pytest.warns(SceneWarning, match="discretization.structured"):  # Netgen meshes the cross
         frame_scene(**{"discretization.structured": True})
     with pytest.warns(SceneWarning, match="picture_frame.frame_mm"):
         Scene().with_changes(**{"picture_frame.frame_mm": 216.0})
@@ -143,7 +153,7 @@ def test_the_cross_is_the_frame_square_less_its_corners_with_the_arms_clamped():
     pf = PictureFrame(frame_mm=145.0, fabric_mm=120.0)
     mesh = make_cross_mesh(pf, Specimen(), Discretization(mesh_size_mm=20.0, corner_mesh_size_mm=0.0))
     c = 12.5
-    assert ngs.Integrate(1.0, mesh) * 1e6 == pytest.approx(145 ** 2 - 4 * c ** 2, rel=1e-12)
+    assert ngs.Integrate(1.0, mesh) * 1e6 == pytest.approx(145**2 - 4 * c**2, rel=1e-12)
     # the four arms' ends on the bars, each as long as the fabric square
     assert ngs.Integrate(1.0, mesh.Boundaries(CLAMPED_ARMS)) * 1e3 == pytest.approx(4 * 120.0, rel=1e-12)
     pts = np.array([p for p, _ in cross_outline(pf)]) * 1e3
@@ -163,15 +173,15 @@ def test_the_clamped_square_shears_homogeneously_with_the_force_of_its_energy(be
     assert r.summary["status"] == "ok"
     d = r.u0_mm
     exact = np.array([homogeneous_force(sc, x) for x in d])
-    assert r.force_N == pytest.approx(exact, rel=1e-8)   # the central difference of W: ~1e-9
+    assert r.force_N == pytest.approx(exact, rel=1e-8)  # the central difference of W: ~1e-9
     gamma = np.degrees(frame_shear_angle_rad(d, 100.0))
     assert r.shear_angle_deg == pytest.approx(gamma, abs=1e-12)
     assert r.gamma_centre_deg == pytest.approx(gamma, abs=1e-6)
     assert r.gamma_fabric_deg == pytest.approx(gamma, abs=1e-6)
-    assert np.max(r.elongation_max) < 1e-8                      # the yarns run along the bars: not stretched
+    assert np.max(r.elongation_max) < 1e-8  # the yarns run along the bars: not stretched
     theta = np.arccos((math.sqrt(2) * 100 + d) / 200)
-    assert r.shear_force_N == pytest.approx(r.force_N / (2 * np.cos(theta)), rel=1e-14)      # Eq. 3
-    assert r.fnorm_N_per_mm == pytest.approx(r.shear_force_N * 100 / 100 ** 2, rel=1e-14)  # Eq. 10
+    assert r.shear_force_N == pytest.approx(r.force_N / (2 * np.cos(theta)), rel=1e-14)  # Eq. 3
+    assert r.fnorm_N_per_mm == pytest.approx(r.shear_force_N * 100 / 100**2, rel=1e-14)  # Eq. 10
 
 
 def test_the_shear_angle_field_of_the_clamped_square_is_the_frames_everywhere():
@@ -206,7 +216,7 @@ def test_cutting_the_corners_only_lowers_the_energy():
     # the cut corners carry no traction, which the homogeneous stress would put on them
     sc = frame_scene(**{"picture_frame.fabric_mm": 80.0, "effects.bending": False})
     r = simulate(sc)
-    area = (100.0 ** 2 - 4 * 10.0 ** 2) * 1e-6
+    area = (100.0**2 - 4 * 10.0**2) * 1e-6
     bound = np.array([sc.specimen.t * area * homogeneous_energy(sc, x) for x in r.u0_mm])
     assert np.all(r.energy_J < bound * (1 - 1e-4))
     assert np.all(r.energy_J > 0.5 * bound)
@@ -246,7 +256,8 @@ def test_the_frame_figures_are_drawn_inside_their_canvas(tmp_path):
             words = " ".join(t.get_text() for t in fig.findobj(match=lambda a: hasattr(a, "get_text")))
             assert not any(f in words for f in (".csv", ".json", "u₀")), words  # no file names; the travel is d
             assert "picture-frame test, frame 100 mm pin to pin, fabric square 80 mm" in fig.get_suptitle().replace(
-                "\u00a0", " ").replace("\n", " ")
+                "\u00a0", " "
+            ).replace("\n", " ")
 
 
 @pytest.mark.integration
@@ -264,14 +275,18 @@ def test_a_shipped_frame_scene_runs_with_its_figures_and_an_ideal_centre(tmp_pat
 def test_a_measured_frame_curve_is_read_without_its_clipped_points(tmp_path):
     from ngbet.figures.frame import read_frame_measured
 
-    m = read_frame_measured(Path(__file__).resolve().parents[1] / "data" / "cao2008_pf"
-                            / "cao2008_pf_twill_unbalanced_UN_fig30_normalized_energy.csv")
+    m = read_frame_measured(
+        Path(__file__).resolve().parents[1]
+        / "data"
+        / "cao2008_pf"
+        / "cao2008_pf_twill_unbalanced_UN_fig30_normalized_energy.csv"
+    )
     # the chart's top edge (0.3 N/mm) clips the curve near 40°: those points are not values
     assert m.quantity == "normalized_shear_force_N_per_mm" and m.values.max() < 0.29996
     assert m.fnorm(145.0, 120.0) is m.values
     f = tmp_path / "fs.csv"
     f.write_text("# a frame\nshear_angle_deg,shear_force_N\n0,0\n30,5.7735\n")
-    assert read_frame_measured(f).fnorm(145.0, 120.0)[1] == pytest.approx(5.7735 * 145 / 120 ** 2, rel=1e-14)
+    assert read_frame_measured(f).fnorm(145.0, 120.0)[1] == pytest.approx(5.7735 * 145 / 120**2, rel=1e-14)
     f.write_text("displacement_mm,force_N\n0,0\n1,1\n")
     with pytest.raises(ValueError, match="shear_angle_deg,shear_force_N"):
         read_frame_measured(f)

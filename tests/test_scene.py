@@ -25,26 +25,30 @@ def test_internal_lengths_and_locking_match_model_md():
 
 
 def test_toml_round_trip_is_identity():
-    s = default_scene().with_changes(**{"material.alpha1": 3.5, "effects.constraint": "penalty",
-                                        "loading.stops_mm": [10.0, 37.0]})
+    s = default_scene().with_changes(
+        **{"material.alpha1": 3.5, "effects.constraint": "penalty", "loading.stops_mm": [10.0, 37.0]}
+    )
     assert Scene.from_toml_string(s.to_toml()) == s
 
 
-@pytest.mark.parametrize("key,value,fragment", [
-    ("material.K_sh", -1.0, "material.K_sh"),
-    ("discretization.order_u", 0, "discretization.order_u"),
-    ("effects.constraint", "magic", "effects.constraint"),
-    ("effects.stabilization_K", -2.0, "effects.stabilization_K"),
-    ("loading.stops_mm", [60.0], "beyond the final load"),
-    ("effects.elongation", False, "effects.elongation"),
-    ("discretization.order_lam", 3, "discretization.order_lam"),  # not below order_phi = order_u = 3
-    ("specimen.width_mm", 300.0, "zone A"),
-    ("discretization.corner_mesh_size_mm", 12.0, "must not exceed discretization.mesh_size_mm"),
-    ("discretization.corner_bisections", -1, "discretization.corner_bisections"),
-    ("discretization.corner_bisections", 1.5, "discretization.corner_bisections"),
-    ("discretization.discrete_typo", 1.0, "discretization.discrete_typo"),
-    ("discrete.end_rotation", "clamped", "discrete.end_rotation"),
-])
+@pytest.mark.parametrize(
+    "key,value,fragment",
+    [
+        ("material.K_sh", -1.0, "material.K_sh"),
+        ("discretization.order_u", 0, "discretization.order_u"),
+        ("effects.constraint", "magic", "effects.constraint"),
+        ("effects.stabilization_K", -2.0, "effects.stabilization_K"),
+        ("loading.stops_mm", [60.0], "beyond the final load"),
+        ("effects.elongation", False, "effects.elongation"),
+        ("discretization.order_lam", 3, "discretization.order_lam"),  # not below order_phi = order_u = 3
+        ("specimen.width_mm", 300.0, "zone A"),
+        ("discretization.corner_mesh_size_mm", 12.0, "must not exceed discretization.mesh_size_mm"),
+        ("discretization.corner_bisections", -1, "discretization.corner_bisections"),
+        ("discretization.corner_bisections", 1.5, "discretization.corner_bisections"),
+        ("discretization.discrete_typo", 1.0, "discretization.discrete_typo"),
+        ("discrete.end_rotation", "clamped", "discrete.end_rotation"),
+    ],
+)
 def test_bad_values_are_refused_with_their_key(key, value, fragment):
     with pytest.raises(SceneError) as err:
         default_scene().with_changes(**{key: value})
@@ -66,8 +70,9 @@ def test_unknown_keys_are_refused_by_name():
 def test_cli_bad_scene_gives_a_message_not_a_traceback(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[material]\nK_el = -5\n")
-    p = subprocess.run([sys.executable, "-m", "ngbet", "run", str(bad), "--out", str(tmp_path / "o")],
-                       capture_output=True, text=True)
+    p = subprocess.run(
+        [sys.executable, "-m", "ngbet", "run", str(bad), "--out", str(tmp_path / "o")], capture_output=True, text=True
+    )
     assert p.returncode == 2
     assert "material.K_el" in p.stderr and "Traceback" not in p.stderr
     assert not (tmp_path / "o").exists()  # refused before anything was meshed or written
@@ -79,8 +84,15 @@ def test_cli_scene_prints_valid_toml():
     assert Scene.from_toml_string(p.stdout) == default_scene()
 
 
-@pytest.mark.parametrize("key, old", [("effects.stabilization_K", -1), ("discretization.order_phi", 0),
-                                      ("discretization.order_lam", -1), ("solver.threads", 0)])
+@pytest.mark.parametrize(
+    "key, old",
+    [
+        ("effects.stabilization_K", -1),
+        ("discretization.order_phi", 0),
+        ("discretization.order_lam", -1),
+        ("solver.threads", 0),
+    ],
+)
 def test_automatic_values_are_written_auto_and_a_value_out_of_range_says_what_is_allowed(key, old):
     assert Scene().with_changes(**{key: "auto"}) == Scene() or key == "solver.threads"
     with pytest.raises(SceneError, match=f"'{key}' = {old}: must be \"auto\" or "):
@@ -90,8 +102,11 @@ def test_automatic_values_are_written_auto_and_a_value_out_of_range_says_what_is
 def test_auto_orders_follow_order_u():
     d = Scene().with_changes(**{"discretization.order_u": 3}).discretization
     assert (d.p_phi, d.p_lam) == (3, 1)
-    d = Scene().with_changes(**{"discretization.order_u": 3, "discretization.order_lam": 0,
-                                "discretization.order_phi": 4}).discretization
+    d = (
+        Scene()
+        .with_changes(**{"discretization.order_u": 3, "discretization.order_lam": 0, "discretization.order_phi": 4})
+        .discretization
+    )
     assert (d.p_phi, d.p_lam) == (4, 0)
 
 
@@ -138,10 +153,13 @@ def test_one_default_scene_file_keys_take_the_defaults_of_ngbet_run(tmp_path):
     assert from_file == load_scene(None, ["material.alpha1=200.0"])
 
 
-@pytest.mark.parametrize("sets,why", [
-    (["discretization.mesh_size_mm=0.2"], "finer than the default corners"),
-    (["discretization.structured=true"], "a structured mesh cannot be graded"),
-])
+@pytest.mark.parametrize(
+    "sets,why",
+    [
+        (["discretization.mesh_size_mm=0.2"], "finer than the default corners"),
+        (["discretization.structured=true"], "a structured mesh cannot be graded"),
+    ],
+)
 def test_a_default_the_user_never_set_gives_way_with_one_note(capsys, sets, why):
     """The default corner grading (0.25 mm) contradicts a finer mesh or a structured one: when the
     user sets only those, the grading is switched off with one note instead of a refusal."""
@@ -182,8 +200,13 @@ def test_a_scene_with_only_material_gives_the_default_runs_force(tmp_path):
 
     f = tmp_path / "m.toml"
     f.write_text("[material]\nalpha1 = 2000.0\n")
-    short = ["--set=loading.u0_mm=16", "--set=outputs.vtk=false", "--set=outputs.plot=false",
-             "--set=outputs.error_estimate=off", "--quiet"]
+    short = [
+        "--set=loading.u0_mm=16",
+        "--set=outputs.vtk=false",
+        "--set=outputs.plot=false",
+        "--set=outputs.error_estimate=off",
+        "--quiet",
+    ]
     assert main(["run", str(f), "--out", str(tmp_path / "file"), *short]) == 0
     assert main(["run", "--out", str(tmp_path / "set"), "--set=material.alpha1=2000.0", *short]) == 0
     F_file, F_set = (read_rows(tmp_path / n / "results.csv")[-1]["force_N"] for n in ("file", "set"))

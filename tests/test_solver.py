@@ -19,8 +19,9 @@ from ngbet.tables import read_rows
 def _deformed_problem(**changes):
     """The solver of a coarse problem carried to u0 = 20 mm, then perturbed off equilibrium so that
     every term of the Hessian (also the multiplier's curvature term Λ·D²i8) is exercised."""
-    scene = coarse(**{"discretization.mesh_size_mm": 20.0, "solver.condense": False,
-                      "solver.linear_solver": "umfpack", **changes})
+    scene = coarse(
+        **{"discretization.mesh_size_mm": 20.0, "solver.condense": False, "solver.linear_solver": "umfpack", **changes}
+    )
     solver = continuum_solver(ContinuumProblem(scene))
     with ngs.TaskManager():
         carry(solver, 0.02, 0.01, newton_settings(scene), **capabilities(solver))
@@ -37,15 +38,19 @@ def _field_scales(problem):
     size = {"u": 1e-3, "phi": 0.1, "lam": 0.1 * problem.scene.material.K_sh}
     for i, name in enumerate(problem.field_names):
         rng = problem.X.Range(i)
-        s[rng.start:rng.stop] = size[name]
+        s[rng.start : rng.stop] = size[name]
     return s
 
 
-@pytest.mark.parametrize("changes", [
-    {"effects.constraint": "penalty", "effects.penalty_form": "full", "effects.penalty_K": 1e6},
-    {"effects.constraint": "penalty", "effects.penalty_form": "mixed", "effects.penalty_K": 1e6},
-    {"effects.constraint": "lagrange"},
-], ids=["penalty-full", "penalty-mixed", "lagrange"])
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"effects.constraint": "penalty", "effects.penalty_form": "full", "effects.penalty_K": 1e6},
+        {"effects.constraint": "penalty", "effects.penalty_form": "mixed", "effects.penalty_K": 1e6},
+        {"effects.constraint": "lagrange"},
+    ],
+    ids=["penalty-full", "penalty-mixed", "lagrange"],
+)
 def test_jacobian_matches_finite_differences_of_the_residual(changes):
     """J v = (r(x + εv) − r(x − εv)) / 2ε + O(ε²) for random directions v, on every row
     (Dirichlet rows included). ``solver.a`` is the exact energy's form (for the Lagrange method
@@ -97,9 +102,12 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
     u, phi, lam = X.TrialFunction()
     inv = physics.invariants(ngs.Grad(u), problem.m1, problem.m2)
     m = scene.material
-    base = (physics.elongation_energy(inv.i4, inv.i6, m.K_el) + physics.shear_energy(inv.i8, m.K_sh)
-            + physics.bending_energy(ngs.Grad(phi), problem.m1, problem.m2, m.alpha1, m.alpha2)
-            + physics.penalty_constraint(phi, inv.i8, problem.K_s))  # the default stabilization
+    base = (
+        physics.elongation_energy(inv.i4, inv.i6, m.K_el)
+        + physics.shear_energy(inv.i8, m.K_sh)
+        + physics.bending_energy(ngs.Grad(phi), problem.m1, problem.m2, m.alpha1, m.alpha2)
+        + physics.penalty_constraint(phi, inv.i8, problem.K_s)
+    )  # the default stabilization
     assert problem.K_s_range[0] > 0
     aug = ngs.BilinearForm(X, symmetric=True)
     aug += ngs.Variation((base + physics.mixed_penalty_constraint(phi, inv.i8, lam, solver.linear.K_aug)) * problem.dx)
@@ -111,7 +119,7 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
         v = _field_scales(problem) * rng.standard_normal(X.ndof)
         r_lam = X.Range(2)
         v_nolam = v.copy()
-        v_nolam[r_lam.start:r_lam.stop] = 0
+        v_nolam[r_lam.start : r_lam.stop] = 0
         vin.FV().NumPy()[:] = v_nolam
         o1.data = solver.a.mat * vin
         o2.data = aug.mat * vin
@@ -130,8 +138,14 @@ def test_lagrange_newton_matrix_is_the_augmented_one():
 def test_newton_converges_quadratically_on_a_load_step():
     """Full Newton (penalty, exact Jacobian): the decrement at least squares-ish from one
     iteration to the next once in the contraction region (δ_k+1 ≤ C δ_k² with a small C)."""
-    scene = coarse(**{"effects.constraint": "penalty", "effects.penalty_K": 1e6, "loading.u0_mm": 20.0,
-                      "discretization.mesh_size_mm": 20.0})
+    scene = coarse(
+        **{
+            "effects.constraint": "penalty",
+            "effects.penalty_K": 1e6,
+            "loading.u0_mm": 20.0,
+            "discretization.mesh_size_mm": 20.0,
+        }
+    )
     problem = continuum_solver(ContinuumProblem(scene))
     settings = NewtonSettings(rtol=1e-14, atol=1e-20, max_iterations=12, simplified_theta=0.0)
     with ngs.TaskManager():
@@ -163,10 +177,19 @@ def test_running_out_of_newton_iterations_fails_after_two_attempts(tmp_path):
     Newton reaches 1e-10 from so far in two iterations), and the first cut (x 0.1) falls below
     min_step = 4 mm: the run stops with a ConvergenceError that names the last converged load
     (4 mm) and keeps every attempt's history; the converged step already on disk is intact."""
-    scene = coarse(**{"solver.max_iterations": 2, "solver.growth": 8.0, "solver.cut": 0.1, "loading.first_step_mm": 4.0,
-                      "loading.min_step_mm": 4.0, "loading.max_step_mm": 56.0, "loading.stops_mm": [],
-                      "loading.output_every_mm": 0.0,
-                      "discretization.mesh_size_mm": 20.0})
+    scene = coarse(
+        **{
+            "solver.max_iterations": 2,
+            "solver.growth": 8.0,
+            "solver.cut": 0.1,
+            "loading.first_step_mm": 4.0,
+            "loading.min_step_mm": 4.0,
+            "loading.max_step_mm": 56.0,
+            "loading.stops_mm": [],
+            "loading.output_every_mm": 0.0,
+            "discretization.mesh_size_mm": 20.0,
+        }
+    )
     with pytest.raises(ConvergenceError) as info:
         run(scene, tmp_path / "run")
     err = info.value

@@ -32,8 +32,11 @@ def test_arc_length_without_a_runner_is_refused(following):
 
 def test_an_unknown_path_following_is_refused():
     with pytest.raises(ValueError, match="path_following = 'arc'"):
-        load_steps(object(), PathSettings(target=0.01, first_step=0.01, path_following="arc"),  # type: ignore[arg-type]
-                   newton_settings(default_scene()))
+        load_steps(
+            object(),
+            PathSettings(target=0.01, first_step=0.01, path_following="arc"),  # type: ignore[arg-type]
+            newton_settings(default_scene()),
+        )
 
 
 def test_path_settings_default_bounds():

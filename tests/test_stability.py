@@ -12,14 +12,23 @@ from ngbet.continuum.stability import EllipticityLoss, StabilityDiagnosis
 
 
 def test_message_names_the_remedy_only_for_a_discretization_mode_of_a_well_posed_model():
-    base = StabilityDiagnosis(54.0, (-0.01, 0.2), "discretization", 0.97, (3.0, 68.0),
-                              stabilization_K_Pa=(1.5e4, 3.3e4), K_el=1e7)
+    base = StabilityDiagnosis(
+        54.0, (-0.01, 0.2), "discretization", 0.97, (3.0, 68.0), stabilization_K_Pa=(1.5e4, 3.3e4), K_el=1e7
+    )
     msg = base.message()
     assert base.stable is False
     assert "stability lost" in msg and "a mode of the discretization" in msg
     assert "--set effects.stabilization_K=1e+07" in msg and "material.K_el =" not in msg  # the key to change
-    ill = StabilityDiagnosis(54.8, (-0.01, 0.2), "discretization", 0.97, (3.0, 68.0),
-                             (EllipticityLoss(2, 950.0, -0.3),), (1.5e4, 3.3e4), 0.7e6)
+    ill = StabilityDiagnosis(
+        54.8,
+        (-0.01, 0.2),
+        "discretization",
+        0.97,
+        (3.0, 68.0),
+        (EllipticityLoss(2, 950.0, -0.3),),
+        (1.5e4, 3.3e4),
+        0.7e6,
+    )
     assert "raise effects.stabilization_K" not in ill.message()  # no false remedy: the model is ill-posed
     assert "alpha2 = 0" in ill.message() and "950 mm²" in ill.message()
     cont = StabilityDiagnosis(40.0, (0.3,), "continuum", 0.01, (110.0, 35.0))

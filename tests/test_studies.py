@@ -23,17 +23,33 @@ from ngbet.study.figures import plot_only
 from ngbet.study.model import Study
 from ngbet.study.runner import run_study
 
-TINY = {"outputs.vtk": False, "outputs.plot": False, "discretization.mesh_size_mm": 20.0,
-        "discretization.corner_mesh_size_mm": 0.0, "discretization.order_u": 2,
-        "loading.u0_mm": 10.0, "loading.stops_mm": [5.0], "loading.output_every_mm": 0.0}
+TINY = {
+    "outputs.vtk": False,
+    "outputs.plot": False,
+    "discretization.mesh_size_mm": 20.0,
+    "discretization.corner_mesh_size_mm": 0.0,
+    "discretization.order_u": 2,
+    "loading.u0_mm": 10.0,
+    "loading.stops_mm": [5.0],
+    "loading.output_every_mm": 0.0,
+}
 # a case whose solver must give up: one Newton iteration allowed and no step cutting possible
-FAILING = {"loading.first_step_mm": 10.0, "loading.min_step_mm": 10.0, "loading.max_step_mm": 10.0,
-           "solver.max_iterations": 1}
+FAILING = {
+    "loading.first_step_mm": 10.0,
+    "loading.min_step_mm": 10.0,
+    "loading.max_step_mm": 10.0,
+    "solver.max_iterations": 1,
+}
 
 
 def tiny_study(cases):
-    return Study("tiny", Scene().with_changes(**TINY), cases,
-                 plot=lambda d: [_force_plot(d)], report=lambda d: f"{len(d.rows)} rows\n")
+    return Study(
+        "tiny",
+        Scene().with_changes(**TINY),
+        cases,
+        plot=lambda d: [_force_plot(d)],
+        report=lambda d: f"{len(d.rows)} rows\n",
+    )
 
 
 def _force_plot(d):
@@ -104,8 +120,13 @@ def test_dask_local_cluster_gives_the_local_results(tmp_path, cache):
     cases = [{C.P: 1}, {C.P: 2}, FAILING]
     local = run_study(tiny_study(cases), tmp_path / "local", cache=cache, progress=False)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        d = run_study(tiny_study(cases), tmp_path / "dask", cache=tmp_path / "dask_cache",
-                      scheduler=cluster.scheduler_address, progress=False)
+        d = run_study(
+            tiny_study(cases),
+            tmp_path / "dask",
+            cache=tmp_path / "dask_cache",
+            scheduler=cluster.scheduler_address,
+            progress=False,
+        )
     assert d.meta["executor"]["mode"] == "dask" and d.meta["executor"]["cases_run"] == 3
     assert [c["status"] for c in d.cases()] == [c["status"] for c in local.cases()]
     for i in (0, 1):
@@ -147,8 +168,9 @@ def run_quick(name, tmp_path, quick_cache):
     from ngbet.study.command import build_study
 
     mod = importlib.import_module(f"ngbet.studies.{name}")
-    return mod, run_study(build_study(mod.build, True, cache=quick_cache), tmp_path / name, cache=quick_cache,
-                          progress=False)
+    return mod, run_study(
+        build_study(mod.build, True, cache=quick_cache), tmp_path / name, cache=quick_cache, progress=False
+    )
 
 
 def test_quick_penalty_p(tmp_path, quick_cache):
@@ -243,8 +265,12 @@ def test_quick_compare(tmp_path, quick_cache, monkeypatch, figures):
     assert "Bending direction" in (d.out / "report.md").read_text()
     assert (d.out / "compare_curves.png").exists() and (d.out / "compare_maps.png").exists()
     # one colour scale for the continuum's maps and the networks': the same norm, symmetric when signed
-    norms = {(c.norm.vmin, c.norm.vmax) for ax in figures["compare_maps"].axes[:4] for c in ax.collections
-             if c.get_array() is not None}
+    norms = {
+        (c.norm.vmin, c.norm.vmax)
+        for ax in figures["compare_maps"].axes[:4]
+        for c in ax.collections
+        if c.get_array() is not None
+    }
     assert len(norms) == 1
     lo, hi = norms.pop()
     assert lo == 0.0 or lo == -hi
@@ -273,8 +299,13 @@ def test_find_is_exact_a_case_with_one_more_key_is_another_case(tmp_path):
     uniform = C.lagrange(20.0, 2)
     graded = C.lagrange(20.0, 2, 0.5)
     extra = {**uniform, "outputs.error_estimate": "off"}
-    data = StudyData(tmp_path, [], [], {}, {"cases": [{"case": 0, "params": graded}, {"case": 1, "params": extra},
-                                                      {"case": 2, "params": uniform}]})
+    data = StudyData(
+        tmp_path,
+        [],
+        [],
+        {},
+        {"cases": [{"case": 0, "params": graded}, {"case": 1, "params": extra}, {"case": 2, "params": uniform}]},
+    )
     assert data.find(**uniform) == [2] and data.case(uniform) == 2
     assert data.case(graded) == 0 and data.case(extra) == 1
     assert data.case({**uniform, C.H: 20}) == 2  # 20 and 20.0 are one value
@@ -293,6 +324,7 @@ def capture(monkeypatch, mod, figures):
     def keep(fig, out, name):
         figures[name] = fig
         return savefig(fig, out, name)
+
     monkeypatch.setattr(mod, "savefig", keep)
 
 
@@ -396,8 +428,9 @@ def test_a_study_on_another_scene_leaves_the_default_studys_folder(quick_cache, 
     default = Path("out/studies/alpha1-quick")
     default.mkdir(parents=True)
     (default / "kept.txt").write_text("the default study's")
-    assert main(["study", "alpha1", "--set", "material.alpha2=30", "--quick", "--quiet",
-                 "--cache", str(quick_cache)]) == 0, capsys.readouterr().err
+    assert (
+        main(["study", "alpha1", "--set", "material.alpha2=30", "--quick", "--quiet", "--cache", str(quick_cache)]) == 0
+    ), capsys.readouterr().err
     assert [p.name for p in default.iterdir()] == ["kept.txt"]
     digest = load_scene(None, ["material.alpha2=30"]).digest()[:8]
     assert (Path("out/studies") / f"alpha1-scene-{digest}-quick" / "report.md").exists()
@@ -409,8 +442,20 @@ def test_study_on_a_scene_file_with_set(tmp_path, quick_cache, capsys):
     scene = tmp_path / "my.toml"
     scene.write_text("[material]\nK_el = 1.0e6\n")
     out = tmp_path / "a1"
-    rc = main(["study", "alpha1", str(scene), "--set", "material.alpha2=30", "--quick",
-               "--out", str(out), "--cache", str(quick_cache)])
+    rc = main(
+        [
+            "study",
+            "alpha1",
+            str(scene),
+            "--set",
+            "material.alpha2=30",
+            "--quick",
+            "--out",
+            str(out),
+            "--cache",
+            str(quick_cache),
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     meta = load(out).meta
     assert meta["base_scene"]["material"]["K_el"] == 1.0e6 and meta["base_scene"]["material"]["alpha2"] == 30
@@ -423,8 +468,10 @@ def test_sweep_is_a_study_with_whole_force_curves(tmp_path, quick_cache, capsys)
     from ngbet.cli import main
 
     out = tmp_path / "sw"
-    assert main(["sweep", "material.alpha1=20,2000", "--quick", "--quiet", "--out", str(out),
-                 "--cache", str(quick_cache)]) == 0
+    assert (
+        main(["sweep", "material.alpha1=20,2000", "--quick", "--quiet", "--out", str(out), "--cache", str(quick_cache)])
+        == 0
+    )
     d = load(out)
     assert d.meta["params"] == ["material.alpha1"]
     assert [c["params"]["material.alpha1"] for c in d.cases()] == [20, 2000]
@@ -435,13 +482,16 @@ def test_sweep_is_a_study_with_whole_force_curves(tmp_path, quick_cache, capsys)
     assert "| material.alpha1 | status |" in text and "- Discretization: Netgen mesh of 20 mm, p = 2." in text
 
 
-@pytest.mark.parametrize("argv,needle", [
-    (["sweep", "material.nonsense=1,2"], "nonsense"),
-    (["sweep", "material.alpha1=-5,20"], "material.alpha1"),
-    (["sweep", "alpha1=20"], "section.key"),
-    (["study", "alpha1", "missing.toml"], "missing.toml"),
-    (["study", "reference", "--set", "model=discrete"], "model = 'discrete'"),
-])
+@pytest.mark.parametrize(
+    "argv,needle",
+    [
+        (["sweep", "material.nonsense=1,2"], "nonsense"),
+        (["sweep", "material.alpha1=-5,20"], "material.alpha1"),
+        (["sweep", "alpha1=20"], "section.key"),
+        (["study", "alpha1", "missing.toml"], "missing.toml"),
+        (["study", "reference", "--set", "model=discrete"], "model = 'discrete'"),
+    ],
+)
 def test_bad_sweep_or_study_scene_is_exit_2_naming_it(tmp_path, capsys, argv, needle):
     from ngbet.cli import main
 
@@ -495,6 +545,7 @@ def test_a_case_is_never_ok_without_its_data(tmp_path, monkeypatch, caplog):
         final = real(cache, key, rec, token, workdir=workdir, files=files)
         (final / "results.csv").unlink()  # the data lost between the store and the count
         return final
+
     monkeypatch.setattr(executors, "store", lossy)
     d = run_study(tiny_study([{C.P: 1}]), tmp_path / "o", cache=tmp_path / "c", progress=False, workers=1)
     (case,) = d.cases()
@@ -547,8 +598,20 @@ def test_read_only_cache_is_exit_3_naming_it_with_any_workers(tmp_path, capsys, 
     if not _immutable(cache):
         pytest.skip("this file system cannot make a folder unwritable for root")
     try:
-        rc = main(["study", "alpha1", "--quick", "--quiet", "--workers", workers, "--out", str(tmp_path / "o"),
-                   "--cache", str(cache)])
+        rc = main(
+            [
+                "study",
+                "alpha1",
+                "--quick",
+                "--quiet",
+                "--workers",
+                workers,
+                "--out",
+                str(tmp_path / "o"),
+                "--cache",
+                str(cache),
+            ]
+        )
         err = capsys.readouterr().err
         assert rc == 3 and str(cache) in err and err.count("\n") == 1, err
     finally:
@@ -565,8 +628,20 @@ def test_a_scheduler_without_workers_is_an_error_in_bounded_time(tmp_path, monke
     monkeypatch.setenv("NGBET_DASK_WORKER_TIMEOUT_S", "2")
     with LocalCluster(n_workers=0, processes=True, dashboard_address=None) as cluster:
         t0 = time.monotonic()
-        rc = main(["study", "alpha1", "--quick", "--quiet", "--out", str(tmp_path / "o"), "--cache",
-                   str(tmp_path / "c"), "--scheduler", cluster.scheduler_address])
+        rc = main(
+            [
+                "study",
+                "alpha1",
+                "--quick",
+                "--quiet",
+                "--out",
+                str(tmp_path / "o"),
+                "--cache",
+                str(tmp_path / "c"),
+                "--scheduler",
+                cluster.scheduler_address,
+            ]
+        )
         assert rc == 3 and time.monotonic() - t0 < 30
     err = capsys.readouterr().err
     assert "no dask worker" in err and cluster.scheduler_address in err and err.count("\n") == 1
@@ -581,15 +656,42 @@ def test_a_killed_dask_worker_ends_the_study_in_bounded_time_keeping_finished_ca
     monkeypatch.setenv("NGBET_DASK_WORKER_TIMEOUT_S", "3")
     sfile = tmp_path / "scheduler.json"
     env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
-    sched = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--scheduler-file",
-                              str(sfile), "--port", "0", "--dashboard-address", ":0"], env=env,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    sched = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "distributed.cli.dask_scheduler",
+            "--scheduler-file",
+            str(sfile),
+            "--port",
+            "0",
+            "--dashboard-address",
+            ":0",
+        ],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     worker = None
     try:
         wait_until(sfile.exists)
-        worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file",
-                                   str(sfile), "--no-nanny", "--nthreads", "1", "--dashboard-address", ":0"],
-                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        worker = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "distributed.cli.dask_worker",
+                "--scheduler-file",
+                str(sfile),
+                "--no-nanny",
+                "--nthreads",
+                "1",
+                "--dashboard-address",
+                ":0",
+            ],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         address = json.loads(sfile.read_text())["address"]
         cache = tmp_path / "c"
         slow = {"loading.first_step_mm": 0.1, "loading.max_step_mm": 0.1, "solver.grow_after": 0}
@@ -643,8 +745,9 @@ def test_every_package_is_installed_and_the_studies_come_from_the_top_level_fold
     assert not (repo / "ngbet" / "studies").exists()
 
 
-def test_without_matplotlib_the_tables_and_report_are_written_and_one_line_says_so(tmp_path, quick_cache,
-                                                                                      monkeypatch, capsys):
+def test_without_matplotlib_the_tables_and_report_are_written_and_one_line_says_so(
+    tmp_path, quick_cache, monkeypatch, capsys
+):
     import importlib.util
 
     from ngbet.cli import main
@@ -681,9 +784,28 @@ def test_a_stopped_study_keeps_its_cases_when_another_starts_on_the_same_cache(t
     env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
     cache = tmp_path / "cache"
     slow = ["--set", "loading.first_step_mm=0.25", "--set", "loading.max_step_mm=0.25", "--set", "solver.grow_after=0"]
-    a = subprocess.Popen([sys.executable, "-m", "ngbet", "study", "alpha1", "--quick", "--quiet", "--workers", "2",
-                          "--out", str(tmp_path / "a"), "--cache", str(cache), *slow], env=env,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    a = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ngbet",
+            "study",
+            "alpha1",
+            "--quick",
+            "--quiet",
+            "--workers",
+            "2",
+            "--out",
+            str(tmp_path / "a"),
+            "--cache",
+            str(cache),
+            *slow,
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         wait_until(lambda: cache.exists() and any((d / "results.csv").exists() for d in cache.glob(".run-*")), 120)
         os.kill(a.pid, signal.SIGSTOP)
@@ -694,9 +816,27 @@ def test_a_stopped_study_keeps_its_cases_when_another_starts_on_the_same_cache(t
         from ngbet.study.cache import held
 
         wait_until(lambda: not any(held(d / RUN_LOCK) for d in cache.glob(".run-*")), 300)
-        b = subprocess.run([sys.executable, "-m", "ngbet", "study", "alpha1", "--quick", "--quiet", "--workers", "1",
-                            "--out", str(tmp_path / "b"), "--cache", str(cache)], env=env, capture_output=True,
-                           text=True, timeout=300)
+        b = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "ngbet",
+                "study",
+                "alpha1",
+                "--quick",
+                "--quiet",
+                "--workers",
+                "1",
+                "--out",
+                str(tmp_path / "b"),
+                "--cache",
+                str(cache),
+            ],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert b.returncode == 0, b.stderr
         for name in running:  # each of A's folders is still there, or its case is stored
             assert (cache / name).exists() or (cache / name.split("-")[1]).exists(), name
@@ -752,8 +892,10 @@ def test_quick_validation_makes_only_its_own_fit_and_says_what_it_leaves_out(mon
     monkeypatch.setattr(V, "_case", lambda doc, target: {"specimen.name": target})
     study = build_study(V.build, True)
     assert made == [(*VF.QUICK, True)]
-    assert study.left_out == ["12 of the full study's 13 fits (each size alone, both sizes, each laboratory's "
-                              "frame)", f"{VF.MAX_RUNS} model runs per fit ({VF.QUICK_RUNS} instead)"]
+    assert study.left_out == [
+        "12 of the full study's 13 fits (each size alone, both sizes, each laboratory's frame)",
+        f"{VF.MAX_RUNS} model runs per fit ({VF.QUICK_RUNS} instead)",
+    ]
 
 
 def test_validation_fits_predict_every_curve_they_do_not_use():

@@ -21,8 +21,9 @@ def pool_getenv(name: str) -> str | None:
     alive_r, alive_w = ctx.Pipe(duplex=False)
     env = {k: v for k, v in os.environ.items() if k.startswith("NGBET_")}
     try:
-        with cf.ProcessPoolExecutor(1, mp_context=ctx, initializer=executors.worker_init,
-                                    initargs=(alive_r, env)) as ex:
+        with cf.ProcessPoolExecutor(
+            1, mp_context=ctx, initializer=executors.worker_init, initargs=(alive_r, env)
+        ) as ex:
             return ex.submit(os.getenv, name).result(timeout=60)
     finally:
         alive_w.close()

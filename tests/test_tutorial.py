@@ -19,8 +19,9 @@ def test_the_tutorial_runs_and_writes_its_figure(tmp_path):
         pytest.skip("the docs are not beside the tests (tests run against an installed package)")
     nb = nbformat.read(NOTEBOOK, as_version=4)
     # raises CellExecutionError, with the cell and its traceback, when a cell fails
-    nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
-                            resources={"metadata": {"path": str(tmp_path)}}).execute()
+    nbclient.NotebookClient(
+        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    ).execute()
     assert (tmp_path / "bet_two_fabrics.pdf").stat().st_size > 10_000
     assert (tmp_path / "bet_two_fabrics.png").stat().st_size > 50_000
     runs = [ngbet.load_result(tmp_path / "runs" / str(i)) for i in (0, 1)]

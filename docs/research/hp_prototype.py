@@ -82,9 +82,16 @@ def _spaces(self, scene, dirichlet):  # noqa: ANN001
 
 P.ContinuumProblem._spaces = _spaces
 
-scene = C.base_scene(False, **{**C.lagrange(20.0, PMAX, CORNER),
-                               "outputs.error_estimate": "off", "loading.u0_mm": 37.0, "loading.stops_mm": [],
-                               **json.loads(os.environ.get("EXTRA", "{}"))})
+scene = C.base_scene(
+    False,
+    **{
+        **C.lagrange(20.0, PMAX, CORNER),
+        "outputs.error_estimate": "off",
+        "loading.u0_mm": 37.0,
+        "loading.stops_mm": [],
+        **json.loads(os.environ.get("EXTRA", "{}")),
+    },
+)
 t0 = time.perf_counter()
 with tempfile.TemporaryDirectory() as d:
     try:
@@ -97,6 +104,19 @@ with tempfile.TemporaryDirectory() as d:
     summ = json.loads((Path(d) / "summary.json").read_text()) if (Path(d) / "summary.json").exists() else {}
 head = rows[0].split(",")
 last = dict(zip(head, rows[-1].split(","), strict=False))
-print(json.dumps({"corner": CORNER, "pmin": PMIN, "pmax": PMAX, "D": DIST, "uniform": UNIFORM, "status": status,
-                  "u0": float(last["u0_mm"]), "F": float(last["force_N"]), "dofs": summ.get("dofs"),
-                  "wall": round(time.perf_counter() - t0, 1)}))
+print(
+    json.dumps(
+        {
+            "corner": CORNER,
+            "pmin": PMIN,
+            "pmax": PMAX,
+            "D": DIST,
+            "uniform": UNIFORM,
+            "status": status,
+            "u0": float(last["u0_mm"]),
+            "F": float(last["force_N"]),
+            "dofs": summ.get("dofs"),
+            "wall": round(time.perf_counter() - t0, 1),
+        }
+    )
+)

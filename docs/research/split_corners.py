@@ -36,9 +36,15 @@ BISECTIONS = 2
 
 
 def scene(corner_mm: float, p: int, bisections: int = BISECTIONS):  # noqa: ANN201 - a Scene
-    return C.base_scene(False).with_changes(**C.mesh(20.0, p, corner_mm, bisections), **{
-        "effects.constraint": "lagrange", "outputs.error_estimate": "off", "loading.u0_mm": U0_MM,
-        "loading.stops_mm": []})
+    return C.base_scene(False).with_changes(
+        **C.mesh(20.0, p, corner_mm, bisections),
+        **{
+            "effects.constraint": "lagrange",
+            "outputs.error_estimate": "off",
+            "loading.u0_mm": U0_MM,
+            "loading.stops_mm": [],
+        },
+    )
 
 
 def force(corner_mm: float, p: int) -> tuple[float | None, int, float]:
@@ -60,21 +66,30 @@ def main() -> None:
     for c in (1.0, 0.5, 0.25, 0.125):
         n, d = corner_elements(make_mesh(scene(c, 2, 0).specimen, scene(c, 2, 0).discretization))
         n2, d2 = corner_elements(make_mesh(scene(c, 2).specimen, scene(c, 2).discretization))
-        print(f"corner size {c:g} mm: {n} element(s) at the corner, diameter {d:.3f} mm; "
-              f"bisected twice: {n2}, {d2:.3f} mm")
+        print(
+            f"corner size {c:g} mm: {n} element(s) at the corner, diameter {d:.3f} mm; "
+            f"bisected twice: {n2}, {d2:.3f} mm"
+        )
     done: list[tuple[int, float]] = []
     for p in ORDERS:
         F, ndof, s = force(1.0, p)
-        print(f"1 mm corners bisected twice, p = {p}: {ndof} dofs, "
-              + (f"F(37) = {F:.7f} N" if F is not None else "no force") + f", {s:.0f} s", flush=True)
+        print(
+            f"1 mm corners bisected twice, p = {p}: {ndof} dofs, "
+            + (f"F(37) = {F:.7f} N" if F is not None else "no force")
+            + f", {s:.0f} s",
+            flush=True,
+        )
         if F is not None:
             done.append((p, F))
     if len(done) >= 3:
         lim, bound = extrapolate([F for _, F in done], [p for p, _ in done])
         print(f"extrapolated over p = {', '.join(str(p) for p, _ in done)}: {lim:.5f} N +- {bound:.5f} N")
     F, ndof, s = force(0.5, 10)
-    print(f"0.5 mm corners bisected twice, p = 10: {ndof} dofs, "
-          + (f"F(37) = {F:.7f} N" if F is not None else "no force") + f", {s:.0f} s")
+    print(
+        f"0.5 mm corners bisected twice, p = 10: {ndof} dofs, "
+        + (f"F(37) = {F:.7f} N" if F is not None else "no force")
+        + f", {s:.0f} s"
+    )
 
 
 if __name__ == "__main__":

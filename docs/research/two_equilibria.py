@@ -38,9 +38,10 @@ U0_MM = 37.0
 
 
 def scene(p: int):  # noqa: ANN201 - a Scene
-    return C.base_scene(False).with_changes(**C.lagrange(20.0, p, CORNER), **{
-        "outputs.error_estimate": "off",
-        "loading.u0_mm": U0_MM, "loading.stops_mm": []})
+    return C.base_scene(False).with_changes(
+        **C.lagrange(20.0, p, CORNER),
+        **{"outputs.error_estimate": "off", "loading.u0_mm": U0_MM, "loading.stops_mm": []},
+    )
 
 
 def loaded(p: int) -> ContinuumSolver:
@@ -56,8 +57,10 @@ def loaded(p: int) -> ContinuumSolver:
 def describe(name: str, prob: ContinuumSolver) -> None:
     pb = prob.problem
     t = pb.scene.specimen.t
-    print(f"{name}: p = {pb.scene.discretization.order_u}, {pb.X.ndof} dofs, "
-          f"F = {obs.reaction_force(pb, prob.residual()) * t:.7f} N, energy = {prob.energy() * t:.10e} J")
+    print(
+        f"{name}: p = {pb.scene.discretization.order_u}, {pb.X.ndof} dofs, "
+        f"F = {obs.reaction_force(pb, prob.residual()) * t:.7f} N, energy = {prob.energy() * t:.10e} J"
+    )
     print(f"  {diagnose_stability(prob).message()[:240]}", flush=True)
 
 
@@ -87,8 +90,9 @@ def main() -> None:
             if mp.nr >= 0:
                 diffs.append((float(np.hypot(*du(mp))), x * 1e3, y * 1e3))
     diffs.sort(reverse=True)
-    print("largest |u_L - u_C| [m] at (X, Y) [mm]:",
-          ", ".join(f"{v:.2e} at ({x:.1f}, {y:.1f})" for v, x, y in diffs[:4]))
+    print(
+        "largest |u_L - u_C| [m] at (X, Y) [mm]:", ", ".join(f"{v:.2e} at ({x:.1f}, {y:.1f})" for v, x, y in diffs[:4])
+    )
     print(f"wall {time.perf_counter() - t0:.0f} s")
 
 

@@ -35,40 +35,89 @@ __all__ = ["Inputs", "add_parser", "run_from_args", "summary"]
 
 def add_parser(sub: Any) -> None:
     """The ``ngbet fit`` subcommand."""
-    p = sub.add_parser("fit", help="fit material parameters to measured force-displacement curves (one or several "
-                       "specimen sizes)")
-    p.add_argument("inputs", nargs="+", metavar="DATA.csv",
-                   help="measured curves: CSV with a header (displacement_mm,force_N); '# specimen.width_mm = ...' "
-                   "comment lines give each curve's specimen; NAME_errorbars.csv beside NAME.csv weights the points. "
-                   "A .toml among them is the scene (as --scene)")
+    p = sub.add_parser(
+        "fit", help="fit material parameters to measured force-displacement curves (one or several specimen sizes)"
+    )
+    p.add_argument(
+        "inputs",
+        nargs="+",
+        metavar="DATA.csv",
+        help="measured curves: CSV with a header (displacement_mm,force_N); '# specimen.width_mm = ...' "
+        "comment lines give each curve's specimen; NAME_errorbars.csv beside NAME.csv weights the points. "
+        "A .toml among them is the scene (as --scene)",
+    )
     p.add_argument("--scene", help="scene TOML of the fabric (default: the embedded scene)")
-    p.add_argument("--params", help="comma-separated material keys, e.g. material.K_sh,material.K_el "
-                   "(default: the scene's [calibration] params)")
+    p.add_argument(
+        "--params",
+        help="comma-separated material keys, e.g. material.K_sh,material.K_el "
+        "(default: the scene's [calibration] params)",
+    )
     p.add_argument("--out", default="out/fit", help="output folder (default: out/fit)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="override one scene value (also the start values), repeatable")
-    p.add_argument("--range", dest="u_range", metavar="FROM:TO", help="fit the points between FROM and TO mm "
-                   "(default: 10 to 90 %% of each curve's displacement range)")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override one scene value (also the start values), repeatable",
+    )
+    p.add_argument(
+        "--range",
+        dest="u_range",
+        metavar="FROM:TO",
+        help="fit the points between FROM and TO mm (default: 10 to 90 %% of each curve's displacement range)",
+    )
     p.add_argument("--max-runs", type=int, default=40, help="at most this many model runs (default 40)")
-    p.add_argument("--accuracy", type=float, default=0.01, metavar="REL",
-                   help="largest estimated discretization error of the model force at a fitted point, relative "
-                   "to it (default 0.01); ngbet chooses each curve's mesh and order to meet it")
-    p.add_argument("--profile", metavar="PROFILE.csv", help="a measured mid-axis profile (u0_mm,X_mm,uy_mm) of the "
-                   "first data file's specimen, fitted together with the force")
+    p.add_argument(
+        "--accuracy",
+        type=float,
+        default=0.01,
+        metavar="REL",
+        help="largest estimated discretization error of the model force at a fitted point, relative "
+        "to it (default 0.01); ngbet chooses each curve's mesh and order to meet it",
+    )
+    p.add_argument(
+        "--profile",
+        metavar="PROFILE.csv",
+        help="a measured mid-axis profile (u0_mm,X_mm,uy_mm) of the "
+        "first data file's specimen, fitted together with the force",
+    )
     p.add_argument("--profile-sd", type=float, default=1.0, help="with --profile: its standard deviation [mm]")
-    p.add_argument("--angles", metavar="ANGLES.csv", help="measured centre shear angles (displacement_mm,"
-                   "shear_angle_deg) of the first data file's specimen, fitted together with the force")
-    p.add_argument("--angle-sd", type=float, default=1.0, help="with --angles: their standard deviation [deg] "
-                   "(default 1)")
-    p.add_argument("--predict", metavar="OTHER.csv", action="append", default=[],
-                   help="another measured curve to predict with the fitted values (repeatable)")
-    p.add_argument("--predict-scene", metavar="OTHER.toml",
-                   help="the scene of a --predict curve without specimen keys (default: the fitted one)")
-    p.add_argument("--specimen", action="append", default=[], metavar="WxL[xT]",
-                   help="the measured specimen where a file's header does not give it: width x clamp-to-clamp length "
-                   "[x thickness] in mm, e.g. 100x250; once for every file, or once per file in order")
-    p.add_argument("--columns", metavar="X,Y", help="the displacement and force columns by header name or number, "
-                   "each with an optional unit (e.g. 'Weg:mm,Kraft:kN'); default: by their names")
+    p.add_argument(
+        "--angles",
+        metavar="ANGLES.csv",
+        help="measured centre shear angles (displacement_mm,"
+        "shear_angle_deg) of the first data file's specimen, fitted together with the force",
+    )
+    p.add_argument(
+        "--angle-sd", type=float, default=1.0, help="with --angles: their standard deviation [deg] (default 1)"
+    )
+    p.add_argument(
+        "--predict",
+        metavar="OTHER.csv",
+        action="append",
+        default=[],
+        help="another measured curve to predict with the fitted values (repeatable)",
+    )
+    p.add_argument(
+        "--predict-scene",
+        metavar="OTHER.toml",
+        help="the scene of a --predict curve without specimen keys (default: the fitted one)",
+    )
+    p.add_argument(
+        "--specimen",
+        action="append",
+        default=[],
+        metavar="WxL[xT]",
+        help="the measured specimen where a file's header does not give it: width x clamp-to-clamp length "
+        "[x thickness] in mm, e.g. 100x250; once for every file, or once per file in order",
+    )
+    p.add_argument(
+        "--columns",
+        metavar="X,Y",
+        help="the displacement and force columns by header name or number, "
+        "each with an optional unit (e.g. 'Weg:mm,Kraft:kN'); default: by their names",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress line")
 
 
@@ -111,8 +160,9 @@ class Inputs:
             raise SceneError("no data file: give at least one CSV of displacement_mm,force_N")
         self.scene = load_scene(args.scene or (tomls[0] if tomls else None), args.overrides)
         if self.scene.model != "continuum":
-            raise SceneError(f"model = {self.scene.model!r}: ngbet fit calibrates the continuum model "
-                             "(model = 'continuum')")
+            raise SceneError(
+                f"model = {self.scene.model!r}: ngbet fit calibrates the continuum model (model = 'continuum')"
+            )
         if args.params is not None:
             self.params = [p.strip() for p in args.params.split(",") if p.strip()]
             if not self.params:
@@ -120,8 +170,10 @@ class Inputs:
         else:
             self.params = list(self.scene.calibration.params)
             if not self.params:
-                raise SceneError("no parameters to fit: give --params (e.g. material.K_sh) or name them in the "
-                                 "scene's [calibration] params")
+                raise SceneError(
+                    "no parameters to fit: give --params (e.g. material.K_sh) or name them in the "
+                    "scene's [calibration] params"
+                )
         if not args.max_runs >= 1:
             raise SceneError(f"--max-runs {args.max_runs}: must be at least 1")
         self.u_range = _range(args.u_range)
@@ -145,21 +197,27 @@ class Inputs:
         if not (args.profile_sd > 0 and args.angle_sd > 0):
             raise SceneError(f"--profile-sd = {args.profile_sd}, --angle-sd = {args.angle_sd}: both must be > 0")
         if not 0 < args.accuracy < 1:
-            raise SceneError(f"--accuracy {args.accuracy}: the largest relative discretization error of the force, "
-                             "between 0 and 1 (e.g. 0.01)")
+            raise SceneError(
+                f"--accuracy {args.accuracy}: the largest relative discretization error of the force, "
+                "between 0 and 1 (e.g. 0.01)"
+            )
         names = expand_params(self.scene, self.params)
         bad = [n for n in names if not value_of(self.scene, n) > 0]
         if bad:
-            raise SceneError(f"--params: {', '.join(bad)} must have a positive start value (the fit works on "
-                             "ln p; give one with --set)")
+            raise SceneError(
+                f"--params: {', '.join(bad)} must have a positive start value (the fit works on "
+                "ln p; give one with --set)"
+            )
         for c in self.curves:
             note = c.check_window(self._fraction(c))
             self.notes += [note] if note else []
             curve_scene(self.scene, c, c.sample(fraction=self._fraction(c))[0])
         for c in self.predict:
             if not c.specimen and c.test != "picture_frame" and self.predict_scene is None:
-                raise SceneError(f"--predict {c.source}: its header gives no specimen "
-                                 "(# specimen.width_mm = ..., # specimen.length_mm = ...) and no --predict-scene")
+                raise SceneError(
+                    f"--predict {c.source}: its header gives no specimen "
+                    "(# specimen.width_mm = ..., # specimen.length_mm = ...) and no --predict-scene"
+                )
 
     def _fraction(self, c: MeasuredCurve) -> tuple[float, float]:
         from .data import RANGE
@@ -169,8 +227,9 @@ class Inputs:
         lo, hi = float(c.u_mm.min()), float(c.u_mm.max())
         a, b = max(self.u_range[0], lo), min(self.u_range[1], hi)
         if not a < b:
-            raise SceneError(f"--range {self.u_range[0]:g}:{self.u_range[1]:g} mm holds no point of {c.source} "
-                             f"({lo:g} to {hi:g} mm)")
+            raise SceneError(
+                f"--range {self.u_range[0]:g}:{self.u_range[1]:g} mm holds no point of {c.source} ({lo:g} to {hi:g} mm)"
+            )
         return (a - lo) / (hi - lo), (b - lo) / (hi - lo)
 
 
@@ -189,10 +248,19 @@ def run_from_args(args: argparse.Namespace) -> int:
         from .joint import fit_curves, terminal_progress
 
         fractions = [inp._fraction(c) for c in inp.curves]
-        result = fit_curves(inp.curves, inp.scene, inp.params if args.params is not None else None, args.max_runs,
-                            None if args.quiet else terminal_progress(), fractions=fractions,
-                            target_error=args.accuracy, profile=inp.profile, profile_sd_mm=args.profile_sd,
-                            angles=inp.angles, angle_sd_deg=args.angle_sd)
+        result = fit_curves(
+            inp.curves,
+            inp.scene,
+            inp.params if args.params is not None else None,
+            args.max_runs,
+            None if args.quiet else terminal_progress(),
+            fractions=fractions,
+            target_error=args.accuracy,
+            profile=inp.profile,
+            profile_sd_mm=args.profile_sd,
+            angles=inp.angles,
+            angle_sd_deg=args.angle_sd,
+        )
         if not args.quiet and sys.stderr.isatty():
             sys.stderr.write("\n")
         from .report import write_fit
@@ -227,8 +295,11 @@ def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) 
     spec = test_changes(c)
     if scene is not None and not spec:
         sp = scene.specimen
-        spec = {"specimen.width_mm": sp.width_mm, "specimen.length_mm": sp.length_mm,
-                "specimen.thickness_mm": sp.thickness_mm}
+        spec = {
+            "specimen.width_mm": sp.width_mm,
+            "specimen.length_mm": sp.length_mm,
+            "specimen.thickness_mm": sp.thickness_mm,
+        }
     try:
         pred = predict_specimen(result, spec, u)
     except ConvergenceError as exc:
@@ -236,28 +307,35 @@ def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) 
         return 1
     path = write_prediction(pred, c, F, out)
     rms = float(np.sqrt(np.mean(((pred.force_N - F) / F) ** 2)))  # the same in F_s or F_norm (linear at each point)
-    print(f"  prediction of {c.source}: RMS relative error {100 * rms:.1f} % over {u[0]:.3g} to {u[-1]:.3g} mm "
-          f"-> {path.name}")
+    print(
+        f"  prediction of {c.source}: RMS relative error {100 * rms:.1f} % over {u[0]:.3g} to {u[-1]:.3g} mm "
+        f"-> {path.name}"
+    )
     return 0
 
 
 def summary(result: Any, out: Path) -> str:
     """A few lines for the terminal."""
     head = "" if result.converged else "NOT CONVERGED (raise --max-runs): "
-    lines = [f"ngbet fit: {head}{len(result.names)} parameters, {len(result.curves)} curve(s), "
-             f"{result.model_runs} model runs, {result.wall_s:.1f} s; results in {out}/"]
+    lines = [
+        f"ngbet fit: {head}{len(result.names)} parameters, {len(result.curves)} curve(s), "
+        f"{result.model_runs} model runs, {result.wall_s:.1f} s; results in {out}/"
+    ]
     for c in result.curves:
         err = c.error_rel_max
         est = f"{100 * err:.2g} %" if math.isfinite(err) else "not vouched for"
-        lines.append(f"  {c.label:>16s}: RMS relative error {100 * c.rms_relative:5.1f} % "
-                     f"({len(c.u_mm)} points, {c.u_mm[0]:.3g} to {c.u_mm[-1]:.3g} mm); discretization error {est}")
+        lines.append(
+            f"  {c.label:>16s}: RMS relative error {100 * c.rms_relative:5.1f} % "
+            f"({len(c.u_mm)} points, {c.u_mm[0]:.3g} to {c.u_mm[-1]:.3g} mm); discretization error {est}"
+        )
     if not result.accuracy_met:
-        lines.append(f"  the model's discretization error is above --accuracy {result.target_error:g} on some curve "
-                     "(raise --max-runs; fit.json: accuracy)")
+        lines.append(
+            f"  the model's discretization error is above --accuracy {result.target_error:g} on some curve "
+            "(raise --max-runs; fit.json: accuracy)"
+        )
     se = result.se_log
     for k, n in enumerate(result.names):
-        flag = ("  at its bound" if n in result.at_bound
-                else "  undetermined" if n in result.undetermined else "")
+        flag = "  at its bound" if n in result.at_bound else "  undetermined" if n in result.undetermined else ""
         lines.append(f"  {n:36s} = {result.values[k]:11.5g}   se(ln p) = {se[k]:.3g}{flag}")
     for n, why in result.undetermined.items():
         lines.append(f"  {n} undetermined: {why}")

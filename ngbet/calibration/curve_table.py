@@ -60,19 +60,33 @@ from .curve_columns import (
     unit_key,
 )
 
-__all__ = ["CYCLE_TOLERANCE", "FRAME_KEYS", "TESTS", "CurveTable", "errorbar_path", "parse_sizes", "read_errorbars",
-           "read_table"]
+__all__ = [
+    "CYCLE_TOLERANCE",
+    "FRAME_KEYS",
+    "TESTS",
+    "CurveTable",
+    "errorbar_path",
+    "parse_sizes",
+    "read_errorbars",
+    "read_table",
+]
 
 #: a fall of the displacement by more than this fraction of its range is an unloading (the vertices of
 #: a digitised curve step back by up to 2.5 % of the range: data/cao2008_pf)
 CYCLE_TOLERANCE = 0.05
 
 TESTS = ("bias_extension", "picture_frame")
-_SPECIMEN_KEYS = {"width": "specimen.width_mm", "length": "specimen.length_mm",
-                  "thickness": "specimen.thickness_mm", "yarn_angle": "specimen.yarn_angle_deg"}
+_SPECIMEN_KEYS = {
+    "width": "specimen.width_mm",
+    "length": "specimen.length_mm",
+    "thickness": "specimen.thickness_mm",
+    "yarn_angle": "specimen.yarn_angle_deg",
+}
 FRAME_KEYS = {"frame": "picture_frame.frame_mm", "fabric": "picture_frame.fabric_mm"}
-_KEY_LINE = re.compile(r"^#\s*((?:specimen|picture_frame)\.[\w.]+|width_mm|length_mm|thickness_mm|yarn_angle_deg)"
-                       r"\s*=\s*(.*?)\s*$")
+_KEY_LINE = re.compile(
+    r"^#\s*((?:specimen|picture_frame)\.[\w.]+|width_mm|length_mm|thickness_mm|yarn_angle_deg)"
+    r"\s*=\s*(.*?)\s*$"
+)
 _TEST_LINE = re.compile(r"^#\s*test\s*[:=]\s*[\"']?([^;,\"']*)", re.IGNORECASE)
 _TABLE3 = re.compile(r"frame\s+([0-9.]+)\s*mm\s*,\s*fabric\s+([0-9.]+)\s*mm", re.IGNORECASE)
 _VALUE = re.compile(r"^([+-]?[0-9.]+(?:[eE][+-]?\d+)?)\s*([A-Za-z°]*)$")
@@ -104,6 +118,7 @@ class CurveTable:
 
 # --- text ---------------------------------------------------------------------------------------------------------
 
+
 def _text(path: Path, what: str) -> tuple[str, list[str]]:
     if path.is_dir():
         raise SceneError(f"{what} file {path} is a directory")
@@ -132,9 +147,11 @@ def _number(text: str, path: Path | str, line: int, column: str, comma: bool) ->
     if comma and _DECIMAL_COMMA.match(t):
         t = t.replace(",", ".")
     elif "," in t:
-        raise SceneError(f"{path}, line {line}: {column} = {text!r} is ambiguous (a thousands separator or a decimal "
-                         "comma?): write numbers without thousands separators, with a decimal point, or with "
-                         "decimal commas and semicolons between the columns")
+        raise SceneError(
+            f"{path}, line {line}: {column} = {text!r} is ambiguous (a thousands separator or a decimal "
+            "comma?): write numbers without thousands separators, with a decimal point, or with "
+            "decimal commas and semicolons between the columns"
+        )
     try:
         v = float(t)
     except ValueError:
@@ -161,8 +178,9 @@ def _key_value(key: str, value: str, path: Path, line: int) -> tuple[str, float,
     if suffix not in ("mm", "deg"):
         stem, suffix = bare, ""
     if stem not in table:
-        raise SceneError(f"{path}, line {line}: unknown key {key!r}; the {section} keys are "
-                         f"{', '.join(table.values())}")
+        raise SceneError(
+            f"{path}, line {line}: unknown key {key!r}; the {section} keys are {', '.join(table.values())}"
+        )
     full = table[stem]
     m = _VALUE.match(value)
     if not m:
@@ -171,11 +189,15 @@ def _key_value(key: str, value: str, path: Path, line: int) -> tuple[str, float,
     unit = unit_key(m.group(2)) if m.group(2) else (suffix or None)
     want = "angle" if full.endswith("_deg") else "length"
     if unit is None:
-        raise SceneError(f"{path}, line {line}: {key} = {value!r} gives no unit: write {full} = {value} "
-                         f"{'deg' if want == 'angle' else 'mm'}")
+        raise SceneError(
+            f"{path}, line {line}: {key} = {value!r} gives no unit: write {full} = {value} "
+            f"{'deg' if want == 'angle' else 'mm'}"
+        )
     if unit not in UNITS or UNITS[unit][0] != want:
-        raise SceneError(f"{path}, line {line}: {key} = {value!r}: {m.group(2) or suffix!r} is not a unit of "
-                         f"{'an angle' if want == 'angle' else 'a length'}")
+        raise SceneError(
+            f"{path}, line {line}: {key} = {value!r}: {m.group(2) or suffix!r} is not a unit of "
+            f"{'an angle' if want == 'angle' else 'a length'}"
+        )
     note = None
     if UNITS[unit][1] != 1.0:
         v *= UNITS[unit][1]
@@ -185,8 +207,12 @@ def _key_value(key: str, value: str, path: Path, line: int) -> tuple[str, float,
 
 def _test_name(text: str, where: str) -> str:
     t = re.sub(r"[\s\-]+", "_", text.strip().lower())
-    t = {"bet": "bias_extension", "bias_extension_test": "bias_extension", "pf": "picture_frame",
-         "picture_frame_test": "picture_frame"}.get(t, t)
+    t = {
+        "bet": "bias_extension",
+        "bias_extension_test": "bias_extension",
+        "pf": "picture_frame",
+        "picture_frame_test": "picture_frame",
+    }.get(t, t)
     if t not in TESTS:
         raise SceneError(f"{where}: unknown test {text.strip()!r}; write bias_extension or picture_frame")
     return t
@@ -204,8 +230,10 @@ class _Header:
 
     def _set(self, key: str, v: float, line: int) -> None:
         if key in self.keys and self.keys[key] != v:
-            raise SceneError(f"{self.path}, line {line}: {key} = {v:g}, but line {self.where[key]} says "
-                             f"{self.keys[key]:g}: give it once")
+            raise SceneError(
+                f"{self.path}, line {line}: {key} = {v:g}, but line {self.where[key]} says "
+                f"{self.keys[key]:g}: give it once"
+            )
         self.keys[key], self.where[key] = v, line
 
     def comment(self, text: str, line: int) -> None:
@@ -230,6 +258,7 @@ class _Header:
 
 # --- the table ------------------------------------------------------------------------------------------------------
 
+
 def parse_sizes(text: str, what: str, names: Sequence[str]) -> dict[str, float]:
     """``"100x250"`` (or ``100 x 250 x 3.3``, ``100×250``, mm) as the scene keys ``names``, each > 0.
 
@@ -241,17 +270,20 @@ def parse_sizes(text: str, what: str, names: Sequence[str]) -> dict[str, float]:
     except ValueError:
         vals = []
     if not 2 <= len(vals) <= len(names) or not all(math.isfinite(v) for v in vals):
-        example = "x".join(("100", "250", "3.3")[:len(names)])
-        raise SceneError(f"{what} {text!r}: write sizes in mm joined by x, e.g. {what} {example} "
-                         f"({' x '.join(n.split('.')[-1].removesuffix('_mm') for n in names)})")
+        example = "x".join(("100", "250", "3.3")[: len(names)])
+        raise SceneError(
+            f"{what} {text!r}: write sizes in mm joined by x, e.g. {what} {example} "
+            f"({' x '.join(n.split('.')[-1].removesuffix('_mm') for n in names)})"
+        )
     bad = [f"{n.split('.')[-1].removesuffix('_mm')} {v:g}" for n, v in zip(names, vals, strict=False) if not v > 0]
     if bad:
         raise SceneError(f"{what} {text!r}: {', '.join(bad)}: sizes must be > 0 mm")
     return dict(zip(names, vals, strict=False))
 
 
-def _merge(path: Path, header: dict[str, float], given: dict[str, float] | None, what: str, flag: str
-           ) -> tuple[dict[str, float], list[str]]:
+def _merge(
+    path: Path, header: dict[str, float], given: dict[str, float] | None, what: str, flag: str
+) -> tuple[dict[str, float], list[str]]:
     out, notes = dict(header), []
     for k, v in (given or {}).items():
         if k in header and not math.isclose(header[k], v, rel_tol=1e-9):
@@ -271,11 +303,15 @@ def _specimen(path: Path, keys: dict[str, float], given: dict[str, float] | None
     has = [k for k in ("specimen.width_mm", "specimen.length_mm") if k in spec]
     if spec and len(has) < 2:
         lack = ({"specimen.width_mm", "specimen.length_mm"} - set(has)).pop()
-        raise SceneError(f"{path}: an incomplete specimen: {', '.join(sorted(spec))} but no {lack}; add "
-                         f"'# {lack} = ...' to the header or give --specimen WIDTHxLENGTH (mm)")
+        raise SceneError(
+            f"{path}: an incomplete specimen: {', '.join(sorted(spec))} but no {lack}; add "
+            f"'# {lack} = ...' to the header or give --specimen WIDTHxLENGTH (mm)"
+        )
     if len(has) == 2 and not spec["specimen.length_mm"] > spec["specimen.width_mm"]:
-        raise SceneError(f"{path}: specimen {spec['specimen.width_mm']:g} x {spec['specimen.length_mm']:g} mm: the "
-                         "clamp-to-clamp length must exceed the width (--specimen and the header give width x length)")
+        raise SceneError(
+            f"{path}: specimen {spec['specimen.width_mm']:g} x {spec['specimen.length_mm']:g} mm: the "
+            "clamp-to-clamp length must exceed the width (--specimen and the header give width x length)"
+        )
     return spec, notes
 
 
@@ -305,8 +341,10 @@ def _rows(text: str, path: Path, header: _Header) -> tuple[list[str], int, list[
             sep = ";" if ";" in line else "\t" if "\t" in line else ","
             head = next(csv.reader([line], delimiter=sep))
             if all(_is_number(c) for c in head if c.strip()):
-                raise SceneError(f"{path}, line {k}: a row of numbers where the header should be: the first line "
-                                 "that is not a # comment must name the columns (displacement_mm,force_N)")
+                raise SceneError(
+                    f"{path}, line {k}: a row of numbers where the header should be: the first line "
+                    "that is not a # comment must name the columns (displacement_mm,force_N)"
+                )
             head_line = k
             continue
         rows.append((k, next(csv.reader([line], delimiter=sep))))
@@ -315,8 +353,14 @@ def _rows(text: str, path: Path, header: _Header) -> tuple[list[str], int, list[
     return head, head_line, rows, sep
 
 
-def read_table(path: str | Path, *, test: str | None = None, columns: str | Sequence[str] | None = None,
-               specimen: dict[str, float] | None = None, frame: dict[str, float] | None = None) -> CurveTable:
+def read_table(
+    path: str | Path,
+    *,
+    test: str | None = None,
+    columns: str | Sequence[str] | None = None,
+    specimen: dict[str, float] | None = None,
+    frame: dict[str, float] | None = None,
+) -> CurveTable:
     """Read a measured curve as laboratories write it (module docstring): the one reader of measured curves.
 
     Parameters
@@ -351,29 +395,41 @@ def read_table(path: str | Path, *, test: str | None = None, columns: str | Sequ
     data, lines = [], []
     for k, cells in rows:
         if len(cells) <= max(x.index, y.index):
-            hint = " (decimal commas need semicolons or tabs between the columns)" if not comma and "," in "".join(
-                cells) else ""
-            raise SceneError(f"{path}, line {k}: {len(cells)} cells, the header (line {head_line}) has {len(head)}"
-                             + hint)
-        data.append((_number(cells[x.index], path, k, x.name, comma),
-                     _number(cells[y.index], path, k, y.name, comma)))
+            hint = (
+                " (decimal commas need semicolons or tabs between the columns)"
+                if not comma and "," in "".join(cells)
+                else ""
+            )
+            raise SceneError(
+                f"{path}, line {k}: {len(cells)} cells, the header (line {head_line}) has {len(head)}" + hint
+            )
+        data.append((_number(cells[x.index], path, k, x.name, comma), _number(cells[y.index], path, k, y.name, comma)))
         lines.append(k)
     arr = np.array(data, dtype=float).reshape(-1, 2)
     xs, ys, ls = fx * arr[:, 0], fy * arr[:, 1], np.array(lines, dtype=int)
     if sep != ",":
-        notes.append(f"columns separated by {'semicolons' if sep == ';' else 'tabs'}"
-                     + (", decimal commas" if any("," in c for _, r in rows for c in r) else ""))
-    notes += [f"column {c.name!r} read as the {WORDS[c.quantity or '']} in {PRETTY.get(c.unit, c.unit)}, converted to "
-              f"{CANONICAL[UNITS[c.unit][0]]} (x {f:g})" for c, f in ((x, fx), (y, fy))
-              if c.unit is not None and f != 1.0]
+        notes.append(
+            f"columns separated by {'semicolons' if sep == ';' else 'tabs'}"
+            + (", decimal commas" if any("," in c for _, r in rows for c in r) else "")
+        )
+    notes += [
+        f"column {c.name!r} read as the {WORDS[c.quantity or '']} in {PRETTY.get(c.unit, c.unit)}, converted to "
+        f"{CANONICAL[UNITS[c.unit][0]]} (x {f:g})"
+        for c, f in ((x, fx), (y, fy))
+        if c.unit is not None and f != 1.0
+    ]
     ignored = [c.name for c in cols if c.index not in (x.index, y.index)]
     if ignored or columns:
-        notes.append(f"columns: {x.name!r} as the {WORDS[x.quantity or '']}, {y.name!r} as the "
-                     f"{WORDS[y.quantity or '']}" + (f"; ignored: {', '.join(map(repr, ignored))}" if ignored else ""))
+        notes.append(
+            f"columns: {x.name!r} as the {WORDS[x.quantity or '']}, {y.name!r} as the "
+            f"{WORDS[y.quantity or '']}" + (f"; ignored: {', '.join(map(repr, ignored))}" if ignored else "")
+        )
     beyond = _clipped(cols, rows)
     if beyond.any():
-        notes.append(f"{int(beyond.sum())} point(s) marked on_frame_edge top or right left out (the chart "
-                     "clipped them: their true value lies beyond its axis)")
+        notes.append(
+            f"{int(beyond.sum())} point(s) marked on_frame_edge top or right left out (the chart "
+            "clipped them: their true value lies beyond its axis)"
+        )
         xs, ys, ls = xs[~beyond], ys[~beyond], ls[~beyond]
     xs, ys, ls, cut = _loading_branch(xs, ys, ls, path, x.quantity or "")
     if cut:
@@ -386,8 +442,18 @@ def read_table(path: str | Path, *, test: str | None = None, columns: str | Sequ
         ftest = given
     spec, n1 = _specimen(path, header.keys, specimen)
     frm, n2 = _frame(path, header.keys, frame)
-    return CurveTable(str(path), x.quantity or "", y.quantity or "", xs, ys, ls, spec, frm, ftest,
-                      tuple(notes + header.notes + n1 + n2))
+    return CurveTable(
+        str(path),
+        x.quantity or "",
+        y.quantity or "",
+        xs,
+        ys,
+        ls,
+        spec,
+        frm,
+        ftest,
+        tuple(notes + header.notes + n1 + n2),
+    )
 
 
 def _clipped(cols: list[Column], rows: list[tuple[int, list[str]]]) -> np.ndarray:
@@ -395,34 +461,44 @@ def _clipped(cols: list[Column], rows: list[tuple[int, list[str]]]) -> np.ndarra
     clip = next((c for c in cols if c.name.lower() == "on_frame_edge"), None)
     if clip is None:
         return np.zeros(len(rows), dtype=bool)
-    return np.array([len(cells) > clip.index and bool({"top", "right"} & set(cells[clip.index].strip().lower()
-                                                                          .split("+"))) for _, cells in rows],
-                    dtype=bool)
+    return np.array(
+        [
+            len(cells) > clip.index and bool({"top", "right"} & set(cells[clip.index].strip().lower().split("+")))
+            for _, cells in rows
+        ],
+        dtype=bool,
+    )
 
 
-def _loading_branch(x: np.ndarray, y: np.ndarray, lines: np.ndarray, path: Path, quantity: str
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+def _loading_branch(
+    x: np.ndarray, y: np.ndarray, lines: np.ndarray, path: Path, quantity: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """The rows up to the largest x when the rows after it fall back (an unloading); several cycles refused."""
     if len(x) < 2:
         return x, y, lines, ""
     i = int(np.argmax(x))
     tol = CYCLE_TOLERANCE * float(x.max() - x.min())
     unit = "°" if quantity == "shear_angle" else " mm"
-    fall = np.maximum.accumulate(x[:i + 1]) - x[:i + 1]
+    fall = np.maximum.accumulate(x[: i + 1]) - x[: i + 1]
     if fall.max() > tol:
         j = int(np.argmax(fall > tol))
-        raise SceneError(f"{path}, line {int(lines[j])}: the {WORDS.get(quantity, quantity)} falls back to "
-                         f"{x[j]:g}{unit} before its largest value ({x[i]:g}{unit}, line {int(lines[i])}): several "
-                         "load cycles; keep one loading branch in the file")
-    if i < len(x) - 1 and float(x[i] - x[i + 1:].min()) > tol:
+        raise SceneError(
+            f"{path}, line {int(lines[j])}: the {WORDS.get(quantity, quantity)} falls back to "
+            f"{x[j]:g}{unit} before its largest value ({x[i]:g}{unit}, line {int(lines[i])}): several "
+            "load cycles; keep one loading branch in the file"
+        )
+    if i < len(x) - 1 and float(x[i] - x[i + 1 :].min()) > tol:
         what = WORDS.get(quantity, quantity)
-        note = (f"a loading-unloading cycle: kept the loading branch up to the largest {what}, "
-                f"{x[i]:g}{unit} (line {int(lines[i])}); the {len(x) - 1 - i} rows after it are left out")
-        return x[:i + 1], y[:i + 1], lines[:i + 1], note
+        note = (
+            f"a loading-unloading cycle: kept the loading branch up to the largest {what}, "
+            f"{x[i]:g}{unit} (line {int(lines[i])}); the {len(x) - 1 - i} rows after it are left out"
+        )
+        return x[: i + 1], y[: i + 1], lines[: i + 1], note
     return x, y, lines, ""
 
 
 # --- bias extension curves -----------------------------------------------------------------------------------------
+
 
 def errorbar_path(path: str | Path) -> Path:
     """``NAME_errorbars.csv`` beside ``NAME.csv``."""
@@ -452,8 +528,14 @@ def read_errorbars(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
     for k, cells in rows:
         if len(cells) <= max(idx):
             raise SceneError(f"{ep}, line {k}: {len(cells)} cells, the header (line {head_line}) has {len(head)}")
-        vals.append([math.nan if cells[j].strip() == "" and n != "displacement_mm"
-                     else _number(cells[j], ep, k, n, sep != ",") for j, n in zip(idx, need, strict=True)])
+        vals.append(
+            [
+                math.nan
+                if cells[j].strip() == "" and n != "displacement_mm"
+                else _number(cells[j], ep, k, n, sep != ",")
+                for j, n in zip(idx, need, strict=True)
+            ]
+        )
         lines.append(k)
     e = np.array(vals, dtype=float).reshape(-1, 3)
     ok = np.isfinite(e[:, 1]) & np.isfinite(e[:, 2])
@@ -466,5 +548,3 @@ def read_errorbars(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
         raise SceneError(f"{ep}, line {np.array(lines)[ok][j]}: force_high_N {bh[j]:g} is below force_low_N {bl[j]:g}")
     o = np.argsort(bu)
     return bu[o], bl[o], bh[o]
-
-

@@ -12,7 +12,6 @@ tenth holds slack and friction that no elastic law describes; the last tenth rea
 locking, where the kinematics of the test change.
 """
 
-
 from __future__ import annotations
 
 import math
@@ -27,8 +26,16 @@ from ..scene.validate import SceneError
 from .curve_columns import WORDS
 from .curve_table import FRAME_KEYS, CurveTable, read_errorbars, read_table
 
-__all__ = ["MIN_RELATIVE_SD", "POINTS_PER_CURVE", "RANGE", "READING_ERROR_N", "MeasuredCurve", "read_all",
-           "read_measured", "refuse_duplicates"]
+__all__ = [
+    "MIN_RELATIVE_SD",
+    "POINTS_PER_CURVE",
+    "RANGE",
+    "READING_ERROR_N",
+    "MeasuredCurve",
+    "read_all",
+    "read_measured",
+    "refuse_duplicates",
+]
 
 
 #: the points of a curve that enter a fit
@@ -64,9 +71,9 @@ class MeasuredCurve:
 
     @property
     def label(self) -> str:
-        """"W x L mm" from the header (a picture frame: "frame F/f mm"), else the file name."""
+        """The label "W x L mm" from the header (a picture frame: "frame F/f mm"), else the file name."""
         if self.test == "picture_frame":
-            return (f"frame {self.frame['picture_frame.frame_mm']:g}/{self.frame['picture_frame.fabric_mm']:g} mm")
+            return f"frame {self.frame['picture_frame.frame_mm']:g}/{self.frame['picture_frame.fabric_mm']:g} mm"
         w, L = self.specimen.get("specimen.width_mm"), self.specimen.get("specimen.length_mm")
         return f"{w:g} x {L:g} mm" if w and L else Path(self.source).stem
 
@@ -115,16 +122,22 @@ class MeasuredCurve:
         a, b = self.window(fraction)
         raw = int(np.count_nonzero((self.u_mm >= a) & (self.u_mm <= b)))
         if raw < 3:
-            raise SceneError(f"{self.source}: the fitted range {a:.4g} to {b:.4g} mm holds {raw} measured point(s); "
-                             f"at least 3 are needed (the fit samples {n} points between them): widen --range")
+            raise SceneError(
+                f"{self.source}: the fitted range {a:.4g} to {b:.4g} mm holds {raw} measured point(s); "
+                f"at least 3 are needed (the fit samples {n} points between them): widen --range"
+            )
         lock = self.locking_mm
         if lock is not None and b >= lock:
-            raise SceneError(f"{self.source}: the fitted range reaches {b:.4g} mm, at or beyond the ideal yarn locking "
-                             f"of the {self.label} specimen ({lock:.4g} mm): give --range FROM:TO with TO below "
-                             f"{lock:.4g} mm, or check the specimen")
+            raise SceneError(
+                f"{self.source}: the fitted range reaches {b:.4g} mm, at or beyond the ideal yarn locking "
+                f"of the {self.label} specimen ({lock:.4g} mm): give --range FROM:TO with TO below "
+                f"{lock:.4g} mm, or check the specimen"
+            )
         if raw < n:
-            return (f"{self.source}: the fitted range {a:.4g} to {b:.4g} mm holds {raw} measured points; the fit "
-                    f"samples {n} points interpolated between them (not {n} independent measurements)")
+            return (
+                f"{self.source}: the fitted range {a:.4g} to {b:.4g} mm holds {raw} measured points; the fit "
+                f"samples {n} points interpolated between them (not {n} independent measurements)"
+            )
         return None
 
     def sd(self, u: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -141,11 +154,13 @@ class MeasuredCurve:
         return cast(np.ndarray, np.maximum(half, floor))
 
 
-
-
-def read_measured(path: str | Path, fraction: tuple[float, float] = RANGE, *,
-                  columns: str | Sequence[str] | None = None,
-                  specimen: dict[str, float] | None = None) -> MeasuredCurve:
+def read_measured(
+    path: str | Path,
+    fraction: tuple[float, float] = RANGE,
+    *,
+    columns: str | Sequence[str] | None = None,
+    specimen: dict[str, float] | None = None,
+) -> MeasuredCurve:
     """Read and check a bias extension curve (module docstring); its error bars too when the file is there.
 
     Refused besides what :func:`read_table` refuses: a picture-frame file, fewer than three
@@ -155,10 +170,15 @@ def read_measured(path: str | Path, fraction: tuple[float, float] = RANGE, *,
     path = Path(path)
     t = read_table(path, test=None, columns=columns, specimen=specimen)
     if t.test == "picture_frame" or t.x_quantity != "displacement" or t.y_quantity != "force":
-        what = ("a picture-frame curve (its header says test: picture-frame)" if t.test == "picture_frame"
-                else f"a curve of the {WORDS[t.y_quantity]} against the {WORDS[t.x_quantity]}")
-        raise SceneError(f"{path}: {what}; this command takes a bias extension test's clamp displacement and force "
-                         "(ngbet normalise --test picture_frame reads picture-frame curves)")
+        what = (
+            "a picture-frame curve (its header says test: picture-frame)"
+            if t.test == "picture_frame"
+            else f"a curve of the {WORDS[t.y_quantity]} against the {WORDS[t.x_quantity]}"
+        )
+        raise SceneError(
+            f"{path}: {what}; this command takes a bias extension test's clamp displacement and force "
+            "(ngbet normalise --test picture_frame reads picture-frame curves)"
+        )
     u, F, lines = t.x, t.y, t.lines
     if len(u) < 3:
         raise SceneError(f"data file {path}: {len(u)} rows of numbers; at least 3 are needed")
@@ -166,16 +186,20 @@ def read_measured(path: str | Path, fraction: tuple[float, float] = RANGE, *,
     u, F, lines = u[order], F[order], lines[order]
     lo, hi = float(u.min()), float(u.max())
     if not hi > 0:
-        raise SceneError(f"{path}: no positive displacement (the largest is {hi:g} mm); the column "
-                         "displacement_mm is the clamp displacement in mm, increasing with the load")
+        raise SceneError(
+            f"{path}: no positive displacement (the largest is {hi:g} mm); the column "
+            "displacement_mm is the clamp displacement in mm, increasing with the load"
+        )
     a, b = lo + fraction[0] * (hi - lo), lo + fraction[1] * (hi - lo)
     inside = (u >= a) & (u <= b)
     bad = inside & ((F <= 0) | (u <= 0))
     if bad.any():
         j = int(np.argmax(bad))
-        raise SceneError(f"{path}, line {int(lines[j])}: displacement {u[j]:g} mm, force {F[j]:g} N in the fitted "
-                         f"range {a:.3g} to {b:.3g} mm: forces and displacements must be > 0 there (a tensile test "
-                         "pulls; is the sign of a column flipped?)")
+        raise SceneError(
+            f"{path}, line {int(lines[j])}: displacement {u[j]:g} mm, force {F[j]:g} N in the fitted "
+            f"range {a:.3g} to {b:.3g} mm: forces and displacements must be > 0 there (a tensile test "
+            "pulls; is the sign of a column flipped?)"
+        )
     # equal displacements averaged (vertices of a vector path)
     uu, inv = np.unique(u, return_inverse=True)
     FF = np.bincount(inv, weights=F) / np.bincount(inv)
@@ -193,8 +217,9 @@ def frame_travel_mm(gamma_deg: np.ndarray, frame_mm: float) -> np.ndarray:
     return cast(np.ndarray, 2.0 * frame_mm * np.cos(theta) - math.sqrt(2.0) * frame_mm)
 
 
-def read_frame_curve(path: str | Path, *, columns: str | Sequence[str] | None = None,
-                     frame: dict[str, float] | None = None) -> MeasuredCurve:
+def read_frame_curve(
+    path: str | Path, *, columns: str | Sequence[str] | None = None, frame: dict[str, float] | None = None
+) -> MeasuredCurve:
     """Read a picture-frame curve for the fit: as a crosshead travel [mm] and crosshead force [N].
 
     The file holds the shear force F_s [N] or the normalised shear force F_norm [N/mm] against the
@@ -207,13 +232,17 @@ def read_frame_curve(path: str | Path, *, columns: str | Sequence[str] | None = 
     path = Path(path)
     t = read_table(path, test="picture_frame", columns=columns, frame=frame)
     if t.x_quantity != "shear_angle" or t.y_quantity not in ("shear_force", "normalised_shear_force"):
-        raise SceneError(f"{path}: a picture-frame curve of the {WORDS[t.y_quantity]} against the "
-                         f"{WORDS[t.x_quantity]}; ngbet fit takes the shear force [N] or the normalised shear "
-                         "force [N/mm] against the frame's shear angle [deg]")
+        raise SceneError(
+            f"{path}: a picture-frame curve of the {WORDS[t.y_quantity]} against the "
+            f"{WORDS[t.x_quantity]}; ngbet fit takes the shear force [N] or the normalised shear "
+            "force [N/mm] against the frame's shear angle [deg]"
+        )
     lack = [k for k in FRAME_KEYS.values() if k not in t.frame]
     if lack:
-        raise SceneError(f"{path}: the picture frame's {' and '.join(lack)} are not in its header "
-                         "(# picture_frame.frame_mm = 145, # picture_frame.fabric_mm = 120)")
+        raise SceneError(
+            f"{path}: the picture frame's {' and '.join(lack)} are not in its header "
+            "(# picture_frame.frame_mm = 145, # picture_frame.fabric_mm = 120)"
+        )
     L, Lf = t.frame["picture_frame.frame_mm"], t.frame["picture_frame.fabric_mm"]
     g, y = t.x, t.y
     keep = (g > 0) & (g < 90)
@@ -225,15 +254,22 @@ def read_frame_curve(path: str | Path, *, columns: str | Sequence[str] | None = 
     from ..kinematics import frame_angle_rad
 
     d = frame_travel_mm(gg, L)
-    fs = yy * Lf ** 2 / L if t.y_quantity == "normalised_shear_force" else yy
+    fs = yy * Lf**2 / L if t.y_quantity == "normalised_shear_force" else yy
     F = 2.0 * np.cos(frame_angle_rad(d, L)) * fs
-    note = (f"picture frame {L:g}/{Lf:g} mm: its {WORDS[t.y_quantity]} against the shear angle fitted as the "
-            "crosshead force against the travel (Eqs. 1-3, 10; exact at each point)")
+    note = (
+        f"picture frame {L:g}/{Lf:g} mm: its {WORDS[t.y_quantity]} against the shear angle fitted as the "
+        "crosshead force against the travel (Eqs. 1-3, 10; exact at each point)"
+    )
     return MeasuredCurve(d, F, str(path), {}, None, (*t.notes, note), "picture_frame", dict(t.frame), t.y_quantity)
 
 
-def read_any(path: str | Path, fraction: tuple[float, float] = RANGE, *, columns: str | Sequence[str] | None = None,
-             specimen: dict[str, float] | None = None) -> MeasuredCurve:
+def read_any(
+    path: str | Path,
+    fraction: tuple[float, float] = RANGE,
+    *,
+    columns: str | Sequence[str] | None = None,
+    specimen: dict[str, float] | None = None,
+) -> MeasuredCurve:
     """A bias-extension curve (:func:`read_measured`), or a picture-frame curve (:func:`read_frame_curve`).
 
     The file's header (``# test: picture-frame``) decides.
@@ -245,9 +281,13 @@ def read_any(path: str | Path, fraction: tuple[float, float] = RANGE, *, columns
     return read_measured(path, fraction, columns=columns, specimen=specimen)
 
 
-def read_all(paths: Sequence[str | Path], fraction: tuple[float, float] = RANGE, *,
-             columns: str | Sequence[str] | None = None,
-             specimens: Sequence[dict[str, float]] | None = None) -> list[MeasuredCurve]:
+def read_all(
+    paths: Sequence[str | Path],
+    fraction: tuple[float, float] = RANGE,
+    *,
+    columns: str | Sequence[str] | None = None,
+    specimens: Sequence[dict[str, float]] | None = None,
+) -> list[MeasuredCurve]:
     """:func:`read_any` for several files; the same file (or the same numbers) given twice is refused.
 
     ``specimens``: one ``--specimen`` for every file, or one per file in order.
@@ -258,8 +298,9 @@ def read_all(paths: Sequence[str | Path], fraction: tuple[float, float] = RANGE,
     return curves
 
 
-def _per_file(paths: Sequence[str | Path], given: Sequence[dict[str, float]] | None, flag: str
-              ) -> list[dict[str, float] | None]:
+def _per_file(
+    paths: Sequence[str | Path], given: Sequence[dict[str, float]] | None, flag: str
+) -> list[dict[str, float] | None]:
     if not given:
         return [None] * len(paths)
     if len(given) == 1:
@@ -277,7 +318,9 @@ def refuse_duplicates(curves: Sequence[MeasuredCurve | CurveTable]) -> None:
         y = c.force_N if isinstance(c, MeasuredCurve) else c.y
         for key in (Path(c.source).resolve(), (x.tobytes(), y.tobytes())):
             if key in seen:
-                raise SceneError(f"{c.source} and {seen[key]}: the same "
-                                 f"{'file' if isinstance(key, Path) else 'measured curve'} twice; give each curve "
-                                 "once (a curve given twice counts twice and makes the uncertainties too small)")
+                raise SceneError(
+                    f"{c.source} and {seen[key]}: the same "
+                    f"{'file' if isinstance(key, Path) else 'measured curve'} twice; give each curve "
+                    "once (a curve given twice counts twice and makes the uncertainties too small)"
+                )
             seen[key] = c.source

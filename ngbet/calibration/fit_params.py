@@ -23,10 +23,31 @@ from ..scene.validate import SceneError
 from .data import MeasuredCurve
 from .observations import Profile, ShearAngles
 
-__all__ = ["BOUND_FACTOR", "COARSE_LEVEL", "DOMAINS", "FINE_TOL", "FIRST_CHECKED", "FIT_LADDER", "FLAT_RCOND",
-           "SIZE_PARAMS", "STRONG_CORRELATION", "TABLE_KEY", "TARGET_ERROR", "UNDETERMINED_SE", "CurveFit", "JointFit",
-           "band", "bounds", "correlation", "curve_scene", "expand_params", "portable_scene", "test_changes",
-           "value_of", "with_values"]
+__all__ = [
+    "BOUND_FACTOR",
+    "COARSE_LEVEL",
+    "DOMAINS",
+    "FINE_TOL",
+    "FIRST_CHECKED",
+    "FIT_LADDER",
+    "FLAT_RCOND",
+    "SIZE_PARAMS",
+    "STRONG_CORRELATION",
+    "TABLE_KEY",
+    "TARGET_ERROR",
+    "UNDETERMINED_SE",
+    "CurveFit",
+    "JointFit",
+    "band",
+    "bounds",
+    "correlation",
+    "curve_scene",
+    "expand_params",
+    "portable_scene",
+    "test_changes",
+    "value_of",
+    "with_values",
+]
 
 TABLE_KEY = "material.shear_stress_steps_Pa"
 #: without bounds in the scene, each parameter stays within this factor of its start value
@@ -55,8 +76,10 @@ def expand_params(scene: Scene, params: Sequence[str]) -> list[str]:
     for p in out:
         key = p.partition(".")[2]
         if key not in DIFFERENTIABLE and table_index(key) is None:
-            raise SceneError(f"parameter '{p}': ngbet cannot differentiate the force with respect to it; known: "
-                             f"{', '.join('material.' + k for k in DIFFERENTIABLE)}")
+            raise SceneError(
+                f"parameter '{p}': ngbet cannot differentiate the force with respect to it; known: "
+                f"{', '.join('material.' + k for k in DIFFERENTIABLE)}"
+            )
     return out
 
 
@@ -73,15 +96,16 @@ def with_values(scene: Scene, names: Sequence[str], values: Sequence[float]) -> 
     changes: dict[str, Any] = {}
     for n, v in zip(names, values, strict=True):
         if n.startswith(TABLE_KEY + "["):
-            steps[int(n[len(TABLE_KEY) + 1:-1])] = float(v)
+            steps[int(n[len(TABLE_KEY) + 1 : -1])] = float(v)
             changes[TABLE_KEY] = steps
         else:
             changes[n] = float(v)
     return scene.with_changes(**changes)
 
 
-def bounds(scene: Scene, params: Sequence[str], names: Sequence[str],
-           start: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def bounds(
+    scene: Scene, params: Sequence[str], names: Sequence[str], start: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of each scalar parameter: the scene's [calibration] lower/upper, else start x 1e∓4 within its domain.
 
     The domain (:data:`DOMAINS`) holds for the default bounds only: bounds the scene gives outside it
@@ -112,8 +136,14 @@ def test_changes(curve: MeasuredCurve) -> dict[str, Any]:
     changes: dict[str, Any] = dict(curve.specimen)
     if curve.test == "picture_frame":
         sp = Specimen()
-        changes.update({"test": "picture_frame", **curve.frame, "specimen.length_mm": sp.length_mm,
-                        "specimen.width_mm": sp.width_mm})
+        changes.update(
+            {
+                "test": "picture_frame",
+                **curve.frame,
+                "specimen.length_mm": sp.length_mm,
+                "specimen.width_mm": sp.width_mm,
+            }
+        )
     return changes
 
 
@@ -132,9 +162,11 @@ def curve_scene(scene: Scene, curve: MeasuredCurve, u_mm: np.ndarray) -> Scene:
     if curve.test == "picture_frame":
         return sc
     if u_mm.max() >= sc.specimen.locking_u0_mm * 1.2:
-        raise SceneError(f"{curve.source}: the fitted points reach {u_mm.max():g} mm, far beyond the ideal yarn "
-                         f"locking of its {sc.specimen.width_mm:g} x {sc.specimen.length_mm:g} mm specimen "
-                         f"({sc.specimen.locking_u0_mm:.1f} mm): are the header's specimen keys right?")
+        raise SceneError(
+            f"{curve.source}: the fitted points reach {u_mm.max():g} mm, far beyond the ideal yarn "
+            f"locking of its {sc.specimen.width_mm:g} x {sc.specimen.length_mm:g} mm specimen "
+            f"({sc.specimen.locking_u0_mm:.1f} mm): are the header's specimen keys right?"
+        )
     return sc
 
 
@@ -148,8 +180,10 @@ def portable_scene(scene: Scene) -> Scene:
 #: the unbalanced twill 100 x 250 mm to 49.7 mm with its start values (16 loads): the estimated force
 #: error is at most 1.2 % on the first rung (1.4 s a run), 0.2 % on the second (1.2-1.6 s), 0.07 %
 #: on the third (2.6 s), against 17.5 % on the scene's uniform 25 mm mesh at p = 2 (0.9 s)
-FIT_LADDER = tuple(Rung(h, c, p, math.nan) for h, c, p in (
-    (40.0, 1.0, 2), (40.0, 1.0, 3), (20.0, 0.25, 3), (20.0, 0.25, 4), (20.0, 0.25, 5), (20.0, 0.25, 6)))
+FIT_LADDER = tuple(
+    Rung(h, c, p, math.nan)
+    for h, c, p in ((40.0, 1.0, 2), (40.0, 1.0, 3), (20.0, 0.25, 3), (20.0, 0.25, 4), (20.0, 0.25, 5), (20.0, 0.25, 6))
+)
 #: the coarse stage's rung: the search gets near the optimum there, unchecked
 COARSE_LEVEL = 0
 #: the first rung whose estimated error is checked against the target
@@ -200,7 +234,7 @@ class CurveFit:
 
     @property
     def label(self) -> str:
-        """"W x L mm": the specimen the curve runs on (its header's, else the scene's); "frame F/f mm"."""
+        """The label "W x L mm" of the specimen the curve runs on (its header's, else the scene's); "frame F/f mm"."""
         if self.curve.test == "picture_frame":
             return self.curve.label
         sp = self.scene.specimen
@@ -211,8 +245,12 @@ class CurveFit:
         if self.curve.test == "picture_frame":
             return self.curve
         sp = self.scene.specimen
-        keys = {"specimen.width_mm": sp.width_mm, "specimen.length_mm": sp.length_mm,
-                "specimen.thickness_mm": sp.thickness_mm, **self.curve.specimen}
+        keys = {
+            "specimen.width_mm": sp.width_mm,
+            "specimen.length_mm": sp.length_mm,
+            "specimen.thickness_mm": sp.thickness_mm,
+            **self.curve.specimen,
+        }
         return dataclasses.replace(self.curve, specimen=keys)
 
     @property
@@ -295,54 +333,90 @@ class JointFit:
             if c.curve.test == "picture_frame":  # the fit in the file's own quantities too
                 x, y = c.curve.in_file_units(c.u_mm, c.measured_N)
                 doc["frame"] = c.curve.frame
-                doc["file_quantities"] = {"shear_angle_deg": x.tolist(), "quantity": c.curve.quantity,
-                                          "measured": y.tolist(),
-                                          "model": c.curve.in_file_units(c.u_mm, c.model_N)[1].tolist()}
-            doc |= {"specimen": c.curve.specimen, "points": len(c.u_mm),
-                   "range_mm": [float(c.u_mm.min()), float(c.u_mm.max())],
-                   "rms_relative_error": c.rms_relative, "u_mm": c.u_mm.tolist(),
-                   "measured_N": c.measured_N.tolist(), "sd_N": c.sd_N.tolist(), "model_N": c.model_N.tolist(),
-                   "start_N": c.start_N.tolist(), "band_N": band(c.dlogp, self.cov_log).tolist(),
-                   "discretization": {"mesh_size_mm": d.mesh_size_mm, "corner_mesh_size_mm": d.corner_mesh_size_mm,
-                                      "order_u": d.order_u, "chosen_by_fit": c.level is not None},
-                   "force_error_rel_max": num(c.error_rel_max),
-                   "force_error_N": [num(v) for v in c.force_error_N],
-                   "shear_angle_deg": c.angle_deg.tolist(), "shear_angle_ideal_deg": c.ideal_angle_deg().tolist()}
+                doc["file_quantities"] = {
+                    "shear_angle_deg": x.tolist(),
+                    "quantity": c.curve.quantity,
+                    "measured": y.tolist(),
+                    "model": c.curve.in_file_units(c.u_mm, c.model_N)[1].tolist(),
+                }
+            doc |= {
+                "specimen": c.curve.specimen,
+                "points": len(c.u_mm),
+                "range_mm": [float(c.u_mm.min()), float(c.u_mm.max())],
+                "rms_relative_error": c.rms_relative,
+                "u_mm": c.u_mm.tolist(),
+                "measured_N": c.measured_N.tolist(),
+                "sd_N": c.sd_N.tolist(),
+                "model_N": c.model_N.tolist(),
+                "start_N": c.start_N.tolist(),
+                "band_N": band(c.dlogp, self.cov_log).tolist(),
+                "discretization": {
+                    "mesh_size_mm": d.mesh_size_mm,
+                    "corner_mesh_size_mm": d.corner_mesh_size_mm,
+                    "order_u": d.order_u,
+                    "chosen_by_fit": c.level is not None,
+                },
+                "force_error_rel_max": num(c.error_rel_max),
+                "force_error_N": [num(v) for v in c.force_error_N],
+                "shear_angle_deg": c.angle_deg.tolist(),
+                "shear_angle_ideal_deg": c.ideal_angle_deg().tolist(),
+            }
             if c.profile is not None:
                 Pd = c.profile.measured()
-                doc["profile"] = {"data": c.profile.source, "points": len(Pd), "sd_mm": self.profile_sd_mm,
-                                  "rms_mm": float(np.sqrt(np.mean((c.profile_mm - Pd) ** 2))),
-                                  "u0_mm": np.concatenate([[u0] * len(x) for u0, x in c.profile.points().items()]
-                                                          ).tolist(),
-                                  "X_mm": np.concatenate(list(c.profile.points().values())).tolist(),
-                                  "measured_mm": Pd.tolist(), "model_mm": c.profile_mm.tolist()}
+                doc["profile"] = {
+                    "data": c.profile.source,
+                    "points": len(Pd),
+                    "sd_mm": self.profile_sd_mm,
+                    "rms_mm": float(np.sqrt(np.mean((c.profile_mm - Pd) ** 2))),
+                    "u0_mm": np.concatenate([[u0] * len(x) for u0, x in c.profile.points().items()]).tolist(),
+                    "X_mm": np.concatenate(list(c.profile.points().values())).tolist(),
+                    "measured_mm": Pd.tolist(),
+                    "model_mm": c.profile_mm.tolist(),
+                }
             if c.angles is not None:
                 a = c.angles
                 doc["shear_angle_data"] = {
-                    "data": a.source, "points": len(a.u_mm), "sd_deg": self.angle_sd_deg,
+                    "data": a.source,
+                    "points": len(a.u_mm),
+                    "sd_deg": self.angle_sd_deg,
                     "rms_deg": float(np.sqrt(np.mean((c.angles_model_deg - a.angle_deg) ** 2))),
-                    "u_mm": a.u_mm.tolist(), "measured_deg": a.angle_deg.tolist(),
-                    "model_deg": c.angles_model_deg.tolist()}
+                    "u_mm": a.u_mm.tolist(),
+                    "measured_deg": a.angle_deg.tolist(),
+                    "model_deg": c.angles_model_deg.tolist(),
+                }
             return doc
 
         return {
-            "parameters": {nm: {"value": float(self.values[k]), "start": float(self.start[k]),
-                                "standard_error": num(self.values[k] * se[k]), "standard_error_log": num(se[k]),
-                                "bounds": [float(self.lower[k]), float(self.upper[k])],
-                                "at_bound": nm in self.at_bound, "determined": nm not in self.undetermined}
-                           for k, nm in enumerate(self.names)},
+            "parameters": {
+                nm: {
+                    "value": float(self.values[k]),
+                    "start": float(self.start[k]),
+                    "standard_error": num(self.values[k] * se[k]),
+                    "standard_error_log": num(se[k]),
+                    "bounds": [float(self.lower[k]), float(self.upper[k])],
+                    "at_bound": nm in self.at_bound,
+                    "determined": nm not in self.undetermined,
+                }
+                for k, nm in enumerate(self.names)
+            },
             "held": {p: {"value": value_of(self.scene, p), "why": why} for p, why in self.held.items()},
             "undetermined": self.undetermined,
             "strongly_correlated": [{"params": [a, b], "correlation": c} for a, b, c in self.correlated],
             "flat_directions": self.flat_directions,
             "correlation": [[num(corr[i, j]) for j in range(n)] for i in range(n)],
             "covariance_log": [[float(x) for x in row] for row in self.cov_log],
-            "noise_scale": self.noise_scale, "residual_scale": self.residual_scale,
-            "model_runs": self.model_runs, "wall_s": self.wall_s,
-            "converged": self.converged, "optimizer_message": self.message,
-            "accuracy": {"target_error": self.target_error, "met": self.accuracy_met,
-                         "force_error_rel_max": {c.label: num(c.error_rel_max) for c in self.curves},
-                         "stages": self.stages},
+            "noise_scale": self.noise_scale,
+            "residual_scale": self.residual_scale,
+            "model_runs": self.model_runs,
+            "wall_s": self.wall_s,
+            "converged": self.converged,
+            "optimizer_message": self.message,
+            "accuracy": {
+                "target_error": self.target_error,
+                "met": self.accuracy_met,
+                "force_error_rel_max": {c.label: num(c.error_rel_max) for c in self.curves},
+                "stages": self.stages,
+            },
             "curves": [curve(c) for c in self.curves],
         }
 
@@ -358,5 +432,3 @@ def correlation(cov: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         c = cov / np.outer(d, d)
     return np.where(np.isfinite(c), c, np.nan)
-
-

@@ -66,8 +66,16 @@ from .fit_params import (
 )
 from .observations import Profile, ShearAngles
 
-__all__ = ["ELONGATION_KEY", "WHAT_FIXES", "CurvePrediction", "Progress", "fit_curves", "held_parameters",
-           "predict_specimen", "terminal_progress"]
+__all__ = [
+    "ELONGATION_KEY",
+    "WHAT_FIXES",
+    "CurvePrediction",
+    "Progress",
+    "fit_curves",
+    "held_parameters",
+    "predict_specimen",
+    "terminal_progress",
+]
 
 log = logging.getLogger(__name__)
 
@@ -105,14 +113,19 @@ class _Model:
         ``runs`` counts the calls that ran at least one curve.
         """
         t = np.asarray(theta, float).tobytes()
-        todo = [k for k, c in enumerate(self.curves)
-                if (k, t, c.level, check) not in self._cache and (k, t, c.level, True) not in self._cache]
+        todo = [
+            k
+            for k, c in enumerate(self.curves)
+            if (k, t, c.level, check) not in self._cache and (k, t, c.level, True) not in self._cache
+        ]
         if todo:
             self.runs += 1
         for k in todo:
             self._cache[k, t, self.curves[k].level, check] = self._run(k, theta, check)
-        return [self._cache.get((k, t, c.level, check)) or self._cache[k, t, c.level, True]
-                for k, c in enumerate(self.curves)]
+        return [
+            self._cache.get((k, t, c.level, check)) or self._cache[k, t, c.level, True]
+            for k, c in enumerate(self.curves)
+        ]
 
     def _run(self, k: int, theta: np.ndarray, check: bool) -> _Run:
         from ..continuum.mesh import make_cross_mesh, make_mesh
@@ -123,15 +136,24 @@ class _Model:
         c = self.curves[k]
         sc = with_values(c.run_scene(), self.names, np.exp(theta))
         if (k, c.level) not in self.meshes:
-            self.meshes[k, c.level] = (make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
-                                       if sc.test == "picture_frame" else make_mesh(sc.specimen, sc.discretization))
+            self.meshes[k, c.level] = (
+                make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
+                if sc.test == "picture_frame"
+                else make_mesh(sc.specimen, sc.discretization)
+            )
         pts = c.profile.points() if c.profile is not None else {}
         a_u = list(c.angles.u_mm) if c.angles is not None else []
         m, kp, ka = len(c.u_mm), sum(len(x) for x in pts.values()), len(a_u)
         try:
-            r = force_path(sc, c.u_mm, self.names, pts, mesh=self.meshes[k, c.level],
-                           angles=sorted(set(a_u) | (set(map(float, c.u_mm)) if check else set())),
-                           estimate=check)
+            r = force_path(
+                sc,
+                c.u_mm,
+                self.names,
+                pts,
+                mesh=self.meshes[k, c.level],
+                angles=sorted(set(a_u) | (set(map(float, c.u_mm)) if check else set())),
+                estimate=check,
+            )
             assert r.dlogp is not None
             P = np.concatenate([r.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
             GP = np.vstack([r.profile_dlogp[u0] for u0 in pts]) if pts else np.zeros((0, n))
@@ -142,9 +164,16 @@ class _Model:
             return _Run(r.force_N, r.dlogp, P, GP, A, GA, err, ang)
         except (ConvergenceError, SceneError) as exc:
             log.info("model run failed on %s: %s", c.label, exc)
-            return _Run(np.full(m, np.nan), np.zeros((m, n)), np.full(kp, np.nan), np.zeros((kp, n)),
-                        np.full(ka, np.nan), np.zeros((ka, n)), np.full(m if check else 0, np.nan),
-                        np.full(m if check else 0, np.nan))
+            return _Run(
+                np.full(m, np.nan),
+                np.zeros((m, n)),
+                np.full(kp, np.nan),
+                np.zeros((kp, n)),
+                np.full(ka, np.nan),
+                np.zeros((ka, n)),
+                np.full(m if check else 0, np.nan),
+                np.full(m if check else 0, np.nan),
+            )
 
 
 Progress = Callable[[int, list[float], float], None]
@@ -157,39 +186,65 @@ def terminal_progress(stream: Any = None) -> Progress:
     t0 = time.perf_counter()
 
     def show(runs: int, rms: list[float], best: float) -> None:
-        text = (f"ngbet fit: model run {runs}, RMS " + ", ".join(f"{100 * r:.1f} %" for r in rms)
-                + f" (best cost {best:.4g}), {time.perf_counter() - t0:.0f} s")
+        text = (
+            f"ngbet fit: model run {runs}, RMS "
+            + ", ".join(f"{100 * r:.1f} %" for r in rms)
+            + f" (best cost {best:.4g}), {time.perf_counter() - t0:.0f} s"
+        )
         stream.write(("\r" + text + "\x1b[K") if tty else text + "\n")
         stream.flush()
 
     return show
 
 
-def held_parameters(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[str],
-                    profile: Profile | None) -> dict[str, str]:
+def held_parameters(
+    curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[str], profile: Profile | None
+) -> dict[str, str]:
     """The scene's parameters one specimen size cannot determine, with why: {key: reason}.
 
     One size (every curve on the same specimen) and no mid-axis profile: the bending
     stiffnesses (:data:`SIZE_PARAMS`) set the size effect, which one size does not show.
     """
-    sizes = {(c.specimen.get("specimen.width_mm", scene.specimen.width_mm),
-              c.specimen.get("specimen.length_mm", scene.specimen.length_mm)) if c.test != "picture_frame"
-             else tuple(c.frame.values()) for c in curves}
+    sizes = {
+        (
+            c.specimen.get("specimen.width_mm", scene.specimen.width_mm),
+            c.specimen.get("specimen.length_mm", scene.specimen.length_mm),
+        )
+        if c.test != "picture_frame"
+        else tuple(c.frame.values())
+        for c in curves
+    }
     if len(sizes) > 1 or profile is not None:
         return {}
-    return {p: ("one specimen size: the bending stiffnesses set the size effect, which one size does not show "
-                "(measured: they end at their bounds with se(ln p) of 1e3 and more); held at the scene's value. "
-                "A second specimen size (e.g. 100 x 200 mm beside 100 x 300 mm) or a measured mid-axis profile "
-                "(--profile) determines them")
-            for p in params if p in SIZE_PARAMS}
+    return {
+        p: (
+            "one specimen size: the bending stiffnesses set the size effect, which one size does not show "
+            "(measured: they end at their bounds with se(ln p) of 1e3 and more); held at the scene's value. "
+            "A second specimen size (e.g. 100 x 200 mm beside 100 x 300 mm) or a measured mid-axis profile "
+            "(--profile) determines them"
+        )
+        for p in params
+        if p in SIZE_PARAMS
+    }
 
 
-def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[str] | None = None,  # noqa: C901
-               max_runs: int = 40, progress: Progress | None = None,
-               fractions: Sequence[tuple[float, float]] | None = None, *, target_error: float = TARGET_ERROR,
-               profile: Profile | None = None, profile_sd_mm: float = 1.0, angles: ShearAngles | None = None,
-               angle_sd_deg: float = 1.0, resample: bool = True, coarse: bool = True,
-               choose_discretization: bool = True) -> JointFit:
+def fit_curves(  # noqa: C901
+    curves: Sequence[MeasuredCurve],
+    scene: Scene,
+    params: Sequence[str] | None = None,
+    max_runs: int = 40,
+    progress: Progress | None = None,
+    fractions: Sequence[tuple[float, float]] | None = None,
+    *,
+    target_error: float = TARGET_ERROR,
+    profile: Profile | None = None,
+    profile_sd_mm: float = 1.0,
+    angles: ShearAngles | None = None,
+    angle_sd_deg: float = 1.0,
+    resample: bool = True,
+    coarse: bool = True,
+    choose_discretization: bool = True,
+) -> JointFit:
     """Fit ``params`` (default: the scene's ``calibration.params``) to all ``curves`` at once.
 
     ``fractions``: the part of each curve's displacement range fitted (default 10–90 %).
@@ -227,15 +282,19 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
     if not isinstance(max_runs, int) or max_runs < 1:
         raise SceneError(f"--max-runs = {max_runs!r}: must be an integer >= 1")
     if not (0 < target_error < 1):
-        raise SceneError(f"--accuracy = {target_error!r}: the largest discretization error of the force relative "
-                         "to it, between 0 and 1 (e.g. 0.01)")
+        raise SceneError(
+            f"--accuracy = {target_error!r}: the largest discretization error of the force relative "
+            "to it, between 0 and 1 (e.g. 0.01)"
+        )
     if not (profile_sd_mm > 0 and angle_sd_deg > 0):
         raise SceneError(f"--profile-sd = {profile_sd_mm}, --angle-sd = {angle_sd_deg}: both must be > 0")
     held = held_parameters(curves, scene, params, profile) if own else {}
     if own and ELONGATION_KEY not in params and scene.effects.elongation:
-        held[ELONGATION_KEY] = ("not among the scene's [calibration] params: held at the scene's value (the fabric "
-                                "scenes: glass yarns after decrimping). Measured shear angles (--angles) would "
-                                "determine it; name it in --params to fit it")
+        held[ELONGATION_KEY] = (
+            "not among the scene's [calibration] params: held at the scene's value (the fabric "
+            "scenes: glass yarns after decrimping). Measured shear angles (--angles) would "
+            "determine it; name it in --params to fit it"
+        )
     fitted_params = [p for p in params if p not in held]
     names = expand_params(scene, fitted_params)
     start = np.array([value_of(scene, n) for n in names])
@@ -285,8 +344,14 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
         cost = float(e @ e)
         best[0] = min(best[0], cost)
         if progress is not None and not quiet[0]:
-            progress(model.runs, [float(np.sqrt(np.mean(((r.F - c.measured_N) / c.measured_N) ** 2)))
-                                  for r, c in zip(res, cfs, strict=True)], best[0])
+            progress(
+                model.runs,
+                [
+                    float(np.sqrt(np.mean(((r.F - c.measured_N) / c.measured_N) ** 2)))
+                    for r, c in zip(res, cfs, strict=True)
+                ],
+                best[0],
+            )
         return e
 
     def jac(theta: np.ndarray) -> np.ndarray:
@@ -300,8 +365,18 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
         return np.vstack(rows)
 
     def search(theta: np.ndarray, runs: int, tol: float) -> Any:
-        return least_squares(resid, theta, jac=jac, bounds=(np.log(lo), np.log(hi)), method="trf", x_scale=1.0,
-                             max_nfev=max(runs, 1), xtol=tol, ftol=tol, gtol=1e-8)
+        return least_squares(
+            resid,
+            theta,
+            jac=jac,
+            bounds=(np.log(lo), np.log(hi)),
+            method="trf",
+            x_scale=1.0,
+            max_nfev=max(runs, 1),
+            xtol=tol,
+            ftol=tol,
+            gtol=1e-8,
+        )
 
     th0 = np.log(start)
     th = th0
@@ -311,8 +386,15 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
     if choose_discretization:
         r0, ts = model.runs, time.perf_counter()
         checked_levels = _first_levels(model, cfs, th0, target_error)
-        stages.append({"rungs": checked_levels, "model_runs": model.runs - r0, "checked": True, "probe": True,
-                       "wall_s": time.perf_counter() - ts})
+        stages.append(
+            {
+                "rungs": checked_levels,
+                "model_runs": model.runs - r0,
+                "checked": True,
+                "probe": True,
+                "wall_s": time.perf_counter() - ts,
+            }
+        )
     if coarse and choose_discretization and max_runs > 2:
         # the search gets near the optimum one rung below the first that met the target at the start
         coarse_levels = [max(COARSE_LEVEL, (lv or 0) - 1) for lv in checked_levels]
@@ -321,8 +403,14 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
         r0, ts = model.runs, time.perf_counter()
         sol = search(th, max_runs // 2, 1e-3)
         th = sol.x
-        stages.append({"rungs": coarse_levels, "model_runs": model.runs - r0, "checked": False,
-                       "wall_s": time.perf_counter() - ts})
+        stages.append(
+            {
+                "rungs": coarse_levels,
+                "model_runs": model.runs - r0,
+                "checked": False,
+                "wall_s": time.perf_counter() - ts,
+            }
+        )
     for cf, level in zip(cfs, checked_levels, strict=True):
         cf.level = level
     while True:
@@ -335,17 +423,28 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
         for cf, r in zip(cfs, checked, strict=True):
             cf.force_error_N = r.err
             cf.model_N = r.F
-        stage = {"rungs": [cf.level for cf in cfs], "model_runs": model.runs - r0, "checked": True,
-                 "force_error_rel_max": [None if math.isnan(cf.error_rel_max) else cf.error_rel_max for cf in cfs],
-                 "wall_s": time.perf_counter() - ts}
+        stage = {
+            "rungs": [cf.level for cf in cfs],
+            "model_runs": model.runs - r0,
+            "checked": True,
+            "force_error_rel_max": [None if math.isnan(cf.error_rel_max) else cf.error_rel_max for cf in cfs],
+            "wall_s": time.perf_counter() - ts,
+        }
         stages.append(stage)
-        up = [cf for cf in cfs if not cf.error_rel_max <= target_error and cf.level is not None
-              and cf.level < len(FIT_LADDER) - 1]
+        up = [
+            cf
+            for cf in cfs
+            if not cf.error_rel_max <= target_error and cf.level is not None and cf.level < len(FIT_LADDER) - 1
+        ]
         if not up or model.runs >= max_runs:
             break
         for cf in up:
-            log.info("%s: estimated discretization error %.3g above %.3g: one rung up", cf.label,
-                     cf.error_rel_max, target_error)
+            log.info(
+                "%s: estimated discretization error %.3g above %.3g: one rung up",
+                cf.label,
+                cf.error_rel_max,
+                target_error,
+            )
             cf.level = (cf.level or 0) + 1
     quiet[0] = True
     e, J = resid(th), jac(th)
@@ -358,20 +457,44 @@ def fit_curves(curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[s
         cf.start_N = r.F
     assert [cf.level for cf in cfs] == levels
     values = np.exp(th)
-    at_bound = [nm for nm, t, a, b in zip(names, th, np.log(lo), np.log(hi), strict=True)
-                if t - a < 1e-3 or b - t < 1e-3]
+    at_bound = [
+        nm for nm, t, a, b in zip(names, th, np.log(lo), np.log(hi), strict=True) if t - a < 1e-3 or b - t < 1e-3
+    ]
     chosen = [lv for lv in levels if lv is not None]
     on = FIT_LADDER[max(chosen)].apply(scene) if chosen else scene
     fitted = portable_scene(with_values(on, names, values))
     ok = bool(sol.success and sol.status > 0)
     if not ok:
         # the caller says it (the command with its option, a study in its table): no advice from here
-        log.info("the least-squares search stopped without converging after %d model runs (%s)", model.runs,
-                 sol.message)
-    return JointFit(fitted_params, names, values, np.exp(th0), lo, hi, st["cov"], cfs, fitted, st["noise_scale"],
-                    model.runs, time.perf_counter() - t0, ok, str(sol.message), at_bound, held,
-                    st["undetermined"], st["correlated"], st["flat"], st["residual_scale"], target_error, stages,
-                    profile_sd_mm, angle_sd_deg)
+        log.info(
+            "the least-squares search stopped without converging after %d model runs (%s)", model.runs, sol.message
+        )
+    return JointFit(
+        fitted_params,
+        names,
+        values,
+        np.exp(th0),
+        lo,
+        hi,
+        st["cov"],
+        cfs,
+        fitted,
+        st["noise_scale"],
+        model.runs,
+        time.perf_counter() - t0,
+        ok,
+        str(sol.message),
+        at_bound,
+        held,
+        st["undetermined"],
+        st["correlated"],
+        st["flat"],
+        st["residual_scale"],
+        target_error,
+        stages,
+        profile_sd_mm,
+        angle_sd_deg,
+    )
 
 
 def _first_levels(model: _Model, cfs: list[CurveFit], theta: np.ndarray, target_error: float) -> list[int | None]:
@@ -396,8 +519,12 @@ def _first_levels(model: _Model, cfs: list[CurveFit], theta: np.ndarray, target_
                 found[i] = cf.level if cf.level is not None else FIRST_CHECKED
                 pending.remove(i)
             else:
-                log.info("%s: estimated discretization error %.3g at the start values on rung %d: one rung up",
-                         cf.label, rel, cf.level)
+                log.info(
+                    "%s: estimated discretization error %.3g at the start values on rung %d: one rung up",
+                    cf.label,
+                    rel,
+                    cf.level,
+                )
                 cf.level += 1
     levels = [found[i] for i in range(len(cfs))]
     return levels
@@ -409,12 +536,12 @@ ELONGATION_KEY = "material.K_el"
 #: what data would determine a parameter the fit leaves undetermined (by the start of its name)
 WHAT_FIXES = {
     "material.shear_stress_steps_Pa": "what would fix it: a law with fewer coefficients (fewer rises, or the locking "
-                                      "law), or data that reach the shear angles of this rise (a larger displacement, "
-                                      "a picture-frame test)",
+    "law), or data that reach the shear angles of this rise (a larger displacement, "
+    "a picture-frame test)",
     "material.K_el": "what would fix it: measured shear angles (--angles; yarn elongation keeps them below the ideal "
-                     "test's) or a bound on K_el from the yarns",
+    "test's) or a bound on K_el from the yarns",
     "material.alpha": "what would fix it: another specimen size (another aspect ratio) or a measured mid-axis "
-                      "profile (--profile)",
+    "profile (--profile)",
     "material.K_lock": "what would fix it: data further into the stiffening (larger displacements)",
     "material.gamma_lock_deg": "what would fix it: data further into the stiffening (larger displacements)",
 }
@@ -440,21 +567,35 @@ def _statistics(e: np.ndarray, J: np.ndarray, names: list[str]) -> dict[str, Any
             direction = {names[i]: float(Vt[k, i]) for i in range(n) if abs(Vt[k, i]) > 0.3}
             flat.append(direction)
             for p in direction:
-                undetermined[p] = (f"on a flat direction of the fit (singular value {sv[k]:.3g}, "
-                                   f"{sv[k] / sv[0]:.2g} of the largest): the data do not move it")
+                undetermined[p] = (
+                    f"on a flat direction of the fit (singular value {sv[k]:.3g}, "
+                    f"{sv[k] / sv[0]:.2g} of the largest): the data do not move it"
+                )
     for k, p in enumerate(names):
         if p not in undetermined and not se[k] <= UNDETERMINED_SE:
-            undetermined[p] = (f"standard error of ln p = {se[k]:.3g} > {UNDETERMINED_SE}: its 95 % interval "
-                               f"spans more than a factor {math.exp(1.96 * UNDETERMINED_SE):.1f} either way")
+            undetermined[p] = (
+                f"standard error of ln p = {se[k]:.3g} > {UNDETERMINED_SE}: its 95 % interval "
+                f"spans more than a factor {math.exp(1.96 * UNDETERMINED_SE):.1f} either way"
+            )
     for p in undetermined:
         hint = next((h for k, h in WHAT_FIXES.items() if p.startswith(k)), "")
         if hint:
             undetermined[p] += f"; {hint}"
     corr = correlation(cov)
-    pairs = [(names[i], names[j], float(corr[i, j])) for i in range(n) for j in range(i + 1, n)
-             if abs(corr[i, j]) > STRONG_CORRELATION]
-    return {"cov": cov, "undetermined": undetermined, "flat": flat, "correlated": pairs,
-            "noise_scale": math.sqrt(s2), "residual_scale": math.sqrt(r2)}
+    pairs = [
+        (names[i], names[j], float(corr[i, j]))
+        for i in range(n)
+        for j in range(i + 1, n)
+        if abs(corr[i, j]) > STRONG_CORRELATION
+    ]
+    return {
+        "cov": cov,
+        "undetermined": undetermined,
+        "flat": flat,
+        "correlated": pairs,
+        "noise_scale": math.sqrt(s2),
+        "residual_scale": math.sqrt(r2),
+    }
 
 
 @dataclass
@@ -470,11 +611,12 @@ class CurvePrediction:
     @property
     def sd_N(self) -> np.ndarray:
         """The whole standard deviation [N]: parameters and discretization."""
-        return cast(np.ndarray, np.sqrt(self.sd_param_N ** 2 + self.sd_disc_N ** 2))
+        return cast(np.ndarray, np.sqrt(self.sd_param_N**2 + self.sd_disc_N**2))
 
 
-def predict_specimen(result: JointFit, specimen: dict[str, float], u_mm: np.ndarray,
-                     fixed_var_log: dict[str, float] | None = None) -> CurvePrediction:
+def predict_specimen(
+    result: JointFit, specimen: dict[str, float], u_mm: np.ndarray, fixed_var_log: dict[str, float] | None = None
+) -> CurvePrediction:
     """The fitted scene on ``specimen`` (scene keys) at the displacements ``u_mm``, with its band.
 
     ``fixed_var_log``: parameters held fixed in the fit whose value is uncertain, with the

@@ -47,8 +47,9 @@ def _columns(path: Path, what: str, need: tuple[str, ...]) -> dict[str, np.ndarr
             head = cells
             missing = [n for n in need if n not in head]
             if missing:
-                raise SceneError(f"{what} file {path}, line {k}: needs the columns {', '.join(need)} "
-                                 f"(missing {', '.join(missing)})")
+                raise SceneError(
+                    f"{what} file {path}, line {k}: needs the columns {', '.join(need)} (missing {', '.join(missing)})"
+                )
             continue
         if len(cells) < len(head):
             raise SceneError(f"{what} file {path}, line {k}: {len(cells)} cells, the header has {len(head)}")

@@ -13,8 +13,16 @@ from .data import MeasuredCurve
 from .fit_params import TABLE_KEY, CurveFit, JointFit, band
 from .joint import CurvePrediction
 
-__all__ = ["FRAME_X_LABEL", "QUANTITY_LABEL",
-           "plot_fit", "plot_table", "prediction_json", "table_band", "write_fit", "write_prediction"]
+__all__ = [
+    "FRAME_X_LABEL",
+    "QUANTITY_LABEL",
+    "plot_fit",
+    "plot_table",
+    "prediction_json",
+    "table_band",
+    "write_fit",
+    "write_prediction",
+]
 
 
 def _atomic(path: Path, text: str) -> Path:
@@ -30,13 +38,17 @@ def write_fit(result: JointFit, out: str | Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     doc = result.to_json()
     rms = ", ".join(f"{c.label} {100 * c.rms_relative:.1f} %" for c in result.curves)
-    header = (f"# ngbet fit of {', '.join(result.params)} to {len(result.curves)} curve(s): "
-              f"{', '.join(Path(c.curve.source).name for c in result.curves)}\n"
-              f"# RMS relative error {rms}; fit.json holds the uncertainties. The specimen and load are\n"
-              "# those of the scene; run it on another specimen with --set specimen.width_mm=...,\n"
-              "# --set specimen.length_mm=..., --set loading.u0_mm=...\n")
-    paths = [_atomic(out / "fit.json", json.dumps(doc, indent=2)),
-             _atomic(out / "fitted_scene.toml", header + result.scene.to_toml())]
+    header = (
+        f"# ngbet fit of {', '.join(result.params)} to {len(result.curves)} curve(s): "
+        f"{', '.join(Path(c.curve.source).name for c in result.curves)}\n"
+        f"# RMS relative error {rms}; fit.json holds the uncertainties. The specimen and load are\n"
+        "# those of the scene; run it on another specimen with --set specimen.width_mm=...,\n"
+        "# --set specimen.length_mm=..., --set loading.u0_mm=...\n"
+    )
+    paths = [
+        _atomic(out / "fit.json", json.dumps(doc, indent=2)),
+        _atomic(out / "fitted_scene.toml", header + result.scene.to_toml()),
+    ]
     paths.append(plot_fit(result, out / "fit.png"))
     if result.scene.effects.shear_law == "table":
         paths.append(plot_table(result, out / "shear_table.png"))
@@ -62,7 +74,7 @@ def plot_table(result: JointFit, path: Path) -> Path:
     steps0 = np.array(fitted.shear_stress_steps_Pa, dtype=float)
     for k, n in enumerate(result.names):  # the start table: the fitted one with the start values put back
         if n.startswith(TABLE_KEY):
-            steps0[int(n[len(TABLE_KEY) + 1:-1])] = result.start[k]
+            steps0[int(n[len(TABLE_KEY) + 1 : -1])] = result.start[k]
     x = np.linspace(0.01 * fitted.shear_table_i8_max, min(fitted.shear_table_i8_max, 0.999), 200)
 
     def deg(i8: np.ndarray) -> np.ndarray:
@@ -74,22 +86,33 @@ def plot_table(result: JointFit, path: Path) -> Path:
     for k, c in enumerate(result.curves):
         xs, tau = shear_stress_points(c.measured_on_specimen(), t)
         ax.plot(deg(xs), tau / 1e3, "o", ms=3, color=f"C{k}", label=f"{c.label}: normalisation method, F_sh / t")
-    ax.plot(deg(x), table_stress_spline(steps0, fitted.shear_table_i8_max)(x) / 1e3, ":", color="0.3",
-            label="start table")
+    ax.plot(
+        deg(x), table_stress_spline(steps0, fitted.shear_table_i8_max)(x) / 1e3, ":", color="0.3", label="start table"
+    )
     tau = table_stress_spline(fitted.shear_stress_steps_Pa, fitted.shear_table_i8_max)(x)
     ax.plot(deg(x), tau / 1e3, "-", color="k", lw=1.6, label="fitted table (continuum)")
     ax.set_yscale("log")
     lo, hi = ax.get_ylim()  # the band does not set the scale: where a rise is undetermined it spans decades
     rel = table_band(result, x) / np.maximum(tau, 1e-300)
-    ax.fill_between(deg(x), tau * np.exp(-np.minimum(2 * rel, 50)) / 1e3, tau * np.exp(np.minimum(2 * rel, 50)) / 1e3,
-                    color="k", alpha=0.12, lw=0, label="fitted table ± 2 sd (first order in ln τ)")
+    ax.fill_between(
+        deg(x),
+        tau * np.exp(-np.minimum(2 * rel, 50)) / 1e3,
+        tau * np.exp(np.minimum(2 * rel, 50)) / 1e3,
+        color="k",
+        alpha=0.12,
+        lw=0,
+        label="fitted table ± 2 sd (first order in ln τ)",
+    )
     ax.set_ylim(lo, hi)
     ax.set_xlabel("shear angle γ = arcsin |i8| [°] (inextensible yarns)")
     ax.set_ylabel("shear stress τ = dW/d|i8| [kPa] (log scale)")
     from ..figures.style import eng
 
-    ax.set_title(f"{result.scene.specimen.name.rsplit('-', 1)[0]}, t = {t:g} mm; fitted K_el = "
-                 f"{eng(result.scene.material.K_el, 'Pa')}", fontsize=9)
+    ax.set_title(
+        f"{result.scene.specimen.name.rsplit('-', 1)[0]}, t = {t:g} mm; fitted K_el = "
+        f"{eng(result.scene.material.K_el, 'Pa')}",
+        fontsize=9,
+    )
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -106,18 +129,25 @@ def table_band(result: JointFit, x: np.ndarray) -> np.ndarray:
 
     mat = result.scene.material
     steps = np.asarray(mat.shear_stress_steps_Pa, dtype=float)
-    fitted = [(k, int(n[len(TABLE_KEY) + 1:-1])) for k, n in enumerate(result.names) if n.startswith(TABLE_KEY)]
+    fitted = [(k, int(n[len(TABLE_KEY) + 1 : -1])) for k, n in enumerate(result.names) if n.startswith(TABLE_KEY)]
     if not fitted:
         return np.zeros_like(x)
-    G = np.column_stack([steps[i] * np.nan_to_num(table_stress_spline(np.eye(len(steps))[i], mat.shear_table_i8_max)(x))
-                         for _, i in fitted])
+    G = np.column_stack(
+        [
+            steps[i] * np.nan_to_num(table_stress_spline(np.eye(len(steps))[i], mat.shear_table_i8_max)(x))
+            for _, i in fitted
+        ]
+    )
     rows = [k for k, _ in fitted]
     return band(G, result.cov_log[np.ix_(rows, rows)])
 
 
 #: the axis quantity of a file's force column (a picture frame: as its file holds it)
-QUANTITY_LABEL = {"force": "clamp force [N]", "shear_force": "shear force F_s [N] (Eq. 3)",
-                  "normalised_shear_force": "normalised shear force F_norm [N/mm] (Eq. 10)"}
+QUANTITY_LABEL = {
+    "force": "clamp force [N]",
+    "shear_force": "shear force F_s [N] (Eq. 3)",
+    "normalised_shear_force": "normalised shear force F_norm [N/mm] (Eq. 10)",
+}
 FRAME_X_LABEL = "shear angle of the frame γ [°] (Eqs. 1–2)"
 
 
@@ -147,20 +177,21 @@ def plot_fit(result: JointFit, path: Path) -> Path:  # noqa: C901 - one panel af
         x = c.curve.in_file_units(c.u_mm, c.measured_N)[0]
         ok = c.curve.u_mm >= 0
         ax.plot(*c.curve.in_file_units(c.curve.u_mm[ok], c.curve.force_N[ok]), "-", color=col, lw=0.8, alpha=0.5)
-        ax.errorbar(x, file(c.measured_N), yerr=file(c.sd_N), fmt="o", ms=3, color=col,
-                    label=f"{c.label}: data (±1 sd)")
+        ax.errorbar(
+            x, file(c.measured_N), yerr=file(c.sd_N), fmt="o", ms=3, color=col, label=f"{c.label}: data (±1 sd)"
+        )
         sd = file(band(c.dlogp, result.cov_log))
         ax.fill_between(x, file(c.model_N) - 2 * sd, file(c.model_N) + 2 * sd, color=col, alpha=0.2, lw=0)
-        ax.plot(x, file(c.model_N), "-", color=col, lw=1.6,
-                label=f"{c.label}: fitted, RMS {100 * c.rms_relative:.1f} %")
+        ax.plot(
+            x, file(c.model_N), "-", color=col, lw=1.6, label=f"{c.label}: fitted, RMS {100 * c.rms_relative:.1f} %"
+        )
         ax.plot(x, file(c.start_N), ":", color=col, lw=1.0)
         ar.plot(x, 100 * (c.model_N - c.measured_N) / c.measured_N, "o-", ms=3, color=col)
         if len(c.angle_deg):
             ag.plot(x, c.angle_deg, "-", color=col, lw=1.6, label=f"{c.label}: fitted model")
         ag.plot(x, c.ideal_angle_deg(), "--", color=col, lw=1.0, label=f"{c.label}: ideal test")
         if c.angles is not None:
-            ag.plot(c.angles.u_mm, c.angles.angle_deg, "s", ms=4, color=col, mfc="none",
-                    label=f"{c.label}: measured")
+            ag.plot(c.angles.u_mm, c.angles.angle_deg, "s", ms=4, color=col, mfc="none", label=f"{c.label}: measured")
     for j, test in enumerate(tests):
         ax, ar, ag = axes[:, j]
         frame = test == "picture_frame"
@@ -180,9 +211,12 @@ def plot_fit(result: JointFit, path: Path) -> Path:  # noqa: C901 - one panel af
     from ..figures.style import caption, put_caption
 
     material = caption(result.scene).partition("; material: ")[2]
-    put_caption(fig, f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters fitted to "
-                     f"{len(result.curves)} curve(s), {result.model_runs} model runs{stopped}; fitted material: "
-                     f"{material}")
+    put_caption(
+        fig,
+        f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters fitted to "
+        f"{len(result.curves)} curve(s), {result.model_runs} model runs{stopped}; fitted material: "
+        f"{material}",
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     return path
@@ -191,11 +225,18 @@ def plot_fit(result: JointFit, path: Path) -> Path:  # noqa: C901 - one panel af
 def prediction_json(pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray) -> dict[str, Any]:
     """The content of predict_NAME.json."""
     rel = (pred.force_N - measured) / measured
-    return {"data": curve.source, "specimen": curve.specimen, "points": len(pred.u_mm),
-            "rms_relative_error": float(np.sqrt(np.mean(rel ** 2))),
-            "within_2sd": float(np.mean(np.abs(pred.force_N - measured) <= 2 * pred.sd_N)),
-            "u_mm": pred.u_mm.tolist(), "measured_N": measured.tolist(), "force_N": pred.force_N.tolist(),
-            "sd_parameters_N": pred.sd_param_N.tolist(), "sd_discretization_N": pred.sd_disc_N.tolist()}
+    return {
+        "data": curve.source,
+        "specimen": curve.specimen,
+        "points": len(pred.u_mm),
+        "rms_relative_error": float(np.sqrt(np.mean(rel**2))),
+        "within_2sd": float(np.mean(np.abs(pred.force_N - measured) <= 2 * pred.sd_N)),
+        "u_mm": pred.u_mm.tolist(),
+        "measured_N": measured.tolist(),
+        "force_N": pred.force_N.tolist(),
+        "sd_parameters_N": pred.sd_param_N.tolist(),
+        "sd_discretization_N": pred.sd_disc_N.tolist(),
+    }
 
 
 def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray, out: Path) -> Path:
@@ -207,12 +248,18 @@ def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.n
     fig = Figure(figsize=(6.4, 4.2))
     ax = fig.subplots()
     ok = curve.u_mm >= 0
-    ax.plot(*curve.in_file_units(curve.u_mm[ok], curve.force_N[ok]), "-", color="k", lw=1.0,
-            label=f"measured, {curve.label}")
+    ax.plot(
+        *curve.in_file_units(curve.u_mm[ok], curve.force_N[ok]),
+        "-",
+        color="k",
+        lw=1.0,
+        label=f"measured, {curve.label}",
+    )
     x, F = curve.in_file_units(pred.u_mm, pred.force_N)  # a frame in its file's quantities (linear in the force)
     sd = curve.in_file_units(pred.u_mm, pred.sd_N)[1]
-    ax.fill_between(x, F - 2 * sd, F + 2 * sd, color="tab:orange", alpha=0.3, lw=0,
-                    label="±2 sd (parameters and discretization)")
+    ax.fill_between(
+        x, F - 2 * sd, F + 2 * sd, color="tab:orange", alpha=0.3, lw=0, label="±2 sd (parameters and discretization)"
+    )
     ax.plot(x, F, "-", color="tab:orange", label="ngbet prediction")
     frame = curve.test == "picture_frame"
     ax.set_xlabel(FRAME_X_LABEL if frame else "clamp displacement [mm]")

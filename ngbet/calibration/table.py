@@ -26,8 +26,9 @@ from .data import MeasuredCurve
 __all__ = ["shear_stress_points", "start_table"]
 
 
-def shear_stress_points(curve: MeasuredCurve, thickness_mm: float, n: int = 40,
-                        fraction: tuple[float, float] = (0.02, 0.9)) -> tuple[np.ndarray, np.ndarray]:
+def shear_stress_points(
+    curve: MeasuredCurve, thickness_mm: float, n: int = 40, fraction: tuple[float, float] = (0.02, 0.9)
+) -> tuple[np.ndarray, np.ndarray]:
     """(|i8| = sin γ, τ [Pa]) from the curve by the normalisation method, at n displacements.
 
     A picture-frame curve: γ the frame's shear angle and τ = F_norm / t (Eq. 10, the shear force of
@@ -56,8 +57,7 @@ def start_table(curve: MeasuredCurve, thickness_mm: float, n_steps: int, x_max: 
     from scipy.optimize import nnls
 
     x, tau = shear_stress_points(curve, thickness_mm)
-    basis = np.column_stack([np.nan_to_num(table_stress_spline(np.eye(n_steps)[j], x_max)(x))
-                             for j in range(n_steps)])
+    basis = np.column_stack([np.nan_to_num(table_stress_spline(np.eye(n_steps)[j], x_max)(x)) for j in range(n_steps)])
     w = 1.0 / np.maximum(np.abs(tau), 0.05 * np.abs(tau).max())
     steps, _ = nnls(basis * w[:, None], tau * w)
     # a rise of exactly 0 cannot be fitted in ln p: a small floor

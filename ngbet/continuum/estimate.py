@@ -68,9 +68,24 @@ from ..scene.numerical import Discretization
 from ..scene.validate import AUTO
 from .path_spread import RunPathSpread
 
-__all__ = ["CORNER_LEVELS", "ENRICHED_REUSE", "ENRICHED_RTOL", "METHOD_CORNER", "METHOD_ONE_STEP",
-           "PLATEAU_SKIP_CONTRACTION", "STEP_CONTRACTION", "THETA", "THETA_CORNER", "THETA_PLATEAU", "Estimate",
-           "ForceErrorEstimator", "RunEstimates", "enriched_discretization", "estimate", "one_newton_step"]
+__all__ = [
+    "CORNER_LEVELS",
+    "ENRICHED_REUSE",
+    "ENRICHED_RTOL",
+    "METHOD_CORNER",
+    "METHOD_ONE_STEP",
+    "PLATEAU_SKIP_CONTRACTION",
+    "STEP_CONTRACTION",
+    "THETA",
+    "THETA_CORNER",
+    "THETA_PLATEAU",
+    "Estimate",
+    "ForceErrorEstimator",
+    "RunEstimates",
+    "enriched_discretization",
+    "estimate",
+    "one_newton_step",
+]
 
 log = logging.getLogger(__name__)
 
@@ -181,13 +196,17 @@ class ForceErrorEstimator:
         if up > 1:
             mesh = self._enriched.problem.mesh
         else:
-            mesh = (corner_refined(self.problem.mesh, sc.specimen, CORNER_LEVELS, singular_corners(sc)) if self.corner
-                    else self.problem.mesh)
+            mesh = (
+                corner_refined(self.problem.mesh, sc.specimen, CORNER_LEVELS, singular_corners(sc))
+                if self.corner
+                else self.problem.mesh
+            )
         disc = sc.discretization
         for _ in range(up):
             disc = enriched_discretization(disc)
-        return ContinuumSolver(ContinuumProblem(dataclasses.replace(sc, discretization=disc), mesh=mesh),
-                               self.solver.settings)
+        return ContinuumSolver(
+            ContinuumProblem(dataclasses.replace(sc, discretization=disc), mesh=mesh), self.solver.settings
+        )
 
     def estimate(self, lam: float, force_N: float) -> Estimate:
         """The error estimate at the current (converged) state of the problem, load ``lam`` [m].
@@ -212,7 +231,8 @@ class ForceErrorEstimator:
         if not why and not self.corner and theta1 > PLATEAU_SKIP_CONTRACTION:
             self.notes[f"{lam * 1e3:g}"] = (
                 f"no plateau check at p + 2: the one Newton step at p + 1 contracts by {theta1:.2g}, and on meshes "
-                "graded towards the corners the step at p + 2 then does not contract either")
+                "graded towards the corners the step at p + 2 then does not contract either"
+            )
         elif not why:
             if self._enriched2 is None:
                 self._enriched2 = self._build(2)
@@ -227,8 +247,10 @@ class ForceErrorEstimator:
         dt = time.perf_counter() - t0
         self.total_s += dt
         if why:
-            why = (f"no error bar: {why}; the run may stand near a limit point or a locking discretization, "
-                   "where the p-sequence says nothing about the error")
+            why = (
+                f"no error bar: {why}; the run may stand near a limit point or a locking discretization, "
+                "where the p-sequence says nothing about the error"
+            )
             log.info("error estimate at u0 = %.4g mm: %s", lam * 1e3, why)
             return Estimate(force_N, math.nan, F1, prof, self.method, dt, its1 + its2, F2, why)
         err = self.theta * abs(force_N - F1)
@@ -255,19 +277,30 @@ class ForceErrorEstimator:
         self.last_contraction = report.contraction
         log.debug("enriched step at p = %d: contraction %.3g", p_enr, report.contraction)
         if not report.converged or report.contraction > STEP_CONTRACTION:
-            first = (f"one Newton step at p = {p_enr} contracts by {report.contraction:.2g}"
-                     if report.converged else f"one Newton step at p = {p_enr}: {report.reason}")
+            first = (
+                f"one Newton step at p = {p_enr} contracts by {report.contraction:.2g}"
+                if report.converged
+                else f"one Newton step at p = {p_enr}: {report.reason}"
+            )
             if not converge:
                 return math.nan, report.iterations, f"{first} (not solved further)"
             enr.x[:] = x0
-            settings = dataclasses.replace(self.solver.settings.newton, reuse_contraction=ENRICHED_REUSE,
-                                           rtol=max(ENRICHED_RTOL, up.scene.solver.rtol))
+            settings = dataclasses.replace(
+                self.solver.settings.newton,
+                reuse_contraction=ENRICHED_REUSE,
+                rtol=max(ENRICHED_RTOL, up.scene.solver.rtol),
+            )
             # the one step's factorization is that at x0: Newton's first iteration reuses it
             report = newton(enr, settings, enr.energy(), factorized=True, r=r0)
             if not report.converged or report.residual is None:
-                return math.nan, report.iterations, (
-                    f"the enriched problem (p = {p_enr}) has no equilibrium that Newton reaches from the state "
-                    f"one order below ({'; '.join(t for t in (first, report.reason) if t)})")
+                return (
+                    math.nan,
+                    report.iterations,
+                    (
+                        f"the enriched problem (p = {p_enr}) has no equilibrium that Newton reaches from the state "
+                        f"one order below ({'; '.join(t for t in (first, report.reason) if t)})"
+                    ),
+                )
         assert report.residual is not None  # a converged report carries its residual
         return obs.reaction_force(up, report.residual) * up.scene.specimen.t, report.iterations, ""
 
@@ -284,8 +317,9 @@ def one_newton_step(problem: Any, r: np.ndarray | None = None) -> Any:
     problem.x[:] += dx
     r = problem.residual()
     ok = bool(np.all(np.isfinite(dx)) and np.all(np.isfinite(r)))
-    rep = NewtonReport(ok, 1, [abs(float(dx @ r))], [1.0], "one step" if ok else "not finite",
-                       residual=r if ok else None)
+    rep = NewtonReport(
+        ok, 1, [abs(float(dx @ r))], [1.0], "one step" if ok else "not finite", residual=r if ok else None
+    )
     if ok:  # the next (simplified) correction, from the same factorization: how far the step is from converged
         n = problem.state.norm(dx)
         rep.contraction = problem.state.norm(problem.solve(r)) / n if n > 0 else 0.0
@@ -311,23 +345,28 @@ class RunEstimates:
         self.mode = sc.outputs.error_estimate
         self.final = sc.loading.u0_mm
         self.stops = tuple(sc.loading.stops_mm) if self.mode == "stops" else ()
-        self.estimator = (ForceErrorEstimator(solver, sc.outputs.profile_points if sc.outputs.profile else 0)
-                          if self.mode != "off" and sc.outputs.reaction else None)
+        self.estimator = (
+            ForceErrorEstimator(solver, sc.outputs.profile_points if sc.outputs.profile else 0)
+            if self.mode != "off" and sc.outputs.reaction
+            else None
+        )
         self.last: Estimate | None = None
         self.spread = RunPathSpread(solver)  # the path's relaxations tell it the branches they left
         self.profile_errors: dict[str, float] = {}
         self.unreliable: dict[str, str] = {}  # load [mm] -> why the estimate there cannot vouch
         d = sc.discretization
-        self.note = ("" if d.corner_mesh_size_mm > 0 else
-                     "the mesh is not graded towards the clamp corners, where most of the error lies: the "
-                     "estimate enriches them by bisection; a graded mesh is more accurate for its cost "
-                     "(set discretization.corner_mesh_size_mm, e.g. 0.25)")
+        self.note = (
+            ""
+            if d.corner_mesh_size_mm > 0
+            else "the mesh is not graded towards the clamp corners, where most of the error lies: the "
+            "estimate enriches them by bisection; a graded mesh is more accurate for its cost "
+            "(set discretization.corner_mesh_size_mm, e.g. 0.25)"
+        )
 
     def row(self, lam: float, force_N: float | None) -> dict[str, Any]:
         """``{"force_error_N": ...}`` for the results.csv row of the converged load ``lam`` [m]."""
         u0 = lam * 1e3
-        due = (self.mode == "every" or abs(u0 - self.final) < 1e-6
-               or any(abs(u0 - s) < 1e-6 for s in self.stops))
+        due = self.mode == "every" or abs(u0 - self.final) < 1e-6 or any(abs(u0 - s) < 1e-6 for s in self.stops)
         if self.estimator is None or force_N is None or not due:
             return {"force_error_N": ""}
         e = self.last = self.spread.fold(lam, self.estimator.estimate(lam, force_N))
@@ -346,11 +385,16 @@ class RunEstimates:
             return out
         e = self.last
         vouched = e is not None and math.isfinite(e.force_error_N)
-        out.update({"error_method": self.estimator.method, "force_N": e.force_N if e else math.nan,
-                    "force_error_N": e.force_error_N if e is not None and vouched else None,
-                    "force_error_rel": e.force_error_rel if e is not None and vouched else None,
-                    "profile_error_mm": self.profile_errors,
-                    "estimate_cost_fraction": est_s / max(solve_wall_s - est_s, 1e-12)})
+        out.update(
+            {
+                "error_method": self.estimator.method,
+                "force_N": e.force_N if e else math.nan,
+                "force_error_N": e.force_error_N if e is not None and vouched else None,
+                "force_error_rel": e.force_error_rel if e is not None and vouched else None,
+                "profile_error_mm": self.profile_errors,
+                "estimate_cost_fraction": est_s / max(solve_wall_s - est_s, 1e-12),
+            }
+        )
         if e is not None:
             out["force_enriched_N"] = [e.force_enriched_N, e.force_enriched2_N]
         if self.unreliable:

@@ -51,8 +51,16 @@ class JammingBarrier:
     off nothing is added and :attr:`on` stays False.
     """
 
-    def __init__(self, scene: Scene, mesh: ngs.Mesh, X: ngs.FESpace, u: Any, m1: CF, m2: CF,
-                 forms: Sequence[tuple[ngs.BilinearForm, bool]] = ()) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        mesh: ngs.Mesh,
+        X: ngs.FESpace,
+        u: Any,
+        m1: CF,
+        m2: CF,
+        forms: Sequence[tuple[ngs.BilinearForm, bool]] = (),
+    ) -> None:
         self.elements = ngs.BitArray(mesh.ne)
         self.elements.Clear()
         self._ne = mesh.ne
@@ -74,8 +82,7 @@ class JammingBarrier:
         def sine(grad_u: CF) -> CF:
             return physics.yarn_angle_sine(ngs.Id(2) + grad_u, m1, m2, orientation)
 
-        W = physics.jamming_energy(sine(ngs.Grad(X.TrialFunction()[0])), max(mat.K_el, mat.K_sh),
-                                   self.s_jam).Compile()
+        W = physics.jamming_energy(sine(ngs.Grad(X.TrialFunction()[0])), max(mat.K_el, mat.K_sh), self.s_jam).Compile()
         self._energy = (W, 2 + disc.quad_bonus)
         self.add_to(forms)
         # the integrator's own rule: order 2 max(p) + bonus over the compound element (NGSolve's SymbolicEnergy)
@@ -148,8 +155,10 @@ class JammingBarrier:
                 return
             low = float(np.nanmin(smallest)) if np.isfinite(smallest).any() else math.nan
             angle = math.degrees(math.asin(max(-1.0, min(1.0, low)))) if math.isfinite(low) else math.nan
-            log.info("the jamming barrier is on: %s", f"the yarns close to {angle:.3g} degrees" if angle > 0
-                     else "the yarns of a solved state cross")
+            log.info(
+                "the jamming barrier is on: %s",
+                f"the yarns close to {angle:.3g} degrees" if angle > 0 else "the yarns of a solved state cross",
+            )
         self._near |= ~(smallest >= JAMMING_SET_MARGIN * self.s_jam)
         if np.array_equal(self._near, self._where):
             return

@@ -18,8 +18,15 @@ from ..scene.document import Scene
 from ..scene.numerical import Discretization
 from ..scene.physical import PictureFrame, Specimen
 
-__all__ = ["CLAMPED_ARMS", "corner_elements", "corner_refined", "cross_outline", "make_cross_mesh", "make_mesh",
-           "singular_corners"]
+__all__ = [
+    "CLAMPED_ARMS",
+    "corner_elements",
+    "corner_refined",
+    "cross_outline",
+    "make_cross_mesh",
+    "make_mesh",
+    "singular_corners",
+]
 
 FIXED, MOVING, FREE = "left", "right", "bottom|top"
 CLAMPED_ARMS = "clamp"
@@ -68,8 +75,9 @@ def _netgen_mesh(L: float, W: float, h: float, corner_mesh_size_mm: float) -> ng
     return ngs.Mesh(OCCGeometry(face, dim=2).GenerateMesh(maxh=h))
 
 
-def corner_refined(mesh: ngs.Mesh, specimen: Specimen, levels: int,
-                   corners: tuple[tuple[float, float], ...] | None = None) -> ngs.Mesh:
+def corner_refined(
+    mesh: ngs.Mesh, specimen: Specimen, levels: int, corners: tuple[tuple[float, float], ...] | None = None
+) -> ngs.Mesh:
     """A copy of ``mesh`` with the elements at the four clamp corners bisected ``levels`` times.
 
     Each time the elements that touch a corner then are bisected; boundary names are kept.
@@ -108,10 +116,20 @@ def cross_outline(frame: PictureFrame) -> list[tuple[tuple[float, float], str]]:
     """
     L, c = frame.frame_mm * 1e-3, frame.arm_mm * 1e-3
     if c > 0:
-        local = [((c, 0.0), "clamp"), ((L - c, 0.0), "free"), ((L - c, c), "free"),
-                 ((L, c), "clamp"), ((L, L - c), "free"), ((L - c, L - c), "free"),
-                 ((L - c, L), "clamp"), ((c, L), "free"), ((c, L - c), "free"),
-                 ((0.0, L - c), "clamp"), ((0.0, c), "free"), ((c, c), "free")]
+        local = [
+            ((c, 0.0), "clamp"),
+            ((L - c, 0.0), "free"),
+            ((L - c, c), "free"),
+            ((L, c), "clamp"),
+            ((L, L - c), "free"),
+            ((L - c, L - c), "free"),
+            ((L - c, L), "clamp"),
+            ((c, L), "free"),
+            ((c, L - c), "free"),
+            ((0.0, L - c), "clamp"),
+            ((0.0, c), "free"),
+            ((c, c), "free"),
+        ]
     else:
         local = [((0.0, 0.0), "clamp"), ((L, 0.0), "clamp"), ((L, L), "clamp"), ((0.0, L), "clamp")]
     r = 1.0 / math.sqrt(2.0)

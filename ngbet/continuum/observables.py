@@ -20,9 +20,20 @@ from . import physics
 if TYPE_CHECKING:  # for the annotations only: the problem's diagnosis uses these observables
     from .problem import ContinuumProblem
 
-__all__ = ["ZoneShearMeans", "centre_shear_angle_deg", "constraint_l2", "ellipticity_loss_area", "field_functions",
-           "map_samples", "midaxis_profile", "min_at_points", "multiplier_oscillation", "reaction_double_force",
-           "reaction_force", "zone_indicators"]
+__all__ = [
+    "ZoneShearMeans",
+    "centre_shear_angle_deg",
+    "constraint_l2",
+    "ellipticity_loss_area",
+    "field_functions",
+    "map_samples",
+    "midaxis_profile",
+    "min_at_points",
+    "multiplier_oscillation",
+    "reaction_double_force",
+    "reaction_force",
+    "zone_indicators",
+]
 
 
 def reaction_force(problem: ContinuumProblem, r: np.ndarray) -> float:
@@ -100,7 +111,7 @@ class ZoneShearMeans:
         area = np.array([ngs.Integrate(ngs.CF(1.0), mesh, order=0, element_wise=True)]).ravel()
         w = (area[:, None] * ref_w[None, :] / ref_w.sum()).ravel()
         ind = np.asarray(ngs.CF(tuple(zone_indicators(problem)))(self.points)).reshape(-1, 3)
-        self.weights = ind * w[:, None]                        # (points, zones)
+        self.weights = ind * w[:, None]  # (points, zones)
         self.areas = self.weights.sum(axis=0)
         sp = problem.scene.specimen
         inv = problem.invariants()
@@ -110,8 +121,9 @@ class ZoneShearMeans:
         """{"A": mean γ_A, "B": mean γ_B, "C": mean γ_C} [deg] of the current state (nan: an empty zone)."""
         g = np.asarray(self.gamma(self.points)).ravel()
         sums = g @ self.weights
-        return {z: (math.degrees(sums[i] / self.areas[i]) if self.areas[i] > 0 else math.nan)
-                for i, z in enumerate("ABC")}
+        return {
+            z: (math.degrees(sums[i] / self.areas[i]) if self.areas[i] > 0 else math.nan) for i, z in enumerate("ABC")
+        }
 
 
 def map_samples(problem: ContinuumProblem, subdivision: int) -> dict[str, np.ndarray]:
@@ -139,8 +151,14 @@ def map_samples(problem: ContinuumProblem, subdivision: int) -> dict[str, np.nda
     vals = np.asarray(ngs.CF((ngs.x, ngs.y, problem.u[0], problem.u[1], g))(pts)).reshape(-1, 5)
     ne = len(vals) // len(lattice)
     tri = (np.asarray(local)[None, :, :] + len(lattice) * np.arange(ne)[:, None, None]).reshape(-1, 3)
-    return {"X_mm": vals[:, 0] * 1e3, "Y_mm": vals[:, 1] * 1e3, "ux_mm": vals[:, 2] * 1e3,
-            "uy_mm": vals[:, 3] * 1e3, "gamma_deg": np.degrees(vals[:, 4]), "triangles": tri.astype(np.int32)}
+    return {
+        "X_mm": vals[:, 0] * 1e3,
+        "Y_mm": vals[:, 1] * 1e3,
+        "ux_mm": vals[:, 2] * 1e3,
+        "uy_mm": vals[:, 3] * 1e3,
+        "gamma_deg": np.degrees(vals[:, 4]),
+        "triangles": tri.astype(np.int32),
+    }
 
 
 def constraint_l2(problem: ContinuumProblem) -> float:

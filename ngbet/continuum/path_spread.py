@@ -91,8 +91,15 @@ class PathSpread:
         ended, the longest.
     """
 
-    def __init__(self, make_problem: Callable[[], Problem], force: Callable[[Any, np.ndarray], float],
-                 settings: NewtonSettings, first_step: float, min_step: float, max_step: float = math.inf) -> None:
+    def __init__(
+        self,
+        make_problem: Callable[[], Problem],
+        force: Callable[[Any, np.ndarray], float],
+        settings: NewtonSettings,
+        first_step: float,
+        min_step: float,
+        max_step: float = math.inf,
+    ) -> None:
         self._make = make_problem
         self.problem: Any = None
         self.force = force
@@ -156,8 +163,9 @@ class PathSpread:
                 continue
             h *= 0.5
             if h < self.min_step:
-                b.ended = (f"cannot be continued beyond {b.lam * 1e3:.6g} mm (Newton: {rep.reason}): "
-                           "the branch folds there")
+                b.ended = (
+                    f"cannot be continued beyond {b.lam * 1e3:.6g} mm (Newton: {rep.reason}): the branch folds there"
+                )
                 log.info("path spread: the branch left at %.6g mm %s", b.left_mm, b.ended)
                 return {"stable": False, "ended": b.ended, "newton_iterations": its}
         p.x[:] = b.x
@@ -166,20 +174,22 @@ class PathSpread:
         dist = float(p.state.norm(p.x - x_path)) if x_path is not None else math.inf  # unit-free
         if dist <= SAME_STATE or abs(F - force_N) <= SAME_FORCE * abs(force_N):
             b.ended = f"rejoined the path at {lam * 1e3:.6g} mm"
-            return {"stable": False, "ended": b.ended, "force_N": F, "distance_to_path": dist,
-                    "newton_iterations": its}
+            return {"stable": False, "ended": b.ended, "force_N": F, "distance_to_path": dist, "newton_iterations": its}
         mu, _ = p.lowest_mode()
         if not mu > 0:
             b.ended = f"unstable at {lam * 1e3:.6g} mm (lowest scaled eigenvalue {mu:.3g})"
-            return {"stable": False, "ended": b.ended, "force_N": F, "distance_to_path": dist,
-                    "newton_iterations": its}
-        return {"stable": True, "force_N": F, "lowest_eigenvalue": float(mu), "distance_to_path": dist,
-                "newton_iterations": its}
+            return {"stable": False, "ended": b.ended, "force_N": F, "distance_to_path": dist, "newton_iterations": its}
+        return {
+            "stable": True,
+            "force_N": F,
+            "lowest_eigenvalue": float(mu),
+            "distance_to_path": dist,
+            "newton_iterations": its,
+        }
 
     def summary(self) -> list[dict[str, Any]]:
         """Each branch left: where, whether by a snap-through, and what it gave at each load asked."""
-        return [{"left_at_mm": b.left_mm, "snap": b.snap, "ended": b.ended, "loads": b.records}
-                for b in self.branches]
+        return [{"left_at_mm": b.left_mm, "snap": b.snap, "ended": b.ended, "loads": b.records} for b in self.branches]
 
 
 class RunPathSpread:
@@ -205,8 +215,14 @@ class RunPathSpread:
         if self.spread is None:
             settings = self.solver.settings
             path = settings.path
-            self.spread = PathSpread(self._copy, self._force, settings.newton, path.first_step, path.min_step,
-                                     min(path.max_step, BRANCH_MAX_STEP))
+            self.spread = PathSpread(
+                self._copy,
+                self._force,
+                settings.newton,
+                path.first_step,
+                path.min_step,
+                min(path.max_step, BRANCH_MAX_STEP),
+            )
         self.spread.left(lam, x, snap)
 
     def _copy(self) -> Any:
@@ -236,13 +252,19 @@ class RunPathSpread:
             copy.jamming.switch_on()  # the copy's barrier as the run's
         s = self.last = sp.at(lam, e.force_N, self.solver.x)
         if s > 0:
-            log.warning("at u0 = %.6g mm the force depends on the path: a branch the path left at a relaxation is "
-                        "stable there with a force %.3g N away; the error bar includes it", lam * 1e3, s)
+            log.warning(
+                "at u0 = %.6g mm the force depends on the path: a branch the path left at a relaxation is "
+                "stable there with a force %.3g N away; the error bar includes it",
+                lam * 1e3,
+                s,
+            )
         return dataclasses.replace(e, force_error_N=e.force_error_N + s, path_spread_N=s)
 
     def summary(self) -> dict[str, Any]:
         """Summary keys: the spread at the last estimated load and each branch's record ({} before any relaxation)."""
         if self.spread is None:
             return {}
-        return {"force_path_spread_N": self.last if math.isfinite(self.last) else None,
-                "path_spread": {"branches": self.spread.summary(), "cost_s": self.spread.total_s}}
+        return {
+            "force_path_spread_N": self.last if math.isfinite(self.last) else None,
+            "path_spread": {"branches": self.spread.summary(), "cost_s": self.spread.total_s},
+        }

@@ -32,10 +32,28 @@ import ngsolve as ngs
 import numpy as np
 from ngsolve import CoefficientFunction as CF
 
-__all__ = ["JAMMING_CUTOFF", "LOCKING_CUTOFF", "SHEAR_LAWS", "Invariants", "bending_energy", "elongation_energy",
-           "invariants", "jamming_energy", "lagrange_constraint", "locking_shear_energy", "mixed_penalty_constraint",
-           "penalty_constraint", "polynomial_shear_energy", "shear_angle", "shear_energy", "shear_law_energy",
-           "table_greville", "table_shear_energy", "table_stress_spline", "yarn_angle_sine"]
+__all__ = [
+    "JAMMING_CUTOFF",
+    "LOCKING_CUTOFF",
+    "SHEAR_LAWS",
+    "Invariants",
+    "bending_energy",
+    "elongation_energy",
+    "invariants",
+    "jamming_energy",
+    "lagrange_constraint",
+    "locking_shear_energy",
+    "mixed_penalty_constraint",
+    "penalty_constraint",
+    "polynomial_shear_energy",
+    "shear_angle",
+    "shear_energy",
+    "shear_law_energy",
+    "table_greville",
+    "table_shear_energy",
+    "table_stress_spline",
+    "yarn_angle_sine",
+]
 
 
 class Invariants(NamedTuple):
@@ -91,8 +109,11 @@ def locking_shear_energy(i8: CF, K_sh: float, K_lock: float, gamma_lock_deg: flo
     (i8 = sin γ for inextensible yarns at ±45°). Beyond x = :data:`LOCKING_CUTOFF` the logarithm is
     replaced by its second-order Taylor polynomial (C² join), so that the energy stays finite.
     """
-    s2 = math.sin(math.radians(gamma_lock_deg)) ** 2 if isinstance(gamma_lock_deg, (int, float)) \
+    s2 = (
+        math.sin(math.radians(gamma_lock_deg)) ** 2
+        if isinstance(gamma_lock_deg, (int, float))
         else ngs.sin(gamma_lock_deg * (math.pi / 180.0)) ** 2
+    )
     x = i8 * i8 / s2
     xc = LOCKING_CUTOFF
     dx = x - xc
@@ -124,7 +145,7 @@ def table_greville(n_steps: int, x_max: float) -> np.ndarray:
     """The Greville abscissae of the tabulated law's control values (n_steps + 1 of them, from 0)."""
     t = table_stress_spline(np.ones(n_steps), x_max).t
     k = min(3, n_steps)
-    return np.array([t[j + 1:j + k + 1].mean() for j in range(n_steps + 1)])
+    return np.array([t[j + 1 : j + k + 1].mean() for j in range(n_steps + 1)])
 
 
 def _truncated_powers(x: CF, breaks: np.ndarray, coeffs: np.ndarray, tail: tuple[float, float, float]) -> CF:
@@ -139,11 +160,14 @@ def _truncated_powers(x: CF, breaks: np.ndarray, coeffs: np.ndarray, tail: tuple
     from numpy.polynomial import Polynomial as Poly
 
     K = coeffs.shape[0] - 1
-    pieces = [sum((float(coeffs[K - m, i]) * Poly([-float(b), 1.0]) ** m for m in range(K + 1)), Poly([0.0]))
-              for i, b in enumerate(breaks[:-1])]
+    pieces = [
+        sum((float(coeffs[K - m, i]) * Poly([-float(b), 1.0]) ** m for m in range(K + 1)), Poly([0.0]))
+        for i, b in enumerate(breaks[:-1])
+    ]
     x_end = float(breaks[-1])
-    pieces.append(Poly([tail[0] - tail[1] * x_end + 0.5 * tail[2] * x_end ** 2, tail[1] - tail[2] * x_end,
-                        0.5 * tail[2]]))
+    pieces.append(
+        Poly([tail[0] - tail[1] * x_end + 0.5 * tail[2] * x_end**2, tail[1] - tail[2] * x_end, 0.5 * tail[2]])
+    )
 
     def horner(q: np.ndarray, t: CF) -> CF:
         out: CF = float(q[-1])
@@ -158,7 +182,7 @@ def _truncated_powers(x: CF, breaks: np.ndarray, coeffs: np.ndarray, tail: tuple
             continue
         low = int(np.argmax(np.abs(q) > 1e-12 * np.max(np.abs(q))))
         s = ngs.IfPos(x - float(b), x - float(b), 0.0)
-        expr = expr + horner(q[low:], s) * s ** low if low else expr + horner(q, s)
+        expr = expr + horner(q[low:], s) * s**low if low else expr + horner(q, s)
     return expr
 
 
@@ -241,8 +265,8 @@ def jamming_energy(s: CF, K_jam: float, s_jam: float) -> CF:
     """
     tc = JAMMING_CUTOFF
     h_c = (1.0 - tc) ** 3 / tc
-    dh_c = -3.0 * (1.0 - tc) ** 2 / tc - (1.0 - tc) ** 3 / tc ** 2
-    d2h_c = 6.0 * (1.0 - tc) / tc + 6.0 * (1.0 - tc) ** 2 / tc ** 2 + 2.0 * (1.0 - tc) ** 3 / tc ** 3
+    dh_c = -3.0 * (1.0 - tc) ** 2 / tc - (1.0 - tc) ** 3 / tc**2
+    d2h_c = 6.0 * (1.0 - tc) / tc + 6.0 * (1.0 - tc) ** 2 / tc**2 + 2.0 * (1.0 - tc) ** 3 / tc**3
     t = s / s_jam
     dt = t - tc
     # the branches are evaluated everywhere: keep t away from 0 where the rational branch is not taken

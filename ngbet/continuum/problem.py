@@ -122,7 +122,7 @@ def stabilization_modulus(scene: Scene, parameters: dict[str, ngs.Parameter] | N
     else:
         a1, a2 = parameters["alpha1"], parameters["alpha2"]
         alpha_min, K_el = ngs.IfPos(a1 - a2, a2, a1), parameters["K_el"]
-    k_h = STABILIZATION_C * alpha_min / (ngs.specialcf.mesh_size ** 2)
+    k_h = STABILIZATION_C * alpha_min / (ngs.specialcf.mesh_size**2)
     if m.K_el <= 0:
         return k_h
     cap = STABILIZATION_CAP * K_el
@@ -163,7 +163,7 @@ class ContinuumProblem:
             self.mesh = mesh if mesh is not None else make_cross_mesh(pf, sp, disc)
             dirichlet = CLAMPED_ARMS if dirichlet == DIRICHLET else dirichlet
             #: the length scale [m] (the loading diagonal) and the reference area [m²]
-            self.length, self.area = math.sqrt(2.0) * pf.frame_mm * 1e-3, (pf.frame_mm ** 2 - 4 * pf.arm_mm ** 2) * 1e-6
+            self.length, self.area = math.sqrt(2.0) * pf.frame_mm * 1e-3, (pf.frame_mm**2 - 4 * pf.arm_mm**2) * 1e-6
             self.yarns = _turned(sp.m1, pf.misalignment_deg), _turned(sp.m2, pf.misalignment_deg)
         else:
             self.mesh = mesh if mesh is not None else make_mesh(sp, disc)
@@ -243,8 +243,10 @@ class ContinuumProblem:
             base = base + physics.penalty_constraint(phi, inv.i8, self.K_s)
         if eff.constraint == "lagrange":
             lam = trial[2]
-            return ((base + physics.lagrange_constraint(phi, inv.i8, lam), bending),
-                    lambda K_aug: (base + physics.mixed_penalty_constraint(phi, inv.i8, lam, K_aug), bending))
+            return (
+                (base + physics.lagrange_constraint(phi, inv.i8, lam), bending),
+                lambda K_aug: (base + physics.mixed_penalty_constraint(phi, inv.i8, lam, K_aug), bending),
+            )
         if eff.penalty_form == "mixed" or self.full_as_mixed:
             return (base + physics.mixed_penalty_constraint(phi, inv.i8, trial[2], eff.penalty_K), bending), None
         return (base + physics.penalty_constraint(phi, inv.i8, eff.penalty_K), bending), None
@@ -314,7 +316,7 @@ class ContinuumProblem:
         scale = {"u": 1.0 / self.length, "phi": 1.0, "lam": 1.0 / self.K_ref}
         for i, name in enumerate(self.field_names):
             rng = self.X.Range(i)
-            w[rng.start:rng.stop] = scale[name]
+            w[rng.start : rng.stop] = scale[name]
         return cast(np.ndarray, w * self.free_all)
 
     # --------------------------------------------------------------------------- load, state, admissibility
@@ -386,9 +388,11 @@ class ContinuumProblem:
         eff = self.scene.effects
         if eff.jamming or (eff.shear and eff.shear_law == "locking" and self.scene.material.K_lock > 0):
             return ""
-        return ("the shear energy falls again once the yarns turn past parallel; the jamming barrier "
-                "(effects.jamming = true) or a shear law that locks before (effects.shear_law = 'locking' with "
-                "material.K_lock > 0) keeps the yarns from crossing")
+        return (
+            "the shear energy falls again once the yarns turn past parallel; the jamming barrier "
+            "(effects.jamming = true) or a shear law that locks before (effects.shear_law = 'locking' with "
+            "material.K_lock > 0) keeps the yarns from crossing"
+        )
 
     def begin_relaxation(self) -> None:
         """A relaxation starts from the current state: it may not invert more material than there is now.

@@ -48,8 +48,20 @@ from ..scene.validate import SceneError
 from . import physics
 from .parameters import PARAMETERS
 
-__all__ = ["DIFFERENTIABLE", "TABLE", "TANGENT_CONTRACTION", "TANGENT_REFINEMENTS", "ForcePath", "Recorder",
-           "check_params", "load_tangent_at_state", "material_value", "solve_at_state", "table_index", "with_material"]
+__all__ = [
+    "DIFFERENTIABLE",
+    "TABLE",
+    "TANGENT_CONTRACTION",
+    "TANGENT_REFINEMENTS",
+    "ForcePath",
+    "Recorder",
+    "check_params",
+    "load_tangent_at_state",
+    "material_value",
+    "solve_at_state",
+    "table_index",
+    "with_material",
+]
 
 log = logging.getLogger(__name__)
 
@@ -61,8 +73,8 @@ TABLE = "shear_stress_steps_Pa"
 
 def table_index(name: str) -> int | None:
     """The index of a rise "shear_stress_steps_Pa[j]", else None."""
-    if name.startswith(TABLE + "[") and name.endswith("]") and name[len(TABLE) + 1:-1].isdigit():
-        return int(name[len(TABLE) + 1:-1])
+    if name.startswith(TABLE + "[") and name.endswith("]") and name[len(TABLE) + 1 : -1].isdigit():
+        return int(name[len(TABLE) + 1 : -1])
     return None
 
 
@@ -144,8 +156,10 @@ def check_params(scene: Scene, params: Sequence[str]) -> list[str]:
             names.append(key)
             continue
         if section != "material" or key not in DIFFERENTIABLE:
-            raise SceneError(f"cannot differentiate with respect to '{p}': known are "
-                             f"{', '.join('material.' + k for k in DIFFERENTIABLE)}")
+            raise SceneError(
+                f"cannot differentiate with respect to '{p}': known are "
+                f"{', '.join('material.' + k for k in DIFFERENTIABLE)}"
+            )
         names.append(key)
     return names
 
@@ -177,8 +191,9 @@ def load_tangent_at_state(solver: Any, residual: np.ndarray | None = None, rtol:
     return psi
 
 
-def solve_at_state(solver: Any, y: np.ndarray, g: np.ndarray | None, residual: np.ndarray,
-                   rtol: float = 1e-5) -> np.ndarray | None:
+def solve_at_state(
+    solver: Any, y: np.ndarray, g: np.ndarray | None, residual: np.ndarray, rtol: float = 1e-5
+) -> np.ndarray | None:
     """The solution of (H y + g)_f = 0 (g None: 0) from a start y of Newton's last factorization.
 
     H is the tangent at the current, converged state.
@@ -220,8 +235,15 @@ def solve_at_state(solver: Any, y: np.ndarray, g: np.ndarray | None, residual: n
 class Recorder:
     """What :func:`force_path` records at each converged step (called with each step record of the path)."""
 
-    def __init__(self, solver: Any, names: list[str], profile: dict[float, np.ndarray],
-                 loads: Sequence[float] = (), angles: Sequence[float] = (), estimate: bool = False) -> None:
+    def __init__(
+        self,
+        solver: Any,
+        names: list[str],
+        profile: dict[float, np.ndarray],
+        loads: Sequence[float] = (),
+        angles: Sequence[float] = (),
+        estimate: bool = False,
+    ) -> None:
         self.solver, self.problem = solver, solver.problem
         self.names, self.profile = names, profile
         self.angle_loads = [float(v) for v in angles]

@@ -72,16 +72,23 @@ class ContinuumSolver:
         X, saddle = problem.X, problem.augmented_energy
         lin = settings.linear
         condense = lin.condense
-        inverse = pick_inverse(lin.linear_solver, saddle is not None and not condense, condense,
-                               X.FreeDofs(condense).NumSet())
+        inverse = pick_inverse(
+            lin.linear_solver, saddle is not None and not condense, condense, X.FreeDofs(condense).NumSet()
+        )
         # Λ is element-local and its diagonal block is zero only for the exact Lagrangian
         self.a = energy_form(X, inverse, condense=condense and saddle is None)
         # the energy form is linearized unless the augmented Newton matrix of linear.py replaces it
         linearized = not (condense and saddle is not None)
         self.compile_mode = add_energy(self.a, problem.energy_parts, problem.dx, lin.compile, X.ndof, linearized)
         self.linear: LinearSolver = NewtonLinearSolver(
-            self.a, condense, lin.linear_solver, saddle, problem.K_ref, problem.dx,
-            lin.compile if self.compile_mode == "native" else "interpret")
+            self.a,
+            condense,
+            lin.linear_solver,
+            saddle,
+            problem.K_ref,
+            problem.dx,
+            lin.compile if self.compile_mode == "native" else "interpret",
+        )
         forms = [(self.a, linearized)] if self.linear.form is self.a else [(self.a, False), (self.linear.form, True)]
         problem.jamming.add_to(forms)
         #: the problem as the numerics see it (:class:`~ngbet.numerics.newton.AdmissibleState`): the
@@ -196,4 +203,3 @@ class ContinuumSolver:
         full = self._w.FV().NumPy().copy()
         full[self.dirichlet] = 0.0
         return mu, full
-

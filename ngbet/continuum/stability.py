@@ -32,9 +32,17 @@ if TYPE_CHECKING:
     from ..numerics.linear import LinearSolver
     from .problem import ContinuumProblem
 
-__all__ = ["DISCRETIZATION_MODE_RATIO", "EllipticityLoss", "ModeClass", "StabilityDiagnosis", "TangentSolver",
-           "diagnose_stability",
-           "indefinite_by_construction", "lowest_eigenpair", "mode_constraint_ratio"]
+__all__ = [
+    "DISCRETIZATION_MODE_RATIO",
+    "EllipticityLoss",
+    "ModeClass",
+    "StabilityDiagnosis",
+    "TangentSolver",
+    "diagnose_stability",
+    "indefinite_by_construction",
+    "lowest_eigenpair",
+    "mode_constraint_ratio",
+]
 
 #: r above which the lowest mode is one of the discretization (φ does not follow i8)
 DISCRETIZATION_MODE_RATIO = 0.5
@@ -111,16 +119,22 @@ class StabilityDiagnosis:
         """Cause and remedy in one sentence for the terminal ("" when the diagnosis names no remedy)."""
         if self.ellipticity_loss:
             e = self.ellipticity_loss[0]
-            return (f"alpha{e.family} = 0 leaves the model ill-posed for the compressed yarns of family "
-                    f"{e.family} ({e.area_mm2:.0f} mm² lost ellipticity): give alpha{e.family} > 0")
+            return (
+                f"alpha{e.family} = 0 leaves the model ill-posed for the compressed yarns of family "
+                f"{e.family} ({e.area_mm2:.0f} mm² lost ellipticity): give alpha{e.family} > 0"
+            )
         if self.mode_class == "discretization":
             lo, hi = self.stabilization_K_Pa
-            return (f"an unstable mode of the discretization at u0 = {self.u0_mm:.4g} mm: raise "
-                    f"effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa), e.g. to material.K_el = "
-                    f"{self.K_el:.3g} Pa")
+            return (
+                f"an unstable mode of the discretization at u0 = {self.u0_mm:.4g} mm: raise "
+                f"effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa), e.g. to material.K_el = "
+                f"{self.K_el:.3g} Pa"
+            )
         if self.mode_class == "continuum" and self.stable is False:
-            return (f"the model's own limit point or bifurcation at u0 = {self.u0_mm:.4g} mm: "
-                    "solver.path_following = 'auto' follows the path through it")
+            return (
+                f"the model's own limit point or bifurcation at u0 = {self.u0_mm:.4g} mm: "
+                "solver.path_following = 'auto' follows the path through it"
+            )
         return ""
 
     def message(self) -> str:
@@ -128,28 +142,38 @@ class StabilityDiagnosis:
         if self.skipped:
             return self.skipped
         state = "lost (the tangent is not positive definite)" if not self.stable else "kept"
-        msg = (f"stability at the last converged load u0 = {self.u0_mm:.4g} mm: lowest scaled eigenvalues of "
-               f"the tangent {list(self.eigenvalues)}; stability {state}")
+        msg = (
+            f"stability at the last converged load u0 = {self.u0_mm:.4g} mm: lowest scaled eigenvalues of "
+            f"the tangent {list(self.eigenvalues)}; stability {state}"
+        )
         if self.mode_class == "none":
             return msg
         ill = "".join(
             f"; alpha{e.family} = 0 leaves i8 unregularized along the yarns of family {e.family}, and the "
             f"first-gradient energy has lost ellipticity for them on {e.area_mm2:.0f} mm² (compressed yarns; "
             f"min eigenvalue {e.min_eigenvalue_Ksh:.2f} K_sh): the model is ill-posed there and has no "
-            f"mesh-independent solution; give alpha{e.family} > 0" for e in self.ellipticity_loss)
+            f"mesh-independent solution; give alpha{e.family} > 0"
+            for e in self.ellipticity_loss
+        )
         if self.mode_class == "discretization":
             kind = "a mode of the discretization: i8 varies inside the elements and phi does not follow"
             if not self.ellipticity_loss:
                 lo, hi = self.stabilization_K_Pa
-                kind += (f"; raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa) to about the yarns' "
-                         f"elongation modulus: --set effects.stabilization_K={self.K_el:.3g} (material.K_el "
-                         "stays as it is)")
+                kind += (
+                    f"; raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa) to about the yarns' "
+                    f"elongation modulus: --set effects.stabilization_K={self.K_el:.3g} (material.K_el "
+                    "stays as it is)"
+                )
         else:
-            kind = ("a mode of the constrained continuum (phi follows i8): the model's own limit point or "
-                    "bifurcation; solver.path_following = 'auto' follows the path through it and reports its kind")
+            kind = (
+                "a mode of the constrained continuum (phi follows i8): the model's own limit point or "
+                "bifurcation; solver.path_following = 'auto' follows the path through it and reports its kind"
+            )
         x, y = self.location_mm or (math.nan, math.nan)
-        return (f"{msg}; lowest mode near (X, Y) = ({x:.0f}, {y:.0f}) mm with |dphi - di8| / |di8| = "
-                f"{self.ratio:.2f}: {kind}{ill}")
+        return (
+            f"{msg}; lowest mode near (X, Y) = ({x:.0f}, {y:.0f}) mm with |dphi - di8| / |di8| = "
+            f"{self.ratio:.2f}: {kind}{ill}"
+        )
 
 
 def diagnose_stability(solver: TangentSolver, k: int = 3) -> StabilityDiagnosis:
@@ -163,20 +187,26 @@ def diagnose_stability(solver: TangentSolver, k: int = 3) -> StabilityDiagnosis:
     u0_mm = problem.lam * 1e3
     try:
         if indefinite_by_construction(solver):
-            return StabilityDiagnosis(u0_mm, skipped="the uncondensed saddle-point tangent is indefinite by "
-                                                     "construction: no stability test")
+            return StabilityDiagnosis(
+                u0_mm, skipped="the uncondensed saddle-point tangent is indefinite by construction: no stability test"
+            )
         ev, V, d, fd = _lowest_scaled(solver, k)
         eigenvalues = tuple(sorted(map(float, ev)))
-        base = StabilityDiagnosis(u0_mm, eigenvalues, stabilization_K_Pa=tuple(problem.K_s_range),  # type: ignore[arg-type]
-                                  K_el=problem.scene.material.K_el)
+        base = StabilityDiagnosis(
+            u0_mm,
+            eigenvalues,
+            stabilization_K_Pa=tuple(problem.K_s_range),  # type: ignore[arg-type]
+            K_el=problem.scene.material.K_el,
+        )
         if problem.phi is None:
             return base
         x = np.zeros(problem.X.ndof)
         x[fd] = V[:, int(np.argmin(ev))] / d
         r, where = mode_constraint_ratio(solver, x)
         mode: ModeClass = "discretization" if r > DISCRETIZATION_MODE_RATIO else "continuum"
-        return StabilityDiagnosis(u0_mm, eigenvalues, mode, r, where, _ellipticity_losses(problem),
-                                  base.stabilization_K_Pa, base.K_el)
+        return StabilityDiagnosis(
+            u0_mm, eigenvalues, mode, r, where, _ellipticity_losses(problem), base.stabilization_K_Pa, base.K_el
+        )
     except Exception as exc:  # noqa: BLE001 - the diagnosis must never hide the original error
         return StabilityDiagnosis(u0_mm, skipped=f"stability check failed: {exc}")
 

@@ -57,8 +57,9 @@ def _ritz_pairs(Q: np.ndarray, AQ: np.ndarray, k: int) -> tuple[np.ndarray, np.n
     return th, Q @ C, AQ @ C
 
 
-def lowest_eigenvalues(lin: FreeBlockSolver, k: int, X0: np.ndarray | None = None, tol: float = 1e-3,
-                       max_expansions: int = 40) -> tuple[np.ndarray, np.ndarray]:
+def lowest_eigenvalues(
+    lin: FreeBlockSolver, k: int, X0: np.ndarray | None = None, tol: float = 1e-3, max_expansions: int = 40
+) -> tuple[np.ndarray, np.ndarray]:
     """Eigenpairs of K_ff v = lambda D v nearest to 0, D = diag(K_ff), using the current factorization.
 
     Block shift-invert Lanczos (sigma = 0) with full reorthogonalization, started from ``X0``
@@ -161,9 +162,15 @@ class _SplitBasis:
         self.Q, self.AQ = np.column_stack([self.Q, W]), np.column_stack([self.AQ, self.A(W)])
 
 
-def _lowest_eigenvalues_split(lin: FreeBlockSolver, blocks: list[EigenBlock], s: np.ndarray, k: int,
-                              X0: np.ndarray | None, tol: float, max_expansions: int
-                              ) -> tuple[np.ndarray, np.ndarray]:
+def _lowest_eigenvalues_split(
+    lin: FreeBlockSolver,
+    blocks: list[EigenBlock],
+    s: np.ndarray,
+    k: int,
+    X0: np.ndarray | None,
+    tol: float,
+    max_expansions: int,
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`lowest_eigenvalues` of a tangent factorized in its half-turn blocks.
 
     K_ff = B_s K_s B_s^T + B_a K_a B_a^T, and D = diag(K_ff) commutes with the half-turn, so that
@@ -222,14 +229,14 @@ def lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray,
     D = sp.diags(np.abs(Kff.diagonal()))
     op = spla.LinearOperator((n, n), matvec=lambda b: lin.solve(np.ravel(b)), dtype=float)
     k = min(k, n - 2)
-    lam, V = spla.eigsh(Kff, k=k, M=D, sigma=0.0, which="LM", OPinv=op, tol=1e-6,
-                        v0=np.ones(n), maxiter=2000)
+    lam, V = spla.eigsh(Kff, k=k, M=D, sigma=0.0, which="LM", OPinv=op, tol=1e-6, v0=np.ones(n), maxiter=2000)
     order = np.argsort(lam)
     return lam[order], V[:, order]
 
 
-def check_stability(lin: FreeBlockSolver, ctl: StepControl,
-                     X0: np.ndarray | None = None) -> tuple[float, np.ndarray | None, np.ndarray | None]:
+def check_stability(
+    lin: FreeBlockSolver, ctl: StepControl, X0: np.ndarray | None = None
+) -> tuple[float, np.ndarray | None, np.ndarray | None]:
     """The stability check of the current state: (lambda_min, its mode, all computed modes).
 
     The modes are the start block ``X0`` of the next check. Where the eigensolvers fail the state

@@ -83,8 +83,9 @@ def beam_energy_parts(ue: np.ndarray, Xe: np.ndarray, EA: np.ndarray, EI: np.nda
     return 0.5 * EA * (l - L0) ** 2 / L0, 2 * EI / L0 * (t1 * t1 + t1 * t2 + t2 * t2)
 
 
-def beam(ue: np.ndarray, Xe: np.ndarray, EA: np.ndarray, EI: np.ndarray, hessian: bool = True
-         ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def beam(
+    ue: np.ndarray, Xe: np.ndarray, EA: np.ndarray, EI: np.ndarray, hessian: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Energy, gradient and Hessian of co-rotational Euler-Bernoulli beams (formulas: module docstring)."""
     n = ue.shape[0]
     d0 = Xe[:, 1] - Xe[:, 0]
@@ -119,8 +120,9 @@ def beam(ue: np.ndarray, Xe: np.ndarray, EA: np.ndarray, EI: np.ndarray, hessian
     return psi, grad, H
 
 
-def truss(ue: np.ndarray, Xe: np.ndarray, K: np.ndarray, hessian: bool = True
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def truss(
+    ue: np.ndarray, Xe: np.ndarray, K: np.ndarray, hessian: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Geometrically exact truss psi = 1/2 K (l - L0)^2 / L0; dofs (ux_a, uy_a, ux_b, uy_b)."""
     d0 = Xe[:, 1] - Xe[:, 0]
     L0 = np.hypot(d0[:, 0], d0[:, 1])
@@ -146,8 +148,9 @@ def slip_spring(ue: np.ndarray, K: float, hessian: bool = True) -> tuple[np.ndar
     return psi, grad, np.broadcast_to(k, (ue.shape[0], 4, 4))
 
 
-def rotational_spring(ue: np.ndarray, K: float, hessian: bool = True
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def rotational_spring(
+    ue: np.ndarray, K: float, hessian: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Psi = 1/2 K_phi (theta_b - theta_a)^2; dofs (theta_a, theta_b)."""
     dphi = ue[:, 1] - ue[:, 0]
     psi = 0.5 * K * dphi * dphi

@@ -26,6 +26,12 @@ def continuum_equivalent(scene: Any) -> dict[str, float]:
     """``with_changes`` keys that turn ``scene.discrete`` into the network equivalent to ``scene.material``."""
     m, t, s = scene.material, scene.specimen.thickness_mm * 1e-3, scene.discrete.spacing_mm * 1e-3
     EA = t * m.K_el * s
-    return {"discrete.EA1": EA, "discrete.EA2": EA, "discrete.EI1": t * m.alpha1 * s,
-            "discrete.EI2": t * m.alpha2 * s, "discrete.K_phi": t * m.K_sh * s * s,
-            "discrete.K_slip": 100.0 * EA / s, "discrete.K_inter": 0.0}
+    return {
+        "discrete.EA1": EA,
+        "discrete.EA2": EA,
+        "discrete.EI1": t * m.alpha1 * s,
+        "discrete.EI2": t * m.alpha2 * s,
+        "discrete.K_phi": t * m.K_sh * s * s,
+        "discrete.K_slip": 100.0 * EA / s,
+        "discrete.K_inter": 0.0,
+    }

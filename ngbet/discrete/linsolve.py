@@ -64,8 +64,10 @@ def resolve_backend(backend: str) -> str:
     if backend not in BACKENDS:
         raise LinearSolverError(f"linear solver {backend!r} unknown; known: auto, {', '.join(BACKENDS)}")
     if backend == "cholmod" and not cholmod.available():
-        raise LinearSolverError("linear solver 'cholmod' needs cvxopt, which is not installed: "
-                                "pip install \"ngbet[cholmod]\" (or choose 'auto' or 'sparsecholesky')")
+        raise LinearSolverError(
+            "linear solver 'cholmod' needs cvxopt, which is not installed: "
+            "pip install \"ngbet[cholmod]\" (or choose 'auto' or 'sparsecholesky')"
+        )
     return backend
 
 
@@ -84,8 +86,9 @@ class FreeBlockSolver:
     half_turn : the problem's half-turn symmetry (None: factorize every tangent whole)
     """
 
-    def __init__(self, K: sp.csr_matrix, free: np.ndarray, backend: str = "auto",
-                 half_turn: HalfTurn | None = None) -> None:
+    def __init__(
+        self, K: sp.csr_matrix, free: np.ndarray, backend: str = "auto", half_turn: HalfTurn | None = None
+    ) -> None:
         backend = resolve_backend(backend)
         self.backend = backend
         self.free = np.flatnonzero(free)
@@ -179,8 +182,10 @@ class FreeBlockSolver:
         if not self.in_blocks or self._blocks is None:
             return None
         bl = self._blocks
-        return [EigenBlock(self, "s", bl.block_matrix("s"), bl.maps.B_s),
-                EigenBlock(self, "a", bl.block_matrix("a"), bl.maps.B_a)]
+        return [
+            EigenBlock(self, "s", bl.block_matrix("s"), bl.maps.B_s),
+            EigenBlock(self, "a", bl.block_matrix("a"), bl.maps.B_a),
+        ]
 
     def _indptr(self) -> np.ndarray:
         if not hasattr(self, "_ip"):

@@ -97,10 +97,12 @@ class Pattern:
         """
         key = tuple(H is not None for H in element_matrices)
         if key not in self._index:
-            self._index[key] = np.concatenate([self.map[self.offsets[i]:self.offsets[i + 1]]
-                                               for i, k in enumerate(key) if k])
-        vals = np.concatenate([h.reshape(-1) for H in element_matrices if H is not None
-                               for h in (H if isinstance(H, tuple) else (H,))])
+            self._index[key] = np.concatenate(
+                [self.map[self.offsets[i] : self.offsets[i + 1]] for i, k in enumerate(key) if k]
+            )
+        vals = np.concatenate(
+            [h.reshape(-1) for H in element_matrices if H is not None for h in (H if isinstance(H, tuple) else (H,))]
+        )
         data = np.bincount(self._index[key], weights=vals, minlength=self.nnz)
         if const is not None:
             data += const
@@ -111,8 +113,9 @@ class Pattern:
         data = np.zeros(self.nnz)
         for i, H in enumerate(element_matrices):
             if H is not None:
-                data += np.bincount(self.map[self.offsets[i]:self.offsets[i + 1]], weights=np.ravel(H),
-                                    minlength=self.nnz)
+                data += np.bincount(
+                    self.map[self.offsets[i] : self.offsets[i + 1]], weights=np.ravel(H), minlength=self.nnz
+                )
         return data
 
 
@@ -131,8 +134,18 @@ class NetworkModel:
     (the homogeneous field ux = X / L, for the "clamp" predictor) and :meth:`evaluate`.
     """
 
-    def __init__(self, net: Network, EA1: float, EA2: float, EI1: float, EI2: float, K_phi: float,
-                 K_slip: float, K_inter: float, end_rotation: str = "free") -> None:
+    def __init__(
+        self,
+        net: Network,
+        EA1: float,
+        EA2: float,
+        EI1: float,
+        EI2: float,
+        K_phi: float,
+        K_slip: float,
+        K_inter: float,
+        end_rotation: str = "free",
+    ) -> None:
         if end_rotation not in ("free", "held"):
             raise ValueError(f"end_rotation = {end_rotation!r}: must be 'free' or 'held'")
         self.net = net
@@ -176,7 +189,8 @@ class NetworkModel:
         self._const_groups = {"slip", "shear_springs"}
         zero = np.zeros(self.n_dofs)
         self._const_data = self.pattern.constant_part(
-            [grp.kernel(zero[grp.dofs], True)[2] if grp.name in self._const_groups else None for grp in self.groups])
+            [grp.kernel(zero[grp.dofs], True)[2] if grp.name in self._const_groups else None for grp in self.groups]
+        )
 
     def _group(self, name: str, T: np.ndarray, n_pair: int = 0, n_self: int = 0) -> Group:
         """The element group ``name`` on the node table T (its first n_pair rows mirrored by its last n_pair)."""
@@ -220,8 +234,17 @@ class NetworkModel:
         from .network import network_from_scene
 
         d = scene.discrete
-        return cls(net if net is not None else network_from_scene(scene), d.EA1, d.EA2, d.EI1, d.EI2,
-                   d.K_phi, d.K_slip, d.K_inter, d.end_rotation)
+        return cls(
+            net if net is not None else network_from_scene(scene),
+            d.EA1,
+            d.EA2,
+            d.EI1,
+            d.EI2,
+            d.K_phi,
+            d.K_slip,
+            d.K_inter,
+            d.end_rotation,
+        )
 
     def evaluate(self, u: np.ndarray, hessian: bool = True) -> tuple[float, np.ndarray, sp.csr_matrix | None]:
         """Total energy E [J], gradient dE/du and (optionally) the Hessian (full, all dofs) at u."""
@@ -237,7 +260,7 @@ class NetworkModel:
                 n = grp.n_pair
                 sgn, half = grp.sgn, grp.half
                 assert sgn is not None and half is not None
-                psi, ge, He = half(u[grp.dofs[:n + grp.n_self]], hessian)
+                psi, ge, He = half(u[grp.dofs[: n + grp.n_self]], hessian)
                 E += float(psi.sum()) + float(psi[:n].sum())
                 ge = np.concatenate([ge, ge[:n] * sgn])
                 if hessian and He is not None:

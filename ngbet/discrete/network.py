@@ -40,8 +40,20 @@ import numpy as np
 if TYPE_CHECKING:
     from ..scene.document import Scene
 
-__all__ = ["CLAMP_FIXED", "CLAMP_MOVING", "FREE", "ZONE_NAMES", "Network", "NetworkError", "build_network", "clip_line",
-           "crossing_zone", "end_kind", "family_frames", "network_from_scene"]
+__all__ = [
+    "CLAMP_FIXED",
+    "CLAMP_MOVING",
+    "FREE",
+    "ZONE_NAMES",
+    "Network",
+    "NetworkError",
+    "build_network",
+    "clip_line",
+    "crossing_zone",
+    "end_kind",
+    "family_frames",
+    "network_from_scene",
+]
 
 log = logging.getLogger(__name__)
 
@@ -114,10 +126,16 @@ class Network:
 
     def counts(self) -> dict[str, int]:
         """Sizes of the network, for logs and summaries."""
-        return {"yarns_1": int(np.sum(self.yarn_family == 1)), "yarns_2": int(np.sum(self.yarn_family == 2)),
-                "crossings": int(len(self.crossings)), "nodes": self.n_nodes, "dofs": self.n_dofs,
-                "beams": int(len(self.beams)), "trusses": int(len(self.trusses)),
-                **{f"crossings_{z}": int(np.sum(self.crossing_zone == i)) for i, z in enumerate(ZONE_NAMES)}}
+        return {
+            "yarns_1": int(np.sum(self.yarn_family == 1)),
+            "yarns_2": int(np.sum(self.yarn_family == 2)),
+            "crossings": int(len(self.crossings)),
+            "nodes": self.n_nodes,
+            "dofs": self.n_dofs,
+            "beams": int(len(self.beams)),
+            "trusses": int(len(self.trusses)),
+            **{f"crossings_{z}": int(np.sum(self.crossing_zone == i)) for i, z in enumerate(ZONE_NAMES)},
+        }
 
 
 def family_frames(angle: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -152,8 +170,14 @@ def end_kind(P: np.ndarray, L: float, tol: float) -> int:
 _Line = tuple[int, int, np.ndarray, np.ndarray, float, float]  # family, j, p0, m, t0, t1
 
 
-def build_network(L: float, W: float, angle_deg: float, spacing: float, elements_per_segment: int = 1,
-                  inter_layout: str = "neighbours") -> Network:
+def build_network(
+    L: float,
+    W: float,
+    angle_deg: float,
+    spacing: float,
+    elements_per_segment: int = 1,
+    inter_layout: str = "neighbours",
+) -> Network:
     """Build the yarn network of a BET specimen.
 
     Parameters
@@ -186,8 +210,9 @@ def build_network(L: float, W: float, angle_deg: float, spacing: float, elements
     fam_of = np.array([ln[0] for ln in lines])
     i1, i2 = np.flatnonzero(fam_of == 1), np.flatnonzero(fam_of == 2)
     if len(i1) == 0 or len(i2) == 0:
-        raise NetworkError(f"spacing {spacing * 1e3:g} mm leaves no yarn of one family in a "
-                           f"{L * 1e3:g} x {W * 1e3:g} mm specimen")
+        raise NetworkError(
+            f"spacing {spacing * 1e3:g} mm leaves no yarn of one family in a {L * 1e3:g} x {W * 1e3:g} mm specimen"
+        )
     tr, cross_a, cross_b = _crossing_parameters(lines, i1, i2, m1, m2, tol)
     b = _Builder(L, tol, elements_per_segment)
     for fam, lst, cross_self, cross_other in ((1, i1, cross_a, cross_b), (2, i2, cross_b, cross_a)):
@@ -201,8 +226,9 @@ def build_network(L: float, W: float, angle_deg: float, spacing: float, elements
     return b.network(lines, i1, i2, inter_layout, spacing, W, a)
 
 
-def _yarn_lines(L: float, W: float, spacing: float, tol: float,
-                families: tuple[tuple[int, np.ndarray, np.ndarray], ...]) -> list[_Line]:
+def _yarn_lines(
+    L: float, W: float, spacing: float, tol: float, families: tuple[tuple[int, np.ndarray, np.ndarray], ...]
+) -> list[_Line]:
     """Candidate yarn lines of each family, kept if their clipped length is positive."""
     C = np.array([L / 2, W / 2])
     corners = np.array([[0, 0], [L, 0], [0, W], [L, W]], float)
@@ -219,8 +245,9 @@ def _yarn_lines(L: float, W: float, spacing: float, tol: float,
     return lines
 
 
-def _crossing_parameters(lines: list[_Line], i1: np.ndarray, i2: np.ndarray, m1: np.ndarray, m2: np.ndarray,
-                         tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _crossing_parameters(
+    lines: list[_Line], i1: np.ndarray, i2: np.ndarray, m1: np.ndarray, m2: np.ndarray, tol: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """p1 + t m1 = p2 + r m2 for all pairs at once: (t, r) per pair, and the pairs that cross inside both yarns."""
     P1 = np.array([lines[i][2] for i in i1])
     P2 = np.array([lines[i][2] for i in i2])
@@ -229,8 +256,12 @@ def _crossing_parameters(lines: list[_Line], i1: np.ndarray, i2: np.ndarray, m1:
     tr = np.linalg.solve(M, rhs.reshape(-1, 2).T).T.reshape(len(i1), len(i2), 2)
     T1 = np.array([[lines[i][4], lines[i][5]] for i in i1])
     T2 = np.array([[lines[i][4], lines[i][5]] for i in i2])
-    inside = ((tr[..., 0] > T1[:, None, 0] + tol) & (tr[..., 0] < T1[:, None, 1] - tol)
-              & (tr[..., 1] > T2[None, :, 0] + tol) & (tr[..., 1] < T2[None, :, 1] - tol))
+    inside = (
+        (tr[..., 0] > T1[:, None, 0] + tol)
+        & (tr[..., 0] < T1[:, None, 1] - tol)
+        & (tr[..., 1] > T2[None, :, 0] + tol)
+        & (tr[..., 1] < T2[None, :, 1] - tol)
+    )
     cross_a, cross_b = np.nonzero(inside)  # indices into i1, i2
     return tr, cross_a, cross_b
 
@@ -299,14 +330,14 @@ class _Builder:
         trusses += [(n, by2[(ka, jj + 1)]) for (ka, jj), n in sorted(by2.items()) if (ka, jj + 1) in by2]
         return trusses
 
-    def network(self, lines: list[_Line], i1: np.ndarray, i2: np.ndarray, inter_layout: str, spacing: float,
-                W: float, a: float) -> Network:
+    def network(
+        self, lines: list[_Line], i1: np.ndarray, i2: np.ndarray, inter_layout: str, spacing: float, W: float, a: float
+    ) -> Network:
         """The assembled network (crossings, their zones, trusses)."""
         on1, on2 = self.node_on[1], self.node_on[2]
         keys = sorted(on1)
         crossings = np.array([[on1[kk], on2[kk]] for kk in keys], int).reshape(-1, 2)
-        crossing_yarns = np.array([[self.yarn_of[1][kk[0]], self.yarn_of[2][kk[1]]] for kk in keys],
-                                  int).reshape(-1, 2)
+        crossing_yarns = np.array([[self.yarn_of[1][kk[0]], self.yarn_of[2][kk[1]]] for kk in keys], int).reshape(-1, 2)
         yarn_ends = np.array(self.yarn_ends, int).reshape(-1, 2)
         zone = np.array([crossing_zone(yarn_ends[ya], yarn_ends[yb]) for ya, yb in crossing_yarns], int)
         trusses = self._trusses(lines, i1, i2) if inter_layout == "neighbours" else []
@@ -314,14 +345,31 @@ class _Builder:
         beams = np.array(self.beams, int).reshape(-1, 2)
         seg = np.linalg.norm(Xa[beams[:, 1]] - Xa[beams[:, 0]], axis=1)
         if seg.min() < 1e-3 * spacing / self.eps:
-            log.warning("shortest beam element is %.3g mm (spacing %.3g mm): the tangent will be ill-conditioned",
-                        seg.min() * 1e3, spacing * 1e3)
-        return Network(X=Xa, node_yarn=np.array(self.node_yarn), node_family=np.array(self.node_family),
-                       node_end=np.array(self.node_end), yarn_family=np.array(self.yarn_family),
-                       yarn_index=np.array(self.yarn_index), yarn_nodes=tuple(self.yarn_nodes), yarn_ends=yarn_ends,
-                       beams=beams, beam_family=np.array(self.beam_family),
-                       crossings=crossings, crossing_yarns=crossing_yarns, crossing_zone=zone,
-                       trusses=np.array(trusses, int).reshape(-1, 2), spacing=spacing, L=self.L, W=W, angle=a)
+            log.warning(
+                "shortest beam element is %.3g mm (spacing %.3g mm): the tangent will be ill-conditioned",
+                seg.min() * 1e3,
+                spacing * 1e3,
+            )
+        return Network(
+            X=Xa,
+            node_yarn=np.array(self.node_yarn),
+            node_family=np.array(self.node_family),
+            node_end=np.array(self.node_end),
+            yarn_family=np.array(self.yarn_family),
+            yarn_index=np.array(self.yarn_index),
+            yarn_nodes=tuple(self.yarn_nodes),
+            yarn_ends=yarn_ends,
+            beams=beams,
+            beam_family=np.array(self.beam_family),
+            crossings=crossings,
+            crossing_yarns=crossing_yarns,
+            crossing_zone=zone,
+            trusses=np.array(trusses, int).reshape(-1, 2),
+            spacing=spacing,
+            L=self.L,
+            W=W,
+            angle=a,
+        )
 
 
 def crossing_zone(ends_1: np.ndarray, ends_2: np.ndarray) -> int:
@@ -338,5 +386,4 @@ def crossing_zone(ends_1: np.ndarray, ends_2: np.ndarray) -> int:
 def network_from_scene(scene: Scene) -> Network:
     """The network of ``scene.specimen`` with the spacing and layout of ``scene.discrete``."""
     sp, d = scene.specimen, scene.discrete
-    return build_network(sp.L, sp.W, sp.yarn_angle_deg, d.spacing_mm * 1e-3, d.elements_per_segment,
-                         d.inter_layout)
+    return build_network(sp.L, sp.W, sp.yarn_angle_deg, d.spacing_mm * 1e-3, d.elements_per_segment, d.inter_layout)

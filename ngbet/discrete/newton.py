@@ -98,13 +98,18 @@ class Tally:
 
     def start(self, t: float | None = None) -> tuple[int, int, float]:
         """A mark: the factorizations and solves so far and the time (``t`` or now), for :meth:`add`."""
-        return (sum(s.n_factor for s in self.solvers), sum(s.n_solve for s in self.solvers),
-                time.perf_counter() if t is None else t)
+        return (
+            sum(s.n_factor for s in self.solvers),
+            sum(s.n_solve for s in self.solvers),
+            time.perf_counter() if t is None else t,
+        )
 
     def add(self, cause: str, mark: tuple[int, int, float], nout: dict[str, Any] | None = None) -> None:
         """Add the work since ``mark`` to the row of ``cause``; ``nout``: a Newton report's counts."""
-        row = self.rows.setdefault(cause, {"calls": 0, "factorizations": 0, "shift_factorizations": 0,
-                                           "solves": 0, "iterations": 0, "time_s": 0.0})
+        row = self.rows.setdefault(
+            cause,
+            {"calls": 0, "factorizations": 0, "shift_factorizations": 0, "solves": 0, "iterations": 0, "time_s": 0.0},
+        )
         row["calls"] += 1
         row["factorizations"] += sum(s.n_factor for s in self.solvers) - mark[0]
         row["solves"] += sum(s.n_solve for s in self.solvers) - mark[1]
@@ -121,18 +126,27 @@ class StepFailed(Exception):
     the first tangent that needed a shift (``allow_shift=False``).
     """
 
-    def __init__(self, why: str, history: list[tuple[float, float, float]], u: np.ndarray | None = None,
-                 indefinite: bool = False) -> None:
+    def __init__(
+        self, why: str, history: list[tuple[float, float, float]], u: np.ndarray | None = None, indefinite: bool = False
+    ) -> None:
         super().__init__(why)
         self.history = history
         self.u = u
         self.indefinite = indefinite
 
 
-def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
-           max_iterations: int | None = None, line_search: bool = False, fail_fast: bool = True,
-           out: dict[str, Any] | None = None, allow_shift: bool = True, inexact: bool = False
-           ) -> tuple[np.ndarray, int, list[tuple[float, float, float]], int]:
+def newton(
+    problem: Problem,
+    u: np.ndarray,
+    lin: FreeBlockSolver,
+    ctl: StepControl,
+    max_iterations: int | None = None,
+    line_search: bool = False,
+    fail_fast: bool = True,
+    out: dict[str, Any] | None = None,
+    allow_shift: bool = True,
+    inexact: bool = False,
+) -> tuple[np.ndarray, int, list[tuple[float, float, float]], int]:
     """Minimize the energy over the free dofs from u (prescribed dofs as given).
 
     Plain Newton by default: with stiff axial terms the full step of a rotating beam stretches it
@@ -203,14 +217,28 @@ def newton(problem: Problem, u: np.ndarray, lin: FreeBlockSolver, ctl: StepContr
         if line_search and (dec > 1e-6 * abs(E) + ctl.atol or n_shift > 0):  # far from the solution
             alpha = _line_search(problem, u, free, du, E, dec, extend=n_shift > 0, hist=hist)
         if log.isEnabledFor(logging.DEBUG):
-            log.debug("newton it %d: E %.10g, |r| %.3g, decrement %.3g, shift mu %.0e, step x%g%s", it, E,
-                      hist[-1][1], dec, mu_prev if n_shift else 0.0, alpha, " (CG)" if step else "")
+            log.debug(
+                "newton it %d: E %.10g, |r| %.3g, decrement %.3g, shift mu %.0e, step x%g%s",
+                it,
+                E,
+                hist[-1][1],
+                dec,
+                mu_prev if n_shift else 0.0,
+                alpha,
+                " (CG)" if step else "",
+            )
         u[free] += alpha * du
     raise StepFailed(f"no convergence in {n_max} iterations", hist, u)
 
 
-def _residual(problem: Problem, u: np.ndarray, free: np.ndarray, hist: list[tuple[float, float, float]],
-              out: dict[str, Any] | None, it: int) -> tuple[float, np.ndarray, sp.csr_matrix]:
+def _residual(
+    problem: Problem,
+    u: np.ndarray,
+    free: np.ndarray,
+    hist: list[tuple[float, float, float]],
+    out: dict[str, Any] | None,
+    it: int,
+) -> tuple[float, np.ndarray, sp.csr_matrix]:
     """E, the free residual and the tangent at u (iteration ``it``)."""
     E, g, K = problem.evaluate(u, True)
     if out is not None:
@@ -222,17 +250,25 @@ def _residual(problem: Problem, u: np.ndarray, free: np.ndarray, hist: list[tupl
     return E, r, K
 
 
-def _factorized_step(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, mu_prev: float, allow_shift: bool,
-                     hist: list[tuple[float, float, float]], E: float, out: dict[str, Any] | None
-                     ) -> tuple[np.ndarray, float, float, int]:
+def _factorized_step(
+    lin: FreeBlockSolver,
+    K: sp.csr_matrix,
+    r: np.ndarray,
+    mu_prev: float,
+    allow_shift: bool,
+    hist: list[tuple[float, float, float]],
+    E: float,
+    out: dict[str, Any] | None,
+) -> tuple[np.ndarray, float, float, int]:
     """The Newton step with K factorized in ``lin`` (see :func:`_descent_direction`); out["K"] = K."""
     if out is not None:
         out["K"] = K
     return _descent_direction(lin, K, r, mu_prev, allow_shift, hist, E, out)
 
 
-def _krylov_step(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, ctl: StepControl
-                 ) -> tuple[np.ndarray, float] | None:
+def _krylov_step(
+    lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, ctl: StepControl
+) -> tuple[np.ndarray, float] | None:
     """The Newton step du (K_ff du = -r) and its decrement by conjugate gradients, or None.
 
     Preconditioned with the factorization in ``lin`` (a tangent of an earlier iterate: the two
@@ -259,16 +295,23 @@ def _krylov_step(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, ctl: Ste
         res -= a * Ap
         z = lin.solve(res, symmetric_rhs=True)
         rz, rz_prev = float(res @ z), rz
-        if rz <= ctl.krylov_tol ** 2 * rz0:
+        if rz <= ctl.krylov_tol**2 * rz0:
             dec = -float(r @ x)
             return (x, dec) if dec > 0 else None
         p = z + (rz / rz_prev) * p
     return None
 
 
-def _descent_direction(lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, mu_prev: float, allow_shift: bool,
-                       hist: list[tuple[float, float, float]], E: float, out: dict[str, Any] | None
-                       ) -> tuple[np.ndarray, float, float, int]:
+def _descent_direction(
+    lin: FreeBlockSolver,
+    K: sp.csr_matrix,
+    r: np.ndarray,
+    mu_prev: float,
+    allow_shift: bool,
+    hist: list[tuple[float, float, float]],
+    E: float,
+    out: dict[str, Any] | None,
+) -> tuple[np.ndarray, float, float, int]:
     """The Newton step du = -K_ff^-1 r, with K_ff shifted by mu diag(K_ff) until it descends.
 
     The shift starts from a tenth of the last one that gave descent in this Newton run (1e-6 at
@@ -324,8 +367,16 @@ def _check_contraction(hist: list[tuple[float, float, float]], it: int, E: float
         raise StepFailed(f"Newton decrement not contracting ({hist[-2][2]:.3g} -> {dec:.3g})", hist, u)
 
 
-def _line_search(problem: Problem, u: np.ndarray, free: np.ndarray, du: np.ndarray, E: float, dec: float,
-                 extend: bool, hist: list[tuple[float, float, float]]) -> float:
+def _line_search(
+    problem: Problem,
+    u: np.ndarray,
+    free: np.ndarray,
+    du: np.ndarray,
+    E: float,
+    dec: float,
+    extend: bool,
+    hist: list[tuple[float, float, float]],
+) -> float:
     """Armijo backtracking on the energy; a shifted step (``extend``) is doubled while the energy falls."""
     alpha = 1.0
     v = u.copy()

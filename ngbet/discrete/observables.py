@@ -25,9 +25,21 @@ import numpy as np
 
 from .network import Network
 
-__all__ = ["centre_mean", "chain_neighbours", "crossing_gamma", "crossing_slip", "crossing_spring_angle",
-           "midline_points", "midline_profile", "node_gamma", "save_state", "segment_gamma_deg",
-           "yarn_polylines", "yarn_rotation", "zone_means"]
+__all__ = [
+    "centre_mean",
+    "chain_neighbours",
+    "crossing_gamma",
+    "crossing_slip",
+    "crossing_spring_angle",
+    "midline_points",
+    "midline_profile",
+    "node_gamma",
+    "save_state",
+    "segment_gamma_deg",
+    "yarn_polylines",
+    "yarn_rotation",
+    "zone_means",
+]
 
 log = logging.getLogger(__name__)
 
@@ -145,13 +157,22 @@ def save_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None
     ptr = np.concatenate([[0], np.cumsum([len(c) for c in chains])])
     gamma = crossing_gamma(net, u)
     np.savez_compressed(
-        path, u0_mm=u0 * 1e3, X_mm=net.X * 1e3, u_mm=u.reshape(-1, 3)[:, :2] * 1e3,
-        theta_rad=u.reshape(-1, 3)[:, 2], yarn_nodes=np.concatenate(chains), yarn_ptr=ptr,
-        yarn_family=net.yarn_family, crossing_nodes=net.crossings, crossing_zone=net.crossing_zone,
-        crossing_X_mm=net.X[net.crossings[:, 0]] * 1e3, crossing_slip_mm=crossing_slip(net, u) * 1e3,
+        path,
+        u0_mm=u0 * 1e3,
+        X_mm=net.X * 1e3,
+        u_mm=u.reshape(-1, 3)[:, :2] * 1e3,
+        theta_rad=u.reshape(-1, 3)[:, 2],
+        yarn_nodes=np.concatenate(chains),
+        yarn_ptr=ptr,
+        yarn_family=net.yarn_family,
+        crossing_nodes=net.crossings,
+        crossing_zone=net.crossing_zone,
+        crossing_X_mm=net.X[net.crossings[:, 0]] * 1e3,
+        crossing_slip_mm=crossing_slip(net, u) * 1e3,
         crossing_gamma_deg=np.degrees(gamma),
         crossing_spring_angle_deg=np.degrees(crossing_spring_angle(net, u)),
-        crossing_angle_deg=180.0 - 2 * math.degrees(net.angle) + np.degrees(gamma))
+        crossing_angle_deg=180.0 - 2 * math.degrees(net.angle) + np.degrees(gamma),
+    )
 
 
 def segment_gamma_deg(net: Network, u: np.ndarray) -> np.ndarray:

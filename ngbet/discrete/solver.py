@@ -71,8 +71,9 @@ log = logging.getLogger(__name__)
 __all__ = ["ShiftedNewton", "load_steps"]
 
 
-def load_steps(problem: Problem, ctl: StepControl, out: PathResult | None = None
-               ) -> Generator[StepRecord, None, PathResult]:
+def load_steps(
+    problem: Problem, ctl: StepControl, out: PathResult | None = None
+) -> Generator[StepRecord, None, PathResult]:
     """Follow the load path u0 = 0 -> ``ctl.path.target`` with :class:`ShiftedNewton` on the engine.
 
     Yields the record of each converged step, its state in ``state`` (dropped when the path moves
@@ -163,9 +164,17 @@ class ShiftedNewton:
         self.tangent: np.ndarray | None = None  # du/du0 at the converged state
         self.tangent_prev: tuple[np.ndarray, float] | None = None  # du/du0 one step back, and that step
         self.step = 0
-        self.stats: dict[str, Any] = {"newton_iterations": 0, "failed_steps": 0, "snap_events": [],
-                                      "unstable_states": 0, "shifted_iterations": 0, "t_stability_s": 0.0,
-                                      "lambda_min": [], "factorizations": 0, "snap_bracketing": 0}
+        self.stats: dict[str, Any] = {
+            "newton_iterations": 0,
+            "failed_steps": 0,
+            "snap_events": [],
+            "unstable_states": 0,
+            "shifted_iterations": 0,
+            "t_stability_s": 0.0,
+            "lambda_min": [],
+            "factorizations": 0,
+            "snap_bracketing": 0,
+        }
         self._predicted = self.u
         self._trial: _Trial | None = None
 
@@ -222,14 +231,18 @@ class ShiftedNewton:
         try:
             # a step longer than the snap bracket that meets an indefinite tangent is cut whether or
             # not Newton converges (see ``_classify``): give up at once
-            unew, its, hist, shifted = newton(self.problem, self._predicted, self.work, ctl, out=nout,
-                                              allow_shift=not bracketing, inexact=True)
+            unew, its, hist, shifted = newton(
+                self.problem, self._predicted, self.work, ctl, out=nout, allow_shift=not bracketing, inexact=True
+            )
             trial = _Trial(unew, its, hist, shifted, False, nout, mark)
         except StepFailed as exc:
             if exc.indefinite:
                 self.tally.add("indefinite tangent (step cut to bracket a snap)", mark, nout)
-                log.info("step u0 %.5g -> %.5g mm met an indefinite tangent: cutting to bracket a snap",
-                         u0 * 1e3, (u0 + h) * 1e3)
+                log.info(
+                    "step u0 %.5g -> %.5g mm met an indefinite tangent: cutting to bracket a snap",
+                    u0 * 1e3,
+                    (u0 + h) * 1e3,
+                )
                 return self._bracket(h, len(exc.history), _decrements(exc.history), str(exc))
             self.tally.add("failed attempt", mark, nout)
             self.stats["failed_steps"] += 1
@@ -265,8 +278,17 @@ class ShiftedNewton:
         mark = self.tally.start()
         trial = None
         try:
-            unew, its, hist, shifted = newton(p, start, self.work, ctl, max_iterations=4 * ctl.max_iterations,
-                                              line_search=True, fail_fast=False, out=nout, inexact=True)
+            unew, its, hist, shifted = newton(
+                p,
+                start,
+                self.work,
+                ctl,
+                max_iterations=4 * ctl.max_iterations,
+                line_search=True,
+                fail_fast=False,
+                out=nout,
+                inexact=True,
+            )
             # the state left its branch
             trial = _Trial(unew, its + len(exc.history), hist, max(shifted, 1), True, nout, mark)
         except StepFailed as exc2:
@@ -304,8 +326,15 @@ class ShiftedNewton:
         if tr.jumped and h > ctl.snap_bracket * (1 + 1e-9):
             if not tr.relaxed:
                 self.tally.add("snap bracketing (converged, rejected)", tr.mark, tr.nout)
-            log.info("step u0 %.5g -> %.5g mm released %.3g J of %.3g J work (indefinite iterations: %d): "
-                     "cutting to bracket the snap", u0 * 1e3, (u0 + h) * 1e3, tr.released, tr.work, tr.shifted)
+            log.info(
+                "step u0 %.5g -> %.5g mm released %.3g J of %.3g J work (indefinite iterations: %d): "
+                "cutting to bracket the snap",
+                u0 * 1e3,
+                (u0 + h) * 1e3,
+                tr.released,
+                tr.work,
+                tr.shifted,
+            )
             return self._bracket(h, tr.iterations, decs, "snap-through: bracketing")
         self._trial = tr
         return Outcome("converged", tr.iterations, decs, "converged")
@@ -323,8 +352,17 @@ class ShiftedNewton:
         u0_new = u0 + h
         if tr.jumped:
             self._record_snap(tr, u0, u0_new)
-        rec = StepRecord(self.step, u0_new, tr.iterations, residual=self.g, energy=self.E, snap=tr.jumped,
-                         released=tr.released, history=_decrements(tr.history), dforce_du0=tr.dforce_du0)
+        rec = StepRecord(
+            self.step,
+            u0_new,
+            tr.iterations,
+            residual=self.g,
+            energy=self.E,
+            snap=tr.jumped,
+            released=tr.released,
+            history=_decrements(tr.history),
+            dforce_du0=tr.dforce_du0,
+        )
         if self.ctl.stability:
             rec.lambda_min, escaped = self._check(u0_new)
             if escaped:
@@ -359,11 +397,20 @@ class ShiftedNewton:
 
     def _record_snap(self, tr: _Trial, u0: float, u0_new: float) -> None:
         # one plain line: the force curve jumps here (its energy and iterations are in summary.json, snap_events)
-        log.warning("the network snaps through between u0 = %.4g and %.4g mm: the force jumps there", u0 * 1e3,
-                    u0_new * 1e3)
-        self.stats["snap_events"].append({"u0": u0_new, "u0_before": u0, "kind": "snap_through", "step": self.step,
-                                          "released_J": tr.released, "work_J": tr.work,
-                                          "indefinite_iterations": tr.shifted})
+        log.warning(
+            "the network snaps through between u0 = %.4g and %.4g mm: the force jumps there", u0 * 1e3, u0_new * 1e3
+        )
+        self.stats["snap_events"].append(
+            {
+                "u0": u0_new,
+                "u0_before": u0,
+                "kind": "snap_through",
+                "step": self.step,
+                "released_J": tr.released,
+                "work_J": tr.work,
+                "indefinite_iterations": tr.shifted,
+            }
+        )
 
     def _check(self, u0: float) -> tuple[float, bool]:
         """Lowest eigenvalue at the converged state; an unstable state is left for a stable neighbour.
@@ -382,14 +429,27 @@ class ShiftedNewton:
             self.stats["unstable_states"] += 1
             mark = self.tally.start()
             self.u, self.E, self.g, self.K, lam2, self.modes = _escape(
-                self.problem, self.u, self.E, v, self.work, self.ctl, np.abs(self.lin.Kff.diagonal()))
+                self.problem, self.u, self.E, v, self.work, self.ctl, np.abs(self.lin.Kff.diagonal())
+            )
             self.tally.add("escape from an unstable state", mark)
             self.lin, self.work = self.work, self.lin  # _escape left the tangent of the final state in ``work``
             self.tangent_prev = self.tangent = None
-            self.stats["snap_events"].append({"u0": u0, "kind": "unstable_equilibrium", "step": self.step,
-                                              "lambda_min": lam, "lambda_min_after": lam2})
-            log.warning("step %d, u0 = %.5g mm: unstable equilibrium (lambda_min = %.3g); relaxed to "
-                        "lambda_min = %.3g", self.step, u0 * 1e3, lam, lam2)
+            self.stats["snap_events"].append(
+                {
+                    "u0": u0,
+                    "kind": "unstable_equilibrium",
+                    "step": self.step,
+                    "lambda_min": lam,
+                    "lambda_min_after": lam2,
+                }
+            )
+            log.warning(
+                "step %d, u0 = %.5g mm: unstable equilibrium (lambda_min = %.3g); relaxed to lambda_min = %.3g",
+                self.step,
+                u0 * 1e3,
+                lam,
+                lam2,
+            )
             lam = lam2
         self.stats["t_stability_s"] += time.perf_counter() - ts
         return lam, escaped
@@ -403,21 +463,34 @@ class ShiftedNewton:
         """Iteration, factorization and time statistics of the path (for the summary)."""
         lin, work, t = self.lin, self.work, self._timed
         s = dict(self.stats)
-        s.update({"steps": self.step, "backend": lin.backend, "n_free": len(self.free),
-                  "factorizations": lin.n_factor + work.n_factor, "work_by_cause": self.tally.rows,
-                  "half_turn_blocks": lin.has_half_turn,
-                  "factorizations_antisymmetric": lin.n_factor_antisymmetric + work.n_factor_antisymmetric,
-                  "factorizations_ldlt": lin.n_factor_ldlt + work.n_factor_ldlt,
-                  "factorizations_off_symmetry": lin.n_factor_whole + work.n_factor_whole})
-        s["timers"] = {"assembly_s": t.t_hessian, "assemblies": t.n_hessian,
-                       "gradient_only_s": t.t_gradient, "gradients_only": t.n_gradient,
-                       "factor_s": lin.t_factor + work.t_factor, "solve_s": lin.t_solve + work.t_solve,
-                       "solves": lin.n_solve + work.n_solve}
+        s.update(
+            {
+                "steps": self.step,
+                "backend": lin.backend,
+                "n_free": len(self.free),
+                "factorizations": lin.n_factor + work.n_factor,
+                "work_by_cause": self.tally.rows,
+                "half_turn_blocks": lin.has_half_turn,
+                "factorizations_antisymmetric": lin.n_factor_antisymmetric + work.n_factor_antisymmetric,
+                "factorizations_ldlt": lin.n_factor_ldlt + work.n_factor_ldlt,
+                "factorizations_off_symmetry": lin.n_factor_whole + work.n_factor_whole,
+            }
+        )
+        s["timers"] = {
+            "assembly_s": t.t_hessian,
+            "assemblies": t.n_hessian,
+            "gradient_only_s": t.t_gradient,
+            "gradients_only": t.n_gradient,
+            "factor_s": lin.t_factor + work.t_factor,
+            "solve_s": lin.t_solve + work.t_solve,
+            "solves": lin.n_solve + work.n_solve,
+        }
         return s
 
 
-def _escape(problem: Problem, u: np.ndarray, E: float, v: np.ndarray, lin: FreeBlockSolver, ctl: StepControl,
-            diag: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, sp.csr_matrix, float, np.ndarray | None]:
+def _escape(
+    problem: Problem, u: np.ndarray, E: float, v: np.ndarray, lin: FreeBlockSolver, ctl: StepControl, diag: np.ndarray
+) -> tuple[np.ndarray, float, np.ndarray, sp.csr_matrix, float, np.ndarray | None]:
     """Leave an unstable equilibrium along its unstable mode v (both signs); keep the lower stable state.
 
     ``lin`` is a solver whose factorization may be overwritten; it holds the tangent at the

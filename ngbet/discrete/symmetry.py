@@ -195,8 +195,9 @@ class Blocks:
         i = np.flatnonzero(col >= 0)
         return sp.csr_matrix((w[i], (i, col[i])), shape=(len(col), n))
 
-    def _data_map(self, rows: np.ndarray, cols: np.ndarray, left: str, right: str
-                  ) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
+    def _data_map(
+        self, rows: np.ndarray, cols: np.ndarray, left: str, right: str
+    ) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
         """M with (B_left^T K B_right).data = M @ K.data, and the block's pattern (CSR order)."""
         c1, w1, _ = self._side(left)
         c2, w2, n2 = self._side(right)

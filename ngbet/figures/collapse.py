@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 def _labels(curves: Sequence[Any]) -> list[str]:
     """Each curve's legend name: its test and size, numbered where two are alike (never a file name)."""
     base = [("bias extension " if c.test == "bias_extension" else "picture frame, ") + c.label for c in curves]
-    return [b if base.count(b) == 1 else f"{b} ({base[:k + 1].count(b)})" for k, b in enumerate(base)]
+    return [b if base.count(b) == 1 else f"{b} ({base[: k + 1].count(b)})" for k, b in enumerate(base)]
 
 
 def collapse_figure(curves: Sequence[Any], spread_text: str) -> Figure:
@@ -51,11 +51,14 @@ def collapse_figure(curves: Sequence[Any], spread_text: str) -> Figure:
         tests = {c.test for c in curves}
         how = []
         if "bias_extension" in tests:
-            how.append("bias extension tests by Cao et al. (2008) Eq. 18 (solid) and by the energy balance of the "
-                       "same ideal zones (dashed), γ from Eq. 13")
+            how.append(
+                "bias extension tests by Cao et al. (2008) Eq. 18 (solid) and by the energy balance of the "
+                "same ideal zones (dashed), γ from Eq. 13"
+            )
         if "picture_frame" in tests:
             how.append("picture-frame tests by Eqs. 1–3 and 10 (dash-dotted)")
         cut = f"; beyond γ = {FSH_GAMMA_MAX_DEG:g}° (near yarn locking) not drawn" if beyond else ""
-        put_caption(fig, f"Measured normalised shear force: {'; '.join(how)}{cut}. {spread_text[0].upper()}"
-                         f"{spread_text[1:]}.")
+        put_caption(
+            fig, f"Measured normalised shear force: {'; '.join(how)}{cut}. {spread_text[0].upper()}{spread_text[1:]}."
+        )
     return fig

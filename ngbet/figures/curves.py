@@ -21,8 +21,19 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-__all__ = ["FSH_GAMMA_MAX_DEG", "Extra", "curve_with_jumps", "error_bars", "estimate_due", "force_curve",
-           "force_figure", "profile_figure", "shear_angle_panel", "shear_force_figure", "stations_of"]
+__all__ = [
+    "FSH_GAMMA_MAX_DEG",
+    "Extra",
+    "curve_with_jumps",
+    "error_bars",
+    "estimate_due",
+    "force_curve",
+    "force_figure",
+    "profile_figure",
+    "shear_angle_panel",
+    "shear_force_figure",
+    "stations_of",
+]
 
 #: F_sh is drawn up to this kinematic shear angle [deg]: towards yarn locking (90°) Eq. 18 divides
 #: by cos γ → 0 and its values say more about the equation than about the fabric
@@ -31,9 +42,17 @@ FSH_GAMMA_MAX_DEG = 70.0
 Extra = Iterable[tuple[str, Sequence[float], Sequence[float]]]
 
 
-def curve_with_jumps(ax: Axes, u0: ArrayLike, y: ArrayLike, snap: ArrayLike | None = None, *,
-                     label: str | None = None, color: str | None = None, marker: str = "o",
-                     jump_label: str | None = "snap-through (jump)") -> Any:
+def curve_with_jumps(
+    ax: Axes,
+    u0: ArrayLike,
+    y: ArrayLike,
+    snap: ArrayLike | None = None,
+    *,
+    label: str | None = None,
+    color: str | None = None,
+    marker: str = "o",
+    jump_label: str | None = "snap-through (jump)",
+) -> Any:
     """The computed points joined by straight lines from (0, 0), with snap-throughs drawn as jumps.
 
     At rows marked as a snap (``snap`` = 1) the line breaks and a dashed vertical segment at the
@@ -48,18 +67,33 @@ def curve_with_jumps(ax: Axes, u0: ArrayLike, y: ArrayLike, snap: ArrayLike | No
     ends = [*np.flatnonzero(s), len(u)]
     line = None
     for a, b in zip(starts, ends, strict=True):
-        (seg,) = ax.plot(u[a:b], v[a:b], "-", marker=marker, color=color if line is None else line.get_color(),
-                         label=label if line is None else None, ms=3.5)
+        (seg,) = ax.plot(
+            u[a:b],
+            v[a:b],
+            "-",
+            marker=marker,
+            color=color if line is None else line.get_color(),
+            label=label if line is None else None,
+            ms=3.5,
+        )
         line = line or seg
     assert line is not None
     for k, i in enumerate(np.flatnonzero(s)):
-        ax.plot([u[i], u[i]], [v[i - 1], v[i]], "--", color=line.get_color(), lw=1.2,
-                label=jump_label if k == 0 else None)
+        ax.plot(
+            [u[i], u[i]], [v[i - 1], v[i]], "--", color=line.get_color(), lw=1.2, label=jump_label if k == 0 else None
+        )
     return line
 
 
-def error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: float,
-               due: np.ndarray | None = None, load: str = "u₀") -> None:
+def error_bars(
+    ax: Axes,
+    u0: np.ndarray,
+    F: np.ndarray,
+    err: np.ndarray,
+    span: float,
+    due: np.ndarray | None = None,
+    load: str = "u₀",
+) -> None:
     """The estimated discretization error of the force as error bars (with caps, in red).
 
     One note in the lower right corner of the axes (inside them, off a rising curve) gives the sizes
@@ -70,15 +104,27 @@ def error_bars(ax: Axes, u0: np.ndarray, F: np.ndarray, err: np.ndarray, span: f
     ok = np.isfinite(err)
     lines = []
     if ok.any():
-        ax.errorbar(u0[ok], F[ok], yerr=err[ok], fmt="none", ecolor="C3", elinewidth=1.6, capsize=5, capthick=1.6,
-                    zorder=5, label="± estimated discretization error")
+        ax.errorbar(
+            u0[ok],
+            F[ok],
+            yerr=err[ok],
+            fmt="none",
+            ecolor="C3",
+            elinewidth=1.6,
+            capsize=5,
+            capthick=1.6,
+            zorder=5,
+            label="± estimated discretization error",
+        )
         small = [(u, e) for u, f, e in zip(u0[ok], F[ok], err[ok], strict=True) if 2 * e < 0.02 * span]
         if small:
             lines += ["error bars shorter than the markers:", *(f"±{e:.2g} N at {load} = {u:g} mm" for u, e in small)]
     missing = u0[~ok & due] if due is not None else []
     if len(missing):
-        lines += [f"no error bar at {load} = " + ", ".join(f"{u:g}" for u in missing) + " mm:",
-                  "the estimate could not vouch for the force"]
+        lines += [
+            f"no error bar at {load} = " + ", ".join(f"{u:g}" for u in missing) + " mm:",
+            "the estimate could not vouch for the force",
+        ]
     if lines:
         ax.text(0.98, 0.03, "\n".join(lines), transform=ax.transAxes, ha="right", va="bottom", fontsize=7, color="C3")
 
@@ -95,8 +141,9 @@ def estimate_due(u0_mm: np.ndarray, scene: Any) -> np.ndarray:
     return (np.abs(u0_mm[:, None] - at[None, :]) < 1e-6).any(axis=1) if at.size else np.zeros(u0_mm.shape, bool)
 
 
-def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (),
-                 measured: Measured | None = None) -> Figure:
+def force_figure(
+    rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (), measured: Measured | None = None
+) -> Figure:
     """The force figure of the rows of a results.csv (see the module docstring)."""
     has_T = "double_force_Nm" in rows[0]
     fig = figure(10 if has_T else 5.8, 4.2)
@@ -106,8 +153,14 @@ def force_figure(rows: list[dict[str, Any]], scene: Any = None, extra: Extra = (
     snap = column(rows, "snap") if "snap" in rows[0] else None
     curve_with_jumps(ax, u0, F, snap, label="computed at the output loads, joined by straight lines")
     if measured is not None:
-        ax.plot(measured.displacement_mm, measured.force_N, "-", color="0.35", lw=1.2,
-                label=_measured_label(measured, scene))
+        ax.plot(
+            measured.displacement_mm,
+            measured.force_N,
+            "-",
+            color="0.35",
+            lw=1.2,
+            label=_measured_label(measured, scene),
+        )
     for label, x, y in extra:
         ax.plot(x, y, "--", label=label)
     span = float(np.nanmax(np.abs(np.r_[F, 0.0]))) or 1.0
@@ -142,8 +195,9 @@ def _measured_label(m: Measured, scene: Any) -> str:
     return f"measured, specimen {m.width_mm:g} × {m.length_mm:g} mm" if known else "measured"
 
 
-def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
-                       measured: Measured | None = None) -> Figure | None:
+def shear_force_figure(
+    rows: list[dict[str, Any]], scene: Any = None, measured: Measured | None = None
+) -> Figure | None:
     """(a) F_sh against the kinematic γ, (b) shear angles against u0; None without the columns."""
     if "gamma_kinematic_deg" not in rows[0]:
         return None
@@ -162,8 +216,14 @@ def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
         keep = g_m <= FSH_GAMMA_MAX_DEG
         left_out = left_out or bool(np.any(~keep))
         if keep.any():
-            ax.plot(np.r_[0.0, g_m[keep]], np.r_[0.0, f_m[keep]], "-", color="0.35", lw=1.2,
-                    label=_measured_label(measured, scene))
+            ax.plot(
+                np.r_[0.0, g_m[keep]],
+                np.r_[0.0, f_m[keep]],
+                "-",
+                color="0.35",
+                lw=1.2,
+                label=_measured_label(measured, scene),
+            )
     ax.set_xlabel("kinematic shear angle γ of the ideal test [°] (Eq. 13)")
     ax.set_ylabel("normalised shear force F_sh [N/mm]")
     ax.set_xlim(0, FSH_GAMMA_MAX_DEG if left_out else None)
@@ -173,19 +233,35 @@ def shear_force_figure(rows: list[dict[str, Any]], scene: Any = None,
     else:
         ax.legend(loc="best")  # the F_sh curves of fabrics stiffen (upper left free) or soften (lower right free)
     if left_out:
-        ax.text(0.98, 0.03, f"beyond γ = {FSH_GAMMA_MAX_DEG:g}° (near yarn locking, where Eq. 18\n"
-                "divides by cos γ → 0): not drawn", transform=ax.transAxes, ha="right", va="bottom", fontsize=7)
+        ax.text(
+            0.98,
+            0.03,
+            f"beyond γ = {FSH_GAMMA_MAX_DEG:g}° (near yarn locking, where Eq. 18\ndivides by cos γ → 0): not drawn",
+            transform=ax.transAxes,
+            ha="right",
+            va="bottom",
+            fontsize=7,
+        )
     ax2.plot(np.r_[0.0, u0], np.r_[0.0, g_kin], "-", color="k", label="ideal test, zone A: γ (Eq. 13)")
     ax2.plot(np.r_[0.0, u0], np.r_[0.0, g_kin / 2], ":", color="k", label="ideal test, zones B: γ/2")
-    shear_angle_panel(ax2, u0, rows, (("gamma_centre_deg", "o", "computed, centre"),
-                                      ("gamma_A_deg", "s", "computed, mean over zone A"),
-                                      ("gamma_B_deg", "^", "computed, mean over zones B")), U0_LABEL)
+    shear_angle_panel(
+        ax2,
+        u0,
+        rows,
+        (
+            ("gamma_centre_deg", "o", "computed, centre"),
+            ("gamma_A_deg", "s", "computed, mean over zone A"),
+            ("gamma_B_deg", "^", "computed, mean over zones B"),
+        ),
+        U0_LABEL,
+    )
     put_caption(fig, caption(scene))
     return fig
 
 
-def shear_angle_panel(ax: Axes, x: np.ndarray, rows: list[dict[str, Any]],
-                      series: tuple[tuple[str, str, str], ...], xlabel: str) -> None:
+def shear_angle_panel(
+    ax: Axes, x: np.ndarray, rows: list[dict[str, Any]], series: tuple[tuple[str, str, str], ...], xlabel: str
+) -> None:
     """Panel (b) of a shear-force figure: the computed shear angles (column, marker, label) against ``x``.
 
     The ideal test's curves are drawn by the caller; the rows' columns that a run lacks are skipped.
@@ -208,8 +284,9 @@ def stations_of(rows: list[dict[str, Any]], scene: Any) -> list[float]:
     return sorted(set(st + u0[-1:]))
 
 
-def profile_figure(profiles: dict[float, tuple[list[float], list[float]]], stations: Sequence[float],
-                   scene: Any = None) -> Figure | None:
+def profile_figure(
+    profiles: dict[float, tuple[list[float], list[float]]], stations: Sequence[float], scene: Any = None
+) -> Figure | None:
     """Mid-axis vertical displacement: the stations in colour, the other rows in light grey."""
     if not profiles:
         return None
@@ -233,12 +310,14 @@ def profile_figure(profiles: dict[float, tuple[list[float], list[float]]], stati
     return fig
 
 
-def force_curve(ax: Axes, u0: ArrayLike, force: ArrayLike, label: str | None = None, color: str | None = None,
-                **kwargs: Any) -> Any:
+def force_curve(
+    ax: Axes, u0: ArrayLike, force: ArrayLike, label: str | None = None, color: str | None = None, **kwargs: Any
+) -> Any:
     """Draw a force–displacement curve on ``ax`` (:meth:`ngbet.Result.plot`): lines from (0, 0), steps marked."""
     u = np.r_[0.0, np.asarray(u0, dtype=float)]
     F = np.r_[0.0, np.asarray(force, dtype=float)]
-    (line,) = ax.plot(u, F, "-", color=color, label=f"{label + ': ' if label else ''}straight lines between steps",
-                      **kwargs)
+    (line,) = ax.plot(
+        u, F, "-", color=color, label=f"{label + ': ' if label else ''}straight lines between steps", **kwargs
+    )
     ax.plot(u, F, "o", ms=3.5, color=line.get_color(), label="converged steps")
     return line

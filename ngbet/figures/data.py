@@ -15,8 +15,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["MapData", "Measured", "column", "increasing_curve", "load_maps", "map_file_name", "measured_fsh",
-           "read_scene", "save_map"]
+__all__ = [
+    "MapData",
+    "Measured",
+    "column",
+    "increasing_curve",
+    "load_maps",
+    "map_file_name",
+    "measured_fsh",
+    "read_scene",
+    "save_map",
+]
 
 log = logging.getLogger(__name__)
 
@@ -55,8 +64,11 @@ def load_maps(run_dir: Path) -> list[MapData]:
     maps = []
     for f in run_dir.glob("map_*mm.npz"):
         with np.load(f) as z:
-            maps.append(MapData(float(z["u0_mm"]), z["X_mm"] + z["ux_mm"], z["Y_mm"] + z["uy_mm"],
-                                z["triangles"], z["gamma_deg"]))
+            maps.append(
+                MapData(
+                    float(z["u0_mm"]), z["X_mm"] + z["ux_mm"], z["Y_mm"] + z["uy_mm"], z["triangles"], z["gamma_deg"]
+                )
+            )
     for f in run_dir.glob("state_*mm.npz"):
         with np.load(f) as z:
             nodes = z["crossing_nodes"][:, 0]
@@ -67,8 +79,16 @@ def load_maps(run_dir: Path) -> list[MapData]:
             t = tri.triangles
             edges = np.stack([np.hypot(*(X[t[:, i]] - X[t[:, (i + 1) % 3]]).T) for i in range(3)], axis=1)
             keep = edges.max(axis=1) <= 1.5 * edges.min()
-            maps.append(MapData(float(f.stem[len("state_"):-2]), X[:, 0] + u[:, 0], X[:, 1] + u[:, 1],
-                                t[keep], z["crossing_gamma_deg"], "crossings"))
+            maps.append(
+                MapData(
+                    float(f.stem[len("state_") : -2]),
+                    X[:, 0] + u[:, 0],
+                    X[:, 1] + u[:, 1],
+                    t[keep],
+                    z["crossing_gamma_deg"],
+                    "crossings",
+                )
+            )
     return sorted(maps, key=lambda m: m.u0_mm)
 
 
@@ -88,8 +108,9 @@ class Measured:
     notes: tuple[str, ...] = ()
 
     @classmethod
-    def read(cls, path: str | Path, *, specimen: dict[str, float] | None = None,
-             columns: str | None = None) -> Measured:
+    def read(
+        cls, path: str | Path, *, specimen: dict[str, float] | None = None, columns: str | None = None
+    ) -> Measured:
         """Read a measured bias extension curve; a bad file raises :class:`ngbet.scene.validate.SceneError` naming it.
 
         ``specimen`` (``--specimen``) gives the scene keys of a file whose header has none.
@@ -97,8 +118,14 @@ class Measured:
         from ..calibration.data import read_measured
 
         c = read_measured(path, columns=columns, specimen=specimen)
-        return cls(Path(c.source), c.u_mm, c.force_N, c.specimen.get("specimen.width_mm"),
-                   c.specimen.get("specimen.length_mm"), c.notes)
+        return cls(
+            Path(c.source),
+            c.u_mm,
+            c.force_N,
+            c.specimen.get("specimen.width_mm"),
+            c.specimen.get("specimen.length_mm"),
+            c.notes,
+        )
 
     def specimen(self, width_mm: float, length_mm: float) -> tuple[float, float]:
         """(W, H) of the measured specimen: its header's, else the run's."""

@@ -26,8 +26,15 @@ def shear_law_figure(card: Any, sigma: Callable[[np.ndarray], np.ndarray], scene
         s = sigma(g)
         k, unit = eng_scale(float(np.max(np.abs(s))), "Pa")
         ax.plot(np.degrees(g), s * k, color="C0", label="model: pure shear, σ_s = dW/dγ")
-        ax.plot(np.degrees(card.gamma_rad), card.stress_Pa * k, "o", ms=3, mfc="none", color="C1",
-                label=f"card: {len(card.gamma_rad)} points, linear between them")
+        ax.plot(
+            np.degrees(card.gamma_rad),
+            card.stress_Pa * k,
+            "o",
+            ms=3,
+            mfc="none",
+            color="C1",
+            label=f"card: {len(card.gamma_rad)} points, linear between them",
+        )
         ax.set_xlabel(SHEAR_LABEL)
         ax.set_ylabel(f"shear stress σ_s [{unit}]")
         ax.set_xlim(0.0, math.degrees(g_max) * 1.02)
@@ -39,9 +46,12 @@ def shear_law_figure(card: Any, sigma: Callable[[np.ndarray], np.ndarray], scene
         right = ax.secondary_yaxis("right", functions=(lambda v: v * c, lambda v: v / c))
         right.set_ylabel(f"shear torque per area C_s = t σ_s [N{NB}mm/mm²]")
         ax.legend(loc="upper left")
-        put_caption(fig, f"{caption(scene)}. The card reproduces the model's shear stress within "
-                         f"{card.tolerance:.2g} of the local stress (of 1 % of the largest where it is smaller; "
-                         f"measured {card.deviation:.2g}); it leaves out the yarns' in-plane bending (second "
-                         "gradient) and the jamming barrier.")
+        put_caption(
+            fig,
+            f"{caption(scene)}. The card reproduces the model's shear stress within "
+            f"{card.tolerance:.2g} of the local stress (of 1 % of the largest where it is smaller; "
+            f"measured {card.deviation:.2g}); it leaves out the yarns' in-plane bending (second "
+            "gradient) and the jamming barrier.",
+        )
         fig.savefig(path, format="png", dpi=PNG_DPI)
     return path

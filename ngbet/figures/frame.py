@@ -22,8 +22,15 @@ from .curves import curve_with_jumps, error_bars, shear_angle_panel
 from .data import column
 from .style import caption, figure, put_caption
 
-__all__ = ["FRAME_ANGLE_LABEL", "FRAME_DATA_COLUMNS", "TRAVEL_LABEL", "FrameMeasured", "frame_force_figure",
-           "frame_shear_figure", "read_frame_measured"]
+__all__ = [
+    "FRAME_ANGLE_LABEL",
+    "FRAME_DATA_COLUMNS",
+    "TRAVEL_LABEL",
+    "FrameMeasured",
+    "frame_force_figure",
+    "frame_shear_figure",
+    "read_frame_measured",
+]
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -46,7 +53,7 @@ class FrameMeasured:
     def fnorm(self, frame_mm: float, fabric_mm: float) -> np.ndarray:
         """F_norm [N/mm] (Eq. 10): as measured, or from F_s with the run's frame and fabric sides."""
         if self.quantity == "shear_force_N":
-            return self.values * frame_mm / fabric_mm ** 2
+            return self.values * frame_mm / fabric_mm**2
         return self.values
 
 
@@ -66,9 +73,11 @@ def read_frame_measured(path: str | Path, *, columns: str | None = None) -> Fram
 
     t = read_table(path, test="picture_frame", columns=columns)
     if t.x_quantity != "shear_angle" or t.y_quantity not in ("shear_force", "normalised_shear_force"):
-        raise SceneError(f"{path}: a picture-frame curve for the figures holds the shear angle and the shear force "
-                         "F_s [N] or the normalised shear force F_norm [N/mm], e.g. the header "
-                         "'shear_angle_deg,shear_force_N'")
+        raise SceneError(
+            f"{path}: a picture-frame curve for the figures holds the shear angle and the shear force "
+            "F_s [N] or the normalised shear force F_norm [N/mm], e.g. the header "
+            "'shear_angle_deg,shear_force_N'"
+        )
     if len(t.x) < 2:
         raise SceneError(f"{path}: needs at least two points")
     quantity = FRAME_DATA_COLUMNS[0] if t.y_quantity == "shear_force" else FRAME_DATA_COLUMNS[1]
@@ -93,8 +102,9 @@ def frame_force_figure(rows: list[dict[str, Any]], scene: Any = None) -> Figure:
     ax.set_xlim(left=0)
     ax.legend(loc="upper left")
     ax.set_title("(a) crosshead force")
-    curve_with_jumps(ax2, d, column(rows, "shear_force_N"), snap, color="C2", marker="s",
-                     label="computed, F_s = F / (2 cos θ)")
+    curve_with_jumps(
+        ax2, d, column(rows, "shear_force_N"), snap, color="C2", marker="s", label="computed, F_s = F / (2 cos θ)"
+    )
     ax2.set_xlabel(TRAVEL_LABEL)
     ax2.set_ylabel("shear force F_s [N] (Eq. 3)")
     ax2.set_xlim(left=0)
@@ -104,8 +114,7 @@ def frame_force_figure(rows: list[dict[str, Any]], scene: Any = None) -> Figure:
     return fig
 
 
-def frame_shear_figure(rows: list[dict[str, Any]], scene: Any = None, measured: FrameMeasured | None = None
-                       ) -> Figure:
+def frame_shear_figure(rows: list[dict[str, Any]], scene: Any = None, measured: FrameMeasured | None = None) -> Figure:
     """(a) F_norm (Eq. 10) against the frame's shear angle; (b) the shear angles against the travel.
 
     ``measured``: a measured curve drawn on (a) (F_s converted with the run's frame and fabric sides).
@@ -114,13 +123,18 @@ def frame_shear_figure(rows: list[dict[str, Any]], scene: Any = None, measured: 
     ax, ax2 = fig.subplots(1, 2)
     d, g = column(rows, "u0_mm"), column(rows, "shear_angle_deg")
     snap = column(rows, "snap") if "snap" in rows[0] else None
-    curve_with_jumps(ax, g, column(rows, "fnorm_N_per_mm"), snap,
-                     label="computed, F_norm = F_s L_frame / L_fabric²")
+    curve_with_jumps(ax, g, column(rows, "fnorm_N_per_mm"), snap, label="computed, F_norm = F_s L_frame / L_fabric²")
     if measured is not None and scene is not None:
         pf = scene.picture_frame
         how = "" if measured.quantity != "shear_force_N" else ", its F_s × L_frame / L_fabric²"
-        ax.plot(measured.shear_angle_deg, measured.fnorm(pf.frame_mm, pf.fabric_mm), "-", color="0.35", lw=1.2,
-                label=f"measured{how}")
+        ax.plot(
+            measured.shear_angle_deg,
+            measured.fnorm(pf.frame_mm, pf.fabric_mm),
+            "-",
+            color="0.35",
+            lw=1.2,
+            label=f"measured{how}",
+        )
         ax.set_ylim(top=ax.get_ylim()[1] * 1.15)  # room for the legend above the steeper curve
     ax.set_xlabel(FRAME_ANGLE_LABEL)
     ax.set_ylabel("normalised shear force F_norm [N/mm] (Eq. 10)")
@@ -128,7 +142,15 @@ def frame_shear_figure(rows: list[dict[str, Any]], scene: Any = None, measured: 
     ax.legend(loc="upper left")
     ax.set_title("(a) normalised shear force")
     ax2.plot(np.r_[0.0, d], np.r_[0.0, g], "-", color="k", label="frame (Eqs. 1–2): the ideal test")
-    shear_angle_panel(ax2, d, rows, (("gamma_centre_deg", "o", "computed, centre"),
-                                     ("gamma_fabric_deg", "s", "computed, mean over the fabric square")), TRAVEL_LABEL)
+    shear_angle_panel(
+        ax2,
+        d,
+        rows,
+        (
+            ("gamma_centre_deg", "o", "computed, centre"),
+            ("gamma_fabric_deg", "s", "computed, mean over the fabric square"),
+        ),
+        TRAVEL_LABEL,
+    )
     put_caption(fig, caption(scene))
     return fig

@@ -21,8 +21,15 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-__all__ = ["ColourScale", "colour_bar", "colour_scale", "limits_of", "map_panel", "shear_map_figure",
-           "yarn_network_figure"]
+__all__ = [
+    "ColourScale",
+    "colour_bar",
+    "colour_scale",
+    "limits_of",
+    "map_panel",
+    "shear_map_figure",
+    "yarn_network_figure",
+]
 
 
 @dataclass(frozen=True)
@@ -46,9 +53,11 @@ class ColourScale:
         """What the caption says of the values beyond the scale ("" when none)."""
         if self.extend == "neither":
             return ""
-        return (f"colour scale {_num(self.vmin)}{unit} to {_num(self.vmax)}{unit}: values beyond it (data "
-                f"{_num(self.data_min, '.1f')}{unit} to {_num(self.data_max, '.1f')}{unit}) in the end colours "
-                "(arrows)")
+        return (
+            f"colour scale {_num(self.vmin)}{unit} to {_num(self.vmax)}{unit}: values beyond it (data "
+            f"{_num(self.data_min, '.1f')}{unit} to {_num(self.data_max, '.1f')}{unit}) in the end colours "
+            "(arrows)"
+        )
 
 
 def _num(v: float, spec: str = "g") -> str:
@@ -80,8 +89,14 @@ def colour_scale(values: Sequence[np.ndarray], quantile: float = 0.995, signed: 
     return ColourScale(vmin, vmax, cmap, extend, dmin, dmax)
 
 
-def map_panel(ax: Axes, m: MapData, cs: ColourScale, norm: Any, yarns: dict[int, list[np.ndarray]] | None = None,
-              limits: tuple[float, float, float, float] | None = None) -> Any:
+def map_panel(
+    ax: Axes,
+    m: MapData,
+    cs: ColourScale,
+    norm: Any,
+    yarns: dict[int, list[np.ndarray]] | None = None,
+    limits: tuple[float, float, float, float] | None = None,
+) -> Any:
     """One map on ``ax``: the field (Gouraud-shaded, rasterized in vector files), yarns drawn on it, axes in mm.
 
     ``yarns``: deformed polylines per family (1 thick, drawn black; 2 thin, grey). ``limits``:
@@ -124,8 +139,9 @@ def limits_of(maps: Sequence[MapData]) -> tuple[float, float, float, float]:
     return float(xs.min()), float(xs.max()), float(ys.min()), float(ys.max())
 
 
-def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
-                     yarns: dict[float, dict[int, list[np.ndarray]]] | None = None) -> Figure | None:
+def shear_map_figure(
+    maps: Sequence[MapData], scene: Any = None, yarns: dict[float, dict[int, list[np.ndarray]]] | None = None
+) -> Figure | None:
     """The shear angle on the deformed specimen, one panel per station, one colour scale (:func:`colour_scale`).
 
     ``yarns``: deformed yarn polylines [mm] per station and family (1 thick, drawn black; 2 thin, grey).
@@ -142,8 +158,10 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
     load = "d" if getattr(scene, "test", "bias_extension") == "picture_frame" else "u₀"  # the crosshead travel
     for ax, m in zip(axes, maps, strict=True):
         art = map_panel(ax, m, cs, norm, (yarns or {}).get(m.u0_mm), lim)
-        ax.set_title(f"{load} = {m.u0_mm:g} mm: shear angle from {_num(m.gamma_deg.min(), '.1f')}° to "
-                     f"{_num(m.gamma_deg.max(), '.1f')}°" + (" (at the crossings)" if m.what == "crossings" else ""))
+        ax.set_title(
+            f"{load} = {m.u0_mm:g} mm: shear angle from {_num(m.gamma_deg.min(), '.1f')}° to "
+            f"{_num(m.gamma_deg.max(), '.1f')}°" + (" (at the crossings)" if m.what == "crossings" else "")
+        )
     axes[-1].set_xlabel("x (deformed) [mm]")
     colour_bar(fig, axes, art, cs)
     note = cs.note()
@@ -154,9 +172,16 @@ def shear_map_figure(maps: Sequence[MapData], scene: Any = None,
     return fig
 
 
-def yarn_network_figure(x_mm: np.ndarray, beams: np.ndarray, family: np.ndarray, gamma_deg: np.ndarray,
-                        ends_mm: np.ndarray, u0_mm: float, scene: Any = None,
-                        scale_over: Sequence[np.ndarray] | None = None) -> Figure:
+def yarn_network_figure(
+    x_mm: np.ndarray,
+    beams: np.ndarray,
+    family: np.ndarray,
+    gamma_deg: np.ndarray,
+    ends_mm: np.ndarray,
+    u0_mm: float,
+    scene: Any = None,
+    scale_over: Sequence[np.ndarray] | None = None,
+) -> Figure:
     """The deformed yarn network coloured by the shear angle γ of each segment, on a round colour scale.
 
     ``x_mm``: deformed node positions (n, 2); ``beams``: node pairs; ``family``: 1 (thick, drawn
@@ -186,13 +211,20 @@ def yarn_network_figure(x_mm: np.ndarray, beams: np.ndarray, family: np.ndarray,
     ax.grid(False)
     ax.set_xlabel("x (deformed) [mm]")
     ax.set_ylabel("y [mm]")
-    ax.set_title(f"yarn network at u₀ = {u0_mm:g} mm: shear angle from {_num(gamma_deg.min(), '.1f')}° to "
-                 f"{_num(gamma_deg.max(), '.1f')}°")
+    ax.set_title(
+        f"yarn network at u₀ = {u0_mm:g} mm: shear angle from {_num(gamma_deg.min(), '.1f')}° to "
+        f"{_num(gamma_deg.max(), '.1f')}°"
+    )
     colour_bar(fig, [ax], lc, cs)
-    fig.legend(handles=[Line2D([], [], color="0.2", lw=1.8, label="thick yarns (family 1)"),
-                        Line2D([], [], color="0.2", lw=0.6, ls=(0, (3, 1)), label="thin yarns (family 2)"),
-                        Line2D([], [], color="k", ls="", marker="|", label="clamped yarn ends")],
-               loc="outside lower center", ncol=3)
+    fig.legend(
+        handles=[
+            Line2D([], [], color="0.2", lw=1.8, label="thick yarns (family 1)"),
+            Line2D([], [], color="0.2", lw=0.6, ls=(0, (3, 1)), label="thin yarns (family 2)"),
+            Line2D([], [], color="k", ls="", marker="|", label="clamped yarn ends"),
+        ],
+        loc="outside lower center",
+        ncol=3,
+    )
     note = cs.note()
     put_caption(fig, caption(scene) + (f"; {note}" if note else ""))
     return fig

@@ -42,8 +42,13 @@ def formats_of(scene: Any) -> tuple[str, ...]:
     return tuple(getattr(getattr(scene, "outputs", None), "figure_formats", ("png",)))
 
 
-def draw_run(run_dir: str | Path, extra: Extra = (), parallel: bool = False, measured: Measured | None = None,
-             only: Sequence[str] = RUN_FIGURES) -> Path | None:
+def draw_run(
+    run_dir: str | Path,
+    extra: Extra = (),
+    parallel: bool = False,
+    measured: Measured | None = None,
+    only: Sequence[str] = RUN_FIGURES,
+) -> Path | None:
     """Draw the figures of ``run_dir`` (:data:`RUN_FIGURES`, or those in ``only``).
 
     Returns the force figure's file, or None when there was nothing to draw (no force in
@@ -67,15 +72,22 @@ def draw_run(run_dir: str | Path, extra: Extra = (), parallel: bool = False, mea
     makers: dict[str, Callable[[], Any]] = {
         "force": lambda: force_figure(rows, scene, extra, measured),
         "shear_force": lambda: shear_force_figure(rows, scene, measured),
-        "profile": lambda: (profile_figure(read_profiles(run_dir / "profile.csv"), stations_of(rows, scene), scene)
-                            if (run_dir / "profile.csv").exists() else None),
-        "shear_map": lambda: shear_map_figure(load_maps(run_dir), scene)}
+        "profile": lambda: (
+            profile_figure(read_profiles(run_dir / "profile.csv"), stations_of(rows, scene), scene)
+            if (run_dir / "profile.csv").exists()
+            else None
+        ),
+        "shear_map": lambda: shear_map_figure(load_maps(run_dir), scene),
+    }
     if getattr(scene, "test", "") == "picture_frame":  # the frame's own curves; its diagonal has no S-profile
         from .frame import FrameMeasured, frame_force_figure, frame_shear_figure
 
         frame_measured = measured if isinstance(measured, FrameMeasured) else None
-        makers.update(force=lambda: frame_force_figure(rows, scene),
-                      shear_force=lambda: frame_shear_figure(rows, scene, frame_measured), profile=lambda: None)
+        makers.update(
+            force=lambda: frame_force_figure(rows, scene),
+            shear_force=lambda: frame_shear_figure(rows, scene, frame_measured),
+            profile=lambda: None,
+        )
     names = [n for n in RUN_FIGURES if n in only]
 
     def draw(name: str) -> None:
@@ -139,8 +151,9 @@ def _not_installed(exc: ImportError) -> None:
     raise exc
 
 
-def start_plot(run_dir: str | Path, extra: Extra = (), service: Any = None,
-               measured: Measured | None = None) -> Callable[[], Path | None]:
+def start_plot(
+    run_dir: str | Path, extra: Extra = (), service: Any = None, measured: Measured | None = None
+) -> Callable[[], Path | None]:
     """Start drawing the figures of the run files in ``run_dir``; the function returned finishes it.
 
     ``service``: the plot process the runner started (:func:`ngbet.plot_process.active`). The
@@ -178,12 +191,27 @@ def warm_up() -> None:
     """Draw throw-away figures into memory: loads matplotlib's fonts, the text layout, tri and the PNG writer."""
     import io
 
-    rows = [{"u0_mm": u, "force_N": u * u, "force_error_N": 0.1, "double_force_Nm": 0.1 * u, "snap": 0.0,
-             "gamma_kinematic_deg": u, "fsh_N_per_mm": 0.1 * u, "gamma_centre_deg": u} for u in (1.0, 2.0)]
-    tri = MapData(1.0, np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([[0, 1, 2]]),
-                  np.array([0.0, 1.0, 2.0]))
+    rows = [
+        {
+            "u0_mm": u,
+            "force_N": u * u,
+            "force_error_N": 0.1,
+            "double_force_Nm": 0.1 * u,
+            "snap": 0.0,
+            "gamma_kinematic_deg": u,
+            "fsh_N_per_mm": 0.1 * u,
+            "gamma_centre_deg": u,
+        }
+        for u in (1.0, 2.0)
+    ]
+    tri = MapData(
+        1.0, np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([[0, 1, 2]]), np.array([0.0, 1.0, 2.0])
+    )
     with in_style():
-        for fig in (force_figure(rows, None, [("extra", [0.0, 2.0], [0.0, 4.0])]), shear_force_figure(rows),
-                    shear_map_figure([tri])):
+        for fig in (
+            force_figure(rows, None, [("extra", [0.0, 2.0], [0.0, 4.0])]),
+            shear_force_figure(rows),
+            shear_map_figure([tri]),
+        ):
             assert fig is not None
             fig.savefig(io.BytesIO(), format="png", dpi=PNG_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})

@@ -20,9 +20,13 @@ def study_caption(meta: dict[str, Any], extra: str = "") -> str:
     for k in map(str, meta.get("params", [])):
         if k.startswith("outputs."):  # what the cases write, not what they are
             continue
-        what = ("the discretization" if k.startswith(("discretization.", "solver."))
-                else "the constraint's treatment" if k.startswith(("effects.constraint", "effects.penalty"))
-                else symbol(k))
+        what = (
+            "the discretization"
+            if k.startswith(("discretization.", "solver."))
+            else "the constraint's treatment"
+            if k.startswith(("effects.constraint", "effects.penalty"))
+            else symbol(k)
+        )
         if what not in varied:
             varied.append(what)
     if varied:
@@ -31,15 +35,38 @@ def study_caption(meta: dict[str, Any], extra: str = "") -> str:
 
 
 #: units of scene keys by name (the rest carry theirs in the name: _mm, _deg, _Pa, _N)
-UNITS = {"K_sh": "Pa", "K_el": "Pa", "alpha1": "Pa m²", "alpha2": "Pa m²", "penalty_K": "Pa", "EA1": "N",
-         "EA2": "N", "EI1": "N m²", "EI2": "N m²", "K_phi": "N m", "K_slip": "N/m", "K_inter": "N"}
+UNITS = {
+    "K_sh": "Pa",
+    "K_el": "Pa",
+    "alpha1": "Pa m²",
+    "alpha2": "Pa m²",
+    "penalty_K": "Pa",
+    "EA1": "N",
+    "EA2": "N",
+    "EI1": "N m²",
+    "EI2": "N m²",
+    "K_phi": "N m",
+    "K_slip": "N/m",
+    "K_inter": "N",
+}
 _SUFFIXES = {"_mm": "mm", "_deg": "°", "_Pa": "Pa", "_N": "N", "_s": "s"}
 
 
 #: how a figure writes a scene key's name: the symbols of docs/model.md (α1, not alpha1)
-SYMBOLS = {"alpha1": "α1", "alpha2": "α2", "K_phi": "K_φ", "gamma_lock_deg": "γ_lock", "jamming_angle_deg": "θ_jam",
-           "u0_mm": "u₀", "mesh_size_mm": "mesh size h", "order_u": "order p", "thickness_mm": "thickness t",
-           "width_mm": "width W", "length_mm": "length L", "yarn_angle_deg": "yarn angle"}
+SYMBOLS = {
+    "alpha1": "α1",
+    "alpha2": "α2",
+    "K_phi": "K_φ",
+    "gamma_lock_deg": "γ_lock",
+    "jamming_angle_deg": "θ_jam",
+    "u0_mm": "u₀",
+    "mesh_size_mm": "mesh size h",
+    "order_u": "order p",
+    "thickness_mm": "thickness t",
+    "width_mm": "width W",
+    "length_mm": "length L",
+    "yarn_angle_deg": "yarn angle",
+}
 
 
 def symbol(key: str) -> str:

@@ -22,10 +22,34 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-__all__ = ["FORCE_LABEL", "FORMATS", "NB", "PNG_COMPRESSION", "PNG_DPI", "SHEAR_LABEL", "STUDY_FORMATS", "STYLE",
-           "U0_LABEL", "VECTOR_RASTER_DPI", "FigureWriter", "can_fork", "caption", "check_formats", "colormap",
-           "figure", "in_style", "legend_below", "nice_ceil", "put_caption", "round_ticks", "save", "short_log_axis",
-           "subplots", "texts_outside", "tidy_log_axes"]
+__all__ = [
+    "FORCE_LABEL",
+    "FORMATS",
+    "NB",
+    "PNG_COMPRESSION",
+    "PNG_DPI",
+    "SHEAR_LABEL",
+    "STUDY_FORMATS",
+    "STYLE",
+    "U0_LABEL",
+    "VECTOR_RASTER_DPI",
+    "FigureWriter",
+    "can_fork",
+    "caption",
+    "check_formats",
+    "colormap",
+    "figure",
+    "in_style",
+    "legend_below",
+    "nice_ceil",
+    "put_caption",
+    "round_ticks",
+    "save",
+    "short_log_axis",
+    "subplots",
+    "texts_outside",
+    "tidy_log_axes",
+]
 
 PNG_DPI = 130
 #: resolution of the rasterized parts of a PDF or SVG (a map's colour field; lines and text stay vector)
@@ -39,10 +63,23 @@ STUDY_FORMATS = ("png", "pdf")
 
 #: one style for every figure (matplotlib's rcParams)
 STYLE: Any = {
-    "font.size": 9, "axes.titlesize": 9, "axes.labelsize": 9, "legend.fontsize": 8, "xtick.labelsize": 8,
-    "ytick.labelsize": 8, "axes.grid": True, "grid.alpha": 0.3, "lines.linewidth": 1.4, "lines.markersize": 4,
-    "legend.frameon": True, "legend.framealpha": 0.9, "figure.dpi": 100, "axes.formatter.use_mathtext": False,
-    "axes.formatter.limits": (-4, 5), "savefig.dpi": PNG_DPI, "image.cmap": "viridis",
+    "font.size": 9,
+    "axes.titlesize": 9,
+    "axes.labelsize": 9,
+    "legend.fontsize": 8,
+    "xtick.labelsize": 8,
+    "ytick.labelsize": 8,
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "lines.linewidth": 1.4,
+    "lines.markersize": 4,
+    "legend.frameon": True,
+    "legend.framealpha": 0.9,
+    "figure.dpi": 100,
+    "axes.formatter.use_mathtext": False,
+    "axes.formatter.limits": (-4, 5),
+    "savefig.dpi": PNG_DPI,
+    "image.cmap": "viridis",
 }
 
 #: one angle convention in every figure of both models: the shear angle γ, the change of the
@@ -72,8 +109,15 @@ def figure(width: float, height: float, layout: str = "constrained") -> Figure:
     return Figure(figsize=(width, height), layout=layout)  # type: ignore[arg-type]
 
 
-def subplots(nrows: int = 1, ncols: int = 1, *, size: tuple[float, float] = (6.4, 4.0), squeeze: bool = True,
-             layout: str = "constrained", **kwargs: Any) -> tuple[Figure, Any]:
+def subplots(
+    nrows: int = 1,
+    ncols: int = 1,
+    *,
+    size: tuple[float, float] = (6.4, 4.0),
+    squeeze: bool = True,
+    layout: str = "constrained",
+    **kwargs: Any,
+) -> tuple[Figure, Any]:
     """A :func:`figure` and its axes (as :meth:`matplotlib.figure.Figure.subplots`)."""
     fig = figure(*size, layout=layout)
     return fig, fig.subplots(nrows, ncols, squeeze=squeeze, **kwargs)
@@ -136,24 +180,35 @@ def caption(scene: Any) -> str:
             return ""
     sp = scene.specimen
     name = f"{_name_of(sp)}: " if _name_of(sp) else ""
-    spec = (f"{name}specimen {sp.width_mm:g}{NB}×{NB}{sp.length_mm:g}{NB}mm (W{NB}×{NB}L), yarns{NB}±"
-            f"{sp.yarn_angle_deg:g}°, {_q('t', sp.thickness_mm, 'mm')}")
+    spec = (
+        f"{name}specimen {sp.width_mm:g}{NB}×{NB}{sp.length_mm:g}{NB}mm (W{NB}×{NB}L), yarns{NB}±"
+        f"{sp.yarn_angle_deg:g}°, {_q('t', sp.thickness_mm, 'mm')}"
+    )
     if getattr(scene, "test", "") == "picture_frame":
         pf = scene.picture_frame
         turned = f" turned{NB}{pf.misalignment_deg:g}° from the bars" if pf.misalignment_deg else ""
-        spec = (f"{name}picture-frame test, frame{NB}{pf.frame_mm:g}{NB}mm pin to pin, fabric square"
-                f"{NB}{pf.fabric_mm:g}{NB}mm, yarns{NB}±{sp.yarn_angle_deg:g}°{turned}, "
-                f"{_q('t', sp.thickness_mm, 'mm')}")
+        spec = (
+            f"{name}picture-frame test, frame{NB}{pf.frame_mm:g}{NB}mm pin to pin, fabric square"
+            f"{NB}{pf.fabric_mm:g}{NB}mm, yarns{NB}±{sp.yarn_angle_deg:g}°{turned}, "
+            f"{_q('t', sp.thickness_mm, 'mm')}"
+        )
     if scene.model == "discrete":
         d = scene.discrete
-        return (f"{spec}; yarn network: {_qe('EI1', d.EI1, f'N{NB}m²')}, {_qe('EI2', d.EI2, f'N{NB}m²')}, "
-                f"{_qe('EA', d.EA1, 'N')}, {_qe('K_φ', d.K_phi, f'N{NB}m')}, {_qe('K_slip', d.K_slip, 'N/m')}, "
-                f"spacing{NB}{d.spacing_mm:g}{NB}mm")
+        return (
+            f"{spec}; yarn network: {_qe('EI1', d.EI1, f'N{NB}m²')}, {_qe('EI2', d.EI2, f'N{NB}m²')}, "
+            f"{_qe('EA', d.EA1, 'N')}, {_qe('K_φ', d.K_phi, f'N{NB}m')}, {_qe('K_slip', d.K_slip, 'N/m')}, "
+            f"spacing{NB}{d.spacing_mm:g}{NB}mm"
+        )
     m = scene.material
-    shear = (f"tabulated shear law ({len(m.shear_stress_steps_Pa)} rises)"
-             if scene.effects.shear_law == "table" else _qe("K_sh", m.K_sh, "Pa"))
-    return (f"{spec}; material: {shear}, {_qe('α1', m.alpha1, f'Pa{NB}m²')}, "
-            f"{_qe('α2', m.alpha2, f'Pa{NB}m²')}, {_qe('K_el', m.K_el, 'Pa')}")
+    shear = (
+        f"tabulated shear law ({len(m.shear_stress_steps_Pa)} rises)"
+        if scene.effects.shear_law == "table"
+        else _qe("K_sh", m.K_sh, "Pa")
+    )
+    return (
+        f"{spec}; material: {shear}, {_qe('α1', m.alpha1, f'Pa{NB}m²')}, "
+        f"{_qe('α2', m.alpha2, f'Pa{NB}m²')}, {_qe('K_el', m.K_el, 'Pa')}"
+    )
 
 
 def _name_of(specimen: Any) -> str:
@@ -167,7 +222,7 @@ def _name_of(specimen: Any) -> str:
     name = str(getattr(specimen, "name", "") or "")
     m = re.search(r"[-_ ]?(\d+(?:\.\d+)?)\s*[x×]\s*(\d+(?:\.\d+)?)$", name)
     if m and (float(m.group(1)), float(m.group(2))) != (specimen.width_mm, specimen.length_mm):
-        return name[:m.start()]
+        return name[: m.start()]
     return name
 
 
@@ -199,7 +254,7 @@ def round_ticks(ax: Axes, axis: str = "both", nbins: int = 6) -> None:
     """Ticks at round numbers (1, 2, 2.5, 5 × 10^k) on a linear axis."""
     from matplotlib.ticker import MaxNLocator
 
-    for a in ((ax.xaxis, ax.yaxis) if axis == "both" else (ax.xaxis,) if axis == "x" else (ax.yaxis,)):
+    for a in (ax.xaxis, ax.yaxis) if axis == "both" else (ax.xaxis,) if axis == "x" else (ax.yaxis,):
         a.set_major_locator(MaxNLocator(nbins=nbins, steps=[1, 2, 2.5, 5, 10]))
 
 

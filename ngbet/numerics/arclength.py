@@ -90,8 +90,13 @@ class Instability:
 
     def as_dict(self, thickness: float) -> dict[str, Any]:
         """The summary's record (force in N)."""
-        return {"kind": self.kind, "u0_mm": self.u0_mm, "force_N": self.reaction * thickness,
-                "lowest_eigenvalue": self.lowest_eigenvalue, **self.details}
+        return {
+            "kind": self.kind,
+            "u0_mm": self.u0_mm,
+            "force_N": self.reaction * thickness,
+            "lowest_eigenvalue": self.lowest_eigenvalue,
+            **self.details,
+        }
 
 
 class _Path:
@@ -105,7 +110,7 @@ class _Path:
         self.tau_l = 1.0
 
     def inner(self, ax: np.ndarray, al: float, bx: np.ndarray, bl: float) -> float:
-        return float((self.w * ax) @ (self.w * bx) + al * bl / self.L ** 2)
+        return float((self.w * ax) @ (self.w * bx) + al * bl / self.L**2)
 
     def tangent(self, orient: bool) -> float:
         """Factorize at the converged point and set the unit tangent; returns the norm of (T, 1)."""
@@ -169,11 +174,19 @@ class _Path:
         self.p.state.set_load(self.lam0)
 
 
-def arclength_steps(problem: Problem, ctl: ArcLengthSettings, settings: NewtonSettings, *,
-                    weights: np.ndarray, length: float, psi: np.ndarray,
-                    lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None = None,
-                    result: PathResult | None = None, branch: str = "stay",
-                    branch_sign: float = 1.0) -> Generator[StepRecord, None, PathResult]:
+def arclength_steps(
+    problem: Problem,
+    ctl: ArcLengthSettings,
+    settings: NewtonSettings,
+    *,
+    weights: np.ndarray,
+    length: float,
+    psi: np.ndarray,
+    lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None = None,
+    result: PathResult | None = None,
+    branch: str = "stay",
+    branch_sign: float = 1.0,
+) -> Generator[StepRecord, None, PathResult]:
     """Follow the path from the converged state of ``problem`` until u0 = ``ctl.target``.
 
     A generator of the converged points' records, each with the instabilities passed or met in
@@ -195,14 +208,21 @@ def arclength_steps(problem: Problem, ctl: ArcLengthSettings, settings: NewtonSe
         raise ValueError(f"branch must be 'stay' or 'switch', not {branch!r}")
     if branch == "switch" and lowest_eigenpair is None:
         raise ValueError("branch = 'switch' needs lowest_eigenpair (the critical mode)")
-    return _arclength_steps(problem, ctl, settings, weights, length, psi, lowest_eigenpair, result, branch,
-                            branch_sign)
+    return _arclength_steps(problem, ctl, settings, weights, length, psi, lowest_eigenpair, result, branch, branch_sign)
 
 
-def _arclength_steps(problem: Problem, ctl: ArcLengthSettings, settings: NewtonSettings,
-                     weights: np.ndarray, length: float, psi: np.ndarray,
-                     lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None, result: PathResult | None,
-                     branch: str, branch_sign: float) -> Generator[StepRecord, None, PathResult]:
+def _arclength_steps(
+    problem: Problem,
+    ctl: ArcLengthSettings,
+    settings: NewtonSettings,
+    weights: np.ndarray,
+    length: float,
+    psi: np.ndarray,
+    lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None,
+    result: PathResult | None,
+    branch: str,
+    branch_sign: float,
+) -> Generator[StepRecord, None, PathResult]:
     """The generator of :func:`arclength_steps` (its arguments checked)."""
     res = result if result is not None else PathResult(problem.state.lam)
     path = _Path(problem, weights, length, settings)
@@ -250,8 +270,9 @@ def _arclength_steps(problem: Problem, ctl: ArcLengthSettings, settings: NewtonS
     return res
 
 
-def _step_record(problem: Problem, psi: np.ndarray, number: int, its: int, hist: list[float],
-                 r: np.ndarray | None, reason: str) -> StepRecord:
+def _step_record(
+    problem: Problem, psi: np.ndarray, number: int, its: int, hist: list[float], r: np.ndarray | None, reason: str
+) -> StepRecord:
     """The record of the converged point the problem is at (its tangent factorized)."""
     rec = StepRecord(number, problem.state.lam, its, residual=r, history=hist, reason=reason)
     rec.dforce_du0 = problem.load_derivative(psi, problem.load_tangent(1.0))
@@ -261,8 +282,9 @@ def _step_record(problem: Problem, psi: np.ndarray, number: int, its: int, hist:
 class _Switch:
     """Branch switching at a bifurcation (module docstring): from the located point along the critical mode."""
 
-    def __init__(self, problem: Problem, path: _Path, psi: np.ndarray, cut: float, res: PathResult,
-                 sign: float) -> None:
+    def __init__(
+        self, problem: Problem, path: _Path, psi: np.ndarray, cut: float, res: PathResult, sign: float
+    ) -> None:
         self.p, self.path, self.psi, self.cut, self.res = problem, path, psi, cut, res
         self.sign = 1.0 if sign >= 0 else -1.0
 
@@ -277,8 +299,14 @@ class _Switch:
         norm = math.sqrt(path.inner(nx, nl, nx, nl))
         return nx / norm, nl / norm
 
-    def at_bifurcation(self, new: list[Instability], before: tuple[np.ndarray, float, np.ndarray, float],
-                       track: _Tracker, ds: float, ds_min: float) -> StepRecord | None:
+    def at_bifurcation(
+        self,
+        new: list[Instability],
+        before: tuple[np.ndarray, float, np.ndarray, float],
+        track: _Tracker,
+        ds: float,
+        ds_min: float,
+    ) -> StepRecord | None:
         """Switch at the bifurcation among ``new`` (if any): the record of the first point on the new branch.
 
         ``before`` is the point before the step; the path stands at the point after it. Without a
@@ -300,8 +328,9 @@ class _Switch:
             if ok:
                 path.commit()
                 path.tangent(orient=True)
-                rec = _step_record(self.p, self.psi, len(self.res.steps) + 1, its, hist, r,
-                                   "arc-length, bifurcated branch")
+                rec = _step_record(
+                    self.p, self.psi, len(self.res.steps) + 1, its, hist, r, "arc-length, bifurcated branch"
+                )
                 track.restart(path, rec, r)
                 bif.details.update(branch="switched", mode_sign=self.sign)
                 log.warning("switched to the bifurcated branch at u0 = %.4g mm", bif.u0_mm)
@@ -384,7 +413,12 @@ def _bifurcation(prev: Instability, here: Instability) -> Instability:
     mu_a, mu_b = prev.lowest_eigenvalue, here.lowest_eigenvalue
     t = mu_a / (mu_a - mu_b)
     near = prev if t < 0.5 else here
-    return Instability("bifurcation", prev.u0_mm + t * (here.u0_mm - prev.u0_mm),
-                       prev.reaction + t * (here.reaction - prev.reaction), near.lowest_eigenvalue,
-                       {"bracket_mm": [prev.u0_mm, here.u0_mm], "eigenvalues": [mu_a, mu_b], "branch": "stayed"},
-                       near.mode, t)
+    return Instability(
+        "bifurcation",
+        prev.u0_mm + t * (here.u0_mm - prev.u0_mm),
+        prev.reaction + t * (here.reaction - prev.reaction),
+        near.lowest_eigenvalue,
+        {"bracket_mm": [prev.u0_mm, here.u0_mm], "eigenvalues": [mu_a, mu_b], "branch": "stayed"},
+        near.mode,
+        t,
+    )

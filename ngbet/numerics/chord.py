@@ -47,9 +47,20 @@ import numpy as np
 from .newton import NewtonReport, Problem
 from .settings import NewtonSettings
 
-__all__ = ["CHORD_CONTRACTION", "CHORD_ITERATIONS", "CHORD_MARGIN", "CHORD_PREDICTOR_STATES", "FD_STEP",
-           "TANGENT_REFINEMENTS", "TANGENT_RTOL", "ChordRows", "chord", "extrapolate", "jacobian_times",
-           "tangent_at_hand"]
+__all__ = [
+    "CHORD_CONTRACTION",
+    "CHORD_ITERATIONS",
+    "CHORD_MARGIN",
+    "CHORD_PREDICTOR_STATES",
+    "FD_STEP",
+    "TANGENT_REFINEMENTS",
+    "TANGENT_RTOL",
+    "ChordRows",
+    "chord",
+    "extrapolate",
+    "jacobian_times",
+    "tangent_at_hand",
+]
 
 #: a chord correction contracting by more than this (energy norm) linearizes again, once; if it still
 #: does, Newton takes over (the fewest factorizations at no more residuals)
@@ -73,9 +84,15 @@ TANGENT_RTOL = 1e-3
 TANGENT_REFINEMENTS = 3
 
 
-def chord(problem: Problem, settings: NewtonSettings, e_ref: float,
-          max_iterations: int = CHORD_ITERATIONS, max_contraction: float = CHORD_CONTRACTION,
-          refactorizations: int = 1, prior: float = math.nan) -> NewtonReport:
+def chord(
+    problem: Problem,
+    settings: NewtonSettings,
+    e_ref: float,
+    max_iterations: int = CHORD_ITERATIONS,
+    max_contraction: float = CHORD_CONTRACTION,
+    refactorizations: int = 1,
+    prior: float = math.nan,
+) -> NewtonReport:
     """Modified Newton from the current x with the factorization at hand (module docstring).
 
     Where a correction contracts by more than ``max_contraction`` the problem is linearized again
@@ -109,8 +126,7 @@ def chord(problem: Problem, settings: NewtonSettings, e_ref: float,
             return NewtonReport(False, it, history, [], "residual is not finite")
         if delta == 0.0 or (math.isfinite(theta) and delta <= (1.0 - theta) * CHORD_MARGIN * tol):
             measured = theta if it > 1 else prior
-            return NewtonReport(True, it, history, [1.0] * it, "converged (chord)", residual=r,
-                                contraction=measured)
+            return NewtonReport(True, it, history, [1.0] * it, "converged (chord)", residual=r, contraction=measured)
         previous = delta
     return NewtonReport(False, max_iterations, history, [], "chord iteration limit")
 
@@ -139,9 +155,15 @@ def jacobian_times(problem: Problem, v: np.ndarray, eps: float, r: np.ndarray | 
     return cast(np.ndarray, (rp - r) / eps)
 
 
-def tangent_at_hand(problem: Problem, psi: np.ndarray | None, eps: float, r: np.ndarray | None = None,
-                    rel: float = TANGENT_RTOL, max_refinements: int = TANGENT_REFINEMENTS,
-                    start: np.ndarray | None = None) -> tuple[np.ndarray, float] | None:
+def tangent_at_hand(
+    problem: Problem,
+    psi: np.ndarray | None,
+    eps: float,
+    r: np.ndarray | None = None,
+    rel: float = TANGENT_RTOL,
+    max_refinements: int = TANGENT_REFINEMENTS,
+    start: np.ndarray | None = None,
+) -> tuple[np.ndarray, float] | None:
     """The load tangent at the current (converged) state and dR/dλ (nan without ``psi``), without a linearization.
 
     From the factorization at hand, of an earlier state (module docstring), refined until the
@@ -154,8 +176,9 @@ def tangent_at_hand(problem: Problem, psi: np.ndarray | None, eps: float, r: np.
     t = problem.load_tangent(1.0) if start is None else start
     prescribed = problem.state.dirichlet
     if psi is not None and not np.allclose(psi[prescribed], t[prescribed]):
-        raise ValueError("dR/dλ = t·J t needs the reaction's test vector equal to the load tangent on the "
-                         "prescribed entries")
+        raise ValueError(
+            "dR/dλ = t·J t needs the reaction's test vector equal to the load tangent on the prescribed entries"
+        )
     for _ in range(max_refinements):
         Jt = jacobian_times(problem, t, eps, r)
         corr = problem.solve(Jt)  # −J₀⁻¹ (J t)_free, zero on the prescribed entries
@@ -203,8 +226,12 @@ class ChordRows:
         if not self.states and u0 == 0.0:  # the unloaded state is the first
             self.states = [(0.0, x.copy())]
         s = self.states
-        if (not self.due(u0 + h) or len(s) < 3 or abs(s[-1][0] - u0) > 1e-12 * max(1.0, abs(u0))
-                or np.min(np.diff([st[0] for st in s])) < (0.5 - 1e-9) * h):
+        if (
+            not self.due(u0 + h)
+            or len(s) < 3
+            or abs(s[-1][0] - u0) > 1e-12 * max(1.0, abs(u0))
+            or np.min(np.diff([st[0] for st in s])) < (0.5 - 1e-9) * h
+        ):
             return None
         return extrapolate(s, u0 + h)
 
@@ -224,7 +251,7 @@ class ChordRows:
         """A converged state at ``lam``, and the tangent at the previous converged load (if known)."""
         if not self.loads.size:
             return
-        self.states = [*self.states[1 - CHORD_PREDICTOR_STATES:], (lam, x.copy())]
+        self.states = [*self.states[1 - CHORD_PREDICTOR_STATES :], (lam, x.copy())]
         if tangent is not None:
             self.tangents = [*self.tangents[-1:], tangent]
 
@@ -232,8 +259,9 @@ class ChordRows:
         """A jump (snap-through): no extrapolation across it."""
         self.states, self.tangents = [], []
 
-    def tangent(self, problem: Problem, psi: np.ndarray | None, lam: float, r: np.ndarray | None
-                ) -> tuple[np.ndarray, float] | None:
+    def tangent(
+        self, problem: Problem, psi: np.ndarray | None, lam: float, r: np.ndarray | None
+    ) -> tuple[np.ndarray, float] | None:
         """:func:`tangent_at_hand` at a chord row at ``lam``, from the extrapolation of the last two tangents.
 
         The extrapolation is of the free entries only: the prescribed ones are the load's at every

@@ -219,8 +219,14 @@ def _add_variation(form: ngs.BilinearForm, compiled: ngs.CoefficientFunction, dx
         ngs.ngsglobals.symbolic_integrator_uses_diff = before
 
 
-def add_energy(form: ngs.BilinearForm, parts: ngs.CoefficientFunction | Sequence[ngs.CoefficientFunction],
-               dx: Any, mode: str, ndof: int = 0, linearized: bool = True) -> str:
+def add_energy(
+    form: ngs.BilinearForm,
+    parts: ngs.CoefficientFunction | Sequence[ngs.CoefficientFunction],
+    dx: Any,
+    mode: str,
+    ndof: int = 0,
+    linearized: bool = True,
+) -> str:
     """Compile the energy as ``solver.compile`` asks (:func:`compile_energy`) and add it to ``form``.
 
     ``parts`` (one integrand, or several that sum to the energy) become one ``Variation`` each.
@@ -268,6 +274,10 @@ def compile_energy(cf: ngs.CoefficientFunction, mode: str, ndof: int = 0) -> tup
             return cf.Compile(realcompile=True, wait=True), "native"
     except Exception as err:  # NGSolve raises on a failed compile or link (or an uncached one for "auto")
         level = logging.WARNING if mode == "native" else logging.INFO
-        log.log(level, "native compilation %s (%s); the energy is interpreted",
-                "not in the cache" if mode == "auto" else "failed", err)
+        log.log(
+            level,
+            "native compilation %s (%s); the energy is interpreted",
+            "not in the cache" if mode == "auto" else "failed",
+            err,
+        )
         return cf.Compile(), "interpret"

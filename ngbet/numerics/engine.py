@@ -47,8 +47,19 @@ from ..errors import Attempt, ConvergenceError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["STOP_REQUESTED", "Corrector", "Outcome", "PathControl", "PathResult", "StepRecord", "Steps", "check_stop",
-           "path_steps", "progress_bar", "time_budget"]
+__all__ = [
+    "STOP_REQUESTED",
+    "Corrector",
+    "Outcome",
+    "PathControl",
+    "PathResult",
+    "StepRecord",
+    "Steps",
+    "check_stop",
+    "path_steps",
+    "progress_bar",
+    "time_budget",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -179,8 +190,9 @@ def check_stop() -> None:
         raise KeyboardInterrupt("stop requested by a signal")
 
 
-def path_steps(corrector: Corrector, ctl: PathControl, out: PathResult | None = None
-               ) -> Generator[StepRecord, None, PathResult]:
+def path_steps(
+    corrector: Corrector, ctl: PathControl, out: PathResult | None = None
+) -> Generator[StepRecord, None, PathResult]:
     """Carry the load from 0 to ``ctl.target``, yielding each converged step's record as it is accepted.
 
     The caller decides what to keep and write; the generator's return value (``StopIteration.value``,
@@ -201,14 +213,20 @@ def path_steps(corrector: Corrector, ctl: PathControl, out: PathResult | None = 
         lam = out.u0
         if time.perf_counter() > _DEADLINE.get():
             text, detail = corrector.diagnose(out.attempts)
-            raise ConvergenceError(f"time budget spent on the way from {lam * 1e3:.6g} mm to {ctl.target * 1e3:.6g} mm",
-                                   lam * 1e3, out.attempts, text, detail)
+            raise ConvergenceError(
+                f"time budget spent on the way from {lam * 1e3:.6g} mm to {ctl.target * 1e3:.6g} mm",
+                lam * 1e3,
+                out.attempts,
+                text,
+                detail,
+            )
         nxt, h = _trial_load(lam, step, marks, eps, ctl.land_within)
         t0 = time.perf_counter()
         corrector.predict(lam, h)
         outcome = corrector.correct(lam, h)
-        out.attempts.append(Attempt(lam, nxt, outcome.kind == "converged", outcome.iterations, outcome.reason,
-                                    list(outcome.history)))
+        out.attempts.append(
+            Attempt(lam, nxt, outcome.kind == "converged", outcome.iterations, outcome.reason, list(outcome.history))
+        )
         if outcome.kind == "converged":
             _record(corrector, out, lam, nxt, h, outcome, t0)
             yield out.steps[-1]
@@ -247,8 +265,9 @@ def _trial_load(lam: float, step: float, marks: list[float], eps: float, land_wi
     return lam + step, step
 
 
-def _record(corrector: Corrector, out: PathResult, lam: float, nxt: float, h: float, outcome: Outcome,
-            t0: float) -> None:
+def _record(
+    corrector: Corrector, out: PathResult, lam: float, nxt: float, h: float, outcome: Outcome, t0: float
+) -> None:
     """Accept a converged trial and append its step record."""
     rec = corrector.accept(lam, h, outcome)
     rec.step = len(out.steps) + 1
@@ -259,8 +278,9 @@ def _record(corrector: Corrector, out: PathResult, lam: float, nxt: float, h: fl
     log.info("u0 = %.6g mm reached in %d iterations", nxt * 1e3, outcome.iterations)
 
 
-def _after_rejection(corrector: Corrector, ctl: PathControl, out: PathResult, lam: float, nxt: float, h: float,
-                     outcome: Outcome) -> float:
+def _after_rejection(
+    corrector: Corrector, ctl: PathControl, out: PathResult, lam: float, nxt: float, h: float, outcome: Outcome
+) -> float:
     """The next nominal step after a rejected trial; raises when the path cannot go on."""
     if outcome.kind == "retry":
         out.retries += 1
@@ -272,11 +292,19 @@ def _after_rejection(corrector: Corrector, ctl: PathControl, out: PathResult, la
     too_short = outcome.kind == "failed" and step < ctl.min_step * (1 - 1e-9)
     too_many = ctl.max_attempts is not None and len(out.attempts) >= ctl.max_attempts
     if too_short or too_many:
-        why = (f"load step cut below the minimum {ctl.min_step * 1e3:.3g} mm" if too_short
-               else f"{len(out.attempts)} increments tried (limit {ctl.max_attempts})")
+        why = (
+            f"load step cut below the minimum {ctl.min_step * 1e3:.3g} mm"
+            if too_short
+            else f"{len(out.attempts)} increments tried (limit {ctl.max_attempts})"
+        )
         text, detail = corrector.diagnose(out.attempts)
-        raise ConvergenceError(f"{why} on the way from {lam * 1e3:.6g} mm to {ctl.target * 1e3:.6g} mm",
-                               lam * 1e3, out.attempts, text, detail)
+        raise ConvergenceError(
+            f"{why} on the way from {lam * 1e3:.6g} mm to {ctl.target * 1e3:.6g} mm",
+            lam * 1e3,
+            out.attempts,
+            text,
+            detail,
+        )
     return step
 
 
@@ -291,8 +319,12 @@ def progress_bar(show: bool, target_mm: float, desc: str = "u0") -> Iterator[Cal
         return
     from tqdm import tqdm
 
-    bar = tqdm(total=round(target_mm, 6), unit="mm", desc=desc,
-               bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} mm [{elapsed}<{remaining}]")
+    bar = tqdm(
+        total=round(target_mm, 6),
+        unit="mm",
+        desc=desc,
+        bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} mm [{elapsed}<{remaining}]",
+    )
     try:
         yield lambda u0: bar.update(u0 * 1e3 - bar.n)
     finally:

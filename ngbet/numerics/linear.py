@@ -28,8 +28,16 @@ from .compiled import add_energy
 if TYPE_CHECKING:
     import scipy.sparse as sps
 
-__all__ = ["CHOLMOD_MIN_DOFS", "LAGRANGE_AUGMENTATION", "LinearSolver", "NewtonLinearSolver", "assembly_thread_count",
-           "assembly_threads", "energy_form", "pick_inverse"]
+__all__ = [
+    "CHOLMOD_MIN_DOFS",
+    "LAGRANGE_AUGMENTATION",
+    "LinearSolver",
+    "NewtonLinearSolver",
+    "assembly_thread_count",
+    "assembly_threads",
+    "energy_form",
+    "pick_inverse",
+]
 
 #: K_aug / K_ref for the condensed Newton matrix of the exact Lagrange method: large enough that
 #: the Jacobian error (relative size ~ K_sh / K_aug) leaves Newton quadratic to the tolerance,
@@ -162,14 +170,21 @@ class NewtonLinearSolver:
         the mode the energy got, so that "auto" does not mix.
     """
 
-    def __init__(self, form: ngs.BilinearForm, condense: bool, choice: str,
-                 saddle_energy: Callable[[float], Sequence[ngs.CoefficientFunction]] | None = None,
-                 K_ref: float = 1.0,
-                 dx: object = None, compile_mode: str = "interpret") -> None:
+    def __init__(
+        self,
+        form: ngs.BilinearForm,
+        condense: bool,
+        choice: str,
+        saddle_energy: Callable[[float], Sequence[ngs.CoefficientFunction]] | None = None,
+        K_ref: float = 1.0,
+        dx: object = None,
+        compile_mode: str = "interpret",
+    ) -> None:
         X = form.space
         self.K_aug = 0.0
-        self.inverse_type = pick_inverse(choice, saddle_energy is not None and not condense, condense,
-                                         X.FreeDofs(condense).NumSet())
+        self.inverse_type = pick_inverse(
+            choice, saddle_energy is not None and not condense, condense, X.FreeDofs(condense).NumSet()
+        )
         if saddle_energy is not None and condense:
             self.K_aug = LAGRANGE_AUGMENTATION * K_ref
             self.form = energy_form(X, self.inverse_type, condense=True)

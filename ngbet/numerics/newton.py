@@ -25,8 +25,18 @@ import numpy as np
 from ..errors import Attempt
 from .settings import NewtonSettings
 
-__all__ = ["AdmissibleState", "Diagnosis", "JammingWatch", "Locating", "NewtonReport", "Problem", "Relaxable", "State",
-           "failure_pattern", "newton"]
+__all__ = [
+    "AdmissibleState",
+    "Diagnosis",
+    "JammingWatch",
+    "Locating",
+    "NewtonReport",
+    "Problem",
+    "Relaxable",
+    "State",
+    "failure_pattern",
+    "newton",
+]
 
 
 class Diagnosis(Protocol):
@@ -170,8 +180,9 @@ class NewtonReport:
     contraction: float = math.nan
 
 
-def newton(problem: Problem, settings: NewtonSettings, e_ref: float, factorized: bool = False,
-           r: np.ndarray | None = None) -> NewtonReport:
+def newton(
+    problem: Problem, settings: NewtonSettings, e_ref: float, factorized: bool = False, r: np.ndarray | None = None
+) -> NewtonReport:
     """Damped Newton from the current x at fixed load; on failure x is left where it stopped.
 
     ``factorized``: the problem's last factorization is that at the current x (the first iteration
@@ -206,13 +217,13 @@ def newton(problem: Problem, settings: NewtonSettings, e_ref: float, factorized:
             done = _simplified_exit(problem, dx_bar, r, tol_it)
             if done is not None:
                 history.append(done[0])
-                return NewtonReport(True, it, history, damping, "converged (simplified correction)",
-                                    residual=done[1])
+                return NewtonReport(True, it, history, damping, "converged (simplified correction)", residual=done[1])
     return NewtonReport(False, settings.max_iterations, history, damping, "iteration limit")
 
 
-def _damped_step(problem: Problem, dx: np.ndarray, last: bool, min_damping: float
-                 ) -> tuple[float, np.ndarray, np.ndarray | None, float] | None:
+def _damped_step(
+    problem: Problem, dx: np.ndarray, last: bool, min_damping: float
+) -> tuple[float, np.ndarray, np.ndarray | None, float] | None:
     """X += λ dx with the largest λ = 1, 1/2, ... that passes the natural monotonicity test.
 
     ``last``: the decrement is below the tolerance, the step needs no test. Returns λ, the
@@ -238,8 +249,9 @@ def _damped_step(problem: Problem, dx: np.ndarray, last: bool, min_damping: floa
             return None
 
 
-def _simplified_exit(problem: Problem, dx_bar: np.ndarray, r: np.ndarray, tol: float
-                     ) -> tuple[float, np.ndarray] | None:
+def _simplified_exit(
+    problem: Problem, dx_bar: np.ndarray, r: np.ndarray, tol: float
+) -> tuple[float, np.ndarray] | None:
     """End Newton with the simplified correction when its decrement is below the tolerance.
 
     Deuflhard's NLEQ-ERR: the correction dx̄ = −J(x_k)⁻¹ r(x_k+1), already computed for the
@@ -271,15 +283,21 @@ def failure_pattern(attempts: Sequence[Attempt]) -> str:
     tail = [a for a in attempts[-12:] if not a.converged]
     inc = np.array([a.u0_to - a.u0_from for a in tail if a.history])
     first = np.array([a.history[0] for a in tail if a.history])
-    text = (f"{len(tail)} of the last {min(12, len(attempts))} increments failed (last from "
-            f"{attempts[-1].u0_from * 1e3:.6g} mm), the smallest {inc.min() * 1e3 if inc.size else 0:.3g} mm "
-            f"({tail[-1].reason})")
+    text = (
+        f"{len(tail)} of the last {min(12, len(attempts))} increments failed (last from "
+        f"{attempts[-1].u0_from * 1e3:.6g} mm), the smallest {inc.min() * 1e3 if inc.size else 0:.3g} mm "
+        f"({tail[-1].reason})"
+    )
     ok = (inc > 0) & (first > 0) & np.isfinite(first)
     if ok.sum() >= 3 and np.ptp(np.log(inc[ok])) > 0.5:
         k = float(np.polyfit(np.log(inc[ok]), np.log(first[ok]), 1)[0])
-        text += (f"; the first Newton decrement falls like (increment)^{k:.1f} when the increment is cut "
-                 f"(a smooth path gives ~4 with the tangent predictor)")
+        text += (
+            f"; the first Newton decrement falls like (increment)^{k:.1f} when the increment is cut "
+            f"(a smooth path gives ~4 with the tangent predictor)"
+        )
         if k < 2.5:
-            text += (": the solution path is not smooth here (limit point or bifurcation in the load, or a "
-                     "locking discretization)")
+            text += (
+                ": the solution path is not smooth here (limit point or bifurcation in the load, or a "
+                "locking discretization)"
+            )
     return text

@@ -60,8 +60,6 @@ RELAX_DEFAULTS = RelaxSettings()
 JAMMING_MISSED = "the yarns close past the jamming angle in the state found without the barrier; solved again with it"
 
 
-
-
 def _stalled(rep: NewtonReport) -> bool:
     """Whether a failed Newton run stalled (no damping helped, or the decrement stopped falling).
 
@@ -88,12 +86,22 @@ class SaddlePointNewton:
     when ``psi`` (the reaction's test vector) is given, and the next predictor reuses it.
     """
 
-    def __init__(self, problem: Problem, settings: NewtonSettings, *,
-                 diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
-                 hessian: Relaxable | None = None, watch: JammingWatch | None = None, locate: Locating | None = None,
-                 relax_below: float = 0.0, relax_settings: RelaxSettings = RELAX_DEFAULTS,
-                 chord_at: Sequence[float] = (), length: float = 1.0,
-                 on_relax: Callable[[float, np.ndarray, bool], None] | None = None) -> None:
+    def __init__(
+        self,
+        problem: Problem,
+        settings: NewtonSettings,
+        *,
+        diagnose: Callable[[], Diagnosis] | None = None,
+        psi: np.ndarray | None = None,
+        hessian: Relaxable | None = None,
+        watch: JammingWatch | None = None,
+        locate: Locating | None = None,
+        relax_below: float = 0.0,
+        relax_settings: RelaxSettings = RELAX_DEFAULTS,
+        chord_at: Sequence[float] = (),
+        length: float = 1.0,
+        on_relax: Callable[[float, np.ndarray, bool], None] | None = None,
+    ) -> None:
         if relax_below > 0 and hessian is None:
             raise ValueError("relax_below > 0 needs hessian (a problem whose Newton matrix is a Hessian)")
         self.problem, self.hessian, self.watch, self.locate = problem, hessian, watch, locate
@@ -176,8 +184,12 @@ class SaddlePointNewton:
             self.report = rep = newton(p, self.settings, e_ref)
             if not rep.converged and _stalled(rep):
                 return self._relax(u0, h, e_ref, rep)
-            return Outcome("converged" if rep.converged else "failed", first.iterations + rep.iterations,
-                           [*first.history, *rep.history], rep.reason if rep.converged else JAMMING_MISSED)
+            return Outcome(
+                "converged" if rep.converged else "failed",
+                first.iterations + rep.iterations,
+                [*first.history, *rep.history],
+                rep.reason if rep.converged else JAMMING_MISSED,
+            )
         return Outcome("converged" if rep.converged else "failed", rep.iterations, list(rep.history), rep.reason)
 
     def _jamming_missed(self) -> bool:
@@ -192,8 +204,9 @@ class SaddlePointNewton:
         before = self._state_at(self._saved, u0)
         p.x[:] = self._predicted
         p.state.set_load(u0 + h)
-        log.info("Newton failed on %.6g -> %.6g mm (%s): relaxing to a stable state", u0 * 1e3, (u0 + h) * 1e3,
-                 failed.reason)
+        log.info(
+            "Newton failed on %.6g -> %.6g mm (%s): relaxing to a stable state", u0 * 1e3, (u0 + h) * 1e3, failed.reason
+        )
         rel = relax(self.hessian, self.settings, e_ref, self.relax_settings)
         its = failed.iterations + rel.iterations
         history = [*failed.history, *rel.history]
@@ -208,10 +221,19 @@ class SaddlePointNewton:
         # a jump to another state: energy released beyond the clamp's work (the network's criterion)
         jumped = math.isfinite(released) and released > SNAP_RELEASE * abs(work)
         if jumped:
-            self._jump = {"u0_mm": (u0 + h) * 1e3, "u0_before_mm": u0 * 1e3, "energy_before": E0, "energy_after": E1,
-                          "released": released, "work": work, "reaction_before": R0, "reaction_after": R1,
-                          "lowest_eigenvalue_after": rel.lowest_eigenvalue,
-                          "lowest_eigenvalue_before": rel.kicked_from, "relaxation_iterations": rel.iterations}
+            self._jump = {
+                "u0_mm": (u0 + h) * 1e3,
+                "u0_before_mm": u0 * 1e3,
+                "energy_before": E0,
+                "energy_after": E1,
+                "released": released,
+                "work": work,
+                "reaction_before": R0,
+                "reaction_after": R1,
+                "lowest_eigenvalue_after": rel.lowest_eigenvalue,
+                "lowest_eigenvalue_before": rel.kicked_from,
+                "relaxation_iterations": rel.iterations,
+            }
             if self.locate is not None:
                 self._jump.update(self.locate.locate(p.x - self._predicted))
         self._left = (u0, self._saved.copy(), jumped) if self.on_relax is not None else None
@@ -242,14 +264,24 @@ class SaddlePointNewton:
                     self._chorded = False
                 else:
                     self._tangent, dR = found
-        rec = StepRecord(0, u0 + h, outcome.iterations, residual=self.report.residual,
-                         history=list(outcome.history), reason=outcome.reason)
+        rec = StepRecord(
+            0,
+            u0 + h,
+            outcome.iterations,
+            residual=self.report.residual,
+            history=list(outcome.history),
+            reason=outcome.reason,
+        )
         if self._jump is not None:
             rec.snap = True
             rec.released = float(self._jump["released"])  # type: ignore[arg-type]
             self.snaps.append(self._jump)
-            log.warning("snap-through at u0 = %.6g mm: the state jumped to a stable one (energy released %.3g "
-                        "J per metre of thickness)", (u0 + h) * 1e3, rec.released)
+            log.warning(
+                "snap-through at u0 = %.6g mm: the state jumped to a stable one (energy released %.3g "
+                "J per metre of thickness)",
+                (u0 + h) * 1e3,
+                rec.released,
+            )
             self._jump = None
             self.chord.forget()  # a jump: no extrapolation across it
         if self._left is not None and self.on_relax is not None:
@@ -282,10 +314,18 @@ class SaddlePointNewton:
 ArcLength = Callable[[PathResult], Generator[StepRecord, None, PathResult]]
 
 
-def load_steps(problem: Problem, path: PathSettings, settings: NewtonSettings, *,
-               hessian: Relaxable | None = None, watch: JammingWatch | None = None, locate: Locating | None = None,
-               diagnose: Callable[[], Diagnosis] | None = None, psi: np.ndarray | None = None,
-               arclength: ArcLength | None = None) -> Generator[StepRecord, None, PathResult]:
+def load_steps(
+    problem: Problem,
+    path: PathSettings,
+    settings: NewtonSettings,
+    *,
+    hessian: Relaxable | None = None,
+    watch: JammingWatch | None = None,
+    locate: Locating | None = None,
+    diagnose: Callable[[], Diagnosis] | None = None,
+    psi: np.ndarray | None = None,
+    arclength: ArcLength | None = None,
+) -> Generator[StepRecord, None, PathResult]:
     """Carry the load from 0 to ``path.target``: a generator of the converged increments' records.
 
     The caller decides what to keep and write; the return value is the
@@ -309,9 +349,19 @@ def load_steps(problem: Problem, path: PathSettings, settings: NewtonSettings, *
     if path.path_following == "displacement":
         below = min(path.min_step / path.cut, 2 * path.min_step) if path.snap and hessian is not None else 0.0
         left: list[tuple[float, np.ndarray]] = []  # the branch left by the step being accepted
-        corrector = SaddlePointNewton(problem, settings, diagnose=diagnose, psi=psi, hessian=hessian, watch=watch,
-                                      locate=locate, relax_below=below, chord_at=chord_at, length=path.length,
-                                      on_relax=lambda lam, x, _snap: left.append((lam, x)))
+        corrector = SaddlePointNewton(
+            problem,
+            settings,
+            diagnose=diagnose,
+            psi=psi,
+            hessian=hessian,
+            watch=watch,
+            locate=locate,
+            relax_below=below,
+            chord_at=chord_at,
+            length=path.length,
+            on_relax=lambda lam, x, _snap: left.append((lam, x)),
+        )
         return _displacement_steps(corrector, path, left)
     if arclength is None:
         raise ValueError(f"path_following = {path.path_following!r} needs an arc-length runner; none was given")
@@ -322,8 +372,9 @@ def load_steps(problem: Problem, path: PathSettings, settings: NewtonSettings, *
     return _auto_steps(corrector, path, arclength)
 
 
-def _displacement_steps(corrector: SaddlePointNewton, path: PathSettings, left: list[tuple[float, np.ndarray]]
-                        ) -> Generator[StepRecord, None, PathResult]:
+def _displacement_steps(
+    corrector: SaddlePointNewton, path: PathSettings, left: list[tuple[float, np.ndarray]]
+) -> Generator[StepRecord, None, PathResult]:
     """Displacement control, relaxing where the path folds (the branch left comes in ``left``)."""
     out = PathResult(0.0)
     try:
@@ -342,8 +393,9 @@ def _displacement_steps(corrector: SaddlePointNewton, path: PathSettings, left: 
     return out
 
 
-def _auto_steps(corrector: SaddlePointNewton, path: PathSettings, arclength: ArcLength
-                ) -> Generator[StepRecord, None, PathResult]:
+def _auto_steps(
+    corrector: SaddlePointNewton, path: PathSettings, arclength: ArcLength
+) -> Generator[StepRecord, None, PathResult]:
     """Displacement control, then arc length where it fails."""
     partial = PathResult(0.0)
     try:

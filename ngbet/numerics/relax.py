@@ -54,9 +54,13 @@ class RelaxReport:
     kicked_from: float = math.nan  # the lowest eigenvalue at the start when it was kicked along its mode
 
 
-def relax(problem: Relaxable, newton_settings: NewtonSettings, e_ref: float,
-          settings: RelaxSettings = RelaxSettings(), start_eigen: tuple[float, np.ndarray] | None = None
-          ) -> RelaxReport:
+def relax(
+    problem: Relaxable,
+    newton_settings: NewtonSettings,
+    e_ref: float,
+    settings: RelaxSettings = RelaxSettings(),
+    start_eigen: tuple[float, np.ndarray] | None = None,
+) -> RelaxReport:
     """A stable equilibrium at the current load from the current state, by a shifted descent.
 
     ``problem`` has a Hessian tangent (:class:`~ngbet.numerics.newton.Relaxable`): shifted
@@ -79,7 +83,7 @@ def relax(problem: Relaxable, newton_settings: NewtonSettings, e_ref: float,
     for attempt in range(settings.kicks + 1):
         if mu <= 0:
             kicked = mu if math.isnan(kicked) else kicked
-            _kick(problem, mode, weights, settings.kick * 2 ** attempt)
+            _kick(problem, mode, weights, settings.kick * 2**attempt)
         shift = max(settings.first_shift, -2.0 * mu)
         done, its, why = _flow(problem, tol, settings, shift, history, its)
         if not done:
@@ -89,13 +93,15 @@ def relax(problem: Relaxable, newton_settings: NewtonSettings, e_ref: float,
         history.extend(rep.history)
         bad = problem.state.admissible() if rep.converged else ""
         if bad:
-            return RelaxReport(False, its, history, f"the equilibrium found is not physical: {bad}",
-                               kicked_from=kicked)
+            return RelaxReport(False, its, history, f"the equilibrium found is not physical: {bad}", kicked_from=kicked)
         mu, mode = problem.lowest_mode()
         if rep.converged and mu > 0:
             return RelaxReport(True, its, history, "relaxed to a stable equilibrium", rep.residual, mu, kicked)
-        why = (f"the equilibria found are unstable (lowest scaled eigenvalue {mu:.3g})" if rep.converged
-               else f"Newton after the relaxation: {rep.reason}")
+        why = (
+            f"the equilibria found are unstable (lowest scaled eigenvalue {mu:.3g})"
+            if rep.converged
+            else f"Newton after the relaxation: {rep.reason}"
+        )
     return RelaxReport(False, its, history, why, lowest_eigenvalue=mu, kicked_from=kicked)
 
 
@@ -111,8 +117,9 @@ def _kick(problem: Relaxable, mode: np.ndarray, weights: np.ndarray, size: float
     problem.x[:] += a * mode
 
 
-def _flow(problem: Relaxable, tol: float, settings: RelaxSettings,
-          shift: float, history: list[float], its: int) -> tuple[bool, int, str]:
+def _flow(
+    problem: Relaxable, tol: float, settings: RelaxSettings, shift: float, history: list[float], its: int
+) -> tuple[bool, int, str]:
     """Shifted Newton steps with a line search on the merit until the decrement is small (True).
 
     Each step solves (J + s|diag J|) dx = −r with s at least what makes the matrix positive
@@ -154,9 +161,16 @@ def _flow(problem: Relaxable, tol: float, settings: RelaxSettings,
             problem.x[:] = x0
             shift = max(10.0 * shift, 1e-6)
             if shift > settings.max_shift:
-                return False, its, ("the descent ends where the material would turn inside out (det F <= 0): no "
-                                    "physical stable state was found at this clamp displacement" + _hint(problem)
-                                    if barrier else "no descent direction found in the relaxation")
+                return (
+                    False,
+                    its,
+                    (
+                        "the descent ends where the material would turn inside out (det F <= 0): no "
+                        "physical stable state was found at this clamp displacement" + _hint(problem)
+                        if barrier
+                        else "no descent direction found in the relaxation"
+                    ),
+                )
             continue
         log.debug("relaxation %d: shift %.3g, step %.3g, decrement %.3g, energy %.12g", its, shift, t, delta, E_new)
         r, E = r_new, E_new
@@ -164,9 +178,15 @@ def _flow(problem: Relaxable, tol: float, settings: RelaxSettings,
         if shift < settings.min_shift:
             shift = settings.min_shift
     if barrier:
-        return False, its, (f"no physical stable state was found within {settings.max_iterations} relaxation "
-                            "iterations: the descent kept meeting states where the material would turn inside "
-                            "out (det F <= 0)" + _hint(problem))
+        return (
+            False,
+            its,
+            (
+                f"no physical stable state was found within {settings.max_iterations} relaxation "
+                "iterations: the descent kept meeting states where the material would turn inside "
+                "out (det F <= 0)" + _hint(problem)
+            ),
+        )
     return False, its, f"no equilibrium within {settings.max_iterations} relaxation iterations"
 
 

@@ -42,21 +42,33 @@ def arclength_runner(problem: ContinuumSolver) -> Callable[[PathResult], Generat
     # an uncondensed saddle-point tangent has no stability test: no instability by eigenvalue then
     indefinite = indefinite_by_construction(problem)
     if indefinite and scene.solver.branch == "switch":
-        raise SceneError("solver.branch = 'switch' needs the critical mode, and the uncondensed saddle-point "
-                         "tangent (solver.condense = false) has no stability test: set solver.condense = true")
+        raise SceneError(
+            "solver.branch = 'switch' needs the critical mode, and the uncondensed saddle-point "
+            "tangent (solver.condense = false) has no stability test: set solver.condense = true"
+        )
 
     def run(res: PathResult) -> Generator[StepRecord, None, PathResult]:
         start_mm = problem.problem.lam * 1e3
         c = ctl
         if len(res.steps) >= 2:  # after displacement control: start with its last step
             h = res.steps[-1].u0 - res.steps[-2].u0
-            c = dataclasses.replace(ctl, first_step=h, max_step=min(ctl.max_step, 8 * h),
-                                    min_step=min(ctl.min_step, h / 64))
+            c = dataclasses.replace(
+                ctl, first_step=h, max_step=min(ctl.max_step, 8 * h), min_step=min(ctl.min_step, h / 64)
+            )
         found: list[Instability] = []
-        steps = Steps(arclength_steps(problem, c, problem.settings.newton, weights=problem.problem.weights,
-                                      length=scene.specimen.L, psi=psi,
-                                      lowest_eigenpair=None if indefinite else lambda: lowest_eigenpair(problem),
-                                      result=res, branch=scene.solver.branch))
+        steps = Steps(
+            arclength_steps(
+                problem,
+                c,
+                problem.settings.newton,
+                weights=problem.problem.weights,
+                length=scene.specimen.L,
+                psi=psi,
+                lowest_eigenpair=None if indefinite else lambda: lowest_eigenpair(problem),
+                result=res,
+                branch=scene.solver.branch,
+            )
+        )
         for rec in steps:
             found += rec.instabilities
             yield rec
@@ -73,8 +85,13 @@ def arclength_runner(problem: ContinuumSolver) -> Callable[[PathResult], Generat
             kinds = ", ".join(f"{i.kind} at {i.u0_mm:.4g} mm" for i in found) or "none detected"
             raise ConvergenceError(
                 f"arc-length continuation from {start_mm:.6g} mm did not reach {ctl.target * 1e3:.6g} mm "
-                f"(instabilities passed: {kinds})", res.u0 * 1e3, res.attempts, d.message(), d,
-                path_info=res.path_info)
+                f"(instabilities passed: {kinds})",
+                res.u0 * 1e3,
+                res.attempts,
+                d.message(),
+                d,
+                path_info=res.path_info,
+            )
         return res
 
     return run
@@ -93,18 +110,27 @@ def _path_info(problem: ContinuumSolver, found: list[Instability], start_mm: flo
     for ins in found:
         if ins.mode is not None and problem.problem.phi is not None:
             r, where = mode_constraint_ratio(problem, ins.mode)
-            ins.details.update(mode_ratio=r, mode_class="discretization" if r > DISCRETIZATION_MODE_RATIO
-                               else "continuum", mode_location_mm=list(where))
+            ins.details.update(
+                mode_ratio=r,
+                mode_class="discretization" if r > DISCRETIZATION_MODE_RATIO else "continuum",
+                mode_location_mm=list(where),
+            )
     scene = problem.problem.scene
-    info: dict[str, Any] = {"path_following": scene.solver.path_following, "arclength_from_mm": start_mm,
-                            "branch": scene.solver.branch,
-                            "instabilities": [i.as_dict(scene.specimen.t) for i in found]}
+    info: dict[str, Any] = {
+        "path_following": scene.solver.path_following,
+        "arclength_from_mm": start_mm,
+        "branch": scene.solver.branch,
+        "instabilities": [i.as_dict(scene.specimen.t) for i in found],
+    }
     # the mode pictured: that of the first switch to a bifurcated branch, else of the first instability
     switched = [i for i in found if i.details.get("branch") == "switched"]
     first = next((i for i in switched + found if i.mode is not None), None)
     if first is not None and first.mode is not None:
-        info[MODE_KEY] = (first.mode, "instability_mode",
-                          f"{first.kind} at u0 = {first.u0_mm:.4g} mm: lowest mode of the tangent")
+        info[MODE_KEY] = (
+            first.mode,
+            "instability_mode",
+            f"{first.kind} at u0 = {first.u0_mm:.4g} mm: lowest mode of the tangent",
+        )
         info["instability_mode_of"] = {"kind": first.kind, "u0_mm": first.u0_mm}
     problem.x[:] = saved
     return info

@@ -86,8 +86,10 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
                 if not hasattr(exc, "path_info"):  # raised while a step was written: the path attaches them
                     with contextlib.suppress(BaseException):
                         path.throw(exc)
-                exc.path_info = {**_solver_info(solver, None),  # type: ignore[attr-defined]
-                                 **snaps_in_units(getattr(exc, "path_info", {}), scene.specimen.t)}
+                exc.path_info = {  # type: ignore[attr-defined]
+                    **_solver_info(solver, None),
+                    **snaps_in_units(getattr(exc, "path_info", {}), scene.specimen.t),
+                }
                 raise
             except ConvergenceError as err:
                 _write_mode(solver, err.path_info, writer)
@@ -125,9 +127,17 @@ def load_path(problem: ContinuumSolver, scene: Scene) -> Generator[StepRecord, N
     arclength = None if scene.solver.path_following == "displacement" else arclength_runner(problem)
     # the picture frame's reaction test field follows the load (ContinuumProblem): the path gets none
     psi = None if problem.problem.frame else problem.problem.psi_u.vec.FV().NumPy().copy()
-    return load_steps(problem, problem.settings.path, problem.settings.newton,
-                      hessian=problem if problem.can_relax else None, watch=problem.problem, locate=problem.problem,
-                      diagnose=lambda: _diagnose(problem), psi=psi, arclength=arclength)
+    return load_steps(
+        problem,
+        problem.settings.path,
+        problem.settings.newton,
+        hessian=problem if problem.can_relax else None,
+        watch=problem.problem,
+        locate=problem.problem,
+        diagnose=lambda: _diagnose(problem),
+        psi=psi,
+        arclength=arclength,
+    )
 
 
 def _diagnose(problem: ContinuumSolver) -> Any:
@@ -137,11 +147,17 @@ def _diagnose(problem: ContinuumSolver) -> Any:
 
 
 def _setup_info(solver: ContinuumSolver, t_setup: float) -> dict[str, Any]:
-    return {"model": "continuum", "dofs": solver.ndofs(), "linear_solver": solver.linear.inverse_type,
-            "stabilization_K_Pa": list(solver.problem.K_s_range), "condensed": solver.linear.condensed,
-            "setup_s": t_setup, "compile_mode": solver.compile_mode,
-            "threads": ngs.GetNumThreads(),
-            "assembly_threads": assembly_thread_count()}
+    return {
+        "model": "continuum",
+        "dofs": solver.ndofs(),
+        "linear_solver": solver.linear.inverse_type,
+        "stabilization_K_Pa": list(solver.problem.K_s_range),
+        "condensed": solver.linear.condensed,
+        "setup_s": t_setup,
+        "compile_mode": solver.compile_mode,
+        "threads": ngs.GetNumThreads(),
+        "assembly_threads": assembly_thread_count(),
+    }
 
 
 def _order_warnings(scene: Scene) -> list[str]:
@@ -150,8 +166,10 @@ def _order_warnings(scene: Scene) -> list[str]:
     if scene.effects.bending and scene.discretization.p_u == 1:
         # measured, default scene at 37 mm: 84.4, 80.3, 76.3 N on h = 10, 5, 2.5 mm against 61.2 N
         # (p = 2, 3 extrapolated), with ‖Λ‖ doubling at each refinement: P1 locks
-        warnings.append("order_u = 1 locks under the constraint phi = i8 (the force converges very slowly "
-                        "from above and the multiplier grows like 1/h); use order_u >= 2")
+        warnings.append(
+            "order_u = 1 locks under the constraint phi = i8 (the force converges very slowly "
+            "from above and the multiplier grows like 1/h); use order_u >= 2"
+        )
         log.warning("%s", warnings[-1])
     return warnings
 
@@ -166,8 +184,11 @@ class _StepWriter:
         sp, ld = problem.scene.specimen, problem.scene.loading
         pf = problem.scene.picture_frame
         self.zones = None if problem.frame else obs.ZoneShearMeans(problem)
-        self.bet = (PictureFrameColumns(pf.frame_mm, pf.fabric_mm) if problem.frame
-                    else BetColumns(sp.length_mm, sp.width_mm, sp.yarn_angle_deg))
+        self.bet = (
+            PictureFrameColumns(pf.frame_mm, pf.fabric_mm)
+            if problem.frame
+            else BetColumns(sp.length_mm, sp.width_mm, sp.yarn_angle_deg)
+        )
         # the map's stations: the load stops and the final load
         self.stations = (*ld.stops_mm, ld.u0_mm)
         self.t_prev = time.perf_counter()
@@ -226,9 +247,15 @@ class _StepWriter:
         return row
 
 
-def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, res: PathResult,
-            info: dict[str, Any], warnings: list[str], draw: Callable[[Path], Callable[[], Path | None]]
-            ) -> dict[str, Any]:
+def _finish(
+    solver: ContinuumSolver,
+    scene: Scene,
+    writer: RunWriter,
+    res: PathResult,
+    info: dict[str, Any],
+    warnings: list[str],
+    draw: Callable[[Path], Callable[[], Path | None]],
+) -> dict[str, Any]:
     """Final fields, statistics, the multiplier check, summary and plot.
 
     results.csv is complete here, so the plot is asked for first and drawn (by the plot process)
@@ -248,8 +275,9 @@ def _finish(solver: ContinuumSolver, scene: Scene, writer: RunWriter, res: PathR
     return summary
 
 
-def _final_files(solver: ContinuumSolver, scene: Scene, writer: RunWriter, res: PathResult,
-                 info: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
+def _final_files(
+    solver: ContinuumSolver, scene: Scene, writer: RunWriter, res: PathResult, info: dict[str, Any], warnings: list[str]
+) -> dict[str, Any]:
     """Final fields, statistics, the multiplier check and the summary."""
     problem = solver.problem
     if scene.outputs.vtk:
@@ -258,9 +286,11 @@ def _final_files(solver: ContinuumSolver, scene: Scene, writer: RunWriter, res: 
     problem.inverted_allowed = 0.0
     inverted = problem.admissible()
     if inverted:  # the energy has no barrier against it: say so rather than report the state as physical
-        warnings.append(f"at the final load {inverted}: the yarn invariants do not see the orientation of the "
-                        "material, so the model lets the specimen fold over itself there; the force there is "
-                        "not that of a physical state")
+        warnings.append(
+            f"at the final load {inverted}: the yarn invariants do not see the orientation of the "
+            "material, so the model lets the specimen fold over itself there; the force there is "
+            "not that of a physical state"
+        )
         log.warning("%s", warnings[-1])
     info["warnings"] = warnings
     osc = obs.multiplier_oscillation(problem)
@@ -273,14 +303,20 @@ def _final_files(solver: ContinuumSolver, scene: Scene, writer: RunWriter, res: 
                 why = "the pointwise penalty locks (use effects.constraint = 'lagrange' or penalty_form = 'mixed')"
             elif problem.p_lam == max(disc.p_u - 2, 0) and disc.p_phi == disc.p_u and disc.p_u >= 2:
                 # measured on a Twintex fabric scene at its final load: 0.86, 0.60, 0.42 on h = 25, 12.5, 6.25 mm
-                why = (f"the orders {orders} are the stable pair, whose oscillation falls as the mesh is refined: "
-                       f"the mesh (h = {disc.mesh_size_mm:g} mm) is too coarse to resolve the multiplier "
-                       "(the force and the displacements do not need it)")
+                why = (
+                    f"the orders {orders} are the stable pair, whose oscillation falls as the mesh is refined: "
+                    f"the mesh (h = {disc.mesh_size_mm:g} mm) is too coarse to resolve the multiplier "
+                    "(the force and the displacements do not need it)"
+                )
             else:
-                why = (f"the orders {orders} are not a stable pair (order_phi and order_lam = 'auto' give one for "
-                       "order_u >= 2)")
-            warnings.append(f"the multiplier oscillates (‖Λ − ΠΛ‖/‖Λ‖ = {osc:.2f} away from the clamps, Π the L2 "
-                            f"projection onto continuous fields): {why}")
+                why = (
+                    f"the orders {orders} are not a stable pair (order_phi and order_lam = 'auto' give one for "
+                    "order_u >= 2)"
+                )
+            warnings.append(
+                f"the multiplier oscillates (‖Λ − ΠΛ‖/‖Λ‖ = {osc:.2f} away from the clamps, Π the L2 "
+                f"projection onto continuous fields): {why}"
+            )
             # the stable pair on a coarse mesh needs no action (force and displacements are fine): summary.json only
             (log.info if "do not need it" in why else log.warning)("%s", warnings[-1])
     return writer.summary(info, "ok")
@@ -293,13 +329,21 @@ def snaps_in_units(path_info: dict[str, Any], t: float) -> dict[str, Any]:
         return path_info
     out = []
     for s in snaps:
-        out.append({"u0_mm": s["u0_mm"], "u0_before_mm": s["u0_before_mm"],
-                    "force_before_N": s["reaction_before"] * t, "force_after_N": s["reaction_after"] * t,
-                    "energy_released_J": s["released"] * t, "clamp_work_J": s["work"] * t,
-                    "energy_before_J": s["energy_before"] * t, "energy_after_J": s["energy_after"] * t,
-                    "lowest_eigenvalue_after": s["lowest_eigenvalue_after"],
-                    "relaxation_iterations": s["relaxation_iterations"],
-                    **{k: s[k] for k in ("location_mm", "spread_mm", "max_du_mm") if k in s}})
+        out.append(
+            {
+                "u0_mm": s["u0_mm"],
+                "u0_before_mm": s["u0_before_mm"],
+                "force_before_N": s["reaction_before"] * t,
+                "force_after_N": s["reaction_after"] * t,
+                "energy_released_J": s["released"] * t,
+                "clamp_work_J": s["work"] * t,
+                "energy_before_J": s["energy_before"] * t,
+                "energy_after_J": s["energy_after"] * t,
+                "lowest_eigenvalue_after": s["lowest_eigenvalue_after"],
+                "relaxation_iterations": s["relaxation_iterations"],
+                **{k: s[k] for k in ("location_mm", "spread_mm", "max_du_mm") if k in s},
+            }
+        )
     return {**path_info, "snaps": out}
 
 
@@ -310,10 +354,9 @@ def _solver_info(solver: ContinuumSolver, res: PathResult | None) -> dict[str, A
         d["load_steps"] = len(res.steps)
         d["step_cuts"] = res.cuts
         chord = sum(s.iterations for s in res.steps if "(chord)" in s.reason)  # the grid rows' (chord module)
-        d["newton_iterations"] = sum(s.iterations for s in res.steps) - chord + sum(
-            a.iterations for a in res.attempts if not a.converged)
+        d["newton_iterations"] = (
+            sum(s.iterations for s in res.steps) - chord + sum(a.iterations for a in res.attempts if not a.converged)
+        )
         if chord:
             d["chord_iterations"] = chord
     return d
-
-

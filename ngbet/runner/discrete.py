@@ -63,13 +63,22 @@ def step_row(model: NetworkModel, info: StepRecord, u: np.ndarray, scene: Scene)
         parts = model.energy_parts(u)
         row["energy_J"] = info.energy
         row.update({f"energy_{k}_J": parts[k] for k in ENERGY_PARTS})
-    row.update({"newton_iterations": info.iterations, "step_wall_s": round(info.wall_s, 4),
-                "max_slip_mm": float(slip.max(initial=0.0)) * 1e3,
-                "gamma_centre_deg": math.degrees(ob.centre_mean(net, gc)),
-                "gamma_A_deg": np.degrees(gz["A"]), "gamma_B_deg": np.degrees(gz["B"]),
-                "gamma_C_deg": np.degrees(gz["C"]), "gamma_A_ideal_deg": np.degrees(g_ideal),
-                "gamma_B_ideal_deg": np.degrees(g_ideal) / 2, "lambda_min": info.lambda_min, "snap": int(info.snap),
-                "released_J": info.released})
+    row.update(
+        {
+            "newton_iterations": info.iterations,
+            "step_wall_s": round(info.wall_s, 4),
+            "max_slip_mm": float(slip.max(initial=0.0)) * 1e3,
+            "gamma_centre_deg": math.degrees(ob.centre_mean(net, gc)),
+            "gamma_A_deg": np.degrees(gz["A"]),
+            "gamma_B_deg": np.degrees(gz["B"]),
+            "gamma_C_deg": np.degrees(gz["C"]),
+            "gamma_A_ideal_deg": np.degrees(g_ideal),
+            "gamma_B_ideal_deg": np.degrees(g_ideal) / 2,
+            "lambda_min": info.lambda_min,
+            "snap": int(info.snap),
+            "released_J": info.released,
+        }
+    )
     return row
 
 
@@ -108,14 +117,21 @@ def run_discrete(scene: Scene, out: str | Path, progress: bool = True, measured:
         log.info("discrete network: %s", net.counts())
         ctl = step_control(scene)
         rec = _Recorder(scene, model, writer, out, tuple(s * 1e-3 for s in scene.loading.stops_mm))
-        info: dict[str, Any] = {"model": "discrete", "network": net.counts(), "dofs": model.n_dofs,
-                                "free_dofs": int((~model.fixed).sum()), "t_build_s": t_build,
-                                "threads": scene.solver.threads}
+        info: dict[str, Any] = {
+            "model": "discrete",
+            "network": net.counts(),
+            "dofs": model.n_dofs,
+            "free_dofs": int((~model.fixed).sum()),
+            "t_build_s": t_build,
+            "threads": scene.solver.threads,
+        }
         failure = None
         res = PathResult(0.0)  # its path_info: the solver's statistics as of the last step
         # closed on the way out: the solver's hold on the BLAS threads ends with the path
-        with progress_bar(progress, ctl.path.target * 1e3, "discrete BET") as bar, \
-                contextlib.closing(load_steps(model, ctl, res)) as steps:
+        with (
+            progress_bar(progress, ctl.path.target * 1e3, "discrete BET") as bar,
+            contextlib.closing(load_steps(model, ctl, res)) as steps,
+        ):
             try:
                 for step in steps:
                     assert step.state is not None
@@ -129,14 +145,16 @@ def run_discrete(scene: Scene, out: str | Path, progress: bool = True, measured:
                 raise
             except ConvergenceError as exc:
                 failure = exc
-                stats = {**exc.path_info, "last_converged_u0_mm": exc.last_converged_mm,
-                         "attempted_u0_mm": exc.attempts[-1].u0_to * 1e3 if exc.attempts else math.nan,
-                         "residual_history": exc.attempts[-1].history if exc.attempts else []}
+                stats = {
+                    **exc.path_info,
+                    "last_converged_u0_mm": exc.last_converged_mm,
+                    "attempted_u0_mm": exc.attempts[-1].u0_to * 1e3 if exc.attempts else math.nan,
+                    "residual_history": exc.attempts[-1].history if exc.attempts else [],
+                }
         rec.final_snapshot()
         info.update(_run_info(stats, writer.rows))
         info["t_solve_s"] = time.perf_counter() - t0 - t_build
-        summary = writer.summary(info, "ok" if failure is None else "failed",
-                                 None if failure is None else str(failure))
+        summary = writer.summary(info, "ok" if failure is None else "failed", None if failure is None else str(failure))
         if scene.outputs.plot and writer.rows:
             writer.plot(functools.partial(start_plot, measured=measured))()
         if failure is not None:
@@ -148,8 +166,13 @@ def _run_info(stats: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, An
     """The summary's solver statistics and totals over the written rows."""
     info = dict(stats)
     # the solver's loads are in m; the summary's, like every other load ngbet reports, in mm
-    info["snap_events"] = [{(f"{k}_mm" if k in ("u0", "u0_before") else k): (v * 1e3 if k in ("u0", "u0_before") else v)
-                            for k, v in e.items()} for e in stats.get("snap_events", [])]
+    info["snap_events"] = [
+        {
+            (f"{k}_mm" if k in ("u0", "u0_before") else k): (v * 1e3 if k in ("u0", "u0_before") else v)
+            for k, v in e.items()
+        }
+        for e in stats.get("snap_events", [])
+    ]
     info["snap_event_count"] = len(stats.get("snap_events", []))
     info["newton_iterations_total"] = int(sum(r["newton_iterations"] for r in rows))
     info["max_slip_mm"] = max((r["max_slip_mm"] for r in rows), default=0.0)
@@ -159,8 +182,9 @@ def _run_info(stats: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, An
 class _Recorder:
     """Writes each converged step (row, profile) and the states at the stops and at the end."""
 
-    def __init__(self, scene: Scene, model: NetworkModel, writer: RunWriter, out: Path,
-                 stops: tuple[float, ...]) -> None:
+    def __init__(
+        self, scene: Scene, model: NetworkModel, writer: RunWriter, out: Path, stops: tuple[float, ...]
+    ) -> None:
         self.scene, self.model, self.writer, self.out, self.stops = scene, model, writer, out, stops
         self.last_u: np.ndarray = np.zeros(model.n_dofs)
         self.last_u0 = 0.0
@@ -202,8 +226,9 @@ class _Recorder:
         self.pictures.clear()
 
 
-def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: Any = None,
-               scale_over: Any = None) -> None:
+def plot_state(
+    path: str | Path, net: Network, u: np.ndarray, u0: float, scene: Any = None, scale_over: Any = None
+) -> None:
     """PNG of the deformed yarns coloured by the shear angle γ (:func:`ngbet.figures.maps.yarn_network_figure`).
 
     γ is 0 at rest, the convention of the continuum's maps; ``scene`` names specimen and network in the caption;
@@ -220,6 +245,7 @@ def plot_state(path: str | Path, net: Network, u: np.ndarray, u0: float, scene: 
     x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3
     seg_ang = ob.segment_gamma_deg(net, u)
     with in_style():
-        fig = yarn_network_figure(x, net.beams, net.beam_family, seg_ang, x[net.node_end > 0], u0 * 1e3, scene,
-                                  scale_over=scale_over)
+        fig = yarn_network_figure(
+            x, net.beams, net.beam_family, seg_ang, x[net.node_end > 0], u0 * 1e3, scene, scale_over=scale_over
+        )
         fig.savefig(path, dpi=PNG_DPI)

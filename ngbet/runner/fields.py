@@ -43,15 +43,23 @@ def write_vtk(problem: Any, path: Path) -> Path:
     funcs = obs.field_functions(problem, problem.scene.outputs.fields)
     u = funcs.pop("displacement")
     coefs = {"displacement": ngs.CF((MM * u[0], MM * u[1], 0.0)), **funcs}
-    ngs.VTKOutput(problem.mesh, coefs=list(coefs.values()), names=list(coefs), filename=str(path),
-                  subdivision=vtk_subdivision(problem.scene.discretization.p_u), legacy=False).Do()
+    ngs.VTKOutput(
+        problem.mesh,
+        coefs=list(coefs.values()),
+        names=list(coefs),
+        filename=str(path),
+        subdivision=vtk_subdivision(problem.scene.discretization.p_u),
+        legacy=False,
+    ).Do()
     vtu = Path(str(path) + ".vtu")
     scale_points(vtu, MM)
     return vtu
 
 
-_POINTS = re.compile(rb'<Points>\s*<DataArray type="Float64" Name="Points" NumberOfComponents="3" '
-                     rb'format="appended" offset="(\d+)"')
+_POINTS = re.compile(
+    rb'<Points>\s*<DataArray type="Float64" Name="Points" NumberOfComponents="3" '
+    rb'format="appended" offset="(\d+)"'
+)
 
 
 def scale_points(vtu: Path, factor: float) -> None:
@@ -67,7 +75,7 @@ def scale_points(vtu: Path, factor: float) -> None:
     nbytes = int(np.frombuffer(data, dtype=header, count=1, offset=base)[0])
     first = base + np.dtype(header).itemsize
     xyz = np.frombuffer(data, dtype="<f8", count=nbytes // 8, offset=first) * factor
-    data[first:first + nbytes] = xyz.astype("<f8").tobytes()
+    data[first : first + nbytes] = xyz.astype("<f8").tobytes()
     vtu.write_bytes(bytes(data))
 
 
@@ -92,8 +100,14 @@ def write_mode(solver: TangentSolver, mode: np.ndarray, path: Path, title: str =
     coefs = {"mode_displacement": ngs.CF((MM * scale * du[0], MM * scale * du[1], 0.0))}
     if problem.phi is not None:
         coefs["mode_phi"] = scale * gf.components[1]
-    ngs.VTKOutput(problem.mesh, coefs=list(coefs.values()), names=list(coefs), filename=str(path),
-                  subdivision=vtk_subdivision(problem.scene.discretization.p_u), legacy=False).Do()
+    ngs.VTKOutput(
+        problem.mesh,
+        coefs=list(coefs.values()),
+        names=list(coefs),
+        filename=str(path),
+        subdivision=vtk_subdivision(problem.scene.discretization.p_u),
+        legacy=False,
+    ).Do()
     vtu = Path(str(path) + ".vtu")
     scale_points(vtu, MM)
     written = [vtu]

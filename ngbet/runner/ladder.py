@@ -18,8 +18,16 @@ from ..numerics.engine import time_budget
 from ..scene.document import Scene
 from ..scene.validate import AUTO
 
-__all__ = ["EXPECTED_MARGIN", "LADDER", "RUNG_BUDGET_FACTOR", "RUNG_BUDGET_MIN_S", "Rung", "first_rung",
-           "reachable_accuracy", "run_to_accuracy"]
+__all__ = [
+    "EXPECTED_MARGIN",
+    "LADDER",
+    "RUNG_BUDGET_FACTOR",
+    "RUNG_BUDGET_MIN_S",
+    "Rung",
+    "first_rung",
+    "reachable_accuracy",
+    "run_to_accuracy",
+]
 
 log = logging.getLogger(__name__)
 
@@ -36,11 +44,20 @@ class Rung:
 
     def apply(self, scene: Scene) -> Scene:
         """``scene`` on this rung's discretization, with the estimate at the final load."""
-        d = dataclasses.replace(scene.discretization, mesh_size_mm=self.mesh_size_mm, order_u=self.order_u,
-                                order_phi=AUTO, order_lam=AUTO, corner_mesh_size_mm=self.corner_mesh_size_mm,
-                                corner_bisections=0, structured=False, target_error=0.0)
-        return dataclasses.replace(scene, discretization=d,
-                                   outputs=dataclasses.replace(scene.outputs, error_estimate="final"))
+        d = dataclasses.replace(
+            scene.discretization,
+            mesh_size_mm=self.mesh_size_mm,
+            order_u=self.order_u,
+            order_phi=AUTO,
+            order_lam=AUTO,
+            corner_mesh_size_mm=self.corner_mesh_size_mm,
+            corner_bisections=0,
+            structured=False,
+            target_error=0.0,
+        )
+        return dataclasses.replace(
+            scene, discretization=d, outputs=dataclasses.replace(scene.outputs, error_estimate="final")
+        )
 
 
 #: Candidate discretizations, cheapest first, all graded to 0.25 mm at the clamp corners: h = 10 mm
@@ -50,9 +67,19 @@ class Rung:
 #: Expected errors: the paper's scene at 56 mm against the reference 107.2365 N
 #: (ngbet.studies.reference). Finer corners reach 56 mm but cost more for the same accuracy (the
 #: rungs' times and the finer corners' results: docs/numerics.md).
-LADDER = tuple(Rung(h, 0.25, p, e) for h, p, e in (
-    (10.0, 2, 1.6e-3), (10.0, 3, 1.3e-3), (20.0, 4, 6.7e-4), (20.0, 5, 3.5e-4), (20.0, 6, 1.8e-4),
-    (20.0, 8, 6.5e-5), (20.0, 10, 2.5e-5), (10.0, 8, 6.9e-5)))
+LADDER = tuple(
+    Rung(h, 0.25, p, e)
+    for h, p, e in (
+        (10.0, 2, 1.6e-3),
+        (10.0, 3, 1.3e-3),
+        (20.0, 4, 6.7e-4),
+        (20.0, 5, 3.5e-4),
+        (20.0, 6, 1.8e-4),
+        (20.0, 8, 6.5e-5),
+        (20.0, 10, 2.5e-5),
+        (10.0, 8, 6.9e-5),
+    )
+)
 #: a rung is expected to meet a target if its error is below this fraction of it: the estimate
 #: (θ |F_p − F_p+1|, the differences shrinking by 0.5–0.7 per order) is 0.75–1.25 times the error,
 #: so that 0.7 of the target leaves the estimate below it
@@ -114,13 +141,15 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     best_reachable = reachable_accuracy()
     if target < best_reachable:
         finest = min(LADDER, key=lambda r: r.expected_error)
-        raise SceneError(f"discretization.target_error = {target:g} is below what ngbet can reach: the best "
-                         f"reachable accuracy is about {best_reachable:.2g} (h = {finest.mesh_size_mm:g} mm, "
-                         f"corners {finest.corner_mesh_size_mm:g} mm, p = {finest.order_u}, measured on the "
-                         f"paper's scene); ask for {best_reachable:.1g} or more")
+        raise SceneError(
+            f"discretization.target_error = {target:g} is below what ngbet can reach: the best "
+            f"reachable accuracy is about {best_reachable:.2g} (h = {finest.mesh_size_mm:g} mm, "
+            f"corners {finest.corner_mesh_size_mm:g} mm, p = {finest.order_u}, measured on the "
+            f"paper's scene); ask for {best_reachable:.1g} or more"
+        )
     attempts: list[dict[str, Any]] = []
     summary: dict[str, Any] = {}
-    rungs = LADDER[first_rung(target):]
+    rungs = LADDER[first_rung(target) :]
     best: tuple[float, int] | None = None  # (estimated error, index in attempts)
     stalled = ""
     failed_meshes: set[tuple[float, float]] = set()  # meshes on which a setting did not carry the load
@@ -129,9 +158,17 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
         mesh = (rung.mesh_size_mm, rung.corner_mesh_size_mm)
         if mesh in failed_meshes and k < len(rungs) - 1:
             log.warning("%s: skipped (a lower order on the same mesh did not carry the load)", rung)
-            attempts.append({"discretization": dataclasses.asdict(rung), "force_error_rel": math.nan,
-                             "force_N": None, "wall_s": 0.0, "solve_s": 0.0, "estimate_s": None,
-                             "failed": "skipped: a lower order on the same mesh did not carry the load"})
+            attempts.append(
+                {
+                    "discretization": dataclasses.asdict(rung),
+                    "force_error_rel": math.nan,
+                    "force_N": None,
+                    "wall_s": 0.0,
+                    "solve_s": 0.0,
+                    "estimate_s": None,
+                    "failed": "skipped: a lower order on the same mesh did not carry the load",
+                }
+            )
             continue
         t0 = time.perf_counter()
         budget = max(RUNG_BUDGET_MIN_S, RUNG_BUDGET_FACTOR * last_wall)
@@ -144,23 +181,40 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
             log.warning("%s: %s; trying the next setting", rung, str(e).splitlines()[0])
             wall = last_wall = time.perf_counter() - t0
             failed_meshes.add(mesh)
-            attempts.append({"discretization": dataclasses.asdict(rung), "force_error_rel": math.nan,
-                             "force_N": None, "wall_s": wall, "solve_s": wall, "estimate_s": None,
-                             "failed": str(e).splitlines()[0]})
+            attempts.append(
+                {
+                    "discretization": dataclasses.asdict(rung),
+                    "force_error_rel": math.nan,
+                    "force_N": None,
+                    "wall_s": wall,
+                    "solve_s": wall,
+                    "estimate_s": None,
+                    "failed": str(e).splitlines()[0],
+                }
+            )
             continue
         last_wall = time.perf_counter() - t0
         rel = summary.get("force_error_rel")
         rel = math.nan if rel is None else rel
-        attempts.append({"discretization": dataclasses.asdict(rung), "force_error_rel": rel,
-                         "force_N": summary.get("force_N"), "wall_s": time.perf_counter() - t0,
-                         "solve_s": summary.get("solve_s"), "estimate_s": summary.get("estimate_s")})
+        attempts.append(
+            {
+                "discretization": dataclasses.asdict(rung),
+                "force_error_rel": rel,
+                "force_N": summary.get("force_N"),
+                "wall_s": time.perf_counter() - t0,
+                "solve_s": summary.get("solve_s"),
+                "estimate_s": summary.get("estimate_s"),
+            }
+        )
         if math.isfinite(rel) and rel <= target:
             best = (rel, len(attempts) - 1)
             break
         if best is not None and not (math.isfinite(rel) and rel < best[0]):
             prev = attempts[best[1]]["discretization"]
-            stalled = (f"p = {rung.order_u} (h = {rung.mesh_size_mm:g} mm) estimates {rel:.2g}, no better than "
-                       f"{best[0]:.2g} at p = {prev['order_u']} (h = {prev['mesh_size_mm']:g} mm)")
+            stalled = (
+                f"p = {rung.order_u} (h = {rung.mesh_size_mm:g} mm) estimates {rel:.2g}, no better than "
+                f"{best[0]:.2g} at p = {prev['order_u']} (h = {prev['mesh_size_mm']:g} mm)"
+            )
             break
         if math.isfinite(rel) and (best is None or rel < best[0]):
             best = (rel, len(attempts) - 1)
@@ -172,16 +226,25 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
         attempts[best[1]]["rerun_s"] = time.perf_counter() - t0
     chosen = attempts[best[1]] if best is not None else attempts[-1]
     met = bool(best is not None and best[0] <= target)
-    summary["accuracy"] = {"target_error": target, "met": met, "chosen": chosen["discretization"],
-                           "attempts": attempts, "wall_s": sum(a["wall_s"] + a.get("rerun_s", 0.0) for a in attempts),
-                           "solve_s": sum(a["solve_s"] or 0.0 for a in attempts)}
+    summary["accuracy"] = {
+        "target_error": target,
+        "met": met,
+        "chosen": chosen["discretization"],
+        "attempts": attempts,
+        "wall_s": sum(a["wall_s"] + a.get("rerun_s", 0.0) for a in attempts),
+        "solve_s": sum(a["solve_s"] or 0.0 for a in attempts),
+    }
     msg = ""
     if not met:
-        why = stalled or (f"the finest setting ngbet offers estimates {chosen['force_error_rel']:.2g}"
-                          if math.isfinite(chosen["force_error_rel"]) else "no setting gave an error estimate")
+        why = stalled or (
+            f"the finest setting ngbet offers estimates {chosen['force_error_rel']:.2g}"
+            if math.isfinite(chosen["force_error_rel"])
+            else "no setting gave an error estimate"
+        )
         msg = f"discretization.target_error = {target:g} not reached: {why}"
         summary["status"], summary["error"] = "failed", msg
         log.warning("%s", msg)
-        raise ConvergenceError(msg, float(summary.get("u0_reached_mm", scene.loading.u0_mm)),
-                               path_info={"accuracy": summary["accuracy"]})
+        raise ConvergenceError(
+            msg, float(summary.get("u0_reached_mm", scene.loading.u0_mm)), path_info={"accuracy": summary["accuracy"]}
+        )
     return summary

@@ -26,9 +26,15 @@ from .threads import ngsolve_threads
 __all__ = ["finite_difference", "force_path"]
 
 
-def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str] = (),
-               profile: dict[float, np.ndarray] | None = None, mesh: Any = None,
-               angles: Sequence[float] = (), estimate: bool = False) -> ForcePath:
+def force_path(
+    scene: Scene,
+    u_mm: Sequence[float] | np.ndarray,
+    params: Sequence[str] = (),
+    profile: dict[float, np.ndarray] | None = None,
+    mesh: Any = None,
+    angles: Sequence[float] = (),
+    estimate: bool = False,
+) -> ForcePath:
     """The force at each of ``u_mm`` and its derivatives dF/d ln p for the material keys ``params``.
 
     ``scene`` (continuum) runs with a load step landing on each of ``u_mm``; ``params`` are keys
@@ -48,13 +54,20 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     scene = scene.with_changes(**{"loading.u0_mm": float(u[-1]), "loading.stops_mm": list(u[:-1])})
     # displacement control landing on each load asked for (no output grid)
     settings = solver_settings(scene)
-    path = dataclasses.replace(settings.path, stops=tuple(s * 1e-3 for s in u), chord_at=(),
-                               path_following="displacement")
+    path = dataclasses.replace(
+        settings.path, stops=tuple(s * 1e-3 for s in u), chord_at=(), path_following="displacement"
+    )
     with ngsolve_threads(scene):
         solver = ContinuumSolver(ContinuumProblem(scene, mesh), settings)
         rec = Recorder(solver, names, profile, [float(v) for v in u_mm if v > 0], angles, estimate)
-        for step in load_steps(solver, path, settings.newton, hessian=solver if solver.can_relax else None,
-                               watch=solver.problem, locate=solver.problem):
+        for step in load_steps(
+            solver,
+            path,
+            settings.newton,
+            hessian=solver if solver.can_relax else None,
+            watch=solver.problem,
+            locate=solver.problem,
+        ):
             rec(step)
     keys = np.array(sorted(rec.rows))
     # the force (and its derivatives) at each requested load, in the caller's order, repeats
@@ -67,15 +80,26 @@ def force_path(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequenc
     err = None
     if estimate:
         ekeys = np.array(sorted(rec.errors)) if rec.errors else np.zeros(1)
-        err = np.array([rec.errors.get(float(ekeys[int(np.argmin(np.abs(ekeys - v)))]), math.nan) if v > 0 else 0.0
-                        for v in want])
+        err = np.array(
+            [rec.errors.get(float(ekeys[int(np.argmin(np.abs(ekeys - v)))]), math.nan) if v > 0 else 0.0 for v in want]
+        )
     angles_deg = {float(a): rec.angles[float(a)] for a in angles if float(a) in rec.angles}
-    return ForcePath(want, F, D, float(keys[-1]) if len(keys) else 0.0, rec.profiles, rec.profile_dlogp, err,
-                     angles_deg, rec.angle_dlogp)
+    return ForcePath(
+        want,
+        F,
+        D,
+        float(keys[-1]) if len(keys) else 0.0,
+        rec.profiles,
+        rec.profile_dlogp,
+        err,
+        angles_deg,
+        rec.angle_dlogp,
+    )
 
 
-def finite_difference(scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str],
-                      rel_step: float = 1e-4) -> np.ndarray:
+def finite_difference(
+    scene: Scene, u_mm: Sequence[float] | np.ndarray, params: Sequence[str], rel_step: float = 1e-4
+) -> np.ndarray:
     """The derivatives dF/d ln p by central differences of :func:`force_path` (2 runs per parameter).
 
     The check of the implicit derivative, and its cost to compare with.

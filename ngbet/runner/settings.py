@@ -18,8 +18,15 @@ from ..numerics.engine import PathControl
 from ..numerics.settings import LinearSettings, NewtonSettings, PathSettings, SolverSettings
 from ..scene.document import Scene
 
-__all__ = ["arclength_settings", "continuum_solver", "linear_settings", "newton_settings", "path_settings",
-           "solver_settings", "step_control"]
+__all__ = [
+    "arclength_settings",
+    "continuum_solver",
+    "linear_settings",
+    "newton_settings",
+    "path_settings",
+    "solver_settings",
+    "step_control",
+]
 
 
 def newton_settings(scene: Scene) -> NewtonSettings:
@@ -41,10 +48,19 @@ def path_settings(scene: Scene) -> PathSettings:
     """
     L, s = scene.loading, scene.solver
     grid = tuple(x * 1e-3 for x in L.path_stops_mm if x not in L.stops_mm)
-    return PathSettings(target=L.u0_mm * 1e-3, first_step=L.first_step_mm * 1e-3, max_step=L.max_step_mm * 1e-3,
-                        min_step=L.min_step_mm * 1e-3, growth=s.growth, cut=s.cut, grow_after=s.grow_after,
-                        stops=tuple(x * 1e-3 for x in L.path_stops_mm), chord_at=grid, length=scene.specimen.L,
-                        path_following=s.path_following)
+    return PathSettings(
+        target=L.u0_mm * 1e-3,
+        first_step=L.first_step_mm * 1e-3,
+        max_step=L.max_step_mm * 1e-3,
+        min_step=L.min_step_mm * 1e-3,
+        growth=s.growth,
+        cut=s.cut,
+        grow_after=s.grow_after,
+        stops=tuple(x * 1e-3 for x in L.path_stops_mm),
+        chord_at=grid,
+        length=scene.specimen.L,
+        path_following=s.path_following,
+    )
 
 
 def solver_settings(scene: Scene) -> SolverSettings:
@@ -60,9 +76,16 @@ def continuum_solver(problem: ContinuumProblem) -> ContinuumSolver:
 def arclength_settings(scene: Scene) -> ArcLengthSettings:
     """The arc length's step control of ``scene``: the load path's, landing on the stops (not the output grid)."""
     path = path_settings(scene)
-    return ArcLengthSettings(target=path.target, first_step=path.first_step, max_step=path.max_step,
-                             min_step=path.min_step, growth=path.growth, cut=path.cut, grow_after=path.grow_after,
-                             stops=tuple(s * 1e-3 for s in scene.loading.stops_mm))
+    return ArcLengthSettings(
+        target=path.target,
+        first_step=path.first_step,
+        max_step=path.max_step,
+        min_step=path.min_step,
+        growth=path.growth,
+        cut=path.cut,
+        grow_after=path.grow_after,
+        stops=tuple(s * 1e-3 for s in scene.loading.stops_mm),
+    )
 
 
 def step_control(scene: Scene) -> StepControl:
@@ -73,9 +96,22 @@ def step_control(scene: Scene) -> StepControl:
     """
     ld, so, d = scene.loading, scene.solver, scene.discrete
     max_step = min(ld.max_step_mm, d.max_step_mm)
-    path = PathControl(target=ld.u0_mm * 1e-3, first_step=min(ld.first_step_mm, d.first_step_mm) * 1e-3,
-                       max_step=max_step * 1e-3, min_step=ld.min_step_mm * 1e-3, growth=so.growth, cut=so.cut,
-                       grow_after=so.grow_after, stops=tuple(s * 1e-3 for s in ld.path_stops_mm))
-    return StepControl(path=path, rtol=so.rtol, atol=so.atol_energy, max_iterations=so.max_iterations,
-                       predictor=so.predictor, backend=so.linear_solver,
-                       snap_bracket=min(max(4 * ld.min_step_mm, 1.0), max_step) * 1e-3)
+    path = PathControl(
+        target=ld.u0_mm * 1e-3,
+        first_step=min(ld.first_step_mm, d.first_step_mm) * 1e-3,
+        max_step=max_step * 1e-3,
+        min_step=ld.min_step_mm * 1e-3,
+        growth=so.growth,
+        cut=so.cut,
+        grow_after=so.grow_after,
+        stops=tuple(s * 1e-3 for s in ld.path_stops_mm),
+    )
+    return StepControl(
+        path=path,
+        rtol=so.rtol,
+        atol=so.atol_energy,
+        max_iterations=so.max_iterations,
+        predictor=so.predictor,
+        backend=so.linear_solver,
+        snap_bracket=min(max(4 * ld.min_step_mm, 1.0), max_step) * 1e-3,
+    )

@@ -22,8 +22,9 @@ log = logging.getLogger(__name__)
 IDLE_CORES_FOR_THREADS = 1.5
 
 
-def thread_policy(threads: int | str, model: str = "continuum", cores: int | None = None,
-                  load: float | None = None) -> tuple[int, int]:
+def thread_policy(
+    threads: int | str, model: str = "continuum", cores: int | None = None, load: float | None = None
+) -> tuple[int, int]:
     """NGSolve threads for a run and for the assembly of each of its linearizations.
 
     An integer n gives n to both. ``"auto"`` for the continuum: the run on one thread (the

@@ -21,8 +21,21 @@ from .numerical import Calibration, Discrete, Discretization, Loading, Outputs, 
 from .physical import TESTS, Effects, Material, PictureFrame, Specimen
 from .validate import SceneError, check, choice
 
-__all__ = ["DEFAULT_DISCRETIZATION", "MIN_YARNS_PER_FAMILY", "MODELS", "NOT_READ_BY", "NOT_READ_BY_TEST", "SECTIONS",
-           "Scene", "SceneNote", "SceneWarning", "apply_changes", "default_scene", "read_toml", "yarns_per_family"]
+__all__ = [
+    "DEFAULT_DISCRETIZATION",
+    "MIN_YARNS_PER_FAMILY",
+    "MODELS",
+    "NOT_READ_BY",
+    "NOT_READ_BY_TEST",
+    "SECTIONS",
+    "Scene",
+    "SceneNote",
+    "SceneWarning",
+    "apply_changes",
+    "default_scene",
+    "read_toml",
+    "yarns_per_family",
+]
 
 MODELS = ("continuum", "discrete")
 
@@ -65,11 +78,15 @@ def _yield_defaults(data: dict[str, Any], explicit: set[str]) -> None:
         h, structured = d.get("mesh_size_mm", Discretization.mesh_size_mm), d.get("structured", False)
         finer = _number(h) and h < default
         if finer or structured is True:
-            why = (f"discretization.mesh_size_mm = {h:g} is finer than the default corners" if finer
-                   else "a structured mesh cannot be graded")
+            why = (
+                f"discretization.mesh_size_mm = {h:g} is finer than the default corners"
+                if finer
+                else "a structured mesh cannot be graded"
+            )
             d["corner_mesh_size_mm"] = 0.0
-            warnings.warn(SceneNote(f"{key} = 0 (no corner grading) instead of the default {default:g}: {why}"),
-                          stacklevel=4)
+            warnings.warn(
+                SceneNote(f"{key} = 0 (no corner grading) instead of the default {default:g}: {why}"), stacklevel=4
+            )
     ld = data.get("loading")
     key = "loading.min_step_mm"
     default = Loading.min_step_mm
@@ -78,8 +95,12 @@ def _yield_defaults(data: dict[str, Any], explicit: set[str]) -> None:
         smallest = min((v for v in steps if _number(v) and v > 0), default=default)
         if smallest < default:
             ld["min_step_mm"] = smallest
-            warnings.warn(SceneNote(f"{key} = {smallest:g} instead of the default {default:g}: the scene's "
-                                    "load steps are smaller"), stacklevel=4)
+            warnings.warn(
+                SceneNote(
+                    f"{key} = {smallest:g} instead of the default {default:g}: the scene's load steps are smaller"
+                ),
+                stacklevel=4,
+            )
 
 
 def _number(v: Any) -> bool:
@@ -124,42 +145,76 @@ class Scene:
             check(isinstance(getattr(self, name), cls), name, getattr(self, name), f"must be a {cls.__name__}")
         # loads past ideal yarn locking are valid: the yarns are extensible (K_el), and the run
         # warns (locking_warning); ideal locking belongs to inextensible yarns
-        check(self.discretization.target_error == 0 or self.outputs.reaction, "discretization.target_error",
-               self.discretization.target_error, "is an accuracy of the clamp force: it needs outputs.reaction = true")
+        check(
+            self.discretization.target_error == 0 or self.outputs.reaction,
+            "discretization.target_error",
+            self.discretization.target_error,
+            "is an accuracy of the clamp force: it needs outputs.reaction = true",
+        )
         if self.model == "discrete":
-            check(self.solver.branch == "stay", "solver.branch", self.solver.branch,
-                   "branch switching is for the continuum model (the discrete model follows the load)")
+            check(
+                self.solver.branch == "stay",
+                "solver.branch",
+                self.solver.branch,
+                "branch switching is for the continuum model (the discrete model follows the load)",
+            )
             n = yarns_per_family(self.specimen, self.discrete.spacing_mm)
-            check(n >= MIN_YARNS_PER_FAMILY, "discrete.spacing_mm", self.discrete.spacing_mm,
-                   f"leaves about {n} yarns per family across the {self.specimen.length_mm:g} x "
-                   f"{self.specimen.width_mm:g} mm specimen; a yarn network needs at least "
-                   f"{MIN_YARNS_PER_FAMILY} (spacing <= {_max_spacing(self.specimen):.3g} mm)")
+            check(
+                n >= MIN_YARNS_PER_FAMILY,
+                "discrete.spacing_mm",
+                self.discrete.spacing_mm,
+                f"leaves about {n} yarns per family across the {self.specimen.length_mm:g} x "
+                f"{self.specimen.width_mm:g} mm specimen; a yarn network needs at least "
+                f"{MIN_YARNS_PER_FAMILY} (spacing <= {_max_spacing(self.specimen):.3g} mm)",
+            )
         if self.model == "continuum":
-            check(self.solver.linear_solver != "cholmod" or self.solver.condense, "solver.linear_solver",
-                   self.solver.linear_solver, "needs solver.condense = true: the uncondensed Newton matrix holds "
-                   "the multiplier's block and is indefinite, which a Cholesky LL^T cannot factorize")
+            check(
+                self.solver.linear_solver != "cholmod" or self.solver.condense,
+                "solver.linear_solver",
+                self.solver.linear_solver,
+                "needs solver.condense = true: the uncondensed Newton matrix holds "
+                "the multiplier's block and is indefinite, which a Cholesky LL^T cannot factorize",
+            )
             m, e = self.material, self.effects
             if e.shear and e.shear_law == "table":
-                check(len(m.shear_stress_steps_Pa) >= 2 and sum(m.shear_stress_steps_Pa) > 0,
-                       "material.shear_stress_steps_Pa", list(m.shear_stress_steps_Pa),
-                       "effects.shear_law = 'table' needs at least 2 rises, not all 0")
+                check(
+                    len(m.shear_stress_steps_Pa) >= 2 and sum(m.shear_stress_steps_Pa) > 0,
+                    "material.shear_stress_steps_Pa",
+                    list(m.shear_stress_steps_Pa),
+                    "effects.shear_law = 'table' needs at least 2 rises, not all 0",
+                )
             elif e.shear:
                 check(m.K_sh > 0, "material.K_sh", m.K_sh, "must be > 0 when effects.shear is on")
             check(m.K_el > 0, "material.K_el", m.K_el, "must be > 0 (effects.elongation is on)")
             rest = min(2 * self.specimen.yarn_angle_deg, 180 - 2 * self.specimen.yarn_angle_deg)
-            check(not e.jamming or m.jamming_angle_deg < rest, "material.jamming_angle_deg", m.jamming_angle_deg,
-                   f"must be below the angle between the yarns at rest ({rest:g} degrees), else they jam at rest")
+            check(
+                not e.jamming or m.jamming_angle_deg < rest,
+                "material.jamming_angle_deg",
+                m.jamming_angle_deg,
+                f"must be below the angle between the yarns at rest ({rest:g} degrees), else they jam at rest",
+            )
             if e.bending:
-                check(m.alpha1 + m.alpha2 > 0, "material.alpha1", m.alpha1,
-                       "alpha1 + alpha2 must be > 0 when effects.bending is on (else turn bending off)")
+                check(
+                    m.alpha1 + m.alpha2 > 0,
+                    "material.alpha1",
+                    m.alpha1,
+                    "alpha1 + alpha2 must be > 0 when effects.bending is on (else turn bending off)",
+                )
                 for fam, a in ((1, m.alpha1), (2, m.alpha2)):
-                    check(a > 0, f"material.alpha{fam}", a,
-                           f"must be > 0 when effects.bending is on: without bending stiffness the yarns of family "
-                           f"{fam} lose ellipticity where they are compressed, and the model has no mesh-independent "
-                           "solution there (a small value, e.g. 1e-3 Pa m^2, keeps it well posed; or turn bending off)")
-                check(self.discretization.p_lam < self.discretization.p_phi or e.fields == ("u", "phi"),
-                       "discretization.order_lam", self.discretization.order_lam,
-                       "the multiplier order must be below the order of phi, else the constraint locks")
+                    check(
+                        a > 0,
+                        f"material.alpha{fam}",
+                        a,
+                        f"must be > 0 when effects.bending is on: without bending stiffness the yarns of family "
+                        f"{fam} lose ellipticity where they are compressed, and the model has no mesh-independent "
+                        "solution there (a small value, e.g. 1e-3 Pa m^2, keeps it well posed; or turn bending off)",
+                    )
+                check(
+                    self.discretization.p_lam < self.discretization.p_phi or e.fields == ("u", "phi"),
+                    "discretization.order_lam",
+                    self.discretization.order_lam,
+                    "the multiplier order must be below the order of phi, else the constraint locks",
+                )
 
         if self.test == "picture_frame":
             self._check_picture_frame()
@@ -167,29 +222,46 @@ class Scene:
         unused = self.unused_keys()
         m, e = self.material, self.effects
         if self.model == "continuum" and m.shear_stress_steps_Pa and not (e.shear and e.shear_law == "table"):
-            warnings.warn(SceneWarning(
-                f"material.shear_stress_steps_Pa holds {len(m.shear_stress_steps_Pa)} rises of a shear table, but "
-                f"effects.shear_law = {e.shear_law!r}{'' if e.shear else ' with effects.shear = false'}: the table "
-                "is not used (effects.shear_law = \"table\" uses it)"), stacklevel=3)
+            warnings.warn(
+                SceneWarning(
+                    f"material.shear_stress_steps_Pa holds {len(m.shear_stress_steps_Pa)} rises of a shear table, but "
+                    f"effects.shear_law = {e.shear_law!r}{'' if e.shear else ' with effects.shear = false'}: the table "
+                    'is not used (effects.shear_law = "table" uses it)'
+                ),
+                stacklevel=3,
+            )
         if unused:
             test = self.test != "bias_extension" or any(k.startswith("picture_frame.") for k in unused)
             who = f"model = {self.model!r}" + (f" with test = {self.test!r}" if test else "")
-            warnings.warn(SceneWarning(f"{who} does not read {', '.join(unused)}: these values have no effect"),
-                          stacklevel=3)
+            warnings.warn(
+                SceneWarning(f"{who} does not read {', '.join(unused)}: these values have no effect"), stacklevel=3
+            )
 
     def _check_picture_frame(self) -> None:
         """What a picture-frame test needs of the rest of the scene."""
-        check(self.model == "continuum", "model", self.model,
-               "the picture-frame test is available for the continuum model only (test = 'picture_frame' "
-               "needs model = 'continuum'): the yarn network has no frame")
+        check(
+            self.model == "continuum",
+            "model",
+            self.model,
+            "the picture-frame test is available for the continuum model only (test = 'picture_frame' "
+            "needs model = 'continuum'): the yarn network has no frame",
+        )
         pf, ld = self.picture_frame, self.loading
         lock = pf.locking_mm
-        check(ld.u0_mm < lock, "loading.u0_mm", ld.u0_mm,
-               f"the crosshead travel must stay below {lock:.4g} mm, where the frame of side "
-               f"{pf.frame_mm:g} mm closes flat (shear angle 90 degrees)")
-        check(self.solver.path_following == "displacement", "solver.path_following", self.solver.path_following,
-               "the picture frame follows the crosshead travel ('displacement'): arc length is available "
-               "for the bias extension test only")
+        check(
+            ld.u0_mm < lock,
+            "loading.u0_mm",
+            ld.u0_mm,
+            f"the crosshead travel must stay below {lock:.4g} mm, where the frame of side "
+            f"{pf.frame_mm:g} mm closes flat (shear angle 90 degrees)",
+        )
+        check(
+            self.solver.path_following == "displacement",
+            "solver.path_following",
+            self.solver.path_following,
+            "the picture frame follows the crosshead travel ('displacement'): arc length is available "
+            "for the bias extension test only",
+        )
 
     def unused_keys(self) -> list[str]:
         """The keys with a non-default value that the scene's model or test does not read ("section.key")."""
@@ -292,7 +364,7 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     try:
         raw = path.read_bytes()
         if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
-            raise SceneError(f"scene file {path} is UTF-16 text (\"Unicode\" in some editors); save it as UTF-8")
+            raise SceneError(f'scene file {path} is UTF-16 text ("Unicode" in some editors); save it as UTF-8')
         # a byte-order mark (as some editors save UTF-8) is not TOML: read past it; CRLF lines are TOML
         return tomllib.loads(raw.decode("utf-8-sig"))
     except FileNotFoundError:
@@ -305,8 +377,10 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise SceneError(f"scene file {path} is not a text (UTF-8) file: is it a TOML scene?") from None
     except tomllib.TOMLDecodeError as exc:
         cr = b"\r" in raw and b"\n" not in raw  # a classic Mac file: TOML does not end a line in CR alone
-        raise SceneError(f"scene file {path} is not valid TOML: {exc}"
-                         + ("; its lines end in CR alone, save it with LF (or CRLF) line ends" if cr else "")) from None
+        raise SceneError(
+            f"scene file {path} is not valid TOML: {exc}"
+            + ("; its lines end in CR alone, save it with LF (or CRLF) line ends" if cr else "")
+        ) from None
 
 
 def apply_changes(data: dict[str, Any], dotted: dict[str, Any]) -> dict[str, Any]:
@@ -346,8 +420,10 @@ def yarns_per_family(specimen: Specimen, spacing_mm: float) -> int:
     a != 45 deg is not needed: both families use the smaller of the two widths).
     """
     a = math.radians(specimen.yarn_angle_deg)
-    across = min(specimen.length_mm * math.sin(a) + specimen.width_mm * math.cos(a),
-                 specimen.length_mm * math.cos(a) + specimen.width_mm * math.sin(a))
+    across = min(
+        specimen.length_mm * math.sin(a) + specimen.width_mm * math.cos(a),
+        specimen.length_mm * math.cos(a) + specimen.width_mm * math.sin(a),
+    )
     return int(across // spacing_mm)
 
 
@@ -361,8 +437,9 @@ def _max_spacing(specimen: Specimen) -> float:
 #: solve takes 0.4–0.6 times that of the uniform 5 mm p = 2 mesh, which is 2.1 % and 7.8 % off,
 #: measured interleaved on a loaded 2-core machine). p = 2 on the same mesh is 0.16 % on the force
 #: but 4 % on the profile.
-DEFAULT_DISCRETIZATION: dict[str, Any] = {k: getattr(Discretization, k)
-                                           for k in ("mesh_size_mm", "corner_mesh_size_mm", "order_u")}
+DEFAULT_DISCRETIZATION: dict[str, Any] = {
+    k: getattr(Discretization, k) for k in ("mesh_size_mm", "corner_mesh_size_mm", "order_u")
+}
 
 
 def default_scene() -> Scene:

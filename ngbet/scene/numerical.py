@@ -11,8 +11,19 @@ from dataclasses import dataclass, fields
 from .physical import Material
 from .validate import AUTO, auto_or, boolean, check, choice, integer, nonnegative, positive
 
-__all__ = ["FIELD_OUTPUTS", "FIGURE_FORMATS", "LINEAR_SOLVERS", "MAX_ORDER", "PAPER_STOPS_MM", "Calibration",
-           "Discrete", "Discretization", "Loading", "Outputs", "Solver"]
+__all__ = [
+    "FIELD_OUTPUTS",
+    "FIGURE_FORMATS",
+    "LINEAR_SOLVERS",
+    "MAX_ORDER",
+    "PAPER_STOPS_MM",
+    "Calibration",
+    "Discrete",
+    "Discretization",
+    "Loading",
+    "Outputs",
+    "Solver",
+]
 
 #: the highest polynomial order a scene may ask for: the reference at 37 mm uses p = 14 (135 873
 #: dofs on its split-corner mesh); the memory check before meshing refuses what this machine cannot hold
@@ -50,21 +61,44 @@ class Discretization:
     def __post_init__(self) -> None:
         positive("discretization", self, "mesh_size_mm")
         integer("discretization", self, "order_u", 1, MAX_ORDER)
-        auto_or("discretization", self, "order_phi", lambda v: isinstance(v, int) and 1 <= v <= MAX_ORDER,
-                 f"an integer from 1 to {MAX_ORDER}")
-        auto_or("discretization", self, "order_lam", lambda v: isinstance(v, int) and 0 <= v <= MAX_ORDER - 1,
-                 f"an integer from 0 to {MAX_ORDER - 1}")
+        auto_or(
+            "discretization",
+            self,
+            "order_phi",
+            lambda v: isinstance(v, int) and 1 <= v <= MAX_ORDER,
+            f"an integer from 1 to {MAX_ORDER}",
+        )
+        auto_or(
+            "discretization",
+            self,
+            "order_lam",
+            lambda v: isinstance(v, int) and 0 <= v <= MAX_ORDER - 1,
+            f"an integer from 0 to {MAX_ORDER - 1}",
+        )
         integer("discretization", self, "quad_bonus", 0, 10)
         boolean("discretization", self, "structured")
         nonnegative("discretization", self, "corner_mesh_size_mm")
         integer("discretization", self, "corner_bisections", 0, 10)
-        check(isinstance(self.target_error, (int, float)) and not isinstance(self.target_error, bool)
-               and (self.target_error == 0 or 1e-6 <= self.target_error < 1), "discretization.target_error",
-               self.target_error, "must be 0 (off) or a relative error from 1e-6 to below 1")
-        check(self.corner_mesh_size_mm <= self.mesh_size_mm, "discretization.corner_mesh_size_mm",
-               self.corner_mesh_size_mm, "must not exceed discretization.mesh_size_mm")
-        check(not (self.structured and self.corner_mesh_size_mm > 0), "discretization.corner_mesh_size_mm",
-               self.corner_mesh_size_mm, "a structured mesh cannot be graded (set structured = false)")
+        check(
+            isinstance(self.target_error, (int, float))
+            and not isinstance(self.target_error, bool)
+            and (self.target_error == 0 or 1e-6 <= self.target_error < 1),
+            "discretization.target_error",
+            self.target_error,
+            "must be 0 (off) or a relative error from 1e-6 to below 1",
+        )
+        check(
+            self.corner_mesh_size_mm <= self.mesh_size_mm,
+            "discretization.corner_mesh_size_mm",
+            self.corner_mesh_size_mm,
+            "must not exceed discretization.mesh_size_mm",
+        )
+        check(
+            not (self.structured and self.corner_mesh_size_mm > 0),
+            "discretization.corner_mesh_size_mm",
+            self.corner_mesh_size_mm,
+            "a structured mesh cannot be graded (set structured = false)",
+        )
 
     @property
     def p_u(self) -> int:
@@ -108,15 +142,31 @@ class Loading:
         nonnegative("loading", self, "output_every_mm")
         object.__setattr__(self, "stops_mm", tuple(self.stops_mm))
         for s in self.stops_mm:
-            check(isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0, "loading.stops_mm", s,
-                   "each stop must be a number > 0")
+            check(
+                isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0,
+                "loading.stops_mm",
+                s,
+                "each stop must be a number > 0",
+            )
             # the default stop (the paper's shape station) applies only when u0 passes it
-            check(s <= self.u0_mm or self.stops_mm == PAPER_STOPS_MM, "loading.stops_mm", s,
-                   f"a stop beyond the final load loading.u0_mm = {self.u0_mm:g} mm would never be reached")
-        check(self.min_step_mm <= self.first_step_mm, "loading.min_step_mm", self.min_step_mm,
-               "must not exceed loading.first_step_mm")
-        check(self.min_step_mm <= self.max_step_mm, "loading.min_step_mm", self.min_step_mm,
-               "must not exceed loading.max_step_mm")
+            check(
+                s <= self.u0_mm or self.stops_mm == PAPER_STOPS_MM,
+                "loading.stops_mm",
+                s,
+                f"a stop beyond the final load loading.u0_mm = {self.u0_mm:g} mm would never be reached",
+            )
+        check(
+            self.min_step_mm <= self.first_step_mm,
+            "loading.min_step_mm",
+            self.min_step_mm,
+            "must not exceed loading.first_step_mm",
+        )
+        check(
+            self.min_step_mm <= self.max_step_mm,
+            "loading.min_step_mm",
+            self.min_step_mm,
+            "must not exceed loading.max_step_mm",
+        )
 
     @property
     def path_stops_mm(self) -> tuple[float, ...]:
@@ -171,8 +221,7 @@ class Solver:
         positive("solver", self, "rtol", "atol_energy", "growth")
         integer("solver", self, "max_iterations", 1, 1000)
         integer("solver", self, "grow_after", 0, 1000)
-        auto_or("solver", self, "threads", lambda v: isinstance(v, int) and 1 <= v <= 1024,
-                 "an integer from 1 to 1024")
+        auto_or("solver", self, "threads", lambda v: isinstance(v, int) and 1 <= v <= 1024, "an integer from 1 to 1024")
         check(0 < self.cut < 1, "solver.cut", self.cut, "must lie strictly between 0 and 1")
         check(self.growth >= 1, "solver.growth", self.growth, "must be >= 1")
         choice("solver", self, "linear_solver", LINEAR_SOLVERS)
@@ -180,11 +229,19 @@ class Solver:
         choice("solver", self, "path_following", ("displacement", "arclength", "auto"))
         choice("solver", self, "compile", ("auto", "interpret", "native"))
         choice("solver", self, "branch", ("stay", "switch"))
-        check(self.branch == "stay" or self.path_following != "displacement", "solver.branch", self.branch,
-               "needs solver.path_following = 'arclength' or 'auto' (displacement control stays on its branch)")
-        check(self.branch == "stay" or self.condense, "solver.branch", self.branch,
-               "needs solver.condense = true (the uncondensed saddle-point tangent has no stability test, so no "
-               "critical mode to switch along)")
+        check(
+            self.branch == "stay" or self.path_following != "displacement",
+            "solver.branch",
+            self.branch,
+            "needs solver.path_following = 'arclength' or 'auto' (displacement control stays on its branch)",
+        )
+        check(
+            self.branch == "stay" or self.condense,
+            "solver.branch",
+            self.branch,
+            "needs solver.condense = true (the uncondensed saddle-point tangent has no stability test, so no "
+            "critical mode to switch along)",
+        )
         boolean("solver", self, "condense")
 
 
@@ -211,16 +268,27 @@ class Outputs:
     figure_formats: tuple[str, ...] = ("png",)  # files of each figure: any of "png", "pdf", "svg"
 
     def __post_init__(self) -> None:
-        boolean("outputs", self, "reaction", "double_force", "energy", "profile", "vtk",
-                 "vtk_every_step", "plot")
-        check(isinstance(self.figure_formats, (list, tuple)) and len(self.figure_formats) > 0,
-               "outputs.figure_formats", self.figure_formats, 'must be a non-empty list such as ["png", "pdf"]')
+        boolean("outputs", self, "reaction", "double_force", "energy", "profile", "vtk", "vtk_every_step", "plot")
+        check(
+            isinstance(self.figure_formats, (list, tuple)) and len(self.figure_formats) > 0,
+            "outputs.figure_formats",
+            self.figure_formats,
+            'must be a non-empty list such as ["png", "pdf"]',
+        )
         object.__setattr__(self, "figure_formats", tuple(self.figure_formats))
         for f in self.figure_formats:
-            check(f in FIGURE_FORMATS, "outputs.figure_formats", f,
-                   f"unknown figure format, known: {', '.join(FIGURE_FORMATS)}")
-        check(len(set(self.figure_formats)) == len(self.figure_formats), "outputs.figure_formats",
-               list(self.figure_formats), "names a format twice")
+            check(
+                f in FIGURE_FORMATS,
+                "outputs.figure_formats",
+                f,
+                f"unknown figure format, known: {', '.join(FIGURE_FORMATS)}",
+            )
+        check(
+            len(set(self.figure_formats)) == len(self.figure_formats),
+            "outputs.figure_formats",
+            list(self.figure_formats),
+            "names a format twice",
+        )
         integer("outputs", self, "profile_points", 3, 100000)
         choice("outputs", self, "error_estimate", ("stops", "every", "final", "off"))
         object.__setattr__(self, "fields", tuple(self.fields))
@@ -283,19 +351,34 @@ class Calibration:
         known = {f.name for f in fields(Material)}
         for p in self.params:
             section, _, key = p.partition(".") if isinstance(p, str) else ("", "", "")
-            check(section == "material" and key in known, "calibration.params", p,
-                   f"must name a material key (material.{', material.'.join(sorted(known))})")
-        check(len(set(self.params)) == len(self.params), "calibration.params", list(self.params),
-               "names a key twice")
+            check(
+                section == "material" and key in known,
+                "calibration.params",
+                p,
+                f"must name a material key (material.{', material.'.join(sorted(known))})",
+            )
+        check(len(set(self.params)) == len(self.params), "calibration.params", list(self.params), "names a key twice")
         for name in ("lower", "upper"):
             v = getattr(self, name)
-            check(len(v) in (0, len(self.params)), f"calibration.{name}", list(v),
-                   f"needs one bound per entry of calibration.params ({len(self.params)}) or none")
+            check(
+                len(v) in (0, len(self.params)),
+                f"calibration.{name}",
+                list(v),
+                f"needs one bound per entry of calibration.params ({len(self.params)}) or none",
+            )
             for b in v:
-                check(isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b) and b > 0,
-                       f"calibration.{name}", b, "each bound must be a finite number > 0 (the fit works on ln p)")
+                check(
+                    isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b) and b > 0,
+                    f"calibration.{name}",
+                    b,
+                    "each bound must be a finite number > 0 (the fit works on ln p)",
+                )
         if self.lower and self.upper:
             for p, lo, hi in zip(self.params, self.lower, self.upper, strict=True):
                 check(lo < hi, "calibration.lower", lo, f"must lie below calibration.upper ({hi}) for {p}")
-        check(isinstance(self.yarns_m1, str) and isinstance(self.yarns_m2, str), "calibration.yarns_m1",
-               self.yarns_m1, "must be text")
+        check(
+            isinstance(self.yarns_m1, str) and isinstance(self.yarns_m2, str),
+            "calibration.yarns_m1",
+            self.yarns_m1,
+            "must be text",
+        )

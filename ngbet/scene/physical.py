@@ -33,14 +33,26 @@ class Specimen:
     def __post_init__(self) -> None:
         positive("specimen", self, "length_mm", "width_mm", "thickness_mm")
         for n in ("length_mm", "width_mm", "thickness_mm"):
-            check(getattr(self, n) <= MAX_SPECIMEN_MM, f"specimen.{n}", getattr(self, n),
-                   f"must be at most {MAX_SPECIMEN_MM:g} mm (1 km): larger values overflow the computation")
+            check(
+                getattr(self, n) <= MAX_SPECIMEN_MM,
+                f"specimen.{n}",
+                getattr(self, n),
+                f"must be at most {MAX_SPECIMEN_MM:g} mm (1 km): larger values overflow the computation",
+            )
         a = self.yarn_angle_deg
-        check(isinstance(a, (int, float)) and 5.0 <= a <= 85.0, "specimen.yarn_angle_deg", a,
-               "must lie between 5 and 85 degrees")
-        check(self.zone_a_length_mm > 0, "specimen.width_mm", self.width_mm,
-               f"the central zone A vanishes: a BET specimen needs L > W/tan(a) "
-               f"(L = {self.length_mm} mm, W/tan(a) = {self.width_mm / math.tan(math.radians(a)):.1f} mm)")
+        check(
+            isinstance(a, (int, float)) and 5.0 <= a <= 85.0,
+            "specimen.yarn_angle_deg",
+            a,
+            "must lie between 5 and 85 degrees",
+        )
+        check(
+            self.zone_a_length_mm > 0,
+            "specimen.width_mm",
+            self.width_mm,
+            f"the central zone A vanishes: a BET specimen needs L > W/tan(a) "
+            f"(L = {self.length_mm} mm, W/tan(a) = {self.width_mm / math.tan(math.radians(a)):.1f} mm)",
+        )
 
     # SI views ---------------------------------------------------------------------------------
     @property
@@ -113,19 +125,35 @@ class Material:
     def __post_init__(self) -> None:
         nonnegative("material", self, "K_el", "K_sh", "alpha1", "alpha2", "K_sh4", "K_sh6", "K_lock")
         g = self.gamma_lock_deg
-        check(isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g < 90, "material.gamma_lock_deg",
-               g, "must lie strictly between 0 and 90 degrees")
+        check(
+            isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g < 90,
+            "material.gamma_lock_deg",
+            g,
+            "must lie strictly between 0 and 90 degrees",
+        )
         j = self.jamming_angle_deg
-        check(isinstance(j, (int, float)) and not isinstance(j, bool) and 0 < j < 90, "material.jamming_angle_deg",
-               j, "must lie strictly between 0 and 90 degrees")
+        check(
+            isinstance(j, (int, float)) and not isinstance(j, bool) and 0 < j < 90,
+            "material.jamming_angle_deg",
+            j,
+            "must lie strictly between 0 and 90 degrees",
+        )
         steps = self.shear_stress_steps_Pa
         check(isinstance(steps, (list, tuple)), "material.shear_stress_steps_Pa", steps, "must be a list of numbers")
         object.__setattr__(self, "shear_stress_steps_Pa", tuple(steps))
         for v in self.shear_stress_steps_Pa:
-            check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
-                   "material.shear_stress_steps_Pa", v, "each rise must be a finite number >= 0 (a monotone table)")
-        check(len(self.shear_stress_steps_Pa) <= 40, "material.shear_stress_steps_Pa", len(steps),
-               "at most 40 control points")
+            check(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
+                "material.shear_stress_steps_Pa",
+                v,
+                "each rise must be a finite number >= 0 (a monotone table)",
+            )
+        check(
+            len(self.shear_stress_steps_Pa) <= 40,
+            "material.shear_stress_steps_Pa",
+            len(steps),
+            "at most 40 control points",
+        )
         positive("material", self, "shear_table_i8_max")
 
     def internal_lengths_mm(self) -> tuple[float, float]:
@@ -184,17 +212,33 @@ class Effects:
         choice("effects", self, "constraint", CONSTRAINTS)
         choice("effects", self, "penalty_form", PENALTY_FORMS)
         choice("effects", self, "shear_law", SHEAR_LAWS)
-        check(self.shear or self.shear_law == "quadratic", "effects.shear_law", self.shear_law,
-               "a shear law needs effects.shear = true")
-        auto_or("effects", self, "stabilization_K",
-                 lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v >= 0,
-                 "a number >= 0 [Pa] (0: off); \"auto\" is K_s = 0.1 min(alpha1, alpha2) / h_T^2")
+        check(
+            self.shear or self.shear_law == "quadratic",
+            "effects.shear_law",
+            self.shear_law,
+            "a shear law needs effects.shear = true",
+        )
+        auto_or(
+            "effects",
+            self,
+            "stabilization_K",
+            lambda v: isinstance(v, (int, float)) and math.isfinite(v) and v >= 0,
+            'a number >= 0 [Pa] (0: off); "auto" is K_s = 0.1 min(alpha1, alpha2) / h_T^2',
+        )
         positive("effects", self, "penalty_K")
-        check(self.elongation, "effects.elongation", self.elongation,
-               "the yarn elongation term is what makes the yarns resist stretching; without it the "
-               "tangent is singular (inextensible yarns would need a constraint ngbet does not model)")
-        check(self.shear or self.bending, "effects.shear", self.shear,
-               "with neither shear nor bending nothing resists the shear of the yarn network")
+        check(
+            self.elongation,
+            "effects.elongation",
+            self.elongation,
+            "the yarn elongation term is what makes the yarns resist stretching; without it the "
+            "tangent is singular (inextensible yarns would need a constraint ngbet does not model)",
+        )
+        check(
+            self.shear or self.bending,
+            "effects.shear",
+            self.shear,
+            "with neither shear nor bending nothing resists the shear of the yarn network",
+        )
 
     @property
     def fields(self) -> tuple[str, ...]:
@@ -232,14 +276,25 @@ class PictureFrame:
 
     def __post_init__(self) -> None:
         positive("picture_frame", self, "frame_mm", "fabric_mm")
-        check(self.frame_mm <= MAX_SPECIMEN_MM, "picture_frame.frame_mm", self.frame_mm,
-               f"must be at most {MAX_SPECIMEN_MM:g} mm (1 km): larger values overflow the computation")
-        check(self.fabric_mm <= self.frame_mm, "picture_frame.fabric_mm", self.fabric_mm,
-               f"the fabric square must fit in the frame: fabric_mm <= frame_mm = {self.frame_mm:g} mm")
+        check(
+            self.frame_mm <= MAX_SPECIMEN_MM,
+            "picture_frame.frame_mm",
+            self.frame_mm,
+            f"must be at most {MAX_SPECIMEN_MM:g} mm (1 km): larger values overflow the computation",
+        )
+        check(
+            self.fabric_mm <= self.frame_mm,
+            "picture_frame.fabric_mm",
+            self.fabric_mm,
+            f"the fabric square must fit in the frame: fabric_mm <= frame_mm = {self.frame_mm:g} mm",
+        )
         m = self.misalignment_deg
-        check(isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and abs(m) < 45.0,
-               "picture_frame.misalignment_deg", m,
-               "must lie strictly between -45 and 45 degrees (beyond, the yarns run along the other bars)")
+        check(
+            isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and abs(m) < 45.0,
+            "picture_frame.misalignment_deg",
+            m,
+            "must lie strictly between -45 and 45 degrees (beyond, the yarns run along the other bars)",
+        )
 
     @property
     def arm_mm(self) -> float:

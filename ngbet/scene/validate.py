@@ -22,16 +22,24 @@ def positive(section: str, obj: Any, *names: str) -> None:
     """Require each ``obj.<name>`` to be a finite number > 0 (a bool is not a number here)."""
     for n in names:
         v = getattr(obj, n)
-        check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0,
-               f"{section}.{n}", v, "must be a finite number > 0")
+        check(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0,
+            f"{section}.{n}",
+            v,
+            "must be a finite number > 0",
+        )
 
 
 def nonnegative(section: str, obj: Any, *names: str) -> None:
     """Require each ``obj.<name>`` to be a finite number >= 0 (a bool is not a number here)."""
     for n in names:
         v = getattr(obj, n)
-        check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
-               f"{section}.{n}", v, "must be a finite number >= 0")
+        check(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0,
+            f"{section}.{n}",
+            v,
+            "must be a finite number >= 0",
+        )
 
 
 def boolean(section: str, obj: Any, *names: str) -> None:
@@ -44,8 +52,12 @@ def boolean(section: str, obj: Any, *names: str) -> None:
 def integer(section: str, obj: Any, name: str, lo: int, hi: int) -> None:
     """Require ``obj.name`` to be an integer (not a bool) from ``lo`` to ``hi``, both included."""
     v = getattr(obj, name)
-    check(isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi,
-           f"{section}.{name}", v, f"must be an integer from {lo} to {hi}")
+    check(
+        isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi,
+        f"{section}.{name}",
+        v,
+        f"must be an integer from {lo} to {hi}",
+    )
 
 
 AUTO = "auto"
@@ -56,7 +68,7 @@ def auto_or(section: str, obj: Any, name: str, accept: Any, what: str) -> None:
     v = getattr(obj, name)
     if v == AUTO:
         return
-    check(not isinstance(v, (bool, str)) and accept(v), f"{section}.{name}", v, f"must be \"auto\" or {what}")
+    check(not isinstance(v, (bool, str)) and accept(v), f"{section}.{name}", v, f'must be "auto" or {what}')
 
 
 def choice(section: str, obj: Any, name: str, choices: tuple[str, ...]) -> None:

@@ -39,8 +39,18 @@ from ..scene.validate import SceneError
 from ..tables import read_rows
 from .keys import key_of_scene_dict
 
-__all__ = ["CacheError", "cached", "clean_debris", "held", "reached", "run_dir", "sha256", "store", "study_lock",
-           "verify_case"]
+__all__ = [
+    "CacheError",
+    "cached",
+    "clean_debris",
+    "held",
+    "reached",
+    "run_dir",
+    "sha256",
+    "store",
+    "study_lock",
+    "verify_case",
+]
 
 log = logging.getLogger(__name__)
 
@@ -63,8 +73,9 @@ def study_lock(cache: Path) -> Iterator[str]:
     try:
         fd = os.open(fresh, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
     except OSError as exc:  # named as the folder the user gave
-        raise OSError(exc.errno, f"{exc.strerror} (a study writes its cases into its cache folder)",
-                      str(cache)) from None
+        raise OSError(
+            exc.errno, f"{exc.strerror} (a study writes its cases into its cache folder)", str(cache)
+        ) from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
         os.rename(fresh, lock)
@@ -124,8 +135,14 @@ def clean_debris(cache: Path) -> int:
 
 
 # ------------------------------------------------------------------------------- storing
-def store(cache: Path, key: str, rec: dict[str, Any], token: str, workdir: Path | None = None,
-          files: dict[str, bytes] | None = None) -> Path:
+def store(
+    cache: Path,
+    key: str,
+    rec: dict[str, Any],
+    token: str,
+    workdir: Path | None = None,
+    files: dict[str, bytes] | None = None,
+) -> Path:
     """Move a finished case into ``cache/<key>`` atomically (a rename); returns that folder.
 
     The case is ``workdir`` (moved) or ``files`` (written, as a dask worker returned them). Its
@@ -143,9 +160,15 @@ def store(cache: Path, key: str, rec: dict[str, Any], token: str, workdir: Path 
             (tmp / name).parent.mkdir(parents=True, exist_ok=True)
             (tmp / name).write_bytes(data)
         (tmp / RUN_LOCK).unlink(missing_ok=True)
-        rec = {**rec, "key": key,
-               "files_sha256": {p.relative_to(tmp).as_posix(): sha256(p) for p in sorted(tmp.rglob("*"))
-                                if p.is_file() and p.name != "case.json"}}
+        rec = {
+            **rec,
+            "key": key,
+            "files_sha256": {
+                p.relative_to(tmp).as_posix(): sha256(p)
+                for p in sorted(tmp.rglob("*"))
+                if p.is_file() and p.name != "case.json"
+            },
+        }
         (tmp / "case.json").write_text(json.dumps(rec, indent=2, default=str))
         if final.exists():
             old = cache / f".tmp-{key}-{token}-old{uuid.uuid4().hex[:6]}"
@@ -198,11 +221,16 @@ def verify_case(case_dir: Path) -> dict[str, Any]:
     _check_key(case_dir, rec)
     summary = _json_file(case_dir / "summary.json")
     if summary.get("status") != rec["status"]:
-        raise CacheError(f"{case_dir / 'summary.json'}: status {summary.get('status')!r} but case.json "
-                         f"says {rec['status']!r}")
+        raise CacheError(
+            f"{case_dir / 'summary.json'}: status {summary.get('status')!r} but case.json says {rec['status']!r}"
+        )
     steps = read_rows(case_dir / "results.csv") if (case_dir / "results.csv").exists() else []
-    if len(steps) != summary.get("steps") or (steps and not math.isclose(
-            float(steps[-1].get("u0_mm", math.nan)), float(summary.get("u0_reached_mm", math.nan)), abs_tol=1e-9)):
+    if len(steps) != summary.get("steps") or (
+        steps
+        and not math.isclose(
+            float(steps[-1].get("u0_mm", math.nan)), float(summary.get("u0_reached_mm", math.nan)), abs_tol=1e-9
+        )
+    ):
         raise CacheError(f"{case_dir / 'results.csv'}: {len(steps)} steps do not match summary.json")
     return rec
 
@@ -210,8 +238,10 @@ def verify_case(case_dir: Path) -> dict[str, Any]:
 def _check_key(case_dir: Path, rec: dict[str, Any]) -> None:
     """The folder's name is its own key: recorded in case.json and recomputed from its scene.toml."""
     if rec.get("key") not in (None, case_dir.name):
-        raise CacheError(f"{case_dir / 'case.json'}: stored under the key {rec['key']}, found in {case_dir.name} "
-                         "(folders renamed or swapped)")
+        raise CacheError(
+            f"{case_dir / 'case.json'}: stored under the key {rec['key']}, found in {case_dir.name} "
+            "(folders renamed or swapped)"
+        )
     try:
         with warnings.catch_warnings():  # a scene's unused keys were warned about when it ran
             warnings.simplefilter("ignore", SceneWarning)
@@ -219,8 +249,10 @@ def _check_key(case_dir: Path, rec: dict[str, Any]) -> None:
     except (SceneError, OSError, ValueError) as exc:
         raise CacheError(f"{case_dir / 'scene.toml'}: unreadable ({exc})") from None
     if key != case_dir.name:
-        raise CacheError(f"{case_dir / 'scene.toml'}: the scene's key is {key}, not the folder's "
-                         f"{case_dir.name} (folders renamed or swapped, or another code version)")
+        raise CacheError(
+            f"{case_dir / 'scene.toml'}: the scene's key is {key}, not the folder's "
+            f"{case_dir.name} (folders renamed or swapped, or another code version)"
+        )
 
 
 def _json_file(path: Path) -> dict[str, Any]:

@@ -49,8 +49,9 @@ def worker_timeout_s() -> float:
         return WORKER_TIMEOUT_S
 
 
-def run_dask(todo: list[Case], scheduler: str, threads: int,
-             finished: Callable[[Case, dict[str, Any], Path | None], None]) -> None:
+def run_dask(
+    todo: list[Case], scheduler: str, threads: int, finished: Callable[[Case, dict[str, Any], Path | None], None]
+) -> None:
     """Run the cases ``todo`` on the cluster at ``scheduler``, each handed to ``finished`` as it completes.
 
     ``finished(case, record, None)`` gets the case's record, which carries the run folder's files
@@ -70,15 +71,30 @@ def run_dask(todo: list[Case], scheduler: str, threads: int,
         try:
             client.wait_for_workers(1, timeout=wait_s)
         except Exception:  # dask's TimeoutError (an OSError or asyncio's, by version)
-            raise SchedulerError(scheduler, f"no worker joined within {wait_s:g} s; nothing was run",
-                                 "no dask worker at the scheduler") from None
-        futs = {client.submit(execute_case, c.scene.to_dict(), threads, None,  # type: ignore[union-attr]
-                              key=f"ngbet-case-{c.key}-{uuid.uuid4().hex[:6]}", pure=False): c for c in todo}
+            raise SchedulerError(
+                scheduler, f"no worker joined within {wait_s:g} s; nothing was run", "no dask worker at the scheduler"
+            ) from None
+        futs = {
+            client.submit(
+                execute_case,
+                c.scene.to_dict(),  # type: ignore[union-attr]
+                threads,
+                None,
+                key=f"ngbet-case-{c.key}-{uuid.uuid4().hex[:6]}",
+                pure=False,
+            ): c
+            for c in todo
+        }
         _collect(client, futs, scheduler, wait_s, finished)
 
 
-def _collect(client: Any, futs: dict[Any, Case], scheduler: str, wait_s: float,
-             finished: Callable[[Case, dict[str, Any], Path | None], None]) -> None:
+def _collect(
+    client: Any,
+    futs: dict[Any, Case],
+    scheduler: str,
+    wait_s: float,
+    finished: Callable[[Case, dict[str, Any], Path | None], None],
+) -> None:
     """Hand each future to ``finished`` as it completes; give up when the cluster stays without workers."""
     from distributed import wait
 
@@ -101,9 +117,13 @@ def _collect(client: Any, futs: dict[Any, Case], scheduler: str, wait_s: float,
                 alone_since = time.monotonic()
             elif time.monotonic() - alone_since > wait_s:
                 client.cancel(list(pending))
-                raise SchedulerError(scheduler, f"no worker for {wait_s:g} s (killed or gone); "
-                                     f"{len(futs) - len(pending)} finished cases are kept in the cache, "
-                                     f"{len(pending)} not run", "lost every dask worker of the scheduler at")
+                raise SchedulerError(
+                    scheduler,
+                    f"no worker for {wait_s:g} s (killed or gone); "
+                    f"{len(futs) - len(pending)} finished cases are kept in the cache, "
+                    f"{len(pending)} not run",
+                    "lost every dask worker of the scheduler at",
+                )
     except KeyboardInterrupt:
         client.cancel([f for f in pending if not f.done()])
         for f in pending:
@@ -116,8 +136,12 @@ def _result(fut: Any) -> dict[str, Any]:
     try:
         return cast("dict[str, Any]", fut.result())
     except Exception as exc:  # the case's worker died (KilledWorker) or the task failed
-        return {"status": "error", "error": f"{type(exc).__name__}: {exc}", "error_type": type(exc).__name__,
-                "wall_s": math.nan}
+        return {
+            "status": "error",
+            "error": f"{type(exc).__name__}: {exc}",
+            "error_type": type(exc).__name__,
+            "wall_s": math.nan,
+        }
 
 
 def _workers(client: Any) -> int:

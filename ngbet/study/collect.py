@@ -36,8 +36,9 @@ CASE_COLUMNS = ("case", "key", "status")
 TAIL_COLUMNS = ("dofs", "case_wall_s", "threads", "error")
 
 
-def collect(study: Study, cases: list[Case], cache: Path, out: Path, executor_info: dict[str, Any],
-             wall_s: float) -> StudyData:
+def collect(
+    study: Study, cases: list[Case], cache: Path, out: Path, executor_info: dict[str, Any], wall_s: float
+) -> StudyData:
     """Gather every case's rows, profiles, extracted tables and record; write the study folder."""
     pcols = study.params_columns()
     rows: list[dict[str, Any]] = []
@@ -59,14 +60,25 @@ def collect(study: Study, cases: list[Case], cache: Path, out: Path, executor_in
     _write_csv(out / "profiles.csv", profiles, ["case", "u0_mm", "X_mm", "uy_mm"])
     for name, trs in tables.items():
         _write_csv(out / f"{name}.csv", trs, _columns(trs))
-    meta = {"study": study.name, "description": study.description, "params": pcols,
-            "tables": sorted(tables), "base_scene": study.base.to_dict(), "scene_source": study.scene_source,
-            "quick_left_out": study.left_out, "cache": str(cache.resolve()), "cases": metas,
-            "executor": executor_info, "versions": versions(), "git_revision": git_revision(),
-            "code_version": {m: code_version(m) for m in sorted({c.scene.model for c in cases if c.scene})},
-            "machine": machine(), "wall_s": wall_s,
-            "cpu_s_of_cases": sum(float(m["wall_s"] or 0) for m in metas if m["wall_s"] == m["wall_s"]),
-            "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    meta = {
+        "study": study.name,
+        "description": study.description,
+        "params": pcols,
+        "tables": sorted(tables),
+        "base_scene": study.base.to_dict(),
+        "scene_source": study.scene_source,
+        "quick_left_out": study.left_out,
+        "cache": str(cache.resolve()),
+        "cases": metas,
+        "executor": executor_info,
+        "versions": versions(),
+        "git_revision": git_revision(),
+        "code_version": {m: code_version(m) for m in sorted({c.scene.model for c in cases if c.scene})},
+        "machine": machine(),
+        "wall_s": wall_s,
+        "cpu_s_of_cases": sum(float(m["wall_s"] or 0) for m in metas if m["wall_s"] == m["wall_s"]),
+        "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
     write_text(out / "meta.json", json.dumps(meta, indent=2, default=str))
     return load(out)
 
@@ -94,22 +106,41 @@ def _case_record(c: Case, summary: dict[str, Any], run_dir: Path | None) -> dict
     rec = c.record
     dofs = summary.get("dofs")
     dofs = dofs.get("total") if isinstance(dofs, dict) else dofs
-    return {"case": c.index, "params": c.params, "key": c.key, "status": rec.get("status", "error"),
-            "error": rec.get("error"), "error_type": rec.get("error_type"), "cached": rec.get("cached", False),
-            "wall_s": summary.get("wall_s", rec.get("wall_s")), "threads": rec.get("threads"),
-            "host": rec.get("host"), "dofs": dofs, "u0_reached_mm": summary.get("u0_reached_mm"),
-            "run_dir": str(run_dir) if run_dir else None, "warnings": list(summary.get("warnings") or []),
-            "scene": c.scene.to_dict() if c.scene is not None else None}
+    return {
+        "case": c.index,
+        "params": c.params,
+        "key": c.key,
+        "status": rec.get("status", "error"),
+        "error": rec.get("error"),
+        "error_type": rec.get("error_type"),
+        "cached": rec.get("cached", False),
+        "wall_s": summary.get("wall_s", rec.get("wall_s")),
+        "threads": rec.get("threads"),
+        "host": rec.get("host"),
+        "dofs": dofs,
+        "u0_reached_mm": summary.get("u0_reached_mm"),
+        "run_dir": str(run_dir) if run_dir else None,
+        "warnings": list(summary.get("warnings") or []),
+        "scene": c.scene.to_dict() if c.scene is not None else None,
+    }
 
 
-def _case_rows(c: Case, pcols: list[str], steps: list[dict[str, Any]], record: dict[str, Any],
-               run_cols: list[str]) -> list[dict[str, Any]]:
+def _case_rows(
+    c: Case, pcols: list[str], steps: list[dict[str, Any]], record: dict[str, Any], run_cols: list[str]
+) -> list[dict[str, Any]]:
     """The case's rows of the study's results.csv (one per step; ``run_cols`` gains new columns)."""
-    base = {"case": c.index, "key": c.key or "", "status": record["status"],
-            **{k: _cell(c.params.get(k, "")) for k in pcols}}
-    tail = {"dofs": record["dofs"] if record["dofs"] is not None else "",
-            "case_wall_s": record["wall_s"] if record["wall_s"] is not None else "",
-            "threads": c.record.get("threads", ""), "error": _short(c.record.get("error"))}
+    base = {
+        "case": c.index,
+        "key": c.key or "",
+        "status": record["status"],
+        **{k: _cell(c.params.get(k, "")) for k in pcols},
+    }
+    tail = {
+        "dofs": record["dofs"] if record["dofs"] is not None else "",
+        "case_wall_s": record["wall_s"] if record["wall_s"] is not None else "",
+        "threads": c.record.get("threads", ""),
+        "error": _short(c.record.get("error")),
+    }
     for s in steps:
         run_cols.extend(k for k in s if k not in run_cols)
     return [{**base, **s, **tail} for s in steps or [{}]]
@@ -126,8 +157,9 @@ def _case_profiles(study: Study, c: Case, run_dir: Path) -> list[dict[str, Any]]
     return out
 
 
-def _extract(study: Study, c: Case, record: dict[str, Any], run_dir: Path, out: Path,
-             tables: dict[str, list[dict[str, Any]]]) -> None:
+def _extract(
+    study: Study, c: Case, record: dict[str, Any], run_dir: Path, out: Path, tables: dict[str, list[dict[str, Any]]]
+) -> None:
     """The study's own tables from one case; a failure is recorded, never fatal."""
     assert study.extract is not None
     try:
@@ -136,8 +168,13 @@ def _extract(study: Study, c: Case, record: dict[str, Any], run_dir: Path, out: 
     except Exception as exc:
         record["extract_error"] = f"{type(exc).__name__}: {exc}"
         if isinstance(exc, ImportError) and exc.name:  # pyvista reads the fields
-            log.warning("study %s case %d: no tables from the fields: %s is not installed (pip install %s)",
-                        study.name, c.index, exc.name, exc.name)
+            log.warning(
+                "study %s case %d: no tables from the fields: %s is not installed (pip install %s)",
+                study.name,
+                c.index,
+                exc.name,
+                exc.name,
+            )
         else:
             log.warning("study %s case %d: extraction failed: %s", study.name, c.index, exc)
 
@@ -201,8 +238,9 @@ def load(out: str | Path) -> StudyData:
     except FileNotFoundError:
         raise StudyFolderError(f"no finished study in {out} ({path.name} missing)") from None
     except (OSError, ValueError) as exc:
-        raise StudyFolderError(f"{path} is unreadable ({type(exc).__name__}: {exc}); run the study again "
-                               "(without --plot-only) to write it") from None
+        raise StudyFolderError(
+            f"{path} is unreadable ({type(exc).__name__}: {exc}); run the study again (without --plot-only) to write it"
+        ) from None
     if not isinstance(meta, dict) or not isinstance(meta.get("cases"), list):
         raise StudyFolderError(f"{path} is not a study's meta.json (no list of cases)")
     tables = {name: _read_csv(out / f"{name}.csv") for name in meta.get("tables", [])}

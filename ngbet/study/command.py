@@ -30,8 +30,11 @@ __all__ = ["add_arguments", "build_study", "left_out", "main_for", "run_from_arg
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The command-line options every study takes."""
     p.add_argument("--quick", action="store_true", help="a small version of the study (seconds; what the tests run)")
-    p.add_argument("--out", help="study folder (default: out/studies/NAME, or NAME-quick; on a scene file or with "
-                   "--set, NAME-scene-DIGEST, DIGEST the scene's)")
+    p.add_argument(
+        "--out",
+        help="study folder (default: out/studies/NAME, or NAME-quick; on a scene file or with "
+        "--set, NAME-scene-DIGEST, DIGEST the scene's)",
+    )
     p.add_argument("--cache", help="case cache folder (default: out/studies/cache)")
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1 = in this process)")
     p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
@@ -58,9 +61,11 @@ def _refuse_set_of_varied_keys(study: Study, overrides: list[str]) -> None:
         key = item.partition("=")[0].strip()
         if key in varied:
             values = list(dict.fromkeys(_words(c[key]) for c in study.cases if key in c))
-            raise SceneError(f"--set {item}: {key} is what the {study.name} study varies (its cases set it to "
-                             f"{', '.join(values[:6])}{', ...' if len(values) > 6 else ''}), so the value would not "
-                             "be used; leave it out, or sweep the values you want (ngbet sweep)")
+            raise SceneError(
+                f"--set {item}: {key} is what the {study.name} study varies (its cases set it to "
+                f"{', '.join(values[:6])}{', ...' if len(values) > 6 else ''}), so the value would not "
+                "be used; leave it out, or sweep the values you want (ngbet sweep)"
+            )
 
 
 def _check_working_folder(args: argparse.Namespace) -> None:
@@ -69,9 +74,12 @@ def _check_working_folder(args: argparse.Namespace) -> None:
         os.getcwd()
     except FileNotFoundError:
         if not (args.out and os.path.isabs(args.out) and args.cache and os.path.isabs(args.cache)):
-            raise OutputError(os.environ.get("PWD", "."), "the current folder no longer exists (deleted or moved), "
-                              "and the study's folder or cache is relative to it: change to a folder that "
-                              "exists, or give --out and --cache as absolute paths") from None
+            raise OutputError(
+                os.environ.get("PWD", "."),
+                "the current folder no longer exists (deleted or moved), "
+                "and the study's folder or cache is relative to it: change to a folder that "
+                "exists, or give --out and --cache as absolute paths",
+            ) from None
 
 
 def _probe_cache(cache: Path) -> None:
@@ -82,8 +90,9 @@ def _probe_cache(cache: Path) -> None:
         probe.write_bytes(b"")
         probe.unlink()
     except OSError as exc:
-        raise OSError(exc.errno, f"{exc.strerror} (a study keeps its cases and fits in its cache folder)",
-                      str(cache)) from None
+        raise OSError(
+            exc.errno, f"{exc.strerror} (a study keeps its cases and fits in its cache folder)", str(cache)
+        ) from None
 
 
 def _flat(d: dict[str, Any], pre: str = "") -> dict[str, Any]:
@@ -103,8 +112,11 @@ def left_out(full: Study, quick: Study) -> list[str]:
     """
     varied = {k for k in full.params_columns() if all(k in c for c in full.cases)}
     fb, qb = _flat(as_floats(full.base.to_dict())), _flat(as_floats(quick.base.to_dict()))
-    notes = [f"{k} = {_words(fb[k])} (runs {_words(qb.get(k))})" for k in fb
-             if fb[k] != qb.get(k) and k not in varied and k != "solver.threads"]
+    notes = [
+        f"{k} = {_words(fb[k])} (runs {_words(qb.get(k))})"
+        for k in fb
+        if fb[k] != qb.get(k) and k not in varied and k != "solver.threads"
+    ]
     for k in full.params_columns():
         ran = [c[k] for c in quick.cases if k in c]
         gone = [c[k] for c in full.cases if k in c and not any(same_value(c[k], v) for v in ran)]
@@ -125,8 +137,9 @@ def _words(v: Any) -> str:
     return str(v)
 
 
-def build_study(build: Callable[..., Study], quick: bool, scene: Scene | None = None, source: str = "",
-                cache: Path | None = None) -> Study:
+def build_study(
+    build: Callable[..., Study], quick: bool, scene: Scene | None = None, source: str = "", cache: Path | None = None
+) -> Study:
     """The study ``build`` gives, on ``scene`` (None: the study's default), with what ``quick`` leaves out.
 
     ``cache``: the study cache, handed to a ``build`` that keeps work of its own there (a ``cache``
@@ -140,14 +153,16 @@ def build_study(build: Callable[..., Study], quick: bool, scene: Scene | None = 
     return study
 
 
-def _prepare(build: Callable[..., Study], args: argparse.Namespace, scene: Scene | None, source: str,
-             name: str | None) -> tuple[Study, Path, OwnedFolder | None]:
+def _prepare(
+    build: Callable[..., Study], args: argparse.Namespace, scene: Scene | None, source: str, name: str | None
+) -> tuple[Study, Path, OwnedFolder | None]:
     """The study, its folder and (when its name is known before it is built) the folder, owned first.
 
     A study on another scene than its default has a folder of its own (the scene's digest in its
     name), so the default study's folder stays as it is. The folder and the cache are checked
     before the study is built: a study may fit before it runs its cases.
     """
+
     def folder_name(n: str) -> str:  # a study on another scene has a folder of its own
         return n if scene is None else f"{n}-scene-{scene.digest()[:8]}"
 
@@ -168,8 +183,13 @@ def _prepare(build: Callable[..., Study], args: argparse.Namespace, scene: Scene
     return study, out, folder
 
 
-def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: Scene | None = None,
-                  source: str = "", name: str | None = None) -> int:
+def run_from_args(
+    build: Callable[..., Study],
+    args: argparse.Namespace,
+    scene: Scene | None = None,
+    source: str = "",
+    name: str | None = None,
+) -> int:
     """Run (or with ``--plot-only`` redraw) the study ``build`` gives for the options; the exit status.
 
     scene : the base scene (None: the study's own, on ngbet's default scene); source names it.
@@ -185,25 +205,41 @@ def run_from_args(build: Callable[..., Study], args: argparse.Namespace, scene: 
             print(f"ngbet: study {study.name}: {exc}", file=sys.stderr)
             return 2
     else:
-        data = run_study(study, out, cache=args.cache, workers=args.workers, scheduler=args.scheduler,
-                         progress=not args.quiet, retry_failed=args.retry_failed, threads=args.threads,
-                         folder=folder)
+        data = run_study(
+            study,
+            out,
+            cache=args.cache,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            progress=not args.quiet,
+            retry_failed=args.retry_failed,
+            threads=args.threads,
+            folder=folder,
+        )
     st = [c["status"] for c in data.cases()]
     ex = data.meta["executor"]
     warned = [c["case"] for c in data.cases() if c.get("warnings")]
     if warned and not args.quiet:
-        print(f"ngbet: study {study.name}: {len(warned)} case(s) with warnings ({', '.join(map(str, warned[:8]))}"
-              f"{', ...' if len(warned) > 8 else ''}): meta.json lists them", file=sys.stderr)
+        print(
+            f"ngbet: study {study.name}: {len(warned)} case(s) with warnings ({', '.join(map(str, warned[:8]))}"
+            f"{', ...' if len(warned) > 8 else ''}): meta.json lists them",
+            file=sys.stderr,
+        )
     if data.meta.get("figures_skipped"):
-        print(f"ngbet: study {study.name}: figures skipped: {data.meta['figures_skipped']}; the tables and "
-              "the report are written", file=sys.stderr)
+        print(
+            f"ngbet: study {study.name}: figures skipped: {data.meta['figures_skipped']}; the tables and "
+            "the report are written",
+            file=sys.stderr,
+        )
     quick = data.meta.get("quick_left_out") or []
     if quick and not args.quiet:
         print(f"study {study.name} --quick leaves out: " + "; ".join(quick))
-    print(f"study {study.name}{' (--quick: what it leaves out is in report.md)' if quick and args.quiet else ''}: "
-          f"{len(st)} cases ({st.count('ok')} ok, {st.count('failed')} failed, "
-          f"{st.count('error')} errors; {ex['cases_run']} run, {ex['cases_cached']} from the cache) "
-          f"in {data.meta['wall_s']:.1f} s -> {out}/")
+    print(
+        f"study {study.name}{' (--quick: what it leaves out is in report.md)' if quick and args.quiet else ''}: "
+        f"{len(st)} cases ({st.count('ok')} ok, {st.count('failed')} failed, "
+        f"{st.count('error')} errors; {ex['cases_run']} run, {ex['cases_cached']} from the cache) "
+        f"in {data.meta['wall_s']:.1f} s -> {out}/"
+    )
     if (out / "report.md").exists() and not args.quiet:  # --quiet: the one line above, the report in its file
         print((out / "report.md").read_text())
     if data.meta.get("report_error"):

@@ -38,8 +38,17 @@ from ..scene.document import Scene
 from .cache import CacheError, reached, store, verify_case
 from .model import Case
 
-__all__ = ["PRELOAD", "Bar", "Finished", "StudyInterrupted", "accept", "execute_case", "run_processes",
-           "worker_context", "worker_init"]
+__all__ = [
+    "PRELOAD",
+    "Bar",
+    "Finished",
+    "StudyInterrupted",
+    "accept",
+    "execute_case",
+    "run_processes",
+    "worker_context",
+    "worker_init",
+]
 
 
 class StudyInterrupted(KeyboardInterrupt):
@@ -49,8 +58,14 @@ class StudyInterrupted(KeyboardInterrupt):
 Finished = Callable[[Case, dict[str, Any], Path | None], None]
 
 
-def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None = None,
-                 cache: str | None = None, key: str | None = None, token: str | None = None) -> dict[str, Any]:
+def execute_case(
+    scene_dict: dict[str, Any],
+    threads: int,
+    workdir: str | None = None,
+    cache: str | None = None,
+    key: str | None = None,
+    token: str | None = None,
+) -> dict[str, Any]:
     """Run one scene into ``workdir`` (or a temporary folder whose files are returned).
 
     With ``cache`` (and the case's ``key``, the study's ``token``) a finished case is stored into
@@ -68,8 +83,13 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
     wd = Path(tempfile.mkdtemp(prefix="ngbet-case-")) if tmp else Path(workdir)  # type: ignore[arg-type]
     wd.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    rec: dict[str, Any] = {"status": "ok", "error": None, "threads": threads, "host": machine()["node"],
-                           "pid": os.getpid()}
+    rec: dict[str, Any] = {
+        "status": "ok",
+        "error": None,
+        "threads": threads,
+        "host": machine()["node"],
+        "pid": os.getpid(),
+    }
     try:
         with _quiet_logs():  # a case's warnings go to its summary.json (and the study's meta.json), not the terminal
             summary = run(scene, wd, progress=False)
@@ -78,8 +98,11 @@ def execute_case(scene_dict: dict[str, Any], threads: int, workdir: str | None =
     except ConvergenceError as exc:
         rec.update(status="failed", error=str(exc), error_type="ConvergenceError")
     except Exception as exc:  # recorded, never fatal for the study
-        rec.update(status="error", error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}",
-                   error_type=type(exc).__name__)
+        rec.update(
+            status="error",
+            error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}",
+            error_type=type(exc).__name__,
+        )
     rec["wall_s"] = time.perf_counter() - t0
     if tmp:
         rec["files"] = {p.relative_to(wd).as_posix(): p.read_bytes() for p in wd.rglob("*") if p.is_file()}
@@ -115,8 +138,12 @@ def accept(cache: Path, token: str, c: Case, rec: dict[str, Any], wd: Path | Non
                 store(cache, c.key, rec, token, workdir=wd, files=files)  # type: ignore[arg-type]
             verify_case(cache / c.key)  # type: ignore[operator]
         except (CacheError, OSError) as exc:
-            rec = {**rec, "status": "error", "error": f"the case finished ({rec['status']}) but was not stored: {exc}",
-                   "error_type": type(exc).__name__}
+            rec = {
+                **rec,
+                "status": "error",
+                "error": f"the case finished ({rec['status']}) but was not stored: {exc}",
+                "error_type": type(exc).__name__,
+            }
     elif wd is not None:
         shutil.rmtree(wd, ignore_errors=True)
     return {**rec, "cached": False}
@@ -157,8 +184,12 @@ class Bar:
         if enabled:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=total, desc=f"study {name}", unit="case",
-                            bar_format="{l_bar}{bar}| {n:.2f}/{total} cases [{elapsed}<{remaining}]{postfix}")
+            self.bar = tqdm(
+                total=total,
+                desc=f"study {name}",
+                unit="case",
+                bar_format="{l_bar}{bar}| {n:.2f}/{total} cases [{elapsed}<{remaining}]{postfix}",
+            )
         self.stop = threading.Event()
         self.poller: threading.Thread | None = None
 
@@ -170,6 +201,7 @@ class Bar:
         def poll() -> None:
             while not self.stop.wait(0.5):
                 self.tick()
+
         self.poller = threading.Thread(target=poll, daemon=True)
         self.poller.start()
 
@@ -195,23 +227,43 @@ class Bar:
             self.bar.close()
 
 
-def run_processes(todo: list[Case], wds: dict[Any, Path], nworkers: int | None, threads: int,
-                   running: dict[str, tuple[Path, float]], lock: threading.Lock, finished: Finished,
-                   cache: Path, token: str) -> None:
+def run_processes(
+    todo: list[Case],
+    wds: dict[Any, Path],
+    nworkers: int | None,
+    threads: int,
+    running: dict[str, tuple[Path, float]],
+    lock: threading.Lock,
+    finished: Finished,
+    cache: Path,
+    token: str,
+) -> None:
     """Local worker processes (forked by a fork server; they exit with this process, see :func:`worker_init`)."""
     # one BLAS thread per worker too (inherited by the fork server when it starts, and by its workers)
     with environ({k: str(threads) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}):
         _run_pool(todo, wds, nworkers, threads, running, lock, finished, cache, token)
 
 
-def _run_pool(todo: list[Case], wds: dict[Any, Path], nworkers: int | None, threads: int,
-              running: dict[str, tuple[Path, float]], lock: threading.Lock, finished: Finished,
-              cache: Path, token: str) -> None:
+def _run_pool(
+    todo: list[Case],
+    wds: dict[Any, Path],
+    nworkers: int | None,
+    threads: int,
+    running: dict[str, tuple[Path, float]],
+    lock: threading.Lock,
+    finished: Finished,
+    cache: Path,
+    token: str,
+) -> None:
     """Run the cases on a pool of local worker processes; an interrupt keeps the finished ones."""
     ctx = worker_context(todo)
     alive_r, alive_w = ctx.Pipe(duplex=False)  # closed when this process ends: see worker_init
-    ex = cf.ProcessPoolExecutor(max_workers=nworkers, mp_context=ctx, initializer=worker_init,
-                                initargs=(alive_r, {k: v for k, v in os.environ.items() if k.startswith("NGBET_")}))
+    ex = cf.ProcessPoolExecutor(
+        max_workers=nworkers,
+        mp_context=ctx,
+        initializer=worker_init,
+        initargs=(alive_r, {k: v for k, v in os.environ.items() if k.startswith("NGBET_")}),
+    )
     try:
         _submit_and_collect(ex, todo, wds, threads, running, lock, finished, (str(cache), token))
     finally:
@@ -219,9 +271,16 @@ def _run_pool(todo: list[Case], wds: dict[Any, Path], nworkers: int | None, thre
         alive_r.close()
 
 
-def _submit_and_collect(ex: Any, todo: list[Case], wds: dict[Any, Path], threads: int,
-                        running: dict[str, tuple[Path, float]], lock: threading.Lock, finished: Finished,
-                        store_in: tuple[str, str]) -> None:
+def _submit_and_collect(
+    ex: Any,
+    todo: list[Case],
+    wds: dict[Any, Path],
+    threads: int,
+    running: dict[str, tuple[Path, float]],
+    lock: threading.Lock,
+    finished: Finished,
+    store_in: tuple[str, str],
+) -> None:
     """Submit the cases to the pool ``ex`` and record each as it finishes; an interrupt keeps the finished ones."""
     futs: dict[Any, tuple[Case, Path]] = {}
     consumed: set[Any] = set()
@@ -232,14 +291,25 @@ def _submit_and_collect(ex: Any, todo: list[Case], wds: dict[Any, Path], threads
         try:
             rec = fut.result()
         except Exception as exc:  # a worker died: record, do not cache
-            rec = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
-                   "error_type": type(exc).__name__, "wall_s": math.nan}
+            rec = {
+                "status": "error",
+                "error": f"{type(exc).__name__}: {exc}",
+                "error_type": type(exc).__name__,
+                "wall_s": math.nan,
+            }
         finished(c, rec, wd)
 
     try:
         for c in todo:
-            fut = ex.submit(execute_case, c.scene.to_dict(), threads, str(wds[c.key]),  # type: ignore[union-attr]
-                            store_in[0], c.key, store_in[1])
+            fut = ex.submit(
+                execute_case,
+                c.scene.to_dict(),  # type: ignore[union-attr]
+                threads,
+                str(wds[c.key]),
+                store_in[0],
+                c.key,
+                store_in[1],
+            )
             futs[fut] = (c, wds[c.key])
             with lock:
                 running[c.key] = (wds[c.key], c.scene.loading.u0_mm)  # type: ignore[index,union-attr]
@@ -256,9 +326,11 @@ def _submit_and_collect(ex: Any, todo: list[Case], wds: dict[Any, Path], threads
 
 #: what the fork server imports, once for all its workers, by the model of the cases ("plot": cases
 #: that draw their figures)
-PRELOAD = {"continuum": ["ngbet.study.executors", "ngbet.run", "ngbet.runner.continuum"],
-           "discrete": ["ngbet.study.executors", "ngbet.run", "ngbet.runner.discrete"],
-           "plot": ["matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.backends.backend_pdf"]}
+PRELOAD = {
+    "continuum": ["ngbet.study.executors", "ngbet.run", "ngbet.runner.continuum"],
+    "discrete": ["ngbet.study.executors", "ngbet.run", "ngbet.runner.discrete"],
+    "plot": ["matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.backends.backend_pdf"],
+}
 
 
 def worker_context(todo: list[Case]) -> Any:
@@ -290,4 +362,3 @@ def _stop_pool(ex: Any) -> None:
         p.join(timeout=5)
         if p.is_alive():
             p.kill()
-

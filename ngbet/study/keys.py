@@ -44,13 +44,19 @@ def code_version(model: str = "continuum") -> dict[str, str]:
         h = hashlib.sha256()
         for path in sorted(pkg.rglob("*.py")):
             rel = path.relative_to(pkg).as_posix()
-            if (rel in _NOT_IN_KEY or rel.startswith(_DIRS_NOT_IN_KEY)
-                    or (model != "discrete" and rel.startswith("discrete/"))):
+            if (
+                rel in _NOT_IN_KEY
+                or rel.startswith(_DIRS_NOT_IN_KEY)
+                or (model != "discrete" and rel.startswith("discrete/"))
+            ):
                 continue
             h.update(rel.encode() + b"\0" + path.read_bytes() + b"\0")
         v = versions()
-        _CODE_VERSION[model] = {"sources_sha256": h.hexdigest()[:16], "ngbet": v.get("ngbet", "?"),
-                                **{k: v.get(k, "?") for k in ("ngsolve", "netgen", "numpy", "scipy")}}
+        _CODE_VERSION[model] = {
+            "sources_sha256": h.hexdigest()[:16],
+            "ngbet": v.get("ngbet", "?"),
+            **{k: v.get(k, "?") for k in ("ngsolve", "netgen", "numpy", "scipy")},
+        }
     return _CODE_VERSION[model]
 
 

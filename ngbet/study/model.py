@@ -66,8 +66,11 @@ class StudyData:
         sets one more key is another case, never a match.
         """
         want = {k.replace("__", "."): v for k, v in params.items()}
-        return [c["case"] for c in self.cases()
-                if set(c["params"]) == set(want) and all(same_value(c["params"][k], v) for k, v in want.items())]
+        return [
+            c["case"]
+            for c in self.cases()
+            if set(c["params"]) == set(want) and all(same_value(c["params"][k], v) for k, v in want.items())
+        ]
 
     def case(self, params: dict[str, Any]) -> int | None:
         """The index of the case whose parameters are exactly ``params`` (None when the study has none)."""
@@ -130,4 +133,3 @@ class Case:
     scene: Scene | None
     key: str | None
     record: dict[str, Any] = field(default_factory=dict)
-

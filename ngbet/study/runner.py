@@ -44,9 +44,17 @@ def default_out(name: str, quick: bool) -> Path:
     return DEFAULT_ROOT / (f"{name}-quick" if quick else name)
 
 
-def run_study(study: Study, out: str | Path | None = None, cache: str | Path | None = None,
-              workers: int | None = None, scheduler: str | None = None, progress: bool = True,
-              retry_failed: bool = False, threads: int | None = None, folder: OwnedFolder | None = None) -> StudyData:
+def run_study(
+    study: Study,
+    out: str | Path | None = None,
+    cache: str | Path | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+    retry_failed: bool = False,
+    threads: int | None = None,
+    folder: OwnedFolder | None = None,
+) -> StudyData:
     """Run the missing cases of ``study``, then write its tables, meta.json, figures and report.
 
     The study folder ``out`` is owned as ``ngbet run`` owns its run folder (:class:`OwnedFolder`):
@@ -69,8 +77,17 @@ def run_study(study: Study, out: str | Path | None = None, cache: str | Path | N
         return _locked(study, out, cache, workers, scheduler, progress, retry_failed, threads, t_start)
 
 
-def _locked(study: Study, out: Path, cache: Path, workers: int | None, scheduler: str | None, progress: bool,
-            retry_failed: bool, threads: int | None, t_start: float) -> StudyData:
+def _locked(
+    study: Study,
+    out: Path,
+    cache: Path,
+    workers: int | None,
+    scheduler: str | None,
+    progress: bool,
+    retry_failed: bool,
+    threads: int | None,
+    t_start: float,
+) -> StudyData:
     with study_lock(cache) as token:  # an unwritable cache fails here, naming it, whatever the workers
         if clean_debris(cache):
             log.info("removed the unfinished case folders of ended studies from %s", cache)
@@ -81,13 +98,29 @@ def _locked(study: Study, out: Path, cache: Path, workers: int | None, scheduler
                 shutil.rmtree(d, ignore_errors=True)
 
 
-def _run(study: Study, out: Path, cache: Path, token: str, workers: int | None, scheduler: str | None,
-         progress: bool, retry_failed: bool, threads: int | None, t_start: float) -> StudyData:
+def _run(
+    study: Study,
+    out: Path,
+    cache: Path,
+    token: str,
+    workers: int | None,
+    scheduler: str | None,
+    progress: bool,
+    retry_failed: bool,
+    threads: int | None,
+    t_start: float,
+) -> StudyData:
     cases = _cases(study)
     todo, seen = _to_run(cases, cache, retry_failed)
     mode, nworkers, threads = _executor(todo, workers, scheduler, threads)
-    executor_info = {"mode": mode, "workers": nworkers, "scheduler": scheduler, "threads_per_case": threads,
-                     "cases_run": len(todo), "cases_cached": sum(1 for c in cases if c.record.get("cached"))}
+    executor_info = {
+        "mode": mode,
+        "workers": nworkers,
+        "scheduler": scheduler,
+        "threads_per_case": threads,
+        "cases_run": len(todo),
+        "cases_cached": sum(1 for c in cases if c.record.get("cached")),
+    }
     log.info("study %s: %d cases, %d to run (%s)", study.name, len(cases), len(todo), mode)
 
     if todo:
@@ -115,8 +148,15 @@ def _cases(study: Study) -> list[Case]:
                 sc = study.base.with_changes(**params)
             cases.append(Case(i, params, sc, case_key(sc)))
         except SceneError as exc:
-            cases.append(Case(i, params, None, None, {"status": "failed", "error": f"bad scene: {exc}",
-                                                       "error_type": "SceneError", "wall_s": 0.0}))
+            cases.append(
+                Case(
+                    i,
+                    params,
+                    None,
+                    None,
+                    {"status": "failed", "error": f"bad scene: {exc}", "error_type": "SceneError", "wall_s": 0.0},
+                )
+            )
     return cases
 
 
@@ -138,8 +178,9 @@ def _to_run(cases: list[Case], cache: Path, retry_failed: bool) -> tuple[list[Ca
     return todo, seen
 
 
-def _executor(todo: list[Case], workers: int | None, scheduler: str | None,
-              threads: int | None) -> tuple[str, int | None, int]:
+def _executor(
+    todo: list[Case], workers: int | None, scheduler: str | None, threads: int | None
+) -> tuple[str, int | None, int]:
     """(mode, worker processes, NGSolve threads per case) for the cases to run."""
     ncpu = os.cpu_count() or 1
     if scheduler:
@@ -154,9 +195,17 @@ def _executor(todo: list[Case], workers: int | None, scheduler: str | None,
     return mode, nworkers, threads
 
 
-
-def execute(todo: list[Case], cache: Path, token: str, mode: str, nworkers: int | None, scheduler: str | None,
-            threads: int, progress: bool, name: str) -> None:
+def execute(
+    todo: list[Case],
+    cache: Path,
+    token: str,
+    mode: str,
+    nworkers: int | None,
+    scheduler: str | None,
+    threads: int,
+    progress: bool,
+    name: str,
+) -> None:
     """Run the cases; each is stored as soon as it finishes and verified before it counts.
 
     Ctrl-C (or SIGTERM in the CLI) keeps the finished ones, cancels the others and stops the workers
@@ -189,10 +238,10 @@ def execute(todo: list[Case], cache: Path, token: str, mode: str, nworkers: int 
         else:
             run_dask(todo, scheduler, threads, finished)  # type: ignore[arg-type]
     except KeyboardInterrupt:
-        raise StudyInterrupted(f"study {name} interrupted: {len(finished_keys)} finished cases are kept in "
-                               f"{cache}, {len(todo) - len(finished_keys)} cancelled; run it again to "
-                               "compute those") from None
+        raise StudyInterrupted(
+            f"study {name} interrupted: {len(finished_keys)} finished cases are kept in "
+            f"{cache}, {len(todo) - len(finished_keys)} cancelled; run it again to "
+            "compute those"
+        ) from None
     finally:
         bar.close()
-
-
