@@ -734,7 +734,7 @@ def test_every_package_is_installed_and_the_studies_come_from_the_top_level_fold
     repo = Path(__file__).resolve().parent.parent
     conf = tomllib.loads((repo / "pyproject.toml").read_text())["tool"]["setuptools"]
     found = {".".join(p.parent.relative_to(repo).parts) for p in (repo / "ngbet").rglob("__init__.py")}
-    shipped = {"ngbet.data", "ngbet.data.cao2008", "ngbet.geometry"}  # data folders, installed with ngbet
+    shipped = {"ngbet.data", "ngbet.data.cao2008", "ngbet.data.cao2008_pf", "ngbet.geometry"}  # data, installed
     assert set(conf["packages"]) == found | {"ngbet.studies"} | shipped
     assert conf["package-dir"] == {"ngbet.studies": "studies", "ngbet.data": "data", "ngbet.geometry": "geometry"}
     assert (repo / "studies" / "__init__.py").exists()
