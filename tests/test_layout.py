@@ -15,7 +15,13 @@ from pathlib import Path
 
 import pytest
 
+import ngbet
+import ngbet.studies
+
 ROOT = Path(__file__).resolve().parent.parent
+#: the package the tests import (the source tree, or an install where the tests run without it) and its studies
+PKG = Path(ngbet.__file__).resolve().parent
+STUDIES = Path(ngbet.studies.__file__).resolve().parent
 #: the public API of ``import ngbet``: gathered there from the modules that define it
 PUBLIC_API = {
     "ConvergenceError",
@@ -37,7 +43,7 @@ GENERATED = "ngbet._version"
 def _modules() -> dict[str, Path]:
     """Every module of the package by its dotted name; the studies are installed as ``ngbet.studies``."""
     out = {}
-    for prefix, folder in (("ngbet", ROOT / "ngbet"), ("ngbet.studies", ROOT / "studies")):
+    for prefix, folder in (("ngbet", PKG), ("ngbet.studies", STUDIES)):
         for p in sorted(folder.rglob("*.py")):
             parts = list(p.relative_to(folder).with_suffix("").parts)
             if parts[-1] == "__init__":
@@ -112,6 +118,14 @@ def _imports_from(files: dict[str, Path]):
                         yield path, node.lineno, target, a.name
 
 
+def _shown(path: Path) -> str:
+    """A file as a message names it: relative to the clone, or to the installed package's folder."""
+    for base in (ROOT, PKG.parent):
+        if path.is_relative_to(base):
+            return str(path.relative_to(base))
+    return str(path)
+
+
 def _outside_files() -> dict[str, Path]:
     """The tests, docs scripts, benchmarks and examples, which import ngbet by absolute names."""
     return {
@@ -132,16 +146,14 @@ def test_every_module_declares_what_it_defines_in_all():
 def test_every_import_names_the_module_that_defines_the_name():
     wrong = []
     for path, line, target, name in _imports_from({**MODULES, **_outside_files()}):
-        if target == "ngbet" and (
-            name in PUBLIC_API and not path.is_relative_to(ROOT / "ngbet") or f"ngbet.{name}" in MODULES
-        ):
+        if target == "ngbet" and (name in PUBLIC_API and not path.is_relative_to(PKG) or f"ngbet.{name}" in MODULES):
             continue  # the public API, for users, tests and scripts; or a subpackage
         if f"{target}.{name}" in MODULES or target == GENERATED:
             continue  # a submodule; the build's version record
         if target not in MODULES:
-            wrong.append(f"{path.relative_to(ROOT)}:{line}: no module {target}")
+            wrong.append(f"{_shown(path)}:{line}: no module {target}")
         elif name not in DEFINED[target]:
-            wrong.append(f"{path.relative_to(ROOT)}:{line}: {name} from {target}, which does not define it")
+            wrong.append(f"{_shown(path)}:{line}: {name} from {target}, which does not define it")
     assert not wrong, "\n".join(wrong)
 
 
@@ -151,7 +163,7 @@ def test_no_private_name_is_imported_from_another_module():
         private = name.startswith("_") and not name.startswith("__")
         own_package = f"{target}.{name}" in MODULES  # a package's private module, from inside the package
         if private and not own_package:
-            wrong.append(f"{path.relative_to(ROOT)}:{line}: {name} from {target}")
+            wrong.append(f"{_shown(path)}:{line}: {name} from {target}")
     assert not wrong, "\n".join(wrong)
 
 
