@@ -693,3 +693,18 @@ def test_frame_fit_reports_the_file_quantities_and_the_frame_s_shear(tmp_path):
     np.testing.assert_allclose(fq["measured"], np.interp(fq["shear_angle_deg"], t.x[order], t.y[order]), rtol=0.05)
     np.testing.assert_allclose(c["shear_angle_deg"], fq["shear_angle_deg"], atol=0.1)
     np.testing.assert_allclose(c["shear_angle_ideal_deg"], fq["shear_angle_deg"], rtol=1e-9)
+
+
+def test_default_bounds_stay_inside_a_key_s_domain():
+    """Without bounds in the scene a parameter may move a factor 1e4 either way, but an angle stays
+    inside (0, 90) degrees, which the scene requires: the locking angle's bounds are clipped to [1, 89]."""
+    sc = Scene().with_changes(
+        **{"effects.shear_law": "locking", "material.K_lock": 1e3, "material.gamma_lock_deg": 80.0}
+    )
+    names = ["material.K_lock", "material.gamma_lock_deg"]
+    lo, hi = fit_params.bounds(sc, names, names, np.array([1e3, 80.0]))
+    assert lo[0] == pytest.approx(1e3 / fit_params.BOUND_FACTOR) and hi[0] == pytest.approx(
+        1e3 * fit_params.BOUND_FACTOR
+    )
+    assert (lo[1], hi[1]) == fit_params.DOMAINS["material.gamma_lock_deg"] == (1.0, 89.0)
+    sc.with_changes(**{"material.gamma_lock_deg": hi[1]})  # the bound itself is a valid scene
