@@ -367,9 +367,8 @@ def _run(scene: Scene, out: Path, quiet: bool = False, measured: Any = None) -> 
     from .plot_process import plot_process
 
     try:
-        # started before NGSolve is imported (see its module); not for the discrete model, whose
-        # yarn figures import matplotlib into the run's process anyway
-        with plot_process(scene.outputs.plot and scene.model == "continuum"):
+        # started before NGSolve is imported (see its module); it draws the network's yarn pictures too
+        with plot_process(scene.outputs.plot):
             from .run import run
 
             summary = run(scene, out, progress=not quiet, measured=measured)

@@ -249,3 +249,35 @@ def test_interrupted_run_keeps_the_solver_statistics(tmp_path, monkeypatch):
     assert s["status"] == "interrupted" and s["last_converged_mm"] == pytest.approx(calls[-1] * 1e3)
     assert s["factorizations"] >= 3 and s["half_turn_blocks"] is True
     assert s["work_by_cause"]["converged step"]["calls"] >= 3
+
+
+def test_the_yarn_picture_is_drawn_from_the_state_file_alone(unbalanced, tmp_path):
+    """The picture of a state is made from state_XXmm.npz: its segments are the deformed beams, coloured
+    by their shear angle, exactly as the network gives them; a folder without forces still gets it."""
+    import shutil
+
+    from ngbet.discrete.network import network_from_scene
+    from ngbet.discrete.observables import segment_gamma_deg
+    from ngbet.figures.data import load_yarn_states
+    from ngbet.figures.maps import yarn_state_figure
+    from ngbet.figures.run import YARNS, draw_run
+
+    scene, out, _ = unbalanced
+    net = network_from_scene(scene)
+    (st,) = load_yarn_states(out)
+    with np.load(out / "state_30mm.npz") as z:
+        u = np.column_stack([z["u_mm"] * 1e-3, z["theta_rad"]]).ravel()
+    x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3
+    fig = yarn_state_figure(st, scene)
+    drawn = fig.axes[0].collections
+    for fam, lc in zip((2, 1), drawn[:2], strict=True):  # thin yarns first, thick over them
+        sel = net.beam_family == fam
+        assert np.allclose(np.array(lc.get_segments()), x[net.beams[sel]], rtol=0, atol=1e-9)
+        assert np.allclose(lc.get_array(), segment_gamma_deg(net, u)[sel], rtol=0, atol=1e-12)
+    only_states = tmp_path / "run"
+    only_states.mkdir()
+    for name in ("scene.toml", "state_30mm.npz"):
+        shutil.copy(out / name, only_states / name)
+    (only_states / "results.csv").write_text("step,u0_mm\n1,30\n")
+    assert draw_run(only_states, only=(YARNS,)) is None  # no force figure without forces
+    assert (only_states / "yarns_30mm.png").stat().st_size > 10000

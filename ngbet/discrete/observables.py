@@ -152,7 +152,11 @@ def node_gamma(net: Network, u: np.ndarray) -> np.ndarray:
 
 
 def save_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None:
-    """Write a state as npz: reference nodes, displacements, yarn chains, crossings with slip and angle."""
+    """Write a state as npz: reference nodes, displacements, yarn chains, crossings with slip and angle.
+
+    Also what its picture needs (:func:`ngbet.figures.maps.yarn_state_figure`, drawn from the file
+    alone): the beams (node pairs) with their family and shear angle, and the clamped nodes.
+    """
     chains = list(net.yarn_nodes)
     ptr = np.concatenate([[0], np.cumsum([len(c) for c in chains])])
     gamma = crossing_gamma(net, u)
@@ -172,6 +176,10 @@ def save_state(path: str | Path, net: Network, u: np.ndarray, u0: float) -> None
         crossing_gamma_deg=np.degrees(gamma),
         crossing_spring_angle_deg=np.degrees(crossing_spring_angle(net, u)),
         crossing_angle_deg=180.0 - 2 * math.degrees(net.angle) + np.degrees(gamma),
+        beams=net.beams,
+        beam_family=net.beam_family,
+        segment_gamma_deg=segment_gamma_deg(net, u),
+        clamped_nodes=np.flatnonzero(net.node_end > 0),
     )
 
 

@@ -18,9 +18,11 @@ from numpy.typing import ArrayLike
 __all__ = [
     "MapData",
     "Measured",
+    "YarnState",
     "column",
     "increasing_curve",
     "load_maps",
+    "load_yarn_states",
     "map_file_name",
     "measured_fsh",
     "read_scene",
@@ -51,6 +53,47 @@ class MapData:
     triangles: np.ndarray
     gamma_deg: np.ndarray
     what: str = "continuum"
+
+
+@dataclass
+class YarnState:
+    """The network's yarns at one clamp displacement, as its picture draws them [mm, deg].
+
+    ``tag``: the state file's (``state_37mm.npz``: "37mm"); ``beams``: node pairs, ``family``
+    and ``gamma_deg`` per beam; ``clamped``: the clamped yarn ends' node numbers.
+    """
+
+    tag: str
+    u0_mm: float
+    x_mm: np.ndarray  #: deformed node positions (n, 2)
+    beams: np.ndarray
+    family: np.ndarray
+    gamma_deg: np.ndarray
+    clamped: np.ndarray
+
+
+def load_yarn_states(run_dir: Path) -> list[YarnState]:
+    """The network's states in ``run_dir`` (its ``state_*.npz``), by increasing u0.
+
+    A state file without the beams (written by an older ngbet) has no picture and is left out.
+    """
+    states = []
+    for f in run_dir.glob("state_*mm.npz"):
+        with np.load(f) as z:
+            if "beams" not in z:
+                continue
+            states.append(
+                YarnState(
+                    f.stem[len("state_") :],
+                    float(z["u0_mm"]),
+                    z["X_mm"] + z["u_mm"],
+                    z["beams"],
+                    z["beam_family"],
+                    z["segment_gamma_deg"],
+                    z["clamped_nodes"],
+                )
+            )
+    return sorted(states, key=lambda s: s.u0_mm)
 
 
 def load_maps(run_dir: Path) -> list[MapData]:

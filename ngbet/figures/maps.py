@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .data import MapData
+from .data import MapData, YarnState
 from .style import SHEAR_LABEL, caption, figure, nice_ceil, put_caption
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -29,6 +29,7 @@ __all__ = [
     "map_panel",
     "shear_map_figure",
     "yarn_network_figure",
+    "yarn_state_figure",
 ]
 
 
@@ -228,3 +229,11 @@ def yarn_network_figure(
     note = cs.note()
     put_caption(fig, caption(scene) + (f"; {note}" if note else ""))
     return fig
+
+
+def yarn_state_figure(state: YarnState, scene: Any = None, scale_over: Sequence[np.ndarray] | None = None) -> Figure:
+    """The picture of a state file of the network (:func:`yarn_network_figure`); ``scale_over`` as there."""
+    x = state.x_mm
+    return yarn_network_figure(
+        x, state.beams, state.family, state.gamma_deg, x[state.clamped], state.u0_mm, scene, scale_over=scale_over
+    )

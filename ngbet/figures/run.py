@@ -3,7 +3,9 @@
 - ``force``: clamp force against clamp displacement (and the double force, continuum);
 - ``shear_force``: (a) F_sh against the kinematic shear angle γ; (b) the shear angles against u0;
 - ``profile``: the S-profile at the stations, the other rows in grey;
-- ``shear_map``: the shear angle on the deformed specimen at the stations, one colour scale.
+- ``shear_map``: the shear angle on the deformed specimen at the stations, one colour scale;
+- ``yarns_XXmm`` (the network's, :data:`YARNS`): the deformed yarns of each ``state_XXmm.npz``, one
+  colour scale for all.
 
 A picture-frame run draws its own ``force`` and ``shear_force`` (:mod:`ngbet.figures.frame`; a measured curve
 is a :class:`~ngbet.figures.frame.FrameMeasured`) and no profile.
@@ -14,6 +16,7 @@ threads (the plot process) each figure is drawn by a forked child, all at once.
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 from collections.abc import Callable, Sequence
@@ -27,12 +30,14 @@ from .data import MapData, Measured, load_maps, read_scene
 from .maps import shear_map_figure
 from .style import PNG_COMPRESSION, PNG_DPI, FigureWriter, can_fork, in_style
 
-__all__ = ["NO_MATPLOTLIB", "RUN_FIGURES", "draw_force", "draw_run", "formats_of", "start_plot", "warm_up"]
+__all__ = ["NO_MATPLOTLIB", "RUN_FIGURES", "YARNS", "draw_force", "draw_run", "formats_of", "start_plot", "warm_up"]
 
 log = logging.getLogger(__name__)
 
 #: figure files of a run
 RUN_FIGURES = ("force", "shear_force", "profile", "shear_map")
+#: in ``only`` of :func:`draw_run`: the network's yarn pictures, ``yarns_XXmm`` for each ``state_XXmm.npz``
+YARNS = "yarns"
 
 NO_MATPLOTLIB = "no figures: matplotlib is not installed (pip install matplotlib)"
 
@@ -47,12 +52,13 @@ def draw_run(
     extra: Extra = (),
     parallel: bool = False,
     measured: Measured | None = None,
-    only: Sequence[str] = RUN_FIGURES,
+    only: Sequence[str] = (*RUN_FIGURES, YARNS),
 ) -> Path | None:
-    """Draw the figures of ``run_dir`` (:data:`RUN_FIGURES`, or those in ``only``).
+    """Draw the figures of ``run_dir`` (:data:`RUN_FIGURES` and :data:`YARNS`, or those in ``only``).
 
-    Returns the force figure's file, or None when there was nothing to draw (no force in
-    results.csv). ``extra``: more curves (label, u0 [mm], force [N]) on the force figure.
+    Returns the force figure's file, or None when there was none to draw (no force in
+    results.csv: then only the yarn pictures are drawn). ``extra``: more curves (label, u0 [mm],
+    force [N]) on the force figure.
     ``parallel``: each figure drawn by a forked child (only in a process without threads; a figure
     whose child failed is drawn here).
 
@@ -65,7 +71,8 @@ def draw_run(
 
     run_dir = Path(run_dir)
     rows = read_rows(run_dir / "results.csv")
-    if not rows or "force_N" not in rows[0]:
+    curves = bool(rows) and "force_N" in rows[0]
+    if not curves and not (YARNS in only and any(run_dir.glob("state_*mm.npz"))):
         return None
     scene = read_scene(run_dir)
     out = FigureWriter(formats_of(scene))
@@ -88,7 +95,11 @@ def draw_run(
             shear_force=lambda: frame_shear_figure(rows, scene, frame_measured),
             profile=lambda: None,
         )
-    names = [n for n in RUN_FIGURES if n in only]
+    names = [n for n in RUN_FIGURES if n in only and curves]
+    if YARNS in only:
+        yarns = _yarn_makers(run_dir, scene)
+        makers.update(yarns)
+        names += list(yarns)
 
     def draw(name: str) -> None:
         with in_style():
@@ -116,6 +127,16 @@ def draw_run(
         draw(name)
     first = run_dir / f"force.{out.formats[0]}"
     return first if "force" in names and first.exists() else None
+
+
+def _yarn_makers(run_dir: Path, scene: Any) -> dict[str, Callable[[], Any]]:
+    """The network's yarn pictures, ``yarns_XXmm`` for each ``state_XXmm.npz``, on one colour scale."""
+    from .data import load_yarn_states
+    from .maps import yarn_state_figure
+
+    states = load_yarn_states(run_dir)
+    scale = [st.gamma_deg for st in states]
+    return {f"yarns_{st.tag}": functools.partial(yarn_state_figure, st, scene, scale) for st in states}
 
 
 def draw_force(run_dir: Path, extra: Extra = (), parallel: bool = False) -> Path | None:

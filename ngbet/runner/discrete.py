@@ -11,8 +11,9 @@ of the ideal test, largest slip, Newton iterations, wall time, lowest tangent ei
 and the mid-axis profile (as ``[outputs]`` asks), at every multiple of ``loading.output_every_mm``
 and wherever the step control lands; at each of ``loading.stops_mm`` (37 mm by
 default: the paper's intermediate shape) and at the last converged step the state
-(``state_XXmm.npz``: deformed yarns, slip and angle per crossing) and its picture
-(``yarns_XXmm.png``, with ``outputs.plot``).
+(``state_XXmm.npz``: deformed yarns, slip and angle per crossing), and its picture
+(``yarns_XXmm.png``, with ``outputs.plot``), drawn from that file with the run's other figures
+(:func:`ngbet.figures.run.draw_run`, in the plot process where one runs).
 """
 
 from __future__ import annotations
@@ -29,17 +30,18 @@ import numpy as np
 
 from ..discrete import observables as ob
 from ..discrete.model import ENERGY_PARTS, NetworkModel
-from ..discrete.network import Network, network_from_scene
+from ..discrete.network import network_from_scene
 from ..discrete.solver import load_steps
 from ..errors import ConvergenceError
 from ..figures.run import start_plot
 from ..kinematics import BetColumns, gamma_a
 from ..numerics.engine import PathResult, StepRecord, progress_bar
 from ..output import RunWriter
+from ..plot_process import active as plot_service
 from ..scene.document import Scene
 from .settings import step_control
 
-__all__ = ["plot_state", "run_discrete", "step_row"]
+__all__ = ["run_discrete", "step_row"]
 
 log = logging.getLogger(__name__)
 
@@ -156,7 +158,7 @@ def run_discrete(scene: Scene, out: str | Path, progress: bool = True, measured:
         info["t_solve_s"] = time.perf_counter() - t0 - t_build
         summary = writer.summary(info, "ok" if failure is None else "failed", None if failure is None else str(failure))
         if scene.outputs.plot and writer.rows:
-            writer.plot(functools.partial(start_plot, measured=measured))()
+            writer.plot(functools.partial(start_plot, service=plot_service(), measured=measured))()
         if failure is not None:
             raise failure
         return summary
@@ -190,7 +192,6 @@ class _Recorder:
         self.last_u0 = 0.0
         sp = scene.specimen
         self.bet = BetColumns(sp.length_mm, sp.width_mm, sp.yarn_angle_deg)
-        self.pictures: list[tuple[str, np.ndarray, float]] = []  # (tag, u, u0) of the states to draw at the end
 
     def on_step(self, info: StepRecord, u: np.ndarray) -> None:
         """One converged step: its row, its profile, its state at a stop."""
@@ -208,44 +209,11 @@ class _Recorder:
         log.debug("step %d u0 = %.4g mm, %d iterations", info.step, info.u0 * 1e3, info.iterations)
 
     def snapshot(self, u: np.ndarray, u0: float) -> None:
-        """The state (``state_XXmm.npz``); its picture is drawn by :meth:`final_snapshot`, with the others."""
+        """The state (``state_XXmm.npz``); its picture is drawn from the file with the run's figures."""
         tag = f"{u0 * 1e3:g}mm"  # 37mm, 0.5mm
         self.writer.write(f"state_{tag}.npz", lambda tmp: ob.save_state(tmp, self.model.net, u, u0))
-        if self.scene.outputs.plot:
-            self.pictures.append((tag, u.copy(), u0))
 
     def final_snapshot(self) -> None:
-        """The last converged state (if any step converged), then the pictures of all states on one colour scale."""
+        """The last converged state (if any step converged): its file, as at a stop."""
         if self.last_u0 > 0:
             self.snapshot(self.last_u, self.last_u0)
-        net = self.model.net
-        angles = [ob.segment_gamma_deg(net, u) for _, u, _ in self.pictures]
-        for tag, u, u0 in self.pictures:
-            draw = functools.partial(plot_state, net=net, u=u, u0=u0, scene=self.scene, scale_over=angles)
-            self.writer.write(f"yarns_{tag}.png", draw)
-        self.pictures.clear()
-
-
-def plot_state(
-    path: str | Path, net: Network, u: np.ndarray, u0: float, scene: Any = None, scale_over: Any = None
-) -> None:
-    """PNG of the deformed yarns coloured by the shear angle γ (:func:`ngbet.figures.maps.yarn_network_figure`).
-
-    γ is 0 at rest, the convention of the continuum's maps; ``scene`` names specimen and network in the caption;
-    ``scale_over``: the segment angles of every picture of the run, so that all share one colour scale.
-    """
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        log.warning("no yarn figure: matplotlib is not installed (pip install matplotlib)")
-        return
-    from ..figures.maps import yarn_network_figure
-    from ..figures.style import PNG_DPI, in_style
-
-    x = (net.X + u.reshape(-1, 3)[:, :2]) * 1e3
-    seg_ang = ob.segment_gamma_deg(net, u)
-    with in_style():
-        fig = yarn_network_figure(
-            x, net.beams, net.beam_family, seg_ang, x[net.node_end > 0], u0 * 1e3, scene, scale_over=scale_over
-        )
-        fig.savefig(path, dpi=PNG_DPI)
