@@ -195,7 +195,7 @@ def newton(
         near = bool(hist) and hist[-1][2] <= ctl.krylov_below * abs(E)  # Newton has come close
         step = _krylov_step(lin, K, r, ctl) if held and near and not confirm else None
         if step is None:
-            du, dec, mu_prev, n_shift = _factorized_step(lin, K, r, mu_prev, allow_shift, hist, E, out)
+            du, dec, mu_prev, n_shift = _descent_direction(lin, K, r, mu_prev, allow_shift, hist, E, out)
             n_factor += 1
             shifted += n_shift
             held = inexact and n_shift == 0
@@ -250,22 +250,6 @@ def _residual(
     return E, r, K
 
 
-def _factorized_step(
-    lin: FreeBlockSolver,
-    K: sp.csr_matrix,
-    r: np.ndarray,
-    mu_prev: float,
-    allow_shift: bool,
-    hist: list[tuple[float, float, float]],
-    E: float,
-    out: dict[str, Any] | None,
-) -> tuple[np.ndarray, float, float, int]:
-    """The Newton step with K factorized in ``lin`` (see :func:`_descent_direction`); out["K"] = K."""
-    if out is not None:
-        out["K"] = K
-    return _descent_direction(lin, K, r, mu_prev, allow_shift, hist, E, out)
-
-
 def _krylov_step(
     lin: FreeBlockSolver, K: sp.csr_matrix, r: np.ndarray, ctl: StepControl
 ) -> tuple[np.ndarray, float] | None:
@@ -312,7 +296,7 @@ def _descent_direction(
     E: float,
     out: dict[str, Any] | None,
 ) -> tuple[np.ndarray, float, float, int]:
-    """The Newton step du = -K_ff^-1 r, with K_ff shifted by mu diag(K_ff) until it descends.
+    """The Newton step du = -K_ff^-1 r (K factorized in ``lin``), K_ff shifted by mu diag(K_ff) until it descends.
 
     The shift starts from a tenth of the last one that gave descent in this Newton run (1e-6 at
     first) and is raised tenfold until the step descends. Past a limit point the smallest such
@@ -320,8 +304,11 @@ def _descent_direction(
     about lambda / mu per iteration, and a fixed mu = 1e-6 >> lambda crept for dozens of
     factorizations.
 
-    Returns du, its decrement -r . du, the last shift tried and the number of shifted factorizations.
+    Returns du, its decrement -r . du, the last shift tried and the number of shifted factorizations;
+    ``out["K"] = K`` (when ``out`` is given).
     """
+    if out is not None:
+        out["K"] = K
     try:
         lin.factor(K)
         du = -lin.solve(r, symmetric_rhs=True)
