@@ -46,7 +46,8 @@ class Group:
 
     With the half-turn, the table's first ``n_pair`` rows are mapped onto its last ``n_pair`` rows
     (row by row, node by node), the ``n_self`` rows between onto themselves; ``half`` is the
-    kernel of the first n_pair + n_self rows and ``sgn`` (n_pair, k) the half-turn's signs of their dofs.
+    kernel of the first n_pair + n_self rows and ``sgn`` (n_pair, k) the half-turn's signs of their dofs,
+    ``sgn2`` (n_pair, k, k) those of their Hessians' entries (sgn_i sgn_j).
     """
 
     name: str  # the energy part it contributes to
@@ -56,6 +57,7 @@ class Group:
     n_pair: int = 0
     n_self: int = 0
     sgn: np.ndarray | None = None
+    sgn2: np.ndarray | None = None
 
 
 def _beam_kernel(Xe: np.ndarray, ea: np.ndarray, ei: np.ndarray, ue: np.ndarray, h: bool) -> Any:
@@ -84,8 +86,11 @@ class Pattern:
         self.n = n
         self.nnz = len(uniq)
         r, c = uniq // n, uniq % n
-        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))]).astype(np.int64)
-        self.indices = c.astype(np.int64)
+        # scipy's own index type for this size (int32 below 2^31): a wider one would be copied into
+        # it by every new matrix
+        idx = np.int32 if max(self.nnz, n) < 2**31 - 1 else np.int64
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))]).astype(idx)
+        self.indices = c.astype(idx)
         self.rows = r
 
     def matrix(self, element_matrices: list[Any], const: np.ndarray | None = None) -> sp.csr_matrix:
@@ -213,11 +218,12 @@ class NetworkModel:
         else:
             dofs = np.column_stack([3 * T[:, 0] + 2, 3 * T[:, 1] + 2])
             kernel = half = functools.partial(_spring_kernel, el.rotational_spring, float(k["K_phi"]))
-        sgn = None
+        sgn = sgn2 = None
         if n_pair:
             assert self._mirror is not None
             sgn = self._mirror.sign[dofs[:n_pair]]
-        return Group(name, dofs, kernel, half, n_pair, n_self, sgn)
+            sgn2 = sgn[:, :, None] * sgn[:, None, :]
+        return Group(name, dofs, kernel, half, n_pair, n_self, sgn, sgn2)
 
     def _on_symmetric_path(self, u: np.ndarray) -> bool:
         """Whether u = c u0 + S u to round-off (:mod:`.symmetry`), u0 read off the moving clamp."""
@@ -258,13 +264,13 @@ class NetworkModel:
                 # on the symmetric path an element's image has its energy, and its gradient and
                 # Hessian with the half-turn's signs (sigma_i g_i, sigma_i sigma_j H_ij)
                 n = grp.n_pair
-                sgn, half = grp.sgn, grp.half
-                assert sgn is not None and half is not None
+                sgn, sgn2, half = grp.sgn, grp.sgn2, grp.half
+                assert sgn is not None and sgn2 is not None and half is not None
                 psi, ge, He = half(u[grp.dofs[: n + grp.n_self]], hessian)
                 E += float(psi.sum()) + float(psi[:n].sum())
                 ge = np.concatenate([ge, ge[:n] * sgn])
                 if hessian and He is not None:
-                    He = (He, He[:n] * (sgn[:, :, None] * sgn[:, None, :]))
+                    He = (He, He[:n] * sgn2)
             else:
                 psi, ge, He = grp.kernel(u[grp.dofs], hessian)
                 E += float(psi.sum())
