@@ -3,8 +3,8 @@
 ``ngbet run`` spends about 0.4 s importing matplotlib and about 0.1 s on the first drawing
 (fonts, the text layout), all of it independent of the results. On a machine with an idle core
 the command starts this process before it imports NGSolve: it imports matplotlib and draws
-throw-away figures while the run solves, then waits on its stdin for the run folder, draws the
-run's figures (``force``, ``shear_force``, ``profile``, ``shear_map``, in the scene's
+one small figure (fonts, Agg, the PNG writer) while the run solves, then waits on its stdin
+for the run folder, draws the run's figures (``force``, ``shear_force``, ``profile``, ``shear_map``, in the scene's
 ``outputs.figure_formats``) with the same function as the run itself
 (:func:`ngbet.figures.run.draw_force`, so the figures are the same; when a whole core is idle, each
 figure drawn by a forked child, all four at once: on a busy machine the children cost about 20 %
