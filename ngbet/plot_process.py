@@ -19,8 +19,8 @@ i.e. when the run ends by any means, SIGKILL included.
 process needs to spare, i.e. the 1-minute load average is at most the number of usable cores
 minus 0.5), ``always`` or ``never``. On a saturated machine the process gains nothing (measured
 on 2 cores at a load of 3.5: 5.88 s against 5.93 s median wall time of the default run, six runs
-each) and costs about 0.5 s more CPU time in all (a second interpreter, the warm-up, the forked
-children), which the other jobs pay; ``auto`` leaves it out there.
+each) and costs more CPU time in all (a second interpreter, its imports, the forked children),
+which the other jobs pay; ``auto`` leaves it out there.
 
 Protocol: one JSON line per request, ``{"run_dir": str, "extra": [[label, x, y], ...]}``; one JSON
 line per answer, ``{"png": str | None}`` or ``{"error": str}``.
