@@ -3,8 +3,8 @@
 ``ngbet run`` spends about 0.4 s importing matplotlib and about 0.1 s on the first drawing
 (fonts, the text layout), all of it independent of the results. On a machine with an idle core
 the command starts this process before it imports NGSolve: it imports matplotlib and draws
-throw-away figures while the run solves, then waits on its stdin for the run folder, draws the
-run's figures (``force``, ``shear_force``, ``profile``, ``shear_map``, in the scene's
+one small figure (fonts, Agg, the PNG writer) while the run solves, then waits on its stdin
+for the run folder, draws the run's figures (``force``, ``shear_force``, ``profile``, ``shear_map``, in the scene's
 ``outputs.figure_formats``) with the same function as the run itself
 (:func:`ngbet.figures.run.draw_force`, so the figures are the same; when a whole core is idle, each
 figure drawn by a forked child, all four at once: on a busy machine the children cost about 20 %
@@ -19,8 +19,8 @@ i.e. when the run ends by any means, SIGKILL included.
 process needs to spare, i.e. the 1-minute load average is at most the number of usable cores
 minus 0.5), ``always`` or ``never``. On a saturated machine the process gains nothing (measured
 on 2 cores at a load of 3.5: 5.88 s against 5.93 s median wall time of the default run, six runs
-each) and costs about 0.5 s more CPU time in all (a second interpreter, the warm-up, the forked
-children), which the other jobs pay; ``auto`` leaves it out there.
+each) and costs more CPU time in all (a second interpreter, its imports, the forked children),
+which the other jobs pay; ``auto`` leaves it out there.
 
 Protocol: one JSON line per request, ``{"run_dir": str, "extra": [[label, x, y], ...]}``; one JSON
 line per answer, ``{"png": str | None}`` or ``{"error": str}``.

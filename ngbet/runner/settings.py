@@ -10,13 +10,17 @@ go from millimetres to metres here.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from ..continuum.problem import ContinuumProblem
 from ..continuum.solver import ContinuumSolver
-from ..discrete.newton import StepControl
 from ..numerics.arclength import ArcLengthSettings
 from ..numerics.engine import PathControl
 from ..numerics.settings import LinearSettings, NewtonSettings, PathSettings, SolverSettings
 from ..scene.document import Scene
+
+if TYPE_CHECKING:
+    from ..discrete.newton import StepControl
 
 __all__ = [
     "arclength_settings",
@@ -94,6 +98,8 @@ def step_control(scene: Scene) -> StepControl:
     The steps are the smaller of [loading] and [discrete]; the path lands on the stops and the
     output grid.
     """
+    from ..discrete.newton import StepControl  # scipy.sparse.linalg: imported by network runs alone
+
     ld, so, d = scene.loading, scene.solver, scene.discrete
     max_step = min(ld.max_step_mm, d.max_step_mm)
     path = PathControl(
