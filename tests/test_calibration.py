@@ -339,19 +339,6 @@ def test_joint_fit_recovers_the_truth_within_two_standard_errors(synthetic_joint
 
 
 @pytest.mark.integration
-def test_curves_in_worker_processes_fit_as_in_one_process(synthetic_joint):
-    """The curves run at once in worker processes of their own: the same runs, the same fit."""
-    _, paths, _ = synthetic_joint
-    start = synthetic_scene(**{"material.K_sh": 4e4, "material.K_el": 1e6})
-    curves = [read_measured(p) for p in paths]
-    fits = [joint.fit_curves(curves, start, max_runs=4, choose_discretization=False, workers=w) for w in (2, 1)]
-    assert fits[0].model_runs == fits[1].model_runs
-    np.testing.assert_allclose(fits[0].values, fits[1].values, rtol=1e-9)
-    for a, b in zip(fits[0].curves, fits[1].curves, strict=True):
-        np.testing.assert_allclose(a.model_N, b.model_N, rtol=1e-9)
-
-
-@pytest.mark.integration
 def test_prediction_of_a_third_size_lies_in_its_band(synthetic_joint):
     """The fitted model on 100 x 300 mm: |prediction − truth| ≤ 2 sd (parameters and
     discretization) at every point, and the parameters' band is not vacuous: the start values miss

@@ -94,99 +94,17 @@ class _Run:
     angle: np.ndarray  # the centre shear angle at the fitted points (checked runs only)
 
 
-@dataclass(frozen=True)
-class _Job:
-    """One model run of a curve, as a worker process receives it (everything it needs, picklable)."""
-
-    scene: Scene  # the curve's scene with the parameter values, on its rung
-    mesh_key: tuple[int, int | None]  # the curve and its rung: the mesh is made once per key
-    u_mm: np.ndarray
-    names: list[str]
-    points: dict[float, np.ndarray]  # the profile's abscissae per displacement
-    angle_u_mm: list[float]  # the displacements of the measured centre shear angles
-    check: bool
-    label: str
-
-
-#: a worker process's meshes, by :attr:`_Job.mesh_key` (each worker serves one curve of one fit)
-_WORKER_MESHES: dict[tuple[int, int | None], Any] = {}
-
-
-def _ignore_interrupts() -> None:
-    """A worker leaves SIGINT to the fit's process, which ends the workers (no traceback per worker)."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _worker_run(job: _Job) -> _Run:
-    return _curve_run(job, _WORKER_MESHES)
-
-
-def _curve_run(job: _Job, meshes: dict[tuple[int, int | None], Any]) -> _Run:
-    """The force, profile and angles of ``job`` and their dθ; NaN where the model run fails to converge."""
-    from ..continuum.mesh import make_cross_mesh, make_mesh
-    from ..errors import ConvergenceError
-    from ..runner.sensitivity import force_path
-
-    sc, n, pts, a_u, check = job.scene, len(job.names), job.points, job.angle_u_mm, job.check
-    if job.mesh_key not in meshes:
-        meshes[job.mesh_key] = (
-            make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
-            if sc.test == "picture_frame"
-            else make_mesh(sc.specimen, sc.discretization)
-        )
-    m, kp, ka = len(job.u_mm), sum(len(x) for x in pts.values()), len(a_u)
-    try:
-        r = force_path(
-            sc,
-            job.u_mm,
-            job.names,
-            pts,
-            mesh=meshes[job.mesh_key],
-            angles=sorted(set(a_u) | (set(map(float, job.u_mm)) if check else set())),
-            estimate=check,
-        )
-        assert r.dlogp is not None
-        P = np.concatenate([r.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
-        GP = np.vstack([r.profile_dlogp[u0] for u0 in pts]) if pts else np.zeros((0, n))
-        A = np.array([r.angles_deg[float(u)] for u in a_u])
-        GA = np.vstack([r.angle_dlogp[float(u)] for u in a_u]) if a_u else np.zeros((0, n))
-        err = r.force_error_N if r.force_error_N is not None else np.zeros(0)
-        ang = np.array([r.angles_deg[float(u)] for u in job.u_mm]) if check else np.zeros(0)
-        return _Run(r.force_N, r.dlogp, P, GP, A, GA, err, ang)
-    except (ConvergenceError, SceneError) as exc:
-        log.info("model run failed on %s: %s", job.label, exc)
-        return _Run(
-            np.full(m, np.nan),
-            np.zeros((m, n)),
-            np.full(kp, np.nan),
-            np.zeros((kp, n)),
-            np.full(ka, np.nan),
-            np.zeros((ka, n)),
-            np.full(m if check else 0, np.nan),
-            np.full(m if check else 0, np.nan),
-        )
-
-
 class _Model:
     """Every curve's observations and their Jacobian at θ = ln p, cached by θ and the discretizations.
 
     Each curve's mesh is made once per rung and reused. ``check=True`` adds the discretization
     error estimate at the fitted points and the centre shear angle there.
-
-    ``workers`` > 1: the curves of one call run at the same time, each in a worker process of its
-    own (its meshes stay there); the runs are those of this process (a model run uses one thread
-    for its solves). The workers live until :meth:`close`,
-    which ends them also when the fit stops by an exception or an interrupt.
     """
 
-    def __init__(self, curves: list[CurveFit], names: list[str], workers: int = 1) -> None:
+    def __init__(self, curves: list[CurveFit], names: list[str]) -> None:
         self.curves, self.names = curves, names
         self.meshes: dict[tuple[int, int | None], Any] = {}
         self.runs = 0
-        self.workers = workers
-        self._pools: dict[int, Any] = {}
         self._cache: dict[tuple[int, bytes, int | None, bool], _Run] = {}
 
     def __call__(self, theta: np.ndarray, check: bool = False) -> list[_Run]:
@@ -202,62 +120,60 @@ class _Model:
         ]
         if todo:
             self.runs += 1
-        jobs = {k: self._job(k, theta, check) for k in todo}
-        if len(todo) > 1 and self.workers > 1:
-            pending = {k: self._pool(k).apply_async(_worker_run, (jobs[k],)) for k in todo}
-            done = {k: a.get() for k, a in pending.items()}
-        else:
-            done = {k: _curve_run(jobs[k], self.meshes) for k in todo}
         for k in todo:
-            self._cache[k, t, self.curves[k].level, check] = done[k]
+            self._cache[k, t, self.curves[k].level, check] = self._run(k, theta, check)
         return [
             self._cache.get((k, t, c.level, check)) or self._cache[k, t, c.level, True]
             for k, c in enumerate(self.curves)
         ]
 
-    def cached(self, k: int, theta: np.ndarray, level: int | None) -> _Run | None:
-        """Curve ``k``'s run at θ on rung ``level`` if one was made (checked or not), else None."""
-        t = np.asarray(theta, float).tobytes()
-        return self._cache.get((k, t, level, True)) or self._cache.get((k, t, level, False))
+    def _run(self, k: int, theta: np.ndarray, check: bool) -> _Run:
+        from ..continuum.mesh import make_cross_mesh, make_mesh
+        from ..errors import ConvergenceError
+        from ..runner.sensitivity import force_path
 
-    def _job(self, k: int, theta: np.ndarray, check: bool) -> _Job:
+        n = len(self.names)
         c = self.curves[k]
-        return _Job(
-            with_values(c.run_scene(), self.names, np.exp(theta)),
-            (k, c.level),
-            np.asarray(c.u_mm, float),
-            list(self.names),
-            c.profile.points() if c.profile is not None else {},
-            [float(u) for u in c.angles.u_mm] if c.angles is not None else [],
-            check,
-            c.label,
-        )
-
-    def _pool(self, k: int) -> Any:
-        """Curve ``k``'s worker: one process (spawned: NGSolve's threads do not survive a fork)."""
-        import multiprocessing
-
-        if k not in self._pools:
-            ctx = multiprocessing.get_context("spawn")
-            self._pools[k] = ctx.Pool(1, initializer=_ignore_interrupts)
-        return self._pools[k]
-
-    def close(self) -> None:
-        """End the worker processes (at once: a run still going is not waited for)."""
-        for pool in self._pools.values():
-            pool.terminate()
-            pool.join()
-        self._pools.clear()
-
-
-def _default_workers(n_curves: int) -> int:
-    """Worker processes for ``n_curves`` curves: one per curve up to the cores; 1 inside a daemon process."""
-    import multiprocessing
-    import os
-
-    if multiprocessing.current_process().daemon:  # a daemon process cannot have children
-        return 1
-    return max(1, min(n_curves, os.cpu_count() or 1))
+        sc = with_values(c.run_scene(), self.names, np.exp(theta))
+        if (k, c.level) not in self.meshes:
+            self.meshes[k, c.level] = (
+                make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
+                if sc.test == "picture_frame"
+                else make_mesh(sc.specimen, sc.discretization)
+            )
+        pts = c.profile.points() if c.profile is not None else {}
+        a_u = list(c.angles.u_mm) if c.angles is not None else []
+        m, kp, ka = len(c.u_mm), sum(len(x) for x in pts.values()), len(a_u)
+        try:
+            r = force_path(
+                sc,
+                c.u_mm,
+                self.names,
+                pts,
+                mesh=self.meshes[k, c.level],
+                angles=sorted(set(a_u) | (set(map(float, c.u_mm)) if check else set())),
+                estimate=check,
+            )
+            assert r.dlogp is not None
+            P = np.concatenate([r.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
+            GP = np.vstack([r.profile_dlogp[u0] for u0 in pts]) if pts else np.zeros((0, n))
+            A = np.array([r.angles_deg[float(u)] for u in a_u])
+            GA = np.vstack([r.angle_dlogp[float(u)] for u in a_u]) if a_u else np.zeros((0, n))
+            err = r.force_error_N if r.force_error_N is not None else np.zeros(0)
+            ang = np.array([r.angles_deg[float(u)] for u in c.u_mm]) if check else np.zeros(0)
+            return _Run(r.force_N, r.dlogp, P, GP, A, GA, err, ang)
+        except (ConvergenceError, SceneError) as exc:
+            log.info("model run failed on %s: %s", c.label, exc)
+            return _Run(
+                np.full(m, np.nan),
+                np.zeros((m, n)),
+                np.full(kp, np.nan),
+                np.zeros((kp, n)),
+                np.full(ka, np.nan),
+                np.zeros((ka, n)),
+                np.full(m if check else 0, np.nan),
+                np.full(m if check else 0, np.nan),
+            )
 
 
 Progress = Callable[[int, list[float], float], None]
@@ -328,7 +244,6 @@ def fit_curves(  # noqa: C901
     resample: bool = True,
     coarse: bool = True,
     choose_discretization: bool = True,
-    workers: int | None = None,
 ) -> JointFit:
     """Fit ``params`` (default: the scene's ``calibration.params``) to all ``curves`` at once.
 
@@ -353,6 +268,8 @@ def fit_curves(  # noqa: C901
     With ``params`` None and every curve of one specimen size (and no profile), the bending
     stiffnesses are held at the scene's values (:func:`held_parameters`; the result's ``held``).
     """
+    from scipy.optimize import least_squares
+
     t0 = time.perf_counter()
     if scene.model != "continuum":
         raise SceneError(f"model = {scene.model!r}: ngbet fit calibrates the continuum model")
@@ -406,46 +323,7 @@ def fit_curves(  # noqa: C901
             reach = max(float(np.max(ang.u_mm)), float(u.max()))
             sc = sc.with_changes(**{"loading.u0_mm": reach})
         cfs.append(CurveFit(c, sc, u, F, c.sd(u, F), prof, ang, FIRST_CHECKED if choose_discretization else None))
-    model = _Model(cfs, names, workers if workers is not None else _default_workers(len(cfs)))
-    try:
-        return _fit(
-            model,
-            fitted_params,
-            held,
-            scene,
-            (lo, hi, start),
-            t0,
-            max_runs,
-            target_error,
-            progress,
-            (profile_sd_mm, angle_sd_deg),
-            coarse,
-            choose_discretization,
-        )
-    finally:
-        model.close()
-
-
-def _fit(  # noqa: C901
-    model: _Model,
-    fitted_params: list[str],
-    held: dict[str, str],
-    scene: Scene,
-    box: tuple[np.ndarray, np.ndarray, np.ndarray],
-    t0: float,
-    max_runs: int,
-    target_error: float,
-    progress: Progress | None,
-    sds: tuple[float, float],
-    coarse: bool,
-    choose_discretization: bool,
-) -> JointFit:
-    """The search of :func:`fit_curves` on ``model``'s curves from ``box`` = (lower, upper, start)."""
-    from scipy.optimize import least_squares
-
-    cfs, names = model.curves, model.names
-    lo, hi, start = box
-    profile_sd_mm, angle_sd_deg = sds
+    model = _Model(cfs, names)
     best = [math.inf]
     quiet = [False]
 
@@ -459,28 +337,12 @@ def _fit(  # noqa: C901
                 e.append((r.A - c.angles.angle_deg) / angle_sd_deg)
         return np.concatenate(e)
 
-    stall: dict[str, Any] = {}
-
     def resid(theta: np.ndarray) -> np.ndarray:
-        runs_before = model.runs
         res = model(theta)
         e = blocks(res)
         e = np.where(np.isfinite(e), e, 1e3)
         cost = float(e @ e)
         best[0] = min(best[0], cost)
-        if stall and model.runs > runs_before:
-            # a fall below the search's relative tolerance, or below STALL_DCOST of the noise scale s²:
-            # one standard error of a parameter is worth a fall of about s², so smaller falls
-            # move the parameters by a small part of their standard errors
-            s2 = max(1.0, cost / max(len(e) - len(theta), 1))
-            if cost < stall["cost"] - max(stall["tol"] * stall["cost"], STALL_DCOST * s2):
-                stall.update(cost=cost, x=np.array(theta, float), since=0)
-            else:
-                if cost < stall["cost"]:
-                    stall.update(cost=cost, x=np.array(theta, float))
-                stall["since"] += 1
-                if stall["since"] >= STALL_RUNS:
-                    raise _Stalled
         if progress is not None and not quiet[0]:
             progress(
                 model.runs,
@@ -503,32 +365,18 @@ def _fit(  # noqa: C901
         return np.vstack(rows)
 
     def search(theta: np.ndarray, runs: int, tol: float) -> Any:
-        from scipy.optimize import OptimizeResult
-
-        e0 = resid(theta)
-        stall.update(cost=float(e0 @ e0), x=np.array(theta, float), since=0, tol=tol)
-        try:
-            return least_squares(
-                resid,
-                theta,
-                jac=jac,
-                bounds=(np.log(lo), np.log(hi)),
-                method="trf",
-                x_scale=1.0,
-                max_nfev=max(runs, 1),
-                xtol=tol,
-                ftol=tol,
-                gtol=1e-8,
-            )
-        except _Stalled:
-            return OptimizeResult(
-                x=stall["x"],
-                success=True,
-                status=2,
-                message=f"the cost fell by less than {tol:g} of itself in {STALL_RUNS} model runs",
-            )
-        finally:
-            stall.clear()
+        return least_squares(
+            resid,
+            theta,
+            jac=jac,
+            bounds=(np.log(lo), np.log(hi)),
+            method="trf",
+            x_scale=1.0,
+            max_nfev=max(runs, 1),
+            xtol=tol,
+            ftol=tol,
+            gtol=1e-8,
+        )
 
     th0 = np.log(start)
     th = th0
@@ -547,7 +395,6 @@ def _fit(  # noqa: C901
                 "wall_s": time.perf_counter() - ts,
             }
         )
-    probe_levels = list(checked_levels)
     if coarse and choose_discretization and max_runs > 2:
         # the search gets near the optimum one rung below the first that met the target at the start
         coarse_levels = [max(COARSE_LEVEL, (lv or 0) - 1) for lv in checked_levels]
@@ -561,18 +408,6 @@ def _fit(  # noqa: C901
                 "rungs": coarse_levels,
                 "model_runs": model.runs - r0,
                 "checked": False,
-                "wall_s": time.perf_counter() - ts,
-            }
-        )
-        # the parameters have moved: the first rung meeting the target there, from the start's up
-        r0, ts = model.runs, time.perf_counter()
-        checked_levels = _first_levels(model, cfs, th, target_error, probe_levels)
-        stages.append(
-            {
-                "rungs": checked_levels,
-                "model_runs": model.runs - r0,
-                "checked": True,
-                "probe": True,
                 "wall_s": time.perf_counter() - ts,
             }
         )
@@ -617,14 +452,15 @@ def _fit(  # noqa: C901
     for cf, r in zip(cfs, checked, strict=True):
         cf.model_N, cf.dlogp, cf.force_error_N, cf.angle_deg = r.F, r.G, r.err, r.angle
         cf.profile_mm, cf.angles_model_deg = r.P, r.A
-    for k, cf in enumerate(cfs):  # the start values: the probe's run, within the target there
-        r0_ = model.cached(k, th0, probe_levels[k])
-        cf.start_N = r0_.F if r0_ is not None else model(th0)[k].F
+    levels = [cf.level for cf in cfs]
+    for cf, r in zip(cfs, model(th0), strict=True):  # the start values on the final discretizations
+        cf.start_N = r.F
+    assert [cf.level for cf in cfs] == levels
     values = np.exp(th)
     at_bound = [
         nm for nm, t, a, b in zip(names, th, np.log(lo), np.log(hi), strict=True) if t - a < 1e-3 or b - t < 1e-3
     ]
-    chosen = [cf.level for cf in cfs if cf.level is not None]
+    chosen = [lv for lv in levels if lv is not None]
     on = FIT_LADDER[max(chosen)].apply(scene) if chosen else scene
     fitted = portable_scene(with_values(on, names, values))
     ok = bool(sol.success and sol.status > 0)
@@ -661,37 +497,16 @@ def _fit(  # noqa: C901
     )
 
 
-class _Stalled(Exception):
-    """The search made no progress in :data:`STALL_RUNS` model runs."""
+def _first_levels(model: _Model, cfs: list[CurveFit], theta: np.ndarray, target_error: float) -> list[int | None]:
+    """Each curve's first rung from :data:`FIRST_CHECKED` up whose estimated error meets the target at ``theta``.
 
-
-#: model runs in a row without progress (:data:`STALL_DCOST`) that end a search: each run the trust
-#: region rejects costs a whole model run, and a search creeping by falls just above ``ftol``
-#: runs on without moving a parameter by a fraction of its standard error
-STALL_RUNS = 3
-#: the fall of the cost Σe², in units of the noise scale s² = max(1, Σe²/(m − n)), below which a
-#: model run counts as no progress
-STALL_DCOST = 0.05
-
-
-def _first_levels(
-    model: _Model,
-    cfs: list[CurveFit],
-    theta: np.ndarray,
-    target_error: float,
-    lowest: Sequence[int | None] | None = None,
-) -> list[int | None]:
-    """Each curve's first rung from ``lowest`` (default :data:`FIRST_CHECKED`) up meeting the target at ``theta``.
-
-    One checked run per rung tried, all curves at once. Probed with the start values before the
-    search (stiff yarns lock the cheap rungs, where a search would only chase the
-    discretization), and again where the coarse search ended, from the start's rungs up (the
-    fitted parameters may need finer rungs than the start values: a search on a rung the target
-    then rejects would be spent). A curve that no rung vouches for gets the last.
+    Probed with the start values before the search, one checked run per rung tried: stiff yarns
+    lock the cheap rungs (errors of tens of per cent), where a search would only chase the
+    discretization; a curve that no rung vouches for starts on the last.
     """
-    for k, cf in enumerate(cfs):
-        lv = lowest[k] if lowest is not None else FIRST_CHECKED
-        cf.level = FIRST_CHECKED if lv is None else lv
+    levels: list[int | None] = []
+    for cf in cfs:
+        cf.level = FIRST_CHECKED
     pending = list(range(len(cfs)))
     found: dict[int, int] = {}
     while pending:
@@ -705,13 +520,14 @@ def _first_levels(
                 pending.remove(i)
             else:
                 log.info(
-                    "%s: estimated discretization error %.3g on rung %d: one rung up",
+                    "%s: estimated discretization error %.3g at the start values on rung %d: one rung up",
                     cf.label,
                     rel,
                     cf.level,
                 )
                 cf.level += 1
-    return [found[i] for i in range(len(cfs))]
+    levels = [found[i] for i in range(len(cfs))]
+    return levels
 
 
 #: the yarn elongation modulus: held at the scene's value when the scene's [calibration] does not name it
