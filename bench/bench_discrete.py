@@ -126,7 +126,7 @@ def full_run(scene: Scene, threads: int, tag: str, linear_solver: str = "auto") 
     t = time.perf_counter()
     c = time.process_time()
     ngs.SetNumThreads(threads)  # as ``ngbet run`` does (also for an older ngbet whose run() did not)
-    with ngs.TaskManager():
+    with ngs.TaskManager(), single_threaded_blas():  # as ``ngbet run`` (idle BLAS threads spin otherwise)
         s = run(full, folder, progress=False)
     wall, cpu = time.perf_counter() - t, time.process_time() - c
     F = {round(r["u0_mm"], 6): r["force_N"] for r in read_rows(folder / "results.csv")}
@@ -164,7 +164,7 @@ def print_run(fr: dict) -> None:
     )
     for ev in fr.get("snap_events_list") or []:
         print(
-            f"  snap: {ev.get('u0_before', float('nan')) * 1e3:.3f} -> {ev['u0'] * 1e3:.3f} mm, {ev['kind']}, "
+            f"  snap: {ev.get('u0_before_mm', float('nan')):.3f} -> {ev['u0_mm']:.3f} mm, {ev['kind']}, "
             f"released {ev.get('released_J', float('nan')):.3g} J"
         )
     print(f"  {'cause':50s} {'calls':>5s} {'fact':>5s} {'shift':>5s} {'solves':>6s} {'its':>5s} {'time [s]':>8s}")
