@@ -32,8 +32,8 @@ def vtk_subdivision(p: int) -> int:
     """NGSolve's VTK ``subdivision`` s for order p: the smallest with 2^s ≥ p segments per edge.
 
     Each level halves the element edges: p = 2 gives 1, p = 3 and 4 give 2, p = 5 … 8 give 3, up
-    to 16 4. Linear in p (s = p − 1, as before) the sub-triangles grew like 4^(p−1): at p = 10 the
-    output of a 40 mm mesh took 24 GB and the run was killed.
+    to 16 4. Why not s = p − 1: the sub-triangles grow like 4^s, so the file would grow
+    exponentially in p instead of like p².
     """
     return max(p - 1, 0).bit_length()
 
