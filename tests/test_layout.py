@@ -196,21 +196,6 @@ def test_no_import_circle():
                     stack.append((n, [*path, n]))
 
 
-#: the run folder, its writers and figures, and what runs them: the top of the import graph
-OUTPUTS = (
-    "ngbet.runner",
-    "ngbet.run",
-    "ngbet.run_folder",
-    "ngbet.output",
-    "ngbet.plot_process",
-    "ngbet.figures",
-    "ngbet.study",
-    "ngbet.studies",
-    "ngbet.calibration",
-    "ngbet.api",
-    "ngbet.cli",
-    "ngbet.commands",
-)
 #: what runs a scene or a set of them: the commands and the studies, above the runner and the figures
 COMMANDS = (
     "ngbet.run",
@@ -221,6 +206,8 @@ COMMANDS = (
     "ngbet.cli",
     "ngbet.commands",
 )
+#: the run folder, its writers and figures, and what runs them: the top of the import graph
+OUTPUTS = ("ngbet.runner", "ngbet.run_folder", "ngbet.output", "ngbet.plot_process", "ngbet.figures", *COMMANDS)
 #: what the modules of a package may not import (at any depth, type-only imports included): the
 #: scene is the bottom (it knows no model); the numerics are model-free (no scene, no model), and
 #: neither they nor the two models (continuum, network) reach up to the runner, the run folder or
