@@ -4,10 +4,8 @@ An optional speed-up for both models (``pip install "ngbet[cholmod]"``; cvxopt i
 hence optional). The ordering and symbolic analysis are made once for the pattern; each new
 matrix of that pattern is refactorized in place. LL^T needs a positive definite matrix: where a
 pivot is not positive, :meth:`CholmodFactor.factor` says so and the caller factorizes that matrix
-with NGSolve's LDL^T instead, which needs no definiteness. Measured (one thread, bench/README.md):
-the 16 890-dof network's half-size blocks 5.2 against 10.7 ms per factorization and 0.42 against
-0.98 ms per solve; the continuum's 53 571 factorized dofs (h = 2 mm, p = 2) 65 against 160 ms and
-9.6 against 17.8 ms.
+with NGSolve's LDL^T instead, which needs no definiteness. Its times against NGSolve's
+factorizations, for both models, are in bench/README.md.
 """
 
 from __future__ import annotations

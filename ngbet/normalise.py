@@ -378,7 +378,7 @@ def spreads(curves: Sequence[Normalised]) -> list[tuple[str, dict[str, Any] | No
     return out
 
 
-def spread_text(curves: Sequence[Normalised], groups: list[tuple[str, dict[str, Any] | None]]) -> str:
+def spread_text(groups: list[tuple[str, dict[str, Any] | None]]) -> str:
     """One sentence on the spreads (figure caption and terminal)."""
     if not groups:
         return "one curve: no spread to state"
@@ -520,7 +520,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         curves = read_inputs(args)
         names = _names(curves)
         groups = spreads(curves)
-        text = spread_text(curves, groups)
+        text = spread_text(groups)
         with OwnedFolder(out, "normalise", "normalise") as folder:
             for c, name in zip(curves, names, strict=True):
                 folder.write(name, functools.partial(Path.write_text, data=_table_text(c)))

@@ -196,14 +196,9 @@ def test_no_import_circle():
                     stack.append((n, [*path, n]))
 
 
-#: the run folder, its writers and figures, and what runs them: the top of the import graph
-OUTPUTS = (
-    "ngbet.runner",
+#: what runs a scene or a set of them: the commands and the studies, above the runner and the figures
+COMMANDS = (
     "ngbet.run",
-    "ngbet.run_folder",
-    "ngbet.output",
-    "ngbet.plot_process",
-    "ngbet.figures",
     "ngbet.study",
     "ngbet.studies",
     "ngbet.calibration",
@@ -211,13 +206,22 @@ OUTPUTS = (
     "ngbet.cli",
     "ngbet.commands",
 )
+#: the run folder, its writers and figures, and what runs them: the top of the import graph
+OUTPUTS = ("ngbet.runner", "ngbet.run_folder", "ngbet.output", "ngbet.plot_process", "ngbet.figures", *COMMANDS)
 #: what the modules of a package may not import (at any depth, type-only imports included): the
-#: numerics are model-free (no scene, no model), and neither they nor the two models (continuum,
-#: network) reach up to the runner, the run folder or the figures
+#: scene is the bottom (it knows no model); the numerics are model-free (no scene, no model), and
+#: neither they nor the two models (continuum, network) reach up to the runner, the run folder or
+#: the figures; the runner and the run folder's writer know no command or study, and the figures
+#: none but the calibration (whose data modules read the measured curves they draw)
 LAYERS = {
+    "ngbet.scene": ("ngbet.numerics", "ngbet.continuum", "ngbet.discrete", *OUTPUTS),
     "ngbet.numerics": ("ngbet.scene", "ngbet.continuum", "ngbet.discrete", *OUTPUTS),
     "ngbet.continuum": OUTPUTS,
     "ngbet.discrete": OUTPUTS,
+    "ngbet.runner": COMMANDS,
+    "ngbet.run_folder": ("ngbet.runner", "ngbet.figures", *COMMANDS),
+    "ngbet.output": ("ngbet.runner", "ngbet.figures", *COMMANDS),
+    "ngbet.figures": ("ngbet.runner", *(c for c in COMMANDS if c != "ngbet.calibration")),
 }
 
 
@@ -305,17 +309,26 @@ def test_the_circle_check_sees_a_circle(monkeypatch, tmp_path):
         ("continuum", "from ..runner.settings import newton_settings\n"),
         ("discrete", "def f():\n    from ..figures.run import start_plot\n"),
         ("discrete", "from ..runner.settings import step_control\n"),
+        ("scene", "def f():\n    from ..continuum.problem import ContinuumProblem\n"),
+        ("runner", "from ..study.runner import run_study\n"),
+        (
+            "figures",
+            "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from ..runner.settings import Settings\n",
+        ),
+        ("figures", "from ..study.runner import run_study\n"),
     ],
 )
 def test_the_layer_check_sees_an_import_that_climbs(monkeypatch, tmp_path, layer, source):
     """A numerics module that reads the scene (for type checking only) or a model, a continuum or
-    network module that reaches for the figures or the runner: each is named."""
+    network module that reaches for the figures or the runner, a scene module that reads a model,
+    a runner or figures module that reaches for a study or the runner: each is named."""
     files = {
         f"ngbet.{layer}.a": tmp_path / "a.py",
         "ngbet.scene.document": tmp_path / "document.py",
         "ngbet.continuum.problem": tmp_path / "problem.py",
         "ngbet.figures.run": tmp_path / "run.py",
         "ngbet.runner.settings": tmp_path / "settings.py",
+        "ngbet.study.runner": tmp_path / "study_runner.py",
     }
     for m, p in files.items():
         p.write_text(source if m == f"ngbet.{layer}.a" else "")

@@ -11,8 +11,8 @@ instead of carrying them as literals.
 Which terms exist (the shear law, bending, the constraint, whether K_s is capped) is decided
 when the energy is built, from the scene; only the values are parameters. A problem is built for
 one scene: its Newton norm and the augmentation of its Newton matrix take their scales from the
-material too, so a new parameter set is a new problem (its construction costs ~5 ms against
-seconds for a load path, measured on the calibration scenes). The tabulated shear
+material too, so a new parameter set is a new problem (its construction is small against a load
+path: bench/README.md). The tabulated shear
 law's rises stay numbers in the energy: the energy is linear in them, and its derivative with
 respect to one rise is the same law with a unit rise (:func:`ngbet.continuum.physics.table_shear_energy`).
 """

@@ -214,8 +214,8 @@ class ContinuumProblem:
         integrator finds which pairs of trial functions (∇u, φ, ∇φ, Λ) couple from a nonzero
         pattern that does not tell a second derivative in ∇φ alone from one in ∇φ and another
         function, so with the bending energy inside, the (zero) blocks of ∇φ with ∇u, φ and Λ were
-        computed in every element. Apart, one linearization took 7.2 instead of 8.9 ms at
-        9 495 dofs (native, one thread), with the same tangent to round-off: on affine triangles
+        computed in every element. Apart, a linearization costs less (bench/README.md), with the
+        same tangent to round-off: on affine triangles
         the bending energy, of degree 2p_φ − 2, is integrated exactly both by the rule of order
         2p − 2 NGSolve picks for an integrand in ∇φ alone and by the rule of order 2p of the rest
         (p the largest order of the spaces).

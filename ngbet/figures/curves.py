@@ -159,7 +159,7 @@ def force_figure(
             "-",
             color="0.35",
             lw=1.2,
-            label=_measured_label(measured, scene),
+            label=_measured_label(measured),
         )
     for label, x, y in extra:
         ax.plot(x, y, "--", label=label)
@@ -189,7 +189,7 @@ def force_figure(
     return fig
 
 
-def _measured_label(m: Measured, scene: Any) -> str:
+def _measured_label(m: Measured) -> str:
     """The measured curve's legend entry: "measured", with its specimen where the file gives it (no file name)."""
     known = m.width_mm is not None and m.length_mm is not None
     return f"measured, specimen {m.width_mm:g} × {m.length_mm:g} mm" if known else "measured"
@@ -222,7 +222,7 @@ def shear_force_figure(
                 "-",
                 color="0.35",
                 lw=1.2,
-                label=_measured_label(measured, scene),
+                label=_measured_label(measured),
             )
     ax.set_xlabel("kinematic shear angle γ of the ideal test [°] (Eq. 13)")
     ax.set_ylabel("normalised shear force F_sh [N/mm]")

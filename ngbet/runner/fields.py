@@ -32,8 +32,8 @@ def vtk_subdivision(p: int) -> int:
     """NGSolve's VTK ``subdivision`` s for order p: the smallest with 2^s ≥ p segments per edge.
 
     Each level halves the element edges: p = 2 gives 1, p = 3 and 4 give 2, p = 5 … 8 give 3, up
-    to 16 4. Linear in p (s = p − 1, as before) the sub-triangles grew like 4^(p−1): at p = 10 the
-    output of a 40 mm mesh took 24 GB and the run was killed.
+    to 16 4. Why not s = p − 1: the sub-triangles grow like 4^s, so the file would grow
+    exponentially in p instead of like p².
     """
     return max(p - 1, 0).bit_length()
 
@@ -43,6 +43,15 @@ def write_vtk(problem: Any, path: Path) -> Path:
     funcs = obs.field_functions(problem, problem.scene.outputs.fields)
     u = funcs.pop("displacement")
     coefs = {"displacement": ngs.CF((MM * u[0], MM * u[1], 0.0)), **funcs}
+    return _write_vtu(problem, coefs, path)
+
+
+def _write_vtu(problem: Any, coefs: dict[str, Any], path: Path) -> Path:
+    """Write the coefficient functions ``coefs`` on the mesh of ``problem`` to ``path``.vtu.
+
+    Subdivided for the displacement order (:func:`vtk_subdivision`); the coordinates are rescaled to
+    mm (:func:`scale_points`). Returns the file written.
+    """
     ngs.VTKOutput(
         problem.mesh,
         coefs=list(coefs.values()),
@@ -100,17 +109,7 @@ def write_mode(solver: TangentSolver, mode: np.ndarray, path: Path, title: str =
     coefs = {"mode_displacement": ngs.CF((MM * scale * du[0], MM * scale * du[1], 0.0))}
     if problem.phi is not None:
         coefs["mode_phi"] = scale * gf.components[1]
-    ngs.VTKOutput(
-        problem.mesh,
-        coefs=list(coefs.values()),
-        names=list(coefs),
-        filename=str(path),
-        subdivision=vtk_subdivision(problem.scene.discretization.p_u),
-        legacy=False,
-    ).Do()
-    vtu = Path(str(path) + ".vtu")
-    scale_points(vtu, MM)
-    written = [vtu]
+    written = [_write_vtu(problem, coefs, path)]
     try:
         import matplotlib.pyplot as plt
         from matplotlib.tri import Triangulation

@@ -238,37 +238,26 @@ def run_processes(
     cache: Path,
     token: str,
 ) -> None:
-    """Local worker processes (forked by a fork server; they exit with this process, see :func:`worker_init`)."""
+    """Run the cases on a pool of local worker processes; an interrupt keeps the finished ones.
+
+    The workers are forked by a fork server and exit with this process (see :func:`worker_init`);
+    each uses ``threads`` BLAS threads.
+    """
     # one BLAS thread per worker too (inherited by the fork server when it starts, and by its workers)
     with environ({k: str(threads) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}):
-        _run_pool(todo, wds, nworkers, threads, running, lock, finished, cache, token)
-
-
-def _run_pool(
-    todo: list[Case],
-    wds: dict[Any, Path],
-    nworkers: int | None,
-    threads: int,
-    running: dict[str, tuple[Path, float]],
-    lock: threading.Lock,
-    finished: Finished,
-    cache: Path,
-    token: str,
-) -> None:
-    """Run the cases on a pool of local worker processes; an interrupt keeps the finished ones."""
-    ctx = worker_context(todo)
-    alive_r, alive_w = ctx.Pipe(duplex=False)  # closed when this process ends: see worker_init
-    ex = cf.ProcessPoolExecutor(
-        max_workers=nworkers,
-        mp_context=ctx,
-        initializer=worker_init,
-        initargs=(alive_r, {k: v for k, v in os.environ.items() if k.startswith("NGBET_")}),
-    )
-    try:
-        _submit_and_collect(ex, todo, wds, threads, running, lock, finished, (str(cache), token))
-    finally:
-        alive_w.close()
-        alive_r.close()
+        ctx = worker_context(todo)
+        alive_r, alive_w = ctx.Pipe(duplex=False)  # closed when this process ends: see worker_init
+        ex = cf.ProcessPoolExecutor(
+            max_workers=nworkers,
+            mp_context=ctx,
+            initializer=worker_init,
+            initargs=(alive_r, {k: v for k, v in os.environ.items() if k.startswith("NGBET_")}),
+        )
+        try:
+            _submit_and_collect(ex, todo, wds, threads, running, lock, finished, (str(cache), token))
+        finally:
+            alive_w.close()
+            alive_r.close()
 
 
 def _submit_and_collect(
