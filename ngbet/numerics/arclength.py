@@ -37,7 +37,9 @@ The trivial branch lies in that hyperplane's direction to first order, so the co
 the bifurcated branch, at amplitude ≈ Δs along φ_c; the path goes on from there.
 
 :func:`arclength_steps` is a generator of the engine's step records (each carrying the
-instabilities found in its step); the runner iterates it and decides what to write.
+instabilities found in its step), run by the engine's one step loop
+(:func:`ngbet.numerics.engine.path_steps`) with arc length as its corrector and step length; the
+runner iterates it and decides what to write.
 """
 
 from __future__ import annotations
@@ -45,14 +47,14 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from ..errors import Attempt
-from .engine import PathControl, PathResult, StepRecord, check_stop
+from ..errors import Attempt, ConvergenceError
+from .engine import Outcome, PathControl, PathResult, StepRecord, path_steps
 from .newton import Problem, newton
 from .settings import NewtonSettings
 
@@ -67,7 +69,7 @@ class ArcLengthSettings(PathControl):
 
     The engine's (:class:`~ngbet.numerics.engine.PathControl`): ``stops`` are the loads the path lands on
     the first time it reaches them (output stops), besides the target; ``growth``, ``cut`` and
-    ``grow_after`` act on the arc length; ``land_within`` and ``max_attempts`` are not read.
+    ``grow_after`` act on the arc length; ``land_within`` is not read.
     """
 
     max_steps: int = 200
@@ -128,9 +130,21 @@ class _Path:
 
         ``land`` is the target when the step lands on it; the state is left where it ends.
         """
+        self.predict(ds, land)
+        return self.correct(land)
+
+    def predict(self, ds: float, land: float | None) -> None:
+        """The predictor: ds along τ (at the load ``land`` when the step lands on it)."""
         p = self.p
         p.x[:] = self.x0 + ds * self.tau_x
         p.state.set_load(self.lam0 + ds * self.tau_l if land is None else land)
+
+    def correct(self, land: float | None) -> tuple[bool, int, list[float], str, np.ndarray | None]:
+        """Correct the predicted state on the hyperplane (or at the fixed load ``land``).
+
+        Returns converged, iterations, decrements, reason and the residual at a converged state.
+        """
+        p = self.p
         if land is not None:
             e = p.energy()
             rep = newton(p, self.settings, e if math.isfinite(e) else 0.0)
@@ -223,51 +237,115 @@ def _arclength_steps(
     branch: str,
     branch_sign: float,
 ) -> Generator[StepRecord, None, PathResult]:
-    """The generator of :func:`arclength_steps` (its arguments checked)."""
+    """The generator of :func:`arclength_steps` (its arguments checked): the engine's loop, arc length's corrector.
+
+    The path stops without an error where it cannot go on (the step cut below its minimum, the
+    time budget spent): the caller decides what an unreached target means.
+    """
     res = result if result is not None else PathResult(problem.state.lam)
-    path = _Path(problem, weights, length, settings)
-    n = path.tangent(orient=False)
-    # the first step moves the state as a load step of first_step would (Δx ≈ T Δu0)
-    ds = min(ctl.first_step, ctl.max_step) * n
-    ds_max, ds_min = max(ctl.max_step / ctl.first_step, 1.0) * ds, ctl.min_step * n
-    track = _Tracker(psi, lowest_eigenpair)
-    track.start(problem, path)
-    reached = path.lam0  # the largest load reached: a stop is landed on once, on the way up
-    for _ in range(ctl.max_steps):
-        check_stop()
-        if path.lam0 >= ctl.target - 1e-12 * ctl.target:
-            break
-        if path.lam0 < ctl.floor * track.lam_start:
-            break
-        land = _next_mark(ctl, reached)
-        to_target = _distance_to(path, land, ds)
-        ds = min(ds, to_target)
-        ok, its, hist, why, r = path.step(ds, land if ds == to_target < math.inf else None)
-        lam_to = problem.state.lam
-        res.attempts.append(Attempt(path.lam0, lam_to, ok, its, why, hist))
-        if not ok:
-            path.restore()
-            res.cuts += 1
-            ds *= ctl.cut
-            if ds < ds_min:
-                break
-            continue
-        before = path.snapshot() if branch == "switch" else None
+    given = res.u0
+    arc = _ArcLength(problem, ctl, settings, weights, length, psi, lowest_eigenpair, res, branch, branch_sign)
+    res.u0 = arc.path.lam0  # the loads of the attempts are the path's
+    try:
+        yield from path_steps(arc, ctl, res, length=arc)
+    except ConvergenceError:
+        pass
+    if not res.steps:
+        res.u0 = given
+    return res
+
+
+class _ArcLength:
+    """Arc length as the engine's corrector and step length (:class:`~ngbet.numerics.engine.StepLength`).
+
+    h is the arc length Δs; a trial that would pass the next stop above the largest load reached
+    is shortened to land on it, and the shortened length is the nominal one from then on. The path
+    is done at the target, below ``floor`` times its start or after ``max_steps`` trials.
+    """
+
+    def __init__(
+        self,
+        problem: Problem,
+        ctl: ArcLengthSettings,
+        settings: NewtonSettings,
+        weights: np.ndarray,
+        length: float,
+        psi: np.ndarray,
+        lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None,
+        res: PathResult,
+        branch: str,
+        branch_sign: float,
+    ) -> None:
+        self.p, self.ctl, self.psi, self.res = problem, ctl, psi, res
+        self.branch, self.branch_sign = branch, branch_sign
+        self.path = _Path(problem, weights, length, settings)
+        n = self.path.tangent(orient=False)
+        # the first step moves the state as a load step of first_step would (Δx ≈ T Δu0)
+        self.ds = min(ctl.first_step, ctl.max_step) * n
+        self.ds_max = max(ctl.max_step / ctl.first_step, 1.0) * self.ds
+        self.ds_min = ctl.min_step * n
+        self.track = _Tracker(psi, lowest_eigenpair)
+        self.track.start(problem, self.path)
+        self.reached = self.path.lam0  # the largest load reached: a stop is landed on once, on the way up
+        self.trials = 0
+        self.land: float | None = None
+        self.r: np.ndarray | None = None
+
+    # the step length
+    def first_step(self) -> float:
+        return self.ds
+
+    def max_step(self) -> float:
+        return self.ds_max
+
+    def too_short(self, step: float) -> bool:
+        return step < self.ds_min
+
+    def finished(self, u0: float) -> bool:
+        path, ctl = self.path, self.ctl
+        return (
+            self.trials >= ctl.max_steps
+            or path.lam0 >= ctl.target - 1e-12 * ctl.target
+            or path.lam0 < ctl.floor * self.track.lam_start
+        )
+
+    def trial(self, u0: float, step: float) -> tuple[float, float, float]:
+        self.trials += 1
+        land = _next_mark(self.ctl, self.reached)
+        to_target = _distance_to(self.path, land, step)
+        ds = min(step, to_target)
+        self.land = land if ds == to_target < math.inf else None
+        return ds, math.nan if self.land is None else self.land, ds
+
+    # the corrector
+    def predict(self, u0: float, h: float) -> None:
+        self.path.predict(h, self.land)
+
+    def correct(self, u0: float, h: float) -> Outcome:
+        ok, its, hist, why, self.r = self.path.correct(self.land)
+        return Outcome("converged" if ok else "failed", its, hist, why, u0=self.p.state.lam)
+
+    def accept(self, u0: float, h: float, outcome: Outcome) -> StepRecord:
+        path, problem = self.path, self.p
+        before = path.snapshot() if self.branch == "switch" else None
         path.commit()
         path.tangent(orient=True)
-        rec = _step_record(problem, psi, len(res.steps) + 1, its, hist, r, "arc-length")
-        new = track.update(path, rec, r)
+        rec = _step_record(
+            problem, self.psi, len(self.res.steps) + 1, outcome.iterations, outcome.history, self.r, "arc-length"
+        )
+        new = self.track.update(path, rec, self.r)
         if before is not None:
-            switch = _Switch(problem, path, psi, ctl.cut, res, branch_sign)
-            rec = switch.at_bifurcation(new, before, track, ds, ds_min) or rec
+            switch = _Switch(problem, path, self.psi, self.ctl.cut, self.res, self.branch_sign)
+            rec = switch.at_bifurcation(new, before, self.track, h, self.ds_min) or rec
         rec.instabilities = new
-        res.steps.append(rec)
-        res.u0 = rec.u0
-        reached = max(reached, rec.u0)
-        yield rec
-        if its <= ctl.grow_after:
-            ds = min(ds * ctl.growth, ds_max)
-    return res
+        self.reached = max(self.reached, rec.u0)
+        return rec
+
+    def reject(self, u0: float, outcome: Outcome) -> None:
+        self.path.restore()
+
+    def diagnose(self, attempts: Sequence[Attempt]) -> tuple[str, object | None]:
+        return "", None  # the caller diagnoses an unreached target
 
 
 def _step_record(

@@ -8,9 +8,11 @@ it back to equilibrium (``correct``), and commits or discards the result (``acce
 with its stability check and snap handling (:class:`ngbet.discrete.solver.ShiftedNewton`).
 
 Step length
-    A nominal length starts at ``first_step`` (at most ``max_step``); a trial ends at the nearer
-    of u0 + step and the next stop (``stops`` and the target); a stop that the trial would miss by
-    less than ``land_within`` steps is landed on. After a converged increment with at most
+    What a length measures is the :class:`StepLength`'s: by default the clamp displacement, as
+    follows (arc length brings its own, :mod:`ngbet.numerics.arclength`). A nominal length
+    starts at ``first_step`` (at most ``max_step``); a trial ends at the nearer of u0 + step
+    and the next stop (``stops`` and the target); a stop that the trial would miss by less
+    than ``land_within`` steps is landed on. After a converged increment with at most
     ``grow_after`` corrector iterations the nominal length grows by ``growth`` (up to
     ``max_step``); a stop that shortened a step does not shorten the next one.
 Outcomes
@@ -53,6 +55,7 @@ __all__ = [
     "Outcome",
     "PathControl",
     "PathResult",
+    "StepLength",
     "StepRecord",
     "Steps",
     "check_stop",
@@ -93,6 +96,8 @@ class Outcome:
     history: list[float] = field(default_factory=list)  # corrector decrements per iteration
     reason: str = ""
     retry_step: float = 0.0  # the next trial length for ``kind == "retry"``
+    #: the load [m] the corrector ended at, where it chooses it (arc length); None: the trial's end
+    u0: float | None = None
 
 
 @dataclass
@@ -143,6 +148,62 @@ class Corrector(Protocol):
         """
 
 
+class StepLength(Protocol):
+    """What the engine's step length measures, where a trial ends and when the path is done.
+
+    the default measures the clamp displacement; the arc-length
+    continuation (:mod:`ngbet.numerics.arclength`) measures the arc length of the path.
+    """
+
+    def first_step(self) -> float:
+        """The first nominal length."""
+
+    def max_step(self) -> float:
+        """The largest nominal length a step grows to."""
+
+    def too_short(self, step: float) -> bool:
+        """Whether a length cut to ``step`` is below the smallest one."""
+
+    def finished(self, u0: float) -> bool:
+        """Whether the path is done at the converged load ``u0``."""
+
+    def trial(self, u0: float, step: float) -> tuple[float, float, float]:
+        """The trial from the converged load ``u0`` with the nominal length ``step``.
+
+        Returns its length h (shortened to land on a stop), the load it ends at (NaN where the
+        corrector chooses it, :attr:`Outcome.u0`) and the nominal length from then on.
+        """
+
+
+class _LoadLength:
+    """Displacement control: h is the increment of u0.
+
+    A trial lands on a stop it would miss by less than ``land_within`` steps; a stop that
+    shortened a step does not shorten the next one.
+    """
+
+    def __init__(self, ctl: PathControl) -> None:
+        self.ctl = ctl
+        self.marks = sorted({s for s in ctl.stops if 0 < s < ctl.target} | {ctl.target})
+        self.eps = 1e-12 * max(1.0, abs(ctl.target))
+
+    def first_step(self) -> float:
+        return min(self.ctl.first_step, self.ctl.max_step)
+
+    def max_step(self) -> float:
+        return self.ctl.max_step
+
+    def too_short(self, step: float) -> bool:
+        return step < self.ctl.min_step * (1 - 1e-9)
+
+    def finished(self, u0: float) -> bool:
+        return not u0 < self.ctl.target - self.eps
+
+    def trial(self, u0: float, step: float) -> tuple[float, float, float]:
+        nxt, h = _trial_load(u0, step, self.marks, self.eps, self.ctl.land_within)
+        return h, nxt, step
+
+
 @dataclass
 class PathResult:
     """The load reached, the converged steps and every trial increment."""
@@ -191,9 +252,13 @@ def check_stop() -> None:
 
 
 def path_steps(
-    corrector: Corrector, ctl: PathControl, out: PathResult | None = None
+    corrector: Corrector, ctl: PathControl, out: PathResult | None = None, *, length: StepLength | None = None
 ) -> Generator[StepRecord, None, PathResult]:
     """Carry the load from 0 to ``ctl.target``, yielding each converged step's record as it is accepted.
+
+    The one step loop of the package: ``length`` says what the step length measures (None: the
+    clamp displacement; the arc-length continuation passes its own) and when
+    the path is done; the loop trials, records, grows, cuts and stops.
 
     The caller decides what to keep and write; the generator's return value (``StopIteration.value``,
     or ``yield from``) is the :class:`PathResult`, which ``out`` (filled as the path goes) also is.
@@ -205,10 +270,9 @@ def path_steps(
         trials; every converged step has been yielded by then.
     """
     out = PathResult(0.0) if out is None else out
-    marks = sorted({s for s in ctl.stops if 0 < s < ctl.target} | {ctl.target})
-    eps = 1e-12 * max(1.0, abs(ctl.target))
-    step = min(ctl.first_step, ctl.max_step)
-    while out.u0 < ctl.target - eps:
+    measure = _LoadLength(ctl) if length is None else length
+    step = measure.first_step()
+    while not measure.finished(out.u0):
         check_stop()
         lam = out.u0
         if time.perf_counter() > _DEADLINE.get():
@@ -220,21 +284,22 @@ def path_steps(
                 text,
                 detail,
             )
-        nxt, h = _trial_load(lam, step, marks, eps, ctl.land_within)
+        h, nxt, step = measure.trial(lam, step)
         t0 = time.perf_counter()
         corrector.predict(lam, h)
         outcome = corrector.correct(lam, h)
+        end = nxt if outcome.u0 is None else outcome.u0
         out.attempts.append(
-            Attempt(lam, nxt, outcome.kind == "converged", outcome.iterations, outcome.reason, list(outcome.history))
+            Attempt(lam, end, outcome.kind == "converged", outcome.iterations, outcome.reason, list(outcome.history))
         )
         if outcome.kind == "converged":
-            _record(corrector, out, lam, nxt, h, outcome, t0)
+            _record(corrector, out, lam, end, h, outcome, t0)
             yield out.steps[-1]
             if outcome.iterations <= ctl.grow_after:
-                step = min(step * ctl.growth, ctl.max_step)
+                step = min(step * ctl.growth, measure.max_step())
             continue
         corrector.reject(lam, outcome)
-        step = _after_rejection(corrector, ctl, out, lam, nxt, h, outcome)
+        step = _after_rejection(corrector, ctl, measure, out, lam, end, h, outcome)
     return out
 
 
@@ -271,15 +336,23 @@ def _record(
     """Accept a converged trial and append its step record."""
     rec = corrector.accept(lam, h, outcome)
     rec.step = len(out.steps) + 1
-    rec.u0 = nxt
+    if outcome.u0 is None:  # else the corrector chose the load and set it (arc length)
+        rec.u0 = nxt
     rec.wall_s = time.perf_counter() - t0
-    out.u0 = nxt
+    out.u0 = rec.u0
     out.steps.append(rec)
-    log.info("u0 = %.6g mm reached in %d iterations", nxt * 1e3, outcome.iterations)
+    log.info("u0 = %.6g mm reached in %d iterations", rec.u0 * 1e3, outcome.iterations)
 
 
 def _after_rejection(
-    corrector: Corrector, ctl: PathControl, out: PathResult, lam: float, nxt: float, h: float, outcome: Outcome
+    corrector: Corrector,
+    ctl: PathControl,
+    measure: StepLength,
+    out: PathResult,
+    lam: float,
+    nxt: float,
+    h: float,
+    outcome: Outcome,
 ) -> float:
     """The next nominal step after a rejected trial; raises when the path cannot go on."""
     if outcome.kind == "retry":
@@ -289,7 +362,7 @@ def _after_rejection(
         out.cuts += 1
         log.info("increment %.6g -> %.6g mm failed (%s); cutting the step", lam * 1e3, nxt * 1e3, outcome.reason)
         step = h * ctl.cut
-    too_short = outcome.kind == "failed" and step < ctl.min_step * (1 - 1e-9)
+    too_short = outcome.kind == "failed" and measure.too_short(step)
     too_many = ctl.max_attempts is not None and len(out.attempts) >= ctl.max_attempts
     if too_short or too_many:
         why = (
