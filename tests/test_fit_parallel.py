@@ -129,10 +129,12 @@ FIT_SCRIPT = textwrap.dedent(
 )
 
 
-@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a process group")
-def test_ctrl_c_leaves_no_worker_behind(tmp_path):
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+@pytest.mark.parametrize("how", ["ctrl-c", "kill"])
+def test_a_stopped_fit_leaves_no_worker_behind(tmp_path, how):
     """Ctrl-C on a fit with worker processes (SIGINT to the terminal's process group, as a terminal
-    sends it): the fit stops with KeyboardInterrupt and every worker process ends with it."""
+    sends it): the fit stops with KeyboardInterrupt and ends its workers. The fit's process killed
+    (SIGKILL, no clean-up possible): its workers exit by themselves, also in the middle of a run."""
     script = tmp_path / "fit.py"
     script.write_text(FIT_SCRIPT.format(tests=str(Path(__file__).parent)))
     proc = subprocess.Popen(
@@ -153,15 +155,22 @@ def test_ctrl_c_leaves_no_worker_behind(tmp_path):
             workers = [p for p in parent.children(recursive=True) if "resource_tracker" not in " ".join(p.cmdline())]
         assert len(workers) >= 2, "the workers did not start"
         time.sleep(2.0)  # inside a model run
-        os.killpg(proc.pid, signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-        assert proc.returncode != 0 and "KeyboardInterrupt" in err
-        gone, alive = psutil.wait_procs(workers, timeout=10)
+        if how == "ctrl-c":
+            os.killpg(proc.pid, signal.SIGINT)
+            _, err = proc.communicate(timeout=60)
+            assert proc.returncode != 0 and "KeyboardInterrupt" in err
+        else:
+            proc.kill()
+            proc.communicate(timeout=60)
+        _, alive = psutil.wait_procs(workers, timeout=20)
         assert not alive, [p.pid for p in alive]
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+        for p in psutil.Process().children(recursive=True):  # whatever failed above: nothing left running
+            if p.pid != proc.pid and "resource_tracker" not in " ".join(p.cmdline()):
+                p.kill()
 
 
 @pytest.mark.integration

@@ -114,13 +114,6 @@ class _Job:
 _WORKER_MESHES: dict[tuple[int, int | None], Any] = {}
 
 
-def _ignore_interrupts() -> None:
-    """A worker leaves Ctrl-C to the fit's process, which ends the workers (no traceback per worker)."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def _worker_run(job: _Job) -> _Run:
     """:func:`_curve_run` in a worker process, with that process's meshes."""
     return _curve_run(job, _WORKER_MESHES)
@@ -198,6 +191,7 @@ class _Model:
         self.runs = 0
         self.parallel = workers > 1 and len(curves) > 1
         self._pools: dict[int, Any] = {}
+        self._alive: Any = None  # a pipe whose write end only this process holds: the workers exit with it
         self._cache: dict[tuple[int, bytes, int | None, bool], _Run] = {}
         #: every run made, per curve: (rung, checked, wall time [s], CPU time [s])
         self.timings: list[list[tuple[int | None, bool, float, float]]] = [[] for _ in curves]
@@ -243,13 +237,24 @@ class _Model:
         )
 
     def _pool(self, k: int) -> Any:
-        """Curve ``k``'s worker process, started on first use."""
+        """Curve ``k``'s worker process, started on first use.
+
+        Its start is that of a study's workers (:func:`ngbet.study.executors.worker_init`): SIGINT
+        ignored, and it exits by itself when this process dies, even by SIGKILL.
+        """
         import multiprocessing
+        import os
         from concurrent.futures import ProcessPoolExecutor
 
+        from ..study.executors import worker_init
+
         if k not in self._pools:
+            ctx = multiprocessing.get_context("spawn")
+            if self._alive is None:
+                self._alive = ctx.Pipe(duplex=False)
+            env = {key: v for key, v in os.environ.items() if key.startswith("NGBET_")}
             self._pools[k] = ProcessPoolExecutor(
-                1, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_interrupts
+                1, mp_context=ctx, initializer=worker_init, initargs=(self._alive[0], env)
             )
         return self._pools[k]
 
@@ -279,6 +284,10 @@ class _Model:
                 proc.terminate()
             pool.shutdown(wait=True, cancel_futures=True)
         self._pools.clear()
+        if self._alive is not None:
+            for end in self._alive:
+                end.close()
+            self._alive = None
 
 
 def _default_workers(n_curves: int) -> int:
