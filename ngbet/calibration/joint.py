@@ -50,6 +50,7 @@ from .fit_params import (
     FIT_LADDER,
     FLAT_RCOND,
     SIZE_PARAMS,
+    STEP_SE,
     STRONG_CORRELATION,
     TARGET_ERROR,
     UNDETERMINED_SE,
@@ -393,7 +394,7 @@ def fit_curves(  # noqa: C901
     With ``params`` None and every curve of one specimen size (and no profile), the bending
     stiffnesses are held at the scene's values (:func:`held_parameters`; the result's ``held``).
     """
-    from scipy.optimize import least_squares
+    from scipy.optimize import OptimizeResult, least_squares, lsq_linear
 
     t0 = time.perf_counter()
     if scene.model != "continuum":
@@ -504,6 +505,20 @@ def fit_curves(  # noqa: C901
                 gtol=1e-8,
             )
 
+        def gauss_newton_step(theta: np.ndarray) -> float:
+            """The Gauss-Newton step from θ within the bounds, in standard errors (the Mahalanobis norm).
+
+            The cost it would remove, over the covariance's s²: a step that moves the parameters by
+            a small fraction of their uncertainty is not worth a search (its runs are the costly ones).
+            """
+            e, J = resid(theta), jac(theta)
+            if not np.all(np.isfinite(J)):
+                return math.inf
+            m, n = J.shape
+            d = lsq_linear(J, -e, bounds=(np.log(lo) - theta, np.log(hi) - theta)).x
+            drop = float(e @ e) - float(np.sum((J @ d + e) ** 2))
+            return math.sqrt(max(drop, 0.0) / max(float(e @ e) / max(m - n, 1), 1.0))
+
         th0 = np.log(start)
         th = th0
         stages: list[dict[str, Any]] = []
@@ -543,37 +558,63 @@ def fit_curves(  # noqa: C901
             stage(*m0, rungs=checked_levels, checked=True, probe=True)
         for cf, level in zip(cfs, checked_levels, strict=True):
             cf.level = level
-        while True:
+        # on the checked rungs: the estimate where the search stands; a rung that misses the target is
+        # left at once (one rung up), a search runs only where its step would move a parameter
+        searched = not choose_discretization  # the scene's own discretization: no probe, search first
+        if searched:
             m0 = mark()
-            left = max_runs - model.runs
-            if left >= 1 or sol is None:
-                sol = search(th, max(left, 1), FINE_TOL)
-                th = sol.x
+            sol = search(th, max(max_runs - model.runs, 1), FINE_TOL)
+            th = sol.x
+        else:
+            m0 = mark()
+        while True:
             checked = model(th, check=True)
             for cf, r in zip(cfs, checked, strict=True):
                 cf.force_error_N = r.err
                 cf.model_N = r.F
+            step = gauss_newton_step(th)
             stage(
                 *m0,
                 rungs=[cf.level for cf in cfs],
                 checked=True,
                 force_error_rel_max=[None if math.isnan(cf.error_rel_max) else cf.error_rel_max for cf in cfs],
+                step_se=step,
             )
+            m0 = mark()
             up = [
                 cf
                 for cf in cfs
                 if not cf.error_rel_max <= target_error and cf.level is not None and cf.level < len(FIT_LADDER) - 1
             ]
-            if not up or model.runs >= max_runs:
+            if model.runs >= max_runs:
                 break
-            for cf in up:
-                log.info(
-                    "%s: estimated discretization error %.3g above %.3g: one rung up",
-                    cf.label,
-                    cf.error_rel_max,
-                    target_error,
+            if up:
+                for cf in up:
+                    log.info(
+                        "%s: estimated discretization error %.3g above %.3g: one rung up",
+                        cf.label,
+                        cf.error_rel_max,
+                        target_error,
+                    )
+                    cf.level = (cf.level or 0) + 1
+                searched = False
+                continue
+            if searched:
+                break
+            if step <= STEP_SE:
+                sol = OptimizeResult(
+                    x=th,
+                    success=True,
+                    status=1,
+                    message=f"the Gauss-Newton step within the bounds moves the parameters by {step:.2g} "
+                    f"standard errors (< {STEP_SE}) on the checked rungs",
                 )
-                cf.level = (cf.level or 0) + 1
+                break
+            sol = search(th, max(max_runs - model.runs, 1), FINE_TOL)
+            th = sol.x
+            searched = True
+        if sol is None:  # --max-runs spent by the probe
+            sol = OptimizeResult(x=th, success=False, status=0, message="the model runs were spent before a search")
         quiet[0] = True
         e, J = resid(th), jac(th)
         st = _statistics(e, J, names)
