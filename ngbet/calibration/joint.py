@@ -50,6 +50,7 @@ from .fit_params import (
     FIT_LADDER,
     FLAT_RCOND,
     SIZE_PARAMS,
+    STALL_RUNS,
     STEP_SE,
     STRONG_CORRELATION,
     TARGET_ERROR,
@@ -167,6 +168,14 @@ def _curve_run(job: _Job, meshes: dict[tuple[int, int | None], Any]) -> _Run:
             time.perf_counter() - t0,
             time.process_time() - c0,
         )
+
+
+class _Stalled(Exception):
+    """A search on the checked rungs whose cost stopped falling by what matters; ``theta``: where to stop."""
+
+    def __init__(self, theta: np.ndarray) -> None:
+        super().__init__("stalled")
+        self.theta = theta
 
 
 class FitWorkerError(RuntimeError):
@@ -453,6 +462,7 @@ def fit_curves(  # noqa: C901
     try:
         best = [math.inf]
         quiet = [False]
+        watch: dict[str, Any] = {}  # the stall test of a search on the checked rungs (empty: off)
 
         def blocks(res: list[_Run]) -> np.ndarray:
             e = []
@@ -470,6 +480,14 @@ def fit_curves(  # noqa: C901
             e = np.where(np.isfinite(e), e, 1e3)
             cost = float(e @ e)
             best[0] = min(best[0], cost)
+            if watch:  # a search on the checked rungs: stop where the cost no longer falls by what matters
+                s2 = max(cost / max(len(e) - len(theta), 1), 1.0)
+                if cost < watch["ref"] - STEP_SE**2 * s2:
+                    watch.update(ref=cost, at=np.array(theta, float), since=0)
+                else:
+                    watch["since"] += 1
+                if watch["since"] >= STALL_RUNS:
+                    raise _Stalled(watch["at"])
             if progress is not None and not quiet[0]:
                 progress(
                     model.runs,
@@ -491,19 +509,39 @@ def fit_curves(  # noqa: C901
                     rows.append(r.GA / angle_sd_deg)
             return np.vstack(rows)
 
-        def search(theta: np.ndarray, runs: int, tol: float) -> Any:
-            return least_squares(
-                resid,
-                theta,
-                jac=jac,
-                bounds=(np.log(lo), np.log(hi)),
-                method="trf",
-                x_scale=1.0,
-                max_nfev=max(runs, 1),
-                xtol=tol,
-                ftol=tol,
-                gtol=1e-8,
-            )
+        def search(theta: np.ndarray, runs: int, tol: float, stall: bool = False) -> Any:
+            """The least-squares search from θ (at most ``runs`` model runs, tolerance ``tol``).
+
+            ``stall``: it also ends after :data:`STALL_RUNS` runs without a fall of the cost by
+            STEP_SE² s² (parameters moving by less than STEP_SE standard errors), at the last point
+            that made such a fall.
+            """
+            watch.clear()
+            if stall:
+                watch.update(ref=math.inf, at=np.array(theta, float), since=0)
+            try:
+                return least_squares(
+                    resid,
+                    theta,
+                    jac=jac,
+                    bounds=(np.log(lo), np.log(hi)),
+                    method="trf",
+                    x_scale=1.0,
+                    max_nfev=max(runs, 1),
+                    xtol=tol,
+                    ftol=tol,
+                    gtol=1e-8,
+                )
+            except _Stalled as stop:
+                return OptimizeResult(
+                    x=stop.theta,
+                    success=True,
+                    status=2,
+                    message=f"the cost fell by less than {STEP_SE}² s² over the last {STALL_RUNS} model runs "
+                    f"(parameters moving by less than {STEP_SE} standard errors)",
+                )
+            finally:
+                watch.clear()
 
         def gauss_newton_step(theta: np.ndarray) -> float:
             """The Gauss-Newton step from θ within the bounds, in standard errors (the Mahalanobis norm).
@@ -610,7 +648,7 @@ def fit_curves(  # noqa: C901
                     f"standard errors (< {STEP_SE}) on the checked rungs",
                 )
                 break
-            sol = search(th, max(max_runs - model.runs, 1), FINE_TOL)
+            sol = search(th, max(max_runs - model.runs, 1), FINE_TOL, stall=True)
             th = sol.x
             searched = True
         if sol is None:  # --max-runs spent by the probe
