@@ -386,12 +386,16 @@ def fit_curves(  # noqa: C901
     ``resample``: the curve sampled at :data:`ngbet.calibration.data.POINTS_PER_CURVE` equally
     spaced displacements (False: its own points in the range).
 
-    Discretization: every curve runs on a rung of :data:`FIT_LADDER` chosen by the fit. The search
-    starts on :data:`COARSE_LEVEL` (``coarse``), continues on :data:`FIRST_CHECKED`, and at its end
-    the discretization error of the force is estimated at every fitted point
-    (:class:`ngbet.continuum.estimate.ForceErrorEstimator`); a curve whose largest estimate is above
-    ``target_error`` of its force (or cannot be vouched for) moves one rung up and the search
-    continues from where it stood, until every curve meets the target or ``max_runs`` are spent.
+    Discretization: every curve runs on a rung of :data:`FIT_LADDER` chosen by the fit. Each
+    curve's first rung meeting the target at the start values is probed, the search starts one
+    rung below it (``coarse``, not below :data:`COARSE_LEVEL`), and where it ends the rungs are
+    probed again from the start's up. On these checked rungs the discretization error of the force
+    is estimated at every fitted point (:class:`ngbet.continuum.estimate.ForceErrorEstimator`)
+    before and after each search; a curve whose largest estimate is above ``target_error`` of its
+    force (or cannot be vouched for) moves one rung up and the search continues from where it
+    stood, until every curve meets the target or ``max_runs`` are spent. A search on the checked
+    rungs runs only where its Gauss-Newton step would move the parameters by :data:`STEP_SE`
+    standard errors or more, and ends after :data:`STALL_RUNS` runs without such a fall of the cost.
     The result records each curve's rung and largest estimate (``accuracy_met`` says whether the
     target was met). ``choose_discretization=False``: every run on the scene's own discretization,
     its estimate recorded all the same.
@@ -402,6 +406,12 @@ def fit_curves(  # noqa: C901
 
     With ``params`` None and every curve of one specimen size (and no profile), the bending
     stiffnesses are held at the scene's values (:func:`held_parameters`; the result's ``held``).
+
+    ``workers``: processes running the curves at the same time, one curve each (default: one per
+    curve up to the cores, none inside a daemonic process); 1 runs every curve in this process.
+    The results are those of one process to round-off. A script that starts a fit of several
+    curves guards its top level (``if __name__ == "__main__":``): the workers are spawned and
+    import it.
     """
     from scipy.optimize import OptimizeResult, least_squares, lsq_linear
 
