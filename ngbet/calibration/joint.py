@@ -528,17 +528,14 @@ def fit_curves(  # noqa: C901
             that made such a fall.
             """
             watch.clear()
-            # ``stall``: the search in the offset from θ, whose initial trust radius is then 1 (a factor
-            # e), not |θ|: near an optimum the first steps were wild ones along the flat directions
-            at = np.array(theta, float) if stall else np.zeros_like(theta)
             if stall:
-                watch.update(ref=math.inf, at=at, since=0)
+                watch.update(ref=math.inf, at=np.array(theta, float), since=0)
             try:
-                sol = least_squares(
-                    lambda u: resid(at + u),
-                    theta - at,
-                    jac=lambda u: jac(at + u),
-                    bounds=(np.log(lo) - at, np.log(hi) - at),
+                return least_squares(
+                    resid,
+                    theta,
+                    jac=jac,
+                    bounds=(np.log(lo), np.log(hi)),
                     method="trf",
                     x_scale=1.0,
                     max_nfev=max(runs, 1),
@@ -546,8 +543,6 @@ def fit_curves(  # noqa: C901
                     ftol=tol,
                     gtol=1e-8,
                 )
-                sol.x = at + sol.x
-                return sol
             except _Stalled as stop:
                 return OptimizeResult(
                     x=stop.theta,
