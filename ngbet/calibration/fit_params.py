@@ -31,7 +31,6 @@ __all__ = [
     "FIRST_CHECKED",
     "FIT_LADDER",
     "FLAT_RCOND",
-    "POLISH_STEPS",
     "SIZE_PARAMS",
     "STALL_RUNS",
     "STEP_SE",
@@ -206,10 +205,6 @@ STEP_SE = 0.1
 #: STEP_SE² s²: on the unbalanced twill's two sizes its cost stayed at 23.32 over ten runs of
 #: rejected and tiny trust-region steps on the costliest rungs
 STALL_RUNS = 3
-#: Gauss-Newton steps (flat directions left out) tried on the checked rungs before a search: where
-#: the coarse optimum is near the fine one, they reach it in a run or two where the trust-region
-#: search spent ten
-POLISH_STEPS = 4
 #: default largest estimated discretization error of the force at a fitted point, relative to it
 TARGET_ERROR = 0.01
 #: standard error of ln p above which a parameter is reported as undetermined (its 95 % interval

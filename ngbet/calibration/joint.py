@@ -49,7 +49,6 @@ from .fit_params import (
     FIRST_CHECKED,
     FIT_LADDER,
     FLAT_RCOND,
-    POLISH_STEPS,
     SIZE_PARAMS,
     STALL_RUNS,
     STEP_SE,
@@ -568,29 +567,6 @@ def fit_curves(  # noqa: C901
             drop = float(e @ e) - float(np.sum((J @ d + e) ** 2))
             return math.sqrt(max(drop, 0.0) / max(float(e @ e) / max(m - n, 1), 1.0))
 
-        def polish(theta: np.ndarray) -> tuple[np.ndarray, bool]:
-            """Gauss-Newton steps from θ on the current rungs, the flat directions left out.
-
-            Each step is taken when it lowers the cost by STEP_SE² s² or more. Returns the last
-            point and whether the bounded Gauss-Newton step there moves the parameters by less than
-            :data:`STEP_SE` standard errors; False where a step fails (the caller searches then).
-            """
-            box = (np.log(lo), np.log(hi))
-            for _ in range(POLISH_STEPS):
-                if gauss_newton_step(theta) <= STEP_SE:
-                    return theta, True
-                e, J = resid(theta), jac(theta)
-                U, sv, Vt = np.linalg.svd(J, full_matrices=False)
-                keep = sv > FLAT_RCOND * sv[0]
-                d = -(Vt[keep].T @ ((U[:, keep].T @ e) / sv[keep]))
-                trial = np.clip(theta + d, box[0], box[1])
-                s2 = max(float(e @ e) / max(len(e) - len(theta), 1), 1.0)
-                e1 = resid(trial)
-                if not float(e1 @ e1) < float(e @ e) - STEP_SE**2 * s2:
-                    return theta, False
-                theta = trial
-            return theta, gauss_newton_step(theta) <= STEP_SE
-
         th0 = np.log(start)
         th = th0
         stages: list[dict[str, Any]] = []
@@ -673,23 +649,17 @@ def fit_curves(  # noqa: C901
                 continue
             if searched:
                 break
-            converged = OptimizeResult(
-                x=th,
-                success=True,
-                status=1,
-                message=f"the Gauss-Newton step within the bounds moves the parameters by less than {STEP_SE} "
-                "standard errors on the checked rungs",
-            )
             if step <= STEP_SE:
-                sol = converged
+                sol = OptimizeResult(
+                    x=th,
+                    success=True,
+                    status=1,
+                    message=f"the Gauss-Newton step within the bounds moves the parameters by {step:.2g} "
+                    f"standard errors (< {STEP_SE}) on the checked rungs",
+                )
                 break
-            th, done = polish(th)
-            if done:
-                sol = converged
-            else:
-                sol = search(th, max(max_runs - model.runs, 1), FINE_TOL, stall=True)
-                th = sol.x
-            sol.x = th
+            sol = search(th, max(max_runs - model.runs, 1), FINE_TOL, stall=True)
+            th = sol.x
             searched = True
         if sol is None:  # --max-runs spent by the probe
             sol = OptimizeResult(x=th, success=False, status=0, message="the model runs were spent before a search")
