@@ -50,6 +50,8 @@ from .fit_params import (
     FIT_LADDER,
     FLAT_RCOND,
     SIZE_PARAMS,
+    STALL_RUNS,
+    STEP_SE,
     STRONG_CORRELATION,
     TARGET_ERROR,
     UNDETERMINED_SE,
@@ -92,6 +94,92 @@ class _Run:
     GA: np.ndarray
     err: np.ndarray
     angle: np.ndarray  # the centre shear angle at the fitted points (checked runs only)
+    seconds: float = 0.0  # the run's wall time
+    cpu_s: float = 0.0  # the CPU time of the process that ran it, during the run
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One model run of one curve, everything it needs (picklable: a worker process receives it)."""
+
+    scene: Scene  # the curve's scene on its rung, with the parameter values
+    mesh_key: tuple[int, int | None]  # (curve, rung): the mesh is made once per key and reused
+    u_mm: np.ndarray
+    names: list[str]
+    points: dict[float, np.ndarray]  # the profile's abscissae [mm] per displacement
+    angle_u_mm: list[float]  # the displacements of the measured centre shear angles
+    check: bool
+    label: str
+
+
+#: a worker process's meshes by :attr:`_Job.mesh_key` (a worker serves one curve of one fit)
+_WORKER_MESHES: dict[tuple[int, int | None], Any] = {}
+
+
+def _worker_run(job: _Job) -> _Run:
+    """:func:`_curve_run` in a worker process, with that process's meshes."""
+    return _curve_run(job, _WORKER_MESHES)
+
+
+def _curve_run(job: _Job, meshes: dict[tuple[int, int | None], Any]) -> _Run:
+    """The force, profile and angles of ``job`` and their dθ; NaN where the model run does not converge."""
+    from ..continuum.mesh import make_cross_mesh, make_mesh
+    from ..errors import ConvergenceError
+    from ..runner.sensitivity import force_path
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    sc, n, pts, a_u, check = job.scene, len(job.names), job.points, job.angle_u_mm, job.check
+    if job.mesh_key not in meshes:
+        meshes[job.mesh_key] = (
+            make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
+            if sc.test == "picture_frame"
+            else make_mesh(sc.specimen, sc.discretization)
+        )
+    m, kp, ka = len(job.u_mm), sum(len(x) for x in pts.values()), len(a_u)
+    try:
+        r = force_path(
+            sc,
+            job.u_mm,
+            job.names,
+            pts,
+            mesh=meshes[job.mesh_key],
+            angles=sorted(set(a_u) | (set(map(float, job.u_mm)) if check else set())),
+            estimate=check,
+        )
+        assert r.dlogp is not None
+        P = np.concatenate([r.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
+        GP = np.vstack([r.profile_dlogp[u0] for u0 in pts]) if pts else np.zeros((0, n))
+        A = np.array([r.angles_deg[float(u)] for u in a_u])
+        GA = np.vstack([r.angle_dlogp[float(u)] for u in a_u]) if a_u else np.zeros((0, n))
+        err = r.force_error_N if r.force_error_N is not None else np.zeros(0)
+        ang = np.array([r.angles_deg[float(u)] for u in job.u_mm]) if check else np.zeros(0)
+        return _Run(r.force_N, r.dlogp, P, GP, A, GA, err, ang, time.perf_counter() - t0, time.process_time() - c0)
+    except (ConvergenceError, SceneError) as exc:
+        log.info("model run failed on %s: %s", job.label, exc)
+        return _Run(
+            np.full(m, np.nan),
+            np.zeros((m, n)),
+            np.full(kp, np.nan),
+            np.zeros((kp, n)),
+            np.full(ka, np.nan),
+            np.zeros((ka, n)),
+            np.full(m if check else 0, np.nan),
+            np.full(m if check else 0, np.nan),
+            time.perf_counter() - t0,
+            time.process_time() - c0,
+        )
+
+
+class _Stalled(Exception):
+    """A search on the checked rungs whose cost stopped falling by what matters; ``theta``: where to stop."""
+
+    def __init__(self, theta: np.ndarray) -> None:
+        super().__init__("stalled")
+        self.theta = theta
+
+
+class FitWorkerError(RuntimeError):
+    """A curve's worker process ended without an answer (killed, out of memory, crashed)."""
 
 
 class _Model:
@@ -99,13 +187,24 @@ class _Model:
 
     Each curve's mesh is made once per rung and reused. ``check=True`` adds the discretization
     error estimate at the fitted points and the centre shear angle there.
+
+    ``workers`` > 1 (and more than one curve): each curve runs in a worker process of its own
+    (spawned: Netgen and NGSolve's threads do not survive a fork), which keeps its meshes, on one
+    NGSolve thread; the curves of one call run at the same time. A worker's exception is raised
+    here, a worker that dies raises :class:`FitWorkerError`. :meth:`close` ends the workers at
+    once, also when the fit stops by an exception or Ctrl-C (the workers ignore SIGINT).
     """
 
-    def __init__(self, curves: list[CurveFit], names: list[str]) -> None:
+    def __init__(self, curves: list[CurveFit], names: list[str], workers: int = 1) -> None:
         self.curves, self.names = curves, names
         self.meshes: dict[tuple[int, int | None], Any] = {}
         self.runs = 0
+        self.parallel = workers > 1 and len(curves) > 1
+        self._pools: dict[int, Any] = {}
+        self._alive: Any = None  # a pipe whose write end only this process holds: the workers exit with it
         self._cache: dict[tuple[int, bytes, int | None, bool], _Run] = {}
+        #: every run made, per curve: (rung, checked, wall time [s], CPU time [s])
+        self.timings: list[list[tuple[int | None, bool, float, float]]] = [[] for _ in curves]
 
     def __call__(self, theta: np.ndarray, check: bool = False) -> list[_Run]:
         """Each curve's run at θ on its current rung; a curve already run there (checked or as asked) is not rerun.
@@ -113,67 +212,102 @@ class _Model:
         ``runs`` counts the calls that ran at least one curve.
         """
         t = np.asarray(theta, float).tobytes()
-        todo = [
-            k
-            for k, c in enumerate(self.curves)
-            if (k, t, c.level, check) not in self._cache and (k, t, c.level, True) not in self._cache
-        ]
+        todo = [k for k, c in enumerate(self.curves) if self.cached(k, theta, c.level, check) is None]
         if todo:
             self.runs += 1
+        jobs = {k: self._job(k, theta, check) for k in todo}
+        if self.parallel:
+            done = self._in_workers(jobs)
+        else:
+            done = {k: _curve_run(jobs[k], self.meshes) for k in todo}
         for k in todo:
-            self._cache[k, t, self.curves[k].level, check] = self._run(k, theta, check)
-        return [
-            self._cache.get((k, t, c.level, check)) or self._cache[k, t, c.level, True]
-            for k, c in enumerate(self.curves)
-        ]
+            self._cache[k, t, self.curves[k].level, check] = done[k]
+            self.timings[k].append((self.curves[k].level, check, done[k].seconds, done[k].cpu_s))
+        return [cast(_Run, self.cached(k, theta, c.level, check)) for k, c in enumerate(self.curves)]
 
-    def _run(self, k: int, theta: np.ndarray, check: bool) -> _Run:
-        from ..continuum.mesh import make_cross_mesh, make_mesh
-        from ..errors import ConvergenceError
-        from ..runner.sensitivity import force_path
+    def cached(self, k: int, theta: np.ndarray, level: int | None, check: bool = False) -> _Run | None:
+        """Curve ``k``'s run at θ on rung ``level`` if one was made (a checked one serves both), else None."""
+        t = np.asarray(theta, float).tobytes()
+        return self._cache.get((k, t, level, True)) or (None if check else self._cache.get((k, t, level, False)))
 
-        n = len(self.names)
+    def _job(self, k: int, theta: np.ndarray, check: bool) -> _Job:
         c = self.curves[k]
         sc = with_values(c.run_scene(), self.names, np.exp(theta))
-        if (k, c.level) not in self.meshes:
-            self.meshes[k, c.level] = (
-                make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
-                if sc.test == "picture_frame"
-                else make_mesh(sc.specimen, sc.discretization)
+        if self.parallel:  # one worker per curve on its own core
+            sc = sc.with_changes(**{"solver.threads": 1})
+        return _Job(
+            sc,
+            (k, c.level),
+            np.asarray(c.u_mm, float),
+            list(self.names),
+            c.profile.points() if c.profile is not None else {},
+            [float(u) for u in c.angles.u_mm] if c.angles is not None else [],
+            check,
+            c.label,
+        )
+
+    def _pool(self, k: int) -> Any:
+        """Curve ``k``'s worker process, started on first use.
+
+        Its start is that of a study's workers (:func:`ngbet.study.executors.worker_init`): SIGINT
+        ignored, and it exits by itself when this process dies, even by SIGKILL.
+        """
+        import multiprocessing
+        import os
+        from concurrent.futures import ProcessPoolExecutor
+
+        from ..study.executors import worker_init
+
+        if k not in self._pools:
+            ctx = multiprocessing.get_context("spawn")
+            if self._alive is None:
+                self._alive = ctx.Pipe(duplex=False)
+            env = {key: v for key, v in os.environ.items() if key.startswith("NGBET_")}
+            self._pools[k] = ProcessPoolExecutor(
+                1, mp_context=ctx, initializer=worker_init, initargs=(self._alive[0], env)
             )
-        pts = c.profile.points() if c.profile is not None else {}
-        a_u = list(c.angles.u_mm) if c.angles is not None else []
-        m, kp, ka = len(c.u_mm), sum(len(x) for x in pts.values()), len(a_u)
+        return self._pools[k]
+
+    def _in_workers(self, jobs: dict[int, _Job]) -> dict[int, _Run]:
+        """Each job in its curve's worker, at the same time; a dead worker raises :class:`FitWorkerError`."""
+        from concurrent.futures.process import BrokenProcessPool
+
+        futures, done = {}, {}
+        k = -1
         try:
-            r = force_path(
-                sc,
-                c.u_mm,
-                self.names,
-                pts,
-                mesh=self.meshes[k, c.level],
-                angles=sorted(set(a_u) | (set(map(float, c.u_mm)) if check else set())),
-                estimate=check,
-            )
-            assert r.dlogp is not None
-            P = np.concatenate([r.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
-            GP = np.vstack([r.profile_dlogp[u0] for u0 in pts]) if pts else np.zeros((0, n))
-            A = np.array([r.angles_deg[float(u)] for u in a_u])
-            GA = np.vstack([r.angle_dlogp[float(u)] for u in a_u]) if a_u else np.zeros((0, n))
-            err = r.force_error_N if r.force_error_N is not None else np.zeros(0)
-            ang = np.array([r.angles_deg[float(u)] for u in c.u_mm]) if check else np.zeros(0)
-            return _Run(r.force_N, r.dlogp, P, GP, A, GA, err, ang)
-        except (ConvergenceError, SceneError) as exc:
-            log.info("model run failed on %s: %s", c.label, exc)
-            return _Run(
-                np.full(m, np.nan),
-                np.zeros((m, n)),
-                np.full(kp, np.nan),
-                np.zeros((kp, n)),
-                np.full(ka, np.nan),
-                np.zeros((ka, n)),
-                np.full(m if check else 0, np.nan),
-                np.full(m if check else 0, np.nan),
-            )
+            for k, job in jobs.items():
+                futures[k] = self._pool(k).submit(_worker_run, job)
+            for k, f in futures.items():
+                done[k] = cast(_Run, f.result())
+        except BrokenProcessPool as exc:
+            raise FitWorkerError(
+                f"the worker process of {self.curves[k].label} ended without an answer "
+                "(killed, out of memory or crashed); the fit stops"
+            ) from exc
+        return done
+
+    def close(self) -> None:
+        """End the worker processes at once (a run still going is not waited for)."""
+        for pool in self._pools.values():
+            # ProcessPoolExecutor has no public way to stop a running task: its processes are ended
+            for proc in list((pool._processes or {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+        self._pools.clear()
+        if self._alive is not None:
+            for end in self._alive:
+                end.close()
+            self._alive = None
+
+
+def _default_workers(n_curves: int) -> int:
+    """Worker processes for ``n_curves`` curves: one per curve up to the cores; 1 in a daemon process."""
+    import multiprocessing
+    import os
+
+    if multiprocessing.current_process().daemon:  # a daemonic process may not start processes
+        return 1
+    return max(1, min(n_curves, os.cpu_count() or 1))
 
 
 Progress = Callable[[int, list[float], float], None]
@@ -244,6 +378,7 @@ def fit_curves(  # noqa: C901
     resample: bool = True,
     coarse: bool = True,
     choose_discretization: bool = True,
+    workers: int | None = None,
 ) -> JointFit:
     """Fit ``params`` (default: the scene's ``calibration.params``) to all ``curves`` at once.
 
@@ -251,12 +386,16 @@ def fit_curves(  # noqa: C901
     ``resample``: the curve sampled at :data:`ngbet.calibration.data.POINTS_PER_CURVE` equally
     spaced displacements (False: its own points in the range).
 
-    Discretization: every curve runs on a rung of :data:`FIT_LADDER` chosen by the fit. The search
-    starts on :data:`COARSE_LEVEL` (``coarse``), continues on :data:`FIRST_CHECKED`, and at its end
-    the discretization error of the force is estimated at every fitted point
-    (:class:`ngbet.continuum.estimate.ForceErrorEstimator`); a curve whose largest estimate is above
-    ``target_error`` of its force (or cannot be vouched for) moves one rung up and the search
-    continues from where it stood, until every curve meets the target or ``max_runs`` are spent.
+    Discretization: every curve runs on a rung of :data:`FIT_LADDER` chosen by the fit. Each
+    curve's first rung meeting the target at the start values is probed, the search starts one
+    rung below it (``coarse``, not below :data:`COARSE_LEVEL`), and where it ends the rungs are
+    probed again from the start's up. On these checked rungs the discretization error of the force
+    is estimated at every fitted point (:class:`ngbet.continuum.estimate.ForceErrorEstimator`)
+    before and after each search; a curve whose largest estimate is above ``target_error`` of its
+    force (or cannot be vouched for) moves one rung up and the search continues from where it
+    stood, until every curve meets the target or ``max_runs`` are spent. A search on the checked
+    rungs runs only where its Gauss-Newton step would move the parameters by :data:`STEP_SE`
+    standard errors or more, and ends after :data:`STALL_RUNS` runs without such a fall of the cost.
     The result records each curve's rung and largest estimate (``accuracy_met`` says whether the
     target was met). ``choose_discretization=False``: every run on the scene's own discretization,
     its estimate recorded all the same.
@@ -267,8 +406,14 @@ def fit_curves(  # noqa: C901
 
     With ``params`` None and every curve of one specimen size (and no profile), the bending
     stiffnesses are held at the scene's values (:func:`held_parameters`; the result's ``held``).
+
+    ``workers``: processes running the curves at the same time, one curve each (default: one per
+    curve up to the cores, none inside a daemonic process); 1 runs every curve in this process.
+    The results are those of one process to round-off. A script that starts a fit of several
+    curves guards its top level (``if __name__ == "__main__":``): the workers are spawned and
+    import it.
     """
-    from scipy.optimize import least_squares
+    from scipy.optimize import OptimizeResult, least_squares, lsq_linear
 
     t0 = time.perf_counter()
     if scene.model != "continuum":
@@ -323,190 +468,272 @@ def fit_curves(  # noqa: C901
             reach = max(float(np.max(ang.u_mm)), float(u.max()))
             sc = sc.with_changes(**{"loading.u0_mm": reach})
         cfs.append(CurveFit(c, sc, u, F, c.sd(u, F), prof, ang, FIRST_CHECKED if choose_discretization else None))
-    model = _Model(cfs, names)
-    best = [math.inf]
-    quiet = [False]
+    model = _Model(cfs, names, workers if workers is not None else _default_workers(len(cfs)))
+    try:
+        best = [math.inf]
+        quiet = [False]
+        watch: dict[str, Any] = {}  # the stall test of a search on the checked rungs (empty: off)
 
-    def blocks(res: list[_Run]) -> np.ndarray:
-        e = []
-        for r, c in zip(res, cfs, strict=True):
-            e.append((r.F - c.measured_N) / c.sd_N)
-            if c.profile is not None:
-                e.append((r.P - c.profile.measured()) / profile_sd_mm)
-            if c.angles is not None:
-                e.append((r.A - c.angles.angle_deg) / angle_sd_deg)
-        return np.concatenate(e)
+        def blocks(res: list[_Run]) -> np.ndarray:
+            e = []
+            for r, c in zip(res, cfs, strict=True):
+                e.append((r.F - c.measured_N) / c.sd_N)
+                if c.profile is not None:
+                    e.append((r.P - c.profile.measured()) / profile_sd_mm)
+                if c.angles is not None:
+                    e.append((r.A - c.angles.angle_deg) / angle_sd_deg)
+            return np.concatenate(e)
 
-    def resid(theta: np.ndarray) -> np.ndarray:
-        res = model(theta)
-        e = blocks(res)
-        e = np.where(np.isfinite(e), e, 1e3)
-        cost = float(e @ e)
-        best[0] = min(best[0], cost)
-        if progress is not None and not quiet[0]:
-            progress(
-                model.runs,
-                [
-                    float(np.sqrt(np.mean(((r.F - c.measured_N) / c.measured_N) ** 2)))
-                    for r, c in zip(res, cfs, strict=True)
-                ],
-                best[0],
-            )
-        return e
+        def resid(theta: np.ndarray) -> np.ndarray:
+            res = model(theta)
+            e = blocks(res)
+            e = np.where(np.isfinite(e), e, 1e3)
+            cost = float(e @ e)
+            best[0] = min(best[0], cost)
+            if watch:  # a search on the checked rungs: stop where the cost no longer falls by what matters
+                s2 = max(cost / max(len(e) - len(theta), 1), 1.0)
+                if cost < watch["ref"] - STEP_SE**2 * s2:
+                    watch.update(ref=cost, at=np.array(theta, float), since=0)
+                else:
+                    watch["since"] += 1
+                if watch["since"] >= STALL_RUNS:
+                    raise _Stalled(watch["at"])
+            if progress is not None and not quiet[0]:
+                progress(
+                    model.runs,
+                    [
+                        float(np.sqrt(np.mean(((r.F - c.measured_N) / c.measured_N) ** 2)))
+                        for r, c in zip(res, cfs, strict=True)
+                    ],
+                    best[0],
+                )
+            return e
 
-    def jac(theta: np.ndarray) -> np.ndarray:
-        rows = []
-        for r, c in zip(model(theta), cfs, strict=True):
-            rows.append(r.G / c.sd_N[:, None])
-            if c.profile is not None:
-                rows.append(r.GP / profile_sd_mm)
-            if c.angles is not None:
-                rows.append(r.GA / angle_sd_deg)
-        return np.vstack(rows)
+        def jac(theta: np.ndarray) -> np.ndarray:
+            rows = []
+            for r, c in zip(model(theta), cfs, strict=True):
+                rows.append(r.G / c.sd_N[:, None])
+                if c.profile is not None:
+                    rows.append(r.GP / profile_sd_mm)
+                if c.angles is not None:
+                    rows.append(r.GA / angle_sd_deg)
+            return np.vstack(rows)
 
-    def search(theta: np.ndarray, runs: int, tol: float) -> Any:
-        return least_squares(
-            resid,
-            theta,
-            jac=jac,
-            bounds=(np.log(lo), np.log(hi)),
-            method="trf",
-            x_scale=1.0,
-            max_nfev=max(runs, 1),
-            xtol=tol,
-            ftol=tol,
-            gtol=1e-8,
-        )
+        def search(theta: np.ndarray, runs: int, tol: float, stall: bool = False) -> Any:
+            """The least-squares search from θ (at most ``runs`` model runs, tolerance ``tol``).
 
-    th0 = np.log(start)
-    th = th0
-    stages: list[dict[str, Any]] = []
-    sol = None
-    checked_levels = [cf.level for cf in cfs]
-    if choose_discretization:
-        r0, ts = model.runs, time.perf_counter()
-        checked_levels = _first_levels(model, cfs, th0, target_error)
-        stages.append(
-            {
-                "rungs": checked_levels,
-                "model_runs": model.runs - r0,
-                "checked": True,
-                "probe": True,
-                "wall_s": time.perf_counter() - ts,
-            }
-        )
-    if coarse and choose_discretization and max_runs > 2:
-        # the search gets near the optimum one rung below the first that met the target at the start
-        coarse_levels = [max(COARSE_LEVEL, (lv or 0) - 1) for lv in checked_levels]
-        for cf, lv in zip(cfs, coarse_levels, strict=True):
-            cf.level = lv
-        r0, ts = model.runs, time.perf_counter()
-        sol = search(th, max_runs // 2, 1e-3)
-        th = sol.x
-        stages.append(
-            {
-                "rungs": coarse_levels,
-                "model_runs": model.runs - r0,
-                "checked": False,
-                "wall_s": time.perf_counter() - ts,
-            }
-        )
-    for cf, level in zip(cfs, checked_levels, strict=True):
-        cf.level = level
-    while True:
-        r0, ts = model.runs, time.perf_counter()
-        left = max_runs - model.runs
-        if left >= 1 or sol is None:
-            sol = search(th, max(left, 1), FINE_TOL)
+            ``stall``: it also ends after :data:`STALL_RUNS` runs without a fall of the cost by
+            STEP_SE² s² (parameters moving by less than STEP_SE standard errors), at the last point
+            that made such a fall.
+            """
+            watch.clear()
+            if stall:
+                watch.update(ref=math.inf, at=np.array(theta, float), since=0)
+            try:
+                return least_squares(
+                    resid,
+                    theta,
+                    jac=jac,
+                    bounds=(np.log(lo), np.log(hi)),
+                    method="trf",
+                    x_scale=1.0,
+                    max_nfev=max(runs, 1),
+                    xtol=tol,
+                    ftol=tol,
+                    gtol=1e-8,
+                )
+            except _Stalled as stop:
+                return OptimizeResult(
+                    x=stop.theta,
+                    success=True,
+                    status=2,
+                    message=f"the cost fell by less than {STEP_SE}² s² over the last {STALL_RUNS} model runs "
+                    f"(parameters moving by less than {STEP_SE} standard errors)",
+                )
+            finally:
+                watch.clear()
+
+        def gauss_newton_step(theta: np.ndarray) -> float:
+            """The Gauss-Newton step from θ within the bounds, in standard errors (the Mahalanobis norm).
+
+            The cost it would remove, over the covariance's s²: a step that moves the parameters by
+            a small fraction of their uncertainty is not worth a search (its runs are the costly ones).
+            """
+            e, J = resid(theta), jac(theta)
+            if not np.all(np.isfinite(J)):
+                return math.inf
+            m, n = J.shape
+            d = lsq_linear(J, -e, bounds=(np.log(lo) - theta, np.log(hi) - theta)).x
+            drop = float(e @ e) - float(np.sum((J @ d + e) ** 2))
+            return math.sqrt(max(drop, 0.0) / max(float(e @ e) / max(m - n, 1), 1.0))
+
+        th0 = np.log(start)
+        th = th0
+        stages: list[dict[str, Any]] = []
+
+        def stage(r0: int, ts: float, marks: list[int], **record: Any) -> None:
+            """Record a stage: its model runs, wall time, and each curve's run wall and CPU time in it."""
+            record["model_runs"] = model.runs - r0
+            record["wall_s"] = time.perf_counter() - ts
+            record["curve_run_s"] = [sum(x[2] for x in t[m:]) for t, m in zip(model.timings, marks, strict=True)]
+            record["curve_cpu_s"] = [sum(x[3] for x in t[m:]) for t, m in zip(model.timings, marks, strict=True)]
+            stages.append(record)
+
+        def mark() -> tuple[int, float, list[int]]:
+            return model.runs, time.perf_counter(), [len(t) for t in model.timings]
+
+        sol = None
+        checked_levels = [cf.level for cf in cfs]
+        if choose_discretization:
+            m0 = mark()
+            checked_levels = _first_levels(model, cfs, th0, target_error)
+            stage(*m0, rungs=checked_levels, checked=True, probe=True)
+        probe_levels = list(checked_levels)
+        if coarse and choose_discretization and max_runs > 2:
+            # the search gets near the optimum one rung below the first that met the target at the start
+            coarse_levels = [max(COARSE_LEVEL, (lv or 0) - 1) for lv in checked_levels]
+            for cf, lv in zip(cfs, coarse_levels, strict=True):
+                cf.level = lv
+            m0 = mark()
+            sol = search(th, max_runs // 2, 1e-3)
             th = sol.x
-        checked = model(th, check=True)
-        for cf, r in zip(cfs, checked, strict=True):
-            cf.force_error_N = r.err
-            cf.model_N = r.F
-        stage = {
-            "rungs": [cf.level for cf in cfs],
-            "model_runs": model.runs - r0,
-            "checked": True,
-            "force_error_rel_max": [None if math.isnan(cf.error_rel_max) else cf.error_rel_max for cf in cfs],
-            "wall_s": time.perf_counter() - ts,
-        }
-        stages.append(stage)
-        up = [
-            cf
-            for cf in cfs
-            if not cf.error_rel_max <= target_error and cf.level is not None and cf.level < len(FIT_LADDER) - 1
-        ]
-        if not up or model.runs >= max_runs:
-            break
-        for cf in up:
-            log.info(
-                "%s: estimated discretization error %.3g above %.3g: one rung up",
-                cf.label,
-                cf.error_rel_max,
-                target_error,
+            stage(*m0, rungs=coarse_levels, checked=False)
+            # the parameters have moved: the rungs are chosen again where the coarse search ended, from
+            # the start's up (fitted parameters may need finer rungs than the start values: a search
+            # on a rung the target then rejects would be spent)
+            m0 = mark()
+            checked_levels = _first_levels(model, cfs, th, target_error, probe_levels)
+            stage(*m0, rungs=checked_levels, checked=True, probe=True)
+        for cf, level in zip(cfs, checked_levels, strict=True):
+            cf.level = level
+        # on the checked rungs: the estimate where the search stands; a rung that misses the target is
+        # left at once (one rung up), a search runs only where its step would move a parameter
+        searched = not choose_discretization  # the scene's own discretization: no probe, search first
+        if searched:
+            m0 = mark()
+            sol = search(th, max(max_runs - model.runs, 1), FINE_TOL)
+            th = sol.x
+        else:
+            m0 = mark()
+        while True:
+            checked = model(th, check=True)
+            for cf, r in zip(cfs, checked, strict=True):
+                cf.force_error_N = r.err
+                cf.model_N = r.F
+            step = gauss_newton_step(th)
+            stage(
+                *m0,
+                rungs=[cf.level for cf in cfs],
+                checked=True,
+                force_error_rel_max=[None if math.isnan(cf.error_rel_max) else cf.error_rel_max for cf in cfs],
+                step_se=step,
             )
-            cf.level = (cf.level or 0) + 1
-    quiet[0] = True
-    e, J = resid(th), jac(th)
-    st = _statistics(e, J, names)
-    for cf, r in zip(cfs, checked, strict=True):
-        cf.model_N, cf.dlogp, cf.force_error_N, cf.angle_deg = r.F, r.G, r.err, r.angle
-        cf.profile_mm, cf.angles_model_deg = r.P, r.A
-    levels = [cf.level for cf in cfs]
-    for cf, r in zip(cfs, model(th0), strict=True):  # the start values on the final discretizations
-        cf.start_N = r.F
-    assert [cf.level for cf in cfs] == levels
-    values = np.exp(th)
-    at_bound = [
-        nm for nm, t, a, b in zip(names, th, np.log(lo), np.log(hi), strict=True) if t - a < 1e-3 or b - t < 1e-3
-    ]
-    chosen = [lv for lv in levels if lv is not None]
-    on = FIT_LADDER[max(chosen)].apply(scene) if chosen else scene
-    fitted = portable_scene(with_values(on, names, values))
-    ok = bool(sol.success and sol.status > 0)
-    if not ok:
-        # the caller says it (the command with its option, a study in its table): no advice from here
-        log.info(
-            "the least-squares search stopped without converging after %d model runs (%s)", model.runs, sol.message
+            m0 = mark()
+            up = [
+                cf
+                for cf in cfs
+                if not cf.error_rel_max <= target_error and cf.level is not None and cf.level < len(FIT_LADDER) - 1
+            ]
+            if model.runs >= max_runs:
+                break
+            if up:
+                for cf in up:
+                    log.info(
+                        "%s: estimated discretization error %.3g above %.3g: one rung up",
+                        cf.label,
+                        cf.error_rel_max,
+                        target_error,
+                    )
+                    cf.level = (cf.level or 0) + 1
+                searched = False
+                continue
+            if searched:
+                break
+            if step <= STEP_SE:
+                sol = OptimizeResult(
+                    x=th,
+                    success=True,
+                    status=1,
+                    message=f"the Gauss-Newton step within the bounds moves the parameters by {step:.2g} "
+                    f"standard errors (< {STEP_SE}) on the checked rungs",
+                )
+                break
+            sol = search(th, max(max_runs - model.runs, 1), FINE_TOL, stall=True)
+            th = sol.x
+            searched = True
+        if sol is None:  # --max-runs spent by the probe
+            sol = OptimizeResult(x=th, success=False, status=0, message="the model runs were spent before a search")
+        quiet[0] = True
+        e, J = resid(th), jac(th)
+        st = _statistics(e, J, names)
+        for cf, r in zip(cfs, checked, strict=True):
+            cf.model_N, cf.dlogp, cf.force_error_N, cf.angle_deg = r.F, r.G, r.err, r.angle
+            cf.profile_mm, cf.angles_model_deg = r.P, r.A
+        levels = [cf.level for cf in cfs]
+        for k, cf in enumerate(cfs):  # the start values: the probe's run, which met the target there
+            made = model.cached(k, th0, probe_levels[k])
+            cf.start_N = made.F if made is not None else model(th0)[k].F
+        values = np.exp(th)
+        at_bound = [
+            nm for nm, t, a, b in zip(names, th, np.log(lo), np.log(hi), strict=True) if t - a < 1e-3 or b - t < 1e-3
+        ]
+        chosen = [lv for lv in levels if lv is not None]
+        on = FIT_LADDER[max(chosen)].apply(scene) if chosen else scene
+        fitted = portable_scene(with_values(on, names, values))
+        ok = bool(sol.success and sol.status > 0)
+        if not ok:
+            # the caller says it (the command with its option, a study in its table): no advice from here
+            log.info(
+                "the least-squares search stopped without converging after %d model runs (%s)", model.runs, sol.message
+            )
+        return JointFit(
+            fitted_params,
+            names,
+            values,
+            np.exp(th0),
+            lo,
+            hi,
+            st["cov"],
+            cfs,
+            fitted,
+            st["noise_scale"],
+            model.runs,
+            time.perf_counter() - t0,
+            ok,
+            str(sol.message),
+            at_bound,
+            held,
+            st["undetermined"],
+            st["correlated"],
+            st["flat"],
+            st["residual_scale"],
+            target_error,
+            stages,
+            profile_sd_mm,
+            angle_sd_deg,
         )
-    return JointFit(
-        fitted_params,
-        names,
-        values,
-        np.exp(th0),
-        lo,
-        hi,
-        st["cov"],
-        cfs,
-        fitted,
-        st["noise_scale"],
-        model.runs,
-        time.perf_counter() - t0,
-        ok,
-        str(sol.message),
-        at_bound,
-        held,
-        st["undetermined"],
-        st["correlated"],
-        st["flat"],
-        st["residual_scale"],
-        target_error,
-        stages,
-        profile_sd_mm,
-        angle_sd_deg,
-    )
+
+    finally:
+        model.close()
 
 
-def _first_levels(model: _Model, cfs: list[CurveFit], theta: np.ndarray, target_error: float) -> list[int | None]:
-    """Each curve's first rung from :data:`FIRST_CHECKED` up whose estimated error meets the target at ``theta``.
+def _first_levels(
+    model: _Model,
+    cfs: list[CurveFit],
+    theta: np.ndarray,
+    target_error: float,
+    lowest: Sequence[int | None] | None = None,
+) -> list[int | None]:
+    """Each curve's first rung from ``lowest`` (default :data:`FIRST_CHECKED`) up meeting the target at θ.
 
-    Probed with the start values before the search, one checked run per rung tried: stiff yarns
-    lock the cheap rungs (errors of tens of per cent), where a search would only chase the
-    discretization; a curve that no rung vouches for starts on the last.
+    One checked run per rung tried, the curves at once. Probed with the start values before the
+    search (stiff yarns lock the cheap rungs, with errors of tens of per cent, where a search would
+    only chase the discretization), and again where the coarse search ended, from the start's
+    rungs up. A curve that no rung vouches for gets the last.
     """
-    levels: list[int | None] = []
-    for cf in cfs:
-        cf.level = FIRST_CHECKED
+    for k, cf in enumerate(cfs):
+        lv = lowest[k] if lowest is not None else None
+        cf.level = FIRST_CHECKED if lv is None else lv
     pending = list(range(len(cfs)))
     found: dict[int, int] = {}
     while pending:
@@ -520,14 +747,13 @@ def _first_levels(model: _Model, cfs: list[CurveFit], theta: np.ndarray, target_
                 pending.remove(i)
             else:
                 log.info(
-                    "%s: estimated discretization error %.3g at the start values on rung %d: one rung up",
+                    "%s: estimated discretization error %.3g on rung %d: one rung up",
                     cf.label,
                     rel,
                     cf.level,
                 )
                 cf.level += 1
-    levels = [found[i] for i in range(len(cfs))]
-    return levels
+    return [found[i] for i in range(len(cfs))]
 
 
 #: the yarn elongation modulus: held at the scene's value when the scene's [calibration] does not name it

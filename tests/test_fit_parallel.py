@@ -1,0 +1,187 @@
+"""The fit's curves in worker processes: the same numbers as in one process, failures reported, no orphans."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+
+from ngbet.calibration import joint
+from ngbet.calibration.data import MeasuredCurve
+from ngbet.calibration.fit_params import CurveFit, curve_scene
+from ngbet.scene.document import Scene
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "geometry" / "cao2008_150x450.toml"
+NAMES = ["material.K_sh", "material.K_lock"]
+#: two specimen sizes of the paper's fabric on a 30 mm mesh, 4 loads each
+SIZES = [(150.0, 450.0), (150.0, 300.0)]
+
+
+def scene() -> Scene:
+    return Scene.from_toml(SCENE).with_changes(
+        **{
+            "discretization.mesh_size_mm": 30.0,
+            "material.alpha1": 0.2,
+            "material.alpha2": 0.2,
+            "outputs.vtk": False,
+            "outputs.plot": False,
+        }
+    )
+
+
+def curves() -> list[MeasuredCurve]:
+    out = []
+    for W, L in SIZES:
+        u = np.linspace(5.0, 0.6 * (np.sqrt(2) - 1) * (L - W), 4)
+        spec = {"specimen.width_mm": W, "specimen.length_mm": L}
+        out.append(MeasuredCurve(u, 10.0 * u, f"{W:g}x{L:g}.csv", spec))
+    return out
+
+
+def model(workers: int) -> joint._Model:
+    sc = scene()
+    cfs = [CurveFit(c, curve_scene(sc, c, c.u_mm), c.u_mm, c.force_N, 0.01 * c.force_N, level=None) for c in curves()]
+    return joint._Model(cfs, NAMES, workers)
+
+
+THETA = np.log([2.5e4, 1.5e4])
+
+
+def children() -> list[psutil.Process]:
+    """This process's children but multiprocessing's resource tracker (one per process, it stays)."""
+    return [p for p in psutil.Process().children(recursive=True) if "resource_tracker" not in " ".join(p.cmdline())]
+
+
+def test_curves_in_workers_give_the_numbers_of_one_process():
+    """Each curve in its own worker process (one NGSolve thread, as in one process): the forces, their
+    derivatives and the discretization estimates are those of the serial runs to round-off, and a
+    run already made is served from the cache (no run counted)."""
+    serial = model(1)
+    parallel = model(2)
+    try:
+        assert parallel.parallel and not serial.parallel
+        a, b = serial(THETA, check=True), parallel(THETA, check=True)
+        for x, y in zip(a, b, strict=True):
+            assert np.all(np.isfinite(x.F)) and np.all(x.F > 0) and np.all(np.isfinite(x.err))
+            np.testing.assert_allclose(y.F, x.F, rtol=1e-10)
+            np.testing.assert_allclose(y.G, x.G, rtol=1e-8, atol=1e-10 * np.abs(x.G).max())
+            np.testing.assert_allclose(y.err, x.err, rtol=1e-8, atol=1e-12)
+        assert parallel.runs == serial.runs == 1
+        parallel(THETA)  # the checked runs serve an unchecked call
+        assert parallel.runs == 1
+        assert all(len(t) == 1 and t[0][1] and t[0][3] > 0 for t in parallel.timings)  # (rung, checked, wall, CPU)
+    finally:
+        parallel.close()
+    assert not children()
+
+
+def test_a_worker_that_dies_is_reported_and_the_others_are_ended():
+    """A worker killed during the fit (out of memory, a crash) stops the fit with an error naming its
+    curve; no worker is left behind."""
+    m = model(2)
+    try:
+        m(THETA)
+        pool = m._pools[1]
+        (victim,) = pool._processes.values()
+        victim.kill()
+        victim.join(10)
+        with pytest.raises(joint.FitWorkerError, match="150 x 300 mm"):
+            m(THETA + 0.1)
+    finally:
+        m.close()
+    assert not children()
+
+
+def test_an_exception_in_a_worker_reaches_the_fit():
+    """An error inside a worker's run (here a curve with no load to run to) is raised in the fit's
+    process with its own type, not turned into a failed model run (which would read as NaN forces)."""
+    m = model(2)
+    m.curves[0].u_mm = np.zeros(0)
+    try:
+        with pytest.raises(IndexError):
+            m(THETA)
+    finally:
+        m.close()
+    assert not children()
+
+
+FIT_SCRIPT = textwrap.dedent(
+    """
+    import sys
+    sys.path.insert(0, {tests!r})
+    import numpy as np
+    from test_fit_parallel import curves, scene, NAMES
+    from ngbet.calibration.joint import fit_curves
+
+    if __name__ == "__main__":  # the spawned workers import this module again
+        print("started", flush=True)
+        fit_curves(curves(), scene(), NAMES, choose_discretization=False, workers=2, max_runs=40)
+    """
+)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+@pytest.mark.parametrize("how", ["ctrl-c", "kill"])
+def test_a_stopped_fit_leaves_no_worker_behind(tmp_path, how):
+    """Ctrl-C on a fit with worker processes (SIGINT to the terminal's process group, as a terminal
+    sends it): the fit stops with KeyboardInterrupt and ends its workers. The fit's process killed
+    (SIGKILL, no clean-up possible): its workers exit by themselves, also in the middle of a run."""
+    script = tmp_path / "fit.py"
+    script.write_text(FIT_SCRIPT.format(tests=str(Path(__file__).parent)))
+    proc = subprocess.Popen(
+        [sys.executable, str(script)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])},
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "started"
+        parent = psutil.Process(proc.pid)
+        deadline = time.monotonic() + 120
+        workers: list[psutil.Process] = []
+        while time.monotonic() < deadline and len(workers) < 2:  # both curves' workers running
+            time.sleep(0.5)
+            workers = [p for p in parent.children(recursive=True) if "resource_tracker" not in " ".join(p.cmdline())]
+        assert len(workers) >= 2, "the workers did not start"
+        time.sleep(2.0)  # inside a model run
+        if how == "ctrl-c":
+            os.killpg(proc.pid, signal.SIGINT)
+            _, err = proc.communicate(timeout=60)
+            assert proc.returncode != 0 and "KeyboardInterrupt" in err
+        else:
+            proc.kill()
+            proc.communicate(timeout=60)
+        _, alive = psutil.wait_procs(workers, timeout=20)
+        assert not alive, [p.pid for p in alive]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        for p in psutil.Process().children(recursive=True):  # whatever failed above: nothing left running
+            if p.pid != proc.pid and "resource_tracker" not in " ".join(p.cmdline()):
+                p.kill()
+
+
+@pytest.mark.integration
+def test_a_fit_in_workers_is_the_serial_fit():
+    """The whole search (two sizes, two parameters) with the curves in two workers ends where the
+    serial one ends, to round-off, with the same model runs."""
+    fits = [
+        joint.fit_curves(curves(), scene(), NAMES, choose_discretization=False, workers=w, max_runs=12) for w in (1, 2)
+    ]
+    a, b = fits
+    assert a.model_runs == b.model_runs
+    np.testing.assert_allclose(b.values, a.values, rtol=1e-8)
+    for x, y in zip(a.curves, b.curves, strict=True):
+        np.testing.assert_allclose(y.model_N, x.model_N, rtol=1e-8)
