@@ -14,7 +14,7 @@ import numpy as np
 import psutil
 import pytest
 
-from ngbet.calibration import joint
+from ngbet.calibration import joint, runs
 from ngbet.calibration.data import MeasuredCurve
 from ngbet.calibration.fit_params import CurveFit, curve_scene
 from ngbet.scene.document import Scene
@@ -47,24 +47,32 @@ def curves() -> list[MeasuredCurve]:
     return out
 
 
-def model(workers: int) -> joint._Model:
+def model(workers: int) -> runs.CurveModel:
     sc = scene()
     cfs = [CurveFit(c, curve_scene(sc, c, c.u_mm), c.u_mm, c.force_N, 0.01 * c.force_N, level=None) for c in curves()]
-    return joint._Model(cfs, NAMES, workers)
+    return runs.CurveModel(cfs, NAMES, workers)
 
 
 THETA = np.log([2.5e4, 1.5e4])
 
 
-def children() -> list[psutil.Process]:
-    """This process's children but multiprocessing's resource tracker (one per process, it stays)."""
-    return [p for p in psutil.Process().children(recursive=True) if "resource_tracker" not in " ".join(p.cmdline())]
+def children() -> set[int]:
+    """This process's living children but multiprocessing's resource tracker (one per process, it stays)."""
+    out = set()
+    for p in psutil.Process().children(recursive=True):
+        try:
+            if p.status() != psutil.STATUS_ZOMBIE and "resource_tracker" not in " ".join(p.cmdline()):
+                out.add(p.pid)
+        except psutil.Error:  # ended meanwhile
+            pass
+    return out
 
 
 def test_curves_in_workers_give_the_numbers_of_one_process():
     """Each curve in its own worker process (one NGSolve thread, as in one process): the forces, their
     derivatives and the discretization estimates are those of the serial runs to round-off, and a
     run already made is served from the cache (no run counted)."""
+    before = children()  # other tests' processes (a plot process) are not this test's
     serial = model(1)
     parallel = model(2)
     try:
@@ -81,12 +89,13 @@ def test_curves_in_workers_give_the_numbers_of_one_process():
         assert all(len(t) == 1 and t[0][1] and t[0][3] > 0 for t in parallel.timings)  # (rung, checked, wall, CPU)
     finally:
         parallel.close()
-    assert not children()
+    assert not children() - before
 
 
 def test_a_worker_that_dies_is_reported_and_the_others_are_ended():
     """A worker killed during the fit (out of memory, a crash) stops the fit with an error naming its
     curve; no worker is left behind."""
+    before = children()
     m = model(2)
     try:
         m(THETA)
@@ -94,16 +103,17 @@ def test_a_worker_that_dies_is_reported_and_the_others_are_ended():
         (victim,) = pool._processes.values()
         victim.kill()
         victim.join(10)
-        with pytest.raises(joint.FitWorkerError, match="150 x 300 mm"):
+        with pytest.raises(runs.FitWorkerError, match="150 x 300 mm"):
             m(THETA + 0.1)
     finally:
         m.close()
-    assert not children()
+    assert not children() - before
 
 
 def test_an_exception_in_a_worker_reaches_the_fit():
     """An error inside a worker's run (here a curve with no load to run to) is raised in the fit's
     process with its own type, not turned into a failed model run (which would read as NaN forces)."""
+    before = children()
     m = model(2)
     m.curves[0].u_mm = np.zeros(0)
     try:
@@ -111,7 +121,7 @@ def test_an_exception_in_a_worker_reaches_the_fit():
             m(THETA)
     finally:
         m.close()
-    assert not children()
+    assert not children() - before
 
 
 FIT_SCRIPT = textwrap.dedent(
@@ -145,11 +155,11 @@ def test_a_stopped_fit_leaves_no_worker_behind(tmp_path, how):
         start_new_session=True,
         env={**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])},
     )
+    workers: list[psutil.Process] = []
     try:
         assert proc.stdout is not None and proc.stdout.readline().strip() == "started"
         parent = psutil.Process(proc.pid)
         deadline = time.monotonic() + 120
-        workers: list[psutil.Process] = []
         while time.monotonic() < deadline and len(workers) < 2:  # both curves' workers running
             time.sleep(0.5)
             workers = [p for p in parent.children(recursive=True) if "resource_tracker" not in " ".join(p.cmdline())]
@@ -168,9 +178,11 @@ def test_a_stopped_fit_leaves_no_worker_behind(tmp_path, how):
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-        for p in psutil.Process().children(recursive=True):  # whatever failed above: nothing left running
-            if p.pid != proc.pid and "resource_tracker" not in " ".join(p.cmdline()):
+        for p in workers:  # whatever failed above: nothing of this test left running
+            try:
                 p.kill()
+            except psutil.Error:
+                pass
 
 
 @pytest.mark.integration

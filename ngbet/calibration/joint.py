@@ -67,6 +67,7 @@ from .fit_params import (
     with_values,
 )
 from .observations import Profile, ShearAngles
+from .runs import CurveModel, Run, default_workers, first_levels
 
 __all__ = [
     "ELONGATION_KEY",
@@ -82,232 +83,12 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
-@dataclass
-class _Run:
-    """One model run of a curve: force, dF/dθ, profile, angles (at the data's loads) and their dθ."""
-
-    F: np.ndarray
-    G: np.ndarray
-    P: np.ndarray
-    GP: np.ndarray
-    A: np.ndarray
-    GA: np.ndarray
-    err: np.ndarray
-    angle: np.ndarray  # the centre shear angle at the fitted points (checked runs only)
-    seconds: float = 0.0  # the run's wall time
-    cpu_s: float = 0.0  # the CPU time of the process that ran it, during the run
-
-
-@dataclass(frozen=True)
-class _Job:
-    """One model run of one curve, everything it needs (picklable: a worker process receives it)."""
-
-    scene: Scene  # the curve's scene on its rung, with the parameter values
-    mesh_key: tuple[int, int | None]  # (curve, rung): the mesh is made once per key and reused
-    u_mm: np.ndarray
-    names: list[str]
-    points: dict[float, np.ndarray]  # the profile's abscissae [mm] per displacement
-    angle_u_mm: list[float]  # the displacements of the measured centre shear angles
-    check: bool
-    label: str
-
-
-#: a worker process's meshes by :attr:`_Job.mesh_key` (a worker serves one curve of one fit)
-_WORKER_MESHES: dict[tuple[int, int | None], Any] = {}
-
-
-def _worker_run(job: _Job) -> _Run:
-    """:func:`_curve_run` in a worker process, with that process's meshes."""
-    return _curve_run(job, _WORKER_MESHES)
-
-
-def _curve_run(job: _Job, meshes: dict[tuple[int, int | None], Any]) -> _Run:
-    """The force, profile and angles of ``job`` and their dθ; NaN where the model run does not converge."""
-    from ..continuum.mesh import make_cross_mesh, make_mesh
-    from ..errors import ConvergenceError
-    from ..runner.sensitivity import force_path
-
-    t0, c0 = time.perf_counter(), time.process_time()
-    sc, n, pts, a_u, check = job.scene, len(job.names), job.points, job.angle_u_mm, job.check
-    if job.mesh_key not in meshes:
-        meshes[job.mesh_key] = (
-            make_cross_mesh(sc.picture_frame, sc.specimen, sc.discretization)
-            if sc.test == "picture_frame"
-            else make_mesh(sc.specimen, sc.discretization)
-        )
-    m, kp, ka = len(job.u_mm), sum(len(x) for x in pts.values()), len(a_u)
-    try:
-        r = force_path(
-            sc,
-            job.u_mm,
-            job.names,
-            pts,
-            mesh=meshes[job.mesh_key],
-            angles=sorted(set(a_u) | (set(map(float, job.u_mm)) if check else set())),
-            estimate=check,
-        )
-        assert r.dlogp is not None
-        P = np.concatenate([r.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
-        GP = np.vstack([r.profile_dlogp[u0] for u0 in pts]) if pts else np.zeros((0, n))
-        A = np.array([r.angles_deg[float(u)] for u in a_u])
-        GA = np.vstack([r.angle_dlogp[float(u)] for u in a_u]) if a_u else np.zeros((0, n))
-        err = r.force_error_N if r.force_error_N is not None else np.zeros(0)
-        ang = np.array([r.angles_deg[float(u)] for u in job.u_mm]) if check else np.zeros(0)
-        return _Run(r.force_N, r.dlogp, P, GP, A, GA, err, ang, time.perf_counter() - t0, time.process_time() - c0)
-    except (ConvergenceError, SceneError) as exc:
-        log.info("model run failed on %s: %s", job.label, exc)
-        return _Run(
-            np.full(m, np.nan),
-            np.zeros((m, n)),
-            np.full(kp, np.nan),
-            np.zeros((kp, n)),
-            np.full(ka, np.nan),
-            np.zeros((ka, n)),
-            np.full(m if check else 0, np.nan),
-            np.full(m if check else 0, np.nan),
-            time.perf_counter() - t0,
-            time.process_time() - c0,
-        )
-
-
 class _Stalled(Exception):
     """A search on the checked rungs whose cost stopped falling by what matters; ``theta``: where to stop."""
 
     def __init__(self, theta: np.ndarray) -> None:
         super().__init__("stalled")
         self.theta = theta
-
-
-class FitWorkerError(RuntimeError):
-    """A curve's worker process ended without an answer (killed, out of memory, crashed)."""
-
-
-class _Model:
-    """Every curve's observations and their Jacobian at θ = ln p, cached by θ and the discretizations.
-
-    Each curve's mesh is made once per rung and reused. ``check=True`` adds the discretization
-    error estimate at the fitted points and the centre shear angle there.
-
-    ``workers`` > 1 (and more than one curve): each curve runs in a worker process of its own
-    (spawned: Netgen and NGSolve's threads do not survive a fork), which keeps its meshes, on one
-    NGSolve thread; the curves of one call run at the same time. A worker's exception is raised
-    here, a worker that dies raises :class:`FitWorkerError`. :meth:`close` ends the workers at
-    once, also when the fit stops by an exception or Ctrl-C (the workers ignore SIGINT).
-    """
-
-    def __init__(self, curves: list[CurveFit], names: list[str], workers: int = 1) -> None:
-        self.curves, self.names = curves, names
-        self.meshes: dict[tuple[int, int | None], Any] = {}
-        self.runs = 0
-        self.parallel = workers > 1 and len(curves) > 1
-        self._pools: dict[int, Any] = {}
-        self._alive: Any = None  # a pipe whose write end only this process holds: the workers exit with it
-        self._cache: dict[tuple[int, bytes, int | None, bool], _Run] = {}
-        #: every run made, per curve: (rung, checked, wall time [s], CPU time [s])
-        self.timings: list[list[tuple[int | None, bool, float, float]]] = [[] for _ in curves]
-
-    def __call__(self, theta: np.ndarray, check: bool = False) -> list[_Run]:
-        """Each curve's run at θ on its current rung; a curve already run there (checked or as asked) is not rerun.
-
-        ``runs`` counts the calls that ran at least one curve.
-        """
-        t = np.asarray(theta, float).tobytes()
-        todo = [k for k, c in enumerate(self.curves) if self.cached(k, theta, c.level, check) is None]
-        if todo:
-            self.runs += 1
-        jobs = {k: self._job(k, theta, check) for k in todo}
-        if self.parallel:
-            done = self._in_workers(jobs)
-        else:
-            done = {k: _curve_run(jobs[k], self.meshes) for k in todo}
-        for k in todo:
-            self._cache[k, t, self.curves[k].level, check] = done[k]
-            self.timings[k].append((self.curves[k].level, check, done[k].seconds, done[k].cpu_s))
-        return [cast(_Run, self.cached(k, theta, c.level, check)) for k, c in enumerate(self.curves)]
-
-    def cached(self, k: int, theta: np.ndarray, level: int | None, check: bool = False) -> _Run | None:
-        """Curve ``k``'s run at θ on rung ``level`` if one was made (a checked one serves both), else None."""
-        t = np.asarray(theta, float).tobytes()
-        return self._cache.get((k, t, level, True)) or (None if check else self._cache.get((k, t, level, False)))
-
-    def _job(self, k: int, theta: np.ndarray, check: bool) -> _Job:
-        c = self.curves[k]
-        sc = with_values(c.run_scene(), self.names, np.exp(theta))
-        if self.parallel:  # one worker per curve on its own core
-            sc = sc.with_changes(**{"solver.threads": 1})
-        return _Job(
-            sc,
-            (k, c.level),
-            np.asarray(c.u_mm, float),
-            list(self.names),
-            c.profile.points() if c.profile is not None else {},
-            [float(u) for u in c.angles.u_mm] if c.angles is not None else [],
-            check,
-            c.label,
-        )
-
-    def _pool(self, k: int) -> Any:
-        """Curve ``k``'s worker process, started on first use.
-
-        Its start is that of a study's workers (:func:`ngbet.study.executors.worker_init`): SIGINT
-        ignored, and it exits by itself when this process dies, even by SIGKILL.
-        """
-        import multiprocessing
-        import os
-        from concurrent.futures import ProcessPoolExecutor
-
-        from ..study.executors import worker_init
-
-        if k not in self._pools:
-            ctx = multiprocessing.get_context("spawn")
-            if self._alive is None:
-                self._alive = ctx.Pipe(duplex=False)
-            env = {key: v for key, v in os.environ.items() if key.startswith("NGBET_")}
-            self._pools[k] = ProcessPoolExecutor(
-                1, mp_context=ctx, initializer=worker_init, initargs=(self._alive[0], env)
-            )
-        return self._pools[k]
-
-    def _in_workers(self, jobs: dict[int, _Job]) -> dict[int, _Run]:
-        """Each job in its curve's worker, at the same time; a dead worker raises :class:`FitWorkerError`."""
-        from concurrent.futures.process import BrokenProcessPool
-
-        futures, done = {}, {}
-        k = -1
-        try:
-            for k, job in jobs.items():
-                futures[k] = self._pool(k).submit(_worker_run, job)
-            for k, f in futures.items():
-                done[k] = cast(_Run, f.result())
-        except BrokenProcessPool as exc:
-            raise FitWorkerError(
-                f"the worker process of {self.curves[k].label} ended without an answer "
-                "(killed, out of memory or crashed); the fit stops"
-            ) from exc
-        return done
-
-    def close(self) -> None:
-        """End the worker processes at once (a run still going is not waited for)."""
-        for pool in self._pools.values():
-            # ProcessPoolExecutor has no public way to stop a running task: its processes are ended
-            for proc in list((pool._processes or {}).values()):
-                proc.terminate()
-            pool.shutdown(wait=True, cancel_futures=True)
-        self._pools.clear()
-        if self._alive is not None:
-            for end in self._alive:
-                end.close()
-            self._alive = None
-
-
-def _default_workers(n_curves: int) -> int:
-    """Worker processes for ``n_curves`` curves: one per curve up to the cores; 1 in a daemon process."""
-    import multiprocessing
-    import os
-
-    if multiprocessing.current_process().daemon:  # a daemonic process may not start processes
-        return 1
-    return max(1, min(n_curves, os.cpu_count() or 1))
 
 
 Progress = Callable[[int, list[float], float], None]
@@ -468,13 +249,13 @@ def fit_curves(  # noqa: C901
             reach = max(float(np.max(ang.u_mm)), float(u.max()))
             sc = sc.with_changes(**{"loading.u0_mm": reach})
         cfs.append(CurveFit(c, sc, u, F, c.sd(u, F), prof, ang, FIRST_CHECKED if choose_discretization else None))
-    model = _Model(cfs, names, workers if workers is not None else _default_workers(len(cfs)))
+    model = CurveModel(cfs, names, workers if workers is not None else default_workers(len(cfs)))
     try:
         best = [math.inf]
         quiet = [False]
         watch: dict[str, Any] = {}  # the stall test of a search on the checked rungs (empty: off)
 
-        def blocks(res: list[_Run]) -> np.ndarray:
+        def blocks(res: list[Run]) -> np.ndarray:
             e = []
             for r, c in zip(res, cfs, strict=True):
                 e.append((r.F - c.measured_N) / c.sd_N)
@@ -586,7 +367,7 @@ def fit_curves(  # noqa: C901
         checked_levels = [cf.level for cf in cfs]
         if choose_discretization:
             m0 = mark()
-            checked_levels = _first_levels(model, cfs, th0, target_error)
+            checked_levels = first_levels(model, cfs, th0, target_error)
             stage(*m0, rungs=checked_levels, checked=True, probe=True)
         probe_levels = list(checked_levels)
         if coarse and choose_discretization and max_runs > 2:
@@ -602,7 +383,7 @@ def fit_curves(  # noqa: C901
             # the start's up (fitted parameters may need finer rungs than the start values: a search
             # on a rung the target then rejects would be spent)
             m0 = mark()
-            checked_levels = _first_levels(model, cfs, th, target_error, probe_levels)
+            checked_levels = first_levels(model, cfs, th, target_error, probe_levels)
             stage(*m0, rungs=checked_levels, checked=True, probe=True)
         for cf, level in zip(cfs, checked_levels, strict=True):
             cf.level = level
@@ -715,45 +496,6 @@ def fit_curves(  # noqa: C901
 
     finally:
         model.close()
-
-
-def _first_levels(
-    model: _Model,
-    cfs: list[CurveFit],
-    theta: np.ndarray,
-    target_error: float,
-    lowest: Sequence[int | None] | None = None,
-) -> list[int | None]:
-    """Each curve's first rung from ``lowest`` (default :data:`FIRST_CHECKED`) up meeting the target at θ.
-
-    One checked run per rung tried, the curves at once. Probed with the start values before the
-    search (stiff yarns lock the cheap rungs, with errors of tens of per cent, where a search would
-    only chase the discretization), and again where the coarse search ended, from the start's
-    rungs up. A curve that no rung vouches for gets the last.
-    """
-    for k, cf in enumerate(cfs):
-        lv = lowest[k] if lowest is not None else None
-        cf.level = FIRST_CHECKED if lv is None else lv
-    pending = list(range(len(cfs)))
-    found: dict[int, int] = {}
-    while pending:
-        runs = model(theta, check=True)
-        for i in list(pending):
-            cf = cfs[i]
-            e = runs[i].err
-            rel = float(np.max(e / np.abs(runs[i].F))) if len(e) and np.all(np.isfinite(e)) else math.inf
-            if rel <= target_error or cf.level is None or cf.level >= len(FIT_LADDER) - 1:
-                found[i] = cf.level if cf.level is not None else FIRST_CHECKED
-                pending.remove(i)
-            else:
-                log.info(
-                    "%s: estimated discretization error %.3g on rung %d: one rung up",
-                    cf.label,
-                    rel,
-                    cf.level,
-                )
-                cf.level += 1
-    return [found[i] for i in range(len(cfs))]
 
 
 #: the yarn elongation modulus: held at the scene's value when the scene's [calibration] does not name it
