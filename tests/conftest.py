@@ -163,6 +163,35 @@ class OneDofToy:
         pass
 
 
+class Fold(OneDofToy):
+    """A one-dof toy with a snap-back in the control λ: E = G(y) − λ y, r_y = g(y) − λ with
+    g(y) = y³ − 1.5 y² + 0.6 y, which rises to a fold at y₁ = (3 − √1.8)/6 (λ = g(y₁) = 0.0726),
+    falls to λ = 0.0274 at y₂ = (3 + √1.8)/6 and rises again (so the path passes λ = 0.05 three
+    times). x = (λ, y): λ is the Dirichlet entry."""
+
+    def __init__(self):
+        self.x = np.zeros(2)
+
+    @staticmethod
+    def g(y):
+        return y**3 - 1.5 * y**2 + 0.6 * y
+
+    def set_load(self, lam):
+        self.x[0] = lam
+
+    def residual(self):
+        y = self.x[1]
+        return np.array([-y, self.g(y) - self.x[0]])
+
+    def energy(self):
+        y = self.x[1]
+        return y**4 / 4 - y**3 / 2 + 0.3 * y**2 - self.x[0] * y
+
+    def factorize(self):
+        y = self.x[1]
+        self.J = 3 * y**2 - 3 * y + 0.6
+
+
 class DoubleWell(OneDofToy):
     """A one-dof toy of a snap-through under displacement control: x = (λ, y), λ the Dirichlet entry,
     E = y⁴/4 − y²/2 − λy, so r_y = y³ − y − λ and the reaction r_λ = −y. From the left well

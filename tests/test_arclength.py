@@ -2,43 +2,17 @@
 
 import numpy as np
 import pytest
-from conftest import OneDofToy
+from conftest import Fold
 
 from ngbet.numerics.arclength import ArcLengthSettings, arclength_steps
 from ngbet.numerics.engine import Steps, time_budget
 from ngbet.numerics.settings import NewtonSettings
 
 
-class _Fold(OneDofToy):
-    """r_y = g(y) − λ with g(y) = y³ − 1.5 y² + 0.6 y: g rises to a fold at λ = 0.0726 (y = 0.276),
-    falls to λ = 0.0274 (y = 0.724) and rises again, so the path passes λ = 0.05 three times."""
-
-    def __init__(self):
-        self.x = np.zeros(2)
-
-    @staticmethod
-    def g(y):
-        return y**3 - 1.5 * y**2 + 0.6 * y
-
-    def set_load(self, lam):
-        self.x[0] = lam
-
-    def residual(self):
-        return np.array([-self.x[1], self.g(self.x[1]) - self.x[0]])
-
-    def energy(self):
-        y = self.x[1]
-        return y**4 / 4 - y**3 / 2 + 0.3 * y**2 - self.x[0] * y
-
-    def factorize(self):
-        y = self.x[1]
-        self.J = 3 * y**2 - 3 * y + 0.6
-
-
 def _follow(ctl):
     steps = Steps(
         arclength_steps(
-            _Fold(), ctl, NewtonSettings(), weights=np.array([0.0, 1.0]), length=1.0, psi=np.array([1.0, 0.0])
+            Fold(), ctl, NewtonSettings(), weights=np.array([0.0, 1.0]), length=1.0, psi=np.array([1.0, 0.0])
         )
     )
     for _ in steps:
@@ -47,7 +21,7 @@ def _follow(ctl):
     return steps.result
 
 
-TARGET = _Fold.g(1.2)  # 0.288, beyond the second turning point
+TARGET = Fold.g(1.2)  # 0.288, beyond the second turning point
 
 
 def test_a_stop_is_landed_on_once_and_the_target_exactly():
@@ -85,7 +59,7 @@ def test_a_step_cut_below_its_minimum_ends_the_path_without_an_error():
     ctl = ArcLengthSettings(target=TARGET, first_step=0.01, max_step=0.05, min_step=0.01 / 16 * 1.01)
     steps = Steps(
         arclength_steps(
-            _Fold(),
+            Fold(),
             ctl,
             NewtonSettings(max_iterations=1),
             weights=np.array([0.0, 1.0]),
@@ -98,4 +72,4 @@ def test_a_step_cut_below_its_minimum_ends_the_path_without_an_error():
     assert res is not None and res.u0 == 0.0 and res.cuts == len(res.attempts) == 4
     assert not any(a.converged for a in res.attempts)
     with pytest.raises(ValueError, match="branch must be"):
-        arclength_steps(_Fold(), ctl, NewtonSettings(), weights=np.ones(2), length=1.0, psi=np.ones(2), branch="x")
+        arclength_steps(Fold(), ctl, NewtonSettings(), weights=np.ones(2), length=1.0, psi=np.ones(2), branch="x")

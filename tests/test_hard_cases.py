@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import OneDofToy, carry, coarse
+from conftest import Fold, carry, coarse
 
 from ngbet.errors import ConvergenceError
 from ngbet.run import run
@@ -503,34 +503,6 @@ def test_other_yarn_angles(tmp_path, angle, u0):
 
 
 # ------------------------------------------------------------------------------ through the instability
-class _Fold(OneDofToy):
-    """A one-dof toy with a snap-back in the control λ: E = G(y) − λ y, r_y = g(y) − λ with
-    g(y) = y³ − 1.5 y² + 0.6 y, which rises to a fold at y₁ = (3 − √1.8)/6 (λ = g(y₁) = 0.0726),
-    falls to y₂ = (3 + √1.8)/6 and rises again. x = (λ, y): λ is the Dirichlet entry."""
-
-    def __init__(self):
-        self.x = np.zeros(2)
-
-    @staticmethod
-    def g(y):
-        return y**3 - 1.5 * y**2 + 0.6 * y
-
-    def set_load(self, lam):
-        self.x[0] = lam
-
-    def residual(self):
-        y = self.x[1]
-        return np.array([-y, self.g(y) - self.x[0]])
-
-    def energy(self):
-        y = self.x[1]
-        return y**4 / 4 - y**3 / 2 + 0.3 * y**2 - self.x[0] * y
-
-    def factorize(self):
-        y = self.x[1]
-        self.J = 3 * y**2 - 3 * y + 0.6
-
-
 def _arclength_to_end(problem, ctl, settings, **kwargs):
     """The arc-length path carried to its end: the result and the instabilities its records carry."""
     from ngbet.numerics.arclength import arclength_steps
@@ -550,12 +522,12 @@ def test_arclength_passes_the_snap_back_of_a_toy_that_displacement_control_canno
     from ngbet.numerics.arclength import ArcLengthSettings
     from ngbet.numerics.settings import NewtonSettings
 
-    lam_fold = _Fold.g((3 - math.sqrt(1.8)) / 6)
-    target = _Fold.g(1.2)
+    lam_fold = Fold.g((3 - math.sqrt(1.8)) / 6)
+    target = Fold.g(1.2)
     with pytest.raises(ConvergenceError) as info:
-        carry(_Fold(), target, 0.01, NewtonSettings(), min_step=1e-6)
+        carry(Fold(), target, 0.01, NewtonSettings(), min_step=1e-6)
     assert info.value.last_converged_mm * 1e-3 <= lam_fold
-    toy = _Fold()
+    toy = Fold()
     ctl = ArcLengthSettings(target=target, first_step=0.01, max_step=0.05, min_step=1e-6)
     res, found = _arclength_to_end(
         toy, ctl, NewtonSettings(), weights=np.array([0.0, 1.0]), length=1.0, psi=np.array([1.0, 0.0])
