@@ -21,10 +21,10 @@ import tempfile
 from pathlib import Path
 
 from ngbet.calibration.command import summary
-from ngbet.calibration.data import read_measured
 from ngbet.calibration.joint import fit_curves
 from ngbet.calibration.report import plot_fit
 from ngbet.cli import main as ngbet
+from ngbet.measured.curves import read_measured
 from ngbet.scene.document import Scene
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -347,8 +347,8 @@ def _measured(args: argparse.Namespace, scene: Scene) -> Any:
             for note in frame.notes:
                 _say(f"data {args.data}: {note}")
         return frame
-    from .calibration.curve_table import parse_sizes
     from .figures.data import Measured
+    from .measured.table import parse_sizes
 
     spec = (
         parse_sizes(args.specimen, "--specimen", ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm"))

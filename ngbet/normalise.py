@@ -2,7 +2,7 @@ r"""``ngbet normalise``: measured shear tests as the normalised shear force agai
 
 ``ngbet normalise FILE.csv ... [--test bias_extension|picture_frame] [--specimen WxL] [--frame FxL] --out DIR``
 
-Every file is read by the one reader of measured curves (:func:`ngbet.calibration.curve_table.read_table`:
+Every file is read by the one reader of measured curves (:func:`ngbet.measured.table.read_table`:
 units, columns by name, separators, the specimen and the frame from the header or the command line).
 A file is a bias extension test when ``--test`` or its header says so, or when it names a specimen;
 a picture-frame test when they say so or it names a frame; otherwise it is refused.
@@ -47,8 +47,8 @@ from typing import Any
 
 import numpy as np
 
-from .calibration.curve_table import CurveTable, parse_sizes, read_table
-from .calibration.data import MeasuredCurve, read_measured, refuse_duplicates
+from .measured.curves import MeasuredCurve, read_measured, refuse_duplicates
+from .measured.table import CurveTable, parse_sizes, read_table
 from .run_folder import OwnedFolder
 from .scene.validate import SceneError
 

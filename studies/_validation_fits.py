@@ -112,7 +112,7 @@ def lab_of(name: str) -> str:
 
 def read_curve(name: str) -> Any:
     """The measured curve of a data file of :data:`FABRICS` (bias extension or picture frame)."""
-    from ngbet.calibration.data import read_any
+    from ngbet.measured.curves import read_any
 
     folder = "cao2008_pf" if name.startswith("cao2008_pf_") else "cao2008"
     return read_any(data_root() / "data" / folder / name)
@@ -142,7 +142,7 @@ def fits_of(fabric: str) -> list[FitSpec]:
     normalised-force figure). A fit predicts every curve of the fabric it does not use, except the
     same test shown in another figure (a laboratory's frame as F_s and as F_norm is one test).
     """
-    from ngbet.calibration.data import read_any
+    from ngbet.measured.curves import read_any
 
     _, bet, pf = FABRICS[fabric]
     root = data_root() / "data"

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from ngbet.calibration import fit_params, joint
-from ngbet.calibration.data import read_any, read_measured
 from ngbet.calibration.table import shear_stress_points, start_table
 from ngbet.cli import main
 from ngbet.continuum import physics
 from ngbet.kinematics import ideal_force
+from ngbet.measured.curves import read_any, read_measured
 from ngbet.runner.sensitivity import finite_difference, force_path
 from ngbet.scene.document import Scene
 from ngbet.scene.validate import SceneError
@@ -624,8 +624,8 @@ def test_frame_curve_converts_exactly_to_crosshead_travel_and_force():
 
     At γ = 0 the travel is 0; the travel is (2 − √2) L at γ = 90°; converting back reproduces the
     file's angles and F_norm (the residual of a fit is then the same in either quantity)."""
-    from ngbet.calibration.curve_table import read_table
-    from ngbet.calibration.data import frame_travel_mm, read_any, read_frame_curve
+    from ngbet.measured.curves import frame_travel_mm, read_any, read_frame_curve
+    from ngbet.measured.table import read_table
 
     assert frame_travel_mm(np.array([0.0]), 145.0)[0] == pytest.approx(0.0, abs=1e-12)
     assert frame_travel_mm(np.array([90.0]), 145.0)[0] == pytest.approx((2 - math.sqrt(2)) * 145.0)
@@ -646,7 +646,7 @@ def test_frame_curve_converts_exactly_to_crosshead_travel_and_force():
 
 def test_frame_curve_scene_is_the_picture_frame_of_its_header():
     """A picture-frame curve runs the fabric's material in the picture-frame test with its header's frame."""
-    from ngbet.calibration.data import read_frame_curve
+    from ngbet.measured.curves import read_frame_curve
 
     sc = Scene.from_toml(GEO / "twintex_twill_unbalanced.toml")
     c = read_frame_curve(PF_UN)
@@ -686,7 +686,7 @@ def test_frame_fit_reports_the_file_quantities_and_the_frame_s_shear(tmp_path):
     assert c["test"] == "picture_frame" and c["frame"]["picture_frame.frame_mm"] == 145.0
     fq = c["file_quantities"]
     assert fq["quantity"] == "normalised_shear_force"
-    from ngbet.calibration.curve_table import read_table
+    from ngbet.measured.table import read_table
 
     t = read_table(PF_UN)
     order = np.argsort(t.x)

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from conftest import capabilities, carry
 
-from ngbet.calibration.data import MeasuredCurve, read_measured
 from ngbet.calibration.fit_params import JointFit
 from ngbet.calibration.joint import fit_curves, predict_specimen
 from ngbet.calibration.observations import Profile
 from ngbet.cli import main
 from ngbet.continuum import physics
+from ngbet.measured.curves import MeasuredCurve, read_measured
 from ngbet.runner.sensitivity import finite_difference, force_path
 from ngbet.scene.document import Scene
 from ngbet.scene.validate import SceneError

@@ -15,8 +15,8 @@ import psutil
 import pytest
 
 from ngbet.calibration import joint, runs
-from ngbet.calibration.data import MeasuredCurve
 from ngbet.calibration.fit_params import CurveFit, curve_scene
+from ngbet.measured.curves import MeasuredCurve
 from ngbet.scene.document import Scene
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -209,19 +209,20 @@ COMMANDS = (
 #: the run folder, its writers and figures, and what runs them: the top of the import graph
 OUTPUTS = ("ngbet.runner", "ngbet.run_folder", "ngbet.output", "ngbet.plot_process", "ngbet.figures", *COMMANDS)
 #: what the modules of a package may not import (at any depth, type-only imports included): the
-#: scene is the bottom (it knows no model); the numerics are model-free (no scene, no model), and
-#: neither they nor the two models (continuum, network) reach up to the runner, the run folder or
-#: the figures; the runner and the run folder's writer know no command or study, and the figures
-#: none but the calibration (whose data modules read the measured curves they draw)
+#: scene is the bottom (it knows no model), the reader of measured curves beside it; the numerics
+#: are model-free (no scene, no model), and neither they nor the two models (continuum, network)
+#: reach up to the runner, the run folder or the figures; the runner and the run folder's writer
+#: know no command or study, and the figures none
 LAYERS = {
-    "ngbet.scene": ("ngbet.numerics", "ngbet.continuum", "ngbet.discrete", *OUTPUTS),
+    "ngbet.scene": ("ngbet.measured", "ngbet.numerics", "ngbet.continuum", "ngbet.discrete", *OUTPUTS),
+    "ngbet.measured": ("ngbet.numerics", "ngbet.continuum", "ngbet.discrete", *OUTPUTS),
     "ngbet.numerics": ("ngbet.scene", "ngbet.continuum", "ngbet.discrete", *OUTPUTS),
     "ngbet.continuum": OUTPUTS,
     "ngbet.discrete": OUTPUTS,
     "ngbet.runner": COMMANDS,
     "ngbet.run_folder": ("ngbet.runner", "ngbet.figures", *COMMANDS),
     "ngbet.output": ("ngbet.runner", "ngbet.figures", *COMMANDS),
-    "ngbet.figures": ("ngbet.runner", *(c for c in COMMANDS if c != "ngbet.calibration")),
+    "ngbet.figures": ("ngbet.runner", *COMMANDS),
 }
 
 

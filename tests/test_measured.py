@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ngbet.calibration.curve_table import parse_sizes, read_table
-from ngbet.calibration.data import read_all, read_measured
 from ngbet.cli import main
 from ngbet.figures.data import Measured
 from ngbet.kinematics import force_from_normalised, shear_angle_rad
+from ngbet.measured.curves import read_all, read_measured
+from ngbet.measured.table import parse_sizes, read_table
 from ngbet.normalise import energy_method
 from ngbet.scene.validate import SceneError
 

@@ -1,3 +1,3 @@
-"""Calibration of the continuum model on measured BET curves: data, shear tables, joint fits, predictions."""
+"""Calibration of the continuum model on measured curves: shear tables, joint fits, predictions."""
 
 __all__: list[str] = []

@@ -11,7 +11,7 @@ Every data file is fitted by :func:`ngbet.calibration.joint.fit_curves`, on the 
 header gives (``# specimen.width_mm = ...``), else on the scene's. A measured mid-axis profile
 (``--profile``) and centre shear angles (``--angles``) belong to the first data file's specimen.
 A file whose header says ``# test: picture-frame`` is a picture-frame curve, fitted (or, with
-``--predict``, predicted) in the frame of its header (:func:`ngbet.calibration.data.read_frame_curve`).
+``--predict``, predicted) in the frame of its header (:func:`ngbet.measured.curves.read_frame_curve`).
 """
 
 from __future__ import annotations
@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
+from ..measured.curves import MeasuredCurve
 from ..run_folder import OwnedFolder
 from ..scene.document import Scene
 from ..scene.validate import SceneError
-from .data import MeasuredCurve
 
 __all__ = ["Inputs", "add_parser", "run_from_args", "summary"]
 
@@ -177,14 +177,14 @@ class Inputs:
         if not args.max_runs >= 1:
             raise SceneError(f"--max-runs {args.max_runs}: must be at least 1")
         self.u_range = _range(args.u_range)
-        from .curve_table import parse_sizes
-        from .data import read_all
+        from ..measured.curves import read_all
+        from ..measured.table import parse_sizes
 
         sizes = ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm")
         specs = [parse_sizes(t, "--specimen", sizes) for t in getattr(args, "specimen", [])]
         columns = getattr(args, "columns", None)
         self.curves = read_all(self.data, columns=columns, specimens=specs)
-        from .data import read_any
+        from ..measured.curves import read_any
 
         self.predict = [read_any(p, columns=columns) for p in args.predict]
         self.notes = [f"{c.source}: {n}" for c in self.curves + self.predict for n in c.notes]
@@ -220,7 +220,7 @@ class Inputs:
                 )
 
     def _fraction(self, c: MeasuredCurve) -> tuple[float, float]:
-        from .data import RANGE
+        from ..measured.curves import RANGE
 
         if self.u_range is None:
             return RANGE

@@ -16,11 +16,11 @@ from typing import Any, cast
 
 import numpy as np
 
+from ..measured.curves import MeasuredCurve
 from ..runner.ladder import Rung
 from ..scene.document import Scene
 from ..scene.physical import Specimen
 from ..scene.validate import SceneError
-from .data import MeasuredCurve
 from .observations import Profile, ShearAngles
 
 __all__ = [

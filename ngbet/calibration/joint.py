@@ -1,7 +1,7 @@
 r"""One parameter set fitted to several measured curves (specimen sizes) of one fabric, and its predictions.
 
 Each curve runs on its own specimen (the keys of its data file's header applied to the scene)
-with load steps landing on its fitted displacements (:mod:`ngbet.calibration.data`); the force and
+with load steps landing on its fitted displacements (:mod:`ngbet.measured.curves`); the force and
 its derivatives with respect to the parameters come from the same run
 (:func:`ngbet.runner.sensitivity.force_path`). Each curve's mesh is made once and reused by
 every model run of the fit.
@@ -40,9 +40,9 @@ from typing import Any, cast
 
 import numpy as np
 
+from ..measured.curves import RANGE, MeasuredCurve
 from ..scene.document import Scene
 from ..scene.validate import SceneError
-from .data import RANGE, MeasuredCurve
 from .fit_params import (
     COARSE_LEVEL,
     FINE_TOL,
@@ -164,7 +164,7 @@ def fit_curves(  # noqa: C901
     """Fit ``params`` (default: the scene's ``calibration.params``) to all ``curves`` at once.
 
     ``fractions``: the part of each curve's displacement range fitted (default 10–90 %).
-    ``resample``: the curve sampled at :data:`ngbet.calibration.data.POINTS_PER_CURVE` equally
+    ``resample``: the curve sampled at :data:`ngbet.measured.curves.POINTS_PER_CURVE` equally
     spaced displacements (False: its own points in the range).
 
     Discretization: every curve runs on a rung of :data:`FIT_LADDER` chosen by the fit. Each

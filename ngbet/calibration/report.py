@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .data import MeasuredCurve
+from ..measured.curves import MeasuredCurve
 from .fit_params import TABLE_KEY, CurveFit, JointFit, band
 from .joint import CurvePrediction
 

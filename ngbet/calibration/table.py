@@ -21,7 +21,7 @@ import numpy as np
 
 from ..continuum.physics import table_stress_spline
 from ..kinematics import normalised_shear_force
-from .data import MeasuredCurve
+from ..measured.curves import MeasuredCurve
 
 __all__ = ["shear_stress_points", "start_table"]
 

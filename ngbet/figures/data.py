@@ -139,7 +139,7 @@ def load_maps(run_dir: Path) -> list[MapData]:
 class Measured:
     """A measured force–displacement curve for the figures, and the specimen it was measured on.
 
-    Read by :meth:`read` through :func:`ngbet.calibration.data.read_measured`, the one reader of
+    Read by :meth:`read` through :func:`ngbet.measured.curves.read_measured`, the one reader of
     measured curves (units, columns, separators, the specimen from the header or the command line).
     """
 
@@ -158,7 +158,7 @@ class Measured:
 
         ``specimen`` (``--specimen``) gives the scene keys of a file whose header has none.
         """
-        from ..calibration.data import read_measured
+        from ..measured.curves import read_measured
 
         c = read_measured(path, columns=columns, specimen=specimen)
         return cls(

@@ -66,9 +66,9 @@ def read_frame_measured(path: str | Path, *, columns: str | None = None) -> Fram
     Raises
     ------
     ngbet.scene.validate.SceneError
-        naming the file and what is wrong with it (as :func:`ngbet.calibration.curve_table.read_table`).
+        naming the file and what is wrong with it (as :func:`ngbet.measured.table.read_table`).
     """
-    from ..calibration.curve_table import read_table
+    from ..measured.table import read_table
     from ..scene.validate import SceneError
 
     t = read_table(path, test="picture_frame", columns=columns)

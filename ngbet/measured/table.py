@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..scene.validate import SceneError
-from .curve_columns import (
+from .columns import (
     CANONICAL,
     PRETTY,
     UNITS,

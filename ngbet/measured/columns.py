@@ -3,7 +3,7 @@
 A column is known by its name (``displacement``, ``extension``, ``force``, ``load``, the picture
 frame's shear angle and shear forces) and its unit, written in the name (``force_kN``, ``Force (kN)``,
 ``Force [kN]``) or in a row of units under the header; ``columns`` (``--columns``) chooses two by name
-or 1-based number. Read by :func:`ngbet.calibration.curve_table.read_table`; a refusal is a
+or 1-based number. Read by :func:`ngbet.measured.table.read_table`; a refusal is a
 :class:`ngbet.scene.validate.SceneError` naming the file and the line.
 """
 

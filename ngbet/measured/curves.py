@@ -1,7 +1,7 @@
-"""Bias extension curves for the calibration and the run figures, read by :mod:`ngbet.calibration.curve_table`.
+"""Bias extension curves for the calibration and the run figures, read by :mod:`ngbet.measured.table`.
 
 :func:`read_measured` reads a bias extension curve (clamp displacement [mm], force [N]) and its
-printed error bars (:func:`ngbet.calibration.curve_table.read_errorbars`); everything is checked
+printed error bars (:func:`ngbet.measured.table.read_errorbars`); everything is checked
 before any model run (:class:`ngbet.scene.validate.SceneError`, exit status 2).
 
 The fitted points: curves extracted from vector graphics hold thousands of vertices, some at the
@@ -23,8 +23,8 @@ from typing import cast
 import numpy as np
 
 from ..scene.validate import SceneError
-from .curve_columns import WORDS
-from .curve_table import FRAME_KEYS, CurveTable, read_errorbars, read_table
+from .columns import WORDS
+from .table import FRAME_KEYS, CurveTable, read_errorbars, read_table
 
 __all__ = [
     "MIN_RELATIVE_SD",
