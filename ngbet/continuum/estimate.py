@@ -8,46 +8,25 @@ The error of the force is estimated by
 .. math::  \eta_F = \max(\theta\,|F_p - F_{p+1}|,\ \theta_2\,|F_p - F_{p+2}|),
            \qquad \theta = 2.5,\ \theta_2 = 1.25
 
-and that of the mid-axis profile by θ max|u_y,p − u_y,p+1|. Why (measured against
-reference-grade values, :mod:`ngbet.studies.reference`, table in tests/test_accuracy.py):
+and that of the mid-axis profile by θ max|u_y,p − u_y,p+1|. Why these constants, and the
+effectivities they give against reference-grade values (tables in tests/test_accuracy.py): the
+error lives at the four singular clamp corners, where p + 1 on a fixed mesh recovers only part of
+it (θ puts the effectivity in [0.5, 3]); the second level catches a p-sequence that stands still
+for one order and never raises the estimate of a monotone one (θ₂(1 + q) ≤ θ for a ratio q ≤ 1);
+docs/accuracy.md gives the numbers.
 
-* the error lives at the four singular clamp corners, where raising p on a fixed mesh gains
-  slowly: the enriched error is 30–75 % of the original's, so |F_p − F_p+1| is 0.25–0.7 of the
-  error and θ = 2.5 puts the effectivity in [0.5, 3] on the scenes of the table;
-* a p-sequence can stand still from p to p + 1 and move on after (with bending off, the default
-  mesh gives 36.7103149 N at p = 3 and its enriched levels 36.7103145 N at p = 4 and 36.71022 N
-  at p = 5, against 36.71025 N: θ|F_p − F_p+1| = 1e-6 N for an error of 6.8e-5 N, the second
-  level 1.2e-4 N): the second level catches it, and on a sequence converging monotonically
-  θ₂(1 + q)|F_p − F_p+1| ≤ θ|F_p − F_p+1| (ratio q ≤ 1), so it never raises the estimate there;
-* each one-step level is checked: the next (simplified) correction from the same factorization
-  must be at most :data:`STEP_CONTRACTION` of the step, else the step is outside Newton's
-  quadratic range and Newton is run to convergence at that level (on the default mesh at 56 mm
-  the next correction after the one step to p = 4 is 287 times the step: the step is no
-  estimate of F_p+1; converged, that level gives 107.29393 N, the p = 4 run's force); where
-  Newton fails at p + 1 (next to a limit point, after a snap-through, on locking or split
-  corners) the estimate says it cannot vouch: ``force_error_N`` is empty and
-  ``error_estimate_unreliable`` in summary.json says why. The p + 2 level is taken by its one step
-  only, where that contracts; otherwise the p + 1 estimate stands with a note
-  (``error_estimate_checks``): a converged solve two orders up would cost more than the run. On
-  graded meshes it is not tried after a p + 1 step that contracted by more than
-  :data:`PLATEAU_SKIP_CONTRACTION` (measured: the p + 2 step then never contracted). The
-  Newton at p + 1 starts from the one step's factorization and keeps a factorization while its
-  steps contract by :data:`ENRICHED_REUSE` (chord steps: :mod:`ngbet.numerics.chord`);
-* an enriched solve on a mesh refined at the corners sees the corner error better, but Newton
-  from the carried-over state does not converge there (the corner solution of the finer mesh is
-  too far from the coarse one at 37–56 mm); only a full load continuation would do, at 2–4
-  times the cost of the run;
-* a dual-weighted residual needs the same enriched space (the dual solution in the run's own
-  space is orthogonal to the residual), so it costs the same factorization;
-* it is paid at the load stops and the final load only (``outputs.error_estimate``), not at the
-  intermediate steps (``cost_s``).
-
-Limitation: where the error does not fall with p at all on a fixed mesh, the estimate misses it,
-and where the p-sequence crosses the limit it overshoots. Measured with α1 = 200 Pa m² (an error
-of 0.28 %): on the uniform h = 10 mm mesh F = 66.76 N at p = 2 and 66.78 N at p = 3 against
-66.577 N (effectivity 0.11); graded to 0.5 mm the same scene gives 2.9. Meshes without corner
-grading therefore get the corner-refined enrichment (:data:`METHOD_CORNER`), and their runs say
-in the summary that a graded mesh is more accurate for its cost.
+Guarantees: each one-step level is checked (the next simplified correction from the same
+factorization is at most :data:`STEP_CONTRACTION` of the step), else Newton is run to convergence
+at that level, starting from the one step's factorization and keeping one while its steps contract
+by :data:`ENRICHED_REUSE` (chord steps: :mod:`ngbet.numerics.chord`). Where Newton fails at p + 1
+(next to a limit point, after a snap-through, on locking or split corners) the estimate says it
+cannot vouch: ``force_error_N`` is empty and ``error_estimate_unreliable`` says why. The p + 2 level
+is taken by its one step only where that contracts, else the p + 1 estimate stands with a note
+(``error_estimate_checks``); on graded meshes it is skipped after a p + 1 step that contracted by
+more than :data:`PLATEAU_SKIP_CONTRACTION`. The estimate is paid at the load stops and the final
+load only (``outputs.error_estimate``). Meshes without corner grading get the corner-refined
+enrichment (:data:`METHOD_CORNER`), where p + 1 on the same mesh misses the corner error, and their
+runs say in the summary that a graded mesh is more accurate for its cost.
 """
 
 from __future__ import annotations

@@ -17,14 +17,10 @@ hands it to ``Variation`` and compiles it, and NGSolve differentiates it for the
 linearization. The problem holds no form, inverse or timer: those are numerics, the solver's.
 
 The multiplier lives in L2 of order max(p − 2, 0) (discontinuous, element-local, so it can be
-eliminated element by element). Measured with
-:func:`ngbet.continuum.observables.multiplier_oscillation` (the part of Λ that a continuous field cannot
-represent, away from the clamps) on the default scene at 37 mm: with Λ ∈ L2(p − 1) it stays at
-0.84–0.86 on h = 10, 5, 2.5 mm for p = 2 (also with φ of order 3): the multiplier oscillates
-from element to element and does not converge, though u, φ and the force do; with Λ ∈ L2(p − 2)
-it falls as O(h) for p = 2 (0.093, 0.048, 0.025) and as O(h²) for p = 3 (0.0061, 0.0015), with
-the same force (Richardson limit 61.2 N for both pairs at p = 2). p = 1 locks (84 N against
-62 N at h = 10 mm with Λ ∈ L2(0)); use p ≥ 2. For the exact Lagrange method with ``condense`` the
+eliminated element by element): one order higher, L2(p − 1), it oscillates from element to element
+and does not converge though u, φ and the force do; in L2(p − 2) it converges with the force
+(docs/formulations.md gives the numbers; every run reports ``multiplier_oscillation``). p = 1
+locks: use p ≥ 2. For the exact Lagrange method with ``condense`` the
 Newton matrix is augmented (:mod:`ngbet.numerics.linear`, which owns condensation and the sparse
 inverse): the problem gives the augmented integrand (``augmented_energy``) for it.
 

@@ -20,15 +20,12 @@ parameter, against a whole extra load path per parameter for finite differences.
 
 H is the tangent at the converged state itself: Newton's last factorization belongs to an
 earlier iterate, and the load tangent it gives is corrected by a Richardson step with the
-residual's difference quotient (:func:`load_tangent_at_state`). Accuracy, measured against
-central differences of whole runs (tests/test_fit.py, tests/test_calibration.py; step 1e-3, whose
-own accuracy is ~1e-7): 3e-8–1.6e-7 of the largest derivative at p = 2 for the shear-law
-coefficients, the table's rises and K_el, 4e-6 for γ_lock, and 3e-8–7e-8 for K_el, K_sh, α1, α2
-on a scene where the cap 30 K_el of the stabilization holds on part of the elements. With Newton's
-factorization as it stands the error was up to 8e-5, with the augmented Newton matrix of the exact
-Lagrangian refactorized 1.3e-5, and with the stabilization's cap left out of ∂W/∂p 1.4e-2.
-min(α1, α2) has a kink at α1 = α2: there the derivative is the one-sided one where K_s follows
-α1. The derivative form must integrate with the quadrature of the problem's energy
+residual's difference quotient (:func:`load_tangent_at_state`); Newton's own factorization, the
+refactorized augmented matrix of the exact Lagrangian or a ∂W/∂p without the stabilization's cap
+are each visibly less accurate. The derivatives agree with central differences of whole runs to
+the accuracy those have (asserted in tests/test_fit.py and tests/test_calibration.py; the numbers
+are in docs/calibration.md). min(α1, α2) has a kink at α1 = α2: there the derivative is the
+one-sided one where K_s follows α1. The derivative form must integrate with the quadrature of the problem's energy
 (:func:`_same_rule`); with NGSolve's default for the form alone, dF/d ln K_el was 1.3 % off.
 """
 
