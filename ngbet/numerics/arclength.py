@@ -45,6 +45,7 @@ runner iterates it and decides what to write.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from collections.abc import Callable, Generator, Sequence
@@ -222,32 +223,28 @@ def arclength_steps(
         raise ValueError(f"branch must be 'stay' or 'switch', not {branch!r}")
     if branch == "switch" and lowest_eigenpair is None:
         raise ValueError("branch = 'switch' needs lowest_eigenpair (the critical mode)")
-    return _arclength_steps(problem, ctl, settings, weights, length, psi, lowest_eigenpair, result, branch, branch_sign)
+    start = functools.partial(
+        _ArcLength, problem, ctl, settings, weights, length, psi, lowest_eigenpair, branch, branch_sign
+    )
+    return _arclength_steps(start, problem, result)
 
 
 def _arclength_steps(
-    problem: Problem,
-    ctl: ArcLengthSettings,
-    settings: NewtonSettings,
-    weights: np.ndarray,
-    length: float,
-    psi: np.ndarray,
-    lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None,
-    result: PathResult | None,
-    branch: str,
-    branch_sign: float,
+    start: Callable[[PathResult], _ArcLength], problem: Problem, result: PathResult | None
 ) -> Generator[StepRecord, None, PathResult]:
     """The generator of :func:`arclength_steps` (its arguments checked): the engine's loop, arc length's corrector.
 
-    The path stops without an error where it cannot go on (the step cut below its minimum, the
-    time budget spent): the caller decides what an unreached target means.
+    ``start(result)`` builds the corrector at the generator's first step (it solves for the
+    tangent there, not when the generator is made). The path stops without an error where it
+    cannot go on (the step cut below its minimum, the time budget spent): the caller decides what
+    an unreached target means.
     """
     res = result if result is not None else PathResult(problem.state.lam)
     given = res.u0
-    arc = _ArcLength(problem, ctl, settings, weights, length, psi, lowest_eigenpair, res, branch, branch_sign)
+    arc = start(res)
     res.u0 = arc.path.lam0  # the loads of the attempts are the path's
     try:
-        yield from path_steps(arc, ctl, res, length=arc)
+        yield from path_steps(arc, arc.ctl, res, length=arc)
     except ConvergenceError:
         pass
     if not res.steps:
@@ -272,9 +269,9 @@ class _ArcLength:
         length: float,
         psi: np.ndarray,
         lowest_eigenpair: Callable[[], tuple[float, np.ndarray]] | None,
-        res: PathResult,
         branch: str,
         branch_sign: float,
+        res: PathResult,
     ) -> None:
         self.p, self.ctl, self.psi, self.res = problem, ctl, psi, res
         self.branch, self.branch_sign = branch, branch_sign
