@@ -199,8 +199,11 @@ def reference(data: StudyData, u0: float, p: int, hs: Sequence[float]) -> dict[s
     }
 
 
-def profile_error(X: Sequence[float], uy: Sequence[float], ref_uy: Sequence[float]) -> float:
-    """Relative l2 distance of two mid-axis profiles sampled at the same X (discrete L2 norm)."""
+def profile_error(uy: Sequence[float], ref_uy: Sequence[float]) -> float:
+    """Relative l2 distance of two mid-axis profiles sampled at the same stations (discrete L2 norm).
+
+    nan when their lengths differ or they are empty.
+    """
     a, b = np.asarray(uy, float), np.asarray(ref_uy, float)
     if len(a) != len(b) or len(a) == 0:
         return math.nan

@@ -114,9 +114,8 @@ def analyse(data: StudyData, g: Grid, quick: bool) -> dict[str, Any]:
         if lag_i is not None:
             FL = data.at(lag_i, s2, "force_N")
             r["err_pen"] = abs(F2 - FL) / FL
-            X, uy = data.profile(i, s2)
-            r["prof_pen"] = C.profile_error(X, uy, data.profile(lag_i, s2)[1])
-        r["prof_ref"] = C.profile_error(*data.profile(i, s2), ref["uy_mm"])
+            r["prof_pen"] = C.profile_error(data.profile(i, s2)[1], data.profile(lag_i, s2)[1])
+        r["prof_ref"] = C.profile_error(data.profile(i, s2)[1], ref["uy_mm"])
         rows.append(r)
     slopes, orders_h, rates_p, kstar = {}, {}, {}, {}
     for h in g["h"]:

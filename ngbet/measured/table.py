@@ -282,7 +282,7 @@ def parse_sizes(text: str, what: str, names: Sequence[str]) -> dict[str, float]:
 
 
 def _merge(
-    path: Path, header: dict[str, float], given: dict[str, float] | None, what: str, flag: str
+    path: Path, header: dict[str, float], given: dict[str, float] | None, flag: str
 ) -> tuple[dict[str, float], list[str]]:
     out, notes = dict(header), []
     for k, v in (given or {}).items():
@@ -296,7 +296,7 @@ def _merge(
 
 def _specimen(path: Path, keys: dict[str, float], given: dict[str, float] | None) -> tuple[dict[str, float], list[str]]:
     header = {k: v for k, v in keys.items() if k.startswith("specimen.")}
-    spec, notes = _merge(path, header, given, "specimen", "--specimen")
+    spec, notes = _merge(path, header, given, "--specimen")
     for k in ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm"):
         if k in spec and not spec[k] > 0:
             raise SceneError(f"{path}: {k} = {spec[k]:g} must be > 0")
@@ -317,7 +317,7 @@ def _specimen(path: Path, keys: dict[str, float], given: dict[str, float] | None
 
 def _frame(path: Path, keys: dict[str, float], given: dict[str, float] | None) -> tuple[dict[str, float], list[str]]:
     header = {k: v for k, v in keys.items() if k.startswith("picture_frame.")}
-    frame, notes = _merge(path, header, given, "picture_frame", "--frame")
+    frame, notes = _merge(path, header, given, "--frame")
     for k, v in frame.items():
         if not v > 0:
             raise SceneError(f"{path}: {k} = {v:g} must be > 0")
