@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 import scipy.sparse as sp
@@ -21,7 +21,10 @@ import scipy.sparse as sp
 from ..numerics.engine import PathControl
 from .linsolve import FreeBlockSolver, LinearSolverError
 
-__all__ = ["Problem", "StepControl", "StepFailed", "Tally", "TimedProblem", "newton"]
+if TYPE_CHECKING:
+    from .symmetry import HalfTurn
+
+__all__ = ["Problem", "StepControl", "StepFailed", "Symmetric", "Tally", "TimedProblem", "newton"]
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +39,18 @@ class Problem(Protocol):
 
     def evaluate(self, u: np.ndarray, hessian: bool = True) -> tuple[float, np.ndarray, sp.csr_matrix | None]:
         """E(u), dE/du and (with ``hessian``) d2E/du2."""
+
+
+@runtime_checkable
+class Symmetric(Protocol):
+    """A :class:`Problem` that may have a half-turn symmetry (a capability, checked with ``isinstance``).
+
+    The solver then factorizes the tangents of its symmetric states in the symmetry's two blocks
+    (:mod:`.symmetry`).
+    """
+
+    def half_turn(self) -> HalfTurn | None:
+        """The problem's half-turn symmetry, or None where it has none."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -70,9 +85,6 @@ class TimedProblem:
     def __init__(self, problem: Problem) -> None:
         self._p = problem
         self.n_dofs, self.fixed, self.load, self.ramp = problem.n_dofs, problem.fixed, problem.load, problem.ramp
-        finder = getattr(problem, "half_turn", None)
-        if finder is not None:
-            self.half_turn = finder
         self.t_hessian = self.t_gradient = 0.0
         self.n_hessian = self.n_gradient = 0
 

@@ -9,8 +9,9 @@ both are described below.
 The solver knows nothing of yarns. A problem provides ``n_dofs``, ``fixed`` (bool mask of
 prescribed dofs), ``load`` (prescribed values per unit load parameter u0), ``ramp`` (a field for
 the "clamp" predictor) and ``evaluate(u, hessian) -> (E, dE/du, d2E/du2)``, and may provide
-``half_turn()`` (:mod:`.symmetry`): then the tangents of states on the symmetric path are
-factorized as their two half-size blocks, and the predictions are projected back onto that path.
+``half_turn()`` (:class:`~ngbet.discrete.newton.Symmetric`, :mod:`.symmetry`): then the tangents
+of states on the symmetric path are factorized as their two half-size blocks, and the predictions
+are projected back onto that path.
 
 Step from u0 to u0 + h:
   predictor  "tangent": u_f += -K_ff^{-1} K_fc h load_c  (K at the last converged state)
@@ -64,7 +65,7 @@ from ..numerics import engine
 from ..numerics.engine import Outcome, PathResult, StepRecord
 from .eigen import check_stability
 from .linsolve import FreeBlockSolver
-from .newton import Problem, StepControl, StepFailed, Tally, TimedProblem, newton
+from .newton import Problem, StepControl, StepFailed, Symmetric, Tally, TimedProblem, newton
 
 log = logging.getLogger(__name__)
 
@@ -150,10 +151,8 @@ class ShiftedNewton:
         assert K is not None
         self.K: sp.csr_matrix = K
         free_mask = ~problem.fixed
-        finder = getattr(problem, "half_turn", None)
-        ht = finder() if (ctl.half_turn and finder is not None) else None
-        self.half_turn = ht
-        self.lin = FreeBlockSolver(K, free_mask, ctl.backend, ht)
+        self.half_turn = problem.half_turn() if (ctl.half_turn and isinstance(problem, Symmetric)) else None
+        self.lin = FreeBlockSolver(K, free_mask, ctl.backend, self.half_turn)
         self.work = self.lin.twin()
         self.free = self.lin.free
         self.tally = Tally((self.lin, self.work))
