@@ -407,13 +407,14 @@ def write_png(fig: Figure, path: Path | Any, dpi: float = PNG_DPI) -> None:
     from matplotlib.image import imsave
 
     pil_kwargs = {"compress_level": PNG_COMPRESSION}
-    if any(mpl.rcParams[k] != v for k, v in _SAVEFIG_DEFAULTS.items()) or mpl.rcParams["savefig.transparent"]:
+    rc: Any = mpl.rcParams
+    if any(rc[k] != v for k, v in _SAVEFIG_DEFAULTS.items()) or rc["savefig.transparent"]:
         fig.savefig(path, format="png", dpi=dpi, pil_kwargs=pil_kwargs)
         return
     dpi0 = fig.dpi
     fig.dpi = dpi
     try:
-        canvas = FigureCanvasAgg(fig)
+        canvas: Any = FigureCanvasAgg(fig)
         canvas.draw()
         imsave(path, canvas.buffer_rgba(), format="png", origin="upper", dpi=fig.dpi, pil_kwargs=pil_kwargs)
     finally:
