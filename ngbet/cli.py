@@ -32,7 +32,7 @@ import os
 import signal
 import sys
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 from . import commands as _commands
 from .commands import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_IO, EXIT_OK, EXIT_SOLVER, exit_code, load_scene
@@ -103,8 +103,6 @@ def console() -> int:
     """
     _commands.tolerant_streams()
     argv = sys.argv[1:]
-    if os.environ.get(SUPERVISED) and argv[:1] == ["run"]:
-        _end_run_process(main(argv))
     if os.environ.get(SUPERVISED) or not argv or argv[0] != "run" or not hasattr(signal, "SIGKILL"):
         return main(argv)
     import subprocess
@@ -124,25 +122,6 @@ def console() -> int:
         signal.signal(sig, forward)
     code = child.wait()
     return code if code >= 0 else _died(argv, -code)
-
-
-def _end_run_process(code: int) -> NoReturn:
-    """End the watched run's process with ``code``: the atexit functions, the streams flushed, then ``os._exit``.
-
-    Everything of the run is written and closed by now (its files, the plot process, the
-    report); what is left is the interpreter's teardown of the modules and of NGSolve's objects
-    (about 0.07 s of CPU time after the default run), which nothing needs.
-    """
-    import atexit
-    import ctypes
-
-    atexit._run_exitfuncs()
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):
-            stream.flush()
-    with contextlib.suppress(Exception):
-        ctypes.CDLL(None).fflush(None)  # C streams (compiled libraries' output), as exit() would
-    os._exit(code)
 
 
 def _die_with_parent() -> None:

@@ -211,15 +211,19 @@ class _Forked:
 
 
 def _child_setup(req_r: int, ans_w: int) -> None:
-    """In the forked child: its own session, the pipes as fds 0 and 1, no other fd but 2, default signals."""
-    import signal
+    """In the forked child: its own session, the pipes as fds 0 and 1, no other fd but 2, default signals.
 
-    from .interrupts import STOP_SIGNALS
+    Every signal the run handles in Python (its stop signals: :mod:`ngbet.interrupts`) is back
+    at its default; :func:`serve` then ignores SIGINT.
+    """
+    import signal
 
     os.setsid()
     signal.set_wakeup_fd(-1)
-    for sig in STOP_SIGNALS:
-        signal.signal(sig, signal.SIG_DFL)
+    for sig in signal.valid_signals():
+        with contextlib.suppress(OSError, ValueError):
+            if callable(signal.getsignal(sig)):
+                signal.signal(sig, signal.SIG_DFL)
     os.dup2(req_r, 0)
     os.dup2(ans_w, 1)
     os.closerange(3, os.sysconf("SC_OPEN_MAX") if hasattr(os, "sysconf") else 1024)
