@@ -16,6 +16,7 @@ gives medians and, for a machine that other jobs load, the shortest wall time of
     python bench/bench_command.py --variants default,no-bending,accuracy-1e-3,network-17k --repeats 3
     git archive REV | tar -x -C /tmp/before                 # an older tree, for before/after in one sitting
     python bench/bench_command.py --variants default,bare --before /tmp/before
+    python bench/bench_command.py --variants default --before /tmp/before --pycache /tmp/pyc   # with bytecode
 
 Records: ``bench/out/bench_command_<time>.json`` (bench/out is ignored by git). The compiled-code
 cache of ``solver.compile`` is ``$NGBET_CACHE_DIR`` (``--cache`` sets it; the "native" variant fills
@@ -157,6 +158,12 @@ def imports(env: dict[str, str]) -> dict:
     return out
 
 
+def _python_of(tree: str) -> str:
+    """The tree's own .venv/bin/python when it has one, else this interpreter."""
+    venv = Path(tree) / ".venv" / "bin" / "python"
+    return str(venv) if venv.exists() else sys.executable
+
+
 def _median(recs: list[dict], key: str) -> float:
     vals = [r[key] for r in recs if isinstance(r.get(key), (int, float))]
     return statistics.median(vals) if vals else float("nan")
@@ -175,6 +182,15 @@ def _ratios_to_default(records: list[dict], names: list[str]) -> None:
         )
 
 
+def _compiled(env: dict[str, str], pycache: str, before: str | None) -> None:
+    """Point ``env`` at the bytecode folder ``pycache`` and compile this tree (and ``before``) into it."""
+    env["PYTHONPYCACHEPREFIX"] = str(Path(pycache).resolve())
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    for tree, python in ((HERE.parent, sys.executable), *(((Path(before), _python_of(before)),) if before else ())):
+        trees = [str(tree / d) for d in ("ngbet", "studies") if (tree / d).is_dir()]
+        subprocess.run([python, "-m", "compileall", "-q", *trees], env=env, check=False, stdout=subprocess.DEVNULL)
+
+
 def main() -> None:
     """Run the variants interleaved, print medians, write the records."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -186,6 +202,11 @@ def main() -> None:
         help="a source tree of ngbet: each variant also runs with it (PYTHONPATH; "
         "with the tree's own .venv/bin/python when it has one)",
     )
+    ap.add_argument(
+        "--pycache",
+        help="a folder for the bytecode of both trees (PYTHONPYCACHEPREFIX, PYTHONDONTWRITEBYTECODE unset, "
+        "compiled before the first run): as an installed ngbet runs, without compiling its sources in every process",
+    )
     ap.add_argument("--list", action="store_true")
     args = ap.parse_args()
     if args.list:
@@ -196,6 +217,8 @@ def main() -> None:
     env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
     if args.cache:
         env["NGBET_CACHE_DIR"] = args.cache
+    if args.pycache:
+        _compiled(env, args.pycache, args.before)
     envs = {name: env for name in names}
     pythons = dict.fromkeys(names, sys.executable)
     if args.before:
@@ -206,8 +229,7 @@ def main() -> None:
                 if n != "native" and n not in PLOT_PROCESS
             }
         )  # the older tree has neither
-        venv = Path(args.before) / ".venv" / "bin" / "python"
-        pythons.update({f"before:{n}": str(venv) if venv.exists() else sys.executable for n in names})
+        pythons.update({f"before:{n}": _python_of(args.before) for n in names})
         names = [n for pair in zip(names, [f"before:{n}" for n in names], strict=True) for n in pair if n in envs]
     records: list[dict] = []
     if "native" in names:  # the first native run may compile: reported apart

@@ -11,7 +11,8 @@ figure drawn by a forked child, all four at once: on a busy machine the children
 more CPU time and gain nothing) and answers on its stdout with the force figure's file.
 
 Nothing depends on it: when it is not running, died, or answers with an error, the run draws
-the figure itself (the log says why at INFO level). It is a child of the run in its own session
+the figure itself (the log says why at INFO level). It is a fork of the run where it can be
+(before NGSolve is imported; else a new interpreter), a child of the run in its own session
 (a Ctrl-C at the terminal reaches the run alone, which decides) and exits when its stdin closes,
 i.e. when the run ends by any means, SIGKILL included.
 
@@ -62,14 +63,24 @@ class PlotProcessError(RuntimeError):
 
 
 class PlotProcess:
-    """The running plot process (see the module docstring)."""
+    """The running plot process (see the module docstring).
+
+    Forked from this process where it can be (POSIX, NGSolve not imported): the process then
+    starts with this interpreter and its imports (ngbet, numpy) instead of a new interpreter
+    importing them again. Otherwise, or where the fork fails, a new interpreter.
+    """
 
     def __init__(self) -> None:
-        root = str(Path(__file__).resolve().parent.parent)  # this ngbet, however it was found
-        code = f"import sys; sys.path.insert(0, {root!r}); from ngbet.plot_process import serve; serve()"
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True
-        )
+        self.proc: Any = None
+        if _can_fork():
+            with contextlib.suppress(OSError):
+                self.proc = _Forked()
+        if self.proc is None:
+            root = str(Path(__file__).resolve().parent.parent)  # this ngbet, however it was found
+            code = f"import sys; sys.path.insert(0, {root!r}); from ngbet.plot_process import serve; serve()"
+            self.proc = subprocess.Popen(
+                [sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True
+            )
 
     def plot(
         self, run_dir: str | Path, extra: Iterable[tuple[str, Sequence[float], Sequence[float]]] = ()
@@ -132,6 +143,90 @@ class PlotProcess:
         self.proc.wait()
         if self.proc.stdout is not None:
             self.proc.stdout.close()
+
+
+def _can_fork() -> bool:
+    """Whether the plot process may be forked from this one: POSIX, and no NGSolve (its threads) here yet."""
+    return hasattr(os, "fork") and "ngsolve" not in sys.modules
+
+
+class _Forked:
+    """The plot process as a fork of this one (what :class:`PlotProcess` uses of :class:`subprocess.Popen`).
+
+    ``stdin``, ``stdout``, ``poll``, ``kill``, ``wait``, ``returncode`` as Popen's.
+    The child is in a session of its own, has the request pipe as its stdin and the answer pipe
+    as its stdout, no other file descriptor of this process but stderr (so that it holds no end of
+    a pipe or socket of the run: its stdin closes when the run ends by any means), the stop
+    signals at their defaults, and ends by ``os._exit`` (nothing of the run's runs in it).
+    """
+
+    def __init__(self) -> None:
+        req_r, req_w = os.pipe()
+        ans_r, ans_w = os.pipe()
+        for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
+            with contextlib.suppress(Exception):
+                stream.flush()
+        try:
+            pid = os.fork()
+        except OSError:
+            for fd in (req_r, req_w, ans_r, ans_w):
+                os.close(fd)
+            raise
+        if pid == 0:  # the child
+            code = 1
+            try:
+                _child_setup(req_r, ans_w)
+                serve(open(0, "rb", closefd=False), open(1, "wb", closefd=False))
+                code = 0
+            finally:
+                os._exit(code)
+        os.close(req_r)
+        os.close(ans_w)
+        self.pid = pid
+        self.returncode: int | None = None
+        self.stdin: IO[bytes] | None = open(req_w, "wb")
+        self.stdout: IO[bytes] | None = open(ans_r, "rb")
+
+    def poll(self) -> int | None:
+        """The exit code if the child has ended (negative: the signal), else None."""
+        if self.returncode is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def kill(self) -> None:
+        """SIGKILL the child (if it has not been waited for)."""
+        if self.returncode is None:
+            import signal
+
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGKILL)
+
+    def wait(self) -> int:
+        """Wait for the child to end; its exit code."""
+        if self.returncode is None:
+            self.returncode = os.waitstatus_to_exitcode(os.waitpid(self.pid, 0)[1])
+        return self.returncode
+
+
+def _child_setup(req_r: int, ans_w: int) -> None:
+    """In the forked child: its own session, the pipes as fds 0 and 1, no other fd but 2, default signals.
+
+    Every signal the run handles in Python (its stop signals: :mod:`ngbet.interrupts`) is back
+    at its default; :func:`serve` then ignores SIGINT.
+    """
+    import signal
+
+    os.setsid()
+    signal.set_wakeup_fd(-1)
+    for sig in signal.valid_signals():
+        with contextlib.suppress(OSError, ValueError):
+            if callable(signal.getsignal(sig)):
+                signal.signal(sig, signal.SIG_DFL)
+    os.dup2(req_r, 0)
+    os.dup2(ans_w, 1)
+    os.closerange(3, os.sysconf("SC_OPEN_MAX") if hasattr(os, "sysconf") else 1024)
 
 
 _ACTIVE: list[PlotProcess] = []

@@ -76,6 +76,38 @@ def test_a_failed_drawing_is_reported_by_the_plot_process(tmp_path):
         proc.close()
 
 
+def test_the_plot_process_is_forked_and_holds_no_descriptor_of_the_run(tmp_path, monkeypatch):
+    """Before NGSolve is imported the plot process is a fork of the run (no second interpreter), and it
+    keeps no copy of the run's pipes and sockets: a socket closed here reads as closed at once (the
+    interrupt watchdog ends on that), and the process still draws."""
+    import socket
+
+    monkeypatch.delitem(sys.modules, "ngsolve", raising=False)
+    r, w = socket.socketpair()
+    proc = plot_process.PlotProcess()
+    try:
+        assert not isinstance(proc.proc, subprocess.Popen) and proc.proc.pid != os.getpid()
+        w.close()
+        r.settimeout(10.0)
+        assert r.recv(1) == b""  # end of file: the child holds no copy of w
+        assert proc.plot(run_folder(tmp_path / "run")) == (tmp_path / "run" / "force.png").resolve()
+    finally:
+        proc.close()
+        r.close()
+    assert proc.proc.returncode is not None
+
+
+def test_with_ngsolve_imported_the_plot_process_is_a_new_interpreter(tmp_path, monkeypatch):
+    import ngsolve  # noqa: F401
+
+    proc = plot_process.PlotProcess()
+    try:
+        assert isinstance(proc.proc, subprocess.Popen)
+        assert proc.plot(run_folder(tmp_path / "run")) is not None
+    finally:
+        proc.close()
+
+
 @pytest.mark.parametrize(
     ("choice", "load", "expected"),
     [

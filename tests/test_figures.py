@@ -363,6 +363,31 @@ def test_the_figures_drawn_in_forked_children_are_those_drawn_here(tmp_path):
         np.testing.assert_array_equal(imread(here / name), imread(there / name))
 
 
+@pytest.mark.parametrize("bbox", [None, "tight"])
+def test_a_png_drawn_once_has_the_pixels_of_savefig(tmp_path, bbox):
+    """write_png draws once where savefig draws twice: the same pixels, the same size, for a figure
+    with a legend and one with a colour bar; under a tight bounding box it is savefig itself."""
+    import matplotlib as mpl
+    from matplotlib.image import imread
+
+    from ngbet.figures.style import PNG_COMPRESSION, PNG_DPI, in_style, write_png
+    from ngbet.scene.document import default_scene
+
+    scene = default_scene()
+    for name, make in (
+        ("force", lambda: force_figure(default_rows(), scene)),
+        ("map", lambda: shear_map_figure(sheared_maps(), scene)),
+    ):
+        with in_style(), mpl.rc_context({"savefig.bbox": bbox}):
+            write_png(make(), tmp_path / f"{name}_once.png")
+            make().savefig(
+                tmp_path / f"{name}_savefig.png", dpi=PNG_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION}
+            )
+        once, twice = imread(tmp_path / f"{name}_once.png"), imread(tmp_path / f"{name}_savefig.png")
+        assert once.shape == twice.shape and once.shape[0] > 100
+        np.testing.assert_array_equal(once, twice)
+
+
 def test_an_unknown_figure_format_is_refused_naming_the_key():
     from ngbet.scene.document import default_scene
     from ngbet.scene.validate import SceneError

@@ -26,7 +26,7 @@ from typing import Any, cast
 from .curves import Extra, force_figure, profile_figure, shear_force_figure, stations_of
 from .data import Measured, load_maps, read_scene
 from .maps import shear_map_figure
-from .style import PNG_COMPRESSION, PNG_DPI, FigureWriter, can_fork, figure, in_style
+from .style import PNG_DPI, FigureWriter, can_fork, figure, in_style, write_png
 
 __all__ = ["NO_MATPLOTLIB", "RUN_FIGURES", "YARNS", "draw_force", "draw_run", "formats_of", "start_plot", "warm_up"]
 
@@ -221,4 +221,4 @@ def warm_up() -> None:
         ax = fig.add_subplot()
         ax.plot([0.0, 1.0], [0.0, 1.0])
         ax.set_xlabel("u0 [mm]")
-        fig.savefig(io.BytesIO(), format="png", dpi=PNG_DPI / 4, pil_kwargs={"compress_level": PNG_COMPRESSION})
+        write_png(fig, io.BytesIO(), dpi=PNG_DPI / 4)

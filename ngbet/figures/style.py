@@ -49,6 +49,7 @@ __all__ = [
     "subplots",
     "texts_outside",
     "tidy_log_axes",
+    "write_png",
 ]
 
 PNG_DPI = 130
@@ -360,7 +361,8 @@ class FigureWriter:
     """Writes each figure in the formats asked for (:data:`FORMATS`; the first one is returned).
 
     The constrained layout is solved once, for the first format, then frozen: the other formats get
-    the same layout (solving it again would cost as much as drawing).
+    the same layout (solving it again would cost as much as drawing). A PNG is drawn once
+    (:func:`write_png`), not twice as ``savefig`` does with a layout engine.
     """
 
     def __init__(self, formats: Sequence[str] = ("png",)) -> None:
@@ -374,7 +376,7 @@ class FigureWriter:
             tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # complete, then renamed: never half a figure
             try:
                 if fmt == "png":
-                    fig.savefig(tmp, format=fmt, dpi=PNG_DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
+                    write_png(fig, tmp)
                 else:
                     fig.savefig(tmp, format=fmt, dpi=VECTOR_RASTER_DPI)
                 os.replace(tmp, path)
@@ -385,6 +387,38 @@ class FigureWriter:
                 first = path
         assert first is not None
         return first
+
+
+#: the rcParams under which :func:`write_png` draws as ``savefig`` would (else it calls ``savefig``)
+_SAVEFIG_DEFAULTS = {"savefig.facecolor": "auto", "savefig.edgecolor": "auto", "savefig.bbox": None}
+
+
+def write_png(fig: Figure, path: Path | Any, dpi: float = PNG_DPI) -> None:
+    """Write ``fig`` as a PNG at ``dpi`` (zlib level :data:`PNG_COMPRESSION`) to ``path`` (a file or a stream).
+
+    The same pixels as ``fig.savefig(path, format="png", dpi=dpi)``, drawn once: ``savefig``
+    draws a figure with a layout engine twice (a draw without output that solves the layout,
+    then the drawing, which solves it again). Here the Agg canvas draws it once (the layout is
+    solved at the start of that draw) and its buffer is written. Under rcParams that ``savefig``
+    would apply (a face or edge colour, a tight bounding box, transparency) it is ``savefig``.
+    """
+    import matplotlib as mpl
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.image import imsave
+
+    pil_kwargs = {"compress_level": PNG_COMPRESSION}
+    rc: Any = mpl.rcParams
+    if any(rc[k] != v for k, v in _SAVEFIG_DEFAULTS.items()) or rc["savefig.transparent"]:
+        fig.savefig(path, format="png", dpi=dpi, pil_kwargs=pil_kwargs)
+        return
+    dpi0 = fig.dpi
+    fig.dpi = dpi
+    try:
+        canvas: Any = FigureCanvasAgg(fig)
+        canvas.draw()
+        imsave(path, canvas.buffer_rgba(), format="png", origin="upper", dpi=fig.dpi, pil_kwargs=pil_kwargs)
+    finally:
+        fig.dpi = dpi0
 
 
 def save(fig: Figure, out: Path, name: str, formats: Sequence[str] = STUDY_FORMATS) -> Path:
