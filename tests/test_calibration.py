@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import ngsolve as ngs
 import numpy as np
@@ -352,6 +353,51 @@ def test_prediction_of_a_third_size_lies_in_its_band(synthetic_joint):
     assert np.all(np.abs(pred.force_N - truth) <= 2 * pred.sd_N)
     start = force_path(truth_scene.with_changes(**{"material.K_sh": 4e4, "material.K_el": 1e6}), u).force_N
     assert np.all(np.abs(start - truth) > 2 * pred.sd_param_N)
+
+
+def _misfit_fit(curves: list[tuple[str, str, float, float]], n: int, m: int = 10) -> SimpleNamespace:
+    """A fit's record as :func:`joint.model_error` reads it: per curve (test, label, a, b) m points
+    of force F, standard deviation a F and residual ±b F (alternating), and n fitted parameters."""
+    F = np.linspace(1.0, 20.0, m)
+    sign = np.where(np.arange(m) % 2, 1.0, -1.0)
+    return SimpleNamespace(
+        names=[f"p{k}" for k in range(n)],
+        curves=[
+            SimpleNamespace(
+                curve=SimpleNamespace(test=t), label=lab, model_N=F, measured_N=F - sign * b * F, sd_N=a * F
+            )
+            for t, lab, a, b in curves
+        ],
+    )
+
+
+def test_model_error_is_the_misfit_between_specimens_beyond_their_noise():
+    """Two sizes, 20 points with residuals ±b F and standard deviations a F, 2 parameters:
+    Σ e²/(sd² + σ²F²) = m − n gives σ² = m b²/(m − n) − a² exactly (a = 2 %, b = 5 %: σ = 4.876 %);
+    residuals within the noise (b = 0.9 a: Σe²/sd² = 16.2 < m − n = 18) give σ = 0; one size, or a
+    fit of the other test only, give σ = 0 and words that name the data that would estimate it."""
+    sizes = [("bias_extension", "100 x 250 mm", 0.02, 0.05), ("bias_extension", "100 x 200 mm", 0.02, 0.05)]
+    sigma, words = joint.model_error(_misfit_fit(sizes, 2), "bias_extension")
+    assert sigma == pytest.approx(math.sqrt(20 * 0.05**2 / 18 - 0.02**2), rel=1e-9)
+    assert "model error between specimen sizes" in words and "4.9 %" in words
+    within = [(t, lab, 0.02, 0.018) for t, lab, _, _ in sizes]
+    assert joint.model_error(_misfit_fit(within, 2), "bias_extension")[0] == 0.0
+    one = [("bias_extension", "100 x 250 mm", 0.02, 0.05)] * 2  # two curves of one size
+    sigma, words = joint.model_error(_misfit_fit(one, 2), "bias_extension")
+    assert sigma == 0.0 and "one specimen size" in words and "two or more specimen sizes" in words
+    sigma, words = joint.model_error(_misfit_fit(sizes, 2), "picture_frame")
+    assert sigma == 0.0 and "no model error between the tests" in words and "both tests" in words
+
+
+def test_a_measured_point_is_inside_by_the_band_and_its_own_scatter():
+    """Band sd 3 and the point's own sd 4 add as √(3² + 4²) = 5: a point 9.99 off is inside ±2 sd,
+    10.01 off is not (neither would be by the band alone)."""
+    from ngbet.calibration.report import within_band
+
+    pred, sd = np.full(2, 10.0), np.full(2, 3.0)
+    meas = np.array([19.99, 20.01])
+    assert within_band(pred, sd, meas, np.full(2, 4.0)) == 0.5
+    assert within_band(pred, sd, meas, np.zeros(2)) == 0.0
 
 
 @pytest.mark.integration
