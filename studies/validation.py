@@ -320,7 +320,10 @@ def _holds(r: dict[str, Any]) -> str:
     """The band's content in a table cell: its parts, and the model error's size where the fit estimates it."""
     if str(r["band"]).startswith("parameters and discretization only"):
         return "parameters, discretization"
-    return f"parameters, discretization, model error {_pct(float(r['model_error_relative']))}"
+    sigma = float(r["model_error_relative"])
+    return f"parameters, discretization, model error {_pct(sigma)}" + (
+        " (sizes agree within their noise)" * (sigma == 0)
+    )
 
 
 def report(data: StudyData) -> str:

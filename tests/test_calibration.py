@@ -381,7 +381,8 @@ def test_model_error_is_the_misfit_between_specimens_beyond_their_noise():
     assert sigma == pytest.approx(math.sqrt(20 * 0.05**2 / 18 - 0.02**2), rel=1e-9)
     assert "model error between specimen sizes" in words and "4.9 %" in words
     within = [(t, lab, 0.02, 0.018) for t, lab, _, _ in sizes]
-    assert joint.model_error(_misfit_fit(within, 2), "bias_extension")[0] == 0.0
+    sigma, words = joint.model_error(_misfit_fit(within, 2), "bias_extension")
+    assert sigma == 0.0 and "agree within their noise" in words
     one = [("bias_extension", "100 x 250 mm", 0.02, 0.05)] * 2  # two curves of one size
     sigma, words = joint.model_error(_misfit_fit(one, 2), "bias_extension")
     assert sigma == 0.0 and "one specimen size" in words and "two or more specimen sizes" in words
@@ -398,6 +399,30 @@ def test_a_measured_point_is_inside_by_the_band_and_its_own_scatter():
     meas = np.array([19.99, 20.01])
     assert within_band(pred, sd, meas, np.full(2, 4.0)) == 0.5
     assert within_band(pred, sd, meas, np.zeros(2)) == 0.0
+
+
+@pytest.mark.integration
+def test_the_band_of_a_prediction_covers_the_truth_at_its_claimed_rate(tmp_path):
+    """Data made by the model (two sizes, 2 % independent noise, error bars ±2 %), fitted on its
+    own 30 mm mesh (no discretization error) at its own points, for 8 noise seeds: the truth of a
+    third size (100 x 300 mm) against the prediction's band from the parameters. If the band is
+    right, z = (prediction − truth)/sd is standard normal at each point and the mean of z² over
+    the seeds (each seed's mean over its points, one χ²₁-like draw at most) lies within the 0.1 %
+    and 99.9 % quantiles of χ²₈/8 (0.107, 3.27); 16 seeds measured 1.06, 92 % of the points
+    within ±2 sd. The model error the fit estimates is nil (the two sizes agree within their noise)."""
+    spec = {"specimen.width_mm": 100.0, "specimen.length_mm": 300.0}
+    u = np.linspace(10.0, 65.0, 6)
+    truth = force_path(synthetic_scene(**spec, **{"loading.u0_mm": 65.0}), u).force_N
+    z2 = []
+    for seed in range(1, 9):
+        folder = tmp_path / f"seed{seed}"
+        folder.mkdir()
+        curves = [read_measured(p) for p in write_synthetic(folder, seed=seed)]
+        res = joint.fit_curves(curves, synthetic_scene(), choose_discretization=False, resample=False, workers=1)
+        pred = joint.predict_specimen(res, spec, u)
+        z2.append(np.mean(((pred.force_N - truth) / pred.sd_param_N) ** 2))
+        assert np.all(pred.sd_model_N == 0.0), pred.band
+    assert 0.107 <= np.mean(z2) <= 3.27, z2
 
 
 @pytest.mark.integration

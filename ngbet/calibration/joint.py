@@ -629,7 +629,12 @@ def model_error(result: JointFit, test: str) -> tuple[float, str]:
     def excess(sigma: float) -> float:
         return float(np.sum(e**2 / (sd**2 + (sigma * F) ** 2))) - dof
 
-    sigma = 0.0 if excess(0.0) <= 0 else float(brentq(excess, 0.0, 10.0 * float(np.max(np.abs(e) / F)) + 1.0))
+    if excess(0.0) <= 0:
+        return 0.0, (
+            f"parameters, discretization and the model error between {what}, which their fit puts at 0: "
+            f"the fitted {what} agree within their noise"
+        )
+    sigma = float(brentq(excess, 0.0, 10.0 * float(np.max(np.abs(e) / F)) + 1.0))
     return sigma, (
         f"parameters, discretization and the model error between {what} (the fitted {what}' misfit beyond their noise: "
         f"{100 * sigma:.1f} % of the force)"
