@@ -429,7 +429,7 @@ def test_the_band_of_a_prediction_covers_the_truth_at_its_claimed_rate(tmp_path)
 def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint, tmp_path, capsys):
     """`ngbet fit A.csv B.csv --scene S` without --params (the scene names them) writes fit.json
     with each curve's RMS, fit.png and a fitted scene that `ngbet run` takes on another specimen
-    with only the specimen and the load changed."""
+    with only the specimen and the load changed; a --predict file says what its band holds."""
     _, paths, res = synthetic_joint
     scene = tmp_path / "syn.toml"
     scene.write_text(synthetic_scene().to_toml())
@@ -456,6 +456,15 @@ def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint,
     assert [c["specimen"]["specimen.length_mm"] for c in doc["curves"]] == [300.0, 450.0]
     assert set(doc["parameters"]) == set(SYN_TRUTH) and doc["model_runs"] <= 4
     assert (out / "fit.png").stat().st_size > 10_000 and (out / f"predict_{paths[0].stem}.json").exists()
+    # the prediction says what its band holds, as fit.json does for its test, and counts a measured
+    # point inside by the band and the point's own scatter
+    pj = json.loads((out / f"predict_{paths[0].stem}.json").read_text())
+    assert pj["band"] == doc["prediction_band"]["bias_extension"]["holds"]
+    assert doc["prediction_band"]["picture_frame"]["model_error_relative"] == 0.0
+    assert "both tests" in doc["prediction_band"]["picture_frame"]["holds"]
+    sd2 = sum(np.array(pj[k]) ** 2 for k in ("sd_parameters_N", "sd_discretization_N", "sd_model_error_N"))
+    miss = np.abs(np.array(pj["force_N"]) - np.array(pj["measured_N"]))
+    assert pj["within_2sd"] == np.mean(miss <= 2 * np.sqrt(sd2 + np.array(pj["sd_measured_N"]) ** 2))
     run = tmp_path / "run"
     assert (
         main(
