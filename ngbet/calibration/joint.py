@@ -600,8 +600,8 @@ def model_error(result: JointFit, test: str) -> tuple[float, str]:
     Where the fit used curves of two or more specimens (sizes, frames) of ``test``, one parameter
     set had to fit them all: their misfit beyond their noise is the model error between specimens,
     σ_m the root of Σ e_i²/(sd_i² + σ_m² F_i²) = m − n over their m force points (e_i the residual,
-    sd_i the point's standard deviation, F_i the model's force, n the fitted parameters; 0 where
-    the misfit is within the noise). Otherwise the data cannot estimate it, σ_m = 0, and the words
+    sd_i the point's standard deviation, F_i ≠ 0 the model's force, n the fitted parameters; 0
+    where the misfit is within the noise). Otherwise the data cannot estimate it, σ_m = 0, and the words
     say so and name the data that would: a fit of one specimen is fitted to its own curve only, and
     a fit of another test says nothing of the error between the tests.
     """
@@ -624,6 +624,7 @@ def model_error(result: JointFit, test: str) -> tuple[float, str]:
     e = np.concatenate([c.model_N - c.measured_N for c in mine])
     sd = np.concatenate([c.sd_N for c in mine])
     F = np.abs(np.concatenate([c.model_N for c in mine]))
+    e, sd, F = e[F > 0], sd[F > 0], F[F > 0]  # a relative error needs a force
     dof = max(len(e) - len(result.names), 1)
 
     def excess(sigma: float) -> float:
