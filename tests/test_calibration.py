@@ -11,7 +11,7 @@ import ngsolve as ngs
 import numpy as np
 import pytest
 
-from ngbet.calibration import fit_params, joint
+from ngbet.calibration import bands, fit_params, joint
 from ngbet.calibration.data import read_any, read_measured
 from ngbet.calibration.table import shear_stress_points, start_table
 from ngbet.cli import main
@@ -377,16 +377,16 @@ def test_model_error_is_the_misfit_between_specimens_beyond_their_noise():
     residuals within the noise (b = 0.9 a: Σe²/sd² = 16.2 < m − n = 18) give σ = 0; one size, or a
     fit of the other test only, give σ = 0 and words that name the data that would estimate it."""
     sizes = [("bias_extension", "100 x 250 mm", 0.02, 0.05), ("bias_extension", "100 x 200 mm", 0.02, 0.05)]
-    sigma, words = joint.model_error(_misfit_fit(sizes, 2), "bias_extension")
+    sigma, words = bands.model_error(_misfit_fit(sizes, 2), "bias_extension")
     assert sigma == pytest.approx(math.sqrt(20 * 0.05**2 / 18 - 0.02**2), rel=1e-9)
     assert "model error between specimen sizes" in words and "4.9 %" in words
     within = [(t, lab, 0.02, 0.018) for t, lab, _, _ in sizes]
-    sigma, words = joint.model_error(_misfit_fit(within, 2), "bias_extension")
+    sigma, words = bands.model_error(_misfit_fit(within, 2), "bias_extension")
     assert sigma == 0.0 and "agree within their noise" in words
     one = [("bias_extension", "100 x 250 mm", 0.02, 0.05)] * 2  # two curves of one size
-    sigma, words = joint.model_error(_misfit_fit(one, 2), "bias_extension")
+    sigma, words = bands.model_error(_misfit_fit(one, 2), "bias_extension")
     assert sigma == 0.0 and "one specimen size" in words and "two or more specimen sizes" in words
-    sigma, words = joint.model_error(_misfit_fit(sizes, 2), "picture_frame")
+    sigma, words = bands.model_error(_misfit_fit(sizes, 2), "picture_frame")
     assert sigma == 0.0 and "no model error between the tests" in words and "both tests" in words
 
 

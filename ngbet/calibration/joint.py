@@ -27,7 +27,7 @@ A prediction of another specimen is the fitted scene run there, with the standar
 discretization error of that run (where the estimate cannot vouch, the change of the force when
 the displacement order rises by one), and σ_m the model error between specimens that the fitted
 curves estimate where they are two or more specimens of the predicted test (else 0, and the
-prediction says so: :func:`model_error`).
+prediction says so: :func:`~ngbet.calibration.bands.model_error`).
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ import numpy as np
 
 from ..scene.document import Scene
 from ..scene.validate import SceneError
+from .bands import model_error
 from .data import RANGE, MeasuredCurve
 from .fit_params import (
     COARSE_LEVEL,
@@ -78,7 +79,6 @@ __all__ = [
     "Progress",
     "fit_curves",
     "held_parameters",
-    "model_error",
     "predict_specimen",
     "terminal_progress",
 ]
@@ -575,7 +575,8 @@ class CurvePrediction:
 
     ``sd_param_N`` from the parameters (fitted and held), ``sd_disc_N`` from the discretization,
     ``sd_model_N`` the model error the fit's curves estimate for this specimen (zero where they
-    cannot: :func:`model_error`); ``band`` says in words what the band holds and what it leaves out.
+    cannot: :func:`~ngbet.calibration.bands.model_error`); ``band`` says in words what the band
+    holds and what it leaves out.
     """
 
     u_mm: np.ndarray
@@ -593,55 +594,6 @@ class CurvePrediction:
         return cast(np.ndarray, np.sqrt(self.sd_param_N**2 + self.sd_disc_N**2 + model**2))
 
 
-def model_error(result: JointFit, test: str) -> tuple[float, str]:
-    """The relative model error of a prediction of another specimen in ``test``, and what the band holds.
-
-    Returns (σ_m, words): σ_m the standard deviation of the model's error relative to the force.
-    Where the fit used curves of two or more specimens (sizes, frames) of ``test``, one parameter
-    set had to fit them all: their misfit beyond their noise is the model error between specimens,
-    σ_m the root of Σ e_i²/(sd_i² + σ_m² F_i²) = m − n over their m force points (e_i the residual,
-    sd_i the point's standard deviation, F_i ≠ 0 the model's force, n the fitted parameters; 0
-    where the misfit is within the noise). Otherwise the data cannot estimate it, σ_m = 0, and the words
-    say so and name the data that would: a fit of one specimen is fitted to its own curve only, and
-    a fit of another test says nothing of the error between the tests.
-    """
-    from scipy.optimize import brentq
-
-    mine = [c for c in result.curves if c.curve.test == test]
-    what = "specimen sizes" if test == "bias_extension" else "frames"
-    base = "parameters and discretization"
-    if not mine:
-        other = " and ".join(sorted({c.curve.test.replace("_", " ") for c in result.curves}))
-        return 0.0, (
-            f"{base} only: the fit used no {test.replace('_', ' ')} curve ({other} only), so no model error "
-            f"between the tests; a fit of both tests would estimate it"
-        )
-    if len({c.label for c in mine}) < 2:
-        return 0.0, (
-            f"{base} only: the fit used one {what[:-1]}, so no model error between {what}; "
-            f"a fit of two or more {what} would estimate it"
-        )
-    e = np.concatenate([c.model_N - c.measured_N for c in mine])
-    sd = np.concatenate([c.sd_N for c in mine])
-    F = np.abs(np.concatenate([c.model_N for c in mine]))
-    e, sd, F = e[F > 0], sd[F > 0], F[F > 0]  # a relative error needs a force
-    dof = max(len(e) - len(result.names), 1)
-
-    def excess(sigma: float) -> float:
-        return float(np.sum(e**2 / (sd**2 + (sigma * F) ** 2))) - dof
-
-    if excess(0.0) <= 0:
-        return 0.0, (
-            f"parameters, discretization and the model error between {what}, which their fit puts at 0: "
-            f"the fitted {what} agree within their noise"
-        )
-    sigma = float(brentq(excess, 0.0, 10.0 * float(np.max(np.abs(e) / F)) + 1.0))
-    return sigma, (
-        f"parameters, discretization and the model error between {what} (the fitted {what}' misfit beyond their noise: "
-        f"{100 * sigma:.1f} % of the force)"
-    )
-
-
 def predict_specimen(
     result: JointFit, specimen: dict[str, Any], u_mm: np.ndarray, fixed_var_log: dict[str, float] | None = None
 ) -> CurvePrediction:
@@ -649,7 +601,7 @@ def predict_specimen(
 
     The band's standard deviation is √(g Σ gᵀ + Σ_k g_k² var_k + δ² + (σ_m F)²): parameters,
     discretization, and the model error σ_m that the fit's curves estimate for this test
-    (:func:`model_error`; its words are the prediction's ``band``).
+    (:func:`~ngbet.calibration.bands.model_error`; its words are the prediction's ``band``).
 
     ``fixed_var_log``: parameters held fixed in the fit whose value is uncertain, with the
     variance of their ln p (independent of the fitted ones); they widen the band by g_k² var_k.

@@ -9,9 +9,10 @@ from typing import Any
 
 import numpy as np
 
+from .bands import model_error
 from .data import MeasuredCurve
 from .fit_params import TABLE_KEY, CurveFit, JointFit, band
-from .joint import CurvePrediction, model_error
+from .joint import CurvePrediction
 
 __all__ = [
     "FRAME_X_LABEL",
@@ -63,7 +64,7 @@ def prediction_band(result: JointFit) -> dict[str, dict[str, Any]]:
     """Per test: what the band of a prediction of another specimen holds, and its relative model error.
 
     fit.json's ``prediction_band``: {test: {"model_error_relative": σ_m, "holds": words}}
-    (:func:`ngbet.calibration.joint.model_error`).
+    (:func:`ngbet.calibration.bands.model_error`).
     """
     out = {}
     for test in ("bias_extension", "picture_frame"):
