@@ -1,6 +1,6 @@
 """What the band of a prediction holds beyond the parameters and the discretization: the model error.
 
-A fitted model misses a specimen it has not seen by more than its parameters' uncertainty: by
+A fitted model can miss a specimen it has not seen by more than its parameters' uncertainty: by
 the model's own error between specimens. Only a fit of two or more specimens of a test shows it
 (one parameter set had to fit them all); :func:`model_error` estimates it there from the fitted
 curves' misfit beyond their noise, and elsewhere says that the band leaves it out and which data
