@@ -253,7 +253,8 @@ def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Pat
 
     ``start``: the scene the fit starts from (None: the fabric's scene file). The record holds the
     fit (fit.json's content), the fitted scene and per target the scored points, the predicted
-    force and its standard deviation from the parameters and from the discretization.
+    force and its standard deviation from the parameters, from the discretization and from the model error
+    the fit's curves estimate (:func:`ngbet.calibration.bands.model_error`), and in words what the band holds.
     """
     from ngbet.calibration.fit_params import test_changes
     from ngbet.calibration.joint import fit_curves, predict_specimen
@@ -280,6 +281,8 @@ def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Pat
                 "force_N": _finite(p.force_N),
                 "sd_parameters_N": _finite(p.sd_param_N),
                 "sd_discretization_N": _finite(p.sd_disc_N),
+                "sd_model_error_N": _finite(p.sd_model_N),
+                "band": p.band,
             }
         return {
             "fabric": spec.fabric,

@@ -5,12 +5,13 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import ngsolve as ngs
 import numpy as np
 import pytest
 
-from ngbet.calibration import fit_params, joint
+from ngbet.calibration import bands, fit_params, joint
 from ngbet.calibration.table import shear_stress_points, start_table
 from ngbet.cli import main
 from ngbet.continuum import physics
@@ -354,11 +355,81 @@ def test_prediction_of_a_third_size_lies_in_its_band(synthetic_joint):
     assert np.all(np.abs(start - truth) > 2 * pred.sd_param_N)
 
 
+def _misfit_fit(curves: list[tuple[str, str, float, float]], n: int, m: int = 10) -> SimpleNamespace:
+    """A fit's record as :func:`joint.model_error` reads it: per curve (test, label, a, b) m points
+    of force F, standard deviation a F and residual ±b F (alternating), and n fitted parameters."""
+    F = np.linspace(1.0, 20.0, m)
+    sign = np.where(np.arange(m) % 2, 1.0, -1.0)
+    return SimpleNamespace(
+        names=[f"p{k}" for k in range(n)],
+        curves=[
+            SimpleNamespace(
+                curve=SimpleNamespace(test=t), label=lab, model_N=F, measured_N=F - sign * b * F, sd_N=a * F
+            )
+            for t, lab, a, b in curves
+        ],
+    )
+
+
+def test_model_error_is_the_misfit_between_specimens_beyond_their_noise():
+    """Two sizes, 20 points with residuals ±b F and standard deviations a F, 2 parameters:
+    Σ e²/(sd² + σ²F²) = m − n gives σ² = m b²/(m − n) − a² exactly (a = 2 %, b = 5 %: σ = 4.876 %);
+    residuals within the noise (b = 0.9 a: Σe²/sd² = 16.2 < m − n = 18) give σ = 0; one size, or a
+    fit of the other test only, give σ = 0 and words that name the data that would estimate it."""
+    sizes = [("bias_extension", "100 x 250 mm", 0.02, 0.05), ("bias_extension", "100 x 200 mm", 0.02, 0.05)]
+    sigma, words = bands.model_error(_misfit_fit(sizes, 2), "bias_extension")
+    assert sigma == pytest.approx(math.sqrt(20 * 0.05**2 / 18 - 0.02**2), rel=1e-9)
+    assert "model error between specimen sizes" in words and "4.9 %" in words
+    within = [(t, lab, 0.02, 0.018) for t, lab, _, _ in sizes]
+    sigma, words = bands.model_error(_misfit_fit(within, 2), "bias_extension")
+    assert sigma == 0.0 and "agree within their noise" in words
+    one = [("bias_extension", "100 x 250 mm", 0.02, 0.05)] * 2  # two curves of one size
+    sigma, words = bands.model_error(_misfit_fit(one, 2), "bias_extension")
+    assert sigma == 0.0 and "one specimen size" in words and "two or more specimen sizes" in words
+    sigma, words = bands.model_error(_misfit_fit(sizes, 2), "picture_frame")
+    assert sigma == 0.0 and "no model error between the tests" in words and "both tests" in words
+
+
+def test_a_measured_point_is_inside_by_the_band_and_its_own_scatter():
+    """Band sd 3 and the point's own sd 4 add as √(3² + 4²) = 5: a point 9.99 off is inside ±2 sd,
+    10.01 off is not (neither would be by the band alone)."""
+    from ngbet.calibration.report import within_band
+
+    pred, sd = np.full(2, 10.0), np.full(2, 3.0)
+    meas = np.array([19.99, 20.01])
+    assert within_band(pred, sd, meas, np.full(2, 4.0)) == 0.5
+    assert within_band(pred, sd, meas, np.zeros(2)) == 0.0
+
+
+@pytest.mark.integration
+def test_the_band_of_a_prediction_covers_the_truth_at_its_claimed_rate(tmp_path):
+    """Data made by the model (two sizes, 2 % independent noise, error bars ±2 %), fitted on its
+    own 30 mm mesh (no discretization error) at its own points, for 8 noise seeds: the truth of a
+    third size (100 x 300 mm) against the prediction's band from the parameters. If the band is
+    right, z = (prediction − truth)/sd is standard normal at each point and the mean of z² over
+    the seeds (each seed's mean over its points, one χ²₁-like draw at most) lies within the 0.1 %
+    and 99.9 % quantiles of χ²₈/8 (0.107, 3.27); 16 seeds measured 1.06, 92 % of the points
+    within ±2 sd. The model error the fit estimates is nil (the two sizes agree within their noise)."""
+    spec = {"specimen.width_mm": 100.0, "specimen.length_mm": 300.0}
+    u = np.linspace(10.0, 65.0, 6)
+    truth = force_path(synthetic_scene(**spec, **{"loading.u0_mm": 65.0}), u).force_N
+    z2 = []
+    for seed in range(1, 9):
+        folder = tmp_path / f"seed{seed}"
+        folder.mkdir()
+        curves = [read_measured(p) for p in write_synthetic(folder, seed=seed)]
+        res = joint.fit_curves(curves, synthetic_scene(), choose_discretization=False, resample=False, workers=1)
+        pred = joint.predict_specimen(res, spec, u)
+        z2.append(np.mean(((pred.force_N - truth) / pred.sd_param_N) ** 2))
+        assert np.all(pred.sd_model_N == 0.0), pred.band
+    assert 0.107 <= np.mean(z2) <= 3.27, z2
+
+
 @pytest.mark.integration
 def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint, tmp_path, capsys):
     """`ngbet fit A.csv B.csv --scene S` without --params (the scene names them) writes fit.json
     with each curve's RMS, fit.png and a fitted scene that `ngbet run` takes on another specimen
-    with only the specimen and the load changed."""
+    with only the specimen and the load changed; a --predict file says what its band holds."""
     _, paths, res = synthetic_joint
     scene = tmp_path / "syn.toml"
     scene.write_text(synthetic_scene().to_toml())
@@ -385,6 +456,15 @@ def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint,
     assert [c["specimen"]["specimen.length_mm"] for c in doc["curves"]] == [300.0, 450.0]
     assert set(doc["parameters"]) == set(SYN_TRUTH) and doc["model_runs"] <= 4
     assert (out / "fit.png").stat().st_size > 10_000 and (out / f"predict_{paths[0].stem}.json").exists()
+    # the prediction says what its band holds, as fit.json does for its test, and counts a measured
+    # point inside by the band and the point's own scatter
+    pj = json.loads((out / f"predict_{paths[0].stem}.json").read_text())
+    assert pj["band"] == doc["prediction_band"]["bias_extension"]["holds"]
+    assert doc["prediction_band"]["picture_frame"]["model_error_relative"] == 0.0
+    assert "both tests" in doc["prediction_band"]["picture_frame"]["holds"]
+    sd2 = sum(np.array(pj[k]) ** 2 for k in ("sd_parameters_N", "sd_discretization_N", "sd_model_error_N"))
+    miss = np.abs(np.array(pj["force_N"]) - np.array(pj["measured_N"]))
+    assert pj["within_2sd"] == np.mean(miss <= 2 * np.sqrt(sd2 + np.array(pj["sd_measured_N"]) ** 2))
     run = tmp_path / "run"
     assert (
         main(

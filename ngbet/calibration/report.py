@@ -10,17 +10,21 @@ from typing import Any
 import numpy as np
 
 from ..measured.curves import MeasuredCurve
+from .bands import model_error
 from .fit_params import TABLE_KEY, CurveFit, JointFit, band
 from .joint import CurvePrediction
 
 __all__ = [
     "FRAME_X_LABEL",
     "QUANTITY_LABEL",
+    "band_label",
     "plot_fit",
     "plot_table",
+    "prediction_band",
     "prediction_json",
     "table_band",
     "write_fit",
+    "within_band",
     "write_prediction",
 ]
 
@@ -37,6 +41,7 @@ def write_fit(result: JointFit, out: str | Path) -> list[Path]:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     doc = result.to_json()
+    doc["prediction_band"] = prediction_band(result)
     rms = ", ".join(f"{c.label} {100 * c.rms_relative:.1f} %" for c in result.curves)
     header = (
         f"# ngbet fit of {', '.join(result.params)} to {len(result.curves)} curve(s): "
@@ -53,6 +58,19 @@ def write_fit(result: JointFit, out: str | Path) -> list[Path]:
     if result.scene.effects.shear_law == "table":
         paths.append(plot_table(result, out / "shear_table.png"))
     return paths
+
+
+def prediction_band(result: JointFit) -> dict[str, dict[str, Any]]:
+    """Per test: what the band of a prediction of another specimen holds, and its relative model error.
+
+    fit.json's ``prediction_band``: {test: {"model_error_relative": σ_m, "holds": words}}
+    (:func:`ngbet.calibration.bands.model_error`).
+    """
+    out = {}
+    for test in ("bias_extension", "picture_frame"):
+        sigma, words = model_error(result, test)
+        out[test] = {"model_error_relative": sigma, "holds": words}
+    return out
 
 
 def plot_table(result: JointFit, path: Path) -> Path:
@@ -222,30 +240,62 @@ def plot_fit(result: JointFit, path: Path) -> Path:  # noqa: C901 - one panel af
     return path
 
 
+def band_label(pred: CurvePrediction) -> str:
+    """The legend of a prediction's ±2 sd band: what it holds, in a few words."""
+    if pred.sd_model_N.size and np.any(pred.sd_model_N > 0):
+        return "±2 sd: parameters, discretization, model error between specimens"
+    return "±2 sd: parameters and discretization only (no model error)"
+
+
+def within_band(pred_N: np.ndarray, sd_N: np.ndarray, measured: np.ndarray, sd_measured: np.ndarray) -> float:
+    """The fraction of measured points within ±2 sd of the prediction, the measurement's own sd included.
+
+    A measured point deviates from the force the model predicts by the model's uncertainty and by
+    its own scatter (half its error bar, floored: :meth:`MeasuredCurve.sd`), independent of each
+    other: the point is inside where |F − F_meas| ≤ 2 √(sd² + sd_meas²).
+    """
+    return float(np.mean(np.abs(pred_N - measured) <= 2 * np.sqrt(sd_N**2 + sd_measured**2)))
+
+
 def prediction_json(pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray) -> dict[str, Any]:
-    """The content of predict_NAME.json."""
+    """The content of predict_NAME.json.
+
+    ``band``: what the band holds; ``within_2sd``: the fraction of measured points within ±2 sd of
+    the prediction and of the measured point's own scatter (:func:`within_band`).
+    """
     rel = (pred.force_N - measured) / measured
+    sd_meas = curve.sd(pred.u_mm, measured)
     return {
         "data": curve.source,
         "specimen": curve.specimen,
         "points": len(pred.u_mm),
         "rms_relative_error": float(np.sqrt(np.mean(rel**2))),
-        "within_2sd": float(np.mean(np.abs(pred.force_N - measured) <= 2 * pred.sd_N)),
+        "band": pred.band,
+        "within_2sd": within_band(pred.force_N, pred.sd_N, measured, sd_meas),
         "u_mm": pred.u_mm.tolist(),
         "measured_N": measured.tolist(),
+        "sd_measured_N": sd_meas.tolist(),
         "force_N": pred.force_N.tolist(),
         "sd_parameters_N": pred.sd_param_N.tolist(),
         "sd_discretization_N": pred.sd_disc_N.tolist(),
+        "sd_model_error_N": (pred.sd_model_N if pred.sd_model_N.size else np.zeros_like(pred.force_N)).tolist(),
     }
 
 
 def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray, out: Path) -> Path:
-    """predict_NAME.json and predict_NAME.png in ``out``; returns the PNG."""
+    """predict_NAME.json and predict_NAME.png in ``out``; returns the PNG.
+
+    The figure: the measured curve with its points' ±2 sd (their own scatter), the prediction with
+    its ±2 sd band, and under the axes what the band holds.
+    """
     stem = Path(curve.source).stem
-    _atomic(out / f"predict_{stem}.json", json.dumps(prediction_json(pred, curve, measured), indent=2))
+    doc = prediction_json(pred, curve, measured)
+    _atomic(out / f"predict_{stem}.json", json.dumps(doc, indent=2))
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6.4, 4.2))
+    from ..figures.style import put_caption
+
+    fig = Figure(figsize=(6.4, 4.6))
     ax = fig.subplots()
     ok = curve.u_mm >= 0
     ax.plot(
@@ -255,16 +305,22 @@ def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.n
         lw=1.0,
         label=f"measured, {curve.label}",
     )
+    xm, Fm = curve.in_file_units(pred.u_mm, measured)
+    sm = curve.in_file_units(pred.u_mm, np.asarray(doc["sd_measured_N"]))[1]
+    ax.errorbar(xm, Fm, yerr=2 * sm, fmt="o", ms=2.5, color="k", lw=0.8, label="measured points ±2 sd (scatter)")
     x, F = curve.in_file_units(pred.u_mm, pred.force_N)  # a frame in its file's quantities (linear in the force)
     sd = curve.in_file_units(pred.u_mm, pred.sd_N)[1]
-    ax.fill_between(
-        x, F - 2 * sd, F + 2 * sd, color="tab:orange", alpha=0.3, lw=0, label="±2 sd (parameters and discretization)"
-    )
+    ax.fill_between(x, F - 2 * sd, F + 2 * sd, color="tab:orange", alpha=0.3, lw=0, label=band_label(pred))
     ax.plot(x, F, "-", color="tab:orange", label="ngbet prediction")
     frame = curve.test == "picture_frame"
     ax.set_xlabel(FRAME_X_LABEL if frame else "clamp displacement [mm]")
     ax.set_ylabel(QUANTITY_LABEL[curve.quantity])
     ax.legend(fontsize=8, loc="upper left")
+    put_caption(
+        fig,
+        f"Band: {pred.band}. Within the band and the measured scatter: {100 * doc['within_2sd']:.0f} % of "
+        f"{doc['points']} points; RMS relative error {100 * doc['rms_relative_error']:.1f} %.",
+    )
     fig.tight_layout()
     png = out / f"predict_{stem}.png"
     fig.savefig(png, dpi=110)
