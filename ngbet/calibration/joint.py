@@ -67,7 +67,7 @@ from .fit_params import (
     with_values,
 )
 from .observations import Profile, ShearAngles
-from .runs import CurveModel, Run, default_workers, first_levels
+from .runs import CurveModel, Run, default_workers, first_levels, probe_points, relative_error
 
 __all__ = [
     "ELONGATION_KEY",
@@ -84,11 +84,11 @@ log = logging.getLogger(__name__)
 
 
 class _Stalled(Exception):
-    """A search on the checked rungs whose cost stopped falling by what matters; ``theta``: where to stop."""
+    """A search on the checked rungs that has done what matters; ``theta``: where to stop, ``why``: the message."""
 
-    def __init__(self, theta: np.ndarray) -> None:
-        super().__init__("stalled")
-        self.theta = theta
+    def __init__(self, theta: np.ndarray, why: str) -> None:
+        super().__init__(why)
+        self.theta, self.why = theta, why
 
 
 Progress = Callable[[int, list[float], float], None]
@@ -275,10 +275,23 @@ def fit_curves(  # noqa: C901
                 s2 = max(cost / max(len(e) - len(theta), 1), 1.0)
                 if cost < watch["ref"] - STEP_SE**2 * s2:
                     watch.update(ref=cost, at=np.array(theta, float), since=0)
+                    # the run gave the Jacobian too: at a point from which the Gauss-Newton step moves
+                    # the parameters by less than STEP_SE standard errors the search has done its work
+                    step = step_from(theta, e, jac(theta))
+                    if step <= STEP_SE:
+                        raise _Stalled(
+                            watch["at"],
+                            f"the Gauss-Newton step within the bounds moves the parameters by {step:.2g} "
+                            f"standard errors (< {STEP_SE}) on the checked rungs",
+                        )
                 else:
                     watch["since"] += 1
                 if watch["since"] >= STALL_RUNS:
-                    raise _Stalled(watch["at"])
+                    raise _Stalled(
+                        watch["at"],
+                        f"the cost fell by less than {STEP_SE}² s² over the last {STALL_RUNS} model runs "
+                        f"(parameters moving by less than {STEP_SE} standard errors)",
+                    )
             if progress is not None and not quiet[0]:
                 progress(
                     model.runs,
@@ -303,9 +316,10 @@ def fit_curves(  # noqa: C901
         def search(theta: np.ndarray, runs: int, tol: float, stall: bool = False) -> Any:
             """The least-squares search from θ (at most ``runs`` model runs, tolerance ``tol``).
 
-            ``stall``: it also ends after :data:`STALL_RUNS` runs without a fall of the cost by
-            STEP_SE² s² (parameters moving by less than STEP_SE standard errors), at the last point
-            that made such a fall.
+            ``stall``: it also ends at a point that lowered the cost by STEP_SE² s² or more and from
+            which the Gauss-Newton step moves the parameters by less than :data:`STEP_SE` standard
+            errors, or after :data:`STALL_RUNS` runs without such a fall of the cost, at the last
+            point that made one.
             """
             watch.clear()
             if stall:
@@ -324,13 +338,7 @@ def fit_curves(  # noqa: C901
                     gtol=1e-8,
                 )
             except _Stalled as stop:
-                return OptimizeResult(
-                    x=stop.theta,
-                    success=True,
-                    status=2,
-                    message=f"the cost fell by less than {STEP_SE}² s² over the last {STALL_RUNS} model runs "
-                    f"(parameters moving by less than {STEP_SE} standard errors)",
-                )
+                return OptimizeResult(x=stop.theta, success=True, status=2, message=stop.why)
             finally:
                 watch.clear()
 
@@ -340,7 +348,10 @@ def fit_curves(  # noqa: C901
             The cost it would remove, over the covariance's s²: a step that moves the parameters by
             a small fraction of their uncertainty is not worth a search (its runs are the costly ones).
             """
-            e, J = resid(theta), jac(theta)
+            return step_from(theta, resid(theta), jac(theta))
+
+        def step_from(theta: np.ndarray, e: np.ndarray, J: np.ndarray) -> float:
+            """:func:`gauss_newton_step` from the residuals ``e`` and Jacobian ``J`` at θ."""
             if not np.all(np.isfinite(J)):
                 return math.inf
             m, n = J.shape
@@ -387,8 +398,9 @@ def fit_curves(  # noqa: C901
             stage(*m0, rungs=checked_levels, checked=True, probe=True)
         for cf, level in zip(cfs, checked_levels, strict=True):
             cf.level = level
-        # on the checked rungs: the estimate where the search stands; a rung that misses the target is
-        # left at once (one rung up), a search runs only where its step would move a parameter
+        # on the checked rungs: the estimate where the search stands (a probe before a search, every
+        # fitted point after it and where the fit ends); a rung that misses the target is left at once
+        # (one rung up), a search runs only where its step would move a parameter
         searched = not choose_discretization  # the scene's own discretization: no probe, search first
         if searched:
             m0 = mark()
@@ -397,7 +409,12 @@ def fit_curves(  # noqa: C901
         else:
             m0 = mark()
         while True:
-            checked = model(th, check=True)
+            full = searched
+            checked = model(th, check=True, probe=not full)
+            rel = [
+                relative_error(r, None if full else probe_points(len(cf.u_mm)))
+                for cf, r in zip(cfs, checked, strict=True)
+            ]
             for cf, r in zip(cfs, checked, strict=True):
                 cf.force_error_N = r.err
                 cf.model_N = r.F
@@ -406,41 +423,43 @@ def fit_curves(  # noqa: C901
                 *m0,
                 rungs=[cf.level for cf in cfs],
                 checked=True,
-                force_error_rel_max=[None if math.isnan(cf.error_rel_max) else cf.error_rel_max for cf in cfs],
+                probe=not full,
+                force_error_rel_max=[x if math.isfinite(x) else None for x in rel],
                 step_se=step,
             )
             m0 = mark()
             up = [
                 cf
-                for cf in cfs
-                if not cf.error_rel_max <= target_error and cf.level is not None and cf.level < len(FIT_LADDER) - 1
+                for cf, x in zip(cfs, rel, strict=True)
+                if not x <= target_error and cf.level is not None and cf.level < len(FIT_LADDER) - 1
             ]
-            if model.runs >= max_runs:
+            if model.runs >= max_runs and full:
                 break
-            if up:
-                for cf in up:
-                    log.info(
-                        "%s: estimated discretization error %.3g above %.3g: one rung up",
-                        cf.label,
-                        cf.error_rel_max,
-                        target_error,
-                    )
-                    cf.level = (cf.level or 0) + 1
+            if up and model.runs < max_runs:
+                for cf, x in zip(cfs, rel, strict=True):
+                    if cf in up:
+                        log.info(
+                            "%s: estimated discretization error %.3g above %.3g: one rung up", cf.label, x, target_error
+                        )
+                        cf.level = (cf.level or 0) + 1
                 searched = False
                 continue
-            if searched:
+            if full:
                 break
-            if step <= STEP_SE:
+            if step <= STEP_SE or model.runs >= max_runs:
+                # the probe's θ is where the fit ends: its estimate at every fitted point next
                 sol = OptimizeResult(
                     x=th,
-                    success=True,
-                    status=1,
+                    success=step <= STEP_SE,
+                    status=1 if step <= STEP_SE else 0,
                     message=f"the Gauss-Newton step within the bounds moves the parameters by {step:.2g} "
-                    f"standard errors (< {STEP_SE}) on the checked rungs",
+                    f"standard errors (< {STEP_SE}) on the checked rungs"
+                    if step <= STEP_SE
+                    else "the model runs were spent before a search on the checked rungs",
                 )
-                break
-            sol = search(th, max(max_runs - model.runs, 1), FINE_TOL, stall=True)
-            th = sol.x
+            else:
+                sol = search(th, max(max_runs - model.runs, 1), FINE_TOL, stall=True)
+                th = sol.x
             searched = True
         if sol is None:  # --max-runs spent by the probe
             sol = OptimizeResult(x=th, success=False, status=0, message="the model runs were spent before a search")
