@@ -281,6 +281,32 @@ def test_fit_recovers_synthetic_parameters(synthetic_fit):
 
 
 @pytest.mark.integration
+def test_the_checked_search_ends_at_the_optimum_of_its_rungs(truth_curve):
+    """The Gauss-Newton steps on the checked rungs end where a trust-region search on the same
+    discretization, started there, lowers the cost by less than 0.01 s² (the stopping rule's
+    fall) and moves no parameter by more than 0.1 of its standard error (STEP_SE): the end is the
+    optimum of the fit's own model, not a point on the way to it."""
+    from ngbet.calibration.fit_params import FIT_LADDER, STEP_SE, with_values
+
+    curve = noisy(truth_curve, seed=1)
+    res = fit_curves([curve], start_scene(), list(TRUTH), fractions=[(0.0, 1.0)], resample=False)
+    level = res.curves[0].level
+    assert level is not None and res.converged and res.accuracy_met
+    assert res.stages[-1]["checked"] and not res.stages[-1]["probe"]  # the reported run: every point estimated
+    on = with_values(FIT_LADDER[level].apply(start_scene()), res.names, res.values)
+    again = fit_curves([curve], on, list(TRUTH), fractions=[(0.0, 1.0)], resample=False, choose_discretization=False)
+    s2 = max(res.residual_scale, 1.0) ** 2
+
+    def cost(r: JointFit) -> float:
+        c = r.curves[0]
+        return float(np.sum(((c.model_N - c.measured_N) / c.sd_N) ** 2))
+
+    assert cost(res) - cost(again) < STEP_SE**2 * s2, (cost(res), cost(again))
+    moved = np.abs(np.log(again.values / res.values)) / res.se_log
+    assert np.all(moved <= STEP_SE), moved
+
+
+@pytest.mark.integration
 def test_invisible_parameter_is_reported_undetermined(truth_curve):
     """alpha1 of a balanced fabric with a 3 mm internal length barely touches the clamp force
     (dF/d ln alpha1 ~ 1e-3 of dF/d ln K_sh): the fit must say so, and still determine K_sh."""

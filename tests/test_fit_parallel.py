@@ -92,6 +92,29 @@ def test_curves_in_workers_give_the_numbers_of_one_process():
     assert not children() - before
 
 
+def test_a_probe_estimates_at_its_points_only_and_a_full_check_serves_it(monkeypatch):
+    """A probe estimates the force error at its points only (nan at the others, which a rung choice
+    therefore cannot read as vouched for), with the numbers of the full check there (the same
+    estimator at the same states); a full check serves a later probe, a probe no full check."""
+    monkeypatch.setattr(runs, "PROBE_POINTS", 2)
+    m = model(1)
+    at = runs.probe_points(4)
+    assert at == (0, 3)
+    probe = m(THETA, check=True, probe=True)
+    full = m(THETA, check=True)
+    assert m.runs == 2
+    m(THETA, check=True, probe=True)
+    m(THETA)
+    assert m.runs == 2
+    for p, f in zip(probe, full, strict=True):
+        assert np.all(np.isfinite(p.err[list(at)])) and np.all(np.isnan(p.err[[1, 2]]))
+        np.testing.assert_allclose(p.err[list(at)], f.err[list(at)], rtol=1e-10)
+        np.testing.assert_allclose(p.F, f.F, rtol=1e-12)
+        assert runs.relative_error(p, at) == pytest.approx(np.max(f.err[list(at)] / f.F[list(at)]), rel=1e-10)
+        assert runs.relative_error(p) == np.inf  # not estimated everywhere: not vouched for
+        assert runs.relative_error(f) == pytest.approx(np.max(f.err / f.F), rel=1e-12)
+
+
 def test_a_worker_that_dies_is_reported_and_the_others_are_ended():
     """A worker killed during the fit (out of memory, a crash) stops the fit with an error naming its
     curve; no worker is left behind."""

@@ -190,20 +190,21 @@ FIT_LADDER = tuple(
 COARSE_LEVEL = 0
 #: the first rung whose estimated error is checked against the target
 FIRST_CHECKED = 1
-#: tolerance (xtol, ftol) of the search on the checked rungs: a relative change of the cost Σe² below
-#: 1e-4 changes it by far less than 1 (the change that moves a parameter by one standard error) on
-#: the costs of the shipped fits (50–250), and steps below 1e-4 of |ln p| move no parameter by a
-#: visible amount. Measured on the unbalanced twill's two sizes: with 1e-6 the fit stopped at its 40
-#: runs (31 on the checked rung) without converging; with 1e-4 it converged in 25 (13 on it) to the
-#: same values (K_el 3.86 MPa both, RMS 3.9 % and 5.1 % both)
+#: tolerance (xtol, ftol) of the trust-region search on the scene's own discretization (no rungs
+#: chosen): a relative change of the cost Σe² below 1e-4 changes it by far less than 1 (the change
+#: that moves a parameter by one standard error) on the costs of the shipped fits (50–250), and
+#: steps below 1e-4 of |ln p| move no parameter by a visible amount. Measured on the unbalanced
+#: twill's two sizes: with 1e-6 the fit stopped at its 40 runs (31 on the checked rung) without
+#: converging; with 1e-4 it converged in 25 (13 on it) to the same values (K_el 3.86 MPa both, RMS
+#: 3.9 % and 5.1 % both)
 FINE_TOL = 1e-4
-#: on the checked rungs no search runs where the Gauss-Newton step within the bounds would move the
-#: parameters by less than this many standard errors (Mahalanobis norm: the cost it removes is
-#: below STEP_SE² s²): the coarse optimum is then the optimum for every purpose of the fit
+#: on the checked rungs no search runs, or goes on, where the Gauss-Newton step within the bounds
+#: would move the parameters by less than this many standard errors (Mahalanobis norm: the cost it
+#: removes is below STEP_SE² s²), nor where a step lowered the cost by less than that: the point
+#: is then the optimum for every purpose of the fit
 STEP_SE = 0.1
-#: a search on the checked rungs ends after this many model runs without a fall of the cost by
-#: STEP_SE² s²: on the unbalanced twill's two sizes its cost stayed at 23.32 over ten runs of
-#: rejected and tiny trust-region steps on the costliest rungs
+#: the Gauss-Newton steps on the checked rungs end after this many model runs without a fall of the
+#: cost (the step halved each time)
 STALL_RUNS = 3
 #: default largest estimated discretization error of the force at a fitted point, relative to it
 TARGET_ERROR = 0.01

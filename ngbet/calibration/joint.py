@@ -70,7 +70,7 @@ from .fit_params import (
     with_values,
 )
 from .observations import Profile, ShearAngles
-from .runs import CurveModel, Run, default_workers, first_levels
+from .runs import CurveModel, Run, default_workers, first_levels, probe_points, relative_error
 
 __all__ = [
     "ELONGATION_KEY",
@@ -84,14 +84,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-
-class _Stalled(Exception):
-    """A search on the checked rungs whose cost stopped falling by what matters; ``theta``: where to stop."""
-
-    def __init__(self, theta: np.ndarray) -> None:
-        super().__init__("stalled")
-        self.theta = theta
 
 
 Progress = Callable[[int, list[float], float], None]
@@ -174,12 +166,15 @@ def fit_curves(  # noqa: C901
     curve's first rung meeting the target at the start values is probed, the search starts one
     rung below it (``coarse``, not below :data:`COARSE_LEVEL`), and where it ends the rungs are
     probed again from the start's up. On these checked rungs the discretization error of the force
-    is estimated at every fitted point (:class:`ngbet.continuum.estimate.ForceErrorEstimator`)
-    before and after each search; a curve whose largest estimate is above ``target_error`` of its
-    force (or cannot be vouched for) moves one rung up and the search continues from where it
-    stood, until every curve meets the target or ``max_runs`` are spent. A search on the checked
-    rungs runs only where its Gauss-Newton step would move the parameters by :data:`STEP_SE`
-    standard errors or more, and ends after :data:`STALL_RUNS` runs without such a fall of the cost.
+    is estimated (:class:`ngbet.continuum.estimate.ForceErrorEstimator`) before each search at
+    :data:`~ngbet.calibration.runs.PROBE_POINTS` of the fitted points, and after it, where the
+    fit ends, at every one; a curve whose largest estimate is above ``target_error`` of its force
+    (or cannot be vouched for) moves one rung up and the search continues from where it stood,
+    until every curve meets the target or ``max_runs`` are spent. The search on the checked rungs
+    is by Gauss-Newton steps (one model run each, halved until the cost falls); it runs only where
+    the step would move the parameters by :data:`STEP_SE` standard errors or more, and ends where
+    a step lowered the cost by less than STEP_SE² s² or :data:`STALL_RUNS` shortened steps did not
+    lower it.
     The result records each curve's rung and largest estimate (``accuracy_met`` says whether the
     target was met). ``choose_discretization=False``: every run on the scene's own discretization,
     its estimate recorded all the same.
@@ -256,7 +251,6 @@ def fit_curves(  # noqa: C901
     try:
         best = [math.inf]
         quiet = [False]
-        watch: dict[str, Any] = {}  # the stall test of a search on the checked rungs (empty: off)
 
         def blocks(res: list[Run]) -> np.ndarray:
             e = []
@@ -274,14 +268,6 @@ def fit_curves(  # noqa: C901
             e = np.where(np.isfinite(e), e, 1e3)
             cost = float(e @ e)
             best[0] = min(best[0], cost)
-            if watch:  # a search on the checked rungs: stop where the cost no longer falls by what matters
-                s2 = max(cost / max(len(e) - len(theta), 1), 1.0)
-                if cost < watch["ref"] - STEP_SE**2 * s2:
-                    watch.update(ref=cost, at=np.array(theta, float), since=0)
-                else:
-                    watch["since"] += 1
-                if watch["since"] >= STALL_RUNS:
-                    raise _Stalled(watch["at"])
             if progress is not None and not quiet[0]:
                 progress(
                     model.runs,
@@ -303,39 +289,20 @@ def fit_curves(  # noqa: C901
                     rows.append(r.GA / angle_sd_deg)
             return np.vstack(rows)
 
-        def search(theta: np.ndarray, runs: int, tol: float, stall: bool = False) -> Any:
-            """The least-squares search from θ (at most ``runs`` model runs, tolerance ``tol``).
-
-            ``stall``: it also ends after :data:`STALL_RUNS` runs without a fall of the cost by
-            STEP_SE² s² (parameters moving by less than STEP_SE standard errors), at the last point
-            that made such a fall.
-            """
-            watch.clear()
-            if stall:
-                watch.update(ref=math.inf, at=np.array(theta, float), since=0)
-            try:
-                return least_squares(
-                    resid,
-                    theta,
-                    jac=jac,
-                    bounds=(np.log(lo), np.log(hi)),
-                    method="trf",
-                    x_scale=1.0,
-                    max_nfev=max(runs, 1),
-                    xtol=tol,
-                    ftol=tol,
-                    gtol=1e-8,
-                )
-            except _Stalled as stop:
-                return OptimizeResult(
-                    x=stop.theta,
-                    success=True,
-                    status=2,
-                    message=f"the cost fell by less than {STEP_SE}² s² over the last {STALL_RUNS} model runs "
-                    f"(parameters moving by less than {STEP_SE} standard errors)",
-                )
-            finally:
-                watch.clear()
+        def search(theta: np.ndarray, runs: int, tol: float) -> Any:
+            """The least-squares search from θ (at most ``runs`` model runs, tolerance ``tol``)."""
+            return least_squares(
+                resid,
+                theta,
+                jac=jac,
+                bounds=(np.log(lo), np.log(hi)),
+                method="trf",
+                x_scale=1.0,
+                max_nfev=max(runs, 1),
+                xtol=tol,
+                ftol=tol,
+                gtol=1e-8,
+            )
 
         def gauss_newton_step(theta: np.ndarray) -> float:
             """The Gauss-Newton step from θ within the bounds, in standard errors (the Mahalanobis norm).
@@ -343,13 +310,92 @@ def fit_curves(  # noqa: C901
             The cost it would remove, over the covariance's s²: a step that moves the parameters by
             a small fraction of their uncertainty is not worth a search (its runs are the costly ones).
             """
-            e, J = resid(theta), jac(theta)
+            return step_from(theta, resid(theta), jac(theta))
+
+        def step_from(theta: np.ndarray, e: np.ndarray, J: np.ndarray) -> float:
+            """:func:`gauss_newton_step` from the residuals ``e`` and Jacobian ``J`` at θ."""
             if not np.all(np.isfinite(J)):
                 return math.inf
             m, n = J.shape
             d = lsq_linear(J, -e, bounds=(np.log(lo) - theta, np.log(hi) - theta)).x
             drop = float(e @ e) - float(np.sum((J @ d + e) ** 2))
             return math.sqrt(max(drop, 0.0) / max(float(e @ e) / max(m - n, 1), 1.0))
+
+        def gauss_newton(theta: np.ndarray, runs: int) -> Any:
+            """Gauss-Newton steps from θ on the checked rungs while they lower the cost by what matters.
+
+            Each step solves J d = −e in the least-squares sense with the flat directions (singular
+            values below :data:`FLAT_RCOND` of the largest) left out and the parameters at a bound
+            that the step would push outside held there; it is shortened to stay within the bounds
+            and halved (twice at most) until the cost falls. Each model run gives the residuals and
+            the Jacobian at once, so a step costs one run. The steps end where the step would move
+            the parameters by less than :data:`STEP_SE` standard errors, or where it lowered the
+            cost by less than STEP_SE² s², there; :data:`STALL_RUNS` runs without a fall (the step
+            halved each time) end them where they stand.
+            """
+            lo_t, hi_t = np.log(lo), np.log(hi)
+            e = resid(theta)
+            for _ in range(max(runs, 1)):
+                J = jac(theta)
+                step = step_from(theta, e, J)
+                cost = float(e @ e)
+                s2 = max(cost / max(len(e) - len(theta), 1), 1.0)
+                log.info("Gauss-Newton on the checked rungs: cost %.6g, step %.3g standard errors", cost, step)
+                if step <= STEP_SE:
+                    return OptimizeResult(
+                        x=theta,
+                        success=True,
+                        status=1,
+                        message=f"the Gauss-Newton step within the bounds moves the parameters by {step:.2g} "
+                        f"standard errors (< {STEP_SE}) on the checked rungs",
+                    )
+                free = np.ones(len(theta), bool)
+                d = np.zeros(len(theta))
+                for _held in range(len(theta)):
+                    U, sv, Vt = np.linalg.svd(J[:, free], full_matrices=False)
+                    keep = sv > FLAT_RCOND * sv[0]
+                    d[:] = 0.0
+                    d[free] = -(Vt[keep].T @ ((U[:, keep].T @ e) / sv[keep]))
+                    out = free & (((theta <= lo_t + 1e-9) & (d < 0)) | ((theta >= hi_t - 1e-9) & (d > 0)))
+                    if not out.any():
+                        break
+                    free &= ~out
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    room = np.where(d > 0, (hi_t - theta) / d, np.where(d < 0, (lo_t - theta) / d, np.inf))
+                t = min(1.0, 0.999 * float(np.min(room)))
+                for _half in range(STALL_RUNS):
+                    if model.runs >= max_runs:
+                        return OptimizeResult(
+                            x=theta,
+                            success=False,
+                            status=0,
+                            message="the model runs were spent in the Gauss-Newton steps",
+                        )
+                    trial = np.clip(theta + t * d, lo_t, hi_t)
+                    e_new = resid(trial)
+                    if float(e_new @ e_new) < cost:
+                        theta, e = trial, e_new
+                        break
+                    t /= 2
+                else:
+                    return OptimizeResult(
+                        x=theta,
+                        success=True,
+                        status=2,
+                        message=f"{STALL_RUNS} shortened Gauss-Newton steps did not lower the cost on the checked "
+                        f"rungs (the step {step:.2g} standard errors)",
+                    )
+                if cost - float(e @ e) < STEP_SE**2 * s2:
+                    return OptimizeResult(
+                        x=theta,
+                        success=True,
+                        status=2,
+                        message=f"a Gauss-Newton step lowered the cost by less than {STEP_SE}² s² on the checked "
+                        f"rungs (parameters moving by less than {STEP_SE} standard errors)",
+                    )
+            return OptimizeResult(
+                x=theta, success=False, status=0, message="the model runs were spent in the Gauss-Newton steps"
+            )
 
         th0 = np.log(start)
         th = th0
@@ -390,8 +436,9 @@ def fit_curves(  # noqa: C901
             stage(*m0, rungs=checked_levels, checked=True, probe=True)
         for cf, level in zip(cfs, checked_levels, strict=True):
             cf.level = level
-        # on the checked rungs: the estimate where the search stands; a rung that misses the target is
-        # left at once (one rung up), a search runs only where its step would move a parameter
+        # on the checked rungs: the estimate where the search stands (a probe before a search, every
+        # fitted point after it and where the fit ends); a rung that misses the target is left at once
+        # (one rung up), a search runs only where its step would move a parameter
         searched = not choose_discretization  # the scene's own discretization: no probe, search first
         if searched:
             m0 = mark()
@@ -400,7 +447,12 @@ def fit_curves(  # noqa: C901
         else:
             m0 = mark()
         while True:
-            checked = model(th, check=True)
+            full = searched
+            checked = model(th, check=True, probe=not full)
+            rel = [
+                relative_error(r, None if full else probe_points(len(cf.u_mm)))
+                for cf, r in zip(cfs, checked, strict=True)
+            ]
             for cf, r in zip(cfs, checked, strict=True):
                 cf.force_error_N = r.err
                 cf.model_N = r.F
@@ -409,41 +461,43 @@ def fit_curves(  # noqa: C901
                 *m0,
                 rungs=[cf.level for cf in cfs],
                 checked=True,
-                force_error_rel_max=[None if math.isnan(cf.error_rel_max) else cf.error_rel_max for cf in cfs],
+                probe=not full,
+                force_error_rel_max=[x if math.isfinite(x) else None for x in rel],
                 step_se=step,
             )
             m0 = mark()
             up = [
                 cf
-                for cf in cfs
-                if not cf.error_rel_max <= target_error and cf.level is not None and cf.level < len(FIT_LADDER) - 1
+                for cf, x in zip(cfs, rel, strict=True)
+                if not x <= target_error and cf.level is not None and cf.level < len(FIT_LADDER) - 1
             ]
-            if model.runs >= max_runs:
+            if model.runs >= max_runs and full:
                 break
-            if up:
-                for cf in up:
-                    log.info(
-                        "%s: estimated discretization error %.3g above %.3g: one rung up",
-                        cf.label,
-                        cf.error_rel_max,
-                        target_error,
-                    )
-                    cf.level = (cf.level or 0) + 1
+            if up and model.runs < max_runs:
+                for cf, x in zip(cfs, rel, strict=True):
+                    if cf in up:
+                        log.info(
+                            "%s: estimated discretization error %.3g above %.3g: one rung up", cf.label, x, target_error
+                        )
+                        cf.level = (cf.level or 0) + 1
                 searched = False
                 continue
-            if searched:
+            if full:
                 break
-            if step <= STEP_SE:
+            if step <= STEP_SE or model.runs >= max_runs:
+                # the probe's θ is where the fit ends: its estimate at every fitted point next
                 sol = OptimizeResult(
                     x=th,
-                    success=True,
-                    status=1,
+                    success=step <= STEP_SE,
+                    status=1 if step <= STEP_SE else 0,
                     message=f"the Gauss-Newton step within the bounds moves the parameters by {step:.2g} "
-                    f"standard errors (< {STEP_SE}) on the checked rungs",
+                    f"standard errors (< {STEP_SE}) on the checked rungs"
+                    if step <= STEP_SE
+                    else "the model runs were spent before a search on the checked rungs",
                 )
-                break
-            sol = search(th, max(max_runs - model.runs, 1), FINE_TOL, stall=True)
-            th = sol.x
+            else:
+                sol = gauss_newton(th, max(max_runs - model.runs, 1))
+                th = sol.x
             searched = True
         if sol is None:  # --max-runs spent by the probe
             sol = OptimizeResult(x=th, success=False, status=0, message="the model runs were spent before a search")

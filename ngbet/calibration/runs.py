@@ -20,7 +20,18 @@ from ..scene.document import Scene
 from ..scene.validate import SceneError
 from .fit_params import FIRST_CHECKED, FIT_LADDER, CurveFit, with_values
 
-__all__ = ["CurveModel", "FitWorkerError", "Job", "Run", "curve_run", "default_workers", "first_levels"]
+__all__ = [
+    "PROBE_POINTS",
+    "CurveModel",
+    "FitWorkerError",
+    "Job",
+    "Run",
+    "curve_run",
+    "default_workers",
+    "first_levels",
+    "probe_points",
+    "relative_error",
+]
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +46,7 @@ class Run:
     GP: np.ndarray
     A: np.ndarray
     GA: np.ndarray
-    err: np.ndarray
+    err: np.ndarray  # the estimated force error at the fitted points (checked runs; nan where not estimated)
     angle: np.ndarray  # the centre shear angle at the fitted points (checked runs only)
     seconds: float = 0.0  # the run's wall time
     cpu_s: float = 0.0  # the CPU time of the process that ran it, during the run
@@ -53,6 +64,21 @@ class Job:
     angle_u_mm: list[float]  # the displacements of the measured centre shear angles
     check: bool
     label: str
+    #: the fitted points (indices into ``u_mm``) whose force error is estimated when ``check``; None: all
+    estimate_at: tuple[int, ...] | None = None
+
+
+#: check modes of a cached run: a probe (the error estimated at some fitted points), full (at all)
+PROBE, FULL = 1, 2
+#: the fitted points a probe estimates the force error at (evenly spaced, the first and last among
+#: them): enough to choose a rung, the error varying slowly along the curve (on the unbalanced
+#: twill's 16 points its largest estimate lies on a plateau of 3-5 points within 10 % of it)
+PROBE_POINTS = 8
+
+
+def probe_points(m: int) -> tuple[int, ...]:
+    """The indices of the fitted points a probe estimates, of ``m`` (all when ``m`` <= :data:`PROBE_POINTS`)."""
+    return tuple(int(i) for i in np.unique(np.round(np.linspace(0, m - 1, min(m, PROBE_POINTS)))))
 
 
 #: a worker process's meshes by :attr:`Job.mesh_key` (a worker serves one curve of one fit)
@@ -88,6 +114,7 @@ def curve_run(job: Job, meshes: dict[tuple[int, int | None], Any]) -> Run:
             mesh=meshes[job.mesh_key],
             angles=sorted(set(a_u) | (set(map(float, job.u_mm)) if check else set())),
             estimate=check,
+            estimate_at=None if job.estimate_at is None else [float(job.u_mm[i]) for i in job.estimate_at],
         )
         assert r.dlogp is not None
         P = np.concatenate([r.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
@@ -137,35 +164,44 @@ class CurveModel:
         self.parallel = workers > 1 and len(curves) > 1
         self._pools: dict[int, Any] = {}
         self._alive: Any = None  # a pipe whose write end only this process holds: the workers exit with it
-        self._cache: dict[tuple[int, bytes, int | None, bool], Run] = {}
+        self._cache: dict[tuple[int, bytes, int | None, int], Run] = {}  # (curve, θ, rung, check mode)
         #: every run made, per curve: (rung, checked, wall time [s], CPU time [s])
         self.timings: list[list[tuple[int | None, bool, float, float]]] = [[] for _ in curves]
 
-    def __call__(self, theta: np.ndarray, check: bool = False) -> list[Run]:
+    def __call__(self, theta: np.ndarray, check: bool = False, probe: bool = False) -> list[Run]:
         """Each curve's run at θ on its current rung; a curve already run there (checked or as asked) is not rerun.
 
-        ``runs`` counts the calls that ran at least one curve.
+        ``probe`` (with ``check``): the force error estimated at :data:`PROBE_POINTS` of the fitted
+        points only (:func:`probe_points`; nan at the others), enough to choose a rung; a fully
+        checked run serves a probe. ``runs`` counts the calls that ran at least one curve.
         """
+        mode = (PROBE if probe else FULL) if check else 0
         t = np.asarray(theta, float).tobytes()
-        todo = [k for k, c in enumerate(self.curves) if self.cached(k, theta, c.level, check) is None]
+        todo = [k for k, c in enumerate(self.curves) if self.cached(k, theta, c.level, check, probe) is None]
         if todo:
             self.runs += 1
-        jobs = {k: self._job(k, theta, check) for k in todo}
+        jobs = {k: self._job(k, theta, check, probe) for k in todo}
         if self.parallel:
             done = self._in_workers(jobs)
         else:
             done = {k: curve_run(jobs[k], self.meshes) for k in todo}
         for k in todo:
-            self._cache[k, t, self.curves[k].level, check] = done[k]
+            self._cache[k, t, self.curves[k].level, mode] = done[k]
             self.timings[k].append((self.curves[k].level, check, done[k].seconds, done[k].cpu_s))
-        return [cast(Run, self.cached(k, theta, c.level, check)) for k, c in enumerate(self.curves)]
+        return [cast(Run, self.cached(k, theta, c.level, check, probe)) for k, c in enumerate(self.curves)]
 
-    def cached(self, k: int, theta: np.ndarray, level: int | None, check: bool = False) -> Run | None:
-        """Curve ``k``'s run at θ on rung ``level`` if one was made (a checked one serves both), else None."""
+    def cached(
+        self, k: int, theta: np.ndarray, level: int | None, check: bool = False, probe: bool = False
+    ) -> Run | None:
+        """Curve ``k``'s run at θ on rung ``level`` if one made there serves (a fuller check serves), else None."""
         t = np.asarray(theta, float).tobytes()
-        return self._cache.get((k, t, level, True)) or (None if check else self._cache.get((k, t, level, False)))
+        need = (PROBE if probe else FULL) if check else 0
+        for mode in (FULL, PROBE, 0):
+            if mode >= need and (k, t, level, mode) in self._cache:
+                return self._cache[k, t, level, mode]
+        return None
 
-    def _job(self, k: int, theta: np.ndarray, check: bool) -> Job:
+    def _job(self, k: int, theta: np.ndarray, check: bool, probe: bool = False) -> Job:
         c = self.curves[k]
         sc = with_values(c.run_scene(), self.names, np.exp(theta))
         if self.parallel:  # one worker per curve on its own core
@@ -179,6 +215,7 @@ class CurveModel:
             [float(u) for u in c.angles.u_mm] if c.angles is not None else [],
             check,
             c.label,
+            probe_points(len(c.u_mm)) if check and probe else None,
         )
 
     def _pool(self, k: int) -> Any:
@@ -254,7 +291,7 @@ def first_levels(
 ) -> list[int | None]:
     """Each curve's first rung from ``lowest`` (default :data:`FIRST_CHECKED`) up meeting the target at θ.
 
-    One checked run per rung tried, the curves at once. Probed with the start values before the
+    One probe (:meth:`CurveModel.__call__`) per rung tried, the curves at once. Probed with the start values before the
     search (stiff yarns lock the cheap rungs, with errors of tens of per cent, where a search would
     only chase the discretization), and again where the coarse search ended, from the start's
     rungs up. A curve that no rung vouches for gets the last.
@@ -265,11 +302,10 @@ def first_levels(
     pending = list(range(len(cfs)))
     found: dict[int, int] = {}
     while pending:
-        runs = model(theta, check=True)
+        runs = model(theta, check=True, probe=True)
         for i in list(pending):
             cf = cfs[i]
-            e = runs[i].err
-            rel = float(np.max(e / np.abs(runs[i].F))) if len(e) and np.all(np.isfinite(e)) else math.inf
+            rel = relative_error(runs[i], probe_points(len(cf.u_mm)))
             if rel <= target_error or cf.level is None or cf.level >= len(FIT_LADDER) - 1:
                 found[i] = cf.level if cf.level is not None else FIRST_CHECKED
                 pending.remove(i)
@@ -282,3 +318,13 @@ def first_levels(
                 )
                 cf.level += 1
     return [found[i] for i in range(len(cfs))]
+
+
+def relative_error(run: Run, at: Sequence[int] | None = None) -> float:
+    """The largest estimated force error of ``run`` relative to its force, over the fitted points ``at`` (None: all).
+
+    inf where the estimate cannot vouch at one of them (or was not made).
+    """
+    idx = list(range(len(run.err))) if at is None else list(at)
+    e, F = run.err[idx], np.abs(run.F[idx])
+    return float(np.max(e / F)) if len(e) and np.all(np.isfinite(e)) else math.inf

@@ -240,6 +240,7 @@ class Recorder:
         loads: Sequence[float] = (),
         angles: Sequence[float] = (),
         estimate: bool = False,
+        estimate_loads: Sequence[float] | None = None,
     ) -> None:
         self.solver, self.problem = solver, solver.problem
         self.names, self.profile = names, profile
@@ -254,6 +255,8 @@ class Recorder:
             self.estimator = ForceErrorEstimator(solver)
         problem = solver.problem
         self.loads = [float(v) for v in loads]  # [mm]: the loads whose derivatives are wanted
+        # [mm]: the loads whose force error is estimated (``estimate``; None: every one of ``loads``)
+        self.estimate_loads = self.loads if estimate_loads is None else [float(v) for v in estimate_loads]
         scene = problem.scene
         self.forms = []
         for n in names:
@@ -306,7 +309,7 @@ class Recorder:
             self.profile_dlogp[want] = np.column_stack(dprof)
         if angle is not None and dang:
             self.angle_dlogp[angle] = np.array(dang)
-        if self.estimator is not None and any(abs(v - key) < 1e-6 for v in self.loads):
+        if self.estimator is not None and any(abs(v - key) < 1e-6 for v in self.estimate_loads):
             self.errors[key] = self.estimator.estimate(info.u0, F).force_error_N
         self.rows[key] = (F, d)
 

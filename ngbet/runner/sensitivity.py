@@ -34,6 +34,7 @@ def force_path(
     mesh: Any = None,
     angles: Sequence[float] = (),
     estimate: bool = False,
+    estimate_at: Sequence[float] | None = None,
 ) -> ForcePath:
     """The force at each of ``u_mm`` and its derivatives dF/d ln p for the material keys ``params``.
 
@@ -45,7 +46,8 @@ def force_path(
     specimen made before (:func:`ngbet.continuum.mesh.make_mesh`), reused instead of meshing
     again. ``angles``: loads u0 [mm] at which the centre shear angle (and its derivatives) is wanted.
     ``estimate``: the discretization error of the force at each of ``u_mm``
-    (:class:`ngbet.continuum.estimate.ForceErrorEstimator`). Nothing is written to disk. Raises
+    (:class:`ngbet.continuum.estimate.ForceErrorEstimator`); ``estimate_at``: only at these of
+    ``u_mm`` (the others' errors nan: not estimated). Nothing is written to disk. Raises
     :class:`ngbet.errors.ConvergenceError` when the path cannot be followed to the last load.
     """
     names = check_params(scene, params)
@@ -59,7 +61,15 @@ def force_path(
     )
     with ngsolve_threads(scene):
         solver = ContinuumSolver(ContinuumProblem(scene, mesh), settings)
-        rec = Recorder(solver, names, profile, [float(v) for v in u_mm if v > 0], angles, estimate)
+        rec = Recorder(
+            solver,
+            names,
+            profile,
+            [float(v) for v in u_mm if v > 0],
+            angles,
+            estimate,
+            None if estimate_at is None else [float(v) for v in estimate_at],
+        )
         for step in load_steps(
             solver,
             path,
@@ -80,9 +90,16 @@ def force_path(
     err = None
     if estimate:
         ekeys = np.array(sorted(rec.errors)) if rec.errors else np.zeros(1)
-        err = np.array(
-            [rec.errors.get(float(ekeys[int(np.argmin(np.abs(ekeys - v)))]), math.nan) if v > 0 else 0.0 for v in want]
-        )
+        asked = None if estimate_at is None else np.asarray(estimate_at, float)
+
+        def error_at(v: float) -> float:
+            if v <= 0:
+                return 0.0
+            if asked is not None and not np.any(np.abs(asked - v) < 1e-9):
+                return math.nan  # not estimated there
+            return rec.errors.get(float(ekeys[int(np.argmin(np.abs(ekeys - v)))]), math.nan)
+
+        err = np.array([error_at(float(v)) for v in want])
     angles_deg = {float(a): rec.angles[float(a)] for a in angles if float(a) in rec.angles}
     return ForcePath(
         want,
