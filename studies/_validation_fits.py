@@ -256,8 +256,9 @@ def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Pat
     force and its standard deviation from the parameters, from the discretization and from the model error
     the fit's curves estimate (:func:`ngbet.calibration.bands.model_error`), and in words what the band holds.
     """
+    from ngbet.calibration.bands import predict_specimen
     from ngbet.calibration.fit_params import test_changes
-    from ngbet.calibration.joint import fit_curves, predict_specimen
+    from ngbet.calibration.joint import fit_curves
 
     runs = QUICK_RUNS if quick else MAX_RUNS
     scene = start or Scene.from_toml(data_root() / "geometry" / FABRICS[spec.fabric][0])

@@ -7,7 +7,7 @@ stiffnesses held), both sizes together, and each laboratory's picture frame alon
 scene then predicts every curve of the fabric its fit did not use: the other size, the other
 test, the other laboratory's frame; each prediction with its band of one standard deviation from
 the parameters' covariance, the discretization and, where the fit used two or more specimens of
-the predicted test, the model error between them (:func:`ngbet.calibration.joint.predict_specimen`);
+the predicted test, the model error between them (:func:`ngbet.calibration.bands.predict_specimen`);
 a measured point is inside where it lies within ±2 sd of the band and of its own scatter.
 
 Against each prediction stands the normalisation method's, made from the same fitted curves

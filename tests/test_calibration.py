@@ -349,7 +349,7 @@ def test_prediction_of_a_third_size_lies_in_its_band(synthetic_joint):
     u = np.linspace(10.0, 65.0, 6)
     truth_scene = synthetic_scene(**spec, **{"loading.u0_mm": 65.0})
     truth = force_path(truth_scene, u).force_N
-    pred = joint.predict_specimen(res, spec, u)
+    pred = bands.predict_specimen(res, spec, u)
     assert np.all(np.abs(pred.force_N - truth) <= 2 * pred.sd_N)
     start = force_path(truth_scene.with_changes(**{"material.K_sh": 4e4, "material.K_el": 1e6}), u).force_N
     assert np.all(np.abs(start - truth) > 2 * pred.sd_param_N)
@@ -419,7 +419,7 @@ def test_the_band_of_a_prediction_covers_the_truth_at_its_claimed_rate(tmp_path)
         folder.mkdir()
         curves = [read_measured(p) for p in write_synthetic(folder, seed=seed)]
         res = joint.fit_curves(curves, synthetic_scene(), choose_discretization=False, resample=False, workers=1)
-        pred = joint.predict_specimen(res, spec, u)
+        pred = bands.predict_specimen(res, spec, u)
         z2.append(np.mean(((pred.force_N - truth) / pred.sd_param_N) ** 2))
         assert np.all(pred.sd_model_N == 0.0), pred.band
     assert 0.107 <= np.mean(z2) <= 3.27, z2
@@ -499,7 +499,7 @@ def test_a_failed_prediction_keeps_the_fit(synthetic_joint, tmp_path, capsys, mo
     def fail(*a, **k):
         raise ConvergenceError("step too small", last_converged_mm=3.0)
 
-    monkeypatch.setattr(joint, "predict_specimen", fail)
+    monkeypatch.setattr(bands, "predict_specimen", fail)
     out = tmp_path / "fit"
     scene = tmp_path / "syn.toml"
     scene.write_text(synthetic_scene().to_toml())
@@ -625,8 +625,8 @@ def test_a_held_parameter_widens_the_band_by_its_own_term(synthetic_joint):
     )
     spec = {"specimen.width_mm": 100.0, "specimen.length_mm": 300.0}
     u = np.array([20.0, 50.0])
-    plain = joint.predict_specimen(res, spec, u)
-    held = joint.predict_specimen(res, spec, u, {"material.K_el": 0.09})
+    plain = bands.predict_specimen(res, spec, u)
+    held = bands.predict_specimen(res, spec, u, {"material.K_el": 0.09})
     sc = res.scene.with_changes(**spec, **{"loading.u0_mm": 50.0})
     g = finite_difference(sc, u, ["material.K_el"], rel_step=1e-3)[:, 0]
     want = np.sqrt(plain.sd_param_N**2 + 0.09 * g**2)

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from conftest import capabilities, carry
 
+from ngbet.calibration.bands import predict_specimen
 from ngbet.calibration.fit_params import JointFit
-from ngbet.calibration.joint import fit_curves, predict_specimen
+from ngbet.calibration.joint import fit_curves
 from ngbet.calibration.observations import Profile
 from ngbet.cli import main
 from ngbet.continuum import physics

@@ -1,4 +1,7 @@
-"""What the band of a prediction holds beyond the parameters and the discretization: the model error.
+"""Predictions of the fitted model on other specimens, and what their band holds.
+
+:func:`predict_specimen` runs the fitted scene on another specimen and gives the force with its
+standard deviation, part by part: the parameters, the discretization, and the model error.
 
 A fitted model can miss a specimen it has not seen by more than its parameters' uncertainty: by
 the model's own error between specimens. Only a fit of two or more specimens of a test shows it
@@ -9,11 +12,15 @@ would estimate it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+from typing import Any, cast
+
 import numpy as np
 
-from .fit_params import JointFit
+from ..scene.document import Scene
+from .fit_params import JointFit, band
 
-__all__ = ["model_error"]
+__all__ = ["CurvePrediction", "model_error", "predict_specimen"]
 
 
 def model_error(result: JointFit, test: str) -> tuple[float, str]:
@@ -63,3 +70,56 @@ def model_error(result: JointFit, test: str) -> tuple[float, str]:
         f"parameters, discretization and the model error between {what} (the fitted {what}' misfit beyond their noise: "
         f"{100 * sigma:.1f} % of the force)"
     )
+
+
+@dataclass
+class CurvePrediction:
+    """The fitted model on another specimen: force and its standard deviation, part by part.
+
+    ``sd_param_N`` from the parameters (fitted and held), ``sd_disc_N`` from the discretization,
+    ``sd_model_N`` the model error the fit's curves estimate for this specimen (zero where they
+    cannot: :func:`model_error`); ``band`` says in words what the band
+    holds and what it leaves out.
+    """
+
+    u_mm: np.ndarray
+    force_N: np.ndarray
+    sd_param_N: np.ndarray
+    sd_disc_N: np.ndarray
+    scene: Scene
+    sd_model_N: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    band: str = ""
+
+    @property
+    def sd_N(self) -> np.ndarray:
+        """The whole standard deviation of the model's force [N]: parameters, discretization, model error."""
+        model = self.sd_model_N if len(self.sd_model_N) else 0.0
+        return cast(np.ndarray, np.sqrt(self.sd_param_N**2 + self.sd_disc_N**2 + model**2))
+
+
+def predict_specimen(
+    result: JointFit, specimen: dict[str, Any], u_mm: np.ndarray, fixed_var_log: dict[str, float] | None = None
+) -> CurvePrediction:
+    """The fitted scene on ``specimen`` (scene keys) at the displacements ``u_mm``, with its band.
+
+    The band's standard deviation is √(g Σ gᵀ + Σ_k g_k² var_k + δ² + (σ_m F)²): parameters,
+    discretization, and the model error σ_m that the fit's curves estimate for this test
+    (:func:`model_error`; its words are the prediction's ``band``).
+
+    ``fixed_var_log``: parameters held fixed in the fit whose value is uncertain, with the
+    variance of their ln p (independent of the fitted ones); they widen the band by g_k² var_k.
+    """
+    from ..runner.sensitivity import force_path
+
+    fixed = dict(fixed_var_log or {})
+    sc = result.scene.with_changes(**specimen, **{"loading.u0_mm": float(np.max(u_mm)), "loading.stops_mm": []})
+    r = force_path(sc, u_mm, [*result.names, *fixed], estimate=True)
+    assert r.dlogp is not None and r.force_error_N is not None
+    n = len(result.names)
+    var = band(r.dlogp[:, :n], result.cov_log) ** 2 + (r.dlogp[:, n:] ** 2) @ np.array(list(fixed.values()))
+    disc = np.abs(r.force_error_N)
+    if not np.all(np.isfinite(disc)):  # where the estimate cannot vouch: the change one order up
+        finer = sc.with_changes(**{"discretization.order_u": sc.discretization.order_u + 1})
+        disc = np.where(np.isfinite(disc), disc, np.abs(force_path(finer, u_mm).force_N - r.force_N))
+    sigma, words = model_error(result, sc.test)
+    return CurvePrediction(np.asarray(u_mm, float), r.force_N, np.sqrt(var), disc, sc, sigma * np.abs(r.force_N), words)

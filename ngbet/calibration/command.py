@@ -287,8 +287,8 @@ def run_from_args(args: argparse.Namespace) -> int:
 def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) -> int:
     """Predict one curve; a solver failure is reported and leaves the fit's files in place."""
     from ..errors import ConvergenceError
+    from .bands import predict_specimen
     from .fit_params import test_changes
-    from .joint import predict_specimen
     from .report import write_prediction
 
     u, F = c.sample(24)

@@ -22,12 +22,7 @@ corners), coarse to fine, by the estimated force error at the fitted points
 curve (one specimen size) fitted with the scene's own parameters holds the bending stiffnesses,
 which one size cannot determine (:func:`held_parameters`).
 
-A prediction of another specimen is the fitted scene run there, with the standard deviation
-√(g Σ gᵀ + δ² + (σ_m F)²): g = dF/dθ from the same run, Σ the covariance of θ, δ the estimated
-discretization error of that run (where the estimate cannot vouch, the change of the force when
-the displacement order rises by one), and σ_m the model error between specimens that the fitted
-curves estimate where they are two or more specimens of the predicted test (else 0, and the
-prediction says so: :func:`~ngbet.calibration.bands.model_error`).
+Predictions of other specimens with their band: :mod:`ngbet.calibration.bands`.
 """
 
 from __future__ import annotations
@@ -37,15 +32,13 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
 from ..measured.curves import RANGE, MeasuredCurve
 from ..scene.document import Scene
 from ..scene.validate import SceneError
-from .bands import model_error
 from .fit_params import (
     COARSE_LEVEL,
     FINE_TOL,
@@ -60,7 +53,6 @@ from .fit_params import (
     UNDETERMINED_SE,
     CurveFit,
     JointFit,
-    band,
     bounds,
     correlation,
     curve_scene,
@@ -75,11 +67,9 @@ from .runs import CurveModel, Run, default_workers, first_levels, probe_points, 
 __all__ = [
     "ELONGATION_KEY",
     "WHAT_FIXES",
-    "CurvePrediction",
     "Progress",
     "fit_curves",
     "held_parameters",
-    "predict_specimen",
     "terminal_progress",
 ]
 
@@ -621,56 +611,3 @@ def _statistics(e: np.ndarray, J: np.ndarray, names: list[str]) -> dict[str, Any
         "noise_scale": math.sqrt(s2),
         "residual_scale": math.sqrt(r2),
     }
-
-
-@dataclass
-class CurvePrediction:
-    """The fitted model on another specimen: force and its standard deviation, part by part.
-
-    ``sd_param_N`` from the parameters (fitted and held), ``sd_disc_N`` from the discretization,
-    ``sd_model_N`` the model error the fit's curves estimate for this specimen (zero where they
-    cannot: :func:`~ngbet.calibration.bands.model_error`); ``band`` says in words what the band
-    holds and what it leaves out.
-    """
-
-    u_mm: np.ndarray
-    force_N: np.ndarray
-    sd_param_N: np.ndarray
-    sd_disc_N: np.ndarray
-    scene: Scene
-    sd_model_N: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    band: str = ""
-
-    @property
-    def sd_N(self) -> np.ndarray:
-        """The whole standard deviation of the model's force [N]: parameters, discretization, model error."""
-        model = self.sd_model_N if len(self.sd_model_N) else 0.0
-        return cast(np.ndarray, np.sqrt(self.sd_param_N**2 + self.sd_disc_N**2 + model**2))
-
-
-def predict_specimen(
-    result: JointFit, specimen: dict[str, Any], u_mm: np.ndarray, fixed_var_log: dict[str, float] | None = None
-) -> CurvePrediction:
-    """The fitted scene on ``specimen`` (scene keys) at the displacements ``u_mm``, with its band.
-
-    The band's standard deviation is √(g Σ gᵀ + Σ_k g_k² var_k + δ² + (σ_m F)²): parameters,
-    discretization, and the model error σ_m that the fit's curves estimate for this test
-    (:func:`~ngbet.calibration.bands.model_error`; its words are the prediction's ``band``).
-
-    ``fixed_var_log``: parameters held fixed in the fit whose value is uncertain, with the
-    variance of their ln p (independent of the fitted ones); they widen the band by g_k² var_k.
-    """
-    from ..runner.sensitivity import force_path
-
-    fixed = dict(fixed_var_log or {})
-    sc = result.scene.with_changes(**specimen, **{"loading.u0_mm": float(np.max(u_mm)), "loading.stops_mm": []})
-    r = force_path(sc, u_mm, [*result.names, *fixed], estimate=True)
-    assert r.dlogp is not None and r.force_error_N is not None
-    n = len(result.names)
-    var = band(r.dlogp[:, :n], result.cov_log) ** 2 + (r.dlogp[:, n:] ** 2) @ np.array(list(fixed.values()))
-    disc = np.abs(r.force_error_N)
-    if not np.all(np.isfinite(disc)):  # where the estimate cannot vouch: the change one order up
-        finer = sc.with_changes(**{"discretization.order_u": sc.discretization.order_u + 1})
-        disc = np.where(np.isfinite(disc), disc, np.abs(force_path(finer, u_mm).force_N - r.force_N))
-    sigma, words = model_error(result, sc.test)
-    return CurvePrediction(np.asarray(u_mm, float), r.force_N, np.sqrt(var), disc, sc, sigma * np.abs(r.force_N), words)

@@ -10,9 +10,8 @@ from typing import Any
 import numpy as np
 
 from ..measured.curves import MeasuredCurve
-from .bands import model_error
+from .bands import CurvePrediction, model_error
 from .fit_params import TABLE_KEY, CurveFit, JointFit, band
-from .joint import CurvePrediction
 
 __all__ = [
     "FRAME_X_LABEL",
