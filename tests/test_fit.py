@@ -528,3 +528,34 @@ def test_a_fit_stopped_by_max_runs_says_so(truth_curve, tmp_path):
     )
     doc = json.loads((out / "fit.json").read_text())
     assert doc["converged"] is False and doc["model_runs"] <= 3
+
+
+def test_gauss_newton_direction_leaves_flat_directions_out_holds_bounds_and_stays_inside():
+    """The step of the checked search on exact cases: a full-rank J gives the least-squares
+    solution; a direction the data do not see (a column 1e-6 of the others) gets no step; a
+    parameter at its lower bound that the step would push below is held and the rest solved
+    without it; a bound in the way shortens the step to just inside it."""
+    from ngbet.calibration.fit_params import gauss_newton_direction
+
+    rng = np.random.default_rng(3)
+    J = rng.standard_normal((12, 3))
+    d_true = np.array([0.3, -0.2, 0.5])
+    e = -J @ d_true
+    wide = np.full(3, 10.0)
+    d, t = gauss_newton_direction(J, e, np.zeros(3), -wide, wide)
+    np.testing.assert_allclose(d, d_true, rtol=1e-12)
+    assert t == 1.0
+    flat = J.copy()
+    flat[:, 2] = 1e-6 * rng.standard_normal(12)  # singular value ~1e-6 of the others: below FLAT_RCOND
+    e_flat = -flat[:, :2] @ d_true[:2] + 1e-3 * rng.standard_normal(12)  # a misfit the model cannot remove
+    d, _ = gauss_newton_direction(flat, e_flat, np.zeros(3), -wide, wide)
+    assert abs(np.linalg.lstsq(flat, -e_flat, rcond=None)[0][2]) > 10.0  # what the flat direction would take
+    assert abs(d[2]) < 1e-3
+    np.testing.assert_allclose(d[:2], np.linalg.lstsq(flat[:, :2], -e_flat, rcond=None)[0], atol=1e-6)
+    theta = np.array([0.0, -1.0, 0.0])  # the second parameter at its lower bound -1, the step pushes it down
+    d, t = gauss_newton_direction(J, e, theta, np.array([-10.0, -1.0, -10.0]), wide)
+    assert d[1] == 0.0
+    np.testing.assert_allclose(d[[0, 2]], np.linalg.lstsq(J[:, [0, 2]], -e, rcond=None)[0], rtol=1e-12)
+    d, t = gauss_newton_direction(J, e, np.zeros(3), -wide, np.array([10.0, 10.0, 0.25]))  # 0.5 up, room 0.25
+    np.testing.assert_allclose(d, d_true, rtol=1e-12)
+    assert t == pytest.approx(0.999 * 0.5)

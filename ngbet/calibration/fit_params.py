@@ -45,6 +45,7 @@ __all__ = [
     "correlation",
     "curve_scene",
     "expand_params",
+    "gauss_newton_direction",
     "portable_scene",
     "test_changes",
     "value_of",
@@ -435,6 +436,31 @@ class JointFit:
 def band(dlogp: np.ndarray, cov_log: np.ndarray) -> np.ndarray:
     """√diag(G Σ Gᵀ) [N]: the force's standard deviation from the parameters."""
     return cast(np.ndarray, np.sqrt(np.maximum(np.einsum("ik,kl,il->i", dlogp, cov_log, dlogp), 0.0)))
+
+
+def gauss_newton_direction(
+    J: np.ndarray, e: np.ndarray, theta: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """The Gauss-Newton step d from θ and the largest fraction t <= 1 of it within the bounds ``lo``, ``hi`` of θ.
+
+    d solves J d = −e in the least-squares sense with the flat directions (singular values below
+    :data:`FLAT_RCOND` of the largest) left out, which the data do not determine, and with the
+    parameters at a bound that d would push outside held there.
+    """
+    free = np.ones(len(theta), bool)
+    d = np.zeros(len(theta))
+    for _ in range(len(theta)):
+        U, sv, Vt = np.linalg.svd(J[:, free], full_matrices=False)
+        keep = sv > FLAT_RCOND * sv[0]
+        d[:] = 0.0
+        d[free] = -(Vt[keep].T @ ((U[:, keep].T @ e) / sv[keep]))
+        out = free & (((theta <= lo + 1e-9) & (d < 0)) | ((theta >= hi - 1e-9) & (d > 0)))
+        if not out.any():
+            break
+        free &= ~out
+    with np.errstate(divide="ignore", invalid="ignore"):
+        room = np.where(d > 0, (hi - theta) / d, np.where(d < 0, (lo - theta) / d, np.inf))
+    return d, min(1.0, 0.999 * float(np.min(room)))
 
 
 def correlation(cov: np.ndarray) -> np.ndarray:

@@ -57,6 +57,7 @@ from .fit_params import (
     correlation,
     curve_scene,
     expand_params,
+    gauss_newton_direction,
     portable_scene,
     value_of,
     with_values,
@@ -314,10 +315,8 @@ def fit_curves(  # noqa: C901
         def gauss_newton(theta: np.ndarray, runs: int) -> Any:
             """Gauss-Newton steps from θ on the checked rungs while they lower the cost by what matters.
 
-            Each step solves J d = −e in the least-squares sense with the flat directions (singular
-            values below :data:`FLAT_RCOND` of the largest) left out and the parameters at a bound
-            that the step would push outside held there; it is shortened to stay within the bounds
-            and halved (twice at most) until the cost falls. Each model run gives the residuals and
+            Each step is :func:`~ngbet.calibration.fit_params.gauss_newton_direction`, halved
+            until the cost falls. Each model run gives the residuals and
             the Jacobian at once, so a step costs one run. The steps end where the step would move
             the parameters by less than :data:`STEP_SE` standard errors, or where it lowered the
             cost by less than STEP_SE² s², there; :data:`STALL_RUNS` runs without a fall (the step
@@ -339,20 +338,7 @@ def fit_curves(  # noqa: C901
                         message=f"the Gauss-Newton step within the bounds moves the parameters by {step:.2g} "
                         f"standard errors (< {STEP_SE}) on the checked rungs",
                     )
-                free = np.ones(len(theta), bool)
-                d = np.zeros(len(theta))
-                for _held in range(len(theta)):
-                    U, sv, Vt = np.linalg.svd(J[:, free], full_matrices=False)
-                    keep = sv > FLAT_RCOND * sv[0]
-                    d[:] = 0.0
-                    d[free] = -(Vt[keep].T @ ((U[:, keep].T @ e) / sv[keep]))
-                    out = free & (((theta <= lo_t + 1e-9) & (d < 0)) | ((theta >= hi_t - 1e-9) & (d > 0)))
-                    if not out.any():
-                        break
-                    free &= ~out
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    room = np.where(d > 0, (hi_t - theta) / d, np.where(d < 0, (lo_t - theta) / d, np.inf))
-                t = min(1.0, 0.999 * float(np.min(room)))
+                d, t = gauss_newton_direction(J, e, theta, lo_t, hi_t)
                 for _half in range(STALL_RUNS):
                     if model.runs >= max_runs:
                         return OptimizeResult(
