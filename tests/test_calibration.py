@@ -596,7 +596,7 @@ def test_progress_line_names_runs_and_each_curves_rms():
 def test_shear_angle_file_is_read_and_checked(tmp_path):
     """Measured centre shear angles: comments skipped, equal displacements averaged, the non-positive
     displacement (the unloaded state) left out; a missing column and text in a number's place name the line."""
-    from ngbet.calibration.observations import read_angles
+    from ngbet.measured.observations import read_angles
 
     p = tmp_path / "angles.csv"
     p.write_text("# DIC, centre of the specimen\ndisplacement_mm,shear_angle_deg\n0,0\n10,8\n20,15\n20,17\n")
@@ -608,6 +608,25 @@ def test_shear_angle_file_is_read_and_checked(tmp_path):
     p.write_text("displacement_mm,shear_angle_deg\n10,8\n20,x\n")
     with pytest.raises(SceneError, match="line 3: shear_angle_deg = 'x' is not a number"):
         read_angles(p)
+    p.write_text("displacement_mm,shear_angle_deg\n10,8\n20,inf\n")
+    with pytest.raises(SceneError, match="line 3: shear_angle_deg = 'inf' is not a finite number"):
+        read_angles(p)
+
+
+def test_profiles_and_angles_are_read_as_measured_curves_are(tmp_path):
+    """The files of measured angles and profiles go through the measured curves' reader of text:
+    Windows-1252 text is read, a directory or a binary file is refused naming the file."""
+    from ngbet.measured.observations import read_angles, read_profile
+
+    p = tmp_path / "angles.csv"
+    p.write_bytes("# Winkel gemessen \xb0\ndisplacement_mm,shear_angle_deg\n10,8\n".encode("cp1252"))
+    assert read_angles(p).angle_deg.tolist() == [8.0]
+    with pytest.raises(SceneError, match=f"shear angle file {tmp_path} is a directory"):
+        read_angles(tmp_path)
+    q = tmp_path / "profile.csv"
+    q.write_bytes(b"u0_mm,X_mm,uy_mm\n37,10,\x00\n")
+    with pytest.raises(SceneError, match="profile file .*profile.csv is not a text file"):
+        read_profile(q)
 
 
 @pytest.mark.integration

@@ -14,10 +14,10 @@ from conftest import capabilities, carry
 from ngbet.calibration.bands import predict_specimen
 from ngbet.calibration.fit_params import JointFit
 from ngbet.calibration.joint import fit_curves
-from ngbet.calibration.observations import Profile
 from ngbet.cli import main
 from ngbet.continuum import physics
 from ngbet.measured.curves import MeasuredCurve, read_measured
+from ngbet.measured.observations import Profile
 from ngbet.runner.sensitivity import finite_difference, force_path
 from ngbet.scene.document import Scene
 from ngbet.scene.validate import SceneError
@@ -373,7 +373,7 @@ def test_measured_shear_angles_are_fitted_with_the_force():
     """The paper's scene (10 mm mesh, to 37 mm) with a soft K_el: centre shear angles at three loads
     (0.2° noise) fitted with the force (1 % noise) recover K_sh and K_el within two standard errors;
     fit.json keeps the angles measured and modelled, and the model's angle is the run's own."""
-    from ngbet.calibration.observations import ShearAngles
+    from ngbet.measured.observations import ShearAngles
 
     truth = Scene().with_changes(
         **{

@@ -189,8 +189,8 @@ class Inputs:
         self.predict = [read_any(p, columns=columns) for p in args.predict]
         self.notes = [f"{c.source}: {n}" for c in self.curves + self.predict for n in c.notes]
         self.predict_scene = Scene.from_toml(args.predict_scene) if args.predict_scene else None
+        from ..measured.observations import read_angles, read_profile
         from .fit_params import curve_scene, expand_params, value_of
-        from .observations import read_angles, read_profile
 
         self.profile = read_profile(args.profile) if args.profile else None
         self.angles = read_angles(args.angles) if args.angles else None

@@ -17,11 +17,11 @@ from typing import Any, cast
 import numpy as np
 
 from ..measured.curves import MeasuredCurve
+from ..measured.observations import Profile, ShearAngles
 from ..runner.ladder import Rung
 from ..scene.document import Scene
 from ..scene.physical import Specimen
 from ..scene.validate import SceneError
-from .observations import Profile, ShearAngles
 
 __all__ = [
     "BOUND_FACTOR",

@@ -12,7 +12,7 @@ the reading error and 1 % of the force), in θ = ln p within the bounds of the s
 ``[calibration]`` table (:func:`scipy.optimize.least_squares`, trust region reflective). The
 covariance of θ is s²(JᵀJ)⁻¹ with s² = Σe²/(m − n): error bars that do not cover the misfit are
 scaled up by it (never down: s² >= 1). A measured mid-axis profile and centre shear angles of the
-first curve's specimen (:mod:`ngbet.calibration.observations`) add their residuals over their
+first curve's specimen (:mod:`ngbet.measured.observations`) add their residuals over their
 standard deviations.
 
 Every model run is within a stated discretization error: the fit chooses each curve's mesh and
@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from ..measured.curves import RANGE, MeasuredCurve
+from ..measured.observations import Profile, ShearAngles
 from ..scene.document import Scene
 from ..scene.validate import SceneError
 from .fit_params import (
@@ -62,7 +63,6 @@ from .fit_params import (
     value_of,
     with_values,
 )
-from .observations import Profile, ShearAngles
 from .runs import CurveModel, Run, default_workers, first_levels, probe_points, relative_error
 
 __all__ = [

@@ -66,9 +66,11 @@ __all__ = [
     "TESTS",
     "CurveTable",
     "errorbar_path",
+    "parse_number",
     "parse_sizes",
     "read_errorbars",
     "read_table",
+    "read_text",
 ]
 
 #: a fall of the displacement by more than this fraction of its range is an unloading (the vertices of
@@ -119,7 +121,12 @@ class CurveTable:
 # --- text ---------------------------------------------------------------------------------------------------------
 
 
-def _text(path: Path, what: str) -> tuple[str, list[str]]:
+def read_text(path: Path, what: str) -> tuple[str, list[str]]:
+    """The text of the file ``path`` (a ``what`` file in messages) and notes on its decoding.
+
+    UTF-8 (a byte order mark dropped), else Windows-1252 with a note; a directory, a missing or
+    unreadable file, NUL bytes or neither encoding: refused (SceneError naming the file).
+    """
     if path.is_dir():
         raise SceneError(f"{what} file {path} is a directory")
     try:
@@ -142,7 +149,12 @@ def _text(path: Path, what: str) -> tuple[str, list[str]]:
     return text, notes
 
 
-def _number(text: str, path: Path | str, line: int, column: str, comma: bool) -> float:
+def parse_number(text: str, path: Path | str, line: int, column: str, comma: bool) -> float:
+    """The number ``text`` of ``column`` on ``line`` of ``path``; ``comma``: decimal commas allowed.
+
+    A comma that could be a thousands separator, text that is no number or a number that is not
+    finite: refused (SceneError naming the file, the line and the column).
+    """
     t = text.strip()
     if comma and _DECIMAL_COMMA.match(t):
         t = t.replace(",", ".")
@@ -185,7 +197,7 @@ def _key_value(key: str, value: str, path: Path, line: int) -> tuple[str, float,
     m = _VALUE.match(value)
     if not m:
         raise SceneError(f"{path}, line {line}: {key} = {value!r} is not a number (with an optional unit: = 100 mm)")
-    v = _number(m.group(1), path, line, key, False)
+    v = parse_number(m.group(1), path, line, key, False)
     unit = unit_key(m.group(2)) if m.group(2) else (suffix or None)
     want = "angle" if full.endswith("_deg") else "length"
     if unit is None:
@@ -380,7 +392,7 @@ def read_table(
         The rows in file order up to the largest x (the unloading branch of a cycle left out), converted.
     """
     path = Path(path)
-    text, notes = _text(path, "data")
+    text, notes = read_text(path, "data")
     header = _Header(path)
     head, head_line, rows, sep = _rows(text, path, header)
     cols = header_columns(head)
@@ -403,7 +415,9 @@ def read_table(
             raise SceneError(
                 f"{path}, line {k}: {len(cells)} cells, the header (line {head_line}) has {len(head)}" + hint
             )
-        data.append((_number(cells[x.index], path, k, x.name, comma), _number(cells[y.index], path, k, y.name, comma)))
+        data.append(
+            (parse_number(cells[x.index], path, k, x.name, comma), parse_number(cells[y.index], path, k, y.name, comma))
+        )
         lines.append(k)
     arr = np.array(data, dtype=float).reshape(-1, 2)
     xs, ys, ls = fx * arr[:, 0], fy * arr[:, 1], np.array(lines, dtype=int)
@@ -516,7 +530,7 @@ def read_errorbars(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
     ep = errorbar_path(path)
     if not ep.exists():
         return None
-    text, _ = _text(ep, "error bar")
+    text, _ = read_text(ep, "error bar")
     head, head_line, rows, sep = _rows(text, ep, _Header(ep))
     names = [h.strip().strip("\"'") for h in head]
     need = ("displacement_mm", "force_low_N", "force_high_N")
@@ -532,7 +546,7 @@ def read_errorbars(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
             [
                 math.nan
                 if cells[j].strip() == "" and n != "displacement_mm"
-                else _number(cells[j], ep, k, n, sep != ",")
+                else parse_number(cells[j], ep, k, n, sep != ",")
                 for j, n in zip(idx, need, strict=True)
             ]
         )

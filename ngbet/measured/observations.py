@@ -1,8 +1,7 @@
 """Measured observations besides the clamp force: a mid-axis profile and the centre shear angle.
 
-Both are fitted together with the force of one specimen (:func:`ngbet.calibration.joint.fit_curves`),
-their derivatives with respect to the parameters coming from the same model run
-(:func:`ngbet.runner.sensitivity.force_path`).
+Both are fitted together with the force of one specimen by ``ngbet fit`` (:mod:`ngbet.calibration`),
+their derivatives with respect to the parameters coming from the same model run.
 
 - A profile file has the columns ``u0_mm``, ``X_mm``, ``uy_mm``: the displacement u_y [mm] of the
   mid-axis Y = W/2 at X [mm] (0 at one clamp) at the clamp displacement u0 [mm]; other columns,
@@ -17,25 +16,24 @@ Lines starting with ``#`` are comments. A refusal names the file and the line
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..scene.validate import SceneError
+from .table import parse_number, read_text
 
 __all__ = ["Profile", "ShearAngles", "read_angles", "read_profile"]
 
 
 def _columns(path: Path, what: str, need: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """The named numeric columns of a CSV with a header line and ``#`` comments, checked line by line."""
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise SceneError(f"{what} file not found: {path}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(f"{what} file {path} cannot be read as text: {exc}") from None
+    """The named numeric columns of a CSV with a header line and ``#`` comments, checked line by line.
+
+    The file's text and its numbers are read as every measured curve's are
+    (:func:`ngbet.measured.table.read_text`, :func:`ngbet.measured.table.parse_number`).
+    """
+    text, _ = read_text(path, what)
     head: list[str] | None = None
     rows: list[list[float]] = []
     for k, raw in enumerate(text.splitlines(), start=1):
@@ -55,14 +53,7 @@ def _columns(path: Path, what: str, need: tuple[str, ...]) -> dict[str, np.ndarr
             raise SceneError(f"{what} file {path}, line {k}: {len(cells)} cells, the header has {len(head)}")
         row = []
         for n in need:
-            cell = cells[head.index(n)]
-            try:
-                v = float(cell)
-            except ValueError:
-                raise SceneError(f"{what} file {path}, line {k}: {n} = {cell!r} is not a number") from None
-            if not math.isfinite(v):
-                raise SceneError(f"{what} file {path}, line {k}: {n} = {cell!r} is not a finite number")
-            row.append(v)
+            row.append(parse_number(cells[head.index(n)], f"{what} file {path}", k, n, False))
         rows.append(row)
     if not rows:
         raise SceneError(f"{what} file {path}: no rows of numbers under a header naming {', '.join(need)}")
