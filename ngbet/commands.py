@@ -44,19 +44,22 @@ def parse_value(text: str) -> object:
 
 
 def load_scene(path: str | None, overrides: list[str]) -> Scene:
-    """The scene file (or the default scene) with ``section.key=value`` (or ``model=...``) overrides applied.
+    """The scene file (or the default scene) with ``section.key=value`` (or ``model=``, ``test=``) overrides applied.
 
     The file's tables and the overrides are read into one scene: its missing keys take the
     defaults, and a default that contradicts a key the file or an override sets gives way to it,
     with a note on stderr (``ngbet: note: ...``), as are the scene's warnings.
     """
-    from .scene.document import apply_changes, read_toml
+    from .scene.document import TOP_LEVEL, apply_changes, read_toml
 
     changes = {}
     for item in overrides:
         key, sep, value = item.partition("=")
-        if not sep or ("." not in key and key.strip() != "model"):
-            raise SceneError(f"--set expects section.key=value or model=continuum|discrete, got {item!r}")
+        if not sep or ("." not in key and key.strip() not in TOP_LEVEL):
+            raise SceneError(
+                f"--set expects section.key=value, model=continuum|discrete or "
+                f"test=bias_extension|picture_frame, got {item!r}"
+            )
         changes[key.strip()] = parse_value(value.strip())
     data = read_toml(path) if path else {}
     if not isinstance(data, dict):

@@ -569,21 +569,22 @@ def test_an_unreachable_target_is_refused_before_solving(tmp_path, capsys):
     assert not (out / "results.csv").exists()
 
 
-def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path):
-    """A finer rung whose estimate is no better than the best so far ends the climb (exit 1, not met);
-    the best rung is run again so that its files are the ones left, and a failed rung's solve time
-    is its wall time, not zero."""
+def test_accuracy_ladder_stops_at_the_second_rung_in_a_row_that_does_not_improve(tmp_path):
+    """Two finer rungs in a row whose estimates are no better than the best so far end the climb
+    (exit 1, not met); one such rung alone does not (an estimate can rise at one order before the
+    next falls below the target). The best rung is run again so that its files are the ones left,
+    and a failed rung's solve time is its wall time, not zero."""
     from ngbet.errors import ConvergenceError
     from ngbet.runner import ladder
 
     calls = []
-    errors = {2: 4e-3, 3: 3e-3, 4: 3.2e-3}
+    errors = {2: 4e-3, 3: 3e-3, 4: 3.2e-3, 5: 3.1e-3}
 
     def run_one(sc, out):
         p = sc.discretization.order_u
         calls.append(p)
-        if p == 5:
-            raise AssertionError("the ladder went past a rung that did not improve")
+        if p == 6:
+            raise AssertionError("the ladder went past two rungs that did not improve")
         return {
             "force_N": 107.0,
             "force_error_rel": errors[p],
@@ -592,13 +593,20 @@ def test_accuracy_ladder_stops_at_the_first_rung_that_does_not_improve(tmp_path)
             "u0_reached_mm": 56.0,
         }
 
-    with pytest.raises(ConvergenceError, match="not reached: p = 4 .* no better than 0.003 at p = 3") as info:
+    with pytest.raises(ConvergenceError, match="not reached: p = 5 .* in a row no better than 0.003 at p = 3") as info:
         ladder.run_to_accuracy(
             default_scene().with_changes(**{"discretization.target_error": 2.5e-3}), tmp_path, run_one
         )
-    assert calls == [2, 3, 4, 3]  # the best rung (p = 3) again, last
+    assert calls == [2, 3, 4, 5, 3]  # the best rung (p = 3) again, last
     a = info.value.path_info["accuracy"]  # the runner adds it to the run's summary.json
     assert not a["met"] and a["chosen"]["order_u"] == 3
+
+    calls.clear()
+    errors[5] = 2e-3  # below the target after one rung that did not improve: met there, no rerun
+    s = ladder.run_to_accuracy(
+        default_scene().with_changes(**{"discretization.target_error": 2.5e-3}), tmp_path, run_one
+    )
+    assert calls == [2, 3, 4, 5] and s["accuracy"]["met"] and s["accuracy"]["chosen"]["order_u"] == 5
 
     def failing_first(sc, out):
         if sc.discretization.order_u == 8 and sc.discretization.mesh_size_mm == 20.0:

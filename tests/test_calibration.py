@@ -52,6 +52,27 @@ def test_fabric_scene_is_the_data_specimen(fabric):
     assert "warp" in cal.yarns_m1 and "weft" in cal.yarns_m2
 
 
+#: the densest yarn counts of data/cao2008/README.md (Cao et al. 2008, Table 1), per cm: warp ends, weft picks
+YARN_COUNTS = {"plain": (1.95, 1.95), "twill_balanced": (5.56, 3.75), "twill_unbalanced": (3.39, 1.52)}
+
+
+@pytest.mark.parametrize("fabric", FABRICS)
+def test_fabric_scene_bending_bounds_are_an_internal_length_of_one_crossing_spacing(fabric):
+    """The lower bound of α_k is τ'(0) s², s the spacing of the yarns crossing family k (the picks for
+    the warp's α1, the ends for the weft's α2) and τ'(0) the start table's initial shear modulus: an
+    internal length √(α_k/τ'(0)) below one crossing spacing is finer than the yarns can bend. Within
+    the two digits the scene gives it."""
+    from ngbet.continuum.physics import table_stress_spline
+
+    sc = Scene.from_toml(GEO / f"twintex_{fabric}.toml")
+    m, cal = sc.material, sc.calibration
+    k0 = float(table_stress_spline(m.shear_stress_steps_Pa, m.shear_table_i8_max)(0.0, 1))
+    ends, picks = YARN_COUNTS[fabric]
+    for key, per_cm in (("material.alpha1", picks), ("material.alpha2", ends)):
+        bound = cal.lower[cal.params.index(key)]
+        assert bound == pytest.approx(k0 * (1e-2 / per_cm) ** 2, rel=0.03)
+
+
 def test_unbalanced_twill_warp_is_the_stiffer_family():
     """3.39 warp ends/cm against 1.52 weft picks/cm: the warp runs along m1 and bends more stiffly."""
     sc = Scene.from_toml(GEO / "twintex_twill_unbalanced.toml")

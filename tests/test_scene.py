@@ -153,6 +153,20 @@ def test_one_default_scene_file_keys_take_the_defaults_of_ngbet_run(tmp_path):
     assert from_file == load_scene(None, ["material.alpha1=200.0"])
 
 
+def test_set_takes_every_top_level_key_and_names_what_it_takes():
+    """``--set`` sets the keys outside the sections as a scene file does (``model``, ``test``); another
+    word without a section is refused, naming what --set takes."""
+    from ngbet.commands import load_scene
+
+    frame = load_scene(None, ["test=picture_frame", "picture_frame.frame_mm=216", "picture_frame.fabric_mm=140"])
+    assert frame.test == "picture_frame" and frame.picture_frame.frame_mm == 216.0
+    assert load_scene(None, ["model=discrete"]).model == "discrete"
+    with pytest.raises(SceneError, match="model=continuum.discrete or test=bias_extension.picture_frame, got 'tset=x'"):
+        load_scene(None, ["tset=x"])
+    with pytest.raises(SceneError, match="test"):
+        load_scene(None, ["test=tensile"])
+
+
 @pytest.mark.parametrize(
     "sets,why",
     [

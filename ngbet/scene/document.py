@@ -28,6 +28,7 @@ __all__ = [
     "NOT_READ_BY",
     "NOT_READ_BY_TEST",
     "SECTIONS",
+    "TOP_LEVEL",
     "Scene",
     "SceneNote",
     "SceneWarning",
@@ -38,6 +39,9 @@ __all__ = [
 ]
 
 MODELS = ("continuum", "discrete")
+#: the scene's keys outside its sections: ``model`` (:data:`MODELS`) and ``test``
+#: (:data:`ngbet.scene.physical.TESTS`)
+TOP_LEVEL = ("model", "test")
 
 #: what each model does not read: whole sections (None) or some of their keys. A non-default value
 #: there is reported by name (:meth:`Scene.unused_keys`, a :class:`SceneWarning` on construction).
@@ -289,12 +293,12 @@ class Scene:
             explicit = {f"{n}.{k}" for n, t in data.items() if isinstance(t, dict) for k in t}
         data = {n: dict(t) if isinstance(t, dict) else t for n, t in data.items()}
         _yield_defaults(data, explicit)
-        known = {"model", "test", *SECTIONS}
+        known = {*TOP_LEVEL, *SECTIONS}
         for key in data:
             if key not in known:
                 raise SceneError(f"unknown scene section '{key}'; known: {', '.join(sorted(known))}")
         kwargs: dict[str, Any] = {}
-        for top in ("model", "test"):
+        for top in TOP_LEVEL:
             if top in data:
                 kwargs[top] = data[top]
         for name, scls in SECTIONS.items():
@@ -384,7 +388,7 @@ def read_toml(path: str | Path) -> dict[str, Any]:
 
 
 def apply_changes(data: dict[str, Any], dotted: dict[str, Any]) -> dict[str, Any]:
-    """The tables ``data`` with ``{"section.key": value}`` (or ``{"model": ...}``) set; a new dict."""
+    """The tables ``data`` with ``{"section.key": value}`` (or a :data:`TOP_LEVEL` key) set; a new dict."""
     d = {n: dict(t) if isinstance(t, dict) else t for n, t in data.items()}
     for key, value in dotted.items():
         value = _plain(value)
