@@ -220,3 +220,21 @@ def test_a_fit_in_workers_is_the_serial_fit():
     np.testing.assert_allclose(b.values, a.values, rtol=1e-8)
     for x, y in zip(a.curves, b.curves, strict=True):
         np.testing.assert_allclose(y.model_N, x.model_N, rtol=1e-8)
+
+
+def test_a_curve_run_past_its_time_budget_counts_as_not_converged(monkeypatch):
+    """A curve's runs after its first converged one have a time budget (20 times the longest converged
+    run, at least 120 s): a run past it stops and gives NaN, which the search treats as a failed
+    step, instead of crawling on; the first run has none."""
+    assert runs.run_budget(0.0) == np.inf
+    assert runs.run_budget(3.0) == runs.RUN_BUDGET_MIN_S == 120.0
+    assert runs.run_budget(10.0) == 20.0 * 10.0
+    m = model(1)
+    first = m(THETA)
+    assert all(np.all(np.isfinite(r.F)) for r in first)
+    assert all(0 < t < 60 for t in m._longest)  # noqa: SLF001 - the budget's base, per curve
+    monkeypatch.setattr(runs, "RUN_BUDGET_MIN_S", 0.0)
+    monkeypatch.setattr(runs, "RUN_BUDGET_FACTOR", 1e-6)  # a budget spent at the first trial
+    second = m(THETA + 0.1)
+    assert all(np.all(np.isnan(r.F)) for r in second) and m.runs == 2
+    assert all(0 < t < 60 for t in m._longest)  # noqa: SLF001 - a run that failed does not raise it

@@ -84,6 +84,22 @@ def test_relaxation_leaves_an_unstable_equilibrium_along_its_mode():
     assert rep.kicked_from == -1.0 and rep.lowest_eigenvalue > 0
 
 
+def test_a_spent_time_budget_stops_a_relaxation_before_its_next_factorization():
+    """Inside a spent :func:`~ngbet.numerics.engine.time_budget` a relaxation factorizes nothing
+    and says why: a relaxation may take hundreds of factorizations, and the path
+    checks the budget only between its trials."""
+    from ngbet.numerics.engine import time_budget
+    from ngbet.numerics.relax import relax
+    from ngbet.numerics.settings import NewtonSettings
+
+    toy = DoubleWell(0.0)
+    with time_budget(-1.0):
+        rep = relax(toy, NewtonSettings(), 1.0)
+    assert not rep.converged and rep.iterations == 0 and rep.history == [] and "time budget" in rep.reason
+    rep = relax(toy, NewtonSettings(), 1.0)  # outside it the same relaxation goes on to a well
+    assert rep.converged and abs(toy.x[1]) == pytest.approx(1.0, rel=1e-10)
+
+
 class _WallAtZero(DoubleWell):
     """The double well with its right well outside the energy's domain (y > 0 inadmissible, as
     inverted material is for the continuum): past the fold there is no admissible stable state."""

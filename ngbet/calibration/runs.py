@@ -22,6 +22,8 @@ from .fit_params import FIRST_CHECKED, FIT_LADDER, CurveFit, with_values
 
 __all__ = [
     "PROBE_POINTS",
+    "RUN_BUDGET_FACTOR",
+    "RUN_BUDGET_MIN_S",
     "CurveModel",
     "FitWorkerError",
     "Job",
@@ -31,6 +33,7 @@ __all__ = [
     "first_levels",
     "probe_points",
     "relative_error",
+    "run_budget",
 ]
 
 log = logging.getLogger(__name__)
@@ -66,6 +69,8 @@ class Job:
     label: str
     #: the fitted points (indices into ``u_mm``) whose force error is estimated when ``check``; None: all
     estimate_at: tuple[int, ...] | None = None
+    #: wall time [s] after which the run stops and counts as not converged (:func:`run_budget`)
+    budget_s: float = math.inf
 
 
 #: check modes of a cached run: a probe (the error estimated at some fitted points), full (at all)
@@ -74,6 +79,19 @@ PROBE, FULL = 1, 2
 #: them): enough to choose a rung, the error varying slowly along the curve (on the unbalanced
 #: twill's 16 points its largest estimate lies on a plateau of 3-5 points within 10 % of it)
 PROBE_POINTS = 8
+
+
+#: a curve's run may take this many times the longest run of the curve that converged (at least
+#: :data:`RUN_BUDGET_MIN_S`): a finer rung with the estimate costs up to 10 times a coarse run, and
+#: a run whose path crawls through relaxations at a step of 0.1 mm is left for the search to avoid
+RUN_BUDGET_FACTOR = 20.0
+#: the smallest time budget of a curve's run [s]
+RUN_BUDGET_MIN_S = 120.0
+
+
+def run_budget(longest_s: float) -> float:
+    """The time budget of a curve's run after its longest converged run took ``longest_s`` (0: none yet, no budget)."""
+    return max(RUN_BUDGET_MIN_S, RUN_BUDGET_FACTOR * longest_s) if longest_s > 0 else math.inf
 
 
 def probe_points(m: int) -> tuple[int, ...]:
@@ -91,9 +109,14 @@ def _worker_run(job: Job) -> Run:
 
 
 def curve_run(job: Job, meshes: dict[tuple[int, int | None], Any]) -> Run:
-    """The force, profile and angles of ``job`` and their dθ; NaN where the model run does not converge."""
+    """The force, profile and angles of ``job`` and their dθ; NaN where the model run does not converge.
+
+    A run still going after ``job.budget_s`` stops (:func:`ngbet.numerics.engine.time_budget`) and
+    counts as not converged.
+    """
     from ..continuum.mesh import make_cross_mesh, make_mesh
     from ..errors import ConvergenceError
+    from ..numerics.engine import time_budget
     from ..runner.sensitivity import force_path
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -106,16 +129,17 @@ def curve_run(job: Job, meshes: dict[tuple[int, int | None], Any]) -> Run:
         )
     m, kp, ka = len(job.u_mm), sum(len(x) for x in pts.values()), len(a_u)
     try:
-        r = force_path(
-            sc,
-            job.u_mm,
-            job.names,
-            pts,
-            mesh=meshes[job.mesh_key],
-            angles=sorted(set(a_u) | (set(map(float, job.u_mm)) if check else set())),
-            estimate=check,
-            estimate_at=None if job.estimate_at is None else [float(job.u_mm[i]) for i in job.estimate_at],
-        )
+        with time_budget(job.budget_s):
+            r = force_path(
+                sc,
+                job.u_mm,
+                job.names,
+                pts,
+                mesh=meshes[job.mesh_key],
+                angles=sorted(set(a_u) | (set(map(float, job.u_mm)) if check else set())),
+                estimate=check,
+                estimate_at=None if job.estimate_at is None else [float(job.u_mm[i]) for i in job.estimate_at],
+            )
         assert r.dlogp is not None
         P = np.concatenate([r.profiles[u0] for u0 in pts]) if pts else np.zeros(0)
         GP = np.vstack([r.profile_dlogp[u0] for u0 in pts]) if pts else np.zeros((0, n))
@@ -167,6 +191,7 @@ class CurveModel:
         self._cache: dict[tuple[int, bytes, int | None, int], Run] = {}  # (curve, θ, rung, check mode)
         #: every run made, per curve: (rung, checked, wall time [s], CPU time [s])
         self.timings: list[list[tuple[int | None, bool, float, float]]] = [[] for _ in curves]
+        self._longest = [0.0] * len(curves)  # each curve's longest converged run [s] (its runs' budget)
 
     def __call__(self, theta: np.ndarray, check: bool = False, probe: bool = False) -> list[Run]:
         """Each curve's run at θ on its current rung; a curve already run there (checked or as asked) is not rerun.
@@ -187,6 +212,8 @@ class CurveModel:
             done = {k: curve_run(jobs[k], self.meshes) for k in todo}
         for k in todo:
             self._cache[k, t, self.curves[k].level, mode] = done[k]
+            if np.all(np.isfinite(done[k].F)):
+                self._longest[k] = max(self._longest[k], done[k].seconds)
             self.timings[k].append((self.curves[k].level, check, done[k].seconds, done[k].cpu_s))
         return [cast(Run, self.cached(k, theta, c.level, check, probe)) for k, c in enumerate(self.curves)]
 
@@ -216,6 +243,7 @@ class CurveModel:
             check,
             c.label,
             probe_points(len(c.u_mm)) if check and probe else None,
+            run_budget(self._longest[k]),
         )
 
     def _pool(self, k: int) -> Any:

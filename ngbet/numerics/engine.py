@@ -59,6 +59,7 @@ __all__ = [
     "StepRecord",
     "Steps",
     "check_stop",
+    "past_deadline",
     "path_steps",
     "progress_bar",
     "time_budget",
@@ -245,6 +246,15 @@ def time_budget(seconds: float) -> Iterator[None]:
         _DEADLINE.reset(token)
 
 
+def past_deadline() -> bool:
+    """Whether the time budget of the enclosing :func:`time_budget` is spent.
+
+    The path checks it before each trial; a relaxation, whose trial may take hundreds of
+    factorizations, checks it before each of them.
+    """
+    return time.perf_counter() > _DEADLINE.get()
+
+
 def check_stop() -> None:
     """Raise KeyboardInterrupt if a signal asked the run to stop (:data:`STOP_REQUESTED`)."""
     if STOP_REQUESTED.is_set():
@@ -275,7 +285,7 @@ def path_steps(
     while not measure.finished(out.u0):
         check_stop()
         lam = out.u0
-        if time.perf_counter() > _DEADLINE.get():
+        if past_deadline():
             text, detail = corrector.diagnose(out.attempts)
             raise ConvergenceError(
                 f"time budget spent on the way from {lam * 1e3:.6g} mm to {ctl.target * 1e3:.6g} mm",

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .engine import past_deadline
 from .newton import Relaxable, newton
 from .settings import NewtonSettings
 
@@ -135,6 +136,8 @@ def _flow(
         return False, its, "the relaxation starts outside the energy's domain (or with a non-finite residual)"
     barrier = False  # a trial step left the energy's domain (e.g. inverted material)
     while its < settings.max_iterations:
+        if past_deadline():  # a relaxation may take hundreds of factorizations: the budget bounds it too
+            return False, its, "the time budget was spent in the relaxation"
         its += 1
         shift = problem.factorize(shift)
         dx = problem.solve(r)
