@@ -238,3 +238,45 @@ def test_a_curve_run_past_its_time_budget_counts_as_not_converged(monkeypatch):
     second = m(THETA + 0.1)
     assert all(np.all(np.isnan(r.F)) for r in second) and m.runs == 2
     assert all(0 < t < 60 for t in m._longest)  # noqa: SLF001 - a run that failed does not raise it
+
+
+class _RungModel:
+    """A stand-in for :class:`runs.CurveModel`: each rung's estimated relative force error from a table."""
+
+    def __init__(self, cfs: list[CurveFit], rel_by_rung: list[dict[int, float]]) -> None:
+        self.cfs, self.rel_by_rung, self.calls = cfs, rel_by_rung, []
+
+    def __call__(self, theta, check=False, probe=False):
+        self.calls.append([cf.level for cf in self.cfs])
+        out = []
+        for cf, rel in zip(self.cfs, self.rel_by_rung, strict=True):
+            F = np.ones(len(cf.u_mm))
+            out.append(runs.Run(F, np.zeros((len(F), 2)), F[:0], F[:0], F[:0], F[:0], rel[cf.level] * F, F))
+        return out
+
+
+@pytest.mark.parametrize(
+    ("rel", "stays", "probed"),
+    [
+        # no rung vouches (a state near a limit point): two rungs tried, the first kept, not the sixth
+        ({1: np.inf, 2: np.inf, 3: np.inf, 4: np.inf, 5: np.inf}, 1, [1, 2]),
+        # the estimate falls, then rises on two rungs in a row: the best one is kept
+        ({1: 0.05, 2: 0.02, 3: 0.03, 4: 0.04, 5: 0.001}, 2, [1, 2, 3, 4]),
+        # one rung that does not improve is let pass, and the next meets the target
+        ({1: 0.05, 2: 0.06, 3: 0.005, 4: 0.001, 5: 0.001}, 3, [1, 2, 3]),
+    ],
+)
+def test_a_curve_no_rung_vouches_for_stops_climbing_on_its_best_rung(rel, stays, probed):
+    """The rung climb of a fit ends at the second rung in a row that does not improve on the best
+    estimate, as the accuracy ladder of ``ngbet run`` does: finer rungs would cost a run each for
+    nothing (the balanced twill's frame, fitted, cannot be vouched for at 45 degrees on any rung:
+    five probes and a check of 3-9 minutes each). The curve stays on its best rung, the first tried
+    where none vouched."""
+    curve = MeasuredCurve(np.linspace(5.0, 50.0, 10), np.linspace(1.0, 10.0, 10), "stand-in")
+    cf = CurveFit(curve, scene(), curve.u_mm, curve.force_N, np.ones(10))
+    other = CurveFit(curve, scene(), curve.u_mm, curve.force_N, np.ones(10))
+    m = _RungModel([cf, other], [rel, {1: 0.02, 2: 0.005}])
+    levels = runs.first_levels(m, [cf, other], np.zeros(2), 0.01)  # type: ignore[arg-type]
+    assert levels == [stays, 2]
+    assert [c[0] for c in m.calls] == probed
+    assert cf.climb.ended is (stays != 3)

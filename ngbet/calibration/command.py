@@ -328,11 +328,21 @@ def summary(result: Any, out: Path) -> str:
             f"  {c.label:>16s}: RMS relative error {100 * c.rms_relative:5.1f} % "
             f"({len(c.u_mm)} points, {c.u_mm[0]:.3g} to {c.u_mm[-1]:.3g} mm); discretization error {est}"
         )
-    if not result.accuracy_met:
-        lines.append(
-            f"  the model's discretization error is above --accuracy {result.target_error:g} on some curve "
-            "(raise --max-runs; fit.json: accuracy)"
-        )
+    from .fit_params import FIT_LADDER
+
+    for c in result.curves:
+        if not c.error_rel_max <= result.target_error:
+            why = c.climb.reason or (
+                "the scene's own discretization"
+                if c.level is None
+                else "even on the finest rung"
+                if c.level == len(FIT_LADDER) - 1
+                else "the model runs were spent: raise --max-runs"
+            )
+            lines.append(
+                f"  {c.label}: the model's discretization error is above --accuracy {result.target_error:g} "
+                f"({why}; fit.json: accuracy)"
+            )
     se = result.se_log
     for k, n in enumerate(result.names):
         flag = "  at its bound" if n in result.at_bound else "  undetermined" if n in result.undetermined else ""

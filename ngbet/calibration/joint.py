@@ -442,20 +442,23 @@ def fit_curves(  # noqa: C901
                 step_se=step,
             )
             m0 = mark()
-            up = [
-                cf
-                for cf, x in zip(cfs, rel, strict=True)
-                if not x <= target_error and cf.level is not None and cf.level < len(FIT_LADDER) - 1
-            ]
             if model.runs >= max_runs and full:
                 break
-            if up and model.runs < max_runs:
-                for cf, x in zip(cfs, rel, strict=True):
-                    if cf in up:
-                        log.info(
-                            "%s: estimated discretization error %.3g above %.3g: one rung up", cf.label, x, target_error
-                        )
-                        cf.level = (cf.level or 0) + 1
+            moved = False  # a rung changed: the curves are checked again there (a search first where none ran)
+            for cf, x in zip(cfs, rel, strict=True):
+                if x <= target_error or cf.level is None or cf.climb.ended or cf.level >= len(FIT_LADDER) - 1:
+                    continue
+                if model.runs >= max_runs:
+                    break
+                if cf.climb.record(cf.level, x):
+                    log.warning("%s: %s", cf.label, cf.climb.why(cf.level, x))
+                    moved = moved or cf.climb.choice() != cf.level
+                    cf.level = cf.climb.choice()
+                    continue
+                log.info("%s: estimated discretization error %.3g above %.3g: one rung up", cf.label, x, target_error)
+                cf.level += 1
+                moved = True
+            if moved:
                 searched = False
                 continue
             if full:

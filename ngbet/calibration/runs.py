@@ -18,7 +18,7 @@ import numpy as np
 
 from ..scene.document import Scene
 from ..scene.validate import SceneError
-from .fit_params import FIRST_CHECKED, FIT_LADDER, CurveFit, with_values
+from .fit_params import FIRST_CHECKED, FIT_LADDER, Climb, CurveFit, with_values
 
 __all__ = [
     "PROBE_POINTS",
@@ -322,29 +322,32 @@ def first_levels(
     One probe (:meth:`CurveModel.__call__`) per rung tried, the curves at once. Probed with the start values before the
     search (stiff yarns lock the cheap rungs, with errors of tens of per cent, where a search would
     only chase the discretization), and again where the coarse search ended, from the start's
-    rungs up. A curve that no rung vouches for gets the last.
+    rungs up. Each curve's climb starts afresh (``CurveFit.climb``) and ends as
+    :class:`~ngbet.calibration.fit_params.Climb` says: a curve no rung vouches for stays on the
+    climb's choice, the rung with the best estimate (or the first tried), not the last.
     """
+    top = len(FIT_LADDER) - 1
     for k, cf in enumerate(cfs):
         lv = lowest[k] if lowest is not None else None
         cf.level = FIRST_CHECKED if lv is None else lv
+        cf.climb = Climb()
     pending = list(range(len(cfs)))
-    found: dict[int, int] = {}
+    found: dict[int, int | None] = {}
     while pending:
         runs = model(theta, check=True, probe=True)
         for i in list(pending):
             cf = cfs[i]
             rel = relative_error(runs[i], probe_points(len(cf.u_mm)))
-            if rel <= target_error or cf.level is None or cf.level >= len(FIT_LADDER) - 1:
-                found[i] = cf.level if cf.level is not None else FIRST_CHECKED
-                pending.remove(i)
+            if rel <= target_error or cf.level is None:
+                found[i] = cf.level
+            elif cf.climb.record(cf.level, rel) or cf.level >= top:
+                found[i] = cf.climb.choice()
+                log.warning("%s: %s", cf.label, cf.climb.why(cf.level, rel))
             else:
-                log.info(
-                    "%s: estimated discretization error %.3g on rung %d: one rung up",
-                    cf.label,
-                    rel,
-                    cf.level,
-                )
+                log.info("%s: estimated discretization error %.3g on rung %d: one rung up", cf.label, rel, cf.level)
                 cf.level += 1
+                continue
+            pending.remove(i)
     return [found[i] for i in range(len(cfs))]
 
 
