@@ -9,12 +9,14 @@ import sys
 import textwrap
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import psutil
 import pytest
 
 from ngbet.calibration import joint, runs
+from ngbet.calibration.command import summary
 from ngbet.calibration.fit_params import CurveFit, curve_scene
 from ngbet.measured.curves import MeasuredCurve
 from ngbet.scene.document import Scene
@@ -280,3 +282,26 @@ def test_a_curve_no_rung_vouches_for_stops_climbing_on_its_best_rung(rel, stays,
     assert levels == [stays, 2]
     assert [c[0] for c in m.calls] == probed
     assert cf.climb.ended is (stays != 3)
+    if stays == 3:
+        return
+    assert cf.climb.reason.endswith(f"the curve stays on rung {stays}")
+    assert ("cannot vouch" in cf.climb.reason) is (rel[1] == np.inf)
+    # the terminal summary says why this curve misses the target, not "raise --max-runs"
+    cf.level, cf.model_N, cf.force_error_N = stays, np.ones(10), np.full(10, rel[stays])
+    other.level, other.model_N, other.force_error_N = 2, np.ones(10), np.full(10, 0.005)
+    result = SimpleNamespace(
+        converged=True,
+        names=[],
+        curves=[cf, other],
+        model_runs=3,
+        wall_s=1.0,
+        target_error=0.01,
+        se_log=np.zeros(0),
+        values=np.zeros(0),
+        at_bound=[],
+        undetermined={},
+        held={},
+    )
+    lines = [ln for ln in summary(result, Path("out")).splitlines() if "above --accuracy" in ln]
+    said = f"  {cf.label}: discretization error above --accuracy 0.01: {cf.climb.reason} (fit.json: accuracy)"
+    assert lines == [said]

@@ -340,8 +340,8 @@ def summary(result: Any, out: Path) -> str:
                 else "the model runs were spent: raise --max-runs"
             )
             lines.append(
-                f"  {c.label}: the model's discretization error is above --accuracy {result.target_error:g} "
-                f"({why}; fit.json: accuracy)"
+                f"  {c.label}: discretization error above --accuracy {result.target_error:g}: {why} "
+                "(fit.json: accuracy)"
             )
     se = result.se_log
     for k, n in enumerate(result.names):

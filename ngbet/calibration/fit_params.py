@@ -265,7 +265,7 @@ class Climb:
                 f"estimated error {rel:.3g} on rung {level}, no better than {self.best_rel:.3g} "
                 f"on rung {self.best_level}"
             )
-        return f"{said}: staying on rung {self.choice()} (the fit's accuracy target is not met there)"
+        return f"{said}; the curve stays on rung {self.choice()}"
 
     def choice(self) -> int | None:
         """The rung to stay on: the best estimate's, else (none vouched) the first tried, the cheapest."""

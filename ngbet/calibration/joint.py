@@ -451,7 +451,7 @@ def fit_curves(  # noqa: C901
                 if model.runs >= max_runs:
                     break
                 if cf.climb.record(cf.level, x):
-                    log.warning("%s: %s", cf.label, cf.climb.why(cf.level, x))
+                    log.warning("%s: %s, where the accuracy target is not met", cf.label, cf.climb.why(cf.level, x))
                     moved = moved or cf.climb.choice() != cf.level
                     cf.level = cf.climb.choice()
                     continue

@@ -342,7 +342,7 @@ def first_levels(
                 found[i] = cf.level
             elif cf.climb.record(cf.level, rel) or cf.level >= top:
                 found[i] = cf.climb.choice()
-                log.warning("%s: %s", cf.label, cf.climb.why(cf.level, rel))
+                log.warning("%s: %s, where the accuracy target is not met", cf.label, cf.climb.why(cf.level, rel))
             else:
                 log.info("%s: estimated discretization error %.3g on rung %d: one rung up", cf.label, rel, cf.level)
                 cf.level += 1
