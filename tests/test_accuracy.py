@@ -642,6 +642,38 @@ def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
     assert seen and set(seen) == {0}
 
 
+@pytest.mark.parametrize(
+    ("cores", "threads", "expected"),
+    [
+        (2, 1, {2: 1, 3: 1, 4: 2, 5: 2}),
+        (8, 1, {2: 1, 3: 1, 4: 2}),
+        (1, 1, {2: 1, 3: 1, 4: 1}),
+        (2, 3, {2: 3, 3: 3, 4: 3}),
+    ],
+)
+def test_accuracy_ladder_runs_its_high_orders_on_two_cores(tmp_path, monkeypatch, cores, threads, expected):
+    """Rungs of order THREADED_ORDER and above run on two threads (long parallel regions: about 0.6
+    of the wall time for the same CPU time, measured), lower orders on one; a machine of one core
+    keeps one, and a scene that asks for other threads than the default 1 keeps its own."""
+    from ngbet.runner import ladder
+
+    monkeypatch.setattr(ladder.os, "cpu_count", lambda: cores)
+    seen = {}
+
+    def run_one(sc, out):
+        p = sc.discretization.order_u
+        seen[p] = sc.solver.threads
+        rel = 1e-5 if p >= max(expected) else 0.1 / p  # falling: the ladder climbs to max(expected)
+        return {"force_N": 107.0, "force_error_rel": rel, "solve_s": 1.0, "estimate_s": 0.1}
+
+    ladder.run_to_accuracy(
+        default_scene().with_changes(**{"discretization.target_error": 2.5e-3, "solver.threads": threads}),
+        tmp_path,
+        run_one,
+    )
+    assert seen == expected
+
+
 @pytest.mark.slow
 def test_accuracy_on_demand_reaches_1e_4(tmp_path):
     """h = 20 mm, p = 8 on the 0.25 mm-corner mesh, verified against the reference with its bound
