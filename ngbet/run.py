@@ -36,11 +36,14 @@ def run(scene: Scene, out: str | Path, progress: bool = False, measured: Any = N
                 "here: pip install \"ngbet[cholmod]\" (or choose 'auto', which falls back to "
                 "'sparsecholesky')"
             )
-    with ngsolve_threads(scene):
-        if scene.model == "discrete":
-            from .runner.discrete import run_discrete
+    if scene.model == "discrete":
+        from .runner.discrete import run_discrete
 
+        with ngsolve_threads(scene):
             return run_discrete(scene, out, progress=progress, measured=measured)
-        from .runner.continuum import run_continuum
+    from .runner.continuum import run_continuum
 
+    if scene.discretization.target_error > 0:  # the accuracy ladder: each rung sets its own threads
+        return run_continuum(scene, Path(out), progress, measured)
+    with ngsolve_threads(scene):
         return run_continuum(scene, Path(out), progress, measured)

@@ -34,6 +34,7 @@ from .arclength import MODE_KEY, arclength_runner
 from .fields import write_vtk
 from .ladder import run_to_accuracy
 from .settings import solver_settings
+from .threads import ngsolve_threads
 
 #: each element of the shear-angle map is split into this many² triangles (p = 2 fields: enough)
 MAP_SUBDIVISION = 2
@@ -41,6 +42,12 @@ MAP_SUBDIVISION = 2
 log = logging.getLogger(__name__)
 
 __all__ = ["load_path", "run_continuum"]
+
+
+def _run_rung(scene: Scene, out: Path, progress: bool, measured: Any) -> dict[str, Any]:
+    """One rung of the accuracy ladder, on the NGSolve threads its scene asks for (:mod:`.threads`)."""
+    with ngsolve_threads(scene):
+        return run_continuum(scene, out, progress, measured)
 
 
 def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None) -> dict[str, Any]:
@@ -53,7 +60,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
     """
     if scene.discretization.target_error > 0:  # accuracy on demand: the discretization is chosen
         try:
-            acc = run_to_accuracy(scene, out, lambda sc, o: run_continuum(sc, o, progress, measured))
+            acc = run_to_accuracy(scene, out, functools.partial(_run_rung, progress=progress, measured=measured))
         except ConvergenceError as err:  # the target not reached: its record, then the failure
             if "accuracy" in err.path_info:
                 RunWriter.amend(out, {"accuracy": err.path_info["accuracy"], "status": "failed", "error": str(err)})
