@@ -654,10 +654,12 @@ def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
 def test_accuracy_ladder_runs_its_high_orders_on_two_cores(tmp_path, monkeypatch, cores, threads, expected):
     """Rungs of order THREADED_ORDER and above run on two threads (long parallel regions: about 0.6
     of the wall time for the same CPU time, measured), lower orders on one; a machine of one core
-    keeps one, and a scene that asks for other threads than the default 1 keeps its own."""
+    keeps one, and so does a run held to one core (a study's case beside others); a scene that asks
+    for other threads than the default 1 keeps its own."""
     from ngbet.runner import ladder
+    from ngbet.runner import threads as th
 
-    monkeypatch.setattr(ladder.os, "cpu_count", lambda: cores)
+    monkeypatch.setattr(th.os, "cpu_count", lambda: cores)
     seen = {}
 
     def run_one(sc, out):
@@ -666,12 +668,13 @@ def test_accuracy_ladder_runs_its_high_orders_on_two_cores(tmp_path, monkeypatch
         rel = 1e-5 if p >= max(expected) else 0.1 / p  # falling: the ladder climbs to max(expected)
         return {"force_N": 107.0, "force_error_rel": rel, "solve_s": 1.0, "estimate_s": 0.1}
 
-    ladder.run_to_accuracy(
-        default_scene().with_changes(**{"discretization.target_error": 2.5e-3, "solver.threads": threads}),
-        tmp_path,
-        run_one,
-    )
+    sc = default_scene().with_changes(**{"discretization.target_error": 2.5e-3, "solver.threads": threads})
+    ladder.run_to_accuracy(sc, tmp_path, run_one)
     assert seen == expected
+    seen.clear()
+    with th.cores_for_runs(1):  # a study's case beside others: one core, whatever the order
+        ladder.run_to_accuracy(sc, tmp_path, run_one)
+    assert seen == {p: threads for p in expected}
 
 
 @pytest.mark.slow

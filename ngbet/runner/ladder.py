@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import os
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -94,18 +93,21 @@ RUNG_BUDGET_FACTOR = 10.0
 RUNG_BUDGET_MIN_S = 30.0
 
 
-#: rungs of this order and above run on two cores where the machine has them and the scene leaves
-#: ``solver.threads`` at its default 1: their assembly, factorizations and solves are long parallel
-#: regions. Measured on the default scene, 2-core machine, quiet: at h = 20 mm two threads take 0.55
-#: of one thread's solve time at p = 4, 0.56 at p = 6, and `--accuracy 1e-4` (p = 8) 27.7 s against
-#: 46.4 s of wall time for the same CPU time (49.8 against 48.0 s), forces equal to 2e-15. At p = 2
-#: (the default scene) the whole command takes 1.15 times the CPU time on two threads.
+#: rungs of this order and above run on two cores where the run may use them
+#: (:func:`ngbet.runner.threads.run_cores`) and the scene leaves ``solver.threads`` at its default
+#: 1: their assembly, factorizations and solves are long parallel regions. Measured on the default
+#: scene, 2-core machine, quiet: at h = 20 mm two threads take 0.55 of one thread's solve time at
+#: p = 4, 0.56 at p = 6, and `--accuracy 1e-4` (p = 8) 27.7 s against 46.4 s of wall time for the
+#: same CPU time (49.8 against 48.0 s), forces equal to 2e-15. At p = 2 (the default scene) the
+#: whole command takes 1.15 times the CPU time on two threads.
 THREADED_ORDER = 4
 
 
 def _on_cores(scene: Scene) -> Scene:
     """``scene`` (on a rung) with two threads where :data:`THREADED_ORDER` says so, else as it is."""
-    cores = min(os.cpu_count() or 1, 2)
+    from .threads import run_cores
+
+    cores = min(run_cores(), 2)
     if scene.discretization.order_u < THREADED_ORDER or scene.solver.threads != 1 or cores < 2:
         return scene
     return scene.with_changes(**{"solver.threads": cores})
@@ -138,8 +140,9 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     (unless it was the last one run) and :class:`ngbet.errors.ConvergenceError` says that the
     target was not reached and what was.
 
-    Settings of order :data:`THREADED_ORDER` and above run on two cores where the scene leaves
-    ``solver.threads`` at 1 (the same numbers to rounding, in about 0.6 of the wall time).
+    Settings of order :data:`THREADED_ORDER` and above run on two cores where the run may use
+    them and the scene leaves ``solver.threads`` at 1 (the same numbers to rounding, in about 0.6
+    of the wall time).
 
     A setting that cannot carry the load is left for the next (its attempt says why), and so are
     the higher orders on its mesh, which fail alike; each setting after the first has a time

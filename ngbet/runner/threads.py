@@ -10,16 +10,49 @@ import contextlib
 import logging
 import os
 from collections.abc import Iterator
+from contextvars import ContextVar
 
 from ..scene.document import Scene
 
-__all__ = ["IDLE_CORES_FOR_THREADS", "ngsolve_threads", "single_threaded_blas", "thread_policy"]
+__all__ = [
+    "IDLE_CORES_FOR_THREADS",
+    "cores_for_runs",
+    "ngsolve_threads",
+    "run_cores",
+    "single_threaded_blas",
+    "thread_policy",
+]
 
 log = logging.getLogger(__name__)
 
 
 #: "auto" threads the assembly when at least this many cores are idle (cores minus the load average)
 IDLE_CORES_FOR_THREADS = 1.5
+
+
+#: the cores a run of this context may use (None: the machine's); set by whoever runs runs side by side
+_RUN_CORES: ContextVar[int | None] = ContextVar("run_cores", default=None)
+
+
+@contextlib.contextmanager
+def cores_for_runs(n: int) -> Iterator[None]:
+    """Inside: a run may use at most ``n`` cores (a study's case among others running at the same time).
+
+    What a run chooses for itself (the accuracy ladder's threads at high order) stays within it;
+    a scene's own ``solver.threads`` is not capped.
+    """
+    token = _RUN_CORES.set(max(1, int(n)))
+    try:
+        yield
+    finally:
+        _RUN_CORES.reset(token)
+
+
+def run_cores() -> int:
+    """The cores a run may use: the machine's, or fewer inside :func:`cores_for_runs`."""
+    cores = os.cpu_count() or 1
+    cap = _RUN_CORES.get()
+    return cores if cap is None else min(cores, cap)
 
 
 def thread_policy(

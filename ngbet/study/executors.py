@@ -91,7 +91,11 @@ def execute_case(
         "pid": os.getpid(),
     }
     try:
-        with _quiet_logs():  # a case's warnings go to its summary.json (and the study's meta.json), not the terminal
+        from ..runner.threads import cores_for_runs
+
+        # a case's warnings go to its summary.json (and the study's meta.json), not the terminal; the
+        # case keeps to its threads (the cases beside it have theirs)
+        with _quiet_logs(), cores_for_runs(threads) if threads > 0 else contextlib.nullcontext():
             summary = run(scene, wd, progress=False)
         if summary.get("status") != "ok":
             rec.update(status="failed", error=str(summary.get("error")), error_type="solver")
