@@ -54,13 +54,13 @@ def interrupts() -> Iterator[None]:
     woken by the signal (``signal.set_wakeup_fd``) then records the interruption in the active run
     folders itself and exits with 130 after GRACE_S.
     """
-    from .numerics.engine import STOP_REQUESTED
+    from .numerics.engine import STOP_REQUESTED, request_stop
 
     acted = threading.Event()
 
     def handler(signum: int, frame: Any) -> None:
         acted.set()
-        STOP_REQUESTED.set()  # in case the exception is lost (engine.STOP_REQUESTED): the next step raises
+        request_stop(signal_name(signum))  # in case the exception is lost (engine.STOP_REQUESTED): the next step raises
         raise KeyboardInterrupt(signal_name(signum))
 
     try:

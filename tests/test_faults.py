@@ -271,8 +271,9 @@ def test_an_interrupt_lost_inside_a_library_still_stops_the_run(tmp_path, monkey
     """The signal handler's KeyboardInterrupt can be lost: raised while pybind11 converts the
     arguments of an NGSolve call (seen in ngs.IfPos of the centre's shear angle), it is cleared as
     a failed conversion, and 2 runs in 150 under load went on to the end with exit status 0. The
-    handler also sets engine.STOP_REQUESTED, and the load loop raises at the next step. Here the
-    handler's effect is imitated at the third step: the flag set, the exception lost."""
+    handler also asks the run to stop (engine.request_stop), and the load loop raises at the next
+    step, naming the signal (a lost SIGHUP was once reported as "SIGINT/SIGTERM"). Here the
+    handler's effect is imitated at the third step: the stop requested, the exception lost."""
     from ngbet.continuum import observables as obs
     from ngbet.numerics import engine
 
@@ -282,7 +283,7 @@ def test_an_interrupt_lost_inside_a_library_still_stops_the_run(tmp_path, monkey
     def lost_interrupt(problem):
         calls.append(1)
         if len(calls) == 3:
-            engine.STOP_REQUESTED.set()
+            engine.request_stop("SIGHUP")
         return angle(problem)
 
     monkeypatch.setattr(obs, "centre_shear_angle_deg", lost_interrupt)
@@ -291,6 +292,7 @@ def test_an_interrupt_lost_inside_a_library_still_stops_the_run(tmp_path, monkey
     assert "interrupted" in capsys.readouterr().err
     s, rows = summary(out), read_rows(out / "results.csv")
     assert s["status"] == "interrupted" and len(rows) == 3 == s["steps"]
+    assert s["error"] == f"interrupted (SIGHUP) after u0 = {s['last_converged_mm']:g} mm"
     assert not engine.STOP_REQUESTED.is_set()  # cleared for the next command in this process
 
 

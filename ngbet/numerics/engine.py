@@ -59,6 +59,7 @@ __all__ = [
     "StepRecord",
     "Steps",
     "check_stop",
+    "request_stop",
     "past_deadline",
     "path_steps",
     "progress_bar",
@@ -225,6 +226,14 @@ class PathResult:
 #: conversion and the run would go on to the end. The load loops check this flag between steps,
 #: so that such a run stops at its next step.
 STOP_REQUESTED = threading.Event()
+#: the name of the signal that set :data:`STOP_REQUESTED` (:func:`request_stop`)
+_STOP_SIGNAL = ["SIGINT"]
+
+
+def request_stop(signal_name: str) -> None:
+    """Ask the run to stop at its next step (:func:`check_stop`), which names ``signal_name``."""
+    _STOP_SIGNAL[0] = signal_name
+    STOP_REQUESTED.set()
 
 
 #: the time (``time.perf_counter()``) after which a path stops at its next trial (inf: none); set by :func:`time_budget`
@@ -258,7 +267,7 @@ def past_deadline() -> bool:
 def check_stop() -> None:
     """Raise KeyboardInterrupt if a signal asked the run to stop (:data:`STOP_REQUESTED`)."""
     if STOP_REQUESTED.is_set():
-        raise KeyboardInterrupt("stop requested by a signal")
+        raise KeyboardInterrupt(_STOP_SIGNAL[0])  # the signal's name, as the handler's own exception says
 
 
 def path_steps(
