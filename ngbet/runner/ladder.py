@@ -17,6 +17,7 @@ from typing import Any
 from ..numerics.engine import time_budget
 from ..scene.document import Scene
 from ..scene.validate import AUTO
+from .threads import run_cores
 
 __all__ = [
     "EXPECTED_MARGIN",
@@ -105,8 +106,6 @@ THREADED_ORDER = 4
 
 def _on_cores(scene: Scene) -> Scene:
     """``scene`` (on a rung) with two threads where :data:`THREADED_ORDER` says so, else as it is."""
-    from .threads import run_cores
-
     cores = min(run_cores(), 2)
     if scene.discretization.order_u < THREADED_ORDER or scene.solver.threads != 1 or cores < 2:
         return scene
