@@ -91,8 +91,43 @@ def test_calibration_section_is_validated():
         Scene().with_changes(
             **{"calibration.params": ["material.K_sh"], "calibration.lower": [5.0], "calibration.upper": [1.0]}
         )
+    with pytest.raises(SceneError, match="calibration.table_smoothness_sd"):
+        Scene().with_changes(**{"calibration.table_smoothness_sd": -1.0})
     sc = Scene.from_toml(GEO / "twintex_plain.toml")
     assert Scene.from_toml_string(sc.to_toml()) == sc
+
+
+def test_smoothness_prior_rows_are_second_differences_of_consecutive_fitted_rises():
+    key = fit_params.TABLE_KEY
+    names = [f"{key}[0]", "material.alpha1", f"{key}[1]", f"{key}[2]", f"{key}[4]", f"{key}[5]", f"{key}[6]"]
+    P = fit_params.smoothness_rows(names, 0.5)
+    # rises 0-1-2 and 4-5-6 are consecutive, 2 and 4 are not: two rows
+    assert P.shape == (2, len(names))
+    assert np.all(P[:, 1] == 0)
+    # a geometric sequence of rises costs nothing: its ln has no second difference
+    theta = np.log([10.0, 3.0, 10.0 * 4, 10.0 * 16, 7.0 * 2**4, 7.0 * 2**5, 7.0 * 2**6])
+    assert np.allclose(P @ theta, 0.0, atol=1e-12)
+    # one rise doubled: its row moves by ln 2 / sd
+    theta[3] += math.log(2.0)
+    assert P @ theta == pytest.approx([math.log(2.0) / 0.5, 0.0], abs=1e-12)
+    assert fit_params.smoothness_rows(names, 0.0).shape == (0, len(names))
+
+
+def test_the_prior_holds_what_the_data_leave_open_and_the_report_says_the_data_leave_it():
+    # a linear model whose data do not see the third rise: the covariance with the prior is the
+    # Gaussian posterior s^2 (J^T J + P^T P)^-1, while the third rise is reported undetermined by the data
+    key = fit_params.TABLE_KEY
+    names = [f"{key}[{j}]" for j in range(3)]
+    rng = np.random.default_rng(3)
+    Jd = np.column_stack([rng.normal(size=20), rng.normal(size=20), np.zeros(20)])
+    P = fit_params.smoothness_rows(names, 1.0)
+    e = np.concatenate([rng.normal(size=20) * 2.0, [0.3]])
+    st = joint._statistics(e, np.vstack([Jd, P]), names, len(P))
+    s2 = float(e[:20] @ e[:20]) / (20 - 3)
+    assert s2 > 1
+    assert st["cov"] == pytest.approx(s2 * np.linalg.inv(Jd.T @ Jd + P.T @ P), rel=1e-9)
+    assert list(st["undetermined"]) == [f"{key}[2]"]
+    assert "smoothness prior" in st["undetermined"][f"{key}[2]"]
 
 
 # ------------------------------------------------------------------------------------------ tabulated law

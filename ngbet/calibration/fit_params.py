@@ -48,6 +48,7 @@ __all__ = [
     "expand_params",
     "gauss_newton_direction",
     "portable_scene",
+    "smoothness_rows",
     "test_changes",
     "value_of",
     "with_values",
@@ -105,6 +106,30 @@ def with_values(scene: Scene, names: Sequence[str], values: Sequence[float]) -> 
         else:
             changes[n] = float(v)
     return scene.with_changes(**changes)
+
+
+def smoothness_rows(names: Sequence[str], sd: float) -> np.ndarray:
+    """The rows of the table's smoothness prior on θ = ln p: a (rows, len(names)) matrix P.
+
+    One row (ln r_(j-1) − 2 ln r_j + ln r_(j+1))/``sd`` for each three consecutive rises r of
+    the shear table among ``names``; none for ``sd`` = 0 or fewer than three rises. The fit appends
+    P θ to its residuals and P to its Jacobian: a Gaussian prior of standard deviation ``sd`` on
+    the second differences of ln r (a P-spline's second-order penalty on the logarithm of the rises).
+
+    Why: a rise at shear angles the fitted curves barely reach lies on a flat direction of the fit
+    and ends wherever the search leaves it, often at a bound; the prior continues the geometric
+    trend of its neighbours there, and leaves a rise the data determine where the data put it
+    (its row weighs one standard deviation against the data's residuals over their own).
+    """
+    idx = {int(n[len(TABLE_KEY) + 1 : -1]): k for k, n in enumerate(names) if n.startswith(TABLE_KEY + "[")}
+    rows = []
+    if sd > 0:
+        for j in sorted(idx):
+            if j - 1 in idx and j + 1 in idx:
+                row = np.zeros(len(names))
+                row[[idx[j - 1], idx[j], idx[j + 1]]] = np.array([1.0, -2.0, 1.0]) / sd
+                rows.append(row)
+    return np.array(rows).reshape(len(rows), len(names))
 
 
 def bounds(
@@ -371,6 +396,7 @@ class JointFit:
     stages: list[dict[str, Any]] = field(default_factory=list)
     profile_sd_mm: float = 1.0
     angle_sd_deg: float = 1.0
+    smoothness_sd: float = 0.0
 
     @property
     def se_log(self) -> np.ndarray:
@@ -469,6 +495,7 @@ class JointFit:
             "flat_directions": self.flat_directions,
             "correlation": [[num(corr[i, j]) for j in range(n)] for i in range(n)],
             "covariance_log": [[float(x) for x in row] for row in self.cov_log],
+            "table_smoothness_sd": self.smoothness_sd,
             "noise_scale": self.noise_scale,
             "residual_scale": self.residual_scale,
             "model_runs": self.model_runs,

@@ -60,6 +60,7 @@ from .fit_params import (
     expand_params,
     gauss_newton_direction,
     portable_scene,
+    smoothness_rows,
     value_of,
     with_values,
 )
@@ -238,6 +239,7 @@ def fit_curves(  # noqa: C901
             reach = max(float(np.max(ang.u_mm)), float(u.max()))
             sc = sc.with_changes(**{"loading.u0_mm": reach})
         cfs.append(CurveFit(c, sc, u, F, c.sd(u, F), prof, ang, FIRST_CHECKED if choose_discretization else None))
+    prior = smoothness_rows(names, scene.calibration.table_smoothness_sd)
     model = CurveModel(cfs, names, workers if workers is not None else default_workers(len(cfs)))
     try:
         best = [math.inf]
@@ -256,7 +258,7 @@ def fit_curves(  # noqa: C901
         def resid(theta: np.ndarray) -> np.ndarray:
             res = model(theta)
             e = blocks(res)
-            e = np.where(np.isfinite(e), e, 1e3)
+            e = np.concatenate([np.where(np.isfinite(e), e, 1e3), prior @ theta])
             cost = float(e @ e)
             best[0] = min(best[0], cost)
             if progress is not None and not quiet[0]:
@@ -278,7 +280,7 @@ def fit_curves(  # noqa: C901
                     rows.append(r.GP / profile_sd_mm)
                 if c.angles is not None:
                     rows.append(r.GA / angle_sd_deg)
-            return np.vstack(rows)
+            return np.vstack([*rows, prior])
 
         def search(theta: np.ndarray, runs: int, tol: float) -> Any:
             """The least-squares search from θ (at most ``runs`` model runs, tolerance ``tol``)."""
@@ -482,7 +484,7 @@ def fit_curves(  # noqa: C901
             sol = OptimizeResult(x=th, success=False, status=0, message="the model runs were spent before a search")
         quiet[0] = True
         e, J = resid(th), jac(th)
-        st = _statistics(e, J, names)
+        st = _statistics(e, J, names, len(prior))
         for cf, r in zip(cfs, checked, strict=True):
             cf.model_N, cf.dlogp, cf.force_error_N, cf.angle_deg = r.F, r.G, r.err, r.angle
             cf.profile_mm, cf.angles_model_deg = r.P, r.A
@@ -528,6 +530,7 @@ def fit_curves(  # noqa: C901
             stages,
             profile_sd_mm,
             angle_sd_deg,
+            scene.calibration.table_smoothness_sd,
         )
 
     finally:
@@ -551,19 +554,24 @@ WHAT_FIXES = {
 }
 
 
-def _statistics(e: np.ndarray, J: np.ndarray, names: list[str]) -> dict[str, Any]:
+def _statistics(e: np.ndarray, J: np.ndarray, names: list[str], prior_rows: int = 0) -> dict[str, Any]:
     """Covariance of θ = ln p from the SVD of J, and what the data leave undetermined.
 
-    s² = Σe²/(m − n), floored at 1 (error bars that do not cover the misfit are scaled up, never
-    down); ``residual_scale`` is s itself.
+    The last ``prior_rows`` rows of ``e`` and ``J`` are the smoothness prior's
+    (:func:`~ngbet.calibration.fit_params.smoothness_rows`): the covariance holds them (the bands
+    are those of data and prior), while what is undetermined, flat or correlated is judged from the
+    data's rows alone (the report names what the data leave open, also where the prior holds it).
+    s² = Σe²/(m − n) over the data's m rows, floored at 1 (error bars that do not cover the misfit
+    are scaled up, never down); ``residual_scale`` is s itself.
     """
-    m, n = J.shape
-    r2 = float(e @ e) / max(m - n, 1)
+    m = len(e) - prior_rows
+    n = J.shape[1]
+    r2 = float(e[:m] @ e[:m]) / max(m - n, 1)
     s2 = max(r2, 1.0)
-    U, sv, Vt = np.linalg.svd(J, full_matrices=False)
-    # a vanishing singular value gives its direction a huge (not infinite) variance
-    cov = s2 * (Vt.T / np.maximum(sv, 1e-150 + 1e-12 * sv[0]) ** 2) @ Vt
-    se = np.sqrt(np.abs(np.diag(cov)))
+    _, sv, Vt = np.linalg.svd(J[:m], full_matrices=False)
+    cov_data = s2 * _inverse_normal(sv, Vt)
+    cov = s2 * _inverse_normal(*np.linalg.svd(J, full_matrices=False)[1:]) if prior_rows else cov_data
+    se = np.sqrt(np.abs(np.diag(cov_data)))
     undetermined: dict[str, str] = {}
     flat = []
     for k in range(len(sv)):
@@ -581,11 +589,17 @@ def _statistics(e: np.ndarray, J: np.ndarray, names: list[str]) -> dict[str, Any
                 f"standard error of ln p = {se[k]:.3g} > {UNDETERMINED_SE}: its 95 % interval "
                 f"spans more than a factor {math.exp(1.96 * UNDETERMINED_SE):.1f} either way"
             )
+    held_by_prior = set(np.nonzero(J[m:])[1].tolist())
     for p in undetermined:
+        if names.index(p) in held_by_prior:
+            undetermined[p] += (
+                f"; the smoothness prior on the table's rises holds it (standard error of ln p with the "
+                f"prior: {math.sqrt(abs(cov[names.index(p), names.index(p)])):.3g})"
+            )
         hint = next((h for k, h in WHAT_FIXES.items() if p.startswith(k)), "")
         if hint:
             undetermined[p] += f"; {hint}"
-    corr = correlation(cov)
+    corr = correlation(cov_data)
     pairs = [
         (names[i], names[j], float(corr[i, j]))
         for i in range(n)
@@ -600,3 +614,12 @@ def _statistics(e: np.ndarray, J: np.ndarray, names: list[str]) -> dict[str, Any
         "noise_scale": math.sqrt(s2),
         "residual_scale": math.sqrt(r2),
     }
+
+
+def _inverse_normal(sv: np.ndarray, Vt: np.ndarray) -> np.ndarray:
+    """(JᵀJ)⁻¹ from J's singular values and right singular vectors.
+
+    A vanishing singular value gives its direction a huge (not infinite) variance.
+    """
+    inverse: np.ndarray = (Vt.T / np.maximum(sv, 1e-150 + 1e-12 * sv[0]) ** 2) @ Vt
+    return inverse

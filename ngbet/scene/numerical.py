@@ -342,6 +342,9 @@ class Calibration:
     upper: tuple[float, ...] = ()  # bound above of each parameter (empty: start x 1e4)
     yarns_m1: str = ""  # the yarn family along m1 (bending stiffness alpha1), e.g. "warp, 3.39 ends/cm"
     yarns_m2: str = ""  # the yarn family along m2 (alpha2)
+    # standard deviation of the second difference of ln of consecutive fitted shear-table rises: a
+    # smoothness prior that continues the rises' trend where the data do not reach (0: none)
+    table_smoothness_sd: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("params", "lower", "upper"):
@@ -376,6 +379,7 @@ class Calibration:
         if self.lower and self.upper:
             for p, lo, hi in zip(self.params, self.lower, self.upper, strict=True):
                 check(lo < hi, "calibration.lower", lo, f"must lie below calibration.upper ({hi}) for {p}")
+        nonnegative("calibration", self, "table_smoothness_sd")
         check(
             isinstance(self.yarns_m1, str) and isinstance(self.yarns_m2, str),
             "calibration.yarns_m1",
