@@ -543,8 +543,8 @@ ELONGATION_KEY = "material.K_el"
 #: what data would determine a parameter the fit leaves undetermined (by the start of its name)
 WHAT_FIXES = {
     "material.shear_stress_steps_Pa": "what would fix it: a law with fewer coefficients (fewer rises, or the locking "
-    "law), or data that reach the shear angles of this rise (a larger displacement, "
-    "a picture-frame test)",
+    "law), a smoothness prior on the rises ([calibration] table_smoothness_sd), or data that reach the "
+    "shear angles of this rise (a larger displacement, a picture-frame test)",
     "material.K_el": "what would fix it: measured shear angles (--angles; yarn elongation keeps them below the ideal "
     "test's) or a bound on K_el from the yarns",
     "material.alpha": "what would fix it: another specimen size (another aspect ratio) or a measured mid-axis "
