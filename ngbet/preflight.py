@@ -78,9 +78,9 @@ def estimate_size(scene: Scene) -> tuple[int, float]:
         return estimate_discrete_size(scene)
     sp, d = scene.specimen, scene.discretization
     area, corners = sp.length_mm * sp.width_mm, 4
-    if scene.test == "picture_frame":  # the cross, graded at its 12 corners (4 without cuts)
+    if scene.test == "picture_frame":  # the cross, graded at its 12 corners (4 without cuts or with held arms)
         pf = scene.picture_frame
-        area, corners = pf.frame_mm**2 - 4 * pf.arm_mm**2, 12 if pf.arm_mm > 0 else 4
+        area, corners = pf.fabric_area_mm2, 12 if pf.arm_mm > 0 and pf.arms == "sheared" else 4
     ntri = area / _TRIANGLE_AREA / d.mesh_size_mm / d.mesh_size_mm  # inf, never 1/0
     if d.corner_mesh_size_mm > 0:
         ntri += corners * 12 * math.log2(d.mesh_size_mm / d.corner_mesh_size_mm)  # measured 9-12 per halving

@@ -222,6 +222,33 @@ def test_cutting_the_corners_only_lowers_the_energy():
     assert np.all(r.energy_J > 0.5 * bound)
 
 
+@pytest.mark.parametrize("misalignment", [0.0, 3.0])
+def test_held_arms_shear_the_inner_square_alone_with_the_force_of_its_energy(misalignment):
+    # arms held over their length move with the frame: the inner square has the frame's affine data on
+    # its whole edge, so the affine map is the solution there and the crosshead force is t L_fabric² dW/dd;
+    # its F_norm (Eq. 10) is then that of the whole square in the same frame, for any fabric_mm
+    keys = {"effects.bending": False, "picture_frame.misalignment_deg": misalignment}
+    held = frame_scene(**keys, **{"picture_frame.fabric_mm": 70.0, "picture_frame.arms": "held"})
+    r = simulate(held)
+    assert r.summary["status"] == "ok"
+    exact = np.array([homogeneous_force(held, x) for x in r.u0_mm]) * 0.7**2
+    assert r.force_N == pytest.approx(exact, rel=1e-7)
+    whole = simulate(frame_scene(**keys))
+    common = np.isin(r.u0_mm, whole.u0_mm)
+    assert common.sum() >= 3
+    assert r.fnorm_N_per_mm[common] == pytest.approx(whole.fnorm_N_per_mm[np.isin(whole.u0_mm, r.u0_mm)], rel=1e-9)
+    # the yarns' angle change of the homogeneous state (the frame's shear angle when aligned)
+    inv = np.array([homogeneous_invariants(held, x) for x in r.u0_mm])
+    gamma = np.degrees(np.arccos(inv[:, 2] / np.sqrt(inv[:, 0] * inv[:, 1]))) - 90.0
+    assert r.gamma_fabric_deg == pytest.approx(gamma, abs=1e-6)
+    # the same cross with its arms sheared carries more: the arms' energy too
+    sheared = simulate(frame_scene(**keys, **{"picture_frame.fabric_mm": 70.0}))
+    both = np.isin(sheared.u0_mm, r.u0_mm)
+    assert np.all(sheared.fnorm_N_per_mm[both] > 1.5 * r.fnorm_N_per_mm[np.isin(r.u0_mm, sheared.u0_mm)])
+    with pytest.raises(SceneError, match="picture_frame.arms"):
+        frame_scene(**{"picture_frame.arms": "glued"})
+
+
 # --------------------------------------------------------------------------- shipped scenes, figures
 GEOMETRY = Path(__file__).resolve().parents[1] / "geometry"
 

@@ -112,10 +112,14 @@ def cross_outline(frame: PictureFrame) -> list[tuple[tuple[float, float], str]]:
     its four corner squares of side c = (L_frame − L_fabric)/2; a point sits at X = ξ a1 + η a2 with
     a1 = (1, 1)/√2, a2 = (1, −1)/√2: the fixed pin at the origin, the crosshead's pin at (√2 L, 0).
     The edges on the bars (the arms' ends) are ``clamp``, those of the cut corners ``free``;
-    without cut corners (c = 0) the whole square's edge is clamped. Counter-clockwise.
+    without cut corners (c = 0) the whole square's edge is clamped. With the arms held over their
+    length (``frame.arms == "held"``) the fabric that deforms is the inner square [c, L − c]², its
+    whole edge clamped (the arms' inner ends, moving with the frame). Counter-clockwise.
     """
     L, c = frame.frame_mm * 1e-3, frame.arm_mm * 1e-3
-    if c > 0:
+    if c > 0 and frame.arms == "held":
+        local = [((c, c), "clamp"), ((L - c, c), "clamp"), ((L - c, L - c), "clamp"), ((c, L - c), "clamp")]
+    elif c > 0:
         local = [
             ((c, 0.0), "clamp"),
             ((L - c, 0.0), "free"),

@@ -159,7 +159,7 @@ class ContinuumProblem:
             self.mesh = mesh if mesh is not None else make_cross_mesh(pf, sp, disc)
             dirichlet = CLAMPED_ARMS if dirichlet == DIRICHLET else dirichlet
             #: the length scale [m] (the loading diagonal) and the reference area [m²]
-            self.length, self.area = math.sqrt(2.0) * pf.frame_mm * 1e-3, (pf.frame_mm**2 - 4 * pf.arm_mm**2) * 1e-6
+            self.length, self.area = math.sqrt(2.0) * pf.frame_mm * 1e-3, pf.fabric_area_mm2 * 1e-6
             self.yarns = _turned(sp.m1, pf.misalignment_deg), _turned(sp.m2, pf.misalignment_deg)
         else:
             self.mesh = mesh if mesh is not None else make_mesh(sp, disc)

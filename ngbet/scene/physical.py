@@ -252,6 +252,8 @@ class Effects:
 
 #: the tests a scene describes (top-level ``test``)
 TESTS = ("bias_extension", "picture_frame")
+#: how the picture frame's clamps hold the arms of the cross (PictureFrame.arms)
+ARMS = ("sheared", "held")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -262,8 +264,10 @@ class PictureFrame:
     the bars rotate about the pins and the frame turns from a square into a rhombus of frame angle θ,
     cos θ = (√2 L + d) / (2 L), shear angle γ = 90° − 2θ (L = ``frame_mm``). The specimen is a cross:
     a square of side ``frame_mm`` (pin to pin) whose four corner squares of side
-    (``frame_mm`` − ``fabric_mm``)/2 are cut away; its four arms are clamped to the bars and move with
-    them, so only the inner square of side ``fabric_mm`` shears freely. The yarns run along the bars
+    (``frame_mm`` − ``fabric_mm``)/2 are cut away, its four arms clamped to the bars. ``arms`` says
+    how: ``"sheared"``, held at their ends on the bars, the arms shear with the inner square of side
+    ``fabric_mm``; ``"held"``, held over their length, they move with the frame and only the inner
+    square shears (the assumption of the normalisation Eq. 10). The yarns run along the bars
     (at ±``specimen.yarn_angle_deg`` to e1, 45° for a fabric aligned with the frame), turned by
     ``misalignment_deg`` in the plane.
     """
@@ -273,9 +277,13 @@ class PictureFrame:
     # deg: both yarn families turned by this angle (counter-clockwise) from the bars: the fabric laid
     # in the frame out of line, the test's known sensitivity (the yarns are then stretched as the frame shears)
     misalignment_deg: float = 0.0
+    # how the clamps hold the arms of the cross: "sheared" (at their ends on the bars: the arms shear
+    # with the inner square) or "held" (over their length: only the inner square shears, as Eq. 10 assumes)
+    arms: str = "sheared"
 
     def __post_init__(self) -> None:
         positive("picture_frame", self, "frame_mm", "fabric_mm")
+        choice("picture_frame", self, "arms", ARMS)
         check(
             self.frame_mm <= MAX_SPECIMEN_MM,
             "picture_frame.frame_mm",
@@ -300,6 +308,13 @@ class PictureFrame:
     def arm_mm(self) -> float:
         """The side c = (L_frame − L_fabric)/2 of the cut-away corner squares [mm]."""
         return 0.5 * (self.frame_mm - self.fabric_mm)
+
+    @property
+    def fabric_area_mm2(self) -> float:
+        """The area of the fabric that the model shears [mm²]: the cross, or the inner square when the arms are held."""
+        if self.arms == "held":
+            return self.fabric_mm**2
+        return self.frame_mm**2 - 4 * self.arm_mm**2
 
     @property
     def locking_mm(self) -> float:
