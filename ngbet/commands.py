@@ -12,6 +12,7 @@ import contextlib
 import os
 import sys
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 from .scene.document import Scene, SceneNote, SceneWarning
@@ -43,12 +44,14 @@ def parse_value(text: str) -> object:
         return text
 
 
-def load_scene(path: str | None, overrides: list[str]) -> Scene:
+def load_scene(path: str | None, overrides: list[str], tests: Sequence[str] = ()) -> Scene:
     """The scene file (or the default scene) with ``section.key=value`` (or ``model=``, ``test=``) overrides applied.
 
     The file's tables and the overrides are read into one scene: its missing keys take the
     defaults, and a default that contradicts a key the file or an override sets gives way to it,
-    with a note on stderr (``ngbet: note: ...``), as are the scene's warnings.
+    with a note on stderr (``ngbet: note: ...``), as are the scene's warnings. ``tests``: the tests
+    the scene will run besides its own (a fit of curves of both tests): the keys one of them reads
+    are not reported as without effect.
     """
     from .scene.document import TOP_LEVEL, apply_changes, read_toml
 
@@ -68,8 +71,14 @@ def load_scene(path: str | None, overrides: list[str]) -> Scene:
         warnings.simplefilter("always", SceneNote)
         warnings.simplefilter("always", SceneWarning)
         scene = Scene.from_dict(apply_changes(data, changes))
+    every = (scene.test, *tests)
     for w in caught:  # shown as one `ngbet:` line each, once (ngbet.messages)
-        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        message = w.message
+        if tests and str(message) == str(scene.unused_warning()):
+            if not scene.unused_keys(every):
+                continue
+            message = scene.unused_warning(every)
+        warnings.warn_explicit(message, w.category, w.filename, w.lineno)
     return scene
 
 

@@ -125,6 +125,29 @@ def test_the_highest_order_is_accepted_and_estimated_one_above():
         Scene().with_changes(**{"discretization.order_u": MAX_ORDER + 1})
 
 
+def test_a_scene_that_serves_both_tests_names_only_what_neither_reads(recwarn):
+    # a fit of bias-extension and picture-frame curves runs the fabric scene in both tests: the
+    # frame's keys have an effect there, a key of the other model has none
+    from ngbet.commands import load_scene
+
+    keys = ["picture_frame.arms=held", "discrete.EA1=5"]
+    alone = load_scene(None, keys)
+    assert alone.unused_keys() == ["discrete.EA1", "picture_frame.arms"]
+    assert [str(w.message) for w in recwarn if w.category is SceneWarning] == [
+        "model = 'continuum' with test = 'bias_extension' does not read discrete.EA1, picture_frame.arms: "
+        "these values have no effect"
+    ]
+    recwarn.clear()
+    both = load_scene(None, keys, tests=["bias_extension", "picture_frame"])
+    assert both.unused_keys(["bias_extension", "picture_frame"]) == ["discrete.EA1"]
+    assert [str(w.message) for w in recwarn if w.category is SceneWarning] == [
+        "model = 'continuum' does not read discrete.EA1: these values have no effect"
+    ]
+    recwarn.clear()
+    load_scene(None, ["picture_frame.arms=held"], tests=["picture_frame"])
+    assert not [w for w in recwarn if w.category is SceneWarning]
+
+
 def test_keys_the_model_does_not_read_are_named_in_a_warning():
     with pytest.warns(SceneWarning, match="does not read material.alpha1"):
         s = Scene().with_changes(**{"material.alpha1": 20.0, "model": "discrete"})

@@ -17,9 +17,11 @@ A file whose header says ``# test: picture-frame`` is a picture-frame curve, fit
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +29,7 @@ import numpy as np
 
 from ..measured.curves import MeasuredCurve
 from ..run_folder import OwnedFolder
-from ..scene.document import Scene
+from ..scene.document import Scene, SceneWarning
 from ..scene.validate import SceneError
 
 __all__ = ["Inputs", "add_parser", "run_from_args", "summary"]
@@ -158,7 +160,17 @@ class Inputs:
             raise SceneError(f"one scene only: got {', '.join(tomls + ([args.scene] if args.scene else []))}")
         if not self.data:
             raise SceneError("no data file: give at least one CSV of displacement_mm,force_N")
-        self.scene = load_scene(args.scene or (tomls[0] if tomls else None), args.overrides)
+        from ..measured.curves import read_all, read_any
+        from ..measured.table import parse_sizes
+
+        sizes = ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm")
+        specs = [parse_sizes(t, "--specimen", sizes) for t in getattr(args, "specimen", [])]
+        columns = getattr(args, "columns", None)
+        self.curves = read_all(self.data, columns=columns, specimens=specs)
+        self.predict = [read_any(p, columns=columns) for p in args.predict]
+        # the scene serves every test among the curves: a key one of them reads has an effect
+        tests = sorted({c.test for c in self.curves + self.predict})
+        self.scene = load_scene(args.scene or (tomls[0] if tomls else None), args.overrides, tests)
         if self.scene.model != "continuum":
             raise SceneError(
                 f"model = {self.scene.model!r}: ngbet fit calibrates the continuum model (model = 'continuum')"
@@ -177,16 +189,6 @@ class Inputs:
         if not args.max_runs >= 1:
             raise SceneError(f"--max-runs {args.max_runs}: must be at least 1")
         self.u_range = _range(args.u_range)
-        from ..measured.curves import read_all
-        from ..measured.table import parse_sizes
-
-        sizes = ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm")
-        specs = [parse_sizes(t, "--specimen", sizes) for t in getattr(args, "specimen", [])]
-        columns = getattr(args, "columns", None)
-        self.curves = read_all(self.data, columns=columns, specimens=specs)
-        from ..measured.curves import read_any
-
-        self.predict = [read_any(p, columns=columns) for p in args.predict]
         self.notes = [f"{c.source}: {n}" for c in self.curves + self.predict for n in c.notes]
         self.predict_scene = Scene.from_toml(args.predict_scene) if args.predict_scene else None
         from ..measured.observations import read_angles, read_profile
@@ -211,7 +213,9 @@ class Inputs:
         for c in self.curves:
             note = c.check_window(self._fraction(c))
             self.notes += [note] if note else []
-            curve_scene(self.scene, c, c.sample(fraction=self._fraction(c))[0])
+            with warnings.catch_warnings():  # checked for errors; its keys without effect are the scene's, said above
+                warnings.simplefilter("ignore", SceneWarning)
+                curve_scene(self.scene, c, c.sample(fraction=self._fraction(c))[0])
         for c in self.predict:
             if not c.specimen and c.test != "picture_frame" and self.predict_scene is None:
                 raise SceneError(
@@ -240,8 +244,13 @@ def run_from_args(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     out = Path(args.out)
     folder = None
+    stack = contextlib.ExitStack()
     try:
         inp = Inputs(args)
+        # the scene's keys without effect were reported once (Inputs): the scenes the fit derives
+        # for each curve's test and specimen would report them again, each in its own words
+        stack.enter_context(warnings.catch_warnings())
+        warnings.simplefilter("ignore", SceneWarning)
         folder = _out_folder(out)
         for note in inp.notes:
             print(f"ngbet fit: {note}", file=sys.stderr)
@@ -280,6 +289,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         print(f"ngbet fit: {msg}", file=sys.stderr)
         return code
     finally:
+        stack.close()
         if folder is not None:
             folder.release()
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, cast
@@ -104,8 +105,16 @@ _WORKER_MESHES: dict[tuple[int, int | None], Any] = {}
 
 
 def _worker_run(job: Job) -> Run:
-    """:func:`curve_run` in a worker process, with that process's meshes."""
-    return curve_run(job, _WORKER_MESHES)
+    """:func:`curve_run` in a worker process, with that process's meshes.
+
+    The scene's keys without effect were reported by the command that started the fit: the scenes
+    a run derives from the job's do not report them again.
+    """
+    from ..scene.document import SceneWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SceneWarning)
+        return curve_run(job, _WORKER_MESHES)
 
 
 def curve_run(job: Job, meshes: dict[tuple[int, int | None], Any]) -> Run:

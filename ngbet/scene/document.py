@@ -11,6 +11,7 @@ import json
 import math
 import tomllib
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -235,11 +236,7 @@ class Scene:
                 stacklevel=3,
             )
         if unused:
-            test = self.test != "bias_extension" or any(k.startswith("picture_frame.") for k in unused)
-            who = f"model = {self.model!r}" + (f" with test = {self.test!r}" if test else "")
-            warnings.warn(
-                SceneWarning(f"{who} does not read {', '.join(unused)}: these values have no effect"), stacklevel=3
-            )
+            warnings.warn(self.unused_warning(), stacklevel=3)
 
     def _check_picture_frame(self) -> None:
         """What a picture-frame test needs of the rest of the scene."""
@@ -267,16 +264,34 @@ class Scene:
             "for the bias extension test only",
         )
 
-    def unused_keys(self) -> list[str]:
-        """The keys with a non-default value that the scene's model or test does not read ("section.key")."""
+    def unused_keys(self, tests: Sequence[str] = ()) -> list[str]:
+        """The keys with a non-default value that the scene's model or test does not read ("section.key").
+
+        ``tests``: the tests the scene runs, where it serves several (a fit of bias-extension and
+        picture-frame curves); a key is then unused when none of them reads it. Default: its own test.
+        """
+
+        def holds(table: dict[str, tuple[str, ...] | None], name: str, key: str) -> bool:
+            return name in table and (table[name] is None or key in (table[name] or ()))
+
         out = []
-        for name, keys in (*NOT_READ_BY[self.model].items(), *NOT_READ_BY_TEST[self.test].items()):
+        for name in SECTIONS:
             section, default = getattr(self, name), SECTIONS[name]()
             for f in fields(section):
-                value = getattr(section, f.name)
-                if (keys is None or f.name in keys) and value != getattr(default, f.name):
+                if getattr(section, f.name) == getattr(default, f.name):
+                    continue
+                by_test = all(holds(NOT_READ_BY_TEST[t], name, f.name) for t in (tests or (self.test,)))
+                if holds(NOT_READ_BY[self.model], name, f.name) or by_test:
                     out.append(f"{name}.{f.name}")
         return out
+
+    def unused_warning(self, tests: Sequence[str] = ()) -> SceneWarning:
+        """The warning that names :meth:`unused_keys` (``tests`` as there)."""
+        unused = self.unused_keys(tests)
+        every = tuple(dict.fromkeys(tests or (self.test,)))
+        test = len(every) == 1 and (every[0] != "bias_extension" or any(k.startswith("picture_frame.") for k in unused))
+        who = f"model = {self.model!r}" + (f" with test = {every[0]!r}" if test else "")
+        return SceneWarning(f"{who} does not read {', '.join(unused)}: these values have no effect")
 
     # construction ------------------------------------------------------------------------------
     @classmethod
