@@ -118,8 +118,9 @@ def smoothness_rows(names: Sequence[str], sd: float) -> np.ndarray:
 
     Why: a rise at shear angles the fitted curves barely reach lies on a flat direction of the fit
     and ends wherever the search leaves it, often at a bound; the prior continues the geometric
-    trend of its neighbours there, and leaves a rise the data determine where the data put it
-    (its row weighs one standard deviation against the data's residuals over their own).
+    trend of its neighbours there. Its rows weigh as the data's residuals do, each in units of its
+    standard deviation: where the misfit is s times the error bars, the covariance scales the
+    prior's variance by s² as it scales theirs.
     """
     idx = {int(n[len(TABLE_KEY) + 1 : -1]): k for k, n in enumerate(names) if n.startswith(TABLE_KEY + "[")}
     rows = []
