@@ -809,6 +809,7 @@ def test_frame_curve_scene_is_the_picture_frame_of_its_header():
     s = joint.curve_scene(sc, c, u)
     assert s.test == "picture_frame"
     assert (s.picture_frame.frame_mm, s.picture_frame.fabric_mm) == (145.0, 120.0)
+    assert s.picture_frame.arms == "held"  # the benchmark's cross, as Eq. 10 of the file assumes
     assert s.material == sc.material and s.loading.u0_mm == pytest.approx(u.max())
     # a frame and one bias-extension size are two tests: the bending stiffnesses are fitted
     bet = read_measured(DATA / "cao2008_twill_unbalanced_100x250_UN.csv")

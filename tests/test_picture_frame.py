@@ -150,8 +150,14 @@ def test_a_frame_scene_reads_back_from_its_toml():
 
 # --------------------------------------------------------------------------- mesh
 def test_the_cross_is_the_frame_square_less_its_corners_with_the_arms_clamped():
-    pf = PictureFrame(frame_mm=145.0, fabric_mm=120.0)
-    mesh = make_cross_mesh(pf, Specimen(), Discretization(mesh_size_mm=20.0, corner_mesh_size_mm=0.0))
+    disc = Discretization(mesh_size_mm=20.0, corner_mesh_size_mm=0.0)
+    # arms clamped over their length (the default) move with the bars: the fabric that deforms is
+    # the inner square, its whole edge on the frame
+    held = make_cross_mesh(PictureFrame(frame_mm=145.0, fabric_mm=120.0), Specimen(), disc)
+    assert ngs.Integrate(1.0, held) * 1e6 == pytest.approx(120.0**2, rel=1e-12)
+    assert ngs.Integrate(1.0, held.Boundaries(CLAMPED_ARMS)) * 1e3 == pytest.approx(4 * 120.0, rel=1e-12)
+    pf = PictureFrame(frame_mm=145.0, fabric_mm=120.0, arms="sheared")
+    mesh = make_cross_mesh(pf, Specimen(), disc)
     c = 12.5
     assert ngs.Integrate(1.0, mesh) * 1e6 == pytest.approx(145**2 - 4 * c**2, rel=1e-12)
     # the four arms' ends on the bars, each as long as the fabric square
@@ -214,7 +220,7 @@ def test_cutting_the_corners_only_lowers_the_energy():
     # the affine map of the frame is admissible for the cross too (its arms follow the bars); the
     # solution minimises the energy, so E <= t A_cross W(d), and strictly below: the free edges of
     # the cut corners carry no traction, which the homogeneous stress would put on them
-    sc = frame_scene(**{"picture_frame.fabric_mm": 80.0, "effects.bending": False})
+    sc = frame_scene(**{"picture_frame.fabric_mm": 80.0, "picture_frame.arms": "sheared", "effects.bending": False})
     r = simulate(sc)
     area = (100.0**2 - 4 * 10.0**2) * 1e-6
     bound = np.array([sc.specimen.t * area * homogeneous_energy(sc, x) for x in r.u0_mm])
@@ -228,7 +234,7 @@ def test_held_arms_shear_the_inner_square_alone_with_the_force_of_its_energy(mis
     # its whole edge, so the affine map is the solution there and the crosshead force is t L_fabric² dW/dd;
     # its F_norm (Eq. 10) is then that of the whole square in the same frame, for any fabric_mm
     keys = {"effects.bending": False, "picture_frame.misalignment_deg": misalignment}
-    held = frame_scene(**keys, **{"picture_frame.fabric_mm": 70.0, "picture_frame.arms": "held"})
+    held = frame_scene(**keys, **{"picture_frame.fabric_mm": 70.0})  # the default: arms held
     r = simulate(held)
     assert r.summary["status"] == "ok"
     exact = np.array([homogeneous_force(held, x) for x in r.u0_mm]) * 0.7**2
@@ -244,7 +250,7 @@ def test_held_arms_shear_the_inner_square_alone_with_the_force_of_its_energy(mis
     # the same cross with its arms sheared carries the arms' energy too: nearly the cross's area over
     # the inner square's, (100² − 30²)/70² = 1.857, a little less where the cut edges go free (its
     # energy stays below t A_cross W: test_cutting_the_corners_only_lowers_the_energy)
-    sheared = simulate(frame_scene(**keys, **{"picture_frame.fabric_mm": 70.0}))
+    sheared = simulate(frame_scene(**keys, **{"picture_frame.fabric_mm": 70.0, "picture_frame.arms": "sheared"}))
     ratio = sheared.fnorm_N_per_mm[np.isin(sheared.u0_mm, r.u0_mm)] / r.fnorm_N_per_mm[np.isin(r.u0_mm, sheared.u0_mm)]
     assert np.all((ratio > 0.95 * (100**2 - 30**2) / 70**2) & (ratio < (100**2 - 30**2) / 70**2))
     with pytest.raises(SceneError, match="picture_frame.arms"):
@@ -265,6 +271,7 @@ def test_the_shipped_frame_scenes_are_the_benchmarks_frames():
             sc = Scene.from_toml(f)
         frame = {"UN": (145.0, 120.0), "UML": (216.0, 140.0)}[f.stem.rsplit("_", 1)[1]]
         assert (sc.test, sc.picture_frame.frame_mm, sc.picture_frame.fabric_mm) == ("picture_frame", *frame)
+        assert sc.picture_frame.arms == "held"  # the benchmark's cross: arms clamped over their length
         assert math.degrees(frame_shear_angle_rad(sc.loading.u0_mm, frame[0])) == pytest.approx(49.5, abs=0.2)
 
 

@@ -130,7 +130,7 @@ def test_a_scene_that_serves_both_tests_names_only_what_neither_reads(recwarn):
     # frame's keys have an effect there, a key of the other model has none
     from ngbet.commands import load_scene
 
-    keys = ["picture_frame.arms=held", "discrete.EA1=5"]
+    keys = ["picture_frame.arms=sheared", "discrete.EA1=5"]
     alone = load_scene(None, keys)
     assert alone.unused_keys() == ["discrete.EA1", "picture_frame.arms"]
     assert [str(w.message) for w in recwarn if w.category is SceneWarning] == [
@@ -144,7 +144,7 @@ def test_a_scene_that_serves_both_tests_names_only_what_neither_reads(recwarn):
         "model = 'continuum' does not read discrete.EA1: these values have no effect"
     ]
     recwarn.clear()
-    load_scene(None, ["picture_frame.arms=held"], tests=["picture_frame"])
+    load_scene(None, ["picture_frame.arms=sheared"], tests=["picture_frame"])
     assert not [w for w in recwarn if w.category is SceneWarning]
 
 

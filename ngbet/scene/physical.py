@@ -253,7 +253,7 @@ class Effects:
 #: the tests a scene describes (top-level ``test``)
 TESTS = ("bias_extension", "picture_frame")
 #: how the picture frame's clamps hold the arms of the cross (PictureFrame.arms)
-ARMS = ("sheared", "held")
+ARMS = ("held", "sheared")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -265,9 +265,10 @@ class PictureFrame:
     cos θ = (√2 L + d) / (2 L), shear angle γ = 90° − 2θ (L = ``frame_mm``). The specimen is a cross:
     a square of side ``frame_mm`` (pin to pin) whose four corner squares of side
     (``frame_mm`` − ``fabric_mm``)/2 are cut away, its four arms clamped to the bars. ``arms`` says
-    how: ``"sheared"``, held at their ends on the bars, the arms shear with the inner square of side
-    ``fabric_mm``; ``"held"``, held over their length, they move with the frame and only the inner
-    square shears (the assumption of the normalisation Eq. 10). The yarns run along the bars
+    how: ``"held"`` (the default), clamped over their length, they move with the frame and only the
+    inner square of side ``fabric_mm`` shears (the benchmark's specimen, and the assumption of the
+    normalisation Eq. 10); ``"sheared"``, held at their ends on the bars only, the arms shear with
+    the inner square. The yarns run along the bars
     (at ±``specimen.yarn_angle_deg`` to e1, 45° for a fabric aligned with the frame), turned by
     ``misalignment_deg`` in the plane.
     """
@@ -277,9 +278,9 @@ class PictureFrame:
     # deg: both yarn families turned by this angle (counter-clockwise) from the bars: the fabric laid
     # in the frame out of line, the test's known sensitivity (the yarns are then stretched as the frame shears)
     misalignment_deg: float = 0.0
-    # how the clamps hold the arms of the cross: "sheared" (at their ends on the bars: the arms shear
-    # with the inner square) or "held" (over their length: only the inner square shears, as Eq. 10 assumes)
-    arms: str = "sheared"
+    # how the clamps hold the arms of the cross: "held" (over their length: only the inner square
+    # shears, as Eq. 10 assumes) or "sheared" (at their ends on the bars: the arms shear with it)
+    arms: str = "held"
 
     def __post_init__(self) -> None:
         positive("picture_frame", self, "frame_mm", "fabric_mm")
