@@ -22,7 +22,10 @@ travels) over 10–90 % of the predicted curve's range: the RMS of (prediction �
 and the RMS of (prediction − measured) over the curve's largest measured value; a picture-frame
 curve in its file's quantity (F_s or F_norm against the shear angle). Both methods are scored on
 the points where the normalisation method has a value (it has none beyond the fitted curves'
-largest shear angle); ngbet's score on all points is in the tables too.
+largest shear angle); ngbet's score on all points is in the tables too. The last column scores
+ngbet's prediction against the normalisation method's answer in the same way: where a user's own
+curve agrees with the method (another laboratory's frame that agrees with the bias extension's
+F_sh), ngbet's error is at most the method's plus about this (the triangle inequality).
 
 The fits and the predictions' bands run when the study is built and are kept in the study cache
 (``validation-fits/`` in ``--cache``, default ``out/studies/cache``; keyed by the scene, the data
@@ -267,9 +270,9 @@ def rms(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def rms_of_max(a: np.ndarray, b: np.ndarray) -> float:
-    """RMS of (a − b) over the largest |b| (the measured curve's largest value), where both are finite."""
+    """RMS of (a − b) over the largest finite |b| (the measured curve's largest value), where both are finite."""
     ok = np.isfinite(a) & np.isfinite(b)
-    return float(np.sqrt(np.mean(((a[ok] - b[ok]) / np.max(np.abs(b))) ** 2))) if ok.any() else float("nan")
+    return float(np.sqrt(np.mean(((a[ok] - b[ok]) / np.nanmax(np.abs(b))) ** 2))) if ok.any() else float("nan")
 
 
 def summary(data: StudyData) -> list[dict[str, Any]]:
@@ -305,6 +308,10 @@ def summary(data: StudyData) -> list[dict[str, Any]]:
                 "normalisation_rms_of_max": rms_of_max(norm, meas),
                 "lab_rms": rms(lab, meas),
                 "lab_rms_of_max": rms_of_max(lab, meas),
+                # ngbet's prediction against the normalisation method's answer from the same fitted
+                # curves: how far the model's prediction is from the method's, whatever the measurement
+                "agreement_rms": rms(on, norm),
+                "agreement_rms_of_max": rms_of_max(on, norm),
                 "within_2sd": within_band(pred, sd, meas, msd) if len(meas) else float("nan"),
                 "end_ratio": float(pred[-1] / meas[-1]) if len(meas) else float("nan"),
             }
@@ -338,11 +345,12 @@ def report(data: StudyData) -> str:
         "A frame is scored in its file's quantity. Inside ±2 sd: the measured points within ±2 sd of the "
         "prediction's band and of the point's own scatter (half its error bar, floored); the band holds what its "
         "column says (a fit estimates the model error between specimens only from two or more specimens of the "
-        "predicted test).",
+        "predicted test). ngbet against the method: RMS of (ngbet − method)/method, in brackets over the method's "
+        "largest value: how far ngbet's prediction is from the normalisation method's answer from the same curves.",
         "",
         "| fabric | fitted | predicted | what | ngbet | normalisation method | other laboratory | ngbet, all points "
-        "| band holds | inside ±2 sd | ngbet/measured at 90 % |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| band holds | inside ±2 sd | ngbet/measured at 90 % | ngbet against the method |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         n, m = r["normalisation_points"], r["points"]
@@ -353,7 +361,7 @@ def report(data: StudyData) -> str:
             f"{'' if n == m else f' on {n} of {m} points'} | "
             f"{_pct(r['lab_rms'])} ({_pct(r['lab_rms_of_max'])}) | "
             f"{_pct(r['ngbet_rms'])} ({_pct(r['ngbet_rms_of_max'])}) | {_holds(r)} | {100 * r['within_2sd']:.0f} % | "
-            f"{r['end_ratio']:.2f} |"
+            f"{r['end_ratio']:.2f} | {_pct(r['agreement_rms'])} ({_pct(r['agreement_rms_of_max'])}) |"
         )
     L += ["", "What each band holds:", ""]
     L += sorted({f"- {r['fit']} predicting {r['what']}: {r['band']}." for r in rows})
@@ -361,8 +369,8 @@ def report(data: StudyData) -> str:
         "",
         "Means over the predictions (the normalisation method's points):",
         "",
-        "| predictions | count | ngbet | normalisation method | ngbet better on |",
-        "|---|---|---|---|---|",
+        "| predictions | count | ngbet | normalisation method | ngbet better on | ngbet against the method |",
+        "|---|---|---|---|---|---|",
     ]
     for what in ("other size", "other test", "other laboratory", "all"):
         sel = [r for r in rows if what == "all" or r["what"] == what]
@@ -377,7 +385,8 @@ def report(data: StudyData) -> str:
         L.append(
             f"| {what} | {len(sel)} | {_pct(mean('ngbet_rms_common'))} ({_pct(mean('ngbet_rms_of_max_common'))})"
             f" | {_pct(mean('normalisation_rms'))} ({_pct(mean('normalisation_rms_of_max'))}) | "
-            f"{better} of {len(sel)} (error over the largest value) |"
+            f"{better} of {len(sel)} (error over the largest value) | "
+            f"{_pct(mean('agreement_rms'))} ({_pct(mean('agreement_rms_of_max'))}) |"
         )
     L += [
         "",

@@ -635,6 +635,11 @@ def test_validation_study_quick(tmp_path, monkeypatch):
     Fn_norm = np.interp(gam, np.r_[0.0, g], np.r_[0.0, f])
     rms = float(np.sqrt(np.mean(((Fn_norm - Fn_meas) / Fn_meas) ** 2)))
     assert rows["other test"]["normalisation_rms"] == pytest.approx(rms, rel=1e-9)
+    # ngbet against the method: ngbet's frame against that F_sh, at the same points
+    ngbet = np.array([float(q["ngbet"]) for q in load(out).tables["points"] if q["target"] == PF_UN.name])
+    agree = float(np.sqrt(np.mean(((ngbet - Fn_norm) / Fn_norm) ** 2)))
+    assert rows["other test"]["agreement_rms"] == pytest.approx(agree, rel=1e-9)
+    assert f"{100 * agree:.1f} %" in text
 
 
 def test_progress_line_names_runs_and_each_curves_rms():
@@ -768,6 +773,11 @@ def test_validation_scores_errors_over_the_curve_s_largest_force():
     pred, meas = np.array([1.1, 2.0]), np.array([1.0, 2.0])
     assert V.rms_of_max(pred, meas) == pytest.approx(math.sqrt((0.05**2 + 0.0) / 2), rel=1e-12)
     assert V.rms(pred, meas) == pytest.approx(math.sqrt((0.1**2 + 0.0) / 2), rel=1e-12)
+    # a curve without a value at some points (the normalisation method beyond its fitted angles)
+    # is scored on the others, over its largest value there
+    assert V.rms_of_max(np.array([1.1, 2.0, 3.0]), np.array([1.0, 2.0, np.nan])) == pytest.approx(
+        math.sqrt(0.05**2 / 2), rel=1e-12
+    )
 
 
 # ------------------------------------------------------------------------------------------ picture frame
