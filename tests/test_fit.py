@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -317,6 +318,19 @@ def test_invisible_parameter_is_reported_undetermined(truth_curve):
     assert "material.K_sh" not in res.undetermined
     doc = res.to_json()
     assert doc["parameters"]["material.alpha1"]["determined"] is False
+    # the figure: the curves set the scale, not the band of an undetermined parameter, which is cut
+    from ngbet.calibration.fit_params import band
+    from ngbet.calibration.report import fit_figure
+
+    c = res.curves[0]
+    for scale, cut in ((1.0, False), (1e4, True)):  # as fitted (K_sh determined: a narrow band), and 100 times wider
+        wide = dataclasses.replace(res, cov_log=scale * res.cov_log)
+        sd = band(c.dlogp, wide.cov_log)
+        ax = fit_figure(wide).axes[0]
+        lo, hi = ax.get_ylim()
+        assert lo <= 0.0 and hi >= max(c.measured_N.max(), c.model_N.max()) and hi < 1.2 * c.curve.force_N.max()
+        assert bool(np.any(c.model_N + 2 * sd > hi) or np.any(c.model_N - 2 * sd < lo)) is cut
+        assert ("cut at the axes" in " ".join(t.get_text() for t in ax.get_legend().get_texts())) is cut
 
 
 @pytest.mark.integration

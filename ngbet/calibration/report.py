@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -13,10 +13,14 @@ from ..measured.curves import MeasuredCurve
 from .bands import CurvePrediction, model_error
 from .fit_params import TABLE_KEY, CurveFit, JointFit, band
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = [
     "FRAME_X_LABEL",
     "QUANTITY_LABEL",
     "band_label",
+    "fit_figure",
     "plot_fit",
     "plot_table",
     "prediction_band",
@@ -168,7 +172,13 @@ QUANTITY_LABEL = {
 FRAME_X_LABEL = "shear angle of the frame γ [°] (Eqs. 1–2)"
 
 
-def plot_fit(result: JointFit, path: Path) -> Path:  # noqa: C901 - one panel after the other
+def plot_fit(result: JointFit, path: Path) -> Path:
+    """:func:`fit_figure` written to ``path`` (PNG); returns ``path``."""
+    fit_figure(result).savefig(path, dpi=110)
+    return path
+
+
+def fit_figure(result: JointFit) -> Figure:  # noqa: C901 - one panel after the other
     """Each curve's data, start and fitted model (±2 sd), residuals, and centre shear angle.
 
     One column per test: bias-extension curves as the clamp force against the clamp displacement,
@@ -177,13 +187,18 @@ def plot_fit(result: JointFit, path: Path) -> Path:  # noqa: C901 - one panel af
 
     The centre shear angle of the fitted model is drawn against the ideal test's (inextensible
     yarns; for a frame, the frame's angle) and, where given, the measured angles: where the model's
-    falls short, the crosshead travel goes into yarn elongation.
+    falls short, the crosshead travel goes into yarn elongation. The curves set each column's
+    force scale; a band wider than that is cut at the axes, and its legend says so.
     """
     from matplotlib.figure import Figure
 
     tests = list(dict.fromkeys(c.curve.test for c in result.curves))
     fig = Figure(figsize=(6.4 * len(tests), 8.6))
     axes = fig.subplots(3, len(tests), sharex="col", height_ratios=(3, 1.3, 2), squeeze=False)
+    # the band does not set the scale (where a parameter is undetermined it spans decades, and a
+    # linearised band may pass below zero): the curves do, and a wider band is cut at the axes
+    span: dict[str, list[float]] = {t: [0.0, 0.0] for t in tests}
+    bands: dict[str, list[np.ndarray]] = {t: [] for t in tests}
     for k, c in enumerate(result.curves):
         col = f"C{k}"
         ax, ar, ag = axes[:, tests.index(c.curve.test)]
@@ -198,7 +213,20 @@ def plot_fit(result: JointFit, path: Path) -> Path:  # noqa: C901 - one panel af
             x, file(c.measured_N), yerr=file(c.sd_N), fmt="o", ms=3, color=col, label=f"{c.label}: data (±1 sd)"
         )
         sd = file(band(c.dlogp, result.cov_log))
-        ax.fill_between(x, file(c.model_N) - 2 * sd, file(c.model_N) + 2 * sd, color=col, alpha=0.2, lw=0)
+        lo, hi = file(c.model_N) - 2 * sd, file(c.model_N) + 2 * sd
+        shown = np.concatenate(
+            [
+                file(c.measured_N + c.sd_N),
+                file(c.model_N),
+                file(c.start_N),
+                c.curve.in_file_units(c.curve.u_mm[ok], c.curve.force_N[ok])[1],
+            ]
+        )
+        span[c.curve.test] = [
+            min(span[c.curve.test][0], float(np.min(shown))),
+            max(span[c.curve.test][1], float(np.max(shown))),
+        ]
+        ax.fill_between(x, lo, hi, color=col, alpha=0.2, lw=0)
         ax.plot(
             x, file(c.model_N), "-", color=col, lw=1.6, label=f"{c.label}: fitted, RMS {100 * c.rms_relative:.1f} %"
         )
@@ -209,11 +237,25 @@ def plot_fit(result: JointFit, path: Path) -> Path:  # noqa: C901 - one panel af
         ag.plot(x, c.ideal_angle_deg(), "--", color=col, lw=1.0, label=f"{c.label}: ideal test")
         if c.angles is not None:
             ag.plot(c.angles.u_mm, c.angles.angle_deg, "s", ms=4, color=col, mfc="none", label=f"{c.label}: measured")
+        bands[c.curve.test] += [lo, hi]
     for j, test in enumerate(tests):
         ax, ar, ag = axes[:, j]
         frame = test == "picture_frame"
+        bottom, top = span[test]
+        pad = 0.06 * (top - bottom)
+        ax.set_ylim(bottom - pad, top + pad)
+        wide = np.concatenate(bands[test])
+        cut = bool(np.any(wide < bottom - pad) or np.any(wide > top + pad))
         ax.plot([], [], ":", color="0.4", label="start values")
-        ax.fill_between([], [], [], color="0.4", alpha=0.2, lw=0, label="fitted ± 2 sd (from the parameters)")
+        ax.fill_between(
+            [],
+            [],
+            [],
+            color="0.4",
+            alpha=0.2,
+            lw=0,
+            label="fitted ± 2 sd (from the parameters)" + (", cut at the axes" if cut else ""),
+        )
         ax.plot([], [], "-", color="0.4", lw=0.8, alpha=0.5, label="measured curve, whole")
         quantities = {c.curve.quantity for c in result.curves if c.curve.test == test}
         ax.set_ylabel(" or ".join(QUANTITY_LABEL[q] for q in sorted(quantities)))
@@ -235,8 +277,7 @@ def plot_fit(result: JointFit, path: Path) -> Path:  # noqa: C901 - one panel af
         f"{material}",
     )
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    return path
+    return fig
 
 
 def band_label(pred: CurvePrediction) -> str:
