@@ -188,10 +188,10 @@ def caption(scene: Any) -> str:
     if getattr(scene, "test", "") == "picture_frame":
         pf = scene.picture_frame
         turned = f" turned{NB}{pf.misalignment_deg:g}° from the bars" if pf.misalignment_deg else ""
-        held = " (arms sheared)" if pf.arms == "sheared" and pf.fabric_mm < pf.frame_mm else ""
+        arms = " (arms sheared)" if pf.arms == "sheared" and pf.fabric_mm < pf.frame_mm else ""
         spec = (
             f"{name}picture-frame test, frame{NB}{pf.frame_mm:g}{NB}mm pin to pin, fabric square"
-            f"{NB}{pf.fabric_mm:g}{NB}mm{held}, yarns{NB}±{sp.yarn_angle_deg:g}°{turned}, "
+            f"{NB}{pf.fabric_mm:g}{NB}mm{arms}, yarns{NB}±{sp.yarn_angle_deg:g}°{turned}, "
             f"{_q('t', sp.thickness_mm, 'mm')}"
         )
     if scene.model == "discrete":
