@@ -294,6 +294,11 @@ def test_the_frame_figures_are_drawn_inside_their_canvas(tmp_path):
             assert "picture-frame test, frame 100 mm pin to pin, fabric square 80 mm" in fig.get_suptitle().replace(
                 "\u00a0", " "
             ).replace("\n", " ")
+    # the caption names the arms only where they are not the benchmark's (held over their length)
+    from ngbet.figures.style import caption
+
+    assert "(arms" not in caption(sc)
+    assert "80\u00a0mm (arms sheared)" in caption(sc.with_changes(**{"picture_frame.arms": "sheared"}))
 
 
 @pytest.mark.integration
