@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import IO, Any, cast
 
 from .errors import NgbetError
+from .interrupts import uninterrupted
 from .preflight import preflight
 from .provenance import git_revision, machine, versions
 from .run_folder import (
@@ -280,13 +281,14 @@ class RunWriter:
         """
         new = [k for k in row if k not in self._columns]
         columns = [*self._columns, *new]
-        if new:
-            self.write("results.csv", lambda p: write_table(p, columns, [*self.rows, row]))
-        else:
-            file_op(self.out / "results.csv", lambda p: append_rows(p, columns, [row]))
-        # counted once on disk: an interrupt before this line leaves the summary's steps = the file's rows
-        self._columns = columns
-        self.rows.append(row)
+        # a stop signal waits until the row is on disk and counted: summary.json's steps = the file's rows
+        with uninterrupted():
+            if new:
+                self.write("results.csv", lambda p: write_table(p, columns, [*self.rows, row]))
+            else:
+                file_op(self.out / "results.csv", lambda p: append_rows(p, columns, [row]))
+            self._columns = columns
+            self.rows.append(row)
         if profile is not None:
             block = [[row["step"], row["u0_mm"], f"{X_mm:.6g}", f"{uy_mm:.9g}"] for X_mm, uy_mm in profile]
             if "profile.csv" in self._files:
