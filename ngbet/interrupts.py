@@ -20,7 +20,7 @@ from typing import Any
 from .commands import EXIT_INTERRUPTED
 from .messages import say
 
-__all__ = ["GRACE_S", "STOP_SIGNALS", "interrupts", "signal_name", "stop_signals", "uninterrupted"]
+__all__ = ["GRACE_S", "STOP_SIGNALS", "interrupts", "signal_name", "stop_signals"]
 
 GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the watchdog does
 #: the signals that end a command as an interruption (summary.json "interrupted", exit 130): Ctrl-C,
@@ -28,36 +28,6 @@ GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the w
 STOP_SIGNALS = tuple(
     getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2") if hasattr(signal, n)
 )
-
-
-#: stop signals that arrived inside :func:`uninterrupted` blocks, raised when the outermost ends
-_pending: list[str] = []
-_depth = 0
-
-
-@contextlib.contextmanager
-def uninterrupted() -> Iterator[None]:
-    """A block that a stop signal does not cut: the signal's KeyboardInterrupt is raised when it ends.
-
-    For a write and its record that must stay together (a row on disk and the count of rows that
-    summary.json reports). Main thread only, as the handlers of :func:`interrupts`; blocks nest.
-    If the block itself raises, that exception propagates and the deferred signal is dropped (the
-    run is ending, and the engine's stop request still stands).
-    """
-    global _depth
-    _depth += 1
-    try:
-        yield
-    except BaseException:
-        _depth -= 1
-        if _depth == 0:
-            _pending.clear()
-        raise
-    _depth -= 1
-    if _depth == 0 and _pending:
-        name = _pending[0]
-        _pending.clear()
-        raise KeyboardInterrupt(name)
 
 
 def stop_signals() -> list[int]:
@@ -84,15 +54,14 @@ def interrupts() -> Iterator[None]:
     woken by the signal (``signal.set_wakeup_fd``) then records the interruption in the active run
     folders itself and exits with 130 after GRACE_S.
     """
-    from .numerics.engine import STOP_REQUESTED, request_stop
+    from .numerics.engine import STOP_REQUESTED, request_stop, stop_deferred
 
     acted = threading.Event()
 
     def handler(signum: int, frame: Any) -> None:
         acted.set()
         request_stop(signal_name(signum))  # in case the exception is lost (engine.STOP_REQUESTED): the next step raises
-        if _depth:  # inside an uninterrupted block: raised as it ends
-            _pending.append(signal_name(signum))
+        if stop_deferred():  # inside an uninterrupted block: raised as it ends (engine.uninterrupted)
             return
         raise KeyboardInterrupt(signal_name(signum))
 

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import IO, Any, cast
 
 from .errors import NgbetError
-from .interrupts import uninterrupted
+from .numerics.engine import uninterrupted
 from .preflight import preflight
 from .provenance import git_revision, machine, versions
 from .run_folder import (

@@ -61,9 +61,11 @@ __all__ = [
     "check_stop",
     "request_stop",
     "past_deadline",
+    "stop_deferred",
     "path_steps",
     "progress_bar",
     "time_budget",
+    "uninterrupted",
 ]
 
 
@@ -268,6 +270,35 @@ def check_stop() -> None:
     """Raise KeyboardInterrupt if a signal asked the run to stop (:data:`STOP_REQUESTED`)."""
     if STOP_REQUESTED.is_set():
         raise KeyboardInterrupt(_STOP_SIGNAL[0])  # the signal's name, as the handler's own exception says
+
+
+#: how many :func:`uninterrupted` blocks are open (main thread)
+_UNCUT = [0]
+
+
+def stop_deferred() -> bool:
+    """Whether a stop signal must wait: an :func:`uninterrupted` block is open.
+
+    The signal's handler then only calls :func:`request_stop`, and the block raises as it ends.
+    """
+    return _UNCUT[0] > 0
+
+
+@contextlib.contextmanager
+def uninterrupted() -> Iterator[None]:
+    """A block that a stop signal does not cut: the signal's KeyboardInterrupt comes as it ends.
+
+    For a write and its record that must stay together (a row on disk and the count of rows that
+    summary.json reports). Blocks nest; the outermost ends with :func:`check_stop`. If the block
+    itself raises, that exception propagates, and the stop request stands for the next step.
+    """
+    _UNCUT[0] += 1
+    try:
+        yield
+    finally:
+        _UNCUT[0] -= 1
+    if _UNCUT[0] == 0:
+        check_stop()
 
 
 def path_steps(
