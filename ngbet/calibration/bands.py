@@ -18,9 +18,65 @@ from typing import Any, cast
 import numpy as np
 
 from ..scene.document import Scene
-from .fit_params import JointFit, band
+from .fit_params import CurveFit, JointFit, band
 
-__all__ = ["CurvePrediction", "model_error", "predict_specimen"]
+__all__ = ["CurvePrediction", "misfit_beyond_noise", "model_error", "predict_specimen", "weigh_model_error"]
+
+
+def misfit_beyond_noise(e: np.ndarray, sd: np.ndarray, F: np.ndarray, dof: int) -> float:
+    """σ ≥ 0 with Σ e_i²/(sd_i² + σ² F_i²) = dof: the relative error the residuals ``e`` show beyond their noise.
+
+    ``sd`` the points' standard deviations, ``F`` the forces (≠ 0) the error is relative to; 0
+    where the misfit is within the noise (Σ e²/sd² <= dof).
+    """
+    from scipy.optimize import brentq
+
+    def excess(sigma: float) -> float:
+        return float(np.sum(e**2 / (sd**2 + (sigma * F) ** 2))) - dof
+
+    if excess(0.0) <= 0:
+        return 0.0
+    return float(brentq(excess, 0.0, 10.0 * float(np.max(np.abs(e) / F)) + 1.0))
+
+
+def _between_specimens(curves: list[CurveFit], forces: list[np.ndarray], n: int) -> dict[str, float]:
+    """σ_m per test whose ``curves`` hold two or more specimens, from the residuals of the model ``forces``."""
+    out = {}
+    for test in sorted({c.curve.test for c in curves}):
+        mine = [k for k, c in enumerate(curves) if c.curve.test == test]
+        if len({curves[k].label for k in mine}) < 2:
+            continue
+        e = np.concatenate([forces[k] - curves[k].measured_N for k in mine])
+        sd = np.concatenate([curves[k].sd_N for k in mine])
+        F = np.abs(np.concatenate([forces[k] for k in mine]))
+        ok = F > 0  # a relative error needs a force
+        out[test] = misfit_beyond_noise(e[ok], sd[ok], F[ok], max(int(ok.sum()) - n, 1))
+    return out
+
+
+def weigh_model_error(curves: list[CurveFit], forces: list[np.ndarray], n: int) -> bool:
+    """Weigh each fitted point with the model error between specimens that the model ``forces`` show.
+
+    Where a fit holds two or more specimens of a test, one parameter set has to fit them all, and
+    where the model cannot, their misfit beyond the points' noise is the model's own error between
+    specimens (σ_m of :func:`model_error`, relative to the force). Weighting a point by its own
+    standard deviation alone then lets the curve with the narrowest error bars decide the
+    parameters and leaves the others missed by far more than the model's error; weighted by
+    √(sd² + σ_m² F²) (maximum likelihood for a relative model error of that size), each specimen
+    counts by what the model can do for it. Sets ``model_sd_N`` = σ_m |F_measured| of every curve of
+    such a test (fixed for a search: the weights do not follow the parameters) and returns whether
+    any σ_m moved by more than a tenth of itself (or 0.5 % of the force) from the weights in place:
+    a search under the new weights would move the parameters.
+    """
+    moved = False
+    for test, sigma in _between_specimens(curves, forces, n).items():
+        for c in curves:
+            if c.curve.test != test:
+                continue
+            before = float(np.max(c.model_sd_N / np.abs(c.measured_N))) if len(c.model_sd_N) else 0.0
+            moved = moved or abs(sigma - before) > max(0.1 * sigma, 0.005)
+            c.model_sd_N = sigma * np.abs(c.measured_N)
+    return moved
 
 
 def model_error(result: JointFit, test: str) -> tuple[float, str]:
@@ -31,12 +87,11 @@ def model_error(result: JointFit, test: str) -> tuple[float, str]:
     set had to fit them all: their misfit beyond their noise is the model error between specimens,
     σ_m the root of Σ e_i²/(sd_i² + σ_m² F_i²) = m − n over their m force points (e_i the residual,
     sd_i the point's standard deviation, F_i ≠ 0 the model's force, n the fitted parameters; 0
-    where the misfit is within the noise). Otherwise the data cannot estimate it, σ_m = 0, and the words
-    say so and name the data that would: a fit of one specimen is fitted to its own curve only, and
-    a fit of another test says nothing of the error between the tests.
+    where the misfit is within the noise: :func:`misfit_beyond_noise`). Otherwise the data cannot
+    estimate it, σ_m = 0, and the words say so and name the data that would: a fit of one specimen
+    is fitted to its own curve only, and a fit of another test says nothing of the error between
+    the tests.
     """
-    from scipy.optimize import brentq
-
     mine = [c for c in result.curves if c.curve.test == test]
     what = "specimen sizes" if test == "bias_extension" else "frames"
     base = "parameters and discretization"
@@ -51,21 +106,12 @@ def model_error(result: JointFit, test: str) -> tuple[float, str]:
             f"{base} only: the fit used one {what[:-1]}, so no model error between {what}; "
             f"a fit of two or more {what} would estimate it"
         )
-    e = np.concatenate([c.model_N - c.measured_N for c in mine])
-    sd = np.concatenate([c.sd_N for c in mine])
-    F = np.abs(np.concatenate([c.model_N for c in mine]))
-    e, sd, F = e[F > 0], sd[F > 0], F[F > 0]  # a relative error needs a force
-    dof = max(len(e) - len(result.names), 1)
-
-    def excess(sigma: float) -> float:
-        return float(np.sum(e**2 / (sd**2 + (sigma * F) ** 2))) - dof
-
-    if excess(0.0) <= 0:
+    sigma = _between_specimens(mine, [c.model_N for c in mine], len(result.names))[test]
+    if sigma == 0:
         return 0.0, (
             f"parameters, discretization and the model error between {what}, which their fit puts at 0: "
             f"the fitted {what} agree within their noise"
         )
-    sigma = float(brentq(excess, 0.0, 10.0 * float(np.max(np.abs(e) / F)) + 1.0))
     return sigma, (
         f"parameters, discretization and the model error between {what} (the fitted {what}' misfit beyond their noise: "
         f"{100 * sigma:.1f} % of the force)"

@@ -338,6 +338,15 @@ def summary(result: Any, out: Path) -> str:
             f"  {c.label:>16s}: RMS relative error {100 * c.rms_relative:5.1f} % "
             f"({len(c.u_mm)} points, {c.u_mm[0]:.3g} to {c.u_mm[-1]:.3g} mm); discretization error {est}"
         )
+    weighed = {
+        c.curve.test: float(np.max(c.model_sd_N / np.abs(c.measured_N))) for c in result.curves if len(c.model_sd_N)
+    }
+    for test, sigma in weighed.items():
+        if sigma > 0:
+            lines.append(
+                f"  the {test.replace('_', ' ')} curves disagree beyond their error bars: each point weighted "
+                f"also with the model error between specimens, {100 * sigma:.1f} % of its force"
+            )
     from .fit_params import FIT_LADDER
 
     for c in result.curves:

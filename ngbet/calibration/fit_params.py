@@ -321,6 +321,19 @@ class CurveFit:
     angle_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
     profile_mm: np.ndarray = field(default_factory=lambda: np.zeros(0))
     angles_model_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    model_sd_N: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (bands.weigh_model_error)
+
+    @property
+    def weight_sd_N(self) -> np.ndarray:
+        """The standard deviation a fitted point is weighted with: √(sd² + model_sd²).
+
+        ``sd_N`` is the point's own (the measurement's); ``model_sd_N`` the model error between
+        specimens that the fit estimates from its curves' misfit (empty: none,
+        :func:`ngbet.calibration.bands.weigh_model_error`).
+        """
+        if len(self.model_sd_N) == 0:
+            return self.sd_N
+        return cast(np.ndarray, np.sqrt(self.sd_N**2 + self.model_sd_N**2))
 
     @property
     def label(self) -> str:
@@ -438,6 +451,7 @@ class JointFit:
                 "u_mm": c.u_mm.tolist(),
                 "measured_N": c.measured_N.tolist(),
                 "sd_N": c.sd_N.tolist(),
+                "weight_sd_N": c.weight_sd_N.tolist(),
                 "model_N": c.model_N.tolist(),
                 "start_N": c.start_N.tolist(),
                 "band_N": band(c.dlogp, self.cov_log).tolist(),

@@ -9,7 +9,11 @@ every model run of the fit.
 Least squares on the residuals e_i = (F_model(u_i) − F_i)/s_i, s_i the point's standard deviation
 (:meth:`MeasuredCurve.sd`: half the printed error bar where the file has error bars, floored by
 the reading error and 1 % of the force), in θ = ln p within the bounds of the scene's
-``[calibration]`` table (:func:`scipy.optimize.least_squares`, trust region reflective). The
+``[calibration]`` table (:func:`scipy.optimize.least_squares`, trust region reflective). Where
+the curves hold two or more specimens of a test that the model cannot fit within their noise,
+s_i also holds the model error between specimens that the search's end shows, σ_m F_i, and the
+search runs again under it (:func:`~ngbet.calibration.bands.weigh_model_error`): each specimen
+counts by what the model can do for it, not by the width of its error bars. The
 covariance of θ is s²(JᵀJ)⁻¹ with s² = Σe²/(m − n): error bars that do not cover the misfit are
 scaled up by it (never down: s² >= 1). A measured mid-axis profile and centre shear angles of the
 first curve's specimen (:mod:`ngbet.measured.observations`) add their residuals over their
@@ -40,6 +44,7 @@ from ..measured.curves import RANGE, MeasuredCurve
 from ..measured.observations import Profile, ShearAngles
 from ..scene.document import Scene
 from ..scene.validate import SceneError
+from .bands import weigh_model_error
 from .fit_params import (
     COARSE_LEVEL,
     FINE_TOL,
@@ -76,6 +81,9 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: searches again under the model error between specimens that a search's end shows, at most
+REWEIGHTS = 2
 
 
 Progress = Callable[[int, list[float], float], None]
@@ -245,10 +253,11 @@ def fit_curves(  # noqa: C901
         best = [math.inf]
         quiet = [False]
 
-        def blocks(res: list[Run]) -> np.ndarray:
+        def blocks(res: list[Run], own: bool = False) -> np.ndarray:
+            """The data's residuals over the weights' standard deviations (``own``: the points' own)."""
             e = []
             for r, c in zip(res, cfs, strict=True):
-                e.append((r.F - c.measured_N) / c.sd_N)
+                e.append((r.F - c.measured_N) / (c.sd_N if own else c.weight_sd_N))
                 if c.profile is not None:
                     e.append((r.P - c.profile.measured()) / profile_sd_mm)
                 if c.angles is not None:
@@ -275,7 +284,7 @@ def fit_curves(  # noqa: C901
         def jac(theta: np.ndarray) -> np.ndarray:
             rows = []
             for r, c in zip(model(theta), cfs, strict=True):
-                rows.append(r.G / c.sd_N[:, None])
+                rows.append(r.G / c.weight_sd_N[:, None])
                 if c.profile is not None:
                     rows.append(r.GP / profile_sd_mm)
                 if c.angles is not None:
@@ -296,6 +305,19 @@ def fit_curves(  # noqa: C901
                 ftol=tol,
                 gtol=1e-8,
             )
+
+        def weighted_search(theta: np.ndarray, runs: int, tol: float) -> Any:
+            """:func:`search`, then again under the model error between specimens that its end shows.
+
+            At most :data:`REWEIGHTS` times, while the model error moves
+            (:func:`~ngbet.calibration.bands.weigh_model_error`).
+            """
+            sol = search(theta, runs, tol)
+            for _ in range(REWEIGHTS):
+                if not weigh_model_error(cfs, [r.F for r in model(sol.x)], len(names)):
+                    break
+                sol = search(sol.x, runs, tol)
+            return sol
 
         def gauss_newton_step(theta: np.ndarray) -> float:
             """The Gauss-Newton step from θ within the bounds, in standard errors (the Mahalanobis norm).
@@ -403,7 +425,7 @@ def fit_curves(  # noqa: C901
             for cf, lv in zip(cfs, coarse_levels, strict=True):
                 cf.level = lv
             m0 = mark()
-            sol = search(th, max_runs // 2, 1e-3)
+            sol = weighted_search(th, max_runs // 2, 1e-3)
             th = sol.x
             stage(*m0, rungs=coarse_levels, checked=False)
             # the parameters have moved: the rungs are chosen again where the coarse search ended, from
@@ -420,7 +442,7 @@ def fit_curves(  # noqa: C901
         searched = not choose_discretization  # the scene's own discretization: no probe, search first
         if searched:
             m0 = mark()
-            sol = search(th, max(max_runs - model.runs, 1), FINE_TOL)
+            sol = weighted_search(th, max(max_runs - model.runs, 1), FINE_TOL)
             th = sol.x
         else:
             m0 = mark()
@@ -484,7 +506,7 @@ def fit_curves(  # noqa: C901
             sol = OptimizeResult(x=th, success=False, status=0, message="the model runs were spent before a search")
         quiet[0] = True
         e, J = resid(th), jac(th)
-        st = _statistics(e, J, names, len(prior))
+        st = _statistics(e, J, names, len(prior), blocks(checked, own=True))
         for cf, r in zip(cfs, checked, strict=True):
             cf.model_N, cf.dlogp, cf.force_error_N, cf.angle_deg = r.F, r.G, r.err, r.angle
             cf.profile_mm, cf.angles_model_deg = r.P, r.A
@@ -554,7 +576,9 @@ WHAT_FIXES = {
 }
 
 
-def _statistics(e: np.ndarray, J: np.ndarray, names: list[str], prior_rows: int = 0) -> dict[str, Any]:
+def _statistics(
+    e: np.ndarray, J: np.ndarray, names: list[str], prior_rows: int = 0, own: np.ndarray | None = None
+) -> dict[str, Any]:
     """Covariance of θ = ln p from the SVD of J, and what the data leave undetermined.
 
     The last ``prior_rows`` rows of ``e`` and ``J`` are the smoothness prior's
@@ -562,12 +586,16 @@ def _statistics(e: np.ndarray, J: np.ndarray, names: list[str], prior_rows: int 
     are those of data and prior), while what is undetermined, flat or correlated is judged from the
     data's rows alone (the report names what the data leave open, also where the prior holds it).
     s² = Σe²/(m − n) over the data's m rows, floored at 1 (error bars that do not cover the misfit
-    are scaled up, never down); ``residual_scale`` is s itself.
+    are scaled up, never down); ``residual_scale`` is s itself, or that of ``own``, the data's
+    residuals over the points' own standard deviations where the rows are weighted otherwise
+    (with the model error between specimens).
     """
     m = len(e) - prior_rows
     n = J.shape[1]
     r2 = float(e[:m] @ e[:m]) / max(m - n, 1)
     s2 = max(r2, 1.0)
+    if own is not None:
+        r2 = float(own @ own) / max(m - n, 1)
     _, sv, Vt = np.linalg.svd(J[:m], full_matrices=False)
     cov_data = s2 * _inverse_normal(sv, Vt)
     cov = s2 * _inverse_normal(*np.linalg.svd(J, full_matrices=False)[1:]) if prior_rows else cov_data
