@@ -12,8 +12,9 @@ the reading error and 1 % of the force), in θ = ln p within the bounds of the s
 ``[calibration]`` table (:func:`scipy.optimize.least_squares`, trust region reflective). Where
 the curves hold two or more specimens of a test that the model cannot fit within their noise,
 s_i also holds the model error between specimens that the search's end shows, σ_m F_i, and the
-search runs again under it (:func:`~ngbet.calibration.bands.weigh_model_error`): each specimen
-counts by what the model can do for it, not by the width of its error bars. The
+search runs again under it (:func:`~ngbet.calibration.bands.weigh_model_error`; again on the
+checked rungs before their search): each specimen counts by what the model can do for it, not by
+the width of its error bars. The
 covariance of θ is s²(JᵀJ)⁻¹ with s² = Σe²/(m − n): error bars that do not cover the misfit are
 scaled up by it (never down: s² >= 1). A measured mid-axis profile and centre shear angles of the
 first curve's specimen (:mod:`ngbet.measured.observations`) add their residuals over their
@@ -487,6 +488,8 @@ def fit_curves(  # noqa: C901
                 continue
             if full:
                 break
+            if weigh_model_error(cfs, [r.F for r in checked], len(names)):  # as the checked rungs show it
+                step = gauss_newton_step(th)
             if step <= STEP_SE or model.runs >= max_runs:
                 # the probe's θ is where the fit ends: its estimate at every fitted point next
                 sol = OptimizeResult(
