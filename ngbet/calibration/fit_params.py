@@ -39,6 +39,7 @@ __all__ = [
     "TABLE_KEY",
     "TARGET_ERROR",
     "UNDETERMINED_SE",
+    "WHAT_FIXES",
     "CurveFit",
     "JointFit",
     "band",
@@ -47,12 +48,26 @@ __all__ = [
     "curve_scene",
     "expand_params",
     "gauss_newton_direction",
+    "inverse_normal",
     "portable_scene",
     "smoothness_rows",
     "test_changes",
     "value_of",
     "with_values",
 ]
+
+#: what data would determine a parameter the fit leaves undetermined (by the start of its name)
+WHAT_FIXES = {
+    "material.shear_stress_steps_Pa": "what would fix it: a law with fewer coefficients (fewer rises, or the locking "
+    "law), a smoothness prior on the rises ([calibration] table_smoothness_sd), or data that reach the "
+    "shear angles of this rise (a larger displacement, a picture-frame test)",
+    "material.K_el": "what would fix it: measured shear angles (--angles; yarn elongation keeps them below the ideal "
+    "test's) or a bound on K_el from the yarns",
+    "material.alpha": "what would fix it: another specimen size (another aspect ratio) or a measured mid-axis "
+    "profile (--profile)",
+    "material.K_lock": "what would fix it: data further into the stiffening (larger displacements)",
+    "material.gamma_lock_deg": "what would fix it: data further into the stiffening (larger displacements)",
+}
 
 TABLE_KEY = "material.shear_stress_steps_Pa"
 #: without bounds in the scene, each parameter stays within this factor of its start value
@@ -564,3 +579,12 @@ def correlation(cov: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         c = cov / np.outer(d, d)
     return np.where(np.isfinite(c), c, np.nan)
+
+
+def inverse_normal(sv: np.ndarray, Vt: np.ndarray) -> np.ndarray:
+    """(JᵀJ)⁻¹ from J's singular values and right singular vectors.
+
+    A vanishing singular value gives its direction a huge (not infinite) variance.
+    """
+    inverse: np.ndarray = (Vt.T / np.maximum(sv, 1e-150 + 1e-12 * sv[0]) ** 2) @ Vt
+    return inverse

@@ -58,6 +58,7 @@ from .fit_params import (
     STRONG_CORRELATION,
     TARGET_ERROR,
     UNDETERMINED_SE,
+    WHAT_FIXES,
     CurveFit,
     JointFit,
     bounds,
@@ -65,6 +66,7 @@ from .fit_params import (
     curve_scene,
     expand_params,
     gauss_newton_direction,
+    inverse_normal,
     portable_scene,
     smoothness_rows,
     value_of,
@@ -74,7 +76,6 @@ from .runs import CurveModel, Run, default_workers, first_levels, probe_points, 
 
 __all__ = [
     "ELONGATION_KEY",
-    "WHAT_FIXES",
     "Progress",
     "fit_curves",
     "held_parameters",
@@ -565,19 +566,6 @@ def fit_curves(  # noqa: C901
 #: the yarn elongation modulus: held at the scene's value when the scene's [calibration] does not name it
 ELONGATION_KEY = "material.K_el"
 
-#: what data would determine a parameter the fit leaves undetermined (by the start of its name)
-WHAT_FIXES = {
-    "material.shear_stress_steps_Pa": "what would fix it: a law with fewer coefficients (fewer rises, or the locking "
-    "law), a smoothness prior on the rises ([calibration] table_smoothness_sd), or data that reach the "
-    "shear angles of this rise (a larger displacement, a picture-frame test)",
-    "material.K_el": "what would fix it: measured shear angles (--angles; yarn elongation keeps them below the ideal "
-    "test's) or a bound on K_el from the yarns",
-    "material.alpha": "what would fix it: another specimen size (another aspect ratio) or a measured mid-axis "
-    "profile (--profile)",
-    "material.K_lock": "what would fix it: data further into the stiffening (larger displacements)",
-    "material.gamma_lock_deg": "what would fix it: data further into the stiffening (larger displacements)",
-}
-
 
 def _statistics(
     e: np.ndarray, J: np.ndarray, names: list[str], prior_rows: int = 0, own: np.ndarray | None = None
@@ -600,8 +588,8 @@ def _statistics(
     if own is not None:
         r2 = float(own @ own) / max(m - n, 1)
     _, sv, Vt = np.linalg.svd(J[:m], full_matrices=False)
-    cov_data = s2 * _inverse_normal(sv, Vt)
-    cov = s2 * _inverse_normal(*np.linalg.svd(J, full_matrices=False)[1:]) if prior_rows else cov_data
+    cov_data = s2 * inverse_normal(sv, Vt)
+    cov = s2 * inverse_normal(*np.linalg.svd(J, full_matrices=False)[1:]) if prior_rows else cov_data
     se = np.sqrt(np.abs(np.diag(cov_data)))
     undetermined: dict[str, str] = {}
     flat = []
@@ -645,12 +633,3 @@ def _statistics(
         "noise_scale": math.sqrt(s2),
         "residual_scale": math.sqrt(r2),
     }
-
-
-def _inverse_normal(sv: np.ndarray, Vt: np.ndarray) -> np.ndarray:
-    """(JᵀJ)⁻¹ from J's singular values and right singular vectors.
-
-    A vanishing singular value gives its direction a huge (not infinite) variance.
-    """
-    inverse: np.ndarray = (Vt.T / np.maximum(sv, 1e-150 + 1e-12 * sv[0]) ** 2) @ Vt
-    return inverse
