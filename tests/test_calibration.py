@@ -457,8 +457,8 @@ def test_model_error_is_the_misfit_between_specimens_beyond_their_noise():
 def test_points_are_weighted_with_the_model_error_between_specimens():
     """The weights' model error is :func:`bands.model_error`'s σ (two sizes, a = 2 %, b = 5 %:
     4.876 %) times each measured force; weighing again at the same forces moves nothing (a fixed
-    point, so the search is not repeated); one specimen size, or residuals within the noise, leave
-    the points' own standard deviations alone."""
+    point, so the search is not repeated); a point without a model force is left out; one specimen
+    size, or residuals within the noise, leave the points' own standard deviations alone."""
     sizes = [("bias_extension", "100 x 250 mm", 0.02, 0.05), ("bias_extension", "100 x 200 mm", 0.02, 0.05)]
     fit = _misfit_fit(sizes, 2)
     for c in fit.curves:
@@ -470,6 +470,11 @@ def test_points_are_weighted_with_the_model_error_between_specimens():
     for c in fit.curves:
         np.testing.assert_allclose(c.model_sd_N, sigma * np.abs(c.measured_N), rtol=1e-9)
     assert not bands.weigh_model_error(fit.curves, forces, 2)
+    # a point whose run failed (no force) is left out, not a failure of the weights
+    failed = [f.copy() for f in forces]
+    failed[0][3] = np.nan
+    bands.weigh_model_error(fit.curves, failed, 2)
+    assert np.all(np.isfinite(fit.curves[0].model_sd_N)) and fit.curves[0].model_sd_N[0] > 0
     one_size = [("bias_extension", "100 x 250 mm", 0.02, 0.05)] * 2
     for case in (one_size, [(t, lab, 0.02, 0.018) for t, lab, _, _ in sizes]):
         fit = _misfit_fit(case, 2)

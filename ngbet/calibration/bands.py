@@ -49,7 +49,7 @@ def _between_specimens(curves: list[CurveFit], forces: list[np.ndarray], n: int)
         e = np.concatenate([forces[k] - curves[k].measured_N for k in mine])
         sd = np.concatenate([curves[k].sd_N for k in mine])
         F = np.abs(np.concatenate([forces[k] for k in mine]))
-        ok = F > 0  # a relative error needs a force
+        ok = (F > 0) & np.isfinite(e)  # a relative error needs a force (and a run that ended)
         out[test] = misfit_beyond_noise(e[ok], sd[ok], F[ok], max(int(ok.sum()) - n, 1))
     return out
 
