@@ -472,7 +472,7 @@ def test_points_are_weighted_with_the_model_error_between_specimens():
     assert not bands.weigh_model_error(fit.curves, forces, 2)
     # a point whose run failed (no force) is left out, not a failure of the weights
     failed = [f.copy() for f in forces]
-    failed[0][3] = np.nan
+    failed[0][3] = np.inf
     bands.weigh_model_error(fit.curves, failed, 2)
     assert np.all(np.isfinite(fit.curves[0].model_sd_N)) and fit.curves[0].model_sd_N[0] > 0
     one_size = [("bias_extension", "100 x 250 mm", 0.02, 0.05)] * 2
