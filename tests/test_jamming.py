@@ -156,9 +156,9 @@ def _sheared_problem(gamma_deg):
 
 def test_the_barrier_is_switched_on_where_the_yarns_come_near():
     """At a new load the state is checked: yarns 30° apart (γ = 60°) leave the barrier off; 6° apart
-    (γ = 84°, within JAMMING_MARGIN times the 5° threshold's sine) switch it on, for good, yet add exactly 0 to the energy
-    (above the threshold); 4° apart (γ = 86°) the energy holds ∫W_jam at the energy's own quadrature
-    order 2p."""
+    (γ = 84°, within JAMMING_MARGIN times the 5° threshold's sine) switch it on, for good, yet add
+    exactly 0 to the energy (above the threshold); 4° apart (γ = 86°) the energy holds ∫W_jam at the
+    energy's own quadrature order 2p."""
     K, s_jam = 7e5, S_JAM
     assert math.sin(math.radians(30.0)) > JAMMING_MARGIN * S_JAM
     pb, _ = _sheared_problem(60.0)
