@@ -68,14 +68,15 @@ def one_run(bending: bool, jamming: bool = True, everywhere: bool = False) -> di
         jam.watch = watch_all  # type: ignore[method-assign]
     sine, points = _yarn_sine(solver.problem, scene)
     angles: list[tuple[float, float, bool, int, float, int]] = []
-    original = solver.converged
+    problem = solver.problem
+    original = problem.converged
 
     def watched() -> None:
         s = float(np.min(np.asarray(sine(points))))
         angle = math.degrees(math.asin(max(-1.0, min(1.0, s))))
         angles.append(
             (
-                solver.lam * 1e3,
+                problem.lam * 1e3,
                 angle,
                 jam.on,
                 solver.counts["factorizations"],
@@ -85,7 +86,7 @@ def one_run(bending: bool, jamming: bool = True, everywhere: bool = False) -> di
         )
         original()
 
-    solver.converged = watched  # type: ignore[method-assign]
+    problem.converged = watched  # type: ignore[method-assign]
     steps = []
     path = load_path(solver, scene)
     try:

@@ -16,6 +16,7 @@ from conftest import coarse
 from netgen.geom2d import unit_square
 
 from ngbet.continuum import physics
+from ngbet.continuum.jamming import JAMMING_MARGIN, JAMMING_SET_MARGIN
 from ngbet.run import run
 from ngbet.scene.document import Scene
 from ngbet.scene.validate import SceneError
@@ -155,10 +156,11 @@ def _sheared_problem(gamma_deg):
 
 def test_the_barrier_is_switched_on_where_the_yarns_come_near():
     """At a new load the state is checked: yarns 30° apart (γ = 60°) leave the barrier off; 6° apart
-    (γ = 84°, within twice the 5° threshold) switch it on, for good, yet add exactly 0 to the energy
-    (above the threshold); 4° apart (γ = 86°) the energy holds ∫W_jam at the energy's own quadrature
-    order 2p."""
+    (γ = 84°, within JAMMING_MARGIN times the 5° threshold's sine) switch it on, for good, yet add
+    exactly 0 to the energy (above the threshold); 4° apart (γ = 86°) the energy holds ∫W_jam at the
+    energy's own quadrature order 2p."""
     K, s_jam = 7e5, S_JAM
+    assert math.sin(math.radians(30.0)) > JAMMING_MARGIN * S_JAM
     pb, _ = _sheared_problem(60.0)
     pb.problem.converged()
     assert not pb.problem.jamming_on
@@ -176,22 +178,22 @@ def test_the_barrier_is_switched_on_where_the_yarns_come_near():
 
 
 def test_the_barrier_is_on_only_where_the_yarns_come_near_and_the_energy_is_the_same():
-    """A state sheared by 60° at one end of the specimen and by 86° at the other (yarns 4° apart,
+    """A state sheared by 40° at one end of the specimen and by 86° at the other (yarns 4° apart,
     past the 5° threshold): the watch puts the barrier on the elements whose yarns come within
-    four times the threshold's sine and on no other; energy and residual are those of the barrier on
+    JAMMING_SET_MARGIN times the threshold's sine and on no other; energy and residual are those of the barrier on
     every element, bit for bit (elsewhere it is exactly 0). With the barrier off where the yarns
     close past the threshold the state is a miss."""
-    pb, _ = _sheared_problem(60.0)
-    G60 = ngs.Grad(pb.problem.u)(pb.problem.mesh(0.0, 0.0))
+    pb, _ = _sheared_problem(40.0)
+    G40 = ngs.Grad(pb.problem.u)(pb.problem.mesh(0.0, 0.0))
     G86 = ngs.Grad(_sheared_problem(86.0)[0].problem.u)(pb.problem.mesh(0.0, 0.0))
     xs = [v.point[0] for v in pb.problem.mesh.vertices]
     xi = (ngs.x - min(xs)) / (max(xs) - min(xs))
-    G = [(1 - xi) * a + xi * b for a, b in zip(G60, G86, strict=True)]  # row-major 2x2
+    G = [(1 - xi) * a + xi * b for a, b in zip(G40, G86, strict=True)]  # row-major 2x2
     pb.problem.u.Set(ngs.CF((G[0] * ngs.x + G[1] * ngs.y, G[2] * ngs.x + G[3] * ngs.y)))
     jam = pb.problem.jamming
     pb.problem.converged()
     assert 0 < jam.elements.NumSet() < pb.problem.mesh.ne and not jam.missed()
-    assert np.array_equal(jam._where, jam._smallest() < 4 * S_JAM)
+    assert np.array_equal(jam._where, jam._smallest() < JAMMING_SET_MARGIN * S_JAM)
     E_near, r_near = pb.energy(), pb.residual()
     jam.switch_on()
     assert pb.energy() == E_near and np.array_equal(pb.residual(), r_near)
@@ -225,7 +227,8 @@ def test_jamming_off_is_accepted_at_any_angle():
 def test_no_state_of_the_path_has_crossed_yarns_that_the_barrier_missed():
     """Without bending the shear concentrates at the clamp corners (smallest yarn angle 32° at
     16 mm on the embedded scene, 77° with bending) and one increment from 16 to 22 mm lands, with
-    the barrier off (its watch switches it on within twice the jamming angle), on a state whose
+    the barrier off (its watch switches it on within JAMMING_MARGIN times the jamming angle's sine,
+    about 29°), on a state whose
     yarns cross (-30°): no equilibrium of the energy. Such a state is solved again with the
     barrier on: in every state kept, each element the barrier was off on has its yarns more open
     than the jamming angle at the barrier's integration points, and none has crossed yarns at the
@@ -267,3 +270,28 @@ def test_no_state_of_the_path_has_crossed_yarns_that_the_barrier_missed():
     )
     off, fine, order_2p = np.array(kept).T
     assert off.min() > S_JAM and order_2p.min() > 0.0 and fine.min() > -0.01 * S_JAM
+
+
+def test_the_corner_that_snaps_shut_has_the_barrier_on_before_it_snaps():
+    """Without bending the clamp corner's yarns close to 25° at 18 mm and 22° at 19 mm on the
+    embedded scene, and the next increment snaps the corner shut onto the barrier (a limit point
+    near 19.8 mm). The watch puts the corner's elements in the barrier's set from the state at
+    18 mm on (within JAMMING_SET_MARGIN times the threshold's sine, about 29°), so no increment
+    of the path to 20 mm lands on crossed yarns with the barrier off: no trial is a miss solved
+    again (with a set margin of 4, about 20°, the increments 19 -> 20 and 19.5 -> 20 mm were)."""
+    from ngbet.continuum.problem import ContinuumProblem
+    from ngbet.numerics.engine import Steps
+    from ngbet.numerics.path import JAMMING_MISSED
+    from ngbet.runner.continuum import load_path
+    from ngbet.runner.settings import continuum_solver
+
+    scene = Scene().with_changes(**{"effects.bending": False, "loading.u0_mm": 20.0})
+    solver = continuum_solver(ContinuumProblem(scene))
+    steps = Steps(load_path(solver, scene))
+    for _ in steps:
+        pass
+    res = steps.result
+    assert res is not None and res.u0 == pytest.approx(0.020)
+    assert solver.problem.jamming.on
+    assert not any(a.reason == JAMMING_MISSED for a in res.attempts)
+    assert any(not a.converged for a in res.attempts)  # the limit point is on the way

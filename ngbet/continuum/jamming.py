@@ -33,14 +33,17 @@ __all__ = ["JAMMING_MARGIN", "JAMMING_SET_MARGIN", "JammingBarrier"]
 log = logging.getLogger(__name__)
 
 #: the jamming barrier is evaluated once a state's yarns come closer than this multiple of the
-#: jamming angle's sine (before, it is zero): twice, i.e. about 10° for the default 5°, which no
-#: ordinary state reaches (smallest angle 35° on the embedded scene at 56 mm, 18° at 66 mm)
-JAMMING_MARGIN = 2.0
+#: jamming angle's sine (before, it is zero): about 29° for the default 5°, which the full model's
+#: states do not reach on the embedded scene (smallest angle 35° at 56 mm); without bending its clamp
+#: corners pass it at 18 mm (25°), an increment before they snap shut onto the barrier (19.8 mm)
+JAMMING_MARGIN = 5.5
 #: once on, the barrier is evaluated on every element whose yarns a solved state brought closer than
-#: this multiple of the threshold's sine (about 20° for the default 5°), for the rest of the run: an
-#: element that comes near stays in, and one increment rarely closes yarns from there past the
-#: threshold on an element not yet in (a miss, solved again with the barrier everywhere)
-JAMMING_SET_MARGIN = 4.0
+#: this multiple of the threshold's sine (the same 29° for the default 5°), for the rest of the run:
+#: an element that comes near stays in, and one increment rarely closes yarns from there past the
+#: threshold on an element not yet in (a miss, solved again with the barrier everywhere). With
+#: 20° the corner of the first-gradient model, at 22° one increment before it snaps shut, was
+#: outside the set and its snapping increments were misses (11 more factorizations to 56 mm)
+JAMMING_SET_MARGIN = 5.5
 
 
 class JammingBarrier:
