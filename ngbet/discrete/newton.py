@@ -135,7 +135,8 @@ class StepFailed(Exception):
     """Newton gave up.
 
     ``u`` is its last iterate (None where it is of no use), ``indefinite`` says that it gave up at
-    the first tangent that needed a shift (``allow_shift=False``).
+    the first tangent that needed a shift (``allow_shift=False``; ``u`` is then the iterate of that
+    tangent).
     """
 
     def __init__(
@@ -171,7 +172,7 @@ def newton(
     cut) when the decrement stops contracting after 6 iterations, rises above the first one from
     the third iteration on, or exceeds twice the energy; without it Newton may wander through
     indefinite states to a distant branch (a snap-through). ``allow_shift=False`` gives up at the
-    first tangent that is not a descent direction (the caller would reject the step anyway).
+    first tangent that is not a descent direction (the caller cuts or relaxes the step instead).
 
     ``inexact=True`` (with ``ctl.krylov_tol > 0`` and at least ``ctl.krylov_min_free`` free
     dofs): after an unshifted factorization, the next iterations solve the Newton system of
@@ -207,7 +208,12 @@ def newton(
         near = bool(hist) and hist[-1][2] <= ctl.krylov_below * abs(E)  # Newton has come close
         step = _krylov_step(lin, K, r, ctl) if held and near and not confirm else None
         if step is None:
-            du, dec, mu_prev, n_shift = _descent_direction(lin, K, r, mu_prev, allow_shift, hist, E, out)
+            try:
+                du, dec, mu_prev, n_shift = _descent_direction(lin, K, r, mu_prev, allow_shift, hist, E, out)
+            except StepFailed as exc:
+                if exc.indefinite and exc.u is None:
+                    exc.u = u.copy()
+                raise
             n_factor += 1
             shifted += n_shift
             held = inexact and n_shift == 0

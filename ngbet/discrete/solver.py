@@ -33,7 +33,11 @@ Step from u0 to u0 + h:
              step below ``min_step`` raises :class:`ngbet.errors.ConvergenceError` (every attempt's
              decrements, the last converged u0 in mm). A step
              longer than ``snap_bracket`` stops at its first indefinite tangent and is cut (it
-             would be cut as a possible snap anyway, see below).
+             would be cut as a possible snap anyway, see below); a step no longer than that
+             stops there too and is relaxed from its last iterate (see ``_relax``): a step that
+             needs a shifted tangent is a snap event either way, and the damped Newton of the
+             relaxation gets there with fewer factorizations than shifted Newton giving up
+             after its contraction checks.
   snap       a step that releases energy (energy change below the work of the clamp, by the
              Hermite rule with F' = dF/du0 at both ends: exact to O(h^5) on a continuous branch)
              beyond ``snap_release_hermite`` of that work (``snap_release`` for the trapezoid when
@@ -228,14 +232,15 @@ class ShiftedNewton:
         mark = self.tally.start()
         bracketing = h > ctl.snap_bracket * (1 + 1e-9)
         try:
-            # a step longer than the snap bracket that meets an indefinite tangent is cut whether or
-            # not Newton converges (see ``_classify``): give up at once
+            # a step that meets an indefinite tangent is a snap event whether or not Newton converges
+            # (see ``_classify``): give up at once; a step longer than the snap bracket is cut, a
+            # shorter one relaxed from the last iterate
             unew, its, hist, shifted = newton(
-                self.problem, self._predicted, self.work, ctl, out=nout, allow_shift=not bracketing, inexact=True
+                self.problem, self._predicted, self.work, ctl, out=nout, allow_shift=False, inexact=True
             )
             trial = _Trial(unew, its, hist, shifted, False, nout, mark)
         except StepFailed as exc:
-            if exc.indefinite:
+            if exc.indefinite and bracketing:
                 self.tally.add("indefinite tangent (step cut to bracket a snap)", mark, nout)
                 log.info(
                     "step u0 %.5g -> %.5g mm met an indefinite tangent: cutting to bracket a snap",
