@@ -32,7 +32,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from bench_command import OUT, _child, _forces  # noqa: E402
+from bench_command import OUT, _child  # noqa: E402
 
 FENICS_PYTHON = "/usr/bin/python3"
 SCRIPT = HERE / "fenicsx_bet.py"
@@ -115,8 +115,9 @@ def run_ngbet(name: str, sets: list[str], env: dict[str, str]) -> dict:
             rec.update({k: s.get(k) for k in ("setup_s", "solve_s", "estimate_s", "dofs", "newton_iterations")})
         if (run / "results.csv").exists():
             lines = (run / "results.csv").read_text().splitlines()
+            col = lines[0].split(",").index("force_N")
             u0 = [float(line.split(",")[1]) for line in lines[1:]]
-            f = _forces(run / "results.csv")
+            f = [float(line.split(",")[col]) for line in lines[1:]]
             rec.update({f"F{int(d)}_N": fi for d, fi in zip(u0, f, strict=True) if d in (37.0, 56.0)})
     return rec
 

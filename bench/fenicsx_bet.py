@@ -54,6 +54,7 @@ def main() -> None:
     ap.add_argument("--quad-degree", type=int, default=0, help="quadrature degree (0: 2 × order)")
     ap.add_argument("--yarn-angle-deg", type=float, default=45.0)
     ap.add_argument("--rtol", type=float, default=1e-10, help="Newton's relative tolerance on the correction")
+    ap.add_argument("--lu", default="mumps", help="PETSc's LU factorization package (mumps, petsc, superlu, umfpack)")
     args = ap.parse_args()
     t_imp = (time.perf_counter() - T0_WALL, time.process_time() - T0_CPU)
 
@@ -120,6 +121,8 @@ def main() -> None:
     ksp = solver.krylov_solver
     ksp.setType("preonly")
     ksp.getPC().setType("lu")
+    if args.lu != "petsc":
+        ksp.getPC().setFactorSolverType(args.lu)
 
     # the reaction's test field ψ = (X/L, 0) in the mixed space, and the residual form without Dirichlet rows
     psi = fem.Function(V)
