@@ -121,8 +121,7 @@ def main() -> None:
     ksp = solver.krylov_solver
     ksp.setType("preonly")
     ksp.getPC().setType("lu")
-    if args.lu != "petsc":
-        ksp.getPC().setFactorSolverType(args.lu)
+    ksp.getPC().setFactorSolverType(args.lu)
 
     # the reaction's test field ψ = (X/L, 0) in the mixed space, and the residual form without Dirichlet rows
     psi = fem.Function(V)
