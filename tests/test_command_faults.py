@@ -252,6 +252,9 @@ def test_a_file_size_limit_leaves_no_cut_file_and_says_failed(tmp_path):
 # ------------------------------------------------------------------------------- signals
 @pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGUSR1])
 def test_a_closed_terminal_or_a_user_signal_leaves_a_true_summary(tmp_path, sig):
+    """A run started from a terminal (SIGHUP at its default, whatever the test runner's own, e.g.
+    under nohup) stops at the signal: exit 130, summary.json interrupted and naming the signal, its
+    steps those written to results.csv."""
     out = tmp_path / "run"
     p = subprocess.Popen(
         [sys.executable, "-m", "ngbet", "run", "--out", str(out), "--quiet", *SLOW_SET],
@@ -260,6 +263,7 @@ def test_a_closed_terminal_or_a_user_signal_leaves_a_true_summary(tmp_path, sig)
         text=True,
         env=ENV,
         start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL),
     )
     try:
         t = 0.0
