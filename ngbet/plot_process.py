@@ -6,9 +6,10 @@ the command starts this process before it imports NGSolve: it imports matplotlib
 one small figure (fonts, Agg, the PNG writer) while the run solves, then waits on its stdin
 for the run folder, draws the run's figures (``force``, ``shear_force``, ``profile``, ``shear_map``, in the scene's
 ``outputs.figure_formats``) with the same function as the run itself
-(:func:`ngbet.figures.run.draw_force`, so the figures are the same; when a whole core is idle, each
-figure drawn by a forked child, all four at once: on a busy machine the children cost about 20 %
-more CPU time and gain nothing) and answers on its stdout with the force figure's file.
+(:func:`ngbet.figures.run.draw_force`, so the figures are the same; shared among itself and a forked
+child per further idle core, :func:`ngbet.figures.run.draw_run`: a fork costs CPU time, one per
+figure more than one per core, and on a busy machine the children gain nothing) and answers on
+its stdout with the force figure's file.
 
 Nothing depends on it: when it is not running, died, or answers with an error, the run draws
 the figure itself (the log says why at INFO level). It is a fork of the run where it can be
@@ -301,7 +302,7 @@ def serve(stdin: IO[bytes] | None = None, stdout: IO[bytes] | None = None) -> No
             png = draw_force(
                 Path(req["run_dir"]),
                 [(lab, x, y) for lab, x, y in req.get("extra", [])],
-                parallel=_spare_cores() >= 1.0,
+                workers=1 + max(0, int(_spare_cores())),
             )
             answer: dict[str, Any] = {"png": str(png) if png is not None else None}
         except Exception as exc:  # reported to the run, which draws the figure itself

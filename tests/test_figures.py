@@ -348,11 +348,11 @@ def test_the_figures_are_written_in_the_formats_the_scene_asks_for(tmp_path, for
 
 def test_the_figures_drawn_in_forked_children_are_those_drawn_here(tmp_path):
     here, there = write_run(tmp_path / "here"), write_run(tmp_path / "there")
-    draw_run(here, parallel=False)
-    # a fresh interpreter has no other thread: each figure is drawn by a forked child there
+    draw_run(here, workers=1)
+    # a fresh interpreter has no other thread: the figures are shared with a forked child there
     code = (
         "from ngbet.figures.run import draw_run; from ngbet.figures.style import can_fork; assert can_fork(); "
-        f"draw_run({str(there)!r}, parallel=True)"
+        f"draw_run({str(there)!r}, workers=2)"
     )
     subprocess.run([sys.executable, "-c", code], check=True, env={**os.environ, "MPLBACKEND": "Agg"})
     names = sorted(p.name for p in here.glob("*.png"))
@@ -361,6 +361,22 @@ def test_the_figures_drawn_in_forked_children_are_those_drawn_here(tmp_path):
 
     for name in names:
         np.testing.assert_array_equal(imread(here / name), imread(there / name))
+
+
+def test_the_figures_are_shared_among_the_workers_by_their_cost():
+    """Each figure once; no more groups than workers or figures; the costliest spread out (greedy by cost)."""
+    from ngbet.figures.run import FIGURE_COST, _share
+
+    names = ["force", "shear_force", "profile", "shear_map", "yarns_37mm", "yarns_56mm"]
+    for workers in (1, 2, 3, 4, 8):
+        groups = _share(names, workers)
+        assert sorted(n for g in groups for n in g) == sorted(names)
+        assert len(groups) == min(workers, len(names)) and all(groups)
+    two = _share(RUN_FIGURES, 2)
+    cost = [sum(FIGURE_COST[n] for n in g) for g in two]
+    assert sorted(map(sorted, two)) == [["force", "shear_force"], ["profile", "shear_map"]]  # 2.1 against 1.8
+    assert max(cost) - min(cost) <= max(FIGURE_COST.values())
+    assert _share([], 4) == [[]]
 
 
 @pytest.mark.parametrize("bbox", [None, "tight"])

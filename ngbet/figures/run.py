@@ -11,7 +11,8 @@ A picture-frame run draws its own ``force`` and ``shear_force`` (:mod:`ngbet.fig
 is a :class:`~ngbet.figures.frame.FrameMeasured`) and no profile.
 
 Each is written in the scene's ``outputs.figure_formats`` (default PNG only). In a process without
-threads (the plot process) each figure is drawn by a forked child, all at once.
+threads (the plot process) the figures may be shared among workers: this process and forked children,
+one per spare core.
 """
 
 from __future__ import annotations
@@ -36,6 +37,9 @@ log = logging.getLogger(__name__)
 RUN_FIGURES = ("force", "shear_force", "profile", "shear_map")
 #: in ``only`` of :func:`draw_run`: the network's yarn pictures, ``yarns_XXmm`` for each ``state_XXmm.npz``
 YARNS = "yarns"
+#: the relative cost of drawing each figure (CPU time after the warm-up, default scene and 17k network),
+#: by which :func:`draw_run` shares the figures among its workers; others (the yarn pictures) cost 1
+FIGURE_COST = {"force": 1.0, "shear_force": 1.1, "profile": 0.6, "shear_map": 1.2}
 
 NO_MATPLOTLIB = "no figures: matplotlib is not installed (pip install matplotlib)"
 
@@ -48,7 +52,7 @@ def formats_of(scene: Any) -> tuple[str, ...]:
 def draw_run(
     run_dir: str | Path,
     extra: Extra = (),
-    parallel: bool = False,
+    workers: int = 1,
     measured: Measured | None = None,
     only: Sequence[str] = (*RUN_FIGURES, YARNS),
 ) -> Path | None:
@@ -57,8 +61,10 @@ def draw_run(
     Returns the force figure's file, or None when there was none to draw (no force in
     results.csv: then only the yarn pictures are drawn). ``extra``: more curves (label, u0 [mm],
     force [N]) on the force figure.
-    ``parallel``: each figure drawn by a forked child (only in a process without threads; a figure
-    whose child failed is drawn here).
+    ``workers``: the figures are shared among this process and ``workers`` − 1 forked children, the
+    costliest first to the least loaded (:data:`FIGURE_COST`), where the process has no other thread;
+    a figure whose child failed is drawn here. A fork costs CPU time (its copied pages): as many
+    workers as idle cores, not one per figure.
 
     Raises
     ------
@@ -105,26 +111,43 @@ def draw_run(
             if fig is not None:
                 out.save(fig, run_dir / name)
 
-    children: dict[str, int] = {}
-    if parallel and can_fork():
-        for name in names:
-            child = os.fork()
-            if child == 0:  # the child: one figure, and out without running anything of the parent's
-                code = 1
-                try:
-                    draw(name)
-                    code = 0
-                finally:
-                    os._exit(code)
-            children[name] = child
-    for name in names:
-        if name in children:
-            if os.waitstatus_to_exitcode(os.waitpid(children[name], 0)[1]) == 0:
-                continue
-            log.info("the child drawing %s failed: drawing it here", name)
-        draw(name)
+    _draw_shared(_share(names, workers if can_fork() else 1), draw)
     first = run_dir / f"force.{out.formats[0]}"
     return first if "force" in names and first.exists() else None
+
+
+def _draw_shared(groups: list[list[str]], draw: Callable[[str], None]) -> None:
+    """Draw the first group here and each other one in a forked child; a failed child's group here."""
+    children: dict[int, int] = {}
+    for k, group in enumerate(groups[1:], start=1):
+        child = os.fork()
+        if child == 0:  # the child: its figures, and out without running anything of the parent's
+            code = 1
+            try:
+                for name in group:
+                    draw(name)
+                code = 0
+            finally:
+                os._exit(code)
+        children[k] = child
+    for name in groups[0]:
+        draw(name)
+    for k, child in children.items():
+        if os.waitstatus_to_exitcode(os.waitpid(child, 0)[1]) != 0:
+            log.info("the child drawing %s failed: drawing them here", ", ".join(groups[k]))
+            for name in groups[k]:
+                draw(name)
+
+
+def _share(names: Sequence[str], workers: int) -> list[list[str]]:
+    """``names`` in at most ``workers`` groups of about equal cost (:data:`FIGURE_COST`), costliest first."""
+    groups: list[list[str]] = [[] for _ in range(max(1, min(workers, len(names))))]
+    load = [0.0] * len(groups)
+    for name in sorted(names, key=lambda n: -FIGURE_COST.get(n, 1.0)):
+        k = load.index(min(load))
+        groups[k].append(name)
+        load[k] += FIGURE_COST.get(name, 1.0)
+    return groups
 
 
 def _yarn_makers(run_dir: Path, scene: Any) -> dict[str, Callable[[], Any]]:
@@ -137,14 +160,14 @@ def _yarn_makers(run_dir: Path, scene: Any) -> dict[str, Callable[[], Any]]:
     return {f"yarns_{st.tag}": functools.partial(yarn_state_figure, st, scene, scale) for st in states}
 
 
-def draw_force(run_dir: Path, extra: Extra = (), parallel: bool = False) -> Path | None:
+def draw_force(run_dir: Path, extra: Extra = (), workers: int = 1) -> Path | None:
     """Draw the run's figures in this process (:func:`draw_run`); None without matplotlib (logged)."""
     try:
         import matplotlib  # noqa: F401
     except ImportError as exc:
         _not_installed(exc)
         return None
-    return draw_run(run_dir, extra, parallel)
+    return draw_run(run_dir, extra, workers)
 
 
 def _not_installed(exc: ImportError) -> None:
