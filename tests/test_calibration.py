@@ -130,6 +130,32 @@ def test_the_prior_holds_what_the_data_leave_open_and_the_report_says_the_data_l
     assert "smoothness prior" in st["undetermined"][f"{key}[2]"]
 
 
+def test_a_rise_at_zero_where_the_data_determine_the_law_is_not_reported_undetermined():
+    """A linear table (τ piecewise linear through the knots' control values c_j = Σ_{i<=j} r_i) seen at
+    30 points below the last knot: the second rise, at 1 Pa between rises of kilopascals, is on a
+    flat direction of ln r (the 0.5 rule and the flat-direction test name it), but the data fix
+    τ at its knot, so it is at zero; the last rise, also at 1 Pa but beyond every point, leaves τ
+    at its knot unknown and stays undetermined."""
+    key = fit_params.TABLE_KEY
+    r = np.array([3000.0, 1.0, 2000.0, 1.0])
+    names = [f"{key}[{j}]" for j in range(4)]
+    knots = np.linspace(0.0, 1.0, 5)
+    x = np.linspace(0.02, 0.7, 30)
+    hats = np.array([np.interp(x, knots, np.eye(5)[k]) for k in range(1, 5)]).T  # N_1..N_4 at x
+    J_lin = np.cumsum(hats[:, ::-1], axis=1)[:, ::-1]  # dτ/dr_j = Σ_{k>=j+1} N_k
+    sd = 50.0
+    e = np.random.default_rng(5).normal(size=len(x))
+    st = joint._statistics(e, J_lin * r / sd, names)
+    assert {f"{key}[1]", f"{key}[3]"} <= set(st["undetermined"])
+    zero = fit_params.rises_at_zero(names, r, st["cov_data"], r, st["undetermined"])
+    assert list(zero) == [f"{key}[1]"]
+    assert "shear stress at its knot is 3e+03 Pa" in zero[f"{key}[1]"]
+    # the linear standard error of the rise, from the linearized fit, is what the message states
+    seen = J_lin[:, :3]  # the last rise has no column the data see
+    se_r1 = math.sqrt(float(np.linalg.inv(seen.T @ seen)[1, 1])) * sd * st["noise_scale"]
+    assert f"± {se_r1:.2g} Pa" in zero[f"{key}[1]"]
+
+
 # ------------------------------------------------------------------------------------------ tabulated law
 _MESH: list[ngs.Mesh] = []
 

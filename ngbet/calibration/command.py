@@ -364,10 +364,20 @@ def summary(result: Any, out: Path) -> str:
             )
     se = result.se_log
     for k, n in enumerate(result.names):
-        flag = "  at its bound" if n in result.at_bound else "  undetermined" if n in result.undetermined else ""
+        flag = (
+            "  at its bound"
+            if n in result.at_bound
+            else "  undetermined"
+            if n in result.undetermined
+            else "  at zero"
+            if n in result.at_zero
+            else ""
+        )
         lines.append(f"  {n:36s} = {result.values[k]:11.5g}   se(ln p) = {se[k]:.3g}{flag}")
     for n, why in result.undetermined.items():
         lines.append(f"  {n} undetermined: {why}")
+    for n, why in result.at_zero.items():
+        lines.append(f"  {n} {why}")
     for n, why in result.held.items():
         lines.append(f"  {n} held: {why}")
     return "\n".join(lines)

@@ -50,6 +50,7 @@ __all__ = [
     "gauss_newton_direction",
     "inverse_normal",
     "portable_scene",
+    "rises_at_zero",
     "smoothness_rows",
     "test_changes",
     "value_of",
@@ -426,6 +427,7 @@ class JointFit:
     profile_sd_mm: float = 1.0
     angle_sd_deg: float = 1.0
     smoothness_sd: float = 0.0
+    at_zero: dict[str, str] = field(default_factory=dict)
 
     @property
     def se_log(self) -> np.ndarray:
@@ -516,11 +518,13 @@ class JointFit:
                     "bounds": [float(self.lower[k]), float(self.upper[k])],
                     "at_bound": nm in self.at_bound,
                     "determined": nm not in self.undetermined,
+                    "at_zero": nm in self.at_zero,
                 }
                 for k, nm in enumerate(self.names)
             },
             "held": {p: {"value": value_of(self.scene, p), "why": why} for p, why in self.held.items()},
             "undetermined": self.undetermined,
+            "at_zero": self.at_zero,
             "strongly_correlated": [{"params": [a, b], "correlation": c} for a, b, c in self.correlated],
             "flat_directions": self.flat_directions,
             "correlation": [[num(corr[i, j]) for j in range(n)] for i in range(n)],
@@ -579,6 +583,38 @@ def correlation(cov: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         c = cov / np.outer(d, d)
     return np.where(np.isfinite(c), c, np.nan)
+
+
+def rises_at_zero(
+    names: Sequence[str], values: np.ndarray, cov_log: np.ndarray, steps: Sequence[float], undetermined: dict[str, str]
+) -> dict[str, str]:
+    """The rises ``undetermined`` names that the data put at zero, where they determine the law: {name: why}.
+
+    The fit works in θ = ln r, where a rise near its lower bound (1 Pa against kilopascals) lies on
+    a flat direction: the force moves with r, not with ln r, when r ≈ 0. What the data determine
+    is the shear stress at the knots, the control values c_j = Σ_{i≤j} r_i (``steps``: all rises,
+    the held ones constants), with the covariance of the linearized fit (dc_j/dθ_i = r_i, i ≤ j).
+    A rise is at zero when r ≤ se(r) and se(c_j) ≤ :data:`UNDETERMINED_SE` c_j: the data ask
+    for no rise over its interval of the table (the shear stress of a convex energy cannot fall),
+    and the law there is known. A rise the data do not reach leaves c_j with an unbounded error:
+    it stays undetermined.
+    """
+    rises = {k: int(n[len(TABLE_KEY) + 1 : -1]) for k, n in enumerate(names) if n.startswith(TABLE_KEY + "[")}
+    B = np.zeros((len(steps), len(names)))
+    for k, j in rises.items():
+        B[j:, k] = values[k]
+    se_c = np.sqrt(np.abs(np.diag(B @ cov_log @ B.T)))
+    c = np.cumsum(np.asarray(steps, dtype=float))
+    se_r = {k: float(values[k] * math.sqrt(abs(cov_log[k, k]))) for k in rises}
+    return {
+        names[k]: (
+            f"at zero within its error ({values[k]:.3g} ± {se_r[k]:.2g} Pa) where the data determine the law: "
+            f"the shear stress at its knot is {c[j]:.3g} Pa ± {100 * se_c[j] / c[j]:.0f} %; the data ask for no "
+            "rise over its interval of the table (the shear stress of a convex energy cannot fall)"
+        )
+        for k, j in rises.items()
+        if names[k] in undetermined and values[k] <= se_r[k] and se_c[j] <= UNDETERMINED_SE * c[j]
+    }
 
 
 def inverse_normal(sv: np.ndarray, Vt: np.ndarray) -> np.ndarray:

@@ -68,6 +68,7 @@ from .fit_params import (
     gauss_newton_direction,
     inverse_normal,
     portable_scene,
+    rises_at_zero,
     smoothness_rows,
     value_of,
     with_values,
@@ -525,6 +526,7 @@ def fit_curves(  # noqa: C901
         chosen = [lv for lv in levels if lv is not None]
         on = FIT_LADDER[max(chosen)].apply(scene) if chosen else scene
         fitted = portable_scene(with_values(on, names, values))
+        zero = rises_at_zero(names, values, st["cov_data"], fitted.material.shear_stress_steps_Pa, st["undetermined"])
         ok = bool(sol.success and sol.status > 0)
         if not ok:
             # the caller says it (the command with its option, a study in its table): no advice from here
@@ -548,15 +550,16 @@ def fit_curves(  # noqa: C901
             str(sol.message),
             at_bound,
             held,
-            st["undetermined"],
+            {p: why for p, why in st["undetermined"].items() if p not in zero},
             st["correlated"],
-            st["flat"],
+            [d for d in st["flat"] if not set(d) <= set(zero)],
             st["residual_scale"],
             target_error,
             stages,
             profile_sd_mm,
             angle_sd_deg,
             scene.calibration.table_smoothness_sd,
+            zero,
         )
 
     finally:
@@ -627,6 +630,7 @@ def _statistics(
     ]
     return {
         "cov": cov,
+        "cov_data": cov_data,
         "undetermined": undetermined,
         "flat": flat,
         "correlated": pairs,
