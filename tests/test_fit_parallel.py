@@ -300,6 +300,7 @@ def test_a_curve_no_rung_vouches_for_stops_climbing_on_its_best_rung(rel, stays,
         values=np.zeros(0),
         at_bound=[],
         undetermined={},
+        at_zero={},
         held={},
     )
     lines = [ln for ln in summary(result, Path("out")).splitlines() if "above --accuracy" in ln]
