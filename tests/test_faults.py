@@ -67,9 +67,21 @@ SLOW_SET = [
 ]
 
 
+def signals_at_default() -> None:
+    """In a child before its program starts: the stop signals at their defaults, as a terminal starts a command.
+
+    A test run in the background of a shell (``pytest &``) inherits SIGINT ignored, and a run
+    that starts with a stop signal ignored rightly keeps ignoring it (as under ``nohup``): the
+    tests that send one start their runs as from a terminal, whatever started pytest.
+    """
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGUSR1, signal.SIGUSR2):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def ngbet(*args: str, env: dict[str, str] | None = None, **kw) -> subprocess.Popen:
     """``ngbet ARGS`` in a new process group (as a terminal runs it: Ctrl-C reaches the group)."""
     env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg", **(env or {})}
+    kw.setdefault("preexec_fn", signals_at_default)
     return subprocess.Popen(
         [sys.executable, "-m", "ngbet", *args],
         stdout=subprocess.PIPE,
@@ -676,7 +688,11 @@ def test_ctrl_c_acts_within_seconds_when_the_main_thread_is_stuck(tmp_path):
     # measured before the watchdog: 80 s from SIGINT to exit at order_u = 10 (first assembly)
     out = tmp_path / "stuck"
     p = subprocess.Popen(
-        [sys.executable, "-c", STUCK, str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [sys.executable, "-c", STUCK, str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=signals_at_default,
     )
     assert p.stdout.readline().strip() == "ready"
     time.sleep(0.5)  # let the main thread enter its sleep: before it, it would still act on the signal
