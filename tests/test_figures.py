@@ -363,6 +363,45 @@ def test_the_figures_drawn_in_forked_children_are_those_drawn_here(tmp_path):
         np.testing.assert_array_equal(imread(here / name), imread(there / name))
 
 
+FAILING_CHILD = """
+import os, sys
+import ngbet.figures.run as fr
+from ngbet.figures.style import can_fork
+assert can_fork()
+# this process draws the shear map and the profile (none here), the child the force and F_sh figures
+assert fr._share(fr.RUN_FIGURES, 2) == [["shear_map", "profile"], ["shear_force", "force"]]
+parent, made = os.getpid(), fr.force_figure
+def in_parent_only(*a, **k):
+    if os.getpid() != parent:
+        raise RuntimeError("a child that fails")
+    return made(*a, **k)
+fr.force_figure = in_parent_only
+fr.draw_run(sys.argv[1], workers=2)
+fr.shear_map_figure = lambda *a, **k: 1 / 0  # now this process fails: its child is still waited for
+try:
+    fr.draw_run(sys.argv[2], workers=2)
+except ZeroDivisionError:
+    pass
+try:
+    os.waitpid(-1, os.WNOHANG)
+except ChildProcessError:
+    print("no child left")
+"""
+
+
+def test_a_figure_whose_child_failed_is_drawn_here_and_every_child_is_waited_for(tmp_path):
+    one, two = write_run(tmp_path / "one"), write_run(tmp_path / "two")
+    done = subprocess.run(
+        [sys.executable, "-c", FAILING_CHILD, str(one), str(two)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "MPLBACKEND": "Agg"},
+    )
+    assert done.returncode == 0, done.stderr
+    assert sorted(p.name for p in one.glob("*.png")) == ["force.png", "shear_force.png"]
+    assert done.stdout.strip() == "no child left"
+
+
 def test_the_figures_are_shared_among_the_workers_by_their_cost():
     """Each figure once; no more groups than workers or figures; the costliest spread out (greedy by cost)."""
     from ngbet.figures.run import FIGURE_COST, _share

@@ -130,13 +130,15 @@ def _draw_shared(groups: list[list[str]], draw: Callable[[str], None]) -> None:
             finally:
                 os._exit(code)
         children[k] = child
-    for name in groups[0]:
-        draw(name)
-    for k, child in children.items():
-        if os.waitstatus_to_exitcode(os.waitpid(child, 0)[1]) != 0:
-            log.info("the child drawing %s failed: drawing them here", ", ".join(groups[k]))
-            for name in groups[k]:
-                draw(name)
+    try:
+        for name in groups[0]:
+            draw(name)
+    finally:  # every child waited for, also when a figure here fails
+        failed = [k for k, child in children.items() if os.waitstatus_to_exitcode(os.waitpid(child, 0)[1]) != 0]
+    for k in failed:
+        log.info("the child drawing %s failed: drawing them here", ", ".join(groups[k]))
+        for name in groups[k]:
+            draw(name)
 
 
 def _share(names: Sequence[str], workers: int) -> list[list[str]]:
