@@ -129,9 +129,10 @@ def plot_table(result: JointFit, path: Path) -> Path:
     ax.set_ylabel("shear stress τ = dW/d|i8| [kPa] (log scale)")
     from ..figures.style import eng
 
+    how = "fitted" if "material.K_el" in result.names else "held"
     ax.set_title(
-        f"{result.scene.specimen.name.rsplit('-', 1)[0]}, t = {t:g} mm; fitted K_el = "
-        f"{eng(result.scene.material.K_el, 'Pa')}",
+        f"{result.scene.specimen.name.rsplit('-', 1)[0]}, t = {t:g} mm; K_el = "
+        f"{eng(result.scene.material.K_el, 'Pa')} ({how})",
         fontsize=9,
     )
     ax.legend(fontsize=7, loc="upper left")
