@@ -271,11 +271,12 @@ def fit_figure(result: JointFit) -> Figure:  # noqa: C901 - one panel after the 
     from ..figures.style import caption, put_caption
 
     material = caption(result.scene).partition("; material: ")[2]
+    held = [{"material.alpha1": "α1", "material.alpha2": "α2"}.get(p, p.rpartition(".")[2]) for p in result.held]
+    held_text = f"; held at the scene's values: {', '.join(held)}" if held else ""
     put_caption(
         fig,
         f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters fitted to "
-        f"{len(result.curves)} curve(s), {result.model_runs} model runs{stopped}; fitted material: "
-        f"{material}",
+        f"{len(result.curves)} curve(s), {result.model_runs} model runs{stopped}; material: {material}{held_text}",
     )
     fig.tight_layout()
     return fig
