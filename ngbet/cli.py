@@ -29,7 +29,6 @@ import json
 import logging
 import math
 import os
-import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -37,13 +36,13 @@ from typing import Any
 from . import commands as _commands
 from .commands import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_IO, EXIT_OK, EXIT_SOLVER, exit_code, load_scene
 from .commands import parse_value as _parse_value
-from .errors import NgbetError
-from .interrupts import STOP_SIGNALS, interrupts, signal_name, stop_signals
+from .interrupts import interrupts
 from .messages import messages, say
 from .scene.document import Scene
 from .scene.validate import SceneError
+from .watch import SUPERVISED, watch
 
-__all__ = ["EPILOG", "SUPERVISED", "console", "main"]
+__all__ = ["EPILOG", "console", "main"]
 
 EPILOG = (
     "exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
@@ -88,78 +87,13 @@ def _print(text: str, what: str, utf8: bool = False) -> int:
         return EXIT_IO
 
 
-#: set in the environment of the process that ``ngbet run`` runs in (:func:`console`)
-SUPERVISED = "NGBET_SUPERVISED"
-
-
 def console() -> int:
-    """The ``ngbet`` command: :func:`main`, with ``ngbet run`` in a child process this one watches.
-
-    A run that dies without a word (a crash in compiled code, the kernel's OOM killer) cannot
-    record its end itself; the watching process records it in the run folder's summary.json
-    ("crashed", with the signal) and says so in one line (exit 70). Ctrl-C, SIGTERM, SIGHUP (the
-    terminal closed) and SIGUSR1/2 are passed on to the run, which records "interrupted" as always;
-    the run dies with its watcher.
-    """
+    """The ``ngbet`` command: :func:`main`; ``ngbet run`` in a child that this process watches (:mod:`ngbet.watch`)."""
     _commands.tolerant_streams()
     argv = sys.argv[1:]
-    if os.environ.get(SUPERVISED) or not argv or argv[0] != "run" or not hasattr(signal, "SIGKILL"):
+    if os.environ.get(SUPERVISED) or not argv or argv[0] != "run" or not hasattr(os, "fork"):
         return main(argv)
-    import subprocess
-
-    child = subprocess.Popen(
-        [sys.executable, "-m", "ngbet", *argv],
-        env={**os.environ, SUPERVISED: "1"},
-        start_new_session=True,
-        preexec_fn=_die_with_parent,
-    )
-
-    def forward(signum: int, frame: Any) -> None:
-        with contextlib.suppress(ProcessLookupError):
-            child.send_signal(signum)
-
-    for sig in stop_signals():
-        signal.signal(sig, forward)
-    code = child.wait()
-    return code if code >= 0 else _died(argv, -code)
-
-
-def _die_with_parent() -> None:
-    """In the run's process: SIGKILL when the watching process dies (Linux; elsewhere nothing)."""
-    with contextlib.suppress(Exception):
-        import ctypes
-
-        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-
-
-def _died(argv: list[str], signum: int) -> int:
-    """The run's process ended by signal ``signum`` without recording its end: record it, say it."""
-    from .output import RunWriter
-    from .tables import read_rows
-
-    name = signal_name(signum)
-    interrupted = signum in STOP_SIGNALS
-    status = "interrupted" if interrupted else "crashed"
-    msg = (
-        f"the run was interrupted by {name}"
-        if interrupted
-        else f"the run's process died by {name} (a crash in compiled code, or killed from outside)"
-    )
-    with contextlib.suppress(SystemExit):  # an unreadable command line was the child's to report
-        out = Path(_parser("run").parse_args(argv).out)
-        try:
-            if json.loads((out / "summary.json").read_text()).get("status") == "running":
-                rows = read_rows(out / "results.csv") if (out / "results.csv").exists() else []
-                u0 = float(rows[-1]["u0_mm"]) if rows else 0.0
-                RunWriter.amend(
-                    out,
-                    {"status": status, "error": msg, "steps": len(rows), "u0_reached_mm": u0, "last_converged_mm": u0},
-                )
-                msg += f" after u0 = {u0:g} mm; converged steps and summary.json (status {status}) are in {out}/"
-        except (OSError, ValueError, NgbetError) as exc:
-            msg += f"; its folder {out} could not record it ({exc})"
-    _say(msg)
-    return EXIT_INTERRUPTED if interrupted else EXIT_INTERNAL
+    return watch(argv, main, lambda: Path(_parser("run").parse_args(argv).out))
 
 
 def main(argv: list[str] | None = None) -> int:

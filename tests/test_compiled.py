@@ -1,6 +1,9 @@
 """solver.compile: the choice between interpreted and native code, its fallbacks and its cache."""
 
 import logging
+import os
+import subprocess
+import sys
 
 import ngsolve as ngs
 import numpy as np
@@ -43,6 +46,47 @@ def test_auto_compiles_nothing_when_the_cache_is_empty(monkeypatch, tmp_path):
     assert mode == "interpret"
     assert list((tmp_path / "native" / "objects").iterdir()) == []
     assert len(list((tmp_path / "native" / "bin").glob("*/ngscxx"))) == 1
+
+
+LEAVES = """
+import sys, ngsolve as ngs
+from ngbet.numerics import compiled
+from ngbet.watch import end_run_process
+mesh = ngs.Mesh(ngs.unit_square.GenerateMesh(maxh=0.5))
+u = ngs.H1(mesh, order=1).TrialFunction()
+cf = u * u + ngs.sqrt(1 + ngs.Grad(u) * ngs.Grad(u))
+print(compiled.compile_energy(cf, sys.argv[1], compiled.NATIVE_IF_CACHED)[1], flush=True)
+if sys.argv[2] == "as a run ends":
+    end_run_process(0)
+"""
+
+
+def _left_behind(tmp_path, mode: str, ending: str) -> tuple[str, list[str]]:
+    """Compile in a process of its own whose temporary directory is empty: (the mode used, what is left there)."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir(exist_ok=True)
+    env = {**os.environ, "TMPDIR": str(tmp), "NGBET_CACHE_DIR": str(tmp_path / "cache")}
+    argv = [sys.executable, "-c", LEAVES, mode, ending]
+    p = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    return p.stdout.strip(), sorted(x.name for x in tmp.iterdir())
+
+
+@pytest.mark.skipif(not HAS_COMPILER, reason="needs a C++ compiler and NGSolve's ngscxx")
+@pytest.mark.parametrize("ending", ["as a run ends", "at the interpreter's exit"])
+def test_a_compilation_that_fails_leaves_no_folder_behind(tmp_path, ending):
+    """NGSolve leaves the folder of a failed compilation (here: "auto" with an empty cache) in the
+    temporary directory, and a run's process (ended by os._exit) every folder: each process's
+    compilations go to one folder that its exit removes."""
+    assert _left_behind(tmp_path, "auto", ending) == ("interpret", [])
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAS_COMPILER, reason="needs a C++ compiler and NGSolve's ngscxx")
+def test_native_code_leaves_no_folder_behind_when_a_run_ends(tmp_path):
+    """A native compilation (cold, then from the cache) in a process that ends as a run's does."""
+    for _ in range(2):
+        assert _left_behind(tmp_path, "native", "as a run ends") == ("native", [])
 
 
 def test_the_interpreted_linearization_is_the_hessian():

@@ -899,8 +899,9 @@ def test_reference_from_an_incomplete_family_names_the_missing_cases(tmp_path):
 
 CRASH_SITE = """
 import os, pathlib, signal, threading, time
-if os.environ.get("NGBET_SUPERVISED") and os.environ.get("CRASH_AFTER_ROWS_IN"):
+if os.environ.get("CRASH_AFTER_ROWS_IN"):
     rows = pathlib.Path(os.environ["CRASH_AFTER_ROWS_IN"]) / "results.csv"
+    forks = []
 
     def crash():
         while True:
@@ -911,7 +912,12 @@ if os.environ.get("NGBET_SUPERVISED") and os.environ.get("CRASH_AFTER_ROWS_IN"):
                 pass
             time.sleep(0.02)
 
-    threading.Thread(target=crash, daemon=True).start()
+    def forked():  # the first fork of the command is the run's process (not its plot process)
+        forks.append(1)
+        if len(forks) == 1:
+            threading.Thread(target=crash, daemon=True).start()
+
+    os.register_at_fork(after_in_child=forked)
 """
 
 

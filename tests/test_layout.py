@@ -204,6 +204,7 @@ COMMANDS = (
     "ngbet.calibration",
     "ngbet.api",
     "ngbet.cli",
+    "ngbet.watch",
     "ngbet.commands",
 )
 #: the run folder, its writers and figures, and what runs them: the top of the import graph

@@ -59,12 +59,14 @@ pairs, at the price of one more pass over the element's integration points.
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import logging
 import os
 import shutil
 import stat
 import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -201,12 +203,38 @@ def _wrappers(real: str, cxx: str) -> Path:
 
 
 def _on_path(bins: Path, cached_only: bool) -> Any:
-    """The environment in which NGSolve's compile finds the caching wrappers first."""
+    """The environment in which NGSolve's compile finds the caching wrappers first, in :func:`scratch`."""
     from .._env import environ
 
     # NGSolve's ngscxx asks `python3` for its include flags: this interpreter's first
     path = os.pathsep.join([str(bins), str(Path(sys.executable).parent), os.environ.get("PATH", "")])
-    return environ({"PATH": path, **({"NGBET_CACHED_ONLY": "1"} if cached_only else {})})
+    return environ({"PATH": path, "TMPDIR": str(scratch()), **({"NGBET_CACHED_ONLY": "1"} if cached_only else {})})
+
+
+_SCRATCH: dict[int, Path] = {}
+
+
+def scratch() -> Path:
+    """The folder of this process for NGSolve's compilations (their ``TMPDIR``), removed when it exits.
+
+    NGSolve compiles each expression in a folder of its own under the temporary directory and
+    removes it only in the interpreter's teardown, and never after a failed compilation (an
+    expression that "auto" does not find in the cache). A run's process ends without that
+    teardown (:func:`ngbet.watch.end_run_process`), so each native run would leave its folders
+    behind. Here they are all inside one folder per process, which its exit functions remove
+    (those of the process that made it: a forked child that exits leaves its parent's alone).
+    Loaded libraries stay mapped after their files are gone.
+    """
+    pid = os.getpid()
+    if pid not in _SCRATCH:
+        _SCRATCH[pid] = Path(tempfile.mkdtemp(prefix="ngbet-compile-"))
+        atexit.register(_remove_scratch, pid)
+    return _SCRATCH[pid]
+
+
+def _remove_scratch(pid: int) -> None:
+    if os.getpid() == pid and pid in _SCRATCH:
+        shutil.rmtree(_SCRATCH.pop(pid), ignore_errors=True)
 
 
 def _add_variation(form: ngs.BilinearForm, compiled: ngs.CoefficientFunction, dx: Any, symbolic: bool) -> None:
