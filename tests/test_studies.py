@@ -536,6 +536,26 @@ def test_a_live_studys_finished_unstored_case_survives_another_studys_start(tmp_
     assert verify_case(cache / key)["status"] == "ok"
 
 
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, SystemExit])
+def test_a_case_in_a_temporary_folder_leaves_none_however_it_ends(tmp_path, monkeypatch, stop):
+    """A dask worker's case runs in a temporary folder whose files are returned; interrupted (Ctrl-C,
+    the worker shut down) the folder goes all the same."""
+    import tempfile
+
+    import ngbet.run
+    from ngbet.study.executors import execute_case
+
+    def interrupted(scene, out, **kw):
+        (out / "results.csv").write_text("u0_mm\n")
+        raise stop()
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(ngbet.run, "run", interrupted)
+    with pytest.raises(stop):
+        execute_case(Scene().with_changes(**TINY).to_dict(), 1)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_case_is_never_ok_without_its_data(tmp_path, monkeypatch, caplog):
     from ngbet.study import executors
 
@@ -655,7 +675,8 @@ def test_a_killed_dask_worker_ends_the_study_in_bounded_time_keeping_finished_ca
 
     monkeypatch.setenv("NGBET_DASK_WORKER_TIMEOUT_S", "3")
     sfile = tmp_path / "scheduler.json"
-    env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
+    (tmp_path / "tmp").mkdir()  # the killed worker's temporary case folder stays there, not in /tmp
+    env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg", "TMPDIR": str(tmp_path / "tmp")}
     sched = subprocess.Popen(
         [
             sys.executable,

@@ -74,8 +74,6 @@ def execute_case(
     no ``workdir`` the run folder's files as ``{"files": {name: bytes}}`` (for dask workers on
     other machines).
     """
-    from ..run import run  # imports NGSolve: only where a case runs
-
     scene = Scene.from_dict(scene_dict)
     if threads > 0:  # ngbet.run.run sets NGSolve's threads from the scene
         scene = scene.with_changes(**{"solver.threads": threads})
@@ -90,6 +88,24 @@ def execute_case(
         "host": machine()["node"],
         "pid": os.getpid(),
     }
+    try:
+        _run_case(scene, wd, threads, rec)
+        rec["wall_s"] = time.perf_counter() - t0
+        if tmp:
+            rec["files"] = {p.relative_to(wd).as_posix(): p.read_bytes() for p in wd.rglob("*") if p.is_file()}
+        elif cache is not None and key is not None and token is not None and rec["status"] in ("ok", "failed"):
+            store(Path(cache), key, rec, token, workdir=wd)
+            rec["stored"] = True
+    finally:  # a temporary folder goes however the case ends (an interrupt, the worker shut down)
+        if tmp:
+            shutil.rmtree(wd, ignore_errors=True)
+    return rec
+
+
+def _run_case(scene: Scene, wd: Path, threads: int, rec: dict[str, Any]) -> None:
+    """Run ``scene`` into ``wd``; a failure goes into ``rec`` (status, error, error_type), never out."""
+    from ..run import run  # imports NGSolve: only where a case runs
+
     try:
         from ..runner.threads import cores_for_runs
 
@@ -107,14 +123,6 @@ def execute_case(
             error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}",
             error_type=type(exc).__name__,
         )
-    rec["wall_s"] = time.perf_counter() - t0
-    if tmp:
-        rec["files"] = {p.relative_to(wd).as_posix(): p.read_bytes() for p in wd.rglob("*") if p.is_file()}
-        shutil.rmtree(wd, ignore_errors=True)
-    elif cache is not None and key is not None and token is not None and rec["status"] in ("ok", "failed"):
-        store(Path(cache), key, rec, token, workdir=wd)
-        rec["stored"] = True
-    return rec
 
 
 @contextlib.contextmanager
