@@ -277,6 +277,18 @@ def test_the_sizes_of_short_error_bars_are_written_inside_the_axes():
         assert box.x0 <= bb.x0 and bb.x1 <= box.x1 and box.y0 <= bb.y0 and bb.y1 <= box.y1, bb
 
 
+def test_a_caption_never_breaks_a_number_from_its_unit():
+    """Broken at the figure's width, no line of a caption starts with the unit of the number that ended the
+    line before ("66.8" / "% of"): the first word's length moves the break over every position around them."""
+    from ngbet.figures.style import figure, put_caption
+
+    for k in range(70, 100):
+        fig = figure(7.0, 3.0)
+        put_caption(fig, "x" * k + " error 66.8 % of the force at 145 mm, then more words to fill the second line")
+        lines = fig.get_suptitle().split("\n")
+        assert len(lines) > 1 and not any(line.startswith(("%", "mm")) for line in lines), lines
+
+
 def test_texts_outside_finds_a_label_beyond_the_canvas():
     fig = force_figure(rows())
     fig.axes[0].text(1.4, 0.5, "far right", transform=fig.axes[0].transAxes)

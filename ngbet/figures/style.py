@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import re
 import textwrap
 import warnings
 from collections.abc import Iterator, Sequence
@@ -219,8 +220,6 @@ def _name_of(specimen: Any) -> str:
     A fitted scene run at another size keeps the name of the specimen it was fitted on; the caption
     must not title a 100 × 300 mm run "…-100x250".
     """
-    import re
-
     name = str(getattr(specimen, "name", "") or "")
     m = re.search(r"[-_ ]?(\d+(?:\.\d+)?)\s*[x×]\s*(\d+(?:\.\d+)?)$", name)
     if m and (float(m.group(1)), float(m.group(2))) != (specimen.width_mm, specimen.length_mm):
@@ -228,13 +227,19 @@ def _name_of(specimen: Any) -> str:
     return name
 
 
+#: the space between a number and its unit, where a caption's line must not break ("66.8 %", "145 mm")
+_NUMBER_UNIT = re.compile(r"(?<=\d) (?=(?:%|°|[kMG]?Pa|N/mm|mm|N|s|J)(?![\w/]))")
+
+
 def put_caption(fig: Figure, text: str) -> None:
     """The caption line(s) above the panels, broken at the figure's width (8 pt: at most 14.5 characters an inch).
 
     DejaVu Sans at 8 pt sets about 15 characters of mixed text an inch; the margin keeps every
-    line inside the canvas (:func:`texts_outside` checks it).
+    line inside the canvas (:func:`texts_outside` checks it). A number and its unit stay on one
+    line (:data:`NB` between them).
     """
     if text:
+        text = _NUMBER_UNIT.sub(NB, text)
         fig.suptitle(textwrap.fill(text, width=int((fig.get_figwidth() - 0.3) * 14.5)), fontsize=8)
 
 
