@@ -76,8 +76,8 @@ def _left_behind(tmp_path, mode: str, ending: str) -> tuple[str, list[str]]:
 @pytest.mark.parametrize("ending", ["as a run ends", "at the interpreter's exit"])
 def test_a_compilation_that_fails_leaves_no_folder_behind(tmp_path, ending):
     """NGSolve leaves the folder of a failed compilation (here: "auto" with an empty cache) in the
-    temporary directory, and a run's process (ended by os._exit) every folder: each process's
-    compilations go to one folder that its exit removes."""
+    temporary directory, and a run's process (ended by os._exit) every folder: the compilations go to a
+    folder of ngbet's that is removed when they are done."""
     assert _left_behind(tmp_path, "auto", ending) == ("interpret", [])
 
 

@@ -59,7 +59,7 @@ pairs, at the price of one more pass over the element's integration points.
 
 from __future__ import annotations
 
-import atexit
+import contextlib
 import hashlib
 import logging
 import os
@@ -67,7 +67,7 @@ import shutil
 import stat
 import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -202,39 +202,27 @@ def _wrappers(real: str, cxx: str) -> Path:
     return bins
 
 
-def _on_path(bins: Path, cached_only: bool) -> Any:
-    """The environment in which NGSolve's compile finds the caching wrappers first, in :func:`scratch`."""
+@contextlib.contextmanager
+def _on_path(bins: Path, cached_only: bool) -> Iterator[None]:
+    """The environment of NGSolve's compile: the caching wrappers first, and a temporary directory of its own.
+
+    NGSolve compiles each expression in a folder of its own under the temporary directory and
+    removes it only in the interpreter's teardown, never after a failed compilation (an expression
+    that "auto" does not find in the cache); a run's process ends without that teardown
+    (:func:`ngbet.watch.end_run_process`). Here every compilation of the block goes into one
+    folder (``TMPDIR``), removed when the block ends however it ends: the libraries are loaded by
+    then (``wait=True``), and a loaded library stays mapped after its file is gone.
+    """
     from .._env import environ
 
     # NGSolve's ngscxx asks `python3` for its include flags: this interpreter's first
     path = os.pathsep.join([str(bins), str(Path(sys.executable).parent), os.environ.get("PATH", "")])
-    return environ({"PATH": path, "TMPDIR": str(scratch()), **({"NGBET_CACHED_ONLY": "1"} if cached_only else {})})
-
-
-_SCRATCH: dict[int, Path] = {}
-
-
-def scratch() -> Path:
-    """The folder of this process for NGSolve's compilations (their ``TMPDIR``), removed when it exits.
-
-    NGSolve compiles each expression in a folder of its own under the temporary directory and
-    removes it only in the interpreter's teardown, and never after a failed compilation (an
-    expression that "auto" does not find in the cache). A run's process ends without that
-    teardown (:func:`ngbet.watch.end_run_process`), so each native run would leave its folders
-    behind. Here they are all inside one folder per process, which its exit functions remove
-    (those of the process that made it: a forked child that exits leaves its parent's alone).
-    Loaded libraries stay mapped after their files are gone.
-    """
-    pid = os.getpid()
-    if pid not in _SCRATCH:
-        _SCRATCH[pid] = Path(tempfile.mkdtemp(prefix="ngbet-compile-"))
-        atexit.register(_remove_scratch, pid)
-    return _SCRATCH[pid]
-
-
-def _remove_scratch(pid: int) -> None:
-    if os.getpid() == pid and pid in _SCRATCH:
-        shutil.rmtree(_SCRATCH.pop(pid), ignore_errors=True)
+    scratch = tempfile.mkdtemp(prefix="ngbet-compile-")
+    try:
+        with environ({"PATH": path, "TMPDIR": scratch, **({"NGBET_CACHED_ONLY": "1"} if cached_only else {})}):
+            yield
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def _add_variation(form: ngs.BilinearForm, compiled: ngs.CoefficientFunction, dx: Any, symbolic: bool) -> None:
