@@ -38,7 +38,9 @@ def run(argv):
     if case == "killed":
         os.kill(os.getpid(), signal.SIGKILL)
 
-sys.exit(watch(["run", "--out", str(folder)], run, lambda: folder))
+code = watch(["run", "--out", str(folder)], run, lambda: folder)
+print(json.dumps({"pid": os.getpid(), "supervised": os.environ.get(SUPERVISED)}))  # the watcher alone prints
+sys.exit(code)
 """
 
 
@@ -78,7 +80,8 @@ def test_the_watched_process_ends_as_the_interpreter_would(tmp_path, case, code,
     assert says in p.stderr
     child = json.loads((tmp_path / "child.json").read_text())
     assert child["sid"] == child["pid"] and child["supervised"] == "1"
-    assert child["watcher"] != child["pid"]
+    (watcher,) = [json.loads(line) for line in p.stdout.splitlines()]  # one line: the child never came back here
+    assert child["watcher"] == watcher["pid"] != child["pid"] and watcher["supervised"] is None
     assert p.stderr.count("a message from argparse") <= 1  # said once, by the child
 
 
