@@ -1,8 +1,8 @@
 """The fits and predictions of the validation study (:mod:`ngbet.studies.validation`), kept in the study cache.
 
-Each fabric's scene and its measured curves, bias extension and picture frame (:data:`FABRICS`);
-the fits of a fabric (:func:`fits_of`: each bias-extension size alone, both sizes together, each
-laboratory's picture frame alone) and the curves each does not use (its targets); one fit with the
+The fits of a fabric (:func:`fits_of`: each bias-extension size alone, both sizes together, each
+laboratory's picture frame alone, of the fabric's own curves: :mod:`._validation_data`) and the
+curves of the fabric each does not use (its targets); one fit with the
 fitted scene's predictions of its targets (:func:`fit_and_predict`), a JSON file in
 ``validation-fits/`` of the study cache, keyed by the scene, the data and the code (:func:`fits_key`).
 
@@ -19,6 +19,7 @@ import logging
 import os
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,8 +28,9 @@ import numpy as np
 
 from ngbet.scene.document import Scene
 
+from ._validation_data import FABRICS, Curves, data_root
+
 __all__ = [
-    "FABRICS",
     "FITS_FOLDER",
     "MAX_RUNS",
     "QUICK",
@@ -36,63 +38,17 @@ __all__ = [
     "SCORE_POINTS",
     "FitSpec",
     "cached",
-    "data_root",
     "fit_and_predict",
     "fits_folder",
     "fits_key",
     "fits_of",
-    "lab_of",
+    "kind_of",
     "points_of",
-    "read_curve",
 ]
 
 log = logging.getLogger(__name__)
 
 
-def data_root() -> Path:
-    """The source tree holding the fabric scenes (geometry/) and their measured curves (data/).
-
-    The clone this module is in (``studies/`` of the source tree, an editable install), else the
-    copies installed with ngbet (``ngbet/geometry``, ``ngbet/data``), else the current directory.
-    """
-    import ngbet
-
-    for root in (Path(__file__).resolve().parents[1], Path(ngbet.__file__).resolve().parent, Path.cwd()):
-        if (root / "data" / "cao2008").is_dir() and (root / "geometry" / "twintex_plain.toml").is_file():
-            return root
-    from ngbet.scene.validate import SceneError
-
-    raise SceneError(
-        "study validation reads the fabric scenes geometry/twintex_*.toml and their measured curves "
-        "data/cao2008/ and data/cao2008_pf/, installed with ngbet: not found beside the studies, in the "
-        f"installed package {Path(ngbet.__file__).resolve().parent} nor in the current directory "
-        f"{Path.cwd()} (reinstall ngbet)"
-    )
-
-
-#: fabric: (scene, bias-extension curves (data/cao2008/), picture-frame curves (data/cao2008_pf/))
-FABRICS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
-    "plain": (
-        "twintex_plain.toml",
-        ("cao2008_plain_150x300_INSA-NU.csv", "cao2008_plain_150x450_INSA-NU.csv"),
-        (
-            "cao2008_pf_plain_UML_fig28_normalized_energy.csv",
-            "cao2008_pf_plain_UN_fig28_normalized_energy.csv",
-            "cao2008_pf_plain_UML_fig22_shear_force.csv",
-            "cao2008_pf_plain_UN_fig22_shear_force.csv",
-        ),
-    ),
-    "twill_balanced": (
-        "twintex_twill_balanced.toml",
-        ("cao2008_twill_balanced_150x300_INSA-NU.csv", "cao2008_twill_balanced_150x450_INSA-NU.csv"),
-        ("cao2008_pf_twill_balanced_UML_fig29_normalized_energy.csv",),
-    ),
-    "twill_unbalanced": (
-        "twintex_twill_unbalanced.toml",
-        ("cao2008_twill_unbalanced_100x250_UN.csv", "cao2008_twill_unbalanced_100x200_UN.csv"),
-        ("cao2008_pf_twill_unbalanced_UN_fig30_normalized_energy.csv",),
-    ),
-}
 #: the quick study: the unbalanced twill fitted on its 100 x 250 mm curve
 QUICK = ("twill_unbalanced", "100 x 250 mm")
 #: scored points per predicted curve, equally spaced over 10-90 % of its displacement (travel) range
@@ -102,79 +58,61 @@ MAX_RUNS, QUICK_RUNS = 40, 3
 FITS_FOLDER = "validation-fits"
 
 
-def lab_of(name: str) -> str:
-    """The laboratory of a data file, from its name (``..._UN.csv``, ``cao2008_pf_plain_UML_fig28...``)."""
-    for token in Path(name).stem.split("_"):
-        if token in ("UN", "UML", "INSA-NU"):
-            return token
-    return "?"
-
-
-def read_curve(name: str) -> Any:
-    """The measured curve of a data file of :data:`FABRICS` (bias extension or picture frame)."""
-    from ngbet.measured.curves import read_any
-
-    folder = "cao2008_pf" if name.startswith("cao2008_pf_") else "cao2008"
-    return read_any(data_root() / "data" / folder / name)
-
-
 @dataclass(frozen=True)
 class FitSpec:
-    """One fit of a fabric: its name, the files it fits, the files it predicts (every other test)."""
+    """One fit of a fabric: its name, the files it fits, the files it predicts, what it used.
+
+    ``kind``: "one size", "two sizes" (bias extension) or "frame" (:func:`kind_of`).
+    """
 
     fabric: str
     name: str
     fitted: tuple[str, ...]
     targets: tuple[str, ...]
-
-    @property
-    def kind(self) -> str:
-        """What the fit used: "one size", "two sizes" or "frame"."""
-        if self.fitted[0].startswith("cao2008_pf_"):
-            return "frame"
-        return "two sizes" if len(self.fitted) > 1 else "one size"
+    kind: str
 
 
-def fits_of(fabric: str) -> list[FitSpec]:
+def kind_of(fitted: Sequence[str], curves: Curves) -> str:
+    """What a fit of the curves ``fitted`` used: "frame", else "two sizes" or "one size"."""
+    if curves.is_frame(fitted[0]):
+        return "frame"
+    return "two sizes" if len(fitted) > 1 else "one size"
+
+
+def fits_of(fabric: str, curves: Curves) -> list[FitSpec]:
     """The fits of a fabric and their targets.
 
-    Each bias-extension size alone, both together, and each laboratory's picture frame alone (its
-    normalised-force figure). A fit predicts every curve of the fabric it does not use, except the
-    same test shown in another figure (a laboratory's frame as F_s and as F_norm is one test).
+    Each bias-extension size of :data:`FABRICS` alone, both together, and each laboratory's picture
+    frame alone (its normalised-force figure). A fit predicts every curve of the fabric in
+    ``curves`` it does not use, except a frame of the laboratory whose frame it fitted (a
+    laboratory's frame as F_s and as F_norm is one test).
     """
-    from ngbet.measured.curves import read_any
-
     _, bet, pf = FABRICS[fabric]
-    root = data_root() / "data"
-
-    def label(name: str) -> str:
-        return str(read_any(root / ("cao2008_pf" if name.startswith("cao2008_pf_") else "cao2008") / name).label)
 
     def spec(name: str, fitted: tuple[str, ...]) -> FitSpec:
-        labs = {lab_of(f) for f in fitted if f.startswith("cao2008_pf_")}
+        labs = {curves.lab(f) for f in fitted if curves.is_frame(f)}
         targets = tuple(
-            f for f in (*bet, *pf) if f not in fitted and not (f.startswith("cao2008_pf_") and lab_of(f) in labs)
+            f for f in curves.of[fabric] if f not in fitted and not (curves.is_frame(f) and curves.lab(f) in labs)
         )
-        return FitSpec(fabric, name, fitted, targets)
+        return FitSpec(fabric, name, fitted, targets, kind_of(fitted, curves))
 
-    out = [spec(label(b), (b,)) for b in bet]
-    out.append(spec(" + ".join(label(b) for b in bet), tuple(bet)))
+    out = [spec(str(curves.read(b).label), (b,)) for b in bet]
+    out.append(spec(" + ".join(str(curves.read(b).label) for b in bet), tuple(bet)))
     seen: set[str] = set()
     for f in pf:
-        if "normalized" in f and lab_of(f) not in seen:
-            seen.add(lab_of(f))
-            out.append(spec(f"frame {lab_of(f)}", (f,)))
+        if curves.read(f).quantity == "normalised_shear_force" and curves.lab(f) not in seen:
+            seen.add(curves.lab(f))
+            out.append(spec(f"frame {curves.lab(f)}", (f,)))
     return out
 
 
-def fits_key(spec: FitSpec, max_runs: int, scene_toml: str) -> str:
+def fits_key(spec: FitSpec, max_runs: int, scene_toml: str, curves: Curves) -> str:
     """A key of everything a fit reads: the scene, the fabric's data, the fit, the settings, the code."""
     from ngbet.study.keys import code_version
 
     h = hashlib.sha256(scene_toml.encode())
-    _, bet, pf = FABRICS[spec.fabric]
-    for name in (*bet, *pf):
-        p = data_root() / "data" / ("cao2008_pf" if name.startswith("cao2008_pf_") else "cao2008") / name
+    for name in curves.of[spec.fabric]:
+        p = curves.paths[name]
         h.update(p.read_bytes())
         eb = p.with_name(p.stem + "_errorbars.csv")
         if eb.exists():
@@ -248,7 +186,7 @@ def _finite(a: np.ndarray) -> list[float | None]:
     return [float(v) if np.isfinite(v) else None for v in np.asarray(a, float)]
 
 
-def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Path) -> dict[str, Any]:
+def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Path, curves: Curves) -> dict[str, Any]:
     """``spec`` fitted as ``ngbet fit`` fits it, and each of its targets predicted with its band (cached).
 
     ``start``: the scene the fit starts from (None: the fabric's scene file). The record holds the
@@ -265,12 +203,12 @@ def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Pat
 
     def make() -> dict[str, Any]:
         label = f"{spec.fabric.replace('_', ' ')}, {spec.name}"
-        res = fit_curves([read_curve(f) for f in spec.fitted], scene, max_runs=runs, progress=_progress(label))
+        res = fit_curves([curves.read(f) for f in spec.fitted], scene, max_runs=runs, progress=_progress(label))
         if sys.stderr.isatty():
             sys.stderr.write(f"\rngbet: study validation: fitted {label} in {res.wall_s:.0f} s\x1b[K\n")
         preds = {}
         for name in spec.targets:
-            curve = read_curve(name)
+            curve = curves.read(name)
             u, _ = points_of(curve)
             try:
                 p = predict_specimen(res, test_changes(curve), u)
@@ -295,5 +233,5 @@ def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Pat
             "predictions": preds,
         }
 
-    name = f"{'quick' if quick else 'full'}-{spec.fabric}-{fits_key(spec, runs, scene.to_toml())}"
+    name = f"{'quick' if quick else 'full'}-{spec.fabric}-{fits_key(spec, runs, scene.to_toml(), curves)}"
     return {**cached(folder, name, make), "cache_name": name}

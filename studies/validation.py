@@ -5,7 +5,9 @@ the study makes the fits a user would make with ``ngbet fit`` and the scene's ow
 (:func:`ngbet.studies._validation_fits.fits_of`): each bias-extension size alone (the bending
 stiffnesses held), both sizes together, and each laboratory's picture frame alone. Each fitted
 scene then predicts every curve of the fabric its fit did not use: the other size, the other
-test, the other laboratory's frame; each prediction with its band of one standard deviation from
+test, the other laboratory's frame, and every other curve of the fabric in data/ or given with
+``--data`` (:func:`ngbet.studies._validation_data.find_curves`: a user's own tests, other sizes and
+laboratories); each prediction with its band of one standard deviation from
 the parameters' covariance, the discretization and, where the fit used two or more specimens of
 the predicted test, the model error between them (:func:`ngbet.calibration.bands.predict_specimen`);
 a measured point is inside where it lies within ±2 sd of the band and of its own scatter.
@@ -15,7 +17,8 @@ Against each prediction stands the normalisation method's, made from the same fi
 between frames, and across tests the bias extension's F_sh read as the frame's F_norm (and the
 reverse), the paper's comparison of the two tests; from two fitted curves, the mean of their
 predictions. For a frame with another laboratory's frame of the same fabric, that frame read by
-Eq. 10 gives the scatter between laboratories.
+Eq. 10 gives the scatter between laboratories (for a bias-extension curve, the other
+laboratories' curves of the fabric by Eq. 18).
 
 Errors at :data:`~ngbet.studies._validation_fits.SCORE_POINTS` equally spaced displacements (crosshead
 travels) over 10–90 % of the predicted curve's range: the RMS of (prediction − measured)/measured,
@@ -33,7 +36,7 @@ and the code: a change of any refits); the study's cases are then ordinary runs 
 scene on each predicted curve's specimen or frame, whose forces the report scores.
 ``--quick``: the unbalanced twill fitted on one size, 3 model runs.
 
-    python -m ngbet.studies.validation [--quick] [--workers N] [--plot-only]
+    python -m ngbet.studies.validation [--quick] [--workers N] [--plot-only] [--data PATH ...]
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ from __future__ import annotations
 import functools
 import logging
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -53,20 +57,8 @@ from ngbet.study.command import main_for
 from ngbet.study.figures import savefig
 from ngbet.study.model import Study, StudyData
 
-from ._validation_fits import (
-    FABRICS,
-    MAX_RUNS,
-    QUICK,
-    QUICK_RUNS,
-    FitSpec,
-    data_root,
-    fit_and_predict,
-    fits_folder,
-    fits_of,
-    lab_of,
-    points_of,
-    read_curve,
-)
+from ._validation_data import FABRICS, Curves, data_root, find_curves
+from ._validation_fits import MAX_RUNS, QUICK, QUICK_RUNS, fit_and_predict, fits_folder, fits_of, kind_of, points_of
 
 __all__ = ["build", "extract", "fabric_of", "main", "plot", "report", "rms", "rms_of_max", "summary"]
 
@@ -103,12 +95,12 @@ def fabric_of(scene: Scene) -> str:
     return fabric
 
 
-def _case(doc: dict[str, Any], target: str) -> dict[str, Any]:
+def _case(doc: dict[str, Any], target: str, curves: Curves) -> dict[str, Any]:
     """The fitted scene on the target's specimen or frame, stopping at the scored points."""
     from ngbet.calibration.fit_params import test_changes
 
     sc = Scene.from_toml_string(doc["fitted_scene"])
-    curve = read_curve(target)
+    curve = curves.read(target)
     u, _ = points_of(curve)
     d = sc.to_dict()
     keys = {f"{s}.{k}": v for s in CASE_SECTIONS for k, v in d.get(s, {}).items()}
@@ -122,28 +114,33 @@ def _case(doc: dict[str, Any], target: str) -> dict[str, Any]:
     }
 
 
-def build(quick: bool = False, scene: Scene | None = None, cache: Path | None = None) -> Study:
+def build(
+    quick: bool = False, scene: Scene | None = None, cache: Path | None = None, data: Sequence[str | Path] = ()
+) -> Study:
     """The study on the three fabrics, or with ``scene`` on the fabric it is for (:func:`fabric_of`), from it.
 
     ``cache``: the study cache (``--cache``; None: the default), whose ``validation-fits`` keeps the fits.
+    ``data``: folders or files of measured curves besides data/'s (``--data``): every curve of a
+    fabric among them is predicted by each of the fabric's fits (:func:`find_curves`).
     """
     folder = fits_folder(cache)
+    curves = find_curves(data)
     if quick:
         fabric = fabric_of(scene) if scene is not None else QUICK[0]
         specs = (
-            [s for s in fits_of(fabric) if s.kind == "one size"][:1]
+            [s for s in fits_of(fabric, curves) if s.kind == "one size"][:1]
             if scene is not None
-            else [s for s in fits_of(fabric) if s.name == QUICK[1]]
+            else [s for s in fits_of(fabric, curves) if s.name == QUICK[1]]
         )
     else:
         fabrics = [fabric_of(scene)] if scene is not None else list(FABRICS)
-        specs = [s for f in fabrics for s in fits_of(f)]
-    docs = [fit_and_predict(s, quick, scene, folder) for s in specs]
+        specs = [s for f in fabrics for s in fits_of(f, curves)]
+    docs = [fit_and_predict(s, quick, scene, folder, curves) for s in specs]
     base = Scene.from_toml_string(docs[0]["fitted_scene"]).with_changes(
         **{"outputs.vtk": False, "outputs.plot": False, "outputs.profile": False, "outputs.error_estimate": "off"}
     )
     cases = [
-        _case(d, t)
+        _case(d, t, curves)
         for d, s in zip(docs, specs, strict=True)
         for t in s.targets
         if "failed" not in d["predictions"].get(t, {"failed": ""})
@@ -154,12 +151,12 @@ def build(quick: bool = False, scene: Scene | None = None, cache: Path | None = 
         base,
         cases,
         description=__doc__ or "",
-        extract=functools.partial(extract, docs=kept),
-        plot=plot,
-        report=report,
+        extract=functools.partial(extract, docs=kept, curves=curves),
+        plot=functools.partial(plot, curves=curves),
+        report=functools.partial(report, skipped=curves.skipped),
     )
     if quick:  # said here: comparing with the full study would make its fits (minutes)
-        full = sum(len(fits_of(f)) for f in ([fabric_of(scene)] if scene is not None else FABRICS))
+        full = sum(len(fits_of(f, curves)) for f in ([fabric_of(scene)] if scene is not None else FABRICS))
         study.left_out = [
             f"{full - len(specs)} of the full study's {full} fits (each size alone, both sizes, "
             "each laboratory's frame)",
@@ -168,13 +165,13 @@ def build(quick: bool = False, scene: Scene | None = None, cache: Path | None = 
     return study
 
 
-def _normalisation(fitted: list[str], target: Any, u: np.ndarray) -> np.ndarray:
+def _normalisation(fitted: Sequence[str], target: Any, u: np.ndarray, curves: Curves) -> np.ndarray:
     """The normalisation method's prediction at ``u`` from the fitted curves: the mean where any has a value."""
     from ngbet.normalise import force_by_normalisation, normalised_curve
 
     preds = []
     for name in fitted:
-        g, fn = normalised_curve(read_curve(name))
+        g, fn = normalised_curve(curves.read(name))
         preds.append(force_by_normalisation(g, fn, target, u))
     P = np.array(preds)
     with np.errstate(invalid="ignore"):
@@ -182,23 +179,34 @@ def _normalisation(fitted: list[str], target: Any, u: np.ndarray) -> np.ndarray:
         return np.where(n > 0, np.nansum(P, axis=0) / np.maximum(n, 1), np.nan)
 
 
-def _other_lab(fabric: str, target_name: str, target: Any, u: np.ndarray) -> np.ndarray:
-    """Another laboratory's frame of the fabric read as the target's by Eq. 10 (NaN: none, or not a frame)."""
-    others = [f for f in FABRICS[fabric][2] if lab_of(f) != lab_of(target_name) and "normalized" in f]
-    if target.test != "picture_frame" or not others:
+def _other_lab(fabric: str, target_name: str, target: Any, u: np.ndarray, curves: Curves) -> np.ndarray:
+    """The target read from the other laboratories' curves of its test and fabric (NaN: there are none).
+
+    Bias extension: Eq. 18 from each other laboratory's sizes; picture frame: Eq. 10 from each other
+    laboratory's frame in its normalised-force figure (one figure per test). The mean where any has a value.
+    """
+    lab = curves.lab(target_name)
+    others = [
+        f
+        for f in curves.of[fabric]
+        if curves.lab(f) != lab
+        and curves.read(f).test == target.test
+        and (target.test == "bias_extension" or curves.read(f).quantity == "normalised_shear_force")
+    ]
+    if not others:
         return np.full(len(u), np.nan)
-    return _normalisation(others[:1], target, u)
+    return _normalisation(others, target, u, curves)
 
 
 def extract(
-    rec: dict[str, Any], run_dir: Path, out: Path, docs: dict[str, dict[str, Any]]
+    rec: dict[str, Any], run_dir: Path, out: Path, docs: dict[str, dict[str, Any]], curves: Curves
 ) -> dict[str, list[dict[str, Any]]]:
     """Measured, ngbet's and the normalisation method's value at the scored points of one prediction."""
     from ngbet.tables import read_rows
 
     fabric, fit_name, target, name = rec["params"]["specimen.name"].split(SEP)
     doc = docs[name]
-    curve = read_curve(target)
+    curve = curves.read(target)
     u, F = points_of(curve)
     rows = read_rows(run_dir / "results.csv")
     Fr = np.array([float(r["force_N"]) for r in rows])
@@ -208,22 +216,16 @@ def extract(
     parts = [np.array(pr[k], float) for k in ("sd_parameters_N", "sd_discretization_N", "sd_model_error_N")]
     sd = np.sqrt(sum(v**2 for v in parts))
     model_rel = float(np.nanmax(parts[2] / np.abs(np.array(pr["force_N"], float)))) if len(u) else 0.0
-    norm = _normalisation(doc["fitted"], curve, u)
-    lab = _other_lab(fabric, target, curve, u)
+    norm = _normalisation(doc["fitted"], curve, u, curves)
+    lab = _other_lab(fabric, target, curve, u, curves)
 
     def file(v: np.ndarray) -> np.ndarray:  # a frame in its file's quantity (F_s or F_norm), linear in the force
         return curve.in_file_units(u, v)[1]  # type: ignore[no-any-return]
 
     x, meas = curve.in_file_units(u, F)
     fit = doc["fit"]
-    kind = FitSpec(fabric, fit_name, tuple(doc["fitted"]), ()).kind
-    what = (
-        "other size"
-        if curve.test == "bias_extension" and kind != "frame"
-        else "other laboratory"
-        if curve.test == "picture_frame" and kind == "frame"
-        else "other test"
-    )
+    kind = kind_of(doc["fitted"], curves)
+    what = _what(curve.test, kind, curves.lab(target) in {curves.lab(f) for f in doc["fitted"]})
     tables: dict[str, list[dict[str, Any]]] = {}
     tables["points"] = [
         {
@@ -249,7 +251,11 @@ def extract(
             "fit_kind": kind,
             "target": target,
             "predicted": curve.label
-            + ("" if curve.test == "bias_extension" else f" ({lab_of(target)}, {QUANTITY[curve.quantity]})"),
+            + (
+                f" ({curves.lab(target)})"
+                if curve.test == "bias_extension"
+                else f" ({curves.lab(target)}, {QUANTITY[curve.quantity]})"
+            ),
             "what": what,
             "band": pr["band"],
             "model_error_relative": model_rel,
@@ -261,6 +267,13 @@ def extract(
         }
     ]
     return tables
+
+
+def _what(test: str, kind: str, same_lab: bool) -> str:
+    """What a prediction is: another size, another laboratory's curve of the fitted test, another test."""
+    if (test == "bias_extension") != (kind == "frame"):
+        return "other size" if test == "bias_extension" and same_lab else "other laboratory"
+    return "other test"
 
 
 def rms(a: np.ndarray, b: np.ndarray) -> float:
@@ -333,8 +346,8 @@ def _holds(r: dict[str, Any]) -> str:
     )
 
 
-def report(data: StudyData) -> str:
-    """The validation table (every prediction), the means by kind, and the fits' records."""
+def report(data: StudyData, skipped: Sequence[str] = ()) -> str:
+    """The validation table (every prediction), the means by kind, the fits' records, the files not read."""
     rows = summary(data)
     L = [
         "# Validation: every curve a fit did not use, predicted",
@@ -402,10 +415,13 @@ def report(data: StudyData) -> str:
             f"{', '.join(_pct(float(x)) for x in str(r['fit_rms']).split())} | {int(float(r['fit_runs']))} | "
             f"{float(r['fit_wall_s']):.0f} | {r['fit_converged']} | {r['accuracy_met']} |"
         )
+    if skipped:
+        L += ["", "Data files not predicted (not read, or of none of the study's fabrics):", ""]
+        L += [f"- {s}" for s in skipped]
     return "\n".join(L) + "\n"
 
 
-def plot(data: StudyData) -> list[Path]:
+def plot(data: StudyData, curves: Curves) -> list[Path]:
     """One panel per predicted curve: measured, and each fit's prediction with the normalisation method's.
 
     Bias extension: force against clamp displacement; picture frame: its file's quantity against
@@ -425,15 +441,15 @@ def plot(data: StudyData) -> list[Path]:
     nrow = -(-len(targets) // ncol)
     fig, axes = subplots(nrow, ncol, size=(4.0 * ncol + 0.6, 3.3 * nrow + 1.6), squeeze=False)
     for ax, (fabric, target) in zip(axes.ravel(), targets, strict=False):
-        curve = read_curve(target)
+        curve = curves.read(target)
         frame = curve.test == "picture_frame"
         x, y = curve.in_file_units(curve.u_mm, curve.force_N)
         ax.plot(x, y, "-", color="k", lw=1.2)
         top = float(np.nanmax(y))  # the band does not set the scale: where a parameter is open it spans decades
         title = (
-            f"{fabric.replace('_', ' ')}: {lab_of(target)} frame {curve.label.split(' ', 1)[1]}"
+            f"{fabric.replace('_', ' ')}: {curves.lab(target)} frame {curve.label.split(' ', 1)[1]}"
             if frame
-            else f"{fabric.replace('_', ' ')}: {curve.label.replace(' x ', ' × ')}"
+            else f"{fabric.replace('_', ' ')}: {curves.lab(target)} {curve.label.replace(' x ', ' × ')}"
         )
         for r in (r for r in rows if r["fabric"] == fabric and r["target"] == target):
             sel = [q for q in pts if q["fit"] == r["fit"] and q["target"] == target and q["fabric"] == fabric]

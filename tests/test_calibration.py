@@ -690,17 +690,24 @@ def test_a_failed_prediction_keeps_the_fit(synthetic_joint, tmp_path, capsys, mo
 
 
 # ------------------------------------------------------------------------------------------ the study
-@pytest.mark.slow
+@pytest.mark.integration
 def test_validation_study_quick(tmp_path, monkeypatch):
     """`ngbet study validation --quick`: one fabric fitted on one size (3 model runs), the other size
     and the frame predicted; the normalisation column equals an independent computation from the
-    measured curves (Eq. 18 between the sizes; across tests F_sh read as F_norm, Eqs. 1–3, 10)."""
+    measured curves (Eq. 18 between the sizes; across tests F_sh read as F_norm, Eqs. 1–3, 10).
+    A curve given with --data (here the other size as another laboratory would send it) is
+    predicted as the same specimen is, and is the other laboratory's curve of the other size."""
     from ngbet.kinematics import force_from_normalised, frame_angle_rad, normalised_shear_force
     from ngbet.studies import _validation_fits as VF
     from ngbet.studies import validation as V
     from ngbet.study.collect import load
 
     out = tmp_path / "study"
+    held = tmp_path / "held" / "twill_unbalanced_100x200_LABX.csv"
+    held.parent.mkdir()
+    held.write_text(
+        (DATA / "cao2008_twill_unbalanced_100x200_UN.csv").read_text().replace("laboratory: UN", "laboratory: LABX")
+    )
     assert (
         main(
             [
@@ -714,6 +721,8 @@ def test_validation_study_quick(tmp_path, monkeypatch):
                 str(out),
                 "--cache",
                 str(tmp_path / "cache"),
+                "--data",
+                str(held),
             ]
         )
         == 0
@@ -723,10 +732,12 @@ def test_validation_study_quick(tmp_path, monkeypatch):
         "quick-twill_unbalanced"
     ]
     text = (out / "report.md").read_text()
-    assert "| twill unbalanced | 100 x 250 mm | 100 x 200 mm | other size |" in text
+    assert "| twill unbalanced | 100 x 250 mm | 100 x 200 mm (UN) | other size |" in text
+    assert "| twill unbalanced | 100 x 250 mm | 100 x 200 mm (LABX) | other laboratory |" in text
     assert (out / "validation.png").exists()
     fitted = read_measured(DATA / "cao2008_twill_unbalanced_100x250_UN.csv")
-    other = read_measured(DATA / "cao2008_twill_unbalanced_100x200_UN.csv")
+    other_name = "cao2008_twill_unbalanced_100x200_UN.csv"
+    other = read_measured(DATA / other_name)
     uf = fitted.u_mm[fitted.u_mm > 0]
     # the slack's negative forces (−0.0065 N at 0.0085 mm) count as 0, as in the study
     g, f = normalised_shear_force(uf, np.maximum(np.interp(uf, fitted.u_mm, fitted.force_N), 0.0), 250.0, 100.0)
@@ -734,7 +745,17 @@ def test_validation_study_quick(tmp_path, monkeypatch):
     rms = float(np.sqrt(np.mean(((force_from_normalised(g, f, u, 200.0, 100.0) - F) / F) ** 2)))
     rows = {r["what"]: r for r in V.summary(load(out))}
     assert rows["other size"]["normalisation_rms"] == pytest.approx(rms, rel=1e-9)
+    assert rows["other laboratory"]["normalisation_rms"] == pytest.approx(rms, rel=1e-9)
     assert f"{100 * rms:.1f} %" in text
+    pts = load(out).tables["points"]
+    ngbet_of = {t: [q["ngbet"] for q in pts if q["target"] == t] for t in (other_name, held.name)}
+    # the same scene on the same specimen, run as another case: equal to round-off
+    assert ngbet_of[held.name] == pytest.approx(ngbet_of[other_name], rel=1e-12) and len(ngbet_of[other_name]) == 24
+    # the other laboratory's column: the other size read by Eq. 18 from the other laboratory's curve of it
+    uo = other.u_mm[other.u_mm > 0]
+    go, fo = normalised_shear_force(uo, np.maximum(np.interp(uo, other.u_mm, other.force_N), 0.0), 200.0, 100.0)
+    lab = float(np.sqrt(np.mean(((force_from_normalised(go, fo, u, 200.0, 100.0) - F) / F) ** 2)))
+    assert rows["other size"]["lab_rms"] == pytest.approx(lab, rel=1e-9) and lab < 0.01
     # across tests: F_sh(γ) read as the frame's F_norm(γ), the frame 145/120 mm of the file's header
     frame = read_any(PF_UN)
     u, F = frame.sample(24)

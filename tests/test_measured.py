@@ -258,6 +258,27 @@ def test_the_test_and_the_frame_are_read_from_the_header(tmp_path):
         read_table(p, test="bias_extension")
 
 
+def test_the_laboratory_and_the_fabric_are_read_from_the_header(tmp_path):
+    """The laboratory from the most explicit line that names it, the fabric from a line of its own or
+    after a semicolon; "" where the header says nothing (the reader never guesses from the file name)."""
+    bet = read_table(DATA / "cao2008" / "cao2008_twill_unbalanced_100x250_UN.csv")
+    assert bet.laboratory == "UN" and bet.fabric.startswith("Twintex TPECU53XXX 2/2 twill")
+    pf = read_table(DATA / "cao2008_pf" / "cao2008_pf_plain_UML_fig22_shear_force.csv")  # legend label and Table 3
+    assert pf.laboratory == "UML" and pf.fabric == "plain weave, Twintex TPEET22XXX (glass/PP commingled), Table 1"
+    body = "displacement_mm,force_N\n" + _body()
+    cases = {
+        '# curve: legend label "KUL"\n# laboratory: TUD; 2 tests\n': "TUD",  # the explicit line wins
+        "# Table 3 (KUL): frame 216 mm, fabric 140 mm\n# test: picture_frame\n": "KUL",
+        '# legend label "Nottingham"\n': "Nottingham",
+        "# fabric: a glass twill\n": "",
+    }
+    for k, (head, lab) in enumerate(cases.items()):
+        t = read_table(_csv(tmp_path / f"h{k}.csv", head + body))
+        assert t.laboratory == lab
+    assert read_table(_csv(tmp_path / "h4.csv", "# fabric: a glass twill\n" + body)).fabric == "a glass twill"
+    assert read_table(_csv(tmp_path / "h5.csv", body)).fabric == ""
+
+
 # --- a machine export of every shipped Twintex curve ------------------------------------------------------------------
 
 

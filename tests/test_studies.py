@@ -13,6 +13,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -882,11 +883,11 @@ def test_the_studies_draw_through_ngbet_figures_without_pyplot():
 def test_validation_takes_the_scene_of_a_fabric_and_refuses_another_naming_the_key():
     from ngbet.scene.document import default_scene
     from ngbet.scene.validate import SceneError
-    from ngbet.studies import _validation_fits as VF
+    from ngbet.studies import _validation_data as VD
     from ngbet.studies import validation as V
 
     repo = Path(__file__).resolve().parent.parent
-    for fabric, (scene, _, _) in VF.FABRICS.items():
+    for fabric, (scene, _, _) in VD.FABRICS.items():
         sc = Scene.from_toml(repo / "geometry" / scene)
         assert V.fabric_of(sc) == fabric
         # another specimen size of the same fabric is the same fabric
@@ -905,12 +906,12 @@ def test_quick_validation_makes_only_its_own_fit_and_says_what_it_leaves_out(mon
 
     made = []
 
-    def fit_stub(spec, quick, start, folder):
+    def fit_stub(spec, quick, start, folder, curves):
         made.append((spec.fabric, spec.name, quick))
         return {"fitted_scene": Scene().to_toml(), "cache_name": spec.name, "predictions": {}}
 
     monkeypatch.setattr(V, "fit_and_predict", fit_stub)
-    monkeypatch.setattr(V, "_case", lambda doc, target: {"specimen.name": target})
+    monkeypatch.setattr(V, "_case", lambda doc, target, curves: {"specimen.name": target})
     study = build_study(V.build, True)
     assert made == [(*VF.QUICK, True)]
     assert study.left_out == [
@@ -921,14 +922,92 @@ def test_quick_validation_makes_only_its_own_fit_and_says_what_it_leaves_out(mon
 
 def test_validation_fits_predict_every_curve_they_do_not_use():
     """Each fit's targets are every curve of its fabric in data/ that it does not fit, except the same
-    frame test in another figure; each data file is a target of some fit."""
+    frame test in another figure; each data file is a target of some fit; data/ holds no other curve."""
+    from ngbet.studies import _validation_data as VD
     from ngbet.studies import _validation_fits as VF
 
-    for fabric, (_, bet, pf) in VF.FABRICS.items():
-        specs = VF.fits_of(fabric)
+    curves = VD.find_curves()
+    assert curves.skipped == ()
+    for fabric, (_, bet, pf) in VD.FABRICS.items():
+        assert curves.of[fabric] == (*bet, *pf)
+        specs = VF.fits_of(fabric, curves)
         assert {s.kind for s in specs} == {"one size", "two sizes", "frame"}
         for s in specs:
             assert not set(s.fitted) & set(s.targets)
-            same_test = {f for f in pf if VF.lab_of(f) in {VF.lab_of(g) for g in s.fitted if g in pf}}
+            same_test = {f for f in pf if curves.lab(f) in {curves.lab(g) for g in s.fitted if g in pf}}
             assert set(s.fitted) | set(s.targets) | same_test == {*bet, *pf}
         assert set().union(*(s.targets for s in specs)) == {*bet, *pf}
+
+
+def _relabelled(src: Path, dst: Path, old: str, new: str) -> None:
+    """A copy of a shipped curve (and its error bars) whose header names another laboratory."""
+    for a, b in ((src, dst), (src.with_name(src.stem + "_errorbars.csv"), dst.with_name(dst.stem + "_errorbars.csv"))):
+        if a.exists():
+            text = a.read_text()
+            assert old in text
+            b.write_text(text.replace(old, new))
+
+
+def test_every_curve_of_a_fabric_given_with_data_is_a_target_of_each_of_its_fits(tmp_path):
+    """Curves given with --data (a user's own tests, held-out sizes, other laboratories) are sorted by
+    the fabric and laboratory their headers name and predicted by every fit of that fabric; files that
+    cannot be read or name no fabric are not predicted and said; the fits' keys follow the data."""
+    from ngbet.scene.validate import SceneError
+    from ngbet.studies import _validation_data as VD
+    from ngbet.studies import _validation_fits as VF
+    from ngbet.studies import validation as V
+
+    data = Path(__file__).resolve().parents[1] / "data"
+    held = tmp_path / "held"
+    held.mkdir()
+    un = "cao2008_twill_unbalanced_100x200_UN.csv"
+    _relabelled(data / "cao2008" / un, held / "twill_100x200_LABX.csv", "laboratory: UN;", "laboratory: LABX;")
+    uml = "cao2008_pf_plain_UML_fig28_normalized_energy.csv"
+    _relabelled(data / "cao2008_pf" / uml, held / "plain_frame_KUL.csv", 'legend label "UML"', 'legend label "KUL"')
+    (held / "plain_frame_KUL.csv").write_text((held / "plain_frame_KUL.csv").read_text().replace("(UML)", "(KUL)"))
+    (held / "broken.csv").write_text("# fabric: Twintex TPEET22XXX\ndisplacement_mm,force_N\n1,x\n")
+    (held / "nofabric.csv").write_text("displacement_mm,force_N\n1,1\n2,2\n3,3\n")
+    base = VD.find_curves()
+    curves = VD.find_curves([held, data / "cao2008"])  # a shipped folder given again adds nothing
+    assert curves.of["twill_unbalanced"] == (*base.of["twill_unbalanced"], "twill_100x200_LABX.csv")
+    assert curves.of["plain"] == (*base.of["plain"], "plain_frame_KUL.csv")
+    assert curves.of["twill_balanced"] == base.of["twill_balanced"]
+    assert (curves.lab("twill_100x200_LABX.csv"), curves.lab("plain_frame_KUL.csv")) == ("LABX", "KUL")
+    assert len(curves.skipped) == 2
+    assert f"{held / 'broken.csv'}, line 3" in curves.skipped[0] and "nofabric.csv" in curves.skipped[1]
+    for fabric, added in (("twill_unbalanced", "twill_100x200_LABX.csv"), ("plain", "plain_frame_KUL.csv")):
+        before = {s.name: s for s in VF.fits_of(fabric, base)}
+        for s in VF.fits_of(fabric, curves):  # every fit, frames of other laboratories included
+            assert s.targets == (*before[s.name].targets, added)
+            assert VF.fits_key(s, 3, "x", curves) != VF.fits_key(before[s.name], 3, "x", base)
+    assert V._what("bias_extension", "one size", same_lab=False) == "other laboratory"
+    assert V._what("bias_extension", "two sizes", same_lab=True) == "other size"
+    assert V._what("picture_frame", "frame", same_lab=False) == "other laboratory"
+    assert V._what("picture_frame", "one size", same_lab=True) == "other test"
+    assert V._what("bias_extension", "frame", same_lab=True) == "other test"
+    # a fabric line without the style code: the weave in words; neither, or two codes: no fabric
+    words = {
+        "Twintex TPEET22XXX plain weave": "plain",
+        "balanced 2/2 twill, glass/PP": "twill_balanced",
+        "unbalanced 2/2 twill": "twill_unbalanced",
+        "a glass twill": None,
+        "TPEET22XXX or TPEET44XXX": None,
+        "": None,
+    }
+    for text, fabric in words.items():
+        assert VD._fabric(SimpleNamespace(fabric=text)) == fabric
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / un).write_text("# fabric: Twintex TPECU53XXX\ndisplacement_mm,force_N\n1,1\n2,2\n3,3\n")
+    with pytest.raises(SceneError, match=f"two data files named {un}"):
+        VD.find_curves([tmp_path / "other"])
+    with pytest.raises(SceneError, match="--data .*nowhere: no such file or folder"):
+        VD.find_curves([tmp_path / "nowhere"])
+
+
+def test_data_is_refused_by_a_study_that_reads_no_curves(tmp_path, capsys):
+    """--data on a study without measured curves would be ignored: refused before anything runs."""
+    from ngbet.cli import main
+
+    assert main(["sweep", "material.alpha1=1,2", "--data", str(tmp_path), "--out", str(tmp_path / "s")]) == 2
+    assert "this study reads no measured curves" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()

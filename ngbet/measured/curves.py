@@ -24,7 +24,8 @@ import numpy as np
 
 from ..scene.validate import SceneError
 from .columns import WORDS
-from .table import FRAME_KEYS, CurveTable, read_errorbars, read_table
+from .header import FRAME_KEYS
+from .table import CurveTable, read_errorbars, read_table
 
 __all__ = [
     "MIN_RELATIVE_SD",
@@ -68,6 +69,9 @@ class MeasuredCurve:
     frame: dict[str, float] = field(default_factory=dict)
     #: the quantity the file holds: "force" (BET), "shear_force" or "normalised_shear_force" (picture frame)
     quantity: str = "force"
+    #: the laboratory and the fabric as the file's header names them ("" where it does not)
+    laboratory: str = ""
+    fabric: str = ""
 
     @property
     def label(self) -> str:
@@ -205,7 +209,17 @@ def read_measured(
     FF = np.bincount(inv, weights=F) / np.bincount(inv)
     if len(uu) < 3:
         raise SceneError(f"data file {path}: fewer than 3 distinct displacements")
-    return MeasuredCurve(uu, FF, str(path), t.specimen, read_errorbars(path), t.notes, "bias_extension")
+    return MeasuredCurve(
+        uu,
+        FF,
+        str(path),
+        t.specimen,
+        read_errorbars(path),
+        t.notes,
+        "bias_extension",
+        laboratory=t.laboratory,
+        fabric=t.fabric,
+    )
 
 
 def frame_travel_mm(gamma_deg: np.ndarray, frame_mm: float) -> np.ndarray:
@@ -260,7 +274,19 @@ def read_frame_curve(
         f"picture frame {L:g}/{Lf:g} mm: its {WORDS[t.y_quantity]} against the shear angle fitted as the "
         "crosshead force against the travel (Eqs. 1-3, 10; exact at each point)"
     )
-    return MeasuredCurve(d, F, str(path), {}, None, (*t.notes, note), "picture_frame", dict(t.frame), t.y_quantity)
+    return MeasuredCurve(
+        d,
+        F,
+        str(path),
+        {},
+        None,
+        (*t.notes, note),
+        "picture_frame",
+        dict(t.frame),
+        t.y_quantity,
+        laboratory=t.laboratory,
+        fabric=t.fabric,
+    )
 
 
 def read_any(

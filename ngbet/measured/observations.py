@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from ..scene.validate import SceneError
-from .table import parse_number, read_text
+from .header import parse_number
+from .table import read_text
 
 __all__ = ["Profile", "ShearAngles", "read_angles", "read_profile"]
 

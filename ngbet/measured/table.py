@@ -23,6 +23,10 @@ rows of numbers. :func:`read_table` understands
 - **the test**: ``# test: picture-frame`` or ``bias_extension`` (or ``--test``), and the picture
   frame's sizes from ``# Table 3 (UN): frame 145 mm, fabric 120 mm`` or
   ``# picture_frame.frame_mm = 145`` and ``# picture_frame.fabric_mm = 120`` (or ``--frame 145x120``).
+- **what the curve is of**: ``# laboratory: UN`` (or ``# Table 3 (UN): ...``, ``legend label "UN"``)
+  and ``# fabric: ...`` (also after a semicolon, ``# test: picture-frame; fabric: ...``), kept as
+  text for the studies that sort curves by fabric and laboratory (:attr:`CurveTable.laboratory`,
+  :attr:`CurveTable.fabric`; "" where the header says nothing).
 - **a loading–unloading cycle**: the rows after the largest displacement that fall back by more
   than :data:`CYCLE_TOLERANCE` of the range are the unloading; the loading branch is kept and the
   note says so. Falls of that size before the largest displacement (several cycles) are refused.
@@ -59,14 +63,12 @@ from .columns import (
     is_units_row,
     unit_key,
 )
+from .header import DECIMAL_COMMA, Header, name_of_test, parse_number
 
 __all__ = [
     "CYCLE_TOLERANCE",
-    "FRAME_KEYS",
-    "TESTS",
     "CurveTable",
     "errorbar_path",
-    "parse_number",
     "parse_sizes",
     "read_errorbars",
     "read_table",
@@ -77,23 +79,6 @@ __all__ = [
 #: a digitised curve step back by up to 2.5 % of the range: data/cao2008_pf)
 CYCLE_TOLERANCE = 0.05
 
-TESTS = ("bias_extension", "picture_frame")
-_SPECIMEN_KEYS = {
-    "width": "specimen.width_mm",
-    "length": "specimen.length_mm",
-    "thickness": "specimen.thickness_mm",
-    "yarn_angle": "specimen.yarn_angle_deg",
-}
-FRAME_KEYS = {"frame": "picture_frame.frame_mm", "fabric": "picture_frame.fabric_mm"}
-_KEY_LINE = re.compile(
-    r"^#\s*((?:specimen|picture_frame)\.[\w.]+|width_mm|length_mm|thickness_mm|yarn_angle_deg)"
-    r"\s*=\s*(.*?)\s*$"
-)
-_TEST_LINE = re.compile(r"^#\s*test\s*[:=]\s*[\"']?([^;,\"']*)", re.IGNORECASE)
-_TABLE3 = re.compile(r"frame\s+([0-9.]+)\s*mm\s*,\s*fabric\s+([0-9.]+)\s*mm", re.IGNORECASE)
-_VALUE = re.compile(r"^([+-]?[0-9.]+(?:[eE][+-]?\d+)?)\s*([A-Za-z°]*)$")
-_DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
-
 
 @dataclass(frozen=True)
 class CurveTable:
@@ -102,7 +87,7 @@ class CurveTable:
     ``x`` is the displacement [mm] or the shear angle [deg] (``x_quantity``), ``y`` the force or
     shear force [N] or the normalised shear force [N/mm] (``y_quantity``); ``lines`` the file
     line of each row; ``specimen`` the scene keys of the specimen, ``frame`` the picture frame's
-    ``picture_frame.frame_mm`` and ``picture_frame.fabric_mm``; ``test`` one of :data:`TESTS` or
+    ``picture_frame.frame_mm`` and ``picture_frame.fabric_mm``; ``test`` one of :data:`~ngbet.measured.header.TESTS` or
     "" when neither the file nor the caller names it.
     """
 
@@ -116,6 +101,8 @@ class CurveTable:
     frame: dict[str, float]
     test: str
     notes: tuple[str, ...]
+    laboratory: str = ""
+    fabric: str = ""
 
 
 # --- text ---------------------------------------------------------------------------------------------------------
@@ -149,126 +136,12 @@ def read_text(path: Path, what: str) -> tuple[str, list[str]]:
     return text, notes
 
 
-def parse_number(text: str, path: Path | str, line: int, column: str, comma: bool) -> float:
-    """The number ``text`` of ``column`` on ``line`` of ``path``; ``comma``: decimal commas allowed.
-
-    A comma that could be a thousands separator, text that is no number or a number that is not
-    finite: refused (SceneError naming the file, the line and the column).
-    """
-    t = text.strip()
-    if comma and _DECIMAL_COMMA.match(t):
-        t = t.replace(",", ".")
-    elif "," in t:
-        raise SceneError(
-            f"{path}, line {line}: {column} = {text!r} is ambiguous (a thousands separator or a decimal "
-            "comma?): write numbers without thousands separators, with a decimal point, or with "
-            "decimal commas and semicolons between the columns"
-        )
-    try:
-        v = float(t)
-    except ValueError:
-        raise SceneError(f"{path}, line {line}: {column} = {text!r} is not a number") from None
-    if not math.isfinite(v):
-        raise SceneError(f"{path}, line {line}: {column} = {text!r} is not a finite number")
-    return v
-
-
 def _is_number(text: str) -> bool:
     try:
-        float(text.strip().replace(",", ".", 1) if _DECIMAL_COMMA.match(text.strip()) else text)
+        float(text.strip().replace(",", ".", 1) if DECIMAL_COMMA.match(text.strip()) else text)
     except ValueError:
         return False
     return True
-
-
-def _key_value(key: str, value: str, path: Path, line: int) -> tuple[str, float, str | None]:
-    """(scene key, value in mm or deg, a note on a converted unit) of a ``# key = value [unit]`` line."""
-    bare = key.split(".", 1)[1] if "." in key else key
-    section = "picture_frame" if key.startswith("picture_frame.") else "specimen"
-    table = FRAME_KEYS if section == "picture_frame" else _SPECIMEN_KEYS
-    stem, _, suffix = bare.rpartition("_")
-    if suffix not in ("mm", "deg"):
-        stem, suffix = bare, ""
-    if stem not in table:
-        raise SceneError(
-            f"{path}, line {line}: unknown key {key!r}; the {section} keys are {', '.join(table.values())}"
-        )
-    full = table[stem]
-    m = _VALUE.match(value)
-    if not m:
-        raise SceneError(f"{path}, line {line}: {key} = {value!r} is not a number (with an optional unit: = 100 mm)")
-    v = parse_number(m.group(1), path, line, key, False)
-    unit = unit_key(m.group(2)) if m.group(2) else (suffix or None)
-    want = "angle" if full.endswith("_deg") else "length"
-    if unit is None:
-        raise SceneError(
-            f"{path}, line {line}: {key} = {value!r} gives no unit: write {full} = {value} "
-            f"{'deg' if want == 'angle' else 'mm'}"
-        )
-    if unit not in UNITS or UNITS[unit][0] != want:
-        raise SceneError(
-            f"{path}, line {line}: {key} = {value!r}: {m.group(2) or suffix!r} is not a unit of "
-            f"{'an angle' if want == 'angle' else 'a length'}"
-        )
-    note = None
-    if UNITS[unit][1] != 1.0:
-        v *= UNITS[unit][1]
-        note = f"{key} = {value} read as {full} = {v:g}"
-    return full, v, note
-
-
-def _test_name(text: str, where: str) -> str:
-    t = re.sub(r"[\s\-]+", "_", text.strip().lower())
-    t = {
-        "bet": "bias_extension",
-        "bias_extension_test": "bias_extension",
-        "pf": "picture_frame",
-        "picture_frame_test": "picture_frame",
-    }.get(t, t)
-    if t not in TESTS:
-        raise SceneError(f"{where}: unknown test {text.strip()!r}; write bias_extension or picture_frame")
-    return t
-
-
-class _Header:
-    """What the comment lines say: specimen and frame keys, the test."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.keys: dict[str, float] = {}
-        self.where: dict[str, int] = {}
-        self.test = ""
-        self.notes: list[str] = []
-
-    def _set(self, key: str, v: float, line: int) -> None:
-        if key in self.keys and self.keys[key] != v:
-            raise SceneError(
-                f"{self.path}, line {line}: {key} = {v:g}, but line {self.where[key]} says "
-                f"{self.keys[key]:g}: give it once"
-            )
-        self.keys[key], self.where[key] = v, line
-
-    def comment(self, text: str, line: int) -> None:
-        m = _KEY_LINE.match(text)
-        if m:
-            key, v, note = _key_value(m.group(1), m.group(2), self.path, line)
-            self._set(key, v, line)
-            if note:
-                self.notes.append(note)
-            return
-        t = _TEST_LINE.match(text)
-        if t:
-            name = _test_name(t.group(1), f"{self.path}, line {line}")
-            if self.test and self.test != name:
-                raise SceneError(f"{self.path}, line {line}: test {name}, but an earlier line says {self.test}")
-            self.test = name
-        f = _TABLE3.search(text)
-        if f:
-            self._set("picture_frame.frame_mm", float(f.group(1)), line)
-            self._set("picture_frame.fabric_mm", float(f.group(2)), line)
-
-
-# --- the table ------------------------------------------------------------------------------------------------------
 
 
 def parse_sizes(text: str, what: str, names: Sequence[str]) -> dict[str, float]:
@@ -336,7 +209,7 @@ def _frame(path: Path, keys: dict[str, float], given: dict[str, float] | None) -
     return frame, notes
 
 
-def _rows(text: str, path: Path, header: _Header) -> tuple[list[str], int, list[tuple[int, list[str]]], str]:
+def _rows(text: str, path: Path, header: Header) -> tuple[list[str], int, list[tuple[int, list[str]]], str]:
     """The header cells and line, the data rows (line, cells) and the column separator."""
     head: list[str] | None = None
     head_line, sep = 0, ","
@@ -393,7 +266,7 @@ def read_table(
     """
     path = Path(path)
     text, notes = read_text(path, "data")
-    header = _Header(path)
+    header = Header(path)
     head, head_line, rows, sep = _rows(text, path, header)
     cols = header_columns(head)
     if rows and is_units_row(rows[0][1]):  # a row of units under the names (testing machines write one)
@@ -450,7 +323,7 @@ def read_table(
         notes.append(cut)
     ftest = header.test
     if test is not None:
-        given = _test_name(test, "--test")
+        given = name_of_test(test, "--test")
         if ftest and ftest != given:
             raise SceneError(f"{path}: its header says test {ftest}, --test says {given}: drop one")
         ftest = given
@@ -467,6 +340,8 @@ def read_table(
         frm,
         ftest,
         tuple(notes + header.notes + n1 + n2),
+        header.laboratory,
+        header.fabric,
     )
 
 
@@ -531,7 +406,7 @@ def read_errorbars(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
     if not ep.exists():
         return None
     text, _ = read_text(ep, "error bar")
-    head, head_line, rows, sep = _rows(text, ep, _Header(ep))
+    head, head_line, rows, sep = _rows(text, ep, Header(ep))
     names = [h.strip().strip("\"'") for h in head]
     need = ("displacement_mm", "force_low_N", "force_high_N")
     missing = [n for n in need if n not in names]

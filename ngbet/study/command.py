@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import inspect
 import logging
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,7 @@ from .keys import as_floats
 from .model import Study, same_value
 from .runner import DEFAULT_ROOT, default_out, run_study
 
-__all__ = ["add_arguments", "build_study", "left_out", "main_for", "run_from_args"]
+__all__ = ["add_arguments", "build_options", "build_study", "left_out", "main_for", "run_from_args"]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -42,6 +43,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot-only", action="store_true", help="redraw figures and report from the CSV files")
     p.add_argument("--retry-failed", action="store_true", help="rerun cases whose solver failed before")
     p.add_argument("--quiet", action="store_true", help="one line: no progress bar, no report on the terminal")
+    p.add_argument(
+        "--data",
+        action="append",
+        default=[],
+        metavar="PATH",
+        help="a folder (its *.csv) or a file of measured curves the study reads besides its own: the "
+        "validation study predicts each curve of its fabrics there (repeatable)",
+    )
 
 
 def main_for(build: Callable[[bool], Study], argv: list[str] | None = None, prog: str | None = None) -> int:
@@ -137,15 +146,38 @@ def _words(v: Any) -> str:
     return str(v)
 
 
+def build_options(build: Callable[..., Study], cache: Path | None, data: Sequence[str]) -> dict[str, Any]:
+    """The keyword arguments ``build`` takes of ``cache`` and ``data`` (``--data``).
+
+    ``data`` given to a ``build`` without a ``data`` parameter is refused (SceneError), as it would
+    be ignored.
+    """
+    params = inspect.signature(build).parameters
+    kw: dict[str, Any] = {"cache": cache} if "cache" in params else {}
+    if data:
+        if "data" not in params:
+            from ..scene.validate import SceneError
+
+            raise SceneError(f"--data {data[0]}: this study reads no measured curves (study validation does)")
+        kw["data"] = tuple(data)
+    return kw
+
+
 def build_study(
-    build: Callable[..., Study], quick: bool, scene: Scene | None = None, source: str = "", cache: Path | None = None
+    build: Callable[..., Study],
+    quick: bool,
+    scene: Scene | None = None,
+    source: str = "",
+    cache: Path | None = None,
+    data: Sequence[str] = (),
 ) -> Study:
     """The study ``build`` gives, on ``scene`` (None: the study's default), with what ``quick`` leaves out.
 
     ``cache``: the study cache, handed to a ``build`` that keeps work of its own there (a ``cache``
-    parameter: the validation study's fits).
+    parameter: the validation study's fits). ``data``: measured curves (``--data``), handed to a
+    ``build`` with a ``data`` parameter; refused for another (SceneError: it would be ignored).
     """
-    kw: dict[str, Any] = {"cache": cache} if "cache" in inspect.signature(build).parameters else {}
+    kw = build_options(build, cache, data)
     study = build(quick, scene, **kw) if scene is not None else build(quick, **kw)
     study.scene_source = source
     if quick and not study.left_out:  # a study whose full build is costly (fits) says it itself
@@ -158,13 +190,20 @@ def _prepare(
 ) -> tuple[Study, Path, OwnedFolder | None]:
     """The study, its folder and (when its name is known before it is built) the folder, owned first.
 
-    A study on another scene than its default has a folder of its own (the scene's digest in its
-    name), so the default study's folder stays as it is. The folder and the cache are checked
-    before the study is built: a study may fit before it runs its cases.
+    A study on another scene than its default, or with ``--data``, has a folder of its own (the
+    scene's digest, the data paths' digest in its name), so the default study's folder stays as it
+    is. The folder and the cache are checked before the study is built: a study may fit before it
+    runs its cases.
     """
+    data = getattr(args, "data", None) or []
+    build_options(build, None, data)  # refused before the folder is made
 
-    def folder_name(n: str) -> str:  # a study on another scene has a folder of its own
-        return n if scene is None else f"{n}-scene-{scene.digest()[:8]}"
+    def folder_name(n: str) -> str:  # a study on another scene, or on more data, has a folder of its own
+        n = n if scene is None else f"{n}-scene-{scene.digest()[:8]}"
+        if data:
+            paths = sorted(str(Path(d).resolve()) for d in data)
+            n += "-data-" + hashlib.sha256("\n".join(paths).encode()).hexdigest()[:8]
+        return n
 
     folder = None
     if name is not None and not args.plot_only:
@@ -173,7 +212,7 @@ def _prepare(
     try:
         if not args.plot_only:
             _probe_cache(Path(args.cache) if args.cache else DEFAULT_ROOT / "cache")
-        study = build_study(build, args.quick, scene, source, Path(args.cache) if args.cache else None)
+        study = build_study(build, args.quick, scene, source, Path(args.cache) if args.cache else None, data)
         _refuse_set_of_varied_keys(study, getattr(args, "overrides", None) or [])
     except BaseException:
         if folder is not None:
