@@ -2,9 +2,10 @@
 
 The fits of a fabric (:func:`fits_of`: each bias-extension size alone, both sizes together, each
 laboratory's picture frame alone, of the fabric's own curves: :mod:`._validation_data`) and the
-curves of the fabric each does not use (its targets); one fit with the
-fitted scene's predictions of its targets (:func:`fit_and_predict`), a JSON file in
-``validation-fits/`` of the study cache, keyed by the scene, the data and the code (:func:`fits_key`).
+curves of the fabric each does not use (its targets); one fit with the fitted scene's predictions
+of its targets (:func:`fit_and_predict`), kept in ``validation-fits/`` of the study cache: the fit
+keyed by the scene, the curves it fits and the code (:func:`fits_key`), each prediction by the fit
+and its curve's file (:func:`target_key`).
 
 The fits are ``ngbet fit``'s own (:func:`ngbet.calibration.joint.fit_curves` with the scene's
 ``[calibration]`` parameters, bounds and rules: one size holds the bending stiffnesses): the study
@@ -17,6 +18,7 @@ import hashlib
 import json
 import logging
 import os
+import pickle
 import sys
 import time
 from collections.abc import Sequence
@@ -42,8 +44,10 @@ __all__ = [
     "fits_folder",
     "fits_key",
     "fits_of",
+    "keep",
     "kind_of",
     "points_of",
+    "target_key",
 ]
 
 log = logging.getLogger(__name__)
@@ -106,22 +110,31 @@ def fits_of(fabric: str, curves: Curves) -> list[FitSpec]:
     return out
 
 
+def _file_hash(h: Any, p: Path) -> None:
+    h.update(p.read_bytes())
+    eb = p.with_name(p.stem + "_errorbars.csv")
+    if eb.exists():
+        h.update(eb.read_bytes())
+
+
 def fits_key(spec: FitSpec, max_runs: int, scene_toml: str, curves: Curves) -> str:
-    """A key of everything a fit reads: the scene, the fabric's data, the fit, the settings, the code."""
+    """A key of everything a fit reads: the scene, the fitted curves, the fit, the settings, the code.
+
+    Not the curves it predicts: a curve added to the study is predicted by the kept fit (:func:`fit_and_predict`).
+    """
     from ngbet.study.keys import code_version
 
     h = hashlib.sha256(scene_toml.encode())
-    for name in curves.of[spec.fabric]:
-        p = curves.paths[name]
-        h.update(p.read_bytes())
-        eb = p.with_name(p.stem + "_errorbars.csv")
-        if eb.exists():
-            h.update(eb.read_bytes())
-    h.update(
-        json.dumps(
-            [spec.fabric, spec.fitted, spec.targets, max_runs, SCORE_POINTS, code_version("continuum")], sort_keys=True
-        ).encode()
-    )
+    for name in spec.fitted:
+        _file_hash(h, curves.paths[name])
+    h.update(json.dumps([spec.fabric, spec.fitted, max_runs, code_version("continuum")], sort_keys=True).encode())
+    return h.hexdigest()[:16]
+
+
+def target_key(name: str, curves: Curves) -> str:
+    """A key of a predicted curve: its file (and error bars), its name and the scored points."""
+    h = hashlib.sha256(json.dumps([name, SCORE_POINTS]).encode())
+    _file_hash(h, curves.paths[name])
     return h.hexdigest()[:16]
 
 
@@ -138,10 +151,10 @@ def fits_folder(cache: Path | None = None) -> Path:
 
 
 def cached(folder: Path, name: str, make: Any) -> dict[str, Any]:
-    """The fit ``name`` kept in ``folder``, or ``make()`` kept there.
+    """The record ``name`` (a fit, a prediction) kept in ``folder``, or ``make()`` kept there.
 
     A kept file that cannot be read (truncated, not a JSON object) is named in a warning and made
-    again; a folder that cannot keep the fit is an OSError naming it before the fit runs.
+    again; a folder that cannot keep the record is an OSError naming it before ``make`` runs.
     """
     path = folder / f"{name}.json"
     if path.exists():
@@ -158,10 +171,15 @@ def cached(folder: Path, name: str, make: Any) -> dict[str, Any]:
     probe.write_text("")  # an unwritable cache fails here, before the fit, naming it
     probe.unlink()
     doc = make()
-    tmp = path.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(doc, allow_nan=False))
-    tmp.replace(path)
+    keep(path, json.dumps(doc, allow_nan=False).encode())
     return doc  # type: ignore[no-any-return]
+
+
+def keep(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` whole or not at all (a temporary file renamed)."""
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_bytes(data)
+    tmp.replace(path)
 
 
 def _progress(label: str) -> Any:
@@ -186,6 +204,26 @@ def _finite(a: np.ndarray) -> list[float | None]:
     return [float(v) if np.isfinite(v) else None for v in np.asarray(a, float)]
 
 
+def _predict(res: Any, curve: Any) -> dict[str, Any]:
+    """The fitted scene's prediction of ``curve`` at its scored points, with its band (a record of the fit)."""
+    from ngbet.calibration.bands import predict_specimen
+    from ngbet.calibration.fit_params import test_changes
+
+    u, _ = points_of(curve)
+    try:
+        p = predict_specimen(res, test_changes(curve), u)
+    except Exception as exc:  # noqa: BLE001 - a failed prediction is a row of the report, not the end
+        return {"u_mm": u.tolist(), "failed": f"{type(exc).__name__}: {exc}"}
+    return {
+        "u_mm": u.tolist(),
+        "force_N": _finite(p.force_N),
+        "sd_parameters_N": _finite(p.sd_param_N),
+        "sd_discretization_N": _finite(p.sd_disc_N),
+        "sd_model_error_N": _finite(p.sd_model_N),
+        "band": p.band,
+    }
+
+
 def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Path, curves: Curves) -> dict[str, Any]:
     """``spec`` fitted as ``ngbet fit`` fits it, and each of its targets predicted with its band (cached).
 
@@ -193,36 +231,26 @@ def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Pat
     fit (fit.json's content), the fitted scene and per target the scored points, the predicted
     force and its standard deviation from the parameters, from the discretization and from the model error
     the fit's curves estimate (:func:`ngbet.calibration.bands.model_error`), and in words what the band holds.
+
+    Kept in ``folder``: the fit's record (``NAME.json``), the fit itself (``NAME.pickle``, what a
+    prediction needs) and each prediction (``NAME-TARGETKEY.json``, :func:`target_key`), so that
+    a curve added to the study costs its prediction, not the fit. A kept fit without its pickle
+    (removed, unreadable) is made again when a new curve needs it.
     """
-    from ngbet.calibration.bands import predict_specimen
-    from ngbet.calibration.fit_params import test_changes
     from ngbet.calibration.joint import fit_curves
 
     runs = QUICK_RUNS if quick else MAX_RUNS
     scene = start or Scene.from_toml(data_root() / "geometry" / FABRICS[spec.fabric][0])
+    name = f"{'quick' if quick else 'full'}-{spec.fabric}-{fits_key(spec, runs, scene.to_toml(), curves)}"
+    made: list[Any] = []  # the fit made in this process
 
     def make() -> dict[str, Any]:
         label = f"{spec.fabric.replace('_', ' ')}, {spec.name}"
         res = fit_curves([curves.read(f) for f in spec.fitted], scene, max_runs=runs, progress=_progress(label))
         if sys.stderr.isatty():
             sys.stderr.write(f"\rngbet: study validation: fitted {label} in {res.wall_s:.0f} s\x1b[K\n")
-        preds = {}
-        for name in spec.targets:
-            curve = curves.read(name)
-            u, _ = points_of(curve)
-            try:
-                p = predict_specimen(res, test_changes(curve), u)
-            except Exception as exc:  # noqa: BLE001 - a failed prediction is a row of the report, not the end
-                preds[name] = {"u_mm": u.tolist(), "failed": f"{type(exc).__name__}: {exc}"}
-                continue
-            preds[name] = {
-                "u_mm": u.tolist(),
-                "force_N": _finite(p.force_N),
-                "sd_parameters_N": _finite(p.sd_param_N),
-                "sd_discretization_N": _finite(p.sd_disc_N),
-                "sd_model_error_N": _finite(p.sd_model_N),
-                "band": p.band,
-            }
+        made.append(res)
+        keep(folder / f"{name}.pickle", pickle.dumps(res))
         return {
             "fabric": spec.fabric,
             "fit_name": spec.name,
@@ -230,8 +258,21 @@ def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Pat
             "max_runs": runs,
             "fit": res.to_json(),
             "fitted_scene": res.scene.to_toml(),
-            "predictions": preds,
         }
 
-    name = f"{'quick' if quick else 'full'}-{spec.fabric}-{fits_key(spec, runs, scene.to_toml(), curves)}"
-    return {**cached(folder, name, make), "cache_name": name}
+    def fit() -> Any:
+        if not made:
+            try:
+                made.append(pickle.loads((folder / f"{name}.pickle").read_bytes()))
+            except Exception as exc:  # noqa: BLE001 - a fit not read back whatever the cause is made again
+                log.warning("the kept fit %s cannot be read (%s): the fit is made again", folder / name, exc)
+                doc.update(make())
+                keep(folder / f"{name}.json", json.dumps(doc, allow_nan=False).encode())
+        return made[-1]
+
+    doc = cached(folder, name, make)
+    preds = {
+        t: cached(folder, f"{name}-{target_key(t, curves)}", lambda t=t: _predict(fit(), curves.read(t)))
+        for t in spec.targets
+    }
+    return {**doc, "predictions": preds, "cache_name": name}

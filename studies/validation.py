@@ -31,8 +31,9 @@ curve agrees with the method (another laboratory's frame that agrees with the bi
 F_sh), ngbet's error is at most the method's plus about this (the triangle inequality).
 
 The fits and the predictions' bands run when the study is built and are kept in the study cache
-(``validation-fits/`` in ``--cache``, default ``out/studies/cache``; keyed by the scene, the data
-and the code: a change of any refits); the study's cases are then ordinary runs of each fitted
+(``validation-fits/`` in ``--cache``, default ``out/studies/cache``; a fit keyed by the scene, the
+curves it fits and the code: a change of any refits; a prediction by its fit and its curve's file,
+so that a curve added later costs its prediction, not the fit); the study's cases are then ordinary runs of each fitted
 scene on each predicted curve's specimen or frame, whose forces the report scores.
 ``--quick``: the unbalanced twill fitted on one size, 3 model runs.
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import pickle
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -698,6 +699,7 @@ def test_validation_study_quick(tmp_path, monkeypatch):
     A curve given with --data (here the other size as another laboratory would send it) is
     predicted as the same specimen is, and is the other laboratory's curve of the other size."""
     from ngbet.kinematics import force_from_normalised, frame_angle_rad, normalised_shear_force
+    from ngbet.studies import _validation_data as VD
     from ngbet.studies import _validation_fits as VF
     from ngbet.studies import validation as V
     from ngbet.study.collect import load
@@ -727,10 +729,16 @@ def test_validation_study_quick(tmp_path, monkeypatch):
         )
         == 0
     )
-    # the fit is kept in the study cache that --cache names
-    assert [f.name[: len("quick-twill_unbalanced")] for f in (tmp_path / "cache" / VF.FITS_FOLDER).glob("*.json")] == [
-        "quick-twill_unbalanced"
-    ]
+    # the fit is kept in the study cache that --cache names: its record, itself, a prediction per target
+    kept = tmp_path / "cache" / VF.FITS_FOLDER
+    (fit_pickle,) = kept.glob("*.pickle")
+    assert fit_pickle.name.startswith("quick-twill_unbalanced-")
+    assert len(list(kept.glob(f"{fit_pickle.stem}*.json"))) == 1 + 3  # the other size, the frame, the held curve
+    # the kept fit predicts as the fit did (what a curve added later gets)
+    res = pickle.loads(fit_pickle.read_bytes())
+    again = VF._predict(res, read_measured(held))
+    pred = kept / f"{fit_pickle.stem}-{VF.target_key(held.name, VD.find_curves([held.parent]))}.json"
+    assert json.loads(pred.read_text()) == again and "band" in again
     text = (out / "report.md").read_text()
     assert "| twill unbalanced | 100 x 250 mm | 100 x 200 mm (UN) | other size |" in text
     assert "| twill unbalanced | 100 x 250 mm | 100 x 200 mm (LABX) | other laboratory |" in text

@@ -951,7 +951,7 @@ def _relabelled(src: Path, dst: Path, old: str, new: str) -> None:
 def test_every_curve_of_a_fabric_given_with_data_is_a_target_of_each_of_its_fits(tmp_path):
     """Curves given with --data (a user's own tests, held-out sizes, other laboratories) are sorted by
     the fabric and laboratory their headers name and predicted by every fit of that fabric; files that
-    cannot be read or name no fabric are not predicted and said; the fits' keys follow the data."""
+    cannot be read or name no fabric are not predicted and said; a fit's key holds what it fits only."""
     from ngbet.scene.validate import SceneError
     from ngbet.studies import _validation_data as VD
     from ngbet.studies import _validation_fits as VF
@@ -979,7 +979,10 @@ def test_every_curve_of_a_fabric_given_with_data_is_a_target_of_each_of_its_fits
         before = {s.name: s for s in VF.fits_of(fabric, base)}
         for s in VF.fits_of(fabric, curves):  # every fit, frames of other laboratories included
             assert s.targets == (*before[s.name].targets, added)
-            assert VF.fits_key(s, 3, "x", curves) != VF.fits_key(before[s.name], 3, "x", base)
+            # the fit is the same (its key holds what it fits), the added curve a prediction of its own
+            assert VF.fits_key(s, 3, "x", curves) == VF.fits_key(before[s.name], 3, "x", base)
+        keys = {VF.target_key(t, curves) for t in curves.of[fabric]}
+        assert len(keys) == len(curves.of[fabric])
     assert V._what("bias_extension", "one size", same_lab=False) == "other laboratory"
     assert V._what("bias_extension", "two sizes", same_lab=True) == "other size"
     assert V._what("picture_frame", "frame", same_lab=False) == "other laboratory"
@@ -1002,6 +1005,61 @@ def test_every_curve_of_a_fabric_given_with_data_is_a_target_of_each_of_its_fits
         VD.find_curves([tmp_path / "other"])
     with pytest.raises(SceneError, match="--data .*nowhere: no such file or folder"):
         VD.find_curves([tmp_path / "nowhere"])
+
+
+class _KeptFit:
+    """A stand-in for a fit's result: what the validation fits keep of it."""
+
+    wall_s = 0.0
+
+    def __init__(self, n: int) -> None:
+        self.n, self.scene = n, Scene()
+
+    def to_json(self) -> dict[str, int]:
+        return {"n": self.n}
+
+
+def test_a_kept_fit_predicts_a_curve_added_later_without_fitting_again(tmp_path, monkeypatch, caplog):
+    """The fits are keyed by what they fit, not by what they predict: a curve added to the study is
+    predicted by the kept fit, the kept predictions are read back; a kept fit that cannot be read
+    back is made again, said in a warning."""
+    from ngbet.calibration import joint
+    from ngbet.studies import _validation_data as VD
+    from ngbet.studies import _validation_fits as VF
+
+    fits, predicted = [], []
+    monkeypatch.setattr(
+        joint, "fit_curves", lambda curves, scene, **kw: fits.append(len(fits) + 1) or _KeptFit(len(fits))
+    )
+    monkeypatch.setattr(
+        VF, "_predict", lambda res, curve: predicted.append(Path(curve.source).name) or {"fit": res.n, "band": "b"}
+    )
+    data = Path(__file__).resolve().parents[1] / "data" / "cao2008"
+    un = "cao2008_twill_unbalanced_100x200_UN.csv"
+
+    def run(*held):
+        curves = VD.find_curves(held)
+        spec = next(s for s in VF.fits_of("twill_unbalanced", curves) if s.name == "100 x 250 mm")
+        return spec, VF.fit_and_predict(spec, True, None, tmp_path, curves)
+
+    spec, d0 = run()
+    assert fits == [1] and predicted == list(spec.targets) and set(d0["predictions"]) == set(spec.targets)
+    h1, h2 = tmp_path / "h1", tmp_path / "h2"
+    h1.mkdir()
+    _relabelled(data / un, h1 / "LAB1.csv", "laboratory: UN;", "laboratory: LAB1;")
+    predicted.clear()
+    _, d1 = run(h1)
+    assert fits == [1] and predicted == ["LAB1.csv"] and d1["cache_name"] == d0["cache_name"]
+    assert d1["predictions"]["LAB1.csv"] == {"fit": 1, "band": "b"}
+    (tmp_path / f"{d0['cache_name']}.pickle").unlink()
+    h2.mkdir()
+    _relabelled(data / un, h2 / "LAB2.csv", "laboratory: UN;", "laboratory: LAB2;")
+    predicted.clear()
+    with caplog.at_level("WARNING"):
+        _, d2 = run(h1, h2)
+    assert fits == [1, 2] and predicted == ["LAB2.csv"] and "the fit is made again" in caplog.text
+    assert d2["predictions"]["LAB2.csv"]["fit"] == 2 and d2["fit"] == {"n": 2}
+    assert json.loads((tmp_path / f"{d0['cache_name']}.json").read_text())["fit"] == {"n": 2}
 
 
 def test_data_is_refused_by_a_study_that_reads_no_curves(tmp_path, capsys):
