@@ -65,6 +65,7 @@ __all__ = [
     "normalise_bet",
     "normalised_curve",
     "normalise_pf",
+    "predict_by_normalisation",
     "read_inputs",
     "run_from_args",
     "spread",
@@ -190,6 +191,21 @@ def force_by_normalisation(
     return force_from_normalised(
         gamma_rad, fn_N_per_mm, u, target.specimen["specimen.length_mm"], target.specimen["specimen.width_mm"]
     )
+
+
+def predict_by_normalisation(fitted: Sequence[MeasuredCurve], target: MeasuredCurve, u_mm: np.ndarray) -> np.ndarray:
+    """The normalisation method's prediction of ``target`` at ``u_mm`` from the curves ``fitted``.
+
+    Each fitted curve's normalised shear force (:func:`normalised_curve`) carried to the target's
+    specimen or frame (:func:`force_by_normalisation`: Eq. 18, Eq. 10, or across the tests F_sh
+    read as F_norm); at each point the mean of those that have a value there, NaN where none has
+    (beyond every fitted curve's largest shear angle). What ``ngbet fit --predict`` and the
+    validation study set beside ngbet's prediction.
+    """
+    P = np.array([force_by_normalisation(*normalised_curve(c), target, u_mm) for c in fitted], dtype=float)
+    with np.errstate(invalid="ignore"):
+        n = np.sum(np.isfinite(P), axis=0)
+        return np.where(n > 0, np.nansum(P, axis=0) / np.maximum(n, 1), np.nan)
 
 
 def normalise_bet(

@@ -167,17 +167,10 @@ def build(
 
 
 def _normalisation(fitted: Sequence[str], target: Any, u: np.ndarray, curves: Curves) -> np.ndarray:
-    """The normalisation method's prediction at ``u`` from the fitted curves: the mean where any has a value."""
-    from ngbet.normalise import force_by_normalisation, normalised_curve
+    """The normalisation method's prediction at ``u`` from the fitted curves (:func:`predict_by_normalisation`)."""
+    from ngbet.normalise import predict_by_normalisation
 
-    preds = []
-    for name in fitted:
-        g, fn = normalised_curve(curves.read(name))
-        preds.append(force_by_normalisation(g, fn, target, u))
-    P = np.array(preds)
-    with np.errstate(invalid="ignore"):
-        n = np.sum(np.isfinite(P), axis=0)
-        return np.where(n > 0, np.nansum(P, axis=0) / np.maximum(n, 1), np.nan)
+    return predict_by_normalisation([curves.read(n) for n in fitted], target, u)
 
 
 def _other_lab(fabric: str, target_name: str, target: Any, u: np.ndarray, curves: Curves) -> np.ndarray:

@@ -630,6 +630,19 @@ def test_cli_joint_fit_and_the_fitted_scene_on_another_specimen(synthetic_joint,
     sd2 = sum(np.array(pj[k]) ** 2 for k in ("sd_parameters_N", "sd_discretization_N", "sd_model_error_N"))
     miss = np.abs(np.array(pj["force_N"]) - np.array(pj["measured_N"]))
     assert pj["within_2sd"] == np.mean(miss <= 2 * np.sqrt(sd2 + np.array(pj["sd_measured_N"]) ** 2))
+    # beside it the normalisation method's prediction from the fitted curves (the validation study's),
+    # its RMS and ngbet's on the points where it has a value, also on the terminal
+    from ngbet.normalise import predict_by_normalisation
+
+    u = np.array(pj["u_mm"])
+    norm = predict_by_normalisation([read_measured(p) for p in paths], read_measured(paths[0]), u)
+    got = np.array([np.nan if v is None else v for v in pj["normalisation_N"]])
+    np.testing.assert_allclose(got, norm, rtol=1e-12)
+    has, meas = np.isfinite(norm), np.array(pj["measured_N"])
+    assert pj["normalisation_points"] == has.sum() > 0
+    rms_norm = np.sqrt(np.mean(((norm[has] - meas[has]) / meas[has]) ** 2))
+    assert pj["normalisation_rms_relative_error"] == pytest.approx(rms_norm, rel=1e-12)
+    assert f"the normalisation method from the fitted curves {100 * rms_norm:.1f} %" in text
     run = tmp_path / "run"
     assert (
         main(

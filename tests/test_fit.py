@@ -466,6 +466,10 @@ def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
     assert cur["discretization"]["chosen_by_fit"] is True and cur["discretization"]["corner_mesh_size_mm"] > 0
     assert cur["force_error_rel_max"] == doc["accuracy"]["force_error_rel_max"]["150 x 450 mm"]
     assert (out / "fit.png").stat().st_size > 10_000 and (out / "predict_synthetic.png").exists()
+    # the normalisation method beside the prediction takes the specimen the scene gave the curve:
+    # the fitted curve read by Eq. 18 onto itself is the curve again, up to its sampling
+    pj = json.loads((out / "predict_synthetic.json").read_text())
+    assert pj["normalisation_points"] == pj["points"] and pj["normalisation_rms_relative_error"] < 0.01
     fitted = Scene.from_toml(out / "fitted_scene.toml")
     assert fitted.material.K_sh == pytest.approx(doc["parameters"]["material.K_sh"]["value"])
     assert fitted.discretization.order_u == cur["discretization"]["order_u"]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import logging
 import math
 import sys
@@ -297,6 +298,7 @@ def run_from_args(args: argparse.Namespace) -> int:
 def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) -> int:
     """Predict one curve; a solver failure is reported and leaves the fit's files in place."""
     from ..errors import ConvergenceError
+    from ..normalise import predict_by_normalisation
     from .bands import predict_specimen
     from .fit_params import test_changes
     from .report import write_prediction
@@ -315,13 +317,42 @@ def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) 
     except ConvergenceError as exc:
         print(f"ngbet fit: prediction of {c.source} failed (the fit is kept in {out}/): {exc}", file=sys.stderr)
         return 1
-    path = write_prediction(pred, c, F, out)
-    rms = float(np.sqrt(np.mean(((pred.force_N - F) / F) ** 2)))  # the same in F_s or F_norm (linear at each point)
+    # the method needs every curve's specimen: a curve without specimen keys ran on its scene's
+    fitted = [_with_specimen(f.curve, f.scene.specimen) for f in result.curves]
+    norm = predict_by_normalisation(fitted, _with_specimen(c, None, spec), u)
+    path = write_prediction(pred, c, F, out, norm)
+    rel = (pred.force_N - F) / F  # the same in F_s or F_norm (linear at each point)
+    has = np.isfinite(norm)
+    method = "the normalisation method from the fitted curves"
+    if not has.any():
+        method += " has no value there (beyond their shear angles)"
+    else:
+        method += f" {100 * _rms((norm - F) / F):.1f} %"
+        if not has.all():
+            method += f" on its {int(has.sum())} of {len(u)} points (ngbet {100 * _rms(rel[has]):.1f} % there)"
     print(
-        f"  prediction of {c.source}: RMS relative error {100 * rms:.1f} % over {u[0]:.3g} to {u[-1]:.3g} mm "
-        f"-> {path.name}"
+        f"  prediction of {c.source}: RMS relative error {100 * _rms(rel):.1f} % over {u[0]:.3g} to {u[-1]:.3g} mm; "
+        f"{method} -> {path.name}"
     )
     return 0
+
+
+def _with_specimen(c: MeasuredCurve, specimen: Any, keys: dict[str, Any] | None = None) -> MeasuredCurve:
+    """``c`` with its specimen keys: its header's, else ``keys``, else the scene specimen ``specimen``'s.
+
+    A picture-frame curve is returned as it is (its frame is in its header).
+    """
+    if c.test == "picture_frame" or c.specimen:
+        return c
+    if keys is None:
+        keys = {"specimen.width_mm": specimen.width_mm, "specimen.length_mm": specimen.length_mm}
+    return dataclasses.replace(c, specimen={k: float(v) for k, v in keys.items() if k.startswith("specimen.")})
+
+
+def _rms(a: np.ndarray) -> float:
+    """RMS of the finite values of ``a``."""
+    a = a[np.isfinite(a)]
+    return float(np.sqrt(np.mean(a**2))) if a.size else math.nan
 
 
 def summary(result: Any, out: Path) -> str:

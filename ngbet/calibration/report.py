@@ -299,14 +299,23 @@ def within_band(pred_N: np.ndarray, sd_N: np.ndarray, measured: np.ndarray, sd_m
     return float(np.mean(np.abs(pred_N - measured) <= 2 * np.sqrt(sd_N**2 + sd_measured**2)))
 
 
-def prediction_json(pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray) -> dict[str, Any]:
+def prediction_json(
+    pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray, normalisation: np.ndarray
+) -> dict[str, Any]:
     """The content of predict_NAME.json.
 
     ``band``: what the band holds; ``within_2sd``: the fraction of measured points within ±2 sd of
-    the prediction and of the measured point's own scatter (:func:`within_band`).
+    the prediction and of the measured point's own scatter (:func:`within_band`);
+    ``normalisation_N``: the normalisation method's prediction from the fitted curves at the same
+    points (null where it has none), its RMS relative error on them and ngbet's on the same points.
     """
     rel = (pred.force_N - measured) / measured
     sd_meas = curve.sd(pred.u_mm, measured)
+    has = np.isfinite(normalisation)
+
+    def rms(a: np.ndarray) -> float | None:
+        return float(np.sqrt(np.mean(a**2))) if a.size else None
+
     return {
         "data": curve.source,
         "specimen": curve.specimen,
@@ -321,17 +330,24 @@ def prediction_json(pred: CurvePrediction, curve: MeasuredCurve, measured: np.nd
         "sd_parameters_N": pred.sd_param_N.tolist(),
         "sd_discretization_N": pred.sd_disc_N.tolist(),
         "sd_model_error_N": (pred.sd_model_N if pred.sd_model_N.size else np.zeros_like(pred.force_N)).tolist(),
+        "normalisation_N": [float(v) if ok else None for v, ok in zip(normalisation, has, strict=True)],
+        "normalisation_points": int(has.sum()),
+        "normalisation_rms_relative_error": rms(((normalisation - measured) / measured)[has]),
+        "rms_relative_error_on_normalisation_points": rms(rel[has]),
     }
 
 
-def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray, out: Path) -> Path:
+def write_prediction(
+    pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray, out: Path, normalisation: np.ndarray
+) -> Path:
     """predict_NAME.json and predict_NAME.png in ``out``; returns the PNG.
 
     The figure: the measured curve with its points' ±2 sd (their own scatter), the prediction with
-    its ±2 sd band, and under the axes what the band holds.
+    its ±2 sd band, the normalisation method's prediction from the fitted curves (dashed), and
+    under the axes what the band holds.
     """
     stem = Path(curve.source).stem
-    doc = prediction_json(pred, curve, measured)
+    doc = prediction_json(pred, curve, measured, normalisation)
     _atomic(out / f"predict_{stem}.json", json.dumps(doc, indent=2))
     from matplotlib.figure import Figure
 
@@ -354,6 +370,9 @@ def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.n
     sd = curve.in_file_units(pred.u_mm, pred.sd_N)[1]
     ax.fill_between(x, F - 2 * sd, F + 2 * sd, color="tab:orange", alpha=0.3, lw=0, label=band_label(pred))
     ax.plot(x, F, "-", color="tab:orange", label="ngbet prediction")
+    if np.isfinite(normalisation).any():
+        xn, Fn = curve.in_file_units(pred.u_mm, normalisation)
+        ax.plot(xn, Fn, "--", color="tab:blue", lw=1.0, label="normalisation method from the fitted curves")
     frame = curve.test == "picture_frame"
     ax.set_xlabel(FRAME_X_LABEL if frame else "clamp displacement [mm]")
     ax.set_ylabel(QUANTITY_LABEL[curve.quantity])
@@ -361,7 +380,14 @@ def write_prediction(pred: CurvePrediction, curve: MeasuredCurve, measured: np.n
     put_caption(
         fig,
         f"Band: {pred.band}. Within the band and the measured scatter: {100 * doc['within_2sd']:.0f} % of "
-        f"{doc['points']} points; RMS relative error {100 * doc['rms_relative_error']:.1f} %.",
+        f"{doc['points']} points; RMS relative error {100 * doc['rms_relative_error']:.1f} %"
+        + (
+            f"; the normalisation method's {100 * doc['normalisation_rms_relative_error']:.1f} % on its "
+            f"{doc['normalisation_points']} points (ngbet "
+            f"{100 * doc['rms_relative_error_on_normalisation_points']:.1f} % there)."
+            if doc["normalisation_points"]
+            else "; the normalisation method has no value at these points."
+        ),
     )
     fig.tight_layout()
     png = out / f"predict_{stem}.png"

@@ -119,7 +119,12 @@ def name_of_test(text: str, where: str) -> str:
 
 
 class Header:
-    """What the comment lines say: specimen and frame keys, the test."""
+    """What the comment lines say: specimen and frame keys, the test, the laboratory, the fabric.
+
+    Fed one comment line at a time (:meth:`comment`); a key or a test given twice differently is
+    refused (SceneError naming both lines). The laboratory and the fabric are text, kept as the
+    first line that names them says them.
+    """
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -169,6 +174,3 @@ class Header:
         if f:
             self._set("picture_frame.frame_mm", float(f.group(1)), line)
             self._set("picture_frame.fabric_mm", float(f.group(2)), line)
-
-
-# --- the table ------------------------------------------------------------------------------------------------------
