@@ -105,6 +105,7 @@ class Curves:
         return str(self.read(name).laboratory) or "?"
 
     def is_frame(self, name: str) -> bool:
+        """Whether the curve is of a picture-frame test (its header's test)."""
         return bool(self.read(name).test == "picture_frame")
 
 

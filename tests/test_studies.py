@@ -981,8 +981,12 @@ def test_every_curve_of_a_fabric_given_with_data_is_a_target_of_each_of_its_fits
             assert s.targets == (*before[s.name].targets, added)
             # the fit is the same (its key holds what it fits), the added curve a prediction of its own
             assert VF.fits_key(s, 3, "x", curves) == VF.fits_key(before[s.name], 3, "x", base)
-        keys = {VF.target_key(t, curves) for t in curves.of[fabric]}
-        assert len(keys) == len(curves.of[fabric])
+    # a prediction's key follows its curve's file: the same file, the same key; a changed number, another
+    labx = held / "twill_100x200_LABX.csv"
+    key = VF.target_key(labx.name, curves)
+    assert VF.target_key(labx.name, VD.find_curves([held])) == key
+    labx.write_text(labx.read_text().replace("\n10.", "\n10.5", 1))
+    assert VF.target_key(labx.name, curves) != key
     assert V._what("bias_extension", "one size", same_lab=False) == "other laboratory"
     assert V._what("bias_extension", "two sizes", same_lab=True) == "other size"
     assert V._what("picture_frame", "frame", same_lab=False) == "other laboratory"
