@@ -975,6 +975,12 @@ def test_frame_curve_scene_is_the_picture_frame_of_its_header():
     bet = read_measured(DATA / "cao2008_twill_unbalanced_100x250_UN.csv")
     assert joint.held_parameters([bet, c], sc, list(sc.calibration.params), None) == {}
     assert set(joint.held_parameters([bet], sc, list(sc.calibration.params), None)) == set(joint.SIZE_PARAMS)
+    # frames alone, of one size or two, leave them to the scene, saying why (not "one specimen size")
+    uml = read_frame_curve(ROOT / "data" / "cao2008_pf" / "cao2008_pf_plain_UML_fig28_normalized_energy.csv")
+    for frames in ([c], [c, uml]):
+        held = joint.held_parameters(frames, sc, list(sc.calibration.params), None)
+        assert set(held) == set(joint.SIZE_PARAMS)
+        assert all(why.startswith("picture-frame tests alone") for why in held.values())
 
 
 @pytest.mark.integration

@@ -2,6 +2,7 @@
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -53,6 +54,17 @@ def test_bad_values_are_refused_with_their_key(key, value, fragment):
     with pytest.raises(SceneError) as err:
         default_scene().with_changes(**{key: value})
     assert fragment in str(err.value)
+
+
+def test_a_stop_beyond_a_shortened_run_says_how_to_shorten_it():
+    """A scene file's stop beyond a shortened final load is refused with the two ways out, and the
+    change the message names is taken."""
+    scene = Scene.from_toml(Path(__file__).parent.parent / "geometry" / "twintex_plain_pf_UN.toml")
+    assert scene.loading.stops_mm == (46.0,)
+    with pytest.raises(SceneError) as err:
+        scene.with_changes(**{"loading.u0_mm": 10.0})
+    assert "raise loading.u0_mm" in str(err.value) and "loading.stops_mm=[]" in str(err.value)
+    assert scene.with_changes(**{"loading.u0_mm": 10.0, "loading.stops_mm": []}).loading.path_stops_mm[-1] == 8.0
 
 
 def test_graded_structured_mesh_is_refused():

@@ -61,11 +61,12 @@ __all__ = [
 WHAT_FIXES = {
     "material.shear_stress_steps_Pa": "what would fix it: a law with fewer coefficients (fewer rises, or the locking "
     "law), a smoothness prior on the rises ([calibration] table_smoothness_sd), or data that reach the "
-    "shear angles of this rise (a larger displacement, a picture-frame test)",
+    "shear angles of this rise (a larger displacement; the picture frame shears the fabric further than the "
+    "bias-extension test)",
     "material.K_el": "what would fix it: measured shear angles (--angles; yarn elongation keeps them below the ideal "
     "test's) or a bound on K_el from the yarns",
-    "material.alpha": "what would fix it: another specimen size (another aspect ratio) or a measured mid-axis "
-    "profile (--profile)",
+    "material.alpha": "what would fix it: a bias-extension test of another specimen size (another aspect ratio) "
+    "or a measured mid-axis profile (--profile)",
     "material.K_lock": "what would fix it: data further into the stiffening (larger displacements)",
     "material.gamma_lock_deg": "what would fix it: data further into the stiffening (larger displacements)",
 }

@@ -113,10 +113,11 @@ def terminal_progress(stream: Any = None) -> Progress:
 def held_parameters(
     curves: Sequence[MeasuredCurve], scene: Scene, params: Sequence[str], profile: Profile | None
 ) -> dict[str, str]:
-    """The scene's parameters one specimen size cannot determine, with why: {key: reason}.
+    """The scene's parameters the curves cannot determine, with why: {key: reason}.
 
-    One size (every curve on the same specimen) and no mid-axis profile: the bending
-    stiffnesses (:data:`SIZE_PARAMS`) set the size effect, which one size does not show.
+    Without a mid-axis profile, the bending stiffnesses (:data:`SIZE_PARAMS`) where every curve is
+    of one specimen (they set the size effect, which one size does not show) or every curve is a
+    picture frame (the fabric shears homogeneously there, whatever the frame's size).
     """
     sizes = {
         (
@@ -124,21 +125,23 @@ def held_parameters(
             c.specimen.get("specimen.length_mm", scene.specimen.length_mm),
         )
         if c.test != "picture_frame"
-        else tuple(c.frame.values())
+        else "frame"
         for c in curves
     }
-    if len(sizes) > 1 or profile is not None:
+    if profile is not None or (len(sizes) > 1 and sizes != {"frame"}):
         return {}
-    return {
-        p: (
-            "one specimen size: the bending stiffnesses set the size effect, which one size does not show "
-            "(measured: they end at their bounds with se(ln p) of 1e3 and more); held at the scene's value. "
-            "A second specimen size (e.g. 100 x 200 mm beside 100 x 300 mm) or a measured mid-axis profile "
-            "(--profile) determines them"
-        )
-        for p in params
-        if p in SIZE_PARAMS
-    }
+    why = (
+        "picture-frame tests alone: the fabric shears homogeneously in the frame, which leaves the bending "
+        "stiffnesses without a part in its force"
+        if sizes == {"frame"}
+        else "one specimen size: the bending stiffnesses set the size effect, which one size does not show "
+        "(measured: they end at their bounds with se(ln p) of 1e3 and more)"
+    )
+    how = (
+        "; held at the scene's value. Bias-extension curves of two specimen sizes (e.g. 100 x 200 mm beside "
+        "100 x 300 mm) or a measured mid-axis profile (--profile) determine them"
+    )
+    return {p: why + how for p in params if p in SIZE_PARAMS}
 
 
 def fit_curves(  # noqa: C901

@@ -153,7 +153,8 @@ class Loading:
                 s <= self.u0_mm or self.stops_mm == PAPER_STOPS_MM,
                 "loading.stops_mm",
                 s,
-                f"a stop beyond the final load loading.u0_mm = {self.u0_mm:g} mm would never be reached",
+                f"a stop beyond the final load loading.u0_mm = {self.u0_mm:g} mm would never be reached: "
+                "raise loading.u0_mm or leave the stop out (e.g. --set 'loading.stops_mm=[]')",
             )
         check(
             self.min_step_mm <= self.first_step_mm,
