@@ -602,7 +602,10 @@ def alive(pid: int) -> bool:
 
 
 def start_study(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
+    """A quick study with two workers, its temporary files (the fork server's socket folder, which
+    a killed study cannot remove) in ``tmp_path/tmp``; returns it once a case is stored."""
     cache = tmp_path / "cache"
+    (tmp_path / "tmp").mkdir()
     p = ngbet(
         "study",
         "work_precision",
@@ -614,6 +617,7 @@ def start_study(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
         str(tmp_path / "o"),
         "--cache",
         str(cache),
+        env={"TMPDIR": str(tmp_path / "tmp")},
     )
     wait_for(lambda: cache.exists() and any(not d.name.startswith(".") for d in cache.iterdir()))
     return p, cache
@@ -663,6 +667,8 @@ def test_workers_exit_when_the_study_is_killed(tmp_path):
     os.kill(p.pid, signal.SIGKILL)
     p.communicate(timeout=30)
     wait_for(lambda: not any(alive(w) for w in workers), timeout=10)  # no orphan worker
+    # what the killed study could not remove stays in this test's folder, not in the system's /tmp
+    assert list((tmp_path / "tmp").glob("pymp-*"))
     # the killed study's unfinished folders are removed by the next one
     from ngbet.study.cache import clean_debris
 
