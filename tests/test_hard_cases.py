@@ -430,6 +430,27 @@ def test_hard_scenes_reach_56mm_through_their_jumps(tmp_path, made_problems, nam
     assert rows[-1]["force_N"] == pytest.approx(F56, rel=0.01)
 
 
+@pytest.mark.integration
+def test_yarns_at_30_degrees_reach_56mm_with_the_stabilization_the_diagnosis_names(tmp_path):
+    """Yarns at ±30° on the embedded scene's mesh (0.25 mm corners, p = 3) stop at a mode of the
+    discretization near a clamp corner, with the default stabilization (43.0 mm, measured) and with
+    K_s = K_el (42.4 mm), the first remedy named; the diagnosis then names ten times K_el, not K_el
+    again, and with it the run reaches 56 mm (434.94 N measured)."""
+    base = {"solver.threads": 1, "specimen.yarn_angle_deg": 30.0, "outputs.error_estimate": "off"}
+    base |= {"outputs.vtk": False, "outputs.plot": False, "outputs.profile": False}
+    K_el = Scene().material.K_el
+    with pytest.raises(ConvergenceError) as info:
+        run(Scene().with_changes(**base, **{"effects.stabilization_K": K_el}), tmp_path / "kel")
+    assert 41.5 < info.value.last_converged_mm < 43.5
+    text = str(info.value)
+    assert "a mode of the discretization" in text and f"--set effects.stabilization_K={10 * K_el:.3g}" in text
+    assert f"--set effects.stabilization_K={K_el:.3g} " not in text
+    s = run(Scene().with_changes(**base, **{"effects.stabilization_K": 10 * K_el}), tmp_path / "ten")
+    rows = read_rows(tmp_path / "ten" / "results.csv")
+    assert s["status"] == "ok" and rows[-1]["u0_mm"] == 56.0
+    assert rows[-1]["force_N"] == pytest.approx(434.94, rel=0.01)
+
+
 def test_a_locking_shear_law_keeps_nearly_inextensible_yarns_from_crossing(tmp_path):
     """K_el = 1e8 Pa with the limiting-angle shear law (K_lock = K_sh, γ_lock = 60°): the shear
     energy no longer falls as the yarns turn towards parallel, the path does not fold, and the run

@@ -35,6 +35,27 @@ def test_message_names_the_remedy_only_for_a_discretization_mode_of_a_well_posed
     assert cont.stable is True and "the model's own limit point" in cont.message()
 
 
+def test_the_stabilization_named_is_never_the_one_in_place():
+    """The remedy climbs from the stabilization in place: K_el where the smallest K_s is below it,
+    then ten times the smallest, then the cap of 30 K_el, then none. A run that took the last
+    advice is never told to set the value it has (with K_s = K_el it was told K_el again)."""
+    from ngbet.continuum.problem import STABILIZATION_CAP
+
+    K_el = 7e5
+    named = []
+    ks = (1.7e4, 2.1e7)  # the default ("auto") range of the embedded scene at 30° yarns
+    for _ in range(5):
+        d = StabilityDiagnosis(42.4, (-1e-3,), "discretization", 0.9, (58.0, 7.0), stabilization_K_Pa=ks, K_el=K_el)
+        k = d.stabilization_to_try
+        if k is None:
+            assert "raise effects.stabilization_K" not in d.message() and "30 material.K_el or more" in d.advice()
+            break
+        assert k > ks[0] and f"--set effects.stabilization_K={k:.3g}" in d.message()
+        named.append(k)
+        ks = (k, k)
+    assert named == pytest.approx([K_el, 10 * K_el, STABILIZATION_CAP * K_el])
+
+
 def test_a_skipped_test_says_why_and_classifies_nothing():
     d = StabilityDiagnosis(12.0, skipped="the uncondensed saddle-point tangent is indefinite by construction")
     assert d.stable is None and d.mode_class == "none" and math.isnan(d.ratio)

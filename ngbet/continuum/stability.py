@@ -115,6 +115,44 @@ class StabilityDiagnosis:
         """Whether the tangent is positive definite (None: not tested)."""
         return None if not self.eigenvalues else self.eigenvalues[0] > 0
 
+    @property
+    def stabilization_to_try(self) -> float | None:
+        """The ``effects.stabilization_K`` [Pa] to try against a mode of the discretization, or None.
+
+        K_el where the smallest K_s is below it (the mildest that suppressed the modes measured:
+        stiff yarns, no shear energy); else ten times the smallest K_s, at most
+        :data:`~ngbet.continuum.problem.STABILIZATION_CAP` K_el (±30° yarns needed 10 K_el after
+        K_el); None at that cap, beyond which K_s only hurts the conditioning, or without K_el.
+        """
+        from .problem import STABILIZATION_CAP
+
+        lo = self.stabilization_K_Pa[0]
+        cap = STABILIZATION_CAP * self.K_el
+        if self.K_el <= 0 or lo >= cap * (1 - 1e-9):
+            return None
+        return self.K_el if lo < self.K_el * (1 - 1e-9) else min(10.0 * lo, cap)
+
+    def _stabilization_text(self, command: bool) -> str:
+        """The remedy of a mode of the discretization: the K_s to try, or why none is named."""
+        lo, hi = self.stabilization_K_Pa
+        k = self.stabilization_to_try
+        if k is None:
+            return (
+                f"effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa) is at 30 material.K_el or more, beyond which "
+                "it only hurts the conditioning"
+            )
+        if k == self.K_el:
+            to = (
+                f" to about the yarns' elongation modulus: --set effects.stabilization_K={k:.3g} (material.K_el "
+                "stays as it is)"
+                if command
+                else f", e.g. to material.K_el = {k:.3g} Pa"
+            )
+        else:
+            lead = " " if command else ", e.g. "
+            to = f"{lead}to {k:.3g} Pa (--set effects.stabilization_K={k:.3g}; at most 30 material.K_el)"
+        return f"raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa){to}"
+
     def advice(self) -> str:
         """Cause and remedy in one sentence for the terminal ("" when the diagnosis names no remedy)."""
         if self.ellipticity_loss:
@@ -124,12 +162,8 @@ class StabilityDiagnosis:
                 f"{e.family} ({e.area_mm2:.0f} mm² lost ellipticity): give alpha{e.family} > 0"
             )
         if self.mode_class == "discretization":
-            lo, hi = self.stabilization_K_Pa
-            return (
-                f"an unstable mode of the discretization at u0 = {self.u0_mm:.4g} mm: raise "
-                f"effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa), e.g. to material.K_el = "
-                f"{self.K_el:.3g} Pa"
-            )
+            remedy = self._stabilization_text(False)
+            return f"an unstable mode of the discretization at u0 = {self.u0_mm:.4g} mm: {remedy}"
         if self.mode_class == "continuum" and self.stable is False:
             return (
                 f"the model's own limit point or bifurcation at u0 = {self.u0_mm:.4g} mm: "
@@ -158,12 +192,7 @@ class StabilityDiagnosis:
         if self.mode_class == "discretization":
             kind = "a mode of the discretization: i8 varies inside the elements and phi does not follow"
             if not self.ellipticity_loss:
-                lo, hi = self.stabilization_K_Pa
-                kind += (
-                    f"; raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa) to about the yarns' "
-                    f"elongation modulus: --set effects.stabilization_K={self.K_el:.3g} (material.K_el "
-                    "stays as it is)"
-                )
+                kind += f"; {self._stabilization_text(True)}"
         else:
             kind = (
                 "a mode of the constrained continuum (phi follows i8): the model's own limit point or "
