@@ -303,8 +303,8 @@ class Discrete:
 
     EA1: float = 50000.0  # N: axial stiffness of the thick yarns
     EA2: float = 50000.0  # N: thin yarns
-    EI1: float = 0.4  # N m^2: bending stiffness of the thick yarns
-    EI2: float = 1e-3  # N m^2: thin yarns
+    EI1: float = 0.4  # N m^2: bending stiffness of the thick yarns (> 0: without it the network is a mechanism)
+    EI2: float = 1e-3  # N m^2: thin yarns (> 0)
     K_phi: float = 2.5e-4  # N m: rotational spring at each crossing
     K_slip: float = 11.0  # N/m: translational slip spring at each crossing
     K_inter: float = 11.0  # N: trusses between adjacent yarns of the same family
@@ -322,6 +322,15 @@ class Discrete:
     def __post_init__(self) -> None:
         positive("discrete", self, "EA1", "EA2", "spacing_mm")
         nonnegative("discrete", self, "EI1", "EI2", "K_phi", "K_slip", "K_inter")
+        for key in ("EI1", "EI2"):
+            check(
+                getattr(self, key) > 0,
+                f"discrete.{key}",
+                getattr(self, key),
+                "the yarns' bending stiffness ties the rotation at each crossing to its yarn; at 0 the crossing "
+                "springs (K_phi) hold nothing and the network is a mechanism with a singular tangent: give it a "
+                "value > 0 (the force then tends to 0 with it)",
+            )
         integer("discrete", self, "elements_per_segment", 1, 64)
         choice("discrete", self, "inter_layout", ("neighbours", "none"))
         choice("discrete", self, "end_rotation", ("free", "held"))
