@@ -134,12 +134,15 @@ class StabilityDiagnosis:
 
     def _stabilization_text(self, command: bool) -> str:
         """The remedy of a mode of the discretization: the K_s to try, or why none is named."""
+        from .problem import STABILIZATION_CAP
+
         lo, hi = self.stabilization_K_Pa
         k = self.stabilization_to_try
+        cap = f"{STABILIZATION_CAP:g} material.K_el"
         if k is None:
             return (
-                f"effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa) is at 30 material.K_el or more, beyond which "
-                "it only hurts the conditioning"
+                f"effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa) is at {cap} or more, beyond which it only "
+                "hurts the conditioning"
             )
         if k == self.K_el:
             to = (
@@ -150,7 +153,7 @@ class StabilityDiagnosis:
             )
         else:
             lead = " " if command else ", e.g. "
-            to = f"{lead}to {k:.3g} Pa (--set effects.stabilization_K={k:.3g}; at most 30 material.K_el)"
+            to = f"{lead}to {k:.3g} Pa (--set effects.stabilization_K={k:.3g}; at most {cap})"
         return f"raise effects.stabilization_K (now {lo:.3g} to {hi:.3g} Pa){to}"
 
     def advice(self) -> str:

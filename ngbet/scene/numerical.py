@@ -329,7 +329,7 @@ class Discrete:
                 getattr(self, key),
                 "the yarns' bending stiffness ties the rotation at each crossing to its yarn; at 0 the crossing "
                 "springs (K_phi) hold nothing and the network is a mechanism with a singular tangent: give it a "
-                "value > 0 (the force then tends to 0 with it)",
+                "value > 0 (the force tends to 0 with it)",
             )
         integer("discrete", self, "elements_per_segment", 1, 64)
         choice("discrete", self, "inter_layout", ("neighbours", "none"))
