@@ -48,7 +48,7 @@ def test_toml_round_trip_is_identity():
         ("discretization.corner_bisections", 1.5, "discretization.corner_bisections"),
         ("discretization.discrete_typo", 1.0, "discretization.discrete_typo"),
         ("discrete.end_rotation", "clamped", "discrete.end_rotation"),
-        ("discrete.EI2", 0.0, "the network is a mechanism"),  # a singular tangent (was an internal error)
+        ("discrete.EI2", 0.0, "the network is a mechanism"),  # its first tangent would be singular
     ],
 )
 def test_bad_values_are_refused_with_their_key(key, value, fragment):

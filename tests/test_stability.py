@@ -37,8 +37,8 @@ def test_message_names_the_remedy_only_for_a_discretization_mode_of_a_well_posed
 
 def test_the_stabilization_named_is_never_the_one_in_place():
     """The remedy climbs from the stabilization in place: K_el where the smallest K_s is below it,
-    then ten times the smallest, then the cap of 30 K_el, then none. A run that took the last
-    advice is never told to set the value it has (with K_s = K_el it was told K_el again)."""
+    then ten times the smallest, then the cap of 30 K_el, then none: a run that took the last
+    advice is never told to set the value it has."""
     from ngbet.continuum.problem import STABILIZATION_CAP
 
     K_el = 7e5
