@@ -320,19 +320,19 @@ def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) 
     # the method needs every curve's specimen: a curve without specimen keys ran on its scene's
     fitted = [_with_specimen(f.curve, f.scene.specimen) for f in result.curves]
     norm = predict_by_normalisation(fitted, _with_specimen(c, None, spec), u)
-    path = write_prediction(pred, c, F, out, norm)
-    rel = (pred.force_N - F) / F  # the same in F_s or F_norm (linear at each point)
-    has = np.isfinite(norm)
+    path, doc = write_prediction(pred, c, F, out, norm)
     method = "the normalisation method from the fitted curves"
-    if not has.any():
+    n, total = doc["normalisation_points"], doc["points"]
+    if not n:
         method += " has no value there (beyond their shear angles)"
     else:
-        method += f" {100 * _rms((norm - F) / F):.1f} %"
-        if not has.all():
-            method += f" on its {int(has.sum())} of {len(u)} points (ngbet {100 * _rms(rel[has]):.1f} % there)"
+        method += f" {100 * doc['normalisation_rms_relative_error']:.1f} %"
+        if n < total:
+            there = 100 * doc["rms_relative_error_on_normalisation_points"]
+            method += f" on its {n} of {total} points (ngbet {there:.1f} % there)"
     print(
-        f"  prediction of {c.source}: RMS relative error {100 * _rms(rel):.1f} % over {u[0]:.3g} to {u[-1]:.3g} mm; "
-        f"{method} -> {path.name}"
+        f"  prediction of {c.source}: RMS relative error {100 * doc['rms_relative_error']:.1f} % over {u[0]:.3g} to "
+        f"{u[-1]:.3g} mm; {method} -> {path.name}"
     )
     return 0
 
@@ -347,12 +347,6 @@ def _with_specimen(c: MeasuredCurve, specimen: Any, keys: dict[str, Any] | None 
     if keys is None:
         keys = {"specimen.width_mm": specimen.width_mm, "specimen.length_mm": specimen.length_mm}
     return dataclasses.replace(c, specimen={k: float(v) for k, v in keys.items() if k.startswith("specimen.")})
-
-
-def _rms(a: np.ndarray) -> float:
-    """RMS of the finite values of ``a``."""
-    a = a[np.isfinite(a)]
-    return float(np.sqrt(np.mean(a**2))) if a.size else math.nan
 
 
 def summary(result: Any, out: Path) -> str:

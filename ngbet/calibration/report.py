@@ -339,8 +339,8 @@ def prediction_json(
 
 def write_prediction(
     pred: CurvePrediction, curve: MeasuredCurve, measured: np.ndarray, out: Path, normalisation: np.ndarray
-) -> Path:
-    """predict_NAME.json and predict_NAME.png in ``out``; returns the PNG.
+) -> tuple[Path, dict[str, Any]]:
+    """predict_NAME.json and predict_NAME.png in ``out``; returns the PNG and the JSON's content.
 
     The figure: the measured curve with its points' ±2 sd (their own scatter), the prediction with
     its ±2 sd band, the normalisation method's prediction from the fitted curves (dashed), and
@@ -392,4 +392,4 @@ def write_prediction(
     fig.tight_layout()
     png = out / f"predict_{stem}.png"
     fig.savefig(png, dpi=110)
-    return png
+    return png, doc
