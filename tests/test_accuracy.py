@@ -650,6 +650,40 @@ def test_accuracy_ladder_stops_at_the_second_rung_in_a_row_that_does_not_improve
     assert a["attempts"][0]["solve_s"] >= 0.05 and a["solve_s"] >= 1.05
 
 
+def test_accuracy_ladder_ends_after_two_settings_whose_estimate_cannot_vouch(tmp_path):
+    """Estimates that cannot vouch (a state near a limit point: nearly inextensible yarns, K_el =
+    1e9 Pa, give none at 56 mm on h = 20 mm, p = 3 nor on h = 10 mm, p = 2) count as no better than
+    any, from the first rung on, as in the fits' climbs: the climb ends after two such settings
+    with exit 1 and the reason, instead of running every finer setting to its time budget."""
+    from ngbet.errors import ConvergenceError
+    from ngbet.runner import ladder
+
+    calls = []
+
+    def run_one(sc, out):
+        calls.append((sc.discretization.mesh_size_mm, sc.discretization.order_u))
+        return {"force_N": 1212.0, "force_error_rel": None, "solve_s": 1.0, "estimate_s": 0.1}
+
+    scene = default_scene().with_changes(**{"discretization.target_error": 1e-2})
+    with pytest.raises(ConvergenceError, match="could not vouch for the force at two settings in a row") as info:
+        ladder.run_to_accuracy(scene, tmp_path, run_one)
+    assert calls == [(20.0, 3), (10.0, 2)]  # the last one run stays in out: no rerun
+    assert "the last p = 2 (h = 10 mm)" in str(info.value)
+    assert not info.value.path_info["accuracy"]["met"]
+
+    calls.clear()
+    vouched = {(20.0, 3): None, (10.0, 2): 3e-2, (10.0, 3): None}
+
+    def then_one(sc, out):  # a setting that vouches, then two that do not: back to the one that did
+        key = (sc.discretization.mesh_size_mm, sc.discretization.order_u)
+        calls.append(key)
+        return {"force_N": 107.0, "force_error_rel": vouched.get(key), "solve_s": 1.0, "estimate_s": 0.1}
+
+    with pytest.raises(ConvergenceError, match=r"p = 4 \(h = 20 mm\) gives no estimate it can vouch for, the second"):
+        ladder.run_to_accuracy(scene, tmp_path, then_one)
+    assert calls == [(20.0, 3), (10.0, 2), (10.0, 3), (20.0, 4), (10.0, 2)]
+
+
 def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
     """The rungs' expected errors were measured on Netgen's meshes: a scene's corner_bisections
     does not leak into the discretizations the ladder tries."""

@@ -18,14 +18,13 @@ import numpy as np
 
 from ..measured.curves import MeasuredCurve
 from ..measured.observations import Profile, ShearAngles
-from ..runner.ladder import Rung
+from ..runner.ladder import Climb, Rung
 from ..scene.document import Scene
 from ..scene.physical import Specimen
 from ..scene.validate import SceneError
 
 __all__ = [
     "BOUND_FACTOR",
-    "Climb",
     "COARSE_LEVEL",
     "DOMAINS",
     "FINE_TOL",
@@ -263,56 +262,6 @@ STRONG_CORRELATION = 0.95
 #: what one specimen size cannot determine: held at the scene's values when the parameters are
 #: the scene's own and every curve has the same specimen (the size effect needs two sizes)
 SIZE_PARAMS = ("material.alpha1", "material.alpha2")
-
-
-@dataclass
-class Climb:
-    """A curve's climb of :data:`FIT_LADDER`: its best estimate so far, the rungs in a row not improving on it.
-
-    The climb ends, as the accuracy ladder of ``ngbet run`` does
-    (:func:`ngbet.runner.ladder.run_to_accuracy`), at the second rung in a row whose estimated error
-    is no better than the best so far; an estimate that cannot vouch (inf: the state stands near a
-    limit point, where every order fails alike) is no better than any. Finer rungs would then cost
-    more for no gain: the curve stays on :meth:`choice`, and the fit's accuracy record says the
-    target was not met.
-    """
-
-    best_rel: float = math.inf
-    best_level: int | None = None
-    first_level: int | None = None
-    worse: int = 0
-    ended: bool = False
-    reason: str = ""  # why the climb ended (empty while it goes on)
-
-    def record(self, level: int, rel: float) -> bool:
-        """Take rung ``level``'s estimate ``rel`` (above the target); True when the climb ends here."""
-        if self.first_level is None:
-            self.first_level = level
-        if math.isfinite(rel) and rel < self.best_rel:
-            self.best_rel, self.best_level, self.worse = rel, level, 0
-            return False
-        self.worse += 1
-        self.ended = self.worse >= 2
-        if self.ended:
-            self.reason = self.why(level, rel)
-        return self.ended
-
-    def why(self, level: int, rel: float) -> str:
-        """Why the climb ended at rung ``level`` (estimate ``rel``), and where the curve stays."""
-        if not self.ended:
-            said = f"estimated error {rel:.3g} on rung {level}, the finest"
-        elif self.best_level is None:
-            said = f"the error estimate cannot vouch for the force on rungs {self.first_level}-{level}"
-        else:
-            said = (
-                f"estimated error {rel:.3g} on rung {level}, no better than {self.best_rel:.3g} "
-                f"on rung {self.best_level}"
-            )
-        return f"{said}; the curve stays on rung {self.choice()}"
-
-    def choice(self) -> int | None:
-        """The rung to stay on: the best estimate's, else (none vouched) the first tried, the cheapest."""
-        return self.best_level if self.best_level is not None else self.first_level
 
 
 @dataclass

@@ -17,9 +17,10 @@ from typing import Any, cast
 
 import numpy as np
 
+from ..runner.ladder import Climb
 from ..scene.document import Scene
 from ..scene.validate import SceneError
-from .fit_params import FIRST_CHECKED, FIT_LADDER, Climb, CurveFit, with_values
+from .fit_params import FIRST_CHECKED, FIT_LADDER, CurveFit, with_values
 
 __all__ = [
     "PROBE_POINTS",
@@ -332,7 +333,7 @@ def first_levels(
     search (stiff yarns lock the cheap rungs, with errors of tens of per cent, where a search would
     only chase the discretization), and again where the coarse search ended, from the start's
     rungs up. Each curve's climb starts afresh (``CurveFit.climb``) and ends as
-    :class:`~ngbet.calibration.fit_params.Climb` says: a curve no rung vouches for stays on the
+    :class:`~ngbet.runner.ladder.Climb` says: a curve no rung vouches for stays on the
     climb's choice, the rung with the best estimate (or the first tried), not the last.
     """
     top = len(FIT_LADDER) - 1

@@ -12,7 +12,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 from ..numerics.engine import time_budget
 from ..scene.document import Scene
@@ -25,6 +25,7 @@ __all__ = [
     "RUNG_BUDGET_FACTOR",
     "RUNG_BUDGET_MIN_S",
     "THREADED_ORDER",
+    "Climb",
     "Rung",
     "first_rung",
     "reachable_accuracy",
@@ -60,6 +61,60 @@ class Rung:
         return dataclasses.replace(
             scene, discretization=d, outputs=dataclasses.replace(scene.outputs, error_estimate="final")
         )
+
+
+@dataclass
+class Climb:
+    """A climb of a ladder of discretizations: its best estimate so far, the rungs in a row not improving on it.
+
+    The one rule of both climbs, :func:`run_to_accuracy`'s and a fit's curve's
+    (:data:`ngbet.calibration.fit_params.FIT_LADDER`): the climb ends at the second rung in a row
+    whose estimated error is no better than the best so far; an estimate that cannot vouch (nan or
+    inf: the state stands near a limit point, where every order fails alike) is no better than any,
+    the first rung's included. Finer rungs would then cost more for no gain. ``level`` is the rung's
+    index in the ladder climbed; a rung that did not run (skipped, or its path failed) is not
+    recorded.
+    """
+
+    best_rel: float = math.inf
+    best_level: int | None = None
+    first_level: int | None = None
+    worse: int = 0
+    ended: bool = False
+    reason: str = ""  # why the climb ended (empty while it goes on)
+    last_level: int | None = None  # the rung recorded last, and its estimate
+    last_rel: float = math.nan
+
+    def record(self, level: int, rel: float) -> bool:
+        """Take rung ``level``'s estimate ``rel`` (above the target); True when the climb ends here."""
+        if self.first_level is None:
+            self.first_level = level
+        self.last_level, self.last_rel = level, rel
+        if math.isfinite(rel) and rel < self.best_rel:
+            self.best_rel, self.best_level, self.worse = rel, level, 0
+            return False
+        self.worse += 1
+        self.ended = self.worse >= 2
+        if self.ended:
+            self.reason = self.why(level, rel)
+        return self.ended
+
+    def why(self, level: int, rel: float) -> str:
+        """Why the climb ended at rung ``level`` (estimate ``rel``), and the rung it stays on."""
+        if not self.ended:
+            said = f"estimated error {rel:.3g} on rung {level}, the finest"
+        elif self.best_level is None:
+            said = f"the error estimate cannot vouch for the force on rungs {self.first_level}-{level}"
+        else:
+            said = (
+                f"estimated error {rel:.3g} on rung {level}, no better than {self.best_rel:.3g} "
+                f"on rung {self.best_level}"
+            )
+        return f"{said}; the curve stays on rung {self.choice()}"
+
+    def choice(self) -> int | None:
+        """The rung to stay on: the best estimate's, else (none vouched) the first tried, the cheapest."""
+        return self.best_level if self.best_level is not None else self.first_level
 
 
 #: Candidate discretizations, coarse to fine, all graded to 0.25 mm at the clamp corners: h = 20 mm
@@ -139,9 +194,10 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     the target, and stops at the second rung in a row that does not improve on the best estimate so
     far (the finer rungs would cost more for no gain; one rung is let pass because an estimate of
     one order can rise before the orders above it fall: on a fitted fabric scene 3.4e-3, 4.3e-3,
-    1.6e-3 and 3.5e-4 at p = 4, 5, 6 and 8): then the best rung is run again into ``out``
-    (unless it was the last one run) and :class:`ngbet.errors.ConvergenceError` says that the
-    target was not reached and what was.
+    1.6e-3 and 3.5e-4 at p = 4, 5, 6 and 8), an estimate that cannot vouch counting as no better
+    (:class:`Climb`, the rule of the fits' climbs too): then the best rung is run again into
+    ``out`` (unless it was the last one run; when none vouched, the last one run stays) and
+    :class:`ngbet.errors.ConvergenceError` says that the target was not reached and what was.
 
     Settings of order :data:`THREADED_ORDER` and above run on two cores where the run may use
     them and the scene leaves ``solver.threads`` at 1 (the same numbers to rounding, in about 0.6
@@ -180,9 +236,8 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     attempts: list[dict[str, Any]] = []
     summary: dict[str, Any] = {}
     rungs = LADDER[first_rung(target) :]
-    best: tuple[float, int] | None = None  # (estimated error, index in attempts)
-    stalled = ""
-    worse = 0  # rungs in a row that did not improve on the best estimate
+    climb = Climb()  # levels: indices in rungs and in attempts (one attempt per rung)
+    met_at: int | None = None
     failed_meshes: set[tuple[float, float]] = set()  # meshes on which a setting did not carry the load
     last_wall = math.inf  # the wall time of the last setting run (the first is not bounded)
     for k, rung in enumerate(rungs):
@@ -207,7 +262,7 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
             with time_budget(budget):
                 summary = run_one(_on_cores(rung.apply(scene)), out)
         except ConvergenceError as e:
-            if k == len(rungs) - 1 and best is None:
+            if k == len(rungs) - 1 and climb.best_level is None:
                 raise
             log.warning("%s: %s; trying the next setting", rung, str(e).splitlines()[0])
             wall = last_wall = time.perf_counter() - t0
@@ -238,31 +293,18 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
             }
         )
         if math.isfinite(rel) and rel <= target:
-            best = (rel, len(attempts) - 1)
+            met_at = k
             break
-        if best is not None and not (math.isfinite(rel) and rel < best[0]):
-            worse += 1
-            if worse == 2:
-                prev = attempts[best[1]]["discretization"]
-                stalled = (
-                    f"p = {rung.order_u} (h = {rung.mesh_size_mm:g} mm) estimates {rel:.2g}, the second "
-                    f"setting in a row no better than {best[0]:.2g} at p = {prev['order_u']} "
-                    f"(h = {prev['mesh_size_mm']:g} mm)"
-                )
-                break
-            log.info("estimated error %.3g no better than %.3g: one more setting", rel, best[0])
-            continue
-        worse = 0
-        if math.isfinite(rel) and (best is None or rel < best[0]):
-            best = (rel, len(attempts) - 1)
+        if climb.record(k, rel):
+            break
         log.info("estimated error %.3g above the target %.3g: refining", rel, target)
-    if best is not None and best[1] != len(attempts) - 1:  # the best setting's files in out
+    best = met_at if met_at is not None else climb.best_level
+    if best is not None and best != len(attempts) - 1:  # the best setting's files in out
         t0 = time.perf_counter()
-        rung = rungs[[dataclasses.asdict(r) for r in rungs].index(attempts[best[1]]["discretization"])]
-        summary = run_one(_on_cores(rung.apply(scene)), out)
-        attempts[best[1]]["rerun_s"] = time.perf_counter() - t0
-    chosen = attempts[best[1]] if best is not None else attempts[-1]
-    met = bool(best is not None and best[0] <= target)
+        summary = run_one(_on_cores(rungs[best].apply(scene)), out)
+        attempts[best]["rerun_s"] = time.perf_counter() - t0
+    chosen = attempts[best] if best is not None else attempts[-1]
+    met = met_at is not None
     summary["accuracy"] = {
         "target_error": target,
         "met": met,
@@ -273,11 +315,7 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     }
     msg = ""
     if not met:
-        why = stalled or (
-            f"the finest setting ngbet offers estimates {chosen['force_error_rel']:.2g}"
-            if math.isfinite(chosen["force_error_rel"])
-            else "no setting gave an error estimate"
-        )
+        why = _why_not_met(climb, rungs, chosen)
         msg = f"discretization.target_error = {target:g} not reached: {why}"
         summary["status"], summary["error"] = "failed", msg
         log.warning("%s", msg)
@@ -285,3 +323,30 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
             msg, float(summary.get("u0_reached_mm", scene.loading.u0_mm)), path_info={"accuracy": summary["accuracy"]}
         )
     return summary
+
+
+def _setting(rung: Rung) -> str:
+    return f"p = {rung.order_u} (h = {rung.mesh_size_mm:g} mm)"
+
+
+def _why_not_met(climb: Climb, rungs: tuple[Rung, ...], chosen: dict[str, Any]) -> str:
+    """Why :func:`run_to_accuracy` ends without meeting its target, for its error message."""
+    if not climb.ended:
+        return (
+            f"the finest setting ngbet offers estimates {chosen['force_error_rel']:.2g}"
+            if math.isfinite(chosen["force_error_rel"])
+            else "no setting gave an error estimate"
+        )
+    last = rungs[cast(int, climb.last_level)]
+    if climb.best_level is None:
+        return (
+            f"the error estimate could not vouch for the force at two settings in a row, the last "
+            f"{_setting(last)}: the state stands near a limit point or a locking discretization (summary.json: "
+            "error_estimate_unreliable), where every order tends to fail alike; finer settings are not tried"
+        )
+    rel = climb.last_rel
+    estimates = f"estimates {rel:.2g}" if math.isfinite(rel) else "gives no estimate it can vouch for"
+    return (
+        f"{_setting(last)} {estimates}, the second setting in a row no better than "
+        f"{climb.best_rel:.2g} at {_setting(rungs[climb.best_level])}"
+    )
