@@ -153,9 +153,16 @@ FIT_SCRIPT = textwrap.dedent(
     """
     import sys
     sys.path.insert(0, {tests!r})
+    import time
     import numpy as np
     from test_fit_parallel import curves, scene, NAMES
+    from ngbet.calibration import runs
     from ngbet.calibration.joint import fit_curves
+
+    # every model run lasts at least a second, as a real one does (the test's coarse runs take less,
+    # and the whole fit could end before the signal): in the workers too, which import this module
+    _curve_run = runs.curve_run
+    runs.curve_run = lambda job, meshes: (time.sleep(1.0), _curve_run(job, meshes))[1]
 
     if __name__ == "__main__":  # the spawned workers import this module again
         print("started", flush=True)
