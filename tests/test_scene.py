@@ -161,6 +161,46 @@ def test_a_scene_that_serves_both_tests_names_only_what_neither_reads(recwarn):
     assert not [w for w in recwarn if w.category is SceneWarning]
 
 
+def test_the_discretization_a_target_replaces_is_named_in_a_warning(recwarn):
+    """With discretization.target_error the accuracy ladder sets mesh, grading and orders on each of
+    its settings (Rung.apply sets exactly CHOSEN_BY_TARGET): the scene's own values there are named
+    as having no effect; defaults, other keys and a scene without a target are quiet."""
+    import dataclasses
+
+    from ngbet.runner.ladder import LADDER
+    from ngbet.scene.numerical import CHOSEN_BY_TARGET
+
+    with pytest.warns(
+        SceneWarning,
+        match=r"target_error = 0.01 lets ngbet choose .*: the scene's "
+        r"discretization.mesh_size_mm, discretization.order_u have no effect",
+    ):
+        s = Scene().with_changes(
+            **{"discretization.order_u": 5, "discretization.mesh_size_mm": 20.0, "discretization.target_error": 1e-2}
+        )
+    assert s.discretization.chosen_by_target() == ["discretization.mesh_size_mm", "discretization.order_u"]
+    recwarn.clear()
+    Scene().with_changes(**{"discretization.target_error": 1e-2, "discretization.quad_bonus": 1})
+    Scene().with_changes(**{"discretization.order_u": 5})
+    assert not [w for w in recwarn if w.category is SceneWarning]
+    # the keys a rung sets are those named: every one of them differs from an odd scene's
+    odd = Scene().with_changes(
+        **{
+            "discretization.mesh_size_mm": 7.0,
+            "discretization.order_u": 6,
+            "discretization.order_phi": 5,
+            "discretization.order_lam": 1,
+            "discretization.corner_mesh_size_mm": 0.0,
+            "discretization.corner_bisections": 2,
+            "discretization.target_error": 0.5,
+        }
+    )
+    on = LADDER[0].apply(odd).discretization
+    changed = {f.name for f in dataclasses.fields(on) if getattr(on, f.name) != getattr(odd.discretization, f.name)}
+    assert changed == {*CHOSEN_BY_TARGET, "target_error"} - {"structured"}
+    assert on.structured is False and "structured" in CHOSEN_BY_TARGET
+
+
 def test_keys_the_model_does_not_read_are_named_in_a_warning():
     with pytest.warns(SceneWarning, match="does not read material.alpha1"):
         s = Scene().with_changes(**{"material.alpha1": 20.0, "model": "discrete"})

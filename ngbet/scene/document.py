@@ -237,6 +237,16 @@ class Scene:
             )
         if unused:
             warnings.warn(self.unused_warning(), stacklevel=3)
+        replaced = self.discretization.chosen_by_target() if self.model == "continuum" else []
+        if replaced:
+            warnings.warn(
+                SceneWarning(
+                    f"discretization.target_error = {self.discretization.target_error:g} lets ngbet choose the mesh, "
+                    f"its grading and the orders: the scene's {', '.join(replaced)} "
+                    f"{'has' if len(replaced) == 1 else 'have'} no effect"
+                ),
+                stacklevel=3,
+            )
 
     def _check_picture_frame(self) -> None:
         """What a picture-frame test needs of the rest of the scene."""

@@ -12,6 +12,7 @@ from .physical import Material
 from .validate import AUTO, auto_or, boolean, check, choice, integer, nonnegative, positive
 
 __all__ = [
+    "CHOSEN_BY_TARGET",
     "FIELD_OUTPUTS",
     "FIGURE_FORMATS",
     "LINEAR_SOLVERS",
@@ -25,6 +26,17 @@ __all__ = [
     "Solver",
 ]
 
+#: the keys of :class:`Discretization` that the accuracy ladder sets on each of its settings when
+#: ``target_error`` > 0 (:meth:`ngbet.runner.ladder.Rung.apply`): the scene's own values go unread
+CHOSEN_BY_TARGET = (
+    "mesh_size_mm",
+    "order_u",
+    "order_phi",
+    "order_lam",
+    "corner_mesh_size_mm",
+    "corner_bisections",
+    "structured",
+)
 #: the highest polynomial order a scene may ask for: the reference at 37 mm uses p = 14 (135 873
 #: dofs on its split-corner mesh); the memory check before meshing refuses what this machine cannot hold
 MAX_ORDER = 16
@@ -99,6 +111,17 @@ class Discretization:
             self.corner_mesh_size_mm,
             "a structured mesh cannot be graded (set structured = false)",
         )
+
+    def chosen_by_target(self) -> list[str]:
+        """The keys (``discretization.<key>``) set away from their defaults that ``target_error`` replaces.
+
+        The accuracy ladder chooses mesh, grading and orders (:data:`CHOSEN_BY_TARGET`). Empty
+        without a target.
+        """
+        if not self.target_error:
+            return []
+        default = Discretization()
+        return [f"discretization.{k}" for k in CHOSEN_BY_TARGET if getattr(self, k) != getattr(default, k)]
 
     @property
     def p_u(self) -> int:
