@@ -684,6 +684,29 @@ def test_accuracy_ladder_ends_after_two_settings_whose_estimate_cannot_vouch(tmp
     assert calls == [(20.0, 3), (10.0, 2), (10.0, 3), (20.0, 4), (10.0, 2)]
 
 
+def test_an_interrupted_climb_keeps_the_settings_it_ran(tmp_path):
+    """Ctrl-C during the second setting: the interrupt goes on (the run records "interrupted" with that
+    setting's converged steps), carrying the climb's record for summary.json: the first setting's
+    force and estimate, and the interrupted one."""
+    from ngbet.runner import ladder
+
+    calls = []
+
+    def run_one(sc, out):
+        calls.append(sc.discretization.order_u)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return {"force_N": 107.5, "force_error_rel": 2e-2, "solve_s": 1.0, "estimate_s": 0.1}
+
+    scene = default_scene().with_changes(**{"discretization.target_error": 1e-2})
+    with pytest.raises(KeyboardInterrupt) as info:
+        ladder.run_to_accuracy(scene, tmp_path, run_one)
+    a = info.value.accuracy
+    assert not a["met"] and [t["discretization"]["order_u"] for t in a["attempts"]] == [3, 2]
+    assert a["attempts"][0]["force_N"] == 107.5 and a["attempts"][0]["force_error_rel"] == 2e-2
+    assert a["attempts"][1]["failed"] == "interrupted (KeyboardInterrupt)" and a["chosen"]["order_u"] == 2
+
+
 def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
     """The rungs' expected errors were measured on Netgen's meshes: a scene's corner_bisections
     does not leak into the discretizations the ladder tries."""

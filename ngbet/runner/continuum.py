@@ -50,6 +50,25 @@ def _run_rung(scene: Scene, out: Path, progress: bool, measured: Any) -> dict[st
         return run_continuum(scene, out, progress, measured)
 
 
+def _run_to_accuracy(scene: Scene, out: Path, progress: bool, measured: Any) -> dict[str, Any]:
+    """:func:`ngbet.runner.ladder.run_to_accuracy` into ``out``, its record added to summary.json.
+
+    Also where the target is not reached (status failed) and where the climb is interrupted (the
+    interrupted setting's converged steps are in ``out``, the settings before it in the record).
+    """
+    try:
+        acc = run_to_accuracy(scene, out, functools.partial(_run_rung, progress=progress, measured=measured))
+    except ConvergenceError as err:  # the target not reached: its record, then the failure
+        if "accuracy" in err.path_info:
+            RunWriter.amend(out, {"accuracy": err.path_info["accuracy"], "status": "failed", "error": str(err)})
+        raise
+    except BaseException as exc:  # interrupted: the climb so far beside the interrupted setting's steps
+        if isinstance(getattr(exc, "accuracy", None), dict) and (out / "summary.json").is_file():
+            RunWriter.amend(out, {"accuracy": exc.accuracy})  # type: ignore[attr-defined]
+        raise
+    return RunWriter.amend(out, {k: acc[k] for k in ("accuracy", "warnings") if k in acc})
+
+
 def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None) -> dict[str, Any]:
     """Run a continuum scene into ``out`` (called by :func:`ngbet.run.run`).
 
@@ -59,13 +78,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
         when the load cannot be carried to the end (the converged steps are on disk).
     """
     if scene.discretization.target_error > 0:  # accuracy on demand: the discretization is chosen
-        try:
-            acc = run_to_accuracy(scene, out, functools.partial(_run_rung, progress=progress, measured=measured))
-        except ConvergenceError as err:  # the target not reached: its record, then the failure
-            if "accuracy" in err.path_info:
-                RunWriter.amend(out, {"accuracy": err.path_info["accuracy"], "status": "failed", "error": str(err)})
-            raise
-        return RunWriter.amend(out, {k: acc[k] for k in ("accuracy", "warnings") if k in acc})
+        return _run_to_accuracy(scene, out, progress, measured)
     t0 = time.perf_counter()
     draw = functools.partial(start_plot, service=plot_service(), measured=measured)
     with RunWriter(out, scene) as writer:

@@ -279,6 +279,20 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
                 }
             )
             continue
+        except BaseException as exc:  # an interrupt: the climb so far goes with it to summary.json
+            attempts.append(
+                {
+                    "discretization": dataclasses.asdict(rung),
+                    "force_error_rel": math.nan,
+                    "force_N": None,
+                    "wall_s": time.perf_counter() - t0,
+                    "solve_s": None,
+                    "estimate_s": None,
+                    "failed": f"interrupted ({type(exc).__name__})",
+                }
+            )
+            exc.accuracy = _record(target, False, attempts[-1], attempts)  # type: ignore[attr-defined]
+            raise
         last_wall = time.perf_counter() - t0
         rel = summary.get("force_error_rel")
         rel = math.nan if rel is None else rel
@@ -305,14 +319,7 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
         attempts[best]["rerun_s"] = time.perf_counter() - t0
     chosen = attempts[best] if best is not None else attempts[-1]
     met = met_at is not None
-    summary["accuracy"] = {
-        "target_error": target,
-        "met": met,
-        "chosen": chosen["discretization"],
-        "attempts": attempts,
-        "wall_s": sum(a["wall_s"] + a.get("rerun_s", 0.0) for a in attempts),
-        "solve_s": sum(a["solve_s"] or 0.0 for a in attempts),
-    }
+    summary["accuracy"] = _record(target, met, chosen, attempts)
     msg = ""
     if not met:
         why = _why_not_met(climb, rungs, chosen)
@@ -350,3 +357,19 @@ def _why_not_met(climb: Climb, rungs: tuple[Rung, ...], chosen: dict[str, Any]) 
         f"{_setting(last)} {estimates}, the second setting in a row no better than "
         f"{climb.best_rel:.2g} at {_setting(rungs[climb.best_level])}"
     )
+
+
+def _record(target: float, met: bool, chosen: dict[str, Any], attempts: list[dict[str, Any]]) -> dict[str, Any]:
+    """The ``accuracy`` record of summary.json.
+
+    The target, whether it was met, the setting whose files are in the run folder, every attempt,
+    and their times.
+    """
+    return {
+        "target_error": target,
+        "met": met,
+        "chosen": chosen["discretization"],
+        "attempts": attempts,
+        "wall_s": sum(a["wall_s"] + a.get("rerun_s", 0.0) for a in attempts),
+        "solve_s": sum(a["solve_s"] or 0.0 for a in attempts),
+    }
