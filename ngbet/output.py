@@ -331,14 +331,26 @@ class RunWriter:
         self.write_json("summary.json", self._summary)
 
     @classmethod
-    def amend(cls, out: str | Path, updates: dict[str, Any]) -> dict[str, Any]:
+    def amend(cls, out: str | Path, updates: dict[str, Any], scene: Scene | None = None) -> dict[str, Any]:
         """Add ``updates`` to the summary.json of a finished run in ``out`` (under its lock); returns it.
 
-        ``files`` is taken from the folder's registry, the rest of the summary is kept.
+        ``files`` is taken from the folder's registry, the rest of the summary is kept. ``scene``:
+        the scene the folder answers for, where it is not the one that was solved (an accuracy
+        target's, whose ladder solved it on a discretization of its own choice): it replaces
+        scene.toml (atomically) and the summary's ``scene`` and ``scene_digest``, so that running
+        scene.toml again, or a study's cache, finds the scene that was asked for.
         """
         out = Path(out)
         fh, registry = acquire_run_folder(out)
         try:
+            if scene is not None:
+                tmp = out / (TMP_PREFIX + "scene.toml")
+                try:
+                    file_op(tmp, lambda p: p.write_text(scene.to_toml()))
+                    file_op(out / "scene.toml", lambda p: os.replace(tmp, p))
+                finally:
+                    tmp.unlink(missing_ok=True)
+                updates = {**updates, "scene": scene.to_dict(), "scene_digest": scene.digest()}
             s = json.loads(file_op(out / "summary.json", lambda p: p.read_text()))
             s.update(updates)
             s["files"] = sorted(n for n in registry if (out / n).is_file())

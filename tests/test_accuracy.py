@@ -707,6 +707,26 @@ def test_an_interrupted_climb_keeps_the_settings_it_ran(tmp_path):
     assert a["attempts"][1]["failed"] == "interrupted (KeyboardInterrupt)" and a["chosen"]["order_u"] == 2
 
 
+def test_a_sweep_over_the_accuracy_target_stores_its_cases(tmp_path):
+    """An accuracy target's run is solved on the discretization its ladder chooses, but its folder
+    answers for the scene asked for (scene.toml with the target, which run again gives the same
+    forces): a study's cache takes its cases, and a second sweep reads them from there."""
+    from ngbet.tables import read_rows
+
+    out, cache = tmp_path / "sweep", tmp_path / "c"
+    argv = ["sweep", "discretization.target_error=1e-2", "--quiet", "--out", str(out), "--cache", str(cache)]
+    assert main(argv) == 0
+    rows = read_rows(out / "results.csv")
+    assert {r["status"] for r in rows} == {"ok"} and rows[-1]["force_error_N"] <= 1e-2 * rows[-1]["force_N"]
+    (case,) = [d for d in cache.rglob("case.json")]
+    asked = Scene.from_toml(case.parent / "scene.toml")
+    summary = json.loads((case.parent / "summary.json").read_text())
+    assert asked.discretization.target_error == 1e-2 and summary["scene_digest"] == asked.digest()
+    assert summary["accuracy"]["chosen"]["order_u"] == 3 and summary["accuracy"]["met"]
+    assert main(argv) == 0
+    assert [c["cached"] for c in json.loads((out / "meta.json").read_text())["cases"]] == [True]
+
+
 def test_accuracy_ladder_owns_the_corner_bisections(tmp_path):
     """The rungs' expected errors were measured on Netgen's meshes: a scene's corner_bisections
     does not leak into the discretizations the ladder tries."""

@@ -55,18 +55,21 @@ def _run_to_accuracy(scene: Scene, out: Path, progress: bool, measured: Any) -> 
 
     Also where the target is not reached (status failed) and where the climb is interrupted (the
     interrupted setting's converged steps are in ``out``, the settings before it in the record).
+    The folder's scene.toml is ``scene`` as asked, with its target (the discretization that ran:
+    ``accuracy.chosen``): run again, it gives the same folder.
     """
     try:
         acc = run_to_accuracy(scene, out, functools.partial(_run_rung, progress=progress, measured=measured))
     except ConvergenceError as err:  # the target not reached: its record, then the failure
         if "accuracy" in err.path_info:
-            RunWriter.amend(out, {"accuracy": err.path_info["accuracy"], "status": "failed", "error": str(err)})
+            record = {"accuracy": err.path_info["accuracy"], "status": "failed", "error": str(err)}
+            RunWriter.amend(out, record, scene)
         raise
     except BaseException as exc:  # interrupted: the climb so far beside the interrupted setting's steps
         if isinstance(getattr(exc, "accuracy", None), dict) and (out / "summary.json").is_file():
-            RunWriter.amend(out, {"accuracy": exc.accuracy})  # type: ignore[attr-defined]
+            RunWriter.amend(out, {"accuracy": exc.accuracy}, scene)  # type: ignore[attr-defined]
         raise
-    return RunWriter.amend(out, {k: acc[k] for k in ("accuracy", "warnings") if k in acc})
+    return RunWriter.amend(out, {k: acc[k] for k in ("accuracy", "warnings") if k in acc}, scene)
 
 
 def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None) -> dict[str, Any]:
