@@ -163,7 +163,8 @@ class Result:
     out : Path
         The run folder (a temporary one with ``simulate(scene)``; it lives as long as this object).
     scene : Scene
-        The complete scene that was run.
+        The complete scene that was run (with an accuracy target, as asked: the discretization its
+        ladder chose is ``summary["accuracy"]["chosen"]``).
     summary : dict
         ``summary.json``: status, dofs, timings, versions, warnings (docs/outputs.md).
     columns : dict[str, numpy.ndarray]
