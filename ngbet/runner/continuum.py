@@ -53,8 +53,9 @@ def _run_rung(scene: Scene, out: Path, progress: bool, measured: Any) -> dict[st
 def _run_to_accuracy(scene: Scene, out: Path, progress: bool, measured: Any) -> dict[str, Any]:
     """:func:`ngbet.runner.ladder.run_to_accuracy` into ``out``, its record added to summary.json.
 
-    Also where the target is not reached (status failed) and where the climb is interrupted (the
-    interrupted setting's converged steps are in ``out``, the settings before it in the record).
+    Also where the target is not reached (status failed) and where the climb is interrupted or
+    stops on an error (that setting's converged steps are in ``out``, the settings before it in the
+    record).
     The folder's scene.toml is ``scene`` as asked, with its target (the discretization that ran:
     ``accuracy.chosen``): run again, it gives the same folder.
     """
@@ -65,7 +66,7 @@ def _run_to_accuracy(scene: Scene, out: Path, progress: bool, measured: Any) -> 
             record = {"accuracy": err.path_info["accuracy"], "status": "failed", "error": str(err)}
             RunWriter.amend(out, record, scene)
         raise
-    except BaseException as exc:  # interrupted: the climb so far beside the interrupted setting's steps
+    except BaseException as exc:  # interrupted, or an error: the climb so far beside that setting's steps
         if isinstance(getattr(exc, "accuracy", None), dict) and (out / "summary.json").is_file():
             RunWriter.amend(out, {"accuracy": exc.accuracy}, scene)  # type: ignore[attr-defined]
         raise

@@ -279,7 +279,7 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
                 }
             )
             continue
-        except BaseException as exc:  # an interrupt: the climb so far goes with it to summary.json
+        except BaseException as exc:  # an interrupt (or an error): the climb so far goes with it to summary.json
             attempts.append(
                 {
                     "discretization": dataclasses.asdict(rung),
@@ -288,7 +288,11 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
                     "wall_s": time.perf_counter() - t0,
                     "solve_s": None,
                     "estimate_s": None,
-                    "failed": f"interrupted ({type(exc).__name__})",
+                    "failed": (
+                        f"interrupted ({type(exc).__name__})"
+                        if isinstance(exc, KeyboardInterrupt)
+                        else f"{type(exc).__name__}: {exc}"
+                    ),
                 }
             )
             exc.accuracy = _record(target, False, attempts[-1], attempts)  # type: ignore[attr-defined]
