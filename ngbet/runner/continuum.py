@@ -55,9 +55,8 @@ def _run_to_accuracy(scene: Scene, out: Path, progress: bool, measured: Any) -> 
 
     Also where the target is not reached (status failed) and where the climb is interrupted or
     stops on an error (that setting's converged steps are in ``out``, the settings before it in the
-    record).
-    The folder's scene.toml is ``scene`` as asked, with its target (the discretization that ran:
-    ``accuracy.chosen``): run again, it gives the same folder.
+    record). The folder's scene.toml is ``scene`` as asked, with its target (the discretization
+    that ran: ``accuracy.chosen``): run again, it gives the same results.
     """
     try:
         acc = run_to_accuracy(scene, out, functools.partial(_run_rung, progress=progress, measured=measured))

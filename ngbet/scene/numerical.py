@@ -344,7 +344,7 @@ class Discrete:
 
     def __post_init__(self) -> None:
         positive("discrete", self, "EA1", "EA2", "spacing_mm")
-        nonnegative("discrete", self, "EI1", "EI2", "K_phi", "K_slip", "K_inter")
+        nonnegative("discrete", self, "K_phi", "K_slip", "K_inter")
         for key in ("EI1", "EI2"):
             check(
                 getattr(self, key) > 0,
