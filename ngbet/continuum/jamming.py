@@ -111,6 +111,13 @@ class JammingBarrier:
         """Whether the barrier is evaluated on some element (a state came near it, or a relaxation runs)."""
         return bool(self._where.any())
 
+    @property
+    def patch(self) -> np.ndarray | None:
+        """The elements the barrier is on (a mask), None where it is on none or on every element."""
+        if not self._where.any() or self._where.all():
+            return None
+        return self._where
+
     def switch_on(self) -> None:
         """Evaluate the barrier on every element until the next solved state (:meth:`watch`)."""
         self.elements.Set()

@@ -47,6 +47,7 @@ import numpy as np
 from ..numerics.compiled import add_energy
 from ..numerics.linear import LinearSolver, NewtonLinearSolver, energy_form, pick_inverse
 from ..numerics.settings import SolverSettings
+from .patch import BarrierPatch
 from .problem import ContinuumProblem
 
 __all__ = ["ContinuumSolver"]
@@ -91,6 +92,10 @@ class ContinuumSolver:
         )
         forms = [(self.a, linearized)] if self.linear.form is self.a else [(self.a, False), (self.linear.form, True)]
         problem.jamming.add_to(forms)
+        #: Newton on the barrier's elements with the rest held, before each linearization
+        #: (:meth:`settle`): for a problem with the barrier and without a multiplier, else None
+        jamming = problem.scene.effects.jamming
+        self.patch = BarrierPatch(problem) if jamming and "lam" not in problem.field_names else None
         #: the problem as the numerics see it (:class:`~ngbet.numerics.newton.AdmissibleState`): the
         #: load, the Dirichlet entries, the norm, what is admissible
         self.state = problem
@@ -147,6 +152,13 @@ class ContinuumSolver:
             return E
         rho = self.linear.K_aug or pb.scene.effects.penalty_K
         return E + 0.5 * rho * pb.constraint_moments(r)
+
+    def settle(self, tol: float) -> int:
+        """The residual on the unknowns of the barrier's elements solved, the rest held; the iterations (0: none).
+
+        :meth:`BarrierPatch.settle` (:class:`~ngbet.numerics.newton.Settling`); 0 without a patch.
+        """
+        return self.patch.settle(tol) if self.patch is not None else 0
 
     # --------------------------------------------------------------------------- linear algebra
     def factorize(self, shift: float = 0.0) -> float:

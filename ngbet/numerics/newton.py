@@ -33,6 +33,7 @@ __all__ = [
     "NewtonReport",
     "Problem",
     "Relaxable",
+    "Settling",
     "State",
     "failure_pattern",
     "newton",
@@ -159,6 +160,17 @@ class JammingWatch(Protocol):
         """Whether the state just found lies past the barrier while it was off (it is on now: solve again)."""
 
 
+class Settling(Protocol):
+    """A problem that can drive its residual to zero on a few stiff unknowns, the rest held.
+
+    The continuum's jamming barrier in contact (:class:`ngbet.continuum.patch.BarrierPatch`):
+    Newton's full steps contract slowly there, and only there.
+    """
+
+    def settle(self, tol: float) -> int:
+        """Newton on those unknowns until their decrement is at most ``tol``; the iterations (0: x untouched)."""
+
+
 class Locating(Protocol):
     """A problem that can say where a change of state lives (a snap-through's place)."""
 
@@ -178,15 +190,25 @@ class NewtonReport:
     residual: np.ndarray | None = None  # r at the returned state (reactions come from it)
     #: ‖next correction‖ / ‖last correction‖ where measured (one-step estimates), else nan
     contraction: float = math.nan
+    #: iterations of the local solves before the linearizations (``settle``; 0 without)
+    settled: int = 0
 
 
 def newton(
-    problem: Problem, settings: NewtonSettings, e_ref: float, factorized: bool = False, r: np.ndarray | None = None
+    problem: Problem,
+    settings: NewtonSettings,
+    e_ref: float,
+    factorized: bool = False,
+    r: np.ndarray | None = None,
+    settle: Settling | None = None,
 ) -> NewtonReport:
     """Damped Newton from the current x at fixed load; on failure x is left where it stopped.
 
     ``factorized``: the problem's last factorization is that at the current x (the first iteration
-    uses it); ``r``: the residual there, when at hand.
+    uses it); ``r``: the residual there, when at hand. ``settle``: before each new linearization
+    the problem's stiff unknowns are solved with the rest held (nonlinear elimination,
+    :class:`Settling`, to the tolerance of the test below); the test itself is unchanged, on the
+    global decrement.
     """
     history: list[float] = []
     damping: list[float] = []
@@ -195,9 +217,16 @@ def newton(
         return NewtonReport(False, 0, history, damping, "residual is not finite at the start")
     tol = settings.rtol * abs(e_ref) + settings.atol
     theta_last = math.inf  # the contraction of the last full step
+    settled = 0
     for it in range(1, settings.max_iterations + 1):
         reuse = it > 1 and theta_last <= settings.reuse_contraction
         if not reuse and (it > 1 or not factorized):
+            local = settle.settle(tol) if settle is not None else 0
+            if local > 0:
+                settled += local
+                r = problem.residual()
+                if not np.all(np.isfinite(r)):
+                    return NewtonReport(False, it, history, damping, "residual is not finite after the local solve")
             problem.factorize()
         tol_it = tol * (1.0 - theta_last) if reuse else tol  # a chord decrement (chord module)
         dx = problem.solve(r)
@@ -211,14 +240,16 @@ def newton(
         lam, r, dx_bar, theta = step
         damping.append(lam)
         if delta <= tol_it and lam == 1.0:
-            return NewtonReport(True, it, history, damping, "converged", residual=r)
+            return NewtonReport(True, it, history, damping, "converged", residual=r, settled=settled)
         theta_last = theta if lam == 1.0 and dx_bar is not None else math.inf
         if dx_bar is not None and lam == 1.0 and theta <= settings.simplified_theta:
             done = _simplified_exit(problem, dx_bar, r, tol_it)
             if done is not None:
                 history.append(done[0])
-                return NewtonReport(True, it, history, damping, "converged (simplified correction)", residual=done[1])
-    return NewtonReport(False, settings.max_iterations, history, damping, "iteration limit")
+                return NewtonReport(
+                    True, it, history, damping, "converged (simplified correction)", residual=done[1], settled=settled
+                )
+    return NewtonReport(False, settings.max_iterations, history, damping, "iteration limit", settled=settled)
 
 
 def _damped_step(

@@ -40,9 +40,19 @@ from collections.abc import Callable, Generator, Sequence
 import numpy as np
 
 from ..errors import Attempt, ConvergenceError
-from .chord import ChordRows
+from .chord import ChordRows, tangent_at_hand
 from .engine import Outcome, PathResult, StepRecord, path_steps
-from .newton import Diagnosis, JammingWatch, Locating, NewtonReport, Problem, Relaxable, failure_pattern, newton
+from .newton import (
+    Diagnosis,
+    JammingWatch,
+    Locating,
+    NewtonReport,
+    Problem,
+    Relaxable,
+    Settling,
+    failure_pattern,
+    newton,
+)
 from .relax import RelaxSettings, relax
 from .settings import NewtonSettings, PathSettings
 
@@ -78,7 +88,8 @@ class SaddlePointNewton:
     A tangent (or clamp) predictor and the damped Newton :func:`newton` on a :class:`Problem`.
     The capabilities are explicit: ``hessian`` (the problem again, when its Newton matrix is a
     Hessian) relaxes a short increment that fails (``relax_below`` > 0), ``watch`` is asked after
-    each converged correction whether a barrier was missed, ``locate`` says where a snap-through lives.
+    each converged correction whether a barrier was missed, ``locate`` says where a snap-through lives,
+    ``settle`` solves the problem's stiff unknowns before each linearization (:func:`newton`).
 
     The load tangent ∂x/∂λ comes from the factorization at hand (that of the last Newton
     iteration of the accepted step, or a fresh one after a rejected trial); it is computed when a
@@ -96,6 +107,7 @@ class SaddlePointNewton:
         hessian: Relaxable | None = None,
         watch: JammingWatch | None = None,
         locate: Locating | None = None,
+        settle: Settling | None = None,
         relax_below: float = 0.0,
         relax_settings: RelaxSettings = RELAX_DEFAULTS,
         chord_at: Sequence[float] = (),
@@ -105,6 +117,7 @@ class SaddlePointNewton:
         if relax_below > 0 and hessian is None:
             raise ValueError("relax_below > 0 needs hessian (a problem whose Newton matrix is a Hessian)")
         self.problem, self.hessian, self.watch, self.locate = problem, hessian, watch, locate
+        self.settle = settle
         self.on_relax = on_relax  # told of each relaxation: (load [m], the branch left, snap?)
         self._left: tuple[float, np.ndarray, bool] | None = None
         #: the loads where a chord correction with the factorization at hand is tried first
@@ -172,7 +185,7 @@ class SaddlePointNewton:
             e_ref = p.energy()
             e_ref = e_ref if math.isfinite(e_ref) else 0.0
         self.chord.refactorized()  # Newton factorizes anew
-        self.report = rep = newton(p, self.settings, e_ref)
+        self.report = rep = newton(p, self.settings, e_ref, settle=self.settle)
         if not rep.converged and h < self.relax_below and self._predicted is not None and _stalled(rep):
             return self._relax(u0, h, e_ref, rep)
         if rep.converged and self._jamming_missed():
@@ -181,7 +194,7 @@ class SaddlePointNewton:
             # too short to cut: the same increment again with the barrier everywhere, relaxed where Newton fails
             first = rep
             p.x[:] = self._predicted
-            self.report = rep = newton(p, self.settings, e_ref)
+            self.report = rep = newton(p, self.settings, e_ref, settle=self.settle)
             if not rep.converged and _stalled(rep):
                 return self._relax(u0, h, e_ref, rep)
             return Outcome(
@@ -255,15 +268,20 @@ class SaddlePointNewton:
         self.chord.converged(u0 + h, self.problem.x, None if self._tangent is None else (u0, self._tangent))
         self._tangent = None
         dR = math.nan
-        if self._chorded:  # the factorization is an earlier state's: the tangent refined (chord module)
-            if self.settings.predictor == "tangent" or self._psi is not None:
+        # the factorization is an earlier state's (a chord row, or Newton's single linearization
+        # before the local solves moved the state far): the tangent refined (chord module)
+        refined = self._chorded or self.report.settled > 0
+        if refined and (self.settings.predictor == "tangent" or self._psi is not None):
+            if self._chorded:
                 found = self.chord.tangent(self.problem, self._psi, u0 + h, self.report.residual)
-                if found is None:  # too far from the factorization: the tangent of a new one
-                    self.problem.factorize()
-                    self.chord.refactorized()
-                    self._chorded = False
-                else:
-                    self._tangent, dR = found
+            else:
+                found = tangent_at_hand(self.problem, self._psi, self.chord.fd_step, self.report.residual)
+            if found is None:  # too far from the factorization: the tangent of a new one
+                self.problem.factorize()
+                self.chord.refactorized()
+                refined = False
+            else:
+                self._tangent, dR = found
         rec = StepRecord(
             0,
             u0 + h,
@@ -286,7 +304,7 @@ class SaddlePointNewton:
             self.chord.forget()  # a jump: no extrapolation across it
         if self._left is not None and self.on_relax is not None:
             self.on_relax(*self._left)
-        if self._chorded:
+        if refined:
             rec.dforce_du0 = dR
         elif self.settings.predictor == "tangent" and self._psi is not None:
             rec.dforce_du0 = self.problem.load_derivative(self._psi, self._load_tangent())
@@ -322,6 +340,7 @@ def load_steps(
     hessian: Relaxable | None = None,
     watch: JammingWatch | None = None,
     locate: Locating | None = None,
+    settle: Settling | None = None,
     diagnose: Callable[[], Diagnosis] | None = None,
     psi: np.ndarray | None = None,
     arclength: ArcLength | None = None,
@@ -337,8 +356,8 @@ def load_steps(
 
     ``hessian`` is ``problem`` itself when its Newton matrix is a Hessian (relaxation, and the chord
     rows of ``path.chord_at``, which measure their contraction in its energy norm; None: neither),
-    ``watch`` and ``locate`` the problem's barrier watch and snap locator where it has them
-    (:class:`SaddlePointNewton`). Raises ValueError at once for an unknown ``path_following`` or arc
+    ``watch``, ``locate`` and ``settle`` the problem's barrier watch, snap locator and local solve
+    where it has them (:class:`SaddlePointNewton`). Raises ValueError at once for an unknown ``path_following`` or arc
     length without ``arclength``; :class:`~ngbet.errors.ConvergenceError` while iterating, below
     ``min_step`` or after ``max_attempts`` increments, with the failures' pattern and what
     ``diagnose()`` finds.
@@ -357,6 +376,7 @@ def load_steps(
             hessian=hessian,
             watch=watch,
             locate=locate,
+            settle=settle,
             relax_below=below,
             chord_at=chord_at,
             length=path.length,
@@ -368,7 +388,9 @@ def load_steps(
     if path.path_following == "arclength":
         return arclength(PathResult(0.0))
     # where displacement control fails arc length diagnoses: no eigen-solve here
-    corrector = SaddlePointNewton(problem, settings, psi=psi, watch=watch, chord_at=chord_at, length=path.length)
+    corrector = SaddlePointNewton(
+        problem, settings, psi=psi, watch=watch, settle=settle, chord_at=chord_at, length=path.length
+    )
     return _auto_steps(corrector, path, arclength)
 
 

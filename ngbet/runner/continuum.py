@@ -157,6 +157,7 @@ def load_path(problem: ContinuumSolver, scene: Scene) -> Generator[StepRecord, N
         hessian=problem if problem.can_relax else None,
         watch=problem.problem,
         locate=problem.problem,
+        settle=problem if problem.patch is not None else None,
         diagnose=lambda: _diagnose(problem),
         psi=psi,
         arclength=arclength,
