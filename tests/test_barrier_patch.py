@@ -74,18 +74,21 @@ def test_the_newton_step_solves_the_linearized_residual_with_the_barrier_in_cont
 
 def test_the_local_solve_zeroes_the_residual_on_the_barriers_unknowns_and_holds_the_rest():
     """The patch's residual is the global one on its rows (to round-off); settling drives it below the
-    tolerance on those rows and leaves every other entry of the state as it was."""
+    tolerance on those rows, leaves every other entry of the state as it was and brings the global
+    residual handed to it along to the state settled (to round-off)."""
     solver = _sheared_first_gradient()
     patch = solver.patch
     assert patch is not None
     x0 = solver.x.copy()
     r0 = solver.residual()
-    assert solver.settle(1e-12) > 0
+    r = r0.copy()
+    assert solver.settle(1e-12, r) > 0
     rows = patch.rows
     assert rows.size > 0 and not np.any(solver.dirichlet[rows])
     local = patch.residual()
     r1 = solver.residual()
     assert np.max(np.abs(local[rows] - r1[rows])) <= 1e-10 * np.max(np.abs(r1))
+    assert np.max(np.abs(r - r1)) <= 1e-10 * np.max(np.abs(r0))  # the residual brought along
     assert np.linalg.norm(r1[rows]) < 1e-6 * np.linalg.norm(r0[rows])
     others = np.ones(x0.size, bool)
     others[rows] = False

@@ -52,6 +52,7 @@ class BarrierPatch:
         self._parts: list[ngs.CoefficientFunction] = []  # the energy's parts, compiled when first needed
         self._key: bytes | None = None
         self._form: ngs.BilinearForm | None = None
+        self._inverse: ngs.BaseMatrix | None = None  # the factorization of the patch's block, its analysis kept
         self._rows = np.zeros(0, dtype=np.int64)
         self._bits = ngs.BitArray(problem.X.ndof)
         self._ext = ngs.BitArray(problem.mesh.ne)
@@ -94,7 +95,7 @@ class BarrierPatch:
         finally:
             ngs.ngsglobals.symbolic_integrator_uses_diff = before
         pb.jamming.add_to([(form, True)])
-        self._form = form
+        self._form, self._inverse = form, None
 
     @property
     def rows(self) -> np.ndarray:
@@ -107,12 +108,15 @@ class BarrierPatch:
         self._form.Apply(self.problem.gf.vec, self._r)
         return np.array(self._r.FV().NumPy())
 
-    def settle(self, tol: float, max_iterations: int = LOCAL_ITERATIONS) -> int:
+    def settle(self, tol: float, r: np.ndarray, max_iterations: int = LOCAL_ITERATIONS) -> int:
         """Newton on the patch's unknowns, the rest held, until its decrement |d·r| ≤ ``tol``; the iterations taken.
 
-        0 (the state untouched) where the barrier is on no element or on all of them (a relaxation),
-        and where the local iteration stops contracting or leaves the finite numbers: then the state
-        is that of the call, and the global Newton goes on from it as without the patch.
+        ``r``, the problem's residual at the state of the call, is brought to the state settled in
+        place: only the elements touching the patch's unknowns contribute to its change, which is
+        that of the patch's residual (exact to round-off). 0 (state and ``r`` untouched) where the
+        barrier is on no element or on all of them (a relaxation), and where the local iteration
+        stops contracting or leaves the finite numbers: the global Newton goes on from the state of
+        the call as without the patch.
         """
         elements = self.problem.jamming.patch
         if elements is None:
@@ -125,23 +129,38 @@ class BarrierPatch:
         assert self._form is not None
         x, rows, vec = self.problem.x, self._rows, self.problem.gf.vec
         start = x[rows].copy()
+        before: np.ndarray | None = None  # the patch's residual at the state of the call
         last = np.inf
         taken = 0
         for taken in range(1, max_iterations + 1):
             self._form.AssembleLinearization(vec)
-            inverse = self._form.mat.Inverse(self._bits, inverse="sparsecholesky")
+            if self._inverse is None:
+                self._inverse = self._form.mat.Inverse(self._bits, inverse="sparsecholesky")
+            else:  # the same pattern: its analysis reused
+                self._inverse.Update()
+            inverse = self._inverse
             self._form.Apply(vec, self._r)
+            if before is None:
+                before = np.array(self._r.FV().NumPy())
             self._d.data = inverse * self._r
-            d, r = self._d.FV().NumPy()[rows], self._r.FV().NumPy()[rows]
-            delta = abs(float(d @ r))
+            d, rp = self._d.FV().NumPy()[rows], self._r.FV().NumPy()[rows]
+            delta = abs(float(d @ rp))
             if not np.isfinite(delta) or delta >= last:
-                x[rows] = start
                 taken = 0
                 break
             x[rows] -= d
             last = delta
             if delta <= tol:
                 break
+        if taken > 0:
+            after = self.residual()
+            if np.all(np.isfinite(after)):
+                assert before is not None
+                r += after - before
+            else:
+                taken = 0
+        if taken == 0:
+            x[rows] = start
         self.iterations += taken
         self.time_s += time.process_time() - t0
         return taken

@@ -153,12 +153,13 @@ class ContinuumSolver:
         rho = self.linear.K_aug or pb.scene.effects.penalty_K
         return E + 0.5 * rho * pb.constraint_moments(r)
 
-    def settle(self, tol: float) -> int:
+    def settle(self, tol: float, r: np.ndarray) -> int:
         """The residual on the unknowns of the barrier's elements solved, the rest held; the iterations (0: none).
 
+        ``r`` (the residual at the current state) is brought to the state settled in place:
         :meth:`BarrierPatch.settle` (:class:`~ngbet.numerics.newton.Settling`); 0 without a patch.
         """
-        return self.patch.settle(tol) if self.patch is not None else 0
+        return self.patch.settle(tol, r) if self.patch is not None else 0
 
     # --------------------------------------------------------------------------- linear algebra
     def factorize(self, shift: float = 0.0) -> float:

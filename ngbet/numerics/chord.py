@@ -44,7 +44,7 @@ from typing import cast
 
 import numpy as np
 
-from .newton import NewtonReport, Problem
+from .newton import NewtonReport, Problem, Settling
 from .settings import NewtonSettings
 
 __all__ = [
@@ -92,6 +92,7 @@ def chord(
     max_contraction: float = CHORD_CONTRACTION,
     refactorizations: int = 1,
     prior: float = math.nan,
+    settle: Settling | None = None,
 ) -> NewtonReport:
     """Modified Newton from the current x with the factorization at hand (module docstring).
 
@@ -99,7 +100,10 @@ def chord(
     at the current iterate (at most ``refactorizations`` times) and the iteration goes on with that
     factorization. ``prior``: the contraction this factorization showed at the last load, which
     the first step may be judged by (``report.contraction`` says which factorization it was:
-    nan after a new one). On failure x is left where it stopped (the caller restores it).
+    nan after a new one). ``settle``: before each step the problem's stiff unknowns are solved
+    with the rest held (:class:`~ngbet.numerics.newton.Settling`, to the chord's own tolerance),
+    so that the chord corrects the smooth rest. On failure x is left where it stopped (the caller
+    restores it).
     """
     history: list[float] = []
     r = problem.residual()
@@ -107,7 +111,9 @@ def chord(
         return NewtonReport(False, 0, history, [], "residual is not finite at the start")
     tol = settings.rtol * abs(e_ref) + settings.atol
     previous = math.nan  # the last decrement with the present factorization
+    settled = 0
     for it in range(1, max_iterations + 1):
+        settled += settle.settle(CHORD_MARGIN * tol, r) if settle is not None else 0
         dx = problem.solve(r)
         delta = abs(float(dx @ r))
         theta = math.sqrt(delta / previous) if previous > 0 else prior if it == 1 else math.nan
@@ -126,9 +132,11 @@ def chord(
             return NewtonReport(False, it, history, [], "residual is not finite")
         if delta == 0.0 or (math.isfinite(theta) and delta <= (1.0 - theta) * CHORD_MARGIN * tol):
             measured = theta if it > 1 else prior
-            return NewtonReport(True, it, history, [1.0] * it, "converged (chord)", residual=r, contraction=measured)
+            return NewtonReport(
+                True, it, history, [1.0] * it, "converged (chord)", residual=r, contraction=measured, settled=settled
+            )
         previous = delta
-    return NewtonReport(False, max_iterations, history, [], "chord iteration limit")
+    return NewtonReport(False, max_iterations, history, [], "chord iteration limit", settled=settled)
 
 
 def extrapolate(states: list[tuple[float, np.ndarray]], lam: float) -> np.ndarray:
@@ -235,9 +243,11 @@ class ChordRows:
             return None
         return extrapolate(s, u0 + h)
 
-    def correct(self, problem: Problem, settings: NewtonSettings, e_ref: float) -> NewtonReport:
+    def correct(
+        self, problem: Problem, settings: NewtonSettings, e_ref: float, settle: Settling | None = None
+    ) -> NewtonReport:
         """:func:`chord` from the predicted state, judged by the contraction at hand; counts a hand-over."""
-        rep = chord(problem, settings, e_ref, prior=self.contraction)
+        rep = chord(problem, settings, e_ref, prior=self.contraction, settle=settle)
         self.contraction = rep.contraction if rep.converged else math.nan
         if not rep.converged:
             self.handovers += 1

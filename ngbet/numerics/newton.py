@@ -167,8 +167,11 @@ class Settling(Protocol):
     Newton's full steps contract slowly there, and only there.
     """
 
-    def settle(self, tol: float) -> int:
-        """Newton on those unknowns until their decrement is at most ``tol``; the iterations (0: x untouched)."""
+    def settle(self, tol: float, r: np.ndarray) -> int:
+        """Newton on those unknowns until their decrement is at most ``tol``; the iterations (0: x untouched).
+
+        ``r``, the residual at the current x, is updated in place to the residual at the x settled.
+        """
 
 
 class Locating(Protocol):
@@ -221,12 +224,7 @@ def newton(
     for it in range(1, settings.max_iterations + 1):
         reuse = it > 1 and theta_last <= settings.reuse_contraction
         if not reuse and (it > 1 or not factorized):
-            local = settle.settle(tol) if settle is not None else 0
-            if local > 0:
-                settled += local
-                r = problem.residual()
-                if not np.all(np.isfinite(r)):
-                    return NewtonReport(False, it, history, damping, "residual is not finite after the local solve")
+            settled += settle.settle(tol, r) if settle is not None else 0
             problem.factorize()
         tol_it = tol * (1.0 - theta_last) if reuse else tol  # a chord decrement (chord module)
         dx = problem.solve(r)

@@ -175,7 +175,7 @@ class SaddlePointNewton:
         self._jump = self._left = None
         self._chorded = False
         if self._factorized and self.chord.due(u0 + h):
-            self.report = rep = self.chord.correct(p, self.settings, e_ref)
+            self.report = rep = self.chord.correct(p, self.settings, e_ref, settle=self.settle)
             if rep.converged and not self._jamming_missed():
                 self._chorded = True
                 return Outcome("converged", rep.iterations, list(rep.history), rep.reason)
