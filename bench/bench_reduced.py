@@ -9,10 +9,11 @@ they close, and at 19.8 mm the corner snaps shut (a limit point of the displacem
 path: from 18.4° to the jamming angle, where the barrier, K_jam = max(K_el, K_sh), holds it;
 without the barrier, ``effects.jamming = false``, to -37°, yarns crossed). The increments cut
 towards the limit point, the relaxation past it and the Newton iterations of the corner in
-contact are the extra cost; the full model, whose corners stay open, has none. A fourth run
-evaluates the barrier on every element once it is on (as before it followed the states),
-for the cost of that alone. Writes ``bench/out/reduced_scene.png`` and a JSON record; prints
-steps, iterations, factorizations and CPU time of each run.
+contact are the extra cost; the full model, whose corners stay open, has none. Two more runs of
+the first-gradient model: without the local solve of the barrier's unknowns before each
+linearization (:mod:`ngbet.continuum.patch`), for what it saves, and with the barrier, once on,
+on every element, for the cost of that alone. Writes ``bench/out/reduced_scene.png`` and a JSON
+record; prints steps, iterations, factorizations, local iterations and CPU time of each run.
 
     python bench/bench_reduced.py
     python bench/bench_reduced.py bench/out/bench_reduced_<time>.json   # the figure of a record again
@@ -43,19 +44,24 @@ def _yarn_sine(problem, scene):  # the barrier's own check, built also where jam
     return sine, problem.mesh.MapToAllElements(rule, ngs.VOL)
 
 
-def one_run(bending: bool, jamming: bool = True, everywhere: bool = False) -> dict:
+def one_run(bending: bool, jamming: bool = True, everywhere: bool = False, local: bool = True) -> dict:
     """The path of the embedded scene (``effects.bending``, ``effects.jamming``): per state the smallest yarn angle.
 
-    ``everywhere``: the barrier, once on, on every element for good (not on those near the threshold).
+    ``everywhere``: the barrier, once on, on every element for good (not on those near the threshold);
+    ``local``: the barrier's unknowns solved first before each linearization (``ContinuumSolver.patch``).
+    In NGSolve's threads as the command sets them (``solver.threads``, one BLAS thread).
     """
     from ngbet.continuum.problem import ContinuumProblem
     from ngbet.runner.continuum import load_path
     from ngbet.runner.settings import continuum_solver
+    from ngbet.runner.threads import ngsolve_threads
     from ngbet.scene.document import Scene
 
     scene = Scene().with_changes(**{"effects.bending": bending, "effects.jamming": jamming})
     t0, c0 = time.perf_counter(), time.process_time()
     solver = continuum_solver(ContinuumProblem(scene))
+    if not local:
+        solver.patch = None
     jam = solver.problem.jamming
     if everywhere:
         watch = jam.watch
@@ -89,16 +95,19 @@ def one_run(bending: bool, jamming: bool = True, everywhere: bool = False) -> di
     problem.converged = watched  # type: ignore[method-assign]
     steps = []
     path = load_path(solver, scene)
-    try:
-        while True:
-            rec = next(path)
-            steps.append((rec.u0 * 1e3, rec.iterations, rec.reason))
-    except StopIteration as done:
-        res = done.value
+    with ngsolve_threads(scene):
+        try:
+            while True:
+                rec = next(path)
+                steps.append((rec.u0 * 1e3, rec.iterations, rec.reason))
+        except StopIteration as done:
+            res = done.value
     return {
         "bending": bending,
         "jamming": jamming,
         "everywhere": everywhere,
+        "without_local": not local,
+        "local_iterations": solver.patch.iterations if solver.patch is not None else 0,
         "angles": angles,
         "relaxed_mm": [u for u, _, why in steps if why.startswith("relaxed")],
         "steps": steps,
@@ -116,7 +125,9 @@ def _label(r: dict) -> str:
         return "full model"
     if not r["jamming"]:
         return "first gradient, no jamming barrier"
-    return "first gradient" + (", barrier on every element" if r.get("everywhere") else "")
+    if r.get("everywhere"):
+        return "first gradient, barrier on every element"
+    return "first gradient" + (", without the local solve" if r.get("without_local") else "")
 
 
 def figure(runs: list[dict], path: Path) -> None:
@@ -126,12 +137,12 @@ def figure(runs: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, (ax, bx, cx) = plt.subplots(1, 3, figsize=(13.0, 4.2), constrained_layout=True)
-    colors = ("tab:blue", "tab:red", "tab:orange", "tab:gray")
+    colors = ("tab:blue", "tab:red", "tab:purple", "tab:orange", "tab:gray")
     for r, color in zip(runs, colors, strict=False):
         label = _label(r)
         a = np.array([[*row[:4], row[4] if len(row) > 4 else np.nan] for row in r["angles"]], dtype=float)
-        style = "--" if r.get("everywhere") else "-"
-        if not r.get("everywhere"):
+        style = "--" if r.get("everywhere") or r.get("without_local") else "-"
+        if not r.get("everywhere") and not r.get("without_local"):
             ax.plot(a[:, 0], a[:, 1], "o-", ms=3, color=color, label=label)
         bx.step(
             a[:, 0],
@@ -143,7 +154,7 @@ def figure(runs: list[dict], path: Path) -> None:
             f"{r['counts']['factorizations']} factorizations",
         )
         cx.step(a[:, 0], a[:, 4], style, where="post", color=color, label=f"{label}: {r['cpu_s']:.2f} s")
-        for u in r.get("relaxed_mm", []) if not r.get("everywhere") else []:
+        for u in r.get("relaxed_mm", []) if not r.get("everywhere") and not r.get("without_local") else []:
             ax.annotate(
                 f"corner snaps shut at {u:.3g} mm\n(relaxed to a stable state)",
                 (u, 4.0),
@@ -175,7 +186,13 @@ def main() -> None:
     if len(sys.argv) > 1:  # a record of an earlier run: its figure again
         figure(json.loads(Path(sys.argv[1]).read_text()), OUT / "reduced_scene.png")
         return
-    runs = [one_run(True), one_run(False), one_run(False, everywhere=True), one_run(False, jamming=False)]
+    runs = [
+        one_run(True),
+        one_run(False),
+        one_run(False, local=False),
+        one_run(False, everywhere=True),
+        one_run(False, jamming=False),
+    ]
     OUT.mkdir(exist_ok=True)
     stamp = time.strftime("%Y%m%dT%H%M%S")
     (OUT / f"bench_reduced_{stamp}.json").write_text(json.dumps(runs, indent=1))
@@ -184,7 +201,8 @@ def main() -> None:
         print(
             f"{_label(r)}: {len(r['steps'])} steps to {r['u0_mm']:.4g} mm, "
             f"{r['cuts']} cuts, "
-            f"{r['counts']}, CPU {r['cpu_s']:.2f} s, wall {r['wall_s']:.2f} s; smallest yarn angle "
+            f"{r['counts']}, {r.get('local_iterations', 0)} local iterations, CPU {r['cpu_s']:.2f} s, "
+            f"wall {r['wall_s']:.2f} s; smallest yarn angle "
             f"{min(a[1] for a in r['angles']):.3g}°"
         )
     print(f"figure: {OUT / 'reduced_scene.png'}")

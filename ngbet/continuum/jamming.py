@@ -118,6 +118,16 @@ class JammingBarrier:
             return None
         return self._where
 
+    def holds(self) -> bool:
+        """Whether the current state has yarns closer than the jamming angle on an element the barrier is on.
+
+        One evaluation of the yarn angle's sine at the barrier's integration points (none while the
+        barrier is on no element); nan (a degenerate state) counts as holding.
+        """
+        if self._check is None or not self._where.any():
+            return False
+        return not bool(np.all(self._smallest()[self._where] >= self.s_jam))
+
     def switch_on(self) -> None:
         """Evaluate the barrier on every element until the next solved state (:meth:`watch`)."""
         self.elements.Set()

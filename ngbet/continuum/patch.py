@@ -114,12 +114,13 @@ class BarrierPatch:
         ``r``, the problem's residual at the state of the call, is brought to the state settled in
         place: only the elements touching the patch's unknowns contribute to its change, which is
         that of the patch's residual (exact to round-off). 0 (state and ``r`` untouched) where the
-        barrier is on no element or on all of them (a relaxation), and where the local iteration
-        stops contracting or leaves the finite numbers: the global Newton goes on from the state of
-        the call as without the patch.
+        barrier is on no element or on all of them (a relaxation), where it holds no yarns (their
+        angle above the threshold at its integration points: nothing stiff to solve first, as for the
+        corner before it snaps shut), and where the local iteration stops contracting or leaves the
+        finite numbers: the global Newton goes on from the state of the call as without the patch.
         """
         elements = self.problem.jamming.patch
-        if elements is None:
+        if elements is None or not self.problem.jamming.holds():
             return 0
         t0 = time.process_time()
         key = elements.tobytes()
