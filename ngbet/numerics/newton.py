@@ -208,14 +208,14 @@ def newton(
     """Damped Newton from the current x at fixed load; on failure x is left where it stopped.
 
     ``factorized``: the problem's last factorization is that at the current x (the first iteration
-    uses it); ``r``: the residual there, when at hand. ``settle``: before each new linearization
-    the problem's stiff unknowns are solved with the rest held (nonlinear elimination,
-    :class:`Settling`, to the tolerance of the test below); the test itself is unchanged, on the
-    global decrement.
+    uses it); ``r``: the residual there, when at hand (not modified). ``settle``: before each new
+    linearization the problem's stiff unknowns are solved with the rest held (nonlinear
+    elimination, :class:`Settling`, to the tolerance of the test below); the test itself is
+    unchanged, on the global decrement.
     """
     history: list[float] = []
     damping: list[float] = []
-    r = problem.residual() if r is None else r
+    r = problem.residual() if r is None else r.copy() if settle is not None else r  # settle updates it in place
     if not np.all(np.isfinite(r)):
         return NewtonReport(False, 0, history, damping, "residual is not finite at the start")
     tol = settings.rtol * abs(e_ref) + settings.atol
