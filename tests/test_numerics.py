@@ -41,6 +41,14 @@ def test_a_continuum_run_does_not_import_the_networks_sparse_solvers():
     assert out.strip() == "False"
 
 
+def test_a_network_run_imports_scipys_sparse_solvers_only_for_their_fallbacks():
+    # the network factorizes with CHOLMOD or NGSolve; scipy.sparse.linalg (ARPACK, SuperLU) serves
+    # the stability check's fallback and the "splu" backend alone, and costs about 0.1 s to import
+    code = "import sys, ngbet.cli, ngbet.run, ngbet.runner.discrete; print('scipy.sparse.linalg' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
+
+
 def test_the_solver_counts_what_it_does_and_the_problem_nothing():
     """A new solver has assembled nothing; one residual and one factorization are counted as such,
     with the summary's keys (timers in seconds, never negative)."""

@@ -9,11 +9,11 @@ states each of the two half-size blocks apart (:mod:`ngbet.discrete.symmetry`).
 from __future__ import annotations
 
 import logging
+import sys
 from typing import cast
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .linsolve import EigenBlock, FreeBlockSolver, LinearSolverError
 from .newton import StepControl
@@ -88,7 +88,7 @@ def lowest_eigenvalues(
     assert Kff is not None
     n = Kff.shape[0]
     k = min(k, n - 2)
-    s = np.sqrt(np.abs(Kff.diagonal()))
+    s = np.sqrt(np.abs(lin.diagonal()))
     s[s == 0] = 1.0
     blocks = lin.half_turn_blocks()
     if blocks is not None:
@@ -132,9 +132,9 @@ class _SplitBasis:
     def __init__(self, block: EigenBlock, s: np.ndarray, Y0: np.ndarray, seed: int) -> None:
         self.block = block
         B = block.B
-        self.s = np.sqrt(B.multiply(B).T @ (s * s))  # D_b = B^T D B is diagonal (D is half-turn invariant)
+        self.s = np.sqrt(block.B2t @ (s * s))  # D_b = B^T D B is diagonal (D is half-turn invariant)
         self.s[self.s == 0] = 1.0
-        Yb = B.T @ Y0
+        Yb = block.Bt @ Y0
         # the start vectors' parts in this block (parts at round-off level are left out)
         Yb = Yb[:, np.linalg.norm(Yb, axis=0) > 1e-6 * np.linalg.norm(Y0, axis=0)]
         if Yb.shape[1] == 0:
@@ -223,10 +223,12 @@ def lowest_eigenvalues_arpack(lin: FreeBlockSolver, k: int) -> tuple[np.ndarray,
     It needs many more solves with the factorization than the block Lanczos started from the
     previous modes; it is the fallback where that does not converge.
     """
+    import scipy.sparse.linalg as spla  # (the fallback alone: a network run need not import it)
+
     Kff = lin.Kff
     assert Kff is not None
     n = Kff.shape[0]
-    D = sp.diags(np.abs(Kff.diagonal()))
+    D = sp.diags(np.abs(lin.diagonal()))
     op = spla.LinearOperator((n, n), matvec=lambda b: lin.solve(np.ravel(b)), dtype=float)
     k = min(k, n - 2)
     lam, V = spla.eigsh(Kff, k=k, M=D, sigma=0.0, which="LM", OPinv=op, tol=1e-6, v0=np.ones(n), maxiter=2000)
@@ -244,7 +246,14 @@ def check_stability(
     """
     try:
         lam, V = lowest_eigenvalues(lin, ctl.n_eigs, X0)
-    except (spla.ArpackNoConvergence, spla.ArpackError, LinearSolverError, np.linalg.LinAlgError) as exc:
+    except _failures() as exc:
         log.warning("stability check failed (%s): state not classified", exc)
         return float("nan"), None, None
     return float(lam[0]), V[:, 0], V
+
+
+def _failures() -> tuple[type[Exception], ...]:
+    """The errors of a stability check that leave the state unclassified (ARPACK's once it has run)."""
+    spla = sys.modules.get("scipy.sparse.linalg")
+    arpack = () if spla is None else (spla.ArpackNoConvergence, spla.ArpackError)
+    return (*arpack, LinearSolverError, np.linalg.LinAlgError)

@@ -36,7 +36,6 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .. import cholmod
 from ..cholmod import free_pattern
@@ -157,6 +156,8 @@ class FreeBlockSolver:
             vals[self.rows == self.cols] += shift
         self.Kff = sp.csr_matrix((vals, self.cols, self._indptr()), shape=(self.nf, self.nf))
         if self.backend == "splu":
+            import scipy.sparse.linalg as spla  # (this backend alone: a network run need not import it)
+
             try:
                 self._lu = spla.splu(self.Kff.tocsc())
             except RuntimeError as exc:
@@ -182,10 +183,21 @@ class FreeBlockSolver:
         if not self.in_blocks or self._blocks is None:
             return None
         bl = self._blocks
+        m = bl.maps
         return [
-            EigenBlock(self, "s", bl.block_matrix("s"), bl.maps.B_s),
-            EigenBlock(self, "a", bl.block_matrix("a"), bl.maps.B_a),
+            EigenBlock(self, "s", bl.block_matrix("s"), m.B_s, m.Bt_s, m.B2t_s),
+            EigenBlock(self, "a", bl.block_matrix("a"), m.B_a, m.Bt_a, m.B2t_a),
         ]
+
+    def diagonal(self) -> np.ndarray:
+        """The diagonal of the last K_ff factorized (a copy; with its shift where it was shifted)."""
+        assert self.Kff is not None
+        if not hasattr(self, "_diag_pos"):
+            self._diag_pos = np.flatnonzero(self.rows == self.cols)
+            if not np.array_equal(self.rows[self._diag_pos], np.arange(self.nf)):
+                del self._diag_pos
+                return cast(np.ndarray, self.Kff.diagonal())
+        return cast(np.ndarray, self.Kff.data[self._diag_pos])
 
     def _indptr(self) -> np.ndarray:
         if not hasattr(self, "_ip"):
@@ -240,12 +252,23 @@ class FreeBlockSolver:
 class EigenBlock:
     """One half-turn block of a tangent factorized in blocks (:meth:`FreeBlockSolver.half_turn_blocks`).
 
-    ``K`` (n_b, n_b): the block; ``B`` (n_free, n_b): its orthonormal basis; :meth:`solve` uses the
+    ``K`` (n_b, n_b): the block; ``B`` (n_free, n_b): its orthonormal basis, ``Bt`` its transpose and
+    ``B2t`` that of its entries squared (CSR; made from B where not given); :meth:`solve` uses the
     block's factorization and counts in the solver's statistics.
     """
 
-    def __init__(self, lin: FreeBlockSolver, kind: str, K: sp.csr_matrix, B: sp.csr_matrix) -> None:
+    def __init__(
+        self,
+        lin: FreeBlockSolver,
+        kind: str,
+        K: sp.csr_matrix,
+        B: sp.csr_matrix,
+        Bt: sp.csr_matrix | None = None,
+        B2t: sp.csr_matrix | None = None,
+    ) -> None:
         self.lin, self.kind, self.K, self.B = lin, kind, K, B
+        self.Bt = B.T.tocsr() if Bt is None else Bt
+        self.B2t = B.multiply(B).T.tocsr() if B2t is None else B2t
 
     def solve(self, Y: np.ndarray) -> np.ndarray:
         """K_b^-1 Y for the columns of Y (n_b, m)."""
@@ -358,6 +381,7 @@ class _HalfTurnFactor:
         self.sym = _new_factor(self.maps.rows_s, self.maps.cols_s, self.maps.n_s, backend)
         self.anti = _new_factor(self.maps.rows_a, self.maps.cols_a, self.maps.n_a, backend)
         self._vals: np.ndarray | None = None  # K_ff's values, while the antisymmetric block waits
+        self._vals_a: np.ndarray | None = None  # ... and the waiting block's own, once computed
         self._vals_s = np.zeros(0)  # K_s's values of the tangent last judged
         self.coupling = 0.0  # of the last tangent judged
         self._row_ptr: dict[str, np.ndarray] = {}  # CSR row pointers of the blocks' patterns
@@ -367,7 +391,7 @@ class _HalfTurnFactor:
         other = copy.copy(self)
         other.sym = _new_factor(self.maps.rows_s, self.maps.cols_s, self.maps.n_s, self.backend)
         other.anti = _new_factor(self.maps.rows_a, self.maps.cols_a, self.maps.n_a, self.backend)
-        other._vals, other._vals_s, other.coupling = None, np.zeros(0), 0.0
+        other._vals, other._vals_a, other._vals_s, other.coupling = None, None, np.zeros(0), 0.0
         return other
 
     def decoupled(self, vals: np.ndarray) -> bool:
@@ -381,7 +405,7 @@ class _HalfTurnFactor:
     def factor(self, vals: np.ndarray, shifted: bool) -> None:
         """Factorize the symmetric block of K_ff (values ``vals``, judged by :meth:`decoupled` unless ``shifted``)."""
         self.sym.factor(self.maps.M_s @ vals if shifted else self._vals_s)
-        self._vals = vals
+        self._vals, self._vals_a = vals, None
 
     def needs_antisymmetric(self, B: np.ndarray) -> bool:
         """Whether solving for B needs the antisymmetric block, not yet factorized."""
@@ -397,16 +421,22 @@ class _HalfTurnFactor:
         if kind == "s":
             vals, rows, cols, n = self.sym.vals, m.rows_s, m.cols_s, m.n_s
         else:
-            vals = m.M_a @ self._vals if self._vals is not None else self.anti.vals  # (pending)
+            vals = self._pending_a() if self._vals is not None else self.anti.vals
             rows, cols, n = m.rows_a, m.cols_a, m.n_a
         if kind not in self._row_ptr:
             self._row_ptr[kind] = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))])
         return sp.csr_matrix((np.array(vals), cols, self._row_ptr[kind]), shape=(n, n))
 
-    def factor_antisymmetric(self) -> None:
+    def _pending_a(self) -> np.ndarray:
+        """The values of the waiting antisymmetric block (computed once per tangent)."""
         assert self._vals is not None
-        self.anti.factor(self.maps.M_a @ self._vals)
-        self._vals = None
+        if self._vals_a is None:
+            self._vals_a = self.maps.M_a @ self._vals
+        return self._vals_a
+
+    def factor_antisymmetric(self) -> None:
+        self.anti.factor(self._pending_a())
+        self._vals = self._vals_a = None
 
     def solve(self, B: np.ndarray, symmetric_rhs: bool) -> np.ndarray:
         """K_ff^-1 B (``symmetric_rhs``: B's antisymmetric part left out)."""

@@ -335,10 +335,11 @@ def _descent_direction(
         if dec <= 0 and not allow_shift:
             hist.append((E, float(np.abs(r).max(initial=0.0)), dec))
             raise StepFailed("tangent not a descent direction (indefinite)", hist, indefinite=True)
-        assert lin.Kff is not None
-        diag = np.abs(lin.Kff.diagonal())  # of the unshifted K_ff (lin.Kff holds the last shifted one)
+        diag = None
         n_shift = 0
         while dec <= 0 and mu < 1e3:  # not a descent direction: K_ff indefinite here
+            if diag is None:  # of the unshifted K_ff (lin.Kff holds the last shifted one)
+                diag = np.abs(lin.diagonal())
             try:
                 lin.factor(K, shift=mu * diag)
                 du = -lin.solve(r, symmetric_rhs=True)

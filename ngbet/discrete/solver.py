@@ -433,7 +433,7 @@ class ShiftedNewton:
             self.stats["unstable_states"] += 1
             mark = self.tally.start()
             self.u, self.E, self.g, self.K, lam2, self.modes = _escape(
-                self.problem, self.u, self.E, v, self.work, self.ctl, np.abs(self.lin.Kff.diagonal())
+                self.problem, self.u, self.E, v, self.work, self.ctl, np.abs(self.lin.diagonal())
             )
             self.tally.add("escape from an unstable state", mark)
             self.lin, self.work = self.work, self.lin  # _escape left the tangent of the final state in ``work``

@@ -180,6 +180,8 @@ class Blocks:
         self.col_a, self.w_a, self.n_a = _basis(pi, sg, -1)
         self.B_s, self.B_a = self._matrix(self.col_s, self.w_s, self.n_s), self._matrix(self.col_a, self.w_a, self.n_a)
         self.Bt_s, self.Bt_a = self.B_s.T.tocsr(), self.B_a.T.tocsr()
+        # (B∘B)^T: the blocks' diagonal scalings from K_ff's (B^T D B is diagonal for a diagonal D)
+        self.B2t_s, self.B2t_a = self.B_s.multiply(self.B_s).T.tocsr(), self.B_a.multiply(self.B_a).T.tocsr()
         self.M_s, self.rows_s, self.cols_s = self._data_map(rows, cols, "s", "s")
         self.M_a, self.rows_a, self.cols_a = self._data_map(rows, cols, "a", "a")
         self.M_sa, rows_sa, cols_sa = self._data_map(rows, cols, "s", "a")

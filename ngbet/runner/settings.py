@@ -98,7 +98,7 @@ def step_control(scene: Scene) -> StepControl:
     The steps are the smaller of [loading] and [discrete]; the path lands on the stops and the
     output grid.
     """
-    from ..discrete.newton import StepControl  # scipy.sparse.linalg: imported by network runs alone
+    from ..discrete.newton import StepControl  # the network's solver (scipy.sparse): imported by network runs alone
 
     ld, so, d = scene.loading, scene.solver, scene.discrete
     max_step = min(ld.max_step_mm, d.max_step_mm)
