@@ -138,7 +138,7 @@ def figure(runs: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax, bx, cx) = plt.subplots(1, 3, figsize=(13.0, 4.2), constrained_layout=True)
+    fig, (ax, bx, cx) = plt.subplots(1, 3, figsize=(14.5, 4.4), constrained_layout=True)
     colors = ("tab:blue", "tab:red", "tab:purple", "tab:orange", "tab:gray")
     for r, color in zip(runs, colors, strict=False):
         label = _label(r)
@@ -152,7 +152,7 @@ def figure(runs: list[dict], path: Path) -> None:
             style,
             where="post",
             color=color,
-            label=f"{len(r['steps'])} steps, {r['cuts']} cut{'' if r['cuts'] == 1 else 's'}, "
+            label=f"{label}: {len(r['steps'])} steps, {r['cuts']} cut{'' if r['cuts'] == 1 else 's'}, "
             f"{r['counts']['factorizations']} factorizations",
         )
         cx.step(a[:, 0], a[:, 4], style, where="post", color=color, label=f"{label}: {r['cpu_s']:.2f} s")
@@ -160,7 +160,7 @@ def figure(runs: list[dict], path: Path) -> None:
             ax.annotate(
                 f"corner snaps shut at {u:.3g} mm\n(relaxed to a stable state)",
                 (u, 4.0),
-                xytext=(1.0, -62.0),
+                xytext=(23.0, 15.0),
                 textcoords="data",
                 fontsize=8,
                 color=color,
@@ -170,11 +170,11 @@ def figure(runs: list[dict], path: Path) -> None:
     ax.text(30.0, runs[0]["jamming_angle_deg"] + 2, "jamming angle", fontsize=8)
     ax.axhline(45.0, color="k", lw=0.6, ls=":")
     ax.text(56.0, 47.0, "45°", fontsize=8, ha="right")
-    ax.set(xlabel="clamp displacement $u_0$ [mm]", ylabel="smallest angle between the yarns [°]", ylim=(-125, 95))
+    ax.set(xlabel="clamp displacement $u_0$ [mm]", ylabel="smallest angle between the yarns [°]", ylim=(-60, 95))
     ax.legend(fontsize=8, loc="lower right")
     bx.set(xlabel="clamp displacement $u_0$ [mm]", ylabel="factorizations so far")
     bx.set_ylim(0.0, 1.3 * max(r["counts"]["factorizations"] for r in runs))
-    bx.legend(fontsize=8, loc="upper left")
+    bx.legend(fontsize=6.5, loc="upper left")
     cx.set(xlabel="clamp displacement $u_0$ [mm]", ylabel="CPU time of the path so far [s]")
     cx.set_ylim(0.0, 1.4 * max(r["cpu_s"] for r in runs))
     cx.legend(fontsize=8, loc="upper left")
