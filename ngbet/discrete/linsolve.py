@@ -192,11 +192,11 @@ class FreeBlockSolver:
     def diagonal(self) -> np.ndarray:
         """The diagonal of the last K_ff factorized (a copy; with its shift where it was shifted)."""
         assert self.Kff is not None
-        if not hasattr(self, "_diag_pos"):
-            self._diag_pos = np.flatnonzero(self.rows == self.cols)
-            if not np.array_equal(self.rows[self._diag_pos], np.arange(self.nf)):
-                del self._diag_pos
-                return cast(np.ndarray, self.Kff.diagonal())
+        if not hasattr(self, "_diag_pos"):  # the diagonal's positions in the values, once per pattern
+            pos = np.flatnonzero(self.rows == self.cols)
+            self._diag_pos = pos if np.array_equal(self.rows[pos], np.arange(self.nf)) else None
+        if self._diag_pos is None:  # a pattern without every diagonal entry
+            return cast(np.ndarray, self.Kff.diagonal())
         return cast(np.ndarray, self.Kff.data[self._diag_pos])
 
     def _indptr(self) -> np.ndarray:
@@ -253,22 +253,14 @@ class EigenBlock:
     """One half-turn block of a tangent factorized in blocks (:meth:`FreeBlockSolver.half_turn_blocks`).
 
     ``K`` (n_b, n_b): the block; ``B`` (n_free, n_b): its orthonormal basis, ``Bt`` its transpose and
-    ``B2t`` that of its entries squared (CSR; made from B where not given); :meth:`solve` uses the
-    block's factorization and counts in the solver's statistics.
+    ``B2t`` that of its entries squared (CSR, kept with the half-turn maps: made once per pattern);
+    :meth:`solve` uses the block's factorization and counts in the solver's statistics.
     """
 
     def __init__(
-        self,
-        lin: FreeBlockSolver,
-        kind: str,
-        K: sp.csr_matrix,
-        B: sp.csr_matrix,
-        Bt: sp.csr_matrix | None = None,
-        B2t: sp.csr_matrix | None = None,
+        self, lin: FreeBlockSolver, kind: str, K: sp.csr_matrix, B: sp.csr_matrix, Bt: sp.csr_matrix, B2t: sp.csr_matrix
     ) -> None:
-        self.lin, self.kind, self.K, self.B = lin, kind, K, B
-        self.Bt = B.T.tocsr() if Bt is None else Bt
-        self.B2t = B.multiply(B).T.tocsr() if B2t is None else B2t
+        self.lin, self.kind, self.K, self.B, self.Bt, self.B2t = lin, kind, K, B, Bt, B2t
 
     def solve(self, Y: np.ndarray) -> np.ndarray:
         """K_b^-1 Y for the columns of Y (n_b, m)."""
