@@ -146,11 +146,16 @@ def force_from_normalised(
 
     Eq. 18 solved for F: the normalisation method's prediction of another specimen size, with
     F_sh(γ) interpolated linearly in γ through (0, 0) and the given points (no extrapolation:
-    displacements whose γ lies beyond the table give NaN).
+    displacements whose γ lies beyond the table give NaN). The ideal test has no shear angle at
+    or beyond yarn locking, d ≥ (√2 − 1)(H − W): a measured curve may go on there, the method
+    cannot (NaN).
     """
     gt = np.r_[0.0, np.asarray(gamma_rad, dtype=float)]
     ft = np.r_[0.0, np.asarray(fsh_N_per_mm, dtype=float)]
-    gamma = shear_angle_rad(d_mm, H_mm, W_mm)
+    d = np.asarray(d_mm, dtype=float)
+    locked = d >= (math.sqrt(2.0) - 1.0) * (H_mm - W_mm)
+    gamma = np.full(d.shape, np.nan)
+    gamma[~locked] = shear_angle_rad(d[~locked], H_mm, W_mm)
     a, b, c = _eq18(gamma, H_mm, W_mm)
     f = np.interp(gamma, gt, ft, right=np.nan)
     fh = np.interp(gamma / 2, gt, ft, right=np.nan)

@@ -5,7 +5,8 @@ laboratory's picture frame alone, of the fabric's own curves: :mod:`._validation
 curves of the fabric each does not use (its targets); one fit with the fitted scene's predictions
 of its targets (:func:`fit_and_predict`), kept in ``validation-fits/`` of the study cache: the fit
 keyed by the scene, the curves it fits and the code (:func:`fits_key`), each prediction by the fit
-and its curve's file (:func:`target_key`).
+and its curve's file (:func:`target_key`). :func:`fit_all` makes a study's fits, those of one curve
+side by side in worker processes.
 
 The fits are ``ngbet fit``'s own (:func:`ngbet.calibration.joint.fit_curves` with the scene's
 ``[calibration]`` parameters, bounds and rules: one size holds the bending stiffnesses): the study
@@ -40,6 +41,7 @@ __all__ = [
     "SCORE_POINTS",
     "FitSpec",
     "cached",
+    "fit_all",
     "fit_and_predict",
     "fits_folder",
     "fits_key",
@@ -182,9 +184,9 @@ def keep(path: Path, data: bytes) -> None:
     tmp.replace(path)
 
 
-def _progress(label: str) -> Any:
-    """A fit's progress on stderr: a line updating itself on a terminal, else a line at its start."""
-    t0, tty = time.perf_counter(), sys.stderr.isatty()
+def _progress(label: str, live: bool = True) -> Any:
+    """A fit's progress on stderr: a line updating itself on a terminal (``live``), else a line at its start."""
+    t0, tty = time.perf_counter(), live and sys.stderr.isatty()
     if not tty:
         print(f"ngbet: study validation: fitting {label}", file=sys.stderr, flush=True)
 
@@ -224,13 +226,28 @@ def _predict(res: Any, curve: Any) -> dict[str, Any]:
     }
 
 
-def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Path, curves: Curves) -> dict[str, Any]:
+def record_name(spec: FitSpec, quick: bool, scene: Scene, curves: Curves) -> str:
+    """The name under which ``spec``'s fit from ``scene`` is kept (its predictions: NAME-TARGETKEY)."""
+    runs = QUICK_RUNS if quick else MAX_RUNS
+    return f"{'quick' if quick else 'full'}-{spec.fabric}-{fits_key(spec, runs, scene.to_toml(), curves)}"
+
+
+def start_scene(spec: FitSpec, start: Scene | None) -> Scene:
+    """The scene a fit starts from: ``start``, or the fabric's scene file."""
+    return start or Scene.from_toml(data_root() / "geometry" / FABRICS[spec.fabric][0])
+
+
+def fit_and_predict(
+    spec: FitSpec, quick: bool, start: Scene | None, folder: Path, curves: Curves, live: bool = True
+) -> dict[str, Any]:
     """``spec`` fitted as ``ngbet fit`` fits it, and each of its targets predicted with its band (cached).
 
     ``start``: the scene the fit starts from (None: the fabric's scene file). The record holds the
     fit (fit.json's content), the fitted scene and per target the scored points, the predicted
     force and its standard deviation from the parameters, from the discretization and from the model error
     the fit's curves estimate (:func:`ngbet.calibration.bands.model_error`), and in words what the band holds.
+    ``live``: the fit's progress as a line updating itself where stderr is a terminal (in a worker
+    process beside others: a line at its start and one at its end).
 
     Kept in ``folder``: the fit's record (``NAME.json``), the fit itself (``NAME.pickle``, what a
     prediction needs) and each prediction (``NAME-TARGETKEY.json``, :func:`target_key`), so that
@@ -240,15 +257,17 @@ def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Pat
     from ngbet.calibration.joint import fit_curves
 
     runs = QUICK_RUNS if quick else MAX_RUNS
-    scene = start or Scene.from_toml(data_root() / "geometry" / FABRICS[spec.fabric][0])
-    name = f"{'quick' if quick else 'full'}-{spec.fabric}-{fits_key(spec, runs, scene.to_toml(), curves)}"
+    scene = start_scene(spec, start)
+    name = record_name(spec, quick, scene, curves)
     made: list[Any] = []  # the fit made in this process
 
     def make() -> dict[str, Any]:
         label = f"{spec.fabric.replace('_', ' ')}, {spec.name}"
-        res = fit_curves([curves.read(f) for f in spec.fitted], scene, max_runs=runs, progress=_progress(label))
-        if sys.stderr.isatty():
+        res = fit_curves([curves.read(f) for f in spec.fitted], scene, max_runs=runs, progress=_progress(label, live))
+        if live and sys.stderr.isatty():
             sys.stderr.write(f"\rngbet: study validation: fitted {label} in {res.wall_s:.0f} s\x1b[K\n")
+        elif not live:
+            print(f"ngbet: study validation: fitted {label} in {res.wall_s:.0f} s", file=sys.stderr, flush=True)
         made.append(res)
         keep(folder / f"{name}.pickle", pickle.dumps(res))
         return {
@@ -276,3 +295,79 @@ def fit_and_predict(spec: FitSpec, quick: bool, start: Scene | None, folder: Pat
         for t in spec.targets
     }
     return {**doc, "predictions": preds, "cache_name": name}
+
+
+def _kept(spec: FitSpec, quick: bool, start: Scene | None, folder: Path, curves: Curves) -> bool:
+    """Whether ``spec``'s fit and every prediction of it are kept in ``folder`` (nothing to make)."""
+    name = record_name(spec, quick, start_scene(spec, start), curves)
+    return (folder / f"{name}.json").exists() and all(
+        (folder / f"{name}-{target_key(t, curves)}.json").exists() for t in spec.targets
+    )
+
+
+def fit_all(
+    specs: Sequence[FitSpec],
+    quick: bool,
+    start: Scene | None,
+    folder: Path,
+    curves: Curves,
+    workers: int | None = None,
+) -> list[dict[str, Any]]:
+    """:func:`fit_and_predict` of each spec, the records in the order of ``specs``.
+
+    The fits of one curve with something to make (:func:`_kept`) run side by side, each in a worker
+    process of its own (spawned; ``workers``, default one per core: on 2 cores two one-size fits
+    take the time of one), and the fits of two or more curves after them here, where each runs its
+    curves in workers of its own (:class:`ngbet.calibration.runs.CurveModel`). Every record is the
+    one this process would make: a fit is a function of its scene and curves, and each worker
+    keeps its own files in ``folder`` under its own names. A worker's exception is raised here; a
+    worker that dies stops the study naming its fit; Ctrl-C ends the workers (they ignore it
+    themselves, and exit when this process dies).
+    """
+    from ngbet.calibration.runs import default_workers
+
+    todo = [k for k, s in enumerate(specs) if len(s.fitted) == 1 and not _kept(s, quick, start, folder, curves)]
+    n = default_workers(len(todo)) if workers is None else max(1, min(workers, len(todo)))
+    docs: dict[int, dict[str, Any]] = _in_workers(specs, todo, n, quick, start, folder, curves) if n > 1 else {}
+    return [docs[k] if k in docs else fit_and_predict(s, quick, start, folder, curves) for k, s in enumerate(specs)]
+
+
+def _in_workers(
+    specs: Sequence[FitSpec],
+    todo: Sequence[int],
+    n: int,
+    quick: bool,
+    start: Scene | None,
+    folder: Path,
+    curves: Curves,
+) -> dict[int, dict[str, Any]]:
+    """The fits ``todo`` of ``specs`` on ``n`` worker processes (:func:`fit_all`)."""
+    import concurrent.futures as cf
+    import multiprocessing
+    from concurrent.futures.process import BrokenProcessPool
+
+    from ngbet.calibration.runs import FitWorkerError
+    from ngbet.study.executors import stop_pool, worker_init
+
+    ctx = multiprocessing.get_context("spawn")  # Netgen and NGSolve's threads do not survive a fork
+    alive_r, alive_w = ctx.Pipe(duplex=False)
+    env = {k: v for k, v in os.environ.items() if k.startswith("NGBET_")}
+    ex = cf.ProcessPoolExecutor(n, mp_context=ctx, initializer=worker_init, initargs=(alive_r, env))
+    futures = {ex.submit(fit_and_predict, specs[k], quick, start, folder, curves, False): k for k in todo}
+    docs: dict[int, dict[str, Any]] = {}
+    try:
+        for f in cf.as_completed(futures):
+            k = futures[f]
+            try:
+                docs[k] = f.result()
+            except BrokenProcessPool as exc:
+                raise FitWorkerError(
+                    f"the worker process fitting {specs[k].fabric.replace('_', ' ')}, {specs[k].name} ended "
+                    "without an answer (killed, out of memory or crashed); the study stops"
+                ) from exc
+        ex.shutdown(wait=True)
+    finally:
+        stop_pool(ex)
+        alive_w.close()
+        alive_r.close()
+    return docs

@@ -59,7 +59,7 @@ from ngbet.study.figures import savefig
 from ngbet.study.model import Study, StudyData
 
 from ._validation_data import FABRICS, Curves, data_root, find_curves
-from ._validation_fits import MAX_RUNS, QUICK, QUICK_RUNS, fit_and_predict, fits_folder, fits_of, kind_of, points_of
+from ._validation_fits import MAX_RUNS, QUICK, QUICK_RUNS, fit_all, fits_folder, fits_of, kind_of, points_of
 
 __all__ = ["build", "extract", "fabric_of", "main", "plot", "report", "rms", "rms_of_max", "summary"]
 
@@ -116,13 +116,19 @@ def _case(doc: dict[str, Any], target: str, curves: Curves) -> dict[str, Any]:
 
 
 def build(
-    quick: bool = False, scene: Scene | None = None, cache: Path | None = None, data: Sequence[str | Path] = ()
+    quick: bool = False,
+    scene: Scene | None = None,
+    cache: Path | None = None,
+    data: Sequence[str | Path] = (),
+    workers: int | None = None,
 ) -> Study:
     """The study on the three fabrics, or with ``scene`` on the fabric it is for (:func:`fabric_of`), from it.
 
     ``cache``: the study cache (``--cache``; None: the default), whose ``validation-fits`` keeps the fits.
     ``data``: folders or files of measured curves besides data/'s (``--data``): every curve of a
     fabric among them is predicted by each of the fabric's fits (:func:`find_curves`).
+    ``workers`` (``--workers``): processes for the fits of one curve, side by side
+    (:func:`fit_all`; None: one per core, 1: in this process).
     """
     folder = fits_folder(cache)
     curves = find_curves(data)
@@ -136,7 +142,7 @@ def build(
     else:
         fabrics = [fabric_of(scene)] if scene is not None else list(FABRICS)
         specs = [s for f in fabrics for s in fits_of(f, curves)]
-    docs = [fit_and_predict(s, quick, scene, folder, curves) for s in specs]
+    docs = fit_all(specs, quick, scene, folder, curves, workers)
     base = Scene.from_toml_string(docs[0]["fitted_scene"]).with_changes(
         **{"outputs.vtk": False, "outputs.plot": False, "outputs.profile": False, "outputs.error_estimate": "off"}
     )

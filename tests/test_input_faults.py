@@ -96,6 +96,15 @@ def test_a_large_sweep_says_what_it_will_do_before_it_checks_its_scenes(tmp_path
     assert said_first and "sweep: 150 cases (150 values of material.alpha1)" in said_first[0]
 
 
+@pytest.mark.parametrize("flag, value", [("--workers", "0"), ("--workers", "-3"), ("--threads", "x")])
+def test_a_count_of_processes_or_threads_below_one_is_refused(tmp_path, capsys, flag, value):
+    """--workers 0 or -3 would have run the cases in one process or on every core without a word."""
+    with pytest.raises(SystemExit) as exc:
+        main(["study", "alpha1", "--quick", flag, value, "--out", str(tmp_path / "s")])
+    assert exc.value.code == 2 and f"argument {flag}:" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
+
+
 # ---------------------------------------------------------------------------- the folders commands own
 def _files(d: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in d.iterdir() if p.is_file()}

@@ -19,6 +19,16 @@ def test_shear_angle_refuses_locked_displacements():
         shear_angle_rad([70.0], 220.0, 70.0)  # locking at (sqrt 2 - 1) 150 = 62.1 mm
 
 
+def test_the_method_has_no_force_at_or_beyond_locking():
+    """A measured curve may go past the ideal locking (a prediction's points there): the method gives
+    NaN there and its force below it, instead of refusing the whole curve."""
+    table = np.linspace(1e-3, 1.4, 50)
+    lock = (math.sqrt(2) - 1) * 150.0
+    F = force_from_normalised(table, 0.3 * table, np.array([10.0, 37.0, lock, 70.0]), 220.0, 70.0)
+    assert np.all(np.isfinite(F[:2])) and np.all(F[:2] > 0) and np.all(np.isnan(F[2:]))
+    assert F[1] == force_from_normalised(table, 0.3 * table, np.array([37.0]), 220.0, 70.0)[0]
+
+
 def test_a_linear_shear_law_is_recovered_exactly():
     # F from F_sh = k gamma through Eq. 18 solved for F; the recursion interpolates F_sh linearly,
     # so a law linear in gamma comes back to round-off

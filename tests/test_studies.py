@@ -910,7 +910,7 @@ def test_quick_validation_makes_only_its_own_fit_and_says_what_it_leaves_out(mon
         made.append((spec.fabric, spec.name, quick))
         return {"fitted_scene": Scene().to_toml(), "cache_name": spec.name, "predictions": {}}
 
-    monkeypatch.setattr(V, "fit_and_predict", fit_stub)
+    monkeypatch.setattr(VF, "fit_and_predict", fit_stub)
     monkeypatch.setattr(V, "_case", lambda doc, target, curves: {"specimen.name": target})
     study = build_study(V.build, True)
     assert made == [(*VF.QUICK, True)]
@@ -1064,6 +1064,101 @@ def test_a_kept_fit_predicts_a_curve_added_later_without_fitting_again(tmp_path,
     assert fits == [1, 2] and predicted == ["LAB2.csv"] and "the fit is made again" in caplog.text
     assert d2["predictions"]["LAB2.csv"]["fit"] == 2 and d2["fit"] == {"n": 2}
     assert json.loads((tmp_path / f"{d0['cache_name']}.json").read_text())["fit"] == {"n": 2}
+
+
+def _children() -> set[int]:
+    """This process's living children but multiprocessing's resource tracker (one per process, it stays)."""
+    import psutil
+
+    out = set()
+    for p in psutil.Process().children(recursive=True):
+        try:
+            if p.status() != psutil.STATUS_ZOMBIE and "resource_tracker" not in " ".join(p.cmdline()):
+                out.add(p.pid)
+        except psutil.Error:  # ended meanwhile
+            pass
+    return out
+
+
+def test_one_curve_fits_run_side_by_side_with_the_records_of_one_process(tmp_path, monkeypatch):
+    """The study's fits of one curve run in two worker processes at once; each record (the fitted
+    scene, every prediction with its band) is the one a fit made in this process keeps, to the bit,
+    and no worker is left. Fits already kept start no worker."""
+    from ngbet.studies import _validation_data as VD
+    from ngbet.studies import _validation_fits as VF
+
+    curves = VD.find_curves()
+    specs = [s for s in VF.fits_of("twill_unbalanced", curves) if s.kind == "one size"]
+    assert len(specs) == 2
+    before = _children()
+    both = VF.fit_all(specs, True, None, tmp_path / "both", curves, workers=2)
+    assert not _children() - before
+    here = VF.fit_and_predict(specs[0], True, None, tmp_path / "here", curves)  # (100 x 250 mm: the shorter fit)
+    assert both[0]["fitted_scene"] == here["fitted_scene"]
+    assert both[0]["predictions"] == here["predictions"] and set(here["predictions"]) == set(specs[0].targets)
+    assert both[1]["fit_name"] == specs[1].name and set(both[1]["predictions"]) == set(specs[1].targets)
+
+    def no_workers(*args, **kw):
+        raise AssertionError("a kept fit started a worker")
+
+    monkeypatch.setattr(VF, "_in_workers", no_workers)
+    assert VF.fit_all(specs, True, None, tmp_path / "both", curves, workers=2) == both
+
+
+def test_an_error_in_a_fit_s_worker_reaches_the_study_and_ends_the_workers(tmp_path):
+    """A fitted curve its worker cannot read: the reader's error is raised by the study, naming the
+    file, and both workers are ended."""
+    from dataclasses import replace
+
+    from ngbet.scene.validate import SceneError
+    from ngbet.studies import _validation_data as VD
+    from ngbet.studies import _validation_fits as VF
+
+    curves = VD.find_curves()
+    specs = [s for s in VF.fits_of("twill_unbalanced", curves) if s.kind == "one size"]
+    bad = tmp_path / "unreadable.csv"
+    bad.write_text("# fabric: Twintex TPECU53XXX\ndisplacement_mm,force_N\n1,x\n")
+    broken = replace(curves, paths={**curves.paths, specs[0].fitted[0]: bad})
+    before = _children()
+    with pytest.raises((SceneError, ValueError), match="unreadable.csv"):
+        VF.fit_all(specs, True, None, tmp_path / "fits", broken, workers=2)
+    assert not _children() - before
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_ctrl_c_on_the_study_s_fits_ends_their_workers(tmp_path):
+    """Ctrl-C (SIGINT to the terminal's process group) while two fits run in workers: the study
+    exits 130 and no worker is left running."""
+    import psutil
+
+    root = Path(__file__).resolve().parents[1]
+    scene = root / "geometry" / "twintex_twill_unbalanced.toml"
+    cmd = [sys.executable, "-m", "ngbet", "study", "validation", str(scene)]
+    cmd += ["--cache", str(tmp_path / "cache"), "--out", str(tmp_path / "out")]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    workers: list[psutil.Process] = []
+    try:
+        parent = psutil.Process(proc.pid)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(workers) < 2 and proc.poll() is None:
+            time.sleep(0.5)
+            workers = [p for p in parent.children(recursive=True) if "resource_tracker" not in " ".join(p.cmdline())]
+        assert len(workers) >= 2, "the fits' workers did not start"
+        time.sleep(3.0)  # inside the fits
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err
+        _, alive = psutil.wait_procs(workers, timeout=20)
+        assert not alive, [p.pid for p in alive]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        for p in workers:
+            try:
+                p.kill()
+            except psutil.Error:
+                pass
 
 
 def test_data_is_refused_by_a_study_that_reads_no_curves(tmp_path, capsys):

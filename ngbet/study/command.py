@@ -28,6 +28,17 @@ from .runner import DEFAULT_ROOT, default_out, run_study
 __all__ = ["add_arguments", "build_options", "build_study", "left_out", "main_for", "run_from_args"]
 
 
+def at_least_one(text: str) -> int:
+    """An argument that counts processes or threads: a whole number of at least 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{n} must be at least 1")
+    return n
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The command-line options every study takes."""
     p.add_argument("--quick", action="store_true", help="a small version of the study (seconds; what the tests run)")
@@ -37,9 +48,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--set, NAME-scene-DIGEST, DIGEST the scene's)",
     )
     p.add_argument("--cache", help="case cache folder (default: out/studies/cache)")
-    p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1 = in this process)")
+    p.add_argument("--workers", type=at_least_one, help="local worker processes (default: one per core; 1 = in this process)")
     p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
-    p.add_argument("--threads", type=int, help="NGSolve threads per case (default: 1 in parallel, all cores otherwise)")
+    p.add_argument("--threads", type=at_least_one, help="NGSolve threads per case (default: 1 in parallel, all cores otherwise)")
     p.add_argument("--plot-only", action="store_true", help="redraw figures and report from the CSV files")
     p.add_argument("--retry-failed", action="store_true", help="rerun cases whose solver failed before")
     p.add_argument("--quiet", action="store_true", help="one line: no progress bar, no report on the terminal")
@@ -146,14 +157,19 @@ def _words(v: Any) -> str:
     return str(v)
 
 
-def build_options(build: Callable[..., Study], cache: Path | None, data: Sequence[str]) -> dict[str, Any]:
-    """The keyword arguments ``build`` takes of ``cache`` and ``data`` (``--data``).
+def build_options(
+    build: Callable[..., Study], cache: Path | None, data: Sequence[str], workers: int | None = None
+) -> dict[str, Any]:
+    """The keyword arguments ``build`` takes of ``cache``, ``data`` (``--data``) and ``workers`` (``--workers``).
 
     ``data`` given to a ``build`` without a ``data`` parameter is refused (SceneError), as it would
-    be ignored.
+    be ignored. ``workers`` reaches a ``build`` that runs work of its own in worker processes (the
+    validation study's fits); None: its default.
     """
     params = inspect.signature(build).parameters
     kw: dict[str, Any] = {"cache": cache} if "cache" in params else {}
+    if workers is not None and "workers" in params:
+        kw["workers"] = workers
     if data:
         if "data" not in params:
             from ..scene.validate import SceneError
@@ -170,14 +186,16 @@ def build_study(
     source: str = "",
     cache: Path | None = None,
     data: Sequence[str] = (),
+    workers: int | None = None,
 ) -> Study:
     """The study ``build`` gives, on ``scene`` (None: the study's default), with what ``quick`` leaves out.
 
     ``cache``: the study cache, handed to a ``build`` that keeps work of its own there (a ``cache``
     parameter: the validation study's fits). ``data``: measured curves (``--data``), handed to a
     ``build`` with a ``data`` parameter; refused for another (SceneError: it would be ignored).
+    ``workers`` (``--workers``): to a ``build`` with a ``workers`` parameter.
     """
-    kw = build_options(build, cache, data)
+    kw = build_options(build, cache, data, workers)
     study = build(quick, scene, **kw) if scene is not None else build(quick, **kw)
     study.scene_source = source
     if quick and not study.left_out:  # a study whose full build is costly (fits) says it itself
@@ -212,7 +230,8 @@ def _prepare(
     try:
         if not args.plot_only:
             _probe_cache(Path(args.cache) if args.cache else DEFAULT_ROOT / "cache")
-        study = build_study(build, args.quick, scene, source, Path(args.cache) if args.cache else None, data)
+        cache = Path(args.cache) if args.cache else None
+        study = build_study(build, args.quick, scene, source, cache, data, getattr(args, "workers", None))
         _refuse_set_of_varied_keys(study, getattr(args, "overrides", None) or [])
     except BaseException:
         if folder is not None:

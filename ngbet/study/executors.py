@@ -46,6 +46,7 @@ __all__ = [
     "accept",
     "execute_case",
     "run_processes",
+    "stop_pool",
     "worker_context",
     "worker_init",
 ]
@@ -321,7 +322,7 @@ def _submit_and_collect(
         for fut in futs:  # cases that finished while the interrupt came in are kept
             if fut.done() and not fut.cancelled() and fut not in consumed:
                 take(fut)
-        _stop_pool(ex)
+        stop_pool(ex)
         raise
 
 
@@ -352,7 +353,7 @@ def worker_context(todo: list[Case]) -> Any:
     return ctx
 
 
-def _stop_pool(ex: Any) -> None:
+def stop_pool(ex: Any) -> None:
     """Cancel the pending cases and end the worker processes now (not after their running case)."""
     procs = list((getattr(ex, "_processes", None) or {}).values())
     ex.shutdown(wait=False, cancel_futures=True)
