@@ -48,9 +48,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--set, NAME-scene-DIGEST, DIGEST the scene's)",
     )
     p.add_argument("--cache", help="case cache folder (default: out/studies/cache)")
-    p.add_argument("--workers", type=at_least_one, help="local worker processes (default: one per core; 1 = in this process)")
+    p.add_argument(
+        "--workers", type=at_least_one, help="local worker processes (default: one per core; 1 = in this process)"
+    )
     p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
-    p.add_argument("--threads", type=at_least_one, help="NGSolve threads per case (default: 1 in parallel, all cores otherwise)")
+    p.add_argument(
+        "--threads", type=at_least_one, help="NGSolve threads per case (default: 1 in parallel, all cores otherwise)"
+    )
     p.add_argument("--plot-only", action="store_true", help="redraw figures and report from the CSV files")
     p.add_argument("--retry-failed", action="store_true", help="rerun cases whose solver failed before")
     p.add_argument("--quiet", action="store_true", help="one line: no progress bar, no report on the terminal")
