@@ -5,7 +5,8 @@ Exit status (both models, runs and studies):
 ====  ==================================================================================
 0     done
 1     the solver could not carry the load to the end (converged steps are on disk,
-      summary.json says "failed"); a study with cases that crashed
+      summary.json says "failed"); a study with cases that crashed; a fit whose worker
+      process ended without an answer (killed, out of memory)
 2     a bad scene or command line (the message names the key)
 3     an I/O problem: the output folder is not writable, a file is in its place, it is on
       a read-only mount, another run holds its lock, or a dask scheduler is unreachable

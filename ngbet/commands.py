@@ -87,12 +87,14 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
 
     ``where``: the output folder, named when the OS error names no file (e.g. a full disk on write).
     """
-    from .errors import ConvergenceError
+    from .errors import ConvergenceError, FitWorkerError
     from .run_folder import OutputError
     from .study.cluster import SchedulerError
 
     if isinstance(exc, SceneError):
         return EXIT_INPUT, f"bad scene: {exc}"
+    if isinstance(exc, FitWorkerError):  # killed or out of memory, not necessarily a bug
+        return EXIT_SOLVER, str(exc)
     if isinstance(exc, ConvergenceError):
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         advice = getattr(exc.detail, "advice", lambda: "")()  # the diagnosis's cause and remedy

@@ -11,11 +11,19 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-__all__ = ["Attempt", "ConvergenceError", "NgbetError"]
+__all__ = ["Attempt", "ConvergenceError", "FitWorkerError", "NgbetError"]
 
 
 class NgbetError(Exception):
     """Base of the errors ngbet raises on purpose."""
+
+
+class FitWorkerError(NgbetError, RuntimeError):
+    """A fit's worker process ended without an answer (killed, out of memory, crashed): the fit stops.
+
+    The other workers are ended; what was made before is kept. The commands exit 1 with its message,
+    as a study with crashed cases does.
+    """
 
 
 @dataclass

@@ -321,8 +321,9 @@ def fit_all(
     curves in workers of its own (:class:`ngbet.calibration.runs.CurveModel`). Every record is the
     one this process would make: a fit is a function of its scene and curves, and each worker
     keeps its own files in ``folder`` under its own names. A worker's exception is raised here; a
-    worker that dies stops the study naming its fit; Ctrl-C ends the workers (they ignore it
-    themselves, and exit when this process dies).
+    worker that dies stops the study (:class:`~ngbet.errors.FitWorkerError`) naming the
+    fits not made; either ends the other workers, and Ctrl-C ends them all (they ignore it
+    themselves, and exit when this process dies). The fits made are kept.
     """
     from ngbet.calibration.runs import default_workers
 
@@ -346,24 +347,24 @@ def _in_workers(
     import multiprocessing
     from concurrent.futures.process import BrokenProcessPool
 
-    from ngbet.calibration.runs import FitWorkerError
+    from ngbet.errors import FitWorkerError
     from ngbet.study.executors import stop_pool, worker_init
 
     ctx = multiprocessing.get_context("spawn")  # Netgen and NGSolve's threads do not survive a fork
     alive_r, alive_w = ctx.Pipe(duplex=False)
     env = {k: v for k, v in os.environ.items() if k.startswith("NGBET_")}
     ex = cf.ProcessPoolExecutor(n, mp_context=ctx, initializer=worker_init, initargs=(alive_r, env))
-    futures = {ex.submit(fit_and_predict, specs[k], quick, start, folder, curves, False): k for k in todo}
     docs: dict[int, dict[str, Any]] = {}
     try:
+        futures = {ex.submit(fit_and_predict, specs[k], quick, start, folder, curves, False): k for k in todo}
         for f in cf.as_completed(futures):
-            k = futures[f]
             try:
-                docs[k] = f.result()
-            except BrokenProcessPool as exc:
+                docs[futures[f]] = f.result()
+            except BrokenProcessPool as exc:  # every fit still running has lost its worker
+                lost = "; ".join(f"{specs[k].fabric.replace('_', ' ')}, {specs[k].name}" for k in todo if k not in docs)
                 raise FitWorkerError(
-                    f"the worker process fitting {specs[k].fabric.replace('_', ' ')}, {specs[k].name} ended "
-                    "without an answer (killed, out of memory or crashed); the study stops"
+                    "a worker process ended without an answer (killed, out of memory or crashed); the study "
+                    f"stops with these fits not made: {lost} (the fits made are kept)"
                 ) from exc
         ex.shutdown(wait=True)
     finally:

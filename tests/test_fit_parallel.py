@@ -18,6 +18,7 @@ import pytest
 from ngbet.calibration import joint, runs
 from ngbet.calibration.command import summary
 from ngbet.calibration.fit_params import CurveFit, curve_scene
+from ngbet.errors import FitWorkerError
 from ngbet.measured.curves import MeasuredCurve
 from ngbet.scene.document import Scene
 
@@ -128,7 +129,7 @@ def test_a_worker_that_dies_is_reported_and_the_others_are_ended():
         (victim,) = pool._processes.values()
         victim.kill()
         victim.join(10)
-        with pytest.raises(runs.FitWorkerError, match="150 x 300 mm"):
+        with pytest.raises(FitWorkerError, match="150 x 300 mm"):
             m(THETA + 0.1)
     finally:
         m.close()

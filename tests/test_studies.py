@@ -1126,9 +1126,11 @@ def test_an_error_in_a_fit_s_worker_reaches_the_study_and_ends_the_workers(tmp_p
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
-def test_ctrl_c_on_the_study_s_fits_ends_their_workers(tmp_path):
+@pytest.mark.parametrize("how", ["ctrl-c", "a worker killed"])
+def test_a_stopped_study_leaves_none_of_its_fits_workers(tmp_path, how):
     """Ctrl-C (SIGINT to the terminal's process group) while two fits run in workers: the study
-    exits 130 and no worker is left running."""
+    exits 130. One worker killed (out of memory, say): the study stops with one line naming the
+    fits not made, the other worker ended. Either way no worker is left running."""
     import psutil
 
     root = Path(__file__).resolve().parents[1]
@@ -1145,9 +1147,15 @@ def test_ctrl_c_on_the_study_s_fits_ends_their_workers(tmp_path):
             workers = [p for p in parent.children(recursive=True) if "resource_tracker" not in " ".join(p.cmdline())]
         assert len(workers) >= 2, "the fits' workers did not start"
         time.sleep(3.0)  # inside the fits
-        os.killpg(proc.pid, signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-        assert proc.returncode == 130, err
+        if how == "ctrl-c":
+            os.killpg(proc.pid, signal.SIGINT)
+            _, err = proc.communicate(timeout=60)
+            assert proc.returncode == 130, err
+        else:
+            workers[-1].kill()
+            _, err = proc.communicate(timeout=60)
+            assert proc.returncode == 1 and "ended without an answer" in err and "not made: twill unbalanced" in err
+            assert "Traceback" not in err
         _, alive = psutil.wait_procs(workers, timeout=20)
         assert not alive, [p.pid for p in alive]
     finally:

@@ -17,6 +17,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from ..errors import FitWorkerError
 from ..runner.ladder import Climb
 from ..scene.document import Scene
 from ..scene.validate import SceneError
@@ -27,7 +28,6 @@ __all__ = [
     "RUN_BUDGET_FACTOR",
     "RUN_BUDGET_MIN_S",
     "CurveModel",
-    "FitWorkerError",
     "Job",
     "Run",
     "curve_run",
@@ -172,10 +172,6 @@ def curve_run(job: Job, meshes: dict[tuple[int, int | None], Any]) -> Run:
             time.perf_counter() - t0,
             time.process_time() - c0,
         )
-
-
-class FitWorkerError(RuntimeError):
-    """A curve's worker process ended without an answer (killed, out of memory, crashed)."""
 
 
 class CurveModel:
