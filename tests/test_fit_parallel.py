@@ -160,10 +160,11 @@ FIT_SCRIPT = textwrap.dedent(
     from ngbet.calibration import runs
     from ngbet.calibration.joint import fit_curves
 
-    # every model run lasts at least a second, as a real one does (the test's coarse runs take less,
-    # and the whole fit could end before the signal): in the workers too, which import this module
+    # every model run outlasts the test's wait for the signal (the test's coarse runs take a fraction
+    # of a second, and a fit of a few of them ended before the signal on a loaded machine): in the
+    # workers too, which import this module; the signal or the kill ends them inside the wait
     _curve_run = runs.curve_run
-    runs.curve_run = lambda job, meshes: (time.sleep(1.0), _curve_run(job, meshes))[1]
+    runs.curve_run = lambda job, meshes: (time.sleep(60.0), _curve_run(job, meshes))[1]
 
     if __name__ == "__main__":  # the spawned workers import this module again
         print("started", flush=True)
