@@ -368,11 +368,20 @@ def write_prediction(
     ax.errorbar(xm, Fm, yerr=2 * sm, fmt="o", ms=2.5, color="k", lw=0.8, label="measured points ±2 sd (scatter)")
     x, F = curve.in_file_units(pred.u_mm, pred.force_N)  # a frame in its file's quantities (linear in the force)
     sd = curve.in_file_units(pred.u_mm, pred.sd_N)[1]
-    ax.fill_between(x, F - 2 * sd, F + 2 * sd, color="tab:orange", alpha=0.3, lw=0, label=band_label(pred))
+    xn, Fn = curve.in_file_units(pred.u_mm, normalisation)
+    # the band does not set the scale (where a parameter is open it spans more than the curves, below
+    # zero force too: a first-order band): the measured curve, the prediction and the method's do
+    shown = np.concatenate([curve.in_file_units(curve.u_mm[ok], curve.force_N[ok])[1], Fm + 2 * sm, F, Fn])
+    shown = shown[np.isfinite(shown)]
+    bottom, top = min(0.0, float(shown.min())), float(shown.max())
+    lo, hi = F - 2 * sd, F + 2 * sd
+    cut = bool(np.any(lo < bottom - 0.06 * (top - bottom)) or np.any(hi > top + 0.06 * (top - bottom)))
+    label = band_label(pred) + (", cut at the axes" if cut else "")
+    ax.fill_between(x, lo, hi, color="tab:orange", alpha=0.3, lw=0, label=label)
     ax.plot(x, F, "-", color="tab:orange", label="ngbet prediction")
     if np.isfinite(normalisation).any():
-        xn, Fn = curve.in_file_units(pred.u_mm, normalisation)
         ax.plot(xn, Fn, "--", color="tab:blue", lw=1.0, label="normalisation method from the fitted curves")
+    ax.set_ylim(bottom - 0.06 * (top - bottom), top + 0.06 * (top - bottom))
     frame = curve.test == "picture_frame"
     ax.set_xlabel(FRAME_X_LABEL if frame else "clamp displacement [mm]")
     ax.set_ylabel(QUANTITY_LABEL[curve.quantity])
