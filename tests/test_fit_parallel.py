@@ -161,8 +161,8 @@ FIT_SCRIPT = textwrap.dedent(
     from ngbet.calibration.joint import fit_curves
 
     # every model run outlasts the test's wait for the signal (the test's coarse runs take a fraction
-    # of a second, and a fit of a few of them ended before the signal on a loaded machine): in the
-    # workers too, which import this module; the signal or the kill ends them inside the wait
+    # of a second: a fit of a few could end before it): in the workers too, which import this module;
+    # the signal or the kill ends them inside the wait
     _curve_run = runs.curve_run
     runs.curve_run = lambda job, meshes: (time.sleep(60.0), _curve_run(job, meshes))[1]
 
@@ -179,6 +179,8 @@ def test_a_stopped_fit_leaves_no_worker_behind(tmp_path, how):
     """Ctrl-C on a fit with worker processes (SIGINT to the terminal's process group, as a terminal
     sends it): the fit stops with KeyboardInterrupt and ends its workers. The fit's process killed
     (SIGKILL, no clean-up possible): its workers exit by themselves, also in the middle of a run."""
+    from test_faults import signals_at_default
+
     script = tmp_path / "fit.py"
     script.write_text(FIT_SCRIPT.format(tests=str(Path(__file__).parent)))
     proc = subprocess.Popen(
@@ -188,6 +190,7 @@ def test_a_stopped_fit_leaves_no_worker_behind(tmp_path, how):
         text=True,
         start_new_session=True,
         env={**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])},
+        preexec_fn=signals_at_default,  # started as from a terminal, whatever started pytest
     )
     workers: list[psutil.Process] = []
     try:

@@ -1137,7 +1137,16 @@ def test_a_stopped_study_leaves_none_of_its_fits_workers(tmp_path, how):
     scene = root / "geometry" / "twintex_twill_unbalanced.toml"
     cmd = [sys.executable, "-m", "ngbet", "study", "validation", str(scene)]
     cmd += ["--cache", str(tmp_path / "cache"), "--out", str(tmp_path / "out")]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    from test_faults import signals_at_default  # (started as from a terminal, whatever started pytest)
+
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=signals_at_default,
+    )
     workers: list[psutil.Process] = []
     try:
         parent = psutil.Process(proc.pid)
