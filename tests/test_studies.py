@@ -1066,33 +1066,21 @@ def test_a_kept_fit_predicts_a_curve_added_later_without_fitting_again(tmp_path,
     assert json.loads((tmp_path / f"{d0['cache_name']}.json").read_text())["fit"] == {"n": 2}
 
 
-def _children() -> set[int]:
-    """This process's living children but multiprocessing's resource tracker (one per process, it stays)."""
-    import psutil
-
-    out = set()
-    for p in psutil.Process().children(recursive=True):
-        try:
-            if p.status() != psutil.STATUS_ZOMBIE and "resource_tracker" not in " ".join(p.cmdline()):
-                out.add(p.pid)
-        except psutil.Error:  # ended meanwhile
-            pass
-    return out
-
-
 def test_one_curve_fits_run_side_by_side_with_the_records_of_one_process(tmp_path, monkeypatch):
     """The study's fits of one curve run in two worker processes at once; each record (the fitted
     scene, every prediction with its band) is the one a fit made in this process keeps, to the bit,
     and no worker is left. Fits already kept start no worker."""
+    from test_fit_parallel import children
+
     from ngbet.studies import _validation_data as VD
     from ngbet.studies import _validation_fits as VF
 
     curves = VD.find_curves()
     specs = [s for s in VF.fits_of("twill_unbalanced", curves) if s.kind == "one size"]
     assert len(specs) == 2
-    before = _children()
+    before = children()
     both = VF.fit_all(specs, True, None, tmp_path / "both", curves, workers=2)
-    assert not _children() - before
+    assert not children() - before
     here = VF.fit_and_predict(specs[0], True, None, tmp_path / "here", curves)  # (100 x 250 mm: the shorter fit)
     assert both[0]["fitted_scene"] == here["fitted_scene"]
     assert both[0]["predictions"] == here["predictions"] and set(here["predictions"]) == set(specs[0].targets)
@@ -1110,6 +1098,8 @@ def test_an_error_in_a_fit_s_worker_reaches_the_study_and_ends_the_workers(tmp_p
     file, and both workers are ended."""
     from dataclasses import replace
 
+    from test_fit_parallel import children
+
     from ngbet.scene.validate import SceneError
     from ngbet.studies import _validation_data as VD
     from ngbet.studies import _validation_fits as VF
@@ -1119,10 +1109,10 @@ def test_an_error_in_a_fit_s_worker_reaches_the_study_and_ends_the_workers(tmp_p
     bad = tmp_path / "unreadable.csv"
     bad.write_text("# fabric: Twintex TPECU53XXX\ndisplacement_mm,force_N\n1,x\n")
     broken = replace(curves, paths={**curves.paths, specs[0].fitted[0]: bad})
-    before = _children()
+    before = children()
     with pytest.raises((SceneError, ValueError), match="unreadable.csv"):
         VF.fit_all(specs, True, None, tmp_path / "fits", broken, workers=2)
-    assert not _children() - before
+    assert not children() - before
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
