@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from .measured.curves import MeasuredCurve, read_measured, refuse_duplicates
-from .measured.table import CurveTable, parse_sizes, read_table
+from .measured.table import CurveTable, curve_files, parse_sizes, per_file, read_table
 from .run_folder import OwnedFolder
 from .scene.validate import SceneError
 
@@ -480,28 +480,22 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")
 
 
-def _per_file(values: list[dict[str, float]], n: int, flag: str) -> list[dict[str, float] | None]:
-    if not values:
-        return [None] * n
-    if len(values) == 1:
-        return [values[0]] * n
-    if len(values) != n:
-        raise SceneError(f"{len(values)} {flag} for {n} data files: give one for all, or one per file in order")
-    return list(values)
+def read_inputs(args: argparse.Namespace) -> tuple[list[Normalised], list[str]]:
+    """Every file read, checked and normalised (before anything is written), and notes on files left out.
 
-
-def read_inputs(args: argparse.Namespace) -> list[Normalised]:
-    """Every file read, checked and normalised (before anything is written)."""
+    An error-bar file given with its curve is no curve: left out, with a note.
+    """
+    paths, left = curve_files(args.inputs)
     sizes = ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm")
-    specs = _per_file([parse_sizes(t, "--specimen", sizes) for t in args.specimen], len(args.inputs), "--specimen")
-    frames = _per_file(
+    specs = per_file([parse_sizes(t, "--specimen", sizes) for t in args.specimen], len(paths), "--specimen")
+    frames = per_file(
         [parse_sizes(t, "--frame", ("picture_frame.frame_mm", "picture_frame.fabric_mm")) for t in args.frame],
-        len(args.inputs),
+        len(paths),
         "--frame",
     )
     tables = [
         read_table(p, test=args.test, columns=args.columns, specimen=s, frame=f)
-        for p, s, f in zip(args.inputs, specs, frames, strict=True)
+        for p, s, f in zip(paths, specs, frames, strict=True)
     ]
     refuse_duplicates(tables)
     out = []
@@ -511,7 +505,7 @@ def read_inputs(args: argparse.Namespace) -> list[Normalised]:
             out.append(normalise_bet(t.source, s, args.columns))
         else:
             out.append(normalise_pf(t))
-    return out
+    return out, [f"{eb}: the error bars of {curve}, not a curve: left out" for eb, curve in left]
 
 
 def _test_of(t: CurveTable) -> str:
@@ -533,7 +527,7 @@ def run_from_args(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     try:
-        curves = read_inputs(args)
+        curves, left_out = read_inputs(args)
         names = _names(curves)
         groups = spreads(curves)
         text = spread_text(groups)
@@ -566,9 +560,8 @@ def run_from_args(args: argparse.Namespace) -> int:
         code, msg = exit_code(exc, out)
         print(f"ngbet normalise: {msg}", file=sys.stderr)
         return code
-    for c in curves:
-        for note in c.notes:
-            print(f"ngbet normalise: {c.source}: {note}", file=sys.stderr)
+    for note in left_out + [f"{c.source}: {note}" for c in curves for note in c.notes]:
+        print(f"ngbet normalise: {note}", file=sys.stderr)
     if not args.quiet:
         print(_report(curves, names, text, out, figure))
     return 0

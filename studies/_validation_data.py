@@ -21,6 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ngbet.measured.table import curve_files
+
 __all__ = ["DATA_FOLDERS", "FABRICS", "STYLES", "Curves", "data_root", "find_curves"]
 
 log = logging.getLogger(__name__)
@@ -129,7 +131,7 @@ def _files(where: Path) -> list[Path]:
         from ngbet.scene.validate import SceneError
 
         raise SceneError(f"--data {where}: no such file or folder")
-    return sorted(p for p in where.glob("*.csv") if not p.stem.endswith("_errorbars"))
+    return sorted(Path(p) for p in curve_files(list(where.glob("*.csv")))[0])
 
 
 def find_curves(extra: Sequence[str | Path] = ()) -> Curves:

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from ngbet.measured.table import errorbar_path
 from ngbet.scene.document import Scene
 
 from ._validation_data import FABRICS, Curves, data_root
@@ -114,7 +115,7 @@ def fits_of(fabric: str, curves: Curves) -> list[FitSpec]:
 
 def _file_hash(h: Any, p: Path) -> None:
     h.update(p.read_bytes())
-    eb = p.with_name(p.stem + "_errorbars.csv")
+    eb = errorbar_path(p)
     if eb.exists():
         h.update(eb.read_bytes())
 

@@ -523,3 +523,36 @@ def test_run_data_refuses_a_bad_specimen_or_figures_that_are_not_drawn(tmp_path,
     assert main(["run", "--data", str(p), *extra, "--out", str(out)]) == 2
     assert match in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_error_bar_files_given_with_their_curves_are_left_out_and_alone_are_refused(tmp_path, capsys):
+    """``data/cao2008/*.csv`` names each curve and its NAME_errorbars.csv: the bars are no curve.
+
+    Given with its curve, an error-bar file is left out (said); alone, it is refused naming the
+    curve to give; a curve that only carries such a name is read as any curve.
+    """
+    from ngbet.calibration.command import Inputs
+    from ngbet.cli import _parser
+
+    files = sorted(str(p) for p in (DATA / "cao2008").glob("cao2008_twill_unbalanced_*.csv"))
+    assert len(files) == 4 and sum(f.endswith("_errorbars.csv") for f in files) == 2
+    out = tmp_path / "n"
+    assert _normalise(*files, "--out", str(out)) == 0
+    assert len(json.loads((out / "normalise.json").read_text())["curves"]) == 2
+    assert capsys.readouterr().err.count("not a curve: left out") == 2
+    inp = Inputs(_parser("fit").parse_args(["fit", *files, "--params", "material.K_sh", "--out", str(tmp_path / "f")]))
+    assert [c.label for c in inp.curves] == ["100 x 200 mm", "100 x 250 mm"]
+    assert all(c.bars is not None for c in inp.curves)  # the bars weight the points all the same
+    assert sum("the error bars of" in n for n in inp.notes) == 2
+
+    curve, bars = files[:2]
+    assert bars == curve.removesuffix(".csv") + "_errorbars.csv"
+    for cmd in (
+        ["normalise", bars, "--out", str(tmp_path / "m")],
+        ["run", "--data", bars, "--out", str(tmp_path / "r")],
+    ):
+        assert main(cmd) == 2
+        assert f"not a curve: give {curve};" in capsys.readouterr().err
+    assert not (tmp_path / "m").exists() and not (tmp_path / "r").exists()
+    named = _csv(tmp_path / "own_errorbars.csv", SPEC + "displacement_mm,force_N\n" + _body())
+    np.testing.assert_allclose(read_table(named).y, F)

@@ -162,7 +162,9 @@ class Inputs:
         if not self.data:
             raise SceneError("no data file: give at least one CSV of displacement_mm,force_N")
         from ..measured.curves import read_all, read_any
-        from ..measured.table import parse_sizes
+        from ..measured.table import curve_files, parse_sizes
+
+        self.data, left = curve_files(self.data)  # error-bar files given with their curves (data/*.csv)
 
         sizes = ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm")
         specs = [parse_sizes(t, "--specimen", sizes) for t in getattr(args, "specimen", [])]
@@ -190,7 +192,8 @@ class Inputs:
         if not args.max_runs >= 1:
             raise SceneError(f"--max-runs {args.max_runs}: must be at least 1")
         self.u_range = _range(args.u_range)
-        self.notes = [f"{c.source}: {n}" for c in self.curves + self.predict for n in c.notes]
+        self.notes = [f"{eb}: the error bars of {curve}, read with it" for eb, curve in left]
+        self.notes += [f"{c.source}: {n}" for c in self.curves + self.predict for n in c.notes]
         self.predict_scene = Scene.from_toml(args.predict_scene) if args.predict_scene else None
         from ..measured.observations import read_angles, read_profile
         from .fit_params import curve_scene, expand_params, value_of

@@ -25,7 +25,7 @@ import numpy as np
 from ..scene.validate import SceneError
 from .columns import WORDS
 from .header import FRAME_KEYS
-from .table import CurveTable, read_errorbars, read_table
+from .table import CurveTable, per_file, read_errorbars, read_table
 
 __all__ = [
     "MIN_RELATIVE_SD",
@@ -318,22 +318,10 @@ def read_all(
 
     ``specimens``: one ``--specimen`` for every file, or one per file in order.
     """
-    specs = _per_file(paths, specimens, "--specimen")
+    specs = per_file(specimens or (), len(paths), "--specimen")
     curves = [read_any(p, fraction, columns=columns, specimen=s) for p, s in zip(paths, specs, strict=True)]
     refuse_duplicates(curves)
     return curves
-
-
-def _per_file(
-    paths: Sequence[str | Path], given: Sequence[dict[str, float]] | None, flag: str
-) -> list[dict[str, float] | None]:
-    if not given:
-        return [None] * len(paths)
-    if len(given) == 1:
-        return [given[0]] * len(paths)
-    if len(given) != len(paths):
-        raise SceneError(f"{len(given)} {flag} for {len(paths)} data files: give one for all, or one per file in order")
-    return list(given)
 
 
 def refuse_duplicates(curves: Sequence[MeasuredCurve | CurveTable]) -> None:

@@ -36,7 +36,9 @@ what to write (:class:`ngbet.scene.validate.SceneError`, exit status 2).
 
 
 A file ``NAME_errorbars.csv`` beside ``NAME.csv`` with the columns ``displacement_mm``,
-``force_low_N``, ``force_high_N`` gives the printed error bars (:func:`read_errorbars`).
+``force_low_N``, ``force_high_N`` gives the printed error bars (:func:`read_errorbars`). Given among
+the data files with its curve (a shell pattern such as ``data/*.csv`` gives both), it is left out
+of the curves (:func:`curve_files`); given without its curve, it is refused with the file to give.
 """
 
 from __future__ import annotations
@@ -68,8 +70,10 @@ from .header import DECIMAL_COMMA, Header, name_of_test, parse_number
 __all__ = [
     "CYCLE_TOLERANCE",
     "CurveTable",
+    "curve_files",
     "errorbar_path",
     "parse_sizes",
+    "per_file",
     "read_errorbars",
     "read_table",
     "read_text",
@@ -274,6 +278,7 @@ def read_table(
             if u.strip() and c.unit is None:
                 c.unit = unit_key(u.strip("()[] "))
         rows = rows[1:]
+    _refuse_errorbars(path, cols, columns)
     x, y = choose_columns(cols, columns, path, head_line)
     fx, fy = check_unit(x, path, head_line), check_unit(y, path, head_line)
     comma = sep != ","
@@ -393,6 +398,54 @@ def errorbar_path(path: str | Path) -> Path:
     """``NAME_errorbars.csv`` beside ``NAME.csv``."""
     p = Path(path)
     return p.with_name(p.stem + "_errorbars" + p.suffix)
+
+
+def _refuse_errorbars(path: Path, cols: Sequence[Column], columns: str | Sequence[str] | None) -> None:
+    """Refuse an error-bar file (by its name and columns) read as a curve, unless ``--columns`` chose from it."""
+    curve = curve_of_errorbars(path)
+    if curve is not None and columns is None and {"force_low_N", "force_high_N"} <= {c.name for c in cols}:
+        raise SceneError(
+            f"{path} holds the error bars of {curve.name} (force_low_N, force_high_N), not a curve: "
+            f"give {curve}; the bars beside it go with it"
+        )
+
+
+def curve_of_errorbars(path: str | Path) -> Path | None:
+    """``NAME.csv`` for a file named ``NAME_errorbars.csv`` (the inverse of :func:`errorbar_path`), else None."""
+    p = Path(path)
+    stem = p.stem.removesuffix("_errorbars")
+    return p.with_name(stem + p.suffix) if stem and stem != p.stem else None
+
+
+def curve_files(paths: Sequence[str | Path]) -> tuple[list[str | Path], list[tuple[str | Path, Path]]]:
+    """The curves among data files given together, and the error-bar files left out of them.
+
+    An error-bar file whose curve is also given (``data/*.csv`` names both) is not a curve: it is
+    left out, returned as (file, its curve) for the caller's note; its bars are read with the curve
+    (:func:`read_errorbars`). One given without its curve stays, for :func:`read_table` to refuse
+    with the file to give. The order of the curves is kept.
+    """
+    given = {Path(p).resolve() for p in paths}
+    kept: list[str | Path] = []
+    left: list[tuple[str | Path, Path]] = []
+    for p in paths:
+        curve = curve_of_errorbars(p)
+        if curve is not None and curve.resolve() in given:
+            left.append((p, curve))
+        else:
+            kept.append(p)
+    return kept, left
+
+
+def per_file(given: Sequence[dict[str, float]], n: int, flag: str) -> list[dict[str, float] | None]:
+    """Command-line values (``--specimen``, ``--frame``) for ``n`` data files: none, one for all, or one per file."""
+    if not given:
+        return [None] * n
+    if len(given) == 1:
+        return [given[0]] * n
+    if len(given) != n:
+        raise SceneError(f"{len(given)} {flag} for {n} data files: give one for all, or one per file in order")
+    return list(given)
 
 
 def read_errorbars(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
