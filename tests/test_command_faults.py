@@ -249,6 +249,21 @@ def test_a_file_size_limit_leaves_no_cut_file_and_says_failed(tmp_path):
     assert len((out / "results.csv").read_text().splitlines()) == 1 + s["steps"]  # every converged step kept
 
 
+def test_a_failed_run_keeps_the_warnings_its_scene_was_given(tmp_path, capsys):
+    """order_u = 1 locks under the constraint phi = i8 (warned before the solve); on the default
+    scene's corners, graded to 0.25 mm, its first load step finds no equilibrium. The failed run's
+    summary.json keeps that warning, as a finished run's does: it is the reason of the failure."""
+    out = tmp_path / "p1"
+    assert main(["run", "--set", "discretization.order_u=1", "--out", str(out), "--quiet"]) == 1
+    assert "order_u = 1 locks under the constraint" in capsys.readouterr().err
+    s = summary(out)
+    assert s["status"] == "failed" and s["last_converged_mm"] == 0.0
+    assert [w for w in s["warnings"] if "order_u = 1 locks" in w] == [
+        "order_u = 1 locks under the constraint phi = i8 (the force converges very slowly from above and the "
+        "multiplier grows like 1/h); use order_u >= 2"
+    ]
+
+
 # ------------------------------------------------------------------------------- signals
 @pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGUSR1])
 def test_a_closed_terminal_or_a_user_signal_leaves_a_true_summary(tmp_path, sig):

@@ -95,6 +95,23 @@ def test_u0_to_60mm_close_to_yarn_locking(tmp_path):
     assert 45.0 < rows[-1]["gamma_centre_deg"] < 73.8
 
 
+def test_a_shear_modulus_far_below_the_yarns_elongation_modulus_reaches_the_load(tmp_path):
+    """K_sh = 1 Pa against K_el = 7e5 Pa: the multiplier's stiffness scale follows K_el, not K_sh
+    (``K_REF_EL_FRACTION``). Scaled by K_sh alone, K_aug = 1e6 Pa left the condensed Newton matrix
+    too far from the exact one: this coarse scene stopped at 44.9 mm (the default mesh at 0 mm).
+    Measured with the scale: 56 mm in 54 steps, one snap-through at 52.3 mm, F(56) = 79.58 N
+    (111.9 N with K_sh = 21000 Pa: bending and elongation now carry the load)."""
+    s, rows, _ = _run(tmp_path, "soft", **{"material.K_sh": 1.0})
+    assert s["status"] == "ok" and math.isclose(rows[-1]["u0_mm"], 56.0, rel_tol=1e-12)
+    assert max(r["constraint_rms"] for r in rows) < 0.05 and s["multiplier_oscillation"] < 0.5
+    F = np.array([r["force_N"] for r in rows])
+    assert np.all(np.isfinite(F)) and F[0] > 0 and 60.0 < F[-1] < F56_LAGRANGE_H10
+    # the force falls only where the state snapped
+    snapped = {round(sn["u0_mm"], 9) for sn in s["snaps"]}
+    falls = {round(rows[k + 1]["u0_mm"], 9) for k in np.nonzero(np.diff(F) <= 0)[0]}
+    assert falls <= snapped, (falls, snapped)
+
+
 def test_first_step_asks_for_the_whole_load(tmp_path):
     """A first step of 56 mm (max step 56 mm): the stepping recovers by itself (here it lands on
     the 37 mm stop, then 56 mm) and gives the force of the default stepping to 1e-8 (relative:

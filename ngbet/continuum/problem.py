@@ -78,7 +78,7 @@ log = logging.getLogger(__name__)
 
 DIRICHLET = "left|right"
 
-__all__ = ["ContinuumProblem", "STABILIZATION_C", "stabilization_modulus"]
+__all__ = ["K_REF_EL_FRACTION", "ContinuumProblem", "STABILIZATION_C", "stabilization_modulus"]
 
 
 #: c in the default K_s = c min(α1, α2) / h_T². Measured (Table 1, 56 mm): the corner meshes that
@@ -95,6 +95,17 @@ STABILIZATION_C = 0.1
 #: K_s up to 2.3e7 Pa) the cap moves the force at 56 mm by 6e-8 N (107.3735 N).
 STABILIZATION_CAP = 30.0
 
+
+#: the stiffness scale K_ref of the multiplier (its unit-free norm, and K_aug = 1e6 K_ref of the
+#: condensed Newton matrix, :mod:`ngbet.numerics.linear`) is max(K_sh, K_REF_EL_FRACTION K_el).
+#: K_aug has a window. Too small against K_el, the Newton matrix is too far from the exact one: the
+#: default scene with K_sh = 1 Pa and K_aug = 1e6 Pa (K_ref = K_sh) found no equilibrium past
+#: u0 = 0, 3e7 Pa stopped at 53 mm, 7e7 Pa reached 56 mm in 403 Newton iterations, 1.4e8 Pa (this
+#: fraction) in 435, 7e8 Pa in 576. Too large, the conditioning suffers: K_el = 1e8 Pa with
+#: K_sh = 21000 Pa reaches 56 mm with K_aug = 2.1e10 Pa and stopped at 54.8 mm with 1e11 Pa
+#: (a fraction of 1e-3). Shipped and default scenes (K_sh = 21000 Pa, K_el up to 1e8 Pa) keep
+#: K_ref = K_sh, to the bit.
+K_REF_EL_FRACTION = 2e-4
 
 #: inverted material (det F ≤ 0) on more than this fraction of the specimen makes a state
 #: inadmissible for the relaxation to a stable state (a few integration points at a singular clamp
@@ -168,7 +179,7 @@ class ContinuumProblem:
         self._spaces(scene, dirichlet)
         self.m1, self.m2 = CF(self.yarns[0]), CF(self.yarns[1])
         mat = scene.material
-        self.K_ref = mat.K_sh if mat.K_sh > 0 else mat.K_el
+        self.K_ref = max(mat.K_sh, K_REF_EL_FRACTION * mat.K_el)
         self.dx = ngs.dx(bonus_intorder=disc.quad_bonus)
         #: the energy integrand in parts (differentiated with respect to self.parameters in
         #: sensitivity.py), and for the exact Lagrangian K_aug -> the augmented one (else None)

@@ -88,7 +88,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
         solver = ContinuumSolver(ContinuumProblem(scene), solver_settings(scene))
         estimates = RunEstimates(solver)
         info = _setup_info(solver, time.perf_counter() - t0)
-        warnings = _order_warnings(scene)
+        warnings: list[str] = []  # found at the end of the path (the scene's own: the writer's preflight)
         with progress_bar(progress, scene.loading.u0_mm) as bar:
             recorder = _StepWriter(solver, writer, out, estimates)
             t_cont = time.perf_counter()
@@ -182,20 +182,6 @@ def _setup_info(solver: ContinuumSolver, t_setup: float) -> dict[str, Any]:
         "threads": ngs.GetNumThreads(),
         "assembly_threads": assembly_thread_count(),
     }
-
-
-def _order_warnings(scene: Scene) -> list[str]:
-    """Warnings about the discretization that are known before solving."""
-    warnings = []
-    if scene.effects.bending and scene.discretization.p_u == 1:
-        # measured, default scene at 37 mm: 84.4, 80.3, 76.3 N on h = 10, 5, 2.5 mm against 61.2 N
-        # (p = 2, 3 extrapolated), with ‖Λ‖ doubling at each refinement: P1 locks
-        warnings.append(
-            "order_u = 1 locks under the constraint phi = i8 (the force converges very slowly "
-            "from above and the multiplier grows like 1/h); use order_u >= 2"
-        )
-        log.warning("%s", warnings[-1])
-    return warnings
 
 
 class _StepWriter:
