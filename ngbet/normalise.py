@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from .measured.curves import MeasuredCurve, read_measured, refuse_duplicates
+from .measured.header import fabric_names
 from .measured.table import CurveTable, curve_files, parse_sizes, per_file, read_table
 from .run_folder import OwnedFolder
 from .scene.validate import SceneError
@@ -100,6 +101,8 @@ class Normalised:
     columns: dict[str, np.ndarray]
     header: list[str]
     notes: list[str] = field(default_factory=list)
+    #: the fabric as the file's header names it ("" where it does not)
+    fabric: str = ""
 
 
 def _points(n: Any) -> str:
@@ -267,7 +270,7 @@ def normalise_bet(
         "fsh_energy_N_per_mm: the same by the energy method, (dw/dgamma)/cos(gamma)",
         "shear_energy_N_per_mm: shear energy per unit area w (N mm / mm^2) of the energy method",
     ]
-    return Normalised(c.source, "bias_extension", f"{W:g} × {H:g} mm", g, fsh, fsh_e, cols, header, notes)
+    return Normalised(c.source, "bias_extension", f"{W:g} × {H:g} mm", g, fsh, fsh_e, cols, header, notes, c.fabric)
 
 
 # --- picture frame ---------------------------------------------------------------------------------------------------
@@ -337,6 +340,7 @@ def normalise_pf(t: CurveTable) -> Normalised:
         cols,
         header,
         notes,
+        t.fabric,
     )
 
 
@@ -378,26 +382,33 @@ def spread(curves: Sequence[Normalised]) -> dict[str, Any] | None:
 def spreads(curves: Sequence[Normalised]) -> list[tuple[str, dict[str, Any] | None]]:
     """The spread between the bias extension sizes, between the picture frames, and between the tests where both are.
 
-    Each as (what, :func:`spread`), for every group of at least two curves.
+    Each as (what, :func:`spread`), for every group of at least two curves; of each fabric apart
+    where the curves name several (:func:`ngbet.measured.header.fabric_names`): fabrics differ by more
+    than sizes do.
     """
-    bet = [c for c in curves if c.test == "bias_extension"]
-    pf = [c for c in curves if c.test == "picture_frame"]
-    out = [
-        (what, spread(group))
-        for what, group in (
-            ("the bias extension sizes", bet),
-            ("the picture frames", pf),
-            ("the tests", curves if bet and pf else []),
-        )
-        if len(group) > 1
-    ]
+    names = fabric_names([c.fabric for c in curves])
+    out = []
+    for fabric in dict.fromkeys(names):
+        mine = [c for c, n in zip(curves, names, strict=True) if n == fabric]
+        bet = [c for c in mine if c.test == "bias_extension"]
+        pf = [c for c in mine if c.test == "picture_frame"]
+        of = f" of {fabric}" if fabric else ""
+        out += [
+            (what + of, spread(group))
+            for what, group in (
+                ("the bias extension sizes", bet),
+                ("the picture frames", pf),
+                ("the tests", mine if bet and pf else []),
+            )
+            if len(group) > 1
+        ]
     return out
 
 
 def spread_text(groups: list[tuple[str, dict[str, Any] | None]]) -> str:
     """One sentence on the spreads (figure caption and terminal)."""
     if not groups:
-        return "one curve: no spread to state"
+        return "no two curves of one fabric and test: no spread to state"
     parts = []
     for what, s in groups:
         if s is None:
@@ -577,7 +588,13 @@ def _figure(folder: OwnedFolder, curves: Sequence[Normalised], text: str) -> str
             "ngbet normalise: matplotlib is not installed: no collapse figure (the tables are written)", file=sys.stderr
         )
         return None
-    fig = collapse_figure(curves, text)
+    names = fabric_names([c.fabric for c in curves])
+    panels = [
+        (fabric, mine, spread_text(spreads(mine)))
+        for fabric in dict.fromkeys(names)
+        for mine in [[c for c, n in zip(curves, names, strict=True) if n == fabric]]
+    ]
+    fig = collapse_figure(panels, text)
     for fmt in ("png", "pdf"):
         folder.write(
             f"{FIGURE}.{fmt}",
@@ -588,14 +605,15 @@ def _figure(folder: OwnedFolder, curves: Sequence[Normalised], text: str) -> str
 
 def _report(curves: Sequence[Normalised], names: Sequence[str], text: str, out: Path, figure: str | None) -> str:
     lines = [f"ngbet normalise: {len(curves)} curve(s); tables{' and ' + figure if figure else ''} in {out}/"]
-    for c, name in zip(curves, names, strict=True):
+    for c, name, fabric in zip(curves, names, fabric_names([c.fabric for c in curves]), strict=True):
         g = c.gamma_deg
         at = [x for x in (20.0, 40.0) if g.min() <= x <= g.max()]
         sym = "F_sh" if c.test == "bias_extension" else "F_norm"
         vals = ", ".join(f"{sym}({x:g}°) = {np.interp(x, g, c.fsh):.3g} N/mm" for x in at)
         method = "Eq. 18" if c.test == "bias_extension" else "Eq. 10"
+        label = (fabric + ", " if fabric else "") + c.label
         lines.append(
-            f"  {c.label:>28s} ({c.test.replace('_', ' ')}): γ {g.min():.3g}–{g.max():.3g}°"
+            f"  {label:>28s} ({c.test.replace('_', ' ')}): γ {g.min():.3g}–{g.max():.3g}°"
             f"{', ' + vals + ' (' + method + ')' if vals else ''} -> {name}"
         )
     lines.append(f"  {text}")

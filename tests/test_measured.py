@@ -556,3 +556,44 @@ def test_error_bar_files_given_with_their_curves_are_left_out_and_alone_are_refu
     assert not (tmp_path / "m").exists() and not (tmp_path / "r").exists()
     named = _csv(tmp_path / "own_errorbars.csv", SPEC + "displacement_mm,force_N\n" + _body())
     np.testing.assert_allclose(read_table(named).y, F)
+
+
+def test_normalise_states_the_spread_of_each_fabric_and_draws_a_panel_each(tmp_path, capsys):
+    """The three fabrics' curves (data/cao2008/*.csv and the frames): each fabric's spreads are its
+    own curves' (the unbalanced twill's two sizes: 70 % at most, 16 % median, as alone), none across
+    fabrics; a frame joins its fabric by the style code its header shares with the bias extension
+    curves' ("TPEET22XXX"); the figure has one panel per fabric, inside its canvas."""
+    from ngbet.figures.collapse import collapse_figure
+    from ngbet.figures.style import texts_outside
+    from ngbet.measured.header import fabric_names
+    from ngbet.normalise import normalise_bet, normalise_pf, spread_text, spreads
+
+    files = sorted((DATA / "cao2008").glob("*.csv")) + sorted((DATA / "cao2008_pf").glob("*.csv"))
+    out = tmp_path / "n"
+    assert _normalise(*map(str, files), "--out", str(out)) == 0
+    groups = json.loads((out / "normalise.json").read_text())["spread"]
+    twill = "Twintex TPECU53XXX 2/2 twill"
+    assert sorted(groups) == sorted(
+        f"the {what} of {fabric}"
+        for fabric, whats in (
+            ("Twintex TPEET22XXX plain weave", ("bias extension sizes", "picture frames", "tests")),
+            ("Twintex TPEET44XXX 2/2 twill", ("bias extension sizes", "tests")),
+            (twill, ("bias extension sizes", "tests")),
+        )
+        for what in whats
+    )
+    alone = groups[f"the bias extension sizes of {twill}"]
+    assert alone["max_percent"] == pytest.approx(70.1, abs=0.5) and alone["median_percent"] == pytest.approx(
+        15.6, abs=0.5
+    )
+    assert f"between the tests of {twill}" in capsys.readouterr().out
+
+    curves = [normalise_bet(f) for f in files[:12] if not f.stem.endswith("_errorbars")]
+    curves += [normalise_pf(read_table(f)) for f in files[12:]]
+    names = fabric_names([c.fabric for c in curves])
+    assert len(set(names)) == 3 and names.count("Twintex TPEET22XXX plain weave") == 6
+    assert fabric_names([c.fabric for c in curves[:2]]) == ["", ""]  # one fabric: no names
+    groups = {n: [c for c, m in zip(curves, names, strict=True) if m == n] for n in dict.fromkeys(names)}
+    fig = collapse_figure([(n, mine, spread_text(spreads(mine))) for n, mine in groups.items()], "")
+    assert len(fig.axes) == 3 and texts_outside(fig) == []
+    assert len(collapse_figure([("", curves[:2], "one spread")], "one spread").axes) == 1

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from pathlib import Path
 
 from ..scene.validate import SceneError
 from .columns import UNITS, unit_key
 
-__all__ = ["DECIMAL_COMMA", "FRAME_KEYS", "TESTS", "Header", "parse_number", "name_of_test"]
+__all__ = ["DECIMAL_COMMA", "FRAME_KEYS", "TESTS", "Header", "fabric_names", "parse_number", "name_of_test"]
 
 TESTS = ("bias_extension", "picture_frame")
 _SPECIMEN_KEYS = {
@@ -116,6 +117,32 @@ def name_of_test(text: str, where: str) -> str:
     if t not in TESTS:
         raise SceneError(f"{where}: unknown test {text.strip()!r}; write bias_extension or picture_frame")
     return t
+
+
+#: a fabric's style code in its header's text (letters and digits in one word: "TPEET22XXX"), by
+#: which two texts name one fabric ("Twintex TPEET22XXX plain weave ..." and "plain weave, Twintex
+#: TPEET22XXX ...")
+_STYLE_CODE = re.compile(r"\b(?=\w*\d)(?=\w*[A-Za-z])\w{6,}\b")
+
+
+def _fabric_key(text: str) -> str:
+    code = _STYLE_CODE.search(text)
+    return code.group(0) if code else " ".join(text.lower().split())
+
+
+def fabric_names(fabrics: Sequence[str]) -> list[str]:
+    """The fabric of each curve in a few words, from its header's fabric text; "" for all when they name one.
+
+    Two headers name one fabric when they give the same style code (a word of letters and digits,
+    "TPEET22XXX"), else the same text. The name is the text of the fabric's first curve up to its
+    first comma, semicolon or bracket ("Twintex TPEET22XXX plain weave (commingled ...), 743 g/m^2"
+    -> "Twintex TPEET22XXX plain weave"); "fabric not named" for curves whose header names none.
+    """
+    keys = [_fabric_key(f) for f in fabrics]
+    if len(set(keys)) < 2:
+        return [""] * len(fabrics)
+    first = {k: f for k, f in reversed(list(zip(keys, fabrics, strict=True)))}
+    return [re.split(r"[,;(]", first[k], maxsplit=1)[0].strip() or "fabric not named" for k in keys]
 
 
 class Header:
