@@ -71,6 +71,18 @@ def children() -> set[int]:
     return out
 
 
+def stop_all(proc, workers) -> None:
+    """Whatever failed in a test: its command's process group and the workers it saw, killed."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    for p in workers:
+        try:
+            p.kill()
+        except psutil.Error:
+            pass
+
+
 def test_curves_in_workers_give_the_numbers_of_one_process():
     """Each curve in its own worker process (one NGSolve thread, as in one process): the forces, their
     derivatives and the discretization estimates are those of the serial runs to round-off, and a
@@ -212,14 +224,7 @@ def test_a_stopped_fit_leaves_no_worker_behind(tmp_path, how):
         _, alive = psutil.wait_procs(workers, timeout=20)
         assert not alive, [p.pid for p in alive]
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        for p in workers:  # whatever failed above: nothing of this test left running
-            try:
-                p.kill()
-            except psutil.Error:
-                pass
+        stop_all(proc, workers)  # whatever failed above: nothing of this test left running
 
 
 @pytest.mark.integration

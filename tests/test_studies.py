@@ -1128,6 +1128,7 @@ def test_a_stopped_study_leaves_none_of_its_fits_workers(tmp_path, how):
     cmd = [sys.executable, "-m", "ngbet", "study", "validation", str(scene)]
     cmd += ["--cache", str(tmp_path / "cache"), "--out", str(tmp_path / "out")]
     from test_faults import signals_at_default  # (started as from a terminal, whatever started pytest)
+    from test_fit_parallel import stop_all
 
     proc = subprocess.Popen(
         cmd,
@@ -1158,14 +1159,7 @@ def test_a_stopped_study_leaves_none_of_its_fits_workers(tmp_path, how):
         _, alive = psutil.wait_procs(workers, timeout=20)
         assert not alive, [p.pid for p in alive]
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        for p in workers:
-            try:
-                p.kill()
-            except psutil.Error:
-                pass
+        stop_all(proc, workers)
 
 
 def test_data_is_refused_by_a_study_that_reads_no_curves(tmp_path, capsys):
