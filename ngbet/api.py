@@ -232,7 +232,11 @@ class Result:
 
     @property
     def status(self) -> str:
-        """``"ok"``, or ``"failed"`` when the final load was not reached."""
+        """The run's status: ``"ok"``, or ``"failed"`` when the solver could not reach the final load.
+
+        A folder read by :func:`load_result` may also say ``"interrupted"`` (Ctrl-C, SIGTERM) or
+        ``"crashed"`` (the run's process died).
+        """
         return str(self.summary.get("status"))
 
     @property

@@ -150,7 +150,7 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
         help="a measured curve (header displacement_mm,force_N or with other "
         "units, e.g. 'Displacement (mm);Force (kN)'; '#' comment lines allowed) drawn on the force and "
         "normalised shear force figures; for a picture-frame scene the shear angle and F_s [N] or "
-        "F_norm [N/mm], e.g. shear_angle_deg,shear_force_N)",
+        "F_norm [N/mm], e.g. shear_angle_deg,shear_force_N, drawn as F_norm on the shear force figure)",
     )
     pr.add_argument(
         "--specimen",
@@ -170,7 +170,14 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
     pr.add_argument("-v", "--verbose", action="store_true", help="log every Newton step")
     ps = sub.add_parser("scene", help="print a scene as commented TOML (default: the embedded one)")
     ps.add_argument("scene", nargs="?", help="scene TOML file to validate and print in full")
-    ps.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    ps.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="change one scene value before printing, e.g. --set material.alpha1=20 (repeatable)",
+    )
     if command in ("run", "scene"):
         return parser
     from .studies import STUDIES
@@ -278,8 +285,18 @@ def _measured(args: argparse.Namespace, scene: Scene) -> Any:
         from .figures.frame import read_frame_measured
 
         frame = read_frame_measured(args.data, columns=args.columns)
+        pf = scene.picture_frame
+        own = frame.frame.get("picture_frame.frame_mm"), frame.frame.get("picture_frame.fabric_mm")
+        other = (
+            [
+                f"measured in a frame of {own[0]:g} mm with {own[1]:g} mm of fabric, the run's is "
+                f"{pf.frame_mm:g} mm with {pf.fabric_mm:g} mm: the figure compares F_norm (Eq. 10) of different frames"
+            ]
+            if None not in own and own != (pf.frame_mm, pf.fabric_mm)
+            else []
+        )
         if not args.quiet:
-            for note in frame.notes:
+            for note in (*frame.notes, *other):
                 _say(f"data {args.data}: {note}")
         return frame
     from .figures.data import Measured
@@ -291,8 +308,18 @@ def _measured(args: argparse.Namespace, scene: Scene) -> Any:
         else None
     )
     measured = Measured.read(args.data, specimen=spec, columns=args.columns)
+    sp = scene.specimen
+    own = measured.width_mm, measured.length_mm
+    other = (
+        [
+            f"measured on a {own[0]:g} x {own[1]:g} mm specimen, the run's is {sp.width_mm:g} x {sp.length_mm:g} mm: "
+            "the figures compare different specimens"
+        ]
+        if None not in own and own != (sp.width_mm, sp.length_mm)
+        else []
+    )
     if not args.quiet:
-        for note in measured.notes:
+        for note in (*measured.notes, *other):
             _say(f"data {args.data}: {note}")
     return measured
 
@@ -446,12 +473,15 @@ def _report(summary: dict[str, Any], out: Path) -> str:
 
     rows = read_rows(out / "results.csv")
     # the solver's iteration counts are in summary.json: nothing on the terminal a user would act on
+    scene = summary.get("scene") or {}
+    stops = scene.get("loading", {}).get("stops_mm", ())
+    load = "d" if scene.get("test") == "picture_frame" else "u0"  # a frame's load is the crosshead travel
     lines = [
-        f"ngbet: {summary['status']}: u0 = {summary['u0_reached_mm']:g} mm in "
+        f"ngbet: {summary['status']}: {load} = {summary['u0_reached_mm']:g} mm in "
         f"{summary.get('load_steps', len(rows))} load steps, {summary['wall_s']:.2f} s; results in {out}/"
     ]
-    for r in rows:
-        if "force_N" in r and (abs(r["u0_mm"] - 37) < 1e-9 or r is rows[-1]):
+    for r in rows:  # the force at the scene's stops and at the end
+        if "force_N" in r and (any(abs(r["u0_mm"] - s) < 1e-9 for s in stops) or r is rows[-1]):
             err = r.get("force_error_N")
             failed = f"{r['u0_mm']:g}" in (summary.get("error_estimate_unreliable") or {})
             bar = (
@@ -461,7 +491,7 @@ def _report(summary: dict[str, Any], out: Path) -> str:
                 if failed or isinstance(err, float)
                 else ""
             )
-            lines.append(f"  u0 = {r['u0_mm']:6.2f} mm   force = {_force_text(r['force_N'])} N{bar}")
+            lines.append(f"  {load} = {r['u0_mm']:6.2f} mm   force = {_force_text(r['force_N'])} N{bar}")
             spread = r.get("force_path_spread_N")
             if isinstance(spread, float) and spread > 0:  # in the bar: another stable state the path left
                 lines.append(f"{'':26}of which {spread:.2g} N the force's spread over the path's snaps")

@@ -3,7 +3,8 @@
 :func:`preflight` runs them for every run (the run folder's writer calls it first): a load past
 ideal yarn locking and a discretization known to lock are warned about; the size of the problem
 (dofs and peak memory, estimated from the scene alone, for both models) is warned about above
-0.5 GB and refused (:class:`SceneError` naming the key) when it exceeds the memory available.
+0.5 GB and refused (:class:`SceneError` naming the key) when it exceeds the memory available; a
+yarn network that carries no load is refused.
 """
 
 from __future__ import annotations
@@ -33,9 +34,15 @@ def preflight(scene: Scene) -> list[str]:
 
     Returns the warnings (a load past ideal yarn locking, an order that locks, a large problem),
     each also logged and kept in every summary.json of the run (done, failed or interrupted);
-    raises :class:`SceneError` naming the keys for a problem that cannot fit in the available memory.
+    raises :class:`SceneError` naming the keys for a problem that cannot fit in the available memory
+    or, in the discrete model, for a yarn spacing whose network joins the clamps by no chain of
+    yarns and crossings (it would carry no load).
     """
     found = [w for w in (locking_warning(scene), order_warning(scene), check_size(scene)) if w]
+    if scene.model == "discrete":  # once it fits: a network that joins the clamps (built once, kept for the run)
+        from .discrete.network import network_from_scene
+
+        network_from_scene(scene)
     for w in found:
         log.warning("%s", w)
     return found
@@ -52,10 +59,15 @@ def locking_warning(scene: Scene) -> str | None:
     lock = scene.specimen.locking_u0_mm
     if scene.loading.u0_mm < lock:
         return None
+    d = scene.discrete
+    stiffness = (
+        f"EA1 = {d.EA1:.3g} N, EA2 = {d.EA2:.3g} N"
+        if scene.model == "discrete"
+        else f"K_el = {scene.material.K_el:.3g} Pa"
+    )
     return (
         f"loading.u0_mm = {scene.loading.u0_mm:g} mm is past ideal yarn locking (u0 = {lock:.1f} mm for "
-        f"this specimen): beyond it the yarns must stretch (K_el = {scene.material.K_el:.3g} Pa) and the "
-        "force rises steeply"
+        f"this specimen): beyond it the yarns must stretch ({stiffness}) and the force rises steeply"
     )
 
 

@@ -538,6 +538,24 @@ def test_accuracy_ladder_climbs_past_a_setting_that_does_not_converge(tmp_path):
     assert a["chosen"]["mesh_size_mm"] == 10.0 and a["attempts"][0]["discretization"]["order_u"] == 8
 
 
+@pytest.mark.parametrize(
+    ("asked", "run"), [("stops", "stops"), ("every", "every"), ("final", "final"), ("off", "final")]
+)
+def test_each_setting_of_the_ladder_estimates_where_the_scene_asks_and_at_the_final_load(tmp_path, asked, run):
+    """The forces at the stops keep their error bars (the ladder's check needs the final load's)."""
+    from ngbet.runner import ladder
+
+    seen = []
+
+    def run_one(sc, out):
+        seen.append(sc.outputs.error_estimate)
+        return {"force_N": 107.24, "force_error_rel": 5e-4, "solve_s": 1.0, "estimate_s": 0.1}
+
+    sets = {"discretization.target_error": 1e-3, "outputs.error_estimate": asked}
+    assert ladder.run_to_accuracy(default_scene().with_changes(**sets), tmp_path, run_one)["accuracy"]["met"]
+    assert seen == [run]
+
+
 def test_accuracy_ladder_leaves_a_setting_whose_time_budget_is_spent(tmp_path, monkeypatch):
     """A setting after the first whose path is still going after its budget (RUNG_BUDGET_FACTOR times
     the wall time of the setting before, at least RUNG_BUDGET_MIN_S) stops at its next trial with

@@ -123,3 +123,19 @@ def test_zero_state_has_no_force():
     m = NetworkModel.from_scene(Scene(model="discrete"))
     E, g, _ = m.evaluate(np.zeros(m.n_dofs))
     assert E == 0.0 and np.abs(g).max() == 0.0 and m.reaction(g) == (0.0, 0.0), f"E {E}, |g| {np.abs(g).max()}"
+
+
+def test_a_network_whose_yarns_do_not_join_the_clamps_is_refused_before_the_run(tmp_path):
+    """At 51.2 mm the 70 x 220 mm specimen keeps 4 yarns per family and 3 crossings on its mid-line: no
+    chain of yarns joins the clamps, and the run carried 0 N at every step, each called a snap-through.
+    """
+    from ngbet.cli import main
+    from ngbet.discrete.network import NetworkError
+
+    with pytest.raises(NetworkError, match="no chain of yarns and crossings joins the two clamps"):
+        build_network(0.22, 0.07, 45.0, 51.2e-3)
+    net = build_network(0.22, 0.07, 45.0, 45e-3)  # the coarsest that joins them: 11 crossings
+    assert len(net.crossings) == 11 and not net.X.flags.writeable
+    out = tmp_path / "never"
+    assert main(["run", "--out", str(out), "--quiet", "--set=model=discrete", "--set=discrete.spacing_mm=51.2"]) == 2
+    assert not out.exists()  # refused before the folder was made

@@ -517,3 +517,64 @@ def test_the_shear_force_legend_covers_no_point_of_the_curve(shape):
     box = ax.get_legend().get_window_extent()
     pts = ax.transData.transform(np.column_stack([g, fsh]))
     assert not any(box.contains(x, y) for x, y in pts)
+
+
+def test_a_run_without_the_reaction_draws_the_figures_that_need_no_force(tmp_path):
+    """``outputs.reaction = false``: no force_N column; the profile and the shear map need none."""
+    import csv
+
+    from ngbet.scene.document import default_scene
+
+    run = tmp_path / "r"
+    run.mkdir()
+    rows = [{k: v for k, v in r.items() if k not in ("force_N", "force_error_N")} for r in default_rows()]
+    with open(run / "results.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    (run / "scene.toml").write_text(default_scene().to_toml())
+    m = sheared_maps()[1]
+    np.savez(
+        run / "map_56mm.npz",
+        u0_mm=56.0,
+        X_mm=m.x_mm,
+        Y_mm=m.y_mm,
+        ux_mm=0 * m.x_mm,
+        uy_mm=0 * m.y_mm,
+        triangles=m.triangles,
+        gamma_deg=m.gamma_deg,
+    )
+    assert draw_run(run) is None  # no force figure
+    assert sorted(p.name for p in run.glob("*.png")) == ["shear_map.png"]  # (no profile.csv here)
+
+
+def test_crossings_on_one_line_are_mapped_as_points(tmp_path):
+    """A network whose crossings span no area has no Delaunay triangles (qhull refuses collinear points)."""
+    from ngbet.figures.data import load_maps
+
+    X = np.array([[50.0, 35.0, 0.0], [110.0, 35.0, 0.0], [170.0, 35.0, 0.0]])
+    np.savez(
+        tmp_path / "state_56mm.npz",
+        crossing_nodes=np.array([[0, 0], [1, 1], [2, 2]]),
+        X_mm=X,
+        u_mm=np.zeros_like(X),
+        crossing_gamma_deg=np.array([10.0, 20.0, 30.0]),
+    )
+    (m,) = load_maps(tmp_path)
+    assert m.triangles.shape == (0, 3)
+    fig = shear_map_figure([m])
+    (art,) = fig.axes[0].collections
+    assert list(art.get_array()) == [10.0, 20.0, 30.0]  # the points, coloured by their angles
+
+
+def test_yarns_off_45_degrees_get_their_shear_angles_and_no_ideal_test():
+    """Eqs. 13 and 18 are the ±45° test's: no empty F_sh panel, no legend entry for a line not drawn."""
+    from ngbet.scene.document import default_scene
+
+    scene = default_scene().with_changes(**{"specimen.yarn_angle_deg": 30.0, "specimen.length_mm": 250.0})
+    rows = [{**r, "gamma_kinematic_deg": "", "fsh_N_per_mm": ""} for r in default_rows()]
+    fig = shear_force_figure(rows, scene)
+    (ax,) = fig.axes
+    assert "yarns at ±30°" in ax.get_title()
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["computed, centre"]
+    assert not texts_outside(fig)

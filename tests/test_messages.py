@@ -182,6 +182,7 @@ def test_the_report_line_says_what_a_user_reads_not_the_solvers_counts(tmp_path)
         "newton_iterations": 2,
         "chord_iterations": 82,
         "error_estimate_unreliable": {"56": "the enriched problem ..."},
+        "scene": {"test": "bias_extension", "loading": {"stops_mm": [37.0]}},
     }
     lines = _report(summary, tmp_path).splitlines()
     assert lines[0] == f"ngbet: ok: u0 = 56 mm in 29 load steps, 2.50 s; results in {tmp_path}/"
@@ -189,6 +190,22 @@ def test_the_report_line_says_what_a_user_reads_not_the_solvers_counts(tmp_path)
     assert lines[2].endswith(
         "force =  107.3735 N (no error bar: the estimate could not vouch for this force; summary.json says why)"
     )
+
+
+def test_the_report_gives_the_force_at_the_scenes_own_stops_in_its_tests_load(tmp_path):
+    """A picture frame stopping at 46 mm: its line there, labelled with the crosshead travel d."""
+    from ngbet.cli import _report
+
+    (tmp_path / "results.csv").write_text("u0_mm,force_N,force_error_N\n37,1.5,\n46,2.5,0.01\n67,9.5,0.02\n")
+    summary = {
+        "status": "ok",
+        "u0_reached_mm": 67.0,
+        "wall_s": 1.0,
+        "scene": {"test": "picture_frame", "loading": {"stops_mm": [46.0]}},
+    }
+    lines = _report(summary, tmp_path).splitlines()
+    assert lines[0].startswith("ngbet: ok: d = 67 mm in 3 load steps")
+    assert [ln.split("force")[0].strip() for ln in lines[1:]] == ["d =  46.00 mm", "d =  67.00 mm"]
 
 
 def test_a_warning_that_asks_nothing_of_the_user_stays_in_summary_json(tmp_path, capsys):
@@ -232,3 +249,46 @@ def test_ngsolves_own_console_messages_are_off():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert done.stdout == "" and "timer" not in done.stderr, (done.stdout[-300:], done.stderr[-300:])
+
+
+def test_the_locking_warning_names_the_stiffness_of_the_model_that_runs():
+    """The network has no K_el: its yarns stretch with EA1 and EA2."""
+    from ngbet.preflight import locking_warning
+    from ngbet.scene.document import Scene
+
+    sets = {"specimen.yarn_angle_deg": 30.0, "specimen.length_mm": 250.0, "loading.u0_mm": 20.0}
+    continuum = locking_warning(Scene().with_changes(**sets))
+    network = locking_warning(Scene().with_changes(**sets, model="discrete"))
+    assert continuum is not None and continuum.endswith("must stretch (K_el = 7e+05 Pa) and the force rises steeply")
+    assert network is not None and network.endswith("(EA1 = 5e+04 N, EA2 = 5e+04 N) and the force rises steeply")
+
+
+def test_data_of_another_specimen_or_frame_than_the_runs_is_said(tmp_path, capsys):
+    """``run --data`` draws a curve of its own specimen (or frame) beside the run's: the note says they differ."""
+    import argparse
+
+    from ngbet.cli import _measured
+    from ngbet.scene.document import Scene
+
+    bet = tmp_path / "bet.csv"
+    bet.write_text("# specimen.width_mm = 100\n# specimen.length_mm = 200\ndisplacement_mm,force_N\n0,0\n2,3\n4,6.5\n")
+    frame = tmp_path / "frame.csv"
+    frame.write_text(
+        "# test: picture-frame\n# picture_frame.frame_mm = 145\n# picture_frame.fabric_mm = 120\n"
+        "shear_angle_deg,shear_force_N\n0,0\n10,1\n20,3\n"
+    )
+    args = argparse.Namespace(data=str(bet), specimen=None, columns=None, quiet=False)
+    scene = Scene().with_changes(**{"specimen.width_mm": 100.0, "specimen.length_mm": 250.0})
+    _measured(args, scene)
+    _measured(args, scene.with_changes(**{"specimen.length_mm": 200.0}))
+    pf = Scene().with_changes(
+        **{"test": "picture_frame", "picture_frame.frame_mm": 216.0, "picture_frame.fabric_mm": 140.0}
+    )
+    _measured(argparse.Namespace(data=str(frame), specimen=None, columns=None, quiet=False), pf)
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        f"ngbet: data {bet}: measured on a 100 x 200 mm specimen, the run's is 100 x 250 mm: the figures compare "
+        "different specimens",
+        f"ngbet: data {frame}: measured in a frame of 145 mm with 120 mm of fabric, the run's is 216 mm with "
+        "140 mm: the figure compares F_norm (Eq. 10) of different frames",
+    ]

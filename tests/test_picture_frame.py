@@ -328,6 +328,12 @@ def test_a_measured_frame_curve_is_read_without_its_clipped_points(tmp_path):
     f = tmp_path / "fs.csv"
     f.write_text("# a frame\nshear_angle_deg,shear_force_N\n0,0\n30,5.7735\n")
     assert read_frame_measured(f).fnorm(145.0, 120.0)[1] == pytest.approx(5.7735 * 145 / 120**2, rel=1e-14)
+    f.write_text(
+        "# picture_frame.frame_mm = 216\n# picture_frame.fabric_mm = 140\n"
+        "shear_angle_deg,shear_force_N\n0,0\n30,5.7735\n"
+    )
+    # F_s of a frame its file names is normalised with that frame, not the run's
+    assert read_frame_measured(f).fnorm(145.0, 120.0)[1] == pytest.approx(5.7735 * 216 / 140**2, rel=1e-14)
     f.write_text("displacement_mm,force_N\n0,0\n1,1\n")
     with pytest.raises(ValueError, match="shear_angle_deg,shear_force_N"):
         read_frame_measured(f)

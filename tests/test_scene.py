@@ -42,6 +42,10 @@ def test_toml_round_trip_is_identity():
         ("loading.stops_mm", [60.0], "beyond the final load"),
         ("effects.elongation", False, "effects.elongation"),
         ("discretization.order_lam", 3, "discretization.order_lam"),  # not below order_phi = order_u = 3
+        ("discretization.order_phi", 1, "'discretization.order_phi' = 1: the multiplier's order (1, order_lam = auto"),
+        ("loading.stops_mm", 37, "'loading.stops_mm' = 37: must be a list of loads [mm], e.g. [37]"),
+        ("outputs.fields", "shear_angle", "'outputs.fields' = 'shear_angle': must be a list of field names"),
+        ("specimen.name", 5, "'specimen.name' = 5: must be a text"),
         ("specimen.width_mm", 300.0, "zone A"),
         ("discretization.corner_mesh_size_mm", 12.0, "must not exceed discretization.mesh_size_mm"),
         ("discretization.corner_bisections", -1, "discretization.corner_bisections"),

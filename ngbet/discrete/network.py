@@ -30,6 +30,7 @@ spreading and the closing of parallel yarns, which the slip springs alone resist
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass
@@ -170,6 +171,7 @@ def end_kind(P: np.ndarray, L: float, tol: float) -> int:
 _Line = tuple[int, int, np.ndarray, np.ndarray, float, float]  # family, j, p0, m, t0, t1
 
 
+@functools.lru_cache(maxsize=1)  # the run's checks before its folder and the run itself build the same network
 def build_network(
     L: float,
     W: float,
@@ -196,6 +198,13 @@ def build_network(
     Returns
     -------
     Network
+        The last one built is kept: the same arguments return the same (immutable) object.
+
+    Raises
+    ------
+    NetworkError
+        for a geometry that gives no network, or one in which no chain of yarns and crossings
+        joins the two clamps (it would carry no load).
     """
     if spacing <= 0 or L <= 0 or W <= 0:
         raise NetworkError(f"network needs L, W, spacing > 0, got L={L}, W={W}, spacing={spacing}")
@@ -223,7 +232,26 @@ def build_network(
                 continue
             ts = tr[k, partners, 0] if fam == 1 else tr[partners, k, 1]
             b.add_yarn(lines[lst[k]], k, partners, ts)
-    return b.network(lines, i1, i2, inter_layout, spacing, W, a)
+    net = b.network(lines, i1, i2, inter_layout, spacing, W, a)
+    for arr in (v for v in vars(net).values() if isinstance(v, np.ndarray)):
+        arr.flags.writeable = False  # shared by every caller with these arguments (the cache)
+    if not _joins_the_clamps(net):
+        raise NetworkError(
+            f"at a spacing of {spacing * 1e3:g} mm no chain of yarns and crossings joins the two clamps of the "
+            f"{L * 1e3:g} x {W * 1e3:g} mm specimen: the network would carry no load; choose a smaller spacing"
+        )
+    return net
+
+
+def _joins_the_clamps(net: Network) -> bool:
+    """Whether a chain of beams, crossings and trusses joins a node of the fixed clamp to one of the moving clamp."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    pairs = np.concatenate([net.beams, net.crossings, net.trusses])
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(net.n_nodes, net.n_nodes))
+    _, comp = connected_components(graph, directed=False)
+    return bool(np.intersect1d(comp[net.clamped_nodes(CLAMP_FIXED)], comp[net.clamped_nodes(CLAMP_MOVING)]).size)
 
 
 def _yarn_lines(
@@ -384,6 +412,18 @@ def crossing_zone(ends_1: np.ndarray, ends_2: np.ndarray) -> int:
 
 
 def network_from_scene(scene: Scene) -> Network:
-    """The network of ``scene.specimen`` with the spacing and layout of ``scene.discrete``."""
+    """The network of ``scene.specimen`` with the spacing and layout of ``scene.discrete``.
+
+    Raises
+    ------
+    ngbet.scene.validate.SceneError
+        naming ``discrete.spacing_mm`` where the spacing gives a network that carries no load
+        (no chain of yarns and crossings joins the clamps).
+    """
+    from ..scene.validate import SceneError
+
     sp, d = scene.specimen, scene.discrete
-    return build_network(sp.L, sp.W, sp.yarn_angle_deg, d.spacing_mm * 1e-3, d.elements_per_segment, d.inter_layout)
+    try:
+        return build_network(sp.L, sp.W, sp.yarn_angle_deg, d.spacing_mm * 1e-3, d.elements_per_segment, d.inter_layout)
+    except NetworkError as exc:
+        raise SceneError(f"scene key 'discrete.spacing_mm' = {d.spacing_mm!r}: {exc}") from None

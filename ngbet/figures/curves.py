@@ -198,11 +198,17 @@ def _measured_label(m: Measured) -> str:
 def shear_force_figure(
     rows: list[dict[str, Any]], scene: Any = None, measured: Measured | None = None
 ) -> Figure | None:
-    """(a) F_sh against the kinematic γ, (b) shear angles against u0; None without the columns."""
+    """(a) F_sh against the kinematic γ, (b) shear angles against u0; None without the columns.
+
+    Yarns not at ±45° have no ideal test (Eqs. 13 and 18 are the ±45° bias test's): the figure is
+    then panel (b) alone, the computed shear angles, and says why.
+    """
     if "gamma_kinematic_deg" not in rows[0]:
         return None
     u0 = column(rows, "u0_mm")
     g_kin, fsh = column(rows, "gamma_kinematic_deg"), column(rows, "fsh_N_per_mm")
+    if not np.isfinite(g_kin).any():
+        return _shear_angles_only(rows, u0, scene)
     fig = figure(10, 4.2)
     ax, ax2 = fig.subplots(1, 2)
     ok = np.isfinite(g_kin) & np.isfinite(fsh)
@@ -228,9 +234,7 @@ def shear_force_figure(
     ax.set_ylabel("normalised shear force F_sh [N/mm]")
     ax.set_xlim(0, FSH_GAMMA_MAX_DEG if left_out else None)
     ax.set_title("(a) normalised shear force")
-    if not ok.any():
-        ax.text(0.5, 0.5, "F_sh: 45° yarns only (Eq. 18)", transform=ax.transAxes, ha="center")
-    else:
+    if ok.any() or (measured is not None and scene is not None):
         ax.legend(loc="best")  # the F_sh curves of fabrics stiffen (upper left free) or soften (lower right free)
     if left_out:
         ax.text(
@@ -244,17 +248,26 @@ def shear_force_figure(
         )
     ax2.plot(np.r_[0.0, u0], np.r_[0.0, g_kin], "-", color="k", label="ideal test, zone A: γ (Eq. 13)")
     ax2.plot(np.r_[0.0, u0], np.r_[0.0, g_kin / 2], ":", color="k", label="ideal test, zones B: γ/2")
-    shear_angle_panel(
-        ax2,
-        u0,
-        rows,
-        (
-            ("gamma_centre_deg", "o", "computed, centre"),
-            ("gamma_A_deg", "s", "computed, mean over zone A"),
-            ("gamma_B_deg", "^", "computed, mean over zones B"),
-        ),
-        U0_LABEL,
-    )
+    shear_angle_panel(ax2, u0, rows, _COMPUTED_ANGLES, U0_LABEL)
+    put_caption(fig, caption(scene))
+    return fig
+
+
+_COMPUTED_ANGLES = (
+    ("gamma_centre_deg", "o", "computed, centre"),
+    ("gamma_A_deg", "s", "computed, mean over zone A"),
+    ("gamma_B_deg", "^", "computed, mean over zones B"),
+)
+
+
+def _shear_angles_only(rows: list[dict[str, Any]], u0: np.ndarray, scene: Any) -> Figure:
+    """The computed shear angles against u0, for yarns at which the ideal test does not apply."""
+    fig = figure(6.4, 4.2)
+    ax = fig.subplots()
+    shear_angle_panel(ax, u0, rows, _COMPUTED_ANGLES, U0_LABEL)
+    angle = getattr(getattr(scene, "specimen", None), "yarn_angle_deg", None)
+    at = f"yarns at ±{angle:g}°" if angle is not None else "these yarns"
+    ax.set_title(f"shear angles ({at}: no ideal test, whose Eqs. 13 and 18 are for ±45°)", fontsize=9)
     put_caption(fig, caption(scene))
     return fig
 

@@ -100,7 +100,8 @@ def load_maps(run_dir: Path) -> list[MapData]:
     """The run's maps at its stations, by increasing u0: the continuum's map_*.npz or the network's state_*.npz.
 
     The network's map triangulates its crossings (Delaunay on the reference positions, drawn at the
-    deformed ones), coloured by the shear angle at each crossing.
+    deformed ones), coloured by the shear angle at each crossing; crossings that all lie on one line
+    (a network of a few yarns) have no triangles, and the map shows them as points.
     """
     import matplotlib.tri as mtri
 
@@ -116,12 +117,13 @@ def load_maps(run_dir: Path) -> list[MapData]:
         with np.load(f) as z:
             nodes = z["crossing_nodes"][:, 0]
             X, u = z["X_mm"][nodes], z["u_mm"][nodes]
-            tri = mtri.Triangulation(X[:, 0], X[:, 1])
+            t = np.zeros((0, 3), dtype=int)  # crossings on one line (a network of a few yarns): no area
+            if len(X) >= 3 and np.linalg.matrix_rank(X - X.mean(axis=0), tol=1e-9 * np.ptp(X)) == 2:
+                t = mtri.Triangulation(X[:, 0], X[:, 1]).triangles
             # the crossings lie on a lattice: its Delaunay triangles are half cells (longest edge √2
             # times the shortest); longer ones span the gaps along the edges and are left out
-            t = tri.triangles
             edges = np.stack([np.hypot(*(X[t[:, i]] - X[t[:, (i + 1) % 3]]).T) for i in range(3)], axis=1)
-            keep = edges.max(axis=1) <= 1.5 * edges.min()
+            keep = edges.max(axis=1) <= 1.5 * edges.min(initial=np.inf)
             maps.append(
                 MapData(
                     float(f.stem[len("state_") : -2]),

@@ -12,7 +12,7 @@ extension test (:mod:`ngbet.figures.curves`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -42,17 +42,27 @@ TRAVEL_LABEL = "crosshead travel d [mm]"
 
 @dataclass(frozen=True)
 class FrameMeasured:
-    """A measured picture-frame curve: the shear angle [deg] and F_s [N] or F_norm [N/mm] (``quantity``)."""
+    """A measured picture-frame curve: the shear angle [deg] and F_s [N] or F_norm [N/mm] (``quantity``).
+
+    ``frame``: the frame and fabric sides its file names (``picture_frame.frame_mm``,
+    ``picture_frame.fabric_mm``; empty where it names none).
+    """
 
     path: Path
     shear_angle_deg: np.ndarray
     values: np.ndarray
     quantity: str  # one of FRAME_DATA_COLUMNS
     notes: tuple[str, ...] = ()
+    frame: dict[str, float] = field(default_factory=dict)
 
     def fnorm(self, frame_mm: float, fabric_mm: float) -> np.ndarray:
-        """F_norm [N/mm] (Eq. 10): as measured, or from F_s with the run's frame and fabric sides."""
+        """F_norm [N/mm] (Eq. 10): as measured, or from F_s with the frame and fabric sides.
+
+        The sides are those its file names, else those given (the run's).
+        """
         if self.quantity == "shear_force_N":
+            frame_mm = self.frame.get("picture_frame.frame_mm", frame_mm)
+            fabric_mm = self.frame.get("picture_frame.fabric_mm", fabric_mm)
             return self.values * frame_mm / fabric_mm**2
         return self.values
 
@@ -81,7 +91,7 @@ def read_frame_measured(path: str | Path, *, columns: str | None = None) -> Fram
     if len(t.x) < 2:
         raise SceneError(f"{path}: needs at least two points")
     quantity = FRAME_DATA_COLUMNS[0] if t.y_quantity == "shear_force" else FRAME_DATA_COLUMNS[1]
-    return FrameMeasured(Path(t.source), t.x, t.y, quantity, t.notes)
+    return FrameMeasured(Path(t.source), t.x, t.y, quantity, t.notes, dict(t.frame))
 
 
 FRAME_ANGLE_LABEL = "shear angle of the frame γ [°] (Eqs. 1–2)"
@@ -117,7 +127,8 @@ def frame_force_figure(rows: list[dict[str, Any]], scene: Any = None) -> Figure:
 def frame_shear_figure(rows: list[dict[str, Any]], scene: Any = None, measured: FrameMeasured | None = None) -> Figure:
     """(a) F_norm (Eq. 10) against the frame's shear angle; (b) the shear angles against the travel.
 
-    ``measured``: a measured curve drawn on (a) (F_s converted with the run's frame and fabric sides).
+    ``measured``: a measured curve drawn on (a) (F_s converted with its own frame and fabric sides
+    where its file names them, else the run's).
     """
     fig = figure(10, 4.2)
     ax, ax2 = fig.subplots(1, 2)
@@ -127,6 +138,9 @@ def frame_shear_figure(rows: list[dict[str, Any]], scene: Any = None, measured: 
     if measured is not None and scene is not None:
         pf = scene.picture_frame
         how = "" if measured.quantity != "shear_force_N" else ", its F_s × L_frame / L_fabric²"
+        own = measured.frame.get("picture_frame.frame_mm"), measured.frame.get("picture_frame.fabric_mm")
+        if None not in own and own != (pf.frame_mm, pf.fabric_mm):
+            how += f" (frame {own[0]:g} mm, fabric {own[1]:g} mm)"
         ax.plot(
             measured.shear_angle_deg,
             measured.fnorm(pf.frame_mm, pf.fabric_mm),

@@ -100,14 +100,20 @@ def map_panel(
 ) -> Any:
     """One map on ``ax``: the field (Gouraud-shaded, rasterized in vector files), yarns drawn on it, axes in mm.
 
+    A map without triangles (points spanning no area) is drawn as coloured points.
+
     ``yarns``: deformed polylines per family (1 thick, drawn black; 2 thin, grey). ``limits``:
     (xmin, xmax, ymin, ymax) shared by the panels. Returns the coloured artist (for the colour bar).
     """
     import matplotlib.tri as mtri
     from matplotlib.ticker import MaxNLocator
 
-    tri = mtri.Triangulation(m.x_mm, m.y_mm, m.triangles)
-    art = ax.tripcolor(tri, m.gamma_deg, shading="gouraud", cmap=cs.cmap, norm=norm, rasterized=True)
+    art: Any
+    if len(m.triangles):
+        tri = mtri.Triangulation(m.x_mm, m.y_mm, m.triangles)
+        art = ax.tripcolor(tri, m.gamma_deg, shading="gouraud", cmap=cs.cmap, norm=norm, rasterized=True)
+    else:  # points that span no area (crossings on one line): each coloured by its value
+        art = ax.scatter(m.x_mm, m.y_mm, c=m.gamma_deg, cmap=cs.cmap, norm=norm, s=40, zorder=3)
     for fam, (colour, lw) in ((1, ("k", 1.2)), (2, ("0.45", 0.6))):
         for pl in (yarns or {}).get(fam, []):
             ax.plot(pl[:, 0], pl[:, 1], "-", color=colour, lw=lw)

@@ -37,6 +37,8 @@ log = logging.getLogger(__name__)
 RUN_FIGURES = ("force", "shear_force", "profile", "shear_map")
 #: in ``only`` of :func:`draw_run`: the network's yarn pictures, ``yarns_XXmm`` for each ``state_XXmm.npz``
 YARNS = "yarns"
+#: the figures drawn from the force (none where ``outputs.reaction = false`` left it out of results.csv)
+FORCE_FIGURES = ("force", "shear_force")
 #: the relative cost of drawing each figure (CPU time after the warm-up, default scene and 17k network),
 #: by which :func:`draw_run` shares the figures among its workers; others (the yarn pictures) cost 1
 FIGURE_COST = {"force": 1.0, "shear_force": 1.1, "profile": 0.6, "shear_map": 1.2}
@@ -58,8 +60,8 @@ def draw_run(
 ) -> Path | None:
     """Draw the figures of ``run_dir`` (:data:`RUN_FIGURES` and :data:`YARNS`, or those in ``only``).
 
-    Returns the force figure's file, or None when there was none to draw (no force in
-    results.csv: then only the yarn pictures are drawn). ``extra``: more curves (label, u0 [mm],
+    Returns the force figure's file, or None when there was none to draw (no rows, or no force in
+    results.csv: then the figures of :data:`FORCE_FIGURES` are left out). ``extra``: more curves (label, u0 [mm],
     force [N]) on the force figure.
     ``workers``: the figures are shared among this process and ``workers`` − 1 forked children, the
     costliest first to the least loaded (:data:`FIGURE_COST`), where the process has no other thread;
@@ -75,8 +77,8 @@ def draw_run(
 
     run_dir = Path(run_dir)
     rows = read_rows(run_dir / "results.csv")
-    curves = bool(rows) and "force_N" in rows[0]
-    if not curves and not (YARNS in only and any(run_dir.glob("state_*mm.npz"))):
+    curves = bool(rows) and "force_N" in rows[0]  # the force and shear-force figures need the reaction
+    if not rows and not (YARNS in only and any(run_dir.glob("state_*mm.npz"))):
         return None
     scene = read_scene(run_dir)
     out = FigureWriter(formats_of(scene))
@@ -99,7 +101,7 @@ def draw_run(
             shear_force=lambda: frame_shear_figure(rows, scene, frame_measured),
             profile=lambda: None,
         )
-    names = [n for n in RUN_FIGURES if n in only and curves]
+    names = [n for n in RUN_FIGURES if n in only and rows and (curves or n not in FORCE_FIGURES)]
     if YARNS in only:
         yarns = _yarn_makers(run_dir, scene)
         makers.update(yarns)

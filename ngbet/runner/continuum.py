@@ -89,7 +89,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
         estimates = RunEstimates(solver)
         info = _setup_info(solver, time.perf_counter() - t0)
         warnings: list[str] = []  # found at the end of the path (the scene's own: the writer's preflight)
-        with progress_bar(progress, scene.loading.u0_mm) as bar:
+        with progress_bar(progress, scene.loading.u0_mm, "d" if scene.test == "picture_frame" else "u0") as bar:
             recorder = _StepWriter(solver, writer, out, estimates)
             t_cont = time.perf_counter()
             path = load_path(solver, scene)

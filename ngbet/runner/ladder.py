@@ -63,6 +63,14 @@ class Rung:
         )
 
 
+def _rung_scene(rung: Rung, scene: Scene) -> Scene:
+    """The scene on ``rung``, estimating where the scene asks (at its stops too), at least at the final load."""
+    on = rung.apply(scene)
+    if scene.outputs.error_estimate in ("stops", "every"):
+        on = dataclasses.replace(on, outputs=scene.outputs)
+    return on
+
+
 @dataclass
 class Climb:
     """A climb of a ladder of discretizations: its best estimate so far, the rungs in a row not improving on it.
@@ -260,7 +268,7 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
         budget = max(RUNG_BUDGET_MIN_S, RUNG_BUDGET_FACTOR * last_wall)
         try:
             with time_budget(budget):
-                summary = run_one(_on_cores(rung.apply(scene)), out)
+                summary = run_one(_on_cores(_rung_scene(rung, scene)), out)
         except ConvergenceError as e:
             if k == len(rungs) - 1 and climb.best_level is None:
                 raise
@@ -319,7 +327,7 @@ def run_to_accuracy(scene: Scene, out: Any, run_one: Any) -> dict[str, Any]:
     best = met_at if met_at is not None else climb.best_level
     if best is not None and best != len(attempts) - 1:  # the best setting's files in out
         t0 = time.perf_counter()
-        summary = run_one(_on_cores(rungs[best].apply(scene)), out)
+        summary = run_one(_on_cores(_rung_scene(rungs[best], scene)), out)
         attempts[best]["rerun_s"] = time.perf_counter() - t0
     chosen = attempts[best] if best is not None else attempts[-1]
     met = met_at is not None

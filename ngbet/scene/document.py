@@ -20,7 +20,7 @@ import tomli_w
 
 from .numerical import Calibration, Discrete, Discretization, Loading, Outputs, Solver
 from .physical import TESTS, Effects, Material, PictureFrame, Specimen
-from .validate import SceneError, check, choice
+from .validate import AUTO, SceneError, check, choice
 
 __all__ = [
     "DEFAULT_DISCRETIZATION",
@@ -214,11 +214,14 @@ class Scene:
                         f"{fam} lose ellipticity where they are compressed, and the model has no mesh-independent "
                         "solution there (a small value, e.g. 1e-3 Pa m^2, keeps it well posed; or turn bending off)",
                     )
+                d = self.discretization
+                lam_set = d.order_lam != AUTO  # else the multiplier follows order_u: the order of phi is the key
                 check(
-                    self.discretization.p_lam < self.discretization.p_phi or e.fields == ("u", "phi"),
-                    "discretization.order_lam",
-                    self.discretization.order_lam,
-                    "the multiplier order must be below the order of phi, else the constraint locks",
+                    d.p_lam < d.p_phi or e.fields == ("u", "phi"),
+                    "discretization.order_lam" if lam_set else "discretization.order_phi",
+                    d.order_lam if lam_set else d.order_phi,
+                    f"the multiplier's order ({d.p_lam}{'' if lam_set else ', order_lam = auto: order_u - 2'}) "
+                    f"must be below the order of phi ({d.p_phi}), else the constraint locks",
                 )
 
         if self.test == "picture_frame":

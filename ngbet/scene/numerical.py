@@ -163,6 +163,12 @@ class Loading:
     def __post_init__(self) -> None:
         positive("loading", self, "u0_mm", "first_step_mm", "max_step_mm", "min_step_mm")
         nonnegative("loading", self, "output_every_mm")
+        check(
+            isinstance(self.stops_mm, (list, tuple)),
+            "loading.stops_mm",
+            self.stops_mm,
+            "must be a list of loads [mm], e.g. [37] (on the command line: --set 'loading.stops_mm=[37]')",
+        )
         object.__setattr__(self, "stops_mm", tuple(self.stops_mm))
         for s in self.stops_mm:
             check(
@@ -315,6 +321,12 @@ class Outputs:
         )
         integer("outputs", self, "profile_points", 3, 100000)
         choice("outputs", self, "error_estimate", ("stops", "every", "final", "off"))
+        check(
+            isinstance(self.fields, (list, tuple)),
+            "outputs.fields",
+            self.fields,
+            f'must be a list of field names, e.g. ["{FIELD_OUTPUTS[0]}"] (known: {", ".join(FIELD_OUTPUTS)})',
+        )
         object.__setattr__(self, "fields", tuple(self.fields))
         for f in self.fields:
             check(f in FIELD_OUTPUTS, "outputs.fields", f, f"unknown field, known: {', '.join(FIELD_OUTPUTS)}")

@@ -31,6 +31,13 @@ class Specimen:
     name: str = "madeo2016-70x220"
 
     def __post_init__(self) -> None:
+        check(
+            isinstance(self.name, str),
+            "specimen.name",
+            self.name,
+            'must be a text, e.g. "fabric-100x200" (on the command line in quotes: '
+            f"--set 'specimen.name=\"{self.name}\"')",
+        )
         positive("specimen", self, "length_mm", "width_mm", "thickness_mm")
         for n in ("length_mm", "width_mm", "thickness_mm"):
             check(
