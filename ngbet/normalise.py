@@ -3,9 +3,10 @@ r"""``ngbet normalise``: measured shear tests as the normalised shear force agai
 ``ngbet normalise FILE.csv ... [--test bias_extension|picture_frame] [--specimen WxL] [--frame FxL] --out DIR``
 
 Every file is read by the one reader of measured curves (:func:`ngbet.measured.table.read_table`:
-units, columns by name, separators, the specimen and the frame from the header or the command line).
-A file is a bias extension test when ``--test`` or its header says so, or when it names a specimen;
-a picture-frame test when they say so or it names a frame; otherwise it is refused.
+units, columns by name, separators, the specimen and the frame from the header or the command line),
+and its test decided by the one rule of every command (:attr:`ngbet.measured.table.CurveTable.test`:
+``--test``, the header's test line, a picture frame's columns, a specimen or a frame named alone); a
+file that names neither a specimen nor a frame nor its test is refused.
 
 Bias extension (45° yarns, specimen W × H, H the clamp-to-clamp length; Cao et al. 2008):
 
@@ -49,6 +50,7 @@ import numpy as np
 
 from .measured.curves import MeasuredCurve, read_measured, refuse_duplicates
 from .measured.header import fabric_names
+from .measured.shape import plural
 from .measured.table import CurveTable, curve_files, parse_sizes, per_file, read_table
 from .run_folder import OwnedFolder
 from .scene.validate import SceneError
@@ -101,12 +103,16 @@ class Normalised:
     columns: dict[str, np.ndarray]
     header: list[str]
     notes: list[str] = field(default_factory=list)
-    #: the fabric as the file's header names it ("" where it does not)
+    #: the fabric and the laboratory as the file's header names them ("" where it does not)
     fabric: str = ""
+    laboratory: str = ""
+    #: the quantity the file gives: "force" (a bias extension test, or a frame's crosshead force),
+    #: "shear_force" or "normalised_shear_force" (a picture frame)
+    given: str = "force"
 
 
 def _points(n: Any) -> str:
-    return f"{int(n)} point{'' if n == 1 else 's'}"
+    return plural(int(n), "point")
 
 
 # --- bias extension ------------------------------------------------------------------------------------------------
@@ -217,7 +223,7 @@ def normalise_bet(
     """A bias extension curve by Eq. 18 and by the energy method (module docstring)."""
     from .kinematics import normalised_shear_force
 
-    c = read_measured(path, columns=columns, specimen=specimen)
+    c = read_measured(path, columns=columns, specimen=specimen, test="bias_extension")
     sp = c.specimen
     if "specimen.width_mm" not in sp:
         raise SceneError(
@@ -247,7 +253,7 @@ def normalise_bet(
         notes.append(f"{_points(np.count_nonzero(c.u_mm <= 0))} at zero or negative displacement left out (γ = 0)")
     if keep.sum() < 3:
         raise SceneError(
-            f"{path}: {int(keep.sum())} points between 0 and the yarn locking ({lock:.4g} mm) of the "
+            f"{path}: {_points(keep.sum())} between 0 and the yarn locking ({lock:.4g} mm) of the "
             f"{W:g} x {H:g} mm specimen; at least 3 are needed (is the specimen right?)"
         )
     d, F = c.u_mm[keep], c.force_N[keep]
@@ -270,7 +276,9 @@ def normalise_bet(
         "fsh_energy_N_per_mm: the same by the energy method, (dw/dgamma)/cos(gamma)",
         "shear_energy_N_per_mm: shear energy per unit area w (N mm / mm^2) of the energy method",
     ]
-    return Normalised(c.source, "bias_extension", f"{W:g} × {H:g} mm", g, fsh, fsh_e, cols, header, notes, c.fabric)
+    return Normalised(
+        c.source, "bias_extension", f"{W:g} × {H:g} mm", g, fsh, fsh_e, cols, header, notes, c.fabric, c.laboratory
+    )
 
 
 # --- picture frame ---------------------------------------------------------------------------------------------------
@@ -321,7 +329,9 @@ def normalise_pf(t: CurveTable) -> Normalised:
     cols["shear_force_N"] = fs
     cols["fnorm_N_per_mm"] = fs * L / Lf**2
     if len(gamma) < 3:
-        raise SceneError(f"{t.source}: {len(gamma)} points with a shear angle between 0 and 90°; at least 3 are needed")
+        raise SceneError(
+            f"{t.source}: {_points(len(gamma))} with a shear angle between 0 and 90°; at least 3 are needed"
+        )
     header = [
         f"picture-frame test, frame {L:g} mm (pin to pin), fabric square {Lf:g} mm",
         "shear_angle_deg: shear angle, 90° - 2 theta (Cao et al. 2008, Eqs. 1-2)",
@@ -341,6 +351,8 @@ def normalise_pf(t: CurveTable) -> Normalised:
         header,
         notes,
         t.fabric,
+        t.laboratory,
+        t.y_quantity,
     )
 
 
@@ -511,25 +523,19 @@ def read_inputs(args: argparse.Namespace) -> tuple[list[Normalised], list[str]]:
     refuse_duplicates(tables)
     out = []
     for t, s in zip(tables, specs, strict=True):
-        test = t.test or _test_of(t)
-        if test == "bias_extension":
-            out.append(normalise_bet(t.source, s, args.columns))
-        else:
-            out.append(normalise_pf(t))
+        if not t.test:
+            raise SceneError(
+                f"{t.source}: which test? {t.test_reason}: give --test bias_extension or picture_frame, "
+                "--specimen WIDTHxLENGTH or --frame FRAMExFABRIC (or '# test: bias_extension' in the header)"
+            )
+        out.append(normalise_bet(t.source, s, args.columns) if t.test == "bias_extension" else normalise_pf(t))
+    for c, name in zip(out, fabric_names([c.fabric for c in out]), strict=True):
+        if name and not c.fabric:
+            c.notes.append(
+                "its header names no fabric ('# fabric: ...'), the other files' do: compared with none of "
+                "their curves (a panel 'fabric not named'); name its fabric to compare it"
+            )
     return out, [f"{eb}: the error bars of {curve}, not a curve: left out" for eb, curve in left]
-
-
-def _test_of(t: CurveTable) -> str:
-    has_spec, has_frame = bool(t.specimen), bool(t.frame)
-    if has_spec and not has_frame:
-        return "bias_extension"
-    if has_frame and not has_spec:
-        return "picture_frame"
-    why = "names both a specimen and a frame" if has_spec else "names neither a specimen nor a frame"
-    raise SceneError(
-        f"{t.source}: which test? its header {why}: give --test bias_extension or picture_frame "
-        "(or '# test: bias_extension' in the header)"
-    )
 
 
 def run_from_args(args: argparse.Namespace) -> int:
@@ -604,7 +610,7 @@ def _figure(folder: OwnedFolder, curves: Sequence[Normalised], text: str) -> str
 
 
 def _report(curves: Sequence[Normalised], names: Sequence[str], text: str, out: Path, figure: str | None) -> str:
-    lines = [f"ngbet normalise: {len(curves)} curve(s); tables{' and ' + figure if figure else ''} in {out}/"]
+    lines = [f"ngbet normalise: {plural(len(curves), 'curve')}; tables{' and ' + figure if figure else ''} in {out}/"]
     for c, name, fabric in zip(curves, names, fabric_names([c.fabric for c in curves]), strict=True):
         g = c.gamma_deg
         at = [x for x in (20.0, 40.0) if g.min() <= x <= g.max()]

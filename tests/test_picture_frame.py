@@ -337,3 +337,6 @@ def test_a_measured_frame_curve_is_read_without_its_clipped_points(tmp_path):
     f.write_text("displacement_mm,force_N\n0,0\n1,1\n")
     with pytest.raises(ValueError, match="shear_angle_deg,shear_force_N"):
         read_frame_measured(f)
+    f.write_text("# specimen.width_mm = 100\n# specimen.length_mm = 200\ndisplacement_mm,force_N\n0,0\n1,1\n2,3\n")
+    with pytest.raises(ValueError, match="a bias extension curve .it names a specimen and no picture frame., and the"):
+        read_frame_measured(f)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import textwrap
 from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -17,11 +18,37 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 
+#: what a picture-frame file gives, where two curves of one frame and laboratory need telling apart
+_GIVEN = {"force": "from the crosshead force", "shear_force": "from F_s", "normalised_shear_force": "F_norm as given"}
+
+
+def _given(c: Any) -> str:
+    """What a picture-frame curve's file gives, in words ("" for a bias extension curve)."""
+    return _GIVEN.get(c.given, "") if c.test == "picture_frame" else ""
+
+
+def _stem(c: Any) -> str:
+    """The name of a curve's file without its folder and suffix."""
+    return Path(c.source).stem
+
+
 def _labels(curves: Sequence[Any]) -> list[str]:
-    """Each curve's legend name: its test and size, numbered where two are alike (never a file name)."""
+    """Each curve's legend name: its test, size and laboratory; told apart where two are alike.
+
+    The laboratory is the header's (:attr:`ngbet.normalise.Normalised.laboratory`); curves still
+    alike are told apart by what their files give (a frame's shear force or normalised shear force)
+    where that differs, then by the files' stems, then numbered.
+    """
     test = {"bias_extension": "bias extension "}
-    base = [test.get(c.test, "picture frame, ") + c.label for c in curves]
-    return [b if base.count(b) == 1 else f"{b} ({base[: k + 1].count(b)})" for k, b in enumerate(base)]
+    out = [
+        test.get(c.test, "picture frame, ") + c.label + (f" ({c.laboratory})" if c.laboratory else "") for c in curves
+    ]
+    for more in (_given, _stem):
+        alike = [{more(d) for d, e in zip(curves, out, strict=True) if e == b} for b in out]
+        out = [
+            b + (f", {more(c)}" if len(a) > 1 and more(c) else "") for b, c, a in zip(out, curves, alike, strict=True)
+        ]
+    return [b if out.count(b) == 1 else f"{b} ({out[: k + 1].count(b)})" for k, b in enumerate(out)]
 
 
 def _panel(ax: Any, curves: Sequence[Any]) -> bool:

@@ -81,7 +81,12 @@ def read_frame_measured(path: str | Path, *, columns: str | None = None) -> Fram
     from ..measured.table import read_table
     from ..scene.validate import SceneError
 
-    t = read_table(path, test="picture_frame", columns=columns)
+    t = read_table(path, columns=columns)
+    if t.test == "bias_extension":
+        raise SceneError(
+            f"{path}: a bias extension curve ({t.test_reason}), and the scene is a picture frame: a run of "
+            "a bias extension scene draws it (ngbet run SCENE --data)"
+        )
     if t.x_quantity != "shear_angle" or t.y_quantity not in ("shear_force", "normalised_shear_force"):
         raise SceneError(
             f"{path}: a picture-frame curve for the figures holds the shear angle and the shear force "

@@ -2,9 +2,11 @@
 
 A column is known by its name (``displacement``, ``extension``, ``force``, ``load``, the picture
 frame's shear angle and shear forces) and its unit, written in the name (``force_kN``, ``Force (kN)``,
-``Force [kN]``) or in a row of units under the header; ``columns`` (``--columns``) chooses two by name
-or 1-based number. Read by :func:`ngbet.measured.table.read_table`; a refusal is a
-:class:`ngbet.scene.validate.SceneError` naming the file and the line.
+``Force [kN]``) or in a row of units under the header (:func:`is_units_row`); ``columns``
+(``--columns``) chooses two by name or 1-based number. A unit it does not know is kept as written and
+refused by :func:`check_unit` naming it and the units it knows. Read by
+:func:`ngbet.measured.table.read_table`; a refusal is a :class:`ngbet.scene.validate.SceneError`
+naming the file and the line.
 """
 
 from __future__ import annotations
@@ -29,9 +31,13 @@ __all__ = [
     "check_unit",
     "choose_columns",
     "header_columns",
+    "is_number",
     "is_units_row",
+    "known_units",
     "parse_columns",
     "pick_column",
+    "pretty_unit",
+    "set_units",
     "quantity_of",
     "split_name",
     "unit_key",
@@ -60,8 +66,10 @@ UNITS: dict[str, tuple[str, float]] = {
     "min": ("time", 60.0),
     "h": ("time", 3600.0),
 }
-#: how a unit is written in messages
+#: how a unit is written in messages (the keys of UNITS are lower case)
 PRETTY = {"n": "N", "kn": "kN", "n/mm": "N/mm", "n/m": "N/m", "kn/m": "kN/m", "n_per_mm": "N/mm", "n_per_m": "N/m"}
+#: a word after the last underscore of a column name that may be a unit (``force_lbf``, ``displacement_in``)
+_UNIT_WORD = re.compile(r"^(?:[A-Za-zµ°/]{1,3}|inch|inches)$")
 CANONICAL = {"length": "mm", "force": "N", "angle": "deg", "force/length": "N/mm", "time": "s"}
 #: quantities: their words in a header (the more specific first) and the unit kind they take
 QUANTITIES: dict[str, tuple[tuple[str, ...], str]] = {
@@ -110,6 +118,17 @@ def unit_key(unit: str) -> str:
     return {"degrees": "deg", "degree": "deg", "°": "deg", "n/m": "n/m", "sec": "s"}.get(u, u)
 
 
+def pretty_unit(unit: str) -> str:
+    """A unit as users write it: a key of :data:`UNITS` in its usual case (``kN``, ``N/mm``), another unchanged."""
+    return PRETTY.get(unit, unit)
+
+
+def _as_unit(unit: str) -> str:
+    """The key of :data:`UNITS` for a unit as written, or (a unit it does not know) the unit as written."""
+    key = unit_key(unit)
+    return key if key in UNITS else unit.strip()
+
+
 # --- header ------------------------------------------------------------------------------------------------------
 
 
@@ -125,10 +144,16 @@ class Column:
     name: str
     quantity: str | None
     unit: str | None  # a key of UNITS, or the unknown unit as written
+    #: the line of the row of units that gave the unit (0: the header gave it, or none)
+    unit_line: int = 0
 
 
 def split_name(cell: str) -> tuple[str, str | None]:
-    """(name, unit) of a header cell: ``Force (kN)``, ``Force [kN]``, ``force_kN``, ``force``."""
+    """(name, unit as written) of a header cell: ``Force (kN)``, ``Force [kN]``, ``force_kN``, ``force``.
+
+    A unit after the last underscore is one of :data:`UNITS`, or a short word after the name of a
+    quantity (``force_lbf``, ``displacement_in``: an unknown unit, for :func:`check_unit` to name).
+    """
     c = cell.strip().strip("\"'").strip()
     m = _UNIT_IN_BRACKETS.match(c)
     if m and m.group(2):
@@ -136,7 +161,10 @@ def split_name(cell: str) -> tuple[str, str | None]:
     low = c.lower()
     for u in sorted(UNITS, key=len, reverse=True):
         if low.endswith("_" + u) and len(low) > len(u) + 1:
-            return c[: -len(u) - 1], u
+            return c[: -len(u) - 1], c[-len(u) :]
+    name, _, word = c.rpartition("_")
+    if name and _UNIT_WORD.match(word) and quantity_of(name) and not quantity_of(word):
+        return name, word
     return c, None
 
 
@@ -154,21 +182,53 @@ def header_columns(cells: list[str]) -> list[Column]:
     cols = []
     for j, cell in enumerate(cells):
         name, unit = split_name(cell)
-        cols.append(Column(j, cell.strip(), quantity_of(name), unit_key(unit) if unit else None))
+        cols.append(Column(j, cell.strip(), quantity_of(name), _as_unit(unit) if unit else None))
     return cols
 
 
+def is_number(cell: str) -> bool:
+    """True when the cell is a number, with a decimal point or a decimal comma."""
+    try:
+        float(cell.strip().replace(",", ".", 1))
+    except ValueError:
+        return False
+    return True
+
+
 def is_units_row(cells: list[str]) -> bool:
-    """True when a line under the header holds units only (``mm, kN``, ``(mm), [N]``), some cells empty."""
-    return (
-        bool(cells)
-        and all(not c.strip() or unit_key(c.strip("()[] ")) in UNITS for c in cells)
-        and any(c.strip() for c in cells)
-    )
+    """True when the first line under the header is a row of units: cells, some empty, none a number.
+
+    Testing machines write one (``s;mm;%;N``, ``(s),(mm),(N)``); a cell may hold a unit this reader
+    does not know (``%``, ``-``): only the columns read need one (:func:`set_units`), and the row is
+    never read as numbers.
+    """
+    return any(c.strip() for c in cells) and not any(is_number(c) for c in cells if c.strip())
+
+
+def set_units(cols: list[Column], cells: list[str], line: int, path: Path) -> None:
+    """Give each column without a unit in its name the unit of the row of units (line ``line``).
+
+    A unit it does not know is kept as written (:func:`check_unit` refuses it where the column is
+    read); a column whose name gives one unit and the row another is refused (SceneError).
+    """
+    for c, cell in zip(cols, cells, strict=False):
+        u = cell.strip().strip("\"'").strip("()[] ")
+        if not u:
+            continue
+        if c.unit is None:
+            c.unit, c.unit_line = _as_unit(u), line
+        elif c.unit != _as_unit(u) and _as_unit(u) in UNITS:
+            raise SceneError(
+                f"{path}, line {line}: the column {c.name!r} is in {pretty_unit(c.unit)} by its name and in "
+                f"{pretty_unit(_as_unit(u))} by the row of units: correct one"
+            )
 
 
 def parse_columns(spec: str | Sequence[str]) -> list[tuple[str, str | None]]:
-    """``--columns``: two (name or 1-based number, unit key or None); anything else refused (SceneError)."""
+    """``--columns``: two (name or 1-based number, unit key or None).
+
+    Anything else, or a unit it does not know, is refused (SceneError).
+    """
     items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec)]
     if len(items) != 2 or not all(items):
         raise SceneError(
@@ -178,7 +238,10 @@ def parse_columns(spec: str | Sequence[str]) -> list[tuple[str, str | None]]:
     out: list[tuple[str, str | None]] = []
     for s in items:
         name, sep, unit = s.rpartition(":")
-        out.append((name.strip(), unit_key(unit)) if sep and unit_key(unit) in UNITS else (s, None))
+        if sep and name.strip() and unit.strip() and unit_key(unit) not in UNITS:
+            known = "; ".join(known_units(k) for k in ("length", "angle", "force", "force/length"))
+            raise SceneError(f"--columns {spec!r}: unknown unit {unit.strip()!r} (known: {known})")
+        out.append((name.strip(), unit_key(unit)) if sep and unit.strip() else (s, None))
     return out
 
 
@@ -200,7 +263,7 @@ def pick_column(cols: list[Column], spec: tuple[str, str | None], path: Path, li
                 f"{', '.join(repr(c.name) for c in cols)}"
             )
         col = hits[0]
-    picked = Column(col.index, col.name, col.quantity, unit or col.unit)
+    picked = Column(col.index, col.name, col.quantity, unit or col.unit, 0 if unit else col.unit_line)
     if unit:
         kind = UNITS[unit][0]
         if picked.quantity is None or QUANTITIES[picked.quantity][1] != kind:
@@ -251,11 +314,34 @@ def choose_columns(
     return xs[0], ys[0]
 
 
+_KINDS = {
+    "length": "a length",
+    "force": "a force",
+    "angle": "an angle",
+    "force/length": "a force per length",
+    "time": "a time",
+}
+
+
+def known_units(kind: str) -> str:
+    """The units of a kind (``length``, ``force``, ...) this reader knows, as users write them: ``N, kN``."""
+    seen = dict.fromkeys(
+        pretty_unit(k) for k, (kk, _) in UNITS.items() if kk == kind and k not in ("degree", "degrees")
+    )
+    return ", ".join(seen)
+
+
 def check_unit(c: Column, path: Path, line: int) -> float:
-    """The factor to the canonical unit of the column's quantity; refused without a unit it knows."""
+    """The factor to the canonical unit of the column's quantity; refused without a unit it knows.
+
+    No unit, a unit it does not know (named as written, with the units it knows) or a unit of
+    another quantity: refused (SceneError naming the file and the line of the header, or of the row
+    of units that gave the unit).
+    """
     assert c.quantity is not None
     kind = QUANTITIES[c.quantity][1]
-    known = ", ".join(k for k, (kk, _) in UNITS.items() if kk == kind and "_" not in k)
+    known = known_units(kind)
+    what = WORDS[c.quantity]
     example = {
         "length": "displacement_mm",
         "force": "force_N",
@@ -264,16 +350,19 @@ def check_unit(c: Column, path: Path, line: int) -> float:
     }[kind]
     if c.unit is None:
         raise SceneError(
-            f"{path}, line {line}: the column {c.name!r} ({WORDS[c.quantity]}) gives no unit: write it "
-            f"into the header ({example} or '{WORDS[c.quantity].capitalize()} "
+            f"{path}, line {line}: the column {c.name!r} ({what}) gives no unit: write it "
+            f"into the header ({example} or '{what.capitalize()} "
             f"({CANONICAL[kind]})'; units {known}) or with --columns '{c.name}:{CANONICAL[kind]},...'"
         )
-    if c.unit not in UNITS or UNITS[c.unit][0] != kind:
+    where = f"{path}, line {c.unit_line or line}: the column {c.name!r} ({what})"
+    if c.unit not in UNITS:
         raise SceneError(
-            f"{path}, line {line}: the column {c.name!r} ({WORDS[c.quantity]}) is in {c.unit!r}, "
-            f"not a unit of a {WORDS[c.quantity]} this reader knows ({known})"
+            f"{where}: unknown unit {c.unit!r} (known: {known}); convert the column to one of them "
+            f"or choose the unit with --columns '{c.name}:{CANONICAL[kind]},...'"
+        )
+    if UNITS[c.unit][0] != kind:
+        raise SceneError(
+            f"{where} is in {pretty_unit(c.unit)}, a unit of {_KINDS[UNITS[c.unit][0]]}, not of a {what} "
+            f"(known: {known})"
         )
     return UNITS[c.unit][1]
-
-
-# --- comment lines ------------------------------------------------------------------------------------------------

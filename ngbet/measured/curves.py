@@ -25,6 +25,7 @@ import numpy as np
 from ..scene.validate import SceneError
 from .columns import WORDS
 from .header import FRAME_KEYS
+from .shape import plural
 from .table import CurveTable, per_file, read_errorbars, read_table
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "POINTS_PER_CURVE",
     "RANGE",
     "READING_ERROR_N",
+    "SAME_CURVE",
     "MeasuredCurve",
     "read_all",
     "read_measured",
@@ -48,6 +50,9 @@ READING_ERROR_N = 0.03
 #: the smallest standard deviation of a point, relative to its force: an error bar printed with no
 #: height (several are) does not make a point exact
 MIN_RELATIVE_SD = 0.01
+#: two files hold the same measured curve when their forces agree to this fraction of the force range
+#: at the same displacements (a re-export rounds; two measurements differ by far more)
+SAME_CURVE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -127,7 +132,7 @@ class MeasuredCurve:
         raw = int(np.count_nonzero((self.u_mm >= a) & (self.u_mm <= b)))
         if raw < 3:
             raise SceneError(
-                f"{self.source}: the fitted range {a:.4g} to {b:.4g} mm holds {raw} measured point(s); "
+                f"{self.source}: the fitted range {a:.4g} to {b:.4g} mm holds {plural(raw, 'measured point')}; "
                 f"at least 3 are needed (the fit samples {n} points between them): widen --range"
             )
         lock = self.locking_mm
@@ -164,28 +169,33 @@ def read_measured(
     *,
     columns: str | Sequence[str] | None = None,
     specimen: dict[str, float] | None = None,
+    test: str | None = None,
 ) -> MeasuredCurve:
     """Read and check a bias extension curve (module docstring); its error bars too when the file is there.
 
-    Refused besides what :func:`read_table` refuses: a picture-frame file, fewer than three
-    rows or distinct displacements, no positive displacement, a force or displacement that is
-    not positive in the fitted range ``fraction``.
+    ``test`` (``--test``) overrides the one rule's other grounds, as in :func:`read_table`.
+
+    Refused besides what :func:`read_table` refuses: a picture-frame file (by the one rule of
+    :attr:`ngbet.measured.table.CurveTable.test`), fewer than three rows or distinct displacements,
+    no positive displacement, a force or displacement that is not positive in the fitted range
+    ``fraction``.
     """
     path = Path(path)
-    t = read_table(path, test=None, columns=columns, specimen=specimen)
-    if t.test == "picture_frame" or t.x_quantity != "displacement" or t.y_quantity != "force":
-        what = (
-            "a picture-frame curve (its header says test: picture-frame)"
-            if t.test == "picture_frame"
-            else f"a curve of the {WORDS[t.y_quantity]} against the {WORDS[t.x_quantity]}"
-        )
+    t = read_table(path, test=test, columns=columns, specimen=specimen)
+    if t.test == "picture_frame":
         raise SceneError(
-            f"{path}: {what}; this command takes a bias extension test's clamp displacement and force "
-            "(ngbet normalise --test picture_frame reads picture-frame curves)"
+            f"{path}: a picture-frame curve ({t.test_reason}), not a bias extension curve: a run of a "
+            "picture-frame scene draws it (ngbet run SCENE --data), ngbet fit fits it and ngbet normalise "
+            "normalises it"
+        )
+    if t.x_quantity != "displacement" or t.y_quantity != "force":
+        raise SceneError(
+            f"{path}: a curve of the {WORDS[t.y_quantity]} against the {WORDS[t.x_quantity]}; a bias "
+            "extension curve is the clamp displacement and force"
         )
     u, F, lines = t.x, t.y, t.lines
     if len(u) < 3:
-        raise SceneError(f"data file {path}: {len(u)} rows of numbers; at least 3 are needed")
+        raise SceneError(f"data file {path}: {plural(len(u), 'row')} of numbers; at least 3 are needed")
     order = np.argsort(u, kind="stable")
     u, F, lines = u[order], F[order], lines[order]
     lo, hi = float(u.min()), float(u.max())
@@ -298,11 +308,14 @@ def read_any(
 ) -> MeasuredCurve:
     """A bias-extension curve (:func:`read_measured`), or a picture-frame curve (:func:`read_frame_curve`).
 
-    The file's header (``# test: picture-frame``) decides.
+    The one rule of every command decides (:attr:`ngbet.measured.table.CurveTable.test`: the
+    header's test line, a picture frame's columns, a frame without a specimen); a file that names
+    no test, specimen or frame is a bias extension curve on the scene's specimen.
     """
-    if read_table(path, columns=columns).test == "picture_frame":
+    t = read_table(path, columns=columns)
+    if t.test == "picture_frame":
         if specimen:
-            raise SceneError(f"{path}: a picture-frame curve (its header says so); --specimen does not apply to it")
+            raise SceneError(f"{path}: a picture-frame curve ({t.test_reason}); --specimen does not apply to it")
         return read_frame_curve(path, columns=columns)
     return read_measured(path, fraction, columns=columns, specimen=specimen)
 
@@ -325,16 +338,54 @@ def read_all(
 
 
 def refuse_duplicates(curves: Sequence[MeasuredCurve | CurveTable]) -> None:
-    """Refuse a file given twice, or two files with the same numbers (each would count twice)."""
-    seen: dict[object, str] = {}
+    """Refuse a file given twice, or two files of the same measured curve (each would count twice).
+
+    Two files hold the same curve when they are of the same test and quantities, their specimens
+    and frames do not differ, and their forces agree to :data:`SAME_CURVE` of the force range at
+    the same displacements (row by row, or interpolated): a curve re-exported in other units, with
+    other separators or rounded, is the same curve. Refused naming both files (SceneError).
+    """
+    seen: list[tuple[Path, MeasuredCurve | CurveTable]] = []
     for c in curves:
-        x = c.u_mm if isinstance(c, MeasuredCurve) else c.x
-        y = c.force_N if isinstance(c, MeasuredCurve) else c.y
-        for key in (Path(c.source).resolve(), (x.tobytes(), y.tobytes())):
-            if key in seen:
+        here = Path(c.source).resolve()
+        for where, other in seen:
+            same = where == here
+            if same or _same_curve(c, other):
                 raise SceneError(
-                    f"{c.source} and {seen[key]}: the same "
-                    f"{'file' if isinstance(key, Path) else 'measured curve'} twice; give each curve "
-                    "once (a curve given twice counts twice and makes the uncertainties too small)"
+                    f"{c.source} and {other.source}: the same "
+                    f"{'file' if same else 'measured curve'} twice"
+                    + (
+                        ""
+                        if same
+                        else f" (one test and specimen; the forces agree to within {100 * SAME_CURVE:g} % of "
+                        "their range at the same displacements)"
+                    )
+                    + "; give each curve once (a curve given twice counts twice and makes the uncertainties "
+                    "too small)"
                 )
-            seen[key] = c.source
+        seen.append((here, c))
+
+
+def _xy(c: MeasuredCurve | CurveTable) -> tuple[np.ndarray, np.ndarray, tuple[str, str, str]]:
+    if isinstance(c, MeasuredCurve):
+        return c.u_mm, c.force_N, (c.test, "displacement", c.quantity)
+    return c.x, c.y, (c.test, c.x_quantity, c.y_quantity)
+
+
+def _same_curve(a: MeasuredCurve | CurveTable, b: MeasuredCurve | CurveTable) -> bool:
+    """Whether two curves are one measurement (:func:`refuse_duplicates`)."""
+    (xa, ya, ka), (xb, yb, kb) = _xy(a), _xy(b)
+    sizes = {**a.specimen, **a.frame}, {**b.specimen, **b.frame}
+    if ka != kb or any(not math.isclose(v, sizes[1][k]) for k, v in sizes[0].items() if k in sizes[1]):
+        return False
+    if min(len(xa), len(xb)) < 3:
+        return bool(np.array_equal(xa, xb) and np.array_equal(ya, yb))
+    tx = SAME_CURVE * max(float(np.ptp(xa)), float(np.ptp(xb)))
+    ty = SAME_CURVE * max(float(np.ptp(ya)), float(np.ptp(yb)))
+    if len(xa) == len(xb) and np.all(np.abs(xa - xb) <= tx) and np.all(np.abs(ya - yb) <= ty):
+        return True
+    oa, ob = np.argsort(xa, kind="stable"), np.argsort(xb, kind="stable")
+    xa, ya, xb, yb = xa[oa], ya[oa], xb[ob], yb[ob]
+    if abs(xa[0] - xb[0]) > tx or abs(xa[-1] - xb[-1]) > tx:
+        return False
+    return bool(np.all(np.abs(np.interp(xa, xb, yb) - ya) <= ty) and np.all(np.abs(np.interp(xb, xa, ya) - yb) <= ty))

@@ -10,26 +10,37 @@ rows of numbers. :func:`read_table` understands
   with an optional unit, ``"Weg:mm,Kraft:kN"``. Two columns without names it understands are
   refused, never taken by position.
 - **units in the header**: ``force_kN``, ``Force (kN)``, ``Force [kN]``, a row of units under the
-  header; lengths mm, cm, m; forces N, kN; angles deg, rad; normalised forces N/mm, N/m. Values
+  header (``s;mm;%;N``: a row of no numbers, never read as data; only the columns read need a unit
+  it knows); lengths mm, cm, m; forces N, kN; angles deg, rad; normalised forces N/mm, N/m. Values
   are converted to mm, N, degrees and N/mm, and every conversion is said (:attr:`CurveTable.notes`).
-  A column it needs without a unit is refused.
-- **separators**: commas; semicolons or tabs, then with decimal commas (``0,5``) as Excel writes
-  them; quoted cells; a UTF-8 byte order mark; Windows-1252 text.
+  A column it needs without a unit, or with a unit it does not know (``force_lbf``), is refused
+  naming the unit and the units it knows.
+- **separators**: commas; semicolons, tabs or spaces (a header of several words whose first line
+  has none of them), then with decimal commas (``0,5``) as Excel writes them; quoted cells; a UTF-8
+  byte order mark; Windows-1252 and UTF-16 text. A spreadsheet workbook (``.xlsx``) is refused:
+  export it as CSV.
 - **the specimen** from comment lines ``# specimen.width_mm = 100`` (also ``= 100 mm``,
   ``# width_mm = 100``, ``# specimen.width = 0.1 m``; ``thickness_mm`` and ``yarn_angle_deg``
   too) or from the command line (``--specimen 100x250``, width x clamp-to-clamp length [x
   thickness] in mm). Both given and different, only one of width and length, a width or length
   not > 0, a length not above the width: refused.
-- **the test**: ``# test: picture-frame`` or ``bias_extension`` (or ``--test``), and the picture
-  frame's sizes from ``# Table 3 (UN): frame 145 mm, fabric 120 mm`` or
-  ``# picture_frame.frame_mm = 145`` and ``# picture_frame.fabric_mm = 120`` (or ``--frame 145x120``).
+- **the test** (:attr:`CurveTable.test`, the one rule of every command): ``--test``, else the
+  header's ``# test: picture-frame`` or ``bias_extension``; else a picture frame when the file holds a
+  picture frame's quantities (a shear angle, a shear force, a normalised shear force) or names a
+  frame and no specimen, a bias extension test when it names a specimen and no frame; "" when it
+  names neither (``fit`` and ``run --data`` then read a bias extension curve on the scene's
+  specimen, ``normalise`` refuses it); both a specimen and a frame: refused. The picture frame's
+  sizes from ``# Table 3 (UN): frame 145 mm, fabric 120 mm`` or ``# picture_frame.frame_mm = 145``
+  and ``# picture_frame.fabric_mm = 120`` (or ``--frame 145x120``).
 - **what the curve is of**: ``# laboratory: UN`` (or ``# Table 3 (UN): ...``, ``legend label "UN"``)
   and ``# fabric: ...`` (also after a semicolon, ``# test: picture-frame; fabric: ...``), kept as
   text for the studies that sort curves by fabric and laboratory (:attr:`CurveTable.laboratory`,
   :attr:`CurveTable.fabric`; "" where the header says nothing).
-- **a loading–unloading cycle**: the rows after the largest displacement that fall back by more
-  than :data:`CYCLE_TOLERANCE` of the range are the unloading; the loading branch is kept and the
-  note says so. Falls of that size before the largest displacement (several cycles) are refused.
+- **the shape of the curve** (:mod:`ngbet.measured.shape`): a displacement and a force negative
+  throughout are read with their signs changed, one of them alone is refused; rows in descending
+  displacement are read in ascending order; of a loading–unloading cycle the loading branch is
+  kept. Each said in a note; several cycles, or a loading branch of a small share of the rows,
+  refused.
 
 Everything is checked before any model run, and a refusal names the file and the line and says
 what to write (:class:`ngbet.scene.validate.SceneError`, exit status 2).
@@ -43,6 +54,7 @@ of the curves (:func:`curve_files`); given without its curve, it is refused with
 
 from __future__ import annotations
 
+import codecs
 import csv
 import math
 import re
@@ -55,20 +67,21 @@ import numpy as np
 from ..scene.validate import SceneError
 from .columns import (
     CANONICAL,
-    PRETTY,
     UNITS,
     WORDS,
     Column,
     check_unit,
     choose_columns,
     header_columns,
+    is_number,
     is_units_row,
-    unit_key,
+    pretty_unit,
+    set_units,
 )
-from .header import DECIMAL_COMMA, Header, name_of_test, parse_number
+from .header import Header, name_of_test, parse_number
+from .shape import loading_branch, order, plural, signs
 
 __all__ = [
-    "CYCLE_TOLERANCE",
     "CurveTable",
     "curve_files",
     "errorbar_path",
@@ -79,9 +92,11 @@ __all__ = [
     "read_text",
 ]
 
-#: a fall of the displacement by more than this fraction of its range is an unloading (the vertices of
-#: a digitised curve step back by up to 2.5 % of the range: data/cao2008_pf)
-CYCLE_TOLERANCE = 0.05
+
+#: the separators of columns besides commas, as notes name them
+_SEPARATORS = {";": "semicolons", "\t": "tabs", " ": "spaces"}
+#: the quantities only a picture frame's curve holds
+_FRAME_QUANTITIES = ("shear_angle", "shear_force", "normalised_shear_force")
 
 
 @dataclass(frozen=True)
@@ -91,8 +106,10 @@ class CurveTable:
     ``x`` is the displacement [mm] or the shear angle [deg] (``x_quantity``), ``y`` the force or
     shear force [N] or the normalised shear force [N/mm] (``y_quantity``); ``lines`` the file
     line of each row; ``specimen`` the scene keys of the specimen, ``frame`` the picture frame's
-    ``picture_frame.frame_mm`` and ``picture_frame.fabric_mm``; ``test`` one of :data:`~ngbet.measured.header.TESTS` or
-    "" when neither the file nor the caller names it.
+    ``picture_frame.frame_mm`` and ``picture_frame.fabric_mm``; ``test`` one of
+    :data:`~ngbet.measured.header.TESTS` by the one rule of every command (module docstring), or ""
+    when the file names neither a specimen nor a frame nor the test; ``test_reason`` says why, in
+    words for messages ("its header says test: picture-frame").
     """
 
     source: str
@@ -107,6 +124,7 @@ class CurveTable:
     notes: tuple[str, ...]
     laboratory: str = ""
     fabric: str = ""
+    test_reason: str = ""
 
 
 # --- text ---------------------------------------------------------------------------------------------------------
@@ -115,8 +133,9 @@ class CurveTable:
 def read_text(path: Path, what: str) -> tuple[str, list[str]]:
     """The text of the file ``path`` (a ``what`` file in messages) and notes on its decoding.
 
-    UTF-8 (a byte order mark dropped), else Windows-1252 with a note; a directory, a missing or
-    unreadable file, NUL bytes or neither encoding: refused (SceneError naming the file).
+    UTF-8 (a byte order mark dropped), else Windows-1252 with a note, or UTF-16 with its byte order
+    mark (a note); a directory, a missing or unreadable file, a spreadsheet workbook, other NUL bytes
+    or neither encoding: refused (SceneError naming the file; a binary file is to be exported as CSV).
     """
     if path.is_dir():
         raise SceneError(f"{what} file {path} is a directory")
@@ -126,8 +145,18 @@ def read_text(path: Path, what: str) -> tuple[str, list[str]]:
         raise SceneError(f"{what} file not found: {path}") from None
     except OSError as exc:
         raise SceneError(f"{what} file {path} cannot be read: {exc.strerror or exc}") from None
+    if raw.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        try:
+            return raw.decode("utf-16"), ["read as UTF-16 text"]
+        except UnicodeDecodeError:
+            raise SceneError(f"{what} file {path} is not a text file (broken UTF-16)") from None
     if b"\x00" in raw:
-        raise SceneError(f"{what} file {path} is not a text file (holds NUL bytes)")
+        kind = (
+            "is a spreadsheet workbook, not a text file"
+            if raw.startswith((b"PK\x03\x04", b"\xd0\xcf\x11\xe0"))
+            else "is not a text file (holds NUL bytes)"
+        )
+        raise SceneError(f"{what} file {path} {kind}: export it as CSV (comma- or semicolon-separated text)")
     notes = []
     try:
         text = raw.decode("utf-8-sig")
@@ -138,14 +167,6 @@ def read_text(path: Path, what: str) -> tuple[str, list[str]]:
             raise SceneError(f"{what} file {path} is not a text file (neither UTF-8 nor Windows-1252)") from None
         notes.append("read as Windows-1252 text (not UTF-8)")
     return text, notes
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text.strip().replace(",", ".", 1) if DECIMAL_COMMA.match(text.strip()) else text)
-    except ValueError:
-        return False
-    return True
 
 
 def parse_sizes(text: str, what: str, names: Sequence[str]) -> dict[str, float]:
@@ -213,6 +234,27 @@ def _frame(path: Path, keys: dict[str, float], given: dict[str, float] | None) -
     return frame, notes
 
 
+def _split(line: str, sep: str) -> list[str]:
+    """The cells of a line: by ``sep`` (quoted cells kept whole), or by spaces (``sep`` " ").
+
+    Between spaces, a cell in brackets joins the one before it (``Force (N)``).
+    """
+    if sep != " ":
+        return next(csv.reader([line], delimiter=sep))
+    cells: list[str] = []
+    for word in re.findall(r'"[^"]*"|\S+', line):
+        if cells and word[0] in "([":
+            cells[-1] += " " + word
+        else:
+            cells.append(word.strip('"'))
+    return cells
+
+
+def _separator(line: str) -> str:
+    """The column separator of a header line: semicolon, tab, comma, else spaces between several words."""
+    return next((s for s in (";", "\t", ",") if s in line), " " if len(line.split()) > 1 else ",")
+
+
 def _rows(text: str, path: Path, header: Header) -> tuple[list[str], int, list[tuple[int, list[str]]], str]:
     """The header cells and line, the data rows (line, cells) and the column separator."""
     head: list[str] | None = None
@@ -227,16 +269,16 @@ def _rows(text: str, path: Path, header: Header) -> tuple[list[str], int, list[t
                 header.comment(line, k)
             continue
         if head is None:
-            sep = ";" if ";" in line else "\t" if "\t" in line else ","
-            head = next(csv.reader([line], delimiter=sep))
-            if all(_is_number(c) for c in head if c.strip()):
+            sep = _separator(line)
+            head = _split(line, sep)
+            if all(is_number(c) for c in head if c.strip()):
                 raise SceneError(
                     f"{path}, line {k}: a row of numbers where the header should be: the first line "
                     "that is not a # comment must name the columns (displacement_mm,force_N)"
                 )
             head_line = k
             continue
-        rows.append((k, next(csv.reader([line], delimiter=sep))))
+        rows.append((k, _split(line, sep)))
     if head is None:
         raise SceneError(f"data file {path}: no header line and no data")
     return head, head_line, rows, sep
@@ -266,32 +308,34 @@ def read_table(
     Returns
     -------
     CurveTable
-        The rows in file order up to the largest x (the unloading branch of a cycle left out), converted.
+        The rows in file order (a file in descending x reversed), up to the largest x (the unloading
+        branch of a cycle left out), converted, with both signs changed where both are negative
+        (:mod:`ngbet.measured.shape`); the test by the one rule (module docstring).
     """
     path = Path(path)
     text, notes = read_text(path, "data")
     header = Header(path)
     head, head_line, rows, sep = _rows(text, path, header)
     cols = header_columns(head)
-    if rows and is_units_row(rows[0][1]):  # a row of units under the names (testing machines write one)
-        for c, u in zip(cols, rows[0][1], strict=False):
-            if u.strip() and c.unit is None:
-                c.unit = unit_key(u.strip("()[] "))
+    units = rows[0] if rows and is_units_row(rows[0][1]) else None  # testing machines write one
+    if units:
+        set_units(cols, units[1], units[0], path)
         rows = rows[1:]
     _refuse_errorbars(path, cols, columns)
     x, y = choose_columns(cols, columns, path, head_line)
+    if units and units[0] not in (x.unit_line, y.unit_line):
+        notes.append(f"line {units[0]} holds no number: read as a row of units ({';'.join(units[1])}), not as data")
     fx, fy = check_unit(x, path, head_line), check_unit(y, path, head_line)
     comma = sep != ","
     data, lines = [], []
     for k, cells in rows:
         if len(cells) <= max(x.index, y.index):
-            hint = (
-                " (decimal commas need semicolons or tabs between the columns)"
-                if not comma and "," in "".join(cells)
-                else ""
-            )
+            hint = {
+                ",": " (decimal commas need semicolons or tabs between the columns)" if "," in "".join(cells) else "",
+                " ": " (columns separated by spaces: write each column name as one word, displacement_mm force_N)",
+            }.get(sep, "")
             raise SceneError(
-                f"{path}, line {k}: {len(cells)} cells, the header (line {head_line}) has {len(head)}" + hint
+                f"{path}, line {k}: {plural(len(cells), 'cell')}, the header (line {head_line}) has {len(head)}" + hint
             )
         data.append(
             (parse_number(cells[x.index], path, k, x.name, comma), parse_number(cells[y.index], path, k, y.name, comma))
@@ -301,11 +345,11 @@ def read_table(
     xs, ys, ls = fx * arr[:, 0], fy * arr[:, 1], np.array(lines, dtype=int)
     if sep != ",":
         notes.append(
-            f"columns separated by {'semicolons' if sep == ';' else 'tabs'}"
+            f"columns separated by {_SEPARATORS[sep]}"
             + (", decimal commas" if any("," in c for _, r in rows for c in r) else "")
         )
     notes += [
-        f"column {c.name!r} read as the {WORDS[c.quantity or '']} in {PRETTY.get(c.unit, c.unit)}, converted to "
+        f"column {c.name!r} read as the {WORDS[c.quantity or '']} in {pretty_unit(c.unit)}, converted to "
         f"{CANONICAL[UNITS[c.unit][0]]} (x {f:g})"
         for c, f in ((x, fx), (y, fy))
         if c.unit is not None and f != 1.0
@@ -319,25 +363,22 @@ def read_table(
     beyond = _clipped(cols, rows)
     if beyond.any():
         notes.append(
-            f"{int(beyond.sum())} point(s) marked on_frame_edge top or right left out (the chart "
+            f"{plural(int(beyond.sum()), 'point')} marked on_frame_edge top or right left out (the chart "
             "clipped them: their true value lies beyond its axis)"
         )
         xs, ys, ls = xs[~beyond], ys[~beyond], ls[~beyond]
-    xs, ys, ls, cut = _loading_branch(xs, ys, ls, path, x.quantity or "")
-    if cut:
-        notes.append(cut)
-    ftest = header.test
-    if test is not None:
-        given = name_of_test(test, "--test")
-        if ftest and ftest != given:
-            raise SceneError(f"{path}: its header says test {ftest}, --test says {given}: drop one")
-        ftest = given
+    xq, yq = x.quantity or "", y.quantity or ""
+    xs, ys, flipped = signs(xs, ys, path, xq, yq)
+    (xs, ys, ls), turned = order(xs, ys, ls, path, xq, yq)
+    (xs, ys, ls), cut = loading_branch(xs, ys, ls, path, xq)
+    notes += flipped + turned + cut
     spec, n1 = _specimen(path, header.keys, specimen)
     frm, n2 = _frame(path, header.keys, frame)
+    ftest, why = _which_test(path, header.test, test, (xq, yq), bool(spec), bool(frm))
     return CurveTable(
         str(path),
-        x.quantity or "",
-        y.quantity or "",
+        xq,
+        yq,
         xs,
         ys,
         ls,
@@ -347,7 +388,34 @@ def read_table(
         tuple(notes + header.notes + n1 + n2),
         header.laboratory,
         header.fabric,
+        why,
     )
+
+
+def _which_test(
+    path: Path, header: str, given: str | None, quantities: tuple[str, str], has_spec: bool, has_frame: bool
+) -> tuple[str, str]:
+    """(test, why) by the one rule of every command (module docstring); a specimen and a frame refused."""
+    if given is not None:
+        name = name_of_test(given, "--test")
+        if header and header != name:
+            raise SceneError(f"{path}: its header says test {header}, --test says {name}: drop one")
+        return name, f"--test {name}"
+    if header:
+        return header, f"its header says test: {header.replace('_', '-')}"
+    pf = [q for q in quantities if q in _FRAME_QUANTITIES]
+    if pf:
+        return "picture_frame", f"its columns hold the {WORDS[pf[0]]}, a picture frame's quantity"
+    if has_spec and has_frame:
+        raise SceneError(
+            f"{path}: which test? it names both a specimen and a picture frame: add '# test: bias_extension' "
+            "or '# test: picture_frame' to its header (ngbet normalise: or give --test)"
+        )
+    if has_frame:
+        return "picture_frame", "it names a picture frame and no specimen"
+    if has_spec:
+        return "bias_extension", "it names a specimen and no picture frame"
+    return "", "it names neither a specimen nor a picture frame and has no '# test:' line"
 
 
 def _clipped(cols: list[Column], rows: list[tuple[int, list[str]]]) -> np.ndarray:
@@ -362,33 +430,6 @@ def _clipped(cols: list[Column], rows: list[tuple[int, list[str]]]) -> np.ndarra
         ],
         dtype=bool,
     )
-
-
-def _loading_branch(
-    x: np.ndarray, y: np.ndarray, lines: np.ndarray, path: Path, quantity: str
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """The rows up to the largest x when the rows after it fall back (an unloading); several cycles refused."""
-    if len(x) < 2:
-        return x, y, lines, ""
-    i = int(np.argmax(x))
-    tol = CYCLE_TOLERANCE * float(x.max() - x.min())
-    unit = "°" if quantity == "shear_angle" else " mm"
-    fall = np.maximum.accumulate(x[: i + 1]) - x[: i + 1]
-    if fall.max() > tol:
-        j = int(np.argmax(fall > tol))
-        raise SceneError(
-            f"{path}, line {int(lines[j])}: the {WORDS.get(quantity, quantity)} falls back to "
-            f"{x[j]:g}{unit} before its largest value ({x[i]:g}{unit}, line {int(lines[i])}): several "
-            "load cycles; keep one loading branch in the file"
-        )
-    if i < len(x) - 1 and float(x[i] - x[i + 1 :].min()) > tol:
-        what = WORDS.get(quantity, quantity)
-        note = (
-            f"a loading-unloading cycle: kept the loading branch up to the largest {what}, "
-            f"{x[i]:g}{unit} (line {int(lines[i])}); the {len(x) - 1 - i} rows after it are left out"
-        )
-        return x[: i + 1], y[: i + 1], lines[: i + 1], note
-    return x, y, lines, ""
 
 
 # --- bias extension curves -----------------------------------------------------------------------------------------
