@@ -5,7 +5,8 @@ Exit status (both models, runs and studies):
 ====  ==================================================================================
 0     done
 1     the solver could not carry the load to the end (converged steps are on disk,
-      summary.json says "failed"); a study with cases that crashed; a fit whose worker
+      summary.json says "failed"); a study with a case that did not reach its load (the
+      cases are named on stderr, every result is written); a fit whose worker
       process ended without an answer (killed, out of memory)
 2     a bad scene or command line (the message names the key)
 3     an I/O problem: the output folder is not writable, a file is in its place, it is on
@@ -46,7 +47,8 @@ from .watch import SUPERVISED, watch
 __all__ = ["EPILOG", "console", "main"]
 
 EPILOG = (
-    "exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed); "
+    "exit status: 0 done; 1 solver failure (converged steps kept, summary.json says failed; a study: "
+    "a case that did not reach its load, named on stderr); "
     "2 bad scene or command line; 3 I/O problem (output folder not writable, a file, read-only, "
     "busy with another run; scheduler unreachable; stdout not writable); 70 internal error of ngbet; "
     "130 interrupted (SIGINT/SIGTERM/SIGHUP/SIGUSR1; summary.json says interrupted, with the last converged "
@@ -210,7 +212,7 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
         metavar="SECTION.KEY=VALUE",
         help="override one value of the base scene (repeatable)",
     )
-    add_arguments(psw)
+    add_arguments(psw, data=False)
     from .calibration import command as fit_command
 
     fit_command.add_parser(sub)
@@ -391,6 +393,10 @@ def _study(args: argparse.Namespace) -> int:
     from .studies import STUDIES
 
     if args.name == "list":
+        if args.scene or args.overrides:
+            extra = " ".join([*([args.scene] if args.scene else []), *(f"--set {o}" for o in args.overrides)])
+            _say(f"study list takes no scene file or --set (got {extra})")
+            return EXIT_INPUT
         for name, what in STUDIES.items():
             print(f"{name:16s} {what}")
         return EXIT_OK

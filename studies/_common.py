@@ -22,6 +22,7 @@ __all__ = [
     "H",
     "K",
     "P",
+    "U0",
     "QUICK",
     "base_scene",
     "colormap",
@@ -32,6 +33,7 @@ __all__ = [
     "header",
     "lagrange",
     "lagrange_case",
+    "loaded_to",
     "loglog_slope",
     "mesh",
     "ok",
@@ -55,6 +57,7 @@ GRADE = "discretization.corner_mesh_size_mm"
 BISECT = "discretization.corner_bisections"
 CON = "effects.constraint"
 K = "effects.penalty_K"
+U0 = "loading.u0_mm"
 FORM = "effects.penalty_form"
 
 #: what ``--quick`` changes in every study's base scene: a coarse uniform mesh at p = 2, loaded
@@ -256,14 +259,27 @@ def describe_discretization(scene: dict[str, Any], varied: Sequence[str] = ()) -
     return describe_mesh(scene["discretization"])
 
 
+def loaded_to(data: StudyData) -> str:
+    """The final load of a study's cases in words: the base scene's, or each case's own where the cases set it."""
+    base = float(data.meta["base_scene"]["loading"]["u0_mm"])
+    finals = sorted({float(c["params"].get(U0, base)) for c in data.meta["cases"]})
+    if len(finals) == 1:
+        return f"loaded to {finals[0]:g} mm"
+    return f"each case loaded to its own final load ({', '.join(f'{u:g}' for u in finals)} mm)"
+
+
 def header(data: StudyData, title: str, reference: str) -> list[str]:
-    """The first lines of every report: title, scene, discretization, reference value."""
+    """The first lines of every report.
+
+    Title, scene and final load (:func:`loaded_to`), discretization, reference value, and what a
+    quick study leaves out.
+    """
     m = data.meta
     src = m.get("scene_source") or "ngbet's default scene (the paper's BET)"
     L = [
         f"# {title}",
         "",
-        f"- Scene: {src}; loaded to {m['base_scene']['loading']['u0_mm']:g} mm.",
+        f"- Scene: {src}; {loaded_to(data)}.",
         f"- Discretization: {describe_discretization(m['base_scene'], m.get('params', []))}.",
         f"- Reference: {reference}",
     ]

@@ -342,10 +342,11 @@ def reference_text(data: StudyData, quick: bool) -> str:
     if ref is None:
         lo = data.meta["base_scene"]["loading"]
         stops = ", ".join(f"{x:g}" for x in lo["stops_mm"]) or "none"
+        cache = data.meta.get("cache")
         return (
-            f"none in the cache for this study's base scene as loaded here (to {lo['u0_mm']:g} mm, stops: "
-            f"{stops} mm); `ngbet study reference` on that scene, with the same `--quick` and `--cache`, "
-            "computes it, and this report then names it."
+            f"none in the cache for this study's base scene loaded to {lo['u0_mm']:g} mm (stops: {stops} mm); "
+            f"`ngbet study reference{' --quick' if quick else ''}` on that scene, with this study's cache"
+            f"{f' (`--cache {cache}`)' if cache else ''}, computes it, and this report then names it."
         )
     text = (
         "`ngbet study reference` of this scene (from the cache): "

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -20,11 +21,11 @@ from typing import Any
 import numpy as np
 
 from ngbet.figures.study import key_label
-from ngbet.scene.document import Scene, default_scene
+from ngbet.scene.document import Scene, SceneWarning, default_scene
 from ngbet.scene.validate import SceneError
 from ngbet.study.figures import savefig
 from ngbet.study.keys import grid
-from ngbet.study.model import Study, StudyData
+from ngbet.study.model import Study, StudyData, same_value
 
 from . import _common as C
 from . import reference as R
@@ -35,9 +36,9 @@ __all__ = ["build", "parse_items", "plot", "report"]
 def parse_items(items: list[str], parse: Callable[[str], Any]) -> tuple[dict[str, list[Any]], str | None]:
     """``["a.b=1,2", "scene.toml"]`` -> ({"a.b": [1, 2]}, "scene.toml"); values read by ``parse``.
 
-    A key given in two items has the values of both (a value given twice counts once).
-
-    Commas inside brackets belong to a value (``loading.stops_mm=[10,20],[37]``).
+    Commas inside brackets belong to a value (``loading.stops_mm=[10,20],[37]``). A key given in
+    two items, or a value given twice for one key (20 and 20.0 alike), is a :class:`SceneError`
+    naming it: the sweep would hold fewer cases than written.
     """
     axes: dict[str, list[Any]] = {}
     scene = None
@@ -54,24 +55,40 @@ def parse_items(items: list[str], parse: Callable[[str], Any]) -> tuple[dict[str
         parts = [v.strip() for v in re.split(r",(?![^\[]*\])", values) if v.strip()]
         if not parts:
             raise SceneError(f"no values for {key}")
-        axis = axes.setdefault(key, [])  # a key given twice (k=20 k=200): its values together, each once
-        for v in map(parse, parts):
-            if v not in axis:
-                axis.append(v)
+        if key in axes:
+            raise SceneError(
+                f"{key} is given twice ({key}={values.strip()} after {key}={_joined(axes[key])}): give each "
+                "swept key once, with all its values (section.key=v1,v2,...)"
+            )
+        axis = axes[key] = []
+        for text, v in zip(parts, map(parse, parts), strict=True):
+            if any(same_value(v, w) for w in axis):
+                raise SceneError(f"{key}={values.strip()}: the value {text} is given twice; give each value once")
+            axis.append(v)
     if not axes:
         raise SceneError("nothing to sweep: give section.key=v1,v2,... (e.g. material.alpha1=20,200,2000)")
     return axes, scene
 
 
+def _joined(values: list[Any]) -> str:
+    return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
+
+
 def build(axes: dict[str, list[Any]], quick: bool = False, scene: Scene | None = None) -> Study:
-    """The sweep as a study; a value the scene refuses is a :class:`SceneError` naming it (before any run)."""
+    """The sweep as a study; a value the scene refuses is a :class:`SceneError` naming it (before any run).
+
+    A swept key that no case reads is refused where the study runs
+    (:func:`ngbet.study.reads.check_cases_read`), also by name.
+    """
     # the force figure draws whole curves: the scene's output grid (the other studies report at stops only)
     every = (scene if scene is not None else default_scene()).loading.output_every_mm
     base = C.study_scene(scene, quick, {"loading.output_every_mm": every})
     cases = grid(**axes)
     for case in cases:
         try:
-            base.with_changes(**case)
+            with warnings.catch_warnings():  # a key the cases do not read: refused by name when the sweep runs
+                warnings.simplefilter("ignore", SceneWarning)
+                base.with_changes(**case)
         except SceneError as exc:
             raise SceneError(f"{', '.join(f'{k} = {v}' for k, v in case.items())}: {exc}") from None
     # the load stops and the final load: each case's own where the sweep varies it
@@ -88,7 +105,7 @@ def build(axes: dict[str, list[Any]], quick: bool = False, scene: Scene | None =
     )
 
 
-U0 = "loading.u0_mm"
+U0 = C.U0
 
 
 def _stations(data: StudyData) -> list[float]:

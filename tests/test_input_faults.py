@@ -78,11 +78,13 @@ def test_a_scene_file_may_follow_the_options_of_a_study_or_sweep():
     assert parser.parse_args(got).items == ["material.alpha1=20", "my.toml"]
 
 
-def test_a_sweep_key_given_twice_has_the_values_of_both():
+def test_a_sweep_key_given_twice_is_refused_naming_both_items():
+    """Its values are neither lost (the last item won) nor merged into a sweep other than the one written."""
+    from ngbet.scene.validate import SceneError
     from ngbet.studies.sweep import parse_items
 
-    axes, scene = parse_items(["material.alpha1=20", "material.alpha1=200,20", "s.toml"], parse_value)
-    assert axes == {"material.alpha1": [20, 200]} and scene == "s.toml"
+    with pytest.raises(SceneError, match=r"material.alpha1 is given twice \(material.alpha1=200,20 after material"):
+        parse_items(["material.alpha1=20", "material.alpha1=200,20", "s.toml"], parse_value)
 
 
 def test_a_large_sweep_says_what_it_will_do_before_it_checks_its_scenes(tmp_path, capsys, monkeypatch):
@@ -232,3 +234,11 @@ def test_an_unusable_fit_cache_is_found_before_the_fit(tmp_path):
     with pytest.raises(OSError):
         VF.cached(tmp_path / "cache" / "validation-fits", "pair-x", lambda: made.append(1) or {})
     assert made == []
+
+
+def test_study_list_takes_no_scene_or_set(capsys):
+    assert main(["study", "list", "extra"]) == 2
+    assert capsys.readouterr().err == "ngbet: study list takes no scene file or --set (got extra)\n"
+    assert main(["study", "list", "--set", "material.alpha1=2"]) == 2
+    assert "(got --set material.alpha1=2)" in capsys.readouterr().err
+    assert main(["study", "list"]) == 0 and "alpha1" in capsys.readouterr().out

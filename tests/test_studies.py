@@ -1166,6 +1166,6 @@ def test_data_is_refused_by_a_study_that_reads_no_curves(tmp_path, capsys):
     """--data on a study without measured curves would be ignored: refused before anything runs."""
     from ngbet.cli import main
 
-    assert main(["sweep", "material.alpha1=1,2", "--data", str(tmp_path), "--out", str(tmp_path / "s")]) == 2
+    assert main(["study", "alpha1", "--quick", "--data", str(tmp_path), "--out", str(tmp_path / "s")]) == 2
     assert "this study reads no measured curves" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()

@@ -4,6 +4,7 @@ The modules, by job:
 
 - :mod:`~ngbet.study.model`: :class:`Study` (base scene, cases, figures, report) and
   :class:`StudyData` (what a study wrote, read back);
+- :mod:`~ngbet.study.reads`: which keys the cases read (a varied key none reads is refused);
 - :mod:`~ngbet.study.keys`: the cache key of a case (its scene and the code it runs);
 - :mod:`~ngbet.study.cache`: storing, verifying and cleaning the case cache; the locks of live studies;
 - :mod:`~ngbet.study.executors`: running a case, local worker processes;

@@ -17,12 +17,13 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..run_folder import OutputError, OwnedFolder
+from ..run_folder import FOLDER_MARKER, OutputError, OwnedFolder
 from ..scene.document import Scene
 from .collect import StudyFolderError
 from .figures import plot_only
-from .keys import as_floats
+from .keys import as_floats, flat
 from .model import Study, same_value
+from .reads import case_scenes, check_cases_read
 from .runner import DEFAULT_ROOT, default_out, run_study
 
 __all__ = ["add_arguments", "build_options", "build_study", "left_out", "main_for", "run_from_args"]
@@ -39,8 +40,12 @@ def at_least_one(text: str) -> int:
     return n
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The command-line options every study takes."""
+def add_arguments(p: argparse.ArgumentParser, *, data: bool = True) -> None:
+    """The command-line options every study takes.
+
+    ``data``: with ``--data`` (measured curves), for a command that may read them (a sweep reads
+    none: without it, ``--data`` is an unknown option).
+    """
     p.add_argument("--quick", action="store_true", help="a small version of the study (seconds; what the tests run)")
     p.add_argument(
         "--out",
@@ -55,16 +60,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--threads", type=at_least_one, help="NGSolve threads per case (default: 1 in parallel, all cores otherwise)"
     )
-    p.add_argument("--plot-only", action="store_true", help="redraw figures and report from the CSV files")
+    p.add_argument(
+        "--plot-only",
+        action="store_true",
+        help="redraw figures and report from the CSV files of the study these arguments name (nothing runs)",
+    )
     p.add_argument("--retry-failed", action="store_true", help="rerun cases whose solver failed before")
     p.add_argument("--quiet", action="store_true", help="one line: no progress bar, no report on the terminal")
+    if not data:
+        return
     p.add_argument(
         "--data",
         action="append",
         default=[],
         metavar="PATH",
-        help="a folder (its *.csv) or a file of measured curves the study reads besides its own: the "
-        "validation study predicts each curve of its fabrics there (repeatable)",
+        help="a folder (its *.csv) or a file of measured curves, for a study that compares with measured "
+        "curves: the validation study predicts each curve of its fabrics there (repeatable); a sweep and "
+        "the other studies read none and refuse it",
     )
 
 
@@ -90,6 +102,14 @@ def _refuse_set_of_varied_keys(study: Study, overrides: list[str]) -> None:
                 f"{', '.join(values[:6])}{', ...' if len(values) > 6 else ''}), so the value would not "
                 "be used; leave it out, or sweep the values you want (ngbet sweep)"
             )
+
+
+def _remove_if_empty(folder: Path) -> None:
+    """Remove ``folder`` when it holds nothing but the mark of a study folder (nothing else is touched)."""
+    with contextlib.suppress(OSError):
+        if [p.name for p in folder.iterdir()] == [FOLDER_MARKER]:
+            (folder / FOLDER_MARKER).unlink()
+            folder.rmdir()
 
 
 def _check_working_folder(args: argparse.Namespace) -> None:
@@ -119,23 +139,13 @@ def _probe_cache(cache: Path) -> None:
         ) from None
 
 
-def _flat(d: dict[str, Any], pre: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flat(v, f"{pre}{k}."))
-        else:
-            out[f"{pre}{k}"] = v
-    return out
-
-
 def left_out(full: Study, quick: Study) -> list[str]:
     """What ``quick`` leaves out of ``full``: changed base-scene values and case values not run.
 
     A base value the cases set themselves is not named (the cases say what runs).
     """
     varied = {k for k in full.params_columns() if all(k in c for c in full.cases)}
-    fb, qb = _flat(as_floats(full.base.to_dict())), _flat(as_floats(quick.base.to_dict()))
+    fb, qb = flat(as_floats(full.base.to_dict())), flat(as_floats(quick.base.to_dict()))
     notes = [
         f"{k} = {_words(fb[k])} (runs {_words(qb.get(k))})"
         for k in fb
@@ -227,19 +237,25 @@ def _prepare(
             n += "-data-" + hashlib.sha256("\n".join(paths).encode()).hexdigest()[:8]
         return n
 
-    folder = None
+    folder, made = None, False
     if name is not None and not args.plot_only:
         _check_working_folder(args)
-        folder = OwnedFolder(Path(args.out) if args.out else default_out(folder_name(name), args.quick), "study", name)
+        where = Path(args.out) if args.out else default_out(folder_name(name), args.quick)
+        made = not where.exists()
+        folder = OwnedFolder(where, "study", name)
     try:
         if not args.plot_only:
             _probe_cache(Path(args.cache) if args.cache else DEFAULT_ROOT / "cache")
         cache = Path(args.cache) if args.cache else None
         study = build_study(build, args.quick, scene, source, cache, data, getattr(args, "workers", None))
         _refuse_set_of_varied_keys(study, getattr(args, "overrides", None) or [])
+        if not args.plot_only:  # a redraw draws the study its folder holds, checked against these arguments
+            check_cases_read(study, case_scenes(study))
     except BaseException:
         if folder is not None:
             folder.release()
+            if made:  # refused: the folder this command made goes again, when it holds nothing but its mark
+                _remove_if_empty(folder.out)
         raise
     out = Path(args.out) if args.out else default_out(folder_name(study.name), args.quick)
     return study, out, folder
@@ -257,6 +273,15 @@ def run_from_args(
     scene : the base scene (None: the study's own, on ngbet's default scene); source names it.
     name : the study's name, when known before it is built: its folder and cache are then checked
         first (a study may fit before it runs its cases; an unusable folder is refused before that).
+
+    Exit status 0 when every case reached its final load; 1, after the folder, figures and report
+    are written, when a case did not (status "failed": its solver gave up or validation refused its
+    scene; "error": it crashed), one line on stderr naming those cases, or when the report could
+    not be made. ``--plot-only`` gives the status of the study it redraws, and says that nothing ran.
+    Refused before anything runs (exceptions: the command line maps them): a bad scene, a key the
+    cases vary that none of them reads, a ``--set`` of a key they vary (SceneError); with
+    ``--plot-only``, a folder that holds another study or this one run with other arguments
+    (OutputError).
     """
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     study, out, folder = _prepare(build, args, scene, source, name)
@@ -279,7 +304,6 @@ def run_from_args(
             folder=folder,
         )
     st = [c["status"] for c in data.cases()]
-    ex = data.meta["executor"]
     warned = [c["case"] for c in data.cases() if c.get("warnings")]
     if warned and not args.quiet:
         print(
@@ -296,14 +320,39 @@ def run_from_args(
     quick = data.meta.get("quick_left_out") or []
     if quick and not args.quiet:
         print(f"study {study.name} --quick leaves out: " + "; ".join(quick))
+    counts = f"{st.count('ok')} ok, {st.count('failed')} failed, {st.count('error')} errors"
+    if args.plot_only:  # nothing ran: the cases as the study's run left them
+        ran = f"redrawn from {out}/ ({len(st)} cases as they ran: {counts})"
+    else:
+        ex = data.meta["executor"]
+        ran = (
+            f"{len(st)} cases ({counts}; {ex['cases_run']} run, {ex['cases_cached']} from the cache) "
+            f"in {data.meta['wall_s']:.1f} s -> {out}/"
+        )
     print(
-        f"study {study.name}{' (--quick: what it leaves out is in report.md)' if quick and args.quiet else ''}: "
-        f"{len(st)} cases ({st.count('ok')} ok, {st.count('failed')} failed, "
-        f"{st.count('error')} errors; {ex['cases_run']} run, {ex['cases_cached']} from the cache) "
-        f"in {data.meta['wall_s']:.1f} s -> {out}/"
+        f"study {study.name}{' (--quick: what it leaves out is in report.md)' if quick and args.quiet else ''}: {ran}"
     )
     if (out / "report.md").exists() and not args.quiet:  # --quiet: the one line above, the report in its file
         print((out / "report.md").read_text())
-    if data.meta.get("report_error"):
-        return 1
-    return 0 if st.count("error") == 0 else 1
+    short = [c for c in data.cases() if c["status"] != "ok"]
+    if short:
+        print(f"ngbet: study {study.name}: {_not_reached(short, len(st))}", file=sys.stderr)
+    return 1 if short or data.meta.get("report_error") else 0
+
+
+def _not_reached(cases: list[dict[str, Any]], n: int) -> str:
+    """One line naming the cases (meta.json records) that did not reach their load, and why."""
+
+    def one(c: dict[str, Any]) -> str:
+        what = ", ".join(f"{k} = {_words(v)}" for k, v in c["params"].items())
+        error = " ".join(str(c.get("error") or "").split("\n", 1)[0].split())
+        at = c.get("u0_reached_mm")
+        where = f" (last converged load {_words(float(at))} mm)" if isinstance(at, (int, float)) else ""
+        return f"case {c['case']} ({what}) {c['status']}{where}" + (f": {error[:160]}" if error else "")
+
+    shown = "; ".join(one(c) for c in cases[:4]) + (f"; {len(cases) - 4} more" if len(cases) > 4 else "")
+    again = " (--retry-failed runs the failed ones again)" if any(c["status"] == "failed" for c in cases) else ""
+    return (
+        f"{len(cases)} of {n} cases did not reach their load: {shown}; meta.json has their errors, the tables "
+        f"their converged steps{again}"
+    )

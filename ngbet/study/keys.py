@@ -24,7 +24,7 @@ from typing import Any
 from ..provenance import versions
 from ..scene.document import Scene
 
-__all__ = ["as_floats", "case_key", "code_version", "grid", "key_of_scene_dict"]
+__all__ = ["as_floats", "case_key", "code_version", "flat", "grid", "key_of_scene_dict"]
 
 _CODE_VERSION: dict[str, dict[str, str]] = {}
 # modules a case's run does not execute: the runner and entry points, and the build-time revision
@@ -84,6 +84,17 @@ def as_floats(v: Any) -> Any:
     if isinstance(v, int) and not isinstance(v, bool):
         return float(v)
     return v
+
+
+def flat(d: dict[str, Any], pre: str = "") -> dict[str, Any]:
+    """Nested tables as one table of dotted keys: ``{"a": {"b": 1}}`` -> ``{"a.b": 1}``."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(flat(v, f"{pre}{k}."))
+        else:
+            out[f"{pre}{k}"] = v
+    return out
 
 
 def grid(**axes: Iterable[Any]) -> list[dict[str, Any]]:

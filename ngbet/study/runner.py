@@ -31,6 +31,7 @@ from .executors import Bar, StudyInterrupted, accept, execute_case, run_processe
 from .figures import finish
 from .keys import case_key
 from .model import Case, Study, StudyData
+from .reads import check_cases_read
 
 __all__ = ["DEFAULT_ROOT", "default_out", "execute", "run_study"]
 
@@ -57,6 +58,9 @@ def run_study(
 ) -> StudyData:
     """Run the missing cases of ``study``, then write its tables, meta.json, figures and report.
 
+    A key the cases vary that none of them reads is refused (:class:`SceneError`, before the folder
+    is touched): its cases would be the same run (:func:`~ngbet.study.reads.check_cases_read`).
+
     The study folder ``out`` is owned as ``ngbet run`` owns its run folder (:class:`OwnedFolder`):
     refused when it is a run folder, another command's, or holds files of the user's with the names
     a study writes; the files of the study's earlier run there that this one does not write again
@@ -71,14 +75,22 @@ def run_study(
     t_start = time.perf_counter()
     out = Path(out) if out is not None else default_out(study.name, False)
     cache = Path(cache) if cache is not None else DEFAULT_ROOT / "cache"
+    try:  # a key the cases vary and none reads: refused before the folder is touched
+        cases = _cases(study)
+        check_cases_read(study, [c.scene for c in cases])
+    except BaseException:
+        if folder is not None:
+            folder.release()
+        raise
     with folder or OwnedFolder(out, "study", study.name) as own:
         own.remove("report.md", "meta.json")  # written again at the end; never left from an older run
         cache.mkdir(parents=True, exist_ok=True)
-        return _locked(study, out, cache, workers, scheduler, progress, retry_failed, threads, t_start)
+        return _locked(study, cases, out, cache, workers, scheduler, progress, retry_failed, threads, t_start)
 
 
 def _locked(
     study: Study,
+    cases: list[Case],
     out: Path,
     cache: Path,
     workers: int | None,
@@ -92,7 +104,7 @@ def _locked(
         if clean_debris(cache):
             log.info("removed the unfinished case folders of ended studies from %s", cache)
         try:
-            return _run(study, out, cache, token, workers, scheduler, progress, retry_failed, threads, t_start)
+            return _run(study, cases, out, cache, token, workers, scheduler, progress, retry_failed, threads, t_start)
         finally:  # this study's unfinished folders (an interrupt, a lost cluster): nobody else may remove them
             for d in [*cache.glob(f".run-*-{token}"), *cache.glob(f".tmp-*-{token}-*")]:
                 shutil.rmtree(d, ignore_errors=True)
@@ -100,6 +112,7 @@ def _locked(
 
 def _run(
     study: Study,
+    cases: list[Case],
     out: Path,
     cache: Path,
     token: str,
@@ -110,7 +123,6 @@ def _run(
     threads: int | None,
     t_start: float,
 ) -> StudyData:
-    cases = _cases(study)
     todo, seen = _to_run(cases, cache, retry_failed)
     mode, nworkers, threads = _executor(todo, workers, scheduler, threads)
     executor_info = {
@@ -138,7 +150,8 @@ def _cases(study: Study) -> list[Case]:
     """The study's cases with their scenes and cache keys (a bad scene is a failed case).
 
     A case's scene is not warned about keys its model does not read: the cases of one study share a
-    base scene across models (the base itself was warned about where it was read).
+    base scene across models (the base itself was warned about where it was read); a key the cases
+    vary that none of them reads is refused (:func:`~ngbet.study.reads.check_cases_read`).
     """
     cases: list[Case] = []
     for i, params in enumerate(study.cases):

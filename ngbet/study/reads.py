@@ -1,0 +1,159 @@
+"""Which keys a study's cases read: a key the cases vary that none of them reads is refused.
+
+Cases that differ only in a key their scenes do not read are the same run: a study of them
+measures nothing, under a table that says otherwise. A case's scene does not read a key when its
+model or its test leaves the key out (:data:`~ngbet.scene.document.NOT_READ_BY`,
+:data:`~ngbet.scene.document.NOT_READ_BY_TEST`, what :meth:`Scene.unused_keys` reports), or when
+the scene's choices leave it without a part in the result (:func:`not_read`). The rules depend on
+the model, the test and the effects of the case's scene, never on the key's own value.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import warnings
+from collections.abc import Sequence
+from typing import Any
+
+from ..scene.document import NOT_READ_BY, NOT_READ_BY_TEST, TOP_LEVEL, Scene, SceneWarning
+from ..scene.numerical import CHOSEN_BY_TARGET
+from ..scene.validate import SceneError
+from .keys import as_floats
+from .model import Study, same_value
+
+__all__ = ["case_scenes", "check_cases_read", "not_read"]
+
+log = logging.getLogger(__name__)
+
+#: the penalty's keys: read with ``effects.constraint = "penalty"`` only
+PENALTY = ("effects.penalty_K", "effects.penalty_form")
+#: the coefficients each stiffening shear law reads (``effects.shear_law``) beyond K_sh
+LAW_KEYS = {
+    "polynomial": ("material.K_sh4", "material.K_sh6"),
+    "locking": ("material.K_lock", "material.gamma_lock_deg"),
+    "table": ("material.shear_stress_steps_Pa", "material.shear_table_i8_max"),
+}
+#: the bending stiffnesses: no part in a homogeneous shear (the picture frame with held arms)
+BENDING = ("material.alpha1", "material.alpha2")
+
+
+def not_read(scene: Scene, key: str) -> str | None:
+    """Why ``scene`` does not read ``key`` (``"section.key"``), in words; None when it reads it.
+
+    Not read: a key its model or test leaves out (as :meth:`Scene.unused_keys`); in the continuum,
+    the penalty's keys under the Lagrange multiplier, a shear law's coefficients under another law,
+    the discretization that ``discretization.target_error`` chooses itself, and the bending
+    stiffnesses in the picture frame with held arms (the fabric in the frame shears homogeneously:
+    the bending energy, made of the shear's gradient, is zero whatever their values). ``model``
+    and ``test`` are always read.
+    """
+    if key in TOP_LEVEL:
+        return None
+    section, _, name = key.partition(".")
+    for who, table in (
+        (f"model = {scene.model!r}", NOT_READ_BY.get(scene.model, {})),
+        (f"test = {scene.test!r}", NOT_READ_BY_TEST.get(scene.test, {})),
+    ):
+        if section in table:
+            keys = table[section]
+            if keys is None:
+                return f"{who} does not read [{section}]"
+            if name in keys:
+                return f"{who} does not read {key}"
+    if scene.model != "continuum":
+        return None
+    eff = scene.effects
+    if key in PENALTY and eff.constraint != "penalty":
+        return (
+            f"effects.constraint = {eff.constraint!r} does not read {key}: the penalty's keys act with "
+            "effects.constraint = 'penalty' only"
+        )
+    for law, keys in LAW_KEYS.items():
+        if key in keys and not (eff.shear and eff.shear_law == law):
+            return f"effects.shear_law = {eff.shear_law!r} does not read {key} (shear_law = {law!r} does)"
+    target = scene.discretization.target_error
+    if section == "discretization" and target and name in CHOSEN_BY_TARGET:
+        return f"discretization.target_error = {target:g} lets ngbet choose {key} (the accuracy ladder)"
+    if key in BENDING and scene.test == "picture_frame" and scene.picture_frame.arms == "held":
+        return (
+            "the picture frame with held arms shears the fabric homogeneously, which leaves the bending "
+            "stiffnesses without a part in its result (picture_frame.arms = 'sheared' gives them one)"
+        )
+    return None
+
+
+def case_scenes(study: Study) -> list[Scene | None]:
+    """The scenes of the cases of ``study`` (None: a scene its validation refuses, a failed case when run).
+
+    Not warned about keys their model does not read, as the runner builds them.
+    """
+    out: list[Scene | None] = []
+    for params in study.cases:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SceneWarning)
+                out.append(study.base.with_changes(**params))
+        except SceneError:
+            out.append(None)
+    return out
+
+
+def check_cases_read(study: Study, scenes: Sequence[Scene | None]) -> None:
+    """Refuse a key the cases of ``study`` vary that none of the cases setting it reads.
+
+    ``scenes``: the cases' scenes, in the order of ``study.cases`` (None: a scene refused by
+    validation, left out). Cases that do not read a key (:func:`not_read`) and differ in it alone
+    are the same run. When none of the cases that set the key reads it and such cases exist: a
+    :class:`SceneError` naming the key, its values, why and those cases. When some of the cases
+    read it (a grid over the model, say), a warning names the cases that are the same run; a key
+    that rides along with other changes (each case its own specimen) is not named.
+    """
+    who = "the sweep" if study.name == "sweep" else f"the {study.name} study"
+    for key in study.params_columns():
+        setting = [
+            (i, sc) for i, (p, sc) in enumerate(zip(study.cases, scenes, strict=True)) if key in p and sc is not None
+        ]
+        why = {i: reason for i, sc in setting if (reason := not_read(sc, key)) is not None}
+        same = _same_runs(study.cases, key, list(why))
+        if not same:
+            continue
+        reasons = "; ".join(dict.fromkeys(why.values()))
+        runs = _groups_text(same)
+        if len(why) == len(setting):
+            values = list(dict.fromkeys(_words(study.cases[i][key]) for i in why))
+            shown = ", ".join(values[:6]) + (", ..." if len(values) > 6 else "")
+            raise SceneError(f"{who} varies {key} ({shown}), but none of its cases reads it: {reasons}; {runs}")
+        log.warning("%s varies %s, which some cases do not read (%s): %s", who, key, reasons, runs)
+
+
+def _groups_text(groups: list[list[int]]) -> str:
+    """``[[0, 2], [1, 3]]`` -> "cases 0 and 2 would be the same run, and so would cases 1 and 3"."""
+
+    def one(g: list[int]) -> str:
+        shown = [str(i) for i in g[:8]] + (["..."] if len(g) > 8 else [])
+        return f"cases {', '.join(shown[:-1])} and {shown[-1]}"
+
+    more = "".join(f", and so would {one(g)}" for g in groups[1:3]) + (", ..." if len(groups) > 3 else "")
+    return f"{one(groups[0])} would be the same run{more}"
+
+
+def _same_runs(cases: list[dict[str, Any]], key: str, unread: list[int]) -> list[list[int]]:
+    """The groups of the cases ``unread`` that differ from each other in ``key`` alone (each in order)."""
+    groups: dict[str, list[int]] = {}
+    for i in unread:
+        rest = {k: v for k, v in cases[i].items() if k != key}
+        groups.setdefault(json.dumps(as_floats(rest), sort_keys=True, default=str), []).append(i)
+    out: list[list[int]] = []
+    for members in groups.values():
+        values: list[Any] = []
+        for i in members:
+            if not any(same_value(cases[i][key], v) for v in values):
+                values.append(cases[i][key])
+        if len(values) > 1:
+            out.append(members)
+    return out
+
+
+def _words(v: Any) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
