@@ -927,6 +927,7 @@ def test_the_resolved_corners_snap_back_leaves_the_force_unchanged(tmp_path):
             "discretization.order_u": 5,
             "loading.u0_mm": 37.0,
             "loading.stops_mm": [],
+            "loading.output_every_mm": 0.0,  # the path's own steps: no row forced onto each 2 mm
             "solver.path_following": "auto",
             "outputs.error_estimate": "off",
             "outputs.vtk": False,
