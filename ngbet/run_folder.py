@@ -10,12 +10,13 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import fnmatch
+import functools
 import json
 import logging
 import math
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -143,7 +144,7 @@ def acquire_run_folder(out: Path) -> tuple[IO[str], list[str]]:
             f"{', ...' if len(names) > 5 else ''}; ngbet marks its run folders with "
             f"{RUN_MARKER}); choose another --out",
         )
-    fh = file_op(out / RUN_MARKER, lambda p: p.open("a+"))
+    fh = _in_folder(out, out / RUN_MARKER, lambda p: p.open("a+"))
     try:
         fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -202,6 +203,17 @@ def _probe_longest(out: Path) -> None:
         ) from None
     finally:
         shutil.rmtree(d, ignore_errors=True)
+
+
+def _in_folder(out: Path, path: Path, action: Callable[[Path], Any]) -> Any:
+    """:func:`file_op` on ``path`` in the folder ``out`` as the folder is taken: its error names the folder."""
+    try:
+        return file_op(path, action)
+    except OutputError as exc:
+        why = str(exc).removeprefix(f"{path}: ")
+        raise OutputError(
+            out, f"cannot be written ({why}: {path.name}); make it writable or choose another --out"
+        ) from None
 
 
 def remove_path(p: Path) -> None:
@@ -385,7 +397,7 @@ class OwnedFolder:
                 f"{', '.join(sorted(names)[:5])}{', ...' if len(names) > 5 else ''}; ngbet marks "
                 f"the folders it writes with {FOLDER_MARKER}); choose another --out",
             )
-        self._fh: IO[str] | None = file_op(out / FOLDER_MARKER, lambda p: p.open("a+"))
+        self._fh: IO[str] | None = _in_folder(out, out / FOLDER_MARKER, lambda p: p.open("a+"))
         self._before: dict[str, tuple[int, int, int]] = {}
         self.previous: list[str] = []
         try:
@@ -419,7 +431,7 @@ class OwnedFolder:
                     "could replace them): move them or choose another --out",
                 )
             probe = out / f"{TMP_PREFIX}probe.{os.getpid()}"
-            file_op(probe, lambda p: p.write_bytes(b""))
+            _in_folder(out, probe, lambda p: p.write_bytes(b""))
             probe.unlink()
             self._before = self._stat_files()
             self._save(self.previous)
@@ -467,6 +479,39 @@ class OwnedFolder:
             if n in self.previous:
                 file_op(self.out / n, lambda p: p.unlink(missing_ok=True))
 
+    def set_aside(self, names: Sequence[str], prefix: str) -> list[str]:
+        """Rename each of ``names`` that the earlier command wrote to ``prefix`` + its name; returns the new names.
+
+        The renamed files stay the earlier command's (the marker lists them at once, also for a
+        process that ends without :meth:`release`): :meth:`finish` removes them as it removes every
+        earlier file this command does not write again; after an error they stay. A file of the
+        new name that the earlier command wrote is replaced; one it did not write is refused
+        (:class:`OutputError`), nothing renamed after it.
+        """
+        done = []
+        for n in names:
+            old, new = self.out / n, self.out / (prefix + n)
+            if n not in self.previous or not old.is_file():
+                continue
+            if new.exists() and new.name not in self.previous:
+                raise OutputError(new, f"not written by an ngbet {self.kind}: move it, or choose another --out")
+            file_op(new, functools.partial(os.replace, old))
+            self.previous = sorted({*(x for x in self.previous if x != n), new.name})
+            st = new.stat()
+            self._before.pop(n, None)
+            self._before[new.name] = (st.st_ino, st.st_mtime_ns, st.st_size)
+            done.append(new.name)
+        self.register()
+        return done
+
+    def register(self) -> None:
+        """List in the marker every file the earlier command left and this one wrote so far (nothing removed).
+
+        The marker then names this command's files even where its process ends without
+        :meth:`release` (killed): the next command takes them as ngbet's.
+        """
+        self._save(sorted({*self.previous, *self.written()}))
+
     def written(self) -> list[str]:
         """The files created or replaced in the folder since it was taken."""
         before = self._before
@@ -494,7 +539,7 @@ class OwnedFolder:
         """
         if self._fh is not None:
             try:
-                self._save(sorted({*self.previous, *self.written()}))
+                self.register()
             except (OSError, NgbetError) as exc:
                 log.error("%s: could not record the files written: %s", self.out, exc)
             finally:

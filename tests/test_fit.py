@@ -430,9 +430,12 @@ def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
     """One curve without specimen keys runs on the scene's specimen; fit.json records each parameter with
     its standard error, the discretization the fit chose and its largest estimated force error; the
     fitted scene carries the fitted values and that discretization; --predict writes its files."""
-    data = tmp_path / "synthetic.csv"
-    c = noisy(truth_curve, seed=4)
-    data.write_text("displacement_mm,force_N\n" + "".join(f"{u},{f}\n" for u, f in zip(c.u_mm, c.force_N, strict=True)))
+    data, other = tmp_path / "synthetic.csv", tmp_path / "other.csv"
+    for path, seed in ((data, 4), (other, 5)):  # two measurements of the same specimen
+        c = noisy(truth_curve, seed=seed)
+        path.write_text(
+            "displacement_mm,force_N\n" + "".join(f"{u},{f}\n" for u, f in zip(c.u_mm, c.force_N, strict=True))
+        )
     scene = tmp_path / "start.toml"
     scene.write_text(synthetic_scene().to_toml())  # the CLI's plumbing, not the iteration, is tested here
     out = tmp_path / "fit"
@@ -448,7 +451,7 @@ def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
             "--range",
             "0:200",
             "--predict",
-            str(data),
+            str(other),
             "--predict-scene",
             str(scene),
             "--max-runs",
@@ -465,11 +468,12 @@ def test_cli_fit_writes_the_three_outputs(truth_curve, tmp_path):
     cur = doc["curves"][0]
     assert cur["discretization"]["chosen_by_fit"] is True and cur["discretization"]["corner_mesh_size_mm"] > 0
     assert cur["force_error_rel_max"] == doc["accuracy"]["force_error_rel_max"]["150 x 450 mm"]
-    assert (out / "fit.png").stat().st_size > 10_000 and (out / "predict_synthetic.png").exists()
+    assert (out / "fit.png").stat().st_size > 10_000 and (out / "predict_other.png").exists()
     # the normalisation method beside the prediction takes the specimen the scene gave the curve:
-    # the fitted curve read by Eq. 18 onto itself is the curve again, up to its sampling
-    pj = json.loads((out / "predict_synthetic.json").read_text())
-    assert pj["normalisation_points"] == pj["points"] and pj["normalisation_rms_relative_error"] < 0.01
+    # the fitted curve read by Eq. 18 onto another measurement of its specimen is that measurement,
+    # up to the two curves' noise (1 % each)
+    pj = json.loads((out / "predict_other.json").read_text())
+    assert pj["normalisation_points"] == pj["points"] and pj["normalisation_rms_relative_error"] < 0.03
     fitted = Scene.from_toml(out / "fitted_scene.toml")
     assert fitted.material.K_sh == pytest.approx(doc["parameters"]["material.K_sh"]["value"])
     assert fitted.discretization.order_u == cur["discretization"]["order_u"]
@@ -480,7 +484,8 @@ def test_cli_fit_refuses_bad_input(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "loading.u0_mm"]) == 2
     assert "not a material key" in capsys.readouterr().err
-    assert main(["fit", str(CAO_DATA), str(CAO_SCENE), "--params", "material.K_sh4"]) == 2
+    poly = ["--set", "effects.shear_law=polynomial"]
+    assert main(["fit", str(CAO_DATA), str(CAO_SCENE), *poly, "--params", "material.K_sh4"]) == 2
     assert "positive start value" in capsys.readouterr().err
     assert main(["fit", str(tmp_path / "none.csv"), "--params", "material.K_sh"]) == 2
     assert "data file not found" in capsys.readouterr().err
@@ -519,7 +524,8 @@ def test_force_path_answers_every_requested_load_in_order(truth_curve):
 @pytest.mark.integration
 def test_a_fit_stopped_by_max_runs_says_so(truth_curve, tmp_path):
     """Two model runs cannot converge from start values off by 1.6 and 0.6: fit.json says
-    ``converged: false``, the terminal line says NOT CONVERGED and the command exits 1."""
+    ``converged: false`` after at most two model runs, the terminal line says NOT CONVERGED and the
+    command exits 1."""
     data = tmp_path / "synthetic.csv"
     c = noisy(truth_curve, seed=4)
     data.write_text("displacement_mm,force_N\n" + "".join(f"{u},{f}\n" for u, f in zip(c.u_mm, c.force_N, strict=True)))
@@ -545,7 +551,7 @@ def test_a_fit_stopped_by_max_runs_says_so(truth_curve, tmp_path):
         == 1
     )
     doc = json.loads((out / "fit.json").read_text())
-    assert doc["converged"] is False and doc["model_runs"] <= 3
+    assert doc["converged"] is False and doc["model_runs"] <= 2
 
 
 def test_gauss_newton_direction_leaves_flat_directions_out_holds_bounds_and_stays_inside():

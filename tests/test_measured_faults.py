@@ -187,6 +187,16 @@ def test_a_file_naming_a_specimen_and_a_frame_without_its_test_is_refused_by_eve
     assert read_table(p, test="bias_extension").test == "bias_extension"
 
 
+def test_a_frame_from_the_command_line_beside_a_specimen_in_the_header_says_which_came_from_where(tmp_path):
+    p = _csv(tmp_path / "bet.csv", SPEC + "displacement_mm,force_N\n" + _body())
+    with pytest.raises(SceneError) as err:
+        read_table(p, frame={"picture_frame.frame_mm": 145.0, "picture_frame.fabric_mm": 120.0})
+    assert str(err.value) == (
+        f"{p}: which test? --frame gives a picture frame and its header a specimen: drop --frame, or add "
+        "'# test: bias_extension' or '# test: picture_frame' to its header"
+    )
+
+
 # --- the same curve twice -------------------------------------------------------------------------------------------
 
 

@@ -7,11 +7,19 @@ Every input is checked before the first model run (data files line by line, erro
 folder); a refusal exits with 2 (3 for the output folder) and names the file, line or key. The fit
 is written as soon as it is done, before any prediction, so that a prediction that fails keeps it.
 
-Every data file is fitted by :func:`ngbet.calibration.joint.fit_curves`, on the specimen its
-header gives (``# specimen.width_mm = ...``), else on the scene's. A measured mid-axis profile
-(``--profile``) and centre shear angles (``--angles``) belong to the first data file's specimen.
-A file whose header says ``# test: picture-frame`` is a picture-frame curve, fitted (or, with
-``--predict``, predicted) in the frame of its header (:func:`ngbet.measured.curves.read_frame_curve`).
+Every data file is fitted by :func:`ngbet.calibration.joint.fit_curves`, in the test its file
+names (whatever the scene's test), on the specimen its header gives (``# specimen.width_mm =
+...``), else on the scene's; a ``--set`` that no curve runs with is refused
+(:mod:`ngbet.calibration.checks`). A measured mid-axis profile (``--profile``) and centre shear
+angles (``--angles``) belong to the first data file's specimen. A picture-frame file (by the
+reader's rule, :func:`ngbet.measured.curves.read_any`) is a picture-frame curve, fitted (or, with
+``--predict``, predicted) in the frame of its header (:func:`ngbet.measured.curves.read_frame_curve`),
+in crosshead travel [mm] and force: ``--range`` and fit.json's ``range_mm`` are crosshead travel for it.
+
+The folder says at every moment what the command has done (:mod:`ngbet.calibration.record`): an
+earlier fit's files are set aside (earlier_NAME) while the fit runs, and a fit ended by Ctrl-C or
+an error leaves fit.json "interrupted" or "failed" with its model runs so far (exit 130 after
+Ctrl-C, with a line naming what was kept).
 """
 
 from __future__ import annotations
@@ -29,9 +37,17 @@ from typing import Any
 import numpy as np
 
 from ..measured.curves import MeasuredCurve
-from ..run_folder import OwnedFolder
+from ..run_folder import OutputError, OwnedFolder
 from ..scene.document import Scene, SceneWarning
 from ..scene.validate import SceneError
+from .checks import (
+    errorbar_notes,
+    no_params,
+    refuse_fitted_predictions,
+    refuse_unsized,
+    set_conflicts,
+)
+from .record import FitState, begin, unfinished
 
 __all__ = ["Inputs", "add_parser", "run_from_args", "summary"]
 
@@ -68,9 +84,16 @@ def add_parser(sub: Any) -> None:
         "--range",
         dest="u_range",
         metavar="FROM:TO",
-        help="fit the points between FROM and TO mm (default: 10 to 90 %% of each curve's displacement range)",
+        help="fit the points between FROM and TO mm of clamp displacement (a picture frame's: of crosshead "
+        "travel, not degrees) (default: 10 to 90 %% of each curve's displacement range)",
     )
-    p.add_argument("--max-runs", type=int, default=40, help="at most this many model runs (default 40)")
+    p.add_argument(
+        "--max-runs",
+        type=int,
+        default=40,
+        help="at most this many model runs, the last the check where the fit ends (default 40; a model "
+        "run: every curve run once)",
+    )
     p.add_argument(
         "--accuracy",
         type=float,
@@ -144,8 +167,6 @@ def _out_folder(out: Path) -> OwnedFolder:
     folder, a study's, or a folder holding the user's fit.json or fitted_scene.toml is refused; an
     earlier fit's files that this fit does not write again (its shear_table.png) go at the end.
     """
-    from ..run_folder import OwnedFolder
-
     return OwnedFolder(out, "fit", "fit")
 
 
@@ -171,9 +192,11 @@ class Inputs:
         columns = getattr(args, "columns", None)
         self.curves = read_all(self.data, columns=columns, specimens=specs)
         self.predict = [read_any(p, columns=columns) for p in args.predict]
+        refuse_fitted_predictions(self.curves, self.predict)
         # the scene serves every test among the curves: a key one of them reads has an effect
         tests = sorted({c.test for c in self.curves + self.predict})
-        self.scene = load_scene(args.scene or (tomls[0] if tomls else None), args.overrides, tests)
+        path = args.scene or (tomls[0] if tomls else None)
+        self.scene = load_scene(path, args.overrides, tests)
         if self.scene.model != "continuum":
             raise SceneError(
                 f"model = {self.scene.model!r}: ngbet fit calibrates the continuum model (model = 'continuum')"
@@ -185,15 +208,15 @@ class Inputs:
         else:
             self.params = list(self.scene.calibration.params)
             if not self.params:
-                raise SceneError(
-                    "no parameters to fit: give --params (e.g. material.K_sh) or name them in the "
-                    "scene's [calibration] params"
-                )
+                raise SceneError(no_params(self.scene, path))
         if not args.max_runs >= 1:
             raise SceneError(f"--max-runs {args.max_runs}: must be at least 1")
         self.u_range = _range(args.u_range)
-        self.notes = [f"{eb}: the error bars of {curve}, read with it" for eb, curve in left]
-        self.notes += [f"{c.source}: {n}" for c in self.curves + self.predict for n in c.notes]
+        self.notes = [f"{c.source}: {n}" for c in self.curves for n in c.notes]
+        self.notes += [f"{c.source}: {n}" for c in self.predict for n in c.notes]
+        self.notes += errorbar_notes(self.curves, self.predict, left)
+        self.notes += set_conflicts(args.overrides, self.scene, self.curves)
+        refuse_unsized(self.scene, self.curves)
         self.predict_scene = Scene.from_toml(args.predict_scene) if args.predict_scene else None
         from ..measured.observations import read_angles, read_profile
         from .fit_params import curve_scene, expand_params, value_of
@@ -207,7 +230,11 @@ class Inputs:
                 f"--accuracy {args.accuracy}: the largest relative discretization error of the force, "
                 "between 0 and 1 (e.g. 0.01)"
             )
-        names = expand_params(self.scene, self.params)
+        try:
+            names = expand_params(self.scene, self.params)
+        except SceneError as exc:
+            origin = "--params" if args.params is not None else "the scene's [calibration] params"
+            raise SceneError(f"{origin}: {exc}") from None
         bad = [n for n in names if not value_of(self.scene, n) > 0]
         if bad:
             raise SceneError(
@@ -235,20 +262,33 @@ class Inputs:
         lo, hi = float(c.u_mm.min()), float(c.u_mm.max())
         a, b = max(self.u_range[0], lo), min(self.u_range[1], hi)
         if not a < b:
+            travel = ""
+            if c.test == "picture_frame":
+                g = c.in_file_units(np.array([lo, hi]), np.ones(2))[0]
+                travel = f" of crosshead travel, the frame's shear angle {g[0]:.3g} to {g[1]:.3g} deg"
             raise SceneError(
-                f"--range {self.u_range[0]:g}:{self.u_range[1]:g} mm holds no point of {c.source} ({lo:g} to {hi:g} mm)"
+                f"--range {self.u_range[0]:g}:{self.u_range[1]:g} mm holds no point of {c.source} "
+                f"({lo:g} to {hi:g} mm{travel})"
             )
         return (a - lo) / (hi - lo), (b - lo) / (hi - lo)
 
 
 def run_from_args(args: argparse.Namespace) -> int:
-    """``ngbet fit``: exit 0 done, 1 a model run or the search failed, 2 bad input, 3 unusable output folder."""
-    from ..commands import exit_code
+    """``ngbet fit``: exit 0 done, 1 a run or the search failed, 2 bad input, 3 unusable output folder, 130 stopped.
+
+    Stopped by Ctrl-C (or another stop signal) it says what is kept, on a line of its own: before
+    the fit ended, fit.json "interrupted" with its model runs so far and the earlier fit set aside
+    (:mod:`ngbet.calibration.record`); during the predictions, the complete fit, its fit.json
+    naming the curves not predicted. The fit's files are written whole before a stop takes effect.
+    """
+    from ..commands import EXIT_INTERRUPTED, exit_code
+    from ..numerics.engine import uninterrupted
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     out = Path(args.out)
     folder = None
     stack = contextlib.ExitStack()
+    state, aside, predicted, written, recorded = FitState(), [], [], False, False
     try:
         inp = Inputs(args)
         # the scene's keys without effect were reported once (Inputs): the scenes the fit derives
@@ -260,42 +300,120 @@ def run_from_args(args: argparse.Namespace) -> int:
             print(f"ngbet fit: {note}", file=sys.stderr)
         from .joint import fit_curves, terminal_progress
 
-        fractions = [inp._fraction(c) for c in inp.curves]
-        result = fit_curves(
-            inp.curves,
-            inp.scene,
-            inp.params if args.params is not None else None,
-            args.max_runs,
-            None if args.quiet else terminal_progress(),
-            fractions=fractions,
-            target_error=args.accuracy,
-            profile=inp.profile,
-            profile_sd_mm=args.profile_sd,
-            angles=inp.angles,
-            angle_sd_deg=args.angle_sd,
-        )
-        if not args.quiet and sys.stderr.isatty():
-            sys.stderr.write("\n")
+        aside = begin(folder, [str(d) for d in inp.data])
+        try:
+            result = fit_curves(
+                inp.curves,
+                inp.scene,
+                inp.params if args.params is not None else None,
+                args.max_runs,
+                None if args.quiet else terminal_progress(),
+                fractions=[inp._fraction(c) for c in inp.curves],
+                target_error=args.accuracy,
+                profile=inp.profile,
+                profile_sd_mm=args.profile_sd,
+                angles=inp.angles,
+                angle_sd_deg=args.angle_sd,
+                state=state,
+            )
+        except BaseException as exc:
+            recorded = _record(folder, state, [str(d) for d in inp.data], exc)
+            raise
+        _end_line(args)
         from .report import write_fit
 
-        write_fit(result, out)
+        with uninterrupted():  # a stop meanwhile comes when the fit's files are whole
+            write_fit(result, out)
+            written = True
         print(summary(result, out))
         code = 0 if result.converged else 1
         for c in inp.predict:
             code = max(code, _predict_one(result, c, inp.predict_scene, out))
+            predicted.append(c.source)
         folder.finish()
         return code
+    except KeyboardInterrupt as exc:
+        _end_line(args)
+        said = _stopped(exc, out, folder if recorded or written else None, state, aside, written, predicted, args)
+        print(f"ngbet fit: {said}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except SceneError as exc:
         print(f"ngbet fit: {exc}", file=sys.stderr)
         return 2
     except Exception as exc:  # the command's exit-code contract (1 solver, 3 I/O), one line
         code, msg = exit_code(exc, out)
+        if recorded:
+            msg += f"; {out}/fit.json records the fit so far ({_count(state.runs, 'model run')}, status failed)"
         print(f"ngbet fit: {msg}", file=sys.stderr)
         return code
     finally:
         stack.close()
         if folder is not None:
             folder.release()
+
+
+def _count(n: int, word: str) -> str:
+    """``1 model run``, ``3 model runs``."""
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def _end_line(args: argparse.Namespace) -> None:
+    """End the progress line (a terminal's: it stays on one line)."""
+    if not args.quiet and sys.stderr.isatty():
+        sys.stderr.write("\n")
+
+
+def _record(folder: OwnedFolder, state: FitState, data: list[str], exc: BaseException) -> bool:
+    """fit.json of a fit ended by ``exc`` before its results: "interrupted" (a stop) or "failed"; whether written.
+
+    (Not in an uninterrupted block: its end would raise the stop that ended the fit once more.)
+    """
+    stop = isinstance(exc, KeyboardInterrupt)
+    why = (str(exc) or "SIGINT") if stop else f"{type(exc).__name__}: {exc}"
+    try:
+        unfinished(folder, state, data, "interrupted" if stop else "failed", why)
+        return True
+    except Exception as err:  # the fit's own end is the one to report
+        logging.getLogger(__name__).error("%s: could not record the unfinished fit: %s", folder.out, err)
+        return False
+
+
+def _stopped(
+    exc: KeyboardInterrupt,
+    out: Path,
+    folder: OwnedFolder | None,
+    state: FitState,
+    aside: list[str],
+    written: bool,
+    predicted: list[str],
+    args: argparse.Namespace,
+) -> str:
+    """What a stop kept, in one line; during the predictions the complete fit stays, its fit.json saying so."""
+    import json
+
+    how = f"interrupted ({str(exc) or 'SIGINT'})"
+    if folder is None:  # (or its record could not be written: said above)
+        return f"{how} before the fit ended: nothing of it written"
+    if not written:
+        kept = f"; the earlier fit is kept as {', '.join(aside)}" if aside else ""
+        return (
+            f"{how} after {_count(state.runs, 'model run')}, before the fit ended: {out}/fit.json records them "
+            f"(status interrupted; the lowest cost so far and its values, not a fit){kept}"
+        )
+    done = {Path(p).resolve() for p in predicted}
+    left = [p for p in args.predict if Path(p).resolve() not in done]
+    when = f"during the predictions; not predicted: {', '.join(left)}" if left else "as the fit's files were written"
+    try:
+        doc = json.loads((out / "fit.json").read_text())
+        doc["interrupted"] = f"{how} {when}"
+        folder.write("fit.json", lambda p: p.write_text(json.dumps(doc, indent=2)))
+        folder.finish()
+    except (OSError, ValueError, OutputError) as err:
+        logging.getLogger(__name__).error("%s: could not record the stop: %s", out, err)
+    head, _, tail = when.partition("; ")
+    return f"{how} {head}: the fit is complete in {out}/ (fit.json, fitted_scene.toml, fit.png)" + (
+        f"; {tail}" if tail else ""
+    )
 
 
 def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) -> int:
@@ -307,10 +425,10 @@ def _predict_one(result: Any, c: MeasuredCurve, scene: Scene | None, out: Path) 
     from .report import write_prediction
 
     u, F = c.sample(24)
-    spec = test_changes(c)
-    if scene is not None and not spec:
+    spec = test_changes(c)  # the test the file names, on its header's specimen or frame
+    if scene is not None and c.test != "picture_frame" and not c.specimen:
         sp = scene.specimen
-        spec = {
+        spec |= {
             "specimen.width_mm": sp.width_mm,
             "specimen.length_mm": sp.length_mm,
             "specimen.thickness_mm": sp.thickness_mm,
@@ -356,15 +474,19 @@ def summary(result: Any, out: Path) -> str:
     """A few lines for the terminal."""
     head = "" if result.converged else "NOT CONVERGED (raise --max-runs): "
     lines = [
-        f"ngbet fit: {head}{len(result.names)} parameters, {len(result.curves)} curve(s), "
-        f"{result.model_runs} model runs, {result.wall_s:.1f} s; results in {out}/"
+        f"ngbet fit: {head}{_count(len(result.names), 'parameter')}, {_count(len(result.curves), 'curve')}, "
+        f"{_count(result.model_runs, 'model run')}, {result.wall_s:.1f} s; results in {out}/"
     ]
     for c in result.curves:
         err = c.error_rel_max
         est = f"{100 * err:.2g} %" if math.isfinite(err) else "not vouched for"
+        span = f"{c.u_mm[0]:.3g} to {c.u_mm[-1]:.3g} mm"
+        if c.curve.test == "picture_frame":  # fitted in crosshead travel, measured in the frame's shear angle
+            g = c.curve.in_file_units(c.u_mm[[0, -1]], c.measured_N[[0, -1]])[0]
+            span = f"shear angle {g[0]:.3g} to {g[1]:.3g} deg, crosshead travel {span}"
         lines.append(
             f"  {c.label:>16s}: RMS relative error {100 * c.rms_relative:5.1f} % "
-            f"({len(c.u_mm)} points, {c.u_mm[0]:.3g} to {c.u_mm[-1]:.3g} mm); discretization error {est}"
+            f"({_count(len(c.u_mm), 'point')}, {span}); discretization error {est}"
         )
     weighed = {
         c.curve.test: float(np.max(c.model_sd_N / np.abs(c.measured_N))) for c in result.curves if len(c.model_sd_N)

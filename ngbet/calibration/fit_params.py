@@ -18,6 +18,7 @@ import numpy as np
 
 from ..measured.curves import MeasuredCurve
 from ..measured.observations import Profile, ShearAngles
+from ..measured.table import errorbar_path
 from ..runner.ladder import Climb, Rung
 from ..scene.document import Scene
 from ..scene.physical import Specimen
@@ -52,6 +53,7 @@ __all__ = [
     "rises_at_zero",
     "smoothness_rows",
     "test_changes",
+    "unread",
     "value_of",
     "with_values",
 ]
@@ -101,7 +103,38 @@ def expand_params(scene: Scene, params: Sequence[str]) -> list[str]:
                 f"parameter '{p}': ngbet cannot differentiate the force with respect to it; known: "
                 f"{', '.join('material.' + k for k in DIFFERENTIABLE)}"
             )
+    for p in params:
+        why = unread(scene, p)
+        if why:
+            raise SceneError(f"parameter '{p}' has no effect on the force in this scene: {why}")
     return out
+
+
+def unread(scene: Scene, key: str) -> str:
+    """Why the scene's energy does not read the material key ``key`` ("material.K_sh"); "" where it does.
+
+    A shear law's coefficient under another law (:data:`ngbet.continuum.physics.SHEAR_LAWS`, the
+    keys each law reads), or without shear energy; a bending stiffness without bending; K_el
+    without yarn elongation. A fit of such a key would report whatever its start value is.
+    """
+    from ..continuum.physics import SHEAR_LAWS
+
+    name = key.partition(".")[2]
+    e = scene.effects
+    if name in {k for keys in SHEAR_LAWS.values() for k in keys}:
+        if not e.shear:
+            return "effects.shear = false: the scene has no shear energy"
+        if name not in SHEAR_LAWS[e.shear_law]:
+            law = SHEAR_LAWS[e.shear_law]
+            return (
+                f"the scene's shear law (effects.shear_law = {e.shear_law!r}) does not read it; it reads "
+                f"{', '.join('material.' + k for k in law)}. Fit a key the law reads, or choose the law "
+                f"whose key it is (--set effects.shear_law={next(n for n, ks in SHEAR_LAWS.items() if name in ks)})"
+            )
+    flag = {"alpha1": "bending", "alpha2": "bending", "K_el": "elongation"}.get(name)
+    if flag and not getattr(e, flag):
+        return f"effects.{flag} = false: the scene has no {flag} energy"
+    return ""
 
 
 def value_of(scene: Scene, name: str) -> float:
@@ -173,23 +206,17 @@ def bounds(
 
 
 def test_changes(curve: MeasuredCurve) -> dict[str, Any]:
-    """The scene keys of the curve's test and specimen.
+    """The scene keys of the curve's test and specimen: the curve runs the test its file names, whatever the scene's.
 
-    Its header's specimen keys; for a picture-frame curve ``test = "picture_frame"`` and its frame
-    (the specimen's length and width, which the frame does not read, at their defaults so that no
+    A bias-extension curve: ``test = "bias_extension"`` and its header's specimen keys (none: the
+    scene's specimen). A picture-frame curve: ``test = "picture_frame"`` and its frame (the
+    specimen's length and width, which the frame does not read, at their defaults so that no
     warning names them).
     """
-    changes: dict[str, Any] = dict(curve.specimen)
+    changes: dict[str, Any] = {"test": curve.test, **curve.specimen}
     if curve.test == "picture_frame":
         sp = Specimen()
-        changes.update(
-            {
-                "test": "picture_frame",
-                **curve.frame,
-                "specimen.length_mm": sp.length_mm,
-                "specimen.width_mm": sp.width_mm,
-            }
-        )
+        changes.update({**curve.frame, "specimen.length_mm": sp.length_mm, "specimen.width_mm": sp.width_mm})
     return changes
 
 
@@ -217,8 +244,13 @@ def curve_scene(scene: Scene, curve: MeasuredCurve, u_mm: np.ndarray) -> Scene:
 
 
 def portable_scene(scene: Scene) -> Scene:
-    """The fitted scene without the load of one specimen: it runs on any other as it is."""
-    return scene.with_changes(**{"loading.stops_mm": [], "loading.u0_mm": 0.8 * scene.specimen.locking_u0_mm})
+    """The fitted scene without the load of one curve: loaded to 0.8 of its ideal locking (a frame's: closing flat).
+
+    It runs as it is, and on any other specimen with that specimen's keys.
+    """
+    frame = scene.test == "picture_frame"
+    lock = scene.picture_frame.locking_mm if frame else scene.specimen.locking_u0_mm
+    return scene.with_changes(**{"loading.stops_mm": [], "loading.u0_mm": 0.8 * lock})
 
 
 #: the discretizations of a fit's model runs, cheapest first, all graded towards the clamp corners
@@ -350,7 +382,11 @@ class CurveFit:
 
 @dataclass
 class JointFit:
-    """What :func:`fit_curves` found; :meth:`to_json` is the content of fit.json."""
+    """What :func:`fit_curves` found; :meth:`to_json` is the content of fit.json.
+
+    ``scene``: the fitted scene, in the test and on the specimen (or frame) of the first curve,
+    on the finest rung the fit used (:func:`portable_scene`).
+    """
 
     params: list[str]
     names: list[str]
@@ -400,10 +436,12 @@ class JointFit:
 
         def curve(c: CurveFit) -> dict[str, Any]:
             d = c.run_scene().discretization
-            doc: dict[str, Any] = {"data": c.curve.source, "test": c.curve.test}
+            bars = errorbar_path(c.curve.source) if c.curve.bars is not None else None
+            doc: dict[str, Any] = {"data": c.curve.source, "errorbars": bars and str(bars), "test": c.curve.test}
             if c.curve.test == "picture_frame":  # the fit in the file's own quantities too
                 x, y = c.curve.in_file_units(c.u_mm, c.measured_N)
                 doc["frame"] = c.curve.frame
+                doc["range_shear_angle_deg"] = [float(x.min()), float(x.max())]
                 doc["file_quantities"] = {
                     "shear_angle_deg": x.tolist(),
                     "quantity": c.curve.quantity,

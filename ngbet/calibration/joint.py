@@ -51,29 +51,25 @@ from .fit_params import (
     FINE_TOL,
     FIRST_CHECKED,
     FIT_LADDER,
-    FLAT_RCOND,
     SIZE_PARAMS,
     STALL_RUNS,
     STEP_SE,
-    STRONG_CORRELATION,
     TARGET_ERROR,
-    UNDETERMINED_SE,
-    WHAT_FIXES,
     CurveFit,
     JointFit,
     bounds,
-    correlation,
     curve_scene,
     expand_params,
     gauss_newton_direction,
-    inverse_normal,
     portable_scene,
     rises_at_zero,
     smoothness_rows,
     value_of,
     with_values,
 )
-from .runs import CurveModel, Run, default_workers, first_levels, probe_points, relative_error
+from .record import FitState
+from .runs import CurveModel, Run, RunsSpent, default_workers, first_levels, probe_points, relative_error
+from .statistics import fit_statistics
 
 __all__ = [
     "ELONGATION_KEY",
@@ -161,6 +157,7 @@ def fit_curves(  # noqa: C901
     coarse: bool = True,
     choose_discretization: bool = True,
     workers: int | None = None,
+    state: FitState | None = None,
 ) -> JointFit:
     """Fit ``params`` (default: the scene's ``calibration.params``) to all ``curves`` at once.
 
@@ -176,14 +173,21 @@ def fit_curves(  # noqa: C901
     :data:`~ngbet.calibration.runs.PROBE_POINTS` of the fitted points, and after it, where the
     fit ends, at every one; a curve whose largest estimate is above ``target_error`` of its force
     (or cannot be vouched for) moves one rung up and the search continues from where it stood,
-    until every curve meets the target or ``max_runs`` are spent. The search on the checked rungs
+    until every curve meets the target or the runs are spent. The search on the checked rungs
     is by Gauss-Newton steps (one model run each, halved until the cost falls); it runs only where
     the step would move the parameters by :data:`STEP_SE` standard errors or more, and ends where
     a step lowered the cost by less than STEP_SE² s² or :data:`STALL_RUNS` shortened steps did not
     lower it.
     The result records each curve's rung and largest estimate (``accuracy_met`` says whether the
-    target was met). ``choose_discretization=False``: every run on the scene's own discretization,
-    its estimate recorded all the same.
+    target was met).
+
+    ``max_runs``: the model runs at most (a model run: every curve run once at one parameter set;
+    a run the cache serves is not one). The last is kept for the check where the fit ends (the
+    estimate at every fitted point): the probes, the searches and the climb share the others, and
+    a fit whose runs are spent ends where it stands, not converged.
+
+    ``choose_discretization=False``: every run on the scene's own discretization, its estimate
+    recorded all the same.
 
     ``profile`` (mid-axis u_y) and ``angles`` (centre shear angle) are observations of the first
     curve's specimen, fitted with its force with the standard deviations ``profile_sd_mm`` and
@@ -197,6 +201,10 @@ def fit_curves(  # noqa: C901
     The results are those of one process to round-off. A script that starts a fit of several
     curves guards its top level (``if __name__ == "__main__":``): the workers are spawned and
     import it.
+
+    ``state``: kept up to date as the fit goes (:class:`~ngbet.calibration.record.FitState`: its
+    model runs, the lowest cost so far and its values), for a caller that must say what a fit
+    ended by Ctrl-C or an error had done.
     """
     from scipy.optimize import OptimizeResult, least_squares, lsq_linear
 
@@ -233,6 +241,8 @@ def fit_curves(  # noqa: C901
         raise SceneError(f"parameter(s) {', '.join(bad)}: the fit works on ln p and needs positive start values")
     lo, hi = bounds(scene, fitted_params, names, start)
     start = np.clip(start, lo * (1 + 1e-9), hi * (1 - 1e-9))
+    state = state if state is not None else FitState()
+    state.names, state.start, state.t0 = list(names), start.tolist(), t0
     cfs = []
     for k, c in enumerate(curves):
         frac = fractions[k] if fractions is not None else RANGE
@@ -254,9 +264,11 @@ def fit_curves(  # noqa: C901
             sc = sc.with_changes(**{"loading.u0_mm": reach})
         cfs.append(CurveFit(c, sc, u, F, c.sd(u, F), prof, ang, FIRST_CHECKED if choose_discretization else None))
     prior = smoothness_rows(names, scene.calibration.table_smoothness_sd)
+    state.labels = [cf.label for cf in cfs]
     model = CurveModel(cfs, names, workers if workers is not None else default_workers(len(cfs)))
+    budget = model.limit = max_runs - 1  # the last run: the check where the fit ends
     try:
-        best = [math.inf]
+        here: list[Any] = [math.inf, None]  # the lowest cost of the current search and its θ
         quiet = [False]
 
         def blocks(res: list[Run], own: bool = False) -> np.ndarray:
@@ -275,16 +287,15 @@ def fit_curves(  # noqa: C901
             e = blocks(res)
             e = np.concatenate([np.where(np.isfinite(e), e, 1e3), prior @ theta])
             cost = float(e @ e)
-            best[0] = min(best[0], cost)
+            rms = [
+                float(np.sqrt(np.mean(((r.F - c.measured_N) / c.measured_N) ** 2)))
+                for r, c in zip(res, cfs, strict=True)
+            ]
+            state.seen(model.runs, theta, cost, rms)
+            if cost < here[0]:
+                here[:] = [cost, np.array(theta)]
             if progress is not None and not quiet[0]:
-                progress(
-                    model.runs,
-                    [
-                        float(np.sqrt(np.mean(((r.F - c.measured_N) / c.measured_N) ** 2)))
-                        for r, c in zip(res, cfs, strict=True)
-                    ],
-                    best[0],
-                )
+                progress(model.runs, rms, state.cost)
             return e
 
         def jac(theta: np.ndarray) -> np.ndarray:
@@ -298,7 +309,18 @@ def fit_curves(  # noqa: C901
             return np.vstack([*rows, prior])
 
         def search(theta: np.ndarray, runs: int, tol: float) -> Any:
-            """The least-squares search from θ (at most ``runs`` model runs, tolerance ``tol``)."""
+            """The least-squares search from θ (at most ``runs`` model runs, tolerance ``tol``).
+
+            Where the model's runs are spent (:class:`~ngbet.calibration.runs.RunsSpent`) it ends at
+            the lowest cost it evaluated.
+            """
+            here[:] = [math.inf, theta]
+            try:
+                return search_from(theta, runs, tol)
+            except RunsSpent:
+                return OptimizeResult(x=here[1], success=False, status=0, message="the model runs were spent")
+
+        def search_from(theta: np.ndarray, runs: int, tol: float) -> Any:
             return least_squares(
                 resid,
                 theta,
@@ -316,11 +338,15 @@ def fit_curves(  # noqa: C901
             """:func:`search`, then again under the model error between specimens that its end shows.
 
             At most :data:`REWEIGHTS` times, while the model error moves
-            (:func:`~ngbet.calibration.bands.weigh_model_error`).
+            (:func:`~ngbet.calibration.bands.weigh_model_error`), and not where the runs are spent.
             """
             sol = search(theta, runs, tol)
             for _ in range(REWEIGHTS):
-                if not weigh_model_error(cfs, [r.F for r in model(sol.x)], len(names)):
+                try:
+                    forces = [r.F for r in model(sol.x)]  # (run already, unless the runs were spent before any)
+                except RunsSpent:
+                    break
+                if not weigh_model_error(cfs, forces, len(names)):
                     break
                 sol = search(sol.x, runs, tol)
             return sol
@@ -370,7 +396,7 @@ def fit_curves(  # noqa: C901
                     )
                 d, t = gauss_newton_direction(J, e, theta, lo_t, hi_t)
                 for _half in range(STALL_RUNS):
-                    if model.runs >= max_runs:
+                    if model.runs >= budget:
                         return OptimizeResult(
                             x=theta,
                             success=False,
@@ -431,7 +457,9 @@ def fit_curves(  # noqa: C901
             for cf, lv in zip(cfs, coarse_levels, strict=True):
                 cf.level = lv
             m0 = mark()
+            model.limit = min(budget, model.runs + max_runs // 2)
             sol = weighted_search(th, max_runs // 2, 1e-3)
+            model.limit = budget
             th = sol.x
             stage(*m0, rungs=coarse_levels, checked=False)
             # the parameters have moved: the rungs are chosen again where the coarse search ended, from
@@ -448,13 +476,15 @@ def fit_curves(  # noqa: C901
         searched = not choose_discretization  # the scene's own discretization: no probe, search first
         if searched:
             m0 = mark()
-            sol = weighted_search(th, max(max_runs - model.runs, 1), FINE_TOL)
+            sol = weighted_search(th, budget - model.runs, FINE_TOL)
             th = sol.x
         else:
             m0 = mark()
         while True:
-            full = searched
+            full = searched or model.runs >= budget  # the last run left: the check where the fit ends
+            model.limit = max_runs if full else budget
             checked = model(th, check=True, probe=not full)
+            model.limit = budget
             rel = [
                 relative_error(r, None if full else probe_points(len(cf.u_mm)))
                 for cf, r in zip(cfs, checked, strict=True)
@@ -495,7 +525,7 @@ def fit_curves(  # noqa: C901
                 break
             if weigh_model_error(cfs, [r.F for r in checked], len(names)):  # as the checked rungs show it
                 step = gauss_newton_step(th)
-            if step <= STEP_SE or model.runs >= max_runs:
+            if step <= STEP_SE or model.runs >= budget:
                 # the probe's θ is where the fit ends: its estimate at every fitted point next
                 sol = OptimizeResult(
                     x=th,
@@ -507,27 +537,28 @@ def fit_curves(  # noqa: C901
                     else "the model runs were spent before a search on the checked rungs",
                 )
             else:
-                sol = gauss_newton(th, max(max_runs - model.runs, 1))
+                sol = gauss_newton(th, budget - model.runs)
                 th = sol.x
             searched = True
         if sol is None:  # --max-runs spent by the probe
             sol = OptimizeResult(x=th, success=False, status=0, message="the model runs were spent before a search")
         quiet[0] = True
         e, J = resid(th), jac(th)
-        st = _statistics(e, J, names, len(prior), blocks(checked, own=True))
+        st = fit_statistics(e, J, names, len(prior), blocks(checked, own=True))
         for cf, r in zip(cfs, checked, strict=True):
             cf.model_N, cf.dlogp, cf.force_error_N, cf.angle_deg = r.F, r.G, r.err, r.angle
             cf.profile_mm, cf.angles_model_deg = r.P, r.A
         levels = [cf.level for cf in cfs]
         for k, cf in enumerate(cfs):  # the start values: the probe's run, which met the target there
-            made = model.cached(k, th0, probe_levels[k])
-            cf.start_N = made.F if made is not None else model(th0)[k].F
+            made = model.at(k, th0, probe_levels[k])  # (another rung's where none; never a run beyond max_runs)
+            cf.start_N = made.F if made is not None else np.full(len(cf.u_mm), np.nan)
         values = np.exp(th)
         at_bound = [
             nm for nm, t, a, b in zip(names, th, np.log(lo), np.log(hi), strict=True) if t - a < 1e-3 or b - t < 1e-3
         ]
         chosen = [lv for lv in levels if lv is not None]
-        on = FIT_LADDER[max(chosen)].apply(scene) if chosen else scene
+        # on the first curve's test and specimen (or frame): the fitted scene runs what was fitted
+        on = FIT_LADDER[max(chosen)].apply(cfs[0].scene) if chosen else cfs[0].scene
         fitted = portable_scene(with_values(on, names, values))
         zero = rises_at_zero(names, values, st["cov_data"], fitted.material.shear_stress_steps_Pa, st["undetermined"])
         ok = bool(sol.success and sol.status > 0)
@@ -566,77 +597,9 @@ def fit_curves(  # noqa: C901
         )
 
     finally:
+        state.runs = model.runs  # the probes' runs too (the residuals count the others)
         model.close()
 
 
 #: the yarn elongation modulus: held at the scene's value when the scene's [calibration] does not name it
 ELONGATION_KEY = "material.K_el"
-
-
-def _statistics(
-    e: np.ndarray, J: np.ndarray, names: list[str], prior_rows: int = 0, own: np.ndarray | None = None
-) -> dict[str, Any]:
-    """Covariance of θ = ln p from the SVD of J, and what the data leave undetermined.
-
-    The last ``prior_rows`` rows of ``e`` and ``J`` are the smoothness prior's
-    (:func:`~ngbet.calibration.fit_params.smoothness_rows`): the covariance holds them (the bands
-    are those of data and prior), while what is undetermined, flat or correlated is judged from the
-    data's rows alone (the report names what the data leave open, also where the prior holds it).
-    s² = Σe²/(m − n) over the data's m rows, floored at 1 (error bars that do not cover the misfit
-    are scaled up, never down); ``residual_scale`` is s itself, or that of ``own``, the data's
-    residuals over the points' own standard deviations where the rows are weighted otherwise
-    (with the model error between specimens).
-    """
-    m = len(e) - prior_rows
-    n = J.shape[1]
-    r2 = float(e[:m] @ e[:m]) / max(m - n, 1)
-    s2 = max(r2, 1.0)
-    if own is not None:
-        r2 = float(own @ own) / max(m - n, 1)
-    _, sv, Vt = np.linalg.svd(J[:m], full_matrices=False)
-    cov_data = s2 * inverse_normal(sv, Vt)
-    cov = s2 * inverse_normal(*np.linalg.svd(J, full_matrices=False)[1:]) if prior_rows else cov_data
-    se = np.sqrt(np.abs(np.diag(cov_data)))
-    undetermined: dict[str, str] = {}
-    flat = []
-    for k in range(len(sv)):
-        if sv[k] <= FLAT_RCOND * sv[0]:
-            direction = {names[i]: float(Vt[k, i]) for i in range(n) if abs(Vt[k, i]) > 0.3}
-            flat.append(direction)
-            for p in direction:
-                undetermined[p] = (
-                    f"on a flat direction of the fit (singular value {sv[k]:.3g}, "
-                    f"{sv[k] / sv[0]:.2g} of the largest): the data do not move it"
-                )
-    for k, p in enumerate(names):
-        if p not in undetermined and not se[k] <= UNDETERMINED_SE:
-            undetermined[p] = (
-                f"standard error of ln p = {se[k]:.3g} > {UNDETERMINED_SE}: its 95 % interval "
-                f"spans more than a factor {math.exp(1.96 * UNDETERMINED_SE):.1f} either way"
-            )
-    held_by_prior = set(np.nonzero(J[m:])[1].tolist())
-    for p in undetermined:
-        if names.index(p) in held_by_prior:
-            undetermined[p] += (
-                f"; the smoothness prior on the table's rises holds it (standard error of ln p with the "
-                f"prior: {math.sqrt(abs(cov[names.index(p), names.index(p)])):.3g})"
-            )
-        hint = next((h for k, h in WHAT_FIXES.items() if p.startswith(k)), "")
-        if hint:
-            undetermined[p] += f"; {hint}"
-    corr = correlation(cov_data)
-    pairs = [
-        (names[i], names[j], float(corr[i, j]))
-        for i in range(n)
-        for j in range(i + 1, n)
-        if abs(corr[i, j]) > STRONG_CORRELATION
-    ]
-    return {
-        "cov": cov,
-        "cov_data": cov_data,
-        "undetermined": undetermined,
-        "flat": flat,
-        "correlated": pairs,
-        "noise_scale": math.sqrt(s2),
-        "residual_scale": math.sqrt(r2),
-    }

@@ -40,18 +40,24 @@ def _atomic(path: Path, text: str) -> Path:
 
 
 def write_fit(result: JointFit, out: str | Path) -> list[Path]:
-    """fit.json, fitted_scene.toml (runs on any specimen as it is) and fit.png in ``out``."""
+    """fit.json (status "done"), fitted_scene.toml and fit.png in ``out`` (shear_table.png with a table).
+
+    fitted_scene.toml is the fitted scene (:attr:`JointFit.scene`): the first curve's test and
+    specimen (or frame), loaded to 0.8 of its locking; its header names them.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    doc = result.to_json()
+    doc = {"status": "done", **result.to_json()}  # (the record of a fit that did not end: ngbet.calibration.record)
     doc["prediction_band"] = prediction_band(result)
     rms = ", ".join(f"{c.label} {100 * c.rms_relative:.1f} %" for c in result.curves)
+    first = result.curves[0]
     header = (
         f"# ngbet fit of {', '.join(result.params)} to {len(result.curves)} curve(s): "
         f"{', '.join(Path(c.curve.source).name for c in result.curves)}\n"
-        f"# RMS relative error {rms}; fit.json holds the uncertainties. The specimen and load are\n"
-        "# those of the scene; run it on another specimen with --set specimen.width_mm=...,\n"
-        "# --set specimen.length_mm=..., --set loading.u0_mm=...\n"
+        f"# RMS relative error {rms}; fit.json holds the uncertainties. The test and specimen are\n"
+        f"# those of {Path(first.curve.source).name} ({first.curve.test.replace('_', ' ')}, {first.label}); "
+        "run it on another\n# specimen with --set specimen.width_mm=..., --set specimen.length_mm=..., "
+        "--set loading.u0_mm=...\n# (and --set test=... for the other test)\n"
     )
     paths = [
         _atomic(out / "fit.json", json.dumps(doc, indent=2)),

@@ -30,6 +30,7 @@ __all__ = [
     "CurveModel",
     "Job",
     "Run",
+    "RunsSpent",
     "curve_run",
     "default_workers",
     "first_levels",
@@ -39,6 +40,10 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+
+class RunsSpent(Exception):
+    """A model run was asked for beyond :attr:`CurveModel.limit`: the fit's runs are spent."""
 
 
 @dataclass
@@ -185,12 +190,16 @@ class CurveModel:
     NGSolve thread; the curves of one call run at the same time. A worker's exception is raised
     here, a worker that dies raises :class:`FitWorkerError`. :meth:`close` ends the workers at
     once, also when the fit stops by an exception or Ctrl-C (the workers ignore SIGINT).
+
+    ``limit``: the model runs the caller allows (``runs`` never exceeds it): a call that would run
+    a curve with ``runs`` at the limit raises :class:`RunsSpent`, nothing run.
     """
 
     def __init__(self, curves: list[CurveFit], names: list[str], workers: int = 1) -> None:
         self.curves, self.names = curves, names
         self.meshes: dict[tuple[int, int | None], Any] = {}
         self.runs = 0
+        self.limit = math.inf
         self.parallel = workers > 1 and len(curves) > 1
         self._pools: dict[int, Any] = {}
         self._alive: Any = None  # a pipe whose write end only this process holds: the workers exit with it
@@ -204,18 +213,20 @@ class CurveModel:
 
         ``probe`` (with ``check``): the force error estimated at :data:`PROBE_POINTS` of the fitted
         points only (:func:`probe_points`; nan at the others), enough to choose a rung; a fully
-        checked run serves a probe. ``runs`` counts the calls that ran at least one curve.
+        checked run serves a probe. ``runs`` counts the calls that ran at least one curve (when done); a call
+        that would run one with ``runs`` at :attr:`limit` raises :class:`RunsSpent`.
         """
         mode = (PROBE if probe else FULL) if check else 0
         t = np.asarray(theta, float).tobytes()
         todo = [k for k, c in enumerate(self.curves) if self.cached(k, theta, c.level, check, probe) is None]
-        if todo:
-            self.runs += 1
+        if todo and self.runs >= self.limit:
+            raise RunsSpent(f"the {self.runs} model runs allowed are spent")
         jobs = {k: self._job(k, theta, check, probe) for k in todo}
         if self.parallel:
             done = self._in_workers(jobs)
         else:
             done = {k: curve_run(jobs[k], self.meshes) for k in todo}
+        self.runs += bool(todo)  # a run counts once it is done (a run stopped by Ctrl-C does not)
         for k in todo:
             self._cache[k, t, self.curves[k].level, mode] = done[k]
             if np.all(np.isfinite(done[k].F)):
@@ -233,6 +244,12 @@ class CurveModel:
             if mode >= need and (k, t, level, mode) in self._cache:
                 return self._cache[k, t, level, mode]
         return None
+
+    def at(self, k: int, theta: np.ndarray, level: int | None) -> Run | None:
+        """Curve ``k``'s run at θ on rung ``level`` if one was made, else one on any rung, else None."""
+        t = np.asarray(theta, float).tobytes()
+        made = self.cached(k, theta, level)
+        return made or next((r for (j, tt, _, _), r in self._cache.items() if j == k and tt == t), None)
 
     def _job(self, k: int, theta: np.ndarray, check: bool, probe: bool = False) -> Job:
         c = self.curves[k]
@@ -330,7 +347,9 @@ def first_levels(
     only chase the discretization), and again where the coarse search ended, from the start's
     rungs up. Each curve's climb starts afresh (``CurveFit.climb``) and ends as
     :class:`~ngbet.runner.ladder.Climb` says: a curve no rung vouches for stays on the
-    climb's choice, the rung with the best estimate (or the first tried), not the last.
+    climb's choice, the rung with the best estimate (or the first tried), not the last. Where the
+    model's runs are spent (:class:`RunsSpent`) a curve still climbing stays on the rung it stands
+    on, the next one it would have probed.
     """
     top = len(FIT_LADDER) - 1
     for k, cf in enumerate(cfs):
@@ -340,7 +359,11 @@ def first_levels(
     pending = list(range(len(cfs)))
     found: dict[int, int | None] = {}
     while pending:
-        runs = model(theta, check=True, probe=True)
+        try:
+            runs = model(theta, check=True, probe=True)
+        except RunsSpent:
+            found.update({i: cfs[i].level for i in pending})
+            break
         for i in list(pending):
             cf = cfs[i]
             rel = relative_error(runs[i], probe_points(len(cf.u_mm)))

@@ -281,7 +281,7 @@ def read_frame_curve(
     fs = yy * Lf**2 / L if t.y_quantity == "normalised_shear_force" else yy
     F = 2.0 * np.cos(frame_angle_rad(d, L)) * fs
     note = (
-        f"picture frame {L:g}/{Lf:g} mm: its {WORDS[t.y_quantity]} against the shear angle fitted as the "
+        f"picture frame {L:g}/{Lf:g} mm: its {WORDS[t.y_quantity]} against the shear angle read as the "
         "crosshead force against the travel (Eqs. 1-3, 10; exact at each point)"
     )
     return MeasuredCurve(

@@ -374,7 +374,7 @@ def read_table(
     notes += flipped + turned + cut
     spec, n1 = _specimen(path, header.keys, specimen)
     frm, n2 = _frame(path, header.keys, frame)
-    ftest, why = _which_test(path, header.test, test, (xq, yq), bool(spec), bool(frm))
+    ftest, why = _which_test(path, header.test, test, (xq, yq), bool(spec), bool(frm), (bool(specimen), bool(frame)))
     return CurveTable(
         str(path),
         xq,
@@ -393,9 +393,19 @@ def read_table(
 
 
 def _which_test(
-    path: Path, header: str, given: str | None, quantities: tuple[str, str], has_spec: bool, has_frame: bool
+    path: Path,
+    header: str,
+    given: str | None,
+    quantities: tuple[str, str],
+    has_spec: bool,
+    has_frame: bool,
+    from_flags: tuple[bool, bool] = (False, False),
 ) -> tuple[str, str]:
-    """(test, why) by the one rule of every command (module docstring); a specimen and a frame refused."""
+    """(test, why) by the one rule of every command (module docstring); a specimen and a frame refused.
+
+    ``from_flags``: whether the specimen and the frame came from ``--specimen`` and ``--frame``
+    (the refusal then says which came from where).
+    """
     if given is not None:
         name = name_of_test(given, "--test")
         if header and header != name:
@@ -406,6 +416,12 @@ def _which_test(
     pf = [q for q in quantities if q in _FRAME_QUANTITIES]
     if pf:
         return "picture_frame", f"its columns hold the {WORDS[pf[0]]}, a picture frame's quantity"
+    if has_spec and has_frame and from_flags[0] != from_flags[1]:
+        flag, other = ("--specimen", "a picture frame") if from_flags[0] else ("--frame", "a specimen")
+        raise SceneError(
+            f"{path}: which test? {flag} gives {'a specimen' if from_flags[0] else 'a picture frame'} and its "
+            f"header {other}: drop {flag}, or add '# test: bias_extension' or '# test: picture_frame' to its header"
+        )
     if has_spec and has_frame:
         raise SceneError(
             f"{path}: which test? it names both a specimen and a picture frame: add '# test: bias_extension' "
