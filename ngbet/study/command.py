@@ -21,7 +21,7 @@ from ..run_folder import FOLDER_MARKER, OutputError, OwnedFolder
 from ..scene.document import Scene
 from .collect import StudyFolderError
 from .figures import plot_only
-from .keys import as_floats, flat
+from .keys import as_floats, flat, value_text
 from .model import Study, same_value
 from .reads import case_scenes, check_cases_read
 from .runner import DEFAULT_ROOT, default_out, run_study
@@ -96,7 +96,7 @@ def _refuse_set_of_varied_keys(study: Study, overrides: list[str]) -> None:
     for item in overrides:
         key = item.partition("=")[0].strip()
         if key in varied:
-            values = list(dict.fromkeys(_words(c[key]) for c in study.cases if key in c))
+            values = list(dict.fromkeys(value_text(c[key]) for c in study.cases if key in c))
             raise SceneError(
                 f"--set {item}: {key} is what the {study.name} study varies (its cases set it to "
                 f"{', '.join(values[:6])}{', ...' if len(values) > 6 else ''}), so the value would not "
@@ -147,7 +147,7 @@ def left_out(full: Study, quick: Study) -> list[str]:
     varied = {k for k in full.params_columns() if all(k in c for c in full.cases)}
     fb, qb = flat(as_floats(full.base.to_dict())), flat(as_floats(quick.base.to_dict()))
     notes = [
-        f"{k} = {_words(fb[k])} (runs {_words(qb.get(k))})"
+        f"{k} = {value_text(fb[k])} (runs {value_text(qb.get(k))})"
         for k in fb
         if fb[k] != qb.get(k) and k not in varied and k != "solver.threads"
     ]
@@ -157,18 +157,10 @@ def left_out(full: Study, quick: Study) -> list[str]:
         with contextlib.suppress(TypeError):  # numbers in order; other values as they come
             gone.sort()
         if gone:
-            notes.append(f"{k} = {', '.join(dict.fromkeys(_words(v) for v in gone))}")
+            notes.append(f"{k} = {', '.join(dict.fromkeys(value_text(v) for v in gone))}")
     if len(quick.cases) < len(full.cases):
         notes.append(f"{len(full.cases) - len(quick.cases)} of the full study's {len(full.cases)} cases")
     return notes
-
-
-def _words(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:g}"
-    if isinstance(v, list):
-        return "[" + ", ".join(_words(x) for x in v) + "]"
-    return str(v)
 
 
 def build_options(
@@ -344,10 +336,10 @@ def _not_reached(cases: list[dict[str, Any]], n: int) -> str:
     """One line naming the cases (meta.json records) that did not reach their load, and why."""
 
     def one(c: dict[str, Any]) -> str:
-        what = ", ".join(f"{k} = {_words(v)}" for k, v in c["params"].items())
+        what = ", ".join(f"{k} = {value_text(v)}" for k, v in c["params"].items())
         error = " ".join(str(c.get("error") or "").split("\n", 1)[0].split())
         at = c.get("u0_reached_mm")
-        where = f" (last converged load {_words(float(at))} mm)" if isinstance(at, (int, float)) else ""
+        where = f" (last converged load {value_text(float(at))} mm)" if isinstance(at, (int, float)) else ""
         return f"case {c['case']} ({what}) {c['status']}{where}" + (f": {error[:160]}" if error else "")
 
     shown = "; ".join(one(c) for c in cases[:4]) + (f"; {len(cases) - 4} more" if len(cases) > 4 else "")

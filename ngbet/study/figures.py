@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from .collect import load, write_text
-from .keys import as_floats, flat
+from .keys import as_floats, flat, value_text
 from .model import MissingValueError, Study, StudyData
 
 __all__ = ["finish", "held_elsewhere", "plot_only", "savefig"]
@@ -100,7 +100,7 @@ def held_elsewhere(study: Study, meta: dict[str, Any]) -> str:
     mine, theirs = flat(as_floats(study.base.to_dict())), flat(as_floats(meta.get("base_scene") or {}))
     diff = [k for k in mine if k in theirs and k != "solver.threads" and mine[k] != theirs[k]]
     if diff:
-        shown = ", ".join(f"{k} = {_text(theirs[k])} (asked: {_text(mine[k])})" for k in diff[:4])
+        shown = ", ".join(f"{k} = {value_text(theirs[k])} (asked: {value_text(mine[k])})" for k in diff[:4])
         return f"it holds {who} on another base scene{hint}: {shown}{', ...' if len(diff) > 4 else ''}"
     return ""
 
@@ -108,17 +108,9 @@ def held_elsewhere(study: Study, meta: dict[str, Any]) -> str:
 def _cases_text(cases: list[Any]) -> str:
     """The cases of a study in words: how many, and the values each key takes."""
     keys = list(dict.fromkeys(k for c in cases if isinstance(c, dict) for k in c))
-    values = {k: list(dict.fromkeys(_text(c[k]) for c in cases if isinstance(c, dict) and k in c)) for k in keys}
+    values = {k: list(dict.fromkeys(value_text(c[k]) for c in cases if isinstance(c, dict) and k in c)) for k in keys}
     varied = "; ".join(f"{k} = {', '.join(v[:6])}{', ...' if len(v) > 6 else ''}" for k, v in values.items())
     return f"{len(cases)} case{'s' if len(cases) != 1 else ''}" + (f" ({varied})" if varied else "")
-
-
-def _text(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:g}"
-    if isinstance(v, list):
-        return "[" + ", ".join(_text(x) for x in v) + "]"
-    return str(v)
 
 
 def savefig(fig: Any, out: Path, name: str) -> Path:

@@ -24,7 +24,7 @@ from typing import Any
 from ..provenance import versions
 from ..scene.document import Scene
 
-__all__ = ["as_floats", "case_key", "code_version", "flat", "grid", "key_of_scene_dict"]
+__all__ = ["as_floats", "case_key", "code_version", "flat", "grid", "key_of_scene_dict", "value_text"]
 
 _CODE_VERSION: dict[str, dict[str, str]] = {}
 # modules a case's run does not execute: the runner and entry points, and the build-time revision
@@ -101,3 +101,12 @@ def grid(**axes: Iterable[Any]) -> list[dict[str, Any]]:
     """The cartesian product of value lists: ``grid(**{"a.b": [1, 2], "c.d": [3]})``."""
     names = list(axes)
     return [dict(zip(names, values, strict=True)) for values in itertools.product(*(list(axes[n]) for n in names))]
+
+
+def value_text(v: Any) -> str:
+    """A case's value as messages and reports write it: floats by ``:g``, lists in brackets, others by ``str``."""
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(value_text(x) for x in v) + "]"
+    return str(v)

@@ -19,7 +19,7 @@ from typing import Any
 from ..scene.document import NOT_READ_BY, NOT_READ_BY_TEST, TOP_LEVEL, Scene, SceneWarning
 from ..scene.numerical import CHOSEN_BY_TARGET
 from ..scene.validate import SceneError
-from .keys import as_floats
+from .keys import as_floats, value_text
 from .model import Study, same_value
 
 __all__ = ["case_scenes", "check_cases_read", "not_read"]
@@ -121,7 +121,7 @@ def check_cases_read(study: Study, scenes: Sequence[Scene | None]) -> None:
         reasons = "; ".join(dict.fromkeys(why.values()))
         runs = _groups_text(same)
         if len(why) == len(setting):
-            values = list(dict.fromkeys(_words(study.cases[i][key]) for i in why))
+            values = list(dict.fromkeys(value_text(study.cases[i][key]) for i in why))
             shown = ", ".join(values[:6]) + (", ..." if len(values) > 6 else "")
             raise SceneError(f"{who} varies {key} ({shown}), but none of its cases reads it: {reasons}; {runs}")
         log.warning("%s varies %s, which some cases do not read (%s): %s", who, key, reasons, runs)
@@ -153,7 +153,3 @@ def _same_runs(cases: list[dict[str, Any]], key: str, unread: list[int]) -> list
         if len(values) > 1:
             out.append(members)
     return out
-
-
-def _words(v: Any) -> str:
-    return f"{v:g}" if isinstance(v, float) else str(v)
