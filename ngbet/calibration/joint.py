@@ -238,7 +238,8 @@ def fit_curves(  # noqa: C901
     start = np.array([value_of(scene, n) for n in names])
     bad = [n for n, v in zip(names, start, strict=True) if not v > 0]
     if bad:
-        raise SceneError(f"parameter(s) {', '.join(bad)}: the fit works on ln p and needs positive start values")
+        what = "parameters" if len(bad) > 1 else "parameter"
+        raise SceneError(f"{what} {', '.join(bad)}: the fit works on ln p and needs positive start values")
     lo, hi = bounds(scene, fitted_params, names, start)
     start = np.clip(start, lo * (1 + 1e-9), hi * (1 - 1e-9))
     state = state if state is not None else FitState()

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..measured.curves import MeasuredCurve
+from ..measured.shape import plural
 from .bands import CurvePrediction, model_error
 from .fit_params import TABLE_KEY, CurveFit, JointFit, band
 
@@ -52,7 +53,7 @@ def write_fit(result: JointFit, out: str | Path) -> list[Path]:
     rms = ", ".join(f"{c.label} {100 * c.rms_relative:.1f} %" for c in result.curves)
     first = result.curves[0]
     header = (
-        f"# ngbet fit of {', '.join(result.params)} to {len(result.curves)} curve(s): "
+        f"# ngbet fit of {', '.join(result.params)} to {plural(len(result.curves), 'curve')}: "
         f"{', '.join(Path(c.curve.source).name for c in result.curves)}\n"
         f"# RMS relative error {rms}; fit.json holds the uncertainties. The test and specimen are\n"
         f"# those of {Path(first.curve.source).name} ({first.curve.test.replace('_', ' ')}, {first.label}); "
@@ -281,8 +282,9 @@ def fit_figure(result: JointFit) -> Figure:  # noqa: C901 - one panel after the 
     held_text = f"; held at the scene's values: {', '.join(held)}" if held else ""
     put_caption(
         fig,
-        f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {len(result.names)} parameters fitted to "
-        f"{len(result.curves)} curve(s), {result.model_runs} model runs{stopped}; material: {material}{held_text}",
+        f"{result.scene.specimen.name.rsplit('-', 1)[0]}: {plural(len(result.names), 'parameter')} fitted to "
+        f"{plural(len(result.curves), 'curve')}, {plural(result.model_runs, 'model run')}{stopped}; material: "
+        f"{material}{held_text}",
     )
     fig.tight_layout()
     return fig
