@@ -256,7 +256,7 @@ def _plot_maps(data: StudyData, files: dict[tuple[str, float], Path]) -> Path:
     norm = cs.norm()
     L, W = float(sp["length_mm"]), float(sp["width_mm"])
     fig, axs = subplots(
-        len(loads), 2, size=(11, 0.7 + len(loads) * (0.85 + 4.2 * min(W / L, 1.0))), squeeze=False, layout="compressed"
+        len(loads), 2, size=(11, 0.7 + len(loads) * (0.85 + 3.2 * min(W / L, 1.0))), squeeze=False, layout="compressed"
     )
     art = None
     for row, u0 in enumerate(loads):
