@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import hashlib
 import json
 import logging
 import os
@@ -64,7 +65,8 @@ class RunWriter:
     folder (non-empty without the marker :data:`RUN_MARKER`), holding a file with an ngbet name
     that no run registered (:data:`RUN_FILE_PATTERNS`), or locked by another run (``fcntl.flock``
     on the marker); then removes the files the previous runs registered (nothing else) and writes
-    ``scene.toml`` and summary.json with ``"status": "running"``.
+    ``scene.toml`` and summary.json with ``"status": "running"``. ``data``: the measured curve the
+    figures draw (``--data``), named in every summary.json with its SHA-256 (``data``).
 
     Every file is written complete under a temporary name (:data:`TMP_PREFIX`) and renamed into
     place (:meth:`write`, :meth:`write_text`, :meth:`write_group`; the force plot drawn in a
@@ -81,14 +83,17 @@ class RunWriter:
     load; then the lock is released.
     """
 
-    def __init__(self, out: str | Path, scene: Scene) -> None:
+    def __init__(self, out: str | Path, scene: Scene, data: str | Path | None = None) -> None:
         self.out = Path(out)
         self.scene = scene
         self.rows: list[dict[str, Any]] = []
         self.status = "new"
         self.t_start = time.perf_counter()
         # what every summary.json of this run carries, from the first ("running") to the last
-        self._base = {"pid": os.getpid(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        self._base: dict[str, Any] = {"pid": os.getpid(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        if data is not None:  # the measured curve drawn on the figures (``--data``): which file, which bytes
+            path = Path(data).resolve()
+            self._base["data"] = {"file": str(path), "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
         self._summary: dict[str, Any] = {}
         self._columns: list[str] = []
         self._files: list[str] = []  # registered by this run, in the order written

@@ -292,3 +292,24 @@ def test_data_of_another_specimen_or_frame_than_the_runs_is_said(tmp_path, capsy
         f"ngbet: data {frame}: measured in a frame of 145 mm with 120 mm of fabric, the run's is 216 mm with "
         "140 mm: the figure compares F_norm (Eq. 10) of different frames",
     ]
+
+
+def test_summary_json_names_the_measured_curve_a_run_draws(tmp_path):
+    """``run --data``: which file, and which bytes (the figures alone did not say)."""
+    import hashlib
+    import json
+
+    from ngbet.output import RunWriter
+    from ngbet.scene.document import Scene
+
+    data = tmp_path / "m.csv"
+    data.write_text("displacement_mm,force_N\n0,0\n2,3\n4,6.5\n")
+    with RunWriter(tmp_path / "run", Scene()) as writer:
+        writer.summary({}, "ok")
+    with RunWriter(tmp_path / "run2", Scene(), data) as writer:
+        writer.summary({}, "ok")
+    assert "data" not in json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert json.loads((tmp_path / "run2" / "summary.json").read_text())["data"] == {
+        "file": str(data.resolve()),
+        "sha256": hashlib.sha256(data.read_bytes()).hexdigest(),
+    }

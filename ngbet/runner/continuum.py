@@ -84,7 +84,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
         return _run_to_accuracy(scene, out, progress, measured)
     t0 = time.perf_counter()
     draw = functools.partial(start_plot, service=plot_service(), measured=measured)
-    with RunWriter(out, scene) as writer:
+    with RunWriter(out, scene, getattr(measured, "path", None)) as writer:
         solver = ContinuumSolver(ContinuumProblem(scene), solver_settings(scene))
         estimates = RunEstimates(solver)
         info = _setup_info(solver, time.perf_counter() - t0)

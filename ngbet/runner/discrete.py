@@ -111,7 +111,7 @@ def run_discrete(scene: Scene, out: str | Path, progress: bool = True, measured:
         "failed"``) are on disk by then.
     """
     out = Path(out)
-    with RunWriter(out, scene) as writer:
+    with RunWriter(out, scene, getattr(measured, "path", None)) as writer:
         t0 = time.perf_counter()
         net = network_from_scene(scene)
         model = NetworkModel.from_scene(scene, net)
