@@ -24,7 +24,7 @@ from ngbet.figures.study import key_label
 from ngbet.scene.document import Scene, SceneWarning, default_scene
 from ngbet.scene.validate import SceneError
 from ngbet.study.figures import savefig
-from ngbet.study.keys import grid
+from ngbet.study.keys import grid, value_text
 from ngbet.study.model import Study, StudyData, same_value
 
 from . import _common as C
@@ -169,21 +169,22 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     cases = [c for c in data.cases() if data.case_rows(c["case"])]
     if not cases:  # nothing converged: the report says why, there is nothing to draw
         return []
-    cmap = C.colormap()
-    colours = {c["case"]: cmap(j / max(len(cases) - 1, 1)) for j, c in enumerate(cases)}
+    looks = _looks(cases, data.meta["params"])
     fig, axs = subplots(1, 2, size=(12, 4.5))
     for c in cases:
         rows = data.case_rows(c["case"])
+        colour, style = looks[c["case"]]
         axs[0].plot(
             [0.0] + [r["u0_mm"] for r in rows],
             [0.0] + [r["force_N"] for r in rows],
-            "o-",
+            marker="o",
+            ls=style,
             ms=2.5,
-            color=colours[c["case"]],
+            color=colour,
             label=_name(c["params"]),
         )
         X, uy = data.profile(c["case"], _last(c, st))
-        axs[1].plot(X, uy, color=colours[c["case"]])
+        axs[1].plot(X, uy, color=colour, ls=style)
     axs[0].set_xlabel(U0_LABEL)
     axs[0].set_ylabel(FORCE_LABEL)
     axs[0].set_xlim(left=0)
@@ -204,6 +205,29 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
     if len(keys) == 1 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals):
         out.append(_plot_values(data, keys[0], st[-1]))
     return out
+
+
+#: line styles of the values of a sweep's second key (and further keys), in turn
+_STYLES = ("-", "--", ":", "-.")
+
+
+def _looks(cases: list[dict[str, Any]], keys: list[str]) -> dict[Any, tuple[Any, Any]]:
+    """(colour, line style) of each case: the colour from the first swept key's value, the style from the others'.
+
+    The colour stands for one key and the line style for the others, so that the cases of a sweep
+    of two keys are told apart (on one scale of colours neighbouring cases of different keys look
+    alike). Keys a case lacks count as one value.
+    """
+    cmap = C.colormap()
+    firsts = list(dict.fromkeys(value_text(c["params"].get(keys[0])) for c in cases))
+    rests = list(dict.fromkeys(tuple(value_text(c["params"].get(k)) for k in keys[1:]) for c in cases))
+    looks = {}
+    for c in cases:
+        i = firsts.index(value_text(c["params"].get(keys[0])))
+        j = rests.index(tuple(value_text(c["params"].get(k)) for k in keys[1:]))
+        dashes = _STYLES[j] if j < len(_STYLES) else (0, (1 + j, 1, 1, 1))
+        looks[c["case"]] = (cmap(i / max(len(firsts) - 1, 1)), dashes)
+    return looks
 
 
 def _plot_values(data: StudyData, key: str, u0: float) -> Path:

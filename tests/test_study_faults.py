@@ -314,3 +314,23 @@ def test_the_help_of_data_says_what_it_does_for_a_sweep():
     without = argparse.ArgumentParser()
     add_arguments(without, data=False)
     assert "--data" not in without.format_help()
+
+
+def test_a_sweep_of_two_keys_gives_one_key_the_colours_and_the_other_the_line_styles():
+    """On one scale of six colours, α1 = 20 with K_el = 10 MPa and α1 = 2000 with K_el = 0.1 MPa looked alike."""
+    from ngbet.studies.sweep import _looks
+
+    cases = [
+        {"case": f"c{i}{j}", "params": {"material.alpha1": a, "material.K_el": k}}
+        for i, a in enumerate((20.0, 2000.0))
+        for j, k in enumerate((1e5, 1e6, 1e7))
+    ]
+    looks = _looks(cases, ["material.alpha1", "material.K_el"])
+    colours = {c["params"]["material.alpha1"]: set() for c in cases}
+    styles = {c["params"]["material.K_el"]: set() for c in cases}
+    for c in cases:
+        colour, style = looks[c["case"]]
+        colours[c["params"]["material.alpha1"]].add(tuple(colour))
+        styles[c["params"]["material.K_el"]].add(style)
+    assert all(len(s) == 1 for s in colours.values()) and len(set.union(*colours.values())) == 2
+    assert [s.pop() for s in styles.values()] == ["-", "--", ":"]
