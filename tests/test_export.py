@@ -30,13 +30,14 @@ def _energy_density(scene: Scene):
     from netgen.geom2d import unit_square
 
     from ngbet.continuum import physics as ph
+    from ngbet.scene.physical import SHEAR_LAW_KEYS
 
     mesh = ngs.Mesh(unit_square.GenerateMesh(maxh=1.0))
     a = math.radians(scene.specimen.yarn_angle_deg)
     m1v, m2v = np.array([math.cos(a), math.sin(a)]), np.array([-math.cos(a), math.sin(a)])
     m1, m2 = ngs.CF(tuple(m1v)), ngs.CF(tuple(m2v))
     m, law = scene.material, scene.effects.shear_law
-    coeffs = {k: getattr(m, k) for k in ph.SHEAR_LAWS[law]}
+    coeffs = {k: getattr(m, k) for k in SHEAR_LAW_KEYS[law]}
 
     def rot(v, t):
         return np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]]) @ v

@@ -15,9 +15,10 @@ from typing import Any
 import numpy as np
 
 from ..measured.curves import MeasuredCurve
+from ..measured.shape import plural
 from ..measured.table import errorbar_path
 from ..scene.document import Scene
-from ..scene.physical import Specimen
+from ..scene.physical import SHEAR_LAW_KEYS, Specimen
 from ..scene.validate import SceneError
 from .fit_params import test_changes
 
@@ -43,11 +44,10 @@ def no_params(scene: Scene, path: str | None) -> str:
     It names the keys the scene's shear law reads, and a scene beside it of the same material
     whose ``[calibration]`` names parameters (a fabric's bias-extension scene, which fits frames too).
     """
-    from ..continuum.physics import SHEAR_LAWS
     from ..continuum.sensitivity import DIFFERENTIABLE, TABLE
 
     law = scene.effects.shear_law
-    keys = [f"material.{k}" for k in SHEAR_LAWS[law] if k in DIFFERENTIABLE or k == TABLE]
+    keys = [f"material.{k}" for k in SHEAR_LAW_KEYS[law] if k in DIFFERENTIABLE or k == TABLE]
     text = (
         f"no parameters to fit: {f'the scene {path}' if path else 'the embedded scene'} names none "
         f"(no [calibration] params); give --params, e.g. --params {','.join(keys)} (what its shear "
@@ -159,7 +159,7 @@ def errorbar_notes(
         eb = errorbar_path(c.source)
         role = "weight its points" if k < len(curves) else "give its points' scatter in the prediction"
         if c.bars is not None:
-            bars = f"{len(c.bars[0])} bar{'s' if len(c.bars[0]) != 1 else ''}"
+            bars = plural(len(c.bars[0]), "bar")
             named = given.get(Path(c.source).resolve())
             if named is not None:
                 notes.append(f"{named}: the error bars of {c.source}, read with it: {bars}; they {role}")

@@ -21,7 +21,7 @@ from ..measured.observations import Profile, ShearAngles
 from ..measured.table import errorbar_path
 from ..runner.ladder import Climb, Rung
 from ..scene.document import Scene
-from ..scene.physical import Specimen
+from ..scene.physical import SHEAR_LAW_KEYS, Specimen
 from ..scene.validate import SceneError
 
 __all__ = [
@@ -113,23 +113,21 @@ def expand_params(scene: Scene, params: Sequence[str]) -> list[str]:
 def unread(scene: Scene, key: str) -> str:
     """Why the scene's energy does not read the material key ``key`` ("material.K_sh"); "" where it does.
 
-    A shear law's coefficient under another law (:data:`ngbet.continuum.physics.SHEAR_LAWS`, the
+    A shear law's coefficient under another law (:data:`ngbet.scene.physical.SHEAR_LAW_KEYS`, the
     keys each law reads), or without shear energy; a bending stiffness without bending; K_el
     without yarn elongation. A fit of such a key would report whatever its start value is.
     """
-    from ..continuum.physics import SHEAR_LAWS
-
     name = key.partition(".")[2]
     e = scene.effects
-    if name in {k for keys in SHEAR_LAWS.values() for k in keys}:
+    if name in {k for keys in SHEAR_LAW_KEYS.values() for k in keys}:
         if not e.shear:
             return "effects.shear = false: the scene has no shear energy"
-        if name not in SHEAR_LAWS[e.shear_law]:
-            law = SHEAR_LAWS[e.shear_law]
+        if name not in SHEAR_LAW_KEYS[e.shear_law]:
+            law = SHEAR_LAW_KEYS[e.shear_law]
             return (
                 f"the scene's shear law (effects.shear_law = {e.shear_law!r}) does not read it; it reads "
                 f"{', '.join('material.' + k for k in law)}. Fit a key the law reads, or choose the law "
-                f"whose key it is (--set effects.shear_law={next(n for n, ks in SHEAR_LAWS.items() if name in ks)})"
+                f"whose key it is (--set effects.shear_law={next(n for n, ks in SHEAR_LAW_KEYS.items() if name in ks)})"
             )
     flag = {"alpha1": "bending", "alpha2": "bending", "K_el": "elongation"}.get(name)
     if flag and not getattr(e, flag):

@@ -77,7 +77,7 @@ class FitState:
 
 
 def _status(out: Path) -> str:
-    """The status of the fit.json in ``out``: "done" for a complete fit (also one written before statuses)."""
+    """The status of the fit.json in ``out``: "done" for a complete fit (and for one that names no status)."""
     try:
         doc = json.loads((out / "fit.json").read_text())
     except (OSError, ValueError):

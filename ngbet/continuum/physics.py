@@ -32,10 +32,11 @@ import ngsolve as ngs
 import numpy as np
 from ngsolve import CoefficientFunction as CF
 
+from ..scene.physical import SHEAR_LAW_KEYS
+
 __all__ = [
     "JAMMING_CUTOFF",
     "LOCKING_CUTOFF",
-    "SHEAR_LAWS",
     "Invariants",
     "bending_energy",
     "elongation_energy",
@@ -205,21 +206,12 @@ def table_shear_energy(i8: CF, steps: Sequence[float] | np.ndarray, x_max: float
     return _truncated_powers(ngs.IfPos(i8, i8, -i8), x, c, tail)  # at |i8|: IfPos computes both of its branches
 
 
-#: the shear laws a scene can name (``effects.shear_law``) and the material keys each one reads
-SHEAR_LAWS: dict[str, tuple[str, ...]] = {
-    "quadratic": ("K_sh",),
-    "polynomial": ("K_sh", "K_sh4", "K_sh6"),
-    "locking": ("K_sh", "K_lock", "gamma_lock_deg"),
-    "table": ("shear_stress_steps_Pa", "shear_table_i8_max"),
-}
-
-
 def shear_law_energy(i8: CF, law: str, coefficients: dict[str, Any]) -> CF:
-    """The shear energy of ``law`` (a key of :data:`SHEAR_LAWS`) with its material coefficients.
+    """The shear energy of ``law`` (a key of :data:`~ngbet.scene.physical.SHEAR_LAW_KEYS`), its coefficients given.
 
     The coefficients are floats, or NGSolve Parameters to differentiate with respect to.
     """
-    c = [coefficients[k] for k in SHEAR_LAWS[law]]
+    c = [coefficients[k] for k in SHEAR_LAW_KEYS[law]]
     if law == "polynomial":
         return polynomial_shear_energy(i8, *c)
     if law == "locking":

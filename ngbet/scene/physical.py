@@ -10,7 +10,16 @@ from dataclasses import dataclass
 
 from .validate import AUTO, auto_or, boolean, check, choice, nonnegative, positive
 
-__all__ = ["CONSTRAINTS", "MAX_SPECIMEN_MM", "PENALTY_FORMS", "SHEAR_LAWS", "Effects", "Material", "Specimen"]
+__all__ = [
+    "CONSTRAINTS",
+    "MAX_SPECIMEN_MM",
+    "PENALTY_FORMS",
+    "SHEAR_LAWS",
+    "SHEAR_LAW_KEYS",
+    "Effects",
+    "Material",
+    "Specimen",
+]
 
 #: the largest specimen dimension accepted [mm]: forces and sizes of larger ones overflow (1e308 did)
 MAX_SPECIMEN_MM = 1e6
@@ -172,7 +181,14 @@ class Material:
 
 CONSTRAINTS = ("lagrange", "penalty")
 PENALTY_FORMS = ("mixed", "full")
-SHEAR_LAWS = ("quadratic", "polynomial", "locking", "table")  # ngbet.continuum.physics.SHEAR_LAWS
+#: the shear laws a scene can name (``effects.shear_law``) and the material keys each one reads
+SHEAR_LAW_KEYS: dict[str, tuple[str, ...]] = {
+    "quadratic": ("K_sh",),
+    "polynomial": ("K_sh", "K_sh4", "K_sh6"),
+    "locking": ("K_sh", "K_lock", "gamma_lock_deg"),
+    "table": ("shear_stress_steps_Pa", "shear_table_i8_max"),
+}
+SHEAR_LAWS = tuple(SHEAR_LAW_KEYS)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -18,6 +18,7 @@ from typing import Any
 
 from ..scene.document import NOT_READ_BY, NOT_READ_BY_TEST, TOP_LEVEL, Scene, SceneWarning
 from ..scene.numerical import CHOSEN_BY_TARGET
+from ..scene.physical import SHEAR_LAW_KEYS
 from ..scene.validate import SceneError
 from .keys import as_floats, value_text
 from .model import Study, same_value
@@ -28,12 +29,6 @@ log = logging.getLogger(__name__)
 
 #: the penalty's keys: read with ``effects.constraint = "penalty"`` only
 PENALTY = ("effects.penalty_K", "effects.penalty_form")
-#: the coefficients each stiffening shear law reads (``effects.shear_law``) beyond K_sh
-LAW_KEYS = {
-    "polynomial": ("material.K_sh4", "material.K_sh6"),
-    "locking": ("material.K_lock", "material.gamma_lock_deg"),
-    "table": ("material.shear_stress_steps_Pa", "material.shear_table_i8_max"),
-}
 #: the bending stiffnesses: no part in a homogeneous shear (the picture frame with held arms)
 BENDING = ("material.alpha1", "material.alpha2")
 
@@ -69,9 +64,11 @@ def not_read(scene: Scene, key: str) -> str | None:
             f"effects.constraint = {eff.constraint!r} does not read {key}: the penalty's keys act with "
             "effects.constraint = 'penalty' only"
         )
-    for law, keys in LAW_KEYS.items():
-        if key in keys and not (eff.shear and eff.shear_law == law):
-            return f"effects.shear_law = {eff.shear_law!r} does not read {key} (shear_law = {law!r} does)"
+    # (K_sh, besides its laws, scales the multiplier and the jamming barrier: every continuum reads it)
+    laws = [law for law, keys in SHEAR_LAW_KEYS.items() if section == "material" and name in keys and name != "K_sh"]
+    if laws and not (eff.shear and eff.shear_law in laws):
+        reader = "effects.shear = false" if not eff.shear else f"effects.shear_law = {eff.shear_law!r}"
+        return f"{reader} does not read {key} (shear_law = {' or '.join(map(repr, laws))} does)"
     target = scene.discretization.target_error
     if section == "discretization" and target and name in CHOSEN_BY_TARGET:
         return f"discretization.target_error = {target:g} lets ngbet choose {key} (the accuracy ladder)"
