@@ -2,8 +2,9 @@
 
 :func:`interrupts` is the context of every command (:func:`ngbet.cli.main`): the signal raises
 KeyboardInterrupt in the main thread, and a watchdog thread records the interruption in the active
-run folders itself when the main thread is held inside one NGSolve call for longer than
-:data:`GRACE_S`, then exits with status 130.
+run folders itself (and in the records :func:`recorded_if_stuck` names, a fit's fit.json) when the
+main thread is held inside one NGSolve call for longer than :data:`GRACE_S`, then exits with
+status 130.
 """
 
 from __future__ import annotations
@@ -14,13 +15,13 @@ import signal
 import socket
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from .commands import EXIT_INTERRUPTED
 from .messages import say
 
-__all__ = ["GRACE_S", "STOP_SIGNALS", "interrupts", "signal_name", "stop_signals"]
+__all__ = ["GRACE_S", "STOP_SIGNALS", "interrupts", "recorded_if_stuck", "signal_name", "stop_signals"]
 
 GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the watchdog does
 #: the signals that end a command as an interruption (summary.json "interrupted", exit 130): Ctrl-C,
@@ -28,6 +29,26 @@ GRACE_S = 2.0  # how long the main thread may take to act on Ctrl-C before the w
 STOP_SIGNALS = tuple(
     getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1", "SIGUSR2") if hasattr(signal, n)
 )
+
+
+#: what the watchdog calls besides the run folders' record (:func:`recorded_if_stuck`)
+_RECORDERS: list[Callable[[str], str | None]] = []
+
+
+@contextlib.contextmanager
+def recorded_if_stuck(record: Callable[[str], str | None]) -> Iterator[None]:
+    """While inside: a stop the main thread cannot act on is recorded by ``record(reason)`` too.
+
+    ``record`` runs in the watchdog's thread while the main thread is held in one NGSolve call
+    (so no Python of the main thread runs meanwhile); it writes its record (a fit's fit.json of
+    status "interrupted") and returns what it kept, in words, for the command's last line, or
+    None. Its errors are its own: logged, and the exit stays 130.
+    """
+    _RECORDERS.append(record)
+    try:
+        yield
+    finally:
+        _RECORDERS.remove(record)
 
 
 def stop_signals() -> list[int]:
@@ -102,13 +123,17 @@ def _watch(r: socket.socket, acted: threading.Event) -> None:
         if not acted.wait(GRACE_S):
             from .output import interrupt_active_runs
 
-            folders = interrupt_active_runs(
-                f"interrupted ({signal_name(got[0])}) inside a computation; stopped after {GRACE_S:g} s"
-            )
-            say(
-                f"interrupted; converged steps and summary.json (status interrupted) are in "
-                f"{', '.join(map(str, folders)) or 'no run folder'}"
-            )
+            reason = f"interrupted ({signal_name(got[0])}) inside a computation; stopped after {GRACE_S:g} s"
+            folders = interrupt_active_runs(reason)
+            kept = [f"converged steps and summary.json (status interrupted) are in {', '.join(map(str, folders))}"]
+            kept = kept if folders else []
+            for record in list(_RECORDERS):
+                try:
+                    said = record(reason)
+                except Exception as exc:  # the exit is the stop's: the record's failure is said
+                    said = f"could not record the interruption: {type(exc).__name__}: {exc}"
+                kept += [said] if said else []
+            say(f"interrupted; {'; '.join(kept) or 'no run folder was open'}")
             sys.stderr.flush()
             os._exit(EXIT_INTERRUPTED)
         acted.clear()

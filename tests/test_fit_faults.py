@@ -435,3 +435,64 @@ def test_an_output_folder_that_cannot_be_written_is_named_not_its_mark(tmp_path,
         acquire_run_folder(d)
     assert fit(B200, "--scene", BET_SCENE, "--out", d) == 3
     assert capsys.readouterr().err == f"ngbet fit: cannot use the output folder {str(caught.value)}\n"
+
+
+STUCK_FIT = """
+import signal, sys, time
+sys.path.insert(0, sys.argv[1])
+from test_fit_faults import FakeRuns
+from ngbet.calibration import joint, runs
+from ngbet.cli import main
+
+fake = FakeRuns()
+
+def stuck(job, meshes):
+    if len(fake.jobs) == 2:  # the third run: held in one long library call, the signal cannot act
+        signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT])
+        print("ready", flush=True)
+        time.sleep(60)
+    return fake(job, meshes)
+
+runs.curve_run = stuck
+joint.default_workers = lambda n: 1
+sys.exit(main(["fit", *sys.argv[2:], "--quiet"]))
+"""
+
+
+def test_a_fit_stuck_in_one_library_call_records_its_interruption(tmp_path):
+    """Ctrl-C while the main thread is held in one NGSolve call: after the grace the watchdog
+    writes fit.json "interrupted" with the runs made (it said "running" before) and exits 130."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "fit"
+    p = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            STUCK_FIT,
+            str(Path(__file__).parent),
+            str(B200),
+            "--scene",
+            str(BET_SCENE),
+            "--max-runs",
+            "5",
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: [signal.signal(s, signal.SIG_DFL) for s in (signal.SIGINT, signal.SIGTERM)],
+    )
+    assert p.stdout.readline().strip() == "ready"
+    time.sleep(0.5)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=30)  # the grace of 2 s, not the 60 s of the call
+    assert p.returncode == 130, err
+    doc = json.loads((out / "fit.json").read_text())
+    assert (doc["status"], doc["model_runs"], doc["converged"]) == ("interrupted", 2, False)
+    assert doc["why"].startswith("interrupted (SIGINT) inside a computation")
+    assert f"{out}/fit.json records the fit so far (2 model runs, status interrupted)" in err

@@ -50,10 +50,26 @@ def test_numpy_scalars_and_arrays_are_accepted_as_their_values():
     assert Scene.from_toml_string(s.to_toml()) == s  # and it writes as TOML
 
 
-def test_a_shear_table_without_the_table_law_is_warned_about():
-    """A fitted scene whose ``shear_law = "table"`` was deleted: its rises would go unused in silence."""
-    with pytest.warns(SceneWarning, match=r"shear_stress_steps_Pa holds 3 rises.*'quadratic'.*not used"):
+def test_a_shear_law_coefficient_under_another_law_is_warned_about():
+    """A fitted scene whose ``shear_law = "table"`` was deleted: its rises would go unused in silence.
+
+    So would a polynomial's K_sh4 under the quadratic law, or any law's coefficient with shear off;
+    K_sh is read by every continuum (it scales the multiplier and the barrier) and is never named.
+    """
+    with pytest.warns(SceneWarning, match=r"shear_law = 'quadratic' does not read material.shear_stress_steps_Pa"):
         Scene().with_changes(**{"material.shear_stress_steps_Pa": [1e3, 2e3, 4e3]})
+    with pytest.warns(SceneWarning, match=r"'quadratic' does not read material.K_sh4 \(shear_law = 'polynomial'"):
+        Scene().with_changes(**{"material.K_sh4": 5e3})
+    with pytest.warns(SceneWarning, match=r"effects.shear = false does not read material.K_lock"):
+        Scene().with_changes(**{"material.K_lock": 5e3, "effects.shear": False})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SceneWarning)
+        Scene().with_changes(**{"material.K_sh": 5e3, "effects.shear_law": "locking", "material.K_lock": 5e3})
+    with pytest.warns(SceneWarning) as said:  # the network reads no material key: said once, by its model
+        Scene().with_changes(**{"material.K_sh4": 5e3, "model": "discrete"})
+    assert [str(w.message) for w in said] == [
+        "model = 'discrete' does not read material.K_sh4: these values have no effect"
+    ]
     with warnings.catch_warnings():
         warnings.simplefilter("error", SceneWarning)  # with the law: nothing to say
         Scene().with_changes(**{"material.shear_stress_steps_Pa": [1e3, 2e3, 4e3], "effects.shear_law": "table"})

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import logging
 import math
 import sys
@@ -36,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from ..interrupts import recorded_if_stuck
 from ..measured.curves import MeasuredCurve
 from ..run_folder import OutputError, OwnedFolder
 from ..scene.document import Scene, SceneWarning
@@ -301,6 +303,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         from .joint import fit_curves, terminal_progress
 
         aside = begin(folder, [str(d) for d in inp.data])
+        stack.enter_context(recorded_if_stuck(functools.partial(_record_stuck, folder, state, inp.data, out)))
         try:
             result = fit_curves(
                 inp.curves,
@@ -376,6 +379,12 @@ def _record(folder: OwnedFolder, state: FitState, data: list[str], exc: BaseExce
     except Exception as err:  # the fit's own end is the one to report
         logging.getLogger(__name__).error("%s: could not record the unfinished fit: %s", folder.out, err)
         return False
+
+
+def _record_stuck(folder: OwnedFolder, state: FitState, data: list[Path], out: Path, reason: str) -> str:
+    """fit.json "interrupted" for a stop the main thread cannot act on (:func:`ngbet.interrupts.recorded_if_stuck`)."""
+    unfinished(folder, state, [str(d) for d in data], "interrupted", reason)
+    return f"{out}/fit.json records the fit so far ({_count(state.runs, 'model run')}, status interrupted)"
 
 
 def _stopped(

@@ -19,7 +19,7 @@ from typing import Any
 import tomli_w
 
 from .numerical import Calibration, Discrete, Discretization, Loading, Outputs, Solver
-from .physical import TESTS, Effects, Material, PictureFrame, Specimen
+from .physical import TESTS, Effects, Material, PictureFrame, Specimen, law_leaves_unread
 from .validate import AUTO, SceneError, check, choice
 
 __all__ = [
@@ -227,19 +227,18 @@ class Scene:
         if self.test == "picture_frame":
             self._check_picture_frame()
 
-        unused = self.unused_keys()
-        m, e = self.material, self.effects
-        if self.model == "continuum" and m.shear_stress_steps_Pa and not (e.shear and e.shear_law == "table"):
-            warnings.warn(
-                SceneWarning(
-                    f"material.shear_stress_steps_Pa holds {len(m.shear_stress_steps_Pa)} rises of a shear table, but "
-                    f"effects.shear_law = {e.shear_law!r}{'' if e.shear else ' with effects.shear = false'}: the table "
-                    'is not used (effects.shear_law = "table" uses it)'
-                ),
-                stacklevel=3,
-            )
-        if unused:
-            warnings.warn(self.unused_warning(), stacklevel=3)
+        self._warn_unread()
+
+    def _warn_unread(self) -> None:
+        """A :class:`SceneWarning` for each set value that has no effect on the run the scene describes."""
+        if self.model == "continuum":
+            m, default = self.material, Material()
+            for f in fields(m):
+                why = law_leaves_unread(self.effects, f.name)
+                if why and getattr(m, f.name) != getattr(default, f.name):
+                    warnings.warn(SceneWarning(f"{why}: its value has no effect"), stacklevel=4)
+        if self.unused_keys():
+            warnings.warn(self.unused_warning(), stacklevel=4)
         replaced = self.discretization.chosen_by_target() if self.model == "continuum" else []
         if replaced:
             warnings.warn(
@@ -248,7 +247,7 @@ class Scene:
                     f"its grading and the orders: the scene's {', '.join(replaced)} "
                     f"{'has' if len(replaced) == 1 else 'have'} no effect"
                 ),
-                stacklevel=3,
+                stacklevel=4,
             )
 
     def _check_picture_frame(self) -> None:

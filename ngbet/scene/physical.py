@@ -16,6 +16,7 @@ __all__ = [
     "PENALTY_FORMS",
     "SHEAR_LAWS",
     "SHEAR_LAW_KEYS",
+    "law_leaves_unread",
     "Effects",
     "Material",
     "Specimen",
@@ -189,6 +190,20 @@ SHEAR_LAW_KEYS: dict[str, tuple[str, ...]] = {
     "table": ("shear_stress_steps_Pa", "shear_table_i8_max"),
 }
 SHEAR_LAWS = tuple(SHEAR_LAW_KEYS)
+
+
+def law_leaves_unread(effects: Effects, name: str) -> str | None:
+    """Why the continuum's shear energy under ``effects`` does not read the material key ``name``; None if it does.
+
+    A coefficient of one shear law (:data:`SHEAR_LAW_KEYS`) is read only under that law with shear
+    on. ``K_sh`` is always read: besides its laws it scales the multiplier and the jamming barrier.
+    Keys of no law (the elongation, the bending stiffnesses) are not this rule's: None.
+    """
+    laws = [law for law, keys in SHEAR_LAW_KEYS.items() if name in keys]
+    if not laws or name == "K_sh" or (effects.shear and effects.shear_law in laws):
+        return None
+    reader = "effects.shear = false" if not effects.shear else f"effects.shear_law = {effects.shear_law!r}"
+    return f"{reader} does not read material.{name} (shear_law = {' or '.join(map(repr, laws))} does)"
 
 
 @dataclass(frozen=True, kw_only=True)

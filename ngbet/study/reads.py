@@ -18,7 +18,7 @@ from typing import Any
 
 from ..scene.document import NOT_READ_BY, NOT_READ_BY_TEST, TOP_LEVEL, Scene, SceneWarning
 from ..scene.numerical import CHOSEN_BY_TARGET
-from ..scene.physical import SHEAR_LAW_KEYS
+from ..scene.physical import law_leaves_unread
 from ..scene.validate import SceneError
 from .keys import as_floats, value_text
 from .model import Study, same_value
@@ -64,11 +64,9 @@ def not_read(scene: Scene, key: str) -> str | None:
             f"effects.constraint = {eff.constraint!r} does not read {key}: the penalty's keys act with "
             "effects.constraint = 'penalty' only"
         )
-    # (K_sh, besides its laws, scales the multiplier and the jamming barrier: every continuum reads it)
-    laws = [law for law, keys in SHEAR_LAW_KEYS.items() if section == "material" and name in keys and name != "K_sh"]
-    if laws and not (eff.shear and eff.shear_law in laws):
-        reader = "effects.shear = false" if not eff.shear else f"effects.shear_law = {eff.shear_law!r}"
-        return f"{reader} does not read {key} (shear_law = {' or '.join(map(repr, laws))} does)"
+    law = law_leaves_unread(eff, name) if section == "material" else None
+    if law:
+        return law
     target = scene.discretization.target_error
     if section == "discretization" and target and name in CHOSEN_BY_TARGET:
         return f"discretization.target_error = {target:g} lets ngbet choose {key} (the accuracy ladder)"
