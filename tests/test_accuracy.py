@@ -945,3 +945,22 @@ def test_the_resolved_corners_snap_back_leaves_the_force_unchanged(tmp_path):
     down = CubicHermiteSpline(u[turn:][::-1], F[turn:][::-1], dF[turn:][::-1])
     loads = np.linspace(31.75, 33.6, 8)  # where the first branch has steps of 1.3 mm or less
     assert np.max(np.abs(up(loads) - down(loads))) < 1e-4
+
+
+def test_a_run_its_discretization_does_not_resolve_says_so(tmp_path):
+    """The twill's coarse uniform 25 mm mesh estimates an error of 46 % of its force at 49.7 mm
+    (27.5 N there, 21.16 N at 1 %): the run converges, and says that its mesh does not resolve it,
+    naming the remedy; the default scene (0.2 %) says nothing of the kind."""
+    from pathlib import Path
+
+    scene = Scene.from_toml(Path(__file__).resolve().parents[1] / "geometry" / "twintex_twill_unbalanced.toml")
+    s = run(scene.with_changes(**{"outputs.plot": False}), tmp_path / "coarse")
+    assert s["status"] == "ok" and s["force_error_rel"] > 0.1
+    said = [w for w in s["warnings"] if "does not resolve" in w]
+    assert said == [
+        f"the estimated discretization error of the force at 49.7 mm is {s['force_error_rel']:.0%} of it "
+        f"({s['force_error_N']:.2g} N of {s['force_N']:.4g} N): the discretization does not resolve this run; "
+        "discretization.target_error (ngbet run --accuracy 1e-2) lets ngbet choose one that does"
+    ]
+    fine = run(default_scene().with_changes(**{"outputs.plot": False, "outputs.vtk": False}), tmp_path / "default")
+    assert fine["force_error_rel"] < 0.01 and not any("does not resolve" in w for w in fine["warnings"])

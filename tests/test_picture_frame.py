@@ -125,8 +125,8 @@ def test_the_scene_refuses_what_a_frame_cannot_do():
         frame_scene(**{"loading.u0_mm": 60.0})  # (2 − √2) 100 = 58.6 mm
     with pytest.raises(SceneError, match="model.*continuum model only"):
         frame_scene(model="discrete")
-    with pytest.raises(SceneError, match="misalignment_deg"):
-        frame_scene(**{"picture_frame.misalignment_deg": 45.0})
+    with pytest.raises(SceneError, match="misalignment_deg.*the misalignment 90 degrees less"):
+        frame_scene(**{"picture_frame.misalignment_deg": 45.5})
     with pytest.raises(SceneError, match="'test' = 'tension'"):
         frame_scene(test="tension")
 
@@ -188,6 +188,9 @@ def test_the_clamped_square_shears_homogeneously_with_the_force_of_its_energy(be
     theta = np.arccos((math.sqrt(2) * 100 + d) / 200)
     assert r.shear_force_N == pytest.approx(r.force_N / (2 * np.cos(theta)), rel=1e-14)  # Eq. 3
     assert r.fnorm_N_per_mm == pytest.approx(r.shear_force_N * 100 / 100**2, rel=1e-14)  # Eq. 10
+    # Λ = 0 exactly: its round-off is not called an oscillating multiplier (ratio ~0.96 of noise to noise)
+    assert r.summary.get("multiplier_oscillation") == (0.0 if bending else None)
+    assert not any("multiplier" in w for w in r.summary["warnings"])
 
 
 def test_the_shear_angle_field_of_the_clamped_square_is_the_frames_everywhere():
@@ -204,15 +207,20 @@ def test_the_shear_angle_field_of_the_clamped_square_is_the_frames_everywhere():
     assert np.asarray(p.phi(pts)).ravel() == pytest.approx(np.asarray(inv.i8(pts)).ravel(), abs=1e-10)
 
 
-def test_misaligned_yarns_stretch_and_the_force_is_still_that_of_the_energy():
+@pytest.mark.parametrize("misalignment", [3.0, -45.0])
+def test_misaligned_yarns_stretch_and_the_force_is_still_that_of_the_energy(misalignment):
     # the fabric turned 3° in the frame: still a homogeneous state (affine data, homogeneous
     # material), but its yarns no longer follow the bars and stretch (Eq. 1's frame then carries
-    # K_el); the crosshead force is t A dW/dd with W now holding the elongation energy
-    sc = frame_scene(**{"picture_frame.misalignment_deg": 3.0, "effects.bending": False})
+    # K_el); the crosshead force is t A dW/dd with W now holding the elongation energy. At 45° the
+    # yarns run along the frame's diagonals, one family along the crosshead: the stiffest case
+    sc = frame_scene(**{"picture_frame.misalignment_deg": misalignment, "effects.bending": False})
     r = simulate(sc)
     exact = np.array([homogeneous_force(sc, x) for x in r.u0_mm])
     assert r.force_N == pytest.approx(exact, rel=1e-7)
-    assert r.elongation_max == pytest.approx([homogeneous_elongation(sc, x) for x in r.u0_mm], rel=1e-8)
+    # (at 45° the chord rows stop 2.8e-7 short in the elongation, at the force's 1e-7: the test of a
+    # row weighs the stiff family along the crosshead)
+    tol = 1e-8 if abs(misalignment) < 45 else 1e-6
+    assert r.elongation_max == pytest.approx([homogeneous_elongation(sc, x) for x in r.u0_mm], rel=tol)
     assert np.all(r.elongation_max > 1e-3)
 
 

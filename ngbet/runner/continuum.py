@@ -123,6 +123,9 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
                     writer.plot(draw)()
                 raise
         info.update(estimates.summary(time.perf_counter() - t_cont))
+        for said in estimates.warnings():
+            warnings.append(said)
+            log.warning("%s", said)
         return _finish(solver, scene, writer, res, info, warnings, draw)
 
 

@@ -337,10 +337,11 @@ class PictureFrame:
         )
         m = self.misalignment_deg
         check(
-            isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and abs(m) < 45.0,
+            isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and abs(m) <= 45.0,
             "picture_frame.misalignment_deg",
             m,
-            "must lie strictly between -45 and 45 degrees (beyond, the yarns run along the other bars)",
+            "must lie between -45 and 45 degrees: beyond, the yarns lie nearer the other bars, which is "
+            "the misalignment 90 degrees less with the families swapped (at 45 the yarns run along the diagonals)",
         )
 
     @property
