@@ -41,6 +41,7 @@ from .commands import parse_value as _parse_value
 from .interrupts import interrupts
 from .messages import messages, say
 from .scene.document import Scene
+from .scene.physical import load_symbol
 from .scene.validate import SceneError
 from .watch import SUPERVISED, watch
 
@@ -338,12 +339,12 @@ def _run(scene: Scene, out: Path, quiet: bool = False, measured: Any = None) -> 
             summary = run(scene, out, progress=not quiet, measured=measured)
     except KeyboardInterrupt:
         _say(
-            f"interrupted after u0 = {_last_converged_mm(out):g} mm; converged steps and "
+            f"interrupted after {load_symbol(scene.test)} = {_last_converged_mm(out):g} mm; converged steps and "
             f"summary.json (status interrupted) are in {out}/"
         )
         return EXIT_INTERRUPTED
     except Exception as exc:
-        code, msg = exit_code(exc, out)
+        code, msg = exit_code(exc, out, load_symbol(scene.test))
         if code == EXIT_SOLVER:
             msg += f"; converged steps and details are in {out}/ (summary.json)"
         if code == EXIT_INTERNAL and logging.getLogger().isEnabledFor(logging.INFO):
@@ -481,7 +482,7 @@ def _report(summary: dict[str, Any], out: Path) -> str:
     # the solver's iteration counts are in summary.json: nothing on the terminal a user would act on
     scene = summary.get("scene") or {}
     stops = scene.get("loading", {}).get("stops_mm", ())
-    load = "d" if scene.get("test") == "picture_frame" else "u0"  # a frame's load is the crosshead travel
+    load = load_symbol(scene.get("test", ""))
     lines = [
         f"ngbet: {summary['status']}: {load} = {summary['u0_reached_mm']:g} mm in "
         f"{summary.get('load_steps', len(rows))} load steps, {summary['wall_s']:.2f} s; results in {out}/"

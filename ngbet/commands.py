@@ -82,10 +82,11 @@ def load_scene(path: str | None, overrides: list[str], tests: Sequence[str] = ()
     return scene
 
 
-def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
+def exit_code(exc: BaseException, where: Path | None = None, load: str = "u0") -> tuple[int, str]:
     """The exit status and the one-line message of an error that ends a command.
 
-    ``where``: the output folder, named when the OS error names no file (e.g. a full disk on write).
+    ``where``: the output folder, named when the OS error names no file (e.g. a full disk on write);
+    ``load``: the name of the run's load (:func:`ngbet.scene.physical.load_symbol`).
     """
     from .errors import ConvergenceError, FitWorkerError
     from .run_folder import OutputError
@@ -102,7 +103,8 @@ def exit_code(exc: BaseException, where: Path | None = None) -> tuple[int, str]:
         if not advice and "relaxation:" in reason:  # why no stable state was found at the load
             advice = reason.split("relaxation:", 1)[1].strip().removesuffix(")")
         return EXIT_SOLVER, (
-            f"the solver stopped after u0 = {exc.last_converged_mm:g} mm: {first}" + (f"; {advice}" if advice else "")
+            f"the solver stopped after {load} = {exc.last_converged_mm:g} mm: {first}"
+            + (f"; {advice}" if advice else "")
         )
     if isinstance(exc, OutputError):
         return EXIT_IO, f"cannot use the output folder {exc}"

@@ -578,3 +578,24 @@ def test_yarns_off_45_degrees_get_their_shear_angles_and_no_ideal_test():
     assert "yarns at ±30°" in ax.get_title()
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["computed, centre"]
     assert not texts_outside(fig)
+
+
+def test_the_figures_of_a_run_short_of_its_load_say_where_it_stopped(tmp_path, monkeypatch):
+    """A failed or interrupted run's figures open their caption with the load it reached of the
+    one asked (the curve alone would look like a run to that load); a complete run's do not."""
+    import json
+
+    from ngbet.figures.style import FigureWriter
+
+    said = {}
+    monkeypatch.setattr(
+        FigureWriter, "save", lambda self, fig, stem: said.update({stem.name: fig._suptitle.get_text()})
+    )
+    run = write_run(tmp_path / "r")
+    for status, first in (("interrupted", "The run was interrupted at u₀ = 40 mm of 56 mm. "), ("ok", "")):
+        (run / "summary.json").write_text(json.dumps({"status": status, "u0_reached_mm": 40.0}))
+        draw_run(run, only=["force", "shear_force"])
+        assert set(said) == {"force", "shear_force"}
+        assert all(t.replace("\n", " ").replace("\u00a0", " ").startswith(first) for t in said.values()), said
+        assert all(("The run" in t) == bool(first) for t in said.values())
+        said.clear()

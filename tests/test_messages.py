@@ -313,3 +313,16 @@ def test_summary_json_names_the_measured_curve_a_run_draws(tmp_path):
         "file": str(data.resolve()),
         "sha256": hashlib.sha256(data.read_bytes()).hexdigest(),
     }
+
+
+def test_a_frame_run_that_stops_names_its_load_d():
+    """A picture frame's load is the crosshead travel d (its tables, progress bar and report say d): so does its stop."""
+    from ngbet.commands import exit_code
+    from ngbet.errors import ConvergenceError
+    from ngbet.scene.physical import load_symbol
+
+    exc = ConvergenceError("load step cut below the minimum", 84.4495)
+    assert exit_code(exc, None, load_symbol("picture_frame"))[1] == (
+        "the solver stopped after d = 84.4495 mm: load step cut below the minimum"
+    )
+    assert exit_code(exc)[1].startswith("the solver stopped after u0 = 84.4495 mm")

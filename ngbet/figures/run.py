@@ -27,7 +27,7 @@ from typing import Any, cast
 from .curves import Extra, force_figure, profile_figure, shear_force_figure, stations_of
 from .data import Measured, load_maps, read_scene
 from .maps import shear_map_figure
-from .style import PNG_DPI, FigureWriter, can_fork, figure, in_style, write_png
+from .style import PNG_DPI, FigureWriter, can_fork, figure, in_style, put_caption, write_png
 
 __all__ = ["NO_MATPLOTLIB", "RUN_FIGURES", "YARNS", "draw_force", "draw_run", "formats_of", "start_plot", "warm_up"]
 
@@ -44,6 +44,22 @@ FORCE_FIGURES = ("force", "shear_force")
 FIGURE_COST = {"force": 1.0, "shear_force": 1.1, "profile": 0.6, "shear_map": 1.2}
 
 NO_MATPLOTLIB = "no figures: matplotlib is not installed (pip install matplotlib)"
+
+
+def _short_of_load(run_dir: Path, scene: Any) -> str:
+    """What a figure of a run that did not reach its load says first ("" for a run that did, or no summary)."""
+    import json
+
+    try:
+        s = json.loads((run_dir / "summary.json").read_text())
+        status, reached = s["status"], float(s["u0_reached_mm"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+    if status == "ok" or scene is None:
+        return ""
+    load = "d" if getattr(scene, "test", "") == "picture_frame" else "u\N{SUBSCRIPT ZERO}"
+    verb = {"failed": "stopped", "interrupted": "was interrupted"}.get(status, status)
+    return f"The run {verb} at {load} = {reached:.4g} mm of {scene.loading.u0_mm:g} mm"
 
 
 def formats_of(scene: Any) -> tuple[str, ...]:
@@ -107,10 +123,15 @@ def draw_run(
         makers.update(yarns)
         names += list(yarns)
 
+    short = _short_of_load(run_dir, scene)
+
     def draw(name: str) -> None:
         with in_style():
             fig = makers[name]()
             if fig is not None:
+                if short:
+                    sup = getattr(fig, "_suptitle", None)
+                    put_caption(fig, f"{short}. {sup.get_text().replace(chr(10), ' ') if sup else ''}".strip())
                 out.save(fig, run_dir / name)
 
     _draw_shared(_share(names, workers if can_fork() else 1), draw)

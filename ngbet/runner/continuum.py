@@ -30,6 +30,7 @@ from ..numerics.path import load_steps
 from ..output import RunWriter
 from ..plot_process import active as plot_service
 from ..scene.document import Scene
+from ..scene.physical import load_symbol
 from .arclength import MODE_KEY, arclength_runner
 from .fields import write_vtk
 from .ladder import run_to_accuracy
@@ -89,7 +90,7 @@ def run_continuum(scene: Scene, out: Path, progress: bool, measured: Any = None)
         estimates = RunEstimates(solver)
         info = _setup_info(solver, time.perf_counter() - t0)
         warnings: list[str] = []  # found at the end of the path (the scene's own: the writer's preflight)
-        with progress_bar(progress, scene.loading.u0_mm, "d" if scene.test == "picture_frame" else "u0") as bar:
+        with progress_bar(progress, scene.loading.u0_mm, load_symbol(scene.test)) as bar:
             recorder = _StepWriter(solver, writer, out, estimates)
             t_cont = time.perf_counter()
             path = load_path(solver, scene)

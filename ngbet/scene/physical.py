@@ -17,6 +17,7 @@ __all__ = [
     "SHEAR_LAWS",
     "SHEAR_LAW_KEYS",
     "law_leaves_unread",
+    "load_symbol",
     "Effects",
     "Material",
     "Specimen",
@@ -290,6 +291,13 @@ class Effects:
 
 #: the tests a scene describes (top-level ``test``)
 TESTS = ("bias_extension", "picture_frame")
+
+
+def load_symbol(test: str) -> str:
+    """The name of a test's load in messages: ``u0`` (the clamp displacement), ``d`` (a frame's crosshead travel)."""
+    return "d" if test == "picture_frame" else "u0"
+
+
 #: how the picture frame's clamps hold the arms of the cross (PictureFrame.arms)
 ARMS = ("held", "sheared")
 
