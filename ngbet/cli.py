@@ -165,7 +165,9 @@ def _parser(command: str | None = None) -> argparse.ArgumentParser:
         "--columns",
         metavar="X,Y",
         help="with --data: the displacement and force columns by header "
-        "name or number, each with an optional unit (e.g. 'Weg:mm,Kraft:kN')",
+        "name or number, each with an optional unit (e.g. 'Weg:mm,Kraft:kN'), or a quantity and its unit "
+        "as a header names them (a picture frame's shear force: 1:deg,2:shear_force_N); a file without "
+        "a header: by number only",
     )
     pr.add_argument(
         "--quiet", action="store_true", help="print no progress and no results; warnings and errors still go to stderr"

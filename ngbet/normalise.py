@@ -497,7 +497,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument(
         "--columns",
         metavar="X,Y",
-        help="the two columns by header name or number, each with an optional unit (e.g. 'Weg:mm,Kraft:kN')",
+        help="the two columns by header name or number, each with an optional unit (e.g. 'Weg:mm,Kraft:kN'), "
+        "or a quantity and its unit as a header names them (1:deg,2:shear_force_N); a file without a header: "
+        "by number only",
     )
     p.add_argument("--out", default="out/normalise", help="output folder (default: out/normalise)")
     p.add_argument("--quiet", action="store_true", help="print nothing but warnings and errors")

@@ -592,7 +592,11 @@ def test_the_figures_of_a_run_short_of_its_load_say_where_it_stopped(tmp_path, m
         FigureWriter, "save", lambda self, fig, stem: said.update({stem.name: fig._suptitle.get_text()})
     )
     run = write_run(tmp_path / "r")
-    for status, first in (("interrupted", "The run was interrupted at u₀ = 40 mm of 56 mm. "), ("ok", "")):
+    for status, first in (
+        ("interrupted", "The run was interrupted at u₀ = 40 mm of 56 mm. "),
+        ("ok", ""),
+        ("running", ""),
+    ):
         (run / "summary.json").write_text(json.dumps({"status": status, "u0_reached_mm": 40.0}))
         draw_run(run, only=["force", "shear_force"])
         assert set(said) == {"force", "shear_force"}

@@ -28,6 +28,7 @@ __all__ = [
     "no_params",
     "refuse_fitted_predictions",
     "refuse_unsized",
+    "scene_frame",
     "set_conflicts",
 ]
 
@@ -131,6 +132,21 @@ def refuse_unsized(scene: Scene, curves: Sequence[MeasuredCurve]) -> None:
                 "length or width: give them in its header (# specimen.width_mm = ..., # specimen.length_mm = ...) "
                 "or with --specimen WxL, or use the fabric's bias-extension scene"
             )
+
+
+def scene_frame(scene: Scene, overrides: Sequence[str]) -> dict[str, float] | None:
+    """The picture frame the scene names, for the frame curves whose header names none; None where it names none.
+
+    A scene names its frame when it is a picture frame's (``test = "picture_frame"``), or when
+    ``--set`` gives both ``picture_frame.frame_mm`` and ``picture_frame.fabric_mm``: its
+    ``[picture_frame]`` after the overrides. (A bias-extension scene's frame is the defaults.)
+    """
+    keys = {"picture_frame.frame_mm", "picture_frame.fabric_mm"}
+    given = {item.partition("=")[0].strip() for item in overrides}
+    if scene.test != "picture_frame" and not keys <= given:
+        return None
+    pf = scene.picture_frame
+    return {"picture_frame.frame_mm": float(pf.frame_mm), "picture_frame.fabric_mm": float(pf.fabric_mm)}
 
 
 def refuse_fitted_predictions(curves: Sequence[MeasuredCurve], predict: Sequence[MeasuredCurve]) -> None:

@@ -15,6 +15,8 @@ angles (``--angles``) belong to the first data file's specimen. A picture-frame 
 reader's rule, :func:`ngbet.measured.curves.read_any`) is a picture-frame curve, fitted (or, with
 ``--predict``, predicted) in the frame of its header (:func:`ngbet.measured.curves.read_frame_curve`),
 in crosshead travel [mm] and force: ``--range`` and fit.json's ``range_mm`` are crosshead travel for it.
+A frame curve whose header names no frame is fitted in the scene's (after ``--set``), said in a note,
+where the scene names one (:func:`ngbet.calibration.checks.scene_frame`); where neither does, it is refused.
 
 The folder says at every moment what the command has done (:mod:`ngbet.calibration.record`): an
 earlier fit's files are set aside (earlier_NAME) while the fit runs, and a fit ended by Ctrl-C or
@@ -47,6 +49,7 @@ from .checks import (
     no_params,
     refuse_fitted_predictions,
     refuse_unsized,
+    scene_frame,
     set_conflicts,
 )
 from .record import FitState, begin, unfinished
@@ -144,7 +147,9 @@ def add_parser(sub: Any) -> None:
         "--columns",
         metavar="X,Y",
         help="the displacement and force columns by header name or number, "
-        "each with an optional unit (e.g. 'Weg:mm,Kraft:kN'); default: by their names",
+        "each with an optional unit (e.g. 'Weg:mm,Kraft:kN') or a quantity and its unit as a header names them "
+        "(a picture frame's shear force: 1:deg,2:shear_force_N; a file without a header: by number only); "
+        "default: by their names",
     )
     p.add_argument("--quiet", action="store_true", help="no progress line")
 
@@ -184,7 +189,7 @@ class Inputs:
             raise SceneError(f"one scene only: got {', '.join(tomls + ([args.scene] if args.scene else []))}")
         if not self.data:
             raise SceneError("no data file: give at least one CSV of displacement_mm,force_N")
-        from ..measured.curves import read_all, read_any
+        from ..measured.curves import curve_tests, read_all, read_any
         from ..measured.table import curve_files, parse_sizes
 
         self.data, left = curve_files(self.data)  # error-bar files given with their curves (data/*.csv)
@@ -192,13 +197,14 @@ class Inputs:
         sizes = ("specimen.width_mm", "specimen.length_mm", "specimen.thickness_mm")
         specs = [parse_sizes(t, "--specimen", sizes) for t in getattr(args, "specimen", [])]
         columns = getattr(args, "columns", None)
-        self.curves = read_all(self.data, columns=columns, specimens=specs)
-        self.predict = [read_any(p, columns=columns) for p in args.predict]
-        refuse_fitted_predictions(self.curves, self.predict)
         # the scene serves every test among the curves: a key one of them reads has an effect
-        tests = sorted({c.test for c in self.curves + self.predict})
+        tests = sorted(set(curve_tests([*self.data, *args.predict], columns)))
         path = args.scene or (tomls[0] if tomls else None)
         self.scene = load_scene(path, args.overrides, tests)
+        frame = scene_frame(self.scene, args.overrides)  # for the frame curves whose header names none
+        self.curves = read_all(self.data, columns=columns, specimens=specs, frame=frame)
+        self.predict = [read_any(p, columns=columns, frame=frame) for p in args.predict]
+        refuse_fitted_predictions(self.curves, self.predict)
         if self.scene.model != "continuum":
             raise SceneError(
                 f"model = {self.scene.model!r}: ngbet fit calibrates the continuum model (model = 'continuum')"

@@ -81,7 +81,7 @@ def read_frame_measured(path: str | Path, *, columns: str | None = None) -> Fram
     from ..measured.table import read_table
     from ..scene.validate import SceneError
 
-    t = read_table(path, columns=columns)
+    t = read_table(path, columns=columns, expect="picture_frame")
     if t.test == "bias_extension":
         raise SceneError(
             f"{path}: a bias extension curve ({t.test_reason}), and the scene is a picture frame: a run of "
@@ -91,7 +91,8 @@ def read_frame_measured(path: str | Path, *, columns: str | None = None) -> Fram
         raise SceneError(
             f"{path}: a picture-frame curve for the figures holds the shear angle and the shear force "
             "F_s [N] or the normalised shear force F_norm [N/mm], e.g. the header "
-            "'shear_angle_deg,shear_force_N'"
+            "'shear_angle_deg,shear_force_N' (--columns: a unit of N alone is the crosshead force; "
+            "e.g. --columns 1:deg,2:shear_force_N)"
         )
     if len(t.x) < 2:
         raise SceneError(f"{path}: needs at least two points")

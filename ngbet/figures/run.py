@@ -47,7 +47,11 @@ NO_MATPLOTLIB = "no figures: matplotlib is not installed (pip install matplotlib
 
 
 def _short_of_load(run_dir: Path, scene: Any) -> str:
-    """What a figure of a run that did not reach its load says first ("" for a run that did, or no summary)."""
+    """What a figure of a run that failed or was interrupted says first; "" otherwise.
+
+    A complete run's figures are drawn while its summary.json still says "running" (the plot is
+    asked for as soon as results.csv is whole): that status is not a stop.
+    """
     import json
 
     try:
@@ -55,7 +59,7 @@ def _short_of_load(run_dir: Path, scene: Any) -> str:
         status, reached = s["status"], float(s["u0_reached_mm"])
     except (OSError, ValueError, KeyError, TypeError):
         return ""
-    if status == "ok" or scene is None:
+    if status not in ("failed", "interrupted") or scene is None:  # ("running": drawn as the summary is written)
         return ""
     load = "d" if getattr(scene, "test", "") == "picture_frame" else "u\N{SUBSCRIPT ZERO}"
     verb = {"failed": "stopped", "interrupted": "was interrupted"}.get(status, status)

@@ -3,8 +3,11 @@
 A column is known by its name (``displacement``, ``extension``, ``force``, ``load``, the picture
 frame's shear angle and shear forces) and its unit, written in the name (``force_kN``, ``Force (kN)``,
 ``Force [kN]``) or in a row of units under the header (:func:`is_units_row`); ``columns``
-(``--columns``) chooses two by name or 1-based number. A unit it does not know is kept as written and
-refused by :func:`check_unit` naming it and the units it knows. Read by
+(``--columns``) chooses two by name or 1-based number, each with a unit (``2:kN``) or a quantity and its
+unit as a header names them (``2:shear_force_N``: a unit alone says the kind, and a force in N alone is
+the crosshead force). A file without a header has its columns chosen by number only
+(:func:`numbered_columns`). A unit it does not know is kept as written and refused by
+:func:`check_unit` naming it and the units it knows. Read by
 :func:`ngbet.measured.table.read_table`; a refusal is a :class:`ngbet.scene.validate.SceneError`
 naming the file and the line.
 """
@@ -34,6 +37,8 @@ __all__ = [
     "is_number",
     "is_units_row",
     "known_units",
+    "naming_advice",
+    "numbered_columns",
     "parse_columns",
     "pick_column",
     "pretty_unit",
@@ -224,10 +229,12 @@ def set_units(cols: list[Column], cells: list[str], line: int, path: Path) -> No
             )
 
 
-def parse_columns(spec: str | Sequence[str]) -> list[tuple[str, str | None]]:
-    """``--columns``: two (name or 1-based number, unit key or None).
+def parse_columns(spec: str | Sequence[str]) -> list[tuple[str, str | None, str | None]]:
+    """``--columns``: two (name or 1-based number, unit key or None, quantity or None).
 
-    Anything else, or a unit it does not know, is refused (SceneError).
+    Each item is ``NAME``, ``NAME:UNIT`` or ``NAME:QUANTITY_UNIT``, the quantity and unit written as a
+    header names them (``2:shear_force_N``, ``1:shear_angle_deg``). Anything else, a unit it does not
+    know, or a quantity with a unit of another kind (``shear_force_mm``) is refused (SceneError).
     """
     items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec)]
     if len(items) != 2 or not all(items):
@@ -235,19 +242,35 @@ def parse_columns(spec: str | Sequence[str]) -> list[tuple[str, str | None]]:
             f"--columns {spec!r}: give two columns, the displacement (or shear angle) and the force, "
             "by header name or number, each with an optional unit: --columns 'Weg:mm,Kraft:kN'"
         )
-    out: list[tuple[str, str | None]] = []
+    out: list[tuple[str, str | None, str | None]] = []
     for s in items:
         name, sep, unit = s.rpartition(":")
-        if sep and name.strip() and unit.strip() and unit_key(unit) not in UNITS:
+        if not (sep and name.strip() and unit.strip()):
+            out.append((s, None, None))
+            continue
+        what, written = split_name(unit)
+        quantity = None if unit_key(unit) in UNITS or written is None else quantity_of(what)
+        u = unit_key(written) if quantity and written else unit_key(unit)
+        if u not in UNITS:
             known = "; ".join(known_units(k) for k in ("length", "angle", "force", "force/length"))
             raise SceneError(f"--columns {spec!r}: unknown unit {unit.strip()!r} (known: {known})")
-        out.append((name.strip(), unit_key(unit)) if sep and unit.strip() else (s, None))
+        if quantity and QUANTITIES[quantity][1] != UNITS[u][0]:
+            kind = QUANTITIES[quantity][1]
+            raise SceneError(
+                f"--columns {spec!r}: {unit.strip()!r}: a {WORDS[quantity]} in {pretty_unit(u)}? give it in "
+                f"{known_units(kind)}, e.g. {name.strip()}:{what}_{CANONICAL[kind].replace('/', '_per_')}"
+            )
+        out.append((name.strip(), u, quantity))
     return out
 
 
-def pick_column(cols: list[Column], spec: tuple[str, str | None], path: Path, line: int) -> Column:
-    """The column ``spec`` (from :func:`parse_columns`) names, with its given unit; a missing one refused."""
-    name, unit = spec
+def pick_column(cols: list[Column], spec: tuple[str, str | None, str | None], path: Path, line: int) -> Column:
+    """The column ``spec`` (from :func:`parse_columns`) names, with its given unit and quantity; a missing one refused.
+
+    A unit without a quantity makes the column a quantity of the unit's kind where its name says none
+    or another (``N``: the force, ``N/mm``: the normalised shear force).
+    """
+    name, unit, quantity = spec
     if name.isdigit():
         j = int(name) - 1
         if not 0 <= j < len(cols):
@@ -273,13 +296,17 @@ def pick_column(cols: list[Column], spec: tuple[str, str | None], path: Path, li
                 "force": "force",
                 "force/length": "normalised_shear_force",
             }.get(kind)
+    picked.quantity = quantity or picked.quantity
     return picked
 
 
 def choose_columns(
-    cols: list[Column], columns: str | Sequence[str] | None, path: Path, line: int
+    cols: list[Column], columns: str | Sequence[str] | None, path: Path, line: int, test: str = ""
 ) -> tuple[Column, Column]:
-    """The x and y columns: by ``columns``, else by their names (one of each, or refused)."""
+    """The x and y columns: by ``columns``, else by their names (one of each, or refused).
+
+    ``test``: the test the curve is read for, "" if unknown: a refusal's advice names its columns.
+    """
     if columns:
         x, y = (pick_column(cols, s, path, line) for s in parse_columns(columns))
         if x.quantity is None and x.unit in UNITS:
@@ -298,11 +325,19 @@ def choose_columns(
     xs = [c for c in cols if c.quantity in X_QUANTITIES]
     ys = [c for c in cols if c.quantity in Y_QUANTITIES]
     if not xs or not ys:
-        lack = " and ".join(w for w, cs in (("a displacement", xs), ("a force", ys)) if not cs)
+        frame = test == "picture_frame"
+        words = ("a shear angle", "a shear force") if frame else ("a displacement", "a force")
+        lack = " and ".join(w for w, cs in zip(words, (xs, ys), strict=True) if not cs)
+        how = (
+            f"({naming_advice(test)[0]}) or choose them with --columns NAME:deg,NAME:shear_force_N"
+            if frame
+            else "(displacement_mm,force_N or 'Displacement (mm);Force (N)'"
+            + ("" if test else "; a picture frame's shear_angle_deg,shear_force_N")
+            + ") or choose them with --columns NAME:UNIT,NAME:UNIT"
+        )
         raise SceneError(
             f"{path}, line {line}: the header names the columns {names}, none of which is {lack} "
-            "this reader knows; name them with their units (displacement_mm,force_N or "
-            "'Displacement (mm);Force (N)') or choose them with --columns NAME:UNIT,NAME:UNIT"
+            f"this reader knows; name them with their units {how}"
         )
     for cs, what in ((xs, "displacement (or shear angle)"), (ys, "force")):
         if len(cs) > 1:
@@ -312,6 +347,49 @@ def choose_columns(
                 f"--columns '{xs[0].name},{ys[0].name}'"
             )
     return xs[0], ys[0]
+
+
+#: the header and the ``--columns`` of each test's curve, for the advice of a refusal
+_NAMING = {
+    "bias_extension": ("displacement_mm,force_N", "--columns 1:mm,2:N"),
+    "picture_frame": (
+        "shear_angle_deg,shear_force_N or shear_angle_deg,normalised_shear_force_N_per_mm",
+        "--columns 1:deg,2:shear_force_N",
+    ),
+    "": (
+        "displacement_mm,force_N; a picture frame's shear_angle_deg,shear_force_N",
+        "--columns 1:mm,2:N (a picture frame's: --columns 1:deg,2:shear_force_N)",
+    ),
+}
+
+
+def naming_advice(test: str) -> tuple[str, str]:
+    """(header, ``--columns``) that name the columns of a curve of ``test`` ("" if unknown: both tests')."""
+    return _NAMING.get(test, _NAMING[""])
+
+
+def numbered_columns(
+    cells: list[str], columns: str | Sequence[str] | None, path: Path, line: int, test: str
+) -> list[Column]:
+    """The columns of a file without a header, its first row (line ``line``, ``cells``) a row of data.
+
+    Named by their 1-based numbers, without a quantity or unit: ``columns`` (``--columns``) gives
+    both, by number. No ``columns``, or a column chosen by name or without a unit: refused
+    (SceneError) with the header or the ``--columns`` that names the columns of a ``test`` curve.
+    """
+    header, by_number = naming_advice(test)
+    if not columns:
+        raise SceneError(
+            f"{path}, line {line}: a row of numbers where the header should be: name the columns in a header "
+            f"line above it, with their units ({header}), or give them by number with their units: {by_number}"
+        )
+    bare = [n for n, unit, _ in parse_columns(columns) if not (n.isdigit() and unit)]
+    if bare:
+        raise SceneError(
+            f"--columns {columns!r}: {path} has no header (line {line} is a row of numbers): give each column "
+            f"by its number with its unit, {by_number}"
+        )
+    return [Column(j, str(j + 1), None, None) for j in range(len(cells))]
 
 
 _KINDS = {

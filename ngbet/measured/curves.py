@@ -35,6 +35,7 @@ __all__ = [
     "READING_ERROR_N",
     "SAME_CURVE",
     "MeasuredCurve",
+    "curve_tests",
     "read_all",
     "read_measured",
     "refuse_duplicates",
@@ -181,7 +182,7 @@ def read_measured(
     ``fraction``.
     """
     path = Path(path)
-    t = read_table(path, test=test, columns=columns, specimen=specimen)
+    t = read_table(path, test=test, columns=columns, specimen=specimen, expect="bias_extension")
     if t.test == "picture_frame":
         raise SceneError(
             f"{path}: a picture-frame curve ({t.test_reason}), not a bias extension curve: a run of a "
@@ -242,7 +243,11 @@ def frame_travel_mm(gamma_deg: np.ndarray, frame_mm: float) -> np.ndarray:
 
 
 def read_frame_curve(
-    path: str | Path, *, columns: str | Sequence[str] | None = None, frame: dict[str, float] | None = None
+    path: str | Path,
+    *,
+    columns: str | Sequence[str] | None = None,
+    frame: dict[str, float] | None = None,
+    scene_frame: dict[str, float] | None = None,
 ) -> MeasuredCurve:
     """Read a picture-frame curve for the fit: as a crosshead travel [mm] and crosshead force [N].
 
@@ -250,8 +255,13 @@ def read_frame_curve(
     frame's shear angle [deg] (its header names the test and the frame). Each point is converted
     exactly: d from γ (:func:`frame_travel_mm`), F = 2 cos θ F_s (Eq. 3) with F_s = F_norm L_fabric²/L_frame
     (Eq. 10). A residual (model − measured)/sd is the same in either quantity, as the conversion is
-    linear at each point. :meth:`MeasuredCurve.in_file_units` converts back. Refused: a file without
-    frame sizes, a curve of the displacement or of the crosshead force, fewer than 3 distinct angles.
+    linear at each point. :meth:`MeasuredCurve.in_file_units` converts back.
+
+    ``frame``: frame keys from the command line (refused where the header differs, as in
+    :func:`read_table`); ``scene_frame``: the frame of the scene the curve is fitted with, for the
+    keys its header does not name (said in a note). Refused: a frame named by neither (the message
+    names both remedies), a curve of the displacement or of the crosshead force, fewer than 3
+    distinct angles between 0 and 90°. Points at 0° or 90° and beyond are left out, and said.
     """
     path = Path(path)
     t = read_table(path, test="picture_frame", columns=columns, frame=frame)
@@ -259,15 +269,22 @@ def read_frame_curve(
         raise SceneError(
             f"{path}: a picture-frame curve of the {WORDS[t.y_quantity]} against the "
             f"{WORDS[t.x_quantity]}; ngbet fit takes the shear force [N] or the normalised shear "
-            "force [N/mm] against the frame's shear angle [deg]"
+            "force [N/mm] against the frame's shear angle [deg] (--columns: a unit of N alone is the "
+            "crosshead force; name the shear force with its unit, e.g. --columns 1:deg,2:shear_force_N)"
         )
     lack = [k for k in FRAME_KEYS.values() if k not in t.frame]
-    if lack:
+    if lack and not scene_frame:
         raise SceneError(
-            f"{path}: the picture frame's {' and '.join(lack)} are not in its header "
-            "(# picture_frame.frame_mm = 145, # picture_frame.fabric_mm = 120)"
+            f"{path}: a picture-frame curve whose header names no {' and no '.join(lack)}, fitted with a "
+            "scene of no picture frame: add the frame to its header (# picture_frame.frame_mm = 145, "
+            "# picture_frame.fabric_mm = 120), or fit with the scene of its frame (--scene of a picture-frame "
+            "scene, or --set picture_frame.frame_mm=145 --set picture_frame.fabric_mm=120)"
         )
-    L, Lf = t.frame["picture_frame.frame_mm"], t.frame["picture_frame.fabric_mm"]
+    own = {**{k: (scene_frame or {})[k] for k in lack}, **t.frame}
+    notes = list(t.notes)
+    if lack:
+        notes.append(f"its header names no frame: {', '.join(f'{k} = {own[k]:g}' for k in lack)} from the scene")
+    L, Lf = own["picture_frame.frame_mm"], own["picture_frame.fabric_mm"]
     g, y = t.x, t.y
     keep = (g > 0) & (g < 90)
     g, y = g[keep], y[keep]
@@ -280,6 +297,8 @@ def read_frame_curve(
     d = frame_travel_mm(gg, L)
     fs = yy * Lf**2 / L if t.y_quantity == "normalised_shear_force" else yy
     F = 2.0 * np.cos(frame_angle_rad(d, L)) * fs
+    if not keep.all():
+        notes.append(f"{plural(int((~keep).sum()), 'point')} at a shear angle of 0° or 90° and beyond left out")
     note = (
         f"picture frame {L:g}/{Lf:g} mm: its {WORDS[t.y_quantity]} against the shear angle read as the "
         "crosshead force against the travel (Eqs. 1-3, 10; exact at each point)"
@@ -290,9 +309,9 @@ def read_frame_curve(
         str(path),
         {},
         None,
-        (*t.notes, note),
+        (*notes, note),
         "picture_frame",
-        dict(t.frame),
+        own,
         t.y_quantity,
         laboratory=t.laboratory,
         fabric=t.fabric,
@@ -305,19 +324,33 @@ def read_any(
     *,
     columns: str | Sequence[str] | None = None,
     specimen: dict[str, float] | None = None,
+    frame: dict[str, float] | None = None,
 ) -> MeasuredCurve:
     """A bias-extension curve (:func:`read_measured`), or a picture-frame curve (:func:`read_frame_curve`).
 
     The one rule of every command decides (:attr:`ngbet.measured.table.CurveTable.test`: the
     header's test line, a picture frame's columns, a frame without a specimen); a file that names
-    no test, specimen or frame is a bias extension curve on the scene's specimen.
+    no test, specimen or frame is a bias extension curve on the scene's specimen. ``frame``: the
+    frame of the scene, for a picture-frame curve whose header names none (``scene_frame`` of
+    :func:`read_frame_curve`).
     """
     t = read_table(path, columns=columns)
     if t.test == "picture_frame":
         if specimen:
             raise SceneError(f"{path}: a picture-frame curve ({t.test_reason}); --specimen does not apply to it")
-        return read_frame_curve(path, columns=columns)
+        return read_frame_curve(path, columns=columns, scene_frame=frame)
     return read_measured(path, fraction, columns=columns, specimen=specimen)
+
+
+def curve_tests(paths: Sequence[str | Path], columns: str | Sequence[str] | None = None) -> list[str]:
+    """The test of each curve as :func:`read_any` reads it: "picture_frame" or "bias_extension".
+
+    Read before the scene is (its frame is for the picture-frame curves whose header names none);
+    refused as :func:`read_table` refuses (SceneError).
+    """
+    return [
+        "picture_frame" if read_table(p, columns=columns).test == "picture_frame" else "bias_extension" for p in paths
+    ]
 
 
 def read_all(
@@ -326,13 +359,17 @@ def read_all(
     *,
     columns: str | Sequence[str] | None = None,
     specimens: Sequence[dict[str, float]] | None = None,
+    frame: dict[str, float] | None = None,
 ) -> list[MeasuredCurve]:
     """:func:`read_any` for several files; the same file (or the same numbers) given twice is refused.
 
-    ``specimens``: one ``--specimen`` for every file, or one per file in order.
+    ``specimens``: one ``--specimen`` for every file, or one per file in order; ``frame``: the
+    scene's frame, for the picture-frame curves whose header names none.
     """
     specs = per_file(specimens or (), len(paths), "--specimen")
-    curves = [read_any(p, fraction, columns=columns, specimen=s) for p, s in zip(paths, specs, strict=True)]
+    curves = [
+        read_any(p, fraction, columns=columns, specimen=s, frame=frame) for p, s in zip(paths, specs, strict=True)
+    ]
     refuse_duplicates(curves)
     return curves
 

@@ -5,7 +5,9 @@ Applied by :func:`ngbet.measured.table.read_table` to the converted columns, in 
 1. **signs** (:func:`signs`): a displacement (or shear angle) and a force that are both negative
    throughout, as a machine that counts tension negative exports them, are read with both signs
    changed, and the note says so; one of them negative throughout and the other positive is
-   refused: is the sign of that column flipped? (Both tests pull the fabric.)
+   refused: is the sign of that column flipped? (Both tests pull the fabric.) A picture frame's
+   shear angle that no frame reaches, above :data:`MAX_SHEAR_DEG` or below 0° at most rows, is
+   refused naming the column, its unit and the likely cause (:func:`frame_angles`).
 2. **order** (:func:`order`): rows in descending displacement (a digitised path drawn from its end)
    are read in ascending order, and the note says so, when the force is largest at the largest
    displacement; a displacement that falls while the force rises (a position counted against the
@@ -28,7 +30,16 @@ import numpy as np
 from ..scene.validate import SceneError
 from .columns import CANONICAL, QUANTITIES, WORDS
 
-__all__ = ["CYCLE_TOLERANCE", "MIN_LOADING_SHARE", "loading_branch", "order", "plural", "signs"]
+__all__ = [
+    "CYCLE_TOLERANCE",
+    "MAX_SHEAR_DEG",
+    "MIN_LOADING_SHARE",
+    "frame_angles",
+    "loading_branch",
+    "order",
+    "plural",
+    "signs",
+]
 
 #: a fall of the displacement by more than this fraction of its range is an unloading (the vertices of
 #: a digitised curve step back by up to 2.5 % of the range: data/cao2008_pf); a column whose values
@@ -36,6 +47,8 @@ __all__ = ["CYCLE_TOLERANCE", "MIN_LOADING_SHARE", "loading_branch", "order", "p
 CYCLE_TOLERANCE = 0.05
 #: the smallest share of the rows a loading branch keeps; below it the file is refused, not cut
 MIN_LOADING_SHARE = 0.1
+#: the largest shear angle of a picture frame [deg]: its bars folded flat
+MAX_SHEAR_DEG = 90.0
 
 Arrays = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -82,6 +95,39 @@ def signs(x: np.ndarray, y: np.ndarray, path: Path, xq: str, yq: str) -> tuple[n
             "positive under tension"
         )
     return x, y, []
+
+
+def frame_angles(g: np.ndarray, lines: np.ndarray, path: Path, column: str, unit: str) -> None:
+    """Refuse a picture frame's shear angles [deg] that no frame reaches, naming the column and its unit.
+
+    Refused (SceneError): an angle above :data:`MAX_SHEAR_DEG` in magnitude (named with its line; a
+    column in rad is asked whether it is in degrees, one in degrees whether it holds the shear angle
+    γ), or more than half of the angles below 0°. ``column``, ``unit``: the column's name and unit as
+    written in messages.
+    """
+    if not len(g):
+        return
+    j = int(np.argmax(np.abs(g)))
+    if abs(g[j]) > MAX_SHEAR_DEG:
+        held = f"{np.radians(g[j]):.4g} rad ({g[j]:.4g}°)" if unit == "rad" else f"{g[j]:.4g}°"
+        cause = (
+            "is the column in degrees rather than rad?"
+            if unit == "rad"
+            else "is it the shear angle γ (0° in the square frame), not the angle between the yarns (90° + γ)?"
+        )
+        raise SceneError(
+            f"{path}, line {int(lines[j])}: the column {column!r} holds {held}: a shear angle of {g[j]:.4g}° is "
+            f"impossible in a picture frame (at most {MAX_SHEAR_DEG:g}°): {cause} Write its unit in the header "
+            f"(shear_angle_deg, shear_angle_rad) or give it with --columns '{column}:deg,...'"
+        )
+    below = g < 0
+    if 2 * int(below.sum()) > len(g):
+        k = int(np.argmin(g))
+        raise SceneError(
+            f"{path}: {below.sum()} of {plural(len(g), 'shear angle')} in the column {column!r} lie below 0° "
+            f"(down to {g[k]:.4g}° at line {int(lines[k])}): a picture frame shears from 0° (the square frame) "
+            f"up to {MAX_SHEAR_DEG:g}°: is it the shear angle γ, counted positive as the frame shears?"
+        )
 
 
 def order(x: np.ndarray, y: np.ndarray, lines: np.ndarray, path: Path, xq: str, yq: str) -> tuple[Arrays, list[str]]:

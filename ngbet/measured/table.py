@@ -7,8 +7,14 @@ rows of numbers. :func:`read_table` understands
   ``crosshead``, ``stroke``, ...), the force (``force``, ``load``), for the picture frame also the
   shear angle, the shear force and the normalised shear force; other columns (``time_s``) are
   ignored. Or chosen with ``columns`` (``--columns``): two header names or 1-based numbers, each
-  with an optional unit, ``"Weg:mm,Kraft:kN"``. Two columns without names it understands are
-  refused, never taken by position.
+  with an optional unit, ``"Weg:mm,Kraft:kN"``, or a quantity and its unit as a header names them,
+  ``"1:deg,2:shear_force_N"`` (a unit alone gives the kind: a force in N is the crosshead force).
+  Two columns without names it understands are refused, never taken by position.
+- **a file without a header**: a first line (not a ``#`` comment) holding a number is a row of data,
+  never a header; its columns are chosen by number with their units (``--columns 1:mm,2:N``,
+  ``--columns 1:deg,2:shear_force_N``), else refused with the header or the ``--columns`` that name
+  the columns of the test the curve is read for (``test``, the header's test line or frame, else
+  the caller's ``expect``; both tests' where none is known).
 - **units in the header**: ``force_kN``, ``Force (kN)``, ``Force [kN]``, a row of units under the
   header (``s;mm;%;N``: a row of no numbers, never read as data; only the columns read need a unit
   it knows); lengths mm, cm, m; forces N, kN; angles deg, rad; normalised forces N/mm, N/m. Values
@@ -37,7 +43,8 @@ rows of numbers. :func:`read_table` understands
   text for the studies that sort curves by fabric and laboratory (:attr:`CurveTable.laboratory`,
   :attr:`CurveTable.fabric`; "" where the header says nothing).
 - **the shape of the curve** (:mod:`ngbet.measured.shape`): a displacement and a force negative
-  throughout are read with their signs changed, one of them alone is refused; rows in descending
+  throughout are read with their signs changed, one of them alone is refused; a picture frame's
+  shear angle above 90° (or mostly below 0°) is refused naming its column and unit; rows in descending
   displacement are read in ascending order; of a loading–unloading cycle the loading branch is
   kept. Each said in a note; several cycles, or a loading branch of a small share of the rows,
   refused.
@@ -75,11 +82,12 @@ from .columns import (
     header_columns,
     is_number,
     is_units_row,
+    numbered_columns,
     pretty_unit,
     set_units,
 )
 from .header import Header, name_of_test, parse_number
-from .shape import loading_branch, order, plural, signs
+from .shape import frame_angles, loading_branch, order, plural, signs
 
 __all__ = [
     "CurveTable",
@@ -255,8 +263,12 @@ def _separator(line: str) -> str:
     return next((s for s in (";", "\t", ",") if s in line), " " if len(line.split()) > 1 else ",")
 
 
-def _rows(text: str, path: Path, header: Header) -> tuple[list[str], int, list[tuple[int, list[str]]], str]:
-    """The header cells and line, the data rows (line, cells) and the column separator."""
+def _rows(text: str, path: Path, header: Header) -> tuple[list[str] | None, int, list[tuple[int, list[str]]], str]:
+    """The header cells and line, the data rows (line, cells) and the column separator.
+
+    A first line holding a number is a row of data, never a header: the header cells are then None,
+    the line that of the first row, which is among the rows.
+    """
     head: list[str] | None = None
     head_line, sep = 0, ","
     rows: list[tuple[int, list[str]]] = []
@@ -265,21 +277,18 @@ def _rows(text: str, path: Path, header: Header) -> tuple[list[str], int, list[t
         if not line:
             continue
         if line.startswith("#"):
-            if head is None:
+            if not head_line:
                 header.comment(line, k)
             continue
-        if head is None:
-            sep = _separator(line)
+        if not head_line:
+            sep, head_line = _separator(line), k
             head = _split(line, sep)
-            if all(is_number(c) for c in head if c.strip()):
-                raise SceneError(
-                    f"{path}, line {k}: a row of numbers where the header should be: the first line "
-                    "that is not a # comment must name the columns (displacement_mm,force_N)"
-                )
-            head_line = k
-            continue
+            if any(is_number(c) for c in head if c.strip()):
+                head = None  # a row of data
+            else:
+                continue
         rows.append((k, _split(line, sep)))
-    if head is None:
+    if not head_line:
         raise SceneError(f"data file {path}: no header line and no data")
     return head, head_line, rows, sep
 
@@ -291,6 +300,7 @@ def read_table(
     columns: str | Sequence[str] | None = None,
     specimen: dict[str, float] | None = None,
     frame: dict[str, float] | None = None,
+    expect: str = "",
 ) -> CurveTable:
     """Read a measured curve as laboratories write it (module docstring): the one reader of measured curves.
 
@@ -304,6 +314,10 @@ def read_table(
         ``--columns``: the x and y columns by header name or 1-based number, ``NAME[:UNIT]``.
     specimen, frame : dict, optional
         Scene keys from the command line (``--specimen``, ``--frame``); refused where the header differs.
+    expect : str, optional
+        The test the caller reads the curve for (a picture-frame scene's ``run --data``): the advice
+        of a refusal names its columns where ``test``, the header and ``frame`` name no test. It does
+        not decide the curve's test (the one rule does).
 
     Returns
     -------
@@ -316,13 +330,16 @@ def read_table(
     text, notes = read_text(path, "data")
     header = Header(path)
     head, head_line, rows, sep = _rows(text, path, header)
-    cols = header_columns(head)
+    hint = _hint(test, header, frame) or expect
+    cols = header_columns(head) if head else numbered_columns(rows[0][1], columns, path, head_line, hint)
     units = rows[0] if rows and is_units_row(rows[0][1]) else None  # testing machines write one
     if units:
         set_units(cols, units[1], units[0], path)
         rows = rows[1:]
     _refuse_errorbars(path, cols, columns)
-    x, y = choose_columns(cols, columns, path, head_line)
+    x, y = choose_columns(cols, columns, path, head_line, hint)
+    if not head:
+        notes.append(f"no header: line {head_line} is a row of numbers, read as data with the columns of --columns")
     if units and units[0] not in (x.unit_line, y.unit_line):
         notes.append(f"line {units[0]} holds no number: read as a row of units ({';'.join(units[1])}), not as data")
     fx, fy = check_unit(x, path, head_line), check_unit(y, path, head_line)
@@ -330,12 +347,13 @@ def read_table(
     data, lines = [], []
     for k, cells in rows:
         if len(cells) <= max(x.index, y.index):
-            hint = {
+            advice = {
                 ",": " (decimal commas need semicolons or tabs between the columns)" if "," in "".join(cells) else "",
                 " ": " (columns separated by spaces: write each column name as one word, displacement_mm force_N)",
             }.get(sep, "")
+            first = "the header" if head else "the first row"
             raise SceneError(
-                f"{path}, line {k}: {plural(len(cells), 'cell')}, the header (line {head_line}) has {len(head)}" + hint
+                f"{path}, line {k}: {plural(len(cells), 'cell')}, {first} (line {head_line}) has {len(cols)}" + advice
             )
         data.append(
             (parse_number(cells[x.index], path, k, x.name, comma), parse_number(cells[y.index], path, k, y.name, comma))
@@ -369,6 +387,8 @@ def read_table(
         xs, ys, ls = xs[~beyond], ys[~beyond], ls[~beyond]
     xq, yq = x.quantity or "", y.quantity or ""
     xs, ys, flipped = signs(xs, ys, path, xq, yq)
+    if xq == "shear_angle":
+        frame_angles(xs, ls, path, x.name, pretty_unit(x.unit or ""))
     (xs, ys, ls), turned = order(xs, ys, ls, path, xq, yq)
     (xs, ys, ls), cut = loading_branch(xs, ys, ls, path, xq)
     notes += flipped + turned + cut
@@ -389,6 +409,20 @@ def read_table(
         header.laboratory,
         header.fabric,
         why,
+    )
+
+
+def _hint(test: str | None, header: Header, frame: dict[str, float] | None) -> str:
+    """The test a refusal's advice is for; "" where nothing says.
+
+    ``test``, else the header's test line, else the test of the one kind of sizes the header (or
+    ``frame``) names: a frame or a specimen.
+    """
+    if test:
+        return name_of_test(test, "--test")
+    sizes = {k.split(".")[0] for k in header.keys} | ({"picture_frame"} if frame else set())
+    return header.test or {"picture_frame": "picture_frame", "specimen": "bias_extension"}.get(
+        "".join(sizes) if len(sizes) == 1 else "", ""
     )
 
 
@@ -517,7 +551,7 @@ def read_errorbars(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
         return None
     text, _ = read_text(ep, "error bar")
     head, head_line, rows, sep = _rows(text, ep, Header(ep))
-    names = [h.strip().strip("\"'") for h in head]
+    names = [h.strip().strip("\"'") for h in head or ()]
     need = ("displacement_mm", "force_low_N", "force_high_N")
     missing = [n for n in need if n not in names]
     if missing:
@@ -526,7 +560,7 @@ def read_errorbars(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
     vals, lines = [], []
     for k, cells in rows:
         if len(cells) <= max(idx):
-            raise SceneError(f"{ep}, line {k}: {len(cells)} cells, the header (line {head_line}) has {len(head)}")
+            raise SceneError(f"{ep}, line {k}: {len(cells)} cells, the header (line {head_line}) has {len(names)}")
         vals.append(
             [
                 math.nan
