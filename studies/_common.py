@@ -24,21 +24,25 @@ __all__ = [
     "P",
     "U0",
     "QUICK",
+    "ZERO_PROFILE",
     "base_scene",
     "colormap",
     "describe_discretization",
     "describe_mesh",
     "dofs",
     "fmt",
+    "graded_corners",
     "header",
     "lagrange",
     "lagrange_case",
     "loaded_to",
     "loglog_slope",
+    "made_for_bias_extension",
     "mesh",
     "ok",
     "param",
     "penalty",
+    "percent",
     "profile_error",
     "reference",
     "require_continuum",
@@ -49,6 +53,8 @@ __all__ = [
     "total_iterations",
     "unique",
     "wall",
+    "zero_profile",
+    "zero_profile_note",
 ]
 
 H = "discretization.mesh_size_mm"
@@ -202,15 +208,38 @@ def reference(data: StudyData, u0: float, p: int, hs: Sequence[float]) -> dict[s
     }
 
 
-def profile_error(uy: Sequence[float], ref_uy: Sequence[float]) -> float:
-    """Relative l2 distance of two mid-axis profiles sampled at the same stations (discrete L2 norm).
+#: a profile whose largest |u_y| is at most this fraction of its load is zero (to round-off, or to
+#: the mesh's asymmetry: the balanced fabric's straight mid-axis): no error is measured relative to it
+ZERO_PROFILE = 1e-6
 
-    nan when their lengths differ or they are empty.
+
+def zero_profile(ref_uy: Sequence[float] | np.ndarray, load_mm: float) -> bool:
+    """Whether a profile [mm] at the load ``load_mm`` is zero: max |u_y| at most :data:`ZERO_PROFILE` of the load."""
+    b = np.asarray(ref_uy, float)
+    return len(b) > 0 and float(np.max(np.abs(b))) <= ZERO_PROFILE * abs(load_mm)
+
+
+def zero_profile_note(ref_uy: Sequence[float], load_mm: float, what: str = "The reference profile") -> str:
+    """The report's sentence for a zero profile (:func:`zero_profile`), naming its size; "" for another."""
+    if not zero_profile(ref_uy, load_mm):
+        return ""
+    amp = float(np.max(np.abs(np.asarray(ref_uy, float))))
+    return (
+        f"{what} at {load_mm:g} mm is zero (max |u_y| = {amp:.2g} mm, at most {ZERO_PROFILE:g} of the load; "
+        "the mid-axis stays straight, as for a balanced fabric): no profile error is measured relative to it."
+    )
+
+
+def profile_error(uy: Sequence[float], ref_uy: Sequence[float], load_mm: float) -> float:
+    """Relative l2 distance of two mid-axis profiles at the load ``load_mm`` [mm], sampled at the same stations.
+
+    nan when their lengths differ, they are empty, or the reference is zero (:func:`zero_profile`):
+    a distance relative to a zero profile measures nothing.
     """
     a, b = np.asarray(uy, float), np.asarray(ref_uy, float)
-    if len(a) != len(b) or len(a) == 0:
+    if len(a) != len(b) or len(a) == 0 or zero_profile(b, load_mm):
         return math.nan
-    return float(np.linalg.norm(a - b) / max(float(np.linalg.norm(b)), 1e-300))
+    return float(np.linalg.norm(a - b) / float(np.linalg.norm(b)))
 
 
 def loglog_slope(x: Sequence[float], y: Sequence[float]) -> float:
@@ -235,14 +264,41 @@ def fmt(x: float, spec: str = ".4g") -> str:
     return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
 
 
-def describe_mesh(d: dict[str, Any]) -> str:
-    """A scene's discretization in words (``d``: its ``discretization`` table)."""
+def percent(x: float, spec: str = ".3g") -> str:
+    """A relative error as a percentage ("1.2 %"); "—" for a missing one (nan: nothing to measure it against)."""
+    return "—" if x is None or not math.isfinite(x) else f"{100 * x:{spec}} %"
+
+
+def describe_mesh(d: dict[str, Any], scene: dict[str, Any] | None = None) -> str:
+    """A scene's discretization in words (``d``: its ``discretization`` table; ``scene``: the whole scene).
+
+    The corners the mesh is graded at are the test's (:func:`graded_corners`; without ``scene``:
+    the bias extension test's).
+    """
     s = f"{'structured' if d.get('structured') else 'Netgen'} mesh of {d['mesh_size_mm']:g} mm"
     if d.get("corner_mesh_size_mm"):
-        s += f" graded to {d['corner_mesh_size_mm']:g} mm at the four clamp corners"
+        s += f" graded to {d['corner_mesh_size_mm']:g} mm at {graded_corners(scene)}"
     if d.get("corner_bisections"):
         s += f", corner elements bisected {d['corner_bisections']} times"
     return s + f", p = {d['order_u']}"
+
+
+def graded_corners(scene: dict[str, Any] | None) -> str:
+    """The corners a scene's mesh is graded at, in words (``discretization.corner_mesh_size_mm``).
+
+    The bias extension specimen: its four clamp corners. The picture frame
+    (:func:`ngbet.continuum.mesh.make_cross_mesh`): the four corners of the fabric square with
+    held arms, every corner of the cross (the arms' ends, the cuts' corners) with sheared arms,
+    the four pins when nothing is cut.
+    """
+    if not scene or scene.get("test") != "picture_frame":
+        return "the four clamp corners"
+    pf = scene["picture_frame"]
+    if pf["fabric_mm"] >= pf["frame_mm"]:
+        return "the four pins"
+    if pf["arms"] == "held":
+        return "the four corners of the fabric square"
+    return "the corners of the cross (the arms' ends and the cuts' corners)"
 
 
 def describe_discretization(scene: dict[str, Any], varied: Sequence[str] = ()) -> str:
@@ -256,16 +312,21 @@ def describe_discretization(scene: dict[str, Any], varied: Sequence[str] = ()) -
             + ", ".join(k.split(".", 1)[1] for k in mine)
             + "; each row of the tables names its own)"
         )
-    return describe_mesh(scene["discretization"])
+    return describe_mesh(scene["discretization"], scene)
 
 
 def loaded_to(data: StudyData) -> str:
-    """The final load of a study's cases in words: the base scene's, or each case's own where the cases set it."""
+    """The final load of a study's cases in words: the base scene's, or each case's own where the cases set it.
+
+    A picture frame's load is the crosshead travel.
+    """
     base = float(data.meta["base_scene"]["loading"]["u0_mm"])
     finals = sorted({float(c["params"].get(U0, base)) for c in data.meta["cases"]})
+    frame = data.meta["base_scene"].get("test") == "picture_frame"
     if len(finals) == 1:
-        return f"loaded to {finals[0]:g} mm"
-    return f"each case loaded to its own final load ({', '.join(f'{u:g}' for u in finals)} mm)"
+        return f"loaded to {'a crosshead travel of ' if frame else ''}{finals[0]:g} mm"
+    own = "crosshead travel" if frame else "final load"
+    return f"each case loaded to its own {own} ({', '.join(f'{u:g}' for u in finals)} mm)"
 
 
 def header(data: StudyData, title: str, reference: str) -> list[str]:
@@ -313,3 +374,21 @@ def require_continuum(base: Scene, study: str) -> Scene:
             "(mesh size, orders, corner grading); give model = 'continuum'"
         )
     return base
+
+
+def made_for_bias_extension(scene: Scene | None, study: str, why: str) -> None:
+    """Refuse ``scene`` (None: the default scene, a bias extension test) for a study made for the bias extension test.
+
+    ``why``: what of the bias extension test the study reads, in words. A SceneError names the
+    study, the scene's test, ``why`` and the studies that serve a picture frame
+    (:data:`ngbet.studies.PICTURE_FRAME` and ``ngbet sweep``), before any case runs or any fit is made.
+    """
+    if scene is None or scene.test == "bias_extension":
+        return
+    from ngbet.studies import PICTURE_FRAME
+
+    raise SceneError(
+        f"test = {scene.test!r}: study {study} is made for the bias extension test only ({why}); "
+        f"the studies that serve a picture frame: {', '.join(f'study {n}' for n in PICTURE_FRAME)} "
+        "and ngbet sweep KEY=V1,V2,..."
+    )

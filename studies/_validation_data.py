@@ -9,7 +9,9 @@ a code, the weave in words: "unbalanced", "balanced ... twill", "plain"), and co
 from the laboratory its header names (``# laboratory: UN``, ``# Table 3 (UN): ...`` or ``legend label
 "UN"``): both read by ngbet's one reader of measured curves (:mod:`ngbet.measured`), which also
 gives the test, the specimen or the frame. A file the reader refuses, or whose fabric is none of
-the study's, is not predicted, and the study says so (:attr:`Curves.skipped`).
+the study's, is not predicted, and the study says so (:attr:`Curves.skipped`); so is a ``--data``
+curve that no fit of the study as run predicts (:attr:`Curves.given`, said by
+:func:`ngbet.studies.validation.build`).
 """
 
 from __future__ import annotations
@@ -91,12 +93,13 @@ class Curves:
 
     Names are file names (unique over the folders read); ``of[fabric]`` lists the fabric's own curves
     (:data:`FABRICS`) first, then the others in the order found (data/'s folders, then ``extra``,
-    each folder's files sorted by name).
+    each folder's files sorted by name); ``given`` the names of those taken from ``extra`` (``--data``).
     """
 
     paths: dict[str, Path]
     of: dict[str, tuple[str, ...]]
     skipped: tuple[str, ...] = ()
+    given: tuple[str, ...] = ()
 
     def read(self, name: str) -> Any:
         """The measured curve of ``name`` (:func:`ngbet.measured.curves.read_any`; read once per process)."""
@@ -151,9 +154,10 @@ def find_curves(extra: Sequence[str | Path] = ()) -> Curves:
         for name in (*bet, *pf):
             paths[name] = data / DATA_FOLDERS[name.startswith("cao2008_pf_")] / name
             of[fabric].append(name)
-    skipped = []
-    found = [p for f in DATA_FOLDERS for p in _files(data / f)] + [p for e in extra for p in _files(Path(e))]
-    for p in found:
+    skipped, given = [], []
+    found = [(p, False) for f in DATA_FOLDERS for p in _files(data / f)]
+    found += [(p, True) for e in extra for p in _files(Path(e))]
+    for p, from_extra in found:
         if p.name in paths:
             if paths[p.name].resolve() != p.resolve():
                 raise SceneError(f"two data files named {p.name}: {paths[p.name]} and {p}; rename one")
@@ -172,6 +176,7 @@ def find_curves(extra: Sequence[str | Path] = ()) -> Curves:
             continue
         paths[p.name] = p
         of[which].append(p.name)
+        given += [p.name] * from_extra
     for s in skipped:
         log.warning("study validation does not predict %s", s)
-    return Curves(paths, {f: tuple(v) for f, v in of.items()}, tuple(skipped))
+    return Curves(paths, {f: tuple(v) for f, v in of.items()}, tuple(skipped), tuple(given))

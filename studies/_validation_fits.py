@@ -47,6 +47,7 @@ __all__ = [
     "fits_folder",
     "fits_key",
     "fits_of",
+    "interrupted_text",
     "keep",
     "kind_of",
     "points_of",
@@ -324,14 +325,47 @@ def fit_all(
     keeps its own files in ``folder`` under its own names. A worker's exception is raised here; a
     worker that dies stops the study (:class:`~ngbet.errors.FitWorkerError`) naming the
     fits not made; either ends the other workers, and Ctrl-C ends them all (they ignore it
-    themselves, and exit when this process dies). The fits made are kept.
+    themselves, and exit when this process dies). The fits made are kept: an interruption is a
+    :class:`~ngbet.study.executors.StudyInterrupted` saying how many fits of ``specs`` are kept
+    and where, which a rerun reuses (:func:`interrupted_text`).
     """
     from ngbet.calibration.runs import default_workers
+    from ngbet.study.executors import StudyInterrupted
 
-    todo = [k for k, s in enumerate(specs) if len(s.fitted) == 1 and not _kept(s, quick, start, folder, curves)]
-    n = default_workers(len(todo)) if workers is None else max(1, min(workers, len(todo)))
-    docs: dict[int, dict[str, Any]] = _in_workers(specs, todo, n, quick, start, folder, curves) if n > 1 else {}
-    return [docs[k] if k in docs else fit_and_predict(s, quick, start, folder, curves) for k, s in enumerate(specs)]
+    try:
+        todo = [k for k, s in enumerate(specs) if len(s.fitted) == 1 and not _kept(s, quick, start, folder, curves)]
+        n = default_workers(len(todo)) if workers is None else max(1, min(workers, len(todo)))
+        docs: dict[int, dict[str, Any]] = _in_workers(specs, todo, n, quick, start, folder, curves) if n > 1 else {}
+        return [docs[k] if k in docs else fit_and_predict(s, quick, start, folder, curves) for k, s in enumerate(specs)]
+    except KeyboardInterrupt as exc:
+        if isinstance(exc, StudyInterrupted):
+            raise
+        raise StudyInterrupted(interrupted_text(specs, quick, start, folder, curves)) from None
+
+
+def interrupted_text(specs: Sequence[FitSpec], quick: bool, start: Scene | None, folder: Path, curves: Curves) -> str:
+    """What an interrupted :func:`fit_all` kept, in words: the fits of ``specs`` with their record in ``folder``.
+
+    A kept fit is reused by the next run of the study (its record, keyed by its scene, curves and
+    code); the others are made then.
+    """
+    kept = [s for s in specs if (folder / f"{record_name(s, quick, start_scene(s, start), curves)}.json").exists()]
+    names = "; ".join(f"{s.fabric.replace('_', ' ')}, {s.name}" for s in kept[:4]) + ("; ..." if len(kept) > 4 else "")
+    n, k = len(specs), len(kept)
+    if not kept:
+        return (
+            f"study validation interrupted while it made its fits: none of its {n} fit{'s' if n != 1 else ''} "
+            f"was finished, nothing is kept in {folder}; run it again to make {'them' if n != 1 else 'it'}"
+        )
+    which = (
+        ("its fit is" if n == 1 else f"all its {n} fits are")
+        if k == n
+        else f"{k} of its {n} fits {'are' if k != 1 else 'is'}"
+    )
+    return (
+        f"study validation interrupted while it made its fits: {which} finished and kept in {folder} ({names}); "
+        f"run it again: a kept fit is reused{', the others made' if k < n else ''}"
+    )
 
 
 def _in_workers(

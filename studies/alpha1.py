@@ -33,6 +33,7 @@ QUICK = (20.0, 2000.0)
 
 
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    C.made_for_bias_extension(scene, "alpha1", "the mid-axis S-profile of the specimen, its symmetries about X = L/2")
     base = C.study_scene(scene, quick)
     cases = [{A1: a} for a in (QUICK if quick else FULL)]
     return Study(

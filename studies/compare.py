@@ -32,7 +32,20 @@ from ngbet.study.model import Study, StudyData
 from . import _common as C
 from . import reference as R
 
-__all__ = ["CASES", "EQUIVALENT", "LABELS", "analyse", "build", "extract", "label", "main", "plot", "report"]
+__all__ = [
+    "CASES",
+    "EQUIVALENT",
+    "LABELS",
+    "STRAIGHT",
+    "analyse",
+    "bending_direction",
+    "build",
+    "extract",
+    "label",
+    "main",
+    "plot",
+    "report",
+]
 
 CASES: list[dict[str, Any]] = [
     {"model": "continuum", "outputs.vtk": True, "outputs.vtk_every_step": True},
@@ -53,6 +66,8 @@ def label(params: dict[str, Any]) -> str:
 
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
     from ngbet.discrete.equivalent import continuum_equivalent
+
+    C.made_for_bias_extension(scene, "compare", "the yarn network, which has no frame, beside the continuum")
 
     with warnings.catch_warnings():  # a base for both models: each reads its own keys
         warnings.simplefilter("ignore", SceneWarning)
@@ -140,22 +155,57 @@ def report(data: StudyData, quick: bool) -> str:
             f"{C.fmt(r.get('max_slip_mm', math.nan), '.3f')} | {r['wall_s']:.1f} |"
         )
     if "continuum" in a:
-        q0 = a["continuum"][f"uyq{s2:g}"]
         for m in ("discrete", EQUIVALENT):
             if m in a:
-                same = np.sign(q0) == np.sign(a[m][f"uyq{s2:g}"])
-                L += [
-                    "",
-                    f"Bending direction at {s2:g} mm (sign of u_y at X = L/4 on the mid-axis), "
-                    f"continuum and {m}: "
-                    + ("the same." if same else "OPPOSITE: the two models bend the specimen in opposite directions."),
-                ]
+                L += ["", bending_direction(a["continuum"], a[m], m, s2)]
     L += [
         "",
         f"'{EQUIVALENT}': the network whose stiffnesses give the continuum's energy per unit area "
         "(EA = t K_el s, EI_k = t alpha_k s, K_phi = t K_sh s^2, no slip, no trusses; ngbet.discrete.equivalent).",
     ]
     return "\n".join(L) + "\n"
+
+
+#: |u_y(L/4)| below this fraction of the load: no bending of the mid-axis to compare
+STRAIGHT = 1e-6
+
+
+def bending_direction(cont: dict[str, Any], other: dict[str, Any], model: str, s2: float) -> str:
+    """The report's sentence on the bending direction at ``s2`` of the continuum and ``model`` (:func:`analyse` rows).
+
+    A direction is compared only between two cases that reached ``s2`` (status ok, a finite u_y at
+    X = L/4) and both bend the mid-axis (|u_y(L/4)| above :data:`STRAIGHT` times the load); the
+    sentence says otherwise which case did not run or does not bend, and draws no conclusion.
+    """
+    head = f"Bending direction at {s2:g} mm (sign of u_y at X = L/4 on the mid-axis), continuum and {model}: "
+    rows = (("continuum", cont), (model, other))
+    missing = [n for n, r in rows if r["status"] != "ok" or not math.isfinite(r[f"uyq{s2:g}"])]
+    if missing:
+        return (
+            head
+            + "not compared: "
+            + " and ".join(f"the {n} case {_status_words(r)}" for n, r in rows if n in missing)
+            + "."
+        )
+    straight = [n for n, r in rows if abs(r[f"uyq{s2:g}"]) <= STRAIGHT * s2]
+    if straight:
+        return head + (
+            f"not compared: {' and '.join(f'the {n} model' for n in straight)} "
+            f"{'leave' if len(straight) > 1 else 'leaves'} the mid-axis straight there "
+            f"(|u_y(L/4)| at most {STRAIGHT:g} of the load)."
+        )
+    same = np.sign(cont[f"uyq{s2:g}"]) == np.sign(other[f"uyq{s2:g}"])
+    return head + ("the same." if same else "OPPOSITE: the two models bend the specimen in opposite directions.")
+
+
+def _status_words(r: dict[str, Any]) -> str:
+    """What became of a case (a row of :func:`analyse`) that has no u_y at the station, in words."""
+    at = r.get("u0_reached")
+    if r["status"] == "ok":
+        return "has no profile at this load"
+    if isinstance(at, (int, float)) and at > 0:
+        return f"{r['status']} (last converged load {at:g} mm)"
+    return f"{r['status']} before its first load step"
 
 
 def _discrete_segments(npz: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:

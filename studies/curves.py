@@ -29,6 +29,7 @@ __all__ = ["analyse", "build", "main", "plot", "report"]
 
 
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    C.made_for_bias_extension(scene, "curves", "the double force on the clamp, the estimate of ideal BET kinematics")
     step = 2.5 if quick else 2.0
     base = C.study_scene(scene, quick, {"loading.first_step_mm": step, "loading.max_step_mm": step})
     return Study("curves", base, [{}], description=__doc__ or "", plot=plot, report=lambda d: report(d, quick))

@@ -33,6 +33,7 @@ QUICK = (0.2e6, 2e6)
 
 
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    C.made_for_bias_extension(scene, "kel", "the deformed outline of the specimen, its width at X = L/2")
     u0 = 20.0 if quick else 37.0
     base = C.study_scene(scene, quick, {"loading.u0_mm": u0, "loading.stops_mm": [], "outputs.vtk": True})
     return Study(
@@ -114,7 +115,8 @@ def plot(data: StudyData) -> list[Path]:
     from ngbet.figures.style import legend_below, put_caption, subplots
 
     u0 = data.meta["base_scene"]["loading"]["u0_mm"]
-    fig, ax = subplots(size=(10, 4), layout="compressed")
+    # the constrained layout makes room for the caption above the title and the legend below the x-label
+    fig, ax = subplots(size=(10, 4.4))
     for j, r in enumerate(widths(data)):
         pts = [q for q in data.tables.get("outlines", []) if int(q["case"]) == r["case"]]
         if pts:

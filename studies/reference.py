@@ -147,6 +147,9 @@ def orders(quick: bool) -> list[int]:
 
 
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    C.made_for_bias_extension(
+        scene, "reference", "meshes graded at the specimen's four clamp corners, the mid-axis S-profile"
+    )
     base = C.require_continuum(C.study_scene(scene, quick, C.FREE_ORDERS), "reference")
     fam = families(quick)
     cases = C.unique([c for cs in fam.values() for c in cs] + fine_family(quick, C.stations(quick, base)[0]))
@@ -336,8 +339,11 @@ def reference_text(data: StudyData, quick: bool) -> str:
     """The reference line of a report for a study that does not compute the reference itself.
 
     With the reference found, the deviation of the study's own case of the base scene (the case
-    whose changes leave the base as it is), when it has one: the error of its discretization.
+    whose changes leave the base as it is), when it has one: the error of its discretization. A
+    picture frame has none (the reference study is made for the bias extension test).
     """
+    if data.meta["base_scene"].get("test") == "picture_frame":
+        return "none: the reference study is made for the bias extension test."
     ref = of_scene(data, quick)
     if ref is None:
         lo = data.meta["base_scene"]["loading"]
@@ -396,10 +402,15 @@ def _base_case(data: StudyData) -> int | None:
     return None
 
 
-def profile_error_max(uy: Sequence[float], ref: Sequence[float]) -> float:
-    """max|u_y − u_y,ref| / max|u_y,ref| on the mid-axis."""
+def profile_error_max(uy: Sequence[float], ref: Sequence[float], load_mm: float) -> float:
+    """max|u_y − u_y,ref| / max|u_y,ref| on the mid-axis at the load ``load_mm`` [mm].
+
+    nan when the lengths differ, or the reference is zero (:func:`~ngbet.studies._common.zero_profile`).
+    """
     a, b = np.asarray(uy, float), np.asarray(ref, float)
-    return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300)) if len(a) == len(b) else math.nan
+    if len(a) != len(b) or len(a) == 0 or C.zero_profile(b, load_mm):
+        return math.nan
+    return float(np.max(np.abs(a - b)) / float(np.max(np.abs(b))))
 
 
 def fits(dofs: Sequence[float], err: Sequence[float]) -> dict[str, float]:
@@ -436,7 +447,7 @@ def analyse(data: StudyData, quick: bool) -> dict[str, Any]:
                     "F": F,
                     "err": abs(F - F0) / F0,
                     "time": C.wall(data, c),
-                    "err_prof": profile_error_max(uy, ref["uy_mm"]),
+                    "err_prof": profile_error_max(uy, ref["uy_mm"], s2),
                     "corner": prm.get(GRADE, 0.0),
                     "h": prm[C.H],
                     "p": prm[C.P],
@@ -496,7 +507,8 @@ def report(data: StudyData, quick: bool) -> str:
     L += [
         "",
         f"Reference profile (p = {orders[-1]}) at {a['s2']:g} mm: "
-        f"max |u_y| = {np.max(np.abs(ref['uy_mm'])):.4f} mm, bound {ref['profile_bound_mm']:.2g} mm.",
+        f"max |u_y| = {np.max(np.abs(ref['uy_mm'])):.4f} mm, bound {ref['profile_bound_mm']:.2g} mm."
+        + (f" {zero}" if (zero := C.zero_profile_note(ref["uy_mm"], a["s2"])) else ""),
         "",
         "## Convergence at the second station",
         "",
@@ -507,7 +519,7 @@ def report(data: StudyData, quick: bool) -> str:
         for p in pts:
             L.append(
                 f"| {name} | {p['h']:g} | {p['corner']:g} | {p['p']} | {p['dofs']:.0f} | {p['F']:.4f} | "
-                f"{100 * p['err']:.3g} % | {100 * p['err_prof']:.3g} % | {p['time']:.2f} |"
+                f"{100 * p['err']:.3g} % | {C.percent(p['err_prof'])} | {p['time']:.2f} |"
             )
     f = a["hp_fit"]
     if f:

@@ -3,10 +3,13 @@
     ngbet sweep material.alpha1=20,200,2000 [scene.toml] [--set section.key=value ...] [--quick]
 
 The table (results.csv, profiles.csv), meta.json, figures and report are those of any study:
-``sweep_force`` (force against the clamp displacement, one curve per case), ``sweep_profiles``
-(mid-axis u_y at the final load) and, for one numeric key, ``sweep_values`` (the final force
-against the swept value). The report gives the force at every load stop and at the final load,
-with the run's own error estimate where the scene asks for one.
+``sweep_force`` ((a) force against the load, one curve per case; (b) the profile u_y at the
+final load) and, for one numeric key, ``sweep_values`` (the final force against the swept value).
+The report gives the force at every load stop and at the final load, with the run's own error
+estimate where the scene asks for one. A sweep serves both tests, in each test's words
+(:func:`words`): the bias extension test's clamp force against the clamp displacement u₀ and
+mid-axis profile (Y = W/2); the picture frame's crosshead force F against the crosshead travel d
+and profile on the loading diagonal (Y = 0), as the run's own figures name them.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import math
 import re
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +34,7 @@ from ngbet.study.model import Study, StudyData, same_value
 from . import _common as C
 from . import reference as R
 
-__all__ = ["build", "parse_items", "plot", "report"]
+__all__ = ["Words", "build", "parse_items", "plot", "report", "words"]
 
 
 def parse_items(items: list[str], parse: Callable[[str], Any]) -> tuple[dict[str, list[Any]], str | None]:
@@ -108,6 +112,52 @@ def build(axes: dict[str, list[Any]], quick: bool = False, scene: Scene | None =
 U0 = C.U0
 
 
+@dataclass(frozen=True)
+class Words:
+    """What a sweep's figures and report call the load, the force and the profile of its scene's test."""
+
+    load: str  # the load's symbol: "u₀", or "d"
+    load_label: str  # the load's axis label
+    force_label: str  # the force's axis label
+    force: str  # the force in a title
+    profile_x: str  # the profile's axis label
+    profile: str  # the profile in a title or a column
+    per_case: str  # each case's own final load
+    at: str  # before a load in a table's column: "", or "d = "
+    where: str  # where the profile is, in a table's column: "", or " on the loading diagonal"
+
+
+def words(data: StudyData) -> Words:
+    """The words of the sweep's test: the bias extension test's, or the picture frame's (those of its run's figures)."""
+    from ngbet.figures.style import FORCE_LABEL, U0_LABEL
+
+    if data.meta["base_scene"].get("test") == "picture_frame":
+        from ngbet.figures.frame import TRAVEL_LABEL
+
+        return Words(
+            "d",
+            TRAVEL_LABEL,
+            "crosshead force F [N]",
+            "crosshead force",
+            "reference position X on the loading diagonal Y = 0 [mm]",
+            "profile on the loading diagonal",
+            "each case's final crosshead travel",
+            "d = ",
+            " on the loading diagonal",
+        )
+    return Words(
+        "u₀",
+        U0_LABEL,
+        FORCE_LABEL,
+        "force",
+        "reference position X on the mid-axis Y = W/2 [mm]",
+        "mid-axis profile",
+        "each case's final load",
+        "",
+        "",
+    )
+
+
 def _stations(data: StudyData) -> list[float]:
     """The loads of the report's columns: the stops and the final load (every case's, where swept)."""
     lo = data.meta["base_scene"]["loading"]
@@ -129,13 +179,14 @@ def _name(params: dict[str, Any]) -> str:
 def report(data: StudyData, quick: bool) -> str:
     keys = data.meta["params"]
     st = _stations(data)
+    w = words(data)
     L = [
         *C.header(data, "Sweep of " + ", ".join(keys), R.reference_text(data, quick)),
         "| "
         + " | ".join(keys)
         + " | status | "
-        + " | ".join(f"F({s:g} mm) [N]" for s in st)
-        + " | max abs(u_y) at the last load [mm] | dofs | wall time [s] |",
+        + " | ".join(f"F({w.at}{s:g} mm) [N]" for s in st)
+        + f" | max abs(u_y){w.where} at the last load [mm] | dofs | wall time [s] |",
         "|" + "---|" * (len(keys) + len(st) + 4),
     ]
     for c in data.cases():
@@ -156,6 +207,11 @@ def report(data: StudyData, quick: bool) -> str:
             + f" | {C.fmt(amp, '.4g')} | "
             f"{C.fmt(C.dofs(data, i), '.0f')} | {C.fmt(C.wall(data, i), '.2f')} |"
         )
+    if w.at:
+        L += [
+            "",
+            "F: the crosshead force at the crosshead travel d; u_y on the loading diagonal Y = 0 (the pins' line).",
+        ]
     if any(math.isfinite(data.at(c["case"], s, "force_error_N")) for c in data.cases() for s in st):
         L += ["", "± : the run's estimate of its discretization error (outputs.error_estimate)."]
     return "\n".join(L) + "\n"
@@ -163,9 +219,10 @@ def report(data: StudyData, quick: bool) -> str:
 
 def plot(data: StudyData, quick: bool) -> list[Path]:
     from ngbet.figures.study import study_caption
-    from ngbet.figures.style import FORCE_LABEL, U0_LABEL, legend_below, put_caption, subplots
+    from ngbet.figures.style import legend_below, put_caption, subplots
 
     st = _stations(data)
+    w = words(data)
     cases = [c for c in data.cases() if data.case_rows(c["case"])]
     if not cases:  # nothing converged: the report says why, there is nothing to draw
         return []
@@ -185,16 +242,16 @@ def plot(data: StudyData, quick: bool) -> list[Path]:
         )
         X, uy = data.profile(c["case"], _last(c, st))
         axs[1].plot(X, uy, color=colour, ls=style)
-    axs[0].set_xlabel(U0_LABEL)
-    axs[0].set_ylabel(FORCE_LABEL)
+    axs[0].set_xlabel(w.load_label)
+    axs[0].set_ylabel(w.force_label)
     axs[0].set_xlim(left=0)
-    axs[0].set_title("(a) force (points: the output loads)")
-    axs[1].set_xlabel("reference position X on the mid-axis Y = W/2 [mm]")
+    axs[0].set_title(f"(a) {w.force} (points: the output loads)")
+    axs[1].set_xlabel(w.profile_x)
     axs[1].set_ylabel("vertical displacement u_y [mm]")
     axs[1].set_title(
-        "(b) mid-axis profile at each case's final load"
+        f"(b) {w.profile} at {w.per_case}"
         if U0 in data.meta["params"]
-        else f"(b) mid-axis profile at u₀ = {st[-1]:g} mm"
+        else f"(b) {w.profile} at {w.load} = {st[-1]:g} mm"
     )
     axs[1].axhline(0, color="k", lw=0.5)
     legend_below(fig, ncol=min(len(cases), 4))
@@ -256,7 +313,8 @@ def _plot_values(data: StudyData, key: str, u0: float) -> Path:
     if len(v) and v.min() > 0 and v.max() / v.min() > 10:
         ax.set_xscale("log")
     ax.set_xlabel(key_label(key))
-    ax.set_ylabel("force at the final load [N]" if own else f"force at u₀ = {u0:g} mm [N]")
+    w = words(data)
+    ax.set_ylabel(f"{w.force} at the final load [N]" if own else f"{w.force} at {w.load} = {u0:g} mm [N]")
     ax.grid(alpha=0.3, which="both")
     put_caption(fig, study_caption(data.meta))
     return savefig(fig, data.out, "sweep_values")

@@ -61,7 +61,18 @@ from ngbet.study.model import Study, StudyData
 from ._validation_data import FABRICS, Curves, data_root, find_curves
 from ._validation_fits import MAX_RUNS, QUICK, QUICK_RUNS, fit_all, fits_folder, fits_of, kind_of, points_of
 
-__all__ = ["build", "extract", "fabric_of", "main", "plot", "report", "rms", "rms_of_max", "summary"]
+__all__ = [
+    "build",
+    "extract",
+    "fabric_of",
+    "main",
+    "not_predicted",
+    "plot",
+    "report",
+    "rms",
+    "rms_of_max",
+    "summary",
+]
 
 log = logging.getLogger(__name__)
 
@@ -153,6 +164,9 @@ def build(
         if "failed" not in d["predictions"].get(t, {"failed": ""})
     ]
     kept = {d["cache_name"]: d for d in docs}
+    left = not_predicted(curves, specs, docs, "--quick" if quick else "from a scene" if scene is not None else "")
+    for s in left:
+        log.warning("study validation does not predict %s", s)
     study = Study(
         "validation",
         base,
@@ -160,7 +174,7 @@ def build(
         description=__doc__ or "",
         extract=functools.partial(extract, docs=kept, curves=curves),
         plot=functools.partial(plot, curves=curves),
-        report=functools.partial(report, skipped=curves.skipped),
+        report=functools.partial(report, skipped=curves.skipped + left),
     )
     if quick:  # said here: comparing with the full study would make its fits (minutes)
         full = sum(len(fits_of(f, curves)) for f in ([fabric_of(scene)] if scene is not None else FABRICS))
@@ -170,6 +184,31 @@ def build(
             f"{MAX_RUNS} model runs per fit ({QUICK_RUNS} instead)",
         ]
     return study
+
+
+def not_predicted(curves: Curves, specs: Sequence[Any], docs: Sequence[dict[str, Any]], limit: str) -> tuple[str, ...]:
+    """The ``--data`` curves that no fit of the study as run predicts, each with the reason.
+
+    A curve of a fabric none of ``specs`` fits (``limit``: what narrowed the study to one fabric,
+    "--quick" or "from a scene"; "" for none), or whose every prediction failed (the first failure named).
+    """
+    fabric_of_curve = {n: f for f, names in curves.of.items() for n in names}
+    fitted = ", ".join(dict.fromkeys(s.fabric.replace("_", " ") for s in specs))
+    out = []
+    for n in curves.given:
+        runs = [d["predictions"].get(n, {"failed": ""}) for d, s in zip(docs, specs, strict=True) if n in s.targets]
+        if any("failed" not in r for r in runs) or any(n in s.fitted for s in specs):
+            continue
+        fabric = fabric_of_curve[n].replace("_", " ")
+        out.append(
+            f"{curves.paths[n]}: its prediction failed ({runs[0]['failed'] or 'none made'})"
+            if runs
+            else f"{curves.paths[n]}: a curve of the fabric {fabric!r}; study validation {limit} fits only "
+            f"{fitted!r}: run the full study (no --quick, no scene) to predict it"
+            if limit
+            else f"{curves.paths[n]}: a curve of the fabric {fabric!r} that no fit of the study predicts"
+        )
+    return tuple(out)
 
 
 def _normalisation(fitted: Sequence[str], target: Any, u: np.ndarray, curves: Curves) -> np.ndarray:
@@ -416,7 +455,12 @@ def report(data: StudyData, skipped: Sequence[str] = ()) -> str:
             f"{float(r['fit_wall_s']):.0f} | {r['fit_converged']} | {r['accuracy_met']} |"
         )
     if skipped:
-        L += ["", "Data files not predicted (not read, or of none of the study's fabrics):", ""]
+        L += [
+            "",
+            "Data files not predicted (not read, of none of the study's fabrics, of a fabric this run does not "
+            "fit, or failed):",
+            "",
+        ]
         L += [f"- {s}" for s in skipped]
     return "\n".join(L) + "\n"
 

@@ -73,6 +73,11 @@ GRADE = C.GRADE
 
 
 def build(quick: bool = False, scene: Scene | None = None) -> Study:
+    C.made_for_bias_extension(
+        scene,
+        "work_precision",
+        "the errors of the force and of the specimen's mid-axis S-profile against its reference",
+    )
     g = QUICK if quick else FULL
     cases = [C.lagrange(h, p) for h, p in g["lagrange"]]
     cases += [C.penalty(h, p, k) for h, p, k in g["penalty"]]
@@ -139,10 +144,14 @@ def analyse(data: StudyData, g: dict[str, Any], quick: bool) -> dict[str, Any]:
                 "dofs": C.dofs(data, i),
                 "F": F,
                 "err_F": abs(F - F_ref) / F_ref,
-                "err_prof": R.profile_error_max(uy, uy_ref),
+                "err_prof": R.profile_error_max(uy, uy_ref, s2),
             }
         )
-    unc = {"err_F": ref[s2]["bound_N"] / F_ref, "err_prof": ref["profile_bound_mm"] / max(abs(u) for u in uy_ref)}
+    zero = C.zero_profile(uy_ref, s2)  # no relative profile error, nor a bound of one
+    unc = {
+        "err_F": ref[s2]["bound_N"] / F_ref,
+        "err_prof": math.nan if zero else ref["profile_bound_mm"] / max(abs(u) for u in uy_ref),
+    }
     good = [p for p in pts if p["status"] == "ok" and not p["ref_case"]]
     for key in ("err_F", "err_prof"):
         best = math.inf
@@ -166,6 +175,9 @@ def _target_rows(a: dict[str, Any]) -> list[str]:
         ("err_F", f"force at {s2:g} mm", a["unc_F"]),
         ("err_prof", f"mid-axis profile at {s2:g} mm", a["unc_prof"]),
     ):
+        if not math.isfinite(unc):  # a zero reference profile: no relative error to reach
+            L.append(f"| {name} | — | not measured: the reference profile is zero | | | |")
+            continue
         for t in TARGETS:
             p = cheapest(a, key, t)
             flag = " (below the reference's uncertainty: not resolved)" if t < 2 * unc else ""
@@ -188,7 +200,7 @@ def _target_rows(a: dict[str, Any]) -> list[str]:
 
 
 def _err(p: dict[str, Any], key: str) -> str:
-    return f"{100 * p[key]:.3g} %" + (" (below the bound)" if p.get(f"below_{key}") else "")
+    return C.percent(p[key]) + (" (below the bound)" if p.get(f"below_{key}") else "")
 
 
 def report(data: StudyData, g: dict[str, Any], quick: bool) -> str:
@@ -197,8 +209,12 @@ def report(data: StudyData, g: dict[str, Any], quick: bool) -> str:
     ref_text = (
         f"`ngbet study reference` of this scene (p = {', '.join(map(str, R.orders(quick)))} on the "
         f"corner-graded mesh, run as part of this study): F({s2:g}) = {a['F_ref']:.4f} N, bound "
-        f"{100 * a['unc_F']:.2g} %; profile: the family's highest order, bound {100 * a['unc_prof']:.2g} % "
-        "of max |u_y|."
+        f"{100 * a['unc_F']:.2g} %; profile: the family's highest order, "
+        + (
+            f"bound {100 * a['unc_prof']:.2g} % of max |u_y|."
+            if math.isfinite(a["unc_prof"])
+            else C.zero_profile_note(a["ref"]["uy_mm"], s2, "which")
+        )
     )
     L = [
         *C.header(data, f"Work-precision at u0 = {s2:g} mm", ref_text),
@@ -269,6 +285,18 @@ def plot(data: StudyData, g: dict[str, Any], quick: bool) -> list[Path]:
         (axs[0], "err_F", a["unc_F"], f"force at {a['s2']:g} mm"),
         (axs[1], "err_prof", a["unc_prof"], f"mid-axis profile at {a['s2']:g} mm"),
     ):
+        if not math.isfinite(unc):  # a zero reference profile: no relative error to draw
+            ax.text(
+                0.5,
+                0.5,
+                "not measured:\nthe reference profile is zero",
+                ha="center",
+                va="center",
+                transform=ax.transAxes,
+            )
+            ax.set_title(title, fontsize=9)
+            ax.set_axis_off()
+            continue
         floor = min([p[key] for p in good if p[key] > 0] + [unc]) / 3
         handles = []
         for kind_, m in MARKS.items():

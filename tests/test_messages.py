@@ -316,7 +316,7 @@ def test_summary_json_names_the_measured_curve_a_run_draws(tmp_path):
 
 
 def test_a_frame_run_that_stops_names_its_load_d():
-    """A picture frame's load is the crosshead travel d (its tables, progress bar and report say d): so does its stop."""
+    """A picture frame's load is the crosshead travel d (its progress bar and report say d): so does its stop."""
     from ngbet.commands import exit_code
     from ngbet.errors import ConvergenceError
     from ngbet.scene.physical import load_symbol

@@ -96,10 +96,16 @@ def test_cache_failure_and_added_case(tmp_path, cache):
     assert d5.meta["executor"]["cases_run"] == 0
 
 
-def test_bad_scene_recorded_others_run(tmp_path, cache):
-    d = run_study(tiny_study([{"material.K_el": -1.0}, {C.P: 1}]), tmp_path, cache=cache, progress=False, workers=1)
-    assert d.cases()[0]["status"] == "failed" and "material.K_el" in d.cases()[0]["error"]
-    assert d.cases()[1]["status"] == "ok"
+def test_a_case_validation_refuses_refuses_the_study_before_any_case_runs(tmp_path):
+    from ngbet.scene.validate import SceneError
+
+    with pytest.raises(SceneError) as exc:
+        run_study(tiny_study([{C.P: 1}, {"material.K_el": -1.0}]), tmp_path / "s", cache=tmp_path / "c", workers=1)
+    assert str(exc.value) == (
+        "the tiny study has a case ngbet refuses: case 1 (material.K_el = -1): scene key 'material.K_el' = -1.0: "
+        "must be a finite number >= 0"
+    )
+    assert not (tmp_path / "s").exists() and not (tmp_path / "c").exists()
 
 
 def test_plot_only_redraws_from_csv_without_cache(tmp_path, cache):
@@ -783,7 +789,11 @@ def test_without_matplotlib_the_tables_and_report_are_written_and_one_line_says_
     capsys.readouterr()
     assert main(["study", "alpha1", "--quick", "--plot-only", "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "figures skipped: matplotlib is not installed" in err and err.count("\n") == 1
+    warned = "ngbet: study alpha1: 1 case(s) with warnings (1): meta.json lists them\n"  # α1 = 2000 on the quick mesh
+    assert err == (
+        f"{warned}ngbet: study alpha1: figures skipped: matplotlib is not installed (pip install matplotlib); the "
+        "tables and the report are written\n"
+    )
     assert (out / "report.md").exists() and not list(out.glob("*.png"))
     assert "matplotlib" in load(out).meta["figures_skipped"]
 

@@ -54,8 +54,8 @@ def run(capsys, *argv):
             "model = 'continuum' does not read [discrete]; cases 0 and 1 would be the same run\n",
         ),
         (
-            ["study", "alpha1", FRAME],
-            "ngbet: study alpha1: bad scene: the alpha1 study varies material.alpha1 (20, 2000), but none of its "
+            ["sweep", "material.alpha1=20,2000", FRAME],
+            "ngbet: sweep: bad scene: the sweep varies material.alpha1 (20, 2000), but none of its "
             "cases reads it: the picture frame with held arms shears the fabric homogeneously, which leaves the "
             "bending stiffnesses without a part in its result (picture_frame.arms = 'sheared' gives them one); "
             "cases 0 and 1 would be the same run\n",
@@ -336,3 +336,83 @@ def test_a_sweep_of_two_keys_gives_one_key_the_colours_and_the_other_the_line_st
         styles[c["params"]["material.K_el"]].add(style)
     assert all(len(s) == 1 for s in colours.values()) and len(set.union(*colours.values())) == 2
     assert [s.pop() for s in styles.values()] == ["-", "--", ":"]
+
+
+# --- an interruption while the validation study makes its fits ------------------------------------
+def _interrupt_second_fit(monkeypatch, VF):
+    """``fit_and_predict`` keeps its first fit's record, as the real one does, and is interrupted in the second."""
+    made = []
+
+    def fit(spec, quick, start, folder, curves, live=True):
+        if made:
+            raise KeyboardInterrupt
+        name = VF.record_name(spec, quick, VF.start_scene(spec, start), curves)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / f"{name}.json").write_text("{}")
+        made.append(spec)
+        return {}
+
+    monkeypatch.setattr(VF, "fit_and_predict", fit)
+    return made
+
+
+def test_an_interrupted_validation_says_which_fits_it_kept_and_where(tmp_path, monkeypatch):
+    from ngbet.studies import _validation_data as VD
+    from ngbet.studies import _validation_fits as VF
+    from ngbet.study.executors import StudyInterrupted
+
+    made = _interrupt_second_fit(monkeypatch, VF)
+    curves = VD.find_curves()
+    specs = [s for s in VF.fits_of("plain", curves) if len(s.fitted) == 1][:3]
+    with pytest.raises(StudyInterrupted) as exc:
+        VF.fit_all(specs, True, None, tmp_path / "fits", curves, workers=1)
+    assert [s.name for s in made] == [specs[0].name]
+    assert str(exc.value) == (
+        f"study validation interrupted while it made its fits: 1 of its 3 fits is finished and kept in "
+        f"{tmp_path / 'fits'} (plain, {specs[0].name}); run it again: a kept fit is reused, the others made"
+    )
+
+
+def test_an_interrupted_quick_validation_is_exit_130_naming_what_it_kept(tmp_path, monkeypatch, capsys):
+    from ngbet.studies import _validation_fits as VF
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(VF, "fit_and_predict", interrupted)
+    out, cache = tmp_path / "o", tmp_path / "c"
+    rc, stdout, err = run(capsys, "study", "validation", "--quick", "--quiet", "--out", out, "--cache", cache)
+    assert (rc, stdout) == (130, "")
+    assert err == (
+        "ngbet: study validation interrupted while it made its fits: none of its 1 fit was finished, nothing is "
+        f"kept in {cache / VF.FITS_FOLDER}; run it again to make it\n"
+    )
+    assert not out.exists()  # nothing of the study was written
+
+
+def test_a_curve_given_with_data_of_a_fabric_the_quick_study_does_not_fit_is_listed_with_the_reason(tmp_path):
+    """--quick fits the unbalanced twill only: a plain-weave curve given with --data is named, not dropped;
+    the twill's own curve given with it is a target of the quick fit, so not listed."""
+    import shutil
+
+    from ngbet.studies import _validation_data as VD
+    from ngbet.studies._validation_fits import QUICK, fits_of
+    from ngbet.studies.validation import not_predicted
+
+    root = Path(__file__).resolve().parents[1]
+    held = tmp_path / "mine"
+    held.mkdir()
+    shutil.copy(root / "data" / "cao2008" / "cao2008_plain_150x300_INSA-NU.csv", held / "plain_300.csv")
+    shutil.copy(root / "data" / "cao2008" / "cao2008_twill_unbalanced_100x200_UN.csv", held / "twill_200.csv")
+    curves = VD.find_curves([held])
+    assert curves.given == ("plain_300.csv", "twill_200.csv")
+    specs = [s for s in fits_of(QUICK[0], curves) if s.name == QUICK[1]]
+    docs = [{"predictions": {t: {"u_mm": []} for t in s.targets}} for s in specs]
+    assert not_predicted(curves, specs, docs, "--quick") == (
+        f"{held / 'plain_300.csv'}: a curve of the fabric 'plain'; study validation --quick fits only "
+        "'twill unbalanced': run the full study (no --quick, no scene) to predict it",
+    )
+    docs[0]["predictions"]["twill_200.csv"] = {"failed": "ConvergenceError: no step"}
+    assert not_predicted(curves, specs, docs, "--quick")[1] == (
+        f"{held / 'twill_200.csv'}: its prediction failed (ConvergenceError: no step)"
+    )

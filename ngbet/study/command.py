@@ -267,11 +267,12 @@ def run_from_args(
         first (a study may fit before it runs its cases; an unusable folder is refused before that).
 
     Exit status 0 when every case reached its final load; 1, after the folder, figures and report
-    are written, when a case did not (status "failed": its solver gave up or validation refused its
-    scene; "error": it crashed), one line on stderr naming those cases, or when the report could
-    not be made. ``--plot-only`` gives the status of the study it redraws, and says that nothing ran.
-    Refused before anything runs (exceptions: the command line maps them): a bad scene, a key the
-    cases vary that none of them reads, a ``--set`` of a key they vary (SceneError); with
+    are written, when a case did not (status "failed": its solver gave up; "error": it crashed),
+    one line on stderr naming those cases, or when the report could not be made. ``--plot-only``
+    gives the status of the study it redraws, and says that nothing ran. Refused before anything
+    runs (exceptions: the command line maps them): a bad scene, a scene of a test the study is not
+    made for, a case whose scene validation refuses, a key the cases vary that none of them reads,
+    a ``--set`` of a key they vary (SceneError); with
     ``--plot-only``, a folder that holds another study or this one run with other arguments
     (OutputError).
     """

@@ -6,12 +6,16 @@ model or its test leaves the key out (:data:`~ngbet.scene.document.NOT_READ_BY`,
 :data:`~ngbet.scene.document.NOT_READ_BY_TEST`, what :meth:`Scene.unused_keys` reports), or when
 the scene's choices leave it without a part in the result (:func:`not_read`). The rules depend on
 the model, the test and the effects of the case's scene, never on the key's own value.
+
+A case whose scene validation refuses is no run at all: :func:`case_scenes` refuses the study
+before any case runs, naming the case, the key and why.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
 import warnings
 from collections.abc import Sequence
 from typing import Any
@@ -23,7 +27,7 @@ from ..scene.validate import SceneError
 from .keys import as_floats, value_text
 from .model import Study, same_value
 
-__all__ = ["case_scenes", "check_cases_read", "not_read"]
+__all__ = ["case_scenes", "check_cases_read", "elongation_not_read", "not_read"]
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +35,9 @@ log = logging.getLogger(__name__)
 PENALTY = ("effects.penalty_K", "effects.penalty_form")
 #: the bending stiffnesses: no part in a homogeneous shear (the picture frame with held arms)
 BENDING = ("material.alpha1", "material.alpha2")
+#: the yarns' elongation stiffness: no part in a shear that does not stretch the yarns (the
+#: aligned picture frame with held arms), but for the jamming barrier close to the frame's locking
+ELONGATION = "material.K_el"
 
 
 def not_read(scene: Scene, key: str) -> str | None:
@@ -75,23 +82,81 @@ def not_read(scene: Scene, key: str) -> str | None:
             "the picture frame with held arms shears the fabric homogeneously, which leaves the bending "
             "stiffnesses without a part in its result (picture_frame.arms = 'sheared' gives them one)"
         )
+    if key == ELONGATION:
+        return elongation_not_read(scene)
     return None
 
 
-def case_scenes(study: Study) -> list[Scene | None]:
-    """The scenes of the cases of ``study`` (None: a scene its validation refuses, a failed case when run).
+def elongation_not_read(scene: Scene) -> str | None:
+    """Why the picture frame of ``scene`` leaves ``material.K_el`` without a part in its result; None otherwise.
 
-    Not warned about keys their model does not read, as the runner builds them.
+    The frame with held arms shears its fabric homogeneously; with the yarns along the bars
+    (``specimen.yarn_angle_deg`` = 45, ``picture_frame.misalignment_deg`` = 0) that shear turns
+    the yarns without stretching them, so their elongation energy is zero whatever K_el. K_el
+    still scales the jamming barrier (K_jam = max(K_el, K_sh)), which acts once the yarns close to
+    within ``material.jamming_angle_deg`` of each other: at the frame's shear angle 90° minus that
+    angle. A scene loaded to a smaller shear angle (or with ``effects.jamming`` off) does not read
+    K_el; one loaded beyond, or of another test, arms or yarn angles, does (None).
     """
-    out: list[Scene | None] = []
-    for params in study.cases:
+    if scene.model != "continuum" or scene.test != "picture_frame":
+        return None
+    from ..kinematics import frame_shear_angle_rad
+
+    pf, sp, m = scene.picture_frame, scene.specimen, scene.material
+    if pf.arms != "held" or pf.misalignment_deg != 0 or not math.isclose(sp.yarn_angle_deg, 45.0, abs_tol=1e-12):
+        return None
+    reached = math.degrees(float(frame_shear_angle_rad(scene.loading.u0_mm, pf.frame_mm)))
+    jams = 90.0 - m.jamming_angle_deg
+    if scene.effects.jamming and reached >= jams:
+        return None
+    barrier = (
+        " (effects.jamming is off: no jamming barrier reads it)"
+        if not scene.effects.jamming
+        else f": the jamming barrier, the one term that reads it there, acts from the frame's shear angle {jams:g}° "
+        f"(90° less material.jamming_angle_deg) on, and loading.u0_mm = {scene.loading.u0_mm:g} shears the "
+        f"frame to {reached:.1f}°"
+    )
+    return (
+        "the picture frame with held arms and the yarns along its bars shears the fabric without "
+        f"stretching the yarns, which leaves material.K_el without a part in its result{barrier}"
+    )
+
+
+def case_scenes(study: Study) -> list[Scene]:
+    """The scenes of the cases of ``study``, in order; a case whose scene validation refuses is refused here.
+
+    A case ngbet cannot run would leave a hole in every table and figure of the study (and a
+    report drawing conclusions from the cases that ran): a :class:`SceneError` names the first
+    such case, its changes, the key and why (validation's own words), and how many more there
+    are, before any case runs. Not warned about keys their model does not read, as the runner
+    builds them.
+    """
+    out: list[Scene] = []
+    refused: list[tuple[int, str]] = []
+    for i, params in enumerate(study.cases):
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SceneWarning)
                 out.append(study.base.with_changes(**params))
-        except SceneError:
-            out.append(None)
+        except SceneError as exc:
+            refused.append((i, str(exc)))
+    if refused:
+        i, why = refused[0]
+        what = ", ".join(f"{k} = {value_text(v)}" for k, v in study.cases[i].items()) or "the base scene"
+        more = [str(j) for j, _ in refused[1:]]
+        others = (
+            f"; {'case' if len(more) == 1 else 'cases'} {', '.join(more[:8])}{', ...' if len(more) > 8 else ''} "
+            f"{'is' if len(more) == 1 else 'are'} refused too"
+            if more
+            else ""
+        )
+        raise SceneError(f"{_who(study)} has a case ngbet refuses: case {i} ({what}): {why}{others}")
     return out
+
+
+def _who(study: Study) -> str:
+    """The study in words: "the sweep", or "the NAME study"."""
+    return "the sweep" if study.name == "sweep" else f"the {study.name} study"
 
 
 def check_cases_read(study: Study, scenes: Sequence[Scene | None]) -> None:
@@ -104,7 +169,7 @@ def check_cases_read(study: Study, scenes: Sequence[Scene | None]) -> None:
     read it (a grid over the model, say), a warning names the cases that are the same run; a key
     that rides along with other changes (each case its own specimen) is not named.
     """
-    who = "the sweep" if study.name == "sweep" else f"the {study.name} study"
+    who = _who(study)
     for key in study.params_columns():
         setting = [
             (i, sc) for i, (p, sc) in enumerate(zip(study.cases, scenes, strict=True)) if key in p and sc is not None

@@ -5,8 +5,9 @@ A :class:`~ngbet.study.model.Study` is a base scene, a list of cases (each a dic
 the functions that turn the cases' results into tables, figures and a short report;
 :func:`run_study` runs it (cache layout: :mod:`ngbet.study.cache`; study folder:
 :mod:`ngbet.study.collect`). Execution: in this process (``workers = 1``), in local processes
-(default: one per core) or on a dask.distributed cluster given its scheduler address. A scene
-refused by validation is recorded as failed without running. A reference, error or Pareto front
+(default: one per core) or on a dask.distributed cluster given its scheduler address. A study
+with a case whose scene validation refuses is refused before any case runs
+(:func:`~ngbet.study.reads.case_scenes`). A reference, error or Pareto front
 is never computed from a missing or nan value (:class:`MissingValueError`: the report says what
 is missing, the command exits 1).
 """
@@ -17,13 +18,10 @@ import logging
 import os
 import shutil
 import time
-import warnings
 from pathlib import Path
 from typing import Any
 
 from ..run_folder import OwnedFolder
-from ..scene.document import SceneWarning
-from ..scene.validate import SceneError
 from .cache import cached, clean_debris, run_dir, study_lock
 from .cluster import run_dask
 from .collect import collect
@@ -31,7 +29,7 @@ from .executors import Bar, StudyInterrupted, accept, execute_case, run_processe
 from .figures import finish
 from .keys import case_key
 from .model import Case, Study, StudyData
-from .reads import check_cases_read
+from .reads import case_scenes, check_cases_read
 
 __all__ = ["DEFAULT_ROOT", "default_out", "execute", "run_study"]
 
@@ -58,8 +56,10 @@ def run_study(
 ) -> StudyData:
     """Run the missing cases of ``study``, then write its tables, meta.json, figures and report.
 
-    A key the cases vary that none of them reads is refused (:class:`SceneError`, before the folder
-    is touched): its cases would be the same run (:func:`~ngbet.study.reads.check_cases_read`).
+    A case whose scene validation refuses, and a key the cases vary that none of them reads, are
+    refused (:class:`SceneError`, before the folder is touched): the first is no run, the cases of
+    the second would be the same run (:func:`~ngbet.study.reads.case_scenes`,
+    :func:`~ngbet.study.reads.check_cases_read`).
 
     The study folder ``out`` is owned as ``ngbet run`` owns its run folder (:class:`OwnedFolder`):
     refused when it is a run folder, another command's, or holds files of the user's with the names
@@ -75,7 +75,7 @@ def run_study(
     t_start = time.perf_counter()
     out = Path(out) if out is not None else default_out(study.name, False)
     cache = Path(cache) if cache is not None else DEFAULT_ROOT / "cache"
-    try:  # a key the cases vary and none reads: refused before the folder is touched
+    try:  # a case ngbet refuses, a key the cases vary and none reads: refused before the folder is touched
         cases = _cases(study)
         check_cases_read(study, [c.scene for c in cases])
     except BaseException:
@@ -147,30 +147,16 @@ def _run(
 
 
 def _cases(study: Study) -> list[Case]:
-    """The study's cases with their scenes and cache keys (a bad scene is a failed case).
+    """The study's cases with their scenes and cache keys.
 
-    A case's scene is not warned about keys its model does not read: the cases of one study share a
-    base scene across models (the base itself was warned about where it was read); a key the cases
-    vary that none of them reads is refused (:func:`~ngbet.study.reads.check_cases_read`).
+    A case whose scene validation refuses is refused with the study (:func:`~ngbet.study.reads.case_scenes`,
+    a :class:`SceneError`). A case's scene is not warned about keys its model does not read: the
+    cases of one study share a base scene across models (the base itself was warned about where it
+    was read); a key the cases vary that none of them reads is refused
+    (:func:`~ngbet.study.reads.check_cases_read`).
     """
-    cases: list[Case] = []
-    for i, params in enumerate(study.cases):
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", SceneWarning)
-                sc = study.base.with_changes(**params)
-            cases.append(Case(i, params, sc, case_key(sc)))
-        except SceneError as exc:
-            cases.append(
-                Case(
-                    i,
-                    params,
-                    None,
-                    None,
-                    {"status": "failed", "error": f"bad scene: {exc}", "error_type": "SceneError", "wall_s": 0.0},
-                )
-            )
-    return cases
+    scenes = case_scenes(study)
+    return [Case(i, params, sc, case_key(sc)) for i, (params, sc) in enumerate(zip(study.cases, scenes, strict=True))]
 
 
 def _to_run(cases: list[Case], cache: Path, retry_failed: bool) -> tuple[list[Case], dict[str, Case]]:
