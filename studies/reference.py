@@ -347,10 +347,11 @@ def reference_text(data: StudyData, quick: bool) -> str:
     ref = of_scene(data, quick)
     if ref is None:
         lo = data.meta["base_scene"]["loading"]
-        stops = ", ".join(f"{x:g}" for x in lo["stops_mm"]) or "none"
+        stops = ", ".join(f"{x:g}" for x in lo["stops_mm"])
         cache = data.meta.get("cache")
         return (
-            f"none in the cache for this study's base scene loaded to {lo['u0_mm']:g} mm (stops: {stops} mm); "
+            f"none in the cache for this study's base scene loaded to {lo['u0_mm']:g} mm "
+            f"({f'stops: {stops} mm' if stops else 'no stops'}); "
             f"`ngbet study reference{' --quick' if quick else ''}` on that scene, with this study's cache"
             f"{f' (`--cache {cache}`)' if cache else ''}, computes it, and this report then names it."
         )

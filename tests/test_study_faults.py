@@ -282,6 +282,8 @@ def test_the_missing_reference_is_asked_for_with_the_study_s_own_options(tmp_pat
         f"`ngbet study reference{' --quick' if quick else ''}` on that scene, with this study's cache "
         f"(`--cache {tmp_path}`), computes it, and this report then names it."
     )
+    bare = C.study_scene(None, quick).with_changes(**{"loading.stops_mm": []})
+    assert f"loaded to {u0} mm (no stops); " in R.reference_text(_data(tmp_path, bare, []), quick)  # not "none mm"
 
 
 # --- swept values and options ---------------------------------------------------------------------
