@@ -77,7 +77,7 @@ def test_calibration_figure_fits_and_draws_into_its_out_folder(tmp_path):
         "calibration_table.png",
     }
     record = json.loads((tmp_path / "docs" / "calibration_fit.json").read_text())
-    assert record["data"] == "data/cao2008_glass_plain_150x450.csv"
+    assert [c["data"] for c in record["curves"]] == ["data/cao2008_glass_plain_150x450.csv"]  # no local path
     assert digests(DOCS) == before
 
 
