@@ -298,7 +298,8 @@ def extract(
             "what": what,
             "band": pr["band"],
             "model_error_relative": model_rel,
-            "fit_rms": " ".join(f"{c['rms_relative_error']:.4f}" for c in fit["curves"]),
+            # (at full precision: the report rounds once, to 0.1 %)
+            "fit_rms": " ".join(repr(float(c["rms_relative_error"])) for c in fit["curves"]),
             "fit_runs": int(fit["model_runs"]),
             "fit_wall_s": float(fit["wall_s"]),
             "fit_converged": bool(fit["converged"]),
